@@ -1,0 +1,85 @@
+"""The one LLM port every agent talks to: typed requests in, typed responses out.
+
+Implementations live in ``orchestrator/`` (litellm client, trace recorder, trace replayer);
+agents never import litellm or langgraph. A fake implementation for tests is any object with
+an ``async complete(request) -> LLMResponse`` method.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from typing import Any, Literal, Protocol, runtime_checkable
+
+from pydantic import BaseModel, ConfigDict, Field
+
+NodeName = Literal["describer", "narrator", "event_parser", "planner"]
+
+
+class ChatMessage(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    role: Literal["system", "user", "assistant"]
+    content: str
+
+
+class LLMRequest(BaseModel):
+    """What an agent asks for. ``node`` selects the per-node model config."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    node: NodeName
+    messages: tuple[ChatMessage, ...]
+    json_schema: dict[str, Any] | None = Field(
+        default=None, description="When set, the reply must be one JSON value of this schema."
+    )
+    max_tokens: int | None = Field(default=None, gt=0)
+    temperature: float | None = Field(default=None, ge=0.0)
+    seed: int | None = None
+    sim_frame: int | None = Field(default=None, description="Simulation frame when the request was made.")
+
+    def content_hash(self) -> str:
+        """Hash of everything that determines the answer (not the sim frame)."""
+        payload = self.model_dump(mode="json", exclude={"sim_frame"})
+        blob = json.dumps(payload, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+        return hashlib.sha256(blob.encode("utf-8")).hexdigest()
+
+
+class TokenUsage(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    prompt_tokens: int = 0
+    completion_tokens: int = 0
+
+
+class LLMResponse(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    text: str
+    model: str
+    usage: TokenUsage = TokenUsage()
+    latency_s: float = 0.0
+    attempts: int = 1
+
+
+@runtime_checkable
+class LLMPort(Protocol):
+    async def complete(self, request: LLMRequest) -> LLMResponse: ...
+
+
+class LLMError(Exception):
+    """The LLM could not produce an answer (after the configured retries and fallbacks)."""
+
+    kind: str = "llm_error"
+
+
+class LLMUnavailableError(LLMError):
+    """No model is usable (weights missing, no API key...). The message says how to fix it."""
+
+    kind = "llm_unavailable"
+
+
+class ReplayMissError(LLMError):
+    """A replayed run asked for a request that the trace does not hold."""
+
+    kind = "replay_miss"

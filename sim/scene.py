@@ -1,0 +1,188 @@
+"""Typed scene model: instance-segmented objects as oriented boxes on a z-up floor.
+
+Conventions used everywhere in the project:
+
+- metres, z up, the floor at ``floor_z`` (0 for every bundled and reference scene);
+- an object's ``facing`` is the unit xy direction its front points to (``has_facing`` tells
+  whether the object really has a front; tables and plants usually do not);
+- ``size = (width, depth, height)``: width across the facing, depth along it, height along z;
+- ``center`` is the centre of the box (so its bottom is ``center.z - height / 2``);
+- the object's own right is the facing turned clockwise: ``(fy, -fx)``; left is ``(-fy, fx)``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from functools import cached_property
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+NAME_PATTERN = re.compile(r"^(?P<label>[a-z][a-z0-9_]*?)_(?P<idx>\d+)$")
+
+Vec2 = tuple[float, float]
+Vec3 = tuple[float, float, float]
+
+
+class SceneObject(BaseModel):
+    """One object instance. Immutable; derived geometry is computed on demand."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    name: str = Field(description="Unique object name, '<label>_<idx>', e.g. 'chair_3'.")
+    label: str = Field(description="Object category, lower snake case, e.g. 'coffee_maker'.")
+    idx: int = Field(ge=0, description="Instance index within the label.")
+    center: Vec3 = Field(description="Box centre [x, y, z] in metres.")
+    size: Vec3 = Field(description="[width, depth, height] in metres; width across the facing.")
+    facing: Vec2 = Field(default=(0.0, 1.0), description="Unit xy direction of the object's front.")
+    has_facing: bool = Field(default=False, description="Whether the object has a meaningful front.")
+    sit_offset_horizontal: float = Field(
+        default=0.0, description="Seat point offset along the facing, as a fraction of depth."
+    )
+    sit_offset_vertical: float = Field(
+        default=0.0, description="Seat height above the object's bottom, in metres (0: not a seat)."
+    )
+    interactive: bool = Field(default=True, description="Whether characters may use the object.")
+
+    @field_validator("size")
+    @classmethod
+    def _size_not_negative(cls, value: Vec3) -> Vec3:
+        if min(value) < 0.0:
+            raise ValueError(f"every size component must be >= 0, got {list(value)}")
+        return value
+
+    @field_validator("facing")
+    @classmethod
+    def _facing_unit(cls, value: Vec2) -> Vec2:
+        norm = math.hypot(*value)
+        if norm < 1e-6:
+            raise ValueError("facing must be a non-zero xy vector")
+        return (value[0] / norm, value[1] / norm)
+
+    @model_validator(mode="after")
+    def _name_matches_label(self) -> SceneObject:
+        if self.name != f"{self.label}_{self.idx}":
+            raise ValueError(f"name must be '<label>_<idx>' = '{self.label}_{self.idx}', got '{self.name}'")
+        return self
+
+    # ----- derived geometry -------------------------------------------------------------
+    @property
+    def width(self) -> float:
+        return self.size[0]
+
+    @property
+    def depth(self) -> float:
+        return self.size[1]
+
+    @property
+    def height(self) -> float:
+        return self.size[2]
+
+    @property
+    def z_min(self) -> float:
+        return self.center[2] - self.size[2] / 2.0
+
+    @property
+    def z_max(self) -> float:
+        return self.center[2] + self.size[2] / 2.0
+
+    @property
+    def center_xy(self) -> np.ndarray:
+        return np.array(self.center[:2], dtype=float)
+
+    @property
+    def right(self) -> np.ndarray:
+        """The object's own right in the xy plane (facing turned clockwise)."""
+        return np.array([self.facing[1], -self.facing[0]], dtype=float)
+
+    @property
+    def yaw(self) -> float:
+        """Angle of the facing from +x, radians."""
+        return math.atan2(self.facing[1], self.facing[0])
+
+    def footprint(self, margin: float = 0.0) -> np.ndarray:
+        """The 4 xy corners of the box bottom (counter-clockwise), grown by ``margin``."""
+        f = np.array(self.facing, dtype=float)
+        r = self.right
+        hw = self.size[0] / 2.0 + margin
+        hd = self.size[1] / 2.0 + margin
+        c = self.center_xy
+        return np.array([c - r * hw - f * hd, c + r * hw - f * hd, c + r * hw + f * hd, c - r * hw + f * hd])
+
+    def to_local(self, xy: np.ndarray) -> np.ndarray:
+        """Points (..., 2) in the object's frame: [:, 0] along its right, [:, 1] along its facing."""
+        d = np.asarray(xy, dtype=float) - self.center_xy
+        return np.stack([d @ self.right, d @ np.array(self.facing, dtype=float)], axis=-1)
+
+    def contains_xy(self, xy: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Whether xy points (..., 2) lie inside the footprint grown by ``margin``."""
+        local = self.to_local(xy)
+        return (np.abs(local[..., 0]) <= self.size[0] / 2.0 + margin) & (
+            np.abs(local[..., 1]) <= self.size[1] / 2.0 + margin
+        )
+
+    @property
+    def is_seat(self) -> bool:
+        return self.sit_offset_vertical > 0.0
+
+    def seat_point(self) -> np.ndarray:
+        """Where a seated pelvis goes (xy): centre + facing * depth * sit offset."""
+        return self.center_xy + np.array(self.facing) * self.size[1] * self.sit_offset_horizontal
+
+
+class NavHints(BaseModel):
+    """Optional navigation-grid settings carried by a scene file (reference ``grid_map.json``)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    cell_size: float = Field(default=0.3, gt=0.0)
+    body_radius: float | None = Field(default=None, gt=0.0)
+    # Reference-grid cell overrides, as [i, j] integer pairs in the reference grid's indexing.
+    occupied: tuple[tuple[int, int], ...] = ()
+    unoccupied: tuple[tuple[int, int], ...] = ()
+    grid_origin: Vec2 = (0.0, 0.0)
+
+
+class Scene(BaseModel):
+    """A whole scene: named objects plus the walkable floor rectangle."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    format: str = Field(default="storyteller-scene/1", pattern=r"^storyteller-scene/1$")
+    name: str = Field(min_length=1)
+    floor_z: float = 0.0
+    bounds_min: Vec2 = Field(description="Floor rectangle lower corner [x, y].")
+    bounds_max: Vec2 = Field(description="Floor rectangle upper corner [x, y].")
+    objects: tuple[SceneObject, ...]
+    nav: NavHints = NavHints()
+
+    @model_validator(mode="after")
+    def _check(self) -> Scene:
+        seen: set[str] = set()
+        for obj in self.objects:
+            if obj.name in seen:
+                raise ValueError(f"duplicate object name '{obj.name}'")
+            seen.add(obj.name)
+        if self.bounds_max[0] <= self.bounds_min[0] or self.bounds_max[1] <= self.bounds_min[1]:
+            raise ValueError("bounds_max must be greater than bounds_min on x and y")
+        return self
+
+    @cached_property
+    def by_name(self) -> dict[str, SceneObject]:
+        return {o.name: o for o in self.objects}
+
+    def get(self, name: str) -> SceneObject:
+        """The object called ``name``; raises KeyError listing close names otherwise."""
+        try:
+            return self.by_name[name]
+        except KeyError:
+            raise KeyError(name) from None
+
+    @property
+    def object_names(self) -> list[str]:
+        return [o.name for o in self.objects]
+
+    @property
+    def labels(self) -> list[str]:
+        return sorted({o.label for o in self.objects})

@@ -1,0 +1,57 @@
+"""Typed errors of event programs: every message is written to be fed back to an LLM.
+
+``EventProgramError`` is the base. The sandbox raises its own subclasses (syntax, forbidden
+construct, budget exceeded, runtime error); the spatial API raises ``ToolError`` subclasses
+(unknown object, unknown character, unsatisfiable area, bad argument). ``feedback`` is the
+one-paragraph text to show the model; ``kind`` is a stable short tag for traces and metrics.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
+
+
+class EventProgramError(Exception):
+    """Base class: an event program failed. ``str(err) == err.feedback``."""
+
+    kind: str = "event_program_error"
+
+    def __init__(self, feedback: str, *, line: int | None = None):
+        self.feedback = feedback if line is None else f"line {line}: {feedback}"
+        self.line = line
+        super().__init__(self.feedback)
+
+
+class ToolError(EventProgramError):
+    """A spatial-API call was given something it cannot use."""
+
+    kind = "tool_error"
+
+
+class UnknownObjectError(ToolError):
+    kind = "unknown_object"
+
+
+class UnknownCharacterError(ToolError):
+    kind = "unknown_character"
+
+
+class UnknownActionError(ToolError):
+    kind = "unknown_action"
+
+
+class UnsatisfiableAreaError(ToolError):
+    kind = "unsatisfiable_area"
+
+
+class ToolArgumentError(ToolError):
+    kind = "bad_argument"
+
+
+def did_you_mean(word: str, candidates: Iterable[str], *, n: int = 3) -> str:
+    """A suffix like " did you mean 'chair_1'?" (empty when nothing is close)."""
+    close = difflib.get_close_matches(word, list(candidates), n=n, cutoff=0.6)
+    if not close:
+        return ""
+    return " did you mean " + " or ".join(f"'{c}'" for c in close) + "?"
