@@ -1,0 +1,346 @@
+"""The describer: scene graph + clusters -> a description organised by functional areas.
+
+The model answers JSON ``{"areas": [{"name", "purpose", "objects": [...]}]}`` whose object
+names are restricted to the scene's (an enum in the schema); :func:`parse_areas` then checks
+that every object is named exactly once (missing or repeated names are fed back for another
+try). If the last try still misses objects, :func:`repair_areas` completes it from the
+clusters (each missing object joins the area holding most of its cluster, else an "other
+objects" area) and the result is flagged ``repaired``. The text the other agents read is
+rendered by :func:`render_description`, one line per area, with supports (``on counter_1``).
+
+Descriptions are cached on disk per (scene content, model, prompt files) hash.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from agents.messages import SceneDescription
+from agents.prompt_templates import PromptLibrary
+from agents.retry_feedback import (
+    AnswerRejectedError,
+    RetriesExhaustedError,
+    Turn,
+    feedback_from_error,
+    with_turns,
+)
+from sim.scene import Scene
+
+DESCRIBER_FILES = ("describer/system.md", "describer/request.md")
+MAX_AREAS = 8
+DEFAULT_MAX_TOKENS = 900
+SUPPORT_RELATIONS = ("on", "inside")
+
+
+class Area(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: str = Field(max_length=60, description="Short area name, e.g. 'kitchen'.")
+    purpose: str = Field(default="", max_length=160, description="What people do there.")
+    objects: tuple[str, ...] = Field(description="Names of the objects in this area.")
+
+
+class AreaList(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    areas: tuple[Area, ...] = Field(max_length=MAX_AREAS * 2)
+
+
+@dataclass(frozen=True)
+class DescriberInput:
+    """Scene data the describer reads (texts from ``tools.scene_text``)."""
+
+    scene_name: str
+    object_names: tuple[str, ...]
+    scene_graph_json: str
+    clusters: tuple[tuple[str, ...], ...]
+    supports: Mapping[str, str]
+    """object name -> name of the object it stands on or is inside (absent: on the floor)."""
+
+
+def describer_input_from_scene(scene: Scene) -> DescriberInput:
+    """Build the describer's input with the scene-graph and cluster tools."""
+    from tools.clusters import cluster_objects
+    from tools.scene_graph import build_scene_graph
+    from tools.scene_text import scene_graph_json
+
+    graph = build_scene_graph(scene)
+    supports: dict[str, str] = {}
+    for subject, relation, anchor in graph.triples():
+        if relation in SUPPORT_RELATIONS and subject not in supports:
+            supports[subject] = anchor
+    clusters = tuple(tuple(c) for c in _cluster_names(cluster_objects(scene)))
+    return DescriberInput(
+        scene_name=scene.name,
+        object_names=tuple(scene.object_names),
+        scene_graph_json=scene_graph_json(graph),
+        clusters=clusters,
+        supports=supports,
+    )
+
+
+def _cluster_names(clusters: Any) -> list[list[str]]:
+    """Accept a list of name lists or objects with ``.names`` / ``.objects``."""
+    out = []
+    for c in clusters:
+        if isinstance(c, list | tuple | set | frozenset):
+            out.append([str(n) for n in c])
+        else:
+            names = getattr(c, "names", None) or getattr(c, "objects", None)
+            out.append([str(n) for n in names] if names is not None else [])
+    return out
+
+
+def describer_schema(names: Sequence[str]) -> dict[str, Any]:
+    return {
+        "type": "object",
+        "properties": {
+            "areas": {
+                "type": "array",
+                "minItems": 1,
+                "maxItems": MAX_AREAS,
+                "items": {
+                    "type": "object",
+                    "properties": {
+                        "name": {"type": "string", "maxLength": 40},
+                        "purpose": {"type": "string", "maxLength": 80},
+                        "objects": {
+                            "type": "array",
+                            "items": {"type": "string", "enum": list(names)},
+                            "minItems": 1,
+                            "maxItems": len(names),
+                        },
+                    },
+                    "required": ["name", "purpose", "objects"],
+                    "additionalProperties": False,
+                },
+            }
+        },
+        "required": ["areas"],
+        "additionalProperties": False,
+    }
+
+
+def clusters_text(clusters: Sequence[Sequence[str]]) -> str:
+    if not clusters:
+        return "(none)"
+    return "\n".join(f"{i + 1}. " + ", ".join(c) for i, c in enumerate(clusters))
+
+
+def describer_request(
+    prompts: PromptLibrary, inp: DescriberInput, turns: tuple[Turn, ...] = (), *, max_tokens: int = DEFAULT_MAX_TOKENS
+) -> LLMRequest:
+    system = prompts.render("describer/system.md")
+    user = prompts.render(
+        "describer/request.md",
+        scene_graph=inp.scene_graph_json.strip(),
+        clusters=clusters_text(inp.clusters),
+        count=len(inp.object_names),
+        names=", ".join(inp.object_names),
+    )
+    base = (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
+    return LLMRequest(
+        node="describer",
+        messages=with_turns(base, turns),
+        json_schema=describer_schema(inp.object_names),
+        max_tokens=max_tokens,
+        seed=0,
+    )
+
+
+def _load_areas(text: str) -> AreaList:
+    start, end = text.find("{"), text.rfind("}")
+    blob = text[start : end + 1] if start != -1 and end > start else text
+    return AreaList.model_validate(json.loads(blob))
+
+
+def area_problems(areas: AreaList, names: Sequence[str]) -> list[str]:
+    """Missing, repeated and unknown object names (empty when the answer is complete)."""
+    counts = Counter(n for a in areas.areas for n in a.objects)
+    known = set(names)
+    problems = []
+    unknown = sorted(n for n in counts if n not in known)
+    repeated = sorted(n for n, k in counts.items() if k > 1 and n in known)
+    missing = [n for n in names if n not in counts]
+    if unknown:
+        problems.append("not objects of this scene: " + ", ".join(unknown))
+    if repeated:
+        problems.append("named more than once: " + ", ".join(repeated))
+    if missing:
+        problems.append("missing (put each into one area): " + ", ".join(missing))
+    if len(areas.areas) > MAX_AREAS:
+        problems.append(f"use at most {MAX_AREAS} areas")
+    return problems
+
+
+def parse_areas(text: str, names: Sequence[str]) -> AreaList:
+    """Check a reply; raises JSONDecodeError, ValidationError or AnswerRejectedError."""
+    areas = _load_areas(text)
+    problems = area_problems(areas, names)
+    if problems:
+        raise AnswerRejectedError(problems)
+    return areas
+
+
+def repair_areas(areas: AreaList, inp: DescriberInput) -> AreaList:
+    """Complete an answer: unknown names dropped, repeats kept at their first area,
+    missing objects added to the area holding most of their cluster (else 'other objects')."""
+    known = set(inp.object_names)
+    seen: set[str] = set()
+    kept: list[tuple[str, str, list[str]]] = []
+    for a in areas.areas[:MAX_AREAS]:
+        objs = []
+        for n in a.objects:
+            if n in known and n not in seen:
+                seen.add(n)
+                objs.append(n)
+        kept.append((a.name, a.purpose, objs))
+    area_of = {n: i for i, (_, _, objs) in enumerate(kept) for n in objs}
+    cluster_of = {n: c for c in inp.clusters for n in c}
+    other: list[str] = []
+    for name in inp.object_names:
+        if name in seen:
+            continue
+        votes = Counter(area_of[m] for m in cluster_of.get(name, ()) if m in area_of)
+        if votes:
+            idx = min(votes, key=lambda i: (-votes[i], i))
+            kept[idx][2].append(name)
+            area_of[name] = idx
+        else:
+            other.append(name)
+        seen.add(name)
+    result = [Area(name=n, purpose=p, objects=tuple(o)) for n, p, o in kept if o]
+    if other:
+        result.append(Area(name="other objects", purpose="", objects=tuple(other)))
+    return AreaList(areas=tuple(result))
+
+
+def render_description(areas: AreaList, supports: Mapping[str, str]) -> str:
+    """One line per area: ``- kitchen (make coffee): fridge_1, coffee_maker_1 on counter_1``."""
+    lines = []
+    for a in areas.areas:
+        purpose = f" ({a.purpose.strip()})" if a.purpose.strip() else ""
+        objs = ", ".join(f"{n} on {supports[n]}" if n in supports else n for n in a.objects)
+        lines.append(f"- {a.name.strip()}{purpose}: {objs}")
+    return "\n".join(lines)
+
+
+def cache_key(scene: Scene, model: str, prompts: PromptLibrary) -> str:
+    digest = hashlib.sha256()
+    digest.update(scene.model_dump_json().encode())
+    digest.update(b"\0" + model.encode() + b"\0")
+    digest.update(prompts.fingerprint(DESCRIBER_FILES).encode())
+    return digest.hexdigest()[:24]
+
+
+def cache_path(cache_dir: Path, scene: Scene, model: str, prompts: PromptLibrary) -> Path:
+    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in scene.name)
+    return Path(cache_dir) / f"description-{safe}-{cache_key(scene, model, prompts)}.json"
+
+
+def read_cached(path: Path) -> SceneDescription | None:
+    try:
+        return SceneDescription.model_validate_json(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def write_cached(path: Path, description: SceneDescription) -> None:
+    """Atomic write (temp file + rename), so a crash never leaves a torn cache file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".tmp{os.getpid()}")
+    tmp.write_text(description.model_dump_json(), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+@dataclass(frozen=True)
+class DescriberAttempt:
+    """The outcome of one describer call: accepted areas, or feedback for the next call."""
+
+    areas: AreaList | None
+    turn: Turn | None
+
+
+def judge_reply(reply: str, inp: DescriberInput) -> DescriberAttempt:
+    try:
+        return DescriberAttempt(areas=parse_areas(reply, inp.object_names), turn=None)
+    except (ValueError, AnswerRejectedError) as exc:  # JSONDecodeError and ValidationError are ValueErrors
+        return DescriberAttempt(areas=None, turn=Turn(reply=reply, feedback=feedback_from_error(exc)))
+
+
+def finish(inp: DescriberInput, areas: AreaList, *, repaired: bool, attempts: int) -> SceneDescription:
+    return SceneDescription(
+        scene=inp.scene_name,
+        text=render_description(areas, inp.supports),
+        source="describer",
+        repaired=repaired,
+        attempts=attempts,
+    )
+
+
+def best_effort(inp: DescriberInput, turns: Sequence[Turn]) -> SceneDescription:
+    """After the last rejected try: repair the last parseable answer (or use the clusters)."""
+    for turn in reversed(turns):
+        try:
+            areas = _load_areas(turn.reply)
+        except ValueError:
+            continue
+        return finish(inp, repair_areas(areas, inp), repaired=True, attempts=len(turns))
+    empty = AreaList(areas=())
+    return finish(inp, repair_areas(empty, inp), repaired=True, attempts=len(turns))
+
+
+async def describe_scene(
+    port: LLMPort,
+    prompts: PromptLibrary,
+    inp: DescriberInput,
+    *,
+    max_retries: int = 3,
+    max_tokens: int = DEFAULT_MAX_TOKENS,
+    repair: bool = True,
+) -> SceneDescription:
+    """Describe a scene: a first try plus at most ``max_retries`` retries, then repair.
+
+    With ``repair=False`` an answer that stays incomplete raises RetriesExhaustedError.
+    """
+    turns: tuple[Turn, ...] = ()
+    for attempt in range(1, max_retries + 2):
+        response = await port.complete(describer_request(prompts, inp, turns, max_tokens=max_tokens))
+        judged = judge_reply(response.text, inp)
+        if judged.areas is not None:
+            return finish(inp, judged.areas, repaired=False, attempts=attempt)
+        assert judged.turn is not None
+        turns = (*turns, judged.turn)
+    if not repair:
+        raise RetriesExhaustedError("describer", len(turns), turns[-1].feedback)
+    return best_effort(inp, turns)
+
+
+async def describe_scene_cached(
+    port: LLMPort,
+    prompts: PromptLibrary,
+    scene: Scene,
+    *,
+    model: str,
+    cache_dir: Path | None,
+    inp: DescriberInput | None = None,
+    max_retries: int = 3,
+) -> SceneDescription:
+    """:func:`describe_scene` with an on-disk cache (``cache_dir=None``: no cache)."""
+    path = cache_path(cache_dir, scene, model, prompts) if cache_dir is not None else None
+    if path is not None and (hit := read_cached(path)) is not None:
+        return hit
+    description = await describe_scene(port, prompts, inp or describer_input_from_scene(scene), max_retries=max_retries)
+    if path is not None:
+        write_cached(path, description)
+    return description

@@ -1,0 +1,218 @@
+"""The event parser: turns an event into a ``parse_event()`` program and runs it.
+
+One call = one request from :func:`parser_request`. The reply's code is found by
+:func:`extract_program` (a fenced block, or bare code, or even a bare function body), run
+in the sandbox through ``tools.event_program.run_event_program``, and the result is checked:
+every character of the event, and no other, gets a plan. Any failure (no code, a typed
+``EventProgramError`` from the sandbox or the spatial API, a missing character) becomes
+feedback for the next attempt.
+
+Prompt layout (stable first): system = role, API, rules, examples, scene description,
+action labels; user = the characters' states and the event.
+"""
+
+from __future__ import annotations
+
+import re
+import textwrap
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from agents.messages import CharacterStatus, Event, PlannedCharacter
+from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from agents.retry_feedback import (
+    Accepted,
+    AnswerRejectedError,
+    NoCodeError,
+    Turn,
+    ask_until_valid,
+    with_turns,
+)
+from sim.scene import Scene
+
+PARSER_FILES = ("event_parser/system.md", "event_parser/request.md")
+DEFAULT_MAX_TOKENS = 320
+MAX_PROGRAM_CHARS = 6000
+
+
+class ProgramRunner(Protocol):
+    """``tools.event_program.run_event_program``'s signature."""
+
+    def __call__(
+        self,
+        scene: Scene,
+        source: str,
+        world: Any,
+        *,
+        seed: int,
+        action_labels: Sequence[str] | None = None,
+        graph: Any = None,
+    ) -> Sequence[Any]: ...
+
+
+def default_runner() -> ProgramRunner:
+    from tools.event_program import run_event_program
+
+    return run_event_program
+
+
+@dataclass(frozen=True)
+class ParserInput:
+    """Everything one event-parser call depends on."""
+
+    scene_description: str
+    event: Event
+    characters: Sequence[CharacterStatus]
+    action_labels: Sequence[str]
+    tags: tuple[str, ...] = BENCHMARK_TAGS
+    seats_in_use: Sequence[str] = ()
+    seed: int | None = None
+    sim_frame: int | None = None
+    max_tokens: int = DEFAULT_MAX_TOKENS
+
+
+def _status_line(c: CharacterStatus) -> str:
+    where = f"at [{c.position[0]:.1f}, {c.position[1]:.1f}]" if c.position else "position unknown"
+    return f"- {c.name}: {'busy' if c.busy else 'free'}, {c.action}, {where}"
+
+
+def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessage, ...]:
+    system = prompts.render(
+        "event_parser/system.md",
+        examples=prompts.examples("event_parser", inp.tags),
+        scene_description=inp.scene_description.strip(),
+        action_labels=", ".join(inp.action_labels),
+    )
+    user = prompts.render(
+        "event_parser/request.md",
+        characters="\n".join(_status_line(c) for c in inp.characters),
+        seats_in_use=", ".join(inp.seats_in_use) if inp.seats_in_use else "none",
+        event_characters=", ".join(f'"{n}"' for n in inp.event.characters),
+        activity=inp.event.activity.strip(),
+    )
+    return (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
+
+
+def parser_request(prompts: PromptLibrary, inp: ParserInput, turns: tuple[Turn, ...] = ()) -> LLMRequest:
+    return LLMRequest(
+        node="event_parser",
+        messages=with_turns(parser_messages(prompts, inp), turns),
+        json_schema=None,
+        max_tokens=inp.max_tokens,
+        seed=inp.seed,
+        sim_frame=inp.sim_frame,
+    )
+
+
+_FENCE = re.compile(r"```[ \t]*([A-Za-z0-9_+-]*)[ \t]*\n(.*?)(?:```|\Z)", re.DOTALL)
+_DEF = re.compile(r"^def[ \t]+parse_event[ \t]*\(", re.MULTILINE)
+
+
+def _function_at(code: str, start: int) -> str:
+    """The ``def parse_event`` starting at ``start``: its line plus indented or blank lines."""
+    lines = code[start:].splitlines()
+    kept = [lines[0]]
+    for line in lines[1:]:
+        if line.strip() and not line[0].isspace():
+            break
+        kept.append(line)
+    return "\n".join(kept).rstrip() + "\n"
+
+
+def extract_program(reply: str) -> str:
+    """The ``parse_event()`` source in a reply; raises NoCodeError when there is none.
+
+    Looks in fenced blocks first (any language tag; an unclosed fence runs to the end), then
+    in the bare reply. A block of statements without ``def parse_event`` is wrapped into one.
+    Top-level lines after the function (e.g. a ``parse_event()`` call) are dropped.
+    """
+    text = reply.replace("\r\n", "\n").replace("\t", "    ")
+    blocks = [m.group(2) for m in _FENCE.finditer(text)]
+    for candidate in (*blocks, text):
+        match = _DEF.search(candidate)
+        if match:
+            program = _function_at(candidate, match.start())
+            if len(program) > MAX_PROGRAM_CHARS:
+                raise NoCodeError(f"Your parse_event() is longer than {MAX_PROGRAM_CHARS} characters; keep it short.")
+            return program
+    for candidate in (*blocks, text):
+        body = textwrap.dedent(candidate).strip("\n")
+        if "get_character(" in body and len(body) <= MAX_PROGRAM_CHARS:
+            return "def parse_event():\n" + textwrap.indent(body, "    ") + "\n"
+    raise NoCodeError(
+        "Your reply has no parse_event() function. Reply with one ```python block that defines def parse_event():"
+    )
+
+
+def check_plans(event: Event, plans: Sequence[Any]) -> tuple[PlannedCharacter, ...]:
+    """Copy the program's plans; every event character, and no other, must have one."""
+    out = tuple(PlannedCharacter.from_tool_plan(p) for p in plans)
+    got = [p.character for p in out]
+    problems = []
+    missing = [n for n in event.characters if n not in got]
+    extra = [n for n in got if n not in event.characters]
+    if missing:
+        problems.append("no position was set for " + ", ".join(missing) + " (call set_position for each)")
+    if extra:
+        problems.append(", ".join(extra) + " not in this event; plan only " + ", ".join(event.characters))
+    if problems:
+        raise AnswerRejectedError(problems)
+    return out
+
+
+@dataclass(frozen=True)
+class ProgramResult:
+    program: str
+    plans: tuple[PlannedCharacter, ...]
+
+
+def run_reply(
+    reply: str,
+    *,
+    scene: Scene,
+    event: Event,
+    world: Any,
+    seed: int,
+    action_labels: Sequence[str],
+    graph: Any = None,
+    runner: ProgramRunner | None = None,
+) -> ProgramResult:
+    """Extract, run and check one reply. Raises the errors that become feedback."""
+    program = extract_program(reply)
+    run = runner or default_runner()
+    plans = run(scene, program, world, seed=seed, action_labels=list(action_labels), graph=graph)
+    return ProgramResult(program=program, plans=check_plans(event, plans))
+
+
+async def parse_event(
+    port: LLMPort,
+    prompts: PromptLibrary,
+    inp: ParserInput,
+    *,
+    scene: Scene,
+    world: Any,
+    seed: int,
+    graph: Any = None,
+    runner: ProgramRunner | None = None,
+    max_retries: int = 3,
+) -> Accepted[ProgramResult]:
+    """Plan every character of ``inp.event``: a first try plus at most ``max_retries`` retries."""
+    check: Callable[[str], ProgramResult] = lambda reply: run_reply(  # noqa: E731
+        reply,
+        scene=scene,
+        event=inp.event,
+        world=world,
+        seed=seed,
+        action_labels=inp.action_labels,
+        graph=graph,
+        runner=runner,
+    )
+    return await ask_until_valid(
+        port,
+        lambda turns: parser_request(prompts, inp, turns),
+        check,
+        max_attempts=max_retries + 1,
+        node="event_parser",
+    )

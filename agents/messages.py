@@ -1,0 +1,127 @@
+"""Typed messages of the planning agents (what crosses the LLM and graph boundaries).
+
+All are frozen pydantic models with ``extra="forbid"``. ``Field(description=...)`` texts are
+what an LLM sees in a JSON schema, so they are written for it.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+EventState = Literal["ongoing", "looping", "completed"]
+"""ongoing: its characters are busy; looping: they keep acting but may be given a new event
+(interruptible); completed: finished, its characters are free."""
+
+MAX_EVENT_CHARACTERS = 6
+MAX_ACTIVITY_CHARS = 160
+MAX_REASONING_CHARS = 240
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+
+class Event(_Frozen):
+    """One event proposed by the narrator: who takes part and what they do together."""
+
+    characters: tuple[str, ...] = Field(
+        default=(),
+        max_length=MAX_EVENT_CHARACTERS,
+        description="Names of the free characters taking part; empty means wait.",
+    )
+    activity: str = Field(
+        default="",
+        max_length=MAX_ACTIVITY_CHARS * 2,
+        description="What they do, in one short sentence naming objects, e.g. 'sit on chair_2 and read'.",
+    )
+
+    @property
+    def is_wait(self) -> bool:
+        """An empty event: nothing new happens until some character becomes free."""
+        return not self.characters
+
+
+class NarratorOutput(_Frozen):
+    """The narrator's structured reply."""
+
+    reasoning: str = Field(default="", description="One short sentence: why this event now.")
+    event: Event
+
+
+class HistoryEntry(_Frozen):
+    """A past event as the narrator sees it."""
+
+    index: int = Field(ge=0, description="Order of the event in the story, from 0.")
+    characters: tuple[str, ...]
+    activity: str
+    state: EventState
+
+
+class CharacterStatus(_Frozen):
+    """What the planner knows of one character between events."""
+
+    name: str
+    busy: bool = Field(default=False, description="Taking part in an ongoing event.")
+    action: str = Field(default="idle", description="Current action label.")
+    position: tuple[float, float] | None = Field(default=None, description="[x, y] in metres.")
+    facing: tuple[float, float] | None = Field(default=None, description="Unit [dx, dy].")
+    event_index: int | None = Field(default=None, description="Event the character is busy with.")
+
+
+class PlannedCharacter(_Frozen):
+    """The event parser's result for one character (a copy of the tool's CharacterPlan)."""
+
+    character: str
+    action: str = Field(description="Action label the character performs on arrival.")
+    area: str = Field(default="", description="Readable description of the target area.")
+    position: tuple[float, float] = Field(description="Sampled target [x, y] in metres.")
+    facing: tuple[float, float] = Field(description="Unit [dx, dy] the character faces there.")
+
+    @classmethod
+    def from_tool_plan(cls, plan: Any) -> PlannedCharacter:
+        """Copy a ``tools.event_program.CharacterPlan`` (or any object with the same fields)."""
+        position = tuple(float(v) for v in plan.position)
+        facing = tuple(float(v) for v in plan.facing)
+        return cls(
+            character=str(plan.character),
+            action=str(plan.action) if plan.action is not None else "idle",
+            area=str(getattr(plan, "area", "") or ""),
+            position=(position[0], position[1]),
+            facing=(facing[0], facing[1]),
+        )
+
+
+class ParsedEvent(_Frozen):
+    """An event with its per-character plans and the program that produced them."""
+
+    index: int = Field(ge=0)
+    event: Event
+    plans: tuple[PlannedCharacter, ...]
+    program: str = Field(default="", description="The parse_event() source that was run.")
+    narrator_attempts: int = Field(default=1, ge=0)
+    parser_attempts: int = Field(default=1, ge=0)
+
+
+class SceneDescription(_Frozen):
+    """A scene description as the narrator and parser read it."""
+
+    scene: str
+    text: str
+    source: Literal["describer", "object_list", "scene_graph"] = "describer"
+    repaired: bool = Field(
+        default=False,
+        description="True when the describer's last answer still missed or repeated objects and "
+        "the text was completed deterministically from the clusters.",
+    )
+    attempts: int = Field(default=0, ge=0)
+
+
+class PlanningFailure(_Frozen):
+    """A step that used up its retries; the story goes on with the next step."""
+
+    index: int
+    node: Literal["describer", "narrator", "event_parser", "planner"]
+    attempts: int
+    feedback: str

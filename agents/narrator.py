@@ -1,0 +1,196 @@
+"""The narrator: picks the next event (which free characters do what) from the story so far.
+
+One call = one :class:`~agents.llm_port.LLMRequest` built by :func:`narrator_request`; the
+reply is checked by :func:`parse_narration` (JSON, schema, then the rules: only free
+characters, no duplicates, an activity when someone takes part). A rejected reply becomes
+feedback naming the offending characters (:mod:`agents.retry_feedback`).
+
+Prompt layout (stable first, for prefix caching): system = role, rules, examples, scene
+description; user = characters and their states, event history, instruction.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from agents.messages import (
+    MAX_ACTIVITY_CHARS,
+    MAX_EVENT_CHARACTERS,
+    MAX_REASONING_CHARS,
+    CharacterStatus,
+    Event,
+    HistoryEntry,
+    NarratorOutput,
+)
+from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from agents.retry_feedback import AnswerRejectedError, Accepted, Turn, ask_until_valid, with_turns
+
+NARRATOR_FILES = ("narrator/system.md", "narrator/request.md")
+HISTORY_WINDOW = 8
+"""Completed events older than the last HISTORY_WINDOW are left out of the prompt."""
+DEFAULT_MAX_TOKENS = 160
+
+
+@dataclass(frozen=True)
+class NarratorInput:
+    """Everything one narrator call depends on."""
+
+    scene_description: str
+    characters: Sequence[CharacterStatus]
+    instruction: str
+    history: Sequence[HistoryEntry] = ()
+    tags: tuple[str, ...] = BENCHMARK_TAGS
+    seed: int | None = None
+    sim_frame: int | None = None
+    max_tokens: int = DEFAULT_MAX_TOKENS
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def free(self) -> list[str]:
+        return [c.name for c in self.characters if not c.busy]
+
+    @property
+    def busy(self) -> list[str]:
+        return [c.name for c in self.characters if c.busy]
+
+
+def narrator_schema(free: Sequence[str]) -> dict[str, Any]:
+    """JSON schema of the reply; ``characters`` may only name free characters (enum)."""
+    names = list(dict.fromkeys(free))
+    item: dict[str, Any] = {"type": "string", "enum": names} if names else {"type": "string"}
+    return {
+        "type": "object",
+        "properties": {
+            "reasoning": {"type": "string", "maxLength": MAX_REASONING_CHARS},
+            "event": {
+                "type": "object",
+                "properties": {
+                    "characters": {
+                        "type": "array",
+                        "items": item,
+                        "maxItems": max(0, min(len(names), MAX_EVENT_CHARACTERS)),
+                    },
+                    "activity": {"type": "string", "maxLength": MAX_ACTIVITY_CHARS},
+                },
+                "required": ["characters", "activity"],
+                "additionalProperties": False,
+            },
+        },
+        "required": ["reasoning", "event"],
+        "additionalProperties": False,
+    }
+
+
+def history_text(history: Sequence[HistoryEntry]) -> str:
+    """One line per event, oldest first: ``3. [ongoing] Ann, Bob: chat by sofa_1``."""
+    if not history:
+        return "(nothing has happened yet)"
+    shown = [h for h in history if h.state != "completed"]
+    completed = [h for h in history if h.state == "completed"][-HISTORY_WINDOW:]
+    entries = sorted({h.index: h for h in (*shown, *completed)}.values(), key=lambda h: h.index)
+    lines = []
+    if len(entries) < len(history):
+        lines.append(f"({len(history) - len(entries)} older completed events not shown)")
+    for h in entries:
+        lines.append(f"{h.index + 1}. [{h.state}] {', '.join(h.characters)}: {h.activity}")
+    return "\n".join(lines)
+
+
+def characters_text(characters: Sequence[CharacterStatus]) -> str:
+    lines = []
+    for c in characters:
+        if c.busy:
+            where = f" (event {c.event_index + 1})" if c.event_index is not None else ""
+            lines.append(f"- {c.name}: busy, {c.action}{where}")
+        else:
+            lines.append(f"- {c.name}: free, {c.action}")
+    return "\n".join(lines)
+
+
+def narrator_messages(prompts: PromptLibrary, inp: NarratorInput) -> tuple[ChatMessage, ...]:
+    system = prompts.render(
+        "narrator/system.md",
+        examples=prompts.examples("narrator", inp.tags),
+        scene_description=inp.scene_description.strip(),
+    )
+    free = inp.free
+    user = prompts.render(
+        "narrator/request.md",
+        characters=characters_text(inp.characters),
+        free=", ".join(free) if free else "(none)",
+        history=history_text(inp.history),
+        instruction=inp.instruction.strip() or "(none: continue the story naturally)",
+    )
+    return (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
+
+
+def narrator_request(prompts: PromptLibrary, inp: NarratorInput, turns: tuple[Turn, ...] = ()) -> LLMRequest:
+    return LLMRequest(
+        node="narrator",
+        messages=with_turns(narrator_messages(prompts, inp), turns),
+        json_schema=narrator_schema(inp.free),
+        max_tokens=inp.max_tokens,
+        seed=inp.seed,
+        sim_frame=inp.sim_frame,
+    )
+
+
+def parse_narration(text: str, characters: Sequence[CharacterStatus]) -> NarratorOutput:
+    """Check a reply. Raises JSONDecodeError, ValidationError or AnswerRejectedError."""
+    data = json.loads(_json_slice(text))
+    out = NarratorOutput.model_validate(data)
+    known = {c.name: c for c in characters}
+    problems: list[str] = []
+    seen: set[str] = set()
+    for name in out.event.characters:
+        if name in seen:
+            problems.append(f"{name} is listed twice")
+            continue
+        seen.add(name)
+        status = known.get(name)
+        if status is None:
+            problems.append(f"{name} is not a character in this story")
+        elif status.busy:
+            where = f" in event {status.event_index + 1}" if status.event_index is not None else ""
+            problems.append(f"{name} is busy{where} and cannot join a new event")
+    if out.event.characters and not out.event.activity.strip():
+        problems.append("the activity is empty; describe what the characters do")
+    if problems:
+        free = [c.name for c in characters if not c.busy]
+        problems.append(f"free characters are: {', '.join(free) if free else 'none'}")
+        raise AnswerRejectedError(problems)
+    return out
+
+
+def _json_slice(text: str) -> str:
+    """The outermost ``{...}`` of a reply (tolerates fences or prose around the JSON)."""
+    start, end = text.find("{"), text.rfind("}")
+    if start == -1 or end < start:
+        return text
+    return text[start : end + 1]
+
+
+WAIT = NarratorOutput(reasoning="no character is free", event=Event())
+
+
+async def narrate(
+    port: LLMPort, prompts: PromptLibrary, inp: NarratorInput, *, max_retries: int = 3
+) -> Accepted[NarratorOutput]:
+    """Ask for the next event: a first try plus at most ``max_retries`` retries.
+
+    With no free character the answer is a wait, without an LLM call (attempts = 0).
+    Raises :class:`~agents.retry_feedback.RetriesExhaustedError` when every reply is rejected.
+    """
+    if not inp.free:
+        return Accepted(value=WAIT, attempts=0, reply="")
+    return await ask_until_valid(
+        port,
+        lambda turns: narrator_request(prompts, inp, turns),
+        lambda text: parse_narration(text, inp.characters),
+        max_attempts=max_retries + 1,
+        node="narrator",
+    )
