@@ -1,0 +1,298 @@
+"""Scene graph: support, vertical and horizontal relations between the objects of a scene.
+
+Relations are directed edges ``subject --relation--> anchor`` of a networkx MultiDiGraph:
+
+- ``on`` / ``inside``: the subject's centre lies over the anchor's footprint grown by
+  ``support_xy`` and its bottom is within ``support_z`` of the anchor's top (``on``) or its
+  centre height lies inside the anchor's height range (``inside``). "Inside" a surface-like
+  anchor (a table, a couch, a counter) or an appliance inside a cabinet reads as ``on``.
+- support levels: the floor holds level 0 (``|z_min - floor| < floor_support``); an object
+  ``on`` / ``inside`` an object of level k has level k + 1; objects held by nothing (wall
+  mounted) have no level.
+- ``above`` / ``below``: only for objects held by nothing, against floor-standing objects whose
+  footprint grown by ``hanging_xy`` contains the other's centre (both directions).
+- horizontal relations, only between objects with the same supporter (the floor or the same
+  anchor), bottoms within ``same_level_z`` and footprints within ``horizontal_range``:
+  ``in front of`` / ``behind`` / ``to the left of`` / ``to the right of`` from the anchor's own
+  facing (anchors with a front only), and ``adjacent to`` (surface distance < ``adjacent``) or
+  ``close to`` (< ``close``).
+
+All distances are metres; surface distances are between 2D footprints (see ``footprint_distance``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import networkx as nx
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from sim.scene import Scene, SceneObject
+
+RELATIONS: tuple[str, ...] = (
+    "on", "inside", "above", "below", "in front of", "behind",
+    "to the left of", "to the right of", "adjacent to", "close to",
+)  # fmt: skip
+DIRECTIONAL_RELATIONS: tuple[str, ...] = ("in front of", "behind", "to the left of", "to the right of")
+
+# Anchors whose "inside" is really a top surface, and (subject, anchor) label pairs meaning "on".
+_SURFACE_LABELS = frozenset(
+    {"table", "desk", "bed", "sofa", "couch", "bench", "counter", "bar_counter", "kitchen_cabinet", "shelf"}
+)
+_ON_PAIRS = frozenset(
+    {("microwave", "cabinet"), ("coffee_maker", "cabinet"), ("coffee_machine", "cabinet"),
+     ("toaster", "cabinet"), ("kettle", "cabinet")}
+)  # fmt: skip
+
+
+class RelationThresholds(BaseModel):
+    """Thresholds of the scene graph, metres (defaults: the reference implementation's)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    floor_support: float = Field(default=0.10, gt=0, description="Max |bottom - floor| for floor support.")
+    support_xy: float = Field(default=0.2, ge=0, description="Footprint margin for on / inside.")
+    support_z: float = Field(default=0.2, ge=0, description="Max gap between subject bottom and anchor top for on.")
+    hanging_xy: float = Field(default=0.4, ge=0, description="Footprint margin for above / below.")
+    same_level_z: float = Field(default=0.2, ge=0, description="Max bottom-height difference for horizontal relations.")
+    horizontal_range: float = Field(default=2.0, gt=0, description="Max surface distance for horizontal relations.")
+    directional_offset: float = Field(default=0.2, ge=0, description="Side margin of the directional strips.")
+    adjacent: float = Field(default=0.3, gt=0, description="Surface distance below which objects are adjacent.")
+    close: float = Field(default=1.0, gt=0, description="Surface distance below which objects are close.")
+
+
+# ----- footprint geometry ---------------------------------------------------------------------
+def _point_segment_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distances from points (N, 2) to the segment a-b."""
+    ab = b - a
+    denom = float(ab @ ab)
+    t = np.zeros(len(points)) if denom < 1e-18 else np.clip((points - a) @ ab / denom, 0.0, 1.0)
+    proj = a + t[:, None] * ab
+    return np.linalg.norm(points - proj, axis=1)
+
+
+def _separated(p: np.ndarray, q: np.ndarray) -> bool:
+    """Separating-axis test for two convex polygons (corners in order)."""
+    for poly in (p, q):
+        edges = np.roll(poly, -1, axis=0) - poly
+        for e in edges:
+            axis = np.array([-e[1], e[0]])
+            if axis @ axis < 1e-18:
+                continue
+            pp, qq = p @ axis, q @ axis
+            if pp.max() < qq.min() or qq.max() < pp.min():
+                return True
+    return False
+
+
+def polygon_distance(p: np.ndarray, q: np.ndarray) -> float:
+    """Distance between two convex polygons (corners (N, 2) in order); 0 when they overlap."""
+    if not _separated(p, q):
+        return 0.0
+    best = np.inf
+    for poly_a, poly_b in ((p, q), (q, p)):
+        for i in range(len(poly_b)):
+            d = _point_segment_distances(poly_a, poly_b[i], poly_b[(i + 1) % len(poly_b)])
+            best = min(best, float(d.min()))
+    return best
+
+
+def footprint_distance(a: SceneObject, b: SceneObject) -> float:
+    """Distance between the 2D footprints (oriented rectangles) of two objects, metres."""
+    return polygon_distance(a.footprint(), b.footprint())
+
+
+def vertical_gap(a: SceneObject, b: SceneObject) -> float:
+    """Gap between the z ranges of two boxes, metres (0 when they overlap in height)."""
+    return max(0.0, a.z_min - b.z_max, b.z_min - a.z_max)
+
+
+def box_distance(a: SceneObject, b: SceneObject) -> float:
+    """Surface distance between two oriented boxes (yaw-only rotation), metres.
+
+    Computed as ``hypot(footprint distance, vertical gap)``: exact when the boxes are separated
+    only horizontally or only vertically, and a close lower bound of the true distance otherwise
+    (the closest footprint points and the closest heights need not belong to the same pair).
+    """
+    return float(np.hypot(footprint_distance(a, b), vertical_gap(a, b)))
+
+
+def point_footprint_distance(obj: SceneObject, xy: np.ndarray) -> np.ndarray:
+    """Distance from xy points (..., 2) to the object's footprint rectangle (0 inside), metres."""
+    local = np.abs(obj.to_local(xy))
+    dx = np.maximum(local[..., 0] - obj.width / 2.0, 0.0)
+    dy = np.maximum(local[..., 1] - obj.depth / 2.0, 0.0)
+    return np.hypot(dx, dy)
+
+
+# ----- relations ------------------------------------------------------------------------------
+def _vertical_contact(subject: SceneObject, anchor: SceneObject, t: RelationThresholds) -> str | None:
+    if not bool(anchor.contains_xy(subject.center_xy, margin=t.support_xy)):
+        return None
+    relation: str | None = None
+    if abs(subject.z_min - anchor.z_max) <= t.support_z:
+        relation = "on"
+    elif anchor.z_min < subject.center[2] < anchor.z_max or (
+        subject.z_max < anchor.z_max and subject.z_min > anchor.z_min
+    ):
+        relation = "inside"
+    if relation == "inside" and (anchor.label in _SURFACE_LABELS or (subject.label, anchor.label) in _ON_PAIRS):
+        relation = "on"
+    return relation
+
+
+def directional_relation(subject: SceneObject, anchor: SceneObject, offset: float) -> str | None:
+    """Where the subject's centre lies in the anchor's frame, or None (anchor without a front)."""
+    if not anchor.has_facing:
+        return None
+    x, y = (float(v) for v in anchor.to_local(subject.center_xy))
+    hw, hd = anchor.width / 2.0, anchor.depth / 2.0
+    if x < -hw and abs(y) <= hd + offset:
+        return "to the left of"
+    if x > hw and abs(y) <= hd + offset:
+        return "to the right of"
+    if y > hd and abs(x) <= hw + offset:
+        return "in front of"
+    if y < -hd and abs(x) <= hw + offset:
+        return "behind"
+    return None
+
+
+class SceneGraph:
+    """Relations of one scene. ``graph`` nodes are object names with attributes ``label``,
+    ``level`` (support level or None) and ``supporter`` (object name or None for the floor)."""
+
+    def __init__(self, scene: Scene, thresholds: RelationThresholds, graph: nx.MultiDiGraph):
+        self.scene = scene
+        self.thresholds = thresholds
+        self.graph = graph
+
+    def triples(self) -> list[tuple[str, str, str]]:
+        """All relations as (subject, relation, anchor), in a deterministic order."""
+        return [(s, str(d["relation"]), a) for s, a, d in self.graph.edges(data=True)]
+
+    def relations_of(self, name: str) -> list[tuple[str, str]]:
+        """(relation, anchor) pairs where ``name`` is the subject."""
+        return [(str(d["relation"]), a) for _, a, d in self.graph.out_edges(name, data=True)]
+
+    def subjects(self, relation: str, anchor: str) -> list[str]:
+        """Objects that stand in ``relation`` to ``anchor``."""
+        return [s for s, _, d in self.graph.in_edges(anchor, data=True) if d["relation"] == relation]
+
+    def supporter(self, name: str) -> str | None:
+        """The object ``name`` stands on or in (None: the floor or nothing)."""
+        value = self.graph.nodes[name]["supporter"]
+        return None if value is None else str(value)
+
+    def supported_by(self, name: str) -> list[str]:
+        """Objects standing on or in ``name``."""
+        return [n for n, d in self.graph.nodes(data=True) if d["supporter"] == name]
+
+    def level(self, name: str) -> int | None:
+        """Support level: 0 on the floor, k + 1 on an object of level k, None if held by nothing."""
+        value = self.graph.nodes[name]["level"]
+        return None if value is None else int(value)
+
+
+def _levels(scene: Scene, on_floor: set[str], supporter: dict[str, str]) -> dict[str, int | None]:
+    levels: dict[str, int | None] = {}
+
+    def level_of(name: str, visiting: frozenset[str]) -> int | None:
+        if name in levels:
+            return levels[name]
+        if name in on_floor:
+            result: int | None = 0
+        elif name not in supporter or name in visiting:  # held by nothing, or a support cycle
+            result = None
+        else:
+            below = level_of(supporter[name], visiting | {name})
+            result = None if below is None else below + 1
+        levels[name] = result
+        return result
+
+    for obj in scene.objects:
+        level_of(obj.name, frozenset())
+    return levels
+
+
+def build_scene_graph(scene: Scene, thresholds: RelationThresholds = RelationThresholds()) -> SceneGraph:  # noqa: B008
+    """Compute every relation of ``scene`` (see the module docstring for the semantics)."""
+    t = thresholds
+    objects = scene.objects
+    graph: nx.MultiDiGraph = nx.MultiDiGraph()
+    on_floor = {o.name for o in objects if abs(o.z_min - scene.floor_z) < t.floor_support}
+
+    # support: the closest anchor top under the subject's bottom wins
+    supporter: dict[str, str] = {}
+    contact: dict[str, tuple[str, str]] = {}
+    for subject in objects:
+        if subject.name in on_floor:
+            continue
+        candidates = []
+        for anchor in objects:
+            if anchor.name == subject.name:
+                continue
+            relation = _vertical_contact(subject, anchor, t)
+            if relation is not None:
+                candidates.append((abs(subject.z_min - anchor.z_max), anchor.name, relation))
+        if candidates:
+            _, anchor_name, relation = min(candidates)
+            supporter[subject.name] = anchor_name
+            contact[subject.name] = (relation, anchor_name)
+
+    levels = _levels(scene, on_floor, supporter)
+    for obj in objects:
+        graph.add_node(obj.name, label=obj.label, level=levels[obj.name], supporter=supporter.get(obj.name))
+    for subject_name, (relation, anchor_name) in contact.items():
+        graph.add_edge(subject_name, anchor_name, relation=relation)
+
+    # above / below: objects held by nothing against floor-standing objects
+    hanging = [o for o in objects if o.name not in on_floor and o.name not in supporter]
+    grounded = [o for o in objects if o.name in on_floor]
+    for h in hanging:
+        for g in grounded:
+            for subject, anchor in ((h, g), (g, h)):
+                if not bool(anchor.contains_xy(subject.center_xy, margin=t.hanging_xy)):
+                    continue
+                if subject.z_min > anchor.z_max:
+                    graph.add_edge(subject.name, anchor.name, relation="above")
+                elif subject.z_max < anchor.z_min:
+                    graph.add_edge(subject.name, anchor.name, relation="below")
+
+    # horizontal relations within each group sharing a supporter (None = the floor)
+    groups: dict[str | None, list[SceneObject]] = {}
+    for obj in objects:
+        if obj.name in on_floor:
+            groups.setdefault(None, []).append(obj)
+        elif obj.name in supporter:
+            groups.setdefault(supporter[obj.name], []).append(obj)
+    for members in groups.values():
+        _horizontal_edges(graph, members, t)
+    return SceneGraph(scene, t, graph)
+
+
+def _circle_gap(a: SceneObject, b: SceneObject) -> float:
+    """Lower bound of the footprint distance from the footprints' circumscribed circles."""
+    centre = float(np.linalg.norm(a.center_xy - b.center_xy))
+    return centre - float(np.hypot(a.width, a.depth) + np.hypot(b.width, b.depth)) / 2.0
+
+
+def _horizontal_edges(graph: nx.MultiDiGraph, members: Iterable[SceneObject], t: RelationThresholds) -> None:
+    members = list(members)
+    for subject in members:
+        for anchor in members:
+            if subject.name == anchor.name or abs(subject.z_min - anchor.z_min) > t.same_level_z:
+                continue
+            if _circle_gap(subject, anchor) > t.horizontal_range:  # cheap rejection
+                continue
+            distance = footprint_distance(subject, anchor)
+            if distance > t.horizontal_range:
+                continue
+            direction = directional_relation(subject, anchor, t.directional_offset)
+            if direction is not None:
+                graph.add_edge(subject.name, anchor.name, relation=direction)
+            if distance < t.adjacent:
+                graph.add_edge(subject.name, anchor.name, relation="adjacent to")
+            elif distance < t.close:
+                graph.add_edge(subject.name, anchor.name, relation="close to")
