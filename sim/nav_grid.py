@@ -1,0 +1,377 @@
+"""Navigation grid: which floor cells a standing body may occupy, and which moves are safe.
+
+A cell is *free* when a body disc of radius ``body_radius`` centred on the cell centre stays
+inside the scene rectangle and touches no blocking object. A *move* (one of 8 neighbours) is
+allowed when both cells are free, a diagonal does not cut a corner past a blocked cell, and the
+whole straight segment between the two centres keeps the disc off every blocking footprint
+(exact segment-to-rectangle distance, so thin objects between two free cells still block).
+
+Which objects block: every object whose bottom is below ``clearance_height`` (default 1.9 m)
+above the floor. That covers floor-supported furniture (bottom within 0.10 m of the floor) and
+wall-mounted things a walking body would hit (a TV whose bottom is at 0.77 m); things on a
+table lie inside the table's footprint anyway; lamps and shelves mounted above 1.9 m do not
+block.
+
+Reference scenes (``grid_map.json``) carry cell overrides on the authors' grid. Inferred from
+the data (documented in ``reference_grid_origin``): reference cell ``(a, b)`` has its *centre*
+at ``(x_margin + a * step, y_margin + b * step)``; the grid spans ``[margin, bbox_max - margin]``.
+With that origin, 105 of the Office's 125 ``unoccupied`` cells sit just in front of chairs and
+couches (inside the footprint grown by the reference radius, outside the raw one) and only 2
+inside a raw footprint; the ``occupied`` cells draw the Office's interior walls (3 cells thick)
+and its doors. ``occupied`` cells are applied as blocked. ``unoccupied`` cells only undo an
+``occupied`` entry: they never free a cell our own clearance test blocks (our default radius,
+0.25 m, is smaller than the reference's 0.314 m, and seats are reached through
+``approach_cell`` instead).
+
+Cells are indexed ``(i, j)`` with ``i`` along +x and ``j`` along +y; ``origin`` is the corner of
+cell (0, 0), so cell ``(i, j)`` has its centre at ``origin + (i + 0.5, j + 0.5) * cell_size``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from sim.scene import Scene, SceneObject
+
+# The 8 moves, in a fixed order (index k is used in move masks): 4 straight, then 4 diagonal.
+MOVES: tuple[tuple[int, int], ...] = ((1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1))
+MOVE_LENGTHS: tuple[float, ...] = tuple(math.hypot(dx, dy) for dx, dy in MOVES)
+
+DEFAULT_BODY_RADIUS = 0.25
+DEFAULT_CLEARANCE_HEIGHT = 1.9
+
+
+class NavGridError(ValueError):
+    """Bad navigation-grid parameters (one sentence naming the parameter)."""
+
+
+@dataclass(frozen=True, eq=False)
+class NavGrid:
+    """Free cells and allowed moves of one scene for one body radius.
+
+    ``free[i, j]``: a body centred on cell (i, j) touches nothing. ``moves[i, j, k]``: the move
+    ``MOVES[k]`` from (i, j) keeps the body clear along the whole segment. ``component[i, j]``:
+    connected-component id of free cells under allowed moves (-1 for blocked cells).
+    Arrays are read-only.
+    """
+
+    free: np.ndarray
+    moves: np.ndarray
+    component: np.ndarray
+    origin: tuple[float, float]
+    cell_size: float
+    body_radius: float
+    obstacles: tuple[SceneObject, ...]
+    bounds_min: tuple[float, float]
+    bounds_max: tuple[float, float]
+    clearance_height: float = DEFAULT_CLEARANCE_HEIGHT
+    _reference_offset: tuple[int, int] | None = field(default=None, repr=False)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.free.shape[0]), int(self.free.shape[1]))
+
+    def in_grid(self, i: int, j: int) -> bool:
+        nx, ny = self.shape
+        return 0 <= i < nx and 0 <= j < ny
+
+    def cell_of(self, xy: np.ndarray | tuple[float, float]) -> tuple[int, int]:
+        """The cell containing point ``xy`` (may lie outside the grid; check ``in_grid``)."""
+        p = np.asarray(xy, dtype=float)
+        return (
+            int(math.floor((p[0] - self.origin[0]) / self.cell_size)),
+            int(math.floor((p[1] - self.origin[1]) / self.cell_size)),
+        )
+
+    def center_of(self, i: int, j: int) -> np.ndarray:
+        """Centre (x, y) of cell (i, j), metres."""
+        return np.array(
+            [self.origin[0] + (i + 0.5) * self.cell_size, self.origin[1] + (j + 0.5) * self.cell_size]
+        )
+
+    def centers(self, cells: np.ndarray) -> np.ndarray:
+        """Centres (N, 2) of integer cells (N, 2)."""
+        c = np.asarray(cells, dtype=float)
+        return np.asarray(self.origin) + (c + 0.5) * self.cell_size
+
+    def is_free(self, i: int, j: int) -> bool:
+        return self.in_grid(i, j) and bool(self.free[i, j])
+
+    def is_free_xy(self, xy: np.ndarray | tuple[float, float]) -> bool:
+        """Whether a body centred exactly at ``xy`` touches no blocking object and stays in bounds."""
+        p = np.asarray(xy, dtype=float)
+        if not _inside_bounds(p[None], self.bounds_min, self.bounds_max, self.body_radius)[0]:
+            return False
+        return bool(body_clearance(self.obstacles, p[None], p[None])[0] >= self.body_radius - 1e-9)
+
+    def nearest_free_cell(
+        self, xy: np.ndarray | tuple[float, float], component: int | None = None
+    ) -> tuple[int, int]:
+        """The free cell whose centre is closest to ``xy`` (ties: lowest i, then j).
+
+        ``component`` restricts the search to one connected component. Raises ``NavGridError``
+        when there is no free cell at all.
+        """
+        mask = self.free if component is None else self.component == component
+        cells = np.argwhere(mask)
+        if len(cells) == 0:
+            raise NavGridError("the navigation grid has no free cell" + ("" if component is None else " in that component"))
+        d2 = np.sum((self.centers(cells) - np.asarray(xy, dtype=float)) ** 2, axis=1)
+        k = int(np.argmin(d2))  # argmin takes the first minimum: cells are in (i, j) order
+        return (int(cells[k][0]), int(cells[k][1]))
+
+    @property
+    def main_component(self) -> int:
+        """Id of the largest connected component of free cells (-1 if none)."""
+        ids = self.component[self.component >= 0]
+        if ids.size == 0:
+            return -1
+        return int(np.argmax(np.bincount(ids)))
+
+    def approach_cell(self, obj: SceneObject, standoff: float = 0.05) -> tuple[int, int]:
+        """The free cell from which a character sits on / uses ``obj``.
+
+        The ideal point is in front of the object (seats and objects with a facing): the front
+        edge of the footprint plus ``body_radius + standoff``; for objects without a facing,
+        the closest free cell to the footprint. Candidates are restricted to the largest
+        connected component, and to cells in front of the object when it has a facing
+        (falling back to any side if the front is walled off).
+        """
+        cells = np.argwhere(self.component == self.main_component)
+        if len(cells) == 0:
+            raise NavGridError("the navigation grid has no free cell")
+        centers = self.centers(cells)
+        local = obj.to_local(centers)
+        if obj.has_facing or obj.is_seat:
+            f = np.asarray(obj.facing, dtype=float)
+            ideal = obj.center_xy + f * (obj.depth / 2.0 + self.body_radius + standoff)
+            in_front = local[:, 1] > obj.depth / 2.0
+            if in_front.any():
+                cells, centers = cells[in_front], centers[in_front]
+            d2 = np.sum((centers - ideal) ** 2, axis=1)
+        else:
+            d2 = _point_rect_distance(local, obj.width / 2.0, obj.depth / 2.0) ** 2
+        k = int(np.argmin(d2))
+        return (int(cells[k][0]), int(cells[k][1]))
+
+    def reference_cell(self, a: int, b: int) -> tuple[int, int] | None:
+        """Our cell for reference-grid cell (a, b), when the grids are aligned (else None)."""
+        if self._reference_offset is None:
+            return None
+        return (a - self._reference_offset[0], b - self._reference_offset[1])
+
+    def move_allowed(self, cell: tuple[int, int], k: int) -> bool:
+        i, j = cell
+        return self.in_grid(i, j) and bool(self.moves[i, j, k])
+
+
+# ----- geometry ---------------------------------------------------------------------------------
+def _point_rect_distance(local: np.ndarray, hw: float, hd: float) -> np.ndarray:
+    """Distance of local points (N, 2) to the axis-aligned rectangle [-hw, hw] x [-hd, hd]."""
+    dx = np.maximum(np.abs(local[:, 0]) - hw, 0.0)
+    dy = np.maximum(np.abs(local[:, 1]) - hd, 0.0)
+    return np.hypot(dx, dy)
+
+
+def _segment_rect_distance(a: np.ndarray, b: np.ndarray, hw: float, hd: float) -> np.ndarray:
+    """Exact distance between local segments a->b (N, 2) and the rectangle [-hw, hw] x [-hd, hd]."""
+    d = b - a
+    # Liang-Barsky clip: does the segment cross the rectangle?
+    t_lo = np.zeros(len(a))
+    t_hi = np.ones(len(a))
+    inside = np.ones(len(a), dtype=bool)
+    for axis, h in ((0, hw), (1, hd)):
+        da = d[:, axis]
+        pa = a[:, axis]
+        flat = np.abs(da) < 1e-12
+        inside &= ~flat | (np.abs(pa) <= h)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1 = (-h - pa) / da
+            t2 = (h - pa) / da
+        t_lo = np.where(flat, t_lo, np.maximum(t_lo, np.minimum(t1, t2)))
+        t_hi = np.where(flat, t_hi, np.minimum(t_hi, np.maximum(t1, t2)))
+    crosses = inside & (t_lo <= t_hi)
+    # Otherwise the closest pair involves an endpoint of the segment or a corner of the box.
+    dist = np.minimum(_point_rect_distance(a, hw, hd), _point_rect_distance(b, hw, hd))
+    dd = np.maximum(np.sum(d * d, axis=1), 1e-18)
+    for cx, cy in ((-hw, -hd), (hw, -hd), (hw, hd), (-hw, hd)):
+        c = np.array([cx, cy])
+        t = np.clip(np.sum((c - a) * d, axis=1) / dd, 0.0, 1.0)
+        dist = np.minimum(dist, np.linalg.norm(a + t[:, None] * d - c, axis=1))
+    return np.where(crosses, 0.0, dist)
+
+
+def body_clearance(obstacles: tuple[SceneObject, ...] | list[SceneObject], a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Smallest distance (N,) from segments a->b (N, 2) to any obstacle footprint (inf if none)."""
+    a = np.asarray(a, dtype=float).reshape(-1, 2)
+    b = np.asarray(b, dtype=float).reshape(-1, 2)
+    out = np.full(len(a), np.inf)
+    for obj in obstacles:
+        out = np.minimum(out, _segment_rect_distance(obj.to_local(a), obj.to_local(b), obj.width / 2.0, obj.depth / 2.0))
+    return out
+
+
+def _inside_bounds(p: np.ndarray, lo: tuple[float, float], hi: tuple[float, float], r: float) -> np.ndarray:
+    return (
+        (p[:, 0] >= lo[0] + r - 1e-9)
+        & (p[:, 0] <= hi[0] - r + 1e-9)
+        & (p[:, 1] >= lo[1] + r - 1e-9)
+        & (p[:, 1] <= hi[1] - r + 1e-9)
+    )
+
+
+def blocking_objects(scene: Scene, clearance_height: float = DEFAULT_CLEARANCE_HEIGHT) -> tuple[SceneObject, ...]:
+    """Objects a walking body can collide with: bottom below ``clearance_height`` above the floor."""
+    return tuple(o for o in scene.objects if o.z_min - scene.floor_z < clearance_height)
+
+
+# ----- reference grid -------------------------------------------------------------------------
+def reference_grid_origin(folder: Path | str) -> tuple[float, float] | None:
+    """Centre of reference cell (0, 0) from a reference folder's ``grid_map.json`` (None if absent).
+
+    Inferred from the published data: fitting the origin so that the Office's 125
+    ``unoccupied`` cells fall just outside raw footprints but inside footprints grown by the
+    reference radius gives the best fit (105 good, 2 bad) at centre = (x_margin, y_margin);
+    the largest indices (Office i <= 35, j <= 56) match a grid spanning
+    ``[margin, bbox_max - margin]``.
+    """
+    path = Path(folder) / "grid_map.json"
+    if not path.exists():
+        return None
+    data = json.loads(path.read_text(encoding="utf-8"))
+    return (float(data.get("x_margin", 0.0)), float(data.get("y_margin", 0.0)))
+
+
+def with_reference_grid_origin(scene: Scene, folder: Path | str) -> Scene:
+    """``scene`` with ``nav.grid_origin`` set from the reference folder's ``grid_map.json``."""
+    origin = reference_grid_origin(folder)
+    if origin is None:
+        return scene
+    return scene.model_copy(update={"nav": scene.nav.model_copy(update={"grid_origin": origin})})
+
+
+# ----- building -----------------------------------------------------------------------------------
+def build_nav_grid(
+    scene: Scene,
+    cell_size: float | None = None,
+    body_radius: float = DEFAULT_BODY_RADIUS,
+    clearance_height: float = DEFAULT_CLEARANCE_HEIGHT,
+    use_reference_overrides: bool = True,
+) -> NavGrid:
+    """Build the navigation grid of ``scene``.
+
+    ``cell_size`` (metres, default ``scene.nav.cell_size``), ``body_radius`` (metres).
+    Reference overrides (``scene.nav.occupied`` / ``unoccupied``) are applied when the cell
+    size equals ``scene.nav.cell_size``; then our lattice is aligned with the reference one
+    whose cell (0, 0) is centred at ``scene.nav.grid_origin``.
+    """
+    cs = float(scene.nav.cell_size if cell_size is None else cell_size)
+    if not (math.isfinite(cs) and cs > 0.0):
+        raise NavGridError(f"cell_size must be a positive number of metres, got {cell_size!r}")
+    if not (math.isfinite(body_radius) and body_radius > 0.0):
+        raise NavGridError(f"body_radius must be a positive number of metres, got {body_radius!r}")
+    lo, hi = scene.bounds_min, scene.bounds_max
+    has_overrides = bool(scene.nav.occupied or scene.nav.unoccupied)
+    aligned = use_reference_overrides and has_overrides and abs(cs - scene.nav.cell_size) < 1e-9
+    if aligned:
+        ref0 = np.asarray(scene.nav.grid_origin, dtype=float)  # centre of reference cell (0, 0)
+        k_lo = np.floor((np.asarray(lo) - ref0) / cs).astype(int)
+        origin = ref0 + (k_lo - 0.5) * cs
+    else:
+        k_lo = np.zeros(2, dtype=int)
+        origin = np.asarray(lo, dtype=float)
+    nx = max(1, math.ceil((hi[0] - origin[0]) / cs))
+    ny = max(1, math.ceil((hi[1] - origin[1]) / cs))
+    if nx * ny > 4_000_000:
+        raise NavGridError(f"cell_size {cs} m gives {nx} x {ny} cells; use a larger cell_size")
+
+    obstacles = blocking_objects(scene, clearance_height)
+    ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    cells = np.stack([ii.ravel(), jj.ravel()], axis=1)
+    centers = origin + (cells + 0.5) * cs
+    free = _inside_bounds(centers, lo, hi, body_radius) & (body_clearance(obstacles, centers, centers) >= body_radius)
+    free = free.reshape(nx, ny)
+
+    if aligned:
+        override = np.zeros((nx, ny), dtype=bool)
+        unoccupied = {tuple(c) for c in scene.nav.unoccupied}
+        for a, b in scene.nav.occupied:
+            if (a, b) in unoccupied:
+                continue
+            i, j = a - int(k_lo[0]), b - int(k_lo[1])
+            if 0 <= i < nx and 0 <= j < ny:
+                override[i, j] = True
+        free &= ~override
+
+    moves = _allowed_moves(free, origin, cs, body_radius, obstacles)
+    component = _components(free, moves)
+    for arr in (free, moves, component):
+        arr.flags.writeable = False
+    return NavGrid(
+        free=free,
+        moves=moves,
+        component=component,
+        origin=(float(origin[0]), float(origin[1])),
+        cell_size=cs,
+        body_radius=float(body_radius),
+        obstacles=obstacles,
+        bounds_min=(float(lo[0]), float(lo[1])),
+        bounds_max=(float(hi[0]), float(hi[1])),
+        clearance_height=float(clearance_height),
+        _reference_offset=(int(k_lo[0]), int(k_lo[1])) if aligned else None,
+    )
+
+
+def _allowed_moves(
+    free: np.ndarray, origin: np.ndarray, cs: float, r: float, obstacles: tuple[SceneObject, ...]
+) -> np.ndarray:
+    nx, ny = free.shape
+    padded = np.zeros((nx + 2, ny + 2), dtype=bool)
+    padded[1:-1, 1:-1] = free
+    moves = np.zeros((nx, ny, len(MOVES)), dtype=bool)
+    for k, (dx, dy) in enumerate(MOVES):
+        ok = free & padded[1 + dx : nx + 1 + dx, 1 + dy : ny + 1 + dy]
+        if dx and dy:  # no corner cutting: both orthogonal neighbours must be free
+            ok &= padded[1 + dx : nx + 1 + dx, 1 : ny + 1] & padded[1 : nx + 1, 1 + dy : ny + 1 + dy]
+        src = np.argwhere(ok)
+        if len(src) and obstacles:
+            a = origin + (src + 0.5) * cs
+            b = a + np.array([dx, dy], dtype=float) * cs
+            clear = body_clearance(obstacles, a, b) >= r
+            ok[src[~clear, 0], src[~clear, 1]] = False
+        moves[:, :, k] = ok
+    return moves
+
+
+def _components(free: np.ndarray, moves: np.ndarray) -> np.ndarray:
+    nx, ny = free.shape
+    rows: list[np.ndarray] = []
+    cols: list[np.ndarray] = []
+    for k, (dx, dy) in enumerate(MOVES):
+        src = np.argwhere(moves[:, :, k])
+        rows.append(src[:, 0] * ny + src[:, 1])
+        cols.append((src[:, 0] + dx) * ny + src[:, 1] + dy)
+    r = np.concatenate(rows) if rows else np.zeros(0, dtype=int)
+    c = np.concatenate(cols) if cols else np.zeros(0, dtype=int)
+    graph = coo_matrix((np.ones(len(r)), (r, c)), shape=(nx * ny, nx * ny)).tocsr()
+    _, labels = connected_components(graph, directed=True, connection="strong")
+    comp = labels.reshape(nx, ny).astype(np.int64)
+    comp[~free] = -1
+    # Renumber so ids are dense and ordered by first cell (deterministic).
+    out = np.full_like(comp, -1)
+    mapping: dict[int, int] = {}
+    for idx in np.flatnonzero(free.ravel()):
+        lab = int(comp.ravel()[idx])
+        if lab not in mapping:
+            mapping[lab] = len(mapping)
+    flat = out.ravel()
+    for idx in np.flatnonzero(free.ravel()):
+        flat[idx] = mapping[int(comp.ravel()[idx])]
+    return flat.reshape(nx, ny)
