@@ -1,0 +1,248 @@
+"""Areas: regions of the floor where a character may stand or sit.
+
+An ``Area`` is a predicate over xy points (metres) plus a hint box that bounds where its points
+can be, an optional list of seat slots (exact places to sit, with the seat's facing), a focus
+point (what a character there looks at by default) and a short description written in the
+reference expression syntax ("in front of fridge_1", "A && B", "A || B"). Areas combine with
+``intersect`` and ``union``; ``tools.position_sampling`` turns them into exact positions.
+
+Reference distances: adjacent 0.5 m, close 1.0 m, between <= 0.5 m off the centre line.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from sim.scene import SceneObject
+from tools.scene_graph import point_footprint_distance
+
+ADJACENT_DISTANCE = 0.5  # m from the footprint
+CLOSE_DISTANCE = 1.0  # m from the footprint
+INTERACT_DISTANCE = 0.6  # m from the footprint, on the object's front side
+INTERACT_SIDE_MARGIN = 0.3  # m beyond the object's sides still counted as its front
+DIRECTIONAL_REACH = 1.5  # m beyond the face for in front of / behind / left of / right of
+BETWEEN_OFF_LINE = 0.5  # m off the centre line
+ALIGNED_BEYOND = 1.0  # how far past the ends "aligned with" reaches, in units of the centre distance
+SEAT_SLOT_WIDTH = 0.6  # m of seat width per sitting person
+SEAT_MATCH = 0.05  # m: a point this close to a seat slot is on it
+
+Predicate = Callable[[np.ndarray], np.ndarray]
+Box = tuple[float, float, float, float]  # xmin, ymin, xmax, ymax
+
+
+@dataclass(frozen=True)
+class SeatSlot:
+    """One place to sit: the seat object, the pelvis xy and the facing of the seat."""
+
+    seat: str
+    position: tuple[float, float]
+    facing: tuple[float, float]
+
+
+@dataclass(frozen=True, eq=False)
+class Area:
+    """A region of the floor (see the module docstring). Immutable; combine with
+    ``intersect(other)`` and ``union(other)``."""
+
+    description: str
+    predicate: Predicate = field(repr=False)
+    hint: Box
+    focus: tuple[float, float] | None = None
+    seats: tuple[SeatSlot, ...] = ()
+    free_region: bool = True
+    anchors: tuple[str, ...] = ()
+
+    sandbox_attributes: ClassVar[frozenset[str]] = frozenset({"description", "intersect", "union"})
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        """Whether xy points (N, 2) lie in the area (seat slots included)."""
+        points = np.asarray(xy, dtype=float).reshape(-1, 2)
+        return np.asarray(self.predicate(points), dtype=bool)
+
+    def intersect(self, other: Area) -> Area:
+        """The points in both areas. Seat slots survive when the other area contains them."""
+        if not isinstance(other, Area):
+            raise TypeError("intersect() expects an Area")
+        a, b = self, other
+        seats = [s for s in a.seats if bool(b.contains(np.array(s.position))[0])]
+        seats += [s for s in b.seats if bool(a.contains(np.array(s.position))[0]) and s not in seats]
+        hint = (max(a.hint[0], b.hint[0]), max(a.hint[1], b.hint[1]), min(a.hint[2], b.hint[2]), min(a.hint[3], b.hint[3]))
+
+        def predicate(p: np.ndarray) -> np.ndarray:
+            return a.contains(p) & b.contains(p)
+
+        return Area(
+            description=f"{_wrap(a, '||')} && {_wrap(b, '||')}",
+            predicate=predicate,
+            hint=hint,
+            focus=a.focus if a.focus is not None else b.focus,
+            seats=tuple(seats),
+            free_region=a.free_region and b.free_region,
+            anchors=_merge(a.anchors, b.anchors),
+        )
+
+    def union(self, other: Area) -> Area:
+        """The points in either area; seat slots of both."""
+        if not isinstance(other, Area):
+            raise TypeError("union() expects an Area")
+        a, b = self, other
+        hint = (min(a.hint[0], b.hint[0]), min(a.hint[1], b.hint[1]), max(a.hint[2], b.hint[2]), max(a.hint[3], b.hint[3]))
+
+        def predicate(p: np.ndarray) -> np.ndarray:
+            return a.contains(p) | b.contains(p)
+
+        return Area(
+            description=f"{_wrap(a, '&&')} || {_wrap(b, '&&')}",
+            predicate=predicate,
+            hint=hint,
+            focus=a.focus if a.focus is not None else b.focus,
+            seats=a.seats + tuple(s for s in b.seats if s not in a.seats),
+            free_region=(a.free_region and a.hint_nonempty) or (b.free_region and b.hint_nonempty),
+            anchors=_merge(a.anchors, b.anchors),
+        )
+
+    @property
+    def hint_nonempty(self) -> bool:
+        return self.hint[0] <= self.hint[2] and self.hint[1] <= self.hint[3]
+
+
+def _wrap(area: Area, other_operator: str) -> str:
+    """Parenthesise a description that uses the other operator, so the text parses back."""
+    return f"({area.description})" if f" {other_operator} " in area.description else area.description
+
+
+def _merge(a: tuple[str, ...], b: tuple[str, ...]) -> tuple[str, ...]:
+    return a + tuple(n for n in b if n not in a)
+
+
+def _grown_box(obj: SceneObject, margin: float) -> Box:
+    corners = obj.footprint(margin)
+    return (float(corners[:, 0].min()), float(corners[:, 1].min()), float(corners[:, 0].max()), float(corners[:, 1].max()))
+
+
+def _focus(obj: SceneObject) -> tuple[float, float]:
+    return (float(obj.center[0]), float(obj.center[1]))
+
+
+# ----- single-object areas ---------------------------------------------------------------------
+def within_distance(obj: SceneObject, distance: float, relation: str) -> Area:
+    """Points whose distance to the object's footprint is at most ``distance`` metres."""
+
+    def predicate(p: np.ndarray) -> np.ndarray:
+        return point_footprint_distance(obj, p) <= distance
+
+    return Area(f"{relation} {obj.name}", predicate, _grown_box(obj, distance), _focus(obj), anchors=(obj.name,))
+
+
+def adjacent_to(obj: SceneObject) -> Area:
+    """Within 0.5 m of the object's footprint."""
+    return within_distance(obj, ADJACENT_DISTANCE, "adjacent to")
+
+
+def close_to(obj: SceneObject) -> Area:
+    """Within 1.0 m of the object's footprint."""
+    return within_distance(obj, CLOSE_DISTANCE, "close to")
+
+
+_DIRECTIONS = {
+    # relation: (local axis index, sign): the strip beyond the face along +-axis
+    "in front of": (1, 1.0),
+    "behind": (1, -1.0),
+    "to the right of": (0, 1.0),
+    "to the left of": (0, -1.0),
+}
+
+
+def directional(obj: SceneObject, relation: str, reach: float = DIRECTIONAL_REACH) -> Area:
+    """The strip swept by one face of the object's footprint, from the face out to ``reach``
+    metres, as wide as that face. Directions are the object's own (its facing is its front;
+    its right is the facing turned clockwise)."""
+    axis, sign = _DIRECTIONS[relation]
+    half = (obj.width / 2.0, obj.depth / 2.0)
+
+    def predicate(p: np.ndarray) -> np.ndarray:
+        local = obj.to_local(p)
+        along = sign * local[:, axis]
+        across = np.abs(local[:, 1 - axis])
+        return (along >= half[axis]) & (along <= half[axis] + reach) & (across <= half[1 - axis])
+
+    return Area(f"{relation} {obj.name}", predicate, _grown_box(obj, reach), _focus(obj), anchors=(obj.name,))
+
+
+def to_interact_with(obj: SceneObject) -> Area:
+    """Where a standing character can use the object: within 0.6 m of its footprint and, for
+    objects with a front, on the front side (no further than 0.3 m past its sides)."""
+
+    def predicate(p: np.ndarray) -> np.ndarray:
+        near = point_footprint_distance(obj, p) <= INTERACT_DISTANCE
+        if not obj.has_facing:
+            return near
+        local = obj.to_local(p)
+        front = (local[:, 1] >= obj.depth / 2.0) & (np.abs(local[:, 0]) <= obj.width / 2.0 + INTERACT_SIDE_MARGIN)
+        return near & front
+
+    return Area(f"interact with {obj.name}", predicate, _grown_box(obj, INTERACT_DISTANCE), _focus(obj), anchors=(obj.name,))
+
+
+def seat_slots(obj: SceneObject) -> tuple[SeatSlot, ...]:
+    """Sitting places of a seat: one per 0.6 m of width (a chair has one, a couch several),
+    on the line ``centre + facing * depth * sit_offset_horizontal``, facing the seat's front."""
+    count = max(1, int(obj.width // SEAT_SLOT_WIDTH)) if obj.width >= 2 * SEAT_SLOT_WIDTH else 1
+    base = obj.seat_point()
+    right = obj.right
+    slots = []
+    for i in range(count):
+        offset = -obj.width / 2.0 + (i + 0.5) * obj.width / count if count > 1 else 0.0
+        xy = base + right * offset
+        slots.append(SeatSlot(obj.name, (float(xy[0]), float(xy[1])), (float(obj.facing[0]), float(obj.facing[1]))))
+    return tuple(slots)
+
+
+def to_sit_on(obj: SceneObject) -> Area:
+    """The seat slots of a seat object (see ``seat_slots``); no free-floor points."""
+    slots = seat_slots(obj)
+    points = np.array([s.position for s in slots])
+
+    def predicate(p: np.ndarray) -> np.ndarray:
+        d = np.linalg.norm(p[:, None, :] - points[None, :, :], axis=2)
+        return d.min(axis=1) <= SEAT_MATCH
+
+    xs, ys = points[:, 0], points[:, 1]
+    hint = (float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max()))
+    return Area(f"sit on {obj.name}", predicate, hint, _focus(obj), seats=slots, free_region=False, anchors=(obj.name,))
+
+
+# ----- two-object areas -----------------------------------------------------------------------
+def _line_area(a: SceneObject, b: SceneObject, t_min: float, t_max: float, relation: str) -> Area:
+    c1, c2 = a.center_xy, b.center_xy
+    v = c2 - c1
+    length2 = float(v @ v)
+    if length2 < 1e-12:
+        raise ValueError(f"{a.name} and {b.name} have the same centre")
+
+    def predicate(p: np.ndarray) -> np.ndarray:
+        t = (p - c1) @ v / length2
+        off = np.linalg.norm(p - (c1 + t[:, None] * v), axis=1)
+        return (t >= t_min) & (t <= t_max) & (off <= BETWEEN_OFF_LINE)
+
+    ends = np.array([c1 + t_min * v, c1 + t_max * v])
+    m = BETWEEN_OFF_LINE
+    hint = (float(ends[:, 0].min() - m), float(ends[:, 1].min() - m), float(ends[:, 0].max() + m), float(ends[:, 1].max() + m))
+    mid = (c1 + c2) / 2.0
+    return Area(f"{relation} {a.name} and {b.name}", predicate, hint, (float(mid[0]), float(mid[1])), anchors=(a.name, b.name))
+
+
+def between(a: SceneObject, b: SceneObject) -> Area:
+    """Points whose projection falls between the two centres and that lie <= 0.5 m off the
+    line joining them."""
+    return _line_area(a, b, 0.0, 1.0, "between")
+
+
+def aligned_with(a: SceneObject, b: SceneObject) -> Area:
+    """Points <= 0.5 m off the line through both centres, from one centre distance before the
+    first object to one centre distance past the second."""
+    return _line_area(a, b, -ALIGNED_BEYOND, 1.0 + ALIGNED_BEYOND, "aligned with")

@@ -1,0 +1,185 @@
+"""Area-conditioned position sampling: an ``Area`` plus constraints -> one exact position.
+
+Rules (all distances in metres):
+
+- free floor: the body centre stays ``body_radius`` (0.25) inside the scene bounds and at least
+  ``body_radius`` from the footprint of every floor-standing object;
+- other characters: at least ``min_separation`` (0.5) from every point in ``avoid`` (other
+  characters' positions and targets);
+- group: when members of the same event were already placed, prefer points within
+  ``group_radius`` (1.5) of all of them (a preference: if no such point exists, the area wins);
+- seats: a seat slot is used as is (its position and the seat's facing); a slot is free when no
+  avoided point is within ``min_separation`` of it and its object is not taken; an area with
+  seat slots prefers them;
+- margin: points that stay inside the area when moved 0.1 m in any axis direction are preferred
+  (so that a tolerance-free check of the same relation still holds);
+- the candidates are a lattice of step 0.05 with a seeded offset; one is drawn uniformly with a
+  seeded ``numpy.random.Generator``: the same seed and inputs give the same position.
+
+An area with no admissible point raises ``UnsatisfiableAreaError`` naming the reason; it never
+falls back to a random point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.scene import Scene
+from tools.areas import Area, SeatSlot
+from tools.errors import UnsatisfiableAreaError
+from tools.scene_graph import point_footprint_distance
+
+BODY_RADIUS = 0.25
+MIN_SEPARATION = 0.5
+GROUP_RADIUS = 1.5
+LATTICE_STEP = 0.05
+INTERIOR_MARGIN = 0.1
+MAX_CANDIDATES = 250_000
+FLOOR_SUPPORT = 0.10
+
+
+class FloorMap:
+    """Which xy points a standing character's centre may occupy."""
+
+    def __init__(self, scene: Scene, body_radius: float = BODY_RADIUS, floor_support: float = FLOOR_SUPPORT):
+        self.scene = scene
+        self.body_radius = body_radius
+        self.obstacles = [o for o in scene.objects if abs(o.z_min - scene.floor_z) < floor_support]
+
+    def free(self, xy: np.ndarray) -> np.ndarray:
+        """Whether points (N, 2) are on free floor (inside the bounds, clear of furniture)."""
+        p = np.asarray(xy, dtype=float).reshape(-1, 2)
+        r = self.body_radius
+        (x0, y0), (x1, y1) = self.scene.bounds_min, self.scene.bounds_max
+        ok = (p[:, 0] >= x0 + r) & (p[:, 0] <= x1 - r) & (p[:, 1] >= y0 + r) & (p[:, 1] <= y1 - r)
+        for obj in self.obstacles:
+            if not ok.any():
+                break
+            idx = np.flatnonzero(ok)
+            ok[idx] = point_footprint_distance(obj, p[idx]) >= r
+        return ok
+
+    def colliding_objects(self, xy: tuple[float, float]) -> list[str]:
+        """Floor-standing objects whose footprint grown by the body radius contains ``xy``."""
+        p = np.asarray(xy, dtype=float).reshape(1, 2)
+        return [o.name for o in self.obstacles if float(point_footprint_distance(o, p)[0]) < self.body_radius]
+
+
+@dataclass(frozen=True)
+class Constraints:
+    """What else the sampler must respect. Points are (x, y) in metres."""
+
+    avoid: tuple[tuple[float, float], ...] = ()
+    group: tuple[tuple[float, float], ...] = ()
+    taken_objects: frozenset[str] = frozenset()
+    min_separation: float = MIN_SEPARATION
+    group_radius: float = GROUP_RADIUS
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A sampled position; ``seat`` / ``seat_facing`` are set when it is a seat slot."""
+
+    position: tuple[float, float]
+    seat: str | None = None
+    seat_facing: tuple[float, float] | None = None
+
+
+def _far_from(points: np.ndarray, others: tuple[tuple[float, float], ...], distance: float) -> np.ndarray:
+    if not others or len(points) == 0:
+        return np.ones(len(points), dtype=bool)
+    o = np.asarray(others, dtype=float)
+    d = np.linalg.norm(points[:, None, :] - o[None, :, :], axis=2)
+    return d.min(axis=1) >= distance
+
+
+def _near_all(points: np.ndarray, others: tuple[tuple[float, float], ...], distance: float) -> np.ndarray:
+    o = np.asarray(others, dtype=float)
+    d = np.linalg.norm(points[:, None, :] - o[None, :, :], axis=2)
+    return d.max(axis=1) <= distance
+
+
+def _free_seats(area: Area, c: Constraints) -> list[SeatSlot]:
+    free = []
+    for slot in area.seats:
+        single = sum(1 for s in area.seats if s.seat == slot.seat) == 1
+        if single and slot.seat in c.taken_objects:
+            continue
+        if bool(_far_from(np.array([slot.position]), c.avoid, c.min_separation)[0]):
+            free.append(slot)
+    return free
+
+
+def _lattice(area: Area, scene: Scene, rng: np.random.Generator) -> np.ndarray:
+    x0 = max(area.hint[0], scene.bounds_min[0])
+    y0 = max(area.hint[1], scene.bounds_min[1])
+    x1 = min(area.hint[2], scene.bounds_max[0])
+    y1 = min(area.hint[3], scene.bounds_max[1])
+    if x1 < x0 or y1 < y0:
+        return np.zeros((0, 2))
+    step = LATTICE_STEP
+    while ((x1 - x0) / step + 1) * ((y1 - y0) / step + 1) > MAX_CANDIDATES:
+        step *= 1.5
+    ox, oy = rng.uniform(0.0, step, size=2)
+    xs = np.arange(x0 + ox, x1 + 1e-9, step)
+    ys = np.arange(y0 + oy, y1 + 1e-9, step)
+    if len(xs) == 0 or len(ys) == 0:  # thinner than one step: use the box centre line
+        xs = xs if len(xs) else np.array([(x0 + x1) / 2.0])
+        ys = ys if len(ys) else np.array([(y0 + y1) / 2.0])
+    gx, gy = np.meshgrid(xs, ys)
+    return np.stack([gx.ravel(), gy.ravel()], axis=1)
+
+
+def _interior(area: Area, points: np.ndarray) -> np.ndarray:
+    keep = np.ones(len(points), dtype=bool)
+    for dx, dy in ((INTERIOR_MARGIN, 0.0), (-INTERIOR_MARGIN, 0.0), (0.0, INTERIOR_MARGIN), (0.0, -INTERIOR_MARGIN)):
+        keep &= area.contains(points + np.array([dx, dy]))
+    return keep
+
+
+def sample_position(area: Area, floor: FloorMap, constraints: Constraints, rng: np.random.Generator) -> Placement:
+    """One admissible position in ``area`` (see the module docstring for the rules)."""
+    c = constraints
+    if area.seats:
+        seats = _free_seats(area, c)
+        if seats:
+            if c.group:
+                points = np.array([s.position for s in seats])
+                near = _near_all(points, c.group, c.group_radius)
+                if near.any():
+                    seats = [s for s, ok in zip(seats, near, strict=True) if ok]
+            slot = seats[int(rng.integers(len(seats)))]
+            return Placement(slot.position, slot.seat, slot.facing)
+        if not area.free_region:
+            names = sorted({s.seat for s in area.seats})
+            raise UnsatisfiableAreaError(
+                f"no free seat in '{area.description}': {', '.join(names)} taken by other characters"
+            )
+    if not area.free_region or not area.hint_nonempty:
+        raise UnsatisfiableAreaError(f"the area '{area.description}' is empty (its parts do not overlap)")
+
+    points = _lattice(area, floor.scene, rng)
+    inside = points[area.contains(points)] if len(points) else points
+    if len(inside) == 0:
+        raise UnsatisfiableAreaError(f"the area '{area.description}' is empty or outside the scene")
+    free = inside[floor.free(inside)]
+    if len(free) == 0:
+        raise UnsatisfiableAreaError(
+            f"no free floor in '{area.description}': it is covered by furniture or too close to a wall"
+        )
+    clear = free[_far_from(free, c.avoid, c.min_separation)]
+    if len(clear) == 0:
+        raise UnsatisfiableAreaError(
+            f"every free spot in '{area.description}' is within {c.min_separation} m of another character"
+        )
+    if c.group:
+        near = _near_all(clear, c.group, c.group_radius)
+        if near.any():
+            clear = clear[near]
+    interior = _interior(area, clear)
+    if interior.any():
+        clear = clear[interior]
+    chosen = clear[int(rng.integers(len(clear)))]
+    return Placement((float(chosen[0]), float(chosen[1])))
