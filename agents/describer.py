@@ -35,11 +35,13 @@ from agents.retry_feedback import (
     with_turns,
 )
 from sim.scene import Scene
+from tools.clusters import cluster_objects
+from tools.scene_graph import SceneGraph, build_scene_graph
+from tools.scene_text import clusters_text, scene_graph_json
 
 DESCRIBER_FILES = ("describer/system.md", "describer/request.md")
 MAX_AREAS = 8
 DEFAULT_MAX_TOKENS = 900
-SUPPORT_RELATIONS = ("on", "inside")
 
 
 class Area(BaseModel):
@@ -68,18 +70,11 @@ class DescriberInput:
     """object name -> name of the object it stands on or is inside (absent: on the floor)."""
 
 
-def describer_input_from_scene(scene: Scene) -> DescriberInput:
+def describer_input_from_scene(scene: Scene, graph: SceneGraph | None = None) -> DescriberInput:
     """Build the describer's input with the scene-graph and cluster tools."""
-    from tools.clusters import cluster_objects
-    from tools.scene_graph import build_scene_graph
-    from tools.scene_text import scene_graph_json
-
-    graph = build_scene_graph(scene)
-    supports: dict[str, str] = {}
-    for subject, relation, anchor in graph.triples():
-        if relation in SUPPORT_RELATIONS and subject not in supports:
-            supports[subject] = anchor
-    clusters = tuple(tuple(c) for c in _cluster_names(cluster_objects(scene)))
+    graph = graph or build_scene_graph(scene)
+    supports = {n: s for n in scene.object_names if (s := graph.supporter(n)) is not None}
+    clusters = tuple(tuple(c) for c in cluster_objects(scene))
     return DescriberInput(
         scene_name=scene.name,
         object_names=tuple(scene.object_names),
@@ -87,18 +82,6 @@ def describer_input_from_scene(scene: Scene) -> DescriberInput:
         clusters=clusters,
         supports=supports,
     )
-
-
-def _cluster_names(clusters: Any) -> list[list[str]]:
-    """Accept a list of name lists or objects with ``.names`` / ``.objects``."""
-    out = []
-    for c in clusters:
-        if isinstance(c, list | tuple | set | frozenset):
-            out.append([str(n) for n in c])
-        else:
-            names = getattr(c, "names", None) or getattr(c, "objects", None)
-            out.append([str(n) for n in names] if names is not None else [])
-    return out
 
 
 def describer_schema(names: Sequence[str]) -> dict[str, Any]:
@@ -131,12 +114,6 @@ def describer_schema(names: Sequence[str]) -> dict[str, Any]:
     }
 
 
-def clusters_text(clusters: Sequence[Sequence[str]]) -> str:
-    if not clusters:
-        return "(none)"
-    return "\n".join(f"{i + 1}. " + ", ".join(c) for i, c in enumerate(clusters))
-
-
 def describer_request(
     prompts: PromptLibrary, inp: DescriberInput, turns: tuple[Turn, ...] = (), *, max_tokens: int = DEFAULT_MAX_TOKENS
 ) -> LLMRequest:
@@ -144,7 +121,7 @@ def describer_request(
     user = prompts.render(
         "describer/request.md",
         scene_graph=inp.scene_graph_json.strip(),
-        clusters=clusters_text(inp.clusters),
+        clusters=clusters_text([list(c) for c in inp.clusters]) or "(none)",
         count=len(inp.object_names),
         names=", ".join(inp.object_names),
     )

@@ -27,7 +27,7 @@ from agents.messages import (
     NarratorOutput,
 )
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
-from agents.retry_feedback import AnswerRejectedError, Accepted, Turn, ask_until_valid, with_turns
+from agents.retry_feedback import Accepted, AnswerRejectedError, Turn, ask_until_valid, with_turns
 
 NARRATOR_FILES = ("narrator/system.md", "narrator/request.md")
 HISTORY_WINDOW = 8

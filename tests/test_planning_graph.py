@@ -1,0 +1,254 @@
+"""The planning graph with a scripted LLM and a fake event-program runner (no model, no sim).
+
+Also the durability test: a subprocess runs the graph on a SQLite checkpointer and is killed
+(``os._exit``) the moment the event parser is called; the resumed run must not call the
+narrator again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import textwrap
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+from langgraph.checkpoint.memory import InMemorySaver
+
+from agents.llm_port import LLMRequest, LLMResponse
+from agents.messages import CharacterStatus
+from orchestrator.checkpoints import StoryLog, open_checkpointer
+from orchestrator.planning_graph import compile_planning_graph, recursion_limit, route_step
+from orchestrator.planning_state import PlanningDeps, PlanningState
+from sim.scene import Scene, SceneObject
+from tools.errors import UnknownObjectError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def tiny_scene() -> Scene:
+    def obj(name: str, x: float, y: float, size=(0.5, 0.5, 0.9), seat: float = 0.0) -> SceneObject:
+        label, idx = name.rsplit("_", 1)
+        return SceneObject(
+            name=name, label=label, idx=int(idx), center=(x, y, size[2] / 2), size=size,
+            has_facing=True, sit_offset_vertical=seat,
+        )
+
+    return Scene(
+        name="tiny",
+        bounds_min=(0.0, 0.0),
+        bounds_max=(6.0, 6.0),
+        objects=(
+            obj("table_1", 2.0, 2.0, (1.2, 0.8, 0.75)),
+            obj("chair_1", 2.0, 1.2, seat=0.45),
+            obj("chair_2", 2.0, 2.8, seat=0.45),
+            obj("fridge_1", 5.0, 5.0, (0.8, 0.7, 1.8)),
+        ),
+    )
+
+
+@dataclass
+class Plan:
+    character: str
+    action: str
+    area: str
+    position: tuple[float, float]
+    facing: tuple[float, float]
+
+
+def fake_runner(scene: Scene, source: str, world: Any, *, seed: int, action_labels=None, graph=None) -> list[Plan]:
+    """Understands just enough: get_character("X") calls, unknown object names, actions."""
+    for name in re.findall(r'"([a-z_]+_\d+)"', source):
+        if name not in scene.by_name:
+            raise UnknownObjectError(f"unknown object '{name}'")
+    actions = re.findall(r'set_target_action\("([a-z_]+)"\)', source) or ["idle"]
+    plans = []
+    for i, who in enumerate(re.findall(r'get_character\("(\w+)"\)', source)):
+        plans.append(Plan(who, actions[min(i, len(actions) - 1)], "close to table_1", (1.0 + i + seed % 3, 1.0), (0.0, 1.0)))
+    return plans
+
+
+class FakeWorld:
+    def world_view(self, roster: Sequence[CharacterStatus]) -> Any:
+        return list(roster)
+
+    def seats_in_use(self, roster: Sequence[CharacterStatus]) -> list[str]:
+        return []
+
+
+class ScriptedPort:
+    """Answers per node from a list of replies (or a function of the request); counts calls."""
+
+    def __init__(self, replies: dict[str, list[str] | Callable[[LLMRequest], str]]) -> None:
+        self.replies = replies
+        self.calls: list[LLMRequest] = []
+
+    async def complete(self, request: LLMRequest) -> LLMResponse:
+        self.calls.append(request)
+        source = self.replies[request.node]
+        if callable(source):
+            text = source(request)
+        else:
+            text = source.pop(0)
+        return LLMResponse(text=text, model="scripted")
+
+    def count(self, node: str) -> int:
+        return sum(1 for c in self.calls if c.node == node)
+
+
+DESCRIPTION = json.dumps(
+    {"areas": [{"name": "dining", "purpose": "eat", "objects": ["table_1", "chair_1", "chair_2"]},
+               {"name": "kitchen", "purpose": "food", "objects": ["fridge_1"]}]}
+)
+
+
+def narration(chars: list[str], activity: str) -> str:
+    return json.dumps({"reasoning": "next", "event": {"characters": chars, "activity": activity}})
+
+
+PROGRAM = '```python\ndef parse_event():\n    c = get_character("{who}")\n    c.set_position(get_area_close_to("table_1"))\n    c.set_target_action("eat")\n```'
+
+
+def make_deps(port: ScriptedPort, story: StoryLog, **kw: Any) -> PlanningDeps:
+    return PlanningDeps(
+        port=port, scene=tiny_scene(), world=FakeWorld(), story=story,
+        action_labels=("idle", "eat", "chat"), runner=fake_runner, scene_graph=None, **kw,
+    )
+
+
+def initial_state(names: list[str], k: int) -> dict[str, Any]:
+    return PlanningState(
+        instruction="Ann eats.", events_target=k, roster=tuple(CharacterStatus(name=n) for n in names)
+    ).model_dump()
+
+
+async def run_graph(port: ScriptedPort, k: int, names: list[str], **kw: Any) -> tuple[dict, StoryLog]:
+    story = StoryLog(":memory:", "t1")
+    graph = compile_planning_graph(InMemorySaver())
+    final = await graph.ainvoke(
+        initial_state(names, k),
+        config={"configurable": {"thread_id": "t1"}, "recursion_limit": recursion_limit(k, 3)},
+        context=make_deps(port, story, **kw),
+        durability="sync",
+    )
+    return final, story
+
+
+async def test_two_events_with_narrator_and_parser_feedback() -> None:
+    port = ScriptedPort({
+        "describer": [DESCRIPTION],
+        "narrator": [
+            narration(["Zed"], "eat"),  # unknown character -> feedback
+            narration(["Ann"], "eat at table_1"),
+            narration(["Bob"], "eat at table_1"),
+        ],
+        "event_parser": [
+            "I think Ann should sit.",  # no code -> feedback
+            PROGRAM.replace("table_1", "tabel_1").format(who="Ann"),  # unknown object -> feedback
+            PROGRAM.format(who="Ann"),
+            PROGRAM.format(who="Bob"),
+        ],
+    })
+    final, story = await run_graph(port, 2, ["Ann", "Bob"])
+    events = story.events()
+    assert [e.event.characters for e in events] == [("Ann",), ("Bob",)]
+    assert events[0].narrator_attempts == 2 and events[0].parser_attempts == 3
+    assert events[0].plans[0].action == "eat"
+    # the feedback named the problems, in the conversation of the retries
+    narrator_retry = port.calls[2]
+    assert narrator_retry.node == "narrator" and "Zed is not a character" in narrator_retry.messages[-1].content
+    parser_calls = [c for c in port.calls if c.node == "event_parser"]
+    assert "no parse_event() function" in parser_calls[1].messages[-1].content
+    assert "tabel_1" in parser_calls[2].messages[-1].content
+    # the stable prefix is unchanged across retries (prefix cache)
+    assert parser_calls[2].messages[:2] == parser_calls[0].messages[:2]
+    assert final["step"] == 2 and final["llm_calls"] == port.count("narrator") + port.count("event_parser")
+    assert PlanningState.model_validate(final).recent[-1].characters == ("Bob",)
+
+
+async def test_retries_exhausted_is_a_failure_and_story_goes_on() -> None:
+    port = ScriptedPort({
+        "describer": [DESCRIPTION],
+        "narrator": [narration(["Zed"], "x")] * 3 + [narration(["Ann"], "eat")],
+        "event_parser": [PROGRAM.format(who="Ann")],
+    })
+    _, story = await run_graph(port, 2, ["Ann"], max_retries=2)
+    outcomes = story.outcomes()
+    assert outcomes[0][1] is not None and outcomes[0][1].node == "narrator"  # type: ignore[union-attr]
+    assert outcomes[0][1].attempts == 3  # type: ignore[union-attr]
+    assert story.events()[0].event.characters == ("Ann",)
+
+
+async def test_wait_and_busy_characters_are_not_offered() -> None:
+    def narrator(req: LLMRequest) -> str:
+        enum = req.json_schema["properties"]["event"]["properties"]["characters"]["items"]["enum"]  # type: ignore[index]
+        return narration(enum[:1], "eat at table_1")
+
+    port = ScriptedPort({"describer": [DESCRIPTION], "narrator": narrator,
+                         "event_parser": lambda r: PROGRAM.format(who=re.search(r'\["(\w+)"\]', r.messages[-1].content).group(1))})  # type: ignore[union-attr]
+    _, story = await run_graph(port, 3, ["Ann", "Bob"], busy_for_events=1)
+    outcomes = story.outcomes()
+    # Ann is busy during step 1, so Bob is planned; in step 2 Ann is free again
+    assert [o.event.characters for _, o in outcomes] == [("Ann",), ("Bob",), ("Ann",)]  # type: ignore[union-attr]
+    narrator_calls = [c for c in port.calls if c.node == "narrator"]
+    assert "Ann: busy" in narrator_calls[1].messages[1].content
+
+
+def test_route_step_ends_and_waits() -> None:
+    s = PlanningState(events_target=1, step=1)
+    assert route_step(s) == "__end__"
+    s = PlanningState(events_target=2, step=0, roster=(CharacterStatus(name="A", busy=True),))
+    assert route_step(s) == "record_outcome"
+
+
+# ----- durability: kill after the narrator, resume, count calls ---------------------------
+CHILD = textwrap.dedent(
+    """
+    import asyncio, os, sys
+    sys.path.insert(0, {tests!r})
+    sys.path.insert(0, {repo!r})
+    from test_planning_graph import ScriptedPort, DESCRIPTION, narration, make_deps, initial_state
+    from orchestrator.checkpoints import StoryLog, open_checkpointer
+    from orchestrator.planning_graph import compile_planning_graph
+
+    def die(req):
+        os._exit(17)  # hard kill, no cleanup, the moment the parser is asked
+
+    async def main():
+        port = ScriptedPort({{"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat")], "event_parser": die}})
+        async with open_checkpointer({db!r}) as saver:
+            graph = compile_planning_graph(saver)
+            await graph.ainvoke(initial_state(["Ann"], 1), config={{"configurable": {{"thread_id": "k"}}}},
+                                context=make_deps(port, StoryLog({db!r}, "k")), durability="sync")
+
+    asyncio.run(main())
+    """
+)
+
+
+async def test_killed_run_resumes_without_repeating_the_narrator(tmp_path: Path) -> None:
+    db = tmp_path / "runs.sqlite"
+    script = tmp_path / "child.py"
+    script.write_text(CHILD.format(tests=str(REPO / "tests"), repo=str(REPO), db=str(db)))
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 17, proc.stderr
+
+    port = ScriptedPort({"describer": [], "narrator": [], "event_parser": [PROGRAM.format(who="Ann")]})
+    story = StoryLog(db, "k")
+    async with open_checkpointer(db) as saver:
+        graph = compile_planning_graph(saver)
+        config = {"configurable": {"thread_id": "k"}}
+        snapshot = await graph.aget_state(config)
+        assert snapshot.next == ("parse_event",)
+        final = await graph.ainvoke(None, config=config, context=make_deps(port, story), durability="sync")
+    assert port.count("narrator") == 0 and port.count("describer") == 0
+    assert port.count("event_parser") == 1
+    assert final["step"] == 1 and final["llm_calls"] == 2
+    assert [e.event.characters for e in story.events()] == [("Ann",)]
+    assert os.path.getsize(db) > 0
