@@ -60,6 +60,10 @@ class LLMResponse(BaseModel):
     usage: TokenUsage = TokenUsage()
     latency_s: float = 0.0
     attempts: int = 1
+    trace_seq: int | None = Field(
+        default=None,
+        description="Seq of the trace record holding this response (for parsed/applied records).",
+    )
 
 
 @runtime_checkable

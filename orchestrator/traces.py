@@ -1,0 +1,257 @@
+"""Append-only JSONL traces of every LLM call attempt, crash-safe, readable after a hard kill.
+
+One line per record. Record kinds (``kind`` discriminator):
+
+- ``run``: written when a writer opens the file (run id, wall-clock start, free-form meta);
+- ``attempt``: one per LLM call attempt (success or failure), with the full request, the
+  resolved model and parameters, response text, token usage, latency and error;
+- ``parsed``: the caller's validated output for the attempt ``ref_seq`` (filled after parsing);
+- ``applied``: the simulation frame at which the result of attempt ``ref_seq`` took effect.
+
+``seq`` is unique within a file (a writer that reopens a file continues after the last seq).
+Each record is written with a single ``os.write`` of one complete line on an ``O_APPEND``
+descriptor, so a killed writer leaves at most one torn line, at the end. Reading tolerates
+and reports a torn last line; a bad line anywhere else raises :class:`TraceCorruptError`.
+Reopening a file with a torn tail for writing cuts that tail off first (and logs it).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal, Protocol
+
+import structlog
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+from agents.llm_port import LLMRequest, NodeName, TokenUsage
+
+FsyncPolicy = Literal["always", "close", "never"]
+_log = structlog.get_logger("storyteller.traces")
+
+
+class _Record(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    run_id: str
+    seq: int = Field(ge=0, description="Unique, increasing within one trace file.")
+    time_unix: float = Field(description="Wall-clock time the record was written, seconds.")
+
+
+class RunRecord(_Record):
+    kind: Literal["run"] = "run"
+    meta: dict[str, Any] = Field(default_factory=dict)
+
+
+class AttemptRecord(_Record):
+    """One attempt of one LLM call on one model."""
+
+    kind: Literal["attempt"] = "attempt"
+    call: int = Field(ge=0, description="Seq of the first attempt of the same logical call.")
+    node: NodeName
+    attempt: int = Field(ge=1, description="1-based attempt number within the call, all models.")
+    model: str
+    params: dict[str, Any] = Field(description="Resolved call parameters sent to the provider.")
+    request: LLMRequest
+    request_hash: str = Field(description="LLMRequest.content_hash() of ``request``.")
+    response_text: str | None = None
+    finish_reason: str | None = None
+    parsed_output: Any = Field(default=None, description="Decoded JSON when a schema was set.")
+    usage: TokenUsage | None = None
+    latency_s: float = Field(ge=0.0, description="Wall time of this attempt, seconds.")
+    error_type: str | None = None
+    error_message: str | None = None
+    error_class: Literal["transient", "permanent"] | None = None
+    final: bool = Field(description="True when this attempt's response was returned to the caller.")
+
+    @property
+    def ok(self) -> bool:
+        return self.error_type is None
+
+
+class ParsedRecord(_Record):
+    kind: Literal["parsed"] = "parsed"
+    ref_seq: int = Field(ge=0, description="Seq of the attempt whose response was parsed.")
+    parsed_output: Any
+
+
+class AppliedRecord(_Record):
+    kind: Literal["applied"] = "applied"
+    ref_seq: int = Field(ge=0, description="Seq of the attempt whose result was applied.")
+    sim_frame: int = Field(ge=0, description="Simulation frame at which the result took effect.")
+
+
+TraceRecord = Annotated[
+    RunRecord | AttemptRecord | ParsedRecord | AppliedRecord, Field(discriminator="kind")
+]
+_RECORD_ADAPTER: TypeAdapter[TraceRecord] = TypeAdapter(TraceRecord)
+
+
+class TraceCorruptError(Exception):
+    """A complete line of a trace file is not a valid record."""
+
+    def __init__(self, path: Path, line_no: int, message: str) -> None:
+        self.path = path
+        self.line_no = line_no
+        super().__init__(f"{path}: line {line_no}: corrupt trace record ({message})")
+
+
+@dataclass(frozen=True)
+class TornTail:
+    """An incomplete last line (the writer died mid-record)."""
+
+    line_no: int
+    byte_offset: int
+    size: int
+
+
+@dataclass(frozen=True)
+class TraceContents:
+    records: list[TraceRecord]
+    torn_tail: TornTail | None
+
+    def attempts(self) -> Iterator[AttemptRecord]:
+        return (r for r in self.records if isinstance(r, AttemptRecord))
+
+
+def _parse_line(path: Path, line_no: int, raw: bytes) -> TraceRecord:
+    try:
+        return _RECORD_ADAPTER.validate_json(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"])
+        raise TraceCorruptError(path, line_no, f"{loc}: {err['msg']}" if loc else err["msg"]) from None
+
+
+def read_trace(path: Path | str) -> TraceContents:
+    """Read every complete record. A torn last line is reported in ``torn_tail`` (and logged)."""
+    p = Path(path)
+    data = p.read_bytes()
+    records: list[TraceRecord] = []
+    start = 0
+    line_no = 0
+    torn: TornTail | None = None
+    while start < len(data):
+        line_no += 1
+        end = data.find(b"\n", start)
+        if end < 0:
+            torn = TornTail(line_no=line_no, byte_offset=start, size=len(data) - start)
+            _log.warning("trace_torn_tail", path=str(p), line=line_no, bytes=torn.size)
+            break
+        records.append(_parse_line(p, line_no, data[start:end]))
+        start = end + 1
+    return TraceContents(records=records, torn_tail=torn)
+
+
+class TraceSink(Protocol):
+    """What the LLM client and the callers need from a trace destination."""
+
+    run_id: str
+
+    def next_seq(self) -> int: ...
+
+    def write(self, record: TraceRecord) -> None: ...
+
+    def record_parsed(self, ref_seq: int, parsed_output: Any) -> None: ...
+
+    def record_applied(self, ref_seq: int, sim_frame: int) -> None: ...
+
+
+class NullTraceSink:
+    """A sink that numbers records but stores nothing."""
+
+    def __init__(self, run_id: str | None = None) -> None:
+        self.run_id = run_id or uuid.uuid4().hex[:12]
+        self._seq = 0
+        self._lock = threading.Lock()
+
+    def next_seq(self) -> int:
+        with self._lock:
+            self._seq += 1
+            return self._seq - 1
+
+    def write(self, record: TraceRecord) -> None:
+        return None
+
+    def record_parsed(self, ref_seq: int, parsed_output: Any) -> None:
+        return None
+
+    def record_applied(self, ref_seq: int, sim_frame: int) -> None:
+        return None
+
+
+class TraceWriter:
+    """Appends records to a JSONL file. Thread-safe; one ``os.write`` per record."""
+
+    def __init__(
+        self,
+        path: Path | str,
+        *,
+        run_id: str | None = None,
+        fsync: FsyncPolicy = "always",
+        meta: dict[str, Any] | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.run_id = run_id or uuid.uuid4().hex[:12]
+        self.fsync: FsyncPolicy = fsync
+        self._lock = threading.Lock()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._seq = self._recover()
+        self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        self.write(RunRecord(run_id=self.run_id, seq=self.next_seq(), time_unix=time.time(), meta=meta or {}))
+
+    def _recover(self) -> int:
+        """Cut a torn tail off an existing file; return the next free seq."""
+        if not self.path.exists() or self.path.stat().st_size == 0:
+            return 0
+        contents = read_trace(self.path)
+        if contents.torn_tail is not None:
+            _log.warning("trace_tail_truncated", path=str(self.path), bytes=contents.torn_tail.size)
+            os.truncate(self.path, contents.torn_tail.byte_offset)
+        return max((r.seq for r in contents.records), default=-1) + 1
+
+    def next_seq(self) -> int:
+        with self._lock:
+            self._seq += 1
+            return self._seq - 1
+
+    def write(self, record: TraceRecord) -> None:
+        line = record.model_dump_json().encode("utf-8") + b"\n"
+        with self._lock:
+            if self._fd is None:
+                raise ValueError(f"trace writer for {self.path} is closed")
+            view = memoryview(line)
+            while view:  # a regular-file write is complete unless the disk is full
+                n = os.write(self._fd, view)
+                view = view[n:]
+            if self.fsync == "always":
+                os.fsync(self._fd)
+
+    def record_parsed(self, ref_seq: int, parsed_output: Any) -> None:
+        self.write(ParsedRecord(run_id=self.run_id, seq=self.next_seq(), time_unix=time.time(),
+                                ref_seq=ref_seq, parsed_output=parsed_output))
+
+    def record_applied(self, ref_seq: int, sim_frame: int) -> None:
+        self.write(AppliedRecord(run_id=self.run_id, seq=self.next_seq(), time_unix=time.time(),
+                                 ref_seq=ref_seq, sim_frame=sim_frame))
+
+    def close(self) -> None:
+        with self._lock:
+            if self._fd is None:
+                return
+            if self.fsync != "never":
+                os.fsync(self._fd)
+            os.close(self._fd)
+            self._fd = None
+
+    def __enter__(self) -> TraceWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
