@@ -12,20 +12,28 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from pydantic import ValidationError
 
 from sim.scene import NavHints, Scene, SceneObject
 
-MESH_SUFFIXES = {".glb", ".gltf", ".obj", ".ply", ".off", ".stl"}
+MESH_SUFFIXES = {".glb", ".gltf", ".obj", ".ply"}
 
 
 class SceneFileError(Exception):
-    """A scene file that cannot be used. ``str()`` is one sentence fit for a user."""
+    """A scene file that cannot be used. ``str()`` is one sentence fit for a user.
 
-    def __init__(self, path: Path | str, message: str, *, obj: str | None = None, field: str | None = None):
+    ``path`` is the offending file (or folder), ``obj`` the object's name when one object is at
+    fault (``'#3'`` when the entry has no usable name), ``field`` the dotted field path.
+    """
+
+    def __init__(
+        self, path: Path | str, message: str, *, obj: str | None = None, field: str | None = None
+    ):
         self.path = str(path)
         self.obj = obj
         self.field = field
@@ -35,29 +43,102 @@ class SceneFileError(Exception):
             where += f": object '{obj}'"
         if field is not None:
             where += f", field '{field}'" if obj is not None else f": field '{field}'"
-        super().__init__(f"{where}: {message}")
+        super().__init__(f"{where}: {_one_line(message)}")
+
+
+def _one_line(text: str, limit: int = 300) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _short_repr(value: Any, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _read_text(path: Path) -> str:
+    """The file's text; a clear error for missing, unreadable, empty or binary files."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise SceneFileError(path, "file not found") from None
+    except IsADirectoryError:
+        raise SceneFileError(path, "expected a file, found a folder") from None
+    except OSError as exc:
+        raise SceneFileError(
+            path, f"cannot read file ({exc.__class__.__name__}: {exc.strerror or exc})"
+        ) from None
+    if not raw.strip():
+        raise SceneFileError(path, "file is empty")
+    if b"\x00" in raw[:4096]:
+        raise SceneFileError(path, "file holds binary data, expected UTF-8 JSON text")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise SceneFileError(
+            path, f"file is not UTF-8 text (bad byte at offset {exc.start})"
+        ) from None
+
+
+def _parse_json(path: Path, text: str) -> Any:
+    """Strict JSON: no NaN / Infinity (nor numbers that overflow to infinity), no duplicate keys."""
+    try:
+        return json.loads(
+            text,
+            parse_constant=_reject_constant,
+            parse_float=_finite_float,
+            object_pairs_hook=_unique_keys,
+        )
+    except json.JSONDecodeError as exc:
+        what = (
+            "JSON ends early (truncated file?)" if exc.pos >= len(text.rstrip()) else "invalid JSON"
+        )
+        raise SceneFileError(
+            path, f"{what} at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        ) from None
+    except _JsonValueError as exc:
+        raise SceneFileError(path, str(exc)) from None
+    except RecursionError:
+        raise SceneFileError(path, "JSON nested too deeply") from None
 
 
 def _read_json(path: Path) -> Any:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SceneFileError(path, "file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneFileError(path, f"cannot read file ({exc.__class__.__name__}: {exc})") from None
-    try:
-        return json.loads(text, parse_constant=_reject_constant)
-    except json.JSONDecodeError as exc:
-        raise SceneFileError(path, f"invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
-    except ValueError as exc:
-        raise SceneFileError(path, str(exc)) from None
+    return _parse_json(path, _read_text(path))
+
+
+class _JsonValueError(ValueError):
+    pass
 
 
 def _reject_constant(name: str) -> float:
-    raise ValueError(f"non-finite number '{name}' is not allowed")
+    raise _JsonValueError(f"non-finite number '{name}' is not allowed (numbers must be finite)")
 
 
-def _validation_error(path: Path, exc: ValidationError, objects: list[Any] | None) -> SceneFileError:
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise _JsonValueError(f"number {text[:40]} is too large (numbers must be finite)")
+    return value
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _JsonValueError(f"key '{key}' appears twice in one JSON object")
+        out[key] = value
+    return out
+
+
+_PYDANTIC_MESSAGES = {
+    "extra_forbidden": "unknown key",
+    "missing": "required field is missing",
+}
+
+
+def _validation_error(
+    path: Path, exc: ValidationError, objects: list[Any] | None
+) -> SceneFileError:
     err = exc.errors()[0]
     loc = [str(p) for p in err["loc"]]
     obj_name: str | None = None
@@ -65,31 +146,55 @@ def _validation_error(path: Path, exc: ValidationError, objects: list[Any] | Non
     if objects is not None and len(loc) >= 2 and loc[0] == "objects" and loc[1].isdigit():
         i = int(loc[1])
         raw = objects[i] if i < len(objects) else None
-        obj_name = raw.get("name") if isinstance(raw, dict) else None
-        obj_name = obj_name or f"#{i}"
+        name = raw.get("name") if isinstance(raw, dict) else None
+        obj_name = name if isinstance(name, str) and name else f"#{i}"
         field_parts = loc[2:]
+        if not field_parts and err["type"] == "value_error":
+            field_parts = ["name"]  # the only object-level rule: name == '<label>_<idx>'
     field = ".".join(field_parts) or None
-    msg = err["msg"]
-    if err["type"] == "extra_forbidden":
-        msg = "unknown key"
-    elif err["type"] == "missing":
-        msg = "required field is missing"
+    msg = _PYDANTIC_MESSAGES.get(err["type"], err["msg"])
+    msg = msg.removeprefix("Value error, ")
+    if err["type"] not in _PYDANTIC_MESSAGES and "input" in err and err["type"] != "value_error":
+        msg += f", got {_short_repr(err['input'])}"
+    if err["type"] == "missing" and field_parts and field_parts[-1].isdigit():
+        msg = "too few numbers in the list"
+        field = ".".join(field_parts[:-1])
     return SceneFileError(path, msg, obj=obj_name, field=field)
 
 
 def load_scene_json(path: Path) -> Scene:
-    """Load the project's own scene JSON."""
-    data = _read_json(path)
+    """Load the project's own scene JSON (``Scene.model_dump_json``), validated strictly.
+
+    Strict means: numbers must be JSON numbers (no ``"1.0"`` strings), integers must be integers,
+    booleans must be booleans, and every key must be known.
+    """
+    text = _read_text(path)
+    data = _parse_json(path, text)
     if not isinstance(data, dict):
-        raise SceneFileError(path, "expected a JSON object at top level")
-    objects = data.get("objects") if isinstance(data.get("objects"), list) else None
+        hint = (
+            " (a list of objects? pass the folder of a reference objects.json)"
+            if isinstance(data, list)
+            else ""
+        )
+        raise SceneFileError(path, f"expected a JSON object at top level{hint}")
+    raw_objects = data.get("objects")
+    objects = raw_objects if isinstance(raw_objects, list) else None
+    if objects is not None:
+        seen: set[str] = set()
+        for raw in objects:
+            name = raw.get("name") if isinstance(raw, dict) else None
+            if isinstance(name, str):
+                if name in seen:
+                    raise SceneFileError(path, "duplicate object name", obj=name, field="name")
+                seen.add(name)
     try:
-        return Scene.model_validate(data)
+        return Scene.model_validate_json(text, strict=True)
     except ValidationError as exc:
         raise _validation_error(path, exc, objects) from None
 
 
 def save_scene_json(scene: Scene, path: Path) -> None:
+    """Write ``scene`` as the project's JSON format (round-trips through ``load_scene_json``)."""
     path.write_text(scene.model_dump_json(indent=2) + "\n", encoding="utf-8")
 
 
@@ -101,42 +206,70 @@ _REFERENCE_KEYS = {
 _REFERENCE_REQUIRED = {"label", "idx", "center", "width", "depth", "height", "orientation"}
 
 
-def _number(path: Path, name: str, field: str, value: Any) -> float:
+def _number(path: Path, name: str | None, field: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise SceneFileError(path, f"expected a number, got {value!r}", obj=name, field=field)
+        raise SceneFileError(
+            path, f"expected a number, got {_short_repr(value)}", obj=name, field=field
+        )
     if not math.isfinite(value):
-        raise SceneFileError(path, f"expected a finite number, got {value!r}", obj=name, field=field)
+        raise SceneFileError(
+            path, f"expected a finite number, got {_short_repr(value)}", obj=name, field=field
+        )
     return float(value)
 
 
-def _vector(path: Path, name: str, field: str, value: Any, n: int) -> tuple[float, ...]:
-    if not isinstance(value, list) or len(value) < n:
-        raise SceneFileError(path, f"expected a list of {n} numbers, got {value!r}", obj=name, field=field)
+def _vector(
+    path: Path, name: str | None, field: str, value: Any, n: int, extra: int = 0
+) -> tuple[float, ...]:
+    """The first ``n`` numbers of a JSON list of ``n`` to ``n + extra`` finite numbers."""
+    if not isinstance(value, list) or not n <= len(value) <= n + extra:
+        count = f"{n}" if not extra else f"{n} to {n + extra}"
+        raise SceneFileError(
+            path,
+            f"expected a list of {count} numbers, got {_short_repr(value)}",
+            obj=name,
+            field=field,
+        )
+    for v in value[n:]:
+        _number(path, name, field, v)
     return tuple(_number(path, name, field, v) for v in value[:n])
 
 
 def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
     if not isinstance(raw, dict):
-        raise SceneFileError(path, f"entry #{i} is not a JSON object")
+        raise SceneFileError(path, f"expected a JSON object, got {_short_repr(raw)}", obj=f"#{i}")
     label = raw.get("label")
     idx = raw.get("idx")
-    name = f"{label}_{idx}" if isinstance(label, str) and isinstance(idx, int) else f"#{i}"
+    ok_idx = isinstance(idx, int) and not isinstance(idx, bool)
+    name = f"{label}_{idx}" if isinstance(label, str) and label and ok_idx else f"#{i}"
     for key in sorted(_REFERENCE_REQUIRED - raw.keys()):
         raise SceneFileError(path, "required field is missing", obj=name, field=key)
     for key in sorted(raw.keys() - _REFERENCE_KEYS):
         raise SceneFileError(path, "unknown key", obj=name, field=key)
-    if not isinstance(label, str) or not label:
-        raise SceneFileError(path, f"expected a non-empty string, got {label!r}", obj=name, field="label")
-    if isinstance(idx, bool) or not isinstance(idx, int) or idx < 0:
-        raise SceneFileError(path, f"expected an integer >= 0, got {idx!r}", obj=name, field="idx")
+    if not isinstance(label, str) or not _LABEL_PATTERN.match(label):
+        raise SceneFileError(
+            path,
+            f"expected a lower snake case label like 'coffee_maker', got {_short_repr(label)}",
+            obj=name,
+            field="label",
+        )
+    if not ok_idx or idx < 0:
+        raise SceneFileError(
+            path, f"expected an integer >= 0, got {_short_repr(idx)}", obj=name, field="idx"
+        )
     center = _vector(path, name, "center", raw["center"], 3)
     size = tuple(_number(path, name, k, raw[k]) for k in ("width", "depth", "height"))
     for k, v in zip(("width", "depth", "height"), size, strict=True):
         if v < 0:
             raise SceneFileError(path, f"must be >= 0, got {v}", obj=name, field=k)
-    facing = _vector(path, name, "orientation", raw["orientation"], 2)
+    facing = _vector(path, name, "orientation", raw["orientation"], 2, extra=1)
     if math.hypot(*facing) < 1e-6:
         raise SceneFileError(path, "must be a non-zero xy vector", obj=name, field="orientation")
+    flags = {k: _flag(path, name, k, raw.get(k, True)) for k in ("has_orientation", "use_this")}
+    offsets = {
+        k: _number(path, name, k, raw.get(k, 0.0))
+        for k in ("sit_offset_horizontal", "sit_offset_vertical")
+    }
     try:
         return SceneObject(
             name=name,
@@ -145,54 +278,128 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
             center=center,  # type: ignore[arg-type]
             size=size,  # type: ignore[arg-type]
             facing=facing,  # type: ignore[arg-type]
-            has_facing=bool(raw.get("has_orientation", True)),
-            sit_offset_horizontal=_number(path, name, "sit_offset_vertical", raw.get("sit_offset_horizontal", 0.0)),
-            sit_offset_vertical=_number(path, name, "sit_offset_vertical", raw.get("sit_offset_vertical", 0.0)),
-            interactive=bool(raw.get("use_this", True)),
+            has_facing=flags["has_orientation"],
+            sit_offset_horizontal=offsets["sit_offset_horizontal"],
+            sit_offset_vertical=offsets["sit_offset_vertical"],
+            interactive=flags["use_this"],
         )
     except ValidationError as exc:
         err = exc.errors()[0]
         field = ".".join(str(p) for p in err["loc"]) or None
-        raise SceneFileError(path, err["msg"], obj=name, field=field) from None
+        raise SceneFileError(
+            path, err["msg"].removeprefix("Value error, "), obj=name, field=field
+        ) from None
+
+
+_LABEL_PATTERN = re.compile(r"^[a-z][a-z0-9_]*$")
+
+
+def _flag(path: Path, name: str, field: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise SceneFileError(
+            path, f"expected true or false, got {_short_repr(value)}", obj=name, field=field
+        )
+    return value
 
 
 def load_reference_folder(folder: Path) -> Scene:
-    """Load a reference annotation folder (``objects.json`` [+ ``scene.json``, ``grid_map.json``])."""
+    """Load a reference annotation folder (``objects.json`` [+ ``scene.json``, ``grid_map.json``]).
+
+    The scene's floor rectangle comes from ``scene.json``'s ``bbox`` (or, without it, from the
+    objects' footprints); navigation hints from ``grid_map.json``. The scene is named after the
+    folder.
+    """
     objects_path = folder / "objects.json"
+    if not objects_path.is_file():
+        raise SceneFileError(
+            folder, "folder has no objects.json (expected a reference annotation folder)"
+        )
     raw_objects = _read_json(objects_path)
     if not isinstance(raw_objects, list):
-        raise SceneFileError(objects_path, "expected a JSON list of objects")
+        raise SceneFileError(objects_path, "expected a JSON list of objects at top level")
     objects = [_reference_object(objects_path, i, raw) for i, raw in enumerate(raw_objects)]
     seen: set[str] = set()
     for obj in objects:
         if obj.name in seen:
-            raise SceneFileError(objects_path, "duplicate object name", obj=obj.name, field="idx")
+            raise SceneFileError(
+                objects_path,
+                "duplicate object name (same label and idx twice)",
+                obj=obj.name,
+                field="idx",
+            )
         seen.add(obj.name)
 
     bounds_min, bounds_max = _reference_bounds(folder, objects)
     nav = _reference_nav(folder)
     try:
-        return Scene(name=folder.name, bounds_min=bounds_min, bounds_max=bounds_max, objects=tuple(objects), nav=nav)
-    except ValidationError as exc:
+        return Scene(
+            name=folder.resolve().name or "scene",
+            bounds_min=bounds_min,
+            bounds_max=bounds_max,
+            objects=tuple(objects),
+            nav=nav,
+        )
+    except ValidationError as exc:  # pragma: no cover - every rule is checked above
         raise _validation_error(objects_path, exc, None) from None
 
 
-def _reference_bounds(folder: Path, objects: list[SceneObject]) -> tuple[tuple[float, float], tuple[float, float]]:
+def _reference_bounds(
+    folder: Path, objects: list[SceneObject]
+) -> tuple[tuple[float, float], tuple[float, float]]:
     scene_path = folder / "scene.json"
     if scene_path.exists():
         data = _read_json(scene_path)
-        bbox = data.get("bbox") if isinstance(data, dict) else None
+        if not isinstance(data, dict):
+            raise SceneFileError(scene_path, "expected a JSON object at top level")
+        if "bbox" not in data:
+            raise SceneFileError(scene_path, "required field is missing", field="bbox")
+        bbox = data["bbox"]
         if not (isinstance(bbox, list) and len(bbox) == 2):
-            raise SceneFileError(scene_path, "expected [[xmin, ymin, zmin], [xmax, ymax, zmax]]", field="bbox")
-        lo = _vector(scene_path, "scene", "bbox", bbox[0], 2)
-        hi = _vector(scene_path, "scene", "bbox", bbox[1], 2)
+            raise SceneFileError(
+                scene_path,
+                f"expected [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {_short_repr(bbox)}",
+                field="bbox",
+            )
+        lo = _vector(scene_path, None, "bbox", bbox[0], 2, extra=1)
+        hi = _vector(scene_path, None, "bbox", bbox[1], 2, extra=1)
+        if hi[0] <= lo[0] or hi[1] <= lo[1]:
+            raise SceneFileError(
+                scene_path,
+                f"upper corner {list(hi[:2])} must exceed lower corner {list(lo[:2])} on x and y",
+                field="bbox",
+            )
         return (lo[0], lo[1]), (hi[0], hi[1])
     if not objects:
-        raise SceneFileError(folder / "objects.json", "no objects and no scene.json: cannot tell the floor size")
-    corners = [c for o in objects for c in o.footprint()]
-    xs = [float(c[0]) for c in corners]
-    ys = [float(c[1]) for c in corners]
-    return (min(xs), min(ys)), (max(xs), max(ys))
+        raise SceneFileError(
+            folder / "objects.json", "no objects and no scene.json: cannot tell the floor size"
+        )
+    corners = np.concatenate([o.footprint() for o in objects])
+    lo_xy, hi_xy = corners.min(axis=0), corners.max(axis=0)
+    if hi_xy[0] <= lo_xy[0] or hi_xy[1] <= lo_xy[1]:
+        raise SceneFileError(
+            folder / "objects.json",
+            "objects have no floor area and there is no scene.json for the bounds",
+        )
+    return (float(lo_xy[0]), float(lo_xy[1])), (float(hi_xy[0]), float(hi_xy[1]))
+
+
+def _cells(path: Path, field: str, value: Any) -> tuple[tuple[int, int], ...]:
+    if not isinstance(value, list):
+        raise SceneFileError(
+            path, f"expected a list of [i, j] cells, got {_short_repr(value)}", field=field
+        )
+    cells = []
+    for cell in value:
+        if not (
+            isinstance(cell, list)
+            and len(cell) == 2
+            and all(isinstance(c, int) and not isinstance(c, bool) for c in cell)
+        ):
+            raise SceneFileError(
+                path, f"expected [i, j] integer cells, got {_short_repr(cell)}", field=field
+            )
+        cells.append((cell[0], cell[1]))
+    return tuple(cells)
 
 
 def _reference_nav(folder: Path) -> NavHints:
@@ -201,17 +408,25 @@ def _reference_nav(folder: Path) -> NavHints:
         return NavHints()
     data = _read_json(grid_path)
     if not isinstance(data, dict):
-        raise SceneFileError(grid_path, "expected a JSON object")
-    mods = data.get("user_modifications") or {}
-    try:
-        return NavHints(
-            cell_size=data.get("grid_step", 0.3),
-            body_radius=data.get("cylinder_radius"),
-            occupied=tuple(tuple(c) for c in mods.get("occupied", [])),
-            unoccupied=tuple(tuple(c) for c in mods.get("unoccupied", [])),
+        raise SceneFileError(grid_path, "expected a JSON object at top level")
+    mods = data.get("user_modifications", {})
+    if not isinstance(mods, dict):
+        raise SceneFileError(
+            grid_path, f"expected an object, got {_short_repr(mods)}", field="user_modifications"
         )
-    except (ValidationError, TypeError) as exc:
-        raise SceneFileError(grid_path, f"invalid grid settings ({exc.__class__.__name__})") from None
+    cell = _number(grid_path, None, "grid_step", data.get("grid_step", 0.3))
+    if cell <= 0:
+        raise SceneFileError(grid_path, f"must be > 0, got {cell}", field="grid_step")
+    radius_raw = data.get("cylinder_radius")
+    radius = None if radius_raw is None else _number(grid_path, None, "cylinder_radius", radius_raw)
+    if radius is not None and radius <= 0:
+        raise SceneFileError(grid_path, f"must be > 0, got {radius}", field="cylinder_radius")
+    return NavHints(
+        cell_size=cell,
+        body_radius=radius,
+        occupied=_cells(grid_path, "user_modifications.occupied", mods.get("occupied", [])),
+        unoccupied=_cells(grid_path, "user_modifications.unoccupied", mods.get("unoccupied", [])),
+    )
 
 
 # ----- dispatch -----------------------------------------------------------------------------
@@ -222,8 +437,6 @@ def load_scene(path: Path | str) -> Scene:
     """
     path = Path(path)
     if path.is_dir():
-        if not (path / "objects.json").exists():
-            raise SceneFileError(path, "folder has no objects.json (expected a reference annotation folder)")
         return load_reference_folder(path)
     if not path.exists():
         raise SceneFileError(path, "file not found")
@@ -236,4 +449,8 @@ def load_scene(path: Path | str) -> Scene:
         from sim.scene_meshes import load_mesh_scene
 
         return load_mesh_scene(path)
-    raise SceneFileError(path, f"unsupported scene file type '{suffix}' (expected a folder, .json, or a mesh)")
+    kinds = ", ".join(sorted(MESH_SUFFIXES))
+    raise SceneFileError(
+        path,
+        f"unsupported scene file type '{suffix or path.name}' (expected a folder, .json, or {kinds})",
+    )
