@@ -114,7 +114,7 @@ def forward_kinematics(
 def heading_to_root(theta: float | np.ndarray) -> np.ndarray:
     """Root rotation(s) (..., 3, 3) that stand the body upright facing world angle ``theta``."""
     theta = np.asarray(theta, dtype=float)
-    rz = Rotation.from_euler("z", (theta + np.pi / 2).reshape(-1)).as_matrix()
+    rz = Rotation.from_euler("z", (theta + np.pi / 2).reshape(-1, 1)).as_matrix()
     return (rz @ BODY_TO_WORLD).reshape(*theta.shape, 3, 3)
 
 
