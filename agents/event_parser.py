@@ -30,6 +30,7 @@ from agents.retry_feedback import (
     ask_until_valid,
     with_turns,
 )
+from sim.action_labels import ACTION_LABELS, ACTION_SPECS
 from sim.scene import Scene
 
 PARSER_FILES = ("event_parser/system.md", "event_parser/request.md")
@@ -71,6 +72,29 @@ class ParserInput:
     seed: int | None = None
     sim_frame: int | None = None
     max_tokens: int = DEFAULT_MAX_TOKENS
+
+
+MOTION_ONLY_LABELS = frozenset({"walk", "sit_down", "sit_idle", "stand_up"})
+OBJECT_GESTURES = frozenset({"reach", "reach_low", "write", "wipe"})
+
+
+def scene_action_labels(scene: Scene, labels: Sequence[str] | None = None) -> tuple[str, ...]:
+    """Action labels worth offering in ``scene`` (a short list keeps small-model prompts short).
+
+    Drops labels the simulation uses by itself (walk, sit down...) and object-operating labels
+    (gesture reach / write / wipe) whose name mentions no object label of the scene, e.g.
+    ``use_toaster`` in a scene without a toaster.
+    """
+    scene_labels = set(scene.labels)
+    out = []
+    for label in labels if labels is not None else ACTION_LABELS:
+        if label in MOTION_ONLY_LABELS:
+            continue
+        spec = ACTION_SPECS.get(label)
+        if spec is not None and spec.gesture in OBJECT_GESTURES and not any(o in label for o in scene_labels):
+            continue
+        out.append(label)
+    return tuple(out)
 
 
 def _status_line(c: CharacterStatus) -> str:

@@ -10,6 +10,21 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from tools.character_states import CharacterPlan
+
+__all__ = [
+    "CharacterPlan",
+    "CharacterStatus",
+    "Event",
+    "EventState",
+    "HistoryEntry",
+    "NarratorOutput",
+    "ParsedEvent",
+    "PlannedCharacter",
+    "PlanningFailure",
+    "SceneDescription",
+]
+
 EventState = Literal["ongoing", "looping", "completed"]
 """ongoing: its characters are busy; looping: they keep acting but may be given a new event
 (interruptible); completed: finished, its characters are free."""
@@ -68,16 +83,20 @@ class CharacterStatus(_Frozen):
     position: tuple[float, float] | None = Field(default=None, description="[x, y] in metres.")
     facing: tuple[float, float] | None = Field(default=None, description="Unit [dx, dy].")
     event_index: int | None = Field(default=None, description="Event the character is busy with.")
+    seat: str | None = Field(default=None, description="Seat object the character sits on.")
 
 
 class PlannedCharacter(_Frozen):
-    """The event parser's result for one character (a copy of the tool's CharacterPlan)."""
+    """The event parser's result for one character: a copy of the tool's
+    :class:`~tools.character_states.CharacterPlan` (kept as our own type so checkpoints and
+    story logs do not depend on the tool's model)."""
 
     character: str
     action: str = Field(description="Action label the character performs on arrival.")
     area: str = Field(default="", description="Readable description of the target area.")
     position: tuple[float, float] = Field(description="Sampled target [x, y] in metres.")
     facing: tuple[float, float] = Field(description="Unit [dx, dy] the character faces there.")
+    seat: str | None = Field(default=None, description="Seat object, when sitting.")
 
     @classmethod
     def from_tool_plan(cls, plan: Any) -> PlannedCharacter:
@@ -90,6 +109,7 @@ class PlannedCharacter(_Frozen):
             area=str(getattr(plan, "area", "") or ""),
             position=(position[0], position[1]),
             facing=(facing[0], facing[1]),
+            seat=getattr(plan, "seat", None),
         )
 
 

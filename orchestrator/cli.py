@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from orchestrator import cli_scene
+from orchestrator import cli_plan, cli_scene
 
 app = typer.Typer(
     name="storyteller",
@@ -13,6 +13,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 cli_scene.register(app)
+cli_plan.register(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point

@@ -168,6 +168,7 @@ async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -
                 position=plan.position,
                 facing=plan.facing,
                 event_index=step if ongoing else None,
+                seat=plan.seat,
             )
             busy_until[plan.character] = step + deps.busy_for_events
         recent.append(

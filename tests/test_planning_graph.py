@@ -18,7 +18,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import pytest
 from langgraph.checkpoint.memory import InMemorySaver
 
 from agents.llm_port import LLMRequest, LLMResponse
@@ -92,10 +91,7 @@ class ScriptedPort:
     async def complete(self, request: LLMRequest) -> LLMResponse:
         self.calls.append(request)
         source = self.replies[request.node]
-        if callable(source):
-            text = source(request)
-        else:
-            text = source.pop(0)
+        text = source(request) if callable(source) else source.pop(0)
         return LLMResponse(text=text, model="scripted")
 
     def count(self, node: str) -> int:
