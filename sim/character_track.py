@@ -63,12 +63,16 @@ class CharacterTrack:
             raise CharacterTrackError("must be a non-empty string", field="name")
         fps = float(self.fps)
         if not np.isfinite(fps) or fps <= 0.0:
-            raise CharacterTrackError(f"must be a positive number of frames per second, got {self.fps!r}", field="fps")
+            raise CharacterTrackError(
+                f"must be a positive number of frames per second, got {self.fps!r}", field="fps"
+            )
         object.__setattr__(self, "fps", fps)
 
         root = _as_float_array(self.root_positions, "root_positions")
         if root.ndim != 2 or root.shape[1] != 3 or root.shape[0] < 1:
-            raise CharacterTrackError(f"expected shape (N, 3) with N >= 1, got {root.shape}", field="root_positions")
+            raise CharacterTrackError(
+                f"expected shape (N, 3) with N >= 1, got {root.shape}", field="root_positions"
+            )
         n = root.shape[0]
         rot = _as_float_array(self.local_rotations, "local_rotations")
         if rot.shape != (n, NUM_JOINTS, 3, 3):
@@ -87,14 +91,20 @@ class CharacterTrack:
             )
         betas = _as_float_array(self.betas, "betas")
         if betas.shape != (NUM_BETAS,):
-            raise CharacterTrackError(f"expected shape ({NUM_BETAS},), got {betas.shape}", field="betas")
+            raise CharacterTrackError(
+                f"expected shape ({NUM_BETAS},), got {betas.shape}", field="betas"
+            )
         if self.gender not in GENDERS:
-            raise CharacterTrackError(f"expected one of {list(GENDERS)}, got {self.gender!r}", field="gender")
+            raise CharacterTrackError(
+                f"expected one of {list(GENDERS)}, got {self.gender!r}", field="gender"
+            )
         labels = self.action_labels
         if labels is not None:
             labels = tuple(labels)
             if len(labels) != n or not all(isinstance(s, str) for s in labels):
-                raise CharacterTrackError(f"expected {n} strings (one per frame)", field="action_labels")
+                raise CharacterTrackError(
+                    f"expected {n} strings (one per frame)", field="action_labels"
+                )
         for name, arr in (("root_positions", root), ("local_rotations", rot), ("betas", betas)):
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
@@ -146,7 +156,9 @@ class CharacterTrack:
             raise CharacterTrackError(f"cannot read as .npz ({exc})", path=path) from None
         fmt = str(arrays.get("format", ""))
         if fmt != TRACK_FORMAT:
-            raise CharacterTrackError(f"expected '{TRACK_FORMAT}', got '{fmt}'", field="format", path=path)
+            raise CharacterTrackError(
+                f"expected '{TRACK_FORMAT}', got '{fmt}'", field="format", path=path
+            )
         for key in ("name", "fps", "root_positions", "local_rotations", "betas", "gender"):
             if key not in arrays:
                 raise CharacterTrackError("missing", field=key, path=path)
@@ -188,7 +200,9 @@ def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray], *, compress: b
         for key, value in arrays.items():
             arr = np.asarray(value)
             if arr.dtype.hasobject:
-                raise TypeError(f"array '{key}' has dtype object; it cannot be stored without pickling")
+                raise TypeError(
+                    f"array '{key}' has dtype object; it cannot be stored without pickling"
+                )
             info = zipfile.ZipInfo(f"{key}.npy", date_time=_ZIP_EPOCH)
             info.compress_type = method
             info.external_attr = 0o644 << 16
@@ -217,7 +231,7 @@ def random_track(
     The pelvis wanders on the floor (about 0.8-0.95 m high) with a slowly turning heading and
     a small tilt; every other joint bends smoothly by at most ``max_joint_angle`` radians.
     """
-    from sim.skeleton import BODY_TO_WORLD, axis_angle_to_matrix  # noqa: PLC0415
+    from sim.skeleton import BODY_TO_WORLD, axis_angle_to_matrix
 
     rng = np.random.default_rng(seed)
     t = np.arange(num_frames) / fps
@@ -225,7 +239,12 @@ def random_track(
     freqs = rng.uniform(0.1, 1.5, size=(3, NUM_JOINTS, 3))
     phases = rng.uniform(0.0, 2 * np.pi, size=(3, NUM_JOINTS, 3))
     amps = rng.uniform(0.0, 1.0, size=(3, NUM_JOINTS, 3))
-    wave = np.einsum("kjc,nkjc->njc", amps, np.sin(2 * np.pi * freqs * t[:, None, None, None] + phases)) / 3.0
+    wave = (
+        np.einsum(
+            "kjc,nkjc->njc", amps, np.sin(2 * np.pi * freqs * t[:, None, None, None] + phases)
+        )
+        / 3.0
+    )
     aa = wave * max_joint_angle / np.sqrt(3.0)
     rotations = axis_angle_to_matrix(aa)
     heading = rng.uniform(-np.pi, np.pi) + np.cumsum(rng.normal(0.0, 0.02, num_frames))

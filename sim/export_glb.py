@@ -33,7 +33,15 @@ from scipy.spatial.transform import Rotation
 from sim.character_track import CharacterTrack
 from sim.export_bvh import END_SITES
 from sim.scene import Scene, SceneObject
-from sim.skeleton import BODY_TO_WORLD, JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, REST_OFFSETS, rest_positions
+from sim.skeleton import (
+    BODY_TO_WORLD,
+    JOINT_INDEX,
+    JOINT_NAMES,
+    NUM_JOINTS,
+    PARENTS,
+    REST_OFFSETS,
+    rest_positions,
+)
 
 WORLD_TO_GLTF = BODY_TO_WORLD.T
 FLOOR_THICKNESS = 0.02  # metres, below floor_z
@@ -81,19 +89,27 @@ _END_SIZES: dict[str, tuple[float, float]] = {
 }
 # Unit cube corners (bit 0: +x, bit 1: +y, bit 2: +z) and its 6 outward quads.
 _CORNERS = np.array([[(i >> k) & 1 for k in range(3)] for i in range(8)], dtype=float) - 0.5
-_QUADS = np.array([[1, 3, 7, 5], [0, 4, 6, 2], [2, 6, 7, 3], [0, 1, 5, 4], [4, 5, 7, 6], [0, 2, 3, 1]])
-_QUAD_NORMALS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)
+_QUADS = np.array(
+    [[1, 3, 7, 5], [0, 4, 6, 2], [2, 6, 7, 3], [0, 1, 5, 4], [4, 5, 7, 6], [0, 2, 3, 1]]
+)
+_QUAD_NORMALS = np.array(
+    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float
+)
 _QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
 
 
-def box_mesh(centers: np.ndarray, axes: np.ndarray, half_sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def box_mesh(
+    centers: np.ndarray, axes: np.ndarray, half_sizes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Flat-shaded boxes, vectorised over B boxes.
 
     centers (B, 3); axes (B, 3, 3) with the box's unit axes as columns (right-handed);
     half_sizes (B, 3). Returns positions (B*24, 3), normals (B*24, 3), triangles (B*12, 3).
     """
     b = centers.shape[0]
-    corners = centers[:, None, :] + np.einsum("bij,bcj->bci", axes, _CORNERS[None] * 2.0 * half_sizes[:, None, :])
+    corners = centers[:, None, :] + np.einsum(
+        "bij,bcj->bci", axes, _CORNERS[None] * 2.0 * half_sizes[:, None, :]
+    )
     positions = corners[:, _QUADS.reshape(-1)]  # (B, 24, 3)
     normals = np.repeat(np.einsum("bij,fj->bfi", axes, _QUAD_NORMALS), 4, axis=1)
     local_tris = (np.arange(6)[:, None, None] * 4 + _QUAD_TRIANGLES[None]).reshape(12, 3)
@@ -155,7 +171,9 @@ class _Writer:
         offset = len(self.blob)
         raw = arr.tobytes()
         self.blob += raw + b"\x00" * (-len(raw) % 4)
-        self.gltf.bufferViews.append(gl.BufferView(buffer=0, byteOffset=offset, byteLength=len(raw), target=target))
+        self.gltf.bufferViews.append(
+            gl.BufferView(buffer=0, byteOffset=offset, byteLength=len(raw), target=target)
+        )
         count = arr.shape[0]
         acc = gl.Accessor(
             bufferView=len(self.gltf.bufferViews) - 1,
@@ -176,7 +194,9 @@ class _Writer:
         return len(self.gltf.nodes) - 1
 
     def material(self, name: str, rgb: Sequence[float]) -> int:
-        pbr = gl.PbrMetallicRoughness(baseColorFactor=[*map(float, rgb), 1.0], metallicFactor=0.0, roughnessFactor=0.8)
+        pbr = gl.PbrMetallicRoughness(
+            baseColorFactor=[*map(float, rgb), 1.0], metallicFactor=0.0, roughnessFactor=0.8
+        )
         self.gltf.materials.append(gl.Material(name=name, pbrMetallicRoughness=pbr))
         return len(self.gltf.materials) - 1
 
@@ -205,7 +225,11 @@ def _continuous(quats: np.ndarray) -> np.ndarray:
 
 def _label_color(label: str) -> tuple[float, float, float]:
     h = zlib.crc32(label.encode("utf-8"))
-    return (0.45 + 0.4 * ((h & 0xFF) / 255), 0.45 + 0.4 * (((h >> 8) & 0xFF) / 255), 0.45 + 0.4 * (((h >> 16) & 0xFF) / 255))
+    return (
+        0.45 + 0.4 * ((h & 0xFF) / 255),
+        0.45 + 0.4 * (((h >> 8) & 0xFF) / 255),
+        0.45 + 0.4 * (((h >> 16) & 0xFF) / 255),
+    )
 
 
 def _object_trs(obj: SceneObject) -> tuple[list[float], list[float], list[float]]:
@@ -228,30 +252,60 @@ def build_glb(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> gl.GLTF2
 
     if scene is not None:
         pos, nrm, tri = box_mesh(np.zeros((1, 3)), np.eye(3)[None], np.full((1, 3), 0.5))
-        cube_pos = w.accessor(pos.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER, bounds=True, name="cube")
+        cube_pos = w.accessor(
+            pos.astype(np.float32),
+            gl.VEC3,
+            gl.FLOAT,
+            target=gl.ARRAY_BUFFER,
+            bounds=True,
+            name="cube",
+        )
         cube_nrm = w.accessor(nrm.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER)
-        cube_idx = w.accessor(tri.reshape(-1).astype(np.uint16), gl.SCALAR, gl.UNSIGNED_SHORT, target=gl.ELEMENT_ARRAY_BUFFER)
+        cube_idx = w.accessor(
+            tri.reshape(-1).astype(np.uint16),
+            gl.SCALAR,
+            gl.UNSIGNED_SHORT,
+            target=gl.ELEMENT_ARRAY_BUFFER,
+        )
         label_mesh: dict[str, int] = {}
         children: list[int] = []
         for obj in [*scene.objects, None]:
             label = "floor" if obj is None else obj.label
             if label not in label_mesh:
                 mat = w.material(label, (0.8, 0.8, 0.78) if obj is None else _label_color(label))
-                label_mesh[label] = w.mesh(label, gl.Attributes(POSITION=cube_pos, NORMAL=cube_nrm), cube_idx, mat)
+                label_mesh[label] = w.mesh(
+                    label, gl.Attributes(POSITION=cube_pos, NORMAL=cube_nrm), cube_idx, mat
+                )
             if obj is None:
                 lo, hi = np.array(scene.bounds_min), np.array(scene.bounds_max)
-                center = WORLD_TO_GLTF @ np.array([*(lo + hi) / 2, scene.floor_z - FLOOR_THICKNESS / 2])
+                center = WORLD_TO_GLTF @ np.array(
+                    [*(lo + hi) / 2, scene.floor_z - FLOOR_THICKNESS / 2]
+                )
                 size = [float(hi[0] - lo[0]), FLOOR_THICKNESS, float(hi[1] - lo[1])]
-                node = gl.Node(name="floor", mesh=label_mesh[label], translation=[float(x) for x in center], scale=size)
+                node = gl.Node(
+                    name="floor",
+                    mesh=label_mesh[label],
+                    translation=[float(x) for x in center],
+                    scale=size,
+                )
             else:
                 t, r, s = _object_trs(obj)
-                node = gl.Node(name=obj.name, mesh=label_mesh[label], translation=t, rotation=r, scale=s)
+                node = gl.Node(
+                    name=obj.name, mesh=label_mesh[label], translation=t, rotation=r, scale=s
+                )
             children.append(w.node(node))
         top.append(w.node(gl.Node(name="objects", children=children)))
 
     if tracks:
         positions, normals, triangles, joint_ids = character_mesh()
-        body_pos = w.accessor(positions.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER, bounds=True, name="body")
+        body_pos = w.accessor(
+            positions.astype(np.float32),
+            gl.VEC3,
+            gl.FLOAT,
+            target=gl.ARRAY_BUFFER,
+            bounds=True,
+            name="body",
+        )
         body_nrm = w.accessor(normals.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER)
         joints4 = np.zeros((joint_ids.size, 4), dtype=np.uint8)
         joints4[:, 0] = joint_ids
@@ -259,10 +313,17 @@ def build_glb(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> gl.GLTF2
         weights4[:, 0] = 1.0
         body_joints = w.accessor(joints4, gl.VEC4, gl.UNSIGNED_BYTE, target=gl.ARRAY_BUFFER)
         body_weights = w.accessor(weights4, gl.VEC4, gl.FLOAT, target=gl.ARRAY_BUFFER)
-        body_idx = w.accessor(triangles.reshape(-1).astype(np.uint16), gl.SCALAR, gl.UNSIGNED_SHORT, target=gl.ELEMENT_ARRAY_BUFFER)
+        body_idx = w.accessor(
+            triangles.reshape(-1).astype(np.uint16),
+            gl.SCALAR,
+            gl.UNSIGNED_SHORT,
+            target=gl.ELEMENT_ARRAY_BUFFER,
+        )
         ibm = np.tile(np.eye(4, dtype=np.float32), (NUM_JOINTS, 1, 1))
         ibm[:, :3, 3] = -rest_positions()
-        ibm_acc = w.accessor(np.swapaxes(ibm, 1, 2).reshape(NUM_JOINTS, 16), gl.MAT4, gl.FLOAT, name="inverse_bind")
+        ibm_acc = w.accessor(
+            np.swapaxes(ibm, 1, 2).reshape(NUM_JOINTS, 16), gl.MAT4, gl.FLOAT, name="inverse_bind"
+        )
 
     animation = gl.Animation(name=ANIMATION_NAME)
     time_accessors: dict[tuple[int, float], int] = {}
@@ -287,25 +348,45 @@ def build_glb(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> gl.GLTF2
         for j in range(1, NUM_JOINTS):
             w.gltf.nodes[node_ids[PARENTS[j]]].children.append(node_ids[j])
         material = w.material(f"{track.name}:skin", CHARACTER_COLORS[index % len(CHARACTER_COLORS)])
-        attributes = gl.Attributes(POSITION=body_pos, NORMAL=body_nrm, JOINTS_0=body_joints, WEIGHTS_0=body_weights)
+        attributes = gl.Attributes(
+            POSITION=body_pos, NORMAL=body_nrm, JOINTS_0=body_joints, WEIGHTS_0=body_weights
+        )
         mesh = w.mesh(f"{track.name}:body", attributes, body_idx, material)
-        w.gltf.skins.append(gl.Skin(name=track.name, inverseBindMatrices=ibm_acc, skeleton=node_ids[0], joints=node_ids))
+        w.gltf.skins.append(
+            gl.Skin(
+                name=track.name, inverseBindMatrices=ibm_acc, skeleton=node_ids[0], joints=node_ids
+            )
+        )
         body = w.node(gl.Node(name=f"{track.name}:body", mesh=mesh, skin=len(w.gltf.skins) - 1))
         top.append(w.node(gl.Node(name=track.name, children=[node_ids[0], body])))
 
         key = (n, track.fps)
         if key not in time_accessors:
             times = track.times.astype(np.float32)
-            time_accessors[key] = w.accessor(times, gl.SCALAR, gl.FLOAT, bounds=True, name=f"time_{n}@{track.fps:g}")
+            time_accessors[key] = w.accessor(
+                times, gl.SCALAR, gl.FLOAT, bounds=True, name=f"time_{n}@{track.fps:g}"
+            )
         times_acc = time_accessors[key]
-        outputs = [(node_ids[0], gl.TRANSLATION, w.accessor(root_t.astype(np.float32), gl.VEC3, gl.FLOAT, bounds=True))]
+        outputs = [
+            (
+                node_ids[0],
+                gl.TRANSLATION,
+                w.accessor(root_t.astype(np.float32), gl.VEC3, gl.FLOAT, bounds=True),
+            )
+        ]
         for j in range(NUM_JOINTS):
-            acc = w.accessor(np.ascontiguousarray(quats[:, j]).astype(np.float32), gl.VEC4, gl.FLOAT, bounds=True)
+            acc = w.accessor(
+                np.ascontiguousarray(quats[:, j]).astype(np.float32), gl.VEC4, gl.FLOAT, bounds=True
+            )
             outputs.append((node_ids[j], gl.ROTATION, acc))
         for node_id, path, acc in outputs:
-            animation.samplers.append(gl.AnimationSampler(input=times_acc, output=acc, interpolation=gl.ANIM_LINEAR))
+            animation.samplers.append(
+                gl.AnimationSampler(input=times_acc, output=acc, interpolation=gl.ANIM_LINEAR)
+            )
             target = gl.AnimationChannelTarget(node=node_id, path=path)
-            animation.channels.append(gl.AnimationChannel(sampler=len(animation.samplers) - 1, target=target))
+            animation.channels.append(
+                gl.AnimationChannel(sampler=len(animation.samplers) - 1, target=target)
+            )
     if animation.channels:
         w.gltf.animations.append(animation)
 

@@ -34,7 +34,9 @@ EYES_SLICE = slice(69, 75)
 HANDS_SLICE = slice(75, 165)
 
 
-def smplx_parameters(track: CharacterTrack, pelvis_rest: np.ndarray | None = None) -> dict[str, np.ndarray]:
+def smplx_parameters(
+    track: CharacterTrack, pelvis_rest: np.ndarray | None = None
+) -> dict[str, np.ndarray]:
     """The AMASS-style arrays for ``track`` (see the module docstring), float64 except strings."""
     j0 = REST_OFFSETS[0] if pelvis_rest is None else np.asarray(pelvis_rest, dtype=float).reshape(3)
     n = track.num_frames

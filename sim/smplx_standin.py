@@ -63,20 +63,20 @@ def standin_joint_positions() -> np.ndarray:
     joints = np.zeros((NUM_MODEL_JOINTS, 3))
     joints[:NUM_JOINTS] = body
     head = body[15]
-    joints[22] = head + (0.0, -0.03, 0.05)  # jaw
-    joints[23] = head + (0.03, 0.05, 0.08)  # left eye
-    joints[24] = head + (-0.03, 0.05, 0.08)  # right eye
+    joints[22] = head + np.array([0.0, -0.03, 0.05])  # jaw
+    joints[23] = head + np.array([0.03, 0.05, 0.08])  # left eye
+    joints[24] = head + np.array([-0.03, 0.05, 0.08])  # right eye
     # Finger bases across the palm (x along the arm, z across it), three 3 cm segments each.
     bases = {"index": 0.025, "middle": 0.005, "pinky": -0.035, "ring": -0.015}
     for side, wrist_idx, first in ((1.0, 20, 25), (-1.0, 21, 40)):
         wrist = body[wrist_idx]
         for f, finger in enumerate(FINGERS):
             if finger == "thumb":
-                base = wrist + (side * 0.03, -0.01, 0.035)
+                base = wrist + np.array([side * 0.03, -0.01, 0.035])
             else:
-                base = wrist + (side * 0.09, 0.0, bases[finger])
+                base = wrist + np.array([side * 0.09, 0.0, bases[finger]])
             for k in range(3):
-                joints[first + 3 * f + k] = base + (side * 0.03 * k, 0.0, 0.0)
+                joints[first + 3 * f + k] = base + np.array([side * 0.03 * k, 0.0, 0.0])
     return joints
 
 
@@ -98,7 +98,9 @@ def standin_model_arrays(seed: int = 0) -> dict[str, np.ndarray]:
     child = 1 + rng.integers(0, NUM_MODEL_JOINTS - 1, size=rest_ids.size)
     parent = np.array(MODEL_PARENTS)[child]
     t = rng.random(rest_ids.size)[:, None]
-    v[rest_ids] = joints[parent] * (1 - t) + joints[child] * t + rng.normal(0.0, 0.03, (rest_ids.size, 3))
+    v[rest_ids] = (
+        joints[parent] * (1 - t) + joints[child] * t + rng.normal(0.0, 0.03, (rest_ids.size, 3))
+    )
     owner[rest_ids] = parent
 
     weights = np.zeros((NUM_VERTICES, NUM_MODEL_JOINTS), dtype=np.float32)
@@ -124,7 +126,9 @@ def standin_model_arrays(seed: int = 0) -> dict[str, np.ndarray]:
         "hands_meanr": hand_mean.copy(),
         "lmk_faces_idx": (np.arange(51) * 37).astype(np.int64),
         "lmk_bary_coords": np.full((51, 3), 1.0 / 3.0),
-        "dynamic_lmk_faces_idx": (np.arange(79 * 17).reshape(79, 17) * 11 % NUM_FACES).astype(np.int64),
+        "dynamic_lmk_faces_idx": (np.arange(79 * 17).reshape(79, 17) * 11 % NUM_FACES).astype(
+            np.int64
+        ),
         "dynamic_lmk_bary_coords": np.full((79, 17, 3), 1.0 / 3.0),
     }
 

@@ -35,7 +35,9 @@ def _fk_from_bvh(mocap: Bvh, scale: float) -> dict[str, np.ndarray]:
         offset = np.array(mocap.joint_offset(name)) / scale
         parent = mocap.joint_parent(name)
         if parent is None:
-            pos = values[:, [start + channels.index(c) for c in ("Xposition", "Yposition", "Zposition")]]
+            pos = values[
+                :, [start + channels.index(c) for c in ("Xposition", "Yposition", "Zposition")]
+            ]
             positions[name] = offset + pos / scale
             rotations[name] = local
         else:
@@ -63,7 +65,9 @@ def test_bvh_roundtrip_with_independent_reader(tmp_path: Path, units: str, scale
         parent = mocap.joint_parent(name)
         assert parent is not None and parent.name == JOINT_NAMES[PARENTS[JOINT_NAMES.index(name)]]
         np.testing.assert_allclose(
-            np.array(mocap.joint_offset(name)) / scale, REST_OFFSETS[JOINT_NAMES.index(name)], atol=1e-9
+            np.array(mocap.joint_offset(name)) / scale,
+            REST_OFFSETS[JOINT_NAMES.index(name)],
+            atol=1e-9,
         )
         assert mocap.joint_channels(name) == ["Zrotation", "Xrotation", "Yrotation"]
     assert len(mocap.joint_channels("pelvis")) == 6

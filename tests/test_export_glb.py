@@ -13,17 +13,25 @@ from pygltflib.validator import validate
 from scipy.spatial.transform import Rotation
 
 from sim.character_track import CharacterTrack, random_track
+from sim.export_bundle import export_run, file_slug
 from sim.export_glb import box_mesh, character_mesh, export_glb, glb_bytes
 from sim.scene import Scene, SceneObject
 from sim.skeleton import BODY_TO_WORLD, JOINT_NAMES, PARENTS, forward_kinematics, rest_positions
 
-_NUMPY = {gl.FLOAT: np.float32, gl.UNSIGNED_SHORT: np.uint16, gl.UNSIGNED_BYTE: np.uint8, gl.UNSIGNED_INT: np.uint32}
+_NUMPY = {
+    gl.FLOAT: np.float32,
+    gl.UNSIGNED_SHORT: np.uint16,
+    gl.UNSIGNED_BYTE: np.uint8,
+    gl.UNSIGNED_INT: np.uint32,
+}
 _WIDTH = {gl.SCALAR: 1, gl.VEC2: 2, gl.VEC3: 3, gl.VEC4: 4, gl.MAT4: 16}
 
 
 def _scene() -> Scene:
     objects = (
-        SceneObject(name="table_0", label="table", idx=0, center=(1.0, 2.0, 0.375), size=(1.2, 0.8, 0.75)),
+        SceneObject(
+            name="table_0", label="table", idx=0, center=(1.0, 2.0, 0.375), size=(1.2, 0.8, 0.75)
+        ),
         SceneObject(
             name="chair_0",
             label="chair",
@@ -47,7 +55,11 @@ def _scene() -> Scene:
 
 
 def _tracks() -> list[CharacterTrack]:
-    return [random_track("ann", 45, seed=1), random_track("bob", 45, seed=2), random_track("cy", 30, seed=3)]
+    return [
+        random_track("ann", 45, seed=1),
+        random_track("bob", 45, seed=2),
+        random_track("cy", 30, seed=3),
+    ]
 
 
 def _read(doc: gl.GLTF2, index: int) -> np.ndarray:
@@ -104,7 +116,9 @@ def test_glb_nodes_skins_and_animation(glb: tuple[Path, gl.GLTF2]) -> None:
     anim = doc.animations[0]
     for track, skin in zip(tracks, doc.skins, strict=True):
         assert len(skin.joints) == 22
-        assert [doc.nodes[j].name for j in skin.joints] == [f"{track.name}:{n}" for n in JOINT_NAMES]
+        assert [doc.nodes[j].name for j in skin.joints] == [
+            f"{track.name}:{n}" for n in JOINT_NAMES
+        ]
         for j in range(1, 22):  # the hierarchy matches our parents
             assert skin.joints[j] in doc.nodes[skin.joints[PARENTS[j]]].children
         ibm = doc.accessors[skin.inverseBindMatrices]
@@ -118,7 +132,11 @@ def test_glb_nodes_skins_and_animation(glb: tuple[Path, gl.GLTF2]) -> None:
             sampler = anim.samplers[c.sampler]
             assert sampler.interpolation == "LINEAR"
             times = _read(doc, sampler.input)
-            assert doc.accessors[sampler.input].count == track.num_frames == doc.accessors[sampler.output].count
+            assert (
+                doc.accessors[sampler.input].count
+                == track.num_frames
+                == doc.accessors[sampler.output].count
+            )
             np.testing.assert_allclose(times, track.times, atol=1e-6)
             assert doc.accessors[sampler.input].max == [pytest.approx(track.duration, abs=1e-6)]
             if c.target.path == "rotation":
@@ -140,7 +158,10 @@ def _local_matrix(node: gl.Node) -> np.ndarray:
 
 def _world_matrices(doc: gl.GLTF2, frame: int) -> list[np.ndarray]:
     """Every node's world matrix with the animation sampled at key ``frame``."""
-    nodes = [gl.Node(**{k: getattr(n, k) for k in ("rotation", "translation", "scale")}) for n in doc.nodes]
+    nodes = [
+        gl.Node(**{k: getattr(n, k) for k in ("rotation", "translation", "scale")})
+        for n in doc.nodes
+    ]
     for c in doc.animations[0].channels:
         value = _read(doc, doc.animations[0].samplers[c.sampler].output)[frame]
         setattr(nodes[c.target.node], c.target.path, [float(x) for x in value])
@@ -174,11 +195,15 @@ def test_glb_evaluates_to_our_joint_positions(glb: tuple[Path, gl.GLTF2], frame:
         joint_of = _read(doc, prim.attributes.JOINTS_0)[:, 0]
         ibm = _read(doc, skin.inverseBindMatrices).reshape(22, 4, 4).transpose(0, 2, 1)
         skinning = np.array([world[j] for j in skin.joints]) @ ibm
-        skinned = np.einsum("vij,vj->vi", skinning[joint_of], np.column_stack([pos, np.ones(len(pos))]))[:, :3]
+        skinned = np.einsum(
+            "vij,vj->vi", skinning[joint_of], np.column_stack([pos, np.ones(len(pos))])
+        )[:, :3]
         skinned_world = skinned @ gltf_to_world.T
         # each vertex moves rigidly with its joint: ours[j] + G_j (v_rest - rest_j)
         glob = forward_kinematics(track.local_rotations[frame], track.root_positions[frame])[1]
-        expected = ours[joint_of] + np.einsum("vij,vj->vi", glob[joint_of], pos - rest_positions()[joint_of])
+        expected = ours[joint_of] + np.einsum(
+            "vij,vj->vi", glob[joint_of], pos - rest_positions()[joint_of]
+        )
         assert np.linalg.norm(skinned_world - expected, axis=1).max() < 1e-3
 
 
@@ -229,3 +254,25 @@ def test_glb_is_deterministic_and_handles_edge_cases(tmp_path: Path) -> None:
     assert one_frame.accessors[one_frame.animations[0].samplers[0].input].count == 1
     with pytest.raises(ValueError, match="unique"):
         glb_bytes(None, [random_track("x", 3, seed=0), random_track("x", 3, seed=1)])
+
+
+def test_export_run_writes_everything(tmp_path: Path) -> None:
+    tracks = _tracks()
+    out = export_run(tmp_path / "run", _scene(), tracks)
+    assert all(p.is_file() and p.stat().st_size > 0 for p in out.all_paths())
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == sorted(
+        ["scene.glb"]
+        + [f"{t.name}.{ext}" for t in tracks for ext in ("smplx.npz", "bvh", "track.npz")]
+    )
+    back = CharacterTrack.load(out.tracks["bob"])
+    np.testing.assert_array_equal(back.local_rotations, tracks[1].local_rotations)
+    again = export_run(tmp_path / "again", _scene(), tracks)
+    for a, b in zip(out.all_paths(), again.all_paths(), strict=True):
+        assert a.read_bytes() == b.read_bytes()
+
+
+def test_export_run_refuses_colliding_file_names(tmp_path: Path) -> None:
+    assert file_slug("Dr. Who") == "Dr__Who"
+    tracks = [random_track("a b", 2, seed=0), random_track("a_b", 2, seed=1)]
+    with pytest.raises(ValueError, match="collide"):
+        export_run(tmp_path, None, tracks)

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import smplx
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import smplx
 from sim.character_track import CharacterTrack, CharacterTrackError, random_track, write_npz
 from sim.export_smplx_npz import export_smplx_npz, smplx_parameters
 from sim.skeleton import REST_OFFSETS, axis_angle_to_matrix, forward_kinematics, rest_positions
@@ -29,7 +29,9 @@ from sim.smplx_standin import (
 
 def _still_track(n: int = 4) -> CharacterTrack:
     rot = np.broadcast_to(np.eye(3), (n, 22, 3, 3))
-    return CharacterTrack(name="ann", root_positions=np.tile([0.0, 0.0, 0.93], (n, 1)), local_rotations=rot)
+    return CharacterTrack(
+        name="ann", root_positions=np.tile([0.0, 0.0, 0.93], (n, 1)), local_rotations=rot
+    )
 
 
 def test_track_defaults_and_readonly() -> None:
@@ -98,13 +100,17 @@ def test_track_save_load_roundtrip_and_bytes(tmp_path: Path) -> None:
 def test_track_load_bad_files(tmp_path: Path) -> None:
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"not a zip")
-    with pytest.raises(CharacterTrackError, match="junk.npz"):
+    with pytest.raises(CharacterTrackError, match=r"junk\.npz"):
         CharacterTrack.load(junk)
     other = write_npz(tmp_path / "other.npz", {"format": np.array("something/else")})
     with pytest.raises(CharacterTrackError) as info:
         CharacterTrack.load(other)
     assert info.value.field == "format"
-    arrays = {"format": np.array("storyteller-track/1"), "name": np.array("x"), "fps": np.array(30.0)}
+    arrays = {
+        "format": np.array("storyteller-track/1"),
+        "name": np.array("x"),
+        "fps": np.array(30.0),
+    }
     with pytest.raises(CharacterTrackError, match="root_positions"):
         CharacterTrack.load(write_npz(tmp_path / "partial.npz", arrays))
 
@@ -239,7 +245,9 @@ def test_smplx_check_can_fail(standin_root: Path) -> None:
     track = random_track("e", 20, seed=9)
     params = smplx_parameters(track)
     params["trans"] = track.root_positions  # forgetting to subtract the pelvis joint
-    error = np.linalg.norm(_smplx_joints(standin_root, params, chunk=20) - track.joint_positions(), axis=-1)
+    error = np.linalg.norm(
+        _smplx_joints(standin_root, params, chunk=20) - track.joint_positions(), axis=-1
+    )
     assert error.min() > 0.5
 
 
