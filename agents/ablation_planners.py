@@ -1,0 +1,352 @@
+"""The paper's planner and its ablations behind one interface, :class:`Planner`.
+
+- :class:`EventDrivenPlanner`: the full method (narrator, then event parser).
+- :class:`UnifiedPlanner` ("w/o Event"): one LLM call (node ``planner``) writes a
+  ``parse_event()`` for the free characters straight from the instruction and the story,
+  without an explicit event; the event is read back from the program's plans.
+- :class:`DirectInferencePlanner` ("Direct Inference"): narrator as usual, but the parser
+  answers coordinates (JSON, names restricted by enums) instead of areas; the coordinates
+  are run through the same sandboxed program path (``set_position([x, y])``).
+- Description ablations: :func:`object_list_description` and :func:`scene_graph_description`
+  replace the describer's text.
+
+Every planner returns a :class:`StepOutcome` for one planning step: an event with plans, a
+wait (``None``) or a :class:`~agents.messages.PlanningFailure`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from agents.event_parser import (
+    ParserInput,
+    ProgramRunner,
+    check_plans,
+    default_runner,
+    extract_program,
+    parse_event,
+    run_reply,
+)
+from agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from agents.messages import (
+    CharacterStatus,
+    Event,
+    HistoryEntry,
+    ParsedEvent,
+    PlanningFailure,
+    SceneDescription,
+)
+from agents.narrator import NarratorInput, characters_text, history_text, narrate
+from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from agents.retry_feedback import (
+    AnswerRejectedError,
+    RetriesExhaustedError,
+    Turn,
+    ask_until_valid,
+    with_turns,
+)
+from sim.scene import Scene
+from tools.scene_graph import SceneGraph, build_scene_graph
+from tools.scene_text import object_list_text, scene_graph_json
+
+StepOutcome = ParsedEvent | PlanningFailure | None
+
+
+def object_list_description(scene: Scene) -> SceneDescription:
+    """Ablation: a plain object list (names, positions, sizes) instead of the describer's text."""
+    return SceneDescription(scene=scene.name, text=object_list_text(scene), source="object_list")
+
+
+def scene_graph_description(scene: Scene, graph: SceneGraph | None = None) -> SceneDescription:
+    """Ablation: the raw scene graph JSON instead of the describer's text."""
+    text = scene_graph_json(graph or build_scene_graph(scene))
+    return SceneDescription(scene=scene.name, text=text, source="scene_graph")
+
+
+@dataclass(frozen=True)
+class PlanningStep:
+    """Everything one planning step depends on."""
+
+    index: int
+    scene: Scene
+    description: SceneDescription
+    characters: Sequence[CharacterStatus]
+    instruction: str
+    world: Any
+    action_labels: Sequence[str]
+    history: Sequence[HistoryEntry] = ()
+    seats_in_use: Sequence[str] = ()
+    tags: tuple[str, ...] = BENCHMARK_TAGS
+    seed: int = 0
+    graph: SceneGraph | None = None
+    runner: ProgramRunner | None = None
+
+
+class Planner(Protocol):
+    async def plan(self, step: PlanningStep) -> StepOutcome: ...
+
+
+def _failure(step: PlanningStep, exc: RetriesExhaustedError) -> PlanningFailure:
+    node = exc.node if exc.node in ("describer", "narrator", "event_parser", "planner") else "planner"
+    return PlanningFailure(index=step.index, node=node, attempts=exc.attempts, feedback=exc.feedback)  # type: ignore[arg-type]
+
+
+def _narrator_input(step: PlanningStep) -> NarratorInput:
+    return NarratorInput(
+        scene_description=step.description.text,
+        characters=step.characters,
+        instruction=step.instruction,
+        history=step.history,
+        tags=step.tags,
+        seed=step.seed,
+    )
+
+
+def _parser_input(step: PlanningStep, event: Event, description: str | None = None) -> ParserInput:
+    return ParserInput(
+        scene_description=description if description is not None else step.description.text,
+        event=event,
+        characters=step.characters,
+        action_labels=step.action_labels,
+        tags=step.tags,
+        seats_in_use=step.seats_in_use,
+        seed=step.seed,
+    )
+
+
+@dataclass
+class EventDrivenPlanner:
+    """The full method: narrator picks an event, the event parser places its characters."""
+
+    port: LLMPort
+    prompts: PromptLibrary
+    max_retries: int = 3
+
+    async def plan(self, step: PlanningStep) -> StepOutcome:
+        try:
+            narrated = await narrate(self.port, self.prompts, _narrator_input(step), max_retries=self.max_retries)
+            event = narrated.value.event
+            if event.is_wait:
+                return None
+            parsed = await parse_event(
+                self.port,
+                self.prompts,
+                _parser_input(step, event),
+                scene=step.scene,
+                world=step.world,
+                seed=step.seed + step.index,
+                graph=step.graph,
+                runner=step.runner,
+                max_retries=self.max_retries,
+            )
+        except RetriesExhaustedError as exc:
+            return _failure(step, exc)
+        return ParsedEvent(
+            index=step.index,
+            event=event,
+            plans=parsed.value.plans,
+            program=parsed.value.program,
+            narrator_attempts=narrated.attempts,
+            parser_attempts=parsed.attempts,
+        )
+
+
+@dataclass
+class UnifiedPlanner:
+    """Ablation "w/o Event": one call plans the free characters directly."""
+
+    port: LLMPort
+    prompts: PromptLibrary
+    max_retries: int = 3
+    max_tokens: int = 400
+
+    def request(self, step: PlanningStep, turns: tuple[Turn, ...] = ()) -> LLMRequest:
+        free = [c.name for c in step.characters if not c.busy]
+        system = self.prompts.render(
+            "planner/system.md",
+            scene_description=step.description.text.strip(),
+            action_labels=", ".join(step.action_labels),
+        )
+        user = self.prompts.render(
+            "planner/request.md",
+            characters=characters_text(step.characters),
+            free=", ".join(free) if free else "(none)",
+            history=history_text(step.history),
+            instruction=step.instruction.strip() or "(none: continue the story naturally)",
+        )
+        base = (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
+        return LLMRequest(node="planner", messages=with_turns(base, turns), max_tokens=self.max_tokens, seed=step.seed)
+
+    def check(self, step: PlanningStep, reply: str) -> ParsedEvent | None:
+        """Run the reply; a program that plans nobody (``pass``) is a wait."""
+        program = extract_program(reply)
+        body = [ln.strip() for ln in program.splitlines()[1:] if ln.strip() and not ln.strip().startswith("#")]
+        if body == ["pass"]:
+            return None
+        busy = {c.name for c in step.characters if c.busy}
+        free = [c.name for c in step.characters if not c.busy]
+        runner = step.runner or default_runner()
+        plans = runner(
+            step.scene, program, step.world, seed=step.seed + step.index, action_labels=list(step.action_labels), graph=step.graph
+        )
+        names = tuple(dict.fromkeys(str(p.character) for p in plans))
+        bad = [n for n in names if n in busy]
+        if bad:
+            raise AnswerRejectedError(
+                [f"{n} is busy and cannot be planned" for n in bad] + [f"free characters are: {', '.join(free)}"]
+            )
+        event = Event(
+            characters=names,
+            activity="; ".join(f"{p.character}: {p.action} ({p.area})" for p in plans)[:320],
+        )
+        return ParsedEvent(index=step.index, event=event, plans=check_plans(event, plans), program=program)
+
+    async def plan(self, step: PlanningStep) -> StepOutcome:
+        if not any(not c.busy for c in step.characters):
+            return None
+        try:
+            accepted = await ask_until_valid(
+                self.port,
+                lambda turns: self.request(step, turns),
+                lambda reply: self.check(step, reply),
+                max_attempts=self.max_retries + 1,
+                node="planner",
+            )
+        except RetriesExhaustedError as exc:
+            return _failure(step, exc)
+        if accepted.value is None:
+            return None
+        return accepted.value.model_copy(update={"narrator_attempts": 0, "parser_attempts": accepted.attempts})
+
+
+class DirectPlan(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    character: str
+    action: str
+    x: float = Field(description="Floor x in metres.")
+    y: float = Field(description="Floor y in metres.")
+    look_at: str = ""
+
+
+class DirectPlans(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    plans: tuple[DirectPlan, ...]
+
+
+def direct_schema(characters: Sequence[str], labels: Sequence[str], targets: Sequence[str]) -> dict[str, Any]:
+    n = len(characters)
+    return {
+        "type": "object",
+        "properties": {
+            "plans": {
+                "type": "array",
+                "minItems": n,
+                "maxItems": n,
+                "items": {
+                    "type": "object",
+                    "properties": {
+                        "character": {"type": "string", "enum": list(characters)},
+                        "action": {"type": "string", "enum": list(labels)},
+                        "x": {"type": "number"},
+                        "y": {"type": "number"},
+                        "look_at": {"type": "string", "enum": list(targets)},
+                    },
+                    "required": ["character", "action", "x", "y", "look_at"],
+                    "additionalProperties": False,
+                },
+            }
+        },
+        "required": ["plans"],
+        "additionalProperties": False,
+    }
+
+
+def direct_program(plans: DirectPlans) -> str:
+    """A parse_event() that puts each character at its coordinates (names JSON-quoted)."""
+    lines = ["def parse_event():"]
+    for i, p in enumerate(plans.plans):
+        var = f"c{i}"
+        lines.append(f"    {var} = get_character({json.dumps(p.character)})")
+        lines.append(f"    {var}.set_position([{p.x!r}, {p.y!r}])")
+        if p.look_at:
+            lines.append(f"    {var}.set_orientation({json.dumps(p.look_at)})")
+        lines.append(f"    {var}.set_target_action({json.dumps(p.action)})")
+    return "\n".join(lines) + "\n"
+
+
+@dataclass
+class DirectInferencePlanner:
+    """Ablation "Direct Inference": the parser outputs coordinates instead of areas."""
+
+    port: LLMPort
+    prompts: PromptLibrary
+    max_retries: int = 3
+    max_tokens: int = 200
+
+    def request(self, step: PlanningStep, event: Event, turns: tuple[Turn, ...] = ()) -> LLMRequest:
+        description = step.description.text.strip()
+        if step.description.source != "object_list":
+            description += "\n\nObjects:\n" + object_list_text(step.scene)
+        system = self.prompts.render(
+            "direct/system.md", scene_description=description, action_labels=", ".join(step.action_labels)
+        )
+        user = self.prompts.render(
+            "direct/request.md",
+            characters="\n".join(
+                f"- {c.name}: {'busy' if c.busy else 'free'}, {c.action}"
+                + (f", at [{c.position[0]:.1f}, {c.position[1]:.1f}]" if c.position else "")
+                for c in step.characters
+            ),
+            event_characters=", ".join(f'"{n}"' for n in event.characters),
+            activity=event.activity.strip(),
+        )
+        base = (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
+        targets = [*step.scene.object_names, *(c.name for c in step.characters)]
+        return LLMRequest(
+            node="event_parser",
+            messages=with_turns(base, turns),
+            json_schema=direct_schema(event.characters, step.action_labels, targets),
+            max_tokens=self.max_tokens,
+            seed=step.seed,
+        )
+
+    def check(self, step: PlanningStep, event: Event, reply: str) -> tuple[str, ParsedEvent]:
+        start, end = reply.find("{"), reply.rfind("}")
+        plans = DirectPlans.model_validate(json.loads(reply[start : end + 1] if 0 <= start < end else reply))
+        program = direct_program(plans)
+        result = run_reply(
+            f"```python\n{program}```",
+            scene=step.scene,
+            event=event,
+            world=step.world,
+            seed=step.seed + step.index,
+            action_labels=step.action_labels,
+            graph=step.graph,
+            runner=step.runner,
+        )
+        return program, ParsedEvent(index=step.index, event=event, plans=result.plans, program=program)
+
+    async def plan(self, step: PlanningStep) -> StepOutcome:
+        try:
+            narrated = await narrate(self.port, self.prompts, _narrator_input(step), max_retries=self.max_retries)
+            event = narrated.value.event
+            if event.is_wait:
+                return None
+            accepted = await ask_until_valid(
+                self.port,
+                lambda turns: self.request(step, event, turns),
+                lambda reply: self.check(step, event, reply),
+                max_attempts=self.max_retries + 1,
+                node="event_parser",
+            )
+        except RetriesExhaustedError as exc:
+            return _failure(step, exc)
+        _, parsed = accepted.value
+        return parsed.model_copy(update={"narrator_attempts": narrated.attempts, "parser_attempts": accepted.attempts})
