@@ -5,6 +5,7 @@ from __future__ import annotations
 import typer
 
 from orchestrator import cli_plan, cli_scene
+from orchestrator import cli_event
 
 app = typer.Typer(
     name="storyteller",
@@ -14,6 +15,7 @@ app = typer.Typer(
 )
 cli_scene.register(app)
 cli_plan.register(app)
+cli_event.register(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point

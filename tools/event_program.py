@@ -1,0 +1,43 @@
+"""Run one ``parse_event()`` program against the spatial API and return the characters' plans.
+
+The program runs in ``tools.sandbox`` (never Python's ``exec``); the spatial API only records
+what the program asks for, and the records become ``CharacterPlan``s after the program has
+finished without error. A failure raises a ``tools.errors.EventProgramError`` subclass and
+leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from sim.scene import Scene
+from tools.character_states import CharacterPlan, WorldView
+from tools.errors import EventProgramError
+from tools.scene_graph import SceneGraph
+from tools.spatial_api import SpatialAPI
+
+__all__ = ["CharacterPlan", "run_event_program"]
+
+
+def run_event_program(
+    scene: Scene,
+    source: str,
+    world: WorldView,
+    *,
+    seed: int,
+    action_labels: Sequence[str] | None = None,
+    graph: SceneGraph | None = None,
+) -> list[CharacterPlan]:
+    """Run ``source`` (defining ``parse_event()``) and sample every touched character's plan.
+
+    ``seed`` makes the sampled positions reproducible; ``action_labels`` (None: any label)
+    restricts ``set_target_action``; ``graph`` saves rebuilding the scene graph.
+    """
+    from tools.sandbox import execute  # the sandbox is the only way programs run
+
+    api = SpatialAPI(scene, graph, world, action_labels)
+    execute(source, api.namespace(), entry="parse_event")
+    plans = api.resolve(seed)
+    if not plans:
+        raise EventProgramError("parse_event() did not position any character: call get_character(name).set_position(...)")
+    return plans

@@ -1,0 +1,470 @@
+"""The spatial API that event programs (``parse_event()``) call.
+
+Objects are passed and returned as name strings (``"chair_3"``); areas are ``tools.areas.Area``
+values; characters are handles from ``get_character(name)``. Distances are metres. The handles
+only record what the program asks for; ``SpatialAPI.resolve(seed)`` turns the records into
+``CharacterPlan``s after the program has finished, so a failing program changes nothing.
+
+Every mistake raises a ``tools.errors.ToolError`` whose message is written for the LLM that
+wrote the program (unknown names come with "did you mean" suggestions).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from sim.scene import Scene, SceneObject
+from tools import areas
+from tools.areas import Area
+from tools.character_states import CharacterPlan, CharacterState, WorldView
+from tools.errors import (
+    ToolArgumentError,
+    UnknownActionError,
+    UnknownCharacterError,
+    UnknownObjectError,
+    UnsatisfiableAreaError,
+    did_you_mean,
+)
+from tools.position_sampling import Constraints, FloorMap, Placement, sample_position
+from tools.scene_graph import SceneGraph, box_distance, build_scene_graph
+
+Point = tuple[float, float]
+ASSOCIATED_DISTANCE = 0.3  # m: objects this close (box to box) are associated
+CLOSE_DISTANCE = 1.0  # m: box-to-box distance for get_objects_close_to
+
+
+class CharacterHandle:
+    """A character in an event program. Setters record the request; nothing moves until the
+    whole program has run."""
+
+    sandbox_attributes: ClassVar[frozenset[str]] = frozenset(
+        {"name", "set_position", "set_orientation", "set_target_action"}
+    )
+
+    def __init__(self, api: SpatialAPI, name: str):
+        self._api = api
+        self._name = name
+
+    @property
+    def name(self) -> str:
+        """The character's name."""
+        return self._name
+
+    def set_position(self, area: Any) -> None:
+        """Where the character goes: an Area (from a get_area_* function) or [x, y] in metres."""
+        self._api._record(self._name).position = self._api._position_target(area)
+
+    def set_orientation(self, target: Any) -> None:
+        """What the character faces: an object name, a character name, an Area or [x, y]."""
+        self._api._record(self._name).orientation = self._api._orientation_target(target)
+
+    def set_target_action(self, label: Any) -> None:
+        """The action the character performs at its position (one of the available labels)."""
+        self._api._record(self._name).action = self._api._action(label)
+
+    def __repr__(self) -> str:
+        return f"<character {self._name}>"
+
+
+@dataclass
+class _Record:
+    position: Area | Point | None = None
+    orientation: str | Area | Point | None = None
+    action: str | None = None
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+class SpatialAPI:
+    """Spatial queries, areas and character handles over one scene and one world view."""
+
+    def __init__(
+        self,
+        scene: Scene,
+        graph: SceneGraph | None = None,
+        world: WorldView | None = None,
+        action_labels: Sequence[str] | None = None,
+        *,
+        allow_new_characters: bool | None = None,
+    ):
+        self.scene = scene
+        self.graph = graph if graph is not None else build_scene_graph(scene)
+        self.world = world if world is not None else WorldView()
+        self.action_labels = list(action_labels) if action_labels is not None else None
+        # With no known characters (no states given) any name may be used.
+        self.allow_new_characters = (
+            not self.world.characters if allow_new_characters is None else allow_new_characters
+        )
+        self._records: dict[str, _Record] = {}
+        self._handles: dict[str, CharacterHandle] = {}
+
+    # ----- what the sandbox exposes ---------------------------------------------------------
+    def namespace(self) -> dict[str, Callable[..., Any]]:
+        """Name -> function for every API function an event program may call."""
+        names = [
+            "get_character", "get_object_supporting", "get_objects_supported_by",
+            "get_objects_in_front_of", "get_objects_behind", "get_objects_left_of",
+            "get_objects_right_of", "get_objects_close_to", "get_objects_associated_with",
+            "get_objects_between", "get_closest_object", "get_intersected_area", "get_union_area",
+            "get_distance_between", "is_object_occupied", "is_object_of_label",
+            "get_area_to_interact_with", "get_area_to_sit_on", "get_area_adjacent_to",
+            "get_area_close_to", "get_area_in_front_of", "get_area_behind", "get_area_left_of",
+            "get_area_right_of", "get_area_between", "get_area_aligned_with",
+        ]  # fmt: skip
+        return {n: getattr(self, n) for n in names}
+
+    # ----- argument checks ------------------------------------------------------------------
+    def _object(self, name: Any, func: str) -> SceneObject:
+        if not isinstance(name, str):
+            raise ToolArgumentError(f"{func}() expects an object name string like 'chair_1', got {name!r}")
+        obj = self.scene.by_name.get(name)
+        if obj is not None:
+            return obj
+        if name in self.world.names:
+            raise UnknownObjectError(f"{func}(): '{name}' is a character, not an object")
+        hint = did_you_mean(name, self.scene.object_names)
+        raise UnknownObjectError(f"unknown object '{name}';{hint}" if hint else f"unknown object '{name}' (not in this scene)")
+
+    def _label(self, label: Any, func: str) -> str | None:
+        if label is None:
+            return None
+        if not isinstance(label, str):
+            raise ToolArgumentError(f"{func}() expects label to be a string like 'chair' or None, got {label!r}")
+        if label not in self.scene.labels:
+            hint = did_you_mean(label, self.scene.labels)
+            raise UnknownObjectError(
+                f"unknown label '{label}';{hint}" if hint else f"unknown label '{label}'; labels: {', '.join(self.scene.labels)}"
+            )
+        return label
+
+    def _filter(self, names: list[str], label: str | None) -> list[str]:
+        return [n for n in names if label is None or self.scene.by_name[n].label == label]
+
+    def _character_name(self, name: Any, func: str) -> str:
+        if not isinstance(name, str) or not name:
+            raise ToolArgumentError(f"{func}() expects a character name string, got {name!r}")
+        if name in self.world.names or self.allow_new_characters:
+            return name
+        if name in self.scene.by_name:
+            raise UnknownCharacterError(f"'{name}' is an object, not a character")
+        hint = did_you_mean(name, self.world.names)
+        known = ", ".join(self.world.names)
+        raise UnknownCharacterError(f"unknown character '{name}';{hint}" if hint else f"unknown character '{name}'; characters: {known}")
+
+    def _point(self, value: Any, func: str) -> Point:
+        if not isinstance(value, list | tuple) or len(value) != 2 or not all(_is_number(v) for v in value):
+            raise ToolArgumentError(f"{func}() expects an Area or [x, y] in metres, got {value!r}")
+        x, y = float(value[0]), float(value[1])
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ToolArgumentError(f"{func}() got a non-finite position [{x}, {y}]")
+        (x0, y0), (x1, y1) = self.scene.bounds_min, self.scene.bounds_max
+        if not (x0 <= x <= x1 and y0 <= y <= y1):
+            raise ToolArgumentError(f"{func}(): [{x:.2f}, {y:.2f}] is outside the scene ({x0:.1f}..{x1:.1f}, {y0:.1f}..{y1:.1f})")
+        return (x, y)
+
+    def _area(self, value: Any, func: str) -> Area:
+        if not isinstance(value, Area):
+            raise ToolArgumentError(f"{func}() expects Area values from get_area_* functions, got {value!r}")
+        return value
+
+    def _position_target(self, value: Any) -> Area | Point:
+        return value if isinstance(value, Area) else self._point(value, "set_position")
+
+    def _orientation_target(self, value: Any) -> str | Area | Point:
+        if isinstance(value, Area):
+            return value
+        if isinstance(value, str):
+            if value in self.scene.by_name or value in self.world.names or value in self._records:
+                return value
+            hint = did_you_mean(value, [*self.scene.object_names, *self.world.names])
+            raise UnknownObjectError(f"unknown object or character '{value}';{hint}" if hint else f"unknown object or character '{value}'")
+        if isinstance(value, CharacterHandle):
+            return value.name
+        return self._point(value, "set_orientation")
+
+    def _action(self, label: Any) -> str:
+        if not isinstance(label, str) or not label:
+            raise ToolArgumentError(f"set_target_action() expects an action label string, got {label!r}")
+        if self.action_labels is not None and label not in self.action_labels:
+            hint = did_you_mean(label, self.action_labels)
+            raise UnknownActionError(
+                f"unknown action '{label}';{hint}" if hint else f"unknown action '{label}'; available: {', '.join(self.action_labels)}"
+            )
+        return label
+
+    def _record(self, name: str) -> _Record:
+        return self._records.setdefault(name, _Record())
+
+    # ----- characters -----------------------------------------------------------------------
+    def get_character(self, name: str) -> CharacterHandle:
+        """The handle of the character called ``name`` (the same handle on every call)."""
+        name = self._character_name(name, "get_character")
+        if name not in self._handles:
+            self._handles[name] = CharacterHandle(self, name)
+        return self._handles[name]
+
+    # ----- object queries -------------------------------------------------------------------
+    def get_object_supporting(self, anchor: str) -> str | None:
+        """The object that ``anchor`` stands on or in; None if it stands on the floor."""
+        return self.graph.supporter(self._object(anchor, "get_object_supporting").name)
+
+    def get_objects_supported_by(self, anchor: str, label: str | None = None) -> list[str]:
+        """Objects standing on or in ``anchor`` (optionally only those with ``label``)."""
+        obj = self._object(anchor, "get_objects_supported_by")
+        return self._filter(self.graph.supported_by(obj.name), self._label(label, "get_objects_supported_by"))
+
+    def _related(self, anchor: str, label: str | None, relation: str, func: str) -> list[str]:
+        obj = self._object(anchor, func)
+        return self._filter(self.graph.subjects(relation, obj.name), self._label(label, func))
+
+    def get_objects_in_front_of(self, anchor: str, label: str | None = None) -> list[str]:
+        """Objects in front of ``anchor`` (its own front), on the same support level, within 2 m."""
+        return self._related(anchor, label, "in front of", "get_objects_in_front_of")
+
+    def get_objects_behind(self, anchor: str, label: str | None = None) -> list[str]:
+        """Objects behind ``anchor`` (opposite its front), on the same support level, within 2 m."""
+        return self._related(anchor, label, "behind", "get_objects_behind")
+
+    def get_objects_left_of(self, anchor: str, label: str | None = None) -> list[str]:
+        """Objects to the left of ``anchor`` (its own left), on the same support level, within 2 m."""
+        return self._related(anchor, label, "to the left of", "get_objects_left_of")
+
+    def get_objects_right_of(self, anchor: str, label: str | None = None) -> list[str]:
+        """Objects to the right of ``anchor`` (its own right), on the same support level, within 2 m."""
+        return self._related(anchor, label, "to the right of", "get_objects_right_of")
+
+    def _by_distance(self, obj: SceneObject, limit: float, label: str | None) -> list[str]:
+        pairs = [(box_distance(obj, o), o.name) for o in self.scene.objects if o.name != obj.name]
+        return self._filter([n for d, n in sorted(pairs) if d < limit], label)
+
+    def get_objects_close_to(self, anchor: str, label: str | None = None) -> list[str]:
+        """Objects whose box is less than 1.0 m from ``anchor``'s box, nearest first."""
+        obj = self._object(anchor, "get_objects_close_to")
+        return self._by_distance(obj, CLOSE_DISTANCE, self._label(label, "get_objects_close_to"))
+
+    def get_objects_associated_with(self, anchor: str, label: str | None = None) -> list[str]:
+        """Objects used together with ``anchor``: what it stands on, what stands on it, and objects
+        whose box is less than 0.3 m away (e.g. the chairs of a table), nearest first."""
+        obj = self._object(anchor, "get_objects_associated_with")
+        label = self._label(label, "get_objects_associated_with")
+        names = self._by_distance(obj, ASSOCIATED_DISTANCE, None)
+        support = [self.graph.supporter(obj.name), *self.graph.supported_by(obj.name)]
+        names += [n for n in support if n is not None and n not in names]
+        return self._filter(names, label)
+
+    def get_objects_between(self, anchor_1: str, anchor_2: str, label: str | None = None) -> list[str]:
+        """Objects whose centre lies between the two anchors' centres, <= 0.5 m off the line."""
+        a = self._object(anchor_1, "get_objects_between")
+        b = self._object(anchor_2, "get_objects_between")
+        label = self._label(label, "get_objects_between")
+        if a.name == b.name:
+            raise ToolArgumentError("get_objects_between() needs two different objects")
+        area = areas.between(a, b)
+        others = [o for o in self.scene.objects if o.name not in (a.name, b.name)]
+        if not others:
+            return []
+        inside = area.contains(np.array([o.center[:2] for o in others]))
+        return self._filter([o.name for o, ok in zip(others, inside, strict=True) if ok], label)
+
+    def get_closest_object(self, anchor: str, label: str | None = None) -> str:
+        """The object whose box is nearest to ``anchor``'s box (optionally with ``label``)."""
+        obj = self._object(anchor, "get_closest_object")
+        label = self._label(label, "get_closest_object")
+        names = self._by_distance(obj, math.inf, label)
+        if not names:
+            raise ToolArgumentError(f"get_closest_object(): no other object with label '{label}'")
+        return names[0]
+
+    def get_distance_between(self, object_1: str, object_2: str) -> float:
+        """Distance between the two objects' boxes in metres (0 when they touch)."""
+        a = self._object(object_1, "get_distance_between")
+        b = self._object(object_2, "get_distance_between")
+        return round(box_distance(a, b), 3)
+
+    def is_object_occupied(self, object: str) -> bool:  # noqa: A002 - the paper's parameter name
+        """Whether a character sits on or uses ``object`` (including earlier lines of this program)."""
+        obj = self._object(object, "is_object_occupied")
+        if obj.name in self.world.objects_in_use and self.world.objects_in_use[obj.name] not in self._records:
+            return True
+        for record in self._records.values():
+            if isinstance(record.position, Area) and record.position.seats and obj.name in record.position.anchors:
+                return True
+        return False
+
+    def is_object_of_label(self, object: str, label: str) -> bool:  # noqa: A002
+        """Whether ``object`` has the label ``label`` (e.g. is_object_of_label('chair_3', 'chair'))."""
+        obj = self._object(object, "is_object_of_label")
+        if not isinstance(label, str):
+            raise ToolArgumentError(f"is_object_of_label() expects a label string, got {label!r}")
+        return obj.label == label
+
+    # ----- areas ----------------------------------------------------------------------------
+    def get_area_to_interact_with(self, object: str) -> Area:  # noqa: A002
+        """Where to stand to use ``object``: <= 0.6 m from it, on its front side if it has one."""
+        return areas.to_interact_with(self._object(object, "get_area_to_interact_with"))
+
+    def get_area_to_sit_on(self, object: str) -> Area:  # noqa: A002
+        """The seat of a chair, stool, couch or sofa (a couch has one place per 0.6 m of width)."""
+        obj = self._object(object, "get_area_to_sit_on")
+        if not obj.is_seat:
+            seats = [o.name for o in self.scene.objects if o.is_seat]
+            raise ToolArgumentError(f"{obj.name} is not a seat; seats: {', '.join(seats) or 'none'}")
+        return areas.to_sit_on(obj)
+
+    def get_area_adjacent_to(self, object: str) -> Area:  # noqa: A002
+        """Floor within 0.5 m of ``object``'s footprint."""
+        return areas.adjacent_to(self._object(object, "get_area_adjacent_to"))
+
+    def get_area_close_to(self, object: str) -> Area:  # noqa: A002
+        """Floor within 1.0 m of ``object``'s footprint."""
+        return areas.close_to(self._object(object, "get_area_close_to"))
+
+    def _directional(self, name: Any, relation: str, func: str) -> Area:
+        obj = self._object(name, func)
+        if not obj.has_facing:
+            raise ToolArgumentError(f"{obj.name} has no front, so '{relation}' is undefined; use get_area_adjacent_to or get_area_close_to")
+        return areas.directional(obj, relation)
+
+    def get_area_in_front_of(self, object: str) -> Area:  # noqa: A002
+        """Floor in front of ``object``: up to 1.5 m out from its front face, as wide as that face."""
+        return self._directional(object, "in front of", "get_area_in_front_of")
+
+    def get_area_behind(self, object: str) -> Area:  # noqa: A002
+        """Floor behind ``object``: up to 1.5 m out from its back face, as wide as that face."""
+        return self._directional(object, "behind", "get_area_behind")
+
+    def get_area_left_of(self, object: str) -> Area:  # noqa: A002
+        """Floor on ``object``'s own left: up to 1.5 m out from its left side, as long as that side."""
+        return self._directional(object, "to the left of", "get_area_left_of")
+
+    def get_area_right_of(self, object: str) -> Area:  # noqa: A002
+        """Floor on ``object``'s own right: up to 1.5 m out from its right side, as long as that side."""
+        return self._directional(object, "to the right of", "get_area_right_of")
+
+    def _pair(self, object_1: Any, object_2: Any, func: str) -> tuple[SceneObject, SceneObject]:
+        a, b = self._object(object_1, func), self._object(object_2, func)
+        if float(np.linalg.norm(a.center_xy - b.center_xy)) < 1e-6:
+            raise ToolArgumentError(f"{func}() needs two objects at different places, got {a.name} and {b.name}")
+        return a, b
+
+    def get_area_between(self, object_1: str, object_2: str) -> Area:
+        """Floor between the two objects' centres, <= 0.5 m off the line joining them."""
+        return areas.between(*self._pair(object_1, object_2, "get_area_between"))
+
+    def get_area_aligned_with(self, object_1: str, object_2: str) -> Area:
+        """Floor on the line through both objects' centres (<= 0.5 m off it), from one centre
+        distance before the first to one centre distance past the second."""
+        return areas.aligned_with(*self._pair(object_1, object_2, "get_area_aligned_with"))
+
+    def get_intersected_area(self, area_1: Area, area_2: Area, *more: Area) -> Area:
+        """The part common to all given areas."""
+        result = self._area(area_1, "get_intersected_area")
+        for other in (area_2, *more):
+            result = result.intersect(self._area(other, "get_intersected_area"))
+        return result
+
+    def get_union_area(self, area_1: Area, area_2: Area, *more: Area) -> Area:
+        """Every point of any of the given areas."""
+        result = self._area(area_1, "get_union_area")
+        for other in (area_2, *more):
+            result = result.union(self._area(other, "get_union_area"))
+        return result
+
+    # ----- turning the records into plans ---------------------------------------------------
+    def resolve(self, seed: int) -> list[CharacterPlan]:
+        """Sample a position and facing for every character the program touched, in the order
+        they were first touched. Raises ToolError subclasses (never a partial result)."""
+        planned = set(self._records)
+        floor = FloorMap(self.scene)
+        avoid = list(self.world.points_to_avoid(planned))
+        taken = {o for o, who in self.world.objects_in_use.items() if who not in planned}
+        group: list[Point] = []
+        placed: dict[str, tuple[Placement, str, Area | None]] = {}
+        for i, (name, record) in enumerate(self._records.items()):
+            rng = np.random.default_rng([seed & 0xFFFFFFFF, i])
+            if isinstance(record.position, Area):
+                area = record.position
+                try:
+                    placement = sample_position(
+                        area, floor, Constraints(avoid=tuple(avoid), group=tuple(group), taken_objects=frozenset(taken)), rng
+                    )
+                except UnsatisfiableAreaError as err:
+                    raise UnsatisfiableAreaError(f"{name}: {err.feedback}") from None
+                text = area.description
+            elif record.position is not None:
+                placement, text, area = Placement(record.position), f"[{record.position[0]:.2f}, {record.position[1]:.2f}]", None
+            else:
+                state = self.world.character(name)
+                if state is None or state.position is None:
+                    raise ToolArgumentError(f"{name} has no position: call set_position(...) with an area")
+                placement, text, area = Placement(state.position, state.seat, state.facing if state.seat else None), state.area or "current position", None
+            placed[name] = (placement, text, area)
+            avoid.append(placement.position)
+            group.append(placement.position)
+            if placement.seat is not None:
+                taken.add(placement.seat)
+
+        plans = []
+        for name, record in self._records.items():
+            placement, text, area = placed[name]
+            action = record.action or self._default_action(name)
+            plans.append(
+                CharacterPlan(
+                    character=name,
+                    action=action,
+                    position=placement.position,
+                    facing=self._facing(name, record, placement, area, placed),
+                    area=text,
+                    seat=placement.seat,
+                )
+            )
+        return plans
+
+    def _default_action(self, name: str) -> str:
+        if self.action_labels is None or "idle" in self.action_labels:
+            return "idle"
+        raise UnknownActionError(f"{name} has no action: call set_target_action(...) with one of {', '.join(self.action_labels)}")
+
+    def _facing(
+        self, name: str, record: _Record, placement: Placement, area: Area | None, placed: dict[str, tuple[Placement, str, Area | None]]
+    ) -> Point:
+        if placement.seat_facing is not None:
+            return placement.seat_facing
+        here = np.array(placement.position)
+        targets: list[Point | None] = [self._orientation_point(record.orientation, name, placed)]
+        if area is not None:
+            targets.append(area.focus)
+        for target in targets:
+            if target is not None:
+                v = np.subtract(target, here)
+                n = float(np.hypot(*v))
+                if n > 1e-6:
+                    return (float(v[0] / n), float(v[1] / n))
+        state: CharacterState | None = self.world.character(name)
+        return state.facing if state is not None and state.facing is not None else (0.0, 1.0)
+
+    def _orientation_point(
+        self, target: str | Area | Point | None, name: str, placed: dict[str, tuple[Placement, str, Area | None]]
+    ) -> Point | None:
+        if target is None:
+            return None
+        if isinstance(target, Area):
+            if target.focus is not None:
+                return target.focus
+            return ((target.hint[0] + target.hint[2]) / 2.0, (target.hint[1] + target.hint[3]) / 2.0)
+        if isinstance(target, str):
+            if target in self.scene.by_name:
+                c = self.scene.by_name[target].center
+                return (c[0], c[1])
+            if target in placed and target != name:
+                return placed[target][0].position
+            state = self.world.character(target)
+            return state.position if state is not None else None
+        return target
