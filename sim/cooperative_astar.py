@@ -1,0 +1,465 @@
+"""Windowed hierarchical cooperative A* (WHCA*) with a continuous clearance guarantee.
+
+Time is discrete: one *step* lasts ``step_time`` seconds (default ``cell_size / walking_speed``
+= 0.3 s = 9 frames at 30 fps). In one step every walking agent either waits or moves to one of
+its 8 neighbour cells, moving in a straight line at constant speed (so straight moves run at
+the walking speed and diagonals at sqrt(2) times it). All agents share the step clock, so two
+agents' relative motion within a step is linear and its closest approach has a closed form.
+
+Clearance rule (the guarantee): for every pair of agents and every step, the centre distance
+over the whole step never drops below ``min(2 * body_radius, distance at the step start)``.
+Hence agents that start apart (>= 2r) stay apart at every instant, including mid-move and
+during diagonal moves, and agents that start too close (e.g. placed by hand) never get closer.
+The rule is tabulated once over relative start offsets and relative velocities (cell units),
+which covers vertex, swap and following conflicts; an agent farther than ``2 + 2r / cell`` cells
+(Chebyshev) cannot conflict within one step. Stationary characters are discs at arbitrary
+positions; a move is forbidden for them by the same rule.
+
+Planning pass (prioritized): agents plan one after another in a space-time A* over
+``window`` steps against a reservation table of the agents planned before them. Every agent's
+"wait where it stands" for the first ``commit_steps`` steps is reserved up front, so any agent
+whose search fails can safely wait: the committed prefix of every plan is always conflict-free.
+Costs: a move costs its length in cells, waiting costs 1 per step except at the goal (free).
+The heuristic is the exact distance on the static grid (backward Dijkstra per goal, cached).
+Plans are deterministic: fixed move order, tie-breaking on (f, h, cell), explicit orders.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Hashable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from sim.nav_grid import MOVES, NavGrid
+from sim.path_fallback import failed_first
+
+Cell = tuple[int, int]
+Agent = Hashable
+
+_WAIT = (0, 0)
+_EPS = 1e-9
+
+
+class PlanningError(ValueError):
+    """Bad planner input (unknown cell, blocked start...)."""
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """One planning call. ``paths[a]`` lists ``window + 1`` cells: the start, then one per step
+    (only ``commit_steps + 1`` cells, all the start, for agents whose search failed).
+
+    ``failed``: agents for which the windowed search found nothing (they wait in place);
+    ``fallback``: agents planned again by the fallback pass; ``goals``: the goal actually used
+    per agent (replaced by the nearest reachable cell when the requested one is unreachable).
+    """
+
+    paths: dict[Agent, list[Cell]]
+    failed: frozenset[Agent]
+    fallback: frozenset[Agent]
+    goals: dict[Agent, Cell]
+    expansions: int = 0
+
+
+class _Reservations:
+    """Per step t (relative to the plan start): for every cell id near a reserved agent, the
+    clearance-table bases of those agents, so that a search looks up one list per expansion.
+
+    ``near[t][cell]`` lists ``(agent, base)`` with ``base`` the index of (offset, velocity) in
+    the flat clearance table; ``cells[t][agent]`` is the agent's start cell id at step t.
+    """
+
+    def __init__(self, n_steps: int, planner: PathPlanner) -> None:
+        self.near: list[dict[int, list[tuple[Agent, int]]]] = [{} for _ in range(n_steps)]
+        self._planner = planner
+
+    def add(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+        nyp = self._planner._ny_p
+        tables = self._planner._near_cells
+        for t in range(min(upto, len(ids) - 1, len(self.near))):
+            a, b = ids[t], ids[t + 1]
+            d = b - a
+            dx = round(d / nyp) if abs(d) > 1 else 0
+            dy = d - dx * nyp
+            vel = (dx + 2) * 5 + (dy + 2)
+            near = self.near[t]
+            for cell, base in tables[a]:
+                entry = (agent, base + vel)
+                lst = near.get(cell)
+                if lst is None:
+                    near[cell] = [entry]
+                else:
+                    lst.append(entry)
+
+    def remove(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+        tables = self._planner._near_cells
+        for t in range(min(upto, len(ids) - 1, len(self.near))):
+            near = self.near[t]
+            for cell, _ in tables[ids[t]]:
+                lst = near.get(cell)
+                if lst:
+                    near[cell] = [e for e in lst if e[0] != agent]
+
+
+class PathPlanner:
+    """WHCA* over a ``NavGrid``. Pure and deterministic (no clock, no randomness but ``seed``).
+
+    ``window``: steps planned per search (reference: 20). ``commit_steps``: steps executed
+    before the next replan (the prefix that is guaranteed conflict-free; default 1 step =
+    9 frames, about the reference's 10-frame replan interval). ``step_time``: seconds per step.
+    ``max_expansions``: search budget per agent and call; beyond it the agent waits.
+    """
+
+    def __init__(
+        self,
+        grid: NavGrid,
+        window: int = 20,
+        commit_steps: int = 1,
+        walking_speed: float = 1.0,
+        step_time: float | None = None,
+        max_expansions: int = 4000,
+        fallback: bool = True,
+        seed: int = 0,
+    ) -> None:
+        if window < 1:
+            raise PlanningError(f"window must be >= 1 step, got {window}")
+        if not 1 <= commit_steps <= window:
+            raise PlanningError(f"commit_steps must be in [1, window={window}], got {commit_steps}")
+        if not walking_speed > 0:
+            raise PlanningError(f"walking_speed must be > 0 m/s, got {walking_speed}")
+        self.grid = grid
+        self.window = int(window)
+        self.commit_steps = int(commit_steps)
+        self.step_time = float(step_time if step_time is not None else grid.cell_size / walking_speed)
+        self.max_expansions = int(max_expansions)
+        self.fallback = bool(fallback)
+        self.seed = int(seed)
+        self.min_distance = 2.0 * grid.body_radius  # metres between centres
+        d_cells = self.min_distance / grid.cell_size
+        self.reach = int(math.ceil(d_cells + 2.0 - _EPS))  # Chebyshev distance that can conflict
+        self._pad = self.reach
+        nx, ny = grid.shape
+        self._nx_p, self._ny_p = nx + 2 * self._pad, ny + 2 * self._pad
+        self._build_neighbours()
+        self._build_clearance_table(d_cells)
+        self._heuristics: dict[int, list[float]] = {}
+        self._graph = self._static_graph()
+
+    # ----- ids -----------------------------------------------------------------------------
+    def cell_id(self, cell: Cell) -> int:
+        return (cell[0] + self._pad) * self._ny_p + cell[1] + self._pad
+
+    def id_cell(self, cid: int) -> Cell:
+        return (cid // self._ny_p - self._pad, cid % self._ny_p - self._pad)
+
+    def _build_neighbours(self) -> None:
+        g = self.grid
+        nyp = self._ny_p
+        self._nbrs: dict[int, list[tuple[int, float, int, int, int]]] = {}
+        for i, j in np.argwhere(g.free):
+            cid = self.cell_id((int(i), int(j)))
+            out: list[tuple[int, float, int, int, int]] = [(cid, 1.0, 0, 0, 0)]
+            for k, (dx, dy) in enumerate(MOVES):
+                if g.moves[i, j, k]:
+                    out.append((cid + dx * nyp + dy, math.hypot(dx, dy), dx, dy, 5 * dx + dy))
+            self._nbrs[cid] = out
+        rr = self.reach - 1
+        side = 2 * rr + 1
+        self._nbhd_bases = [
+            (di * nyp + dj, ((di + rr) * side + (dj + rr)) * 25) for di in range(-rr, rr + 1) for dj in range(-rr, rr + 1)
+        ]
+        # For an agent at cell a: the free cells within reach and the table base of a seen from them.
+        self._near_cells: dict[int, list[tuple[int, int]]] = {
+            a: [(a - off, base) for off, base in self._nbhd_bases if (a - off) in self._nbrs] for a in self._nbrs
+        }
+
+    def _build_clearance_table(self, d_cells: float) -> None:
+        """safe[(di, dj, wx, wy)]: other at offset (di, dj), relative velocity (wx, wy) in cells/step."""
+        rr = self.reach - 1
+        self._safe: list[bool] = []
+        for di in range(-rr, rr + 1):
+            for dj in range(-rr, rr + 1):
+                for wx in range(-2, 3):
+                    for wy in range(-2, 3):
+                        start = math.hypot(di, dj)
+                        closest = _segment_min_norm(di, dj, wx, wy)
+                        self._safe.append(closest >= min(d_cells, start) - 1e-7)
+
+    def _static_graph(self):  # type: ignore[no-untyped-def]
+        g = self.grid
+        nx, ny = g.shape
+        rows, cols, w = [], [], []
+        for k, (dx, dy) in enumerate(MOVES):
+            src = np.argwhere(g.moves[:, :, k])
+            rows.append(src[:, 0] * ny + src[:, 1])
+            cols.append((src[:, 0] + dx) * ny + src[:, 1] + dy)
+            w.append(np.full(len(src), math.hypot(dx, dy)))
+        return coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))), shape=(nx * ny, nx * ny)).tocsr()
+
+    # ----- heuristic -----------------------------------------------------------------------------
+    def heuristic(self, goal: Cell) -> list[float]:
+        """Exact static distances (cells) to ``goal`` indexed by padded cell id (inf: unreachable)."""
+        gid = self.cell_id(goal)
+        h = self._heuristics.get(gid)
+        if h is None:
+            nx, ny = self.grid.shape
+            d = dijkstra(self._graph, directed=True, indices=goal[0] * ny + goal[1])
+            full = np.full((self._nx_p, self._ny_p), np.inf)
+            full[self._pad : self._pad + nx, self._pad : self._pad + ny] = d.reshape(nx, ny)
+            h = full.ravel().tolist()
+            if len(self._heuristics) > 512:
+                self._heuristics.pop(next(iter(self._heuristics)))
+            self._heuristics[gid] = h
+        return h
+
+    def distance(self, start: Cell, goal: Cell) -> float:
+        """Shortest static path length from ``start`` to ``goal`` in metres (inf: unreachable)."""
+        return self.heuristic(goal)[self.cell_id(start)] * self.grid.cell_size
+
+    # ----- static obstacles ------------------------------------------------------------------------
+    def _static_overrides(self, statics: Sequence[np.ndarray]) -> dict[int, list[tuple[int, float, int, int, int]]]:
+        """Neighbour lists with moves removed that bring a body too close to a stationary one."""
+        if not statics:
+            return {}
+        g = self.grid
+        cs = g.cell_size
+        out: dict[int, list[tuple[int, float, int, int, int]]] = {}
+        reach_m = self.min_distance + 2.0 * cs
+        q = np.asarray(statics, dtype=float).reshape(-1, 2)
+        cand: set[int] = set()
+        rr = int(math.ceil(reach_m / cs)) + 1
+        for p in q:
+            ci, cj = g.cell_of(p)
+            for i in range(ci - rr, ci + rr + 1):
+                for j in range(cj - rr, cj + rr + 1):
+                    if g.is_free(i, j):
+                        cand.add(self.cell_id((i, j)))
+        for cid in sorted(cand):
+            a = self.grid.center_of(*self.id_cell(cid))
+            kept = []
+            for nb in self._nbrs[cid]:
+                b = a + np.array([nb[2], nb[3]], dtype=float) * cs
+                d = b - a
+                rel = q - a
+                dd = float(d @ d)
+                t = np.clip(rel @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(q))
+                closest = np.linalg.norm(rel - t[:, None] * d, axis=1)
+                start = np.linalg.norm(rel, axis=1)
+                if np.all(closest >= np.minimum(self.min_distance, start) - 1e-7):
+                    kept.append(nb)
+            if len(kept) != len(self._nbrs[cid]):
+                out[cid] = kept
+        return out
+
+    # ----- planning ------------------------------------------------------------------------------------
+    def plan(
+        self,
+        starts: Mapping[Agent, Cell],
+        goals: Mapping[Agent, Cell | None],
+        static_obstacles: Sequence[np.ndarray | tuple[float, float]] = (),
+        t0: int = 0,
+        order: Sequence[Agent] | None = None,
+    ) -> PlanResult:
+        """Plan ``window`` steps for every agent in ``starts``.
+
+        ``goals[a]`` None (or missing) means "stay": the agent keeps its cell unless it must
+        make way. ``static_obstacles``: xy centres of stationary characters (metres).
+        ``order``: priority order (first plans first); default is a permutation seeded by
+        ``seed`` and ``t0``. The fallback pass re-plans with the failed agents first and a
+        doubled window for them; the pass with fewer failures wins.
+        """
+        agents = list(starts)
+        for a in agents:
+            s = starts[a]
+            if not self.grid.is_free(*s):
+                raise PlanningError(f"agent {a!r} starts in cell {s}, which is blocked or outside the grid")
+        if order is None:
+            rng = np.random.default_rng([self.seed, int(t0)])
+            order = [agents[k] for k in rng.permutation(len(agents))]
+        else:
+            missing = set(agents) - set(order)
+            order = [a for a in order if a in starts] + [a for a in agents if a in missing]
+        overrides = self._static_overrides([np.asarray(p, dtype=float) for p in static_obstacles])
+        used_goals = {a: self._usable_goal(starts[a], goals.get(a), overrides) for a in agents}
+        first = self._pass(order, starts, used_goals, overrides, extended=frozenset())
+        if not first.failed or not self.fallback:
+            return first
+        order2 = failed_first(order, first.failed)
+        second = self._pass(order2, starts, used_goals, overrides, extended=first.failed)
+        best = second if len(second.failed) < len(first.failed) else first
+        return PlanResult(
+            paths=best.paths,
+            failed=best.failed,
+            fallback=first.failed,
+            goals=used_goals,
+            expansions=first.expansions + second.expansions,
+        )
+
+    def _usable_goal(self, start: Cell, goal: Cell | None, overrides: Mapping[int, list]) -> Cell:
+        if goal is None:
+            return start
+        h = self.heuristic(goal) if self.grid.is_free(*goal) else None
+        gid = self.cell_id(goal) if h is not None else -1
+        waits_ok = gid in self._nbrs and any(nb[0] == gid for nb in overrides.get(gid, self._nbrs[gid]))
+        if h is not None and h[self.cell_id(start)] < math.inf and waits_ok:
+            return goal
+        # Nearest cell (to the requested goal) that is reachable from the start and not taken.
+        comp = self.grid.component[start]
+        cells = np.argwhere(self.grid.component == comp)
+        centers = self.grid.centers(cells)
+        target = self.grid.center_of(*goal)
+        for k in np.argsort(np.sum((centers - target) ** 2, axis=1), kind="stable"):
+            c = (int(cells[k][0]), int(cells[k][1]))
+            cid = self.cell_id(c)
+            if any(nb[0] == cid for nb in overrides.get(cid, self._nbrs[cid])):
+                return c
+        return start
+
+    def _pass(
+        self,
+        order: Sequence[Agent],
+        starts: Mapping[Agent, Cell],
+        goals: Mapping[Agent, Cell],
+        overrides: Mapping[int, list],
+        extended: frozenset[Agent],
+    ) -> PlanResult:
+        w_max = self.window * (2 if extended else 1)
+        res = _Reservations(w_max, self)
+        waits = {a: [self.cell_id(starts[a])] * (self.commit_steps + 1) for a in order}
+        for a in order:
+            res.add(a, waits[a], self.commit_steps)
+        paths: dict[Agent, list[Cell]] = {}
+        failed: set[Agent] = set()
+        total = 0
+        for a in order:
+            res.remove(a, waits[a], self.commit_steps)
+            window = self.window * 2 if a in extended else self.window
+            ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
+            total += n
+            if ids is None:  # wait: safe for the committed steps, which is all it claims
+                failed.add(a)
+                ids = waits[a]
+            res.add(a, ids, len(res.near))
+            paths[a] = [self.id_cell(c) for c in ids[: self.window + 1]]
+        return PlanResult(paths=paths, failed=frozenset(failed), fallback=frozenset(), goals=dict(goals), expansions=total)
+
+    def _search(
+        self,
+        agent: Agent,
+        start: int,
+        goal: Cell,
+        window: int,
+        res: _Reservations,
+        overrides: Mapping[int, list],
+    ) -> tuple[list[int] | None, int]:
+        """Space-time A* from ``start`` for ``window`` steps; returns padded ids (window + 1) or None."""
+        h = self.heuristic(goal)
+        gid = self.cell_id(goal)
+        nbrs = self._nbrs
+        safe = self._safe
+        near = res.near
+        n_steps = len(near)
+        h0 = h[start]
+        heap: list[tuple[float, float, int, int]] = [(h0, h0, 0, start)]
+        g_best: dict[tuple[int, int], float] = {(start, 0): 0.0}
+        parent: dict[tuple[int, int], int] = {}
+        expansions = 0
+        while heap:
+            f, hc, t, cid = heapq.heappop(heap)
+            key = (cid, t)
+            g = f - hc
+            if g > g_best.get(key, math.inf) + 1e-9:
+                continue
+            if t == window:
+                path = [cid]
+                while key in parent:
+                    prev = parent[key]
+                    key = (prev, key[1] - 1)
+                    path.append(prev)
+                path.reverse()
+                return path, expansions
+            expansions += 1
+            if expansions > self.max_expansions:
+                return None, expansions
+            others = near[t].get(cid) if t < n_steps else None
+            at_goal = cid == gid
+            for nid, cost, _dx, _dy, m in overrides.get(cid, nbrs[cid]):
+                if others:
+                    ok = True
+                    for _, base in others:
+                        if not safe[base - m]:
+                            ok = False
+                            break
+                    if not ok:
+                        continue
+                step_cost = 0.0 if (at_goal and nid == cid) else cost
+                ng = g + step_cost
+                nkey = (nid, t + 1)
+                if ng < g_best.get(nkey, math.inf) - 1e-9:
+                    hn = h[nid]
+                    if hn == math.inf:
+                        continue
+                    g_best[nkey] = ng
+                    parent[nkey] = cid
+                    heapq.heappush(heap, (ng + hn, hn, t + 1, nid))
+        return None, expansions
+
+
+# ----- continuous positions and checks ------------------------------------------------------------
+def _segment_min_norm(px: float, py: float, wx: float, wy: float) -> float:
+    """min over s in [0, 1] of |p + s w|."""
+    ww = wx * wx + wy * wy
+    s = 0.0 if ww == 0 else min(1.0, max(0.0, -(px * wx + py * wy) / ww))
+    return math.hypot(px + s * wx, py + s * wy)
+
+
+def position_at(path: Sequence[Cell], t: float, grid: NavGrid, step_time: float, t_start: float = 0.0) -> np.ndarray:
+    """Continuous xy (metres) on a planned path at time ``t`` seconds.
+
+    ``path[k]`` is the cell at time ``t_start + k * step_time``; positions are linear between
+    cell centres and clamped to the first / last cell outside the path's time span.
+    """
+    if not path:
+        raise PlanningError("position_at needs a non-empty path")
+    u = (t - t_start) / step_time
+    if u <= 0:
+        return grid.center_of(*path[0])
+    k = int(math.floor(u))
+    if k >= len(path) - 1:
+        return grid.center_of(*path[-1])
+    s = u - k
+    return (1.0 - s) * grid.center_of(*path[k]) + s * grid.center_of(*path[k + 1])
+
+
+def plan_conflicts(
+    paths: Mapping[Agent, Sequence[Cell]], cell_size: float, body_radius: float, steps: int | None = None
+) -> list[tuple[int, Agent, Agent, float]]:
+    """Pairs that break the clearance rule: (step, a, b, closest distance in metres).
+
+    Checks every step of every pair with the exact closest approach of linear motion; a pair
+    breaks the rule when it gets closer than ``min(2r, its distance at the step start)``.
+    """
+    names = list(paths)
+    n = min(len(p) for p in paths.values()) - 1 if steps is None else steps
+    pos = np.array([[paths[a][k] for k in range(n + 1)] for a in names], dtype=float) * cell_size
+    out: list[tuple[int, Agent, Agent, float]] = []
+    dmin = 2.0 * body_radius
+    for k in range(n):
+        p0 = pos[:, k]
+        v = pos[:, k + 1] - p0
+        rel = p0[None, :, :] - p0[:, None, :]
+        w = v[None, :, :] - v[:, None, :]
+        ww = np.sum(w * w, axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(ww > 0, np.clip(-np.sum(rel * w, axis=-1) / ww, 0.0, 1.0), 0.0)
+        closest = np.linalg.norm(rel + s[..., None] * w, axis=-1)
+        start = np.linalg.norm(rel, axis=-1)
+        bad = closest < np.minimum(dmin, start) - 1e-7
+        for i, j in zip(*np.nonzero(np.triu(bad, 1)), strict=True):
+            out.append((k, names[i], names[j], float(closest[i, j])))
+    return out
