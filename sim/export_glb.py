@@ -11,9 +11,9 @@ Layout of the file:
   cube mesh per label scaled to the object's size and turned to its facing, plus a ``floor``
   slab over the scene bounds;
 - per character a group node named as the character, holding its joint hierarchy
-  (``<name>:pelvis`` ... ``<name>:right_wrist``, translations = rest offsets) and a skinned
-  mesh node ``<name>:body``: one flat-shaded box per bone, each bound rigidly to one of the 22
-  joints (``skin.joints`` in our joint order, inverse bind matrices of the rest pose);
+  (``<name>:pelvis`` ... ``<name>:right_wrist``, translations = rest offsets), and a root
+  skinned mesh node ``<name>:body``: one flat-shaded box per bone, each bound rigidly to one of
+  the 22 joints (``skin.joints`` in our joint order, inverse bind matrices of the rest pose);
 - one animation ``run``: per character, root translation + 22 joint rotations (unit
   quaternions, xyzw, sign-continuous), one key per frame at the track's rate, LINEAR.
 
@@ -358,7 +358,8 @@ def build_glb(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> gl.GLTF2
             )
         )
         body = w.node(gl.Node(name=f"{track.name}:body", mesh=mesh, skin=len(w.gltf.skins) - 1))
-        top.append(w.node(gl.Node(name=track.name, children=[node_ids[0], body])))
+        # The skinned mesh node sits at the scene root (parent transforms never move a skin).
+        top.extend([w.node(gl.Node(name=track.name, children=[node_ids[0]])), body])
 
         key = (n, track.fps)
         if key not in time_accessors:
