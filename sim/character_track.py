@@ -231,7 +231,7 @@ def random_track(
     The pelvis wanders on the floor (about 0.8-0.95 m high) with a slowly turning heading and
     a small tilt; every other joint bends smoothly by at most ``max_joint_angle`` radians.
     """
-    from sim.skeleton import BODY_TO_WORLD, axis_angle_to_matrix
+    from sim.skeleton import axis_angle_to_matrix, heading_to_root
 
     rng = np.random.default_rng(seed)
     t = np.arange(num_frames) / fps
@@ -249,8 +249,7 @@ def random_track(
     rotations = axis_angle_to_matrix(aa)
     heading = rng.uniform(-np.pi, np.pi) + np.cumsum(rng.normal(0.0, 0.02, num_frames))
     tilt = axis_angle_to_matrix(0.15 * wave[:, 0])
-    yaw = axis_angle_to_matrix(np.outer(heading + np.pi / 2, [0.0, 0.0, 1.0]))
-    rotations[:, 0] = yaw @ BODY_TO_WORLD @ tilt  # heading_to_root(heading), batched
+    rotations[:, 0] = heading_to_root(heading) @ tilt
     step = 1.2 / fps * np.stack([np.cos(heading), np.sin(heading)], axis=1)
     xy = rng.uniform(-3.0, 3.0, size=2) + np.cumsum(step, axis=0)
     z = 0.875 + 0.075 * np.sin(2 * np.pi * 0.9 * t + rng.uniform(0, 2 * np.pi))
