@@ -87,3 +87,8 @@ class ReplayMissError(LLMError):
     """A replayed run asked for a request that the trace does not hold."""
 
     kind = "replay_miss"
+
+    def __init__(self, message: str, *, node: str | None = None, diff: str | None = None) -> None:
+        super().__init__(message)
+        self.node = node
+        self.diff = diff

@@ -12,22 +12,38 @@ from __future__ import annotations
 import json
 import os
 import time
+import warnings
 from collections.abc import Awaitable, Callable
 from typing import Any
 
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
 
-import anyio  # noqa: E402
-import litellm  # noqa: E402
-import structlog  # noqa: E402
+import anyio
+import litellm
+import structlog
 
-from agents.llm_port import LLMError, LLMRequest, LLMResponse, LLMUnavailableError, TokenUsage  # noqa: E402
-from orchestrator.config import NodeConfig, StorytellerConfig  # noqa: E402
-from orchestrator.local_model import ensure_local_model_available, register_local_provider  # noqa: E402
-from orchestrator.retry_policy import InvalidResponseError, RetryPolicy, classify_error  # noqa: E402
-from orchestrator.traces import AttemptRecord, NullTraceSink, TraceSink  # noqa: E402
+from agents.llm_port import LLMError, LLMRequest, LLMResponse, LLMUnavailableError, TokenUsage
+from orchestrator.config import NodeConfig, StorytellerConfig
+from orchestrator.local_model import ensure_local_model_available, register_local_provider
+from orchestrator.retry_policy import InvalidResponseError, RetryPolicy, classify_error
+from orchestrator.traces import AttemptRecord, NullTraceSink, TraceSink
 
 litellm.suppress_debug_info = True
+
+
+def _prebuild_litellm_models() -> None:
+    """Build litellm's lazily-validated response models once, with warnings silenced: pydantic
+    warns (UserWarning) that some litellm TypedDicts use ``ReadOnly``, which is harmless but
+    would otherwise surface in the middle of the first call (and fail warning-strict tests)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        litellm.ModelResponse(
+            choices=[{"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": "x"}}],
+            usage={"prompt_tokens": 1, "completion_tokens": 1, "total_tokens": 2},
+        )
+
+
+_prebuild_litellm_models()
 _log = structlog.get_logger("storyteller.llm")
 
 Completion = Callable[..., Awaitable[Any]]
@@ -77,13 +93,21 @@ class LiteLLMClient:
         acompletion: Completion | None = None,
         sleep: Sleep = anyio.sleep,
         clock: Callable[[], float] = time.perf_counter,
+        check_local: Callable[[str], None] = ensure_local_model_available,
     ) -> None:
         self.config = config
         self.trace: TraceSink = trace_sink if trace_sink is not None else NullTraceSink()
         self._acompletion = acompletion or litellm.acompletion
         self._sleep = sleep
         self._clock = clock
+        self._check_local = check_local
         register_local_provider()
+
+    def close(self) -> None:
+        """Close the trace sink (if it is a file writer)."""
+        close = getattr(self.trace, "close", None)
+        if close is not None:
+            close()
 
     def _params(self, node: NodeConfig, model: str, request: LLMRequest) -> tuple[dict[str, Any], bool]:
         max_tokens = node.max_tokens if request.max_tokens is None else min(request.max_tokens, node.max_tokens)
@@ -115,7 +139,7 @@ class LiteLLMClient:
         node = self.config.node(request.node)
         request_hash = request.content_hash()
         messages = [m.model_dump() for m in request.messages]
-        call_seq: int | None = None
+        call_seq = -1  # seq of the first attempt, set below
         attempt_no = 0
         failures: list[tuple[str, BaseException]] = []
         for model_index, model in enumerate(node.models):
@@ -127,17 +151,17 @@ class LiteLLMClient:
                     await self._sleep(policy.delay_s(k))
                 attempt_no += 1
                 seq = self.trace.next_seq()
-                call_seq = seq if call_seq is None else call_seq
+                if call_seq < 0:
+                    call_seq = seq
 
-                def record(seq: int = seq, attempt: int = attempt_no, model: str = model, **fields: Any) -> AttemptRecord:
-                    rec = AttemptRecord(
-                        run_id=self.trace.run_id, seq=seq, time_unix=time.time(), call=call_seq or seq,
-                        node=request.node, attempt=attempt, model=model,
-                        params={**params, "schema_in_prompt": schema_in_prompt} if schema_in_prompt else params,
+                traced_params = {**params, "schema_in_prompt": True} if schema_in_prompt else params
+
+                def record(**fields: Any) -> None:
+                    self.trace.write(AttemptRecord(
+                        run_id=self.trace.run_id, seq=seq, time_unix=time.time(), call=call_seq,  # noqa: B023
+                        node=request.node, attempt=attempt_no, model=model, params=traced_params,  # noqa: B023
                         request=request, request_hash=request_hash, **fields,
-                    )
-                    self.trace.write(rec)
-                    return rec
+                    ))
 
                 t0 = self._clock()
                 text: str | None = None
@@ -146,7 +170,7 @@ class LiteLLMClient:
                 try:
                     api_key = self._api_key(node)
                     if provider_of(model) == "local":
-                        ensure_local_model_available(model)
+                        self._check_local(model)
                     raw = await self._acompletion(
                         model=model, messages=sent, max_retries=0, drop_params=True,
                         **({"api_key": api_key} if api_key else {}), **params,

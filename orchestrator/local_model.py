@@ -21,12 +21,12 @@ from typing import Any
 
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
 
-import anyio  # noqa: E402
-import litellm  # noqa: E402
-from litellm import CustomLLM, ModelResponse  # noqa: E402
+import anyio
+import litellm
+from litellm import CustomLLM, ModelResponse
 
-from agents.llm_port import LLMUnavailableError  # noqa: E402
-from orchestrator.model_weights import WeightsSpec, ensure_weights, spec_for  # noqa: E402
+from agents.llm_port import LLMUnavailableError
+from orchestrator.model_weights import WeightsSpec, ensure_weights, spec_for
 
 N_CTX = 4096
 N_THREADS = 2
@@ -128,14 +128,19 @@ def _llama_params(optional_params: dict[str, Any]) -> dict[str, Any]:
 class LocalLlamaProvider(CustomLLM):
     """litellm ``CustomLLM`` serving ``local/<model>`` with llama.cpp."""
 
-    def __init__(self, chat: Callable[..., dict[str, Any]] = _chat_blocking) -> None:
+    def __init__(
+        self,
+        chat: Callable[..., dict[str, Any]] = _chat_blocking,
+        check: Callable[[str], None] = ensure_local_model_available,
+    ) -> None:
         super().__init__()
         self._chat = chat
+        self._check = check
 
     def _spec(self, model: str) -> WeightsSpec:
         try:
             spec = spec_for(model)
-            ensure_local_model_available(model)
+            self._check(model)
         except LLMUnavailableError as exc:
             raise litellm.NotFoundError(message=str(exc), llm_provider="local", model=model) from None
         return spec

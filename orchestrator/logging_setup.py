@@ -1,0 +1,55 @@
+"""structlog configuration, done once per process by the CLI (or a test that wants it).
+
+Console rendering when stderr is a terminal, one JSON object per line otherwise. ``sim/``
+and ``tools/`` never log; they return diagnostics that the orchestrator logs.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from typing import TextIO
+
+import structlog
+
+_configured = False
+
+
+def configure_logging(level: str | int = "INFO", *, json: bool | None = None, stream: TextIO | None = None) -> None:
+    """Configure structlog (idempotent: later calls are ignored unless ``force_logging_reset``).
+
+    ``json=None`` picks JSON unless ``stream`` (default stderr) is a TTY."""
+    global _configured
+    if _configured:
+        return
+    out = stream if stream is not None else sys.stderr
+    use_json = (not out.isatty()) if json is None else json
+    numeric = logging.getLevelName(level.upper()) if isinstance(level, str) else level
+    if not isinstance(numeric, int):
+        raise ValueError(f"unknown log level {level!r}")
+    renderer: structlog.typing.Processor = (
+        structlog.processors.JSONRenderer() if use_json else structlog.dev.ConsoleRenderer(colors=out.isatty())
+    )
+    structlog.configure(
+        processors=[
+            structlog.contextvars.merge_contextvars,
+            structlog.processors.add_log_level,
+            structlog.processors.TimeStamper(fmt="iso", utc=True),
+            structlog.processors.StackInfoRenderer(),
+            structlog.processors.format_exc_info,
+            renderer,
+        ],
+        wrapper_class=structlog.make_filtering_bound_logger(numeric),
+        logger_factory=structlog.PrintLoggerFactory(file=out),
+        cache_logger_on_first_use=True,
+    )
+    # litellm logs through stdlib logging; keep it quiet unless we are debugging.
+    logging.getLogger("LiteLLM").setLevel(max(numeric, logging.WARNING))
+    _configured = True
+
+
+def force_logging_reset() -> None:
+    """Allow :func:`configure_logging` to run again (tests)."""
+    global _configured
+    _configured = False
+    structlog.reset_defaults()
