@@ -71,6 +71,11 @@ class MotionClip:
         if n < 2:
             raise MotionClipError(f"clip {self.name!r}: needs at least 2 frames, has {n}")
 
+    def _replace_key(self, key: str) -> MotionClip:
+        """The same frames filed under another database key."""
+        return MotionClip(self.name, key, self.local_rotations, self.pelvis, self.root_xy, self.heading,
+                          self.contacts, self.loops, self.target, self.fps, self.source)
+
     @property
     def num_frames(self) -> int:
         return int(self.local_rotations.shape[0])
