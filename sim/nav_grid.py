@@ -141,23 +141,32 @@ class NavGrid:
         The ideal point is in front of the object (seats and objects with a facing): the front
         edge of the footprint plus ``body_radius + standoff``; for objects without a facing,
         the closest free cell to the footprint. Candidates are restricted to the largest
-        connected component, and to cells in front of the object when it has a facing
-        (falling back to any side if the front is walled off).
+        connected component, preferring cells with a clear straight line to the seat point
+        (or centre) and, for objects with a facing, cells in front of it.
         """
         cells = np.argwhere(self.component == self.main_component)
         if len(cells) == 0:
             raise NavGridError("the navigation grid has no free cell")
         centers = self.centers(cells)
         local = obj.to_local(centers)
+        # Prefer cells with a clear line to the object (no other object in between).
+        others = [o for o in self.obstacles if o.name != obj.name]
+        target = obj.seat_point() if obj.is_seat else obj.center_xy
+        visible = body_clearance(others, centers, np.broadcast_to(target, centers.shape)) > 0.0
+        keep = visible
         if obj.has_facing or obj.is_seat:
             f = np.asarray(obj.facing, dtype=float)
             ideal = obj.center_xy + f * (obj.depth / 2.0 + self.body_radius + standoff)
             in_front = local[:, 1] > obj.depth / 2.0
-            if in_front.any():
-                cells, centers = cells[in_front], centers[in_front]
+            for mask in (visible & in_front, visible, in_front):
+                if mask.any():
+                    keep = mask
+                    break
             d2 = np.sum((centers - ideal) ** 2, axis=1)
         else:
             d2 = _point_rect_distance(local, obj.width / 2.0, obj.depth / 2.0) ** 2
+        if keep.any():
+            cells, d2 = cells[keep], d2[keep]
         k = int(np.argmin(d2))
         return (int(cells[k][0]), int(cells[k][1]))
 
