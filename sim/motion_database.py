@@ -41,6 +41,7 @@ from sim.procedural_library import GENERATOR_VERSION, procedural_clips
 from sim.skeleton import NUM_JOINTS, forward_kinematics
 
 END_MARGIN = 5  # frames at the end of a non-looping clip that a search never jumps to
+ENTRY_FRAMES = 8  # frames at the start of each clip where a completing action is entered
 
 
 def squared_distances(rows: np.ndarray, query: np.ndarray) -> np.ndarray:
@@ -163,9 +164,22 @@ class MotionDatabase:
             self._index.append(NearestFrameIndex(self.features, np.flatnonzero(self.searchable)))
         return self._index[0]
 
-    def search(self, raw_query: np.ndarray) -> tuple[int, float]:
-        """Best frame for a raw feature vector: (frame, squared normalised distance)."""
-        return self.index.query(self.normalize(raw_query))
+    @property
+    def entry_index(self) -> NearestFrameIndex:
+        """Search index over the first ENTRY_FRAMES frames of every clip (how a completing
+        action is entered: from its beginning)."""
+        if len(self._index) < 2:
+            self.index  # noqa: B018 - builds the main index first
+            start = self.clip_ranges[self.clip_of_frame, 0]
+            entry = self.searchable & (np.arange(self.num_frames) - start < ENTRY_FRAMES)
+            self._index.append(NearestFrameIndex(self.features, np.flatnonzero(entry)))
+        return self._index[1]
+
+    def search(self, raw_query: np.ndarray, entry: bool = False) -> tuple[int, float]:
+        """Best frame for a raw feature vector: (frame, squared normalised distance);
+        ``entry`` restricts the search to the first frames of each clip."""
+        index = self.entry_index if entry else self.index
+        return index.query(self.normalize(raw_query))
 
     def next_frame(self, frame: int) -> tuple[int, bool]:
         """Frame after ``frame``: wraps in looping clips; (frame, True) at a non-loop end."""
