@@ -6,6 +6,7 @@ failures per model. Sleeping is injected, so backoff never waits.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import threading
@@ -74,10 +75,8 @@ class FakeOpenAI:
                 self.send_header("Content-Type", "application/json")
                 self.send_header("Content-Length", str(len(data)))
                 self.end_headers()
-                try:
+                with contextlib.suppress(BrokenPipeError, ConnectionResetError):
                     self.wfile.write(data)
-                except (BrokenPipeError, ConnectionResetError):
-                    pass
 
         self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
         self.server.daemon_threads = True

@@ -1,0 +1,159 @@
+"""Trace files: record round trip, torn tails, corruption, reopen, and a writer killed mid-write."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from structlog.testing import capture_logs
+
+from agents.llm_port import ChatMessage, LLMRequest, TokenUsage
+from orchestrator.traces import (
+    AppliedRecord,
+    AttemptRecord,
+    ParsedRecord,
+    RunRecord,
+    TraceCorruptError,
+    TraceWriter,
+    read_trace,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def attempt(writer: TraceWriter, text: str = '{"a": 1}', frame: int = 10) -> AttemptRecord:
+    req = LLMRequest(node="narrator", messages=(ChatMessage(role="user", content="hi ✓"),), sim_frame=frame)
+    seq = writer.next_seq()
+    rec = AttemptRecord(
+        run_id=writer.run_id, seq=seq, time_unix=time.time(), call=seq, node="narrator", attempt=1,
+        model="local/qwen2.5-coder-0.5b", params={"temperature": 0.0, "max_tokens": 64}, request=req,
+        request_hash=req.content_hash(), response_text=text, finish_reason="stop", parsed_output={"a": 1},
+        usage=TokenUsage(prompt_tokens=3, completion_tokens=4), latency_s=0.25, final=True,
+    )
+    writer.write(rec)
+    return rec
+
+
+def test_round_trip_all_kinds(tmp_path: Path) -> None:
+    path = tmp_path / "t.jsonl"
+    with TraceWriter(path, run_id="run1", fsync="close", meta={"scene": "Office"}) as w:
+        rec = attempt(w)
+        w.record_parsed(rec.seq, {"event": {"characters": ["Ann"]}})
+        w.record_applied(rec.seq, sim_frame=95)
+    contents = read_trace(path)
+    assert contents.torn_tail is None
+    kinds = [type(r) for r in contents.records]
+    assert kinds == [RunRecord, AttemptRecord, ParsedRecord, AppliedRecord]
+    assert [r.seq for r in contents.records] == [0, 1, 2, 3]
+    assert all(r.run_id == "run1" for r in contents.records)
+    back = contents.records[1]
+    assert back == rec and back.request.sim_frame == 10
+    applied = contents.records[3]
+    assert isinstance(applied, AppliedRecord) and applied.ref_seq == rec.seq and applied.sim_frame == 95
+    assert path.read_bytes().count(b"\n") == 4
+
+
+def test_torn_last_line_is_reported_not_fatal(tmp_path: Path) -> None:
+    path = tmp_path / "t.jsonl"
+    with TraceWriter(path) as w:
+        attempt(w)
+        attempt(w)
+    full = path.read_bytes()
+    path.write_bytes(full[: len(full) - 40])  # cut the last record in the middle
+    with capture_logs() as logs:
+        contents = read_trace(path)
+    assert len(contents.records) == 2  # run + first attempt
+    assert contents.torn_tail is not None and contents.torn_tail.line_no == 3
+    assert any(e["event"] == "trace_torn_tail" for e in logs)
+
+
+def test_corrupt_middle_line_raises_with_line_number(tmp_path: Path) -> None:
+    path = tmp_path / "t.jsonl"
+    with TraceWriter(path) as w:
+        attempt(w)
+        attempt(w)
+    lines = path.read_bytes().split(b"\n")
+    lines[1] = lines[1][:30] + b"#garbage#" + lines[1][30:]
+    path.write_bytes(b"\n".join(lines))
+    with pytest.raises(TraceCorruptError, match=r"line 2") as info:
+        read_trace(path)
+    assert info.value.line_no == 2 and str(path) in str(info.value)
+
+
+def test_invalid_record_shape_is_corruption(tmp_path: Path) -> None:
+    path = tmp_path / "t.jsonl"
+    path.write_text('{"kind": "attempt", "run_id": "r", "seq": 0}\n', encoding="utf-8")
+    with pytest.raises(TraceCorruptError, match="line 1"):
+        read_trace(path)
+    path.write_text('{"kind": "mystery", "run_id": "r", "seq": 0, "time_unix": 0}\n', encoding="utf-8")
+    with pytest.raises(TraceCorruptError, match="line 1"):
+        read_trace(path)
+
+
+def test_reopen_continues_seq_and_cuts_torn_tail(tmp_path: Path) -> None:
+    path = tmp_path / "t.jsonl"
+    with TraceWriter(path, run_id="a") as w:
+        attempt(w)
+    with path.open("ab") as f:
+        f.write(b'{"kind": "attempt", "run_id": "a", "se')  # a writer died here
+    with TraceWriter(path, run_id="b") as w:
+        rec = attempt(w)
+    contents = read_trace(path)
+    assert contents.torn_tail is None
+    assert [r.seq for r in contents.records] == [0, 1, 2, 3] and rec.seq == 3
+    assert [r.run_id for r in contents.records] == ["a", "a", "b", "b"]
+
+
+def test_closed_writer_refuses(tmp_path: Path) -> None:
+    w = TraceWriter(tmp_path / "t.jsonl", fsync="never")
+    w.close()
+    with pytest.raises(ValueError, match="closed"):
+        attempt(w)
+
+
+_WRITER = r"""
+import sys, time
+sys.path.insert(0, sys.argv[2])
+from agents.llm_port import ChatMessage, LLMRequest
+from orchestrator.traces import AttemptRecord, TraceWriter
+w = TraceWriter(sys.argv[1], run_id="victim", fsync=sys.argv[3])
+big = "x" * 200_000
+i = 0
+while True:
+    req = LLMRequest(node="event_parser", messages=(ChatMessage(role="user", content=f"{i} {big}"),))
+    seq = w.next_seq()
+    w.write(AttemptRecord(run_id=w.run_id, seq=seq, time_unix=time.time(), call=seq, node="event_parser",
+                          attempt=1, model="m", params={}, request=req, request_hash=req.content_hash(),
+                          response_text=big, latency_s=0.0, final=True))
+    i += 1
+"""
+
+
+@pytest.mark.parametrize("fsync", ["never", "always"])
+def test_writer_killed_mid_write_keeps_every_complete_record(tmp_path: Path, fsync: str) -> None:
+    path = tmp_path / "victim.jsonl"
+    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(path), str(REPO), fsync])
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # wait until several records are on disk
+            if path.exists() and path.stat().st_size > 3_000_000:
+                break
+            time.sleep(0.02)
+        else:
+            pytest.fail("writer produced too little output")
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    data = path.read_bytes()
+    complete_lines = data.count(b"\n")
+    contents = read_trace(path)  # must not raise
+    assert len(contents.records) == complete_lines >= 5
+    attempts = [r for r in contents.records if isinstance(r, AttemptRecord)]
+    assert [int(r.request.messages[0].content.split()[0]) for r in attempts] == list(range(len(attempts)))
+    assert contents.torn_tail is None or contents.torn_tail.byte_offset == data.rfind(b"\n") + 1
