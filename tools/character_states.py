@@ -209,7 +209,7 @@ def world_view_from_reference_case(data: dict[str, Any], scene: Scene) -> WorldV
                 e["facing"] = _unit(np.subtract(target, pos)) or e["facing"]
         characters.append(CharacterState(**e))
         if e["seat"] is not None:
-            in_use[e["seat"]] = e["name"]
+            in_use.setdefault(e["seat"], e["name"])  # a couch may hold several; keep the first
         elif e["busy"] and e["area"]:
             for anchor in area_from_text(e["area"], scene).anchors:
                 in_use.setdefault(anchor, e["name"])
