@@ -23,6 +23,7 @@ sizes, recursion and (injected-clock) wall time.
 from __future__ import annotations
 
 import ast
+import functools
 import inspect
 import time
 from collections.abc import Callable, Mapping
@@ -152,6 +153,12 @@ _LEAVES: frozenset[type[ast.AST]] = frozenset(
     }
 )
 _ALLOWED = _STATEMENTS | _EXPRESSIONS | _LEAVES | {ast.Module}
+# Allowed nodes with no check of their own (only their children are visited).
+_PLAIN = _ALLOWED - {
+    ast.Name, ast.Attribute, ast.Constant, ast.keyword, ast.Starred, ast.Return, ast.Break,
+    ast.Continue, ast.FunctionDef, ast.Lambda, ast.ExceptHandler, ast.List, ast.Tuple,
+    ast.Set, ast.Call, ast.For, ast.While, ast.comprehension,
+}
 
 _FORBIDDEN_MESSAGES: dict[type[ast.AST], str] = {
     ast.Import: "imports are not allowed; the spatial-API functions are already defined",
@@ -184,18 +191,23 @@ _CATCHABLE: dict[str, type[EventProgramError]] = {
     },
 }
 
-_ANNOTATION_FIELDS = frozenset({"returns", "annotation", "type_comment"})
+_SKIPPED_FIELDS = frozenset({"returns", "annotation", "type_comment", "ctx"})
+_FIELDS: dict[type[ast.AST], tuple[str, ...]] = {}
 
 
 def _children(node: ast.AST) -> list[ast.AST]:
+    """Child nodes, skipping annotations (never evaluated) and Load/Store contexts."""
+    t = type(node)
+    fields = _FIELDS.get(t)
+    if fields is None:
+        fields = _FIELDS[t] = tuple(f for f in t._fields if f not in _SKIPPED_FIELDS)
     out: list[ast.AST] = []
-    for field, value in ast.iter_fields(node):
-        if field in _ANNOTATION_FIELDS:
-            continue
-        if isinstance(value, ast.AST):
-            out.append(value)
-        elif isinstance(value, list):
+    for field in fields:
+        value = getattr(node, field, None)
+        if type(value) is list:
             out.extend(v for v in value if isinstance(v, ast.AST))
+        elif isinstance(value, ast.AST):
+            out.append(value)
     return out
 
 
@@ -224,19 +236,6 @@ def _parse(source: object, budget: Budget) -> ast.Module:
         ) from None
 
 
-def _check_depth(tree: ast.Module, budget: Budget) -> None:
-    stack: list[tuple[ast.AST, int]] = [(tree, 0)]
-    while stack:
-        node, depth = stack.pop()
-        if depth > budget.nesting_depth:
-            raise BudgetExceededError(
-                f"the program nests more than {budget.nesting_depth} levels deep; "
-                "write simpler expressions",
-                line=getattr(node, "lineno", None),
-            )
-        stack.extend((child, depth + 1) for child in _children(node))
-
-
 def check_program(
     source: object, namespace: Mapping[str, object], *, budget: Budget | None = None
 ) -> tuple[ast.Module, dict[int, frozenset[str]]]:
@@ -245,10 +244,26 @@ def check_program(
     Raises the problem on the earliest line (syntax, forbidden construct, unknown name).
     """
     budget = budget or Budget()
+    if isinstance(source, str):
+        reserved = frozenset(k for k in namespace if not k.startswith("_"))
+        return _check_cached(source, reserved, budget)
+    return _check(source, frozenset(), budget)
+
+
+@functools.lru_cache(maxsize=128)
+def _check_cached(
+    source: str, reserved: frozenset[str], budget: Budget
+) -> tuple[ast.Module, dict[int, frozenset[str]]]:
+    """Checked trees are cached: the interpreter never mutates them (same program, many seeds)."""
+    return _check(source, reserved, budget)
+
+
+def _check(
+    source: object, reserved: frozenset[str], budget: Budget
+) -> tuple[ast.Module, dict[int, frozenset[str]]]:
     tree = _parse(source, budget)
-    _check_depth(tree, budget)
-    checker = _Checker(namespace, budget)
-    checker.visit(tree, in_function=False, in_loop=False)
+    checker = _Checker(reserved, budget)
+    checker.visit(tree, 0, 0)
     checker.check_names()
     if checker.problems:
         checker.problems.sort(key=lambda p: (p[0], p[1]))
@@ -257,19 +272,27 @@ def check_program(
 
 
 class _Checker:
-    """Walks the tree once, collecting problems (reported earliest line first)."""
+    """Walks the tree once, collecting problems (reported earliest line first).
 
-    def __init__(self, namespace: Mapping[str, object], budget: Budget) -> None:
-        self.reserved = frozenset(k for k in namespace if not k.startswith("_"))
+    ``visit(node, flags, depth)``: ``flags`` has bit 1 inside a function, bit 2 inside a loop.
+    Also records each function's local names (what its body binds, comprehension targets
+    excluded) for the interpreter.
+    """
+
+    def __init__(self, reserved: frozenset[str], budget: Budget) -> None:
+        self.reserved = reserved
         self.budget = budget
         self.problems: list[tuple[int, int, EventProgramError]] = []
         self.bound: set[str] = set()
         self.loads: list[ast.Name] = []
         self.local_names: dict[int, frozenset[str]] = {}
+        self.starred_ok: set[int] = set()
+        self.scopes: list[set[str]] = [set()]
 
     def problem(self, node: ast.AST, err_type: type[EventProgramError], message: str) -> None:
         line = getattr(node, "lineno", 0) or 0
-        self.problems.append((line, getattr(node, "col_offset", 0), err_type(message, line=line or None)))
+        err = err_type(message, line=line or None)
+        self.problems.append((line, getattr(node, "col_offset", 0), err))
 
     def forbid(self, node: ast.AST, message: str) -> None:
         self.problem(node, ForbiddenConstructError, message)
@@ -277,6 +300,7 @@ class _Checker:
     def check_binding(self, node: ast.AST, name: str) -> None:
         """A name the program defines (variable, function, parameter, except target)."""
         self.bound.add(name)
+        self.scopes[-1].add(name)
         if name.startswith("_") and name != "_":
             self.forbid(node, f"names starting with '_' are not allowed ('{name}')")
         elif name in self.reserved:
@@ -286,66 +310,76 @@ class _Checker:
                 "use another name",
             )
 
-    def visit(self, node: ast.AST, *, in_function: bool, in_loop: bool) -> None:
+    def visit_all(self, nodes: list[ast.AST], flags: int, depth: int) -> None:
+        for child in nodes:
+            self.visit(child, flags, depth)
+
+    def visit(self, node: ast.AST, flags: int, depth: int) -> None:
+        if depth > self.budget.nesting_depth:
+            raise BudgetExceededError(
+                f"the program nests more than {self.budget.nesting_depth} levels deep; "
+                "write simpler expressions",
+                line=getattr(node, "lineno", None),
+            )
+        depth += 1
         t = type(node)
-        if t not in _ALLOWED:
-            message = _FORBIDDEN_MESSAGES.get(t, f"'{t.__name__}' is not allowed in event programs")
-            self.forbid(node, message)
+        if t in _PLAIN:
+            self.visit_all(_children(node), flags, depth)
             return
         if t is ast.Name:
             self.check_name(node)  # type: ignore[arg-type]
+        elif t is ast.Constant:
+            self.check_constant(node)  # type: ignore[arg-type]
         elif t is ast.Attribute:
             attr = node.attr  # type: ignore[attr-defined]
             if attr.startswith("_"):
                 self.forbid(node, f"attributes starting with '_' are not allowed ('.{attr}')")
-            if not isinstance(node.ctx, ast.Load):  # type: ignore[attr-defined]
+            if type(node.ctx) is not ast.Load:  # type: ignore[attr-defined]
                 self.forbid(node, "assigning or deleting attributes is not allowed; call methods instead")
-        elif t is ast.Constant:
-            self.check_constant(node)  # type: ignore[arg-type]
+            self.visit(node.value, flags, depth)  # type: ignore[attr-defined]
+        elif t is ast.Call or t is ast.List or t is ast.Tuple or t is ast.Set:
+            elts = node.args if t is ast.Call else node.elts  # type: ignore[attr-defined]
+            self.starred_ok.update(id(e) for e in elts if type(e) is ast.Starred)
+            self.visit_all(_children(node), flags, depth)
         elif t is ast.keyword:
             arg = node.arg  # type: ignore[attr-defined]
             if arg is not None and arg.startswith("_"):
                 self.forbid(node, f"keyword arguments starting with '_' are not allowed ('{arg}')")
+            self.visit(node.value, flags, depth)  # type: ignore[attr-defined]
         elif t is ast.Starred:
-            if not getattr(node, "_sandbox_ok", False):
+            if id(node) not in self.starred_ok:
                 self.forbid(node, "'*' unpacking is only allowed in calls, list/tuple/set displays and assignments")
-        elif t is ast.Return and not in_function:
-            self.forbid(node, "'return' outside a function")
-        elif (t is ast.Break or t is ast.Continue) and not in_loop:
-            self.forbid(node, f"'{t.__name__.lower()}' outside a loop")
-        elif t is ast.FunctionDef or t is ast.Lambda:
-            self.visit_function(node)  # type: ignore[arg-type]
-            return
-        elif t is ast.ExceptHandler:
-            self.visit_handler(node, in_function=in_function, in_loop=in_loop)  # type: ignore[arg-type]
-            return
-        self.mark_starred(node)
-        if t is ast.For or t is ast.While:
+            self.visit(node.value, flags, depth)  # type: ignore[attr-defined]
+        elif t is ast.Return:
+            if not flags & 1:
+                self.forbid(node, "'return' outside a function")
+            self.visit_all(_children(node), flags, depth)
+        elif t is ast.Break or t is ast.Continue:
+            if not flags & 2:
+                self.forbid(node, f"'{t.__name__.lower()}' outside a loop")
+        elif t is ast.For or t is ast.While:
             loop: ast.For | ast.While = node  # type: ignore[assignment]
-            head = [loop.target, loop.iter] if isinstance(loop, ast.For) else [loop.test]
-            for child in head:
-                self.visit(child, in_function=in_function, in_loop=in_loop)
-            for child in loop.body:
-                self.visit(child, in_function=in_function, in_loop=True)
-            for child in loop.orelse:
-                self.visit(child, in_function=in_function, in_loop=in_loop)
-            return
-        for child in _children(node):
-            self.visit(child, in_function=in_function, in_loop=in_loop)
-
-    @staticmethod
-    def mark_starred(node: ast.AST) -> None:
-        elts: list[ast.expr] = []
-        if isinstance(node, ast.List | ast.Tuple | ast.Set):
-            elts = node.elts
-        elif isinstance(node, ast.Call):
-            elts = node.args
-        for e in elts:
-            if isinstance(e, ast.Starred):
-                e._sandbox_ok = True  # type: ignore[attr-defined]
+            head: list[ast.AST] = [loop.target, loop.iter] if isinstance(loop, ast.For) else [loop.test]
+            self.visit_all(head, flags, depth)
+            self.visit_all(loop.body, flags | 2, depth)  # type: ignore[arg-type]
+            self.visit_all(loop.orelse, flags, depth)  # type: ignore[arg-type]
+        elif t is ast.comprehension:
+            comp: ast.comprehension = node  # type: ignore[assignment]
+            self.scopes.append(set())  # comprehension targets are not function locals
+            self.visit(comp.target, flags, depth)
+            self.scopes.pop()
+            self.visit(comp.iter, flags, depth)
+            self.visit_all(comp.ifs, flags, depth)  # type: ignore[arg-type]
+        elif t is ast.FunctionDef or t is ast.Lambda:
+            self.visit_function(node, depth)  # type: ignore[arg-type]
+        elif t is ast.ExceptHandler:
+            self.visit_handler(node, flags, depth)  # type: ignore[arg-type]
+        else:
+            message = _FORBIDDEN_MESSAGES.get(t, f"'{t.__name__}' is not allowed in event programs")
+            self.forbid(node, message)
 
     def check_name(self, node: ast.Name) -> None:
-        if isinstance(node.ctx, ast.Load):
+        if type(node.ctx) is ast.Load:
             self.loads.append(node)
             if node.id.startswith("_") and node.id != "_":
                 hint = " (drop any `if __name__ == '__main__':` block; parse_event() is called for you)" if node.id == "__name__" else ""
@@ -363,10 +397,10 @@ class _Checker:
             if len(v) > self.budget.str_len:
                 self.problem(node, BudgetExceededError, f"a string literal has {len(v)} characters (limit {self.budget.str_len})")
         elif t not in (float, bool, type(None)):
-            kind = {bytes: "bytes literals", complex: "complex numbers", type(...): "'...'"}.get(t, t.__name__)
+            kind = {bytes: "bytes literals", complex: "complex numbers", type(...): "'...' literals"}.get(t, t.__name__)
             self.forbid(node, f"{kind} are not supported")
 
-    def visit_function(self, node: ast.FunctionDef | ast.Lambda) -> None:
+    def visit_function(self, node: ast.FunctionDef | ast.Lambda, depth: int) -> None:
         if isinstance(node, ast.FunctionDef):
             self.check_binding(node, node.name)
             if node.decorator_list:
@@ -377,16 +411,15 @@ class _Checker:
         params = [a.arg for a in (*args.posonlyargs, *args.args)]
         if len(set(params)) != len(params):
             self.forbid(node, "duplicate parameter names")
+        self.visit_all(args.defaults, 0, depth)  # type: ignore[arg-type]
+        self.scopes.append(set())
         for a in (*args.posonlyargs, *args.args):
             self.check_binding(a, a.arg)
-        for default in args.defaults:
-            self.visit(default, in_function=True, in_loop=False)
-        body = node.body if isinstance(node, ast.FunctionDef) else [node.body]
-        for child in body:
-            self.visit(child, in_function=True, in_loop=False)
-        self.local_names[id(node)] = frozenset(params) | _assigned_names(body)
+        body: list[ast.AST] = node.body if isinstance(node, ast.FunctionDef) else [node.body]  # type: ignore[assignment]
+        self.visit_all(body, 1, depth)
+        self.local_names[id(node)] = frozenset(self.scopes.pop())
 
-    def visit_handler(self, node: ast.ExceptHandler, *, in_function: bool, in_loop: bool) -> None:
+    def visit_handler(self, node: ast.ExceptHandler, flags: int, depth: int) -> None:
         names: list[ast.expr] = []
         if isinstance(node.type, ast.Tuple):
             names = list(node.type.elts)
@@ -401,8 +434,7 @@ class _Checker:
                 )
         if node.name is not None:
             self.check_binding(node, node.name)
-        for child in node.body:
-            self.visit(child, in_function=in_function, in_loop=in_loop)
+        self.visit_all(node.body, flags, depth)  # type: ignore[arg-type]
 
     def check_names(self) -> None:
         known = self.bound | self.reserved | BUILTINS.keys()
@@ -413,36 +445,8 @@ class _Checker:
             if name in PYTHON_ONLY_BUILTINS:
                 self.forbid(node, f"'{name}' is not available in event programs")
             else:
-                self.problem(
-                    node,
-                    UnknownNameError,
-                    f"name '{name}' is not defined;{did_you_mean(name, sorted(known)) or ' no such function or variable exists'}",
-                )
-
-
-def _assigned_names(body: list[ast.stmt] | list[ast.expr]) -> frozenset[str]:
-    """Names a function body binds (its locals), not looking into nested functions."""
-    names: set[str] = set()
-    stack: list[ast.AST] = list(body)
-    while stack:
-        node = stack.pop()
-        if isinstance(node, ast.Name) and not isinstance(node.ctx, ast.Load):
-            names.add(node.id)
-        elif isinstance(node, ast.FunctionDef):
-            names.add(node.name)
-            stack.extend(node.args.defaults)
-            continue
-        elif isinstance(node, ast.Lambda):
-            stack.extend(node.args.defaults)
-            continue
-        elif isinstance(node, ast.ExceptHandler) and node.name:
-            names.add(node.name)
-        elif isinstance(node, ast.comprehension):
-            stack.append(node.iter)
-            stack.extend(node.ifs)
-            continue
-        stack.extend(_children(node))
-    return frozenset(names)
+                hint = did_you_mean(name, sorted(known), n=1) or " no such function or variable exists"
+                self.problem(node, UnknownNameError, f"name '{name}' is not defined;{hint}")
 
 
 # ---------------------------------------------------------------- runtime values
@@ -835,7 +839,7 @@ class _Interpreter:
         if builtin is not None:
             return builtin
         known = [k for k in self.namespace if not k.startswith("_")] + list(self.builtins)
-        raise UnknownNameError(f"name '{name}' is not defined;{did_you_mean(name, known) or ' no such function or variable exists'}", line=line)
+        raise UnknownNameError(f"name '{name}' is not defined;{did_you_mean(name, known, n=1) or ' no such function or variable exists'}", line=line)
 
     def e_binop(self, node: ast.BinOp, scope: _Scope) -> object:
         return binary(node.op, self.eval(node.left, scope), self.eval(node.right, scope), self.meter, node.lineno)
@@ -993,7 +997,7 @@ class _Interpreter:
         if hasattr(t, name):
             raise ForbiddenConstructError(f"'{t.__name__}.{name}' is not available in event programs" + (" (use an f-string)" if name in ("format", "format_map") else ""), line=line)
         public = sorted(k for k in allowed if not k.startswith("_"))
-        hint = did_you_mean(name, public) or (f" available: {', '.join(public[:12])}" if public else " it has no usable attributes")
+        hint = did_you_mean(name, public, n=1) or (f" available: {', '.join(public[:12])}" if public else " it has no usable attributes")
         raise ProgramRuntimeError(f"'{t.__name__}' object has no attribute '{name}';{hint}", line=line)
 
     def eval_index(self, node: ast.expr, scope: _Scope) -> object:
