@@ -16,9 +16,11 @@ which covers vertex, swap and following conflicts; an agent farther than ``2 + 2
 positions; a move is forbidden for them by the same rule.
 
 Planning pass (prioritized): agents plan one after another in a space-time A* over
-``window`` steps against a reservation table of the agents planned before them. Every agent's
-"wait where it stands" for the first ``commit_steps`` steps is reserved up front, so any agent
-whose search fails can safely wait: the committed prefix of every plan is always conflict-free.
+``window`` steps against a reservation table of the agents planned before them (plain WHCA*).
+If some agent's search fails (it is cornered), the call is planned again with every agent's
+"wait where it stands" for the first ``commit_steps`` steps reserved up front and the failed
+agents first: then an agent whose search still fails can safely wait, so the committed prefix
+of every returned plan is conflict-free.
 Costs: a move costs its length in cells, waiting costs 1 per step except at the goal (free).
 The heuristic is the exact distance on the static grid (backward Dijkstra per goal, cached).
 Plans are deterministic: fixed move order, tie-breaking on (f, h, cell), explicit orders.
@@ -286,12 +288,15 @@ class PathPlanner:
             order = [a for a in order if a in starts] + [a for a in agents if a in missing]
         overrides = self._static_overrides([np.asarray(p, dtype=float) for p in static_obstacles])
         used_goals = {a: self._usable_goal(starts[a], goals.get(a), overrides) for a in agents}
-        first = self._pass(order, starts, used_goals, overrides, extended=frozenset())
-        if not first.failed or not self.fallback:
+        first = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=False)
+        if not first.failed:
             return first
-        order2 = failed_first(order, first.failed)
-        second = self._pass(order2, starts, used_goals, overrides, extended=first.failed)
-        best = second if len(second.failed) < len(first.failed) else first
+        # Someone is cornered: plan again with everyone's wait reserved up front (so waiting is
+        # always safe), the failed agents first and, with the fallback on, a doubled window.
+        order2 = failed_first(order, first.failed) if self.fallback else list(order)
+        ext = first.failed if self.fallback else frozenset()
+        best = self._pass(order2, starts, used_goals, overrides, extended=ext, reserve_waits=True)
+        second = best
         return PlanResult(
             paths=best.paths,
             failed=best.failed,
@@ -327,17 +332,20 @@ class PathPlanner:
         goals: Mapping[Agent, Cell],
         overrides: Mapping[int, list],
         extended: frozenset[Agent],
+        reserve_waits: bool,
     ) -> PlanResult:
         w_max = self.window * (2 if extended else 1)
         res = _Reservations(w_max, self)
         waits = {a: [self.cell_id(starts[a])] * (self.commit_steps + 1) for a in order}
-        for a in order:
-            res.add(a, waits[a], self.commit_steps)
+        if reserve_waits:
+            for a in order:
+                res.add(a, waits[a], self.commit_steps)
         paths: dict[Agent, list[Cell]] = {}
         failed: set[Agent] = set()
         total = 0
         for a in order:
-            res.remove(a, waits[a], self.commit_steps)
+            if reserve_waits:
+                res.remove(a, waits[a], self.commit_steps)
             window = self.window * 2 if a in extended else self.window
             ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
             total += n

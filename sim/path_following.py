@@ -54,7 +54,8 @@ class CrowdNavigator:
         self.arrivals: list[tuple[int, Agent]] = []
         self.last_result: PlanResult | None = None
         self.replans = 0
-        self.failures = 0
+        self.failures = 0  # agents left waiting because no safe plan was found
+        self.fallbacks = 0  # agents whose plain WHCA* search failed (planned by the fallback)
         self._needs_plan = True
 
     # ----- membership -------------------------------------------------------------------------
@@ -136,4 +137,5 @@ class CrowdNavigator:
         self.last_result = result
         self.replans += 1
         self.failures += len(result.failed)
+        self.fallbacks += len(result.fallback)
         self._needs_plan = False

@@ -1,0 +1,137 @@
+"""WHCA*: shortest when alone, conflict-free together, corridor swap solved by the fallback."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sim.cooperative_astar import PathPlanner, plan_conflicts, position_at
+from sim.nav_grid import MOVES, NavGrid, build_nav_grid
+from sim.path_following import CrowdNavigator
+from sim.scene import Scene, SceneObject
+
+
+def _box(name: str, x: float, y: float, w: float, d: float) -> SceneObject:
+    label, idx = name.rsplit("_", 1)
+    return SceneObject(name=name, label=label, idx=int(idx), center=(x, y, 0.4), size=(w, d, 0.8))
+
+
+def _cluttered() -> NavGrid:
+    objs = (_box("table_1", 1.5, 1.5, 1.0, 0.6), _box("table_2", 3.6, 2.6, 0.6, 1.6), _box("shelf_1", 2.4, 3.6, 1.8, 0.3))
+    return build_nav_grid(Scene(name="room", bounds_min=(0, 0), bounds_max=(5.4, 4.8), objects=objs))
+
+
+GRID = _cluttered()
+PLANNER = PathPlanner(GRID, window=40)
+FREE = [tuple(map(int, c)) for c in np.argwhere(GRID.component == GRID.main_component)]
+
+
+def _dijkstra_len(grid: NavGrid, a: tuple[int, int], b: tuple[int, int]) -> float:
+    import heapq
+
+    dist = {a: 0.0}
+    heap = [(0.0, a)]
+    while heap:
+        d, c = heapq.heappop(heap)
+        if c == b:
+            return d
+        if d > dist[c]:
+            continue
+        for k, (dx, dy) in enumerate(MOVES):
+            if grid.moves[c[0], c[1], k]:
+                n = (c[0] + dx, c[1] + dy)
+                nd = d + math.hypot(dx, dy)
+                if nd < dist.get(n, math.inf):
+                    dist[n] = nd
+                    heapq.heappush(heap, (nd, n))
+    return math.inf
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, len(FREE) - 1), st.integers(0, len(FREE) - 1))
+def test_single_agent_path_is_connected_clear_and_shortest(i: int, j: int) -> None:
+    start, goal = FREE[i], FREE[j]
+    path = PLANNER.plan({"a": start}, {"a": goal}).paths["a"]
+    assert path[0] == start
+    length = 0.0
+    for p, q in zip(path, path[1:], strict=False):
+        d = (q[0] - p[0], q[1] - p[1])
+        if d != (0, 0):
+            assert GRID.moves[p[0], p[1], MOVES.index(d)]  # 8-connected, clear, no corner cut
+            length += math.hypot(*d)
+    best = _dijkstra_len(GRID, start, goal)
+    if best <= PLANNER.window:  # reachable inside the window: exactly as short as Dijkstra
+        assert path[-1] == goal
+        assert math.isclose(length, best, abs_tol=1e-9)
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(2, 12), st.integers(0, 10_000))
+def test_group_plans_have_no_conflicts_inside_the_window(n: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    chosen: list[tuple[int, int]] = []
+    for k in rng.permutation(len(FREE)):
+        c = FREE[k]
+        if all(max(abs(c[0] - o[0]), abs(c[1] - o[1])) >= 2 for o in chosen):
+            chosen.append(c)
+    if len(chosen) < 2 * n:
+        n = len(chosen) // 2
+    starts = {a: chosen[a] for a in range(n)}
+    goals = {a: chosen[n + a] for a in range(n)}
+    planner = PathPlanner(GRID, window=20, seed=seed)
+    result = planner.plan(starts, goals)
+    ok = {a: p for a, p in result.paths.items() if a not in result.failed}
+    # Planned agents: no vertex, swap, following or clearance conflict over the whole window.
+    if len(ok) > 1:
+        assert plan_conflicts(ok, GRID.cell_size, GRID.body_radius) == []
+    # Everyone, including agents that wait because their search failed: the committed steps.
+    assert plan_conflicts(result.paths, GRID.cell_size, GRID.body_radius, steps=planner.commit_steps) == []
+    for a, path in result.paths.items():
+        for p, q in zip(path, path[1:], strict=False):
+            assert max(abs(q[0] - p[0]), abs(q[1] - p[1])) <= 1
+            assert GRID.free[q]
+
+
+def test_adjacent_cells_are_a_conflict_but_a_knight_move_apart_is_not() -> None:
+    assert plan_conflicts({"a": [(2, 2), (2, 2)], "b": [(4, 2), (3, 2)]}, 0.3, 0.25)
+    assert not plan_conflicts({"a": [(2, 2), (2, 2)], "b": [(4, 3), (4, 4)]}, 0.3, 0.25)
+    # Diagonal crossing: both ends 2 cells apart, but they pass 0.42 m apart mid-step.
+    assert plan_conflicts({"a": [(2, 0), (1, 1)], "b": [(0, 0), (1, -1)]}, 0.3, 0.25)
+
+
+def _corridor() -> NavGrid:
+    # A corridor one body wide (row j = 2) with a side pocket (column i = 12, rows 3-6).
+    objs = (
+        _box("wall_1", 3.6, 0.15, 7.2, 0.3),
+        _box("wall_2", 1.65, 1.35, 3.3, 0.3),
+        _box("wall_3", 5.7, 1.35, 3.0, 0.3),
+    )
+    return build_nav_grid(Scene(name="corridor", bounds_min=(0, 0), bounds_max=(7.2, 2.4), objects=objs))
+
+
+def test_corridor_swap_is_solved_with_fallback_and_stays_clear() -> None:
+    grid = _corridor()
+    row = [c for c in map(tuple, np.argwhere(grid.free)) if c[1] == 2]
+    left, right = (int(min(row)[0]), 2), (int(max(row)[0]), 2)
+    nav = CrowdNavigator(grid, PathPlanner(grid, window=8), seed=0)
+    nav.add_walker("a", left, right)
+    nav.add_walker("b", right, left)
+    trace = []
+    for _ in range(30 * 60):
+        pos = nav.tick()
+        trace.append(np.linalg.norm(pos["a"] - pos["b"]))
+        if len(nav.arrivals) == 2:
+            break
+    assert sorted(a for _, a in nav.arrivals) == ["a", "b"]
+    assert nav.fallbacks > 0  # plain WHCA* got cornered; the fallback pass planned it
+    assert min(trace) >= 2 * grid.body_radius - 1e-9
+
+
+def test_position_at_interpolates_at_walking_speed() -> None:
+    path = [(2, 2), (3, 2), (4, 3)]
+    p = position_at(path, 0.15, GRID, 0.3)
+    assert np.allclose(p, (GRID.center_of(2, 2) + GRID.center_of(3, 2)) / 2)
+    assert np.allclose(position_at(path, 10.0, GRID, 0.3), GRID.center_of(4, 3))
