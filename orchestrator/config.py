@@ -52,7 +52,7 @@ from agents.llm_port import NodeName
 
 DEFAULT_MODEL = "local/qwen2.5-coder-0.5b"
 NODE_NAMES: tuple[NodeName, ...] = get_args(NodeName)
-_SECRET_WORDS = ("api_key", "apikey", "token", "secret", "password")
+_SECRET_WORDS = frozenset({"key", "apikey", "token", "secret", "password", "passwd", "credential", "credentials"})
 
 
 class ConfigError(Exception):
@@ -139,7 +139,7 @@ def _find_secret(data: Any, prefix: str) -> str | None:
         for key, value in data.items():
             dotted = f"{prefix}.{key}" if prefix else str(key)
             lowered = str(key).lower()
-            if lowered != "api_key_env" and any(w in lowered for w in _SECRET_WORDS):
+            if lowered != "api_key_env" and _SECRET_WORDS & set(lowered.replace("-", "_").split("_")):
                 return dotted
             found = _find_secret(value, dotted)
             if found:

@@ -41,7 +41,12 @@ class WeightsSpec:
 
     @property
     def pip_requirements(self) -> str:
-        return " ".join(f"'{p}=={self.version}'" for p in self.packages)
+        """The packages as pip arguments (bash brace form for numbered parts)."""
+        prefix = self.packages[0].rstrip("0123456789")
+        numbered = [f"{prefix}{i}" for i in range(1, len(self.packages) + 1)]
+        if len(self.packages) > 2 and list(self.packages) == numbered:
+            return f"{prefix}{{1..{len(self.packages)}}}=={self.version}"
+        return " ".join(f"{p}=={self.version}" for p in self.packages)
 
 
 QWEN_05B = WeightsSpec(
