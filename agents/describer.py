@@ -203,12 +203,30 @@ def repair_areas(areas: AreaList, inp: DescriberInput) -> AreaList:
 
 
 def render_description(areas: AreaList, supports: Mapping[str, str]) -> str:
-    """One line per area: ``- kitchen (make coffee): fridge_1, coffee_maker_1 on counter_1``."""
+    """One line per area, each object named exactly once; objects standing on another object
+    of the same area are listed with it: ``- kitchen (make coffee): fridge_1, cabinet_1 (with
+    coffee_maker_1, toaster_1 on it)``."""
     lines = []
     for a in areas.areas:
+        members = set(a.objects)
+        carried: dict[str, list[str]] = {}
+        for n in a.objects:
+            base = supports.get(n)
+            if base is not None and base in members and base != n:
+                carried.setdefault(base, []).append(n)
+        # one level of nesting only: an object that carries others stays at the top level
+        carried = {b: kept for b, g in carried.items() if (kept := [n for n in g if n not in carried])}
+        nested = {n for group in carried.values() for n in group}
+        parts = []
+        for n in a.objects:
+            if n in nested:
+                continue
+            if n in carried:
+                parts.append(f"{n} (with {', '.join(carried[n])} on it)")
+            else:
+                parts.append(n)
         purpose = f" ({a.purpose.strip()})" if a.purpose.strip() else ""
-        objs = ", ".join(f"{n} on {supports[n]}" if n in supports else n for n in a.objects)
-        lines.append(f"- {a.name.strip()}{purpose}: {objs}")
+        lines.append(f"- {a.name.strip()}{purpose}: {', '.join(parts)}")
     return "\n".join(lines)
 
 

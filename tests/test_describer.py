@@ -1,0 +1,121 @@
+"""Describer: every object exactly once, feedback on misses/repeats, repair, disk cache."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from agents.describer import (
+    AreaList,
+    DescriberInput,
+    cache_path,
+    describe_scene,
+    describe_scene_cached,
+    describer_input_from_scene,
+    describer_request,
+    parse_areas,
+    render_description,
+    repair_areas,
+)
+from agents.llm_port import LLMRequest, LLMResponse
+from agents.prompt_templates import PromptLibrary
+from agents.retry_feedback import AnswerRejectedError, RetriesExhaustedError
+from sim.bundled_scenes import resolve_scene
+
+NAMES = ("fridge_1", "cabinet_1", "coffee_maker_1", "couch_1", "tv_1")
+INP = DescriberInput(
+    scene_name="mini",
+    object_names=NAMES,
+    scene_graph_json='{"fridge_1":{}}',
+    clusters=(("fridge_1", "cabinet_1", "coffee_maker_1"), ("couch_1", "tv_1")),
+    supports={"coffee_maker_1": "cabinet_1"},
+)
+GOOD = {"areas": [{"name": "kitchen", "purpose": "make coffee", "objects": ["fridge_1", "cabinet_1", "coffee_maker_1"]},
+                  {"name": "living room", "purpose": "watch TV", "objects": ["couch_1", "tv_1"]}]}
+PARTIAL = {"areas": [{"name": "kitchen", "purpose": "", "objects": ["fridge_1", "fridge_1", "sink_9"]},
+                     {"name": "living room", "purpose": "relax", "objects": ["couch_1"]}]}
+
+
+class Port:
+    def __init__(self, replies: list[str]) -> None:
+        self.replies = list(replies)
+        self.requests: list[LLMRequest] = []
+
+    async def complete(self, request: LLMRequest) -> LLMResponse:
+        self.requests.append(request)
+        return LLMResponse(text=self.replies.pop(0), model="fake")
+
+
+def test_schema_restricts_names_and_bounds_arrays() -> None:
+    req = describer_request(PromptLibrary(), INP)
+    items = req.json_schema["properties"]["areas"]["items"]["properties"]["objects"]  # type: ignore[index]
+    assert items["items"]["enum"] == list(NAMES) and items["maxItems"] == len(NAMES)
+    assert req.json_schema["properties"]["areas"]["maxItems"] <= 8  # type: ignore[index]
+    assert "fridge_1, cabinet_1, coffee_maker_1" in req.messages[1].content
+
+
+def test_missing_repeated_unknown_are_all_named() -> None:
+    with pytest.raises(AnswerRejectedError) as info:
+        parse_areas(json.dumps(PARTIAL), NAMES)
+    text = str(info.value)
+    assert "sink_9" in text and "named more than once: fridge_1" in text
+    assert "missing (put each into one area): cabinet_1, coffee_maker_1, tv_1" in text
+
+
+def test_render_names_each_object_once_with_supports() -> None:
+    text = render_description(parse_areas(json.dumps(GOOD), NAMES), INP.supports)
+    assert text.splitlines()[0] == "- kitchen (make coffee): fridge_1, cabinet_1 (with coffee_maker_1 on it)"
+    for name in NAMES:
+        assert sum(tok.strip(",()") == name for tok in text.split()) == 1
+
+
+def test_repair_uses_clusters() -> None:
+    repaired = repair_areas(AreaList.model_validate(PARTIAL), INP)
+    by_area = {a.name: a.objects for a in repaired.areas}
+    assert by_area["kitchen"] == ("fridge_1", "cabinet_1", "coffee_maker_1")
+    assert by_area["living room"] == ("couch_1", "tv_1")
+
+
+async def test_feedback_retry_then_success() -> None:
+    port = Port([json.dumps(PARTIAL), json.dumps(GOOD)])
+    desc = await describe_scene(port, PromptLibrary(), INP)
+    assert desc.attempts == 2 and not desc.repaired
+    assert "named more than once: fridge_1" in port.requests[1].messages[-1].content
+
+
+async def test_exhausted_retries_repair_or_raise() -> None:
+    desc = await describe_scene(Port([json.dumps(PARTIAL)] * 2), PromptLibrary(), INP, max_retries=1)
+    assert desc.repaired and "tv_1" in desc.text
+    with pytest.raises(RetriesExhaustedError):
+        await describe_scene(Port(["{}"] * 2), PromptLibrary(), INP, max_retries=1, repair=False)
+    garbage = await describe_scene(Port(["not json"]), PromptLibrary(), INP, max_retries=0)
+    assert garbage.repaired and all(n in garbage.text for n in NAMES)
+
+
+async def test_cache_per_scene_model_and_prompts(tmp_path: Path) -> None:
+    scene = resolve_scene("home")
+    inp = describer_input_from_scene(scene)
+    reply = json.dumps({"areas": [{"name": "all", "purpose": "", "objects": list(inp.object_names)}]})
+    port = Port([reply, reply])
+    lib = PromptLibrary()
+    first = await describe_scene_cached(port, lib, scene, model="m1", cache_dir=tmp_path, inp=inp)
+    again = await describe_scene_cached(port, lib, scene, model="m1", cache_dir=tmp_path, inp=inp)
+    assert first == again and len(port.requests) == 1
+    await describe_scene_cached(port, lib, scene, model="m2", cache_dir=tmp_path, inp=inp)
+    assert len(port.requests) == 2
+    assert cache_path(tmp_path, scene, "m1", lib) != cache_path(tmp_path, scene, "m2", lib)
+
+
+def test_input_from_bundled_scene() -> None:
+    inp = describer_input_from_scene(resolve_scene("home"))
+    assert "coffee_maker_1" in inp.object_names and inp.clusters
+    assert inp.supports.get("coffee_maker_1") is not None
+    json.loads(inp.scene_graph_json)
+
+
+def test_render_chain_of_supports_names_everything_once() -> None:
+    areas = AreaList.model_validate({"areas": [{"name": "a", "purpose": "", "objects": ["cup_1", "tray_1", "table_1"]}]})
+    text = render_description(areas, {"cup_1": "tray_1", "tray_1": "table_1"})
+    assert text == "- a: tray_1 (with cup_1 on it), table_1"
