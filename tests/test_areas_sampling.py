@@ -57,7 +57,7 @@ def _area(name: str) -> areas.Area:
         "close": areas.close_to(o["cup_1"]),
         "interact": areas.to_interact_with(o["fridge_1"]),
         "between": areas.between(o["fridge_1"], o["table_1"]),
-        "both": areas.close_to(o["table_1"]).intersect(areas.directional(o["fridge_1"], "to the right of")),
+        "both": areas.close_to(o["table_1"]).intersect(areas.directional(o["chair_1"], "behind")),
         "either": areas.adjacent_to(o["fridge_1"]).union(areas.directional(o["couch_1"], "in front of")),
     }[name]
 
@@ -92,7 +92,7 @@ def test_area_semantics_and_distances() -> None:
     adjacent = areas.adjacent_to(o["table_1"])
     assert adjacent.contains(np.array([[3.0, 3.85], [3.0, 3.95]])).tolist() == [True, False]
     between = areas.between(o["fridge_1"], o["table_1"])
-    assert between.contains(np.array([[2.0, 1.7], [2.0, 2.3], [0.5, 0.0]])).tolist() == [True, False, False]
+    assert between.contains(np.array([[2.0, 1.7], [2.0, 2.7], [0.5, 0.0]])).tolist() == [True, False, False]
     assert front.intersect(adjacent).description == "in front of fridge_1 && adjacent to table_1"
     assert front.union(adjacent).intersect(between).description == "(in front of fridge_1 || adjacent to table_1) && between fridge_1 and table_1"
     assert areas.Area.sandbox_attributes == frozenset({"description", "intersect", "union"})
@@ -167,7 +167,10 @@ def test_world_view_reads_all_reference_cases(scenes: dict[str, Scene]) -> None:
         floor = FloorMap(scene)
         for state, raw in zip(world.characters, data["current_states"], strict=True):
             assert state.action == raw["current_action"]
-            assert state.busy == (raw["state"] != "idle")
+            looping = any(
+                e["state"] == "looping" and state.name in e["characters"] for e in data["planning_history"]
+            )
+            assert state.busy == (raw["state"] != "idle" and not looping)
             if not raw["position"]:
                 assert state.position is None
                 continue
