@@ -1,0 +1,129 @@
+"""The paper's ablations behind the Planner interface, with scripted LLM replies and the real
+sandboxed event-program runner on a bundled scene."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from agents.ablation_planners import (
+    DirectInferencePlanner,
+    DirectPlans,
+    EventDrivenPlanner,
+    PlanningStep,
+    UnifiedPlanner,
+    direct_program,
+    object_list_description,
+    scene_graph_description,
+)
+from agents.event_parser import scene_action_labels
+from agents.llm_port import LLMRequest, LLMResponse
+from agents.messages import CharacterStatus, ParsedEvent, PlanningFailure, SceneDescription
+from agents.prompt_templates import PromptLibrary
+from orchestrator.cli_plan import RosterWorld, initial_roster
+from sim.bundled_scenes import resolve_scene
+
+SCENE = resolve_scene("home")
+
+
+class Port:
+    def __init__(self, replies: list[str]) -> None:
+        self.replies = list(replies)
+        self.requests: list[LLMRequest] = []
+
+    async def complete(self, request: LLMRequest) -> LLMResponse:
+        self.requests.append(request)
+        return LLMResponse(text=self.replies.pop(0), model="fake")
+
+
+def step(roster: tuple[CharacterStatus, ...] | None = None, description: SceneDescription | None = None) -> PlanningStep:
+    roster = roster or initial_roster(SCENE, 2, seed=1)
+    return PlanningStep(
+        index=0,
+        scene=SCENE,
+        description=description or SceneDescription(scene="home", text="- kitchen: coffee_maker_1, fridge_1"),
+        characters=roster,
+        instruction="Ava makes coffee.",
+        world=RosterWorld().world_view(roster),
+        action_labels=scene_action_labels(SCENE),
+        seed=4,
+    )
+
+
+COFFEE = (
+    '```python\ndef parse_event():\n    a = get_character("Ava")\n'
+    '    a.set_position(get_area_to_interact_with("coffee_maker_1"))\n'
+    '    a.set_orientation("coffee_maker_1")\n    a.set_target_action("use_coffee_maker")\n```'
+)
+NARRATION = json.dumps({"reasoning": "r", "event": {"characters": ["Ava"], "activity": "make coffee with coffee_maker_1"}})
+
+
+def test_description_ablations() -> None:
+    listing = object_list_description(SCENE)
+    assert listing.source == "object_list" and "coffee_maker_1: position [" in listing.text
+    graph = scene_graph_description(SCENE)
+    assert graph.source == "scene_graph" and "coffee_maker_1" in json.loads(graph.text)
+
+
+async def test_event_driven_planner() -> None:
+    port = Port([NARRATION, COFFEE])
+    out = await EventDrivenPlanner(port, PromptLibrary()).plan(step())
+    assert isinstance(out, ParsedEvent) and out.plans[0].action == "use_coffee_maker"
+    assert [r.node for r in port.requests] == ["narrator", "event_parser"]
+
+
+async def test_unified_planner_without_events() -> None:
+    port = Port([COFFEE])
+    out = await UnifiedPlanner(port, PromptLibrary()).plan(step())
+    assert isinstance(out, ParsedEvent) and out.event.characters == ("Ava",)
+    assert "use_coffee_maker" in out.event.activity
+    assert port.requests[0].node == "planner" and "Instruction: Ava makes coffee." in port.requests[0].messages[1].content
+
+
+async def test_unified_planner_rejects_busy_characters_and_can_wait() -> None:
+    roster = initial_roster(SCENE, 2, seed=1)
+    roster = (roster[0].model_copy(update={"busy": True}), roster[1])
+    port = Port([COFFEE, "```python\ndef parse_event():\n    pass\n```"])
+    out = await UnifiedPlanner(port, PromptLibrary()).plan(step(roster))
+    assert out is None
+    assert "Ava is busy" in port.requests[1].messages[-1].content
+
+
+async def test_direct_inference_outputs_coordinates() -> None:
+    x, y = 1.0, 1.0
+    # find a free floor point near the coffee maker from the scene itself
+    from tools.position_sampling import FloorMap
+
+    floor = FloorMap(SCENE)
+    cm = SCENE.get("coffee_maker_1")
+    for dx in (0.0, 0.6, -0.6, 1.0, -1.0):
+        for dy in (0.6, -0.6, 1.0, -1.0, 0.0):
+            if floor.free([[cm.center[0] + dx, cm.center[1] + dy]])[0]:
+                x, y = cm.center[0] + dx, cm.center[1] + dy
+                break
+        else:
+            continue
+        break
+    coords = json.dumps({"plans": [{"character": "Ava", "action": "use_coffee_maker", "x": x, "y": y, "look_at": "coffee_maker_1"}]})
+    port = Port([NARRATION, coords])
+    out = await DirectInferencePlanner(port, PromptLibrary()).plan(step())
+    assert isinstance(out, ParsedEvent), out
+    assert out.plans[0].position == pytest.approx((x, y))
+    req = port.requests[1]
+    schema = req.json_schema["properties"]["plans"]  # type: ignore[index]
+    assert schema["maxItems"] == 1 and schema["items"]["properties"]["character"]["enum"] == ["Ava"]
+    assert "coffee_maker_1: position [" in req.messages[0].content  # coordinates available to the model
+
+
+def test_direct_program_quotes_names_safely() -> None:
+    plans = DirectPlans.model_validate({"plans": [{"character": 'A"); import os; ("', "action": "idle", "x": 1.0, "y": 2.0, "look_at": ""}]})
+    program = direct_program(plans)
+    compile(program, "<direct>", "exec")
+    assert "import os" in program.splitlines()[1] and program.splitlines()[1].count('"') == 4
+
+
+async def test_failures_are_outcomes_not_exceptions() -> None:
+    port = Port([json.dumps({"reasoning": "", "event": {"characters": ["Zed"], "activity": "x"}})] * 2)
+    out = await EventDrivenPlanner(port, PromptLibrary(), max_retries=1).plan(step())
+    assert isinstance(out, PlanningFailure) and out.node == "narrator" and out.attempts == 2
