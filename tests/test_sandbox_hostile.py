@@ -1,0 +1,232 @@
+"""Hostile event programs: every one ends in a typed error, escapes nothing, changes nothing."""
+
+from __future__ import annotations
+
+import copy
+from typing import ClassVar
+
+import pytest
+
+from tools.errors import EventProgramError, ToolArgumentError, UnknownObjectError
+from tools.sandbox import (
+    Budget,
+    BudgetExceededError,
+    ForbiddenConstructError,
+    ProgramRuntimeError,
+    ProgramSyntaxError,
+    execute,
+)
+
+
+class Handle:
+    """A character handle whose private state must stay out of reach."""
+
+    sandbox_attributes: ClassVar[frozenset[str]] = frozenset({"name", "set_position"})
+
+    def __init__(self, name: str, plans: dict[str, object]) -> None:
+        self.name = name
+        self._plans = plans
+
+    def set_position(self, position: object) -> None:
+        if not (
+            isinstance(position, list | tuple)
+            and len(position) == 2
+            and all(isinstance(v, float | int) and abs(v) < 1e6 for v in position)
+        ):
+            raise ToolArgumentError(f"position must be two finite numbers, got {position!r}")
+        self._plans[self.name] = tuple(position)
+
+
+class World:
+    def __init__(self) -> None:
+        self.plans: dict[str, object] = {}
+        self.state = {"occupied": ["chair_1"]}
+
+    def get_character(self, name: str) -> Handle:
+        return Handle(name, self.plans)
+
+    def get_area_to_sit_on(self, name: str) -> tuple[str, str]:
+        if name != "chair_1":
+            raise UnknownObjectError(f"unknown object {name!r}")
+        return ("sit_on", name)
+
+    def get_state(self) -> dict[str, list[str]]:
+        return self.state  # deliberately aliases internal state (a careless tool)
+
+    def namespace(self) -> dict[str, object]:
+        return {
+            "get_character": self.get_character,
+            "get_area_to_sit_on": self.get_area_to_sit_on,
+            "get_state": self.get_state,
+            "SENTINEL": {"untouched": [1, 2, 3]},
+            "_secret": object(),
+        }
+
+
+def body(code: str) -> str:
+    """Wrap statements (4-space indented by the caller's newlines) into parse_event()."""
+    lines = code.split("\n")
+    return "def parse_event():\n" + "\n".join("    " + line for line in lines) + "\n"
+
+
+F, B, R, S = ForbiddenConstructError, BudgetExceededError, ProgramRuntimeError, ProgramSyntaxError
+
+HOSTILE: list[tuple[str, object, type[EventProgramError]]] = [
+    # imports and the Python object model
+    ("import_os", "import os\ndef parse_event():\n    pass\n", F),
+    ("from_import", "from os import system\ndef parse_event():\n    pass\n", F),
+    ("dunder_import", body("return __import__('os')"), F),
+    ("import_in_function", body("import subprocess"), F),
+    ("subclasses_walk", body("return ().__class__.__bases__[0].__subclasses__()"), F),
+    ("getattr_built_name", body("return getattr(1, '__cl' + 'ass__')"), F),
+    ("str_format_walk", body("return '{0.__class__}'.format(1)"), F),
+    ("format_map", body("return '{x}'.format_map({'x': 1})"), F),
+    ("fstring_dunder", body("x = 1\nreturn f'{x.__class__}'"), F),
+    ("generator_frame", body("return (x for x in []).gi_frame.f_globals"), R),
+    ("traceback_frame", body("try:\n    get_area_to_sit_on('sofa_9')\nexcept Exception as e:\n    return e.__traceback__.tb_frame"), F),
+    ("exception_object_methods", body("try:\n    get_area_to_sit_on('sofa_9')\nexcept Exception as e:\n    return e.with_traceback(None)"), R),
+    ("handle_private_state", body("c = get_character('Mia')\nreturn c._plans"), F),
+    ("bound_method_self", body("return get_character('Mia').set_position.__self__"), F),
+    ("tool_function_globals", body("return get_character.__globals__"), F),
+    ("method_on_tool_function", body("return get_character.func_globals"), R),
+    ("lambda_default_globals", body("f = lambda g=get_character: g.__globals__\nreturn f()"), F),
+    ("default_arg_builtin_self", "def f(x=print):\n    return x.__self__\ndef parse_event():\n    return f()\n", F),
+    ("private_namespace_name", body("return _secret"), F),
+    ("dunder_builtins", body("return __builtins__"), F),
+    ("main_guard", "def parse_event():\n    pass\nif __name__ == '__main__':\n    parse_event()\n", F),
+    ("type_call", body("return type(1)"), F),
+    ("vars_dir_globals", body("return vars(), dir(), globals()"), F),
+    ("open_file", body("return open('/etc/passwd').read()"), F),
+    ("eval_exec", body("return eval('1 + 1')"), F),
+    ("with_statement", body("with open('x') as f:\n    pass"), F),
+    ("class_definition", "class Evil:\n    pass\ndef parse_event():\n    pass\n", F),
+    ("global_statement", "x = 1\ndef parse_event():\n    global x\n    x = 2\n", F),
+    ("nonlocal_statement", "def parse_event():\n    x = 1\n    def g():\n        nonlocal x\n        x = 2\n    g()\n", F),
+    ("decorator", "@print\ndef parse_event():\n    pass\n", F),
+    ("yield_generator", body("yield 1"), F),
+    ("async_def", "async def parse_event():\n    pass\n", F),
+    ("raise_system_exit", body("raise SystemExit"), F),
+    ("exit_call", body("exit()"), F),
+    ("quit_call", body("quit()"), F),
+    ("percent_format", body("return '%s %s' % (1, 2)"), F),
+    ("match_statement", body("match 1:\n    case 1:\n        pass"), F),
+    ("except_value_error", body("try:\n    pass\nexcept ValueError:\n    pass"), F),
+    ("bytes_literal", body("return b'\\x00'"), F),
+    ("keyword_underscore", body("return get_character(_name='x')"), F),
+    ("kwargs_underscore", body("return get_character(**{'_name': 'x'})"), R),
+    ("attribute_store", body("c = get_character('Mia')\nc.name = 'x'"), F),
+    ("starred_unpack_function", body("a, *b = get_character"), R),
+    # rebinding the spatial API
+    ("rebind_tool", body("get_character = lambda n: None"), F),
+    ("rebind_tool_top_level", "get_character = 1\ndef parse_event():\n    pass\n", F),
+    ("shadow_tool_parameter", "def parse_event(get_character=1):\n    pass\n", F),
+    ("del_tool_name", body("del get_character"), F),
+    ("redefine_tool", "def get_character(name):\n    return name\ndef parse_event():\n    pass\n", F),
+    ("for_target_tool", body("for get_state in range(2):\n    pass"), F),
+    # hangs and bombs
+    ("while_true", body("while True:\n    pass"), B),
+    ("pow_tower", body("return 10**10**8"), B),
+    ("str_repeat", body("return 'a' * 10**10"), B),
+    ("list_repeat", body("return [0] * 10**9"), B),
+    ("shift_bomb", body("return 1 << 10**9"), B),
+    ("fstring_width", body("return f'{1:>{10**9}}'"), B),
+    ("fstring_precision", body("return f'{1.5:.{10**6}f}'"), B),
+    ("sum_huge_range", body("return sum(range(10**11))"), B),
+    ("list_huge_range", body("return list(range(10**11))"), B),
+    ("str_of_huge_int", body("return str(10**5000)"), B),
+    ("int_of_long_string", body("return int('9' * 5000)"), B),
+    ("deep_recursion", "def f(n):\n    return f(n + 1)\ndef parse_event():\n    return f(0)\n", B),
+    ("mutual_recursion", "def a(n):\n    return b(n)\ndef b(n):\n    return a(n)\ndef parse_event():\n    return a(0)\n", B),
+    ("lambda_self_application", body("f = lambda g: g(g)\nreturn f(f)"), B),
+    ("nested_parentheses", "x = " + "(" * 1000 + "1" + ")" * 1000 + "\n", S),
+    ("nested_lists", "x = " + "[" * 1000 + "]" * 1000 + "\n", S),
+    ("deep_unary_chain", "x = " + "-" * 5000 + "1\n", B),
+    ("long_binop_chain", "x = " + " + ".join(["1"] * 3000) + "\n", B),
+    ("print_flood", body("while True:\n    print('spam')"), B),
+    ("list_doubling", body("x = [0]\nwhile True:\n    x.extend(x)"), B),
+    ("list_self_append", body("x = []\nwhile True:\n    x.append(x)"), B),
+    ("string_doubling", body("s = 'x'\nwhile True:\n    s += s"), B),
+    ("string_growth_slow", body("s = ''\nfor i in range(10**6):\n    s = s + 'abcdefghij'"), B),
+    ("comprehension_memory", body("return [[0] * 20000 for _ in range(20000)]"), B),
+    ("comprehension_product", body("return [1 for a in range(10**6) for b in range(10**6)]"), B),
+    ("join_bomb", body("return ','.join(['a' * 20000] * 20000)"), B),
+    ("replace_bomb", body("return ('a' * 20000).replace('a', 'aaaa')"), B),
+    ("repr_bomb", body("x = ['a' * 10000] * 20000\nreturn str(x)"), B),
+    ("self_referential_repr", body("a = []\na.append(a)\nreturn f'{a}'"), B),
+    ("deep_compare", body("a = []\nb = []\na.append(a)\nb.append(b)\nreturn a == b"), B),
+    ("deep_tuple_hash", body("t = ()\nfor i in range(15000):\n    t = (t,)\nreturn {t: 1}"), B),
+    ("sorted_key_bomb", body("return sorted(range(100), key=lambda x: [0] * 10**9)"), B),
+    ("finally_swallow_budget", body("try:\n    while True:\n        pass\nfinally:\n    return 1"), B),
+    ("except_swallow_budget", body("try:\n    return 10**10**8\nexcept Exception:\n    return 1"), B),
+    ("round_huge_ndigits", body("return round(5, -10**9)"), R),
+    ("complex_result", body("return (-1) ** 0.5"), R),
+    # bad values for tools
+    ("nan_position", body("get_character('Mia').set_position([float('nan'), 0.0])"), ToolArgumentError),
+    ("inf_position", body("get_character('Mia').set_position([1e309, -1e309])"), ToolArgumentError),
+    ("unknown_object", body("return get_area_to_sit_on('chiar_1')"), UnknownObjectError),
+    # garbage text
+    ("syntax_garbage", "def parse_event(:\n    ))\n", S),
+    ("binary_garbage", "\x00\x01\x02def", S),
+    ("not_text", b"def parse_event():\n    pass\n", S),
+    ("huge_source", "x = 1\n" * 10_000, B),
+    ("break_outside_loop", body("break"), F),
+    ("return_at_top_level", "return 1\n", F),
+]
+
+
+@pytest.mark.parametrize(("source", "expected"), [(s, e) for _, s, e in HOSTILE], ids=[n for n, _, _ in HOSTILE])
+def test_hostile_program_fails_typed_and_changes_nothing(source: str, expected: type[EventProgramError]) -> None:
+    world = World()
+    namespace = world.namespace()
+    before = dict(namespace)
+    sentinel = copy.deepcopy(namespace["SENTINEL"])
+    with pytest.raises(EventProgramError) as info:
+        execute(source, namespace)
+    assert type(info.value) is expected, info.value.feedback
+    assert info.value.feedback and str(info.value) == info.value.feedback
+    assert namespace.keys() == before.keys()
+    assert all(namespace[k] is before[k] for k in before)
+    assert namespace["SENTINEL"] == sentinel
+    assert world.state == {"occupied": ["chair_1"]}
+    assert world.plans == {}
+
+
+def test_there_are_at_least_forty_hostile_programs() -> None:
+    assert len(HOSTILE) >= 40
+    assert len({name for name, _, _ in HOSTILE}) == len(HOSTILE)
+
+
+def test_tool_results_and_constants_are_not_aliased() -> None:
+    world = World()
+    namespace = world.namespace()
+    source = body(
+        "s = get_state()\ns['occupied'].clear()\ns['hacked'] = True\n"
+        "SENTINEL['untouched'].append(4)\nSENTINEL.clear()\nreturn s"
+    )
+    assert execute(source, namespace) == {"occupied": [], "hacked": True}
+    assert world.state == {"occupied": ["chair_1"]}
+    assert namespace["SENTINEL"] == {"untouched": [1, 2, 3]}
+
+
+def test_system_exit_inside_a_tool_does_not_escape() -> None:
+    def bad_tool() -> None:
+        raise SystemExit(3)
+
+    with pytest.raises(ProgramRuntimeError, match="line 2: bad_tool\\(\\) failed: SystemExit"):
+        execute(body("bad_tool()"), {"bad_tool": bad_tool})
+
+
+def test_recursion_error_inside_a_tool_is_a_budget_error() -> None:
+    def runaway(n: int) -> int:
+        return runaway(n + 1)
+
+    with pytest.raises(BudgetExceededError, match="line 2"):
+        execute(body("return runaway(0)"), {"runaway": runaway})
+
+
+def test_small_budgets_are_enforced() -> None:
+    tight = Budget(steps=500, loop_iterations=10**6)
+    with pytest.raises(BudgetExceededError, match="steps"):
+        execute(body("n = 0\nwhile True:\n    n += 1"), {}, budget=tight)
+    with pytest.raises(BudgetExceededError, match="characters"):
+        execute(body("return 'x' * 11"), {}, budget=Budget(str_len=10))
