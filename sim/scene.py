@@ -58,6 +58,8 @@ class SceneObject(BaseModel):
         norm = math.hypot(*value)
         if norm < 1e-6:
             raise ValueError("facing must be a non-zero xy vector")
+        if abs(norm - 1.0) <= 1e-12:  # already unit: keep the exact floats (JSON round-trips)
+            return (float(value[0]), float(value[1]))
         return (value[0] / norm, value[1] / norm)
 
     @model_validator(mode="after")
