@@ -56,8 +56,10 @@ class CharacterHandle:
         return self._name
 
     def set_position(self, area: Any) -> None:
-        """Where the character goes: an Area (from a get_area_* function) or [x, y] in metres."""
-        self._api._record(self._name).position = self._api._position_target(area)
+        """Where the character goes: an Area (from a get_area_* function) or [x, y] in metres.
+        Raises UnsatisfiableAreaError at once if no free spot of the area is left."""
+        target = self._api._position_target(area, self._name)
+        self._api._record(self._name).position = target
 
     def set_orientation(self, target: Any) -> None:
         """What the character faces: an object name, a character name, an Area or [x, y]."""
@@ -102,6 +104,7 @@ class SpatialAPI:
         self.allow_new_characters = (
             not self.world.characters if allow_new_characters is None else allow_new_characters
         )
+        self._floor = FloorMap(scene)
         self._records: dict[str, _Record] = {}
         self._handles: dict[str, CharacterHandle] = {}
 
@@ -174,8 +177,15 @@ class SpatialAPI:
             raise ToolArgumentError(f"{func}() expects Area values from get_area_* functions, got {value!r}")
         return value
 
-    def _position_target(self, value: Any) -> Area | Point:
-        return value if isinstance(value, Area) else self._point(value, "set_position")
+    def _position_target(self, value: Any, name: str) -> Area | Point:
+        if not isinstance(value, Area):
+            return self._point(value, "set_position")
+        # fail at the program line that asked for an impossible area (others' plans aside)
+        moving = {*self._records, name}
+        taken = frozenset(o for o, who in self.world.objects_in_use.items() if who not in moving)
+        constraints = Constraints(avoid=self.world.points_to_avoid(moving), taken_objects=taken)
+        sample_position(value, self._floor, constraints, np.random.default_rng(0))
+        return value
 
     def _orientation_target(self, value: Any) -> str | Area | Point:
         if isinstance(value, Area):
@@ -382,7 +392,7 @@ class SpatialAPI:
         """Sample a position and facing for every character the program touched, in the order
         they were first touched. Raises ToolError subclasses (never a partial result)."""
         planned = set(self._records)
-        floor = FloorMap(self.scene)
+        floor = self._floor
         avoid = list(self.world.points_to_avoid(planned))
         taken = {o for o, who in self.world.objects_in_use.items() if who not in planned}
         group: list[Point] = []
