@@ -35,9 +35,9 @@ class FakeCharacter:
         self._plans = plans
 
     def set_position(self, area: object) -> None:
-        if isinstance(area, list | tuple) and len(area) == 2 and not isinstance(area[0], str):
-            if not all(isinstance(v, int | float) and math.isfinite(v) for v in area):
-                raise ToolArgumentError(f"position {area!r} must be two finite numbers")
+        is_xy = isinstance(area, list | tuple) and len(area) == 2 and not isinstance(area[0], str)
+        if is_xy and not all(isinstance(v, int | float) and math.isfinite(v) for v in area):
+            raise ToolArgumentError(f"position {area!r} must be two finite numbers")
         self._plans.setdefault(self.name, {})["position"] = area
 
     def set_orientation(self, target: str) -> None:
@@ -91,7 +91,7 @@ class FakeWorld:
         }
 
 
-REALISTIC = '''
+REALISTIC = """
 TABLE = "dining_table_1"
 
 
@@ -116,7 +116,7 @@ def parse_event():
         plans[c.name] = seats[i] if i < len(seats) else None
     print(f"seated {len(plans)} diners: {plans}")
     return plans
-'''
+"""
 
 
 def test_realistic_program_drives_tools_and_handles() -> None:
@@ -124,8 +124,16 @@ def test_realistic_program_drives_tools_and_handles() -> None:
     run = run_program(REALISTIC, world.namespace())
     assert run.result == {"Mia": "chair_3", "Leo": "chair_2"}
     assert world.plans == {
-        "Mia": {"position": ("sit_on", "chair_3"), "action": "eat", "orientation": "dining_table_1"},
-        "Leo": {"position": ("sit_on", "chair_2"), "action": "eat", "orientation": "dining_table_1"},
+        "Mia": {
+            "position": ("sit_on", "chair_3"),
+            "action": "eat",
+            "orientation": "dining_table_1",
+        },
+        "Leo": {
+            "position": ("sit_on", "chair_2"),
+            "action": "eat",
+            "orientation": "dining_table_1",
+        },
     }
     assert run.output == ("seated 2 diners: {'Mia': 'chair_3', 'Leo': 'chair_2'}",)
     assert 0 < run.steps < 1000
@@ -141,26 +149,47 @@ def test_realistic_program_drives_tools_and_handles() -> None:
         ("return any(s == 'chair_2' for s in SEATS), all([1, 0])", (True, False)),
         ("a, *rest = [1, 2, 3]\n    return a, rest", (1, [2, 3])),
         ("x = [1, 2]\n    x += (3,)\n    x[0] -= 5\n    return x", [-4, 2, 3]),
-        ("d = {'n': 1}\n    d['n'] += 1\n    d.setdefault('m', []).append(2)\n    return d", {"n": 2, "m": [2]}),
+        (
+            "d = {'n': 1}\n    d['n'] += 1\n    d.setdefault('m', []).append(2)\n    return d",
+            {"n": 2, "m": [2]},
+        ),
         ("return f'{1.23456:.2f}|{\"ab\":>4}|{7:03d}|{[1]!r}'", "1.23|  ab|007|[1]"),
-        ("n = 0\n    while True:\n        n += 1\n        if n > 3:\n            break\n    return n", 4),
-        ("for i in range(3):\n        if i == 5:\n            break\n    else:\n        return 'no break'", "no break"),
-        ("out = []\n    for i in range(5):\n        if i % 2:\n            continue\n        out.append(i)\n    return out", [0, 2, 4]),
+        (
+            "n = 0\n    while True:\n        n += 1\n        if n > 3:\n            break\n    return n",
+            4,
+        ),
+        (
+            "for i in range(3):\n        if i == 5:\n            break\n    else:\n        return 'no break'",
+            "no break",
+        ),
+        (
+            "out = []\n    for i in range(5):\n        if i % 2:\n            continue\n        out.append(i)\n    return out",
+            [0, 2, 4],
+        ),
         ("return min(SEATS, key=lambda s: -len(s) if s != 'chair_2' else 0)", "chair_1"),
         ("return max([3, 1, 2]), min(4, 2, 8), abs(-2), round(2.567, 1)", (3, 2, 2, 2.6)),
         ("return sorted({'b': 1, 'a': 2}.items(), reverse=True)", [("b", 1), ("a", 2)]),
         ("return ' '.join(w.upper() for w in 'a b'.split()).replace('A', 'x')", "x B"),
         ("return 'Chair_1'.lower().startswith('chair'), 'a,b'.split(',')", (True, ["a", "b"])),
-        ("return list(reversed([1, 2])), tuple(enumerate('ab', 1))", ([2, 1], ((1, "a"), (2, "b")))),
+        (
+            "return list(reversed([1, 2])), tuple(enumerate('ab', 1))",
+            ([2, 1], ((1, "a"), (2, "b"))),
+        ),
         ("return [1, 2, 3, 4][::-2], 'abcdef'[1:3], (1, 2)[-1]", ([4, 2], "bc", 2)),
         ("return int('7') + int(2.9), float('1.5'), str(12), bool([])", (9, 1.5, "12", False)),
         ("return 7 // 2, 7 % 3, 2 ** 10, 1 << 4, -3 / 2", (3, 1, 1024, 16, -1.5)),
         ("return 1 < 2 < 3, 1 < 3 < 2, 'a' in 'cat', 3 not in [1]", (True, False, True, True)),
         ("return (y := 5) + y", 10),
-        ("s = set()\n    s.add(1)\n    s.update([2, 2])\n    return s | {3}, s.issubset({1, 2, 9})", ({1, 2, 3}, True)),
+        (
+            "s = set()\n    s.add(1)\n    s.update([2, 2])\n    return s | {3}, s.issubset({1, 2, 9})",
+            ({1, 2, 3}, True),
+        ),
         ("x: int = 3\n    return x if x > 2 else -x", 3),
         ("del_me = [1, 2, 3]\n    del del_me[0]\n    return del_me", [2, 3]),
-        ("return dict(a=1), dict([('b', 2)]), list('ab'), len({'a': 1})", ({"a": 1}, {"b": 2}, ["a", "b"], 1)),
+        (
+            "return dict(a=1), dict([('b', 2)]), list('ab'), len({'a': 1})",
+            ({"a": 1}, {"b": 2}, ["a", "b"], 1),
+        ),
     ],
 )
 def test_language_features(body: str, expected: object) -> None:
@@ -169,7 +198,7 @@ def test_language_features(body: str, expected: object) -> None:
 
 
 def test_helpers_closures_recursion_and_defaults() -> None:
-    source = '''
+    source = """
 def make_counter(start=10):
     def add(n, twice=False):
         return start + (2 * n if twice else n)
@@ -183,12 +212,12 @@ def fact(n):
 def parse_event():
     add = make_counter()
     return add(1), add(n=2, twice=True), fact(10), (lambda a, b=2: a * b)(4)
-'''
+"""
     assert execute(source, {}) == (11, 14, 3628800, 8)
 
 
 def test_try_except_catches_tool_errors_only() -> None:
-    source = '''
+    source = """
 def parse_event():
     found = []
     for name in ["chair_2", "chiar_9", "sofa_1"]:
@@ -201,7 +230,7 @@ def parse_event():
         finally:
             found.append("checked")
     return found
-'''
+"""
     result = execute(source, FakeWorld().namespace())
     assert result[0:2] == [False, "checked"]
     assert isinstance(result[2], str) and "unknown object 'chiar_9'" in result[2]
@@ -231,7 +260,9 @@ def test_tool_error_propagates_unchanged_with_line() -> None:
     source = "def parse_event():\n\n    return get_area_to_sit_on('chiar_2')\n"
     with pytest.raises(UnknownObjectError) as info:
         execute(source, FakeWorld().namespace())
-    assert info.value.feedback.startswith("line 3: unknown object 'chiar_2'; did you mean 'chair_2'")
+    assert info.value.feedback.startswith(
+        "line 3: unknown object 'chiar_2'; did you mean 'chair_2'"
+    )
     assert str(info.value) == info.value.feedback
 
 
@@ -246,24 +277,59 @@ def test_tool_type_error_becomes_runtime_error_naming_the_function() -> None:
 
 def test_attribute_suggestion_on_handles() -> None:
     source = "def parse_event():\n    c = get_character('Mia')\n    c.set_pos(get_area_close_to('sofa_1'))\n"
-    with pytest.raises(ProgramRuntimeError, match="line 3: 'FakeCharacter' object has no attribute 'set_pos'; did you mean 'set_position'"):
+    with pytest.raises(
+        ProgramRuntimeError,
+        match="line 3: 'FakeCharacter' object has no attribute 'set_pos'; did you mean 'set_position'",
+    ):
         execute(source, FakeWorld().namespace())
 
 
 @pytest.mark.parametrize(
     ("source", "error", "fragment"),
     [
-        ("def parse_event():\n    return [1][3]", ProgramRuntimeError, "line 2: list index 3 out of range (length 1)"),
-        ("def parse_event():\n    return {'seat': 1}['set']", ProgramRuntimeError, "line 2: key 'set' is not in the dict; did you mean 'seat'?"),
+        (
+            "def parse_event():\n    return [1][3]",
+            ProgramRuntimeError,
+            "line 2: list index 3 out of range (length 1)",
+        ),
+        (
+            "def parse_event():\n    return {'seat': 1}['set']",
+            ProgramRuntimeError,
+            "line 2: key 'set' is not in the dict; did you mean 'seat'?",
+        ),
         ("def parse_event():\n    return 'a' + 1", ProgramRuntimeError, "line 2: '+' failed"),
-        ("def parse_event():\n    x = 1\n    assert x == 2, 'bad x'", ProgramRuntimeError, "line 3: assertion failed: `x == 2`: bad x"),
-        ("def parse_event(scene):\n    pass", ProgramRuntimeError, "parse_event() is called without arguments; remove its parameters (scene)"),
-        ("def parse_events():\n    pass", MissingEntryError, "define a function `def parse_event():`; did you mean 'parse_events'?"),
+        (
+            "def parse_event():\n    x = 1\n    assert x == 2, 'bad x'",
+            ProgramRuntimeError,
+            "line 3: assertion failed: `x == 2`: bad x",
+        ),
+        (
+            "def parse_event(scene):\n    pass",
+            ProgramRuntimeError,
+            "parse_event() is called without arguments; remove its parameters (scene)",
+        ),
+        (
+            "def parse_events():\n    pass",
+            MissingEntryError,
+            "define a function `def parse_event():`; did you mean 'parse_events'?",
+        ),
         ("x = 1", MissingEntryError, "it defines no functions"),
         ("def parse_event()\n    pass", ProgramSyntaxError, "line 1: syntax error"),
-        ("def parse_event():\n    return y\n    y = 1", ProgramRuntimeError, "line 2: variable 'y' is used before it is assigned"),
-        ("def parse_event():\n    return getattr(1, 'real')", ForbiddenConstructError, "line 2: 'getattr' is not available"),
-        ("def helper(a):\n    return a\ndef parse_event():\n    return helper(1, 2)", ProgramRuntimeError, "line 4: helper() takes 1 arguments but 2 were given"),
+        (
+            "def parse_event():\n    return y\n    y = 1",
+            ProgramRuntimeError,
+            "line 2: variable 'y' is used before it is assigned",
+        ),
+        (
+            "def parse_event():\n    return getattr(1, 'real')",
+            ForbiddenConstructError,
+            "line 2: 'getattr' is not available",
+        ),
+        (
+            "def helper(a):\n    return a\ndef parse_event():\n    return helper(1, 2)",
+            ProgramRuntimeError,
+            "line 4: helper() takes 1 arguments but 2 were given",
+        ),
     ],
 )
 def test_error_messages(source: str, error: type[EventProgramError], fragment: str) -> None:
@@ -303,7 +369,9 @@ def test_wall_time_uses_injected_clock() -> None:
     def clock() -> float:
         return next(ticks) * 0.25  # every reading is a quarter second later
 
-    source = "def parse_event():\n    n = 0\n    for i in range(5000):\n        n += i\n    return n\n"
+    source = (
+        "def parse_event():\n    n = 0\n    for i in range(5000):\n        n += i\n    return n\n"
+    )
     with pytest.raises(BudgetExceededError, match="ran longer than 1 s"):
         execute(source, {}, clock=clock)
     # a frozen clock never runs out of time

@@ -13,7 +13,7 @@ from tools.errors import EventProgramError, UnknownObjectError
 from tools.sandbox import Budget, execute
 
 SEEDS = [
-    '''
+    """
 def free(anchor, exclude=()):
     seats = [o for o in get_objects_close_to(anchor) if o.startswith("chair")]
     return [o for o in seats if not is_object_occupied(o) and o not in exclude]
@@ -31,8 +31,8 @@ def parse_event():
         c.set_orientation("table_1")
         c.set_target_action(f"{ACTIONS[i % len(ACTIONS)]}")
     return {n: s for n, s in zip(names, seats)}
-''',
-    '''
+""",
+    """
 LIMIT = 3
 
 
@@ -48,8 +48,8 @@ def parse_event():
     text = ", ".join(str(x) for x in found)
     print(text.upper())
     return found[-1], text.split(",")[0], {x: 1 for x in CONFIG["seats"]}
-''',
-    '''
+""",
+    """
 def parse_event():
     a, *rest = [3, 1, 2]
     data = {"k": [a] + rest}
@@ -57,17 +57,64 @@ def parse_event():
     if any(v > 2 for v in data["k"]) and not data.get("z"):
         return max(data["k"]) ** 2 // (a - 1) % 7
     return None
-''',
+""",
 ]
 
 TOKENS = [
-    "(", ")", "[", "]", ":", ",", ".", "*", "**", "=", "+=", "\n", "\n    ", " ", "0", "1",
-    "10**10**8", "'a'*10**10", "__class__", "_x", "import os\n", "while True: pass\n",
-    "lambda: 0", "yield", "global x\n", "get_character", "CONFIG", "SENTINEL", ".append(1)",
-    ".clear()", "del ", "def ", "return ", "for i in range(10**9):", "f'{1:>{10**9}}'",
-    "print", "'{0.__class__}'.format", "getattr", "\x00", "\t", "#", "'''", '"', "not ",
-    "[0]*10**9", "sum(range(10**11))", "SENTINEL.clear()", "SENTINEL['x'] = 1",
-    "(x for x in [])", "try:", "except:", "float('nan')", "1e309", "-",
+    "(",
+    ")",
+    "[",
+    "]",
+    ":",
+    ",",
+    ".",
+    "*",
+    "**",
+    "=",
+    "+=",
+    "\n",
+    "\n    ",
+    " ",
+    "0",
+    "1",
+    "10**10**8",
+    "'a'*10**10",
+    "__class__",
+    "_x",
+    "import os\n",
+    "while True: pass\n",
+    "lambda: 0",
+    "yield",
+    "global x\n",
+    "get_character",
+    "CONFIG",
+    "SENTINEL",
+    ".append(1)",
+    ".clear()",
+    "del ",
+    "def ",
+    "return ",
+    "for i in range(10**9):",
+    "f'{1:>{10**9}}'",
+    "print",
+    "'{0.__class__}'.format",
+    "getattr",
+    "\x00",
+    "\t",
+    "#",
+    "'''",
+    '"',
+    "not ",
+    "[0]*10**9",
+    "sum(range(10**11))",
+    "SENTINEL.clear()",
+    "SENTINEL['x'] = 1",
+    "(x for x in [])",
+    "try:",
+    "except:",
+    "float('nan')",
+    "1e309",
+    "-",
 ]
 
 HOSTILE_EXPRESSIONS = [

@@ -83,17 +83,37 @@ HOSTILE: list[tuple[str, object, type[EventProgramError]]] = [
     ("format_map", body("return '{x}'.format_map({'x': 1})"), F),
     ("fstring_dunder", body("x = 1\nreturn f'{x.__class__}'"), F),
     ("generator_frame", body("return (x for x in []).gi_frame.f_globals"), R),
-    ("traceback_frame", body("try:\n    get_area_to_sit_on('sofa_9')\nexcept Exception as e:\n    return e.__traceback__.tb_frame"), F),
-    ("exception_object_methods", body("try:\n    get_area_to_sit_on('sofa_9')\nexcept Exception as e:\n    return e.with_traceback(None)"), R),
+    (
+        "traceback_frame",
+        body(
+            "try:\n    get_area_to_sit_on('sofa_9')\nexcept Exception as e:\n    return e.__traceback__.tb_frame"
+        ),
+        F,
+    ),
+    (
+        "exception_object_methods",
+        body(
+            "try:\n    get_area_to_sit_on('sofa_9')\nexcept Exception as e:\n    return e.with_traceback(None)"
+        ),
+        R,
+    ),
     ("handle_private_state", body("c = get_character('Mia')\nreturn c._plans"), F),
     ("bound_method_self", body("return get_character('Mia').set_position.__self__"), F),
     ("tool_function_globals", body("return get_character.__globals__"), F),
     ("method_on_tool_function", body("return get_character.func_globals"), R),
     ("lambda_default_globals", body("f = lambda g=get_character: g.__globals__\nreturn f()"), F),
-    ("default_arg_builtin_self", "def f(x=print):\n    return x.__self__\ndef parse_event():\n    return f()\n", F),
+    (
+        "default_arg_builtin_self",
+        "def f(x=print):\n    return x.__self__\ndef parse_event():\n    return f()\n",
+        F,
+    ),
     ("private_namespace_name", body("return _secret"), F),
     ("dunder_builtins", body("return __builtins__"), F),
-    ("main_guard", "def parse_event():\n    pass\nif __name__ == '__main__':\n    parse_event()\n", F),
+    (
+        "main_guard",
+        "def parse_event():\n    pass\nif __name__ == '__main__':\n    parse_event()\n",
+        F,
+    ),
     ("type_call", body("return type(1)"), F),
     ("vars_dir_globals", body("return vars(), dir(), globals()"), F),
     ("open_file", body("return open('/etc/passwd').read()"), F),
@@ -101,7 +121,11 @@ HOSTILE: list[tuple[str, object, type[EventProgramError]]] = [
     ("with_statement", body("with open('x') as f:\n    pass"), F),
     ("class_definition", "class Evil:\n    pass\ndef parse_event():\n    pass\n", F),
     ("global_statement", "x = 1\ndef parse_event():\n    global x\n    x = 2\n", F),
-    ("nonlocal_statement", "def parse_event():\n    x = 1\n    def g():\n        nonlocal x\n        x = 2\n    g()\n", F),
+    (
+        "nonlocal_statement",
+        "def parse_event():\n    x = 1\n    def g():\n        nonlocal x\n        x = 2\n    g()\n",
+        F,
+    ),
     ("decorator", "@print\ndef parse_event():\n    pass\n", F),
     ("yield_generator", body("yield 1"), F),
     ("async_def", "async def parse_event():\n    pass\n", F),
@@ -121,7 +145,11 @@ HOSTILE: list[tuple[str, object, type[EventProgramError]]] = [
     ("rebind_tool_top_level", "get_character = 1\ndef parse_event():\n    pass\n", F),
     ("shadow_tool_parameter", "def parse_event(get_character=1):\n    pass\n", F),
     ("del_tool_name", body("del get_character"), F),
-    ("redefine_tool", "def get_character(name):\n    return name\ndef parse_event():\n    pass\n", F),
+    (
+        "redefine_tool",
+        "def get_character(name):\n    return name\ndef parse_event():\n    pass\n",
+        F,
+    ),
     ("for_target_tool", body("for get_state in range(2):\n    pass"), F),
     # hangs and bombs
     ("while_true", body("while True:\n    pass"), B),
@@ -136,7 +164,11 @@ HOSTILE: list[tuple[str, object, type[EventProgramError]]] = [
     ("str_of_huge_int", body("return str(10**5000)"), B),
     ("int_of_long_string", body("return int('9' * 5000)"), B),
     ("deep_recursion", "def f(n):\n    return f(n + 1)\ndef parse_event():\n    return f(0)\n", B),
-    ("mutual_recursion", "def a(n):\n    return b(n)\ndef b(n):\n    return a(n)\ndef parse_event():\n    return a(0)\n", B),
+    (
+        "mutual_recursion",
+        "def a(n):\n    return b(n)\ndef b(n):\n    return a(n)\ndef parse_event():\n    return a(0)\n",
+        B,
+    ),
     ("lambda_self_application", body("f = lambda g: g(g)\nreturn f(f)"), B),
     ("nested_parentheses", "x = " + "(" * 1000 + "1" + ")" * 1000 + "\n", S),
     ("nested_lists", "x = " + "[" * 1000 + "]" * 1000 + "\n", S),
@@ -156,12 +188,24 @@ HOSTILE: list[tuple[str, object, type[EventProgramError]]] = [
     ("deep_compare", body("a = []\nb = []\na.append(a)\nb.append(b)\nreturn a == b"), B),
     ("deep_tuple_hash", body("t = ()\nfor i in range(15000):\n    t = (t,)\nreturn {t: 1}"), B),
     ("sorted_key_bomb", body("return sorted(range(100), key=lambda x: [0] * 10**9)"), B),
-    ("finally_swallow_budget", body("try:\n    while True:\n        pass\nfinally:\n    return 1"), B),
-    ("except_swallow_budget", body("try:\n    return 10**10**8\nexcept Exception:\n    return 1"), B),
+    (
+        "finally_swallow_budget",
+        body("try:\n    while True:\n        pass\nfinally:\n    return 1"),
+        B,
+    ),
+    (
+        "except_swallow_budget",
+        body("try:\n    return 10**10**8\nexcept Exception:\n    return 1"),
+        B,
+    ),
     ("round_huge_ndigits", body("return round(5, -10**9)"), R),
     ("complex_result", body("return (-1) ** 0.5"), R),
     # bad values for tools
-    ("nan_position", body("get_character('Mia').set_position([float('nan'), 0.0])"), ToolArgumentError),
+    (
+        "nan_position",
+        body("get_character('Mia').set_position([float('nan'), 0.0])"),
+        ToolArgumentError,
+    ),
     ("inf_position", body("get_character('Mia').set_position([1e309, -1e309])"), ToolArgumentError),
     ("unknown_object", body("return get_area_to_sit_on('chiar_1')"), UnknownObjectError),
     # garbage text
@@ -174,8 +218,12 @@ HOSTILE: list[tuple[str, object, type[EventProgramError]]] = [
 ]
 
 
-@pytest.mark.parametrize(("source", "expected"), [(s, e) for _, s, e in HOSTILE], ids=[n for n, _, _ in HOSTILE])
-def test_hostile_program_fails_typed_and_changes_nothing(source: str, expected: type[EventProgramError]) -> None:
+@pytest.mark.parametrize(
+    ("source", "expected"), [(s, e) for _, s, e in HOSTILE], ids=[n for n, _, _ in HOSTILE]
+)
+def test_hostile_program_fails_typed_and_changes_nothing(
+    source: str, expected: type[EventProgramError]
+) -> None:
     world = World()
     namespace = world.namespace()
     before = dict(namespace)

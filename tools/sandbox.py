@@ -23,6 +23,7 @@ sizes, recursion and (injected-clock) wall time.
 from __future__ import annotations
 
 import ast
+import contextlib
 import functools
 import inspect
 import time
@@ -130,34 +131,112 @@ def run_program(
 
 _STATEMENTS: frozenset[type[ast.AST]] = frozenset(
     {
-        ast.FunctionDef, ast.Return, ast.Assign, ast.AugAssign, ast.AnnAssign, ast.For,
-        ast.While, ast.If, ast.Expr, ast.Pass, ast.Break, ast.Continue, ast.Assert, ast.Try,
-        ast.ExceptHandler, ast.Delete,
+        ast.FunctionDef,
+        ast.Return,
+        ast.Assign,
+        ast.AugAssign,
+        ast.AnnAssign,
+        ast.For,
+        ast.While,
+        ast.If,
+        ast.Expr,
+        ast.Pass,
+        ast.Break,
+        ast.Continue,
+        ast.Assert,
+        ast.Try,
+        ast.ExceptHandler,
+        ast.Delete,
     }
 )
 _EXPRESSIONS: frozenset[type[ast.AST]] = frozenset(
     {
-        ast.BoolOp, ast.BinOp, ast.UnaryOp, ast.Compare, ast.IfExp, ast.Call, ast.keyword,
-        ast.Constant, ast.Name, ast.Attribute, ast.Subscript, ast.Slice, ast.List, ast.Tuple,
-        ast.Dict, ast.Set, ast.ListComp, ast.SetComp, ast.DictComp, ast.GeneratorExp,
-        ast.comprehension, ast.JoinedStr, ast.FormattedValue, ast.Lambda, ast.NamedExpr,
-        ast.Starred, ast.arguments, ast.arg,
+        ast.BoolOp,
+        ast.BinOp,
+        ast.UnaryOp,
+        ast.Compare,
+        ast.IfExp,
+        ast.Call,
+        ast.keyword,
+        ast.Constant,
+        ast.Name,
+        ast.Attribute,
+        ast.Subscript,
+        ast.Slice,
+        ast.List,
+        ast.Tuple,
+        ast.Dict,
+        ast.Set,
+        ast.ListComp,
+        ast.SetComp,
+        ast.DictComp,
+        ast.GeneratorExp,
+        ast.comprehension,
+        ast.JoinedStr,
+        ast.FormattedValue,
+        ast.Lambda,
+        ast.NamedExpr,
+        ast.Starred,
+        ast.arguments,
+        ast.arg,
     }
 )
 _LEAVES: frozenset[type[ast.AST]] = frozenset(
     {
-        ast.Load, ast.Store, ast.Del, ast.And, ast.Or, ast.Add, ast.Sub, ast.Mult, ast.Div,
-        ast.FloorDiv, ast.Mod, ast.Pow, ast.LShift, ast.RShift, ast.BitOr, ast.BitXor,
-        ast.BitAnd, ast.Invert, ast.Not, ast.UAdd, ast.USub, ast.Eq, ast.NotEq, ast.Lt,
-        ast.LtE, ast.Gt, ast.GtE, ast.Is, ast.IsNot, ast.In, ast.NotIn,
+        ast.Load,
+        ast.Store,
+        ast.Del,
+        ast.And,
+        ast.Or,
+        ast.Add,
+        ast.Sub,
+        ast.Mult,
+        ast.Div,
+        ast.FloorDiv,
+        ast.Mod,
+        ast.Pow,
+        ast.LShift,
+        ast.RShift,
+        ast.BitOr,
+        ast.BitXor,
+        ast.BitAnd,
+        ast.Invert,
+        ast.Not,
+        ast.UAdd,
+        ast.USub,
+        ast.Eq,
+        ast.NotEq,
+        ast.Lt,
+        ast.LtE,
+        ast.Gt,
+        ast.GtE,
+        ast.Is,
+        ast.IsNot,
+        ast.In,
+        ast.NotIn,
     }
 )
 _ALLOWED = _STATEMENTS | _EXPRESSIONS | _LEAVES | {ast.Module}
 # Allowed nodes with no check of their own (only their children are visited).
 _PLAIN = _ALLOWED - {
-    ast.Name, ast.Attribute, ast.Constant, ast.keyword, ast.Starred, ast.Return, ast.Break,
-    ast.Continue, ast.FunctionDef, ast.Lambda, ast.ExceptHandler, ast.List, ast.Tuple,
-    ast.Set, ast.Call, ast.For, ast.While, ast.comprehension,
+    ast.Name,
+    ast.Attribute,
+    ast.Constant,
+    ast.keyword,
+    ast.Starred,
+    ast.Return,
+    ast.Break,
+    ast.Continue,
+    ast.FunctionDef,
+    ast.Lambda,
+    ast.ExceptHandler,
+    ast.List,
+    ast.Tuple,
+    ast.Set,
+    ast.Call,
+    ast.For,
+    ast.While,
+    ast.comprehension,
 }
 
 _FORBIDDEN_MESSAGES: dict[type[ast.AST], str] = {
@@ -335,7 +414,9 @@ class _Checker:
             if attr.startswith("_"):
                 self.forbid(node, f"attributes starting with '_' are not allowed ('.{attr}')")
             if type(node.ctx) is not ast.Load:  # type: ignore[attr-defined]
-                self.forbid(node, "assigning or deleting attributes is not allowed; call methods instead")
+                self.forbid(
+                    node, "assigning or deleting attributes is not allowed; call methods instead"
+                )
             self.visit(node.value, flags, depth)  # type: ignore[attr-defined]
         elif t is ast.Call or t is ast.List or t is ast.Tuple or t is ast.Set:
             elts = node.args if t is ast.Call else node.elts  # type: ignore[attr-defined]
@@ -348,7 +429,10 @@ class _Checker:
             self.visit(node.value, flags, depth)  # type: ignore[attr-defined]
         elif t is ast.Starred:
             if id(node) not in self.starred_ok:
-                self.forbid(node, "'*' unpacking is only allowed in calls, list/tuple/set displays and assignments")
+                self.forbid(
+                    node,
+                    "'*' unpacking is only allowed in calls, list/tuple/set displays and assignments",
+                )
             self.visit(node.value, flags, depth)  # type: ignore[attr-defined]
         elif t is ast.Return:
             if not flags & 1:
@@ -359,7 +443,9 @@ class _Checker:
                 self.forbid(node, f"'{t.__name__.lower()}' outside a loop")
         elif t is ast.For or t is ast.While:
             loop: ast.For | ast.While = node  # type: ignore[assignment]
-            head: list[ast.AST] = [loop.target, loop.iter] if isinstance(loop, ast.For) else [loop.test]
+            head: list[ast.AST] = (
+                [loop.target, loop.iter] if isinstance(loop, ast.For) else [loop.test]
+            )
             self.visit_all(head, flags, depth)
             self.visit_all(loop.body, flags | 2, depth)  # type: ignore[arg-type]
             self.visit_all(loop.orelse, flags, depth)  # type: ignore[arg-type]
@@ -382,7 +468,11 @@ class _Checker:
         if type(node.ctx) is ast.Load:
             self.loads.append(node)
             if node.id.startswith("_") and node.id != "_":
-                hint = " (drop any `if __name__ == '__main__':` block; parse_event() is called for you)" if node.id == "__name__" else ""
+                hint = (
+                    " (drop any `if __name__ == '__main__':` block; parse_event() is called for you)"
+                    if node.id == "__name__"
+                    else ""
+                )
                 self.forbid(node, f"names starting with '_' are not allowed ('{node.id}'){hint}")
         else:
             self.check_binding(node, node.id)
@@ -392,12 +482,24 @@ class _Checker:
         t = type(v)
         if t is int:
             if v.bit_length() > self.budget.int_bits:
-                self.problem(node, BudgetExceededError, f"an integer literal has {v.bit_length()} bits (limit {self.budget.int_bits})")
+                self.problem(
+                    node,
+                    BudgetExceededError,
+                    f"an integer literal has {v.bit_length()} bits (limit {self.budget.int_bits})",
+                )
         elif t is str:
             if len(v) > self.budget.str_len:
-                self.problem(node, BudgetExceededError, f"a string literal has {len(v)} characters (limit {self.budget.str_len})")
+                self.problem(
+                    node,
+                    BudgetExceededError,
+                    f"a string literal has {len(v)} characters (limit {self.budget.str_len})",
+                )
         elif t not in (float, bool, type(None)):
-            kind = {bytes: "bytes literals", complex: "complex numbers", type(...): "'...' literals"}.get(t, t.__name__)
+            kind = {
+                bytes: "bytes literals",
+                complex: "complex numbers",
+                type(...): "'...' literals",
+            }.get(t, t.__name__)
             self.forbid(node, f"{kind} are not supported")
 
     def visit_function(self, node: ast.FunctionDef | ast.Lambda, depth: int) -> None:
@@ -407,7 +509,10 @@ class _Checker:
                 self.forbid(node, "decorators are not allowed")
         args = node.args
         if args.vararg or args.kwarg or args.kwonlyargs:
-            self.forbid(node, "only plain positional parameters (with optional defaults) are supported; no *args, **kwargs or keyword-only parameters")
+            self.forbid(
+                node,
+                "only plain positional parameters (with optional defaults) are supported; no *args, **kwargs or keyword-only parameters",
+            )
         params = [a.arg for a in (*args.posonlyargs, *args.args)]
         if len(set(params)) != len(params):
             self.forbid(node, "duplicate parameter names")
@@ -445,7 +550,9 @@ class _Checker:
             if name in PYTHON_ONLY_BUILTINS:
                 self.forbid(node, f"'{name}' is not available in event programs")
             else:
-                hint = did_you_mean(name, sorted(known), n=1) or " no such function or variable exists"
+                hint = (
+                    did_you_mean(name, sorted(known), n=1) or " no such function or variable exists"
+                )
                 self.problem(node, UnknownNameError, f"name '{name}' is not defined;{hint}")
 
 
@@ -457,7 +564,9 @@ _MISSING = object()
 class _Scope:
     __slots__ = ("local_names", "parent", "vars")
 
-    def __init__(self, vars: dict[str, object], parent: _Scope | None, local_names: frozenset[str] | None) -> None:
+    def __init__(
+        self, vars: dict[str, object], parent: _Scope | None, local_names: frozenset[str] | None
+    ) -> None:
         self.vars = vars
         self.parent = parent
         self.local_names = local_names
@@ -466,9 +575,28 @@ class _Scope:
 class SandboxFunction:
     """A function defined by the program (``def`` or ``lambda``); only the sandbox calls it."""
 
-    __slots__ = ("body", "closure", "defaults", "lambda_body", "line", "local_names", "name", "params")
+    __slots__ = (
+        "body",
+        "closure",
+        "defaults",
+        "lambda_body",
+        "line",
+        "local_names",
+        "name",
+        "params",
+    )
 
-    def __init__(self, name: str, params: list[str], defaults: list[object], body: list[ast.stmt], lambda_body: ast.expr | None, closure: _Scope, local_names: frozenset[str], line: int) -> None:
+    def __init__(
+        self,
+        name: str,
+        params: list[str],
+        defaults: list[object],
+        body: list[ast.stmt],
+        lambda_body: ast.expr | None,
+        closure: _Scope,
+        local_names: frozenset[str],
+        line: int,
+    ) -> None:
         self.name = name
         self.params = params
         self.defaults = defaults
@@ -544,7 +672,13 @@ def _callee(node: ast.expr) -> str:
 class _Interpreter:
     """Evaluates a checked tree. Every node costs one step; sizes are checked by the helpers."""
 
-    def __init__(self, namespace: Mapping[str, object], budget: Budget, clock: Callable[[], float], local_names: dict[int, frozenset[str]]) -> None:
+    def __init__(
+        self,
+        namespace: Mapping[str, object],
+        budget: Budget,
+        clock: Callable[[], float],
+        local_names: dict[int, frozenset[str]],
+    ) -> None:
         self.meter = Meter(budget, clock)
         self.namespace = namespace
         self.ns_cache: dict[str, object] = {}
@@ -591,19 +725,40 @@ class _Interpreter:
                     line=stmt.lineno,
                 ) from None
             except Exception as err:
-                raise ProgramRuntimeError(f"{type(err).__name__}: {err}", line=stmt.lineno) from None
+                raise ProgramRuntimeError(
+                    f"{type(err).__name__}: {err}", line=stmt.lineno
+                ) from None
             if signal is not None:
                 return signal
         return None
 
     def s_function(self, node: ast.FunctionDef, scope: _Scope) -> object:
-        scope.vars[node.name] = self.make_function(node.name, node.args, node.body, None, scope, node)
+        scope.vars[node.name] = self.make_function(
+            node.name, node.args, node.body, None, scope, node
+        )
         return None
 
-    def make_function(self, name: str, args: ast.arguments, body: list[ast.stmt], lambda_body: ast.expr | None, scope: _Scope, node: ast.AST) -> SandboxFunction:
+    def make_function(
+        self,
+        name: str,
+        args: ast.arguments,
+        body: list[ast.stmt],
+        lambda_body: ast.expr | None,
+        scope: _Scope,
+        node: ast.AST,
+    ) -> SandboxFunction:
         defaults = [self.eval(d, scope) for d in args.defaults]
         params = [a.arg for a in (*args.posonlyargs, *args.args)]
-        return SandboxFunction(name, params, defaults, body, lambda_body, scope, self.local_names[id(node)], getattr(node, "lineno", 0))
+        return SandboxFunction(
+            name,
+            params,
+            defaults,
+            body,
+            lambda_body,
+            scope,
+            self.local_names[id(node)],
+            getattr(node, "lineno", 0),
+        )
 
     def s_return(self, node: ast.Return, scope: _Scope) -> object:
         return _Return(None if node.value is None else self.eval(node.value, scope))
@@ -629,7 +784,9 @@ class _Interpreter:
             key = self.eval(target.slice, scope)
             current = self.get_item(container, key, line)
         else:
-            raise ForbiddenConstructError("this augmented assignment target is not supported", line=line)
+            raise ForbiddenConstructError(
+                "this augmented assignment target is not supported", line=line
+            )
         value = self.eval(node.value, scope)
         if type(current) is list and isinstance(node.op, ast.Add):
             items = materialize(value, self.meter, line)
@@ -694,7 +851,9 @@ class _Interpreter:
             detail = ""
             if node.msg is not None:
                 detail = ": " + to_text(self.eval(node.msg, scope), self.meter, node.lineno)[:200]
-            raise ProgramRuntimeError(f"assertion failed: `{ast.unparse(node.test)[:100]}`{detail}", line=node.lineno)
+            raise ProgramRuntimeError(
+                f"assertion failed: `{ast.unparse(node.test)[:100]}`{detail}", line=node.lineno
+            )
         return None
 
     def s_try(self, node: ast.Try, scope: _Scope) -> object:
@@ -727,18 +886,24 @@ class _Interpreter:
             line = node.lineno
             if isinstance(target, ast.Name):
                 if scope.vars.pop(target.id, _MISSING) is _MISSING:
-                    raise ProgramRuntimeError(f"cannot delete '{target.id}': it is not a local variable here", line=line)
+                    raise ProgramRuntimeError(
+                        f"cannot delete '{target.id}': it is not a local variable here", line=line
+                    )
             elif isinstance(target, ast.Subscript):
                 container = self.eval(target.value, scope)
                 key = self.eval_index(target.slice, scope)
                 if type(container) is dict:
                     check_key(key, line)
                 elif type(container) is not list:
-                    raise ProgramRuntimeError(f"cannot delete items of a '{type_name(container)}'", line=line)
+                    raise ProgramRuntimeError(
+                        f"cannot delete items of a '{type_name(container)}'", line=line
+                    )
                 try:
                     del container[key]  # type: ignore[attr-defined]
                 except (KeyError, IndexError, TypeError) as err:
-                    raise ProgramRuntimeError(f"cannot delete item {_short(key)}: {type(err).__name__}", line=line) from None
+                    raise ProgramRuntimeError(
+                        f"cannot delete item {_short(key)}: {type(err).__name__}", line=line
+                    ) from None
             else:
                 raise ForbiddenConstructError("this 'del' target is not supported", line=line)
         return None
@@ -754,7 +919,9 @@ class _Interpreter:
             container = self.eval(target.value, scope)  # type: ignore[attr-defined]
             self.set_item(container, self.eval_index(target.slice, scope), value, target.lineno)  # type: ignore[attr-defined]
         else:
-            raise ForbiddenConstructError("this assignment target is not supported", line=target.lineno)
+            raise ForbiddenConstructError(
+                "this assignment target is not supported", line=target.lineno
+            )
 
     def unpack(self, elts: list[ast.expr], value: object, scope: _Scope, line: int) -> None:
         items = materialize(value, self.meter, line)
@@ -763,18 +930,22 @@ class _Interpreter:
             raise ProgramRuntimeError("only one '*' target is allowed in an assignment", line=line)
         if not stars:
             if len(items) != len(elts):
-                raise ProgramRuntimeError(f"cannot unpack {len(items)} values into {len(elts)} names", line=line)
+                raise ProgramRuntimeError(
+                    f"cannot unpack {len(items)} values into {len(elts)} names", line=line
+                )
             for e, item in zip(elts, items, strict=True):
                 self.assign(e, item, scope)
             return
         star = stars[0]
         after = len(elts) - star - 1
         if len(items) < star + after:
-            raise ProgramRuntimeError(f"cannot unpack {len(items)} values into {len(elts)} names", line=line)
+            raise ProgramRuntimeError(
+                f"cannot unpack {len(items)} values into {len(elts)} names", line=line
+            )
         for e, item in zip(elts[:star], items[:star], strict=True):
             self.assign(e, item, scope)
-        self.assign(elts[star].value, items[star:len(items) - after], scope)  # type: ignore[attr-defined]
-        for e, item in zip(elts[star + 1:], items[len(items) - after:], strict=True):
+        self.assign(elts[star].value, items[star : len(items) - after], scope)  # type: ignore[attr-defined]
+        for e, item in zip(elts[star + 1 :], items[len(items) - after :], strict=True):
             self.assign(e, item, scope)
 
     def set_item(self, container: object, key: object, value: object, line: Line) -> None:
@@ -787,14 +958,20 @@ class _Interpreter:
                 try:
                     lst[key] = items
                 except ValueError as err:
-                    raise ProgramRuntimeError(f"slice assignment failed: {err}", line=line) from None
+                    raise ProgramRuntimeError(
+                        f"slice assignment failed: {err}", line=line
+                    ) from None
                 return
             if type(key) not in (int, bool):
-                raise ProgramRuntimeError(f"list indices must be integers, not '{type_name(key)}'", line=line)
+                raise ProgramRuntimeError(
+                    f"list indices must be integers, not '{type_name(key)}'", line=line
+                )
             try:
                 lst[key] = value  # type: ignore[index]
             except IndexError:
-                raise ProgramRuntimeError(f"list index {key} out of range (length {len(lst)})", line=line) from None
+                raise ProgramRuntimeError(
+                    f"list index {key} out of range (length {len(lst)})", line=line
+                ) from None
         elif t is dict:
             d: dict[object, object] = container  # type: ignore[assignment]
             check_key(key, line)
@@ -802,7 +979,9 @@ class _Interpreter:
                 self.meter.check_len(len(d) + 1, line, added=1)
             d[key] = value
         else:
-            raise ProgramRuntimeError(f"cannot assign items of a '{t.__name__}' (only lists and dicts)", line=line)
+            raise ProgramRuntimeError(
+                f"cannot assign items of a '{t.__name__}' (only lists and dicts)", line=line
+            )
 
     # -- expressions
     def eval(self, node: ast.expr, scope: _Scope) -> object:
@@ -823,7 +1002,9 @@ class _Interpreter:
             if value is not _MISSING:
                 return value
             if s.local_names is not None and name in s.local_names:
-                raise ProgramRuntimeError(f"variable '{name}' is used before it is assigned", line=node.lineno)
+                raise ProgramRuntimeError(
+                    f"variable '{name}' is used before it is assigned", line=node.lineno
+                )
             s = s.parent
         return self.global_name(name, node.lineno)
 
@@ -839,10 +1020,19 @@ class _Interpreter:
         if builtin is not None:
             return builtin
         known = [k for k in self.namespace if not k.startswith("_")] + list(self.builtins)
-        raise UnknownNameError(f"name '{name}' is not defined;{did_you_mean(name, known, n=1) or ' no such function or variable exists'}", line=line)
+        raise UnknownNameError(
+            f"name '{name}' is not defined;{did_you_mean(name, known, n=1) or ' no such function or variable exists'}",
+            line=line,
+        )
 
     def e_binop(self, node: ast.BinOp, scope: _Scope) -> object:
-        return binary(node.op, self.eval(node.left, scope), self.eval(node.right, scope), self.meter, node.lineno)
+        return binary(
+            node.op,
+            self.eval(node.left, scope),
+            self.eval(node.right, scope),
+            self.meter,
+            node.lineno,
+        )
 
     def e_unaryop(self, node: ast.UnaryOp, scope: _Scope) -> object:
         return unary(node.op, self.eval(node.operand, scope), self.meter, node.lineno)
@@ -887,11 +1077,15 @@ class _Interpreter:
                 raise ProgramRuntimeError(f"'**' needs a dict, not '{type_name(value)}'", line=line)
             for k, v in value.items():  # type: ignore[attr-defined]
                 if type(k) is not str or k.startswith("_"):
-                    raise ProgramRuntimeError("'**' keys must be names not starting with '_'", line=line)
+                    raise ProgramRuntimeError(
+                        "'**' keys must be names not starting with '_'", line=line
+                    )
                 kwargs[k] = v
         return self.call_value(fn, args, kwargs, line, _callee(node.func))
 
-    def call_value(self, fn: object, args: list[object], kwargs: dict[str, object], line: Line, label: str = "") -> object:
+    def call_value(
+        self, fn: object, args: list[object], kwargs: dict[str, object], line: Line, label: str = ""
+    ) -> object:
         t = type(fn)
         if t is SandboxFunction:
             return self.call_function(fn, args, kwargs, line)  # type: ignore[arg-type]
@@ -904,12 +1098,26 @@ class _Interpreter:
             except RecursionError:
                 raise
             except _METHOD_ERRORS as err:
-                raise ProgramRuntimeError(f"{type(method.obj).__name__}.{method.name}() failed: {type(err).__name__}: {err}", line=line) from None
+                raise ProgramRuntimeError(
+                    f"{type(method.obj).__name__}.{method.name}() failed: {type(err).__name__}: {err}",
+                    line=line,
+                ) from None
         if t in OPERAND_TYPES or t is range or not callable(fn):
-            raise ProgramRuntimeError(f"'{label or type_name(fn)}' is a '{type_name(fn)}', not a function", line=line)
-        return self.call_external(fn, args, kwargs, line, label or getattr(fn, "__name__", type_name(fn)))
+            raise ProgramRuntimeError(
+                f"'{label or type_name(fn)}' is a '{type_name(fn)}', not a function", line=line
+            )
+        return self.call_external(
+            fn, args, kwargs, line, label or getattr(fn, "__name__", type_name(fn))
+        )
 
-    def call_external(self, fn: Callable[..., object], args: list[object], kwargs: dict[str, object], line: Line, label: str) -> object:
+    def call_external(
+        self,
+        fn: Callable[..., object],
+        args: list[object],
+        kwargs: dict[str, object],
+        line: Line,
+        label: str,
+    ) -> object:
         try:
             result = fn(*args, **kwargs)
         except EventProgramError as err:
@@ -920,25 +1128,33 @@ class _Interpreter:
         except (Exception, SystemExit, KeyboardInterrupt) as err:
             message = f"{label}() failed: {type(err).__name__}: {err}"
             if isinstance(err, TypeError):
-                try:
+                with contextlib.suppress(TypeError, ValueError):
                     message += f" (expected {label}{inspect.signature(fn)})"
-                except (TypeError, ValueError):
-                    pass
             raise ProgramRuntimeError(message, line=line) from None
         self.meter.check_time(line)
         return detach(result)
 
-    def call_function(self, fn: SandboxFunction, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+    def call_function(
+        self, fn: SandboxFunction, args: list[object], kwargs: dict[str, object], line: Line
+    ) -> object:
         meter = self.meter
         if meter.depth >= meter.budget.recursion_depth:
-            raise BudgetExceededError(f"calls nest more than {meter.budget.recursion_depth} deep (runaway recursion in {fn.name}()?)", line=line)
+            raise BudgetExceededError(
+                f"calls nest more than {meter.budget.recursion_depth} deep (runaway recursion in {fn.name}()?)",
+                line=line,
+            )
         params = fn.params
         if len(args) > len(params):
-            raise ProgramRuntimeError(f"{fn.name}() takes {len(params)} arguments but {len(args)} were given", line=line)
+            raise ProgramRuntimeError(
+                f"{fn.name}() takes {len(params)} arguments but {len(args)} were given", line=line
+            )
         bound = dict(zip(params, args, strict=False))
         for key, value in kwargs.items():
             if key not in params:
-                raise ProgramRuntimeError(f"{fn.name}() got an unexpected keyword argument '{key}';{did_you_mean(key, params) or ' parameters: ' + ', '.join(params)}", line=line)
+                raise ProgramRuntimeError(
+                    f"{fn.name}() got an unexpected keyword argument '{key}';{did_you_mean(key, params) or ' parameters: ' + ', '.join(params)}",
+                    line=line,
+                )
             if key in bound:
                 raise ProgramRuntimeError(f"{fn.name}() got multiple values for '{key}'", line=line)
             bound[key] = value
@@ -947,7 +1163,9 @@ class _Interpreter:
             for i, p in enumerate(params):
                 if p not in bound:
                     if i < first_default:
-                        raise ProgramRuntimeError(f"{fn.name}() is missing the argument '{p}'", line=line)
+                        raise ProgramRuntimeError(
+                            f"{fn.name}() is missing the argument '{p}'", line=line
+                        )
                     bound[p] = fn.defaults[i - first_default]
         scope = _Scope(bound, fn.closure, fn.local_names)
         meter.depth += 1
@@ -976,7 +1194,9 @@ class _Interpreter:
     def get_attribute(self, obj: object, name: str, line: Line) -> object:
         t = type(obj)
         if name.startswith("_"):
-            raise ForbiddenConstructError(f"attributes starting with '_' are not allowed ('.{name}')", line=line)
+            raise ForbiddenConstructError(
+                f"attributes starting with '_' are not allowed ('.{name}')", line=line
+            )
         methods = METHODS.get(t)
         if methods is not None:
             impl = methods.get(name)
@@ -993,12 +1213,22 @@ class _Interpreter:
                     _add_line(err, line)
                     raise
                 except (AttributeError, TypeError, ValueError) as err:
-                    raise ProgramRuntimeError(f"reading '.{name}' failed: {err}", line=line) from None
+                    raise ProgramRuntimeError(
+                        f"reading '.{name}' failed: {err}", line=line
+                    ) from None
         if hasattr(t, name):
-            raise ForbiddenConstructError(f"'{t.__name__}.{name}' is not available in event programs" + (" (use an f-string)" if name in ("format", "format_map") else ""), line=line)
+            raise ForbiddenConstructError(
+                f"'{t.__name__}.{name}' is not available in event programs"
+                + (" (use an f-string)" if name in ("format", "format_map") else ""),
+                line=line,
+            )
         public = sorted(k for k in allowed if not k.startswith("_"))
-        hint = did_you_mean(name, public, n=1) or (f" available: {', '.join(public[:12])}" if public else " it has no usable attributes")
-        raise ProgramRuntimeError(f"'{t.__name__}' object has no attribute '{name}';{hint}", line=line)
+        hint = did_you_mean(name, public, n=1) or (
+            f" available: {', '.join(public[:12])}" if public else " it has no usable attributes"
+        )
+        raise ProgramRuntimeError(
+            f"'{t.__name__}' object has no attribute '{name}';{hint}", line=line
+        )
 
     def eval_index(self, node: ast.expr, scope: _Scope) -> object:
         if not isinstance(node, ast.Slice):
@@ -1007,7 +1237,10 @@ class _Interpreter:
         for part in (node.lower, node.upper, node.step):
             value = None if part is None else self.eval(part, scope)
             if value is not None and type(value) not in (int, bool):
-                raise ProgramRuntimeError(f"slice bounds must be integers or None, not '{type_name(value)}'", line=node.lineno)
+                raise ProgramRuntimeError(
+                    f"slice bounds must be integers or None, not '{type_name(value)}'",
+                    line=node.lineno,
+                )
             parts.append(value)
         return slice(*parts)
 
@@ -1024,18 +1257,25 @@ class _Interpreter:
             except KeyError:
                 keys = [k for k in container if type(k) is str]  # type: ignore[attr-defined]
                 hint = did_you_mean(key, keys) if type(key) is str else ""
-                raise ProgramRuntimeError(f"key {_short(key)} is not in the dict;{hint or ' use d.get(key) to allow missing keys'}", line=line) from None
+                raise ProgramRuntimeError(
+                    f"key {_short(key)} is not in the dict;{hint or ' use d.get(key) to allow missing keys'}",
+                    line=line,
+                ) from None
         if t in (list, tuple, str, range):
             if type(key) is slice:
                 result = container[key]  # type: ignore[index]
                 self.meter.allocate(len(result), line)
                 return result
             if type(key) not in (int, bool):
-                raise ProgramRuntimeError(f"{t.__name__} indices must be integers, not '{type_name(key)}'", line=line)
+                raise ProgramRuntimeError(
+                    f"{t.__name__} indices must be integers, not '{type_name(key)}'", line=line
+                )
             try:
                 return container[key]  # type: ignore[index]
             except IndexError:
-                raise ProgramRuntimeError(f"{t.__name__} index {key} out of range (length {len(container)})", line=line) from None  # type: ignore[arg-type]
+                raise ProgramRuntimeError(
+                    f"{t.__name__} index {key} out of range (length {len(container)})", line=line
+                ) from None  # type: ignore[arg-type]
         declared = getattr(t, "sandbox_operators", None) if t not in _INTERNAL else None
         if isinstance(declared, frozenset | set) and "[]" in declared:
             try:
@@ -1074,7 +1314,9 @@ class _Interpreter:
             if k is None:
                 other = self.eval(v, scope)
                 if type(other) is not dict:
-                    raise ProgramRuntimeError(f"'**' needs a dict, not '{type_name(other)}'", line=line)
+                    raise ProgramRuntimeError(
+                        f"'**' needs a dict, not '{type_name(other)}'", line=line
+                    )
                 self.meter.check_len(len(out) + len(other), line)  # type: ignore[arg-type]
                 out.update(other)  # type: ignore[call-overload]
                 continue
@@ -1084,11 +1326,23 @@ class _Interpreter:
         self.meter.check_len(len(out), line)
         return out
 
-    def comprehension(self, node: ast.ListComp | ast.SetComp | ast.DictComp | ast.GeneratorExp, scope: _Scope, emit: Callable[[_Scope], None]) -> None:
+    def comprehension(
+        self,
+        node: ast.ListComp | ast.SetComp | ast.DictComp | ast.GeneratorExp,
+        scope: _Scope,
+        emit: Callable[[_Scope], None],
+    ) -> None:
         inner = _Scope({}, scope, None)
         self.generate(node.generators, 0, inner, emit, node.lineno)
 
-    def generate(self, gens: list[ast.comprehension], index: int, scope: _Scope, emit: Callable[[_Scope], None], line: int) -> None:
+    def generate(
+        self,
+        gens: list[ast.comprehension],
+        index: int,
+        scope: _Scope,
+        emit: Callable[[_Scope], None],
+        line: int,
+    ) -> None:
         gen = gens[index]
         meter = self.meter
         for item in iter_source(self.eval(gen.iter, scope), line):
@@ -1175,7 +1429,9 @@ def _is_entry_call(stmt: ast.stmt, entry: str) -> bool:
     )
 
 
-def _matching_handler(handlers: list[ast.ExceptHandler], err: ToolError) -> ast.ExceptHandler | None:
+def _matching_handler(
+    handlers: list[ast.ExceptHandler], err: ToolError
+) -> ast.ExceptHandler | None:
     for handler in handlers:
         if handler.type is None:
             return handler

@@ -150,7 +150,9 @@ class Meter:
         (e.g. ``"sum()"``) for the message.
         """
         if n > self.budget.container_len:
-            subject = f"{what} would go through" if what else "a list, tuple, dict or set would have"
+            subject = (
+                f"{what} would go through" if what else "a list, tuple, dict or set would have"
+            )
             raise BudgetExceededError(
                 f"{subject} {n} items (limit {self.budget.container_len})", line=line
             )

@@ -229,7 +229,9 @@ def binary(op: ast.operator, a: object, b: object, meter: Meter, line: Line) -> 
     """``a <op> b`` with sizes checked first; Python errors become ``ProgramRuntimeError``."""
     entry = _BINARY.get(type(op))
     if entry is None:
-        raise ForbiddenConstructError(f"the operator {type(op).__name__} is not supported", line=line)
+        raise ForbiddenConstructError(
+            f"the operator {type(op).__name__} is not supported", line=line
+        )
     symbol, fn = entry
     ta, tb = type(a), type(b)
     if not (_operand_ok(a, symbol) and _operand_ok(b, symbol)):
@@ -260,7 +262,11 @@ def binary(op: ast.operator, a: object, b: object, meter: Meter, line: Line) -> 
             raise ForbiddenConstructError(
                 "'%' string formatting is not allowed; use an f-string", line=line
             )
-    elif symbol in ("|", "&", "^", "-") and ta in (set, frozenset, dict) and tb in (set, frozenset, dict):
+    elif (
+        symbol in ("|", "&", "^", "-")
+        and ta in (set, frozenset, dict)
+        and tb in (set, frozenset, dict)
+    ):
         meter.check_len(len(a) + len(b), line)  # type: ignore[arg-type]
     try:
         result = fn(a, b)
@@ -379,9 +385,7 @@ def _arity(
 
 def _number(name: str, value: object, line: Line) -> int | float:
     if type(value) not in NUMBER_TYPES:
-        raise ProgramRuntimeError(
-            f"{name}() needs a number, not '{type_name(value)}'", line=line
-        )
+        raise ProgramRuntimeError(f"{name}() needs a number, not '{type_name(value)}'", line=line)
     return value  # type: ignore[return-value]
 
 
@@ -419,7 +423,9 @@ def _extreme(which: str) -> BuiltinImpl:
 
     def impl(host: Host, args: list[object], kwargs: dict[str, object], line: Line) -> object:
         _arity(which, args, kwargs, line, 1, host.meter.budget.container_len, ("key", "default"))
-        items = materialize(args[0], host.meter, line, f"{which}()") if len(args) == 1 else list(args)
+        items = (
+            materialize(args[0], host.meter, line, f"{which}()") if len(args) == 1 else list(args)
+        )
         if not items:
             if "default" in kwargs:
                 return kwargs["default"]
@@ -428,7 +434,9 @@ def _extreme(which: str) -> BuiltinImpl:
         try:
             best = pick(range(len(items)), key=keys.__getitem__)
         except TypeError as err:
-            raise ProgramRuntimeError(f"{which}() cannot compare the items: {err}", line=line) from None
+            raise ProgramRuntimeError(
+                f"{which}() cannot compare the items: {err}", line=line
+            ) from None
         return items[best]
 
     return impl
@@ -470,7 +478,9 @@ def _b_sorted(host: Host, args: list[object], kwargs: dict[str, object], line: L
     return sort_items(host, items, kwargs.get("key"), kwargs.get("reverse", False), line)
 
 
-def sort_items(host: Host, items: list[object], key: object, reverse: object, line: Line) -> list[object]:
+def sort_items(
+    host: Host, items: list[object], key: object, reverse: object, line: Line
+) -> list[object]:
     keys = _keys(host, items, key, line)
     try:
         order = sorted(range(len(items)), key=keys.__getitem__, reverse=bool(reverse))
@@ -524,7 +534,10 @@ def _b_dict(host: Host, args: list[object], kwargs: dict[str, object], line: Lin
     out: dict[object, object] = {}
     if args:
         source = args[0]
-        pairs = list(source.items()) if type(source) is dict else materialize(source, host.meter, line)  # type: ignore[attr-defined]
+        if type(source) is dict:
+            pairs: list[object] = list(source.items())  # type: ignore[attr-defined]
+        else:
+            pairs = materialize(source, host.meter, line)
         host.meter.check_len(len(pairs) + len(kwargs), line)
         for pair in pairs:
             if type(pair) not in (tuple, list) or len(pair) != 2:  # type: ignore[arg-type]
@@ -550,7 +563,9 @@ def _b_int(host: Host, args: list[object], kwargs: dict[str, object], line: Line
         if len(value) > host.meter.budget.int_bits // 3 + 10:  # type: ignore[arg-type]
             raise BudgetExceededError("int() of a very long string", line=line)
     elif t not in NUMBER_TYPES:
-        raise ProgramRuntimeError(f"int() needs a number or a string, not '{t.__name__}'", line=line)
+        raise ProgramRuntimeError(
+            f"int() needs a number or a string, not '{t.__name__}'", line=line
+        )
     try:
         result = int(value)  # type: ignore[call-overload]
     except (ValueError, OverflowError) as err:
@@ -568,7 +583,9 @@ def _b_float(host: Host, args: list[object], kwargs: dict[str, object], line: Li
         if len(value) > 400:  # type: ignore[arg-type]
             raise ProgramRuntimeError("float() of a very long string", line=line)
     elif t not in NUMBER_TYPES:
-        raise ProgramRuntimeError(f"float() needs a number or a string, not '{t.__name__}'", line=line)
+        raise ProgramRuntimeError(
+            f"float() needs a number or a string, not '{t.__name__}'", line=line
+        )
     try:
         return float(value)  # type: ignore[arg-type]
     except (ValueError, OverflowError) as err:
@@ -633,17 +650,22 @@ BUILTINS: dict[str, BuiltinImpl] = {
     "print": _b_print,
 }
 
+
 # Python built-ins a program may reach for; named in the "not available" message.
+def _words(text: str) -> list[str]:
+    return text.split()
+
+
 PYTHON_ONLY_BUILTINS = frozenset(
-    {
-        "getattr", "setattr", "delattr", "hasattr", "type", "vars", "dir", "globals", "locals",
-        "open", "eval", "exec", "compile", "__import__", "format", "isinstance", "issubclass",
-        "id", "hash", "input", "exit", "quit", "help", "object", "super", "classmethod",
-        "staticmethod", "property", "iter", "next", "map", "filter", "chr", "ord", "divmod",
-        "pow", "repr", "ascii", "callable", "memoryview", "bytes", "bytearray", "breakpoint",
-        "frozenset", "slice", "complex", "bin", "hex", "oct", "aiter", "anext", "math",
-        "random", "os", "sys", "Exception", "BaseException", "SystemExit",
-    }
+    _words(
+        """
+    getattr setattr delattr hasattr type vars dir globals locals open eval exec compile
+    __import__ format isinstance issubclass id hash input exit quit help object super
+    classmethod staticmethod property iter next map filter chr ord divmod pow repr ascii
+    callable memoryview bytes bytearray breakpoint frozenset slice complex bin hex oct aiter
+    anext math random os sys Exception BaseException SystemExit
+    """
+    )
 )
 
 
@@ -655,7 +677,9 @@ MethodImpl = Callable[[Host, object, list[object], dict[str, object], Line], obj
 def _plain(name: str, key_arg: bool = False) -> MethodImpl:
     """A method that cannot grow anything much: call it, then bound the result."""
 
-    def impl(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+    def impl(
+        host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+    ) -> object:
         if key_arg and args:
             check_key(args[0], line)
         result = getattr(obj, name)(*args, **kwargs)
@@ -672,7 +696,9 @@ def _plain(name: str, key_arg: bool = False) -> MethodImpl:
     return impl
 
 
-def _str_join(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+def _str_join(
+    host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+) -> object:
     _arity("str.join", args, kwargs, line, 1, 1)
     parts = materialize(args[0], host.meter, line, "join()")
     for p in parts:
@@ -685,13 +711,17 @@ def _str_join(host: Host, obj: object, args: list[object], kwargs: dict[str, obj
     return sep.join(parts)  # type: ignore[arg-type]
 
 
-def _str_replace(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+def _str_replace(
+    host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+) -> object:
     _arity("str.replace", args, kwargs, line, 2, 3)
     s: str = obj  # type: ignore[assignment]
     old, new = args[0], args[1]
     count = args[2] if len(args) > 2 else -1
     if type(old) is not str or type(new) is not str or type(count) not in INT_TYPES:
-        raise ProgramRuntimeError("str.replace() needs (old: str, new: str[, count: int])", line=line)
+        raise ProgramRuntimeError(
+            "str.replace() needs (old: str, new: str[, count: int])", line=line
+        )
     hits = len(s) + 1 if old == "" else s.count(old)
     if count >= 0:  # type: ignore[operator]
         hits = min(hits, count)  # type: ignore[type-var,assignment]
@@ -699,14 +729,18 @@ def _str_replace(host: Host, obj: object, args: list[object], kwargs: dict[str, 
     return s.replace(old, new, count)  # type: ignore[arg-type]
 
 
-def _list_append(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+def _list_append(
+    host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+) -> object:
     _arity("list.append", args, kwargs, line, 1, 1)
     host.meter.check_len(len(obj) + 1, line, added=1)  # type: ignore[arg-type]
     obj.append(args[0])  # type: ignore[attr-defined]
     return None
 
 
-def _list_insert(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+def _list_insert(
+    host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+) -> object:
     _arity("list.insert", args, kwargs, line, 2, 2)
     if type(args[0]) not in INT_TYPES:
         raise ProgramRuntimeError("list.insert() needs an integer index", line=line)
@@ -715,7 +749,9 @@ def _list_insert(host: Host, obj: object, args: list[object], kwargs: dict[str, 
     return None
 
 
-def _list_extend(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+def _list_extend(
+    host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+) -> object:
     _arity("list.extend", args, kwargs, line, 1, 1)
     items = materialize(args[0], host.meter, line)
     host.meter.check_len(len(obj) + len(items), line, added=len(items))  # type: ignore[arg-type]
@@ -723,14 +759,18 @@ def _list_extend(host: Host, obj: object, args: list[object], kwargs: dict[str, 
     return None
 
 
-def _list_sort(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+def _list_sort(
+    host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+) -> object:
     _arity("list.sort", args, kwargs, line, 0, 0, ("key", "reverse"))
     items: list[object] = obj  # type: ignore[assignment]
     items[:] = sort_items(host, list(items), kwargs.get("key"), kwargs.get("reverse", False), line)
     return None
 
 
-def _dict_update(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+def _dict_update(
+    host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+) -> object:
     _arity("dict.update", args, kwargs, line, 0, 1, tuple(kwargs))
     other = _b_dict(host, args, kwargs, line)
     d: dict[object, object] = obj  # type: ignore[assignment]
@@ -739,7 +779,9 @@ def _dict_update(host: Host, obj: object, args: list[object], kwargs: dict[str, 
     return None
 
 
-def _dict_setdefault(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+def _dict_setdefault(
+    host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+) -> object:
     _arity("dict.setdefault", args, kwargs, line, 1, 2)
     check_key(args[0], line)
     d: dict[object, object] = obj  # type: ignore[assignment]
@@ -747,7 +789,9 @@ def _dict_setdefault(host: Host, obj: object, args: list[object], kwargs: dict[s
     return d.setdefault(args[0], args[1] if len(args) > 1 else None)
 
 
-def _set_add(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+def _set_add(
+    host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+) -> object:
     _arity("set.add", args, kwargs, line, 1, 1)
     check_key(args[0], line)
     host.meter.check_len(len(obj) + 1, line, added=1)  # type: ignore[arg-type]
@@ -756,7 +800,9 @@ def _set_add(host: Host, obj: object, args: list[object], kwargs: dict[str, obje
 
 
 def _set_combine(name: str) -> MethodImpl:
-    def impl(host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line) -> object:
+    def impl(
+        host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+    ) -> object:
         _arity(f"set.{name}", args, kwargs, line, 0, 10)
         others = [materialize(a, host.meter, line) for a in args]
         host.meter.check_len(len(obj) + sum(map(len, others)), line)  # type: ignore[arg-type]
@@ -768,17 +814,24 @@ def _set_combine(name: str) -> MethodImpl:
     return impl
 
 
-_STR_PLAIN = (
-    "lower", "upper", "strip", "lstrip", "rstrip", "capitalize", "title", "casefold",
-    "swapcase", "startswith", "endswith", "find", "rfind", "index", "rindex", "count",
-    "isdigit", "isalpha", "isalnum", "isspace", "islower", "isupper", "isnumeric",
-    "isdecimal", "istitle", "removeprefix", "removesuffix", "partition", "rpartition",
-    "split", "rsplit", "splitlines",
+_STR_PLAIN = tuple(
+    _words(
+        """
+    lower upper strip lstrip rstrip capitalize title casefold swapcase startswith endswith
+    find rfind index rindex count isdigit isalpha isalnum isspace islower isupper isnumeric
+    isdecimal istitle removeprefix removesuffix partition rpartition split rsplit splitlines
+    """
+    )
 )
 _SET_READ = ("copy",)
 _SET_COMBINE = (
-    "union", "intersection", "difference", "symmetric_difference",
-    "issubset", "issuperset", "isdisjoint",
+    "union",
+    "intersection",
+    "difference",
+    "symmetric_difference",
+    "issubset",
+    "issuperset",
+    "isdisjoint",
 )
 
 METHODS: dict[type, dict[str, MethodImpl]] = {
