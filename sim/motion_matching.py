@@ -206,12 +206,13 @@ class MotionMatcher:
         changed = db.key != state.key
         completing = False
         if not changed:
-            completing = family_of(db.key) not in ("locomotion", "idle") and not bool(
+            completing = family_of(db.key) in ("in_place", "partner", "sitting") and not bool(
                 db.clip_loops[int(db.clip_of_frame[frame])])
         enter_from_start = changed and family_of(db.key) in ("in_place", "partner") and not bool(db.clip_loops.all())
         done = state.done and not changed
         since = state.since_search + n_adv
-        need = changed or query.force_search or since >= self.search_interval or (ended and not completing)
+        periodic = since >= self.search_interval and not completing  # completing actions play through
+        need = changed or query.force_search or periodic or (ended and not completing)
         if ended and completing:
             done = True
             need = changed or query.force_search

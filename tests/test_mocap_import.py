@@ -1,0 +1,151 @@
+"""Importers on the real clips in ../shared/mocap, the AMASS npz round trip, and the config."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import bvh as independent_bvh
+import numpy as np
+import pytest
+
+from sim.mocap_amass import import_amass
+from sim.mocap_bvh import MocapImportError, auto_joint_mapping, import_bvh, parse_bvh
+from sim.motion_config import MotionConfigError, build_databases_from_config, load_motion_config
+from sim.motion_matching import foot_sliding
+from sim.procedural_actions import action_clip
+from sim.skeleton import JOINT_INDEX, REST_OFFSETS, matrix_to_axis_angle
+
+MOCAP = Path(__file__).resolve().parents[1].parent / "shared" / "mocap"
+needs_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason="../shared/mocap not present")
+HEAD = JOINT_INDEX["head"]
+
+
+def _stats(clip):  # type: ignore[no-untyped-def]
+    pos = clip.joint_positions()
+    height = float(np.median(pos[:, HEAD, 2] - pos[:, [10, 11], 2].min(axis=1)))
+    speed = float(np.linalg.norm(np.diff(clip.root_xy, axis=0), axis=1).mean() * 30)
+    return pos, height, speed
+
+
+@needs_mocap
+@pytest.mark.parametrize(
+    ("rel", "start", "end", "fps", "min_speed", "max_speed"),
+    [
+        ("cmu/daz/05_01.bvh", 1, None, None, 0.6, 1.4),  # Daz skeleton, y up, walk
+        ("cmu/max/131_01.bvh", 0, 500, None, 0.0, 1.6),  # 3ds Max skeleton, start walk
+        ("fair_animated_drawings/wave_hello.bvh", 0, None, None, 0.0, 0.2),  # z up, wave
+        ("cmu/daz/60_02.bvh", 1, 241, 60.0, 0.0, 1.5),  # salsa: true rate is 60 fps
+    ],
+)
+def test_bvh_import_of_real_clips(rel: str, start: int, end: int | None, fps: float | None,
+                                  min_speed: float, max_speed: float) -> None:
+    path = MOCAP / rel
+    data = parse_bvh(path)
+    clip = import_bvh(path, "walk", start=start, end=end, fps=fps)
+    n_src = (len(data.frames) if end is None else end) - start
+    rate = fps or 1.0 / data.frame_time
+    assert clip.local_rotations.shape[1:] == (22, 3, 3) and clip.fps == 30
+    assert clip.num_frames == pytest.approx((n_src - 1) / rate * 30 + 1, abs=1.0)
+    pos, height, speed = _stats(clip)
+    assert np.isfinite(pos).all()
+    assert 1.3 < height < 1.8  # a standing adult's head height on our skeleton
+    assert 0.75 < np.median(clip.pelvis[:, 2]) < 1.0
+    assert min_speed <= speed <= max_speed
+    assert pos[:, [10, 11], 2].min() > -0.05  # feet do not sink under the floor
+
+
+@needs_mocap
+def test_wave_raises_the_right_hand_and_walk_slides_little() -> None:
+    wave = import_bvh(MOCAP / "fair_animated_drawings/wave_hello.bvh", "wave")
+    pos = wave.joint_positions()
+    # the actor holds the right arm out at shoulder height (as in the source) and drops the left
+    right, left = pos[:, JOINT_INDEX["right_wrist"], 2], pos[:, JOINT_INDEX["left_wrist"], 2]
+    assert (right > pos[:, JOINT_INDEX["right_shoulder"], 2] - 0.15).mean() > 0.6
+    assert (left < 0.9).mean() > 0.4 and right.mean() > left.mean() + 0.1
+    walk = import_bvh(MOCAP / "cmu/max/131_01.bvh", "walk")
+    assert foot_sliding(walk.joint_positions(), walk.contacts) < 0.3
+
+
+@needs_mocap
+def test_parser_agrees_with_an_independent_reader() -> None:
+    path = MOCAP / "cmu/max/131_02.bvh"
+    ours = parse_bvh(path)
+    theirs = independent_bvh.Bvh(path.read_text())
+    assert theirs.nframes == len(ours.frames)
+    assert theirs.frame_time == pytest.approx(ours.frame_time)
+    assert list(theirs.get_joints_names()) == list(ours.names)
+    j = ours.names.index("LeftKnee")
+    col = sum(len(c) for c in ours.channels[:j])
+    for frame in (0, 500):
+        assert [float(v) for v in theirs.frames[frame][col : col + 3]] == pytest.approx(list(ours.frames[frame, col : col + 3]))
+    mapping = auto_joint_mapping(ours.names)
+    assert mapping["left_shoulder"] == "LeftShoulder" and mapping["left_collar"] == "LeftCollar"
+
+
+def test_bad_bvh_files_give_typed_errors(tmp_path: Path) -> None:
+    for text in ("", "HIERARCHY\nROOT hips {\n", "not a bvh", "HIERARCHY\nROOT Hips\n{\nOFFSET 0 0 0\nCHANNELS 3 Xrotation Yrotation Zrotation\n}\nMOTION\nFrames: 5\nFrame Time: 0.1\n0 0 0\n"):
+        p = tmp_path / "bad.bvh"
+        p.write_text(text)
+        with pytest.raises(MocapImportError, match="bad.bvh"):
+            import_bvh(p, "walk")
+    with pytest.raises(MocapImportError, match="cannot read"):
+        parse_bvh(tmp_path / "missing.bvh")
+
+
+def _amass_arrays(clip):  # type: ignore[no-untyped-def]
+    aa = matrix_to_axis_angle(clip.local_rotations).reshape(clip.num_frames, 66)
+    poses = np.concatenate([aa, np.zeros((clip.num_frames, 99))], axis=1)
+    return {"poses": poses, "trans": clip.pelvis - REST_OFFSETS[0], "mocap_frame_rate": np.array(30.0),
+            "betas": np.zeros(16), "gender": np.array("neutral")}
+
+
+def test_amass_npz_round_trip(tmp_path: Path) -> None:
+    clip = action_clip("drink")
+    path = tmp_path / "drink.npz"
+    np.savez(path, **_amass_arrays(clip))
+    back = import_amass(path, "drink", snap_to_floor=False)
+    assert back.num_frames == clip.num_frames
+    assert np.allclose(back.local_rotations, clip.local_rotations, atol=1e-9)
+    assert np.allclose(back.pelvis, clip.pelvis, atol=1e-12)
+    assert np.allclose(back.joint_positions(), clip.joint_positions(), atol=1e-9)
+    # root_orient / pose_body layout at 60 fps resamples to 30 fps
+    a = _amass_arrays(clip)
+    split = {"root_orient": a["poses"][:, :3], "pose_body": a["poses"][:, 3:66], "trans": a["trans"],
+             "mocap_framerate": np.array(60.0)}
+    np.savez(tmp_path / "split.npz", **split)
+    half = import_amass(tmp_path / "split.npz", "drink", snap_to_floor=False)
+    assert half.num_frames == (clip.num_frames - 1) // 2 + 1
+    np.savez(tmp_path / "broken.npz", poses=a["poses"])
+    with pytest.raises(MocapImportError, match="trans"):
+        import_amass(tmp_path / "broken.npz", "drink")
+
+
+@needs_mocap
+def test_config_builds_databases_from_real_mocap(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))
+    cfg = tmp_path / "motion.toml"
+    cfg.write_text(f'root = "{MOCAP.as_posix()}"\n[[clips]]\nfile = "cmu/daz/07_03.bvh"\nlabel = "walk"\nstart = 1\n'
+                   '[[clips]]\nfile = "fair_animated_drawings/wave_hello.bvh"\nlabel = "wave"\n')
+    config = load_motion_config(cfg)
+    dbs = build_databases_from_config(config, ["walk", "wave", "chat"])
+    assert dbs["walk"].clip_names == ("07_03[1:416]",)
+    assert dbs["wave"].num_frames > 150
+    assert dbs["chat"].clip_names == ("chat_proc",)  # procedural fill-in
+    again = build_databases_from_config(config, ["walk"])  # cached import
+    assert np.allclose(again["walk"].pelvis, dbs["walk"].pelvis)
+
+
+def test_config_errors_name_file_and_field(tmp_path: Path) -> None:
+    cfg = tmp_path / "m.toml"
+    cfg.write_text('[[clips]]\nfile = "x.bvh"\nlabel = "walk"\nspeed = 3\n')
+    with pytest.raises(MotionConfigError, match=r"m\.toml \(clips\.0\.speed\)"):
+        load_motion_config(cfg)
+    cfg.write_text('[[clips]]\nfile = "x.bvh"\nlabel = "wlak"\n')
+    with pytest.raises(MotionConfigError, match="did you mean 'walk'"):
+        load_motion_config(cfg)
+    cfg.write_text("clips = [")
+    with pytest.raises(MotionConfigError, match="invalid TOML"):
+        load_motion_config(cfg)
+    cfg.write_text('[[clips]]\nfile = "nope.bvh"\nlabel = "walk"\n')
+    with pytest.raises(MotionConfigError, match="not found"):
+        build_databases_from_config(load_motion_config(cfg), ["walk"])

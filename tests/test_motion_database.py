@@ -1,0 +1,101 @@
+"""Motion databases: layouts, normalisation, cache, and exact KD-tree == brute-force search."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sim.motion_database import NearestFrameIndex, build_database, load_databases, squared_distances
+from sim.motion_features import FEATURE_LAYOUTS, layout_for_key, layout_size
+from sim.procedural_library import procedural_clips
+
+
+@pytest.fixture(scope="module")
+def walk_db():  # type: ignore[no-untyped-def]
+    return build_database("walk", procedural_clips("walk")[:6])
+
+
+def test_layouts_and_database_shapes(walk_db) -> None:  # type: ignore[no-untyped-def]
+    assert layout_size(FEATURE_LAYOUTS["locomotion"]) == 30
+    assert walk_db.raw_features.shape == (walk_db.num_frames, 30)
+    assert walk_db.local_rotations.shape == (walk_db.num_frames, 22, 3, 3)
+    feats = walk_db.features
+    assert np.all(np.isfinite(feats))
+    assert np.abs(feats.mean(axis=0)).max() < 1e-6
+    assert walk_db.clip_ranges[-1, 1] == walk_db.num_frames
+    assert layout_for_key("drink@seated") == "seated" and layout_for_key("sit_down") == "sitting"
+    # future trajectory of a straight 1.0 m/s walk: 1/3 m ahead after 10 frames
+    i = walk_db.clip_ranges[1, 0] + 5
+    assert walk_db.clip_names[1] == "walk_1.0"
+    assert walk_db.raw_features[i, 18] == pytest.approx(1.0 / 3.0, abs=0.02)
+
+
+def test_next_frame_loops_and_ends() -> None:
+    db = build_database("sit_down", procedural_clips("sit_down"))
+    start, end = db.clip_ranges[0]
+    assert db.next_frame(int(start)) == (int(start) + 1, False)
+    assert db.next_frame(int(end) - 1) == (int(end) - 1, True)
+    loop = build_database("chat", procedural_clips("chat"))
+    s, e = loop.clip_ranges[0]
+    assert loop.next_frame(int(e) - 1) == (int(s), False)
+
+
+def test_search_finds_the_frame_a_query_was_taken_from(walk_db) -> None:  # type: ignore[no-untyped-def]
+    for i in np.flatnonzero(walk_db.searchable)[::37]:
+        frame, dist = walk_db.search(walk_db.raw_features[i])
+        assert dist == pytest.approx(0.0, abs=1e-18)
+        assert np.array_equal(walk_db.raw_features[frame], walk_db.raw_features[i])
+
+
+def test_cached_databases_equal_fresh_ones(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path))
+    keys = ["handshake", "sit_idle"]
+    fresh = load_databases(keys, use_cache=False)
+    first = load_databases(keys)
+    again = load_databases(keys)
+    assert len(list((tmp_path / "motion").glob("*.npz"))) == 2
+    for k in keys:
+        assert np.allclose(fresh[k].local_rotations, again[k].local_rotations, atol=1e-6)
+        assert np.array_equal(first[k].raw_features, again[k].raw_features)
+        assert again[k].search(again[k].raw_features[3])[0] == fresh[k].search(fresh[k].raw_features[3])[0]
+
+
+rows_strategy = st.integers(1, 60).flatmap(
+    lambda n: st.tuples(
+        st.lists(st.lists(st.integers(-3, 3), min_size=4, max_size=4), min_size=n, max_size=n),
+        st.lists(st.integers(-4, 4), min_size=4, max_size=4),
+    )
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(rows_strategy, st.floats(0.01, 2.0))
+def test_kd_tree_equals_brute_force_with_ties(data: tuple[list[list[int]], list[int]], scale: float) -> None:
+    rows, query = data
+    feats = np.array(rows, dtype=float) * scale  # small integer grid: many exact ties
+    q = np.array(query, dtype=float) * scale / 2
+    index = NearestFrameIndex(feats, leafsize=2)
+    assert index.query(q) == index.brute_force(q)
+    many_i, many_d = index.query_many(q[None])
+    assert (int(many_i[0]), float(many_d[0])) == index.brute_force(q)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_kd_tree_equals_brute_force_on_random_subsets(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    feats = rng.normal(size=(300, 27))
+    feats[rng.integers(0, 300, 20)] = feats[rng.integers(0, 300, 20)]  # duplicated rows
+    candidates = np.sort(rng.choice(300, size=200, replace=False))
+    index = NearestFrameIndex(feats, candidates)
+    queries = np.concatenate([rng.normal(size=(5, 27)), feats[candidates[:3]]])
+    for q in queries:
+        got = index.query(q)
+        want = index.brute_force(q)
+        assert got == want
+        assert got[0] in set(candidates.tolist())
+        assert got[1] == pytest.approx(float(squared_distances(feats[candidates], q).min()))

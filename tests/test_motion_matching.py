@@ -1,0 +1,132 @@
+"""Motion matching: picks the obvious frame, inertialization keeps poses continuous, root on path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim.inertialization import decay_spring, rotation_exp, transition_offsets
+from sim.motion_database import build_database
+from sim.motion_matching import (
+    MatchState,
+    MotionMatcher,
+    MotionMatchingError,
+    MotionQuery,
+    foot_sliding,
+    future_from_path,
+)
+from sim.procedural_library import procedural_clips
+
+DT = 1.0 / 30.0
+
+
+@pytest.fixture(scope="module")
+def matcher() -> MotionMatcher:
+    keys = ["walk", "idle", "chat", "turn_on_tv", "sit_down"]
+    return MotionMatcher({k: build_database(k, procedural_clips(k)) for k in keys})
+
+
+def _walk(m: MotionMatcher, state: MatchState, x0: float, frames: int, v: float = 1.0):  # type: ignore[no-untyped-def]
+    joints, contacts, roots, x = [], [], [], x0
+    for _ in range(frames):
+        x += v * DT
+        fut, hd = future_from_path(np.array([[x, 0.0], [x + 5.0, 0.0]]), v * DT, 0.0)
+        q = MotionQuery("walk", root_xy=np.array([x, 0.0]), heading=0.0, future_xy=fut, future_heading=hd)
+        state, pose = m.step(state, q, DT)
+        joints.append(pose.joints())
+        contacts.append(pose.contacts)
+        roots.append(pose.root_xy)
+    return state, np.array(joints), np.array(contacts), np.array(roots), x
+
+
+def test_search_picks_the_frame_the_query_came_from(matcher: MotionMatcher) -> None:
+    db = matcher.databases["walk"]
+    for i in np.flatnonzero(db.searchable)[::53]:
+        assert np.array_equal(db.raw_features[db.search(db.raw_features[i])[0]], db.raw_features[i])
+
+
+def test_walking_stays_on_path_with_little_foot_sliding(matcher: MotionMatcher) -> None:
+    s = matcher.initial_state("idle", [0.0, 0.0], 0.0)
+    s, joints, contacts, roots, _ = _walk(matcher, s, 0.0, 150)
+    assert roots[:, 0] == pytest.approx(np.arange(1, 151) * DT)  # root exactly on the planned path
+    pelvis_x = joints[:, 0, 0]
+    assert np.abs(pelvis_x - roots[:, 0]).max() < 0.15
+    assert s.key == "walk" and s.searches >= 14
+    assert foot_sliding(joints[30:], contacts[30:]) < 0.25
+    assert np.isfinite(joints).all()
+
+
+def test_switches_are_continuous(matcher: MotionMatcher) -> None:
+    s = matcher.initial_state("idle", [0.0, 0.0], 0.0)
+    s, joints, _, _, x = _walk(matcher, s, 0.0, 60)
+    frames = [joints[-1]]
+    for _ in range(40):
+        q = MotionQuery("chat", root_xy=np.array([x, 0.0]), heading=0.0, target_xy=np.array([x + 1.1, 0.0]),
+                        target_facing=np.pi)
+        s, pose = matcher.step(s, q, DT)
+        frames.append(pose.joints())
+    jumps = np.linalg.norm(np.diff(np.array(frames), axis=0), axis=-1).max(axis=1)
+    assert s.key == "chat"
+    assert jumps.max() < 0.12  # metres per frame at any joint, including the switch frame
+
+    # Without blending the same switch pops.
+    raw = MotionMatcher(matcher.databases, blend_halflife=1e-6)
+    s2 = raw.initial_state("idle", [0.0, 0.0], 0.0)
+    s2, joints2, _, _, x2 = _walk(raw, s2, 0.0, 60)
+    q = MotionQuery("chat", root_xy=np.array([x2, 0.0]), heading=0.0, target_xy=np.array([x2 + 1.1, 0.0]))
+    _, pose2 = raw.step(s2, q, DT)
+    _, pose1 = matcher.step(matcher.step(matcher.initial_state("idle", [0, 0], 0.0), q, DT)[0], q, DT)
+    assert np.linalg.norm(pose2.joints() - joints2[-1], axis=-1).max() > 0.05
+
+
+def test_completing_action_finishes_and_sitting_uses_root_motion(matcher: MotionMatcher) -> None:
+    s = matcher.initial_state("idle", [2.0, 1.0], np.pi / 2)
+    q = MotionQuery("turn_on_tv", root_xy=np.array([2.0, 1.0]), heading=np.pi / 2, target_xy=np.array([2.0, 1.55]),
+                    target_facing=-np.pi / 2)
+    for _ in range(120):
+        s, pose = matcher.step(s, q, DT)
+    assert s.key == "turn_on_tv" and s.done
+    # sit down with the seat 0.33 m behind; root motion comes from the database
+    s = matcher.initial_state("idle", [0.0, 0.0], 0.0)
+    seat = MotionQuery("sit_down", target_xy=np.array([-0.33, 0.0]), target_facing=0.0, seat_height=0.46)
+    for _ in range(90):
+        s, pose = matcher.step(s, seat, DT)
+    assert pose.root_xy[0] == pytest.approx(-0.33, abs=0.08)
+    assert pose.pelvis[2] == pytest.approx(0.55, abs=0.05)
+
+
+def test_step_is_pure_and_errors_are_typed(matcher: MotionMatcher) -> None:
+    s = matcher.initial_state("idle", [0.0, 0.0], 0.0)
+    q = MotionQuery("idle", root_xy=np.zeros(2), heading=0.0)
+    a1, p1 = matcher.step(s, q, DT)
+    a2, p2 = matcher.step(s, q, DT)
+    assert np.array_equal(p1.local_rotations, p2.local_rotations) and a1.frame == a2.frame
+    assert s.joints_world is None  # the input state was not touched
+    states, poses = matcher.step_many([s, s], [q, q], DT)
+    assert np.array_equal(poses[0].local_rotations, p1.local_rotations)
+    with pytest.raises(MotionMatchingError):
+        matcher.step(s, MotionQuery("hug"), DT)
+
+
+def test_inertialization_math() -> None:
+    rng = np.random.default_rng(3)
+    src, dst = rotation_exp(rng.normal(size=(22, 3))), rotation_exp(rng.normal(size=(22, 3)))
+    z = np.zeros((22, 3))
+    off, _ = transition_offsets(z, z, src, z, dst, z)
+    assert np.allclose(rotation_exp(off) @ dst, src, atol=1e-9)
+    x, v = np.ones(3), np.zeros(3)
+    mags = []
+    for _ in range(60):
+        x, v = decay_spring(x, v, 0.1, DT)
+        mags.append(abs(x[0]))
+    assert mags[0] < 1.0 and mags[-1] < 1e-3 and np.all(np.diff(mags) <= 1e-12)
+
+
+def test_future_from_path_and_foot_sliding() -> None:
+    pts, hd = future_from_path(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]), 1.0 / 30, 0.0)
+    assert pts[0] == pytest.approx([1 / 3, 0.0]) and pts[2] == pytest.approx([1.0, 0.0])
+    assert hd[0] == pytest.approx(0.0)
+    j = np.zeros((3, 22, 3))
+    j[1, 10, 0] = 0.1
+    assert foot_sliding(j, np.ones((3, 2), bool)) == pytest.approx(0.1 * 30 * 2 / 4)
+    assert foot_sliding(j, np.zeros((3, 2), bool)) == 0.0
