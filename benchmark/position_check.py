@@ -193,3 +193,58 @@ def check_position(scene: Scene, expression: str, position: tuple[float, float] 
     ok, error = parser.parse()
     hit = collision(scene, xy, parser.seats)
     return CheckResult(ok and hit is None, ok, error, hit)
+
+
+def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dict[str, object]]:
+    """Run each PI case's program (``programs/testcase_<id>.py``) for ``seeds`` seeds; per case:
+    passes, mean milliseconds per plan for the whole run (sandbox + sampling) and for sampling
+    alone (``SpatialAPI.resolve``)."""
+    import json
+    import time
+    from pathlib import Path
+
+    from sim.scene_files import load_scene
+    from tools.character_states import world_view_from_reference_case
+    from tools.sandbox import execute
+    from tools.scene_graph import build_scene_graph
+    from tools.spatial_api import SpatialAPI
+
+    ref = Path(reference)
+    rows: list[dict[str, object]] = []
+    cache: dict[str, tuple[Scene, object]] = {}
+    for case in sorted((ref / "benchmark" / "test_cases" / "6_PI").glob("testcase_*.json")):
+        data = json.loads(case.read_text())
+        if data["scene_name"] not in cache:
+            scene = load_scene(ref / "configs" / "scenes" / data["scene_name"])
+            cache[data["scene_name"]] = (scene, build_scene_graph(scene))
+        scene, graph = cache[data["scene_name"]]
+        world = world_view_from_reference_case(data, scene)
+        source = (Path(programs) / f"testcase_{data['id']}.py").read_text()
+        (expected,) = data["expected_plans"]
+        passed, total_s, sample_s = 0, 0.0, 0.0
+        for seed in range(seeds):
+            t0 = time.perf_counter()
+            api = SpatialAPI(scene, graph, world, data["action_labels"])  # type: ignore[arg-type]
+            execute(source, api.namespace(), entry="parse_event")
+            t1 = time.perf_counter()
+            plans = api.resolve(seed)
+            t2 = time.perf_counter()
+            total_s += t2 - t0
+            sample_s += t2 - t1
+            plan = next(p for p in plans if p.character == expected["character"])
+            passed += check_position(scene, expected["sampled_position"], plan.position).passed
+        rows.append({"case": data["id"], "passed": passed, "seeds": seeds,
+                     "ms_per_plan": 1000 * total_s / seeds, "sampling_ms_per_plan": 1000 * sample_s / seeds})  # fmt: skip
+    return rows
+
+
+if __name__ == "__main__":  # python -m benchmark.position_check ../shared/reference/event-driven-storytelling tests/pi_programs
+    import sys
+
+    results = measure_pi_cases(sys.argv[1], sys.argv[2], int(sys.argv[3]) if len(sys.argv) > 3 else 20)
+    for row in results:
+        print(f"PI case {row['case']}: {row['passed']}/{row['seeds']} pass; {row['ms_per_plan']:.2f} ms per plan "
+              f"(sampling {row['sampling_ms_per_plan']:.2f} ms)")  # fmt: skip
+    n = len(results)
+    print(f"mean: {sum(float(r['ms_per_plan']) for r in results) / n:.2f} ms per plan, "  # type: ignore[arg-type]
+          f"sampling {sum(float(r['sampling_ms_per_plan']) for r in results) / n:.2f} ms")  # type: ignore[arg-type]
