@@ -160,7 +160,9 @@ class _Parser:
             raise PositionExpressionError(f"cannot read '{text}'")
         if m.group("b1"):
             relation = "between"
-            distance = between_distance(self._object(m.group("b1")), self._object(m.group("b2")), self.xy)
+            distance = between_distance(
+                self._object(m.group("b1")), self._object(m.group("b2")), self.xy
+            )
         else:
             relation, obj = m.group("rel"), self._object(m.group("a"))
             if relation in ("sit on", "lie on"):
@@ -173,7 +175,9 @@ class _Parser:
         return distance <= tolerance, max(0.0, distance - tolerance)
 
 
-def collision(scene: Scene, xy: np.ndarray, ignore: set[str] | frozenset[str] = frozenset()) -> str | None:
+def collision(
+    scene: Scene, xy: np.ndarray, ignore: set[str] | frozenset[str] = frozenset()
+) -> str | None:
     """The first floor-standing object whose footprint strictly contains ``xy``, else None."""
     for obj in scene.objects:
         if obj.name in ignore or abs(obj.z_min - scene.floor_z) > FLOOR_SUPPORT:
@@ -184,7 +188,9 @@ def collision(scene: Scene, xy: np.ndarray, ignore: set[str] | frozenset[str] = 
     return None
 
 
-def check_position(scene: Scene, expression: str, position: tuple[float, float] | list[float]) -> CheckResult:
+def check_position(
+    scene: Scene, expression: str, position: tuple[float, float] | list[float]
+) -> CheckResult:
     """Whether ``position`` (x, y in metres) satisfies ``expression`` without collision."""
     xy = np.asarray(position, dtype=float).reshape(2)
     if not np.all(np.isfinite(xy)):
@@ -238,13 +244,19 @@ def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dic
     return rows
 
 
-if __name__ == "__main__":  # python -m benchmark.position_check ../shared/reference/event-driven-storytelling tests/pi_programs
+if (
+    __name__ == "__main__"
+):  # python -m benchmark.position_check ../shared/reference/event-driven-storytelling tests/pi_programs
     import sys
 
-    results = measure_pi_cases(sys.argv[1], sys.argv[2], int(sys.argv[3]) if len(sys.argv) > 3 else 20)
+    results = measure_pi_cases(
+        sys.argv[1], sys.argv[2], int(sys.argv[3]) if len(sys.argv) > 3 else 20
+    )
     for row in results:
         print(f"PI case {row['case']}: {row['passed']}/{row['seeds']} pass; {row['ms_per_plan']:.2f} ms per plan "
               f"(sampling {row['sampling_ms_per_plan']:.2f} ms)")  # fmt: skip
     n = len(results)
-    print(f"mean: {sum(float(r['ms_per_plan']) for r in results) / n:.2f} ms per plan, "  # type: ignore[arg-type]
-          f"sampling {sum(float(r['sampling_ms_per_plan']) for r in results) / n:.2f} ms")  # type: ignore[arg-type]
+    print(
+        f"mean: {sum(float(r['ms_per_plan']) for r in results) / n:.2f} ms per plan, "  # type: ignore[arg-type]
+        f"sampling {sum(float(r['sampling_ms_per_plan']) for r in results) / n:.2f} ms"
+    )  # type: ignore[arg-type]

@@ -30,7 +30,9 @@ def _read_json(path: Path, what: str) -> Any:
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise _UsageError(f"{path}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
+        raise _UsageError(
+            f"{path}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        ) from None
 
 
 def load_states(path: Path, scene: Any) -> tuple[WorldView, list[str] | None]:
@@ -42,20 +44,26 @@ def load_states(path: Path, scene: Any) -> tuple[WorldView, list[str] | None]:
     if not isinstance(data, dict):
         raise _UsageError(f"{path}: expected a JSON object")
     labels = data.get("action_labels")
-    if labels is not None and not (isinstance(labels, list) and all(isinstance(v, str) for v in labels)):
+    if labels is not None and not (
+        isinstance(labels, list) and all(isinstance(v, str) for v in labels)
+    ):
         raise _UsageError(f"{path}: field 'action_labels': expected a list of strings")
     try:
         if "current_states" in data:
             return world_view_from_reference_case(data, scene), labels
         if "characters" in data:
-            return WorldView.model_validate({k: v for k, v in data.items() if k != "action_labels"}), labels
+            return WorldView.model_validate(
+                {k: v for k, v in data.items() if k != "action_labels"}
+            ), labels
     except ReferenceCaseError as exc:
         raise _UsageError(f"{path}: {exc}") from None
     except ValidationError as exc:
         err = exc.errors()[0]
         field = ".".join(str(p) for p in err["loc"])
         raise _UsageError(f"{path}: field '{field}': {err['msg']}") from None
-    raise _UsageError(f"{path}: expected a reference test case ('current_states') or a world view ('characters')")
+    raise _UsageError(
+        f"{path}: expected a reference test case ('current_states') or a world view ('characters')"
+    )
 
 
 def plans_json(plans: list[CharacterPlan], error: dict[str, Any] | None) -> str:
@@ -79,10 +87,13 @@ def plans_json(plans: list[CharacterPlan], error: dict[str, Any] | None) -> str:
 
 
 def event_program(
-    scene: Annotated[str, typer.Argument(help="Bundled scene name or path (reference folder, JSON, mesh).")],
+    scene: Annotated[
+        str, typer.Argument(help="Bundled scene name or path (reference folder, JSON, mesh).")
+    ],
     program: Annotated[Path, typer.Option("--program", help="File with a parse_event() program.")],
     states: Annotated[
-        Path | None, typer.Option("--states", help="Reference test-case JSON (or a world-view JSON).")
+        Path | None,
+        typer.Option("--states", help="Reference test-case JSON (or a world-view JSON)."),
     ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the position sampler.")] = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
@@ -98,7 +109,9 @@ def event_program(
         try:
             source = program.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
-            raise _UsageError(f"{program}: cannot read program file ({exc.__class__.__name__})") from None
+            raise _UsageError(
+                f"{program}: cannot read program file ({exc.__class__.__name__})"
+            ) from None
         world, labels = load_states(states, loaded) if states is not None else (WorldView(), None)
     except (SceneFileError, _UsageError) as exc:
         typer.echo(f"error: {exc}", err=True)
@@ -107,7 +120,12 @@ def event_program(
     try:
         plans = run_event_program(loaded, source, world, seed=seed, action_labels=labels)
     except EventProgramError as exc:
-        error = {"kind": exc.kind, "type": type(exc).__name__, "message": exc.feedback, "line": exc.line}
+        error = {
+            "kind": exc.kind,
+            "type": type(exc).__name__,
+            "message": exc.feedback,
+            "line": exc.line,
+        }
         if as_json:
             typer.echo(plans_json([], error))
         else:

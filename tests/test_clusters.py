@@ -11,12 +11,21 @@ from sim.scene import Scene, SceneObject
 from sim.scene_files import load_scene
 from tools.clusters import cluster_objects, distance_matrix
 
-SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes"
+SCENES = (
+    Path(__file__).resolve().parents[1].parent
+    / "shared"
+    / "reference"
+    / "event-driven-storytelling"
+    / "configs"
+    / "scenes"
+)
 
 
 def box(name: str, x: float, y: float, z: float = 0.4, size: float = 0.5) -> SceneObject:
     label, idx = name.rsplit("_", 1)
-    return SceneObject(name=name, label=label, idx=int(idx), center=(x, y, z), size=(size, size, 0.8))
+    return SceneObject(
+        name=name, label=label, idx=int(idx), center=(x, y, z), size=(size, size, 0.8)
+    )
 
 
 def scene_of(*objects: SceneObject) -> Scene:
@@ -26,7 +35,13 @@ def scene_of(*objects: SceneObject) -> Scene:
 def test_house_regions_match_the_description_areas() -> None:
     clusters = cluster_objects(load_scene(SCENES / "House"))
     as_sets = [set(c) for c in clusters]
-    assert {"cabinet_1", "coffee_maker_1", "dishwasher_1", "fridge_1", "microwave_1"} in as_sets  # kitchen
+    assert {
+        "cabinet_1",
+        "coffee_maker_1",
+        "dishwasher_1",
+        "fridge_1",
+        "microwave_1",
+    } in as_sets  # kitchen
     assert {"chair_1", "chair_3", "couch_1", "potted_plant_2", "table_3"} in as_sets  # lounge
     assert {"chair_2", "chair_4", "chair_5", "chair_6", "table_4", "toaster_1"} in as_sets  # dining
     assert len(clusters) == 4
@@ -49,7 +64,11 @@ def test_chain_linking_and_noise_points_become_singletons() -> None:
 
 
 def test_stacked_objects_are_at_distance_zero() -> None:
-    scene = scene_of(box("table_1", 0, 0, z=0.4, size=1.0), box("cup_1", 0, 0, z=0.85, size=0.1), box("lamp_1", 0, 0, z=2.5, size=0.2))
+    scene = scene_of(
+        box("table_1", 0, 0, z=0.4, size=1.0),
+        box("cup_1", 0, 0, z=0.85, size=0.1),
+        box("lamp_1", 0, 0, z=2.5, size=0.2),
+    )
     m = distance_matrix(scene)
     assert m[0, 1] == pytest.approx(0.0, abs=0.051)  # cup bottom 0.8 = table top 0.8
     assert m[0, 2] == pytest.approx(2.5 - 0.4 - 0.8, abs=1e-9)  # vertical gap only

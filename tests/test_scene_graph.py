@@ -23,7 +23,14 @@ from tools.scene_graph import (
 )
 from tools.scene_text import clusters_text, object_list_text, scene_graph_json
 
-SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes"
+SCENES = (
+    Path(__file__).resolve().parents[1].parent
+    / "shared"
+    / "reference"
+    / "event-driven-storytelling"
+    / "configs"
+    / "scenes"
+)
 
 
 @pytest.fixture(scope="module", params=["House", "Office", "Restaurant"])
@@ -38,7 +45,16 @@ def house():
 
 def obj(name: str, center, size, facing=(0.0, 1.0), has_facing=True, **kw) -> SceneObject:
     label, idx = name.rsplit("_", 1)
-    return SceneObject(name=name, label=label, idx=int(idx), center=center, size=size, facing=facing, has_facing=has_facing, **kw)
+    return SceneObject(
+        name=name,
+        label=label,
+        idx=int(idx),
+        center=center,
+        size=size,
+        facing=facing,
+        has_facing=has_facing,
+        **kw,
+    )
 
 
 def scene_of(*objects: SceneObject) -> Scene:
@@ -88,7 +104,14 @@ def test_office_and_restaurant_support_from_description() -> None:
         assert (f"laptop_{i}", "on", f"table_{table}") in office
     assert ("bookshelf_2", "on", "cabinet_3") in office
     restaurant = set(build_scene_graph(load_scene(SCENES / "Restaurant")).triples())
-    for name in ["bar_logo_1", "bottles_7", "bottles_8", "bottles_9", "wine_rack_1", "wine_rack_11"]:
+    for name in [
+        "bar_logo_1",
+        "bottles_7",
+        "bottles_8",
+        "bottles_9",
+        "wine_rack_1",
+        "wine_rack_11",
+    ]:
         assert (name, "on", "bar_counter_1") in restaurant
     for i in (1, 2, 3):
         assert (f"plate_{i}", "on", "table_1") in restaurant
@@ -97,7 +120,14 @@ def test_office_and_restaurant_support_from_description() -> None:
 
 def test_reference_graph_invariants(ref_graph) -> None:
     g = ref_graph
-    horizontal = {"in front of", "behind", "to the left of", "to the right of", "adjacent to", "close to"}
+    horizontal = {
+        "in front of",
+        "behind",
+        "to the left of",
+        "to the right of",
+        "adjacent to",
+        "close to",
+    }
     for s, rel, a in g.triples():
         assert rel in RELATIONS and s != a
         if rel in horizontal:  # only between objects with the same supporter and level
@@ -120,9 +150,19 @@ def test_stack_levels_and_hanging_object() -> None:
     cup = obj("cup_1", (0.05, 0, 1.05), (0.1, 0.1, 0.1))
     lamp = obj("lamp_1", (0.1, 0.1, 2.2), (0.3, 0.3, 0.2))  # held by nothing, above the table
     g = build_scene_graph(scene_of(table, box, cup, lamp))
-    assert (g.level("table_1"), g.level("box_1"), g.level("cup_1"), g.level("lamp_1")) == (0, 1, 2, None)
+    assert (g.level("table_1"), g.level("box_1"), g.level("cup_1"), g.level("lamp_1")) == (
+        0,
+        1,
+        2,
+        None,
+    )
     triples = set(g.triples())
-    assert {("box_1", "on", "table_1"), ("cup_1", "on", "box_1"), ("lamp_1", "above", "table_1"), ("table_1", "below", "lamp_1")} <= triples
+    assert {
+        ("box_1", "on", "table_1"),
+        ("cup_1", "on", "box_1"),
+        ("lamp_1", "above", "table_1"),
+        ("table_1", "below", "lamp_1"),
+    } <= triples
     # cup and box have different supporters: no horizontal relation between them
     assert not [t for t in triples if {t[0], t[2]} == {"cup_1", "box_1"} and t[1] not in ("on",)]
 
@@ -161,13 +201,19 @@ def test_thresholds_are_configurable_and_frozen() -> None:
 
 # ----- geometry -----------------------------------------------------------------------------
 boxes = st.tuples(
-    st.floats(-3, 3), st.floats(-3, 3), st.floats(0.1, 2), st.floats(0.1, 2), st.floats(0, 2 * np.pi)
+    st.floats(-3, 3),
+    st.floats(-3, 3),
+    st.floats(0.1, 2),
+    st.floats(0.1, 2),
+    st.floats(0, 2 * np.pi),
 )
 
 
 def _box(i: int, spec: tuple[float, float, float, float, float]) -> SceneObject:
     x, y, w, d, yaw = spec
-    return obj(f"box_{i}", (x, y, 0.5), (w, d, 1.0), facing=(float(np.cos(yaw)), float(np.sin(yaw))))
+    return obj(
+        f"box_{i}", (x, y, 0.5), (w, d, 1.0), facing=(float(np.cos(yaw)), float(np.sin(yaw)))
+    )
 
 
 def _boundary(o: SceneObject, n: int = 200) -> np.ndarray:
@@ -212,7 +258,9 @@ def test_text_forms(house) -> None:
     assert "on cabinet_1" in data["coffee_maker_1"]["relations"]
     assert data["coffee_maker_1"]["level"] == 1
     assert "facing" not in data["table_3"] and "facing" in data["fridge_1"]
-    assert scene_graph_json(house) == scene_graph_json(build_scene_graph(house.scene))  # deterministic
+    assert scene_graph_json(house) == scene_graph_json(
+        build_scene_graph(house.scene)
+    )  # deterministic
     lines = object_list_text(house.scene).splitlines()
     assert len(lines) == len(house.scene.objects) and lines[0].startswith("cabinet_1: position [")
     assert "relations" not in object_list_text(house.scene) and "cabinet_1" not in lines[1]

@@ -26,7 +26,12 @@ from tools.position_sampling import FloorMap
 from tools.scene_graph import build_scene_graph
 from tools.spatial_api import CharacterHandle, SpatialAPI
 
-REF = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling"
+REF = (
+    Path(__file__).resolve().parents[1].parent
+    / "shared"
+    / "reference"
+    / "event-driven-storytelling"
+)
 PAPER_FUNCTIONS = {
     "get_object_supporting", "get_objects_supported_by", "get_objects_in_front_of", "get_objects_behind",
     "get_objects_left_of", "get_objects_right_of", "get_objects_close_to", "get_objects_associated_with",
@@ -60,7 +65,12 @@ def test_namespace_covers_the_paper_api_with_documented_functions(api: SpatialAP
     for name, fn in ns.items():
         doc = inspect.getdoc(fn)
         assert doc and len(doc) < 300, name
-    assert CharacterHandle.sandbox_attributes == {"name", "set_position", "set_orientation", "set_target_action"}
+    assert CharacterHandle.sandbox_attributes == {
+        "name",
+        "set_position",
+        "set_orientation",
+        "set_target_action",
+    }
     assert "predicate" not in Area.sandbox_attributes
 
 
@@ -74,7 +84,12 @@ def test_object_queries_on_house(api: SpatialAPI) -> None:
     assert ns["get_objects_left_of"]("cabinet_1") == ["dishwasher_1"]
     assert ns["get_objects_right_of"]("cabinet_1") == ["fridge_1"]
     assert ns["get_objects_behind"]("loudspeaker_1") == ["tv_1"]
-    assert set(ns["get_objects_associated_with"]("table_4", "chair")) == {"chair_2", "chair_4", "chair_5", "chair_6"}
+    assert set(ns["get_objects_associated_with"]("table_4", "chair")) == {
+        "chair_2",
+        "chair_4",
+        "chair_5",
+        "chair_6",
+    }
     assert "toaster_1" in ns["get_objects_associated_with"]("table_4")
     assert ns["get_objects_associated_with"]("toaster_1") == ["table_4"]
     assert ns["get_objects_between"]("chair_1", "chair_3") == ["table_3"]
@@ -83,7 +98,9 @@ def test_object_queries_on_house(api: SpatialAPI) -> None:
     assert ns["get_closest_object"]("couch_1", "chair") == "chair_3"
     assert ns["get_distance_between"]("coffee_maker_1", "cabinet_1") == 0.0
     assert ns["get_distance_between"]("chair_1", "table_3") > 0.3
-    assert ns["is_object_of_label"]("chair_3", "chair") and not ns["is_object_of_label"]("chair_3", "table")
+    assert ns["is_object_of_label"]("chair_3", "chair") and not ns["is_object_of_label"](
+        "chair_3", "table"
+    )
     assert ns["is_object_occupied"]("chair_6") and ns["is_object_occupied"]("coffee_maker_1")
     assert not ns["is_object_occupied"]("chair_5")
     # results are copies: changing them changes nothing
@@ -95,33 +112,95 @@ def test_object_queries_on_house(api: SpatialAPI) -> None:
 @pytest.mark.parametrize(
     "call, error, message",
     [
-        (lambda ns: ns["get_area_close_to"]("chiar_1"), UnknownObjectError, "unknown object 'chiar_1'; did you mean 'chair_1'"),
-        (lambda ns: ns["get_area_close_to"]("spaceship_1"), UnknownObjectError, "not in this scene"),
+        (
+            lambda ns: ns["get_area_close_to"]("chiar_1"),
+            UnknownObjectError,
+            "unknown object 'chiar_1'; did you mean 'chair_1'",
+        ),
+        (
+            lambda ns: ns["get_area_close_to"]("spaceship_1"),
+            UnknownObjectError,
+            "not in this scene",
+        ),
         (lambda ns: ns["get_area_close_to"]("Jason"), UnknownObjectError, "'Jason' is a character"),
         (lambda ns: ns["get_area_close_to"](3), ToolArgumentError, "object name string"),
-        (lambda ns: ns["get_objects_close_to"]("table_3", "chiar"), UnknownObjectError, "did you mean 'chair'"),
-        (lambda ns: ns["get_character"]("Rian"), UnknownCharacterError, "unknown character 'Rian'; did you mean 'Ryan'?"),
+        (
+            lambda ns: ns["get_objects_close_to"]("table_3", "chiar"),
+            UnknownObjectError,
+            "did you mean 'chair'",
+        ),
+        (
+            lambda ns: ns["get_character"]("Rian"),
+            UnknownCharacterError,
+            "unknown character 'Rian'; did you mean 'Ryan'?",
+        ),
         (lambda ns: ns["get_character"]("chair_1"), UnknownCharacterError, "is an object"),
-        (lambda ns: ns["get_character"]("Ryan").set_target_action("use_phone"), UnknownActionError, "did you mean 'use_smartphone'"),
-        (lambda ns: ns["get_character"]("Ryan").set_position([float("nan"), 1.0]), ToolArgumentError, "non-finite"),
-        (lambda ns: ns["get_character"]("Ryan").set_position([float("inf"), 1.0]), ToolArgumentError, "non-finite"),
-        (lambda ns: ns["get_character"]("Ryan").set_position([True, 1.0]), ToolArgumentError, "Area or \\[x, y\\]"),
-        (lambda ns: ns["get_character"]("Ryan").set_position("table_3"), ToolArgumentError, "Area or \\[x, y\\]"),
-        (lambda ns: ns["get_character"]("Ryan").set_position([99.0, 1.0]), ToolArgumentError, "outside the scene"),
-        (lambda ns: ns["get_character"]("Ryan").set_orientation("fridge"), UnknownObjectError, "did you mean 'fridge_1'"),
+        (
+            lambda ns: ns["get_character"]("Ryan").set_target_action("use_phone"),
+            UnknownActionError,
+            "did you mean 'use_smartphone'",
+        ),
+        (
+            lambda ns: ns["get_character"]("Ryan").set_position([float("nan"), 1.0]),
+            ToolArgumentError,
+            "non-finite",
+        ),
+        (
+            lambda ns: ns["get_character"]("Ryan").set_position([float("inf"), 1.0]),
+            ToolArgumentError,
+            "non-finite",
+        ),
+        (
+            lambda ns: ns["get_character"]("Ryan").set_position([True, 1.0]),
+            ToolArgumentError,
+            "Area or \\[x, y\\]",
+        ),
+        (
+            lambda ns: ns["get_character"]("Ryan").set_position("table_3"),
+            ToolArgumentError,
+            "Area or \\[x, y\\]",
+        ),
+        (
+            lambda ns: ns["get_character"]("Ryan").set_position([99.0, 1.0]),
+            ToolArgumentError,
+            "outside the scene",
+        ),
+        (
+            lambda ns: ns["get_character"]("Ryan").set_orientation("fridge"),
+            UnknownObjectError,
+            "did you mean 'fridge_1'",
+        ),
         (lambda ns: ns["get_area_to_sit_on"]("table_4"), ToolArgumentError, "not a seat"),
         (lambda ns: ns["get_area_in_front_of"]("table_3"), ToolArgumentError, "no front"),
-        (lambda ns: ns["get_area_between"]("chair_1", "chair_1"), ToolArgumentError, "different places"),
-        (lambda ns: ns["get_intersected_area"](ns["get_area_close_to"]("table_3"), "table_4"), ToolArgumentError, "Area values"),
-        (lambda ns: ns["get_character"]("Ryan").set_position(ns["get_area_to_sit_on"]("chair_6")), UnsatisfiableAreaError, "no free seat"),
+        (
+            lambda ns: ns["get_area_between"]("chair_1", "chair_1"),
+            ToolArgumentError,
+            "different places",
+        ),
+        (
+            lambda ns: ns["get_intersected_area"](ns["get_area_close_to"]("table_3"), "table_4"),
+            ToolArgumentError,
+            "Area values",
+        ),
+        (
+            lambda ns: ns["get_character"]("Ryan").set_position(
+                ns["get_area_to_sit_on"]("chair_6")
+            ),
+            UnsatisfiableAreaError,
+            "no free seat",
+        ),
     ],
 )
-def test_bad_calls_raise_typed_errors_with_feedback(api: SpatialAPI, call, error, message: str) -> None:
+def test_bad_calls_raise_typed_errors_with_feedback(
+    api: SpatialAPI, call, error, message: str
+) -> None:
     with pytest.raises(error, match=message):
         call(api.namespace())
 
 
-def test_effects_are_collected_and_resolved_after_the_program(api: SpatialAPI, house: Scene) -> None:
+def test_effects_are_collected_and_resolved_after_the_program(
+    api: SpatialAPI, house: Scene
+) -> None:
     ns = api.namespace()
     ryan = ns["get_character"]("Ryan")
     assert ns["get_character"]("Ryan") is ryan and ryan.name == "Ryan"
@@ -169,7 +248,9 @@ def test_orientation_targets(api: SpatialAPI) -> None:
     ryan.set_orientation(ns["get_area_close_to"]("fridge_1"))
     facing = api.resolve(seed=0)[0].facing
     to_fridge = np.subtract(api.scene.by_name["fridge_1"].center[:2], (2.0, 5.0))
-    assert facing == pytest.approx(tuple(to_fridge / np.linalg.norm(to_fridge)))  # the area's anchor
+    assert facing == pytest.approx(
+        tuple(to_fridge / np.linalg.norm(to_fridge))
+    )  # the area's anchor
     plan = api.resolve(seed=0)[0]
     assert plan.position == (2.0, 5.0) and plan.area == "[2.00, 5.00]"
 
@@ -184,7 +265,7 @@ def test_new_characters_allowed_only_without_states(house: Scene) -> None:
 
 
 # ----- through the sandbox -------------------------------------------------------------------
-FREE_CHAIR = '''
+FREE_CHAIR = """
 def parse_event():
     # Ryan sits on a free chair at the dining table and texts
     ryan = get_character("Ryan")
@@ -193,23 +274,31 @@ def parse_event():
     ryan.set_position(get_area_to_sit_on(free[0]))
     ryan.set_target_action("use_smartphone")
     return [ryan]
-'''
+"""
 
 
 def test_program_through_the_sandbox(house: Scene, case0: tuple[WorldView, list[str]]) -> None:
     world, labels = case0
     plans = run_event_program(house, FREE_CHAIR, world, seed=1, action_labels=labels)
-    assert len(plans) == 1 and plans[0].seat in {"chair_4", "chair_5"} and plans[0].action == "use_smartphone"
+    assert (
+        len(plans) == 1
+        and plans[0].seat in {"chair_4", "chair_5"}
+        and plans[0].action == "use_smartphone"
+    )
 
 
-def test_failing_program_gives_no_plans_and_names_the_line(house: Scene, case0: tuple[WorldView, list[str]]) -> None:
+def test_failing_program_gives_no_plans_and_names_the_line(
+    house: Scene, case0: tuple[WorldView, list[str]]
+) -> None:
     world, labels = case0
     source = FREE_CHAIR.replace('"use_smartphone"', '"text_message"')
     with pytest.raises(UnknownActionError) as info:
         run_event_program(house, source, world, seed=1, action_labels=labels)
     assert info.value.line == 8 and "available: idle, drink" in info.value.feedback
     with pytest.raises(EventProgramError, match="did not position any character"):
-        run_event_program(house, "def parse_event():\n    return []\n", world, seed=1, action_labels=labels)
+        run_event_program(
+            house, "def parse_event():\n    return []\n", world, seed=1, action_labels=labels
+        )
     # a program may catch a tool error and fall back
     fallback = (
         "def parse_event():\n    a = get_character('Ryan')\n    try:\n        a.set_position(get_area_to_sit_on('chair_6'))\n"

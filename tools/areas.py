@@ -26,7 +26,9 @@ INTERACT_DISTANCE = 0.6  # m from the footprint, on the object's front side
 INTERACT_SIDE_MARGIN = 0.3  # m beyond the object's sides still counted as its front
 DIRECTIONAL_REACH = 1.5  # m beyond the face for in front of / behind / left of / right of
 BETWEEN_OFF_LINE = 0.5  # m off the centre line
-ALIGNED_BEYOND = 1.0  # how far past the ends "aligned with" reaches, in units of the centre distance
+ALIGNED_BEYOND = (
+    1.0  # how far past the ends "aligned with" reaches, in units of the centre distance
+)
 SEAT_SLOT_WIDTH = 0.6  # m of seat width per sitting person
 SEAT_MATCH = 0.05  # m: a point this close to a seat slot is on it
 
@@ -69,8 +71,15 @@ class Area:
             raise TypeError("intersect() expects an Area")
         a, b = self, other
         seats = [s for s in a.seats if bool(b.contains(np.array(s.position))[0])]
-        seats += [s for s in b.seats if bool(a.contains(np.array(s.position))[0]) and s not in seats]
-        hint = (max(a.hint[0], b.hint[0]), max(a.hint[1], b.hint[1]), min(a.hint[2], b.hint[2]), min(a.hint[3], b.hint[3]))
+        seats += [
+            s for s in b.seats if bool(a.contains(np.array(s.position))[0]) and s not in seats
+        ]
+        hint = (
+            max(a.hint[0], b.hint[0]),
+            max(a.hint[1], b.hint[1]),
+            min(a.hint[2], b.hint[2]),
+            min(a.hint[3], b.hint[3]),
+        )
 
         def predicate(p: np.ndarray) -> np.ndarray:
             return a.contains(p) & b.contains(p)
@@ -90,7 +99,12 @@ class Area:
         if not isinstance(other, Area):
             raise TypeError("union() expects an Area")
         a, b = self, other
-        hint = (min(a.hint[0], b.hint[0]), min(a.hint[1], b.hint[1]), max(a.hint[2], b.hint[2]), max(a.hint[3], b.hint[3]))
+        hint = (
+            min(a.hint[0], b.hint[0]),
+            min(a.hint[1], b.hint[1]),
+            max(a.hint[2], b.hint[2]),
+            max(a.hint[3], b.hint[3]),
+        )
 
         def predicate(p: np.ndarray) -> np.ndarray:
             return a.contains(p) | b.contains(p)
@@ -112,7 +126,9 @@ class Area:
 
 def _wrap(area: Area, other_operator: str) -> str:
     """Parenthesise a description that uses the other operator, so the text parses back."""
-    return f"({area.description})" if f" {other_operator} " in area.description else area.description
+    return (
+        f"({area.description})" if f" {other_operator} " in area.description else area.description
+    )
 
 
 def _merge(a: tuple[str, ...], b: tuple[str, ...]) -> tuple[str, ...]:
@@ -121,7 +137,12 @@ def _merge(a: tuple[str, ...], b: tuple[str, ...]) -> tuple[str, ...]:
 
 def _grown_box(obj: SceneObject, margin: float) -> Box:
     corners = obj.footprint(margin)
-    return (float(corners[:, 0].min()), float(corners[:, 1].min()), float(corners[:, 0].max()), float(corners[:, 1].max()))
+    return (
+        float(corners[:, 0].min()),
+        float(corners[:, 1].min()),
+        float(corners[:, 0].max()),
+        float(corners[:, 1].max()),
+    )
 
 
 def _focus(obj: SceneObject) -> tuple[float, float]:
@@ -135,7 +156,13 @@ def within_distance(obj: SceneObject, distance: float, relation: str) -> Area:
     def predicate(p: np.ndarray) -> np.ndarray:
         return point_footprint_distance(obj, p) <= distance
 
-    return Area(f"{relation} {obj.name}", predicate, _grown_box(obj, distance), _focus(obj), anchors=(obj.name,))
+    return Area(
+        f"{relation} {obj.name}",
+        predicate,
+        _grown_box(obj, distance),
+        _focus(obj),
+        anchors=(obj.name,),
+    )
 
 
 def adjacent_to(obj: SceneObject) -> Area:
@@ -170,7 +197,13 @@ def directional(obj: SceneObject, relation: str, reach: float = DIRECTIONAL_REAC
         across = np.abs(local[:, 1 - axis])
         return (along >= half[axis]) & (along <= half[axis] + reach) & (across <= half[1 - axis])
 
-    return Area(f"{relation} {obj.name}", predicate, _grown_box(obj, reach), _focus(obj), anchors=(obj.name,))
+    return Area(
+        f"{relation} {obj.name}",
+        predicate,
+        _grown_box(obj, reach),
+        _focus(obj),
+        anchors=(obj.name,),
+    )
 
 
 def to_interact_with(obj: SceneObject) -> Area:
@@ -182,10 +215,18 @@ def to_interact_with(obj: SceneObject) -> Area:
         if not obj.has_facing:
             return near
         local = obj.to_local(p)
-        front = (local[:, 1] >= obj.depth / 2.0) & (np.abs(local[:, 0]) <= obj.width / 2.0 + INTERACT_SIDE_MARGIN)
+        front = (local[:, 1] >= obj.depth / 2.0) & (
+            np.abs(local[:, 0]) <= obj.width / 2.0 + INTERACT_SIDE_MARGIN
+        )
         return near & front
 
-    return Area(f"interact with {obj.name}", predicate, _grown_box(obj, INTERACT_DISTANCE), _focus(obj), anchors=(obj.name,))
+    return Area(
+        f"interact with {obj.name}",
+        predicate,
+        _grown_box(obj, INTERACT_DISTANCE),
+        _focus(obj),
+        anchors=(obj.name,),
+    )
 
 
 def seat_slots(obj: SceneObject) -> tuple[SeatSlot, ...]:
@@ -198,7 +239,11 @@ def seat_slots(obj: SceneObject) -> tuple[SeatSlot, ...]:
     for i in range(count):
         offset = -obj.width / 2.0 + (i + 0.5) * obj.width / count if count > 1 else 0.0
         xy = base + right * offset
-        slots.append(SeatSlot(obj.name, (float(xy[0]), float(xy[1])), (float(obj.facing[0]), float(obj.facing[1]))))
+        slots.append(
+            SeatSlot(
+                obj.name, (float(xy[0]), float(xy[1])), (float(obj.facing[0]), float(obj.facing[1]))
+            )
+        )
     return tuple(slots)
 
 
@@ -213,7 +258,15 @@ def to_sit_on(obj: SceneObject) -> Area:
 
     xs, ys = points[:, 0], points[:, 1]
     hint = (float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max()))
-    return Area(f"sit on {obj.name}", predicate, hint, _focus(obj), seats=slots, free_region=False, anchors=(obj.name,))
+    return Area(
+        f"sit on {obj.name}",
+        predicate,
+        hint,
+        _focus(obj),
+        seats=slots,
+        free_region=False,
+        anchors=(obj.name,),
+    )
 
 
 # ----- two-object areas -----------------------------------------------------------------------
@@ -231,9 +284,20 @@ def _line_area(a: SceneObject, b: SceneObject, t_min: float, t_max: float, relat
 
     ends = np.array([c1 + t_min * v, c1 + t_max * v])
     m = BETWEEN_OFF_LINE
-    hint = (float(ends[:, 0].min() - m), float(ends[:, 1].min() - m), float(ends[:, 0].max() + m), float(ends[:, 1].max() + m))
+    hint = (
+        float(ends[:, 0].min() - m),
+        float(ends[:, 1].min() - m),
+        float(ends[:, 0].max() + m),
+        float(ends[:, 1].max() + m),
+    )
     mid = (c1 + c2) / 2.0
-    return Area(f"{relation} {a.name} and {b.name}", predicate, hint, (float(mid[0]), float(mid[1])), anchors=(a.name, b.name))
+    return Area(
+        f"{relation} {a.name} and {b.name}",
+        predicate,
+        hint,
+        (float(mid[0]), float(mid[1])),
+        anchors=(a.name, b.name),
+    )
 
 
 def between(a: SceneObject, b: SceneObject) -> Area:

@@ -32,13 +32,19 @@ class CharacterState(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     name: str = Field(min_length=1)
-    position: Point | None = Field(default=None, description="Current xy (m); None: not placed yet.")
+    position: Point | None = Field(
+        default=None, description="Current xy (m); None: not placed yet."
+    )
     facing: Point | None = Field(default=None, description="Unit xy direction the character faces.")
     action: str = Field(default="idle", description="Current action label.")
     busy: bool = Field(default=False, description="Inside an ongoing, non-interruptible event.")
-    target_position: Point | None = Field(default=None, description="Where the character is walking to.")
+    target_position: Point | None = Field(
+        default=None, description="Where the character is walking to."
+    )
     seat: str | None = Field(default=None, description="Object the character sits or lies on.")
-    area: str | None = Field(default=None, description="Area text of the current position, e.g. 'sit on chair_6'.")
+    area: str | None = Field(
+        default=None, description="Area text of the current position, e.g. 'sit on chair_6'."
+    )
 
 
 class WorldView(BaseModel):
@@ -56,7 +62,9 @@ class WorldView(BaseModel):
     def character(self, name: str) -> CharacterState | None:
         return next((c for c in self.characters if c.name == name), None)
 
-    def points_to_avoid(self, exclude: set[str] | frozenset[str] = frozenset()) -> tuple[Point, ...]:
+    def points_to_avoid(
+        self, exclude: set[str] | frozenset[str] = frozenset()
+    ) -> tuple[Point, ...]:
         """Positions and targets of the characters not in ``exclude``."""
         points: list[Point] = []
         for c in self.characters:
@@ -98,7 +106,9 @@ def area_from_text(text: str, scene: Scene) -> areas.Area:
 
     def obj(name: str) -> SceneObject:
         if name not in scene.by_name:
-            raise ReferenceCaseError(f"position '{text}' names an object '{name}' the scene does not have")
+            raise ReferenceCaseError(
+                f"position '{text}' names an object '{name}' the scene does not have"
+            )
         return scene.by_name[name]
 
     if m.group("rel2"):
@@ -129,7 +139,9 @@ def _strings(value: Any, where: str) -> list[str]:
     return value
 
 
-def _place(area: areas.Area, scene: Scene, floor: FloorMap, avoid: tuple[Point, ...], seed: int) -> Placement | None:
+def _place(
+    area: areas.Area, scene: Scene, floor: FloorMap, avoid: tuple[Point, ...], seed: int
+) -> Placement | None:
     """Sample the area; if it cannot hold the character (e.g. "in front of" a desk that faces a
     wall), fall back to "close to" its first anchor; None if that fails too."""
     candidates = [area]
@@ -137,7 +149,9 @@ def _place(area: areas.Area, scene: Scene, floor: FloorMap, avoid: tuple[Point, 
         candidates.append(areas.close_to(scene.by_name[area.anchors[0]]))
     for candidate in candidates:
         try:
-            return sample_position(candidate, floor, Constraints(avoid=avoid), np.random.default_rng(seed))
+            return sample_position(
+                candidate, floor, Constraints(avoid=avoid), np.random.default_rng(seed)
+            )
         except UnsatisfiableAreaError:
             continue
     return None
@@ -161,16 +175,27 @@ def world_view_from_reference_case(data: dict[str, Any], scene: Scene) -> WorldV
             raise ReferenceCaseError(f"planning_history[{i}]: expected an object")
         for j, detail in enumerate(event.get("details", []) or []):
             if not isinstance(detail, dict) or not isinstance(detail.get("character"), str):
-                raise ReferenceCaseError(f"planning_history[{i}].details[{j}]: expected an object with 'character'")
+                raise ReferenceCaseError(
+                    f"planning_history[{i}].details[{j}]: expected an object with 'character'"
+                )
             where = f"planning_history[{i}].details[{j}].position"
-            last_event[detail["character"]] = (str(event.get("state", "")), _strings(detail.get("position"), where))
+            last_event[detail["character"]] = (
+                str(event.get("state", "")),
+                _strings(detail.get("position"), where),
+            )
 
     floor = FloorMap(scene)
     placed: list[Point] = []
     raw: list[dict[str, Any]] = []
     for i, state in enumerate(states):
-        if not isinstance(state, dict) or not isinstance(state.get("name"), str) or not state["name"]:
-            raise ReferenceCaseError(f"current_states[{i}]: expected an object with a non-empty 'name'")
+        if (
+            not isinstance(state, dict)
+            or not isinstance(state.get("name"), str)
+            or not state["name"]
+        ):
+            raise ReferenceCaseError(
+                f"current_states[{i}]: expected an object with a non-empty 'name'"
+            )
         name = state["name"]
         texts = _strings(state.get("position"), f"current_states[{i}].position")
         event_state, event_texts = last_event.get(name, ("", []))
@@ -204,7 +229,9 @@ def world_view_from_reference_case(data: dict[str, Any], scene: Scene) -> WorldV
     for e in raw:
         look, pos = e.pop("look"), e["position"]
         if look and pos is not None and e["seat"] is None:
-            target = scene.by_name[look].center[:2] if look in scene.by_name else positions.get(look)
+            target = (
+                scene.by_name[look].center[:2] if look in scene.by_name else positions.get(look)
+            )
             if target is not None:
                 e["facing"] = _unit(np.subtract(target, pos)) or e["facing"]
         characters.append(CharacterState(**e))

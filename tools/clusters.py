@@ -41,7 +41,9 @@ def cluster_objects(scene: Scene, eps: float = 1.0, min_samples: int = 2) -> lis
     names = scene.object_names
     if not names:
         return []
-    labels = DBSCAN(eps=eps, min_samples=min_samples, metric="precomputed").fit_predict(distance_matrix(scene))
+    labels = DBSCAN(eps=eps, min_samples=min_samples, metric="precomputed").fit_predict(
+        distance_matrix(scene)
+    )
     clusters: dict[tuple[str, int], list[str]] = {}
     for index, (name, label) in enumerate(zip(names, labels, strict=True)):
         key = ("noise", index) if label < 0 else ("cluster", int(label))

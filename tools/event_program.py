@@ -39,5 +39,7 @@ def run_event_program(
     execute(source, api.namespace(), entry="parse_event")
     plans = api.resolve(seed)
     if not plans:
-        raise EventProgramError("parse_event() did not position any character: call get_character(name).set_position(...)")
+        raise EventProgramError(
+            "parse_event() did not position any character: call get_character(name).set_position(...)"
+        )
     return plans

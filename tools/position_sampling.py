@@ -43,7 +43,9 @@ FLOOR_SUPPORT = 0.10
 class FloorMap:
     """Which xy points a standing character's centre may occupy."""
 
-    def __init__(self, scene: Scene, body_radius: float = BODY_RADIUS, floor_support: float = FLOOR_SUPPORT):
+    def __init__(
+        self, scene: Scene, body_radius: float = BODY_RADIUS, floor_support: float = FLOOR_SUPPORT
+    ):
         self.scene = scene
         self.body_radius = body_radius
         self.obstacles = [o for o in scene.objects if abs(o.z_min - scene.floor_z) < floor_support]
@@ -64,7 +66,11 @@ class FloorMap:
     def colliding_objects(self, xy: tuple[float, float]) -> list[str]:
         """Floor-standing objects whose footprint grown by the body radius contains ``xy``."""
         p = np.asarray(xy, dtype=float).reshape(1, 2)
-        return [o.name for o in self.obstacles if float(point_footprint_distance(o, p)[0]) < self.body_radius]
+        return [
+            o.name
+            for o in self.obstacles
+            if float(point_footprint_distance(o, p)[0]) < self.body_radius
+        ]
 
 
 @dataclass(frozen=True)
@@ -87,7 +93,9 @@ class Placement:
     seat_facing: tuple[float, float] | None = None
 
 
-def _far_from(points: np.ndarray, others: tuple[tuple[float, float], ...], distance: float) -> np.ndarray:
+def _far_from(
+    points: np.ndarray, others: tuple[tuple[float, float], ...], distance: float
+) -> np.ndarray:
     if not others or len(points) == 0:
         return np.ones(len(points), dtype=bool)
     o = np.asarray(others, dtype=float)
@@ -95,7 +103,9 @@ def _far_from(points: np.ndarray, others: tuple[tuple[float, float], ...], dista
     return d.min(axis=1) >= distance
 
 
-def _near_all(points: np.ndarray, others: tuple[tuple[float, float], ...], distance: float) -> np.ndarray:
+def _near_all(
+    points: np.ndarray, others: tuple[tuple[float, float], ...], distance: float
+) -> np.ndarray:
     o = np.asarray(others, dtype=float)
     d = np.linalg.norm(points[:, None, :] - o[None, :, :], axis=2)
     return d.max(axis=1) <= distance
@@ -134,12 +144,19 @@ def _lattice(area: Area, scene: Scene, rng: np.random.Generator) -> np.ndarray:
 
 def _interior(area: Area, points: np.ndarray) -> np.ndarray:
     keep = np.ones(len(points), dtype=bool)
-    for dx, dy in ((INTERIOR_MARGIN, 0.0), (-INTERIOR_MARGIN, 0.0), (0.0, INTERIOR_MARGIN), (0.0, -INTERIOR_MARGIN)):
+    for dx, dy in (
+        (INTERIOR_MARGIN, 0.0),
+        (-INTERIOR_MARGIN, 0.0),
+        (0.0, INTERIOR_MARGIN),
+        (0.0, -INTERIOR_MARGIN),
+    ):
         keep &= area.contains(points + np.array([dx, dy]))
     return keep
 
 
-def sample_position(area: Area, floor: FloorMap, constraints: Constraints, rng: np.random.Generator) -> Placement:
+def sample_position(
+    area: Area, floor: FloorMap, constraints: Constraints, rng: np.random.Generator
+) -> Placement:
     """One admissible position in ``area`` (see the module docstring for the rules)."""
     c = constraints
     if area.seats:
@@ -158,7 +175,9 @@ def sample_position(area: Area, floor: FloorMap, constraints: Constraints, rng: 
                 f"no free seat in '{area.description}': {', '.join(names)} taken by other characters"
             )
     if not area.free_region or not area.hint_nonempty:
-        raise UnsatisfiableAreaError(f"the area '{area.description}' is empty (its parts do not overlap)")
+        raise UnsatisfiableAreaError(
+            f"the area '{area.description}' is empty (its parts do not overlap)"
+        )
 
     points = _lattice(area, floor.scene, rng)
     inside = points[area.contains(points)] if len(points) else points

@@ -34,11 +34,27 @@ RELATIONS: tuple[str, ...] = (
     "on", "inside", "above", "below", "in front of", "behind",
     "to the left of", "to the right of", "adjacent to", "close to",
 )  # fmt: skip
-DIRECTIONAL_RELATIONS: tuple[str, ...] = ("in front of", "behind", "to the left of", "to the right of")
+DIRECTIONAL_RELATIONS: tuple[str, ...] = (
+    "in front of",
+    "behind",
+    "to the left of",
+    "to the right of",
+)
 
 # Anchors whose "inside" is really a top surface, and (subject, anchor) label pairs meaning "on".
 _SURFACE_LABELS = frozenset(
-    {"table", "desk", "bed", "sofa", "couch", "bench", "counter", "bar_counter", "kitchen_cabinet", "shelf"}
+    {
+        "table",
+        "desk",
+        "bed",
+        "sofa",
+        "couch",
+        "bench",
+        "counter",
+        "bar_counter",
+        "kitchen_cabinet",
+        "shelf",
+    }
 )
 _ON_PAIRS = frozenset(
     {("microwave", "cabinet"), ("coffee_maker", "cabinet"), ("coffee_machine", "cabinet"),
@@ -51,15 +67,32 @@ class RelationThresholds(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
-    floor_support: float = Field(default=0.10, gt=0, description="Max |bottom - floor| for floor support.")
+    floor_support: float = Field(
+        default=0.10, gt=0, description="Max |bottom - floor| for floor support."
+    )
     support_xy: float = Field(default=0.2, ge=0, description="Footprint margin for on / inside.")
-    support_z: float = Field(default=0.2, ge=0, description="Max gap between subject bottom and anchor top for on.")
+    support_z: float = Field(
+        default=0.2, ge=0, description="Max gap between subject bottom and anchor top for on."
+    )
     hanging_xy: float = Field(default=0.4, ge=0, description="Footprint margin for above / below.")
-    same_level_z: float = Field(default=0.2, ge=0, description="Max bottom-height difference for horizontal relations.")
-    horizontal_range: float = Field(default=2.0, gt=0, description="Max surface distance for horizontal relations.")
-    directional_offset: float = Field(default=0.2, ge=0, description="Side margin of the directional strips.")
-    adjacent: float = Field(default=0.3, gt=0, description="Surface distance below which objects are adjacent.")
-    close: float = Field(default=1.0, gt=0, description="Surface distance below which objects are close.")
+    same_level_z: float = Field(
+        default=0.2, ge=0, description="Max bottom-height difference for horizontal relations."
+    )
+    horizontal_range: float = Field(
+        default=2.0, gt=0, description="Max surface distance for horizontal relations."
+    )
+    directional_offset: float = Field(
+        default=0.2, ge=0, description="Side margin of the directional strips."
+    )
+    adjacent: float = Field(
+        default=0.3, gt=0, description="Surface distance below which objects are adjacent."
+    )
+    close: float = Field(
+        default=1.0, gt=0, description="Surface distance below which objects are close."
+    )
+
+
+DEFAULT_THRESHOLDS = RelationThresholds()
 
 
 # ----- footprint geometry ---------------------------------------------------------------------
@@ -127,7 +160,9 @@ def point_footprint_distance(obj: SceneObject, xy: np.ndarray) -> np.ndarray:
 
 
 # ----- relations ------------------------------------------------------------------------------
-def _vertical_contact(subject: SceneObject, anchor: SceneObject, t: RelationThresholds) -> str | None:
+def _vertical_contact(
+    subject: SceneObject, anchor: SceneObject, t: RelationThresholds
+) -> str | None:
     if not bool(anchor.contains_xy(subject.center_xy, margin=t.support_xy)):
         return None
     relation: str | None = None
@@ -137,7 +172,9 @@ def _vertical_contact(subject: SceneObject, anchor: SceneObject, t: RelationThre
         subject.z_max < anchor.z_max and subject.z_min > anchor.z_min
     ):
         relation = "inside"
-    if relation == "inside" and (anchor.label in _SURFACE_LABELS or (subject.label, anchor.label) in _ON_PAIRS):
+    if relation == "inside" and (
+        anchor.label in _SURFACE_LABELS or (subject.label, anchor.label) in _ON_PAIRS
+    ):
         relation = "on"
     return relation
 
@@ -178,7 +215,9 @@ class SceneGraph:
 
     def subjects(self, relation: str, anchor: str) -> list[str]:
         """Objects that stand in ``relation`` to ``anchor``."""
-        return [s for s, _, d in self.graph.in_edges(anchor, data=True) if d["relation"] == relation]
+        return [
+            s for s, _, d in self.graph.in_edges(anchor, data=True) if d["relation"] == relation
+        ]
 
     def supporter(self, name: str) -> str | None:
         """The object ``name`` stands on or in (None: the floor or nothing)."""
@@ -216,7 +255,9 @@ def _levels(scene: Scene, on_floor: set[str], supporter: dict[str, str]) -> dict
     return levels
 
 
-def build_scene_graph(scene: Scene, thresholds: RelationThresholds = RelationThresholds()) -> SceneGraph:  # noqa: B008
+def build_scene_graph(
+    scene: Scene, thresholds: RelationThresholds = DEFAULT_THRESHOLDS
+) -> SceneGraph:
     """Compute every relation of ``scene`` (see the module docstring for the semantics)."""
     t = thresholds
     objects = scene.objects
@@ -243,7 +284,9 @@ def build_scene_graph(scene: Scene, thresholds: RelationThresholds = RelationThr
 
     levels = _levels(scene, on_floor, supporter)
     for obj in objects:
-        graph.add_node(obj.name, label=obj.label, level=levels[obj.name], supporter=supporter.get(obj.name))
+        graph.add_node(
+            obj.name, label=obj.label, level=levels[obj.name], supporter=supporter.get(obj.name)
+        )
     for subject_name, (relation, anchor_name) in contact.items():
         graph.add_edge(subject_name, anchor_name, relation=relation)
 
@@ -278,7 +321,9 @@ def _circle_gap(a: SceneObject, b: SceneObject) -> float:
     return centre - float(np.hypot(a.width, a.depth) + np.hypot(b.width, b.depth)) / 2.0
 
 
-def _horizontal_edges(graph: nx.MultiDiGraph, members: Iterable[SceneObject], t: RelationThresholds) -> None:
+def _horizontal_edges(
+    graph: nx.MultiDiGraph, members: Iterable[SceneObject], t: RelationThresholds
+) -> None:
     members = list(members)
     for subject in members:
         for anchor in members:

@@ -50,4 +50,6 @@ def object_list_text(scene: Scene) -> str:
 
 def clusters_text(clusters: list[list[str]]) -> str:
     """One line per region cluster: "region <k>: name, name, ..." (k from 1)."""
-    return "\n".join(f"region {k}: {', '.join(members)}" for k, members in enumerate(clusters, start=1))
+    return "\n".join(
+        f"region {k}: {', '.join(members)}" for k, members in enumerate(clusters, start=1)
+    )

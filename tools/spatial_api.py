@@ -126,24 +126,34 @@ class SpatialAPI:
     # ----- argument checks ------------------------------------------------------------------
     def _object(self, name: Any, func: str) -> SceneObject:
         if not isinstance(name, str):
-            raise ToolArgumentError(f"{func}() expects an object name string like 'chair_1', got {name!r}")
+            raise ToolArgumentError(
+                f"{func}() expects an object name string like 'chair_1', got {name!r}"
+            )
         obj = self.scene.by_name.get(name)
         if obj is not None:
             return obj
         if name in self.world.names:
             raise UnknownObjectError(f"{func}(): '{name}' is a character, not an object")
         hint = did_you_mean(name, self.scene.object_names)
-        raise UnknownObjectError(f"unknown object '{name}';{hint}" if hint else f"unknown object '{name}' (not in this scene)")
+        raise UnknownObjectError(
+            f"unknown object '{name}';{hint}"
+            if hint
+            else f"unknown object '{name}' (not in this scene)"
+        )
 
     def _label(self, label: Any, func: str) -> str | None:
         if label is None:
             return None
         if not isinstance(label, str):
-            raise ToolArgumentError(f"{func}() expects label to be a string like 'chair' or None, got {label!r}")
+            raise ToolArgumentError(
+                f"{func}() expects label to be a string like 'chair' or None, got {label!r}"
+            )
         if label not in self.scene.labels:
             hint = did_you_mean(label, self.scene.labels)
             raise UnknownObjectError(
-                f"unknown label '{label}';{hint}" if hint else f"unknown label '{label}'; labels: {', '.join(self.scene.labels)}"
+                f"unknown label '{label}';{hint}"
+                if hint
+                else f"unknown label '{label}'; labels: {', '.join(self.scene.labels)}"
             )
         return label
 
@@ -159,22 +169,34 @@ class SpatialAPI:
             raise UnknownCharacterError(f"'{name}' is an object, not a character")
         hint = did_you_mean(name, self.world.names)
         known = ", ".join(self.world.names)
-        raise UnknownCharacterError(f"unknown character '{name}';{hint}" if hint else f"unknown character '{name}'; characters: {known}")
+        raise UnknownCharacterError(
+            f"unknown character '{name}';{hint}"
+            if hint
+            else f"unknown character '{name}'; characters: {known}"
+        )
 
     def _point(self, value: Any, func: str) -> Point:
-        if not isinstance(value, list | tuple) or len(value) != 2 or not all(_is_number(v) for v in value):
+        if (
+            not isinstance(value, list | tuple)
+            or len(value) != 2
+            or not all(_is_number(v) for v in value)
+        ):
             raise ToolArgumentError(f"{func}() expects an Area or [x, y] in metres, got {value!r}")
         x, y = float(value[0]), float(value[1])
         if not (math.isfinite(x) and math.isfinite(y)):
             raise ToolArgumentError(f"{func}() got a non-finite position [{x}, {y}]")
         (x0, y0), (x1, y1) = self.scene.bounds_min, self.scene.bounds_max
         if not (x0 <= x <= x1 and y0 <= y <= y1):
-            raise ToolArgumentError(f"{func}(): [{x:.2f}, {y:.2f}] is outside the scene ({x0:.1f}..{x1:.1f}, {y0:.1f}..{y1:.1f})")
+            raise ToolArgumentError(
+                f"{func}(): [{x:.2f}, {y:.2f}] is outside the scene ({x0:.1f}..{x1:.1f}, {y0:.1f}..{y1:.1f})"
+            )
         return (x, y)
 
     def _area(self, value: Any, func: str) -> Area:
         if not isinstance(value, Area):
-            raise ToolArgumentError(f"{func}() expects Area values from get_area_* functions, got {value!r}")
+            raise ToolArgumentError(
+                f"{func}() expects Area values from get_area_* functions, got {value!r}"
+            )
         return value
 
     def _position_target(self, value: Any, name: str) -> Area | Point:
@@ -194,18 +216,26 @@ class SpatialAPI:
             if value in self.scene.by_name or value in self.world.names or value in self._records:
                 return value
             hint = did_you_mean(value, [*self.scene.object_names, *self.world.names])
-            raise UnknownObjectError(f"unknown object or character '{value}';{hint}" if hint else f"unknown object or character '{value}'")
+            raise UnknownObjectError(
+                f"unknown object or character '{value}';{hint}"
+                if hint
+                else f"unknown object or character '{value}'"
+            )
         if isinstance(value, CharacterHandle):
             return value.name
         return self._point(value, "set_orientation")
 
     def _action(self, label: Any) -> str:
         if not isinstance(label, str) or not label:
-            raise ToolArgumentError(f"set_target_action() expects an action label string, got {label!r}")
+            raise ToolArgumentError(
+                f"set_target_action() expects an action label string, got {label!r}"
+            )
         if self.action_labels is not None and label not in self.action_labels:
             hint = did_you_mean(label, self.action_labels)
             raise UnknownActionError(
-                f"unknown action '{label}';{hint}" if hint else f"unknown action '{label}'; available: {', '.join(self.action_labels)}"
+                f"unknown action '{label}';{hint}"
+                if hint
+                else f"unknown action '{label}'; available: {', '.join(self.action_labels)}"
             )
         return label
 
@@ -228,7 +258,9 @@ class SpatialAPI:
     def get_objects_supported_by(self, anchor: str, label: str | None = None) -> list[str]:
         """Objects standing on or in ``anchor`` (optionally only those with ``label``)."""
         obj = self._object(anchor, "get_objects_supported_by")
-        return self._filter(self.graph.supported_by(obj.name), self._label(label, "get_objects_supported_by"))
+        return self._filter(
+            self.graph.supported_by(obj.name), self._label(label, "get_objects_supported_by")
+        )
 
     def _related(self, anchor: str, label: str | None, relation: str, func: str) -> list[str]:
         obj = self._object(anchor, func)
@@ -269,7 +301,9 @@ class SpatialAPI:
         names += [n for n in support if n is not None and n not in names]
         return self._filter(names, label)
 
-    def get_objects_between(self, anchor_1: str, anchor_2: str, label: str | None = None) -> list[str]:
+    def get_objects_between(
+        self, anchor_1: str, anchor_2: str, label: str | None = None
+    ) -> list[str]:
         """Objects whose centre lies between the two anchors' centres, <= 0.5 m off the line."""
         a = self._object(anchor_1, "get_objects_between")
         b = self._object(anchor_2, "get_objects_between")
@@ -298,17 +332,24 @@ class SpatialAPI:
         b = self._object(object_2, "get_distance_between")
         return round(box_distance(a, b), 3)
 
-    def is_object_occupied(self, object: str) -> bool:  # noqa: A002 - the paper's parameter name
+    def is_object_occupied(self, object: str) -> bool:
         """Whether a character sits on or uses ``object`` (including earlier lines of this program)."""
         obj = self._object(object, "is_object_occupied")
-        if obj.name in self.world.objects_in_use and self.world.objects_in_use[obj.name] not in self._records:
+        if (
+            obj.name in self.world.objects_in_use
+            and self.world.objects_in_use[obj.name] not in self._records
+        ):
             return True
         for record in self._records.values():
-            if isinstance(record.position, Area) and record.position.seats and obj.name in record.position.anchors:
+            if (
+                isinstance(record.position, Area)
+                and record.position.seats
+                and obj.name in record.position.anchors
+            ):
                 return True
         return False
 
-    def is_object_of_label(self, object: str, label: str) -> bool:  # noqa: A002
+    def is_object_of_label(self, object: str, label: str) -> bool:
         """Whether ``object`` has the label ``label`` (e.g. is_object_of_label('chair_3', 'chair'))."""
         obj = self._object(object, "is_object_of_label")
         if not isinstance(label, str):
@@ -316,52 +357,58 @@ class SpatialAPI:
         return obj.label == label
 
     # ----- areas ----------------------------------------------------------------------------
-    def get_area_to_interact_with(self, object: str) -> Area:  # noqa: A002
+    def get_area_to_interact_with(self, object: str) -> Area:
         """Where to stand to use ``object``: <= 0.6 m from it, on its front side if it has one."""
         return areas.to_interact_with(self._object(object, "get_area_to_interact_with"))
 
-    def get_area_to_sit_on(self, object: str) -> Area:  # noqa: A002
+    def get_area_to_sit_on(self, object: str) -> Area:
         """The seat of a chair, stool, couch or sofa (a couch has one place per 0.6 m of width)."""
         obj = self._object(object, "get_area_to_sit_on")
         if not obj.is_seat:
             seats = [o.name for o in self.scene.objects if o.is_seat]
-            raise ToolArgumentError(f"{obj.name} is not a seat; seats: {', '.join(seats) or 'none'}")
+            raise ToolArgumentError(
+                f"{obj.name} is not a seat; seats: {', '.join(seats) or 'none'}"
+            )
         return areas.to_sit_on(obj)
 
-    def get_area_adjacent_to(self, object: str) -> Area:  # noqa: A002
+    def get_area_adjacent_to(self, object: str) -> Area:
         """Floor within 0.5 m of ``object``'s footprint."""
         return areas.adjacent_to(self._object(object, "get_area_adjacent_to"))
 
-    def get_area_close_to(self, object: str) -> Area:  # noqa: A002
+    def get_area_close_to(self, object: str) -> Area:
         """Floor within 1.0 m of ``object``'s footprint."""
         return areas.close_to(self._object(object, "get_area_close_to"))
 
     def _directional(self, name: Any, relation: str, func: str) -> Area:
         obj = self._object(name, func)
         if not obj.has_facing:
-            raise ToolArgumentError(f"{obj.name} has no front, so '{relation}' is undefined; use get_area_adjacent_to or get_area_close_to")
+            raise ToolArgumentError(
+                f"{obj.name} has no front, so '{relation}' is undefined; use get_area_adjacent_to or get_area_close_to"
+            )
         return areas.directional(obj, relation)
 
-    def get_area_in_front_of(self, object: str) -> Area:  # noqa: A002
+    def get_area_in_front_of(self, object: str) -> Area:
         """Floor in front of ``object``: up to 1.5 m out from its front face, as wide as that face."""
         return self._directional(object, "in front of", "get_area_in_front_of")
 
-    def get_area_behind(self, object: str) -> Area:  # noqa: A002
+    def get_area_behind(self, object: str) -> Area:
         """Floor behind ``object``: up to 1.5 m out from its back face, as wide as that face."""
         return self._directional(object, "behind", "get_area_behind")
 
-    def get_area_left_of(self, object: str) -> Area:  # noqa: A002
+    def get_area_left_of(self, object: str) -> Area:
         """Floor on ``object``'s own left: up to 1.5 m out from its left side, as long as that side."""
         return self._directional(object, "to the left of", "get_area_left_of")
 
-    def get_area_right_of(self, object: str) -> Area:  # noqa: A002
+    def get_area_right_of(self, object: str) -> Area:
         """Floor on ``object``'s own right: up to 1.5 m out from its right side, as long as that side."""
         return self._directional(object, "to the right of", "get_area_right_of")
 
     def _pair(self, object_1: Any, object_2: Any, func: str) -> tuple[SceneObject, SceneObject]:
         a, b = self._object(object_1, func), self._object(object_2, func)
         if float(np.linalg.norm(a.center_xy - b.center_xy)) < 1e-6:
-            raise ToolArgumentError(f"{func}() needs two objects at different places, got {a.name} and {b.name}")
+            raise ToolArgumentError(
+                f"{func}() needs two objects at different places, got {a.name} and {b.name}"
+            )
         return a, b
 
     def get_area_between(self, object_1: str, object_2: str) -> Area:
@@ -403,18 +450,33 @@ class SpatialAPI:
                 area = record.position
                 try:
                     placement = sample_position(
-                        area, floor, Constraints(avoid=tuple(avoid), group=tuple(group), taken_objects=frozenset(taken)), rng
+                        area,
+                        floor,
+                        Constraints(
+                            avoid=tuple(avoid), group=tuple(group), taken_objects=frozenset(taken)
+                        ),
+                        rng,
                     )
                 except UnsatisfiableAreaError as err:
                     raise UnsatisfiableAreaError(f"{name}: {err.feedback}") from None
                 text = area.description
             elif record.position is not None:
-                placement, text, area = Placement(record.position), f"[{record.position[0]:.2f}, {record.position[1]:.2f}]", None
+                placement, text, area = (
+                    Placement(record.position),
+                    f"[{record.position[0]:.2f}, {record.position[1]:.2f}]",
+                    None,
+                )
             else:
                 state = self.world.character(name)
                 if state is None or state.position is None:
-                    raise ToolArgumentError(f"{name} has no position: call set_position(...) with an area")
-                placement, text, area = Placement(state.position, state.seat, state.facing if state.seat else None), state.area or "current position", None
+                    raise ToolArgumentError(
+                        f"{name} has no position: call set_position(...) with an area"
+                    )
+                placement, text, area = (
+                    Placement(state.position, state.seat, state.facing if state.seat else None),
+                    state.area or "current position",
+                    None,
+                )
             placed[name] = (placement, text, area)
             avoid.append(placement.position)
             group.append(placement.position)
@@ -440,10 +502,17 @@ class SpatialAPI:
     def _default_action(self, name: str) -> str:
         if self.action_labels is None or "idle" in self.action_labels:
             return "idle"
-        raise UnknownActionError(f"{name} has no action: call set_target_action(...) with one of {', '.join(self.action_labels)}")
+        raise UnknownActionError(
+            f"{name} has no action: call set_target_action(...) with one of {', '.join(self.action_labels)}"
+        )
 
     def _facing(
-        self, name: str, record: _Record, placement: Placement, area: Area | None, placed: dict[str, tuple[Placement, str, Area | None]]
+        self,
+        name: str,
+        record: _Record,
+        placement: Placement,
+        area: Area | None,
+        placed: dict[str, tuple[Placement, str, Area | None]],
     ) -> Point:
         if placement.seat_facing is not None:
             return placement.seat_facing
@@ -461,14 +530,20 @@ class SpatialAPI:
         return state.facing if state is not None and state.facing is not None else (0.0, 1.0)
 
     def _orientation_point(
-        self, target: str | Area | Point | None, name: str, placed: dict[str, tuple[Placement, str, Area | None]]
+        self,
+        target: str | Area | Point | None,
+        name: str,
+        placed: dict[str, tuple[Placement, str, Area | None]],
     ) -> Point | None:
         if target is None:
             return None
         if isinstance(target, Area):
             if target.focus is not None:
                 return target.focus
-            return ((target.hint[0] + target.hint[2]) / 2.0, (target.hint[1] + target.hint[3]) / 2.0)
+            return (
+                (target.hint[0] + target.hint[2]) / 2.0,
+                (target.hint[1] + target.hint[3]) / 2.0,
+            )
         if isinstance(target, str):
             if target in self.scene.by_name:
                 c = self.scene.by_name[target].center

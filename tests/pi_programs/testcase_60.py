@@ -1,3 +1,4 @@
+# ruff: noqa: F821  (an event program: the sandbox provides the spatial-API names)
 # Reference PI case 60 (House): "Theodore stands in front of the refrigerator."
 def parse_event():
     theodore = get_character("Theodore")

@@ -1,3 +1,4 @@
+# ruff: noqa: F821  (an event program: the sandbox provides the spatial-API names)
 # Reference PI case 61 (House): "Franklin makes coffee using coffee maker."
 def parse_event():
     franklin = get_character("Franklin")

@@ -1,3 +1,4 @@
+# ruff: noqa: F821  (an event program: the sandbox provides the spatial-API names)
 # Reference PI case 62 (House): "Benjamin turns on the record player."
 def parse_event():
     benjamin = get_character("Benjamin")

@@ -1,3 +1,4 @@
+# ruff: noqa: F821  (an event program: the sandbox provides the spatial-API names)
 # Reference PI case 63 (Office): "Douglas stands between the couch_1 and couch_3"
 def parse_event():
     douglas = get_character("Douglas")

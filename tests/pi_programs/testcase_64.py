@@ -1,3 +1,4 @@
+# ruff: noqa: F821  (an event program: the sandbox provides the spatial-API names)
 # Reference PI case 64 (Office): "Scott stands left of the water dispenser."
 def parse_event():
     scott = get_character("Scott")

@@ -1,3 +1,4 @@
+# ruff: noqa: F821  (an event program: the sandbox provides the spatial-API names)
 # Reference PI case 65 (Office): "Jerry stands right to the cabinet_2."
 def parse_event():
     jerry = get_character("Jerry")

@@ -1,3 +1,4 @@
+# ruff: noqa: F821  (an event program: the sandbox provides the spatial-API names)
 # Reference PI case 66 (Restaurant): "Jacob stands to the left of the bar counter."
 def parse_event():
     jacob = get_character("Jacob")

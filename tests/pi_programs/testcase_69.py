@@ -1,3 +1,4 @@
+# ruff: noqa: F821  (an event program: the sandbox provides the spatial-API names)
 # Reference PI case 69 (House): "Charles stands behind the chair_1."
 def parse_event():
     charles = get_character("Charles")
