@@ -1,0 +1,700 @@
+"""The world step: characters, events, cooperative walking and motion, one frame at a time.
+
+``step(world, commands, dt) -> (world, StepOutput)`` applies the planner's commands
+(``sim.story_events``), advances every character by one frame (``dt`` = 1 / fps, 30 fps),
+appends a pose per character to the world's track buffers and reports completed / looping /
+failed events and the characters available to the narrator. The world is advanced in place
+and returned; ``World.snapshot()`` / ``World.restore(snapshot)`` copy its state (plain data:
+dataclasses, dicts and numpy arrays) for replays and tests.
+
+Who moves a character's root (pelvis ground point, metres):
+
+- walkers (``approaching``, or ``idle`` standing characters, who may step aside for others)
+  are on the ``CrowdNavigator``'s position exactly, so its clearance rule (centres >= 2 body
+  radii apart, bodies off every blocking footprint) holds for the synthesized pelvis;
+- everyone else is a stationary obstacle for the navigator: characters waiting for their
+  event's other members, transitioning in or out, acting, or seated. A seated body registers
+  three discs (approach cell, midway, seat point) while it sits down, sits and stands up.
+
+Walkers join the navigator only at planning-step boundaries (every ``step_frames`` frames,
+9 at 0.3 m cells and 1 m/s): a character that finished standing up waits in place until then.
+
+Events: every member walks to its target cell (a seat's approach cell when sitting); whoever
+arrives first waits; when all have arrived, all start their transition in on the same frame.
+An event completes when every member has finished its action (or, acting a looping action,
+was interrupted or released); it becomes *looping* when every member is done or acting a
+looping action. Characters of looping events are available, and a new assignment interrupts
+them via their transition out. Unreachable targets and walkers that make no progress for
+``stuck_after_s`` seconds fail the event with a typed ``EventFailure``.
+
+Deterministic: the only randomness is the navigator's seeded priority order; no clock.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from sim.action_labels import action_spec, database_key
+from sim.character_phases import (
+    INFINITE,
+    CharacterState,
+    available,
+    interaction_frames,
+    phase_motion,
+    smoothstep,
+    transition_in_frames,
+    transition_out_frames,
+    wrap_angle,
+)
+from sim.character_track import CharacterTrack
+from sim.cooperative_astar import Cell, PathPlanner
+from sim.nav_grid import NavGrid, build_nav_grid
+from sim.scene import Scene
+from sim.skeleton import NUM_JOINTS
+from sim.story_events import (
+    AssignEvent,
+    Assignment,
+    EventFailure,
+    FailureReason,
+    ReleaseCharacters,
+    StepOutput,
+)
+from sim.world_motion import FUTURE_FRAMES, MotionLayer, MotionQuery, compose_poses
+from sim.world_navigation import WorldNavigator
+
+OBJECT_REACH = 0.55  # metres from the standing root to the object acted on (motion target)
+EventStatus = Literal["ongoing", "looping", "completed", "failed"]
+
+
+class WorldError(ValueError):
+    """Bad world input (setup or step arguments); one sentence naming what is wrong."""
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """fps: frames per second; seed: navigator priority seed; walk_turn_rate: rad/s a walker's
+    heading may turn; stuck_after_s: seconds without getting closer before a walker fails;
+    max_target_offset: metres between a target and the nearest reachable cell centre beyond
+    which the target counts as unreachable; initial_capacity: frames pre-allocated per track."""
+
+    fps: int = 30
+    seed: int = 0
+    walk_turn_rate: float = 2.0 * math.pi
+    stuck_after_s: float = 20.0
+    max_target_offset: float = 0.75
+    initial_capacity: int = 512
+
+
+@dataclass
+class EventState:
+    """One accepted event: member name -> "active" | "done" | "left"."""
+
+    event: AssignEvent
+    members: dict[str, str]
+    status: EventStatus = "ongoing"
+    started: bool = False
+
+
+@dataclass
+class TrackBuffers:
+    """Per-frame output of every character, grown by doubling (frames, characters, ...)."""
+
+    names: tuple[str, ...]
+    capacity: int
+    length: int = 0
+    pelvis: np.ndarray = field(init=False)
+    rotations: np.ndarray = field(init=False)
+    labels: np.ndarray = field(init=False)
+    label_names: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        n = len(self.names)
+        self.pelvis = np.zeros((self.capacity, n, 3))
+        self.rotations = np.zeros((self.capacity, n, NUM_JOINTS, 3, 3), dtype=np.float32)
+        self.labels = np.zeros((self.capacity, n), dtype=np.int32)
+
+    def label_id(self, label: str) -> int:
+        try:
+            return self.label_names.index(label)
+        except ValueError:
+            self.label_names.append(label)
+            return len(self.label_names) - 1
+
+    def append(self, pelvis: np.ndarray, rotations: np.ndarray, labels: Sequence[str]) -> None:
+        if self.length == self.capacity:
+            grow = max(self.capacity, 1)
+            self.pelvis = np.concatenate([self.pelvis, np.zeros_like(self.pelvis[:grow])])
+            self.rotations = np.concatenate([self.rotations, np.zeros_like(self.rotations[:grow])])
+            self.labels = np.concatenate([self.labels, np.zeros_like(self.labels[:grow])])
+            self.capacity += grow
+        f = self.length
+        self.pelvis[f] = pelvis
+        self.rotations[f] = rotations
+        self.labels[f] = [self.label_id(s) for s in labels]
+        self.length += 1
+
+    def trimmed(self) -> TrackBuffers:
+        """A copy holding exactly the recorded frames."""
+        out = copy.copy(self)
+        out.capacity = max(self.length, 1)
+        out.pelvis = self.pelvis[: out.capacity].copy()
+        out.rotations = self.rotations[: out.capacity].copy()
+        out.labels = self.labels[: out.capacity].copy()
+        out.label_names = list(self.label_names)
+        return out
+
+
+@dataclass
+class WorldSnapshot:
+    """A deep copy of a world's mutable state (restore with ``World.restore``)."""
+
+    frame: int
+    characters: dict[str, CharacterState]
+    events: dict[str, EventState]
+    motion_states: dict[str, Any]
+    navigator: WorldNavigator
+    buffers: TrackBuffers
+
+
+class World:
+    """All characters of one scene. Build with ``World(scene, characters, motion)``.
+
+    ``characters``: name -> ((x, y) metres, heading radians); each starts standing idle on the
+    centre of the free navigation cell nearest to its position. ``motion``: the motion layer
+    (e.g. ``sim.motion_matching.MotionMatcher``). ``grid`` / ``planner`` default to
+    ``build_nav_grid(scene)`` and ``PathPlanner(grid, seed=config.seed)``.
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        characters: Mapping[str, tuple[tuple[float, float], float]],
+        motion: MotionLayer,
+        *,
+        grid: NavGrid | None = None,
+        planner: PathPlanner | None = None,
+        config: WorldConfig | None = None,
+    ) -> None:
+        self.config = config or WorldConfig()
+        if self.config.fps < 1:
+            raise WorldError(f"fps must be >= 1, got {self.config.fps}")
+        if not characters:
+            raise WorldError("a world needs at least one character")
+        self.scene = scene
+        self.grid = grid if grid is not None else build_nav_grid(scene)
+        self.planner = planner if planner is not None else PathPlanner(self.grid, seed=self.config.seed)
+        self.motion = motion
+        self.dt = 1.0 / self.config.fps
+        self.names: tuple[str, ...] = tuple(characters)
+        self.frame = 0
+        self.navigator = WorldNavigator(self.grid, self.planner, self.config.fps, self.config.seed)
+        self.characters: dict[str, CharacterState] = {}
+        self.events: dict[str, EventState] = {}
+        self.motion_states: dict[str, Any] = {}
+        taken: dict[Cell, str] = {}
+        for name, (xy, heading) in characters.items():
+            if not isinstance(name, str) or not name:
+                raise WorldError(f"character names must be non-empty strings, got {name!r}")
+            p = np.asarray(xy, dtype=float)
+            if p.shape != (2,) or not np.all(np.isfinite(p)) or not math.isfinite(heading):
+                raise WorldError(f"character {name!r}: position must be finite (x, y) and heading a finite angle")
+            cell = self.grid.nearest_free_cell(p)
+            if cell in taken:
+                raise WorldError(f"characters {taken[cell]!r} and {name!r} start on the same cell {cell}")
+            taken[cell] = name
+            centre = self.grid.center_of(*cell)
+            self.characters[name] = CharacterState(name=name, xy=centre, heading=float(heading), anchor_xy=centre)
+            self.navigator.add_walker(name, cell)
+            self.motion_states[name] = motion.initial_state("idle", centre, float(heading))
+        self.buffers = TrackBuffers(self.names, max(1, self.config.initial_capacity))
+
+    # ----- snapshots ---------------------------------------------------------------------------
+    def _shared_memo(self) -> dict[int, Any]:
+        nav = self.navigator.nav
+        return {id(self.scene): self.scene, id(self.grid): self.grid, id(self.planner): self.planner,
+                id(self.motion): self.motion, id(nav.grid): nav.grid, id(nav.planner): nav.planner}
+
+    def snapshot(self) -> WorldSnapshot:
+        """A copy of the mutable state; the world can go on stepping afterwards."""
+        memo = self._shared_memo()
+        return WorldSnapshot(
+            frame=self.frame,
+            characters=copy.deepcopy(self.characters, memo),
+            events=copy.deepcopy(self.events, memo),
+            motion_states=copy.deepcopy(self.motion_states, memo),
+            navigator=copy.deepcopy(self.navigator, memo),
+            buffers=self.buffers.trimmed(),
+        )
+
+    def restore(self, snap: WorldSnapshot) -> World:
+        """A new world in the state of ``snap`` (sharing scene, grid, planner and motion layer)."""
+        out = copy.copy(self)
+        memo = self._shared_memo()
+        out.frame = snap.frame
+        out.characters = copy.deepcopy(snap.characters, memo)
+        out.events = copy.deepcopy(snap.events, memo)
+        out.motion_states = copy.deepcopy(snap.motion_states, memo)
+        out.navigator = copy.deepcopy(snap.navigator, memo)
+        out.buffers = snap.buffers.trimmed()
+        return out
+
+    # ----- read-outs ------------------------------------------------------------------------------
+    def available(self) -> tuple[str, ...]:
+        """Characters the narrator may give a new event (see ``character_phases.available``)."""
+        out = []
+        for name in self.names:
+            c = self.characters[name]
+            ev = self.events.get(c.event_id) if c.event_id is not None else None
+            active = ev is not None and ev.status == "ongoing"
+            if available(c, active):
+                out.append(name)
+        return tuple(out)
+
+    def tracks(self) -> dict[str, CharacterTrack]:
+        """One ``CharacterTrack`` per character with every frame produced so far."""
+        b = self.buffers
+        if b.length == 0:
+            raise WorldError("no frame has been produced yet")
+        out = {}
+        for k, name in enumerate(self.names):
+            labels = tuple(b.label_names[i] for i in b.labels[: b.length, k])
+            out[name] = CharacterTrack(
+                name=name,
+                root_positions=b.pelvis[: b.length, k].copy(),
+                local_rotations=b.rotations[: b.length, k].astype(float),
+                fps=float(self.config.fps),
+                action_labels=labels,
+            )
+        return out
+
+    def positions(self) -> np.ndarray:
+        """Current root xy (N, 2) in ``names`` order."""
+        return np.array([self.characters[n].xy for n in self.names])
+
+    # ----- commands -----------------------------------------------------------------------------
+    def _fail(self, out: _Report, event_id: str, character: str, reason: FailureReason, message: str) -> None:
+        out.failures.append(EventFailure(event_id=event_id, character=character, reason=reason, message=message))
+
+    def _goal_for(self, c: CharacterState, a: Assignment) -> tuple[Cell | None, str]:
+        """Goal cell of an assignment, or (None, why not)."""
+        g = self.grid
+        here = g.cell_of(c.anchor_xy) if not self.navigator.is_walker(c.name) else self.navigator.cell(c.name)
+        comp = int(g.component[here]) if g.is_free(*here) else g.main_component
+        if a.seat is not None:
+            obj = self.scene.by_name[a.seat]
+            goal = g.approach_cell(obj)
+            if int(g.component[goal]) != comp:
+                return None, f"{c.name} cannot reach a free cell in front of {a.seat}"
+            return goal, ""
+        goal = g.nearest_free_cell(np.asarray(a.target_xy), component=comp)
+        off = float(np.linalg.norm(g.center_of(*goal) - np.asarray(a.target_xy)))
+        if off > self.config.max_target_offset:
+            return None, (f"{c.name} cannot reach ({a.target_xy[0]:.2f}, {a.target_xy[1]:.2f}): the nearest "
+                          f"reachable floor is {off:.2f} m away")
+        return goal, ""
+
+    def _apply_assign(self, cmd: AssignEvent, out: _Report) -> None:
+        eid = cmd.event_id
+        if eid in self.events and self.events[eid].status in ("ongoing", "looping"):
+            raise WorldError(f"event {eid!r} is already running")
+        free = set(self.available())
+        goals: dict[str, Cell] = {}
+        problems: list[tuple[str, FailureReason, str]] = []
+        for a in cmd.assignments:
+            if a.character not in self.characters:
+                problems.append((a.character, "unknown_character", f"no character called {a.character!r}"))
+                continue
+            unknown = [p for p in a.partners if p not in self.characters]
+            if unknown:
+                problems.append((a.character, "unknown_character", f"unknown partners {unknown}"))
+                continue
+            if a.seat is not None and a.seat not in self.scene.by_name:
+                problems.append((a.character, "unknown_seat", f"no object called {a.seat!r} in the scene"))
+                continue
+            if a.character not in free:
+                problems.append((a.character, "busy", f"{a.character} is busy with event "
+                                 f"{self.characters[a.character].event_id!r}"))
+                continue
+            goal, why = self._goal_for(self.characters[a.character], a)
+            if goal is None:
+                problems.append((a.character, "no_path", why))
+                continue
+            goals[a.character] = goal
+        if problems:
+            for name, reason, msg in problems:
+                self._fail(out, eid, name, reason, msg)
+            self.events[eid] = EventState(cmd, {a.character: "left" for a in cmd.assignments}, status="failed")
+            return
+        self.events[eid] = EventState(cmd, {a.character: "active" for a in cmd.assignments})
+        for a in cmd.assignments:
+            c = self.characters[a.character]
+            self._leave_event(c, out)
+            c.pending = None
+            self._start(c, eid, a, goals[a.character])
+
+    def _apply_release(self, cmd: ReleaseCharacters, out: _Report) -> None:
+        for name in cmd.characters:
+            c = self.characters.get(name)
+            if c is None:
+                self._fail(out, "release", name, "unknown_character", f"no character called {name!r}")
+                continue
+            self._leave_event(c, out)
+            c.pending = None
+            self._stop(c)
+
+    def _start(self, c: CharacterState, eid: str, a: Assignment, goal: Cell) -> None:
+        """Give ``c`` its new assignment: walk now, or first leave what it is doing."""
+        c.event_id = eid
+        c.waiting = False
+        if c.phase in ("transition_in", "interacting", "transition_out") or c.seated:
+            c.pending = (eid, a, goal)
+            if c.phase != "transition_out":
+                self._begin_transition_out(c)
+            return
+        self._take(c, a, goal)
+        c.enter("approaching")
+        if c.walker:
+            self.navigator.set_goal(c.name, goal)
+        # else: joins the navigator at the next step boundary (see _join_walkers)
+
+    @staticmethod
+    def _take(c: CharacterState, a: Assignment, goal: Cell) -> None:
+        c.assignment, c.goal_cell = a, goal
+        c.action_done = False
+        c.best_distance, c.stalled_frames = math.inf, 0
+
+    def _stop(self, c: CharacterState) -> None:
+        """End whatever ``c`` does and become idle (standing up first when seated)."""
+        c.waiting = False
+        if c.phase in ("transition_in", "interacting") or (c.phase == "idle" and c.seated):
+            self._begin_transition_out(c)
+        elif c.phase == "approaching":
+            c.enter("idle")
+            if c.walker:
+                self.navigator.set_goal(c.name, None)
+
+    def _begin_transition_out(self, c: CharacterState) -> None:
+        if c.phase == "transition_in" and c.assignment is not None and c.assignment.seat is not None:
+            c.seated = c.phase_frame > c.turn_frames  # stopped while sitting down: stand up
+            c.seat_xy = c.xy.copy()
+        c.enter("transition_out", transition_out_frames(c.seated, self.config.fps))
+        c.turn_from = c.heading
+
+    def _leave_event(self, c: CharacterState, out: _Report) -> None:
+        ev = self.events.get(c.event_id) if c.event_id is not None else None
+        if ev is not None and ev.members.get(c.name) in ("active", "done"):
+            ev.members[c.name] = "left"
+            self._update_event(ev.event.event_id, ev, out)
+        c.event_id = None
+
+    # ----- events -------------------------------------------------------------------------------
+    def _update_event(self, eid: str, ev: EventState, out: _Report) -> None:
+        if ev.status in ("completed", "failed"):
+            return
+        states = ev.members
+        if any(s == "active" for s in states.values()):
+            return
+        looping = [n for n, s in states.items() if s == "done" and self.characters[n].event_id == eid
+                   and self.characters[n].phase == "interacting" and self.characters[n].loops]
+        if looping:
+            if ev.status != "looping":
+                ev.status = "looping"
+                out.looping.append(eid)
+            return
+        ev.status = "completed"
+        out.completed.append(eid)
+        for n in states:
+            if self.characters[n].event_id == eid:
+                self.characters[n].event_id = None
+
+    def _fail_event(self, eid: str, character: str, reason: FailureReason, message: str, out: _Report) -> None:
+        ev = self.events[eid]
+        ev.status = "failed"
+        self._fail(out, eid, character, reason, message)
+        for n in ev.members:
+            c = self.characters[n]
+            if c.event_id != eid:
+                continue
+            c.event_id = None
+            if c.phase in ("approaching",) or c.waiting:
+                c.waiting = False
+                c.assignment = None
+                c.enter("idle")
+                if c.walker:
+                    self.navigator.set_goal(n, None)
+
+    def _arrive(self, c: CharacterState) -> None:
+        """``c`` reached its goal cell: stop there and wait for the event's other members."""
+        cell = self.navigator.cell(c.name)
+        c.anchor_xy = self.grid.center_of(*cell)
+        c.xy = c.anchor_xy.copy()
+        self.navigator.make_stationary(c.name, [c.anchor_xy])
+        c.walker = False
+        c.waiting = True
+        c.enter("idle")
+
+    def _begin_transition_in(self, c: CharacterState) -> None:
+        a = c.assignment
+        assert a is not None
+        c.waiting = False
+        c.turn_from = c.heading
+        c.turn_frames, total = transition_in_frames(a, c.heading, self.config.fps)
+        c.enter("transition_in", total)
+        if a.seat is not None:
+            c.seat_xy = self.scene.by_name[a.seat].seat_point()
+            mid = 0.5 * (c.anchor_xy + c.seat_xy)
+            self.navigator.make_stationary(c.name, [c.anchor_xy, mid, c.seat_xy])
+
+    # ----- the frame ------------------------------------------------------------------------------
+    def _phase_ends(self, out: _Report) -> None:
+        fps = self.config.fps
+        for c in self.characters.values():
+            if not c.phase_over:
+                continue
+            a = c.assignment
+            if c.phase == "transition_in":
+                assert a is not None
+                c.seated = a.seat is not None
+                if c.seated:
+                    assert c.seat_xy is not None
+                    c.xy = c.seat_xy.copy()
+                c.heading = a.facing_angle
+                c.enter("interacting", interaction_frames(a, fps))
+                if c.loops:
+                    self._member_done(c, out)
+            elif c.phase == "interacting":
+                c.enter("idle")
+                self._member_done(c, out)
+            elif c.phase == "transition_out":
+                if c.seated:
+                    c.seated = False
+                    c.xy = c.anchor_xy.copy()
+                    self.navigator.make_stationary(c.name, [c.anchor_xy])
+                c.enter("idle")
+                if c.pending is None:
+                    c.assignment = None
+
+    def _member_done(self, c: CharacterState, out: _Report) -> None:
+        c.action_done = True
+        eid = c.event_id
+        ev = self.events.get(eid) if eid is not None else None
+        if ev is not None and ev.members.get(c.name) == "active":
+            ev.members[c.name] = "done"
+            self._update_event(eid, ev, out)  # type: ignore[arg-type]
+
+    def _join_walkers(self) -> None:
+        """At a step boundary: standing, stationary characters with nothing to wait for walk again."""
+        for c in self.characters.values():
+            if c.walker or c.seated or c.waiting or c.phase not in ("idle", "approaching"):
+                continue
+            if c.phase == "idle" and c.pending is not None:
+                eid, a, goal = c.pending
+                c.pending = None
+                ev = self.events.get(eid)
+                if ev is not None and ev.status == "ongoing" and c.event_id == eid:
+                    self._take(c, a, goal)
+                    c.enter("approaching")
+            cell = self.grid.cell_of(c.anchor_xy)
+            goal = c.goal_cell if c.phase == "approaching" else None
+            self.navigator.add_walker(c.name, cell, goal)
+            c.walker = True
+
+    def _walker_checks(self, out: _Report) -> None:
+        """Arrivals, near-arrivals at a substitute goal, and stuck walkers (at step boundaries)."""
+        nav = self.navigator
+        for name in nav.new_arrivals():
+            c = self.characters[name]
+            if c.phase == "approaching":
+                self._arrive(c)
+        limit = int(self.config.stuck_after_s * self.config.fps)
+        for c in self.characters.values():
+            if c.phase != "approaching" or not c.walker or c.goal_cell is None:
+                continue
+            cell = nav.cell(c.name)
+            used = nav.used_goal(c.name)
+            if used is not None and used != c.goal_cell and cell == used and max(
+                abs(used[0] - c.goal_cell[0]), abs(used[1] - c.goal_cell[1])
+            ) <= 1:
+                self._arrive(c)  # the goal cell is taken; the neighbour the planner chose will do
+                continue
+            d = self.planner.distance(cell, c.goal_cell)
+            if d < c.best_distance - 1e-9:
+                c.best_distance, c.stalled_frames = d, 0
+            else:
+                c.stalled_frames += nav.step_frames
+            if c.stalled_frames > limit and c.event_id is not None:
+                self._fail_event(c.event_id, c.name, "stuck",
+                                 f"{c.name} made no progress towards its target for "
+                                 f"{self.config.stuck_after_s:.0f} s", out)
+
+    def _start_groups(self, out: _Report) -> None:
+        for eid, ev in self.events.items():
+            if ev.status != "ongoing" or ev.started:
+                continue
+            members = [self.characters[n] for n, s in ev.members.items() if s == "active"]
+            if members and all(m.waiting and m.event_id == eid for m in members):
+                ev.started = True
+                out.started.append(eid)
+                for m in members:
+                    self._begin_transition_in(m)
+
+    def _advance(self, out: _Report) -> None:
+        nav = self.navigator
+        boundary = nav.at_boundary()
+        self._phase_ends(out)
+        if boundary:
+            self._join_walkers()
+        walk_xy = nav.tick()
+        if boundary:
+            self._walker_checks(out)
+        self._start_groups(out)
+
+        n = len(self.names)
+        dt = self.dt
+        max_turn = self.config.walk_turn_rate * dt
+        queries: list[MotionQuery] = []
+        labels: list[str] = []
+        heading = np.empty(n)
+        root = np.empty((n, 2))
+        for k, name in enumerate(self.names):
+            c = self.characters[name]
+            moving = False
+            fut_xy = fut_h = None
+            if c.walker:
+                xy = walk_xy[name]
+                fut_xy = nav.future(name, FUTURE_FRAMES)
+                ahead = fut_xy[0] - xy
+                dist = float(np.hypot(*ahead))
+                moving = dist > 0.02 or float(np.hypot(*(xy - c.xy))) > 1e-6
+                h = c.heading
+                if dist > 0.05:
+                    h = c.heading + float(np.clip(wrap_angle(math.atan2(ahead[1], ahead[0]) - c.heading), -max_turn, max_turn))
+                steps = np.diff(np.vstack([xy, fut_xy]), axis=0)
+                fut_h = np.where(np.hypot(steps[:, 0], steps[:, 1]) > 1e-6, np.arctan2(steps[:, 1], steps[:, 0]), h)
+                c.xy, c.heading = np.asarray(xy, dtype=float), wrap_angle(h)
+            else:
+                self._stationary_root(c)
+            label, seated = phase_motion(c, moving)
+            key = database_key(label, seated)
+            restart = key != c.motion_key or c.phase_frame == 0
+            c.motion_key = key
+            tx, tf, th = self._motion_target(c)
+            queries.append(MotionQuery(
+                label=label, seated=seated, root_xy=c.xy, heading=c.heading, future_xy=fut_xy,
+                future_heading=fut_h, target_xy=tx, target_facing=tf, seat_height=th,
+                force_search=restart,
+            ))
+            labels.append(key)
+            heading[k] = c.heading
+            root[k] = c.xy
+        rots = np.empty((n, NUM_JOINTS, 3, 3))
+        pz = np.empty(n)
+        states = [self.motion_states[name] for name in self.names]
+        step_many = getattr(self.motion, "step_many", None)
+        if step_many is not None:  # a layer may batch characters (same result as one by one)
+            new_states, poses = step_many(states, queries, dt)
+        else:
+            pairs = [self.motion.step(s, q, dt) for s, q in zip(states, queries, strict=True)]
+            new_states, poses = [p[0] for p in pairs], [p[1] for p in pairs]
+        for k, name in enumerate(self.names):
+            self.motion_states[name] = new_states[k]
+            rots[k] = poses[k].local_rotations
+            pz[k] = poses[k].pelvis[2]
+        pelvis, rots = compose_poses(rots, pz, root, heading)
+        self.buffers.append(pelvis, rots, labels)
+        for c in self.characters.values():
+            c.phase_frame += 1
+
+    def _stationary_root(self, c: CharacterState) -> None:
+        """Root xy / heading of a character that is not walking, from its phase and timer."""
+        a = c.assignment
+        if c.phase == "transition_in" and a is not None:
+            if c.phase_frame < c.turn_frames:
+                u = smoothstep((c.phase_frame + 1) / c.turn_frames)
+                c.heading = wrap_angle(c.turn_from + u * wrap_angle(a.facing_angle - c.turn_from))
+            else:
+                c.heading = a.facing_angle
+                if a.seat is not None and c.seat_xy is not None:
+                    span = max(1, c.phase_length - c.turn_frames)
+                    u = smoothstep((c.phase_frame - c.turn_frames + 1) / span)
+                    c.xy = c.anchor_xy + u * (c.seat_xy - c.anchor_xy)
+        elif c.phase == "transition_out" and c.seated and c.seat_xy is not None:
+            u = smoothstep((c.phase_frame + 1) / max(1, c.phase_length))
+            c.xy = c.seat_xy + u * (c.anchor_xy - c.seat_xy)
+
+    def _motion_target(self, c: CharacterState) -> tuple[np.ndarray | None, float | None, float | None]:
+        """(target xy, target facing, seat height) of the motion query."""
+        a = c.assignment
+        if a is None or c.phase == "approaching":
+            return None, None, None
+        if a.seat is not None and c.seat_xy is not None:
+            height = a.seat_height
+            if height is None:
+                obj = self.scene.by_name[a.seat]
+                height = obj.z_min - self.scene.floor_z + obj.sit_offset_vertical
+            return c.seat_xy, a.facing_angle, height
+        spec = action_spec(a.action)
+        if spec.family == "partner" and a.partners:
+            pts = np.array([self.characters[p].xy for p in a.partners if p in self.characters])
+            centre = pts.mean(axis=0)
+            d = c.xy - centre
+            return centre, math.atan2(d[1], d[0]), None
+        f = np.asarray(a.facing_xy)
+        return c.anchor_xy + OBJECT_REACH * f, a.facing_angle + math.pi, None
+
+
+@dataclass
+class _Report:
+    completed: list[str] = field(default_factory=list)
+    looping: list[str] = field(default_factory=list)
+    started: list[str] = field(default_factory=list)
+    failures: list[EventFailure] = field(default_factory=list)
+
+
+def step(world: World, commands: Iterable[AssignEvent | ReleaseCharacters], dt: float) -> tuple[World, StepOutput]:
+    """Apply ``commands`` and advance ``world`` by one frame of ``dt`` seconds (must be 1 / fps).
+
+    Returns the same (mutated) world and what happened in the frame. Raises ``WorldError`` for
+    a wrong ``dt`` or an event id that is already running; everything else the planner can get
+    wrong (unknown names, busy characters, unreachable targets) comes back as failures.
+    """
+    if not math.isfinite(dt) or abs(dt - world.dt) > 1e-9:
+        raise WorldError(f"dt must be 1/{world.config.fps} s = {world.dt:.6f} s, got {dt!r}")
+    out = _Report()
+    for cmd in commands:
+        if isinstance(cmd, AssignEvent):
+            world._apply_assign(cmd, out)
+        elif isinstance(cmd, ReleaseCharacters):
+            world._apply_release(cmd, out)
+        else:
+            raise WorldError(f"unknown command {type(cmd).__name__}; expected AssignEvent or ReleaseCharacters")
+    world._advance(out)
+    frame = world.frame
+    world.frame += 1
+    return world, StepOutput(
+        frame=frame,
+        completed_events=tuple(out.completed),
+        looping_events=tuple(out.looping),
+        started_events=tuple(out.started),
+        failures=tuple(out.failures),
+        available=world.available(),
+    )
+
+
+def run(world: World, frames: int, commands_at: Mapping[int, Sequence[AssignEvent | ReleaseCharacters]] | None = None) -> list[StepOutput]:
+    """Step ``frames`` frames, applying ``commands_at[frame]`` before each; returns the outputs."""
+    outs = []
+    schedule = commands_at or {}
+    for _ in range(frames):
+        _, o = step(world, schedule.get(world.frame, ()), world.dt)
+        outs.append(o)
+    return outs
+
+
+__all__ = ["INFINITE", "EventState", "World", "WorldConfig", "WorldError", "WorldSnapshot", "run", "step"]

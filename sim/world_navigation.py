@@ -1,0 +1,104 @@
+"""The world's view of ``CrowdNavigator``: walkers, stationary bodies, arrivals, planned futures.
+
+The world needs four things the navigator's public API does not offer yet; they are isolated
+here so that one file changes when it does:
+
+- ``release``: turn a stationary character back into a walker (``CrowdNavigator`` can only
+  add walkers and make them stationary) -> removes its entries from ``_static``;
+- ``future``: where a walker's current plan puts it 10/20/30 frames ahead (the motion
+  query's desired trajectory) -> reads ``_paths`` and ``_plan_frame``;
+- ``cell``: a walker's current cell -> ``_cells``;
+- several stationary discs per character (a seated body spans the approach cell and the
+  seat): extra keys ``(name, k)``.
+
+Everything else goes through the navigator's public methods. Positions are metres (xy).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from sim.cooperative_astar import Cell, PathPlanner, position_at
+from sim.nav_grid import NavGrid
+from sim.path_following import CrowdNavigator
+
+
+class WorldNavigator:
+    """Thin wrapper over one ``CrowdNavigator`` (string agent names)."""
+
+    def __init__(self, grid: NavGrid, planner: PathPlanner, fps: int, seed: int) -> None:
+        self.nav = CrowdNavigator(grid, planner=planner, fps=fps, seed=seed)
+        self._arrivals_seen = 0
+        self._extra: dict[str, int] = {}
+
+    @property
+    def grid(self) -> NavGrid:
+        return self.nav.grid
+
+    @property
+    def planner(self) -> PathPlanner:
+        return self.nav.planner
+
+    @property
+    def step_frames(self) -> int:
+        return self.nav.step_frames
+
+    def at_boundary(self) -> bool:
+        """Whether the next ``tick`` starts a planning step (walkers may join only then)."""
+        return self.nav.frame % self.nav.step_frames == 0
+
+    # ----- membership ---------------------------------------------------------------------------
+    def add_walker(self, name: str, cell: Cell, goal: Cell | None = None) -> None:
+        self.release(name)
+        self.nav.add_walker(name, cell, goal)
+
+    def set_goal(self, name: str, goal: Cell | None) -> None:
+        self.nav.set_goal(name, goal)
+
+    def make_stationary(self, name: str, points: Sequence[np.ndarray]) -> None:
+        """``name`` stops walking; its body covers discs centred on ``points`` (>= 1)."""
+        self.release(name)
+        self.nav.set_stationary(name, np.asarray(points[0], dtype=float))
+        for k, p in enumerate(points[1:], start=1):
+            self.nav.set_stationary((name, k), np.asarray(p, dtype=float))
+        self._extra[name] = len(points) - 1
+
+    def release(self, name: str) -> None:
+        """Forget ``name``'s stationary discs (no-op for walkers)."""
+        static = self.nav._static
+        if static.pop(name, None) is not None:
+            self.nav._needs_plan = True
+        for k in range(1, self._extra.pop(name, 0) + 1):
+            static.pop((name, k), None)
+
+    def is_walker(self, name: str) -> bool:
+        return name in self.nav._cells
+
+    def cell(self, name: str) -> Cell:
+        return self.nav._cells[name]
+
+    # ----- time ----------------------------------------------------------------------------------
+    def tick(self) -> dict[str, np.ndarray]:
+        """Walker positions at this frame (then the navigator's clock advances)."""
+        return self.nav.tick()  # type: ignore[return-value]
+
+    def new_arrivals(self) -> list[str]:
+        """Walkers that reached their goal cell since the last call, in order."""
+        out = [a for _, a in self.nav.arrivals[self._arrivals_seen :]]
+        self._arrivals_seen = len(self.nav.arrivals)
+        return out  # type: ignore[return-value]
+
+    def used_goal(self, name: str) -> Cell | None:
+        """The goal the last plan actually used (the nearest free cell when the asked one was taken)."""
+        res = self.nav.last_result
+        return None if res is None else res.goals.get(name)
+
+    def future(self, name: str, frames: Sequence[int]) -> np.ndarray:
+        """Planned positions (len(frames), 2) ``frames`` after the last produced frame."""
+        nav = self.nav
+        path = nav._paths[name]
+        t_now = nav.frame - 1 - nav._plan_frame
+        st = nav.planner.step_time
+        return np.stack([position_at(path, (t_now + k) / nav.fps, nav.grid, st) for k in frames])
