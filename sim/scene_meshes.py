@@ -209,16 +209,16 @@ def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = Non
     ]
     objects.sort(key=lambda o: (o.label, o.idx))
 
-    if floors:
-        xy = np.concatenate([p[3][:, :2] for p in floors])
-        lo, hi = xy.min(axis=0), xy.max(axis=0)
-    elif objects:
-        corners = np.concatenate([o.footprint() for o in objects])
-        lo, hi = corners.min(axis=0) - BOUNDS_MARGIN, corners.max(axis=0) + BOUNDS_MARGIN
-    else:
+    if not objects:
         raise SceneFileError(
             path, "mesh file has only structural nodes (floor/ceiling/room), no objects"
         )
+    if floors:
+        xy = np.concatenate([p[3][:, :2] for p in floors])
+        lo, hi = xy.min(axis=0), xy.max(axis=0)
+    else:
+        corners = np.concatenate([o.footprint() for o in objects])
+        lo, hi = corners.min(axis=0) - BOUNDS_MARGIN, corners.max(axis=0) + BOUNDS_MARGIN
     try:
         return Scene(
             name=path.stem or "scene",
