@@ -394,3 +394,8 @@ def test_print_is_captured() -> None:
     run = run_program("def parse_event():\n    print('a', 1, sep='-')\n    print('b\\nc')\n", {})
     assert run.output == ("a-1", "b", "c")
     assert run.result is None
+
+
+def test_parser_warnings_do_not_turn_into_errors() -> None:
+    # pytest runs with warnings as errors; an invalid escape must still parse as in production
+    assert execute("def parse_event():\n    return '\\d'\n", {}) == "\\d"

@@ -27,6 +27,7 @@ import contextlib
 import functools
 import inspect
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -300,7 +301,9 @@ def _parse(source: object, budget: Budget) -> ast.Module:
             f"the program has {len(source)} characters (limit {budget.source_chars})"
         )
     try:
-        return ast.parse(source, mode="exec")
+        with warnings.catch_warnings():  # e.g. "invalid escape sequence": not the LLM's problem
+            warnings.simplefilter("ignore")
+            return ast.parse(source, mode="exec")
     except SyntaxError as err:
         line = err.lineno if isinstance(err.lineno, int) else None
         text = f"syntax error: {err.msg}"
@@ -640,6 +643,7 @@ class _Return:
         self.value = value
 
 
+_BUILTIN_FUNCTIONS = {name: BuiltinFunction(name, impl) for name, impl in BUILTINS.items()}
 _BREAK = object()
 _CONTINUE = object()
 _INTERNAL = frozenset({SandboxFunction, BuiltinFunction, BoundMethod})
@@ -683,7 +687,6 @@ class _Interpreter:
         self.namespace = namespace
         self.ns_cache: dict[str, object] = {}
         self.local_names = local_names
-        self.builtins = {name: BuiltinFunction(name, impl) for name, impl in BUILTINS.items()}
 
     # -- entry
     def run(self, tree: ast.Module, entry: str) -> object:
@@ -713,7 +716,7 @@ class _Interpreter:
         meter = self.meter
         for stmt in body:
             meter.steps += 1
-            if not meter.steps & 255:
+            if not meter.steps & 63:
                 meter.tick(stmt.lineno)
             try:
                 signal = _STMT[type(stmt)](self, stmt, scope)
@@ -987,7 +990,7 @@ class _Interpreter:
     def eval(self, node: ast.expr, scope: _Scope) -> object:
         meter = self.meter
         meter.steps += 1
-        if not meter.steps & 255:
+        if not meter.steps & 63:
             meter.tick(node.lineno)
         return _EXPR[type(node)](self, node, scope)
 
@@ -1016,10 +1019,10 @@ class _Interpreter:
             value = detach(self.namespace[name])
             self.ns_cache[name] = value
             return value
-        builtin = self.builtins.get(name)
+        builtin = _BUILTIN_FUNCTIONS.get(name)
         if builtin is not None:
             return builtin
-        known = [k for k in self.namespace if not k.startswith("_")] + list(self.builtins)
+        known = [k for k in self.namespace if not k.startswith("_")] + list(BUILTINS)
         raise UnknownNameError(
             f"name '{name}' is not defined;{did_you_mean(name, known, n=1) or ' no such function or variable exists'}",
             line=line,
@@ -1063,7 +1066,7 @@ class _Interpreter:
         fn = self.eval(node.func, scope)
         args: list[object] = []
         for a in node.args:
-            if isinstance(a, ast.Starred):
+            if type(a) is ast.Starred:
                 args.extend(materialize(self.eval(a.value, scope), self.meter, line))
             else:
                 args.append(self.eval(a, scope))

@@ -98,7 +98,7 @@ class Meter:
         self.output: list[str] = []
 
     def tick(self, line: int | None) -> None:
-        """Called every few hundred steps (and after tool calls): checks steps and wall time."""
+        """Called every 64 steps (and after tool calls): checks steps and wall time."""
         if self.steps > self.budget.steps:
             raise BudgetExceededError(
                 f"the program took more than {self.budget.steps} steps; "
