@@ -338,3 +338,18 @@ def test_area_from_text(scenes: dict[str, Scene]) -> None:
     assert area_from_text("between chair_1 and chair_3", house).anchors == ("chair_1", "chair_3")
     assert area_from_text("to the left of chair_4", house).description == "to the left of chair_4"
     assert area_from_text("lie on couch_1", house).seats
+
+
+def test_combining_is_bounded_and_typed() -> None:
+    from tools.areas import MAX_PARTS
+    from tools.errors import ToolArgumentError
+
+    a = areas.close_to(ROOM.by_name["table_1"])
+    combined = a
+    for _ in range(MAX_PARTS - 1):
+        combined = combined.union(a)
+    assert combined.parts == MAX_PARTS
+    with pytest.raises(ToolArgumentError, match="at most"):
+        combined.intersect(a)
+    with pytest.raises(ToolArgumentError, match="expects an Area"):
+        a.union("table_1")  # type: ignore[arg-type]

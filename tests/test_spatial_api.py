@@ -306,3 +306,24 @@ def test_failing_program_gives_no_plans_and_names_the_line(
     )
     plans = run_event_program(house, fallback, world, seed=2, action_labels=labels)
     assert plans[0].area == "close to table_4"
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        "get_area_close_to('table_4').predicate",
+        "get_area_close_to('table_4').seats",
+        "get_character('Ryan')._api",
+        "get_character('Ryan')._records",
+        "get_area_close_to('table_4').contains([[1.0, 1.0]])",
+    ],
+)
+def test_programs_reach_only_declared_attributes(
+    house: Scene, case0: tuple[WorldView, list[str]], body: str
+) -> None:
+    world, labels = case0
+    source = f"def parse_event():\n    x = {body}\n    get_character('Ryan').set_position(get_area_close_to('table_4'))\n"
+    with pytest.raises(EventProgramError) as info:
+        run_event_program(house, source, world, seed=0, action_labels=labels)
+    assert not isinstance(info.value, ToolArgumentError)
+    assert info.value.line == 2

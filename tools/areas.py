@@ -18,6 +18,7 @@ from typing import ClassVar
 import numpy as np
 
 from sim.scene import SceneObject
+from tools.errors import ToolArgumentError
 from tools.scene_graph import point_footprint_distance
 
 ADJACENT_DISTANCE = 0.5  # m from the footprint
@@ -31,6 +32,7 @@ ALIGNED_BEYOND = (
 )
 SEAT_SLOT_WIDTH = 0.6  # m of seat width per sitting person
 SEAT_MATCH = 0.05  # m: a point this close to a seat slot is on it
+MAX_PARTS = 32  # most single-relation areas one combined area may hold
 
 Predicate = Callable[[np.ndarray], np.ndarray]
 Box = tuple[float, float, float, float]  # xmin, ymin, xmax, ymax
@@ -57,6 +59,7 @@ class Area:
     seats: tuple[SeatSlot, ...] = ()
     free_region: bool = True
     anchors: tuple[str, ...] = ()
+    parts: int = 1
 
     sandbox_attributes: ClassVar[frozenset[str]] = frozenset({"description", "intersect", "union"})
 
@@ -67,9 +70,7 @@ class Area:
 
     def intersect(self, other: Area) -> Area:
         """The points in both areas. Seat slots survive when the other area contains them."""
-        if not isinstance(other, Area):
-            raise TypeError("intersect() expects an Area")
-        a, b = self, other
+        a, b = self, _combinable(self, other, "intersect")
         seats = [s for s in a.seats if bool(b.contains(np.array(s.position))[0])]
         seats += [
             s for s in b.seats if bool(a.contains(np.array(s.position))[0]) and s not in seats
@@ -92,13 +93,12 @@ class Area:
             seats=tuple(seats),
             free_region=a.free_region and b.free_region,
             anchors=_merge(a.anchors, b.anchors),
+            parts=a.parts + b.parts,
         )
 
     def union(self, other: Area) -> Area:
         """The points in either area; seat slots of both."""
-        if not isinstance(other, Area):
-            raise TypeError("union() expects an Area")
-        a, b = self, other
+        a, b = self, _combinable(self, other, "union")
         hint = (
             min(a.hint[0], b.hint[0]),
             min(a.hint[1], b.hint[1]),
@@ -117,11 +117,20 @@ class Area:
             seats=a.seats + tuple(s for s in b.seats if s not in a.seats),
             free_region=(a.free_region and a.hint_nonempty) or (b.free_region and b.hint_nonempty),
             anchors=_merge(a.anchors, b.anchors),
+            parts=a.parts + b.parts,
         )
 
     @property
     def hint_nonempty(self) -> bool:
         return self.hint[0] <= self.hint[2] and self.hint[1] <= self.hint[3]
+
+
+def _combinable(a: Area, b: object, method: str) -> Area:
+    if not isinstance(b, Area):
+        raise ToolArgumentError(f"{method}() expects an Area from a get_area_* function, got {b!r}")
+    if a.parts + b.parts > MAX_PARTS:
+        raise ToolArgumentError(f"an area may combine at most {MAX_PARTS} simple areas")
+    return b
 
 
 def _wrap(area: Area, other_operator: str) -> str:
