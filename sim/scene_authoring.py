@@ -98,7 +98,7 @@ HOME = Layout(
         Item("floor_lamp", 5.45, 5.3, 0.35, 0.35, 1.6),
         # home-office nook: desk, chair, laptop
         Item("desk", 7.45, 2.2, 1.2, 0.6, 0.75, W),
-        Item("chair", 6.55, 2.2, 0.5, 0.52, 0.95, E),
+        Item("chair", 6.65, 2.2, 0.5, 0.52, 0.95, E),
         Item("laptop", 7.4, 2.2, 0.34, 0.25, 0.24, W, on="desk_1"),
     ),
 )
