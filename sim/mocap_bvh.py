@@ -21,7 +21,15 @@ from scipy.spatial.transform import Rotation
 
 from sim.motion_clips import FOOT_JOINTS, MotionClip, clip_from_pose_frames
 from sim.procedural_rig import TOE_HEIGHT
-from sim.skeleton import BODY_TO_WORLD, JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, forward_kinematics, rest_positions
+from sim.skeleton import (
+    BODY_TO_WORLD,
+    JOINT_INDEX,
+    JOINT_NAMES,
+    NUM_JOINTS,
+    PARENTS,
+    forward_kinematics,
+    rest_positions,
+)
 
 
 class MocapImportError(ValueError):

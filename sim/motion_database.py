@@ -58,9 +58,14 @@ class NearestFrameIndex:
     """Exact nearest neighbour over feature rows (N,D), restricted to ``candidates``.
 
     ``query`` returns (row index, squared distance); KD-tree and brute force agree exactly.
+    The tree is built on the rows rotated onto their principal axes (a rotation keeps
+    distances, and splitting along the directions the data spreads in prunes far better);
+    candidates within a tiny slack of the tree's best distance are re-ranked with the exact
+    distance in the original space, so rounding in the rotation cannot change the answer.
     """
 
-    def __init__(self, features: np.ndarray, candidates: np.ndarray | None = None, leafsize: int = 16) -> None:
+    def __init__(self, features: np.ndarray, candidates: np.ndarray | None = None, leafsize: int = 16,
+                 rotate: bool = True) -> None:
         self.features = np.ascontiguousarray(features, dtype=float)
         if candidates is None:
             candidates = np.arange(len(self.features))
@@ -68,7 +73,17 @@ class NearestFrameIndex:
         if len(self.candidates) == 0:
             raise ValueError("a motion search index needs at least one candidate frame")
         self.rows = self.features[self.candidates]
-        self.tree = cKDTree(self.rows, leafsize=leafsize, balanced_tree=False, compact_nodes=True)
+        self.center = self.rows.mean(axis=0)
+        if rotate and len(self.rows) > self.rows.shape[1]:
+            sample = self.rows[:: max(1, len(self.rows) // 20000)] - self.center
+            self.basis = np.linalg.svd(sample, full_matrices=False)[2].T
+        else:
+            self.basis = np.eye(self.rows.shape[1])
+        self.tree = cKDTree((self.rows - self.center) @ self.basis, leafsize=leafsize, balanced_tree=False,
+                            compact_nodes=True)
+
+    def _tree_space(self, q: np.ndarray) -> np.ndarray:
+        return (q - self.center) @ self.basis
 
     def brute_force(self, query: np.ndarray) -> tuple[int, float]:
         d = squared_distances(self.rows, np.asarray(query, dtype=float))
@@ -80,11 +95,11 @@ class NearestFrameIndex:
         valid = idx < n
         dists, idx = dists[valid], idx[valid]
         d0 = float(dists[0])
-        slack = d0 * 1e-9 + 1e-12
+        slack = d0 * 1e-7 + 1e-9  # covers rounding of the rotation (tree distances are not squared)
         close = idx[dists <= d0 + slack]
         if len(close) == len(idx) and len(idx) < n:
             # every returned neighbour ties: collect all rows within the tie radius
-            close = np.asarray(self.tree.query_ball_point(query, d0 + slack), dtype=np.int64)
+            close = np.asarray(self.tree.query_ball_point(self._tree_space(query), d0 + slack), dtype=np.int64)
         exact = squared_distances(self.rows[close], query)
         best = np.flatnonzero(exact == exact.min())
         i = int(close[best].min())  # lowest index among exact ties (candidates are sorted)
@@ -93,14 +108,14 @@ class NearestFrameIndex:
     def query(self, query: np.ndarray, k: int = 4) -> tuple[int, float]:
         q = np.asarray(query, dtype=float)
         k = min(k, len(self.rows))
-        dists, idx = self.tree.query(q, k=k)
+        dists, idx = self.tree.query(self._tree_space(q), k=k)
         return self._resolve(q, np.atleast_1d(dists), np.atleast_1d(idx))
 
     def query_many(self, queries: np.ndarray, k: int = 4, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Batched exact search: (M,D) -> (indices (M,), squared distances (M,))."""
         q = np.asarray(queries, dtype=float).reshape(-1, self.rows.shape[1])
         k = min(k, len(self.rows))
-        dists, idx = self.tree.query(q, k=k, workers=workers)
+        dists, idx = self.tree.query(self._tree_space(q), k=k, workers=workers)
         dists, idx = dists.reshape(len(q), k), idx.reshape(len(q), k)
         out_i = np.empty(len(q), dtype=np.int64)
         out_d = np.empty(len(q))

@@ -19,10 +19,9 @@ tuple of (group name, size); its sum is asserted where vectors are assembled.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
-
-from typing import Literal
 
 from sim.action_labels import family_of, is_seated_key
 from sim.skeleton import JOINT_INDEX

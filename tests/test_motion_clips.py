@@ -97,7 +97,7 @@ def test_locomotion_clips_have_planted_feet_and_valid_rotations() -> None:
 
 
 def test_loop_clips_are_seamless() -> None:
-    for clip in [c for c in locomotion_clips() if c.loops][:3] + [action_clip("chat")]:
+    for clip in [*[c for c in locomotion_clips() if c.loops][:3], action_clip("chat")]:
         pos = clip.joint_positions()
         local = [forward_kinematics(clip.local_rotations[i], np.zeros(3))[0] for i in (0, -1, -2)]
         seam = np.abs(local[0] - local[1]).max()
