@@ -198,6 +198,27 @@ HOSTILE: list[tuple[str, object, type[EventProgramError]]] = [
         body("try:\n    return 10**10**8\nexcept Exception:\n    return 1"),
         B,
     ),
+    (
+        "big_equality",
+        body(
+            "a = [[0] * 20000 for _ in range(20)]\nb = [[0] * 20000 for _ in range(20)]\nreturn a == b"
+        ),
+        B,
+    ),
+    ("big_membership", body("a = [[0] * 100] * 20000\nreturn [1] * 100 in a"), B),
+    ("sort_nested_lists", body("a = [[i] * 1000 for i in range(1000)]\nreturn sorted(a)"), B),
+    (
+        "repeated_search",
+        body("a = [(1, 2)] * 20000\nfor i in range(19000):\n    a.count((1, 3))"),
+        B,
+    ),
+    (
+        "dict_copy_bomb",
+        body(
+            "d = {i: i for i in range(15000)}\nkeep = []\nfor i in range(2000):\n    keep.append(d.copy())"
+        ),
+        B,
+    ),
     ("round_huge_ndigits", body("return round(5, -10**9)"), R),
     ("complex_result", body("return (-1) ** 0.5"), R),
     # bad values for tools

@@ -1053,7 +1053,7 @@ class _Interpreter:
         left = self.eval(node.left, scope)
         for op, comparator in zip(node.ops, node.comparators, strict=True):
             right = self.eval(comparator, scope)
-            if not compare(op, left, right, node.lineno):
+            if not compare(op, left, right, self.meter, node.lineno):
                 return False
             left = right
         return True

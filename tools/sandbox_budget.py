@@ -116,6 +116,12 @@ class Meter:
                 line=line,
             )
 
+    def work(self, n: int, line: int | None) -> None:
+        """Charge ``n`` units of C-level work (one step per 8 units) done in a single operation."""
+        self.steps += n >> 3
+        if self.steps > self.budget.steps:
+            self.tick(line)
+
     def loop(self, line: int | None) -> None:
         self.loops += 1
         if self.loops > self.budget.loop_iterations:
@@ -212,3 +218,36 @@ def text_len_bound(value: object, limit: int) -> int:
         if total > limit:
             return total
     return total
+
+
+_NESTED = frozenset({list, tuple, dict, set, frozenset})
+
+
+def nested_size(value: object, cap: int) -> int:
+    """Items in a nested list/tuple/dict/set value (each string counts as one item).
+
+    Counts items as they are pushed, so the walk and its stack stay within ``cap`` plus one
+    container's length; returns a number above ``cap`` as soon as it passes it. Flat
+    containers are not walked item by item (their item types are collected in C).
+    """
+    count = 1
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        t = type(v)
+        if t is dict:
+            d: dict[object, object] = v  # type: ignore[assignment]
+            count += 2 * len(d)
+            if count > cap:
+                return count
+            if not _NESTED.isdisjoint(set(map(type, d.values()))):
+                stack.extend(d.values())
+            if not _NESTED.isdisjoint(set(map(type, d.keys()))):
+                stack.extend(d.keys())
+        elif t in _NESTED:
+            count += len(v)  # type: ignore[arg-type]
+            if count > cap:
+                return count
+            if not _NESTED.isdisjoint(set(map(type, v))):  # type: ignore[call-overload]
+                stack.extend(v)  # type: ignore[arg-type]
+    return count

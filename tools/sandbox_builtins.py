@@ -20,6 +20,7 @@ from tools.sandbox_budget import (
     ForbiddenConstructError,
     Meter,
     ProgramRuntimeError,
+    nested_size,
     text_len_bound,
 )
 
@@ -323,11 +324,50 @@ _COMPARE: dict[type[ast.cmpop], tuple[str, Callable[[object, object], object]]] 
 }
 
 
-def compare(op: ast.cmpop, a: object, b: object, line: Line) -> bool:
+CONTAINER_TYPES = frozenset({list, tuple, dict, set, frozenset})
+
+
+def comparison_work(meter: Meter, line: Line, items: list[object], repeat: int = 1) -> None:
+    """Comparing nested containers runs in C without checks: bound and charge it first.
+
+    ``items`` are the values whose nested sizes add up to the work; ``repeat`` multiplies it
+    (e.g. the length of the list searched by ``in``).
+    """
+    cap = meter.budget.container_len * 10
+    total = 0
+    for item in items:
+        if type(item) in CONTAINER_TYPES:
+            total += nested_size(item, cap)
+            if total * repeat > cap:
+                break
+    work = total * repeat
+    if work > cap:
+        raise BudgetExceededError(
+            f"comparing these values means visiting about {work} nested items (limit {cap})",
+            line=line,
+        )
+    meter.work(work, line)
+
+
+def compare(op: ast.cmpop, a: object, b: object, meter: Meter, line: Line) -> bool:
     t = type(op)
     if t is ast.In or t is ast.NotIn:
-        found = contains(b, a, line)
+        found = contains(b, a, meter, line)
         return found if t is ast.In else not found
+    if (
+        t is not ast.Is
+        and t is not ast.IsNot
+        and type(a) in CONTAINER_TYPES
+        and type(b) in CONTAINER_TYPES
+    ):
+        cap = meter.budget.container_len * 10
+        work = min(nested_size(a, cap), nested_size(b, cap))
+        if work > cap:
+            raise BudgetExceededError(
+                f"comparing these values means visiting about {work} nested items (limit {cap})",
+                line=line,
+            )
+        meter.work(work, line)
     symbol, fn = _COMPARE[t]
     try:
         return bool(fn(a, b))
@@ -338,7 +378,7 @@ def compare(op: ast.cmpop, a: object, b: object, line: Line) -> bool:
         ) from None
 
 
-def contains(container: object, item: object, line: Line) -> bool:
+def contains(container: object, item: object, meter: Meter, line: Line) -> bool:
     t = type(container)
     if t is str:
         if type(item) is not str:
@@ -347,7 +387,11 @@ def contains(container: object, item: object, line: Line) -> bool:
             )
     elif t is dict or t is set or t is frozenset:
         check_key(item, line)
-    elif t not in (list, tuple, range):
+    elif t is list or t is tuple:
+        meter.work(len(container), line)  # type: ignore[arg-type]
+        if type(item) in CONTAINER_TYPES:
+            comparison_work(meter, line, [item], repeat=len(container))  # type: ignore[arg-type]
+    elif t is not range:
         raise ProgramRuntimeError(
             f"'in' needs a list, tuple, dict, set, string or range, not '{t.__name__}'", line=line
         )
@@ -431,6 +475,7 @@ def _extreme(which: str) -> BuiltinImpl:
                 return kwargs["default"]
             raise ProgramRuntimeError(f"{which}() of an empty sequence", line=line)
         keys = _keys(host, items, kwargs.get("key"), line)
+        comparison_work(host.meter, line, keys)
         try:
             best = pick(range(len(items)), key=keys.__getitem__)
         except TypeError as err:
@@ -482,6 +527,7 @@ def sort_items(
     host: Host, items: list[object], key: object, reverse: object, line: Line
 ) -> list[object]:
     keys = _keys(host, items, key, line)
+    comparison_work(host.meter, line, keys, repeat=max(1, len(keys).bit_length()))
     try:
         order = sorted(range(len(items)), key=keys.__getitem__, reverse=bool(reverse))
     except TypeError as err:
@@ -674,19 +720,25 @@ PYTHON_ONLY_BUILTINS = frozenset(
 MethodImpl = Callable[[Host, object, list[object], dict[str, object], Line], object]
 
 
-def _plain(name: str, key_arg: bool = False) -> MethodImpl:
-    """A method that cannot grow anything much: call it, then bound the result."""
+def _plain(name: str, key_arg: bool = False, searches: bool = False) -> MethodImpl:
+    """A method that cannot grow anything much: call it, then bound the result.
+
+    ``key_arg``: the first argument is hashed (dict/set key); ``searches``: it is compared
+    with every item (list.index / count / remove).
+    """
 
     def impl(
         host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
     ) -> object:
         if key_arg and args:
             check_key(args[0], line)
+        if searches and args:
+            comparison_work(host.meter, line, [args[0]], repeat=len(obj))  # type: ignore[arg-type]
         result = getattr(obj, name)(*args, **kwargs)
         t = type(result)
         if t is str:
             host.meter.check_str(len(result), line)
-        elif t is list or t is tuple:
+        elif t in CONTAINER_TYPES:
             host.meter.check_len(len(result), line)
         elif name in ("keys", "values", "items"):
             result = list(result)
@@ -841,7 +893,8 @@ METHODS: dict[type, dict[str, MethodImpl]] = {
         "replace": _str_replace,
     },
     list: {
-        **{n: _plain(n) for n in ("pop", "remove", "index", "count", "reverse", "copy", "clear")},
+        **{n: _plain(n) for n in ("pop", "reverse", "copy", "clear")},
+        **{n: _plain(n, searches=True) for n in ("remove", "index", "count")},
         "append": _list_append,
         "insert": _list_insert,
         "extend": _list_extend,
@@ -854,7 +907,7 @@ METHODS: dict[type, dict[str, MethodImpl]] = {
         "setdefault": _dict_setdefault,
         "update": _dict_update,
     },
-    tuple: {n: _plain(n) for n in ("index", "count")},
+    tuple: {n: _plain(n, searches=True) for n in ("index", "count")},
     set: {
         **{n: _plain(n) for n in ("pop", "clear", *_SET_READ)},
         **{n: _plain(n, key_arg=True) for n in ("remove", "discard")},
