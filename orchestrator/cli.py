@@ -6,6 +6,7 @@ import typer
 
 from orchestrator import cli_plan, cli_scene
 from orchestrator import cli_event
+from orchestrator import cli_model
 
 app = typer.Typer(
     name="storyteller",
@@ -16,6 +17,7 @@ app = typer.Typer(
 cli_scene.register(app)
 cli_plan.register(app)
 cli_event.register(app)
+cli_model.register(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point

@@ -5,7 +5,7 @@ Layout of the TOML file (every table and key is optional)::
     [llm]                       # defaults for every node
     model = "local/qwen2.5-coder-0.5b"
     temperature = 0.0
-    max_tokens = 512
+    max_tokens = 1024            # a cap: requests may ask for fewer
     timeout_s = 120.0
     fallbacks = []              # tried in order after ``model`` has used up its retries
     api_base = "http://127.0.0.1:8080/v1"   # optional
@@ -85,7 +85,10 @@ class NodeConfig(BaseModel):
 
     model: str = Field(default=DEFAULT_MODEL, min_length=1)
     temperature: float = Field(default=0.0, ge=0.0, le=2.0)
-    max_tokens: int = Field(default=512, gt=0, le=32768)
+    max_tokens: int = Field(
+        default=1024, gt=0, le=32768,
+        description="Cap on generated tokens; a request's own max_tokens can only lower it.",
+    )
     timeout_s: float = Field(default=120.0, gt=0.0, description="Per-attempt timeout, seconds.")
     fallbacks: tuple[str, ...] = ()
     api_base: str | None = None

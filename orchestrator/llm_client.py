@@ -3,7 +3,8 @@
 For each request the node's models are tried in order (primary, then fallbacks). On each
 model, transient errors are retried up to ``retry.max_attempts`` attempts in total, waiting
 an exponential, jittered, seeded delay between attempts; a permanent error (400, 401, 403,
-404, 422, missing weights or key) moves on to the next model at once. litellm's own retries
+404, 422, missing weights or key) moves on to the next model at once, and so does an
+unusable answer (empty, truncated, not JSON) from the deterministic embedded model. litellm's own retries
 are disabled (``max_retries=0``, never ``num_retries``).
 """
 
@@ -179,7 +180,11 @@ class LiteLLMClient:
                     parsed = _validate(text, finish, request)
                 except Exception as exc:
                     latency = self._clock() - t0
-                    klass = "permanent" if isinstance(exc, LLMUnavailableError) else classify_error(exc)
+                    klass = classify_error(exc)
+                    if isinstance(exc, LLMUnavailableError) or (
+                        isinstance(exc, InvalidResponseError) and provider_of(model) == "local"
+                    ):
+                        klass = "permanent"  # the embedded model is deterministic: same input, same output
                     record(response_text=text, finish_reason=finish, usage=usage, latency_s=latency,
                            error_type=type(exc).__name__, error_message=str(exc)[:2000],
                            error_class=klass, final=False)
