@@ -327,3 +327,21 @@ def test_programs_reach_only_declared_attributes(
         run_event_program(house, source, world, seed=0, action_labels=labels)
     assert not isinstance(info.value, ToolArgumentError)
     assert info.value.line == 2
+
+
+def test_interacting_with_a_seat_sits_and_objects_on_furniture_are_reached_from_its_edge(
+    api: SpatialAPI,
+) -> None:
+    from tools.areas import inset_depth
+
+    ns = api.namespace()
+    assert ns["get_area_to_interact_with"]("chair_5").seats
+    house = api.scene
+    tv, stand = house.by_name["tv_1"], house.by_name["table_1"]
+    assert 0.0 <= inset_depth(tv, stand) <= stand.depth
+    ryan = ns["get_character"]("Ryan")
+    ryan.set_position(ns["get_area_to_interact_with"]("tv_1"))
+    plan = api.resolve(seed=3)[0]
+    assert plan.area == "interact with tv_1" and plan.seat is None
+    local = tv.to_local(np.array(plan.position))
+    assert local[1] >= tv.depth / 2  # on the screen's side

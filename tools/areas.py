@@ -12,7 +12,7 @@ Reference distances: adjacent 0.5 m, close 1.0 m, between <= 0.5 m off the centr
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
@@ -24,6 +24,7 @@ from tools.scene_graph import point_footprint_distance
 ADJACENT_DISTANCE = 0.5  # m from the footprint
 CLOSE_DISTANCE = 1.0  # m from the footprint
 INTERACT_DISTANCE = 0.6  # m from the footprint, on the object's front side
+EDGE_REACH = 0.45  # m past an object's inset in its supporter (0.25 body radius + 0.2)
 INTERACT_SIDE_MARGIN = 0.3  # m beyond the object's sides still counted as its front
 DIRECTIONAL_REACH = 1.5  # m beyond the face for in front of / behind / left of / right of
 BETWEEN_OFF_LINE = 0.5  # m off the centre line
@@ -215,12 +216,38 @@ def directional(obj: SceneObject, relation: str, reach: float = DIRECTIONAL_REAC
     )
 
 
-def to_interact_with(obj: SceneObject) -> Area:
-    """Where a standing character can use the object: within 0.6 m of its footprint and, for
-    objects with a front, on the front side (no further than 0.3 m past its sides)."""
+def inset_depth(obj: SceneObject, supporter: SceneObject) -> float:
+    """How far (m) the object sits inside its supporter's footprint: for an object with a front,
+    from the middle of its front face straight ahead to the supporter's edge; otherwise from its
+    corner nearest to an edge of the supporter to that edge. 0 when it overhangs."""
+    half = np.array([supporter.width / 2.0, supporter.depth / 2.0])
+    if obj.has_facing:
+        facing = np.array(obj.facing)
+        start = supporter.to_local(obj.center_xy + facing * obj.depth / 2.0)
+        direction = np.array([facing @ supporter.right, facing @ np.array(supporter.facing)])
+        exits = [
+            (half[i] - np.sign(direction[i]) * start[i]) / abs(direction[i])
+            for i in range(2)
+            if abs(direction[i]) > 1e-9
+        ]
+        return float(max(0.0, min(exits))) if exits else 0.0
+    local = np.abs(supporter.to_local(obj.footprint()))
+    return float(max(0.0, (half[None, :] - local).min()))
+
+
+def to_interact_with(obj: SceneObject, supporter: SceneObject | None = None) -> Area:
+    """Where a character can use the object. A seat: its seat slots. Otherwise within 0.6 m of
+    its footprint (for an object on a ``supporter``: at least its inset + 0.45 m, so that a
+    laptop deep on a desk is reached from the desk's edge) and, for objects with a front, on
+    the front side (no further than 0.3 m past its sides)."""
+    if obj.is_seat:
+        return replace(to_sit_on(obj), description=f"interact with {obj.name}")
+    reach = INTERACT_DISTANCE
+    if supporter is not None:  # stand at the supporter's edge: body radius + a short arm's reach
+        reach = max(reach, inset_depth(obj, supporter) + EDGE_REACH)
 
     def predicate(p: np.ndarray) -> np.ndarray:
-        near = point_footprint_distance(obj, p) <= INTERACT_DISTANCE
+        near = point_footprint_distance(obj, p) <= reach
         if not obj.has_facing:
             return near
         local = obj.to_local(p)
@@ -232,7 +259,7 @@ def to_interact_with(obj: SceneObject) -> Area:
     return Area(
         f"interact with {obj.name}",
         predicate,
-        _grown_box(obj, INTERACT_DISTANCE),
+        _grown_box(obj, reach),
         _focus(obj),
         anchors=(obj.name,),
     )

@@ -358,8 +358,11 @@ class SpatialAPI:
 
     # ----- areas ----------------------------------------------------------------------------
     def get_area_to_interact_with(self, object: str) -> Area:
-        """Where to stand to use ``object``: <= 0.6 m from it, on its front side if it has one."""
-        return areas.to_interact_with(self._object(object, "get_area_to_interact_with"))
+        """Where to use ``object``: a seat's seat; else <= 0.6 m from it (further if it stands deep
+        on furniture: reached from the furniture's edge), on its front side if it has one."""
+        obj = self._object(object, "get_area_to_interact_with")
+        supporter = self.graph.supporter(obj.name)
+        return areas.to_interact_with(obj, self.scene.by_name[supporter] if supporter else None)
 
     def get_area_to_sit_on(self, object: str) -> Area:
         """The seat of a chair, stool, couch or sofa (a couch has one place per 0.6 m of width)."""
