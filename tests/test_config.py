@@ -139,3 +139,18 @@ def test_unreadable_files(tmp_path: Path) -> None:
         load_config(tmp_path / "missing.toml", env={})
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_config(write(tmp_path, "[llm\nmodel="), env={})
+
+
+def test_cli_model_info_and_bad_config_exit_2(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from orchestrator.cli import app
+
+    runner = CliRunner()
+    ok = runner.invoke(app, ["model", "info", "--config", str(write(tmp_path, GOOD))])
+    assert ok.exit_code == 0, ok.output
+    assert "narrator      model=openai/gpt-4o-mini fallbacks=[local/qwen2.5-coder-0.5b]" in ok.output
+    assert "api_key_env=OPENAI_API_KEY" in ok.output
+    bad = runner.invoke(app, ["model", "info", "--config", str(write(tmp_path, "[llm]\ntemperature = 'hot'\n"))])
+    assert bad.exit_code == 2
+    assert "llm.temperature" in bad.output and "Traceback" not in bad.output

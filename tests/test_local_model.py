@@ -195,3 +195,28 @@ async def test_real_embedded_model_timeout_aborts_and_model_stays_usable() -> No
     ok = await LiteLLMClient(base).complete(
         LLMRequest(node="narrator", messages=(ChatMessage(role="user", content="Say hi."),), max_tokens=8))
     assert ok.text.strip() and ok.usage.completion_tokens <= 8
+
+
+async def test_truncated_local_json_goes_to_fallback_without_retry(tmp_path: Path) -> None:
+    truncated = FakeLlama(reply='{"animal": "ca')
+    truncated_out = truncated.__call__
+
+    def chat(*args: Any) -> dict[str, Any]:
+        out = truncated_out(*args)
+        out["choices"][0]["finish_reason"] = "length"
+        return out
+
+    register_local_provider(LocalLlamaProvider(chat=chat, check=lambda m: None))
+    base = default_config()
+    node = base.nodes["narrator"].model_copy(update={"fallbacks": ("local/qwen2.5-coder-1.5b",)})
+    client = LiteLLMClient(base.model_copy(update={"nodes": {**base.nodes, "narrator": node}}),
+                           TraceWriter(tmp_path / "t.jsonl"), check_local=lambda m: None)
+    try:
+        with pytest.raises(LLMError, match="truncated"):
+            await client.complete(request())
+    finally:
+        client.close()
+        register_local_provider(LocalLlamaProvider())
+    recs = list(read_trace(tmp_path / "t.jsonl").attempts())
+    assert [r.model for r in recs] == ["local/qwen2.5-coder-0.5b", "local/qwen2.5-coder-1.5b"]
+    assert all(r.error_class == "permanent" for r in recs) and len(truncated.calls) == 2
