@@ -181,6 +181,11 @@ def inspect_scene(
     from sim.nav_grid import NavGridError
     from sim.scene_files import SceneFileError
 
+    if png is not None:  # fail before the work, not after it
+        if png.is_dir():
+            raise _fail(f"{png}: is a folder, expected a PNG file path")
+        if not png.parent.is_dir():
+            raise _fail(f"{png}: cannot write the picture (folder {png.parent} does not exist)")
     try:
         scene = resolve_scene(scene_spec)
         data = inspect_data(scene)
@@ -193,8 +198,6 @@ def inspect_scene(
     if png is not None:
         from sim.topdown_plot import save_topdown_png
 
-        if png.exists() and png.is_dir():
-            raise _fail(f"{png}: is a folder, expected a PNG file path")
         try:
             save_topdown_png(
                 png,
