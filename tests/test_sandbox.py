@@ -399,3 +399,39 @@ def test_print_is_captured() -> None:
 def test_parser_warnings_do_not_turn_into_errors() -> None:
     # pytest runs with warnings as errors; an invalid escape must still parse as in production
     assert execute("def parse_event():\n    return '\\d'\n", {}) == "\\d"
+
+
+class Region:
+    """An opaque tool value that declares its operators and one property."""
+
+    sandbox_attributes: ClassVar[frozenset[str]] = frozenset({"cells"})
+    sandbox_operators: ClassVar[frozenset[str]] = frozenset({"|", "[]"})
+
+    def __init__(self, cells: set[int]) -> None:
+        self._cells = cells
+
+    @property
+    def cells(self) -> list[int]:
+        return sorted(self._cells)
+
+    def __or__(self, other: Region) -> Region:
+        return Region(self._cells | other._cells)
+
+    def __getitem__(self, i: int) -> int:
+        return self.cells[i]
+
+    def secret(self) -> str:
+        return "hidden"
+
+
+def test_opaque_tool_values_expose_only_what_they_declare() -> None:
+    ns = {"region": lambda *cells: Region(set(cells))}
+    assert execute(
+        "def parse_event():\n    r = region(1, 2) | region(3)\n    return r.cells, r[0]\n", ns
+    ) == ([1, 2, 3], 1)
+    with pytest.raises(ForbiddenConstructError, match=r"'Region\.secret' is not available"):
+        execute("def parse_event():\n    return region(1).secret()\n", ns)
+    with pytest.raises(ProgramRuntimeError, match="unsupported operand types for &"):
+        execute("def parse_event():\n    return region(1) & region(2)\n", ns)
+    with pytest.raises(ProgramRuntimeError, match="cannot loop over a value of type 'Region'"):
+        execute("def parse_event():\n    return [c for c in region(1)]\n", ns)
