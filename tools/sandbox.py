@@ -18,6 +18,10 @@ line. ``ToolError`` from a tool propagates unchanged (line added); a program may
 with ``try/except`` (``except ToolError``, ``except Exception``, a ``ToolError`` subclass
 name, or bare ``except``), never a budget or sandbox error. ``Budget`` bounds steps, loops,
 sizes, recursion and (injected-clock) wall time.
+
+Checked trees are cached per (source, namespace names, budget); ``check_program`` returns
+them shared, so callers must not mutate them. Program calls use about 15 Python frames per
+level: a caller already near Python's recursion limit gets ``BudgetExceededError`` earlier.
 """
 
 from __future__ import annotations
@@ -130,115 +134,30 @@ def run_program(
 
 # ---------------------------------------------------------------- static checks
 
-_STATEMENTS: frozenset[type[ast.AST]] = frozenset(
-    {
-        ast.FunctionDef,
-        ast.Return,
-        ast.Assign,
-        ast.AugAssign,
-        ast.AnnAssign,
-        ast.For,
-        ast.While,
-        ast.If,
-        ast.Expr,
-        ast.Pass,
-        ast.Break,
-        ast.Continue,
-        ast.Assert,
-        ast.Try,
-        ast.ExceptHandler,
-        ast.Delete,
-    }
+
+def _node_types(names: str) -> frozenset[type[ast.AST]]:
+    return frozenset(getattr(ast, name) for name in names.split())
+
+
+_STATEMENTS = _node_types(
+    "FunctionDef Return Assign AugAssign AnnAssign For While If Expr Pass Break Continue "
+    "Assert Try ExceptHandler Delete"
 )
-_EXPRESSIONS: frozenset[type[ast.AST]] = frozenset(
-    {
-        ast.BoolOp,
-        ast.BinOp,
-        ast.UnaryOp,
-        ast.Compare,
-        ast.IfExp,
-        ast.Call,
-        ast.keyword,
-        ast.Constant,
-        ast.Name,
-        ast.Attribute,
-        ast.Subscript,
-        ast.Slice,
-        ast.List,
-        ast.Tuple,
-        ast.Dict,
-        ast.Set,
-        ast.ListComp,
-        ast.SetComp,
-        ast.DictComp,
-        ast.GeneratorExp,
-        ast.comprehension,
-        ast.JoinedStr,
-        ast.FormattedValue,
-        ast.Lambda,
-        ast.NamedExpr,
-        ast.Starred,
-        ast.arguments,
-        ast.arg,
-    }
+_EXPRESSIONS = _node_types(
+    "BoolOp BinOp UnaryOp Compare IfExp Call keyword Constant Name Attribute Subscript Slice "
+    "List Tuple Dict Set ListComp SetComp DictComp GeneratorExp comprehension JoinedStr "
+    "FormattedValue Lambda NamedExpr Starred arguments arg"
 )
-_LEAVES: frozenset[type[ast.AST]] = frozenset(
-    {
-        ast.Load,
-        ast.Store,
-        ast.Del,
-        ast.And,
-        ast.Or,
-        ast.Add,
-        ast.Sub,
-        ast.Mult,
-        ast.Div,
-        ast.FloorDiv,
-        ast.Mod,
-        ast.Pow,
-        ast.LShift,
-        ast.RShift,
-        ast.BitOr,
-        ast.BitXor,
-        ast.BitAnd,
-        ast.Invert,
-        ast.Not,
-        ast.UAdd,
-        ast.USub,
-        ast.Eq,
-        ast.NotEq,
-        ast.Lt,
-        ast.LtE,
-        ast.Gt,
-        ast.GtE,
-        ast.Is,
-        ast.IsNot,
-        ast.In,
-        ast.NotIn,
-    }
+_LEAVES = _node_types(
+    "Load Store Del And Or Add Sub Mult Div FloorDiv Mod Pow LShift RShift BitOr BitXor BitAnd "
+    "Invert Not UAdd USub Eq NotEq Lt LtE Gt GtE Is IsNot In NotIn"
 )
 _ALLOWED = _STATEMENTS | _EXPRESSIONS | _LEAVES | {ast.Module}
 # Allowed nodes with no check of their own (only their children are visited).
-_PLAIN = _ALLOWED - {
-    ast.Name,
-    ast.Attribute,
-    ast.Constant,
-    ast.keyword,
-    ast.Starred,
-    ast.Return,
-    ast.Break,
-    ast.Continue,
-    ast.FunctionDef,
-    ast.Lambda,
-    ast.ExceptHandler,
-    ast.List,
-    ast.Tuple,
-    ast.Set,
-    ast.Call,
-    ast.For,
-    ast.While,
-    ast.comprehension,
-}
+_PLAIN = _ALLOWED - _node_types(
+    "Name Attribute Constant keyword Starred Return Break Continue FunctionDef Lambda "
+    "ExceptHandler List Tuple Set Call For While comprehension"
+)
 
 _FORBIDDEN_MESSAGES: dict[type[ast.AST], str] = {
     ast.Import: "imports are not allowed; the spatial-API functions are already defined",
