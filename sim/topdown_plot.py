@@ -12,7 +12,8 @@ Layers (all optional): ``clusters`` (lists of object names, one colour each),
 ``nav_free`` + ``nav_origin`` + ``nav_cell_size`` (a navigation-grid mask, ``nav_free[i, j]``
 True when cell (i, j) is walkable, ``i`` along +x, ``origin`` the corner of cell (0, 0)),
 ``characters`` (``CharacterMarker``: position, heading, label), ``paths`` (polylines, either a
-list or a mapping from character name to polyline so the colours match), ``title``.
+list or a mapping from character name to polyline so the colours match), ``title``,
+``captions`` (lines of text in the top-left corner, e.g. the events under way), ``show_names``.
 Coordinates in metres, x to the right, y up.
 """
 
@@ -67,6 +68,7 @@ def draw_topdown(
     characters: Sequence[CharacterMarker] | None = None,
     paths: Sequence[np.ndarray] | Mapping[str, np.ndarray] | None = None,
     title: str | None = None,
+    captions: Sequence[str] | None = None,
     show_names: bool = True,
     size_px: int = 900,
     dpi: int = 100,
@@ -213,6 +215,18 @@ def draw_topdown(
     ax.tick_params(labelsize=6)
     if title:
         fig.suptitle(title, fontsize=9)
+    if captions:
+        ax.text(
+            0.01,
+            0.99,
+            "\n".join(captions),
+            transform=ax.transAxes,
+            fontsize=7,
+            ha="left",
+            va="top",
+            zorder=10,
+            bbox={"boxstyle": "round,pad=0.3", "fc": "white", "ec": "#888888", "alpha": 0.85},
+        )
     return fig
 
 

@@ -69,6 +69,7 @@ def test_frames_of_one_scene_share_a_shape(small: Scene) -> None:
         {"paths": [np.array([[0.5, 0.5], [3.5, 0.5], [3.5, 3.5]])]},
         {"paths": {"Cy": [[0.5, 3.5], [1.5, 3.5]]}},
         {"title": "a title"},
+        {"captions": ["event 3: Ann and Bob chat", "event 4: Cy makes coffee"]},
         {"show_names": False},
     ],
     ids=[
