@@ -80,6 +80,7 @@ def test_frames_of_one_scene_share_a_shape(small: Scene) -> None:
         "path-list",
         "path-mapping",
         "title",
+        "captions",
         "no-names",
     ],
 )
