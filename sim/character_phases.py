@@ -135,13 +135,13 @@ def smoothstep(u: float) -> float:
 def phase_motion(state: CharacterState, moving: bool) -> tuple[str, bool]:
     """(action label, seated) that animates ``state`` this frame.
 
-    ``moving``: the character's root moves along a walking plan (idle walkers stepping aside
-    walk too). ``database_key(*phase_motion(...))`` names the motion database.
+    ``moving``: the character's root moved this frame along its walking plan (idle walkers
+    stepping aside walk too; a walker waiting for others to pass stands). ``database_key(*phase_motion(...))`` names the motion database.
     """
     a = state.assignment
-    if state.phase == "approaching" or (state.phase == "idle" and moving):
+    if state.phase in ("approaching", "idle") and moving:
         return "walk", False
-    if state.phase == "idle":
+    if state.phase in ("approaching", "idle"):
         return "idle", state.seated
     if state.phase == "transition_in":
         if a is not None and a.seat is not None and state.phase_frame >= state.turn_frames:

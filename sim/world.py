@@ -79,13 +79,16 @@ class WorldError(ValueError):
 @dataclass(frozen=True)
 class WorldConfig:
     """fps: frames per second; seed: navigator priority seed; walk_turn_rate: rad/s a walker's
-    heading may turn; stuck_after_s: seconds without getting closer before a walker fails;
+    heading may turn (faster turns swing the planted feet around the root: sliding);
+    heading_lookahead: frames ahead on the plan that a walker turns to face (looking past the
+    grid's zigzags); stuck_after_s: seconds without getting closer before a walker fails;
     max_target_offset: metres between a target and the nearest reachable cell centre beyond
     which the target counts as unreachable; initial_capacity: frames pre-allocated per track."""
 
     fps: int = 30
     seed: int = 0
-    walk_turn_rate: float = 2.0 * math.pi
+    walk_turn_rate: float = 2.0
+    heading_lookahead: int = 20
     stuck_after_s: float = 20.0
     max_target_offset: float = 0.75
     initial_capacity: int = 512
@@ -111,6 +114,7 @@ class TrackBuffers:
     pelvis: np.ndarray = field(init=False)
     rotations: np.ndarray = field(init=False)
     labels: np.ndarray = field(init=False)
+    contacts: np.ndarray = field(init=False)
     label_names: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -118,6 +122,7 @@ class TrackBuffers:
         self.pelvis = np.zeros((self.capacity, n, 3))
         self.rotations = np.zeros((self.capacity, n, NUM_JOINTS, 3, 3), dtype=np.float32)
         self.labels = np.zeros((self.capacity, n), dtype=np.int32)
+        self.contacts = np.zeros((self.capacity, n, 2), dtype=bool)
 
     def label_id(self, label: str) -> int:
         try:
@@ -126,17 +131,19 @@ class TrackBuffers:
             self.label_names.append(label)
             return len(self.label_names) - 1
 
-    def append(self, pelvis: np.ndarray, rotations: np.ndarray, labels: Sequence[str]) -> None:
+    def append(self, pelvis: np.ndarray, rotations: np.ndarray, labels: Sequence[str], contacts: np.ndarray) -> None:
+        """Record one frame: pelvis (N, 3), rotations (N, 22, 3, 3), labels (N,), foot contacts (N, 2)."""
         if self.length == self.capacity:
             grow = max(self.capacity, 1)
-            self.pelvis = np.concatenate([self.pelvis, np.zeros_like(self.pelvis[:grow])])
-            self.rotations = np.concatenate([self.rotations, np.zeros_like(self.rotations[:grow])])
-            self.labels = np.concatenate([self.labels, np.zeros_like(self.labels[:grow])])
+            for name in ("pelvis", "rotations", "labels", "contacts"):
+                arr = getattr(self, name)
+                setattr(self, name, np.concatenate([arr, np.zeros_like(arr[:grow])]))
             self.capacity += grow
         f = self.length
         self.pelvis[f] = pelvis
         self.rotations[f] = rotations
         self.labels[f] = [self.label_id(s) for s in labels]
+        self.contacts[f] = contacts
         self.length += 1
 
     def trimmed(self) -> TrackBuffers:
@@ -146,6 +153,7 @@ class TrackBuffers:
         out.pelvis = self.pelvis[: out.capacity].copy()
         out.rotations = self.rotations[: out.capacity].copy()
         out.labels = self.labels[: out.capacity].copy()
+        out.contacts = self.contacts[: out.capacity].copy()
         out.label_names = list(self.label_names)
         return out
 
@@ -272,6 +280,11 @@ class World:
                 action_labels=labels,
             )
         return out
+
+    def foot_contacts(self) -> dict[str, np.ndarray]:
+        """Per character, the motion layer's left/right foot contact flags (frames, 2)."""
+        b = self.buffers
+        return {name: b.contacts[: b.length, k].copy() for k, name in enumerate(self.names)}
 
     def positions(self) -> np.ndarray:
         """Current root xy (N, 2) in ``names`` order."""
@@ -569,12 +582,13 @@ class World:
             if c.walker:
                 xy = walk_xy[name]
                 fut_xy = nav.future(name, FUTURE_FRAMES)
-                ahead = fut_xy[0] - xy
+                ahead = nav.future(name, (self.config.heading_lookahead,))[0] - xy
                 dist = float(np.hypot(*ahead))
-                moving = dist > 0.02 or float(np.hypot(*(xy - c.xy))) > 1e-6
+                moving = float(np.hypot(*(xy - c.xy))) > 1e-6
                 h = c.heading
                 if dist > 0.05:
-                    h = c.heading + float(np.clip(wrap_angle(math.atan2(ahead[1], ahead[0]) - c.heading), -max_turn, max_turn))
+                    err = wrap_angle(math.atan2(ahead[1], ahead[0]) - c.heading)
+                    h = c.heading + float(np.clip(err, -max_turn, max_turn))
                 steps = np.diff(np.vstack([xy, fut_xy]), axis=0)
                 fut_h = np.where(np.hypot(steps[:, 0], steps[:, 1]) > 1e-6, np.arctan2(steps[:, 1], steps[:, 0]), h)
                 c.xy, c.heading = np.asarray(xy, dtype=float), wrap_angle(h)
@@ -595,6 +609,7 @@ class World:
             root[k] = c.xy
         rots = np.empty((n, NUM_JOINTS, 3, 3))
         pz = np.empty(n)
+        contacts = np.zeros((n, 2), dtype=bool)
         states = [self.motion_states[name] for name in self.names]
         step_many = getattr(self.motion, "step_many", None)
         if step_many is not None:  # a layer may batch characters (same result as one by one)
@@ -606,8 +621,9 @@ class World:
             self.motion_states[name] = new_states[k]
             rots[k] = poses[k].local_rotations
             pz[k] = poses[k].pelvis[2]
+            contacts[k] = getattr(poses[k], "contacts", False)
         pelvis, rots = compose_poses(rots, pz, root, heading)
-        self.buffers.append(pelvis, rots, labels)
+        self.buffers.append(pelvis, rots, labels, contacts)
         for c in self.characters.values():
             c.phase_frame += 1
 

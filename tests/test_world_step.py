@@ -1,0 +1,292 @@
+"""The world step (sim.world): phases, group events, failures, determinism, snapshots.
+
+These tests use a stand-in motion layer (rest pose on the world's root) so that they check the
+world's own logic quickly; the full motion matcher runs in tests/test_crowd_motion.py and in
+one smoke test here.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim.cooperative_astar import PathPlanner
+from sim.motion_matching import MotionQuery, Pose
+from sim.nav_grid import build_nav_grid
+from sim.scene import Scene
+from sim.scene_files import load_scene
+from sim.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
+from sim.story_events import AssignEvent, Assignment, ReleaseCharacters, StepOutput
+from sim.world import World, WorldConfig, WorldError, run, step
+
+OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
+
+
+class StandInMotion:
+    """Test placeholder: rest pose, pelvis lowered when seated; records every query."""
+
+    def __init__(self) -> None:
+        self.queries: list[MotionQuery] = []
+
+    def initial_state(self, label: str, root_xy: object, heading: float, seated: bool = False) -> int:
+        return 0
+
+    def step(self, state: int, query: MotionQuery, dt: float) -> tuple[int, Pose]:
+        self.queries.append(query)
+        rot = np.tile(np.eye(3), (NUM_JOINTS, 1, 1))
+        rot[0] = heading_to_root(float(query.heading or 0.0))
+        sitting = query.seated or query.label in ("sit_down", "stand_up")
+        z = 0.55 if sitting else float(REST_OFFSETS[0, 1])
+        root = np.asarray(query.root_xy, dtype=float)
+        return state + 1, Pose(np.array([*root, z]), rot, root, float(query.heading or 0.0), np.zeros(2, dtype=bool))
+
+
+@pytest.fixture(scope="module")
+def office() -> tuple[Scene, object, PathPlanner]:
+    if not OFFICE.exists():
+        pytest.skip(f"reference scene not found at {OFFICE}")
+    scene = load_scene(OFFICE)
+    grid = build_nav_grid(scene)
+    return scene, grid, PathPlanner(grid)
+
+
+def _world(office, chars: dict[str, tuple[tuple[float, float], float]], **cfg: object) -> World:  # type: ignore[no-untyped-def]
+    scene, grid, planner = office
+    return World(scene, chars, StandInMotion(), grid=grid, planner=planner, config=WorldConfig(**cfg))  # type: ignore[arg-type]
+
+
+def _cell_xy(office, i: int, j: int) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    _, grid, _ = office
+    assert grid.is_free(i, j)
+    c = grid.center_of(i, j)
+    return (float(c[0]), float(c[1]))
+
+
+def _free_cells(office) -> np.ndarray:  # type: ignore[no-untyped-def]
+    _, grid, _ = office
+    return np.argwhere(grid.component == grid.main_component)
+
+
+def _go(name: str, xy: tuple[float, float], action: str = "idle", facing: tuple[float, float] = (1.0, 0.0),
+        **kw: object) -> Assignment:
+    return Assignment(character=name, action=action, target_xy=xy, facing_xy=facing, **kw)  # type: ignore[arg-type]
+
+
+def _until(world: World, pred, limit: int = 2000, commands=()) -> list[StepOutput]:  # type: ignore[no-untyped-def]
+    outs = []
+    first = list(commands)
+    for _ in range(limit):
+        _, out = step(world, first, world.dt)
+        first = []
+        outs.append(out)
+        if pred(out):
+            return outs
+    raise AssertionError("condition not reached")
+
+
+def test_a_walker_reaches_its_target_turns_and_loops(office) -> None:  # type: ignore[no-untyped-def]
+    cells = _free_cells(office)
+    start, goal = _cell_xy(office, *cells[0]), _cell_xy(office, *cells[40])
+    w = _world(office, {"ann": (start, 0.0)})
+    assert w.available() == ("ann",)
+    outs = _until(w, lambda o: o.looping_events, commands=[AssignEvent(event_id="e1", assignments=(_go("ann", goal, facing=(0.0, -1.0)),))])
+    ann = w.characters["ann"]
+    assert ann.phase == "interacting"
+    assert np.allclose(ann.xy, goal) and math.isclose(ann.heading, -math.pi / 2)
+    assert outs[-1].available == ("ann",)  # looping: free for the narrator
+    labels = w.tracks()["ann"].action_labels
+    assert labels[0] == "idle" and "walk" in labels
+    # The recorded pelvis is the world's root, frame by frame.
+    assert np.allclose(w.tracks()["ann"].root_positions[-1, :2], goal)
+
+
+def test_root_stays_on_the_navigator_path_while_walking(office) -> None:  # type: ignore[no-untyped-def]
+    cells = _free_cells(office)
+    w = _world(office, {"ann": (_cell_xy(office, *cells[0]), 0.0)})
+    run(w, 120, {0: [AssignEvent(event_id="e", assignments=(_go("ann", _cell_xy(office, *cells[60])),))]})
+    xy = w.tracks()["ann"].root_positions[:, :2]
+    step_len = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    # at most one diagonal cell (0.42 m) per 9-frame step, i.e. <= sqrt(2) m/s
+    assert step_len.max() <= math.sqrt(2) / 30 + 1e-9
+    assert step_len.sum() > 1.0
+
+
+def test_group_members_wait_for_each_other_then_start_together(office) -> None:  # type: ignore[no-untyped-def]
+    _scene, _grid, _ = office
+    cells = _free_cells(office)
+    near, far = cells[100], cells[0]
+    meet_a, meet_b = cells[104], cells[110]
+    w = _world(office, {"ann": (_cell_xy(office, *near), 0.0), "bob": (_cell_xy(office, *far), 0.0)})
+    ev = AssignEvent(event_id="talk", assignments=(
+        _go("ann", _cell_xy(office, *meet_a), "chat", partners=("bob",)),
+        _go("bob", _cell_xy(office, *meet_b), "chat", partners=("ann",)),
+    ))
+    outs = _until(w, lambda o: o.started_events == ("talk",), commands=[ev])
+    ann_track = w.tracks()["ann"].root_positions[:, :2]
+    arrived = int(np.flatnonzero(np.all(np.isclose(ann_track, _cell_xy(office, *meet_a)), axis=1))[0])
+    assert len(outs) - arrived > 30  # ann waited at least a second for bob
+    assert np.allclose(ann_track[arrived:], ann_track[arrived])  # waiting means standing still
+    assert w.characters["ann"].phase == w.characters["bob"].phase == "transition_in"
+    assert outs[-2].available == ()  # both busy while the event is ongoing
+    outs = _until(w, lambda o: bool(o.looping_events))
+    assert outs[-1].looping_events == ("talk",)
+    assert set(outs[-1].available) == {"ann", "bob"}
+    # The partner action's motion target is the partner.
+    q = w.motion.queries[-1]  # type: ignore[attr-defined]
+    assert q.label == "chat" and np.allclose(q.target_xy, w.characters["ann"].xy)
+
+
+def test_completing_action_completes_the_event(office) -> None:  # type: ignore[no-untyped-def]
+    cells = _free_cells(office)
+    w = _world(office, {"ann": (_cell_xy(office, *cells[5]), 0.0)})
+    outs = _until(w, lambda o: bool(o.completed_events),
+                  commands=[AssignEvent(event_id="sip", assignments=(_go("ann", _cell_xy(office, *cells[5]), "drink"),))])
+    assert outs[-1].completed_events == ("sip",)
+    labels = w.tracks()["ann"].action_labels
+    assert labels.count("drink") == 120  # ActionSpec duration 4 s at 30 fps
+    assert outs[-1].available == ("ann",) and w.characters["ann"].phase == "idle"
+
+
+def test_sitting_walks_to_the_approach_cell_sits_acts_and_stands_up_for_the_next_event(office) -> None:  # type: ignore[no-untyped-def]
+    scene, grid, _ = office
+    chair = scene.get("chair_1")
+    approach = grid.approach_cell(chair)
+    cells = _free_cells(office)
+    start = min(cells, key=lambda c: abs(int(c[0]) - approach[0]) + abs(int(c[1]) - approach[1]) if max(abs(int(c[0]) - approach[0]), abs(int(c[1]) - approach[1])) >= 4 else 1e9)
+    w = _world(office, {"ann": (_cell_xy(office, *start), 0.0)})
+    sit = AssignEvent(event_id="sit", assignments=(Assignment(
+        character="ann", action="drink", target_xy=tuple(chair.seat_point()), facing_xy=chair.facing, seat="chair_1"),))
+    _until(w, lambda o: bool(o.completed_events), commands=[sit])
+    ann = w.characters["ann"]
+    assert ann.seated and ann.phase == "idle" and np.allclose(ann.xy, chair.seat_point())
+    labels = w.tracks()["ann"].action_labels
+    assert labels.count("sit_down") == 60 and labels.count("drink@seated") == 120
+    # the pelvis sat down: lower than when standing
+    z = w.tracks()["ann"].root_positions[:, 2]
+    assert z[-1] < z[0] - 0.2
+    run(w, 5)
+    assert w.tracks()["ann"].action_labels[-1] == "sit_idle"
+    go = AssignEvent(event_id="go", assignments=(_go("ann", _cell_xy(office, *start)),))
+    _until(w, lambda o: bool(o.looping_events), commands=[go])
+    labels = w.tracks()["ann"].action_labels
+    assert labels.count("stand_up") == 54
+    first_stand = labels.index("stand_up")
+    assert "walk" in labels[first_stand:]
+    assert np.allclose(w.characters["ann"].xy, _cell_xy(office, *start))
+
+
+def test_looping_event_completes_when_its_members_are_interrupted_or_released(office) -> None:  # type: ignore[no-untyped-def]
+    cells = _free_cells(office)
+    a, b = cells[200], cells[204]
+    w = _world(office, {"ann": (_cell_xy(office, *a), 0.0), "bob": (_cell_xy(office, *b), math.pi)})
+    chat = AssignEvent(event_id="chat", assignments=(
+        _go("ann", _cell_xy(office, *a), "chat", partners=("bob",)),
+        _go("bob", _cell_xy(office, *b), "chat", partners=("ann",))))
+    _until(w, lambda o: bool(o.looping_events), commands=[chat])
+    # a new event interrupts ann's looping chat via her transition out
+    wave = AssignEvent(event_id="wave", assignments=(_go("ann", _cell_xy(office, *cells[150]), "wave"),))
+    _, out = step(w, [wave], w.dt)
+    assert out.failures == () and w.characters["ann"].phase == "transition_out"
+    assert out.completed_events == ()  # bob still chats: the event stays looping
+    _, out = step(w, [ReleaseCharacters(characters=("bob",))], w.dt)
+    assert out.completed_events == ("chat",)
+    outs = _until(w, lambda o: "wave" in o.completed_events)
+    assert all(f == () for f in (o.failures for o in outs))
+
+
+def test_bad_assignments_fail_with_typed_reasons_and_nobody_moves(office) -> None:  # type: ignore[no-untyped-def]
+    scene, _grid, _ = office
+    cells = _free_cells(office)
+    w = _world(office, {"ann": (_cell_xy(office, *cells[0]), 0.0), "bob": (_cell_xy(office, *cells[50]), 0.0)})
+    far_outside = (scene.bounds_max[0] + 5.0, scene.bounds_max[1] + 5.0)
+    cmds = [
+        AssignEvent(event_id="e1", assignments=(_go("ann", far_outside),)),
+        AssignEvent(event_id="e2", assignments=(_go("zed", _cell_xy(office, *cells[3])),)),
+        AssignEvent(event_id="e3", assignments=(_go("bob", _cell_xy(office, *cells[3]), "drink", seat="chair_999"),)),
+    ]
+    _, out = step(w, cmds, w.dt)
+    reasons = {(f.event_id, f.character): f.reason for f in out.failures}
+    assert reasons == {("e1", "ann"): "no_path", ("e2", "zed"): "unknown_character", ("e3", "bob"): "unknown_seat"}
+    assert "nearest reachable floor" in out.failures[0].message
+    assert w.characters["ann"].phase == "idle" and set(out.available) == {"ann", "bob"}
+    # busy: bob is walking for an ongoing event
+    _, out = step(w, [AssignEvent(event_id="e4", assignments=(_go("bob", _cell_xy(office, *cells[300]), "drink"),))], w.dt)
+    assert out.failures == ()
+    _, out = step(w, [AssignEvent(event_id="e5", assignments=(_go("bob", _cell_xy(office, *cells[3])),))], w.dt)
+    assert [f.reason for f in out.failures] == ["busy"]
+    with pytest.raises(WorldError, match="already running"):
+        step(w, [AssignEvent(event_id="e4", assignments=(_go("ann", _cell_xy(office, *cells[3])),))], w.dt)
+    with pytest.raises(WorldError, match="dt must be"):
+        step(w, [], 0.04)
+
+
+def test_a_blocked_walker_fails_as_stuck_instead_of_hanging() -> None:
+    # A corridor one cell wide: bob stands in the middle, ann cannot get past him.
+    scene = Scene(name="corridor", bounds_min=(0.0, 0.0), bounds_max=(3.0, 0.9), objects=())
+    w = World(scene, {"ann": ((0.45, 0.45), 0.0), "bob": ((1.65, 0.45), 0.0)}, StandInMotion(),
+              config=WorldConfig(stuck_after_s=3.0))
+    hold = AssignEvent(event_id="hold", assignments=(_go("bob", (1.65, 0.45)),))
+    _until(w, lambda o: bool(o.looping_events), commands=[hold])
+    cross = AssignEvent(event_id="cross", assignments=(_go("ann", (2.55, 0.45)),))
+    outs = _until(w, lambda o: bool(o.failures), limit=400, commands=[cross])
+    (f,) = outs[-1].failures
+    assert (f.event_id, f.character, f.reason) == ("cross", "ann", "stuck")
+    assert w.characters["ann"].phase == "idle" and "ann" in outs[-1].available
+
+
+def test_same_seed_same_frames_and_snapshots_replay_exactly(office) -> None:  # type: ignore[no-untyped-def]
+    cells = _free_cells(office)
+    chars = {f"c{k}": (_cell_xy(office, *cells[k * 37]), 0.1 * k) for k in range(6)}
+    cmds = {0: [AssignEvent(event_id=f"e{k}", assignments=(_go(f"c{k}", _cell_xy(office, *cells[(k * 37 + 180) % len(cells)])),)) for k in range(6)]}
+
+    def make() -> World:
+        return _world(office, chars, seed=3, initial_capacity=8)
+
+    w1, w2 = make(), make()
+    run(w1, 150, cmds)
+    run(w2, 150, cmds)
+    t1, t2 = w1.tracks(), w2.tracks()
+    for n in chars:
+        assert np.array_equal(t1[n].root_positions, t2[n].root_positions)
+        assert t1[n].action_labels == t2[n].action_labels
+    snap = w1.snapshot()
+    later = {80: [ReleaseCharacters(characters=("c0",))]}
+    run(w1, 100, {w1.frame + k: v for k, v in later.items()})
+    again = w1.restore(snap)
+    assert again.frame == 150
+    run(again, 100, {again.frame + k: v for k, v in later.items()})
+    a, b = w1.tracks(), again.tracks()
+    for n in chars:
+        assert a[n].num_frames == b[n].num_frames == 250
+        assert np.array_equal(a[n].root_positions, b[n].root_positions)
+        assert np.array_equal(a[n].local_rotations, b[n].local_rotations)
+
+
+def test_setup_errors_are_typed(office) -> None:  # type: ignore[no-untyped-def]
+    cells = _free_cells(office)
+    xy = _cell_xy(office, *cells[0])
+    with pytest.raises(WorldError, match="same cell"):
+        _world(office, {"ann": (xy, 0.0), "bob": (xy, 0.0)})
+    with pytest.raises(WorldError, match="finite"):
+        _world(office, {"ann": ((math.nan, 1.0), 0.0)})
+    with pytest.raises(WorldError, match="at least one"):
+        _world(office, {})
+
+
+def test_real_motion_matcher_drives_the_bodies(office) -> None:  # type: ignore[no-untyped-def]
+    from sim.motion_database import load_databases
+    from sim.motion_matching import MotionMatcher
+
+    scene, grid, planner = office
+    cells = _free_cells(office)
+    w = World(scene, {"ann": (_cell_xy(office, *cells[0]), 0.0)}, MotionMatcher(load_databases(["idle", "walk"])),
+              grid=grid, planner=planner)
+    run(w, 90, {0: [AssignEvent(event_id="e", assignments=(_go("ann", _cell_xy(office, *cells[80])),))]})
+    t = w.tracks()["ann"]
+    assert t.num_frames == 90 and "walk" in t.action_labels
+    assert np.any(np.abs(t.local_rotations[:, 4:] - np.eye(3)) > 1e-3)  # the legs move
+    assert np.all(np.isfinite(t.root_positions))
+    assert w.foot_contacts()["ann"].shape == (90, 2)
