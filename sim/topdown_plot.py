@@ -111,6 +111,7 @@ def draw_topdown(
                 colour_of[name] = cmap(k % 20)
 
     floor_z = scene.floor_z
+    carried = [o for o in scene.objects if o.z_min - floor_z >= 0.1]
     arrows_xy, arrows_uv = [], []
     for obj in sorted(scene.objects, key=lambda o: (o.z_min, o.name)):
         on_floor = obj.z_min - floor_z < 0.1
@@ -146,9 +147,14 @@ def draw_topdown(
                 zorder=4,
             )
         if show_names:
+            name_xy = obj.center_xy
+            if on_floor and any(
+                o.z_min >= obj.z_max - 0.05 and bool(obj.contains_xy(o.center_xy)) for o in carried
+            ):  # something stands on it: move its name towards its back, out of the way
+                name_xy = name_xy - np.asarray(obj.facing) * obj.depth * 0.3
             ax.text(
-                obj.center[0],
-                obj.center[1],
+                name_xy[0],
+                name_xy[1],
                 obj.name,
                 fontsize=5.5,
                 ha="center",
