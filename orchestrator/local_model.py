@@ -29,7 +29,7 @@ from agents.llm_port import LLMUnavailableError
 from orchestrator.model_weights import WeightsSpec, ensure_weights, spec_for
 
 N_CTX = 4096
-N_THREADS = 2
+N_THREADS = int(os.environ.get("STORYTELLER_LOCAL_THREADS", "2"))  # llama.cpp threads
 SEED = 1234
 MAX_TOKENS_CAP = 2048
 DEFAULT_ARRAY_MAX_ITEMS = 64
