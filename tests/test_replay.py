@@ -46,8 +46,11 @@ async def no_sleep(_: float) -> None:
     return None
 
 
-async def record(path: Path, requests: list[LLMRequest], answers: list[Any]) -> list[str]:
-    client = LiteLLMClient(default_config(), TraceWriter(path), acompletion=ScriptedProvider(answers),
+async def record(path: Path, requests: list[LLMRequest], answers: list[Any], model: str | None = None) -> list[str]:
+    cfg = default_config()
+    if model is not None:
+        cfg = cfg.model_copy(update={"nodes": {k: v.model_copy(update={"model": model}) for k, v in cfg.nodes.items()}})
+    client = LiteLLMClient(cfg, TraceWriter(path), acompletion=ScriptedProvider(answers),
                            sleep=no_sleep, check_local=lambda m: None)
     texts = [(await client.complete(r)).text for r in requests]
     client.close()
@@ -108,11 +111,11 @@ async def test_unknown_node_lists_recorded_nodes(tmp_path: Path, no_live_calls: 
 async def test_failed_attempts_are_not_served(tmp_path: Path, no_live_calls: None) -> None:
     path = tmp_path / "t.jsonl"
     boom = litellm.RateLimitError(message="slow down", llm_provider="openai", model="m")
-    await record(path, [req("q")], [boom, "", "final answer"])
+    await record(path, [req("q")], [boom, "", "final answer"], model="openai/gpt-4o-mini")
     recs = list(read_trace(path).attempts())
     assert [r.final for r in recs] == [False, False, True]
     resp = await ReplayClient(path).complete(req("q"))
-    assert resp.text == "final answer" and resp.attempts == 3
+    assert resp.text == "final answer" and resp.attempts == 3 and resp.model == "openai/gpt-4o-mini"
 
 
 async def test_tampered_hash_is_corruption(tmp_path: Path) -> None:
