@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import typer
 
-from orchestrator import cli_plan, cli_scene
-from orchestrator import cli_event
-from orchestrator import cli_model
+from orchestrator import cli_event, cli_model, cli_plan, cli_run, cli_scene
 
 app = typer.Typer(
     name="storyteller",
@@ -18,6 +16,7 @@ cli_scene.register(app)
 cli_plan.register(app)
 cli_event.register(app)
 cli_model.register(app)
+cli_run.register(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point

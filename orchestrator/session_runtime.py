@@ -51,6 +51,12 @@ class PlanningRequest(BaseModel):
     frame: int = Field(ge=0, description="Simulation frame the snapshot was taken at.")
     roster: tuple[CharacterStatus, ...]
     history: tuple[HistoryEntry, ...]
+    targets: dict[str, tuple[float, float]] = Field(
+        default_factory=dict, description="Character -> where its current event sends it (x, y)."
+    )
+    objects_in_use: dict[str, str] = Field(
+        default_factory=dict, description="Seat object -> character who sits or is about to sit on it."
+    )
 
 
 class StepPlanner(Protocol):
@@ -124,6 +130,21 @@ def world_roster(world: World, events: dict[str, StoryEvent]) -> tuple[Character
             )
         )
     return tuple(out)
+
+
+def world_commitments(world: World) -> tuple[dict[str, tuple[float, float]], dict[str, str]]:
+    """Targets of characters with an assignment, and seats taken or about to be taken."""
+    targets: dict[str, tuple[float, float]] = {}
+    seats: dict[str, str] = {}
+    for name in world.names:
+        c = world.characters[name]
+        a = c.assignment
+        if a is None or c.event_id is None:
+            continue
+        targets[name] = (round(a.target_xy[0], 3), round(a.target_xy[1], 3))
+        if a.seat is not None:
+            seats[a.seat] = name
+    return targets, seats
 
 
 def story_history(events: dict[str, StoryEvent]) -> tuple[HistoryEntry, ...]:
@@ -287,11 +308,14 @@ class Session:
                 self.world, out = step(self.world, commands, self.world.dt)
                 self._observe(out)
                 if self._wants_plan(out):
+                    targets, seats = world_commitments(self.world)
                     request = PlanningRequest(
                         index=self._steps,
                         frame=self.world.frame,
                         roster=world_roster(self.world, self.events),
                         history=story_history(self.events),
+                        targets=targets,
+                        objects_in_use=seats,
                     )
                     self._steps += 1
                     self._in_flight = request

@@ -280,7 +280,7 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
             facing=facing,  # type: ignore[arg-type]
             has_facing=flags["has_orientation"],
             sit_offset_horizontal=offsets["sit_offset_horizontal"],
-            sit_offset_vertical=offsets["sit_offset_vertical"],
+            sit_offset_vertical=reference_seat_height(offsets["sit_offset_vertical"], size[2]),
             interactive=flags["use_this"],
         )
     except ValidationError as exc:
@@ -289,6 +289,21 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
         raise SceneFileError(
             path, err["msg"].removeprefix("Value error, "), obj=name, field=field
         ) from None
+
+
+def reference_seat_height(sit_offset_vertical: float, height: float) -> float:
+    """Seat height (m above the object's bottom) for a reference object.
+
+    The reference data marks every seat with ``sit_offset_vertical = 0.2`` whatever its size (a
+    0.42 m stool and a 0.98 m couch alike), so the value is a seat flag there, not a height. Our
+    model stores the seat height, estimated from the object: a low object (<= 0.5 m) is sat on
+    its top; a chair or couch with a back at half its height, within [0.38, 0.48] m.
+    """
+    if sit_offset_vertical <= 0.0:
+        return 0.0
+    if height <= 0.5:
+        return round(height, 3)
+    return round(min(0.48, max(0.38, 0.5 * height)), 3)
 
 
 _LABEL_PATTERN = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -426,6 +441,12 @@ def _reference_nav(folder: Path) -> NavHints:
         body_radius=radius,
         occupied=_cells(grid_path, "user_modifications.occupied", mods.get("occupied", [])),
         unoccupied=_cells(grid_path, "user_modifications.unoccupied", mods.get("unoccupied", [])),
+        # Reference cell (a, b) is centred at (x_margin + a * step, y_margin + b * step): see
+        # sim.nav_grid.reference_grid_origin for how this was inferred from the data.
+        grid_origin=(
+            _number(grid_path, None, "x_margin", data.get("x_margin", 0.0)),
+            _number(grid_path, None, "y_margin", data.get("y_margin", 0.0)),
+        ),
     )
 
 
