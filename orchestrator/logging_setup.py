@@ -41,7 +41,7 @@ def configure_logging(level: str | int = "INFO", *, json: bool | None = None, st
         ],
         wrapper_class=structlog.make_filtering_bound_logger(numeric),
         logger_factory=structlog.PrintLoggerFactory(file=out),
-        cache_logger_on_first_use=True,
+        cache_logger_on_first_use=False,  # lets tests reset the configuration
     )
     # litellm logs through stdlib logging; keep it quiet unless we are debugging.
     logging.getLogger("LiteLLM").setLevel(max(numeric, logging.WARNING))

@@ -154,3 +154,25 @@ def test_cli_model_info_and_bad_config_exit_2(tmp_path: Path) -> None:
     bad = runner.invoke(app, ["model", "info", "--config", str(write(tmp_path, "[llm]\ntemperature = 'hot'\n"))])
     assert bad.exit_code == 2
     assert "llm.temperature" in bad.output and "Traceback" not in bad.output
+
+
+def test_logging_setup_json_when_not_a_tty() -> None:
+    import io
+    import json
+
+    import structlog
+
+    from orchestrator.logging_setup import configure_logging, force_logging_reset
+
+    out = io.StringIO()
+    try:
+        configure_logging("INFO", stream=out)
+        configure_logging("DEBUG", json=False)  # ignored: configured once
+        structlog.get_logger("t").info("hello", node="narrator")
+        structlog.get_logger("t").debug("hidden")
+    finally:
+        force_logging_reset()
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 1
+    entry = json.loads(lines[0])
+    assert entry["event"] == "hello" and entry["node"] == "narrator" and entry["level"] == "info"
