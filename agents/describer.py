@@ -20,7 +20,7 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -39,9 +39,14 @@ from tools.clusters import cluster_objects
 from tools.scene_graph import SceneGraph, build_scene_graph
 from tools.scene_text import clusters_text, scene_graph_json
 
-DESCRIBER_FILES = ("describer/system.md", "describer/request.md")
+DESCRIBER_FILES = (
+    "describer/system.md",
+    "describer/request.md",
+    "describer/system_regions.md",
+    "describer/request_regions.md",
+)
 MAX_AREAS = 8
-DEFAULT_MAX_TOKENS = 900
+DEFAULT_MAX_TOKENS = 420
 
 
 class Area(BaseModel):
@@ -68,19 +73,45 @@ class DescriberInput:
     clusters: tuple[tuple[str, ...], ...]
     supports: Mapping[str, str]
     """object name -> name of the object it stands on or is inside (absent: on the floor)."""
+    mode: Literal["objects", "regions"] = "objects"
+    """objects: the model lists every object; regions: the model names the clusters (numbered
+    regions) and the objects follow from them, so a small model writes ~5x fewer tokens."""
 
 
-def describer_input_from_scene(scene: Scene, graph: SceneGraph | None = None) -> DescriberInput:
-    """Build the describer's input with the scene-graph and cluster tools."""
+COMPACT_RELATIONS = ("on", "inside", "adjacent to")
+
+
+def compact_scene_graph_json(graph: SceneGraph) -> str:
+    """The scene graph reduced to what grouping needs: object -> its support and adjacency
+    relations (no coordinates). About a quarter of the full JSON's size, which matters for a
+    0.5B model reading ~100 tokens/s."""
+    out: dict[str, list[str]] = {}
+    for obj in graph.scene.objects:
+        out[obj.name] = [f"{r} {a}" for r, a in graph.relations_of(obj.name) if r in COMPACT_RELATIONS]
+    return json.dumps(out, separators=(",", ":"))
+
+
+def describer_input_from_scene(
+    scene: Scene,
+    graph: SceneGraph | None = None,
+    *,
+    full_graph: bool = False,
+    mode: Literal["objects", "regions"] = "objects",
+) -> DescriberInput:
+    """Build the describer's input with the scene-graph and cluster tools.
+
+    ``full_graph=True`` gives the model the whole scene graph JSON (positions, sizes, every
+    relation); the default compact form suits small local models."""
     graph = graph or build_scene_graph(scene)
     supports = {n: s for n in scene.object_names if (s := graph.supporter(n)) is not None}
     clusters = tuple(tuple(c) for c in cluster_objects(scene))
     return DescriberInput(
         scene_name=scene.name,
         object_names=tuple(scene.object_names),
-        scene_graph_json=scene_graph_json(graph),
+        scene_graph_json=scene_graph_json(graph) if full_graph else compact_scene_graph_json(graph),
         clusters=clusters,
         supports=supports,
+        mode=mode,
     )
 
 
@@ -114,31 +145,117 @@ def describer_schema(names: Sequence[str]) -> dict[str, Any]:
     }
 
 
+def describer_regions_schema(n_regions: int) -> dict[str, Any]:
+    return {
+        "type": "object",
+        "properties": {
+            "areas": {
+                "type": "array",
+                "minItems": 1,
+                "maxItems": min(MAX_AREAS, n_regions),
+                "items": {
+                    "type": "object",
+                    "properties": {
+                        "name": {"type": "string", "maxLength": 40},
+                        "purpose": {"type": "string", "maxLength": 80},
+                        "regions": {
+                            "type": "array",
+                            "items": {"type": "integer", "enum": list(range(1, n_regions + 1))},
+                            "minItems": 1,
+                            "maxItems": n_regions,
+                        },
+                    },
+                    "required": ["name", "purpose", "regions"],
+                    "additionalProperties": False,
+                },
+            }
+        },
+        "required": ["areas"],
+        "additionalProperties": False,
+    }
+
+
 def describer_request(
     prompts: PromptLibrary, inp: DescriberInput, turns: tuple[Turn, ...] = (), *, max_tokens: int = DEFAULT_MAX_TOKENS
 ) -> LLMRequest:
-    system = prompts.render("describer/system.md")
-    user = prompts.render(
-        "describer/request.md",
-        scene_graph=inp.scene_graph_json.strip(),
-        clusters=clusters_text([list(c) for c in inp.clusters]) or "(none)",
-        count=len(inp.object_names),
-        names=", ".join(inp.object_names),
-    )
+    regions = clusters_text([list(c) for c in inp.clusters]) or "(none)"
+    if inp.mode == "regions":
+        system = prompts.render("describer/system_regions.md")
+        user = prompts.render(
+            "describer/request_regions.md",
+            scene_graph=inp.scene_graph_json.strip(),
+            regions=regions,
+            count=len(inp.clusters),
+        )
+        schema = describer_regions_schema(len(inp.clusters))
+    else:
+        system = prompts.render("describer/system.md")
+        user = prompts.render(
+            "describer/request.md",
+            scene_graph=inp.scene_graph_json.strip(),
+            clusters=regions,
+            count=len(inp.object_names),
+            names=", ".join(inp.object_names),
+        )
+        schema = describer_schema(inp.object_names)
     base = (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
     return LLMRequest(
         node="describer",
         messages=with_turns(base, turns),
-        json_schema=describer_schema(inp.object_names),
+        json_schema=schema,
         max_tokens=max_tokens,
         seed=0,
     )
 
 
-def _load_areas(text: str) -> AreaList:
+class RegionArea(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: str = Field(max_length=60)
+    purpose: str = Field(default="", max_length=160)
+    regions: tuple[int, ...]
+
+
+class RegionAreaList(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    areas: tuple[RegionArea, ...] = Field(max_length=MAX_AREAS * 2)
+
+
+def region_problems(areas: RegionAreaList, n_regions: int) -> list[str]:
+    counts = Counter(r for a in areas.areas for r in a.regions)
+    problems = []
+    unknown = sorted(r for r in counts if not 1 <= r <= n_regions)
+    repeated = sorted(r for r, k in counts.items() if k > 1 and 1 <= r <= n_regions)
+    missing = [r for r in range(1, n_regions + 1) if r not in counts]
+    if unknown:
+        problems.append("no such region: " + ", ".join(map(str, unknown)) + f" (regions are 1 to {n_regions})")
+    if repeated:
+        problems.append("region(s) used in more than one area: " + ", ".join(map(str, repeated)))
+    if missing:
+        problems.append("region(s) missing (put each into one area): " + ", ".join(map(str, missing)))
+    return problems
+
+
+def regions_to_areas(areas: RegionAreaList, inp: DescriberInput) -> AreaList:
+    """Objects of each area's regions, in region order (unknown region numbers skipped)."""
+    out = []
+    for a in areas.areas:
+        objs = [n for r in a.regions if 1 <= r <= len(inp.clusters) for n in inp.clusters[r - 1]]
+        out.append(Area(name=a.name, purpose=a.purpose, objects=tuple(objs)))
+    return AreaList(areas=tuple(out))
+
+
+def _json_blob(text: str) -> Any:
     start, end = text.find("{"), text.rfind("}")
-    blob = text[start : end + 1] if start != -1 and end > start else text
-    return AreaList.model_validate(json.loads(blob))
+    return json.loads(text[start : end + 1] if 0 <= start < end else text)
+
+
+def _load_areas(text: str, inp: DescriberInput | None = None) -> AreaList:
+    """Parse a reply of either mode into objects per area (no completeness check)."""
+    if inp is not None and inp.mode == "regions":
+        return regions_to_areas(RegionAreaList.model_validate(_json_blob(text)), inp)
+    return AreaList.model_validate(_json_blob(text))
 
 
 def area_problems(areas: AreaList, names: Sequence[str]) -> list[str]:
@@ -266,9 +383,20 @@ class DescriberAttempt:
     turn: Turn | None
 
 
+def parse_reply(reply: str, inp: DescriberInput) -> AreaList:
+    """Check a reply of ``inp.mode``; raises JSONDecodeError, ValidationError or AnswerRejectedError."""
+    if inp.mode == "regions":
+        regions = RegionAreaList.model_validate(_json_blob(reply))
+        problems = region_problems(regions, len(inp.clusters))
+        if problems:
+            raise AnswerRejectedError(problems)
+        return regions_to_areas(regions, inp)
+    return parse_areas(reply, inp.object_names)
+
+
 def judge_reply(reply: str, inp: DescriberInput) -> DescriberAttempt:
     try:
-        return DescriberAttempt(areas=parse_areas(reply, inp.object_names), turn=None)
+        return DescriberAttempt(areas=parse_reply(reply, inp), turn=None)
     except (ValueError, AnswerRejectedError) as exc:  # JSONDecodeError and ValidationError are ValueErrors
         return DescriberAttempt(areas=None, turn=Turn(reply=reply, feedback=feedback_from_error(exc)))
 
@@ -287,7 +415,7 @@ def best_effort(inp: DescriberInput, turns: Sequence[Turn]) -> SceneDescription:
     """After the last rejected try: repair the last parseable answer (or use the clusters)."""
     for turn in reversed(turns):
         try:
-            areas = _load_areas(turn.reply)
+            areas = _load_areas(turn.reply, inp)
         except ValueError:
             continue
         return finish(inp, repair_areas(areas, inp), repaired=True, attempts=len(turns))
@@ -329,13 +457,15 @@ async def describe_scene_cached(
     model: str,
     cache_dir: Path | None,
     inp: DescriberInput | None = None,
+    mode: Literal["objects", "regions"] = "objects",
     max_retries: int = 3,
 ) -> SceneDescription:
     """:func:`describe_scene` with an on-disk cache (``cache_dir=None``: no cache)."""
-    path = cache_path(cache_dir, scene, model, prompts) if cache_dir is not None else None
+    path = cache_path(cache_dir, scene, f"{model}|{mode}", prompts) if cache_dir is not None else None
     if path is not None and (hit := read_cached(path)) is not None:
         return hit
-    description = await describe_scene(port, prompts, inp or describer_input_from_scene(scene), max_retries=max_retries)
+    inp = inp or describer_input_from_scene(scene, mode=mode)
+    description = await describe_scene(port, prompts, inp, max_retries=max_retries)
     if path is not None:
         write_cached(path, description)
     return description

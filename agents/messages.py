@@ -31,7 +31,7 @@ EventState = Literal["ongoing", "looping", "completed"]
 
 MAX_EVENT_CHARACTERS = 6
 MAX_ACTIVITY_CHARS = 160
-MAX_REASONING_CHARS = 240
+MAX_REASONING_CHARS = 160
 
 
 class _Frozen(BaseModel):

@@ -197,6 +197,7 @@ async def run_plan(
         max_retries=max_retries,
         busy_for_events=busy_events,
         describer_model=describer_model,
+        describer_mode="regions" if describer_model.startswith("local/") else "objects",
         description_cache=description_cache,
     )
     config = {"configurable": {"thread_id": thread_id}, "recursion_limit": recursion_limit(events, max_retries)}
@@ -236,6 +237,7 @@ def plan_command(
     max_retries: Annotated[int, typer.Option("--max-retries", min=0, max=10, help="Retries per LLM role.")] = 3,
     runs_db: Annotated[Path | None, typer.Option("--runs-db", help="SQLite file of checkpoints.")] = None,
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this run.")] = None,
+    prompts_dir: Annotated[Path | None, typer.Option("--prompts", help="Use prompt files from this folder.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Plan K events with the narrator and event parser and print them."""
@@ -244,6 +246,8 @@ def plan_command(
 
     if record is not None and replay is not None:
         _fail("--record and --replay cannot be used together")
+    if prompts_dir is not None and not prompts_dir.is_dir():
+        _fail(f"--prompts {prompts_dir}: not a folder")
     try:
         scene_obj = resolve_scene(scene)
     except SceneFileError as exc:
@@ -277,6 +281,7 @@ def plan_command(
                 description_cache=cache,
                 busy_events=busy_events,
                 max_retries=max_retries,
+                prompts=PromptLibrary(prompts_dir) if prompts_dir is not None else None,
                 on_outcome=show,
             )
         finally:

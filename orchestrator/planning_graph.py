@@ -45,6 +45,7 @@ async def describe_scene(state: PlanningState, runtime: Runtime[PlanningDeps]) -
         deps.scene,
         model=deps.describer_model,
         cache_dir=deps.description_cache,
+        mode=deps.describer_mode,
         max_retries=deps.max_retries,
     )
     return {"description": description}

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -105,6 +105,8 @@ class PlanningDeps:
     busy_for_events: int = 0
     """Without a simulation: an event stays ongoing for this many further steps (0: completed at once)."""
     describer_model: str = "unknown"
+    describer_mode: Literal["objects", "regions"] = "objects"
+    """regions: the describer names numbered clusters instead of listing every object (small models)."""
     description_cache: Path | None = None
     scene_graph: Any = None
     """The scene graph handed to event programs (None: the tools build it)."""

@@ -119,3 +119,36 @@ def test_render_chain_of_supports_names_everything_once() -> None:
     areas = AreaList.model_validate({"areas": [{"name": "a", "purpose": "", "objects": ["cup_1", "tray_1", "table_1"]}]})
     text = render_description(areas, {"cup_1": "tray_1", "tray_1": "table_1"})
     assert text == "- a: tray_1 (with cup_1 on it), table_1"
+
+
+REGIONS_INP = DescriberInput(
+    scene_name="mini",
+    object_names=NAMES,
+    scene_graph_json="{}",
+    clusters=(("fridge_1", "cabinet_1", "coffee_maker_1"), ("couch_1",), ("tv_1",)),
+    supports={"coffee_maker_1": "cabinet_1"},
+    mode="regions",
+)
+
+
+async def test_regions_mode_names_clusters_and_checks_each_once() -> None:
+    lib = PromptLibrary()
+    req = describer_request(lib, REGIONS_INP)
+    regions = req.json_schema["properties"]["areas"]["items"]["properties"]["regions"]  # type: ignore[index]
+    assert regions["items"]["enum"] == [1, 2, 3] and regions["maxItems"] == 3
+    assert "region 2: couch_1" in req.messages[1].content
+    bad = json.dumps({"areas": [{"name": "kitchen", "purpose": "", "regions": [1, 1]}, {"name": "x", "purpose": "", "regions": [7]}]})
+    good = json.dumps({"areas": [{"name": "kitchen", "purpose": "coffee", "regions": [1]},
+                                 {"name": "living room", "purpose": "", "regions": [2, 3]}]})
+    port = Port([bad, good])
+    desc = await describe_scene(port, lib, REGIONS_INP)
+    feedback = port.requests[1].messages[-1].content
+    assert "region(s) used in more than one area: 1" in feedback and "no such region: 7" in feedback
+    assert "region(s) missing (put each into one area): 2, 3" in feedback
+    assert desc.text == "- kitchen (coffee): fridge_1, cabinet_1 (with coffee_maker_1 on it)\n- living room: couch_1, tv_1"
+
+
+async def test_regions_mode_repairs_after_last_try() -> None:
+    partial = json.dumps({"areas": [{"name": "kitchen", "purpose": "", "regions": [1]}]})
+    desc = await describe_scene(Port([partial]), PromptLibrary(), REGIONS_INP, max_retries=0)
+    assert desc.repaired and "couch_1" in desc.text and "tv_1" in desc.text
