@@ -115,7 +115,9 @@ class TrackBuffers:
     rotations: np.ndarray = field(init=False)
     labels: np.ndarray = field(init=False)
     contacts: np.ndarray = field(init=False)
+    events: np.ndarray = field(init=False)
     label_names: list[str] = field(default_factory=list)
+    _label_index: dict[str, int] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         n = len(self.names)
@@ -123,19 +125,25 @@ class TrackBuffers:
         self.rotations = np.zeros((self.capacity, n, NUM_JOINTS, 3, 3), dtype=np.float32)
         self.labels = np.zeros((self.capacity, n), dtype=np.int32)
         self.contacts = np.zeros((self.capacity, n, 2), dtype=bool)
+        self.events = np.zeros((self.capacity, n), dtype=np.int32)
 
     def label_id(self, label: str) -> int:
-        try:
-            return self.label_names.index(label)
-        except ValueError:
+        """Index of ``label`` in ``label_names`` (added on first use)."""
+        k = self._label_index.get(label)
+        if k is None:
+            k = self._label_index[label] = len(self.label_names)
             self.label_names.append(label)
-            return len(self.label_names) - 1
+        return k
 
-    def append(self, pelvis: np.ndarray, rotations: np.ndarray, labels: Sequence[str], contacts: np.ndarray) -> None:
-        """Record one frame: pelvis (N, 3), rotations (N, 22, 3, 3), labels (N,), foot contacts (N, 2)."""
+    def append(
+        self, pelvis: np.ndarray, rotations: np.ndarray, labels: Sequence[str], contacts: np.ndarray,
+        events: Sequence[str],
+    ) -> None:
+        """Record one frame: pelvis (N, 3), rotations (N, 22, 3, 3), motion labels (N,), foot
+        contacts (N, 2) and event ids (N,; "" outside events)."""
         if self.length == self.capacity:
             grow = max(self.capacity, 1)
-            for name in ("pelvis", "rotations", "labels", "contacts"):
+            for name in ("pelvis", "rotations", "labels", "contacts", "events"):
                 arr = getattr(self, name)
                 setattr(self, name, np.concatenate([arr, np.zeros_like(arr[:grow])]))
             self.capacity += grow
@@ -144,6 +152,7 @@ class TrackBuffers:
         self.rotations[f] = rotations
         self.labels[f] = [self.label_id(s) for s in labels]
         self.contacts[f] = contacts
+        self.events[f] = [self.label_id(s) for s in events]
         self.length += 1
 
     def trimmed(self) -> TrackBuffers:
@@ -154,7 +163,9 @@ class TrackBuffers:
         out.rotations = self.rotations[: out.capacity].copy()
         out.labels = self.labels[: out.capacity].copy()
         out.contacts = self.contacts[: out.capacity].copy()
+        out.events = self.events[: out.capacity].copy()
         out.label_names = list(self.label_names)
+        out._label_index = dict(self._label_index)
         return out
 
 
@@ -285,6 +296,11 @@ class World:
         """Per character, the motion layer's left/right foot contact flags (frames, 2)."""
         b = self.buffers
         return {name: b.contacts[: b.length, k].copy() for k, name in enumerate(self.names)}
+
+    def event_ids(self) -> dict[str, tuple[str, ...]]:
+        """Per character, the event it belonged to at every frame ("" when none)."""
+        b = self.buffers
+        return {name: tuple(b.label_names[i] for i in b.events[: b.length, k]) for k, name in enumerate(self.names)}
 
     def positions(self) -> np.ndarray:
         """Current root xy (N, 2) in ``names`` order."""
@@ -623,7 +639,7 @@ class World:
             pz[k] = poses[k].pelvis[2]
             contacts[k] = getattr(poses[k], "contacts", False)
         pelvis, rots = compose_poses(rots, pz, root, heading)
-        self.buffers.append(pelvis, rots, labels, contacts)
+        self.buffers.append(pelvis, rots, labels, contacts, [self.characters[nm].event_id or "" for nm in self.names])
         for c in self.characters.values():
             c.phase_frame += 1
 
