@@ -163,6 +163,10 @@ def run_command(
         f"{result.frames} frames ({result.frames / fps:.1f} s), {result.steps} planning steps, "
         f"{sum(e.state == 'completed' for e in result.events)} events completed -> {out}"
     )
+    if result.planner_error is not None:
+        err = result.planner_error
+        typer.echo(f"error: planning stopped: {type(err).__name__}: {err}", err=True)
+        raise typer.Exit(1)
 
 
 class _UserError(Exception):

@@ -92,6 +92,7 @@ class SessionResult:
     outcomes: list[tuple[int, Outcome]]
     applied_frames: list[int]
     failures: list[EventFailure] = field(default_factory=list)
+    planner_error: BaseException | None = None
 
 
 @dataclass
@@ -196,6 +197,7 @@ class Session:
         self._steps = 0
         self._next_plan_frame = 0
         self._in_flight: PlanningRequest | None = None
+        self.planner_error: BaseException | None = None
 
     # ----- planning side ------------------------------------------------------------------
     async def _planning_task(
@@ -205,12 +207,17 @@ class Session:
     ) -> None:
         async with requests, results:
             async for request in requests:
-                outcome = await self.planner.plan(request)
+                try:
+                    outcome = await self.planner.plan(request)
+                except Exception as exc:  # the story goes on without a planner; the caller reports it
+                    self.planner_error = exc
+                    _log.error("planner_stopped", step=request.index, error=f"{type(exc).__name__}: {exc}")
+                    return
                 await results.send((request, outcome))
 
     # ----- simulation side ----------------------------------------------------------------
     def _wants_plan(self, out: StepOutput | None) -> bool:
-        if self._in_flight is not None:
+        if self._in_flight is not None or self.planner_error is not None:
             return False
         if self.settings.max_steps is not None and self._steps >= self.settings.max_steps:
             return False
@@ -293,14 +300,16 @@ class Session:
                                 f"but its request was made at frame {self._in_flight.frame}"
                             )
                         if due == self.world.frame:
-                            got = await results.receive()
+                            got = await self._receive(results)
                     elif s.pace == "lockstep":
-                        got = await results.receive()
+                        got = await self._receive(results)
                     else:
                         try:
                             got = results.receive_nowait()
                         except anyio.WouldBlock:
                             got = None
+                        except (anyio.EndOfStream, anyio.ClosedResourceError):
+                            self._in_flight = None
                     if got is not None:
                         request, outcome = got
                         self._in_flight = None
@@ -328,13 +337,28 @@ class Session:
                     await anyio.sleep(0)
             # Close the request side; a step still in flight is abandoned (not applied).
 
+    async def _receive(
+        self, results: MemoryObjectReceiveStream[tuple[PlanningRequest, Outcome]]
+    ) -> tuple[PlanningRequest, Outcome] | None:
+        """The next planning result, or None when the planner stopped (see ``planner_error``)."""
+        try:
+            return await results.receive()
+        except (anyio.EndOfStream, anyio.ClosedResourceError):
+            self._in_flight = None
+            return None
+
     async def run(self) -> SessionResult:
         req_send, req_recv = anyio.create_memory_object_stream[PlanningRequest](1)
         res_send, res_recv = anyio.create_memory_object_stream[tuple[PlanningRequest, Outcome]](1)
-        async with anyio.create_task_group() as tg:
-            tg.start_soon(self._planning_task, req_recv, res_send)
-            await self._simulation_task(req_send, res_recv)
-            tg.cancel_scope.cancel()
+        try:
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(self._planning_task, req_recv, res_send)
+                await self._simulation_task(req_send, res_recv)
+                tg.cancel_scope.cancel()
+        except BaseExceptionGroup as group:  # surface a lone error as itself
+            if len(group.exceptions) == 1:
+                raise group.exceptions[0] from None
+            raise
         return SessionResult(
             frames=self.world.frame,
             steps=len(self.outcomes),
@@ -342,4 +366,5 @@ class Session:
             outcomes=list(self.outcomes),
             applied_frames=list(self.applied_frames),
             failures=list(self.failures),
+            planner_error=self.planner_error,
         )
