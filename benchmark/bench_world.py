@@ -1,0 +1,258 @@
+"""World-step performance: 1, 10, 50 and 200 characters walking between random targets.
+
+For each crowd size the full world step runs (cooperative paths, character phases, motion
+matching) and the script prints, each next to a baseline measured in the same run:
+
+- character-frames per second and the real-time factor (simulated seconds per wall second),
+  vs the same run with brute-force motion search;
+- motion search latency (mean per query), KD-tree vs brute force (same queries: both runs are
+  deterministic and take the same decisions, which the script checks);
+- path planning time per replan, windowed cooperative A* (window 20 steps) vs a non-windowed
+  planner (window long enough to reach any goal in the scene) solving the very same planning
+  problems, recorded from the windowed run;
+- where the time goes: motion layer, planning, the rest of the world step.
+
+200 characters do not fit in the Office at 0.5 m spacing (about 45 m^2 of walkable floor, at
+most ~125 bodies on the 0.3 m grid), so that size runs in "Office x4": four copies of the
+Office side by side (2 x 2, the reference cell overrides dropped), stated in the output.
+
+Usage: ``python -m benchmark.bench_world [--sizes 1 10 50 200] [--seconds 10] [--seed 0]``.
+Issue target: 10 characters >= 30x real time on one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim.cooperative_astar import PathPlanner, PlanResult
+from sim.motion_database import MotionDatabase, load_databases
+from sim.motion_matching import MotionMatcher, MotionQuery, Pose
+from sim.nav_grid import NavGrid, build_nav_grid
+from sim.scene import Scene
+from sim.scene_files import load_scene
+from sim.story_events import AssignEvent, Assignment
+from sim.world import World, WorldConfig, step
+
+OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
+
+
+# ----- instrumentation -------------------------------------------------------------------------
+@dataclass
+class Counters:
+    search_s: float = 0.0
+    searches: int = 0
+    motion_s: float = 0.0
+    plan_s: float = 0.0
+    plans: int = 0
+    problems: list[tuple[Any, ...]] = field(default_factory=list)
+    results: list[int] = field(default_factory=list)
+
+
+class TimedDatabase:
+    """A MotionDatabase whose ``search`` is timed (and optionally brute force)."""
+
+    def __init__(self, db: MotionDatabase, counters: Counters, brute: bool) -> None:
+        self._db, self._c, self._brute = db, counters, brute
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._db, name)
+
+    def search(self, raw_query: np.ndarray, entry: bool = False) -> tuple[int, float]:
+        db = self._db
+        t0 = time.perf_counter()
+        if self._brute:
+            index = db.entry_index if entry else db.index
+            out = index.brute_force(db.normalize(raw_query))
+        else:
+            out = db.search(raw_query, entry=entry)
+        self._c.search_s += time.perf_counter() - t0
+        self._c.searches += 1
+        self._c.results.append(out[0])
+        return out
+
+
+class TimedMotion:
+    """The motion layer with its step time counted."""
+
+    def __init__(self, matcher: MotionMatcher, counters: Counters) -> None:
+        self._m, self._c = matcher, counters
+
+    def initial_state(self, label: str, root_xy: Any, heading: float, seated: bool = False) -> Any:
+        return self._m.initial_state(label, root_xy, heading, seated)
+
+    def step(self, state: Any, query: MotionQuery, dt: float) -> tuple[Any, Pose]:
+        t0 = time.perf_counter()
+        out = self._m.step(state, query, dt)
+        self._c.motion_s += time.perf_counter() - t0
+        return out
+
+
+class TimedPlanner(PathPlanner):
+    """WHCA* that times and records every planning call."""
+
+    counters: Counters
+
+    def plan(self, starts, goals, static_obstacles=(), t0=0, order=None) -> PlanResult:  # type: ignore[no-untyped-def, override]
+        t = time.perf_counter()
+        out = super().plan(starts, goals, static_obstacles, t0=t0, order=order)
+        self.counters.plan_s += time.perf_counter() - t
+        self.counters.plans += 1
+        self.counters.problems.append((dict(starts), dict(goals), list(static_obstacles), t0, list(order or ())))
+        return out
+
+
+# ----- scenes and crowds ----------------------------------------------------------------------------
+def tiled(scene: Scene, nx: int, ny: int) -> Scene:
+    """``nx`` x ``ny`` copies of ``scene`` side by side (objects renamed, overrides dropped)."""
+    (x0, y0), (x1, y1) = scene.bounds_min, scene.bounds_max
+    w, h = x1 - x0, y1 - y0
+    objs = []
+    next_idx: dict[str, int] = {}
+    for a in range(nx):
+        for b in range(ny):
+            for o in scene.objects:
+                k = next_idx.get(o.label, 0)
+                next_idx[o.label] = k + 1
+                c = (o.center[0] + a * w, o.center[1] + b * h, o.center[2])
+                objs.append(o.model_copy(update={"name": f"{o.label}_{k}", "idx": k, "center": c}))
+    return Scene(name=f"{scene.name} x{nx * ny}", bounds_min=(x0, y0), bounds_max=(x0 + nx * w, y0 + ny * h),
+                 objects=tuple(objs), nav=scene.nav.model_copy(update={"occupied": (), "unoccupied": ()}))
+
+
+def spread_cells(cells: np.ndarray, count: int, rng: np.random.Generator, taken: list[np.ndarray]) -> list[np.ndarray]:
+    out: list[np.ndarray] = []
+    for k in rng.permutation(len(cells)):
+        c = cells[k]
+        if all(np.max(np.abs(c - o)) >= 2 for o in taken + out):
+            out.append(c)
+            if len(out) == count:
+                return out
+    raise SystemExit(f"only {len(out)} of {count} characters fit 2 cells apart")
+
+
+@dataclass
+class RunResult:
+    n: int
+    frames: int
+    wall_s: float
+    counters: Counters
+    positions: np.ndarray
+
+
+def run_crowd(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: dict[str, MotionDatabase],
+              brute: bool) -> RunResult:
+    counters = Counters()
+    matcher = MotionMatcher({k: TimedDatabase(db, counters, brute) for k, db in dbs.items()})  # type: ignore[misc]
+    planner = TimedPlanner(grid, seed=seed)
+    planner.counters = counters
+    cells = np.argwhere(grid.component == grid.main_component)
+    rng = np.random.default_rng(seed)
+    starts = spread_cells(cells, n, rng, [])
+    names = [f"p{i:03d}" for i in range(n)]
+    world = World(scene, {nm: (tuple(grid.center_of(*c)), 0.0) for nm, c in zip(names, starts, strict=True)},
+                  TimedMotion(matcher, counters), grid=grid, planner=planner,
+                  config=WorldConfig(seed=seed, initial_capacity=frames))
+    targets = dict(zip(names, starts, strict=True))
+    count = dict.fromkeys(names, 0)
+    todo = set(names)
+    t0 = time.perf_counter()
+    for _ in range(frames):
+        cmds = []
+        for nm in sorted(todo):
+            cell = spread_cells(cells, 1, rng, [targets[o] for o in names if o != nm])[0]
+            targets[nm] = cell
+            count[nm] += 1
+            theta = float(rng.uniform(-math.pi, math.pi))
+            cmds.append(AssignEvent(event_id=f"{nm}-{count[nm]}", assignments=(Assignment(
+                character=nm, action="idle", target_xy=tuple(grid.center_of(*cell)),
+                facing_xy=(math.cos(theta), math.sin(theta))),)))
+        todo = set()
+        _, out = step(world, cmds, world.dt)
+        todo |= {e.rsplit("-", 1)[0] for e in out.looping_events}
+        todo |= {f.character for f in out.failures}
+    wall = time.perf_counter() - t0
+    return RunResult(n, frames, wall, counters, world.positions())
+
+
+def replan_baseline(grid: NavGrid, problems: list[tuple[Any, ...]], seed: int, limit: int = 60) -> tuple[float, float, int]:
+    """(windowed s per replan, non-windowed s per replan, problems) on the same recorded problems."""
+    picks = problems[:: max(1, len(problems) // limit)][:limit]
+    long_window = math.ceil((grid.shape[0] + grid.shape[1]) * 1.5)
+    windowed = PathPlanner(grid, seed=seed)
+    full = PathPlanner(grid, window=long_window, seed=seed, max_expansions=200_000)
+    times = []
+    for planner in (windowed, full):
+        t0 = time.perf_counter()
+        for starts, goals, statics, t, order in picks:
+            planner.plan(starts, goals, statics, t0=t, order=order or None)
+        times.append((time.perf_counter() - t0) / max(1, len(picks)))
+    return times[0], times[1], len(picks)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[1, 10, 50, 200])
+    ap.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per run (200: half)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+
+    office = load_scene(OFFICE)
+    t0 = time.perf_counter()
+    dbs = load_databases()
+    for db in dbs.values():  # build the search indexes now, outside the timed runs
+        db.index  # noqa: B018
+        db.entry_index  # noqa: B018
+    print(f"motion databases: {len(dbs)} keys, {sum(d.num_frames for d in dbs.values())} frames, "
+          f"loaded in {time.perf_counter() - t0:.1f} s")
+    grids: dict[str, tuple[Scene, NavGrid]] = {}
+    rows = []
+    for n in args.sizes:
+        scene = office if n <= 120 else tiled(office, 2, 2)
+        if scene.name not in grids:
+            grids[scene.name] = (scene, build_nav_grid(scene))
+        scene, grid = grids[scene.name]
+        seconds = args.seconds if n <= 120 else args.seconds / 2
+        frames = round(seconds * 30)
+        kd = run_crowd(scene, grid, n, frames, args.seed, dbs, brute=False)
+        bf = run_crowd(scene, grid, n, frames, args.seed, dbs, brute=True)
+        same = np.array_equal(kd.positions, bf.positions) and kd.counters.results == bf.counters.results
+        w_s, nw_s, k = replan_baseline(grid, kd.counters.problems, args.seed)
+        c = kd.counters
+        cfps_kd, cfps_bf = n * frames / kd.wall_s, n * frames / bf.wall_s
+        rows.append((n, scene.name, frames, cfps_kd, cfps_bf, kd.wall_s, bf.wall_s, c, bf.counters, w_s, nw_s, k, same))
+
+    print()
+    hdr = (f"{'N':>4} {'scene':<10} {'frames':>6} | {'char-fr/s':>9} {'brute':>8} {'ratio':>6} | {'RTF':>6} {'brute':>6} | "
+           f"{'search us':>9} {'brute':>8} {'ratio':>6} | {'replan ms':>9} {'full':>8} {'ratio':>6} | "
+           f"{'motion':>6} {'plan':>5} {'world':>5} | same")
+    print(hdr)
+    print("-" * len(hdr))
+    for n, sname, frames, ckd, cbf, wkd, wbf, c, cb, w_s, nw_s, _k, same in rows:
+        sim_s = frames / 30.0
+        s_kd = 1e6 * c.search_s / max(1, c.searches)
+        s_bf = 1e6 * cb.search_s / max(1, cb.searches)
+        motion = c.motion_s / wkd
+        plan = c.plan_s / wkd
+        print(f"{n:>4} {sname:<10} {frames:>6} | {ckd:>9.0f} {cbf:>8.0f} {ckd / cbf:>6.2f} | {sim_s / wkd:>6.2f} {sim_s / wbf:>6.2f} | "
+              f"{s_kd:>9.1f} {s_bf:>8.1f} {s_bf / max(s_kd, 1e-9):>6.2f} | {1e3 * w_s:>9.2f} {1e3 * nw_s:>8.2f} {nw_s / max(w_s, 1e-12):>6.2f} | "
+              f"{motion:>6.0%} {plan:>5.0%} {1 - motion - plan:>5.0%} | {'yes' if same else 'NO'}")
+    print()
+    print("char-fr/s: character-frames per wall second (KD-tree search); brute: same run, brute-force search.")
+    print("RTF: simulated seconds per wall second. search us: mean motion search per query.")
+    print("replan ms: mean windowed WHCA* replan (window 20); full: non-windowed planner on the same problems.")
+    print("motion / plan / world: share of the KD run's wall time. same: both runs took identical decisions.")
+    for n, *_rest in rows:
+        if n == 10:
+            rtf = (_rest[1] / 30.0) / _rest[4]
+            print(f"issue target (10 characters >= 30x real time): {rtf:.2f}x -> {'met' if rtf >= 30 else 'NOT met'}")
+
+
+if __name__ == "__main__":
+    main()
