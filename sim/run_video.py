@@ -6,8 +6,8 @@ character belonged to at every frame (``World.event_ids()``). ``recording_from_w
 one from a ``sim.world.World``.
 
 Every picture is drawn by ``sim.topdown_plot.render_topdown_rgb``: furniture, characters as
-discs with heading arrows and their current action / event under their names, the last
-``trail_s`` seconds of each character's path as a trail, and the events under way as captions.
+discs with heading arrows and their current action / event under their names, the cells a
+body cannot stand on (shaded, when the recording has the grid), the last ``trail_s`` seconds of each character's path as a trail, and the events under way as captions.
 
 Animations are GIF by default (imageio's Pillow writer). MP4 needs an ffmpeg encoder that
 imageio can find (``imageio-ffmpeg``); ``save_run_animation`` picks MP4 for a ``.mp4`` path
@@ -25,6 +25,7 @@ import imageio.v3 as iio
 import numpy as np
 
 from sim.character_track import CharacterTrack
+from sim.nav_grid import NavGrid
 from sim.scene import Scene
 from sim.topdown_plot import CharacterMarker, render_topdown_rgb
 from sim.world_motion import root_yaw
@@ -37,11 +38,13 @@ class RunVideoError(ValueError):
 @dataclass(frozen=True)
 class RunRecording:
     """scene; tracks: name -> CharacterTrack (same frame count and fps); events: name -> event
-    id per frame ("" outside events), optional."""
+    id per frame ("" outside events), optional; grid: the navigation grid, whose blocked cells
+    (walls and doors of reference scenes included) are shaded, optional."""
 
     scene: Scene
     tracks: Mapping[str, CharacterTrack]
     events: Mapping[str, Sequence[str]] | None = None
+    grid: NavGrid | None = None
 
     def __post_init__(self) -> None:
         if not self.tracks:
@@ -65,7 +68,7 @@ class RunRecording:
 
 def recording_from_world(world: object) -> RunRecording:
     """The recording of a ``sim.world.World`` (duck-typed: ``scene``, ``tracks()``, ``event_ids()``)."""
-    return RunRecording(world.scene, world.tracks(), world.event_ids())  # type: ignore[attr-defined]
+    return RunRecording(world.scene, world.tracks(), world.event_ids(), world.grid)  # type: ignore[attr-defined]
 
 
 def _frame_index(rec: RunRecording, frame: int) -> int:
@@ -78,7 +81,7 @@ def _frame_index(rec: RunRecording, frame: int) -> int:
 
 def run_frame_rgb(
     rec: RunRecording, frame: int = -1, *, trail_s: float = 3.0, size_px: int = 900, title: str | None = None,
-    show_names: bool = True,
+    show_names: bool = True, show_grid: bool = True,
 ) -> np.ndarray:
     """One frame of the run as an (H, W, 3) uint8 picture (``frame`` may be negative)."""
     f = _frame_index(rec, frame)
@@ -97,9 +100,12 @@ def run_frame_rgb(
     caption = [f"t = {f / rec.fps:6.2f} s   frame {f}"]
     if under_way:
         caption.append("events: " + ", ".join(under_way))
+    grid: dict[str, object] = {}
+    if show_grid and rec.grid is not None:
+        grid = {"nav_free": rec.grid.free, "nav_origin": rec.grid.origin, "nav_cell_size": rec.grid.cell_size}
     return render_topdown_rgb(
         rec.scene, characters=markers, paths=trails, title=title, captions=caption,
-        show_names=show_names, size_px=size_px,
+        show_names=show_names, size_px=size_px, **grid,
     )
 
 
