@@ -67,6 +67,7 @@ from sim.story_events import (
 )
 from sim.world_motion import FUTURE_FRAMES, MotionLayer, MotionQuery, compose_poses
 from sim.world_navigation import WorldNavigator
+from sim.world_tracks import TrackBuffers
 
 OBJECT_REACH = 0.55  # metres from the standing root to the object acted on (motion target)
 EventStatus = Literal["ongoing", "looping", "completed", "failed"]
@@ -102,71 +103,6 @@ class EventState:
     members: dict[str, str]
     status: EventStatus = "ongoing"
     started: bool = False
-
-
-@dataclass
-class TrackBuffers:
-    """Per-frame output of every character, grown by doubling (frames, characters, ...)."""
-
-    names: tuple[str, ...]
-    capacity: int
-    length: int = 0
-    pelvis: np.ndarray = field(init=False)
-    rotations: np.ndarray = field(init=False)
-    labels: np.ndarray = field(init=False)
-    contacts: np.ndarray = field(init=False)
-    events: np.ndarray = field(init=False)
-    label_names: list[str] = field(default_factory=list)
-    _label_index: dict[str, int] = field(default_factory=dict, repr=False)
-
-    def __post_init__(self) -> None:
-        n = len(self.names)
-        self.pelvis = np.zeros((self.capacity, n, 3))
-        self.rotations = np.zeros((self.capacity, n, NUM_JOINTS, 3, 3), dtype=np.float32)
-        self.labels = np.zeros((self.capacity, n), dtype=np.int32)
-        self.contacts = np.zeros((self.capacity, n, 2), dtype=bool)
-        self.events = np.zeros((self.capacity, n), dtype=np.int32)
-
-    def label_id(self, label: str) -> int:
-        """Index of ``label`` in ``label_names`` (added on first use)."""
-        k = self._label_index.get(label)
-        if k is None:
-            k = self._label_index[label] = len(self.label_names)
-            self.label_names.append(label)
-        return k
-
-    def append(
-        self, pelvis: np.ndarray, rotations: np.ndarray, labels: Sequence[str], contacts: np.ndarray,
-        events: Sequence[str],
-    ) -> None:
-        """Record one frame: pelvis (N, 3), rotations (N, 22, 3, 3), motion labels (N,), foot
-        contacts (N, 2) and event ids (N,; "" outside events)."""
-        if self.length == self.capacity:
-            grow = max(self.capacity, 1)
-            for name in ("pelvis", "rotations", "labels", "contacts", "events"):
-                arr = getattr(self, name)
-                setattr(self, name, np.concatenate([arr, np.zeros_like(arr[:grow])]))
-            self.capacity += grow
-        f = self.length
-        self.pelvis[f] = pelvis
-        self.rotations[f] = rotations
-        self.labels[f] = [self.label_id(s) for s in labels]
-        self.contacts[f] = contacts
-        self.events[f] = [self.label_id(s) for s in events]
-        self.length += 1
-
-    def trimmed(self) -> TrackBuffers:
-        """A copy holding exactly the recorded frames."""
-        out = copy.copy(self)
-        out.capacity = max(self.length, 1)
-        out.pelvis = self.pelvis[: out.capacity].copy()
-        out.rotations = self.rotations[: out.capacity].copy()
-        out.labels = self.labels[: out.capacity].copy()
-        out.contacts = self.contacts[: out.capacity].copy()
-        out.events = self.events[: out.capacity].copy()
-        out.label_names = list(self.label_names)
-        out._label_index = dict(self._label_index)
-        return out
 
 
 @dataclass
@@ -400,10 +336,10 @@ class World:
 
     def _stop(self, c: CharacterState) -> None:
         """End whatever ``c`` does and become idle (standing up first when seated)."""
-        c.waiting = False
+        was_waiting, c.waiting = c.waiting, False
         if c.phase in ("transition_in", "interacting") or (c.phase == "idle" and c.seated):
             self._begin_transition_out(c)
-        elif c.phase == "approaching":
+        elif c.phase == "approaching" or was_waiting:
             c.enter("idle")
             if c.walker:
                 self.navigator.set_goal(c.name, None)
@@ -459,12 +395,17 @@ class World:
                     self.navigator.set_goal(n, None)
 
     def _arrive(self, c: CharacterState) -> None:
-        """``c`` reached its goal cell: stop there and wait for the event's other members."""
+        """``c`` reached its goal cell: wait there for the event's other members.
+
+        A waiting character stays a walker without a goal, so it steps aside for passers-by
+        (its partners included) and walks back to its cell afterwards.
+        """
         cell = self.navigator.cell(c.name)
+        c.goal_cell = cell
         c.anchor_xy = self.grid.center_of(*cell)
-        c.xy = c.anchor_xy.copy()
-        self.navigator.make_stationary(c.name, [c.anchor_xy])
-        c.walker = False
+        c.best_distance, c.stalled_frames = 0.0, 0
+        if self.navigator.goal_of(c.name) is not None:
+            self.navigator.set_goal(c.name, None)
         c.waiting = True
         c.enter("idle")
 
@@ -475,10 +416,14 @@ class World:
         c.turn_from = c.heading
         c.turn_frames, total = transition_in_frames(a, c.heading, self.config.fps)
         c.enter("transition_in", total)
+        c.xy = c.anchor_xy.copy()
+        c.walker = False
         if a.seat is not None:
             c.seat_xy = self.scene.by_name[a.seat].seat_point()
             mid = 0.5 * (c.anchor_xy + c.seat_xy)
             self.navigator.make_stationary(c.name, [c.anchor_xy, mid, c.seat_xy])
+        else:
+            self.navigator.make_stationary(c.name, [c.anchor_xy])
 
     # ----- the frame ------------------------------------------------------------------------------
     def _phase_ends(self, out: _Report) -> None:
@@ -543,11 +488,17 @@ class World:
                 self._arrive(c)
         limit = int(self.config.stuck_after_s * self.config.fps)
         for c in self.characters.values():
-            if c.phase != "approaching" or not c.walker or c.goal_cell is None:
+            if not c.walker or c.goal_cell is None or not (c.phase == "approaching" or c.waiting):
                 continue
             cell = nav.cell(c.name)
+            if c.waiting:
+                if cell == c.goal_cell:
+                    c.best_distance, c.stalled_frames = 0.0, 0
+                    continue
+                if nav.goal_of(c.name) is None:  # made way for someone: walk back
+                    nav.set_goal(c.name, c.goal_cell)
             used = nav.used_goal(c.name)
-            if used is not None and used != c.goal_cell and cell == used and max(
+            if c.phase == "approaching" and used is not None and used != c.goal_cell and cell == used and max(
                 abs(used[0] - c.goal_cell[0]), abs(used[1] - c.goal_cell[1])
             ) <= 1:
                 self._arrive(c)  # the goal cell is taken; the neighbour the planner chose will do
@@ -563,11 +514,15 @@ class World:
                                  f"{self.config.stuck_after_s:.0f} s", out)
 
     def _start_groups(self, out: _Report) -> None:
+        """At a step boundary: events whose members all wait on their cells start together."""
+        nav = self.navigator
         for eid, ev in self.events.items():
             if ev.status != "ongoing" or ev.started:
                 continue
             members = [self.characters[n] for n, s in ev.members.items() if s == "active"]
-            if members and all(m.waiting and m.event_id == eid for m in members):
+            if members and all(
+                m.waiting and m.event_id == eid and (not m.walker or nav.cell(m.name) == m.goal_cell) for m in members
+            ):
                 ev.started = True
                 out.started.append(eid)
                 for m in members:
@@ -582,7 +537,7 @@ class World:
         walk_xy = nav.tick()
         if boundary:
             self._walker_checks(out)
-        self._start_groups(out)
+            self._start_groups(out)
 
         n = len(self.names)
         dt = self.dt
@@ -597,8 +552,9 @@ class World:
             fut_xy = fut_h = None
             if c.walker:
                 xy = walk_xy[name]
-                fut_xy = nav.future(name, FUTURE_FRAMES)
-                ahead = nav.future(name, (self.config.heading_lookahead,))[0] - xy
+                fut = nav.future(name, (*FUTURE_FRAMES, self.config.heading_lookahead))
+                fut_xy = fut[:3]
+                ahead = fut[3] - xy
                 dist = float(np.hypot(*ahead))
                 moving = float(np.hypot(*(xy - c.xy))) > 1e-6
                 h = c.heading

@@ -57,6 +57,9 @@ class WorldNavigator:
     def set_goal(self, name: str, goal: Cell | None) -> None:
         self.nav.set_goal(name, goal)
 
+    def goal_of(self, name: str) -> Cell | None:
+        return self.nav.goal_of(name)
+
     def make_stationary(self, name: str, points: Sequence[np.ndarray]) -> None:
         """``name`` stops walking; its body covers discs centred on ``points`` (>= 1)."""
         self.release(name)

@@ -128,7 +128,10 @@ def test_group_members_wait_for_each_other_then_start_together(office) -> None: 
     ann_track = w.tracks()["ann"].root_positions[:, :2]
     arrived = int(np.flatnonzero(np.all(np.isclose(ann_track, _cell_xy(office, *meet_a)), axis=1))[0])
     assert len(outs) - arrived > 30  # ann waited at least a second for bob
-    assert np.allclose(ann_track[arrived:], ann_track[arrived])  # waiting means standing still
+    labels = w.tracks()["ann"].action_labels
+    assert set(labels[arrived:]) <= {"idle", "walk"}  # waiting (stepping aside for bob if needed)
+    assert np.allclose(ann_track[-1], _cell_xy(office, *meet_a))  # on her cell when the event starts
+    assert np.allclose(w.characters["bob"].xy, _cell_xy(office, *meet_b))
     assert w.characters["ann"].phase == w.characters["bob"].phase == "transition_in"
     assert outs[-2].available == ()  # both busy while the event is ongoing
     outs = _until(w, lambda o: bool(o.looping_events))
