@@ -9,18 +9,23 @@ dataclasses, dicts and numpy arrays) for replays and tests.
 
 Who moves a character's root (pelvis ground point, metres):
 
-- walkers (``approaching``, or ``idle`` standing characters, who may step aside for others)
-  are on the ``CrowdNavigator``'s position exactly, so its clearance rule (centres >= 2 body
-  radii apart, bodies off every blocking footprint) holds for the synthesized pelvis;
-- everyone else is a stationary obstacle for the navigator: characters waiting for their
-  event's other members, transitioning in or out, acting, or seated. A seated body registers
-  three discs (approach cell, midway, seat point) while it sits down, sits and stands up.
+- walkers (``approaching``; ``idle`` standing characters, including those waiting at their
+  target for the event's other members, who step aside for passers-by and walk back) are on
+  the ``CrowdNavigator``'s position exactly, so its clearance rule (centres >= 2 body radii
+  apart, bodies off every blocking footprint) holds for the synthesized pelvis;
+- everyone else is a stationary obstacle for the navigator: characters transitioning in or
+  out, acting, seated, or standing still after an action until the next planning step. A
+  seated body registers three discs (approach cell, midway, seat point) while it sits down,
+  sits and stands up; those discs keep walkers 2 body radii from the approach cell and the
+  seat and at least ~0.45 m from the segment between them.
 
 Walkers join the navigator only at planning-step boundaries (every ``step_frames`` frames,
 9 at 0.3 m cells and 1 m/s): a character that finished standing up waits in place until then.
 
-Events: every member walks to its target cell (a seat's approach cell when sitting); whoever
-arrives first waits; when all have arrived, all start their transition in on the same frame.
+Events: every member walks to the free cell nearest its target (a seat's approach cell when
+sitting; the root stands on cell centres, at most ~0.21 m from the target at 0.3 m cells);
+whoever arrives first waits; when all are on their cells at a planning-step boundary, all
+start their transition in on the same frame.
 An event completes when every member has finished its action (or, acting a looping action,
 was interrupted or released); it becomes *looping* when every member is done or acting a
 looping action. Characters of looping events are available, and a new assignment interrupts
