@@ -279,7 +279,8 @@ def test_setup_errors_are_typed(office) -> None:  # type: ignore[no-untyped-def]
         _world(office, {})
 
 
-def test_real_motion_matcher_drives_the_bodies(office) -> None:  # type: ignore[no-untyped-def]
+def test_real_motion_matcher_drives_the_bodies_and_tracks_export(office, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    from sim.export_bundle import export_run
     from sim.motion_database import load_databases
     from sim.motion_matching import MotionMatcher
 
@@ -293,3 +294,6 @@ def test_real_motion_matcher_drives_the_bodies(office) -> None:  # type: ignore[
     assert np.any(np.abs(t.local_rotations[:, 4:] - np.eye(3)) > 1e-3)  # the legs move
     assert np.all(np.isfinite(t.root_positions))
     assert w.foot_contacts()["ann"].shape == (90, 2)
+    assert w.foot_contacts()["ann"].any()
+    files = export_run(tmp_path, scene, list(w.tracks().values()))
+    assert files.glb.exists() and files.bvh["ann"].exists() and files.smplx["ann"].exists()
