@@ -71,7 +71,9 @@ class ParserInput:
     seats_in_use: Sequence[str] = ()
     seed: int | None = None
     sim_frame: int | None = None
-    max_tokens: int = DEFAULT_MAX_TOKENS
+    max_tokens: int | None = None
+    """None: 60 + 70 per event character (capped at DEFAULT_MAX_TOKENS), enough for the
+    function; a small model otherwise goes on writing more examples."""
 
 
 MOTION_ONLY_LABELS = frozenset({"walk", "sit_down", "sit_idle", "stand_up"})
@@ -124,7 +126,7 @@ def parser_request(prompts: PromptLibrary, inp: ParserInput, turns: tuple[Turn, 
         node="event_parser",
         messages=with_turns(parser_messages(prompts, inp), turns),
         json_schema=None,
-        max_tokens=inp.max_tokens,
+        max_tokens=inp.max_tokens or min(DEFAULT_MAX_TOKENS, 60 + 70 * max(1, len(inp.event.characters))),
         seed=inp.seed,
         sim_frame=inp.sim_frame,
     )

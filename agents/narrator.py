@@ -12,6 +12,7 @@ description; user = characters and their states, event history, instruction.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -100,6 +101,20 @@ def history_text(history: Sequence[HistoryEntry]) -> str:
     return "\n".join(lines)
 
 
+_SENTENCE_END = re.compile(r"(?<=[.!?;])\s+|\n+")
+
+
+def instruction_text(instruction: str) -> str:
+    """The instruction as numbered sentences, which a small model follows more reliably
+    than one paragraph."""
+    parts = [p.strip() for p in _SENTENCE_END.split(instruction.strip()) if p and p.strip()]
+    if not parts:
+        return "(none: continue the story naturally)"
+    if len(parts) == 1:
+        return parts[0]
+    return "\n" + "\n".join(f"{i + 1}) {p}" for i, p in enumerate(parts))
+
+
 def characters_text(characters: Sequence[CharacterStatus]) -> str:
     lines = []
     for c in characters:
@@ -123,7 +138,7 @@ def narrator_messages(prompts: PromptLibrary, inp: NarratorInput) -> tuple[ChatM
         characters=characters_text(inp.characters),
         free=", ".join(free) if free else "(none)",
         history=history_text(inp.history),
-        instruction=inp.instruction.strip() or "(none: continue the story naturally)",
+        instruction=instruction_text(inp.instruction),
     )
     return (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
 

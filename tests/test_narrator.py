@@ -120,3 +120,11 @@ def test_history_window_keeps_ongoing_events() -> None:
     text = history_text(hist)
     assert "[looping] Bob: long read" in text and "a11" in text and "a0" not in text
     assert "older completed events not shown" in text
+
+
+def test_instruction_is_numbered_by_sentence() -> None:
+    from agents.narrator import instruction_text
+
+    assert instruction_text("Ann cooks. Bob eats!") == "\n1) Ann cooks.\n2) Bob eats!"
+    assert instruction_text("Ann cooks") == "Ann cooks"
+    assert instruction_text("  ") == "(none: continue the story naturally)"
