@@ -276,18 +276,16 @@ def _write_outputs(
     out: Path, scene: Any, world: Any, result: SessionResult, names: list[str], instruction: str, fps: int, gif: bool
 ) -> None:
     from sim.export_bundle import export_run
-    from sim.topdown_plot import save_topdown_png
+    from sim.run_video import recording_from_world, save_run_animation, save_run_png
 
     payload = story_json(result, scene.name, names, instruction, fps)
     (out / "story.json").write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
     tracks = world.tracks()
     export_run(out, scene, list(tracks.values()))
-    trails = {name: t.root_positions[:, :2] for name, t in tracks.items()}
-    save_topdown_png(out / "topdown.png", scene, paths=trails, title=f"{scene.name}: {result.frames / fps:.0f} s")
+    recording = recording_from_world(world)
+    save_run_png(out / "topdown.png", recording)
     if gif:
-        from sim.run_video import save_run_gif
-
-        save_run_gif(out / "story.gif", scene, tracks)
+        save_run_animation(out / "story.gif", recording, stride=10, speed=4.0)
 
 
 __all__ = ["Outcome", "register", "run_command"]
