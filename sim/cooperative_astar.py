@@ -127,6 +127,7 @@ class PathPlanner:
         max_expansions: int = 4000,
         fallback: bool = True,
         seed: int = 0,
+        repair_passes: int = 3,
     ) -> None:
         if window < 1:
             raise PlanningError(f"window must be >= 1 step, got {window}")
@@ -140,6 +141,7 @@ class PathPlanner:
         self.step_time = float(step_time if step_time is not None else grid.cell_size / walking_speed)
         self.max_expansions = int(max_expansions)
         self.fallback = bool(fallback)
+        self.repair_passes = int(repair_passes)
         self.seed = int(seed)
         self.min_distance = 2.0 * grid.body_radius  # metres between centres
         d_cells = self.min_distance / grid.cell_size
@@ -224,35 +226,42 @@ class PathPlanner:
         return self.heuristic(goal)[self.cell_id(start)] * self.grid.cell_size
 
     # ----- static obstacles ------------------------------------------------------------------------
-    def _static_overrides(self, statics: Sequence[np.ndarray]) -> dict[int, list[tuple[int, float, int, int, int]]]:
-        """Neighbour lists with moves removed that bring a body too close to a stationary one."""
-        if not statics:
+    def _static_overrides(
+        self, statics: Sequence[np.ndarray], segments: Sequence[tuple[np.ndarray, np.ndarray]] = ()
+    ) -> dict[int, list[tuple[int, float, int, int, int]]]:
+        """Neighbour lists with moves removed that bring a body too close to a stationary one.
+
+        ``statics``: disc centres (metres). ``segments``: bodies that sweep a straight segment
+        (p, q) during the step (an off-grid leg): a move is kept when its closest approach to
+        every static point / segment is >= ``min(2r, distance at the move's start)``.
+        """
+        segs = [(np.asarray(p, dtype=float), np.asarray(q, dtype=float)) for p, q in segments]
+        segs += [(np.asarray(p, dtype=float), np.asarray(p, dtype=float)) for p in statics]
+        if not segs:
             return {}
         g = self.grid
         cs = g.cell_size
         out: dict[int, list[tuple[int, float, int, int, int]]] = {}
         reach_m = self.min_distance + 2.0 * cs
-        q = np.asarray(statics, dtype=float).reshape(-1, 2)
         cand: set[int] = set()
         rr = int(math.ceil(reach_m / cs)) + 1
-        for p in q:
-            ci, cj = g.cell_of(p)
-            for i in range(ci - rr, ci + rr + 1):
-                for j in range(cj - rr, cj + rr + 1):
+        for p, q in segs:
+            (i0, j0), (i1, j1) = g.cell_of(p), g.cell_of(q)
+            for i in range(min(i0, i1) - rr, max(i0, i1) + rr + 1):
+                for j in range(min(j0, j1) - rr, max(j0, j1) + rr + 1):
                     if g.is_free(i, j):
                         cand.add(self.cell_id((i, j)))
+        ps = np.array([p for p, _ in segs])
+        qs = np.array([q for _, q in segs])
         for cid in sorted(cand):
             a = self.grid.center_of(*self.id_cell(cid))
+            start = segment_distance(np.broadcast_to(a, ps.shape), np.broadcast_to(a, ps.shape), ps, qs)
+            limit = np.minimum(self.min_distance, start) - 1e-7
             kept = []
             for nb in self._nbrs[cid]:
                 b = a + np.array([nb[2], nb[3]], dtype=float) * cs
-                d = b - a
-                rel = q - a
-                dd = float(d @ d)
-                t = np.clip(rel @ d / dd, 0.0, 1.0) if dd > 0 else np.zeros(len(q))
-                closest = np.linalg.norm(rel - t[:, None] * d, axis=1)
-                start = np.linalg.norm(rel, axis=1)
-                if np.all(closest >= np.minimum(self.min_distance, start) - 1e-7):
+                closest = segment_distance(np.broadcast_to(a, ps.shape), np.broadcast_to(b, ps.shape), ps, qs)
+                if np.all(closest >= limit):
                     kept.append(nb)
             if len(kept) != len(self._nbrs[cid]):
                 out[cid] = kept
@@ -266,14 +275,17 @@ class PathPlanner:
         static_obstacles: Sequence[np.ndarray | tuple[float, float]] = (),
         t0: int = 0,
         order: Sequence[Agent] | None = None,
+        static_segments: Sequence[tuple[np.ndarray, np.ndarray]] = (),
     ) -> PlanResult:
         """Plan ``window`` steps for every agent in ``starts``.
 
         ``goals[a]`` None (or missing) means "stay": the agent keeps its cell unless it must
         make way. ``static_obstacles``: xy centres of stationary characters (metres).
         ``order``: priority order (first plans first); default is a permutation seeded by
-        ``seed`` and ``t0``. The fallback pass re-plans with the failed agents first and a
-        doubled window for them; the pass with fewer failures wins.
+        ``seed`` and ``t0``. ``static_segments``: (p, q) pairs in metres, bodies sweeping that
+        segment (off-grid legs; see ``_static_overrides``). Every agent's wait is reserved for
+        the committed steps, so no plan steps into a body that has not planned yet; the
+        fallback pass re-plans with the failed agents first and a doubled window for them.
         """
         agents = list(starts)
         for a in agents:
@@ -286,23 +298,36 @@ class PathPlanner:
         else:
             missing = set(agents) - set(order)
             order = [a for a in order if a in starts] + [a for a in agents if a in missing]
-        overrides = self._static_overrides([np.asarray(p, dtype=float) for p in static_obstacles])
+        overrides = self._static_overrides([np.asarray(p, dtype=float) for p in static_obstacles], static_segments)
         used_goals = {a: self._usable_goal(starts[a], goals.get(a), overrides) for a in agents}
-        first = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=False)
-        if not first.failed:
-            return first
-        # Someone is cornered: plan again with everyone's wait reserved up front (so waiting is
-        # always safe), the failed agents first and, with the fallback on, a doubled window.
-        order2 = failed_first(order, first.failed) if self.fallback else list(order)
-        ext = first.failed if self.fallback else frozenset()
-        best = self._pass(order2, starts, used_goals, overrides, extended=ext, reserve_waits=True)
-        second = best
+        # Pass 1: plain WHCA*. An agent whose search fails was cornered by the first steps of
+        # agents planned before it; its wait is then reserved for the committed steps and the
+        # call planned again (lazy wait reservation: only agents that need it hold their
+        # place, the others may still be pushed), up to ``repair_passes`` times. A pass is safe
+        # when every failed agent had its wait reserved. Last resort: everyone's wait reserved,
+        # failed agents first with a doubled window (always safe).
+        reserved: frozenset[Agent] = frozenset()
+        result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved)
+        fallback = set(result.failed)
+        expansions = result.expansions
+        for _ in range(self.repair_passes):
+            if result.failed <= reserved:
+                break
+            reserved = reserved | result.failed
+            result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved)
+            fallback |= result.failed
+            expansions += result.expansions
+        if not result.failed <= reserved:
+            order2 = failed_first(order, result.failed) if self.fallback else list(order)
+            ext = result.failed if self.fallback else frozenset()
+            result = self._pass(order2, starts, used_goals, overrides, extended=ext, reserve_waits=frozenset(order))
+            expansions += result.expansions
         return PlanResult(
-            paths=best.paths,
-            failed=best.failed,
-            fallback=first.failed,
+            paths=result.paths,
+            failed=result.failed,
+            fallback=frozenset(fallback),
             goals=used_goals,
-            expansions=first.expansions + second.expansions,
+            expansions=expansions,
         )
 
     def _usable_goal(self, start: Cell, goal: Cell | None, overrides: Mapping[int, list]) -> Cell:
@@ -332,19 +357,19 @@ class PathPlanner:
         goals: Mapping[Agent, Cell],
         overrides: Mapping[int, list],
         extended: frozenset[Agent],
-        reserve_waits: bool,
+        reserve_waits: frozenset[Agent],
     ) -> PlanResult:
         w_max = self.window * (2 if extended else 1)
         res = _Reservations(w_max, self)
         waits = {a: [self.cell_id(starts[a])] * (self.commit_steps + 1) for a in order}
-        if reserve_waits:
-            for a in order:
+        for a in order:
+            if a in reserve_waits:
                 res.add(a, waits[a], self.commit_steps)
         paths: dict[Agent, list[Cell]] = {}
         failed: set[Agent] = set()
         total = 0
         for a in order:
-            if reserve_waits:
+            if a in reserve_waits:
                 res.remove(a, waits[a], self.commit_steps)
             window = self.window * 2 if a in extended else self.window
             ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
@@ -424,6 +449,27 @@ def _segment_min_norm(px: float, py: float, wx: float, wy: float) -> float:
     ww = wx * wx + wy * wy
     s = 0.0 if ww == 0 else min(1.0, max(0.0, -(px * wx + py * wy) / ww))
     return math.hypot(px + s * wx, py + s * wy)
+
+
+def segment_distance(a: np.ndarray, b: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Exact distance (N,) between 2-D segments a->b and p->q (arrays (N, 2); points allowed)."""
+    a, b, p, q = (np.asarray(x, dtype=float).reshape(-1, 2) for x in (a, b, p, q))
+
+    def point_seg(x: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> np.ndarray:
+        d = s1 - s0
+        dd = np.sum(d * d, axis=1)
+        t = np.where(dd > 0, np.clip(np.sum((x - s0) * d, axis=1) / np.where(dd > 0, dd, 1.0), 0.0, 1.0), 0.0)
+        return np.linalg.norm(x - s0 - t[:, None] * d, axis=1)
+
+    out = np.minimum(np.minimum(point_seg(a, p, q), point_seg(b, p, q)), np.minimum(point_seg(p, a, b), point_seg(q, a, b)))
+
+    def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+
+    d1, d2 = cross(b - a, p - a), cross(b - a, q - a)
+    d3, d4 = cross(q - p, a - p), cross(q - p, b - p)
+    proper = (d1 * d2 < 0) & (d3 * d4 < 0)
+    return np.where(proper, 0.0, out)
 
 
 def position_at(path: Sequence[Cell], t: float, grid: NavGrid, step_time: float, t_start: float = 0.0) -> np.ndarray:

@@ -52,6 +52,24 @@ class NavGridError(ValueError):
     """Bad navigation-grid parameters (one sentence naming the parameter)."""
 
 
+@dataclass(frozen=True)
+class ApproachPoint:
+    """Where a character stands to sit on / use an object (see ``NavGrid.approach_point``).
+
+    ``xy``: the exact standing point (metres; generally not a cell centre). ``cell``: the free
+    cell a walker goes to first; the straight segment from its centre to ``xy`` is clear of
+    furniture for a body of the grid's radius. ``gap``: metres from ``xy`` to the seat point
+    (seats) or to the object's footprint (other objects), covered by the sit-down / use
+    transition. ``offset``: metres from ``xy`` to the ideal standing point (0 without a facing).
+    """
+
+    obj: str
+    xy: tuple[float, float]
+    cell: tuple[int, int]
+    gap: float
+    offset: float
+
+
 @dataclass(frozen=True, eq=False)
 class NavGrid:
     """Free cells and allowed moves of one scene for one body radius.
@@ -168,6 +186,111 @@ class NavGrid:
         if keep.any():
             cells, d2 = cells[keep], d2[keep]
         k = int(np.argmin(d2))
+        return (int(cells[k][0]), int(cells[k][1]))
+
+    def approach_point(
+        self,
+        obj: SceneObject,
+        standoff: float = 0.05,
+        resolution: float = 0.05,
+        search_radius: float = 1.5,
+        component: int | None = None,
+    ) -> ApproachPoint:
+        """The best exact standing point (not a cell centre) from which to sit on / use ``obj``.
+
+        Ideal point: in front of the object (seats and objects with a facing) at
+        ``depth / 2 + body_radius + standoff`` from its centre; for objects without a facing, any
+        point ``body_radius + standoff`` off the footprint. Candidates are points on a
+        ``resolution`` lattice within ``search_radius`` of the footprint where a body fits (clear of
+        every blocking object, inside the bounds) and that a walker reaches: some free cell (of
+        ``component`` when given, else of any component: check ``component[cell]`` against the
+        walker's own to know whether it can get there) has a clear straight segment to the point (``ApproachPoint.cell``; walk
+        there on the grid, then ``CrowdNavigator.set_goal(agent, cell, final_xy=xy)``). Preferred:
+        points with a clear line to the seat point (or centre) past every other object, then those
+        in front, then the closest to the ideal point; ties broken by lattice order (deterministic).
+
+        ``ApproachPoint.gap`` is the distance (metres) left between the standing point and the seat
+        point (seats) or the footprint edge (other objects). The sit-down / use transition covers
+        it: the character turns and its root moves the remaining ``gap`` onto the seat (the body
+        passes over the seat's own footprint, which is not an obstacle to sitting). When chairs are
+        tucked 0.37-0.46 m from their tables no body (0.5 m across) fits in front of them; the point
+        is then beside the chair and ``gap`` is larger (e.g. 0.5-0.8 m): callers decide whether that
+        is acceptable. Raises ``NavGridError`` when no candidate is reachable.
+        """
+        if not (math.isfinite(resolution) and resolution > 0.0 and math.isfinite(search_radius) and search_radius > 0):
+            raise NavGridError("approach_point needs a positive resolution and search_radius in metres")
+        r = self.body_radius
+        if self.main_component < 0:
+            raise NavGridError("the navigation grid has no free cell")
+        hw, hd = obj.width / 2.0, obj.depth / 2.0
+        reach = math.hypot(hw, hd) + search_radius
+        c = obj.center_xy
+        n = int(math.ceil(reach / resolution))
+        ax = np.arange(-n, n + 1) * resolution
+        gx, gy = np.meshgrid(ax, ax, indexing="ij")
+        pts = c + np.stack([gx.ravel(), gy.ravel()], axis=1)
+        local = obj.to_local(pts)
+        edge = _point_rect_distance(local, hw, hd)
+        keep = (edge <= search_radius) & _inside_bounds(pts, self.bounds_min, self.bounds_max, r)
+        pts, local, edge = pts[keep], local[keep], edge[keep]
+        keep = body_clearance(self.obstacles, pts, pts) >= r
+        pts, local, edge = pts[keep], local[keep], edge[keep]
+        if len(pts) == 0:
+            raise NavGridError(f"no point near {obj.name} has room for a body of radius {r} m")
+        target = obj.seat_point() if obj.is_seat else obj.center_xy
+        others = [o for o in self.obstacles if o.name != obj.name]
+        visible = body_clearance(others, pts, np.broadcast_to(target, pts.shape)) > 0.0
+        facing = obj.has_facing or obj.is_seat
+        if facing:
+            ideal = c + np.asarray(obj.facing, dtype=float) * (hd + r + standoff)
+            score = np.linalg.norm(pts - ideal, axis=1)
+            in_front = local[:, 1] > hd
+        else:
+            ideal = None
+            score = np.abs(edge - (r + standoff))
+            in_front = np.ones(len(pts), dtype=bool)
+        tier = np.where(visible & in_front, 0, np.where(visible, 1, np.where(in_front, 2, 3)))
+        for k in np.lexsort((score, tier)):
+            p = pts[k]
+            cell = self._entry_cell(p, component)
+            if cell is None:
+                continue
+            gap = float(np.linalg.norm(p - target)) if obj.is_seat else float(edge[k])
+            return ApproachPoint(
+                obj=obj.name,
+                xy=(float(p[0]), float(p[1])),
+                cell=cell,
+                gap=gap,
+                offset=float(score[k]) if ideal is not None else 0.0,
+            )
+        raise NavGridError(f"no reachable point near {obj.name} has room for a body of radius {r} m")
+
+    def entry_cell(self, xy: np.ndarray | tuple[float, float], component: int | None = None) -> tuple[int, int] | None:
+        """The free cell (of ``component``, default any) with the shortest clear straight
+        segment from its centre to ``xy`` (a body of ``body_radius`` stays off every blocking object
+        along it); None when ``xy`` itself is not clear or no cell within 2 cells has a clear line."""
+        p = np.asarray(xy, dtype=float)
+        if p.shape != (2,) or not np.all(np.isfinite(p)) or not self.is_free_xy(p):
+            return None
+        return self._entry_cell(p, component)
+
+    def _entry_cell(self, p: np.ndarray, component: int | None) -> tuple[int, int] | None:
+        ci, cj = self.cell_of(p)
+        cand = [
+            (i, j)
+            for i in range(ci - 2, ci + 3)
+            for j in range(cj - 2, cj + 3)
+            if self.in_grid(i, j) and self.component[i, j] >= 0 and (component is None or self.component[i, j] == component)
+        ]
+        if not cand:
+            return None
+        cells = np.asarray(cand)
+        centers = self.centers(cells)
+        d = np.linalg.norm(centers - p, axis=1)
+        clear = body_clearance(self.obstacles, centers, np.broadcast_to(p, centers.shape)) >= self.body_radius
+        if not clear.any():
+            return None
+        k = int(np.flatnonzero(clear)[np.argmin(d[clear])])
         return (int(cells[k][0]), int(cells[k][1]))
 
     def reference_cell(self, a: int, b: int) -> tuple[int, int] | None:

@@ -39,6 +39,7 @@ class PriorityKeeper:
     def __init__(self, seed: int = 0, stall_steps: int = 6) -> None:
         self.seed = int(seed)
         self.stall_steps = int(stall_steps)
+        self.stall_factor = 4
         self._rank: dict[Agent, float] = {}
         self._best: dict[Agent, float] = {}
         self._since: dict[Agent, int] = {}
@@ -66,7 +67,7 @@ class PriorityKeeper:
                 self._since[a] = 0
             else:
                 self._since[a] = self._since.get(a, 0) + steps
-            if a in bad or self._since[a] >= self.stall_steps:
+            if a in bad or self._since[a] >= self.stall_steps * self.stall_factor:
                 self.boost[a] = self.boost.get(a, 0) + 1
                 self._since[a] = 0
 

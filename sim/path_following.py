@@ -1,27 +1,63 @@
 """Frame-by-frame following of cooperative plans: where every walking character is, each frame.
 
 ``CrowdNavigator`` owns the walkers of a scene. Each frame (``tick``) it returns every walker's
-root position (xy, metres) on its planned path; at step boundaries it updates cells and
-arrivals and, every ``commit_steps`` steps, replans everyone with ``PathPlanner.plan`` in the
-order given by ``PriorityKeeper``. Stationary characters (idle, sitting, interacting) are
-registered with ``set_stationary`` and are obstacles, never moved.
+root position (xy, metres); ``headings`` holds the direction of travel (radians, yaw about +z,
+0 = +x; kept while standing). At step boundaries it updates cells and arrivals and, every
+``commit_steps`` steps, replans everyone with ``PathPlanner.plan`` in the order given by
+``PriorityKeeper``. Stationary characters (idle, sitting, interacting) are registered with
+``set_stationary`` and are obstacles, never moved.
 
-Because positions are exactly the planner's piecewise-linear paths, the planner's clearance
-rule holds for these positions at every frame: walkers stay ``2 * body_radius`` apart and
-bodies never touch a blocking footprint. Pure: the clock is the frame counter.
+Exact off-grid points. A goal may carry ``final_xy`` (``set_goal(agent, cell, final_xy=...)``):
+after reaching ``cell`` the walker takes a straight *leg* from the cell centre to that exact
+point, and a walker parked off the grid (arrived at such a point, or added with ``start_xy``)
+first takes a leg back to its cell before walking on. A leg starts only at a step boundary and
+only when every other body (walker cells, parked points, other legs, stationary discs) is at
+least ``2 * body_radius`` from the whole segment; during the leg (and while parked) the body is
+a static segment / disc for the planner, which then keeps every move from getting closer than
+``min(2r, distance at the move's start)``. The segment itself is checked against furniture
+when the goal is set (``PlanningError`` if a body cannot stand at, or walk straight to, the
+point; ``target_problem`` gives the reason without raising).
+
+Because positions are exactly the planner's piecewise-linear paths plus these legs, the
+clearance rule holds for these positions at every frame: walkers stay ``2 * body_radius``
+apart and bodies never touch a blocking footprint. Pure: the clock is the frame counter.
 """
 
 from __future__ import annotations
 
-from collections.abc import Hashable
+import math
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from sim.cooperative_astar import Cell, PathPlanner, PlanningError, PlanResult, position_at
-from sim.nav_grid import NavGrid
+from sim.cooperative_astar import (
+    Cell,
+    PathPlanner,
+    PlanningError,
+    PlanResult,
+    position_at,
+    segment_distance,
+)
+from sim.nav_grid import NavGrid, body_clearance
 from sim.path_fallback import PriorityKeeper
 
 Agent = Hashable
+
+
+@dataclass(frozen=True)
+class _Leg:
+    """A straight off-grid walk from ``a`` to ``b`` (metres) starting at ``frame``."""
+
+    a: np.ndarray
+    b: np.ndarray
+    frame: int
+    frames: int  # frames to cover the segment at walking speed (>= 1)
+    inbound: bool  # True: cell centre -> exact target; False: parked point -> cell centre
+
+    def at(self, frame: int) -> np.ndarray:
+        s = min(1.0, max(0.0, (frame - self.frame) / self.frames))
+        return (1.0 - s) * self.a + s * self.b
 
 
 class CrowdNavigator:
@@ -44,6 +80,7 @@ class CrowdNavigator:
                 f"step_time {self.planner.step_time} s is not a whole number of frames at {fps} fps"
             )
         self.step_frames = round(step_frames)
+        self.speed = grid.cell_size / self.planner.step_time  # metres per second on a straight move
         self.keeper = PriorityKeeper(seed=seed, stall_steps=stall_steps)
         self.frame = 0
         self._cells: dict[Agent, Cell] = {}
@@ -51,11 +88,17 @@ class CrowdNavigator:
         self._paths: dict[Agent, list[Cell]] = {}
         self._plan_frame = 0
         self._static: dict[Agent, np.ndarray] = {}
+        self._final: dict[Agent, np.ndarray] = {}  # exact target of the current goal
+        self._parked: dict[Agent, np.ndarray] = {}  # walkers standing off the grid, at this point
+        self._legs: dict[Agent, _Leg] = {}
         self.arrivals: list[tuple[int, Agent]] = []
+        self.headings: dict[Agent, float] = {}
+        self._last_xy: dict[Agent, np.ndarray] = {}
         self.last_result: PlanResult | None = None
         self.replans = 0
         self.failures = 0  # agents left waiting because no safe plan was found
         self.fallbacks = 0  # agents whose plain WHCA* search failed (planned by the fallback)
+        self.leg_waits = 0  # step boundaries at which a leg could not start (a body too close)
         self._needs_plan = True
 
     # ----- membership -------------------------------------------------------------------------
@@ -63,45 +106,168 @@ class CrowdNavigator:
     def walkers(self) -> list[Agent]:
         return list(self._cells)
 
-    def add_walker(self, agent: Agent, cell: Cell, goal: Cell | None = None) -> None:
-        """A walker standing on ``cell`` (must be free). Takes effect at once (call at a step boundary)."""
+    def add_walker(
+        self,
+        agent: Agent,
+        cell: Cell,
+        goal: Cell | None = None,
+        start_xy: np.ndarray | tuple[float, float] | None = None,
+        final_xy: np.ndarray | tuple[float, float] | None = None,
+    ) -> None:
+        """A walker standing on ``cell`` (must be free). Takes effect at once (call at a step boundary).
+
+        ``start_xy``: the walker actually stands at this exact point (metres) off the grid; it
+        first walks straight to ``cell``'s centre (the segment must be clear of furniture).
+        ``final_xy``: exact target for ``goal`` (see ``set_goal``).
+        """
         if agent in self._cells or agent in self._static:
             raise PlanningError(f"agent {agent!r} is already registered")
+        cell = (int(cell[0]), int(cell[1]))
         if not self.grid.is_free(*cell):
             raise PlanningError(f"cell {cell} is blocked or outside the grid")
-        self._cells[agent] = (int(cell[0]), int(cell[1]))
-        self._goals[agent] = goal
-        self._paths[agent] = [self._cells[agent]]
-        self._needs_plan = True
+        start = None
+        if start_xy is not None:
+            start = np.asarray(start_xy, dtype=float)
+            why = self.target_problem(cell, start)
+            if why is not None:
+                raise PlanningError(f"agent {agent!r} cannot start at {tuple(start)}: {why}")
+        if goal is not None and final_xy is not None:
+            self._check_target(agent, goal, final_xy)
+        self._cells[agent] = cell
+        self._goals[agent] = None
+        self._paths[agent] = [cell]
+        if start is not None and float(np.linalg.norm(start - self.grid.center_of(*cell))) > 1e-9:
+            self._parked[agent] = start
+        self.set_goal(agent, goal, final_xy=final_xy)
 
-    def set_goal(self, agent: Agent, goal: Cell | None) -> None:
-        """New goal cell (None: stay). Used from the next replan."""
+    def set_goal(
+        self, agent: Agent, goal: Cell | None, final_xy: np.ndarray | tuple[float, float] | None = None
+    ) -> None:
+        """New goal cell (None: stay). Used from the next replan.
+
+        ``final_xy`` (metres): the exact point to end at. After reaching ``goal`` the walker
+        walks straight from the cell centre to it; it is reported in ``arrivals`` once it stands
+        there (``position`` gives the point). Raises ``PlanningError`` when a body cannot stand
+        at ``final_xy`` or walk straight to it from ``goal`` (``NavGrid.entry_cell`` finds a
+        good goal cell for a point). A walker parked off the grid first walks back to its cell.
+        """
         if agent not in self._cells:
             raise PlanningError(f"unknown walker {agent!r}")
+        if goal is not None and final_xy is not None:
+            final = self._check_target(agent, goal, final_xy)
+            self._final[agent] = final
+        else:
+            self._final.pop(agent, None)
         self._goals[agent] = None if goal is None else (int(goal[0]), int(goal[1]))
         self.keeper.reset(agent)
         self._needs_plan = True
 
+    def target_problem(self, goal: Cell, xy: np.ndarray | tuple[float, float]) -> str | None:
+        """Why a body cannot end at ``xy`` coming straight from ``goal``'s centre (None: it can).
+
+        Checks that ``xy`` is finite, that a body there touches no blocking object and stays in
+        bounds, that ``goal`` is free, and that the straight segment between them keeps the body
+        off every blocking footprint. Other characters are handled at run time (the leg waits).
+        """
+        p = np.asarray(xy, dtype=float)
+        if p.shape != (2,) or not np.all(np.isfinite(p)):
+            return f"target {xy!r} is not a finite (x, y) point"
+        g = self.grid
+        if not g.is_free(int(goal[0]), int(goal[1])):
+            return f"goal cell {tuple(goal)} is blocked or outside the grid"
+        if not g.is_free_xy(p):
+            near = _nearest_obstacle(g, p)
+            return (f"a body of radius {g.body_radius} m at ({p[0]:.2f}, {p[1]:.2f}) would leave the floor"
+                    if near is None else
+                    f"a body of radius {g.body_radius} m at ({p[0]:.2f}, {p[1]:.2f}) would overlap {near}")
+        c = g.center_of(int(goal[0]), int(goal[1]))
+        if float(body_clearance(g.obstacles, c[None], p[None])[0]) < g.body_radius - 1e-9:
+            near = _nearest_obstacle(g, p, c)
+            return f"the straight walk from cell {tuple(goal)} to ({p[0]:.2f}, {p[1]:.2f}) would touch {near}"
+        return None
+
+    def _check_target(self, agent: Agent, goal: Cell, xy: np.ndarray | tuple[float, float]) -> np.ndarray:
+        why = self.target_problem(goal, xy)
+        if why is not None:
+            raise PlanningError(f"agent {agent!r}: {why}")
+        return np.asarray(xy, dtype=float).copy()
+
     def goal_of(self, agent: Agent) -> Cell | None:
         return self._goals[agent]
+
+    def final_of(self, agent: Agent) -> np.ndarray | None:
+        """The exact target of the agent's current goal (None: the goal cell's centre)."""
+        f = self._final.get(agent)
+        return None if f is None else f.copy()
 
     def set_stationary(self, agent: Agent, xy: np.ndarray | tuple[float, float]) -> None:
         """A character that does not walk (idle, sitting, interacting) at ``xy``: an obstacle."""
         self._cells.pop(agent, None)
         self._goals.pop(agent, None)
         self._paths.pop(agent, None)
+        self._final.pop(agent, None)
+        self._parked.pop(agent, None)
+        self._legs.pop(agent, None)
         self._static[agent] = np.asarray(xy, dtype=float)
         self._needs_plan = True
+
+    def release(self, agent: Agent) -> None:
+        """Forget a stationary character (no-op for walkers and unknown agents)."""
+        if self._static.pop(agent, None) is not None:
+            self._needs_plan = True
+
+    def is_walker(self, agent: Agent) -> bool:
+        return agent in self._cells
+
+    def cell(self, agent: Agent) -> Cell:
+        """The walker's current cell (its entry cell while off the grid)."""
+        return self._cells[agent]
+
+    def is_off_grid(self, agent: Agent) -> bool:
+        """Whether the walker stands at, or walks to or from, an exact point off its cell centre."""
+        return agent in self._parked or agent in self._legs
+
+    # ----- positions ---------------------------------------------------------------------------
+    def _xy_at(self, agent: Agent, frame: int) -> np.ndarray:
+        leg = self._legs.get(agent)
+        if leg is not None:
+            return leg.at(frame)
+        parked = self._parked.get(agent)
+        if parked is not None:
+            return parked.copy()
+        t = (frame - self._plan_frame) / self.fps
+        return position_at(self._paths[agent], t, self.grid, self.planner.step_time)
+
+    def position(self, agent: Agent) -> np.ndarray:
+        """Where the walker is at the last produced frame (before the first tick: now), metres."""
+        return self._xy_at(agent, max(self.frame - 1, 0))
+
+    def heading(self, agent: Agent) -> float:
+        """Direction of travel at the last produced frame (radians about +z, 0 = +x)."""
+        return self.headings.get(agent, 0.0)
+
+    def future(self, agent: Agent, frames: Sequence[int]) -> np.ndarray:
+        """Planned positions (len(frames), 2) ``frames`` after the last produced frame, metres.
+
+        Follows the current plan (and leg); beyond it the walker stays where the plan ends."""
+        base = self.frame - 1
+        return np.stack([self._xy_at(agent, base + int(k)) for k in frames])
 
     # ----- time ------------------------------------------------------------------------------------
     def tick(self) -> dict[Agent, np.ndarray]:
         """Walker positions (xy, metres) at the current frame; then the clock advances one frame."""
         if self.frame % self.step_frames == 0:
             self._step_boundary()
-        t = (self.frame - self._plan_frame) / self.fps
-        out = {
-            a: position_at(self._paths[a], t, self.grid, self.planner.step_time) for a in self._cells
-        }
+        out = {a: self._xy_at(a, self.frame) for a in self._cells}
+        for a, p in out.items():
+            prev = self._last_xy.get(a)
+            if prev is not None:
+                d = p - prev
+                if float(d @ d) > 1e-12:
+                    self.headings[a] = math.atan2(float(d[1]), float(d[0]))
+            elif a not in self.headings:
+                self.headings[a] = 0.0
+        self._last_xy = out
         self.frame += 1
         return out
 
@@ -109,33 +275,130 @@ class CrowdNavigator:
         k = (self.frame - self._plan_frame) // self.step_frames
         for a, path in self._paths.items():
             self._cells[a] = path[min(k, len(path) - 1)]
+        self._finish_legs()
         for a in self._cells:
             goal = self._goals[a]
-            if goal is not None and self._cells[a] == goal:
+            if goal is not None and self._cells[a] == goal and a not in self._final and a not in self._parked:
                 self.arrivals.append((self.frame, a))
                 self._goals[a] = None
                 self.keeper.reset(a)
+        self._start_legs()
         if k > 0:
             dist = {
-                a: self.planner.distance(self._cells[a], g) for a, g in self._goals.items() if g is not None
+                a: self.planner.distance(self._cells[a], g)
+                for a, g in self._goals.items()
+                if g is not None and a not in self._legs and a not in self._parked
             }
-            failed = self.last_result.failed if self.last_result is not None else frozenset()
+            # Cornered agents (their plain WHCA* search failed) get a boost at once.
+            res = self.last_result
+            failed = res.failed | res.fallback if res is not None else frozenset()
             self.keeper.observe(dist, failed, steps=k)
         if k >= self.planner.commit_steps or k == 0 or self._needs_plan:
             self._replan()
 
+    def _finish_legs(self) -> None:
+        for a, leg in list(self._legs.items()):
+            if self.frame < leg.frame + leg.frames:
+                continue
+            del self._legs[a]
+            self._needs_plan = True
+            if leg.inbound:  # standing on the exact target: arrived
+                self._parked[a] = leg.b.copy()
+                self._final.pop(a, None)
+                self._goals[a] = None
+                self.arrivals.append((self.frame, a))
+                self.keeper.reset(a)
+            # outbound: back on the cell centre, a normal walker again
+
+    def _start_legs(self) -> None:
+        """Start the legs that are due and clear: off-grid walkers with a goal leave their point,
+        walkers on a goal cell with an exact target walk to it (in a fixed order)."""
+        for a in list(self._cells):
+            if a in self._legs:
+                continue
+            goal = self._goals[a]
+            parked = self._parked.get(a)
+            cell_xy = self.grid.center_of(*self._cells[a])
+            if parked is not None:
+                final = self._final.get(a)
+                if goal is None or (goal == self._cells[a] and final is not None and np.allclose(final, parked)):
+                    if goal is not None:  # already standing on the new exact target
+                        del self._parked[a]
+                        self._legs[a] = _Leg(parked, parked, self.frame, 1, True)
+                    continue
+                seg = (parked, cell_xy)
+                inbound = False
+            elif goal is not None and self._cells[a] == goal and a in self._final:
+                seg = (cell_xy, self._final[a])
+                inbound = True
+            else:
+                continue
+            if not self._leg_clear(a, *seg):
+                self.leg_waits += 1
+                continue
+            length = float(np.linalg.norm(seg[1] - seg[0]))
+            frames = max(1, math.ceil(length / self.speed * self.fps - 1e-9))
+            self._parked.pop(a, None)
+            self._legs[a] = _Leg(seg[0].copy(), seg[1].copy(), self.frame, frames, inbound)
+            self._needs_plan = True
+
+    def _leg_clear(self, agent: Agent, p: np.ndarray, q: np.ndarray) -> bool:
+        """Every other body is >= 2r from the segment p-q now (all walkers are on cell centres)."""
+        ps, qs = [], []
+        for b in self._cells:
+            if b == agent:
+                continue
+            leg = self._legs.get(b)
+            if leg is not None:
+                ps.append(leg.at(self.frame))
+                qs.append(leg.b)
+            else:
+                xy = self._parked.get(b)
+                xy = self.grid.center_of(*self._cells[b]) if xy is None else xy
+                ps.append(xy)
+                qs.append(xy)
+        for xy in self._static.values():
+            ps.append(xy)
+            qs.append(xy)
+        if not ps:
+            return True
+        n = len(ps)
+        d = segment_distance(np.broadcast_to(p, (n, 2)), np.broadcast_to(q, (n, 2)), np.array(ps), np.array(qs))
+        return bool(np.all(d >= self.planner.min_distance - 1e-9))
+
     def _replan(self) -> None:
-        walking = [a for a in self._cells if self._goals[a] is not None]
-        arrived = [a for a in self._cells if self._goals[a] is None]
+        off = set(self._legs) | set(self._parked)
+        planned = [a for a in self._cells if a not in off]
+        walking = [a for a in planned if self._goals[a] is not None]
+        arrived = [a for a in planned if self._goals[a] is None]
         order = self.keeper.order(walking, arrived)
         step = self.frame // self.step_frames
+        statics = list(self._static.values()) + [self._parked[a] for a in self._parked]
+        segments = [(leg.at(self.frame), leg.b) for leg in self._legs.values()]
         result = self.planner.plan(
-            dict(self._cells), dict(self._goals), list(self._static.values()), t0=step, order=order
+            {a: self._cells[a] for a in planned},
+            {a: self._goals[a] for a in planned},
+            statics,
+            t0=step,
+            order=order,
+            static_segments=segments,
         )
         self._paths = {a: list(p) for a, p in result.paths.items()}
+        for a in off:
+            self._paths[a] = [self._cells[a]]
         self._plan_frame = self.frame
         self.last_result = result
         self.replans += 1
         self.failures += len(result.failed)
         self.fallbacks += len(result.fallback)
         self._needs_plan = False
+
+
+def _nearest_obstacle(grid: NavGrid, p: np.ndarray, a: np.ndarray | None = None) -> str | None:
+    """Name of the blocking object closest to the point p (or the segment a-p)."""
+    if not grid.obstacles:
+        return None
+    a = p if a is None else a
+    d = [float(body_clearance([o], a[None], p[None])[0]) for o in grid.obstacles]
+    k = int(np.argmin(d))
+    return grid.obstacles[k].name if d[k] < grid.body_radius else None

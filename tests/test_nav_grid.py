@@ -9,7 +9,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.nav_grid import MOVES, NavGridError, body_clearance, build_nav_grid, with_reference_grid_origin
+from sim.nav_grid import (
+    MOVES,
+    NavGridError,
+    body_clearance,
+    build_nav_grid,
+    with_reference_grid_origin,
+)
 from sim.scene import NavHints, Scene, SceneObject
 from sim.scene_files import load_scene
 
@@ -122,3 +128,19 @@ def test_bad_parameters_are_typed_errors() -> None:
         build_nav_grid(_room(), cell_size=0.0)
     with pytest.raises(NavGridError, match="body_radius"):
         build_nav_grid(_room(), body_radius=float("nan"))
+
+
+def test_office_approach_points_fit_a_body_and_are_reached_in_a_straight_line() -> None:
+    scene = _office()
+    grid = build_nav_grid(scene)
+    for obj in [o for o in scene.objects if o.is_seat]:
+        ap = grid.approach_point(obj)
+        p = np.asarray(ap.xy)
+        assert grid.is_free_xy(p)
+        c = grid.center_of(*ap.cell)
+        assert body_clearance(grid.obstacles, c[None], p[None])[0] >= grid.body_radius - 1e-9
+        assert abs(ap.gap - float(np.linalg.norm(p - obj.seat_point()))) < 1e-9
+        # never farther from the seat than the old approach cell's centre
+        assert ap.gap <= np.linalg.norm(grid.center_of(*grid.approach_cell(obj)) - obj.seat_point()) + 1e-9 or (
+            grid.component[ap.cell] != grid.main_component
+        )

@@ -57,4 +57,5 @@ def test_fifty_walkers_never_overlap_or_enter_furniture() -> None:
     assert pair.min() >= 2 * grid.body_radius - 1e-9  # zero body overlaps
     assert clearance.min() >= grid.body_radius - 1e-9  # zero furniture penetrations
     assert inside.all()
-    assert len(nav.arrivals) >= 10
+    # 14 before lazy wait reservation, 133 after (seed 0); the floor leaves a wide margin.
+    assert len(nav.arrivals) >= 90
