@@ -33,6 +33,7 @@ from agents.retry_feedback import (
 from sim.action_labels import ACTION_LABELS, ACTION_SPECS
 from sim.scene import Scene
 
+PARSER_RETRY_INSTRUCTION = "Fix this and reply with the whole corrected ```python block only."
 PARSER_FILES = ("event_parser/system.md", "event_parser/request.md")
 DEFAULT_MAX_TOKENS = 320
 MAX_PROGRAM_CHARS = 6000
@@ -100,8 +101,28 @@ def scene_action_labels(scene: Scene, labels: Sequence[str] | None = None) -> tu
 
 
 def _status_line(c: CharacterStatus) -> str:
-    where = f"at [{c.position[0]:.1f}, {c.position[1]:.1f}]" if c.position else "position unknown"
-    return f"- {c.name}: {'busy' if c.busy else 'free'}, {c.action}, {where}"
+    """One character for the parser: no coordinates (a small model copies them into
+    set_position instead of choosing an area)."""
+    seat = f", sitting on {c.seat}" if c.seat else ""
+    return f"- {c.name}: {'busy' if c.busy else 'free'}, {c.action}{seat}"
+
+
+_WORD = re.compile(r"[a-z]+")
+
+
+def suggest_action_labels(activity: str, labels: Sequence[str], k: int = 4) -> list[str]:
+    """Labels sharing the most words with the activity (``watch TV`` -> ``watch_tv``), best
+    first, ties in list order; at least ``idle``. Shown to the model as likely choices."""
+    words = set(_WORD.findall(activity.lower()))
+    scored = []
+    for i, label in enumerate(labels):
+        overlap = len(words & set(label.split("_")) - {"on", "off", "to", "out", "the"})
+        if overlap:
+            scored.append((-overlap, i, label))
+    best = [label for _, _, label in sorted(scored)[:k]]
+    if "idle" in labels and "idle" not in best:
+        best.append("idle")
+    return best
 
 
 def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessage, ...]:
@@ -117,6 +138,7 @@ def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessa
         seats_in_use=", ".join(inp.seats_in_use) if inp.seats_in_use else "none",
         event_characters=", ".join(f'"{n}"' for n in inp.event.characters),
         activity=inp.event.activity.strip(),
+        likely_actions=", ".join(suggest_action_labels(inp.event.activity, inp.action_labels)),
     )
     return (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
 
@@ -241,4 +263,5 @@ async def parse_event(
         check,
         max_attempts=max_retries + 1,
         node="event_parser",
+        instruction=PARSER_RETRY_INSTRUCTION,
     )

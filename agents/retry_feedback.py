@@ -133,6 +133,7 @@ async def ask_until_valid(
     *,
     max_attempts: int,
     node: str,
+    instruction: str = "Fix this and answer again.",
 ) -> Accepted[T]:
     """Call the model until ``parse`` accepts a reply, at most ``max_attempts`` times.
 
@@ -148,7 +149,7 @@ async def ask_until_valid(
         try:
             value = parse(response.text)
         except REJECTIONS as exc:
-            feedback = feedback_from_error(exc)
+            feedback = feedback_from_error(exc, instruction=instruction)
             turns = (*turns, Turn(reply=response.text, feedback=feedback))
             continue
         return Accepted(value=value, attempts=attempt, reply=response.text)

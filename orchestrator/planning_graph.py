@@ -24,7 +24,7 @@ from langgraph.graph import END, START, StateGraph
 from langgraph.runtime import Runtime
 
 from agents.describer import describe_scene_cached
-from agents.event_parser import ParserInput, parser_request, run_reply
+from agents.event_parser import PARSER_RETRY_INSTRUCTION, ParserInput, parser_request, run_reply
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
 from agents.narrator import NarratorInput, narrator_request, parse_narration
 from agents.retry_feedback import REJECTIONS, feedback_from_error
@@ -129,7 +129,7 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
             runner=deps.runner,
         )
     except REJECTIONS as exc:
-        feedback = feedback_from_error(exc)
+        feedback = feedback_from_error(exc, instruction=PARSER_RETRY_INSTRUCTION)
         update: dict[str, Any] = {
             "parser_turns": (*state.parser_turns, RetryTurn(reply=reply, feedback=feedback)),
             "parser_reply": None,

@@ -112,7 +112,8 @@ def test_request_layout() -> None:
     system, user = req.messages[0].content, req.messages[1].content
     assert "get_area_to_sit_on(obj)" in system and "Action labels: idle, eat" in system
     assert "- dining: table_1, chair_1" in system
-    assert 'characters ["Ann"]' in user and "Seats in use: chair_9" in user and "at [1.0, 1.0]" in user
+    assert 'characters ["Ann"]' in user and "Seats in use: chair_9" in user and "[1.0" not in user
+    assert "Likely action labels: eat, idle" in user
 
 
 class Port:
