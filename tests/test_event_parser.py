@@ -167,3 +167,18 @@ def test_real_event_program_runner() -> None:
     with pytest.raises(UnknownObjectError, match="chair_1"):
         run_reply(program.replace('"chair_1"', '"chiar_1"'), scene=scene(), event=Event(characters=("Ann",), activity="eat"),
                   world=world, seed=0, action_labels=("idle", "eat"))
+
+
+def test_likely_action_labels_follow_the_activity_words() -> None:
+    from agents.event_parser import suggest_action_labels
+
+    labels = ("idle", "watch_tv", "turn_on_tv", "use_coffee_maker", "read_book")
+    assert suggest_action_labels("make coffee with coffee_maker_1", labels) == ["use_coffee_maker", "idle"]
+    assert suggest_action_labels("watch TV on couch_1", labels)[:2] == ["watch_tv", "turn_on_tv"]
+    assert suggest_action_labels("stand still", labels) == ["idle"]
+
+
+async def test_parser_retry_asks_for_the_code_block_only() -> None:
+    port = Port(["no code", "```python\n" + FUNC + "```"])
+    await parse_event(port, PromptLibrary(), make_input(), scene=scene(), world=None, seed=0, runner=fake_runner)
+    assert port.requests[1].messages[-1].content.endswith("reply with the whole corrected ```python block only.")
