@@ -526,7 +526,9 @@ class World:
                 continue
             members = [self.characters[n] for n, s in ev.members.items() if s == "active"]
             if members and all(
-                m.waiting and m.event_id == eid and (not m.walker or nav.cell(m.name) == m.goal_cell) for m in members
+                m.waiting and m.event_id == eid
+                and (not m.walker or (nav.cell(m.name) == m.goal_cell and nav.can_freeze(m.name)))
+                for m in members
             ):
                 ev.started = True
                 out.started.append(eid)

@@ -1,17 +1,16 @@
 """The world's view of ``CrowdNavigator``: walkers, stationary bodies, arrivals, planned futures.
 
-The world needs four things the navigator's public API does not offer yet; they are isolated
-here so that one file changes when it does:
+A thin wrapper with string agent names. It adds two things the navigator does not do itself:
 
-- ``release``: turn a stationary character back into a walker (``CrowdNavigator`` can only
-  add walkers and make them stationary) -> removes its entries from ``_static``;
-- ``future``: where a walker's current plan puts it 10/20/30 frames ahead (the motion
-  query's desired trajectory) -> reads ``_paths`` and ``_plan_frame``;
-- ``cell``: a walker's current cell -> ``_cells``;
 - several stationary discs per character (a seated body spans the approach cell and the
-  seat): extra keys ``(name, k)``.
+  seat): extra keys ``(name, k)``, released together;
+- ``can_freeze``: whether a walker may turn into a stationary body now. The plan made at this
+  step boundary is conflict-free for its first (committed) step; a walker whose own plan
+  waits during that step can stop for good without invalidating anybody's committed move
+  (the next replan then sees it as an obstacle). A walker planned to move (for instance to
+  make way for a passer-by) must not be frozen yet.
 
-Everything else goes through the navigator's public methods. Positions are metres (xy).
+Positions are metres (xy).
 """
 
 from __future__ import annotations
@@ -20,13 +19,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sim.cooperative_astar import Cell, PathPlanner, position_at
+from sim.cooperative_astar import Cell, PathPlanner
 from sim.nav_grid import NavGrid
 from sim.path_following import CrowdNavigator
 
 
 class WorldNavigator:
-    """Thin wrapper over one ``CrowdNavigator`` (string agent names)."""
+    """Thin wrapper over one ``CrowdNavigator``."""
 
     def __init__(self, grid: NavGrid, planner: PathPlanner, fps: int, seed: int) -> None:
         self.nav = CrowdNavigator(grid, planner=planner, fps=fps, seed=seed)
@@ -70,17 +69,22 @@ class WorldNavigator:
 
     def release(self, name: str) -> None:
         """Forget ``name``'s stationary discs (no-op for walkers)."""
-        static = self.nav._static
-        if static.pop(name, None) is not None:
-            self.nav._needs_plan = True
+        self.nav.release(name)
         for k in range(1, self._extra.pop(name, 0) + 1):
-            static.pop((name, k), None)
+            self.nav.release((name, k))
 
     def is_walker(self, name: str) -> bool:
-        return name in self.nav._cells
+        return self.nav.is_walker(name)
 
     def cell(self, name: str) -> Cell:
-        return self.nav._cells[name]
+        return self.nav.cell(name)
+
+    def can_freeze(self, name: str) -> bool:
+        """Whether the walker's current plan keeps it in place for the committed step (call
+        right after a boundary ``tick``)."""
+        here = self.nav.position(name)
+        there = self.nav.future(name, (self.nav.step_frames,))[0]
+        return bool(np.allclose(here, there, atol=1e-9))
 
     # ----- time ----------------------------------------------------------------------------------
     def tick(self) -> dict[str, np.ndarray]:
@@ -100,8 +104,4 @@ class WorldNavigator:
 
     def future(self, name: str, frames: Sequence[int]) -> np.ndarray:
         """Planned positions (len(frames), 2) ``frames`` after the last produced frame."""
-        nav = self.nav
-        path = nav._paths[name]
-        t_now = nav.frame - 1 - nav._plan_frame
-        st = nav.planner.step_time
-        return np.stack([position_at(path, (t_now + k) / nav.fps, nav.grid, st) for k in frames])
+        return self.nav.future(name, frames)
