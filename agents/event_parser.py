@@ -35,7 +35,7 @@ from sim.scene import Scene
 
 PARSER_RETRY_INSTRUCTION = "Fix this and reply with the whole corrected ```python block only."
 PARSER_FILES = ("event_parser/system.md", "event_parser/request.md")
-DEFAULT_MAX_TOKENS = 320
+DEFAULT_MAX_TOKENS = 400
 MAX_PROGRAM_CHARS = 6000
 
 
@@ -73,7 +73,7 @@ class ParserInput:
     seed: int | None = None
     sim_frame: int | None = None
     max_tokens: int | None = None
-    """None: 60 + 70 per event character (capped at DEFAULT_MAX_TOKENS), enough for the
+    """None: 80 + 110 per event character (capped at DEFAULT_MAX_TOKENS), enough for the
     function; a small model otherwise goes on writing more examples."""
 
 
@@ -148,7 +148,7 @@ def parser_request(prompts: PromptLibrary, inp: ParserInput, turns: tuple[Turn, 
         node="event_parser",
         messages=with_turns(parser_messages(prompts, inp), turns),
         json_schema=None,
-        max_tokens=inp.max_tokens or min(DEFAULT_MAX_TOKENS, 60 + 70 * max(1, len(inp.event.characters))),
+        max_tokens=inp.max_tokens or min(DEFAULT_MAX_TOKENS, 80 + 110 * max(1, len(inp.event.characters))),
         seed=inp.seed,
         sim_frame=inp.sim_frame,
     )
