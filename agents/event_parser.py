@@ -138,7 +138,7 @@ def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessa
         seats_in_use=", ".join(inp.seats_in_use) if inp.seats_in_use else "none",
         event_characters=", ".join(f'"{n}"' for n in inp.event.characters),
         activity=inp.event.activity.strip(),
-        likely_actions=", ".join(suggest_action_labels(inp.event.activity, inp.action_labels)),
+        likely_action=suggest_action_labels(inp.event.activity, inp.action_labels, k=1)[0] if inp.action_labels else "idle",
     )
     return (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
 

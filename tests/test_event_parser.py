@@ -113,7 +113,7 @@ def test_request_layout() -> None:
     assert "get_area_to_sit_on(obj)" in system and "Action labels: idle, eat" in system
     assert "- dining: table_1, chair_1" in system
     assert 'characters ["Ann"]' in user and "Seats in use: chair_9" in user and "[1.0" not in user
-    assert "Likely action labels: eat, idle" in user
+    assert "Suggested action label: eat" in user
 
 
 class Port:
