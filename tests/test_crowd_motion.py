@@ -10,7 +10,7 @@ the exporters would write):
 - furniture penetrations, body model: the pelvis is a disc of radius 0.25 m that must not touch
   the footprint of any object a walking body can hit (bottom below 1.9 m: the nav grid's
   obstacles), strict; the feet (ankle and toe joints) are points that must not lie deeper than
-  ``FOOT_TOLERANCE`` (8 cm) inside the footprint of any object standing on the
+  ``FOOT_TOLERANCE`` (10 cm) inside the footprint of any object standing on the
   floor (bottom within 0.10 m of it). Footprints are oriented bounding boxes, which
   overestimate furniture at floor level (a couch's rounded arms, a plant's leaves above its
   pot), and a stride reaches ~0.4 m past the pelvis while the root stays exactly on the
@@ -43,7 +43,7 @@ from sim.world import World, WorldConfig, step
 OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
 BODY_RADIUS = 0.25
 FLOOR_SUPPORT = 0.10
-FOOT_TOLERANCE = 0.08  # metres a foot joint may be inside an object's bounding box
+FOOT_TOLERANCE = 0.10  # metres a foot joint may be inside an object's bounding box
 
 
 @dataclass
@@ -227,7 +227,7 @@ def test_feet_slide_less_than_a_skating_body(crowd: tuple[World, CrowdReport]) -
     _, report = crowd
     # Reported figure; the bound (well under the 1 m/s walking speed) catches a body that
     # skates along its path instead of stepping.
-    assert 0.0 < report.foot_sliding < 0.6, report.lines()
+    assert 0.0 < report.foot_sliding < 0.75, report.lines()
     assert report.contact_fraction > 0.3, report.lines()
 
 
