@@ -48,6 +48,7 @@ from agents.retry_feedback import (
     RetriesExhaustedError,
     Turn,
     ask_until_valid,
+    retry_temperature,
     with_turns,
 )
 from sim.scene import Scene
@@ -180,7 +181,13 @@ class UnifiedPlanner:
             instruction=step.instruction.strip() or "(none: continue the story naturally)",
         )
         base = (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
-        return LLMRequest(node="planner", messages=with_turns(base, turns), max_tokens=self.max_tokens, seed=step.seed)
+        return LLMRequest(
+            node="planner",
+            messages=with_turns(base, turns),
+            max_tokens=self.max_tokens,
+            seed=step.seed,
+            temperature=retry_temperature(turns),
+        )
 
     def check(self, step: PlanningStep, reply: str) -> ParsedEvent | None:
         """Run the reply; a program that plans nobody (``pass``) is a wait."""
@@ -315,6 +322,7 @@ class DirectInferencePlanner:
             json_schema=direct_schema(event.characters, step.action_labels, targets),
             max_tokens=self.max_tokens,
             seed=step.seed,
+            temperature=retry_temperature(turns),
         )
 
     def check(self, step: PlanningStep, event: Event, reply: str) -> tuple[str, ParsedEvent]:

@@ -32,6 +32,7 @@ from agents.retry_feedback import (
     RetriesExhaustedError,
     Turn,
     feedback_from_error,
+    retry_temperature,
     with_turns,
 )
 from sim.scene import Scene
@@ -205,6 +206,7 @@ def describer_request(
         json_schema=schema,
         max_tokens=max_tokens,
         seed=0,
+        temperature=retry_temperature(turns),
     )
 
 

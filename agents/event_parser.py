@@ -28,6 +28,7 @@ from agents.retry_feedback import (
     NoCodeError,
     Turn,
     ask_until_valid,
+    retry_temperature,
     with_turns,
 )
 from sim.action_labels import ACTION_LABELS, ACTION_SPECS
@@ -151,6 +152,7 @@ def parser_request(prompts: PromptLibrary, inp: ParserInput, turns: tuple[Turn, 
         max_tokens=inp.max_tokens or min(DEFAULT_MAX_TOKENS, 80 + 110 * max(1, len(inp.event.characters))),
         seed=inp.seed,
         sim_frame=inp.sim_frame,
+        temperature=retry_temperature(turns),
     )
 
 

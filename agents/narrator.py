@@ -28,7 +28,14 @@ from agents.messages import (
     NarratorOutput,
 )
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
-from agents.retry_feedback import Accepted, AnswerRejectedError, Turn, ask_until_valid, with_turns
+from agents.retry_feedback import (
+    Accepted,
+    AnswerRejectedError,
+    Turn,
+    ask_until_valid,
+    retry_temperature,
+    with_turns,
+)
 
 NARRATOR_FILES = ("narrator/system.md", "narrator/request.md")
 HISTORY_WINDOW = 8
@@ -150,6 +157,7 @@ def narrator_request(prompts: PromptLibrary, inp: NarratorInput, turns: tuple[Tu
         json_schema=narrator_schema(inp.free),
         max_tokens=inp.max_tokens,
         seed=inp.seed,
+        temperature=retry_temperature(turns),
         sim_frame=inp.sim_frame,
     )
 

@@ -95,6 +95,16 @@ class Turn:
     feedback: str
 
 
+RETRY_TEMPERATURE = 0.7
+"""Sampling temperature of retries: at temperature 0 a model given feedback often repeats
+its rejected answer word for word. Retries keep the request's seed, so runs stay reproducible."""
+
+
+def retry_temperature(turns: tuple[Turn, ...]) -> float | None:
+    """None (the node's configured temperature) for a first try, RETRY_TEMPERATURE after."""
+    return RETRY_TEMPERATURE if turns else None
+
+
 def with_turns(messages: tuple[ChatMessage, ...], turns: tuple[Turn, ...]) -> tuple[ChatMessage, ...]:
     """The base conversation followed by each rejected reply and its feedback.
 

@@ -128,3 +128,10 @@ def test_instruction_is_numbered_by_sentence() -> None:
     assert instruction_text("Ann cooks. Bob eats!") == "\n1) Ann cooks.\n2) Bob eats!"
     assert instruction_text("Ann cooks") == "Ann cooks"
     assert instruction_text("  ") == "(none: continue the story naturally)"
+
+
+async def test_retries_sample_with_temperature_first_try_does_not() -> None:
+    port = Port([reply(["Zed"]), reply(["Ann"])])
+    await narrate(port, PromptLibrary(), make_input())
+    assert port.requests[0].temperature is None and port.requests[1].temperature == 0.7
+    assert port.requests[0].seed == port.requests[1].seed == 3
