@@ -99,12 +99,12 @@ class TimedPlanner(PathPlanner):
 
     counters: Counters
 
-    def plan(self, starts, goals, static_obstacles=(), t0=0, order=None) -> PlanResult:  # type: ignore[no-untyped-def, override]
+    def plan(self, starts, goals, static_obstacles=(), t0=0, order=None, **kw) -> PlanResult:  # type: ignore[no-untyped-def, override]
         t = time.perf_counter()
-        out = super().plan(starts, goals, static_obstacles, t0=t0, order=order)
+        out = super().plan(starts, goals, static_obstacles, t0=t0, order=order, **kw)
         self.counters.plan_s += time.perf_counter() - t
         self.counters.plans += 1
-        self.counters.problems.append((dict(starts), dict(goals), list(static_obstacles), t0, list(order or ())))
+        self.counters.problems.append((dict(starts), dict(goals), list(static_obstacles), t0, list(order or ()), kw))
         return out
 
 
@@ -190,8 +190,8 @@ def replan_baseline(grid: NavGrid, problems: list[tuple[Any, ...]], seed: int, l
     times = []
     for planner in (windowed, full):
         t0 = time.perf_counter()
-        for starts, goals, statics, t, order in picks:
-            planner.plan(starts, goals, statics, t0=t, order=order or None)
+        for starts, goals, statics, t, order, kw in picks:
+            planner.plan(starts, goals, statics, t0=t, order=order or None, **kw)
         times.append((time.perf_counter() - t0) / max(1, len(picks)))
     return times[0], times[1], len(picks)
 
