@@ -9,7 +9,14 @@ from pydantic import ValidationError
 
 from agents.llm_port import LLMRequest, LLMResponse
 from agents.messages import CharacterStatus, HistoryEntry
-from agents.narrator import NarratorInput, history_text, narrate, narrator_request, narrator_schema, parse_narration
+from agents.narrator import (
+    NarratorInput,
+    history_text,
+    narrate,
+    narrator_request,
+    narrator_schema,
+    parse_narration,
+)
 from agents.prompt_templates import PromptLibrary
 from agents.retry_feedback import AnswerRejectedError, RetriesExhaustedError, feedback_from_error
 

@@ -9,7 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, PromptTemplateError, placeholders, render
+from agents.prompt_templates import (
+    BENCHMARK_TAGS,
+    PromptLibrary,
+    PromptTemplateError,
+    placeholders,
+    render,
+)
 
 REFERENCE_SCENE_WORDS = ("House", "Office", "Restaurant")
 
