@@ -12,6 +12,22 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
 )
+
+
+@app.callback()
+def _setup(
+    log_level: str = typer.Option("WARNING", "--log-level", help="Log level (logs go to stderr)."),
+) -> None:
+    """Configure logging once for every command (structlog to stderr)."""
+    from orchestrator.logging_setup import configure_logging
+
+    try:
+        configure_logging(log_level)
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+
 cli_scene.register(app)
 cli_plan.register(app)
 cli_event.register(app)
