@@ -62,6 +62,11 @@ class RosterWorld:
         return sorted(c.seat for c in roster if c.seat)
 
 
+def describer_mode_for(model: str) -> str:
+    """Small embedded models name numbered regions; API models list every object."""
+    return "regions" if model.startswith("local/") else "objects"
+
+
 def character_names(count: int) -> list[str]:
     if count <= len(NAMES):
         return list(NAMES[:count])
@@ -197,7 +202,7 @@ async def run_plan(
         max_retries=max_retries,
         busy_for_events=busy_events,
         describer_model=describer_model,
-        describer_mode="regions" if describer_model.startswith("local/") else "objects",
+        describer_mode=describer_mode_for(describer_model),
         description_cache=description_cache,
     )
     config = {"configurable": {"thread_id": thread_id}, "recursion_limit": recursion_limit(events, max_retries)}
