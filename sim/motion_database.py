@@ -42,16 +42,23 @@ from sim.skeleton import NUM_JOINTS, forward_kinematics
 
 END_MARGIN = 5  # frames at the end of a non-looping clip that a search never jumps to
 ENTRY_FRAMES = 8  # frames at the start of each clip where a completing action is entered
+# Indexes with at most this many rows answer by an exact scan instead of the KD-tree: on
+# ~30-dimensional motion features the scan (one matrix product + exact re-rank) measured
+# faster than the tree up to ~3-10k rows on this (loaded, 2-core) machine (benchmark/bench_motion_search.py).
+SCAN_THRESHOLD = 5_000
 
 
 def squared_distances(rows: np.ndarray, query: np.ndarray) -> np.ndarray:
     """Squared distances (N,) of ``rows`` (N,D) to ``query`` (D,), summed dimension by
     dimension in a fixed order so that any subset of rows gets bit-identical values."""
-    acc = np.zeros(rows.shape[0])
-    for d in range(rows.shape[1]):
-        diff = rows[:, d] - query[d]
-        acc += diff * diff
-    return acc
+    if rows.shape[1] == 0 or rows.shape[0] > 64:
+        acc = np.zeros(rows.shape[0])
+        for d in range(rows.shape[1]):
+            diff = rows[:, d] - query[d]
+            acc += diff * diff
+        return acc
+    diff = rows - query  # few rows: same sums, without a Python loop over dimensions
+    return np.cumsum(diff * diff, axis=1)[:, -1]  # cumsum adds strictly left to right
 
 
 class NearestFrameIndex:
@@ -81,6 +88,11 @@ class NearestFrameIndex:
             self.basis = np.eye(self.rows.shape[1])
         self.tree = cKDTree((self.rows - self.center) @ self.basis, leafsize=leafsize, balanced_tree=False,
                             compact_nodes=True)
+        # scan path: rows centred (smaller norms, tighter error bound) and their squared norms
+        self._centered = np.ascontiguousarray(self.rows - self.center)
+        self._norms = np.einsum("nd,nd->n", self._centered, self._centered)
+        self._max_norm = float(self._norms.max())
+        self.use_scan = len(self.rows) <= SCAN_THRESHOLD
 
     def _tree_space(self, q: np.ndarray) -> np.ndarray:
         return (q - self.center) @ self.basis
@@ -105,8 +117,33 @@ class NearestFrameIndex:
         i = int(close[best].min())  # lowest index among exact ties (candidates are sorted)
         return int(self.candidates[i]), float(squared_distances(self.rows[i : i + 1], query)[0])
 
+    def scan_many(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Exact brute force for (M,D) queries, fast: distances by one matrix product (the
+        expansion |r|^2 - 2 r.q + |q|^2 on centred rows), then every row within a rounding
+        bound of the best is re-ranked with ``squared_distances``. Same answer as
+        ``brute_force`` (lowest index among exact ties)."""
+        q = np.asarray(queries, dtype=float).reshape(-1, self.rows.shape[1])
+        qc = q - self.center
+        qn = np.einsum("md,md->m", qc, qc)
+        approx = self._norms[None, :] - 2.0 * (qc @ self._centered.T)  # (M,N), without |q|^2
+        lo = approx.min(axis=1)
+        # rounding of the expansion is far below 1e-10 * (|r|^2 + |q|^2) for any D used here
+        slack = 1e-10 * (self._max_norm + qn) * max(1, self.rows.shape[1]) + 1e-300
+        out_i = np.empty(len(q), dtype=np.int64)
+        out_d = np.empty(len(q))
+        for m in range(len(q)):
+            close = np.flatnonzero(approx[m] <= lo[m] + slack[m])
+            exact = squared_distances(self.rows[close], q[m])
+            j = int(close[int(np.argmin(exact))])  # close is sorted: first minimum = lowest index
+            out_i[m] = self.candidates[j]
+            out_d[m] = squared_distances(self.rows[j : j + 1], q[m])[0]
+        return out_i, out_d
+
     def query(self, query: np.ndarray, k: int = 4) -> tuple[int, float]:
         q = np.asarray(query, dtype=float)
+        if self.use_scan:
+            i, d = self.scan_many(q[None])
+            return int(i[0]), float(d[0])
         k = min(k, len(self.rows))
         dists, idx = self.tree.query(self._tree_space(q), k=k)
         return self._resolve(q, np.atleast_1d(dists), np.atleast_1d(idx))
@@ -114,6 +151,8 @@ class NearestFrameIndex:
     def query_many(self, queries: np.ndarray, k: int = 4, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Batched exact search: (M,D) -> (indices (M,), squared distances (M,))."""
         q = np.asarray(queries, dtype=float).reshape(-1, self.rows.shape[1])
+        if self.use_scan:
+            return self.scan_many(q)
         k = min(k, len(self.rows))
         dists, idx = self.tree.query(self._tree_space(q), k=k, workers=workers)
         dists, idx = dists.reshape(len(q), k), idx.reshape(len(q), k)

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.motion_database import NearestFrameIndex, build_database, load_databases, squared_distances
+from sim.motion_database import SCAN_THRESHOLD, NearestFrameIndex, build_database, load_databases, squared_distances
 from sim.motion_features import FEATURE_LAYOUTS, layout_for_key, layout_size
 from sim.procedural_library import procedural_clips
 
@@ -79,23 +79,49 @@ def test_kd_tree_equals_brute_force_with_ties(data: tuple[list[list[int]], list[
     feats = np.array(rows, dtype=float) * scale  # small integer grid: many exact ties
     q = np.array(query, dtype=float) * scale / 2
     index = NearestFrameIndex(feats, leafsize=2)
-    assert index.query(q) == index.brute_force(q)
-    many_i, many_d = index.query_many(q[None])
-    assert (int(many_i[0]), float(many_d[0])) == index.brute_force(q)
+    want = index.brute_force(q)
+    for scan in (True, False):  # exact scan (small indexes) and KD-tree path
+        index.use_scan = scan
+        assert index.query(q) == want
+        many_i, many_d = index.query_many(np.stack([q, q * 0.5]))
+        assert (int(many_i[0]), float(many_d[0])) == want
+        assert (int(many_i[1]), float(many_d[1])) == index.brute_force(q * 0.5)
 
 
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2**31 - 1))
-def test_kd_tree_equals_brute_force_on_random_subsets(seed: int) -> None:
+def test_kd_tree_and_scan_equal_brute_force_on_random_subsets(seed: int) -> None:
     rng = np.random.default_rng(seed)
     feats = rng.normal(size=(300, 27))
     feats[rng.integers(0, 300, 20)] = feats[rng.integers(0, 300, 20)]  # duplicated rows
     candidates = np.sort(rng.choice(300, size=200, replace=False))
     index = NearestFrameIndex(feats, candidates)
     queries = np.concatenate([rng.normal(size=(5, 27)), feats[candidates[:3]]])
-    for q in queries:
+    scan_i, scan_d = index.scan_many(queries * 1e3)  # large offsets: rounding bound of the scan
+    for m, q in enumerate(queries):
+        index.use_scan = False
         got = index.query(q)
         want = index.brute_force(q)
         assert got == want
+        index.use_scan = True
+        assert index.query(q) == want
+        assert (int(scan_i[m]), float(scan_d[m])) == index.brute_force(q * 1e3)
         assert got[0] in set(candidates.tolist())
         assert got[1] == pytest.approx(float(squared_distances(feats[candidates], q).min()))
+
+
+def test_squared_distances_adds_dimensions_in_order() -> None:
+    rng = np.random.default_rng(5)
+    rows = rng.normal(size=(100, 27)) * rng.uniform(1e-3, 1e3, size=27)
+    q = rng.normal(size=27)
+    acc = np.zeros(len(rows))
+    for d in range(27):
+        acc += (rows[:, d] - q[d]) ** 2
+    assert np.array_equal(squared_distances(rows, q), acc)  # many rows: loop path
+    assert np.array_equal(squared_distances(rows[:7], q), acc[:7])  # few rows: cumsum path
+    assert np.array_equal(squared_distances(rows[3:4], q), acc[3:4])
+
+
+def test_small_indexes_scan_and_large_ones_use_the_tree() -> None:
+    assert NearestFrameIndex(np.zeros((SCAN_THRESHOLD, 2))).use_scan
+    assert not NearestFrameIndex(np.zeros((SCAN_THRESHOLD + 1, 2))).use_scan
