@@ -31,6 +31,13 @@ from sim.story_events import Assignment
 
 FPS = 30
 Phase = Literal["idle", "approaching", "transition_in", "interacting", "transition_out"]
+TargetFallback = Literal["target_blocked", "no_straight_approach", "no_approach_point", "goal_cell_taken"]
+"""Why a character stands on a cell centre instead of the exact point it was sent to:
+``target_blocked``: a body at the target would overlap furniture or leave the floor;
+``no_straight_approach``: no free cell nearby has a straight, furniture-free walk to the target;
+``no_approach_point``: no exact standing point by the seat is reachable (the seat's approach
+cell is used); ``goal_cell_taken``: someone else held the goal cell, the walker stopped on the
+neighbouring cell the planner chose."""
 PHASES: tuple[Phase, ...] = ("idle", "approaching", "transition_in", "interacting", "transition_out")
 
 TURN_SPEED = math.pi  # rad/s when turning on the spot before acting
@@ -39,17 +46,37 @@ STAND_OUT_S = 0.3  # leaving a standing action
 INFINITE = -1  # phase length of looping actions and of open-ended idling
 
 
+@dataclass(frozen=True)
+class StandTarget:
+    """Where an assignment's walker ends (see ``sim.world_navigation.stand_target``).
+
+    ``cell``: the grid goal; ``xy``: the exact pelvis ground point (metres) it stands on when
+    the transition in starts: the assignment's target (standing), the seat's approach point
+    (seated), or ``cell``'s centre (``fallback`` says why; ``message`` is one sentence).
+    ``off_grid``: ``xy`` is not ``cell``'s centre (the walker takes a straight leg to it).
+    """
+
+    cell: tuple[int, int]
+    xy: tuple[float, float]
+    off_grid: bool = False
+    fallback: TargetFallback | None = None
+    message: str = ""
+
+
 @dataclass
 class CharacterState:
     """Everything the world knows about one character (plain data).
 
     ``xy``: pelvis ground point (metres) at the last produced frame; ``heading``: facing yaw;
-    ``anchor_xy``: the nav-cell centre the character stands on when not walking (the seat's
-    approach cell when sitting); ``phase_frame``: frames spent in the current phase;
+    ``anchor_xy``: the exact point the character stands on when not walking (an assignment's
+    target, a seat's approach point, or a nav-cell centre); ``anchor_cell``: the free cell a
+    walker leaving ``anchor_xy`` walks to first (the cell it stands on when on a centre);
+    ``target``: where the current assignment's walk ends (``StandTarget``);
+    ``phase_frame``: frames spent in the current phase;
     ``phase_length``: frames the phase lasts (``INFINITE``: until something happens);
     ``turn_frames``: the part of a transition in spent turning; ``action_done``: the action of
     the current event is finished (or, looping, under way); ``pending``: the assignment to
-    start (event id, assignment, goal cell) once the current transition out ends.
+    start (event id, assignment, stand target) once the current transition out ends.
     """
 
     name: str
@@ -62,12 +89,14 @@ class CharacterState:
     turn_from: float = 0.0
     event_id: str | None = None
     assignment: Assignment | None = None
-    pending: tuple[str, Assignment, tuple[int, int]] | None = None
+    pending: tuple[str, Assignment, StandTarget] | None = None
     waiting: bool = False
     seated: bool = False
     seat_xy: np.ndarray | None = None
     anchor_xy: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    anchor_cell: tuple[int, int] = (0, 0)
     goal_cell: tuple[int, int] | None = None
+    target: StandTarget | None = None
     walker: bool = True
     action_done: bool = False
     best_distance: float = math.inf

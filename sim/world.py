@@ -15,17 +15,20 @@ Who moves a character's root (pelvis ground point, metres):
   apart, bodies off every blocking footprint) holds for the synthesized pelvis;
 - everyone else is a stationary obstacle for the navigator: characters transitioning in or
   out, acting, seated, or standing still after an action until the next planning step. A
-  seated body registers three discs (approach cell, midway, seat point) while it sits down,
-  sits and stands up; those discs keep walkers 2 body radii from the approach cell and the
-  seat and at least ~0.45 m from the segment between them.
+  seated body registers discs along its sit-down path (approach point to seat point, at least
+  three, <= 0.4 m apart: ``seat_discs``) while it sits down, sits and stands up; they keep
+  walkers 2 body radii from both ends and at least ~0.45 m from the segment between them.
 
 Walkers join the navigator only at planning-step boundaries (every ``step_frames`` frames,
 9 at 0.3 m cells and 1 m/s): a character that finished standing up waits in place until then.
 
-Events: every member walks to the free cell nearest its target (a seat's approach cell when
-sitting; the root stands on cell centres, at most ~0.21 m from the target at 0.3 m cells);
-whoever arrives first waits; when all are on their cells at a planning-step boundary, all
-start their transition in on the same frame.
+Events: every member walks to the EXACT point the planner gave (``StandTarget``): its target
+when standing, the seat's approach point (``NavGrid.approach_point``, cached) when sitting. It
+walks the grid to the point's entry cell, then straight onto the point, and counts as arrived
+once it stands there. A point a body cannot stand on or walk straight to falls back to the
+nearest cell centre; ``CharacterState.target.fallback`` keeps the typed reason
+(``TargetFallback``). Whoever arrives first waits; when all stand on their points at a
+planning-step boundary, all start their transition in on the same frame.
 An event completes when every member has finished its action (or, acting a looping action,
 was interrupted or released); it becomes *looping* when every member is done or acting a
 looping action. Characters of looping events are available, and a new assignment interrupts
@@ -49,6 +52,7 @@ from sim.action_labels import action_spec, database_key
 from sim.character_phases import (
     INFINITE,
     CharacterState,
+    StandTarget,
     available,
     interaction_frames,
     phase_motion,
@@ -71,7 +75,7 @@ from sim.story_events import (
     StepOutput,
 )
 from sim.world_motion import FUTURE_FRAMES, MotionLayer, MotionQuery, compose_poses
-from sim.world_navigation import WorldNavigator
+from sim.world_navigation import OFF_GRID_EPS, StandTargets, WorldNavigator
 from sim.world_tracks import TrackBuffers
 
 OBJECT_REACH = 0.55  # metres from the standing root to the object acted on (motion target)
@@ -156,6 +160,7 @@ class World:
         self.navigator = WorldNavigator(self.grid, self.planner, self.config.fps, self.config.seed)
         self.characters: dict[str, CharacterState] = {}
         self.events: dict[str, EventState] = {}
+        self.targets = StandTargets(self.grid)
         self.motion_states: dict[str, Any] = {}
         taken: dict[Cell, str] = {}
         for name, (xy, heading) in characters.items():
@@ -169,7 +174,8 @@ class World:
                 raise WorldError(f"characters {taken[cell]!r} and {name!r} start on the same cell {cell}")
             taken[cell] = name
             centre = self.grid.center_of(*cell)
-            self.characters[name] = CharacterState(name=name, xy=centre, heading=float(heading), anchor_xy=centre)
+            self.characters[name] = CharacterState(name=name, xy=centre, heading=float(heading), anchor_xy=centre,
+                                                   anchor_cell=cell)
             self.navigator.add_walker(name, cell)
             self.motion_states[name] = motion.initial_state("idle", centre, float(heading))
         self.buffers = TrackBuffers(self.names, max(1, self.config.initial_capacity))
@@ -251,30 +257,30 @@ class World:
     def _fail(self, out: _Report, event_id: str, character: str, reason: FailureReason, message: str) -> None:
         out.failures.append(EventFailure(event_id=event_id, character=character, reason=reason, message=message))
 
-    def _goal_for(self, c: CharacterState, a: Assignment) -> tuple[Cell | None, str]:
-        """Goal cell of an assignment, or (None, why not)."""
+    def _target_for(self, c: CharacterState, a: Assignment) -> tuple[StandTarget | None, str]:
+        """Where ``a``'s walk ends (see ``StandTargets``), or (None, why not)."""
         g = self.grid
-        here = g.cell_of(c.anchor_xy) if not self.navigator.is_walker(c.name) else self.navigator.cell(c.name)
+        here = self.navigator.cell(c.name) if self.navigator.is_walker(c.name) else c.anchor_cell
         comp = int(g.component[here]) if g.is_free(*here) else g.main_component
         if a.seat is not None:
-            obj = self.scene.by_name[a.seat]
-            goal = g.approach_cell(obj)
-            if int(g.component[goal]) != comp:
+            target = self.targets.seated(self.navigator, self.scene.by_name[a.seat], comp)
+            if target is None:
                 return None, f"{c.name} cannot reach a free cell in front of {a.seat}"
-            return goal, ""
-        goal = g.nearest_free_cell(np.asarray(a.target_xy), component=comp)
-        off = float(np.linalg.norm(g.center_of(*goal) - np.asarray(a.target_xy)))
-        if off > self.config.max_target_offset:
+            return target, ""
+        p = np.asarray(a.target_xy, dtype=float)
+        target = self.targets.standing(self.navigator, p, comp)
+        off = math.inf if target is None else float(np.linalg.norm(np.asarray(target.xy) - p))
+        if target is None or off > self.config.max_target_offset:
             return None, (f"{c.name} cannot reach ({a.target_xy[0]:.2f}, {a.target_xy[1]:.2f}): the nearest "
                           f"reachable floor is {off:.2f} m away")
-        return goal, ""
+        return target, ""
 
     def _apply_assign(self, cmd: AssignEvent, out: _Report) -> None:
         eid = cmd.event_id
         if eid in self.events and self.events[eid].status in ("ongoing", "looping"):
             raise WorldError(f"event {eid!r} is already running")
         free = set(self.available())
-        goals: dict[str, Cell] = {}
+        goals: dict[str, StandTarget] = {}
         problems: list[tuple[str, FailureReason, str]] = []
         for a in cmd.assignments:
             if a.character not in self.characters:
@@ -291,7 +297,7 @@ class World:
                 problems.append((a.character, "busy", f"{a.character} is busy with event "
                                  f"{self.characters[a.character].event_id!r}"))
                 continue
-            goal, why = self._goal_for(self.characters[a.character], a)
+            goal, why = self._target_for(self.characters[a.character], a)
             if goal is None:
                 problems.append((a.character, "no_path", why))
                 continue
@@ -318,7 +324,7 @@ class World:
             c.pending = None
             self._stop(c)
 
-    def _start(self, c: CharacterState, eid: str, a: Assignment, goal: Cell) -> None:
+    def _start(self, c: CharacterState, eid: str, a: Assignment, goal: StandTarget) -> None:
         """Give ``c`` its new assignment: walk now, or first leave what it is doing."""
         c.event_id = eid
         c.waiting = False
@@ -330,12 +336,17 @@ class World:
         self._take(c, a, goal)
         c.enter("approaching")
         if c.walker:
-            self.navigator.set_goal(c.name, goal)
+            self.navigator.set_goal(c.name, goal.cell, final_xy=self._final_of(goal))
         # else: joins the navigator at the next step boundary (see _join_walkers)
 
     @staticmethod
-    def _take(c: CharacterState, a: Assignment, goal: Cell) -> None:
-        c.assignment, c.goal_cell = a, goal
+    def _final_of(target: StandTarget | None) -> np.ndarray | None:
+        """The exact end point to give the navigator (None: the goal cell's centre)."""
+        return np.asarray(target.xy, dtype=float) if target is not None and target.off_grid else None
+
+    @staticmethod
+    def _take(c: CharacterState, a: Assignment, goal: StandTarget) -> None:
+        c.assignment, c.goal_cell, c.target = a, goal.cell, goal
         c.action_done = False
         c.best_distance, c.stalled_frames = math.inf, 0
 
@@ -399,20 +410,37 @@ class World:
                 if c.walker:
                     self.navigator.set_goal(n, None)
 
-    def _arrive(self, c: CharacterState) -> None:
-        """``c`` reached its goal cell: wait there for the event's other members.
+    def _arrive(self, c: CharacterState, substitute: bool = False) -> None:
+        """``c`` reached its goal (the exact target when it has one): wait there for the
+        event's other members. ``substitute``: it stopped on the neighbour of a taken goal cell.
 
-        A waiting character stays a walker without a goal, so it steps aside for passers-by
-        (its partners included) and walks back to its cell afterwards.
+        A waiting character stays a walker without a goal: on a cell centre it steps aside for
+        passers-by (its partners included) and walks back afterwards; on an exact point it is
+        an obstacle the others walk around.
         """
-        cell = self.navigator.cell(c.name)
+        nav = self.navigator
+        cell = nav.cell(c.name)
         c.goal_cell = cell
-        c.anchor_xy = self.grid.center_of(*cell)
+        c.anchor_cell = cell
+        c.anchor_xy = nav.position(c.name).copy() if nav.is_off_grid(c.name) else self.grid.center_of(*cell)
+        if substitute and c.target is not None:
+            c.target = StandTarget(cell, (float(c.anchor_xy[0]), float(c.anchor_xy[1])), False, "goal_cell_taken",
+                                   f"cell {c.target.cell} was taken; {c.name} stopped on the neighbouring cell {cell}")
         c.best_distance, c.stalled_frames = 0.0, 0
-        if self.navigator.goal_of(c.name) is not None:
-            self.navigator.set_goal(c.name, None)
+        if nav.goal_of(c.name) is not None:
+            nav.set_goal(c.name, None)
         c.waiting = True
         c.enter("idle")
+
+    def _on_target(self, c: CharacterState) -> bool:
+        """Whether the walker ``c`` stands where its current assignment's walk ends."""
+        nav = self.navigator
+        if c.goal_cell is None or nav.cell(c.name) != c.goal_cell:
+            return False
+        final = self._final_of(c.target)
+        if final is None:
+            return not nav.is_off_grid(c.name)
+        return bool(np.linalg.norm(nav.position(c.name) - final) <= OFF_GRID_EPS)
 
     def _begin_transition_in(self, c: CharacterState) -> None:
         a = c.assignment
@@ -425,8 +453,7 @@ class World:
         c.walker = False
         if a.seat is not None:
             c.seat_xy = self.scene.by_name[a.seat].seat_point()
-            mid = 0.5 * (c.anchor_xy + c.seat_xy)
-            self.navigator.make_stationary(c.name, [c.anchor_xy, mid, c.seat_xy])
+            self.navigator.make_stationary(c.name, seat_discs(c.anchor_xy, c.seat_xy))
         else:
             self.navigator.make_stationary(c.name, [c.anchor_xy])
 
@@ -473,15 +500,20 @@ class World:
             if c.walker or c.seated or c.waiting or c.phase not in ("idle", "approaching"):
                 continue
             if c.phase == "idle" and c.pending is not None:
-                eid, a, goal = c.pending
+                eid, a, target = c.pending
                 c.pending = None
                 ev = self.events.get(eid)
                 if ev is not None and ev.status == "ongoing" and c.event_id == eid:
-                    self._take(c, a, goal)
+                    self._take(c, a, target)
                     c.enter("approaching")
-            cell = self.grid.cell_of(c.anchor_xy)
-            goal = c.goal_cell if c.phase == "approaching" else None
-            self.navigator.add_walker(c.name, cell, goal)
+            cell = c.anchor_cell
+            off = float(np.linalg.norm(c.anchor_xy - self.grid.center_of(*cell))) > OFF_GRID_EPS
+            approaching = c.phase == "approaching"
+            self.navigator.add_walker(
+                c.name, cell, c.goal_cell if approaching else None,
+                start_xy=c.anchor_xy if off else None,
+                final_xy=self._final_of(c.target) if approaching else None,
+            )
             c.walker = True
 
     def _walker_checks(self, out: _Report) -> None:
@@ -489,8 +521,12 @@ class World:
         nav = self.navigator
         for name in nav.new_arrivals():
             c = self.characters[name]
-            if c.phase == "approaching":
+            if c.phase != "approaching":
+                continue
+            if self._on_target(c):
                 self._arrive(c)
+            else:  # the arrival belongs to an older goal: head for the current one
+                nav.set_goal(name, c.goal_cell, final_xy=self._final_of(c.target))
         limit = int(self.config.stuck_after_s * self.config.fps)
         for c in self.characters.values():
             if not c.walker or c.goal_cell is None or not (c.phase == "approaching" or c.waiting):
@@ -501,12 +537,12 @@ class World:
                     c.best_distance, c.stalled_frames = 0.0, 0
                     continue
                 if nav.goal_of(c.name) is None:  # made way for someone: walk back
-                    nav.set_goal(c.name, c.goal_cell)
+                    nav.set_goal(c.name, c.goal_cell)  # (only walkers waiting on a cell centre step aside)
             used = nav.used_goal(c.name)
             if c.phase == "approaching" and used is not None and used != c.goal_cell and cell == used and max(
                 abs(used[0] - c.goal_cell[0]), abs(used[1] - c.goal_cell[1])
             ) <= 1:
-                self._arrive(c)  # the goal cell is taken; the neighbour the planner chose will do
+                self._arrive(c, substitute=True)  # the goal cell is taken; the neighbour the planner chose will do
                 continue
             d = self.planner.distance(cell, c.goal_cell)
             if d < c.best_distance - 1e-9:
@@ -527,7 +563,8 @@ class World:
             members = [self.characters[n] for n, s in ev.members.items() if s == "active"]
             if members and all(
                 m.waiting and m.event_id == eid
-                and (not m.walker or (nav.cell(m.name) == m.goal_cell and nav.can_freeze(m.name)))
+                and (not m.walker or (nav.cell(m.name) == m.goal_cell and nav.can_freeze(m.name)
+                                      and bool(np.allclose(nav.position(m.name), m.anchor_xy, atol=1e-9))))
                 for m in members
             ):
                 ev.started = True
@@ -642,6 +679,17 @@ class World:
             return centre, math.atan2(d[1], d[0]), None
         f = np.asarray(a.facing_xy)
         return c.anchor_xy + OBJECT_REACH * f, a.facing_angle + math.pi, None
+
+
+SEAT_DISC_SPACING = 0.4  # metres between the discs a seated body registers along its sit-down path
+
+
+def seat_discs(anchor: np.ndarray, seat: np.ndarray) -> list[np.ndarray]:
+    """Disc centres covering the sit-down path from ``anchor`` (standing point) to ``seat``:
+    at least three, at most ``SEAT_DISC_SPACING`` apart, so walkers kept 2 body radii from
+    every disc stay >= ~0.46 m (at 0.25 m radii) from the whole segment."""
+    n = max(3, math.ceil(float(np.linalg.norm(seat - anchor)) / SEAT_DISC_SPACING) + 1)
+    return [anchor + u * (seat - anchor) for u in np.linspace(0.0, 1.0, n)]
 
 
 @dataclass

@@ -10,6 +10,11 @@ A thin wrapper with string agent names. It adds two things the navigator does no
   (the next replan then sees it as an obstacle). A walker planned to move (for instance to
   make way for a passer-by) must not be frozen yet.
 
+``StandTargets`` turns an assignment into the point its walk ends on (``StandTarget``): the
+exact target for a standing action, the seat's approach point (``NavGrid.approach_point``,
+cached per object) for a seated one, the nearest cell centre with a typed ``TargetFallback``
+when the exact point cannot be used.
+
 Positions are metres (xy).
 """
 
@@ -19,9 +24,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from sim.character_phases import StandTarget
 from sim.cooperative_astar import Cell, PathPlanner
-from sim.nav_grid import NavGrid
+from sim.nav_grid import ApproachPoint, NavGrid, NavGridError
 from sim.path_following import CrowdNavigator
+from sim.scene import SceneObject
+
+OFF_GRID_EPS = 1e-6  # metres: a point closer than this to its cell centre is on the grid
 
 
 class WorldNavigator:
@@ -49,12 +58,34 @@ class WorldNavigator:
         return self.nav.frame % self.nav.step_frames == 0
 
     # ----- membership ---------------------------------------------------------------------------
-    def add_walker(self, name: str, cell: Cell, goal: Cell | None = None) -> None:
+    def add_walker(
+        self,
+        name: str,
+        cell: Cell,
+        goal: Cell | None = None,
+        start_xy: np.ndarray | None = None,
+        final_xy: np.ndarray | None = None,
+    ) -> None:
+        """``name`` walks from ``cell`` (or from the exact point ``start_xy``, entering ``cell``)
+        to ``goal`` (ending on the exact point ``final_xy`` when given)."""
         self.release(name)
-        self.nav.add_walker(name, cell, goal)
+        self.nav.add_walker(name, cell, goal, start_xy=start_xy, final_xy=final_xy)
 
-    def set_goal(self, name: str, goal: Cell | None) -> None:
-        self.nav.set_goal(name, goal)
+    def set_goal(self, name: str, goal: Cell | None, final_xy: np.ndarray | None = None) -> None:
+        """New goal cell (None: stay), ending on the exact point ``final_xy`` when given."""
+        self.nav.set_goal(name, goal, final_xy=final_xy)
+
+    def target_problem(self, cell: Cell, xy: np.ndarray) -> str | None:
+        """Why a body cannot walk straight from ``cell``'s centre to ``xy`` and stand there."""
+        return self.nav.target_problem(cell, xy)
+
+    def position(self, name: str) -> np.ndarray:
+        """The walker's xy at the last produced frame (metres)."""
+        return self.nav.position(name)
+
+    def is_off_grid(self, name: str) -> bool:
+        """Whether the walker stands at, or walks to or from, a point off its cell centre."""
+        return self.nav.is_off_grid(name)
 
     def goal_of(self, name: str) -> Cell | None:
         return self.nav.goal_of(name)
@@ -92,7 +123,8 @@ class WorldNavigator:
         return self.nav.tick()  # type: ignore[return-value]
 
     def new_arrivals(self) -> list[str]:
-        """Walkers that reached their goal cell since the last call, in order."""
+        """Walkers that reached their goal since the last call, in order (with an exact target:
+        once they stand on it)."""
         out = [a for _, a in self.nav.arrivals[self._arrivals_seen :]]
         self._arrivals_seen = len(self.nav.arrivals)
         return out  # type: ignore[return-value]
@@ -105,3 +137,70 @@ class WorldNavigator:
     def future(self, name: str, frames: Sequence[int]) -> np.ndarray:
         """Planned positions (len(frames), 2) ``frames`` after the last produced frame."""
         return self.nav.future(name, frames)
+
+
+class StandTargets:
+    """Resolves assignments to ``StandTarget``s on one grid; approach points are cached per
+    (object, component) because ``NavGrid.approach_point`` is slow (~0.15 s). Deterministic."""
+
+    def __init__(self, grid: NavGrid) -> None:
+        self.grid = grid
+        self._approach: dict[tuple[str, int], ApproachPoint | str] = {}
+
+    def _centre(self, cell: Cell) -> tuple[float, float]:
+        c = self.grid.center_of(*cell)
+        return (float(c[0]), float(c[1]))
+
+    def standing(self, nav: WorldNavigator, xy: np.ndarray, component: int) -> StandTarget | None:
+        """The exact point ``xy`` entered from the closest free cell of ``component`` with a
+        straight furniture-free walk to it; else the nearest free cell of ``component``
+        (``fallback`` says why). None when the grid has no free cell there."""
+        g = self.grid
+        p = np.asarray(xy, dtype=float)
+        cell = g.entry_cell(p, component=component)
+        if cell is not None:
+            why = nav.target_problem(cell, p)
+            if why is None:
+                off = float(np.linalg.norm(p - g.center_of(*cell))) > OFF_GRID_EPS
+                return StandTarget(cell, (float(p[0]), float(p[1])) if off else self._centre(cell), off)
+            reason, msg = "no_straight_approach", why
+        elif not g.is_free_xy(p):
+            reason, msg = "target_blocked", (
+                f"a body of radius {g.body_radius} m cannot stand at ({p[0]:.2f}, {p[1]:.2f})")
+        else:
+            reason, msg = "no_straight_approach", (
+                f"no free cell near ({p[0]:.2f}, {p[1]:.2f}) has a straight walk to it clear of furniture")
+        near = g.nearest_free_cell(p, component=component)
+        if not g.is_free(*near):
+            return None
+        return StandTarget(near, self._centre(near), False, reason, msg)  # type: ignore[arg-type]
+
+    def approach_point(self, obj: SceneObject, component: int) -> ApproachPoint | str:
+        """``NavGrid.approach_point(obj, component=component)`` (cached), or why there is none."""
+        key = (obj.name, int(component))
+        hit = self._approach.get(key)
+        if hit is None:
+            try:
+                hit = self.grid.approach_point(obj, component=int(component))
+            except NavGridError as exc:
+                hit = str(exc)
+            self._approach[key] = hit
+        return hit
+
+    def seated(self, nav: WorldNavigator, obj: SceneObject, component: int) -> StandTarget | None:
+        """The approach point of ``obj`` reachable in ``component``; else the object's approach
+        cell (``no_approach_point``). None when neither is reachable from ``component``."""
+        ap = self.approach_point(obj, component)
+        if isinstance(ap, ApproachPoint):
+            p = np.asarray(ap.xy, dtype=float)
+            if nav.target_problem(ap.cell, p) is None:
+                off = float(np.linalg.norm(p - self.grid.center_of(*ap.cell))) > OFF_GRID_EPS
+                return StandTarget(ap.cell, ap.xy if off else self._centre(ap.cell), off)
+            why = nav.target_problem(ap.cell, p) or ""
+        else:
+            why = ap
+        g = self.grid
+        cell = g.approach_cell(obj)
+        if int(g.component[cell]) != int(component):
+            return None
+        return StandTarget(cell, self._centre(cell), False, "no_approach_point", why)

@@ -297,3 +297,66 @@ def test_real_motion_matcher_drives_the_bodies_and_tracks_export(office, tmp_pat
     assert w.foot_contacts()["ann"].any()
     files = export_run(tmp_path, scene, list(w.tracks().values()))
     assert files.glb.exists() and files.bvh["ann"].exists() and files.smplx["ann"].exists()
+
+
+def _off_grid_point(office, k: int, d: tuple[float, float] = (0.11, -0.07)) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    _, grid, _ = office
+    p = np.asarray(_cell_xy(office, *_free_cells(office)[k])) + np.asarray(d)
+    assert grid.is_free_xy(p)
+    return (float(p[0]), float(p[1]))
+
+
+def test_a_standing_action_ends_on_the_exact_off_grid_target(office) -> None:  # type: ignore[no-untyped-def]
+    cells = _free_cells(office)
+    target = _off_grid_point(office, 40)
+    w = _world(office, {"ann": (_cell_xy(office, *cells[0]), 0.0)})
+    outs = _until(w, lambda o: bool(o.started_events),
+                  commands=[AssignEvent(event_id="e", assignments=(_go("ann", target, "wave"),))])
+    ann = w.characters["ann"]
+    assert ann.target is not None and ann.target.off_grid and ann.target.fallback is None
+    pelvis = w.tracks()["ann"].root_positions[:, :2]
+    # the event starts (arrival reported) only once the walker stands on the point
+    assert np.linalg.norm(pelvis[-1] - target) < 0.02
+    assert np.linalg.norm(pelvis[-2] - target) < 0.02
+    _until(w, lambda o: bool(o.completed_events))
+    assert np.linalg.norm(w.tracks()["ann"].root_positions[-1, :2] - target) < 0.02
+    # the next walk leaves the exact point without a jump
+    run(w, 60, {w.frame: [AssignEvent(event_id="f", assignments=(_go("ann", _cell_xy(office, *cells[0])),))]})
+    step_len = np.linalg.norm(np.diff(w.tracks()["ann"].root_positions[:, :2], axis=0), axis=1)
+    assert step_len.max() <= math.sqrt(2) / 30 + 1e-9
+    assert len(outs) > 1
+
+
+def test_a_blocked_target_falls_back_to_the_nearest_cell_with_a_typed_reason(office) -> None:  # type: ignore[no-untyped-def]
+    _scene, grid, _ = office
+    shelf = next(o for o in grid.obstacles if o.name.startswith("bookshelf"))
+    inside = shelf.center_xy + np.asarray(shelf.facing) * (shelf.depth / 2.0 - 0.02)
+    assert not grid.is_free_xy(inside)
+    cells = _free_cells(office)
+    w = _world(office, {"ann": (_cell_xy(office, *cells[300]), 0.0)})
+    _until(w, lambda o: bool(o.started_events), commands=[AssignEvent(event_id="e", assignments=(
+        _go("ann", (float(inside[0]), float(inside[1])), "wave"),))])
+    ann = w.characters["ann"]
+    assert ann.target is not None and ann.target.fallback == "target_blocked" and not ann.target.off_grid
+    assert "cannot stand" in ann.target.message
+    assert np.allclose(ann.xy, grid.center_of(*ann.target.cell))
+
+
+def test_sitting_uses_the_seats_exact_approach_point(office) -> None:  # type: ignore[no-untyped-def]
+    scene, grid, _ = office
+    chair = scene.get("chair_1")
+    ap = grid.approach_point(chair, component=grid.main_component)
+    cells = _free_cells(office)
+    w = _world(office, {"ann": (_cell_xy(office, *cells[0]), 0.0)})
+    sit = AssignEvent(event_id="sit", assignments=(Assignment(
+        character="ann", action="drink", target_xy=tuple(chair.seat_point()), facing_xy=chair.facing, seat="chair_1"),))
+    _until(w, lambda o: bool(o.started_events), commands=[sit])
+    assert np.linalg.norm(w.characters["ann"].xy - np.asarray(ap.xy)) < 0.02
+    _until(w, lambda o: bool(o.completed_events))
+    _until(w, lambda o: bool(o.looping_events), commands=[AssignEvent(event_id="up", assignments=(
+        _go("ann", _cell_xy(office, *cells[0])),))])
+    xy = w.tracks()["ann"].root_positions[:, :2]
+    labels = w.tracks()["ann"].action_labels
+    last_stand = len(labels) - 1 - labels[::-1].index("stand_up")
+    assert np.linalg.norm(xy[last_stand] - np.asarray(ap.xy)) < 0.05  # stood up onto the approach point
+    assert np.all(np.linalg.norm(np.diff(xy, axis=0), axis=1) <= math.sqrt(2) / 30 + 0.05)
