@@ -89,7 +89,14 @@ class Pose:
 
 @dataclass(frozen=True)
 class MatchState:
-    """Per-character matcher state (immutable; ``step`` returns a new one)."""
+    """Per-character matcher state (immutable; ``step`` returns a new one).
+
+    The last output pose is kept as rotations + pelvis (``pose_local``, ``pose_pelvis``; None
+    before the first step) together with the one before it (``prev_local``, ``prev_pelvis``)
+    and the step length ``pose_dt`` (s) between them: joint positions and velocities are only
+    needed when a search runs, so forward kinematics runs then (``joints_world``,
+    ``joint_vel_char``), not every frame.
+    """
 
     key: str
     frame: int
@@ -101,24 +108,91 @@ class MatchState:
     offset_ang_vel: np.ndarray | None = None
     offset_pos: np.ndarray | None = None
     offset_vel: np.ndarray | None = None
-    joints_world: np.ndarray | None = None
-    joint_vel_char: np.ndarray | None = None
+    pose_local: np.ndarray | None = None
+    pose_pelvis: np.ndarray | None = None
+    prev_local: np.ndarray | None = None
+    prev_pelvis: np.ndarray | None = None
+    pose_dt: float = 0.0
     elapsed: float = 0.0
     done: bool = False
     switches: int = 0
     searches: int = 0
 
+    @property
+    def joints_world(self) -> np.ndarray | None:
+        """World joint positions (22,3) of the last output pose (None before the first step)."""
+        if self.pose_local is None or self.pose_pelvis is None:
+            return None
+        return forward_kinematics(self.pose_local, self.pose_pelvis)[0]
 
-def _char_rotations(db: MotionDatabase, frame: int) -> np.ndarray:
-    """Local rotations of a frame with joint 0 expressed in the frame's character frame."""
-    rot = db.local_rotations[frame].copy()
-    rot[0] = rot_z(-db.heading[frame]) @ rot[0]
-    return rot
+    @property
+    def joint_vel_char(self) -> np.ndarray | None:
+        """Joint velocities (22,3) m/s of the last output pose in its character frame (zeros
+        after the first step; None before it)."""
+        if self.pose_local is None or self.pose_pelvis is None:
+            return None
+        return _pose_joints([self])[1][0]
 
 
-def _char_pelvis(db: MotionDatabase, frame: int) -> np.ndarray:
-    p = db.pelvis[frame]
-    return to_character_frame(p[None], db.root_xy[frame], np.asarray(db.heading[frame]))[0]
+def _rot_z(theta: np.ndarray) -> np.ndarray:
+    return rot_z(theta)
+
+
+def _pose_joints(states: Sequence[MatchState]) -> tuple[np.ndarray, np.ndarray]:
+    """World joints (M,22,3) of the states' last poses and their character-frame velocities
+    (M,22,3), with one batched forward-kinematics call. Every state must have a pose."""
+    m = len(states)
+    has_prev = [s.prev_local is not None and s.pose_dt > 0 for s in states]
+    locs = [s.pose_local for s in states] + [s.prev_local for s, h in zip(states, has_prev, strict=True) if h]
+    pels = [s.pose_pelvis for s in states] + [s.prev_pelvis for s, h in zip(states, has_prev, strict=True) if h]
+    joints = forward_kinematics(np.stack(locs), np.stack(pels))[0]  # type: ignore[arg-type]
+    vel = np.zeros((m, NUM_JOINTS, 3))
+    k = m
+    for i, (s, h) in enumerate(zip(states, has_prev, strict=True)):
+        if h:
+            vel[i] = vectors_to_character_frame((joints[i] - joints[k]) / s.pose_dt, np.asarray(s.heading))
+            k += 1
+    return joints[:m], vel
+
+
+@dataclass(frozen=True)
+class _Frames:
+    """Per-database arrays, computed once per database: F frames, C clips.
+
+    rot (F,22,3,3) local rotations with joint 0 in the frame's character frame; pelvis (F,3)
+    character frame; ang_vel (F,22,3) rad/s and pelvis_vel (F,3) m/s (inertialization
+    source/destination velocities); clip_z (C,2) highest / lowest pelvis height per clip.
+    """
+
+    rot: np.ndarray
+    pelvis: np.ndarray
+    ang_vel: np.ndarray
+    pelvis_vel: np.ndarray
+    clip_z: np.ndarray
+
+
+def _frames_of(db: MotionDatabase) -> _Frames:
+    rot = np.array(db.local_rotations, dtype=float)
+    rot[:, 0] = _rot_z(-np.asarray(db.heading, dtype=float)) @ rot[:, 0]
+    pelvis = to_character_frame(np.asarray(db.pelvis, dtype=float)[:, None], db.root_xy, db.heading)[:, 0]
+    n = db.num_frames
+    a = np.empty(n, dtype=np.int64)
+    b = np.empty(n, dtype=np.int64)
+    for f in range(n):  # the finite-difference pair of each frame (within its clip)
+        nxt, end = db.next_frame(f)
+        fa, fb = (f, nxt) if not end else (max(f - 1, 0), f)
+        if db.clip_of_frame[fa] != db.clip_of_frame[fb] or fa == fb:
+            fa = fb
+        a[f], b[f] = fa, fb
+    moving = a != b
+    ang_vel = np.zeros((n, NUM_JOINTS, 3))
+    pelvis_vel = np.zeros((n, 3))
+    if moving.any():
+        ang_vel[moving] = angular_velocity(rot[a[moving]], rot[b[moving]], 1.0 / FPS)
+        pelvis_vel[moving] = (pelvis[b[moving]] - pelvis[a[moving]]) * FPS
+    z = np.asarray(db.pelvis, dtype=float)[:, 2]
+    clip_z = np.array([[z[s:e].max(), z[s:e].min()] for s, e in np.asarray(db.clip_ranges, dtype=np.int64)])
+    return _Frames(rot, pelvis, ang_vel, pelvis_vel, clip_z.reshape(-1, 2))
 
 
 class MotionMatcher:
@@ -135,6 +209,7 @@ class MotionMatcher:
         self.search_interval = int(search_interval)
         self.blend_halflife = float(blend_halflife)
         self.continuation_window = int(continuation_window)
+        self._frames: dict[str, _Frames] = {}
 
     def database(self, label: str, seated: bool = False) -> MotionDatabase:
         key = database_key(label, seated)
@@ -142,6 +217,13 @@ class MotionMatcher:
         if db is None:
             raise MotionMatchingError(f"no motion database for {key!r}; loaded: {sorted(self.databases)}")
         return db
+
+    def frames(self, key: str) -> _Frames:
+        """Cached per-database arrays (character-frame rotations, pelvis, velocities)."""
+        out = self._frames.get(key)
+        if out is None:
+            out = self._frames[key] = _frames_of(self.databases[key])
+        return out
 
     def initial_state(self, label: str, root_xy: Sequence[float], heading: float, seated: bool = False) -> MatchState:
         db = self.database(label, seated)
@@ -166,120 +248,181 @@ class MotionMatcher:
         height = np.asarray(query.seat_height if query.seat_height is not None else 0.0)
         return Control(fut_pos, fut_dir, t_pos, t_dir, height)
 
+    def _query_features_many(self, db: MotionDatabase, states: Sequence[MatchState], queries: Sequence[MotionQuery],
+                             roots: Sequence[np.ndarray], headings: Sequence[float]) -> np.ndarray:
+        """Raw query vectors (M,D) for characters searching ``db`` (one FK call for all)."""
+        m = len(states)
+        pos = np.empty((m, NUM_JOINTS, 3))
+        vel = np.zeros((m, NUM_JOINTS, 3))
+        posed = [i for i, s in enumerate(states) if s.pose_local is not None and s.pose_pelvis is not None]
+        fresh = [i for i, s in enumerate(states) if s.pose_local is None or s.pose_pelvis is None]
+        if posed:
+            joints, v = _pose_joints([states[i] for i in posed])
+            idx = np.array(posed)
+            pos[idx] = to_character_frame(joints, np.stack([roots[i] for i in posed]),
+                                          np.array([headings[i] for i in posed], dtype=float))
+            vel[idx] = v
+        if fresh:  # no output pose yet: the current database frame, at rest
+            rots = np.stack([self.frames(states[i].key).rot[states[i].frame] for i in fresh])
+            pels = np.stack([self.frames(states[i].key).pelvis[states[i].frame] for i in fresh])
+            pos[np.array(fresh)] = forward_kinematics(rots, pels)[0]
+        ctrl = [self._control(s, q, r, h) for s, q, r, h in zip(states, queries, roots, headings, strict=True)]
+        control = Control(*(np.stack([getattr(c, f) for c in ctrl]) for f in
+                             ("future_pos", "future_dir", "target_pos", "target_dir", "target_height")))
+        return assemble(db.layout_name, pos, vel, control)
+
     def query_features(self, db: MotionDatabase, state: MatchState, query: MotionQuery,
                        root_xy: np.ndarray, heading: float) -> np.ndarray:
         """Raw query vector: the pose part from the last output pose, the control part from the query."""
-        if state.joints_world is None or state.joint_vel_char is None:
-            cur = self.databases[state.key]
-            pos = forward_kinematics(_char_rotations(cur, state.frame), _char_pelvis(cur, state.frame))[0]
-            vel = np.zeros((NUM_JOINTS, 3))
-        else:
-            pos = to_character_frame(state.joints_world, root_xy, np.asarray(heading))
-            vel = state.joint_vel_char
-        return assemble(db.layout_name, pos, vel, self._control(state, query, root_xy, heading))
+        return self._query_features_many(db, [state], [query], [np.asarray(root_xy, dtype=float)], [float(heading)])[0]
 
     def step(self, state: MatchState, query: MotionQuery, dt: float) -> tuple[MatchState, Pose]:
         """Advance one character by ``dt`` seconds. Pure: returns the new state and pose."""
-        db = self.database(query.label, query.seated)
-        cur = self.databases[state.key]
-        clock = state.frame_clock + dt * FPS
-        n_adv = int(np.floor(clock + 1e-9))
-        clock -= n_adv
-        frame, ended = state.frame, False
-        root_xy, heading = state.root_xy.copy(), state.heading
-        for _ in range(n_adv):
-            nxt, end = cur.next_frame(frame)
-            if end:
-                ended = True
-                break
-            if nxt == frame + 1:  # root motion of the database (not across a loop seam)
-                d = cur.root_xy[nxt] - cur.root_xy[frame]
-                c, s = np.cos(heading - cur.heading[frame]), np.sin(heading - cur.heading[frame])
-                root_xy = root_xy + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
-                heading += float(cur.heading[nxt] - cur.heading[frame])
-            frame = nxt
-        if query.root_xy is not None:
-            root_xy = np.asarray(query.root_xy, dtype=float).reshape(2)
-        if query.heading is not None:
-            heading = float(query.heading)
-
-        changed = db.key != state.key
-        completing = False
-        if not changed:
-            completing = family_of(db.key) in ("in_place", "partner", "sitting") and not bool(
-                db.clip_loops[int(db.clip_of_frame[frame])])
-        enter_from_start = changed and family_of(db.key) in ("in_place", "partner") and not bool(db.clip_loops.all())
-        done = state.done and not changed
-        since = state.since_search + n_adv
-        periodic = since >= self.search_interval and not completing  # completing actions play through
-        need = changed or query.force_search or periodic or (ended and not completing)
-        if ended and completing:
-            done = True
-            need = changed or query.force_search
-        off_rot, off_av = state.offset_rot, state.offset_ang_vel
-        off_pos, off_vel = state.offset_pos, state.offset_vel
-        assert off_rot is not None and off_av is not None and off_pos is not None and off_vel is not None
-        switches, searches = state.switches, state.searches
-        new_key, new_frame = state.key, frame
-        if need:
-            searches += 1
-            since = 0
-            best, _ = db.search(self.query_features(db, state, query, root_xy, heading), entry=enter_from_start)
-            same_clip = not changed and db.clip_of_frame[best] == db.clip_of_frame[frame]
-            if not (same_clip and 0 <= best - frame <= self.continuation_window):
-                src_rot, src_av, src_pos, src_vel = self._frame_motion(cur, frame)
-                dst_rot, dst_av, dst_pos, dst_vel = self._frame_motion(db, best)
-                off_rot, off_av = transition_offsets(off_rot, off_av, src_rot, src_av, dst_rot, dst_av)
-                off_pos, off_vel = transition_offsets_linear(off_pos, off_vel, src_pos, src_vel, dst_pos, dst_vel)
-                new_key, new_frame = db.key, int(best)
-                switches += 1
-                done = False
-        off_rot, off_av = decay_spring(off_rot, off_av, self.blend_halflife, dt)
-        off_pos, off_vel = decay_spring(off_pos, off_vel, self.blend_halflife, dt)
-        out_db = self.databases[new_key]
-        rot_c = apply_rotation_offsets(off_rot, _char_rotations(out_db, new_frame))
-        pelvis_c = _char_pelvis(out_db, new_frame) + off_pos
-        pelvis_c[2] += self._seat_correction(out_db, new_frame, query)
-        rz = rot_z(heading)
-        local = rot_c.copy()
-        local[0] = rz @ rot_c[0]
-        pelvis = np.array([*(root_xy + rz[:2, :2] @ pelvis_c[:2]), pelvis_c[2]])
-        pose = Pose(pelvis, local, root_xy, heading, out_db.contacts[new_frame].copy())
-        joints = pose.joints()
-        if state.joints_world is not None and dt > 0:
-            vel = vectors_to_character_frame((joints - state.joints_world) / dt, np.asarray(heading))
-        else:
-            vel = np.zeros((NUM_JOINTS, 3))
-        elapsed = 0.0 if changed else state.elapsed + dt
-        new_state = replace(
-            state, key=new_key, frame=new_frame, root_xy=root_xy, heading=heading, frame_clock=clock,
-            since_search=since, offset_rot=off_rot, offset_ang_vel=off_av, offset_pos=off_pos,
-            offset_vel=off_vel, joints_world=joints, joint_vel_char=vel, elapsed=elapsed, done=done,
-            switches=switches, searches=searches,
-        )
-        return new_state, pose
+        states, poses = self.step_many([state], [query], dt)
+        return states[0], poses[0]
 
     def step_many(self, states: Sequence[MatchState], queries: Sequence[MotionQuery],
                   dt: float) -> tuple[list[MatchState], list[Pose]]:
-        """Advance several characters (independent; same result as calling ``step`` on each)."""
-        out = [self.step(s, q, dt) for s, q in zip(states, queries, strict=True)]
-        return [s for s, _ in out], [p for _, p in out]
+        """Advance several independent characters by ``dt`` seconds, batched: searches are
+        grouped per database, forward kinematics, inertialization and pose assembly run once
+        over all characters. Same result as ``step`` on each character."""
+        if len(states) != len(queries):
+            raise ValueError(f"{len(states)} states but {len(queries)} queries")
+        n = len(states)
+        if n == 0:
+            return [], []
+        dbs = [self.database(q.label, q.seated) for q in queries]
+        clocks, roots, headings, frames, since = [], [], [], [], []
+        changed, completing, entry, done, need, n_advs = [], [], [], [], [], []
+        for state, query, db in zip(states, queries, dbs, strict=True):
+            cur = self.databases[state.key]
+            clock = state.frame_clock + dt * FPS
+            n_adv = int(np.floor(clock + 1e-9))
+            clock -= n_adv
+            frame, ended = state.frame, False
+            root_xy, heading = state.root_xy.copy(), state.heading
+            for _ in range(n_adv):
+                nxt, end = cur.next_frame(frame)
+                if end:
+                    ended = True
+                    break
+                if nxt == frame + 1:  # root motion of the database (not across a loop seam)
+                    d = cur.root_xy[nxt] - cur.root_xy[frame]
+                    c, s = np.cos(heading - cur.heading[frame]), np.sin(heading - cur.heading[frame])
+                    root_xy = root_xy + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+                    heading += float(cur.heading[nxt] - cur.heading[frame])
+                frame = nxt
+            if query.root_xy is not None:
+                root_xy = np.asarray(query.root_xy, dtype=float).reshape(2)
+            if query.heading is not None:
+                heading = float(query.heading)
+            ch = db.key != state.key
+            comp = False
+            if not ch:
+                comp = family_of(db.key) in ("in_place", "partner", "sitting") and not bool(
+                    db.clip_loops[int(db.clip_of_frame[frame])])
+            dn = state.done and not ch
+            sn = state.since_search + n_adv
+            periodic = sn >= self.search_interval and not comp  # completing actions play through
+            nd = ch or query.force_search or periodic or (ended and not comp)
+            if ended and comp:
+                dn = True
+                nd = ch or query.force_search
+            clocks.append(clock)
+            roots.append(root_xy)
+            headings.append(float(heading))
+            frames.append(frame)
+            since.append(0 if nd else sn)
+            changed.append(ch)
+            completing.append(comp)
+            entry.append(ch and family_of(db.key) in ("in_place", "partner") and not bool(db.clip_loops.all()))
+            done.append(dn)
+            need.append(nd)
+            n_advs.append(n_adv)
+
+        # searches, grouped per (database, entry index)
+        best = np.full(n, -1, dtype=np.int64)
+        groups: dict[tuple[str, bool], list[int]] = {}
+        for i in range(n):
+            if need[i]:
+                groups.setdefault((dbs[i].key, entry[i]), []).append(i)
+        for (_key, ent), members in groups.items():
+            db = dbs[members[0]]
+            raw = self._query_features_many(db, [states[i] for i in members], [queries[i] for i in members],
+                                            [roots[i] for i in members], [headings[i] for i in members])
+            if len(members) == 1:
+                best[members[0]] = db.search(raw[0], entry=ent)[0]
+            else:
+                index = db.entry_index if ent else db.index
+                best[np.array(members)] = index.query_many(db.normalize(raw))[0]
+
+        off_rot = np.stack([s.offset_rot for s in states])  # type: ignore[arg-type]
+        off_av = np.stack([s.offset_ang_vel for s in states])  # type: ignore[arg-type]
+        off_pos = np.stack([s.offset_pos for s in states])  # type: ignore[arg-type]
+        off_vel = np.stack([s.offset_vel for s in states])  # type: ignore[arg-type]
+        new_keys = [s.key for s in states]
+        new_frames = list(frames)
+        switched: list[int] = []
+        for i in range(n):
+            if not need[i]:
+                continue
+            b, db, frame = int(best[i]), dbs[i], frames[i]
+            same_clip = not changed[i] and db.clip_of_frame[b] == db.clip_of_frame[frame]
+            if not (same_clip and 0 <= b - frame <= self.continuation_window):
+                switched.append(i)
+        if switched:
+            sw = np.array(switched)
+            src = [self.frames(states[i].key) for i in switched]
+            dst = [self.frames(dbs[i].key) for i in switched]
+            sf = [frames[i] for i in switched]
+            df = [int(best[i]) for i in switched]
+            src_rot = np.stack([f.rot[k] for f, k in zip(src, sf, strict=True)])
+            src_av = np.stack([f.ang_vel[k] for f, k in zip(src, sf, strict=True)])
+            dst_rot = np.stack([f.rot[k] for f, k in zip(dst, df, strict=True)])
+            dst_av = np.stack([f.ang_vel[k] for f, k in zip(dst, df, strict=True)])
+            off_rot[sw], off_av[sw] = transition_offsets(off_rot[sw], off_av[sw], src_rot, src_av, dst_rot, dst_av)
+            off_pos[sw], off_vel[sw] = transition_offsets_linear(
+                off_pos[sw], off_vel[sw], np.stack([f.pelvis[k] for f, k in zip(src, sf, strict=True)]),
+                np.stack([f.pelvis_vel[k] for f, k in zip(src, sf, strict=True)]),
+                np.stack([f.pelvis[k] for f, k in zip(dst, df, strict=True)]),
+                np.stack([f.pelvis_vel[k] for f, k in zip(dst, df, strict=True)]))
+            for i, k in zip(switched, df, strict=True):
+                new_keys[i], new_frames[i] = dbs[i].key, k
+                done[i] = False
+        off_rot, off_av = decay_spring(off_rot, off_av, self.blend_halflife, dt)
+        off_pos, off_vel = decay_spring(off_pos, off_vel, self.blend_halflife, dt)
+
+        out_frames = [self.frames(k) for k in new_keys]
+        rot_c = apply_rotation_offsets(off_rot, np.stack([f.rot[k] for f, k in zip(out_frames, new_frames, strict=True)]))
+        pelvis_c = np.stack([f.pelvis[k] for f, k in zip(out_frames, new_frames, strict=True)]) + off_pos
+        pelvis_c[:, 2] += [self._seat_correction_cached(self.databases[k], out_frames[i], new_frames[i], queries[i])
+                           for i, k in enumerate(new_keys)]
+        head = np.array(headings)
+        root = np.stack(roots)
+        rz = _rot_z(head)
+        local = rot_c
+        local[:, 0] = rz @ rot_c[:, 0]
+        c, s = rz[:, 0, 0], rz[:, 1, 0]
+        pelvis = np.stack([root[:, 0] + (c * pelvis_c[:, 0] - s * pelvis_c[:, 1]),
+                           root[:, 1] + (s * pelvis_c[:, 0] + c * pelvis_c[:, 1]), pelvis_c[:, 2]], axis=-1)
+        switched_set = set(switched)
+        out_states, poses = [], []
+        for i, state in enumerate(states):
+            out_db = self.databases[new_keys[i]]
+            pose = Pose(pelvis[i], local[i], roots[i], headings[i], out_db.contacts[new_frames[i]].copy())
+            poses.append(pose)
+            out_states.append(replace(
+                state, key=new_keys[i], frame=new_frames[i], root_xy=roots[i], heading=headings[i],
+                frame_clock=clocks[i], since_search=since[i], offset_rot=off_rot[i], offset_ang_vel=off_av[i],
+                offset_pos=off_pos[i], offset_vel=off_vel[i], pose_local=local[i], pose_pelvis=pelvis[i],
+                prev_local=state.pose_local, prev_pelvis=state.pose_pelvis, pose_dt=float(dt),
+                elapsed=0.0 if changed[i] else state.elapsed + dt, done=done[i],
+                switches=state.switches + (1 if i in switched_set else 0), searches=state.searches + int(need[i]),
+            ))
+        return out_states, poses
 
     @staticmethod
-    def _frame_motion(db: MotionDatabase, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Character-frame rotations, angular velocities, pelvis offset and its velocity."""
-        nxt, end = db.next_frame(frame)
-        a, b = (frame, nxt) if not end else (max(frame - 1, 0), frame)
-        if db.clip_of_frame[a] != db.clip_of_frame[b] or a == b:
-            a = b
-        rot_a, rot_b = _char_rotations(db, a), _char_rotations(db, b)
-        av = angular_velocity(rot_a, rot_b, 1.0 / FPS) if a != b else np.zeros((NUM_JOINTS, 3))
-        pa, pb = _char_pelvis(db, a), _char_pelvis(db, b)
-        pv = (pb - pa) * FPS if a != b else np.zeros(3)
-        return _char_rotations(db, frame), av, _char_pelvis(db, frame), pv
-
-    @staticmethod
-    def _seat_correction(db: MotionDatabase, frame: int, query: MotionQuery) -> float:
+    def _seat_correction_cached(db: MotionDatabase, frames: _Frames, frame: int, query: MotionQuery) -> float:
         """Raise/lower a seated pelvis by the difference between the query's seat height and
         the clip's, weighted by how far the clip has sat down (0 standing .. 1 seated)."""
         if query.seat_height is None or db.layout_name not in ("sitting", "seated"):
@@ -288,9 +431,7 @@ class MotionMatcher:
         clip_h = float(db.targets[clip, 3])
         if not np.isfinite(clip_h):
             return 0.0
-        start, end = (int(v) for v in db.clip_ranges[clip])
-        z = db.pelvis[start:end, 2]
-        top, bottom = float(z.max()), float(z.min())
+        top, bottom = (float(v) for v in frames.clip_z[clip])
         w = 1.0 if top - bottom < 0.05 else (top - float(db.pelvis[frame, 2])) / (top - bottom)
         return (float(query.seat_height) - clip_h) * w
 

@@ -129,3 +129,64 @@ def test_future_from_path_and_foot_sliding() -> None:
     j[1, 10, 0] = 0.1
     assert foot_sliding(j, np.ones((3, 2), bool)) == pytest.approx(0.1 * 30 * 2 / 4)
     assert foot_sliding(j, np.zeros((3, 2), bool)) == 0.0
+
+
+def _crowd_queries(frame: int, k: int, rng: np.random.Generator) -> MotionQuery:
+    """A scripted query for character ``k`` at ``frame``: phases of walking, idling, chatting,
+    completing an action and sitting (mixed labels; label changes at different frames)."""
+    phase = ((frame + 17 * k) // 45) % 5
+    x, y = 0.4 * k + 0.02 * frame, 0.3 * np.sin(0.05 * frame + k)
+    h = 0.3 * np.sin(0.02 * frame + k)
+    if phase == 0:
+        fut, hd = future_from_path(np.array([[x, y], [x + 3 * np.cos(h), y + 3 * np.sin(h)]]), DT, h)
+        return MotionQuery("walk", root_xy=np.array([x, y]), heading=h, future_xy=fut, future_heading=hd,
+                           force_search=bool(rng.random() < 0.05))
+    if phase == 1:
+        return MotionQuery("idle", root_xy=np.array([x, y]), heading=h)
+    if phase == 2:
+        return MotionQuery("chat", root_xy=np.array([x, y]), heading=h, target_xy=np.array([x + 0.8, y]),
+                           target_facing=np.pi)
+    if phase == 3:
+        return MotionQuery("turn_on_tv", root_xy=np.array([x, y]), heading=h, target_xy=np.array([x, y + 0.5]),
+                           target_facing=-np.pi / 2)
+    return MotionQuery("sit_down", target_xy=np.array([x - 0.33, y]), target_facing=h, seat_height=0.42 + 0.02 * k)
+
+
+def test_step_many_equals_step_per_character(matcher: MotionMatcher) -> None:
+    n, frames = 6, 240
+    rng = np.random.default_rng(11)
+    labels = ["idle", "walk", "chat", "idle", "walk", "idle"]
+    solo = [matcher.initial_state(labels[k], [0.4 * k, 0.0], 0.1 * k) for k in range(n)]
+    batch = list(solo)
+    seen_keys: set[str] = set()
+    searches = 0
+    for f in range(frames):
+        queries = [_crowd_queries(f, k, rng) for k in range(n)]
+        dt = DT if f % 50 else DT * 1.5  # an occasional long frame advances two database frames
+        batch, poses = matcher.step_many(batch, queries, dt)
+        for k in range(n):
+            solo[k], pose = matcher.step(solo[k], queries[k], dt)
+            b, p = batch[k], poses[k]
+            assert (b.key, b.frame, b.since_search, b.done, b.switches, b.searches) == (
+                solo[k].key, solo[k].frame, solo[k].since_search, solo[k].done, solo[k].switches, solo[k].searches)
+            np.testing.assert_allclose(p.local_rotations, pose.local_rotations, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(p.pelvis, pose.pelvis, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(p.root_xy, pose.root_xy, rtol=0, atol=1e-9)
+            assert p.heading == pytest.approx(pose.heading, abs=1e-9)
+            assert np.array_equal(p.contacts, pose.contacts)
+            np.testing.assert_allclose(b.offset_rot, solo[k].offset_rot, rtol=0, atol=1e-9)  # type: ignore[arg-type]
+            np.testing.assert_allclose(b.offset_pos, solo[k].offset_pos, rtol=0, atol=1e-9)  # type: ignore[arg-type]
+        seen_keys |= {s.key for s in batch}
+    searches = sum(s.searches for s in batch)
+    assert seen_keys == {"walk", "idle", "chat", "turn_on_tv", "sit_down"}
+    assert searches > n * frames // 20 and sum(s.switches for s in batch) > n * 3
+    # lazily computed joints and velocities match the pose
+    np.testing.assert_allclose(batch[0].joints_world, poses[0].joints(), atol=1e-12)  # type: ignore[arg-type]
+    assert batch[0].joint_vel_char is not None and np.isfinite(batch[0].joint_vel_char).all()
+
+
+def test_step_many_checks_lengths(matcher: MotionMatcher) -> None:
+    s = matcher.initial_state("idle", [0.0, 0.0], 0.0)
+    with pytest.raises(ValueError, match="queries"):
+        matcher.step_many([s, s], [MotionQuery("idle")], DT)
+    assert matcher.step_many([], [], DT) == ([], [])
