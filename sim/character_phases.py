@@ -31,13 +31,16 @@ from sim.story_events import Assignment
 
 FPS = 30
 Phase = Literal["idle", "approaching", "transition_in", "interacting", "transition_out"]
-TargetFallback = Literal["target_blocked", "no_straight_approach", "no_approach_point", "goal_cell_taken"]
+TargetFallback = Literal["target_blocked", "no_straight_approach", "no_approach_point", "goal_cell_taken",
+                         "target_occupied"]
 """Why a character stands on a cell centre instead of the exact point it was sent to:
 ``target_blocked``: a body at the target would overlap furniture or leave the floor;
 ``no_straight_approach``: no free cell nearby has a straight, furniture-free walk to the target;
 ``no_approach_point``: no exact standing point by the seat is reachable (the seat's approach
 cell is used); ``goal_cell_taken``: someone else held the goal cell, the walker stopped on the
-neighbouring cell the planner chose."""
+neighbouring cell the planner chose; ``target_occupied``: another body stayed too close to the
+straight walk onto the point for ``WorldConfig.exact_patience_s``, the walker stopped on its
+goal cell's centre."""
 PHASES: tuple[Phase, ...] = ("idle", "approaching", "transition_in", "interacting", "transition_out")
 
 TURN_SPEED = math.pi  # rad/s when turning on the spot before acting

@@ -53,6 +53,7 @@ from sim.character_phases import (
     INFINITE,
     CharacterState,
     StandTarget,
+    TargetFallback,
     available,
     interaction_frames,
     phase_motion,
@@ -93,7 +94,9 @@ class WorldConfig:
     heading_lookahead: frames ahead on the plan that a walker turns to face (looking past the
     grid's zigzags); stuck_after_s: seconds without getting closer before a walker fails;
     max_target_offset: metres between a target and the nearest reachable cell centre beyond
-    which the target counts as unreachable; initial_capacity: frames pre-allocated per track."""
+    which the target counts as unreachable; exact_patience_s: seconds a walker on its goal cell
+    waits for room to step onto its exact target before it settles for the cell centre
+    (``target_occupied``); initial_capacity: frames pre-allocated per track."""
 
     fps: int = 30
     seed: int = 0
@@ -101,6 +104,7 @@ class WorldConfig:
     heading_lookahead: int = 20
     stuck_after_s: float = 20.0
     max_target_offset: float = 0.75
+    exact_patience_s: float = 3.0
     initial_capacity: int = 512
 
 
@@ -410,9 +414,11 @@ class World:
                 if c.walker:
                     self.navigator.set_goal(n, None)
 
-    def _arrive(self, c: CharacterState, substitute: bool = False) -> None:
+    def _arrive(self, c: CharacterState, fallback: TargetFallback | None = None) -> None:
         """``c`` reached its goal (the exact target when it has one): wait there for the
-        event's other members. ``substitute``: it stopped on the neighbour of a taken goal cell.
+        event's other members. ``fallback``: it stopped on a cell centre instead
+        (``goal_cell_taken``: the neighbour of a taken goal cell; ``target_occupied``: its goal
+        cell, the walk onto the exact point being blocked by others).
 
         A waiting character stays a walker without a goal: on a cell centre it steps aside for
         passers-by (its partners included) and walks back afterwards; on an exact point it is
@@ -423,9 +429,12 @@ class World:
         c.goal_cell = cell
         c.anchor_cell = cell
         c.anchor_xy = nav.position(c.name).copy() if nav.is_off_grid(c.name) else self.grid.center_of(*cell)
-        if substitute and c.target is not None:
-            c.target = StandTarget(cell, (float(c.anchor_xy[0]), float(c.anchor_xy[1])), False, "goal_cell_taken",
-                                   f"cell {c.target.cell} was taken; {c.name} stopped on the neighbouring cell {cell}")
+        if fallback is not None and c.target is not None:
+            msg = (f"cell {c.target.cell} was taken; {c.name} stopped on the neighbouring cell {cell}"
+                   if fallback == "goal_cell_taken" else
+                   f"others stayed too close to ({c.target.xy[0]:.2f}, {c.target.xy[1]:.2f}) for "
+                   f"{self.config.exact_patience_s:g} s; {c.name} stopped on the centre of cell {cell}")
+            c.target = StandTarget(cell, (float(c.anchor_xy[0]), float(c.anchor_xy[1])), False, fallback, msg)
         c.best_distance, c.stalled_frames = 0.0, 0
         if nav.goal_of(c.name) is not None:
             nav.set_goal(c.name, None)
@@ -517,7 +526,8 @@ class World:
             c.walker = True
 
     def _walker_checks(self, out: _Report) -> None:
-        """Arrivals, near-arrivals at a substitute goal, and stuck walkers (at step boundaries)."""
+        """Arrivals, near-arrivals at a substitute goal or at the centre of a goal cell whose exact
+        point stays crowded, and stuck walkers (at step boundaries)."""
         nav = self.navigator
         for name in nav.new_arrivals():
             c = self.characters[name]
@@ -528,6 +538,7 @@ class World:
             else:  # the arrival belongs to an older goal: head for the current one
                 nav.set_goal(name, c.goal_cell, final_xy=self._final_of(c.target))
         limit = int(self.config.stuck_after_s * self.config.fps)
+        patience = int(self.config.exact_patience_s * self.config.fps)
         for c in self.characters.values():
             if not c.walker or c.goal_cell is None or not (c.phase == "approaching" or c.waiting):
                 continue
@@ -542,13 +553,17 @@ class World:
             if c.phase == "approaching" and used is not None and used != c.goal_cell and cell == used and max(
                 abs(used[0] - c.goal_cell[0]), abs(used[1] - c.goal_cell[1])
             ) <= 1:
-                self._arrive(c, substitute=True)  # the goal cell is taken; the neighbour the planner chose will do
+                self._arrive(c, "goal_cell_taken")  # the neighbour the planner chose will do
                 continue
             d = self.planner.distance(cell, c.goal_cell)
             if d < c.best_distance - 1e-9:
                 c.best_distance, c.stalled_frames = d, 0
             else:
                 c.stalled_frames += nav.step_frames
+            if (c.phase == "approaching" and c.target is not None and c.target.off_grid and cell == c.goal_cell
+                    and not nav.is_off_grid(c.name) and c.stalled_frames >= patience and nav.can_freeze(c.name)):
+                self._arrive(c, "target_occupied")  # the cell centre is clear; the point is not
+                continue
             if c.stalled_frames > limit and c.event_id is not None:
                 self._fail_event(c.event_id, c.name, "stuck",
                                  f"{c.name} made no progress towards its target for "

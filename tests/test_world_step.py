@@ -243,7 +243,13 @@ def test_a_blocked_walker_fails_as_stuck_instead_of_hanging() -> None:
 def test_same_seed_same_frames_and_snapshots_replay_exactly(office) -> None:  # type: ignore[no-untyped-def]
     cells = _free_cells(office)
     chars = {f"c{k}": (_cell_xy(office, *cells[k * 37]), 0.1 * k) for k in range(6)}
-    cmds = {0: [AssignEvent(event_id=f"e{k}", assignments=(_go(f"c{k}", _cell_xy(office, *cells[(k * 37 + 180) % len(cells)])),)) for k in range(6)]}
+    _, grid, _ = office
+
+    def target(k: int) -> tuple[float, float]:  # exact off-grid points where a body fits
+        p = np.asarray(_cell_xy(office, *cells[(k * 37 + 180) % len(cells)])) + np.array([0.08, -0.05])
+        return (float(p[0]), float(p[1])) if grid.is_free_xy(p) else _cell_xy(office, *cells[(k * 37 + 180) % len(cells)])
+
+    cmds = {0: [AssignEvent(event_id=f"e{k}", assignments=(_go(f"c{k}", target(k)),)) for k in range(6)]}
 
     def make() -> World:
         return _world(office, chars, seed=3, initial_capacity=8)
@@ -360,3 +366,22 @@ def test_sitting_uses_the_seats_exact_approach_point(office) -> None:  # type: i
     last_stand = len(labels) - 1 - labels[::-1].index("stand_up")
     assert np.linalg.norm(xy[last_stand] - np.asarray(ap.xy)) < 0.05  # stood up onto the approach point
     assert np.all(np.linalg.norm(np.diff(xy, axis=0), axis=1) <= math.sqrt(2) / 30 + 0.05)
+
+
+def test_an_exact_target_crowded_by_a_standing_body_settles_for_the_cell_centre(office) -> None:  # type: ignore[no-untyped-def]
+    _, grid, _ = office
+    cells = _free_cells(office)
+    free = {(int(i), int(j)) for i, j in cells}
+    i, j = next((int(i), int(j)) for i, j in cells[150:] if all((i + k, j + m) in free for k in range(6) for m in (-1, 0, 1)))
+    bob_xy, goal = _cell_xy(office, i, j), grid.center_of(i + 2, j)
+    target = goal + 0.14 * (np.asarray(bob_xy) - goal) / np.linalg.norm(np.asarray(bob_xy) - goal)
+    assert grid.entry_cell(target) == (i + 2, j) and np.linalg.norm(target - bob_xy) < 0.5  # too close to bob
+    w = _world(office, {"bob": (bob_xy, 0.0), "ann": (_cell_xy(office, i + 5, j), 0.0)}, exact_patience_s=1.0)
+    _until(w, lambda o: bool(o.looping_events), commands=[AssignEvent(event_id="hold", assignments=(_go("bob", bob_xy),))])
+    outs = _until(w, lambda o: bool(o.looping_events), commands=[AssignEvent(event_id="go", assignments=(
+        _go("ann", (float(target[0]), float(target[1]))),))])
+    ann = w.characters["ann"]
+    assert all(o.failures == () for o in outs)
+    assert ann.target is not None and ann.target.fallback == "target_occupied" and "too close" in ann.target.message
+    assert np.allclose(ann.xy, goal)
+    assert np.linalg.norm(w.positions()[0] - w.positions()[1]) >= 0.5 - 1e-9
