@@ -16,6 +16,7 @@ Frames: world z up; the character frame has x forward, y left, origin at the roo
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
@@ -195,6 +196,23 @@ def _frames_of(db: MotionDatabase) -> _Frames:
     return _Frames(rot, pelvis, ang_vel, pelvis_vel, clip_z.reshape(-1, 2))
 
 
+_FRAMES_CACHE: dict[int, tuple[weakref.ref[np.ndarray], _Frames]] = {}
+
+
+def _shared_frames(db: MotionDatabase) -> _Frames:
+    """``_frames_of`` memoised per database content object (the frame-rotation array, which
+    wrappers of the same database share), so matchers built over the same databases reuse it."""
+    arr = db.local_rotations
+    hit = _FRAMES_CACHE.get(id(arr))
+    if hit is not None and hit[0]() is arr:
+        return hit[1]
+    for k in [k for k, (ref, _f) in _FRAMES_CACHE.items() if ref() is None]:
+        del _FRAMES_CACHE[k]  # databases that are gone
+    out = _frames_of(db)
+    _FRAMES_CACHE[id(arr)] = (weakref.ref(arr), out)
+    return out
+
+
 class MotionMatcher:
     """Motion matching over ``databases`` (database key -> MotionDatabase)."""
 
@@ -222,7 +240,7 @@ class MotionMatcher:
         """Cached per-database arrays (character-frame rotations, pelvis, velocities)."""
         out = self._frames.get(key)
         if out is None:
-            out = self._frames[key] = _frames_of(self.databases[key])
+            out = self._frames[key] = _shared_frames(self.databases[key])
         return out
 
     def initial_state(self, label: str, root_xy: Sequence[float], heading: float, seated: bool = False) -> MatchState:
