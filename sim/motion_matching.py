@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -161,39 +161,49 @@ class _Frames:
     """Per-database arrays, computed once per database: F frames, C clips.
 
     rot (F,22,3,3) local rotations with joint 0 in the frame's character frame; pelvis (F,3)
-    character frame; ang_vel (F,22,3) rad/s and pelvis_vel (F,3) m/s (inertialization
-    source/destination velocities); clip_z (C,2) highest / lowest pelvis height per clip.
+    character frame; pair_a, pair_b (F,) the finite-difference frame pair of each frame (equal
+    when the frame has no neighbour in its clip); clip_z (C,2) highest / lowest pelvis height
+    per clip. ``motion(frame)`` gives the inertialization velocities, memoised per frame.
     """
 
     rot: np.ndarray
     pelvis: np.ndarray
-    ang_vel: np.ndarray
-    pelvis_vel: np.ndarray
+    pair_a: np.ndarray
+    pair_b: np.ndarray
     clip_z: np.ndarray
+    _motion: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False, compare=False)
+
+    def motion(self, frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """Angular velocities (22,3) rad/s and pelvis velocity (3,) m/s at ``frame``."""
+        out = self._motion.get(frame)
+        if out is None:
+            a, b = int(self.pair_a[frame]), int(self.pair_b[frame])
+            if a != b:
+                out = (angular_velocity(self.rot[a], self.rot[b], 1.0 / FPS), (self.pelvis[b] - self.pelvis[a]) * FPS)
+            else:
+                out = (np.zeros((NUM_JOINTS, 3)), np.zeros(3))
+            self._motion[frame] = out
+        return out
 
 
 def _frames_of(db: MotionDatabase) -> _Frames:
     rot = np.array(db.local_rotations, dtype=float)
     rot[:, 0] = _rot_z(-np.asarray(db.heading, dtype=float)) @ rot[:, 0]
     pelvis = to_character_frame(np.asarray(db.pelvis, dtype=float)[:, None], db.root_xy, db.heading)[:, 0]
-    n = db.num_frames
-    a = np.empty(n, dtype=np.int64)
-    b = np.empty(n, dtype=np.int64)
-    for f in range(n):  # the finite-difference pair of each frame (within its clip)
-        nxt, end = db.next_frame(f)
-        fa, fb = (f, nxt) if not end else (max(f - 1, 0), f)
-        if db.clip_of_frame[fa] != db.clip_of_frame[fb] or fa == fb:
-            fa = fb
-        a[f], b[f] = fa, fb
-    moving = a != b
-    ang_vel = np.zeros((n, NUM_JOINTS, 3))
-    pelvis_vel = np.zeros((n, 3))
-    if moving.any():
-        ang_vel[moving] = angular_velocity(rot[a[moving]], rot[b[moving]], 1.0 / FPS)
-        pelvis_vel[moving] = (pelvis[b[moving]] - pelvis[a[moving]]) * FPS
+    f = np.arange(db.num_frames)
+    clip = np.asarray(db.clip_of_frame, dtype=np.int64)
+    ranges = np.asarray(db.clip_ranges, dtype=np.int64)
+    start, end = ranges[clip, 0], ranges[clip, 1]
+    loops = np.asarray(db.clip_loops, dtype=bool)[clip]
+    inside = f + 1 < end
+    nxt = np.where(inside, f + 1, np.where(loops, start, f))  # next_frame, vectorised
+    at_end = ~inside & ~loops
+    a = np.where(at_end, np.maximum(f - 1, 0), f)
+    b = np.where(at_end, f, nxt)
+    a = np.where((clip[a] != clip[b]) | (a == b), b, a)
     z = np.asarray(db.pelvis, dtype=float)[:, 2]
-    clip_z = np.array([[z[s:e].max(), z[s:e].min()] for s, e in np.asarray(db.clip_ranges, dtype=np.int64)])
-    return _Frames(rot, pelvis, ang_vel, pelvis_vel, clip_z.reshape(-1, 2))
+    clip_z = np.array([[z[s:e].max(), z[s:e].min()] for s, e in ranges])
+    return _Frames(rot, pelvis, a, b, clip_z.reshape(-1, 2))
 
 
 _FRAMES_CACHE: dict[int, tuple[weakref.ref[np.ndarray], _Frames]] = {}
@@ -394,16 +404,17 @@ class MotionMatcher:
             dst = [self.frames(dbs[i].key) for i in switched]
             sf = [frames[i] for i in switched]
             df = [int(best[i]) for i in switched]
+            src_mo = [f.motion(k) for f, k in zip(src, sf, strict=True)]
+            dst_mo = [f.motion(k) for f, k in zip(dst, df, strict=True)]
             src_rot = np.stack([f.rot[k] for f, k in zip(src, sf, strict=True)])
-            src_av = np.stack([f.ang_vel[k] for f, k in zip(src, sf, strict=True)])
             dst_rot = np.stack([f.rot[k] for f, k in zip(dst, df, strict=True)])
-            dst_av = np.stack([f.ang_vel[k] for f, k in zip(dst, df, strict=True)])
-            off_rot[sw], off_av[sw] = transition_offsets(off_rot[sw], off_av[sw], src_rot, src_av, dst_rot, dst_av)
+            off_rot[sw], off_av[sw] = transition_offsets(off_rot[sw], off_av[sw], src_rot,
+                                                         np.stack([m[0] for m in src_mo]), dst_rot,
+                                                         np.stack([m[0] for m in dst_mo]))
             off_pos[sw], off_vel[sw] = transition_offsets_linear(
                 off_pos[sw], off_vel[sw], np.stack([f.pelvis[k] for f, k in zip(src, sf, strict=True)]),
-                np.stack([f.pelvis_vel[k] for f, k in zip(src, sf, strict=True)]),
-                np.stack([f.pelvis[k] for f, k in zip(dst, df, strict=True)]),
-                np.stack([f.pelvis_vel[k] for f, k in zip(dst, df, strict=True)]))
+                np.stack([m[1] for m in src_mo]), np.stack([f.pelvis[k] for f, k in zip(dst, df, strict=True)]),
+                np.stack([m[1] for m in dst_mo]))
             for i, k in zip(switched, df, strict=True):
                 new_keys[i], new_frames[i] = dbs[i].key, k
                 done[i] = False
