@@ -2,7 +2,8 @@
 
 50 characters walk between random targets in the reference Office scene for 60 s of simulated
 time (1800 frames at 30 fps) through the full world step: cooperative paths, character phases
-(each target is an ``idle`` event: walk, turn to a random facing, stand, get the next target)
+(each target is an ``idle`` event: walk, turn to a random facing, stand, get the next target;
+``python tests/test_crowd_motion.py`` also runs targets up to 0.12 m off the cell centres)
 and motion matching. Checked on every frame of the output tracks (forward kinematics of what
 the exporters would write):
 
@@ -80,13 +81,17 @@ def _spread_cells(cells: np.ndarray, count: int, rng: np.random.Generator, taken
     raise AssertionError(f"only {len(out)} spread cells available")
 
 
-def simulate_crowd(scene: Scene, n: int, frames: int, seed: int, motion) -> tuple[World, CrowdReport]:  # type: ignore[no-untyped-def]
-    """Run the crowd; returns the world and the measured report."""
+def simulate_crowd(scene: Scene, n: int, frames: int, seed: int, motion, off_grid: float = 0.0) -> tuple[World, CrowdReport]:  # type: ignore[no-untyped-def]
+    """Run the crowd; returns the world and the measured report.
+
+    ``off_grid`` (metres): targets are random cell centres moved by up to this much along x
+    and y (kept where a body fits), so walkers end on exact points off the grid."""
     from sim.nav_grid import build_nav_grid
 
     grid = build_nav_grid(scene)
     cells = np.argwhere(grid.component == grid.main_component)
     rng = np.random.default_rng(seed)
+    jitter = np.random.default_rng(seed + 1)  # off-grid offsets: their own stream, same cells as without
     starts = _spread_cells(cells, n, rng, [])
     names = [f"p{i:02d}" for i in range(n)]
     world = World(
@@ -107,10 +112,13 @@ def simulate_crowd(scene: Scene, n: int, frames: int, seed: int, motion) -> tupl
             cell = _spread_cells(cells, 1, rng, others)[0]
             targets[name] = cell
             theta = float(rng.uniform(-math.pi, math.pi))
+            xy = grid.center_of(*cell) + (jitter.uniform(-off_grid, off_grid, 2) if off_grid > 0 else 0.0)
+            if not grid.is_free_xy(xy):
+                xy = grid.center_of(*cell)
             counter[name] += 1
             given += 1
             commands.append(AssignEvent(event_id=f"{name}-{counter[name]}", assignments=(Assignment(
-                character=name, action="idle", target_xy=tuple(grid.center_of(*cell)),
+                character=name, action="idle", target_xy=(float(xy[0]), float(xy[1])),
                 facing_xy=(math.cos(theta), math.sin(theta))),)))
         pending_new = set()
         _, out = step(world, commands, world.dt)
@@ -193,7 +201,7 @@ def crowd() -> tuple[World, CrowdReport]:
     from sim.motion_matching import MotionMatcher
 
     scene = load_scene(OFFICE)
-    return simulate_crowd(scene, n=50, frames=1800, seed=7, motion=MotionMatcher(load_databases()))
+    return simulate_crowd(scene, n=50, frames=1800, seed=7, motion=MotionMatcher(load_databases()), off_grid=0.0)
 
 
 @pytest.mark.slow
@@ -238,6 +246,7 @@ if __name__ == "__main__":
     from sim.motion_matching import MotionMatcher
 
     t0 = time.perf_counter()
-    _, rep = simulate_crowd(load_scene(OFFICE), 50, 1800, 7, MotionMatcher(load_databases()))
-    print(rep.lines())
+    for off in (0.0, 0.12):
+        _, rep = simulate_crowd(load_scene(OFFICE), 50, 1800, 7, MotionMatcher(load_databases()), off_grid=off)
+        print(f"off_grid {off} m\n{rep.lines()}")
     print(f"wall time {time.perf_counter() - t0:.1f} s")
