@@ -13,6 +13,7 @@ deadline derived from the call's timeout, or a cancellation, stops it between tw
 
 from __future__ import annotations
 
+import atexit
 import os
 import threading
 import time
@@ -88,6 +89,17 @@ def get_llama(spec: WeightsSpec) -> tuple[Any, threading.Lock]:
 
 def loaded_models() -> list[str]:
     return sorted(_instances)
+
+
+@atexit.register
+def close_models() -> None:
+    """Free every loaded model while the interpreter can still run llama.cpp's destructors
+    (left to ``__del__`` at shutdown they fail noisily on half-torn-down modules)."""
+    with _load_lock:
+        while _instances:
+            _, (llm, lock) = _instances.popitem()
+            with lock:
+                llm.close()
 
 
 def _chat_blocking(

@@ -15,6 +15,22 @@ import structlog
 _configured = False
 
 
+class _StderrLogger:
+    """Writes each line to whatever ``sys.stderr`` is *now*.
+
+    Binding the stream once at configuration time breaks when stderr is swapped later (a test
+    runner capturing output closes its stream; the next log line would hit a closed file)."""
+
+    def msg(self, message: str) -> None:
+        print(message, file=sys.stderr, flush=True)
+
+    log = debug = info = warning = warn = error = critical = exception = fatal = failure = msg
+
+
+def _stderr_logger_factory(*_args: object) -> _StderrLogger:
+    return _StderrLogger()
+
+
 def configure_logging(level: str | int = "INFO", *, json: bool | None = None, stream: TextIO | None = None) -> None:
     """Configure structlog (idempotent: later calls are ignored unless ``force_logging_reset``).
 
@@ -22,7 +38,7 @@ def configure_logging(level: str | int = "INFO", *, json: bool | None = None, st
     global _configured
     if _configured:
         return
-    out = stream if stream is not None else sys.stderr
+    out = stream if stream is not None else sys.stderr  # only to decide the rendering
     use_json = (not out.isatty()) if json is None else json
     numeric = logging.getLevelName(level.upper()) if isinstance(level, str) else level
     if not isinstance(numeric, int):
@@ -40,7 +56,7 @@ def configure_logging(level: str | int = "INFO", *, json: bool | None = None, st
             renderer,
         ],
         wrapper_class=structlog.make_filtering_bound_logger(numeric),
-        logger_factory=structlog.PrintLoggerFactory(file=out),
+        logger_factory=structlog.PrintLoggerFactory(file=stream) if stream is not None else _stderr_logger_factory,
         cache_logger_on_first_use=False,  # lets tests reset the configuration
     )
     # litellm logs through stdlib logging; keep it quiet unless we are debugging.
@@ -52,4 +68,20 @@ def force_logging_reset() -> None:
     """Allow :func:`configure_logging` to run again (tests)."""
     global _configured
     _configured = False
+
+
+class _StderrLogger:
+    """Writes each line to whatever ``sys.stderr`` is *now*.
+
+    Binding the stream once at configuration time breaks when stderr is swapped later (a test
+    runner capturing output closes its stream; the next log line would hit a closed file)."""
+
+    def msg(self, message: str) -> None:
+        print(message, file=sys.stderr, flush=True)
+
+    log = debug = info = warning = warn = error = critical = exception = fatal = failure = msg
+
+
+def _stderr_logger_factory(*_args: object) -> _StderrLogger:
+    return _StderrLogger()
     structlog.reset_defaults()

@@ -26,6 +26,7 @@ from langgraph.runtime import Runtime
 from agents.describer import describe_scene_cached
 from agents.event_parser import PARSER_RETRY_INSTRUCTION, ParserInput, parser_request, run_reply
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
+from agents.llm_port import LLMError, ReplayMissError
 from agents.narrator import NarratorInput, narrator_request, parse_narration
 from agents.retry_feedback import REJECTIONS, feedback_from_error
 from orchestrator.planning_state import RECENT_WINDOW, PlanningDeps, PlanningState, RetryTurn
@@ -67,13 +68,33 @@ async def narrate_event(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     """One narrator call; its reply is checked by the next node."""
     deps = runtime.context
     turns = tuple(t.as_turn() for t in state.narrator_turns)
-    response = await deps.port.complete(narrator_request(deps.prompts, _narrator_input(state, deps), turns))
+    try:
+        response = await deps.port.complete(narrator_request(deps.prompts, _narrator_input(state, deps), turns))
+    except LLMError as exc:
+        return _unavailable(state, "narrator", exc)
     return {"narrator_reply": response.text, "llm_calls": state.llm_calls + 1}
+
+
+def _unavailable(state: PlanningState, node: Literal["narrator", "event_parser"], exc: LLMError) -> dict[str, Any]:
+    """The model gave no answer after the client's own retries and fallbacks: this step fails
+    (the story goes on and asks again later). A replay miss is a bug in the run, not an outage,
+    so it propagates."""
+    if isinstance(exc, ReplayMissError):
+        raise exc
+    turns = state.narrator_turns if node == "narrator" else state.parser_turns
+    return {
+        "failure": PlanningFailure(
+            index=state.step, node=node, attempts=len(turns) + 1, feedback=f"{type(exc).__name__}: {exc}"
+        ),
+        "llm_calls": state.llm_calls + 1,
+    }
 
 
 async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
     """Accept the narrator's reply, or turn what is wrong with it into feedback."""
     deps = runtime.context
+    if state.failure is not None:
+        return {}
     reply = state.narrator_reply or ""
     attempts = len(state.narrator_turns) + 1
     try:
@@ -107,13 +128,18 @@ async def parse_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> d
     """One event-parser call; the program in its reply is run by the next node."""
     deps = runtime.context
     turns = tuple(t.as_turn() for t in state.parser_turns)
-    response = await deps.port.complete(parser_request(deps.prompts, _parser_input(state, deps), turns))
+    try:
+        response = await deps.port.complete(parser_request(deps.prompts, _parser_input(state, deps), turns))
+    except LLMError as exc:
+        return _unavailable(state, "event_parser", exc)
     return {"parser_reply": response.text, "llm_calls": state.llm_calls + 1}
 
 
 async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
     """Run the reply's parse_event() in the sandbox; a typed error becomes feedback."""
     deps = runtime.context
+    if state.failure is not None:
+        return {}
     assert state.event is not None
     reply = state.parser_reply or ""
     attempts = len(state.parser_turns) + 1

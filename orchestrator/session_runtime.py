@@ -198,6 +198,7 @@ class Session:
         self._next_plan_frame = 0
         self._in_flight: PlanningRequest | None = None
         self.planner_error: BaseException | None = None
+        self._failures_in_a_row = 0
 
     # ----- planning side ------------------------------------------------------------------
     async def _planning_task(
@@ -235,6 +236,11 @@ class Session:
         if self.on_outcome is not None:
             self.on_outcome(request.index, outcome, frame)
         retry = max(1, round(self.settings.retry_after_s * self.world.config.fps))
+        if isinstance(outcome, PlanningFailure):  # back off while the planner keeps failing
+            self._failures_in_a_row += 1
+            retry *= 2 ** min(self._failures_in_a_row - 1, 5)
+        else:
+            self._failures_in_a_row = 0
         if not isinstance(outcome, ParsedEvent):
             self._next_plan_frame = frame + retry
             return []

@@ -165,6 +165,7 @@ def test_logging_setup_json_when_not_a_tty() -> None:
     from orchestrator.logging_setup import configure_logging, force_logging_reset
 
     out = io.StringIO()
+    force_logging_reset()  # a CLI test may have configured logging already
     try:
         configure_logging("INFO", stream=out)
         configure_logging("DEBUG", json=False)  # ignored: configured once

@@ -32,13 +32,22 @@ def run_cli(args: list[str], tmp_path: Path) -> object:
 
 
 @pytest.mark.parametrize("name", sorted(GOLDEN))
-def test_replay_reproduces_the_recorded_output_byte_for_byte(name: str, tmp_path: Path) -> None:
+def test_replay_reproduces_the_recorded_output_byte_for_byte(
+    name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     from orchestrator import local_model
 
+    loads: list[str] = []
+
+    def no_load(spec: object) -> object:  # another test may have loaded the model already
+        loads.append(str(spec))
+        raise AssertionError("replay tried to load the embedded model")
+
+    monkeypatch.setattr(local_model, "get_llama", no_load)
     result = run_cli([*GOLDEN[name], "--replay", str(TRACES / f"{name}.jsonl")], tmp_path)
     assert result.exit_code == 0, result.stderr  # type: ignore[attr-defined]
     assert result.stdout == (TRACES / f"{name}.out").read_text(encoding="utf-8")  # type: ignore[attr-defined]
-    assert local_model.loaded_models() == []  # no model was loaded
+    assert loads == []  # no model was loaded
 
 
 @pytest.mark.parametrize("name", sorted(GOLDEN))

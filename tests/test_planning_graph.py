@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import pytest
 from langgraph.checkpoint.memory import InMemorySaver
 
 from agents.llm_port import LLMRequest, LLMResponse
@@ -179,6 +180,40 @@ async def test_retries_exhausted_is_a_failure_and_story_goes_on() -> None:
     assert outcomes[0][1] is not None and outcomes[0][1].node == "narrator"  # type: ignore[union-attr]
     assert outcomes[0][1].attempts == 3  # type: ignore[union-attr]
     assert story.events()[0].event.characters == ("Ann",)
+
+
+async def test_model_outage_fails_the_step_and_the_story_goes_on() -> None:
+    from agents.llm_port import LLMError, ReplayMissError
+
+    outage = [LLMError("node event_parser: all 3 attempts failed (Timeout)")]
+
+    class FlakyPort(ScriptedPort):
+        async def complete(self, request: LLMRequest) -> LLMResponse:
+            if request.node == "event_parser" and outage:
+                self.calls.append(request)
+                raise outage.pop()
+            return await super().complete(request)
+
+    port = FlakyPort({
+        "describer": [DESCRIPTION],
+        "narrator": [narration(["Ann"], "eat"), narration(["Ann"], "eat")],
+        "event_parser": [PROGRAM.format(who="Ann")],
+    })
+    _, story = await run_graph(port, 2, ["Ann"])
+    first, second = story.outcomes()
+    assert first[1] is not None and first[1].node == "event_parser"  # type: ignore[union-attr]
+    assert "Timeout" in first[1].feedback  # type: ignore[union-attr]
+    assert second[1] is not None and second[1].event.characters == ("Ann",)  # type: ignore[union-attr]
+
+    # a replay miss is not an outage: it stops the run
+    class MissPort(ScriptedPort):
+        async def complete(self, request: LLMRequest) -> LLMResponse:
+            if request.node == "narrator":
+                raise ReplayMissError("replay miss for node narrator")
+            return await super().complete(request)
+
+    with pytest.raises(ReplayMissError):
+        await run_graph(MissPort({"describer": [DESCRIPTION]}), 1, ["Ann"])
 
 
 async def test_wait_and_busy_characters_are_not_offered() -> None:
