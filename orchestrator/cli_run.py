@@ -195,7 +195,13 @@ async def _run(
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
     from orchestrator.checkpoints import StoryLog, open_checkpointer
-    from orchestrator.cli_plan import character_names, close_port, describer_mode_for, open_port, start_positions
+    from orchestrator.cli_plan import (
+        character_names,
+        close_port,
+        describer_mode_for,
+        open_port,
+        start_positions,
+    )
     from orchestrator.graph_step_planner import GraphStepPlanner, SessionWorld
     from orchestrator.planning_graph import compile_planning_graph
     from orchestrator.planning_state import PlanningDeps

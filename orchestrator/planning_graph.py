@@ -25,8 +25,8 @@ from langgraph.runtime import Runtime
 
 from agents.describer import describe_scene_cached
 from agents.event_parser import PARSER_RETRY_INSTRUCTION, ParserInput, parser_request, run_reply
-from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
 from agents.llm_port import LLMError, ReplayMissError
+from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
 from agents.narrator import NarratorInput, narrator_request, parse_narration
 from agents.retry_feedback import REJECTIONS, feedback_from_error
 from orchestrator.planning_state import RECENT_WINDOW, PlanningDeps, PlanningState, RetryTurn

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -58,7 +59,7 @@ def test_single_agent_path_is_connected_clear_and_shortest(i: int, j: int) -> No
     path = PLANNER.plan({"a": start}, {"a": goal}).paths["a"]
     assert path[0] == start
     length = 0.0
-    for p, q in zip(path, path[1:], strict=False):
+    for p, q in itertools.pairwise(path):
         d = (q[0] - p[0], q[1] - p[1])
         if d != (0, 0):
             assert GRID.moves[p[0], p[1], MOVES.index(d)]  # 8-connected, clear, no corner cut
@@ -90,8 +91,8 @@ def test_group_plans_have_no_conflicts_inside_the_window(n: int, seed: int) -> N
         assert plan_conflicts(ok, GRID.cell_size, GRID.body_radius) == []
     # Everyone, including agents that wait because their search failed: the committed steps.
     assert plan_conflicts(result.paths, GRID.cell_size, GRID.body_radius, steps=planner.commit_steps) == []
-    for a, path in result.paths.items():
-        for p, q in zip(path, path[1:], strict=False):
+    for path in result.paths.values():
+        for p, q in itertools.pairwise(path):
             assert max(abs(q[0] - p[0]), abs(q[1] - p[1])) <= 1
             assert GRID.free[q]
 

@@ -13,7 +13,13 @@ import numpy as np
 import pytest
 
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from orchestrator.session_runtime import Outcome, PlanningRequest, Session, SessionError, SessionSettings
+from orchestrator.session_runtime import (
+    Outcome,
+    PlanningRequest,
+    Session,
+    SessionError,
+    SessionSettings,
+)
 from sim.bundled_scenes import resolve_scene
 from sim.motion_database import load_databases
 from sim.motion_matching import MotionMatcher
