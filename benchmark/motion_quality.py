@@ -35,7 +35,12 @@ from pathlib import Path
 import numpy as np
 
 from sim.motion_clips import FOOT_JOINTS, MotionClip
-from sim.motion_config import MotionConfig, build_databases_from_config, import_entry, load_motion_config
+from sim.motion_config import (
+    MotionConfig,
+    build_databases_from_config,
+    import_entry,
+    load_motion_config,
+)
 from sim.motion_database import load_databases
 from sim.motion_matching import MotionMatcher, foot_sliding
 from sim.procedural_library import procedural_clips
