@@ -93,6 +93,13 @@ class TimedMotion:
         self._c.motion_s += time.perf_counter() - t0
         return out
 
+    def step_many(self, states: Any, queries: Any, dt: float) -> tuple[list[Any], list[Pose]]:
+        """The batched path the world uses (``MotionMatcher.step_many``), timed."""
+        t0 = time.perf_counter()
+        out = self._m.step_many(states, queries, dt)
+        self._c.motion_s += time.perf_counter() - t0
+        return out
+
 
 class TimedPlanner(PathPlanner):
     """WHCA* that times and records every planning call."""

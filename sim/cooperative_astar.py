@@ -152,6 +152,7 @@ class PathPlanner:
         self._build_neighbours()
         self._build_clearance_table(d_cells)
         self._heuristics: dict[int, list[float]] = {}
+        self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
         self._graph = self._static_graph()
 
     # ----- ids -----------------------------------------------------------------------------
@@ -239,32 +240,62 @@ class PathPlanner:
         segs += [(np.asarray(p, dtype=float), np.asarray(p, dtype=float)) for p in statics]
         if not segs:
             return {}
+        removed: dict[int, set[int]] = {}
+        for p, q in segs:
+            for cid, ks in self._removed_moves(p, q).items():
+                hit = removed.get(cid)
+                if hit is None:
+                    removed[cid] = set(ks)
+                else:
+                    hit.update(ks)
+        nbrs = self._nbrs
+        return {cid: [nb for k, nb in enumerate(nbrs[cid]) if k not in ks] for cid, ks in removed.items()}
+
+    def _removed_moves(self, p: np.ndarray, q: np.ndarray) -> dict[int, frozenset[int]]:
+        """For one static point / segment (p, q): cell id -> indices into ``_nbrs[cell]`` of the
+        moves that break the clearance rule against it (memoised per exact (p, q)).
+
+        Only cells within ``reach`` of the segment can lose a move; the test per move is the one
+        of ``_static_overrides`` (closest approach >= ``min(2r, distance at the move's start)``).
+        """
+        key = (p.tobytes(), q.tobytes())
+        hit = self._removed_memo.get(key)
+        if hit is not None:
+            return hit
         g = self.grid
         cs = g.cell_size
-        out: dict[int, list[tuple[int, float, int, int, int]]] = {}
         reach_m = self.min_distance + 2.0 * cs
-        cand: set[int] = set()
         rr = int(math.ceil(reach_m / cs)) + 1
-        for p, q in segs:
-            (i0, j0), (i1, j1) = g.cell_of(p), g.cell_of(q)
-            for i in range(min(i0, i1) - rr, max(i0, i1) + rr + 1):
-                for j in range(min(j0, j1) - rr, max(j0, j1) + rr + 1):
-                    if g.is_free(i, j):
-                        cand.add(self.cell_id((i, j)))
-        ps = np.array([p for p, _ in segs])
-        qs = np.array([q for _, q in segs])
-        for cid in sorted(cand):
-            a = self.grid.center_of(*self.id_cell(cid))
-            start = segment_distance(np.broadcast_to(a, ps.shape), np.broadcast_to(a, ps.shape), ps, qs)
+        (i0, j0), (i1, j1) = g.cell_of(p), g.cell_of(q)
+        cand = sorted(
+            self.cell_id((i, j))
+            for i in range(min(i0, i1) - rr, max(i0, i1) + rr + 1)
+            for j in range(min(j0, j1) - rr, max(j0, j1) + rr + 1)
+            if g.is_free(i, j)
+        )
+        out: dict[int, frozenset[int]] = {}
+        if cand:
+            centres = np.array([g.center_of(*self.id_cell(cid)) for cid in cand])
+            start = segment_distance(centres, centres, np.broadcast_to(p, centres.shape), np.broadcast_to(q, centres.shape))
             limit = np.minimum(self.min_distance, start) - 1e-7
-            kept = []
-            for nb in self._nbrs[cid]:
-                b = a + np.array([nb[2], nb[3]], dtype=float) * cs
-                closest = segment_distance(np.broadcast_to(a, ps.shape), np.broadcast_to(b, ps.shape), ps, qs)
-                if np.all(closest >= limit):
-                    kept.append(nb)
-            if len(kept) != len(self._nbrs[cid]):
-                out[cid] = kept
+            row_cell, row_k, dxy = [], [], []
+            for r, cid in enumerate(cand):
+                for k, nb in enumerate(self._nbrs[cid]):
+                    row_cell.append(r)
+                    row_k.append(k)
+                    dxy.append((nb[2], nb[3]))
+            rc = np.array(row_cell)
+            a = centres[rc]
+            b = a + np.array(dxy, dtype=float) * cs
+            closest = segment_distance(a, b, np.broadcast_to(p, a.shape), np.broadcast_to(q, a.shape))
+            bad = np.flatnonzero(~(closest >= limit[rc]))
+            per: dict[int, list[int]] = {}
+            for r in bad:
+                per.setdefault(cand[row_cell[r]], []).append(row_k[r])
+            out = {cid: frozenset(ks) for cid, ks in per.items()}
+        if len(self._removed_memo) > 4096:
+            self._removed_memo.clear()
+        self._removed_memo[key] = out
         return out
 
     # ----- planning ------------------------------------------------------------------------------------

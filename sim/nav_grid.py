@@ -127,7 +127,7 @@ class NavGrid:
         p = np.asarray(xy, dtype=float)
         if not _inside_bounds(p[None], self.bounds_min, self.bounds_max, self.body_radius)[0]:
             return False
-        return bool(body_clearance(self.obstacles, p[None], p[None])[0] >= self.body_radius - 1e-9)
+        return bool(body_clearance(self.obstacles, p[None], p[None], cutoff=self.body_radius)[0] >= self.body_radius - 1e-9)
 
     def nearest_free_cell(
         self, xy: np.ndarray | tuple[float, float], component: int | None = None
@@ -287,7 +287,7 @@ class NavGrid:
         cells = np.asarray(cand)
         centers = self.centers(cells)
         d = np.linalg.norm(centers - p, axis=1)
-        clear = body_clearance(self.obstacles, centers, np.broadcast_to(p, centers.shape)) >= self.body_radius
+        clear = body_clearance(self.obstacles, centers, np.broadcast_to(p, centers.shape), cutoff=self.body_radius) >= self.body_radius
         if not clear.any():
             return None
         k = int(np.flatnonzero(clear)[np.argmin(d[clear])])
@@ -340,14 +340,49 @@ def _segment_rect_distance(a: np.ndarray, b: np.ndarray, hw: float, hd: float) -
     return np.where(crosses, 0.0, dist)
 
 
-def body_clearance(obstacles: tuple[SceneObject, ...] | list[SceneObject], a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Smallest distance (N,) from segments a->b (N, 2) to any obstacle footprint (inf if none)."""
+def body_clearance(
+    obstacles: tuple[SceneObject, ...] | list[SceneObject], a: np.ndarray, b: np.ndarray, cutoff: float | None = None
+) -> np.ndarray:
+    """Smallest distance (N,) from segments a->b (N, 2) to any obstacle footprint (inf if none).
+
+    ``cutoff`` (metres): only distances below it are needed. Obstacles whose bounding circle
+    is at least ``cutoff`` from every segment are skipped, so a returned value below
+    ``cutoff`` is exact (the same floats as without it) and a value >= ``cutoff`` only says
+    "at least ``cutoff``" (comparisons against thresholds <= ``cutoff`` are unchanged).
+    """
     a = np.asarray(a, dtype=float).reshape(-1, 2)
     b = np.asarray(b, dtype=float).reshape(-1, 2)
     out = np.full(len(a), np.inf)
-    for obj in obstacles:
+    objs = list(obstacles)
+    if cutoff is not None and objs and len(a):
+        centres, radii = _bounding_circles(obstacles)
+        d = b - a
+        dd = np.maximum(np.sum(d * d, axis=1), 1e-18)[:, None]  # (N, 1)
+        rel = centres[None, :, :] - a[:, None, :]  # (N, M, 2)
+        t = np.clip((rel[..., 0] * d[:, None, 0] + rel[..., 1] * d[:, None, 1]) / dd, 0.0, 1.0)
+        gap = np.hypot(rel[..., 0] - t * d[:, None, 0], rel[..., 1] - t * d[:, None, 1]) - radii[None, :]
+        near = np.flatnonzero(np.min(gap, axis=0) < cutoff + 1e-6)
+        objs = [objs[k] for k in near]
+    for obj in objs:
         out = np.minimum(out, _segment_rect_distance(obj.to_local(a), obj.to_local(b), obj.width / 2.0, obj.depth / 2.0))
     return out
+
+
+_CIRCLES: dict[int, tuple[object, np.ndarray, np.ndarray]] = {}
+
+
+def _bounding_circles(obstacles: tuple[SceneObject, ...] | list[SceneObject]) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (M, 2) and radii (M,) of circles containing each footprint (memoised per sequence)."""
+    hit = _CIRCLES.get(id(obstacles))
+    if hit is not None and hit[0] is obstacles:
+        return hit[1], hit[2]
+    centres = np.array([o.center[:2] for o in obstacles], dtype=float).reshape(-1, 2)
+    radii = np.array([math.hypot(o.width / 2.0, o.depth / 2.0) for o in obstacles], dtype=float) * (1 + 1e-9) + 1e-9
+    if isinstance(obstacles, tuple):  # immutable: safe to memoise by identity
+        if len(_CIRCLES) > 32:
+            _CIRCLES.clear()
+        _CIRCLES[id(obstacles)] = (obstacles, centres, radii)
+    return centres, radii
 
 
 def _inside_bounds(p: np.ndarray, lo: tuple[float, float], hi: tuple[float, float], r: float) -> np.ndarray:

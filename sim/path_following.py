@@ -181,7 +181,7 @@ class CrowdNavigator:
                     if near is None else
                     f"a body of radius {g.body_radius} m at ({p[0]:.2f}, {p[1]:.2f}) would overlap {near}")
         c = g.center_of(int(goal[0]), int(goal[1]))
-        if float(body_clearance(g.obstacles, c[None], p[None])[0]) < g.body_radius - 1e-9:
+        if float(body_clearance(g.obstacles, c[None], p[None], cutoff=g.body_radius)[0]) < g.body_radius - 1e-9:
             near = _nearest_obstacle(g, p, c)
             return f"the straight walk from cell {tuple(goal)} to ({p[0]:.2f}, {p[1]:.2f}) would touch {near}"
         return None

@@ -177,3 +177,35 @@ def test_a_target_inside_furniture_is_reported_not_walked_into() -> None:
     nav.add_walker("a", FREE[0])
     with pytest.raises(PlanningError, match="table_1"):
         nav.set_goal("a", GRID.nearest_free_cell((1.5, 0.9)), final_xy=(1.5, 1.5))
+
+
+def _overrides_reference(planner: PathPlanner, segs: list[tuple[np.ndarray, np.ndarray]]) -> dict[int, list]:
+    """Direct per-cell computation of the moves kept next to static discs / segments."""
+    from sim.cooperative_astar import segment_distance
+
+    g, cs = planner.grid, planner.grid.cell_size
+    ps = np.array([p for p, _ in segs])
+    qs = np.array([q for _, q in segs])
+    out = {}
+    for cid, nbs in planner._nbrs.items():
+        a = g.center_of(*planner.id_cell(cid))
+        aa = np.broadcast_to(a, ps.shape)
+        limit = np.minimum(planner.min_distance, segment_distance(aa, aa, ps, qs)) - 1e-7
+        kept = [nb for nb in nbs
+                if np.all(segment_distance(aa, np.broadcast_to(a + np.array(nb[2:4], float) * cs, ps.shape), ps, qs) >= limit)]
+        if len(kept) != len(nbs):
+            out[cid] = kept
+    return out
+
+
+def test_memoised_static_overrides_match_a_direct_computation() -> None:
+    planner = PathPlanner(GRID)
+    rng = np.random.default_rng(5)
+    cells = [FREE[k] for k in rng.choice(len(FREE), 4, replace=False)]
+    discs = [GRID.center_of(*c) + rng.normal(scale=0.1, size=2) for c in cells[:3]]
+    leg = (GRID.center_of(*cells[3]), GRID.center_of(*cells[3]) + np.array([0.12, 0.2]))
+    want = _overrides_reference(planner, [leg] + [(p, p) for p in discs])
+    for _ in range(2):  # second call: from the memo
+        got = planner._static_overrides(discs, [leg])
+        assert got == want
+    assert want  # the discs do remove moves

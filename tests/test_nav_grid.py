@@ -144,3 +144,21 @@ def test_office_approach_points_fit_a_body_and_are_reached_in_a_straight_line() 
         assert ap.gap <= np.linalg.norm(grid.center_of(*grid.approach_cell(obj)) - obj.seat_point()) + 1e-9 or (
             grid.component[ap.cell] != grid.main_component
         )
+
+
+def test_body_clearance_cutoff_is_exact_below_the_cutoff_and_a_bound_above() -> None:
+    scene = _office()
+    grid = build_nav_grid(scene)
+    rng = np.random.default_rng(3)
+    lo, hi = np.asarray(scene.bounds_min), np.asarray(scene.bounds_max)
+    a = lo + rng.random((400, 2)) * (hi - lo)
+    b = a + rng.normal(scale=0.3, size=a.shape)
+    b[:100] = a[:100]  # points too
+    full = body_clearance(grid.obstacles, a, b)
+    for cutoff in (0.0, 0.25, 0.6):
+        cut = body_clearance(grid.obstacles, a, b, cutoff=cutoff)
+        below = full < cutoff
+        assert np.array_equal(cut[below], full[below])  # the very same floats
+        assert np.all(cut[~below] >= cutoff)
+        assert np.all(cut >= full)
+    assert below.any() and (~below).any()
