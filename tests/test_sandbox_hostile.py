@@ -15,6 +15,7 @@ from tools.sandbox import (
     ProgramRuntimeError,
     ProgramSyntaxError,
     execute,
+    run_program,
 )
 
 
@@ -219,6 +220,26 @@ HOSTILE: list[tuple[str, object, type[EventProgramError]]] = [
         ),
         B,
     ),
+    (
+        "hash_collision_set",
+        body("return set([i * (2**61 - 1) for i in range(20000)])"),
+        B,
+    ),
+    (
+        "hash_collision_display",
+        body("xs = [i * (2**61 - 1) for i in range(20000)]\nreturn {*xs}"),
+        B,
+    ),
+    (
+        "hash_collision_dict",
+        body("return dict([(i * (2**61 - 1), 0) for i in range(20000)])"),
+        B,
+    ),
+    (
+        "hash_collision_union",
+        body("a = {i * (2**61 - 1) for i in range(4000)}\nreturn a.union(a, a)"),
+        B,
+    ),
     ("round_huge_ndigits", body("return round(5, -10**9)"), R),
     ("complex_result", body("return (-1) ** 0.5"), R),
     # bad values for tools
@@ -263,6 +284,54 @@ def test_hostile_program_fails_typed_and_changes_nothing(
 def test_there_are_at_least_forty_hostile_programs() -> None:
     assert len(HOSTILE) >= 40
     assert len({name for name, _, _ in HOSTILE}) == len(HOSTILE)
+
+
+# `x in range(...)` for an item that is not an int: CPython compares it with every number
+# of the range in C (no budget can stop that); the sandbox answers arithmetically.
+RANGE_MEMBERSHIP: list[tuple[str, str, object]] = [
+    ("half_in_huge_range", "0.5 in range(10**15)", False),
+    ("str_in_huge_range", "'a' in range(10**12)", False),
+    ("none_in_huge_range", "None in range(10**12)", False),
+    ("list_in_huge_range", "[1] in range(10**12)", False),
+    ("tuple_in_huge_range", "(1, 2) in range(10**12)", False),
+    ("nan_in_huge_range", "float('nan') in range(10**15)", False),
+    ("inf_in_huge_range", "float('inf') in range(10**15)", False),
+    ("half_not_in_huge_range", "0.5 not in range(10**15)", True),
+    ("whole_float_in_huge_range", "3.0 in range(1, 10**15, 2)", True),
+    ("whole_float_off_step", "4.0 in range(1, 10**15, 2)", False),
+    ("negative_float_in_range", "-2.0 in range(-10**15, 0)", True),
+    ("big_float_outside_range", "1e300 in range(10**15)", False),
+    ("int_in_huge_range", "10**14 in range(10**15)", True),
+    ("bool_in_range", "True in range(10**15)", True),
+]
+
+
+@pytest.mark.parametrize(
+    ("expression", "expected"),
+    [(e, r) for _, e, r in RANGE_MEMBERSHIP],
+    ids=[n for n, _, _ in RANGE_MEMBERSHIP],
+)
+def test_membership_in_huge_ranges_is_arithmetic(expression: str, expected: object) -> None:
+    run = run_program(body(f"return {expression}"), {})
+    assert run.result is expected
+    assert run.steps < 50  # answered in one step, not by walking the range
+
+
+@pytest.mark.parametrize(
+    "expression",
+    [
+        "set([i % 7 for i in range(20000)])",
+        "set([float(i % 7) for i in range(20000)])",
+        "set(range(20000)) == set(range(20000))",
+        "dict([(i, i) for i in range(5000)])",
+        "{*range(5000)} | {*range(2500, 7500)}",
+        "set([(i % 3, None) for i in range(3000)])",
+    ],
+)
+def test_duplicate_and_distinct_keys_are_not_mistaken_for_hash_collisions(
+    expression: str,
+) -> None:
+    execute(body(f"return {expression}"), {})
 
 
 def test_tool_results_and_constants_are_not_aliased() -> None:

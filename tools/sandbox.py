@@ -55,6 +55,7 @@ from tools.sandbox_builtins import (
     BuiltinImpl,
     MethodImpl,
     binary,
+    check_hash_spread,
     check_key,
     compare,
     detach,
@@ -1227,6 +1228,7 @@ class _Interpreter:
         items = self.collect(node.elts, scope, node.lineno)
         for item in items:
             check_key(item, node.lineno)
+        check_hash_spread(items, self.meter, node.lineno)
         return set(items)
 
     def e_dict(self, node: ast.Dict, scope: _Scope) -> object:
@@ -1240,6 +1242,7 @@ class _Interpreter:
                         f"'**' needs a dict, not '{type_name(other)}'", line=line
                     )
                 self.meter.check_len(len(out) + len(other), line)  # type: ignore[arg-type]
+                check_hash_spread([*out, *other], self.meter, line)  # type: ignore[misc]
                 out.update(other)  # type: ignore[call-overload]
                 continue
             key = self.eval(k, scope)

@@ -9,6 +9,8 @@ interpreter seen from here (it calls program functions for ``key=`` arguments).
 from __future__ import annotations
 
 import ast
+import itertools
+import math
 import numbers
 import operator
 import re
@@ -269,6 +271,7 @@ def binary(op: ast.operator, a: object, b: object, meter: Meter, line: Line) -> 
         and tb in (set, frozenset, dict)
     ):
         meter.check_len(len(a) + len(b), line)  # type: ignore[arg-type]
+        check_hash_spread([*a, *b], meter, line)  # type: ignore[misc]
     try:
         result = fn(a, b)
     except ZeroDivisionError:
@@ -325,6 +328,7 @@ _COMPARE: dict[type[ast.cmpop], tuple[str, Callable[[object, object], object]]] 
 
 
 CONTAINER_TYPES = frozenset({list, tuple, dict, set, frozenset})
+_HASHED = frozenset({dict, set, frozenset})
 
 
 def comparison_work(meter: Meter, line: Line, items: list[object], repeat: int = 1) -> None:
@@ -368,6 +372,8 @@ def compare(op: ast.cmpop, a: object, b: object, meter: Meter, line: Line) -> bo
                 line=line,
             )
         meter.work(work, line)
+        if type(a) in _HASHED and type(b) in _HASHED:
+            check_hash_spread([*a, *b], meter, line)  # type: ignore[misc]
     symbol, fn = _COMPARE[t]
     try:
         return bool(fn(a, b))
@@ -391,11 +397,77 @@ def contains(container: object, item: object, meter: Meter, line: Line) -> bool:
         meter.work(len(container), line)  # type: ignore[arg-type]
         if type(item) in CONTAINER_TYPES:
             comparison_work(meter, line, [item], repeat=len(container))  # type: ignore[arg-type]
-    elif t is not range:
+    elif t is range:
+        return range_contains(container, item)  # type: ignore[arg-type]
+    else:
         raise ProgramRuntimeError(
             f"'in' needs a list, tuple, dict, set, string or range, not '{t.__name__}'", line=line
         )
     return item in container  # type: ignore[operator]
+
+
+def range_contains(r: range, item: object) -> bool:
+    """``item in r`` in constant time.
+
+    CPython answers ``in range`` arithmetically only for ints; any other item (``0.5 in
+    range(10**15)``, ``'a' in range(10**12)``) makes it compare the item with every number
+    of the range, in C, where no budget can stop it. A float is in the range if it is a
+    whole number that is; nothing else equals an int.
+    """
+    ti = type(item)
+    if ti is int or ti is bool:
+        return item in r
+    if ti is float:
+        f: float = item  # type: ignore[assignment]
+        return math.isfinite(f) and f.is_integer() and int(f) in r
+    return False
+
+
+HASH_GUARD_MIN = 256
+"""Bulk set / dict builds with fewer items than this skip the hash-collision check."""
+COLLISION_PROBES = 200_000
+"""Comparisons a bulk set / dict build may need because distinct keys share a hash value."""
+
+
+def check_hash_spread(items: list[object], meter: Meter, line: Line) -> None:
+    """Before a set / dict is built from (or compared with) ``items`` in one C call.
+
+    Python hashes an int by its value modulo 2**61 - 1, so a program can build thousands of
+    distinct numbers with one hash value (``[i * (2**61 - 1) for i in range(20000)]``);
+    putting them in one set then compares every pair, for seconds, inside a single C call.
+    Counts the distinct values sharing each hash (sorting a shared-hash group, never hashing
+    it again) and refuses the build if the comparisons would pass ``COLLISION_PROBES``.
+    """
+    n = len(items)
+    if n < HASH_GUARD_MIN:
+        return
+    meter.work(n, line)
+    groups: dict[int, list[object]] = {}
+    for item in items:
+        groups.setdefault(hash(item), []).append(item)
+    if len(groups) == n:
+        return
+    probes = 0
+    for group in groups.values():
+        if len(group) > 16:
+            distinct = _distinct_count(group)
+            probes += distinct * distinct // 2
+    if probes > COLLISION_PROBES:
+        raise BudgetExceededError(
+            "too many different values in one set or dict share the same hash value "
+            f"(about {probes} comparisons, limit {COLLISION_PROBES}); use fewer or smaller "
+            "numbers as keys",
+            line=line,
+        )
+
+
+def _distinct_count(group: list[object]) -> int:
+    """Distinct values among items with one hash value, without hashing them again."""
+    try:
+        ordered = sorted(group)  # type: ignore[type-var]
+    except TypeError:  # mixed types: count identities (an over-estimate)
+        return len({id(v) for v in group})
+    return 1 + sum(1 for a, b in itertools.pairwise(ordered) if a != b)
 
 
 # ---------------------------------------------------------------- built-in functions
@@ -572,6 +644,7 @@ def _b_set(host: Host, args: list[object], kwargs: dict[str, object], line: Line
     items = materialize(args[0], host.meter, line) if args else []
     for item in items:
         check_key(item, line)
+    check_hash_spread(items, host.meter, line)
     return set(items)
 
 
@@ -589,6 +662,8 @@ def _b_dict(host: Host, args: list[object], kwargs: dict[str, object], line: Lin
             if type(pair) not in (tuple, list) or len(pair) != 2:  # type: ignore[arg-type]
                 raise ProgramRuntimeError("dict() needs (key, value) pairs", line=line)
             check_key(pair[0], line)  # type: ignore[index]
+        check_hash_spread([pair[0] for pair in pairs], host.meter, line)  # type: ignore[index]
+        for pair in pairs:
             out[pair[0]] = pair[1]  # type: ignore[index]
     out.update(kwargs)
     return out
@@ -827,6 +902,7 @@ def _dict_update(
     other = _b_dict(host, args, kwargs, line)
     d: dict[object, object] = obj  # type: ignore[assignment]
     host.meter.check_len(len(d) + len(other), line)  # type: ignore[arg-type]
+    check_hash_spread([*d, *other], host.meter, line)  # type: ignore[misc]
     d.update(other)  # type: ignore[call-overload]
     return None
 
@@ -861,6 +937,7 @@ def _set_combine(name: str) -> MethodImpl:
         for other in others:
             for item in other:
                 check_key(item, line)
+        check_hash_spread([*obj, *(item for other in others for item in other)], host.meter, line)  # type: ignore[misc]
         return getattr(obj, name)(*others)
 
     return impl
@@ -875,7 +952,17 @@ _STR_PLAIN = tuple(
     """
     )
 )
-_SET_READ = ("copy",)
+
+
+def _set_copy(
+    host: Host, obj: object, args: list[object], kwargs: dict[str, object], line: Line
+) -> object:
+    _arity("set.copy", args, kwargs, line, 0, 0)
+    check_hash_spread(list(obj), host.meter, line)  # type: ignore[call-overload]
+    host.meter.check_len(len(obj), line)  # type: ignore[arg-type]
+    return obj.copy()  # type: ignore[attr-defined]
+
+
 _SET_COMBINE = (
     "union",
     "intersection",
@@ -909,14 +996,15 @@ METHODS: dict[type, dict[str, MethodImpl]] = {
     },
     tuple: {n: _plain(n, searches=True) for n in ("index", "count")},
     set: {
-        **{n: _plain(n) for n in ("pop", "clear", *_SET_READ)},
+        **{n: _plain(n) for n in ("pop", "clear")},
+        "copy": _set_copy,
         **{n: _plain(n, key_arg=True) for n in ("remove", "discard")},
         **{n: _set_combine(n) for n in _SET_COMBINE},
         "add": _set_add,
         "update": _set_combine("update"),
     },
     frozenset: {
-        **{n: _plain(n) for n in _SET_READ},
+        "copy": _set_copy,
         **{n: _set_combine(n) for n in _SET_COMBINE},
     },
 }
