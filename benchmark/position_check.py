@@ -48,6 +48,8 @@ TOLERANCES: dict[str, float] = {
 }
 FLOOR_SUPPORT = 0.10
 BETWEEN_OFF_LINE = 0.5
+UNKNOWN_SEAT = object()
+"""``check_position(seat=...)`` default: judge "sit on X" by the position alone."""
 
 _ATOM = re.compile(
     r"^(?P<rel>in front of|behind|to the left of|to the right of|adjacent to|close to|inside|sit on|lie on)"
@@ -103,9 +105,10 @@ def between_distance(a: SceneObject, b: SceneObject, xy: np.ndarray) -> float:
 
 
 class _Parser:
-    def __init__(self, scene: Scene, expression: str, xy: np.ndarray):
+    def __init__(self, scene: Scene, expression: str, xy: np.ndarray, seat: str | None | object = UNKNOWN_SEAT):
         self.scene = scene
         self.xy = xy
+        self.seat = seat
         self.tokens = [t.strip() for t in _TOKENS.split(expression) if t.strip()]
         self.i = 0
         self.seats: set[str] = set()
@@ -167,6 +170,8 @@ class _Parser:
             relation, obj = m.group("rel"), self._object(m.group("a"))
             if relation in ("sit on", "lie on"):
                 self.seats.add(obj.name)
+                if self.seat is not UNKNOWN_SEAT:  # the plan says which seat it took
+                    return self.seat == obj.name, 0.0 if self.seat == obj.name else float("inf")
             if relation in ("in front of", "behind", "to the left of", "to the right of"):
                 distance = directional_distance(obj, relation, self.xy)
             else:
@@ -189,13 +194,18 @@ def collision(
 
 
 def check_position(
-    scene: Scene, expression: str, position: tuple[float, float] | list[float]
+    scene: Scene, expression: str, position: tuple[float, float] | list[float],
+    seat: str | None | object = UNKNOWN_SEAT,
 ) -> CheckResult:
-    """Whether ``position`` (x, y in metres) satisfies ``expression`` without collision."""
+    """Whether ``position`` (x, y in metres) satisfies ``expression`` without collision.
+
+    ``seat``: the seat the plan took (None: standing). When given, "sit on X" / "lie on X"
+    hold exactly when the plan took X, whatever the point (a standing point on a couch's
+    footprint is not sitting on it)."""
     xy = np.asarray(position, dtype=float).reshape(2)
     if not np.all(np.isfinite(xy)):
         return CheckResult(False, False, float("inf"), None)
-    parser = _Parser(scene, expression, xy)
+    parser = _Parser(scene, expression, xy, seat)
     ok, error = parser.parse()
     hit = collision(scene, xy, parser.seats)
     return CheckResult(ok and hit is None, ok, error, hit)
