@@ -31,7 +31,7 @@ from typing import Any
 
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")  # before litellm is imported
 
-from agents.ablation_planners import (  # noqa: E402
+from agents.ablation_planners import (
     DirectInferencePlanner,
     EventDrivenPlanner,
     Planner,
@@ -40,11 +40,11 @@ from agents.ablation_planners import (  # noqa: E402
     object_list_description,
     scene_graph_description,
 )
-from agents.llm_port import LLMPort  # noqa: E402
-from agents.messages import SceneDescription  # noqa: E402
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary  # noqa: E402
-from benchmark.plan_scoring import CaseScore, score_outcome  # noqa: E402
-from benchmark.reference_cases import (  # noqa: E402
+from agents.llm_port import LLMPort
+from agents.messages import SceneDescription
+from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from benchmark.plan_scoring import CaseScore, score_outcome
+from benchmark.reference_cases import (
     TAGS,
     BenchmarkCase,
     BenchmarkCaseError,
@@ -52,8 +52,8 @@ from benchmark.reference_cases import (  # noqa: E402
     planning_inputs,
     scene_dir,
 )
-from sim.scene import Scene  # noqa: E402
-from tools.scene_graph import SceneGraph, build_scene_graph  # noqa: E402
+from sim.scene import Scene
+from tools.scene_graph import SceneGraph, build_scene_graph
 
 PROJECT = Path(__file__).resolve().parents[1]
 DEFAULT_REFERENCE = PROJECT.parent / "shared" / "reference" / "event-driven-storytelling"

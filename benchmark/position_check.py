@@ -105,7 +105,7 @@ def between_distance(a: SceneObject, b: SceneObject, xy: np.ndarray) -> float:
 
 
 class _Parser:
-    def __init__(self, scene: Scene, expression: str, xy: np.ndarray, seat: str | None | object = UNKNOWN_SEAT):
+    def __init__(self, scene: Scene, expression: str, xy: np.ndarray, seat: str | object | None = UNKNOWN_SEAT):
         self.scene = scene
         self.xy = xy
         self.seat = seat
@@ -195,7 +195,7 @@ def collision(
 
 def check_position(
     scene: Scene, expression: str, position: tuple[float, float] | list[float],
-    seat: str | None | object = UNKNOWN_SEAT,
+    seat: str | object | None = UNKNOWN_SEAT,
 ) -> CheckResult:
     """Whether ``position`` (x, y in metres) satisfies ``expression`` without collision.
 

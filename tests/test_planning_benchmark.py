@@ -19,7 +19,13 @@ from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailur
 from agents.prompt_templates import PromptLibrary
 from benchmark.plan_scoring import ActionExpressionError, action_matches, score_outcome
 from benchmark.planning_benchmark import Descriptions, main, run_cases, summary_rows
-from benchmark.reference_cases import BenchmarkCaseError, load_case, load_cases, planning_inputs, scene_dir
+from benchmark.reference_cases import (
+    BenchmarkCaseError,
+    load_case,
+    load_cases,
+    planning_inputs,
+    scene_dir,
+)
 from sim.scene_files import load_scene
 
 REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling"
