@@ -70,10 +70,11 @@ class PlanResult:
 
 class _Reservations:
     """Per step t (relative to the plan start): for every cell id near a reserved agent, the
-    clearance-table bases of those agents, so that a search looks up one list per expansion.
+    moves those agents still allow there, so that a search looks up one list per expansion.
 
-    ``near[t][cell]`` lists ``(agent, base)`` with ``base`` the index of (offset, velocity) in
-    the flat clearance table; ``cells[t][agent]`` is the agent's start cell id at step t.
+    ``near[t][cell]`` lists ``(agent, mask)``: bit ``m + 6`` of ``mask`` is set when the move
+    with code ``m = 5 * dx + dy`` from ``cell`` keeps clear of ``agent`` during step t (entries
+    allowing every move are left out).
     """
 
     def __init__(self, n_steps: int, planner: PathPlanner) -> None:
@@ -82,21 +83,19 @@ class _Reservations:
 
     def add(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
         nyp = self._planner._ny_p
-        tables = self._planner._near_cells
+        masks = self._planner._near_masks
         for t in range(min(upto, len(ids) - 1, len(self.near))):
             a, b = ids[t], ids[t + 1]
             d = b - a
             dx = round(d / nyp) if abs(d) > 1 else 0
             dy = d - dx * nyp
-            vel = (dx + 2) * 5 + (dy + 2)
             near = self.near[t]
-            for cell, base in tables[a]:
-                entry = (agent, base + vel)
+            for cell, mask in masks(a, (dx + 2) * 5 + (dy + 2)):
                 lst = near.get(cell)
                 if lst is None:
-                    near[cell] = [entry]
+                    near[cell] = [(agent, mask)]
                 else:
-                    lst.append(entry)
+                    lst.append((agent, mask))
 
     def remove(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
         tables = self._planner._near_cells
@@ -151,6 +150,7 @@ class PathPlanner:
         self._nx_p, self._ny_p = nx + 2 * self._pad, ny + 2 * self._pad
         self._build_neighbours()
         self._build_clearance_table(d_cells)
+        self._build_move_masks()
         self._heuristics: dict[int, list[float]] = {}
         self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
         self._graph = self._static_graph()
@@ -194,6 +194,36 @@ class PathPlanner:
                         start = math.hypot(di, dj)
                         closest = _segment_min_norm(di, dj, wx, wy)
                         self._safe.append(closest >= min(d_cells, start) - 1e-7)
+
+    def _build_move_masks(self) -> None:
+        """Search tables: per cell the moves as (next id, cost, move bit); per clearance-table
+        base (offset and the other's velocity) the bit mask of our moves it allows."""
+        self._full_mask = sum(1 << (5 * dx + dy + 6) for dx in (-1, 0, 1) for dy in (-1, 0, 1))
+        self._snbrs: dict[int, list[tuple[int, float, int]]] = {
+            cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in self._nbrs.items()
+        }
+        safe = self._safe
+        self._mask_of: list[int] = []
+        for base in range(len(safe)):
+            mask = 0
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    k = base - (5 * dx + dy)
+                    if 0 <= k < len(safe) and k // 25 == base // 25 and safe[k]:
+                        mask |= 1 << (5 * dx + dy + 6)
+            self._mask_of.append(mask)
+        self._near_mask_memo: dict[int, list[tuple[int, int]]] = {}
+
+    def _near_masks(self, a: int, vel: int) -> list[tuple[int, int]]:
+        """(cell, mask) for the cells near an agent leaving cell id ``a`` with velocity code
+        ``vel``, skipping cells where it allows every move (memoised)."""
+        key = a * 25 + vel
+        out = self._near_mask_memo.get(key)
+        if out is None:
+            full, mask_of = self._full_mask, self._mask_of
+            out = [(cell, m) for cell, base in self._near_cells[a] if (m := mask_of[base + vel]) != full]
+            self._near_mask_memo[key] = out
+        return out
 
     def _static_graph(self):  # type: ignore[no-untyped-def]
         g = self.grid
@@ -331,6 +361,7 @@ class PathPlanner:
             order = [a for a in order if a in starts] + [a for a in agents if a in missing]
         overrides = self._static_overrides([np.asarray(p, dtype=float) for p in static_obstacles], static_segments)
         used_goals = {a: self._usable_goal(starts[a], goals.get(a), overrides) for a in agents}
+        overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in overrides.items()}
         # Pass 1: plain WHCA*. An agent whose search fails was cornered by the first steps of
         # agents planned before it; its wait is then reserved for the committed steps and the
         # call planned again (lazy wait reservation: only agents that need it hold their
@@ -424,53 +455,61 @@ class PathPlanner:
         """Space-time A* from ``start`` for ``window`` steps; returns padded ids (window + 1) or None."""
         h = self.heuristic(goal)
         gid = self.cell_id(goal)
-        nbrs = self._nbrs
-        safe = self._safe
+        nbrs = self._snbrs
+        full = self._full_mask
         near = res.near
         n_steps = len(near)
+        stride = self._nx_p * self._ny_p
+        max_exp = self.max_expansions
+        inf = math.inf
+        heappop, heappush = heapq.heappop, heapq.heappush
         h0 = h[start]
         heap: list[tuple[float, float, int, int]] = [(h0, h0, 0, start)]
-        g_best: dict[tuple[int, int], float] = {(start, 0): 0.0}
-        parent: dict[tuple[int, int], int] = {}
+        g_best: dict[int, float] = {start: 0.0}  # key: t * stride + cell id
+        parent: dict[int, int] = {}
         expansions = 0
         while heap:
-            f, hc, t, cid = heapq.heappop(heap)
-            key = (cid, t)
+            f, hc, t, cid = heappop(heap)
+            key = t * stride + cid
             g = f - hc
-            if g > g_best.get(key, math.inf) + 1e-9:
+            if g > g_best.get(key, inf) + 1e-9:
                 continue
             if t == window:
                 path = [cid]
                 while key in parent:
                     prev = parent[key]
-                    key = (prev, key[1] - 1)
+                    t -= 1
+                    key = t * stride + prev
                     path.append(prev)
                 path.reverse()
                 return path, expansions
             expansions += 1
-            if expansions > self.max_expansions:
+            if expansions > max_exp:
                 return None, expansions
-            others = near[t].get(cid) if t < n_steps else None
-            at_goal = cid == gid
-            for nid, cost, _dx, _dy, m in overrides.get(cid, nbrs[cid]):
+            allow = full
+            if t < n_steps:
+                others = near[t].get(cid)
                 if others:
-                    ok = True
-                    for _, base in others:
-                        if not safe[base - m]:
-                            ok = False
-                            break
-                    if not ok:
-                        continue
-                step_cost = 0.0 if (at_goal and nid == cid) else cost
-                ng = g + step_cost
-                nkey = (nid, t + 1)
-                if ng < g_best.get(nkey, math.inf) - 1e-9:
+                    for _, mk in others:
+                        allow &= mk
+            moves = overrides.get(cid)
+            if moves is None:
+                moves = nbrs[cid]
+            nt = t + 1
+            nbase = nt * stride
+            at_goal = cid == gid
+            for nid, cost, bit in moves:
+                if not allow & bit:
+                    continue
+                ng = g if (at_goal and nid == cid) else g + cost
+                nkey = nbase + nid
+                if ng < g_best.get(nkey, inf) - 1e-9:
                     hn = h[nid]
-                    if hn == math.inf:
+                    if hn == inf:
                         continue
                     g_best[nkey] = ng
                     parent[nkey] = cid
-                    heapq.heappush(heap, (ng + hn, hn, t + 1, nid))
+                    heappush(heap, (ng + hn, hn, nt, nid))
         return None, expansions
 
 

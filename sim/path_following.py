@@ -36,7 +36,6 @@ from sim.cooperative_astar import (
     PathPlanner,
     PlanningError,
     PlanResult,
-    position_at,
     segment_distance,
 )
 from sim.nav_grid import NavGrid, body_clearance
@@ -86,6 +85,7 @@ class CrowdNavigator:
         self._cells: dict[Agent, Cell] = {}
         self._goals: dict[Agent, Cell | None] = {}
         self._paths: dict[Agent, list[Cell]] = {}
+        self._tracks: dict[Agent, np.ndarray] = {}  # per-frame positions on _paths (see _track)
         self._plan_frame = 0
         self._static: dict[Agent, np.ndarray] = {}
         self._final: dict[Agent, np.ndarray] = {}  # exact target of the current goal
@@ -136,6 +136,7 @@ class CrowdNavigator:
         self._cells[agent] = cell
         self._goals[agent] = None
         self._paths[agent] = [cell]
+        self._tracks.pop(agent, None)
         if start is not None and float(np.linalg.norm(start - self.grid.center_of(*cell))) > 1e-9:
             self._parked[agent] = start
         self.set_goal(agent, goal, final_xy=final_xy)
@@ -205,6 +206,7 @@ class CrowdNavigator:
         self._cells.pop(agent, None)
         self._goals.pop(agent, None)
         self._paths.pop(agent, None)
+        self._tracks.pop(agent, None)
         self._final.pop(agent, None)
         self._parked.pop(agent, None)
         self._legs.pop(agent, None)
@@ -235,8 +237,30 @@ class CrowdNavigator:
         parked = self._parked.get(agent)
         if parked is not None:
             return parked.copy()
-        t = (frame - self._plan_frame) / self.fps
-        return position_at(self._paths[agent], t, self.grid, self.planner.step_time)
+        track = self._track(agent)
+        d = min(max(frame - self._plan_frame, 0), len(track) - 1)
+        return track[d].copy()
+
+    def _track(self, agent: Agent) -> np.ndarray:
+        """Positions (D, 2) on the agent's current path for the frames ``_plan_frame + d``
+        (d = 0 .. D - 1; later frames: the last row), computed once per plan with the very
+        arithmetic of ``position_at``."""
+        track = self._tracks.get(agent)
+        if track is None:
+            path = self._paths[agent]
+            cells = np.asarray(path, dtype=float).reshape(-1, 2)
+            centres = np.asarray(self.grid.origin) + (cells + 0.5) * self.grid.cell_size
+            d = np.arange((len(path) - 1) * self.step_frames + 2)
+            u = (d / self.fps) / self.planner.step_time
+            k = np.floor(u).astype(np.int64)
+            last = len(path) - 1
+            kk = np.minimum(k, max(last - 1, 0))
+            s = (u - kk)[:, None]
+            nxt = np.minimum(kk + 1, last)
+            track = (1.0 - s) * centres[kk] + s * centres[nxt]
+            track[(u <= 0) | (k >= last)] = centres[np.where(u <= 0, 0, last)][(u <= 0) | (k >= last)]
+            self._tracks[agent] = track
+        return track
 
     def position(self, agent: Agent) -> np.ndarray:
         """Where the walker is at the last produced frame (before the first tick: now), metres."""
@@ -251,6 +275,10 @@ class CrowdNavigator:
 
         Follows the current plan (and leg); beyond it the walker stays where the plan ends."""
         base = self.frame - 1
+        if agent not in self._legs and agent not in self._parked:
+            track = self._track(agent)
+            off, last = base - self._plan_frame, len(track) - 1
+            return track[[min(max(int(k) + off, 0), last) for k in frames]]
         return np.stack([self._xy_at(agent, base + int(k)) for k in frames])
 
     # ----- time ------------------------------------------------------------------------------------
@@ -384,6 +412,7 @@ class CrowdNavigator:
             static_segments=segments,
         )
         self._paths = {a: list(p) for a, p in result.paths.items()}
+        self._tracks = {}
         for a in off:
             self._paths[a] = [self._cells[a]]
         self._plan_frame = self.frame

@@ -605,23 +605,37 @@ class World:
         labels: list[str] = []
         heading = np.empty(n)
         root = np.empty((n, 2))
+        walkers = [k for k, name in enumerate(self.names) if self.characters[name].walker]
+        if walkers:  # the walkers' arrays in one go: planned futures, distances, future headings
+            wnames = [self.names[k] for k in walkers]
+            horizon = (*FUTURE_FRAMES, self.config.heading_lookahead)
+            w_xy = np.stack([walk_xy[nm] for nm in wnames])
+            w_fut = np.stack([nav.future(nm, horizon) for nm in wnames])
+            w_prev = np.stack([self.characters[nm].xy for nm in wnames])
+            ahead_all = w_fut[:, 3] - w_xy
+            dist_all = np.hypot(ahead_all[:, 0], ahead_all[:, 1])
+            moved = w_xy - w_prev
+            moving_all = np.hypot(moved[:, 0], moved[:, 1]) > 1e-6
+            steps_all = np.diff(np.concatenate([w_xy[:, None], w_fut[:, :3]], axis=1), axis=1)
+            step_len = np.hypot(steps_all[..., 0], steps_all[..., 1])
+            step_dir = np.arctan2(steps_all[..., 1], steps_all[..., 0])
+        slot = {k: i for i, k in enumerate(walkers)}
         for k, name in enumerate(self.names):
             c = self.characters[name]
             moving = False
             fut_xy = fut_h = None
             if c.walker:
+                i = slot[k]
                 xy = walk_xy[name]
-                fut = nav.future(name, (*FUTURE_FRAMES, self.config.heading_lookahead))
-                fut_xy = fut[:3]
-                ahead = fut[3] - xy
-                dist = float(np.hypot(*ahead))
-                moving = float(np.hypot(*(xy - c.xy))) > 1e-6
+                fut_xy = w_fut[i, :3]
+                ahead = ahead_all[i]
+                dist = float(dist_all[i])
+                moving = bool(moving_all[i])
                 h = c.heading
                 if dist > 0.05:
                     err = wrap_angle(math.atan2(ahead[1], ahead[0]) - c.heading)
                     h = c.heading + float(np.clip(err, -max_turn, max_turn))
-                steps = np.diff(np.vstack([xy, fut_xy]), axis=0)
-                fut_h = np.where(np.hypot(steps[:, 0], steps[:, 1]) > 1e-6, np.arctan2(steps[:, 1], steps[:, 0]), h)
+                fut_h = np.where(step_len[i] > 1e-6, step_dir[i], h)
                 c.xy, c.heading = np.asarray(xy, dtype=float), wrap_angle(h)
             else:
                 self._stationary_root(c)
