@@ -5,8 +5,12 @@
   ``parse_event()`` for the free characters straight from the instruction and the story,
   without an explicit event; the event is read back from the program's plans.
 - :class:`DirectInferencePlanner` ("Direct Inference"): narrator as usual, but the parser
-  answers coordinates (JSON, names restricted by enums) instead of areas; the coordinates
-  are run through the same sandboxed program path (``set_position([x, y])``).
+  (node ``event_parser``) answers coordinates (JSON, names restricted by enums) instead of
+  areas; the coordinates are run through the same sandboxed program path
+  (``set_position([x, y])``). A point on a seat's footprint means "sit on that seat" (the
+  only way coordinates can ask for sitting); a point inside other furniture, or closer than
+  ``MIN_SEPARATION`` to another character, is rejected with :class:`BlockedPositionError`
+  and fed back like any other typed error.
 - Description ablations: :func:`object_list_description` and :func:`scene_graph_description`
   replace the describer's text.
 
@@ -21,6 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from agents.event_parser import (
@@ -52,6 +57,8 @@ from agents.retry_feedback import (
     with_turns,
 )
 from sim.scene import Scene
+from tools.errors import ToolError
+from tools.position_sampling import MIN_SEPARATION, FloorMap
 from tools.scene_graph import SceneGraph, build_scene_graph
 from tools.scene_text import object_list_text, scene_graph_json
 
@@ -201,6 +208,8 @@ class UnifiedPlanner:
         plans = runner(
             step.scene, program, step.world, seed=step.seed + step.index, action_labels=list(step.action_labels), graph=step.graph
         )
+        if not plans:  # a program that touches nobody plans nothing: a wait
+            return None
         names = tuple(dict.fromkeys(str(p.character) for p in plans))
         bad = [n for n in names if n in busy]
         if bad:
@@ -275,17 +284,68 @@ def direct_schema(characters: Sequence[str], labels: Sequence[str], targets: Seq
     }
 
 
-def direct_program(plans: DirectPlans) -> str:
-    """A parse_event() that puts each character at its coordinates (names JSON-quoted)."""
+class BlockedPositionError(ToolError):
+    """A direct coordinate that no character can stand on (inside furniture, off the floor,
+    or on top of another character)."""
+
+    kind = "blocked_position"
+
+
+def seat_at(scene: Scene, x: float, y: float) -> str | None:
+    """The seat whose footprint holds (x, y), if exactly one does."""
+    seats = [o.name for o in scene.objects if o.is_seat and bool(o.contains_xy([x, y]))]
+    return seats[0] if len(seats) == 1 else None
+
+
+def direct_program(plans: DirectPlans, scene: Scene | None = None) -> str:
+    """A parse_event() that puts each character at its coordinates (names JSON-quoted).
+
+    With ``scene``, a point on a seat's footprint becomes ``get_area_to_sit_on(seat)``."""
     lines = ["def parse_event():"]
     for i, p in enumerate(plans.plans):
         var = f"c{i}"
         lines.append(f"    {var} = get_character({json.dumps(p.character)})")
-        lines.append(f"    {var}.set_position([{p.x!r}, {p.y!r}])")
+        seat = seat_at(scene, p.x, p.y) if scene is not None else None
+        if seat is not None:
+            lines.append(f"    {var}.set_position(get_area_to_sit_on({json.dumps(seat)}))")
+        else:
+            lines.append(f"    {var}.set_position([{p.x!r}, {p.y!r}])")
         if p.look_at:
             lines.append(f"    {var}.set_orientation({json.dumps(p.look_at)})")
         lines.append(f"    {var}.set_target_action({json.dumps(p.action)})")
     return "\n".join(lines) + "\n"
+
+
+def blocked_positions(scene: Scene, world: Any, plans: Sequence[Any]) -> list[str]:
+    """Problems of standing points: inside furniture / off the floor, or too close to another
+    character (planned in the same event, or anyone else's position or target)."""
+    floor = FloorMap(scene)
+    moving = {str(p.character) for p in plans}
+    others: list[tuple[str, tuple[float, float]]] = []
+    if world is not None and hasattr(world, "characters"):
+        for c in world.characters:
+            if c.name in moving:
+                continue
+            others += [(c.name, pt) for pt in (c.position, c.target_position) if pt is not None]
+    problems: list[str] = []
+    for p in plans:
+        if p.seat is not None:
+            others.append((p.character, p.position))
+            continue
+        x, y = p.position
+        where = f"{p.character} at [{x:.2f}, {y:.2f}]"
+        inside = floor.colliding_objects((x, y))
+        if inside:
+            problems.append(f"{where} is inside {', '.join(inside)} (stand at least {floor.body_radius:.2f} m from furniture)")
+        elif not bool(floor.free([[x, y]])[0]):
+            problems.append(f"{where} is too close to the edge of the scene")
+        for name, q in others:
+            d = float(np.hypot(x - q[0], y - q[1]))
+            if d < MIN_SEPARATION:
+                problems.append(f"{where} is {d:.2f} m from {name} (keep {MIN_SEPARATION:.1f} m apart)")
+                break
+        others.append((p.character, p.position))
+    return problems
 
 
 @dataclass
@@ -295,7 +355,8 @@ class DirectInferencePlanner:
     port: LLMPort
     prompts: PromptLibrary
     max_retries: int = 3
-    max_tokens: int = 200
+    max_tokens: int | None = None
+    """None: 40 + 50 per event character (one plan is about 35 tokens of JSON)."""
 
     def request(self, step: PlanningStep, event: Event, turns: tuple[Turn, ...] = ()) -> LLMRequest:
         description = step.description.text.strip()
@@ -320,7 +381,7 @@ class DirectInferencePlanner:
             node="event_parser",
             messages=with_turns(base, turns),
             json_schema=direct_schema(event.characters, step.action_labels, targets),
-            max_tokens=self.max_tokens,
+            max_tokens=self.max_tokens or 40 + 50 * max(1, len(event.characters)),
             seed=step.seed,
             temperature=retry_temperature(turns),
         )
@@ -328,7 +389,7 @@ class DirectInferencePlanner:
     def check(self, step: PlanningStep, event: Event, reply: str) -> tuple[str, ParsedEvent]:
         start, end = reply.find("{"), reply.rfind("}")
         plans = DirectPlans.model_validate(json.loads(reply[start : end + 1] if 0 <= start < end else reply))
-        program = direct_program(plans)
+        program = direct_program(plans, step.scene)
         result = run_reply(
             f"```python\n{program}```",
             scene=step.scene,
@@ -339,6 +400,9 @@ class DirectInferencePlanner:
             graph=step.graph,
             runner=step.runner,
         )
+        problems = blocked_positions(step.scene, step.world, result.plans)
+        if problems:
+            raise BlockedPositionError("; ".join(problems))
         return program, ParsedEvent(index=step.index, event=event, plans=result.plans, program=program)
 
     async def plan(self, step: PlanningStep) -> StepOutcome:

@@ -15,6 +15,11 @@ diff naming the node. The describer's on-disk cache is used only for live runs w
 
 Runs are checkpointed in SQLite (``--runs-db``); ``--thread-id ID`` of an interrupted run
 resumes it without repeating its finished LLM calls.
+
+``--planner unified|direct`` and ``--description object-list|scene-graph`` run the paper's
+ablations (``orchestrator.ablation_graph``) through the same LLM port, trace, replay and
+output; the defaults (``event`` + ``describer``) run the planning graph itself. A thread is
+resumed with the options it was started with (other options start their own thread).
 """
 
 from __future__ import annotations
@@ -35,8 +40,9 @@ from agents.llm_port import LLMError, LLMPort
 from agents.messages import CharacterStatus, ParsedEvent, PlanningFailure
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, PromptTemplateError
 from agents.retry_feedback import RetriesExhaustedError
+from orchestrator.ablation_graph import Ablation, AblationChoiceError, compile_graph
 from orchestrator.checkpoints import StoryLog, default_runs_db, open_checkpointer
-from orchestrator.planning_graph import compile_planning_graph, recursion_limit
+from orchestrator.planning_graph import recursion_limit
 from orchestrator.planning_state import PlanningDeps, PlanningState
 from sim.scene import Scene
 from tools.character_states import CharacterState, WorldView
@@ -173,12 +179,16 @@ async def run_plan(
     prompts: PromptLibrary | None = None,
     tags: tuple[str, ...] = BENCHMARK_TAGS,
     on_outcome: Any = None,
+    ablation: Ablation | None = None,
 ) -> list[tuple[int, ParsedEvent | PlanningFailure | None]]:
     """Run (or resume) the planning graph for one thread; returns every step's outcome.
 
     ``on_outcome(index, outcome)`` is called for each step as it is recorded, in order,
-    including steps recorded before a resume.
+    including steps recorded before a resume. ``ablation`` picks the planner and the scene
+    description (default: the full method with the describer).
     """
+    ablation = ablation or Ablation()
+    thread_id = ablation.thread_id(thread_id)
     story = StoryLog(runs_db, thread_id)
     printed = 0
 
@@ -208,7 +218,7 @@ async def run_plan(
     config = {"configurable": {"thread_id": thread_id}, "recursion_limit": recursion_limit(events, max_retries)}
     try:
         async with open_checkpointer(runs_db) as saver:
-            graph = compile_planning_graph(saver)
+            graph = compile_graph(ablation, saver)
             snapshot = await graph.aget_state(config)
             start: dict[str, Any] | None
             if snapshot.values:
@@ -244,11 +254,21 @@ def plan_command(
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this run.")] = None,
     prompts_dir: Annotated[Path | None, typer.Option("--prompts", help="Use prompt files from this folder.")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    planner: Annotated[
+        str, typer.Option("--planner", help="event (narrator + event parser), unified (w/o Event) or direct (coordinates).")
+    ] = "event",
+    description: Annotated[
+        str, typer.Option("--description", help="Scene description: describer, object-list or scene-graph.")
+    ] = "describer",
 ) -> None:
-    """Plan K events with the narrator and event parser and print them."""
+    """Plan K events with the narrator and event parser (or an ablation) and print them."""
     from sim.bundled_scenes import resolve_scene
     from sim.scene_files import SceneFileError
 
+    try:
+        ablation = Ablation.parse(planner, description)
+    except AblationChoiceError as exc:
+        _fail(str(exc))
     if record is not None and replay is not None:
         _fail("--record and --replay cannot be used together")
     if prompts_dir is not None and not prompts_dir.is_dir():
@@ -258,7 +278,10 @@ def plan_command(
     except SceneFileError as exc:
         _fail(str(exc))
     thread = thread_id or uuid.uuid4().hex[:12]
-    typer.echo(f"thread {thread} (resume with --thread-id {thread})", err=True)
+    resume = f"--thread-id {thread}" if ablation.is_default else (
+        f"--thread-id {thread} --planner {ablation.planner} --description {ablation.description}"
+    )
+    typer.echo(f"thread {thread} (resume with {resume})", err=True)
     try:
         port, describer_model = open_port(config, record, replay)
     except (LLMError, ValueError, OSError) as exc:
@@ -288,6 +311,7 @@ def plan_command(
                 max_retries=max_retries,
                 prompts=PromptLibrary(prompts_dir) if prompts_dir is not None else None,
                 on_outcome=show,
+                ablation=ablation,
             )
         finally:
             await close_port(port)
@@ -303,6 +327,8 @@ def plan_command(
             "instruction": instruction,
             "events": [outcome_json(i, o) for i, o in outcomes],
         }
+        if not ablation.is_default:
+            payload["ablation"] = {"planner": ablation.planner, "description": ablation.description}
         typer.echo(json.dumps(payload, indent=2))
 
 

@@ -9,6 +9,9 @@ skinned and animated), ``topdown.png`` and, with ``--gif``, ``story.gif``.
 ``--replay T.jsonl`` serves every LLM call from a recorded trace and applies each planning
 result at the frame recorded there: the same arguments reproduce the same events and the same
 motion, with no model loaded.
+
+``--planner unified|direct`` and ``--description object-list|scene-graph`` plan with the
+paper's ablations (``orchestrator.ablation_graph``), driven by the same step planner.
 """
 
 from __future__ import annotations
@@ -18,11 +21,14 @@ import json
 import math
 import uuid
 from pathlib import Path
-from typing import Annotated, Any, NoReturn
+from typing import TYPE_CHECKING, Annotated, Any, NoReturn
 
 import typer
 
 from orchestrator.session_runtime import Outcome, Pace, SessionResult, StoryEvent
+
+if TYPE_CHECKING:
+    from orchestrator.ablation_graph import Ablation
 
 
 def register(app: typer.Typer) -> None:
@@ -117,11 +123,22 @@ def run_command(
     max_retries: Annotated[int, typer.Option("--max-retries", min=0, max=10, help="Retries per LLM role.")] = 3,
     gif: Annotated[bool, typer.Option("--gif/--no-gif", help="Also write an animated top-down GIF.")] = False,
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this planning thread.")] = None,
+    planner: Annotated[
+        str, typer.Option("--planner", help="event (narrator + event parser), unified (w/o Event) or direct (coordinates).")
+    ] = "event",
+    description: Annotated[
+        str, typer.Option("--description", help="Scene description: describer, object-list or scene-graph.")
+    ] = "describer",
 ) -> None:
     """Plan and animate a story; write motion, pictures, the story log and the trace."""
+    from orchestrator.ablation_graph import Ablation, AblationChoiceError
     from sim.bundled_scenes import resolve_scene
     from sim.scene_files import SceneFileError
 
+    try:
+        ablation = Ablation.parse(planner, description)
+    except AblationChoiceError as exc:
+        _fail(str(exc))
     if pace not in ("lockstep", "realtime", "fast"):
         _fail(f"--pace must be lockstep, realtime or fast, got {pace!r}")
     if not (math.isfinite(speed) and speed > 0):
@@ -154,6 +171,7 @@ def run_command(
                 seed=seed,
                 max_retries=max_retries,
                 thread_id=thread_id,
+                ablation=ablation,
             )
         )
     except _UserError as exc:
@@ -190,10 +208,12 @@ async def _run(
     seed: int,
     max_retries: int,
     thread_id: str | None,
+    ablation: Ablation | None = None,
 ) -> tuple[SessionResult, list[str], int, Any]:
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
+    from orchestrator.ablation_graph import Ablation, compile_graph
     from orchestrator.checkpoints import StoryLog, open_checkpointer
     from orchestrator.cli_plan import (
         character_names,
@@ -203,7 +223,6 @@ async def _run(
         start_positions,
     )
     from orchestrator.graph_step_planner import GraphStepPlanner, SessionWorld
-    from orchestrator.planning_graph import compile_planning_graph
     from orchestrator.planning_state import PlanningDeps
     from orchestrator.session_runtime import Session, SessionError, SessionSettings
     from orchestrator.traces import TraceCorruptError
@@ -223,7 +242,8 @@ async def _run(
     positions = start_positions(scene_obj, characters, seed)
     motion = _motion_layer(motion_config)
     world = World(scene_obj, {n: (p, 0.0) for n, p in zip(names, positions, strict=True)}, motion, config=world_config)
-    thread = thread_id or f"run-{uuid.uuid4().hex[:12]}"
+    ablation = ablation or Ablation()
+    thread = ablation.thread_id(thread_id or f"run-{uuid.uuid4().hex[:12]}")
     runs_db = out / "runs.sqlite"
     story = StoryLog(runs_db, thread)
     deps = PlanningDeps(
@@ -252,7 +272,7 @@ async def _run(
 
     try:
         async with open_checkpointer(runs_db) as saver:
-            graph = compile_planning_graph(saver)
+            graph = compile_graph(ablation, saver)
             planner = GraphStepPlanner(graph, deps, thread, instruction)
             session = Session(world, planner, settings, trace=getattr(port, "trace", None), on_event=show)
             result = await session.run()
