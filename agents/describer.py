@@ -362,6 +362,13 @@ def cache_path(cache_dir: Path, scene: Scene, model: str, prompts: PromptLibrary
     return Path(cache_dir) / f"description-{safe}-{cache_key(scene, model, prompts)}.json"
 
 
+def description_cache_file(
+    cache_dir: Path, scene: Scene, model: str, mode: Literal["objects", "regions"], prompts: PromptLibrary
+) -> Path:
+    """Where the description of ``scene`` by ``model`` in ``mode`` is cached."""
+    return cache_path(cache_dir, scene, f"{model}|{mode}", prompts)
+
+
 def read_cached(path: Path) -> SceneDescription | None:
     try:
         return SceneDescription.model_validate_json(path.read_text(encoding="utf-8"))
@@ -383,6 +390,8 @@ class DescriberAttempt:
 
     areas: AreaList | None
     turn: Turn | None
+    error: Exception | None = None
+    """The typed error that rejected the reply (JSONDecodeError, ValidationError, AnswerRejectedError)."""
 
 
 def parse_reply(reply: str, inp: DescriberInput) -> AreaList:
@@ -400,7 +409,7 @@ def judge_reply(reply: str, inp: DescriberInput) -> DescriberAttempt:
     try:
         return DescriberAttempt(areas=parse_reply(reply, inp), turn=None)
     except (ValueError, AnswerRejectedError) as exc:  # JSONDecodeError and ValidationError are ValueErrors
-        return DescriberAttempt(areas=None, turn=Turn(reply=reply, feedback=feedback_from_error(exc)))
+        return DescriberAttempt(areas=None, turn=Turn(reply=reply, feedback=feedback_from_error(exc)), error=exc)
 
 
 def finish(inp: DescriberInput, areas: AreaList, *, repaired: bool, attempts: int) -> SceneDescription:
@@ -463,7 +472,7 @@ async def describe_scene_cached(
     max_retries: int = 3,
 ) -> SceneDescription:
     """:func:`describe_scene` with an on-disk cache (``cache_dir=None``: no cache)."""
-    path = cache_path(cache_dir, scene, f"{model}|{mode}", prompts) if cache_dir is not None else None
+    path = description_cache_file(cache_dir, scene, model, mode, prompts) if cache_dir is not None else None
     if path is not None and (hit := read_cached(path)) is not None:
         return hit
     inp = inp or describer_input_from_scene(scene, mode=mode)

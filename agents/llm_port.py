@@ -72,9 +72,12 @@ class LLMPort(Protocol):
 
 
 class LLMError(Exception):
-    """The LLM could not produce an answer (after the configured retries and fallbacks)."""
+    """The LLM could not produce an answer (after the configured retries and fallbacks).
+
+    ``trace_seqs``: seqs of the traced attempts of the failed call (set by the client)."""
 
     kind: str = "llm_error"
+    trace_seqs: tuple[int, ...] = ()
 
 
 class LLMUnavailableError(LLMError):

@@ -8,14 +8,19 @@ Both live in one SQLite file (default ``$STORYTELLER_CACHE_DIR/runs.sqlite``, el
   a killed process resumes at the node that was cut, and no finished LLM call is repeated);
 - the ``story_events`` table holds every planned event of a thread, keyed by (thread, index)
   and written with ``INSERT OR REPLACE``, so re-running the node that wrote it is harmless.
-  This keeps the growing story out of the checkpointed graph state.
+  This keeps the growing story out of the checkpointed graph state;
+- the ``story_trace_refs`` table holds, per (thread, index), the trace seqs of the LLM
+  attempts that produced the step's outcome (written in the same transaction), so the
+  simulation can record the frame it applied the outcome at against exactly those records,
+  also after a restart.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import sqlite3
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Sequence
 from contextlib import asynccontextmanager
 from pathlib import Path
 
@@ -29,6 +34,12 @@ CREATE TABLE IF NOT EXISTS story_events (
     idx INTEGER NOT NULL,
     kind TEXT NOT NULL,
     body TEXT NOT NULL,
+    PRIMARY KEY (thread_id, idx)
+);
+CREATE TABLE IF NOT EXISTS story_trace_refs (
+    thread_id TEXT NOT NULL,
+    idx INTEGER NOT NULL,
+    seqs TEXT NOT NULL,
     PRIMARY KEY (thread_id, idx)
 )
 """
@@ -49,23 +60,43 @@ class StoryLog:
         if self.path != ":memory:":
             Path(self.path).parent.mkdir(parents=True, exist_ok=True)
         self._conn = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
-        self._conn.execute(_SCHEMA)
+        self._conn.executescript(_SCHEMA)
 
     def close(self) -> None:
         self._conn.close()
 
-    def record(self, index: int, outcome: ParsedEvent | PlanningFailure | None) -> None:
-        """Store step ``index``'s outcome (``None``: the narrator chose to wait)."""
+    def record(
+        self, index: int, outcome: ParsedEvent | PlanningFailure | None, trace_seqs: Sequence[int] = ()
+    ) -> None:
+        """Store step ``index``'s outcome (``None``: the narrator chose to wait) and the trace
+        seqs of the attempts that produced it, atomically."""
         if outcome is None:
             kind, body = "wait", "{}"
         elif isinstance(outcome, ParsedEvent):
             kind, body = "event", outcome.model_dump_json()
         else:
             kind, body = "failure", outcome.model_dump_json()
-        self._conn.execute(
-            "INSERT OR REPLACE INTO story_events (thread_id, idx, kind, body) VALUES (?, ?, ?, ?)",
-            (self.thread_id, index, kind, body),
-        )
+        self._conn.execute("BEGIN")
+        try:
+            self._conn.execute(
+                "INSERT OR REPLACE INTO story_events (thread_id, idx, kind, body) VALUES (?, ?, ?, ?)",
+                (self.thread_id, index, kind, body),
+            )
+            self._conn.execute(
+                "INSERT OR REPLACE INTO story_trace_refs (thread_id, idx, seqs) VALUES (?, ?, ?)",
+                (self.thread_id, index, json.dumps([int(s) for s in trace_seqs])),
+            )
+        except BaseException:
+            self._conn.execute("ROLLBACK")
+            raise
+        self._conn.execute("COMMIT")
+
+    def trace_seqs(self, index: int) -> tuple[int, ...]:
+        """Trace seqs of the attempts behind step ``index`` (empty if unknown)."""
+        row = self._conn.execute(
+            "SELECT seqs FROM story_trace_refs WHERE thread_id = ? AND idx = ?", (self.thread_id, index)
+        ).fetchone()
+        return tuple(int(s) for s in json.loads(row[0])) if row else ()
 
     def outcomes(self) -> list[tuple[int, ParsedEvent | PlanningFailure | None]]:
         rows = self._conn.execute(

@@ -4,7 +4,9 @@
 one step whenever characters become available. Each step starts a new run of the same
 langgraph thread with the simulation's roster and event history as input (the checkpointed
 state keeps the scene description and the step counter), so a killed session resumes on the
-same thread without repeating finished LLM calls.
+same thread without repeating finished LLM calls. The request's frame goes into the state
+(``sim_frame``), so every LLM request of the step carries it as trace metadata, and
+:meth:`GraphStepPlanner.trace_seqs` tells the session which trace records produced a step.
 """
 
 from __future__ import annotations
@@ -71,6 +73,10 @@ class GraphStepPlanner:
             "recursion_limit": recursion_limit(1, self.deps.max_retries),
         }
 
+    def trace_seqs(self, index: int) -> tuple[int, ...]:
+        """Trace seqs of the narrator and event-parser attempts behind step ``index``."""
+        return self.story.trace_seqs(index)
+
     async def plan(self, request: PlanningRequest) -> Outcome:
         config = self._config()
         recorded = dict(self.story.outcomes())
@@ -87,6 +93,7 @@ class GraphStepPlanner:
                 step=request.index,
                 roster=request.roster,
                 recent=request.history,
+                sim_frame=request.frame,
             ).model_dump()
         elif snapshot.next:
             start = None  # a step was cut off mid-way: finish it from its checkpoint
@@ -96,6 +103,7 @@ class GraphStepPlanner:
                 "events_target": request.index + 1,
                 "roster": [c.model_dump() for c in request.roster],
                 "recent": [h.model_dump() for h in request.history],
+                "sim_frame": request.frame,
             }
         async for _ in self.graph.astream(
             start, config=config, context=self.deps, durability="sync", stream_mode="updates"

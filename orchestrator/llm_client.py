@@ -141,6 +141,7 @@ class LiteLLMClient:
         request_hash = request.content_hash()
         messages = [m.model_dump() for m in request.messages]
         call_seq = -1  # seq of the first attempt, set below
+        seqs: list[int] = []
         attempt_no = 0
         failures: list[tuple[str, BaseException]] = []
         for model_index, model in enumerate(node.models):
@@ -152,6 +153,7 @@ class LiteLLMClient:
                     await self._sleep(policy.delay_s(k))
                 attempt_no += 1
                 seq = self.trace.next_seq()
+                seqs.append(seq)
                 if call_seq < 0:
                     call_seq = seq
 
@@ -204,7 +206,9 @@ class LiteLLMClient:
                        latency_s=latency, final=True)
                 return LLMResponse(text=text, model=model, usage=usage or TokenUsage(), latency_s=latency,
                                    attempts=attempt_no, trace_seq=seq)
-        raise _final_error(request, failures)
+        err = _final_error(request, failures)
+        err.trace_seqs = tuple(seqs)
+        raise err
 
 
 def _extract(raw: Any) -> tuple[str, str | None, TokenUsage]:

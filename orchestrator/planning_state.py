@@ -16,6 +16,7 @@ from typing import Any, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from agents.describer import DescriberInput, describer_input_from_scene
 from agents.event_parser import ProgramRunner
 from agents.llm_port import LLMPort
 from agents.messages import (
@@ -29,6 +30,7 @@ from agents.messages import (
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
 from agents.retry_feedback import Turn
 from orchestrator.checkpoints import StoryLog
+from orchestrator.traces import TraceSink
 from sim.scene import Scene
 
 RECENT_WINDOW = 12
@@ -61,12 +63,27 @@ class PlanningState(BaseModel):
     busy_until: dict[str, int] = Field(
         default_factory=dict, description="Character -> step at which its current event completes."
     )
+    # The describer (first step only; each call and each check is its own node):
+    describer_reply: str | None = None
+    describer_seq: int | None = None
+    describer_turns: tuple[RetryTurn, ...] = ()
     # The current step:
+    sim_frame: int | None = Field(
+        default=None,
+        description="Simulation frame of the world snapshot this step plans from; it goes into "
+        "every request as trace metadata (not the request hash). None without a simulation "
+        "(``storyteller plan``).",
+    )
+    step_trace_seqs: tuple[int, ...] = Field(
+        default=(), description="Trace seqs of this step's narrator and event-parser attempts."
+    )
     narrator_reply: str | None = None
+    narrator_seq: int | None = Field(default=None, description="Trace seq of ``narrator_reply``.")
     narrator_turns: tuple[RetryTurn, ...] = ()
     event: Event | None = None
     narrator_attempts: int = 0
     parser_reply: str | None = None
+    parser_seq: int | None = Field(default=None, description="Trace seq of ``parser_reply``.")
     parser_turns: tuple[RetryTurn, ...] = ()
     parsed: ParsedEvent | None = None
     failure: PlanningFailure | None = None
@@ -112,3 +129,15 @@ class PlanningDeps:
     """The scene graph handed to event programs (None: the tools build it)."""
     runner: ProgramRunner | None = None
     """Runs event programs (None: ``tools.event_program.run_event_program``)."""
+    trace: TraceSink | None = None
+    """Where parsed outputs are recorded (None: the port's ``.trace``, if it has one)."""
+    _describer_input: DescriberInput | None = field(default=None, init=False, repr=False)
+
+    def trace_sink(self) -> TraceSink | None:
+        return self.trace if self.trace is not None else getattr(self.port, "trace", None)
+
+    def describer_input(self) -> DescriberInput:
+        """The describer's input for the scene (built once per run)."""
+        if self._describer_input is None:
+            self._describer_input = describer_input_from_scene(self.scene, mode=self.describer_mode)
+        return self._describer_input

@@ -6,7 +6,10 @@ When characters are available and no planning step is in flight, it takes a snap
 world (roster and event history, at a known frame) and hands it to the planning task through a
 memory channel; the planning task runs one step of the planning graph (narrator, event
 parser, their retries) and sends the outcome back. The simulation applies the outcome at the
-frame it arrives and records that frame (story log and trace ``applied`` record).
+frame it arrives and records that frame (story log and trace ``applied`` record). The
+``applied`` record names the step, the frame its request was made at and the seqs of the
+trace records that produced the outcome, as the planner reports them
+(``planner.trace_seqs(index)``, optional; without it the record names none).
 
 Determinism: a planning request is built from the world at a frame the simulation chose, so
 its content depends only on earlier frames. What can differ between two live runs is the
@@ -60,7 +63,10 @@ class PlanningRequest(BaseModel):
 
 
 class StepPlanner(Protocol):
-    """One planning step at a time (the planning graph behind it)."""
+    """One planning step at a time (the planning graph behind it).
+
+    A planner may also define ``trace_seqs(index) -> Sequence[int]``: the seqs of the trace
+    records (LLM attempts) that produced step ``index``'s outcome."""
 
     async def plan(self, request: PlanningRequest) -> Outcome: ...
 
@@ -232,7 +238,9 @@ class Session:
         self.outcomes.append((request.index, outcome))
         self.applied_frames.append(frame)
         if self.trace is not None:
-            self.trace.record_applied(max(self.trace.next_seq() - 1, 0), frame)
+            seqs_of: Callable[[int], Sequence[int]] | None = getattr(self.planner, "trace_seqs", None)
+            seqs = tuple(seqs_of(request.index)) if seqs_of is not None else ()
+            self.trace.record_applied(seqs, frame, step=request.index, requested_frame=request.frame)
         if self.on_outcome is not None:
             self.on_outcome(request.index, outcome, frame)
         retry = max(1, round(self.settings.retry_after_s * self.world.config.fps))

@@ -5,8 +5,18 @@ One line per record. Record kinds (``kind`` discriminator):
 - ``run``: written when a writer opens the file (run id, wall-clock start, free-form meta);
 - ``attempt``: one per LLM call attempt (success or failure), with the full request, the
   resolved model and parameters, response text, token usage, latency and error;
-- ``parsed``: the caller's validated output for the attempt ``ref_seq`` (filled after parsing);
-- ``applied``: the simulation frame at which the result of attempt ``ref_seq`` took effect.
+- ``parsed``: what the caller made of the response of attempt ``ref_seq``: the accepted
+  output (narrator event, event-parser plans per character, describer areas) or the typed
+  error that rejected it (``error_type``, ``error_message`` = the feedback sent back);
+- ``applied``: the simulation frame at which one planning step's outcome took effect, with
+  ``ref_seqs`` = the seqs of the attempts that produced it (the final attempt of every
+  narrator and event-parser call of that step; all attempts of a call that failed outright).
+
+Simulation frames: an attempt's ``request.sim_frame`` is the frame of the world snapshot the
+request was built from (metadata: it is not part of ``request_hash``, so a replay matches
+whatever frame it runs at); the ``applied`` record gives the frame its result was applied
+at. ``storyteller plan`` runs no simulation, so its requests carry ``sim_frame: null`` and
+it writes no ``applied`` records (consistently; there is no nominal frame).
 
 ``seq`` is unique within a file (a writer that reopens a file continues after the last seq).
 Each record is written with a single ``os.write`` of one complete line on an ``O_APPEND``
@@ -21,13 +31,13 @@ import os
 import threading
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, Protocol
 
 import structlog
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 from agents.llm_port import LLMRequest, NodeName, TokenUsage
 
@@ -77,13 +87,36 @@ class AttemptRecord(_Record):
 class ParsedRecord(_Record):
     kind: Literal["parsed"] = "parsed"
     ref_seq: int = Field(ge=0, description="Seq of the attempt whose response was parsed.")
-    parsed_output: Any
+    node: NodeName | None = None
+    parsed_output: Any = Field(default=None, description="The accepted output (None when rejected).")
+    error_type: str | None = Field(default=None, description="Type of the error that rejected the response.")
+    error_message: str | None = Field(default=None, description="That error as fed back to the model.")
+
+    @property
+    def ok(self) -> bool:
+        return self.error_type is None
 
 
 class AppliedRecord(_Record):
+    """When one planning step's outcome took effect in the simulation."""
+
     kind: Literal["applied"] = "applied"
-    ref_seq: int = Field(ge=0, description="Seq of the attempt whose result was applied.")
+    ref_seqs: tuple[int, ...] = Field(
+        default=(), description="Seqs of the attempts that produced the outcome (empty: no LLM call, e.g. a resumed step)."
+    )
+    step: int | None = Field(default=None, ge=0, description="Planning step index.")
+    requested_frame: int | None = Field(default=None, ge=0, description="Frame the step's request was made at.")
     sim_frame: int = Field(ge=0, description="Simulation frame at which the result took effect.")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _legacy_ref_seq(cls, data: Any) -> Any:
+        """Traces written before ``ref_seqs`` held one ``ref_seq``."""
+        if isinstance(data, dict) and "ref_seq" in data and "ref_seqs" not in data:
+            data = dict(data)
+            ref = data.pop("ref_seq")
+            data["ref_seqs"] = [] if ref is None else [ref]
+        return data
 
 
 TraceRecord = Annotated[
@@ -117,6 +150,18 @@ class TraceContents:
 
     def attempts(self) -> Iterator[AttemptRecord]:
         return (r for r in self.records if isinstance(r, AttemptRecord))
+
+    def parsed_by_seq(self) -> dict[int, list[ParsedRecord]]:
+        """Attempt seq -> the parsed records about it (more than one after a resumed node)."""
+        out: dict[int, list[ParsedRecord]] = {}
+        for r in self.records:
+            if isinstance(r, ParsedRecord):
+                out.setdefault(r.ref_seq, []).append(r)
+        return out
+
+    def applied_frame_by_seq(self) -> dict[int, int]:
+        """Attempt seq -> the frame at which the outcome it contributed to was applied."""
+        return {seq: r.sim_frame for r in self.records if isinstance(r, AppliedRecord) for seq in r.ref_seqs}
 
 
 def _parse_line(path: Path, line_no: int, raw: bytes) -> TraceRecord:
@@ -157,9 +202,15 @@ class TraceSink(Protocol):
 
     def write(self, record: TraceRecord) -> None: ...
 
-    def record_parsed(self, ref_seq: int, parsed_output: Any) -> None: ...
+    def record_parsed(
+        self, ref_seq: int, parsed_output: Any, *, node: NodeName | None = None,
+        error_type: str | None = None, error_message: str | None = None,
+    ) -> None: ...
 
-    def record_applied(self, ref_seq: int, sim_frame: int) -> None: ...
+    def record_applied(
+        self, ref_seqs: Sequence[int], sim_frame: int, *, step: int | None = None,
+        requested_frame: int | None = None,
+    ) -> None: ...
 
 
 class NullTraceSink:
@@ -178,10 +229,16 @@ class NullTraceSink:
     def write(self, record: TraceRecord) -> None:
         return None
 
-    def record_parsed(self, ref_seq: int, parsed_output: Any) -> None:
+    def record_parsed(
+        self, ref_seq: int, parsed_output: Any, *, node: NodeName | None = None,
+        error_type: str | None = None, error_message: str | None = None,
+    ) -> None:
         return None
 
-    def record_applied(self, ref_seq: int, sim_frame: int) -> None:
+    def record_applied(
+        self, ref_seqs: Sequence[int], sim_frame: int, *, step: int | None = None,
+        requested_frame: int | None = None,
+    ) -> None:
         return None
 
 
@@ -232,13 +289,21 @@ class TraceWriter:
             if self.fsync == "always":
                 os.fsync(self._fd)
 
-    def record_parsed(self, ref_seq: int, parsed_output: Any) -> None:
+    def record_parsed(
+        self, ref_seq: int, parsed_output: Any, *, node: NodeName | None = None,
+        error_type: str | None = None, error_message: str | None = None,
+    ) -> None:
         self.write(ParsedRecord(run_id=self.run_id, seq=self.next_seq(), time_unix=time.time(),
-                                ref_seq=ref_seq, parsed_output=parsed_output))
+                                ref_seq=ref_seq, node=node, parsed_output=parsed_output,
+                                error_type=error_type, error_message=error_message))
 
-    def record_applied(self, ref_seq: int, sim_frame: int) -> None:
+    def record_applied(
+        self, ref_seqs: Sequence[int], sim_frame: int, *, step: int | None = None,
+        requested_frame: int | None = None,
+    ) -> None:
         self.write(AppliedRecord(run_id=self.run_id, seq=self.next_seq(), time_unix=time.time(),
-                                 ref_seq=ref_seq, sim_frame=sim_frame))
+                                 ref_seqs=tuple(ref_seqs), step=step, requested_frame=requested_frame,
+                                 sim_frame=sim_frame))
 
     def close(self) -> None:
         with self._lock:

@@ -165,7 +165,7 @@ async def test_two_events_with_narrator_and_parser_feedback() -> None:
     assert "tabel_1" in parser_calls[2].messages[-1].content
     # the stable prefix is unchanged across retries (prefix cache)
     assert parser_calls[2].messages[:2] == parser_calls[0].messages[:2]
-    assert final["step"] == 2 and final["llm_calls"] == port.count("narrator") + port.count("event_parser")
+    assert final["step"] == 2 and final["llm_calls"] == len(port.calls)  # describer included
     assert PlanningState.model_validate(final).recent[-1].characters == ("Bob",)
 
 
@@ -280,6 +280,118 @@ async def test_killed_run_resumes_without_repeating_the_narrator(tmp_path: Path)
         final = await graph.ainvoke(None, config=config, context=make_deps(port, story), durability="sync")
     assert port.count("narrator") == 0 and port.count("describer") == 0
     assert port.count("event_parser") == 1
-    assert final["step"] == 1 and final["llm_calls"] == 2
+    assert final["step"] == 1 and final["llm_calls"] == 3  # describer, narrator (before the kill), parser
     assert [e.event.characters for e in story.events()] == [("Ann",)]
     assert os.path.getsize(db) > 0
+
+
+# ----- durability: kill during the describer's second attempt ------------------------------
+CHILD_DESCRIBER = textwrap.dedent(
+    """
+    import asyncio, os, sys
+    sys.path.insert(0, {tests!r})
+    sys.path.insert(0, {repo!r})
+    from test_planning_graph import ScriptedPort, make_deps, initial_state
+    from orchestrator.checkpoints import StoryLog, open_checkpointer
+    from orchestrator.planning_graph import compile_planning_graph
+
+    replies = ['{{"areas": [{{"name": "dining", "purpose": "eat", "objects": ["table_1"]}}]}}']
+
+    def describer(req):
+        if replies:
+            return replies.pop()  # incomplete: three objects missing -> feedback
+        os._exit(17)  # hard kill the moment the describer is asked again
+
+    async def main():
+        port = ScriptedPort({{"describer": describer}})
+        async with open_checkpointer({db!r}) as saver:
+            graph = compile_planning_graph(saver)
+            await graph.ainvoke(initial_state(["Ann"], 1), config={{"configurable": {{"thread_id": "d"}}}},
+                                context=make_deps(port, StoryLog({db!r}, "d")), durability="sync")
+
+    asyncio.run(main())
+    """
+)
+
+
+async def test_killed_describer_retry_resumes_without_repeating_the_first_attempt(tmp_path: Path) -> None:
+    db = tmp_path / "runs.sqlite"
+    script = tmp_path / "child.py"
+    script.write_text(CHILD_DESCRIBER.format(tests=str(REPO / "tests"), repo=str(REPO), db=str(db)))
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 17, proc.stderr
+
+    port = ScriptedPort({"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat")],
+                         "event_parser": [PROGRAM.format(who="Ann")]})
+    story = StoryLog(db, "d")
+    async with open_checkpointer(db) as saver:
+        graph = compile_planning_graph(saver)
+        config = {"configurable": {"thread_id": "d"}}
+        snapshot = await graph.aget_state(config)
+        assert snapshot.next == ("describe_scene",)
+        assert len(snapshot.values["describer_turns"]) == 1  # the first attempt and its feedback survived
+        final = await graph.ainvoke(None, config=config, context=make_deps(port, story), durability="sync")
+    assert port.count("describer") == 1  # only the attempt that was cut off is made again
+    retry = port.calls[0]
+    assert retry.node == "describer" and len(retry.messages) == 4  # system, user, rejected reply, feedback
+    assert "missing" in retry.messages[-1].content and "chair_1" in retry.messages[-1].content
+    state = PlanningState.model_validate(final)
+    assert state.description is not None and state.description.attempts == 2 and not state.description.repaired
+    assert [e.event.characters for e in story.events()] == [("Ann",)]
+
+
+async def test_describer_retries_exhausted_repairs_from_clusters() -> None:
+    bad = '{"areas": [{"name": "dining", "purpose": "eat", "objects": ["table_1", "table_1"]}]}'
+    port = ScriptedPort({"describer": [bad, "not json", bad],
+                         "narrator": [narration(["Ann"], "eat")], "event_parser": [PROGRAM.format(who="Ann")]})
+    final, _ = await run_graph(port, 1, ["Ann"], max_retries=2)
+    state = PlanningState.model_validate(final)
+    assert port.count("describer") == 3
+    assert state.description is not None and state.description.repaired and state.description.attempts == 3
+    for name in ("table_1", "chair_1", "chair_2", "fridge_1"):
+        assert state.description.text.count(name) == 1
+
+
+async def test_requests_carry_the_step_frame_and_parsed_outputs_are_traced(tmp_path: Path) -> None:
+    from orchestrator.traces import TraceWriter, read_trace
+
+    class TracedPort(ScriptedPort):
+        """Numbers its answers like a trace-writing client (seqs of its own sink)."""
+
+        def __init__(self, replies: dict[str, Any], trace: TraceWriter) -> None:
+            super().__init__(replies)
+            self.trace = trace
+
+        async def complete(self, request: LLMRequest) -> LLMResponse:
+            resp = await super().complete(request)
+            return resp.model_copy(update={"trace_seq": self.trace.next_seq()})
+
+    trace = TraceWriter(tmp_path / "t.jsonl", fsync="never")
+    port = TracedPort({
+        "describer": [DESCRIPTION],
+        "narrator": [narration(["Zed"], "eat"), narration(["Ann"], "eat at table_1")],
+        "event_parser": [PROGRAM.replace("table_1", "tabel_1").format(who="Ann"), PROGRAM.format(who="Ann")],
+    }, trace)
+    story = StoryLog(":memory:", "t1")
+    graph = compile_planning_graph(InMemorySaver())
+    start = PlanningState(instruction="Ann eats.", events_target=1, roster=(CharacterStatus(name="Ann"),),
+                          sim_frame=42).model_dump()
+    await graph.ainvoke(start, config={"configurable": {"thread_id": "t1"}, "recursion_limit": recursion_limit(1, 3)},
+                        context=make_deps(port, story), durability="sync")
+    trace.close()
+    assert {c.sim_frame for c in port.calls} == {42}
+    assert all(c.content_hash() == c.model_copy(update={"sim_frame": None}).content_hash() for c in port.calls)
+    # seqs: run record 0, then each answer followed by its parsed record: describer 1,
+    # narrator 3 and 5, parser 7 and 9
+    assert story.trace_seqs(0) == (3, 5, 7, 9)
+    parsed = {p.ref_seq: p for p in read_trace(tmp_path / "t.jsonl").records if p.kind == "parsed"}
+    assert sorted(parsed) == [1, 3, 5, 7, 9]
+    assert parsed[1].node == "describer" and parsed[1].ok
+    assert parsed[3].node == "narrator" and parsed[3].error_type == "AnswerRejectedError"
+    assert "Zed" in (parsed[3].error_message or "")
+    assert parsed[5].parsed_output["event"] == {"characters": ["Ann"], "activity": "eat at table_1"}
+    assert parsed[7].node == "event_parser" and parsed[7].error_type == "UnknownObjectError"
+    (plan,) = parsed[9].parsed_output["plans"]
+    assert plan["character"] == "Ann" and plan["action"] == "eat" and plan["area"] == "close to table_1"
+    assert plan["position"] == [1.0, 1.0] and plan["facing"] == [0.0, 1.0]
+    assert "def parse_event" in parsed[9].parsed_output["program"]

@@ -138,7 +138,8 @@ async def test_build_llm_port_modes(tmp_path: Path, no_live_calls: None) -> None
     port = build_llm_port(cfg, record=again, replay=recorded)
     assert isinstance(port, ReplayClient)
     resp = await port.complete(req("q", frame=5))
-    port.trace.record_applied(resp.trace_seq or 0, sim_frame=30)
+    assert resp.trace_seq is not None
+    port.trace.record_applied([resp.trace_seq], sim_frame=30, step=0, requested_frame=5)
     port.close()
     recs = read_trace(again).records
     kinds = [r.kind for r in recs]

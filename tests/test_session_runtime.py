@@ -155,3 +155,125 @@ def test_settings_are_checked(home, motion) -> None:  # type: ignore[no-untyped-
         Session(world, ScriptedPlanner(home), SessionSettings(frames=10, pace="sometimes"))  # type: ignore[arg-type]
     with pytest.raises(SessionError):
         Session(world, ScriptedPlanner(home), SessionSettings(frames=10, speed=0.0))
+
+
+# ----- the real planning graph behind a session: frames and parsed outputs in the trace ----
+class ScriptedCompletion:
+    """A fake ``litellm.acompletion`` for the whole graph on the home scene: the node is told
+    by the request (describer / narrator schema, no schema for the parser). The first parser
+    reply has no code, so step 0 needs a parser retry."""
+
+    def __init__(self) -> None:
+        self.parser_calls = 0
+
+    async def __call__(self, *, model: str, messages: list[dict[str, str]], **kw: object):  # type: ignore[no-untyped-def]
+        import json
+        import re
+
+        import litellm
+
+        fmt = kw.get("response_format")
+        schema = fmt.get("schema") if isinstance(fmt, dict) else None
+        if schema is not None and "areas" in schema["properties"]:
+            names = schema["properties"]["areas"]["items"]["properties"]["objects"]["items"]["enum"]
+            text = json.dumps({"areas": [{"name": "home", "purpose": "live", "objects": names}]})
+        elif schema is not None:
+            free = schema["properties"]["event"]["properties"]["characters"]["items"]["enum"]
+            text = json.dumps({"reasoning": "next", "event": {"characters": free[:1], "activity": "read near bookshelf_1"}})
+        else:
+            self.parser_calls += 1
+            who = re.search(r'Event: characters \["(\w+)"', messages[1]["content"]).group(1)  # type: ignore[union-attr]
+            text = "I would let them read." if self.parser_calls == 1 else (
+                f'```python\ndef parse_event():\n    c = get_character("{who}")\n'
+                '    c.set_position(get_area_close_to("bookshelf_1"))\n    c.set_target_action("read_book")\n```'
+            )
+        return litellm.ModelResponse(
+            choices=[{"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": text}}],
+            usage={"prompt_tokens": 10, "completion_tokens": 5, "total_tokens": 15},
+        )
+
+
+async def _graph_session(scene, motion, port, trace, tmp_path, settings: SessionSettings, thread: str):  # type: ignore[no-untyped-def]
+    from langgraph.checkpoint.memory import InMemorySaver
+
+    from agents.event_parser import scene_action_labels
+    from orchestrator.checkpoints import StoryLog
+    from orchestrator.graph_step_planner import GraphStepPlanner, SessionWorld
+    from orchestrator.planning_graph import compile_planning_graph
+    from orchestrator.planning_state import PlanningDeps
+
+    story = StoryLog(tmp_path / "runs.sqlite", thread)
+    deps = PlanningDeps(port=port, scene=scene, world=SessionWorld(), story=story,
+                        action_labels=scene_action_labels(scene), seed=0)
+    planner = GraphStepPlanner(compile_planning_graph(InMemorySaver()), deps, thread, "Everyone reads.")
+    world = _world(scene, motion, ["Ava", "Ben"])
+    try:
+        return await Session(world, planner, settings, trace=trace).run()
+    finally:
+        story.close()
+
+
+def _check_frames_and_parsed(path) -> list:  # type: ignore[no-untyped-def]
+    """Every narrator / parser attempt carries its step's request frame, is named by exactly
+    one applied record and has one parsed record; no seq is skipped. Returns the applied records."""
+    from orchestrator.traces import AppliedRecord, AttemptRecord, read_trace
+
+    contents = read_trace(path)
+    assert [r.seq for r in contents.records] == list(range(len(contents.records)))  # no wasted seq
+    attempts = {r.seq: r for r in contents.records if isinstance(r, AttemptRecord)}
+    applied = [r for r in contents.records if isinstance(r, AppliedRecord)]
+    assert [a.step for a in applied] == list(range(len(applied)))
+    named = [s for a in applied for s in a.ref_seqs]
+    step_attempts = sorted(s for s, r in attempts.items() if r.node in ("narrator", "event_parser"))
+    assert sorted(named) == step_attempts and len(set(named)) == len(named)
+    for a in applied:
+        assert a.ref_seqs, "every step of this story made LLM calls"
+        for seq in a.ref_seqs:
+            assert attempts[seq].request.sim_frame == a.requested_frame
+    describer = [r for r in attempts.values() if r.node == "describer"]
+    assert len(describer) == 1 and describer[0].request.sim_frame == applied[0].requested_frame
+    parsed = contents.parsed_by_seq()
+    assert sorted(parsed) == sorted(attempts)  # one parsed record per attempt, describer included
+    for seq, (p,) in parsed.items():
+        assert p.node == attempts[seq].node
+        if attempts[seq].node == "event_parser" and p.ok:
+            for plan in p.parsed_output["plans"]:
+                assert {"character", "action", "area", "position", "facing"} <= set(plan)
+                assert plan["action"] == "read_book" and len(plan["position"]) == 2
+    return applied
+
+
+def test_graph_session_traces_request_and_applied_frames_and_replays(home, motion, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from orchestrator.config import default_config
+    from orchestrator.llm_client import LiteLLMClient
+    from orchestrator.replay import ReplayClient
+    from orchestrator.traces import TraceWriter, read_trace
+
+    live_path = tmp_path / "live.jsonl"
+    client = LiteLLMClient(default_config(), TraceWriter(live_path, fsync="never"),
+                           acompletion=ScriptedCompletion(), check_local=lambda m: None)
+    settings = SessionSettings(frames=25 * FPS, pace="lockstep", max_steps=3, retry_after_s=1.0)
+    live = anyio.run(_graph_session, home, motion, client, client.trace, tmp_path, settings, "live")
+    client.close()
+    assert live.steps == 3 and all(isinstance(o, ParsedEvent) for _, o in live.outcomes)
+    applied = _check_frames_and_parsed(live_path)
+    assert [a.sim_frame for a in applied] == live.applied_frames
+    assert [a.requested_frame for a in applied] == live.applied_frames  # lockstep
+    assert len(applied[0].ref_seqs) == 3  # narrator + rejected parser reply + accepted one
+    assert len(set(live.applied_frames)) == 3  # the steps were planned at different frames
+    rejected = [p for ps in read_trace(live_path).parsed_by_seq().values() for p in ps if not p.ok]
+    assert [(p.node, p.error_type) for p in rejected] == [("event_parser", "NoCodeError")]
+
+    # replay (as `storyteller run --replay T --record T2`): same frames, a consistent new trace
+    replay_path = tmp_path / "replay.jsonl"
+    port = ReplayClient(live_path, trace_sink=TraceWriter(replay_path, fsync="never"))
+    replayed = anyio.run(_graph_session, home, motion, port, port.trace, tmp_path,
+                         SessionSettings(frames=25 * FPS, pace="fast", applied_frames=live.applied_frames), "replay")
+    port.close()
+    assert replayed.applied_frames == live.applied_frames
+    assert [o for _, o in replayed.outcomes] == [o for _, o in live.outcomes]
+    assert port.remaining() == 0
+    again = _check_frames_and_parsed(replay_path)
+    assert [(a.step, a.sim_frame, a.requested_frame, len(a.ref_seqs)) for a in again] == [
+        (a.step, a.sim_frame, a.requested_frame, len(a.ref_seqs)) for a in applied
+    ]

@@ -44,7 +44,7 @@ def test_round_trip_all_kinds(tmp_path: Path) -> None:
     with TraceWriter(path, run_id="run1", fsync="close", meta={"scene": "Office"}) as w:
         rec = attempt(w)
         w.record_parsed(rec.seq, {"event": {"characters": ["Ann"]}})
-        w.record_applied(rec.seq, sim_frame=95)
+        w.record_applied([rec.seq], sim_frame=95, step=0, requested_frame=10)
     contents = read_trace(path)
     assert contents.torn_tail is None
     kinds = [type(r) for r in contents.records]
@@ -54,7 +54,9 @@ def test_round_trip_all_kinds(tmp_path: Path) -> None:
     back = contents.records[1]
     assert back == rec and back.request.sim_frame == 10
     applied = contents.records[3]
-    assert isinstance(applied, AppliedRecord) and applied.ref_seq == rec.seq and applied.sim_frame == 95
+    assert isinstance(applied, AppliedRecord) and applied.ref_seqs == (rec.seq,) and applied.sim_frame == 95
+    assert applied.step == 0 and applied.requested_frame == 10
+    assert contents.applied_frame_by_seq() == {rec.seq: 95}
     assert path.read_bytes().count(b"\n") == 4
 
 
@@ -157,3 +159,24 @@ def test_writer_killed_mid_write_keeps_every_complete_record(tmp_path: Path, fsy
     attempts = [r for r in contents.records if isinstance(r, AttemptRecord)]
     assert [int(r.request.messages[0].content.split()[0]) for r in attempts] == list(range(len(attempts)))
     assert contents.torn_tail is None or contents.torn_tail.byte_offset == data.rfind(b"\n") + 1
+
+
+def test_legacy_applied_record_with_one_ref_seq_still_reads(tmp_path: Path) -> None:
+    path = tmp_path / "old.jsonl"
+    path.write_text(
+        '{"run_id":"r","seq":0,"time_unix":1.0,"kind":"applied","ref_seq":7,"sim_frame":30}\n', encoding="utf-8"
+    )
+    (rec,) = read_trace(path).records
+    assert isinstance(rec, AppliedRecord) and rec.ref_seqs == (7,) and rec.step is None and rec.sim_frame == 30
+
+
+def test_parsed_record_holds_output_or_typed_error(tmp_path: Path) -> None:
+    path = tmp_path / "t.jsonl"
+    with TraceWriter(path, fsync="never") as w:
+        rec = attempt(w)
+        w.record_parsed(rec.seq, None, node="event_parser", error_type="NoCodeError", error_message="no code")
+        w.record_parsed(rec.seq, {"plans": []}, node="event_parser")
+    contents = read_trace(path)
+    first, second = contents.parsed_by_seq()[rec.seq]
+    assert not first.ok and first.error_type == "NoCodeError" and first.parsed_output is None
+    assert second.ok and second.parsed_output == {"plans": []}
