@@ -286,3 +286,31 @@ def test_bad_choices_exit_2_with_a_clear_message(command: str, option: str, valu
     assert result.exit_code == 2
     assert f"error: {message}" in result.stderr
     assert not (tmp_path / "out").exists()  # nothing was started
+
+
+# ----- storyteller run ------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("planner", "description", "script", "nodes"),
+    [
+        ("unified", "object-list", {"fake-planner": [COFFEE]}, ["planner"]),
+        ("event", "scene-graph", {"fake-narrator": [NARRATION], "fake-event_parser": [COFFEE]}, ["narrator", "event_parser"]),
+    ],
+)
+def test_run_with_an_ablation_records_and_replays_the_same_story(
+    planner: str, description: str, script: dict[str, list[str]], nodes: list[str], fake: FakeProvider, tmp_path: Path
+) -> None:
+    cfg = write_config(tmp_path, fake.base)
+    fake.script.update(script)
+    args = ["run", "home", "-n", "2", "-d", "2", "--max-events", "1", "--planner", planner, "--description", description]
+    live = CliRunner().invoke(app, [*args, "--config", str(cfg), "--out", str(tmp_path / "live")], catch_exceptions=False)
+    assert live.exit_code == 0, live.stderr
+    assert "event-0000 starts: Ava: " in live.stdout
+    assert [r["model"] for r in fake.requests] == [f"fake-{n}" for n in nodes]  # no describer call
+    story = json.loads((tmp_path / "live" / "story.json").read_text(encoding="utf-8"))
+    assert story["steps"][0]["kind"] == "event" and story["steps"][0]["plans"][0]["action"] == "use_coffee_maker"
+    fake.stop()
+    again = CliRunner().invoke(
+        app, [*args, "--replay", str(tmp_path / "live" / "trace.jsonl"), "--out", str(tmp_path / "again")], catch_exceptions=False
+    )
+    assert again.exit_code == 0, again.stderr
+    assert (tmp_path / "again" / "story.json").read_bytes() == (tmp_path / "live" / "story.json").read_bytes()
