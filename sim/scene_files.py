@@ -80,13 +80,19 @@ def _read_text(path: Path) -> str:
         ) from None
 
 
-def _parse_json(path: Path, text: str) -> Any:
-    """Strict JSON: no NaN / Infinity (nor numbers that overflow to infinity), no duplicate keys."""
+def _parse_json(path: Path, text: str, layout: str | None = None) -> Any:
+    """Strict JSON: no NaN / Infinity (nor numbers that overflow to infinity), no duplicate keys.
+
+    A non-finite number is reported with the object and field holding it: ``layout`` says how
+    objects are found, ``"scene"`` (the project format, objects under ``"objects"``),
+    ``"objects"`` (a reference ``objects.json`` list) or None (no objects; field only).
+    """
     try:
-        return json.loads(
+        data = json.loads(
             text,
-            parse_constant=_reject_constant,
+            parse_constant=_NonFinite,
             parse_float=_finite_float,
+            parse_int=_bounded_int,
             object_pairs_hook=_unique_keys,
         )
     except json.JSONDecodeError as exc:
@@ -100,25 +106,81 @@ def _parse_json(path: Path, text: str) -> Any:
         raise SceneFileError(path, str(exc)) from None
     except RecursionError:
         raise SceneFileError(path, "JSON nested too deeply") from None
+    found = _first_non_finite(data)
+    if found is not None:
+        loc, bad = found
+        obj, field = _locate(data, loc, layout)
+        raise SceneFileError(path, bad.message, obj=obj, field=field)
+    return data
 
 
-def _read_json(path: Path) -> Any:
-    return _parse_json(path, _read_text(path))
+def _read_json(path: Path, layout: str | None = None) -> Any:
+    return _parse_json(path, _read_text(path), layout)
 
 
 class _JsonValueError(ValueError):
     pass
 
 
-def _reject_constant(name: str) -> float:
-    raise _JsonValueError(f"non-finite number '{name}' is not allowed (numbers must be finite)")
+class _NonFinite:
+    """Stands for a number JSON may not hold (NaN, Infinity, 1e999) until it is located."""
+
+    __slots__ = ("message",)
+
+    def __init__(self, text: str, message: str | None = None) -> None:
+        self.message = message or (
+            f"non-finite number '{text[:40]}' is not allowed (numbers must be finite)"
+        )
 
 
-def _finite_float(text: str) -> float:
+def _finite_float(text: str) -> float | _NonFinite:
     value = float(text)
     if not math.isfinite(value):
-        raise _JsonValueError(f"number {text[:40]} is too large (numbers must be finite)")
+        return _NonFinite(text, f"number {text[:40]} is too large (numbers must be finite)")
     return value
+
+
+_MAX_INT_DIGITS = 300
+
+
+def _bounded_int(text: str) -> int | _NonFinite:
+    if len(text) > _MAX_INT_DIGITS:
+        return _NonFinite(
+            text, f"number {text[:40]}... has {len(text)} digits (too large for a scene)"
+        )
+    return int(text)
+
+
+def _first_non_finite(data: Any) -> tuple[list[str | int], _NonFinite] | None:
+    """Where the first (in file order) non-finite number is, as a key / index path."""
+    stack: list[tuple[list[str | int], Any]] = [([], data)]
+    while stack:
+        loc, value = stack.pop()
+        if isinstance(value, _NonFinite):
+            return loc, value
+        if isinstance(value, dict):
+            stack.extend(([*loc, k], v) for k, v in reversed(value.items()))
+        elif isinstance(value, list):
+            stack.extend(([*loc, i], v) for i, v in reversed(list(enumerate(value))))
+    return None
+
+
+def _locate(data: Any, loc: list[str | int], layout: str | None) -> tuple[str | None, str | None]:
+    """(object name, dotted field) of a key / index path, as other errors name them."""
+    obj: str | None = None
+    rest = loc
+    if layout == "scene" and len(loc) >= 2 and loc[0] == "objects" and isinstance(loc[1], int):
+        raw = data["objects"][loc[1]]
+        name = raw.get("name") if isinstance(raw, dict) else None
+        obj = name if isinstance(name, str) and name else f"#{loc[1]}"
+        rest = loc[2:]
+    elif layout == "objects" and loc and isinstance(loc[0], int):
+        raw = data[loc[0]]
+        obj = _reference_name(raw, loc[0])
+        rest = loc[1:]
+    while rest and isinstance(rest[-1], int):  # "center", not "center.0"
+        rest = rest[:-1]
+    return obj, ".".join(map(str, rest)) or None
 
 
 def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
@@ -169,7 +231,7 @@ def load_scene_json(path: Path) -> Scene:
     booleans must be booleans, and every key must be known.
     """
     text = _read_text(path)
-    data = _parse_json(path, text)
+    data = _parse_json(path, text, "scene")
     if not isinstance(data, dict):
         hint = (
             " (a list of objects? pass the folder of a reference objects.json)"
@@ -241,7 +303,7 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
     label = raw.get("label")
     idx = raw.get("idx")
     ok_idx = isinstance(idx, int) and not isinstance(idx, bool)
-    name = f"{label}_{idx}" if isinstance(label, str) and label and ok_idx else f"#{i}"
+    name = _reference_name(raw, i)
     for key in sorted(_REFERENCE_REQUIRED - raw.keys()):
         raise SceneFileError(path, "required field is missing", obj=name, field=key)
     for key in sorted(raw.keys() - _REFERENCE_KEYS):
@@ -291,6 +353,14 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
         ) from None
 
 
+def _reference_name(raw: Any, i: int) -> str:
+    """``<label>_<idx>`` of a reference entry, ``#i`` when it has no usable label and idx."""
+    label = raw.get("label") if isinstance(raw, dict) else None
+    idx = raw.get("idx") if isinstance(raw, dict) else None
+    ok_idx = isinstance(idx, int) and not isinstance(idx, bool)
+    return f"{label}_{idx}" if isinstance(label, str) and label and ok_idx else f"#{i}"
+
+
 def reference_seat_height(sit_offset_vertical: float, height: float) -> float:
     """Seat height (m above the object's bottom) for a reference object.
 
@@ -329,7 +399,7 @@ def load_reference_folder(folder: Path) -> Scene:
         raise SceneFileError(
             folder, "folder has no objects.json (expected a reference annotation folder)"
         )
-    raw_objects = _read_json(objects_path)
+    raw_objects = _read_json(objects_path, "objects")
     if not isinstance(raw_objects, list):
         raise SceneFileError(objects_path, "expected a JSON list of objects at top level")
     objects = [_reference_object(objects_path, i, raw) for i, raw in enumerate(raw_objects)]

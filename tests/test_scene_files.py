@@ -189,9 +189,14 @@ BadCase = tuple[str, Callable[[Path], Path], str, str | None, str | None, str]
 BAD_CASES: list[BadCase] = [
     ("json-missing-field", lambda t: _write(t / "s.json", _without_key(1, "center")), "s.json", "cabinet_1", "center", "required field is missing"),
     ("json-missing-top", lambda t: _write(t / "s.json", {k: v for k, v in _project().items() if k != "bounds_max"}), "s.json", None, "bounds_max", "required field is missing"),
-    ("json-nan", lambda t: _write(t / "s.json", json.dumps(_project()).replace('"center": [0.45', '"center": [NaN')), "s.json", None, None, "non-finite number 'NaN'"),
-    ("json-infinity", lambda t: _write(t / "s.json", json.dumps(_project()).replace('"size": [0.8', '"size": [Infinity')), "s.json", None, None, "non-finite number 'Infinity'"),
-    ("json-overflow", lambda t: _write(t / "s.json", json.dumps(_project()).replace('"size": [0.8', '"size": [1e999')), "s.json", None, None, "too large"),
+    ("json-nan", lambda t: _write(t / "s.json", json.dumps(_project()).replace('"center": [0.45', '"center": [NaN')), "s.json", "fridge_1", "center", "non-finite number 'NaN'"),
+    ("json-infinity", lambda t: _write(t / "s.json", json.dumps(_project()).replace('"size": [0.8', '"size": [Infinity')), "s.json", "fridge_1", "size", "non-finite number 'Infinity'"),
+    ("json-overflow", lambda t: _write(t / "s.json", json.dumps(_project()).replace('"size": [0.8', '"size": [1e999')), "s.json", "fridge_1", "size", "too large"),
+    ("json-neg-infinity-second-object", lambda t: _write(t / "s.json", json.dumps(_project()).replace('"center": [1.95', '"center": [-Infinity')), "s.json", "cabinet_1", "center", "non-finite number '-Infinity'"),
+    ("json-nan-nameless-object", lambda t: _write(t / "s.json", json.dumps(_with_object(0, name=7)).replace('"idx": 1', '"idx": NaN', 1)), "s.json", "#0", "idx", "non-finite number 'NaN'"),
+    ("json-nan-top-level", lambda t: _write(t / "s.json", json.dumps(_project()).replace('"bounds_max": [8.0', '"bounds_max": [NaN')), "s.json", None, "bounds_max", "non-finite number 'NaN'"),
+    ("json-nan-nested", lambda t: _write(t / "s.json", json.dumps(_project()).replace('"cell_size": 0.3', '"cell_size": NaN')), "s.json", None, "nav.cell_size", "non-finite number 'NaN'"),
+    ("json-huge-int", lambda t: _write(t / "s.json", json.dumps(_project()).replace('"idx": 1', '"idx": ' + "9" * 5000, 1)), "s.json", "fridge_1", "idx", "5000 digits"),
     ("json-duplicate-name", lambda t: _write(t / "s.json", _with_object(2, **_project()["objects"][0])), "s.json", "fridge_1", "name", "duplicate object name"),
     ("json-negative-size", lambda t: _write(t / "s.json", _with_object(0, size=[0.8, -0.7, 1.8])), "s.json", "fridge_1", "size", ">= 0"),
     ("json-unknown-key", lambda t: _write(t / "s.json", _with_object(0, colour="red")), "s.json", "fridge_1", "colour", "unknown key"),
@@ -213,7 +218,13 @@ BAD_CASES: list[BadCase] = [
     ("unknown-suffix", lambda t: _write(t / "scene.yaml", "name: x"), "scene.yaml", None, None, "unsupported scene file type"),
     ("folder-without-objects", lambda t: (t / "empty_dir").mkdir() or t / "empty_dir", "empty_dir", None, None, "no objects.json"),
     ("ref-missing-field", lambda t: _reference_folder(t, _drop(1, "width")), "objects.json", "chair_2", "width", "required field is missing"),
-    ("ref-nan", lambda t: _ref_file(t, "objects.json", json.dumps(_ref_objects()).replace('"depth": 0.5', '"depth": NaN', 1)), "objects.json", None, None, "non-finite number 'NaN'"),
+    ("ref-nan", lambda t: _ref_file(t, "objects.json", json.dumps(_ref_objects()).replace('"depth": 0.5', '"depth": NaN', 1)), "objects.json", "chair_1", "depth", "non-finite number 'NaN'"),
+    ("ref-infinity-center", lambda t: _ref_file(t, "objects.json", json.dumps(_ref_objects()).replace('"center": [3.0', '"center": [Infinity', 1)), "objects.json", "table_1", "center", "non-finite number 'Infinity'"),
+    ("ref-infinity-ignored-key", lambda t: _reference_folder(t, _set(1, "bbox", [[0, 0, 0], [float("inf"), 1, 1]])), "objects.json", "chair_2", "bbox", "non-finite number 'Infinity'"),
+    ("ref-overflow", lambda t: _ref_file(t, "objects.json", json.dumps(_ref_objects()).replace('"width": 0.5', '"width": 1e999', 1)), "objects.json", "chair_1", "width", "number 1e999 is too large"),
+    ("ref-nan-nameless", lambda t: _ref_file(t, "objects.json", json.dumps(_ref_objects()).replace('"idx": 2', '"idx": NaN', 1)), "objects.json", "#1", "idx", "non-finite number 'NaN'"),
+    ("ref-scene-json-nan", lambda t: _ref_file(t, "scene.json", '{"bbox": [[0.0, 0.0, 0.0], [4.0, NaN, 2.5]]}'), "scene.json", None, "bbox", "non-finite number 'NaN'"),
+    ("ref-grid-nan", lambda t: _ref_file(t, "grid_map.json", '{"grid_step": NaN}'), "grid_map.json", None, "grid_step", "non-finite number 'NaN'"),
     ("ref-duplicate-name", lambda t: _reference_folder(t, _set(1, "idx", 1)), "objects.json", "chair_1", "idx", "duplicate object name"),
     ("ref-negative-size", lambda t: _reference_folder(t, _set(2, "height", -0.75)), "objects.json", "table_1", "height", ">= 0"),
     ("ref-unknown-key", lambda t: _reference_folder(t, _set(0, "material", "oak")), "objects.json", "chair_1", "material", "unknown key"),
@@ -286,3 +297,37 @@ def test_copied_reference_folder_loads_under_any_name(tmp_path: Path) -> None:
     scene = load_scene(tmp_path / "MyHouse")
     assert scene.name == "MyHouse" and len(scene.objects) == 23
     assert isinstance(scene, Scene)
+
+
+@pytest.mark.parametrize(
+    ("build", "where"),
+    [
+        (
+            lambda t: _write(
+                t / "s.json", json.dumps(_project()).replace('"center": [0.45', '"center": [NaN')
+            ),
+            "s.json: object 'fridge_1', field 'center': non-finite number 'NaN'",
+        ),
+        (
+            lambda t: _ref_file(
+                t,
+                "objects.json",
+                json.dumps(_ref_objects()).replace('"height": 0.75', '"height": Infinity', 1),
+            ),
+            "objects.json: object 'table_1', field 'height': non-finite number 'Infinity'",
+        ),
+    ],
+    ids=["project-json", "reference-folder"],
+)
+def test_cli_names_object_and_field_of_a_non_finite_number(
+    tmp_path: Path, build: Callable[[Path], Path], where: str
+) -> None:
+    from typer.testing import CliRunner
+
+    from orchestrator.cli import app
+
+    result = CliRunner().invoke(app, ["scene", "inspect", str(build(tmp_path))])
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and where in lines[0], result.stderr
+    assert "Traceback" not in result.output
