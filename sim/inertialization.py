@@ -24,8 +24,11 @@ def decay_spring(x: np.ndarray, v: np.ndarray, halflife: float, dt: float) -> tu
 
 
 def rotation_log(m: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) -> rotation vectors (..., 3)."""
-    return Rotation.from_matrix(m.reshape(-1, 3, 3)).as_rotvec().reshape(*m.shape[:-2], 3)
+    """(..., 3, 3) rotation matrices -> rotation vectors (..., 3).
+
+    The inputs are products of rotation matrices (orthonormal to rounding), so scipy's
+    projection onto SO(3) (an SVD per matrix, ~6x the cost) is skipped (``assume_valid``)."""
+    return Rotation.from_matrix(m.reshape(-1, 3, 3), assume_valid=True).as_rotvec().reshape(*m.shape[:-2], 3)
 
 
 def rotation_exp(v: np.ndarray) -> np.ndarray:

@@ -16,9 +16,10 @@ Frames: world z up; the character frame has x forward, y left, origin at the roo
 
 from __future__ import annotations
 
+import math
 import weakref
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -171,19 +172,35 @@ class _Frames:
     pair_a: np.ndarray
     pair_b: np.ndarray
     clip_z: np.ndarray
-    _motion: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False, compare=False)
+    _motion: dict[str, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     def motion(self, frame: int) -> tuple[np.ndarray, np.ndarray]:
         """Angular velocities (22,3) rad/s and pelvis velocity (3,) m/s at ``frame``."""
-        out = self._motion.get(frame)
-        if out is None:
-            a, b = int(self.pair_a[frame]), int(self.pair_b[frame])
-            if a != b:
-                out = (angular_velocity(self.rot[a], self.rot[b], 1.0 / FPS), (self.pelvis[b] - self.pelvis[a]) * FPS)
-            else:
-                out = (np.zeros((NUM_JOINTS, 3)), np.zeros(3))
-            self._motion[frame] = out
-        return out
+        mo = self._motion
+        if not mo:  # every frame at once, on first use
+            a, b = self.pair_a, self.pair_b
+            ang = angular_velocity(self.rot[a], self.rot[b], 1.0 / FPS)
+            lin = (self.pelvis[b] - self.pelvis[a]) * FPS
+            still = a == b
+            ang[still] = 0.0
+            lin[still] = 0.0
+            mo["ang"], mo["lin"] = ang, lin
+        return mo["ang"][frame], mo["lin"][frame]
+
+
+@dataclass(frozen=True)
+class _Table:
+    """Per-database frame facts as Python lists: next frame and non-loop end (``next_frame``),
+    whether the frame's clip loops, its clip id; ``completes``: the family plays non-looping
+    clips through (in-place, partner, sitting); ``entry``: a switch into it searches the entry
+    index."""
+
+    nxt: list[int]
+    end: list[bool]
+    loops: list[bool]
+    clip: list[int]
+    completes: bool
+    entry: bool
 
 
 def _frames_of(db: MotionDatabase) -> _Frames:
@@ -238,6 +255,10 @@ class MotionMatcher:
         self.blend_halflife = float(blend_halflife)
         self.continuation_window = int(continuation_window)
         self._frames: dict[str, _Frames] = {}
+        self._tables: dict[str, _Table] = {}
+        # (states returned by the last step_many, their offset arrays): lets the next call skip
+        # re-stacking per-character offsets when it gets those very states back
+        self._last_batch: tuple[tuple[MatchState, ...], tuple[np.ndarray, ...]] | None = None
 
     def database(self, label: str, seated: bool = False) -> MotionDatabase:
         key = database_key(label, seated)
@@ -251,6 +272,22 @@ class MotionMatcher:
         out = self._frames.get(key)
         if out is None:
             out = self._frames[key] = _shared_frames(self.databases[key])
+        return out
+
+    def _table(self, key: str) -> _Table:
+        """Per-database frame tables as Python lists (cheap per-character lookups)."""
+        out = self._tables.get(key)
+        if out is None:
+            db = self.databases[key]
+            clip = [int(c) for c in db.clip_of_frame]
+            steps = [db.next_frame(f) for f in range(db.num_frames)]
+            loops = [bool(db.clip_loops[c]) for c in clip]
+            fam = family_of(key)
+            out = self._tables[key] = _Table(
+                nxt=[f for f, _ in steps], end=[e for _, e in steps], loops=loops, clip=clip,
+                completes=fam in ("in_place", "partner", "sitting"),
+                entry=fam in ("in_place", "partner") and not bool(np.asarray(db.clip_loops).all()),
+            )
         return out
 
     def initial_state(self, label: str, root_xy: Sequence[float], heading: float, seated: bool = False) -> MatchState:
@@ -322,33 +359,45 @@ class MotionMatcher:
         dbs = [self.database(q.label, q.seated) for q in queries]
         clocks, roots, headings, frames, since = [], [], [], [], []
         changed, completing, entry, done, need, n_advs = [], [], [], [], [], []
+        step_frames = dt * FPS
         for state, query, db in zip(states, queries, dbs, strict=True):
             cur = self.databases[state.key]
-            clock = state.frame_clock + dt * FPS
-            n_adv = int(np.floor(clock + 1e-9))
+            tab = self._table(state.key)
+            clock = state.frame_clock + step_frames
+            n_adv = math.floor(clock + 1e-9)
             clock -= n_adv
             frame, ended = state.frame, False
-            root_xy, heading = state.root_xy.copy(), state.heading
-            for _ in range(n_adv):
-                nxt, end = cur.next_frame(frame)
-                if end:
-                    ended = True
-                    break
-                if nxt == frame + 1:  # root motion of the database (not across a loop seam)
-                    d = cur.root_xy[nxt] - cur.root_xy[frame]
-                    c, s = np.cos(heading - cur.heading[frame]), np.sin(heading - cur.heading[frame])
-                    root_xy = root_xy + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
-                    heading += float(cur.heading[nxt] - cur.heading[frame])
-                frame = nxt
-            if query.root_xy is not None:
+            if query.root_xy is not None and query.heading is not None:  # root given: no root motion
+                nxt_of, end_of = tab.nxt, tab.end
+                for _ in range(n_adv):
+                    if end_of[frame]:
+                        ended = True
+                        break
+                    frame = nxt_of[frame]
                 root_xy = np.asarray(query.root_xy, dtype=float).reshape(2)
-            if query.heading is not None:
                 heading = float(query.heading)
+            else:
+                root_xy, heading = state.root_xy.copy(), state.heading
+                for _ in range(n_adv):
+                    nxt, end = cur.next_frame(frame)
+                    if end:
+                        ended = True
+                        break
+                    if nxt == frame + 1:  # root motion of the database (not across a loop seam)
+                        d = cur.root_xy[nxt] - cur.root_xy[frame]
+                        c, s = np.cos(heading - cur.heading[frame]), np.sin(heading - cur.heading[frame])
+                        root_xy = root_xy + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+                        heading += float(cur.heading[nxt] - cur.heading[frame])
+                    frame = nxt
+                if query.root_xy is not None:
+                    root_xy = np.asarray(query.root_xy, dtype=float).reshape(2)
+                if query.heading is not None:
+                    heading = float(query.heading)
             ch = db.key != state.key
+            new_tab = self._table(db.key)
             comp = False
             if not ch:
-                comp = family_of(db.key) in ("in_place", "partner", "sitting") and not bool(
-                    db.clip_loops[int(db.clip_of_frame[frame])])
+                comp = new_tab.completes and not new_tab.loops[frame]
             dn = state.done and not ch
             sn = state.since_search + n_adv
             periodic = sn >= self.search_interval and not comp  # completing actions play through
@@ -363,7 +412,7 @@ class MotionMatcher:
             since.append(0 if nd else sn)
             changed.append(ch)
             completing.append(comp)
-            entry.append(ch and family_of(db.key) in ("in_place", "partner") and not bool(db.clip_loops.all()))
+            entry.append(ch and new_tab.entry)
             done.append(dn)
             need.append(nd)
             n_advs.append(n_adv)
@@ -384,10 +433,15 @@ class MotionMatcher:
                 index = db.entry_index if ent else db.index
                 best[np.array(members)] = index.query_many(db.normalize(raw))[0]
 
-        off_rot = np.stack([s.offset_rot for s in states])  # type: ignore[arg-type]
-        off_av = np.stack([s.offset_ang_vel for s in states])  # type: ignore[arg-type]
-        off_pos = np.stack([s.offset_pos for s in states])  # type: ignore[arg-type]
-        off_vel = np.stack([s.offset_vel for s in states])  # type: ignore[arg-type]
+        last = self._last_batch
+        if last is not None and len(last[0]) == n and all(a is b for a, b in zip(last[0], states, strict=True)):
+            # the very states returned by the previous call: their offsets are rows of these arrays
+            off_rot, off_av, off_pos, off_vel = (x.copy() for x in last[1])
+        else:
+            off_rot = np.stack([s.offset_rot for s in states])  # type: ignore[arg-type]
+            off_av = np.stack([s.offset_ang_vel for s in states])  # type: ignore[arg-type]
+            off_pos = np.stack([s.offset_pos for s in states])  # type: ignore[arg-type]
+            off_vel = np.stack([s.offset_vel for s in states])  # type: ignore[arg-type]
         new_keys = [s.key for s in states]
         new_frames = list(frames)
         switched: list[int] = []
@@ -395,7 +449,8 @@ class MotionMatcher:
             if not need[i]:
                 continue
             b, db, frame = int(best[i]), dbs[i], frames[i]
-            same_clip = not changed[i] and db.clip_of_frame[b] == db.clip_of_frame[frame]
+            clip_of = self._table(db.key).clip
+            same_clip = not changed[i] and clip_of[b] == clip_of[frame]
             if not (same_clip and 0 <= b - frame <= self.continuation_window):
                 switched.append(i)
         if switched:
@@ -440,14 +495,15 @@ class MotionMatcher:
             out_db = self.databases[new_keys[i]]
             pose = Pose(pelvis[i], local[i], roots[i], headings[i], out_db.contacts[new_frames[i]].copy())
             poses.append(pose)
-            out_states.append(replace(
-                state, key=new_keys[i], frame=new_frames[i], root_xy=roots[i], heading=headings[i],
+            out_states.append(MatchState(
+                key=new_keys[i], frame=new_frames[i], root_xy=roots[i], heading=headings[i],
                 frame_clock=clocks[i], since_search=since[i], offset_rot=off_rot[i], offset_ang_vel=off_av[i],
                 offset_pos=off_pos[i], offset_vel=off_vel[i], pose_local=local[i], pose_pelvis=pelvis[i],
                 prev_local=state.pose_local, prev_pelvis=state.pose_pelvis, pose_dt=float(dt),
                 elapsed=0.0 if changed[i] else state.elapsed + dt, done=done[i],
                 switches=state.switches + (1 if i in switched_set else 0), searches=state.searches + int(need[i]),
             ))
+        self._last_batch = (tuple(out_states), (off_rot, off_av, off_pos, off_vel))
         return out_states, poses
 
     @staticmethod
