@@ -35,7 +35,7 @@ def _local_models(cfg) -> list[str]:  # type: ignore[no-untyped-def]
 @model_app.command("info")
 def info(config: ConfigOption = None) -> None:
     """Print each node's model, fallbacks, sampling, timeout and retry settings."""
-    from orchestrator.model_weights import KNOWN_WEIGHTS, weights_status
+    from orchestrator.model_weights import KNOWN_WEIGHTS, install_command, weights_status
 
     cfg = _load(config)
     typer.echo(f"config: {cfg.source}   trace fsync: {cfg.trace.fsync}")
@@ -49,16 +49,25 @@ def info(config: ConfigOption = None) -> None:
             + (f" api_base={node.api_base}" if node.api_base else "")
             + (f" api_key_env={node.api_key_env}" if node.api_key_env else "")
         )
-    for model in _local_models(cfg):
-        spec = KNOWN_WEIGHTS.get(model.removeprefix("local/"))
-        if spec is None:
+    used = _local_models(cfg)
+    for model in used:
+        if model.removeprefix("local/") not in KNOWN_WEIGHTS:
             typer.echo(f"{model}: unknown local model")
-            continue
+    typer.echo("embedded models:")
+    for spec in KNOWN_WEIGHTS.values():
+        name = f"local/{spec.model}"
         st = weights_status(spec)
         state = "verified" if st.verified else ("installed, not assembled yet" if st.packages_installed else "MISSING")
-        typer.echo(f"{model}: {spec.description}; weights {state} ({st.assembled_path})")
-        if st.problem:
-            typer.echo(f"  {st.problem}")
+        size = f"{spec.size / 1e9:.2f} GB" if spec.size else "size unknown"
+        where = "used by this config" if name in used else "not used by this config"
+        typer.echo(f"  {name}: {spec.description}; {size}, sha256 {spec.sha256[:12]}...; weights {state} "
+                   f"({st.assembled_path}); {where}")
+        if not st.packages_installed:
+            typer.echo(f"    install: {install_command(spec)}")
+        if name not in used:
+            typer.echo(f"    use: STORYTELLER_MODEL={name}, or model = \"{name}\" under [llm] in the config")
+        if st.problem and name in used:
+            typer.echo(f"    {st.problem}")
 
 
 @model_app.command("check")

@@ -27,7 +27,7 @@ import litellm
 from litellm import CustomLLM, ModelResponse
 
 from agents.llm_port import LLMUnavailableError
-from orchestrator.model_weights import WeightsSpec, ensure_weights, spec_for
+from orchestrator.model_weights import WeightsSpec, ensure_weights, spec_for, verified_weights_path
 
 N_CTX = 4096
 N_THREADS = int(os.environ.get("STORYTELLER_LOCAL_THREADS", "2"))  # llama.cpp threads
@@ -73,12 +73,15 @@ def bound_arrays(schema: Any, max_items: int = DEFAULT_ARRAY_MAX_ITEMS) -> Any:
 
 
 def get_llama(spec: WeightsSpec) -> tuple[Any, threading.Lock]:
-    """The process-wide Llama instance for ``spec`` and the lock that serialises its use."""
+    """The process-wide Llama instance for ``spec`` and the lock that serialises its use.
+
+    The weights file is sha256-checked in full right before it is loaded (the stamp alone
+    does not see in-place edits); a mismatch raises :class:`WeightsIntegrityError`."""
     with _load_lock:
         if spec.model not in _instances:
             from llama_cpp import Llama
 
-            path = ensure_weights(spec)
+            path = verified_weights_path(spec)
             llm = Llama(
                 model_path=str(path), n_ctx=N_CTX, n_threads=N_THREADS, n_threads_batch=N_THREADS,
                 seed=SEED, n_gpu_layers=0, verbose=False,

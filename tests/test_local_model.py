@@ -7,7 +7,7 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import anyio
 import litellm
@@ -24,7 +24,16 @@ from orchestrator.local_model import (
     bound_arrays,
     register_local_provider,
 )
-from orchestrator.model_weights import QWEN_05B, WeightsMissingError, locate_chunks
+from orchestrator.model_weights import (
+    QWEN_05B,
+    QWEN_15B,
+    WeightsIntegrityError,
+    WeightsMissingError,
+    WeightsSpec,
+    ensure_weights,
+    forget_hashes,
+    locate_chunks,
+)
 from orchestrator.traces import TraceWriter, read_trace
 
 SCHEMA = {
@@ -220,3 +229,103 @@ async def test_truncated_local_json_goes_to_fallback_without_retry(tmp_path: Pat
     recs = list(read_trace(tmp_path / "t.jsonl").attempts())
     assert [r.model for r in recs] == ["local/qwen2.5-coder-0.5b", "local/qwen2.5-coder-1.5b"]
     assert all(r.error_class == "permanent" for r in recs) and len(truncated.calls) == 2
+
+
+class FakeLlamaClass:
+    """Stands in for ``llama_cpp.Llama``: records every load, loads nothing."""
+
+    loads: ClassVar[list[str]] = []
+
+    def __init__(self, model_path: str, **kw: Any) -> None:
+        FakeLlamaClass.loads.append(model_path)
+
+    def close(self) -> None:
+        return None
+
+
+def test_get_llama_hashes_the_file_before_loading_and_refuses_a_tampered_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import hashlib
+    import os
+    import sys
+    import types
+
+    from orchestrator import local_model
+
+    blob = b"GGUF" + bytes(range(256)) * 64
+    spec = WeightsSpec(model="fake-tamper", filename="fake-tamper.gguf", packages=("x",), version="1",
+                       sha256=hashlib.sha256(blob).hexdigest(), size=len(blob), description="test")
+    monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path))
+    models = tmp_path / "models"
+    models.mkdir()
+    path = models / spec.filename
+    path.write_bytes(blob)
+    assert ensure_weights(spec) == path  # hashed and stamped (no chunks needed: the file is right)
+    monkeypatch.setitem(sys.modules, "llama_cpp", types.SimpleNamespace(Llama=FakeLlamaClass))
+    FakeLlamaClass.loads = []
+    forget_hashes()  # as in a later process, which has only the stamp
+    st = path.stat()
+    data = bytearray(blob)
+    data[100] ^= 0x01
+    path.write_bytes(bytes(data))
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))  # same size, same mtime: the stamp still matches
+    try:
+        with pytest.raises(WeightsIntegrityError, match="Refusing to load it"):
+            local_model.get_llama(spec)
+        assert FakeLlamaClass.loads == [] and spec.model not in local_model.loaded_models()
+        path.write_bytes(blob)  # restored: loads, once per process
+        local_model.get_llama(spec)
+        local_model.get_llama(spec)
+        assert FakeLlamaClass.loads == [str(path)]
+    finally:
+        local_model._instances.pop(spec.model, None)
+
+
+async def test_missing_quality_weights_message_names_the_install_command(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    try:
+        import llama_cpp  # noqa: F401
+    except ImportError:
+        pytest.skip("llama-cpp-python is not installed (pip install -e '.[local]')")
+    try:
+        locate_chunks(QWEN_15B)
+    except WeightsMissingError:
+        pass
+    else:
+        pytest.skip("the quality weights are installed here")
+    monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path))
+    base = default_config()
+    node = base.nodes["narrator"].model_copy(update={"model": "local/qwen2.5-coder-1.5b"})
+    client = LiteLLMClient(base.model_copy(update={"nodes": {**base.nodes, "narrator": node}}))
+    from agents.llm_port import LLMUnavailableError
+
+    with pytest.raises(LLMUnavailableError) as info:
+        await client.complete(request())
+    msg = str(info.value)
+    assert "local/qwen2.5-coder-1.5b" in msg and "pip install -e '.[local,quality]'" in msg
+
+
+@pytest.mark.embedded_model
+async def test_real_quality_model_answers_schema_json(tmp_path: Path) -> None:
+    """The 1.5B "quality" option end to end (skipped unless `.[local,quality]` is installed)."""
+    try:
+        import llama_cpp  # noqa: F401
+        locate_chunks(QWEN_15B)
+    except (ImportError, WeightsMissingError):
+        pytest.skip("quality weights not installed (pip install -e '.[local,quality]')")
+    register_local_provider(LocalLlamaProvider())
+    base = default_config()
+    node = base.nodes["narrator"].model_copy(update={"model": "local/qwen2.5-coder-1.5b", "timeout_s": 600.0})
+    client = LiteLLMClient(base.model_copy(update={"nodes": {**base.nodes, "narrator": node}}),
+                           TraceWriter(tmp_path / "t.jsonl"))
+    resp = await client.complete(LLMRequest(
+        node="narrator",
+        messages=(ChatMessage(role="system", content="You answer with JSON only."),
+                  ChatMessage(role="user", content="A cat: which animal is it, how many legs, two tags?")),
+        json_schema=SCHEMA, max_tokens=60,
+    ))
+    client.close()
+    value = json.loads(resp.text)
+    assert value["animal"] in ("cat", "dog") and resp.model == "local/qwen2.5-coder-1.5b"

