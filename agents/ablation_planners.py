@@ -184,6 +184,7 @@ class UnifiedPlanner:
             "planner/request.md",
             characters=characters_text(step.characters),
             free=", ".join(free) if free else "(none)",
+            seats_in_use=", ".join(step.seats_in_use) if step.seats_in_use else "none",
             history=history_text(step.history),
             instruction=step.instruction.strip() or "(none: continue the story naturally)",
         )
@@ -316,35 +317,36 @@ def direct_program(plans: DirectPlans, scene: Scene | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def blocked_positions(scene: Scene, world: Any, plans: Sequence[Any]) -> list[str]:
-    """Problems of standing points: inside furniture / off the floor, or too close to another
-    character (planned in the same event, or anyone else's position or target)."""
+def blocked_positions(scene: Scene, world: Any, plans: DirectPlans) -> list[str]:
+    """Problems of the standing points of ``plans`` (checked before the program runs, so the
+    feedback speaks of coordinates): inside furniture or too near the scene's edge, or closer
+    than MIN_SEPARATION to another character (planned earlier in the same event, or anyone
+    else's position or target). Points on a seat are seats (see :func:`direct_program`)."""
     floor = FloorMap(scene)
-    moving = {str(p.character) for p in plans}
+    moving = {p.character for p in plans.plans}
     others: list[tuple[str, tuple[float, float]]] = []
-    if world is not None and hasattr(world, "characters"):
-        for c in world.characters:
-            if c.name in moving:
-                continue
+    for c in getattr(world, "characters", ()):
+        if c.name not in moving:
             others += [(c.name, pt) for pt in (c.position, c.target_position) if pt is not None]
     problems: list[str] = []
-    for p in plans:
-        if p.seat is not None:
-            others.append((p.character, p.position))
+    for p in plans.plans:
+        if seat_at(scene, p.x, p.y) is not None:
             continue
-        x, y = p.position
-        where = f"{p.character} at [{x:.2f}, {y:.2f}]"
-        inside = floor.colliding_objects((x, y))
+        where = f"{p.character} at [{p.x:.2f}, {p.y:.2f}]"
+        inside = floor.colliding_objects((p.x, p.y))
         if inside:
-            problems.append(f"{where} is inside {', '.join(inside)} (stand at least {floor.body_radius:.2f} m from furniture)")
-        elif not bool(floor.free([[x, y]])[0]):
-            problems.append(f"{where} is too close to the edge of the scene")
+            problems.append(
+                f"{where} is inside {', '.join(inside)} (stand on free floor at least "
+                f"{floor.body_radius:.2f} m from furniture)"
+            )
+        elif not bool(floor.free([[p.x, p.y]])[0]):
+            problems.append(f"{where} is off the free floor (too close to the edge of the scene)")
         for name, q in others:
-            d = float(np.hypot(x - q[0], y - q[1]))
+            d = float(np.hypot(p.x - q[0], p.y - q[1]))
             if d < MIN_SEPARATION:
                 problems.append(f"{where} is {d:.2f} m from {name} (keep {MIN_SEPARATION:.1f} m apart)")
                 break
-        others.append((p.character, p.position))
+        others.append((p.character, (p.x, p.y)))
     return problems
 
 
@@ -372,6 +374,7 @@ class DirectInferencePlanner:
                 + (f", at [{c.position[0]:.1f}, {c.position[1]:.1f}]" if c.position else "")
                 for c in step.characters
             ),
+            seats_in_use=", ".join(step.seats_in_use) if step.seats_in_use else "none",
             event_characters=", ".join(f'"{n}"' for n in event.characters),
             activity=event.activity.strip(),
         )
@@ -389,6 +392,9 @@ class DirectInferencePlanner:
     def check(self, step: PlanningStep, event: Event, reply: str) -> tuple[str, ParsedEvent]:
         start, end = reply.find("{"), reply.rfind("}")
         plans = DirectPlans.model_validate(json.loads(reply[start : end + 1] if 0 <= start < end else reply))
+        problems = blocked_positions(step.scene, step.world, plans)
+        if problems:
+            raise BlockedPositionError("; ".join(problems))
         program = direct_program(plans, step.scene)
         result = run_reply(
             f"```python\n{program}```",
@@ -400,9 +406,6 @@ class DirectInferencePlanner:
             graph=step.graph,
             runner=step.runner,
         )
-        problems = blocked_positions(step.scene, step.world, result.plans)
-        if problems:
-            raise BlockedPositionError("; ".join(problems))
         return program, ParsedEvent(index=step.index, event=event, plans=result.plans, program=program)
 
     async def plan(self, step: PlanningStep) -> StepOutcome:

@@ -127,3 +127,28 @@ async def test_failures_are_outcomes_not_exceptions() -> None:
     port = Port([json.dumps({"reasoning": "", "event": {"characters": ["Zed"], "activity": "x"}})] * 2)
     out = await EventDrivenPlanner(port, PromptLibrary(), max_retries=1).plan(step())
     assert isinstance(out, PlanningFailure) and out.node == "narrator" and out.attempts == 2
+
+
+def test_direct_program_turns_a_point_on_a_seat_into_sitting() -> None:
+    chair = SCENE.get("chair_1").center
+    plans = DirectPlans.model_validate(
+        {"plans": [{"character": "Ava", "action": "eat", "x": chair[0], "y": chair[1], "look_at": "table_1"}]}
+    )
+    assert 'set_position(get_area_to_sit_on("chair_1"))' in direct_program(plans, SCENE)
+    assert "set_position([" in direct_program(plans)  # without the scene: plain coordinates
+
+
+def test_direct_points_near_other_characters_or_off_the_floor_are_blocked() -> None:
+    from agents.ablation_planners import blocked_positions
+
+    roster = initial_roster(SCENE, 2, seed=1)
+    world = RosterWorld().world_view(roster)
+    bx, by = roster[1].position
+    near_ben = DirectPlans.model_validate({"plans": [{"character": "Ava", "action": "idle", "x": bx + 0.2, "y": by, "look_at": ""}]})
+    (problem,) = blocked_positions(SCENE, world, near_ben)
+    assert problem.startswith(f"Ava at [{bx + 0.2:.2f}, {by:.2f}] is 0.20 m from Ben")
+    x0 = SCENE.bounds_min[0]
+    edge = DirectPlans.model_validate({"plans": [{"character": "Ava", "action": "idle", "x": x0 + 0.05, "y": by, "look_at": ""}]})
+    assert any("off the free floor" in p or "inside" in p for p in blocked_positions(SCENE, world, edge))
+    far = DirectPlans.model_validate({"plans": [{"character": "Ben", "action": "idle", "x": bx, "y": by, "look_at": ""}]})
+    assert blocked_positions(SCENE, world, far) == []  # Ben may stay where he is
