@@ -70,41 +70,46 @@ class PlanResult:
 
 class _Reservations:
     """Per step t (relative to the plan start): for every cell id near a reserved agent, the
-    moves those agents still allow there, so that a search looks up one list per expansion.
+    moves those agents still allow there, so that a search looks up one int per expansion.
 
-    ``near[t][cell]`` lists ``(agent, mask)``: bit ``m + 6`` of ``mask`` is set when the move
-    with code ``m = 5 * dx + dy`` from ``cell`` keeps clear of ``agent`` during step t (entries
-    allowing every move are left out).
+    ``near[t][cell]`` is a bit mask: bit ``m + 6`` is set when the move with code
+    ``m = 5 * dx + dy`` from ``cell`` keeps clear of every agent reserved during step t (cells
+    where every move is allowed are absent). ``moves[t]`` keeps each agent's (cell id,
+    velocity code) at step t so that ``remove`` can rebuild the masks of a step.
     """
 
     def __init__(self, n_steps: int, planner: PathPlanner) -> None:
-        self.near: list[dict[int, list[tuple[Agent, int]]]] = [{} for _ in range(n_steps)]
+        self.near: list[dict[int, int]] = [{} for _ in range(n_steps)]
+        self.moves: list[dict[Agent, tuple[int, int]]] = [{} for _ in range(n_steps)]
         self._planner = planner
 
     def add(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
         nyp = self._planner._ny_p
         masks = self._planner._near_masks
+        full = self._planner._full_mask
         for t in range(min(upto, len(ids) - 1, len(self.near))):
             a, b = ids[t], ids[t + 1]
             d = b - a
             dx = round(d / nyp) if abs(d) > 1 else 0
             dy = d - dx * nyp
+            vel = (dx + 2) * 5 + (dy + 2)
+            self.moves[t][agent] = (a, vel)
             near = self.near[t]
-            for cell, mask in masks(a, (dx + 2) * 5 + (dy + 2)):
-                lst = near.get(cell)
-                if lst is None:
-                    near[cell] = [(agent, mask)]
-                else:
-                    lst.append((agent, mask))
+            for cell, mask in masks(a, vel):
+                near[cell] = near.get(cell, full) & mask
 
     def remove(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
-        tables = self._planner._near_cells
+        masks = self._planner._near_masks
+        full = self._planner._full_mask
         for t in range(min(upto, len(ids) - 1, len(self.near))):
-            near = self.near[t]
-            for cell, _ in tables[ids[t]]:
-                lst = near.get(cell)
-                if lst:
-                    near[cell] = [e for e in lst if e[0] != agent]
+            moves = self.moves[t]
+            if moves.pop(agent, None) is None:
+                continue
+            near: dict[int, int] = {}
+            for a, vel in moves.values():
+                for cell, mask in masks(a, vel):
+                    near[cell] = near.get(cell, full) & mask
+            self.near[t] = near
 
 
 class PathPlanner:
@@ -486,12 +491,7 @@ class PathPlanner:
             expansions += 1
             if expansions > max_exp:
                 return None, expansions
-            allow = full
-            if t < n_steps:
-                others = near[t].get(cid)
-                if others:
-                    for _, mk in others:
-                        allow &= mk
+            allow = near[t].get(cid, full) if t < n_steps else full
             moves = overrides.get(cid)
             if moves is None:
                 moves = nbrs[cid]
