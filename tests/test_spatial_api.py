@@ -14,6 +14,7 @@ from sim.scene_files import load_scene
 from tools.areas import Area
 from tools.character_states import WorldView, world_view_from_reference_case
 from tools.errors import (
+    BlockedPositionError,
     EventProgramError,
     ToolArgumentError,
     UnknownActionError,
@@ -24,7 +25,7 @@ from tools.errors import (
 from tools.event_program import run_event_program
 from tools.position_sampling import FloorMap
 from tools.scene_graph import build_scene_graph
-from tools.spatial_api import CharacterHandle, SpatialAPI
+from tools.spatial_api import MAX_NEW_CHARACTERS, CharacterHandle, SpatialAPI
 
 REF = (
     Path(__file__).resolve().parents[1].parent
@@ -345,3 +346,123 @@ def test_interacting_with_a_seat_sits_and_objects_on_furniture_are_reached_from_
     assert plan.area == "interact with tv_1" and plan.seat is None
     local = tv.to_local(np.array(plan.position))
     assert local[1] >= tv.depth / 2  # on the screen's side
+
+
+# ----- explicit [x, y] positions ---------------------------------------------------------------
+def _program(*lines: str) -> str:
+    return "def parse_event():\n" + "".join(f"    {line}\n" for line in lines)
+
+
+def test_raw_point_inside_furniture_is_refused_at_its_line(
+    house: Scene, case0: tuple[WorldView, list[str]]
+) -> None:
+    world, labels = case0
+    source = _program("r = get_character('Ryan')", "r.set_position([2.94, 3.0])")
+    with pytest.raises(BlockedPositionError) as info:
+        run_event_program(house, source, world, seed=0, action_labels=labels)
+    assert info.value.line == 3
+    assert info.value.feedback.startswith(
+        "line 3: position [2.94, 3.00] for Ryan is inside table_4"
+    )
+    assert "get_area_close_to('table_4')" in info.value.feedback
+
+
+def test_raw_point_against_furniture_or_the_edge_is_refused(api: SpatialAPI) -> None:
+    ryan = api.namespace()["get_character"]("Ryan")
+    table = api.scene.by_name["table_4"]
+    beside = (table.center[0], table.center[1] + table.depth / 2 + 0.1)  # 0.1 m off its side
+    with pytest.raises(BlockedPositionError, match=r"within 0\.25 m of table_4"):
+        ryan.set_position(list(beside))
+    with pytest.raises(BlockedPositionError, match="edge of the scene"):
+        ryan.set_position([0.1, 5.0])
+    assert api.resolve(seed=0) == []  # nothing was recorded
+
+
+def test_raw_point_on_another_character_is_refused_naming_the_line(
+    house: Scene, case0: tuple[WorldView, list[str]]
+) -> None:
+    world, labels = case0
+    deanna = world.character("Deanna")
+    assert deanna is not None and deanna.position is not None
+    x, y = deanna.position
+    source = _program(
+        "r = get_character('Ryan')",
+        f"r.set_position([{x + 0.2}, {y}])",
+        "r.set_target_action('idle')"
+        if "idle" in labels
+        else f"r.set_target_action('{labels[0]}')",
+    )
+    with pytest.raises(BlockedPositionError) as info:
+        run_event_program(house, source, world, seed=0, action_labels=labels)
+    assert info.value.line == 3
+    assert "for Ryan is 0.20 m from Deanna's position" in info.value.feedback
+
+
+def test_many_characters_on_one_point_are_refused(house: Scene) -> None:
+    source = _program(*(f"get_character('c{i}').set_position([2.0, 5.5])" for i in range(5)))
+    with pytest.raises(BlockedPositionError) as info:
+        run_event_program(house, source, WorldView(), seed=0)
+    assert info.value.line == 3  # the second character on the point
+    assert "for c1 is 0.00 m from c0's planned position" in info.value.feedback
+
+
+def test_raw_points_half_a_metre_apart_are_accepted(house: Scene) -> None:
+    source = _program(
+        "get_character('a').set_position([2.0, 5.0])", "get_character('b').set_position([2.0, 5.5])"
+    )
+    plans = run_event_program(house, source, WorldView(), seed=0)
+    assert [p.position for p in plans] == [(2.0, 5.0), (2.0, 5.5)]
+
+
+def test_area_placements_keep_clear_of_later_raw_points(house: Scene) -> None:
+    # 'a' samples first; 'b' asks for an exact point inside the same area afterwards.
+    # The point is inside the area, near where 'a' lands for most seeds if it ignores 'b'.
+    for seed in range(10):
+        source = _program(
+            "get_character('a').set_position(get_area_to_interact_with('fridge_1'))",
+            "get_character('b').set_position([4.34, 1.26])",
+        )
+        a, b = run_event_program(house, source, WorldView(), seed=seed)
+        assert np.hypot(a.position[0] - 4.34, a.position[1] - 1.26) >= 0.5 - 1e-9
+        assert b.position == (4.34, 1.26)
+
+
+def test_raw_point_may_take_the_spot_of_a_character_who_moves_away(
+    house: Scene, case0: tuple[WorldView, list[str]]
+) -> None:
+    world, _labels = case0
+    deanna = world.character("Deanna")
+    assert deanna is not None and deanna.position is not None
+    x, y = deanna.position
+    source = _program(
+        f"get_character('Ryan').set_position([{x}, {y}])",
+        "get_character('Deanna').set_position(get_area_close_to('table_1'))",
+    )
+    plans = {p.character: p for p in run_event_program(house, source, world, seed=0)}
+    assert plans["Ryan"].position == (x, y)
+    # ...but not of one who is touched and stays put
+    source = _program(
+        f"get_character('Ryan').set_position([{x}, {y}])",
+        "get_character('Deanna').set_orientation('fridge_1')",
+    )
+    with pytest.raises(BlockedPositionError, match="from Deanna's position"):
+        run_event_program(house, source, world, seed=0)
+
+
+def test_characters_outside_the_roster_and_too_many_new_ones(
+    house: Scene, case0: tuple[WorldView, list[str]]
+) -> None:
+    world, _labels = case0
+    with pytest.raises(UnknownCharacterError, match="unknown character 'Zoe'"):
+        run_event_program(
+            house, _program("get_character('Zoe').set_position([2.0, 5.5])"), world, seed=0
+        )
+    many = _program(
+        "hs = [get_character(f'c{i}') for i in range(MAX)]".replace("MAX", str(MAX_NEW_CHARACTERS)),
+        "hs[0].set_position([2.0, 5.5])",
+        "get_character('c0')",  # a known handle again is fine
+        "get_character('one_too_many')",
+    )
+    with pytest.raises(ToolArgumentError, match=f"at most {MAX_NEW_CHARACTERS} characters") as info:
+        run_event_program(house, many, WorldView(), seed=0)
+    assert info.value.line == 5

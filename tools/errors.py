@@ -10,6 +10,11 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Iterable
+from contextvars import ContextVar
+
+PROGRAM_LINE: ContextVar[int | None] = ContextVar("program_line", default=None)
+"""The program line of the tool call in progress (the sandbox sets it around every call), so a
+tool that records a request can name that line when the request fails later."""
 
 
 class EventProgramError(Exception):
@@ -47,6 +52,13 @@ class UnsatisfiableAreaError(ToolError):
 
 class ToolArgumentError(ToolError):
     kind = "bad_argument"
+
+
+class BlockedPositionError(ToolArgumentError):
+    """An explicit [x, y] no character can stand on: inside or against furniture, at the edge
+    of the scene, or too close to another character."""
+
+    kind = "blocked_position"
 
 
 def did_you_mean(word: str, candidates: Iterable[str], *, n: int = 3) -> str:

@@ -1041,6 +1041,7 @@ class _Interpreter:
         line: Line,
         label: str,
     ) -> object:
+        token = errors.PROGRAM_LINE.set(line)
         try:
             result = fn(*args, **kwargs)
         except EventProgramError as err:
@@ -1054,6 +1055,8 @@ class _Interpreter:
                 with contextlib.suppress(TypeError, ValueError):
                     message += f" (expected {label}{inspect.signature(fn)})"
             raise ProgramRuntimeError(message, line=line) from None
+        finally:
+            errors.PROGRAM_LINE.reset(token)
         self.meter.check_time(line)
         return detach(result)
 

@@ -23,6 +23,8 @@ from tools import areas
 from tools.areas import Area
 from tools.character_states import CharacterPlan, CharacterState, WorldView
 from tools.errors import (
+    PROGRAM_LINE,
+    BlockedPositionError,
     ToolArgumentError,
     UnknownActionError,
     UnknownCharacterError,
@@ -31,11 +33,18 @@ from tools.errors import (
     did_you_mean,
 )
 from tools.position_sampling import Constraints, FloorMap, Placement, sample_position
-from tools.scene_graph import SceneGraph, box_distance, build_scene_graph
+from tools.scene_graph import (
+    SceneGraph,
+    box_distance,
+    build_scene_graph,
+    point_footprint_distance,
+)
 
 Point = tuple[float, float]
 ASSOCIATED_DISTANCE = 0.3  # m: objects this close (box to box) are associated
 CLOSE_DISTANCE = 1.0  # m: box-to-box distance for get_objects_close_to
+MAX_NEW_CHARACTERS = 12
+"""Distinct characters a program may create when the world names none (no states given)."""
 
 
 class CharacterHandle:
@@ -57,9 +66,14 @@ class CharacterHandle:
 
     def set_position(self, area: Any) -> None:
         """Where the character goes: an Area (from a get_area_* function) or [x, y] in metres.
-        Raises UnsatisfiableAreaError at once if no free spot of the area is left."""
+        Raises UnsatisfiableAreaError at once if no free spot of the area is left, and
+        BlockedPositionError if [x, y] is not free floor (inside or within 0.25 m of floor
+        furniture, or of the scene edge). An [x, y] within 0.5 m of another character's
+        position or target is refused when the plans are made (the error names this line)."""
         target = self._api._position_target(area, self._name)
-        self._api._record(self._name).position = target
+        record = self._api._record(self._name)
+        record.position = target
+        record.position_line = PROGRAM_LINE.get()
 
     def set_orientation(self, target: Any) -> None:
         """What the character faces: an object name, a character name, an Area or [x, y]."""
@@ -78,6 +92,8 @@ class _Record:
     position: Area | Point | None = None
     orientation: str | Area | Point | None = None
     action: str | None = None
+    position_line: int | None = None
+    """Program line of the set_position call (for errors found when the plans are made)."""
 
 
 def _is_number(v: Any) -> bool:
@@ -163,7 +179,15 @@ class SpatialAPI:
     def _character_name(self, name: Any, func: str) -> str:
         if not isinstance(name, str) or not name:
             raise ToolArgumentError(f"{func}() expects a character name string, got {name!r}")
-        if name in self.world.names or self.allow_new_characters:
+        if name in self.world.names:
+            return name
+        if self.allow_new_characters:
+            new = {n for n in self._handles if n not in self.world.names}
+            if name not in new and len(new) >= MAX_NEW_CHARACTERS:
+                raise ToolArgumentError(
+                    f"{func}('{name}'): a program may use at most {MAX_NEW_CHARACTERS} "
+                    "characters; reuse the handles you already have"
+                )
             return name
         if name in self.scene.by_name:
             raise UnknownCharacterError(f"'{name}' is an object, not a character")
@@ -201,13 +225,41 @@ class SpatialAPI:
 
     def _position_target(self, value: Any, name: str) -> Area | Point:
         if not isinstance(value, Area):
-            return self._point(value, "set_position")
+            return self._free_point(self._point(value, "set_position"), name)
         # fail at the program line that asked for an impossible area (others' plans aside)
         moving = {*self._records, name}
         taken = frozenset(o for o, who in self.world.objects_in_use.items() if who not in moving)
         constraints = Constraints(avoid=self.world.points_to_avoid(moving), taken_objects=taken)
         sample_position(value, self._floor, constraints, np.random.default_rng(0))
         return value
+
+    def _free_point(self, point: Point, name: str) -> Point:
+        """``point`` if a standing character fits there (free floor), else BlockedPositionError."""
+        if bool(self._floor.free(np.array([point]))[0]):
+            return point
+        where = f"position [{point[0]:.2f}, {point[1]:.2f}] for {name}"
+        xy = np.array([point])
+        hits = sorted(
+            (float(point_footprint_distance(o, xy)[0]), o.name) for o in self._floor.obstacles
+        )
+        r = self._floor.body_radius
+        inside = [n for d, n in hits if d <= 0.0]
+        near = [n for d, n in hits if 0.0 < d < r]
+        if inside:
+            problem = f"is inside {' and '.join(inside[:3])}"
+        elif near:
+            problem = (
+                f"is within {r:.2f} m of {' and '.join(near[:3])} "
+                f"(a standing character needs {r:.2f} m of free floor around it)"
+            )
+        else:
+            problem = f"is within {r:.2f} m of the edge of the scene"
+        hint = (
+            f"; use an area such as get_area_close_to('{(inside or near)[0]}')"
+            if (inside or near)
+            else ""
+        )
+        raise BlockedPositionError(f"{where} {problem}{hint}")
 
     def _orientation_target(self, value: Any) -> str | Area | Point:
         if isinstance(value, Area):
@@ -443,14 +495,33 @@ class SpatialAPI:
         they were first touched. Raises ToolError subclasses (never a partial result)."""
         planned = set(self._records)
         floor = self._floor
-        avoid = list(self.world.points_to_avoid(planned))
+        # (point, whose) pairs every later placement keeps MIN_SEPARATION from
+        occupied: list[tuple[Point, str]] = [
+            (p, f"{c.name}'s {what}")
+            for c in self.world.characters
+            if c.name not in planned
+            for p, what in ((c.position, "position"), (c.target_position, "target"))
+            if p is not None
+        ]
+        for name, rec in self._records.items():  # touched, but staying where they are
+            state = self.world.character(name)
+            if rec.position is None and state is not None and state.position is not None:
+                occupied.append((state.position, f"{name}'s position"))
+        # explicit [x, y] targets, kept clear of by every area placement
+        fixed = {
+            name: (rec.position, rec.position_line)
+            for name, rec in self._records.items()
+            if rec.position is not None and not isinstance(rec.position, Area)
+        }
         taken = {o for o, who in self.world.objects_in_use.items() if who not in planned}
         group: list[Point] = []
         placed: dict[str, tuple[Placement, str, Area | None]] = {}
         for i, (name, record) in enumerate(self._records.items()):
             rng = np.random.default_rng([seed & 0xFFFFFFFF, i])
+            avoid = [p for p, _ in occupied]
             if isinstance(record.position, Area):
                 area = record.position
+                avoid += [p for n, (p, _) in fixed.items() if n != name and n not in placed]
                 try:
                     placement = sample_position(
                         area,
@@ -464,6 +535,7 @@ class SpatialAPI:
                     raise UnsatisfiableAreaError(f"{name}: {err.feedback}") from None
                 text = area.description
             elif record.position is not None:
+                self._check_separation(name, record, occupied)
                 placement, text, area = (
                     Placement(record.position),
                     f"[{record.position[0]:.2f}, {record.position[1]:.2f}]",
@@ -481,7 +553,7 @@ class SpatialAPI:
                     None,
                 )
             placed[name] = (placement, text, area)
-            avoid.append(placement.position)
+            occupied.append((placement.position, f"{name}'s planned position"))
             group.append(placement.position)
             if placement.seat is not None:
                 taken.add(placement.seat)
@@ -501,6 +573,23 @@ class SpatialAPI:
                 )
             )
         return plans
+
+    def _check_separation(
+        self, name: str, record: _Record, occupied: list[tuple[Point, str]]
+    ) -> None:
+        """An explicit [x, y] must keep MIN_SEPARATION from every other character."""
+        point = record.position
+        assert point is not None and not isinstance(point, Area)
+        limit = Constraints().min_separation
+        for other, whose in occupied:
+            d = math.hypot(point[0] - other[0], point[1] - other[1])
+            if d < limit:
+                raise BlockedPositionError(
+                    f"position [{point[0]:.2f}, {point[1]:.2f}] for {name} is {d:.2f} m from "
+                    f"{whose} [{other[0]:.2f}, {other[1]:.2f}]; characters stand at least "
+                    f"{limit:.1f} m apart (pick another point or use an area)",
+                    line=record.position_line,
+                )
 
     def _default_action(self, name: str) -> str:
         if self.action_labels is None or "idle" in self.action_labels:
