@@ -250,9 +250,32 @@ def load_scene_json(path: Path) -> Scene:
                     raise SceneFileError(path, "duplicate object name", obj=name, field="name")
                 seen.add(name)
     try:
-        return Scene.model_validate_json(text, strict=True)
+        scene = Scene.model_validate_json(text, strict=True)
     except ValidationError as exc:
         raise _validation_error(path, exc, objects) from None
+    _check_within_bounds(path, scene)
+    return scene
+
+
+FAR_OUTSIDE = 1.0
+"""Metres an object's centre may lie beyond the scene's floor rectangle (annotation slack)."""
+
+
+def _check_within_bounds(path: Path, scene: Scene) -> None:
+    """Every object's centre lies within ``FAR_OUTSIDE`` of the floor rectangle."""
+    (x0, y0), (x1, y1) = scene.bounds_min, scene.bounds_max
+    for obj in scene.objects:
+        x, y = obj.center[0], obj.center[1]
+        beyond = max(x0 - x, x - x1, y0 - y, y - y1)
+        if beyond > FAR_OUTSIDE:
+            raise SceneFileError(
+                path,
+                f"centre [{x:.2f}, {y:.2f}] is {beyond:.2f} m outside the scene bounds "
+                f"(x {x0:.2f}..{x1:.2f}, y {y0:.2f}..{y1:.2f}); objects must stand within "
+                f"{FAR_OUTSIDE:.1f} m of the floor",
+                obj=obj.name,
+                field="center",
+            )
 
 
 def save_scene_json(scene: Scene, path: Path) -> None:
@@ -417,7 +440,7 @@ def load_reference_folder(folder: Path) -> Scene:
     bounds_min, bounds_max = _reference_bounds(folder, objects)
     nav = _reference_nav(folder)
     try:
-        return Scene(
+        scene = Scene(
             name=folder.resolve().name or "scene",
             bounds_min=bounds_min,
             bounds_max=bounds_max,
@@ -426,6 +449,8 @@ def load_reference_folder(folder: Path) -> Scene:
         )
     except ValidationError as exc:  # pragma: no cover - every rule is checked above
         raise _validation_error(objects_path, exc, None) from None
+    _check_within_bounds(objects_path, scene)
+    return scene
 
 
 def _reference_bounds(

@@ -237,6 +237,8 @@ BAD_CASES: list[BadCase] = [
     ("ref-entry-not-object", lambda t: _reference_folder(t, lambda o: o.append(7)), "objects.json", "#3", None, "expected a JSON object"),
     ("ref-not-list", lambda t: _ref_file(t, "objects.json", {"objects": []}), "objects.json", None, None, "JSON list"),
     ("ref-truncated", lambda t: _ref_file(t, "objects.json", json.dumps(_ref_objects())[:150]), "objects.json", None, None, "truncated"),
+    ("json-object-far-outside", lambda t: _write(t / "s.json", _with_object(1, center=[1.95, 10.5, 0.45])), "s.json", "cabinet_1", "center", "2.50 m outside the scene bounds"),
+    ("ref-object-far-outside", lambda t: _reference_folder(t, _set(2, "center", [-2.0, 1.0, 0.375])), "objects.json", "table_1", "center", "2.00 m outside the scene bounds"),
     ("ref-bad-bbox", lambda t: _ref_file(t, "scene.json", {"bbox": [[0, 0, 0], [0, 3, 2]]}), "scene.json", None, "bbox", "must exceed"),
     ("ref-bad-grid", lambda t: _ref_file(t, "grid_map.json", {"grid_step": 0.3, "user_modifications": {"occupied": [[1, "a"]]}}), "grid_map.json", None, "user_modifications.occupied", "integer cells"),
     ("ref-grid-step-zero", lambda t: _ref_file(t, "grid_map.json", {"grid_step": 0}), "grid_map.json", None, "grid_step", "> 0"),
@@ -269,6 +271,11 @@ def test_bad_file_gives_one_clear_error(
     assert "\n" not in text and text.startswith(err.path)
     assert "Traceback" not in text and len(text) < 400
     assert info.value.__suppress_context__ or info.value.__cause__ is None
+
+
+def test_objects_slightly_outside_the_bounds_are_accepted(tmp_path: Path) -> None:
+    scene = load_scene(_write(tmp_path / "s.json", _with_object(1, center=[1.95, 8.9, 0.45])))
+    assert scene.get("cabinet_1").center[1] == 8.9  # 0.9 m past bounds_max (8.0)
 
 
 def test_empty_reference_folder_is_an_empty_scene(tmp_path: Path) -> None:
