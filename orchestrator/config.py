@@ -6,7 +6,8 @@ Layout of the TOML file (every table and key is optional)::
     model = "local/qwen2.5-coder-0.5b"
     temperature = 0.0
     max_tokens = 1024            # a cap: requests may ask for fewer
-    timeout_s = 120.0
+    timeout_s = 120.0           # per attempt; unset, a local model's default grows with the
+                                # prompt and max_tokens (orchestrator.local_model.local_timeout_s)
     fallbacks = []              # tried in order after ``model`` has used up its retries
     api_base = "http://127.0.0.1:8080/v1"   # optional
     api_key_env = "OPENAI_API_KEY"          # optional: NAME of the variable holding the key
@@ -89,7 +90,11 @@ class NodeConfig(BaseModel):
         default=1024, gt=0, le=32768,
         description="Cap on generated tokens; a request's own max_tokens can only lower it.",
     )
-    timeout_s: float = Field(default=120.0, gt=0.0, description="Per-attempt timeout, seconds.")
+    timeout_s: float = Field(
+        default=120.0, gt=0.0,
+        description="Per-attempt timeout, seconds. When not set, a local model gets at least this, "
+        "more for long prompts (orchestrator.local_model.local_timeout_s).",
+    )
     fallbacks: tuple[str, ...] = ()
     api_base: str | None = None
     api_key_env: str | None = Field(

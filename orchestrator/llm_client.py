@@ -25,7 +25,11 @@ import structlog
 
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, LLMUnavailableError, TokenUsage
 from orchestrator.config import NodeConfig, StorytellerConfig
-from orchestrator.local_model import ensure_local_model_available, register_local_provider
+from orchestrator.local_model import (
+    ensure_local_model_available,
+    local_timeout_s,
+    register_local_provider,
+)
 from orchestrator.retry_policy import InvalidResponseError, RetryPolicy, classify_error
 from orchestrator.traces import AttemptRecord, NullTraceSink, TraceSink
 
@@ -112,10 +116,14 @@ class LiteLLMClient:
 
     def _params(self, node: NodeConfig, model: str, request: LLMRequest) -> tuple[dict[str, Any], bool]:
         max_tokens = node.max_tokens if request.max_tokens is None else min(request.max_tokens, node.max_tokens)
+        timeout = node.timeout_s
+        if provider_of(model) == "local" and "timeout_s" not in node.model_fields_set:
+            prompt_chars = sum(len(m.content) for m in request.messages)
+            timeout = local_timeout_s(model, prompt_chars, max_tokens, floor_s=node.timeout_s)
         params: dict[str, Any] = {
             "temperature": node.temperature if request.temperature is None else request.temperature,
             "max_tokens": max_tokens,
-            "timeout": node.timeout_s,
+            "timeout": timeout,
         }
         if request.seed is not None:
             params["seed"] = request.seed

@@ -9,6 +9,13 @@ states, each holding n_ctx x vocab logits (GBs with Qwen's 152k vocab).
 Calls are serialised per model (a Llama object is not thread-safe) and run in a worker
 thread so the event loop (and the simulation) keeps running. Generation is streamed so a
 deadline derived from the call's timeout, or a cancellation, stops it between two tokens.
+
+Default timeout: a node whose config does not set ``timeout_s`` gets, for a local model,
+:func:`local_timeout_s` of the request: the expected time on an idle machine (prompt
+characters / 3 as tokens at the measured prompt speed, plus ``max_tokens`` at the measured
+generation speed) times :data:`LOAD_MARGIN`, plus :data:`BASE_TIMEOUT_S`, and never less
+than the configured default. A loaded machine (several processes on 2 cores) can be that
+much slower; ``max_tokens`` still bounds a runaway generation.
 """
 
 from __future__ import annotations
@@ -35,6 +42,15 @@ SEED = 1234
 MAX_TOKENS_CAP = 2048
 DEFAULT_ARRAY_MAX_ITEMS = 64
 
+MEASURED_TOK_S: dict[str, tuple[float, float]] = {
+    "qwen2.5-coder-0.5b": (150.0, 37.0),
+    "qwen2.5-coder-1.5b": (70.0, 21.0),
+}
+"""(prompt, generated) tokens per second with 2 threads on an idle machine (DESIGN.md)."""
+LOAD_MARGIN = 10.0
+BASE_TIMEOUT_S = 30.0
+CHARS_PER_TOKEN = 3.0
+
 _load_lock = threading.Lock()
 _instances: dict[str, tuple[Any, threading.Lock]] = {}
 
@@ -55,6 +71,14 @@ def ensure_local_model_available(model: str) -> None:
             "with `pip install -e '.[local]'`, or point the node at an API model in the config"
         ) from None
     ensure_weights(spec)
+
+
+def local_timeout_s(model: str, prompt_chars: int, max_tokens: int, floor_s: float) -> float:
+    """Default per-attempt timeout of a local model for a prompt of ``prompt_chars``
+    characters and ``max_tokens`` generated tokens (see the module doc); at least ``floor_s``."""
+    prompt_rate, gen_rate = MEASURED_TOK_S.get(model.removeprefix("local/"), MEASURED_TOK_S["qwen2.5-coder-1.5b"])
+    idle_s = prompt_chars / CHARS_PER_TOKEN / prompt_rate + max_tokens / gen_rate
+    return round(max(floor_s, BASE_TIMEOUT_S + LOAD_MARGIN * idle_s), 1)
 
 
 def bound_arrays(schema: Any, max_items: int = DEFAULT_ARRAY_MAX_ITEMS) -> Any:

@@ -329,3 +329,33 @@ async def test_real_quality_model_answers_schema_json(tmp_path: Path) -> None:
     client.close()
     value = json.loads(resp.text)
     assert value["animal"] in ("cat", "dog") and resp.model == "local/qwen2.5-coder-1.5b"
+
+
+async def test_default_local_timeout_grows_with_the_prompt_and_an_explicit_one_wins(
+    fake_llama: FakeLlama, tmp_path: Path
+) -> None:
+    from orchestrator.config import load_config
+    from orchestrator.local_model import (
+        BASE_TIMEOUT_S,
+        LOAD_MARGIN,
+        MEASURED_TOK_S,
+        local_timeout_s,
+    )
+
+    long_prompt = LLMRequest(node="event_parser", messages=(ChatMessage(role="user", content="x" * 9000),), max_tokens=400)
+    client = LiteLLMClient(default_config(), check_local=lambda m: None)
+    await client.complete(request(max_tokens=20))
+    await client.complete(long_prompt)
+    short_s, long_s = fake_llama.calls[0]["timeout_s"], fake_llama.calls[1]["timeout_s"]
+    assert short_s == 120.0  # a short prompt keeps the configured default as the floor
+    prompt_rate, gen_rate = MEASURED_TOK_S["qwen2.5-coder-0.5b"]
+    expected = BASE_TIMEOUT_S + LOAD_MARGIN * (9000 / 3 / prompt_rate + 400 / gen_rate)
+    assert long_s == pytest.approx(expected, abs=0.1) and long_s > 120.0
+    assert long_s == local_timeout_s("local/qwen2.5-coder-0.5b", 9000, 400, floor_s=120.0)
+    # the 1.5B model is slower, so its default is longer
+    assert local_timeout_s("local/qwen2.5-coder-1.5b", 9000, 400, floor_s=120.0) > long_s
+    # a timeout set in the config is used as it is
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[llm]\ntimeout_s = 45.0\n", encoding="utf-8")
+    await LiteLLMClient(load_config(cfg, env={}), check_local=lambda m: None).complete(long_prompt)
+    assert fake_llama.calls[2]["timeout_s"] == 45.0
