@@ -55,14 +55,45 @@ class Counters:
     results: list[int] = field(default_factory=list)
 
 
+class TimedIndex:
+    """A search index whose batched ``query_many`` (the matcher's grouped searches) is timed,
+    and answered row by row by brute force in the brute-force run."""
+
+    def __init__(self, index: Any, counters: Counters, brute: bool) -> None:
+        self._ix, self._c, self._brute = index, counters, brute
+
+    def __getattr__(self, name: str) -> Any:
+        value = getattr(self._ix, name)
+        object.__setattr__(self, name, value)  # read-only index data: look it up once
+        return value
+
+    def query_many(self, queries: np.ndarray, k: int = 4, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        t0 = time.perf_counter()
+        if self._brute:
+            pairs = [self._ix.brute_force(q) for q in np.asarray(queries, dtype=float)]
+            out = (np.array([p[0] for p in pairs], dtype=np.int64), np.array([p[1] for p in pairs]))
+        else:
+            out = self._ix.query_many(queries, k=k, workers=workers)
+        self._c.search_s += time.perf_counter() - t0
+        self._c.searches += len(out[0])
+        self._c.results.extend(int(i) for i in out[0])
+        return out
+
+
 class TimedDatabase:
-    """A MotionDatabase whose ``search`` is timed (and optionally brute force)."""
+    """A MotionDatabase whose searches (single ``search`` and the batched ``index.query_many``)
+    are timed (and optionally brute force). Other attributes are the database's own, looked
+    up once (the database is immutable), so the wrapper adds little to the motion time."""
 
     def __init__(self, db: MotionDatabase, counters: Counters, brute: bool) -> None:
         self._db, self._c, self._brute = db, counters, brute
+        self.index = TimedIndex(db.index, counters, brute)
+        self.entry_index = TimedIndex(db.entry_index, counters, brute)
 
     def __getattr__(self, name: str) -> Any:
-        return getattr(self._db, name)
+        value = getattr(self._db, name)
+        object.__setattr__(self, name, value)
+        return value
 
     def search(self, raw_query: np.ndarray, entry: bool = False) -> tuple[int, float]:
         db = self._db
@@ -149,6 +180,7 @@ class RunResult:
     n: int
     frames: int
     wall_s: float
+    cpu_s: float
     counters: Counters
     positions: np.ndarray
 
@@ -169,7 +201,7 @@ def run_crowd(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: 
     targets = dict(zip(names, starts, strict=True))
     count = dict.fromkeys(names, 0)
     todo = set(names)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(frames):
         cmds = []
         for nm in sorted(todo):
@@ -184,8 +216,8 @@ def run_crowd(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: 
         _, out = step(world, cmds, world.dt)
         todo |= {e.rsplit("-", 1)[0] for e in out.looping_events}
         todo |= {f.character for f in out.failures}
-    wall = time.perf_counter() - t0
-    return RunResult(n, frames, wall, counters, world.positions())
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return RunResult(n, frames, wall, cpu, counters, world.positions())
 
 
 def replan_baseline(grid: NavGrid, problems: list[tuple[Any, ...]], seed: int, limit: int = 60) -> tuple[float, float, int]:
@@ -219,13 +251,13 @@ def main() -> None:
     print(f"motion databases: {len(dbs)} keys, {sum(d.num_frames for d in dbs.values())} frames, "
           f"loaded in {time.perf_counter() - t0:.1f} s")
     grids: dict[str, tuple[Scene, NavGrid]] = {}
-    hdr = (f"{'N':>4} {'scene':<10} {'frames':>6} | {'char-fr/s':>9} {'brute':>8} {'ratio':>6} | {'RTF':>6} {'brute':>6} | "
+    hdr = (f"{'N':>4} {'scene':<10} {'frames':>6} | {'char-fr/s':>9} {'brute':>8} {'ratio':>6} | {'RTF':>6} {'brute':>6} {'cpu':>6} | "
            f"{'search us':>9} {'brute':>8} {'ratio':>6} | {'replan ms':>9} {'full':>8} {'ratio':>6} | "
            f"{'motion':>6} {'plan':>5} {'world':>5} | same")
     print()
     print(hdr)
     print("-" * len(hdr), flush=True)
-    target = None
+    target: tuple[float, float] | None = None
     for n in args.sizes:
         scene = office if n <= 120 else tiled(office, 2, 2)
         if scene.name not in grids:
@@ -244,19 +276,22 @@ def main() -> None:
         s_bf = 1e6 * cb.search_s / max(1, cb.searches)
         motion, plan = c.motion_s / kd.wall_s, c.plan_s / kd.wall_s
         print(f"{n:>4} {scene.name:<10} {frames:>6} | {ckd:>9.0f} {cbf:>8.0f} {ckd / cbf:>6.2f} | "
-              f"{sim_s / kd.wall_s:>6.2f} {sim_s / bf.wall_s:>6.2f} | "
+              f"{sim_s / kd.wall_s:>6.2f} {sim_s / bf.wall_s:>6.2f} {sim_s / kd.cpu_s:>6.2f} | "
               f"{s_kd:>9.1f} {s_bf:>8.1f} {s_bf / max(s_kd, 1e-9):>6.2f} | "
               f"{1e3 * w_s:>9.2f} {1e3 * nw_s:>8.2f} {nw_s / max(w_s, 1e-12):>6.2f} | "
               f"{motion:>6.0%} {plan:>5.0%} {1 - motion - plan:>5.0%} | {'yes' if same else 'NO'}", flush=True)
         if n == 10:
-            target = sim_s / kd.wall_s
+            target = (sim_s / kd.wall_s, sim_s / kd.cpu_s)
     print()
     print("char-fr/s: character-frames per wall second (KD-tree search); brute: same run, brute-force search.")
-    print("RTF: simulated seconds per wall second. search us: mean motion search per query.")
+    print("RTF: simulated seconds per wall second (cpu: per second of this process's CPU time, which a")
+    print("     loaded machine disturbs less). search us: mean motion search per query (single and batched).")
     print("replan ms: mean windowed WHCA* replan (window 20); full: non-windowed planner on the same problems.")
     print("motion / plan / world: share of the KD run's wall time. same: both runs took identical decisions.")
     if target is not None:
-        print(f"issue target (10 characters >= 30x real time): {target:.2f}x -> {'met' if target >= 30 else 'NOT met'}")
+        wall_rtf, cpu_rtf = target
+        print(f"issue target (10 characters >= 30x real time): {wall_rtf:.2f}x wall, {cpu_rtf:.2f}x cpu -> "
+              f"{'met' if wall_rtf >= 30 else 'met by CPU time only' if cpu_rtf >= 30 else 'NOT met'}")
 
 
 if __name__ == "__main__":

@@ -634,7 +634,7 @@ class World:
                 h = c.heading
                 if dist > 0.05:
                     err = wrap_angle(math.atan2(ahead[1], ahead[0]) - c.heading)
-                    h = c.heading + float(np.clip(err, -max_turn, max_turn))
+                    h = c.heading + float(min(max(err, -max_turn), max_turn))
                 fut_h = np.where(step_len[i] > 1e-6, step_dir[i], h)
                 c.xy, c.heading = np.asarray(xy, dtype=float), wrap_angle(h)
             else:
