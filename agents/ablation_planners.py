@@ -21,7 +21,7 @@ wait (``None``) or a :class:`~agents.messages.PlanningFailure`.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -46,13 +46,22 @@ from agents.messages import (
     PlanningFailure,
     SceneDescription,
 )
-from agents.narrator import NarratorInput, characters_text, history_text, narrate
+from agents.narrator import (
+    NarratorInput,
+    characters_text,
+    history_text,
+    narrate,
+    narrator_request,
+    parse_narration,
+)
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
 from agents.retry_feedback import (
+    REJECTIONS,
     AnswerRejectedError,
     RetriesExhaustedError,
     Turn,
     ask_until_valid,
+    feedback_from_error,
     retry_temperature,
     with_turns,
 )
@@ -63,6 +72,34 @@ from tools.scene_graph import SceneGraph, build_scene_graph
 from tools.scene_text import object_list_text, scene_graph_json
 
 StepOutcome = ParsedEvent | PlanningFailure | None
+
+JudgeHook = Callable[[str, Any, BaseException | None, str | None], None]
+"""``hook(node, parsed_output, error, feedback)``, called once per reply right after it was
+judged (before the next LLM call): the parsed output as JSON data (None when rejected), or the
+typed error and the feedback it produced. Used to trace what each attempt parsed to."""
+
+
+def judging(parse: Callable[[str], Any], node: str, hook: JudgeHook | None, dump: Callable[[Any], Any]) -> Callable[[str], Any]:
+    """``parse`` that reports each verdict to ``hook`` (``dump`` turns a value into JSON data)."""
+    if hook is None:
+        return parse
+
+    def judged(reply: str) -> Any:
+        try:
+            value = parse(reply)
+        except REJECTIONS as exc:
+            hook(node, None, exc, feedback_from_error(exc))
+            raise
+        hook(node, dump(value), None, None)
+        return value
+
+    return judged
+
+
+def _dump_parsed(value: ParsedEvent | None) -> Any:
+    if value is None:
+        return {"wait": True}
+    return {"plans": [p.model_dump(mode="json") for p in value.plans], "program": value.program}
 
 
 def object_list_description(scene: Scene) -> SceneDescription:
@@ -172,6 +209,7 @@ class UnifiedPlanner:
     prompts: PromptLibrary
     max_retries: int = 3
     max_tokens: int = 400
+    judged: JudgeHook | None = None
 
     def request(self, step: PlanningStep, turns: tuple[Turn, ...] = ()) -> LLMRequest:
         free = [c.name for c in step.characters if not c.busy]
@@ -230,7 +268,7 @@ class UnifiedPlanner:
             accepted = await ask_until_valid(
                 self.port,
                 lambda turns: self.request(step, turns),
-                lambda reply: self.check(step, reply),
+                judging(lambda reply: self.check(step, reply), "planner", self.judged, _dump_parsed),
                 max_attempts=self.max_retries + 1,
                 node="planner",
             )
@@ -359,6 +397,7 @@ class DirectInferencePlanner:
     max_retries: int = 3
     max_tokens: int | None = None
     """None: 40 + 50 per event character (one plan is about 35 tokens of JSON)."""
+    judged: JudgeHook | None = None
 
     def request(self, step: PlanningStep, event: Event, turns: tuple[Turn, ...] = ()) -> LLMRequest:
         description = step.description.text.strip()
@@ -409,15 +448,27 @@ class DirectInferencePlanner:
         return program, ParsedEvent(index=step.index, event=event, plans=result.plans, program=program)
 
     async def plan(self, step: PlanningStep) -> StepOutcome:
+        inp = _narrator_input(step)
+        if not inp.free:
+            return None
         try:
-            narrated = await narrate(self.port, self.prompts, _narrator_input(step), max_retries=self.max_retries)
+            # as agents.narrator.narrate (the same requests), with each verdict reported
+            narrated = await ask_until_valid(
+                self.port,
+                lambda turns: narrator_request(self.prompts, inp, turns),
+                judging(lambda text: parse_narration(text, inp.characters), "narrator", self.judged,
+                        lambda out: out.model_dump(mode="json")),
+                max_attempts=self.max_retries + 1,
+                node="narrator",
+            )
             event = narrated.value.event
             if event.is_wait:
                 return None
             accepted = await ask_until_valid(
                 self.port,
                 lambda turns: self.request(step, event, turns),
-                lambda reply: self.check(step, event, reply),
+                judging(lambda reply: self.check(step, event, reply), "event_parser", self.judged,
+                        lambda value: _dump_parsed(value[1])),
                 max_attempts=self.max_retries + 1,
                 node="event_parser",
             )

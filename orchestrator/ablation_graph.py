@@ -38,6 +38,7 @@ from langgraph.runtime import Runtime
 
 from agents.ablation_planners import (
     DirectInferencePlanner,
+    JudgeHook,
     Planner,
     PlanningStep,
     UnifiedPlanner,
@@ -138,6 +139,7 @@ class CountingPort:
         self.calls: dict[NodeName, int] = {}
         self.last_node: NodeName | None = None
         self.trace_seqs: list[int] = []
+        self.last_seq: int | None = None
 
     async def complete(self, request: LLMRequest) -> LLMResponse:
         self.last_node = request.node
@@ -145,16 +147,36 @@ class CountingPort:
         if self.sim_frame is not None:
             request = request.model_copy(update={"sim_frame": self.sim_frame})
         response = await self.port.complete(request)
+        self.last_seq = response.trace_seq
         if response.trace_seq is not None:
             self.trace_seqs.append(response.trace_seq)
         return response
 
 
-def make_planner(kind: PlannerKind, port: Any, deps: PlanningDeps) -> Planner:
+def parsed_recorder(deps: PlanningDeps, counting: CountingPort) -> JudgeHook | None:
+    """A hook that traces what each attempt parsed to (or the typed error that rejected it),
+    against the attempt record of the reply just judged."""
+    sink_of = getattr(deps, "trace_sink", None)
+    sink = sink_of() if callable(sink_of) else getattr(deps.port, "trace", None)
+    if sink is None:
+        return None
+
+    def record(node: str, parsed: Any, error: BaseException | None, feedback: str | None) -> None:
+        if counting.last_seq is None:
+            return
+        if error is None:
+            sink.record_parsed(counting.last_seq, parsed, node=node)
+        else:
+            sink.record_parsed(counting.last_seq, None, node=node, error_type=type(error).__name__, error_message=feedback)
+
+    return record
+
+
+def make_planner(kind: PlannerKind, port: Any, deps: PlanningDeps, judged: JudgeHook | None = None) -> Planner:
     if kind == "unified":
-        return UnifiedPlanner(port, deps.prompts, max_retries=deps.max_retries)
+        return UnifiedPlanner(port, deps.prompts, max_retries=deps.max_retries, judged=judged)
     if kind == "direct":
-        return DirectInferencePlanner(port, deps.prompts, max_retries=deps.max_retries)
+        return DirectInferencePlanner(port, deps.prompts, max_retries=deps.max_retries, judged=judged)
     raise ValueError(f"planner {kind!r} runs on the planning graph's own nodes")
 
 
@@ -181,7 +203,7 @@ def plan_node(kind: PlannerKind) -> NodeFn:
             runner=deps.runner,
         )
         try:
-            outcome = await make_planner(kind, counting, deps).plan(step)
+            outcome = await make_planner(kind, counting, deps, parsed_recorder(deps, counting)).plan(step)
         except ReplayMissError:
             raise
         except LLMError as exc:  # the model is out after the client's retries: the step fails

@@ -216,6 +216,15 @@ def test_direct_inference_rejects_a_point_inside_furniture_then_accepts_a_free_o
     assert retry["response_format"] == {"type": "json_object"}
     assert '"enum": ["Ava"]' in retry["messages"][-1]["content"] and '"maxItems": 1' in retry["messages"][-1]["content"]
     assert [r.node for r in read_trace(trace).attempts()] == ["narrator", "event_parser", "event_parser"]
+    # each attempt's verdict is traced against it: parsed output, or the typed error
+    records = read_trace(trace).records
+    attempt_seqs = [r.seq for r in records if r.kind == "attempt"]
+    parsed = [r for r in records if r.kind == "parsed"]
+    assert [r.ref_seq for r in parsed] == attempt_seqs
+    assert [r.node for r in parsed] == ["narrator", "event_parser", "event_parser"]
+    assert parsed[0].parsed_output["event"]["characters"] == ["Ava"]
+    assert parsed[1].error_type == "BlockedPositionError" and "inside table_1" in (parsed[1].error_message or "")
+    assert parsed[2].error_type is None and parsed[2].parsed_output["plans"][0]["position"] == [x, y]
 
     fake.stop()
     again = plan(tmp_path, *args, "--replay", str(trace), "--json")
