@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import weakref
 from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -45,6 +46,9 @@ Agent = Hashable
 
 _WAIT = (0, 0)
 _EPS = 1e-9
+
+
+_MASK_MEMOS: weakref.WeakKeyDictionary[NavGrid, dict[int, list[tuple[int, int]]]] = weakref.WeakKeyDictionary()
 
 
 class PlanningError(ValueError):
@@ -217,7 +221,8 @@ class PathPlanner:
                     if 0 <= k < len(safe) and k // 25 == base // 25 and safe[k]:
                         mask |= 1 << (5 * dx + dy + 6)
             self._mask_of.append(mask)
-        self._near_mask_memo: dict[int, list[tuple[int, int]]] = {}
+        # shared by the planners of one grid (the masks depend only on the grid's cells and radius)
+        self._near_mask_memo: dict[int, list[tuple[int, int]]] = _MASK_MEMOS.setdefault(self.grid, {})
 
     def _near_masks(self, a: int, vel: int) -> list[tuple[int, int]]:
         """(cell, mask) for the cells near an agent leaving cell id ``a`` with velocity code
