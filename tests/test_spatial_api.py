@@ -466,3 +466,23 @@ def test_characters_outside_the_roster_and_too_many_new_ones(
     with pytest.raises(ToolArgumentError, match=f"at most {MAX_NEW_CHARACTERS} characters") as info:
         run_event_program(house, many, WorldView(), seed=0)
     assert info.value.line == 5
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        "get_character([0] * 20000)",
+        "get_area_to_sit_on(['a' * 20000] * 90)",
+        "get_character('x').set_orientation('a' * 20000)",
+        "get_objects_close_to('chair_1', 'a' * 20000)",
+        "get_character('a' * 20000)",
+        "get_character('two\\nlines')",
+        "get_character('x').set_target_action('a' * 20000)",
+        "get_character('x').set_position([2**1100, 1.0])",
+    ],
+)
+def test_huge_or_odd_arguments_give_short_typed_errors(house: Scene, call: str) -> None:
+    with pytest.raises(EventProgramError) as info:
+        run_event_program(house, _program(call), WorldView(), seed=0)
+    assert isinstance(info.value, ToolArgumentError | UnknownObjectError), info.value.feedback
+    assert len(info.value.feedback) <= 520 and "\n" not in info.value.feedback

@@ -23,6 +23,7 @@ class EventProgramError(Exception):
     kind: str = "event_program_error"
 
     def __init__(self, feedback: str, *, line: int | None = None):
+        feedback = _clip(feedback)
         self.feedback = feedback if line is None else f"line {line}: {feedback}"
         self.line = line
         super().__init__(self.feedback)
@@ -59,6 +60,17 @@ class BlockedPositionError(ToolArgumentError):
     of the scene, or too close to another character."""
 
     kind = "blocked_position"
+
+
+MAX_FEEDBACK = 500
+"""Characters of one error message (a program can pass megabytes to a tool's argument)."""
+
+
+def _clip(text: str) -> str:
+    text = str(text)
+    if len(text) <= MAX_FEEDBACK:
+        return text
+    return text[: MAX_FEEDBACK - 20] + f"... ({len(text)} characters)"
 
 
 def did_you_mean(word: str, candidates: Iterable[str], *, n: int = 3) -> str:

@@ -43,6 +43,8 @@ from tools.scene_graph import (
 Point = tuple[float, float]
 ASSOCIATED_DISTANCE = 0.3  # m: objects this close (box to box) are associated
 CLOSE_DISTANCE = 1.0  # m: box-to-box distance for get_objects_close_to
+MAX_NAME_CHARS = 40
+"""Longest character name or action label a program may invent (when none are given)."""
 MAX_NEW_CHARACTERS = 12
 """Distinct characters a program may create when the world names none (no states given)."""
 
@@ -182,6 +184,11 @@ class SpatialAPI:
         if name in self.world.names:
             return name
         if self.allow_new_characters:
+            if len(name) > MAX_NAME_CHARS or not name.isprintable():
+                raise ToolArgumentError(
+                    f"{func}() expects a short one-line character name "
+                    f"(at most {MAX_NAME_CHARS} characters), got {name[:40]!r}..."
+                )
             new = {n for n in self._handles if n not in self.world.names}
             if name not in new and len(new) >= MAX_NEW_CHARACTERS:
                 raise ToolArgumentError(
@@ -206,7 +213,10 @@ class SpatialAPI:
             or not all(_is_number(v) for v in value)
         ):
             raise ToolArgumentError(f"{func}() expects an Area or [x, y] in metres, got {value!r}")
-        x, y = float(value[0]), float(value[1])
+        try:
+            x, y = float(value[0]), float(value[1])
+        except OverflowError:
+            raise ToolArgumentError(f"{func}() got a number too large for a position") from None
         if not (math.isfinite(x) and math.isfinite(y)):
             raise ToolArgumentError(f"{func}() got a non-finite position [{x}, {y}]")
         (x0, y0), (x1, y1) = self.scene.bounds_min, self.scene.bounds_max
@@ -281,6 +291,11 @@ class SpatialAPI:
         if not isinstance(label, str) or not label:
             raise ToolArgumentError(
                 f"set_target_action() expects an action label string, got {label!r}"
+            )
+        if self.action_labels is None and (len(label) > MAX_NAME_CHARS or not label.isprintable()):
+            raise ToolArgumentError(
+                f"set_target_action() expects a short one-line action label "
+                f"(at most {MAX_NAME_CHARS} characters), got {label[:40]!r}..."
             )
         if self.action_labels is not None and label not in self.action_labels:
             hint = did_you_mean(label, self.action_labels)
