@@ -98,17 +98,16 @@ def forward_kinematics(
     local_rotations = np.asarray(local_rotations, dtype=float)
     root_position = np.asarray(root_position, dtype=float)
     batch = local_rotations.shape[:-3]
-    positions = np.empty((*batch, NUM_JOINTS, 3))
-    global_rot = np.empty((*batch, NUM_JOINTS, 3, 3))
-    global_rot[..., 0, :, :] = local_rotations[..., 0, :, :]
-    positions[..., 0, :] = root_position
+    # one 4x4 rigid transform per joint (rotation + offset from the parent), chained by one
+    # matrix product per joint (half the numpy calls of separate rotation / position updates)
+    t = np.zeros((*batch, NUM_JOINTS, 4, 4))
+    t[..., :3, :3] = local_rotations
+    t[..., 1:, :3, 3] = np.asarray(offsets, dtype=float)[..., 1:, :]
+    t[..., 0, :3, 3] = root_position
+    t[..., 3, 3] = 1.0
     for j in range(1, NUM_JOINTS):
-        p = PARENTS[j]
-        global_rot[..., j, :, :] = global_rot[..., p, :, :] @ local_rotations[..., j, :, :]
-        positions[..., j, :] = positions[..., p, :] + np.einsum(
-            "...ij,j->...i", global_rot[..., p, :, :], offsets[j]
-        )
-    return positions, global_rot
+        np.matmul(t[..., PARENTS[j], :, :], t[..., j, :, :], out=t[..., j, :, :])
+    return np.ascontiguousarray(t[..., :3, 3]), np.ascontiguousarray(t[..., :3, :3])
 
 
 def heading_to_root(theta: float | np.ndarray) -> np.ndarray:
