@@ -9,7 +9,6 @@ interpreter seen from here (it calls program functions for ``key=`` arguments).
 from __future__ import annotations
 
 import ast
-import itertools
 import math
 import numbers
 import operator
@@ -95,11 +94,16 @@ def detach(value: object, memo: dict[int, object] | None = None) -> object:
     return value
 
 
+_FLAT_KEY = frozenset({str, int, float, bool, type(None)})
+
+
 def check_key(key: object, line: Line) -> None:
     """A dict key / set item must be hashable and small (hashing deep tuples can crash C)."""
     t = type(key)
     if t is str or t is int or t is float or t is bool or key is None:
         return
+    if (t is tuple or t is frozenset) and len(key) < 100 and _FLAT_KEY.issuperset(map(type, key)):  # type: ignore[arg-type]
+        return  # the common case, checked in C
     stack = [key]
     count = 0
     while stack:
@@ -435,8 +439,8 @@ def check_hash_spread(items: list[object], meter: Meter, line: Line) -> None:
     Python hashes an int by its value modulo 2**61 - 1, so a program can build thousands of
     distinct numbers with one hash value (``[i * (2**61 - 1) for i in range(20000)]``);
     putting them in one set then compares every pair, for seconds, inside a single C call.
-    Counts the distinct values sharing each hash (sorting a shared-hash group, never hashing
-    it again) and refuses the build if the comparisons would pass ``COLLISION_PROBES``.
+    Bounds the distinct values sharing each hash (one comparison per item, never hashing
+    again) and refuses the build if the comparisons would pass ``COLLISION_PROBES``.
     """
     n = len(items)
     if n < HASH_GUARD_MIN:
@@ -462,12 +466,14 @@ def check_hash_spread(items: list[object], meter: Meter, line: Line) -> None:
 
 
 def _distinct_count(group: list[object]) -> int:
-    """Distinct values among items with one hash value, without hashing them again."""
-    try:
-        ordered = sorted(group)  # type: ignore[type-var]
-    except TypeError:  # mixed types: count identities (an over-estimate)
-        return len({id(v) for v in group})
-    return 1 + sum(1 for a, b in itertools.pairwise(ordered) if a != b)
+    """Upper bound of the distinct values among items sharing one hash value, in one pass.
+
+    Items equal to the first one are duplicates (the common case: one value many times);
+    every other item is counted as distinct, which only over-counts when several different
+    values share a hash, i.e. for the crafted collisions this guard exists for.
+    """
+    first = group[0]
+    return 1 + sum(1 for v in group if v is not first and v != first)
 
 
 # ---------------------------------------------------------------- built-in functions
