@@ -11,7 +11,9 @@ case, and the test kills the worker when a case gives no answer within ``HANG_TI
 (a hang detector, far above the sandbox's 1 s budget; nothing here asserts how fast a case
 was). Each case must end in a typed sandbox error (never the catch-all "the program
 failed"), a budget case must be stopped by the budget (``BudgetExceededError``), and the
-scene, its graph and the recorded plans of the world must be unchanged afterwards.
+scene, its graph and the recorded plans of the world must be unchanged afterwards. The
+sandbox's own accounting (``EventProgramError.steps``) of a budget stop stays within one
+charge of the step budget.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from tools.sandbox import Budget
 
 HERE = Path(__file__).resolve().parent
 HANG_TIMEOUT_S = 10.0
@@ -115,6 +119,7 @@ def worker(start: int) -> None:
         except EventProgramError as err:
             report["error"] = type(err).__name__
             report["message"] = err.feedback
+            report["steps"] = err.steps
         except BaseException as err:  # reported: the test fails on it
             report["escaped"] = f"{type(err).__name__}: {err}"
         report["unchanged"] = _snapshot(scene, graph, world) == before
@@ -202,6 +207,10 @@ def test_hostile_program_against_the_real_api(
     assert not message.startswith("the program failed"), message  # the catch-all wrapper
     if expected == "BudgetExceededError":
         assert report["error"] == expected, message
+        steps = report["steps"]
+        if steps is not None:  # stopped while running: within one charge of the step budget
+            budget = Budget()
+            assert steps <= budget.steps + budget.container_len * 10 // 8 + 64, steps
 
 
 def test_a_silent_worker_is_a_hang_not_a_wait() -> None:

@@ -21,6 +21,9 @@ class EventProgramError(Exception):
     """Base class: an event program failed. ``str(err) == err.feedback``."""
 
     kind: str = "event_program_error"
+    steps: int | None = None
+    """Interpreter steps the sandbox had counted when the program failed (None: the failure
+    came before the program ran, e.g. a syntax error, or outside the sandbox)."""
 
     def __init__(self, feedback: str, *, line: int | None = None):
         feedback = _clip(feedback)

@@ -118,12 +118,15 @@ def run_program(
 ) -> ProgramRun:
     """Like ``execute`` but also returns the captured ``print`` output and the step count."""
     budget = budget or Budget()
+    interpreter: _Interpreter | None = None
     try:
         tree, local_names = check_program(source, namespace, budget=budget)
         interpreter = _Interpreter(namespace, budget, clock, local_names)
         result = interpreter.run(tree, entry)
         return ProgramRun(result, tuple(interpreter.meter.output), interpreter.meter.steps)
-    except EventProgramError:
+    except EventProgramError as err:
+        if interpreter is not None:
+            err.steps = interpreter.meter.steps
         raise
     except (RecursionError, MemoryError):
         raise BudgetExceededError(
