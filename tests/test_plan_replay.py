@@ -64,6 +64,27 @@ def test_replay_json_lists_every_event_with_plans(name: str, tmp_path: Path) -> 
                 assert len(p["position"]) == 2 and len(p["facing"]) == 2 and p["action"]
 
 
+@pytest.mark.parametrize("name", sorted(GOLDEN))
+def test_golden_trace_holds_the_parsed_output_of_every_attempt(name: str) -> None:
+    """Every attempt has a parsed record: accepted output (parser: plans per character) or the
+    typed error. ``plan`` runs no simulation: sim_frame is null and nothing is "applied"."""
+    from orchestrator.traces import read_trace
+
+    contents = read_trace(TRACES / f"{name}.jsonl")
+    attempts = list(contents.attempts())
+    parsed = contents.parsed_by_seq()
+    assert sorted(parsed) == [a.seq for a in attempts]
+    for a in attempts:
+        (p,) = parsed[a.seq]
+        assert p.node == a.node and a.request.sim_frame is None
+        if p.ok and a.node == "event_parser":
+            for plan in p.parsed_output["plans"]:
+                assert {"character", "action", "area", "position", "facing"} <= set(plan)
+        elif not p.ok:
+            assert p.error_type and p.error_message
+    assert not any(r.kind == "applied" for r in contents.records)
+
+
 def test_one_edited_character_in_a_prompt_fails_the_replay_naming_the_node(tmp_path: Path) -> None:
     prompts = tmp_path / "prompts"
     shutil.copytree(Path(str(resources.files("prompts"))), prompts)
