@@ -603,8 +603,8 @@ class World:
         max_turn = self.config.walk_turn_rate * dt
         queries: list[MotionQuery] = []
         labels: list[str] = []
-        heading = np.empty(n)
-        root = np.empty((n, 2))
+        heading_l: list[float] = []
+        root_l: list[np.ndarray] = []
         walkers = [k for k, name in enumerate(self.names) if self.characters[name].walker]
         if walkers:  # the walkers' arrays in one go: planned futures, distances, future headings
             wnames = [self.names[k] for k in walkers]
@@ -617,7 +617,7 @@ class World:
             moved = w_xy - w_prev
             moving_all = np.hypot(moved[:, 0], moved[:, 1]) > 1e-6
             steps_all = np.diff(np.concatenate([w_xy[:, None], w_fut[:, :3]], axis=1), axis=1)
-            step_len = np.hypot(steps_all[..., 0], steps_all[..., 1])
+            moves_ahead = np.hypot(steps_all[..., 0], steps_all[..., 1]) > 1e-6
             step_dir = np.arctan2(steps_all[..., 1], steps_all[..., 0])
         slot = {k: i for i, k in enumerate(walkers)}
         for k, name in enumerate(self.names):
@@ -635,7 +635,7 @@ class World:
                 if dist > 0.05:
                     err = wrap_angle(math.atan2(ahead[1], ahead[0]) - c.heading)
                     h = c.heading + float(min(max(err, -max_turn), max_turn))
-                fut_h = np.where(step_len[i] > 1e-6, step_dir[i], h)
+                fut_h = np.where(moves_ahead[i], step_dir[i], h)
                 c.xy, c.heading = np.asarray(xy, dtype=float), wrap_angle(h)
             else:
                 self._stationary_root(c)
@@ -650,11 +650,10 @@ class World:
                 force_search=restart,
             ))
             labels.append(key)
-            heading[k] = c.heading
-            root[k] = c.xy
-        rots = np.empty((n, NUM_JOINTS, 3, 3))
-        pz = np.empty(n)
-        contacts = np.zeros((n, 2), dtype=bool)
+            heading_l.append(c.heading)
+            root_l.append(c.xy)
+        heading = np.array(heading_l, dtype=float)
+        root = np.array(root_l, dtype=float).reshape(n, 2)
         states = [self.motion_states[name] for name in self.names]
         step_many = getattr(self.motion, "step_many", None)
         if step_many is not None:  # a layer may batch characters (same result as one by one)
@@ -664,9 +663,16 @@ class World:
             new_states, poses = [p[0] for p in pairs], [p[1] for p in pairs]
         for k, name in enumerate(self.names):
             self.motion_states[name] = new_states[k]
-            rots[k] = poses[k].local_rotations
-            pz[k] = poses[k].pelvis[2]
-            contacts[k] = getattr(poses[k], "contacts", False)
+        rots = np.array([p.local_rotations for p in poses], dtype=float).reshape(n, NUM_JOINTS, 3, 3)
+        pz = np.array([p.pelvis[2] for p in poses], dtype=float)
+        flags = [getattr(p, "contacts", None) for p in poses]
+        if all(f is not None for f in flags):
+            contacts = np.array(flags, dtype=bool).reshape(n, 2)
+        else:  # a layer without contact flags: none
+            contacts = np.zeros((n, 2), dtype=bool)
+            for k, f in enumerate(flags):
+                if f is not None:
+                    contacts[k] = f
         pelvis, rots = compose_poses(rots, pz, root, heading)
         self.buffers.append(pelvis, rots, labels, contacts, [self.characters[nm].event_id or "" for nm in self.names])
         for c in self.characters.values():
