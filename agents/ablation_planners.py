@@ -208,7 +208,9 @@ class UnifiedPlanner:
     port: LLMPort
     prompts: PromptLibrary
     max_retries: int = 3
-    max_tokens: int = 400
+    max_tokens: int | None = None
+    """None: 80 + 110 per free character, at most 400 (as the event parser's budget; a small
+    model that is given more tends to repeat lines until the cap)."""
     judged: JudgeHook | None = None
 
     def request(self, step: PlanningStep, turns: tuple[Turn, ...] = ()) -> LLMRequest:
@@ -230,7 +232,7 @@ class UnifiedPlanner:
         return LLMRequest(
             node="planner",
             messages=with_turns(base, turns),
-            max_tokens=self.max_tokens,
+            max_tokens=self.max_tokens or min(400, 80 + 110 * max(1, len(free))),
             seed=step.seed,
             temperature=retry_temperature(turns),
         )

@@ -173,7 +173,7 @@ def test_unified_planner_busy_character_feedback_and_wait(fake: FakeProvider, tm
     kinds = [e["kind"] for e in json.loads(out.stdout)["events"]]
     assert kinds == ["event", "wait"]
     second = fake.to("planner")[1]["messages"]
-    assert "Free now: Ben" in second[1]["content"]
+    assert "Free characters: Ben" in second[1]["content"]
     retry = fake.to("planner")[2]["messages"]
     assert retry[-1]["role"] == "user" and "Ava is busy and cannot be planned" in retry[-1]["content"]
 
