@@ -11,10 +11,10 @@
 - planner ``unified`` ("w/o Event", :class:`agents.ablation_planners.UnifiedPlanner`, node
   ``planner``) and ``direct`` ("Direct Inference",
   :class:`agents.ablation_planners.DirectInferencePlanner`, nodes ``narrator`` and
-  ``event_parser``) run on a small graph of their own (:func:`build_ablation_graph`): one
-  ``describe_scene`` node (the describer, cached on disk like the main graph's, or a preset
-  description), one ``plan_step`` node per planning step, and the main graph's
-  ``record_outcome``. A resumed run repeats the calls of an interrupted step, never those of a
+  ``event_parser``) run on a small graph of their own (:func:`build_ablation_graph`): the
+  main graph's describer nodes (one per describer call and check, cached on disk) or one
+  node setting a preset description, one ``plan_step`` node per planning step, and the main
+  graph's ``record_outcome``. A resumed run repeats the calls of an interrupted step, never those of a
   finished one;
 - description ``describer`` asks the describer; ``object-list`` and ``scene-graph`` use
   :func:`~agents.ablation_planners.object_list_description` and
@@ -45,7 +45,6 @@ from agents.ablation_planners import (
     object_list_description,
     scene_graph_description,
 )
-from agents.describer import describe_scene_cached
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, NodeName, ReplayMissError
 from agents.messages import ParsedEvent, PlanningFailure, SceneDescription
 from orchestrator import planning_graph
@@ -106,25 +105,13 @@ def preset_description(kind: DescriptionKind, deps: PlanningDeps) -> SceneDescri
     raise ValueError(f"description {kind!r} is not a preset")
 
 
-def describe_node(kind: DescriptionKind) -> NodeFn:
-    """``describe_scene`` of the ablation graph: once per run, like the main graph's."""
+def preset_node(kind: DescriptionKind) -> NodeFn:
+    """``describe_scene`` for a preset description (object list or scene graph), once per run."""
 
     async def describe_scene(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
         if state.description is not None:
             return {}
-        deps = runtime.context
-        if kind != "describer":
-            return {"description": preset_description(kind, deps)}
-        description = await describe_scene_cached(
-            CountingPort(deps.port, sim_frame=getattr(state, "sim_frame", None)),
-            deps.prompts,
-            deps.scene,
-            model=deps.describer_model,
-            cache_dir=deps.description_cache,
-            mode=deps.describer_mode,
-            max_retries=deps.max_retries,
-        )
-        return {"description": description}
+        return {"description": preset_description(kind, runtime.context)}
 
     return describe_scene
 
@@ -156,8 +143,7 @@ class CountingPort:
 def parsed_recorder(deps: PlanningDeps, counting: CountingPort) -> JudgeHook | None:
     """A hook that traces what each attempt parsed to (or the typed error that rejected it),
     against the attempt record of the reply just judged."""
-    sink_of = getattr(deps, "trace_sink", None)
-    sink = sink_of() if callable(sink_of) else getattr(deps.port, "trace", None)
+    sink = deps.trace_sink()
     if sink is None:
         return None
 
@@ -186,7 +172,7 @@ def plan_node(kind: PlannerKind) -> NodeFn:
     async def plan_step(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
         deps = runtime.context
         assert state.description is not None
-        counting = CountingPort(deps.port, sim_frame=getattr(state, "sim_frame", None))
+        counting = CountingPort(deps.port, sim_frame=state.sim_frame)
         step = PlanningStep(
             index=state.step,
             scene=deps.scene,
@@ -215,8 +201,7 @@ def plan_node(kind: PlannerKind) -> NodeFn:
                 feedback=f"{type(exc).__name__}: {exc}",
             )
         update: dict[str, Any] = {"llm_calls": state.llm_calls + sum(counting.calls.values())}
-        if "step_trace_seqs" in PlanningState.model_fields:  # the story log keeps them per step
-            update["step_trace_seqs"] = (*getattr(state, "step_trace_seqs", ()), *counting.trace_seqs)
+        update["step_trace_seqs"] = (*state.step_trace_seqs, *counting.trace_seqs)  # kept with the outcome
         if isinstance(outcome, ParsedEvent):
             update["parsed"] = outcome
         elif isinstance(outcome, PlanningFailure):
@@ -231,13 +216,23 @@ def build_ablation_graph(ablation: Ablation) -> StateGraph:
     """The uncompiled graph of an ablation planner (``unified`` or ``direct``)."""
     if ablation.planner == "event":
         raise ValueError("the event planner runs on the planning graph itself (see compile_graph)")
-    step_map = {"narrate_event": "plan_step", "record_outcome": "record_outcome", END: END}
+    step_map: dict[Any, str] = {"narrate_event": "plan_step", "record_outcome": "record_outcome", END: END}
     graph = StateGraph(PlanningState, context_schema=PlanningDeps)
-    graph.add_node("describe_scene", describe_node(ablation.description))
     graph.add_node("plan_step", plan_node(ablation.planner))
     graph.add_node("record_outcome", planning_graph.record_outcome)
     graph.add_edge(START, "describe_scene")
-    graph.add_conditional_edges("describe_scene", planning_graph.route_step, step_map)
+    if ablation.description == "describer":  # the planning graph's describer nodes and routers
+        graph.add_node("describe_scene", planning_graph.describe_scene)
+        graph.add_node("check_description", planning_graph.check_description)
+        graph.add_conditional_edges(
+            "describe_scene", planning_graph.route_description, {**step_map, "check_description": "check_description"}
+        )
+        graph.add_conditional_edges(
+            "check_description", planning_graph.route_checked_description, {**step_map, "describe_scene": "describe_scene"}
+        )
+    else:
+        graph.add_node("describe_scene", preset_node(ablation.description))
+        graph.add_conditional_edges("describe_scene", planning_graph.route_step, step_map)
     graph.add_edge("plan_step", "record_outcome")
     graph.add_conditional_edges("record_outcome", planning_graph.route_step, step_map)
     return graph
