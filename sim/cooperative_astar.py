@@ -61,6 +61,7 @@ class PlanResult:
     (only ``commit_steps + 1`` cells, all the start, for agents whose search failed).
 
     ``failed``: agents for which the windowed search found nothing (they wait in place);
+    ``reused``: agents whose ``hints`` path was kept (checked, extended) instead of searched;
     ``fallback``: agents planned again by the fallback pass; ``goals``: the goal actually used
     per agent (replaced by the nearest reachable cell when the requested one is unreachable).
     """
@@ -70,6 +71,7 @@ class PlanResult:
     fallback: frozenset[Agent]
     goals: dict[Agent, Cell]
     expansions: int = 0
+    reused: frozenset[Agent] = frozenset()
 
 
 class _Reservations:
@@ -347,6 +349,7 @@ class PathPlanner:
         t0: int = 0,
         order: Sequence[Agent] | None = None,
         static_segments: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+        hints: Mapping[Agent, tuple[Sequence[Cell], Cell]] | None = None,
     ) -> PlanResult:
         """Plan ``window`` steps for every agent in ``starts``.
 
@@ -357,6 +360,14 @@ class PathPlanner:
         segment (off-grid legs; see ``_static_overrides``). Every agent's wait is reserved for
         the committed steps, so no plan steps into a body that has not planned yet; the
         fallback pass re-plans with the failed agents first and a doubled window for them.
+
+        ``hints[a] = (path, goal)``: the rest of ``a``'s previous plan (starting on its start
+        cell) made for the same used goal. In the plain passes such a path is kept instead of
+        searching when every step of it still passes this call's checks (reservations of the
+        agents planned before, static obstacles); it is extended to the full window greedily
+        along the static distance. A kept path is feasible, so the clearance guarantee is the
+        same; it may be longer than a new search would find, which is why callers give hints
+        only every other replan (``CrowdNavigator``).
         """
         agents = list(starts)
         for a in agents:
@@ -378,15 +389,21 @@ class PathPlanner:
         # place, the others may still be pushed), up to ``repair_passes`` times. A pass is safe
         # when every failed agent had its wait reserved. Last resort: everyone's wait reserved,
         # failed agents first with a doubled window (always safe).
+        usable: dict[Agent, list[int]] = {}
+        for a, (path, goal) in (hints or {}).items():
+            if a in starts and path and tuple(path[0]) == tuple(starts[a]) and tuple(goal) == tuple(used_goals[a]):
+                usable[a] = [self.cell_id(c) for c in path[: self.window + 1]]
         reserved: frozenset[Agent] = frozenset()
-        result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved)
+        result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved,
+                            hints=usable)
         fallback = set(result.failed)
         expansions = result.expansions
         for _ in range(self.repair_passes):
             if result.failed <= reserved:
                 break
             reserved = reserved | result.failed
-            result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved)
+            result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved,
+                                hints=usable)
             fallback |= result.failed
             expansions += result.expansions
         if not result.failed <= reserved:
@@ -400,6 +417,7 @@ class PathPlanner:
             fallback=frozenset(fallback),
             goals=used_goals,
             expansions=expansions,
+            reused=result.reused,
         )
 
     def _usable_goal(self, start: Cell, goal: Cell | None, overrides: Mapping[int, list]) -> Cell:
@@ -430,6 +448,7 @@ class PathPlanner:
         overrides: Mapping[int, list],
         extended: frozenset[Agent],
         reserve_waits: frozenset[Agent],
+        hints: Mapping[Agent, list[int]] | None = None,
     ) -> PlanResult:
         w_max = self.window * (2 if extended else 1)
         res = _Reservations(w_max, self)
@@ -439,19 +458,67 @@ class PathPlanner:
                 res.add(a, waits[a], self.commit_steps)
         paths: dict[Agent, list[Cell]] = {}
         failed: set[Agent] = set()
+        reused: set[Agent] = set()
         total = 0
         for a in order:
             if a in reserve_waits:
                 res.remove(a, waits[a], self.commit_steps)
             window = self.window * 2 if a in extended else self.window
-            ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
-            total += n
+            hint = hints.get(a) if hints and a not in extended else None
+            ids = self._kept_path(hint, goals[a], window, res, overrides) if hint else None
+            if ids is not None:
+                reused.add(a)
+            else:
+                ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
+                total += n
             if ids is None:  # wait: safe for the committed steps, which is all it claims
                 failed.add(a)
                 ids = waits[a]
             res.add(a, ids, len(res.near))
             paths[a] = [self.id_cell(c) for c in ids[: self.window + 1]]
-        return PlanResult(paths=paths, failed=frozenset(failed), fallback=frozenset(), goals=dict(goals), expansions=total)
+        return PlanResult(paths=paths, failed=frozenset(failed), fallback=frozenset(), goals=dict(goals), expansions=total,
+                          reused=frozenset(reused))
+
+    def _kept_path(
+        self, hint: list[int], goal: Cell, window: int, res: _Reservations, overrides: Mapping[int, list]
+    ) -> list[int] | None:
+        """``hint`` (padded ids from the start) checked step by step against ``res`` and the
+        static obstacles, then extended to ``window`` steps, each extra step the allowed move
+        with the least (cost + static distance, distance, cell id); None when a step fails."""
+        h = self.heuristic(goal)
+        gid = self.cell_id(goal)
+        nbrs = self._snbrs
+        full = self._full_mask
+        near = res.near
+        n_steps = len(near)
+        path = hint[: window + 1]
+        for t in range(len(path) - 1):
+            cid, nid = path[t], path[t + 1]
+            moves = overrides.get(cid)
+            if moves is None:
+                moves = nbrs[cid]
+            allow = near[t].get(cid, full) if t < n_steps else full
+            if not any(m[0] == nid and allow & m[2] for m in moves) or h[nid] == math.inf:
+                return None
+        path = list(path)
+        while len(path) < window + 1:
+            t = len(path) - 1
+            cid = path[-1]
+            moves = overrides.get(cid)
+            if moves is None:
+                moves = nbrs[cid]
+            allow = near[t].get(cid, full) if t < n_steps else full
+            best = None
+            for nid, cost, bit in moves:
+                if not allow & bit or h[nid] == math.inf:
+                    continue
+                key = ((0.0 if (cid == gid and nid == cid) else cost) + h[nid], h[nid], nid)
+                if best is None or key < best:
+                    best = key
+            if best is None:
+                return None
+            path.append(best[2])
+        return path
 
     def _search(
         self,
