@@ -54,6 +54,7 @@ from agents.narrator import (
     narrator_request,
     parse_narration,
 )
+from agents.program_grammar import event_program_grammar
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
 from agents.retry_feedback import (
     REJECTIONS,
@@ -130,6 +131,8 @@ class PlanningStep:
     seed: int = 0
     graph: SceneGraph | None = None
     runner: ProgramRunner | None = None
+    program_grammar: bool = False
+    """Decode the event parser's program under agents.program_grammar (local models)."""
 
 
 class Planner(Protocol):
@@ -152,8 +155,14 @@ def _narrator_input(step: PlanningStep) -> NarratorInput:
     )
 
 
+def step_program_grammar(step: PlanningStep, event: Event) -> str:
+    """The program grammar of ``event`` in ``step``'s scene: free seats, offered labels."""
+    return event_program_grammar(step.scene, event.characters, step.characters, step.seats_in_use, step.action_labels)
+
+
 def _parser_input(step: PlanningStep, event: Event, description: str | None = None) -> ParserInput:
     return ParserInput(
+        grammar=step_program_grammar(step, event) if step.program_grammar else None,
         scene_description=description if description is not None else step.description.text,
         event=event,
         characters=step.characters,

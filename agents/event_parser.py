@@ -73,6 +73,8 @@ class ParserInput:
     seats_in_use: Sequence[str] = ()
     seed: int | None = None
     sim_frame: int | None = None
+    grammar: str | None = None
+    """GBNF grammar of the reply (see agents.program_grammar); None: free text."""
     max_tokens: int | None = None
     """None: 80 + 110 per event character (capped at DEFAULT_MAX_TOKENS), enough for the
     function; a small model otherwise goes on writing more examples."""
@@ -153,6 +155,7 @@ def parser_request(prompts: PromptLibrary, inp: ParserInput, turns: tuple[Turn, 
         seed=inp.seed,
         sim_frame=inp.sim_frame,
         temperature=retry_temperature(turns),
+        grammar=inp.grammar,
     )
 
 

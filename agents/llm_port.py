@@ -37,10 +37,16 @@ class LLMRequest(BaseModel):
     temperature: float | None = Field(default=None, ge=0.0)
     seed: int | None = None
     sim_frame: int | None = Field(default=None, description="Simulation frame when the request was made.")
+    grammar: str | None = Field(
+        default=None,
+        description="GBNF grammar the reply must follow; local llama.cpp models decode under it, "
+        "other providers ignore it.",
+    )
 
     def content_hash(self) -> str:
-        """Hash of everything that determines the answer (not the sim frame)."""
-        payload = self.model_dump(mode="json", exclude={"sim_frame"})
+        """Hash of everything that determines the answer (not the sim frame; no grammar key when
+        there is none, so requests made before grammars existed keep their hash)."""
+        payload = self.model_dump(mode="json", exclude={"sim_frame"} | ({"grammar"} if self.grammar is None else set()))
         blob = json.dumps(payload, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
         return hashlib.sha256(blob.encode("utf-8")).hexdigest()
 

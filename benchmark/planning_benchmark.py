@@ -131,6 +131,7 @@ async def run_cases(
     *,
     runs: int = 1,
     seed: int = 0,
+    program_grammar: bool = False,
     on_result: Any = None,
 ) -> list[RunResult]:
     """Plan and score every case ``runs`` times (seed + run index per run)."""
@@ -151,6 +152,7 @@ async def run_cases(
                 instruction=case.user_instruction, world=inputs.world, action_labels=case.action_labels,
                 history=inputs.history, seats_in_use=inputs.seats_in_use,
                 tags=tuple(t for t in BENCHMARK_TAGS if t in case.tags), seed=seed + r, graph=graph,
+                program_grammar=program_grammar,
             )
             outcome = await planner.plan(step)
             event = None
@@ -205,6 +207,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--record", type=Path, help="write every LLM call to this trace")
     p.add_argument("--replay", type=Path, help="serve every LLM call from this trace (no model loaded)")
     p.add_argument("--max-retries", type=int, default=3)
+    p.add_argument("--program-grammar", action="store_true",
+                   help="local models write the event program under a grammar of the API's area functions and the scene's names")
     p.add_argument("--json", type=Path, help="also write every run's verdict to this JSON file")
     p.add_argument("--verbose", action="store_true", help="print each run's verdict")
     return p
@@ -236,7 +240,8 @@ async def _main(args: argparse.Namespace) -> int:
         print(f"case {r.case} run {r.run}: {time.perf_counter() - started:.1f} s", file=sys.stderr)
 
     try:
-        results = await run_cases(cases, planner, descriptions, args.reference, runs=args.runs, seed=args.seed, on_result=report)
+        results = await run_cases(cases, planner, descriptions, args.reference, runs=args.runs, seed=args.seed,
+                                  program_grammar=args.program_grammar, on_result=report)
     finally:
         close = getattr(port, "close", None)
         if close is not None:
@@ -250,7 +255,7 @@ async def _main(args: argparse.Namespace) -> int:
     else:
         models = sorted({config.node(n).model for n in ("describer", "narrator", "event_parser", "planner")})
     header = (f"planner={args.planner} description={args.description} level={args.level} runs={args.runs} "
-              f"seed={args.seed} models={','.join(models)}" + (" (replayed)" if args.replay else ""))
+              f"seed={args.seed}{' program-grammar' if args.program_grammar else ''} models={','.join(models)}" + (" (replayed)" if args.replay else ""))
     print(format_summary(results, header))
     if args.json is not None:
         payload = {"header": header, "summary": [dict(zip(("cases", "runs", "success", "execution"), row, strict=True))

@@ -207,7 +207,8 @@ def check_position(
         return CheckResult(False, False, float("inf"), None)
     parser = _Parser(scene, expression, xy, seat)
     ok, error = parser.parse()
-    hit = collision(scene, xy, parser.seats)
+    sat_on = parser.seats | ({seat} if isinstance(seat, str) else set())  # a seat is not an obstacle to its sitter
+    hit = collision(scene, xy, sat_on)
     return CheckResult(ok and hit is None, ok, error, hit)
 
 

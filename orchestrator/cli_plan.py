@@ -180,6 +180,7 @@ async def run_plan(
     tags: tuple[str, ...] = BENCHMARK_TAGS,
     on_outcome: Any = None,
     ablation: Ablation | None = None,
+    program_grammar: bool = False,
 ) -> list[tuple[int, ParsedEvent | PlanningFailure | None]]:
     """Run (or resume) the planning graph for one thread; returns every step's outcome.
 
@@ -214,6 +215,7 @@ async def run_plan(
         describer_model=describer_model,
         describer_mode=describer_mode_for(describer_model),
         description_cache=description_cache,
+        program_grammar=program_grammar,
     )
     config = {"configurable": {"thread_id": thread_id}, "recursion_limit": recursion_limit(events, max_retries)}
     try:
@@ -250,6 +252,7 @@ def plan_command(
     seed: Annotated[int, typer.Option("--seed", help="Seed of start positions and sampling.")] = 0,
     busy_events: Annotated[int, typer.Option("--busy-events", min=0, help="Steps an event keeps its characters busy.")] = 0,
     max_retries: Annotated[int, typer.Option("--max-retries", min=0, max=10, help="Retries per LLM role.")] = 3,
+    program_grammar: Annotated[bool, typer.Option("--program-grammar/--free-programs", help="Local models write event programs under a grammar of the API's area functions and the scene's names.")] = False,
     runs_db: Annotated[Path | None, typer.Option("--runs-db", help="SQLite file of checkpoints.")] = None,
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this run.")] = None,
     prompts_dir: Annotated[Path | None, typer.Option("--prompts", help="Use prompt files from this folder.")] = None,
@@ -312,6 +315,7 @@ def plan_command(
                 prompts=PromptLibrary(prompts_dir) if prompts_dir is not None else None,
                 on_outcome=show,
                 ablation=ablation,
+                program_grammar=program_grammar,
             )
         finally:
             await close_port(port)

@@ -121,6 +121,7 @@ def run_command(
     motion_config: Annotated[Path | None, typer.Option("--motion-config", help="TOML mapping mocap clips to actions.")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of start positions, sampling and paths.")] = 0,
     max_retries: Annotated[int, typer.Option("--max-retries", min=0, max=10, help="Retries per LLM role.")] = 3,
+    program_grammar: Annotated[bool, typer.Option("--program-grammar/--free-programs", help="Local models write event programs under a grammar of the API's area functions and the scene's names.")] = False,
     gif: Annotated[bool, typer.Option("--gif/--no-gif", help="Also write an animated top-down GIF.")] = False,
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this planning thread.")] = None,
     planner: Annotated[
@@ -172,6 +173,7 @@ def run_command(
                 max_retries=max_retries,
                 thread_id=thread_id,
                 ablation=ablation,
+                program_grammar=program_grammar,
             )
         )
     except _UserError as exc:
@@ -209,6 +211,7 @@ async def _run(
     max_retries: int,
     thread_id: str | None,
     ablation: Ablation | None = None,
+    program_grammar: bool = False,
 ) -> tuple[SessionResult, list[str], int, Any]:
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
@@ -258,6 +261,7 @@ async def _run(
         describer_model=describer_model,
         describer_mode=describer_mode_for(describer_model),  # type: ignore[arg-type]
         description_cache=None,
+        program_grammar=program_grammar,
     )
     settings = SessionSettings(
         frames=round(duration * fps),

@@ -132,6 +132,8 @@ class LiteLLMClient:
         schema_in_prompt = False
         if request.json_schema is not None:
             params["response_format"], schema_in_prompt = response_format_for(model, request.json_schema)
+        elif request.grammar is not None and provider_of(model) == "local":
+            params["response_format"] = {"type": "gbnf", "grammar": request.grammar}
         return params, schema_in_prompt
 
     def _api_key(self, node: NodeConfig) -> str | None:

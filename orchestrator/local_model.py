@@ -177,7 +177,14 @@ def _llama_params(optional_params: dict[str, Any]) -> dict[str, Any]:
         "seed": int(optional_params.get("seed", SEED)),
     }
     fmt = optional_params.get("response_format")
-    if isinstance(fmt, dict):
+    if isinstance(fmt, dict) and fmt.get("type") == "gbnf":
+        from llama_cpp import LlamaGrammar
+
+        try:
+            params["grammar"] = LlamaGrammar.from_string(str(fmt.get("grammar", "")), verbose=False)
+        except ValueError as exc:
+            raise ValueError(f"bad GBNF grammar in the request: {exc}") from None
+    elif isinstance(fmt, dict):
         if fmt.get("type") == "json_schema" and isinstance(fmt.get("json_schema"), dict):
             fmt = {"type": "json_object", "schema": fmt["json_schema"].get("schema", {})}
         if isinstance(fmt.get("schema"), dict):

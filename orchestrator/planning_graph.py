@@ -48,6 +48,7 @@ from agents.event_parser import PARSER_RETRY_INSTRUCTION, ParserInput, parser_re
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
 from agents.narrator import NarratorInput, narrator_request, parse_narration
+from agents.program_grammar import event_program_grammar
 from agents.retry_feedback import REJECTIONS, feedback_from_error
 from orchestrator.planning_state import RECENT_WINDOW, PlanningDeps, PlanningState, RetryTurn
 
@@ -206,6 +207,9 @@ def _parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
         seats_in_use=deps.world.seats_in_use(state.roster),
         seed=deps.seed,
         sim_frame=state.sim_frame,
+        grammar=event_program_grammar(
+            deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), deps.action_labels
+        ) if deps.program_grammar else None,
     )
 
 

@@ -129,6 +129,8 @@ class PlanningDeps:
     """The scene graph handed to event programs (None: the tools build it)."""
     runner: ProgramRunner | None = None
     """Runs event programs (None: ``tools.event_program.run_event_program``)."""
+    program_grammar: bool = False
+    """Decode event programs under agents.program_grammar (local llama.cpp models)."""
     trace: TraceSink | None = None
     """Where parsed outputs are recorded (None: the port's ``.trace``, if it has one)."""
     _describer_input: DescriberInput | None = field(default=None, init=False, repr=False)

@@ -136,6 +136,9 @@ def test_scoring_judges_action_relationship_seat_and_failures() -> None:
     assert score_outcome(case20, house, _event("Taylor", "read_book", on_chair, seat="chair_3")).passed
     standing = score_outcome(case20, house, _event("Taylor", "read_book", on_chair, seat=None))
     assert not standing.passed  # a standing point on a seat is not sitting on it
+    seated_elsewhere = score_outcome(case, scene, _event("Ryan", "use_smartphone", (
+        float(scene.by_name["chair_1"].center[0]), float(scene.by_name["chair_1"].center[1])), seat="chair_1"))
+    assert "collides" not in seated_elsewhere.reason  # sitting on a seat is not a collision with it
 
 
 async def test_runner_with_an_oracle_passes_and_a_broken_parser_does_not_execute() -> None:

@@ -395,3 +395,22 @@ async def test_requests_carry_the_step_frame_and_parsed_outputs_are_traced(tmp_p
     assert plan["character"] == "Ann" and plan["action"] == "eat" and plan["area"] == "close to table_1"
     assert plan["position"] == [1.0, 1.0] and plan["facing"] == [0.0, 1.0]
     assert "def parse_event" in parsed[9].parsed_output["program"]
+
+
+async def test_program_grammar_reaches_the_parser_request_only_when_asked() -> None:
+    def port() -> ScriptedPort:
+        return ScriptedPort({
+            "describer": [DESCRIPTION],
+            "narrator": [narration(["Ann"], "eat at table_1")],
+            "event_parser": [PROGRAM.format(who="Ann")],
+        })
+
+    plain = port()
+    await run_graph(plain, 1, ["Ann"])
+    assert [c.grammar for c in plain.calls if c.node == "event_parser"] == [None]
+    constrained = port()
+    await run_graph(constrained, 1, ["Ann", "Bob"], program_grammar=True)
+    (grammar,) = [c.grammar for c in constrained.calls if c.node == "event_parser"]
+    assert grammar is not None and 'get_character(\\"Ann\\")' in grammar and "block2" not in grammar
+    assert '\\"table_1\\"' in grammar and '\\"Bob\\"' in grammar  # scene objects; Bob may be looked at
+    assert all(c.grammar is None for c in constrained.calls if c.node != "event_parser")

@@ -1,0 +1,109 @@
+"""A GBNF grammar that only admits well-formed ``parse_event()`` programs for one event.
+
+Small local models write programs that call functions that do not exist, name objects that are
+not in the scene (``refrigerator_1``, ``phone``) or run on until the token budget cuts a string
+in half. Decoding under this grammar (llama.cpp) makes those mistakes impossible: the program
+has exactly one block per event character, in event order::
+
+    def parse_event():
+        c1 = get_character("Ava")
+        c1.set_position(get_area_close_to("table_3"))
+        c1.set_orientation("tv_1")
+        c1.set_target_action("watch_tv")
+
+where the area is one of the spatial API's area functions over the scene's object names (a
+seat function only over seats not in use), the orientation target an object or another
+character, and the action one of the offered labels. The program still runs in the sandbox and
+through the spatial API like any other; only what the model can write is narrowed. Providers
+that cannot decode under a grammar ignore it and get the same prompt.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from typing import Any
+
+from sim.scene import Scene
+
+ONE_OBJECT_AREAS: tuple[str, ...] = (
+    "get_area_to_interact_with",
+    "get_area_adjacent_to",
+    "get_area_close_to",
+    "get_area_in_front_of",
+    "get_area_behind",
+    "get_area_left_of",
+    "get_area_right_of",
+)
+SEAT_AREA = "get_area_to_sit_on"
+TWO_OBJECT_AREA = "get_area_between"
+
+
+def _literal(text: str) -> str:
+    """A GBNF string literal for ``text`` (JSON escaping is valid GBNF escaping)."""
+    return json.dumps(text, ensure_ascii=True)
+
+
+def _quoted(name: str) -> str:
+    """The GBNF literal of a Python string literal: ``"chair_1"`` in the program."""
+    return _literal(json.dumps(name, ensure_ascii=True))
+
+
+def _choice(rule: str, names: Sequence[str]) -> str:
+    if not names:
+        raise ValueError(f"grammar rule {rule!r} has no alternatives")
+    return f"{rule} ::= " + " | ".join(_quoted(n) for n in dict.fromkeys(names))
+
+
+def program_grammar(
+    event_characters: Sequence[str],
+    objects: Sequence[str],
+    seats: Sequence[str],
+    action_labels: Sequence[str],
+    other_characters: Sequence[str] = (),
+) -> str:
+    """The grammar of one event's program (see the module docstring).
+
+    ``objects``: every object an area may be built on; ``seats``: the free seats (the sit
+    function is offered only when there is one); ``other_characters``: characters that may be
+    looked at besides the objects and the event's own characters."""
+    if not event_characters:
+        raise ValueError("an event without characters has no program")
+    if not action_labels:
+        raise ValueError("no action labels to choose from")
+    lines = ["root ::= " + _literal("```python\ndef parse_event():\n") + " "
+             + " ".join(f"block{i}" for i in range(1, len(event_characters) + 1)) + " " + _literal("```")]
+    for i, name in enumerate(event_characters, start=1):
+        var = f"c{i}"
+        lines.append(
+            f"block{i} ::= " + _literal(f"    {var} = get_character({json.dumps(name)})\n    {var}.set_position(")
+            + " area " + _literal(f")\n    {var}.set_orientation(") + " look "
+            + _literal(f")\n    {var}.set_target_action(") + " label " + _literal(")\n")
+        )
+    areas = [f"{_literal(fn + '(')} object {_literal(')')}" for fn in ONE_OBJECT_AREAS]
+    areas.append(f"{_literal(TWO_OBJECT_AREA + '(')} object {_literal(', ')} object {_literal(')')}")
+    if seats:
+        areas.insert(0, f"{_literal(SEAT_AREA + '(')} seat {_literal(')')}")
+        lines.append(_choice("seat", seats))
+    lines.append("area ::= " + " | ".join(areas))
+    lines.append(_choice("object", objects))
+    lookable = [*objects, *(c for c in (*event_characters, *other_characters) if c not in objects)]
+    lines.append(_choice("look", lookable))
+    lines.append(_choice("label", action_labels))
+    return "\n".join(lines) + "\n"
+
+
+def event_program_grammar(
+    scene: Scene, event_characters: Sequence[str], characters: Sequence[Any],
+    seats_in_use: Sequence[str], action_labels: Sequence[str],
+) -> str:
+    """:func:`program_grammar` for an event in ``scene``: every object, the seats nobody else
+    holds, the offered labels; ``characters`` are the roster (objects with ``name``, ``seat``)."""
+    taken = set(seats_in_use) | {c.seat for c in characters if getattr(c, "seat", None) and c.name not in event_characters}
+    return program_grammar(
+        event_characters,
+        [o.name for o in scene.objects],
+        [o.name for o in scene.objects if o.is_seat and o.name not in taken],
+        action_labels,
+        [c.name for c in characters if c.name not in event_characters],
+    )

@@ -1,0 +1,116 @@
+"""The event-program grammar: its text, how it reaches llama.cpp, and the real embedded model
+writing a program under it that runs in the sandbox."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from agents.ablation_planners import PlanningStep, step_program_grammar
+from agents.event_parser import ParserInput, parser_request, run_reply, scene_action_labels
+from agents.llm_port import ChatMessage, LLMRequest
+from agents.messages import CharacterStatus, Event, SceneDescription
+from agents.program_grammar import program_grammar
+from agents.prompt_templates import PromptLibrary
+from orchestrator.config import default_config
+from orchestrator.llm_client import LiteLLMClient
+from orchestrator.traces import NullTraceSink
+from sim.bundled_scenes import resolve_scene
+from tools.character_states import CharacterState, WorldView
+
+SCENE = resolve_scene("home")
+ROSTER = (CharacterStatus(name="Ava", position=(1.0, 1.0)), CharacterStatus(name="Ben", busy=True, seat="couch_1"))
+WORLD = WorldView(characters=tuple(CharacterState(name=c.name, position=c.position, busy=c.busy, seat=c.seat) for c in ROSTER),
+                  objects_in_use={"couch_1": "Ben"})
+EVENT = Event(characters=("Ava",), activity="make coffee with coffee_maker_1")
+
+
+def _step(grammar: bool = True) -> PlanningStep:
+    return PlanningStep(index=0, scene=SCENE, description=SceneDescription(scene="home", text="- kitchen: coffee_maker_1"),
+                        characters=ROSTER, instruction="", world=WORLD, action_labels=scene_action_labels(SCENE),
+                        seats_in_use=("couch_1",), program_grammar=grammar)
+
+
+def test_grammar_names_only_scene_objects_free_seats_and_offered_labels() -> None:
+    g = step_program_grammar(_step(), EVENT)
+    rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
+    objects = set(re.findall(r'\\"([^"\\]+)\\"', rules["object"]))
+    assert objects == {o.name for o in SCENE.objects}
+    seats = set(re.findall(r'\\"([^"\\]+)\\"', rules["seat"]))
+    assert "couch_1" not in seats and seats <= {o.name for o in SCENE.objects if o.is_seat} and seats
+    labels = set(re.findall(r'\\"([^"\\]+)\\"', rules["label"]))
+    assert labels == set(scene_action_labels(SCENE))
+    assert '\\"Ben\\"' in rules["look"]  # another character may be looked at
+    assert rules["root"].count("block") == 1 and 'get_character(\\"Ava\\")' in rules["block1"]
+    with pytest.raises(ValueError, match="without characters"):
+        program_grammar((), ["a_1"], [], ["idle"])
+    with pytest.raises(ValueError, match="no alternatives"):
+        program_grammar(("Ava",), [], [], ["idle"])
+    no_seats = program_grammar(("Ava",), ["table_1"], [], ["idle"])
+    assert "get_area_to_sit_on" not in no_seats and "seat ::=" not in no_seats
+
+
+def test_a_program_of_the_grammar_runs_in_the_sandbox() -> None:
+    program = ('```python\ndef parse_event():\n    c1 = get_character("Ava")\n'
+               '    c1.set_position(get_area_to_interact_with("coffee_maker_1"))\n'
+               '    c1.set_orientation("coffee_maker_1")\n    c1.set_target_action("use_coffee_maker")\n```')
+    result = run_reply(program, scene=SCENE, event=EVENT, world=WORLD, seed=1, action_labels=scene_action_labels(SCENE))
+    assert result.plans[0].action == "use_coffee_maker"
+
+
+def test_grammar_travels_in_the_request_and_only_to_local_models() -> None:
+    prompts = PromptLibrary()
+    inp = ParserInput(scene_description="x", event=EVENT, characters=ROSTER, action_labels=("idle",), grammar="root ::= \"a\"\n")
+    req = parser_request(prompts, inp)
+    assert req.grammar == 'root ::= "a"\n'
+    client = LiteLLMClient(default_config(), NullTraceSink("t"), check_local=lambda m: None)
+    node = client.config.node("event_parser")
+    params, _ = client._params(node, "local/qwen2.5-coder-0.5b", req)
+    assert params["response_format"] == {"type": "gbnf", "grammar": req.grammar}
+    params, _ = client._params(node, "openai/gpt-4o-mini", req)
+    assert "response_format" not in params
+    client.close()
+
+
+def test_requests_without_a_grammar_keep_their_old_hash() -> None:
+    req = LLMRequest(node="narrator", messages=(ChatMessage(role="user", content="hi"),), seed=3)
+    old = json.dumps(req.model_dump(mode="json", exclude={"sim_frame", "grammar"}), sort_keys=True, separators=(",", ":"))
+    assert req.content_hash() == hashlib.sha256(old.encode()).hexdigest()
+    assert req.model_copy(update={"grammar": 'root ::= "a"'}).content_hash() != req.content_hash()
+
+
+def test_local_provider_builds_a_llama_grammar() -> None:
+    pytest.importorskip("llama_cpp")
+    from llama_cpp import LlamaGrammar
+
+    from orchestrator.local_model import _llama_params
+
+    params = _llama_params({"max_tokens": 50, "response_format": {"type": "gbnf", "grammar": step_program_grammar(_step(), EVENT)}})
+    assert isinstance(params["grammar"], LlamaGrammar) and "response_format" not in params
+
+
+@pytest.mark.embedded_model
+async def test_real_embedded_model_writes_a_runnable_program_under_the_grammar(tmp_path: Path) -> None:
+    from test_local_model import _embedded_weights_or_skip
+
+    from orchestrator.local_model import LocalLlamaProvider, register_local_provider
+    from orchestrator.traces import TraceWriter, read_trace
+
+    _embedded_weights_or_skip()
+    register_local_provider(LocalLlamaProvider())
+    client = LiteLLMClient(default_config(), TraceWriter(tmp_path / "t.jsonl"))
+    step = _step()
+    inp = ParserInput(scene_description="- kitchen: coffee_maker_1, fridge_1, cabinet_1", event=EVENT, characters=ROSTER,
+                      action_labels=step.action_labels, seats_in_use=step.seats_in_use, seed=0,
+                      grammar=step_program_grammar(step, EVENT))
+    response = await client.complete(parser_request(PromptLibrary(), inp))
+    client.close()
+    result = run_reply(response.text, scene=SCENE, event=EVENT, world=WORLD, seed=0, action_labels=step.action_labels)
+    assert [p.character for p in result.plans] == ["Ava"]
+    attempt: Any = next(read_trace(tmp_path / "t.jsonl").attempts())
+    assert attempt.params["response_format"]["type"] == "gbnf"
