@@ -24,6 +24,7 @@ from collections.abc import AsyncIterator, Sequence
 from contextlib import asynccontextmanager
 from pathlib import Path
 
+from langgraph.checkpoint.serde.jsonplus import JsonPlusSerializer
 from langgraph.checkpoint.sqlite.aio import AsyncSqliteSaver
 
 from agents.messages import ParsedEvent, PlanningFailure
@@ -116,10 +117,36 @@ class StoryLog:
         return [o for _, o in self.outcomes() if isinstance(o, ParsedEvent)]
 
 
+CHECKPOINT_TYPE_MODULES = ("agents.messages", "orchestrator.planning_state", "tools.character_states")
+
+
+def checkpoint_types() -> tuple[tuple[str, str], ...]:
+    """(module, class) of every pydantic model that graph state may hold: the only types a
+    checkpoint may rebuild besides langgraph's own safe ones (strict msgpack allowlist)."""
+    import importlib
+
+    from pydantic import BaseModel
+
+    out: list[tuple[str, str]] = []
+    for name in CHECKPOINT_TYPE_MODULES:
+        module = importlib.import_module(name)
+        for obj in vars(module).values():
+            if isinstance(obj, type) and issubclass(obj, BaseModel) and obj.__module__ == name:
+                out.append((name, obj.__name__))
+    return tuple(sorted(out))
+
+
+def checkpoint_serializer() -> JsonPlusSerializer:
+    return JsonPlusSerializer(allowed_msgpack_modules=checkpoint_types())
+
+
 @asynccontextmanager
 async def open_checkpointer(path: Path | str) -> AsyncIterator[AsyncSqliteSaver]:
-    """An async SQLite checkpointer on ``path`` (created with its folder if missing)."""
+    """An async SQLite checkpointer on ``path`` (created with its folder if missing) that
+    rebuilds only our own state types (no warning per type, nothing else unpickled)."""
+    import aiosqlite
+
     if str(path) != ":memory:":
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-    async with AsyncSqliteSaver.from_conn_string(str(path)) as saver:
-        yield saver
+    async with aiosqlite.connect(str(path)) as conn:
+        yield AsyncSqliteSaver(conn, serde=checkpoint_serializer())

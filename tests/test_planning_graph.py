@@ -414,3 +414,36 @@ async def test_program_grammar_reaches_the_parser_request_only_when_asked() -> N
     assert grammar is not None and 'get_character(\\"Ann\\")' in grammar and "block2" not in grammar
     assert '\\"table_1\\"' in grammar and '\\"Bob\\"' in grammar  # scene objects; Bob may be looked at
     assert all(c.grammar is None for c in constrained.calls if c.node != "event_parser")
+
+
+async def test_sqlite_checkpoints_rebuild_our_types_without_warnings(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    import logging
+
+    from orchestrator.checkpoints import checkpoint_serializer
+    from orchestrator.planning_state import RetryTurn
+
+    port = ScriptedPort({"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat at table_1")],
+                         "event_parser": [PROGRAM.format(who="Ann")]})
+    db = tmp_path / "runs.sqlite"
+    story = StoryLog(db, "t1")
+    config = {"configurable": {"thread_id": "t1"}, "recursion_limit": recursion_limit(1, 3)}
+    async with open_checkpointer(db) as saver:
+        graph = compile_planning_graph(saver)
+        await graph.ainvoke(initial_state(["Ann"], 1), config=config, context=make_deps(port, story), durability="sync")
+    caplog.set_level(logging.WARNING)
+    async with open_checkpointer(db) as saver:
+        snapshot = await compile_planning_graph(saver).aget_state(config)
+    story.close()
+    assert type(snapshot.values["description"]).__name__ == "SceneDescription"
+    assert all(type(c).__name__ == "CharacterStatus" for c in snapshot.values["roster"])
+    assert not [r for r in caplog.records if "unregistered" in r.getMessage()]
+    # a type outside the allowlist is not rebuilt from a checkpoint
+    serde = checkpoint_serializer()
+    blob = serde.dumps_typed(RetryTurn(reply="r", feedback="f"))
+    assert type(serde.loads_typed(blob)).__name__ == "RetryTurn"
+    from pydantic import BaseModel
+
+    class Foreign(BaseModel):
+        a: int = 1
+
+    assert serde.loads_typed(serde.dumps_typed(Foreign())) == {"a": 1}  # data only, no object built
