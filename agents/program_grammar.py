@@ -24,7 +24,11 @@ import json
 from collections.abc import Sequence
 from typing import Any
 
-from sim.scene import Scene
+import numpy as np
+
+from sim.scene import Scene, SceneObject
+from tools.areas import seat_slots
+from tools.position_sampling import MIN_SEPARATION
 
 ONE_OBJECT_AREAS: tuple[str, ...] = (
     "get_area_to_interact_with",
@@ -98,12 +102,25 @@ def event_program_grammar(
     seats_in_use: Sequence[str], action_labels: Sequence[str],
 ) -> str:
     """:func:`program_grammar` for an event in ``scene``: every object, the seats nobody else
-    holds, the offered labels; ``characters`` are the roster (objects with ``name``, ``seat``)."""
-    taken = set(seats_in_use) | {c.seat for c in characters if getattr(c, "seat", None) and c.name not in event_characters}
+    holds or stands on, the offered labels; ``characters`` are the roster (objects with
+    ``name``, ``seat``, ``position``)."""
+    others = [c for c in characters if c.name not in event_characters]
+    taken = set(seats_in_use) | {c.seat for c in others if getattr(c, "seat", None)}
+    standing = np.array([c.position for c in others if c.position is not None and not getattr(c, "seat", None)], dtype=float)
+
+    def free(obj: SceneObject) -> bool:
+        """Not held, and some slot of it clear of everyone standing (the sampler's own rule)."""
+        if obj.name in taken:
+            return False
+        slots = seat_slots(obj)
+        if len(standing) == 0 or not slots:
+            return True
+        return any(float(np.min(np.linalg.norm(standing - np.asarray(s.position), axis=1))) >= MIN_SEPARATION for s in slots)
+
     return program_grammar(
         event_characters,
         [o.name for o in scene.objects],
-        [o.name for o in scene.objects if o.is_seat and o.name not in taken],
+        [o.name for o in scene.objects if o.is_seat and free(o)],
         action_labels,
         [c.name for c in characters if c.name not in event_characters],
     )

@@ -114,3 +114,16 @@ async def test_real_embedded_model_writes_a_runnable_program_under_the_grammar(t
     assert [p.character for p in result.plans] == ["Ava"]
     attempt: Any = next(read_trace(tmp_path / "t.jsonl").attempts())
     assert attempt.params["response_format"]["type"] == "gbnf"
+
+
+def test_a_seat_someone_stands_at_is_not_offered() -> None:
+    from agents.program_grammar import event_program_grammar
+    from tools.areas import seat_slots
+
+    seat = next(o for o in SCENE.objects if o.is_seat and len(seat_slots(o)) == 1)
+    slot = seat_slots(seat)[0].position
+    roster = (CharacterStatus(name="Ava"), CharacterStatus(name="Cy", position=(float(slot[0]) + 0.1, float(slot[1]))))
+    blocked = event_program_grammar(SCENE, ("Ava",), roster, (), ("idle",))
+    free = event_program_grammar(SCENE, ("Ava",), roster[:1], (), ("idle",))
+    seat_rule = lambda g: next(line for line in g.splitlines() if line.startswith("seat ::="))  # noqa: E731
+    assert f'\\"{seat.name}\\"' in seat_rule(free) and f'\\"{seat.name}\\"' not in seat_rule(blocked)
