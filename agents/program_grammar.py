@@ -106,16 +106,17 @@ def event_program_grammar(
     ``name``, ``seat``, ``position``)."""
     others = [c for c in characters if c.name not in event_characters]
     taken = set(seats_in_use) | {c.seat for c in others if getattr(c, "seat", None)}
-    standing = np.array([c.position for c in others if c.position is not None and not getattr(c, "seat", None)], dtype=float)
+    placed = np.array([c.position for c in others if c.position is not None], dtype=float).reshape(-1, 2)
 
     def free(obj: SceneObject) -> bool:
-        """Not held, and some slot of it clear of everyone standing (the sampler's own rule)."""
-        if obj.name in taken:
-            return False
+        """The sampler's own rule: a one-place seat nobody holds, or a slot of it (a couch has
+        several) clear of everyone else by the minimum separation."""
         slots = seat_slots(obj)
-        if len(standing) == 0 or not slots:
+        if obj.name in taken and len(slots) <= 1:
+            return False
+        if len(placed) == 0 or not slots:
             return True
-        return any(float(np.min(np.linalg.norm(standing - np.asarray(s.position), axis=1))) >= MIN_SEPARATION for s in slots)
+        return any(float(np.min(np.linalg.norm(placed - np.asarray(s.position), axis=1))) >= MIN_SEPARATION for s in slots)
 
     return program_grammar(
         event_characters,

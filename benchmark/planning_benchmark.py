@@ -207,8 +207,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--record", type=Path, help="write every LLM call to this trace")
     p.add_argument("--replay", type=Path, help="serve every LLM call from this trace (no model loaded)")
     p.add_argument("--max-retries", type=int, default=3)
-    p.add_argument("--program-grammar", action="store_true",
-                   help="local models write the event program under a grammar of the API's area functions and the scene's names")
+    p.add_argument("--program-grammar", action=argparse.BooleanOptionalAction, default=True,
+                   help="local models write the event program under a grammar of the API's area functions and the "
+                        "scene's names (default; --no-program-grammar: free Python, as the paper)")
     p.add_argument("--json", type=Path, help="also write every run's verdict to this JSON file")
     p.add_argument("--verbose", action="store_true", help="print each run's verdict")
     return p
@@ -255,7 +256,7 @@ async def _main(args: argparse.Namespace) -> int:
     else:
         models = sorted({config.node(n).model for n in ("describer", "narrator", "event_parser", "planner")})
     header = (f"planner={args.planner} description={args.description} level={args.level} runs={args.runs} "
-              f"seed={args.seed}{' program-grammar' if args.program_grammar else ''} models={','.join(models)}" + (" (replayed)" if args.replay else ""))
+              f"seed={args.seed}{'' if args.program_grammar else ' free-programs'} models={','.join(models)}" + (" (replayed)" if args.replay else ""))
     print(format_summary(results, header))
     if args.json is not None:
         payload = {"header": header, "summary": [dict(zip(("cases", "runs", "success", "execution"), row, strict=True))

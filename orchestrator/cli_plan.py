@@ -252,7 +252,7 @@ def plan_command(
     seed: Annotated[int, typer.Option("--seed", help="Seed of start positions and sampling.")] = 0,
     busy_events: Annotated[int, typer.Option("--busy-events", min=0, help="Steps an event keeps its characters busy.")] = 0,
     max_retries: Annotated[int, typer.Option("--max-retries", min=0, max=10, help="Retries per LLM role.")] = 3,
-    program_grammar: Annotated[bool, typer.Option("--program-grammar/--free-programs", help="Local models write event programs under a grammar of the API's area functions and the scene's names.")] = False,
+    program_grammar: Annotated[bool, typer.Option("--program-grammar/--free-programs", help="Local models write event programs under a grammar of the API's area functions and the scene's names (--free-programs: free Python, as the paper).")] = True,
     runs_db: Annotated[Path | None, typer.Option("--runs-db", help="SQLite file of checkpoints.")] = None,
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this run.")] = None,
     prompts_dir: Annotated[Path | None, typer.Option("--prompts", help="Use prompt files from this folder.")] = None,

@@ -121,7 +121,7 @@ def run_command(
     motion_config: Annotated[Path | None, typer.Option("--motion-config", help="TOML mapping mocap clips to actions.")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of start positions, sampling and paths.")] = 0,
     max_retries: Annotated[int, typer.Option("--max-retries", min=0, max=10, help="Retries per LLM role.")] = 3,
-    program_grammar: Annotated[bool, typer.Option("--program-grammar/--free-programs", help="Local models write event programs under a grammar of the API's area functions and the scene's names.")] = False,
+    program_grammar: Annotated[bool, typer.Option("--program-grammar/--free-programs", help="Local models write event programs under a grammar of the API's area functions and the scene's names (--free-programs: free Python, as the paper).")] = True,
     gif: Annotated[bool, typer.Option("--gif/--no-gif", help="Also write an animated top-down GIF.")] = False,
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this planning thread.")] = None,
     planner: Annotated[
