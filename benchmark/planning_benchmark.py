@@ -270,6 +270,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from agents.llm_port import LLMError
     from orchestrator.config import ConfigError
+    from orchestrator.logging_setup import configure_logging
+
+    configure_logging("WARNING")  # logs go to stderr; stdout holds only the verdicts and the table
 
     try:
         return asyncio.run(_main(args))
