@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from sim.action_labels import UnknownActionLabelError, database_key
 from sim.scene import Scene, SceneObject
 from tools.areas import seat_slots
 from tools.position_sampling import MIN_SEPARATION
@@ -65,30 +66,36 @@ def program_grammar(
     seats: Sequence[str],
     action_labels: Sequence[str],
     other_characters: Sequence[str] = (),
+    seated_labels: Sequence[str] | None = None,
 ) -> str:
     """The grammar of one event's program (see the module docstring).
 
     ``objects``: every object an area may be built on; ``seats``: the free seats (the sit
     function is offered only when there is one); ``other_characters``: characters that may be
-    looked at besides the objects and the event's own characters."""
+    looked at besides the objects and the event's own characters; ``seated_labels``: the
+    labels that can be played sitting (None: all), the only ones offered after a sit area."""
     if not event_characters:
         raise ValueError("an event without characters has no program")
     if not action_labels:
         raise ValueError("no action labels to choose from")
+    sit_labels = list(action_labels if seated_labels is None else [a for a in action_labels if a in set(seated_labels)])
+    can_sit = bool(seats) and bool(sit_labels)
     lines = ["root ::= " + _literal("```python\ndef parse_event():\n") + " "
              + " ".join(f"block{i}" for i in range(1, len(event_characters) + 1)) + " " + _literal("```")]
     for i, name in enumerate(event_characters, start=1):
         var = f"c{i}"
-        lines.append(
-            f"block{i} ::= " + _literal(f"    {var} = get_character({json.dumps(name)})\n    {var}.set_position(")
-            + " area " + _literal(f")\n    {var}.set_orientation(") + " look "
-            + _literal(f")\n    {var}.set_target_action(") + " label " + _literal(")\n")
-        )
+        head = _literal(f"    {var} = get_character({json.dumps(name)})\n    {var}.set_position(")
+        look = _literal(f")\n    {var}.set_orientation(") + " look " + _literal(f")\n    {var}.set_target_action(")
+        end = _literal(")\n")
+        stand = f"area {look} label {end}"
+        body = f"( sitarea {look} sitlabel {end} | {stand} )" if can_sit else stand
+        lines.append(f"block{i} ::= {head} {body}")
     areas = [f"{_literal(fn + '(')} object {_literal(')')}" for fn in ONE_OBJECT_AREAS]
     areas.append(f"{_literal(TWO_OBJECT_AREA + '(')} object {_literal(', ')} object {_literal(')')}")
-    if seats:
-        areas.insert(0, f"{_literal(SEAT_AREA + '(')} seat {_literal(')')}")
+    if can_sit:
+        lines.append(f"sitarea ::= {_literal(SEAT_AREA + '(')} seat {_literal(')')}")
         lines.append(_choice("seat", seats))
+        lines.append(_choice("sitlabel", sit_labels))
     lines.append("area ::= " + " | ".join(areas))
     lines.append(_choice("object", objects))
     lookable = [*objects, *(c for c in (*event_characters, *other_characters) if c not in objects)]
@@ -124,4 +131,13 @@ def event_program_grammar(
         [o.name for o in scene.objects if o.is_seat and free(o)],
         action_labels,
         [c.name for c in characters if c.name not in event_characters],
+        seated_labels=[a for a in action_labels if _playable_seated(a)],
     )
+
+
+def _playable_seated(label: str) -> bool:
+    try:
+        database_key(label, seated=True)
+    except UnknownActionLabelError:
+        return False
+    return True

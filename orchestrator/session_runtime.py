@@ -256,7 +256,7 @@ class Session:
         try:
             command = AssignEvent.from_plans(eid, outcome.plans, self.world.scene)
         except ValueError as exc:  # e.g. an action the motion library does not know
-            _log.warning("event_rejected", event=eid, error=str(exc))
+            _log.warning("event_rejected", event_id=eid, error=str(exc))
             self._next_plan_frame = frame + retry
             return []
         ev = StoryEvent(

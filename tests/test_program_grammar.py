@@ -128,3 +128,19 @@ def test_a_seat_someone_stands_at_is_not_offered() -> None:
     free = event_program_grammar(SCENE, ("Ava",), roster[:1], (), ("idle",))
     seat_rule = lambda g: next(line for line in g.splitlines() if line.startswith("seat ::="))  # noqa: E731
     assert f'\\"{seat.name}\\"' in seat_rule(free) and f'\\"{seat.name}\\"' not in seat_rule(blocked)
+
+
+def test_after_a_sit_area_only_seated_actions_are_offered_and_the_check_agrees() -> None:
+    from agents.event_parser import check_plans
+    from agents.retry_feedback import AnswerRejectedError
+    from tools.character_states import CharacterPlan
+
+    g = step_program_grammar(_step(), EVENT)
+    rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
+    assert '\\"use_coffee_maker\\"' in rules["label"] and '\\"use_coffee_maker\\"' not in rules["sitlabel"]
+    assert '\\"idle\\"' in rules["sitlabel"]
+    seated = CharacterPlan(character="Ava", action="use_coffee_maker", area="sit on chair_1", position=(1.0, 1.0),
+                           facing=(1.0, 0.0), seat="chair_1")
+    with pytest.raises(AnswerRejectedError, match="cannot use_coffee_maker while sitting on chair_1"):
+        check_plans(EVENT, [seated])
+    assert check_plans(EVENT, [seated.model_copy(update={"action": "idle"})])[0].seat == "chair_1"
