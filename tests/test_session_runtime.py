@@ -277,3 +277,26 @@ def test_graph_session_traces_request_and_applied_frames_and_replays(home, motio
     assert [(a.step, a.sim_frame, a.requested_frame, len(a.ref_seqs)) for a in again] == [
         (a.step, a.sim_frame, a.requested_frame, len(a.ref_seqs)) for a in applied
     ]
+
+
+def test_an_event_the_motion_library_cannot_play_is_skipped_and_logged(home, motion) -> None:  # type: ignore[no-untyped-def]
+    from structlog.testing import capture_logs
+
+    seat = next(o for o in home.objects if o.is_seat)
+
+    class SeatedCoffee(ScriptedPlanner):
+        async def plan(self, request: PlanningRequest) -> Outcome:
+            self.requests.append(request)
+            if request.index > 0:
+                return None
+            plan = PlannedCharacter(character="Ava", action="use_coffee_maker", area=f"sit on {seat.name}",
+                                    position=(float(seat.center[0]), float(seat.center[1])), facing=(1.0, 0.0),
+                                    seat=seat.name)
+            return ParsedEvent(index=0, event=Event(characters=("Ava",), activity="coffee"), plans=(plan,))
+
+    world = _world(home, motion, ["Ava"])
+    with capture_logs() as logs:
+        result = _run(world, SeatedCoffee(home), SessionSettings(frames=3 * FPS, pace="lockstep", max_steps=2))
+    assert result.frames == 3 * FPS and result.planner_error is None
+    rejected = [e for e in logs if e["event"] == "event_rejected"]
+    assert rejected and rejected[0]["event_id"] and "use_coffee_maker" in rejected[0]["error"]
