@@ -31,7 +31,7 @@ from agents.retry_feedback import (
     retry_temperature,
     with_turns,
 )
-from sim.action_labels import ACTION_LABELS, ACTION_SPECS, UnknownActionLabelError, database_key
+from sim.action_labels import ACTION_LABELS, ACTION_SPECS, playable_seated
 from sim.scene import Scene
 
 PARSER_RETRY_INSTRUCTION = "Fix this and reply with the whole corrected ```python block only."
@@ -211,7 +211,7 @@ def check_plans(event: Event, plans: Sequence[Any]) -> tuple[PlannedCharacter, .
     if extra:
         problems.append(", ".join(extra) + " not in this event; plan only " + ", ".join(event.characters))
     for p in out:  # the motion library must be able to play the action in that posture
-        if p.seat is not None and not seatable(p.action):
+        if p.seat is not None and p.action in ACTION_SPECS and not playable_seated(p.action):
             problems.append(
                 f"{p.character} cannot {p.action} while sitting on {p.seat}: stand with an area such as "
                 f"get_area_to_interact_with(...) or get_area_close_to(...), or choose an action done seated"
@@ -220,18 +220,6 @@ def check_plans(event: Event, plans: Sequence[Any]) -> tuple[PlannedCharacter, .
         raise AnswerRejectedError(problems)
     return out
 
-
-def seatable(action: str) -> bool:
-    """Whether ``action`` can be played sitting (unknown labels are the sandbox's business)."""
-    try:
-        database_key(action, seated=True)
-    except UnknownActionLabelError:
-        try:
-            database_key(action)
-        except UnknownActionLabelError:
-            return True  # not a label of ours at all: reported elsewhere
-        return False
-    return True
 
 
 @dataclass(frozen=True)

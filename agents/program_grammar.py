@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.action_labels import UnknownActionLabelError, database_key
+from sim.action_labels import playable_seated
 from sim.scene import Scene, SceneObject
 from tools.areas import seat_slots
 from tools.position_sampling import MIN_SEPARATION
@@ -131,13 +131,6 @@ def event_program_grammar(
         [o.name for o in scene.objects if o.is_seat and free(o)],
         action_labels,
         [c.name for c in characters if c.name not in event_characters],
-        seated_labels=[a for a in action_labels if _playable_seated(a)],
+        seated_labels=[a for a in action_labels if playable_seated(a)],
     )
 
-
-def _playable_seated(label: str) -> bool:
-    try:
-        database_key(label, seated=True)
-    except UnknownActionLabelError:
-        return False
-    return True

@@ -68,20 +68,4 @@ def force_logging_reset() -> None:
     """Allow :func:`configure_logging` to run again (tests)."""
     global _configured
     _configured = False
-
-
-class _StderrLogger:
-    """Writes each line to whatever ``sys.stderr`` is *now*.
-
-    Binding the stream once at configuration time breaks when stderr is swapped later (a test
-    runner capturing output closes its stream; the next log line would hit a closed file)."""
-
-    def msg(self, message: str) -> None:
-        print(message, file=sys.stderr, flush=True)
-
-    log = debug = info = warning = warn = error = critical = exception = fatal = failure = msg
-
-
-def _stderr_logger_factory(*_args: object) -> _StderrLogger:
-    return _StderrLogger()
     structlog.reset_defaults()

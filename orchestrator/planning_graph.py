@@ -140,6 +140,16 @@ def _with_seq(state: PlanningState, seq: int | None) -> tuple[int, ...]:
     return state.step_trace_seqs if seq is None else (*state.step_trace_seqs, seq)
 
 
+def _reply_update(state: PlanningState, role: Literal["narrator", "parser"], response: Any) -> dict[str, Any]:
+    """State update for one answered call: the reply, its trace seq, the step's seqs, the count."""
+    return {
+        f"{role}_reply": response.text,
+        f"{role}_seq": response.trace_seq,
+        "step_trace_seqs": _with_seq(state, response.trace_seq),
+        "llm_calls": state.llm_calls + 1,
+    }
+
+
 async def narrate_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
     """One narrator call; its reply is checked by the next node."""
     deps = runtime.context
@@ -148,12 +158,7 @@ async def narrate_event(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
         response = await _complete(deps, narrator_request(deps.prompts, _narrator_input(state, deps), turns), state)
     except LLMError as exc:
         return _unavailable(state, "narrator", exc)
-    return {
-        "narrator_reply": response.text,
-        "narrator_seq": response.trace_seq,
-        "step_trace_seqs": _with_seq(state, response.trace_seq),
-        "llm_calls": state.llm_calls + 1,
-    }
+    return _reply_update(state, "narrator", response)
 
 
 def _unavailable(state: PlanningState, node: Literal["narrator", "event_parser"], exc: LLMError) -> dict[str, Any]:
@@ -221,12 +226,7 @@ async def parse_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> d
         response = await _complete(deps, parser_request(deps.prompts, _parser_input(state, deps), turns), state)
     except LLMError as exc:
         return _unavailable(state, "event_parser", exc)
-    return {
-        "parser_reply": response.text,
-        "parser_seq": response.trace_seq,
-        "step_trace_seqs": _with_seq(state, response.trace_seq),
-        "llm_calls": state.llm_calls + 1,
-    }
+    return _reply_update(state, "parser", response)
 
 
 async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:

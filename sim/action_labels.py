@@ -192,6 +192,15 @@ def database_key(label: str, seated: bool = False) -> str:
     return f"{spec.label}{SEATED_SUFFIX}"
 
 
+def playable_seated(label: str) -> bool:
+    """Whether ``label`` has a seated motion (False for unknown labels)."""
+    try:
+        database_key(label, seated=True)
+    except UnknownActionLabelError:
+        return False
+    return True
+
+
 def all_database_keys() -> tuple[str, ...]:
     """Every database key: each label plus the seated variants of seatable labels."""
     keys = list(ACTION_LABELS)
