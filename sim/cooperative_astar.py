@@ -38,6 +38,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from sim.astar_kernel import reserve_path, reserve_step, space_time_search
 from sim.nav_grid import MOVES, NavGrid
 from sim.path_fallback import failed_first
 
@@ -46,6 +47,7 @@ Agent = Hashable
 
 _WAIT = (0, 0)
 _EPS = 1e-9
+BACKENDS = ("numba", "python")
 
 
 _MASK_MEMOS: weakref.WeakKeyDictionary[NavGrid, dict[int, list[tuple[int, int]]]] = weakref.WeakKeyDictionary()
@@ -117,6 +119,45 @@ class _Reservations:
                     near[cell] = near.get(cell, full) & mask
             self.near[t] = near
 
+    def allow(self, t: int, cid: int) -> int:
+        """Bit mask of the moves from ``cid`` at step ``t`` that keep clear of the reserved agents."""
+        return self.near[t].get(cid, self._planner._full_mask) if t < len(self.near) else self._planner._full_mask
+
+
+class _DenseReservations:
+    """The same reservations as ``_Reservations`` on a dense (steps, cells) mask array, folded
+    by the compiled ``reserve_step`` (the ``numba`` backend)."""
+
+    def __init__(self, n_steps: int, planner: PathPlanner) -> None:
+        self._planner = planner
+        self.near = np.full((n_steps, planner._nx_p * planner._ny_p), planner._full_mask, dtype=np.int64)
+        self.moves: list[dict[Agent, tuple[int, int]]] = [{} for _ in range(n_steps)]
+
+    def add(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+        pl = self._planner
+        steps = min(upto, len(ids) - 1, len(self.near))
+        if steps <= 0:
+            return
+        arr = np.asarray(ids, dtype=np.int64)
+        vels = reserve_path(self.near, arr, steps, pl._ny_p, pl._nbhd_off, pl._nbhd_base, pl._mask_arr, pl._free_arr)
+        for t, a, vel in zip(range(steps), arr[:steps].tolist(), vels.tolist(), strict=True):
+            self.moves[t][agent] = (a, vel)
+
+    def remove(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+        pl = self._planner
+        offsets, bases, mask_of, free = pl._nbhd_off, pl._nbhd_base, pl._mask_arr, pl._free_arr
+        for t in range(min(upto, len(ids) - 1, len(self.near))):
+            moves = self.moves[t]
+            if moves.pop(agent, None) is None:
+                continue
+            row = self.near[t]
+            row.fill(pl._full_mask)
+            for a, vel in moves.values():
+                reserve_step(row, a, vel, offsets, bases, mask_of, free)
+
+    def allow(self, t: int, cid: int) -> int:
+        return int(self.near[t, cid]) if t < len(self.near) else self._planner._full_mask
+
 
 class PathPlanner:
     """WHCA* over a ``NavGrid``. Pure and deterministic (no clock, no randomness but ``seed``).
@@ -125,6 +166,9 @@ class PathPlanner:
     before the next replan (the prefix that is guaranteed conflict-free; default 1 step =
     9 frames, about the reference's 10-frame replan interval). ``step_time``: seconds per step.
     ``max_expansions``: search budget per agent and call; beyond it the agent waits.
+    ``backend``: ``"numba"`` (default) runs the reservation folding and the space-time search
+    compiled (``sim.astar_kernel``); ``"python"`` runs the same algorithm in pure Python. Both
+    return the same plans.
     """
 
     def __init__(
@@ -138,7 +182,10 @@ class PathPlanner:
         fallback: bool = True,
         seed: int = 0,
         repair_passes: int = 3,
+        backend: str = "numba",
     ) -> None:
+        if backend not in BACKENDS:
+            raise PlanningError(f"backend must be one of {BACKENDS}, got {backend!r}")
         if window < 1:
             raise PlanningError(f"window must be >= 1 step, got {window}")
         if not 1 <= commit_steps <= window:
@@ -153,6 +200,7 @@ class PathPlanner:
         self.fallback = bool(fallback)
         self.repair_passes = int(repair_passes)
         self.seed = int(seed)
+        self.backend = backend
         self.min_distance = 2.0 * grid.body_radius  # metres between centres
         d_cells = self.min_distance / grid.cell_size
         self.reach = int(math.ceil(d_cells + 2.0 - _EPS))  # Chebyshev distance that can conflict
@@ -162,7 +210,9 @@ class PathPlanner:
         self._build_neighbours()
         self._build_clearance_table(d_cells)
         self._build_move_masks()
+        self._build_dense_tables()
         self._heuristics: dict[int, list[float]] = {}
+        self._h_arrays: dict[int, np.ndarray] = {}
         self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
         self._graph = self._static_graph()
 
@@ -189,10 +239,18 @@ class PathPlanner:
         self._nbhd_bases = [
             (di * nyp + dj, ((di + rr) * side + (dj + rr)) * 25) for di in range(-rr, rr + 1) for dj in range(-rr, rr + 1)
         ]
-        # For an agent at cell a: the free cells within reach and the table base of a seen from them.
-        self._near_cells: dict[int, list[tuple[int, int]]] = {
-            a: [(a - off, base) for off, base in self._nbhd_bases if (a - off) in self._nbrs] for a in self._nbrs
-        }
+        self._near_cells_memo: dict[int, list[tuple[int, int]]] | None = None
+
+    @property
+    def _near_cells(self) -> dict[int, list[tuple[int, int]]]:
+        """For an agent at cell a: the free cells within reach and the table base of a seen from
+        them (built on first use: only the pure-Python backend reads it)."""
+        if self._near_cells_memo is None:
+            nbrs = self._nbrs
+            self._near_cells_memo = {
+                a: [(a - off, base) for off, base in self._nbhd_bases if (a - off) in nbrs] for a in nbrs
+            }
+        return self._near_cells_memo
 
     def _build_clearance_table(self, d_cells: float) -> None:
         """safe[(di, dj, wx, wy)]: other at offset (di, dj), relative velocity (wx, wy) in cells/step."""
@@ -225,6 +283,43 @@ class PathPlanner:
             self._mask_of.append(mask)
         # shared by the planners of one grid (the masks depend only on the grid's cells and radius)
         self._near_mask_memo: dict[int, list[tuple[int, int]]] = _MASK_MEMOS.setdefault(self.grid, {})
+
+    def _build_dense_tables(self) -> None:
+        """The search tables as arrays for the compiled kernels (``sim.astar_kernel``)."""
+        n = self._nx_p * self._ny_p
+        self._nb_id = np.full((n, 9), -1, dtype=np.int64)
+        self._nb_cost = np.zeros((n, 9), dtype=float)
+        self._nb_bit = np.zeros((n, 9), dtype=np.int64)
+        self._free_arr = np.zeros(n, dtype=np.bool_)
+        for cid, lst in self._snbrs.items():
+            self._free_arr[cid] = True
+            for m, (nid, cost, bit) in enumerate(lst):
+                self._nb_id[cid, m], self._nb_cost[cid, m], self._nb_bit[cid, m] = nid, cost, bit
+        self._nbhd_off = np.array([off for off, _ in self._nbhd_bases], dtype=np.int64)
+        self._nbhd_base = np.array([base for _, base in self._nbhd_bases], dtype=np.int64)
+        self._mask_arr = np.array(self._mask_of, dtype=np.int64)
+        self._all_allowed = np.full(n, self._full_mask, dtype=np.int64)
+        self._scratch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._token = 0
+
+    def _search_scratch(self, window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        size = (window + 1) * self._nx_p * self._ny_p
+        if self._scratch is None or len(self._scratch[0]) < size:
+            self._scratch = (np.zeros(size), np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64))
+            self._token = 0
+        return self._scratch
+
+    def _static_allow(self, overrides: Mapping[int, list]) -> np.ndarray:
+        """Per padded cell, the bit mask of the moves left by ``overrides`` (all elsewhere)."""
+        if not overrides:
+            return self._all_allowed
+        out = self._all_allowed.copy()
+        for cid, lst in overrides.items():
+            mask = 0
+            for nb in lst:
+                mask |= nb[2]
+            out[cid] = mask
+        return out
 
     def _near_masks(self, a: int, vel: int) -> list[tuple[int, int]]:
         """(cell, mask) for the cells near an agent leaving cell id ``a`` with velocity code
@@ -260,9 +355,21 @@ class PathPlanner:
             full[self._pad : self._pad + nx, self._pad : self._pad + ny] = d.reshape(nx, ny)
             h = full.ravel().tolist()
             if len(self._heuristics) > 512:
-                self._heuristics.pop(next(iter(self._heuristics)))
+                old = next(iter(self._heuristics))
+                self._heuristics.pop(old)
+                self._h_arrays.pop(old, None)
             self._heuristics[gid] = h
+            self._h_arrays[gid] = full.ravel()
         return h
+
+    def _heuristic_array(self, goal: Cell) -> np.ndarray:
+        """``heuristic(goal)`` as a float array (the compiled search's view)."""
+        gid = self.cell_id(goal)
+        arr = self._h_arrays.get(gid)
+        if arr is None or gid not in self._heuristics:
+            self.heuristic(goal)
+            arr = self._h_arrays[gid]
+        return arr
 
     def distance(self, start: Cell, goal: Cell) -> float:
         """Shortest static path length from ``start`` to ``goal`` in metres (inf: unreachable)."""
@@ -451,7 +558,9 @@ class PathPlanner:
         hints: Mapping[Agent, list[int]] | None = None,
     ) -> PlanResult:
         w_max = self.window * (2 if extended else 1)
-        res = _Reservations(w_max, self)
+        dense = self.backend == "numba"
+        res: _Reservations | _DenseReservations = _DenseReservations(w_max, self) if dense else _Reservations(w_max, self)
+        static_allow = self._static_allow(overrides) if dense else None
         waits = {a: [self.cell_id(starts[a])] * (self.commit_steps + 1) for a in order}
         for a in order:
             if a in reserve_waits:
@@ -469,18 +578,23 @@ class PathPlanner:
             if ids is not None:
                 reused.add(a)
             else:
-                ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
+                if dense:
+                    ids, n = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow)
+                else:
+                    ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
                 total += n
             if ids is None:  # wait: safe for the committed steps, which is all it claims
                 failed.add(a)
                 ids = waits[a]
             res.add(a, ids, len(res.near))
-            paths[a] = [self.id_cell(c) for c in ids[: self.window + 1]]
+            keep = np.asarray(ids[: self.window + 1], dtype=np.int64)
+            paths[a] = list(zip((keep // self._ny_p - self._pad).tolist(), (keep % self._ny_p - self._pad).tolist(), strict=True))
         return PlanResult(paths=paths, failed=frozenset(failed), fallback=frozenset(), goals=dict(goals), expansions=total,
                           reused=frozenset(reused))
 
     def _kept_path(
-        self, hint: list[int], goal: Cell, window: int, res: _Reservations, overrides: Mapping[int, list]
+        self, hint: list[int], goal: Cell, window: int, res: _Reservations | _DenseReservations,
+        overrides: Mapping[int, list],
     ) -> list[int] | None:
         """``hint`` (padded ids from the start) checked step by step against ``res`` and the
         static obstacles, then extended to ``window`` steps, each extra step the allowed move
@@ -488,16 +602,13 @@ class PathPlanner:
         h = self.heuristic(goal)
         gid = self.cell_id(goal)
         nbrs = self._snbrs
-        full = self._full_mask
-        near = res.near
-        n_steps = len(near)
         path = hint[: window + 1]
         for t in range(len(path) - 1):
             cid, nid = path[t], path[t + 1]
             moves = overrides.get(cid)
             if moves is None:
                 moves = nbrs[cid]
-            allow = near[t].get(cid, full) if t < n_steps else full
+            allow = res.allow(t, cid)
             if not any(m[0] == nid and allow & m[2] for m in moves) or h[nid] == math.inf:
                 return None
         path = list(path)
@@ -507,7 +618,7 @@ class PathPlanner:
             moves = overrides.get(cid)
             if moves is None:
                 moves = nbrs[cid]
-            allow = near[t].get(cid, full) if t < n_steps else full
+            allow = res.allow(t, cid)
             best = None
             for nid, cost, bit in moves:
                 if not allow & bit or h[nid] == math.inf:
@@ -519,6 +630,19 @@ class PathPlanner:
                 return None
             path.append(best[2])
         return path
+
+    def _search_compiled(
+        self, start: int, goal: Cell, window: int, res: _DenseReservations, static_allow: np.ndarray
+    ) -> tuple[list[int] | None, int]:
+        """``_search`` run by the compiled kernel on the dense tables (same result)."""
+        h = self._heuristic_array(goal)
+        g_best, stamp, parent = self._search_scratch(window)
+        self._token += 1
+        path, n = space_time_search(
+            start, self.cell_id(goal), window, h, self._nb_id, self._nb_cost, self._nb_bit, static_allow,
+            res.near, self._full_mask, self.max_expansions, g_best, stamp, parent, self._token,
+        )
+        return (path.tolist() if len(path) else None), int(n)
 
     def _search(
         self,
