@@ -224,19 +224,22 @@ def run_crowd(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: 
     return RunResult(n, frames, wall, cpu, counters, world.positions())
 
 
-def replan_baseline(grid: NavGrid, problems: list[tuple[Any, ...]], seed: int, limit: int = 60) -> tuple[float, float, int]:
-    """(windowed s per replan, non-windowed s per replan, problems) on the same recorded problems."""
+def replan_baseline(grid: NavGrid, problems: list[tuple[Any, ...]], seed: int,
+                    limit: int = 60) -> tuple[float, float, float, bool]:
+    """Seconds per replan on the same recorded problems: (windowed, non-windowed, windowed with
+    the pure-Python backend), and whether both backends returned identical plans."""
     picks = problems[:: max(1, len(problems) // limit)][:limit]
     long_window = math.ceil((grid.shape[0] + grid.shape[1]) * 1.5)
     windowed = PathPlanner(grid, seed=seed)
     full = PathPlanner(grid, window=long_window, seed=seed, max_expansions=200_000)
-    times = []
-    for planner in (windowed, full):
+    python = PathPlanner(grid, seed=seed, backend="python")
+    times, plans = [], []
+    for planner in (windowed, full, python):
         t0 = time.perf_counter()
-        for starts, goals, statics, t, order, kw in picks:
-            planner.plan(starts, goals, statics, t0=t, order=order or None, **kw)
+        plans.append([planner.plan(starts, goals, statics, t0=t, order=order or None, **kw)
+                      for starts, goals, statics, t, order, kw in picks])
         times.append((time.perf_counter() - t0) / max(1, len(picks)))
-    return times[0], times[1], len(picks)
+    return times[0], times[1], times[2], plans[0] == plans[2]
 
 
 def main() -> None:
@@ -258,7 +261,7 @@ def main() -> None:
           f"loaded in {time.perf_counter() - t0:.1f} s")
     grids: dict[str, tuple[Scene, NavGrid]] = {}
     hdr = (f"{'N':>4} {'scene':<10} {'frames':>6} | {'char-fr/s':>9} {'brute':>8} {'ratio':>6} | {'RTF':>6} {'brute':>6} {'cpu':>6} | "
-           f"{'search us':>9} {'brute':>8} {'ratio':>6} | {'replan ms':>9} {'full':>8} {'ratio':>6} | "
+           f"{'search us':>9} {'brute':>8} {'ratio':>6} | {'replan ms':>9} {'full':>8} {'ratio':>6} {'python':>7} {'ratio':>6} | "
            f"{'motion':>6} {'plan':>5} {'world':>5} | same")
     print()
     print(hdr)
@@ -277,7 +280,8 @@ def main() -> None:
         kd = run_crowd(scene, grid, n, frames, args.seed, dbs, brute=False)
         bf = run_crowd(scene, grid, n, frames, args.seed, dbs, brute=True)
         same = np.array_equal(kd.positions, bf.positions) and kd.counters.results == bf.counters.results
-        w_s, nw_s, _k = replan_baseline(grid, kd.counters.problems, args.seed)
+        w_s, nw_s, py_s, same_plans = replan_baseline(grid, kd.counters.problems, args.seed)
+        same = same and same_plans
         c, cb = kd.counters, bf.counters
         ckd, cbf = n * frames / kd.wall_s, n * frames / bf.wall_s
         sim_s = frames / 30.0
@@ -287,7 +291,8 @@ def main() -> None:
         print(f"{n:>4} {scene.name:<10} {frames:>6} | {ckd:>9.0f} {cbf:>8.0f} {ckd / cbf:>6.2f} | "
               f"{sim_s / kd.wall_s:>6.2f} {sim_s / bf.wall_s:>6.2f} {sim_s / kd.cpu_s:>6.2f} | "
               f"{s_kd:>9.1f} {s_bf:>8.1f} {s_bf / max(s_kd, 1e-9):>6.2f} | "
-              f"{1e3 * w_s:>9.2f} {1e3 * nw_s:>8.2f} {nw_s / max(w_s, 1e-12):>6.2f} | "
+              f"{1e3 * w_s:>9.2f} {1e3 * nw_s:>8.2f} {nw_s / max(w_s, 1e-12):>6.2f} "
+              f"{1e3 * py_s:>7.2f} {py_s / max(w_s, 1e-12):>6.2f} | "
               f"{motion:>6.0%} {plan:>5.0%} {1 - motion - plan:>5.0%} | {'yes' if same else 'NO'}", flush=True)
         if n == 10:
             target = (sim_s / kd.wall_s, sim_s / kd.cpu_s)
@@ -295,8 +300,10 @@ def main() -> None:
     print("char-fr/s: character-frames per wall second (KD-tree search); brute: same run, brute-force search.")
     print("RTF: simulated seconds per wall second (cpu: per second of this process's CPU time, which a")
     print("     loaded machine disturbs less). search us: mean motion search per query (single and batched).")
-    print("replan ms: mean windowed WHCA* replan (window 20); full: non-windowed planner on the same problems.")
-    print("motion / plan / world: share of the KD run's wall time. same: both runs took identical decisions.")
+    print("replan ms: mean windowed WHCA* replan (window 20, compiled search); full: non-windowed planner on the")
+    print("     same problems; python: the same windowed planner with the pure-Python backend (ratio: its speed-up).")
+    print("motion / plan / world: share of the KD run's wall time. same: both runs took identical decisions")
+    print("     (and both planner backends returned identical plans).")
     if target is not None:
         wall_rtf, cpu_rtf = target
         print(f"issue target (10 characters >= 30x real time): {wall_rtf:.2f}x wall, {cpu_rtf:.2f}x cpu -> "
