@@ -5,7 +5,7 @@ tables); these numba kernels only run its two hot loops on dense arrays:
 
 - ``reserve_step`` / ``reserve_path``: fold one agent's move during one step (or the moves
   of a whole path) into the reservation masks of the cells near it (the per-cell bit masks of
-  the moves that stay clear of it);
+  the moves that stay clear of it); ``release_step`` takes one agent's move out again;
 - ``space_time_search``: the space-time A* of one agent over ``window`` steps.
 
 Both take the same decisions as the pure-Python code (same float operations, the same heap
@@ -22,7 +22,7 @@ import heapq
 import numpy as np
 from numba import njit
 
-__all__ = ["reserve_path", "reserve_step", "space_time_search"]
+__all__ = ["release_step", "reserve_path", "reserve_step", "space_time_search"]
 
 _INF = np.inf
 
@@ -37,6 +37,27 @@ def reserve_step(near_t: np.ndarray, cell: int, vel: int, offsets: np.ndarray, b
         c = cell - offsets[k]
         if free[c]:
             near_t[c] &= mask_of[bases[k] + vel]
+
+
+@njit(cache=True, nogil=True)
+def release_step(near_t: np.ndarray, cell: int, offsets: np.ndarray, free: np.ndarray, cells: np.ndarray,
+                 vels: np.ndarray, nyp: int, reach: int, mask_of: np.ndarray, full: int) -> None:  # pragma: no cover
+    """Undo one agent's reservation at ``cell`` during a step: the masks of the free cells
+    around it are folded again from the agents still reserved in that step (``cells``,
+    ``vels``), so only the neighbourhood of the released agent is recomputed."""
+    side = 2 * reach + 1
+    for k in range(offsets.shape[0]):
+        c = cell - offsets[k]
+        if not free[c]:
+            continue
+        ci, cj = c // nyp, c % nyp
+        val = full
+        for b in range(cells.shape[0]):
+            di = cells[b] // nyp - ci
+            dj = cells[b] % nyp - cj
+            if -reach <= di <= reach and -reach <= dj <= reach:
+                val &= mask_of[((di + reach) * side + (dj + reach)) * 25 + vels[b]]
+        near_t[c] = val
 
 
 @njit(cache=True, nogil=True)

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from sim.astar_kernel import reserve_path, reserve_step, space_time_search
+from sim.astar_kernel import release_step, reserve_path, space_time_search
 from sim.nav_grid import MOVES, NavGrid
 from sim.path_fallback import failed_first
 
@@ -126,7 +126,7 @@ class _Reservations:
 
 class _DenseReservations:
     """The same reservations as ``_Reservations`` on a dense (steps, cells) mask array, folded
-    by the compiled ``reserve_step`` (the ``numba`` backend)."""
+    by the compiled ``reserve_path`` and ``release_step`` (the ``numba`` backend)."""
 
     def __init__(self, n_steps: int, planner: PathPlanner) -> None:
         self._planner = planner
@@ -145,15 +145,15 @@ class _DenseReservations:
 
     def remove(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
         pl = self._planner
-        offsets, bases, mask_of, free = pl._nbhd_off, pl._nbhd_base, pl._mask_arr, pl._free_arr
         for t in range(min(upto, len(ids) - 1, len(self.near))):
             moves = self.moves[t]
-            if moves.pop(agent, None) is None:
+            gone = moves.pop(agent, None)
+            if gone is None:
                 continue
-            row = self.near[t]
-            row.fill(pl._full_mask)
-            for a, vel in moves.values():
-                reserve_step(row, a, vel, offsets, bases, mask_of, free)
+            cells = np.fromiter((m[0] for m in moves.values()), dtype=np.int64, count=len(moves))
+            vels = np.fromiter((m[1] for m in moves.values()), dtype=np.int64, count=len(moves))
+            release_step(self.near[t], gone[0], pl._nbhd_off, pl._free_arr, cells, vels, pl._ny_p, pl.reach - 1,
+                         pl._mask_arr, pl._full_mask)
 
     def allow(self, t: int, cid: int) -> int:
         return int(self.near[t, cid]) if t < len(self.near) else self._planner._full_mask

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.cooperative_astar import PathPlanner, PlanningError, PlanResult
+from sim.cooperative_astar import PathPlanner, PlanningError, PlanResult, _DenseReservations, _Reservations
 from sim.nav_grid import NavGrid, build_nav_grid
 from sim.path_following import CrowdNavigator
 from sim.scene_files import load_scene
@@ -71,6 +71,50 @@ def test_compiled_plans_equal_python_plans(grid: NavGrid, seed: int, budget: int
     nxt = {a: path[1] for a, path in first.paths.items()}
     hints = {a: (first.paths[a][1:], first.goals[a]) for a in starts}
     _same(fast.plan(nxt, goals, t0=4, hints=hints), slow.plan(nxt, goals, t0=4, hints=hints))
+
+
+def test_packed_crowd_with_cornered_agents_plans_the_same(grid: NavGrid) -> None:
+    # As many bodies as fit 2 cells apart: many searches fail, so the repair passes reserve
+    # and release waits (the compiled release of one agent's reservation is exercised).
+    rng = np.random.default_rng(11)
+    cells = _free_cells(grid)
+    starts = dict(enumerate(_spread(cells, 200, rng)))
+    goals = dict(enumerate(_spread(cells, len(starts), rng)))
+    fast = PathPlanner(grid, seed=0).plan(starts, goals)
+    assert len(fast.failed) > 5 and len(starts) > 100
+    _same(fast, PathPlanner(grid, seed=0, backend="python").plan(starts, goals))
+
+
+def test_released_reservation_equals_never_reserved(grid: NavGrid) -> None:
+    planner = PathPlanner(grid, seed=0)
+    cells = _free_cells(grid)
+    rng = np.random.default_rng(3)
+    agents = _spread(cells, 12, rng)
+    paths = {}
+    for k, c in enumerate(agents):  # short random walks of 4 steps from each start
+        ids = [planner.cell_id(c)]
+        for _ in range(4):
+            moves = [nb[0] for nb in planner._nbrs[ids[-1]]]
+            ids.append(moves[int(rng.integers(len(moves)))])
+        paths[k] = ids
+    dense, plain = _DenseReservations(4, planner), _Reservations(4, planner)
+    for k, ids in paths.items():
+        dense.add(k, ids, 4)
+        plain.add(k, ids, 4)
+    for k in (3, 7, 0):
+        dense.remove(k, paths[k], 4)
+        plain.remove(k, paths[k], 4)
+    fresh = _DenseReservations(4, planner)
+    for k, ids in paths.items():
+        if k not in (3, 7, 0):
+            fresh.add(k, ids, 4)
+    assert np.array_equal(dense.near, fresh.near)
+    for t in range(4):
+        row = np.full(dense.near.shape[1], planner._full_mask, dtype=np.int64)
+        for cid, mask in plain.near[t].items():
+            row[cid] = mask
+        assert np.array_equal(dense.near[t], row)
+    assert (dense.near != planner._full_mask).any()
 
 
 def test_compiled_crowd_walks_the_same_trajectories(grid: NavGrid) -> None:
