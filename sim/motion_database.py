@@ -37,6 +37,7 @@ from sim.motion_features import (
     to_character_frame,
     vectors_to_character_frame,
 )
+from sim.motion_kernels import nearest_rows
 from sim.procedural_library import GENERATOR_VERSION, procedural_clips
 from sim.skeleton import NUM_JOINTS, forward_kinematics
 
@@ -88,10 +89,7 @@ class NearestFrameIndex:
             self.basis = np.eye(self.rows.shape[1])
         self.tree = cKDTree((self.rows - self.center) @ self.basis, leafsize=leafsize, balanced_tree=False,
                             compact_nodes=True)
-        # scan path: rows centred (smaller norms, tighter error bound) and their squared norms
-        self._centered = np.ascontiguousarray(self.rows - self.center)
-        self._norms = np.einsum("nd,nd->n", self._centered, self._centered)
-        self._max_norm = float(self._norms.max())
+        self._rows_t = np.ascontiguousarray(self.rows.T)  # scan path: one dimension of all rows at a time
         self.use_scan = len(self.rows) <= SCAN_THRESHOLD
 
     def _tree_space(self, q: np.ndarray) -> np.ndarray:
@@ -118,26 +116,15 @@ class NearestFrameIndex:
         return int(self.candidates[i]), float(squared_distances(self.rows[i : i + 1], query)[0])
 
     def scan_many(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Exact brute force for (M,D) queries, fast: distances by one matrix product (the
-        expansion |r|^2 - 2 r.q + |q|^2 on centred rows), then every row within a rounding
-        bound of the best is re-ranked with ``squared_distances``. Same answer as
-        ``brute_force`` (lowest index among exact ties)."""
-        q = np.asarray(queries, dtype=float).reshape(-1, self.rows.shape[1])
-        qc = q - self.center
-        qn = np.einsum("md,md->m", qc, qc)
-        approx = self._norms[None, :] - 2.0 * (qc @ self._centered.T)  # (M,N), without |q|^2
-        lo = approx.min(axis=1)
-        # rounding of the expansion is far below 1e-10 * (|r|^2 + |q|^2) for any D used here
-        slack = 1e-10 * (self._max_norm + qn) * max(1, self.rows.shape[1]) + 1e-300
-        out_i = np.empty(len(q), dtype=np.int64)
-        out_d = np.empty(len(q))
-        for m in range(len(q)):
-            close = np.flatnonzero(approx[m] <= lo[m] + slack[m])
-            exact = squared_distances(self.rows[close], q[m])
-            j = int(close[int(np.argmin(exact))])  # close is sorted: first minimum = lowest index
-            out_i[m] = self.candidates[j]
-            out_d[m] = squared_distances(self.rows[j : j + 1], q[m])[0]
-        return out_i, out_d
+        """Exact brute force for (M,D) queries, compiled (``sim.motion_kernels.nearest_rows``):
+        every row's squared distance summed dimension by dimension as ``squared_distances``
+        does, the first minimum taken. Same answer as ``brute_force`` (lowest index among
+        exact ties). Raises ValueError for a query with non-finite features."""
+        q = np.ascontiguousarray(np.asarray(queries, dtype=float).reshape(-1, self.rows.shape[1]))
+        if not np.isfinite(q).all():
+            raise ValueError(f"motion search query has non-finite features: {q[~np.isfinite(q).all(axis=1)][0]}")
+        j, d = nearest_rows(self._rows_t, q)
+        return self.candidates[j], d
 
     def query(self, query: np.ndarray, k: int = 4) -> tuple[int, float]:
         q = np.asarray(query, dtype=float)

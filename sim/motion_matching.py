@@ -25,21 +25,31 @@ import numpy as np
 
 from sim.action_labels import database_key, family_of
 from sim.inertialization import (
+    LN2,
     angular_velocity,
-    apply_rotation_offsets,
-    decay_spring,
-    transition_offsets,
-    transition_offsets_linear,
 )
 from sim.motion_clips import FOOT_JOINTS, FPS
 from sim.motion_database import MotionDatabase
 from sim.motion_features import (
     FUTURE_FRAMES,
     Control,
+    LayoutName,
     assemble,
     relative_target,
     to_character_frame,
     vectors_to_character_frame,
+)
+from sim.motion_kernels import (
+    SRC_FUT_DIR,
+    SRC_FUT_POS,
+    SRC_POS,
+    SRC_SIZE,
+    SRC_T_DIR,
+    SRC_T_H,
+    SRC_T_POS,
+    SRC_VEL,
+    query_sources,
+    step_poses,
 )
 from sim.procedural_rig import rot_z
 from sim.skeleton import NUM_JOINTS, forward_kinematics
@@ -223,6 +233,39 @@ def _frames_of(db: MotionDatabase) -> _Frames:
     return _Frames(rot, pelvis, a, b, clip_z.reshape(-1, 2))
 
 
+@dataclass(frozen=True)
+class _Key:
+    """What the step needs about one database, looked up once: its frame tables and arrays,
+    foot contacts, whether seat heights correct its pelvis, and ``sources``: the positions of
+    its feature layout in the ``query_sources`` vector (``sim.motion_kernels``)."""
+
+    key: str
+    db: MotionDatabase
+    tab: _Table
+    frames: _Frames
+    contacts: np.ndarray
+    seat: bool
+    sources: np.ndarray
+
+
+_SOURCES: dict[str, np.ndarray] = {}
+
+
+def _feature_sources(layout: LayoutName) -> np.ndarray:
+    """Indices (D,) into the ``query_sources`` vector that ``assemble`` picks for ``layout``:
+    ``assemble`` itself run on inputs whose values are their own source positions."""
+    out = _SOURCES.get(layout)
+    if out is None:
+        pos = (SRC_POS + np.arange(NUM_JOINTS * 3, dtype=float)).reshape(NUM_JOINTS, 3)
+        vel = (SRC_VEL + np.arange(NUM_JOINTS * 3, dtype=float)).reshape(NUM_JOINTS, 3)
+        ctrl = Control((SRC_FUT_POS + np.arange(6.0)).reshape(3, 2), (SRC_FUT_DIR + np.arange(6.0)).reshape(3, 2),
+                       SRC_T_POS + np.arange(2.0), SRC_T_DIR + np.arange(2.0), np.asarray(float(SRC_T_H)))
+        idx = assemble(layout, pos, vel, ctrl)
+        assert np.array_equal(idx, np.round(idx)) and idx.min() >= 0 and idx.max() < SRC_SIZE, layout
+        out = _SOURCES[layout] = idx.astype(np.int64)
+    return out
+
+
 _FRAMES_CACHE: dict[int, tuple[weakref.ref[np.ndarray], _Frames]] = {}
 
 
@@ -256,6 +299,8 @@ class MotionMatcher:
         self.continuation_window = int(continuation_window)
         self._frames: dict[str, _Frames] = {}
         self._tables: dict[str, _Table] = {}
+        self._keys: dict[str, _Key] = {}
+        self._by_label: dict[tuple[str, bool], _Key] = {}
         # (states returned by the last step_many, their offset arrays): lets the next call skip
         # re-stacking per-character offsets when it gets those very states back
         self._last_batch: tuple[tuple[MatchState, ...], tuple[np.ndarray, ...]] | None = None
@@ -346,63 +391,123 @@ class MotionMatcher:
         states, poses = self.step_many([state], [query], dt)
         return states[0], poses[0]
 
+    def _key(self, key: str) -> _Key:
+        """Per-database facts the step needs, looked up once per key."""
+        out = self._keys.get(key)
+        if out is None:
+            db = self.databases[key]
+            frames, tab = self.frames(key), self._table(key)
+            out = self._keys[key] = _Key(
+                key=key, db=db, tab=tab, frames=frames, contacts=np.asarray(db.contacts, dtype=bool),
+                seat=db.layout_name in ("sitting", "seated"), sources=_feature_sources(db.layout_name))
+        return out
+
+    def _query_key(self, query: MotionQuery) -> _Key:
+        """The database of a query's label (cached per label / seated)."""
+        out = self._by_label.get((query.label, query.seated))
+        if out is None:
+            db = self.database(query.label, query.seated)  # raises for labels without a database
+            out = self._by_label[(query.label, query.seated)] = self._key(db.key)
+        return out
+
+    def _raw_queries(self, members: Sequence[int], states: Sequence[MatchState], queries: Sequence[MotionQuery],
+                     roots: Sequence[np.ndarray], headings: Sequence[float], info: _Key) -> np.ndarray:
+        """Raw query vectors (M,D) of characters searching ``info``'s database: the compiled
+        path (``query_sources``) when every one has an output pose, else ``_query_features_many``."""
+        if any(states[i].pose_local is None or states[i].pose_pelvis is None for i in members):
+            return self._query_features_many(info.db, [states[i] for i in members], [queries[i] for i in members],
+                                             [roots[i] for i in members], [headings[i] for i in members])
+        m = len(members)
+        cur_local, prev_local = np.empty((m, NUM_JOINTS, 3, 3)), np.zeros((m, NUM_JOINTS, 3, 3))
+        cur_pel, prev_pel = np.empty((m, 3)), np.zeros((m, 3))
+        has_prev, pose_dt, old_h = np.zeros(m, dtype=bool), np.ones(m), np.empty(m)
+        root, head = np.empty((m, 2)), np.empty(m)
+        fut_xy, fut_h = np.empty((m, 3, 2)), np.empty((m, 3))
+        has_t, t_xy, facing, height = np.zeros(m, dtype=bool), np.zeros((m, 2)), np.zeros(m), np.zeros(m)
+        for r, i in enumerate(members):
+            s, q, h = states[i], queries[i], headings[i]
+            cur_local[r], cur_pel[r] = s.pose_local, s.pose_pelvis
+            if s.prev_local is not None and s.pose_dt > 0:
+                has_prev[r], pose_dt[r] = True, s.pose_dt
+                prev_local[r], prev_pel[r] = s.prev_local, s.prev_pelvis
+            old_h[r], root[r], head[r] = s.heading, roots[i], h
+            if q.future_xy is not None:
+                fut_xy[r] = np.asarray(q.future_xy, dtype=float).reshape(3, 2)
+                fut_h[r] = h if q.future_heading is None else np.asarray(q.future_heading, dtype=float).reshape(3)
+            else:
+                fut_xy[r], fut_h[r] = roots[i], h
+            if q.target_xy is not None:
+                has_t[r], t_xy[r] = True, np.asarray(q.target_xy, dtype=float)
+                facing[r] = h if q.target_facing is None else float(q.target_facing)
+            if q.seat_height is not None:
+                height[r] = q.seat_height
+        src = query_sources(cur_local, cur_pel, prev_local, prev_pel, has_prev, pose_dt, old_h, root, head,
+                            fut_xy, fut_h, has_t, t_xy, facing, height)
+        return src[:, info.sources]
+
     def step_many(self, states: Sequence[MatchState], queries: Sequence[MotionQuery],
                   dt: float) -> tuple[list[MatchState], list[Pose]]:
         """Advance several independent characters by ``dt`` seconds, batched: searches are
-        grouped per database, forward kinematics, inertialization and pose assembly run once
-        over all characters. Same result as ``step`` on each character."""
+        grouped per database; inertialization, the output poses and the query features run in
+        compiled kernels over all characters (``sim.motion_kernels``). Same result as ``step``
+        on each character, and as the numpy version (``sim.motion_reference``)."""
         if len(states) != len(queries):
             raise ValueError(f"{len(states)} states but {len(queries)} queries")
         n = len(states)
         if n == 0:
             return [], []
-        dbs = [self.database(q.label, q.seated) for q in queries]
-        clocks, roots, headings, frames, since = [], [], [], [], []
-        changed, completing, entry, done, need, n_advs = [], [], [], [], [], []
         step_frames = dt * FPS
-        for state, query, db in zip(states, queries, dbs, strict=True):
-            cur = self.databases[state.key]
-            tab = self._table(state.key)
+        interval = self.search_interval
+        keys = self._keys
+        infos = [self._query_key(q) for q in queries]
+        curs: list[_Key] = []
+        clocks, roots, headings, frames, since = [], [], [], [], []
+        changed, entry, done, need = [], [], [], []
+        for state, query, info in zip(states, queries, infos, strict=True):
+            cur = keys.get(state.key) or self._key(state.key)
+            curs.append(cur)
             clock = state.frame_clock + step_frames
             n_adv = math.floor(clock + 1e-9)
             clock -= n_adv
             frame, ended = state.frame, False
-            if query.root_xy is not None and query.heading is not None:  # root given: no root motion
+            q_root, q_head = query.root_xy, query.heading
+            if q_root is not None and q_head is not None:  # root given: no root motion
+                tab = cur.tab
                 nxt_of, end_of = tab.nxt, tab.end
                 for _ in range(n_adv):
                     if end_of[frame]:
                         ended = True
                         break
                     frame = nxt_of[frame]
-                root_xy = np.asarray(query.root_xy, dtype=float).reshape(2)
-                heading = float(query.heading)
+                if type(q_root) is np.ndarray and q_root.dtype == np.float64 and q_root.shape == (2,):
+                    root_xy = q_root
+                else:
+                    root_xy = np.asarray(q_root, dtype=float).reshape(2)
+                heading = float(q_head)
             else:
+                db = cur.db
                 root_xy, heading = state.root_xy.copy(), state.heading
                 for _ in range(n_adv):
-                    nxt, end = cur.next_frame(frame)
+                    nxt, end = db.next_frame(frame)
                     if end:
                         ended = True
                         break
                     if nxt == frame + 1:  # root motion of the database (not across a loop seam)
-                        d = cur.root_xy[nxt] - cur.root_xy[frame]
-                        c, s = np.cos(heading - cur.heading[frame]), np.sin(heading - cur.heading[frame])
+                        d = db.root_xy[nxt] - db.root_xy[frame]
+                        c, s = np.cos(heading - db.heading[frame]), np.sin(heading - db.heading[frame])
                         root_xy = root_xy + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
-                        heading += float(cur.heading[nxt] - cur.heading[frame])
+                        heading += float(db.heading[nxt] - db.heading[frame])
                     frame = nxt
-                if query.root_xy is not None:
-                    root_xy = np.asarray(query.root_xy, dtype=float).reshape(2)
-                if query.heading is not None:
-                    heading = float(query.heading)
-            ch = db.key != state.key
-            new_tab = self._table(db.key)
-            comp = False
-            if not ch:
-                comp = new_tab.completes and not new_tab.loops[frame]
+                if q_root is not None:
+                    root_xy = np.asarray(q_root, dtype=float).reshape(2)
+                if q_head is not None:
+                    heading = float(q_head)
+            ch = info is not cur
+            comp = not ch and info.tab.completes and not info.tab.loops[frame]
             dn = state.done and not ch
             sn = state.since_search + n_adv
-            periodic = sn >= self.search_interval and not comp  # completing actions play through
-            nd = ch or query.force_search or periodic or (ended and not comp)
-            if ended and comp:
+            nd = ch or query.force_search or (sn >= interval and not comp) or (ended and not comp)
+            if ended and comp:  # completing actions play through
                 dn = True
                 nd = ch or query.force_search
             clocks.append(clock)
@@ -411,99 +516,90 @@ class MotionMatcher:
             frames.append(frame)
             since.append(0 if nd else sn)
             changed.append(ch)
-            completing.append(comp)
-            entry.append(ch and new_tab.entry)
+            entry.append(ch and info.tab.entry)
             done.append(dn)
             need.append(nd)
-            n_advs.append(n_adv)
 
         # searches, grouped per (database, entry index)
-        best = np.full(n, -1, dtype=np.int64)
+        new_frames = list(frames)
+        switched: list[int] = []
         groups: dict[tuple[str, bool], list[int]] = {}
         for i in range(n):
             if need[i]:
-                groups.setdefault((dbs[i].key, entry[i]), []).append(i)
+                groups.setdefault((infos[i].key, entry[i]), []).append(i)
         for (_key, ent), members in groups.items():
-            db = dbs[members[0]]
-            raw = self._query_features_many(db, [states[i] for i in members], [queries[i] for i in members],
-                                            [roots[i] for i in members], [headings[i] for i in members])
+            info = infos[members[0]]
+            db = info.db
+            raw = self._raw_queries(members, states, queries, roots, headings, info)
             if len(members) == 1:
-                best[members[0]] = db.search(raw[0], entry=ent)[0]
+                found = [db.search(raw[0], entry=ent)[0]]
             else:
                 index = db.entry_index if ent else db.index
-                best[np.array(members)] = index.query_many(db.normalize(raw))[0]
+                found = index.query_many(db.normalize(raw))[0]
+            clip_of = info.tab.clip
+            for i, b in zip(members, found, strict=True):
+                b, frame = int(b), frames[i]
+                if changed[i] or clip_of[b] != clip_of[frame] or not 0 <= b - frame <= self.continuation_window:
+                    switched.append(i)
+                    new_frames[i] = b
+        switched.sort()
 
         last = self._last_batch
         if last is not None and len(last[0]) == n and all(a is b for a, b in zip(last[0], states, strict=True)):
-            # the very states returned by the previous call: their offsets are rows of these arrays
-            off_rot, off_av, off_pos, off_vel = (x.copy() for x in last[1])
+            off_rot, off_av, off_pos, off_vel = last[1]  # the states returned last time: rows of these
         else:
-            off_rot = np.stack([s.offset_rot for s in states])  # type: ignore[arg-type]
-            off_av = np.stack([s.offset_ang_vel for s in states])  # type: ignore[arg-type]
-            off_pos = np.stack([s.offset_pos for s in states])  # type: ignore[arg-type]
-            off_vel = np.stack([s.offset_vel for s in states])  # type: ignore[arg-type]
-        new_keys = [s.key for s in states]
-        new_frames = list(frames)
-        switched: list[int] = []
-        for i in range(n):
-            if not need[i]:
-                continue
-            b, db, frame = int(best[i]), dbs[i], frames[i]
-            clip_of = self._table(db.key).clip
-            same_clip = not changed[i] and clip_of[b] == clip_of[frame]
-            if not (same_clip and 0 <= b - frame <= self.continuation_window):
-                switched.append(i)
-        if switched:
-            sw = np.array(switched)
-            src = [self.frames(states[i].key) for i in switched]
-            dst = [self.frames(dbs[i].key) for i in switched]
-            sf = [frames[i] for i in switched]
-            df = [int(best[i]) for i in switched]
-            src_mo = [f.motion(k) for f, k in zip(src, sf, strict=True)]
-            dst_mo = [f.motion(k) for f, k in zip(dst, df, strict=True)]
-            src_rot = np.stack([f.rot[k] for f, k in zip(src, sf, strict=True)])
-            dst_rot = np.stack([f.rot[k] for f, k in zip(dst, df, strict=True)])
-            off_rot[sw], off_av[sw] = transition_offsets(off_rot[sw], off_av[sw], src_rot,
-                                                         np.stack([m[0] for m in src_mo]), dst_rot,
-                                                         np.stack([m[0] for m in dst_mo]))
-            off_pos[sw], off_vel[sw] = transition_offsets_linear(
-                off_pos[sw], off_vel[sw], np.stack([f.pelvis[k] for f, k in zip(src, sf, strict=True)]),
-                np.stack([m[1] for m in src_mo]), np.stack([f.pelvis[k] for f, k in zip(dst, df, strict=True)]),
-                np.stack([m[1] for m in dst_mo]))
-            for i, k in zip(switched, df, strict=True):
-                new_keys[i], new_frames[i] = dbs[i].key, k
-                done[i] = False
-        off_rot, off_av = decay_spring(off_rot, off_av, self.blend_halflife, dt)
-        off_pos, off_vel = decay_spring(off_pos, off_vel, self.blend_halflife, dt)
+            off_rot, off_av, off_pos, off_vel = (
+                np.ascontiguousarray(np.stack([getattr(s, f) for s in states]), dtype=float)
+                for f in ("offset_rot", "offset_ang_vel", "offset_pos", "offset_vel"))
+        slot = np.full(n, -1, dtype=np.int64)
+        m = len(switched)
+        sw_rot, sw_av = np.empty((2, m, NUM_JOINTS, 3, 3)), np.empty((2, m, NUM_JOINTS, 3))
+        sw_pel, sw_lin = np.empty((2, m, 3)), np.empty((2, m, 3))
+        for r, i in enumerate(switched):
+            slot[i] = r
+            src, dst = curs[i].frames, infos[i].frames
+            sf, df = frames[i], new_frames[i]
+            sw_rot[0, r], sw_pel[0, r] = src.rot[sf], src.pelvis[sf]
+            sw_rot[1, r], sw_pel[1, r] = dst.rot[df], dst.pelvis[df]
+            (sw_av[0, r], sw_lin[0, r]), (sw_av[1, r], sw_lin[1, r]) = src.motion(sf), dst.motion(df)
+            done[i] = False
+        out_info = [infos[i] if slot[i] >= 0 else curs[i] for i in range(n)]
+        frame_rot, frame_pel, seat_dz = np.empty((n, NUM_JOINTS, 3, 3)), np.empty((n, 3)), np.zeros(n)
+        contacts = np.empty((n, 2), dtype=bool)
+        for i, (info, f, q) in enumerate(zip(out_info, new_frames, queries, strict=True)):
+            fr = info.frames
+            frame_rot[i], frame_pel[i], contacts[i] = fr.rot[f], fr.pelvis[f], info.contacts[f]
+            if info.seat and q.seat_height is not None:
+                seat_dz[i] = self._seat_correction_cached(info.db, fr, f, q)
+        y = 2.0 * LN2 / max(self.blend_halflife, 1e-5) / 2.0
+        eydt = float(np.exp(-y * dt))
+        new_rot, new_av, new_pos, new_vel = (np.empty_like(off_rot), np.empty_like(off_av), np.empty_like(off_pos),
+                                             np.empty_like(off_vel))
+        local, pelvis = np.empty((n, NUM_JOINTS, 3, 3)), np.empty((n, 3))
+        step_poses(off_rot, off_av, off_pos, off_vel, slot, sw_rot[0], sw_av[0], sw_pel[0], sw_lin[0],
+                   sw_rot[1], sw_av[1], sw_pel[1], sw_lin[1], frame_rot, frame_pel, seat_dz,
+                   np.array(headings), np.array(roots, dtype=float).reshape(n, 2), y, float(dt), eydt,
+                   new_rot, new_av, new_pos, new_vel, local, pelvis)
 
-        out_frames = [self.frames(k) for k in new_keys]
-        rot_c = apply_rotation_offsets(off_rot, np.stack([f.rot[k] for f, k in zip(out_frames, new_frames, strict=True)]))
-        pelvis_c = np.stack([f.pelvis[k] for f, k in zip(out_frames, new_frames, strict=True)]) + off_pos
-        pelvis_c[:, 2] += [self._seat_correction_cached(self.databases[k], out_frames[i], new_frames[i], queries[i])
-                           for i, k in enumerate(new_keys)]
-        head = np.array(headings)
-        root = np.stack(roots)
-        rz = _rot_z(head)
-        local = rot_c
-        local[:, 0] = rz @ rot_c[:, 0]
-        c, s = rz[:, 0, 0], rz[:, 1, 0]
-        pelvis = np.stack([root[:, 0] + (c * pelvis_c[:, 0] - s * pelvis_c[:, 1]),
-                           root[:, 1] + (s * pelvis_c[:, 0] + c * pelvis_c[:, 1]), pelvis_c[:, 2]], axis=-1)
-        switched_set = set(switched)
         out_states, poses = [], []
+        pose_dt = float(dt)
+        new_state, new_pose = object.__new__, object.__new__
         for i, state in enumerate(states):
-            out_db = self.databases[new_keys[i]]
-            pose = Pose(pelvis[i], local[i], roots[i], headings[i], out_db.contacts[new_frames[i]].copy())
+            pose = new_pose(Pose)
+            pose.__dict__.update(pelvis=pelvis[i], local_rotations=local[i], root_xy=roots[i], heading=headings[i],
+                                 contacts=contacts[i])
             poses.append(pose)
-            out_states.append(MatchState(
-                key=new_keys[i], frame=new_frames[i], root_xy=roots[i], heading=headings[i],
-                frame_clock=clocks[i], since_search=since[i], offset_rot=off_rot[i], offset_ang_vel=off_av[i],
-                offset_pos=off_pos[i], offset_vel=off_vel[i], pose_local=local[i], pose_pelvis=pelvis[i],
-                prev_local=state.pose_local, prev_pelvis=state.pose_pelvis, pose_dt=float(dt),
+            st = new_state(MatchState)
+            st.__dict__.update(
+                key=out_info[i].key, frame=new_frames[i], root_xy=roots[i], heading=headings[i],
+                frame_clock=clocks[i], since_search=since[i], offset_rot=new_rot[i], offset_ang_vel=new_av[i],
+                offset_pos=new_pos[i], offset_vel=new_vel[i], pose_local=local[i], pose_pelvis=pelvis[i],
+                prev_local=state.pose_local, prev_pelvis=state.pose_pelvis, pose_dt=pose_dt,
                 elapsed=0.0 if changed[i] else state.elapsed + dt, done=done[i],
-                switches=state.switches + (1 if i in switched_set else 0), searches=state.searches + int(need[i]),
-            ))
-        self._last_batch = (tuple(out_states), (off_rot, off_av, off_pos, off_vel))
+                switches=state.switches + (1 if slot[i] >= 0 else 0), searches=state.searches + int(need[i]),
+            )
+            out_states.append(st)
+        self._last_batch = (tuple(out_states), (new_rot, new_av, new_pos, new_vel))
         return out_states, poses
 
     @staticmethod

@@ -1,0 +1,167 @@
+"""Motion-step benchmark: ``MotionMatcher.step_many`` vs the frozen reference, same inputs.
+
+Records the motion queries a bench_world-like run feeds the motion layer (10 characters
+walking between random targets in the Office, ``--seconds`` simulated seconds), then replays
+them through ``sim.motion_reference.ReferenceMotionMatcher`` (the step as it was before the
+motion kernels) and through ``sim.motion_matching.MotionMatcher``, each starting from the
+recorded initial states and feeding its own returned states back, as the world does. Prints
+microseconds per frame (all characters) for both, best of ``--reps`` alternating replays,
+their ratio, and whether every state, pose and search decision is identical.
+
+Usage: ``python -m benchmark.bench_motion_step [--characters 10] [--seconds 10] [--reps 5] [--seed 0]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from benchmark.bench_world import OFFICE, spread_cells
+from sim.motion_database import MotionDatabase, load_databases
+from sim.motion_matching import MatchState, MotionMatcher, MotionQuery, Pose
+from sim.motion_reference import ReferenceMotionMatcher
+from sim.nav_grid import build_nav_grid
+from sim.scene_files import load_scene
+from sim.story_events import AssignEvent, Assignment
+from sim.world import World, WorldConfig, step
+
+
+@dataclass
+class Recording:
+    """Initial motion states and the per-frame queries of a world run."""
+
+    initial: list[MatchState]
+    queries: list[list[MotionQuery]]
+    dt: float
+
+
+class RecordingMotion:
+    """A motion layer that records what the world asks of a matcher."""
+
+    def __init__(self, matcher: MotionMatcher) -> None:
+        self._m = matcher
+        self.initial: list[MatchState] | None = None
+        self.queries: list[list[MotionQuery]] = []
+        self.dt = 0.0
+
+    def initial_state(self, label: str, root_xy: Any, heading: float, seated: bool = False) -> MatchState:
+        return self._m.initial_state(label, root_xy, heading, seated)
+
+    def step(self, state: MatchState, query: MotionQuery, dt: float) -> tuple[MatchState, Pose]:
+        states, poses = self.step_many([state], [query], dt)
+        return states[0], poses[0]
+
+    def step_many(self, states: Sequence[MatchState], queries: Sequence[MotionQuery],
+                  dt: float) -> tuple[list[MatchState], list[Pose]]:
+        if self.initial is None:
+            self.initial = list(states)
+        self.queries.append(copy.deepcopy(list(queries)))
+        self.dt = dt
+        return self._m.step_many(states, queries, dt)
+
+
+def record(dbs: dict[str, MotionDatabase], n: int, frames: int, seed: int) -> Recording:
+    """The motion queries of ``n`` characters walking between random idle targets (as bench_world)."""
+    scene = load_scene(OFFICE)
+    grid = build_nav_grid(scene)
+    layer = RecordingMotion(MotionMatcher(dbs))
+    cells = np.argwhere(grid.component == grid.main_component)
+    rng = np.random.default_rng(seed)
+    starts = spread_cells(cells, n, rng, [])
+    names = [f"p{i:03d}" for i in range(n)]
+    world = World(scene, {nm: (tuple(grid.center_of(*c)), 0.0) for nm, c in zip(names, starts, strict=True)},
+                  layer, grid=grid, config=WorldConfig(seed=seed, initial_capacity=frames))
+    targets = dict(zip(names, starts, strict=True))
+    count = dict.fromkeys(names, 0)
+    todo = set(names)
+    for _ in range(frames):
+        cmds = []
+        for nm in sorted(todo):
+            cell = spread_cells(cells, 1, rng, [targets[o] for o in names if o != nm])[0]
+            targets[nm] = cell
+            count[nm] += 1
+            theta = float(rng.uniform(-math.pi, math.pi))
+            cmds.append(AssignEvent(event_id=f"{nm}-{count[nm]}", assignments=(Assignment(
+                character=nm, action="idle", target_xy=tuple(grid.center_of(*cell)),
+                facing_xy=(math.cos(theta), math.sin(theta))),)))
+        _, out = step(world, cmds, world.dt)
+        todo = {e.rsplit("-", 1)[0] for e in out.looping_events} | {f.character for f in out.failures}
+    assert layer.initial is not None
+    return Recording(layer.initial, layer.queries, layer.dt)
+
+
+def replay(matcher: MotionMatcher, rec: Recording) -> tuple[float, list[tuple[list[MatchState], list[Pose]]]]:
+    """(seconds, per-frame outputs) of feeding the recording through ``matcher``."""
+    states: list[MatchState] = list(rec.initial)
+    outs = []
+    t0 = time.perf_counter()
+    for qs in rec.queries:
+        states, poses = matcher.step_many(states, qs, rec.dt)
+        outs.append((states, poses))
+    return time.perf_counter() - t0, outs
+
+
+def _same_value(a: Any, b: Any) -> bool:
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return a is not None and b is not None and np.array_equal(a, b)
+    return bool(a == b)
+
+
+def differences(ref: list[tuple[list[MatchState], list[Pose]]],
+                new: list[tuple[list[MatchState], list[Pose]]]) -> list[str]:
+    """Every (frame, character, field) where the two replays differ (bit for bit)."""
+    out: list[str] = []
+    for f, ((rs, rp), (ns, np_)) in enumerate(zip(ref, new, strict=True)):
+        for i, (a, b) in enumerate(zip(rs, ns, strict=True)):
+            out += [f"frame {f} char {i} state.{fl.name}" for fl in fields(MatchState)
+                    if not _same_value(getattr(a, fl.name), getattr(b, fl.name))]
+        for i, (a, b) in enumerate(zip(rp, np_, strict=True)):
+            out += [f"frame {f} char {i} pose.{fl.name}" for fl in fields(Pose)
+                    if not _same_value(getattr(a, fl.name), getattr(b, fl.name))]
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--characters", type=int, default=10)
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--reps", type=int, default=5)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    dbs = load_databases()
+    for db in dbs.values():
+        db.index  # noqa: B018
+        db.entry_index  # noqa: B018
+    rec = record(dbs, args.characters, round(args.seconds * 30), args.seed)
+    frames = len(rec.queries)
+    searches = None
+    ref_m, new_m = ReferenceMotionMatcher(dbs), MotionMatcher(dbs)
+    replay(ref_m, rec)  # warm-up: per-database tables, compiled kernels
+    replay(new_m, rec)
+    best_ref = best_new = math.inf
+    ref_out = new_out = None
+    for _ in range(args.reps):
+        t, ref_out = replay(ref_m, rec)
+        best_ref = min(best_ref, t)
+        t, new_out = replay(new_m, rec)
+        best_new = min(best_new, t)
+    assert ref_out is not None and new_out is not None
+    diff = differences(ref_out, new_out)
+    searches = sum(s.searches for s in ref_out[-1][0])
+    print(f"{args.characters} characters, {frames} frames, {searches} searches, best of {args.reps} replays")
+    print(f"reference step_many: {1e6 * best_ref / frames:8.1f} us/frame")
+    print(f"current   step_many: {1e6 * best_new / frames:8.1f} us/frame")
+    print(f"speed-up: {best_ref / best_new:.2f}x   same: {'yes' if not diff else 'NO'}")
+    for line in diff[:20]:
+        print("  differs:", line)
+
+
+if __name__ == "__main__":
+    main()

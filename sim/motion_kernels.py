@@ -1,0 +1,374 @@
+"""Compiled (numba) kernels of the motion-matching step, bit-identical to the numpy path.
+
+The matcher's per-frame work on all characters at once: inertialization (offsets at a switch,
+spring decay), the output pose (offset rotations applied to the database frame, root yaw,
+pelvis placed on the root), forward kinematics and query features for searches, and the exact
+nearest-frame scan. Each kernel reproduces the arithmetic of the numpy / scipy code it
+replaces operation by operation, so the results are the same floats:
+
+- scipy's ``Rotation`` (Cython backend) for rotation vector <-> matrix: the same formulas in
+  the same order (``rotvec_to_matrix``, ``matrix_to_rotvec``);
+- numpy's ``@`` on 3x3 / 4x4 float64 matrices, which calls OpenBLAS dgemm: each element is a
+  chain of fused multiply-adds over k (``a0*b0``, then ``fma(a1, b1, .)``, ...), reproduced
+  with LLVM's ``fma`` (``_fma``); on a machine whose BLAS kernel does not fuse, results
+  differ in the last bit only (the equivalence test allows 1e-12 and checks decisions exactly);
+- element-wise numpy expressions: the same operations in the same order (numba does not
+  contract ``a * b + c`` into an fma unless asked); ``math.sin`` / ``cos`` / ``atan2`` / ``sqrt``
+  are the C library's, as numpy's float64 ufuncs are here.
+
+Shapes: N characters, 22 joints; rotations (..., 3, 3) float64 C-contiguous.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, types
+from numba.extending import intrinsic
+
+from sim.skeleton import NUM_JOINTS, PARENTS, REST_OFFSETS
+
+_PARENTS = np.array(PARENTS, dtype=np.int64)
+_OFFSETS = np.ascontiguousarray(REST_OFFSETS, dtype=np.float64)
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
+    """a * b + c with one rounding (LLVM ``llvm.fma.f64``)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+        return builder.fma(args[0], args[1], args[2])
+
+    return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def fma(a: float, b: float, c: float) -> float:
+    return _fma(a, b, c)
+
+
+@njit(cache=True, inline="always")
+def _matmul3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """out = a @ b for 3x3 (out may not alias a or b), as numpy's dgemm-backed matmul."""
+    for i in range(3):
+        for j in range(3):
+            acc = a[i, 0] * b[0, j]
+            acc = _fma(a[i, 1], b[1, j], acc)
+            out[i, j] = _fma(a[i, 2], b[2, j], acc)
+
+
+@njit(cache=True, inline="always")
+def _matmul3_bt(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """out = a @ b.T for 3x3."""
+    for i in range(3):
+        for j in range(3):
+            acc = a[i, 0] * b[j, 0]
+            acc = _fma(a[i, 1], b[j, 1], acc)
+            out[i, j] = _fma(a[i, 2], b[j, 2], acc)
+
+
+@njit(cache=True, inline="always")
+def _rotvec_to_matrix(x: float, y: float, z: float, out: np.ndarray) -> None:
+    """scipy ``Rotation.from_rotvec(v).as_matrix()`` for one vector."""
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle <= 1e-3:
+        angle2 = angle * angle
+        scale = 0.5 - angle2 / 48 + angle2 * angle2 / 3840
+    else:
+        scale = math.sin(angle / 2) / angle
+    qx, qy, qz, qw = scale * x, scale * y, scale * z, math.cos(angle / 2)
+    x2, y2, z2, w2 = qx * qx, qy * qy, qz * qz, qw * qw
+    xy, zw, xz, yw, yz, xw = qx * qy, qz * qw, qx * qz, qy * qw, qy * qz, qx * qw
+    out[0, 0] = x2 - y2 - z2 + w2
+    out[1, 0] = 2 * (xy + zw)
+    out[2, 0] = 2 * (xz - yw)
+    out[0, 1] = 2 * (xy - zw)
+    out[1, 1] = -x2 + y2 - z2 + w2
+    out[2, 1] = 2 * (yz + xw)
+    out[0, 2] = 2 * (xz + yw)
+    out[1, 2] = 2 * (yz - xw)
+    out[2, 2] = -x2 - y2 + z2 + w2
+
+
+@njit(cache=True, inline="always")
+def _matrix_to_rotvec(m: np.ndarray, out: np.ndarray) -> None:
+    """scipy ``Rotation.from_matrix(m, assume_valid=True).as_rotvec()`` for one matrix."""
+    d0, d1, d2 = m[0, 0], m[1, 1], m[2, 2]
+    d3 = m[0, 0] + m[1, 1] + m[2, 2]
+    choice, vmax = 0, d0
+    if d1 > vmax:
+        choice, vmax = 1, d1
+    if d2 > vmax:
+        choice, vmax = 2, d2
+    if d3 > vmax:
+        choice = 3
+    q = np.empty(4)
+    if choice != 3:
+        i = choice
+        j = (i + 1) % 3
+        k = (j + 1) % 3
+        q[i] = 1 - d3 + 2 * m[i, i]
+        q[j] = m[j, i] + m[i, j]
+        q[k] = m[k, i] + m[i, k]
+        q[3] = m[k, j] - m[j, k]
+    else:
+        q[0] = m[2, 1] - m[1, 2]
+        q[1] = m[0, 2] - m[2, 0]
+        q[2] = m[1, 0] - m[0, 1]
+        q[3] = 1 + d3
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if norm != 0:
+        q[0] /= norm
+        q[1] /= norm
+        q[2] /= norm
+        q[3] /= norm
+    if (q[3] < 0 or (q[3] == 0 and q[0] < 0) or (q[3] == 0 and q[0] == 0 and q[1] < 0)
+            or (q[3] == 0 and q[0] == 0 and q[1] == 0 and q[2] < 0)):
+        q[0] *= -1.0
+        q[1] *= -1.0
+        q[2] *= -1.0
+        q[3] *= -1.0
+    angle = 2 * math.atan2(math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]), q[3])
+    if angle <= 1e-3:
+        angle2 = angle * angle
+        scale = 2 + angle2 / 12 + 7 * angle2 * angle2 / 2880
+    else:
+        scale = angle / math.sin(angle / 2)
+    out[0] = scale * q[0]
+    out[1] = scale * q[1]
+    out[2] = scale * q[2]
+
+
+@njit(cache=True)
+def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
+    """Rotation vectors (K,3) -> matrices (K,3,3), as ``sim.inertialization.rotation_exp``."""
+    out = np.empty((v.shape[0], 3, 3))
+    for r in range(v.shape[0]):
+        _rotvec_to_matrix(v[r, 0], v[r, 1], v[r, 2], out[r])
+    return out
+
+
+@njit(cache=True)
+def matrix_to_rotvec(m: np.ndarray) -> np.ndarray:
+    """Matrices (K,3,3) -> rotation vectors (K,3), as ``sim.inertialization.rotation_log``."""
+    out = np.empty((m.shape[0], 3))
+    for r in range(m.shape[0]):
+        _matrix_to_rotvec(m[r], out[r])
+    return out
+
+
+@njit(cache=True)
+def matmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(K,3,3) @ (K,3,3), as numpy's matmul."""
+    out = np.empty((a.shape[0], 3, 3))
+    for r in range(a.shape[0]):
+        _matmul3(a[r], b[r], out[r])
+    return out
+
+
+@njit(cache=True)
+def step_poses(
+    off_rot: np.ndarray, off_av: np.ndarray, off_pos: np.ndarray, off_vel: np.ndarray,
+    slot: np.ndarray, src_rot: np.ndarray, src_av: np.ndarray, src_pel: np.ndarray, src_lin: np.ndarray,
+    dst_rot: np.ndarray, dst_av: np.ndarray, dst_pel: np.ndarray, dst_lin: np.ndarray,
+    frame_rot: np.ndarray, frame_pel: np.ndarray, seat_dz: np.ndarray, heading: np.ndarray, root: np.ndarray,
+    y: float, dt: float, eydt: float,
+    out_rot: np.ndarray, out_av: np.ndarray, out_pos: np.ndarray, out_vel: np.ndarray,
+    out_local: np.ndarray, out_pelvis: np.ndarray,
+) -> None:
+    """One inertialized frame for N characters, writing the ``out_*`` arrays.
+
+    off_* (N,22,3) / (N,3): offsets before this frame; ``slot`` (N,): -1, or the row of the
+    switch arrays (S,...) of a character that switches this frame: its offsets first become
+    ``transition_offsets`` / ``transition_offsets_linear`` of its source and destination frames.
+    Then the spring decays (``decay_spring`` with y = ln2 / halflife and eydt = exp(-y dt)),
+    and the pose is ``exp(offset) @ frame_rot`` with joint 0 turned to ``heading`` and the
+    pelvis ``frame_pel + offset + seat_dz`` placed on ``root`` (as ``MotionMatcher.step_many``)."""
+    n = off_rot.shape[0]
+    e = np.empty((3, 3))
+    a = np.empty((3, 3))
+    b = np.empty((3, 3))
+    rv = np.empty(3)
+    x = np.empty((NUM_JOINTS, 3))
+    v = np.empty((NUM_JOINTS, 3))
+    xp = np.empty(3)
+    vp = np.empty(3)
+    for i in range(n):
+        s = slot[i]
+        if s >= 0:
+            for j in range(NUM_JOINTS):
+                _rotvec_to_matrix(off_rot[i, j, 0], off_rot[i, j, 1], off_rot[i, j, 2], e)
+                _matmul3(e, src_rot[s, j], a)
+                _matmul3_bt(a, dst_rot[s, j], b)
+                _matrix_to_rotvec(b, rv)
+                for c in range(3):
+                    x[j, c] = rv[c]
+                    v[j, c] = off_av[i, j, c] + src_av[s, j, c] - dst_av[s, j, c]
+            for c in range(3):
+                xp[c] = off_pos[i, c] + src_pel[s, c] - dst_pel[s, c]
+                vp[c] = off_vel[i, c] + src_lin[s, c] - dst_lin[s, c]
+        else:
+            for j in range(NUM_JOINTS):
+                for c in range(3):
+                    x[j, c] = off_rot[i, j, c]
+                    v[j, c] = off_av[i, j, c]
+            for c in range(3):
+                xp[c] = off_pos[i, c]
+                vp[c] = off_vel[i, c]
+        # decay_spring, element by element
+        for j in range(NUM_JOINTS):
+            for c in range(3):
+                j1 = v[j, c] + x[j, c] * y
+                out_rot[i, j, c] = eydt * (x[j, c] + j1 * dt)
+                out_av[i, j, c] = eydt * (v[j, c] - j1 * y * dt)
+        for c in range(3):
+            j1 = vp[c] + xp[c] * y
+            out_pos[i, c] = eydt * (xp[c] + j1 * dt)
+            out_vel[i, c] = eydt * (vp[c] - j1 * y * dt)
+        # apply_rotation_offsets, then joint 0 turned by rot_z(heading)
+        for j in range(NUM_JOINTS):
+            _rotvec_to_matrix(out_rot[i, j, 0], out_rot[i, j, 1], out_rot[i, j, 2], e)
+            _matmul3(e, frame_rot[i, j], out_local[i, j])
+        ch, sh = math.cos(heading[i]), math.sin(heading[i])
+        r0 = out_local[i, 0]
+        for c in range(3):
+            a[0, c] = _fma(0.0, r0[2, c], _fma(-sh, r0[1, c], ch * r0[0, c]))
+            a[1, c] = _fma(0.0, r0[2, c], _fma(ch, r0[1, c], sh * r0[0, c]))
+            a[2, c] = _fma(1.0, r0[2, c], _fma(0.0, r0[1, c], 0.0 * r0[0, c]))
+        for r in range(3):
+            for c in range(3):
+                r0[r, c] = a[r, c]
+        px = frame_pel[i, 0] + out_pos[i, 0]
+        py = frame_pel[i, 1] + out_pos[i, 1]
+        pz = frame_pel[i, 2] + out_pos[i, 2] + seat_dz[i]
+        out_pelvis[i, 0] = root[i, 0] + (ch * px - sh * py)
+        out_pelvis[i, 1] = root[i, 1] + (sh * px + ch * py)
+        out_pelvis[i, 2] = pz
+
+
+@njit(cache=True, inline="always")
+def _fk_positions(local: np.ndarray, pelvis: np.ndarray, t: np.ndarray, out: np.ndarray) -> None:
+    """Joint positions (22,3) of one pose, as ``sim.skeleton.forward_kinematics`` (its chain of
+    4x4 products, each element an fma chain over k = 0..3). ``t`` (22,3,4) is scratch."""
+    for r in range(3):
+        for c in range(3):
+            t[0, r, c] = local[0, r, c]
+        t[0, r, 3] = pelvis[r]
+    for j in range(1, NUM_JOINTS):
+        p = _PARENTS[j]
+        for r in range(3):
+            for c in range(3):
+                acc = t[p, r, 0] * local[j, 0, c]
+                acc = _fma(t[p, r, 1], local[j, 1, c], acc)
+                acc = _fma(t[p, r, 2], local[j, 2, c], acc)
+                t[j, r, c] = _fma(t[p, r, 3], 0.0, acc)
+            acc = t[p, r, 0] * _OFFSETS[j, 0]
+            acc = _fma(t[p, r, 1], _OFFSETS[j, 1], acc)
+            acc = _fma(t[p, r, 2], _OFFSETS[j, 2], acc)
+            t[j, r, 3] = _fma(t[p, r, 3], 1.0, acc)
+    for j in range(NUM_JOINTS):
+        for r in range(3):
+            out[j, r] = t[j, r, 3]
+
+
+@njit(cache=True)
+def fk_positions(local: np.ndarray, pelvis: np.ndarray) -> np.ndarray:
+    """Joint positions (K,22,3) of poses (K,22,3,3) with pelvis (K,3)."""
+    out = np.empty((local.shape[0], NUM_JOINTS, 3))
+    t = np.empty((NUM_JOINTS, 3, 4))
+    for k in range(local.shape[0]):
+        _fk_positions(local[k], pelvis[k], t, out[k])
+    return out
+
+
+# Query-feature source vector per character (``assemble`` picks the layout's entries from it):
+# joint positions (22*3), joint velocities (22*3), future root positions (3*2), future
+# facings (3*2), target position (2), target facing (2), target height (1).
+SRC_POS, SRC_VEL, SRC_FUT_POS, SRC_FUT_DIR, SRC_T_POS, SRC_T_DIR, SRC_T_H, SRC_SIZE = 0, 66, 132, 138, 144, 146, 148, 149
+
+
+@njit(cache=True)
+def query_sources(
+    cur_local: np.ndarray, cur_pelvis: np.ndarray, prev_local: np.ndarray, prev_pelvis: np.ndarray,
+    has_prev: np.ndarray, pose_dt: np.ndarray, old_heading: np.ndarray, root: np.ndarray, heading: np.ndarray,
+    fut_xy: np.ndarray, fut_h: np.ndarray, has_target: np.ndarray, target_xy: np.ndarray, facing: np.ndarray,
+    height: np.ndarray,
+) -> np.ndarray:
+    """Feature sources (M, SRC_SIZE) of M characters with an output pose, as
+    ``MotionMatcher._query_features_many`` computes them: joints of the last pose in the
+    character frame of the new root / heading, joint velocities (last pose minus the one before,
+    over ``pose_dt``, in the frame of the old heading; zeros without a previous pose), and the
+    control inputs of the query (``relative_target`` of the futures and the target)."""
+    m = cur_local.shape[0]
+    out = np.zeros((m, SRC_SIZE))
+    t = np.empty((NUM_JOINTS, 3, 4))
+    jc = np.empty((NUM_JOINTS, 3))
+    jp = np.empty((NUM_JOINTS, 3))
+    for i in range(m):
+        _fk_positions(cur_local[i], cur_pelvis[i], t, jc)
+        c, s = math.cos(heading[i]), math.sin(heading[i])
+        for j in range(NUM_JOINTS):
+            dx = jc[j, 0] - root[i, 0]
+            dy = jc[j, 1] - root[i, 1]
+            out[i, SRC_POS + 3 * j] = c * dx + s * dy
+            out[i, SRC_POS + 3 * j + 1] = -s * dx + c * dy
+            out[i, SRC_POS + 3 * j + 2] = jc[j, 2]
+        if has_prev[i]:
+            _fk_positions(prev_local[i], prev_pelvis[i], t, jp)
+            co, so = math.cos(old_heading[i]), math.sin(old_heading[i])
+            for j in range(NUM_JOINTS):
+                v0 = (jc[j, 0] - jp[j, 0]) / pose_dt[i]
+                v1 = (jc[j, 1] - jp[j, 1]) / pose_dt[i]
+                v2 = (jc[j, 2] - jp[j, 2]) / pose_dt[i]
+                out[i, SRC_VEL + 3 * j] = co * v0 + so * v1
+                out[i, SRC_VEL + 3 * j + 1] = -so * v0 + co * v1
+                out[i, SRC_VEL + 3 * j + 2] = v2
+        for k in range(3):
+            d0 = fut_xy[i, k, 0] - root[i, 0]
+            d1 = fut_xy[i, k, 1] - root[i, 1]
+            out[i, SRC_FUT_POS + 2 * k] = c * d0 + s * d1
+            out[i, SRC_FUT_POS + 2 * k + 1] = -s * d0 + c * d1
+            rel = fut_h[i, k] - heading[i]
+            out[i, SRC_FUT_DIR + 2 * k] = math.cos(rel)
+            out[i, SRC_FUT_DIR + 2 * k + 1] = math.sin(rel)
+        if has_target[i]:
+            d0 = target_xy[i, 0] - root[i, 0]
+            d1 = target_xy[i, 1] - root[i, 1]
+            out[i, SRC_T_POS] = c * d0 + s * d1
+            out[i, SRC_T_POS + 1] = -s * d0 + c * d1
+            rel = facing[i] - heading[i]
+            out[i, SRC_T_DIR] = math.cos(rel)
+            out[i, SRC_T_DIR + 1] = math.sin(rel)
+        else:
+            out[i, SRC_T_DIR] = -1.0
+        out[i, SRC_T_H] = height[i]
+    return out
+
+
+@njit(cache=True)
+def nearest_rows(rows_t: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact nearest row for each query: rows_t (D,N) (the rows, transposed), queries (M,D) ->
+    (row index (M,), squared distance (M,)). Distances are summed dimension by dimension in
+    order (as ``sim.motion_database.squared_distances``); ties go to the lowest row."""
+    d, n = rows_t.shape
+    m = queries.shape[0]
+    idx = np.empty(m, dtype=np.int64)
+    dist = np.empty(m)
+    acc = np.empty(n)
+    for q in range(m):
+        acc[:] = 0.0
+        for k in range(d):
+            qk = queries[q, k]
+            row = rows_t[k]
+            for r in range(n):
+                diff = row[r] - qk
+                acc[r] += diff * diff
+        best, bd = 0, acc[0]
+        for r in range(1, n):
+            if acc[r] < bd:
+                best, bd = r, acc[r]
+        idx[q] = best
+        dist[q] = bd
+    return idx, dist
