@@ -7,10 +7,10 @@ would hand the filter) and measures the filtered tracks the same way. Prints, be
 feet in boxes (ankle and toe joint-frames inside a floor-standing footprint), the deepest foot
 graze (m), feet deeper than the test's tolerance, foot sliding (mean toe speed in contact,
 m/s), the largest change of any pelvis position (must be 0) and of the upper body's local
-rotations (must be 0), and the filter's cost per character-frame next to the world step's.
+rotations (must be 0), legs at full stretch (the IK's clamp), and the filter's cost per character-frame next to the world step's.
 
 Usage: ``python -m benchmark.foot_ik_effect [--walkers 20] [--seconds 20] [--seed 7]
-[--off-grid 0.0] [--margin 0.03]``.
+[--off-grid 0.0] [--margin 0.03] [--max-drift 0.25] [--max-reach 0.99] [--release-frames 6]``.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from types import ModuleType
 import numpy as np
 
 from sim.foot_ik import LEG_JOINTS, FootSolver
+from sim.leg_ik import SHIN_LENGTH, THIGH_LENGTH, leg_chain
 from sim.scene_files import load_scene
 
 CROWD_TEST = Path(__file__).resolve().parents[1] / "tests" / "test_crowd_motion.py"
@@ -48,6 +49,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--off-grid", type=float, default=0.0)
     ap.add_argument("--margin", type=float, default=0.03)
+    ap.add_argument("--max-drift", type=float, default=0.25)
+    ap.add_argument("--max-reach", type=float, default=0.99)
+    ap.add_argument("--release-frames", type=int, default=6)
     args = ap.parse_args()
 
     crowd = _crowd_module()
@@ -64,7 +68,8 @@ def main() -> None:
     t_world = time.perf_counter() - t0
 
     b = world.buffers.trimmed()
-    solver = FootSolver.from_scene(scene, margin=args.margin)
+    solver = FootSolver.from_scene(scene, margin=args.margin, max_drift=args.max_drift,
+                                  max_reach=args.max_reach,                                   release_frames=args.release_frames)
     state = solver.initial_state(len(world.names))
     filtered = b.rotations.copy()
     solver.apply(b.pelvis[0], b.rotations[0].astype(float), b.contacts[0], state)  # compiled kernels: load
@@ -80,12 +85,20 @@ def main() -> None:
     after_world.buffers = after_buffers
     after = crowd.measure(after_world, scene, before.targets_given, before.targets_reached, before.failures)
 
+    def stretched(rotations: np.ndarray) -> int:
+        """Leg-frames with the ankle at the bones' full reach (the IK clamps there)."""
+        chain = leg_chain(b.pelvis[: b.length].reshape(-1, 3), rotations[: b.length].reshape(-1, *rotations.shape[2:]))
+        span = np.linalg.norm(chain.ankle - chain.hip, axis=-1)
+        return int(np.sum(span > THIGH_LENGTH + SHIN_LENGTH - 1e-4))
+
     others = [j for j in range(filtered.shape[2]) if j not in LEG_JOINTS]
     pelvis_change = float(np.abs(after_buffers.pelvis[: b.length] - b.pelvis[: b.length]).max())
     upper_change = float(np.abs(filtered[: b.length, :, others] - b.rotations[: b.length, :, others]).max())
 
     print(f"crowd: {args.walkers} walkers, {frames} frames ({args.seconds:g} s), seed {args.seed}, "
-          f"off-grid {args.off_grid} m; footprint margin {args.margin} m; "
+          f"off-grid {args.off_grid} m; footprint margin {args.margin} m, max drift {args.max_drift} m, "
+          f"max reach {args.max_reach}, "
+          f"release {args.release_frames} frames; "
           f"{len(solver.footprints)} floor-standing footprints")
     print(f"{'measure':<34}{'before':>12}{'after':>12}")
     rows = [
@@ -94,6 +107,7 @@ def main() -> None:
         (f"feet deeper than {crowd.FOOT_TOLERANCE} m", before.feet_penetrations, after.feet_penetrations, "d"),
         ("foot sliding (m/s)", before.foot_sliding, after.foot_sliding, ".3f"),
         ("pelvis penetrations", before.pelvis_penetrations, after.pelvis_penetrations, "d"),
+        ("legs at full stretch (leg-frames)", stretched(b.rotations), stretched(filtered), "d"),
         ("contact fraction", before.contact_fraction, after.contact_fraction, ".3f"),
     ]
     for name, x, y, fmt in rows:

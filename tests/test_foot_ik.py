@@ -8,20 +8,19 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from sim.foot_clearance import _push_out_kernel
 from sim.foot_ik import (
     HIP_JOINTS,
     KNEE_JOINTS,
     LEG_JOINTS,
-    SHIN_LENGTH,
-    THIGH_LENGTH,
     FootIKError,
     Footprints,
     FootSolver,
     FootState,
-    _push_out_kernel,
     push_out,
     solve_legs,
 )
+from sim.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, _ik_kernel
 from sim.motion_clips import ANKLE_JOINTS, FOOT_JOINTS
 from sim.scene import Scene, SceneObject
 from sim.skeleton import NUM_JOINTS, REST_OFFSETS, forward_kinematics, heading_to_root
@@ -90,6 +89,31 @@ def test_ik_reaches_reachable_targets_exactly_and_keeps_everything_else() -> Non
     assert np.array_equal(pos2[:, OTHERS[:1]], pos[:, OTHERS[:1]])
     upper = [j for j in OTHERS if j not in FOOT_JOINTS]
     assert np.abs(pos2[:, upper] - pos[:, upper]).max() < 1e-12
+
+
+def test_leg_chain_and_compiled_ik_match_their_references() -> None:
+    pelvis, rots = _poses(16, seed=12)
+    pos, glob = forward_kinematics(rots, pelvis)
+    chain = LegChain(pelvis, rots)
+    for name, joints in (("hip", HIP_JOINTS), ("knee", KNEE_JOINTS), ("ankle", ANKLE_JOINTS), ("toe", FOOT_JOINTS)):
+        assert np.abs(getattr(chain, name) - pos[:, list(joints)]).max() < 1e-12, name
+    for name, joints in (("hip_rot", HIP_JOINTS), ("knee_rot", KNEE_JOINTS), ("ankle_rot", ANKLE_JOINTS)):
+        assert np.abs(getattr(chain, name) - glob[:, list(joints)]).max() < 1e-12, name
+    # the numba kernel and its Python source give the same bits (incl. the degenerate branches)
+    rng = np.random.default_rng(13)
+    m = 32
+    leg = np.arange(m) % 2
+    ci = np.arange(m) // 2
+    targets = chain.hip[ci, leg] + rng.normal(0, 0.5, (m, 3))
+    targets[0] = chain.hip[0, 0]  # on the hip
+    targets[1] = chain.hip[0, 1] + np.array([0.0, 0.0, 3.0])  # far above
+    args = (chain.hip[ci, leg], chain.knee[ci, leg], chain.ankle[ci, leg], chain.pelvis_rot[ci],
+            chain.hip_rot[ci, leg], chain.knee_rot[ci, leg], chain.ankle_rot[ci, leg], targets,
+            THIGH_LENGTH[leg], SHIN_LENGTH[leg])
+    args = tuple(np.ascontiguousarray(a) for a in args)
+    for x, y in zip(_ik_kernel(*args), _ik_kernel.py_func(*args), strict=True):
+        assert np.isfinite(x).all()
+        assert np.array_equal(x, y)
 
 
 def test_ik_knee_bends_forward_from_a_straight_leg() -> None:
@@ -248,12 +272,31 @@ def test_a_drifting_lock_is_released() -> None:
 
 
 def test_unreachable_lock_stretches_without_nan() -> None:
-    solver = FootSolver(_NO_BOXES, max_drift=10.0)
+    solver = FootSolver(_NO_BOXES, max_drift=10.0, max_reach=1.0)
     pelvis, rots = _poses(1, seed=9, bend=0.1)
     contacts = np.ones((6, 2), dtype=bool)
     _, toes = _walk(solver, pelvis, rots, contacts, step=np.array([0.0, 0.0, 0.4]))  # the body flies up
     assert np.isfinite(toes).all()
     assert toes[-1, 0, 2] > toes[0, 0, 2] + 1.0  # the foot cannot stay: the leg is at full stretch
+
+
+def test_a_lock_out_of_reach_is_released_before_the_leg_is_straight() -> None:
+    full = THIGH_LENGTH + SHIN_LENGTH
+    pelvis, rots = _poses(1, seed=9, bend=0.1)
+    contacts = np.ones((40, 2), dtype=bool)
+    for max_reach, straight in ((0.97, False), (1.0, True)):
+        solver = FootSolver(_NO_BOXES, max_drift=10.0, max_reach=max_reach, release_frames=4)
+        state = solver.initial_state(1)
+        spans = []
+        for f in range(len(contacts)):
+            p = pelvis + np.array([0.0, 0.0, 0.004 * f])  # the body rises: the planted feet fall behind
+            out, state = solver.apply(p, rots, contacts[f][None], state)
+            chain = LegChain(p, out)
+            spans.append(np.linalg.norm(chain.ankle - chain.hip, axis=-1)[0] / full)
+        spans = np.array(spans)
+        assert (spans.max() > 1 - 1e-5) == straight, (max_reach, spans.max())
+        if not straight:
+            assert spans.max() < 0.97 + 0.01
 
 
 def test_apply_is_deterministic_and_its_state_copies() -> None:
