@@ -8,7 +8,7 @@ recorded initial states and feeding its own returned states back, as the world d
 microseconds per frame (all characters) for both, best of ``--reps`` alternating replays,
 their ratio, and whether every state, pose and search decision is identical.
 
-Usage: ``python -m benchmark.bench_motion_step [--characters 10] [--seconds 10] [--reps 5] [--seed 0]``.
+Usage: ``python -m benchmark.bench_motion_step [--characters 10] [--seconds 10] [--reps 10] [--seed 0]``.
 """
 
 from __future__ import annotations
@@ -132,7 +132,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--characters", type=int, default=10)
     ap.add_argument("--seconds", type=float, default=10.0)
-    ap.add_argument("--reps", type=int, default=5)
+    ap.add_argument("--reps", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     dbs = load_databases()

@@ -171,21 +171,24 @@ def matmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 @njit(cache=True)
 def step_poses(
     off_rot: np.ndarray, off_av: np.ndarray, off_pos: np.ndarray, off_vel: np.ndarray,
-    slot: np.ndarray, src_rot: np.ndarray, src_av: np.ndarray, src_pel: np.ndarray, src_lin: np.ndarray,
-    dst_rot: np.ndarray, dst_av: np.ndarray, dst_pel: np.ndarray, dst_lin: np.ndarray,
-    frame_rot: np.ndarray, frame_pel: np.ndarray, seat_dz: np.ndarray, heading: np.ndarray, root: np.ndarray,
-    y: float, dt: float, eydt: float,
+    chars: np.ndarray, reals: np.ndarray, switches: np.ndarray, sw_av: np.ndarray, sw_lin: np.ndarray,
+    store_rot: np.ndarray, store_aux: np.ndarray, y: float, dt: float, eydt: float,
     out_rot: np.ndarray, out_av: np.ndarray, out_pos: np.ndarray, out_vel: np.ndarray,
-    out_local: np.ndarray, out_pelvis: np.ndarray,
+    out_local: np.ndarray, out_pelvis: np.ndarray, out_contacts: np.ndarray,
 ) -> None:
     """One inertialized frame for N characters, writing the ``out_*`` arrays.
 
-    off_* (N,22,3) / (N,3): offsets before this frame; ``slot`` (N,): -1, or the row of the
-    switch arrays (S,...) of a character that switches this frame: its offsets first become
-    ``transition_offsets`` / ``transition_offsets_linear`` of its source and destination frames.
-    Then the spring decays (``decay_spring`` with y = ln2 / halflife and eydt = exp(-y dt)),
-    and the pose is ``exp(offset) @ frame_rot`` with joint 0 turned to ``heading`` and the
-    pelvis ``frame_pel + offset + seat_dz`` placed on ``root`` (as ``MotionMatcher.step_many``)."""
+    Database frames come from a store of all frames (global frame index g): ``store_rot``
+    (G,22,3,3) local rotations with joint 0 in the character frame, ``store_aux`` (G,5) pelvis
+    (character frame) and left / right foot contacts (0 / 1).
+    off_* (N,22,3) / (N,3): offsets before this frame. ``chars`` (N,2): the output frame's g
+    and -1, or the row of ``switches`` (S,2: source g, destination g) of a character that
+    switches this frame, whose offsets first become ``transition_offsets`` /
+    ``transition_offsets_linear`` of the two frames (with velocities ``sw_av`` (2,S,22,3) and
+    ``sw_lin`` (2,S,3), source then destination). Then the spring decays (``decay_spring``:
+    y = ln2 / halflife, eydt = exp(-y dt)), and the pose is ``exp(offset) @ frame`` with joint
+    0 turned to the heading and the pelvis (frame + offset, plus the seat correction) placed on
+    the root; ``reals`` (N,4): heading, root x, root y, seat correction (as ``MotionMatcher``)."""
     n = off_rot.shape[0]
     e = np.empty((3, 3))
     a = np.empty((3, 3))
@@ -196,19 +199,20 @@ def step_poses(
     xp = np.empty(3)
     vp = np.empty(3)
     for i in range(n):
-        s = slot[i]
+        g, s = chars[i, 0], chars[i, 1]
         if s >= 0:
+            gs, gd = switches[s, 0], switches[s, 1]
             for j in range(NUM_JOINTS):
                 _rotvec_to_matrix(off_rot[i, j, 0], off_rot[i, j, 1], off_rot[i, j, 2], e)
-                _matmul3(e, src_rot[s, j], a)
-                _matmul3_bt(a, dst_rot[s, j], b)
+                _matmul3(e, store_rot[gs, j], a)
+                _matmul3_bt(a, store_rot[gd, j], b)
                 _matrix_to_rotvec(b, rv)
                 for c in range(3):
                     x[j, c] = rv[c]
-                    v[j, c] = off_av[i, j, c] + src_av[s, j, c] - dst_av[s, j, c]
+                    v[j, c] = off_av[i, j, c] + sw_av[0, s, j, c] - sw_av[1, s, j, c]
             for c in range(3):
-                xp[c] = off_pos[i, c] + src_pel[s, c] - dst_pel[s, c]
-                vp[c] = off_vel[i, c] + src_lin[s, c] - dst_lin[s, c]
+                xp[c] = off_pos[i, c] + store_aux[gs, c] - store_aux[gd, c]
+                vp[c] = off_vel[i, c] + sw_lin[0, s, c] - sw_lin[1, s, c]
         else:
             for j in range(NUM_JOINTS):
                 for c in range(3):
@@ -230,8 +234,8 @@ def step_poses(
         # apply_rotation_offsets, then joint 0 turned by rot_z(heading)
         for j in range(NUM_JOINTS):
             _rotvec_to_matrix(out_rot[i, j, 0], out_rot[i, j, 1], out_rot[i, j, 2], e)
-            _matmul3(e, frame_rot[i, j], out_local[i, j])
-        ch, sh = math.cos(heading[i]), math.sin(heading[i])
+            _matmul3(e, store_rot[g, j], out_local[i, j])
+        ch, sh = math.cos(reals[i, 0]), math.sin(reals[i, 0])
         r0 = out_local[i, 0]
         for c in range(3):
             a[0, c] = _fma(0.0, r0[2, c], _fma(-sh, r0[1, c], ch * r0[0, c]))
@@ -240,12 +244,14 @@ def step_poses(
         for r in range(3):
             for c in range(3):
                 r0[r, c] = a[r, c]
-        px = frame_pel[i, 0] + out_pos[i, 0]
-        py = frame_pel[i, 1] + out_pos[i, 1]
-        pz = frame_pel[i, 2] + out_pos[i, 2] + seat_dz[i]
-        out_pelvis[i, 0] = root[i, 0] + (ch * px - sh * py)
-        out_pelvis[i, 1] = root[i, 1] + (sh * px + ch * py)
+        px = store_aux[g, 0] + out_pos[i, 0]
+        py = store_aux[g, 1] + out_pos[i, 1]
+        pz = store_aux[g, 2] + out_pos[i, 2] + reals[i, 3]
+        out_pelvis[i, 0] = reals[i, 1] + (ch * px - sh * py)
+        out_pelvis[i, 1] = reals[i, 2] + (sh * px + ch * py)
         out_pelvis[i, 2] = pz
+        out_contacts[i, 0] = store_aux[g, 3] != 0.0
+        out_contacts[i, 1] = store_aux[g, 4] != 0.0
 
 
 @njit(cache=True, inline="always")

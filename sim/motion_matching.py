@@ -236,16 +236,46 @@ def _frames_of(db: MotionDatabase) -> _Frames:
 @dataclass(frozen=True)
 class _Key:
     """What the step needs about one database, looked up once: its frame tables and arrays,
-    foot contacts, whether seat heights correct its pelvis, and ``sources``: the positions of
-    its feature layout in the ``query_sources`` vector (``sim.motion_kernels``)."""
+    whether seat heights correct its pelvis, ``sources``: the positions of its feature layout in
+    the ``query_sources`` vector (``sim.motion_kernels``), and ``base``: the global index of its
+    frame 0 in the matcher's ``_FrameStore``."""
 
     key: str
     db: MotionDatabase
     tab: _Table
     frames: _Frames
-    contacts: np.ndarray
     seat: bool
     sources: np.ndarray
+    base: int
+
+
+_NO_SWITCH = (np.empty((0, 2), dtype=np.int64), np.empty((2, 0, NUM_JOINTS, 3)), np.empty((2, 0, 3)))
+
+
+class _FrameStore:
+    """The frames of every database a matcher has used, one array per quantity (grown by
+    doubling), so that a kernel reads any character's frame by a global frame index (the
+    database's ``base`` + its frame): ``rot`` (G,22,3,3) as ``_Frames.rot``, ``aux`` (G,5) the
+    ``_Frames.pelvis`` (3) and foot contacts (2, as 0 / 1)."""
+
+    def __init__(self) -> None:
+        self.size = 0
+        self.rot = np.empty((0, NUM_JOINTS, 3, 3))
+        self.aux = np.empty((0, 5))
+
+    def add(self, frames: _Frames, contacts: np.ndarray) -> int:
+        """Append a database's frames; returns its base index."""
+        base, f = self.size, len(frames.pelvis)
+        if base + f > len(self.rot):
+            cap = max(2 * len(self.rot), base + f)
+            rot, aux = np.empty((cap, NUM_JOINTS, 3, 3)), np.empty((cap, 5))
+            rot[:base], aux[:base] = self.rot[:base], self.aux[:base]
+            self.rot, self.aux = rot, aux
+        self.rot[base : base + f] = frames.rot
+        self.aux[base : base + f, :3] = frames.pelvis
+        self.aux[base : base + f, 3:] = np.asarray(contacts, dtype=bool)
+        self.size += f
+        return base
 
 
 _SOURCES: dict[str, np.ndarray] = {}
@@ -300,6 +330,7 @@ class MotionMatcher:
         self._frames: dict[str, _Frames] = {}
         self._tables: dict[str, _Table] = {}
         self._keys: dict[str, _Key] = {}
+        self._store = _FrameStore()
         self._by_label: dict[tuple[str, bool], _Key] = {}
         # (states returned by the last step_many, their offset arrays): lets the next call skip
         # re-stacking per-character offsets when it gets those very states back
@@ -398,8 +429,8 @@ class MotionMatcher:
             db = self.databases[key]
             frames, tab = self.frames(key), self._table(key)
             out = self._keys[key] = _Key(
-                key=key, db=db, tab=tab, frames=frames, contacts=np.asarray(db.contacts, dtype=bool),
-                seat=db.layout_name in ("sitting", "seated"), sources=_feature_sources(db.layout_name))
+                key=key, db=db, tab=tab, frames=frames, seat=db.layout_name in ("sitting", "seated"),
+                sources=_feature_sources(db.layout_name), base=self._store.add(frames, db.contacts))
         return out
 
     def _query_key(self, query: MotionQuery) -> _Key:
@@ -458,8 +489,8 @@ class MotionMatcher:
             return [], []
         step_frames = dt * FPS
         interval = self.search_interval
-        keys = self._keys
-        infos = [self._query_key(q) for q in queries]
+        keys, by_label = self._keys, self._by_label
+        infos = [by_label.get((q.label, q.seated)) or self._query_key(q) for q in queries]
         curs: list[_Key] = []
         clocks, roots, headings, frames, since = [], [], [], [], []
         changed, entry, done, need = [], [], [], []
@@ -551,49 +582,52 @@ class MotionMatcher:
             off_rot, off_av, off_pos, off_vel = (
                 np.ascontiguousarray(np.stack([getattr(s, f) for s in states]), dtype=float)
                 for f in ("offset_rot", "offset_ang_vel", "offset_pos", "offset_vel"))
-        slot = np.full(n, -1, dtype=np.int64)
-        m = len(switched)
-        sw_rot, sw_av = np.empty((2, m, NUM_JOINTS, 3, 3)), np.empty((2, m, NUM_JOINTS, 3))
-        sw_pel, sw_lin = np.empty((2, m, 3)), np.empty((2, m, 3))
-        for r, i in enumerate(switched):
-            slot[i] = r
-            src, dst = curs[i].frames, infos[i].frames
-            sf, df = frames[i], new_frames[i]
-            sw_rot[0, r], sw_pel[0, r] = src.rot[sf], src.pelvis[sf]
-            sw_rot[1, r], sw_pel[1, r] = dst.rot[df], dst.pelvis[df]
-            (sw_av[0, r], sw_lin[0, r]), (sw_av[1, r], sw_lin[1, r]) = src.motion(sf), dst.motion(df)
-            done[i] = False
+        slot = [-1] * n
+        if switched:
+            m = len(switched)
+            sw_idx = np.empty((m, 2), dtype=np.int64)
+            sw_av, sw_lin = np.empty((2, m, NUM_JOINTS, 3)), np.empty((2, m, 3))
+            for r, i in enumerate(switched):
+                slot[i] = r
+                src, dst = curs[i], infos[i]
+                sf, df = frames[i], new_frames[i]
+                sw_idx[r] = src.base + sf, dst.base + df
+                (sw_av[0, r], sw_lin[0, r]), (sw_av[1, r], sw_lin[1, r]) = src.frames.motion(sf), dst.frames.motion(df)
+                done[i] = False
+        else:
+            sw_idx, sw_av, sw_lin = _NO_SWITCH
         out_info = [infos[i] if slot[i] >= 0 else curs[i] for i in range(n)]
-        frame_rot, frame_pel, seat_dz = np.empty((n, NUM_JOINTS, 3, 3)), np.empty((n, 3)), np.zeros(n)
-        contacts = np.empty((n, 2), dtype=bool)
-        for i, (info, f, q) in enumerate(zip(out_info, new_frames, queries, strict=True)):
-            fr = info.frames
-            frame_rot[i], frame_pel[i], contacts[i] = fr.rot[f], fr.pelvis[f], info.contacts[f]
-            if info.seat and q.seat_height is not None:
-                seat_dz[i] = self._seat_correction_cached(info.db, fr, f, q)
+        chars = np.array([(k.base + f, sl) for k, f, sl in zip(out_info, new_frames, slot, strict=True)],
+                         dtype=np.int64)
+        reals = np.empty((n, 4))
+        reals[:, 0] = headings
+        reals[:, 1:3] = roots
+        reals[:, 3] = [self._seat_correction_cached(info.db, info.frames, f, q) if info.seat and q.seat_height is not None
+                       else 0.0 for info, f, q in zip(out_info, new_frames, queries, strict=True)]
         y = 2.0 * LN2 / max(self.blend_halflife, 1e-5) / 2.0
         eydt = float(np.exp(-y * dt))
-        new_rot, new_av, new_pos, new_vel = (np.empty_like(off_rot), np.empty_like(off_av), np.empty_like(off_pos),
-                                             np.empty_like(off_vel))
-        local, pelvis = np.empty((n, NUM_JOINTS, 3, 3)), np.empty((n, 3))
-        step_poses(off_rot, off_av, off_pos, off_vel, slot, sw_rot[0], sw_av[0], sw_pel[0], sw_lin[0],
-                   sw_rot[1], sw_av[1], sw_pel[1], sw_lin[1], frame_rot, frame_pel, seat_dz,
-                   np.array(headings), np.array(roots, dtype=float).reshape(n, 2), y, float(dt), eydt,
-                   new_rot, new_av, new_pos, new_vel, local, pelvis)
+        new_rot, new_av = np.empty((n, NUM_JOINTS, 3)), np.empty((n, NUM_JOINTS, 3))
+        new_pos, new_vel = np.empty((n, 3)), np.empty((n, 3))
+        local, pelvis, contacts = np.empty((n, NUM_JOINTS, 3, 3)), np.empty((n, 3)), np.empty((n, 2), dtype=bool)
+        store = self._store
+        step_poses(off_rot, off_av, off_pos, off_vel, chars, reals, sw_idx, sw_av, sw_lin, store.rot, store.aux,
+                   y, float(dt), eydt, new_rot, new_av, new_pos, new_vel, local, pelvis, contacts)
 
         out_states, poses = [], []
         pose_dt = float(dt)
-        new_state, new_pose = object.__new__, object.__new__
+        new = object.__new__
+        rots, avs, poss, vels = list(new_rot), list(new_av), list(new_pos), list(new_vel)
+        locs, pels, cons = list(local), list(pelvis), list(contacts)
         for i, state in enumerate(states):
-            pose = new_pose(Pose)
-            pose.__dict__.update(pelvis=pelvis[i], local_rotations=local[i], root_xy=roots[i], heading=headings[i],
-                                 contacts=contacts[i])
+            pose = new(Pose)
+            pose.__dict__.update(pelvis=pels[i], local_rotations=locs[i], root_xy=roots[i], heading=headings[i],
+                                 contacts=cons[i])
             poses.append(pose)
-            st = new_state(MatchState)
+            st = new(MatchState)
             st.__dict__.update(
                 key=out_info[i].key, frame=new_frames[i], root_xy=roots[i], heading=headings[i],
-                frame_clock=clocks[i], since_search=since[i], offset_rot=new_rot[i], offset_ang_vel=new_av[i],
-                offset_pos=new_pos[i], offset_vel=new_vel[i], pose_local=local[i], pose_pelvis=pelvis[i],
+                frame_clock=clocks[i], since_search=since[i], offset_rot=rots[i], offset_ang_vel=avs[i],
+                offset_pos=poss[i], offset_vel=vels[i], pose_local=locs[i], pose_pelvis=pels[i],
                 prev_local=state.pose_local, prev_pelvis=state.pose_pelvis, pose_dt=pose_dt,
                 elapsed=0.0 if changed[i] else state.elapsed + dt, done=done[i],
                 switches=state.switches + (1 if slot[i] >= 0 else 0), searches=state.searches + int(need[i]),
