@@ -40,6 +40,7 @@ from sim.cooperative_astar import (
 )
 from sim.nav_grid import NavGrid, body_clearance
 from sim.path_fallback import PriorityKeeper
+from sim.path_tracks import path_tracks
 
 Agent = Hashable
 
@@ -94,7 +95,12 @@ class CrowdNavigator:
         self._cells: dict[Agent, Cell] = {}
         self._goals: dict[Agent, Cell | None] = {}
         self._paths: dict[Agent, list[Cell]] = {}
-        self._tracks: dict[Agent, np.ndarray] = {}  # per-frame positions on _paths (see _track)
+        # Per-frame positions on every walker's path (see _stacked): one (A, D, 2) array, a row
+        # per agent of _paths (padded with its last position), rebuilt after each replan.
+        self._stack: np.ndarray | None = None
+        self._stack_row: dict[Agent, int] = {}
+        self._stack_len: list[int] = []
+        self._rows_cache: dict[tuple[Agent, ...], tuple[np.ndarray, np.ndarray]] = {}  # see _rows_of
         self._plan_frame = 0
         self._static: dict[Agent, np.ndarray] = {}
         self._final: dict[Agent, np.ndarray] = {}  # exact target of the current goal
@@ -103,6 +109,8 @@ class CrowdNavigator:
         self.arrivals: list[tuple[int, Agent]] = []
         self.headings: dict[Agent, float] = {}
         self._last_xy: dict[Agent, np.ndarray] = {}
+        self._last_agents: tuple[Agent, ...] = ()  # the agents of _last_xy, and their rows
+        self._last_arr: np.ndarray = np.zeros((0, 2))
         self.last_result: PlanResult | None = None
         self.replans = 0
         self.failures = 0  # agents left waiting because no safe plan was found
@@ -145,7 +153,7 @@ class CrowdNavigator:
         self._cells[agent] = cell
         self._goals[agent] = None
         self._paths[agent] = [cell]
-        self._tracks.pop(agent, None)
+        self._stack = None
         if start is not None and float(np.linalg.norm(start - self.grid.center_of(*cell))) > 1e-9:
             self._parked[agent] = start
         self.set_goal(agent, goal, final_xy=final_xy)
@@ -215,7 +223,7 @@ class CrowdNavigator:
         self._cells.pop(agent, None)
         self._goals.pop(agent, None)
         self._paths.pop(agent, None)
-        self._tracks.pop(agent, None)
+        self._stack_row.pop(agent, None)  # the other rows stay valid
         self._final.pop(agent, None)
         self._parked.pop(agent, None)
         self._legs.pop(agent, None)
@@ -253,23 +261,46 @@ class CrowdNavigator:
     def _track(self, agent: Agent) -> np.ndarray:
         """Positions (D, 2) on the agent's current path for the frames ``_plan_frame + d``
         (d = 0 .. D - 1; later frames: the last row), computed once per plan with the very
-        arithmetic of ``position_at``."""
-        track = self._tracks.get(agent)
-        if track is None:
-            path = self._paths[agent]
-            cells = np.asarray(path, dtype=float).reshape(-1, 2)
-            centres = np.asarray(self.grid.origin) + (cells + 0.5) * self.grid.cell_size
-            d = np.arange((len(path) - 1) * self.step_frames + 2)
-            u = (d / self.fps) / self.planner.step_time
-            k = np.floor(u).astype(np.int64)
-            last = len(path) - 1
-            kk = np.minimum(k, max(last - 1, 0))
-            s = (u - kk)[:, None]
-            nxt = np.minimum(kk + 1, last)
-            track = (1.0 - s) * centres[kk] + s * centres[nxt]
-            track[(u <= 0) | (k >= last)] = centres[np.where(u <= 0, 0, last)][(u <= 0) | (k >= last)]
-            self._tracks[agent] = track
-        return track
+        arithmetic of ``position_at`` (a view of the agent's row of ``_stacked``)."""
+        stack = self._stacked()
+        i = self._stack_row.get(agent)
+        if i is None:  # a walker added since the stack was built
+            self._stack = None
+            stack = self._stacked()
+            i = self._stack_row[agent]
+        return stack[i, : self._stack_len[i]]
+
+    def _stacked(self) -> np.ndarray:
+        """Every agent's track (see ``_track``) in one array (A, D, 2), rows padded with the
+        agent's last position (later frames stay there). Built once per plan, for all agents
+        at once (``sim.path_tracks``: the same floats as one agent at a time)."""
+        stack = self._stack
+        if stack is None:
+            agents = list(self._paths)
+            stack, self._stack_len = path_tracks([self._paths[a] for a in agents], self.grid.origin,
+                                                 self.grid.cell_size, self.step_frames, self.fps,
+                                                 self.planner.step_time)
+            self._stack = stack
+            self._stack_row = {a: i for i, a in enumerate(agents)}
+        return stack
+
+    def _rows_of(self, agents: Sequence[Agent]) -> tuple[np.ndarray, np.ndarray]:
+        """(``_stacked()``, index of each agent's first row in the stack seen as (A * D, 2))."""
+        key = tuple(agents)
+        hit = self._rows_cache.get(key)
+        if hit is not None and hit[0] is self._stack:
+            return hit
+        stack = self._stacked()
+        row = self._stack_row
+        if any(a not in row for a in key):  # a walker added since the stack was built
+            self._stack = None
+            stack = self._stacked()
+            row = self._stack_row
+        hit = (stack, np.array([row[a] for a in key], dtype=np.int64) * stack.shape[1])
+        if len(self._rows_cache) > 8:
+            self._rows_cache.clear()
+        self._rows_cache[key] = hit
+        return hit
 
     def position(self, agent: Agent) -> np.ndarray:
         """Where the walker is at the last produced frame (before the first tick: now), metres."""
@@ -290,23 +321,62 @@ class CrowdNavigator:
             return track[[min(max(int(k) + off, 0), last) for k in frames]]
         return np.stack([self._xy_at(agent, base + int(k)) for k in frames])
 
+    def futures(self, agents: Sequence[Agent], frames: Sequence[int]) -> np.ndarray:
+        """``future`` of several walkers at once: (len(agents), len(frames), 2), metres."""
+        if not agents:
+            return np.zeros((0, len(frames), 2))
+        base = self.frame - 1
+        stack, starts = self._rows_of(agents)
+        off, last = base - self._plan_frame, stack.shape[1] - 1
+        cols = np.array([min(max(int(k) + off, 0), last) for k in frames], dtype=np.int64)
+        out = stack.reshape(-1, 2).take(np.add.outer(starts, cols), axis=0)
+        if self._legs or self._parked:
+            for i, a in enumerate(agents):
+                if a in self._legs or a in self._parked:
+                    out[i] = [self._xy_at(a, base + int(k)) for k in frames]
+        return out
+
     # ----- time ------------------------------------------------------------------------------------
     def tick(self) -> dict[Agent, np.ndarray]:
         """Walker positions (xy, metres) at the current frame; then the clock advances one frame."""
         if self.frame % self.step_frames == 0:
             self._step_boundary()
-        out = {a: self._xy_at(a, self.frame) for a in self._cells}
-        for a, p in out.items():
-            prev = self._last_xy.get(a)
-            if prev is not None:
-                d = p - prev
-                if float(d @ d) > 1e-12:
-                    self.headings[a] = math.atan2(float(d[1]), float(d[0]))
-            elif a not in self.headings:
-                self.headings[a] = 0.0
-        self._last_xy = out
+        agents = tuple(self._cells)
+        xy = self._positions(agents, self.frame)
+        out = dict(zip(agents, xy, strict=True))  # rows of one fresh array
+        headings = self.headings
+        if agents == self._last_agents:  # the usual case: the same walkers as last frame
+            for a, (d0, d1) in zip(agents, (xy - self._last_arr).tolist(), strict=True):
+                if _moved(d0, d1):
+                    headings[a] = math.atan2(d1, d0)
+        else:
+            for a, p in out.items():
+                prev = self._last_xy.get(a)
+                if prev is not None:
+                    d = p - prev
+                    if _moved(float(d[0]), float(d[1])):
+                        headings[a] = math.atan2(float(d[1]), float(d[0]))
+                elif a not in headings:
+                    headings[a] = 0.0
+        self._last_xy, self._last_agents, self._last_arr = out, agents, xy
         self.frame += 1
         return out
+
+    def _positions(self, agents: tuple[Agent, ...], frame: int) -> np.ndarray:
+        """``_xy_at(a, frame)`` for every agent, as one new array (len(agents), 2)."""
+        if not agents:
+            return np.zeros((0, 2))
+        stack, starts = self._rows_of(agents)
+        d = min(max(frame - self._plan_frame, 0), stack.shape[1] - 1)
+        xy = stack.reshape(-1, 2).take(starts + d, axis=0)
+        if self._legs or self._parked:
+            for i, a in enumerate(agents):
+                leg = self._legs.get(a)
+                if leg is not None:
+                    xy[i] = leg.at(frame)
+                elif a in self._parked:
+                    xy[i] = self._parked[a]
+        return xy
 
     def _step_boundary(self) -> None:
         k = (self.frame - self._plan_frame) // self.step_frames
@@ -358,7 +428,7 @@ class CrowdNavigator:
             cell_xy = self.grid.center_of(*self._cells[a])
             if parked is not None:
                 final = self._final.get(a)
-                if goal is None or (goal == self._cells[a] and final is not None and np.allclose(final, parked)):
+                if goal is None or (goal == self._cells[a] and final is not None and close_xy(final, parked, atol=1e-8)):
                     if goal is not None:  # already standing on the new exact target
                         del self._parked[a]
                         self._legs[a] = _Leg(parked, parked, self.frame, 1, True)
@@ -441,7 +511,7 @@ class CrowdNavigator:
             hints=self._hints(planned),
         )
         self._paths = {a: list(p) for a, p in result.paths.items()}
-        self._tracks = {}
+        self._stack = None
         for a in off:
             self._paths[a] = [self._cells[a]]
         self._plan_frame = self.frame
@@ -450,6 +520,27 @@ class CrowdNavigator:
         self.failures += len(result.failed)
         self.fallbacks += len(result.fallback)
         self._needs_plan = False
+
+
+def close_xy(a: np.ndarray, b: np.ndarray, atol: float = 1e-9) -> bool:
+    """``np.allclose(a, b, atol=atol)`` (rtol 1e-5) for two xy points, on plain floats."""
+    a0, a1, b0, b1 = float(a[0]), float(a[1]), float(b[0]), float(b[1])
+    if not (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(b0) and math.isfinite(b1)):
+        return bool(np.allclose(a, b, atol=atol))
+    return abs(a0 - b0) <= atol + 1e-5 * abs(b0) and abs(a1 - b1) <= atol + 1e-5 * abs(b1)
+
+
+def _moved(d0: float, d1: float) -> bool:
+    """Whether a displacement (d0, d1) counts as movement: ``d @ d > 1e-12`` exactly as numpy's
+    dot computes it (its rounding may differ by an ulp from ``d0 * d0 + d1 * d1``, so numpy
+    decides the rare values near the threshold)."""
+    dd = d0 * d0 + d1 * d1
+    if dd > 2e-12:
+        return True
+    if dd < 0.5e-12:
+        return False
+    d = np.array([d0, d1])
+    return float(d @ d) > 1e-12
 
 
 def _nearest_obstacle(grid: NavGrid, p: np.ndarray, a: np.ndarray | None = None) -> str | None:

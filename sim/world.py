@@ -65,6 +65,7 @@ from sim.character_phases import (
 from sim.character_track import CharacterTrack
 from sim.cooperative_astar import Cell, PathPlanner
 from sim.nav_grid import NavGrid, build_nav_grid
+from sim.path_following import close_xy
 from sim.scene import Scene
 from sim.skeleton import NUM_JOINTS
 from sim.story_events import (
@@ -579,7 +580,7 @@ class World:
             if members and all(
                 m.waiting and m.event_id == eid
                 and (not m.walker or (nav.cell(m.name) == m.goal_cell and nav.can_freeze(m.name)
-                                      and bool(np.allclose(nav.position(m.name), m.anchor_xy, atol=1e-9))))
+                                      and close_xy(nav.position(m.name), m.anchor_xy)))
                 for m in members
             ):
                 ev.started = True
@@ -593,60 +594,60 @@ class World:
         self._phase_ends(out)
         if boundary:
             self._join_walkers()
-        walk_xy = nav.tick()
+        nav.tick()  # walkers' positions this frame (read back below with their futures)
         if boundary:
             self._walker_checks(out)
             self._start_groups(out)
 
-        n = len(self.names)
+        names = self.names
+        chars = [self.characters[name] for name in names]
+        n = len(names)
         dt = self.dt
         max_turn = self.config.walk_turn_rate * dt
         queries: list[MotionQuery] = []
         labels: list[str] = []
         heading_l: list[float] = []
         root_l: list[np.ndarray] = []
-        walkers = [k for k, name in enumerate(self.names) if self.characters[name].walker]
+        walkers = [c for c in chars if c.walker]
+        walk: dict[int, tuple[np.ndarray, float, np.ndarray, np.ndarray, bool]] = {}  # by id(c)
         if walkers:  # the walkers' arrays in one go: planned futures, distances, future headings
-            wnames = [self.names[k] for k in walkers]
-            horizon = (*FUTURE_FRAMES, self.config.heading_lookahead)
-            w_xy = np.stack([walk_xy[nm] for nm in wnames])
-            w_fut = np.stack([nav.future(nm, horizon) for nm in wnames])
-            w_prev = np.stack([self.characters[nm].xy for nm in wnames])
-            ahead_all = w_fut[:, 3] - w_xy
-            dist_all = np.hypot(ahead_all[:, 0], ahead_all[:, 1])
-            moved = w_xy - w_prev
-            moving_all = np.hypot(moved[:, 0], moved[:, 1]) > 1e-6
-            steps_all = np.diff(np.concatenate([w_xy[:, None], w_fut[:, :3]], axis=1), axis=1)
-            moves_ahead = np.hypot(steps_all[..., 0], steps_all[..., 1]) > 1e-6
-            step_dir = np.arctan2(steps_all[..., 1], steps_all[..., 0])
-        slot = {k: i for i, k in enumerate(walkers)}
-        for k, name in enumerate(self.names):
-            c = self.characters[name]
-            moving = False
-            fut_xy = fut_h = None
-            if c.walker:
-                i = slot[k]
-                xy = walk_xy[name]
-                fut_xy = w_fut[i, :3]
-                ahead = ahead_all[i]
-                dist = float(dist_all[i])
-                moving = bool(moving_all[i])
+            # path[:, 0]: the position at the last frame, 1: now (as ticked), 2-4: the planned
+            # future, 5: the point the heading turns to
+            path = np.concatenate([
+                np.array([c.xy for c in walkers], dtype=float).reshape(-1, 1, 2),
+                nav.futures([c.name for c in walkers], (0, *FUTURE_FRAMES, self.config.heading_lookahead))], axis=1)
+            steps = path[:, 1:5] - path[:, 0:4]  # this frame's move, then the three future steps
+            ahead = path[:, 5] - path[:, 1]
+            size = np.hypot(steps[..., 0], steps[..., 1])
+            step_dir = np.arctan2(steps[:, 1:, 1], steps[:, 1:, 0])
+            h_l = []
+            for c, (ax, ay), dist in zip(walkers, ahead.tolist(), np.hypot(ahead[:, 0], ahead[:, 1]).tolist(),
+                                         strict=True):
                 h = c.heading
                 if dist > 0.05:
-                    err = wrap_angle(math.atan2(ahead[1], ahead[0]) - c.heading)
-                    h = c.heading + float(min(max(err, -max_turn), max_turn))
-                fut_h = np.where(moves_ahead[i], step_dir[i], h)
-                c.xy, c.heading = np.asarray(xy, dtype=float), wrap_angle(h)
+                    err = wrap_angle(math.atan2(ay, ax) - c.heading)
+                    h = c.heading + min(max(err, -max_turn), max_turn)
+                h_l.append(h)
+            fut_h = np.where(size[:, 1:] > 1e-6, step_dir, np.array(h_l, dtype=float)[:, None])
+            walk = {id(c): w for c, w in zip(walkers, zip(
+                list(path[:, 1]), h_l, list(path[:, 2:5]), list(fut_h), (size[:, 0] > 1e-6).tolist(), strict=True), strict=True)}
+        for c in chars:  # in order: a partner's target is the partners' position so far
+            w = walk.get(id(c))
+            if w is not None:
+                c.xy, h, fut_xy, fut_heading, moving = w
+                c.heading = wrap_angle(h)
             else:
+                fut_xy = fut_heading = None
+                moving = False
                 self._stationary_root(c)
             label, seated = phase_motion(c, moving)
-            key = database_key(label, seated)
+            key = _database_key(label, seated)
             restart = key != c.motion_key or c.phase_frame == 0
             c.motion_key = key
             tx, tf, th = self._motion_target(c)
             queries.append(MotionQuery(
                 label=label, seated=seated, root_xy=c.xy, heading=c.heading, future_xy=fut_xy,
-                future_heading=fut_h, target_xy=tx, target_facing=tf, seat_height=th,
+                future_heading=fut_heading, target_xy=tx, target_facing=tf, seat_height=th,
                 force_search=restart,
             ))
             labels.append(key)
@@ -654,15 +655,14 @@ class World:
             root_l.append(c.xy)
         heading = np.array(heading_l, dtype=float)
         root = np.array(root_l, dtype=float).reshape(n, 2)
-        states = [self.motion_states[name] for name in self.names]
+        states = [self.motion_states[name] for name in names]
         step_many = getattr(self.motion, "step_many", None)
         if step_many is not None:  # a layer may batch characters (same result as one by one)
             new_states, poses = step_many(states, queries, dt)
         else:
             pairs = [self.motion.step(s, q, dt) for s, q in zip(states, queries, strict=True)]
             new_states, poses = [p[0] for p in pairs], [p[1] for p in pairs]
-        for k, name in enumerate(self.names):
-            self.motion_states[name] = new_states[k]
+        self.motion_states.update(zip(names, new_states, strict=True))
         rots = np.array([p.local_rotations for p in poses], dtype=float).reshape(n, NUM_JOINTS, 3, 3)
         pz = np.array([p.pelvis[2] for p in poses], dtype=float)
         flags = [getattr(p, "contacts", None) for p in poses]
@@ -674,8 +674,8 @@ class World:
                 if f is not None:
                     contacts[k] = f
         pelvis, rots = compose_poses(rots, pz, root, heading)
-        self.buffers.append(pelvis, rots, labels, contacts, [self.characters[nm].event_id or "" for nm in self.names])
-        for c in self.characters.values():
+        self.buffers.append(pelvis, rots, labels, contacts, [c.event_id or "" for c in chars])
+        for c in chars:
             c.phase_frame += 1
 
     def _stationary_root(self, c: CharacterState) -> None:
@@ -714,6 +714,17 @@ class World:
             return centre, math.atan2(d[1], d[0]), None
         f = np.asarray(a.facing_xy)
         return c.anchor_xy + OBJECT_REACH * f, a.facing_angle + math.pi, None
+
+
+_DATABASE_KEYS: dict[tuple[str, bool], str] = {}
+
+
+def _database_key(label: str, seated: bool) -> str:
+    """``database_key(label, seated)``, memoised (a pure function of its arguments)."""
+    key = _DATABASE_KEYS.get((label, seated))
+    if key is None:
+        key = _DATABASE_KEYS[(label, seated)] = database_key(label, seated)
+    return key
 
 
 SEAT_DISC_SPACING = 0.4  # metres between the discs a seated body registers along its sit-down path

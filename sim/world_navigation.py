@@ -27,7 +27,7 @@ import numpy as np
 from sim.character_phases import StandTarget
 from sim.cooperative_astar import Cell, PathPlanner
 from sim.nav_grid import ApproachPoint, NavGrid, NavGridError
-from sim.path_following import CrowdNavigator
+from sim.path_following import CrowdNavigator, close_xy
 from sim.scene import SceneObject
 
 OFF_GRID_EPS = 1e-6  # metres: a point closer than this to its cell centre is on the grid
@@ -115,7 +115,7 @@ class WorldNavigator:
         right after a boundary ``tick``)."""
         here = self.nav.position(name)
         there = self.nav.future(name, (self.nav.step_frames,))[0]
-        return bool(np.allclose(here, there, atol=1e-9))
+        return close_xy(here, there)
 
     # ----- time ----------------------------------------------------------------------------------
     def tick(self) -> dict[str, np.ndarray]:
@@ -137,6 +137,10 @@ class WorldNavigator:
     def future(self, name: str, frames: Sequence[int]) -> np.ndarray:
         """Planned positions (len(frames), 2) ``frames`` after the last produced frame."""
         return self.nav.future(name, frames)
+
+    def futures(self, names: Sequence[str], frames: Sequence[int]) -> np.ndarray:
+        """``future`` of several walkers at once: (len(names), len(frames), 2)."""
+        return self.nav.futures(names, frames)
 
 
 class StandTargets:

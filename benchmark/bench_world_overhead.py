@@ -1,0 +1,102 @@
+"""World-step overhead: the time per frame outside path planning and the motion layer.
+
+Runs ``bench_world``'s crowd (N characters walking between random targets in the Office, real
+motion matcher, windowed cooperative A*) ``--repeats`` times and splits each frame's wall time
+into planning (``PathPlanner.plan``), motion (``MotionMatcher.step_many``) and the rest of the
+world step ("world": phases, path following, futures, queries, buffers, command handling).
+Prints per-frame milliseconds (best of the repeats), the world time as a ratio of the motion
+time measured in the same run (the baseline), and a fingerprint of the run's output (final
+positions, track buffers) so that two versions of the code can be checked to produce the same
+frames.
+
+Usage: ``python -m benchmark.bench_world_overhead [--characters 10] [--seconds 10] [--repeats 3]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import math
+import time
+
+import numpy as np
+
+from benchmark.bench_world import OFFICE, Counters, TimedMotion, TimedPlanner, spread_cells
+from sim.motion_database import load_databases
+from sim.motion_matching import MotionMatcher
+from sim.nav_grid import build_nav_grid
+from sim.scene_files import load_scene
+from sim.story_events import AssignEvent, Assignment
+from sim.world import World, WorldConfig, step
+
+
+def run(scene, grid, dbs, n: int, frames: int, seed: int) -> tuple[float, Counters, str]:  # type: ignore[no-untyped-def]
+    """(wall seconds, counters, output fingerprint) of one crowd run (bench_world's scenario)."""
+    counters = Counters()
+    planner = TimedPlanner(grid, seed=seed)
+    planner.counters = counters
+    cells = np.argwhere(grid.component == grid.main_component)
+    rng = np.random.default_rng(seed)
+    starts = spread_cells(cells, n, rng, [])
+    names = [f"p{i:03d}" for i in range(n)]
+    world = World(scene, {nm: (tuple(grid.center_of(*c)), 0.0) for nm, c in zip(names, starts, strict=True)},
+                  TimedMotion(MotionMatcher(dbs), counters), grid=grid, planner=planner,
+                  config=WorldConfig(seed=seed, initial_capacity=frames))
+    targets = dict(zip(names, starts, strict=True))
+    count = dict.fromkeys(names, 0)
+    todo = set(names)
+    t0 = time.perf_counter()
+    for _ in range(frames):
+        cmds = []
+        for nm in sorted(todo):
+            cell = spread_cells(cells, 1, rng, [targets[o] for o in names if o != nm])[0]
+            targets[nm] = cell
+            count[nm] += 1
+            theta = float(rng.uniform(-math.pi, math.pi))
+            cmds.append(AssignEvent(event_id=f"{nm}-{count[nm]}", assignments=(Assignment(
+                character=nm, action="idle", target_xy=tuple(grid.center_of(*cell)),
+                facing_xy=(math.cos(theta), math.sin(theta))),)))
+        _, out = step(world, cmds, world.dt)
+        todo = {e.rsplit("-", 1)[0] for e in out.looping_events} | {f.character for f in out.failures}
+    wall = time.perf_counter() - t0
+    h = hashlib.sha256()
+    b = world.buffers
+    for arr in (world.positions(), b.pelvis[: b.length], b.rotations[: b.length], b.labels[: b.length],
+                b.contacts[: b.length], b.events[: b.length]):
+        h.update(np.ascontiguousarray(arr).tobytes())
+    h.update(repr([(c.phase, c.heading) for c in world.characters.values()]).encode())
+    return wall, counters, h.hexdigest()[:16]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--characters", type=int, default=10)
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    scene = load_scene(OFFICE)
+    grid = build_nav_grid(scene)
+    dbs = load_databases()
+    for db in dbs.values():
+        db.index  # noqa: B018
+        db.entry_index  # noqa: B018
+    frames = round(args.seconds * 30)
+    run(scene, grid, dbs, 10, 60, args.seed + 1)  # warm-up: first-use costs out of the timed runs
+    rows = []
+    prints = set()
+    for _ in range(args.repeats):
+        wall, c, fp = run(scene, grid, dbs, args.characters, frames, args.seed)
+        prints.add(fp)
+        rows.append((wall, c.plan_s, c.motion_s, wall - c.plan_s - c.motion_s))
+    best = min(rows, key=lambda r: r[3])
+    wall, plan, motion, world = (1e3 * v / frames for v in best)
+    print(f"{args.characters} characters, {frames} frames, best of {args.repeats} (by world time):")
+    print(f"  per frame: total {wall:.3f} ms | planning {plan:.3f} ms | motion {motion:.3f} ms | world {world:.3f} ms")
+    print(f"  world share {world / wall:.0%}; world / motion (same run) {world / motion:.2f}; "
+          f"RTF {frames / 30 / (best[0]):.1f}x")
+    print(f"  output fingerprint {', '.join(sorted(prints))}{'' if len(prints) == 1 else ' (NOT deterministic)'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""Batched path following gives the very floats of the one-walker-at-a-time code.
+
+``sim.path_tracks.path_tracks`` (compiled) against ``track_reference`` (numpy, one path), and
+``CrowdNavigator``'s batched reads (``futures``, the positions ``tick`` returns) against its
+per-agent ``future`` / ``_xy_at``, in a crowd that walks, takes exact off-grid legs and parks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.cooperative_astar import PathPlanner
+from sim.nav_grid import build_nav_grid
+from sim.path_following import CrowdNavigator, _moved, close_xy
+from sim.path_tracks import path_tracks, track_reference
+from sim.scene import Scene, SceneObject
+
+
+def test_compiled_tracks_equal_the_reference_bit_for_bit() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        paths = [[(int(rng.integers(-3, 60)), int(rng.integers(-3, 60))) for _ in range(int(rng.integers(1, 24)))]
+                 for _ in range(int(rng.integers(1, 12)))]
+        origin = (float(rng.uniform(-5, 5)), float(rng.uniform(-5, 5)))
+        cell, step_time = float(rng.choice([0.3, 0.25, 0.1])), 0.3
+        fps = int(rng.choice([10, 30, 60]))  # whole frames per step, as CrowdNavigator requires
+        step_frames = round(step_time * fps)
+        stack, sizes = path_tracks(paths, origin, cell, step_frames, fps, step_time)
+        assert stack.shape == (len(paths), max(sizes), 2)
+        for i, p in enumerate(paths):
+            ref = track_reference(p, origin, cell, step_frames, fps, step_time)
+            assert sizes[i] == len(ref)
+            assert np.array_equal(stack[i, : len(ref)], ref)
+            assert np.array_equal(stack[i, len(ref):], np.broadcast_to(ref[-1], (stack.shape[1] - len(ref), 2)))
+    empty, sizes = path_tracks([], (0.0, 0.0), 0.3, 9, 30, 0.3)
+    assert empty.shape[0] == 0 and sizes == []
+
+
+def _room() -> Scene:
+    desk = SceneObject(name="desk_0", label="desk", idx=0, center=(2.5, 1.5, 0.4), size=(1.0, 0.6, 0.8))
+    return Scene(name="room", bounds_min=(0.0, 0.0), bounds_max=(5.0, 4.0), objects=(desk,))
+
+
+def test_batched_navigator_reads_equal_the_per_agent_ones() -> None:
+    grid = build_nav_grid(_room())
+    nav = CrowdNavigator(grid, PathPlanner(grid, seed=1), fps=30, seed=1)
+    free = [tuple(int(v) for v in c) for c in np.argwhere(grid.free)]
+    rng = np.random.default_rng(0)
+    picks = [free[int(k)] for k in rng.permutation(len(free))]
+    starts = []
+    for c in picks:
+        if all(max(abs(c[0] - s[0]), abs(c[1] - s[1])) >= 2 for s in starts):
+            starts.append(c)
+        if len(starts) == 5:
+            break
+    for k, c in enumerate(starts):
+        nav.add_walker(k, c)
+    goals = list(reversed(starts))
+    for k, g in enumerate(goals):
+        final = None
+        if k % 2 == 0:  # an exact point off the goal cell's centre: a leg, then parked
+            p = grid.center_of(*g) + np.array([0.06, -0.04])
+            if nav.target_problem(g, p) is None:
+                final = p
+        nav.set_goal(k, g, final_xy=final)
+    horizon = (0, 1, 10, 20, 30, 95)
+    legs = parked = 0
+    for _ in range(240):
+        ticked = nav.tick()
+        agents = nav.walkers
+        for a in agents:
+            assert np.array_equal(ticked[a], nav._xy_at(a, nav.frame - 1))
+        batch = nav.futures(agents, horizon)
+        for i, a in enumerate(agents):
+            assert np.array_equal(batch[i], nav.future(a, horizon))
+        legs += bool(nav._legs)
+        parked += bool(nav._parked)
+    assert legs and parked  # the exact-point legs and parked walkers were exercised
+    assert nav.arrivals
+
+
+def test_float_helpers_match_numpy() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(2000):
+        a = rng.normal(size=2) * 10.0 ** rng.integers(-12, 3)
+        b = a + rng.normal(size=2) * 10.0 ** rng.integers(-14, 0)
+        assert close_xy(a, b) == bool(np.allclose(a, b, atol=1e-9))
+        assert close_xy(a, b, atol=1e-8) == bool(np.allclose(a, b))
+        d = b - a
+        assert _moved(float(d[0]), float(d[1])) == (float(d @ d) > 1e-12)
+    assert not close_xy(np.array([np.nan, 0.0]), np.array([np.nan, 0.0]))
+    assert close_xy(np.array([np.inf, 0.0]), np.array([np.inf, 0.0]))
