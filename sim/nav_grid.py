@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -349,7 +350,32 @@ def body_clearance(
     is at least ``cutoff`` from every segment are skipped, so a returned value below
     ``cutoff`` is exact (the same floats as without it) and a value >= ``cutoff`` only says
     "at least ``cutoff``" (comparisons against thresholds <= ``cutoff`` are unchanged).
+
+    The per-element arithmetic runs compiled (``_near_circles``, ``_min_segment_rect_distance``)
+    with the float operations of the numpy reference ``body_clearance_reference`` (the same
+    floats; ``tests/test_nav_grid.py`` compares them); the rotation into each object's frame
+    stays ``SceneObject.to_local``.
     """
+    a = np.ascontiguousarray(np.asarray(a, dtype=float).reshape(-1, 2))
+    b = np.ascontiguousarray(np.asarray(b, dtype=float).reshape(-1, 2))
+    out = np.full(len(a), np.inf)
+    objs = list(obstacles)
+    if cutoff is not None and objs and len(a):
+        centres, radii = _bounding_circles(obstacles)
+        near = _near_circles(a, b, centres, radii, float(cutoff) + 1e-6)
+        objs = [objs[k] for k in np.flatnonzero(near)]
+    same = a is b or np.array_equal(a, b)
+    for obj in objs:
+        la = np.ascontiguousarray(obj.to_local(a), dtype=float)
+        lb = la if same else np.ascontiguousarray(obj.to_local(b), dtype=float)
+        _min_segment_rect_distance(la, lb, obj.width / 2.0, obj.depth / 2.0, out)
+    return out
+
+
+def body_clearance_reference(
+    obstacles: tuple[SceneObject, ...] | list[SceneObject], a: np.ndarray, b: np.ndarray, cutoff: float | None = None
+) -> np.ndarray:
+    """``body_clearance`` in plain numpy (the reference its compiled loops reproduce)."""
     a = np.asarray(a, dtype=float).reshape(-1, 2)
     b = np.asarray(b, dtype=float).reshape(-1, 2)
     out = np.full(len(a), np.inf)
@@ -366,6 +392,83 @@ def body_clearance(
     for obj in objs:
         out = np.minimum(out, _segment_rect_distance(obj.to_local(a), obj.to_local(b), obj.width / 2.0, obj.depth / 2.0))
     return out
+
+
+@njit(cache=True, nogil=True)
+def _near_circles(a: np.ndarray, b: np.ndarray, centres: np.ndarray, radii: np.ndarray,
+                  limit: float) -> np.ndarray:  # pragma: no cover - compiled
+    """Which circles (M,) come closer than ``limit`` to some segment a->b (N, 2) (a NaN gap:
+    not near, like numpy's NaN-propagating min)."""
+    m = centres.shape[0]
+    near = np.zeros(m, dtype=np.bool_)
+    for j in range(m):
+        lowest = np.inf
+        nan = False
+        for i in range(a.shape[0]):
+            d0 = b[i, 0] - a[i, 0]
+            d1 = b[i, 1] - a[i, 1]
+            dd = _fmax(d0 * d0 + d1 * d1, 1e-18)
+            r0 = centres[j, 0] - a[i, 0]
+            r1 = centres[j, 1] - a[i, 1]
+            t = _fmin(_fmax((r0 * d0 + r1 * d1) / dd, 0.0), 1.0)
+            gap = math.hypot(r0 - t * d0, r1 - t * d1) - radii[j]
+            if gap != gap:
+                nan = True
+            elif gap < lowest:
+                lowest = gap
+        near[j] = not nan and lowest < limit
+    return near
+
+
+@njit(cache=True, nogil=True)
+def _min_segment_rect_distance(a: np.ndarray, b: np.ndarray, hw: float, hd: float,
+                               out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``out = np.minimum(out, _segment_rect_distance(a, b, hw, hd))``, element by element."""
+    for i in range(a.shape[0]):
+        a0, a1 = a[i, 0], a[i, 1]
+        d0, d1 = b[i, 0] - a0, b[i, 1] - a1
+        t_lo, t_hi, inside = 0.0, 1.0, True
+        for axis in range(2):
+            da = d0 if axis == 0 else d1
+            pa = a0 if axis == 0 else a1
+            h = hw if axis == 0 else hd
+            if abs(da) < 1e-12:
+                inside = inside and abs(pa) <= h
+            else:
+                t1 = (-h - pa) / da
+                t2 = (h - pa) / da
+                t_lo = _fmax(t_lo, _fmin(t1, t2))
+                t_hi = _fmin(t_hi, _fmax(t1, t2))
+        if inside and t_lo <= t_hi:
+            dist = 0.0
+        else:
+            dist = _fmin(math.hypot(_fmax(abs(a0) - hw, 0.0), _fmax(abs(a1) - hd, 0.0)),
+                         math.hypot(_fmax(abs(b[i, 0]) - hw, 0.0), _fmax(abs(b[i, 1]) - hd, 0.0)))
+            dd = _fmax(d0 * d0 + d1 * d1, 1e-18)
+            for corner in range(4):
+                cx = -hw if corner == 0 or corner == 3 else hw
+                cy = -hd if corner < 2 else hd
+                t = _fmin(_fmax(((cx - a0) * d0 + (cy - a1) * d1) / dd, 0.0), 1.0)
+                e0 = (a0 + t * d0) - cx
+                e1 = (a1 + t * d1) - cy
+                dist = _fmin(dist, math.sqrt(e0 * e0 + e1 * e1))
+        out[i] = _fmin(out[i], dist)
+
+
+@njit(cache=True, inline="always")
+def _fmin(x: float, y: float) -> float:  # pragma: no cover - compiled
+    """``np.minimum`` of two floats (NaN propagates)."""
+    if x != x or y != y:
+        return math.nan
+    return x if x <= y else y
+
+
+@njit(cache=True, inline="always")
+def _fmax(x: float, y: float) -> float:  # pragma: no cover - compiled
+    """``np.maximum`` of two floats (NaN propagates)."""
+    if x != x or y != y:
+        return math.nan
+    return x if x >= y else y
 
 
 _CIRCLES: dict[int, tuple[object, np.ndarray, np.ndarray]] = {}
