@@ -253,29 +253,51 @@ _NO_SWITCH = (np.empty((0, 2), dtype=np.int64), np.empty((2, 0, NUM_JOINTS, 3)),
 
 
 class _FrameStore:
-    """The frames of every database a matcher has used, one array per quantity (grown by
-    doubling), so that a kernel reads any character's frame by a global frame index (the
-    database's ``base`` + its frame): ``rot`` (G,22,3,3) as ``_Frames.rot``, ``aux`` (G,5) the
-    ``_Frames.pelvis`` (3) and foot contacts (2, as 0 / 1)."""
+    """The frames of a set of databases in one array per quantity, filled per database on first
+    use, so that a kernel reads any character's frame by a global frame index (the database's
+    base + its frame): ``rot`` (G,22,3,3) as ``_Frames.rot``, ``aux`` (G,5) the
+    ``_Frames.pelvis`` (3) and foot contacts (2, as 0 / 1). Shared by the matchers over the same
+    databases (``_shared_store``)."""
 
-    def __init__(self) -> None:
+    def __init__(self, capacity: int) -> None:
         self.size = 0
-        self.rot = np.empty((0, NUM_JOINTS, 3, 3))
-        self.aux = np.empty((0, 5))
+        self.rot = np.empty((capacity, NUM_JOINTS, 3, 3))  # uninitialised: memory is used as frames arrive
+        self.aux = np.empty((capacity, 5))
+        self.bases: dict[str, int] = {}
 
-    def add(self, frames: _Frames, contacts: np.ndarray) -> int:
-        """Append a database's frames; returns its base index."""
-        base, f = self.size, len(frames.pelvis)
-        if base + f > len(self.rot):
-            cap = max(2 * len(self.rot), base + f)
-            rot, aux = np.empty((cap, NUM_JOINTS, 3, 3)), np.empty((cap, 5))
-            rot[:base], aux[:base] = self.rot[:base], self.aux[:base]
-            self.rot, self.aux = rot, aux
-        self.rot[base : base + f] = frames.rot
-        self.aux[base : base + f, :3] = frames.pelvis
-        self.aux[base : base + f, 3:] = np.asarray(contacts, dtype=bool)
-        self.size += f
-        return base
+    def base(self, key: str, frames: _Frames, contacts: np.ndarray) -> int:
+        """Base index of database ``key`` (its frames are copied in on first use)."""
+        out = self.bases.get(key)
+        if out is None:
+            out, f = self.size, len(frames.pelvis)
+            if out + f > len(self.rot):  # a database added to the matcher later: grow
+                rot, aux = np.empty((2 * (out + f), NUM_JOINTS, 3, 3)), np.empty((2 * (out + f), 5))
+                rot[:out], aux[:out] = self.rot[:out], self.aux[:out]
+                self.rot, self.aux = rot, aux
+            self.rot[out : out + f] = frames.rot
+            self.aux[out : out + f, :3] = frames.pelvis
+            self.aux[out : out + f, 3:] = np.asarray(contacts, dtype=bool)
+            self.size += f
+            self.bases[key] = out
+        return out
+
+
+_STORES: dict[tuple[tuple[str, int], ...], tuple[tuple[weakref.ref[np.ndarray], ...], _FrameStore]] = {}
+
+
+def _shared_store(databases: Mapping[str, MotionDatabase]) -> _FrameStore:
+    """A ``_FrameStore`` for ``databases``, memoised per set of database content objects (the
+    frame-rotation arrays, as ``_shared_frames``), so matchers over the same databases share it."""
+    arrs = [(k, db.local_rotations) for k, db in sorted(databases.items())]
+    key = tuple((k, id(a)) for k, a in arrs)
+    hit = _STORES.get(key)
+    if hit is not None and all(ref() is a for ref, (_k, a) in zip(hit[0], arrs, strict=True)):
+        return hit[1]
+    for k in [k for k, (refs, _s) in _STORES.items() if any(ref() is None for ref in refs)]:
+        del _STORES[k]  # databases that are gone
+    out = _FrameStore(sum(int(db.num_frames) for db in databases.values()))
+    _STORES[key] = (tuple(weakref.ref(a) for _k, a in arrs), out)
+    return out
 
 
 _SOURCES: dict[str, np.ndarray] = {}
@@ -293,6 +315,36 @@ def _feature_sources(layout: LayoutName) -> np.ndarray:
         idx = assemble(layout, pos, vel, ctrl)
         assert np.array_equal(idx, np.round(idx)) and idx.min() >= 0 and idx.max() < SRC_SIZE, layout
         out = _SOURCES[layout] = idx.astype(np.int64)
+    return out
+
+
+def _table_of(db: MotionDatabase, key: str) -> _Table:
+    """``_Table`` of a database: ``next_frame`` of every frame, vectorised."""
+    f = np.arange(db.num_frames)
+    clip = np.asarray(db.clip_of_frame, dtype=np.int64)
+    ranges = np.asarray(db.clip_ranges, dtype=np.int64)
+    loops = np.asarray(db.clip_loops, dtype=bool)[clip]
+    inside = f + 1 < ranges[clip, 1]
+    nxt = np.where(inside, f + 1, np.where(loops, ranges[clip, 0], f))
+    fam = family_of(key)
+    return _Table(nxt=nxt.tolist(), end=(~inside & ~loops).tolist(), loops=loops.tolist(), clip=clip.tolist(),
+                  completes=fam in ("in_place", "partner", "sitting"),
+                  entry=fam in ("in_place", "partner") and not bool(np.asarray(db.clip_loops).all()))
+
+
+_TABLE_CACHE: dict[tuple[int, str], tuple[weakref.ref[np.ndarray], _Table]] = {}
+
+
+def _shared_table(db: MotionDatabase, key: str) -> _Table:
+    """``_table_of`` memoised per database content object and key, as ``_shared_frames``."""
+    arr = db.local_rotations
+    hit = _TABLE_CACHE.get((id(arr), key))
+    if hit is not None and hit[0]() is arr:
+        return hit[1]
+    for k in [k for k, (ref, _t) in _TABLE_CACHE.items() if ref() is None]:
+        del _TABLE_CACHE[k]
+    out = _table_of(db, key)
+    _TABLE_CACHE[(id(arr), key)] = (weakref.ref(arr), out)
     return out
 
 
@@ -330,7 +382,7 @@ class MotionMatcher:
         self._frames: dict[str, _Frames] = {}
         self._tables: dict[str, _Table] = {}
         self._keys: dict[str, _Key] = {}
-        self._store = _FrameStore()
+        self._store = _shared_store(self.databases)
         self._by_label: dict[tuple[str, bool], _Key] = {}
         # (states returned by the last step_many, their offset arrays): lets the next call skip
         # re-stacking per-character offsets when it gets those very states back
@@ -354,16 +406,7 @@ class MotionMatcher:
         """Per-database frame tables as Python lists (cheap per-character lookups)."""
         out = self._tables.get(key)
         if out is None:
-            db = self.databases[key]
-            clip = [int(c) for c in db.clip_of_frame]
-            steps = [db.next_frame(f) for f in range(db.num_frames)]
-            loops = [bool(db.clip_loops[c]) for c in clip]
-            fam = family_of(key)
-            out = self._tables[key] = _Table(
-                nxt=[f for f, _ in steps], end=[e for _, e in steps], loops=loops, clip=clip,
-                completes=fam in ("in_place", "partner", "sitting"),
-                entry=fam in ("in_place", "partner") and not bool(np.asarray(db.clip_loops).all()),
-            )
+            out = self._tables[key] = _shared_table(self.databases[key], key)
         return out
 
     def initial_state(self, label: str, root_xy: Sequence[float], heading: float, seated: bool = False) -> MatchState:
@@ -430,7 +473,7 @@ class MotionMatcher:
             frames, tab = self.frames(key), self._table(key)
             out = self._keys[key] = _Key(
                 key=key, db=db, tab=tab, frames=frames, seat=db.layout_name in ("sitting", "seated"),
-                sources=_feature_sources(db.layout_name), base=self._store.add(frames, db.contacts))
+                sources=_feature_sources(db.layout_name), base=self._store.base(key, frames, db.contacts))
         return out
 
     def _query_key(self, query: MotionQuery) -> _Key:

@@ -193,3 +193,20 @@ def test_scan_rejects_non_finite_queries() -> None:
     index = NearestFrameIndex(np.random.default_rng(0).normal(size=(50, 4)))
     with pytest.raises(ValueError, match="non-finite"):
         index.query(np.array([0.0, np.nan, 0.0, 0.0]))
+
+
+def test_frame_tables_follow_next_frame(dbs) -> None:  # type: ignore[no-untyped-def]
+    m = MotionMatcher(dbs)
+    for key, db in dbs.items():
+        tab = m._table(key)
+        steps = [db.next_frame(f) for f in range(db.num_frames)]
+        assert tab.nxt == [f for f, _ in steps] and tab.end == [e for _, e in steps], key
+        assert tab.clip == [int(c) for c in db.clip_of_frame], key
+        assert tab.loops == [bool(db.clip_loops[c]) for c in tab.clip], key
+    assert any(m._table("sit_down").end) and not any(m._table("walk").end)  # sitting down ends, walking loops
+
+
+def test_matchers_over_the_same_databases_share_one_frame_store(dbs) -> None:  # type: ignore[no-untyped-def]
+    a, b = MotionMatcher(dbs), MotionMatcher(dict(dbs))
+    assert a._store is b._store
+    assert MotionMatcher({"walk": dbs["walk"]})._store is not a._store
