@@ -11,7 +11,8 @@ characters that moves only the feet, with the legs' local rotations:
    ``max_drift`` from the animated toe or needs more than ``max_reach`` of the leg's length
    (a planted foot left behind a walking body would drag a straight leg), and the foot then
    blends back to the animation over ``release_frames`` frames (a smoothstep on the offset it
-   had at the release); a contact starts no lock out of that reach;
+   had at the release); a contact starts no lock out of that reach, and a blending foot is
+   held within it (or within the animation's reach, if longer) by pulling it towards the hip;
 2. *clearance*: the foot (ankle and toe joints, as one rigid piece) is moved horizontally out
    of every floor-standing footprint grown by ``margin``, by the shortest shift that clears
    all of them (``sim.foot_clearance.push_out``);
@@ -169,6 +170,15 @@ class FootSolver:
         weight = _smoothstep(release / self.release_frames) if self.release_frames > 0 else np.zeros(release.shape)
         offset = np.where((release > 0)[..., None], offset, 0.0)
         target = np.where(locked[..., None], state.lock, toe + offset * weight[..., None])
+        # a pinned or blending foot stays within max_reach of the leg (or the animation's own
+        # reach, if longer), pulled towards the hip: the IK then seldom straightens the knee
+        ankle_to = target - foot - chain.hip
+        dist = np.linalg.norm(ankle_to, axis=-1)
+        limit = np.maximum(full, np.linalg.norm(chain.ankle - chain.hip, axis=-1))
+        far = dist > limit
+        if far.any():
+            scale = np.where(far, limit / np.maximum(dist, 1e-12), 1.0)[..., None]
+            target = np.where(far[..., None], chain.hip + ankle_to * scale + foot, target)
 
         # clearance: the rigid foot (ankle, toe) out of every footprint, horizontally
         shift = np.zeros((n, 2, 2))

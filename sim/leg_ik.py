@@ -47,6 +47,7 @@ _HIP_OFF = REST_OFFSETS[list(HIP_JOINTS)]
 _KNEE_OFF = REST_OFFSETS[list(KNEE_JOINTS)]
 _ANKLE_OFF = REST_OFFSETS[list(ANKLE_JOINTS)]
 _TOE_OFF = REST_OFFSETS[list(FOOT_JOINTS)]
+HINGE_BLEND = 0.25  # sin of the knee angle from straight where animated plane and body right weigh the same
 
 
 class FootIKError(ValueError):
@@ -135,6 +136,13 @@ def _matmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - 
 
 
 @njit(cache=True)
+def _matvec3(a: np.ndarray, v: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    return np.array([a[0, 0] * v[0] + a[0, 1] * v[1] + a[0, 2] * v[2],
+                     a[1, 0] * v[0] + a[1, 1] * v[1] + a[1, 2] * v[2],
+                     a[2, 0] * v[0] + a[2, 1] * v[1] + a[2, 2] * v[2]])
+
+
+@njit(cache=True)
 def _tmatmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
     """a.T @ b"""
     out = np.empty((3, 3))
@@ -142,6 +150,20 @@ def _tmatmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover -
         for j in range(3):
             out[i, j] = a[0, i] * b[0, j] + a[1, i] * b[1, j] + a[2, i] * b[2, j]
     return out
+
+
+@njit(cache=True)
+def _hinge(kh: np.ndarray, ka: np.ndarray, e1: np.ndarray, n: np.ndarray, b_len: float,
+           cos_knee: float) -> np.ndarray:  # pragma: no cover - compiled
+    """The turn about the unit axis n (normal to the thigh kh) that brings the interior knee
+    angle between kh and the shin ka to acos(cos_knee), as close as the axis allows."""
+    e2 = _cross(n, e1)
+    c1 = _dot3(ka, e1)
+    c2 = _dot3(ka, e2)
+    phi0 = math.atan2(c2, c1)
+    in_plane = max(math.hypot(c1, c2), 1e-12)
+    phi1 = math.acos(min(max(b_len * cos_knee / in_plane, -1.0), 1.0))
+    return _rotation(n[0], n[1], n[2], phi1 - phi0)
 
 
 @njit(cache=True)
@@ -160,18 +182,15 @@ def _ik_kernel(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, pelvis_rot:
         kh = hip[m] - knee[m]
         ka = ankle[m] - knee[m]
         e1 = kh / max(_norm3(kh), 1e-12)
-        # hinge: the animated plane's normal, or the body's right when the leg is straight
+        # hinge: the animated plane's normal, blended towards the body's right as the animated
+        # leg straightens (the plane of a nearly straight leg is noise; it flips from frame to
+        # frame): equal weights when the knee is 14 degrees from straight
         right = np.array([-pelvis_rot[m, 0, 0], -pelvis_rot[m, 1, 0], -pelvis_rot[m, 2, 0]])
         fb = right - _dot3(right, e1) * e1
         fbn = _norm3(fb)
         fb = fb / fbn if fbn > 1e-6 else _perpendicular(e1)
-        nv = _cross(kh, ka) + (1e-3 * a_len * b_len) * fb
+        nv = _cross(kh, ka) + (HINGE_BLEND * a_len * b_len) * fb
         n = nv / max(_norm3(nv), 1e-12)
-        e2 = _cross(n, e1)
-        c1 = _dot3(ka, e1)
-        c2 = _dot3(ka, e2)
-        phi0 = math.atan2(c2, c1)
-        in_plane = max(math.hypot(c1, c2), 1e-12)
         # reach along the target direction, clamped to what the bones allow
         tv = target[m] - hip[m]
         dist = _norm3(tv)
@@ -182,9 +201,15 @@ def _ik_kernel(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, pelvis_rot:
             d = av / max(_norm3(av), 1e-12)
         reach = min(max(dist, abs(a_len - b_len) + 1e-6), a_len + b_len - 1e-6)
         cos_knee = (a_len * a_len + b_len * b_len - reach * reach) / (2.0 * a_len * b_len)
-        phi1 = math.acos(min(max(b_len * cos_knee / in_plane, -1.0), 1.0))
-        bend = _rotation(n[0], n[1], n[2], phi1 - phi0)
-        ankle1 = knee[m] + bend @ ka
+        bend = _hinge(kh, ka, e1, n, b_len, cos_knee)
+        ka1 = _matvec3(bend, ka)
+        # the blended hinge is not quite normal to the shin, which can leave the knee a little
+        # short of straight: a second turn about the bent leg's own plane normal is exact
+        n1 = _cross(kh, ka1)
+        n1n = _norm3(n1)
+        if n1n > 1e-9 * a_len * b_len:
+            bend = _matmul3(_hinge(kh, ka1, e1, n1 / n1n, b_len, cos_knee), bend)
+        ankle1 = knee[m] + _matvec3(bend, ka)
         av = ankle1 - hip[m]
         a = av / max(_norm3(av), 1e-12)
         # swing the leg about the hip onto the target direction (smallest rotation)
