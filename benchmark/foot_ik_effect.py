@@ -7,7 +7,8 @@ would hand the filter) and measures the filtered tracks the same way. Prints, be
 feet in boxes (ankle and toe joint-frames inside a floor-standing footprint), the deepest foot
 graze (m), feet deeper than the test's tolerance, foot sliding (mean toe speed in contact,
 m/s), the largest change of any pelvis position (must be 0) and of the upper body's local
-rotations (must be 0), legs at full stretch (the IK's clamp), and the filter's cost per character-frame next to the world step's.
+rotations (must be 0), legs at full stretch (the IK's clamp),
+the legs' joint speeds (p99, max: pops would show there), and the filter's cost per character-frame next to the world step's.
 
 Usage: ``python -m benchmark.foot_ik_effect [--walkers 20] [--seconds 20] [--seed 7]
 [--off-grid 0.0] [--margin 0.03] [--max-drift 0.25] [--max-reach 0.99] [--release-frames 6]``.
@@ -24,6 +25,7 @@ from pathlib import Path
 from types import ModuleType
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from sim.foot_ik import LEG_JOINTS, FootSolver
 from sim.leg_ik import SHIN_LENGTH, THIGH_LENGTH, leg_chain
@@ -91,6 +93,13 @@ def main() -> None:
         span = np.linalg.norm(chain.ankle - chain.hip, axis=-1)
         return int(np.sum(span > THIGH_LENGTH + SHIN_LENGTH - 1e-4))
 
+    def joint_speed(rotations: np.ndarray) -> np.ndarray:
+        """Angular speeds (rad/s) of the hips', knees' and ankles' local rotations, frame to frame."""
+        legs = rotations[: b.length, :, list(LEG_JOINTS)].astype(float)
+        rel = np.einsum("fnjba,fnjbc->fnjac", legs[:-1], legs[1:])
+        return np.linalg.norm(Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec(), axis=-1) * 30.0
+
+    speed_before, speed_after = joint_speed(b.rotations), joint_speed(filtered)
     others = [j for j in range(filtered.shape[2]) if j not in LEG_JOINTS]
     pelvis_change = float(np.abs(after_buffers.pelvis[: b.length] - b.pelvis[: b.length]).max())
     upper_change = float(np.abs(filtered[: b.length, :, others] - b.rotations[: b.length, :, others]).max())
@@ -108,6 +117,8 @@ def main() -> None:
         ("foot sliding (m/s)", before.foot_sliding, after.foot_sliding, ".3f"),
         ("pelvis penetrations", before.pelvis_penetrations, after.pelvis_penetrations, "d"),
         ("legs at full stretch (leg-frames)", stretched(b.rotations), stretched(filtered), "d"),
+        ("leg joint speed p99 (rad/s)", np.percentile(speed_before, 99), np.percentile(speed_after, 99), ".2f"),
+        ("leg joint speed max (rad/s)", speed_before.max(), speed_after.max(), ".2f"),
         ("contact fraction", before.contact_fraction, after.contact_fraction, ".3f"),
     ]
     for name, x, y, fmt in rows:
