@@ -16,16 +16,19 @@ characters that moves only the feet, with the legs' local rotations:
 2. *clearance*: the foot (ankle and toe joints, as one rigid piece) is moved horizontally out
    of every floor-standing footprint grown by ``margin``, by the shortest shift that clears
    all of them (``sim.foot_clearance.push_out``);
-3. *two-bone IK* on hip-knee-ankle (``sim.leg_ik``) reaches the ankle target: the knee bends in the animated
-   leg's plane (for a straight leg, in the plane that bends the knee towards the body's
-   front), then the leg swings to the target with the smallest rotation; the ankle's local
-   rotation is recomputed so the foot keeps its world orientation. An unreachable target
-   stretches the leg towards it (or folds it as far as the bones allow).
+3. *two-bone IK* on hip-knee-ankle (``sim.leg_ik``) reaches the ankle target: the knee
+   bends in the animated leg's plane (blended towards the plane that bends the knee to the
+   body's front as the animated leg straightens), then the leg swings to the target with the
+   smallest rotation; the ankle's local rotation is recomputed so the foot keeps its world
+   orientation. An unreachable target stretches the leg towards it (or folds it as far as the
+   bones allow).
 
 Only the local rotations of hips, knees and ankles change; the pelvis position and every other
 joint's local rotation are returned untouched, and a foot that is neither locked, blending nor
 pushed keeps its exact input rotations. ``apply`` is a pure function of its inputs and the
-state it returns (plain arrays in a frozen dataclass), so world snapshots can copy it.
+state it returns (plain arrays in a frozen dataclass, never modified in place), so world
+snapshots can copy it. Characters whose feet belong under furniture (seated at a table) should
+be passed as inactive: their feet are then neither pinned nor pushed.
 """
 
 from __future__ import annotations

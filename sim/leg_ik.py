@@ -3,8 +3,10 @@
 ``solve_legs(pelvis, rots, ankle_targets, which)`` puts each selected leg's ankle on its
 target and returns new local rotations: the knee's interior angle comes from the law of
 cosines, turned about the normal of the animated leg's plane (hip, knee, ankle), so the knee
-bends where the animation bent it; for a straight leg, whose plane is undefined, the hinge is
-the body's right (the knee bends towards the body's front). The whole leg then swings about
+bends where the animation bent it; as the animated leg straightens, its plane becomes noise
+(undefined when straight), so the hinge is blended towards the body's right (the knee bends
+towards the body's front; equal weights 14 degrees from straight, ``HINGE_BLEND``), and a
+second turn about the bent leg's own plane keeps the reach exact. The whole leg then swings about
 the hip onto the target with the smallest rotation. The ankle's local rotation is recomputed
 so that the foot keeps its world orientation (the toe follows the ankle rigidly). Targets out
 of reach are clamped to the bones' range along the hip-target line (stretched or folded as far
