@@ -295,61 +295,77 @@ def fk_positions(local: np.ndarray, pelvis: np.ndarray) -> np.ndarray:
 SRC_POS, SRC_VEL, SRC_FUT_POS, SRC_FUT_DIR, SRC_T_POS, SRC_T_DIR, SRC_T_H, SRC_SIZE = 0, 66, 132, 138, 144, 146, 148, 149
 
 
+# columns of ``query_features``'s per-character scalars
+Q_HAS_PREV, Q_POSE_DT, Q_OLD_HEADING, Q_ROOT_X, Q_ROOT_Y, Q_HEADING, Q_HAS_TARGET, Q_TARGET_X, Q_TARGET_Y, Q_FACING, \
+    Q_HEIGHT, Q_SIZE = range(12)
+
+
 @njit(cache=True)
-def query_sources(
+def query_features(
     cur_local: np.ndarray, cur_pelvis: np.ndarray, prev_local: np.ndarray, prev_pelvis: np.ndarray,
-    has_prev: np.ndarray, pose_dt: np.ndarray, old_heading: np.ndarray, root: np.ndarray, heading: np.ndarray,
-    fut_xy: np.ndarray, fut_h: np.ndarray, has_target: np.ndarray, target_xy: np.ndarray, facing: np.ndarray,
-    height: np.ndarray,
+    fut_xy: np.ndarray, fut_h: np.ndarray, scalars: np.ndarray, sources: np.ndarray,
 ) -> np.ndarray:
-    """Feature sources (M, SRC_SIZE) of M characters with an output pose, as
-    ``MotionMatcher._query_features_many`` computes them: joints of the last pose in the
-    character frame of the new root / heading, joint velocities (last pose minus the one before,
-    over ``pose_dt``, in the frame of the old heading; zeros without a previous pose), and the
-    control inputs of the query (``relative_target`` of the futures and the target)."""
+    """Raw query features (M,D) of M characters with an output pose, as
+    ``MotionMatcher._query_features_many`` computes them: joints of the last pose (``cur_*``)
+    in the character frame of the new root / heading, joint velocities (last pose minus the one
+    before (``prev_*``), over ``pose_dt``, in the frame of the old heading; zeros without a
+    previous pose), and the control inputs of the query (``relative_target`` of the future
+    points (M,3,2) / headings (M,3) and of the target). ``scalars`` (M, Q_SIZE): the ``Q_*``
+    columns; ``sources`` (D,): the layout's entries of the SRC_* vector."""
     m = cur_local.shape[0]
-    out = np.zeros((m, SRC_SIZE))
+    src = np.zeros(SRC_SIZE)
+    out = np.empty((m, sources.shape[0]))
     t = np.empty((NUM_JOINTS, 3, 4))
     jc = np.empty((NUM_JOINTS, 3))
     jp = np.empty((NUM_JOINTS, 3))
     for i in range(m):
+        sc = scalars[i]
+        rx, ry, h = sc[Q_ROOT_X], sc[Q_ROOT_Y], sc[Q_HEADING]
         _fk_positions(cur_local[i], cur_pelvis[i], t, jc)
-        c, s = math.cos(heading[i]), math.sin(heading[i])
+        c, s = math.cos(h), math.sin(h)
         for j in range(NUM_JOINTS):
-            dx = jc[j, 0] - root[i, 0]
-            dy = jc[j, 1] - root[i, 1]
-            out[i, SRC_POS + 3 * j] = c * dx + s * dy
-            out[i, SRC_POS + 3 * j + 1] = -s * dx + c * dy
-            out[i, SRC_POS + 3 * j + 2] = jc[j, 2]
-        if has_prev[i]:
+            dx = jc[j, 0] - rx
+            dy = jc[j, 1] - ry
+            src[SRC_POS + 3 * j] = c * dx + s * dy
+            src[SRC_POS + 3 * j + 1] = -s * dx + c * dy
+            src[SRC_POS + 3 * j + 2] = jc[j, 2]
+        if sc[Q_HAS_PREV] != 0.0:
             _fk_positions(prev_local[i], prev_pelvis[i], t, jp)
-            co, so = math.cos(old_heading[i]), math.sin(old_heading[i])
+            co, so, pdt = math.cos(sc[Q_OLD_HEADING]), math.sin(sc[Q_OLD_HEADING]), sc[Q_POSE_DT]
             for j in range(NUM_JOINTS):
-                v0 = (jc[j, 0] - jp[j, 0]) / pose_dt[i]
-                v1 = (jc[j, 1] - jp[j, 1]) / pose_dt[i]
-                v2 = (jc[j, 2] - jp[j, 2]) / pose_dt[i]
-                out[i, SRC_VEL + 3 * j] = co * v0 + so * v1
-                out[i, SRC_VEL + 3 * j + 1] = -so * v0 + co * v1
-                out[i, SRC_VEL + 3 * j + 2] = v2
-        for k in range(3):
-            d0 = fut_xy[i, k, 0] - root[i, 0]
-            d1 = fut_xy[i, k, 1] - root[i, 1]
-            out[i, SRC_FUT_POS + 2 * k] = c * d0 + s * d1
-            out[i, SRC_FUT_POS + 2 * k + 1] = -s * d0 + c * d1
-            rel = fut_h[i, k] - heading[i]
-            out[i, SRC_FUT_DIR + 2 * k] = math.cos(rel)
-            out[i, SRC_FUT_DIR + 2 * k + 1] = math.sin(rel)
-        if has_target[i]:
-            d0 = target_xy[i, 0] - root[i, 0]
-            d1 = target_xy[i, 1] - root[i, 1]
-            out[i, SRC_T_POS] = c * d0 + s * d1
-            out[i, SRC_T_POS + 1] = -s * d0 + c * d1
-            rel = facing[i] - heading[i]
-            out[i, SRC_T_DIR] = math.cos(rel)
-            out[i, SRC_T_DIR + 1] = math.sin(rel)
+                v0 = (jc[j, 0] - jp[j, 0]) / pdt
+                v1 = (jc[j, 1] - jp[j, 1]) / pdt
+                v2 = (jc[j, 2] - jp[j, 2]) / pdt
+                src[SRC_VEL + 3 * j] = co * v0 + so * v1
+                src[SRC_VEL + 3 * j + 1] = -so * v0 + co * v1
+                src[SRC_VEL + 3 * j + 2] = v2
         else:
-            out[i, SRC_T_DIR] = -1.0
-        out[i, SRC_T_H] = height[i]
+            for k in range(SRC_VEL, SRC_VEL + 3 * NUM_JOINTS):
+                src[k] = 0.0
+        for k in range(3):
+            d0 = fut_xy[i, k, 0] - rx
+            d1 = fut_xy[i, k, 1] - ry
+            src[SRC_FUT_POS + 2 * k] = c * d0 + s * d1
+            src[SRC_FUT_POS + 2 * k + 1] = -s * d0 + c * d1
+            rel = fut_h[i, k] - h
+            src[SRC_FUT_DIR + 2 * k] = math.cos(rel)
+            src[SRC_FUT_DIR + 2 * k + 1] = math.sin(rel)
+        if sc[Q_HAS_TARGET] != 0.0:
+            d0 = sc[Q_TARGET_X] - rx
+            d1 = sc[Q_TARGET_Y] - ry
+            src[SRC_T_POS] = c * d0 + s * d1
+            src[SRC_T_POS + 1] = -s * d0 + c * d1
+            rel = sc[Q_FACING] - h
+            src[SRC_T_DIR] = math.cos(rel)
+            src[SRC_T_DIR + 1] = math.sin(rel)
+        else:
+            src[SRC_T_POS] = 0.0
+            src[SRC_T_POS + 1] = 0.0
+            src[SRC_T_DIR] = -1.0
+            src[SRC_T_DIR + 1] = 0.0
+        src[SRC_T_H] = sc[Q_HEIGHT]
+        for k in range(sources.shape[0]):
+            out[i, k] = src[sources[k]]
     return out
 
 

@@ -48,7 +48,7 @@ from sim.motion_kernels import (
     SRC_T_H,
     SRC_T_POS,
     SRC_VEL,
-    query_sources,
+    query_features,
     step_poses,
 )
 from sim.procedural_rig import rot_z
@@ -237,7 +237,7 @@ def _frames_of(db: MotionDatabase) -> _Frames:
 class _Key:
     """What the step needs about one database, looked up once: its frame tables and arrays,
     whether seat heights correct its pelvis, ``sources``: the positions of its feature layout in
-    the ``query_sources`` vector (``sim.motion_kernels``), and ``base``: the global index of its
+    the SRC_* vector of ``sim.motion_kernels.query_features``, and ``base``: the global index of its
     frame 0 in the matcher's ``_FrameStore``."""
 
     key: str
@@ -304,7 +304,7 @@ _SOURCES: dict[str, np.ndarray] = {}
 
 
 def _feature_sources(layout: LayoutName) -> np.ndarray:
-    """Indices (D,) into the ``query_sources`` vector that ``assemble`` picks for ``layout``:
+    """Indices (D,) into the SRC_* vector of ``query_features`` that ``assemble`` picks for ``layout``:
     ``assemble`` itself run on inputs whose values are their own source positions."""
     out = _SOURCES.get(layout)
     if out is None:
@@ -487,37 +487,45 @@ class MotionMatcher:
     def _raw_queries(self, members: Sequence[int], states: Sequence[MatchState], queries: Sequence[MotionQuery],
                      roots: Sequence[np.ndarray], headings: Sequence[float], info: _Key) -> np.ndarray:
         """Raw query vectors (M,D) of characters searching ``info``'s database: the compiled
-        path (``query_sources``) when every one has an output pose, else ``_query_features_many``."""
+        path (``query_features``) when every one has an output pose, else ``_query_features_many``."""
         if any(states[i].pose_local is None or states[i].pose_pelvis is None for i in members):
             return self._query_features_many(info.db, [states[i] for i in members], [queries[i] for i in members],
                                              [roots[i] for i in members], [headings[i] for i in members])
-        m = len(members)
-        cur_local, prev_local = np.empty((m, NUM_JOINTS, 3, 3)), np.zeros((m, NUM_JOINTS, 3, 3))
-        cur_pel, prev_pel = np.empty((m, 3)), np.zeros((m, 3))
-        has_prev, pose_dt, old_h = np.zeros(m, dtype=bool), np.ones(m), np.empty(m)
-        root, head = np.empty((m, 2)), np.empty(m)
-        fut_xy, fut_h = np.empty((m, 3, 2)), np.empty((m, 3))
-        has_t, t_xy, facing, height = np.zeros(m, dtype=bool), np.zeros((m, 2)), np.zeros(m), np.zeros(m)
-        for r, i in enumerate(members):
-            s, q, h = states[i], queries[i], headings[i]
-            cur_local[r], cur_pel[r] = s.pose_local, s.pose_pelvis
+        cur_l, cur_p, prev_l, prev_p, fut_xy, fut_h, scalars = [], [], [], [], [], [], []
+        for i in members:
+            s, q, h, root = states[i], queries[i], headings[i], roots[i]
+            cur_l.append(s.pose_local)
+            cur_p.append(s.pose_pelvis)
             if s.prev_local is not None and s.pose_dt > 0:
-                has_prev[r], pose_dt[r] = True, s.pose_dt
-                prev_local[r], prev_pel[r] = s.prev_local, s.prev_pelvis
-            old_h[r], root[r], head[r] = s.heading, roots[i], h
-            if q.future_xy is not None:
-                fut_xy[r] = np.asarray(q.future_xy, dtype=float).reshape(3, 2)
-                fut_h[r] = h if q.future_heading is None else np.asarray(q.future_heading, dtype=float).reshape(3)
+                has_prev, pose_dt = 1.0, s.pose_dt
+                prev_l.append(s.prev_local)
+                prev_p.append(s.prev_pelvis)
+            else:  # placeholders, unused
+                has_prev, pose_dt = 0.0, 1.0
+                prev_l.append(s.pose_local)
+                prev_p.append(s.pose_pelvis)
+            fx = q.future_xy
+            if fx is None:
+                fut_xy.append((root, root, root))
+                fut_h.append((h, h, h))
             else:
-                fut_xy[r], fut_h[r] = roots[i], h
-            if q.target_xy is not None:
-                has_t[r], t_xy[r] = True, np.asarray(q.target_xy, dtype=float)
-                facing[r] = h if q.target_facing is None else float(q.target_facing)
-            if q.seat_height is not None:
-                height[r] = q.seat_height
-        src = query_sources(cur_local, cur_pel, prev_local, prev_pel, has_prev, pose_dt, old_h, root, head,
-                            fut_xy, fut_h, has_t, t_xy, facing, height)
-        return src[:, info.sources]
+                fut_xy.append(fx if type(fx) is np.ndarray and fx.shape == (3, 2)
+                              else np.asarray(fx, dtype=float).reshape(3, 2))
+                fh = q.future_heading
+                fut_h.append((h, h, h) if fh is None else fh if type(fh) is np.ndarray and fh.shape == (3,)
+                             else np.asarray(fh, dtype=float).reshape(3))
+            if q.target_xy is None:
+                has_t, tx, ty, facing = 0.0, 0.0, 0.0, 0.0
+            else:
+                t = np.asarray(q.target_xy, dtype=float)
+                has_t, tx, ty = 1.0, t[0], t[1]
+                facing = h if q.target_facing is None else float(q.target_facing)
+            height = 0.0 if q.seat_height is None else q.seat_height
+            scalars.append((has_prev, pose_dt, s.heading, root[0], root[1], h, has_t, tx, ty, facing, height))
+        return query_features(np.array(cur_l, dtype=float), np.array(cur_p, dtype=float),
+                              np.array(prev_l, dtype=float), np.array(prev_p, dtype=float),
+                              np.array(fut_xy, dtype=float), np.array(fut_h, dtype=float),
+                              np.array(scalars, dtype=float), info.sources)
 
     def step_many(self, states: Sequence[MatchState], queries: Sequence[MotionQuery],
                   dt: float) -> tuple[list[MatchState], list[Pose]]:
