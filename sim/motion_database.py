@@ -44,8 +44,9 @@ from sim.skeleton import NUM_JOINTS, forward_kinematics
 END_MARGIN = 5  # frames at the end of a non-looping clip that a search never jumps to
 ENTRY_FRAMES = 8  # frames at the start of each clip where a completing action is entered
 # Indexes with at most this many rows answer by an exact scan instead of the KD-tree: on
-# ~30-dimensional motion features the scan (one matrix product + exact re-rank) measured
-# faster than the tree up to ~3-10k rows on this (loaded, 2-core) machine (benchmark/bench_motion_search.py).
+# ~30-dimensional motion features the scan measured faster than the tree up to ~3-10k rows on
+# this (loaded, 2-core) machine (benchmark/bench_motion_search.py; then a matrix product + exact
+# re-rank, now the compiled exact scan, which measured faster still, up to ~10-20k rows).
 SCAN_THRESHOLD = 5_000
 
 

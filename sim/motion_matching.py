@@ -17,41 +17,33 @@ Frames: world z up; the character frame has x forward, y left, origin at the roo
 from __future__ import annotations
 
 import math
-import weakref
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from sim.action_labels import database_key, family_of
-from sim.inertialization import (
-    LN2,
-    angular_velocity,
-)
+from sim.action_labels import database_key
+from sim.inertialization import LN2
 from sim.motion_clips import FOOT_JOINTS, FPS
 from sim.motion_database import MotionDatabase
 from sim.motion_features import (
     FUTURE_FRAMES,
     Control,
-    LayoutName,
     assemble,
     relative_target,
     to_character_frame,
     vectors_to_character_frame,
 )
-from sim.motion_kernels import (
-    SRC_FUT_DIR,
-    SRC_FUT_POS,
-    SRC_POS,
-    SRC_SIZE,
-    SRC_T_DIR,
-    SRC_T_H,
-    SRC_T_POS,
-    SRC_VEL,
-    query_features,
-    step_poses,
+from sim.motion_frames import (
+    DatabaseFrames,
+    FrameTable,
+    StepDatabase,
+    feature_sources,
+    shared_frames,
+    shared_store,
+    shared_table,
 )
-from sim.procedural_rig import rot_z
+from sim.motion_kernels import query_features, step_poses
 from sim.skeleton import NUM_JOINTS, forward_kinematics
 
 
@@ -146,10 +138,6 @@ class MatchState:
         return _pose_joints([self])[1][0]
 
 
-def _rot_z(theta: np.ndarray) -> np.ndarray:
-    return rot_z(theta)
-
-
 def _pose_joints(states: Sequence[MatchState]) -> tuple[np.ndarray, np.ndarray]:
     """World joints (M,22,3) of the states' last poses and their character-frame velocities
     (M,22,3), with one batched forward-kinematics call. Every state must have a pose."""
@@ -167,202 +155,7 @@ def _pose_joints(states: Sequence[MatchState]) -> tuple[np.ndarray, np.ndarray]:
     return joints[:m], vel
 
 
-@dataclass(frozen=True)
-class _Frames:
-    """Per-database arrays, computed once per database: F frames, C clips.
-
-    rot (F,22,3,3) local rotations with joint 0 in the frame's character frame; pelvis (F,3)
-    character frame; pair_a, pair_b (F,) the finite-difference frame pair of each frame (equal
-    when the frame has no neighbour in its clip); clip_z (C,2) highest / lowest pelvis height
-    per clip. ``motion(frame)`` gives the inertialization velocities, memoised per frame.
-    """
-
-    rot: np.ndarray
-    pelvis: np.ndarray
-    pair_a: np.ndarray
-    pair_b: np.ndarray
-    clip_z: np.ndarray
-    _motion: dict[str, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
-
-    def motion(self, frame: int) -> tuple[np.ndarray, np.ndarray]:
-        """Angular velocities (22,3) rad/s and pelvis velocity (3,) m/s at ``frame``."""
-        mo = self._motion
-        if not mo:  # every frame at once, on first use
-            a, b = self.pair_a, self.pair_b
-            ang = angular_velocity(self.rot[a], self.rot[b], 1.0 / FPS)
-            lin = (self.pelvis[b] - self.pelvis[a]) * FPS
-            still = a == b
-            ang[still] = 0.0
-            lin[still] = 0.0
-            mo["ang"], mo["lin"] = ang, lin
-        return mo["ang"][frame], mo["lin"][frame]
-
-
-@dataclass(frozen=True)
-class _Table:
-    """Per-database frame facts as Python lists: next frame and non-loop end (``next_frame``),
-    whether the frame's clip loops, its clip id; ``completes``: the family plays non-looping
-    clips through (in-place, partner, sitting); ``entry``: a switch into it searches the entry
-    index."""
-
-    nxt: list[int]
-    end: list[bool]
-    loops: list[bool]
-    clip: list[int]
-    completes: bool
-    entry: bool
-
-
-def _frames_of(db: MotionDatabase) -> _Frames:
-    rot = np.array(db.local_rotations, dtype=float)
-    rot[:, 0] = _rot_z(-np.asarray(db.heading, dtype=float)) @ rot[:, 0]
-    pelvis = to_character_frame(np.asarray(db.pelvis, dtype=float)[:, None], db.root_xy, db.heading)[:, 0]
-    f = np.arange(db.num_frames)
-    clip = np.asarray(db.clip_of_frame, dtype=np.int64)
-    ranges = np.asarray(db.clip_ranges, dtype=np.int64)
-    start, end = ranges[clip, 0], ranges[clip, 1]
-    loops = np.asarray(db.clip_loops, dtype=bool)[clip]
-    inside = f + 1 < end
-    nxt = np.where(inside, f + 1, np.where(loops, start, f))  # next_frame, vectorised
-    at_end = ~inside & ~loops
-    a = np.where(at_end, np.maximum(f - 1, 0), f)
-    b = np.where(at_end, f, nxt)
-    a = np.where((clip[a] != clip[b]) | (a == b), b, a)
-    z = np.asarray(db.pelvis, dtype=float)[:, 2]
-    clip_z = np.array([[z[s:e].max(), z[s:e].min()] for s, e in ranges])
-    return _Frames(rot, pelvis, a, b, clip_z.reshape(-1, 2))
-
-
-@dataclass(frozen=True)
-class _Key:
-    """What the step needs about one database, looked up once: its frame tables and arrays,
-    whether seat heights correct its pelvis, ``sources``: the positions of its feature layout in
-    the SRC_* vector of ``sim.motion_kernels.query_features``, and ``base``: the global index of its
-    frame 0 in the matcher's ``_FrameStore``."""
-
-    key: str
-    db: MotionDatabase
-    tab: _Table
-    frames: _Frames
-    seat: bool
-    sources: np.ndarray
-    base: int
-
-
 _NO_SWITCH = (np.empty((0, 2), dtype=np.int64), np.empty((2, 0, NUM_JOINTS, 3)), np.empty((2, 0, 3)))
-
-
-class _FrameStore:
-    """The frames of a set of databases in one array per quantity, filled per database on first
-    use, so that a kernel reads any character's frame by a global frame index (the database's
-    base + its frame): ``rot`` (G,22,3,3) as ``_Frames.rot``, ``aux`` (G,5) the
-    ``_Frames.pelvis`` (3) and foot contacts (2, as 0 / 1). Shared by the matchers over the same
-    databases (``_shared_store``)."""
-
-    def __init__(self, capacity: int) -> None:
-        self.size = 0
-        self.rot = np.empty((capacity, NUM_JOINTS, 3, 3))  # uninitialised: memory is used as frames arrive
-        self.aux = np.empty((capacity, 5))
-        self.bases: dict[str, int] = {}
-
-    def base(self, key: str, frames: _Frames, contacts: np.ndarray) -> int:
-        """Base index of database ``key`` (its frames are copied in on first use)."""
-        out = self.bases.get(key)
-        if out is None:
-            out, f = self.size, len(frames.pelvis)
-            if out + f > len(self.rot):  # a database added to the matcher later: grow
-                rot, aux = np.empty((2 * (out + f), NUM_JOINTS, 3, 3)), np.empty((2 * (out + f), 5))
-                rot[:out], aux[:out] = self.rot[:out], self.aux[:out]
-                self.rot, self.aux = rot, aux
-            self.rot[out : out + f] = frames.rot
-            self.aux[out : out + f, :3] = frames.pelvis
-            self.aux[out : out + f, 3:] = np.asarray(contacts, dtype=bool)
-            self.size += f
-            self.bases[key] = out
-        return out
-
-
-_STORES: dict[tuple[tuple[str, int], ...], tuple[tuple[weakref.ref[np.ndarray], ...], _FrameStore]] = {}
-
-
-def _shared_store(databases: Mapping[str, MotionDatabase]) -> _FrameStore:
-    """A ``_FrameStore`` for ``databases``, memoised per set of database content objects (the
-    frame-rotation arrays, as ``_shared_frames``), so matchers over the same databases share it."""
-    arrs = [(k, db.local_rotations) for k, db in sorted(databases.items())]
-    key = tuple((k, id(a)) for k, a in arrs)
-    hit = _STORES.get(key)
-    if hit is not None and all(ref() is a for ref, (_k, a) in zip(hit[0], arrs, strict=True)):
-        return hit[1]
-    for k in [k for k, (refs, _s) in _STORES.items() if any(ref() is None for ref in refs)]:
-        del _STORES[k]  # databases that are gone
-    out = _FrameStore(sum(int(db.num_frames) for db in databases.values()))
-    _STORES[key] = (tuple(weakref.ref(a) for _k, a in arrs), out)
-    return out
-
-
-_SOURCES: dict[str, np.ndarray] = {}
-
-
-def _feature_sources(layout: LayoutName) -> np.ndarray:
-    """Indices (D,) into the SRC_* vector of ``query_features`` that ``assemble`` picks for ``layout``:
-    ``assemble`` itself run on inputs whose values are their own source positions."""
-    out = _SOURCES.get(layout)
-    if out is None:
-        pos = (SRC_POS + np.arange(NUM_JOINTS * 3, dtype=float)).reshape(NUM_JOINTS, 3)
-        vel = (SRC_VEL + np.arange(NUM_JOINTS * 3, dtype=float)).reshape(NUM_JOINTS, 3)
-        ctrl = Control((SRC_FUT_POS + np.arange(6.0)).reshape(3, 2), (SRC_FUT_DIR + np.arange(6.0)).reshape(3, 2),
-                       SRC_T_POS + np.arange(2.0), SRC_T_DIR + np.arange(2.0), np.asarray(float(SRC_T_H)))
-        idx = assemble(layout, pos, vel, ctrl)
-        assert np.array_equal(idx, np.round(idx)) and idx.min() >= 0 and idx.max() < SRC_SIZE, layout
-        out = _SOURCES[layout] = idx.astype(np.int64)
-    return out
-
-
-def _table_of(db: MotionDatabase, key: str) -> _Table:
-    """``_Table`` of a database: ``next_frame`` of every frame, vectorised."""
-    f = np.arange(db.num_frames)
-    clip = np.asarray(db.clip_of_frame, dtype=np.int64)
-    ranges = np.asarray(db.clip_ranges, dtype=np.int64)
-    loops = np.asarray(db.clip_loops, dtype=bool)[clip]
-    inside = f + 1 < ranges[clip, 1]
-    nxt = np.where(inside, f + 1, np.where(loops, ranges[clip, 0], f))
-    fam = family_of(key)
-    return _Table(nxt=nxt.tolist(), end=(~inside & ~loops).tolist(), loops=loops.tolist(), clip=clip.tolist(),
-                  completes=fam in ("in_place", "partner", "sitting"),
-                  entry=fam in ("in_place", "partner") and not bool(np.asarray(db.clip_loops).all()))
-
-
-_TABLE_CACHE: dict[tuple[int, str], tuple[weakref.ref[np.ndarray], _Table]] = {}
-
-
-def _shared_table(db: MotionDatabase, key: str) -> _Table:
-    """``_table_of`` memoised per database content object and key, as ``_shared_frames``."""
-    arr = db.local_rotations
-    hit = _TABLE_CACHE.get((id(arr), key))
-    if hit is not None and hit[0]() is arr:
-        return hit[1]
-    for k in [k for k, (ref, _t) in _TABLE_CACHE.items() if ref() is None]:
-        del _TABLE_CACHE[k]
-    out = _table_of(db, key)
-    _TABLE_CACHE[(id(arr), key)] = (weakref.ref(arr), out)
-    return out
-
-
-_FRAMES_CACHE: dict[int, tuple[weakref.ref[np.ndarray], _Frames]] = {}
-
-
-def _shared_frames(db: MotionDatabase) -> _Frames:
-    """``_frames_of`` memoised per database content object (the frame-rotation array, which
-    wrappers of the same database share), so matchers built over the same databases reuse it."""
-    arr = db.local_rotations
-    hit = _FRAMES_CACHE.get(id(arr))
-    if hit is not None and hit[0]() is arr:
-        return hit[1]
-    for k in [k for k, (ref, _f) in _FRAMES_CACHE.items() if ref() is None]:
-        del _FRAMES_CACHE[k]  # databases that are gone
-    out = _frames_of(db)
-    _FRAMES_CACHE[id(arr)] = (weakref.ref(arr), out)
-    return out
 
 
 class MotionMatcher:
@@ -379,11 +172,11 @@ class MotionMatcher:
         self.search_interval = int(search_interval)
         self.blend_halflife = float(blend_halflife)
         self.continuation_window = int(continuation_window)
-        self._frames: dict[str, _Frames] = {}
-        self._tables: dict[str, _Table] = {}
-        self._keys: dict[str, _Key] = {}
-        self._store = _shared_store(self.databases)
-        self._by_label: dict[tuple[str, bool], _Key] = {}
+        self._frames: dict[str, DatabaseFrames] = {}
+        self._tables: dict[str, FrameTable] = {}
+        self._keys: dict[str, StepDatabase] = {}
+        self._store = shared_store(self.databases)
+        self._by_label: dict[tuple[str, bool], StepDatabase] = {}
         # (states returned by the last step_many, their offset arrays): lets the next call skip
         # re-stacking per-character offsets when it gets those very states back
         self._last_batch: tuple[tuple[MatchState, ...], tuple[np.ndarray, ...]] | None = None
@@ -395,18 +188,18 @@ class MotionMatcher:
             raise MotionMatchingError(f"no motion database for {key!r}; loaded: {sorted(self.databases)}")
         return db
 
-    def frames(self, key: str) -> _Frames:
+    def frames(self, key: str) -> DatabaseFrames:
         """Cached per-database arrays (character-frame rotations, pelvis, velocities)."""
         out = self._frames.get(key)
         if out is None:
-            out = self._frames[key] = _shared_frames(self.databases[key])
+            out = self._frames[key] = shared_frames(self.databases[key])
         return out
 
-    def _table(self, key: str) -> _Table:
+    def _table(self, key: str) -> FrameTable:
         """Per-database frame tables as Python lists (cheap per-character lookups)."""
         out = self._tables.get(key)
         if out is None:
-            out = self._tables[key] = _shared_table(self.databases[key], key)
+            out = self._tables[key] = shared_table(self.databases[key], key)
         return out
 
     def initial_state(self, label: str, root_xy: Sequence[float], heading: float, seated: bool = False) -> MatchState:
@@ -465,18 +258,18 @@ class MotionMatcher:
         states, poses = self.step_many([state], [query], dt)
         return states[0], poses[0]
 
-    def _key(self, key: str) -> _Key:
+    def _key(self, key: str) -> StepDatabase:
         """Per-database facts the step needs, looked up once per key."""
         out = self._keys.get(key)
         if out is None:
             db = self.databases[key]
             frames, tab = self.frames(key), self._table(key)
-            out = self._keys[key] = _Key(
+            out = self._keys[key] = StepDatabase(
                 key=key, db=db, tab=tab, frames=frames, seat=db.layout_name in ("sitting", "seated"),
-                sources=_feature_sources(db.layout_name), base=self._store.base(key, frames, db.contacts))
+                sources=feature_sources(db.layout_name), base=self._store.base(key, frames, db.contacts))
         return out
 
-    def _query_key(self, query: MotionQuery) -> _Key:
+    def _query_key(self, query: MotionQuery) -> StepDatabase:
         """The database of a query's label (cached per label / seated)."""
         out = self._by_label.get((query.label, query.seated))
         if out is None:
@@ -485,7 +278,7 @@ class MotionMatcher:
         return out
 
     def _raw_queries(self, members: Sequence[int], states: Sequence[MatchState], queries: Sequence[MotionQuery],
-                     roots: Sequence[np.ndarray], headings: Sequence[float], info: _Key) -> np.ndarray:
+                     roots: Sequence[np.ndarray], headings: Sequence[float], info: StepDatabase) -> np.ndarray:
         """Raw query vectors (M,D) of characters searching ``info``'s database: the compiled
         path (``query_features``) when every one has an output pose, else ``_query_features_many``."""
         if any(states[i].pose_local is None or states[i].pose_pelvis is None for i in members):
@@ -542,7 +335,7 @@ class MotionMatcher:
         interval = self.search_interval
         keys, by_label = self._keys, self._by_label
         infos = [by_label.get((q.label, q.seated)) or self._query_key(q) for q in queries]
-        curs: list[_Key] = []
+        curs: list[StepDatabase] = []
         clocks, roots, headings, frames, since = [], [], [], [], []
         changed, entry, done, need = [], [], [], []
         for state, query, info in zip(states, queries, infos, strict=True):
@@ -688,7 +481,7 @@ class MotionMatcher:
         return out_states, poses
 
     @staticmethod
-    def _seat_correction_cached(db: MotionDatabase, frames: _Frames, frame: int, query: MotionQuery) -> float:
+    def _seat_correction_cached(db: MotionDatabase, frames: DatabaseFrames, frame: int, query: MotionQuery) -> float:
         """Raise/lower a seated pelvis by the difference between the query's seat height and
         the clip's, weighted by how far the clip has sat down (0 standing .. 1 seated)."""
         if query.seat_height is None or db.layout_name not in ("sitting", "seated"):

@@ -25,7 +25,8 @@ from sim.motion_features import (
     to_character_frame,
     vectors_to_character_frame,
 )
-from sim.motion_matching import MatchState, MotionMatcher, MotionQuery, Pose, _Frames
+from sim.motion_frames import DatabaseFrames
+from sim.motion_matching import MatchState, MotionMatcher, MotionQuery, Pose
 from sim.procedural_rig import rot_z
 from sim.skeleton import NUM_JOINTS, PARENTS, REST_OFFSETS
 
@@ -344,7 +345,7 @@ class ReferenceMotionMatcher(MotionMatcher):
         return Control(fut_pos, fut_dir, t_pos, t_dir, height)
 
     @staticmethod
-    def _seat_correction_cached(db: MotionDatabase, frames: _Frames, frame: int, query: MotionQuery) -> float:
+    def _seat_correction_cached(db: MotionDatabase, frames: DatabaseFrames, frame: int, query: MotionQuery) -> float:
         """Raise/lower a seated pelvis by the difference between the query's seat height and
         the clip's, weighted by how far the clip has sat down (0 standing .. 1 seated)."""
         if query.seat_height is None or db.layout_name not in ("sitting", "seated"):
