@@ -6,7 +6,8 @@ them through ``sim.motion_reference.ReferenceMotionMatcher`` (the step as it was
 motion kernels) and through ``sim.motion_matching.MotionMatcher``, each starting from the
 recorded initial states and feeding its own returned states back, as the world does. Prints
 microseconds per frame (all characters) for both, best of ``--reps`` alternating replays,
-their ratio, and whether every state, pose and search decision is identical.
+their ratio, whether every search decision and state counter is the same, and whether the
+poses and states are bit-identical (else the largest difference).
 
 Usage: ``python -m benchmark.bench_motion_step [--characters 10] [--seconds 10] [--reps 10] [--seed 0]``.
 """
@@ -108,24 +109,28 @@ def replay(matcher: MotionMatcher, rec: Recording) -> tuple[float, list[tuple[li
     return time.perf_counter() - t0, outs
 
 
-def _same_value(a: Any, b: Any) -> bool:
-    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return a is not None and b is not None and np.array_equal(a, b)
-    return bool(a == b)
-
-
-def differences(ref: list[tuple[list[MatchState], list[Pose]]],
-                new: list[tuple[list[MatchState], list[Pose]]]) -> list[str]:
-    """Every (frame, character, field) where the two replays differ (bit for bit)."""
-    out: list[str] = []
+def compare(ref: list[tuple[list[MatchState], list[Pose]]],
+            new: list[tuple[list[MatchState], list[Pose]]]) -> tuple[list[str], list[str], float]:
+    """(decisions that differ, arrays that differ bit for bit, largest absolute array difference)
+    between two replays, per frame, character and state / pose field."""
+    decisions: list[str] = []
+    arrays: list[str] = []
+    worst = 0.0
     for f, ((rs, rp), (ns, np_)) in enumerate(zip(ref, new, strict=True)):
-        for i, (a, b) in enumerate(zip(rs, ns, strict=True)):
-            out += [f"frame {f} char {i} state.{fl.name}" for fl in fields(MatchState)
-                    if not _same_value(getattr(a, fl.name), getattr(b, fl.name))]
-        for i, (a, b) in enumerate(zip(rp, np_, strict=True)):
-            out += [f"frame {f} char {i} pose.{fl.name}" for fl in fields(Pose)
-                    if not _same_value(getattr(a, fl.name), getattr(b, fl.name))]
-    return out
+        pairs = [(f"frame {f} char {i} state.{fl.name}", getattr(a, fl.name), getattr(b, fl.name))
+                 for i, (a, b) in enumerate(zip(rs, ns, strict=True)) for fl in fields(MatchState)]
+        pairs += [(f"frame {f} char {i} pose.{fl.name}", getattr(a, fl.name), getattr(b, fl.name))
+                  for i, (a, b) in enumerate(zip(rp, np_, strict=True)) for fl in fields(Pose)]
+        for where, a, b in pairs:
+            if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+                if a is None or b is None or np.shape(a) != np.shape(b):
+                    decisions.append(where)
+                elif not np.array_equal(a, b):
+                    arrays.append(where)
+                    worst = max(worst, float(np.max(np.abs(np.asarray(a, float) - np.asarray(b, float)))))
+            elif a != b:
+                decisions.append(where)
+    return decisions, arrays, worst
 
 
 def main() -> None:
@@ -141,27 +146,29 @@ def main() -> None:
         db.entry_index  # noqa: B018
     rec = record(dbs, args.characters, round(args.seconds * 30), args.seed)
     frames = len(rec.queries)
-    searches = None
     ref_m, new_m = ReferenceMotionMatcher(dbs), MotionMatcher(dbs)
     replay(ref_m, rec)  # warm-up: per-database tables, compiled kernels
     replay(new_m, rec)
     best_ref = best_new = math.inf
+    ratios = []
     ref_out = new_out = None
-    for _ in range(args.reps):
-        t, ref_out = replay(ref_m, rec)
-        best_ref = min(best_ref, t)
-        t, new_out = replay(new_m, rec)
-        best_new = min(best_new, t)
+    for _ in range(args.reps):  # alternating, so that load on the machine hits both alike
+        t_ref, ref_out = replay(ref_m, rec)
+        t_new, new_out = replay(new_m, rec)
+        best_ref, best_new = min(best_ref, t_ref), min(best_new, t_new)
+        ratios.append(t_ref / t_new)
     assert ref_out is not None and new_out is not None
-    diff = differences(ref_out, new_out)
+    decisions, arrays, worst = compare(ref_out, new_out)
     searches = sum(s.searches for s in ref_out[-1][0])
     print(f"{args.characters} characters, {frames} frames, {searches} searches, best of {args.reps} replays")
     print(f"reference step_many: {1e6 * best_ref / frames:8.1f} us/frame")
     print(f"current   step_many: {1e6 * best_new / frames:8.1f} us/frame")
-    print(f"speed-up: {best_ref / best_new:.2f}x   same: {'yes' if not diff else 'NO'}")
-    for line in diff[:20]:
+    print(f"speed-up: {best_ref / best_new:.2f}x (best vs best; median of paired replays "
+          f"{float(np.median(ratios)):.2f}x)")
+    print(f"same decisions: {'yes' if not decisions else 'NO'}; bit-identical poses and states: "
+          f"{'yes' if not arrays else 'no'} (largest difference {worst:.1e})")
+    for line in (decisions + arrays)[:20]:
         print("  differs:", line)
-
 
 if __name__ == "__main__":
     main()
