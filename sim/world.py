@@ -41,8 +41,9 @@ Deterministic: the only randomness is the navigator's seeded priority order; no 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -80,6 +81,7 @@ from sim.world_motion import FUTURE_FRAMES, MotionLayer, MotionQuery, compose_po
 from sim.world_navigation import OFF_GRID_EPS, StandTargets, WorldNavigator
 from sim.world_tracks import TrackBuffers
 
+_TAU = 2.0 * math.pi  # as in character_phases.wrap_angle
 OBJECT_REACH = 0.55  # metres from the standing root to the object acted on (motion target)
 EventStatus = Literal["ongoing", "looping", "completed", "failed"]
 
@@ -219,11 +221,14 @@ class World:
     def available(self) -> tuple[str, ...]:
         """Characters the narrator may give a new event (see ``character_phases.available``)."""
         out = []
+        events = self.events
         for name in self.names:
             c = self.characters[name]
-            ev = self.events.get(c.event_id) if c.event_id is not None else None
-            active = ev is not None and ev.status == "ongoing"
-            if available(c, active):
+            if c.event_id is None:  # no event: free (available(c, False))
+                out.append(name)
+                continue
+            ev = events.get(c.event_id)
+            if available(c, ev is not None and ev.status == "ongoing"):
                 out.append(name)
         return tuple(out)
 
@@ -609,7 +614,7 @@ class World:
         heading_l: list[float] = []
         root_l: list[np.ndarray] = []
         walkers = [c for c in chars if c.walker]
-        walk: dict[int, tuple[np.ndarray, float, np.ndarray, np.ndarray, bool]] = {}  # by id(c)
+        walk: dict[int, int] = {}  # id(c) -> the walker's row
         if walkers:  # the walkers' arrays in one go: planned futures, distances, future headings
             # path[:, 0]: the position at the last frame, 1: now (as ticked), 2-4: the planned
             # future, 5: the point the heading turns to
@@ -620,22 +625,22 @@ class World:
             ahead = path[:, 5] - path[:, 1]
             size = np.hypot(steps[..., 0], steps[..., 1])
             step_dir = np.arctan2(steps[:, 1:, 1], steps[:, 1:, 0])
-            h_l = []
+            h_l = []  # turn towards the lookahead point, at most max_turn (wrap_angle inlined)
             for c, (ax, ay), dist in zip(walkers, ahead.tolist(), np.hypot(ahead[:, 0], ahead[:, 1]).tolist(),
                                          strict=True):
                 h = c.heading
                 if dist > 0.05:
-                    err = wrap_angle(math.atan2(ay, ax) - c.heading)
-                    h = c.heading + min(max(err, -max_turn), max_turn)
+                    err = (math.atan2(ay, ax) - h + math.pi) % _TAU - math.pi
+                    h = h + min(max(err, -max_turn), max_turn)
                 h_l.append(h)
-            fut_h = np.where(size[:, 1:] > 1e-6, step_dir, np.array(h_l, dtype=float)[:, None])
-            walk = {id(c): w for c, w in zip(walkers, zip(
-                list(path[:, 1]), h_l, list(path[:, 2:5]), list(fut_h), (size[:, 0] > 1e-6).tolist(), strict=True), strict=True)}
+            fut_h = list(np.where(size[:, 1:] > 1e-6, step_dir, np.array(h_l, dtype=float)[:, None]))
+            now, future, moving_l = list(path[:, 1]), list(path[:, 2:5]), (size[:, 0] > 1e-6).tolist()
+            walk = {id(c): i for i, c in enumerate(walkers)}
         for c in chars:  # in order: a partner's target is the partners' position so far
-            w = walk.get(id(c))
-            if w is not None:
-                c.xy, h, fut_xy, fut_heading, moving = w
-                c.heading = wrap_angle(h)
+            i = walk.get(id(c))
+            if i is not None:
+                c.xy, c.heading = now[i], (h_l[i] + math.pi) % _TAU - math.pi
+                fut_xy, fut_heading, moving = future[i], fut_h[i], moving_l[i]
             else:
                 fut_xy = fut_heading = None
                 moving = False
@@ -645,7 +650,7 @@ class World:
             restart = key != c.motion_key or c.phase_frame == 0
             c.motion_key = key
             tx, tf, th = self._motion_target(c)
-            queries.append(MotionQuery(
+            queries.append(_new_query(
                 label=label, seated=seated, root_xy=c.xy, heading=c.heading, future_xy=fut_xy,
                 future_heading=fut_heading, target_xy=tx, target_facing=tf, seat_height=th,
                 force_search=restart,
@@ -716,6 +721,41 @@ class World:
         return c.anchor_xy + OBJECT_REACH * f, a.facing_angle + math.pi, None
 
 
+_QUERY_FIELDS = ("label", "seated", "root_xy", "heading", "future_xy", "future_heading", "target_xy",
+                 "target_facing", "seat_height", "force_search")
+
+
+def _query_factory() -> Callable[..., MotionQuery]:
+    """A constructor of ``MotionQuery`` from all its fields (keywords).
+
+    ``MotionQuery`` is a frozen dataclass: its generated ``__init__`` sets each of the ten
+    fields through ``object.__setattr__`` (about 3 us per query, 10 queries a frame). As long
+    as it stays a plain frozen dataclass (a ``__dict__``, no ``__post_init__``, exactly these
+    fields, all set by ``__init__``), filling the instance dict directly builds the same
+    object (equal, same ``__dict__``) in a third of the time; otherwise the class itself is
+    used.
+    """
+    plain = (
+        dataclasses.is_dataclass(MotionQuery)
+        and "__slots__" not in vars(MotionQuery)
+        and not hasattr(MotionQuery, "__post_init__")
+        and tuple(f.name for f in dataclasses.fields(MotionQuery)) == _QUERY_FIELDS
+        and all(f.init for f in dataclasses.fields(MotionQuery))
+        and MotionQuery.__new__ is object.__new__
+    )
+    if not plain:
+        return MotionQuery
+    new = object.__new__
+
+    def make(**fields: Any) -> MotionQuery:
+        q = new(MotionQuery)
+        q.__dict__.update(fields)
+        return q
+
+    return make
+
+
+_new_query = _query_factory()
 _DATABASE_KEYS: dict[tuple[str, bool], str] = {}
 
 

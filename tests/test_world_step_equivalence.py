@@ -215,6 +215,20 @@ def test_world_output_matches_the_recorded_fingerprint(result) -> None:  # type:
     assert digest == EXPECTED_SHA256
 
 
+def test_the_worlds_query_constructor_builds_the_same_queries() -> None:
+    from sim.world import _new_query
+
+    kw: dict[str, Any] = dict(label="walk", seated=False, root_xy=np.array([1.0, 2.0]), heading=0.5,
+                              future_xy=np.zeros((3, 2)), future_heading=np.ones(3), target_xy=None, target_facing=None,
+                              seat_height=0.45, force_search=True)
+    fast, plain = _new_query(**kw), MotionQuery(**kw)
+    assert type(fast) is MotionQuery
+    assert list(vars(fast)) == list(vars(plain))
+    assert all(vars(fast)[k] is vars(plain)[k] for k in kw)
+    with pytest.raises(AttributeError):  # still frozen
+        fast.label = "idle"  # type: ignore[misc]
+
+
 def test_the_fingerprint_notices_a_changed_position(result) -> None:  # type: ignore[no-untyped-def]
     # The hash is sensitive at the 1e-9 m level: a nudged value gives another digest.
     h1, h2 = hashlib.sha256(), hashlib.sha256()
