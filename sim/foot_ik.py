@@ -17,15 +17,17 @@ characters that moves only the feet, with the legs' local rotations:
    of every floor-standing footprint grown by ``margin``, by the shortest shift that clears
    all of them (``sim.foot_clearance.push_out``);
 3. *two-bone IK* on hip-knee-ankle (``sim.leg_ik``) reaches the ankle target: the knee
-   bends in the animated leg's plane (blended towards the plane that bends the knee to the
-   body's front as the animated leg straightens), then the leg swings to the target with the
+   bends in the animated leg's plane (blended towards the thigh's own flexion axis as the
+   animated leg straightens), then the leg swings to the target with the
    smallest rotation; the ankle's local rotation is recomputed so the foot keeps its world
    orientation. An unreachable target stretches the leg towards it (or folds it as far as the
    bones allow).
 
 Only the local rotations of hips, knees and ankles change; the pelvis position and every other
-joint's local rotation are returned untouched, and a foot that is neither locked, blending nor
-pushed keeps its exact input rotations. ``apply`` is a pure function of its inputs and the
+joint's local rotation are returned untouched. A foot that is neither locked, blending nor
+pushed keeps its input rotations up to rounding (1e-15), except a knee that the animation
+bends backwards, which the IK bends forwards; an inactive character's legs come back exactly
+as they were (once any release blend is over). ``apply`` is a pure function of its inputs and the
 state it returns (plain arrays in a frozen dataclass, never modified in place), so world
 snapshots can copy it. Characters whose feet belong under furniture (seated at a table) should
 be passed as inactive: their feet are then neither pinned nor pushed.
@@ -199,5 +201,8 @@ class FootSolver:
         new_state = FootState(locked=locked, lock=np.where(locked[..., None], lock, 0.0),
                               offset=offset, release=release, drifted=drifted)
 
-        moved = np.linalg.norm(target - toe, axis=-1) > 0.0
-        return solve_chain(chain, rots, target - foot, moved), new_state
+        # every leg of an active character goes through the IK (a leg whose target is its own
+        # ankle comes back as it was, up to rounding, unless its knee bent backwards), so a
+        # lock or a push never switches the knee rule on in the middle of a stride
+        solve = (np.linalg.norm(target - toe, axis=-1) > 0.0) | act[:, None]
+        return solve_chain(chain, rots, target - foot, solve), new_state

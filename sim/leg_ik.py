@@ -4,8 +4,11 @@
 target and returns new local rotations: the knee's interior angle comes from the law of
 cosines, turned about the normal of the animated leg's plane (hip, knee, ankle), so the knee
 bends where the animation bent it; as the animated leg straightens, its plane becomes noise
-(undefined when straight), so the hinge is blended towards the body's right (the knee bends
-towards the body's front; equal weights 14 degrees from straight, ``HINGE_BLEND``), and a
+(undefined when straight), so the hinge is blended towards the thigh's flexion axis (its
+local x, about which the knee bends towards the front of the leg; equal weights 14 degrees
+from straight, ``HINGE_BLEND``); a knee the animation bends backwards (some source frames do,
+by up to ~55 degrees) is bent forwards instead (the hinge's backward component is mirrored,
+which is continuous); a
 second turn about the bent leg's own plane keeps the reach exact. The whole leg then swings about
 the hip onto the target with the smallest rotation. The ankle's local rotation is recomputed
 so that the foot keeps its world orientation (the toe follows the ankle rigidly). Targets out
@@ -184,14 +187,19 @@ def _ik_kernel(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, pelvis_rot:
         kh = hip[m] - knee[m]
         ka = ankle[m] - knee[m]
         e1 = kh / max(_norm3(kh), 1e-12)
-        # hinge: the animated plane's normal, blended towards the body's right as the animated
-        # leg straightens (the plane of a nearly straight leg is noise; it flips from frame to
-        # frame): equal weights when the knee is 14 degrees from straight
-        right = np.array([-pelvis_rot[m, 0, 0], -pelvis_rot[m, 1, 0], -pelvis_rot[m, 2, 0]])
+        # hinge: the animated plane's normal, blended towards the thigh's own flexion axis (its
+        # local -x, the body's right in the rest pose) as the animated leg straightens (the
+        # plane of a nearly straight leg is noise; it flips from frame to frame): equal weights
+        # when the knee is 14 degrees from straight
+        right = np.array([-hip_rot[m, 0, 0], -hip_rot[m, 1, 0], -hip_rot[m, 2, 0]])
         fb = right - _dot3(right, e1) * e1
         fbn = _norm3(fb)
         fb = fb / fbn if fbn > 1e-6 else _perpendicular(e1)
-        nv = _cross(kh, ka) + (HINGE_BLEND * a_len * b_len) * fb
+        n_raw = _cross(kh, ka)
+        back = _dot3(n_raw, fb)
+        if back < 0.0:  # a knee bent backwards (a defect of some source frames): mirrored forward
+            n_raw = n_raw - 2.0 * back * fb
+        nv = n_raw + (HINGE_BLEND * a_len * b_len) * fb
         n = nv / max(_norm3(nv), 1e-12)
         # reach along the target direction, clamped to what the bones allow
         tv = target[m] - hip[m]
