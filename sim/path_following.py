@@ -347,7 +347,8 @@ class CrowdNavigator:
         headings = self.headings
         if agents == self._last_agents:  # the usual case: the same walkers as last frame
             for a, (d0, d1) in zip(agents, (xy - self._last_arr).tolist(), strict=True):
-                if _moved(d0, d1):
+                dd = d0 * d0 + d1 * d1  # _moved inlined for the clear cases
+                if dd > 2e-12 or (dd >= 0.5e-12 and _moved(d0, d1)):
                     headings[a] = math.atan2(d1, d0)
         else:
             for a, p in out.items():

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 from numba import njit
 
-__all__ = ["path_tracks", "track_frames", "track_reference"]
+__all__ = ["path_tracks", "track_frames", "track_reference", "walker_headings"]
 
 Cell = tuple[int, int]
 
@@ -90,3 +90,46 @@ def _tracks(flat: np.ndarray, lens: np.ndarray, ox: float, oy: float, cell_size:
             out[a, d, 1] = (1.0 - s) * (oy + (flat[p, 1] + 0.5) * cell_size) + s * (oy + (flat[q, 1] + 0.5) * cell_size)
         start += lens[a]
     return out
+
+
+def walker_headings(path: np.ndarray, heading: np.ndarray, step_dir: np.ndarray,
+                    max_turn: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The world's per-frame walker kinematics, for W walkers at once.
+
+    ``path`` (W, 6, 2): each walker's position at the last frame, now, its planned positions
+    +10/+20/+30 frames ahead and the lookahead point it turns to; ``heading`` (W,): headings
+    at the last frame; ``step_dir`` (W, 3): ``np.arctan2`` of the three future steps (numpy's,
+    as the world always used). Returns (new headings wrapped to [-pi, pi), future headings
+    (W, 3): each future step's direction, or the new (unwrapped) heading where a step does not
+    move, moved this frame (W,)): the heading turns towards the lookahead point (when it
+    is more than 0.05 m away) by at most ``max_turn``. Same float operations as the Python
+    loop it replaces (``math.atan2``, ``math.hypot``, Python's float ``%``), compiled.
+    """
+    return _walker_headings(np.ascontiguousarray(path, dtype=float), np.ascontiguousarray(heading, dtype=float),
+                            np.ascontiguousarray(step_dir, dtype=float), float(max_turn))
+
+
+@njit(cache=True, nogil=True)
+def _walker_headings(path: np.ndarray, heading: np.ndarray, step_dir: np.ndarray,
+                     max_turn: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    n = path.shape[0]
+    wrapped = np.empty(n)
+    fut = np.empty((n, 3))
+    moved = np.empty(n, dtype=np.bool_)
+    tau = 2.0 * math.pi
+    for i in range(n):
+        moved[i] = math.hypot(path[i, 1, 0] - path[i, 0, 0], path[i, 1, 1] - path[i, 0, 1]) > 1e-6
+        ax = path[i, 5, 0] - path[i, 1, 0]
+        ay = path[i, 5, 1] - path[i, 1, 1]
+        h = heading[i]
+        if math.hypot(ax, ay) > 0.05:
+            err = (math.atan2(ay, ax) - h + math.pi) % tau - math.pi
+            lo = -max_turn
+            err = lo if lo > err else err  # Python's max(err, -max_turn)
+            err = max_turn if max_turn < err else err  # min(err, max_turn)
+            h = h + err
+        wrapped[i] = (h + math.pi) % tau - math.pi
+        for j in range(3):
+            size = math.hypot(path[i, j + 2, 0] - path[i, j + 1, 0], path[i, j + 2, 1] - path[i, j + 1, 1])
+            fut[i, j] = step_dir[i, j] if size > 1e-6 else h
+    return wrapped, fut, moved

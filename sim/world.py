@@ -67,6 +67,7 @@ from sim.character_track import CharacterTrack
 from sim.cooperative_astar import Cell, PathPlanner
 from sim.nav_grid import NavGrid, build_nav_grid
 from sim.path_following import close_xy
+from sim.path_tracks import walker_headings
 from sim.scene import Scene
 from sim.skeleton import NUM_JOINTS
 from sim.story_events import (
@@ -81,7 +82,6 @@ from sim.world_motion import FUTURE_FRAMES, MotionLayer, MotionQuery, compose_po
 from sim.world_navigation import OFF_GRID_EPS, StandTargets, WorldNavigator
 from sim.world_tracks import TrackBuffers
 
-_TAU = 2.0 * math.pi  # as in character_phases.wrap_angle
 OBJECT_REACH = 0.55  # metres from the standing root to the object acted on (motion target)
 EventStatus = Literal["ongoing", "looping", "completed", "failed"]
 
@@ -621,25 +621,17 @@ class World:
             path = np.concatenate([
                 np.array([c.xy for c in walkers], dtype=float).reshape(-1, 1, 2),
                 nav.futures([c.name for c in walkers], (0, *FUTURE_FRAMES, self.config.heading_lookahead))], axis=1)
-            steps = path[:, 1:5] - path[:, 0:4]  # this frame's move, then the three future steps
-            ahead = path[:, 5] - path[:, 1]
-            size = np.hypot(steps[..., 0], steps[..., 1])
-            step_dir = np.arctan2(steps[:, 1:, 1], steps[:, 1:, 0])
-            h_l = []  # turn towards the lookahead point, at most max_turn (wrap_angle inlined)
-            for c, (ax, ay), dist in zip(walkers, ahead.tolist(), np.hypot(ahead[:, 0], ahead[:, 1]).tolist(),
-                                         strict=True):
-                h = c.heading
-                if dist > 0.05:
-                    err = (math.atan2(ay, ax) - h + math.pi) % _TAU - math.pi
-                    h = h + min(max(err, -max_turn), max_turn)
-                h_l.append(h)
-            fut_h = list(np.where(size[:, 1:] > 1e-6, step_dir, np.array(h_l, dtype=float)[:, None]))
-            now, future, moving_l = list(path[:, 1]), list(path[:, 2:5]), (size[:, 0] > 1e-6).tolist()
+            steps = path[:, 2:5] - path[:, 1:4]  # the three future steps
+            wrapped, fut_h, moved = walker_headings(
+                path, np.array([c.heading for c in walkers], dtype=float), np.arctan2(steps[..., 1], steps[..., 0]),
+                max_turn)
+            h_l, moving_l = wrapped.tolist(), moved.tolist()
+            now, future, fut_h = list(path[:, 1]), list(path[:, 2:5]), list(fut_h)
             walk = {id(c): i for i, c in enumerate(walkers)}
         for c in chars:  # in order: a partner's target is the partners' position so far
             i = walk.get(id(c))
             if i is not None:
-                c.xy, c.heading = now[i], (h_l[i] + math.pi) % _TAU - math.pi
+                c.xy, c.heading = now[i], h_l[i]
                 fut_xy, fut_heading, moving = future[i], fut_h[i], moving_l[i]
             else:
                 fut_xy = fut_heading = None

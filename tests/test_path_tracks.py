@@ -7,12 +7,15 @@ per-agent ``future`` / ``_xy_at``, in a crowd that walks, takes exact off-grid l
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from sim.character_phases import wrap_angle
 from sim.cooperative_astar import PathPlanner
 from sim.nav_grid import build_nav_grid
 from sim.path_following import CrowdNavigator, _moved, close_xy
-from sim.path_tracks import path_tracks, track_reference
+from sim.path_tracks import path_tracks, track_reference, walker_headings
 from sim.scene import Scene, SceneObject
 
 
@@ -90,3 +93,45 @@ def test_float_helpers_match_numpy() -> None:
         assert _moved(float(d[0]), float(d[1])) == (float(d @ d) > 1e-12)
     assert not close_xy(np.array([np.nan, 0.0]), np.array([np.nan, 0.0]))
     assert close_xy(np.array([np.inf, 0.0]), np.array([np.inf, 0.0]))
+
+
+def _headings_reference(path: np.ndarray, heading: list[float], max_turn: float) -> tuple[list, np.ndarray, list]:
+    """The world's walker loop before it was compiled (numpy arrays, Python floats)."""
+    w_xy, w_prev, w_fut = path[:, 1], path[:, 0], path[:, 2:]
+    ahead_all = w_fut[:, 3] - w_xy
+    dist_all = np.hypot(ahead_all[:, 0], ahead_all[:, 1])
+    moved = w_xy - w_prev
+    moving_all = np.hypot(moved[:, 0], moved[:, 1]) > 1e-6
+    steps_all = np.diff(np.concatenate([w_xy[:, None], w_fut[:, :3]], axis=1), axis=1)
+    moves_ahead = np.hypot(steps_all[..., 0], steps_all[..., 1]) > 1e-6
+    step_dir = np.arctan2(steps_all[..., 1], steps_all[..., 0])
+    out_h, out_f = [], []
+    for i, h0 in enumerate(heading):
+        h = h0
+        if float(dist_all[i]) > 0.05:
+            err = wrap_angle(math.atan2(ahead_all[i][1], ahead_all[i][0]) - h0)
+            h = h0 + float(min(max(err, -max_turn), max_turn))
+        out_f.append(np.where(moves_ahead[i], step_dir[i], h))
+        out_h.append(wrap_angle(h))
+    return out_h, np.array(out_f), [bool(m) for m in moving_all]
+
+
+def test_compiled_walker_headings_equal_the_python_loop() -> None:
+    rng = np.random.default_rng(9)
+    for trial in range(300):
+        w = int(rng.integers(1, 12))
+        path = rng.normal(scale=float(rng.choice([0.01, 0.3, 3.0])), size=(w, 6, 2))
+        if trial % 4 == 0:  # standing still, or not moving for some of the future steps
+            path[:, 1] = path[:, 0]
+            path[:, 3] = path[:, 2]
+        if trial % 5 == 0:  # the lookahead point at the 0.05 m threshold, give or take an ulp
+            ang = rng.uniform(-math.pi, math.pi, size=w)
+            path[:, 5] = path[:, 1] + 0.05 * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        heading = rng.uniform(-4.0, 4.0, size=w).tolist()
+        max_turn = float(rng.choice([2.0 / 30, 0.5, 4.0]))
+        steps = path[:, 2:5] - path[:, 1:4]
+        wrapped, fut, moved = walker_headings(path, np.array(heading), np.arctan2(steps[..., 1], steps[..., 0]), max_turn)
+        ref_h, ref_f, ref_m = _headings_reference(path, heading, max_turn)
+        assert wrapped.tolist() == ref_h
+        assert np.array_equal(fut, ref_f) and fut.tobytes() == ref_f.tobytes()
+        assert moved.tolist() == ref_m
