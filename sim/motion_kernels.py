@@ -29,8 +29,10 @@ from numba.extending import intrinsic
 
 from sim.skeleton import NUM_JOINTS, PARENTS, REST_OFFSETS
 
-_PARENTS = np.array(PARENTS, dtype=np.int64)
-_OFFSETS = np.ascontiguousarray(REST_OFFSETS, dtype=np.float64)
+# skeleton data, passed to the kernels as arguments (a global would be frozen into numba's
+# on-disk cache, which only notices changes to this file)
+PARENT_INDEX = np.array(PARENTS, dtype=np.int64)
+OFFSETS = np.ascontiguousarray(REST_OFFSETS, dtype=np.float64)
 
 
 @intrinsic
@@ -42,11 +44,6 @@ def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
         return builder.fma(args[0], args[1], args[2])
 
     return sig, codegen
-
-
-@njit(cache=True, inline="always")
-def fma(a: float, b: float, c: float) -> float:
-    return _fma(a, b, c)
 
 
 @njit(cache=True, inline="always")
@@ -189,20 +186,20 @@ def step_poses(
     y = ln2 / halflife, eydt = exp(-y dt)), and the pose is ``exp(offset) @ frame`` with joint
     0 turned to the heading and the pelvis (frame + offset, plus the seat correction) placed on
     the root; ``reals`` (N,4): heading, root x, root y, seat correction (as ``MotionMatcher``)."""
-    n = off_rot.shape[0]
+    n, nj = off_rot.shape[0], off_rot.shape[1]
     e = np.empty((3, 3))
     a = np.empty((3, 3))
     b = np.empty((3, 3))
     rv = np.empty(3)
-    x = np.empty((NUM_JOINTS, 3))
-    v = np.empty((NUM_JOINTS, 3))
+    x = np.empty((nj, 3))
+    v = np.empty((nj, 3))
     xp = np.empty(3)
     vp = np.empty(3)
     for i in range(n):
         g, s = chars[i, 0], chars[i, 1]
         if s >= 0:
             gs, gd = switches[s, 0], switches[s, 1]
-            for j in range(NUM_JOINTS):
+            for j in range(nj):
                 _rotvec_to_matrix(off_rot[i, j, 0], off_rot[i, j, 1], off_rot[i, j, 2], e)
                 _matmul3(e, store_rot[gs, j], a)
                 _matmul3_bt(a, store_rot[gd, j], b)
@@ -214,7 +211,7 @@ def step_poses(
                 xp[c] = off_pos[i, c] + store_aux[gs, c] - store_aux[gd, c]
                 vp[c] = off_vel[i, c] + sw_lin[0, s, c] - sw_lin[1, s, c]
         else:
-            for j in range(NUM_JOINTS):
+            for j in range(nj):
                 for c in range(3):
                     x[j, c] = off_rot[i, j, c]
                     v[j, c] = off_av[i, j, c]
@@ -222,7 +219,7 @@ def step_poses(
                 xp[c] = off_pos[i, c]
                 vp[c] = off_vel[i, c]
         # decay_spring, element by element
-        for j in range(NUM_JOINTS):
+        for j in range(nj):
             for c in range(3):
                 j1 = v[j, c] + x[j, c] * y
                 out_rot[i, j, c] = eydt * (x[j, c] + j1 * dt)
@@ -232,7 +229,7 @@ def step_poses(
             out_pos[i, c] = eydt * (xp[c] + j1 * dt)
             out_vel[i, c] = eydt * (vp[c] - j1 * y * dt)
         # apply_rotation_offsets, then joint 0 turned by rot_z(heading)
-        for j in range(NUM_JOINTS):
+        for j in range(nj):
             _rotvec_to_matrix(out_rot[i, j, 0], out_rot[i, j, 1], out_rot[i, j, 2], e)
             _matmul3(e, store_rot[g, j], out_local[i, j])
         ch, sh = math.cos(reals[i, 0]), math.sin(reals[i, 0])
@@ -255,37 +252,40 @@ def step_poses(
 
 
 @njit(cache=True, inline="always")
-def _fk_positions(local: np.ndarray, pelvis: np.ndarray, t: np.ndarray, out: np.ndarray) -> None:
+def _fk_positions(local: np.ndarray, pelvis: np.ndarray, parents: np.ndarray, offsets: np.ndarray, t: np.ndarray,
+                  out: np.ndarray) -> None:
     """Joint positions (22,3) of one pose, as ``sim.skeleton.forward_kinematics`` (its chain of
     4x4 products, each element an fma chain over k = 0..3). ``t`` (22,3,4) is scratch."""
+    nj = local.shape[0]
     for r in range(3):
         for c in range(3):
             t[0, r, c] = local[0, r, c]
         t[0, r, 3] = pelvis[r]
-    for j in range(1, NUM_JOINTS):
-        p = _PARENTS[j]
+    for j in range(1, nj):
+        p = parents[j]
         for r in range(3):
             for c in range(3):
                 acc = t[p, r, 0] * local[j, 0, c]
                 acc = _fma(t[p, r, 1], local[j, 1, c], acc)
                 acc = _fma(t[p, r, 2], local[j, 2, c], acc)
                 t[j, r, c] = _fma(t[p, r, 3], 0.0, acc)
-            acc = t[p, r, 0] * _OFFSETS[j, 0]
-            acc = _fma(t[p, r, 1], _OFFSETS[j, 1], acc)
-            acc = _fma(t[p, r, 2], _OFFSETS[j, 2], acc)
+            acc = t[p, r, 0] * offsets[j, 0]
+            acc = _fma(t[p, r, 1], offsets[j, 1], acc)
+            acc = _fma(t[p, r, 2], offsets[j, 2], acc)
             t[j, r, 3] = _fma(t[p, r, 3], 1.0, acc)
-    for j in range(NUM_JOINTS):
+    for j in range(nj):
         for r in range(3):
             out[j, r] = t[j, r, 3]
 
 
 @njit(cache=True)
-def fk_positions(local: np.ndarray, pelvis: np.ndarray) -> np.ndarray:
+def fk_positions(local: np.ndarray, pelvis: np.ndarray, parents: np.ndarray = PARENT_INDEX,
+                 offsets: np.ndarray = OFFSETS) -> np.ndarray:
     """Joint positions (K,22,3) of poses (K,22,3,3) with pelvis (K,3)."""
-    out = np.empty((local.shape[0], NUM_JOINTS, 3))
-    t = np.empty((NUM_JOINTS, 3, 4))
+    out = np.empty((local.shape[0], local.shape[1], 3))
+    t = np.empty((local.shape[1], 3, 4))
     for k in range(local.shape[0]):
-        _fk_positions(local[k], pelvis[k], t, out[k])
+        _fk_positions(local[k], pelvis[k], parents, offsets, t, out[k])
     return out
 
 
@@ -293,6 +293,7 @@ def fk_positions(local: np.ndarray, pelvis: np.ndarray) -> np.ndarray:
 # joint positions (22*3), joint velocities (22*3), future root positions (3*2), future
 # facings (3*2), target position (2), target facing (2), target height (1).
 SRC_POS, SRC_VEL, SRC_FUT_POS, SRC_FUT_DIR, SRC_T_POS, SRC_T_DIR, SRC_T_H, SRC_SIZE = 0, 66, 132, 138, 144, 146, 148, 149
+assert SRC_VEL == 3 * NUM_JOINTS and SRC_FUT_POS == 6 * NUM_JOINTS
 
 
 # columns of ``query_features``'s per-character scalars
@@ -304,6 +305,7 @@ Q_HAS_PREV, Q_POSE_DT, Q_OLD_HEADING, Q_ROOT_X, Q_ROOT_Y, Q_HEADING, Q_HAS_TARGE
 def query_features(
     cur_local: np.ndarray, cur_pelvis: np.ndarray, prev_local: np.ndarray, prev_pelvis: np.ndarray,
     fut_xy: np.ndarray, fut_h: np.ndarray, scalars: np.ndarray, sources: np.ndarray,
+    parents: np.ndarray, offsets: np.ndarray,
 ) -> np.ndarray:
     """Raw query features (M,D) of M characters with an output pose, as
     ``MotionMatcher._query_features_many`` computes them: joints of the last pose (``cur_*``)
@@ -311,28 +313,29 @@ def query_features(
     before (``prev_*``), over ``pose_dt``, in the frame of the old heading; zeros without a
     previous pose), and the control inputs of the query (``relative_target`` of the future
     points (M,3,2) / headings (M,3) and of the target). ``scalars`` (M, Q_SIZE): the ``Q_*``
-    columns; ``sources`` (D,): the layout's entries of the SRC_* vector."""
-    m = cur_local.shape[0]
+    columns; ``sources`` (D,): the layout's entries of the SRC_* vector; ``parents`` /
+    ``offsets``: the skeleton (``PARENT_INDEX``, ``OFFSETS``)."""
+    m, nj = cur_local.shape[0], cur_local.shape[1]
     src = np.zeros(SRC_SIZE)
     out = np.empty((m, sources.shape[0]))
-    t = np.empty((NUM_JOINTS, 3, 4))
-    jc = np.empty((NUM_JOINTS, 3))
-    jp = np.empty((NUM_JOINTS, 3))
+    t = np.empty((nj, 3, 4))
+    jc = np.empty((nj, 3))
+    jp = np.empty((nj, 3))
     for i in range(m):
         sc = scalars[i]
         rx, ry, h = sc[Q_ROOT_X], sc[Q_ROOT_Y], sc[Q_HEADING]
-        _fk_positions(cur_local[i], cur_pelvis[i], t, jc)
+        _fk_positions(cur_local[i], cur_pelvis[i], parents, offsets, t, jc)
         c, s = math.cos(h), math.sin(h)
-        for j in range(NUM_JOINTS):
+        for j in range(nj):
             dx = jc[j, 0] - rx
             dy = jc[j, 1] - ry
             src[SRC_POS + 3 * j] = c * dx + s * dy
             src[SRC_POS + 3 * j + 1] = -s * dx + c * dy
             src[SRC_POS + 3 * j + 2] = jc[j, 2]
         if sc[Q_HAS_PREV] != 0.0:
-            _fk_positions(prev_local[i], prev_pelvis[i], t, jp)
+            _fk_positions(prev_local[i], prev_pelvis[i], parents, offsets, t, jp)
             co, so, pdt = math.cos(sc[Q_OLD_HEADING]), math.sin(sc[Q_OLD_HEADING]), sc[Q_POSE_DT]
-            for j in range(NUM_JOINTS):
+            for j in range(nj):
                 v0 = (jc[j, 0] - jp[j, 0]) / pdt
                 v1 = (jc[j, 1] - jp[j, 1]) / pdt
                 v2 = (jc[j, 2] - jp[j, 2]) / pdt
@@ -340,7 +343,7 @@ def query_features(
                 src[SRC_VEL + 3 * j + 1] = -so * v0 + co * v1
                 src[SRC_VEL + 3 * j + 2] = v2
         else:
-            for k in range(SRC_VEL, SRC_VEL + 3 * NUM_JOINTS):
+            for k in range(SRC_VEL, SRC_VEL + 3 * nj):
                 src[k] = 0.0
         for k in range(3):
             d0 = fut_xy[i, k, 0] - rx

@@ -43,7 +43,7 @@ from sim.motion_frames import (
     shared_store,
     shared_table,
 )
-from sim.motion_kernels import query_features, step_poses
+from sim.motion_kernels import OFFSETS, PARENT_INDEX, query_features, step_poses
 from sim.skeleton import NUM_JOINTS, forward_kinematics
 
 
@@ -318,7 +318,7 @@ class MotionMatcher:
         return query_features(np.array(cur_l, dtype=float), np.array(cur_p, dtype=float),
                               np.array(prev_l, dtype=float), np.array(prev_p, dtype=float),
                               np.array(fut_xy, dtype=float), np.array(fut_h, dtype=float),
-                              np.array(scalars, dtype=float), info.sources)
+                              np.array(scalars, dtype=float), info.sources, PARENT_INDEX, OFFSETS)
 
     def step_many(self, states: Sequence[MatchState], queries: Sequence[MotionQuery],
                   dt: float) -> tuple[list[MatchState], list[Pose]]:
