@@ -277,15 +277,16 @@ class NavGrid:
 
     def _entry_cell(self, p: np.ndarray, component: int | None) -> tuple[int, int] | None:
         ci, cj = self.cell_of(p)
-        cand = [
-            (i, j)
-            for i in range(ci - 2, ci + 3)
-            for j in range(cj - 2, cj + 3)
-            if self.in_grid(i, j) and self.component[i, j] >= 0 and (component is None or self.component[i, j] == component)
-        ]
-        if not cand:
+        nx, ny = self.shape
+        i0, i1, j0, j1 = max(ci - 2, 0), min(ci + 3, nx), max(cj - 2, 0), min(cj + 3, ny)
+        if i0 >= i1 or j0 >= j1:
             return None
-        cells = np.asarray(cand)
+        window = self.component[i0:i1, j0:j1]  # the cells within 2 of p's, in (i, j) order
+        ok = window >= 0 if component is None else (window >= 0) & (window == component)
+        ii, jj = np.nonzero(ok)
+        if len(ii) == 0:
+            return None
+        cells = np.stack([ii + i0, jj + j0], axis=1)
         centers = self.centers(cells)
         d = np.linalg.norm(centers - p, axis=1)
         clear = body_clearance(self.obstacles, centers, np.broadcast_to(p, centers.shape), cutoff=self.body_radius) >= self.body_radius
@@ -365,11 +366,30 @@ def body_clearance(
         near = _near_circles(a, b, centres, radii, float(cutoff) + 1e-6)
         objs = [objs[k] for k in np.flatnonzero(near)]
     same = a is b or np.array_equal(a, b)
-    for obj in objs:
-        la = np.ascontiguousarray(obj.to_local(a), dtype=float)
-        lb = la if same else np.ascontiguousarray(obj.to_local(b), dtype=float)
-        _min_segment_rect_distance(la, lb, obj.width / 2.0, obj.depth / 2.0, out)
+    for obj in objs:  # SceneObject.to_local's arithmetic, with the object's frame looked up once
+        centre, right, facing = _object_frame(obj)
+        da = a - centre
+        ax, ay = da @ right, da @ facing
+        if same:
+            bx, by = ax, ay
+        else:
+            db = b - centre
+            bx, by = db @ right, db @ facing
+        _min_segment_rect_distance(ax, ay, bx, by, obj.width / 2.0, obj.depth / 2.0, out)
     return out
+
+
+_FRAMES: dict[int, tuple[SceneObject, np.ndarray, np.ndarray, np.ndarray]] = {}
+
+
+def _object_frame(obj: SceneObject) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(``center_xy``, ``right``, facing) arrays of an (immutable) object, memoised by identity."""
+    hit = _FRAMES.get(id(obj))
+    if hit is None or hit[0] is not obj:
+        if len(_FRAMES) > 4096:
+            _FRAMES.clear()
+        hit = _FRAMES[id(obj)] = (obj, obj.center_xy, obj.right, np.array(obj.facing, dtype=float))
+    return hit[1], hit[2], hit[3]
 
 
 def body_clearance_reference(
@@ -421,12 +441,14 @@ def _near_circles(a: np.ndarray, b: np.ndarray, centres: np.ndarray, radii: np.n
 
 
 @njit(cache=True, nogil=True)
-def _min_segment_rect_distance(a: np.ndarray, b: np.ndarray, hw: float, hd: float,
+def _min_segment_rect_distance(ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray, hw: float, hd: float,
                                out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``out = np.minimum(out, _segment_rect_distance(a, b, hw, hd))``, element by element."""
-    for i in range(a.shape[0]):
-        a0, a1 = a[i, 0], a[i, 1]
-        d0, d1 = b[i, 0] - a0, b[i, 1] - a1
+    """``out = np.minimum(out, _segment_rect_distance(a, b, hw, hd))`` element by element, for
+    local segments a -> b given by their coordinates (ax, ay) -> (bx, by)."""
+    for i in range(ax.shape[0]):
+        a0, a1 = ax[i], ay[i]
+        b0, b1 = bx[i], by[i]
+        d0, d1 = b0 - a0, b1 - a1
         t_lo, t_hi, inside = 0.0, 1.0, True
         for axis in range(2):
             da = d0 if axis == 0 else d1
@@ -443,7 +465,7 @@ def _min_segment_rect_distance(a: np.ndarray, b: np.ndarray, hw: float, hd: floa
             dist = 0.0
         else:
             dist = _fmin(math.hypot(_fmax(abs(a0) - hw, 0.0), _fmax(abs(a1) - hd, 0.0)),
-                         math.hypot(_fmax(abs(b[i, 0]) - hw, 0.0), _fmax(abs(b[i, 1]) - hd, 0.0)))
+                         math.hypot(_fmax(abs(b0) - hw, 0.0), _fmax(abs(b1) - hd, 0.0)))
             dd = _fmax(d0 * d0 + d1 * d1, 1e-18)
             for corner in range(4):
                 cx = -hw if corner == 0 or corner == 3 else hw
