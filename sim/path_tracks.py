@@ -92,25 +92,27 @@ def _tracks(flat: np.ndarray, lens: np.ndarray, ox: float, oy: float, cell_size:
     return out
 
 
-def walker_headings(path: np.ndarray, heading: np.ndarray, step_dir: np.ndarray,
+def walker_headings(last: np.ndarray, path: np.ndarray, heading: np.ndarray, step_dir: np.ndarray,
                     max_turn: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The world's per-frame walker kinematics, for W walkers at once.
 
-    ``path`` (W, 6, 2): each walker's position at the last frame, now, its planned positions
-    +10/+20/+30 frames ahead and the lookahead point it turns to; ``heading`` (W,): headings
-    at the last frame; ``step_dir`` (W, 3): ``np.arctan2`` of the three future steps (numpy's,
-    as the world always used). Returns (new headings wrapped to [-pi, pi), future headings
-    (W, 3): each future step's direction, or the new (unwrapped) heading where a step does not
-    move, moved this frame (W,)): the heading turns towards the lookahead point (when it
-    is more than 0.05 m away) by at most ``max_turn``. Same float operations as the Python
-    loop it replaces (``math.atan2``, ``math.hypot``, Python's float ``%``), compiled.
+    ``last`` (W, 2): each walker's position at the last frame; ``path`` (W, 5, 2): its position
+    now, its planned positions +10/+20/+30 frames ahead and the lookahead point it turns to;
+    ``heading`` (W,): headings at the last frame; ``step_dir`` (W, 3): ``np.arctan2`` of the
+    three future steps (numpy's, as the world always used). Returns (new headings wrapped to
+    [-pi, pi), future headings (W, 3): each future step's direction, or the new (unwrapped)
+    heading where a step does not move, moved this frame (W,)): the heading turns towards the
+    lookahead point (when it is more than 0.05 m away) by at most ``max_turn``. Same float
+    operations as the Python loop it replaces (``math.atan2``, ``math.hypot``, Python's float
+    ``%``), compiled.
     """
-    return _walker_headings(np.ascontiguousarray(path, dtype=float), np.ascontiguousarray(heading, dtype=float),
-                            np.ascontiguousarray(step_dir, dtype=float), float(max_turn))
+    return _walker_headings(np.ascontiguousarray(last, dtype=float), np.ascontiguousarray(path, dtype=float),
+                            np.ascontiguousarray(heading, dtype=float), np.ascontiguousarray(step_dir, dtype=float),
+                            float(max_turn))
 
 
 @njit(cache=True, nogil=True)
-def _walker_headings(path: np.ndarray, heading: np.ndarray, step_dir: np.ndarray,
+def _walker_headings(last: np.ndarray, path: np.ndarray, heading: np.ndarray, step_dir: np.ndarray,
                      max_turn: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
     n = path.shape[0]
     wrapped = np.empty(n)
@@ -118,9 +120,9 @@ def _walker_headings(path: np.ndarray, heading: np.ndarray, step_dir: np.ndarray
     moved = np.empty(n, dtype=np.bool_)
     tau = 2.0 * math.pi
     for i in range(n):
-        moved[i] = math.hypot(path[i, 1, 0] - path[i, 0, 0], path[i, 1, 1] - path[i, 0, 1]) > 1e-6
-        ax = path[i, 5, 0] - path[i, 1, 0]
-        ay = path[i, 5, 1] - path[i, 1, 1]
+        moved[i] = math.hypot(path[i, 0, 0] - last[i, 0], path[i, 0, 1] - last[i, 1]) > 1e-6
+        ax = path[i, 4, 0] - path[i, 0, 0]
+        ay = path[i, 4, 1] - path[i, 0, 1]
         h = heading[i]
         if math.hypot(ax, ay) > 0.05:
             err = (math.atan2(ay, ax) - h + math.pi) % tau - math.pi
@@ -130,6 +132,6 @@ def _walker_headings(path: np.ndarray, heading: np.ndarray, step_dir: np.ndarray
             h = h + err
         wrapped[i] = (h + math.pi) % tau - math.pi
         for j in range(3):
-            size = math.hypot(path[i, j + 2, 0] - path[i, j + 1, 0], path[i, j + 2, 1] - path[i, j + 1, 1])
+            size = math.hypot(path[i, j + 1, 0] - path[i, j, 0], path[i, j + 1, 1] - path[i, j, 1])
             fut[i, j] = step_dir[i, j] if size > 1e-6 else h
     return wrapped, fut, moved

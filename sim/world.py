@@ -616,17 +616,15 @@ class World:
         walkers = [c for c in chars if c.walker]
         walk: dict[int, int] = {}  # id(c) -> the walker's row
         if walkers:  # the walkers' arrays in one go: planned futures, distances, future headings
-            # path[:, 0]: the position at the last frame, 1: now (as ticked), 2-4: the planned
-            # future, 5: the point the heading turns to
-            path = np.concatenate([
-                np.array([c.xy for c in walkers], dtype=float).reshape(-1, 1, 2),
-                nav.futures([c.name for c in walkers], (0, *FUTURE_FRAMES, self.config.heading_lookahead))], axis=1)
-            steps = path[:, 2:5] - path[:, 1:4]  # the three future steps
+            # path[:, 0]: the position now (as ticked), 1-3: the planned future, 4: the point
+            # the heading turns to
+            path = nav.futures([c.name for c in walkers], (0, *FUTURE_FRAMES, self.config.heading_lookahead))
+            steps = path[:, 1:4] - path[:, 0:3]  # the three future steps
             wrapped, fut_h, moved = walker_headings(
-                path, np.array([c.heading for c in walkers], dtype=float), np.arctan2(steps[..., 1], steps[..., 0]),
-                max_turn)
+                np.array([c.xy for c in walkers], dtype=float).reshape(-1, 2), path,
+                np.array([c.heading for c in walkers], dtype=float), np.arctan2(steps[..., 1], steps[..., 0]), max_turn)
             h_l, moving_l = wrapped.tolist(), moved.tolist()
-            now, future, fut_h = list(path[:, 1]), list(path[:, 2:5]), list(fut_h)
+            now, future, fut_h = list(path[:, 0]), list(path[:, 1:4]), list(fut_h)
             walk = {id(c): i for i, c in enumerate(walkers)}
         for c in chars:  # in order: a partner's target is the partners' position so far
             i = walk.get(id(c))
@@ -662,14 +660,10 @@ class World:
         self.motion_states.update(zip(names, new_states, strict=True))
         rots = np.array([p.local_rotations for p in poses], dtype=float).reshape(n, NUM_JOINTS, 3, 3)
         pz = np.array([p.pelvis[2] for p in poses], dtype=float)
-        flags = [getattr(p, "contacts", None) for p in poses]
-        if all(f is not None for f in flags):
-            contacts = np.array(flags, dtype=bool).reshape(n, 2)
-        else:  # a layer without contact flags: none
-            contacts = np.zeros((n, 2), dtype=bool)
-            for k, f in enumerate(flags):
-                if f is not None:
-                    contacts[k] = f
+        try:  # the usual case: every pose has its (2,) contact flags
+            contacts = np.array([p.contacts for p in poses], dtype=bool).reshape(n, 2)
+        except (AttributeError, TypeError, ValueError):
+            contacts = _contacts_of(poses)
         pelvis, rots = compose_poses(rots, pz, root, heading)
         self.buffers.append(pelvis, rots, labels, contacts, [c.event_id or "" for c in chars])
         for c in chars:
@@ -711,6 +705,19 @@ class World:
             return centre, math.atan2(d[1], d[0]), None
         f = np.asarray(a.facing_xy)
         return c.anchor_xy + OBJECT_REACH * f, a.facing_angle + math.pi, None
+
+
+def _contacts_of(poses: Sequence[Any]) -> np.ndarray:
+    """Foot contact flags (N, 2) of poses; a layer without contact flags gives none (False)."""
+    n = len(poses)
+    flags = [getattr(p, "contacts", None) for p in poses]
+    if all(f is not None for f in flags):
+        return np.array(flags, dtype=bool).reshape(n, 2)
+    contacts = np.zeros((n, 2), dtype=bool)
+    for k, f in enumerate(flags):
+        if f is not None:
+            contacts[k] = f
+    return contacts
 
 
 _QUERY_FIELDS = ("label", "seated", "root_xy", "heading", "future_xy", "future_heading", "target_xy",

@@ -130,7 +130,8 @@ def test_compiled_walker_headings_equal_the_python_loop() -> None:
         heading = rng.uniform(-4.0, 4.0, size=w).tolist()
         max_turn = float(rng.choice([2.0 / 30, 0.5, 4.0]))
         steps = path[:, 2:5] - path[:, 1:4]
-        wrapped, fut, moved = walker_headings(path, np.array(heading), np.arctan2(steps[..., 1], steps[..., 0]), max_turn)
+        wrapped, fut, moved = walker_headings(path[:, 0], path[:, 1:], np.array(heading),
+                                              np.arctan2(steps[..., 1], steps[..., 0]), max_turn)
         ref_h, ref_f, ref_m = _headings_reference(path, heading, max_turn)
         assert wrapped.tolist() == ref_h
         assert np.array_equal(fut, ref_f) and fut.tobytes() == ref_f.tobytes()

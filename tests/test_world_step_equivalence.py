@@ -229,6 +229,16 @@ def test_the_worlds_query_constructor_builds_the_same_queries() -> None:
         fast.label = "idle"  # type: ignore[misc]
 
 
+def test_poses_without_contact_flags_give_no_contacts() -> None:
+    from types import SimpleNamespace
+
+    from sim.world import _contacts_of
+
+    poses = [SimpleNamespace(contacts=np.array([True, False])), SimpleNamespace(contacts=None), SimpleNamespace()]
+    assert _contacts_of(poses).tolist() == [[True, False], [False, False], [False, False]]
+    assert _contacts_of(poses[:1]).tolist() == [[True, False]]
+
+
 def test_the_fingerprint_notices_a_changed_position(result) -> None:  # type: ignore[no-untyped-def]
     # The hash is sensitive at the 1e-9 m level: a nudged value gives another digest.
     h1, h2 = hashlib.sha256(), hashlib.sha256()
