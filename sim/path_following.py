@@ -426,6 +426,8 @@ class CrowdNavigator:
                 continue
             goal = self._goals[a]
             parked = self._parked.get(a)
+            if parked is None and (goal is None or self._cells[a] != goal or a not in self._final):
+                continue  # a plain walker: no leg to start
             cell_xy = self.grid.center_of(*self._cells[a])
             if parked is not None:
                 final = self._final.get(a)
