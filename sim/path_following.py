@@ -101,6 +101,8 @@ class CrowdNavigator:
         self._stack_row: dict[Agent, int] = {}
         self._stack_len: list[int] = []
         self._rows_cache: dict[tuple[Agent, ...], tuple[np.ndarray, np.ndarray]] = {}  # see _rows_of
+        # (frame, offsets, agents, samples) of the last tick's look ahead (see tick, futures)
+        self._ahead: tuple[int, tuple[int, ...], tuple[Agent, ...], np.ndarray] | None = None
         self._plan_frame = 0
         self._static: dict[Agent, np.ndarray] = {}
         self._final: dict[Agent, np.ndarray] = {}  # exact target of the current goal
@@ -154,6 +156,7 @@ class CrowdNavigator:
         self._goals[agent] = None
         self._paths[agent] = [cell]
         self._stack = None
+        self._ahead = None
         if start is not None and float(np.linalg.norm(start - self.grid.center_of(*cell))) > 1e-9:
             self._parked[agent] = start
         self.set_goal(agent, goal, final_xy=final_xy)
@@ -224,6 +227,7 @@ class CrowdNavigator:
         self._goals.pop(agent, None)
         self._paths.pop(agent, None)
         self._stack_row.pop(agent, None)  # the other rows stay valid
+        self._ahead = None
         self._final.pop(agent, None)
         self._parked.pop(agent, None)
         self._legs.pop(agent, None)
@@ -325,25 +329,29 @@ class CrowdNavigator:
         """``future`` of several walkers at once: (len(agents), len(frames), 2), metres."""
         if not agents:
             return np.zeros((0, len(frames), 2))
-        base = self.frame - 1
-        stack, starts = self._rows_of(agents)
-        off, last = base - self._plan_frame, stack.shape[1] - 1
-        cols = np.array([min(max(int(k) + off, 0), last) for k in frames], dtype=np.int64)
-        out = stack.reshape(-1, 2).take(np.add.outer(starts, cols), axis=0)
-        if self._legs or self._parked:
-            for i, a in enumerate(agents):
-                if a in self._legs or a in self._parked:
-                    out[i] = [self._xy_at(a, base + int(k)) for k in frames]
-        return out
+        hit = self._ahead
+        if hit is not None and hit[0] == self.frame and hit[1] == tuple(int(k) for k in frames):
+            ticked, samples = hit[2], hit[3]  # sampled by this frame's tick: the same floats
+            if tuple(agents) == ticked:
+                return samples[:, 1:].copy()
+            row = {a: i for i, a in enumerate(ticked)}
+            if all(a in row for a in agents):
+                return samples[[row[a] for a in agents], 1:]
+        return self._sample(tuple(agents), self.frame - 1, frames)
 
     # ----- time ------------------------------------------------------------------------------------
-    def tick(self) -> dict[Agent, np.ndarray]:
-        """Walker positions (xy, metres) at the current frame; then the clock advances one frame."""
+    def tick(self, ahead: Sequence[int] = ()) -> dict[Agent, np.ndarray]:
+        """Walker positions (xy, metres) at the current frame; then the clock advances one frame.
+
+        ``ahead``: frame offsets at which to sample every walker's plan in the same pass, so
+        that ``futures(agents, ahead)`` until the next change is read from that sample."""
         if self.frame % self.step_frames == 0:
             self._step_boundary()
         agents = tuple(self._cells)
-        xy = self._positions(agents, self.frame)
-        out = dict(zip(agents, xy, strict=True))  # rows of one fresh array
+        ahead = tuple(int(k) for k in ahead)
+        samples = self._sample(agents, self.frame, (0, *ahead))  # (W, 1 + len(ahead), 2), fresh
+        xy = samples[:, 0]
+        out = dict(zip(agents, xy, strict=True))  # rows of the fresh sample
         headings = self.headings
         if agents == self._last_agents:  # the usual case: the same walkers as last frame
             for a, (d0, d1) in zip(agents, (xy - self._last_arr).tolist(), strict=True):
@@ -361,23 +369,23 @@ class CrowdNavigator:
                     headings[a] = 0.0
         self._last_xy, self._last_agents, self._last_arr = out, agents, xy
         self.frame += 1
+        self._ahead = (self.frame, ahead, agents, samples) if ahead else None
         return out
 
-    def _positions(self, agents: tuple[Agent, ...], frame: int) -> np.ndarray:
-        """``_xy_at(a, frame)`` for every agent, as one new array (len(agents), 2)."""
+    def _sample(self, agents: tuple[Agent, ...], frame: int, offsets: Sequence[int]) -> np.ndarray:
+        """``_xy_at(a, frame + k)`` for every agent and offset, as one new array
+        (len(agents), len(offsets), 2)."""
         if not agents:
-            return np.zeros((0, 2))
+            return np.zeros((0, len(offsets), 2))
         stack, starts = self._rows_of(agents)
-        d = min(max(frame - self._plan_frame, 0), stack.shape[1] - 1)
-        xy = stack.reshape(-1, 2).take(starts + d, axis=0)
+        off, last = frame - self._plan_frame, stack.shape[1] - 1
+        cols = np.array([min(max(int(k) + off, 0), last) for k in offsets], dtype=np.int64)
+        out = stack.reshape(-1, 2).take(np.add.outer(starts, cols), axis=0)
         if self._legs or self._parked:
             for i, a in enumerate(agents):
-                leg = self._legs.get(a)
-                if leg is not None:
-                    xy[i] = leg.at(frame)
-                elif a in self._parked:
-                    xy[i] = self._parked[a]
-        return xy
+                if a in self._legs or a in self._parked:
+                    out[i] = [self._xy_at(a, frame + int(k)) for k in offsets]
+        return out
 
     def _step_boundary(self) -> None:
         k = (self.frame - self._plan_frame) // self.step_frames
@@ -515,6 +523,7 @@ class CrowdNavigator:
         )
         self._paths = {a: list(p) for a, p in result.paths.items()}
         self._stack = None
+        self._ahead = None
         for a in off:
             self._paths[a] = [self._cells[a]]
         self._plan_frame = self.frame

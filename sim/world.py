@@ -599,7 +599,8 @@ class World:
         self._phase_ends(out)
         if boundary:
             self._join_walkers()
-        nav.tick()  # walkers' positions this frame (read back below with their futures)
+        horizon = (0, *FUTURE_FRAMES, self.config.heading_lookahead)
+        nav.tick(horizon)  # walkers' positions this frame and their planned futures (read below)
         if boundary:
             self._walker_checks(out)
             self._start_groups(out)
@@ -618,7 +619,7 @@ class World:
         if walkers:  # the walkers' arrays in one go: planned futures, distances, future headings
             # path[:, 0]: the position now (as ticked), 1-3: the planned future, 4: the point
             # the heading turns to
-            path = nav.futures([c.name for c in walkers], (0, *FUTURE_FRAMES, self.config.heading_lookahead))
+            path = nav.futures([c.name for c in walkers], horizon)
             steps = path[:, 1:4] - path[:, 0:3]  # the three future steps
             wrapped, fut_h, moved = walker_headings(
                 np.array([c.xy for c in walkers], dtype=float).reshape(-1, 2), path,

@@ -118,9 +118,10 @@ class WorldNavigator:
         return close_xy(here, there)
 
     # ----- time ----------------------------------------------------------------------------------
-    def tick(self) -> dict[str, np.ndarray]:
-        """Walker positions at this frame (then the navigator's clock advances)."""
-        return self.nav.tick()  # type: ignore[return-value]
+    def tick(self, ahead: Sequence[int] = ()) -> dict[str, np.ndarray]:
+        """Walker positions at this frame (then the navigator's clock advances); ``ahead``:
+        the frame offsets ``futures`` will be asked for (sampled in the same pass)."""
+        return self.nav.tick(ahead)  # type: ignore[return-value]
 
     def new_arrivals(self) -> list[str]:
         """Walkers that reached their goal since the last call, in order (with an exact target:

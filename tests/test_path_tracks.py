@@ -68,14 +68,15 @@ def test_batched_navigator_reads_equal_the_per_agent_ones() -> None:
         nav.set_goal(k, g, final_xy=final)
     horizon = (0, 1, 10, 20, 30, 95)
     legs = parked = 0
-    for _ in range(240):
-        ticked = nav.tick()
-        agents = nav.walkers
+    for f in range(240):
+        ticked = nav.tick(horizon if f % 3 else ())  # sampled ahead by the tick, or not
+        agents = nav.walkers if f % 2 else list(reversed(nav.walkers))
         for a in agents:
             assert np.array_equal(ticked[a], nav._xy_at(a, nav.frame - 1))
         batch = nav.futures(agents, horizon)
         for i, a in enumerate(agents):
             assert np.array_equal(batch[i], nav.future(a, horizon))
+        assert np.array_equal(nav.futures(agents[:2], (5, 0)), np.stack([nav.future(a, (5, 0)) for a in agents[:2]]))
         legs += bool(nav._legs)
         parked += bool(nav._parked)
     assert legs and parked  # the exact-point legs and parked walkers were exercised
