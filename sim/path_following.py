@@ -40,7 +40,7 @@ from sim.cooperative_astar import (
 )
 from sim.nav_grid import NavGrid, body_clearance
 from sim.path_fallback import PriorityKeeper
-from sim.path_tracks import path_tracks
+from sim.path_tracks import gather_rows, path_tracks
 
 Agent = Hashable
 
@@ -289,7 +289,7 @@ class CrowdNavigator:
         return stack
 
     def _rows_of(self, agents: Sequence[Agent]) -> tuple[np.ndarray, np.ndarray]:
-        """(``_stacked()``, index of each agent's first row in the stack seen as (A * D, 2))."""
+        """(``_stacked()``, each agent's row in it)."""
         key = tuple(agents)
         hit = self._rows_cache.get(key)
         if hit is not None and hit[0] is self._stack:
@@ -300,7 +300,7 @@ class CrowdNavigator:
             self._stack = None
             stack = self._stacked()
             row = self._stack_row
-        hit = (stack, np.array([row[a] for a in key], dtype=np.int64) * stack.shape[1])
+        hit = (stack, np.array([row[a] for a in key], dtype=np.int64))
         if len(self._rows_cache) > 8:
             self._rows_cache.clear()
         self._rows_cache[key] = hit
@@ -375,12 +375,10 @@ class CrowdNavigator:
     def _sample(self, agents: tuple[Agent, ...], frame: int, offsets: Sequence[int]) -> np.ndarray:
         """``_xy_at(a, frame + k)`` for every agent and offset, as one new array
         (len(agents), len(offsets), 2)."""
-        if not agents:
-            return np.zeros((0, len(offsets), 2))
+        if not agents or not offsets:
+            return np.zeros((len(agents), len(offsets), 2))
         stack, starts = self._rows_of(agents)
-        off, last = frame - self._plan_frame, stack.shape[1] - 1
-        cols = np.array([min(max(int(k) + off, 0), last) for k in offsets], dtype=np.int64)
-        out = stack.reshape(-1, 2).take(np.add.outer(starts, cols), axis=0)
+        out = gather_rows(stack, starts, frame - self._plan_frame, tuple(int(k) for k in offsets))
         if self._legs or self._parked:
             for i, a in enumerate(agents):
                 if a in self._legs or a in self._parked:

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 from numba import njit
 
-__all__ = ["path_tracks", "track_frames", "track_reference", "walker_headings"]
+__all__ = ["gather_rows", "path_tracks", "track_frames", "track_reference", "walker_headings"]
 
 Cell = tuple[int, int]
 
@@ -89,6 +89,24 @@ def _tracks(flat: np.ndarray, lens: np.ndarray, ox: float, oy: float, cell_size:
             out[a, d, 0] = (1.0 - s) * (ox + (flat[p, 0] + 0.5) * cell_size) + s * (ox + (flat[q, 0] + 0.5) * cell_size)
             out[a, d, 1] = (1.0 - s) * (oy + (flat[p, 1] + 0.5) * cell_size) + s * (oy + (flat[q, 1] + 0.5) * cell_size)
         start += lens[a]
+    return out
+
+
+def gather_rows(tracks: np.ndarray, rows: np.ndarray, offset: int, frames: tuple[int, ...]) -> np.ndarray:
+    """``tracks[rows[i], clip(offset + frames[j], 0, D - 1)]`` as a new array (len(rows), len(frames), 2)
+    (``tracks`` (A, D, 2) as built by ``path_tracks``: later frames stay on the last row)."""
+    return _gather_rows(tracks, rows, int(offset), frames)
+
+
+@njit(cache=True, nogil=True)
+def _gather_rows(tracks: np.ndarray, rows: np.ndarray, offset: int, frames: tuple[int, ...]) -> np.ndarray:  # pragma: no cover
+    last = tracks.shape[1] - 1
+    out = np.empty((rows.shape[0], len(frames), 2))
+    for j in range(len(frames)):
+        d = min(max(frames[j] + offset, 0), last)
+        for i in range(rows.shape[0]):
+            out[i, j, 0] = tracks[rows[i], d, 0]
+            out[i, j, 1] = tracks[rows[i], d, 1]
     return out
 
 
