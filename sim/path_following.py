@@ -103,6 +103,7 @@ class CrowdNavigator:
         self._rows_cache: dict[tuple[Agent, ...], tuple[np.ndarray, np.ndarray]] = {}  # see _rows_of
         # (frame, offsets, agents, samples) of the last tick's look ahead (see tick, futures)
         self._ahead: tuple[int, tuple[int, ...], tuple[Agent, ...], np.ndarray] | None = None
+        self._reorder: tuple[tuple[Agent, ...], tuple[Agent, ...], np.ndarray | None] | None = None  # see futures
         self._plan_frame = 0
         self._static: dict[Agent, np.ndarray] = {}
         self._final: dict[Agent, np.ndarray] = {}  # exact target of the current goal
@@ -332,11 +333,16 @@ class CrowdNavigator:
         hit = self._ahead
         if hit is not None and hit[0] == self.frame and hit[1] == tuple(int(k) for k in frames):
             ticked, samples = hit[2], hit[3]  # sampled by this frame's tick: the same floats
-            if tuple(agents) == ticked:
+            key = tuple(agents)
+            if key == ticked:
                 return samples[:, 1:].copy()
-            row = {a: i for i, a in enumerate(ticked)}
-            if all(a in row for a in agents):
-                return samples[[row[a] for a in agents], 1:]
+            order = self._reorder
+            if order is None or order[0] != ticked or order[1] != key:
+                row = {a: i for i, a in enumerate(ticked)}
+                idx = np.array([row[a] for a in key], dtype=np.int64) if all(a in row for a in key) else None
+                order = self._reorder = (ticked, key, idx)
+            if order[2] is not None:
+                return samples[order[2], 1:]
         return self._sample(tuple(agents), self.frame - 1, frames)
 
     # ----- time ------------------------------------------------------------------------------------
