@@ -65,6 +65,7 @@ from sim.character_phases import (
 )
 from sim.character_track import CharacterTrack
 from sim.cooperative_astar import Cell, PathPlanner
+from sim.foot_ik import FootSolver, FootState
 from sim.nav_grid import NavGrid, build_nav_grid
 from sim.path_following import close_xy
 from sim.path_tracks import walker_headings
@@ -99,7 +100,10 @@ class WorldConfig:
     max_target_offset: metres between a target and the nearest reachable cell centre beyond
     which the target counts as unreachable; exact_patience_s: seconds a walker on its goal cell
     waits for room to step onto its exact target before it settles for the cell centre
-    (``target_occupied``); initial_capacity: frames pre-allocated per track."""
+    (``target_occupied``); initial_capacity: frames pre-allocated per track; foot_ik: run the
+    leg IK (``sim.foot_ik.FootSolver``) on every frame's poses: feet kept out of floor-standing
+    furniture and pinned while in contact (characters sitting, sitting down or standing up are
+    left as animated)."""
 
     fps: int = 30
     seed: int = 0
@@ -109,6 +113,7 @@ class WorldConfig:
     max_target_offset: float = 0.75
     exact_patience_s: float = 3.0
     initial_capacity: int = 512
+    foot_ik: bool = True
 
 
 @dataclass
@@ -131,6 +136,7 @@ class WorldSnapshot:
     motion_states: dict[str, Any]
     navigator: WorldNavigator
     buffers: TrackBuffers
+    feet: FootState | None = None
 
 
 class World:
@@ -186,6 +192,8 @@ class World:
             self.navigator.add_walker(name, cell)
             self.motion_states[name] = motion.initial_state("idle", centre, float(heading))
         self.buffers = TrackBuffers(self.names, max(1, self.config.initial_capacity))
+        self.foot_solver = FootSolver.from_scene(scene) if self.config.foot_ik else None
+        self.feet: FootState | None = FootSolver.initial_state(len(self.names)) if self.foot_solver else None
 
     # ----- snapshots ---------------------------------------------------------------------------
     def _shared_memo(self) -> dict[int, Any]:
@@ -203,6 +211,7 @@ class World:
             motion_states=copy.deepcopy(self.motion_states, memo),
             navigator=copy.deepcopy(self.navigator, memo),
             buffers=self.buffers.trimmed(),
+            feet=copy.deepcopy(self.feet),
         )
 
     def restore(self, snap: WorldSnapshot) -> World:
@@ -215,6 +224,7 @@ class World:
         out.motion_states = copy.deepcopy(snap.motion_states, memo)
         out.navigator = copy.deepcopy(snap.navigator, memo)
         out.buffers = snap.buffers.trimmed()
+        out.feet = copy.deepcopy(snap.feet)
         return out
 
     # ----- read-outs ------------------------------------------------------------------------------
@@ -612,6 +622,7 @@ class World:
         max_turn = self.config.walk_turn_rate * dt
         queries: list[MotionQuery] = []
         labels: list[str] = []
+        still_feet: list[bool] = []  # sitting, sitting down, standing up: feet as animated
         heading_l: list[float] = []
         root_l: list[np.ndarray] = []
         walkers = [c for c in chars if c.walker]
@@ -647,6 +658,7 @@ class World:
                 force_search=restart,
             ))
             labels.append(key)
+            still_feet.append(seated or label in ("sit_down", "stand_up"))
             heading_l.append(c.heading)
             root_l.append(c.xy)
         heading = np.array(heading_l, dtype=float)
@@ -666,6 +678,8 @@ class World:
         except (AttributeError, TypeError, ValueError):
             contacts = _contacts_of(poses)
         pelvis, rots = compose_poses(rots, pz, root, heading)
+        if self.foot_solver is not None and self.feet is not None:
+            rots, self.feet = self.foot_solver.apply(pelvis, rots, contacts, self.feet, active=~np.array(still_feet))
         self.buffers.append(pelvis, rots, labels, contacts, [c.event_id or "" for c in chars])
         for c in chars:
             c.phase_frame += 1

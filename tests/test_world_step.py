@@ -385,3 +385,42 @@ def test_an_exact_target_crowded_by_a_standing_body_settles_for_the_cell_centre(
     assert ann.target is not None and ann.target.fallback == "target_occupied" and "too close" in ann.target.message
     assert np.allclose(ann.xy, goal)
     assert np.linalg.norm(w.positions()[0] - w.positions()[1]) >= 0.5 - 1e-9
+
+
+def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office) -> None:  # type: ignore[no-untyped-def]
+    from sim.foot_ik import LEG_JOINTS
+    from sim.motion_database import load_databases
+    from sim.motion_matching import MotionMatcher, foot_sliding
+    from sim.skeleton import forward_kinematics
+
+    scene, grid, planner = office
+    cells = _free_cells(office)
+    matcher = MotionMatcher(load_databases(["idle", "walk"]))
+    chars = {"ann": (_cell_xy(office, *cells[0]), 0.0), "bob": (_cell_xy(office, *cells[60]), 1.0)}
+    cmds = {0: [AssignEvent(event_id="a", assignments=(_go("ann", _cell_xy(office, *cells[200])),)),
+                AssignEvent(event_id="b", assignments=(_go("bob", _cell_xy(office, *cells[5])),))]}
+
+    def make(ik: bool) -> World:
+        return World(scene, chars, matcher, grid=grid, planner=planner, config=WorldConfig(foot_ik=ik))
+
+    raw, ik = make(False), make(True)
+    run(raw, 150, cmds)
+    run(ik, 70, cmds)
+    snap = ik.snapshot()  # mid-walk: feet locked
+    assert ik.feet is not None and ik.feet.locked.any()
+    run(ik, 80, {})
+    again = ik.restore(snap)
+    run(again, 80, {})
+    legs = list(LEG_JOINTS)
+    others = [j for j in range(NUM_JOINTS) if j not in legs]
+    slide = {}
+    for name in chars:
+        r, k, a = raw.tracks()[name], ik.tracks()[name], again.tracks()[name]
+        assert np.array_equal(r.root_positions, k.root_positions)  # the pelvis stays on the path
+        assert np.array_equal(r.local_rotations[:, others], k.local_rotations[:, others])
+        assert not np.allclose(r.local_rotations[:, legs], k.local_rotations[:, legs])
+        assert np.array_equal(k.local_rotations, a.local_rotations)  # the foot state is in the snapshot
+        contacts = raw.foot_contacts()[name]
+        slide[name] = [foot_sliding(forward_kinematics(t.local_rotations, t.root_positions)[0], contacts)
+                       for t in (r, k)]
+    assert all(after < before for before, after in slide.values()), slide
