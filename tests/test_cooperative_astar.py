@@ -115,13 +115,13 @@ def _corridor() -> NavGrid:
 
 
 def test_corridor_swap_is_solved_with_fallback_and_stays_clear() -> None:
-    # Solved when walkers keep a still-valid plan every other replan (reuse_plans=True); with
-    # the default (search every replan) prioritized planning ping-pongs here (the pushed agent
+    # Solved because walkers keep a still-valid plan every other replan (reuse_plans, the
+    # default); searching every replan, prioritized planning ping-pongs here (the pushed agent
     # must enter the pocket before the other arrives): see the test below.
     grid = _corridor()
     row = [c for c in map(tuple, np.argwhere(grid.free)) if c[1] == 2]
     left, right = (int(min(row)[0]), 2), (int(max(row)[0]), 2)
-    nav = CrowdNavigator(grid, PathPlanner(grid, window=8), seed=0, reuse_plans=True)
+    nav = CrowdNavigator(grid, PathPlanner(grid, window=8), seed=0)
     nav.add_walker("a", left, right)
     nav.add_walker("b", right, left)
     trace = []
@@ -137,14 +137,14 @@ def test_corridor_swap_is_solved_with_fallback_and_stays_clear() -> None:
 
 @pytest.mark.xfail(
     strict=True,
-    reason="known limitation of prioritized planning searching every replan: ping-pong in a corridor swap "
-    "(a swap needs the pushed agent to enter the pocket before the other arrives; CBS-level)",
+    reason="known limitation of prioritized planning searching every replan (reuse_plans=False): ping-pong in "
+    "a corridor swap (a swap needs the pushed agent to enter the pocket before the other arrives; CBS-level)",
 )
 def test_corridor_swap_without_plan_reuse_ping_pongs() -> None:
     grid = _corridor()
     row = [c for c in map(tuple, np.argwhere(grid.free)) if c[1] == 2]
     left, right = (int(min(row)[0]), 2), (int(max(row)[0]), 2)
-    nav = CrowdNavigator(grid, PathPlanner(grid, window=8), seed=0)
+    nav = CrowdNavigator(grid, PathPlanner(grid, window=8), seed=0, reuse_plans=False)
     nav.add_walker("a", left, right)
     nav.add_walker("b", right, left)
     for _ in range(30 * 60):
@@ -247,7 +247,7 @@ def test_kept_plans_alternate_with_searches_and_stay_conflict_free() -> None:
             planned = {a: p for a, p in res.paths.items() if len(p) > 1}
             assert plan_conflicts(planned, GRID.cell_size, GRID.body_radius, steps=1) == []
     assert kept_total > 0
-    nav2 = CrowdNavigator(GRID, PathPlanner(GRID, window=20), seed=0)  # default: always search
+    nav2 = CrowdNavigator(GRID, PathPlanner(GRID, window=20), seed=0, reuse_plans=False)  # always search
     for i, (s, g) in enumerate(zip(starts, goals, strict=True)):
         nav2.add_walker(i, s, g)
     for _ in range(30 * 3):
