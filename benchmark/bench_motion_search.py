@@ -1,8 +1,9 @@
 """Motion search benchmark: exact KD-tree vs brute force on locomotion features.
 
 Builds locomotion databases of 1k to 100k frames from procedural walking clips
-(speeds 0.5-1.8 m/s, turn rates -1.2..1.2 rad/s), keeps 27 feature dimensions (the
-locomotion layout without spine3 velocity), normalises them like a motion database, and
+(speeds 0.5-1.8 m/s, turn rates -1.2..1.2 rad/s) with the full locomotion feature layout
+(36 dimensions: feet, pelvis and spine3 positions and velocities, future positions and
+directions), normalises them like a motion database, and
 times per-query latency of the reference brute force, the exact scan and the KD-tree (single
 queries and a batch, as a frame of many characters would issue) over a range of sizes, to
 place ``SCAN_THRESHOLD``. Every answer is checked against brute force.
@@ -31,7 +32,6 @@ def _features(frames: int, rng: np.random.Generator) -> np.ndarray:
         clip = locomotion_clip("bench", lambda t, v=v: np.full_like(t, v), lambda t, w=w: np.full_like(t, w),
                                period, loops=True)
         f = clip_raw_features(clip, "locomotion")
-        f = np.delete(f, np.s_[15:18], axis=1)  # 27-D: drop spine3 velocity
         rows.append(f)
         total += len(f)
     feats = np.concatenate(rows)[:frames]

@@ -4,8 +4,8 @@ A feature vector has a *pose* part, computed from joint positions and velocities
 character frame (x forward, y left, z up, origin at the root's ground point), and a
 *control* part that says where the character should go or what it acts on:
 
-- locomotion: feet positions and velocities, pelvis and spine3 velocities (pose) + root
-  positions and facing directions 10, 20 and 30 frames ahead (control);
+- locomotion: feet, pelvis and spine3 positions and velocities (pose) + root positions and
+  facing directions 10, 20 and 30 frames ahead (control);
 - sitting (and seated variants): pelvis height, pelvis velocity, feet positions (pose) +
   seat position, seat facing and seat height (control);
 - partner: pelvis velocity, feet and wrist positions (pose) + partner position and facing;
@@ -34,7 +34,8 @@ LayoutName = Literal["locomotion", "sitting", "seated", "partner", "in_place", "
 FEATURE_LAYOUTS: dict[LayoutName, Layout] = {
     "locomotion": (
         ("left_foot_pos", 3), ("right_foot_pos", 3), ("left_foot_vel", 3), ("right_foot_vel", 3),
-        ("pelvis_vel", 3), ("spine3_vel", 3), ("future_pos", 6), ("future_dir", 6),
+        ("pelvis_pos", 3), ("spine3_pos", 3), ("pelvis_vel", 3), ("spine3_vel", 3), ("future_pos", 6),
+        ("future_dir", 6),
     ),
     "sitting": (
         ("pelvis_height", 1), ("pelvis_vel", 3), ("left_foot_pos", 3), ("right_foot_pos", 3),
@@ -66,6 +67,7 @@ def layout_for_key(key: str) -> LayoutName:
 CONTROL_GROUPS = frozenset({"future_pos", "future_dir", "target_pos", "target_dir", "target_height"})
 DEFAULT_WEIGHTS: dict[str, float] = {
     "future_pos": 1.5, "future_dir": 1.5, "target_pos": 1.5, "target_dir": 1.0, "target_height": 1.0,
+    "pelvis_pos": 0.5, "spine3_pos": 0.5,
 }
 
 

@@ -26,8 +26,8 @@ def walk_db():  # type: ignore[no-untyped-def]
 
 
 def test_layouts_and_database_shapes(walk_db) -> None:  # type: ignore[no-untyped-def]
-    assert layout_size(FEATURE_LAYOUTS["locomotion"]) == 30
-    assert walk_db.raw_features.shape == (walk_db.num_frames, 30)
+    assert layout_size(FEATURE_LAYOUTS["locomotion"]) == 36
+    assert walk_db.raw_features.shape == (walk_db.num_frames, 36)
     assert walk_db.local_rotations.shape == (walk_db.num_frames, 22, 3, 3)
     feats = walk_db.features
     assert np.all(np.isfinite(feats))
@@ -37,7 +37,10 @@ def test_layouts_and_database_shapes(walk_db) -> None:  # type: ignore[no-untype
     # future trajectory of a straight 1.0 m/s walk: 1/3 m ahead after 10 frames
     i = walk_db.clip_ranges[1, 0] + 5
     assert walk_db.clip_names[1] == "walk_1.0"
-    assert walk_db.raw_features[i, 18] == pytest.approx(1.0 / 3.0, abs=0.02)
+    assert walk_db.raw_features[i, 24] == pytest.approx(1.0 / 3.0, abs=0.02)
+    # pelvis and spine3 positions (character frame): the pelvis at its height, spine3 above it
+    assert walk_db.raw_features[i, 14] == pytest.approx(walk_db.pelvis[i, 2], abs=1e-9)
+    assert walk_db.raw_features[i, 17] > walk_db.raw_features[i, 14] + 0.2
 
 
 def test_next_frame_loops_and_ends() -> None:
