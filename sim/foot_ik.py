@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.foot_clearance import Footprints, push_out
+from sim.foot_kernel import apply_frame
 from sim.leg_ik import (
     HIP_JOINTS,
     KNEE_JOINTS,
@@ -93,6 +94,9 @@ class FootState:
     @property
     def characters(self) -> int:
         return int(self.locked.shape[0])
+
+
+_REACH_EPS = 1e-9  # m: reach comparisons of a lock start
 
 
 def _smoothstep(x: np.ndarray) -> np.ndarray:
@@ -154,6 +158,23 @@ class FootSolver:
         if not (np.isfinite(pelvis).all() and np.isfinite(rots).all()):
             raise FootIKError("pelvis and rotations must be finite")
         act = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool).reshape(n)
+        fp = self.footprints
+        out, locked, lock, offset, release, drifted = apply_frame(
+            np.ascontiguousarray(pelvis), np.ascontiguousarray(rots), np.ascontiguousarray(contacts, dtype=bool),
+            np.ascontiguousarray(act), state.locked, state.lock, state.offset, state.release, state.drifted,
+            self.max_reach * (THIGH_LENGTH + SHIN_LENGTH), THIGH_LENGTH, SHIN_LENGTH, self.max_drift,
+            self.release_frames, fp.centers, fp.rights, fp.facings, fp.halves, self.passes)
+        return out, FootState(locked=locked, lock=lock, offset=offset, release=release, drifted=drifted)
+
+    def apply_numpy(self, pelvis: np.ndarray, rots: np.ndarray, contacts: np.ndarray, state: FootState,
+                    active: np.ndarray | None = None) -> tuple[np.ndarray, FootState]:
+        """``apply`` as array steps (the reference of the compiled ``sim.foot_kernel.apply_frame``;
+        same results to rounding). Inputs are not checked here."""
+        pelvis = np.asarray(pelvis, dtype=float)
+        rots = np.asarray(rots, dtype=float)
+        contacts = np.asarray(contacts)
+        n = len(pelvis)
+        act = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool).reshape(n)
         contact = contacts.astype(bool) & act[:, None]
 
         chain = LegChain(pelvis, rots)
@@ -193,7 +214,8 @@ class FootSolver:
         target = target.copy()
         target[..., :2] += shift
 
-        start = contact & ~locked & ~drifted & (np.linalg.norm(target - foot - chain.hip, axis=-1) <= full)
+        # (a target clamped to the reach sits on it up to rounding: a tolerance keeps that a start)
+        start = contact & ~locked & ~drifted & (np.linalg.norm(target - foot - chain.hip, axis=-1) <= full + _REACH_EPS)
         lock = np.where(start[..., None], target, state.lock)
         locked = locked | start
         release = np.where(start, 0, release)

@@ -396,3 +396,31 @@ def test_apply_rejects_bad_input() -> None:
     empty, _ = solver.apply(np.zeros((0, 3)), np.zeros((0, NUM_JOINTS, 3, 3)), np.zeros((0, 2), dtype=bool),
                             solver.initial_state(0))
     assert empty.shape == (0, NUM_JOINTS, 3, 3)
+
+
+@pytest.mark.parametrize("release_frames", [6, 0])
+def test_compiled_apply_equals_the_array_steps(release_frames: int) -> None:
+    # Walking bodies (pelvis moving, random contacts), some inactive on some frames, a box the
+    # feet run into: every lock, release, blend, push and IK step of the kernel must match.
+    pelvis, rots = _poses(6, seed=21)
+    toe = forward_kinematics(rots, pelvis)[0][0, FOOT_JOINTS[0], :2]
+    box = _box(0.6, 0.6, (float(toe[0]) + 0.5, float(toe[1])), margin=0.03)  # character 0 walks into it
+    solver = FootSolver(box, release_frames=release_frames)
+    rng = np.random.default_rng(22)
+    contacts = rng.random((60, 6, 2)) < 0.7
+    active = rng.random((60, 6)) < 0.85
+    heading = np.array([1.0, 0.5, 0.0])
+    fast = slow = solver.initial_state(6)
+    locks = pushed = 0
+    for f in range(60):
+        p = pelvis + 0.02 * f * heading
+        a, fast = solver.apply(p, rots, contacts[f], fast, active=active[f])
+        b, slow = solver.apply_numpy(p, rots, contacts[f], slow, active=active[f])
+        assert np.allclose(a, b, rtol=0.0, atol=1e-12)
+        for name in ("locked", "release", "drifted"):
+            assert np.array_equal(getattr(fast, name), getattr(slow, name)), (f, name)
+        for name in ("lock", "offset"):
+            assert np.allclose(getattr(fast, name), getattr(slow, name), rtol=0.0, atol=1e-12), (f, name)
+        locks += int(fast.locked.sum())
+        pushed += int(_depth(forward_kinematics(rots, p)[0][0, list(FOOT_JOINTS), :2], box).max() > 0)
+    assert locks > 20 and pushed > 3  # the scenario really pins feet and walks a foot into the box
