@@ -24,13 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.bench_world import OFFICE, spread_cells
+from benchmark.bench_world import OFFICE, IdleErrands
 from sim.motion_database import MotionDatabase, load_databases
 from sim.motion_matching import MatchState, MotionMatcher, MotionQuery, Pose
 from sim.motion_reference import ReferenceMotionMatcher
 from sim.nav_grid import build_nav_grid
 from sim.scene_files import load_scene
-from sim.story_events import AssignEvent, Assignment
 from sim.world import World, WorldConfig, step
 
 
@@ -73,27 +72,11 @@ def record(dbs: dict[str, MotionDatabase], n: int, frames: int, seed: int) -> Re
     scene = load_scene(OFFICE)
     grid = build_nav_grid(scene)
     layer = RecordingMotion(MotionMatcher(dbs))
-    cells = np.argwhere(grid.component == grid.main_component)
-    rng = np.random.default_rng(seed)
-    starts = spread_cells(cells, n, rng, [])
-    names = [f"p{i:03d}" for i in range(n)]
-    world = World(scene, {nm: (tuple(grid.center_of(*c)), 0.0) for nm, c in zip(names, starts, strict=True)},
-                  layer, grid=grid, config=WorldConfig(seed=seed, initial_capacity=frames))
-    targets = dict(zip(names, starts, strict=True))
-    count = dict.fromkeys(names, 0)
-    todo = set(names)
+    errands = IdleErrands(grid, n, seed)
+    world = World(scene, errands.starts, layer, grid=grid, config=WorldConfig(seed=seed, initial_capacity=frames))
     for _ in range(frames):
-        cmds = []
-        for nm in sorted(todo):
-            cell = spread_cells(cells, 1, rng, [targets[o] for o in names if o != nm])[0]
-            targets[nm] = cell
-            count[nm] += 1
-            theta = float(rng.uniform(-math.pi, math.pi))
-            cmds.append(AssignEvent(event_id=f"{nm}-{count[nm]}", assignments=(Assignment(
-                character=nm, action="idle", target_xy=tuple(grid.center_of(*cell)),
-                facing_xy=(math.cos(theta), math.sin(theta))),)))
-        _, out = step(world, cmds, world.dt)
-        todo = {e.rsplit("-", 1)[0] for e in out.looping_events} | {f.character for f in out.failures}
+        _, out = step(world, errands.commands(), world.dt)
+        errands.observe(out)
     assert layer.initial is not None
     return Recording(layer.initial, layer.queries, layer.dt)
 

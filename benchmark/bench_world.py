@@ -179,6 +179,42 @@ def spread_cells(cells: np.ndarray, count: int, rng: np.random.Generator, taken:
     raise SystemExit(f"only {len(out)} of {count} characters fit 2 cells apart")
 
 
+class IdleErrands:
+    """The benchmark's crowd scenario: ``n`` walkers start on spread-out cells (2 cells
+    apart); whenever a walker's event loops or fails it gets a new ``idle`` event at a random
+    free cell 2 cells from everyone's target, facing a random direction. Deterministic for a
+    seed (one generator draws the starts, then every target in order)."""
+
+    def __init__(self, grid: NavGrid, n: int, seed: int) -> None:
+        self.grid = grid
+        self.cells = np.argwhere(grid.component == grid.main_component)
+        self.rng = np.random.default_rng(seed)
+        starts = spread_cells(self.cells, n, self.rng, [])
+        self.names = [f"p{i:03d}" for i in range(n)]
+        self.starts = {nm: (tuple(grid.center_of(*c)), 0.0) for nm, c in zip(self.names, starts, strict=True)}
+        self.targets = dict(zip(self.names, starts, strict=True))
+        self.count = dict.fromkeys(self.names, 0)
+        self.todo = set(self.names)
+
+    def commands(self) -> list[AssignEvent]:
+        """New events for the walkers that need one (then none until ``observe`` says so)."""
+        cmds = []
+        for nm in sorted(self.todo):
+            cell = spread_cells(self.cells, 1, self.rng, [self.targets[o] for o in self.names if o != nm])[0]
+            self.targets[nm] = cell
+            self.count[nm] += 1
+            theta = float(self.rng.uniform(-math.pi, math.pi))
+            cmds.append(AssignEvent(event_id=f"{nm}-{self.count[nm]}", assignments=(Assignment(
+                character=nm, action="idle", target_xy=tuple(self.grid.center_of(*cell)),
+                facing_xy=(math.cos(theta), math.sin(theta))),)))
+        self.todo = set()
+        return cmds
+
+    def observe(self, out: Any) -> None:
+        """Walkers whose event looped or failed in this step's output need a new one."""
+        self.todo = {e.rsplit("-", 1)[0] for e in out.looping_events} | {f.character for f in out.failures}
+
+
 @dataclass
 class RunResult:
     n: int
@@ -195,31 +231,13 @@ def run_crowd(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: 
     matcher = MotionMatcher({k: TimedDatabase(db, counters, brute) for k, db in dbs.items()})  # type: ignore[misc]
     planner = TimedPlanner(grid, seed=seed)
     planner.counters = counters
-    cells = np.argwhere(grid.component == grid.main_component)
-    rng = np.random.default_rng(seed)
-    starts = spread_cells(cells, n, rng, [])
-    names = [f"p{i:03d}" for i in range(n)]
-    world = World(scene, {nm: (tuple(grid.center_of(*c)), 0.0) for nm, c in zip(names, starts, strict=True)},
-                  TimedMotion(matcher, counters), grid=grid, planner=planner,
+    errands = IdleErrands(grid, n, seed)
+    world = World(scene, errands.starts, TimedMotion(matcher, counters), grid=grid, planner=planner,
                   config=WorldConfig(seed=seed, initial_capacity=frames))
-    targets = dict(zip(names, starts, strict=True))
-    count = dict.fromkeys(names, 0)
-    todo = set(names)
     t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(frames):
-        cmds = []
-        for nm in sorted(todo):
-            cell = spread_cells(cells, 1, rng, [targets[o] for o in names if o != nm])[0]
-            targets[nm] = cell
-            count[nm] += 1
-            theta = float(rng.uniform(-math.pi, math.pi))
-            cmds.append(AssignEvent(event_id=f"{nm}-{count[nm]}", assignments=(Assignment(
-                character=nm, action="idle", target_xy=tuple(grid.center_of(*cell)),
-                facing_xy=(math.cos(theta), math.sin(theta))),)))
-        todo = set()
-        _, out = step(world, cmds, world.dt)
-        todo |= {e.rsplit("-", 1)[0] for e in out.looping_events}
-        todo |= {f.character for f in out.failures}
+        _, out = step(world, errands.commands(), world.dt)
+        errands.observe(out)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     return RunResult(n, frames, wall, cpu, counters, world.positions())
 

@@ -17,19 +17,17 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import math
 import time
 from typing import Any
 
 import numpy as np
 
-from benchmark.bench_world import OFFICE, spread_cells
+from benchmark.bench_world import OFFICE, IdleErrands
 from sim.cooperative_astar import PathPlanner, PlanResult
 from sim.motion_database import load_databases
 from sim.motion_matching import MotionMatcher
 from sim.nav_grid import build_nav_grid
 from sim.scene_files import load_scene
-from sim.story_events import AssignEvent, Assignment
 from sim.world import World, WorldConfig, step
 
 CLOCK = time.process_time
@@ -74,31 +72,16 @@ def run(scene, grid, dbs, n: int, frames: int, seed: int) -> tuple[float, Counte
     counters = Counters()
     planner = TimedPlanner(grid, seed=seed)
     planner.counters = counters
-    cells = np.argwhere(grid.component == grid.main_component)
-    rng = np.random.default_rng(seed)
-    starts = spread_cells(cells, n, rng, [])
-    names = [f"p{i:03d}" for i in range(n)]
-    world = World(scene, {nm: (tuple(grid.center_of(*c)), 0.0) for nm, c in zip(names, starts, strict=True)},
-                  TimedMotion(MotionMatcher(dbs), counters), grid=grid, planner=planner,
+    errands = IdleErrands(grid, n, seed)
+    world = World(scene, errands.starts, TimedMotion(MotionMatcher(dbs), counters), grid=grid, planner=planner,
                   config=WorldConfig(seed=seed, initial_capacity=frames))
-    targets = dict(zip(names, starts, strict=True))
-    count = dict.fromkeys(names, 0)
-    todo = set(names)
     t0 = CLOCK()
     for _ in range(frames):
-        cmds = []
-        for nm in sorted(todo):
-            cell = spread_cells(cells, 1, rng, [targets[o] for o in names if o != nm])[0]
-            targets[nm] = cell
-            count[nm] += 1
-            theta = float(rng.uniform(-math.pi, math.pi))
-            cmds.append(AssignEvent(event_id=f"{nm}-{count[nm]}", assignments=(Assignment(
-                character=nm, action="idle", target_xy=tuple(grid.center_of(*cell)),
-                facing_xy=(math.cos(theta), math.sin(theta))),)))
+        cmds = errands.commands()
         t1 = CLOCK()
         _, out = step(world, cmds, world.dt)
         counters.step_s += CLOCK() - t1
-        todo = {e.rsplit("-", 1)[0] for e in out.looping_events} | {f.character for f in out.failures}
+        errands.observe(out)
     wall = CLOCK() - t0
     h = hashlib.sha256()
     b = world.buffers
