@@ -11,8 +11,6 @@ states (to 1e-12) on a recorded crowd.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
@@ -25,6 +23,9 @@ from sim.leg_ik import (
     HIP_JOINTS,
     KNEE_JOINTS,
     _ik_kernel,
+    _matmul3,
+    _matvec3,
+    _norm3,
 )
 from sim.motion_clips import ANKLE_JOINTS
 
@@ -33,28 +34,6 @@ __all__ = ["apply_frame"]
 _HIP_J = np.array(HIP_JOINTS, dtype=np.int64)  # (left, right)
 _KNEE_J = np.array(KNEE_JOINTS, dtype=np.int64)
 _ANKLE_J = np.array(ANKLE_JOINTS, dtype=np.int64)
-
-
-@njit(cache=True)
-def _mv(r: np.ndarray, v: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    out = np.empty(3)
-    for i in range(3):
-        out[i] = r[i, 0] * v[0] + r[i, 1] * v[1] + r[i, 2] * v[2]
-    return out
-
-
-@njit(cache=True)
-def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    out = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
-    return out
-
-
-@njit(cache=True)
-def _n3(v: np.ndarray) -> float:  # pragma: no cover - compiled
-    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
 @njit(cache=True)
@@ -85,18 +64,18 @@ def apply_frame(
     for c in range(n):
         g0 = rots[c, 0]
         for leg in range(2):
-            hip[c, leg] = pelvis[c] + _mv(g0, _HIP_OFF[leg])
-            hip_r[c, leg] = _mm(g0, rots[c, _HIP_J[leg]])
-            knee[c, leg] = hip[c, leg] + _mv(hip_r[c, leg], _KNEE_OFF[leg])
-            knee_r[c, leg] = _mm(hip_r[c, leg], rots[c, _KNEE_J[leg]])
-            ankle[c, leg] = knee[c, leg] + _mv(knee_r[c, leg], _ANKLE_OFF[leg])
-            ankle_r[c, leg] = _mm(knee_r[c, leg], rots[c, _ANKLE_J[leg]])
-            toe[c, leg] = ankle[c, leg] + _mv(ankle_r[c, leg], _TOE_OFF[leg])
+            hip[c, leg] = pelvis[c] + _matvec3(g0, _HIP_OFF[leg])
+            hip_r[c, leg] = _matmul3(g0, rots[c, _HIP_J[leg]])
+            knee[c, leg] = hip[c, leg] + _matvec3(hip_r[c, leg], _KNEE_OFF[leg])
+            knee_r[c, leg] = _matmul3(hip_r[c, leg], rots[c, _KNEE_J[leg]])
+            ankle[c, leg] = knee[c, leg] + _matvec3(knee_r[c, leg], _ANKLE_OFF[leg])
+            ankle_r[c, leg] = _matmul3(knee_r[c, leg], rots[c, _ANKLE_J[leg]])
+            toe[c, leg] = ankle[c, leg] + _matvec3(ankle_r[c, leg], _TOE_OFF[leg])
             foot[c, leg] = toe[c, leg] - ankle[c, leg]
             contact = contacts[c, leg] and act[c]
             # pinning: release, blend, lock
-            drift = _n3(lock[c, leg] - toe[c, leg])
-            overreach = _n3(lock[c, leg] - foot[c, leg] - hip[c, leg]) > full[leg]
+            drift = _norm3(lock[c, leg] - toe[c, leg])
+            overreach = _norm3(lock[c, leg] - foot[c, leg] - hip[c, leg]) > full[leg]
             was = locked[c, leg]
             drifted_now = was and contact and (drift > max_drift or overreach)
             released = (was and not contact) or drifted_now
@@ -119,8 +98,8 @@ def apply_frame(
             tgt = lock[c, leg].copy() if still else toe[c, leg] + off * weight
             # a pinned or blending foot stays within reach of the leg, pulled towards the hip
             ankle_to = tgt - foot[c, leg] - hip[c, leg]
-            dist = _n3(ankle_to)
-            limit = max(full[leg], _n3(ankle[c, leg] - hip[c, leg]))
+            dist = _norm3(ankle_to)
+            limit = max(full[leg], _norm3(ankle[c, leg] - hip[c, leg]))
             if dist > limit:
                 tgt = hip[c, leg] + ankle_to * (limit / max(dist, 1e-12)) + foot[c, leg]
             target[c, leg] = tgt
@@ -158,7 +137,7 @@ def apply_frame(
     for c in range(n):
         for leg in range(2):
             contact = contacts[c, leg] and act[c]
-            reach = _n3(target[c, leg] - foot[c, leg] - hip[c, leg])
+            reach = _norm3(target[c, leg] - foot[c, leg] - hip[c, leg])
             start = contact and not n_locked[c, leg] and not n_drifted[c, leg] and reach <= full[leg] + 1e-9  # as _REACH_EPS
             lk = target[c, leg].copy() if start else lock[c, leg].copy()
             if start:
@@ -166,7 +145,7 @@ def apply_frame(
                 n_release[c, leg] = 0
                 n_offset[c, leg] = np.zeros(3)
             n_lock[c, leg] = lk if n_locked[c, leg] else np.zeros(3)
-            solve[c, leg] = _n3(target[c, leg] - toe[c, leg]) > 0.0 or act[c]
+            solve[c, leg] = _norm3(target[c, leg] - toe[c, leg]) > 0.0 or act[c]
             if solve[c, leg]:
                 m_solve += 1
     if m_solve > 0:
