@@ -16,11 +16,16 @@ matching) and the script prints, each next to a baseline measured in the same ru
 most ~125 bodies on the 0.3 m grid), so that size runs in "Office x4": four copies of the
 Office side by side (2 x 2, the reference cell overrides dropped), stated in the output.
 
+Each size runs ``--repeats`` times per search method (all runs are deterministic and must
+agree), interleaved, and the fastest run of each method is reported: the machines are
+shared, and the least disturbed run is the closest to what the code costs (the target line
+also gives the median).
+
 Each scene first gets an untimed warm-up run (``--warmup`` simulated seconds, another seed), so
 that one-off first-use costs of the process (per-database motion tables, the planner's move
 masks for the grid) do not land in whichever run comes first.
 
-Usage: ``python -m benchmark.bench_world [--sizes 1 10 50 200] [--seconds 10] [--seed 0] [--warmup 2]``.
+Usage: ``python -m benchmark.bench_world [--sizes 1 10 50 200] [--seconds 10] [--seed 0] [--repeats 3] [--warmup 2]``.
 Issue target: 10 characters >= 30x real time on one core.
 """
 
@@ -265,6 +270,8 @@ def main() -> None:
     ap.add_argument("--sizes", type=int, nargs="+", default=[1, 10, 50, 200])
     ap.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per run (200: half)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="identical runs per size and search method, interleaved; the fastest counts")
     ap.add_argument("--warmup", type=float, default=2.0,
                     help="simulated seconds of an untimed 10-character run per scene first (0: none)")
     args = ap.parse_args()
@@ -295,9 +302,13 @@ def main() -> None:
         scene, grid = grids[scene.name]
         seconds = args.seconds if n <= 120 else args.seconds / 2
         frames = round(seconds * 30)
-        kd = run_crowd(scene, grid, n, frames, args.seed, dbs, brute=False)
-        bf = run_crowd(scene, grid, n, frames, args.seed, dbs, brute=True)
-        same = np.array_equal(kd.positions, bf.positions) and kd.counters.results == bf.counters.results
+        kds, bfs = [], []
+        for _ in range(max(1, args.repeats)):  # interleaved, so both methods see the same machine
+            kds.append(run_crowd(scene, grid, n, frames, args.seed, dbs, brute=False))
+            bfs.append(run_crowd(scene, grid, n, frames, args.seed, dbs, brute=True))
+        kd, bf = min(kds, key=lambda r: r.wall_s), min(bfs, key=lambda r: r.wall_s)
+        same = all(np.array_equal(r.positions, kd.positions) and r.counters.results == kd.counters.results
+                   for r in kds + bfs)
         w_s, nw_s, py_s, same_plans = replan_baseline(grid, kd.counters.problems, args.seed)
         same = same and same_plans
         c, cb = kd.counters, bf.counters
@@ -313,8 +324,10 @@ def main() -> None:
               f"{1e3 * py_s:>7.2f} {py_s / max(w_s, 1e-12):>6.2f} | "
               f"{motion:>6.0%} {plan:>5.0%} {1 - motion - plan:>5.0%} | {'yes' if same else 'NO'}", flush=True)
         if n == 10:
-            target = (sim_s / kd.wall_s, sim_s / kd.cpu_s)
+            target = (sim_s / kd.wall_s, sim_s / kd.cpu_s, sim_s / float(np.median([r.wall_s for r in kds])))
     print()
+    print(f"Each size runs {max(1, args.repeats)}x per search method (identical, interleaved); the fastest run of each")
+    print("     is shown (the least disturbed on a shared machine).")
     print("char-fr/s: character-frames per wall second (KD-tree search); brute: same run, brute-force search.")
     print("RTF: simulated seconds per wall second (cpu: per second of this process's CPU time, which a")
     print("     loaded machine disturbs less). search us: mean motion search per query (single and batched).")
@@ -323,8 +336,9 @@ def main() -> None:
     print("motion / plan / world: share of the KD run's wall time. same: both runs took identical decisions")
     print("     (and both planner backends returned identical plans).")
     if target is not None:
-        wall_rtf, cpu_rtf = target
-        print(f"issue target (10 characters >= 30x real time): {wall_rtf:.2f}x wall, {cpu_rtf:.2f}x cpu -> "
+        wall_rtf, cpu_rtf, median_rtf = target
+        print(f"issue target (10 characters >= 30x real time): {wall_rtf:.2f}x wall, {cpu_rtf:.2f}x cpu "
+              f"(median of the runs {median_rtf:.2f}x) -> "
               f"{'met' if wall_rtf >= 30 else 'met by CPU time only' if cpu_rtf >= 30 else 'NOT met'}")
 
 
