@@ -123,6 +123,7 @@ def run_command(
     max_retries: Annotated[int, typer.Option("--max-retries", min=0, max=10, help="Retries per LLM role.")] = 3,
     program_grammar: Annotated[bool, typer.Option("--program-grammar/--free-programs", help="Local models write event programs under a grammar of the API's area functions and the scene's names (--free-programs: free Python, as the paper).")] = True,
     gif: Annotated[bool, typer.Option("--gif/--no-gif", help="Also write an animated top-down GIF.")] = False,
+    foot_ik: Annotated[bool, typer.Option("--foot-ik/--raw-feet", help="Leg IK on the synthesized motion: feet pinned while planted and kept out of furniture (--raw-feet: the matched poses as they are).")] = True,
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this planning thread.")] = None,
     planner: Annotated[
         str, typer.Option("--planner", help="event (narrator + event parser), unified (w/o Event) or direct (coordinates).")
@@ -174,6 +175,7 @@ def run_command(
                 thread_id=thread_id,
                 ablation=ablation,
                 program_grammar=program_grammar,
+                foot_ik=foot_ik,
             )
         )
     except _UserError as exc:
@@ -212,6 +214,7 @@ async def _run(
     thread_id: str | None,
     ablation: Ablation | None = None,
     program_grammar: bool = False,
+    foot_ik: bool = True,
 ) -> tuple[SessionResult, list[str], int, Any]:
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
@@ -240,7 +243,7 @@ async def _run(
         port, describer_model = open_port(config, trace_path, replay)
     except (LLMError, ValueError, OSError) as exc:
         raise _UserError(str(exc)) from None
-    world_config = WorldConfig(seed=seed)
+    world_config = WorldConfig(seed=seed, foot_ik=foot_ik)
     fps = world_config.fps
     positions = start_positions(scene_obj, characters, seed)
     motion = _motion_layer(motion_config)

@@ -323,3 +323,24 @@ def test_run_with_an_ablation_records_and_replays_the_same_story(
     )
     assert again.exit_code == 0, again.stderr
     assert (tmp_path / "again" / "story.json").read_bytes() == (tmp_path / "live" / "story.json").read_bytes()
+
+
+def test_run_raw_feet_replays_the_same_story_with_the_animated_legs(fake: FakeProvider, tmp_path: Path) -> None:
+    cfg = write_config(tmp_path, fake.base)
+    fake.script.update({"fake-planner": [COFFEE]})
+    args = ["run", "home", "-n", "2", "-d", "4", "--max-events", "1", "--planner", "unified", "--description", "object-list"]
+    live = CliRunner().invoke(app, [*args, "--config", str(cfg), "--out", str(tmp_path / "live")], catch_exceptions=False)
+    assert live.exit_code == 0, live.stderr
+    fake.stop()
+    raw = CliRunner().invoke(app, [*args, "--raw-feet", "--replay", str(tmp_path / "live" / "trace.jsonl"),
+                                   "--out", str(tmp_path / "raw")], catch_exceptions=False)
+    assert raw.exit_code == 0, raw.stderr
+    assert (tmp_path / "raw" / "story.json").read_bytes() == (tmp_path / "live" / "story.json").read_bytes()
+    ik, plain = np.load(tmp_path / "live" / "Ava.track.npz"), np.load(tmp_path / "raw" / "Ava.track.npz")
+    assert np.array_equal(ik["root_positions"], plain["root_positions"])  # same paths, same pelvis
+    from sim.foot_ik import LEG_JOINTS
+
+    legs = list(LEG_JOINTS)  # hips, knees, ankles
+    others = [j for j in range(22) if j not in legs]
+    assert np.array_equal(ik["local_rotations"][:, others], plain["local_rotations"][:, others])
+    assert not np.allclose(ik["local_rotations"][:, legs], plain["local_rotations"][:, legs])
