@@ -14,7 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.cooperative_astar import PathPlanner, PlanningError, PlanResult, _DenseReservations, _Reservations
+from sim.cooperative_astar import (
+    PathPlanner,
+    PlanningError,
+    PlanResult,
+    _DenseReservations,
+    _Reservations,
+)
 from sim.nav_grid import NavGrid, build_nav_grid
 from sim.path_following import CrowdNavigator
 from sim.scene_files import load_scene
