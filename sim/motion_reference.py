@@ -2,9 +2,10 @@
 
 ``ReferenceMotionMatcher`` is the baseline that ``benchmark/bench_motion_step.py`` times the
 matcher against and that ``tests/test_motion_step_equivalence.py`` checks it against: the same
-decisions, states and poses, bit for bit. It carries its own copies of the numpy / scipy
-helpers it used (forward kinematics, inertialization, the nearest-frame scan), so changes
-to those modules do not change the baseline. Not used by the simulation itself.
+decisions, states and poses, bit for bit. It uses the numpy versions of forward kinematics
+(``sim.skeleton``) and inertialization (``sim.inertialization``), which the kernels replace
+in the simulation, and keeps its own copy of the old nearest-frame scan. Not used by the
+simulation itself.
 """
 
 from __future__ import annotations
@@ -14,8 +15,13 @@ import weakref
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from sim.inertialization import (
+    apply_rotation_offsets,
+    decay_spring,
+    transition_offsets,
+    transition_offsets_linear,
+)
 from sim.motion_clips import FPS
 from sim.motion_database import MotionDatabase, NearestFrameIndex, squared_distances
 from sim.motion_features import (
@@ -28,10 +34,7 @@ from sim.motion_features import (
 from sim.motion_frames import DatabaseFrames
 from sim.motion_matching import MatchState, MotionMatcher, MotionQuery, Pose
 from sim.procedural_rig import rot_z
-from sim.skeleton import NUM_JOINTS, PARENTS, REST_OFFSETS
-
-LN2 = float(np.log(2.0))
-
+from sim.skeleton import NUM_JOINTS, forward_kinematics
 
 _SCAN_CACHE: weakref.WeakKeyDictionary[NearestFrameIndex, tuple[np.ndarray, np.ndarray, float]] = (
     weakref.WeakKeyDictionary())
@@ -76,53 +79,6 @@ def _ref_query_many(index: NearestFrameIndex, q: np.ndarray) -> np.ndarray:
     return _ref_scan_many(index, q)[0] if index.use_scan else index.query_many(q)[0]
 
 
-def _ref_forward_kinematics(local_rotations: np.ndarray, root_position: np.ndarray,
-                            offsets: np.ndarray = REST_OFFSETS) -> tuple[np.ndarray, np.ndarray]:
-    local_rotations = np.asarray(local_rotations, dtype=float)
-    root_position = np.asarray(root_position, dtype=float)
-    batch = local_rotations.shape[:-3]
-    t = np.zeros((*batch, NUM_JOINTS, 4, 4))
-    t[..., :3, :3] = local_rotations
-    t[..., 1:, :3, 3] = np.asarray(offsets, dtype=float)[..., 1:, :]
-    t[..., 0, :3, 3] = root_position
-    t[..., 3, 3] = 1.0
-    for j in range(1, NUM_JOINTS):
-        np.matmul(t[..., PARENTS[j], :, :], t[..., j, :, :], out=t[..., j, :, :])
-    return np.ascontiguousarray(t[..., :3, 3]), np.ascontiguousarray(t[..., :3, :3])
-
-
-def _ref_decay_spring(x: np.ndarray, v: np.ndarray, halflife: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    y = 2.0 * LN2 / max(halflife, 1e-5) / 2.0
-    j1 = v + x * y
-    eydt = np.exp(-y * dt)
-    return eydt * (x + j1 * dt), eydt * (v - j1 * y * dt)
-
-
-def _ref_rotation_log(m: np.ndarray) -> np.ndarray:
-    return Rotation.from_matrix(m.reshape(-1, 3, 3), assume_valid=True).as_rotvec().reshape(*m.shape[:-2], 3)
-
-
-def _ref_rotation_exp(v: np.ndarray) -> np.ndarray:
-    return Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(*v.shape[:-1], 3, 3)
-
-
-def _ref_transition_offsets(offset_rot: np.ndarray, offset_ang_vel: np.ndarray, src_rot: np.ndarray,
-                            src_ang_vel: np.ndarray, dst_rot: np.ndarray,
-                            dst_ang_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    shown = _ref_rotation_exp(offset_rot) @ src_rot
-    new_rot = _ref_rotation_log(shown @ np.swapaxes(dst_rot, -1, -2))
-    return new_rot, offset_ang_vel + src_ang_vel - dst_ang_vel
-
-
-def _ref_transition_offsets_linear(offset: np.ndarray, offset_vel: np.ndarray, src: np.ndarray, src_vel: np.ndarray,
-                                   dst: np.ndarray, dst_vel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return offset + src - dst, offset_vel + src_vel - dst_vel
-
-
-def _ref_apply_rotation_offsets(offset_rot: np.ndarray, rot: np.ndarray) -> np.ndarray:
-    return _ref_rotation_exp(offset_rot) @ rot
-
-
 def _ref_pose_joints(states: Sequence[MatchState]) -> tuple[np.ndarray, np.ndarray]:
     """World joints (M,22,3) of the states' last poses and their character-frame velocities
     (M,22,3), with one batched forward-kinematics call. Every state must have a pose."""
@@ -130,7 +86,7 @@ def _ref_pose_joints(states: Sequence[MatchState]) -> tuple[np.ndarray, np.ndarr
     has_prev = [s.prev_local is not None and s.pose_dt > 0 for s in states]
     locs = [s.pose_local for s in states] + [s.prev_local for s, h in zip(states, has_prev, strict=True) if h]
     pels = [s.pose_pelvis for s in states] + [s.prev_pelvis for s, h in zip(states, has_prev, strict=True) if h]
-    joints = _ref_forward_kinematics(np.stack(locs), np.stack(pels))[0]  # type: ignore[arg-type]
+    joints = forward_kinematics(np.stack(locs), np.stack(pels))[0]  # type: ignore[arg-type]
     vel = np.zeros((m, NUM_JOINTS, 3))
     k = m
     for i, (s, h) in enumerate(zip(states, has_prev, strict=True)):
@@ -162,7 +118,7 @@ class ReferenceMotionMatcher(MotionMatcher):
         if fresh:  # no output pose yet: the current database frame, at rest
             rots = np.stack([self.frames(states[i].key).rot[states[i].frame] for i in fresh])
             pels = np.stack([self.frames(states[i].key).pelvis[states[i].frame] for i in fresh])
-            pos[np.array(fresh)] = _ref_forward_kinematics(rots, pels)[0]
+            pos[np.array(fresh)] = forward_kinematics(rots, pels)[0]
         ctrl = [self._control(s, q, r, h) for s, q, r, h in zip(states, queries, roots, headings, strict=True)]
         control = Control(*(np.stack([getattr(c, f) for c in ctrl]) for f in
                              ("future_pos", "future_dir", "target_pos", "target_dir", "target_height")))
@@ -285,21 +241,21 @@ class ReferenceMotionMatcher(MotionMatcher):
             dst_mo = [f.motion(k) for f, k in zip(dst, df, strict=True)]
             src_rot = np.stack([f.rot[k] for f, k in zip(src, sf, strict=True)])
             dst_rot = np.stack([f.rot[k] for f, k in zip(dst, df, strict=True)])
-            off_rot[sw], off_av[sw] = _ref_transition_offsets(off_rot[sw], off_av[sw], src_rot,
+            off_rot[sw], off_av[sw] = transition_offsets(off_rot[sw], off_av[sw], src_rot,
                                                          np.stack([m[0] for m in src_mo]), dst_rot,
                                                          np.stack([m[0] for m in dst_mo]))
-            off_pos[sw], off_vel[sw] = _ref_transition_offsets_linear(
+            off_pos[sw], off_vel[sw] = transition_offsets_linear(
                 off_pos[sw], off_vel[sw], np.stack([f.pelvis[k] for f, k in zip(src, sf, strict=True)]),
                 np.stack([m[1] for m in src_mo]), np.stack([f.pelvis[k] for f, k in zip(dst, df, strict=True)]),
                 np.stack([m[1] for m in dst_mo]))
             for i, k in zip(switched, df, strict=True):
                 new_keys[i], new_frames[i] = dbs[i].key, k
                 done[i] = False
-        off_rot, off_av = _ref_decay_spring(off_rot, off_av, self.blend_halflife, dt)
-        off_pos, off_vel = _ref_decay_spring(off_pos, off_vel, self.blend_halflife, dt)
+        off_rot, off_av = decay_spring(off_rot, off_av, self.blend_halflife, dt)
+        off_pos, off_vel = decay_spring(off_pos, off_vel, self.blend_halflife, dt)
 
         out_frames = [self.frames(k) for k in new_keys]
-        rot_c = _ref_apply_rotation_offsets(off_rot, np.stack([f.rot[k] for f, k in zip(out_frames, new_frames, strict=True)]))
+        rot_c = apply_rotation_offsets(off_rot, np.stack([f.rot[k] for f, k in zip(out_frames, new_frames, strict=True)]))
         pelvis_c = np.stack([f.pelvis[k] for f, k in zip(out_frames, new_frames, strict=True)]) + off_pos
         pelvis_c[:, 2] += [self._seat_correction_cached(self.databases[k], out_frames[i], new_frames[i], queries[i])
                            for i, k in enumerate(new_keys)]
