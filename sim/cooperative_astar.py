@@ -490,6 +490,7 @@ class PathPlanner:
         overrides = self._static_overrides([np.asarray(p, dtype=float) for p in static_obstacles], static_segments)
         used_goals = {a: self._usable_goal(starts[a], goals.get(a), overrides) for a in agents}
         overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in overrides.items()}
+        static_allow = self._static_allow(overrides) if self.backend == "numba" else None  # once for all passes
         # Pass 1: plain WHCA*. An agent whose search fails was cornered by the first steps of
         # agents planned before it; its wait is then reserved for the committed steps and the
         # call planned again (lazy wait reservation: only agents that need it hold their
@@ -502,7 +503,7 @@ class PathPlanner:
                 usable[a] = [self.cell_id(c) for c in path[: self.window + 1]]
         reserved: frozenset[Agent] = frozenset()
         result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved,
-                            hints=usable)
+                            hints=usable, static_allow=static_allow)
         fallback = set(result.failed)
         expansions = result.expansions
         for _ in range(self.repair_passes):
@@ -510,13 +511,14 @@ class PathPlanner:
                 break
             reserved = reserved | result.failed
             result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved,
-                                hints=usable)
+                                hints=usable, static_allow=static_allow)
             fallback |= result.failed
             expansions += result.expansions
         if not result.failed <= reserved:
             order2 = failed_first(order, result.failed) if self.fallback else list(order)
             ext = result.failed if self.fallback else frozenset()
-            result = self._pass(order2, starts, used_goals, overrides, extended=ext, reserve_waits=frozenset(order))
+            result = self._pass(order2, starts, used_goals, overrides, extended=ext, reserve_waits=frozenset(order),
+                                static_allow=static_allow)
             expansions += result.expansions
         return PlanResult(
             paths=result.paths,
@@ -556,11 +558,13 @@ class PathPlanner:
         extended: frozenset[Agent],
         reserve_waits: frozenset[Agent],
         hints: Mapping[Agent, list[int]] | None = None,
+        static_allow: np.ndarray | None = None,
     ) -> PlanResult:
         w_max = self.window * (2 if extended else 1)
         dense = self.backend == "numba"
         res: _Reservations | _DenseReservations = _DenseReservations(w_max, self) if dense else _Reservations(w_max, self)
-        static_allow = self._static_allow(overrides) if dense else None
+        if dense and static_allow is None:
+            static_allow = self._static_allow(overrides)
         waits = {a: [self.cell_id(starts[a])] * (self.commit_steps + 1) for a in order}
         for a in order:
             if a in reserve_waits:

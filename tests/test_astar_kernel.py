@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmark.bench_paths import _spaced
 from sim.cooperative_astar import (
     PathPlanner,
     PlanningError,
@@ -39,17 +40,6 @@ def _free_cells(grid: NavGrid) -> list[tuple[int, int]]:
     return [(int(i), int(j)) for i, j in np.argwhere(grid.component == grid.main_component)]
 
 
-def _spread(cells: list[tuple[int, int]], n: int, rng: np.random.Generator) -> list[tuple[int, int]]:
-    out: list[tuple[int, int]] = []
-    for k in rng.permutation(len(cells)):
-        c = cells[k]
-        if all(max(abs(c[0] - o[0]), abs(c[1] - o[1])) >= 2 for o in out):
-            out.append(c)
-            if len(out) == n:
-                break
-    return out
-
-
 def _same(a: PlanResult, b: PlanResult) -> None:
     assert a.paths == b.paths
     assert (a.failed, a.fallback, a.reused, a.goals, a.expansions) == (b.failed, b.fallback, b.reused, b.goals, b.expansions)
@@ -60,7 +50,7 @@ def _same(a: PlanResult, b: PlanResult) -> None:
 def test_compiled_plans_equal_python_plans(grid: NavGrid, seed: int, budget: int) -> None:
     rng = np.random.default_rng(seed)
     cells = _free_cells(grid)
-    placed = _spread(cells, 34, rng)
+    placed = _spaced(cells, 34, rng)
     agents, statics = placed[:30], placed[30:]
     starts = {f"a{k}": c for k, c in enumerate(agents)}
     goals = {a: cells[int(rng.integers(len(cells)))] if k % 5 else None for k, a in enumerate(starts)}
@@ -84,8 +74,8 @@ def test_packed_crowd_with_cornered_agents_plans_the_same(grid: NavGrid) -> None
     # and release waits (the compiled release of one agent's reservation is exercised).
     rng = np.random.default_rng(11)
     cells = _free_cells(grid)
-    starts = dict(enumerate(_spread(cells, 200, rng)))
-    goals = dict(enumerate(_spread(cells, len(starts), rng)))
+    starts = dict(enumerate(_spaced(cells, 200, rng)))
+    goals = dict(enumerate(_spaced(cells, len(starts), rng)))
     fast = PathPlanner(grid, seed=0).plan(starts, goals)
     assert len(fast.failed) > 5 and len(starts) > 100
     _same(fast, PathPlanner(grid, seed=0, backend="python").plan(starts, goals))
@@ -95,7 +85,7 @@ def test_released_reservation_equals_never_reserved(grid: NavGrid) -> None:
     planner = PathPlanner(grid, seed=0)
     cells = _free_cells(grid)
     rng = np.random.default_rng(3)
-    agents = _spread(cells, 12, rng)
+    agents = _spaced(cells, 12, rng)
     paths = {}
     for k, c in enumerate(agents):  # short random walks of 4 steps from each start
         ids = [planner.cell_id(c)]
@@ -126,7 +116,7 @@ def test_released_reservation_equals_never_reserved(grid: NavGrid) -> None:
 def test_compiled_crowd_walks_the_same_trajectories(grid: NavGrid) -> None:
     rng = np.random.default_rng(7)
     cells = _free_cells(grid)
-    starts = _spread(cells, 16, rng)
+    starts = _spaced(cells, 16, rng)
     goal_seq = [[cells[int(i)] for i in rng.integers(len(cells), size=4)] for _ in starts]
     traces = {}
     for backend in ("numba", "python"):
