@@ -336,11 +336,11 @@ def test_run_raw_feet_replays_the_same_story_with_the_animated_legs(fake: FakePr
                                    "--out", str(tmp_path / "raw")], catch_exceptions=False)
     assert raw.exit_code == 0, raw.stderr
     assert (tmp_path / "raw" / "story.json").read_bytes() == (tmp_path / "live" / "story.json").read_bytes()
-    ik, plain = np.load(tmp_path / "live" / "Ava.track.npz"), np.load(tmp_path / "raw" / "Ava.track.npz")
-    assert np.array_equal(ik["root_positions"], plain["root_positions"])  # same paths, same pelvis
     from sim.foot_ik import LEG_JOINTS
 
-    legs = list(LEG_JOINTS)  # hips, knees, ankles
-    others = [j for j in range(22) if j not in legs]
-    assert np.array_equal(ik["local_rotations"][:, others], plain["local_rotations"][:, others])
-    assert not np.allclose(ik["local_rotations"][:, legs], plain["local_rotations"][:, legs])
+    with np.load(tmp_path / "live" / "Ava.track.npz") as ik, np.load(tmp_path / "raw" / "Ava.track.npz") as plain:
+        assert np.array_equal(ik["root_positions"], plain["root_positions"])  # same paths, same pelvis
+        legs = list(LEG_JOINTS)  # hips, knees, ankles
+        others = [j for j in range(22) if j not in legs]
+        assert np.array_equal(ik["local_rotations"][:, others], plain["local_rotations"][:, others])
+        assert not np.allclose(ik["local_rotations"][:, legs], plain["local_rotations"][:, legs])
