@@ -126,6 +126,10 @@ class EventState:
     started: bool = False
 
 
+def _unstarted(events: dict[str, EventState]) -> dict[str, None]:
+    return {eid: None for eid, ev in events.items() if ev.status == "ongoing" and not ev.started}
+
+
 @dataclass
 class WorldSnapshot:
     """A deep copy of a world's mutable state (restore with ``World.restore``)."""
@@ -173,6 +177,7 @@ class World:
         self.navigator = WorldNavigator(self.grid, self.planner, self.config.fps, self.config.seed)
         self.characters: dict[str, CharacterState] = {}
         self.events: dict[str, EventState] = {}
+        self._waiting_to_start: dict[str, None] = {}  # ongoing, not yet started events, in ``events`` order
         self.targets = StandTargets(self.grid)
         self.motion_states: dict[str, Any] = {}
         taken: dict[Cell, str] = {}
@@ -221,6 +226,7 @@ class World:
         out.frame = snap.frame
         out.characters = copy.deepcopy(snap.characters, memo)
         out.events = copy.deepcopy(snap.events, memo)
+        out._waiting_to_start = _unstarted(out.events)
         out.motion_states = copy.deepcopy(snap.motion_states, memo)
         out.navigator = copy.deepcopy(snap.navigator, memo)
         out.buffers = snap.buffers.trimmed()
@@ -327,7 +333,12 @@ class World:
                 self._fail(out, eid, name, reason, msg)
             self.events[eid] = EventState(cmd, {a.character: "left" for a in cmd.assignments}, status="failed")
             return
+        reused = eid in self.events
         self.events[eid] = EventState(cmd, {a.character: "active" for a in cmd.assignments})
+        if reused:  # a dict keeps a reused key where it was: so does the start queue
+            self._waiting_to_start = _unstarted(self.events)
+        else:
+            self._waiting_to_start[eid] = None
         for a in cmd.assignments:
             c = self.characters[a.character]
             self._leave_event(c, out)
@@ -588,8 +599,11 @@ class World:
     def _start_groups(self, out: _Report) -> None:
         """At a step boundary: events whose members all wait on their cells start together."""
         nav = self.navigator
-        for eid, ev in self.events.items():
+        queue = self._waiting_to_start
+        for eid in list(queue):  # only the events not started yet: a long story has thousands of old ones
+            ev = self.events[eid]
             if ev.status != "ongoing" or ev.started:
+                del queue[eid]
                 continue
             members = [self.characters[n] for n, s in ev.members.items() if s == "active"]
             if members and all(
@@ -599,6 +613,7 @@ class World:
                 for m in members
             ):
                 ev.started = True
+                del queue[eid]
                 out.started.append(eid)
                 for m in members:
                     self._begin_transition_in(m)
