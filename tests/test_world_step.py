@@ -424,3 +424,26 @@ def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office) -> No
         slide[name] = [foot_sliding(forward_kinematics(t.local_rotations, t.root_positions)[0], contacts)
                        for t in (r, k)]
     assert all(after < before for before, after in slide.values()), slide
+
+
+def test_many_short_events_and_a_reused_event_id_start_and_leave_no_queue_behind(office) -> None:  # type: ignore[no-untyped-def]
+    # A story of hours creates thousands of events: the group start only looks at the ones that
+    # have not started yet, and an id used again (after its event ended) starts like a new one.
+    cells = _free_cells(office)
+    here = _cell_xy(office, *cells[5])
+    w = _world(office, {"ann": (here, 0.0)})
+    for k in range(6):
+        eid = "again" if k % 2 else f"e{k}"
+        outs = _until(w, lambda o: bool(o.completed_events),
+                      commands=[AssignEvent(event_id=eid, assignments=(_go("ann", here, "wave"),))])
+        assert outs[-1].completed_events == (eid,)
+        assert any(o.started_events == (eid,) for o in outs)
+        assert w._waiting_to_start == {}
+    assert set(w.events) == {"e0", "again", "e2", "e4"} and all(e.status == "completed" for e in w.events.values())
+    # an assigned, not yet started event survives a snapshot round trip in the queue
+    far = _cell_xy(office, *cells[80])
+    step(w, [AssignEvent(event_id="walk", assignments=(_go("ann", far),))], w.dt)
+    back = w.restore(w.snapshot())
+    assert back._waiting_to_start == w._waiting_to_start == {"walk": None}
+    _until(back, lambda o: o.started_events == ("walk",))
+    assert back._waiting_to_start == {} and w._waiting_to_start == {"walk": None}
