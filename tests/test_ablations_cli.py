@@ -1,22 +1,21 @@
 """``storyteller plan/run --planner ... --description ...``: the paper's ablations from the CLI.
 
 Each node's model is an ``openai/fake-<node>`` model served by a scripted OpenAI-compatible
-server on 127.0.0.1 (the real litellm client, config, trace recording and replay are used);
-a recorded ablation trace is then replayed through the CLI with the server stopped.
+server on 127.0.0.1 (``tests/fake_openai_server.py``; the real litellm client, config, trace
+recording and replay are used); a recorded ablation trace is then replayed through the CLI with
+the server stopped.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 from collections.abc import Iterator
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
-from threading import Thread
 from typing import Any
 
 import numpy as np
 import pytest
+from fake_openai_server import FakeOpenAI
 from typer.testing import CliRunner
 
 from orchestrator.cli import app
@@ -29,61 +28,14 @@ SCENE = resolve_scene("home")
 NODES = ("describer", "narrator", "event_parser", "planner")
 
 
-class FakeProvider:
-    """OpenAI chat-completions server; ``script[model]`` is the list of replies to that model,
-    in order (the last one repeats)."""
-
-    def __init__(self) -> None:
-        self.script: dict[str, list[str]] = {}
-        self.requests: list[dict[str, Any]] = []
-        outer = self
-
-        class Handler(BaseHTTPRequestHandler):
-            def log_message(self, *args: Any) -> None:
-                return None
-
-            def do_POST(self) -> None:
-                body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-                model = body["model"]
-                seen = sum(1 for r in outer.requests if r["model"] == model)
-                outer.requests.append(body)
-                replies = outer.script.get(model) or ['{"error": "no script"}']
-                text = replies[min(seen, len(replies) - 1)]
-                data = json.dumps({
-                    "id": "x", "object": "chat.completion", "created": 0, "model": model,
-                    "choices": [{"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": text}}],
-                    "usage": {"prompt_tokens": 10, "completion_tokens": 5, "total_tokens": 15},
-                }).encode()
-                self.send_response(200)
-                self.send_header("Content-Type", "application/json")
-                self.send_header("Content-Length", str(len(data)))
-                self.end_headers()
-                with contextlib.suppress(BrokenPipeError, ConnectionResetError):
-                    self.wfile.write(data)
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.server.daemon_threads = True
-        self.base = f"http://127.0.0.1:{self.server.server_address[1]}/v1"
-        self.thread = Thread(target=self.server.serve_forever, daemon=True)
-
-    def to(self, node: str) -> list[dict[str, Any]]:
-        return [r for r in self.requests if r["model"] == f"fake-{node}"]
-
-    def stop(self) -> None:
-        self.server.shutdown()
-        self.server.server_close()
-
-
 @pytest.fixture
-def fake(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[FakeProvider]:
+def fake(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[FakeOpenAI]:
     monkeypatch.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
     monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))  # describer cache
     for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL", *(f"STORYTELLER_{n.upper()}_MODEL" for n in NODES)):
         monkeypatch.delenv(var, raising=False)
-    server = FakeProvider()
-    server.thread.start()
-    yield server
-    server.stop()
+    with FakeOpenAI(default='{"error": "no script"}') as server:
+        yield server
 
 
 def write_config(tmp_path: Path, api_base: str) -> Path:
@@ -131,7 +83,7 @@ def direct_reply(x: float, y: float, action: str = "use_coffee_maker", look_at: 
 
 
 # ----- w/o Event ------------------------------------------------------------------------------
-def test_unified_planner_plans_from_one_call_and_replays_byte_for_byte(fake: FakeProvider, tmp_path: Path) -> None:
+def test_unified_planner_plans_from_one_call_and_replays_byte_for_byte(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     fake.script["fake-planner"] = [COFFEE]
     trace = tmp_path / "unified.jsonl"
@@ -162,7 +114,7 @@ def test_unified_planner_plans_from_one_call_and_replays_byte_for_byte(fake: Fak
     assert full.exit_code == 1 and "replay miss for node narrator" in full.stderr
 
 
-def test_unified_planner_busy_character_feedback_and_wait(fake: FakeProvider, tmp_path: Path) -> None:
+def test_unified_planner_busy_character_feedback_and_wait(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     wait = "```python\ndef parse_event():\n    pass\n```"
     # step 1 plans Ava (busy for one more step); step 2 names Ava again, is told, then waits
@@ -172,13 +124,13 @@ def test_unified_planner_busy_character_feedback_and_wait(fake: FakeProvider, tm
     assert out.exit_code == 0, out.stderr
     kinds = [e["kind"] for e in json.loads(out.stdout)["events"]]
     assert kinds == ["event", "wait"]
-    second = fake.to("planner")[1]["messages"]
+    second = fake.to("fake-planner")[1]["messages"]
     assert "Free characters: Ben" in second[1]["content"]
-    retry = fake.to("planner")[2]["messages"]
+    retry = fake.to("fake-planner")[2]["messages"]
     assert retry[-1]["role"] == "user" and "Ava is busy and cannot be planned" in retry[-1]["content"]
 
 
-def test_unified_planner_gives_up_with_a_typed_failure(fake: FakeProvider, tmp_path: Path) -> None:
+def test_unified_planner_gives_up_with_a_typed_failure(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     bad = COFFEE.replace("coffee_maker_1", "espresso_machine_9")
     fake.script["fake-planner"] = [bad]
@@ -186,15 +138,15 @@ def test_unified_planner_gives_up_with_a_typed_failure(fake: FakeProvider, tmp_p
                "--config", str(cfg))
     assert out.exit_code == 0, out.stderr
     assert out.stdout.startswith("event 1: failed in planner after 2 attempts:")
-    assert "espresso_machine_9" in out.stdout and len(fake.to("planner")) == 2
+    assert "espresso_machine_9" in out.stdout and len(fake.to("fake-planner")) == 2
     # the raw scene graph is the description
-    system = fake.to("planner")[0]["messages"][0]["content"]
+    system = fake.to("fake-planner")[0]["messages"][0]["content"]
     assert '"coffee_maker_1":{"position":' in system and '"relations":[' in system
 
 
 # ----- Direct Inference -----------------------------------------------------------------------
 def test_direct_inference_rejects_a_point_inside_furniture_then_accepts_a_free_one(
-    fake: FakeProvider, tmp_path: Path
+    fake: FakeOpenAI, tmp_path: Path
 ) -> None:
     cfg = write_config(tmp_path, fake.base)
     table = SCENE.get("table_1").center
@@ -209,7 +161,7 @@ def test_direct_inference_rejects_a_point_inside_furniture_then_accepts_a_free_o
     assert event["kind"] == "event" and event["parser_attempts"] == 2 and event["narrator_attempts"] == 1
     (p,) = event["plans"]
     assert p["position"] == [x, y] and p["action"] == "use_coffee_maker"
-    retry = fake.to("event_parser")[1]
+    retry = fake.to("fake-event_parser")[1]
     feedback = next(m["content"] for m in reversed(retry["messages"]) if m["content"].startswith("Running your"))
     assert f"Ava at [{table[0]:.2f}, {table[1]:.2f}] is inside table_1" in feedback
     # the fake model has no native schema support: the client states the schema in the prompt
@@ -232,7 +184,7 @@ def test_direct_inference_rejects_a_point_inside_furniture_then_accepts_a_free_o
     assert again.stdout == live.stdout
 
 
-def test_direct_inference_out_of_retries_is_a_failed_step(fake: FakeProvider, tmp_path: Path) -> None:
+def test_direct_inference_out_of_retries_is_a_failed_step(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     fridge = SCENE.get("fridge_1").center
     fake.script["fake-narrator"] = [NARRATION]
@@ -244,7 +196,7 @@ def test_direct_inference_out_of_retries_is_a_failed_step(fake: FakeProvider, tm
     assert "inside fridge_1" in out.stdout
 
 
-def test_direct_inference_point_on_a_seat_sits_on_it(fake: FakeProvider, tmp_path: Path) -> None:
+def test_direct_inference_point_on_a_seat_sits_on_it(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     chair = SCENE.get("chair_1").center
     fake.script["fake-narrator"] = [
@@ -259,11 +211,11 @@ def test_direct_inference_point_on_a_seat_sits_on_it(fake: FakeProvider, tmp_pat
     assert event["kind"] == "event", event
     (p,) = event["plans"]
     assert p["action"] == "eat" and "chair_1" in p["area"]
-    assert fake.to("describer") and "home:" in fake.to("narrator")[-1]["messages"][0]["content"]
+    assert fake.to("fake-describer") and "home:" in fake.to("fake-narrator")[-1]["messages"][0]["content"]
 
 
 # ----- description ablations with the full method --------------------------------------------
-def test_event_planner_with_the_object_list_skips_the_describer(fake: FakeProvider, tmp_path: Path) -> None:
+def test_event_planner_with_the_object_list_skips_the_describer(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     fake.script["fake-narrator"] = [NARRATION]
     fake.script["fake-event_parser"] = [COFFEE]
@@ -273,7 +225,7 @@ def test_event_planner_with_the_object_list_skips_the_describer(fake: FakeProvid
     assert live.exit_code == 0, live.stderr
     assert live.stdout.startswith("event 1: Ava: make coffee with coffee_maker_1\n  Ava: use_coffee_maker |")
     assert [r["model"] for r in fake.requests] == ["fake-narrator", "fake-event_parser"]
-    assert "coffee_maker_1: position [" in fake.to("narrator")[0]["messages"][0]["content"]
+    assert "coffee_maker_1: position [" in fake.to("fake-narrator")[0]["messages"][0]["content"]
     fake.stop()
     again = plan(tmp_path, *args, "--replay", str(trace))
     assert again.exit_code == 0 and again.stdout == live.stdout
@@ -306,7 +258,7 @@ def test_bad_choices_exit_2_with_a_clear_message(command: str, option: str, valu
     ],
 )
 def test_run_with_an_ablation_records_and_replays_the_same_story(
-    planner: str, description: str, script: dict[str, list[str]], nodes: list[str], fake: FakeProvider, tmp_path: Path
+    planner: str, description: str, script: dict[str, list[str]], nodes: list[str], fake: FakeOpenAI, tmp_path: Path
 ) -> None:
     cfg = write_config(tmp_path, fake.base)
     fake.script.update(script)
@@ -325,7 +277,7 @@ def test_run_with_an_ablation_records_and_replays_the_same_story(
     assert (tmp_path / "again" / "story.json").read_bytes() == (tmp_path / "live" / "story.json").read_bytes()
 
 
-def test_run_raw_feet_replays_the_same_story_with_the_animated_legs(fake: FakeProvider, tmp_path: Path) -> None:
+def test_run_raw_feet_replays_the_same_story_with_the_animated_legs(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     fake.script.update({"fake-planner": [COFFEE]})
     args = ["run", "home", "-n", "2", "-d", "4", "--max-events", "1", "--planner", "unified", "--description", "object-list"]

@@ -1,22 +1,19 @@
 """Fault handling of LiteLLMClient against a fake OpenAI-compatible server on 127.0.0.1.
 
-The real litellm -> openai SDK -> httpx path is exercised; the server plays a script of
-failures per model. Sleeping is injected, so backoff never waits.
+The real litellm -> openai SDK -> httpx path is exercised; the server
+(``tests/fake_openai_server.py``) plays a script of failures per model. Sleeping is injected,
+so backoff never waits.
 """
 
 from __future__ import annotations
 
-import contextlib
-import json
 import socket
-import threading
-import time
 from collections.abc import Iterator
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
 import pytest
+from fake_openai_server import FakeOpenAI
 
 from agents.llm_port import ChatMessage, LLMError, LLMRequest, LLMUnavailableError
 from orchestrator.config import NodeConfig, RetryConfig, StorytellerConfig, default_config
@@ -27,73 +24,10 @@ from orchestrator.traces import AttemptRecord, TraceWriter, read_trace
 SCHEMA = {"type": "object", "properties": {"ok": {"type": "boolean"}}, "required": ["ok"]}
 
 
-class FakeOpenAI:
-    """Scripted OpenAI chat-completions server. ``script[model]`` is a list of actions, one per
-    request to that model; the last action repeats. Actions: ("ok", text), ("length", text),
-    ("status", code), ("sleep", seconds), ("drop", None)."""
-
-    def __init__(self) -> None:
-        self.script: dict[str, list[tuple[str, Any]]] = {}
-        self.requests: list[dict[str, Any]] = []
-        self.auth: list[str | None] = []
-        outer = self
-
-        class Handler(BaseHTTPRequestHandler):
-            def log_message(self, *args: Any) -> None:
-                return None
-
-            def do_POST(self) -> None:
-                body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-                outer.requests.append(body)
-                outer.auth.append(self.headers.get("Authorization"))
-                model = body["model"]
-                seen = sum(1 for r in outer.requests if r["model"] == model) - 1
-                actions = outer.script.get(model, [("ok", '{"ok": true}')])
-                kind, arg = actions[min(seen, len(actions) - 1)]
-                if kind == "drop":
-                    self.close_connection = True
-                    self.connection.shutdown(socket.SHUT_RDWR)
-                    return
-                if kind == "sleep":
-                    time.sleep(arg)
-                    kind, arg = "ok", '{"ok": true}'
-                if kind == "status":
-                    payload = {"error": {"message": f"scripted {arg}", "type": "fake", "code": arg}}
-                    self._send(arg, payload)
-                    return
-                finish = "length" if kind == "length" else "stop"
-                self._send(200, {
-                    "id": "x", "object": "chat.completion", "created": 0, "model": model,
-                    "choices": [{"index": 0, "finish_reason": finish,
-                                 "message": {"role": "assistant", "content": arg}}],
-                    "usage": {"prompt_tokens": 11, "completion_tokens": 5, "total_tokens": 16},
-                })
-
-            def _send(self, code: int, payload: dict[str, Any]) -> None:
-                data = json.dumps(payload).encode()
-                self.send_response(code)
-                self.send_header("Content-Type", "application/json")
-                self.send_header("Content-Length", str(len(data)))
-                self.end_headers()
-                with contextlib.suppress(BrokenPipeError, ConnectionResetError):
-                    self.wfile.write(data)
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.server.daemon_threads = True
-        self.base = f"http://127.0.0.1:{self.server.server_address[1]}/v1"
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
-
-    def count(self, model: str) -> int:
-        return sum(1 for r in self.requests if r["model"] == model)
-
-
 @pytest.fixture
 def fake() -> Iterator[FakeOpenAI]:
-    server = FakeOpenAI()
-    server.thread.start()
-    yield server
-    server.server.shutdown()
-    server.server.server_close()
+    with FakeOpenAI() as server:  # unscripted models answer {"ok": true}
+        yield server
 
 
 @pytest.fixture(autouse=True)

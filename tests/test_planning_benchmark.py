@@ -1,17 +1,17 @@
 """The planning benchmark on the reference test cases: case loading, scoring, the runner with
 scripted planners, and the command line (record, then replay byte for byte) through the real
-litellm client against a fake OpenAI-compatible server on 127.0.0.1."""
+litellm client against a fake OpenAI-compatible server on 127.0.0.1
+(``tests/fake_openai_server.py``)."""
 
 from __future__ import annotations
 
 import json
-import threading
-from collections.abc import Iterator
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from fake_openai_server import FakeOpenAI
 
 from agents.ablation_planners import EventDrivenPlanner
 from agents.llm_port import LLMRequest, LLMResponse
@@ -161,47 +161,23 @@ async def test_runner_with_an_oracle_passes_and_a_broken_parser_does_not_execute
     assert [r.node for r in broken.requests] == ["narrator", "event_parser", "event_parser", "event_parser"]
 
 
-class FakeOpenAI:
-    """OpenAI-compatible chat server answering with the oracle's replies (by request content)."""
+def oracle_reply(who: dict[str, int]) -> Callable[[dict[str, Any]], str]:
+    """The oracle's reply to a chat request, chosen by request content: the case whose
+    character is named in the user messages; a narration if JSON output was asked for, else
+    the event program."""
 
-    def __init__(self, who: dict[str, int]) -> None:
-        outer = self
-        self.calls = 0
+    def reply(body: dict[str, Any]) -> str:
+        text = " ".join(m["content"] for m in body["messages"] if m["role"] == "user")
+        case = next(c for name, c in who.items() if name in text)
+        return narration(case) if "response_format" in body else program(case)
 
-        class Handler(BaseHTTPRequestHandler):
-            def log_message(self, *args: Any) -> None:
-                return None
-
-            def do_POST(self) -> None:
-                body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-                outer.calls += 1
-                text = " ".join(m["content"] for m in body["messages"] if m["role"] == "user")
-                case = next(c for name, c in who.items() if name in text)
-                answer = narration(case) if "response_format" in body else program(case)
-                data = json.dumps({
-                    "id": "x", "object": "chat.completion", "created": 0, "model": body["model"],
-                    "choices": [{"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": answer}}],
-                    "usage": {"prompt_tokens": 10, "completion_tokens": 5, "total_tokens": 15},
-                }).encode()
-                self.send_response(200)
-                self.send_header("Content-Type", "application/json")
-                self.send_header("Content-Length", str(len(data)))
-                self.end_headers()
-                self.wfile.write(data)
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.server.daemon_threads = True
-        self.base = f"http://127.0.0.1:{self.server.server_address[1]}/v1"
-        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+    return reply
 
 
 @pytest.fixture
 def fake() -> Iterator[FakeOpenAI]:
-    server = FakeOpenAI({PROGRAMS[c][0]: c for c in PROGRAMS})
-    server.thread.start()
-    yield server
-    server.server.shutdown()
-    server.server.server_close()
+    with FakeOpenAI(responder=oracle_reply({PROGRAMS[c][0]: c for c in PROGRAMS})) as server:
+        yield server
 
 
 def test_cli_records_then_replays_byte_for_byte(fake: FakeOpenAI, tmp_path: Path, capsys: pytest.CaptureFixture[str],
@@ -213,13 +189,13 @@ def test_cli_records_then_replays_byte_for_byte(fake: FakeOpenAI, tmp_path: Path
     common = ["--reference", str(REFERENCE), "--cases", "0", "60", "--description", "reference", "--verbose"]
     assert main([*common, "--config", str(config), "--record", str(trace), "--json", str(tmp_path / "r.json")]) == 0
     recorded = capsys.readouterr().out
-    assert fake.calls == 4
+    assert len(fake.requests) == 4
     assert "case  0 run 0 [OA]: pass" in recorded and "case 60 run 0 [PI]: pass" in recorded
     assert "all" in recorded and "1.00" in recorded and "paper" in recorded
     report = json.loads((tmp_path / "r.json").read_text())
     assert [r["score"]["passed"] for r in report["runs"]] == [True, True]
 
-    fake.server.shutdown()  # the replay must not need the server
+    fake.stop()  # the replay must not need the server
     assert main([*common, "--replay", str(trace)]) == 0
     replayed = capsys.readouterr().out
     assert replayed.replace(" (replayed)", "") == recorded
