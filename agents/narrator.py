@@ -12,11 +12,11 @@ description; user = characters and their states, event history, instruction.
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from agents.instruction_parts import InstructionProgress, instruction_progress
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
 from agents.messages import (
     MAX_ACTIVITY_CHARS,
@@ -65,6 +65,17 @@ class NarratorInput:
     def busy(self) -> list[str]:
         return [c.name for c in self.characters if c.busy]
 
+    @property
+    def candidates(self) -> list[str]:
+        """Who the reply may name: the next part's actors when it has some, else every free one."""
+        actors = set(self.progress.next_actors)
+        return [n for n in self.free if n in actors] if actors else self.free
+
+    @property
+    def progress(self) -> InstructionProgress:
+        """The instruction's parts and how far the story has got with them."""
+        return instruction_progress(self.instruction, [c.name for c in self.characters], self.history, self.free)
+
 
 def narrator_schema(free: Sequence[str]) -> dict[str, Any]:
     """JSON schema of the reply; ``characters`` may only name free characters (enum)."""
@@ -108,20 +119,6 @@ def history_text(history: Sequence[HistoryEntry]) -> str:
     return "\n".join(lines)
 
 
-_SENTENCE_END = re.compile(r"(?<=[.!?;])\s+|\n+")
-
-
-def instruction_text(instruction: str) -> str:
-    """The instruction as numbered sentences, which a small model follows more reliably
-    than one paragraph."""
-    parts = [p.strip() for p in _SENTENCE_END.split(instruction.strip()) if p and p.strip()]
-    if not parts:
-        return "(none: continue the story naturally)"
-    if len(parts) == 1:
-        return parts[0]
-    return "\n" + "\n".join(f"{i + 1}) {p}" for i, p in enumerate(parts))
-
-
 def characters_text(characters: Sequence[CharacterStatus]) -> str:
     lines = []
     for c in characters:
@@ -133,6 +130,14 @@ def characters_text(characters: Sequence[CharacterStatus]) -> str:
     return "\n".join(lines)
 
 
+def _next_part_line(instruction: str, progress: InstructionProgress) -> str:
+    if progress.next_part is not None:
+        return progress.next_part
+    if progress.nothing_for_the_free:
+        return "nothing for the free characters now: wait"
+    return "every part has happened" if instruction.strip() else "(none: continue the story naturally)"
+
+
 def narrator_messages(prompts: PromptLibrary, inp: NarratorInput) -> tuple[ChatMessage, ...]:
     system = prompts.render(
         "narrator/system.md",
@@ -140,12 +145,14 @@ def narrator_messages(prompts: PromptLibrary, inp: NarratorInput) -> tuple[ChatM
         scene_description=inp.scene_description.strip(),
     )
     free = inp.free
+    progress = inp.progress
     user = prompts.render(
         "narrator/request.md",
         characters=characters_text(inp.characters),
         free=", ".join(free) if free else "(none)",
         history=history_text(inp.history),
-        instruction=instruction_text(inp.instruction),
+        instruction=progress.text,
+        next_part=_next_part_line(inp.instruction, progress),
     )
     return (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
 
@@ -154,7 +161,7 @@ def narrator_request(prompts: PromptLibrary, inp: NarratorInput, turns: tuple[Tu
     return LLMRequest(
         node="narrator",
         messages=with_turns(narrator_messages(prompts, inp), turns),
-        json_schema=narrator_schema(inp.free),
+        json_schema=narrator_schema(inp.candidates),
         max_tokens=inp.max_tokens,
         seed=inp.seed,
         temperature=retry_temperature(turns),
@@ -198,6 +205,7 @@ def _json_slice(text: str) -> str:
 
 
 WAIT = NarratorOutput(reasoning="no character is free", event=Event())
+WAIT_FOR_BUSY = NarratorOutput(reasoning="the instruction has nothing for the free characters now", event=Event())
 
 
 async def narrate(
@@ -205,11 +213,14 @@ async def narrate(
 ) -> Accepted[NarratorOutput]:
     """Ask for the next event: a first try plus at most ``max_retries`` retries.
 
-    With no free character the answer is a wait, without an LLM call (attempts = 0).
+    With no free character, or an instruction with nothing for the free characters now (see
+    ``agents.instruction_parts``), the answer is a wait, without an LLM call (attempts = 0).
     Raises :class:`~agents.retry_feedback.RetriesExhaustedError` when every reply is rejected.
     """
     if not inp.free:
         return Accepted(value=WAIT, attempts=0, reply="")
+    if inp.progress.nothing_for_the_free:
+        return Accepted(value=WAIT_FOR_BUSY, attempts=0, reply="")
     return await ask_until_valid(
         port,
         lambda turns: narrator_request(prompts, inp, turns),

@@ -45,6 +45,7 @@ from agents.describer import (
     write_cached,
 )
 from agents.event_parser import PARSER_RETRY_INSTRUCTION, ParserInput, parser_request, run_reply
+from agents.instruction_parts import instruction_progress
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
 from agents.narrator import NarratorInput, narrator_request, parse_narration
@@ -351,10 +352,13 @@ def route_checked_description(state: PlanningState) -> Literal["describe_scene",
 
 
 def route_step(state: PlanningState) -> Literal["narrate_event", "record_outcome", "__end__"]:
-    """Next step: done after K steps; with no free character the step is a wait."""
+    """Next step: done after K steps; with no free character, or nothing of the instruction
+    for the free ones now (``agents.instruction_parts``), the step is a wait, without a call."""
     if state.step >= state.events_target:
         return END
-    if not state.free:
+    free = state.free
+    if not free or instruction_progress(state.instruction, [c.name for c in state.roster], state.recent,
+                                        free).nothing_for_the_free:
         return "record_outcome"
     return "narrate_event"
 

@@ -130,7 +130,7 @@ def test_history_window_keeps_ongoing_events() -> None:
 
 
 def test_instruction_is_numbered_by_sentence() -> None:
-    from agents.narrator import instruction_text
+    from agents.instruction_parts import instruction_text
 
     assert instruction_text("Ann cooks. Bob eats!") == "\n1) Ann cooks.\n2) Bob eats!"
     assert instruction_text("Ann cooks") == "Ann cooks"

@@ -447,3 +447,26 @@ async def test_sqlite_checkpoints_rebuild_our_types_without_warnings(tmp_path: P
         a: int = 1
 
     assert serde.loads_typed(serde.dumps_typed(Foreign())) == {"a": 1}  # data only, no object built
+
+
+async def test_the_rest_of_the_instruction_for_a_busy_character_is_a_wait_without_a_call() -> None:
+    # "Ann eats, then chats": while Ann eats (busy for one step) the second part is hers, so
+    # Bob's step is a wait with no narrator call; then Ann is free and takes part 2.
+    port = ScriptedPort({
+        "describer": [DESCRIPTION],
+        "narrator": [narration(["Ann"], "eat at table_1"), narration(["Ann"], "chat next to table_1")],
+        "event_parser": [PROGRAM.format(who="Ann"), PROGRAM.format(who="Ann")],
+    })
+    story = StoryLog(":memory:", "t1")
+    state = PlanningState(instruction="Ann eats, then chats.", events_target=3,
+                          roster=(CharacterStatus(name="Ann"), CharacterStatus(name="Bob"))).model_dump()
+    graph = compile_planning_graph(InMemorySaver())
+    await graph.ainvoke(state, config={"configurable": {"thread_id": "t1"}, "recursion_limit": recursion_limit(3, 3)},
+                        context=make_deps(port, story, busy_for_events=1), durability="sync")
+    outcomes = [o for _, o in story.outcomes()]
+    assert outcomes[1] is None  # the wait
+    assert [o.event.characters for o in outcomes if o is not None] == [("Ann",), ("Ann",)]  # type: ignore[union-attr]
+    assert port.count("narrator") == 2
+    second = [c for c in port.calls if c.node == "narrator"][1]
+    assert "1) [done] Ann eats.\n2) [next] Then Ann chats." in second.messages[-1].content
+    assert second.json_schema["properties"]["event"]["properties"]["characters"]["items"]["enum"] == ["Ann"]

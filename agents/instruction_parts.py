@@ -1,0 +1,177 @@
+"""The user's instruction as numbered parts, each marked with how far the story has got.
+
+A small model reads "Ava makes coffee, then sits on the couch and drinks it." as one event
+and writes it again every turn. Shown as parts with their progress,
+
+    1) [done] Ava makes coffee.
+    2) [next] Then Ava sits on the couch and drinks it.
+
+it takes the next part instead. All of it is deterministic text processing; the narrator (the
+LLM) still chooses and writes the event.
+
+- ``split_instruction``: sentences, lines and ``;`` make parts, and so does "then" inside a
+  sentence (", then", "and then"); a part without a subject of its own ("then sits on the
+  couch") takes the characters that open the part before it.
+- ``part_states``: each history event is matched to the not yet matched part that shares the
+  most content words with its activity (word stems, object names split at ``_``) and whose
+  actors (the first run of names in it) include one of its characters, earliest first on ties; an event sharing no word matches
+  nothing. A matched part is ``ongoing`` while its event is, ``done`` once the event
+  completed or loops (its characters are free again).
+- ``next part``: the first unmatched part whose actors are all free (a part naming nobody
+  needs any free character). The prompt names it on a line of its own. When parts are left
+  but none is next (what is left waits for busy characters), the instruction has nothing for
+  the free characters now: the narrator's rule says to wait, and the planner records the wait
+  without asking the model. Once every part has happened the model is asked as before (its
+  rules say what to do with free characters the instruction no longer needs).
+  When the next part has actors, the narrator's reply may name only them (the schema's enum):
+  a small model otherwise adds whoever else is free.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+from agents.messages import HistoryEntry
+
+PartState = Literal["done", "ongoing", "next", ""]
+
+_PARTS = re.compile(r"(?<=[.!?;])\s+|\n+")
+_THEN = re.compile(r"(?:,\s*(?:and\s+)?|\s+and\s+)then,?\s+(?=[A-Za-z])", re.IGNORECASE)
+_WORD = re.compile(r"[A-Za-z]+")
+_STOP = frozenset(str.split(
+    "the a an and or of to in on at by for with from into onto near next his her their its it "
+    "them they he she him then first after before while when that which this these those is are "
+    "be being been one some each other another same there here who whom so as if up down out "
+    "back over under left right should starts start"
+))
+
+
+@dataclass(frozen=True)
+class InstructionPart:
+    text: str
+    names: tuple[str, ...]  # characters the part mentions, in the order given
+    actors: tuple[str, ...]  # who acts: the first run of names ("Ava and Ben"), not the ones
+    # the part only refers to ("Michael joins the table of his friend, Sara")
+    stems: frozenset[str]  # content-word stems, for matching events
+
+
+def _stem(word: str) -> str:
+    w = word.lower()
+    return w[:3] if len(w) > 3 else w
+
+
+def content_stems(text: str, names: Iterable[str] = ()) -> frozenset[str]:
+    """Stems of the words of ``text`` that carry meaning (object names split at ``_``)."""
+    skip = {n.lower() for n in names}
+    return frozenset(
+        _stem(w) for w in _WORD.findall(text.replace("_", " "))
+        if len(w) > 2 and w.lower() not in _STOP and w.lower() not in skip
+    )
+
+
+def _mentioned(text: str, names: Sequence[str]) -> tuple[str, ...]:
+    words = set(_WORD.findall(text))
+    return tuple(n for n in names if n in words)
+
+
+def _name_run(names: Sequence[str]) -> str:
+    known = "|".join(re.escape(n) for n in sorted(names, key=len, reverse=True))
+    return rf"\b(?:{known})(?:\s*(?:,|and)\s*(?:{known}))*\b" if known else ""
+
+
+def _actors(text: str, names: Sequence[str]) -> tuple[str, ...]:
+    run = _name_run(names)
+    m = re.search(run, text) if run else None
+    return _mentioned(m.group(0), names) if m else ()
+
+
+def _leading_subject(text: str, names: Sequence[str]) -> str:
+    """The run of character names that opens ``text`` ("Ava", "Ava and Ben"), or ""."""
+    run = _name_run(names)
+    m = re.match(rf"\s*({run})", text) if run else None
+    return m.group(1) if m else ""
+
+
+def split_instruction(instruction: str, names: Sequence[str] = ()) -> list[InstructionPart]:
+    """The parts of ``instruction``; ``names``: the story's characters."""
+    parts: list[InstructionPart] = []
+    for sentence in _PARTS.split(instruction.strip()):
+        sentence = sentence.strip()
+        if not sentence:
+            continue
+        pieces = [p.strip() for p in _THEN.split(sentence) if p.strip()]
+        subject = ""
+        for k, piece in enumerate(pieces):
+            if k > 0:
+                if not _leading_subject(piece, names):
+                    piece = f"{subject} {piece}" if subject and piece[:1].islower() else piece[0].lower() + piece[1:]
+                piece = f"Then {piece}"
+            if k < len(pieces) - 1 and piece[-1:] not in ".!?;":
+                piece += "."
+            mentioned = _mentioned(piece, names)
+            subject = _leading_subject(piece.removeprefix("Then "), names) or (mentioned[0] if mentioned else subject)
+            parts.append(InstructionPart(piece, _mentioned(piece, names), _actors(piece, names),
+                                         content_stems(piece, names)))
+    return parts
+
+
+def part_states(
+    parts: Sequence[InstructionPart], history: Sequence[HistoryEntry], free: Iterable[str]
+) -> list[PartState]:
+    """How far the story has got with each part (see the module docstring)."""
+    states: list[PartState] = [""] * len(parts)
+    for h in sorted(history, key=lambda e: e.index):
+        stems = content_stems(h.activity, h.characters)
+        best, best_score = -1, 0
+        for i, p in enumerate(parts):
+            if states[i] or (p.actors and not set(p.actors) & set(h.characters)):
+                continue
+            score = len(stems & p.stems)
+            if score > best_score:
+                best, best_score = i, score
+        if best >= 0:
+            states[best] = "ongoing" if h.state == "ongoing" else "done"
+    free_set = set(free)
+    for i, p in enumerate(parts):
+        if not states[i] and ((p.actors and set(p.actors) <= free_set) or (not p.actors and free_set)):
+            states[i] = "next"
+            break
+    return states
+
+
+@dataclass(frozen=True)
+class InstructionProgress:
+    """What the narrator's prompt shows of the instruction."""
+
+    text: str  # the instruction: one part as it is, several numbered with their progress
+    next_part: str | None  # the part to take now, if any
+    next_actors: tuple[str, ...]  # who acts in it (empty: it names nobody, or there is none)
+    nothing_for_the_free: bool  # what is left of the instruction is for busy characters only
+
+
+def instruction_progress(
+    instruction: str, names: Sequence[str] = (), history: Sequence[HistoryEntry] = (), free: Iterable[str] = ()
+) -> InstructionProgress:
+    parts = split_instruction(instruction, names)
+    if not parts:
+        return InstructionProgress("(none: continue the story naturally)", None, (), False)
+    states = part_states(parts, history, free)
+    nxt = next((p for p, s in zip(parts, states, strict=True) if s == "next"), None)
+    if len(parts) == 1:
+        text = f"[{states[0]}] {parts[0].text}" if states[0] in ("done", "ongoing") else parts[0].text
+    else:
+        marked = [f"[{s}] {p.text}" if s else p.text for p, s in zip(parts, states, strict=True)]
+        text = "\n" + "\n".join(f"{i + 1}) {m}" for i, m in enumerate(marked))
+    if nxt is None:  # waiting for busy characters, or every part has happened
+        return InstructionProgress(text, None, (), "" in states)
+    return InstructionProgress(text, nxt.text, nxt.actors, False)
+
+
+def instruction_text(
+    instruction: str, names: Sequence[str] = (), history: Sequence[HistoryEntry] = (), free: Iterable[str] = ()
+) -> str:
+    """The instruction as the narrator's prompt shows it (``InstructionProgress.text``)."""
+    return instruction_progress(instruction, names, history, free).text

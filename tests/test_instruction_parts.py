@@ -1,0 +1,118 @@
+"""The instruction's parts and their progress, as the narrator's prompt shows them."""
+
+from __future__ import annotations
+
+import pytest
+
+from agents.instruction_parts import instruction_progress, part_states, split_instruction
+from agents.messages import CharacterStatus, HistoryEntry
+from agents.narrator import NarratorInput, narrate, narrator_request
+from agents.prompt_templates import PromptLibrary
+
+COFFEE = "Ava makes coffee, then sits on the couch and drinks it."
+NAMES = ("Ava", "Ben")
+
+
+def ev(i: int, who: tuple[str, ...], activity: str, state: str = "completed") -> HistoryEntry:
+    return HistoryEntry(index=i, characters=who, activity=activity, state=state)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("instruction", "parts"), [
+    (COFFEE, ["Ava makes coffee.", "Then Ava sits on the couch and drinks it."]),
+    ("Ava and Ben cook, and then eat at table_1.", ["Ava and Ben cook.", "Then Ava and Ben eat at table_1."]),
+    ("Meanwhile, Ben first reads and then naps.", ["Meanwhile, Ben first reads.", "Then Ben naps."]),
+    ("Ava cooks; then, Ben eats.\nAva rests", ["Ava cooks;", "then, Ben eats.", "Ava rests"]),
+    ("Ben then sits down.", ["Ben then sits down."]),  # "then" without a comma or "and" joins
+    ("Ava makes tea, then Ben drinks it.", ["Ava makes tea.", "Then Ben drinks it."]),
+])
+def test_split_by_sentence_and_then_with_the_subject_carried_over(instruction: str, parts: list[str]) -> None:
+    assert [p.text for p in split_instruction(instruction, NAMES)] == parts
+
+
+def test_parts_know_their_characters_and_words() -> None:
+    first, second = split_instruction(COFFEE, NAMES)
+    assert first.names == second.names == ("Ava",)
+    assert {"mak", "cof"} <= first.stems and "ava" not in first.stems
+    assert {"sit", "cou", "dri"} <= second.stems
+
+
+def test_events_mark_parts_done_ongoing_and_the_next_one() -> None:
+    parts = split_instruction(COFFEE, NAMES)
+    assert part_states(parts, (), NAMES) == ["next", ""]
+    made = ev(0, ("Ava",), "make coffee with coffee_maker_1", "ongoing")
+    assert part_states(parts, [made], ["Ben"]) == ["ongoing", ""]  # part 2 waits for Ava
+    made = made.model_copy(update={"state": "completed"})
+    assert part_states(parts, [made], NAMES) == ["done", "next"]
+    sat = ev(1, ("Ava",), "drink coffee sitting on couch_1", "looping")  # shares "coffee" with part 1
+    assert part_states(parts, [made, sat], NAMES) == ["done", "done"]
+
+
+def test_an_event_sharing_no_word_or_no_character_matches_nothing() -> None:
+    parts = split_instruction(COFFEE, NAMES)
+    assert part_states(parts, [ev(0, ("Ava",), "wave at Ben")], NAMES) == ["next", ""]
+    assert part_states(parts, [ev(0, ("Ben",), "make coffee with coffee_maker_1")], NAMES) == ["next", ""]
+    # the same event twice covers one part, not two
+    twice = [ev(0, ("Ava",), "make coffee"), ev(1, ("Ava",), "make coffee")]
+    assert part_states(parts, twice, NAMES) == ["done", "next"]
+
+
+def test_progress_text_and_when_nothing_is_for_the_free() -> None:
+    p = instruction_progress(COFFEE, NAMES, (), NAMES)
+    assert p.text == "\n1) [next] Ava makes coffee.\n2) Then Ava sits on the couch and drinks it."
+    assert p.next_part == "Ava makes coffee." and not p.nothing_for_the_free
+    busy = instruction_progress(COFFEE, NAMES, [ev(0, ("Ava",), "make coffee", "ongoing")], ["Ben"])
+    assert busy.next_part is None and busy.nothing_for_the_free
+    one = instruction_progress("Ben reads a book.", NAMES, [ev(0, ("Ben",), "read book_1 on couch_1", "ongoing")], ["Ava"])
+    assert one.text == "[ongoing] Ben reads a book." and one.next_part is None
+    assert not one.nothing_for_the_free  # every part has happened: the model decides about Ava
+    fresh = instruction_progress("Ben reads a book.", NAMES, (), NAMES)
+    assert fresh.text == "Ben reads a book." and fresh.next_part == "Ben reads a book."
+    nobody = instruction_progress("Everyone dances.", NAMES, (), ["Ben"])
+    assert nobody.next_part == "Everyone dances."  # a part naming nobody is for any free character
+    empty = instruction_progress("  ", NAMES, (), NAMES)
+    assert empty.text == "(none: continue the story naturally)" and not empty.nothing_for_the_free
+
+
+class NoCalls:
+    async def complete(self, request: object) -> object:
+        raise AssertionError("the narrator asked the model")
+
+
+def _input(history: tuple[HistoryEntry, ...], busy: tuple[str, ...]) -> NarratorInput:
+    roster = tuple(CharacterStatus(name=n, busy=n in busy, event_index=0 if n in busy else None) for n in NAMES)
+    return NarratorInput(scene_description="- kitchen: coffee_maker_1\n- living room: couch_1", characters=roster,
+                         instruction=COFFEE, history=history)
+
+
+async def test_narrator_waits_without_a_call_when_the_rest_is_for_busy_characters() -> None:
+    accepted = await narrate(NoCalls(), PromptLibrary(), _input((ev(0, ("Ava",), "make coffee", "ongoing"),), ("Ava",)))  # type: ignore[arg-type]
+    assert accepted.value.event.is_wait and accepted.attempts == 0
+
+
+def test_the_prompt_shows_the_marked_parts_and_the_next_one() -> None:
+    req = narrator_request(PromptLibrary(), _input((ev(0, ("Ava",), "make coffee with coffee_maker_1"),), ()))
+    user = req.messages[-1].content
+    assert "1) [done] Ava makes coffee.\n2) [next] Then Ava sits on the couch and drinks it." in user
+    assert "Next part: Then Ava sits on the couch and drinks it." in user
+
+
+def test_a_character_a_part_only_refers_to_need_not_be_free() -> None:
+    text = "Mia orders tea at the bar.\nLeo joins the table of his friend, Mia, to drink tea with her."
+    parts = split_instruction(text, ("Mia", "Leo"))
+    assert [p.actors for p in parts] == [("Mia",), ("Leo",)] and parts[1].names == ("Mia", "Leo")
+    ordered = ev(0, ("Mia",), "order tea at bar_1", "ongoing")
+    assert part_states(parts, [ordered], ["Leo"]) == ["ongoing", "next"]
+    # an event of the referred-to character does not cover the part of the one who acts
+    assert part_states(parts, [ordered, ev(1, ("Mia",), "drink tea at table_2")], ["Leo"]) == ["ongoing", "next"]
+
+
+def test_the_reply_may_name_only_the_next_parts_actors() -> None:
+    roster = tuple(CharacterStatus(name=n) for n in ("Ava", "Ben", "Cy"))
+    inp = NarratorInput(scene_description="- kitchen: coffee_maker_1", characters=roster, instruction=COFFEE)
+    assert inp.candidates == ["Ava"]
+    enum = narrator_request(PromptLibrary(), inp).json_schema["properties"]["event"]["properties"]["characters"]
+    assert enum["items"]["enum"] == ["Ava"] and enum["maxItems"] == 1
+    anyone = NarratorInput(scene_description="-", characters=roster, instruction="Everyone dances.")
+    assert anyone.candidates == ["Ava", "Ben", "Cy"]
+    free_story = NarratorInput(scene_description="-", characters=roster, instruction="")
+    assert free_story.candidates == ["Ava", "Ben", "Cy"] and not free_story.progress.nothing_for_the_free
