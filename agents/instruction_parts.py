@@ -14,8 +14,9 @@ LLM) still chooses and writes the event.
   couch") takes the characters that open the part before it.
 - ``part_states``: each history event is matched to the not yet matched part that shares the
   most content words with its activity (word stems, object names split at ``_``) and whose
-  actors (the first run of names in it) include one of its characters, earliest first on ties; an event sharing no word matches
-  nothing. A matched part is ``ongoing`` while its event is, ``done`` once the event
+  actors (the first run of names in it) include one of its characters, earliest first on
+  ties; an event sharing no word, or repeating an earlier event's activity, matches nothing.
+  A matched part is ``ongoing`` while its event is, ``done`` once the event
   completed or loops (its characters are free again).
 - ``next part``: the first unmatched part whose actors are all free (a part naming nobody
   needs any free character). The prompt names it on a line of its own. When parts are left
@@ -123,7 +124,12 @@ def part_states(
 ) -> list[PartState]:
     """How far the story has got with each part (see the module docstring)."""
     states: list[PartState] = [""] * len(parts)
+    seen: set[str] = set()
     for h in sorted(history, key=lambda e: e.index):
+        said = " ".join(h.activity.lower().split())
+        if said in seen:  # the same activity again covers no new part
+            continue
+        seen.add(said)
         stems = content_stems(h.activity, h.characters)
         best, best_score = -1, 0
         for i, p in enumerate(parts):

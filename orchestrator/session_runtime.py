@@ -106,6 +106,10 @@ class SessionSettings:
     """frames: frames to simulate; pace: see module doc; speed: simulated seconds per wall
     second in ``realtime`` pace; max_steps: planning steps at most (None: unbounded);
     retry_after_s: simulated seconds before asking again after a wait or a failed step;
+    recheck_after_s: after a wait, the planner is asked again only once the free characters or
+    an event's state (looping, completed, failed) changed since the request, or after this many
+    simulated seconds (the same question would get the same answer: a wait costs a planning
+    step, so waits are not repeated every ``retry_after_s`` for nothing);
     applied_frames: replay only, the recorded frame of every planning step's result."""
 
     frames: int
@@ -113,6 +117,7 @@ class SessionSettings:
     speed: float = 1.0
     max_steps: int | None = None
     retry_after_s: float = 3.0
+    recheck_after_s: float = 30.0
     applied_frames: Sequence[int] | None = None
 
 
@@ -205,6 +210,10 @@ class Session:
         self._in_flight: PlanningRequest | None = None
         self.planner_error: BaseException | None = None
         self._failures_in_a_row = 0
+        self._changes = 0  # event state changes seen so far (looping, completed, failed)
+        self._asked: tuple[tuple[str, ...], int] | None = None  # (free, changes) at the last request
+        self._unchanged_until: int | None = None  # after a wait: no new request before this frame
+        # unless the free characters or an event's state changed since the request
 
     # ----- planning side ------------------------------------------------------------------
     async def _planning_task(
@@ -231,7 +240,13 @@ class Session:
         if self.settings.applied_frames is not None and self._steps >= len(self.settings.applied_frames):
             return False
         available = out.available if out is not None else self.world.available()
-        return bool(available) and self.world.frame >= self._next_plan_frame
+        if not available or self.world.frame < self._next_plan_frame:
+            return False
+        if self._unchanged_until is not None:
+            if (tuple(available), self._changes) == self._asked and self.world.frame < self._unchanged_until:
+                return False
+            self._unchanged_until = None
+        return True
 
     def _apply(self, request: PlanningRequest, outcome: Outcome) -> list[AssignEvent]:
         frame = self.world.frame
@@ -251,6 +266,8 @@ class Session:
             self._failures_in_a_row = 0
         if not isinstance(outcome, ParsedEvent):
             self._next_plan_frame = frame + retry
+            if outcome is None:  # a wait: ask again when something changed (or much later)
+                self._unchanged_until = frame + max(retry, round(self.settings.recheck_after_s * self.world.config.fps))
             return []
         eid = event_id_for(request.index)
         try:
@@ -273,6 +290,7 @@ class Session:
         return [command]
 
     def _observe(self, out: StepOutput) -> None:
+        self._changes += len(out.looping_events) + len(out.completed_events) + len(out.failures)
         for eid in out.looping_events:
             if eid in self.events and self.events[eid].state == "ongoing":
                 self.events[eid].state = "looping"
@@ -341,6 +359,7 @@ class Session:
                         objects_in_use=seats,
                     )
                     self._steps += 1
+                    self._asked = (tuple(out.available), self._changes)
                     self._in_flight = request
                     await requests.send(request)
                 if s.pace == "realtime":

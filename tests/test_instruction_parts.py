@@ -51,8 +51,8 @@ def test_an_event_sharing_no_word_or_no_character_matches_nothing() -> None:
     parts = split_instruction(COFFEE, NAMES)
     assert part_states(parts, [ev(0, ("Ava",), "wave at Ben")], NAMES) == ["next", ""]
     assert part_states(parts, [ev(0, ("Ben",), "make coffee with coffee_maker_1")], NAMES) == ["next", ""]
-    # the same event twice covers one part, not two
-    twice = [ev(0, ("Ava",), "make coffee"), ev(1, ("Ava",), "make coffee")]
+    # the same event twice covers one part, not two, even when it shares words with the next
+    twice = [ev(0, ("Ava",), "make coffee sitting on couch_1"), ev(1, ("Ava",), "Make coffee  sitting on couch_1")]
     assert part_states(parts, twice, NAMES) == ["done", "next"]
 
 

@@ -300,3 +300,38 @@ def test_an_event_the_motion_library_cannot_play_is_skipped_and_logged(home, mot
     assert result.frames == 3 * FPS and result.planner_error is None
     rejected = [e for e in logs if e["event"] == "event_rejected"]
     assert rejected and rejected[0]["event_id"] and "use_coffee_maker" in rejected[0]["error"]
+
+
+class WaitingPlanner:
+    """Ava reads (a looping action, so she is free again at once); every later step waits."""
+
+    def __init__(self, scene) -> None:  # type: ignore[no-untyped-def]
+        self.spot = _free_points(scene, 1, seed=7)[0]
+        self.requests: list[PlanningRequest] = []
+
+    async def plan(self, request: PlanningRequest) -> Outcome:
+        self.requests.append(request)
+        if request.index > 0:
+            return None
+        plan = PlannedCharacter(character="Ava", action="use_smartphone", area="a free spot", position=self.spot,
+                                facing=(1.0, 0.0))
+        return ParsedEvent(index=0, event=Event(characters=("Ava",), activity="read"), plans=(plan,))
+
+
+def test_after_a_wait_the_planner_is_asked_again_only_when_something_changed(home, motion) -> None:  # type: ignore[no-untyped-def]
+    world = _world(home, motion, ["Ava", "Ben"])
+    planner = WaitingPlanner(home)
+    settings = SessionSettings(frames=40 * FPS, pace="lockstep", retry_after_s=1.0, recheck_after_s=15.0)
+    result = _run(world, planner, settings)
+    frames = [r.frame for r in planner.requests]
+    looping = next(e for e in result.events if e.index == 0)
+    assert looping.state == "looping"
+    # step 1 (Ben free, Ava walking) waits; when Ava's event loops she is free: the free
+    # characters changed, so the planner is asked at once (not 1 s after each wait)
+    free_at = [tuple(c.name for c in r.roster if not c.busy) for r in planner.requests]
+    assert free_at[0] == ("Ava", "Ben") and free_at[1] == ("Ben",)
+    assert ("Ava", "Ben") in free_at[2:]
+    # with nothing changing any more, the waits come 15 s apart, not every second
+    later = [b - a for a, b in zip(frames[2:], frames[3:])]
+    assert later and all(gap == 15 * FPS for gap in later)
+    assert len(frames) <= 2 + 1 + 40 // 15
