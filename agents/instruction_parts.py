@@ -114,8 +114,7 @@ def split_instruction(instruction: str, names: Sequence[str] = ()) -> list[Instr
                 piece += "."
             mentioned = _mentioned(piece, names)
             subject = _leading_subject(piece.removeprefix("Then "), names) or (mentioned[0] if mentioned else subject)
-            parts.append(InstructionPart(piece, _mentioned(piece, names), _actors(piece, names),
-                                         content_stems(piece, names)))
+            parts.append(InstructionPart(piece, mentioned, _actors(piece, names), content_stems(piece, names)))
     return parts
 
 

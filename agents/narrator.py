@@ -77,6 +77,15 @@ class NarratorInput:
         return instruction_progress(self.instruction, [c.name for c in self.characters], self.history, self.free)
 
 
+def waits_without_a_call(
+    characters: Sequence[CharacterStatus], instruction: str, history: Sequence[HistoryEntry]
+) -> bool:
+    """The narrator's step is a wait the model need not be asked about: nobody is free, or
+    what is left of the instruction is for busy characters only (``agents.instruction_parts``)."""
+    free = [c.name for c in characters if not c.busy]
+    return not free or instruction_progress(instruction, [c.name for c in characters], history, free).nothing_for_the_free
+
+
 def narrator_schema(free: Sequence[str]) -> dict[str, Any]:
     """JSON schema of the reply; ``characters`` may only name free characters (enum)."""
     names = list(dict.fromkeys(free))
@@ -217,10 +226,8 @@ async def narrate(
     ``agents.instruction_parts``), the answer is a wait, without an LLM call (attempts = 0).
     Raises :class:`~agents.retry_feedback.RetriesExhaustedError` when every reply is rejected.
     """
-    if not inp.free:
-        return Accepted(value=WAIT, attempts=0, reply="")
-    if inp.progress.nothing_for_the_free:
-        return Accepted(value=WAIT_FOR_BUSY, attempts=0, reply="")
+    if waits_without_a_call(inp.characters, inp.instruction, inp.history):
+        return Accepted(value=WAIT if not inp.free else WAIT_FOR_BUSY, attempts=0, reply="")
     return await ask_until_valid(
         port,
         lambda turns: narrator_request(prompts, inp, turns),

@@ -45,10 +45,9 @@ from agents.describer import (
     write_cached,
 )
 from agents.event_parser import PARSER_RETRY_INSTRUCTION, ParserInput, parser_request, run_reply
-from agents.instruction_parts import instruction_progress
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
-from agents.narrator import NarratorInput, narrator_request, parse_narration
+from agents.narrator import NarratorInput, narrator_request, parse_narration, waits_without_a_call
 from agents.program_grammar import event_program_grammar
 from agents.retry_feedback import REJECTIONS, feedback_from_error
 from orchestrator.planning_state import RECENT_WINDOW, PlanningDeps, PlanningState, RetryTurn
@@ -356,9 +355,7 @@ def route_step(state: PlanningState) -> Literal["narrate_event", "record_outcome
     for the free ones now (``agents.instruction_parts``), the step is a wait, without a call."""
     if state.step >= state.events_target:
         return END
-    free = state.free
-    if not free or instruction_progress(state.instruction, [c.name for c in state.roster], state.recent,
-                                        free).nothing_for_the_free:
+    if waits_without_a_call(state.roster, state.instruction, state.recent):
         return "record_outcome"
     return "narrate_event"
 
