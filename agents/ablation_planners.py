@@ -66,7 +66,7 @@ from agents.retry_feedback import (
     retry_temperature,
     with_turns,
 )
-from sim.scene import Scene
+from sim.scene.model import Scene
 from tools.errors import ToolError
 from tools.position_sampling import MIN_SEPARATION, FloorMap
 from tools.scene_graph import SceneGraph, build_scene_graph

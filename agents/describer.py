@@ -35,7 +35,7 @@ from agents.retry_feedback import (
     retry_temperature,
     with_turns,
 )
-from sim.scene import Scene
+from sim.scene.model import Scene
 from tools.clusters import cluster_objects
 from tools.scene_graph import SceneGraph, build_scene_graph
 from tools.scene_text import clusters_text, scene_graph_json

@@ -31,8 +31,8 @@ from agents.retry_feedback import (
     retry_temperature,
     with_turns,
 )
-from sim.action_labels import ACTION_LABELS, ACTION_SPECS, playable_seated
-from sim.scene import Scene
+from sim.motion.action_labels import ACTION_LABELS, ACTION_SPECS, playable_seated
+from sim.scene.model import Scene
 
 PARSER_RETRY_INSTRUCTION = "Fix this and reply with the whole corrected ```python block only."
 PARSER_FILES = ("event_parser/system.md", "event_parser/request.md")

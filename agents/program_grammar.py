@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from sim.action_labels import playable_seated
-from sim.scene import Scene, SceneObject
+from sim.motion.action_labels import playable_seated
+from sim.scene.model import Scene, SceneObject
 from tools.areas import seat_slots
 from tools.position_sampling import MIN_SEPARATION
 

@@ -18,8 +18,8 @@ import time
 
 import numpy as np
 
-from sim.motion_database import SCAN_THRESHOLD, NearestFrameIndex, clip_raw_features
-from sim.procedural_locomotion import locomotion_clip, step_length
+from sim.motion.database import SCAN_THRESHOLD, NearestFrameIndex, clip_raw_features
+from sim.motion.sources.procedural_locomotion import locomotion_clip, step_length
 
 
 def _features(frames: int, rng: np.random.Generator) -> np.ndarray:

@@ -2,8 +2,8 @@
 
 Records the motion queries a bench_world-like run feeds the motion layer (10 characters
 walking between random targets in the Office, ``--seconds`` simulated seconds), then replays
-them through ``sim.motion_reference.ReferenceMotionMatcher`` (the step as it was before the
-motion kernels) and through ``sim.motion_matching.MotionMatcher``, each starting from the
+them through ``tests.support.motion_reference.ReferenceMotionMatcher`` (the step as it was before the
+motion kernels) and through ``sim.motion.matching.MotionMatcher``, each starting from the
 recorded initial states and feeding its own returned states back, as the world does. Prints
 microseconds per frame (all characters) for both, best of ``--reps`` alternating replays,
 their ratio, whether every search decision and state counter is the same, and whether the
@@ -25,12 +25,12 @@ from typing import Any
 import numpy as np
 
 from benchmark.bench_world import OFFICE, IdleErrands
-from sim.motion_database import MotionDatabase, load_databases
-from sim.motion_matching import MatchState, MotionMatcher, MotionQuery, Pose
-from sim.motion_reference import ReferenceMotionMatcher
-from sim.nav_grid import build_nav_grid
-from sim.scene_files import load_scene
-from sim.world import World, WorldConfig, step
+from sim.motion.database import MotionDatabase, load_databases
+from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
+from sim.paths.nav_grid import build_nav_grid
+from sim.scene.files import load_scene
+from sim.world.step import World, WorldConfig, step
+from tests.support.motion_reference import ReferenceMotionMatcher
 
 
 @dataclass

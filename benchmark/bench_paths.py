@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.cooperative_astar import PathPlanner
-from sim.nav_grid import build_nav_grid, with_reference_grid_origin
-from sim.scene_files import load_scene
+from sim.paths.cooperative_astar import PathPlanner
+from sim.paths.nav_grid import build_nav_grid, with_reference_grid_origin
+from sim.scene.files import load_scene
 
 OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
 

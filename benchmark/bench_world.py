@@ -40,14 +40,14 @@ from typing import Any
 
 import numpy as np
 
-from sim.cooperative_astar import PathPlanner, PlanResult
-from sim.motion_database import MotionDatabase, load_databases
-from sim.motion_matching import MotionMatcher, MotionQuery, Pose
-from sim.nav_grid import NavGrid, build_nav_grid
-from sim.scene import Scene
-from sim.scene_files import load_scene
-from sim.story_events import AssignEvent, Assignment
-from sim.world import World, WorldConfig, step
+from sim.motion.database import MotionDatabase, load_databases
+from sim.motion.matching import MotionMatcher, MotionQuery, Pose
+from sim.paths.cooperative_astar import PathPlanner, PlanResult
+from sim.paths.nav_grid import NavGrid, build_nav_grid
+from sim.scene.files import load_scene
+from sim.scene.model import Scene
+from sim.world.events import AssignEvent, Assignment
+from sim.world.step import World, WorldConfig, step
 
 OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
 

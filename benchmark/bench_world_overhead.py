@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 
 from benchmark.bench_world import OFFICE, IdleErrands
-from sim.cooperative_astar import PathPlanner, PlanResult
-from sim.motion_database import load_databases
-from sim.motion_matching import MotionMatcher
-from sim.nav_grid import build_nav_grid
-from sim.scene_files import load_scene
-from sim.world import World, WorldConfig, step
+from sim.motion.database import load_databases
+from sim.motion.matching import MotionMatcher
+from sim.paths.cooperative_astar import PathPlanner, PlanResult
+from sim.paths.nav_grid import build_nav_grid
+from sim.scene.files import load_scene
+from sim.world.step import World, WorldConfig, step
 
 CLOCK = time.process_time
 

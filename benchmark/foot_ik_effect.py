@@ -1,4 +1,4 @@
-"""Effect of the foot IK filter (``sim.foot_ik``) on the crowd measure of issue 4.
+"""Effect of the foot IK filter (``sim.body.foot_ik``) on the crowd measure of issue 4.
 
 Runs the crowd scenario of ``tests/test_crowd_motion.py`` (its ``simulate_crowd`` and
 ``measure``, imported from the file) with a smaller crowd and the world's own leg IK turned
@@ -28,9 +28,9 @@ from types import ModuleType
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sim.foot_ik import LEG_JOINTS, FootSolver
-from sim.leg_ik import SHIN_LENGTH, THIGH_LENGTH, leg_chain
-from sim.scene_files import load_scene
+from sim.body.foot_ik import LEG_JOINTS, FootSolver
+from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, leg_chain
+from sim.scene.files import load_scene
 
 CROWD_TEST = Path(__file__).resolve().parents[1] / "tests" / "test_crowd_motion.py"
 
@@ -58,8 +58,8 @@ def main() -> None:
     args = ap.parse_args()
 
     crowd = _crowd_module()
-    from sim.motion_database import load_databases
-    from sim.motion_matching import MotionMatcher
+    from sim.motion.database import load_databases
+    from sim.motion.matching import MotionMatcher
 
     if not crowd.OFFICE.exists():
         raise SystemExit(f"reference scene not found at {crowd.OFFICE}")

@@ -34,17 +34,17 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.motion_clips import FOOT_JOINTS, MotionClip
-from sim.motion_config import (
+from sim.body.skeleton import forward_kinematics
+from sim.motion.clips import FOOT_JOINTS, MotionClip
+from sim.motion.config import (
     MotionConfig,
     build_databases_from_config,
     import_entry,
     load_motion_config,
 )
-from sim.motion_database import load_databases
-from sim.motion_matching import MotionMatcher, foot_sliding
-from sim.procedural_library import procedural_clips
-from sim.skeleton import forward_kinematics
+from sim.motion.database import load_databases
+from sim.motion.matching import MotionMatcher, foot_sliding
+from sim.motion.sources.procedural_library import procedural_clips
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_CONFIG = HERE / "mocap_shared.toml"
@@ -124,10 +124,10 @@ def compare_clips(config: MotionConfig, labels: Iterable[str] | None = None) -> 
 
 def simulate_walkers(motion: MotionMatcher, n: int, seconds: float, seed: int, scene_dir: Path = OFFICE) -> MotionStats:
     """``n`` characters walk between random free cells of a scene; figures of their tracks."""
-    from sim.nav_grid import build_nav_grid
-    from sim.scene_files import load_scene
-    from sim.story_events import AssignEvent, Assignment
-    from sim.world import World, WorldConfig, step
+    from sim.paths.nav_grid import build_nav_grid
+    from sim.scene.files import load_scene
+    from sim.world.events import AssignEvent, Assignment
+    from sim.world.step import World, WorldConfig, step
 
     scene = load_scene(scene_dir)
     grid = build_nav_grid(scene)

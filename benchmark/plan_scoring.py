@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from agents.messages import ParsedEvent, PlanningFailure
 from benchmark.position_check import PositionExpressionError, check_position
 from benchmark.reference_cases import BenchmarkCase
-from sim.scene import Scene
+from sim.scene.model import Scene
 
 Outcome = ParsedEvent | PlanningFailure | None
 _TOKENS = re.compile(r"(\|\||&&|\(|\))")

@@ -52,7 +52,7 @@ from benchmark.reference_cases import (
     planning_inputs,
     scene_dir,
 )
-from sim.scene import Scene
+from sim.scene.model import Scene
 from tools.scene_graph import SceneGraph, build_scene_graph
 
 PROJECT = Path(__file__).resolve().parents[1]
@@ -112,7 +112,7 @@ class Descriptions:
                 raise BenchmarkCaseError(f"{path}: cannot read the reference description ({exc.strerror})") from None
         else:
             from agents.describer import describe_scene_cached
-            from orchestrator.cli_plan import describer_mode_for
+            from orchestrator.cli.plan import describer_mode_for
 
             desc = await describe_scene_cached(
                 self.port, self.prompts, scene, model=self.describer_model, cache_dir=self.cache_dir,
@@ -135,7 +135,7 @@ async def run_cases(
     on_result: Any = None,
 ) -> list[RunResult]:
     """Plan and score every case ``runs`` times (seed + run index per run)."""
-    from sim.scene_files import load_scene
+    from sim.scene.files import load_scene
 
     scenes: dict[str, tuple[Scene, SceneGraph]] = {}
     results: list[RunResult] = []
@@ -216,8 +216,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 async def _main(args: argparse.Namespace) -> int:
-    from orchestrator.config import load_config
-    from orchestrator.replay import build_llm_port
+    from orchestrator.llm.config import load_config
+    from orchestrator.llm.replay import build_llm_port
 
     if args.runs < 1:
         raise BenchmarkCaseError("--runs must be at least 1")
@@ -250,7 +250,7 @@ async def _main(args: argparse.Namespace) -> int:
             if asyncio.iscoroutine(out):
                 await out
     if args.replay:  # the models that answered when the trace was recorded
-        from orchestrator.traces import read_trace
+        from orchestrator.llm.traces import read_trace
 
         models = sorted({a.model for a in read_trace(args.replay).attempts() if a.final})
     else:
@@ -269,7 +269,7 @@ async def _main(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from agents.llm_port import LLMError
-    from orchestrator.config import ConfigError
+    from orchestrator.llm.config import ConfigError
     from orchestrator.logging_setup import configure_logging
 
     configure_logging("WARNING")  # logs go to stderr; stdout holds only the verdicts and the table

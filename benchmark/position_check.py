@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.scene import Scene, SceneObject
+from sim.scene.model import Scene, SceneObject
 from tools.scene_graph import point_footprint_distance
 
 TOLERANCES: dict[str, float] = {
@@ -220,9 +220,9 @@ def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dic
     import time
     from pathlib import Path
 
-    from sim.scene_files import load_scene
+    from sim.scene.files import load_scene
     from tools.character_states import world_view_from_reference_case
-    from tools.sandbox import execute
+    from tools.sandbox.interpreter import execute
     from tools.scene_graph import build_scene_graph
     from tools.spatial_api import SpatialAPI
 

@@ -23,7 +23,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agents.messages import CharacterStatus, HistoryEntry
-from sim.scene import Scene
+from sim.scene.model import Scene
 from tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
 
 TAGS: tuple[str, ...] = ("OA", "RC", "SS", "PI")

@@ -21,8 +21,8 @@ from agents.event_parser import scene_action_labels
 from agents.llm_port import LLMRequest, LLMResponse
 from agents.messages import CharacterStatus, ParsedEvent, PlanningFailure, SceneDescription
 from agents.prompt_templates import PromptLibrary
-from orchestrator.cli_plan import RosterWorld, initial_roster
-from sim.bundled_scenes import resolve_scene
+from orchestrator.cli.plan import RosterWorld, initial_roster
+from sim.scene.bundled import resolve_scene
 
 SCENE = resolve_scene("home")
 

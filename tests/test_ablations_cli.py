@@ -18,10 +18,10 @@ import pytest
 from fake_openai_server import FakeOpenAI
 from typer.testing import CliRunner
 
-from orchestrator.cli import app
-from orchestrator.cli_plan import initial_roster
-from orchestrator.traces import read_trace
-from sim.bundled_scenes import resolve_scene
+from orchestrator.cli.app import app
+from orchestrator.cli.plan import initial_roster
+from orchestrator.llm.traces import read_trace
+from sim.scene.bundled import resolve_scene
 from tools.position_sampling import FloorMap
 
 SCENE = resolve_scene("home")
@@ -288,7 +288,7 @@ def test_run_raw_feet_replays_the_same_story_with_the_animated_legs(fake: FakeOp
                                    "--out", str(tmp_path / "raw")], catch_exceptions=False)
     assert raw.exit_code == 0, raw.stderr
     assert (tmp_path / "raw" / "story.json").read_bytes() == (tmp_path / "live" / "story.json").read_bytes()
-    from sim.foot_ik import LEG_JOINTS
+    from sim.body.foot_ik import LEG_JOINTS
 
     with np.load(tmp_path / "live" / "Ava.track.npz") as ik, np.load(tmp_path / "raw" / "Ava.track.npz") as plain:
         assert np.array_equal(ik["root_positions"], plain["root_positions"])  # same paths, same pelvis

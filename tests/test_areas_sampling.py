@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.scene import Scene, SceneObject
-from sim.scene_files import load_scene
+from sim.scene.files import load_scene
+from sim.scene.model import Scene, SceneObject
 from tools import areas
 from tools.character_states import (
     ReferenceCaseError,

@@ -1,6 +1,6 @@
 """The compiled WHCA* backend takes exactly the pure-Python planner's decisions.
 
-Both backends of ``PathPlanner`` run the same algorithm (``sim.astar_kernel`` is the numba
+Both backends of ``PathPlanner`` run the same algorithm (``sim.paths.astar_kernel`` is the numba
 version of ``PathPlanner._search`` and the reservation folding); here they must return equal
 ``PlanResult``s on crowded problems in the reference Office scene, with stationary bodies,
 off-grid segments, hints, tight budgets (failures, repair and fallback passes), and drive a
@@ -15,16 +15,16 @@ import numpy as np
 import pytest
 
 from benchmark.bench_paths import _spaced
-from sim.cooperative_astar import (
+from sim.paths.cooperative_astar import (
     PathPlanner,
     PlanningError,
     PlanResult,
     _DenseReservations,
     _Reservations,
 )
-from sim.nav_grid import NavGrid, build_nav_grid
-from sim.path_following import CrowdNavigator
-from sim.scene_files import load_scene
+from sim.paths.following import CrowdNavigator
+from sim.paths.nav_grid import NavGrid, build_nav_grid
+from sim.scene.files import load_scene
 
 OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
 

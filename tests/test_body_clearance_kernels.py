@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.nav_grid import body_clearance, body_clearance_reference, build_nav_grid
-from sim.scene import SceneObject
-from sim.scene_files import load_scene
+from sim.paths.nav_grid import body_clearance, body_clearance_reference, build_nav_grid
+from sim.scene.files import load_scene
+from sim.scene.model import SceneObject
 
 OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
 

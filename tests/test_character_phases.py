@@ -1,4 +1,4 @@
-"""Phase timing and the motion label of every phase (sim.character_phases)."""
+"""Phase timing and the motion label of every phase (sim.world.phases)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.action_labels import database_key
-from sim.character_phases import (
+from sim.motion.action_labels import database_key
+from sim.world.events import Assignment
+from sim.world.phases import (
     INFINITE,
     CharacterState,
     available,
@@ -21,7 +22,6 @@ from sim.character_phases import (
     turn_frames,
     wrap_angle,
 )
-from sim.story_events import Assignment
 
 
 def _assign(action: str = "drink", seat: str | None = None, facing: tuple[float, float] = (1.0, 0.0)) -> Assignment:

@@ -14,8 +14,8 @@ import pytest
 from matplotlib.image import imread
 from typer.testing import CliRunner
 
-from orchestrator.cli import app
-from sim.bundled_scenes import load_bundled_scene
+from orchestrator.cli.app import app
+from sim.scene.bundled import load_bundled_scene
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 REFERENCE_SCENES = SHARED / "reference" / "event-driven-storytelling" / "configs" / "scenes"
@@ -178,7 +178,7 @@ def test_real_process_prints_no_traceback(tmp_path: Path) -> None:
         [
             sys.executable,
             "-c",
-            "from orchestrator.cli import app; app()",
+            "from orchestrator.cli.app import app; app()",
             "scene",
             "inspect",
             str(bad),

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.scene import Scene, SceneObject
-from sim.scene_files import load_scene
+from sim.scene.files import load_scene
+from sim.scene.model import Scene, SceneObject
 from tools.clusters import cluster_objects, distance_matrix
 
 SCENES = (

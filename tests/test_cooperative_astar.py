@@ -10,10 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.cooperative_astar import PathPlanner, PlanningError, plan_conflicts, position_at
-from sim.nav_grid import MOVES, NavGrid, body_clearance, build_nav_grid
-from sim.path_following import CrowdNavigator
-from sim.scene import Scene, SceneObject
+from sim.paths.cooperative_astar import PathPlanner, PlanningError, plan_conflicts, position_at
+from sim.paths.following import CrowdNavigator
+from sim.paths.nav_grid import MOVES, NavGrid, body_clearance, build_nav_grid
+from sim.scene.model import Scene, SceneObject
 
 
 def _box(name: str, x: float, y: float, w: float, d: float) -> SceneObject:
@@ -198,7 +198,7 @@ def test_a_target_inside_furniture_is_reported_not_walked_into() -> None:
 
 def _overrides_reference(planner: PathPlanner, segs: list[tuple[np.ndarray, np.ndarray]]) -> dict[int, list]:
     """Direct per-cell computation of the moves kept next to static discs / segments."""
-    from sim.cooperative_astar import segment_distance
+    from sim.paths.cooperative_astar import segment_distance
 
     g, cs = planner.grid, planner.grid.cell_size
     ps = np.array([p for p, _ in segs])

@@ -22,7 +22,7 @@ from agents.describer import (
 from agents.llm_port import LLMRequest, LLMResponse
 from agents.prompt_templates import PromptLibrary
 from agents.retry_feedback import AnswerRejectedError, RetriesExhaustedError
-from sim.bundled_scenes import resolve_scene
+from sim.scene.bundled import resolve_scene
 
 NAMES = ("fridge_1", "cabinet_1", "coffee_maker_1", "couch_1", "tv_1")
 INP = DescriberInput(

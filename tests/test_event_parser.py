@@ -26,7 +26,7 @@ from agents.llm_port import LLMRequest, LLMResponse
 from agents.messages import CharacterStatus, Event
 from agents.prompt_templates import PromptLibrary
 from agents.retry_feedback import AnswerRejectedError, NoCodeError, RetriesExhaustedError
-from sim.scene import Scene, SceneObject
+from sim.scene.model import Scene, SceneObject
 from tools.errors import UnknownObjectError
 
 BODY = '    a = get_character("Ann")\n    a.set_position(get_area_close_to("table_1"))\n'
@@ -154,7 +154,7 @@ def test_scene_action_labels_drop_absent_appliances() -> None:
 
 def test_real_event_program_runner() -> None:
     """The real sandbox + spatial API path (tools/)."""
-    from orchestrator.cli_plan import RosterWorld
+    from orchestrator.cli.plan import RosterWorld
 
     roster = (CharacterStatus(name="Ann", position=(4.0, 1.0)),)
     world = RosterWorld().world_view(roster)

@@ -11,9 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from sim.character_track import CharacterTrack, random_track
-from sim.export_bvh import END_SITES, bvh_text, depth_first_order, export_bvh
-from sim.skeleton import BODY_TO_WORLD, JOINT_NAMES, PARENTS, REST_OFFSETS
+from sim.body.skeleton import BODY_TO_WORLD, JOINT_NAMES, PARENTS, REST_OFFSETS
+from sim.export.bvh import END_SITES, bvh_text, depth_first_order, export_bvh
+from sim.world.character_track import CharacterTrack, random_track
 
 _AXES = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
 

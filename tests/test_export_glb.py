@@ -12,11 +12,17 @@ import trimesh
 from pygltflib.validator import validate
 from scipy.spatial.transform import Rotation
 
-from sim.character_track import CharacterTrack, random_track
-from sim.export_bundle import export_run, file_slug
-from sim.export_glb import box_mesh, character_mesh, export_glb, glb_bytes
-from sim.scene import Scene, SceneObject
-from sim.skeleton import BODY_TO_WORLD, JOINT_NAMES, PARENTS, forward_kinematics, rest_positions
+from sim.body.skeleton import (
+    BODY_TO_WORLD,
+    JOINT_NAMES,
+    PARENTS,
+    forward_kinematics,
+    rest_positions,
+)
+from sim.export.bundle import export_run, file_slug
+from sim.export.glb import box_mesh, character_mesh, export_glb, glb_bytes
+from sim.scene.model import Scene, SceneObject
+from sim.world.character_track import CharacterTrack, random_track
 
 _NUMPY = {
     gl.FLOAT: np.float32,

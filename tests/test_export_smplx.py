@@ -11,10 +11,10 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.character_track import CharacterTrack, CharacterTrackError, random_track, write_npz
-from sim.export_smplx_npz import export_smplx_npz, smplx_parameters
-from sim.skeleton import REST_OFFSETS, axis_angle_to_matrix, forward_kinematics, rest_positions
-from sim.smplx_standin import (
+from sim.body.skeleton import REST_OFFSETS, axis_angle_to_matrix, forward_kinematics, rest_positions
+from sim.export.smplx_npz import export_smplx_npz, smplx_parameters
+from sim.world.character_track import CharacterTrack, CharacterTrackError, random_track, write_npz
+from tests.support.smplx_standin import (
     MODEL_PARENTS,
     NUM_FACES,
     NUM_MODEL_JOINTS,

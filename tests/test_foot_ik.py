@@ -1,4 +1,4 @@
-"""Foot IK (sim.foot_ik): exact two-bone IK, feet pushed out of footprints, pinned contacts."""
+"""Foot IK (sim.body.foot_ik): exact two-bone IK, feet pushed out of footprints, pinned contacts."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim.foot_clearance import _push_out_kernel
-from sim.foot_ik import (
+from sim.body.foot_clearance import _push_out_kernel
+from sim.body.foot_ik import (
     HIP_JOINTS,
     KNEE_JOINTS,
     LEG_JOINTS,
@@ -20,10 +20,10 @@ from sim.foot_ik import (
     push_out,
     solve_legs,
 )
-from sim.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, _ik_kernel
-from sim.motion_clips import ANKLE_JOINTS, FOOT_JOINTS
-from sim.scene import Scene, SceneObject
-from sim.skeleton import NUM_JOINTS, REST_OFFSETS, forward_kinematics, heading_to_root
+from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, _ik_kernel
+from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, forward_kinematics, heading_to_root
+from sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
+from sim.scene.model import Scene, SceneObject
 
 _NO_BOXES = Footprints(*(np.zeros((0, 2)) for _ in range(4)))
 OTHERS = [j for j in range(NUM_JOINTS) if j not in LEG_JOINTS]

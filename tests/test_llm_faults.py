@@ -16,10 +16,10 @@ import pytest
 from fake_openai_server import FakeOpenAI
 
 from agents.llm_port import ChatMessage, LLMError, LLMRequest, LLMUnavailableError
-from orchestrator.config import NodeConfig, RetryConfig, StorytellerConfig, default_config
-from orchestrator.llm_client import LiteLLMClient
-from orchestrator.retry_policy import RetryPolicy
-from orchestrator.traces import AttemptRecord, TraceWriter, read_trace
+from orchestrator.llm.client import LiteLLMClient
+from orchestrator.llm.config import NodeConfig, RetryConfig, StorytellerConfig, default_config
+from orchestrator.llm.retry_policy import RetryPolicy
+from orchestrator.llm.traces import AttemptRecord, TraceWriter, read_trace
 
 SCHEMA = {"type": "object", "properties": {"ok": {"type": "boolean"}}, "required": ["ok"]}
 

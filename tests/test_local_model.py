@@ -14,9 +14,9 @@ import litellm
 import pytest
 
 from agents.llm_port import ChatMessage, LLMError, LLMRequest
-from orchestrator.config import RetryConfig, default_config
-from orchestrator.llm_client import LiteLLMClient
-from orchestrator.local_model import (
+from orchestrator.llm.client import LiteLLMClient
+from orchestrator.llm.config import RetryConfig, default_config
+from orchestrator.llm.local_model import (
     DEFAULT_ARRAY_MAX_ITEMS,
     MAX_TOKENS_CAP,
     LocalLlamaProvider,
@@ -24,7 +24,7 @@ from orchestrator.local_model import (
     bound_arrays,
     register_local_provider,
 )
-from orchestrator.model_weights import (
+from orchestrator.llm.model_weights import (
     QWEN_05B,
     QWEN_15B,
     WeightsIntegrityError,
@@ -34,7 +34,7 @@ from orchestrator.model_weights import (
     forget_hashes,
     locate_chunks,
 )
-from orchestrator.traces import TraceWriter, read_trace
+from orchestrator.llm.traces import TraceWriter, read_trace
 
 SCHEMA = {
     "type": "object",
@@ -251,7 +251,7 @@ def test_get_llama_hashes_the_file_before_loading_and_refuses_a_tampered_one(
     import sys
     import types
 
-    from orchestrator import local_model
+    from orchestrator.llm import local_model
 
     blob = b"GGUF" + bytes(range(256)) * 64
     spec = WeightsSpec(model="fake-tamper", filename="fake-tamper.gguf", packages=("x",), version="1",
@@ -334,8 +334,8 @@ async def test_real_quality_model_answers_schema_json(tmp_path: Path) -> None:
 async def test_default_local_timeout_grows_with_the_prompt_and_an_explicit_one_wins(
     fake_llama: FakeLlama, tmp_path: Path
 ) -> None:
-    from orchestrator.config import load_config
-    from orchestrator.local_model import (
+    from orchestrator.llm.config import load_config
+    from orchestrator.llm.local_model import (
         BASE_TIMEOUT_S,
         LOAD_MARGIN,
         MEASURED_TOK_S,

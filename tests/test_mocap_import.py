@@ -8,12 +8,17 @@ import bvh as independent_bvh
 import numpy as np
 import pytest
 
-from sim.mocap_amass import import_amass
-from sim.mocap_bvh import MocapImportError, auto_joint_mapping, import_bvh, parse_bvh
-from sim.motion_config import MotionConfigError, build_databases_from_config, load_motion_config
-from sim.motion_matching import foot_sliding
-from sim.procedural_actions import action_clip
-from sim.skeleton import JOINT_INDEX, REST_OFFSETS, matrix_to_axis_angle
+from sim.body.skeleton import JOINT_INDEX, REST_OFFSETS, matrix_to_axis_angle
+from sim.motion.config import MotionConfigError, build_databases_from_config, load_motion_config
+from sim.motion.matching import foot_sliding
+from sim.motion.sources.amass_import import import_amass
+from sim.motion.sources.bvh_import import (
+    MocapImportError,
+    auto_joint_mapping,
+    import_bvh,
+    parse_bvh,
+)
+from sim.motion.sources.procedural_actions import action_clip
 
 MOCAP = Path(__file__).resolve().parents[1].parent / "shared" / "mocap"
 needs_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason="../shared/mocap not present")

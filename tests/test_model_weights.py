@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator import model_weights
-from orchestrator.model_weights import (
+from orchestrator.llm import model_weights
+from orchestrator.llm.model_weights import (
     QWEN_05B,
     QWEN_15B,
     WeightsIntegrityError,

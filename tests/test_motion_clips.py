@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.action_labels import (
+from sim.body.skeleton import JOINT_INDEX, forward_kinematics, heading_to_root, rest_positions
+from sim.motion.action_labels import (
     ACTION_LABELS,
     UnknownActionLabelError,
     action_spec,
@@ -18,13 +19,12 @@ from sim.action_labels import (
     database_key,
     family_of,
 )
-from sim.motion_cache import cached_arrays, content_key
-from sim.motion_clips import FOOT_JOINTS, MotionClip
-from sim.procedural_actions import action_clip, sit_idle_clip, sitting_clip
-from sim.procedural_library import procedural_clips
-from sim.procedural_locomotion import locomotion_clips
-from sim.procedural_rig import TOE_HEIGHT, two_bone_ik
-from sim.skeleton import JOINT_INDEX, forward_kinematics, heading_to_root, rest_positions
+from sim.motion.cache import cached_arrays, content_key
+from sim.motion.clips import FOOT_JOINTS, MotionClip
+from sim.motion.sources.procedural_actions import action_clip, sit_idle_clip, sitting_clip
+from sim.motion.sources.procedural_library import procedural_clips
+from sim.motion.sources.procedural_locomotion import locomotion_clips
+from sim.motion.sources.procedural_rig import TOE_HEIGHT, two_bone_ik
 
 CASES = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "benchmark" / "test_cases"
 

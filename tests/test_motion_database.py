@@ -9,15 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.motion_database import (
+from sim.motion.database import (
     SCAN_THRESHOLD,
     NearestFrameIndex,
     build_database,
     load_databases,
     squared_distances,
 )
-from sim.motion_features import FEATURE_LAYOUTS, layout_for_key, layout_size
-from sim.procedural_library import procedural_clips
+from sim.motion.features import FEATURE_LAYOUTS, layout_for_key, layout_size
+from sim.motion.sources.procedural_library import procedural_clips
 
 
 @pytest.fixture(scope="module")

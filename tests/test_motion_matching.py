@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.inertialization import decay_spring, rotation_exp, transition_offsets
-from sim.motion_database import build_database
-from sim.motion_matching import (
+from sim.motion.database import build_database
+from sim.motion.inertialization import decay_spring, rotation_exp, transition_offsets
+from sim.motion.matching import (
     MatchState,
     MotionMatcher,
     MotionMatchingError,
@@ -15,7 +15,7 @@ from sim.motion_matching import (
     foot_sliding,
     future_from_path,
 )
-from sim.procedural_library import procedural_clips
+from sim.motion.sources.procedural_library import procedural_clips
 
 DT = 1.0 / 30.0
 

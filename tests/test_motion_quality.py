@@ -17,9 +17,9 @@ from benchmark.motion_quality import (
     pooled,
     simulate_walkers,
 )
-from sim.motion_config import load_motion_config
-from sim.motion_database import load_databases
-from sim.motion_matching import MotionMatcher
+from sim.motion.config import load_motion_config
+from sim.motion.database import load_databases
+from sim.motion.matching import MotionMatcher
 
 MOCAP = Path(__file__).resolve().parents[1].parent / "shared" / "mocap"
 needs_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason="../shared/mocap not present")

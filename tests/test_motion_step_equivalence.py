@@ -1,4 +1,4 @@
-"""The compiled motion step equals the numpy one it replaced (sim.motion_reference).
+"""The compiled motion step equals the numpy one it replaced (tests.support.motion_reference).
 
 A scripted multi-character scenario (walkers in one group and alone, idle with a target, a
 completing action entered from its clip start, sitting down on root motion with a seat height,
@@ -18,18 +18,18 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from sim.inertialization import rotation_exp, rotation_log
-from sim.motion_database import NearestFrameIndex, load_databases, squared_distances
-from sim.motion_kernels import (
+from sim.body.skeleton import forward_kinematics
+from sim.motion.database import NearestFrameIndex, load_databases, squared_distances
+from sim.motion.inertialization import rotation_exp, rotation_log
+from sim.motion.kernels import (
     fk_positions,
     matmul3,
     matrix_to_rotvec,
     nearest_rows,
     rotvec_to_matrix,
 )
-from sim.motion_matching import MatchState, MotionMatcher, MotionQuery, Pose, future_from_path
-from sim.motion_reference import ReferenceMotionMatcher
-from sim.skeleton import forward_kinematics
+from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose, future_from_path
+from tests.support.motion_reference import ReferenceMotionMatcher
 
 DT = 1.0 / 30.0
 KEYS = ["walk", "idle", "chat", "turn_on_tv", "sit_down", "sit_idle", "drink@seated"]

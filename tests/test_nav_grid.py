@@ -9,15 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.nav_grid import (
+from sim.paths.nav_grid import (
     MOVES,
     NavGridError,
     body_clearance,
     build_nav_grid,
     with_reference_grid_origin,
 )
-from sim.scene import NavHints, Scene, SceneObject
-from sim.scene_files import load_scene
+from sim.scene.files import load_scene
+from sim.scene.model import NavHints, Scene, SceneObject
 
 REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling"
 SCENES = REFERENCE / "configs" / "scenes"

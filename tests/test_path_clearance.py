@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.nav_grid import body_clearance, build_nav_grid, with_reference_grid_origin
-from sim.path_following import CrowdNavigator
-from sim.scene_files import load_scene
+from sim.paths.following import CrowdNavigator
+from sim.paths.nav_grid import body_clearance, build_nav_grid, with_reference_grid_origin
+from sim.scene.files import load_scene
 
 OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
 

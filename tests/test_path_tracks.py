@@ -1,6 +1,6 @@
 """Batched path following gives the very floats of the one-walker-at-a-time code.
 
-``sim.path_tracks.path_tracks`` (compiled) against ``track_reference`` (numpy, one path), and
+``sim.paths.tracks.path_tracks`` (compiled) against ``track_reference`` (numpy, one path), and
 ``CrowdNavigator``'s batched reads (``futures``, the positions ``tick`` returns) against its
 per-agent ``future`` / ``_xy_at``, in a crowd that walks, takes exact off-grid legs and parks.
 """
@@ -11,12 +11,12 @@ import math
 
 import numpy as np
 
-from sim.character_phases import wrap_angle
-from sim.cooperative_astar import PathPlanner
-from sim.nav_grid import build_nav_grid
-from sim.path_following import CrowdNavigator, _moved, close_xy
-from sim.path_tracks import path_tracks, track_reference, walker_headings
-from sim.scene import Scene, SceneObject
+from sim.paths.cooperative_astar import PathPlanner
+from sim.paths.following import CrowdNavigator, _moved, close_xy
+from sim.paths.nav_grid import build_nav_grid
+from sim.paths.tracks import path_tracks, track_reference, walker_headings
+from sim.scene.model import Scene, SceneObject
+from sim.world.phases import wrap_angle
 
 
 def test_compiled_tracks_equal_the_reference_bit_for_bit() -> None:

@@ -15,9 +15,9 @@ import pytest
 from typer.testing import CliRunner
 
 from benchmark.position_check import check_position
-from orchestrator.cli import app
-from sim.scene import Scene
-from sim.scene_files import load_scene
+from orchestrator.cli.app import app
+from sim.scene.files import load_scene
+from sim.scene.model import Scene
 from tools.character_states import world_view_from_reference_case
 from tools.event_program import run_event_program
 from tools.scene_graph import SceneGraph, build_scene_graph
@@ -95,7 +95,7 @@ def test_cli_json_matches_the_function(case_id: int) -> None:
 
 
 def test_real_cli_invocation() -> None:
-    cmd = [sys.executable, "-c", "from orchestrator.cli import app; app()", *cli_args(63, seed=11)]
+    cmd = [sys.executable, "-c", "from orchestrator.cli.app import app; app()", *cli_args(63, seed=11)]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
     assert proc.returncode == 0, proc.stderr
     plan = json.loads(proc.stdout)["plans"][0]

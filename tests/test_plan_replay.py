@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from orchestrator.cli import app
+from orchestrator.cli.app import app
 
 REPO = Path(__file__).resolve().parents[1]
 TRACES = REPO / "traces"
@@ -35,7 +35,7 @@ def run_cli(args: list[str], tmp_path: Path) -> object:
 def test_replay_reproduces_the_recorded_output_byte_for_byte(
     name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from orchestrator import local_model
+    from orchestrator.llm import local_model
 
     loads: list[str] = []
 
@@ -68,7 +68,7 @@ def test_replay_json_lists_every_event_with_plans(name: str, tmp_path: Path) -> 
 def test_golden_trace_holds_the_parsed_output_of_every_attempt(name: str) -> None:
     """Every attempt has a parsed record: accepted output (parser: plans per character) or the
     typed error. ``plan`` runs no simulation: sim_frame is null and nothing is "applied"."""
-    from orchestrator.traces import read_trace
+    from orchestrator.llm.traces import read_trace
 
     contents = read_trace(TRACES / f"{name}.jsonl")
     attempts = list(contents.attempts())
@@ -128,14 +128,14 @@ async def test_embedded_model_narrator_and_parser_end_to_end(tmp_path: Path) -> 
 
     from agents.event_parser import PARSER_RETRY_INSTRUCTION, scene_action_labels
     from agents.messages import ParsedEvent, PlanningFailure, SceneDescription
-    from orchestrator.checkpoints import StoryLog
-    from orchestrator.cli_plan import RosterWorld, initial_roster
-    from orchestrator.config import load_config
-    from orchestrator.planning_graph import compile_planning_graph, recursion_limit
-    from orchestrator.planning_state import PlanningDeps, PlanningState
-    from orchestrator.replay import build_llm_port
-    from orchestrator.traces import read_trace
-    from sim.bundled_scenes import resolve_scene
+    from orchestrator.cli.plan import RosterWorld, initial_roster
+    from orchestrator.llm.config import load_config
+    from orchestrator.llm.replay import build_llm_port
+    from orchestrator.llm.traces import read_trace
+    from orchestrator.planning.checkpoints import StoryLog
+    from orchestrator.planning.graph import compile_planning_graph, recursion_limit
+    from orchestrator.planning.state import PlanningDeps, PlanningState
+    from sim.scene.bundled import resolve_scene
 
     config_path = tmp_path / "generous.toml"
     config_path.write_text(GENEROUS_CONFIG, encoding="utf-8")

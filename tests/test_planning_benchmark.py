@@ -26,7 +26,7 @@ from benchmark.reference_cases import (
     planning_inputs,
     scene_dir,
 )
-from sim.scene_files import load_scene
+from sim.scene.files import load_scene
 
 REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling"
 pytestmark = pytest.mark.skipif(not REFERENCE.is_dir(), reason="reference data not present")

@@ -23,10 +23,10 @@ from langgraph.checkpoint.memory import InMemorySaver
 
 from agents.llm_port import LLMRequest, LLMResponse
 from agents.messages import CharacterStatus
-from orchestrator.checkpoints import StoryLog, open_checkpointer
-from orchestrator.planning_graph import compile_planning_graph, recursion_limit, route_step
-from orchestrator.planning_state import PlanningDeps, PlanningState
-from sim.scene import Scene, SceneObject
+from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
+from orchestrator.planning.graph import compile_planning_graph, recursion_limit, route_step
+from orchestrator.planning.state import PlanningDeps, PlanningState
+from sim.scene.model import Scene, SceneObject
 from tools.errors import UnknownObjectError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -245,8 +245,8 @@ CHILD = textwrap.dedent(
     sys.path.insert(0, {tests!r})
     sys.path.insert(0, {repo!r})
     from test_planning_graph import ScriptedPort, DESCRIPTION, narration, make_deps, initial_state
-    from orchestrator.checkpoints import StoryLog, open_checkpointer
-    from orchestrator.planning_graph import compile_planning_graph
+    from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
+    from orchestrator.planning.graph import compile_planning_graph
 
     def die(req):
         os._exit(17)  # hard kill, no cleanup, the moment the parser is asked
@@ -292,8 +292,8 @@ CHILD_DESCRIBER = textwrap.dedent(
     sys.path.insert(0, {tests!r})
     sys.path.insert(0, {repo!r})
     from test_planning_graph import ScriptedPort, make_deps, initial_state
-    from orchestrator.checkpoints import StoryLog, open_checkpointer
-    from orchestrator.planning_graph import compile_planning_graph
+    from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
+    from orchestrator.planning.graph import compile_planning_graph
 
     replies = ['{{"areas": [{{"name": "dining", "purpose": "eat", "objects": ["table_1"]}}]}}']
 
@@ -353,7 +353,7 @@ async def test_describer_retries_exhausted_repairs_from_clusters() -> None:
 
 
 async def test_requests_carry_the_step_frame_and_parsed_outputs_are_traced(tmp_path: Path) -> None:
-    from orchestrator.traces import TraceWriter, read_trace
+    from orchestrator.llm.traces import TraceWriter, read_trace
 
     class TracedPort(ScriptedPort):
         """Numbers its answers like a trace-writing client (seqs of its own sink)."""
@@ -419,8 +419,8 @@ async def test_program_grammar_reaches_the_parser_request_only_when_asked() -> N
 async def test_sqlite_checkpoints_rebuild_our_types_without_warnings(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     import logging
 
-    from orchestrator.checkpoints import checkpoint_serializer
-    from orchestrator.planning_state import RetryTurn
+    from orchestrator.planning.checkpoints import checkpoint_serializer
+    from orchestrator.planning.state import RetryTurn
 
     port = ScriptedPort({"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat at table_1")],
                          "event_parser": [PROGRAM.format(who="Ann")]})

@@ -17,10 +17,10 @@ from agents.llm_port import ChatMessage, LLMRequest
 from agents.messages import CharacterStatus, Event, SceneDescription
 from agents.program_grammar import program_grammar
 from agents.prompt_templates import PromptLibrary
-from orchestrator.config import default_config
-from orchestrator.llm_client import LiteLLMClient
-from orchestrator.traces import NullTraceSink
-from sim.bundled_scenes import resolve_scene
+from orchestrator.llm.client import LiteLLMClient
+from orchestrator.llm.config import default_config
+from orchestrator.llm.traces import NullTraceSink
+from sim.scene.bundled import resolve_scene
 from tools.character_states import CharacterState, WorldView
 
 SCENE = resolve_scene("home")
@@ -89,7 +89,7 @@ def test_local_provider_builds_a_llama_grammar() -> None:
     pytest.importorskip("llama_cpp")
     from llama_cpp import LlamaGrammar
 
-    from orchestrator.local_model import _llama_params
+    from orchestrator.llm.local_model import _llama_params
 
     params = _llama_params({"max_tokens": 50, "response_format": {"type": "gbnf", "grammar": step_program_grammar(_step(), EVENT)}})
     assert isinstance(params["grammar"], LlamaGrammar) and "response_format" not in params
@@ -99,8 +99,8 @@ def test_local_provider_builds_a_llama_grammar() -> None:
 async def test_real_embedded_model_writes_a_runnable_program_under_the_grammar(tmp_path: Path) -> None:
     from test_local_model import _embedded_weights_or_skip
 
-    from orchestrator.local_model import LocalLlamaProvider, register_local_provider
-    from orchestrator.traces import TraceWriter, read_trace
+    from orchestrator.llm.local_model import LocalLlamaProvider, register_local_provider
+    from orchestrator.llm.traces import TraceWriter, read_trace
 
     _embedded_weights_or_skip()
     register_local_provider(LocalLlamaProvider())

@@ -11,10 +11,10 @@ import litellm
 import pytest
 
 from agents.llm_port import ChatMessage, LLMRequest, ReplayMissError
-from orchestrator.config import ConfigError, default_config
-from orchestrator.llm_client import LiteLLMClient
-from orchestrator.replay import ReplayClient, build_llm_port
-from orchestrator.traces import AttemptRecord, TraceCorruptError, TraceWriter, read_trace
+from orchestrator.llm.client import LiteLLMClient
+from orchestrator.llm.config import ConfigError, default_config
+from orchestrator.llm.replay import ReplayClient, build_llm_port
+from orchestrator.llm.traces import AttemptRecord, TraceCorruptError, TraceWriter, read_trace
 
 PROMPT = "You are the narrator.\nCharacters: Ann, Bob.\nRules: one event at a time."
 

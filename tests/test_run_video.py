@@ -1,4 +1,4 @@
-"""Pictures of a run (sim.run_video): final-state PNG and animated GIF."""
+"""Pictures of a run (sim.export.video): final-state PNG and animated GIF."""
 
 from __future__ import annotations
 
@@ -8,9 +8,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from sim.character_track import CharacterTrack
-from sim.motion_matching import MotionQuery, Pose
-from sim.run_video import (
+from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
+from sim.export.video import (
     RunRecording,
     RunVideoError,
     animation_frames,
@@ -20,10 +19,11 @@ from sim.run_video import (
     save_run_animation,
     save_run_png,
 )
-from sim.scene import Scene, SceneObject
-from sim.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
-from sim.story_events import AssignEvent, Assignment
-from sim.world import World, run
+from sim.motion.matching import MotionQuery, Pose
+from sim.scene.model import Scene, SceneObject
+from sim.world.character_track import CharacterTrack
+from sim.world.events import AssignEvent, Assignment
+from sim.world.step import World, run
 
 
 class StandInMotion:

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from tools.sandbox import Budget
+from tools.sandbox.interpreter import Budget
 
 HERE = Path(__file__).resolve().parent
 HANG_TIMEOUT_S = 10.0
@@ -92,10 +92,10 @@ def _world(scene: object, graph: object) -> object:
 
 def worker(start: int) -> None:
     """Run cases ``start...`` and print one JSON line per case."""
-    from sim.bundled_scenes import load_bundled_scene
+    from sim.scene.bundled import load_bundled_scene
     from tools.errors import EventProgramError
     from tools.event_program import run_event_program
-    from tools.sandbox import execute
+    from tools.sandbox.interpreter import execute
     from tools.scene_graph import build_scene_graph
     from tools.spatial_api import SpatialAPI
 

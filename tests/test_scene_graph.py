@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from sim.scene import Scene, SceneObject
-from sim.scene_files import load_scene
+from sim.scene.files import load_scene
+from sim.scene.model import Scene, SceneObject
 from tools.scene_graph import (
     RELATIONS,
     RelationThresholds,

@@ -6,6 +6,7 @@ paths and motion matching are the real ones on the bundled home scene.
 
 from __future__ import annotations
 
+import itertools
 import random
 
 import anyio
@@ -13,18 +14,18 @@ import numpy as np
 import pytest
 
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from orchestrator.session_runtime import (
+from orchestrator.session.runtime import (
     Outcome,
     PlanningRequest,
     Session,
     SessionError,
     SessionSettings,
 )
-from sim.bundled_scenes import resolve_scene
-from sim.motion_database import load_databases
-from sim.motion_matching import MotionMatcher
-from sim.nav_grid import build_nav_grid
-from sim.world import World
+from sim.motion.database import load_databases
+from sim.motion.matching import MotionMatcher
+from sim.paths.nav_grid import build_nav_grid
+from sim.scene.bundled import resolve_scene
+from sim.world.step import World
 
 FPS = 30
 
@@ -197,10 +198,10 @@ async def _graph_session(scene, motion, port, trace, tmp_path, settings: Session
     from langgraph.checkpoint.memory import InMemorySaver
 
     from agents.event_parser import scene_action_labels
-    from orchestrator.checkpoints import StoryLog
-    from orchestrator.graph_step_planner import GraphStepPlanner, SessionWorld
-    from orchestrator.planning_graph import compile_planning_graph
-    from orchestrator.planning_state import PlanningDeps
+    from orchestrator.planning.checkpoints import StoryLog
+    from orchestrator.planning.graph import compile_planning_graph
+    from orchestrator.planning.state import PlanningDeps
+    from orchestrator.session.step_planner import GraphStepPlanner, SessionWorld
 
     story = StoryLog(tmp_path / "runs.sqlite", thread)
     deps = PlanningDeps(port=port, scene=scene, world=SessionWorld(), story=story,
@@ -216,7 +217,7 @@ async def _graph_session(scene, motion, port, trace, tmp_path, settings: Session
 def _check_frames_and_parsed(path) -> list:  # type: ignore[no-untyped-def]
     """Every narrator / parser attempt carries its step's request frame, is named by exactly
     one applied record and has one parsed record; no seq is skipped. Returns the applied records."""
-    from orchestrator.traces import AppliedRecord, AttemptRecord, read_trace
+    from orchestrator.llm.traces import AppliedRecord, AttemptRecord, read_trace
 
     contents = read_trace(path)
     assert [r.seq for r in contents.records] == list(range(len(contents.records)))  # no wasted seq
@@ -244,10 +245,10 @@ def _check_frames_and_parsed(path) -> list:  # type: ignore[no-untyped-def]
 
 
 def test_graph_session_traces_request_and_applied_frames_and_replays(home, motion, tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from orchestrator.config import default_config
-    from orchestrator.llm_client import LiteLLMClient
-    from orchestrator.replay import ReplayClient
-    from orchestrator.traces import TraceWriter, read_trace
+    from orchestrator.llm.client import LiteLLMClient
+    from orchestrator.llm.config import default_config
+    from orchestrator.llm.replay import ReplayClient
+    from orchestrator.llm.traces import TraceWriter, read_trace
 
     live_path = tmp_path / "live.jsonl"
     client = LiteLLMClient(default_config(), TraceWriter(live_path, fsync="never"),
@@ -332,6 +333,6 @@ def test_after_a_wait_the_planner_is_asked_again_only_when_something_changed(hom
     assert free_at[0] == ("Ava", "Ben") and free_at[1] == ("Ben",)
     assert ("Ava", "Ben") in free_at[2:]
     # with nothing changing any more, the waits come 15 s apart, not every second
-    later = [b - a for a, b in zip(frames[2:], frames[3:])]
+    later = [b - a for a, b in itertools.pairwise(frames[2:])]
     assert later and all(gap == 15 * FPS for gap in later)
     assert len(frames) <= 2 + 1 + 40 // 15

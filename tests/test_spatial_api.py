@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.scene import Scene
-from sim.scene_files import load_scene
+from sim.scene.files import load_scene
+from sim.scene.model import Scene
 from tools.areas import Area
 from tools.character_states import WorldView, world_view_from_reference_case
 from tools.errors import (

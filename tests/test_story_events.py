@@ -1,4 +1,4 @@
-"""Commands and reports between the planner and the world (sim.story_events)."""
+"""Commands and reports between the planner and the world (sim.world.events)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import pytest
 from pydantic import TypeAdapter, ValidationError
 
-from sim.scene import Scene, SceneObject
-from sim.story_events import (
+from sim.scene.model import Scene, SceneObject
+from sim.world.events import (
     AssignEvent,
     Assignment,
     Command,

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from sim.bundled_scenes import load_bundled_scene
-from sim.scene import Scene, SceneObject
-from sim.topdown_plot import CharacterMarker, draw_topdown, render_topdown_rgb, save_topdown_png
+from sim.export.topdown import CharacterMarker, draw_topdown, render_topdown_rgb, save_topdown_png
+from sim.scene.bundled import load_bundled_scene
+from sim.scene.model import Scene, SceneObject
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ import pytest
 from structlog.testing import capture_logs
 
 from agents.llm_port import ChatMessage, LLMRequest, TokenUsage
-from orchestrator.traces import (
+from orchestrator.llm.traces import (
     AppliedRecord,
     AttemptRecord,
     ParsedRecord,
@@ -122,7 +122,7 @@ _WRITER = r"""
 import sys, time
 sys.path.insert(0, sys.argv[2])
 from agents.llm_port import ChatMessage, LLMRequest
-from orchestrator.traces import AttemptRecord, TraceWriter
+from orchestrator.llm.traces import AttemptRecord, TraceWriter
 w = TraceWriter(sys.argv[1], run_id="victim", fsync=sys.argv[3])
 big = "x" * 200_000
 i = 0

@@ -1,4 +1,4 @@
-"""The world step (sim.world): phases, group events, failures, determinism, snapshots.
+"""The world step (sim.world.step): phases, group events, failures, determinism, snapshots.
 
 These tests use a stand-in motion layer (rest pose on the world's root) so that they check the
 world's own logic quickly; the full motion matcher runs in tests/test_crowd_motion.py and in
@@ -13,14 +13,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.cooperative_astar import PathPlanner
-from sim.motion_matching import MotionQuery, Pose
-from sim.nav_grid import build_nav_grid
-from sim.scene import Scene
-from sim.scene_files import load_scene
-from sim.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
-from sim.story_events import AssignEvent, Assignment, ReleaseCharacters, StepOutput
-from sim.world import World, WorldConfig, WorldError, run, step
+from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
+from sim.motion.matching import MotionQuery, Pose
+from sim.paths.cooperative_astar import PathPlanner
+from sim.paths.nav_grid import build_nav_grid
+from sim.scene.files import load_scene
+from sim.scene.model import Scene
+from sim.world.events import AssignEvent, Assignment, ReleaseCharacters, StepOutput
+from sim.world.step import World, WorldConfig, WorldError, run, step
 
 OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
 
@@ -286,9 +286,9 @@ def test_setup_errors_are_typed(office) -> None:  # type: ignore[no-untyped-def]
 
 
 def test_real_motion_matcher_drives_the_bodies_and_tracks_export(office, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    from sim.export_bundle import export_run
-    from sim.motion_database import load_databases
-    from sim.motion_matching import MotionMatcher
+    from sim.export.bundle import export_run
+    from sim.motion.database import load_databases
+    from sim.motion.matching import MotionMatcher
 
     scene, grid, planner = office
     cells = _free_cells(office)
@@ -388,10 +388,10 @@ def test_an_exact_target_crowded_by_a_standing_body_settles_for_the_cell_centre(
 
 
 def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office) -> None:  # type: ignore[no-untyped-def]
-    from sim.foot_ik import LEG_JOINTS
-    from sim.motion_database import load_databases
-    from sim.motion_matching import MotionMatcher, foot_sliding
-    from sim.skeleton import forward_kinematics
+    from sim.body.foot_ik import LEG_JOINTS
+    from sim.body.skeleton import forward_kinematics
+    from sim.motion.database import load_databases
+    from sim.motion.matching import MotionMatcher, foot_sliding
 
     scene, grid, planner = office
     cells = _free_cells(office)

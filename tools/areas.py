@@ -17,7 +17,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from sim.scene import SceneObject
+from sim.scene.model import SceneObject
 from tools.errors import ToolArgumentError
 from tools.scene_graph import point_footprint_distance
 

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from sim.scene import Scene, SceneObject
+from sim.scene.model import Scene, SceneObject
 from tools import areas
 from tools.errors import UnsatisfiableAreaError
 from tools.position_sampling import Constraints, FloorMap, Placement, sample_position

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from sklearn.cluster import DBSCAN
 
-from sim.scene import Scene
+from sim.scene.model import Scene
 from tools.scene_graph import box_distance
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.scene import Scene
+from sim.scene.model import Scene
 from tools.areas import Area, SeatSlot
 from tools.errors import UnsatisfiableAreaError
 from tools.scene_graph import point_footprint_distance

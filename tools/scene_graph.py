@@ -28,7 +28,7 @@ import networkx as nx
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from sim.scene import Scene, SceneObject
+from sim.scene.model import Scene, SceneObject
 
 RELATIONS: tuple[str, ...] = (
     "on", "inside", "above", "below", "in front of", "behind",

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 
-from sim.scene import Scene, SceneObject
+from sim.scene.model import Scene, SceneObject
 from tools.scene_graph import SceneGraph
 
 

@@ -18,7 +18,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sim.scene import Scene, SceneObject
+from sim.scene.model import Scene, SceneObject
 from tools import areas
 from tools.areas import Area
 from tools.character_states import CharacterPlan, CharacterState, WorldView

@@ -1,0 +1,152 @@
+"""``storyteller event-program``: dry-run one ``parse_event()`` program against a scene."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from pydantic import ValidationError
+
+from tools.character_states import CharacterPlan, WorldView
+
+
+class _UsageError(Exception):
+    """Bad input file: one sentence for stderr, exit code 2."""
+
+
+def register(app: typer.Typer) -> None:
+    app.command("event-program")(event_program)
+
+
+def _read_json(path: Path, what: str) -> Any:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise _UsageError(f"{path}: {what} file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise _UsageError(f"{path}: cannot read {what} file ({exc.__class__.__name__})") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise _UsageError(
+            f"{path}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        ) from None
+
+
+def load_states(path: Path, scene: Any) -> tuple[WorldView, list[str] | None]:
+    """World view and action labels from a reference test case (``current_states``,
+    ``planning_history``, ``action_labels``) or a project ``WorldView`` JSON (``characters``)."""
+    from tools.character_states import ReferenceCaseError, world_view_from_reference_case
+
+    data = _read_json(path, "states")
+    if not isinstance(data, dict):
+        raise _UsageError(f"{path}: expected a JSON object")
+    labels = data.get("action_labels")
+    if labels is not None and not (
+        isinstance(labels, list) and all(isinstance(v, str) for v in labels)
+    ):
+        raise _UsageError(f"{path}: field 'action_labels': expected a list of strings")
+    try:
+        if "current_states" in data:
+            return world_view_from_reference_case(data, scene), labels
+        if "characters" in data:
+            return WorldView.model_validate(
+                {k: v for k, v in data.items() if k != "action_labels"}
+            ), labels
+    except ReferenceCaseError as exc:
+        raise _UsageError(f"{path}: {exc}") from None
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = ".".join(str(p) for p in err["loc"])
+        raise _UsageError(f"{path}: field '{field}': {err['msg']}") from None
+    raise _UsageError(
+        f"{path}: expected a reference test case ('current_states') or a world view ('characters')"
+    )
+
+
+def plans_json(plans: list[CharacterPlan], error: dict[str, Any] | None) -> str:
+    """The ``--json`` document: ``{"plans": [...], "error": null | {...}}``."""
+    return json.dumps(
+        {
+            "plans": [
+                {
+                    "character": p.character,
+                    "action": p.action,
+                    "position": [round(p.position[0], 4), round(p.position[1], 4)],
+                    "facing": [round(p.facing[0], 4), round(p.facing[1], 4)],
+                    "area": p.area,
+                    "seat": p.seat,
+                }
+                for p in plans
+            ],
+            "error": error,
+        }
+    )
+
+
+def event_program(
+    scene: Annotated[
+        str, typer.Argument(help="Bundled scene name or path (reference folder, JSON, mesh).")
+    ],
+    program: Annotated[Path, typer.Option("--program", help="File with a parse_event() program.")],
+    states: Annotated[
+        Path | None,
+        typer.Option("--states", help="Reference test-case JSON (or a world-view JSON)."),
+    ] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the position sampler.")] = 0,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Dry-run a parse_event() program: print each character's action, area, position and facing."""
+    from sim.scene.bundled import resolve_scene
+    from sim.scene.files import SceneFileError
+    from tools.errors import EventProgramError
+    from tools.event_program import run_event_program
+
+    try:
+        loaded = resolve_scene(scene)
+        try:
+            source = program.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise _UsageError(
+                f"{program}: cannot read program file ({exc.__class__.__name__})"
+            ) from None
+        world, labels = load_states(states, loaded) if states is not None else (WorldView(), None)
+    except (SceneFileError, _UsageError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+    try:
+        plans = run_event_program(loaded, source, world, seed=seed, action_labels=labels)
+    except EventProgramError as exc:
+        error = {
+            "kind": exc.kind,
+            "type": type(exc).__name__,
+            "message": exc.feedback,
+            "line": exc.line,
+        }
+        if as_json:
+            typer.echo(plans_json([], error))
+        else:
+            typer.echo(f"error ({exc.kind}): {exc.feedback}", err=True)
+        raise typer.Exit(1) from None
+
+    if as_json:
+        typer.echo(plans_json(plans, None))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"event program on {loaded.name} (seed {seed})")
+    for column in ("character", "action", "area", "position [x, y]", "facing [dx, dy]"):
+        table.add_column(column)
+    for p in plans:
+        table.add_row(
+            p.character,
+            p.action,
+            p.area,
+            f"[{p.position[0]:.2f}, {p.position[1]:.2f}]",
+            f"[{p.facing[0]:.2f}, {p.facing[1]:.2f}]",
+        )
+    Console().print(table)

@@ -1,0 +1,265 @@
+"""The LLM port over litellm: per-node models, our own retries, fallbacks, one trace record per attempt.
+
+For each request the node's models are tried in order (primary, then fallbacks). On each
+model, transient errors are retried up to ``retry.max_attempts`` attempts in total, waiting
+an exponential, jittered, seeded delay between attempts; a permanent error (400, 401, 403,
+404, 422, missing weights or key) moves on to the next model at once, and so does an
+unusable answer (empty, truncated, not JSON) from the deterministic embedded model. litellm's own retries
+are disabled (``max_retries=0``, never ``num_retries``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import warnings
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
+
+import anyio
+import litellm
+import structlog
+
+from agents.llm_port import LLMError, LLMRequest, LLMResponse, LLMUnavailableError, TokenUsage
+from orchestrator.llm.config import NodeConfig, StorytellerConfig
+from orchestrator.llm.local_model import (
+    ensure_local_model_available,
+    local_timeout_s,
+    register_local_provider,
+)
+from orchestrator.llm.retry_policy import InvalidResponseError, RetryPolicy, classify_error
+from orchestrator.llm.traces import AttemptRecord, NullTraceSink, TraceSink
+
+litellm.suppress_debug_info = True
+
+
+def _prebuild_litellm_models() -> None:
+    """Build litellm's lazily-validated response models once, with warnings silenced: pydantic
+    warns (UserWarning) that some litellm TypedDicts use ``ReadOnly``, which is harmless but
+    would otherwise surface in the middle of the first call (and fail warning-strict tests)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        litellm.ModelResponse(
+            choices=[{"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": "x"}}],
+            usage={"prompt_tokens": 1, "completion_tokens": 1, "total_tokens": 2},
+        )
+
+
+_prebuild_litellm_models()
+_log = structlog.get_logger("storyteller.llm")
+
+Completion = Callable[..., Awaitable[Any]]
+Sleep = Callable[[float], Awaitable[None]]
+
+
+def provider_of(model: str) -> str:
+    """The litellm provider prefix of a model name (``openai/gpt-4o`` -> ``openai``)."""
+    return model.split("/", 1)[0] if "/" in model else ""
+
+
+def response_format_for(model: str, schema: dict[str, Any]) -> tuple[dict[str, Any], bool]:
+    """The ``response_format`` to send for a JSON-schema request, and whether the schema must
+    also be stated in the prompt (providers that only know plain JSON mode)."""
+    if provider_of(model) == "local":
+        # llama.cpp turns this into a grammar; the OpenAI json_schema form is ignored in-process.
+        return {"type": "json_object", "schema": schema}, False
+    try:
+        native = litellm.supports_response_schema(model=model)
+    except Exception:  # litellm reports unknown models by raising on some versions
+        native = False
+    if native:
+        return {"type": "json_schema", "json_schema": {"name": "reply", "schema": schema}}, False
+    return {"type": "json_object"}, True
+
+
+def _schema_instruction(schema: dict[str, Any]) -> dict[str, str]:
+    return {
+        "role": "system",
+        "content": "Reply with exactly one JSON value that matches this JSON schema:\n"
+        + json.dumps(schema, sort_keys=True),
+    }
+
+
+class LiteLLMClient:
+    """:class:`agents.llm_port.LLMPort` over ``litellm.acompletion``.
+
+    ``acompletion`` and ``sleep`` are injectable (tests use a fake provider and no real
+    sleeping); ``clock`` measures latency in seconds.
+    """
+
+    def __init__(
+        self,
+        config: StorytellerConfig,
+        trace_sink: TraceSink | None = None,
+        *,
+        acompletion: Completion | None = None,
+        sleep: Sleep = anyio.sleep,
+        clock: Callable[[], float] = time.perf_counter,
+        check_local: Callable[[str], None] = ensure_local_model_available,
+    ) -> None:
+        self.config = config
+        self.trace: TraceSink = trace_sink if trace_sink is not None else NullTraceSink()
+        self._acompletion = acompletion or litellm.acompletion
+        self._sleep = sleep
+        self._clock = clock
+        self._check_local = check_local
+        register_local_provider()
+
+    def close(self) -> None:
+        """Close the trace sink (if it is a file writer)."""
+        close = getattr(self.trace, "close", None)
+        if close is not None:
+            close()
+
+    def _params(self, node: NodeConfig, model: str, request: LLMRequest) -> tuple[dict[str, Any], bool]:
+        max_tokens = node.max_tokens if request.max_tokens is None else min(request.max_tokens, node.max_tokens)
+        timeout = node.timeout_s
+        if provider_of(model) == "local" and "timeout_s" not in node.model_fields_set:
+            prompt_chars = sum(len(m.content) for m in request.messages)
+            timeout = local_timeout_s(model, prompt_chars, max_tokens, floor_s=node.timeout_s)
+        params: dict[str, Any] = {
+            "temperature": node.temperature if request.temperature is None else request.temperature,
+            "max_tokens": max_tokens,
+            "timeout": timeout,
+        }
+        if request.seed is not None:
+            params["seed"] = request.seed
+        if node.api_base:
+            params["api_base"] = node.api_base
+        schema_in_prompt = False
+        if request.json_schema is not None:
+            params["response_format"], schema_in_prompt = response_format_for(model, request.json_schema)
+        elif request.grammar is not None and provider_of(model) == "local":
+            params["response_format"] = {"type": "gbnf", "grammar": request.grammar}
+        return params, schema_in_prompt
+
+    def _api_key(self, node: NodeConfig) -> str | None:
+        if node.api_key_env is None:
+            return None
+        key = os.environ.get(node.api_key_env)
+        if not key:
+            raise LLMUnavailableError(
+                f"environment variable {node.api_key_env} (api_key_env in {self.config.source}) is not set"
+            )
+        return key
+
+    async def complete(self, request: LLMRequest) -> LLMResponse:
+        node = self.config.node(request.node)
+        request_hash = request.content_hash()
+        messages = [m.model_dump() for m in request.messages]
+        call_seq = -1  # seq of the first attempt, set below
+        seqs: list[int] = []
+        attempt_no = 0
+        failures: list[tuple[str, BaseException]] = []
+        for model_index, model in enumerate(node.models):
+            policy = RetryPolicy(node.retry, salt=model_index)
+            params, schema_in_prompt = self._params(node, model, request)
+            sent = [*messages, _schema_instruction(request.json_schema)] if schema_in_prompt and request.json_schema else messages
+            for k in range(policy.max_attempts):
+                if k > 0:
+                    await self._sleep(policy.delay_s(k))
+                attempt_no += 1
+                seq = self.trace.next_seq()
+                seqs.append(seq)
+                if call_seq < 0:
+                    call_seq = seq
+
+                traced_params = {**params, "schema_in_prompt": True} if schema_in_prompt else params
+
+                def record(**fields: Any) -> None:
+                    self.trace.write(AttemptRecord(
+                        run_id=self.trace.run_id, seq=seq, time_unix=time.time(), call=call_seq,  # noqa: B023
+                        node=request.node, attempt=attempt_no, model=model, params=traced_params,  # noqa: B023
+                        request=request, request_hash=request_hash, **fields,
+                    ))
+
+                t0 = self._clock()
+                text: str | None = None
+                finish: str | None = None
+                usage: TokenUsage | None = None
+                try:
+                    api_key = self._api_key(node)
+                    if provider_of(model) == "local":
+                        self._check_local(model)
+                    raw = await self._acompletion(
+                        model=model, messages=sent, max_retries=0, drop_params=True,
+                        **({"api_key": api_key} if api_key else {}), **params,
+                    )
+                    text, finish, usage = _extract(raw)
+                    parsed = _validate(text, finish, request)
+                except Exception as exc:
+                    latency = self._clock() - t0
+                    klass = classify_error(exc)
+                    if isinstance(exc, LLMUnavailableError) or (
+                        isinstance(exc, InvalidResponseError) and provider_of(model) == "local"
+                    ):
+                        klass = "permanent"  # the embedded model is deterministic: same input, same output
+                    record(response_text=text, finish_reason=finish, usage=usage, latency_s=latency,
+                           error_type=type(exc).__name__, error_message=str(exc)[:2000],
+                           error_class=klass, final=False)
+                    failures.append((model, exc))
+                    _log.warning("llm_attempt_failed", node=request.node, model=model, attempt=attempt_no,
+                                 error=type(exc).__name__, error_class=klass)
+                    if klass == "permanent":
+                        break
+                    continue
+                except BaseException as exc:  # cancellation: trace it, then let it through
+                    record(latency_s=self._clock() - t0, error_type=type(exc).__name__,
+                           error_message=str(exc)[:2000], final=False)
+                    raise
+                latency = self._clock() - t0
+                assert text is not None
+                record(response_text=text, finish_reason=finish, parsed_output=parsed, usage=usage,
+                       latency_s=latency, final=True)
+                return LLMResponse(text=text, model=model, usage=usage or TokenUsage(), latency_s=latency,
+                                   attempts=attempt_no, trace_seq=seq)
+        err = _final_error(request, failures)
+        err.trace_seqs = tuple(seqs)
+        raise err
+
+
+def _extract(raw: Any) -> tuple[str, str | None, TokenUsage]:
+    try:
+        choice = raw.choices[0]
+        text = choice.message.content or ""
+        finish = getattr(choice, "finish_reason", None)
+    except (AttributeError, IndexError, TypeError) as exc:
+        raise InvalidResponseError(f"malformed provider response ({exc})") from None
+    u = getattr(raw, "usage", None)
+    usage = TokenUsage(
+        prompt_tokens=int(getattr(u, "prompt_tokens", 0) or 0),
+        completion_tokens=int(getattr(u, "completion_tokens", 0) or 0),
+    )
+    return text, finish, usage
+
+
+def _validate(text: str, finish: str | None, request: LLMRequest) -> Any:
+    """Decoded JSON for schema requests (None otherwise). Raises InvalidResponseError."""
+    if not text.strip():
+        raise InvalidResponseError("empty response", text)
+    if request.json_schema is None:
+        return None
+    if finish == "length":
+        raise InvalidResponseError("JSON response truncated at max_tokens", text)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InvalidResponseError(f"response is not valid JSON ({exc})", text) from None
+
+
+def _final_error(request: LLMRequest, failures: list[tuple[str, BaseException]]) -> LLMError:
+    if failures and all(isinstance(e, LLMUnavailableError) for _, e in failures):
+        msgs = "; ".join(dict.fromkeys(str(e) for _, e in failures))
+        err: LLMError = LLMUnavailableError(f"node {request.node}: no usable model: {msgs}")
+    else:
+        per_model: dict[str, str] = {}
+        for model, exc in failures:
+            per_model[model] = f"{type(exc).__name__}: {str(exc)[:200]}"
+        summary = "; ".join(f"{m} -> {e}" for m, e in per_model.items())
+        err = LLMError(f"node {request.node}: all {len(failures)} attempts failed ({summary})")
+    if failures:
+        err.__cause__ = failures[-1][1]
+    return err

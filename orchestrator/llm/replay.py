@@ -1,0 +1,162 @@
+"""Replay LLM answers from a recorded trace, and the switch between live, record and replay.
+
+:class:`ReplayClient` serves, for each (node, request hash), the responses that were returned
+to the caller when the trace was recorded, in recorded order when the same request repeats.
+A request that is not in the trace (or asked more often than recorded) raises
+:class:`ReplayMissError` naming the node and showing a unified diff against the closest
+recorded request of that node. It never falls through to a live call. Failed attempts in
+the trace are not replayed: only the final answer of each call matters to the run.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import time
+from collections import defaultdict, deque
+from pathlib import Path
+
+from agents.llm_port import LLMPort, LLMRequest, LLMResponse, NodeName, ReplayMissError, TokenUsage
+from orchestrator.llm.config import ConfigError, StorytellerConfig
+from orchestrator.llm.traces import (
+    AttemptRecord,
+    NullTraceSink,
+    TraceCorruptError,
+    TraceSink,
+    TraceWriter,
+    read_trace,
+)
+
+_MAX_DIFF_LINES = 60
+
+
+def render_request(request: LLMRequest) -> list[str]:
+    """Human-readable lines of everything that enters the request hash."""
+    lines: list[str] = []
+    for i, m in enumerate(request.messages):
+        lines.append(f"### message {i} ({m.role})")
+        lines.extend(m.content.splitlines() or [""])
+    if request.json_schema is not None:
+        lines.append("### json_schema")
+        lines.extend(json.dumps(request.json_schema, indent=1, sort_keys=True).splitlines())
+    lines.append(f"### max_tokens={request.max_tokens} temperature={request.temperature} seed={request.seed}")
+    return lines
+
+
+def request_diff(recorded: LLMRequest, requested: LLMRequest, recorded_label: str) -> str:
+    diff = list(difflib.unified_diff(
+        render_request(recorded), render_request(requested),
+        fromfile=recorded_label, tofile="requested", lineterm="", n=2,
+    ))
+    if len(diff) > _MAX_DIFF_LINES:
+        diff = [*diff[:_MAX_DIFF_LINES], f"... ({len(diff) - _MAX_DIFF_LINES} more diff lines)"]
+    return "\n".join(diff)
+
+
+class ReplayClient:
+    """:class:`agents.llm_port.LLMPort` that answers only from a trace file.
+
+    With ``trace_sink`` set, every served answer is also written there as an attempt record
+    (so a replayed run produces a trace of its own)."""
+
+    def __init__(self, trace_path: Path | str, *, trace_sink: TraceSink | None = None) -> None:
+        self.path = Path(trace_path)
+        self.trace: TraceSink = trace_sink if trace_sink is not None else NullTraceSink()
+        contents = read_trace(self.path)
+        self._queues: dict[tuple[str, str], deque[AttemptRecord]] = defaultdict(deque)
+        self._recorded_counts: dict[tuple[str, str], int] = defaultdict(int)
+        self._by_node: dict[NodeName, list[AttemptRecord]] = defaultdict(list)
+        for line_no, rec in enumerate(contents.records, start=1):
+            if not isinstance(rec, AttemptRecord):
+                continue
+            if rec.request.content_hash() != rec.request_hash:
+                raise TraceCorruptError(self.path, line_no, "request_hash does not match the recorded request")
+            if rec.final and rec.ok and rec.response_text is not None:
+                key = (rec.node, rec.request_hash)
+                self._queues[key].append(rec)
+                self._recorded_counts[key] += 1
+                if self._recorded_counts[key] == 1:
+                    self._by_node[rec.node].append(rec)
+
+    def remaining(self) -> int:
+        """Recorded answers not served yet."""
+        return sum(len(q) for q in self._queues.values())
+
+    def _miss(self, request: LLMRequest, request_hash: str) -> ReplayMissError:
+        key = (request.node, request_hash)
+        where = f"trace {self.path}"
+        if self._recorded_counts.get(key):
+            n = self._recorded_counts[key]
+            return ReplayMissError(
+                f"replay miss for node {request.node}: this request (hash {request_hash[:12]}) was "
+                f"recorded {n} time(s) in {where} and all have been served", node=request.node,
+            )
+        candidates = self._by_node.get(request.node, [])
+        if not candidates:
+            nodes = ", ".join(sorted(self._by_node)) or "none"
+            return ReplayMissError(
+                f"replay miss for node {request.node}: {where} holds no request of this node "
+                f"(nodes recorded: {nodes})", node=request.node,
+            )
+        wanted = render_request(request)
+
+        def similarity(rec: AttemptRecord) -> float:
+            return difflib.SequenceMatcher(None, render_request(rec.request), wanted, autojunk=False).ratio()
+
+        closest = max(candidates, key=similarity)
+        diff = request_diff(closest.request, request, f"recorded (seq {closest.seq})")
+        return ReplayMissError(
+            f"replay miss for node {request.node}: request (hash {request_hash[:12]}) is not in {where}; "
+            f"diff against the closest recorded request of that node:\n{diff}",
+            node=request.node, diff=diff,
+        )
+
+    async def complete(self, request: LLMRequest) -> LLMResponse:
+        request_hash = request.content_hash()
+        queue = self._queues.get((request.node, request_hash))
+        if not queue:
+            raise self._miss(request, request_hash)
+        rec = queue.popleft()
+        assert rec.response_text is not None
+        seq = rec.seq
+        if not isinstance(self.trace, NullTraceSink):
+            seq = self.trace.next_seq()
+            self.trace.write(rec.model_copy(update={
+                "run_id": self.trace.run_id, "seq": seq, "call": seq, "attempt": 1,
+                "time_unix": time.time(), "request": request,
+                "params": {**rec.params, "replayed_from_seq": rec.seq},
+            }))
+        return LLMResponse(
+            text=rec.response_text, model=rec.model, usage=rec.usage or TokenUsage(),
+            latency_s=rec.latency_s, attempts=rec.attempt, trace_seq=seq,
+        )
+
+    def close(self) -> None:
+        close = getattr(self.trace, "close", None)
+        if close is not None:
+            close()
+
+
+def build_llm_port(
+    config: StorytellerConfig,
+    record: Path | None = None,
+    replay: Path | None = None,
+    *,
+    run_id: str | None = None,
+) -> LLMPort:
+    """The run's LLM port: live (optionally recording to ``record``) or replaying ``replay``.
+
+    The returned object also has ``.trace`` (a :class:`TraceSink` for parsed/applied records)
+    and ``.close()``. Raises :class:`ConfigError` when both paths name the same file."""
+    if replay is not None:
+        if record is not None and Path(record).resolve() == Path(replay).resolve():
+            raise ConfigError("command line", "--record", "must name a different file than --replay")
+        sink = TraceWriter(record, run_id=run_id, fsync=config.trace.fsync, meta={"mode": "replay", "replay": str(replay)}) if record else None
+        return ReplayClient(replay, trace_sink=sink)
+    from orchestrator.llm.client import LiteLLMClient
+
+    live_sink: TraceSink = (
+        TraceWriter(record, run_id=run_id, fsync=config.trace.fsync, meta={"mode": "record", "config": config.source})
+        if record else NullTraceSink(run_id)
+    )
+    return LiteLLMClient(config, live_sink)

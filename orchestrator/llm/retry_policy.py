@@ -1,0 +1,98 @@
+"""Which LLM errors are worth retrying, and how long to wait between attempts.
+
+We own the retry policy instead of litellm's ``num_retries`` (which also retries 400/401 and
+makes 2N+1 attempts). Transient: rate limit (429), timeout, connection error, 5xx, and a
+response that is empty or whose JSON is truncated or unparsable. Permanent: 400, 401, 403,
+404, 422 and anything else we do not recognise as transient. A permanent error is never
+retried on the same model; the next fallback model is still tried.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Iterator
+from typing import Literal
+
+from orchestrator.llm.config import RetryConfig
+
+ErrorClass = Literal["transient", "permanent"]
+
+
+class InvalidResponseError(Exception):
+    """The provider answered, but the answer is unusable (empty, truncated or not JSON)."""
+
+    def __init__(self, message: str, text: str = "") -> None:
+        super().__init__(message)
+        self.text = text
+
+
+_TRANSIENT_STATUS = {408, 409, 425, 429}
+_PERMANENT_STATUS = {400, 401, 403, 404, 405, 413, 415, 422}
+
+
+def _litellm_transient_types() -> tuple[type[BaseException], ...]:
+    import litellm
+
+    return (
+        litellm.RateLimitError,
+        litellm.Timeout,
+        litellm.APIConnectionError,
+        litellm.InternalServerError,
+        litellm.ServiceUnavailableError,
+        litellm.BadGatewayError,
+    )
+
+
+def _litellm_permanent_types() -> tuple[type[BaseException], ...]:
+    import litellm
+
+    return (
+        litellm.BadRequestError,  # includes ContextWindowExceeded, ContentPolicyViolation
+        litellm.AuthenticationError,
+        litellm.PermissionDeniedError,
+        litellm.NotFoundError,
+        litellm.UnprocessableEntityError,
+    )
+
+
+def classify_error(exc: BaseException) -> ErrorClass:
+    """Decide whether ``exc`` (raised by one attempt) may succeed if the same call is repeated."""
+    if isinstance(exc, InvalidResponseError | TimeoutError | ConnectionError):
+        return "transient"
+    if isinstance(exc, _litellm_permanent_types()):
+        return "permanent"
+    if isinstance(exc, _litellm_transient_types()):
+        return "transient"
+    status = getattr(exc, "status_code", None)
+    if isinstance(status, int):
+        if status in _TRANSIENT_STATUS or status >= 500:
+            return "transient"
+        if status in _PERMANENT_STATUS or 400 <= status < 500:
+            return "permanent"
+    return "permanent"
+
+
+class RetryPolicy:
+    """Exponential backoff with seeded jitter. One policy object per (call, model)."""
+
+    def __init__(self, config: RetryConfig, *, salt: int = 0) -> None:
+        self.config = config
+        self._rng = random.Random(config.seed * 1_000_003 + salt)
+
+    @property
+    def max_attempts(self) -> int:
+        return self.config.max_attempts
+
+    def delay_s(self, retry_index: int) -> float:
+        """Seconds to wait before retry number ``retry_index`` (1 = the second attempt)."""
+        if retry_index < 1:
+            raise ValueError("retry_index starts at 1")
+        c = self.config
+        base = min(c.backoff_max_s, c.backoff_base_s * 2.0 ** (retry_index - 1))
+        factor = 1.0 + c.jitter * (2.0 * self._rng.random() - 1.0)
+        return max(0.0, min(c.backoff_max_s, base * factor))
+
+    def delays(self) -> Iterator[float]:
+        """The delays before attempts 2..max_attempts."""
+        for k in range(1, self.config.max_attempts):
+            yield self.delay_s(k)

@@ -1,0 +1,407 @@
+"""The planning graph: describer -> narrator -> (feedback) -> event parser -> (feedback) -> record.
+
+Nodes are verbs; every node makes at most one LLM call, so with ``durability="sync"`` each
+call's reply is checkpointed before anything else happens, and a resumed run never repeats a
+finished call. That holds for the describer's retries too: each describer call
+(``describe_scene``) and its check (``check_description``) are nodes of their own, and the
+finished description is also cached on disk per scene, model and prompts.
+
+::
+
+    START -> describe_scene <-> check_description        (one call per describer attempt)
+                 |                   |
+                 v                   v
+              route_step --> narrate_event -> check_narration --+
+                 ^   |  (no free character: wait)               |
+                 |   v                                          v
+                 +- record_outcome <-- check_program <-- parse_event <+
+                          (retries loop back through the routers)
+
+Routers return ``Literal[...]`` node names. Dependencies (LLM port, scene, world view
+provider, story log, trace sink) come from ``Runtime[PlanningDeps]``.
+
+Traces: every request carries ``state.sim_frame`` (the frame of the world snapshot the step
+plans from; None without a simulation) as metadata outside the request hash. The check
+nodes record, for the attempt they judged, the parsed output (narrator event, event-parser
+plans per character, describer areas) or the typed error that rejected it. The seqs of a
+step's narrator and event-parser attempts are stored with its outcome in the story log
+(:meth:`~orchestrator.planning.checkpoints.StoryLog.trace_seqs`) for the ``applied`` record.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from langgraph.graph import END, START, StateGraph
+from langgraph.runtime import Runtime
+
+from agents.describer import (
+    best_effort,
+    describer_request,
+    description_cache_file,
+    finish,
+    judge_reply,
+    read_cached,
+    write_cached,
+)
+from agents.event_parser import PARSER_RETRY_INSTRUCTION, ParserInput, parser_request, run_reply
+from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
+from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
+from agents.narrator import NarratorInput, narrator_request, parse_narration, waits_without_a_call
+from agents.program_grammar import event_program_grammar
+from agents.retry_feedback import REJECTIONS, feedback_from_error
+from orchestrator.planning.state import RECENT_WINDOW, PlanningDeps, PlanningState, RetryTurn
+
+NODES = (
+    "describe_scene", "check_description", "narrate_event", "check_narration", "parse_event",
+    "check_program", "record_outcome",
+)
+
+
+async def _complete(deps: PlanningDeps, request: LLMRequest, state: PlanningState) -> LLMResponse:
+    """One LLM call with the step's simulation frame attached (metadata, not hashed)."""
+    return await deps.port.complete(request.model_copy(update={"sim_frame": state.sim_frame}))
+
+
+def _record_parsed(
+    deps: PlanningDeps, seq: int | None, node: Literal["describer", "narrator", "event_parser"],
+    parsed: Any = None, error: BaseException | None = None, feedback: str | None = None,
+) -> None:
+    sink = deps.trace_sink()
+    if sink is None or seq is None:
+        return
+    if error is None:
+        sink.record_parsed(seq, parsed, node=node)
+    else:
+        sink.record_parsed(seq, None, node=node, error_type=type(error).__name__, error_message=feedback or str(error))
+
+
+# ----- nodes ------------------------------------------------------------------------------
+def _description_cache(deps: PlanningDeps) -> Any:
+    if deps.description_cache is None:
+        return None
+    return description_cache_file(deps.description_cache, deps.scene, deps.describer_model, deps.describer_mode, deps.prompts)
+
+
+async def describe_scene(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """One describer call (the scene is described once per run; cached on disk per scene,
+    model and prompts). A describer that cannot answer stops the run (LLMError)."""
+    if state.description is not None:
+        return {}
+    deps = runtime.context
+    path = _description_cache(deps)
+    if not state.describer_turns and path is not None and (hit := read_cached(path)) is not None:
+        return {"description": hit}
+    turns = tuple(t.as_turn() for t in state.describer_turns)
+    response = await _complete(deps, describer_request(deps.prompts, deps.describer_input(), turns), state)
+    return {"describer_reply": response.text, "describer_seq": response.trace_seq, "llm_calls": state.llm_calls + 1}
+
+
+async def check_description(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """Accept the describer's reply, or keep its feedback for another call; after the last
+    rejected call, repair the best answer from the clusters."""
+    deps = runtime.context
+    inp = deps.describer_input()
+    reply = state.describer_reply or ""
+    judged = judge_reply(reply, inp)
+    attempts = len(state.describer_turns) + 1
+    update: dict[str, Any] = {"describer_reply": None, "describer_seq": None}
+    if judged.areas is not None:
+        _record_parsed(deps, state.describer_seq, "describer", judged.areas.model_dump(mode="json"))
+        description = finish(inp, judged.areas, repaired=False, attempts=attempts)
+    else:
+        assert judged.turn is not None
+        _record_parsed(deps, state.describer_seq, "describer", error=judged.error, feedback=judged.turn.feedback)
+        turns = (*state.describer_turns, RetryTurn(reply=judged.turn.reply, feedback=judged.turn.feedback))
+        update["describer_turns"] = turns
+        if attempts <= deps.max_retries:
+            return update
+        description = best_effort(inp, [t.as_turn() for t in turns])
+    path = _description_cache(deps)
+    if path is not None:
+        write_cached(path, description)
+    return {**update, "description": description, "describer_turns": ()}
+
+
+def _narrator_input(state: PlanningState, deps: PlanningDeps) -> NarratorInput:
+    assert state.description is not None
+    return NarratorInput(
+        scene_description=state.description.text,
+        characters=state.roster,
+        instruction=state.instruction,
+        history=state.recent,
+        tags=deps.tags,
+        seed=deps.seed,
+        sim_frame=state.sim_frame,
+    )
+
+
+def _with_seq(state: PlanningState, seq: int | None) -> tuple[int, ...]:
+    return state.step_trace_seqs if seq is None else (*state.step_trace_seqs, seq)
+
+
+def _reply_update(state: PlanningState, role: Literal["narrator", "parser"], response: Any) -> dict[str, Any]:
+    """State update for one answered call: the reply, its trace seq, the step's seqs, the count."""
+    return {
+        f"{role}_reply": response.text,
+        f"{role}_seq": response.trace_seq,
+        "step_trace_seqs": _with_seq(state, response.trace_seq),
+        "llm_calls": state.llm_calls + 1,
+    }
+
+
+async def narrate_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """One narrator call; its reply is checked by the next node."""
+    deps = runtime.context
+    turns = tuple(t.as_turn() for t in state.narrator_turns)
+    try:
+        response = await _complete(deps, narrator_request(deps.prompts, _narrator_input(state, deps), turns), state)
+    except LLMError as exc:
+        return _unavailable(state, "narrator", exc)
+    return _reply_update(state, "narrator", response)
+
+
+def _unavailable(state: PlanningState, node: Literal["narrator", "event_parser"], exc: LLMError) -> dict[str, Any]:
+    """The model gave no answer after the client's own retries and fallbacks: this step fails
+    (the story goes on and asks again later). A replay miss is a bug in the run, not an outage,
+    so it propagates."""
+    if isinstance(exc, ReplayMissError):
+        raise exc
+    turns = state.narrator_turns if node == "narrator" else state.parser_turns
+    return {
+        "failure": PlanningFailure(
+            index=state.step, node=node, attempts=len(turns) + 1, feedback=f"{type(exc).__name__}: {exc}"
+        ),
+        "step_trace_seqs": (*state.step_trace_seqs, *exc.trace_seqs),
+        "llm_calls": state.llm_calls + 1,
+    }
+
+
+async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """Accept the narrator's reply, or turn what is wrong with it into feedback."""
+    deps = runtime.context
+    if state.failure is not None:
+        return {}
+    reply = state.narrator_reply or ""
+    attempts = len(state.narrator_turns) + 1
+    try:
+        out = parse_narration(reply, state.roster)
+    except REJECTIONS as exc:
+        feedback = feedback_from_error(exc)
+        _record_parsed(deps, state.narrator_seq, "narrator", error=exc, feedback=feedback)
+        update: dict[str, Any] = {
+            "narrator_turns": (*state.narrator_turns, RetryTurn(reply=reply, feedback=feedback)),
+            "narrator_reply": None,
+            "narrator_seq": None,
+        }
+        if attempts > deps.max_retries:
+            update["failure"] = PlanningFailure(index=state.step, node="narrator", attempts=attempts, feedback=feedback)
+        return update
+    _record_parsed(deps, state.narrator_seq, "narrator", out.model_dump(mode="json"))
+    return {"event": out.event, "narrator_attempts": attempts, "narrator_reply": None, "narrator_seq": None}
+
+
+def _parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
+    assert state.description is not None and state.event is not None
+    return ParserInput(
+        scene_description=state.description.text,
+        event=state.event,
+        characters=state.roster,
+        action_labels=deps.action_labels,
+        tags=deps.tags,
+        seats_in_use=deps.world.seats_in_use(state.roster),
+        seed=deps.seed,
+        sim_frame=state.sim_frame,
+        grammar=event_program_grammar(
+            deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), deps.action_labels
+        ) if deps.program_grammar else None,
+    )
+
+
+async def parse_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """One event-parser call; the program in its reply is run by the next node."""
+    deps = runtime.context
+    turns = tuple(t.as_turn() for t in state.parser_turns)
+    try:
+        response = await _complete(deps, parser_request(deps.prompts, _parser_input(state, deps), turns), state)
+    except LLMError as exc:
+        return _unavailable(state, "event_parser", exc)
+    return _reply_update(state, "parser", response)
+
+
+async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """Run the reply's parse_event() in the sandbox; a typed error becomes feedback."""
+    deps = runtime.context
+    if state.failure is not None:
+        return {}
+    assert state.event is not None
+    reply = state.parser_reply or ""
+    attempts = len(state.parser_turns) + 1
+    try:
+        result = run_reply(
+            reply,
+            scene=deps.scene,
+            event=state.event,
+            world=deps.world.world_view(state.roster),
+            seed=deps.seed + state.step,
+            action_labels=deps.action_labels,
+            graph=deps.scene_graph,
+            runner=deps.runner,
+        )
+    except REJECTIONS as exc:
+        feedback = feedback_from_error(exc, instruction=PARSER_RETRY_INSTRUCTION)
+        _record_parsed(deps, state.parser_seq, "event_parser", error=exc, feedback=feedback)
+        update: dict[str, Any] = {
+            "parser_turns": (*state.parser_turns, RetryTurn(reply=reply, feedback=feedback)),
+            "parser_reply": None,
+            "parser_seq": None,
+        }
+        if attempts > deps.max_retries:
+            update["failure"] = PlanningFailure(
+                index=state.step, node="event_parser", attempts=attempts, feedback=feedback
+            )
+        return update
+    parsed = ParsedEvent(
+        index=state.step,
+        event=state.event,
+        plans=result.plans,
+        program=result.program,
+        narrator_attempts=state.narrator_attempts,
+        parser_attempts=attempts,
+    )
+    _record_parsed(deps, state.parser_seq, "event_parser", {
+        "plans": [p.model_dump(mode="json") for p in result.plans], "program": result.program,
+    })
+    return {"parsed": parsed, "parser_reply": None, "parser_seq": None}
+
+
+async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """Log the step's outcome, move and occupy its characters, release finished ones."""
+    deps = runtime.context
+    step = state.step
+    outcome: ParsedEvent | PlanningFailure | None = state.parsed or state.failure
+    deps.story.record(step, outcome, trace_seqs=state.step_trace_seqs)
+    roster = {c.name: c for c in state.roster}
+    busy_until = dict(state.busy_until)
+    recent = list(state.recent)
+    if state.parsed is not None:
+        ongoing = deps.busy_for_events > 0
+        for plan in state.parsed.plans:
+            roster[plan.character] = CharacterStatus(
+                name=plan.character,
+                busy=ongoing,
+                action=plan.action,
+                position=plan.position,
+                facing=plan.facing,
+                event_index=step if ongoing else None,
+                seat=plan.seat,
+            )
+            busy_until[plan.character] = step + deps.busy_for_events
+        recent.append(
+            HistoryEntry(
+                index=step,
+                characters=state.parsed.event.characters,
+                activity=state.parsed.event.activity,
+                state="ongoing" if ongoing else "completed",
+            )
+        )
+    next_step = step + 1
+    for name, until in list(busy_until.items()):
+        if next_step > until:
+            del busy_until[name]
+            if roster[name].busy:
+                roster[name] = roster[name].model_copy(update={"busy": False, "event_index": None})
+    still_busy = {n for n in busy_until}
+    recent = [
+        h if h.state != "ongoing" or any(c in still_busy for c in h.characters) else h.model_copy(update={"state": "completed"})
+        for h in recent
+    ][-RECENT_WINDOW:]
+    return {
+        "step": next_step,
+        "roster": tuple(roster[c.name] for c in state.roster),
+        "busy_until": busy_until,
+        "recent": tuple(recent),
+        "step_trace_seqs": (),
+        "narrator_reply": None,
+        "narrator_seq": None,
+        "narrator_turns": (),
+        "event": None,
+        "narrator_attempts": 0,
+        "parser_reply": None,
+        "parser_seq": None,
+        "parser_turns": (),
+        "parsed": None,
+        "failure": None,
+    }
+
+
+# ----- routers ----------------------------------------------------------------------------
+def route_description(state: PlanningState) -> Literal["check_description", "narrate_event", "record_outcome", "__end__"]:
+    """After a describer call: check it; with a description (cached or earlier): plan."""
+    if state.description is None:
+        return "check_description"
+    return route_step(state)
+
+
+def route_checked_description(state: PlanningState) -> Literal["describe_scene", "narrate_event", "record_outcome", "__end__"]:
+    """After a check: another describer call with the feedback, or plan."""
+    if state.description is None:
+        return "describe_scene"
+    return route_step(state)
+
+
+def route_step(state: PlanningState) -> Literal["narrate_event", "record_outcome", "__end__"]:
+    """Next step: done after K steps; with no free character, or nothing of the instruction
+    for the free ones now (``agents.instruction_parts``), the step is a wait, without a call."""
+    if state.step >= state.events_target:
+        return END
+    if waits_without_a_call(state.roster, state.instruction, state.recent):
+        return "record_outcome"
+    return "narrate_event"
+
+
+def route_narration(state: PlanningState) -> Literal["narrate_event", "parse_event", "record_outcome"]:
+    if state.failure is not None:
+        return "record_outcome"
+    if state.event is None:
+        return "narrate_event"  # rejected: retry with the feedback
+    if state.event.is_wait:
+        return "record_outcome"
+    return "parse_event"
+
+
+def route_program(state: PlanningState) -> Literal["parse_event", "record_outcome"]:
+    if state.parsed is not None or state.failure is not None:
+        return "record_outcome"
+    return "parse_event"
+
+
+def build_planning_graph() -> StateGraph:
+    """The uncompiled graph; compile with a checkpointer (see :func:`compile_planning_graph`)."""
+    graph = StateGraph(PlanningState, context_schema=PlanningDeps)
+    graph.add_node("describe_scene", describe_scene)
+    graph.add_node("check_description", check_description)
+    graph.add_node("narrate_event", narrate_event)
+    graph.add_node("check_narration", check_narration)
+    graph.add_node("parse_event", parse_event)
+    graph.add_node("check_program", check_program)
+    graph.add_node("record_outcome", record_outcome)
+    graph.add_edge(START, "describe_scene")
+    graph.add_conditional_edges("describe_scene", route_description)
+    graph.add_conditional_edges("check_description", route_checked_description)
+    graph.add_edge("narrate_event", "check_narration")
+    graph.add_conditional_edges("check_narration", route_narration)
+    graph.add_edge("parse_event", "check_program")
+    graph.add_conditional_edges("check_program", route_program)
+    graph.add_conditional_edges("record_outcome", route_step)
+    return graph
+
+
+def compile_planning_graph(checkpointer: Any = None, **kwargs: Any) -> Any:
+    return build_planning_graph().compile(checkpointer=checkpointer, **kwargs)
+
+
+def recursion_limit(events: int, max_retries: int) -> int:
+    """Enough super-steps for K events with every retry used: per step 2 nodes per attempt
+    of each LLM role plus the record node, plus 2 nodes per describer attempt."""
+    return 2 * (max_retries + 1) + 4 + events * (4 * (max_retries + 1) + 2)

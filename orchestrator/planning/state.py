@@ -1,0 +1,145 @@
+"""State and run-scoped dependencies of the planning graph.
+
+:class:`PlanningState` is what the checkpointer stores after every node: small and bounded
+(the roster, a window of recent events, the current step's pending replies and retry turns).
+The full story (every planned event) grows without bound, so it lives outside the state in a
+:class:`~orchestrator.planning.checkpoints.StoryLog`, reached through :class:`PlanningDeps` (the
+graph's runtime context) together with the LLM port, the scene and the world view provider.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, Protocol
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from agents.describer import DescriberInput, describer_input_from_scene
+from agents.event_parser import ProgramRunner
+from agents.llm_port import LLMPort
+from agents.messages import (
+    CharacterStatus,
+    Event,
+    HistoryEntry,
+    ParsedEvent,
+    PlanningFailure,
+    SceneDescription,
+)
+from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from agents.retry_feedback import Turn
+from orchestrator.llm.traces import TraceSink
+from orchestrator.planning.checkpoints import StoryLog
+from sim.scene.model import Scene
+
+RECENT_WINDOW = 12
+"""Events kept in the state for the narrator's prompt (it shows at most 8 completed ones)."""
+
+
+class RetryTurn(BaseModel):
+    """A rejected reply and its feedback (the serialisable form of ``agents.retry_feedback.Turn``)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    reply: str
+    feedback: str
+
+    def as_turn(self) -> Turn:
+        return Turn(reply=self.reply, feedback=self.feedback)
+
+
+class PlanningState(BaseModel):
+    """Checkpointed state of one planning run (one langgraph thread)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    instruction: str = ""
+    events_target: int = Field(default=1, ge=0, description="Planning steps to run (K).")
+    step: int = Field(default=0, ge=0, description="Steps finished so far (events, waits or failures).")
+    description: SceneDescription | None = None
+    roster: tuple[CharacterStatus, ...] = ()
+    recent: tuple[HistoryEntry, ...] = Field(default=(), description=f"The last {RECENT_WINDOW} events.")
+    busy_until: dict[str, int] = Field(
+        default_factory=dict, description="Character -> step at which its current event completes."
+    )
+    # The describer (first step only; each call and each check is its own node):
+    describer_reply: str | None = None
+    describer_seq: int | None = None
+    describer_turns: tuple[RetryTurn, ...] = ()
+    # The current step:
+    sim_frame: int | None = Field(
+        default=None,
+        description="Simulation frame of the world snapshot this step plans from; it goes into "
+        "every request as trace metadata (not the request hash). None without a simulation "
+        "(``storyteller plan``).",
+    )
+    step_trace_seqs: tuple[int, ...] = Field(
+        default=(), description="Trace seqs of this step's narrator and event-parser attempts."
+    )
+    narrator_reply: str | None = None
+    narrator_seq: int | None = Field(default=None, description="Trace seq of ``narrator_reply``.")
+    narrator_turns: tuple[RetryTurn, ...] = ()
+    event: Event | None = None
+    narrator_attempts: int = 0
+    parser_reply: str | None = None
+    parser_seq: int | None = Field(default=None, description="Trace seq of ``parser_reply``.")
+    parser_turns: tuple[RetryTurn, ...] = ()
+    parsed: ParsedEvent | None = None
+    failure: PlanningFailure | None = None
+    llm_calls: int = Field(default=0, description="LLM calls made by this thread (for tests and reports).")
+
+    @property
+    def free(self) -> list[str]:
+        return [c.name for c in self.roster if not c.busy]
+
+
+class WorldProvider(Protocol):
+    """Supplies the spatial API's view of the characters for the event program.
+
+    ``world_view`` returns the object ``tools.event_program.run_event_program`` takes as
+    ``world``; ``seats_in_use`` names the seats taken (for the parser's prompt).
+    """
+
+    def world_view(self, roster: Sequence[CharacterStatus]) -> Any: ...
+
+    def seats_in_use(self, roster: Sequence[CharacterStatus]) -> list[str]: ...
+
+
+@dataclass
+class PlanningDeps:
+    """Run-scoped dependencies, passed as the graph's context (never module globals)."""
+
+    port: LLMPort
+    scene: Scene
+    world: WorldProvider
+    story: StoryLog
+    action_labels: tuple[str, ...]
+    prompts: PromptLibrary = field(default_factory=PromptLibrary)
+    tags: tuple[str, ...] = BENCHMARK_TAGS
+    seed: int = 0
+    max_retries: int = 3
+    busy_for_events: int = 0
+    """Without a simulation: an event stays ongoing for this many further steps (0: completed at once)."""
+    describer_model: str = "unknown"
+    describer_mode: Literal["objects", "regions"] = "objects"
+    """regions: the describer names numbered clusters instead of listing every object (small models)."""
+    description_cache: Path | None = None
+    scene_graph: Any = None
+    """The scene graph handed to event programs (None: the tools build it)."""
+    runner: ProgramRunner | None = None
+    """Runs event programs (None: ``tools.event_program.run_event_program``)."""
+    program_grammar: bool = False
+    """Decode event programs under agents.program_grammar (local llama.cpp models)."""
+    trace: TraceSink | None = None
+    """Where parsed outputs are recorded (None: the port's ``.trace``, if it has one)."""
+    _describer_input: DescriberInput | None = field(default=None, init=False, repr=False)
+
+    def trace_sink(self) -> TraceSink | None:
+        return self.trace if self.trace is not None else getattr(self.port, "trace", None)
+
+    def describer_input(self) -> DescriberInput:
+        """The describer's input for the scene (built once per run)."""
+        if self._describer_input is None:
+            self._describer_input = describer_input_from_scene(self.scene, mode=self.describer_mode)
+        return self._describer_input

@@ -1,0 +1,403 @@
+"""A story session: the simulation and the planner run concurrently in one anyio task group.
+
+The simulation task owns the world and steps it frame by frame; it never waits on an LLM
+call (except in ``lockstep`` pace or when a replay says a result was applied at this frame).
+When characters are available and no planning step is in flight, it takes a snapshot of the
+world (roster and event history, at a known frame) and hands it to the planning task through a
+memory channel; the planning task runs one step of the planning graph (narrator, event
+parser, their retries) and sends the outcome back. The simulation applies the outcome at the
+frame it arrives and records that frame (story log and trace ``applied`` record). The
+``applied`` record names the step, the frame its request was made at and the seqs of the
+trace records that produced the outcome, as the planner reports them
+(``planner.trace_seqs(index)``, optional; without it the record names none).
+
+Determinism: a planning request is built from the world at a frame the simulation chose, so
+its content depends only on earlier frames. What can differ between two live runs is the
+frame at which a result arrives; that frame is recorded. A replay reads the recorded frames
+back and applies each result at exactly its frame, so the same events and the same motion
+come out. ``lockstep`` pace applies every result at the frame it was requested (the
+simulation pauses while the planner thinks), which is deterministic without a trace.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import anyio
+import structlog
+from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStream
+from pydantic import BaseModel, ConfigDict, Field
+
+from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
+from orchestrator.llm.traces import TraceSink
+from sim.world.events import AssignEvent, EventFailure, StepOutput
+from sim.world.step import World, step
+
+Pace = Literal["lockstep", "realtime", "fast"]
+Outcome = ParsedEvent | PlanningFailure | None
+
+_log = structlog.get_logger("storyteller.session")
+
+HISTORY_WINDOW = 12
+
+
+class PlanningRequest(BaseModel):
+    """What the planner gets for one step: the world as of ``frame``."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    index: int = Field(ge=0, description="Planning step number, from 0.")
+    frame: int = Field(ge=0, description="Simulation frame the snapshot was taken at.")
+    roster: tuple[CharacterStatus, ...]
+    history: tuple[HistoryEntry, ...]
+    targets: dict[str, tuple[float, float]] = Field(
+        default_factory=dict, description="Character -> where its current event sends it (x, y)."
+    )
+    objects_in_use: dict[str, str] = Field(
+        default_factory=dict, description="Seat object -> character who sits or is about to sit on it."
+    )
+
+
+class StepPlanner(Protocol):
+    """One planning step at a time (the planning graph behind it).
+
+    A planner may also define ``trace_seqs(index) -> Sequence[int]``: the seqs of the trace
+    records (LLM attempts) that produced step ``index``'s outcome."""
+
+    async def plan(self, request: PlanningRequest) -> Outcome: ...
+
+
+class SessionError(Exception):
+    """A session cannot go on (e.g. a replay whose recorded frames do not fit the story)."""
+
+
+@dataclass
+class StoryEvent:
+    """An applied event and how it is going in the simulation."""
+
+    index: int
+    event_id: str
+    characters: tuple[str, ...]
+    activity: str
+    requested_frame: int
+    applied_frame: int
+    state: Literal["ongoing", "looping", "completed", "failed"] = "ongoing"
+    finished_frame: int | None = None
+    failure: str | None = None
+
+
+@dataclass
+class SessionResult:
+    frames: int
+    steps: int
+    events: list[StoryEvent]
+    outcomes: list[tuple[int, Outcome]]
+    applied_frames: list[int]
+    failures: list[EventFailure] = field(default_factory=list)
+    planner_error: BaseException | None = None
+
+
+@dataclass
+class SessionSettings:
+    """frames: frames to simulate; pace: see module doc; speed: simulated seconds per wall
+    second in ``realtime`` pace; max_steps: planning steps at most (None: unbounded);
+    retry_after_s: simulated seconds before asking again after a wait or a failed step;
+    recheck_after_s: after a wait, the planner is asked again only once the free characters or
+    an event's state (looping, completed, failed) changed since the request, or after this many
+    simulated seconds (the same question would get the same answer: a wait costs a planning
+    step, so waits are not repeated every ``retry_after_s`` for nothing);
+    applied_frames: replay only, the recorded frame of every planning step's result."""
+
+    frames: int
+    pace: Pace = "lockstep"
+    speed: float = 1.0
+    max_steps: int | None = None
+    retry_after_s: float = 3.0
+    recheck_after_s: float = 30.0
+    applied_frames: Sequence[int] | None = None
+
+
+def world_roster(world: World, events: dict[str, StoryEvent]) -> tuple[CharacterStatus, ...]:
+    """The planner's view of every character at the world's current frame."""
+    free = set(world.available())
+    out = []
+    for name in world.names:
+        c = world.characters[name]
+        a = c.assignment
+        event = events.get(c.event_id) if c.event_id is not None else None
+        busy = name not in free
+        out.append(
+            CharacterStatus(
+                name=name,
+                busy=busy,
+                action=a.action if a is not None and c.phase != "idle" else "idle",
+                position=(round(float(c.xy[0]), 3), round(float(c.xy[1]), 3)),
+                facing=(round(math.cos(c.heading), 3), round(math.sin(c.heading), 3)),
+                event_index=event.index if (busy and event is not None) else None,
+                seat=a.seat if (a is not None and c.seated) else None,
+            )
+        )
+    return tuple(out)
+
+
+def world_commitments(world: World) -> tuple[dict[str, tuple[float, float]], dict[str, str]]:
+    """Targets of characters with an assignment, and seats taken or about to be taken."""
+    targets: dict[str, tuple[float, float]] = {}
+    seats: dict[str, str] = {}
+    for name in world.names:
+        c = world.characters[name]
+        a = c.assignment
+        if a is None or c.event_id is None:
+            continue
+        targets[name] = (round(a.target_xy[0], 3), round(a.target_xy[1], 3))
+        if a.seat is not None:
+            seats[a.seat] = name
+    return targets, seats
+
+
+def story_history(events: dict[str, StoryEvent]) -> tuple[HistoryEntry, ...]:
+    entries = sorted(events.values(), key=lambda e: e.index)[-HISTORY_WINDOW:]
+    return tuple(
+        HistoryEntry(
+            index=e.index,
+            characters=e.characters,
+            activity=e.activity,
+            state="completed" if e.state == "failed" else e.state,
+        )
+        for e in entries
+    )
+
+
+def event_id_for(index: int) -> str:
+    return f"event-{index:04d}"
+
+
+class Session:
+    """Runs one story: ``await Session(world, planner, settings).run()``."""
+
+    def __init__(
+        self,
+        world: World,
+        planner: StepPlanner,
+        settings: SessionSettings,
+        *,
+        trace: TraceSink | None = None,
+        on_event: Callable[[StoryEvent], None] | None = None,
+        on_outcome: Callable[[int, Outcome, int], None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if settings.pace not in ("lockstep", "realtime", "fast"):
+            raise SessionError(f"unknown pace {settings.pace!r}; expected lockstep, realtime or fast")
+        if settings.speed <= 0 or not math.isfinite(settings.speed):
+            raise SessionError(f"speed must be a positive number, got {settings.speed!r}")
+        self.world = world
+        self.planner = planner
+        self.settings = settings
+        self.trace = trace
+        self.on_event = on_event
+        self.on_outcome = on_outcome
+        self.clock = clock
+        self.events: dict[str, StoryEvent] = {}
+        self.outcomes: list[tuple[int, Outcome]] = []
+        self.applied_frames: list[int] = []
+        self.failures: list[EventFailure] = []
+        self._steps = 0
+        self._next_plan_frame = 0
+        self._in_flight: PlanningRequest | None = None
+        self.planner_error: BaseException | None = None
+        self._failures_in_a_row = 0
+        self._changes = 0  # event state changes seen so far (looping, completed, failed)
+        self._asked: tuple[tuple[str, ...], int] | None = None  # (free, changes) at the last request
+        self._unchanged_until: int | None = None  # after a wait: no new request before this frame
+        # unless the free characters or an event's state changed since the request
+
+    # ----- planning side ------------------------------------------------------------------
+    async def _planning_task(
+        self,
+        requests: MemoryObjectReceiveStream[PlanningRequest],
+        results: MemoryObjectSendStream[tuple[PlanningRequest, Outcome]],
+    ) -> None:
+        async with requests, results:
+            async for request in requests:
+                try:
+                    outcome = await self.planner.plan(request)
+                except Exception as exc:  # the story goes on without a planner; the caller reports it
+                    self.planner_error = exc
+                    _log.error("planner_stopped", step=request.index, error=f"{type(exc).__name__}: {exc}")
+                    return
+                await results.send((request, outcome))
+
+    # ----- simulation side ----------------------------------------------------------------
+    def _wants_plan(self, out: StepOutput | None) -> bool:
+        if self._in_flight is not None or self.planner_error is not None:
+            return False
+        if self.settings.max_steps is not None and self._steps >= self.settings.max_steps:
+            return False
+        if self.settings.applied_frames is not None and self._steps >= len(self.settings.applied_frames):
+            return False
+        available = out.available if out is not None else self.world.available()
+        if not available or self.world.frame < self._next_plan_frame:
+            return False
+        if self._unchanged_until is not None:
+            if (tuple(available), self._changes) == self._asked and self.world.frame < self._unchanged_until:
+                return False
+            self._unchanged_until = None
+        return True
+
+    def _apply(self, request: PlanningRequest, outcome: Outcome) -> list[AssignEvent]:
+        frame = self.world.frame
+        self.outcomes.append((request.index, outcome))
+        self.applied_frames.append(frame)
+        if self.trace is not None:
+            seqs_of: Callable[[int], Sequence[int]] | None = getattr(self.planner, "trace_seqs", None)
+            seqs = tuple(seqs_of(request.index)) if seqs_of is not None else ()
+            self.trace.record_applied(seqs, frame, step=request.index, requested_frame=request.frame)
+        if self.on_outcome is not None:
+            self.on_outcome(request.index, outcome, frame)
+        retry = max(1, round(self.settings.retry_after_s * self.world.config.fps))
+        if isinstance(outcome, PlanningFailure):  # back off while the planner keeps failing
+            self._failures_in_a_row += 1
+            retry *= 2 ** min(self._failures_in_a_row - 1, 5)
+        else:
+            self._failures_in_a_row = 0
+        if not isinstance(outcome, ParsedEvent):
+            self._next_plan_frame = frame + retry
+            if outcome is None:  # a wait: ask again when something changed (or much later)
+                self._unchanged_until = frame + max(retry, round(self.settings.recheck_after_s * self.world.config.fps))
+            return []
+        eid = event_id_for(request.index)
+        try:
+            command = AssignEvent.from_plans(eid, outcome.plans, self.world.scene)
+        except ValueError as exc:  # e.g. an action the motion library does not know
+            _log.warning("event_rejected", event_id=eid, error=str(exc))
+            self._next_plan_frame = frame + retry
+            return []
+        ev = StoryEvent(
+            index=request.index,
+            event_id=eid,
+            characters=tuple(outcome.event.characters),
+            activity=outcome.event.activity,
+            requested_frame=request.frame,
+            applied_frame=frame,
+        )
+        self.events[eid] = ev
+        if self.on_event is not None:
+            self.on_event(ev)
+        return [command]
+
+    def _observe(self, out: StepOutput) -> None:
+        self._changes += len(out.looping_events) + len(out.completed_events) + len(out.failures)
+        for eid in out.looping_events:
+            if eid in self.events and self.events[eid].state == "ongoing":
+                self.events[eid].state = "looping"
+        for eid in out.completed_events:
+            if eid in self.events:
+                self.events[eid].state = "completed"
+                self.events[eid].finished_frame = out.frame
+                if self.on_event is not None:
+                    self.on_event(self.events[eid])
+        for failure in out.failures:
+            self.failures.append(failure)
+            ev = self.events.get(failure.event_id)
+            if ev is not None and ev.state != "failed":
+                ev.state = "failed"
+                ev.failure = failure.message
+                ev.finished_frame = out.frame
+                if self.on_event is not None:
+                    self.on_event(ev)
+
+    async def _simulation_task(
+        self,
+        requests: MemoryObjectSendStream[PlanningRequest],
+        results: MemoryObjectReceiveStream[tuple[PlanningRequest, Outcome]],
+    ) -> None:
+        s = self.settings
+        replay = list(s.applied_frames) if s.applied_frames is not None else None
+        start = self.clock()
+        out: StepOutput | None = None
+        async with requests, results:
+            while self.world.frame < s.frames:
+                commands: list[AssignEvent] = []
+                if self._in_flight is not None:
+                    got: tuple[PlanningRequest, Outcome] | None = None
+                    if replay is not None:
+                        due = replay[self._in_flight.index]
+                        if due < self.world.frame:
+                            raise SessionError(
+                                f"replay: step {self._in_flight.index} was applied at frame {due}, "
+                                f"but its request was made at frame {self._in_flight.frame}"
+                            )
+                        if due == self.world.frame:
+                            got = await self._receive(results)
+                    elif s.pace == "lockstep":
+                        got = await self._receive(results)
+                    else:
+                        try:
+                            got = results.receive_nowait()
+                        except anyio.WouldBlock:
+                            got = None
+                        except (anyio.EndOfStream, anyio.ClosedResourceError):
+                            self._in_flight = None
+                    if got is not None:
+                        request, outcome = got
+                        self._in_flight = None
+                        commands = self._apply(request, outcome)
+                self.world, out = step(self.world, commands, self.world.dt)
+                self._observe(out)
+                if self._wants_plan(out):
+                    targets, seats = world_commitments(self.world)
+                    request = PlanningRequest(
+                        index=self._steps,
+                        frame=self.world.frame,
+                        roster=world_roster(self.world, self.events),
+                        history=story_history(self.events),
+                        targets=targets,
+                        objects_in_use=seats,
+                    )
+                    self._steps += 1
+                    self._asked = (tuple(out.available), self._changes)
+                    self._in_flight = request
+                    await requests.send(request)
+                if s.pace == "realtime":
+                    due_time = start + self.world.frame / (self.world.config.fps * s.speed)
+                    delay = due_time - self.clock()
+                    await anyio.sleep(max(0.0, delay))
+                elif self.world.frame % 8 == 0 or self._in_flight is not None:
+                    await anyio.sleep(0)
+            # Close the request side; a step still in flight is abandoned (not applied).
+
+    async def _receive(
+        self, results: MemoryObjectReceiveStream[tuple[PlanningRequest, Outcome]]
+    ) -> tuple[PlanningRequest, Outcome] | None:
+        """The next planning result, or None when the planner stopped (see ``planner_error``)."""
+        try:
+            return await results.receive()
+        except (anyio.EndOfStream, anyio.ClosedResourceError):
+            self._in_flight = None
+            return None
+
+    async def run(self) -> SessionResult:
+        req_send, req_recv = anyio.create_memory_object_stream[PlanningRequest](1)
+        res_send, res_recv = anyio.create_memory_object_stream[tuple[PlanningRequest, Outcome]](1)
+        try:
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(self._planning_task, req_recv, res_send)
+                await self._simulation_task(req_send, res_recv)
+                tg.cancel_scope.cancel()
+        except BaseExceptionGroup as group:  # surface a lone error as itself
+            if len(group.exceptions) == 1:
+                raise group.exceptions[0] from None
+            raise
+        return SessionResult(
+            frames=self.world.frame,
+            steps=len(self.outcomes),
+            events=sorted(self.events.values(), key=lambda e: e.index),
+            outcomes=list(self.outcomes),
+            applied_frames=list(self.applied_frames),
+            failures=list(self.failures),
+            planner_error=self.planner_error,
+        )

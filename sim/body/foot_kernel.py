@@ -1,0 +1,186 @@
+"""One compiled pass of ``FootSolver.apply`` (``sim.body.foot_ik``) over all characters and legs.
+
+``FootSolver.apply`` is a chain of small array steps (leg forward kinematics, the pinning
+state machine, the reach clamp, the footprint push, lock starts, the IK); on a crowd of ten
+characters each step costs more in numpy call overhead than in arithmetic. ``apply_frame``
+does the same steps per character and leg in one numba kernel, calling the same compiled
+push-out and IK kernels (``sim.body.foot_clearance``, ``sim.body.leg_ik``). ``FootSolver.apply_numpy``
+keeps the array version; ``tests/test_foot_ik.py`` checks both give the same rotations and
+states (to 1e-12) on a recorded crowd.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from sim.body.foot_clearance import _push_out_kernel
+from sim.body.leg_ik import (
+    _ANKLE_OFF,
+    _HIP_OFF,
+    _KNEE_OFF,
+    _TOE_OFF,
+    HIP_JOINTS,
+    KNEE_JOINTS,
+    _ik_kernel,
+    _matmul3,
+    _matvec3,
+    _norm3,
+)
+from sim.motion.clips import ANKLE_JOINTS
+
+__all__ = ["apply_frame"]
+
+_HIP_J = np.array(HIP_JOINTS, dtype=np.int64)  # (left, right)
+_KNEE_J = np.array(KNEE_JOINTS, dtype=np.int64)
+_ANKLE_J = np.array(ANKLE_JOINTS, dtype=np.int64)
+
+
+@njit(cache=True)
+def apply_frame(
+    pelvis: np.ndarray, rots: np.ndarray, contacts: np.ndarray, act: np.ndarray,
+    locked: np.ndarray, lock: np.ndarray, offset: np.ndarray, release: np.ndarray, drifted: np.ndarray,
+    full: np.ndarray, thigh: np.ndarray, shin: np.ndarray, max_drift: float, release_frames: int,
+    centers: np.ndarray, rights: np.ndarray, facings: np.ndarray, halves: np.ndarray, passes: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """(rotations, locked, lock, offset, release, drifted) after one frame; see
+    ``FootSolver.apply_numpy`` for the steps (the same, per character and leg)."""
+    n = pelvis.shape[0]
+    out = rots.copy()
+    n_locked = np.zeros((n, 2), dtype=np.bool_)
+    n_lock = np.zeros((n, 2, 3))
+    n_offset = np.zeros((n, 2, 3))
+    n_release = np.zeros((n, 2), dtype=np.int64)
+    n_drifted = np.zeros((n, 2), dtype=np.bool_)
+    hip = np.empty((n, 2, 3))
+    knee = np.empty((n, 2, 3))
+    ankle = np.empty((n, 2, 3))
+    toe = np.empty((n, 2, 3))
+    hip_r = np.empty((n, 2, 3, 3))
+    knee_r = np.empty((n, 2, 3, 3))
+    ankle_r = np.empty((n, 2, 3, 3))
+    target = np.empty((n, 2, 3))
+    foot = np.empty((n, 2, 3))
+    for c in range(n):
+        g0 = rots[c, 0]
+        for leg in range(2):
+            hip[c, leg] = pelvis[c] + _matvec3(g0, _HIP_OFF[leg])
+            hip_r[c, leg] = _matmul3(g0, rots[c, _HIP_J[leg]])
+            knee[c, leg] = hip[c, leg] + _matvec3(hip_r[c, leg], _KNEE_OFF[leg])
+            knee_r[c, leg] = _matmul3(hip_r[c, leg], rots[c, _KNEE_J[leg]])
+            ankle[c, leg] = knee[c, leg] + _matvec3(knee_r[c, leg], _ANKLE_OFF[leg])
+            ankle_r[c, leg] = _matmul3(knee_r[c, leg], rots[c, _ANKLE_J[leg]])
+            toe[c, leg] = ankle[c, leg] + _matvec3(ankle_r[c, leg], _TOE_OFF[leg])
+            foot[c, leg] = toe[c, leg] - ankle[c, leg]
+            contact = contacts[c, leg] and act[c]
+            # pinning: release, blend, lock
+            drift = _norm3(lock[c, leg] - toe[c, leg])
+            overreach = _norm3(lock[c, leg] - foot[c, leg] - hip[c, leg]) > full[leg]
+            was = locked[c, leg]
+            drifted_now = was and contact and (drift > max_drift or overreach)
+            released = (was and not contact) or drifted_now
+            off = lock[c, leg] - toe[c, leg] if released else offset[c, leg].copy()
+            if released:
+                rel = release_frames
+            elif was:
+                rel = 0
+            else:
+                rel = max(release[c, leg] - 1, 0)
+            still = was and not released
+            dr = (drifted[c, leg] or drifted_now) and contact and rel > 0
+            if release_frames > 0:
+                x = min(max(rel / release_frames, 0.0), 1.0)
+                weight = x * x * (3.0 - 2.0 * x)
+            else:
+                weight = 0.0
+            if rel <= 0:
+                off = np.zeros(3)
+            tgt = lock[c, leg].copy() if still else toe[c, leg] + off * weight
+            # a pinned or blending foot stays within reach of the leg, pulled towards the hip
+            ankle_to = tgt - foot[c, leg] - hip[c, leg]
+            dist = _norm3(ankle_to)
+            limit = max(full[leg], _norm3(ankle[c, leg] - hip[c, leg]))
+            if dist > limit:
+                tgt = hip[c, leg] + ankle_to * (limit / max(dist, 1e-12)) + foot[c, leg]
+            target[c, leg] = tgt
+            n_locked[c, leg] = still
+            n_offset[c, leg] = off
+            n_release[c, leg] = rel
+            n_drifted[c, leg] = dr
+    # clearance: the rigid foot (ankle, toe) of every active character out of every footprint
+    if centers.shape[0] > 0:
+        m_act = 0
+        for c in range(n):
+            if act[c]:
+                m_act += 2
+        if m_act > 0:
+            pts = np.empty((m_act, 2, 2))
+            k = 0
+            for c in range(n):
+                if act[c]:
+                    for leg in range(2):
+                        for j in range(2):
+                            pts[k, 0, j] = target[c, leg, j] - foot[c, leg, j]
+                            pts[k, 1, j] = target[c, leg, j]
+                        k += 1
+            shift = _push_out_kernel(pts, centers, rights, facings, halves, passes)
+            k = 0
+            for c in range(n):
+                if act[c]:
+                    for leg in range(2):
+                        target[c, leg, 0] += shift[k, 0]
+                        target[c, leg, 1] += shift[k, 1]
+                        k += 1
+    # lock starts, the new state, the legs to solve
+    m_solve = 0
+    solve = np.zeros((n, 2), dtype=np.bool_)
+    for c in range(n):
+        for leg in range(2):
+            contact = contacts[c, leg] and act[c]
+            reach = _norm3(target[c, leg] - foot[c, leg] - hip[c, leg])
+            start = contact and not n_locked[c, leg] and not n_drifted[c, leg] and reach <= full[leg] + 1e-9  # as _REACH_EPS
+            lk = target[c, leg].copy() if start else lock[c, leg].copy()
+            if start:
+                n_locked[c, leg] = True
+                n_release[c, leg] = 0
+                n_offset[c, leg] = np.zeros(3)
+            n_lock[c, leg] = lk if n_locked[c, leg] else np.zeros(3)
+            solve[c, leg] = _norm3(target[c, leg] - toe[c, leg]) > 0.0 or act[c]
+            if solve[c, leg]:
+                m_solve += 1
+    if m_solve > 0:
+        s_hip = np.empty((m_solve, 3))
+        s_knee = np.empty((m_solve, 3))
+        s_ankle = np.empty((m_solve, 3))
+        s_pel = np.empty((m_solve, 3, 3))
+        s_hr = np.empty((m_solve, 3, 3))
+        s_kr = np.empty((m_solve, 3, 3))
+        s_ar = np.empty((m_solve, 3, 3))
+        s_tg = np.empty((m_solve, 3))
+        s_th = np.empty(m_solve)
+        s_sh = np.empty(m_solve)
+        k = 0
+        for c in range(n):
+            for leg in range(2):
+                if solve[c, leg]:
+                    s_hip[k] = hip[c, leg]
+                    s_knee[k] = knee[c, leg]
+                    s_ankle[k] = ankle[c, leg]
+                    s_pel[k] = rots[c, 0]
+                    s_hr[k] = hip_r[c, leg]
+                    s_kr[k] = knee_r[c, leg]
+                    s_ar[k] = ankle_r[c, leg]
+                    s_tg[k] = target[c, leg] - foot[c, leg]
+                    s_th[k] = thigh[leg]
+                    s_sh[k] = shin[leg]
+                    k += 1
+        new_hip, new_knee, new_ankle = _ik_kernel(s_hip, s_knee, s_ankle, s_pel, s_hr, s_kr, s_ar, s_tg, s_th, s_sh)
+        k = 0
+        for c in range(n):
+            for leg in range(2):
+                if solve[c, leg]:
+                    out[c, _HIP_J[leg]] = new_hip[k]
+                    out[c, _KNEE_J[leg]] = new_knee[k]
+                    out[c, _ANKLE_J[leg]] = new_ankle[k]
+                    k += 1
+    return out, n_locked, n_lock, n_offset, n_release, n_drifted

@@ -1,0 +1,410 @@
+"""One animated, skinned GLB (binary glTF 2.0) of a whole run: scene boxes plus characters.
+
+Frames: glTF is **Y up** (forward +z, metres). Our z-up world maps to it by
+``(x, y, z) -> (x, z, -y)`` (``WORLD_TO_GLTF = BODY_TO_WORLD.T``), which makes the glTF frame
+the SMPL-X body frame, so joint-local data (rest offsets, local rotations) is written as is and
+only the root's translation and rotation are converted.
+
+Layout of the file:
+
+- node ``objects``: one box node per scene object, named as the object (``chair_3``), a unit
+  cube mesh per label scaled to the object's size and turned to its facing, plus a ``floor``
+  slab over the scene bounds;
+- per character a group node named as the character, holding its joint hierarchy
+  (``<name>:pelvis`` ... ``<name>:right_wrist``, translations = rest offsets), and a root
+  skinned mesh node ``<name>:body``: one flat-shaded box per bone, each bound rigidly to one of
+  the 22 joints (``skin.joints`` in our joint order, inverse bind matrices of the rest pose);
+- one animation ``run``: per character, root translation + 22 joint rotations (unit
+  quaternions, xyzw, sign-continuous), one key per frame at the track's rate, LINEAR.
+
+The static node transforms are the first frame's pose. Output bytes are deterministic.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pygltflib as gl
+from scipy.spatial.transform import Rotation
+
+from sim.body.skeleton import (
+    BODY_TO_WORLD,
+    JOINT_INDEX,
+    JOINT_NAMES,
+    NUM_JOINTS,
+    PARENTS,
+    REST_OFFSETS,
+    rest_positions,
+)
+from sim.export.bvh import END_SITES
+from sim.scene.model import Scene, SceneObject
+from sim.world.character_track import CharacterTrack
+
+WORLD_TO_GLTF = BODY_TO_WORLD.T
+FLOOR_THICKNESS = 0.02  # metres, below floor_z
+ANIMATION_NAME = "run"
+CHARACTER_COLORS: tuple[tuple[float, float, float], ...] = (
+    (0.85, 0.33, 0.25),
+    (0.25, 0.55, 0.85),
+    (0.35, 0.70, 0.35),
+    (0.90, 0.70, 0.20),
+    (0.60, 0.40, 0.75),
+    (0.20, 0.75, 0.75),
+    (0.85, 0.45, 0.65),
+    (0.55, 0.55, 0.55),
+)
+# Bone boxes: (from joint, to joint or end site, owner joint, width, depth) in metres.
+_BONE_SIZES: dict[str, tuple[float, float]] = {
+    "left_hip": (0.14, 0.14),
+    "right_hip": (0.14, 0.14),
+    "spine1": (0.30, 0.18),
+    "left_knee": (0.13, 0.13),
+    "right_knee": (0.13, 0.13),
+    "spine2": (0.30, 0.18),
+    "left_ankle": (0.10, 0.10),
+    "right_ankle": (0.10, 0.10),
+    "spine3": (0.32, 0.19),
+    "left_foot": (0.09, 0.06),
+    "right_foot": (0.09, 0.06),
+    "neck": (0.09, 0.09),
+    "left_collar": (0.10, 0.10),
+    "right_collar": (0.10, 0.10),
+    "head": (0.09, 0.09),
+    "left_shoulder": (0.10, 0.10),
+    "right_shoulder": (0.10, 0.10),
+    "left_elbow": (0.10, 0.10),
+    "right_elbow": (0.10, 0.10),
+    "left_wrist": (0.08, 0.08),
+    "right_wrist": (0.08, 0.08),
+}
+_END_SIZES: dict[str, tuple[float, float]] = {
+    "head": (0.17, 0.19),
+    "left_wrist": (0.09, 0.04),
+    "right_wrist": (0.09, 0.04),
+    "left_foot": (0.09, 0.05),
+    "right_foot": (0.09, 0.05),
+}
+# Unit cube corners (bit 0: +x, bit 1: +y, bit 2: +z) and its 6 outward quads.
+_CORNERS = np.array([[(i >> k) & 1 for k in range(3)] for i in range(8)], dtype=float) - 0.5
+_QUADS = np.array(
+    [[1, 3, 7, 5], [0, 4, 6, 2], [2, 6, 7, 3], [0, 1, 5, 4], [4, 5, 7, 6], [0, 2, 3, 1]]
+)
+_QUAD_NORMALS = np.array(
+    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float
+)
+_QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def box_mesh(
+    centers: np.ndarray, axes: np.ndarray, half_sizes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flat-shaded boxes, vectorised over B boxes.
+
+    centers (B, 3); axes (B, 3, 3) with the box's unit axes as columns (right-handed);
+    half_sizes (B, 3). Returns positions (B*24, 3), normals (B*24, 3), triangles (B*12, 3).
+    """
+    b = centers.shape[0]
+    corners = centers[:, None, :] + np.einsum(
+        "bij,bcj->bci", axes, _CORNERS[None] * 2.0 * half_sizes[:, None, :]
+    )
+    positions = corners[:, _QUADS.reshape(-1)]  # (B, 24, 3)
+    normals = np.repeat(np.einsum("bij,fj->bfi", axes, _QUAD_NORMALS), 4, axis=1)
+    local_tris = (np.arange(6)[:, None, None] * 4 + _QUAD_TRIANGLES[None]).reshape(12, 3)
+    triangles = (np.arange(b)[:, None, None] * 24 + local_tris[None]).reshape(-1, 3)
+    return positions.reshape(-1, 3), normals.reshape(-1, 3), triangles
+
+
+def character_mesh() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The figure in the rest pose (glTF frame = body frame): positions, normals, triangles, joint ids.
+
+    Each vertex is bound to one joint (weight 1), the joint whose bone the box belongs to.
+    """
+    rest = rest_positions()
+    starts, ends, owners, sizes = [], [], [], []
+    for j in range(1, NUM_JOINTS):
+        starts.append(rest[PARENTS[j]])
+        ends.append(rest[j])
+        owners.append(PARENTS[j])
+        sizes.append(_BONE_SIZES[JOINT_NAMES[j]])
+    for name, offset in END_SITES.items():
+        j = JOINT_INDEX[name]
+        starts.append(rest[j])
+        ends.append(rest[j] + np.array(offset))
+        owners.append(j)
+        sizes.append(_END_SIZES[name])
+    a, e = np.array(starts), np.array(ends)
+    length = np.linalg.norm(e - a, axis=1)
+    along = (e - a) / length[:, None]
+    ref = np.where(np.abs(along[:, 2:3]) > 0.9, [[1.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]])
+    side = np.cross(along, ref)
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    front = np.cross(side, along)
+    axes = np.stack([side, along, front], axis=2)  # columns: width, length, depth
+    wd = np.array(sizes)
+    half = np.column_stack([wd[:, 0] / 2, length / 2 + 0.02, wd[:, 1] / 2])
+    positions, normals, triangles = box_mesh((a + e) / 2, axes, half)
+    joints = np.repeat(np.array(owners), 24)
+    return positions, normals, triangles, joints
+
+
+class _Writer:
+    """Accumulates the binary buffer (4-byte aligned views) and the glTF objects."""
+
+    def __init__(self) -> None:
+        self.gltf = gl.GLTF2(asset=gl.Asset(generator="storyteller sim.export.glb", version="2.0"))
+        self.blob = bytearray()
+
+    def accessor(
+        self,
+        data: np.ndarray,
+        kind: str,
+        component: int,
+        *,
+        target: int | None = None,
+        bounds: bool = False,
+        name: str | None = None,
+    ) -> int:
+        arr = np.ascontiguousarray(data)
+        offset = len(self.blob)
+        raw = arr.tobytes()
+        self.blob += raw + b"\x00" * (-len(raw) % 4)
+        self.gltf.bufferViews.append(
+            gl.BufferView(buffer=0, byteOffset=offset, byteLength=len(raw), target=target)
+        )
+        count = arr.shape[0]
+        acc = gl.Accessor(
+            bufferView=len(self.gltf.bufferViews) - 1,
+            componentType=component,
+            count=count,
+            type=kind,
+            name=name,
+        )
+        if bounds:
+            flat = arr.reshape(count, -1)
+            acc.min = [float(x) for x in flat.min(axis=0)]
+            acc.max = [float(x) for x in flat.max(axis=0)]
+        self.gltf.accessors.append(acc)
+        return len(self.gltf.accessors) - 1
+
+    def node(self, node: gl.Node) -> int:
+        self.gltf.nodes.append(node)
+        return len(self.gltf.nodes) - 1
+
+    def material(self, name: str, rgb: Sequence[float]) -> int:
+        pbr = gl.PbrMetallicRoughness(
+            baseColorFactor=[*map(float, rgb), 1.0], metallicFactor=0.0, roughnessFactor=0.8
+        )
+        self.gltf.materials.append(gl.Material(name=name, pbrMetallicRoughness=pbr))
+        return len(self.gltf.materials) - 1
+
+    def mesh(self, name: str, attributes: gl.Attributes, indices: int, material: int) -> int:
+        prim = gl.Primitive(attributes=attributes, indices=indices, material=material)
+        self.gltf.meshes.append(gl.Mesh(name=name, primitives=[prim]))
+        return len(self.gltf.meshes) - 1
+
+
+def _quat(matrices: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) -> (..., 4) xyzw quaternions."""
+    m = np.asarray(matrices)
+    return Rotation.from_matrix(m.reshape(-1, 3, 3)).as_quat().reshape(*m.shape[:-2], 4)
+
+
+def _continuous(quats: np.ndarray) -> np.ndarray:
+    """Flip signs along axis 0 so consecutive quaternions have a non-negative dot product."""
+    if quats.shape[0] < 2:
+        return quats
+    dots = np.einsum("n...i,n...i->n...", quats[1:], quats[:-1])
+    flips = np.cumprod(np.where(dots < 0.0, -1.0, 1.0), axis=0)
+    out = quats.copy()
+    out[1:] *= flips[..., None]
+    return out
+
+
+def _label_color(label: str) -> tuple[float, float, float]:
+    h = zlib.crc32(label.encode("utf-8"))
+    return (
+        0.45 + 0.4 * ((h & 0xFF) / 255),
+        0.45 + 0.4 * (((h >> 8) & 0xFF) / 255),
+        0.45 + 0.4 * (((h >> 16) & 0xFF) / 255),
+    )
+
+
+def _object_trs(obj: SceneObject) -> tuple[list[float], list[float], list[float]]:
+    f = np.array([obj.facing[0], obj.facing[1], 0.0])
+    r = np.array([obj.facing[1], -obj.facing[0], 0.0])
+    rot_world = np.column_stack([r, f, [0.0, 0.0, 1.0]])
+    rot = WORLD_TO_GLTF @ rot_world @ WORLD_TO_GLTF.T
+    t = WORLD_TO_GLTF @ np.array(obj.center)
+    width, depth, height = (max(s, 1e-4) for s in obj.size)
+    return [float(x) for x in t], [float(x) for x in _quat(rot)], [width, height, depth]
+
+
+def build_glb(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> gl.GLTF2:
+    """The glTF document (binary blob attached) for ``scene`` (may be None) and ``tracks``."""
+    names = [t.name for t in tracks]
+    if len(set(names)) != len(names):
+        raise ValueError(f"character names must be unique, got {names}")
+    w = _Writer()
+    top: list[int] = []
+
+    if scene is not None:
+        pos, nrm, tri = box_mesh(np.zeros((1, 3)), np.eye(3)[None], np.full((1, 3), 0.5))
+        cube_pos = w.accessor(
+            pos.astype(np.float32),
+            gl.VEC3,
+            gl.FLOAT,
+            target=gl.ARRAY_BUFFER,
+            bounds=True,
+            name="cube",
+        )
+        cube_nrm = w.accessor(nrm.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER)
+        cube_idx = w.accessor(
+            tri.reshape(-1).astype(np.uint16),
+            gl.SCALAR,
+            gl.UNSIGNED_SHORT,
+            target=gl.ELEMENT_ARRAY_BUFFER,
+        )
+        label_mesh: dict[str, int] = {}
+        children: list[int] = []
+        for obj in [*scene.objects, None]:
+            label = "floor" if obj is None else obj.label
+            if label not in label_mesh:
+                mat = w.material(label, (0.8, 0.8, 0.78) if obj is None else _label_color(label))
+                label_mesh[label] = w.mesh(
+                    label, gl.Attributes(POSITION=cube_pos, NORMAL=cube_nrm), cube_idx, mat
+                )
+            if obj is None:
+                lo, hi = np.array(scene.bounds_min), np.array(scene.bounds_max)
+                center = WORLD_TO_GLTF @ np.array(
+                    [*(lo + hi) / 2, scene.floor_z - FLOOR_THICKNESS / 2]
+                )
+                size = [float(hi[0] - lo[0]), FLOOR_THICKNESS, float(hi[1] - lo[1])]
+                node = gl.Node(
+                    name="floor",
+                    mesh=label_mesh[label],
+                    translation=[float(x) for x in center],
+                    scale=size,
+                )
+            else:
+                t, r, s = _object_trs(obj)
+                node = gl.Node(
+                    name=obj.name, mesh=label_mesh[label], translation=t, rotation=r, scale=s
+                )
+            children.append(w.node(node))
+        top.append(w.node(gl.Node(name="objects", children=children)))
+
+    if tracks:
+        positions, normals, triangles, joint_ids = character_mesh()
+        body_pos = w.accessor(
+            positions.astype(np.float32),
+            gl.VEC3,
+            gl.FLOAT,
+            target=gl.ARRAY_BUFFER,
+            bounds=True,
+            name="body",
+        )
+        body_nrm = w.accessor(normals.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER)
+        joints4 = np.zeros((joint_ids.size, 4), dtype=np.uint8)
+        joints4[:, 0] = joint_ids
+        weights4 = np.zeros((joint_ids.size, 4), dtype=np.float32)
+        weights4[:, 0] = 1.0
+        body_joints = w.accessor(joints4, gl.VEC4, gl.UNSIGNED_BYTE, target=gl.ARRAY_BUFFER)
+        body_weights = w.accessor(weights4, gl.VEC4, gl.FLOAT, target=gl.ARRAY_BUFFER)
+        body_idx = w.accessor(
+            triangles.reshape(-1).astype(np.uint16),
+            gl.SCALAR,
+            gl.UNSIGNED_SHORT,
+            target=gl.ELEMENT_ARRAY_BUFFER,
+        )
+        ibm = np.tile(np.eye(4, dtype=np.float32), (NUM_JOINTS, 1, 1))
+        ibm[:, :3, 3] = -rest_positions()
+        ibm_acc = w.accessor(
+            np.swapaxes(ibm, 1, 2).reshape(NUM_JOINTS, 16), gl.MAT4, gl.FLOAT, name="inverse_bind"
+        )
+
+    animation = gl.Animation(name=ANIMATION_NAME)
+    time_accessors: dict[tuple[int, float], int] = {}
+    for index, track in enumerate(tracks):
+        n = track.num_frames
+        root_t = track.root_positions @ WORLD_TO_GLTF.T
+        rot = np.array(track.local_rotations)
+        rot[:, 0] = WORLD_TO_GLTF @ rot[:, 0]
+        quats = _continuous(_quat(rot))  # (N, 22, 4)
+        node_ids: list[int] = []
+        for j in range(NUM_JOINTS):
+            offset = root_t[0] if j == 0 else REST_OFFSETS[j]
+            node_ids.append(
+                w.node(
+                    gl.Node(
+                        name=f"{track.name}:{JOINT_NAMES[j]}",
+                        translation=[float(x) for x in offset],
+                        rotation=[float(x) for x in quats[0, j]],
+                    )
+                )
+            )
+        for j in range(1, NUM_JOINTS):
+            w.gltf.nodes[node_ids[PARENTS[j]]].children.append(node_ids[j])
+        material = w.material(f"{track.name}:skin", CHARACTER_COLORS[index % len(CHARACTER_COLORS)])
+        attributes = gl.Attributes(
+            POSITION=body_pos, NORMAL=body_nrm, JOINTS_0=body_joints, WEIGHTS_0=body_weights
+        )
+        mesh = w.mesh(f"{track.name}:body", attributes, body_idx, material)
+        w.gltf.skins.append(
+            gl.Skin(
+                name=track.name, inverseBindMatrices=ibm_acc, skeleton=node_ids[0], joints=node_ids
+            )
+        )
+        body = w.node(gl.Node(name=f"{track.name}:body", mesh=mesh, skin=len(w.gltf.skins) - 1))
+        # The skinned mesh node sits at the scene root (parent transforms never move a skin).
+        top.extend([w.node(gl.Node(name=track.name, children=[node_ids[0]])), body])
+
+        key = (n, track.fps)
+        if key not in time_accessors:
+            times = track.times.astype(np.float32)
+            time_accessors[key] = w.accessor(
+                times, gl.SCALAR, gl.FLOAT, bounds=True, name=f"time_{n}@{track.fps:g}"
+            )
+        times_acc = time_accessors[key]
+        outputs = [
+            (
+                node_ids[0],
+                gl.TRANSLATION,
+                w.accessor(root_t.astype(np.float32), gl.VEC3, gl.FLOAT, bounds=True),
+            )
+        ]
+        for j in range(NUM_JOINTS):
+            acc = w.accessor(
+                np.ascontiguousarray(quats[:, j]).astype(np.float32), gl.VEC4, gl.FLOAT, bounds=True
+            )
+            outputs.append((node_ids[j], gl.ROTATION, acc))
+        for node_id, path, acc in outputs:
+            animation.samplers.append(
+                gl.AnimationSampler(input=times_acc, output=acc, interpolation=gl.ANIM_LINEAR)
+            )
+            target = gl.AnimationChannelTarget(node=node_id, path=path)
+            animation.channels.append(
+                gl.AnimationChannel(sampler=len(animation.samplers) - 1, target=target)
+            )
+    if animation.channels:
+        w.gltf.animations.append(animation)
+
+    w.gltf.scenes.append(gl.Scene(name="storyteller", nodes=top))
+    w.gltf.scene = 0
+    w.gltf.buffers.append(gl.Buffer(byteLength=len(w.blob)))
+    w.gltf.set_binary_blob(bytes(w.blob))
+    return w.gltf
+
+
+def glb_bytes(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> bytes:
+    """The GLB file content for ``scene`` and ``tracks`` (deterministic)."""
+    return b"".join(build_glb(scene, tracks).save_to_bytes())
+
+
+def export_glb(path: str | Path, scene: Scene | None, tracks: Sequence[CharacterTrack]) -> Path:
+    """Write the whole run as one GLB (see the module docstring). Returns the path."""
+    path = Path(path)
+    path.write_bytes(glb_bytes(scene, tracks))
+    return path

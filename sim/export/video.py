@@ -1,0 +1,161 @@
+"""Pictures of a run: a top-down PNG of one frame and an animated GIF (or MP4) of the whole run.
+
+A ``RunRecording`` is what a picture needs from a run: the scene, one ``CharacterTrack`` per
+character (pelvis positions and root rotations at ``fps``), and optionally the event id each
+character belonged to at every frame (``World.event_ids()``). ``recording_from_world`` builds
+one from a ``sim.world.step.World``.
+
+Every picture is drawn by ``sim.export.topdown.render_topdown_rgb``: furniture, characters as
+discs with heading arrows and their current action / event under their names, the cells a
+body cannot stand on (shaded, when the recording has the grid), the last ``trail_s`` seconds of each character's path as a trail, and the events under way as captions.
+
+Animations are GIF by default (imageio's Pillow writer). MP4 needs an ffmpeg encoder that
+imageio can find (``imageio-ffmpeg``); ``save_run_animation`` picks MP4 for a ``.mp4`` path
+only when one is available and raises ``RunVideoError`` otherwise.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from sim.export.topdown import CharacterMarker, render_topdown_rgb
+from sim.paths.nav_grid import NavGrid
+from sim.scene.model import Scene
+from sim.world.character_track import CharacterTrack
+from sim.world.motion_layer import root_yaw
+
+
+class RunVideoError(ValueError):
+    """A picture that cannot be made (empty run, bad frame index, no encoder for the format)."""
+
+
+@dataclass(frozen=True)
+class RunRecording:
+    """scene; tracks: name -> CharacterTrack (same frame count and fps); events: name -> event
+    id per frame ("" outside events), optional; grid: the navigation grid, whose blocked cells
+    (walls and doors of reference scenes included) are shaded, optional."""
+
+    scene: Scene
+    tracks: Mapping[str, CharacterTrack]
+    events: Mapping[str, Sequence[str]] | None = None
+    grid: NavGrid | None = None
+
+    def __post_init__(self) -> None:
+        if not self.tracks:
+            raise RunVideoError("a run picture needs at least one character track")
+        counts = {t.num_frames for t in self.tracks.values()}
+        if len(counts) != 1:
+            raise RunVideoError(f"tracks have different frame counts: {sorted(counts)}")
+        if self.events is not None:
+            for name, ids in self.events.items():
+                if name not in self.tracks or len(ids) != self.num_frames:
+                    raise RunVideoError(f"events of {name!r} must name a track and give one id per frame")
+
+    @property
+    def num_frames(self) -> int:
+        return next(iter(self.tracks.values())).num_frames
+
+    @property
+    def fps(self) -> float:
+        return next(iter(self.tracks.values())).fps
+
+
+def recording_from_world(world: object) -> RunRecording:
+    """The recording of a ``sim.world.step.World`` (duck-typed: ``scene``, ``tracks()``, ``event_ids()``)."""
+    return RunRecording(world.scene, world.tracks(), world.event_ids(), world.grid)  # type: ignore[attr-defined]
+
+
+def _frame_index(rec: RunRecording, frame: int) -> int:
+    n = rec.num_frames
+    f = frame + n if frame < 0 else frame
+    if not 0 <= f < n:
+        raise RunVideoError(f"frame {frame} is outside the run's {n} frames")
+    return f
+
+
+def run_frame_rgb(
+    rec: RunRecording, frame: int = -1, *, trail_s: float = 3.0, size_px: int = 900, title: str | None = None,
+    show_names: bool = True, show_grid: bool = True,
+) -> np.ndarray:
+    """One frame of the run as an (H, W, 3) uint8 picture (``frame`` may be negative)."""
+    f = _frame_index(rec, frame)
+    lo = max(0, f - round(trail_s * rec.fps))
+    markers, trails, under_way = [], {}, []
+    for name, t in rec.tracks.items():
+        xy = t.root_positions[f, :2]
+        yaw = float(root_yaw(t.local_rotations[f, 0]))
+        action = t.action_labels[f] if t.action_labels is not None else None
+        event = rec.events[name][f] if rec.events is not None else ""
+        label = " / ".join(s for s in (action, event) if s) or None
+        markers.append(CharacterMarker(name, (float(xy[0]), float(xy[1])), (np.cos(yaw), np.sin(yaw)), label))
+        trails[name] = t.root_positions[lo : f + 1, :2]
+        if event and event not in under_way:
+            under_way.append(event)
+    caption = [f"t = {f / rec.fps:6.2f} s   frame {f}"]
+    if under_way:
+        caption.append("events: " + ", ".join(under_way))
+    grid: dict[str, object] = {}
+    if show_grid and rec.grid is not None:
+        grid = {"nav_free": rec.grid.free, "nav_origin": rec.grid.origin, "nav_cell_size": rec.grid.cell_size}
+    return render_topdown_rgb(
+        rec.scene, characters=markers, paths=trails, title=title, captions=caption,
+        show_names=show_names, size_px=size_px, **grid,
+    )
+
+
+def save_run_png(path: Path | str, rec: RunRecording, frame: int = -1, **kw: object) -> Path:
+    """Write one frame (default: the last, the run's final state) as a PNG; returns the path."""
+    path = Path(path)
+    iio.imwrite(path, run_frame_rgb(rec, frame, **kw), extension=".png")  # type: ignore[arg-type]
+    return path
+
+
+def mp4_available() -> bool:
+    """Whether imageio can encode MP4 here (needs the ``imageio_ffmpeg`` package)."""
+    return importlib.util.find_spec("imageio_ffmpeg") is not None
+
+
+def animation_frames(
+    rec: RunRecording, *, stride: int = 6, start: int = 0, stop: int | None = None, **kw: object
+) -> list[np.ndarray]:
+    """Pictures of every ``stride``-th frame in [start, stop) (the last frame always included)."""
+    if stride < 1:
+        raise RunVideoError(f"stride must be >= 1 frame, got {stride}")
+    end = rec.num_frames if stop is None else min(stop, rec.num_frames)
+    picks = list(range(max(0, start), end, stride))
+    if not picks:
+        raise RunVideoError(f"no frame in [{start}, {end})")
+    if picks[-1] != end - 1:
+        picks.append(end - 1)
+    return [run_frame_rgb(rec, f, **kw) for f in picks]  # type: ignore[arg-type]
+
+
+def save_run_animation(
+    path: Path | str, rec: RunRecording, *, stride: int = 6, speed: float = 1.0, start: int = 0,
+    stop: int | None = None, **kw: object,
+) -> Path:
+    """Write an animated GIF (or MP4 for a ``.mp4`` path, when an encoder is available).
+
+    ``stride``: frames of the run per picture; ``speed``: playback speed (1.0 = real time).
+    """
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext not in (".gif", ".mp4"):
+        raise RunVideoError(f"{path}: animations are written as .gif or .mp4, not {ext or 'no extension'!r}")
+    if ext == ".mp4" and not mp4_available():
+        raise RunVideoError(f"{path}: no MP4 encoder here (imageio-ffmpeg is not installed); write a .gif")
+    if not speed > 0:
+        raise RunVideoError(f"speed must be > 0, got {speed}")
+    frames = animation_frames(rec, stride=stride, start=start, stop=stop, **kw)
+    seconds_per_picture = stride / rec.fps / speed
+    if ext == ".gif":
+        iio.imwrite(path, np.stack(frames), extension=".gif", duration=1000.0 * seconds_per_picture, loop=0)
+    else:  # pragma: no cover - needs imageio-ffmpeg
+        iio.imwrite(path, np.stack(frames), extension=".mp4", fps=1.0 / seconds_per_picture)
+    return path

@@ -1,0 +1,157 @@
+"""The motion clip: frames of an SMPL-X body pose with root trajectory and foot contacts.
+
+A clip is the unit that importers and the procedural generators produce and motion
+databases are built from. Positions are metres in the z-up world; frames are sampled at
+``fps`` (30 for everything that enters a database).
+
+The *root* is the character's ground trajectory: a smoothed projection of the pelvis on the
+floor (``root_xy``) and the direction the character faces (``heading``, radians, world yaw
+measured from +x toward +y). The pelvis itself may sway around the root; the body pose is
+``local_rotations`` with joint 0 the pelvis rotation in the world.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+from scipy.spatial.transform import Rotation, Slerp
+
+from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, forward_kinematics
+
+FPS = 30.0
+FOOT_JOINTS = (JOINT_INDEX["left_foot"], JOINT_INDEX["right_foot"])
+ANKLE_JOINTS = (JOINT_INDEX["left_ankle"], JOINT_INDEX["right_ankle"])
+
+
+class MotionClipError(ValueError):
+    """A clip whose arrays are inconsistent or not finite."""
+
+
+@dataclass(frozen=True)
+class MotionClip:
+    """One clip. F frames.
+
+    local_rotations (F,22,3,3); pelvis (F,3) world metres; root_xy (F,2); heading (F,) rad;
+    contacts (F,2) bool for the left/right foot (toe joint on the ground and still);
+    target (4,) = [x, y, facing, height] of the clip's interaction target in the clip's world
+    (a seat: seated pelvis ground point, facing and seat height; a partner or object: its
+    ground point and facing; NaN when the clip has none); loops: the last frame continues
+    into the first.
+    """
+
+    name: str
+    key: str
+    local_rotations: np.ndarray
+    pelvis: np.ndarray
+    root_xy: np.ndarray
+    heading: np.ndarray
+    contacts: np.ndarray
+    loops: bool = False
+    target: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
+    fps: float = FPS
+    source: str = "procedural"
+
+    def __post_init__(self) -> None:
+        n = self.local_rotations.shape[0]
+        shapes = {
+            "local_rotations": (self.local_rotations, (n, NUM_JOINTS, 3, 3)),
+            "pelvis": (self.pelvis, (n, 3)),
+            "root_xy": (self.root_xy, (n, 2)),
+            "heading": (self.heading, (n,)),
+            "contacts": (self.contacts, (n, 2)),
+            "target": (self.target, (4,)),
+        }
+        for name, (arr, shape) in shapes.items():
+            if arr.shape != shape:
+                raise MotionClipError(f"clip {self.name!r}: {name} has shape {arr.shape}, expected {shape}")
+            if name not in ("target", "contacts") and not np.all(np.isfinite(arr)):
+                raise MotionClipError(f"clip {self.name!r}: {name} has non-finite values")
+        if n < 2:
+            raise MotionClipError(f"clip {self.name!r}: needs at least 2 frames, has {n}")
+
+    def _replace_key(self, key: str) -> MotionClip:
+        """The same frames filed under another database key."""
+        return MotionClip(self.name, key, self.local_rotations, self.pelvis, self.root_xy, self.heading,
+                          self.contacts, self.loops, self.target, self.fps, self.source)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.local_rotations.shape[0])
+
+    def joint_positions(self) -> np.ndarray:
+        """World joint positions (F,22,3) by forward kinematics."""
+        return forward_kinematics(self.local_rotations, self.pelvis)[0]
+
+
+def estimate_root(
+    pelvis: np.ndarray, pelvis_rotation: np.ndarray, smooth_frames: float = 4.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Root trajectory of a clip: smoothed pelvis ground point (F,2) and heading (F,) rad.
+
+    The heading is the pelvis' forward axis (body +z) projected on the floor, unwrapped and
+    smoothed with a Gaussian of ``smooth_frames`` standard deviation.
+    """
+    fwd = pelvis_rotation[:, :, 2]
+    heading = np.unwrap(np.arctan2(fwd[:, 1], fwd[:, 0]))
+    root = pelvis[:, :2]
+    if smooth_frames > 0 and len(heading) > 1:
+        heading = gaussian_filter1d(heading, smooth_frames, mode="nearest")
+        root = gaussian_filter1d(root, smooth_frames, axis=0, mode="nearest")
+    return root, heading
+
+
+def detect_contacts(
+    positions: np.ndarray, fps: float, height: float = 0.06, speed: float = 0.25
+) -> np.ndarray:
+    """Foot contacts (F,2): toe joint lower than ``height`` above the clip's lowest toe
+    height and slower than ``speed`` m/s horizontally."""
+    toes = positions[:, FOOT_JOINTS]
+    floor = np.percentile(toes[:, :, 2], 2)
+    vel = np.gradient(toes[:, :, :2], axis=0) * fps
+    return (toes[:, :, 2] < floor + height) & (np.linalg.norm(vel, axis=-1) < speed)
+
+
+def resample_rotations(rotations: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
+    """Slerp (F,J,3,3) rotations from ``src_fps`` to ``dst_fps`` (same start time)."""
+    n, nj = rotations.shape[:2]
+    t_src = np.arange(n) / src_fps
+    t_dst = np.arange(int(np.floor(t_src[-1] * dst_fps + 1e-9)) + 1) / dst_fps
+    out = np.empty((len(t_dst), nj, 3, 3))
+    for j in range(nj):
+        out[:, j] = Slerp(t_src, Rotation.from_matrix(rotations[:, j]))(t_dst).as_matrix()
+    return out
+
+
+def resample_linear(values: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
+    """Linear resampling of (F,...) values along the first axis."""
+    n = values.shape[0]
+    t_src = np.arange(n) / src_fps
+    t_dst = np.arange(int(np.floor(t_src[-1] * dst_fps + 1e-9)) + 1) / dst_fps
+    flat = values.reshape(n, -1)
+    out = np.stack([np.interp(t_dst, t_src, flat[:, k]) for k in range(flat.shape[1])], axis=1)
+    return out.reshape(len(t_dst), *values.shape[1:])
+
+
+def clip_from_pose_frames(
+    name: str,
+    key: str,
+    local_rotations: np.ndarray,
+    pelvis: np.ndarray,
+    fps: float = FPS,
+    *,
+    source: str = "imported",
+    loops: bool = False,
+    target: np.ndarray | None = None,
+) -> MotionClip:
+    """Build a clip at 30 fps from raw pose frames (any fps): resample, estimate the root
+    trajectory and detect contacts."""
+    if abs(fps - FPS) > 1e-6:
+        local_rotations = resample_rotations(local_rotations, fps, FPS)
+        pelvis = resample_linear(pelvis, fps, FPS)
+    root, heading = estimate_root(pelvis, local_rotations[:, 0])
+    positions = forward_kinematics(local_rotations, pelvis)[0]
+    contacts = detect_contacts(positions, FPS)
+    tgt = np.full(4, np.nan) if target is None else np.asarray(target, dtype=float)
+    return MotionClip(name, key, local_rotations, pelvis, root, heading, contacts, loops, tgt, FPS, source)

@@ -1,0 +1,162 @@
+"""Motion-matching feature vectors per action family.
+
+A feature vector has a *pose* part, computed from joint positions and velocities in the
+character frame (x forward, y left, z up, origin at the root's ground point), and a
+*control* part that says where the character should go or what it acts on:
+
+- locomotion: feet, pelvis and spine3 positions and velocities (pose) + root positions and
+  facing directions 10, 20 and 30 frames ahead (control);
+- sitting (and seated variants): pelvis height, pelvis velocity, feet positions (pose) +
+  seat position, seat facing and seat height (control);
+- partner: pelvis velocity, feet and wrist positions (pose) + partner position and facing;
+- in_place / idle: wrist positions and velocities, head and feet positions (pose) + object
+  position (control).
+
+Units: metres, metres per second, unit direction vectors. The layout of each family is a
+tuple of (group name, size); its sum is asserted where vectors are assembled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from sim.body.skeleton import JOINT_INDEX
+from sim.motion.action_labels import family_of, is_seated_key
+
+J = JOINT_INDEX
+FUTURE_FRAMES = (10, 20, 30)
+
+Layout = tuple[tuple[str, int], ...]
+LayoutName = Literal["locomotion", "sitting", "seated", "partner", "in_place", "idle"]
+FEATURE_LAYOUTS: dict[LayoutName, Layout] = {
+    "locomotion": (
+        ("left_foot_pos", 3), ("right_foot_pos", 3), ("left_foot_vel", 3), ("right_foot_vel", 3),
+        ("pelvis_pos", 3), ("spine3_pos", 3), ("pelvis_vel", 3), ("spine3_vel", 3), ("future_pos", 6),
+        ("future_dir", 6),
+    ),
+    "sitting": (
+        ("pelvis_height", 1), ("pelvis_vel", 3), ("left_foot_pos", 3), ("right_foot_pos", 3),
+        ("target_pos", 2), ("target_dir", 2), ("target_height", 1),
+    ),
+    "partner": (
+        ("pelvis_vel", 3), ("left_foot_pos", 3), ("right_foot_pos", 3), ("left_wrist_pos", 3),
+        ("right_wrist_pos", 3), ("target_pos", 2), ("target_dir", 2),
+    ),
+    "in_place": (
+        ("left_wrist_pos", 3), ("right_wrist_pos", 3), ("left_wrist_vel", 3), ("right_wrist_vel", 3),
+        ("head_pos", 3), ("left_foot_pos", 3), ("right_foot_pos", 3), ("target_pos", 2),
+    ),
+}
+FEATURE_LAYOUTS["idle"] = FEATURE_LAYOUTS["in_place"]
+# Seated actions (sit_idle, drink@seated...): the seat as control, the hands as pose.
+FEATURE_LAYOUTS["seated"] = (
+    ("pelvis_height", 1), ("left_wrist_pos", 3), ("right_wrist_pos", 3), ("left_wrist_vel", 3),
+    ("right_wrist_vel", 3), ("head_pos", 3), ("left_foot_pos", 3), ("right_foot_pos", 3),
+    ("target_pos", 2), ("target_dir", 2), ("target_height", 1),
+)
+
+
+def layout_for_key(key: str) -> LayoutName:
+    """Feature layout of a database key: its family's, or ``seated`` for seated actions."""
+    if is_seated_key(key) or key == "sit_idle":
+        return "seated"
+    return family_of(key)
+CONTROL_GROUPS = frozenset({"future_pos", "future_dir", "target_pos", "target_dir", "target_height"})
+DEFAULT_WEIGHTS: dict[str, float] = {
+    "future_pos": 1.5, "future_dir": 1.5, "target_pos": 1.5, "target_dir": 1.0, "target_height": 1.0,
+    "pelvis_pos": 0.5, "spine3_pos": 0.5,
+}
+
+
+def layout_size(layout: Layout) -> int:
+    return sum(size for _, size in layout)
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    """Weights per feature group (missing groups weigh 1.0)."""
+
+    weights: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_WEIGHTS))
+
+    def weight(self, group: str) -> float:
+        return float(self.weights.get(group, 1.0))
+
+    def vector(self, layout: Layout) -> np.ndarray:
+        return np.concatenate([np.full(size, self.weight(name)) for name, size in layout])
+
+
+@dataclass(frozen=True)
+class Control:
+    """Control inputs (character frame), batched over leading dims.
+
+    future_pos (...,3,2) root positions ahead; future_dir (...,3,2) unit facing ahead;
+    target_pos (...,2) target ground point; target_dir (...,2) unit target facing;
+    target_height (...,) seat height. Unused entries may be zeros.
+    """
+
+    future_pos: np.ndarray
+    future_dir: np.ndarray
+    target_pos: np.ndarray
+    target_dir: np.ndarray
+    target_height: np.ndarray
+
+
+def _group(name: str, pos: np.ndarray, vel: np.ndarray, control: Control) -> np.ndarray:
+    joint_groups = {
+        "left_foot": J["left_foot"], "right_foot": J["right_foot"], "pelvis": J["pelvis"],
+        "spine3": J["spine3"], "left_wrist": J["left_wrist"], "right_wrist": J["right_wrist"],
+        "head": J["head"],
+    }
+    if name == "pelvis_height":
+        return pos[..., J["pelvis"], 2:3]
+    if name == "future_pos":
+        return control.future_pos.reshape(*control.future_pos.shape[:-2], 6)
+    if name == "future_dir":
+        return control.future_dir.reshape(*control.future_dir.shape[:-2], 6)
+    if name == "target_pos":
+        return control.target_pos
+    if name == "target_dir":
+        return control.target_dir
+    if name == "target_height":
+        return control.target_height[..., None]
+    joint, kind = name.rsplit("_", 1)
+    src = pos if kind == "pos" else vel
+    return src[..., joint_groups[joint], :]
+
+
+def assemble(family: LayoutName, pos: np.ndarray, vel: np.ndarray, control: Control) -> np.ndarray:
+    """Raw (unnormalised) feature vectors (..., D) from character-frame joint positions and
+    velocities (..., 22, 3) and control inputs."""
+    layout = FEATURE_LAYOUTS[family]
+    parts = [_group(name, pos, vel, control) for name, _ in layout]
+    out = np.concatenate(parts, axis=-1)
+    assert out.shape[-1] == layout_size(layout), (family, out.shape)
+    return out
+
+
+def to_character_frame(points: np.ndarray, root_xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
+    """World points (..., K, 3) -> character frame of roots (..., 2) / headings (...)."""
+    c, s = np.cos(heading)[..., None], np.sin(heading)[..., None]
+    dx = points[..., 0] - root_xy[..., None, 0]
+    dy = points[..., 1] - root_xy[..., None, 1]
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, points[..., 2]], axis=-1)
+
+
+def vectors_to_character_frame(vec: np.ndarray, heading: np.ndarray) -> np.ndarray:
+    """World vectors (..., K, 3) rotated into the character frame of ``heading`` (...)."""
+    c, s = np.cos(heading)[..., None], np.sin(heading)[..., None]
+    return np.stack([c * vec[..., 0] + s * vec[..., 1], -s * vec[..., 0] + c * vec[..., 1], vec[..., 2]], axis=-1)
+
+
+def relative_target(
+    root_xy: np.ndarray, heading: np.ndarray, target_xy: np.ndarray, target_facing: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Target ground point (..., 2) and unit facing (..., 2) in the character frame."""
+    c, s = np.cos(heading), np.sin(heading)
+    d = target_xy - root_xy
+    pos = np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+    rel = target_facing - heading
+    return pos, np.stack([np.cos(rel), np.sin(rel)], axis=-1)

@@ -1,0 +1,281 @@
+"""Procedural locomotion: walks at several speeds, curved walks, sharp turns, turns on the
+spot, starts and stops, and stepping in place (dance), all with planted feet.
+
+A clip is generated from a root trajectory (speed and turn rate over time). A gait phase
+advances with the step rate the speed asks for; step ``k`` swings one foot during phase
+``[k - 0.8, k]`` and lands where the root will be half a step later, beside the path. Feet
+on the ground keep their toe joint fixed (the heel lifts about it before toe-off), so the
+toe speed during contact is exactly zero. The pelvis height is the highest the legs can
+reach, smoothed from below; arms swing against the legs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from sim.motion.clips import FPS, MotionClip
+from sim.motion.sources.procedural_rig import (
+    SHOULDER_HALF_WIDTH,
+    STANDING_PELVIS_HEIGHT,
+    TOE_HEIGHT,
+    BodyTargets,
+    pelvis_height_limit,
+    solve_body,
+)
+
+SWING = 0.8  # swing length in step-phase units (40 % of a gait cycle)
+STANCE_HALF_WIDTH = 0.10  # lateral distance of a toe from the path, metres
+TOE_AHEAD = 0.08  # toe joint ahead of the pelvis when standing, metres
+Profile = Callable[[np.ndarray], np.ndarray]
+
+
+def step_length(speed: np.ndarray) -> np.ndarray:
+    """Step length (m) for a walking speed (m/s): 0.55 m at 0.8 m/s, 0.67 m at 1.6 m/s."""
+    return 0.43 + 0.15 * np.asarray(speed)
+
+
+def smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3 - 2 * x)
+
+
+def integrate_root(speed: np.ndarray, turn_rate: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Root ground points (N,2) and headings (N,) from speed (m/s) and turn rate (rad/s)."""
+    heading = np.concatenate([[0.0], np.cumsum(0.5 * (turn_rate[1:] + turn_rate[:-1]) * dt)])
+    vx, vy = speed * np.cos(heading), speed * np.sin(heading)
+    x = np.concatenate([[0.0], np.cumsum(0.5 * (vx[1:] + vx[:-1]) * dt)])
+    y = np.concatenate([[0.0], np.cumsum(0.5 * (vy[1:] + vy[:-1]) * dt)])
+    return np.stack([x, y], axis=-1), heading
+
+
+def gait(
+    root: np.ndarray, heading: np.ndarray, phase: np.ndarray, dt: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Footsteps along a root trajectory for a given gait phase (N,), non-decreasing.
+
+    Returns toes (N,2,3) world toe positions, foot yaw (N,2), heel lift (N,2) rad and
+    contacts (N,2). Step k (k = 1, 2, ...) moves the right foot for odd k, the left for even k.
+    """
+    n = len(phase)
+    t = np.arange(n) * dt
+    lateral = np.stack([-np.sin(heading), np.cos(heading)], axis=-1)
+    fwd = np.stack([np.cos(heading), np.sin(heading)], axis=-1)
+
+    def plant(time: float, side: int) -> tuple[np.ndarray, float]:
+        i = float(np.clip(time / dt, 0, n - 1))
+        i0 = int(np.floor(i))
+        i1 = min(i0 + 1, n - 1)
+        a = i - i0
+        xy = (1 - a) * root[i0] + a * root[i1]
+        h = (1 - a) * heading[i0] + a * heading[i1]
+        lat = np.array([-np.sin(h), np.cos(h)])
+        f = np.array([np.cos(h), np.sin(h)])
+        sign = 1.0 if side == 0 else -1.0
+        return xy + sign * STANCE_HALF_WIDTH * lat + TOE_AHEAD * f, h
+
+    toes = np.zeros((n, 2, 3))
+    yaw = np.zeros((n, 2))
+    heel = np.zeros((n, 2))
+    contacts = np.ones((n, 2), dtype=bool)
+    for side in (0, 1):
+        sign = 1.0 if side == 0 else -1.0
+        toes[:, side, :2] = root[0] + sign * STANCE_HALF_WIDTH * lateral[0] + TOE_AHEAD * fwd[0]
+        yaw[:, side] = heading[0]
+    toes[:, :, 2] = TOE_HEIGHT
+    last = int(np.floor(phase[-1] + 1e-9))
+    prev = {0: (toes[0, 0, :2].copy(), heading[0]), 1: (toes[0, 1, :2].copy(), heading[0])}
+    t_of_phase = (lambda p: float(np.interp(p, phase, t))) if phase[-1] > phase[0] else (lambda p: 0.0)
+    for k in range(1, last + 2):
+        side = k % 2
+        start, end = k - SWING, float(k)
+        if start >= phase[-1]:
+            break
+        land_time = t_of_phase(k + 0.5) if k + 0.5 <= phase[-1] else t[-1]
+        land, land_yaw = plant(land_time, side)
+        p0, y0 = prev[side]
+        dist = float(np.linalg.norm(land - p0))
+        lift_angle = float(np.clip(0.55 * dist, 0.0, 0.4))
+        swing = (phase > start) & (phase < end)
+        after = phase >= end
+        s = (phase[swing] - start) / SWING
+        e = smoothstep(s)[:, None]
+        toes[swing, side, :2] = p0 + (land - p0) * e
+        toes[swing, side, 2] = TOE_HEIGHT + (0.06 + 0.05 * min(dist, 0.7)) * np.sin(np.pi * s) ** 1.5
+        dyaw = (land_yaw - y0 + np.pi) % (2 * np.pi) - np.pi
+        yaw[swing, side] = y0 + dyaw * e[:, 0]
+        heel[swing, side] = lift_angle * (1 - smoothstep(s / 0.45))
+        pre = (phase >= end - 1.3) & (phase <= start)
+        heel[pre, side] = lift_angle * smoothstep((phase[pre] - (end - 1.3)) / 0.5)
+        contacts[swing, side] = False
+        toes[after, side, :2] = land
+        yaw[after, side] = land_yaw
+        prev[side] = (land, land_yaw)
+    return toes, yaw, heel, contacts
+
+
+def body_from_gait(
+    root: np.ndarray,
+    heading: np.ndarray,
+    phase: np.ndarray,
+    speed: np.ndarray,
+    dt: float,
+    *,
+    arm_raise: np.ndarray | None = None,
+) -> tuple[BodyTargets, np.ndarray]:
+    """Full-body targets for a gait; returns (targets, contacts)."""
+    n = len(phase)
+    toes, yaw, heel, contacts = gait(root, heading, phase, dt)
+    rate = np.gradient(phase) / dt
+    moving = np.clip(rate / 1.2, 0.0, 1.0)
+    v = np.minimum(speed, 1.8)
+    osc = np.sin(np.pi * (phase - 0.1))
+    swing = np.sin(np.pi * (phase - 0.5))
+    pelvis = np.zeros((n, 3))
+    pelvis[:, 1] = 0.022 * moving * osc
+    pelvis[:, 2] = STANDING_PELVIS_HEIGHT - 0.01
+    tilt = np.zeros((n, 3))
+    tilt[:, 0] = 0.03 + 0.04 * v
+    tilt[:, 1] = 0.08 * moving * swing
+    tilt[:, 2] = -0.03 * moving * osc
+    spine = np.zeros((n, 3))
+    spine[:, 0] = 0.02 * v
+    spine[:, 1] = -0.12 * moving * swing
+    head = np.zeros((n, 3))
+    head[:, 0] = -(tilt[:, 0] + spine[:, 0]) + 0.05
+    head[:, 1] = 0.05 * moving * swing
+    amp = (0.08 + 0.1 * v) * moving
+    hands = np.zeros((n, 2, 3))
+    for side, sign in ((0, 1.0), (1, -1.0)):
+        fwd = -sign * amp * swing
+        hands[:, side, 0] = fwd + 0.02
+        hands[:, side, 1] = sign * 0.035
+        hands[:, side, 2] = -0.48 + 0.35 * fwd**2 / 0.25
+    if arm_raise is not None:
+        hands[:, :, 2] += arm_raise[:, None]
+        hands[:, :, 0] += 0.4 * arm_raise[:, None]
+    pole = np.zeros((n, 2, 3))
+    pole[:, 0] = [-0.5, 0.3, -1.0]
+    pole[:, 1] = [-0.5, -0.3, -1.0]
+    targets = BodyTargets(root, heading, pelvis, tilt, spine, head, toes, yaw, heel, hands, pole)
+    limit = pelvis_height_limit(targets)
+    pelvis[:, 2] = _smooth_below(np.minimum(pelvis[:, 2], limit), radius=4)
+    return targets, contacts
+
+
+def _smooth_below(z: np.ndarray, radius: int) -> np.ndarray:
+    """A smooth curve that never exceeds ``z``: min-filter, then box-average (same radius)."""
+    pad = np.pad(z, radius, mode="edge")
+    win = np.lib.stride_tricks.sliding_window_view(pad, 2 * radius + 1)
+    eroded = win.min(axis=1)
+    pad2 = np.pad(eroded, radius, mode="edge")
+    return np.lib.stride_tricks.sliding_window_view(pad2, 2 * radius + 1).mean(axis=1)
+
+
+def locomotion_clip(
+    name: str,
+    speed_fn: Profile,
+    turn_fn: Profile,
+    duration: float,
+    *,
+    loops: bool = False,
+    loop_cycles: int = 2,
+    key: str = "walk",
+    pad: float = 1.5,
+    arm_raise_fn: Profile | None = None,
+) -> MotionClip:
+    """Generate a walking clip from speed (m/s) and turn-rate (rad/s) profiles over time (s).
+
+    Profiles are evaluated on [-pad, duration + pad] so that footsteps before the first
+    frame and landings after the last one exist; the clip is the middle part. A looping clip
+    uses a constant step rate giving exactly ``loop_cycles`` gait cycles over ``duration``.
+    A clip that ends at rest has its phase rescaled so that the last step completes.
+    """
+    dt = 1.0 / FPS
+    frames = round(duration * FPS)
+    npad = round(pad * FPS)
+    t = (np.arange(frames + 2 * npad) - npad) * dt
+    speed = np.asarray(speed_fn(t), dtype=float)
+    turn = np.asarray(turn_fn(t), dtype=float)
+    root, heading = integrate_root(speed, turn, dt)
+    if loops:
+        rate = np.full(len(t), 2.0 * loop_cycles / (frames * dt))
+    else:
+        activity = np.maximum(smoothstep(speed / 0.15), smoothstep(np.abs(turn) / 0.3))
+        rate = np.maximum.reduce([speed / step_length(speed), np.abs(turn) / 0.55, 1.7 * activity])
+        rate = np.where((speed < 0.01) & (np.abs(turn) < 0.02), 0.0, rate)
+    phase = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * dt)])
+    if not loops and speed[-1] < 0.01 and phase[-1] > 0.3:
+        phase *= max(round(phase[-1]), 1) / phase[-1]
+    raise_ = None if arm_raise_fn is None else np.asarray(arm_raise_fn(t), dtype=float)
+    targets, contacts = body_from_gait(root, heading, phase, speed, dt, arm_raise=raise_)
+    local, pelvis = solve_body(targets)
+    sl = slice(npad, npad + frames)
+    # Re-anchor the clip so that it starts at the origin facing +x.
+    origin, h0 = root[npad].copy(), heading[npad]
+    c, s = np.cos(-h0), np.sin(-h0)
+    rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    local = local[sl].copy()
+    local[:, 0] = rot @ local[:, 0]
+    pel = (pelvis[sl] - np.array([*origin, 0.0])) @ rot.T
+    root_xy = (root[sl] - origin) @ rot[:2, :2].T
+    return MotionClip(name, key, local, pel, root_xy, heading[sl] - h0, contacts[sl], loops)
+
+
+def _const(value: float) -> Profile:
+    return lambda t: np.full_like(t, value)
+
+
+def _ramp(t0: float, t1: float, a: float, b: float) -> Profile:
+    return lambda t: a + (b - a) * smoothstep((t - t0) / (t1 - t0))
+
+
+def locomotion_clips() -> list[MotionClip]:
+    """The default locomotion set (database ``walk``)."""
+    clips: list[MotionClip] = []
+    for v in (0.6, 1.0, 1.3, 1.7):
+        period = 2 * 2 * float(step_length(v)) / v
+        clips.append(locomotion_clip(f"walk_{v:.1f}", _const(v), _const(0.0), period, loops=True))
+    for radius in (1.0, 2.5):
+        for sign, side in ((1.0, "left"), (-1.0, "right")):
+            v = 1.0
+            period = 2 * 2 * float(step_length(v)) / v
+            clips.append(locomotion_clip(f"arc_{side}_r{radius}", _const(v), _const(sign * v / radius),
+                                         period, loops=True))
+    for angle in (90, 180):
+        for sign, side in ((1.0, "left"), (-1.0, "right")):
+            a = sign * np.radians(angle)
+            clips.append(locomotion_clip(
+                f"turn_{side}_{angle}", _const(1.0),
+                lambda t, a=a: a / 0.9 * (np.abs(t - 1.7) < 0.45), 3.4))
+            clips.append(locomotion_clip(
+                f"spin_{side}_{angle}", _const(0.0),
+                lambda t, a=a: a / 1.2 * (np.abs(t - 1.0) < 0.6), 2.6))
+    clips.append(locomotion_clip("start", _ramp(0.6, 1.6, 0.0, 1.2), _const(0.0), 3.2))
+    clips.append(locomotion_clip("stop", _ramp(1.0, 2.0, 1.2, 0.0), _const(0.0), 3.0))
+    clips.append(locomotion_clip("start_slow", _ramp(0.5, 1.3, 0.0, 0.7), _const(0.0), 2.8))
+    clips.append(locomotion_clip("stop_slow", _ramp(0.8, 1.6, 0.7, 0.0), _const(0.0), 2.6))
+    return clips
+
+
+def dance_clip(name: str = "dance_steps", key: str = "dance", cycles: int = 2) -> MotionClip:
+    """Side-to-side dance steps with swaying turns and raised, swinging arms (loops)."""
+    period = 1.6
+    duration = period * cycles
+
+    def speed(t: np.ndarray) -> np.ndarray:
+        return 0.35 * np.sin(2 * np.pi * t / period)
+
+    def turn(t: np.ndarray) -> np.ndarray:
+        return 0.9 * np.cos(2 * np.pi * t / period)
+
+    def arms(t: np.ndarray) -> np.ndarray:
+        return 0.18 + 0.08 * np.sin(4 * np.pi * t / period)
+
+    clip = locomotion_clip(name, speed, turn, duration, loops=True, loop_cycles=2 * cycles, key=key,
+                           arm_raise_fn=arms)
+    return clip
+
+
+__all__ = ["SHOULDER_HALF_WIDTH", "dance_clip", "locomotion_clip", "locomotion_clips", "step_length"]

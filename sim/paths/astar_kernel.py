@@ -1,0 +1,147 @@
+"""Compiled inner loops of the windowed cooperative A* (``sim.paths.cooperative_astar``).
+
+The planner keeps its rules in Python (priorities, repair passes, fallbacks, clearance
+tables); these numba kernels only run its two hot loops on dense arrays:
+
+- ``reserve_step`` / ``reserve_path``: fold one agent's move during one step (or the moves
+  of a whole path) into the reservation masks of the cells near it (the per-cell bit masks of
+  the moves that stay clear of it); ``release_step`` takes one agent's move out again;
+- ``space_time_search``: the space-time A* of one agent over ``window`` steps.
+
+Both take the same decisions as the pure-Python code (same float operations, the same heap
+order on ``(f, h, t, cell)`` tuples, the same tie-breaking), which
+``tests/test_astar_kernel.py`` checks plan for plan. Indices are the planner's padded cell ids;
+``stride`` is the number of padded cells. The kernels are compiled on first use and cached
+on disk (``cache=True``), so only the first process on a machine pays the compile time.
+"""
+
+from __future__ import annotations
+
+import heapq
+
+import numpy as np
+from numba import njit
+
+__all__ = ["release_step", "reserve_path", "reserve_step", "space_time_search"]
+
+_INF = np.inf
+
+
+@njit(cache=True, nogil=True)
+def reserve_step(near_t: np.ndarray, cell: int, vel: int, offsets: np.ndarray, bases: np.ndarray,
+                 mask_of: np.ndarray, free: np.ndarray) -> None:  # pragma: no cover - compiled
+    """``near_t[c] &= mask_of[base + vel]`` for the free cells ``c = cell - offset`` around an
+    agent leaving ``cell`` with velocity code ``vel`` (``offsets``/``bases``: the clearance
+    neighbourhood, see ``PathPlanner._nbhd_bases``)."""
+    for k in range(offsets.shape[0]):
+        c = cell - offsets[k]
+        if free[c]:
+            near_t[c] &= mask_of[bases[k] + vel]
+
+
+@njit(cache=True, nogil=True)
+def release_step(near_t: np.ndarray, cell: int, offsets: np.ndarray, free: np.ndarray, cells: np.ndarray,
+                 vels: np.ndarray, nyp: int, reach: int, mask_of: np.ndarray, full: int) -> None:  # pragma: no cover
+    """Undo one agent's reservation at ``cell`` during a step: the masks of the free cells
+    around it are folded again from the agents still reserved in that step (``cells``,
+    ``vels``), so only the neighbourhood of the released agent is recomputed."""
+    side = 2 * reach + 1
+    for k in range(offsets.shape[0]):
+        c = cell - offsets[k]
+        if not free[c]:
+            continue
+        ci, cj = c // nyp, c % nyp
+        val = full
+        for b in range(cells.shape[0]):
+            di = cells[b] // nyp - ci
+            dj = cells[b] % nyp - cj
+            if -reach <= di <= reach and -reach <= dj <= reach:
+                val &= mask_of[((di + reach) * side + (dj + reach)) * 25 + vels[b]]
+        near_t[c] = val
+
+
+@njit(cache=True, nogil=True)
+def reserve_path(near: np.ndarray, ids: np.ndarray, steps: int, nyp: int, offsets: np.ndarray, bases: np.ndarray,
+                 mask_of: np.ndarray, free: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """Fold the first ``steps`` moves of a path (padded ids) into ``near`` (one row per step);
+    returns the velocity code ``(dx + 2) * 5 + (dy + 2)`` of each move."""
+    vels = np.empty(steps, dtype=np.int64)
+    for t in range(steps):
+        a = ids[t]
+        d = ids[t + 1] - a
+        dx = 0
+        if abs(d) > 1:
+            dx = int(np.round(d / nyp))
+        dy = d - dx * nyp
+        vel = (dx + 2) * 5 + (dy + 2)
+        vels[t] = vel
+        reserve_step(near[t], a, vel, offsets, bases, mask_of, free)
+    return vels
+
+
+@njit(cache=True, nogil=True)
+def space_time_search(
+    start: int, goal: int, window: int, h: np.ndarray, nb_id: np.ndarray, nb_cost: np.ndarray,
+    nb_bit: np.ndarray, static_allow: np.ndarray, near: np.ndarray, full: int, max_expansions: int,
+    g_best: np.ndarray, stamp: np.ndarray, parent: np.ndarray, token: int,
+) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
+    """Space-time A* from padded cell ``start`` for ``window`` steps.
+
+    ``h``: static distance to the goal per cell (inf: unreachable). ``nb_id/nb_cost/nb_bit``
+    (cells, 9): the moves of each cell (wait first; id -1 ends the row), their cost and move
+    bit. ``static_allow`` (cells,): bit mask of the moves stationary bodies leave. ``near``
+    (steps, cells): per step, the moves the reserved agents leave (steps beyond: all).
+    ``g_best/stamp/parent``: scratch of size (window + 1) * cells, valid where
+    ``stamp == token`` (so nothing is cleared between searches).
+    Returns (padded ids of the window + 1 cells, expansions), or (empty, expansions) when the
+    budget runs out or no path exists. Waiting on the goal is free.
+    """
+    stride = nb_id.shape[0]
+    n_steps = near.shape[0]
+    h0 = h[start]
+    heap = [(h0, h0, 0, start)]
+    g_best[start] = 0.0
+    stamp[start] = token
+    expansions = 0
+    while len(heap) > 0:
+        f, hc, t, cid = heapq.heappop(heap)
+        key = t * stride + cid
+        g = f - hc
+        best = g_best[key] if stamp[key] == token else _INF
+        if g > best + 1e-9:
+            continue
+        if t == window:
+            path = np.empty(window + 1, dtype=np.int64)
+            path[window] = cid
+            k = key
+            for tt in range(window, 0, -1):
+                prev = parent[k]
+                path[tt - 1] = prev
+                k = (tt - 1) * stride + prev
+            return path, expansions
+        expansions += 1
+        if expansions > max_expansions:
+            return np.empty(0, dtype=np.int64), expansions
+        allow = near[t, cid] if t < n_steps else full
+        allow &= static_allow[cid]
+        nt = t + 1
+        nbase = nt * stride
+        at_goal = cid == goal
+        for m in range(nb_id.shape[1]):
+            nid = nb_id[cid, m]
+            if nid < 0:
+                break
+            if (allow & nb_bit[cid, m]) == 0:
+                continue
+            ng = g if (at_goal and nid == cid) else g + nb_cost[cid, m]
+            nkey = nbase + nid
+            best = g_best[nkey] if stamp[nkey] == token else _INF
+            if ng < best - 1e-9:
+                hn = h[nid]
+                if hn == _INF:
+                    continue
+                g_best[nkey] = ng
+                stamp[nkey] = token
+                parent[nkey] = cid
+                heapq.heappush(heap, (ng + hn, hn, nt, nid))
+    return np.empty(0, dtype=np.int64), expansions

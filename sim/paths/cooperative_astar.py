@@ -1,0 +1,789 @@
+"""Windowed hierarchical cooperative A* (WHCA*) with a continuous clearance guarantee.
+
+Time is discrete: one *step* lasts ``step_time`` seconds (default ``cell_size / walking_speed``
+= 0.3 s = 9 frames at 30 fps). In one step every walking agent either waits or moves to one of
+its 8 neighbour cells, moving in a straight line at constant speed (so straight moves run at
+the walking speed and diagonals at sqrt(2) times it). All agents share the step clock, so two
+agents' relative motion within a step is linear and its closest approach has a closed form.
+
+Clearance rule (the guarantee): for every pair of agents and every step, the centre distance
+over the whole step never drops below ``min(2 * body_radius, distance at the step start)``.
+Hence agents that start apart (>= 2r) stay apart at every instant, including mid-move and
+during diagonal moves, and agents that start too close (e.g. placed by hand) never get closer.
+The rule is tabulated once over relative start offsets and relative velocities (cell units),
+which covers vertex, swap and following conflicts; an agent farther than ``2 + 2r / cell`` cells
+(Chebyshev) cannot conflict within one step. Stationary characters are discs at arbitrary
+positions; a move is forbidden for them by the same rule.
+
+Planning pass (prioritized): agents plan one after another in a space-time A* over
+``window`` steps against a reservation table of the agents planned before them (plain WHCA*).
+If some agent's search fails (it is cornered), the call is planned again with every agent's
+"wait where it stands" for the first ``commit_steps`` steps reserved up front and the failed
+agents first: then an agent whose search still fails can safely wait, so the committed prefix
+of every returned plan is conflict-free.
+Costs: a move costs its length in cells, waiting costs 1 per step except at the goal (free).
+The heuristic is the exact distance on the static grid (backward Dijkstra per goal, cached).
+Plans are deterministic: fixed move order, tie-breaking on (f, h, cell), explicit orders.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import weakref
+from collections.abc import Hashable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from sim.paths.astar_kernel import release_step, reserve_path, space_time_search
+from sim.paths.fallback import failed_first
+from sim.paths.nav_grid import MOVES, NavGrid
+
+Cell = tuple[int, int]
+Agent = Hashable
+
+_WAIT = (0, 0)
+_EPS = 1e-9
+BACKENDS = ("numba", "python")
+
+
+_MASK_MEMOS: weakref.WeakKeyDictionary[NavGrid, dict[int, list[tuple[int, int]]]] = weakref.WeakKeyDictionary()
+
+
+class PlanningError(ValueError):
+    """Bad planner input (unknown cell, blocked start...)."""
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """One planning call. ``paths[a]`` lists ``window + 1`` cells: the start, then one per step
+    (only ``commit_steps + 1`` cells, all the start, for agents whose search failed).
+
+    ``failed``: agents for which the windowed search found nothing (they wait in place);
+    ``reused``: agents whose ``hints`` path was kept (checked, extended) instead of searched;
+    ``fallback``: agents planned again by the fallback pass; ``goals``: the goal actually used
+    per agent (replaced by the nearest reachable cell when the requested one is unreachable).
+    """
+
+    paths: dict[Agent, list[Cell]]
+    failed: frozenset[Agent]
+    fallback: frozenset[Agent]
+    goals: dict[Agent, Cell]
+    expansions: int = 0
+    reused: frozenset[Agent] = frozenset()
+
+
+class _Reservations:
+    """Per step t (relative to the plan start): for every cell id near a reserved agent, the
+    moves those agents still allow there, so that a search looks up one int per expansion.
+
+    ``near[t][cell]`` is a bit mask: bit ``m + 6`` is set when the move with code
+    ``m = 5 * dx + dy`` from ``cell`` keeps clear of every agent reserved during step t (cells
+    where every move is allowed are absent). ``moves[t]`` keeps each agent's (cell id,
+    velocity code) at step t so that ``remove`` can rebuild the masks of a step.
+    """
+
+    def __init__(self, n_steps: int, planner: PathPlanner) -> None:
+        self.near: list[dict[int, int]] = [{} for _ in range(n_steps)]
+        self.moves: list[dict[Agent, tuple[int, int]]] = [{} for _ in range(n_steps)]
+        self._planner = planner
+
+    def add(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+        nyp = self._planner._ny_p
+        masks = self._planner._near_masks
+        full = self._planner._full_mask
+        for t in range(min(upto, len(ids) - 1, len(self.near))):
+            a, b = ids[t], ids[t + 1]
+            d = b - a
+            dx = round(d / nyp) if abs(d) > 1 else 0
+            dy = d - dx * nyp
+            vel = (dx + 2) * 5 + (dy + 2)
+            self.moves[t][agent] = (a, vel)
+            near = self.near[t]
+            for cell, mask in masks(a, vel):
+                near[cell] = near.get(cell, full) & mask
+
+    def remove(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+        masks = self._planner._near_masks
+        full = self._planner._full_mask
+        for t in range(min(upto, len(ids) - 1, len(self.near))):
+            moves = self.moves[t]
+            if moves.pop(agent, None) is None:
+                continue
+            near: dict[int, int] = {}
+            for a, vel in moves.values():
+                for cell, mask in masks(a, vel):
+                    near[cell] = near.get(cell, full) & mask
+            self.near[t] = near
+
+    def allow(self, t: int, cid: int) -> int:
+        """Bit mask of the moves from ``cid`` at step ``t`` that keep clear of the reserved agents."""
+        return self.near[t].get(cid, self._planner._full_mask) if t < len(self.near) else self._planner._full_mask
+
+
+class _DenseReservations:
+    """The same reservations as ``_Reservations`` on a dense (steps, cells) mask array, folded
+    by the compiled ``reserve_path`` and ``release_step`` (the ``numba`` backend)."""
+
+    def __init__(self, n_steps: int, planner: PathPlanner) -> None:
+        self._planner = planner
+        self.near = np.full((n_steps, planner._nx_p * planner._ny_p), planner._full_mask, dtype=np.int64)
+        self.moves: list[dict[Agent, tuple[int, int]]] = [{} for _ in range(n_steps)]
+
+    def add(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+        pl = self._planner
+        steps = min(upto, len(ids) - 1, len(self.near))
+        if steps <= 0:
+            return
+        arr = np.asarray(ids, dtype=np.int64)
+        vels = reserve_path(self.near, arr, steps, pl._ny_p, pl._nbhd_off, pl._nbhd_base, pl._mask_arr, pl._free_arr)
+        for t, a, vel in zip(range(steps), arr[:steps].tolist(), vels.tolist(), strict=True):
+            self.moves[t][agent] = (a, vel)
+
+    def remove(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+        pl = self._planner
+        for t in range(min(upto, len(ids) - 1, len(self.near))):
+            moves = self.moves[t]
+            gone = moves.pop(agent, None)
+            if gone is None:
+                continue
+            cells = np.fromiter((m[0] for m in moves.values()), dtype=np.int64, count=len(moves))
+            vels = np.fromiter((m[1] for m in moves.values()), dtype=np.int64, count=len(moves))
+            release_step(self.near[t], gone[0], pl._nbhd_off, pl._free_arr, cells, vels, pl._ny_p, pl.reach - 1,
+                         pl._mask_arr, pl._full_mask)
+
+    def allow(self, t: int, cid: int) -> int:
+        return int(self.near[t, cid]) if t < len(self.near) else self._planner._full_mask
+
+
+class PathPlanner:
+    """WHCA* over a ``NavGrid``. Pure and deterministic (no clock, no randomness but ``seed``).
+
+    ``window``: steps planned per search (reference: 20). ``commit_steps``: steps executed
+    before the next replan (the prefix that is guaranteed conflict-free; default 1 step =
+    9 frames, about the reference's 10-frame replan interval). ``step_time``: seconds per step.
+    ``max_expansions``: search budget per agent and call; beyond it the agent waits.
+    ``backend``: ``"numba"`` (default) runs the reservation folding and the space-time search
+    compiled (``sim.paths.astar_kernel``); ``"python"`` runs the same algorithm in pure Python. Both
+    return the same plans.
+    """
+
+    def __init__(
+        self,
+        grid: NavGrid,
+        window: int = 20,
+        commit_steps: int = 1,
+        walking_speed: float = 1.0,
+        step_time: float | None = None,
+        max_expansions: int = 4000,
+        fallback: bool = True,
+        seed: int = 0,
+        repair_passes: int = 3,
+        backend: str = "numba",
+    ) -> None:
+        if backend not in BACKENDS:
+            raise PlanningError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        if window < 1:
+            raise PlanningError(f"window must be >= 1 step, got {window}")
+        if not 1 <= commit_steps <= window:
+            raise PlanningError(f"commit_steps must be in [1, window={window}], got {commit_steps}")
+        if not walking_speed > 0:
+            raise PlanningError(f"walking_speed must be > 0 m/s, got {walking_speed}")
+        self.grid = grid
+        self.window = int(window)
+        self.commit_steps = int(commit_steps)
+        self.step_time = float(step_time if step_time is not None else grid.cell_size / walking_speed)
+        self.max_expansions = int(max_expansions)
+        self.fallback = bool(fallback)
+        self.repair_passes = int(repair_passes)
+        self.seed = int(seed)
+        self.backend = backend
+        self.min_distance = 2.0 * grid.body_radius  # metres between centres
+        d_cells = self.min_distance / grid.cell_size
+        self.reach = int(math.ceil(d_cells + 2.0 - _EPS))  # Chebyshev distance that can conflict
+        self._pad = self.reach
+        nx, ny = grid.shape
+        self._nx_p, self._ny_p = nx + 2 * self._pad, ny + 2 * self._pad
+        self._build_neighbours()
+        self._build_clearance_table(d_cells)
+        self._build_move_masks()
+        self._build_dense_tables()
+        self._heuristics: dict[int, list[float]] = {}
+        self._h_arrays: dict[int, np.ndarray] = {}
+        self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
+        self._graph = self._static_graph()
+
+    # ----- ids -----------------------------------------------------------------------------
+    def cell_id(self, cell: Cell) -> int:
+        return (cell[0] + self._pad) * self._ny_p + cell[1] + self._pad
+
+    def id_cell(self, cid: int) -> Cell:
+        return (cid // self._ny_p - self._pad, cid % self._ny_p - self._pad)
+
+    def _build_neighbours(self) -> None:
+        g = self.grid
+        nyp = self._ny_p
+        self._nbrs: dict[int, list[tuple[int, float, int, int, int]]] = {}
+        for i, j in np.argwhere(g.free):
+            cid = self.cell_id((int(i), int(j)))
+            out: list[tuple[int, float, int, int, int]] = [(cid, 1.0, 0, 0, 0)]
+            for k, (dx, dy) in enumerate(MOVES):
+                if g.moves[i, j, k]:
+                    out.append((cid + dx * nyp + dy, math.hypot(dx, dy), dx, dy, 5 * dx + dy))
+            self._nbrs[cid] = out
+        rr = self.reach - 1
+        side = 2 * rr + 1
+        self._nbhd_bases = [
+            (di * nyp + dj, ((di + rr) * side + (dj + rr)) * 25) for di in range(-rr, rr + 1) for dj in range(-rr, rr + 1)
+        ]
+        self._near_cells_memo: dict[int, list[tuple[int, int]]] | None = None
+
+    @property
+    def _near_cells(self) -> dict[int, list[tuple[int, int]]]:
+        """For an agent at cell a: the free cells within reach and the table base of a seen from
+        them (built on first use: only the pure-Python backend reads it)."""
+        if self._near_cells_memo is None:
+            nbrs = self._nbrs
+            self._near_cells_memo = {
+                a: [(a - off, base) for off, base in self._nbhd_bases if (a - off) in nbrs] for a in nbrs
+            }
+        return self._near_cells_memo
+
+    def _build_clearance_table(self, d_cells: float) -> None:
+        """safe[(di, dj, wx, wy)]: other at offset (di, dj), relative velocity (wx, wy) in cells/step."""
+        rr = self.reach - 1
+        self._safe: list[bool] = []
+        for di in range(-rr, rr + 1):
+            for dj in range(-rr, rr + 1):
+                for wx in range(-2, 3):
+                    for wy in range(-2, 3):
+                        start = math.hypot(di, dj)
+                        closest = _segment_min_norm(di, dj, wx, wy)
+                        self._safe.append(closest >= min(d_cells, start) - 1e-7)
+
+    def _build_move_masks(self) -> None:
+        """Search tables: per cell the moves as (next id, cost, move bit); per clearance-table
+        base (offset and the other's velocity) the bit mask of our moves it allows."""
+        self._full_mask = sum(1 << (5 * dx + dy + 6) for dx in (-1, 0, 1) for dy in (-1, 0, 1))
+        self._snbrs: dict[int, list[tuple[int, float, int]]] = {
+            cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in self._nbrs.items()
+        }
+        safe = self._safe
+        self._mask_of: list[int] = []
+        for base in range(len(safe)):
+            mask = 0
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    k = base - (5 * dx + dy)
+                    if 0 <= k < len(safe) and k // 25 == base // 25 and safe[k]:
+                        mask |= 1 << (5 * dx + dy + 6)
+            self._mask_of.append(mask)
+        # shared by the planners of one grid (the masks depend only on the grid's cells and radius)
+        self._near_mask_memo: dict[int, list[tuple[int, int]]] = _MASK_MEMOS.setdefault(self.grid, {})
+
+    def _build_dense_tables(self) -> None:
+        """The search tables as arrays for the compiled kernels (``sim.paths.astar_kernel``)."""
+        n = self._nx_p * self._ny_p
+        self._nb_id = np.full((n, 9), -1, dtype=np.int64)
+        self._nb_cost = np.zeros((n, 9), dtype=float)
+        self._nb_bit = np.zeros((n, 9), dtype=np.int64)
+        self._free_arr = np.zeros(n, dtype=np.bool_)
+        for cid, lst in self._snbrs.items():
+            self._free_arr[cid] = True
+            for m, (nid, cost, bit) in enumerate(lst):
+                self._nb_id[cid, m], self._nb_cost[cid, m], self._nb_bit[cid, m] = nid, cost, bit
+        self._nbhd_off = np.array([off for off, _ in self._nbhd_bases], dtype=np.int64)
+        self._nbhd_base = np.array([base for _, base in self._nbhd_bases], dtype=np.int64)
+        self._mask_arr = np.array(self._mask_of, dtype=np.int64)
+        self._all_allowed = np.full(n, self._full_mask, dtype=np.int64)
+        self._scratch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._token = 0
+
+    def _search_scratch(self, window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        size = (window + 1) * self._nx_p * self._ny_p
+        if self._scratch is None or len(self._scratch[0]) < size:
+            self._scratch = (np.zeros(size), np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64))
+            self._token = 0
+        return self._scratch
+
+    def _static_allow(self, overrides: Mapping[int, list]) -> np.ndarray:
+        """Per padded cell, the bit mask of the moves left by ``overrides`` (all elsewhere)."""
+        if not overrides:
+            return self._all_allowed
+        out = self._all_allowed.copy()
+        for cid, lst in overrides.items():
+            mask = 0
+            for nb in lst:
+                mask |= nb[2]
+            out[cid] = mask
+        return out
+
+    def _near_masks(self, a: int, vel: int) -> list[tuple[int, int]]:
+        """(cell, mask) for the cells near an agent leaving cell id ``a`` with velocity code
+        ``vel``, skipping cells where it allows every move (memoised)."""
+        key = a * 25 + vel
+        out = self._near_mask_memo.get(key)
+        if out is None:
+            full, mask_of = self._full_mask, self._mask_of
+            out = [(cell, m) for cell, base in self._near_cells[a] if (m := mask_of[base + vel]) != full]
+            self._near_mask_memo[key] = out
+        return out
+
+    def _static_graph(self):  # type: ignore[no-untyped-def]
+        g = self.grid
+        nx, ny = g.shape
+        rows, cols, w = [], [], []
+        for k, (dx, dy) in enumerate(MOVES):
+            src = np.argwhere(g.moves[:, :, k])
+            rows.append(src[:, 0] * ny + src[:, 1])
+            cols.append((src[:, 0] + dx) * ny + src[:, 1] + dy)
+            w.append(np.full(len(src), math.hypot(dx, dy)))
+        return coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))), shape=(nx * ny, nx * ny)).tocsr()
+
+    # ----- heuristic -----------------------------------------------------------------------------
+    def heuristic(self, goal: Cell) -> list[float]:
+        """Exact static distances (cells) to ``goal`` indexed by padded cell id (inf: unreachable)."""
+        gid = self.cell_id(goal)
+        h = self._heuristics.get(gid)
+        if h is None:
+            nx, ny = self.grid.shape
+            d = dijkstra(self._graph, directed=True, indices=goal[0] * ny + goal[1])
+            full = np.full((self._nx_p, self._ny_p), np.inf)
+            full[self._pad : self._pad + nx, self._pad : self._pad + ny] = d.reshape(nx, ny)
+            h = full.ravel().tolist()
+            if len(self._heuristics) > 512:
+                old = next(iter(self._heuristics))
+                self._heuristics.pop(old)
+                self._h_arrays.pop(old, None)
+            self._heuristics[gid] = h
+            self._h_arrays[gid] = full.ravel()
+        return h
+
+    def _heuristic_array(self, goal: Cell) -> np.ndarray:
+        """``heuristic(goal)`` as a float array (the compiled search's view)."""
+        gid = self.cell_id(goal)
+        arr = self._h_arrays.get(gid)
+        if arr is None or gid not in self._heuristics:
+            self.heuristic(goal)
+            arr = self._h_arrays[gid]
+        return arr
+
+    def distance(self, start: Cell, goal: Cell) -> float:
+        """Shortest static path length from ``start`` to ``goal`` in metres (inf: unreachable)."""
+        return self.heuristic(goal)[self.cell_id(start)] * self.grid.cell_size
+
+    # ----- static obstacles ------------------------------------------------------------------------
+    def _static_overrides(
+        self, statics: Sequence[np.ndarray], segments: Sequence[tuple[np.ndarray, np.ndarray]] = ()
+    ) -> dict[int, list[tuple[int, float, int, int, int]]]:
+        """Neighbour lists with moves removed that bring a body too close to a stationary one.
+
+        ``statics``: disc centres (metres). ``segments``: bodies that sweep a straight segment
+        (p, q) during the step (an off-grid leg): a move is kept when its closest approach to
+        every static point / segment is >= ``min(2r, distance at the move's start)``.
+        """
+        segs = [(np.asarray(p, dtype=float), np.asarray(q, dtype=float)) for p, q in segments]
+        segs += [(np.asarray(p, dtype=float), np.asarray(p, dtype=float)) for p in statics]
+        if not segs:
+            return {}
+        removed: dict[int, set[int]] = {}
+        for p, q in segs:
+            for cid, ks in self._removed_moves(p, q).items():
+                hit = removed.get(cid)
+                if hit is None:
+                    removed[cid] = set(ks)
+                else:
+                    hit.update(ks)
+        nbrs = self._nbrs
+        return {cid: [nb for k, nb in enumerate(nbrs[cid]) if k not in ks] for cid, ks in removed.items()}
+
+    def _removed_moves(self, p: np.ndarray, q: np.ndarray) -> dict[int, frozenset[int]]:
+        """For one static point / segment (p, q): cell id -> indices into ``_nbrs[cell]`` of the
+        moves that break the clearance rule against it (memoised per exact (p, q)).
+
+        Only cells within ``reach`` of the segment can lose a move; the test per move is the one
+        of ``_static_overrides`` (closest approach >= ``min(2r, distance at the move's start)``).
+        """
+        key = (p.tobytes(), q.tobytes())
+        hit = self._removed_memo.get(key)
+        if hit is not None:
+            return hit
+        g = self.grid
+        cs = g.cell_size
+        reach_m = self.min_distance + 2.0 * cs
+        rr = int(math.ceil(reach_m / cs)) + 1
+        (i0, j0), (i1, j1) = g.cell_of(p), g.cell_of(q)
+        cand = sorted(
+            self.cell_id((i, j))
+            for i in range(min(i0, i1) - rr, max(i0, i1) + rr + 1)
+            for j in range(min(j0, j1) - rr, max(j0, j1) + rr + 1)
+            if g.is_free(i, j)
+        )
+        out: dict[int, frozenset[int]] = {}
+        if cand:
+            centres = np.array([g.center_of(*self.id_cell(cid)) for cid in cand])
+            start = segment_distance(centres, centres, np.broadcast_to(p, centres.shape), np.broadcast_to(q, centres.shape))
+            limit = np.minimum(self.min_distance, start) - 1e-7
+            row_cell, row_k, dxy = [], [], []
+            for r, cid in enumerate(cand):
+                for k, nb in enumerate(self._nbrs[cid]):
+                    row_cell.append(r)
+                    row_k.append(k)
+                    dxy.append((nb[2], nb[3]))
+            rc = np.array(row_cell)
+            a = centres[rc]
+            b = a + np.array(dxy, dtype=float) * cs
+            closest = segment_distance(a, b, np.broadcast_to(p, a.shape), np.broadcast_to(q, a.shape))
+            bad = np.flatnonzero(~(closest >= limit[rc]))
+            per: dict[int, list[int]] = {}
+            for r in bad:
+                per.setdefault(cand[row_cell[r]], []).append(row_k[r])
+            out = {cid: frozenset(ks) for cid, ks in per.items()}
+        if len(self._removed_memo) > 4096:
+            self._removed_memo.clear()
+        self._removed_memo[key] = out
+        return out
+
+    # ----- planning ------------------------------------------------------------------------------------
+    def plan(
+        self,
+        starts: Mapping[Agent, Cell],
+        goals: Mapping[Agent, Cell | None],
+        static_obstacles: Sequence[np.ndarray | tuple[float, float]] = (),
+        t0: int = 0,
+        order: Sequence[Agent] | None = None,
+        static_segments: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+        hints: Mapping[Agent, tuple[Sequence[Cell], Cell]] | None = None,
+    ) -> PlanResult:
+        """Plan ``window`` steps for every agent in ``starts``.
+
+        ``goals[a]`` None (or missing) means "stay": the agent keeps its cell unless it must
+        make way. ``static_obstacles``: xy centres of stationary characters (metres).
+        ``order``: priority order (first plans first); default is a permutation seeded by
+        ``seed`` and ``t0``. ``static_segments``: (p, q) pairs in metres, bodies sweeping that
+        segment (off-grid legs; see ``_static_overrides``). Every agent's wait is reserved for
+        the committed steps, so no plan steps into a body that has not planned yet; the
+        fallback pass re-plans with the failed agents first and a doubled window for them.
+
+        ``hints[a] = (path, goal)``: the rest of ``a``'s previous plan (starting on its start
+        cell) made for the same used goal. In the plain passes such a path is kept instead of
+        searching when every step of it still passes this call's checks (reservations of the
+        agents planned before, static obstacles); it is extended to the full window greedily
+        along the static distance. A kept path is feasible, so the clearance guarantee is the
+        same; it may be longer than a new search would find, which is why callers give hints
+        only every other replan (``CrowdNavigator``).
+        """
+        agents = list(starts)
+        for a in agents:
+            s = starts[a]
+            if not self.grid.is_free(*s):
+                raise PlanningError(f"agent {a!r} starts in cell {s}, which is blocked or outside the grid")
+        if order is None:
+            rng = np.random.default_rng([self.seed, int(t0)])
+            order = [agents[k] for k in rng.permutation(len(agents))]
+        else:
+            missing = set(agents) - set(order)
+            order = [a for a in order if a in starts] + [a for a in agents if a in missing]
+        overrides = self._static_overrides([np.asarray(p, dtype=float) for p in static_obstacles], static_segments)
+        used_goals = {a: self._usable_goal(starts[a], goals.get(a), overrides) for a in agents}
+        overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in overrides.items()}
+        static_allow = self._static_allow(overrides) if self.backend == "numba" else None  # once for all passes
+        # Pass 1: plain WHCA*. An agent whose search fails was cornered by the first steps of
+        # agents planned before it; its wait is then reserved for the committed steps and the
+        # call planned again (lazy wait reservation: only agents that need it hold their
+        # place, the others may still be pushed), up to ``repair_passes`` times. A pass is safe
+        # when every failed agent had its wait reserved. Last resort: everyone's wait reserved,
+        # failed agents first with a doubled window (always safe).
+        usable: dict[Agent, list[int]] = {}
+        for a, (path, goal) in (hints or {}).items():
+            if a in starts and path and tuple(path[0]) == tuple(starts[a]) and tuple(goal) == tuple(used_goals[a]):
+                usable[a] = [self.cell_id(c) for c in path[: self.window + 1]]
+        reserved: frozenset[Agent] = frozenset()
+        result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved,
+                            hints=usable, static_allow=static_allow)
+        fallback = set(result.failed)
+        expansions = result.expansions
+        for _ in range(self.repair_passes):
+            if result.failed <= reserved:
+                break
+            reserved = reserved | result.failed
+            result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved,
+                                hints=usable, static_allow=static_allow)
+            fallback |= result.failed
+            expansions += result.expansions
+        if not result.failed <= reserved:
+            order2 = failed_first(order, result.failed) if self.fallback else list(order)
+            ext = result.failed if self.fallback else frozenset()
+            result = self._pass(order2, starts, used_goals, overrides, extended=ext, reserve_waits=frozenset(order),
+                                static_allow=static_allow)
+            expansions += result.expansions
+        return PlanResult(
+            paths=result.paths,
+            failed=result.failed,
+            fallback=frozenset(fallback),
+            goals=used_goals,
+            expansions=expansions,
+            reused=result.reused,
+        )
+
+    def _usable_goal(self, start: Cell, goal: Cell | None, overrides: Mapping[int, list]) -> Cell:
+        if goal is None:
+            return start
+        h = self.heuristic(goal) if self.grid.is_free(*goal) else None
+        gid = self.cell_id(goal) if h is not None else -1
+        waits_ok = gid in self._nbrs and any(nb[0] == gid for nb in overrides.get(gid, self._nbrs[gid]))
+        if h is not None and h[self.cell_id(start)] < math.inf and waits_ok:
+            return goal
+        # Nearest cell (to the requested goal) that is reachable from the start and not taken.
+        comp = self.grid.component[start]
+        cells = np.argwhere(self.grid.component == comp)
+        centers = self.grid.centers(cells)
+        target = self.grid.center_of(*goal)
+        for k in np.argsort(np.sum((centers - target) ** 2, axis=1), kind="stable"):
+            c = (int(cells[k][0]), int(cells[k][1]))
+            cid = self.cell_id(c)
+            if any(nb[0] == cid for nb in overrides.get(cid, self._nbrs[cid])):
+                return c
+        return start
+
+    def _pass(
+        self,
+        order: Sequence[Agent],
+        starts: Mapping[Agent, Cell],
+        goals: Mapping[Agent, Cell],
+        overrides: Mapping[int, list],
+        extended: frozenset[Agent],
+        reserve_waits: frozenset[Agent],
+        hints: Mapping[Agent, list[int]] | None = None,
+        static_allow: np.ndarray | None = None,
+    ) -> PlanResult:
+        w_max = self.window * (2 if extended else 1)
+        dense = self.backend == "numba"
+        res: _Reservations | _DenseReservations = _DenseReservations(w_max, self) if dense else _Reservations(w_max, self)
+        if dense and static_allow is None:
+            static_allow = self._static_allow(overrides)
+        waits = {a: [self.cell_id(starts[a])] * (self.commit_steps + 1) for a in order}
+        for a in order:
+            if a in reserve_waits:
+                res.add(a, waits[a], self.commit_steps)
+        paths: dict[Agent, list[Cell]] = {}
+        failed: set[Agent] = set()
+        reused: set[Agent] = set()
+        total = 0
+        for a in order:
+            if a in reserve_waits:
+                res.remove(a, waits[a], self.commit_steps)
+            window = self.window * 2 if a in extended else self.window
+            hint = hints.get(a) if hints and a not in extended else None
+            ids = self._kept_path(hint, goals[a], window, res, overrides) if hint else None
+            if ids is not None:
+                reused.add(a)
+            else:
+                if dense:
+                    ids, n = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow)
+                else:
+                    ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
+                total += n
+            if ids is None:  # wait: safe for the committed steps, which is all it claims
+                failed.add(a)
+                ids = waits[a]
+            res.add(a, ids, len(res.near))
+            keep = np.asarray(ids[: self.window + 1], dtype=np.int64)
+            paths[a] = list(zip((keep // self._ny_p - self._pad).tolist(), (keep % self._ny_p - self._pad).tolist(), strict=True))
+        return PlanResult(paths=paths, failed=frozenset(failed), fallback=frozenset(), goals=dict(goals), expansions=total,
+                          reused=frozenset(reused))
+
+    def _kept_path(
+        self, hint: list[int], goal: Cell, window: int, res: _Reservations | _DenseReservations,
+        overrides: Mapping[int, list],
+    ) -> list[int] | None:
+        """``hint`` (padded ids from the start) checked step by step against ``res`` and the
+        static obstacles, then extended to ``window`` steps, each extra step the allowed move
+        with the least (cost + static distance, distance, cell id); None when a step fails."""
+        h = self.heuristic(goal)
+        gid = self.cell_id(goal)
+        nbrs = self._snbrs
+        path = hint[: window + 1]
+        for t in range(len(path) - 1):
+            cid, nid = path[t], path[t + 1]
+            moves = overrides.get(cid)
+            if moves is None:
+                moves = nbrs[cid]
+            allow = res.allow(t, cid)
+            if not any(m[0] == nid and allow & m[2] for m in moves) or h[nid] == math.inf:
+                return None
+        path = list(path)
+        while len(path) < window + 1:
+            t = len(path) - 1
+            cid = path[-1]
+            moves = overrides.get(cid)
+            if moves is None:
+                moves = nbrs[cid]
+            allow = res.allow(t, cid)
+            best = None
+            for nid, cost, bit in moves:
+                if not allow & bit or h[nid] == math.inf:
+                    continue
+                key = ((0.0 if (cid == gid and nid == cid) else cost) + h[nid], h[nid], nid)
+                if best is None or key < best:
+                    best = key
+            if best is None:
+                return None
+            path.append(best[2])
+        return path
+
+    def _search_compiled(
+        self, start: int, goal: Cell, window: int, res: _DenseReservations, static_allow: np.ndarray
+    ) -> tuple[list[int] | None, int]:
+        """``_search`` run by the compiled kernel on the dense tables (same result)."""
+        h = self._heuristic_array(goal)
+        g_best, stamp, parent = self._search_scratch(window)
+        self._token += 1
+        path, n = space_time_search(
+            start, self.cell_id(goal), window, h, self._nb_id, self._nb_cost, self._nb_bit, static_allow,
+            res.near, self._full_mask, self.max_expansions, g_best, stamp, parent, self._token,
+        )
+        return (path.tolist() if len(path) else None), int(n)
+
+    def _search(
+        self,
+        agent: Agent,
+        start: int,
+        goal: Cell,
+        window: int,
+        res: _Reservations,
+        overrides: Mapping[int, list],
+    ) -> tuple[list[int] | None, int]:
+        """Space-time A* from ``start`` for ``window`` steps; returns padded ids (window + 1) or None."""
+        h = self.heuristic(goal)
+        gid = self.cell_id(goal)
+        nbrs = self._snbrs
+        full = self._full_mask
+        near = res.near
+        n_steps = len(near)
+        stride = self._nx_p * self._ny_p
+        max_exp = self.max_expansions
+        inf = math.inf
+        heappop, heappush = heapq.heappop, heapq.heappush
+        h0 = h[start]
+        heap: list[tuple[float, float, int, int]] = [(h0, h0, 0, start)]
+        g_best: dict[int, float] = {start: 0.0}  # key: t * stride + cell id
+        parent: dict[int, int] = {}
+        expansions = 0
+        while heap:
+            f, hc, t, cid = heappop(heap)
+            key = t * stride + cid
+            g = f - hc
+            if g > g_best.get(key, inf) + 1e-9:
+                continue
+            if t == window:
+                path = [cid]
+                while key in parent:
+                    prev = parent[key]
+                    t -= 1
+                    key = t * stride + prev
+                    path.append(prev)
+                path.reverse()
+                return path, expansions
+            expansions += 1
+            if expansions > max_exp:
+                return None, expansions
+            allow = near[t].get(cid, full) if t < n_steps else full
+            moves = overrides.get(cid)
+            if moves is None:
+                moves = nbrs[cid]
+            nt = t + 1
+            nbase = nt * stride
+            at_goal = cid == gid
+            for nid, cost, bit in moves:
+                if not allow & bit:
+                    continue
+                ng = g if (at_goal and nid == cid) else g + cost
+                nkey = nbase + nid
+                if ng < g_best.get(nkey, inf) - 1e-9:
+                    hn = h[nid]
+                    if hn == inf:
+                        continue
+                    g_best[nkey] = ng
+                    parent[nkey] = cid
+                    heappush(heap, (ng + hn, hn, nt, nid))
+        return None, expansions
+
+
+# ----- continuous positions and checks ------------------------------------------------------------
+def _segment_min_norm(px: float, py: float, wx: float, wy: float) -> float:
+    """min over s in [0, 1] of |p + s w|."""
+    ww = wx * wx + wy * wy
+    s = 0.0 if ww == 0 else min(1.0, max(0.0, -(px * wx + py * wy) / ww))
+    return math.hypot(px + s * wx, py + s * wy)
+
+
+def segment_distance(a: np.ndarray, b: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Exact distance (N,) between 2-D segments a->b and p->q (arrays (N, 2); points allowed)."""
+    a, b, p, q = (np.asarray(x, dtype=float).reshape(-1, 2) for x in (a, b, p, q))
+
+    def point_seg(x: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> np.ndarray:
+        d = s1 - s0
+        dd = np.sum(d * d, axis=1)
+        t = np.where(dd > 0, np.clip(np.sum((x - s0) * d, axis=1) / np.where(dd > 0, dd, 1.0), 0.0, 1.0), 0.0)
+        return np.linalg.norm(x - s0 - t[:, None] * d, axis=1)
+
+    out = np.minimum(np.minimum(point_seg(a, p, q), point_seg(b, p, q)), np.minimum(point_seg(p, a, b), point_seg(q, a, b)))
+
+    def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+
+    d1, d2 = cross(b - a, p - a), cross(b - a, q - a)
+    d3, d4 = cross(q - p, a - p), cross(q - p, b - p)
+    proper = (d1 * d2 < 0) & (d3 * d4 < 0)
+    return np.where(proper, 0.0, out)
+
+
+def position_at(path: Sequence[Cell], t: float, grid: NavGrid, step_time: float, t_start: float = 0.0) -> np.ndarray:
+    """Continuous xy (metres) on a planned path at time ``t`` seconds.
+
+    ``path[k]`` is the cell at time ``t_start + k * step_time``; positions are linear between
+    cell centres and clamped to the first / last cell outside the path's time span.
+    """
+    if not path:
+        raise PlanningError("position_at needs a non-empty path")
+    u = (t - t_start) / step_time
+    if u <= 0:
+        return grid.center_of(*path[0])
+    k = int(math.floor(u))
+    if k >= len(path) - 1:
+        return grid.center_of(*path[-1])
+    s = u - k
+    return (1.0 - s) * grid.center_of(*path[k]) + s * grid.center_of(*path[k + 1])
+
+
+def plan_conflicts(
+    paths: Mapping[Agent, Sequence[Cell]], cell_size: float, body_radius: float, steps: int | None = None
+) -> list[tuple[int, Agent, Agent, float]]:
+    """Pairs that break the clearance rule: (step, a, b, closest distance in metres).
+
+    Checks every step of every pair with the exact closest approach of linear motion; a pair
+    breaks the rule when it gets closer than ``min(2r, its distance at the step start)``.
+    """
+    names = list(paths)
+    n = min(len(p) for p in paths.values()) - 1 if steps is None else steps
+    pos = np.array([[paths[a][k] for k in range(n + 1)] for a in names], dtype=float) * cell_size
+    out: list[tuple[int, Agent, Agent, float]] = []
+    dmin = 2.0 * body_radius
+    for k in range(n):
+        p0 = pos[:, k]
+        v = pos[:, k + 1] - p0
+        rel = p0[None, :, :] - p0[:, None, :]
+        w = v[None, :, :] - v[:, None, :]
+        ww = np.sum(w * w, axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(ww > 0, np.clip(-np.sum(rel * w, axis=-1) / ww, 0.0, 1.0), 0.0)
+        closest = np.linalg.norm(rel + s[..., None] * w, axis=-1)
+        start = np.linalg.norm(rel, axis=-1)
+        bad = closest < np.minimum(dmin, start) - 1e-7
+        for i, j in zip(*np.nonzero(np.triu(bad, 1)), strict=True):
+            out.append((k, names[i], names[j], float(closest[i, j])))
+    return out

@@ -1,0 +1,258 @@
+"""One character's animation as the world step produces it, ready for the exporters.
+
+A :class:`CharacterTrack` holds, per frame at ``fps`` (30 by default):
+
+- ``root_positions`` (N, 3): the pelvis position in the world (metres, z up);
+- ``local_rotations`` (N, 22, 3, 3): each joint's rotation relative to its parent in the
+  SMPL-X joint order of :mod:`sim.body.skeleton`; joint 0's is the root's world rotation (body frame
+  -> world, so a standing character's root is ``heading_to_root(theta)``);
+- ``betas`` (10,), ``gender`` and optional per-frame ``action_labels``.
+
+``forward_kinematics(track.local_rotations, track.root_positions)`` gives world joint positions
+directly. Tracks save to and load from ``.npz``; :func:`write_npz` writes byte-identical files
+for identical arrays (numpy's own ``savez`` stamps the current time into the zip).
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from sim.body.skeleton import NUM_JOINTS, forward_kinematics
+
+Gender = Literal["neutral", "male", "female"]
+GENDERS: tuple[str, ...] = ("neutral", "male", "female")
+NUM_BETAS = 10
+TRACK_FORMAT = "storyteller-track/1"
+# Tolerance on R^T R - I and det(R) - 1 for a matrix to count as a rotation.
+ROTATION_TOLERANCE = 1e-4
+_ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
+
+
+class CharacterTrackError(ValueError):
+    """A track (or a track file) that does not hold a valid animation; ``field`` names the part."""
+
+    def __init__(self, message: str, *, field: str | None = None, path: Path | None = None) -> None:
+        self.field = field
+        self.path = path
+        where = f"{path}: " if path is not None else ""
+        what = f"field '{field}': " if field is not None else ""
+        super().__init__(f"{where}{what}{message}")
+
+
+@dataclass(frozen=True, eq=False)
+class CharacterTrack:
+    """Per-frame animation of one character; arrays are validated and made read-only."""
+
+    name: str
+    root_positions: np.ndarray
+    local_rotations: np.ndarray
+    fps: float = 30.0
+    betas: np.ndarray = field(default_factory=lambda: np.zeros(NUM_BETAS))
+    gender: Gender = "neutral"
+    action_labels: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise CharacterTrackError("must be a non-empty string", field="name")
+        fps = float(self.fps)
+        if not np.isfinite(fps) or fps <= 0.0:
+            raise CharacterTrackError(
+                f"must be a positive number of frames per second, got {self.fps!r}", field="fps"
+            )
+        object.__setattr__(self, "fps", fps)
+
+        root = _as_float_array(self.root_positions, "root_positions")
+        if root.ndim != 2 or root.shape[1] != 3 or root.shape[0] < 1:
+            raise CharacterTrackError(
+                f"expected shape (N, 3) with N >= 1, got {root.shape}", field="root_positions"
+            )
+        n = root.shape[0]
+        rot = _as_float_array(self.local_rotations, "local_rotations")
+        if rot.shape != (n, NUM_JOINTS, 3, 3):
+            raise CharacterTrackError(
+                f"expected shape ({n}, {NUM_JOINTS}, 3, 3) to match root_positions, got {rot.shape}",
+                field="local_rotations",
+            )
+        ortho = np.abs(np.swapaxes(rot, -1, -2) @ rot - np.eye(3)).max(axis=(-1, -2))
+        det = np.linalg.det(rot)
+        bad = (ortho > ROTATION_TOLERANCE) | (np.abs(det - 1.0) > ROTATION_TOLERANCE)
+        if bad.any():
+            frame, joint = np.argwhere(bad)[0]
+            raise CharacterTrackError(
+                f"frame {frame} joint {joint} is not a rotation matrix (orthonormal, det +1)",
+                field="local_rotations",
+            )
+        betas = _as_float_array(self.betas, "betas")
+        if betas.shape != (NUM_BETAS,):
+            raise CharacterTrackError(
+                f"expected shape ({NUM_BETAS},), got {betas.shape}", field="betas"
+            )
+        if self.gender not in GENDERS:
+            raise CharacterTrackError(
+                f"expected one of {list(GENDERS)}, got {self.gender!r}", field="gender"
+            )
+        labels = self.action_labels
+        if labels is not None:
+            labels = tuple(labels)
+            if len(labels) != n or not all(isinstance(s, str) for s in labels):
+                raise CharacterTrackError(
+                    f"expected {n} strings (one per frame)", field="action_labels"
+                )
+        for name, arr in (("root_positions", root), ("local_rotations", rot), ("betas", betas)):
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "action_labels", labels)
+
+    # ----- derived ------------------------------------------------------------------
+    @property
+    def num_frames(self) -> int:
+        return int(self.root_positions.shape[0])
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first to the last frame."""
+        return (self.num_frames - 1) / self.fps
+
+    @property
+    def times(self) -> np.ndarray:
+        """Frame times (N,) in seconds from 0."""
+        return np.arange(self.num_frames, dtype=float) / self.fps
+
+    def joint_positions(self) -> np.ndarray:
+        """World joint positions (N, 22, 3) in metres, z up."""
+        return forward_kinematics(self.local_rotations, self.root_positions)[0]
+
+    # ----- files --------------------------------------------------------------------
+    def save(self, path: str | Path) -> Path:
+        """Write the track to ``path`` (.npz, deterministic bytes). Returns the path."""
+        arrays: dict[str, np.ndarray] = {
+            "format": np.array(TRACK_FORMAT),
+            "name": np.array(self.name),
+            "fps": np.array(self.fps),
+            "root_positions": self.root_positions,
+            "local_rotations": self.local_rotations,
+            "betas": self.betas,
+            "gender": np.array(self.gender),
+        }
+        if self.action_labels is not None:
+            arrays["action_labels"] = np.array(self.action_labels, dtype=str)
+        return write_npz(path, arrays)
+
+    @classmethod
+    def load(cls, path: str | Path) -> CharacterTrack:
+        """Read a track written by :meth:`save`; raises CharacterTrackError on a bad file."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {k: data[k] for k in data.files}
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:
+            raise CharacterTrackError(f"cannot read as .npz ({exc})", path=path) from None
+        fmt = str(arrays.get("format", ""))
+        if fmt != TRACK_FORMAT:
+            raise CharacterTrackError(
+                f"expected '{TRACK_FORMAT}', got '{fmt}'", field="format", path=path
+            )
+        for key in ("name", "fps", "root_positions", "local_rotations", "betas", "gender"):
+            if key not in arrays:
+                raise CharacterTrackError("missing", field=key, path=path)
+        labels = arrays.get("action_labels")
+        try:
+            return cls(
+                name=str(arrays["name"]),
+                root_positions=arrays["root_positions"],
+                local_rotations=arrays["local_rotations"],
+                fps=float(arrays["fps"]),
+                betas=arrays["betas"],
+                gender=str(arrays["gender"]),  # type: ignore[arg-type]
+                action_labels=None if labels is None else tuple(str(s) for s in labels),
+            )
+        except CharacterTrackError as exc:
+            raise CharacterTrackError(str(exc), field=exc.field, path=path) from None
+
+
+def _as_float_array(value: object, name: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=float)  # a copy: the track owns its data
+    except (TypeError, ValueError) as exc:
+        raise CharacterTrackError(f"not numeric ({exc})", field=name) from None
+    if not np.isfinite(arr).all():
+        raise CharacterTrackError("contains NaN or infinite values", field=name)
+    return arr
+
+
+def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray], *, compress: bool = True) -> Path:
+    """Write ``arrays`` as an .npz readable by ``np.load``, byte-identical for identical input.
+
+    Entries keep the mapping's order; zip timestamps are fixed. Object arrays are refused
+    (they would need pickling).
+    """
+    path = Path(path)
+    buffer = io.BytesIO()
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with zipfile.ZipFile(buffer, "w", compression=method) as zf:
+        for key, value in arrays.items():
+            arr = np.asarray(value)
+            if arr.dtype.hasobject:
+                raise TypeError(
+                    f"array '{key}' has dtype object; it cannot be stored without pickling"
+                )
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=_ZIP_EPOCH)
+            info.compress_type = method
+            info.external_attr = 0o644 << 16
+            payload = io.BytesIO()
+            np.lib.format.write_array(payload, np.array(arr, order="C"), allow_pickle=False)
+            zf.writestr(info, payload.getvalue())
+    path.write_bytes(buffer.getvalue())
+    return path
+
+
+def common_fps(tracks: Sequence[CharacterTrack]) -> float:
+    """The common frame rate of ``tracks``; raises CharacterTrackError if they differ."""
+    if not tracks:
+        raise CharacterTrackError("no tracks given")
+    rates = {t.fps for t in tracks}
+    if len(rates) != 1:
+        raise CharacterTrackError(f"tracks have different frame rates {sorted(rates)}", field="fps")
+    return tracks[0].fps
+
+
+def random_track(
+    name: str, num_frames: int, seed: int, *, fps: float = 30.0, max_joint_angle: float = 0.6
+) -> CharacterTrack:
+    """A random but plausible track, for tests and demos (not a motion anyone would want).
+
+    The pelvis wanders on the floor (about 0.8-0.95 m high) with a slowly turning heading and
+    a small tilt; every other joint bends smoothly by at most ``max_joint_angle`` radians.
+    """
+    from sim.body.skeleton import axis_angle_to_matrix, heading_to_root
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(num_frames) / fps
+    # Smooth signals: a few random sinusoids per channel.
+    freqs = rng.uniform(0.1, 1.5, size=(3, NUM_JOINTS, 3))
+    phases = rng.uniform(0.0, 2 * np.pi, size=(3, NUM_JOINTS, 3))
+    amps = rng.uniform(0.0, 1.0, size=(3, NUM_JOINTS, 3))
+    wave = (
+        np.einsum(
+            "kjc,nkjc->njc", amps, np.sin(2 * np.pi * freqs * t[:, None, None, None] + phases)
+        )
+        / 3.0
+    )
+    aa = wave * max_joint_angle / np.sqrt(3.0)
+    rotations = axis_angle_to_matrix(aa)
+    heading = rng.uniform(-np.pi, np.pi) + np.cumsum(rng.normal(0.0, 0.02, num_frames))
+    tilt = axis_angle_to_matrix(0.15 * wave[:, 0])
+    rotations[:, 0] = heading_to_root(heading) @ tilt
+    step = 1.2 / fps * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    xy = rng.uniform(-3.0, 3.0, size=2) + np.cumsum(step, axis=0)
+    z = 0.875 + 0.075 * np.sin(2 * np.pi * 0.9 * t + rng.uniform(0, 2 * np.pi))
+    return CharacterTrack(
+        name=name, root_positions=np.column_stack([xy, z]), local_rotations=rotations, fps=fps
+    )

@@ -1,0 +1,211 @@
+"""The world's view of ``CrowdNavigator``: walkers, stationary bodies, arrivals, planned futures.
+
+A thin wrapper with string agent names. It adds two things the navigator does not do itself:
+
+- several stationary discs per character (a seated body spans the approach cell and the
+  seat): extra keys ``(name, k)``, released together;
+- ``can_freeze``: whether a walker may turn into a stationary body now. The plan made at this
+  step boundary is conflict-free for its first (committed) step; a walker whose own plan
+  waits during that step can stop for good without invalidating anybody's committed move
+  (the next replan then sees it as an obstacle). A walker planned to move (for instance to
+  make way for a passer-by) must not be frozen yet.
+
+``StandTargets`` turns an assignment into the point its walk ends on (``StandTarget``): the
+exact target for a standing action, the seat's approach point (``NavGrid.approach_point``,
+cached per object) for a seated one, the nearest cell centre with a typed ``TargetFallback``
+when the exact point cannot be used.
+
+Positions are metres (xy).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from sim.paths.cooperative_astar import Cell, PathPlanner
+from sim.paths.following import CrowdNavigator, close_xy
+from sim.paths.nav_grid import ApproachPoint, NavGrid, NavGridError
+from sim.scene.model import SceneObject
+from sim.world.phases import StandTarget
+
+OFF_GRID_EPS = 1e-6  # metres: a point closer than this to its cell centre is on the grid
+
+
+class WorldNavigator:
+    """Thin wrapper over one ``CrowdNavigator``."""
+
+    def __init__(self, grid: NavGrid, planner: PathPlanner, fps: int, seed: int) -> None:
+        self.nav = CrowdNavigator(grid, planner=planner, fps=fps, seed=seed)
+        self._arrivals_seen = 0
+        self._extra: dict[str, int] = {}
+
+    @property
+    def grid(self) -> NavGrid:
+        return self.nav.grid
+
+    @property
+    def planner(self) -> PathPlanner:
+        return self.nav.planner
+
+    @property
+    def step_frames(self) -> int:
+        return self.nav.step_frames
+
+    def at_boundary(self) -> bool:
+        """Whether the next ``tick`` starts a planning step (walkers may join only then)."""
+        return self.nav.frame % self.nav.step_frames == 0
+
+    # ----- membership ---------------------------------------------------------------------------
+    def add_walker(
+        self,
+        name: str,
+        cell: Cell,
+        goal: Cell | None = None,
+        start_xy: np.ndarray | None = None,
+        final_xy: np.ndarray | None = None,
+    ) -> None:
+        """``name`` walks from ``cell`` (or from the exact point ``start_xy``, entering ``cell``)
+        to ``goal`` (ending on the exact point ``final_xy`` when given)."""
+        self.release(name)
+        self.nav.add_walker(name, cell, goal, start_xy=start_xy, final_xy=final_xy)
+
+    def set_goal(self, name: str, goal: Cell | None, final_xy: np.ndarray | None = None) -> None:
+        """New goal cell (None: stay), ending on the exact point ``final_xy`` when given."""
+        self.nav.set_goal(name, goal, final_xy=final_xy)
+
+    def target_problem(self, cell: Cell, xy: np.ndarray) -> str | None:
+        """Why a body cannot walk straight from ``cell``'s centre to ``xy`` and stand there."""
+        return self.nav.target_problem(cell, xy)
+
+    def position(self, name: str) -> np.ndarray:
+        """The walker's xy at the last produced frame (metres)."""
+        return self.nav.position(name)
+
+    def is_off_grid(self, name: str) -> bool:
+        """Whether the walker stands at, or walks to or from, a point off its cell centre."""
+        return self.nav.is_off_grid(name)
+
+    def goal_of(self, name: str) -> Cell | None:
+        return self.nav.goal_of(name)
+
+    def make_stationary(self, name: str, points: Sequence[np.ndarray]) -> None:
+        """``name`` stops walking; its body covers discs centred on ``points`` (>= 1)."""
+        self.release(name)
+        self.nav.set_stationary(name, np.asarray(points[0], dtype=float))
+        for k, p in enumerate(points[1:], start=1):
+            self.nav.set_stationary((name, k), np.asarray(p, dtype=float))
+        self._extra[name] = len(points) - 1
+
+    def release(self, name: str) -> None:
+        """Forget ``name``'s stationary discs (no-op for walkers)."""
+        self.nav.release(name)
+        for k in range(1, self._extra.pop(name, 0) + 1):
+            self.nav.release((name, k))
+
+    def is_walker(self, name: str) -> bool:
+        return self.nav.is_walker(name)
+
+    def cell(self, name: str) -> Cell:
+        return self.nav.cell(name)
+
+    def can_freeze(self, name: str) -> bool:
+        """Whether the walker's current plan keeps it in place for the committed step (call
+        right after a boundary ``tick``)."""
+        here = self.nav.position(name)
+        there = self.nav.future(name, (self.nav.step_frames,))[0]
+        return close_xy(here, there)
+
+    # ----- time ----------------------------------------------------------------------------------
+    def tick(self, ahead: Sequence[int] = ()) -> dict[str, np.ndarray]:
+        """Walker positions at this frame (then the navigator's clock advances); ``ahead``:
+        the frame offsets ``futures`` will be asked for (sampled in the same pass)."""
+        return self.nav.tick(ahead)  # type: ignore[return-value]
+
+    def new_arrivals(self) -> list[str]:
+        """Walkers that reached their goal since the last call, in order (with an exact target:
+        once they stand on it)."""
+        out = [a for _, a in self.nav.arrivals[self._arrivals_seen :]]
+        self._arrivals_seen = len(self.nav.arrivals)
+        return out  # type: ignore[return-value]
+
+    def used_goal(self, name: str) -> Cell | None:
+        """The goal the last plan actually used (the nearest free cell when the asked one was taken)."""
+        res = self.nav.last_result
+        return None if res is None else res.goals.get(name)
+
+    def future(self, name: str, frames: Sequence[int]) -> np.ndarray:
+        """Planned positions (len(frames), 2) ``frames`` after the last produced frame."""
+        return self.nav.future(name, frames)
+
+    def futures(self, names: Sequence[str], frames: Sequence[int]) -> np.ndarray:
+        """``future`` of several walkers at once: (len(names), len(frames), 2)."""
+        return self.nav.futures(names, frames)
+
+
+class StandTargets:
+    """Resolves assignments to ``StandTarget``s on one grid; approach points are cached per
+    (object, component) because ``NavGrid.approach_point`` is slow (~0.15 s). Deterministic."""
+
+    def __init__(self, grid: NavGrid) -> None:
+        self.grid = grid
+        self._approach: dict[tuple[str, int], ApproachPoint | str] = {}
+
+    def _centre(self, cell: Cell) -> tuple[float, float]:
+        c = self.grid.center_of(*cell)
+        return (float(c[0]), float(c[1]))
+
+    def standing(self, nav: WorldNavigator, xy: np.ndarray, component: int) -> StandTarget | None:
+        """The exact point ``xy`` entered from the closest free cell of ``component`` with a
+        straight furniture-free walk to it; else the nearest free cell of ``component``
+        (``fallback`` says why). None when the grid has no free cell there."""
+        g = self.grid
+        p = np.asarray(xy, dtype=float)
+        cell = g.entry_cell(p, component=component)
+        if cell is not None:
+            why = nav.target_problem(cell, p)
+            if why is None:
+                off = float(np.linalg.norm(p - g.center_of(*cell))) > OFF_GRID_EPS
+                return StandTarget(cell, (float(p[0]), float(p[1])) if off else self._centre(cell), off)
+            reason, msg = "no_straight_approach", why
+        elif not g.is_free_xy(p):
+            reason, msg = "target_blocked", (
+                f"a body of radius {g.body_radius} m cannot stand at ({p[0]:.2f}, {p[1]:.2f})")
+        else:
+            reason, msg = "no_straight_approach", (
+                f"no free cell near ({p[0]:.2f}, {p[1]:.2f}) has a straight walk to it clear of furniture")
+        near = g.nearest_free_cell(p, component=component)
+        if not g.is_free(*near):
+            return None
+        return StandTarget(near, self._centre(near), False, reason, msg)  # type: ignore[arg-type]
+
+    def approach_point(self, obj: SceneObject, component: int) -> ApproachPoint | str:
+        """``NavGrid.approach_point(obj, component=component)`` (cached), or why there is none."""
+        key = (obj.name, int(component))
+        hit = self._approach.get(key)
+        if hit is None:
+            try:
+                hit = self.grid.approach_point(obj, component=int(component))
+            except NavGridError as exc:
+                hit = str(exc)
+            self._approach[key] = hit
+        return hit
+
+    def seated(self, nav: WorldNavigator, obj: SceneObject, component: int) -> StandTarget | None:
+        """The approach point of ``obj`` reachable in ``component``; else the object's approach
+        cell (``no_approach_point``). None when neither is reachable from ``component``."""
+        ap = self.approach_point(obj, component)
+        if isinstance(ap, ApproachPoint):
+            p = np.asarray(ap.xy, dtype=float)
+            if nav.target_problem(ap.cell, p) is None:
+                off = float(np.linalg.norm(p - self.grid.center_of(*ap.cell))) > OFF_GRID_EPS
+                return StandTarget(ap.cell, ap.xy if off else self._centre(ap.cell), off)
+            why = nav.target_problem(ap.cell, p) or ""
+        else:
+            why = ap
+        g = self.grid
+        cell = g.approach_cell(obj)
+        if int(g.component[cell]) != int(component):
+            return None
+        return StandTarget(cell, self._centre(cell), False, "no_approach_point", why)
