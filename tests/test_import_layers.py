@@ -94,11 +94,11 @@ def test_no_import_cycles_between_modules() -> None:
 
 @pytest.mark.parametrize("top", ["sim", "tools", "orchestrator", "agents"])
 def test_no_flat_prefix_modules_left(top: str) -> None:
-    """Sub-packages, not name prefixes, group modules: no ``motion_*.py`` beside ``motion/``."""
-    packages = {p.name for p in (ROOT / top).rglob("*") if p.is_dir() and (p / "__init__.py").exists()}
+    """Sub-packages, not name prefixes, group modules: no ``sim/motion_*.py`` beside ``sim/motion/``."""
+    packages = {p.name for p in (ROOT / top).iterdir() if p.is_dir() and (p / "__init__.py").exists()}
     prefixed = [
         str(path.relative_to(ROOT))
-        for path in (ROOT / top).rglob("*.py")
-        if any(path.stem.startswith(pkg + "_") and path.parent.name != pkg for pkg in packages)
+        for path in (ROOT / top).glob("*.py")
+        if any(path.stem.startswith(pkg + "_") for pkg in packages)
     ]
     assert not prefixed, prefixed
