@@ -22,8 +22,8 @@ loops, sizes, recursion and wall time, every size checked before the value is bu
 Modules, in dependency order: ``errors`` (every sandbox failure type), ``budget`` (limits and
 the meter), ``boundary`` (values entering and leaving the program), ``operators``,
 ``builtin_functions``, ``methods``, ``checker`` (the static allow-list check), ``values``
-(scopes and program functions), ``access`` (attributes, items, tool calls), ``interpreter``
-and ``runner`` (the public entry).
+(scopes and program functions), ``access`` (attributes, items, tool calls), ``statements``
+and ``interpreter`` (the tree walk), ``runner`` (the public entry).
 
 Imports: the standard library (``ast``, no ``exec``), ``tools.errors`` and this package; no
 other ``tools`` module, nothing of ``sim``, and no clock except ``runner``'s default for the

@@ -1,23 +1,24 @@
 """The interpreter: evaluates a checked event program, one tree node at a time.
 
-Each statement and expression node costs one interpreter step (the ``Meter`` checks steps and
-the injected clock every 64 steps); every value the program builds goes through the
-size-checking helpers of ``boundary``, ``operators``, ``builtin_functions``, ``methods`` and
-``access``. Nodes are dispatched by exact type through ``_STMT`` / ``_EXPR``, which hold only
-the node types the checker allows. Anything that escapes a node other than an
-``EventProgramError`` becomes ``ProgramRuntimeError`` on that node's line. Program calls use
-about 15 Python frames per level: a caller already near Python's recursion limit gets
-``BudgetExceededError`` earlier.
+``Interpreter`` runs the entry function and evaluates expressions (names, operators, calls,
+attributes, subscripts, displays, comprehensions, f-strings); its base ``Statements`` runs
+statements. Each statement and expression node costs one interpreter step (the ``Meter``
+checks steps and the injected clock every 64 steps); every value the program builds goes
+through the size-checking helpers of ``boundary``, ``operators``, ``builtin_functions``,
+``methods`` and ``access``. Nodes are dispatched by exact type through ``_STMT`` / ``_EXPR``,
+which hold only the node types the checker allows. Program calls use about 15 Python frames
+per level: a caller already near Python's recursion limit gets ``BudgetExceededError``
+earlier.
 """
 
 from __future__ import annotations
 
 import ast
 from collections.abc import Callable, Mapping
-from typing import Protocol, TypeAlias, TypeVar, cast
+from typing import TypeAlias, TypeVar, cast
 
-from tools.errors import EventProgramError, ToolError, did_you_mean
-from tools.sandbox.access import call_external, get_attribute, get_item, set_item, short_repr
+from tools.errors import did_you_mean
+from tools.sandbox.access import call_external, get_attribute, get_item
 from tools.sandbox.boundary import (
     OPERAND_TYPES,
     check_key,
@@ -30,7 +31,6 @@ from tools.sandbox.boundary import (
 )
 from tools.sandbox.budget import Budget, Meter
 from tools.sandbox.builtin_functions import BUILTINS
-from tools.sandbox.checker import CATCHABLE
 from tools.sandbox.errors import (
     BudgetExceededError,
     ForbiddenConstructError,
@@ -40,10 +40,9 @@ from tools.sandbox.errors import (
     UnknownNameError,
 )
 from tools.sandbox.operators import binary, check_hash_spread, compare, unary
+from tools.sandbox.statements import Statements
 from tools.sandbox.values import (
-    BREAK,
     BUILTIN_FUNCTIONS,
-    CONTINUE,
     MISSING,
     BoundMethod,
     BuiltinFunction,
@@ -51,13 +50,6 @@ from tools.sandbox.values import (
     SandboxFunction,
     Scope,
 )
-
-
-class _Deletable(Protocol):
-    """A list or a dict as ``del container[key]`` sees it (a bad key raises ``TypeError``)."""
-
-    def __delitem__(self, key: object, /) -> None: ...
-
 
 _METHOD_ERRORS = (TypeError, ValueError, IndexError, KeyError, AttributeError, OverflowError)
 
@@ -70,7 +62,7 @@ def _callee(node: ast.expr) -> str:
     return "the called function"
 
 
-class Interpreter:
+class Interpreter(Statements):
     """Evaluates a checked tree. Every node costs one step; sizes are checked by the helpers."""
 
     def __init__(
@@ -107,246 +99,6 @@ class Interpreter:
                 line=fn.line,
             )
         return self.call_function(fn, [], {}, fn.line)
-
-    # -- statements
-    def exec_block(self, body: list[ast.stmt], scope: Scope) -> object:
-        meter = self.meter
-        for stmt in body:
-            meter.steps += 1
-            if not meter.steps & 63:
-                meter.tick(stmt.lineno)
-            try:
-                signal = _STMT[type(stmt)](self, stmt, scope)
-            except EventProgramError:
-                raise
-            except (RecursionError, MemoryError):
-                raise BudgetExceededError(
-                    "the program nests or recurses too deeply, or uses too much memory",
-                    line=stmt.lineno,
-                ) from None
-            except Exception as err:
-                raise ProgramRuntimeError(
-                    f"{type(err).__name__}: {err}", line=stmt.lineno
-                ) from None
-            if signal is not None:
-                return signal
-        return None
-
-    def s_function(self, node: ast.FunctionDef, scope: Scope) -> object:
-        scope.vars[node.name] = self.make_function(
-            node.name, node.args, node.body, None, scope, node
-        )
-        return None
-
-    def make_function(
-        self,
-        name: str,
-        args: ast.arguments,
-        body: list[ast.stmt],
-        lambda_body: ast.expr | None,
-        scope: Scope,
-        node: ast.AST,
-    ) -> SandboxFunction:
-        defaults = [self.eval(d, scope) for d in args.defaults]
-        params = [a.arg for a in (*args.posonlyargs, *args.args)]
-        return SandboxFunction(
-            name,
-            params,
-            defaults,
-            body,
-            lambda_body,
-            scope,
-            self.local_names[id(node)],
-            getattr(node, "lineno", 0),
-        )
-
-    def s_return(self, node: ast.Return, scope: Scope) -> object:
-        return Return(None if node.value is None else self.eval(node.value, scope))
-
-    def s_assign(self, node: ast.Assign, scope: Scope) -> object:
-        value = self.eval(node.value, scope)
-        for target in node.targets:
-            self.assign(target, value, scope)
-        return None
-
-    def s_annassign(self, node: ast.AnnAssign, scope: Scope) -> object:
-        if node.value is not None:
-            self.assign(node.target, self.eval(node.value, scope), scope)
-        return None
-
-    def s_augassign(self, node: ast.AugAssign, scope: Scope) -> object:
-        target = node.target
-        line = node.lineno
-        if isinstance(target, ast.Name):
-            current = self.e_name(target, scope)
-        elif isinstance(target, ast.Subscript):
-            container = self.eval(target.value, scope)
-            key = self.eval(target.slice, scope)
-            current = get_item(container, key, self.meter, line)
-        else:
-            raise ForbiddenConstructError(
-                "this augmented assignment target is not supported", line=line
-            )
-        value = self.eval(node.value, scope)
-        if type(current) is list and isinstance(node.op, ast.Add):
-            items = materialize(value, self.meter, line)
-            self.meter.check_len(len(current) + len(items), line, added=len(items))
-            current.extend(items)
-            result: object = current
-        else:
-            result = binary(node.op, current, value, self.meter, line)
-        if isinstance(target, ast.Name):
-            scope.vars[target.id] = result
-        else:
-            set_item(container, key, result, self.meter, line)
-        return None
-
-    def s_expr(self, node: ast.Expr, scope: Scope) -> object:
-        self.eval(node.value, scope)
-        return None
-
-    def s_if(self, node: ast.If, scope: Scope) -> object:
-        if self.eval(node.test, scope):
-            return self.exec_block(node.body, scope)
-        return self.exec_block(node.orelse, scope) if node.orelse else None
-
-    def s_for(self, node: ast.For, scope: Scope) -> object:
-        line = node.lineno
-        meter = self.meter
-        for item in iter_source(self.eval(node.iter, scope), line):
-            meter.loop(line)
-            self.assign(node.target, item, scope)
-            signal = self.exec_block(node.body, scope)
-            if signal is None or signal is CONTINUE:
-                continue
-            if signal is BREAK:
-                return None
-            return signal
-        return self.exec_block(node.orelse, scope) if node.orelse else None
-
-    def s_while(self, node: ast.While, scope: Scope) -> object:
-        line = node.lineno
-        meter = self.meter
-        while self.eval(node.test, scope):
-            meter.loop(line)
-            signal = self.exec_block(node.body, scope)
-            if signal is None or signal is CONTINUE:
-                continue
-            if signal is BREAK:
-                return None
-            return signal
-        return self.exec_block(node.orelse, scope) if node.orelse else None
-
-    def s_pass(self, node: ast.stmt, scope: Scope) -> object:
-        return None
-
-    def s_break(self, node: ast.stmt, scope: Scope) -> object:
-        return BREAK
-
-    def s_continue(self, node: ast.stmt, scope: Scope) -> object:
-        return CONTINUE
-
-    def s_assert(self, node: ast.Assert, scope: Scope) -> object:
-        if not self.eval(node.test, scope):
-            detail = ""
-            if node.msg is not None:
-                detail = ": " + to_text(self.eval(node.msg, scope), self.meter, node.lineno)[:200]
-            raise ProgramRuntimeError(
-                f"assertion failed: `{ast.unparse(node.test)[:100]}`{detail}", line=node.lineno
-            )
-        return None
-
-    def s_try(self, node: ast.Try, scope: Scope) -> object:
-        try:
-            signal = self.exec_block(node.body, scope)
-        except ToolError as err:
-            handler = _matching_handler(node.handlers, err)
-            if handler is None:
-                self.exec_block(node.finalbody, scope)
-                raise
-            if handler.name:
-                scope.vars[handler.name] = err.feedback
-            try:
-                signal = self.exec_block(handler.body, scope)
-            except ToolError:
-                self.exec_block(node.finalbody, scope)
-                raise
-        else:
-            if node.orelse:
-                try:
-                    signal = self.exec_block(node.orelse, scope)
-                except ToolError:
-                    self.exec_block(node.finalbody, scope)
-                    raise
-        final = self.exec_block(node.finalbody, scope)
-        return final if final is not None else signal
-
-    def s_delete(self, node: ast.Delete, scope: Scope) -> object:
-        for target in node.targets:
-            line = node.lineno
-            if isinstance(target, ast.Name):
-                if scope.vars.pop(target.id, MISSING) is MISSING:
-                    raise ProgramRuntimeError(
-                        f"cannot delete '{target.id}': it is not a local variable here", line=line
-                    )
-            elif isinstance(target, ast.Subscript):
-                container = self.eval(target.value, scope)
-                key = self.eval_index(target.slice, scope)
-                if type(container) is dict:
-                    check_key(key, line)
-                elif type(container) is not list:
-                    raise ProgramRuntimeError(
-                        f"cannot delete items of a '{type_name(container)}'", line=line
-                    )
-                try:
-                    del cast(_Deletable, container)[key]
-                except (KeyError, IndexError, TypeError) as err:
-                    raise ProgramRuntimeError(
-                        f"cannot delete item {short_repr(key)}: {type(err).__name__}", line=line
-                    ) from None
-            else:
-                raise ForbiddenConstructError("this 'del' target is not supported", line=line)
-        return None
-
-    # -- assignment
-    def assign(self, target: ast.expr, value: object, scope: Scope) -> None:
-        if isinstance(target, ast.Name):
-            scope.vars[target.id] = value
-        elif isinstance(target, ast.Tuple | ast.List):
-            self.unpack(target.elts, value, scope, target.lineno)
-        elif isinstance(target, ast.Subscript):
-            container = self.eval(target.value, scope)
-            key = self.eval_index(target.slice, scope)
-            set_item(container, key, value, self.meter, target.lineno)
-        else:
-            raise ForbiddenConstructError(
-                "this assignment target is not supported", line=target.lineno
-            )
-
-    def unpack(self, elts: list[ast.expr], value: object, scope: Scope, line: int) -> None:
-        items = materialize(value, self.meter, line)
-        stars = [(i, e) for i, e in enumerate(elts) if isinstance(e, ast.Starred)]
-        if len(stars) > 1:
-            raise ProgramRuntimeError("only one '*' target is allowed in an assignment", line=line)
-        if not stars:
-            if len(items) != len(elts):
-                raise ProgramRuntimeError(
-                    f"cannot unpack {len(items)} values into {len(elts)} names", line=line
-                )
-            for e, item in zip(elts, items, strict=True):
-                self.assign(e, item, scope)
-            return
-        star, starred = stars[0]
-        after = len(elts) - star - 1
-        if len(items) < star + after:
-            raise ProgramRuntimeError(
-                f"cannot unpack {len(items)} values into {len(elts)} names", line=line
-            )
-        for e, item in zip(elts[:star], items[:star], strict=True):
-            self.assign(e, item, scope)
-        self.assign(starred.value, items[star : len(items) - after], scope)
-        for e, item in zip(elts[star + 1 :], items[len(items) - after :], strict=True):
-            self.assign(e, item, scope)
 
     # -- expressions
     def eval(self, node: ast.expr, scope: Scope) -> object:
@@ -696,60 +448,19 @@ def _is_entry_call(stmt: ast.stmt, entry: str) -> bool:
     )
 
 
-def _matching_handler(
-    handlers: list[ast.ExceptHandler], err: ToolError
-) -> ast.ExceptHandler | None:
-    for handler in handlers:
-        if handler.type is None:
-            return handler
-        names = handler.type.elts if isinstance(handler.type, ast.Tuple) else [handler.type]
-        for n in names:
-            if isinstance(n, ast.Name) and isinstance(err, CATCHABLE[n.id]):
-                return handler
-    return None
-
-
-_S = TypeVar("_S", bound=ast.stmt)
 _E = TypeVar("_E", bound=ast.expr)
-StmtHandler: TypeAlias = Callable[[Interpreter, ast.stmt, Scope], object]
 ExprHandler: TypeAlias = Callable[[Interpreter, ast.expr, Scope], object]
-
-
-def _stmt(
-    node_type: type[_S], handler: Callable[[Interpreter, _S, Scope], object]
-) -> tuple[type[ast.AST], StmtHandler]:
-    """A ``_STMT`` entry: ``exec_block`` looks handlers up by the node's exact type, so the
-    handler of ``node_type`` only ever receives a ``node_type``."""
-    return node_type, cast(StmtHandler, handler)
 
 
 def _expr(
     node_type: type[_E], handler: Callable[[Interpreter, _E, Scope], object]
 ) -> tuple[type[ast.AST], ExprHandler]:
-    """An ``_EXPR`` entry (looked up by ``eval`` like ``_stmt``'s)."""
+    """An ``_EXPR`` entry: ``eval`` looks handlers up by the node's exact type, so the
+    handler of ``node_type`` only ever receives a ``node_type``."""
     return node_type, cast(ExprHandler, handler)
 
 
 _I = Interpreter
-_STMT: dict[type[ast.AST], StmtHandler] = dict(
-    [
-        _stmt(ast.FunctionDef, _I.s_function),
-        _stmt(ast.Return, _I.s_return),
-        _stmt(ast.Assign, _I.s_assign),
-        _stmt(ast.AnnAssign, _I.s_annassign),
-        _stmt(ast.AugAssign, _I.s_augassign),
-        _stmt(ast.Expr, _I.s_expr),
-        _stmt(ast.If, _I.s_if),
-        _stmt(ast.For, _I.s_for),
-        _stmt(ast.While, _I.s_while),
-        _stmt(ast.Pass, _I.s_pass),
-        _stmt(ast.Break, _I.s_break),
-        _stmt(ast.Continue, _I.s_continue),
-        _stmt(ast.Assert, _I.s_assert),
-        _stmt(ast.Try, _I.s_try),
-        _stmt(ast.Delete, _I.s_delete),
-    ]
-)
 _EXPR: dict[type[ast.AST], ExprHandler] = dict(
     [
         _expr(ast.Constant, _I.e_constant),
