@@ -222,7 +222,7 @@ def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dic
 
     from sim.scene.files import load_scene
     from tools.character_states import world_view_from_reference_case
-    from tools.sandbox.interpreter import execute
+    from tools.sandbox import execute
     from tools.scene_graph import build_scene_graph
     from tools.spatial_api import SpatialAPI
 

@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tools.errors import EventProgramError, UnknownObjectError
-from tools.sandbox.interpreter import Budget, execute
+from tools.sandbox import Budget, execute
 
 SEEDS = [
     """

@@ -8,7 +8,7 @@ from typing import ClassVar
 import pytest
 
 from tools.errors import EventProgramError, ToolArgumentError, UnknownObjectError
-from tools.sandbox.interpreter import (
+from tools.sandbox import (
     Budget,
     BudgetExceededError,
     ForbiddenConstructError,

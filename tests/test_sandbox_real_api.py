@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from tools.sandbox.interpreter import Budget
+from tools.sandbox import Budget
 
 HERE = Path(__file__).resolve().parent
 HANG_TIMEOUT_S = 10.0
@@ -95,7 +95,7 @@ def worker(start: int) -> None:
     from sim.scene.bundled import load_bundled_scene
     from tools.errors import EventProgramError
     from tools.event_program import run_event_program
-    from tools.sandbox.interpreter import execute
+    from tools.sandbox import execute
     from tools.scene_graph import build_scene_graph
     from tools.spatial_api import SpatialAPI
 

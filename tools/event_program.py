@@ -1,6 +1,6 @@
 """Run one ``parse_event()`` program against the spatial API and return the characters' plans.
 
-The program runs in ``tools.sandbox.interpreter`` (never Python's ``exec``); the spatial API only records
+The program runs in ``tools.sandbox`` (never Python's ``exec``); the spatial API only records
 what the program asks for, and the records become ``CharacterPlan``s after the program has
 finished without error. A failure raises a ``tools.errors.EventProgramError`` subclass and
 leaves nothing behind.
@@ -33,7 +33,7 @@ def run_event_program(
     ``seed`` makes the sampled positions reproducible; ``action_labels`` (None: any label)
     restricts ``set_target_action``; ``graph`` saves rebuilding the scene graph.
     """
-    from tools.sandbox.interpreter import execute  # the sandbox is the only way programs run
+    from tools.sandbox import execute  # the sandbox is the only way programs run
 
     api = SpatialAPI(scene, graph, world, action_labels)
     execute(source, api.namespace(), entry="parse_event")

@@ -1,19 +1,20 @@
-"""Budgets, failure types and size guards of the event-program sandbox.
+"""Budgets and size guards of the event-program sandbox.
 
 A ``Budget`` bounds everything an event program can spend: interpreter steps, loop
 iterations, the size of every string / int / container it builds (checked *before* the
 value is computed), the total number of items it allocates, call depth, wall time and
-printed lines. ``Meter`` counts one run against one budget. The error classes are the
-sandbox's own ``EventProgramError`` subclasses (re-exported by ``tools.sandbox.interpreter``); each
-``feedback`` is one sentence fit to show the LLM, prefixed with the program line.
+printed lines. ``Meter`` counts one run against one budget and raises
+``BudgetExceededError`` the moment a limit is passed; its clock is injected (the runner
+passes one in), so this module reads no clock of its own.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
+from typing import cast
 
-from tools.errors import EventProgramError
+from tools.sandbox.errors import BudgetExceededError, Line
 
 
 @dataclass(frozen=True)
@@ -46,42 +47,6 @@ class Budget:
     """Largest width or precision in an f-string format spec."""
 
 
-class ProgramSyntaxError(EventProgramError):
-    """The program text is not valid Python (or not text)."""
-
-    kind = "syntax_error"
-
-
-class ForbiddenConstructError(EventProgramError):
-    """The program uses something event programs may not use (imports, classes, `_` names...)."""
-
-    kind = "forbidden_construct"
-
-
-class BudgetExceededError(EventProgramError):
-    """The program ran too long or built something too large."""
-
-    kind = "budget_exceeded"
-
-
-class ProgramRuntimeError(EventProgramError):
-    """The program failed while running (bad operands, index out of range, a tool misused...)."""
-
-    kind = "runtime_error"
-
-
-class UnknownNameError(ProgramRuntimeError):
-    """The program uses a name that is defined nowhere."""
-
-    kind = "unknown_name"
-
-
-class MissingEntryError(EventProgramError):
-    """The program does not define the entry function (``parse_event``)."""
-
-    kind = "missing_entry"
-
-
 class Meter:
     """Counts one run against a ``Budget``; every ``charge_*`` raises ``BudgetExceededError``."""
 
@@ -97,7 +62,7 @@ class Meter:
         self.depth = 0
         self.output: list[str] = []
 
-    def tick(self, line: int | None) -> None:
+    def tick(self, line: Line) -> None:
         """Called every 64 steps (and after tool calls): checks steps and wall time."""
         if self.steps > self.budget.steps:
             raise BudgetExceededError(
@@ -107,7 +72,7 @@ class Meter:
             )
         self.check_time(line)
 
-    def check_time(self, line: int | None) -> None:
+    def check_time(self, line: Line) -> None:
         elapsed = self.clock() - self.start
         if elapsed > self.budget.wall_time:
             raise BudgetExceededError(
@@ -116,13 +81,13 @@ class Meter:
                 line=line,
             )
 
-    def work(self, n: int, line: int | None) -> None:
+    def work(self, n: int, line: Line) -> None:
         """Charge ``n`` units of C-level work (one step per 8 units) done in a single operation."""
         self.steps += n >> 3
         if self.steps > self.budget.steps:
             self.tick(line)
 
-    def loop(self, line: int | None) -> None:
+    def loop(self, line: Line) -> None:
         self.loops += 1
         if self.loops > self.budget.loop_iterations:
             raise BudgetExceededError(
@@ -131,7 +96,7 @@ class Meter:
                 line=line,
             )
 
-    def allocate(self, n: int, line: int | None) -> None:
+    def allocate(self, n: int, line: Line) -> None:
         self.allocated += n
         if self.allocated > self.budget.allocated_items:
             raise BudgetExceededError(
@@ -139,7 +104,7 @@ class Meter:
                 line=line,
             )
 
-    def check_str(self, n: int, line: int | None) -> None:
+    def check_str(self, n: int, line: Line) -> None:
         """Before building a string of ``n`` characters."""
         if n > self.budget.str_len:
             raise BudgetExceededError(
@@ -147,9 +112,7 @@ class Meter:
             )
         self.allocate(n, line)
 
-    def check_len(
-        self, n: int, line: int | None, *, added: int | None = None, what: str = ""
-    ) -> None:
+    def check_len(self, n: int, line: Line, *, added: int | None = None, what: str = "") -> None:
         """Before building (or consuming whole) a container of ``n`` items.
 
         ``added`` is how many items are new (default ``n``); ``what`` names a consumer
@@ -164,7 +127,7 @@ class Meter:
             )
         self.allocate(n if added is None else added, line)
 
-    def check_bits(self, bits: int, line: int | None) -> None:
+    def check_bits(self, bits: int, line: Line) -> None:
         """Before (or right after) building an integer of ``bits`` bits."""
         if bits > self.budget.int_bits:
             raise BudgetExceededError(
@@ -172,7 +135,7 @@ class Meter:
                 line=line,
             )
 
-    def print_line(self, text: str, line: int | None) -> None:
+    def print_line(self, text: str, line: Line) -> None:
         if len(self.output) >= self.budget.output_lines:
             raise BudgetExceededError(
                 f"the program printed more than {self.budget.output_lines} lines", line=line
@@ -192,26 +155,23 @@ def text_len_bound(value: object, limit: int) -> int:
     while stack:
         v = stack.pop()
         t = type(v)
-        if t is str:
-            s: str = v  # type: ignore[assignment]
-            total += 2 * len(s) + 2 if s.isascii() and s.isprintable() else 10 * len(s) + 2
-        elif t is int:
-            total += int(v.bit_length() * 0.30103) + 3  # type: ignore[attr-defined]
+        if type(v) is str:
+            total += 2 * len(v) + 2 if v.isascii() and v.isprintable() else 10 * len(v) + 2
+        elif type(v) is int:
+            total += int(v.bit_length() * 0.30103) + 3
         elif t is bool or v is None:
             total += 5
         elif t is float:
             total += 25
-        elif t is list or t is tuple or t is set or t is frozenset:
-            total += 12 + 2 * len(v)  # type: ignore[arg-type]
-            stack.extend(v)  # type: ignore[arg-type]
-        elif t is dict:
-            d: dict[object, object] = v  # type: ignore[assignment]
-            total += 2 + 4 * len(d)
-            stack.extend(d.keys())
-            stack.extend(d.values())
-        elif t is range:
-            r: range = v  # type: ignore[assignment]
-            stack.extend((r.start, r.stop, r.step))
+        elif type(v) is list or type(v) is tuple or type(v) is set or type(v) is frozenset:
+            total += 12 + 2 * len(v)
+            stack.extend(v)
+        elif type(v) is dict:
+            total += 2 + 4 * len(v)
+            stack.extend(v.keys())
+            stack.extend(v.values())
+        elif type(v) is range:
+            stack.extend((v.start, v.stop, v.step))
             total += 16
         else:
             total += len(repr(v))
@@ -220,7 +180,7 @@ def text_len_bound(value: object, limit: int) -> int:
     return total
 
 
-_NESTED = frozenset({list, tuple, dict, set, frozenset})
+_NESTED: frozenset[type] = frozenset({list, tuple, dict, set, frozenset})
 
 
 def nested_size(value: object, cap: int) -> int:
@@ -235,19 +195,19 @@ def nested_size(value: object, cap: int) -> int:
     while stack:
         v = stack.pop()
         t = type(v)
-        if t is dict:
-            d: dict[object, object] = v  # type: ignore[assignment]
-            count += 2 * len(d)
+        if type(v) is dict:
+            count += 2 * len(v)
             if count > cap:
                 return count
-            if not _NESTED.isdisjoint(set(map(type, d.values()))):
-                stack.extend(d.values())
-            if not _NESTED.isdisjoint(set(map(type, d.keys()))):
-                stack.extend(d.keys())
+            if not _NESTED.isdisjoint(set(map(type, v.values()))):
+                stack.extend(v.values())
+            if not _NESTED.isdisjoint(set(map(type, v.keys()))):
+                stack.extend(v.keys())
         elif t in _NESTED:
-            count += len(v)  # type: ignore[arg-type]
+            items = cast("Collection[object]", v)  # t is list, tuple, set or frozenset
+            count += len(items)
             if count > cap:
                 return count
-            if not _NESTED.isdisjoint(set(map(type, v))):  # type: ignore[call-overload]
-                stack.extend(v)  # type: ignore[arg-type]
+            if not _NESTED.isdisjoint(set(map(type, items))):
+                stack.extend(items)
     return count

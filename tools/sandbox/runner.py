@@ -1,0 +1,73 @@
+"""The public entry of the sandbox: check a program, then run its entry function.
+
+``run_program`` (and ``execute``, which returns only the result) raises only
+``EventProgramError`` subclasses: ``ToolError`` from a tool unchanged (with its line), the
+sandbox's own errors from ``tools.sandbox.errors``, and anything else that escapes (even
+``SystemExit``) as ``ProgramRuntimeError``; running out of Python stack or memory is
+``BudgetExceededError``. The clock that bounds wall time is a parameter; ``time.monotonic``
+is only its default.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+from tools.errors import EventProgramError
+from tools.sandbox.budget import Budget
+from tools.sandbox.checker import check_program
+from tools.sandbox.errors import BudgetExceededError, ProgramRuntimeError
+from tools.sandbox.interpreter import Interpreter
+
+
+@dataclass(frozen=True)
+class ProgramRun:
+    """What one successful run produced: the entry's return value and the printed lines."""
+
+    result: object
+    output: tuple[str, ...]
+    steps: int
+
+
+def execute(
+    source: str,
+    namespace: Mapping[str, object],
+    *,
+    entry: str = "parse_event",
+    budget: Budget | None = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> object:
+    """Run ``source``'s module body, then ``entry()``; return what ``entry`` returns.
+
+    Raises only ``EventProgramError`` subclasses (``ToolError`` from tools unchanged).
+    """
+    return run_program(source, namespace, entry=entry, budget=budget, clock=clock).result
+
+
+def run_program(
+    source: str,
+    namespace: Mapping[str, object],
+    *,
+    entry: str = "parse_event",
+    budget: Budget | None = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> ProgramRun:
+    """Like ``execute`` but also returns the captured ``print`` output and the step count."""
+    budget = budget or Budget()
+    interpreter: Interpreter | None = None
+    try:
+        tree, local_names = check_program(source, namespace, budget=budget)
+        interpreter = Interpreter(namespace, budget, clock, local_names)
+        result = interpreter.run(tree, entry)
+        return ProgramRun(result, tuple(interpreter.meter.output), interpreter.meter.steps)
+    except EventProgramError as err:
+        if interpreter is not None:
+            err.steps = interpreter.meter.steps
+        raise
+    except (RecursionError, MemoryError):
+        raise BudgetExceededError(
+            "the program nests or recurses too deeply, or uses too much memory"
+        ) from None
+    except (Exception, SystemExit, KeyboardInterrupt) as err:  # never let anything else out
+        raise ProgramRuntimeError(f"the program failed: {type(err).__name__}: {err}") from None
