@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.bench_world import OFFICE, IdleErrands
+from benchmark.bench_world import OFFICE, REFERENCE, IdleErrands
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
 from sim.paths.nav_grid import build_nav_grid
@@ -123,6 +123,8 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
+    if not REFERENCE.found:
+        raise SystemExit(REFERENCE.reason)
     dbs = load_databases()
     for db in dbs.values():
         db.index  # noqa: B018

@@ -13,15 +13,16 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 
+from orchestrator.reference_data import locate_reference
 from sim.paths.cooperative_astar import PathPlanner
 from sim.paths.nav_grid import build_nav_grid, with_reference_grid_origin
 from sim.scene.files import load_scene
 
-OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
+REFERENCE = locate_reference()  # absent: main() exits with REFERENCE.reason
+OFFICE = REFERENCE.path / "configs" / "scenes" / "Office"
 
 
 def _spaced(cells: list[tuple[int, int]], n: int, rng: np.random.Generator) -> list[tuple[int, int]]:
@@ -51,6 +52,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
+    if not REFERENCE.found:
+        raise SystemExit(REFERENCE.reason)
     grid = build_nav_grid(with_reference_grid_origin(load_scene(OFFICE), OFFICE))
     cells = [tuple(map(int, c)) for c in np.argwhere(grid.component == grid.main_component)]
     whca = PathPlanner(grid, window=20, seed=args.seed)

@@ -35,11 +35,11 @@ import argparse
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from orchestrator.reference_data import locate_reference
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MotionMatcher, MotionQuery, Pose
 from sim.paths.cooperative_astar import PathPlanner, PlanResult
@@ -49,7 +49,8 @@ from sim.scene.model import Scene
 from sim.world.events import AssignEvent, Assignment
 from sim.world.step import World, WorldConfig, step
 
-OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
+REFERENCE = locate_reference()  # absent: main() exits with REFERENCE.reason
+OFFICE = REFERENCE.path / "configs" / "scenes" / "Office"
 
 
 # ----- instrumentation -------------------------------------------------------------------------
@@ -275,6 +276,8 @@ def main() -> None:
     ap.add_argument("--warmup", type=float, default=2.0,
                     help="simulated seconds of an untimed 10-character run per scene first (0: none)")
     args = ap.parse_args()
+    if not REFERENCE.found:
+        raise SystemExit(REFERENCE.reason)
 
     office = load_scene(OFFICE)
     t0 = time.perf_counter()

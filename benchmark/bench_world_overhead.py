@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.bench_world import OFFICE, IdleErrands
+from benchmark.bench_world import OFFICE, REFERENCE, IdleErrands
 from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher
 from sim.paths.cooperative_astar import PathPlanner, PlanResult
@@ -100,6 +100,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--clock", choices=("cpu", "wall"), default="cpu")
     args = ap.parse_args()
+    if not REFERENCE.found:
+        raise SystemExit(REFERENCE.reason)
     global CLOCK
     CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
     scene = load_scene(OFFICE)

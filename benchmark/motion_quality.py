@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from orchestrator.reference_data import locate_mocap, locate_reference
 from sim.body.skeleton import forward_kinematics
 from sim.motion.clips import FOOT_JOINTS, MotionClip
 from sim.motion.config import (
@@ -48,7 +49,9 @@ from sim.motion.sources.procedural_library import procedural_clips
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_CONFIG = HERE / "mocap_shared.toml"
-OFFICE = HERE.parent.parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
+REFERENCE = locate_reference()
+OFFICE = REFERENCE.path / "configs" / "scenes" / "Office"
+MOCAP = locate_mocap()
 FPS = 30.0
 METRICS = ("slide", "jerk", "speed", "cadence", "bob", "floor")
 
@@ -67,6 +70,13 @@ class MotionStats:
 
     def row(self) -> list[float]:
         return [getattr(self, m) for m in METRICS]
+
+
+def shipped_config() -> MotionConfig:
+    """``mocap_shared.toml`` reading its clips from the located mocap folder (``$STORYTELLER_MOCAP``,
+    else ``../shared/mocap``, which is the TOML's own ``root`` for a checkout beside ``shared/``)."""
+    config = load_motion_config(DEFAULT_CONFIG)
+    return config.model_copy(update={"root": str(MOCAP.path)}) if MOCAP.found else config
 
 
 def motion_stats(joints: np.ndarray, root_xy: np.ndarray, contacts: np.ndarray, fps: float = FPS) -> MotionStats:
@@ -189,14 +199,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 
-    config = load_motion_config(args.config)
+    config = shipped_config() if args.config == DEFAULT_CONFIG else load_motion_config(args.config)
     t0 = time.perf_counter()
     clips = compare_clips(config)
     print(f"clips (procedural vs real mocap from {args.config.name}; {time.perf_counter() - t0:.1f} s)")
     print(format_table([(k, p, r) for k, (p, r) in clips.items()]))
     if args.walkers > 0:
-        if not OFFICE.is_dir():
-            print(f"synthesized comparison skipped: {OFFICE} not found")
+        if not REFERENCE.found:
+            print(f"synthesized comparison skipped: {REFERENCE.reason}")
             return 0
         t0 = time.perf_counter()
         proc = simulate_walkers(MotionMatcher(load_databases()), args.walkers, args.seconds, args.seed)

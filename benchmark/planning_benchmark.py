@@ -52,11 +52,11 @@ from benchmark.reference_cases import (
     planning_inputs,
     scene_dir,
 )
+from orchestrator.reference_data import locate_reference
 from sim.scene.model import Scene
 from tools.scene_graph import SceneGraph, build_scene_graph
 
-PROJECT = Path(__file__).resolve().parents[1]
-DEFAULT_REFERENCE = PROJECT.parent / "shared" / "reference" / "event-driven-storytelling"
+DEFAULT_REFERENCE = locate_reference().path  # $STORYTELLER_REFERENCE, else ../shared/reference/event-driven-storytelling
 REFERENCE_DESCRIPTIONS = "openai-gpt-4o-2024-08-06-0.1"
 PLANNERS = ("event", "unified", "direct")
 DESCRIPTIONS = ("describer", "reference", "object-list", "scene-graph")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +11,8 @@ from hypothesis import strategies as st
 
 from sim.scene.files import load_scene
 from sim.scene.model import Scene, SceneObject
+from tests.support.reference import REFERENCE as REF
+from tests.support.reference import reference_or_skip
 from tools import areas
 from tools.character_states import (
     ReferenceCaseError,
@@ -22,19 +23,13 @@ from tools.errors import UnsatisfiableAreaError
 from tools.position_sampling import Constraints, FloorMap, sample_position
 from tools.scene_graph import point_footprint_distance
 
-REF = (
-    Path(__file__).resolve().parents[1].parent
-    / "shared"
-    / "reference"
-    / "event-driven-storytelling"
-)
 CASES = sorted((REF / "benchmark" / "test_cases").glob("*/*.json"))
 
 
 @pytest.fixture(scope="module")
 def scenes() -> dict[str, Scene]:
     return {
-        n: load_scene(REF / "configs" / "scenes" / n) for n in ("House", "Office", "Restaurant")
+        n: load_scene(reference_or_skip() / "configs" / "scenes" / n) for n in ("House", "Office", "Restaurant")
     }
 
 

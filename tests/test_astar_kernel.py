@@ -9,8 +9,6 @@ crowd of walkers along identical trajectories.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -25,14 +23,12 @@ from sim.paths.cooperative_astar import (
 from sim.paths.following import CrowdNavigator
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
-
-OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
+from tests.support.reference import OFFICE, reference_or_skip
 
 
 @pytest.fixture(scope="module")
 def grid() -> NavGrid:
-    if not OFFICE.is_dir():
-        pytest.skip("reference Office scene not available")
+    reference_or_skip()
     return build_nav_grid(load_scene(OFFICE))
 
 

@@ -9,16 +9,13 @@ an edge, zero-size boxes.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
-import pytest
 
 from sim.paths.nav_grid import body_clearance, body_clearance_reference, build_nav_grid
 from sim.scene.files import load_scene
 from sim.scene.model import SceneObject
-
-OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
+from tests.support.reference import OFFICE, reference_or_skip
 
 
 def _same(x: np.ndarray, y: np.ndarray) -> bool:
@@ -26,8 +23,7 @@ def _same(x: np.ndarray, y: np.ndarray) -> bool:
 
 
 def test_office_clearances_equal_the_reference() -> None:
-    if not OFFICE.exists():
-        pytest.skip(f"reference scene not found at {OFFICE}")
+    reference_or_skip()
     scene = load_scene(OFFICE)
     grid = build_nav_grid(scene)
     rng = np.random.default_rng(11)

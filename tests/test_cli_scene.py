@@ -16,9 +16,8 @@ from typer.testing import CliRunner
 
 from orchestrator.cli.app import app
 from sim.scene.bundled import load_bundled_scene
+from tests.support.reference import SCENES, requires_reference
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-REFERENCE_SCENES = SHARED / "reference" / "event-driven-storytelling" / "configs" / "scenes"
 runner = CliRunner()
 
 
@@ -76,11 +75,11 @@ def test_inspect_json_home_relations() -> None:
     assert ["microwave_1", "on", "cabinet_2"] in data["relations"]
 
 
-@pytest.mark.skipif(not REFERENCE_SCENES.is_dir(), reason="reference data not present")
+@requires_reference
 def test_inspect_reference_folder_with_png(tmp_path: Path) -> None:
     png = tmp_path / "house.png"
     result = runner.invoke(
-        app, ["scene", "inspect", str(REFERENCE_SCENES / "House"), "--json", "--png", str(png)]
+        app, ["scene", "inspect", str(SCENES / "House"), "--json", "--png", str(png)]
     )
     assert result.exit_code == 0, result.output
     data = json.loads(result.stdout)

@@ -2,23 +2,13 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from sim.scene.files import load_scene
 from sim.scene.model import Scene, SceneObject
+from tests.support.reference import SCENES, requires_reference
 from tools.clusters import cluster_objects, distance_matrix
-
-SCENES = (
-    Path(__file__).resolve().parents[1].parent
-    / "shared"
-    / "reference"
-    / "event-driven-storytelling"
-    / "configs"
-    / "scenes"
-)
 
 
 def box(name: str, x: float, y: float, z: float = 0.4, size: float = 0.5) -> SceneObject:
@@ -32,6 +22,7 @@ def scene_of(*objects: SceneObject) -> Scene:
     return Scene(name="t", bounds_min=(-20.0, -20.0), bounds_max=(20.0, 20.0), objects=objects)
 
 
+@requires_reference
 def test_house_regions_match_the_description_areas() -> None:
     clusters = cluster_objects(load_scene(SCENES / "House"))
     as_sets = [set(c) for c in clusters]
@@ -48,6 +39,7 @@ def test_house_regions_match_the_description_areas() -> None:
 
 
 @pytest.mark.parametrize("name", ["House", "Office", "Restaurant"])
+@requires_reference
 def test_every_object_in_exactly_one_cluster(name: str) -> None:
     scene = load_scene(SCENES / name)
     clusters = cluster_objects(scene)

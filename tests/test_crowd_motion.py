@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -40,8 +39,8 @@ from sim.scene.files import load_scene
 from sim.scene.model import Scene
 from sim.world.events import AssignEvent, Assignment
 from sim.world.step import World, WorldConfig, step
+from tests.support.reference import OFFICE, reference_or_skip
 
-OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
 BODY_RADIUS = 0.25
 FLOOR_SUPPORT = 0.10
 
@@ -195,8 +194,7 @@ def measure(world: World, scene: Scene, given: int, reached: int, failures: int)
 
 @pytest.fixture(scope="module")
 def crowd() -> tuple[World, CrowdReport]:
-    if not OFFICE.exists():
-        pytest.skip(f"reference scene not found at {OFFICE}")
+    reference_or_skip()
     from sim.motion.database import load_databases
     from sim.motion.matching import MotionMatcher
 
@@ -224,8 +222,7 @@ def test_fifty_walkers_never_enter_furniture(crowd: tuple[World, CrowdReport]) -
 def test_off_grid_targets_keep_feet_out_of_furniture() -> None:
     # Targets up to 0.12 m off the cell centres bring bodies closer to furniture edges (without
     # the leg IK two foot joints went over 10 cm deep here).
-    if not OFFICE.exists():
-        pytest.skip(f"reference scene not found at {OFFICE}")
+    reference_or_skip()
     from sim.motion.database import load_databases
     from sim.motion.matching import MotionMatcher
 

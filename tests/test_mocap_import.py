@@ -19,9 +19,8 @@ from sim.motion.sources.bvh_import import (
     parse_bvh,
 )
 from sim.motion.sources.procedural_actions import action_clip
+from tests.support.reference import MOCAP, requires_mocap
 
-MOCAP = Path(__file__).resolve().parents[1].parent / "shared" / "mocap"
-needs_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason="../shared/mocap not present")
 HEAD = JOINT_INDEX["head"]
 
 
@@ -32,7 +31,7 @@ def _stats(clip):  # type: ignore[no-untyped-def]
     return pos, height, speed
 
 
-@needs_mocap
+@requires_mocap
 @pytest.mark.parametrize(
     ("rel", "start", "end", "fps", "min_speed", "max_speed"),
     [
@@ -59,7 +58,7 @@ def test_bvh_import_of_real_clips(rel: str, start: int, end: int | None, fps: fl
     assert pos[:, [10, 11], 2].min() > -0.05  # feet do not sink under the floor
 
 
-@needs_mocap
+@requires_mocap
 def test_wave_raises_the_right_hand_and_walk_slides_little() -> None:
     wave = import_bvh(MOCAP / "fair_animated_drawings/wave_hello.bvh", "wave")
     pos = wave.joint_positions()
@@ -71,7 +70,7 @@ def test_wave_raises_the_right_hand_and_walk_slides_little() -> None:
     assert foot_sliding(walk.joint_positions(), walk.contacts) < 0.3
 
 
-@needs_mocap
+@requires_mocap
 def test_parser_agrees_with_an_independent_reader() -> None:
     path = MOCAP / "cmu/max/131_02.bvh"
     ours = parse_bvh(path)
@@ -125,7 +124,7 @@ def test_amass_npz_round_trip(tmp_path: Path) -> None:
         import_amass(tmp_path / "broken.npz", "drink")
 
 
-@needs_mocap
+@requires_mocap
 def test_config_builds_databases_from_real_mocap(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))
     cfg = tmp_path / "motion.toml"

@@ -25,8 +25,7 @@ from sim.motion.sources.procedural_actions import action_clip, sit_idle_clip, si
 from sim.motion.sources.procedural_library import procedural_clips
 from sim.motion.sources.procedural_locomotion import locomotion_clips
 from sim.motion.sources.procedural_rig import TOE_HEIGHT, two_bone_ik
-
-CASES = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "benchmark" / "test_cases"
+from tests.support.reference import TEST_CASES, requires_reference
 
 
 def test_rest_pose_stands_on_the_floor_and_faces_heading() -> None:
@@ -44,10 +43,10 @@ def test_rest_pose_stands_on_the_floor_and_faces_heading() -> None:
     assert heading_to_root(np.zeros(5)).shape == (5, 3, 3)
 
 
-@pytest.mark.skipif(not CASES.is_dir(), reason="reference test cases not present")
+@requires_reference
 def test_every_reference_action_label_is_covered() -> None:
     labels: set[str] = set()
-    for f in CASES.glob("*/*.json"):
+    for f in TEST_CASES.glob("*/*.json"):
         labels.update(json.loads(f.read_text())["action_labels"])
     assert len(labels) >= 35
     assert labels <= set(ACTION_LABELS)

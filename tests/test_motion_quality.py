@@ -9,20 +9,19 @@ import pytest
 
 from benchmark.motion_quality import (
     DEFAULT_CONFIG,
-    OFFICE,
     compare_clips,
     format_table,
     main,
     motion_stats,
     pooled,
+    shipped_config,
     simulate_walkers,
 )
+from orchestrator.reference_data import DEFAULT_MOCAP, PROJECT_ROOT
 from sim.motion.config import load_motion_config
 from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher
-
-MOCAP = Path(__file__).resolve().parents[1].parent / "shared" / "mocap"
-needs_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason="../shared/mocap not present")
+from tests.support.reference import MOCAP, requires_mocap, requires_reference
 
 
 def _walker(frames: int = 61, speed: float = 1.2, slide: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -82,9 +81,14 @@ def test_pooling_weights_by_frames_and_short_motions_are_refused() -> None:
         pooled([])
 
 
-@needs_mocap
+def test_shipped_config_root_is_the_default_mocap_folder() -> None:
+    root = load_motion_config(DEFAULT_CONFIG).root
+    assert (DEFAULT_CONFIG.parent / root).resolve() == (PROJECT_ROOT / DEFAULT_MOCAP).resolve()
+
+
+@requires_mocap
 def test_shipped_config_reads_the_shared_clips_in_place() -> None:
-    config = load_motion_config(DEFAULT_CONFIG)
+    config = shipped_config()
     assert {e.label for e in config.clips} >= {"walk", "wave", "dance"}
     for entry in config.clips:
         path = config.resolve(entry)
@@ -92,10 +96,10 @@ def test_shipped_config_reads_the_shared_clips_in_place() -> None:
         assert MOCAP.resolve() in path.resolve().parents  # read from ../shared, not copied
 
 
-@needs_mocap
+@requires_mocap
 def test_real_walks_against_procedural_walks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))
-    result = compare_clips(load_motion_config(DEFAULT_CONFIG), ["walk", "wave"])
+    result = compare_clips(shipped_config(), ["walk", "wave"])
     proc, real = result["walk"]
     assert 0.5 < real.speed < 1.6 and 0.5 < proc.speed < 1.6  # both walk at human speeds
     assert real.cadence > 0 and proc.cadence > 0
@@ -104,7 +108,7 @@ def test_real_walks_against_procedural_walks(tmp_path: Path, monkeypatch: pytest
     assert "walk" in table and "proc/real" in table and "wave" in table
 
 
-@pytest.mark.skipif(not OFFICE.is_dir(), reason="reference Office scene not present")
+@requires_reference
 def test_synthesized_walkers_are_measured() -> None:
     stats = simulate_walkers(MotionMatcher(load_databases(["walk", "idle"])), 1, 4.0, seed=3)
     assert stats.frames == 120
@@ -112,7 +116,7 @@ def test_synthesized_walkers_are_measured() -> None:
     assert stats.floor > -0.1
 
 
-@needs_mocap
+@requires_mocap
 def test_cli_prints_the_clip_table(capsys: pytest.CaptureFixture[str], tmp_path: Path,
                                    monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -18,9 +16,7 @@ from sim.paths.nav_grid import (
 )
 from sim.scene.files import load_scene
 from sim.scene.model import NavHints, Scene, SceneObject
-
-REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling"
-SCENES = REFERENCE / "configs" / "scenes"
+from tests.support.reference import SCENES, reference_or_skip, requires_reference
 
 
 def _box(name: str, center: tuple[float, float, float], size: tuple[float, float, float], **kw: object) -> SceneObject:
@@ -33,6 +29,7 @@ def _room(*objects: SceneObject, nav: NavHints | None = None) -> Scene:
 
 
 def _office() -> Scene:
+    reference_or_skip()
     return with_reference_grid_origin(load_scene(SCENES / "Office"), SCENES / "Office")
 
 
@@ -109,6 +106,7 @@ def test_office_reference_overrides_draw_the_walls() -> None:
 
 
 @pytest.mark.parametrize("name", ["House", "Office", "Restaurant"])
+@requires_reference
 def test_seats_have_reachable_approach_cells(name: str) -> None:
     scene = with_reference_grid_origin(load_scene(SCENES / name), SCENES / name)
     grid = build_nav_grid(scene)

@@ -2,19 +2,17 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from sim.paths.following import CrowdNavigator
 from sim.paths.nav_grid import body_clearance, build_nav_grid, with_reference_grid_origin
 from sim.scene.files import load_scene
-
-OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
+from tests.support.reference import OFFICE, requires_reference
 
 
 @pytest.mark.slow
+@requires_reference
 def test_fifty_walkers_never_overlap_or_enter_furniture() -> None:
     grid = build_nav_grid(with_reference_grid_origin(load_scene(OFFICE), OFFICE))
     cells = [tuple(map(int, c)) for c in np.argwhere(grid.component == grid.main_component)]

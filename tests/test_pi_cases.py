@@ -18,16 +18,13 @@ from benchmark.position_check import check_position
 from orchestrator.cli.app import app
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
+from tests.support.reference import REFERENCE as REF
+from tests.support.reference import requires_reference
 from tools.character_states import world_view_from_reference_case
 from tools.event_program import run_event_program
 from tools.scene_graph import SceneGraph, build_scene_graph
 
-REF = (
-    Path(__file__).resolve().parents[1].parent
-    / "shared"
-    / "reference"
-    / "event-driven-storytelling"
-)
+pytestmark = requires_reference
 PROGRAMS = Path(__file__).resolve().parent / "pi_programs"
 CASE_IDS = list(range(60, 70))
 SEEDS = range(20)

@@ -27,9 +27,9 @@ from benchmark.reference_cases import (
     scene_dir,
 )
 from sim.scene.files import load_scene
+from tests.support.reference import REFERENCE, requires_reference
 
-REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling"
-pytestmark = pytest.mark.skipif(not REFERENCE.is_dir(), reason="reference data not present")
+pytestmark = requires_reference
 
 PROGRAMS = {  # correct answers for a few cases, as an event parser would write them
     0: ("Ryan", "text a friend near table_3", 'a = get_character("Ryan")\n'

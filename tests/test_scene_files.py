@@ -13,23 +13,18 @@ import pytest
 from sim.scene.bundled import bundled_scene_names, load_bundled_scene, resolve_scene
 from sim.scene.files import SceneFileError, load_reference_folder, load_scene, save_scene_json
 from sim.scene.model import Scene
-
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-REFERENCE_SCENES = SHARED / "reference" / "event-driven-storytelling" / "configs" / "scenes"
-needs_reference = pytest.mark.skipif(
-    not REFERENCE_SCENES.is_dir(), reason="reference data not present"
-)
+from tests.support.reference import SCENES, requires_reference
 
 
 # ----- good files ------------------------------------------------------------------------------
-@needs_reference
+@requires_reference
 @pytest.mark.parametrize(("folder", "count"), [("House", 23), ("Office", 51), ("Restaurant", 39)])
 def test_reference_folders_load_unmodified(folder: str, count: int) -> None:
-    scene = load_scene(REFERENCE_SCENES / folder)
+    scene = load_scene(SCENES / folder)
     assert scene.name == folder
     assert len(scene.objects) == count
     assert scene.bounds_min[0] == pytest.approx(0.0, abs=1e-6)
-    raw = json.loads((REFERENCE_SCENES / folder / "objects.json").read_text())
+    raw = json.loads((SCENES / folder / "objects.json").read_text())
     by_name = scene.by_name
     for entry in raw:
         obj = by_name[f"{entry['label']}_{entry['idx']}"]
@@ -43,16 +38,16 @@ def test_reference_folders_load_unmodified(folder: str, count: int) -> None:
             assert 0.3 <= obj.sit_offset_vertical <= 0.5
 
 
-@needs_reference
+@requires_reference
 def test_reference_details() -> None:
     house = load_scene(
-        REFERENCE_SCENES / "House" / "objects.json"
+        SCENES / "House" / "objects.json"
     )  # the file works as well as its folder
     assert house.nav.cell_size == pytest.approx(0.3)
     assert house.nav.body_radius == pytest.approx(0.302)
     assert house.nav.unoccupied == ((5, 28),)
     assert house.get("coffee_maker_1").z_min == pytest.approx(0.9, abs=0.05)
-    office = load_scene(REFERENCE_SCENES / "Office")
+    office = load_scene(SCENES / "Office")
     assert len(office.nav.occupied) > 100
     assert office.bounds_max == pytest.approx((9.57271159, 16.74502809499405))
 
@@ -67,9 +62,9 @@ def test_project_json_round_trip(name: str, tmp_path: Path) -> None:
     assert again.model_dump_json() == scene.model_dump_json()
 
 
-@needs_reference
+@requires_reference
 def test_reference_scene_round_trips_through_project_json(tmp_path: Path) -> None:
-    scene = load_scene(REFERENCE_SCENES / "Restaurant")
+    scene = load_scene(SCENES / "Restaurant")
     save_scene_json(scene, tmp_path / "r.json")
     assert load_scene(tmp_path / "r.json") == scene
 
@@ -298,9 +293,9 @@ def test_reference_folder_without_optional_files(tmp_path: Path) -> None:
     assert scene.nav.cell_size == 0.3 and scene.nav.occupied == ()
 
 
-@needs_reference
+@requires_reference
 def test_copied_reference_folder_loads_under_any_name(tmp_path: Path) -> None:
-    shutil.copytree(REFERENCE_SCENES / "House", tmp_path / "MyHouse")
+    shutil.copytree(SCENES / "House", tmp_path / "MyHouse")
     scene = load_scene(tmp_path / "MyHouse")
     assert scene.name == "MyHouse" and len(scene.objects) == 23
     assert isinstance(scene, Scene)

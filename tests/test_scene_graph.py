@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +12,7 @@ from pydantic import ValidationError
 
 from sim.scene.files import load_scene
 from sim.scene.model import Scene, SceneObject
+from tests.support.reference import SCENES, reference_or_skip, requires_reference
 from tools.scene_graph import (
     RELATIONS,
     RelationThresholds,
@@ -23,23 +23,16 @@ from tools.scene_graph import (
 )
 from tools.scene_text import clusters_text, object_list_text, scene_graph_json
 
-SCENES = (
-    Path(__file__).resolve().parents[1].parent
-    / "shared"
-    / "reference"
-    / "event-driven-storytelling"
-    / "configs"
-    / "scenes"
-)
-
 
 @pytest.fixture(scope="module", params=["House", "Office", "Restaurant"])
 def ref_graph(request: pytest.FixtureRequest):
+    reference_or_skip()
     return build_scene_graph(load_scene(SCENES / request.param))
 
 
 @pytest.fixture(scope="module")
 def house():
+    reference_or_skip()
     return build_scene_graph(load_scene(SCENES / "House"))
 
 
@@ -98,6 +91,7 @@ def test_house_horizontal_relations_from_description(house) -> None:
         assert t in triples, t
 
 
+@requires_reference
 def test_office_and_restaurant_support_from_description() -> None:
     office = set(build_scene_graph(load_scene(SCENES / "Office")).triples())
     for i, table in [(1, 3), (2, 1), (3, 2), (4, 6), (5, 7), (6, 11), (7, 5), (8, 8)]:

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import inspect
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
+from tests.support.reference import REFERENCE as REF
+from tests.support.reference import reference_or_skip
 from tools.areas import Area
 from tools.character_states import WorldView, world_view_from_reference_case
 from tools.errors import (
@@ -27,12 +28,6 @@ from tools.position_sampling import FloorMap
 from tools.scene_graph import build_scene_graph
 from tools.spatial_api import MAX_NEW_CHARACTERS, CharacterHandle, SpatialAPI
 
-REF = (
-    Path(__file__).resolve().parents[1].parent
-    / "shared"
-    / "reference"
-    / "event-driven-storytelling"
-)
 PAPER_FUNCTIONS = {
     "get_object_supporting", "get_objects_supported_by", "get_objects_in_front_of", "get_objects_behind",
     "get_objects_left_of", "get_objects_right_of", "get_objects_close_to", "get_objects_associated_with",
@@ -45,7 +40,7 @@ PAPER_FUNCTIONS = {
 
 @pytest.fixture(scope="module")
 def house() -> Scene:
-    return load_scene(REF / "configs" / "scenes" / "House")
+    return load_scene(reference_or_skip() / "configs" / "scenes" / "House")
 
 
 @pytest.fixture(scope="module")

@@ -21,8 +21,7 @@ from sim.scene.files import load_scene
 from sim.scene.model import Scene
 from sim.world.events import AssignEvent, Assignment, ReleaseCharacters, StepOutput
 from sim.world.step import World, WorldConfig, WorldError, run, step
-
-OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
+from tests.support.reference import OFFICE, reference_or_skip
 
 
 class StandInMotion:
@@ -46,8 +45,7 @@ class StandInMotion:
 
 @pytest.fixture(scope="module")
 def office() -> tuple[Scene, object, PathPlanner]:
-    if not OFFICE.exists():
-        pytest.skip(f"reference scene not found at {OFFICE}")
+    reference_or_skip()
     scene = load_scene(OFFICE)
     grid = build_nav_grid(scene)
     return scene, grid, PathPlanner(grid)

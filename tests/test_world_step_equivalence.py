@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,8 +33,7 @@ from sim.paths.nav_grid import build_nav_grid
 from sim.scene.files import load_scene
 from sim.world.events import AssignEvent, Assignment, ReleaseCharacters, StepOutput
 from sim.world.step import World, WorldConfig, step
-
-OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
+from tests.support.reference import OFFICE, reference_or_skip
 
 FRAMES = 420
 EXPECTED_SHA256 = "7ab999b392ddd3a49e4e2f309653fde4aa9307b9c556f6d6158686ae2463d1dc"
@@ -194,8 +192,7 @@ def simulate() -> tuple[str, dict[str, tuple[float, float]], World, list[StepOut
 
 @pytest.fixture(scope="module")
 def result() -> tuple[str, dict[str, tuple[float, float]], World, list[StepOutput]]:
-    if not OFFICE.exists():
-        pytest.skip(f"reference scene not found at {OFFICE}")
+    reference_or_skip()
     return simulate()
 
 
