@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from sim.scene.model import Scene
 
@@ -26,10 +27,10 @@ class Footprints:
     """Oriented xy boxes: centres, unit right / facing axes (B, 2) and half sizes (B, 2)
     (along right, along facing), already grown by the margin."""
 
-    centers: np.ndarray
-    rights: np.ndarray
-    facings: np.ndarray
-    halves: np.ndarray
+    centers: NDArray[np.float64]
+    rights: NDArray[np.float64]
+    facings: NDArray[np.float64]
+    halves: NDArray[np.float64]
 
     @classmethod
     def from_scene(cls, scene: Scene, margin: float, floor_support: float = 0.10) -> Footprints:
@@ -51,8 +52,8 @@ class Footprints:
 
 
 @njit(cache=True)
-def _depth(x: float, y: float, centers: np.ndarray, rights: np.ndarray, facings: np.ndarray,
-           halves: np.ndarray, b: int) -> float:  # pragma: no cover - compiled
+def _depth(x: float, y: float, centers: NDArray[np.float64], rights: NDArray[np.float64], facings: NDArray[np.float64],
+           halves: NDArray[np.float64], b: int) -> float:  # pragma: no cover - compiled
     """How deep (m) point (x, y) is inside box ``b`` (<= 0: outside or on its edge)."""
     dx = x - centers[b, 0]
     dy = y - centers[b, 1]
@@ -62,8 +63,8 @@ def _depth(x: float, y: float, centers: np.ndarray, rights: np.ndarray, facings:
 
 
 @njit(cache=True)
-def _penetration(points: np.ndarray, m: int, sx: float, sy: float, centers: np.ndarray,
-                 rights: np.ndarray, facings: np.ndarray, halves: np.ndarray) -> float:  # pragma: no cover - compiled
+def _penetration(points: NDArray[np.float64], m: int, sx: float, sy: float, centers: NDArray[np.float64],
+                 rights: NDArray[np.float64], facings: NDArray[np.float64], halves: NDArray[np.float64]) -> float:  # pragma: no cover - compiled
     """Summed depth of foot ``m``'s points, shifted by (sx, sy), inside all boxes."""
     total = 0.0
     for b in range(centers.shape[0]):
@@ -75,8 +76,8 @@ def _penetration(points: np.ndarray, m: int, sx: float, sy: float, centers: np.n
 
 
 @njit(cache=True)
-def _push_out_kernel(points: np.ndarray, centers: np.ndarray, rights: np.ndarray, facings: np.ndarray,
-                     halves: np.ndarray, passes: int) -> np.ndarray:  # pragma: no cover - compiled
+def _push_out_kernel(points: NDArray[np.float64], centers: NDArray[np.float64], rights: NDArray[np.float64], facings: NDArray[np.float64],
+                     halves: NDArray[np.float64], passes: int) -> NDArray[np.float64]:  # pragma: no cover - compiled
     m_count = points.shape[0]
     shift = np.zeros((m_count, 2))
     for m in range(m_count):
@@ -124,7 +125,7 @@ def _push_out_kernel(points: np.ndarray, centers: np.ndarray, rights: np.ndarray
     return shift
 
 
-def push_out(points: np.ndarray, footprints: Footprints, passes: int = 4) -> np.ndarray:
+def push_out(points: NDArray[np.float64], footprints: Footprints, passes: int = 4) -> NDArray[np.float64]:
     """Horizontal shifts (M, 2) that move each rigid group of points (M, P, 2) out of every
     footprint: each pass tries, for every box the group is in, the four sides' exits and keeps
     the one leaving the least summed depth inside all boxes (then the shortest); a group that

@@ -15,6 +15,7 @@ Rotations are 3x3 matrices in numpy arrays; axis-angle conversion uses scipy.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 JOINT_NAMES: tuple[str, ...] = (
@@ -81,14 +82,14 @@ assert REST_OFFSETS.shape == (NUM_JOINTS, 3)
 BODY_TO_WORLD = Rotation.from_euler("x", 90, degrees=True).as_matrix()
 
 
-def rest_positions() -> np.ndarray:
+def rest_positions() -> NDArray[np.float64]:
     """Joint positions (22, 3) of the rest pose in the body frame (feet near y = 0)."""
     return forward_kinematics(np.broadcast_to(np.eye(3), (NUM_JOINTS, 3, 3)), REST_OFFSETS[0])[0]
 
 
 def forward_kinematics(
-    local_rotations: np.ndarray, root_position: np.ndarray, offsets: np.ndarray = REST_OFFSETS
-) -> tuple[np.ndarray, np.ndarray]:
+    local_rotations: NDArray[np.float64], root_position: NDArray[np.float64], offsets: NDArray[np.float64] = REST_OFFSETS
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Batched FK.
 
     local_rotations: (..., 22, 3, 3), each joint's rotation relative to its parent; joint 0's is
@@ -110,20 +111,20 @@ def forward_kinematics(
     return np.ascontiguousarray(t[..., :3, 3]), np.ascontiguousarray(t[..., :3, :3])
 
 
-def heading_to_root(theta: float | np.ndarray) -> np.ndarray:
+def heading_to_root(theta: float | NDArray[np.float64]) -> NDArray[np.float64]:
     """Root rotation(s) (..., 3, 3) that stand the body upright facing world angle ``theta``."""
     theta = np.asarray(theta, dtype=float)
     rz = Rotation.from_euler("z", (theta + np.pi / 2).reshape(-1, 1)).as_matrix()
     return (rz @ BODY_TO_WORLD).reshape(*theta.shape, 3, 3)
 
 
-def axis_angle_to_matrix(axis_angle: np.ndarray) -> np.ndarray:
+def axis_angle_to_matrix(axis_angle: NDArray[np.float64]) -> NDArray[np.float64]:
     """(..., 3) axis-angle -> (..., 3, 3) rotation matrices."""
     aa = np.asarray(axis_angle, dtype=float)
     return Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(*aa.shape[:-1], 3, 3)
 
 
-def matrix_to_axis_angle(matrix: np.ndarray) -> np.ndarray:
+def matrix_to_axis_angle(matrix: NDArray[np.float64]) -> NDArray[np.float64]:
     """(..., 3, 3) rotation matrices -> (..., 3) axis-angle."""
     m = np.asarray(matrix, dtype=float)
     return Rotation.from_matrix(m.reshape(-1, 3, 3)).as_rotvec().reshape(*m.shape[:-2], 3)

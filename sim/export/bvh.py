@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import (
@@ -71,7 +72,7 @@ def bvh_hierarchy(units: Units = "m") -> str:
     scale = UNIT_SCALE[units]
     lines = ["HIERARCHY"]
 
-    def vec(v: np.ndarray | tuple[float, float, float]) -> str:
+    def vec(v: NDArray[np.float64] | tuple[float, float, float]) -> str:
         return " ".join(f"{x * scale:.6f}" for x in v)
 
     def write(j: int, depth: int) -> None:
@@ -104,7 +105,7 @@ def bvh_hierarchy(units: Units = "m") -> str:
     return "\n".join(lines) + "\n"
 
 
-def bvh_motion_values(track: CharacterTrack, units: Units = "m") -> np.ndarray:
+def bvh_motion_values(track: CharacterTrack, units: Units = "m") -> NDArray[np.float64]:
     """The MOTION rows (N, 6 + 3 * 21): root position and Euler degrees, depth-first order."""
     n = track.num_frames
     rotations = np.array(track.local_rotations)

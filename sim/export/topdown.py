@@ -30,6 +30,7 @@ from matplotlib import colormaps
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Polygon, Rectangle
+from numpy.typing import NDArray
 
 from sim.scene.model import Scene
 
@@ -62,11 +63,11 @@ def draw_topdown(
     scene: Scene,
     *,
     clusters: Sequence[Sequence[str]] | None = None,
-    nav_free: np.ndarray | None = None,
+    nav_free: NDArray[np.float64] | None = None,
     nav_origin: tuple[float, float] = (0.0, 0.0),
     nav_cell_size: float = 0.3,
     characters: Sequence[CharacterMarker] | None = None,
-    paths: Sequence[np.ndarray] | Mapping[str, np.ndarray] | None = None,
+    paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None = None,
     title: str | None = None,
     captions: Sequence[str] | None = None,
     show_names: bool = True,
@@ -236,7 +237,7 @@ def draw_topdown(
     return fig
 
 
-def render_topdown_rgb(scene: Scene, **layers: object) -> np.ndarray:
+def render_topdown_rgb(scene: Scene, **layers: object) -> NDArray[np.float64]:
     """The picture as an ``(H, W, 3)`` uint8 array (one frame of an animation)."""
     fig = draw_topdown(scene, **layers)  # type: ignore[arg-type]
     canvas = fig.canvas

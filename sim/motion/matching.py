@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.body.skeleton import NUM_JOINTS, forward_kinematics
 from sim.motion.action_labels import database_key
@@ -65,11 +66,11 @@ class MotionQuery:
 
     label: str
     seated: bool = False
-    root_xy: np.ndarray | None = None
+    root_xy: NDArray[np.float64] | None = None
     heading: float | None = None
-    future_xy: np.ndarray | None = None
-    future_heading: np.ndarray | None = None
-    target_xy: np.ndarray | None = None
+    future_xy: NDArray[np.float64] | None = None
+    future_heading: NDArray[np.float64] | None = None
+    target_xy: NDArray[np.float64] | None = None
     target_facing: float | None = None
     seat_height: float | None = None
     force_search: bool = False
@@ -80,13 +81,13 @@ class Pose:
     """Output pose: pelvis (3,) world; local_rotations (22,3,3) with joint 0 the world pelvis
     rotation; root_xy (2,) / heading (rad) of the character; contacts (2,) left/right foot."""
 
-    pelvis: np.ndarray
-    local_rotations: np.ndarray
-    root_xy: np.ndarray
+    pelvis: NDArray[np.float64]
+    local_rotations: NDArray[np.float64]
+    root_xy: NDArray[np.float64]
     heading: float
-    contacts: np.ndarray
+    contacts: NDArray[np.float64]
 
-    def joints(self) -> np.ndarray:
+    def joints(self) -> NDArray[np.float64]:
         """World joint positions (22,3)."""
         return forward_kinematics(self.local_rotations, self.pelvis)[0]
 
@@ -104,18 +105,18 @@ class MatchState:
 
     key: str
     frame: int
-    root_xy: np.ndarray
+    root_xy: NDArray[np.float64]
     heading: float
     frame_clock: float = 0.0
     since_search: int = 0
-    offset_rot: np.ndarray | None = None
-    offset_ang_vel: np.ndarray | None = None
-    offset_pos: np.ndarray | None = None
-    offset_vel: np.ndarray | None = None
-    pose_local: np.ndarray | None = None
-    pose_pelvis: np.ndarray | None = None
-    prev_local: np.ndarray | None = None
-    prev_pelvis: np.ndarray | None = None
+    offset_rot: NDArray[np.float64] | None = None
+    offset_ang_vel: NDArray[np.float64] | None = None
+    offset_pos: NDArray[np.float64] | None = None
+    offset_vel: NDArray[np.float64] | None = None
+    pose_local: NDArray[np.float64] | None = None
+    pose_pelvis: NDArray[np.float64] | None = None
+    prev_local: NDArray[np.float64] | None = None
+    prev_pelvis: NDArray[np.float64] | None = None
     pose_dt: float = 0.0
     elapsed: float = 0.0
     done: bool = False
@@ -123,14 +124,14 @@ class MatchState:
     searches: int = 0
 
     @property
-    def joints_world(self) -> np.ndarray | None:
+    def joints_world(self) -> NDArray[np.float64] | None:
         """World joint positions (22,3) of the last output pose (None before the first step)."""
         if self.pose_local is None or self.pose_pelvis is None:
             return None
         return forward_kinematics(self.pose_local, self.pose_pelvis)[0]
 
     @property
-    def joint_vel_char(self) -> np.ndarray | None:
+    def joint_vel_char(self) -> NDArray[np.float64] | None:
         """Joint velocities (22,3) m/s of the last output pose in its character frame (zeros
         after the first step; None before it)."""
         if self.pose_local is None or self.pose_pelvis is None:
@@ -138,7 +139,7 @@ class MatchState:
         return _pose_joints([self])[1][0]
 
 
-def _pose_joints(states: Sequence[MatchState]) -> tuple[np.ndarray, np.ndarray]:
+def _pose_joints(states: Sequence[MatchState]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """World joints (M,22,3) of the states' last poses and their character-frame velocities
     (M,22,3), with one batched forward-kinematics call. Every state must have a pose."""
     m = len(states)
@@ -179,7 +180,7 @@ class MotionMatcher:
         self._by_label: dict[tuple[str, bool], StepDatabase] = {}
         # (states returned by the last step_many, their offset arrays): lets the next call skip
         # re-stacking per-character offsets when it gets those very states back
-        self._last_batch: tuple[tuple[MatchState, ...], tuple[np.ndarray, ...]] | None = None
+        self._last_batch: tuple[tuple[MatchState, ...], tuple[NDArray[np.float64], ...]] | None = None
 
     def database(self, label: str, seated: bool = False) -> MotionDatabase:
         key = database_key(label, seated)
@@ -209,7 +210,7 @@ class MotionMatcher:
         return MatchState(db.key, frame, np.asarray(root_xy, dtype=float).reshape(2), float(heading),
                           offset_rot=z, offset_ang_vel=z, offset_pos=np.zeros(3), offset_vel=np.zeros(3))
 
-    def _control(self, state: MatchState, query: MotionQuery, root_xy: np.ndarray, heading: float) -> Control:
+    def _control(self, state: MatchState, query: MotionQuery, root_xy: NDArray[np.float64], heading: float) -> Control:
         if query.future_xy is not None:
             fut_xy = np.asarray(query.future_xy, dtype=float).reshape(3, 2)
             fut_h = (np.full(3, heading) if query.future_heading is None
@@ -226,7 +227,7 @@ class MotionMatcher:
         return Control(fut_pos, fut_dir, t_pos, t_dir, height)
 
     def _query_features_many(self, db: MotionDatabase, states: Sequence[MatchState], queries: Sequence[MotionQuery],
-                             roots: Sequence[np.ndarray], headings: Sequence[float]) -> np.ndarray:
+                             roots: Sequence[NDArray[np.float64]], headings: Sequence[float]) -> NDArray[np.float64]:
         """Raw query vectors (M,D) for characters searching ``db`` (one FK call for all)."""
         m = len(states)
         pos = np.empty((m, NUM_JOINTS, 3))
@@ -249,7 +250,7 @@ class MotionMatcher:
         return assemble(db.layout_name, pos, vel, control)
 
     def query_features(self, db: MotionDatabase, state: MatchState, query: MotionQuery,
-                       root_xy: np.ndarray, heading: float) -> np.ndarray:
+                       root_xy: NDArray[np.float64], heading: float) -> NDArray[np.float64]:
         """Raw query vector: the pose part from the last output pose, the control part from the query."""
         return self._query_features_many(db, [state], [query], [np.asarray(root_xy, dtype=float)], [float(heading)])[0]
 
@@ -278,7 +279,7 @@ class MotionMatcher:
         return out
 
     def _raw_queries(self, members: Sequence[int], states: Sequence[MatchState], queries: Sequence[MotionQuery],
-                     roots: Sequence[np.ndarray], headings: Sequence[float], info: StepDatabase) -> np.ndarray:
+                     roots: Sequence[NDArray[np.float64]], headings: Sequence[float], info: StepDatabase) -> NDArray[np.float64]:
         """Raw query vectors (M,D) of characters searching ``info``'s database: the compiled
         path (``query_features``) when every one has an output pose, else ``_query_features_many``."""
         if any(states[i].pose_local is None or states[i].pose_pelvis is None for i in members):
@@ -495,7 +496,7 @@ class MotionMatcher:
         return (float(query.seat_height) - clip_h) * w
 
 
-def future_from_path(path_xy: np.ndarray, frame_speed: float, heading: float) -> tuple[np.ndarray, np.ndarray]:
+def future_from_path(path_xy: NDArray[np.float64], frame_speed: float, heading: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Planned future root points (3,2) and headings (3,) from a polyline path (K,2) starting
     at the character, walked at ``frame_speed`` metres per frame (e.g. 1.0 / 30)."""
     path = np.asarray(path_xy, dtype=float).reshape(-1, 2)
@@ -515,7 +516,7 @@ def future_from_path(path_xy: np.ndarray, frame_speed: float, heading: float) ->
     return np.array(pts), np.array(hds)
 
 
-def foot_sliding(joint_positions: np.ndarray, contacts: np.ndarray, fps: float = FPS) -> float:
+def foot_sliding(joint_positions: NDArray[np.float64], contacts: NDArray[np.float64], fps: float = FPS) -> float:
     """Mean horizontal speed (m/s) of the toe joints over frames where that foot is in
     contact in both the frame and the next; 0.0 when there is no such frame."""
     toes = np.asarray(joint_positions)[:, FOOT_JOINTS, :2]

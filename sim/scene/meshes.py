@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import ValidationError
 from scipy.spatial import ConvexHull, QhullError
 
@@ -89,7 +90,7 @@ def parse_instance_name(raw: str) -> tuple[str, int | None]:
     return label, idx
 
 
-def yaw_box(points_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def yaw_box(points_xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Minimum-area rectangle around 2-D points.
 
     Returns ``(center (2,), axes (2, 2), extents (2,))``: ``axes[0]`` is a unit vector with angle
@@ -177,7 +178,7 @@ def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = Non
         )
 
     parts: list[
-        tuple[str, str, int | None, np.ndarray, np.ndarray]
+        tuple[str, str, int | None, NDArray[np.float64], NDArray[np.float64]]
     ] = []  # raw, label, idx, verts, front
     for node in nodes:
         transform, geom_name = tm_scene.graph[node]
@@ -231,7 +232,7 @@ def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = Non
 
 
 def _assign_names(
-    path: Path, parts: list[tuple[str, str, int | None, np.ndarray, np.ndarray]]
+    path: Path, parts: list[tuple[str, str, int | None, NDArray[np.float64], NDArray[np.float64]]]
 ) -> list[tuple[str, str, int]]:
     """``(name, label, idx)`` per part: explicit indices kept, missing ones auto-filled."""
     taken: dict[tuple[str, int], str] = {}
@@ -261,8 +262,8 @@ def _make_object(
     name: str,
     label: str,
     idx: int,
-    verts: np.ndarray,
-    front: np.ndarray,
+    verts: NDArray[np.float64],
+    front: NDArray[np.float64],
     floor_z: float,
 ) -> SceneObject:
     center_xy, axes, extents = yaw_box(verts[:, :2])

@@ -14,6 +14,7 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, axis_angle_to_matrix, forward_kinematics
 from sim.motion.clips import FOOT_JOINTS, MotionClip, clip_from_pose_frames
@@ -21,7 +22,7 @@ from sim.motion.sources.bvh_import import MocapImportError
 from sim.motion.sources.procedural_rig import TOE_HEIGHT
 
 
-def load_amass_arrays(path: str | Path) -> dict[str, np.ndarray]:
+def load_amass_arrays(path: str | Path) -> dict[str, NDArray[np.float64]]:
     try:
         with np.load(path, allow_pickle=False) as data:
             return {k: np.asarray(data[k]) for k in data.files}
@@ -30,8 +31,8 @@ def load_amass_arrays(path: str | Path) -> dict[str, np.ndarray]:
 
 
 def amass_pose_frames(
-    arrays: dict[str, np.ndarray], path: str | Path = "<arrays>", pelvis_rest: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, float]:
+    arrays: dict[str, NDArray[np.float64]], path: str | Path = "<arrays>", pelvis_rest: NDArray[np.float64] | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """(local rotations (N,22,3,3), pelvis (N,3), fps) from AMASS-style arrays."""
     if "poses" in arrays:
         poses = np.asarray(arrays["poses"], dtype=float)
@@ -69,7 +70,7 @@ def import_amass(
     start: int = 0,
     end: int | None = None,
     fps: float | None = None,
-    pelvis_rest: np.ndarray | None = None,
+    pelvis_rest: NDArray[np.float64] | None = None,
     snap_to_floor: bool = True,
     loops: bool = False,
     name: str | None = None,

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import (
@@ -50,13 +51,13 @@ class BvhData:
 
     names: tuple[str, ...]
     parents: tuple[int, ...]
-    offsets: np.ndarray
+    offsets: NDArray[np.float64]
     channels: tuple[tuple[str, ...], ...]
-    end_offsets: tuple[np.ndarray | None, ...]
-    frames: np.ndarray
+    end_offsets: tuple[NDArray[np.float64] | None, ...]
+    frames: NDArray[np.float64]
     frame_time: float
 
-    def global_transforms(self) -> tuple[np.ndarray, np.ndarray]:
+    def global_transforms(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Source FK: global rotations (N,J,3,3) and positions (N,J,3) in file units/axes."""
         n, nj = len(self.frames), len(self.names)
         rot = np.empty((n, nj, 3, 3))
@@ -82,7 +83,7 @@ class BvhData:
                 pos[:, j] = pos[:, p] + np.einsum("nij,nj->ni", rot[:, p], trans)
         return rot, pos
 
-    def rest_positions(self) -> np.ndarray:
+    def rest_positions(self) -> NDArray[np.float64]:
         pos = np.zeros((len(self.names), 3))
         for j, p in enumerate(self.parents):
             pos[j] = self.offsets[j] + (pos[p] if p >= 0 else 0.0)
@@ -103,7 +104,7 @@ def parse_bvh(path: str | Path) -> BvhData:
     parents: list[int] = []
     offsets: list[list[float]] = []
     channels: list[tuple[str, ...]] = []
-    end_offsets: list[np.ndarray | None] = []
+    end_offsets: list[NDArray[np.float64] | None] = []
     stack: list[int] = []
     i = tokens.index("HIERARCHY") + 1
     pending_end = False
@@ -237,7 +238,7 @@ def auto_joint_mapping(names: tuple[str, ...], overrides: Mapping[str, str] | No
     return mapping
 
 
-def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _min_rotation(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Smallest rotation taking direction a to direction b."""
     a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
     v, c = np.cross(a, b), float(np.dot(a, b))
@@ -255,7 +256,7 @@ def retarget(
     mapping: Mapping[str, str],
     *,
     snap_to_floor: bool = True,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Our local rotations (N,22,3,3) (joint 0 in the z-up world) and pelvis positions (N,3) m."""
     idx = {n: i for i, n in enumerate(data.names)}
     src = {ours: idx[name] for ours, name in mapping.items()}

@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.motion.clips import FPS, MotionClip
 from sim.motion.sources.procedural_rig import (
@@ -31,17 +32,17 @@ TOE_AHEAD = 0.08  # toe joint ahead of the pelvis when standing, metres
 Profile = Callable[[np.ndarray], np.ndarray]
 
 
-def step_length(speed: np.ndarray) -> np.ndarray:
+def step_length(speed: NDArray[np.float64]) -> NDArray[np.float64]:
     """Step length (m) for a walking speed (m/s): 0.55 m at 0.8 m/s, 0.67 m at 1.6 m/s."""
     return 0.43 + 0.15 * np.asarray(speed)
 
 
-def smoothstep(x: np.ndarray) -> np.ndarray:
+def smoothstep(x: NDArray[np.float64]) -> NDArray[np.float64]:
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3 - 2 * x)
 
 
-def integrate_root(speed: np.ndarray, turn_rate: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def integrate_root(speed: NDArray[np.float64], turn_rate: NDArray[np.float64], dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Root ground points (N,2) and headings (N,) from speed (m/s) and turn rate (rad/s)."""
     heading = np.concatenate([[0.0], np.cumsum(0.5 * (turn_rate[1:] + turn_rate[:-1]) * dt)])
     vx, vy = speed * np.cos(heading), speed * np.sin(heading)
@@ -51,8 +52,8 @@ def integrate_root(speed: np.ndarray, turn_rate: np.ndarray, dt: float) -> tuple
 
 
 def gait(
-    root: np.ndarray, heading: np.ndarray, phase: np.ndarray, dt: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    root: NDArray[np.float64], heading: NDArray[np.float64], phase: NDArray[np.float64], dt: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Footsteps along a root trajectory for a given gait phase (N,), non-decreasing.
 
     Returns toes (N,2,3) world toe positions, foot yaw (N,2), heel lift (N,2) rad and
@@ -63,7 +64,7 @@ def gait(
     lateral = np.stack([-np.sin(heading), np.cos(heading)], axis=-1)
     fwd = np.stack([np.cos(heading), np.sin(heading)], axis=-1)
 
-    def plant(time: float, side: int) -> tuple[np.ndarray, float]:
+    def plant(time: float, side: int) -> tuple[NDArray[np.float64], float]:
         i = float(np.clip(time / dt, 0, n - 1))
         i0 = int(np.floor(i))
         i1 = min(i0 + 1, n - 1)
@@ -116,14 +117,14 @@ def gait(
 
 
 def body_from_gait(
-    root: np.ndarray,
-    heading: np.ndarray,
-    phase: np.ndarray,
-    speed: np.ndarray,
+    root: NDArray[np.float64],
+    heading: NDArray[np.float64],
+    phase: NDArray[np.float64],
+    speed: NDArray[np.float64],
     dt: float,
     *,
-    arm_raise: np.ndarray | None = None,
-) -> tuple[BodyTargets, np.ndarray]:
+    arm_raise: NDArray[np.float64] | None = None,
+) -> tuple[BodyTargets, NDArray[np.float64]]:
     """Full-body targets for a gait; returns (targets, contacts)."""
     n = len(phase)
     toes, yaw, heel, contacts = gait(root, heading, phase, dt)
@@ -164,7 +165,7 @@ def body_from_gait(
     return targets, contacts
 
 
-def _smooth_below(z: np.ndarray, radius: int) -> np.ndarray:
+def _smooth_below(z: NDArray[np.float64], radius: int) -> NDArray[np.float64]:
     """A smooth curve that never exceeds ``z``: min-filter, then box-average (same radius)."""
     pad = np.pad(z, radius, mode="edge")
     win = np.lib.stride_tricks.sliding_window_view(pad, 2 * radius + 1)
@@ -264,13 +265,13 @@ def dance_clip(name: str = "dance_steps", key: str = "dance", cycles: int = 2) -
     period = 1.6
     duration = period * cycles
 
-    def speed(t: np.ndarray) -> np.ndarray:
+    def speed(t: NDArray[np.float64]) -> NDArray[np.float64]:
         return 0.35 * np.sin(2 * np.pi * t / period)
 
-    def turn(t: np.ndarray) -> np.ndarray:
+    def turn(t: NDArray[np.float64]) -> NDArray[np.float64]:
         return 0.9 * np.cos(2 * np.pi * t / period)
 
-    def arms(t: np.ndarray) -> np.ndarray:
+    def arms(t: NDArray[np.float64]) -> NDArray[np.float64]:
         return 0.18 + 0.08 * np.sin(4 * np.pi * t / period)
 
     clip = locomotion_clip(name, speed, turn, duration, loops=True, loop_cycles=2 * cycles, key=key,
