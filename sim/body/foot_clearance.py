@@ -41,10 +41,10 @@ class Footprints:
             empty = np.zeros((0, 2))
             return cls(empty, empty.copy(), empty.copy(), empty.copy())
         return cls(
-            centers=np.array([o.center_xy for o in objs], dtype=float),
-            rights=np.array([o.right for o in objs], dtype=float),
-            facings=np.array([o.facing for o in objs], dtype=float),
-            halves=np.array([[o.width / 2 + margin, o.depth / 2 + margin] for o in objs], dtype=float),
+            centers=np.array([o.center_xy for o in objs], dtype=np.float64),
+            rights=np.array([o.right for o in objs], dtype=np.float64),
+            facings=np.array([o.facing for o in objs], dtype=np.float64),
+            halves=np.array([[o.width / 2 + margin, o.depth / 2 + margin] for o in objs], dtype=np.float64),
         )
 
     def __len__(self) -> int:
@@ -59,7 +59,8 @@ def _depth(x: float, y: float, centers: NDArray[np.float64], rights: NDArray[np.
     dy = y - centers[b, 1]
     lx = dx * rights[b, 0] + dy * rights[b, 1]
     ly = dx * facings[b, 0] + dy * facings[b, 1]
-    return min(halves[b, 0] - abs(lx), halves[b, 1] - abs(ly))
+    depth: float = min(halves[b, 0] - abs(lx), halves[b, 1] - abs(ly))
+    return depth
 
 
 @njit(cache=True)
@@ -130,7 +131,7 @@ def push_out(points: NDArray[np.float64], footprints: Footprints, passes: int = 
     footprint: each pass tries, for every box the group is in, the four sides' exits and keeps
     the one leaving the least summed depth inside all boxes (then the shortest); a group that
     cannot be cleared in ``passes`` passes keeps the best shift found."""
-    pts = np.ascontiguousarray(points, dtype=float)
+    pts = np.ascontiguousarray(points, dtype=np.float64)
     if pts.ndim != 3 or pts.shape[2] != 2:
         raise ValueError(f"points must be (M, P, 2), got {pts.shape}")
     if len(footprints) == 0 or len(pts) == 0:

@@ -76,11 +76,11 @@ class FootState:
     after a release; ``drifted``: released for drift during this contact (no relock until the
     blend is over or the contact ends)."""
 
-    locked: NDArray[np.float64]
+    locked: NDArray[np.bool_]
     lock: NDArray[np.float64]
     offset: NDArray[np.float64]
-    release: NDArray[np.float64]
-    drifted: NDArray[np.float64]
+    release: NDArray[np.int64]
+    drifted: NDArray[np.bool_]
 
     @classmethod
     def initial(cls, n: int) -> FootState:
@@ -146,8 +146,8 @@ class FootSolver:
         (or ``initial_state(N)``); ``active`` (N,) bool, default all: an inactive character's
         feet are neither pinned nor pushed (a held lock is released smoothly). Returns the new
         local rotations (a copy; only hips, knees and ankles differ) and the new state."""
-        pelvis = np.asarray(pelvis, dtype=float)
-        rots = np.asarray(rots, dtype=float)
+        pelvis = np.asarray(pelvis, dtype=np.float64)
+        rots = np.asarray(rots, dtype=np.float64)
         contacts = np.asarray(contacts)
         n = len(pelvis)
         if pelvis.shape != (n, 3) or rots.shape != (n, NUM_JOINTS, 3, 3) or contacts.shape != (n, 2):
@@ -171,8 +171,8 @@ class FootSolver:
                     active: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], FootState]:
         """``apply`` as array steps (the reference of the compiled ``sim.body.foot_kernel.apply_frame``;
         same results to rounding). Inputs are not checked here."""
-        pelvis = np.asarray(pelvis, dtype=float)
-        rots = np.asarray(rots, dtype=float)
+        pelvis = np.asarray(pelvis, dtype=np.float64)
+        rots = np.asarray(rots, dtype=np.float64)
         contacts = np.asarray(contacts)
         n = len(pelvis)
         act = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool).reshape(n)

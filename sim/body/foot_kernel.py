@@ -39,11 +39,12 @@ _ANKLE_J = np.array(ANKLE_JOINTS, dtype=np.int64)
 
 @njit(cache=True)
 def apply_frame(
-    pelvis: NDArray[np.float64], rots: NDArray[np.float64], contacts: NDArray[np.float64], act: NDArray[np.float64],
-    locked: NDArray[np.float64], lock: NDArray[np.float64], offset: NDArray[np.float64], release: NDArray[np.float64], drifted: NDArray[np.float64],
+    pelvis: NDArray[np.float64], rots: NDArray[np.float64], contacts: NDArray[np.bool_], act: NDArray[np.float64],
+    locked: NDArray[np.bool_], lock: NDArray[np.float64], offset: NDArray[np.float64], release: NDArray[np.int64],
+    drifted: NDArray[np.bool_],
     full: NDArray[np.float64], thigh: NDArray[np.float64], shin: NDArray[np.float64], max_drift: float, release_frames: int,
     centers: NDArray[np.float64], rights: NDArray[np.float64], facings: NDArray[np.float64], halves: NDArray[np.float64], passes: int,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:  # pragma: no cover
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:  # pragma: no cover
     """(rotations, locked, lock, offset, release, drifted) after one frame; see
     ``FootSolver.apply_numpy`` for the steps (the same, per character and leg)."""
     n = pelvis.shape[0]

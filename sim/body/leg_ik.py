@@ -82,7 +82,7 @@ class LegChain:
 
 def leg_chain(pelvis: NDArray[np.float64], rots: NDArray[np.float64]) -> LegChain:
     """The legs' forward kinematics of poses (pelvis (N, 3), local rotations (N, 22, 3, 3))."""
-    return LegChain(np.asarray(pelvis, dtype=float), np.asarray(rots, dtype=float))
+    return LegChain(np.asarray(pelvis, dtype=np.float64), np.asarray(rots, dtype=np.float64))
 
 
 @njit(cache=True)
@@ -111,7 +111,8 @@ def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64
 
 @njit(cache=True)
 def _dot3(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:  # pragma: no cover - compiled
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    dot: float = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    return dot
 
 
 @njit(cache=True)
@@ -244,7 +245,7 @@ def _ik_kernel(hip: NDArray[np.float64], knee: NDArray[np.float64], ankle: NDArr
 
 def solve_chain(chain: LegChain, rots: NDArray[np.float64], ankle_targets: NDArray[np.float64], which: NDArray[np.float64]) -> NDArray[np.float64]:
     """``solve_legs`` on poses whose leg chain is already known (no input checks)."""
-    out = np.array(rots, dtype=float, copy=True)
+    out = np.array(rots, dtype=np.float64, copy=True)
     if not which.any():
         return out
     ci, leg = np.nonzero(which)
@@ -267,9 +268,9 @@ def solve_legs(pelvis: NDArray[np.float64], rots: NDArray[np.float64], ankle_tar
     world orientation; other joints and legs keep their input rotations exactly.
 
     Raises ``FootIKError`` for wrong shapes or non-finite input."""
-    pelvis = np.asarray(pelvis, dtype=float)
-    rots = np.asarray(rots, dtype=float)
-    targets = np.asarray(ankle_targets, dtype=float)
+    pelvis = np.asarray(pelvis, dtype=np.float64)
+    rots = np.asarray(rots, dtype=np.float64)
+    targets = np.asarray(ankle_targets, dtype=np.float64)
     n = len(pelvis)
     if pelvis.shape != (n, 3) or rots.shape != (n, NUM_JOINTS, 3, 3) or targets.shape != (n, 2, 3):
         raise FootIKError(

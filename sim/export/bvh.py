@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Literal
+from typing import Final, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,7 +39,7 @@ from sim.world.character_track import CharacterTrack
 
 Units = Literal["m", "cm"]
 UNIT_SCALE: dict[str, float] = {"m": 1.0, "cm": 100.0}
-EULER_ORDER = "ZXY"  # intrinsic, as scipy spells it; BVH channel order Z, X, Y
+EULER_ORDER: Final = "ZXY"  # intrinsic, as scipy spells it; BVH channel order Z, X, Y
 ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
 JOINT_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
 WORLD_TO_BVH = BODY_TO_WORLD.T

@@ -25,6 +25,7 @@ from __future__ import annotations
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pygltflib as gl
@@ -89,12 +90,12 @@ _END_SIZES: dict[str, tuple[float, float]] = {
     "right_foot": (0.09, 0.05),
 }
 # Unit cube corners (bit 0: +x, bit 1: +y, bit 2: +z) and its 6 outward quads.
-_CORNERS = np.array([[(i >> k) & 1 for k in range(3)] for i in range(8)], dtype=float) - 0.5
+_CORNERS = np.array([[(i >> k) & 1 for k in range(3)] for i in range(8)], dtype=np.float64) - 0.5
 _QUADS = np.array(
     [[1, 3, 7, 5], [0, 4, 6, 2], [2, 6, 7, 3], [0, 1, 5, 4], [4, 5, 7, 6], [0, 2, 3, 1]]
 )
 _QUAD_NORMALS = np.array(
-    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float
+    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
 )
 _QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
 
@@ -160,7 +161,7 @@ class _Writer:
 
     def accessor(
         self,
-        data: NDArray[np.float64],
+        data: NDArray[Any],
         kind: str,
         component: int,
         *,

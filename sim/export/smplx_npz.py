@@ -39,7 +39,7 @@ def smplx_parameters(
     track: CharacterTrack, pelvis_rest: NDArray[np.float64] | None = None
 ) -> dict[str, NDArray[np.float64]]:
     """The AMASS-style arrays for ``track`` (see the module docstring), float64 except strings."""
-    j0 = REST_OFFSETS[0] if pelvis_rest is None else np.asarray(pelvis_rest, dtype=float).reshape(3)
+    j0 = REST_OFFSETS[0] if pelvis_rest is None else np.asarray(pelvis_rest, dtype=np.float64).reshape(3)
     n = track.num_frames
     aa = matrix_to_axis_angle(track.local_rotations)  # (N, 22, 3)
     poses = np.zeros((n, NUM_POSE_PARAMS))

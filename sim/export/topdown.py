@@ -118,7 +118,7 @@ def draw_topdown(
         on_floor = obj.z_min - floor_z < 0.1
         face = colour_of.get(obj.name, _FLOOR_COLOUR if on_floor else _SUPPORTED_COLOUR)
         if not on_floor and obj.name in colour_of:  # lighter than its supporter of the same cluster
-            r, g, b = (0.55 * np.asarray(face[:3], dtype=float) + 0.45).tolist()
+            r, g, b = (0.55 * np.asarray(face[:3], dtype=np.float64) + 0.45).tolist()
             face = (r, g, b, 1.0)
         ax.add_patch(
             Polygon(
@@ -176,7 +176,7 @@ def draw_topdown(
     if paths is not None:
         items = paths.items() if isinstance(paths, Mapping) else enumerate(paths)
         for key, line in items:
-            pts = np.asarray(line, dtype=float).reshape(-1, 2)
+            pts = np.asarray(line, dtype=np.float64).reshape(-1, 2)
             if len(pts) == 0:
                 continue
             fallback = zlib.crc32(key.encode()) if isinstance(key, str) else int(key)
@@ -190,7 +190,7 @@ def draw_topdown(
             Circle((px, py), BODY_RADIUS, facecolor=colour, edgecolor="black", lw=0.8, zorder=8)
         )
         if marker.heading is not None:
-            h = np.asarray(marker.heading, dtype=float)
+            h = np.asarray(marker.heading, dtype=np.float64)
             norm = float(np.hypot(*h))
             if norm > 1e-9:
                 h = h / norm * (BODY_RADIUS + 0.2)

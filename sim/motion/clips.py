@@ -48,7 +48,7 @@ class MotionClip:
     pelvis: NDArray[np.float64]
     root_xy: NDArray[np.float64]
     heading: NDArray[np.float64]
-    contacts: NDArray[np.float64]
+    contacts: NDArray[np.bool_]
     loops: bool = False
     target: NDArray[np.float64] = field(default_factory=lambda: np.full(4, np.nan))
     fps: float = FPS
@@ -105,13 +105,14 @@ def estimate_root(
 
 def detect_contacts(
     positions: NDArray[np.float64], fps: float, height: float = 0.06, speed: float = 0.25
-) -> NDArray[np.float64]:
+) -> NDArray[np.bool_]:
     """Foot contacts (F,2): toe joint lower than ``height`` above the clip's lowest toe
     height and slower than ``speed`` m/s horizontally."""
     toes = positions[:, FOOT_JOINTS]
     floor = np.percentile(toes[:, :, 2], 2)
     vel = np.gradient(toes[:, :, :2], axis=0) * fps
-    return (toes[:, :, 2] < floor + height) & (np.linalg.norm(vel, axis=-1) < speed)
+    slow: NDArray[np.bool_] = np.linalg.norm(vel, axis=-1) < speed
+    return (toes[:, :, 2] < floor + height) & slow
 
 
 def resample_rotations(rotations: NDArray[np.float64], src_fps: float, dst_fps: float) -> NDArray[np.float64]:
@@ -154,5 +155,5 @@ def clip_from_pose_frames(
     root, heading = estimate_root(pelvis, local_rotations[:, 0])
     positions = forward_kinematics(local_rotations, pelvis)[0]
     contacts = detect_contacts(positions, FPS)
-    tgt = np.full(4, np.nan) if target is None else np.asarray(target, dtype=float)
+    tgt = np.full(4, np.nan) if target is None else np.asarray(target, dtype=np.float64)
     return MotionClip(name, key, local_rotations, pelvis, root, heading, contacts, loops, tgt, FPS, source)

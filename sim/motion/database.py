@@ -74,9 +74,9 @@ class NearestFrameIndex:
     distance in the original space, so rounding in the rotation cannot change the answer.
     """
 
-    def __init__(self, features: NDArray[np.float64], candidates: NDArray[np.float64] | None = None, leafsize: int = 16,
+    def __init__(self, features: NDArray[np.float64], candidates: NDArray[np.intp] | None = None, leafsize: int = 16,
                  rotate: bool = True) -> None:
-        self.features = np.ascontiguousarray(features, dtype=float)
+        self.features = np.ascontiguousarray(features, dtype=np.float64)
         if candidates is None:
             candidates = np.arange(len(self.features))
         self.candidates = np.asarray(candidates, dtype=np.int64)
@@ -95,10 +95,11 @@ class NearestFrameIndex:
         self.use_scan = len(self.rows) <= SCAN_THRESHOLD
 
     def _tree_space(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
-        return (q - self.center) @ self.basis
+        rotated: NDArray[np.float64] = (q - self.center) @ self.basis
+        return rotated
 
     def brute_force(self, query: NDArray[np.float64]) -> tuple[int, float]:
-        d = squared_distances(self.rows, np.asarray(query, dtype=float))
+        d = squared_distances(self.rows, np.asarray(query, dtype=np.float64))
         i = int(np.argmin(d))  # first minimum = lowest index among ties
         return int(self.candidates[i]), float(d[i])
 
@@ -117,19 +118,19 @@ class NearestFrameIndex:
         i = int(close[best].min())  # lowest index among exact ties (candidates are sorted)
         return int(self.candidates[i]), float(squared_distances(self.rows[i : i + 1], query)[0])
 
-    def scan_many(self, queries: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def scan_many(self, queries: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """Exact brute force for (M,D) queries, compiled (``sim.motion.kernels.nearest_rows``):
         every row's squared distance summed dimension by dimension as ``squared_distances``
         does, the first minimum taken. Same answer as ``brute_force`` (lowest index among
         exact ties). Raises ValueError for a query with non-finite features."""
-        q = np.ascontiguousarray(np.asarray(queries, dtype=float).reshape(-1, self.rows.shape[1]))
+        q = np.ascontiguousarray(np.asarray(queries, dtype=np.float64).reshape(-1, self.rows.shape[1]))
         if not np.isfinite(q).all():
             raise ValueError(f"motion search query has non-finite features: {q[~np.isfinite(q).all(axis=1)][0]}")
         j, d = nearest_rows(self._rows_t, q)
         return self.candidates[j], d
 
     def query(self, query: NDArray[np.float64], k: int = 4) -> tuple[int, float]:
-        q = np.asarray(query, dtype=float)
+        q = np.asarray(query, dtype=np.float64)
         if self.use_scan:
             i, d = self.scan_many(q[None])
             return int(i[0]), float(d[0])
@@ -137,14 +138,14 @@ class NearestFrameIndex:
         dists, idx = self.tree.query(self._tree_space(q), k=k)
         return self._resolve(q, np.atleast_1d(dists), np.atleast_1d(idx))
 
-    def query_many(self, queries: NDArray[np.float64], k: int = 4, workers: int = 1) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def query_many(self, queries: NDArray[np.float64], k: int = 4, workers: int = 1) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """Batched exact search: (M,D) -> (indices (M,), squared distances (M,))."""
-        q = np.asarray(queries, dtype=float).reshape(-1, self.rows.shape[1])
+        q = np.asarray(queries, dtype=np.float64).reshape(-1, self.rows.shape[1])
         if self.use_scan:
             return self.scan_many(q)
         k = min(k, len(self.rows))
-        dists, idx = self.tree.query(self._tree_space(q), k=k, workers=workers)
-        dists, idx = dists.reshape(len(q), k), idx.reshape(len(q), k)
+        raw_d, raw_i = self.tree.query(self._tree_space(q), k=k, workers=workers)
+        dists, idx = np.asarray(raw_d).reshape(len(q), k), np.asarray(raw_i).reshape(len(q), k)
         out_i = np.empty(len(q), dtype=np.int64)
         out_d = np.empty(len(q))
         for m in range(len(q)):
@@ -198,7 +199,7 @@ class MotionDatabase:
         return (self.raw_features - self.mean) / self.scale
 
     def normalize(self, raw: NDArray[np.float64]) -> NDArray[np.float64]:
-        return (np.asarray(raw, dtype=float) - self.mean) / self.scale
+        return (np.asarray(raw, dtype=np.float64) - self.mean) / self.scale
 
     @property
     def index(self) -> NearestFrameIndex:
@@ -385,7 +386,11 @@ def load_databases(
         if not use_cache:
             out[key] = build_database(key, procedural_clips(key), config)
             continue
-        arrays = cached_arrays(payload, lambda key=key: build_database(key, procedural_clips(key), config).arrays())
+
+        def build(key: str = key) -> dict[str, NDArray[np.float64]]:
+            return build_database(key, procedural_clips(key), config).arrays()
+
+        arrays = cached_arrays(payload, build)
         out[key] = MotionDatabase.from_arrays(arrays)
     return out
 

@@ -22,6 +22,8 @@ Shapes: N characters, 22 joints; rotations (..., 3, 3) float64 C-contiguous.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
+from typing import Any, cast
 
 import numpy as np
 from numba import njit, types
@@ -36,15 +38,18 @@ PARENT_INDEX = np.array(PARENTS, dtype=np.int64)
 OFFSETS = np.ascontiguousarray(REST_OFFSETS, dtype=np.float64)
 
 
-@intrinsic
-def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
-    """a * b + c with one rounding (LLVM ``llvm.fma.f64``)."""
+def _fma_typing(typingctx: object, a: object, b: object, c: object) -> tuple[Any, Callable[..., Any]]:
+    """a * b + c with one rounding (LLVM ``llvm.fma.f64``): numba's typing and codegen."""
     sig = types.float64(types.float64, types.float64, types.float64)
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+    def codegen(context: object, builder: Any, signature: object, args: Sequence[Any]) -> Any:
         return builder.fma(args[0], args[1], args[2])
 
     return sig, codegen
+
+
+# ``intrinsic`` hides the typing context: compiled code calls it as ``_fma(a, b, c)``
+_fma = cast("Callable[[float, float, float], float]", intrinsic(_fma_typing))
 
 
 @njit(cache=True, inline="always")
@@ -169,10 +174,10 @@ def matmul3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float6
 @njit(cache=True)
 def step_poses(
     off_rot: NDArray[np.float64], off_av: NDArray[np.float64], off_pos: NDArray[np.float64], off_vel: NDArray[np.float64],
-    chars: NDArray[np.float64], reals: NDArray[np.float64], switches: NDArray[np.float64], sw_av: NDArray[np.float64], sw_lin: NDArray[np.float64],
+    chars: NDArray[np.int64], reals: NDArray[np.float64], switches: NDArray[np.int64], sw_av: NDArray[np.float64], sw_lin: NDArray[np.float64],
     store_rot: NDArray[np.float64], store_aux: NDArray[np.float64], y: float, dt: float, eydt: float,
     out_rot: NDArray[np.float64], out_av: NDArray[np.float64], out_pos: NDArray[np.float64], out_vel: NDArray[np.float64],
-    out_local: NDArray[np.float64], out_pelvis: NDArray[np.float64], out_contacts: NDArray[np.float64],
+    out_local: NDArray[np.float64], out_pelvis: NDArray[np.float64], out_contacts: NDArray[np.bool_],
 ) -> None:
     """One inertialized frame for N characters, writing the ``out_*`` arrays.
 
@@ -253,7 +258,7 @@ def step_poses(
 
 
 @njit(cache=True, inline="always")
-def _fk_positions(local: NDArray[np.float64], pelvis: NDArray[np.float64], parents: NDArray[np.float64], offsets: NDArray[np.float64], t: NDArray[np.float64],
+def _fk_positions(local: NDArray[np.float64], pelvis: NDArray[np.float64], parents: NDArray[np.int64], offsets: NDArray[np.float64], t: NDArray[np.float64],
                   out: NDArray[np.float64]) -> None:
     """Joint positions (22,3) of one pose, as ``sim.body.skeleton.forward_kinematics`` (its chain of
     4x4 products, each element an fma chain over k = 0..3). ``t`` (22,3,4) is scratch."""
@@ -280,7 +285,7 @@ def _fk_positions(local: NDArray[np.float64], pelvis: NDArray[np.float64], paren
 
 
 @njit(cache=True)
-def fk_positions(local: NDArray[np.float64], pelvis: NDArray[np.float64], parents: NDArray[np.float64] = PARENT_INDEX,
+def fk_positions(local: NDArray[np.float64], pelvis: NDArray[np.float64], parents: NDArray[np.int64] = PARENT_INDEX,
                  offsets: NDArray[np.float64] = OFFSETS) -> NDArray[np.float64]:
     """Joint positions (K,22,3) of poses (K,22,3,3) with pelvis (K,3)."""
     out = np.empty((local.shape[0], local.shape[1], 3))
@@ -306,7 +311,7 @@ Q_HAS_PREV, Q_POSE_DT, Q_OLD_HEADING, Q_ROOT_X, Q_ROOT_Y, Q_HEADING, Q_HAS_TARGE
 def query_features(
     cur_local: NDArray[np.float64], cur_pelvis: NDArray[np.float64], prev_local: NDArray[np.float64], prev_pelvis: NDArray[np.float64],
     fut_xy: NDArray[np.float64], fut_h: NDArray[np.float64], scalars: NDArray[np.float64], sources: NDArray[np.float64],
-    parents: NDArray[np.float64], offsets: NDArray[np.float64],
+    parents: NDArray[np.int64], offsets: NDArray[np.float64],
 ) -> NDArray[np.float64]:
     """Raw query features (M,D) of M characters with an output pose, as
     ``MotionMatcher._query_features_many`` computes them: joints of the last pose (``cur_*``)
@@ -374,7 +379,7 @@ def query_features(
 
 
 @njit(cache=True)
-def nearest_rows(rows_t: NDArray[np.float64], queries: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def nearest_rows(rows_t: NDArray[np.float64], queries: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """Exact nearest row for each query: rows_t (D,N) (the rows, transposed), queries (M,D) ->
     (row index (M,), squared distance (M,)). Distances are summed dimension by dimension in
     order (as ``sim.motion.database.squared_distances``); ties go to the lowest row."""

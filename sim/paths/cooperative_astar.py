@@ -295,7 +295,7 @@ class PathPlanner:
         """The search tables as arrays for the compiled kernels (``sim.paths.astar_kernel``)."""
         n = self._nx_p * self._ny_p
         self._nb_id = np.full((n, 9), -1, dtype=np.int64)
-        self._nb_cost = np.zeros((n, 9), dtype=float)
+        self._nb_cost = np.zeros((n, 9), dtype=np.float64)
         self._nb_bit = np.zeros((n, 9), dtype=np.int64)
         self._free_arr = np.zeros(n, dtype=np.bool_)
         for cid, lst in self._snbrs.items():
@@ -392,8 +392,8 @@ class PathPlanner:
         (p, q) during the step (an off-grid leg): a move is kept when its closest approach to
         every static point / segment is >= ``min(2r, distance at the move's start)``.
         """
-        segs = [(np.asarray(p, dtype=float), np.asarray(q, dtype=float)) for p, q in segments]
-        segs += [(np.asarray(p, dtype=float), np.asarray(p, dtype=float)) for p in statics]
+        segs = [(np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)) for p, q in segments]
+        segs += [(np.asarray(p, dtype=np.float64), np.asarray(p, dtype=np.float64)) for p in statics]
         if not segs:
             return {}
         removed: dict[int, set[int]] = {}
@@ -442,7 +442,7 @@ class PathPlanner:
                     dxy.append((nb[2], nb[3]))
             rc = np.array(row_cell)
             a = centres[rc]
-            b = a + np.array(dxy, dtype=float) * cs
+            b = a + np.array(dxy, dtype=np.float64) * cs
             closest = segment_distance(a, b, np.broadcast_to(p, a.shape), np.broadcast_to(q, a.shape))
             bad = np.flatnonzero(~(closest >= limit[rc]))
             per: dict[int, list[int]] = {}
@@ -494,7 +494,7 @@ class PathPlanner:
         else:
             missing = set(agents) - set(order)
             order = [a for a in order if a in starts] + [a for a in agents if a in missing]
-        kept = self._static_overrides([np.asarray(p, dtype=float) for p in static_obstacles], static_segments)
+        kept = self._static_overrides([np.asarray(p, dtype=np.float64) for p in static_obstacles], static_segments)
         used_goals = {a: self._usable_goal(starts[a], goals.get(a), kept) for a in agents}
         overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in kept.items()}
         static_allow = self._static_allow(overrides) if self.backend == "numba" else None  # once for all passes
@@ -731,7 +731,7 @@ def _segment_min_norm(px: float, py: float, wx: float, wy: float) -> float:
 
 def segment_distance(a: NDArray[np.float64], b: NDArray[np.float64], p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
     """Exact distance (N,) between 2-D segments a->b and p->q (arrays (N, 2); points allowed)."""
-    a, b, p, q = (np.asarray(x, dtype=float).reshape(-1, 2) for x in (a, b, p, q))
+    a, b, p, q = (np.asarray(x, dtype=np.float64).reshape(-1, 2) for x in (a, b, p, q))
 
     def point_seg(x: NDArray[np.float64], s0: NDArray[np.float64], s1: NDArray[np.float64]) -> NDArray[np.float64]:
         d = s1 - s0
@@ -779,7 +779,7 @@ def plan_conflicts(
     """
     names = list(paths)
     n = min(len(p) for p in paths.values()) - 1 if steps is None else steps
-    pos = np.array([[paths[a][k] for k in range(n + 1)] for a in names], dtype=float) * cell_size
+    pos = np.array([[paths[a][k] for k in range(n + 1)] for a in names], dtype=np.float64) * cell_size
     out: list[tuple[int, Agent, Agent, float]] = []
     dmin = 2.0 * body_radius
     for k in range(n):

@@ -106,7 +106,7 @@ class CrowdNavigator:
         self._rows_cache: dict[tuple[Agent, ...], tuple[NDArray[np.float64], NDArray[np.float64]]] = {}  # see _rows_of
         # (frame, offsets, agents, samples) of the last tick's look ahead (see tick, futures)
         self._ahead: tuple[int, tuple[int, ...], tuple[Agent, ...], NDArray[np.float64]] | None = None
-        self._reorder: tuple[tuple[Agent, ...], tuple[Agent, ...], NDArray[np.float64] | None] | None = None  # see futures
+        self._reorder: tuple[tuple[Agent, ...], tuple[Agent, ...], NDArray[np.int64] | None] | None = None  # see futures
         self._plan_frame = 0
         self._static: dict[Agent, NDArray[np.float64]] = {}
         self._final: dict[Agent, NDArray[np.float64]] = {}  # exact target of the current goal
@@ -150,7 +150,7 @@ class CrowdNavigator:
             raise PlanningError(f"cell {cell} is blocked or outside the grid")
         start = None
         if start_xy is not None:
-            start = np.asarray(start_xy, dtype=float)
+            start = np.asarray(start_xy, dtype=np.float64)
             why = self.target_problem(cell, start)
             if why is not None:
                 raise PlanningError(f"agent {agent!r} cannot start at {tuple(start)}: {why}")
@@ -194,7 +194,7 @@ class CrowdNavigator:
         bounds, that ``goal`` is free, and that the straight segment between them keeps the body
         off every blocking footprint. Other characters are handled at run time (the leg waits).
         """
-        p = np.asarray(xy, dtype=float)
+        p = np.asarray(xy, dtype=np.float64)
         if p.shape != (2,) or not np.all(np.isfinite(p)):
             return f"target {xy!r} is not a finite (x, y) point"
         g = self.grid
@@ -215,7 +215,7 @@ class CrowdNavigator:
         why = self.target_problem(goal, xy)
         if why is not None:
             raise PlanningError(f"agent {agent!r}: {why}")
-        return np.asarray(xy, dtype=float).copy()
+        return np.asarray(xy, dtype=np.float64).copy()
 
     def goal_of(self, agent: Agent) -> Cell | None:
         return self._goals[agent]
@@ -235,7 +235,7 @@ class CrowdNavigator:
         self._final.pop(agent, None)
         self._parked.pop(agent, None)
         self._legs.pop(agent, None)
-        self._static[agent] = np.asarray(xy, dtype=float)
+        self._static[agent] = np.asarray(xy, dtype=np.float64)
         self._needs_plan = True
 
     def release(self, agent: Agent) -> None:
@@ -264,7 +264,8 @@ class CrowdNavigator:
             return parked.copy()
         track = self._track(agent)
         d = min(max(frame - self._plan_frame, 0), len(track) - 1)
-        return track[d].copy()
+        here: NDArray[np.float64] = track[d]
+        return here.copy()
 
     def _track(self, agent: Agent) -> NDArray[np.float64]:
         """Positions (D, 2) on the agent's current path for the frames ``_plan_frame + d``

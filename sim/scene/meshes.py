@@ -97,7 +97,7 @@ def yaw_box(points_xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArra
     in [0, pi/2), ``axes[1]`` is it turned by +90 degrees, ``extents`` the full side lengths
     along them. Degenerate inputs (a point, a segment) give zero extents where there is none.
     """
-    pts = np.asarray(points_xy, dtype=float).reshape(-1, 2)
+    pts = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
     try:
         hull = pts[ConvexHull(pts).vertices]
     except (QhullError, ValueError):
@@ -130,7 +130,7 @@ def _load_trimesh_scene(path: Path) -> Any:
     try:
         if path.stat().st_size == 0:
             raise SceneFileError(path, "file is empty")
-        kwargs = (
+        kwargs: dict[str, Any] = (
             {"split_objects": True, "group_material": False}
             if path.suffix.lower() == ".obj"
             else {}
@@ -185,7 +185,7 @@ def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = Non
         geom = tm_scene.geometry.get(geom_name)
         raw_name = node if not _GENERIC_NAME.match(str(node)) else str(geom_name)
         label, idx = parse_instance_name(str(raw_name))
-        verts = np.asarray(getattr(geom, "vertices", np.empty((0, 3))), dtype=float).reshape(-1, 3)
+        verts = np.asarray(getattr(geom, "vertices", np.empty((0, 3))), dtype=np.float64).reshape(-1, 3)
         if len(verts) == 0:
             raise SceneFileError(path, "node has no vertices", obj=str(node), field="geometry")
         if not np.isfinite(verts).all() or not np.isfinite(transform).all():

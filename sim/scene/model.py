@@ -92,12 +92,12 @@ class SceneObject(BaseModel):
 
     @property
     def center_xy(self) -> NDArray[np.float64]:
-        return np.array(self.center[:2], dtype=float)
+        return np.array(self.center[:2], dtype=np.float64)
 
     @property
     def right(self) -> NDArray[np.float64]:
         """The object's own right in the xy plane (facing turned clockwise)."""
-        return np.array([self.facing[1], -self.facing[0]], dtype=float)
+        return np.array([self.facing[1], -self.facing[0]], dtype=np.float64)
 
     @property
     def yaw(self) -> float:
@@ -106,7 +106,7 @@ class SceneObject(BaseModel):
 
     def footprint(self, margin: float = 0.0) -> NDArray[np.float64]:
         """The 4 xy corners of the box bottom (counter-clockwise), grown by ``margin``."""
-        f = np.array(self.facing, dtype=float)
+        f = np.array(self.facing, dtype=np.float64)
         r = self.right
         hw = self.size[0] / 2.0 + margin
         hd = self.size[1] / 2.0 + margin
@@ -115,10 +115,10 @@ class SceneObject(BaseModel):
 
     def to_local(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """Points (..., 2) in the object's frame: [:, 0] along its right, [:, 1] along its facing."""
-        d = np.asarray(xy, dtype=float) - self.center_xy
-        return np.stack([d @ self.right, d @ np.array(self.facing, dtype=float)], axis=-1)
+        d = np.asarray(xy, dtype=np.float64) - self.center_xy
+        return np.stack([d @ self.right, d @ np.array(self.facing, dtype=np.float64)], axis=-1)
 
-    def contains_xy(self, xy: NDArray[np.float64], margin: float = 0.0) -> NDArray[np.float64]:
+    def contains_xy(self, xy: NDArray[np.float64], margin: float = 0.0) -> NDArray[np.bool_]:
         """Whether xy points (..., 2) lie inside the footprint grown by ``margin``."""
         local = self.to_local(xy)
         return (np.abs(local[..., 0]) <= self.size[0] / 2.0 + margin) & (

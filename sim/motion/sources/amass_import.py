@@ -35,7 +35,7 @@ def amass_pose_frames(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """(local rotations (N,22,3,3), pelvis (N,3), fps) from AMASS-style arrays."""
     if "poses" in arrays:
-        poses = np.asarray(arrays["poses"], dtype=float)
+        poses = np.asarray(arrays["poses"], dtype=np.float64)
         if poses.ndim != 2 or poses.shape[1] < 3 * NUM_JOINTS:
             raise MocapImportError(path, f"'poses' has shape {poses.shape}, expected (N, >= {3 * NUM_JOINTS})")
         aa = poses[:, : 3 * NUM_JOINTS].reshape(-1, NUM_JOINTS, 3)
@@ -48,7 +48,7 @@ def amass_pose_frames(
         raise MocapImportError(path, "needs 'poses' or 'root_orient' + 'pose_body'")
     if "trans" not in arrays:
         raise MocapImportError(path, "missing 'trans'")
-    trans = np.asarray(arrays["trans"], dtype=float)
+    trans = np.asarray(arrays["trans"], dtype=np.float64)
     if trans.shape != (len(aa), 3):
         raise MocapImportError(path, f"'trans' has shape {trans.shape}, expected ({len(aa)}, 3)")
     rate_key = "mocap_frame_rate" if "mocap_frame_rate" in arrays else "mocap_framerate"
@@ -59,7 +59,7 @@ def amass_pose_frames(
         raise MocapImportError(path, "non-finite values or non-positive frame rate")
     if len(aa) < 2:
         raise MocapImportError(path, "needs at least 2 frames")
-    j0 = REST_OFFSETS[0] if pelvis_rest is None else np.asarray(pelvis_rest, dtype=float).reshape(3)
+    j0 = REST_OFFSETS[0] if pelvis_rest is None else np.asarray(pelvis_rest, dtype=np.float64).reshape(3)
     return axis_angle_to_matrix(aa), trans + j0, fps
 
 

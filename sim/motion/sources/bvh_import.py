@@ -148,7 +148,7 @@ def parse_bvh(path: str | Path) -> BvhData:
         n, frame_time = int(m.group(1)), float(m.group(2))
         body = motion[m.end():].split()
         total = sum(len(c) for c in channels)
-        values = np.array(body[: n * total], dtype=float)
+        values = np.array(body[: n * total], dtype=np.float64)
     except (IndexError, ValueError) as exc:
         if isinstance(exc, MocapImportError):
             raise
@@ -159,7 +159,7 @@ def parse_bvh(path: str | Path) -> BvhData:
         raise MocapImportError(path, f"expected {n} frames of {total} channels, found {values.size // max(total, 1)}")
     if not np.all(np.isfinite(values)) or frame_time <= 0:
         raise MocapImportError(path, "non-finite channel values or non-positive frame time")
-    return BvhData(tuple(names), tuple(parents), np.array(offsets, dtype=float), tuple(channels),
+    return BvhData(tuple(names), tuple(parents), np.array(offsets, dtype=np.float64), tuple(channels),
                    tuple(end_offsets), values.reshape(n, total), frame_time)
 
 
@@ -227,10 +227,10 @@ def auto_joint_mapping(names: tuple[str, ...], overrides: Mapping[str, str] | No
         if ours in mapping:
             continue
         for cand in ALIASES[ours]:
-            src = by_norm.get(cand)
-            if src is not None and src not in used:
-                mapping[ours] = src
-                used.add(src)
+            found = by_norm.get(cand)
+            if found is not None and found not in used:
+                mapping[ours] = found
+                used.add(found)
                 break
     missing = [j for j in REQUIRED if j not in mapping]
     if missing:
@@ -247,7 +247,7 @@ def _min_rotation(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.
         if np.linalg.norm(axis) < 1e-6:
             axis = np.cross(a, [0.0, 1.0, 0.0])
         return Rotation.from_rotvec(np.pi * axis / np.linalg.norm(axis)).as_matrix()
-    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    vx: NDArray[np.float64] = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
     return np.eye(3) + vx + vx @ vx / (1 + c)
 
 
@@ -289,10 +289,10 @@ def retarget(
     local[:, 0] = BODY_TO_WORLD @ glob[:, 0]
     for j in range(1, NUM_JOINTS):
         local[:, j] = np.swapaxes(glob[:, PARENTS[j]], -1, -2) @ glob[:, j]
-    src_leg = np.linalg.norm(rest_b[src["left_knee"]] - rest_b[src["left_hip"]]) + np.linalg.norm(
-        rest_b[src["left_ankle"]] - rest_b[src["left_knee"]])
-    our_leg = np.linalg.norm(ours_rest[JOINT_INDEX["left_knee"]] - ours_rest[JOINT_INDEX["left_hip"]]) + np.linalg.norm(
-        ours_rest[JOINT_INDEX["left_ankle"]] - ours_rest[JOINT_INDEX["left_knee"]])
+    src_leg = float(np.linalg.norm(rest_b[src["left_knee"]] - rest_b[src["left_hip"]]) + np.linalg.norm(
+        rest_b[src["left_ankle"]] - rest_b[src["left_knee"]]))
+    our_leg = float(np.linalg.norm(ours_rest[JOINT_INDEX["left_knee"]] - ours_rest[JOINT_INDEX["left_hip"]]) + np.linalg.norm(
+        ours_rest[JOINT_INDEX["left_ankle"]] - ours_rest[JOINT_INDEX["left_knee"]]))
     scale = our_leg / max(src_leg, 1e-9)
     pelvis = (p_src[:, src["pelvis"]] @ axes.T * scale) @ BODY_TO_WORLD.T
     if snap_to_floor:

@@ -10,6 +10,8 @@ pose of their posture (standing or seated).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -36,9 +38,9 @@ DEFAULT_PARTNER_DISTANCE = 1.1
 OBJECT_DISTANCE = 0.55
 
 
-def _keys(t: NDArray[np.float64], times: list[float], values: list[list[float]]) -> NDArray[np.float64]:
+def _keys(t: NDArray[np.float64], times: list[float], values: Sequence[NDArray[np.float64]]) -> NDArray[np.float64]:
     """Smoothstep interpolation between keyframes; holds the ends. Returns (F, D)."""
-    v = np.asarray(values, dtype=float)
+    v = np.asarray(values, dtype=np.float64)
     out = np.empty((len(t), v.shape[1]))
     for d in range(v.shape[1]):
         out[:, d] = v[0, d]

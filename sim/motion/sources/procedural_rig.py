@@ -46,7 +46,7 @@ SHOULDER_HALF_WIDTH = float(REST_OFFSETS[J["left_collar"], 0] + REST_OFFSETS[J["
 
 def body_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
     """(..., 3) [pitch, yaw, roll] in the body frame -> (..., 3, 3) = Ry(yaw) Rx(pitch) Rz(roll)."""
-    a = np.asarray(angles, dtype=float)
+    a = np.asarray(angles, dtype=np.float64)
     flat = a.reshape(-1, 3)
     m = Rotation.from_euler("YXZ", flat[:, [1, 0, 2]]).as_matrix()
     return m.reshape(*a.shape[:-1], 3, 3)
@@ -54,7 +54,7 @@ def body_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def rot_z(theta: NDArray[np.float64]) -> NDArray[np.float64]:
     """(...,) angles -> (..., 3, 3) rotations about the world z axis."""
-    t = np.asarray(theta, dtype=float)
+    t = np.asarray(theta, dtype=np.float64)
     c, s = np.cos(t), np.sin(t)
     m = np.zeros((*t.shape, 3, 3))
     m[..., 0, 0], m[..., 0, 1], m[..., 1, 0], m[..., 1, 1], m[..., 2, 2] = c, -s, s, c, 1.0
@@ -63,14 +63,14 @@ def rot_z(theta: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def char_to_world(root_xy: NDArray[np.float64], heading: NDArray[np.float64], local: NDArray[np.float64]) -> NDArray[np.float64]:
     """Points (..., 3) in the character frame (x forward, y left, z up from the floor) -> world."""
-    w = np.einsum("...ij,...j->...i", rot_z(heading), local)
+    w: NDArray[np.float64] = np.einsum("...ij,...j->...i", rot_z(heading), local)
     w[..., 0] += root_xy[..., 0]
     w[..., 1] += root_xy[..., 1]
     return w
 
 
 def _normalize(v: NDArray[np.float64], fallback: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    n: NDArray[np.float64] = np.linalg.norm(v, axis=-1, keepdims=True)
     out = v / np.maximum(n, 1e-12)
     if fallback is not None:
         out = np.where(n > 1e-9, out, fallback)
@@ -164,7 +164,8 @@ def _foot_rotation(t: BodyTargets, side: int) -> NDArray[np.float64]:
 
 def _ankle_from_toe(t: BodyTargets, side: int, toe: int) -> NDArray[np.float64]:
     rf = _foot_rotation(t, side)
-    return t.toes[:, side] - np.einsum("fij,j->fi", rf, REST_OFFSETS[toe])
+    offsets: NDArray[np.float64] = np.einsum("fij,j->fi", rf, REST_OFFSETS[toe])
+    return t.toes[:, side] - offsets
 
 
 def solve_body(t: BodyTargets) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
