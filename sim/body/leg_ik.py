@@ -262,7 +262,7 @@ def solve_chain(chain: LegChain, rots: NDArray[np.float64], ankle_targets: NDArr
 
 
 def solve_legs(pelvis: NDArray[np.float64], rots: NDArray[np.float64], ankle_targets: NDArray[np.float64],
-               which: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+               which: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """Local rotations (N, 22, 3, 3) with the ankles of the legs ``which`` (N, 2) bool
     (default all) on ``ankle_targets`` (N, 2, 3) (world, m; left, right), the feet keeping their
     world orientation; other joints and legs keep their input rotations exactly.

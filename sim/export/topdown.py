@@ -237,7 +237,7 @@ def draw_topdown(
     return fig
 
 
-def render_topdown_rgb(scene: Scene, **layers: object) -> NDArray[np.float64]:
+def render_topdown_rgb(scene: Scene, **layers: object) -> NDArray[np.uint8]:
     """The picture as an ``(H, W, 3)`` uint8 array (one frame of an animation)."""
     fig = draw_topdown(scene, **layers)  # type: ignore[arg-type]
     canvas = fig.canvas
