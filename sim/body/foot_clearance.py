@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from sim.scene.model import Scene
 
@@ -26,10 +27,10 @@ class Footprints:
     """Oriented xy boxes: centres, unit right / facing axes (B, 2) and half sizes (B, 2)
     (along right, along facing), already grown by the margin."""
 
-    centers: np.ndarray
-    rights: np.ndarray
-    facings: np.ndarray
-    halves: np.ndarray
+    centers: NDArray[np.float64]
+    rights: NDArray[np.float64]
+    facings: NDArray[np.float64]
+    halves: NDArray[np.float64]
 
     @classmethod
     def from_scene(cls, scene: Scene, margin: float, floor_support: float = 0.10) -> Footprints:
@@ -40,10 +41,10 @@ class Footprints:
             empty = np.zeros((0, 2))
             return cls(empty, empty.copy(), empty.copy(), empty.copy())
         return cls(
-            centers=np.array([o.center_xy for o in objs], dtype=float),
-            rights=np.array([o.right for o in objs], dtype=float),
-            facings=np.array([o.facing for o in objs], dtype=float),
-            halves=np.array([[o.width / 2 + margin, o.depth / 2 + margin] for o in objs], dtype=float),
+            centers=np.array([o.center_xy for o in objs], dtype=np.float64),
+            rights=np.array([o.right for o in objs], dtype=np.float64),
+            facings=np.array([o.facing for o in objs], dtype=np.float64),
+            halves=np.array([[o.width / 2 + margin, o.depth / 2 + margin] for o in objs], dtype=np.float64),
         )
 
     def __len__(self) -> int:
@@ -51,19 +52,20 @@ class Footprints:
 
 
 @njit(cache=True)
-def _depth(x: float, y: float, centers: np.ndarray, rights: np.ndarray, facings: np.ndarray,
-           halves: np.ndarray, b: int) -> float:  # pragma: no cover - compiled
+def _depth(x: float, y: float, centers: NDArray[np.float64], rights: NDArray[np.float64], facings: NDArray[np.float64],
+           halves: NDArray[np.float64], b: int) -> float:  # pragma: no cover - compiled
     """How deep (m) point (x, y) is inside box ``b`` (<= 0: outside or on its edge)."""
     dx = x - centers[b, 0]
     dy = y - centers[b, 1]
     lx = dx * rights[b, 0] + dy * rights[b, 1]
     ly = dx * facings[b, 0] + dy * facings[b, 1]
-    return min(halves[b, 0] - abs(lx), halves[b, 1] - abs(ly))
+    depth: float = min(halves[b, 0] - abs(lx), halves[b, 1] - abs(ly))
+    return depth
 
 
 @njit(cache=True)
-def _penetration(points: np.ndarray, m: int, sx: float, sy: float, centers: np.ndarray,
-                 rights: np.ndarray, facings: np.ndarray, halves: np.ndarray) -> float:  # pragma: no cover - compiled
+def _penetration(points: NDArray[np.float64], m: int, sx: float, sy: float, centers: NDArray[np.float64],
+                 rights: NDArray[np.float64], facings: NDArray[np.float64], halves: NDArray[np.float64]) -> float:  # pragma: no cover - compiled
     """Summed depth of foot ``m``'s points, shifted by (sx, sy), inside all boxes."""
     total = 0.0
     for b in range(centers.shape[0]):
@@ -75,8 +77,8 @@ def _penetration(points: np.ndarray, m: int, sx: float, sy: float, centers: np.n
 
 
 @njit(cache=True)
-def _push_out_kernel(points: np.ndarray, centers: np.ndarray, rights: np.ndarray, facings: np.ndarray,
-                     halves: np.ndarray, passes: int) -> np.ndarray:  # pragma: no cover - compiled
+def _push_out_kernel(points: NDArray[np.float64], centers: NDArray[np.float64], rights: NDArray[np.float64], facings: NDArray[np.float64],
+                     halves: NDArray[np.float64], passes: int) -> NDArray[np.float64]:  # pragma: no cover - compiled
     m_count = points.shape[0]
     shift = np.zeros((m_count, 2))
     for m in range(m_count):
@@ -124,12 +126,12 @@ def _push_out_kernel(points: np.ndarray, centers: np.ndarray, rights: np.ndarray
     return shift
 
 
-def push_out(points: np.ndarray, footprints: Footprints, passes: int = 4) -> np.ndarray:
+def push_out(points: NDArray[np.float64], footprints: Footprints, passes: int = 4) -> NDArray[np.float64]:
     """Horizontal shifts (M, 2) that move each rigid group of points (M, P, 2) out of every
     footprint: each pass tries, for every box the group is in, the four sides' exits and keeps
     the one leaving the least summed depth inside all boxes (then the shortest); a group that
     cannot be cleared in ``passes`` passes keeps the best shift found."""
-    pts = np.ascontiguousarray(points, dtype=float)
+    pts = np.ascontiguousarray(points, dtype=np.float64)
     if pts.ndim != 3 or pts.shape[2] != 2:
         raise ValueError(f"points must be (M, P, 2), got {pts.shape}")
     if len(footprints) == 0 or len(pts) == 0:

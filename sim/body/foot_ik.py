@@ -38,6 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.body.foot_clearance import Footprints, push_out
 from sim.body.foot_kernel import apply_frame
@@ -75,11 +76,11 @@ class FootState:
     after a release; ``drifted``: released for drift during this contact (no relock until the
     blend is over or the contact ends)."""
 
-    locked: np.ndarray
-    lock: np.ndarray
-    offset: np.ndarray
-    release: np.ndarray
-    drifted: np.ndarray
+    locked: NDArray[np.bool_]
+    lock: NDArray[np.float64]
+    offset: NDArray[np.float64]
+    release: NDArray[np.int64]
+    drifted: NDArray[np.bool_]
 
     @classmethod
     def initial(cls, n: int) -> FootState:
@@ -99,7 +100,7 @@ class FootState:
 _REACH_EPS = 1e-9  # m: reach comparisons of a lock start
 
 
-def _smoothstep(x: np.ndarray) -> np.ndarray:
+def _smoothstep(x: NDArray[np.float64]) -> NDArray[np.float64]:
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
 
@@ -136,8 +137,8 @@ class FootSolver:
     def initial_state(n: int) -> FootState:
         return FootState.initial(n)
 
-    def apply(self, pelvis: np.ndarray, rots: np.ndarray, contacts: np.ndarray, state: FootState,
-              active: np.ndarray | None = None) -> tuple[np.ndarray, FootState]:
+    def apply(self, pelvis: NDArray[np.float64], rots: NDArray[np.float64], contacts: NDArray[np.float64], state: FootState,
+              active: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], FootState]:
         """One frame for N characters.
 
         pelvis (N, 3) world positions (unchanged), rots (N, 22, 3, 3) local rotations (joint 0
@@ -145,8 +146,8 @@ class FootSolver:
         (or ``initial_state(N)``); ``active`` (N,) bool, default all: an inactive character's
         feet are neither pinned nor pushed (a held lock is released smoothly). Returns the new
         local rotations (a copy; only hips, knees and ankles differ) and the new state."""
-        pelvis = np.asarray(pelvis, dtype=float)
-        rots = np.asarray(rots, dtype=float)
+        pelvis = np.asarray(pelvis, dtype=np.float64)
+        rots = np.asarray(rots, dtype=np.float64)
         contacts = np.asarray(contacts)
         n = len(pelvis)
         if pelvis.shape != (n, 3) or rots.shape != (n, NUM_JOINTS, 3, 3) or contacts.shape != (n, 2):
@@ -166,12 +167,12 @@ class FootSolver:
             self.release_frames, fp.centers, fp.rights, fp.facings, fp.halves, self.passes)
         return out, FootState(locked=locked, lock=lock, offset=offset, release=release, drifted=drifted)
 
-    def apply_numpy(self, pelvis: np.ndarray, rots: np.ndarray, contacts: np.ndarray, state: FootState,
-                    active: np.ndarray | None = None) -> tuple[np.ndarray, FootState]:
+    def apply_numpy(self, pelvis: NDArray[np.float64], rots: NDArray[np.float64], contacts: NDArray[np.float64], state: FootState,
+                    active: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], FootState]:
         """``apply`` as array steps (the reference of the compiled ``sim.body.foot_kernel.apply_frame``;
         same results to rounding). Inputs are not checked here."""
-        pelvis = np.asarray(pelvis, dtype=float)
-        rots = np.asarray(rots, dtype=float)
+        pelvis = np.asarray(pelvis, dtype=np.float64)
+        rots = np.asarray(rots, dtype=np.float64)
         contacts = np.asarray(contacts)
         n = len(pelvis)
         act = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool).reshape(n)

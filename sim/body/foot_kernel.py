@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from sim.body.foot_clearance import _push_out_kernel
 from sim.body.leg_ik import (
@@ -38,11 +39,12 @@ _ANKLE_J = np.array(ANKLE_JOINTS, dtype=np.int64)
 
 @njit(cache=True)
 def apply_frame(
-    pelvis: np.ndarray, rots: np.ndarray, contacts: np.ndarray, act: np.ndarray,
-    locked: np.ndarray, lock: np.ndarray, offset: np.ndarray, release: np.ndarray, drifted: np.ndarray,
-    full: np.ndarray, thigh: np.ndarray, shin: np.ndarray, max_drift: float, release_frames: int,
-    centers: np.ndarray, rights: np.ndarray, facings: np.ndarray, halves: np.ndarray, passes: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    pelvis: NDArray[np.float64], rots: NDArray[np.float64], contacts: NDArray[np.bool_], act: NDArray[np.float64],
+    locked: NDArray[np.bool_], lock: NDArray[np.float64], offset: NDArray[np.float64], release: NDArray[np.int64],
+    drifted: NDArray[np.bool_],
+    full: NDArray[np.float64], thigh: NDArray[np.float64], shin: NDArray[np.float64], max_drift: float, release_frames: int,
+    centers: NDArray[np.float64], rights: NDArray[np.float64], facings: NDArray[np.float64], halves: NDArray[np.float64], passes: int,
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:  # pragma: no cover
     """(rotations, locked, lock, offset, release, drifted) after one frame; see
     ``FootSolver.apply_numpy`` for the steps (the same, per character and leg)."""
     n = pelvis.shape[0]

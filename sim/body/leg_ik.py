@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, REST_OFFSETS
 from sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
@@ -67,7 +68,7 @@ class LegChain:
 
     __slots__ = ("ankle", "ankle_rot", "hip", "hip_rot", "knee", "knee_rot", "pelvis_rot", "toe")
 
-    def __init__(self, pelvis: np.ndarray, rots: np.ndarray) -> None:
+    def __init__(self, pelvis: NDArray[np.float64], rots: NDArray[np.float64]) -> None:
         g0 = rots[:, 0]
         self.pelvis_rot = g0
         self.hip = pelvis[:, None] + np.einsum("nij,lj->nli", g0, _HIP_OFF)
@@ -79,13 +80,13 @@ class LegChain:
         self.toe = self.ankle + np.einsum("nlij,lj->nli", self.ankle_rot, _TOE_OFF)
 
 
-def leg_chain(pelvis: np.ndarray, rots: np.ndarray) -> LegChain:
+def leg_chain(pelvis: NDArray[np.float64], rots: NDArray[np.float64]) -> LegChain:
     """The legs' forward kinematics of poses (pelvis (N, 3), local rotations (N, 22, 3, 3))."""
-    return LegChain(np.asarray(pelvis, dtype=float), np.asarray(rots, dtype=float))
+    return LegChain(np.asarray(pelvis, dtype=np.float64), np.asarray(rots, dtype=np.float64))
 
 
 @njit(cache=True)
-def _rotation(ax: float, ay: float, az: float, angle: float) -> np.ndarray:  # pragma: no cover - compiled
+def _rotation(ax: float, ay: float, az: float, angle: float) -> NDArray[np.float64]:  # pragma: no cover - compiled
     """Rotation matrix about the unit axis (ax, ay, az) by ``angle`` (Rodrigues)."""
     s = math.sin(angle)
     c = math.cos(angle)
@@ -104,22 +105,23 @@ def _rotation(ax: float, ay: float, az: float, angle: float) -> np.ndarray:  # p
 
 
 @njit(cache=True)
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+def _cross(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: no cover - compiled
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 @njit(cache=True)
-def _dot3(a: np.ndarray, b: np.ndarray) -> float:  # pragma: no cover - compiled
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+def _dot3(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:  # pragma: no cover - compiled
+    dot: float = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    return dot
 
 
 @njit(cache=True)
-def _norm3(a: np.ndarray) -> float:  # pragma: no cover - compiled
+def _norm3(a: NDArray[np.float64]) -> float:  # pragma: no cover - compiled
     return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
 
 
 @njit(cache=True)
-def _perpendicular(v: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+def _perpendicular(v: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: no cover - compiled
     """A unit vector perpendicular to the unit vector v."""
     k = 0
     for i in range(1, 3):
@@ -132,7 +134,7 @@ def _perpendicular(v: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _matmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+def _matmul3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: no cover - compiled
     out = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
@@ -141,14 +143,14 @@ def _matmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - 
 
 
 @njit(cache=True)
-def _matvec3(a: np.ndarray, v: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+def _matvec3(a: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: no cover - compiled
     return np.array([a[0, 0] * v[0] + a[0, 1] * v[1] + a[0, 2] * v[2],
                      a[1, 0] * v[0] + a[1, 1] * v[1] + a[1, 2] * v[2],
                      a[2, 0] * v[0] + a[2, 1] * v[1] + a[2, 2] * v[2]])
 
 
 @njit(cache=True)
-def _tmatmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+def _tmatmul3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: no cover - compiled
     """a.T @ b"""
     out = np.empty((3, 3))
     for i in range(3):
@@ -158,8 +160,8 @@ def _tmatmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # pragma: no cover -
 
 
 @njit(cache=True)
-def _hinge(kh: np.ndarray, ka: np.ndarray, e1: np.ndarray, n: np.ndarray, b_len: float,
-           cos_knee: float) -> np.ndarray:  # pragma: no cover - compiled
+def _hinge(kh: NDArray[np.float64], ka: NDArray[np.float64], e1: NDArray[np.float64], n: NDArray[np.float64], b_len: float,
+           cos_knee: float) -> NDArray[np.float64]:  # pragma: no cover - compiled
     """The turn about the unit axis n (normal to the thigh kh) that brings the interior knee
     angle between kh and the shin ka to acos(cos_knee), as close as the axis allows."""
     e2 = _cross(n, e1)
@@ -172,9 +174,9 @@ def _hinge(kh: np.ndarray, ka: np.ndarray, e1: np.ndarray, n: np.ndarray, b_len:
 
 
 @njit(cache=True)
-def _ik_kernel(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, pelvis_rot: np.ndarray,
-               hip_rot: np.ndarray, knee_rot: np.ndarray, ankle_rot: np.ndarray, target: np.ndarray,
-               thigh: np.ndarray, shin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+def _ik_kernel(hip: NDArray[np.float64], knee: NDArray[np.float64], ankle: NDArray[np.float64], pelvis_rot: NDArray[np.float64],
+               hip_rot: NDArray[np.float64], knee_rot: NDArray[np.float64], ankle_rot: NDArray[np.float64], target: NDArray[np.float64],
+               thigh: NDArray[np.float64], shin: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:  # pragma: no cover - compiled
     """New local rotations (hip, knee, ankle) (M, 3, 3) of M legs putting the ankle on
     ``target`` (M, 3); positions (M, 3), world rotations (M, 3, 3), bone lengths (M,)."""
     m_count = hip.shape[0]
@@ -241,9 +243,9 @@ def _ik_kernel(hip: np.ndarray, knee: np.ndarray, ankle: np.ndarray, pelvis_rot:
     return out_hip, out_knee, out_ankle
 
 
-def solve_chain(chain: LegChain, rots: np.ndarray, ankle_targets: np.ndarray, which: np.ndarray) -> np.ndarray:
+def solve_chain(chain: LegChain, rots: NDArray[np.float64], ankle_targets: NDArray[np.float64], which: NDArray[np.float64]) -> NDArray[np.float64]:
     """``solve_legs`` on poses whose leg chain is already known (no input checks)."""
-    out = np.array(rots, dtype=float, copy=True)
+    out = np.array(rots, dtype=np.float64, copy=True)
     if not which.any():
         return out
     ci, leg = np.nonzero(which)
@@ -259,16 +261,16 @@ def solve_chain(chain: LegChain, rots: np.ndarray, ankle_targets: np.ndarray, wh
     return out
 
 
-def solve_legs(pelvis: np.ndarray, rots: np.ndarray, ankle_targets: np.ndarray,
-               which: np.ndarray | None = None) -> np.ndarray:
+def solve_legs(pelvis: NDArray[np.float64], rots: NDArray[np.float64], ankle_targets: NDArray[np.float64],
+               which: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
     """Local rotations (N, 22, 3, 3) with the ankles of the legs ``which`` (N, 2) bool
     (default all) on ``ankle_targets`` (N, 2, 3) (world, m; left, right), the feet keeping their
     world orientation; other joints and legs keep their input rotations exactly.
 
     Raises ``FootIKError`` for wrong shapes or non-finite input."""
-    pelvis = np.asarray(pelvis, dtype=float)
-    rots = np.asarray(rots, dtype=float)
-    targets = np.asarray(ankle_targets, dtype=float)
+    pelvis = np.asarray(pelvis, dtype=np.float64)
+    rots = np.asarray(rots, dtype=np.float64)
+    targets = np.asarray(ankle_targets, dtype=np.float64)
     n = len(pelvis)
     if pelvis.shape != (n, 3) or rots.shape != (n, NUM_JOINTS, 3, 3) or targets.shape != (n, 2, 3):
         raise FootIKError(

@@ -15,6 +15,7 @@ Rotations are 3x3 matrices in numpy arrays; axis-angle conversion uses scipy.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 JOINT_NAMES: tuple[str, ...] = (
@@ -73,7 +74,7 @@ REST_OFFSETS = np.array(
         [0.250, 0.005, 0.000],  # left_wrist
         [-0.250, 0.005, 0.000],  # right_wrist
     ],
-    dtype=float,
+    dtype=np.float64,
 )
 assert REST_OFFSETS.shape == (NUM_JOINTS, 3)
 
@@ -81,28 +82,28 @@ assert REST_OFFSETS.shape == (NUM_JOINTS, 3)
 BODY_TO_WORLD = Rotation.from_euler("x", 90, degrees=True).as_matrix()
 
 
-def rest_positions() -> np.ndarray:
+def rest_positions() -> NDArray[np.float64]:
     """Joint positions (22, 3) of the rest pose in the body frame (feet near y = 0)."""
     return forward_kinematics(np.broadcast_to(np.eye(3), (NUM_JOINTS, 3, 3)), REST_OFFSETS[0])[0]
 
 
 def forward_kinematics(
-    local_rotations: np.ndarray, root_position: np.ndarray, offsets: np.ndarray = REST_OFFSETS
-) -> tuple[np.ndarray, np.ndarray]:
+    local_rotations: NDArray[np.float64], root_position: NDArray[np.float64], offsets: NDArray[np.float64] = REST_OFFSETS
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Batched FK.
 
     local_rotations: (..., 22, 3, 3), each joint's rotation relative to its parent; joint 0's is
     the root rotation in the output frame. root_position: (..., 3), the pelvis position.
     Returns (positions (..., 22, 3), global rotations (..., 22, 3, 3)).
     """
-    local_rotations = np.asarray(local_rotations, dtype=float)
-    root_position = np.asarray(root_position, dtype=float)
+    local_rotations = np.asarray(local_rotations, dtype=np.float64)
+    root_position = np.asarray(root_position, dtype=np.float64)
     batch = local_rotations.shape[:-3]
     # one 4x4 rigid transform per joint (rotation + offset from the parent), chained by one
     # matrix product per joint (half the numpy calls of separate rotation / position updates)
     t = np.zeros((*batch, NUM_JOINTS, 4, 4))
     t[..., :3, :3] = local_rotations
-    t[..., 1:, :3, 3] = np.asarray(offsets, dtype=float)[..., 1:, :]
+    t[..., 1:, :3, 3] = np.asarray(offsets, dtype=np.float64)[..., 1:, :]
     t[..., 0, :3, 3] = root_position
     t[..., 3, 3] = 1.0
     for j in range(1, NUM_JOINTS):
@@ -110,20 +111,20 @@ def forward_kinematics(
     return np.ascontiguousarray(t[..., :3, 3]), np.ascontiguousarray(t[..., :3, :3])
 
 
-def heading_to_root(theta: float | np.ndarray) -> np.ndarray:
+def heading_to_root(theta: float | NDArray[np.float64]) -> NDArray[np.float64]:
     """Root rotation(s) (..., 3, 3) that stand the body upright facing world angle ``theta``."""
-    theta = np.asarray(theta, dtype=float)
+    theta = np.asarray(theta, dtype=np.float64)
     rz = Rotation.from_euler("z", (theta + np.pi / 2).reshape(-1, 1)).as_matrix()
     return (rz @ BODY_TO_WORLD).reshape(*theta.shape, 3, 3)
 
 
-def axis_angle_to_matrix(axis_angle: np.ndarray) -> np.ndarray:
+def axis_angle_to_matrix(axis_angle: NDArray[np.float64]) -> NDArray[np.float64]:
     """(..., 3) axis-angle -> (..., 3, 3) rotation matrices."""
-    aa = np.asarray(axis_angle, dtype=float)
+    aa = np.asarray(axis_angle, dtype=np.float64)
     return Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(*aa.shape[:-1], 3, 3)
 
 
-def matrix_to_axis_angle(matrix: np.ndarray) -> np.ndarray:
+def matrix_to_axis_angle(matrix: NDArray[np.float64]) -> NDArray[np.float64]:
     """(..., 3, 3) rotation matrices -> (..., 3) axis-angle."""
-    m = np.asarray(matrix, dtype=float)
+    m = np.asarray(matrix, dtype=np.float64)
     return Rotation.from_matrix(m.reshape(-1, 3, 3)).as_rotvec().reshape(*m.shape[:-2], 3)

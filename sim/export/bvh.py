@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Literal
+from typing import Final, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import (
@@ -38,7 +39,7 @@ from sim.world.character_track import CharacterTrack
 
 Units = Literal["m", "cm"]
 UNIT_SCALE: dict[str, float] = {"m": 1.0, "cm": 100.0}
-EULER_ORDER = "ZXY"  # intrinsic, as scipy spells it; BVH channel order Z, X, Y
+EULER_ORDER: Final = "ZXY"  # intrinsic, as scipy spells it; BVH channel order Z, X, Y
 ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
 JOINT_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
 WORLD_TO_BVH = BODY_TO_WORLD.T
@@ -71,7 +72,7 @@ def bvh_hierarchy(units: Units = "m") -> str:
     scale = UNIT_SCALE[units]
     lines = ["HIERARCHY"]
 
-    def vec(v: np.ndarray | tuple[float, float, float]) -> str:
+    def vec(v: NDArray[np.float64] | tuple[float, float, float]) -> str:
         return " ".join(f"{x * scale:.6f}" for x in v)
 
     def write(j: int, depth: int) -> None:
@@ -104,7 +105,7 @@ def bvh_hierarchy(units: Units = "m") -> str:
     return "\n".join(lines) + "\n"
 
 
-def bvh_motion_values(track: CharacterTrack, units: Units = "m") -> np.ndarray:
+def bvh_motion_values(track: CharacterTrack, units: Units = "m") -> NDArray[np.float64]:
     """The MOTION rows (N, 6 + 3 * 21): root position and Euler degrees, depth-first order."""
     n = track.num_frames
     rotations = np.array(track.local_rotations)

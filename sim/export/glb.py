@@ -25,9 +25,11 @@ from __future__ import annotations
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pygltflib as gl
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import (
@@ -88,19 +90,19 @@ _END_SIZES: dict[str, tuple[float, float]] = {
     "right_foot": (0.09, 0.05),
 }
 # Unit cube corners (bit 0: +x, bit 1: +y, bit 2: +z) and its 6 outward quads.
-_CORNERS = np.array([[(i >> k) & 1 for k in range(3)] for i in range(8)], dtype=float) - 0.5
+_CORNERS = np.array([[(i >> k) & 1 for k in range(3)] for i in range(8)], dtype=np.float64) - 0.5
 _QUADS = np.array(
     [[1, 3, 7, 5], [0, 4, 6, 2], [2, 6, 7, 3], [0, 1, 5, 4], [4, 5, 7, 6], [0, 2, 3, 1]]
 )
 _QUAD_NORMALS = np.array(
-    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float
+    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
 )
 _QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
 
 
 def box_mesh(
-    centers: np.ndarray, axes: np.ndarray, half_sizes: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    centers: NDArray[np.float64], axes: NDArray[np.float64], half_sizes: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Flat-shaded boxes, vectorised over B boxes.
 
     centers (B, 3); axes (B, 3, 3) with the box's unit axes as columns (right-handed);
@@ -117,7 +119,7 @@ def box_mesh(
     return positions.reshape(-1, 3), normals.reshape(-1, 3), triangles
 
 
-def character_mesh() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def character_mesh() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The figure in the rest pose (glTF frame = body frame): positions, normals, triangles, joint ids.
 
     Each vertex is bound to one joint (weight 1), the joint whose bone the box belongs to.
@@ -159,7 +161,7 @@ class _Writer:
 
     def accessor(
         self,
-        data: np.ndarray,
+        data: NDArray[Any],
         kind: str,
         component: int,
         *,
@@ -206,13 +208,13 @@ class _Writer:
         return len(self.gltf.meshes) - 1
 
 
-def _quat(matrices: np.ndarray) -> np.ndarray:
+def _quat(matrices: NDArray[np.float64]) -> NDArray[np.float64]:
     """(..., 3, 3) -> (..., 4) xyzw quaternions."""
     m = np.asarray(matrices)
     return Rotation.from_matrix(m.reshape(-1, 3, 3)).as_quat().reshape(*m.shape[:-2], 4)
 
 
-def _continuous(quats: np.ndarray) -> np.ndarray:
+def _continuous(quats: NDArray[np.float64]) -> NDArray[np.float64]:
     """Flip signs along axis 0 so consecutive quaternions have a non-negative dot product."""
     if quats.shape[0] < 2:
         return quats

@@ -23,6 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, matrix_to_axis_angle
 from sim.world.character_track import CharacterTrack, write_npz
@@ -35,15 +36,15 @@ HANDS_SLICE = slice(75, 165)
 
 
 def smplx_parameters(
-    track: CharacterTrack, pelvis_rest: np.ndarray | None = None
-) -> dict[str, np.ndarray]:
+    track: CharacterTrack, pelvis_rest: NDArray[np.float64] | None = None
+) -> dict[str, NDArray[np.float64]]:
     """The AMASS-style arrays for ``track`` (see the module docstring), float64 except strings."""
-    j0 = REST_OFFSETS[0] if pelvis_rest is None else np.asarray(pelvis_rest, dtype=float).reshape(3)
+    j0 = REST_OFFSETS[0] if pelvis_rest is None else np.asarray(pelvis_rest, dtype=np.float64).reshape(3)
     n = track.num_frames
     aa = matrix_to_axis_angle(track.local_rotations)  # (N, 22, 3)
     poses = np.zeros((n, NUM_POSE_PARAMS))
     poses[:, : NUM_JOINTS * 3] = aa.reshape(n, NUM_JOINTS * 3)
-    arrays: dict[str, np.ndarray] = {
+    arrays: dict[str, NDArray[np.float64]] = {
         "poses": poses,
         "trans": track.root_positions - j0,
         "betas": np.array(track.betas),
@@ -63,7 +64,7 @@ def smplx_parameters(
 
 
 def export_smplx_npz(
-    track: CharacterTrack, path: str | Path, pelvis_rest: np.ndarray | None = None
+    track: CharacterTrack, path: str | Path, pelvis_rest: NDArray[np.float64] | None = None
 ) -> Path:
     """Write ``track`` as an AMASS-style SMPL-X ``.npz`` (deterministic bytes). Returns the path."""
     return write_npz(path, smplx_parameters(track, pelvis_rest))

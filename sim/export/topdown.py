@@ -30,6 +30,7 @@ from matplotlib import colormaps
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Polygon, Rectangle
+from numpy.typing import NDArray
 
 from sim.scene.model import Scene
 
@@ -62,11 +63,11 @@ def draw_topdown(
     scene: Scene,
     *,
     clusters: Sequence[Sequence[str]] | None = None,
-    nav_free: np.ndarray | None = None,
+    nav_free: NDArray[np.float64] | None = None,
     nav_origin: tuple[float, float] = (0.0, 0.0),
     nav_cell_size: float = 0.3,
     characters: Sequence[CharacterMarker] | None = None,
-    paths: Sequence[np.ndarray] | Mapping[str, np.ndarray] | None = None,
+    paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None = None,
     title: str | None = None,
     captions: Sequence[str] | None = None,
     show_names: bool = True,
@@ -117,7 +118,7 @@ def draw_topdown(
         on_floor = obj.z_min - floor_z < 0.1
         face = colour_of.get(obj.name, _FLOOR_COLOUR if on_floor else _SUPPORTED_COLOUR)
         if not on_floor and obj.name in colour_of:  # lighter than its supporter of the same cluster
-            r, g, b = (0.55 * np.asarray(face[:3], dtype=float) + 0.45).tolist()
+            r, g, b = (0.55 * np.asarray(face[:3], dtype=np.float64) + 0.45).tolist()
             face = (r, g, b, 1.0)
         ax.add_patch(
             Polygon(
@@ -175,7 +176,7 @@ def draw_topdown(
     if paths is not None:
         items = paths.items() if isinstance(paths, Mapping) else enumerate(paths)
         for key, line in items:
-            pts = np.asarray(line, dtype=float).reshape(-1, 2)
+            pts = np.asarray(line, dtype=np.float64).reshape(-1, 2)
             if len(pts) == 0:
                 continue
             fallback = zlib.crc32(key.encode()) if isinstance(key, str) else int(key)
@@ -189,7 +190,7 @@ def draw_topdown(
             Circle((px, py), BODY_RADIUS, facecolor=colour, edgecolor="black", lw=0.8, zorder=8)
         )
         if marker.heading is not None:
-            h = np.asarray(marker.heading, dtype=float)
+            h = np.asarray(marker.heading, dtype=np.float64)
             norm = float(np.hypot(*h))
             if norm > 1e-9:
                 h = h / norm * (BODY_RADIUS + 0.2)
@@ -236,7 +237,7 @@ def draw_topdown(
     return fig
 
 
-def render_topdown_rgb(scene: Scene, **layers: object) -> np.ndarray:
+def render_topdown_rgb(scene: Scene, **layers: object) -> NDArray[np.uint8]:
     """The picture as an ``(H, W, 3)`` uint8 array (one frame of an animation)."""
     fig = draw_topdown(scene, **layers)  # type: ignore[arg-type]
     canvas = fig.canvas

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.export.topdown import CharacterMarker, render_topdown_rgb
 from sim.paths.nav_grid import NavGrid
@@ -82,7 +83,7 @@ def _frame_index(rec: RunRecording, frame: int) -> int:
 def run_frame_rgb(
     rec: RunRecording, frame: int = -1, *, trail_s: float = 3.0, size_px: int = 900, title: str | None = None,
     show_names: bool = True, show_grid: bool = True,
-) -> np.ndarray:
+) -> NDArray[np.uint8]:
     """One frame of the run as an (H, W, 3) uint8 picture (``frame`` may be negative)."""
     f = _frame_index(rec, frame)
     lo = max(0, f - round(trail_s * rec.fps))
@@ -123,7 +124,7 @@ def mp4_available() -> bool:
 
 def animation_frames(
     rec: RunRecording, *, stride: int = 6, start: int = 0, stop: int | None = None, **kw: object
-) -> list[np.ndarray]:
+) -> list[NDArray[np.uint8]]:
     """Pictures of every ``stride``-th frame in [start, stop) (the last frame always included)."""
     if stride < 1:
         raise RunVideoError(f"stride must be >= 1 frame, got {stride}")

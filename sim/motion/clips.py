@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation, Slerp
 
@@ -43,13 +44,13 @@ class MotionClip:
 
     name: str
     key: str
-    local_rotations: np.ndarray
-    pelvis: np.ndarray
-    root_xy: np.ndarray
-    heading: np.ndarray
-    contacts: np.ndarray
+    local_rotations: NDArray[np.float64]
+    pelvis: NDArray[np.float64]
+    root_xy: NDArray[np.float64]
+    heading: NDArray[np.float64]
+    contacts: NDArray[np.bool_]
     loops: bool = False
-    target: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
+    target: NDArray[np.float64] = field(default_factory=lambda: np.full(4, np.nan))
     fps: float = FPS
     source: str = "procedural"
 
@@ -80,14 +81,14 @@ class MotionClip:
     def num_frames(self) -> int:
         return int(self.local_rotations.shape[0])
 
-    def joint_positions(self) -> np.ndarray:
+    def joint_positions(self) -> NDArray[np.float64]:
         """World joint positions (F,22,3) by forward kinematics."""
         return forward_kinematics(self.local_rotations, self.pelvis)[0]
 
 
 def estimate_root(
-    pelvis: np.ndarray, pelvis_rotation: np.ndarray, smooth_frames: float = 4.0
-) -> tuple[np.ndarray, np.ndarray]:
+    pelvis: NDArray[np.float64], pelvis_rotation: NDArray[np.float64], smooth_frames: float = 4.0
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Root trajectory of a clip: smoothed pelvis ground point (F,2) and heading (F,) rad.
 
     The heading is the pelvis' forward axis (body +z) projected on the floor, unwrapped and
@@ -103,17 +104,18 @@ def estimate_root(
 
 
 def detect_contacts(
-    positions: np.ndarray, fps: float, height: float = 0.06, speed: float = 0.25
-) -> np.ndarray:
+    positions: NDArray[np.float64], fps: float, height: float = 0.06, speed: float = 0.25
+) -> NDArray[np.bool_]:
     """Foot contacts (F,2): toe joint lower than ``height`` above the clip's lowest toe
     height and slower than ``speed`` m/s horizontally."""
     toes = positions[:, FOOT_JOINTS]
     floor = np.percentile(toes[:, :, 2], 2)
     vel = np.gradient(toes[:, :, :2], axis=0) * fps
-    return (toes[:, :, 2] < floor + height) & (np.linalg.norm(vel, axis=-1) < speed)
+    slow: NDArray[np.bool_] = np.linalg.norm(vel, axis=-1) < speed
+    return (toes[:, :, 2] < floor + height) & slow
 
 
-def resample_rotations(rotations: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
+def resample_rotations(rotations: NDArray[np.float64], src_fps: float, dst_fps: float) -> NDArray[np.float64]:
     """Slerp (F,J,3,3) rotations from ``src_fps`` to ``dst_fps`` (same start time)."""
     n, nj = rotations.shape[:2]
     t_src = np.arange(n) / src_fps
@@ -124,7 +126,7 @@ def resample_rotations(rotations: np.ndarray, src_fps: float, dst_fps: float) ->
     return out
 
 
-def resample_linear(values: np.ndarray, src_fps: float, dst_fps: float) -> np.ndarray:
+def resample_linear(values: NDArray[np.float64], src_fps: float, dst_fps: float) -> NDArray[np.float64]:
     """Linear resampling of (F,...) values along the first axis."""
     n = values.shape[0]
     t_src = np.arange(n) / src_fps
@@ -137,13 +139,13 @@ def resample_linear(values: np.ndarray, src_fps: float, dst_fps: float) -> np.nd
 def clip_from_pose_frames(
     name: str,
     key: str,
-    local_rotations: np.ndarray,
-    pelvis: np.ndarray,
+    local_rotations: NDArray[np.float64],
+    pelvis: NDArray[np.float64],
     fps: float = FPS,
     *,
     source: str = "imported",
     loops: bool = False,
-    target: np.ndarray | None = None,
+    target: NDArray[np.float64] | None = None,
 ) -> MotionClip:
     """Build a clip at 30 fps from raw pose frames (any fps): resample, estimate the root
     trajectory and detect contacts."""
@@ -153,5 +155,5 @@ def clip_from_pose_frames(
     root, heading = estimate_root(pelvis, local_rotations[:, 0])
     positions = forward_kinematics(local_rotations, pelvis)[0]
     contacts = detect_contacts(positions, FPS)
-    tgt = np.full(4, np.nan) if target is None else np.asarray(target, dtype=float)
+    tgt = np.full(4, np.nan) if target is None else np.asarray(target, dtype=np.float64)
     return MotionClip(name, key, local_rotations, pelvis, root, heading, contacts, loops, tgt, FPS, source)

@@ -24,8 +24,9 @@ from __future__ import annotations
 import tomllib
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
-import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from sim.motion.action_labels import UnknownActionLabelError, database_key
@@ -126,7 +127,7 @@ def import_entry(config: MotionConfig, entry: ClipEntry, use_cache: bool = True)
     payload = {"importer": IMPORTER_VERSION, "sha256": file_sha256(path), "entry": entry.model_dump()}
     holder: list[MotionClip] = []
 
-    def arrays() -> dict[str, np.ndarray]:
+    def arrays() -> dict[str, NDArray[Any]]:
         clip = build()
         holder.append(clip)
         return {"local_rotations": clip.local_rotations, "pelvis": clip.pelvis, "root_xy": clip.root_xy,

@@ -18,6 +18,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from sim.body.skeleton import NUM_JOINTS, forward_kinematics
@@ -50,7 +51,7 @@ ENTRY_FRAMES = 8  # frames at the start of each clip where a completing action i
 SCAN_THRESHOLD = 5_000
 
 
-def squared_distances(rows: np.ndarray, query: np.ndarray) -> np.ndarray:
+def squared_distances(rows: NDArray[np.float64], query: NDArray[np.float64]) -> NDArray[np.float64]:
     """Squared distances (N,) of ``rows`` (N,D) to ``query`` (D,), summed dimension by
     dimension in a fixed order so that any subset of rows gets bit-identical values."""
     if rows.shape[1] == 0 or rows.shape[0] > 64:
@@ -73,9 +74,9 @@ class NearestFrameIndex:
     distance in the original space, so rounding in the rotation cannot change the answer.
     """
 
-    def __init__(self, features: np.ndarray, candidates: np.ndarray | None = None, leafsize: int = 16,
+    def __init__(self, features: NDArray[np.float64], candidates: NDArray[np.intp] | None = None, leafsize: int = 16,
                  rotate: bool = True) -> None:
-        self.features = np.ascontiguousarray(features, dtype=float)
+        self.features = np.ascontiguousarray(features, dtype=np.float64)
         if candidates is None:
             candidates = np.arange(len(self.features))
         self.candidates = np.asarray(candidates, dtype=np.int64)
@@ -93,15 +94,16 @@ class NearestFrameIndex:
         self._rows_t = np.ascontiguousarray(self.rows.T)  # scan path: one dimension of all rows at a time
         self.use_scan = len(self.rows) <= SCAN_THRESHOLD
 
-    def _tree_space(self, q: np.ndarray) -> np.ndarray:
-        return (q - self.center) @ self.basis
+    def _tree_space(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
+        rotated: NDArray[np.float64] = (q - self.center) @ self.basis
+        return rotated
 
-    def brute_force(self, query: np.ndarray) -> tuple[int, float]:
-        d = squared_distances(self.rows, np.asarray(query, dtype=float))
+    def brute_force(self, query: NDArray[np.float64]) -> tuple[int, float]:
+        d = squared_distances(self.rows, np.asarray(query, dtype=np.float64))
         i = int(np.argmin(d))  # first minimum = lowest index among ties
         return int(self.candidates[i]), float(d[i])
 
-    def _resolve(self, query: np.ndarray, dists: np.ndarray, idx: np.ndarray) -> tuple[int, float]:
+    def _resolve(self, query: NDArray[np.float64], dists: NDArray[np.float64], idx: NDArray[np.float64]) -> tuple[int, float]:
         n = len(self.rows)
         valid = idx < n
         dists, idx = dists[valid], idx[valid]
@@ -116,19 +118,19 @@ class NearestFrameIndex:
         i = int(close[best].min())  # lowest index among exact ties (candidates are sorted)
         return int(self.candidates[i]), float(squared_distances(self.rows[i : i + 1], query)[0])
 
-    def scan_many(self, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def scan_many(self, queries: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """Exact brute force for (M,D) queries, compiled (``sim.motion.kernels.nearest_rows``):
         every row's squared distance summed dimension by dimension as ``squared_distances``
         does, the first minimum taken. Same answer as ``brute_force`` (lowest index among
         exact ties). Raises ValueError for a query with non-finite features."""
-        q = np.ascontiguousarray(np.asarray(queries, dtype=float).reshape(-1, self.rows.shape[1]))
+        q = np.ascontiguousarray(np.asarray(queries, dtype=np.float64).reshape(-1, self.rows.shape[1]))
         if not np.isfinite(q).all():
             raise ValueError(f"motion search query has non-finite features: {q[~np.isfinite(q).all(axis=1)][0]}")
         j, d = nearest_rows(self._rows_t, q)
         return self.candidates[j], d
 
-    def query(self, query: np.ndarray, k: int = 4) -> tuple[int, float]:
-        q = np.asarray(query, dtype=float)
+    def query(self, query: NDArray[np.float64], k: int = 4) -> tuple[int, float]:
+        q = np.asarray(query, dtype=np.float64)
         if self.use_scan:
             i, d = self.scan_many(q[None])
             return int(i[0]), float(d[0])
@@ -136,14 +138,14 @@ class NearestFrameIndex:
         dists, idx = self.tree.query(self._tree_space(q), k=k)
         return self._resolve(q, np.atleast_1d(dists), np.atleast_1d(idx))
 
-    def query_many(self, queries: np.ndarray, k: int = 4, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    def query_many(self, queries: NDArray[np.float64], k: int = 4, workers: int = 1) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """Batched exact search: (M,D) -> (indices (M,), squared distances (M,))."""
-        q = np.asarray(queries, dtype=float).reshape(-1, self.rows.shape[1])
+        q = np.asarray(queries, dtype=np.float64).reshape(-1, self.rows.shape[1])
         if self.use_scan:
             return self.scan_many(q)
         k = min(k, len(self.rows))
-        dists, idx = self.tree.query(self._tree_space(q), k=k, workers=workers)
-        dists, idx = dists.reshape(len(q), k), idx.reshape(len(q), k)
+        raw_d, raw_i = self.tree.query(self._tree_space(q), k=k, workers=workers)
+        dists, idx = np.asarray(raw_d).reshape(len(q), k), np.asarray(raw_i).reshape(len(q), k)
         out_i = np.empty(len(q), dtype=np.int64)
         out_d = np.empty(len(q))
         for m in range(len(q)):
@@ -164,20 +166,20 @@ class MotionDatabase:
 
     key: str
     family: ActionFamily
-    local_rotations: np.ndarray
-    pelvis: np.ndarray
-    root_xy: np.ndarray
-    heading: np.ndarray
-    contacts: np.ndarray
-    clip_of_frame: np.ndarray
-    clip_ranges: np.ndarray
-    clip_loops: np.ndarray
+    local_rotations: NDArray[np.float64]
+    pelvis: NDArray[np.float64]
+    root_xy: NDArray[np.float64]
+    heading: NDArray[np.float64]
+    contacts: NDArray[np.float64]
+    clip_of_frame: NDArray[np.float64]
+    clip_ranges: NDArray[np.float64]
+    clip_loops: NDArray[np.float64]
     clip_names: tuple[str, ...]
-    targets: np.ndarray
-    raw_features: np.ndarray
-    mean: np.ndarray
-    scale: np.ndarray
-    searchable: np.ndarray
+    targets: NDArray[np.float64]
+    raw_features: NDArray[np.float64]
+    mean: NDArray[np.float64]
+    scale: NDArray[np.float64]
+    searchable: NDArray[np.float64]
     _index: list[NearestFrameIndex] = field(default_factory=list, repr=False, compare=False)
 
     @property
@@ -193,11 +195,11 @@ class MotionDatabase:
         return FEATURE_LAYOUTS[self.layout_name]
 
     @property
-    def features(self) -> np.ndarray:
+    def features(self) -> NDArray[np.float64]:
         return (self.raw_features - self.mean) / self.scale
 
-    def normalize(self, raw: np.ndarray) -> np.ndarray:
-        return (np.asarray(raw, dtype=float) - self.mean) / self.scale
+    def normalize(self, raw: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (np.asarray(raw, dtype=np.float64) - self.mean) / self.scale
 
     @property
     def index(self) -> NearestFrameIndex:
@@ -217,7 +219,7 @@ class MotionDatabase:
             self._index.append(NearestFrameIndex(self.features, np.flatnonzero(entry)))
         return self._index[1]
 
-    def search(self, raw_query: np.ndarray, entry: bool = False) -> tuple[int, float]:
+    def search(self, raw_query: NDArray[np.float64], entry: bool = False) -> tuple[int, float]:
         """Best frame for a raw feature vector: (frame, squared normalised distance);
         ``entry`` restricts the search to the first frames of each clip."""
         index = self.entry_index if entry else self.index
@@ -236,7 +238,7 @@ class MotionDatabase:
     def frames_to_end(self, frame: int) -> int:
         return int(self.clip_ranges[int(self.clip_of_frame[frame]), 1]) - 1 - frame
 
-    def arrays(self) -> dict[str, np.ndarray]:
+    def arrays(self) -> dict[str, NDArray[np.float64]]:
         """Plain arrays for caching (``from_arrays`` restores the database)."""
         return {
             "local_rotations": self.local_rotations.astype(np.float32), "pelvis": self.pelvis,
@@ -249,7 +251,7 @@ class MotionDatabase:
         }
 
     @classmethod
-    def from_arrays(cls, a: Mapping[str, np.ndarray]) -> MotionDatabase:
+    def from_arrays(cls, a: Mapping[str, NDArray[np.float64]]) -> MotionDatabase:
         key, family = (str(v) for v in a["meta"])
         return cls(key, family, a["local_rotations"].astype(float), a["pelvis"], a["root_xy"],  # type: ignore[arg-type]
                    a["heading"], a["contacts"].astype(bool), a["clip_of_frame"], a["clip_ranges"],
@@ -257,7 +259,7 @@ class MotionDatabase:
                    a["raw_features"], a["mean"], a["scale"], a["searchable"].astype(bool))
 
 
-def _future_roots(clip: MotionClip, k: int) -> tuple[np.ndarray, np.ndarray]:
+def _future_roots(clip: MotionClip, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Root ground points and headings ``k`` frames after each frame (loops wrap with the
     loop's displacement; other clips hold their last frame)."""
     n = clip.num_frames
@@ -283,7 +285,7 @@ def _future_roots(clip: MotionClip, k: int) -> tuple[np.ndarray, np.ndarray]:
     return xy, hd
 
 
-def clip_raw_features(clip: MotionClip, family: LayoutName) -> np.ndarray:
+def clip_raw_features(clip: MotionClip, family: LayoutName) -> NDArray[np.float64]:
     """Raw feature vectors (F,D) of one clip."""
     pos = clip.joint_positions()
     vel = np.gradient(pos, axis=0) * clip.fps
@@ -384,12 +386,16 @@ def load_databases(
         if not use_cache:
             out[key] = build_database(key, procedural_clips(key), config)
             continue
-        arrays = cached_arrays(payload, lambda key=key: build_database(key, procedural_clips(key), config).arrays())
+
+        def build(key: str = key) -> dict[str, NDArray[np.float64]]:
+            return build_database(key, procedural_clips(key), config).arrays()
+
+        arrays = cached_arrays(payload, build)
         out[key] = MotionDatabase.from_arrays(arrays)
     return out
 
 
-def database_pose(db: MotionDatabase, frame: int) -> tuple[np.ndarray, np.ndarray]:
+def database_pose(db: MotionDatabase, frame: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """World joint positions (22,3) and local rotations of one database frame (clip world)."""
     pos, _ = forward_kinematics(db.local_rotations[frame], db.pelvis[frame])
     return pos, db.local_rotations[frame]

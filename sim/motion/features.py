@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.body.skeleton import JOINT_INDEX
 from sim.motion.action_labels import family_of, is_seated_key
@@ -84,7 +85,7 @@ class FeatureConfig:
     def weight(self, group: str) -> float:
         return float(self.weights.get(group, 1.0))
 
-    def vector(self, layout: Layout) -> np.ndarray:
+    def vector(self, layout: Layout) -> NDArray[np.float64]:
         return np.concatenate([np.full(size, self.weight(name)) for name, size in layout])
 
 
@@ -97,14 +98,14 @@ class Control:
     target_height (...,) seat height. Unused entries may be zeros.
     """
 
-    future_pos: np.ndarray
-    future_dir: np.ndarray
-    target_pos: np.ndarray
-    target_dir: np.ndarray
-    target_height: np.ndarray
+    future_pos: NDArray[np.float64]
+    future_dir: NDArray[np.float64]
+    target_pos: NDArray[np.float64]
+    target_dir: NDArray[np.float64]
+    target_height: NDArray[np.float64]
 
 
-def _group(name: str, pos: np.ndarray, vel: np.ndarray, control: Control) -> np.ndarray:
+def _group(name: str, pos: NDArray[np.float64], vel: NDArray[np.float64], control: Control) -> NDArray[np.float64]:
     joint_groups = {
         "left_foot": J["left_foot"], "right_foot": J["right_foot"], "pelvis": J["pelvis"],
         "spine3": J["spine3"], "left_wrist": J["left_wrist"], "right_wrist": J["right_wrist"],
@@ -127,7 +128,7 @@ def _group(name: str, pos: np.ndarray, vel: np.ndarray, control: Control) -> np.
     return src[..., joint_groups[joint], :]
 
 
-def assemble(family: LayoutName, pos: np.ndarray, vel: np.ndarray, control: Control) -> np.ndarray:
+def assemble(family: LayoutName, pos: NDArray[np.float64], vel: NDArray[np.float64], control: Control) -> NDArray[np.float64]:
     """Raw (unnormalised) feature vectors (..., D) from character-frame joint positions and
     velocities (..., 22, 3) and control inputs."""
     layout = FEATURE_LAYOUTS[family]
@@ -137,7 +138,7 @@ def assemble(family: LayoutName, pos: np.ndarray, vel: np.ndarray, control: Cont
     return out
 
 
-def to_character_frame(points: np.ndarray, root_xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
+def to_character_frame(points: NDArray[np.float64], root_xy: NDArray[np.float64], heading: NDArray[np.float64]) -> NDArray[np.float64]:
     """World points (..., K, 3) -> character frame of roots (..., 2) / headings (...)."""
     c, s = np.cos(heading)[..., None], np.sin(heading)[..., None]
     dx = points[..., 0] - root_xy[..., None, 0]
@@ -145,15 +146,15 @@ def to_character_frame(points: np.ndarray, root_xy: np.ndarray, heading: np.ndar
     return np.stack([c * dx + s * dy, -s * dx + c * dy, points[..., 2]], axis=-1)
 
 
-def vectors_to_character_frame(vec: np.ndarray, heading: np.ndarray) -> np.ndarray:
+def vectors_to_character_frame(vec: NDArray[np.float64], heading: NDArray[np.float64]) -> NDArray[np.float64]:
     """World vectors (..., K, 3) rotated into the character frame of ``heading`` (...)."""
     c, s = np.cos(heading)[..., None], np.sin(heading)[..., None]
     return np.stack([c * vec[..., 0] + s * vec[..., 1], -s * vec[..., 0] + c * vec[..., 1], vec[..., 2]], axis=-1)
 
 
 def relative_target(
-    root_xy: np.ndarray, heading: np.ndarray, target_xy: np.ndarray, target_facing: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+    root_xy: NDArray[np.float64], heading: NDArray[np.float64], target_xy: NDArray[np.float64], target_facing: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Target ground point (..., 2) and unit facing (..., 2) in the character frame."""
     c, s = np.cos(heading), np.sin(heading)
     d = target_xy - root_xy

@@ -10,12 +10,13 @@ continuous in position and velocity. Pure functions of their inputs and ``dt`` (
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 LN2 = float(np.log(2.0))
 
 
-def decay_spring(x: np.ndarray, v: np.ndarray, halflife: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def decay_spring(x: NDArray[np.float64], v: NDArray[np.float64], halflife: float, dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Exact critically damped decay of offset ``x`` with velocity ``v`` toward zero."""
     y = 2.0 * LN2 / max(halflife, 1e-5) / 2.0
     j1 = v + x * y
@@ -23,7 +24,7 @@ def decay_spring(x: np.ndarray, v: np.ndarray, halflife: float, dt: float) -> tu
     return eydt * (x + j1 * dt), eydt * (v - j1 * y * dt)
 
 
-def rotation_log(m: np.ndarray) -> np.ndarray:
+def rotation_log(m: NDArray[np.float64]) -> NDArray[np.float64]:
     """(..., 3, 3) rotation matrices -> rotation vectors (..., 3).
 
     The inputs are products of rotation matrices (orthonormal to rounding), so scipy's
@@ -31,20 +32,20 @@ def rotation_log(m: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(m.reshape(-1, 3, 3), assume_valid=True).as_rotvec().reshape(*m.shape[:-2], 3)
 
 
-def rotation_exp(v: np.ndarray) -> np.ndarray:
+def rotation_exp(v: NDArray[np.float64]) -> NDArray[np.float64]:
     """Rotation vectors (..., 3) -> (..., 3, 3)."""
     return Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(*v.shape[:-1], 3, 3)
 
 
-def angular_velocity(r0: np.ndarray, r1: np.ndarray, dt: float) -> np.ndarray:
+def angular_velocity(r0: NDArray[np.float64], r1: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
     """Angular velocity (..., 3) rad/s (world-of-parent axes) taking r0 to r1 in ``dt``."""
     return rotation_log(r1 @ np.swapaxes(r0, -1, -2)) / dt
 
 
 def transition_offsets(
-    offset_rot: np.ndarray, offset_ang_vel: np.ndarray, src_rot: np.ndarray, src_ang_vel: np.ndarray,
-    dst_rot: np.ndarray, dst_ang_vel: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
+    offset_rot: NDArray[np.float64], offset_ang_vel: NDArray[np.float64], src_rot: NDArray[np.float64], src_ang_vel: NDArray[np.float64],
+    dst_rot: NDArray[np.float64], dst_ang_vel: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """New rotation offsets at a switch so that exp(offset) @ dst == exp(old offset) @ src."""
     shown = rotation_exp(offset_rot) @ src_rot
     new_rot = rotation_log(shown @ np.swapaxes(dst_rot, -1, -2))
@@ -52,12 +53,12 @@ def transition_offsets(
 
 
 def transition_offsets_linear(
-    offset: np.ndarray, offset_vel: np.ndarray, src: np.ndarray, src_vel: np.ndarray,
-    dst: np.ndarray, dst_vel: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
+    offset: NDArray[np.float64], offset_vel: NDArray[np.float64], src: NDArray[np.float64], src_vel: NDArray[np.float64],
+    dst: NDArray[np.float64], dst_vel: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Position-offset counterpart of ``transition_offsets``."""
     return offset + src - dst, offset_vel + src_vel - dst_vel
 
 
-def apply_rotation_offsets(offset_rot: np.ndarray, rot: np.ndarray) -> np.ndarray:
+def apply_rotation_offsets(offset_rot: NDArray[np.float64], rot: NDArray[np.float64]) -> NDArray[np.float64]:
     return rotation_exp(offset_rot) @ rot

@@ -22,10 +22,13 @@ Shapes: N characters, 22 joints; rotations (..., 3, 3) float64 C-contiguous.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
+from typing import Any, cast
 
 import numpy as np
 from numba import njit, types
 from numba.extending import intrinsic
+from numpy.typing import NDArray
 
 from sim.body.skeleton import NUM_JOINTS, PARENTS, REST_OFFSETS
 
@@ -35,19 +38,22 @@ PARENT_INDEX = np.array(PARENTS, dtype=np.int64)
 OFFSETS = np.ascontiguousarray(REST_OFFSETS, dtype=np.float64)
 
 
-@intrinsic
-def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
-    """a * b + c with one rounding (LLVM ``llvm.fma.f64``)."""
+def _fma_typing(typingctx: object, a: object, b: object, c: object) -> tuple[Any, Callable[..., Any]]:
+    """a * b + c with one rounding (LLVM ``llvm.fma.f64``): numba's typing and codegen."""
     sig = types.float64(types.float64, types.float64, types.float64)
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+    def codegen(context: object, builder: Any, signature: object, args: Sequence[Any]) -> Any:
         return builder.fma(args[0], args[1], args[2])
 
     return sig, codegen
 
 
+# ``intrinsic`` hides the typing context: compiled code calls it as ``_fma(a, b, c)``
+_fma = cast("Callable[[float, float, float], float]", intrinsic(_fma_typing))
+
+
 @njit(cache=True, inline="always")
-def _matmul3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+def _matmul3(a: NDArray[np.float64], b: NDArray[np.float64], out: NDArray[np.float64]) -> None:
     """out = a @ b for 3x3 (out may not alias a or b), as numpy's dgemm-backed matmul."""
     for i in range(3):
         for j in range(3):
@@ -57,7 +63,7 @@ def _matmul3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True, inline="always")
-def _matmul3_bt(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+def _matmul3_bt(a: NDArray[np.float64], b: NDArray[np.float64], out: NDArray[np.float64]) -> None:
     """out = a @ b.T for 3x3."""
     for i in range(3):
         for j in range(3):
@@ -67,7 +73,7 @@ def _matmul3_bt(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True, inline="always")
-def _rotvec_to_matrix(x: float, y: float, z: float, out: np.ndarray) -> None:
+def _rotvec_to_matrix(x: float, y: float, z: float, out: NDArray[np.float64]) -> None:
     """scipy ``Rotation.from_rotvec(v).as_matrix()`` for one vector."""
     angle = math.sqrt(x * x + y * y + z * z)
     if angle <= 1e-3:
@@ -90,7 +96,7 @@ def _rotvec_to_matrix(x: float, y: float, z: float, out: np.ndarray) -> None:
 
 
 @njit(cache=True, inline="always")
-def _matrix_to_rotvec(m: np.ndarray, out: np.ndarray) -> None:
+def _matrix_to_rotvec(m: NDArray[np.float64], out: NDArray[np.float64]) -> None:
     """scipy ``Rotation.from_matrix(m, assume_valid=True).as_rotvec()`` for one matrix."""
     d0, d1, d2 = m[0, 0], m[1, 1], m[2, 2]
     d3 = m[0, 0] + m[1, 1] + m[2, 2]
@@ -139,7 +145,7 @@ def _matrix_to_rotvec(m: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True)
-def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
+def rotvec_to_matrix(v: NDArray[np.float64]) -> NDArray[np.float64]:
     """Rotation vectors (K,3) -> matrices (K,3,3), as ``sim.motion.inertialization.rotation_exp``."""
     out = np.empty((v.shape[0], 3, 3))
     for r in range(v.shape[0]):
@@ -148,7 +154,7 @@ def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def matrix_to_rotvec(m: np.ndarray) -> np.ndarray:
+def matrix_to_rotvec(m: NDArray[np.float64]) -> NDArray[np.float64]:
     """Matrices (K,3,3) -> rotation vectors (K,3), as ``sim.motion.inertialization.rotation_log``."""
     out = np.empty((m.shape[0], 3))
     for r in range(m.shape[0]):
@@ -157,7 +163,7 @@ def matrix_to_rotvec(m: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def matmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def matmul3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """(K,3,3) @ (K,3,3), as numpy's matmul."""
     out = np.empty((a.shape[0], 3, 3))
     for r in range(a.shape[0]):
@@ -167,11 +173,11 @@ def matmul3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def step_poses(
-    off_rot: np.ndarray, off_av: np.ndarray, off_pos: np.ndarray, off_vel: np.ndarray,
-    chars: np.ndarray, reals: np.ndarray, switches: np.ndarray, sw_av: np.ndarray, sw_lin: np.ndarray,
-    store_rot: np.ndarray, store_aux: np.ndarray, y: float, dt: float, eydt: float,
-    out_rot: np.ndarray, out_av: np.ndarray, out_pos: np.ndarray, out_vel: np.ndarray,
-    out_local: np.ndarray, out_pelvis: np.ndarray, out_contacts: np.ndarray,
+    off_rot: NDArray[np.float64], off_av: NDArray[np.float64], off_pos: NDArray[np.float64], off_vel: NDArray[np.float64],
+    chars: NDArray[np.int64], reals: NDArray[np.float64], switches: NDArray[np.int64], sw_av: NDArray[np.float64], sw_lin: NDArray[np.float64],
+    store_rot: NDArray[np.float64], store_aux: NDArray[np.float64], y: float, dt: float, eydt: float,
+    out_rot: NDArray[np.float64], out_av: NDArray[np.float64], out_pos: NDArray[np.float64], out_vel: NDArray[np.float64],
+    out_local: NDArray[np.float64], out_pelvis: NDArray[np.float64], out_contacts: NDArray[np.bool_],
 ) -> None:
     """One inertialized frame for N characters, writing the ``out_*`` arrays.
 
@@ -252,8 +258,8 @@ def step_poses(
 
 
 @njit(cache=True, inline="always")
-def _fk_positions(local: np.ndarray, pelvis: np.ndarray, parents: np.ndarray, offsets: np.ndarray, t: np.ndarray,
-                  out: np.ndarray) -> None:
+def _fk_positions(local: NDArray[np.float64], pelvis: NDArray[np.float64], parents: NDArray[np.int64], offsets: NDArray[np.float64], t: NDArray[np.float64],
+                  out: NDArray[np.float64]) -> None:
     """Joint positions (22,3) of one pose, as ``sim.body.skeleton.forward_kinematics`` (its chain of
     4x4 products, each element an fma chain over k = 0..3). ``t`` (22,3,4) is scratch."""
     nj = local.shape[0]
@@ -279,8 +285,8 @@ def _fk_positions(local: np.ndarray, pelvis: np.ndarray, parents: np.ndarray, of
 
 
 @njit(cache=True)
-def fk_positions(local: np.ndarray, pelvis: np.ndarray, parents: np.ndarray = PARENT_INDEX,
-                 offsets: np.ndarray = OFFSETS) -> np.ndarray:
+def fk_positions(local: NDArray[np.float64], pelvis: NDArray[np.float64], parents: NDArray[np.int64] = PARENT_INDEX,
+                 offsets: NDArray[np.float64] = OFFSETS) -> NDArray[np.float64]:
     """Joint positions (K,22,3) of poses (K,22,3,3) with pelvis (K,3)."""
     out = np.empty((local.shape[0], local.shape[1], 3))
     t = np.empty((local.shape[1], 3, 4))
@@ -303,10 +309,10 @@ Q_HAS_PREV, Q_POSE_DT, Q_OLD_HEADING, Q_ROOT_X, Q_ROOT_Y, Q_HEADING, Q_HAS_TARGE
 
 @njit(cache=True)
 def query_features(
-    cur_local: np.ndarray, cur_pelvis: np.ndarray, prev_local: np.ndarray, prev_pelvis: np.ndarray,
-    fut_xy: np.ndarray, fut_h: np.ndarray, scalars: np.ndarray, sources: np.ndarray,
-    parents: np.ndarray, offsets: np.ndarray,
-) -> np.ndarray:
+    cur_local: NDArray[np.float64], cur_pelvis: NDArray[np.float64], prev_local: NDArray[np.float64], prev_pelvis: NDArray[np.float64],
+    fut_xy: NDArray[np.float64], fut_h: NDArray[np.float64], scalars: NDArray[np.float64], sources: NDArray[np.float64],
+    parents: NDArray[np.int64], offsets: NDArray[np.float64],
+) -> NDArray[np.float64]:
     """Raw query features (M,D) of M characters with an output pose, as
     ``MotionMatcher._query_features_many`` computes them: joints of the last pose (``cur_*``)
     in the character frame of the new root / heading, joint velocities (last pose minus the one
@@ -373,7 +379,7 @@ def query_features(
 
 
 @njit(cache=True)
-def nearest_rows(rows_t: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def nearest_rows(rows_t: NDArray[np.float64], queries: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """Exact nearest row for each query: rows_t (D,N) (the rows, transposed), queries (M,D) ->
     (row index (M,), squared distance (M,)). Distances are summed dimension by dimension in
     order (as ``sim.motion.database.squared_distances``); ties go to the lowest row."""

@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from sim.body.skeleton import NUM_JOINTS, forward_kinematics
 from sim.motion.action_labels import database_key
@@ -65,11 +66,11 @@ class MotionQuery:
 
     label: str
     seated: bool = False
-    root_xy: np.ndarray | None = None
+    root_xy: NDArray[np.float64] | None = None
     heading: float | None = None
-    future_xy: np.ndarray | None = None
-    future_heading: np.ndarray | None = None
-    target_xy: np.ndarray | None = None
+    future_xy: NDArray[np.float64] | None = None
+    future_heading: NDArray[np.float64] | None = None
+    target_xy: NDArray[np.float64] | None = None
     target_facing: float | None = None
     seat_height: float | None = None
     force_search: bool = False
@@ -80,13 +81,13 @@ class Pose:
     """Output pose: pelvis (3,) world; local_rotations (22,3,3) with joint 0 the world pelvis
     rotation; root_xy (2,) / heading (rad) of the character; contacts (2,) left/right foot."""
 
-    pelvis: np.ndarray
-    local_rotations: np.ndarray
-    root_xy: np.ndarray
+    pelvis: NDArray[np.float64]
+    local_rotations: NDArray[np.float64]
+    root_xy: NDArray[np.float64]
     heading: float
-    contacts: np.ndarray
+    contacts: NDArray[np.float64]
 
-    def joints(self) -> np.ndarray:
+    def joints(self) -> NDArray[np.float64]:
         """World joint positions (22,3)."""
         return forward_kinematics(self.local_rotations, self.pelvis)[0]
 
@@ -104,18 +105,18 @@ class MatchState:
 
     key: str
     frame: int
-    root_xy: np.ndarray
+    root_xy: NDArray[np.float64]
     heading: float
     frame_clock: float = 0.0
     since_search: int = 0
-    offset_rot: np.ndarray | None = None
-    offset_ang_vel: np.ndarray | None = None
-    offset_pos: np.ndarray | None = None
-    offset_vel: np.ndarray | None = None
-    pose_local: np.ndarray | None = None
-    pose_pelvis: np.ndarray | None = None
-    prev_local: np.ndarray | None = None
-    prev_pelvis: np.ndarray | None = None
+    offset_rot: NDArray[np.float64] | None = None
+    offset_ang_vel: NDArray[np.float64] | None = None
+    offset_pos: NDArray[np.float64] | None = None
+    offset_vel: NDArray[np.float64] | None = None
+    pose_local: NDArray[np.float64] | None = None
+    pose_pelvis: NDArray[np.float64] | None = None
+    prev_local: NDArray[np.float64] | None = None
+    prev_pelvis: NDArray[np.float64] | None = None
     pose_dt: float = 0.0
     elapsed: float = 0.0
     done: bool = False
@@ -123,22 +124,23 @@ class MatchState:
     searches: int = 0
 
     @property
-    def joints_world(self) -> np.ndarray | None:
+    def joints_world(self) -> NDArray[np.float64] | None:
         """World joint positions (22,3) of the last output pose (None before the first step)."""
         if self.pose_local is None or self.pose_pelvis is None:
             return None
         return forward_kinematics(self.pose_local, self.pose_pelvis)[0]
 
     @property
-    def joint_vel_char(self) -> np.ndarray | None:
+    def joint_vel_char(self) -> NDArray[np.float64] | None:
         """Joint velocities (22,3) m/s of the last output pose in its character frame (zeros
         after the first step; None before it)."""
         if self.pose_local is None or self.pose_pelvis is None:
             return None
-        return _pose_joints([self])[1][0]
+        velocities: NDArray[np.float64] = _pose_joints([self])[1][0]
+        return velocities
 
 
-def _pose_joints(states: Sequence[MatchState]) -> tuple[np.ndarray, np.ndarray]:
+def _pose_joints(states: Sequence[MatchState]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """World joints (M,22,3) of the states' last poses and their character-frame velocities
     (M,22,3), with one batched forward-kinematics call. Every state must have a pose."""
     m = len(states)
@@ -179,7 +181,7 @@ class MotionMatcher:
         self._by_label: dict[tuple[str, bool], StepDatabase] = {}
         # (states returned by the last step_many, their offset arrays): lets the next call skip
         # re-stacking per-character offsets when it gets those very states back
-        self._last_batch: tuple[tuple[MatchState, ...], tuple[np.ndarray, ...]] | None = None
+        self._last_batch: tuple[tuple[MatchState, ...], tuple[NDArray[np.float64], ...]] | None = None
 
     def database(self, label: str, seated: bool = False) -> MotionDatabase:
         key = database_key(label, seated)
@@ -206,14 +208,14 @@ class MotionMatcher:
         db = self.database(label, seated)
         frame = int(np.flatnonzero(db.searchable)[0])
         z = np.zeros((NUM_JOINTS, 3))
-        return MatchState(db.key, frame, np.asarray(root_xy, dtype=float).reshape(2), float(heading),
+        return MatchState(db.key, frame, np.asarray(root_xy, dtype=np.float64).reshape(2), float(heading),
                           offset_rot=z, offset_ang_vel=z, offset_pos=np.zeros(3), offset_vel=np.zeros(3))
 
-    def _control(self, state: MatchState, query: MotionQuery, root_xy: np.ndarray, heading: float) -> Control:
+    def _control(self, state: MatchState, query: MotionQuery, root_xy: NDArray[np.float64], heading: float) -> Control:
         if query.future_xy is not None:
-            fut_xy = np.asarray(query.future_xy, dtype=float).reshape(3, 2)
+            fut_xy = np.asarray(query.future_xy, dtype=np.float64).reshape(3, 2)
             fut_h = (np.full(3, heading) if query.future_heading is None
-                     else np.asarray(query.future_heading, dtype=float).reshape(3))
+                     else np.asarray(query.future_heading, dtype=np.float64).reshape(3))
         else:
             fut_xy, fut_h = np.broadcast_to(root_xy, (3, 2)), np.full(3, heading)
         fut_pos, fut_dir = relative_target(np.broadcast_to(root_xy, (3, 2)), np.full(3, heading), fut_xy, fut_h)
@@ -226,7 +228,7 @@ class MotionMatcher:
         return Control(fut_pos, fut_dir, t_pos, t_dir, height)
 
     def _query_features_many(self, db: MotionDatabase, states: Sequence[MatchState], queries: Sequence[MotionQuery],
-                             roots: Sequence[np.ndarray], headings: Sequence[float]) -> np.ndarray:
+                             roots: Sequence[NDArray[np.float64]], headings: Sequence[float]) -> NDArray[np.float64]:
         """Raw query vectors (M,D) for characters searching ``db`` (one FK call for all)."""
         m = len(states)
         pos = np.empty((m, NUM_JOINTS, 3))
@@ -237,7 +239,7 @@ class MotionMatcher:
             joints, v = _pose_joints([states[i] for i in posed])
             idx = np.array(posed)
             pos[idx] = to_character_frame(joints, np.stack([roots[i] for i in posed]),
-                                          np.array([headings[i] for i in posed], dtype=float))
+                                          np.array([headings[i] for i in posed], dtype=np.float64))
             vel[idx] = v
         if fresh:  # no output pose yet: the current database frame, at rest
             rots = np.stack([self.frames(states[i].key).rot[states[i].frame] for i in fresh])
@@ -249,9 +251,11 @@ class MotionMatcher:
         return assemble(db.layout_name, pos, vel, control)
 
     def query_features(self, db: MotionDatabase, state: MatchState, query: MotionQuery,
-                       root_xy: np.ndarray, heading: float) -> np.ndarray:
+                       root_xy: NDArray[np.float64], heading: float) -> NDArray[np.float64]:
         """Raw query vector: the pose part from the last output pose, the control part from the query."""
-        return self._query_features_many(db, [state], [query], [np.asarray(root_xy, dtype=float)], [float(heading)])[0]
+        raw: NDArray[np.float64] = self._query_features_many(
+            db, [state], [query], [np.asarray(root_xy, dtype=np.float64)], [float(heading)])[0]
+        return raw
 
     def step(self, state: MatchState, query: MotionQuery, dt: float) -> tuple[MatchState, Pose]:
         """Advance one character by ``dt`` seconds. Pure: returns the new state and pose."""
@@ -278,13 +282,20 @@ class MotionMatcher:
         return out
 
     def _raw_queries(self, members: Sequence[int], states: Sequence[MatchState], queries: Sequence[MotionQuery],
-                     roots: Sequence[np.ndarray], headings: Sequence[float], info: StepDatabase) -> np.ndarray:
+                     roots: Sequence[NDArray[np.float64]], headings: Sequence[float], info: StepDatabase) -> NDArray[np.float64]:
         """Raw query vectors (M,D) of characters searching ``info``'s database: the compiled
         path (``query_features``) when every one has an output pose, else ``_query_features_many``."""
         if any(states[i].pose_local is None or states[i].pose_pelvis is None for i in members):
             return self._query_features_many(info.db, [states[i] for i in members], [queries[i] for i in members],
                                              [roots[i] for i in members], [headings[i] for i in members])
-        cur_l, cur_p, prev_l, prev_p, fut_xy, fut_h, scalars = [], [], [], [], [], [], []
+        # every member has a pose here (checked above); numpy turns the lists into arrays
+        cur_l: list[NDArray[np.float64] | None] = []
+        cur_p: list[NDArray[np.float64] | None] = []
+        prev_l: list[NDArray[np.float64] | None] = []
+        prev_p: list[NDArray[np.float64] | None] = []
+        fut_xy: list[ArrayLike] = []
+        fut_h: list[ArrayLike] = []
+        scalars: list[tuple[float, ...]] = []
         for i in members:
             s, q, h, root = states[i], queries[i], headings[i], roots[i]
             cur_l.append(s.pose_local)
@@ -303,22 +314,22 @@ class MotionMatcher:
                 fut_h.append((h, h, h))
             else:
                 fut_xy.append(fx if type(fx) is np.ndarray and fx.shape == (3, 2)
-                              else np.asarray(fx, dtype=float).reshape(3, 2))
+                              else np.asarray(fx, dtype=np.float64).reshape(3, 2))
                 fh = q.future_heading
                 fut_h.append((h, h, h) if fh is None else fh if type(fh) is np.ndarray and fh.shape == (3,)
-                             else np.asarray(fh, dtype=float).reshape(3))
+                             else np.asarray(fh, dtype=np.float64).reshape(3))
             if q.target_xy is None:
                 has_t, tx, ty, facing = 0.0, 0.0, 0.0, 0.0
             else:
-                t = np.asarray(q.target_xy, dtype=float)
+                t = np.asarray(q.target_xy, dtype=np.float64)
                 has_t, tx, ty = 1.0, t[0], t[1]
                 facing = h if q.target_facing is None else float(q.target_facing)
             height = 0.0 if q.seat_height is None else q.seat_height
             scalars.append((has_prev, pose_dt, s.heading, root[0], root[1], h, has_t, tx, ty, facing, height))
-        return query_features(np.array(cur_l, dtype=float), np.array(cur_p, dtype=float),
-                              np.array(prev_l, dtype=float), np.array(prev_p, dtype=float),
-                              np.array(fut_xy, dtype=float), np.array(fut_h, dtype=float),
-                              np.array(scalars, dtype=float), info.sources, PARENT_INDEX, OFFSETS)
+        return query_features(np.array(cur_l, dtype=np.float64), np.array(cur_p, dtype=np.float64),
+                              np.array(prev_l, dtype=np.float64), np.array(prev_p, dtype=np.float64),
+                              np.array(fut_xy, dtype=np.float64), np.array(fut_h, dtype=np.float64),
+                              np.array(scalars, dtype=np.float64), info.sources, PARENT_INDEX, OFFSETS)
 
     def step_many(self, states: Sequence[MatchState], queries: Sequence[MotionQuery],
                   dt: float) -> tuple[list[MatchState], list[Pose]]:
@@ -357,7 +368,7 @@ class MotionMatcher:
                 if type(q_root) is np.ndarray and q_root.dtype == np.float64 and q_root.shape == (2,):
                     root_xy = q_root
                 else:
-                    root_xy = np.asarray(q_root, dtype=float).reshape(2)
+                    root_xy = np.asarray(q_root, dtype=np.float64).reshape(2)
                 heading = float(q_head)
             else:
                 db = cur.db
@@ -374,7 +385,7 @@ class MotionMatcher:
                         heading += float(db.heading[nxt] - db.heading[frame])
                     frame = nxt
                 if q_root is not None:
-                    root_xy = np.asarray(q_root, dtype=float).reshape(2)
+                    root_xy = np.asarray(q_root, dtype=np.float64).reshape(2)
                 if q_head is not None:
                     heading = float(q_head)
             ch = info is not cur
@@ -407,7 +418,7 @@ class MotionMatcher:
             db = info.db
             raw = self._raw_queries(members, states, queries, roots, headings, info)
             if len(members) == 1:
-                found = [db.search(raw[0], entry=ent)[0]]
+                found: Sequence[int] | NDArray[np.int64] = [db.search(raw[0], entry=ent)[0]]
             else:
                 index = db.entry_index if ent else db.index
                 found = index.query_many(db.normalize(raw))[0]
@@ -424,7 +435,7 @@ class MotionMatcher:
             off_rot, off_av, off_pos, off_vel = last[1]  # the states returned last time: rows of these
         else:
             off_rot, off_av, off_pos, off_vel = (
-                np.ascontiguousarray(np.stack([getattr(s, f) for s in states]), dtype=float)
+                np.ascontiguousarray(np.stack([getattr(s, f) for s in states]), dtype=np.float64)
                 for f in ("offset_rot", "offset_ang_vel", "offset_pos", "offset_vel"))
         slot = [-1] * n
         if switched:
@@ -495,10 +506,10 @@ class MotionMatcher:
         return (float(query.seat_height) - clip_h) * w
 
 
-def future_from_path(path_xy: np.ndarray, frame_speed: float, heading: float) -> tuple[np.ndarray, np.ndarray]:
+def future_from_path(path_xy: NDArray[np.float64], frame_speed: float, heading: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Planned future root points (3,2) and headings (3,) from a polyline path (K,2) starting
     at the character, walked at ``frame_speed`` metres per frame (e.g. 1.0 / 30)."""
-    path = np.asarray(path_xy, dtype=float).reshape(-1, 2)
+    path = np.asarray(path_xy, dtype=np.float64).reshape(-1, 2)
     seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seg)])
     pts, hds = [], []
@@ -515,7 +526,7 @@ def future_from_path(path_xy: np.ndarray, frame_speed: float, heading: float) ->
     return np.array(pts), np.array(hds)
 
 
-def foot_sliding(joint_positions: np.ndarray, contacts: np.ndarray, fps: float = FPS) -> float:
+def foot_sliding(joint_positions: NDArray[np.float64], contacts: NDArray[np.float64], fps: float = FPS) -> float:
     """Mean horizontal speed (m/s) of the toe joints over frames where that foot is in
     contact in both the frame and the next; 0.0 when there is no such frame."""
     toes = np.asarray(joint_positions)[:, FOOT_JOINTS, :2]

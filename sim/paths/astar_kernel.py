@@ -21,6 +21,7 @@ import heapq
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 __all__ = ["release_step", "reserve_path", "reserve_step", "space_time_search"]
 
@@ -28,8 +29,9 @@ _INF = np.inf
 
 
 @njit(cache=True, nogil=True)
-def reserve_step(near_t: np.ndarray, cell: int, vel: int, offsets: np.ndarray, bases: np.ndarray,
-                 mask_of: np.ndarray, free: np.ndarray) -> None:  # pragma: no cover - compiled
+def reserve_step(near_t: NDArray[np.int64], cell: int, vel: int, offsets: NDArray[np.int64],
+                 bases: NDArray[np.int64], mask_of: NDArray[np.int64],
+                 free: NDArray[np.bool_]) -> None:  # pragma: no cover - compiled
     """``near_t[c] &= mask_of[base + vel]`` for the free cells ``c = cell - offset`` around an
     agent leaving ``cell`` with velocity code ``vel`` (``offsets``/``bases``: the clearance
     neighbourhood, see ``PathPlanner._nbhd_bases``)."""
@@ -40,8 +42,10 @@ def reserve_step(near_t: np.ndarray, cell: int, vel: int, offsets: np.ndarray, b
 
 
 @njit(cache=True, nogil=True)
-def release_step(near_t: np.ndarray, cell: int, offsets: np.ndarray, free: np.ndarray, cells: np.ndarray,
-                 vels: np.ndarray, nyp: int, reach: int, mask_of: np.ndarray, full: int) -> None:  # pragma: no cover
+def release_step(near_t: NDArray[np.int64], cell: int, offsets: NDArray[np.int64],
+                 free: NDArray[np.bool_], cells: NDArray[np.int64], vels: NDArray[np.int64],
+                 nyp: int, reach: int, mask_of: NDArray[np.int64],
+                 full: int) -> None:  # pragma: no cover
     """Undo one agent's reservation at ``cell`` during a step: the masks of the free cells
     around it are folded again from the agents still reserved in that step (``cells``,
     ``vels``), so only the neighbourhood of the released agent is recomputed."""
@@ -61,8 +65,9 @@ def release_step(near_t: np.ndarray, cell: int, offsets: np.ndarray, free: np.nd
 
 
 @njit(cache=True, nogil=True)
-def reserve_path(near: np.ndarray, ids: np.ndarray, steps: int, nyp: int, offsets: np.ndarray, bases: np.ndarray,
-                 mask_of: np.ndarray, free: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+def reserve_path(near: NDArray[np.int64], ids: NDArray[np.int64], steps: int, nyp: int,
+                 offsets: NDArray[np.int64], bases: NDArray[np.int64], mask_of: NDArray[np.int64],
+                 free: NDArray[np.bool_]) -> NDArray[np.int64]:  # pragma: no cover - compiled
     """Fold the first ``steps`` moves of a path (padded ids) into ``near`` (one row per step);
     returns the velocity code ``(dx + 2) * 5 + (dy + 2)`` of each move."""
     vels = np.empty(steps, dtype=np.int64)
@@ -81,10 +86,11 @@ def reserve_path(near: np.ndarray, ids: np.ndarray, steps: int, nyp: int, offset
 
 @njit(cache=True, nogil=True)
 def space_time_search(
-    start: int, goal: int, window: int, h: np.ndarray, nb_id: np.ndarray, nb_cost: np.ndarray,
-    nb_bit: np.ndarray, static_allow: np.ndarray, near: np.ndarray, full: int, max_expansions: int,
-    g_best: np.ndarray, stamp: np.ndarray, parent: np.ndarray, token: int,
-) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
+    start: int, goal: int, window: int, h: NDArray[np.float64], nb_id: NDArray[np.int64],
+    nb_cost: NDArray[np.float64], nb_bit: NDArray[np.int64], static_allow: NDArray[np.int64],
+    near: NDArray[np.int64], full: int, max_expansions: int,
+    g_best: NDArray[np.float64], stamp: NDArray[np.int64], parent: NDArray[np.int64], token: int,
+) -> tuple[NDArray[np.int64], int]:  # pragma: no cover - compiled
     """Space-time A* from padded cell ``start`` for ``window`` steps.
 
     ``h``: static distance to the goal per cell (inf: unreachable). ``nb_id/nb_cost/nb_bit``

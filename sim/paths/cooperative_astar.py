@@ -33,9 +33,11 @@ import math
 import weakref
 from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
-from scipy.sparse import coo_matrix
+from numpy.typing import NDArray
+from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from sim.paths.astar_kernel import release_step, reserve_path, space_time_search
@@ -47,7 +49,12 @@ Agent = Hashable
 
 _WAIT = (0, 0)
 _EPS = 1e-9
-BACKENDS = ("numba", "python")
+Backend = Literal["numba", "python"]
+BACKENDS: tuple[Backend, ...] = get_args(Backend)
+# a move out of a cell: (next padded id, cost in cells, dx, dy, move code 5 * dx + dy)
+_Neighbour = tuple[int, float, int, int, int]
+# the same move as the search sees it: (next padded id, cost in cells, move bit)
+_Move = tuple[int, float, int]
 
 
 _MASK_MEMOS: weakref.WeakKeyDictionary[NavGrid, dict[int, list[tuple[int, int]]]] = weakref.WeakKeyDictionary()
@@ -182,7 +189,7 @@ class PathPlanner:
         fallback: bool = True,
         seed: int = 0,
         repair_passes: int = 3,
-        backend: str = "numba",
+        backend: Backend = "numba",
     ) -> None:
         if backend not in BACKENDS:
             raise PlanningError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -212,7 +219,7 @@ class PathPlanner:
         self._build_move_masks()
         self._build_dense_tables()
         self._heuristics: dict[int, list[float]] = {}
-        self._h_arrays: dict[int, np.ndarray] = {}
+        self._h_arrays: dict[int, NDArray[np.float64]] = {}
         self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
         self._graph = self._static_graph()
 
@@ -226,10 +233,10 @@ class PathPlanner:
     def _build_neighbours(self) -> None:
         g = self.grid
         nyp = self._ny_p
-        self._nbrs: dict[int, list[tuple[int, float, int, int, int]]] = {}
+        self._nbrs: dict[int, list[_Neighbour]] = {}
         for i, j in np.argwhere(g.free):
             cid = self.cell_id((int(i), int(j)))
-            out: list[tuple[int, float, int, int, int]] = [(cid, 1.0, 0, 0, 0)]
+            out: list[_Neighbour] = [(cid, 1.0, 0, 0, 0)]
             for k, (dx, dy) in enumerate(MOVES):
                 if g.moves[i, j, k]:
                     out.append((cid + dx * nyp + dy, math.hypot(dx, dy), dx, dy, 5 * dx + dy))
@@ -268,7 +275,7 @@ class PathPlanner:
         """Search tables: per cell the moves as (next id, cost, move bit); per clearance-table
         base (offset and the other's velocity) the bit mask of our moves it allows."""
         self._full_mask = sum(1 << (5 * dx + dy + 6) for dx in (-1, 0, 1) for dy in (-1, 0, 1))
-        self._snbrs: dict[int, list[tuple[int, float, int]]] = {
+        self._snbrs: dict[int, list[_Move]] = {
             cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in self._nbrs.items()
         }
         safe = self._safe
@@ -288,7 +295,7 @@ class PathPlanner:
         """The search tables as arrays for the compiled kernels (``sim.paths.astar_kernel``)."""
         n = self._nx_p * self._ny_p
         self._nb_id = np.full((n, 9), -1, dtype=np.int64)
-        self._nb_cost = np.zeros((n, 9), dtype=float)
+        self._nb_cost = np.zeros((n, 9), dtype=np.float64)
         self._nb_bit = np.zeros((n, 9), dtype=np.int64)
         self._free_arr = np.zeros(n, dtype=np.bool_)
         for cid, lst in self._snbrs.items():
@@ -299,17 +306,17 @@ class PathPlanner:
         self._nbhd_base = np.array([base for _, base in self._nbhd_bases], dtype=np.int64)
         self._mask_arr = np.array(self._mask_of, dtype=np.int64)
         self._all_allowed = np.full(n, self._full_mask, dtype=np.int64)
-        self._scratch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._scratch: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]] | None = None
         self._token = 0
 
-    def _search_scratch(self, window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _search_scratch(self, window: int) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
         size = (window + 1) * self._nx_p * self._ny_p
         if self._scratch is None or len(self._scratch[0]) < size:
             self._scratch = (np.zeros(size), np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64))
             self._token = 0
         return self._scratch
 
-    def _static_allow(self, overrides: Mapping[int, list]) -> np.ndarray:
+    def _static_allow(self, overrides: Mapping[int, list[_Move]]) -> NDArray[np.int64]:
         """Per padded cell, the bit mask of the moves left by ``overrides`` (all elsewhere)."""
         if not overrides:
             return self._all_allowed
@@ -332,7 +339,7 @@ class PathPlanner:
             self._near_mask_memo[key] = out
         return out
 
-    def _static_graph(self):  # type: ignore[no-untyped-def]
+    def _static_graph(self) -> csr_matrix[np.float64]:
         g = self.grid
         nx, ny = g.shape
         rows, cols, w = [], [], []
@@ -350,7 +357,7 @@ class PathPlanner:
         h = self._heuristics.get(gid)
         if h is None:
             nx, ny = self.grid.shape
-            d = dijkstra(self._graph, directed=True, indices=goal[0] * ny + goal[1])
+            d = dijkstra(self._graph, directed=True, indices=[goal[0] * ny + goal[1]])[0]
             full = np.full((self._nx_p, self._ny_p), np.inf)
             full[self._pad : self._pad + nx, self._pad : self._pad + ny] = d.reshape(nx, ny)
             h = full.ravel().tolist()
@@ -362,7 +369,7 @@ class PathPlanner:
             self._h_arrays[gid] = full.ravel()
         return h
 
-    def _heuristic_array(self, goal: Cell) -> np.ndarray:
+    def _heuristic_array(self, goal: Cell) -> NDArray[np.float64]:
         """``heuristic(goal)`` as a float array (the compiled search's view)."""
         gid = self.cell_id(goal)
         arr = self._h_arrays.get(gid)
@@ -377,16 +384,16 @@ class PathPlanner:
 
     # ----- static obstacles ------------------------------------------------------------------------
     def _static_overrides(
-        self, statics: Sequence[np.ndarray], segments: Sequence[tuple[np.ndarray, np.ndarray]] = ()
-    ) -> dict[int, list[tuple[int, float, int, int, int]]]:
+        self, statics: Sequence[NDArray[np.float64]], segments: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]] = ()
+    ) -> dict[int, list[_Neighbour]]:
         """Neighbour lists with moves removed that bring a body too close to a stationary one.
 
         ``statics``: disc centres (metres). ``segments``: bodies that sweep a straight segment
         (p, q) during the step (an off-grid leg): a move is kept when its closest approach to
         every static point / segment is >= ``min(2r, distance at the move's start)``.
         """
-        segs = [(np.asarray(p, dtype=float), np.asarray(q, dtype=float)) for p, q in segments]
-        segs += [(np.asarray(p, dtype=float), np.asarray(p, dtype=float)) for p in statics]
+        segs = [(np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)) for p, q in segments]
+        segs += [(np.asarray(p, dtype=np.float64), np.asarray(p, dtype=np.float64)) for p in statics]
         if not segs:
             return {}
         removed: dict[int, set[int]] = {}
@@ -400,7 +407,7 @@ class PathPlanner:
         nbrs = self._nbrs
         return {cid: [nb for k, nb in enumerate(nbrs[cid]) if k not in ks] for cid, ks in removed.items()}
 
-    def _removed_moves(self, p: np.ndarray, q: np.ndarray) -> dict[int, frozenset[int]]:
+    def _removed_moves(self, p: NDArray[np.float64], q: NDArray[np.float64]) -> dict[int, frozenset[int]]:
         """For one static point / segment (p, q): cell id -> indices into ``_nbrs[cell]`` of the
         moves that break the clearance rule against it (memoised per exact (p, q)).
 
@@ -435,11 +442,11 @@ class PathPlanner:
                     dxy.append((nb[2], nb[3]))
             rc = np.array(row_cell)
             a = centres[rc]
-            b = a + np.array(dxy, dtype=float) * cs
+            b = a + np.array(dxy, dtype=np.float64) * cs
             closest = segment_distance(a, b, np.broadcast_to(p, a.shape), np.broadcast_to(q, a.shape))
             bad = np.flatnonzero(~(closest >= limit[rc]))
             per: dict[int, list[int]] = {}
-            for r in bad:
+            for r in bad.tolist():
                 per.setdefault(cand[row_cell[r]], []).append(row_k[r])
             out = {cid: frozenset(ks) for cid, ks in per.items()}
         if len(self._removed_memo) > 4096:
@@ -452,10 +459,10 @@ class PathPlanner:
         self,
         starts: Mapping[Agent, Cell],
         goals: Mapping[Agent, Cell | None],
-        static_obstacles: Sequence[np.ndarray | tuple[float, float]] = (),
+        static_obstacles: Sequence[NDArray[np.float64] | tuple[float, float]] = (),
         t0: int = 0,
         order: Sequence[Agent] | None = None,
-        static_segments: Sequence[tuple[np.ndarray, np.ndarray]] = (),
+        static_segments: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]] = (),
         hints: Mapping[Agent, tuple[Sequence[Cell], Cell]] | None = None,
     ) -> PlanResult:
         """Plan ``window`` steps for every agent in ``starts``.
@@ -487,9 +494,9 @@ class PathPlanner:
         else:
             missing = set(agents) - set(order)
             order = [a for a in order if a in starts] + [a for a in agents if a in missing]
-        overrides = self._static_overrides([np.asarray(p, dtype=float) for p in static_obstacles], static_segments)
-        used_goals = {a: self._usable_goal(starts[a], goals.get(a), overrides) for a in agents}
-        overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in overrides.items()}
+        kept = self._static_overrides([np.asarray(p, dtype=np.float64) for p in static_obstacles], static_segments)
+        used_goals = {a: self._usable_goal(starts[a], goals.get(a), kept) for a in agents}
+        overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in kept.items()}
         static_allow = self._static_allow(overrides) if self.backend == "numba" else None  # once for all passes
         # Pass 1: plain WHCA*. An agent whose search fails was cornered by the first steps of
         # agents planned before it; its wait is then reserved for the committed steps and the
@@ -529,7 +536,7 @@ class PathPlanner:
             reused=result.reused,
         )
 
-    def _usable_goal(self, start: Cell, goal: Cell | None, overrides: Mapping[int, list]) -> Cell:
+    def _usable_goal(self, start: Cell, goal: Cell | None, overrides: Mapping[int, list[_Neighbour]]) -> Cell:
         if goal is None:
             return start
         h = self.heuristic(goal) if self.grid.is_free(*goal) else None
@@ -554,11 +561,11 @@ class PathPlanner:
         order: Sequence[Agent],
         starts: Mapping[Agent, Cell],
         goals: Mapping[Agent, Cell],
-        overrides: Mapping[int, list],
+        overrides: Mapping[int, list[_Move]],
         extended: frozenset[Agent],
         reserve_waits: frozenset[Agent],
         hints: Mapping[Agent, list[int]] | None = None,
-        static_allow: np.ndarray | None = None,
+        static_allow: NDArray[np.int64] | None = None,
     ) -> PlanResult:
         w_max = self.window * (2 if extended else 1)
         dense = self.backend == "numba"
@@ -582,7 +589,8 @@ class PathPlanner:
             if ids is not None:
                 reused.add(a)
             else:
-                if dense:
+                if isinstance(res, _DenseReservations):
+                    assert static_allow is not None  # filled in above for the dense backend
                     ids, n = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow)
                 else:
                     ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
@@ -598,7 +606,7 @@ class PathPlanner:
 
     def _kept_path(
         self, hint: list[int], goal: Cell, window: int, res: _Reservations | _DenseReservations,
-        overrides: Mapping[int, list],
+        overrides: Mapping[int, list[_Move]],
     ) -> list[int] | None:
         """``hint`` (padded ids from the start) checked step by step against ``res`` and the
         static obstacles, then extended to ``window`` steps, each extra step the allowed move
@@ -636,7 +644,7 @@ class PathPlanner:
         return path
 
     def _search_compiled(
-        self, start: int, goal: Cell, window: int, res: _DenseReservations, static_allow: np.ndarray
+        self, start: int, goal: Cell, window: int, res: _DenseReservations, static_allow: NDArray[np.int64]
     ) -> tuple[list[int] | None, int]:
         """``_search`` run by the compiled kernel on the dense tables (same result)."""
         h = self._heuristic_array(goal)
@@ -655,7 +663,7 @@ class PathPlanner:
         goal: Cell,
         window: int,
         res: _Reservations,
-        overrides: Mapping[int, list],
+        overrides: Mapping[int, list[_Move]],
     ) -> tuple[list[int] | None, int]:
         """Space-time A* from ``start`` for ``window`` steps; returns padded ids (window + 1) or None."""
         h = self.heuristic(goal)
@@ -721,19 +729,20 @@ def _segment_min_norm(px: float, py: float, wx: float, wy: float) -> float:
     return math.hypot(px + s * wx, py + s * wy)
 
 
-def segment_distance(a: np.ndarray, b: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+def segment_distance(a: NDArray[np.float64], b: NDArray[np.float64], p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.float64]:
     """Exact distance (N,) between 2-D segments a->b and p->q (arrays (N, 2); points allowed)."""
-    a, b, p, q = (np.asarray(x, dtype=float).reshape(-1, 2) for x in (a, b, p, q))
+    a, b, p, q = (np.asarray(x, dtype=np.float64).reshape(-1, 2) for x in (a, b, p, q))
 
-    def point_seg(x: np.ndarray, s0: np.ndarray, s1: np.ndarray) -> np.ndarray:
+    def point_seg(x: NDArray[np.float64], s0: NDArray[np.float64], s1: NDArray[np.float64]) -> NDArray[np.float64]:
         d = s1 - s0
         dd = np.sum(d * d, axis=1)
         t = np.where(dd > 0, np.clip(np.sum((x - s0) * d, axis=1) / np.where(dd > 0, dd, 1.0), 0.0, 1.0), 0.0)
-        return np.linalg.norm(x - s0 - t[:, None] * d, axis=1)
+        dist: NDArray[np.float64] = np.linalg.norm(x - s0 - t[:, None] * d, axis=1)
+        return dist
 
     out = np.minimum(np.minimum(point_seg(a, p, q), point_seg(b, p, q)), np.minimum(point_seg(p, a, b), point_seg(q, a, b)))
 
-    def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    def cross(u: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
         return u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
 
     d1, d2 = cross(b - a, p - a), cross(b - a, q - a)
@@ -742,7 +751,7 @@ def segment_distance(a: np.ndarray, b: np.ndarray, p: np.ndarray, q: np.ndarray)
     return np.where(proper, 0.0, out)
 
 
-def position_at(path: Sequence[Cell], t: float, grid: NavGrid, step_time: float, t_start: float = 0.0) -> np.ndarray:
+def position_at(path: Sequence[Cell], t: float, grid: NavGrid, step_time: float, t_start: float = 0.0) -> NDArray[np.float64]:
     """Continuous xy (metres) on a planned path at time ``t`` seconds.
 
     ``path[k]`` is the cell at time ``t_start + k * step_time``; positions are linear between
@@ -770,7 +779,7 @@ def plan_conflicts(
     """
     names = list(paths)
     n = min(len(p) for p in paths.values()) - 1 if steps is None else steps
-    pos = np.array([[paths[a][k] for k in range(n + 1)] for a in names], dtype=float) * cell_size
+    pos = np.array([[paths[a][k] for k in range(n + 1)] for a in names], dtype=np.float64) * cell_size
     out: list[tuple[int, Agent, Agent, float]] = []
     dmin = 2.0 * body_radius
     for k in range(n):

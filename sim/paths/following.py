@@ -30,6 +30,7 @@ from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.paths.cooperative_astar import (
     Cell,
@@ -49,13 +50,13 @@ Agent = Hashable
 class _Leg:
     """A straight off-grid walk from ``a`` to ``b`` (metres) starting at ``frame``."""
 
-    a: np.ndarray
-    b: np.ndarray
+    a: NDArray[np.float64]
+    b: NDArray[np.float64]
     frame: int
     frames: int  # frames to cover the segment at walking speed (>= 1)
     inbound: bool  # True: cell centre -> exact target; False: parked point -> cell centre
 
-    def at(self, frame: int) -> np.ndarray:
+    def at(self, frame: int) -> NDArray[np.float64]:
         s = min(1.0, max(0.0, (frame - self.frame) / self.frames))
         return (1.0 - s) * self.a + s * self.b
 
@@ -99,23 +100,23 @@ class CrowdNavigator:
         self._paths: dict[Agent, list[Cell]] = {}
         # Per-frame positions on every walker's path (see _stacked): one (A, D, 2) array, a row
         # per agent of _paths (padded with its last position), rebuilt after each replan.
-        self._stack: np.ndarray | None = None
+        self._stack: NDArray[np.float64] | None = None
         self._stack_row: dict[Agent, int] = {}
         self._stack_len: list[int] = []
-        self._rows_cache: dict[tuple[Agent, ...], tuple[np.ndarray, np.ndarray]] = {}  # see _rows_of
+        self._rows_cache: dict[tuple[Agent, ...], tuple[NDArray[np.float64], NDArray[np.float64]]] = {}  # see _rows_of
         # (frame, offsets, agents, samples) of the last tick's look ahead (see tick, futures)
-        self._ahead: tuple[int, tuple[int, ...], tuple[Agent, ...], np.ndarray] | None = None
-        self._reorder: tuple[tuple[Agent, ...], tuple[Agent, ...], np.ndarray | None] | None = None  # see futures
+        self._ahead: tuple[int, tuple[int, ...], tuple[Agent, ...], NDArray[np.float64]] | None = None
+        self._reorder: tuple[tuple[Agent, ...], tuple[Agent, ...], NDArray[np.int64] | None] | None = None  # see futures
         self._plan_frame = 0
-        self._static: dict[Agent, np.ndarray] = {}
-        self._final: dict[Agent, np.ndarray] = {}  # exact target of the current goal
-        self._parked: dict[Agent, np.ndarray] = {}  # walkers standing off the grid, at this point
+        self._static: dict[Agent, NDArray[np.float64]] = {}
+        self._final: dict[Agent, NDArray[np.float64]] = {}  # exact target of the current goal
+        self._parked: dict[Agent, NDArray[np.float64]] = {}  # walkers standing off the grid, at this point
         self._legs: dict[Agent, _Leg] = {}
         self.arrivals: list[tuple[int, Agent]] = []
         self.headings: dict[Agent, float] = {}
-        self._last_xy: dict[Agent, np.ndarray] = {}
+        self._last_xy: dict[Agent, NDArray[np.float64]] = {}
         self._last_agents: tuple[Agent, ...] = ()  # the agents of _last_xy, and their rows
-        self._last_arr: np.ndarray = np.zeros((0, 2))
+        self._last_arr: NDArray[np.float64] = np.zeros((0, 2))
         self.last_result: PlanResult | None = None
         self.replans = 0
         self.failures = 0  # agents left waiting because no safe plan was found
@@ -133,8 +134,8 @@ class CrowdNavigator:
         agent: Agent,
         cell: Cell,
         goal: Cell | None = None,
-        start_xy: np.ndarray | tuple[float, float] | None = None,
-        final_xy: np.ndarray | tuple[float, float] | None = None,
+        start_xy: NDArray[np.float64] | tuple[float, float] | None = None,
+        final_xy: NDArray[np.float64] | tuple[float, float] | None = None,
     ) -> None:
         """A walker standing on ``cell`` (must be free). Takes effect at once (call at a step boundary).
 
@@ -149,7 +150,7 @@ class CrowdNavigator:
             raise PlanningError(f"cell {cell} is blocked or outside the grid")
         start = None
         if start_xy is not None:
-            start = np.asarray(start_xy, dtype=float)
+            start = np.asarray(start_xy, dtype=np.float64)
             why = self.target_problem(cell, start)
             if why is not None:
                 raise PlanningError(f"agent {agent!r} cannot start at {tuple(start)}: {why}")
@@ -165,7 +166,7 @@ class CrowdNavigator:
         self.set_goal(agent, goal, final_xy=final_xy)
 
     def set_goal(
-        self, agent: Agent, goal: Cell | None, final_xy: np.ndarray | tuple[float, float] | None = None
+        self, agent: Agent, goal: Cell | None, final_xy: NDArray[np.float64] | tuple[float, float] | None = None
     ) -> None:
         """New goal cell (None: stay). Used from the next replan.
 
@@ -186,14 +187,14 @@ class CrowdNavigator:
         self.keeper.reset(agent)
         self._needs_plan = True
 
-    def target_problem(self, goal: Cell, xy: np.ndarray | tuple[float, float]) -> str | None:
+    def target_problem(self, goal: Cell, xy: NDArray[np.float64] | tuple[float, float]) -> str | None:
         """Why a body cannot end at ``xy`` coming straight from ``goal``'s centre (None: it can).
 
         Checks that ``xy`` is finite, that a body there touches no blocking object and stays in
         bounds, that ``goal`` is free, and that the straight segment between them keeps the body
         off every blocking footprint. Other characters are handled at run time (the leg waits).
         """
-        p = np.asarray(xy, dtype=float)
+        p = np.asarray(xy, dtype=np.float64)
         if p.shape != (2,) or not np.all(np.isfinite(p)):
             return f"target {xy!r} is not a finite (x, y) point"
         g = self.grid
@@ -210,21 +211,21 @@ class CrowdNavigator:
             return f"the straight walk from cell {tuple(goal)} to ({p[0]:.2f}, {p[1]:.2f}) would touch {near}"
         return None
 
-    def _check_target(self, agent: Agent, goal: Cell, xy: np.ndarray | tuple[float, float]) -> np.ndarray:
+    def _check_target(self, agent: Agent, goal: Cell, xy: NDArray[np.float64] | tuple[float, float]) -> NDArray[np.float64]:
         why = self.target_problem(goal, xy)
         if why is not None:
             raise PlanningError(f"agent {agent!r}: {why}")
-        return np.asarray(xy, dtype=float).copy()
+        return np.asarray(xy, dtype=np.float64).copy()
 
     def goal_of(self, agent: Agent) -> Cell | None:
         return self._goals[agent]
 
-    def final_of(self, agent: Agent) -> np.ndarray | None:
+    def final_of(self, agent: Agent) -> NDArray[np.float64] | None:
         """The exact target of the agent's current goal (None: the goal cell's centre)."""
         f = self._final.get(agent)
         return None if f is None else f.copy()
 
-    def set_stationary(self, agent: Agent, xy: np.ndarray | tuple[float, float]) -> None:
+    def set_stationary(self, agent: Agent, xy: NDArray[np.float64] | tuple[float, float]) -> None:
         """A character that does not walk (idle, sitting, interacting) at ``xy``: an obstacle."""
         self._cells.pop(agent, None)
         self._goals.pop(agent, None)
@@ -234,7 +235,7 @@ class CrowdNavigator:
         self._final.pop(agent, None)
         self._parked.pop(agent, None)
         self._legs.pop(agent, None)
-        self._static[agent] = np.asarray(xy, dtype=float)
+        self._static[agent] = np.asarray(xy, dtype=np.float64)
         self._needs_plan = True
 
     def release(self, agent: Agent) -> None:
@@ -254,7 +255,7 @@ class CrowdNavigator:
         return agent in self._parked or agent in self._legs
 
     # ----- positions ---------------------------------------------------------------------------
-    def _xy_at(self, agent: Agent, frame: int) -> np.ndarray:
+    def _xy_at(self, agent: Agent, frame: int) -> NDArray[np.float64]:
         leg = self._legs.get(agent)
         if leg is not None:
             return leg.at(frame)
@@ -263,9 +264,10 @@ class CrowdNavigator:
             return parked.copy()
         track = self._track(agent)
         d = min(max(frame - self._plan_frame, 0), len(track) - 1)
-        return track[d].copy()
+        here: NDArray[np.float64] = track[d]
+        return here.copy()
 
-    def _track(self, agent: Agent) -> np.ndarray:
+    def _track(self, agent: Agent) -> NDArray[np.float64]:
         """Positions (D, 2) on the agent's current path for the frames ``_plan_frame + d``
         (d = 0 .. D - 1; later frames: the last row), computed once per plan with the very
         arithmetic of ``position_at`` (a view of the agent's row of ``_stacked``)."""
@@ -277,7 +279,7 @@ class CrowdNavigator:
             i = self._stack_row[agent]
         return stack[i, : self._stack_len[i]]
 
-    def _stacked(self) -> np.ndarray:
+    def _stacked(self) -> NDArray[np.float64]:
         """Every agent's track (see ``_track``) in one array (A, D, 2), rows padded with the
         agent's last position (later frames stay there). Built once per plan, for all agents
         at once (``sim.paths.tracks``: the same floats as one agent at a time)."""
@@ -291,7 +293,7 @@ class CrowdNavigator:
             self._stack_row = {a: i for i, a in enumerate(agents)}
         return stack
 
-    def _rows_of(self, agents: Sequence[Agent]) -> tuple[np.ndarray, np.ndarray]:
+    def _rows_of(self, agents: Sequence[Agent]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(``_stacked()``, each agent's row in it)."""
         key = tuple(agents)
         hit = self._rows_cache.get(key)
@@ -309,7 +311,7 @@ class CrowdNavigator:
         self._rows_cache[key] = hit
         return hit
 
-    def position(self, agent: Agent) -> np.ndarray:
+    def position(self, agent: Agent) -> NDArray[np.float64]:
         """Where the walker is at the last produced frame (before the first tick: now), metres."""
         return self._xy_at(agent, max(self.frame - 1, 0))
 
@@ -317,7 +319,7 @@ class CrowdNavigator:
         """Direction of travel at the last produced frame (radians about +z, 0 = +x)."""
         return self.headings.get(agent, 0.0)
 
-    def future(self, agent: Agent, frames: Sequence[int]) -> np.ndarray:
+    def future(self, agent: Agent, frames: Sequence[int]) -> NDArray[np.float64]:
         """Planned positions (len(frames), 2) ``frames`` after the last produced frame, metres.
 
         Follows the current plan (and leg); beyond it the walker stays where the plan ends."""
@@ -328,7 +330,7 @@ class CrowdNavigator:
             return track[[min(max(int(k) + off, 0), last) for k in frames]]
         return np.stack([self._xy_at(agent, base + int(k)) for k in frames])
 
-    def futures(self, agents: Sequence[Agent], frames: Sequence[int]) -> np.ndarray:
+    def futures(self, agents: Sequence[Agent], frames: Sequence[int]) -> NDArray[np.float64]:
         """``future`` of several walkers at once: (len(agents), len(frames), 2), metres."""
         if not agents:
             return np.zeros((0, len(frames), 2))
@@ -348,7 +350,7 @@ class CrowdNavigator:
         return self._sample(tuple(agents), self.frame - 1, frames)
 
     # ----- time ------------------------------------------------------------------------------------
-    def tick(self, ahead: Sequence[int] = ()) -> dict[Agent, np.ndarray]:
+    def tick(self, ahead: Sequence[int] = ()) -> dict[Agent, NDArray[np.float64]]:
         """Walker positions (xy, metres) at the current frame; then the clock advances one frame.
 
         ``ahead``: frame offsets at which to sample every walker's plan in the same pass, so
@@ -380,7 +382,7 @@ class CrowdNavigator:
         self._ahead = (self.frame, ahead, agents, samples) if ahead else None
         return out
 
-    def _sample(self, agents: tuple[Agent, ...], frame: int, offsets: Sequence[int]) -> np.ndarray:
+    def _sample(self, agents: tuple[Agent, ...], frame: int, offsets: Sequence[int]) -> NDArray[np.float64]:
         """``_xy_at(a, frame + k)`` for every agent and offset, as one new array
         (len(agents), len(offsets), 2)."""
         if not agents or not offsets:
@@ -466,7 +468,7 @@ class CrowdNavigator:
             self._legs[a] = _Leg(seg[0].copy(), seg[1].copy(), self.frame, frames, inbound)
             self._needs_plan = True
 
-    def _leg_clear(self, agent: Agent, p: np.ndarray, q: np.ndarray) -> bool:
+    def _leg_clear(self, agent: Agent, p: NDArray[np.float64], q: NDArray[np.float64]) -> bool:
         """Every other body is >= 2r from the segment p-q now (all walkers are on cell centres)."""
         ps, qs = [], []
         for b in self._cells:
@@ -540,7 +542,7 @@ class CrowdNavigator:
         self._needs_plan = False
 
 
-def close_xy(a: np.ndarray, b: np.ndarray, atol: float = 1e-9) -> bool:
+def close_xy(a: NDArray[np.float64], b: NDArray[np.float64], atol: float = 1e-9) -> bool:
     """``np.allclose(a, b, atol=atol)`` (rtol 1e-5) for two xy points, on plain floats."""
     a0, a1, b0, b1 = float(a[0]), float(a[1]), float(b[0]), float(b[1])
     if not (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(b0) and math.isfinite(b1)):
@@ -561,7 +563,7 @@ def _moved(d0: float, d1: float) -> bool:
     return float(d @ d) > 1e-12
 
 
-def _nearest_obstacle(grid: NavGrid, p: np.ndarray, a: np.ndarray | None = None) -> str | None:
+def _nearest_obstacle(grid: NavGrid, p: NDArray[np.float64], a: NDArray[np.float64] | None = None) -> str | None:
     """Name of the blocking object closest to the point p (or the segment a-p)."""
     if not grid.obstacles:
         return None

@@ -8,7 +8,8 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from sim.scene.files import SceneFileError, load_scene, load_scene_json
+from sim.scene.errors import SceneFileError
+from sim.scene.files import load_scene, load_scene_json
 from sim.scene.model import Scene
 
 

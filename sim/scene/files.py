@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
-from sim.scene.errors import SceneFileError
+from sim.scene.errors import SceneFileError as SceneFileError  # re-exported: callers catch it here
 from sim.scene.meshes import load_mesh_scene
 from sim.scene.model import NavHints, Scene, SceneObject
 
@@ -191,7 +191,7 @@ def _validation_error(
     field = ".".join(field_parts) or None
     msg = _PYDANTIC_MESSAGES.get(err["type"], err["msg"])
     msg = msg.removeprefix("Value error, ")
-    if err["type"] not in _PYDANTIC_MESSAGES and "input" in err and err["type"] != "value_error":
+    if err["type"] not in _PYDANTIC_MESSAGES and err["type"] != "value_error":
         msg += f", got {_short_repr(err['input'])}"
     if err["type"] == "missing" and field_parts and field_parts[-1].isdigit():
         msg = "too few numbers in the list"
@@ -300,7 +300,6 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
         raise SceneFileError(path, f"expected a JSON object, got {_short_repr(raw)}", obj=f"#{i}")
     label = raw.get("label")
     idx = raw.get("idx")
-    ok_idx = isinstance(idx, int) and not isinstance(idx, bool)
     name = _reference_name(raw, i)
     for key in sorted(_REFERENCE_REQUIRED - raw.keys()):
         raise SceneFileError(path, "required field is missing", obj=name, field=key)
@@ -313,7 +312,7 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
             obj=name,
             field="label",
         )
-    if not ok_idx or idx < 0:
+    if not isinstance(idx, int) or isinstance(idx, bool) or idx < 0:
         raise SceneFileError(
             path, f"expected an integer >= 0, got {_short_repr(idx)}", obj=name, field="idx"
         )
@@ -335,9 +334,9 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
             name=name,
             label=label,
             idx=idx,
-            center=center,  # type: ignore[arg-type]
-            size=size,  # type: ignore[arg-type]
-            facing=facing,  # type: ignore[arg-type]
+            center=center,
+            size=size,
+            facing=facing,
             has_facing=flags["has_orientation"],
             sit_offset_horizontal=offsets["sit_offset_horizontal"],
             sit_offset_vertical=reference_seat_height(offsets["sit_offset_vertical"], size[2]),

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import ValidationError
 from scipy.spatial import ConvexHull, QhullError
 
@@ -89,14 +90,14 @@ def parse_instance_name(raw: str) -> tuple[str, int | None]:
     return label, idx
 
 
-def yaw_box(points_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def yaw_box(points_xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Minimum-area rectangle around 2-D points.
 
     Returns ``(center (2,), axes (2, 2), extents (2,))``: ``axes[0]`` is a unit vector with angle
     in [0, pi/2), ``axes[1]`` is it turned by +90 degrees, ``extents`` the full side lengths
     along them. Degenerate inputs (a point, a segment) give zero extents where there is none.
     """
-    pts = np.asarray(points_xy, dtype=float).reshape(-1, 2)
+    pts = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
     try:
         hull = pts[ConvexHull(pts).vertices]
     except (QhullError, ValueError):
@@ -129,7 +130,7 @@ def _load_trimesh_scene(path: Path) -> Any:
     try:
         if path.stat().st_size == 0:
             raise SceneFileError(path, "file is empty")
-        kwargs = (
+        kwargs: dict[str, Any] = (
             {"split_objects": True, "group_material": False}
             if path.suffix.lower() == ".obj"
             else {}
@@ -177,14 +178,14 @@ def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = Non
         )
 
     parts: list[
-        tuple[str, str, int | None, np.ndarray, np.ndarray]
+        tuple[str, str, int | None, NDArray[np.float64], NDArray[np.float64]]
     ] = []  # raw, label, idx, verts, front
     for node in nodes:
         transform, geom_name = tm_scene.graph[node]
         geom = tm_scene.geometry.get(geom_name)
         raw_name = node if not _GENERIC_NAME.match(str(node)) else str(geom_name)
         label, idx = parse_instance_name(str(raw_name))
-        verts = np.asarray(getattr(geom, "vertices", np.empty((0, 3))), dtype=float).reshape(-1, 3)
+        verts = np.asarray(getattr(geom, "vertices", np.empty((0, 3))), dtype=np.float64).reshape(-1, 3)
         if len(verts) == 0:
             raise SceneFileError(path, "node has no vertices", obj=str(node), field="geometry")
         if not np.isfinite(verts).all() or not np.isfinite(transform).all():
@@ -231,7 +232,7 @@ def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = Non
 
 
 def _assign_names(
-    path: Path, parts: list[tuple[str, str, int | None, np.ndarray, np.ndarray]]
+    path: Path, parts: list[tuple[str, str, int | None, NDArray[np.float64], NDArray[np.float64]]]
 ) -> list[tuple[str, str, int]]:
     """``(name, label, idx)`` per part: explicit indices kept, missing ones auto-filled."""
     taken: dict[tuple[str, int], str] = {}
@@ -261,8 +262,8 @@ def _make_object(
     name: str,
     label: str,
     idx: int,
-    verts: np.ndarray,
-    front: np.ndarray,
+    verts: NDArray[np.float64],
+    front: NDArray[np.float64],
     floor_z: float,
 ) -> SceneObject:
     center_xy, axes, extents = yaw_box(verts[:, :2])

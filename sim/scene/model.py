@@ -17,6 +17,7 @@ import re
 from functools import cached_property
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 NAME_PATTERN = re.compile(r"^(?P<label>[a-z][a-z0-9_]*?)_(?P<idx>\d+)$")
@@ -90,34 +91,34 @@ class SceneObject(BaseModel):
         return self.center[2] + self.size[2] / 2.0
 
     @property
-    def center_xy(self) -> np.ndarray:
-        return np.array(self.center[:2], dtype=float)
+    def center_xy(self) -> NDArray[np.float64]:
+        return np.array(self.center[:2], dtype=np.float64)
 
     @property
-    def right(self) -> np.ndarray:
+    def right(self) -> NDArray[np.float64]:
         """The object's own right in the xy plane (facing turned clockwise)."""
-        return np.array([self.facing[1], -self.facing[0]], dtype=float)
+        return np.array([self.facing[1], -self.facing[0]], dtype=np.float64)
 
     @property
     def yaw(self) -> float:
         """Angle of the facing from +x, radians."""
         return math.atan2(self.facing[1], self.facing[0])
 
-    def footprint(self, margin: float = 0.0) -> np.ndarray:
+    def footprint(self, margin: float = 0.0) -> NDArray[np.float64]:
         """The 4 xy corners of the box bottom (counter-clockwise), grown by ``margin``."""
-        f = np.array(self.facing, dtype=float)
+        f = np.array(self.facing, dtype=np.float64)
         r = self.right
         hw = self.size[0] / 2.0 + margin
         hd = self.size[1] / 2.0 + margin
         c = self.center_xy
         return np.array([c - r * hw - f * hd, c + r * hw - f * hd, c + r * hw + f * hd, c - r * hw + f * hd])
 
-    def to_local(self, xy: np.ndarray) -> np.ndarray:
+    def to_local(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """Points (..., 2) in the object's frame: [:, 0] along its right, [:, 1] along its facing."""
-        d = np.asarray(xy, dtype=float) - self.center_xy
-        return np.stack([d @ self.right, d @ np.array(self.facing, dtype=float)], axis=-1)
+        d = np.asarray(xy, dtype=np.float64) - self.center_xy
+        return np.stack([d @ self.right, d @ np.array(self.facing, dtype=np.float64)], axis=-1)
 
-    def contains_xy(self, xy: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    def contains_xy(self, xy: NDArray[np.float64], margin: float = 0.0) -> NDArray[np.bool_]:
         """Whether xy points (..., 2) lie inside the footprint grown by ``margin``."""
         local = self.to_local(xy)
         return (np.abs(local[..., 0]) <= self.size[0] / 2.0 + margin) & (
@@ -128,7 +129,7 @@ class SceneObject(BaseModel):
     def is_seat(self) -> bool:
         return self.sit_offset_vertical > 0.0
 
-    def seat_point(self) -> np.ndarray:
+    def seat_point(self) -> NDArray[np.float64]:
         """Where a seated pelvis goes (xy): centre + facing * depth * sit offset."""
         return self.center_xy + np.array(self.facing) * self.size[1] * self.sit_offset_horizontal
 

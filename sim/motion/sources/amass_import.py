@@ -14,6 +14,7 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, axis_angle_to_matrix, forward_kinematics
 from sim.motion.clips import FOOT_JOINTS, MotionClip, clip_from_pose_frames
@@ -21,7 +22,7 @@ from sim.motion.sources.bvh_import import MocapImportError
 from sim.motion.sources.procedural_rig import TOE_HEIGHT
 
 
-def load_amass_arrays(path: str | Path) -> dict[str, np.ndarray]:
+def load_amass_arrays(path: str | Path) -> dict[str, NDArray[np.float64]]:
     try:
         with np.load(path, allow_pickle=False) as data:
             return {k: np.asarray(data[k]) for k in data.files}
@@ -30,11 +31,11 @@ def load_amass_arrays(path: str | Path) -> dict[str, np.ndarray]:
 
 
 def amass_pose_frames(
-    arrays: dict[str, np.ndarray], path: str | Path = "<arrays>", pelvis_rest: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, float]:
+    arrays: dict[str, NDArray[np.float64]], path: str | Path = "<arrays>", pelvis_rest: NDArray[np.float64] | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
     """(local rotations (N,22,3,3), pelvis (N,3), fps) from AMASS-style arrays."""
     if "poses" in arrays:
-        poses = np.asarray(arrays["poses"], dtype=float)
+        poses = np.asarray(arrays["poses"], dtype=np.float64)
         if poses.ndim != 2 or poses.shape[1] < 3 * NUM_JOINTS:
             raise MocapImportError(path, f"'poses' has shape {poses.shape}, expected (N, >= {3 * NUM_JOINTS})")
         aa = poses[:, : 3 * NUM_JOINTS].reshape(-1, NUM_JOINTS, 3)
@@ -47,7 +48,7 @@ def amass_pose_frames(
         raise MocapImportError(path, "needs 'poses' or 'root_orient' + 'pose_body'")
     if "trans" not in arrays:
         raise MocapImportError(path, "missing 'trans'")
-    trans = np.asarray(arrays["trans"], dtype=float)
+    trans = np.asarray(arrays["trans"], dtype=np.float64)
     if trans.shape != (len(aa), 3):
         raise MocapImportError(path, f"'trans' has shape {trans.shape}, expected ({len(aa)}, 3)")
     rate_key = "mocap_frame_rate" if "mocap_frame_rate" in arrays else "mocap_framerate"
@@ -58,7 +59,7 @@ def amass_pose_frames(
         raise MocapImportError(path, "non-finite values or non-positive frame rate")
     if len(aa) < 2:
         raise MocapImportError(path, "needs at least 2 frames")
-    j0 = REST_OFFSETS[0] if pelvis_rest is None else np.asarray(pelvis_rest, dtype=float).reshape(3)
+    j0 = REST_OFFSETS[0] if pelvis_rest is None else np.asarray(pelvis_rest, dtype=np.float64).reshape(3)
     return axis_angle_to_matrix(aa), trans + j0, fps
 
 
@@ -69,7 +70,7 @@ def import_amass(
     start: int = 0,
     end: int | None = None,
     fps: float | None = None,
-    pelvis_rest: np.ndarray | None = None,
+    pelvis_rest: NDArray[np.float64] | None = None,
     snap_to_floor: bool = True,
     loops: bool = False,
     name: str | None = None,

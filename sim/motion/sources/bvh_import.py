@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import (
@@ -50,13 +51,13 @@ class BvhData:
 
     names: tuple[str, ...]
     parents: tuple[int, ...]
-    offsets: np.ndarray
+    offsets: NDArray[np.float64]
     channels: tuple[tuple[str, ...], ...]
-    end_offsets: tuple[np.ndarray | None, ...]
-    frames: np.ndarray
+    end_offsets: tuple[NDArray[np.float64] | None, ...]
+    frames: NDArray[np.float64]
     frame_time: float
 
-    def global_transforms(self) -> tuple[np.ndarray, np.ndarray]:
+    def global_transforms(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Source FK: global rotations (N,J,3,3) and positions (N,J,3) in file units/axes."""
         n, nj = len(self.frames), len(self.names)
         rot = np.empty((n, nj, 3, 3))
@@ -82,7 +83,7 @@ class BvhData:
                 pos[:, j] = pos[:, p] + np.einsum("nij,nj->ni", rot[:, p], trans)
         return rot, pos
 
-    def rest_positions(self) -> np.ndarray:
+    def rest_positions(self) -> NDArray[np.float64]:
         pos = np.zeros((len(self.names), 3))
         for j, p in enumerate(self.parents):
             pos[j] = self.offsets[j] + (pos[p] if p >= 0 else 0.0)
@@ -103,7 +104,7 @@ def parse_bvh(path: str | Path) -> BvhData:
     parents: list[int] = []
     offsets: list[list[float]] = []
     channels: list[tuple[str, ...]] = []
-    end_offsets: list[np.ndarray | None] = []
+    end_offsets: list[NDArray[np.float64] | None] = []
     stack: list[int] = []
     i = tokens.index("HIERARCHY") + 1
     pending_end = False
@@ -147,7 +148,7 @@ def parse_bvh(path: str | Path) -> BvhData:
         n, frame_time = int(m.group(1)), float(m.group(2))
         body = motion[m.end():].split()
         total = sum(len(c) for c in channels)
-        values = np.array(body[: n * total], dtype=float)
+        values = np.array(body[: n * total], dtype=np.float64)
     except (IndexError, ValueError) as exc:
         if isinstance(exc, MocapImportError):
             raise
@@ -158,7 +159,7 @@ def parse_bvh(path: str | Path) -> BvhData:
         raise MocapImportError(path, f"expected {n} frames of {total} channels, found {values.size // max(total, 1)}")
     if not np.all(np.isfinite(values)) or frame_time <= 0:
         raise MocapImportError(path, "non-finite channel values or non-positive frame time")
-    return BvhData(tuple(names), tuple(parents), np.array(offsets, dtype=float), tuple(channels),
+    return BvhData(tuple(names), tuple(parents), np.array(offsets, dtype=np.float64), tuple(channels),
                    tuple(end_offsets), values.reshape(n, total), frame_time)
 
 
@@ -226,10 +227,10 @@ def auto_joint_mapping(names: tuple[str, ...], overrides: Mapping[str, str] | No
         if ours in mapping:
             continue
         for cand in ALIASES[ours]:
-            src = by_norm.get(cand)
-            if src is not None and src not in used:
-                mapping[ours] = src
-                used.add(src)
+            found = by_norm.get(cand)
+            if found is not None and found not in used:
+                mapping[ours] = found
+                used.add(found)
                 break
     missing = [j for j in REQUIRED if j not in mapping]
     if missing:
@@ -237,7 +238,7 @@ def auto_joint_mapping(names: tuple[str, ...], overrides: Mapping[str, str] | No
     return mapping
 
 
-def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _min_rotation(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
     """Smallest rotation taking direction a to direction b."""
     a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
     v, c = np.cross(a, b), float(np.dot(a, b))
@@ -246,7 +247,7 @@ def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         if np.linalg.norm(axis) < 1e-6:
             axis = np.cross(a, [0.0, 1.0, 0.0])
         return Rotation.from_rotvec(np.pi * axis / np.linalg.norm(axis)).as_matrix()
-    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    vx: NDArray[np.float64] = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
     return np.eye(3) + vx + vx @ vx / (1 + c)
 
 
@@ -255,7 +256,7 @@ def retarget(
     mapping: Mapping[str, str],
     *,
     snap_to_floor: bool = True,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Our local rotations (N,22,3,3) (joint 0 in the z-up world) and pelvis positions (N,3) m."""
     idx = {n: i for i, n in enumerate(data.names)}
     src = {ours: idx[name] for ours, name in mapping.items()}
@@ -288,10 +289,10 @@ def retarget(
     local[:, 0] = BODY_TO_WORLD @ glob[:, 0]
     for j in range(1, NUM_JOINTS):
         local[:, j] = np.swapaxes(glob[:, PARENTS[j]], -1, -2) @ glob[:, j]
-    src_leg = np.linalg.norm(rest_b[src["left_knee"]] - rest_b[src["left_hip"]]) + np.linalg.norm(
-        rest_b[src["left_ankle"]] - rest_b[src["left_knee"]])
-    our_leg = np.linalg.norm(ours_rest[JOINT_INDEX["left_knee"]] - ours_rest[JOINT_INDEX["left_hip"]]) + np.linalg.norm(
-        ours_rest[JOINT_INDEX["left_ankle"]] - ours_rest[JOINT_INDEX["left_knee"]])
+    src_leg = float(np.linalg.norm(rest_b[src["left_knee"]] - rest_b[src["left_hip"]]) + np.linalg.norm(
+        rest_b[src["left_ankle"]] - rest_b[src["left_knee"]]))
+    our_leg = float(np.linalg.norm(ours_rest[JOINT_INDEX["left_knee"]] - ours_rest[JOINT_INDEX["left_hip"]]) + np.linalg.norm(
+        ours_rest[JOINT_INDEX["left_ankle"]] - ours_rest[JOINT_INDEX["left_knee"]]))
     scale = our_leg / max(src_leg, 1e-9)
     pelvis = (p_src[:, src["pelvis"]] @ axes.T * scale) @ BODY_TO_WORLD.T
     if snap_to_floor:

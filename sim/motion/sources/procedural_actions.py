@@ -10,7 +10,10 @@ pose of their posture (standing or seated).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.motion.action_labels import ActionSpec, action_spec, database_key
 from sim.motion.clips import FPS, MotionClip
@@ -35,9 +38,9 @@ DEFAULT_PARTNER_DISTANCE = 1.1
 OBJECT_DISTANCE = 0.55
 
 
-def _keys(t: np.ndarray, times: list[float], values: list[list[float]]) -> np.ndarray:
+def _keys(t: NDArray[np.float64], times: list[float], values: Sequence[NDArray[np.float64]]) -> NDArray[np.float64]:
     """Smoothstep interpolation between keyframes; holds the ends. Returns (F, D)."""
-    v = np.asarray(values, dtype=float)
+    v = np.asarray(values, dtype=np.float64)
     out = np.empty((len(t), v.shape[1]))
     for d in range(v.shape[1]):
         out[:, d] = v[0, d]
@@ -52,7 +55,7 @@ def _keys(t: np.ndarray, times: list[float], values: list[list[float]]) -> np.nd
 class _Body:
     """Mutable per-frame target arrays for one clip (character frame, root at the origin)."""
 
-    def __init__(self, t: np.ndarray, seated: bool, seat_height: float) -> None:
+    def __init__(self, t: NDArray[np.float64], seated: bool, seat_height: float) -> None:
         n = len(t)
         self.t = t
         self.seated = seated
@@ -77,14 +80,14 @@ class _Body:
         self.pole[:, 0] = [-0.6, 0.35, -1.0]
         self.pole[:, 1] = [-0.6, -0.35, -1.0]
 
-    def rest_hand(self, side: int) -> np.ndarray:
+    def rest_hand(self, side: int) -> NDArray[np.float64]:
         """Wrist rest position (character frame): hanging by the side, or on the thigh."""
         s = 1.0 if side == 0 else -1.0
         if self.seated:
             return np.array([0.24, s * 0.13, float(self.pelvis[0, 2]) + 0.06])
         return np.array([0.02, s * 0.22, STAND_Z - 0.03])
 
-    def anchor(self, name: str, side: int, height: float = 1.0) -> np.ndarray:
+    def anchor(self, name: str, side: int, height: float = 1.0) -> NDArray[np.float64]:
         """Named wrist positions (character frame) relative to the current posture."""
         s = 1.0 if side == 0 else -1.0
         p = float(self.pelvis[0, 2])
@@ -102,7 +105,7 @@ class _Body:
             "tray": np.array([0.34, s * 0.16, p + 0.10]),
         }[name]
 
-    def shoulders(self) -> np.ndarray:
+    def shoulders(self) -> NDArray[np.float64]:
         """Estimated shoulder positions (F,2,3) in the character frame."""
         pitch = self.tilt[:, 0] + self.spine[:, 0]
         sh = np.zeros((len(self.t), 2, 3))
@@ -117,7 +120,7 @@ class _Body:
         return BodyTargets(self.root_xy, self.heading, self.pelvis, self.tilt, self.spine, self.head,
                            toes_world, self.foot_yaw, self.heel, self.hands - self.shoulders(), self.pole)
 
-    def solve(self) -> tuple[np.ndarray, np.ndarray]:
+    def solve(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         t = self.targets()
         limit = pelvis_height_limit(t)
         self.pelvis[:, 2] = np.minimum(self.pelvis[:, 2], limit)
@@ -283,7 +286,7 @@ def action_clip(label: str, *, seated: bool = False, seat_height: float = 0.46,
                       spec.loops, target)
 
 
-def _sit_progress(body: _Body, u: np.ndarray, seat_height: float) -> None:
+def _sit_progress(body: _Body, u: NDArray[np.float64], seat_height: float) -> None:
     """Pose along the sit-down path, u in [0, 1] (0 standing, 1 seated); root at the pelvis."""
     back = smoothstep(u / 0.85)
     drop = smoothstep((u - 0.1) / 0.9)

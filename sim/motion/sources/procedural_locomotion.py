@@ -12,8 +12,10 @@ reach, smoothed from below; arms swing against the legs.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import overload
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.motion.clips import FPS, MotionClip
 from sim.motion.sources.procedural_rig import (
@@ -28,20 +30,25 @@ from sim.motion.sources.procedural_rig import (
 SWING = 0.8  # swing length in step-phase units (40 % of a gait cycle)
 STANCE_HALF_WIDTH = 0.10  # lateral distance of a toe from the path, metres
 TOE_AHEAD = 0.08  # toe joint ahead of the pelvis when standing, metres
-Profile = Callable[[np.ndarray], np.ndarray]
+Profile = Callable[[NDArray[np.float64]], NDArray[np.float64]]
 
 
-def step_length(speed: np.ndarray) -> np.ndarray:
+@overload
+def step_length(speed: float) -> float: ...
+@overload
+def step_length(speed: NDArray[np.float64]) -> NDArray[np.float64]: ...
+def step_length(speed: float | NDArray[np.float64]) -> float | NDArray[np.float64]:
     """Step length (m) for a walking speed (m/s): 0.55 m at 0.8 m/s, 0.67 m at 1.6 m/s."""
-    return 0.43 + 0.15 * np.asarray(speed)
+    length: float | NDArray[np.float64] = 0.43 + 0.15 * np.asarray(speed)
+    return length
 
 
-def smoothstep(x: np.ndarray) -> np.ndarray:
+def smoothstep(x: NDArray[np.float64]) -> NDArray[np.float64]:
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3 - 2 * x)
 
 
-def integrate_root(speed: np.ndarray, turn_rate: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+def integrate_root(speed: NDArray[np.float64], turn_rate: NDArray[np.float64], dt: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Root ground points (N,2) and headings (N,) from speed (m/s) and turn rate (rad/s)."""
     heading = np.concatenate([[0.0], np.cumsum(0.5 * (turn_rate[1:] + turn_rate[:-1]) * dt)])
     vx, vy = speed * np.cos(heading), speed * np.sin(heading)
@@ -51,8 +58,8 @@ def integrate_root(speed: np.ndarray, turn_rate: np.ndarray, dt: float) -> tuple
 
 
 def gait(
-    root: np.ndarray, heading: np.ndarray, phase: np.ndarray, dt: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    root: NDArray[np.float64], heading: NDArray[np.float64], phase: NDArray[np.float64], dt: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """Footsteps along a root trajectory for a given gait phase (N,), non-decreasing.
 
     Returns toes (N,2,3) world toe positions, foot yaw (N,2), heel lift (N,2) rad and
@@ -63,7 +70,7 @@ def gait(
     lateral = np.stack([-np.sin(heading), np.cos(heading)], axis=-1)
     fwd = np.stack([np.cos(heading), np.sin(heading)], axis=-1)
 
-    def plant(time: float, side: int) -> tuple[np.ndarray, float]:
+    def plant(time: float, side: int) -> tuple[NDArray[np.float64], float]:
         i = float(np.clip(time / dt, 0, n - 1))
         i0 = int(np.floor(i))
         i1 = min(i0 + 1, n - 1)
@@ -86,7 +93,8 @@ def gait(
     toes[:, :, 2] = TOE_HEIGHT
     last = int(np.floor(phase[-1] + 1e-9))
     prev = {0: (toes[0, 0, :2].copy(), heading[0]), 1: (toes[0, 1, :2].copy(), heading[0])}
-    t_of_phase = (lambda p: float(np.interp(p, phase, t))) if phase[-1] > phase[0] else (lambda p: 0.0)
+    t_of_phase: Callable[[float], float] = (
+        (lambda p: float(np.interp(p, phase, t))) if phase[-1] > phase[0] else (lambda p: 0.0))
     for k in range(1, last + 2):
         side = k % 2
         start, end = k - SWING, float(k)
@@ -116,14 +124,14 @@ def gait(
 
 
 def body_from_gait(
-    root: np.ndarray,
-    heading: np.ndarray,
-    phase: np.ndarray,
-    speed: np.ndarray,
+    root: NDArray[np.float64],
+    heading: NDArray[np.float64],
+    phase: NDArray[np.float64],
+    speed: NDArray[np.float64],
     dt: float,
     *,
-    arm_raise: np.ndarray | None = None,
-) -> tuple[BodyTargets, np.ndarray]:
+    arm_raise: NDArray[np.float64] | None = None,
+) -> tuple[BodyTargets, NDArray[np.bool_]]:
     """Full-body targets for a gait; returns (targets, contacts)."""
     n = len(phase)
     toes, yaw, heel, contacts = gait(root, heading, phase, dt)
@@ -164,13 +172,14 @@ def body_from_gait(
     return targets, contacts
 
 
-def _smooth_below(z: np.ndarray, radius: int) -> np.ndarray:
+def _smooth_below(z: NDArray[np.float64], radius: int) -> NDArray[np.float64]:
     """A smooth curve that never exceeds ``z``: min-filter, then box-average (same radius)."""
     pad = np.pad(z, radius, mode="edge")
     win = np.lib.stride_tricks.sliding_window_view(pad, 2 * radius + 1)
     eroded = win.min(axis=1)
     pad2 = np.pad(eroded, radius, mode="edge")
-    return np.lib.stride_tricks.sliding_window_view(pad2, 2 * radius + 1).mean(axis=1)
+    smooth: NDArray[np.float64] = np.lib.stride_tricks.sliding_window_view(pad2, 2 * radius + 1).mean(axis=1)
+    return smooth
 
 
 def locomotion_clip(
@@ -195,9 +204,9 @@ def locomotion_clip(
     dt = 1.0 / FPS
     frames = round(duration * FPS)
     npad = round(pad * FPS)
-    t = (np.arange(frames + 2 * npad) - npad) * dt
-    speed = np.asarray(speed_fn(t), dtype=float)
-    turn = np.asarray(turn_fn(t), dtype=float)
+    t = (np.arange(frames + 2 * npad, dtype=np.float64) - npad) * dt  # whole numbers: exact
+    speed = np.asarray(speed_fn(t), dtype=np.float64)
+    turn = np.asarray(turn_fn(t), dtype=np.float64)
     root, heading = integrate_root(speed, turn, dt)
     if loops:
         rate = np.full(len(t), 2.0 * loop_cycles / (frames * dt))
@@ -208,7 +217,7 @@ def locomotion_clip(
     phase = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * dt)])
     if not loops and speed[-1] < 0.01 and phase[-1] > 0.3:
         phase *= max(round(phase[-1]), 1) / phase[-1]
-    raise_ = None if arm_raise_fn is None else np.asarray(arm_raise_fn(t), dtype=float)
+    raise_ = None if arm_raise_fn is None else np.asarray(arm_raise_fn(t), dtype=np.float64)
     targets, contacts = body_from_gait(root, heading, phase, speed, dt, arm_raise=raise_)
     local, pelvis = solve_body(targets)
     sl = slice(npad, npad + frames)
@@ -225,6 +234,18 @@ def locomotion_clip(
 
 def _const(value: float) -> Profile:
     return lambda t: np.full_like(t, value)
+
+
+def _pulse(rate: float, centre: float, half_width: float) -> Profile:
+    """``rate`` while ``|t - centre| < half_width``, else 0 (a turn in place)."""
+
+    def profile(t: NDArray[np.float64]) -> NDArray[np.float64]:
+        # a product, not np.where: a negative rate gives -0.0 outside, as before
+        inside = (np.abs(t - centre) < half_width).astype(np.float64)  # 1.0 / 0.0, as True / False
+        out: NDArray[np.float64] = rate * inside
+        return out
+
+    return profile
 
 
 def _ramp(t0: float, t1: float, a: float, b: float) -> Profile:
@@ -248,10 +269,10 @@ def locomotion_clips() -> list[MotionClip]:
             a = sign * np.radians(angle)
             clips.append(locomotion_clip(
                 f"turn_{side}_{angle}", _const(1.0),
-                lambda t, a=a: a / 0.9 * (np.abs(t - 1.7) < 0.45), 3.4))
+                _pulse(a / 0.9, 1.7, 0.45), 3.4))
             clips.append(locomotion_clip(
                 f"spin_{side}_{angle}", _const(0.0),
-                lambda t, a=a: a / 1.2 * (np.abs(t - 1.0) < 0.6), 2.6))
+                _pulse(a / 1.2, 1.0, 0.6), 2.6))
     clips.append(locomotion_clip("start", _ramp(0.6, 1.6, 0.0, 1.2), _const(0.0), 3.2))
     clips.append(locomotion_clip("stop", _ramp(1.0, 2.0, 1.2, 0.0), _const(0.0), 3.0))
     clips.append(locomotion_clip("start_slow", _ramp(0.5, 1.3, 0.0, 0.7), _const(0.0), 2.8))
@@ -264,13 +285,13 @@ def dance_clip(name: str = "dance_steps", key: str = "dance", cycles: int = 2) -
     period = 1.6
     duration = period * cycles
 
-    def speed(t: np.ndarray) -> np.ndarray:
+    def speed(t: NDArray[np.float64]) -> NDArray[np.float64]:
         return 0.35 * np.sin(2 * np.pi * t / period)
 
-    def turn(t: np.ndarray) -> np.ndarray:
+    def turn(t: NDArray[np.float64]) -> NDArray[np.float64]:
         return 0.9 * np.cos(2 * np.pi * t / period)
 
-    def arms(t: np.ndarray) -> np.ndarray:
+    def arms(t: NDArray[np.float64]) -> NDArray[np.float64]:
         return 0.18 + 0.08 * np.sin(4 * np.pi * t / period)
 
     clip = locomotion_clip(name, speed, turn, duration, loops=True, loop_cycles=2 * cycles, key=key,

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, PARENTS, REST_OFFSETS, heading_to_root
@@ -43,40 +44,40 @@ SHOULDER_ABOVE_PELVIS = float(
 SHOULDER_HALF_WIDTH = float(REST_OFFSETS[J["left_collar"], 0] + REST_OFFSETS[J["left_shoulder"], 0])
 
 
-def body_euler(angles: np.ndarray) -> np.ndarray:
+def body_euler(angles: NDArray[np.float64]) -> NDArray[np.float64]:
     """(..., 3) [pitch, yaw, roll] in the body frame -> (..., 3, 3) = Ry(yaw) Rx(pitch) Rz(roll)."""
-    a = np.asarray(angles, dtype=float)
+    a = np.asarray(angles, dtype=np.float64)
     flat = a.reshape(-1, 3)
     m = Rotation.from_euler("YXZ", flat[:, [1, 0, 2]]).as_matrix()
     return m.reshape(*a.shape[:-1], 3, 3)
 
 
-def rot_z(theta: np.ndarray) -> np.ndarray:
+def rot_z(theta: NDArray[np.float64]) -> NDArray[np.float64]:
     """(...,) angles -> (..., 3, 3) rotations about the world z axis."""
-    t = np.asarray(theta, dtype=float)
+    t = np.asarray(theta, dtype=np.float64)
     c, s = np.cos(t), np.sin(t)
     m = np.zeros((*t.shape, 3, 3))
     m[..., 0, 0], m[..., 0, 1], m[..., 1, 0], m[..., 1, 1], m[..., 2, 2] = c, -s, s, c, 1.0
     return m
 
 
-def char_to_world(root_xy: np.ndarray, heading: np.ndarray, local: np.ndarray) -> np.ndarray:
+def char_to_world(root_xy: NDArray[np.float64], heading: NDArray[np.float64], local: NDArray[np.float64]) -> NDArray[np.float64]:
     """Points (..., 3) in the character frame (x forward, y left, z up from the floor) -> world."""
-    w = np.einsum("...ij,...j->...i", rot_z(heading), local)
+    w: NDArray[np.float64] = np.einsum("...ij,...j->...i", rot_z(heading), local)
     w[..., 0] += root_xy[..., 0]
     w[..., 1] += root_xy[..., 1]
     return w
 
 
-def _normalize(v: np.ndarray, fallback: np.ndarray | None = None) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
+def _normalize(v: NDArray[np.float64], fallback: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    n: NDArray[np.float64] = np.linalg.norm(v, axis=-1, keepdims=True)
     out = v / np.maximum(n, 1e-12)
     if fallback is not None:
         out = np.where(n > 1e-9, out, fallback)
     return out
 
 
-def _frame(u: np.ndarray, s: np.ndarray) -> np.ndarray:
+def _frame(u: NDArray[np.float64], s: NDArray[np.float64]) -> NDArray[np.float64]:
     """Orthonormal frame (..., 3, 3) with columns u, s orthogonalised to u, u x s."""
     u = _normalize(u)
     s = s - np.sum(s * u, axis=-1, keepdims=True) * u
@@ -84,15 +85,15 @@ def _frame(u: np.ndarray, s: np.ndarray) -> np.ndarray:
     return np.stack([u, s, np.cross(u, s)], axis=-1)
 
 
-def _align(u0: np.ndarray, s0: np.ndarray, u1: np.ndarray, s1: np.ndarray) -> np.ndarray:
+def _align(u0: NDArray[np.float64], s0: NDArray[np.float64], u1: NDArray[np.float64], s1: NDArray[np.float64]) -> NDArray[np.float64]:
     """Rotation taking direction u0 to u1 exactly, and side vector s0 as close as possible to s1."""
     f0 = _frame(np.broadcast_to(u0, u1.shape), np.broadcast_to(s0, s1.shape))
     return _frame(u1, s1) @ np.swapaxes(f0, -1, -2)
 
 
 def two_bone_ik(
-    root: np.ndarray, target: np.ndarray, l1: float, l2: float, pole: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    root: NDArray[np.float64], target: NDArray[np.float64], l1: float, l2: float, pole: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Analytic two-bone IK. Returns (middle joint, reached end, hinge side vector), each (..., 3).
 
     The middle joint bends toward ``pole``; targets beyond reach are pulled in along the line
@@ -127,20 +128,20 @@ class BodyTargets:
     joint; elbow_pole (F,2,3) direction (character frame) the elbows point to.
     """
 
-    root_xy: np.ndarray
-    heading: np.ndarray
-    pelvis_offset: np.ndarray
-    pelvis_tilt: np.ndarray
-    spine: np.ndarray
-    head: np.ndarray
-    toes: np.ndarray
-    foot_yaw: np.ndarray
-    heel_lift: np.ndarray
-    hands: np.ndarray
-    elbow_pole: np.ndarray
+    root_xy: NDArray[np.float64]
+    heading: NDArray[np.float64]
+    pelvis_offset: NDArray[np.float64]
+    pelvis_tilt: NDArray[np.float64]
+    spine: NDArray[np.float64]
+    head: NDArray[np.float64]
+    toes: NDArray[np.float64]
+    foot_yaw: NDArray[np.float64]
+    heel_lift: NDArray[np.float64]
+    hands: NDArray[np.float64]
+    elbow_pole: NDArray[np.float64]
 
 
-def pelvis_height_limit(t: BodyTargets, reach: float = 0.985) -> np.ndarray:
+def pelvis_height_limit(t: BodyTargets, reach: float = 0.985) -> NDArray[np.float64]:
     """Highest pelvis height (F,) per frame at which both ankles reach their targets."""
     pelvis_rot = heading_to_root(t.heading) @ body_euler(t.pelvis_tilt)
     pelvis_xy = char_to_world(t.root_xy, t.heading, t.pelvis_offset * np.array([1.0, 1.0, 0.0]))
@@ -155,18 +156,19 @@ def pelvis_height_limit(t: BodyTargets, reach: float = 0.985) -> np.ndarray:
     return limit
 
 
-def _foot_rotation(t: BodyTargets, side: int) -> np.ndarray:
+def _foot_rotation(t: BodyTargets, side: int) -> NDArray[np.float64]:
     pitch = np.stack([t.heel_lift[:, side], np.zeros_like(t.heel_lift[:, side]),
                       np.zeros_like(t.heel_lift[:, side])], axis=-1)
     return heading_to_root(t.foot_yaw[:, side]) @ body_euler(pitch)
 
 
-def _ankle_from_toe(t: BodyTargets, side: int, toe: int) -> np.ndarray:
+def _ankle_from_toe(t: BodyTargets, side: int, toe: int) -> NDArray[np.float64]:
     rf = _foot_rotation(t, side)
-    return t.toes[:, side] - np.einsum("fij,j->fi", rf, REST_OFFSETS[toe])
+    offsets: NDArray[np.float64] = np.einsum("fij,j->fi", rf, REST_OFFSETS[toe])
+    return t.toes[:, side] - offsets
 
 
-def solve_body(t: BodyTargets) -> tuple[np.ndarray, np.ndarray]:
+def solve_body(t: BodyTargets) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Solve a clip's targets. Returns (local rotations (F,22,3,3), pelvis positions (F,3))."""
     n = t.heading.shape[0]
     glob = np.zeros((n, NUM_JOINTS, 3, 3))
@@ -176,7 +178,7 @@ def solve_body(t: BodyTargets) -> tuple[np.ndarray, np.ndarray]:
     pelvis = char_to_world(t.root_xy, t.heading, t.pelvis_offset)
     glob[:, 0], pos[:, 0] = pelvis_rot, pelvis
 
-    def place(j: int, local: np.ndarray | None) -> None:
+    def place(j: int, local: NDArray[np.float64] | None) -> None:
         p = PARENTS[j]
         pos[:, j] = pos[:, p] + np.einsum("fij,j->fi", glob[:, p], REST_OFFSETS[j])
         glob[:, j] = glob[:, p] if local is None else glob[:, p] @ local
