@@ -14,9 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.paths.nav_grid import body_clearance, body_clearance_reference, build_nav_grid
+from sim.paths.nav_grid import body_clearance, build_nav_grid
 from sim.scene.files import load_scene
 from sim.scene.model import SceneObject
+from tests.support.clearance_reference import body_clearance_reference
 
 OFFICE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "event-driven-storytelling" / "configs" / "scenes" / "Office"
 
