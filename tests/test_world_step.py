@@ -438,12 +438,12 @@ def test_many_short_events_and_a_reused_event_id_start_and_leave_no_queue_behind
                       commands=[AssignEvent(event_id=eid, assignments=(_go("ann", here, "wave"),))])
         assert outs[-1].completed_events == (eid,)
         assert any(o.started_events == (eid,) for o in outs)
-        assert w._waiting_to_start == {}
+        assert w.start_queue == {}
     assert set(w.events) == {"e0", "again", "e2", "e4"} and all(e.status == "completed" for e in w.events.values())
     # an assigned, not yet started event survives a snapshot round trip in the queue
     far = _cell_xy(office, *cells[80])
     step(w, [AssignEvent(event_id="walk", assignments=(_go("ann", far),))], w.dt)
     back = w.restore(w.snapshot())
-    assert back._waiting_to_start == w._waiting_to_start == {"walk": None}
+    assert back.start_queue == w.start_queue == {"walk": None}
     _until(back, lambda o: o.started_events == ("walk",))
-    assert back._waiting_to_start == {} and w._waiting_to_start == {"walk": None}
+    assert back.start_queue == {} and w.start_queue == {"walk": None}
