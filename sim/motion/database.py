@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -179,6 +180,10 @@ class MotionDatabase:
     scale: np.ndarray
     searchable: np.ndarray
     _index: list[NearestFrameIndex] = field(default_factory=list, repr=False, compare=False)
+    derived: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    """Data other modules compute once from this database's arrays and keep here, keyed by
+    what it is (``sim.motion.frames``: frames, frame tables, frame stores); it lives and dies
+    with the database."""
 
     @property
     def num_frames(self) -> int:
