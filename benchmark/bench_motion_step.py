@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from benchmark.bench_world import OFFICE, IdleErrands
+from orchestrator.cache_paths import motion_cache_dir
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
 from sim.paths.nav_grid import build_nav_grid
@@ -123,7 +124,7 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=10)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    dbs = load_databases()
+    dbs = load_databases(cache_dir=motion_cache_dir())
     for db in dbs.values():
         db.index  # noqa: B018
         db.entry_index  # noqa: B018

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from orchestrator.cache_paths import motion_cache_dir
 from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
 from sim.motion.matching import MotionQuery, Pose
 from sim.paths.cooperative_astar import PathPlanner
@@ -292,7 +293,7 @@ def test_real_motion_matcher_drives_the_bodies_and_tracks_export(office, tmp_pat
 
     scene, grid, planner = office
     cells = _free_cells(office)
-    w = World(scene, {"ann": (_cell_xy(office, *cells[0]), 0.0)}, MotionMatcher(load_databases(["idle", "walk"])),
+    w = World(scene, {"ann": (_cell_xy(office, *cells[0]), 0.0)}, MotionMatcher(load_databases(["idle", "walk"], cache_dir=motion_cache_dir())),
               grid=grid, planner=planner)
     run(w, 90, {0: [AssignEvent(event_id="e", assignments=(_go("ann", _cell_xy(office, *cells[80])),))]})
     t = w.tracks()["ann"]
@@ -395,7 +396,7 @@ def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office) -> No
 
     scene, grid, planner = office
     cells = _free_cells(office)
-    matcher = MotionMatcher(load_databases(["idle", "walk"]))
+    matcher = MotionMatcher(load_databases(["idle", "walk"], cache_dir=motion_cache_dir()))
     chars = {"ann": (_cell_xy(office, *cells[0]), 0.0), "bob": (_cell_xy(office, *cells[60]), 1.0)}
     cmds = {0: [AssignEvent(event_id="a", assignments=(_go("ann", _cell_xy(office, *cells[200])),)),
                 AssignEvent(event_id="b", assignments=(_go("bob", _cell_xy(office, *cells[5])),))]}
