@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import heapq
 import math
-import weakref
 from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -48,9 +47,6 @@ Agent = Hashable
 _WAIT = (0, 0)
 _EPS = 1e-9
 BACKENDS = ("numba", "python")
-
-
-_MASK_MEMOS: weakref.WeakKeyDictionary[NavGrid, dict[int, list[tuple[int, int]]]] = weakref.WeakKeyDictionary()
 
 
 class PlanningError(ValueError):
@@ -282,7 +278,7 @@ class PathPlanner:
                         mask |= 1 << (5 * dx + dy + 6)
             self._mask_of.append(mask)
         # shared by the planners of one grid (the masks depend only on the grid's cells and radius)
-        self._near_mask_memo: dict[int, list[tuple[int, int]]] = _MASK_MEMOS.setdefault(self.grid, {})
+        self._near_mask_memo: dict[int, list[tuple[int, int]]] = self.grid.near_mask_memo
 
     def _build_dense_tables(self) -> None:
         """The search tables as arrays for the compiled kernels (``sim.paths.astar_kernel``)."""

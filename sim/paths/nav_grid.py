@@ -95,6 +95,12 @@ class NavGrid:
     clearance_height: float = DEFAULT_CLEARANCE_HEIGHT
     _reference_offset: tuple[int, int] | None = field(default=None, repr=False)
 
+    @cached_property
+    def near_mask_memo(self) -> dict[int, list[tuple[int, int]]]:
+        """A memo the path planners of this grid share (``sim.paths.cooperative_astar``: the
+        cells a clearance mask covers); it depends only on the grid's cells and radius."""
+        return {}
+
     @property
     def shape(self) -> tuple[int, int]:
         return (int(self.free.shape[0]), int(self.free.shape[1]))
