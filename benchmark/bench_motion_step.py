@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from benchmark.bench_world import OFFICE, REFERENCE, IdleErrands
+from orchestrator.cache_paths import motion_cache_dir
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
 from sim.paths.nav_grid import build_nav_grid
@@ -125,7 +126,7 @@ def main() -> None:
     args = ap.parse_args()
     if not REFERENCE.found:
         raise SystemExit(REFERENCE.reason)
-    dbs = load_databases()
+    dbs = load_databases(cache_dir=motion_cache_dir())
     for db in dbs.values():
         db.index  # noqa: B018
         db.entry_index  # noqa: B018

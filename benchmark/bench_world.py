@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.reference_data import locate_reference
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MotionMatcher, MotionQuery, Pose
@@ -281,7 +282,7 @@ def main() -> None:
 
     office = load_scene(OFFICE)
     t0 = time.perf_counter()
-    dbs = load_databases()
+    dbs = load_databases(cache_dir=motion_cache_dir())
     for db in dbs.values():  # build the search indexes now, outside the timed runs
         db.index  # noqa: B018
         db.entry_index  # noqa: B018

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from benchmark.bench_world import OFFICE, REFERENCE, IdleErrands
+from orchestrator.cache_paths import motion_cache_dir
 from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher
 from sim.paths.cooperative_astar import PathPlanner, PlanResult
@@ -106,7 +107,7 @@ def main() -> None:
     CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
     scene = load_scene(OFFICE)
     grid = build_nav_grid(scene)
-    dbs = load_databases()
+    dbs = load_databases(cache_dir=motion_cache_dir())
     for db in dbs.values():
         db.index  # noqa: B018
         db.entry_index  # noqa: B018

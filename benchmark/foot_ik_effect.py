@@ -58,6 +58,7 @@ def main() -> None:
     args = ap.parse_args()
 
     crowd = _crowd_module()
+    from orchestrator.cache_paths import motion_cache_dir
     from sim.motion.database import load_databases
     from sim.motion.matching import MotionMatcher
 
@@ -67,7 +68,7 @@ def main() -> None:
     frames = round(args.seconds * 30)
     t0 = time.perf_counter()
     world, before = crowd.simulate_crowd(scene, args.walkers, frames, args.seed,
-                                         MotionMatcher(load_databases()), off_grid=args.off_grid, foot_ik=False)
+                                         MotionMatcher(load_databases(cache_dir=motion_cache_dir())), off_grid=args.off_grid, foot_ik=False)
     t_world = time.perf_counter() - t0
 
     b = world.buffers.trimmed()

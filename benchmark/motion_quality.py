@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.reference_data import locate_mocap, locate_reference
 from sim.body.skeleton import forward_kinematics
 from sim.motion.clips import FOOT_JOINTS, MotionClip
@@ -120,7 +121,7 @@ def real_clips(config: MotionConfig, labels: Iterable[str] | None = None) -> dic
     out: dict[str, list[MotionClip]] = {}
     for entry in config.clips:
         if wanted is None or entry.key in wanted:
-            out.setdefault(entry.key, []).append(import_entry(config, entry))
+            out.setdefault(entry.key, []).append(import_entry(config, entry, motion_cache_dir()))
     return out
 
 
@@ -209,8 +210,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"synthesized comparison skipped: {REFERENCE.reason}")
             return 0
         t0 = time.perf_counter()
-        proc = simulate_walkers(MotionMatcher(load_databases()), args.walkers, args.seconds, args.seed)
-        real = simulate_walkers(MotionMatcher(build_databases_from_config(config)), args.walkers, args.seconds, args.seed)
+        proc = simulate_walkers(MotionMatcher(load_databases(cache_dir=motion_cache_dir())), args.walkers, args.seconds, args.seed)
+        real = simulate_walkers(MotionMatcher(build_databases_from_config(config, cache_dir=motion_cache_dir())), args.walkers, args.seconds, args.seed)
         print(f"\nsynthesized: {args.walkers} walkers, {args.seconds:g} s in Office, procedural vs real-mocap "
               f"databases ({time.perf_counter() - t0:.1f} s)")
         print(format_table([("walkers", proc, real)]))

@@ -12,9 +12,10 @@ import math
 
 import numpy as np
 
-from sim.paths.nav_grid import body_clearance, body_clearance_reference, build_nav_grid
+from sim.paths.nav_grid import body_clearance, build_nav_grid
 from sim.scene.files import load_scene
 from sim.scene.model import SceneObject
+from tests.support.clearance_reference import body_clearance_reference
 from tests.support.reference import OFFICE, reference_or_skip
 
 

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from orchestrator.cache_paths import motion_cache_dir
 from sim.body.skeleton import forward_kinematics
 from sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
 from sim.paths.nav_grid import body_clearance
@@ -199,7 +200,7 @@ def crowd() -> tuple[World, CrowdReport]:
     from sim.motion.matching import MotionMatcher
 
     scene = load_scene(OFFICE)
-    return simulate_crowd(scene, n=50, frames=1800, seed=7, motion=MotionMatcher(load_databases()), off_grid=0.0)
+    return simulate_crowd(scene, n=50, frames=1800, seed=7, motion=MotionMatcher(load_databases(cache_dir=motion_cache_dir())), off_grid=0.0)
 
 
 @pytest.mark.slow
@@ -226,7 +227,7 @@ def test_off_grid_targets_keep_feet_out_of_furniture() -> None:
     from sim.motion.database import load_databases
     from sim.motion.matching import MotionMatcher
 
-    _, report = simulate_crowd(load_scene(OFFICE), n=20, frames=600, seed=3, motion=MotionMatcher(load_databases()),
+    _, report = simulate_crowd(load_scene(OFFICE), n=20, frames=600, seed=3, motion=MotionMatcher(load_databases(cache_dir=motion_cache_dir())),
                                off_grid=0.12)
     assert report.overlap_frames == 0 and report.pelvis_penetrations == 0, report.lines()
     assert report.feet_in_boxes == 0, report.lines()
@@ -259,6 +260,6 @@ if __name__ == "__main__":
 
     t0 = time.perf_counter()
     for off in (0.0, 0.12):
-        _, rep = simulate_crowd(load_scene(OFFICE), 50, 1800, 7, MotionMatcher(load_databases()), off_grid=off)
+        _, rep = simulate_crowd(load_scene(OFFICE), 50, 1800, 7, MotionMatcher(load_databases(cache_dir=motion_cache_dir())), off_grid=off)
         print(f"off_grid {off} m\n{rep.lines()}")
     print(f"wall time {time.perf_counter() - t0:.1f} s")

@@ -13,7 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import BODY_TO_WORLD, JOINT_NAMES, PARENTS, REST_OFFSETS
 from sim.export.bvh import END_SITES, bvh_text, depth_first_order, export_bvh
-from sim.world.character_track import CharacterTrack, random_track
+from sim.world.character_track import CharacterTrack
+from tests.support.random_tracks import random_track
 
 _AXES = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
 

@@ -22,7 +22,8 @@ from sim.body.skeleton import (
 from sim.export.bundle import export_run, file_slug
 from sim.export.glb import box_mesh, character_mesh, export_glb, glb_bytes
 from sim.scene.model import Scene, SceneObject
-from sim.world.character_track import CharacterTrack, random_track
+from sim.world.character_track import CharacterTrack
+from tests.support.random_tracks import random_track
 
 _NUMPY = {
     gl.FLOAT: np.float32,

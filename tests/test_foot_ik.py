@@ -24,6 +24,7 @@ from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, _ik_kernel
 from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, forward_kinematics, heading_to_root
 from sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
 from sim.scene.model import Scene, SceneObject
+from tests.support.foot_reference import apply_numpy
 
 _NO_BOXES = Footprints(*(np.zeros((0, 2)) for _ in range(4)))
 OTHERS = [j for j in range(NUM_JOINTS) if j not in LEG_JOINTS]
@@ -415,7 +416,7 @@ def test_compiled_apply_equals_the_array_steps(release_frames: int) -> None:
     for f in range(60):
         p = pelvis + 0.02 * f * heading
         a, fast = solver.apply(p, rots, contacts[f], fast, active=active[f])
-        b, slow = solver.apply_numpy(p, rots, contacts[f], slow, active=active[f])
+        b, slow = apply_numpy(solver, p, rots, contacts[f], slow, active=active[f])
         assert np.allclose(a, b, rtol=0.0, atol=1e-12)
         for name in ("locked", "release", "drifted"):
             assert np.array_equal(getattr(fast, name), getattr(slow, name)), (f, name)

@@ -125,17 +125,18 @@ def test_amass_npz_round_trip(tmp_path: Path) -> None:
 
 
 @requires_mocap
-def test_config_builds_databases_from_real_mocap(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))
+def test_config_builds_databases_from_real_mocap(tmp_path: Path) -> None:
+    cache = tmp_path / "cache" / "motion"
     cfg = tmp_path / "motion.toml"
     cfg.write_text(f'root = "{MOCAP.as_posix()}"\n[[clips]]\nfile = "cmu/daz/07_03.bvh"\nlabel = "walk"\nstart = 1\n'
                    '[[clips]]\nfile = "fair_animated_drawings/wave_hello.bvh"\nlabel = "wave"\n')
     config = load_motion_config(cfg)
-    dbs = build_databases_from_config(config, ["walk", "wave", "chat"])
+    dbs = build_databases_from_config(config, ["walk", "wave", "chat"], cache_dir=cache)
     assert dbs["walk"].clip_names == ("07_03[1:416]",)
     assert dbs["wave"].num_frames > 150
     assert dbs["chat"].clip_names == ("chat_proc",)  # procedural fill-in
-    again = build_databases_from_config(config, ["walk"])  # cached import
+    assert len(list(cache.glob("*.npz"))) == 3  # two imports, the procedural chat database
+    again = build_databases_from_config(config, ["walk"], cache_dir=cache)  # cached import
     assert np.allclose(again["walk"].pelvis, dbs["walk"].pelvis)
 
 

@@ -138,8 +138,7 @@ def test_two_bone_ik_reaches_reachable_targets(target: list[float]) -> None:
     assert np.linalg.norm(mid) == pytest.approx(0.4) and np.linalg.norm(end - mid) == pytest.approx(0.4)
 
 
-def test_cache_builds_once_and_honours_env(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path))
+def test_cache_builds_once_in_the_folder_given(tmp_path: Path) -> None:
     calls = []
 
     def build() -> dict[str, np.ndarray]:
@@ -147,10 +146,13 @@ def test_cache_builds_once_and_honours_env(tmp_path: Path, monkeypatch: pytest.M
         return {"x": np.arange(3)}
 
     payload = {"v": 1}
-    assert np.array_equal(cached_arrays(payload, build)["x"], np.arange(3))
-    assert np.array_equal(cached_arrays(payload, build)["x"], np.arange(3))
+    folder = tmp_path / "motion"
+    assert np.array_equal(cached_arrays(payload, build, folder)["x"], np.arange(3))
+    assert np.array_equal(cached_arrays(payload, build, folder)["x"], np.arange(3))
     assert len(calls) == 1
     path = tmp_path / "motion" / f"{content_key(payload)}.npz"
     assert path.exists()
     path.write_bytes(b"garbage")  # a corrupt entry is rebuilt
-    assert np.array_equal(cached_arrays(payload, build)["x"], np.arange(3)) and len(calls) == 2
+    assert np.array_equal(cached_arrays(payload, build, folder)["x"], np.arange(3)) and len(calls) == 2
+    assert np.array_equal(cached_arrays(payload, build, None)["x"], np.arange(3)) and len(calls) == 3  # no cache
+    assert [p.name for p in folder.iterdir()] == [path.name]

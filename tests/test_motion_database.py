@@ -60,12 +60,12 @@ def test_search_finds_the_frame_a_query_was_taken_from(walk_db) -> None:  # type
         assert np.array_equal(walk_db.raw_features[frame], walk_db.raw_features[i])
 
 
-def test_cached_databases_equal_fresh_ones(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path))
+def test_cached_databases_equal_fresh_ones(tmp_path: Path) -> None:
     keys = ["handshake", "sit_idle"]
-    fresh = load_databases(keys, use_cache=False)
-    first = load_databases(keys)
-    again = load_databases(keys)
+    fresh = load_databases(keys)  # no cache folder: nothing written
+    first = load_databases(keys, cache_dir=tmp_path / "motion")
+    again = load_databases(keys, cache_dir=tmp_path / "motion")
+    assert [p.name for p in tmp_path.iterdir()] == ["motion"]
     assert len(list((tmp_path / "motion").glob("*.npz"))) == 2
     for k in keys:
         assert np.allclose(fresh[k].local_rotations, again[k].local_rotations, atol=1e-6)

@@ -17,6 +17,7 @@ from benchmark.motion_quality import (
     shipped_config,
     simulate_walkers,
 )
+from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.reference_data import DEFAULT_MOCAP, PROJECT_ROOT
 from sim.motion.config import load_motion_config
 from sim.motion.database import load_databases
@@ -110,7 +111,7 @@ def test_real_walks_against_procedural_walks(tmp_path: Path, monkeypatch: pytest
 
 @requires_reference
 def test_synthesized_walkers_are_measured() -> None:
-    stats = simulate_walkers(MotionMatcher(load_databases(["walk", "idle"])), 1, 4.0, seed=3)
+    stats = simulate_walkers(MotionMatcher(load_databases(["walk", "idle"], cache_dir=motion_cache_dir())), 1, 4.0, seed=3)
     assert stats.frames == 120
     assert 0.0 <= stats.slide < 1.0 and stats.speed > 0.05
     assert stats.floor > -0.1

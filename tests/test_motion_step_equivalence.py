@@ -18,6 +18,7 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
+from orchestrator.cache_paths import motion_cache_dir
 from sim.body.skeleton import forward_kinematics
 from sim.motion.database import NearestFrameIndex, load_databases, squared_distances
 from sim.motion.inertialization import rotation_exp, rotation_log
@@ -37,7 +38,7 @@ KEYS = ["walk", "idle", "chat", "turn_on_tv", "sit_down", "sit_idle", "drink@sea
 
 @pytest.fixture(scope="module")
 def dbs():  # type: ignore[no-untyped-def]
-    return load_databases(KEYS)
+    return load_databases(KEYS, cache_dir=motion_cache_dir())
 
 
 def _walk_query(x: float, y: float, heading: float, speed: float, turn: float = 0.0,
@@ -160,7 +161,7 @@ def test_a_changed_step_is_caught(dbs) -> None:  # type: ignore[no-untyped-def]
 def test_crowd_run_matches_the_reference_step() -> None:
     from benchmark.bench_motion_step import record, replay  # the bench_world-like crowd
 
-    all_dbs = load_databases()
+    all_dbs = load_databases(cache_dir=motion_cache_dir())
     rec = record(all_dbs, 6, 75, seed=3)
     _, ref = replay(ReferenceMotionMatcher(all_dbs), rec)
     _, new = replay(MotionMatcher(all_dbs), rec)

@@ -1,7 +1,7 @@
 """Batched path following gives the very floats of the one-walker-at-a-time code.
 
-``sim.paths.tracks.path_tracks`` (compiled) against ``track_reference`` (numpy, one path), and
-``CrowdNavigator``'s batched reads (``futures``, the positions ``tick`` returns) against its
+``sim.paths.tracks.path_tracks`` (compiled) against ``tests.support.path_reference.track_reference``
+(numpy, one path), and ``CrowdNavigator``'s batched reads (``futures``, the positions ``tick`` returns) against its
 per-agent ``future`` / ``_xy_at``, in a crowd that walks, takes exact off-grid legs and parks.
 """
 
@@ -14,9 +14,10 @@ import numpy as np
 from sim.paths.cooperative_astar import PathPlanner
 from sim.paths.following import CrowdNavigator, _moved, close_xy
 from sim.paths.nav_grid import build_nav_grid
-from sim.paths.tracks import path_tracks, track_reference, walker_headings
+from sim.paths.tracks import path_tracks, walker_headings
 from sim.scene.model import Scene, SceneObject
 from sim.world.phases import wrap_angle
+from tests.support.path_reference import track_reference
 
 
 def test_compiled_tracks_equal_the_reference_bit_for_bit() -> None:

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
+from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.session.runtime import (
     Outcome,
     PlanningRequest,
@@ -32,7 +33,7 @@ FPS = 30
 
 @pytest.fixture(scope="module")
 def motion() -> MotionMatcher:
-    return MotionMatcher(load_databases())
+    return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from orchestrator.cache_paths import motion_cache_dir
 from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
 from sim.motion.matching import MotionQuery, Pose
 from sim.paths.cooperative_astar import PathPlanner
@@ -290,7 +291,7 @@ def test_real_motion_matcher_drives_the_bodies_and_tracks_export(office, tmp_pat
 
     scene, grid, planner = office
     cells = _free_cells(office)
-    w = World(scene, {"ann": (_cell_xy(office, *cells[0]), 0.0)}, MotionMatcher(load_databases(["idle", "walk"])),
+    w = World(scene, {"ann": (_cell_xy(office, *cells[0]), 0.0)}, MotionMatcher(load_databases(["idle", "walk"], cache_dir=motion_cache_dir())),
               grid=grid, planner=planner)
     run(w, 90, {0: [AssignEvent(event_id="e", assignments=(_go("ann", _cell_xy(office, *cells[80])),))]})
     t = w.tracks()["ann"]
@@ -393,7 +394,7 @@ def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office) -> No
 
     scene, grid, planner = office
     cells = _free_cells(office)
-    matcher = MotionMatcher(load_databases(["idle", "walk"]))
+    matcher = MotionMatcher(load_databases(["idle", "walk"], cache_dir=motion_cache_dir()))
     chars = {"ann": (_cell_xy(office, *cells[0]), 0.0), "bob": (_cell_xy(office, *cells[60]), 1.0)}
     cmds = {0: [AssignEvent(event_id="a", assignments=(_go("ann", _cell_xy(office, *cells[200])),)),
                 AssignEvent(event_id="b", assignments=(_go("bob", _cell_xy(office, *cells[5])),))]}
@@ -436,12 +437,12 @@ def test_many_short_events_and_a_reused_event_id_start_and_leave_no_queue_behind
                       commands=[AssignEvent(event_id=eid, assignments=(_go("ann", here, "wave"),))])
         assert outs[-1].completed_events == (eid,)
         assert any(o.started_events == (eid,) for o in outs)
-        assert w._waiting_to_start == {}
+        assert w.start_queue == {}
     assert set(w.events) == {"e0", "again", "e2", "e4"} and all(e.status == "completed" for e in w.events.values())
     # an assigned, not yet started event survives a snapshot round trip in the queue
     far = _cell_xy(office, *cells[80])
     step(w, [AssignEvent(event_id="walk", assignments=(_go("ann", far),))], w.dt)
     back = w.restore(w.snapshot())
-    assert back._waiting_to_start == w._waiting_to_start == {"walk": None}
+    assert back.start_queue == w.start_queue == {"walk": None}
     _until(back, lambda o: o.started_events == ("walk",))
-    assert back._waiting_to_start == {} and w._waiting_to_start == {"walk": None}
+    assert back.start_queue == {} and w.start_queue == {"walk": None}

@@ -215,7 +215,7 @@ def test_world_output_matches_the_recorded_fingerprint(result) -> None:  # type:
 
 
 def test_the_worlds_query_constructor_builds_the_same_queries() -> None:
-    from sim.world.step import _new_query
+    from sim.world.frame_assembly import _new_query
 
     kw: dict[str, Any] = dict(label="walk", seated=False, root_xy=np.array([1.0, 2.0]), heading=0.5,
                               future_xy=np.zeros((3, 2)), future_heading=np.ones(3), target_xy=None, target_facing=None,
@@ -231,7 +231,7 @@ def test_the_worlds_query_constructor_builds_the_same_queries() -> None:
 def test_poses_without_contact_flags_give_no_contacts() -> None:
     from types import SimpleNamespace
 
-    from sim.world.step import _contacts_of
+    from sim.world.frame_assembly import _contacts_of
 
     poses = [SimpleNamespace(contacts=np.array([True, False])), SimpleNamespace(contacts=None), SimpleNamespace()]
     assert _contacts_of(poses).tolist() == [[True, False], [False, False], [False, False]]

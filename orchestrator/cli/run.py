@@ -292,16 +292,17 @@ async def _run(
 
 
 def _motion_layer(motion_config: Path | None) -> Any:
+    from orchestrator.cache_paths import motion_cache_dir
     from sim.motion.database import load_databases
     from sim.motion.matching import MotionMatcher
 
     if motion_config is None:
-        return MotionMatcher(load_databases())
+        return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
     from sim.motion.config import build_databases_from_config, load_motion_config
 
     try:
         cfg = load_motion_config(motion_config)
-        return MotionMatcher(build_databases_from_config(cfg))
+        return MotionMatcher(build_databases_from_config(cfg, cache_dir=motion_cache_dir()))
     except (ValueError, OSError) as exc:
         raise _UserError(str(exc)) from None
 

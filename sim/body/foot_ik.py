@@ -49,8 +49,6 @@ from sim.body.leg_ik import (
     SHIN_LENGTH,
     THIGH_LENGTH,
     FootIKError,
-    LegChain,
-    solve_chain,
     solve_legs,
 )
 from sim.body.skeleton import NUM_JOINTS
@@ -95,14 +93,6 @@ class FootState:
     @property
     def characters(self) -> int:
         return int(self.locked.shape[0])
-
-
-_REACH_EPS = 1e-9  # m: reach comparisons of a lock start
-
-
-def _smoothstep(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
 
 
 class FootSolver:
@@ -166,66 +156,3 @@ class FootSolver:
             self.max_reach * (THIGH_LENGTH + SHIN_LENGTH), THIGH_LENGTH, SHIN_LENGTH, self.max_drift,
             self.release_frames, fp.centers, fp.rights, fp.facings, fp.halves, self.passes)
         return out, FootState(locked=locked, lock=lock, offset=offset, release=release, drifted=drifted)
-
-    def apply_numpy(self, pelvis: NDArray[np.float64], rots: NDArray[np.float64], contacts: NDArray[np.float64], state: FootState,
-                    active: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], FootState]:
-        """``apply`` as array steps (the reference of the compiled ``sim.body.foot_kernel.apply_frame``;
-        same results to rounding). Inputs are not checked here."""
-        pelvis = np.asarray(pelvis, dtype=np.float64)
-        rots = np.asarray(rots, dtype=np.float64)
-        contacts = np.asarray(contacts)
-        n = len(pelvis)
-        act = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool).reshape(n)
-        contact = contacts.astype(bool) & act[:, None]
-
-        chain = LegChain(pelvis, rots)
-        toe = chain.toe  # (N, 2, 3)
-        foot = toe - chain.ankle  # the foot keeps its animated world orientation
-
-        # pinning: release, blend, lock
-        full = self.max_reach * (THIGH_LENGTH + SHIN_LENGTH)  # (2,) left, right
-        drift = np.linalg.norm(state.lock - toe, axis=-1)
-        overreach = np.linalg.norm(state.lock - foot - chain.hip, axis=-1) > full
-        lost = state.locked & ~contact
-        drifted_now = state.locked & contact & ((drift > self.max_drift) | overreach)
-        released = lost | drifted_now
-        offset = np.where(released[..., None], state.lock - toe, state.offset)
-        release = np.where(released, self.release_frames,
-                           np.where(state.locked, 0, np.maximum(state.release - 1, 0)))
-        locked = state.locked & ~released
-        drifted = (state.drifted | drifted_now) & contact & (release > 0)
-        weight = _smoothstep(release / self.release_frames) if self.release_frames > 0 else np.zeros(release.shape)
-        offset = np.where((release > 0)[..., None], offset, 0.0)
-        target = np.where(locked[..., None], state.lock, toe + offset * weight[..., None])
-        # a pinned or blending foot stays within max_reach of the leg (or the animation's own
-        # reach, if longer), pulled towards the hip: the IK then seldom straightens the knee
-        ankle_to = target - foot - chain.hip
-        dist = np.linalg.norm(ankle_to, axis=-1)
-        limit = np.maximum(full, np.linalg.norm(chain.ankle - chain.hip, axis=-1))
-        far = dist > limit
-        if far.any():
-            scale = np.where(far, limit / np.maximum(dist, 1e-12), 1.0)[..., None]
-            target = np.where(far[..., None], chain.hip + ankle_to * scale + foot, target)
-
-        # clearance: the rigid foot (ankle, toe) out of every footprint, horizontally
-        shift = np.zeros((n, 2, 2))
-        if len(self.footprints) and act.any():
-            pts = np.stack([target - foot, target], axis=2)[act][..., :2]  # (A, 2 feet, 2 points, 2)
-            shift[act] = push_out(pts.reshape(-1, 2, 2), self.footprints, self.passes).reshape(-1, 2, 2)
-        target = target.copy()
-        target[..., :2] += shift
-
-        # (a target clamped to the reach sits on it up to rounding: a tolerance keeps that a start)
-        start = contact & ~locked & ~drifted & (np.linalg.norm(target - foot - chain.hip, axis=-1) <= full + _REACH_EPS)
-        lock = np.where(start[..., None], target, state.lock)
-        locked = locked | start
-        release = np.where(start, 0, release)
-        offset = np.where(start[..., None], 0.0, offset)
-        new_state = FootState(locked=locked, lock=np.where(locked[..., None], lock, 0.0),
-                              offset=offset, release=release, drifted=drifted)
-
-        # every leg of an active character goes through the IK (a leg whose target is its own
-        # ankle comes back as it was, up to rounding, unless its knee bent backwards), so a
-        # lock or a push never switches the knee rule on in the middle of a stride
-        solve = (np.linalg.norm(target - toe, axis=-1) > 0.0) | act[:, None]
-        return solve_chain(chain, rots, target - foot, solve), new_state

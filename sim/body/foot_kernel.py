@@ -4,9 +4,9 @@
 state machine, the reach clamp, the footprint push, lock starts, the IK); on a crowd of ten
 characters each step costs more in numpy call overhead than in arithmetic. ``apply_frame``
 does the same steps per character and leg in one numba kernel, calling the same compiled
-push-out and IK kernels (``sim.body.foot_clearance``, ``sim.body.leg_ik``). ``FootSolver.apply_numpy``
-keeps the array version; ``tests/test_foot_ik.py`` checks both give the same rotations and
-states (to 1e-12) on a recorded crowd.
+push-out and IK kernels (``sim.body.foot_clearance``, ``sim.body.leg_ik``). The array version is
+kept as a test oracle (``tests/support/foot_reference.py``); ``tests/test_foot_ik.py`` checks
+both give the same rotations and states (to 1e-12) on a recorded crowd.
 """
 
 from __future__ import annotations
@@ -46,7 +46,8 @@ def apply_frame(
     centers: NDArray[np.float64], rights: NDArray[np.float64], facings: NDArray[np.float64], halves: NDArray[np.float64], passes: int,
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:  # pragma: no cover
     """(rotations, locked, lock, offset, release, drifted) after one frame; see
-    ``FootSolver.apply_numpy`` for the steps (the same, per character and leg)."""
+    ``apply_numpy`` in ``tests/support/foot_reference.py`` for the steps (the same, per character
+    and leg)."""
     n = pelvis.shape[0]
     out = rots.copy()
     n_locked = np.zeros((n, 2), dtype=np.bool_)
@@ -140,7 +141,7 @@ def apply_frame(
         for leg in range(2):
             contact = contacts[c, leg] and act[c]
             reach = _norm3(target[c, leg] - foot[c, leg] - hip[c, leg])
-            start = contact and not n_locked[c, leg] and not n_drifted[c, leg] and reach <= full[leg] + 1e-9  # as _REACH_EPS
+            start = contact and not n_locked[c, leg] and not n_drifted[c, leg] and reach <= full[leg] + 1e-9  # m: reach tolerance of a lock start
             lk = target[c, leg].copy() if start else lock[c, leg].copy()
             if start:
                 n_locked[c, leg] = True

@@ -1,8 +1,9 @@
 """Content-addressed on-disk cache of generated motion arrays (``.npz``).
 
-Entries live in ``$STORYTELLER_CACHE_DIR`` (if set) or ``~/.cache/storyteller/motion`` and are
-named by the SHA-256 of a JSON description of what produced them (generator version,
-parameters, input file hashes). A missing or unreadable entry is rebuilt; writes are atomic
+Entries live in the folder the caller passes in (the application's default,
+``$STORYTELLER_CACHE_DIR/motion`` or ``~/.cache/storyteller/motion``, is chosen at the edge:
+``orchestrator.cache_paths``; ``None`` means no disk cache) and are named by the SHA-256 of a
+JSON description of what produced them (generator version, parameters, input file hashes). A missing or unreadable entry is rebuilt; writes are atomic
 (temporary file + rename), so concurrent builders never see half-written files.
 """
 
@@ -18,14 +19,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-CACHE_ENV = "STORYTELLER_CACHE_DIR"
-
-
-def cache_dir() -> Path:
-    """The motion cache directory (not created)."""
-    root = os.environ.get(CACHE_ENV)
-    return Path(root) / "motion" if root else Path.home() / ".cache" / "storyteller" / "motion"
 
 
 def content_key(payload: Mapping[str, Any]) -> str:
@@ -45,10 +38,13 @@ def file_sha256(path: str | Path) -> str:
 def cached_arrays(
     payload: Mapping[str, Any],
     build: Callable[[], dict[str, np.ndarray]],
-    directory: Path | None = None,
+    directory: Path | None,
 ) -> dict[str, np.ndarray]:
-    """Load the arrays for ``payload`` from the cache, or build, store and return them."""
-    folder = directory if directory is not None else cache_dir()
+    """Load the arrays for ``payload`` from the cache folder ``directory``, or build, store and
+    return them; ``directory=None``: no disk cache (build and return)."""
+    if directory is None:
+        return build()
+    folder = directory
     path = folder / f"{content_key(payload)}.npz"
     if path.exists():
         try:
@@ -61,7 +57,8 @@ def cached_arrays(
         folder.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
+            named: dict[str, Any] = dict(arrays)  # savez's stub reads ** as allow_pickle
+            np.savez(f, **named)
         os.replace(tmp, path)
     except OSError:
         pass  # a read-only cache only costs rebuild time

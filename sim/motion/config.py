@@ -16,7 +16,8 @@ Example::
     mapping = { spine3 = "chest" }    # BVH joint-name overrides (our name = file name)
 
 Labels the config does not cover keep their procedural clips. Imported clips are cached on
-disk keyed by the file's SHA-256 and the clip parameters.
+disk (in the folder the caller passes, if any) keyed by the file's SHA-256 and the clip
+parameters.
 """
 
 from __future__ import annotations
@@ -108,8 +109,9 @@ def load_motion_config(path: str | Path) -> MotionConfig:
         raise MotionConfigError(path, str(exc), "clips.label") from None
 
 
-def import_entry(config: MotionConfig, entry: ClipEntry, use_cache: bool = True) -> MotionClip:
-    """Import one configured clip (BVH or npz by extension), cached by file content."""
+def import_entry(config: MotionConfig, entry: ClipEntry, cache_dir: Path | None = None) -> MotionClip:
+    """Import one configured clip (BVH or npz by extension), cached by file content in the folder
+    ``cache_dir`` (None: no disk cache)."""
     path = config.resolve(entry)
     if not path.is_file():
         raise MotionConfigError(path, "clip file not found", "clips.file")
@@ -122,7 +124,7 @@ def import_entry(config: MotionConfig, entry: ClipEntry, use_cache: bool = True)
             return import_amass(path, entry.key, start=entry.start, end=entry.end, fps=entry.fps, loops=entry.loops)
         raise MotionConfigError(path, "expected a .bvh or .npz file", "clips.file")
 
-    if not use_cache:
+    if cache_dir is None:
         return build()
     payload = {"importer": IMPORTER_VERSION, "sha256": file_sha256(path), "entry": entry.model_dump()}
     holder: list[MotionClip] = []
@@ -133,7 +135,7 @@ def import_entry(config: MotionConfig, entry: ClipEntry, use_cache: bool = True)
         return {"local_rotations": clip.local_rotations, "pelvis": clip.pelvis, "root_xy": clip.root_xy,
                 "heading": clip.heading, "contacts": clip.contacts, "target": clip.target}
 
-    a = cached_arrays(payload, arrays)
+    a = cached_arrays(payload, arrays, cache_dir)
     if holder:
         return holder[0]
     return MotionClip(f"{path.stem}[{entry.start}:{entry.end}]", entry.key, a["local_rotations"], a["pelvis"],
@@ -142,17 +144,18 @@ def import_entry(config: MotionConfig, entry: ClipEntry, use_cache: bool = True)
 
 
 def build_databases_from_config(
-    config: MotionConfig | None, keys: Iterable[str] | None = None, use_cache: bool = True
+    config: MotionConfig | None, keys: Iterable[str] | None = None, cache_dir: Path | None = None
 ) -> dict[str, MotionDatabase]:
-    """Databases for ``keys`` with the config's clips; procedural clips fill the rest."""
+    """Databases for ``keys`` with the config's clips; procedural clips fill the rest. Imports and
+    procedural databases are cached in the folder ``cache_dir`` (None: no disk cache)."""
     extra: dict[str, list[MotionClip]] = {}
     weights = FeatureConfig()
     if config is not None:
         key_set = None if keys is None else set(keys)
         for entry in config.clips:
             if key_set is None or entry.key in key_set:
-                extra.setdefault(entry.key, []).append(import_entry(config, entry, use_cache))
+                extra.setdefault(entry.key, []).append(import_entry(config, entry, cache_dir))
         if config.weights:
             weights = FeatureConfig({**weights.weights, **config.weights})
     return load_databases(keys, config=weights, extra_clips=extra,
-                          replace_procedural=config.replace_procedural if config else True, use_cache=use_cache)
+                          replace_procedural=config.replace_procedural if config else True, cache_dir=cache_dir)

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -181,6 +183,10 @@ class MotionDatabase:
     scale: NDArray[np.float64]
     searchable: NDArray[np.float64]
     _index: list[NearestFrameIndex] = field(default_factory=list, repr=False, compare=False)
+    derived: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+    """Data other modules compute once from this database's arrays and keep here, keyed by
+    what it is (``sim.motion.frames``: frames, frame tables, frame stores); it lives and dies
+    with the database."""
 
     @property
     def num_frames(self) -> int:
@@ -363,13 +369,14 @@ def load_databases(
     config: FeatureConfig | None = None,
     extra_clips: Mapping[str, Sequence[MotionClip]] | None = None,
     replace_procedural: bool = True,
-    use_cache: bool = True,
+    cache_dir: Path | None = None,
 ) -> dict[str, MotionDatabase]:
     """Databases for ``keys`` (default: every label and seated variant).
 
     ``extra_clips`` (e.g. imported mocap) are used for their keys; with ``replace_procedural``
     they replace the procedural clips of those keys, otherwise they are added. Databases made
-    only of procedural clips are cached on disk by content hash.
+    only of procedural clips are cached by content hash in the folder ``cache_dir`` (None: no
+    disk cache; the application's folder is ``orchestrator.cache_paths.motion_cache_dir()``).
     """
     config = config or FeatureConfig()
     extra = dict(extra_clips or {})
@@ -383,14 +390,14 @@ def load_databases(
             continue
         payload = {"generator": GENERATOR_VERSION, "key": key, "weights": config.weights,
                    "layout": FEATURE_LAYOUTS[layout_for_key(key)], "joints": NUM_JOINTS}
-        if not use_cache:
+        if cache_dir is None:
             out[key] = build_database(key, procedural_clips(key), config)
             continue
 
         def build(key: str = key) -> dict[str, NDArray[np.float64]]:
             return build_database(key, procedural_clips(key), config).arrays()
 
-        arrays = cached_arrays(payload, build)
+        arrays = cached_arrays(payload, build, cache_dir)
         out[key] = MotionDatabase.from_arrays(arrays)
     return out
 

@@ -4,13 +4,13 @@
 frame pairs and inertialization velocities; ``FrameTable``: next-frame / clip facts as Python
 lists; ``StepDatabase``: both plus the feature-layout gather and the database's place in a
 ``FrameStore``, the frames of a set of databases in one array per quantity for the compiled
-step (``sim.motion.kernels``). Frames, tables and stores are memoised per database content
-object (the frame-rotation array), so matchers over the same databases share them.
+step (``sim.motion.kernels``). Frames, tables and stores are computed once and kept by the
+database they come from (``MotionDatabase.derived``), so matchers over the same database objects
+share them and they go away with the databases.
 """
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -87,20 +87,12 @@ def database_frames(db: MotionDatabase) -> DatabaseFrames:
     return DatabaseFrames(rot, pelvis, a, b, clip_z.reshape(-1, 2))
 
 
-_FRAMES_CACHE: dict[int, tuple[weakref.ref[np.ndarray], DatabaseFrames]] = {}
-
-
 def shared_frames(db: MotionDatabase) -> DatabaseFrames:
-    """``database_frames`` memoised per database content object (the frame-rotation array, which
-    wrappers of the same database share), so matchers built over the same databases reuse it."""
-    arr = db.local_rotations
-    hit = _FRAMES_CACHE.get(id(arr))
-    if hit is not None and hit[0]() is arr:
-        return hit[1]
-    for k in [k for k, (ref, _f) in _FRAMES_CACHE.items() if ref() is None]:
-        del _FRAMES_CACHE[k]  # databases that are gone
-    out = database_frames(db)
-    _FRAMES_CACHE[id(arr)] = (weakref.ref(arr), out)
+    """``database_frames`` of ``db``, computed once and kept by the database (``derived``), so
+    matchers built over the same databases reuse it."""
+    out: DatabaseFrames | None = db.derived.get("frames")
+    if out is None:
+        out = db.derived["frames"] = database_frames(db)
     return out
 
 
@@ -133,19 +125,13 @@ def frame_table(db: MotionDatabase, key: str) -> FrameTable:
                       entry=fam in ("in_place", "partner") and not bool(np.asarray(db.clip_loops).all()))
 
 
-_TABLE_CACHE: dict[tuple[int, str], tuple[weakref.ref[np.ndarray], FrameTable]] = {}
-
-
 def shared_table(db: MotionDatabase, key: str) -> FrameTable:
-    """``frame_table`` memoised per database content object and key, as ``shared_frames``."""
-    arr = db.local_rotations
-    hit = _TABLE_CACHE.get((id(arr), key))
-    if hit is not None and hit[0]() is arr:
-        return hit[1]
-    for k in [k for k, (ref, _t) in _TABLE_CACHE.items() if ref() is None]:
-        del _TABLE_CACHE[k]
-    out = frame_table(db, key)
-    _TABLE_CACHE[(id(arr), key)] = (weakref.ref(arr), out)
+    """``frame_table`` of ``db`` for ``key``, computed once and kept by the database, as
+    ``shared_frames``."""
+    name = f"table:{key}"
+    out: FrameTable | None = db.derived.get(name)
+    if out is None:
+        out = db.derived[name] = frame_table(db, key)
     return out
 
 
@@ -213,19 +199,22 @@ class FrameStore:
         return out
 
 
-_STORES: dict[tuple[tuple[str, int], ...], tuple[tuple[weakref.ref[np.ndarray], ...], FrameStore]] = {}
-
-
 def shared_store(databases: Mapping[str, MotionDatabase]) -> FrameStore:
-    """A ``FrameStore`` for ``databases``, memoised per set of database content objects (the
-    frame-rotation arrays, as ``shared_frames``), so matchers over the same databases share it."""
-    arrs = [(k, db.local_rotations) for k, db in sorted(databases.items())]
-    key = tuple((k, id(a)) for k, a in arrs)
-    hit = _STORES.get(key)
-    if hit is not None and all(ref() is a for ref, (_k, a) in zip(hit[0], arrs, strict=True)):
-        return hit[1]
-    for k in [k for k, (refs, _s) in _STORES.items() if any(ref() is None for ref in refs)]:
-        del _STORES[k]  # databases that are gone
-    out = FrameStore(sum(int(db.num_frames) for db in databases.values()))
-    _STORES[key] = (tuple(weakref.ref(a) for _k, a in arrs), out)
+    """A ``FrameStore`` for ``databases``, shared by the matchers over the same database objects
+    under the same keys. The store is kept by the first database in key order
+    (``derived["stores"]``, one entry per set of the other databases it was used with, which the
+    entry holds on to), so it lives as long as the databases do."""
+    items = sorted(databases.items())
+    size = sum(int(db.num_frames) for db in databases.values())
+    if not items:
+        return FrameStore(size)
+    keys = tuple(k for k, _db in items)
+    others = tuple(db for _k, db in items[1:])
+    stores: list[tuple[tuple[str, ...], tuple[MotionDatabase, ...], FrameStore]] = items[0][1].derived.setdefault(
+        "stores", [])
+    for known_keys, known, store in stores:
+        if known_keys == keys and all(a is b for a, b in zip(known, others, strict=True)):
+            return store
+    out = FrameStore(size)
+    stores.append((keys, others, out))
     return out

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import heapq
 import math
-import weakref
 from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal, get_args
@@ -55,9 +54,6 @@ BACKENDS: tuple[Backend, ...] = get_args(Backend)
 _Neighbour = tuple[int, float, int, int, int]
 # the same move as the search sees it: (next padded id, cost in cells, move bit)
 _Move = tuple[int, float, int]
-
-
-_MASK_MEMOS: weakref.WeakKeyDictionary[NavGrid, dict[int, list[tuple[int, int]]]] = weakref.WeakKeyDictionary()
 
 
 class PlanningError(ValueError):
@@ -289,7 +285,7 @@ class PathPlanner:
                         mask |= 1 << (5 * dx + dy + 6)
             self._mask_of.append(mask)
         # shared by the planners of one grid (the masks depend only on the grid's cells and radius)
-        self._near_mask_memo: dict[int, list[tuple[int, int]]] = _MASK_MEMOS.setdefault(self.grid, {})
+        self._near_mask_memo: dict[int, list[tuple[int, int]]] = self.grid.near_mask_memo
 
     def _build_dense_tables(self) -> None:
         """The search tables as arrays for the compiled kernels (``sim.paths.astar_kernel``)."""

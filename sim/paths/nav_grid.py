@@ -31,11 +31,14 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -87,11 +90,17 @@ class NavGrid:
     origin: tuple[float, float]
     cell_size: float
     body_radius: float
-    obstacles: tuple[SceneObject, ...]
+    obstacles: Obstacles
     bounds_min: tuple[float, float]
     bounds_max: tuple[float, float]
     clearance_height: float = DEFAULT_CLEARANCE_HEIGHT
     _reference_offset: tuple[int, int] | None = field(default=None, repr=False)
+
+    @cached_property
+    def near_mask_memo(self) -> dict[int, list[tuple[int, int]]]:
+        """A memo the path planners of this grid share (``sim.paths.cooperative_astar``: the
+        cells a clearance mask covers); it depends only on the grid's cells and radius."""
+        return {}
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -307,39 +316,11 @@ class NavGrid:
 
 
 # ----- geometry ---------------------------------------------------------------------------------
-def _point_rect_distance(local: np.ndarray, hw: float, hd: float) -> np.ndarray:
+def _point_rect_distance(local: NDArray[np.float64], hw: float, hd: float) -> NDArray[np.float64]:
     """Distance of local points (N, 2) to the axis-aligned rectangle [-hw, hw] x [-hd, hd]."""
     dx = np.maximum(np.abs(local[:, 0]) - hw, 0.0)
     dy = np.maximum(np.abs(local[:, 1]) - hd, 0.0)
-    return np.hypot(dx, dy)
-
-
-def _segment_rect_distance(a: np.ndarray, b: np.ndarray, hw: float, hd: float) -> np.ndarray:
-    """Exact distance between local segments a->b (N, 2) and the rectangle [-hw, hw] x [-hd, hd]."""
-    d = b - a
-    # Liang-Barsky clip: does the segment cross the rectangle?
-    t_lo = np.zeros(len(a))
-    t_hi = np.ones(len(a))
-    inside = np.ones(len(a), dtype=bool)
-    for axis, h in ((0, hw), (1, hd)):
-        da = d[:, axis]
-        pa = a[:, axis]
-        flat = np.abs(da) < 1e-12
-        inside &= ~flat | (np.abs(pa) <= h)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t1 = (-h - pa) / da
-            t2 = (h - pa) / da
-        t_lo = np.where(flat, t_lo, np.maximum(t_lo, np.minimum(t1, t2)))
-        t_hi = np.where(flat, t_hi, np.minimum(t_hi, np.maximum(t1, t2)))
-    crosses = inside & (t_lo <= t_hi)
-    # Otherwise the closest pair involves an endpoint of the segment or a corner of the box.
-    dist = np.minimum(_point_rect_distance(a, hw, hd), _point_rect_distance(b, hw, hd))
-    dd = np.maximum(np.sum(d * d, axis=1), 1e-18)
-    for cx, cy in ((-hw, -hd), (hw, -hd), (hw, hd), (-hw, hd)):
-        c = np.array([cx, cy])
-        t = np.clip(np.sum((c - a) * d, axis=1) / dd, 0.0, 1.0)
-        dist = np.minimum(dist, np.linalg.norm(a + t[:, None] * d - c, axis=1))
-    return np.where(crosses, 0.0, dist)
+    return np.asarray(np.hypot(dx, dy), dtype=np.float64)
 
 
 def body_clearance(
@@ -353,21 +334,23 @@ def body_clearance(
     "at least ``cutoff``" (comparisons against thresholds <= ``cutoff`` are unchanged).
 
     The per-element arithmetic runs compiled (``_near_circles``, ``_min_segment_rect_distance``)
-    with the float operations of the numpy reference ``body_clearance_reference`` (the same
-    floats; ``tests/test_nav_grid.py`` compares them); the rotation into each object's frame
+    with the float operations of the numpy oracle in ``tests/support/clearance_reference.py`` (the
+    same floats; ``tests/test_body_clearance_kernels.py`` compares them); the rotation into each object's frame
     stays ``SceneObject.to_local``.
     """
     a = np.ascontiguousarray(np.asarray(a, dtype=float).reshape(-1, 2))
     b = np.ascontiguousarray(np.asarray(b, dtype=float).reshape(-1, 2))
     out = np.full(len(a), np.inf)
     objs = list(obstacles)
+    known = obstacles if isinstance(obstacles, Obstacles) else None  # geometry computed once
+    which: Sequence[int] = range(len(objs))
     if cutoff is not None and objs and len(a):
-        centres, radii = _bounding_circles(obstacles)
-        near = _near_circles(a, b, centres, radii, float(cutoff) + 1e-6)
-        objs = [objs[k] for k in np.flatnonzero(near)]
+        centres, radii = known.circles if known is not None else bounding_circles(objs)
+        which = np.flatnonzero(_near_circles(a, b, centres, radii, float(cutoff) + 1e-6)).tolist()
     same = a is b or np.array_equal(a, b)
-    for obj in objs:  # SceneObject.to_local's arithmetic, with the object's frame looked up once
-        centre, right, facing = _object_frame(obj)
+    for k in which:  # SceneObject.to_local's arithmetic, with the object's frame looked up once
+        obj = objs[k]
+        centre, right, facing = known.frames[k] if known is not None else object_frame(obj)
         da = a - centre
         ax, ay = da @ right, da @ facing
         if same:
@@ -379,39 +362,32 @@ def body_clearance(
     return out
 
 
-_FRAMES: dict[int, tuple[SceneObject, np.ndarray, np.ndarray, np.ndarray]] = {}
+def object_frame(obj: SceneObject) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(``center_xy``, ``right``, facing) arrays of an object: its footprint's frame."""
+    return obj.center_xy, obj.right, np.array(obj.facing, dtype=float)
 
 
-def _object_frame(obj: SceneObject) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(``center_xy``, ``right``, facing) arrays of an (immutable) object, memoised by identity."""
-    hit = _FRAMES.get(id(obj))
-    if hit is None or hit[0] is not obj:
-        if len(_FRAMES) > 4096:
-            _FRAMES.clear()
-        hit = _FRAMES[id(obj)] = (obj, obj.center_xy, obj.right, np.array(obj.facing, dtype=float))
-    return hit[1], hit[2], hit[3]
+def bounding_circles(obstacles: Sequence[SceneObject]) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (M, 2) and radii (M,) of circles containing each footprint."""
+    centres = np.array([o.center[:2] for o in obstacles], dtype=float).reshape(-1, 2)
+    radii = np.array([math.hypot(o.width / 2.0, o.depth / 2.0) for o in obstacles], dtype=float) * (1 + 1e-9) + 1e-9
+    return centres, radii
 
 
-def body_clearance_reference(
-    obstacles: tuple[SceneObject, ...] | list[SceneObject], a: np.ndarray, b: np.ndarray, cutoff: float | None = None
-) -> np.ndarray:
-    """``body_clearance`` in plain numpy (the reference its compiled loops reproduce)."""
-    a = np.asarray(a, dtype=float).reshape(-1, 2)
-    b = np.asarray(b, dtype=float).reshape(-1, 2)
-    out = np.full(len(a), np.inf)
-    objs = list(obstacles)
-    if cutoff is not None and objs and len(a):
-        centres, radii = _bounding_circles(obstacles)
-        d = b - a
-        dd = np.maximum(np.sum(d * d, axis=1), 1e-18)[:, None]  # (N, 1)
-        rel = centres[None, :, :] - a[:, None, :]  # (N, M, 2)
-        t = np.clip((rel[..., 0] * d[:, None, 0] + rel[..., 1] * d[:, None, 1]) / dd, 0.0, 1.0)
-        gap = np.hypot(rel[..., 0] - t * d[:, None, 0], rel[..., 1] - t * d[:, None, 1]) - radii[None, :]
-        near = np.flatnonzero(np.min(gap, axis=0) < cutoff + 1e-6)
-        objs = [objs[k] for k in near]
-    for obj in objs:
-        out = np.minimum(out, _segment_rect_distance(obj.to_local(a), obj.to_local(b), obj.width / 2.0, obj.depth / 2.0))
-    return out
+class Obstacles(tuple[SceneObject, ...]):
+    """The blocking objects of a grid: a tuple that keeps the geometry ``body_clearance`` reads
+    for each of them (bounding circles, footprint frames), computed once on first use (objects
+    are immutable, so it never goes stale)."""
+
+    @cached_property
+    def circles(self) -> tuple[np.ndarray, np.ndarray]:
+        """``bounding_circles`` of the objects."""
+        return bounding_circles(self)
+
+    @cached_property
+    def frames(self) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+        """``object_frame`` of every object, in order."""
+        return tuple(object_frame(o) for o in self)
 
 
 @njit(cache=True, nogil=True)
@@ -443,7 +419,8 @@ def _near_circles(a: np.ndarray, b: np.ndarray, centres: np.ndarray, radii: np.n
 @njit(cache=True, nogil=True)
 def _min_segment_rect_distance(ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray, hw: float, hd: float,
                                out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``out = np.minimum(out, _segment_rect_distance(a, b, hw, hd))`` element by element, for
+    """``out = np.minimum(out, segment_rect_distance(a, b, hw, hd))`` (the numpy oracle in
+    ``tests/support/clearance_reference.py``) element by element, for
     local segments a -> b given by their coordinates (ax, ay) -> (bx, by)."""
     for i in range(ax.shape[0]):
         a0, a1 = ax[i], ay[i]
@@ -493,23 +470,6 @@ def _fmax(x: float, y: float) -> float:  # pragma: no cover - compiled
     return x if x >= y else y
 
 
-_CIRCLES: dict[int, tuple[object, np.ndarray, np.ndarray]] = {}
-
-
-def _bounding_circles(obstacles: tuple[SceneObject, ...] | list[SceneObject]) -> tuple[np.ndarray, np.ndarray]:
-    """Centres (M, 2) and radii (M,) of circles containing each footprint (memoised per sequence)."""
-    hit = _CIRCLES.get(id(obstacles))
-    if hit is not None and hit[0] is obstacles:
-        return hit[1], hit[2]
-    centres = np.array([o.center[:2] for o in obstacles], dtype=float).reshape(-1, 2)
-    radii = np.array([math.hypot(o.width / 2.0, o.depth / 2.0) for o in obstacles], dtype=float) * (1 + 1e-9) + 1e-9
-    if isinstance(obstacles, tuple):  # immutable: safe to memoise by identity
-        if len(_CIRCLES) > 32:
-            _CIRCLES.clear()
-        _CIRCLES[id(obstacles)] = (obstacles, centres, radii)
-    return centres, radii
-
-
 def _inside_bounds(p: np.ndarray, lo: tuple[float, float], hi: tuple[float, float], r: float) -> np.ndarray:
     return (
         (p[:, 0] >= lo[0] + r - 1e-9)
@@ -519,9 +479,9 @@ def _inside_bounds(p: np.ndarray, lo: tuple[float, float], hi: tuple[float, floa
     )
 
 
-def blocking_objects(scene: Scene, clearance_height: float = DEFAULT_CLEARANCE_HEIGHT) -> tuple[SceneObject, ...]:
+def blocking_objects(scene: Scene, clearance_height: float = DEFAULT_CLEARANCE_HEIGHT) -> Obstacles:
     """Objects a walking body can collide with: bottom below ``clearance_height`` above the floor."""
-    return tuple(o for o in scene.objects if o.z_min - scene.floor_z < clearance_height)
+    return Obstacles(o for o in scene.objects if o.z_min - scene.floor_z < clearance_height)
 
 
 # ----- reference grid -------------------------------------------------------------------------

@@ -4,11 +4,11 @@ A walker following a cooperative plan (``sim.paths.following.CrowdNavigator``) i
 frames after the plan was made, at ``u = (d / fps) / step_time`` steps along its path of cell
 centres: on the straight segment from cell ``floor(u)`` to the next one, at fraction
 ``u - floor(u)``; at the first centre before it starts and at the last one once the path is
-done. ``track_reference`` is that rule for one path in numpy (the arithmetic of
-``sim.paths.cooperative_astar.position_at``); ``path_tracks`` computes it for every path of a plan
-in one compiled loop, with the very same float operations element by element (so the same
-floats; ``tests/test_path_tracks.py`` compares them), into one array whose rows are padded
-with each path's last centre (later frames stay there).
+done (the arithmetic of ``sim.paths.cooperative_astar.position_at``). ``path_tracks`` computes
+it for every path of a plan in one compiled loop, with the very same float operations as its
+numpy oracle (``tests/support/path_reference.py``) element by element (so the same floats;
+``tests/test_path_tracks.py`` compares them), into one array whose rows are padded with each
+path's last centre (later frames stay there).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 from numba import njit
 
-__all__ = ["gather_rows", "path_tracks", "track_frames", "track_reference", "walker_headings"]
+__all__ = ["gather_rows", "path_tracks", "track_frames", "walker_headings"]
 
 Cell = tuple[int, int]
 
@@ -30,27 +30,11 @@ def track_frames(path_len: int, step_frames: int) -> int:
     return (path_len - 1) * step_frames + 2
 
 
-def track_reference(path: Sequence[Cell], origin: tuple[float, float], cell_size: float, step_frames: int,
-                    fps: int, step_time: float) -> np.ndarray:
-    """Positions (track_frames, 2) of one path for frames d = 0, 1, ... after its start."""
-    cells = np.asarray(path, dtype=float).reshape(-1, 2)
-    centres = np.asarray(origin) + (cells + 0.5) * cell_size
-    d = np.arange(track_frames(len(path), step_frames))
-    u = (d / fps) / step_time
-    k = np.floor(u).astype(np.int64)
-    last = len(path) - 1
-    kk = np.minimum(k, max(last - 1, 0))
-    s = (u - kk)[:, None]
-    nxt = np.minimum(kk + 1, last)
-    track = (1.0 - s) * centres[kk] + s * centres[nxt]
-    track[(u <= 0) | (k >= last)] = centres[np.where(u <= 0, 0, last)][(u <= 0) | (k >= last)]
-    return track
-
-
 def path_tracks(paths: Sequence[Sequence[Cell]], origin: tuple[float, float], cell_size: float, step_frames: int,
                 fps: int, step_time: float) -> tuple[np.ndarray, list[int]]:
-    """(tracks (len(paths), D, 2), rows per path): ``track_reference`` of every (non-empty)
-    path, row ``i`` padded with path ``i``'s last centre up to the longest track ``D``."""
+    """(tracks (len(paths), D, 2), rows per path): the positions of every (non-empty) path at
+    frames 0, 1, ... (``track_frames`` rows), row ``i`` padded with path ``i``'s last centre up
+    to the longest track ``D``."""
     lens = [len(p) for p in paths]
     sizes = [track_frames(n, step_frames) for n in lens]
     if not paths:

@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from typing import Any, Protocol
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.body.skeleton import NUM_JOINTS
 from sim.motion.matching import MotionQuery, Pose
@@ -35,7 +36,7 @@ class MotionLayer(Protocol):
     and the seat / partner / object target; it keeps the returned state for the next frame.
     """
 
-    def initial_state(self, label: str, root_xy: Sequence[float], heading: float, seated: bool = False) -> Any:
+    def initial_state(self, label: str, root_xy: Sequence[float] | NDArray[np.float64], heading: float, seated: bool = False) -> Any:
         """Motion state of a character at ``root_xy`` facing ``heading`` doing ``label``."""
         ...
 
@@ -44,9 +45,9 @@ class MotionLayer(Protocol):
         ...
 
 
-def root_yaw(rotations: np.ndarray) -> np.ndarray:
+def root_yaw(rotations: NDArray[np.float64]) -> NDArray[np.float64]:
     """World yaw (..., ) of the body's forward axis (body +z) of root rotations (..., 3, 3)."""
-    return np.arctan2(rotations[..., 1, 2], rotations[..., 0, 2])
+    return np.asarray(np.arctan2(rotations[..., 1, 2], rotations[..., 0, 2]), dtype=np.float64)
 
 
 def compose_poses(

@@ -1,0 +1,351 @@
+"""Event bookkeeping of the world step: assigning events, the start queue, group starts,
+completion and failure, and who is free.
+
+Functions of an ``EventWorld`` (the parts of ``sim.world.step.World`` they read and change:
+characters, accepted events, the start queue, the navigator). The rules they keep:
+
+- an assignment is all or nothing: when any member is unknown, busy or cannot reach its
+  target, the whole event fails (one ``EventFailure`` per problem) and nobody moves;
+- a member busy acting (or seated) first leaves its action through its transition out and
+  takes the new assignment once standing (``CharacterState.pending``);
+- an event waits in the start queue (``start_queue``, in ``events`` order; a reused id keeps
+  its old place, as a dict does) until all its active members wait on their points at a
+  planning-step boundary; then all start their transition in on the same frame. A seated
+  body registers discs along its sit-down path (``seat_discs``);
+- an event completes when every member has finished its action (or, acting a looping action,
+  left it); it becomes *looping* when every member is done or acting a looping action;
+- characters without an event, or in a looping one, are free (``free_characters``).
+
+Deterministic: no randomness, no clock; events are visited in the order they were accepted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import numpy as np
+
+from sim.paths.following import close_xy
+from sim.paths.nav_grid import NavGrid
+from sim.scene.model import Scene
+from sim.world.errors import WorldError
+from sim.world.events import (
+    AssignEvent,
+    Assignment,
+    EventFailure,
+    FailureReason,
+    ReleaseCharacters,
+)
+from sim.world.navigation import StandTargets, WorldNavigator
+from sim.world.phases import (
+    CharacterState,
+    StandTarget,
+    available,
+    transition_in_frames,
+    transition_out_frames,
+)
+
+EventStatus = Literal["ongoing", "looping", "completed", "failed"]
+
+
+@dataclass
+class EventState:
+    """One accepted event: member name -> "active" | "done" | "left"."""
+
+    event: AssignEvent
+    members: dict[str, str]
+    status: EventStatus = "ongoing"
+    started: bool = False
+
+
+@dataclass
+class StepReport:
+    """What happened to events in one frame (collected into ``StepOutput``)."""
+
+    completed: list[str] = field(default_factory=list)
+    looping: list[str] = field(default_factory=list)
+    started: list[str] = field(default_factory=list)
+    failures: list[EventFailure] = field(default_factory=list)
+
+
+class EventRules(Protocol):
+    """The settings event bookkeeping reads (``sim.world.step.WorldConfig`` has them)."""
+
+    @property
+    def fps(self) -> int: ...
+
+    @property
+    def max_target_offset(self) -> float: ...
+
+
+class EventWorld(Protocol):
+    """The parts of a world that event bookkeeping reads and changes."""
+
+    @property
+    def config(self) -> EventRules: ...
+
+    scene: Scene
+    grid: NavGrid
+    names: tuple[str, ...]
+    navigator: WorldNavigator
+    targets: StandTargets
+    characters: dict[str, CharacterState]
+    events: dict[str, EventState]
+    start_queue: dict[str, None]
+
+
+def unstarted(events: dict[str, EventState]) -> dict[str, None]:
+    """The start queue of ``events``: the ongoing, not started ones, in order."""
+    return {eid: None for eid, ev in events.items() if ev.status == "ongoing" and not ev.started}
+
+
+SEAT_DISC_SPACING = 0.4  # metres between the discs a seated body registers along its sit-down path
+
+
+def seat_discs(anchor: np.ndarray, seat: np.ndarray) -> list[np.ndarray]:
+    """Disc centres covering the sit-down path from ``anchor`` (standing point) to ``seat``:
+    at least three, at most ``SEAT_DISC_SPACING`` apart, so walkers kept 2 body radii from
+    every disc stay >= ~0.46 m (at 0.25 m radii) from the whole segment."""
+    n = max(3, math.ceil(float(np.linalg.norm(seat - anchor)) / SEAT_DISC_SPACING) + 1)
+    return [anchor + u * (seat - anchor) for u in np.linspace(0.0, 1.0, n)]
+
+
+def _fail(out: StepReport, event_id: str, character: str, reason: FailureReason, message: str) -> None:
+    out.failures.append(EventFailure(event_id=event_id, character=character, reason=reason, message=message))
+
+
+def stand_target_for(w: EventWorld, c: CharacterState, a: Assignment) -> tuple[StandTarget | None, str]:
+    """Where ``a``'s walk ends (see ``StandTargets``), or (None, why not)."""
+    g = w.grid
+    here = w.navigator.cell(c.name) if w.navigator.is_walker(c.name) else c.anchor_cell
+    comp = int(g.component[here]) if g.is_free(*here) else g.main_component
+    if a.seat is not None:
+        target = w.targets.seated(w.navigator, w.scene.by_name[a.seat], comp)
+        if target is None:
+            return None, f"{c.name} cannot reach a free cell in front of {a.seat}"
+        return target, ""
+    p = np.asarray(a.target_xy, dtype=float)
+    target = w.targets.standing(w.navigator, p, comp)
+    off = math.inf if target is None else float(np.linalg.norm(np.asarray(target.xy) - p))
+    if target is None or off > w.config.max_target_offset:
+        return None, (f"{c.name} cannot reach ({a.target_xy[0]:.2f}, {a.target_xy[1]:.2f}): the nearest "
+                      f"reachable floor is {off:.2f} m away")
+    return target, ""
+
+
+def assign(w: EventWorld, cmd: AssignEvent, out: StepReport) -> None:
+    """Accept ``cmd`` (its members start walking or leave what they do) or fail it as a whole.
+    Raises ``WorldError`` when an event with its id is still running."""
+    eid = cmd.event_id
+    if eid in w.events and w.events[eid].status in ("ongoing", "looping"):
+        raise WorldError(f"event {eid!r} is already running")
+    free = set(free_characters(w))
+    goals: dict[str, StandTarget] = {}
+    problems: list[tuple[str, FailureReason, str]] = []
+    for a in cmd.assignments:
+        if a.character not in w.characters:
+            problems.append((a.character, "unknown_character", f"no character called {a.character!r}"))
+            continue
+        unknown = [p for p in a.partners if p not in w.characters]
+        if unknown:
+            problems.append((a.character, "unknown_character", f"unknown partners {unknown}"))
+            continue
+        if a.seat is not None and a.seat not in w.scene.by_name:
+            problems.append((a.character, "unknown_seat", f"no object called {a.seat!r} in the scene"))
+            continue
+        if a.character not in free:
+            problems.append((a.character, "busy", f"{a.character} is busy with event "
+                             f"{w.characters[a.character].event_id!r}"))
+            continue
+        goal, why = stand_target_for(w, w.characters[a.character], a)
+        if goal is None:
+            problems.append((a.character, "no_path", why))
+            continue
+        goals[a.character] = goal
+    if problems:
+        for name, reason, msg in problems:
+            _fail(out, eid, name, reason, msg)
+        w.events[eid] = EventState(cmd, {a.character: "left" for a in cmd.assignments}, status="failed")
+        return
+    reused = eid in w.events
+    w.events[eid] = EventState(cmd, {a.character: "active" for a in cmd.assignments})
+    if reused:  # a dict keeps a reused key where it was: so does the start queue
+        w.start_queue = unstarted(w.events)
+    else:
+        w.start_queue[eid] = None
+    for a in cmd.assignments:
+        c = w.characters[a.character]
+        _leave_event(w, c, out)
+        c.pending = None
+        _start(w, c, eid, a, goals[a.character])
+
+
+def release(w: EventWorld, cmd: ReleaseCharacters, out: StepReport) -> None:
+    """The characters leave their events and stop (standing up first when seated)."""
+    for name in cmd.characters:
+        c = w.characters.get(name)
+        if c is None:
+            _fail(out, "release", name, "unknown_character", f"no character called {name!r}")
+            continue
+        _leave_event(w, c, out)
+        c.pending = None
+        _stop(w, c)
+
+
+def _start(w: EventWorld, c: CharacterState, eid: str, a: Assignment, goal: StandTarget) -> None:
+    """Give ``c`` its new assignment: walk now, or first leave what it is doing."""
+    c.event_id = eid
+    c.waiting = False
+    if c.phase in ("transition_in", "interacting", "transition_out") or c.seated:
+        c.pending = (eid, a, goal)
+        if c.phase != "transition_out":
+            _begin_transition_out(c, w.config.fps)
+        return
+    take(c, a, goal)
+    c.enter("approaching")
+    if c.walker:
+        w.navigator.set_goal(c.name, goal.cell, final_xy=final_of(goal))
+    # else: joins the navigator at the next step boundary (``World._join_walkers``)
+
+
+def final_of(target: StandTarget | None) -> np.ndarray | None:
+    """The exact end point to give the navigator (None: the goal cell's centre)."""
+    return np.asarray(target.xy, dtype=float) if target is not None and target.off_grid else None
+
+
+def take(c: CharacterState, a: Assignment, goal: StandTarget) -> None:
+    """``c`` takes assignment ``a`` with the walk ending on ``goal`` (progress counters reset)."""
+    c.assignment, c.goal_cell, c.target = a, goal.cell, goal
+    c.action_done = False
+    c.best_distance, c.stalled_frames = math.inf, 0
+
+
+def _stop(w: EventWorld, c: CharacterState) -> None:
+    """End whatever ``c`` does and become idle (standing up first when seated)."""
+    was_waiting, c.waiting = c.waiting, False
+    if c.phase in ("transition_in", "interacting") or (c.phase == "idle" and c.seated):
+        _begin_transition_out(c, w.config.fps)
+    elif c.phase == "approaching" or was_waiting:
+        c.enter("idle")
+        if c.walker:
+            w.navigator.set_goal(c.name, None)
+
+
+def _begin_transition_out(c: CharacterState, fps: int) -> None:
+    if c.phase == "transition_in" and c.assignment is not None and c.assignment.seat is not None:
+        c.seated = c.phase_frame > c.turn_frames  # stopped while sitting down: stand up
+        c.seat_xy = c.xy.copy()
+    c.enter("transition_out", transition_out_frames(c.seated, fps))
+    c.turn_from = c.heading
+
+
+def _leave_event(w: EventWorld, c: CharacterState, out: StepReport) -> None:
+    ev = w.events.get(c.event_id) if c.event_id is not None else None
+    if ev is not None and ev.members.get(c.name) in ("active", "done"):
+        ev.members[c.name] = "left"
+        _update_event(w, ev.event.event_id, ev, out)
+    c.event_id = None
+
+
+def _update_event(w: EventWorld, eid: str, ev: EventState, out: StepReport) -> None:
+    if ev.status in ("completed", "failed"):
+        return
+    states = ev.members
+    if any(s == "active" for s in states.values()):
+        return
+    looping = [n for n, s in states.items() if s == "done" and w.characters[n].event_id == eid
+               and w.characters[n].phase == "interacting" and w.characters[n].loops]
+    if looping:
+        if ev.status != "looping":
+            ev.status = "looping"
+            out.looping.append(eid)
+        return
+    ev.status = "completed"
+    out.completed.append(eid)
+    for n in states:
+        if w.characters[n].event_id == eid:
+            w.characters[n].event_id = None
+
+
+def fail_event(w: EventWorld, eid: str, character: str, reason: FailureReason, message: str, out: StepReport) -> None:
+    """Event ``eid`` fails because of ``character``; members still walking or waiting stop."""
+    ev = w.events[eid]
+    ev.status = "failed"
+    _fail(out, eid, character, reason, message)
+    for n in ev.members:
+        c = w.characters[n]
+        if c.event_id != eid:
+            continue
+        c.event_id = None
+        if c.phase in ("approaching",) or c.waiting:
+            c.waiting = False
+            c.assignment = None
+            c.enter("idle")
+            if c.walker:
+                w.navigator.set_goal(n, None)
+
+
+def _begin_transition_in(w: EventWorld, c: CharacterState) -> None:
+    a = c.assignment
+    assert a is not None
+    c.waiting = False
+    c.turn_from = c.heading
+    c.turn_frames, total = transition_in_frames(a, c.heading, w.config.fps)
+    c.enter("transition_in", total)
+    c.xy = c.anchor_xy.copy()
+    c.walker = False
+    if a.seat is not None:
+        c.seat_xy = w.scene.by_name[a.seat].seat_point()
+        w.navigator.make_stationary(c.name, seat_discs(c.anchor_xy, c.seat_xy))
+    else:
+        w.navigator.make_stationary(c.name, [c.anchor_xy])
+
+
+def member_done(w: EventWorld, c: CharacterState, out: StepReport) -> None:
+    """``c`` finished its action (or started a looping one): its event may complete or loop."""
+    c.action_done = True
+    eid = c.event_id
+    ev = w.events.get(eid) if eid is not None else None
+    if ev is not None and ev.members.get(c.name) == "active":
+        ev.members[c.name] = "done"
+        _update_event(w, eid, ev, out)  # type: ignore[arg-type]
+
+
+def start_groups(w: EventWorld, out: StepReport) -> None:
+    """At a step boundary: events whose members all wait on their cells start together."""
+    nav = w.navigator
+    queue = w.start_queue
+    for eid in list(queue):  # only the events not started yet: a long story has thousands of old ones
+        ev = w.events[eid]
+        if ev.status != "ongoing" or ev.started:
+            del queue[eid]
+            continue
+        members = [w.characters[n] for n, s in ev.members.items() if s == "active"]
+        if members and all(
+            m.waiting and m.event_id == eid
+            and (not m.walker or (nav.cell(m.name) == m.goal_cell and nav.can_freeze(m.name)
+                                  and close_xy(nav.position(m.name), m.anchor_xy)))
+            for m in members
+        ):
+            ev.started = True
+            del queue[eid]
+            out.started.append(eid)
+            for m in members:
+                _begin_transition_in(w, m)
+
+
+def free_characters(w: EventWorld) -> tuple[str, ...]:
+    """Characters the narrator may give a new event (see ``sim.world.phases.available``)."""
+    out = []
+    events = w.events
+    for name in w.names:
+        c = w.characters[name]
+        if c.event_id is None:  # no event: free (available(c, False))
+            out.append(name)
+            continue
+        ev = events.get(c.event_id)
+        if available(c, ev is not None and ev.status == "ongoing"):
+            out.append(name)
+    return tuple(out)
