@@ -230,7 +230,7 @@ async def _main(args: argparse.Namespace) -> int:
     from orchestrator.llm.config import load_config
     from orchestrator.llm.replay import build_llm_port
     from orchestrator.planning.checkpoints import default_runs_db
-    from orchestrator.session.llm_port_setup import close_port
+    from orchestrator.session.port_setup import close_port
 
     if args.runs < 1:
         raise BenchmarkCaseError("--runs must be at least 1")

@@ -48,8 +48,8 @@ from orchestrator.cli.options import (
 )
 from orchestrator.planning.ablation_graph import Ablation, AblationChoiceError
 from orchestrator.planning.checkpoints import default_runs_db
-from orchestrator.session.llm_port_setup import close_port, open_port
 from orchestrator.session.plan_job import PlanResult, run_plan
+from orchestrator.session.port_setup import close_port, open_port
 from orchestrator.session.roster import StartPositionError, character_names
 
 

@@ -35,7 +35,7 @@ from orchestrator.planning.ablation_graph import Ablation, compile_graph
 from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
 from orchestrator.planning.graph import recursion_limit
 from orchestrator.planning.state import PlanningDeps, PlanningState, WorldProvider
-from orchestrator.session.llm_port_setup import describer_mode_for
+from orchestrator.session.port_setup import describer_mode_for
 from orchestrator.session.roster import RosterWorld, initial_roster
 from sim.scene.model import Scene
 

@@ -120,7 +120,7 @@ async def run_story(
     from orchestrator.planning.ablation_graph import compile_graph
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
-    from orchestrator.session.llm_port_setup import close_port, describer_mode_for, open_port
+    from orchestrator.session.port_setup import close_port, describer_mode_for, open_port
     from orchestrator.session.roster import (
         RosterWorld,
         StartPositionError,
