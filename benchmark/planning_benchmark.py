@@ -33,7 +33,7 @@ from typing import Any
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")  # before litellm is imported
 
 from agents.llm_port import LLMPort
-from agents.messages import CharacterStatus, SceneDescription
+from agents.messages import CharacterStatus, ParsedEvent, SceneDescription
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
 from benchmark.plan_scoring import CaseScore, score_outcome
 from benchmark.reference_cases import (
@@ -167,7 +167,7 @@ async def run_cases(
             descriptions.remember(scene, planned.description)
             ((_, outcome),) = planned.outcomes
             event = None
-            if outcome is not None and hasattr(outcome, "plans"):
+            if isinstance(outcome, ParsedEvent):
                 event = {
                     "characters": list(outcome.event.characters), "activity": outcome.event.activity,
                     "plans": [{"character": p.character, "action": p.action, "area": p.area, "seat": p.seat,

@@ -82,7 +82,7 @@ class BlockedPositionError(ToolError):
 
 def seat_at(scene: Scene, x: float, y: float) -> str | None:
     """The seat whose footprint holds (x, y), if exactly one does."""
-    seats = [o.name for o in scene.objects if o.is_seat and bool(o.contains_xy([x, y]))]
+    seats = [o.name for o in scene.objects if o.is_seat and bool(o.contains_xy(np.array([x, y])))]
     return seats[0] if len(seats) == 1 else None
 
 
@@ -127,7 +127,7 @@ def blocked_positions(scene: Scene, world: Any, plans: DirectPlans) -> list[str]
                 f"{where} is inside {', '.join(inside)} (stand on free floor at least "
                 f"{floor.body_radius:.2f} m from furniture)"
             )
-        elif not bool(floor.free([[p.x, p.y]])[0]):
+        elif not bool(floor.free(np.array([[p.x, p.y]]))[0]):
             problems.append(f"{where} is off the free floor (too close to the edge of the scene)")
         for name, q in others:
             d = float(np.hypot(p.x - q[0], p.y - q[1]))

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import sys
 import uuid
 from pathlib import Path
 from typing import Annotated, Any
@@ -180,7 +179,7 @@ def plan_command(
     except (LLMError, RetriesExhaustedError, PromptTemplateError) as exc:
         fail(f"{type(exc).__name__}: {exc}", code=1)
     if as_json:
-        payload = {
+        payload: dict[str, Any] = {
             "scene": scene_obj.name,
             "characters": character_names(characters),
             "instruction": instruction,
@@ -192,4 +191,4 @@ def plan_command(
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(typer.run(plan_command))
+    typer.run(plan_command)

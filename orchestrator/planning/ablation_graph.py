@@ -55,6 +55,7 @@ from agents.retry_feedback import REJECTIONS, feedback_from_error
 from orchestrator.planning import graph as planning_graph
 from orchestrator.planning.graph import (
     NodeFn,
+    PlanningGraph,
     complete,
     narrator_input,
     parser_input,
@@ -234,10 +235,10 @@ def route_plan(state: PlanningState) -> Literal["plan_event", "record_outcome"]:
 
 
 # ----- graphs -----------------------------------------------------------------------------
-def build_unified_graph(describe: NodeFn = planning_graph.describe_scene) -> StateGraph:
+def build_unified_graph(describe: NodeFn = planning_graph.describe_scene) -> PlanningGraph:
     """The uncompiled "w/o Event" graph (see the module docstring)."""
     step_map: dict[Any, str] = {"narrate_event": "plan_event", "record_outcome": "record_outcome", END: END}
-    graph = StateGraph(PlanningState, context_schema=PlanningDeps)
+    graph: PlanningGraph = StateGraph(PlanningState, context_schema=PlanningDeps)
     graph.add_node("describe_scene", describe)
     graph.add_node("check_description", planning_graph.check_description)
     graph.add_node("plan_event", plan_event)
@@ -256,7 +257,7 @@ def build_unified_graph(describe: NodeFn = planning_graph.describe_scene) -> Sta
     return graph
 
 
-def build_graph(ablation: Ablation) -> StateGraph:
+def build_graph(ablation: Ablation) -> PlanningGraph:
     """The uncompiled graph of ``ablation`` (the planning graph itself for the default)."""
     describe = planning_graph.describe_scene if ablation.description == "describer" else preset_node(ablation.description)
     if ablation.planner == "unified":

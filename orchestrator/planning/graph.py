@@ -30,8 +30,8 @@ step's narrator and event-parser attempts are stored with its outcome in the sto
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable
-from typing import Any, Literal
+from collections.abc import Awaitable
+from typing import Any, Literal, Protocol
 
 from langgraph.graph import END, START, StateGraph
 from langgraph.runtime import Runtime
@@ -381,12 +381,18 @@ def route_program(state: PlanningState) -> Literal["parse_event", "record_outcom
     return "parse_event"
 
 
-NodeFn = Callable[[PlanningState, Runtime[PlanningDeps]], Awaitable[dict[str, Any]]]
+class NodeFn(Protocol):
+    """A node of the planning graph: state in, state update out, dependencies from the runtime."""
+
+    def __call__(self, state: PlanningState, *, runtime: Runtime[PlanningDeps]) -> Awaitable[dict[str, Any]]: ...
+
+
+PlanningGraph = StateGraph[PlanningState, PlanningDeps, PlanningState, PlanningState]
 
 
 def build_planning_graph(
     describe: NodeFn = describe_scene, parse: NodeFn = parse_event, check: NodeFn = check_program
-) -> StateGraph:
+) -> PlanningGraph:
     """The uncompiled graph; compile with a checkpointer (see :func:`compile_planning_graph`).
 
     The ablations swap nodes, never the wiring: ``describe`` (a preset description),
