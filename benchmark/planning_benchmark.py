@@ -1,8 +1,9 @@
 """Planning quality on the reference benchmark's 40 test cases, measured as the paper does.
 
-For every case (and every run of it) one planning step is asked of a planner (the full
-event-driven method or one of the paper's ablations) with the case's instruction, history
-and character states; the outcome is scored by :mod:`benchmark.plan_scoring`. It prints the
+For every case (and every run of it) one planning step of the planning graph is run (the full
+event-driven method or one of the paper's ablations, which are variants of that graph), driven
+exactly as ``storyteller plan`` drives it (:func:`orchestrator.session.plan_job.run_plan`), with
+the case's instruction, history and character states; the outcome is scored by :mod:`benchmark.plan_scoring`. It prints the
 success rate (passed runs / runs) and the execution rate (runs without a planning failure /
 runs) per tag group, per tag and overall, next to the paper's own figures.
 
@@ -31,29 +32,24 @@ from typing import Any
 
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")  # before litellm is imported
 
-from agents.ablation_planners import (
-    DirectInferencePlanner,
-    EventDrivenPlanner,
-    Planner,
-    PlanningStep,
-    UnifiedPlanner,
-    object_list_description,
-    scene_graph_description,
-)
 from agents.llm_port import LLMPort
-from agents.messages import SceneDescription
+from agents.messages import CharacterStatus, ParsedEvent, SceneDescription
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
 from benchmark.plan_scoring import CaseScore, score_outcome
 from benchmark.reference_cases import (
     TAGS,
     BenchmarkCase,
     BenchmarkCaseError,
+    PlanningInputs,
     load_cases,
     planning_inputs,
     scene_dir,
 )
+from orchestrator.planning.ablation_graph import Ablation, DescriptionKind, PlannerKind
 from orchestrator.reference_data import locate_reference
+from orchestrator.session.plan_job import run_plan
 from sim.scene.model import Scene
+from tools.character_states import WorldView
 from tools.scene_graph import SceneGraph, build_scene_graph
 
 DEFAULT_REFERENCE = locate_reference().path  # $STORYTELLER_REFERENCE, else ../shared/reference/event-driven-storytelling
@@ -76,67 +72,81 @@ class RunResult:
     event: dict[str, Any] | None
 
 
-def make_planner(kind: str, port: LLMPort, prompts: PromptLibrary, max_retries: int) -> Planner:
-    if kind == "event":
-        return EventDrivenPlanner(port, prompts, max_retries=max_retries)
-    if kind == "unified":
-        return UnifiedPlanner(port, prompts, max_retries=max_retries)
-    if kind == "direct":
-        return DirectInferencePlanner(port, prompts, max_retries=max_retries)
-    raise ValueError(f"unknown planner {kind!r}; expected one of {', '.join(PLANNERS)}")
+class CaseWorld:
+    """The spatial API's view of a test case as the reference data gives it (characters at
+    positions sampled from the case's area texts, the objects in use): fixed for the case's one
+    planning step, so it is not rebuilt from the roster."""
+
+    def __init__(self, inputs: PlanningInputs) -> None:
+        self.inputs = inputs
+
+    def world_view(self, roster: Sequence[CharacterStatus]) -> WorldView:
+        return self.inputs.world
+
+    def seats_in_use(self, roster: Sequence[CharacterStatus]) -> list[str]:
+        return list(self.inputs.seats_in_use)
 
 
 class Descriptions:
-    """Scene descriptions by the chosen source, made once per scene."""
+    """The scene description a case starts from, by source: the authors' GPT-4o text
+    (``reference``), or the one the planning graph made (describer) or set (object list,
+    scene graph) for an earlier case of the same scene; None until then (the graph makes it)."""
 
-    def __init__(self, source: str, port: LLMPort, prompts: PromptLibrary, reference: Path,
-                 describer_model: str, cache_dir: Path | None, max_retries: int) -> None:
+    def __init__(self, source: str, reference: Path) -> None:
         if source not in DESCRIPTIONS:
             raise ValueError(f"unknown description {source!r}; expected one of {', '.join(DESCRIPTIONS)}")
-        self.source, self.port, self.prompts, self.reference = source, port, prompts, reference
-        self.describer_model, self.cache_dir, self.max_retries = describer_model, cache_dir, max_retries
+        self.source, self.reference = source, reference
         self._done: dict[str, SceneDescription] = {}
 
-    async def get(self, scene: Scene, graph: SceneGraph) -> SceneDescription:
-        if scene.name in self._done:
-            return self._done[scene.name]
-        if self.source == "object-list":
-            desc = object_list_description(scene)
-        elif self.source == "scene-graph":
-            desc = scene_graph_description(scene, graph)
-        elif self.source == "reference":
+    @property
+    def graph_description(self) -> DescriptionKind:
+        """The planning graph's description variant for this source."""
+        return "describer" if self.source == "reference" else self.source  # type: ignore[return-value]
+
+    def get(self, scene: Scene) -> SceneDescription | None:
+        if scene.name not in self._done and self.source == "reference":
             path = self.reference / "configs" / "scenes" / scene.name / "descriptions" / REFERENCE_DESCRIPTIONS / "description-0.txt"
             try:
-                desc = SceneDescription(scene=scene.name, text=path.read_text(encoding="utf-8"))
+                self._done[scene.name] = SceneDescription(scene=scene.name, text=path.read_text(encoding="utf-8"))
             except OSError as exc:
                 raise BenchmarkCaseError(f"{path}: cannot read the reference description ({exc.strerror})") from None
-        else:
-            from agents.describer import describe_scene_cached
-            from orchestrator.cli.plan import describer_mode_for
+        return self._done.get(scene.name)
 
-            desc = await describe_scene_cached(
-                self.port, self.prompts, scene, model=self.describer_model, cache_dir=self.cache_dir,
-                mode=describer_mode_for(self.describer_model),  # type: ignore[arg-type]
-                max_retries=self.max_retries,
-            )
-        self._done[scene.name] = desc
-        return desc
+    def remember(self, scene: Scene, description: SceneDescription | None) -> None:
+        if description is not None:
+            self._done.setdefault(scene.name, description)
+
+
+def case_tags(case: BenchmarkCase) -> tuple[str, ...]:
+    """The prompt tags of ``case`` (its in-context examples): the benchmark tags it carries."""
+    return tuple(t for t in BENCHMARK_TAGS if t in case.tags)
 
 
 async def run_cases(
     cases: Sequence[BenchmarkCase],
-    planner: Planner,
+    port: LLMPort,
     descriptions: Descriptions,
     reference: Path,
     *,
+    planner: PlannerKind = "event",
+    prompts: PromptLibrary | None = None,
+    max_retries: int = 3,
+    describer_model: str = "unknown",
+    description_cache: Path | None = None,
     runs: int = 1,
     seed: int = 0,
     program_grammar: bool = False,
     on_result: Any = None,
 ) -> list[RunResult]:
-    """Plan and score every case ``runs`` times (seed + run index per run)."""
+    """Plan and score every case ``runs`` times (seed + run index per run).
+
+    Each run is one planning step of the planning graph (or its ``planner`` variant), driven
+    by :func:`orchestrator.session.plan_job.run_plan` as ``storyteller plan`` drives it, from
+    the case's roster, story so far, world view and action labels, on a throwaway thread."""
     from sim.scene.files import load_scene
 
+    prompts = prompts or PromptLibrary()
+    ablation = Ablation(planner=planner, description=descriptions.graph_description)
     scenes: dict[str, tuple[Scene, SceneGraph]] = {}
     results: list[RunResult] = []
     for case in cases:
@@ -145,18 +155,19 @@ async def run_cases(
             scenes[case.scene_name] = (scene, build_scene_graph(scene))
         scene, graph = scenes[case.scene_name]
         inputs = planning_inputs(case, scene)
-        description = await descriptions.get(scene, graph)
         for r in range(runs):
-            step = PlanningStep(
-                index=0, scene=scene, description=description, characters=inputs.roster,
-                instruction=case.user_instruction, world=inputs.world, action_labels=case.action_labels,
-                history=inputs.history, seats_in_use=inputs.seats_in_use,
-                tags=tuple(t for t in BENCHMARK_TAGS if t in case.tags), seed=seed + r, graph=graph,
-                program_grammar=program_grammar,
+            planned = await run_plan(
+                scene=scene, port=port, instruction=case.user_instruction, events=1, seed=seed + r,
+                runs_db=":memory:", thread_id=f"case-{case.id}-run-{r}", roster=inputs.roster,
+                history=inputs.history, world=CaseWorld(inputs), description=descriptions.get(scene),
+                action_labels=case.action_labels, scene_graph=graph, describer_model=describer_model,
+                description_cache=description_cache, max_retries=max_retries, prompts=prompts,
+                tags=case_tags(case), ablation=ablation, program_grammar=program_grammar,
             )
-            outcome = await planner.plan(step)
+            descriptions.remember(scene, planned.description)
+            ((_, outcome),) = planned.outcomes
             event = None
-            if outcome is not None and hasattr(outcome, "plans"):
+            if isinstance(outcome, ParsedEvent):
                 event = {
                     "characters": list(outcome.event.characters), "activity": outcome.event.activity,
                     "plans": [{"character": p.character, "action": p.action, "area": p.area, "seat": p.seat,
@@ -218,6 +229,8 @@ def _parser() -> argparse.ArgumentParser:
 async def _main(args: argparse.Namespace) -> int:
     from orchestrator.llm.config import load_config
     from orchestrator.llm.replay import build_llm_port
+    from orchestrator.planning.checkpoints import default_runs_db
+    from orchestrator.session.port_setup import close_port
 
     if args.runs < 1:
         raise BenchmarkCaseError("--runs must be at least 1")
@@ -226,12 +239,9 @@ async def _main(args: argparse.Namespace) -> int:
         raise BenchmarkCaseError("no test case selected")
     config = load_config(args.config)
     port = build_llm_port(config, record=args.record, replay=args.replay)
-    prompts = PromptLibrary()
     # a cached description would make a recorded run depend on this machine's cache
-    cache = None if (args.record or args.replay) else Path(os.environ.get("STORYTELLER_CACHE_DIR", Path.home() / ".cache" / "storyteller")) / "descriptions"
-    descriptions = Descriptions(args.description, port, prompts, args.reference, config.node("describer").model,
-                                cache, args.max_retries)
-    planner = make_planner(args.planner, port, prompts, args.max_retries)
+    cache = None if (args.record or args.replay) else default_runs_db().parent / "descriptions"
+    descriptions = Descriptions(args.description, args.reference)
     started = time.perf_counter()
 
     def report(r: RunResult) -> None:
@@ -241,14 +251,13 @@ async def _main(args: argparse.Namespace) -> int:
         print(f"case {r.case} run {r.run}: {time.perf_counter() - started:.1f} s", file=sys.stderr)
 
     try:
-        results = await run_cases(cases, planner, descriptions, args.reference, runs=args.runs, seed=args.seed,
-                                  program_grammar=args.program_grammar, on_result=report)
+        results = await run_cases(
+            cases, port, descriptions, args.reference, planner=args.planner, max_retries=args.max_retries,
+            describer_model=config.node("describer").model, description_cache=cache, runs=args.runs, seed=args.seed,
+            program_grammar=args.program_grammar, on_result=report,
+        )
     finally:
-        close = getattr(port, "close", None)
-        if close is not None:
-            out = close()
-            if asyncio.iscoroutine(out):
-                await out
+        await close_port(port)
     if args.replay:  # the models that answered when the trace was recorded
         from orchestrator.llm.traces import read_trace
 

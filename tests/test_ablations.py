@@ -1,5 +1,6 @@
-"""The paper's ablations behind the Planner interface, with scripted LLM replies and the real
-sandboxed event-program runner on a bundled scene."""
+"""The paper's ablations as variants of the planning graph, with scripted LLM replies and the
+real sandboxed event-program runner on a bundled scene: one planning step each, driven by
+the plan job (``orchestrator.session.plan_job.run_plan``) as ``storyteller plan`` drives it."""
 
 from __future__ import annotations
 
@@ -7,48 +8,35 @@ import json
 
 import pytest
 
-from agents.ablation_planners import (
-    DirectInferencePlanner,
-    DirectPlans,
-    EventDrivenPlanner,
-    PlanningStep,
-    UnifiedPlanner,
-    direct_program,
-    object_list_description,
-    scene_graph_description,
-)
-from agents.event_parser import scene_action_labels
-from agents.llm_port import LLMRequest, LLMResponse
+from agents.ablations.descriptions import object_list_description, scene_graph_description
+from agents.ablations.direct import DirectPlans, blocked_positions, direct_program
 from agents.messages import CharacterStatus, ParsedEvent, PlanningFailure, SceneDescription
-from agents.prompt_templates import PromptLibrary
-from orchestrator.cli.plan import RosterWorld, initial_roster
+from orchestrator.planning.ablation_graph import Ablation, PlannerKind
+from orchestrator.session.plan_job import StepOutcome, run_plan
+from orchestrator.session.roster import RosterWorld, initial_roster
 from sim.scene.bundled import resolve_scene
+from tests.support.scripted_llm import ScriptedLLM
 
 SCENE = resolve_scene("home")
+DESCRIPTION = SceneDescription(scene="home", text="- kitchen: coffee_maker_1, fridge_1")
 
 
-class Port:
-    def __init__(self, replies: list[str]) -> None:
-        self.replies = list(replies)
-        self.requests: list[LLMRequest] = []
-
-    async def complete(self, request: LLMRequest) -> LLMResponse:
-        self.requests.append(request)
-        return LLMResponse(text=self.replies.pop(0), model="fake")
-
-
-def step(roster: tuple[CharacterStatus, ...] | None = None, description: SceneDescription | None = None) -> PlanningStep:
-    roster = roster or initial_roster(SCENE, 2, seed=1)
-    return PlanningStep(
-        index=0,
-        scene=SCENE,
-        description=description or SceneDescription(scene="home", text="- kitchen: coffee_maker_1, fridge_1"),
-        characters=roster,
-        instruction="Ava makes coffee.",
-        world=RosterWorld().world_view(roster),
-        action_labels=scene_action_labels(SCENE),
-        seed=4,
+async def plan_one(
+    port: ScriptedLLM,
+    planner: PlannerKind = "event",
+    roster: tuple[CharacterStatus, ...] | None = None,
+    instruction: str = "Ava makes coffee.",
+    max_retries: int = 3,
+) -> StepOutcome:
+    """One planning step of the ``planner`` variant of the graph, from a preset description."""
+    result = await run_plan(
+        scene=SCENE, port=port, instruction=instruction, events=1, seed=4, runs_db=":memory:", thread_id="t",
+        roster=roster or initial_roster(SCENE, 2, seed=1), description=DESCRIPTION,
+        ablation=Ablation(planner=planner), max_retries=max_retries,
     )
+    ((index, outcome),) = result.outcomes
+    assert index == 0
+    return outcome
 
 
 COFFEE = (
@@ -67,15 +55,15 @@ def test_description_ablations() -> None:
 
 
 async def test_event_driven_planner() -> None:
-    port = Port([NARRATION, COFFEE])
-    out = await EventDrivenPlanner(port, PromptLibrary()).plan(step())
+    port = ScriptedLLM([NARRATION, COFFEE])
+    out = await plan_one(port)
     assert isinstance(out, ParsedEvent) and out.plans[0].action == "use_coffee_maker"
     assert [r.node for r in port.requests] == ["narrator", "event_parser"]
 
 
 async def test_unified_planner_without_events() -> None:
-    port = Port([COFFEE])
-    out = await UnifiedPlanner(port, PromptLibrary()).plan(step())
+    port = ScriptedLLM([COFFEE])
+    out = await plan_one(port, "unified")
     assert isinstance(out, ParsedEvent) and out.event.characters == ("Ava",)
     assert "use_coffee_maker" in out.event.activity
     assert port.requests[0].node == "planner" and "Instruction: Ava makes coffee." in port.requests[0].messages[1].content
@@ -84,9 +72,9 @@ async def test_unified_planner_without_events() -> None:
 async def test_unified_planner_rejects_busy_characters_and_can_wait() -> None:
     roster = initial_roster(SCENE, 2, seed=1)
     roster = (roster[0].model_copy(update={"busy": True}), roster[1])
-    port = Port([COFFEE, "```python\ndef parse_event():\n    pass\n```"])
-    out = await UnifiedPlanner(port, PromptLibrary()).plan(step(roster))
-    assert out is None
+    port = ScriptedLLM([COFFEE, "```python\ndef parse_event():\n    pass\n```"])
+    out = await plan_one(port, "unified", roster, instruction="Someone makes coffee.")
+    assert out is None and len(port.requests) == 2
     assert "Ava is busy" in port.requests[1].messages[-1].content
 
 
@@ -106,8 +94,8 @@ async def test_direct_inference_outputs_coordinates() -> None:
             continue
         break
     coords = json.dumps({"plans": [{"character": "Ava", "action": "use_coffee_maker", "x": x, "y": y, "look_at": "coffee_maker_1"}]})
-    port = Port([NARRATION, coords])
-    out = await DirectInferencePlanner(port, PromptLibrary()).plan(step())
+    port = ScriptedLLM([NARRATION, coords])
+    out = await plan_one(port, "direct")
     assert isinstance(out, ParsedEvent), out
     assert out.plans[0].position == pytest.approx((x, y))
     req = port.requests[1]
@@ -124,8 +112,8 @@ def test_direct_program_quotes_names_safely() -> None:
 
 
 async def test_failures_are_outcomes_not_exceptions() -> None:
-    port = Port([json.dumps({"reasoning": "", "event": {"characters": ["Zed"], "activity": "x"}})] * 2)
-    out = await EventDrivenPlanner(port, PromptLibrary(), max_retries=1).plan(step())
+    port = ScriptedLLM([json.dumps({"reasoning": "", "event": {"characters": ["Zed"], "activity": "x"}})] * 2)
+    out = await plan_one(port, max_retries=1)
     assert isinstance(out, PlanningFailure) and out.node == "narrator" and out.attempts == 2
 
 
@@ -139,8 +127,6 @@ def test_direct_program_turns_a_point_on_a_seat_into_sitting() -> None:
 
 
 def test_direct_points_near_other_characters_or_off_the_floor_are_blocked() -> None:
-    from agents.ablation_planners import blocked_positions
-
     roster = initial_roster(SCENE, 2, seed=1)
     world = RosterWorld().world_view(roster)
     bx, by = roster[1].position

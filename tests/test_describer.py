@@ -19,10 +19,10 @@ from agents.describer import (
     render_description,
     repair_areas,
 )
-from agents.llm_port import LLMRequest, LLMResponse
 from agents.prompt_templates import PromptLibrary
 from agents.retry_feedback import AnswerRejectedError, RetriesExhaustedError
 from sim.scene.bundled import resolve_scene
+from tests.support.scripted_llm import ScriptedLLM
 
 NAMES = ("fridge_1", "cabinet_1", "coffee_maker_1", "couch_1", "tv_1")
 INP = DescriberInput(
@@ -36,16 +36,6 @@ GOOD = {"areas": [{"name": "kitchen", "purpose": "make coffee", "objects": ["fri
                   {"name": "living room", "purpose": "watch TV", "objects": ["couch_1", "tv_1"]}]}
 PARTIAL = {"areas": [{"name": "kitchen", "purpose": "", "objects": ["fridge_1", "fridge_1", "sink_9"]},
                      {"name": "living room", "purpose": "relax", "objects": ["couch_1"]}]}
-
-
-class Port:
-    def __init__(self, replies: list[str]) -> None:
-        self.replies = list(replies)
-        self.requests: list[LLMRequest] = []
-
-    async def complete(self, request: LLMRequest) -> LLMResponse:
-        self.requests.append(request)
-        return LLMResponse(text=self.replies.pop(0), model="fake")
 
 
 def test_schema_restricts_names_and_bounds_arrays() -> None:
@@ -79,18 +69,18 @@ def test_repair_uses_clusters() -> None:
 
 
 async def test_feedback_retry_then_success() -> None:
-    port = Port([json.dumps(PARTIAL), json.dumps(GOOD)])
+    port = ScriptedLLM([json.dumps(PARTIAL), json.dumps(GOOD)])
     desc = await describe_scene(port, PromptLibrary(), INP)
     assert desc.attempts == 2 and not desc.repaired
     assert "named more than once: fridge_1" in port.requests[1].messages[-1].content
 
 
 async def test_exhausted_retries_repair_or_raise() -> None:
-    desc = await describe_scene(Port([json.dumps(PARTIAL)] * 2), PromptLibrary(), INP, max_retries=1)
+    desc = await describe_scene(ScriptedLLM([json.dumps(PARTIAL)] * 2), PromptLibrary(), INP, max_retries=1)
     assert desc.repaired and "tv_1" in desc.text
     with pytest.raises(RetriesExhaustedError):
-        await describe_scene(Port(["{}"] * 2), PromptLibrary(), INP, max_retries=1, repair=False)
-    garbage = await describe_scene(Port(["not json"]), PromptLibrary(), INP, max_retries=0)
+        await describe_scene(ScriptedLLM(["{}"] * 2), PromptLibrary(), INP, max_retries=1, repair=False)
+    garbage = await describe_scene(ScriptedLLM(["not json"]), PromptLibrary(), INP, max_retries=0)
     assert garbage.repaired and all(n in garbage.text for n in NAMES)
 
 
@@ -98,7 +88,7 @@ async def test_cache_per_scene_model_and_prompts(tmp_path: Path) -> None:
     scene = resolve_scene("home")
     inp = describer_input_from_scene(scene)
     reply = json.dumps({"areas": [{"name": "all", "purpose": "", "objects": list(inp.object_names)}]})
-    port = Port([reply, reply])
+    port = ScriptedLLM([reply, reply])
     lib = PromptLibrary()
     first = await describe_scene_cached(port, lib, scene, model="m1", cache_dir=tmp_path, inp=inp)
     again = await describe_scene_cached(port, lib, scene, model="m1", cache_dir=tmp_path, inp=inp)
@@ -140,7 +130,7 @@ async def test_regions_mode_names_clusters_and_checks_each_once() -> None:
     bad = json.dumps({"areas": [{"name": "kitchen", "purpose": "", "regions": [1, 1]}, {"name": "x", "purpose": "", "regions": [7]}]})
     good = json.dumps({"areas": [{"name": "kitchen", "purpose": "coffee", "regions": [1]},
                                  {"name": "living room", "purpose": "", "regions": [2, 3]}]})
-    port = Port([bad, good])
+    port = ScriptedLLM([bad, good])
     desc = await describe_scene(port, lib, REGIONS_INP)
     feedback = port.requests[1].messages[-1].content
     assert "region(s) used in more than one area: 1" in feedback and "no such region: 7" in feedback
@@ -150,5 +140,5 @@ async def test_regions_mode_names_clusters_and_checks_each_once() -> None:
 
 async def test_regions_mode_repairs_after_last_try() -> None:
     partial = json.dumps({"areas": [{"name": "kitchen", "purpose": "", "regions": [1]}]})
-    desc = await describe_scene(Port([partial]), PromptLibrary(), REGIONS_INP, max_retries=0)
+    desc = await describe_scene(ScriptedLLM([partial]), PromptLibrary(), REGIONS_INP, max_retries=0)
     assert desc.repaired and "couch_1" in desc.text and "tv_1" in desc.text

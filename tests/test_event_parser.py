@@ -22,11 +22,11 @@ from agents.event_parser import (
     run_reply,
     scene_action_labels,
 )
-from agents.llm_port import LLMRequest, LLMResponse
 from agents.messages import CharacterStatus, Event
 from agents.prompt_templates import PromptLibrary
 from agents.retry_feedback import AnswerRejectedError, NoCodeError, RetriesExhaustedError
 from sim.scene.model import Scene, SceneObject
+from tests.support.scripted_llm import ScriptedLLM
 from tools.errors import UnknownObjectError
 
 BODY = '    a = get_character("Ann")\n    a.set_position(get_area_close_to("table_1"))\n'
@@ -115,16 +115,6 @@ def test_request_layout() -> None:
     assert "Suggested action label: eat" in user
 
 
-class Port:
-    def __init__(self, replies: list[str]) -> None:
-        self.replies = list(replies)
-        self.requests: list[LLMRequest] = []
-
-    async def complete(self, request: LLMRequest) -> LLMResponse:
-        self.requests.append(request)
-        return LLMResponse(text=self.replies.pop(0), model="fake")
-
-
 def fake_runner(scene, source, world, *, seed, action_labels=None, graph=None):
     if "tabel_1" in source:
         raise UnknownObjectError("unknown object 'tabel_1'; did you mean 'table_1'?")
@@ -132,7 +122,7 @@ def fake_runner(scene, source, world, *, seed, action_labels=None, graph=None):
 
 
 async def test_typed_error_becomes_feedback_and_retry_succeeds() -> None:
-    port = Port(["no code here", "```python\n" + FUNC.replace("table_1", "tabel_1") + "```", "```python\n" + FUNC + "```"])
+    port = ScriptedLLM(["no code here", "```python\n" + FUNC.replace("table_1", "tabel_1") + "```", "```python\n" + FUNC + "```"])
     accepted = await parse_event(port, PromptLibrary(), make_input(), scene=scene(), world=None, seed=5, runner=fake_runner)
     assert accepted.attempts == 3
     assert accepted.value.plans[0].position == (6.0, 1.0)
@@ -141,7 +131,7 @@ async def test_typed_error_becomes_feedback_and_retry_succeeds() -> None:
 
 
 async def test_parser_retries_bounded() -> None:
-    port = Port(["nothing"] * 5)
+    port = ScriptedLLM(["nothing"] * 5)
     with pytest.raises(RetriesExhaustedError):
         await parse_event(port, PromptLibrary(), make_input(), scene=scene(), world=None, seed=0, runner=fake_runner, max_retries=1)
     assert len(port.requests) == 2
@@ -154,7 +144,7 @@ def test_scene_action_labels_drop_absent_appliances() -> None:
 
 def test_real_event_program_runner() -> None:
     """The real sandbox + spatial API path (tools/)."""
-    from orchestrator.cli.plan import RosterWorld
+    from orchestrator.session.roster import RosterWorld
 
     roster = (CharacterStatus(name="Ann", position=(4.0, 1.0)),)
     world = RosterWorld().world_view(roster)
@@ -178,6 +168,6 @@ def test_likely_action_labels_follow_the_activity_words() -> None:
 
 
 async def test_parser_retry_asks_for_the_code_block_only() -> None:
-    port = Port(["no code", "```python\n" + FUNC + "```"])
+    port = ScriptedLLM(["no code", "```python\n" + FUNC + "```"])
     await parse_event(port, PromptLibrary(), make_input(), scene=scene(), world=None, seed=0, runner=fake_runner)
     assert port.requests[1].messages[-1].content.endswith("reply with the whole corrected ```python block only.")

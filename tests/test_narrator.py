@@ -7,7 +7,6 @@ import json
 import pytest
 from pydantic import ValidationError
 
-from agents.llm_port import LLMRequest, LLMResponse
 from agents.messages import CharacterStatus, HistoryEntry
 from agents.narrator import (
     NarratorInput,
@@ -19,6 +18,7 @@ from agents.narrator import (
 )
 from agents.prompt_templates import PromptLibrary
 from agents.retry_feedback import AnswerRejectedError, RetriesExhaustedError, feedback_from_error
+from tests.support.scripted_llm import ScriptedLLM
 
 ROSTER = (
     CharacterStatus(name="Ann"),
@@ -36,16 +36,6 @@ def make_input(**kw) -> NarratorInput:
     base = dict(scene_description=DESCRIPTION, characters=ROSTER, instruction="Ann eats.", seed=3)
     base.update(kw)
     return NarratorInput(**base)
-
-
-class Port:
-    def __init__(self, replies: list[str]) -> None:
-        self.replies = list(replies)
-        self.requests: list[LLMRequest] = []
-
-    async def complete(self, request: LLMRequest) -> LLMResponse:
-        self.requests.append(request)
-        return LLMResponse(text=self.replies.pop(0), model="fake")
 
 
 def test_schema_enumerates_only_free_characters_and_bounds_arrays() -> None:
@@ -99,7 +89,7 @@ def test_reply_in_fences_is_accepted() -> None:
 
 
 async def test_retries_then_success_and_feedback_in_conversation() -> None:
-    port = Port([reply(["Bob"]), "nonsense", reply(["Ann"])])
+    port = ScriptedLLM([reply(["Bob"]), "nonsense", reply(["Ann"])])
     accepted = await narrate(port, PromptLibrary(), make_input(), max_retries=3)
     assert accepted.attempts == 3 and accepted.value.event.characters == ("Ann",)
     last = port.requests[-1].messages
@@ -108,14 +98,14 @@ async def test_retries_then_success_and_feedback_in_conversation() -> None:
 
 
 async def test_retries_are_bounded_and_configurable() -> None:
-    port = Port([reply(["Zed"])] * 10)
+    port = ScriptedLLM([reply(["Zed"])] * 10)
     with pytest.raises(RetriesExhaustedError) as info:
         await narrate(port, PromptLibrary(), make_input(), max_retries=2)
     assert len(port.requests) == 3 and info.value.attempts == 3
 
 
 async def test_no_free_character_waits_without_a_call() -> None:
-    port = Port([])
+    port = ScriptedLLM([])
     roster = (CharacterStatus(name="Bob", busy=True),)
     accepted = await narrate(port, PromptLibrary(), make_input(characters=roster))
     assert accepted.value.event.is_wait and accepted.attempts == 0 and not port.requests
@@ -138,7 +128,7 @@ def test_instruction_is_numbered_by_sentence() -> None:
 
 
 async def test_retries_sample_with_temperature_first_try_does_not() -> None:
-    port = Port([reply(["Zed"]), reply(["Ann"])])
+    port = ScriptedLLM([reply(["Zed"]), reply(["Ann"])])
     await narrate(port, PromptLibrary(), make_input())
     assert port.requests[0].temperature is None and port.requests[1].temperature == 0.7
     assert port.requests[0].seed == port.requests[1].seed == 3

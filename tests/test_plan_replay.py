@@ -128,13 +128,13 @@ async def test_embedded_model_narrator_and_parser_end_to_end(tmp_path: Path) -> 
 
     from agents.event_parser import PARSER_RETRY_INSTRUCTION, scene_action_labels
     from agents.messages import ParsedEvent, PlanningFailure, SceneDescription
-    from orchestrator.cli.plan import RosterWorld, initial_roster
     from orchestrator.llm.config import load_config
     from orchestrator.llm.replay import build_llm_port
     from orchestrator.llm.traces import read_trace
     from orchestrator.planning.checkpoints import StoryLog
     from orchestrator.planning.graph import compile_planning_graph, recursion_limit
     from orchestrator.planning.state import PlanningDeps, PlanningState
+    from orchestrator.session.roster import RosterWorld, initial_roster
     from sim.scene.bundled import resolve_scene
 
     config_path = tmp_path / "generous.toml"

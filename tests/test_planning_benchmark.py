@@ -1,7 +1,7 @@
 """The planning benchmark on the reference test cases: case loading, scoring, the runner with
 scripted planners, and the command line (record, then replay byte for byte) through the real
 litellm client against a fake OpenAI-compatible server on 127.0.0.1
-(``tests/fake_openai_server.py``)."""
+(``tests/support/fake_openai_server.py``)."""
 
 from __future__ import annotations
 
@@ -11,12 +11,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from fake_openai_server import FakeOpenAI
 
-from agents.ablation_planners import EventDrivenPlanner
-from agents.llm_port import LLMRequest, LLMResponse
+from agents.llm_port import LLMRequest
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from agents.prompt_templates import PromptLibrary
 from benchmark.plan_scoring import ActionExpressionError, action_matches, score_outcome
 from benchmark.planning_benchmark import Descriptions, main, run_cases, summary_rows
 from benchmark.reference_cases import (
@@ -27,7 +24,9 @@ from benchmark.reference_cases import (
     scene_dir,
 )
 from sim.scene.files import load_scene
+from tests.support.fake_openai_server import FakeOpenAI
 from tests.support.reference import REFERENCE, requires_reference
+from tests.support.scripted_llm import ScriptedLLM
 
 pytestmark = requires_reference
 
@@ -50,20 +49,18 @@ def program(case: int) -> str:
     return f"```python\ndef parse_event():\n    {PROGRAMS[case][2]}\n```"
 
 
-class OraclePort:
-    """Answers narrator and parser requests with the known-good reply of the current case."""
+def oracle(case_of: dict[str, int], broken: bool = False) -> ScriptedLLM:
+    """Answers narrator and parser requests with the known-good reply of the current case (the
+    case whose character the user messages name); ``broken``: a parser that cannot write Python."""
 
-    def __init__(self, case_of: dict[str, int], broken: bool = False) -> None:
-        self.case_of, self.broken = case_of, broken
-        self.requests: list[LLMRequest] = []
-
-    async def complete(self, request: LLMRequest) -> LLMResponse:
-        self.requests.append(request)
+    def reply(request: LLMRequest) -> str:
         text = " ".join(m.content for m in request.messages if m.role == "user")
-        case = next(c for name, c in self.case_of.items() if name in text)
+        case = next(c for name, c in case_of.items() if name in text)
         if request.node == "narrator":
-            return LLMResponse(text=narration(case), model="oracle")
-        return LLMResponse(text="def parse_event(:\n" if self.broken else program(case), model="oracle")
+            return narration(case)
+        return "def parse_event(:\n" if broken else program(case)
+
+    return ScriptedLLM(reply, model="oracle")
 
 
 def _scene(case_id: int):  # type: ignore[no-untyped-def]
@@ -144,10 +141,9 @@ def test_scoring_judges_action_relationship_seat_and_failures() -> None:
 async def test_runner_with_an_oracle_passes_and_a_broken_parser_does_not_execute() -> None:
     cases = [c.at_level(2) for c in load_cases(REFERENCE, list(PROGRAMS))]
     who = {PROGRAMS[c.id][0]: c.id for c in cases}
-    prompts = PromptLibrary()
-    port = OraclePort(who)
-    descriptions = Descriptions("reference", port, prompts, REFERENCE, "oracle", None, 3)
-    results = await run_cases(cases, EventDrivenPlanner(port, prompts), descriptions, REFERENCE, runs=2)
+    port = oracle(who)
+    descriptions = Descriptions("reference", REFERENCE)
+    results = await run_cases(cases, port, descriptions, REFERENCE, runs=2)
     assert [(r.case, r.run) for r in results] == [(0, 0), (0, 1), (20, 0), (20, 1), (60, 0), (60, 1)]
     assert all(r.score.passed for r in results), [r.score.reason for r in results]
     assert [r.node for r in port.requests[:2]] == ["narrator", "event_parser"]
@@ -155,8 +151,8 @@ async def test_runner_with_an_oracle_passes_and_a_broken_parser_does_not_execute
     rows = {label: (n, s, e) for label, n, s, e in summary_rows(results)}
     assert rows["all"] == (6, 1.0, 1.0) and rows["PI"] == (2, 1.0, 1.0)
 
-    broken = OraclePort(who, broken=True)
-    results = await run_cases(cases[:1], EventDrivenPlanner(broken, prompts, max_retries=2), descriptions, REFERENCE)
+    broken = oracle(who, broken=True)
+    results = await run_cases(cases[:1], broken, descriptions, REFERENCE, max_retries=2)
     assert not results[0].score.executed and results[0].score.kind == "failure"
     assert [r.node for r in broken.requests] == ["narrator", "event_parser", "event_parser", "event_parser"]
 

@@ -13,7 +13,7 @@ import re
 import subprocess
 import sys
 import textwrap
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,6 +27,7 @@ from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
 from orchestrator.planning.graph import compile_planning_graph, recursion_limit, route_step
 from orchestrator.planning.state import PlanningDeps, PlanningState
 from sim.scene.model import Scene, SceneObject
+from tests.support.scripted_llm import ScriptedLLM
 from tools.errors import UnknownObjectError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -82,23 +83,6 @@ class FakeWorld:
         return []
 
 
-class ScriptedPort:
-    """Answers per node from a list of replies (or a function of the request); counts calls."""
-
-    def __init__(self, replies: dict[str, list[str] | Callable[[LLMRequest], str]]) -> None:
-        self.replies = replies
-        self.calls: list[LLMRequest] = []
-
-    async def complete(self, request: LLMRequest) -> LLMResponse:
-        self.calls.append(request)
-        source = self.replies[request.node]
-        text = source(request) if callable(source) else source.pop(0)
-        return LLMResponse(text=text, model="scripted")
-
-    def count(self, node: str) -> int:
-        return sum(1 for c in self.calls if c.node == node)
-
-
 DESCRIPTION = json.dumps(
     {"areas": [{"name": "dining", "purpose": "eat", "objects": ["table_1", "chair_1", "chair_2"]},
                {"name": "kitchen", "purpose": "food", "objects": ["fridge_1"]}]}
@@ -112,7 +96,7 @@ def narration(chars: list[str], activity: str) -> str:
 PROGRAM = '```python\ndef parse_event():\n    c = get_character("{who}")\n    c.set_position(get_area_close_to("table_1"))\n    c.set_target_action("eat")\n```'
 
 
-def make_deps(port: ScriptedPort, story: StoryLog, **kw: Any) -> PlanningDeps:
+def make_deps(port: ScriptedLLM, story: StoryLog, **kw: Any) -> PlanningDeps:
     return PlanningDeps(
         port=port, scene=tiny_scene(), world=FakeWorld(), story=story,
         action_labels=("idle", "eat", "chat"), runner=fake_runner, scene_graph=None, **kw,
@@ -125,7 +109,7 @@ def initial_state(names: list[str], k: int) -> dict[str, Any]:
     ).model_dump()
 
 
-async def run_graph(port: ScriptedPort, k: int, names: list[str], **kw: Any) -> tuple[dict, StoryLog]:
+async def run_graph(port: ScriptedLLM, k: int, names: list[str], **kw: Any) -> tuple[dict, StoryLog]:
     story = StoryLog(":memory:", "t1")
     graph = compile_planning_graph(InMemorySaver())
     final = await graph.ainvoke(
@@ -138,7 +122,7 @@ async def run_graph(port: ScriptedPort, k: int, names: list[str], **kw: Any) -> 
 
 
 async def test_two_events_with_narrator_and_parser_feedback() -> None:
-    port = ScriptedPort({
+    port = ScriptedLLM({
         "describer": [DESCRIPTION],
         "narrator": [
             narration(["Zed"], "eat"),  # unknown character -> feedback
@@ -158,19 +142,19 @@ async def test_two_events_with_narrator_and_parser_feedback() -> None:
     assert events[0].narrator_attempts == 2 and events[0].parser_attempts == 3
     assert events[0].plans[0].action == "eat"
     # the feedback named the problems, in the conversation of the retries
-    narrator_retry = port.calls[2]
+    narrator_retry = port.requests[2]
     assert narrator_retry.node == "narrator" and "Zed is not a character" in narrator_retry.messages[-1].content
-    parser_calls = [c for c in port.calls if c.node == "event_parser"]
+    parser_calls = [c for c in port.requests if c.node == "event_parser"]
     assert "no parse_event() function" in parser_calls[1].messages[-1].content
     assert "tabel_1" in parser_calls[2].messages[-1].content
     # the stable prefix is unchanged across retries (prefix cache)
     assert parser_calls[2].messages[:2] == parser_calls[0].messages[:2]
-    assert final["step"] == 2 and final["llm_calls"] == len(port.calls)  # describer included
+    assert final["step"] == 2 and final["llm_calls"] == len(port.requests)  # describer included
     assert PlanningState.model_validate(final).recent[-1].characters == ("Bob",)
 
 
 async def test_retries_exhausted_is_a_failure_and_story_goes_on() -> None:
-    port = ScriptedPort({
+    port = ScriptedLLM({
         "describer": [DESCRIPTION],
         "narrator": [narration(["Zed"], "x")] * 3 + [narration(["Ann"], "eat")],
         "event_parser": [PROGRAM.format(who="Ann")],
@@ -187,10 +171,10 @@ async def test_model_outage_fails_the_step_and_the_story_goes_on() -> None:
 
     outage = [LLMError("node event_parser: all 3 attempts failed (Timeout)")]
 
-    class FlakyPort(ScriptedPort):
+    class FlakyPort(ScriptedLLM):
         async def complete(self, request: LLMRequest) -> LLMResponse:
             if request.node == "event_parser" and outage:
-                self.calls.append(request)
+                self.requests.append(request)
                 raise outage.pop()
             return await super().complete(request)
 
@@ -206,7 +190,7 @@ async def test_model_outage_fails_the_step_and_the_story_goes_on() -> None:
     assert second[1] is not None and second[1].event.characters == ("Ann",)  # type: ignore[union-attr]
 
     # a replay miss is not an outage: it stops the run
-    class MissPort(ScriptedPort):
+    class MissPort(ScriptedLLM):
         async def complete(self, request: LLMRequest) -> LLMResponse:
             if request.node == "narrator":
                 raise ReplayMissError("replay miss for node narrator")
@@ -221,13 +205,13 @@ async def test_wait_and_busy_characters_are_not_offered() -> None:
         enum = req.json_schema["properties"]["event"]["properties"]["characters"]["items"]["enum"]  # type: ignore[index]
         return narration(enum[:1], "eat at table_1")
 
-    port = ScriptedPort({"describer": [DESCRIPTION], "narrator": narrator,
+    port = ScriptedLLM({"describer": [DESCRIPTION], "narrator": narrator,
                          "event_parser": lambda r: PROGRAM.format(who=re.search(r'\["(\w+)"\]', r.messages[-1].content).group(1))})  # type: ignore[union-attr]
     _, story = await run_graph(port, 3, ["Ann", "Bob"], busy_for_events=1)
     outcomes = story.outcomes()
     # Ann is busy during step 1, so Bob is planned; in step 2 Ann is free again
     assert [o.event.characters for _, o in outcomes] == [("Ann",), ("Bob",), ("Ann",)]  # type: ignore[union-attr]
-    narrator_calls = [c for c in port.calls if c.node == "narrator"]
+    narrator_calls = [c for c in port.requests if c.node == "narrator"]
     assert "Ann: busy" in narrator_calls[1].messages[1].content
 
 
@@ -244,7 +228,8 @@ CHILD = textwrap.dedent(
     import asyncio, os, sys
     sys.path.insert(0, {tests!r})
     sys.path.insert(0, {repo!r})
-    from test_planning_graph import ScriptedPort, DESCRIPTION, narration, make_deps, initial_state
+    from tests.support.scripted_llm import ScriptedLLM
+    from test_planning_graph import DESCRIPTION, narration, make_deps, initial_state
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.graph import compile_planning_graph
 
@@ -252,7 +237,7 @@ CHILD = textwrap.dedent(
         os._exit(17)  # hard kill, no cleanup, the moment the parser is asked
 
     async def main():
-        port = ScriptedPort({{"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat")], "event_parser": die}})
+        port = ScriptedLLM({{"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat")], "event_parser": die}})
         async with open_checkpointer({db!r}) as saver:
             graph = compile_planning_graph(saver)
             await graph.ainvoke(initial_state(["Ann"], 1), config={{"configurable": {{"thread_id": "k"}}}},
@@ -270,7 +255,7 @@ async def test_killed_run_resumes_without_repeating_the_narrator(tmp_path: Path)
     proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 17, proc.stderr
 
-    port = ScriptedPort({"describer": [], "narrator": [], "event_parser": [PROGRAM.format(who="Ann")]})
+    port = ScriptedLLM({"describer": [], "narrator": [], "event_parser": [PROGRAM.format(who="Ann")]})
     story = StoryLog(db, "k")
     async with open_checkpointer(db) as saver:
         graph = compile_planning_graph(saver)
@@ -291,7 +276,8 @@ CHILD_DESCRIBER = textwrap.dedent(
     import asyncio, os, sys
     sys.path.insert(0, {tests!r})
     sys.path.insert(0, {repo!r})
-    from test_planning_graph import ScriptedPort, make_deps, initial_state
+    from tests.support.scripted_llm import ScriptedLLM
+    from test_planning_graph import make_deps, initial_state
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.graph import compile_planning_graph
 
@@ -303,7 +289,7 @@ CHILD_DESCRIBER = textwrap.dedent(
         os._exit(17)  # hard kill the moment the describer is asked again
 
     async def main():
-        port = ScriptedPort({{"describer": describer}})
+        port = ScriptedLLM({{"describer": describer}})
         async with open_checkpointer({db!r}) as saver:
             graph = compile_planning_graph(saver)
             await graph.ainvoke(initial_state(["Ann"], 1), config={{"configurable": {{"thread_id": "d"}}}},
@@ -321,7 +307,7 @@ async def test_killed_describer_retry_resumes_without_repeating_the_first_attemp
     proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 17, proc.stderr
 
-    port = ScriptedPort({"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat")],
+    port = ScriptedLLM({"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat")],
                          "event_parser": [PROGRAM.format(who="Ann")]})
     story = StoryLog(db, "d")
     async with open_checkpointer(db) as saver:
@@ -332,7 +318,7 @@ async def test_killed_describer_retry_resumes_without_repeating_the_first_attemp
         assert len(snapshot.values["describer_turns"]) == 1  # the first attempt and its feedback survived
         final = await graph.ainvoke(None, config=config, context=make_deps(port, story), durability="sync")
     assert port.count("describer") == 1  # only the attempt that was cut off is made again
-    retry = port.calls[0]
+    retry = port.requests[0]
     assert retry.node == "describer" and len(retry.messages) == 4  # system, user, rejected reply, feedback
     assert "missing" in retry.messages[-1].content and "chair_1" in retry.messages[-1].content
     state = PlanningState.model_validate(final)
@@ -342,7 +328,7 @@ async def test_killed_describer_retry_resumes_without_repeating_the_first_attemp
 
 async def test_describer_retries_exhausted_repairs_from_clusters() -> None:
     bad = '{"areas": [{"name": "dining", "purpose": "eat", "objects": ["table_1", "table_1"]}]}'
-    port = ScriptedPort({"describer": [bad, "not json", bad],
+    port = ScriptedLLM({"describer": [bad, "not json", bad],
                          "narrator": [narration(["Ann"], "eat")], "event_parser": [PROGRAM.format(who="Ann")]})
     final, _ = await run_graph(port, 1, ["Ann"], max_retries=2)
     state = PlanningState.model_validate(final)
@@ -355,7 +341,7 @@ async def test_describer_retries_exhausted_repairs_from_clusters() -> None:
 async def test_requests_carry_the_step_frame_and_parsed_outputs_are_traced(tmp_path: Path) -> None:
     from orchestrator.llm.traces import TraceWriter, read_trace
 
-    class TracedPort(ScriptedPort):
+    class TracedPort(ScriptedLLM):
         """Numbers its answers like a trace-writing client (seqs of its own sink)."""
 
         def __init__(self, replies: dict[str, Any], trace: TraceWriter) -> None:
@@ -379,8 +365,8 @@ async def test_requests_carry_the_step_frame_and_parsed_outputs_are_traced(tmp_p
     await graph.ainvoke(start, config={"configurable": {"thread_id": "t1"}, "recursion_limit": recursion_limit(1, 3)},
                         context=make_deps(port, story), durability="sync")
     trace.close()
-    assert {c.sim_frame for c in port.calls} == {42}
-    assert all(c.content_hash() == c.model_copy(update={"sim_frame": None}).content_hash() for c in port.calls)
+    assert {c.sim_frame for c in port.requests} == {42}
+    assert all(c.content_hash() == c.model_copy(update={"sim_frame": None}).content_hash() for c in port.requests)
     # seqs: run record 0, then each answer followed by its parsed record: describer 1,
     # narrator 3 and 5, parser 7 and 9
     assert story.trace_seqs(0) == (3, 5, 7, 9)
@@ -398,8 +384,8 @@ async def test_requests_carry_the_step_frame_and_parsed_outputs_are_traced(tmp_p
 
 
 async def test_program_grammar_reaches_the_parser_request_only_when_asked() -> None:
-    def port() -> ScriptedPort:
-        return ScriptedPort({
+    def port() -> ScriptedLLM:
+        return ScriptedLLM({
             "describer": [DESCRIPTION],
             "narrator": [narration(["Ann"], "eat at table_1")],
             "event_parser": [PROGRAM.format(who="Ann")],
@@ -407,13 +393,13 @@ async def test_program_grammar_reaches_the_parser_request_only_when_asked() -> N
 
     plain = port()
     await run_graph(plain, 1, ["Ann"])
-    assert [c.grammar for c in plain.calls if c.node == "event_parser"] == [None]
+    assert [c.grammar for c in plain.requests if c.node == "event_parser"] == [None]
     constrained = port()
     await run_graph(constrained, 1, ["Ann", "Bob"], program_grammar=True)
-    (grammar,) = [c.grammar for c in constrained.calls if c.node == "event_parser"]
+    (grammar,) = [c.grammar for c in constrained.requests if c.node == "event_parser"]
     assert grammar is not None and 'get_character(\\"Ann\\")' in grammar and "block2" not in grammar
     assert '\\"table_1\\"' in grammar and '\\"Bob\\"' in grammar  # scene objects; Bob may be looked at
-    assert all(c.grammar is None for c in constrained.calls if c.node != "event_parser")
+    assert all(c.grammar is None for c in constrained.requests if c.node != "event_parser")
 
 
 async def test_sqlite_checkpoints_rebuild_our_types_without_warnings(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
@@ -422,7 +408,7 @@ async def test_sqlite_checkpoints_rebuild_our_types_without_warnings(tmp_path: P
     from orchestrator.planning.checkpoints import checkpoint_serializer
     from orchestrator.planning.state import RetryTurn
 
-    port = ScriptedPort({"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat at table_1")],
+    port = ScriptedLLM({"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat at table_1")],
                          "event_parser": [PROGRAM.format(who="Ann")]})
     db = tmp_path / "runs.sqlite"
     story = StoryLog(db, "t1")
@@ -452,7 +438,7 @@ async def test_sqlite_checkpoints_rebuild_our_types_without_warnings(tmp_path: P
 async def test_the_rest_of_the_instruction_for_a_busy_character_is_a_wait_without_a_call() -> None:
     # "Ann eats, then chats": while Ann eats (busy for one step) the second part is hers, so
     # Bob's step is a wait with no narrator call; then Ann is free and takes part 2.
-    port = ScriptedPort({
+    port = ScriptedLLM({
         "describer": [DESCRIPTION],
         "narrator": [narration(["Ann"], "eat at table_1"), narration(["Ann"], "chat next to table_1")],
         "event_parser": [PROGRAM.format(who="Ann"), PROGRAM.format(who="Ann")],
@@ -467,6 +453,6 @@ async def test_the_rest_of_the_instruction_for_a_busy_character_is_a_wait_withou
     assert outcomes[1] is None  # the wait
     assert [o.event.characters for o in outcomes if o is not None] == [("Ann",), ("Ann",)]  # type: ignore[union-attr]
     assert port.count("narrator") == 2
-    second = [c for c in port.calls if c.node == "narrator"][1]
+    second = [c for c in port.requests if c.node == "narrator"][1]
     assert "1) [done] Ann eats.\n2) [next] Then Ann chats." in second.messages[-1].content
     assert second.json_schema["properties"]["event"]["properties"]["characters"]["items"]["enum"] == ["Ann"]

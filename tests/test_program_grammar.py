@@ -11,11 +11,10 @@ from typing import Any
 
 import pytest
 
-from agents.ablation_planners import PlanningStep, step_program_grammar
 from agents.event_parser import ParserInput, parser_request, run_reply, scene_action_labels
 from agents.llm_port import ChatMessage, LLMRequest
-from agents.messages import CharacterStatus, Event, SceneDescription
-from agents.program_grammar import program_grammar
+from agents.messages import CharacterStatus, Event
+from agents.program_grammar import event_program_grammar, program_grammar
 from agents.prompt_templates import PromptLibrary
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import default_config
@@ -30,14 +29,17 @@ WORLD = WorldView(characters=tuple(CharacterState(name=c.name, position=c.positi
 EVENT = Event(characters=("Ava",), activity="make coffee with coffee_maker_1")
 
 
-def _step(grammar: bool = True) -> PlanningStep:
-    return PlanningStep(index=0, scene=SCENE, description=SceneDescription(scene="home", text="- kitchen: coffee_maker_1"),
-                        characters=ROSTER, instruction="", world=WORLD, action_labels=scene_action_labels(SCENE),
-                        seats_in_use=("couch_1", "chair_2"), program_grammar=grammar)
+LABELS = scene_action_labels(SCENE)
+SEATS_IN_USE = ("couch_1", "chair_2")
+
+
+def event_grammar(event: Event) -> str:
+    """The grammar the planning graph's parser input carries for ``event`` (free seats, offered labels)."""
+    return event_program_grammar(SCENE, event.characters, ROSTER, SEATS_IN_USE, LABELS)
 
 
 def test_grammar_names_only_scene_objects_free_seats_and_offered_labels() -> None:
-    g = step_program_grammar(_step(), EVENT)
+    g = event_grammar(EVENT)
     rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
     objects = set(re.findall(r'\\"([^"\\]+)\\"', rules["object"]))
     assert objects == {o.name for o in SCENE.objects}
@@ -91,7 +93,7 @@ def test_local_provider_builds_a_llama_grammar() -> None:
 
     from orchestrator.llm.local_model import _llama_params
 
-    params = _llama_params({"max_tokens": 50, "response_format": {"type": "gbnf", "grammar": step_program_grammar(_step(), EVENT)}})
+    params = _llama_params({"max_tokens": 50, "response_format": {"type": "gbnf", "grammar": event_grammar(EVENT)}})
     assert isinstance(params["grammar"], LlamaGrammar) and "response_format" not in params
 
 
@@ -105,13 +107,12 @@ async def test_real_embedded_model_writes_a_runnable_program_under_the_grammar(t
     _embedded_weights_or_skip()
     register_local_provider(LocalLlamaProvider())
     client = LiteLLMClient(default_config(), TraceWriter(tmp_path / "t.jsonl"))
-    step = _step()
     inp = ParserInput(scene_description="- kitchen: coffee_maker_1, fridge_1, cabinet_1", event=EVENT, characters=ROSTER,
-                      action_labels=step.action_labels, seats_in_use=step.seats_in_use, seed=0,
-                      grammar=step_program_grammar(step, EVENT))
+                      action_labels=LABELS, seats_in_use=SEATS_IN_USE, seed=0,
+                      grammar=event_grammar(EVENT))
     response = await client.complete(parser_request(PromptLibrary(), inp))
     client.close()
-    result = run_reply(response.text, scene=SCENE, event=EVENT, world=WORLD, seed=0, action_labels=step.action_labels)
+    result = run_reply(response.text, scene=SCENE, event=EVENT, world=WORLD, seed=0, action_labels=LABELS)
     assert [p.character for p in result.plans] == ["Ava"]
     attempt: Any = next(read_trace(tmp_path / "t.jsonl").attempts())
     assert attempt.params["response_format"]["type"] == "gbnf"
@@ -135,7 +136,7 @@ def test_after_a_sit_area_only_seated_actions_are_offered_and_the_check_agrees()
     from agents.retry_feedback import AnswerRejectedError
     from tools.character_states import CharacterPlan
 
-    g = step_program_grammar(_step(), EVENT)
+    g = event_grammar(EVENT)
     rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
     assert '\\"use_coffee_maker\\"' in rules["label"] and '\\"use_coffee_maker\\"' not in rules["sitlabel"]
     assert '\\"idle\\"' in rules["sitlabel"]

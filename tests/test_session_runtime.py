@@ -202,10 +202,11 @@ async def _graph_session(scene, motion, port, trace, tmp_path, settings: Session
     from orchestrator.planning.checkpoints import StoryLog
     from orchestrator.planning.graph import compile_planning_graph
     from orchestrator.planning.state import PlanningDeps
-    from orchestrator.session.step_planner import GraphStepPlanner, SessionWorld
+    from orchestrator.session.roster import RosterWorld
+    from orchestrator.session.step_planner import GraphStepPlanner
 
     story = StoryLog(tmp_path / "runs.sqlite", thread)
-    deps = PlanningDeps(port=port, scene=scene, world=SessionWorld(), story=story,
+    deps = PlanningDeps(port=port, scene=scene, world=RosterWorld(), story=story,
                         action_labels=scene_action_labels(scene), seed=0)
     planner = GraphStepPlanner(compile_planning_graph(InMemorySaver()), deps, thread, "Everyone reads.")
     world = _world(scene, motion, ["Ava", "Ben"])

@@ -1,54 +1,69 @@
-"""The paper's ablations on langgraph, with the planning graph's state, context and story log.
+"""The paper's ablations as variants of the planning graph: the same wiring, other nodes.
 
-``storyteller plan`` / ``storyteller run`` pick a planner (``--planner``) and a scene description
-(``--description``):
+``storyteller plan``, ``storyteller run`` and the planning benchmark pick a planner
+(``--planner``) and a scene description (``--description``); :func:`compile_graph` returns the
+compiled graph for the pair. Every variant takes :class:`PlanningState` and
+:class:`PlanningDeps` unchanged, makes at most one LLM call per node (checkpointed per call,
+so a resumed run never repeats a finished call) and records its outcome with the planning
+graph's own ``record_outcome``:
 
-- planner ``event`` (the full method) is the planning graph itself
-  (:func:`orchestrator.planning.graph.compile_planning_graph`: narrator, event parser and
-  their feedback loops, one LLM call per node, checkpointed per call). With a description
-  ablation it is wrapped by :class:`PresetDescriptionGraph`, which hands a fresh thread the
-  object list or scene graph as its description, so the describer node has nothing to do;
-- planner ``unified`` ("w/o Event", :class:`agents.ablation_planners.UnifiedPlanner`, node
-  ``planner``) and ``direct`` ("Direct Inference",
-  :class:`agents.ablation_planners.DirectInferencePlanner`, nodes ``narrator`` and
-  ``event_parser``) run on a small graph of their own (:func:`build_ablation_graph`): the
-  main graph's describer nodes (one per describer call and check, cached on disk) or one
-  node setting a preset description, one ``plan_step`` node per planning step, and the main
-  graph's ``record_outcome``. A resumed run repeats the calls of an interrupted step, never those of a
-  finished one;
-- description ``describer`` asks the describer; ``object-list`` and ``scene-graph`` use
-  :func:`~agents.ablation_planners.object_list_description` and
-  :func:`~agents.ablation_planners.scene_graph_description` (no LLM call).
+- planner ``event`` (the full method) is :func:`orchestrator.planning.graph.build_planning_graph`
+  as it is: narrator, event parser and their feedback loops;
+- planner ``direct`` ("Direct Inference") is the same graph with the event parser's two nodes
+  swapped: ``parse_event`` asks for coordinates (:func:`agents.ablations.direct.direct_request`)
+  and ``check_program`` checks and runs them
+  (:func:`agents.ablations.direct.check_direct_reply`);
+- planner ``unified`` ("w/o Event") replaces the narrator and the parser by one call
+  (node ``planner``, :func:`agents.ablations.unified.unified_request`) and its check, with
+  the planning graph's describer nodes, routers and ``record_outcome`` around them::
 
-All of them take :class:`PlanningState` and :class:`PlanningDeps` unchanged, so
-:class:`~orchestrator.session.step_planner.GraphStepPlanner` drives them in a simulation exactly
-like the main graph. In ``plan_step``, a model that is unavailable after the client's retries
-and fallbacks (:class:`~agents.llm_port.LLMError`) makes the step fail, as in the main graph;
-a replay miss propagates.
+      START -> describe_scene <-> check_description
+                   |                   |
+                   v                   v
+                route_step --> plan_event -> check_plan --+
+                   ^   |   (no free character: wait)      |
+                   |   v                                   v
+                   +- record_outcome <---------------------+
+
+  It keeps its reply, turns and trace seq in the state's ``parser_*`` fields (the call that
+  places the characters); a program that plans nobody sets a wait event;
+- description ``describer`` asks the describer; ``object-list`` and ``scene-graph`` swap the
+  ``describe_scene`` node for one that sets
+  :func:`~agents.ablations.descriptions.object_list_description` or
+  :func:`~agents.ablations.descriptions.scene_graph_description` (no LLM call). A state that
+  already holds a description (e.g. the benchmark's reference text) skips it either way.
+
+A model that is unavailable after the client's retries and fallbacks
+(:class:`~agents.llm_port.LLMError`) makes the step fail, as in the main graph; a replay
+miss propagates.
 """
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any, Literal, get_args
 
 from langgraph.graph import END, START, StateGraph
 from langgraph.runtime import Runtime
 
-from agents.ablation_planners import (
-    DirectInferencePlanner,
-    JudgeHook,
-    Planner,
-    PlanningStep,
-    UnifiedPlanner,
-    object_list_description,
-    scene_graph_description,
-)
-from agents.llm_port import LLMError, LLMRequest, LLMResponse, NodeName, ReplayMissError
-from agents.messages import ParsedEvent, PlanningFailure, SceneDescription
+from agents.ablations.descriptions import object_list_description, scene_graph_description
+from agents.ablations.direct import check_direct_reply, direct_request
+from agents.ablations.unified import check_unified_reply, unified_request
+from agents.llm_port import LLMError
+from agents.messages import Event, ParsedEvent, PlanningFailure, SceneDescription
+from agents.retry_feedback import REJECTIONS, feedback_from_error
 from orchestrator.planning import graph as planning_graph
-from orchestrator.planning.state import PlanningDeps, PlanningState
+from orchestrator.planning.graph import (
+    NodeFn,
+    PlanningGraph,
+    complete,
+    narrator_input,
+    parser_input,
+    record_parsed,
+    reply_update,
+    unavailable,
+)
+from orchestrator.planning.state import PlanningDeps, PlanningState, RetryTurn
 
 PlannerKind = Literal["event", "unified", "direct"]
 DescriptionKind = Literal["describer", "object-list", "scene-graph"]
@@ -92,10 +107,7 @@ class Ablation:
         return thread if self.is_default else f"{thread}@{self.label}"
 
 
-# ----- nodes ------------------------------------------------------------------------------
-NodeFn = Callable[[PlanningState, Runtime[PlanningDeps]], Awaitable[dict[str, Any]]]
-
-
+# ----- description nodes ------------------------------------------------------------------
 def preset_description(kind: DescriptionKind, deps: PlanningDeps) -> SceneDescription:
     """The object list or the raw scene graph of the run's scene (no LLM call)."""
     if kind == "object-list":
@@ -116,152 +128,145 @@ def preset_node(kind: DescriptionKind) -> NodeFn:
     return describe_scene
 
 
-class CountingPort:
-    """Passes requests through with the step's simulation frame attached (trace metadata, not
-    hashed), counting calls per node and keeping the trace seqs of the answers."""
-
-    def __init__(self, port: Any, sim_frame: int | None = None) -> None:
-        self.port = port
-        self.sim_frame = sim_frame
-        self.calls: dict[NodeName, int] = {}
-        self.last_node: NodeName | None = None
-        self.trace_seqs: list[int] = []
-        self.last_seq: int | None = None
-
-    async def complete(self, request: LLMRequest) -> LLMResponse:
-        self.last_node = request.node
-        self.calls[request.node] = self.calls.get(request.node, 0) + 1
-        if self.sim_frame is not None:
-            request = request.model_copy(update={"sim_frame": self.sim_frame})
-        response = await self.port.complete(request)
-        self.last_seq = response.trace_seq
-        if response.trace_seq is not None:
-            self.trace_seqs.append(response.trace_seq)
-        return response
+def _rejected(
+    state: PlanningState, deps: PlanningDeps, node: Literal["event_parser", "planner"], reply: str, exc: BaseException
+) -> dict[str, Any]:
+    """State update for a rejected placing reply: its feedback as a turn, a failure after the last."""
+    feedback = feedback_from_error(exc)
+    record_parsed(deps, state.parser_seq, node, error=exc, feedback=feedback)
+    attempts = len(state.parser_turns) + 1
+    update: dict[str, Any] = {
+        "parser_turns": (*state.parser_turns, RetryTurn(reply=reply, feedback=feedback)),
+        "parser_reply": None,
+        "parser_seq": None,
+    }
+    if attempts > deps.max_retries:
+        update["failure"] = PlanningFailure(index=state.step, node=node, attempts=attempts, feedback=feedback)
+    return update
 
 
-def parsed_recorder(deps: PlanningDeps, counting: CountingPort) -> JudgeHook | None:
-    """A hook that traces what each attempt parsed to (or the typed error that rejected it),
-    against the attempt record of the reply just judged."""
-    sink = deps.trace_sink()
-    if sink is None:
-        return None
-
-    def record(node: str, parsed: Any, error: BaseException | None, feedback: str | None) -> None:
-        if counting.last_seq is None:
-            return
-        if error is None:
-            sink.record_parsed(counting.last_seq, parsed, node=node)
-        else:
-            sink.record_parsed(counting.last_seq, None, node=node, error_type=type(error).__name__, error_message=feedback)
-
-    return record
+def _plans_json(parsed: ParsedEvent | None) -> Any:
+    if parsed is None:
+        return {"wait": True}
+    return {"plans": [p.model_dump(mode="json") for p in parsed.plans], "program": parsed.program}
 
 
-def make_planner(kind: PlannerKind, port: Any, deps: PlanningDeps, judged: JudgeHook | None = None) -> Planner:
-    if kind == "unified":
-        return UnifiedPlanner(port, deps.prompts, max_retries=deps.max_retries, judged=judged)
-    if kind == "direct":
-        return DirectInferencePlanner(port, deps.prompts, max_retries=deps.max_retries, judged=judged)
-    raise ValueError(f"planner {kind!r} runs on the planning graph's own nodes")
+# ----- Direct Inference: the event parser's nodes, answering coordinates -------------------
+async def parse_event_as_coordinates(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """One coordinates call for the narrator's event; checked by the next node."""
+    deps = runtime.context
+    assert state.description is not None
+    turns = tuple(t.as_turn() for t in state.parser_turns)
+    request = direct_request(
+        deps.prompts, parser_input(state, deps), deps.scene,
+        lists_objects=state.description.source == "object_list", turns=turns,
+    )
+    try:
+        response = await complete(deps, request, state)
+    except LLMError as exc:
+        return unavailable(state, "event_parser", exc)
+    return reply_update(state, "parser", response)
 
 
-def plan_node(kind: PlannerKind) -> NodeFn:
-    """One whole planning step of an ablation planner (all its LLM calls and retries)."""
-
-    async def plan_step(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
-        deps = runtime.context
-        assert state.description is not None
-        counting = CountingPort(deps.port, sim_frame=state.sim_frame)
-        step = PlanningStep(
-            index=state.step,
-            scene=deps.scene,
-            description=state.description,
-            characters=state.roster,
-            instruction=state.instruction,
-            world=deps.world.world_view(state.roster),
-            action_labels=deps.action_labels,
-            history=state.recent,
-            seats_in_use=deps.world.seats_in_use(state.roster),
-            tags=deps.tags,
-            seed=deps.seed,
-            graph=deps.scene_graph,
-            runner=deps.runner,
+async def check_coordinates(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """Check the points and run them as an event program; a typed error becomes feedback."""
+    deps = runtime.context
+    if state.failure is not None:
+        return {}
+    assert state.event is not None
+    reply = state.parser_reply or ""
+    try:
+        result = check_direct_reply(
+            reply, scene=deps.scene, event=state.event, world=deps.world.world_view(state.roster),
+            seed=deps.seed + state.step, action_labels=deps.action_labels, graph=deps.scene_graph, runner=deps.runner,
         )
-        try:
-            outcome = await make_planner(kind, counting, deps, parsed_recorder(deps, counting)).plan(step)
-        except ReplayMissError:
-            raise
-        except LLMError as exc:  # the model is out after the client's retries: the step fails
-            node = counting.last_node if counting.last_node in ("narrator", "event_parser", "planner") else "planner"
-            outcome = PlanningFailure(
-                index=state.step,
-                node=node,  # type: ignore[arg-type]
-                attempts=counting.calls.get(node, 1),  # type: ignore[call-overload]
-                feedback=f"{type(exc).__name__}: {exc}",
-            )
-        update: dict[str, Any] = {"llm_calls": state.llm_calls + sum(counting.calls.values())}
-        update["step_trace_seqs"] = (*state.step_trace_seqs, *counting.trace_seqs)  # kept with the outcome
-        if isinstance(outcome, ParsedEvent):
-            update["parsed"] = outcome
-        elif isinstance(outcome, PlanningFailure):
-            update["failure"] = outcome
-        return update
+    except REJECTIONS as exc:
+        return _rejected(state, deps, "event_parser", reply, exc)
+    parsed = ParsedEvent(
+        index=state.step, event=state.event, plans=result.plans, program=result.program,
+        narrator_attempts=state.narrator_attempts, parser_attempts=len(state.parser_turns) + 1,
+    )
+    record_parsed(deps, state.parser_seq, "event_parser", _plans_json(parsed))
+    return {"parsed": parsed, "parser_reply": None, "parser_seq": None}
 
-    return plan_step
+
+# ----- w/o Event: one call places the free characters --------------------------------------
+async def plan_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """One planner call (no narrator); its reply is checked by the next node."""
+    deps = runtime.context
+    turns = tuple(t.as_turn() for t in state.parser_turns)
+    request = unified_request(
+        deps.prompts, narrator_input(state, deps), action_labels=deps.action_labels,
+        seats_in_use=deps.world.seats_in_use(state.roster), turns=turns,
+    )
+    try:
+        response = await complete(deps, request, state)
+    except LLMError as exc:
+        return unavailable(state, "planner", exc)
+    return reply_update(state, "parser", response)
+
+
+async def check_plan(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """Run the planner's program; a program that plans nobody is a wait (a wait event)."""
+    deps = runtime.context
+    if state.failure is not None:
+        return {}
+    reply = state.parser_reply or ""
+    try:
+        parsed = check_unified_reply(
+            reply, index=state.step, scene=deps.scene, characters=state.roster,
+            world=deps.world.world_view(state.roster), seed=deps.seed + state.step,
+            action_labels=deps.action_labels, graph=deps.scene_graph, runner=deps.runner,
+        )
+    except REJECTIONS as exc:
+        return _rejected(state, deps, "planner", reply, exc)
+    record_parsed(deps, state.parser_seq, "planner", _plans_json(parsed))
+    update: dict[str, Any] = {"parser_reply": None, "parser_seq": None}
+    if parsed is None:
+        return {**update, "event": Event()}
+    attempts = len(state.parser_turns) + 1
+    return {**update, "parsed": parsed.model_copy(update={"narrator_attempts": 0, "parser_attempts": attempts})}
+
+
+def route_plan(state: PlanningState) -> Literal["plan_event", "record_outcome"]:
+    if state.parsed is not None or state.failure is not None or (state.event is not None and state.event.is_wait):
+        return "record_outcome"
+    return "plan_event"  # rejected: retry with the feedback
 
 
 # ----- graphs -----------------------------------------------------------------------------
-def build_ablation_graph(ablation: Ablation) -> StateGraph:
-    """The uncompiled graph of an ablation planner (``unified`` or ``direct``)."""
-    if ablation.planner == "event":
-        raise ValueError("the event planner runs on the planning graph itself (see compile_graph)")
-    step_map: dict[Any, str] = {"narrate_event": "plan_step", "record_outcome": "record_outcome", END: END}
-    graph = StateGraph(PlanningState, context_schema=PlanningDeps)
-    graph.add_node("plan_step", plan_node(ablation.planner))
+def build_unified_graph(describe: NodeFn = planning_graph.describe_scene) -> PlanningGraph:
+    """The uncompiled "w/o Event" graph (see the module docstring)."""
+    step_map: dict[Any, str] = {"narrate_event": "plan_event", "record_outcome": "record_outcome", END: END}
+    graph: PlanningGraph = StateGraph(PlanningState, context_schema=PlanningDeps)
+    graph.add_node("describe_scene", describe)
+    graph.add_node("check_description", planning_graph.check_description)
+    graph.add_node("plan_event", plan_event)
+    graph.add_node("check_plan", check_plan)
     graph.add_node("record_outcome", planning_graph.record_outcome)
     graph.add_edge(START, "describe_scene")
-    if ablation.description == "describer":  # the planning graph's describer nodes and routers
-        graph.add_node("describe_scene", planning_graph.describe_scene)
-        graph.add_node("check_description", planning_graph.check_description)
-        graph.add_conditional_edges(
-            "describe_scene", planning_graph.route_description, {**step_map, "check_description": "check_description"}
-        )
-        graph.add_conditional_edges(
-            "check_description", planning_graph.route_checked_description, {**step_map, "describe_scene": "describe_scene"}
-        )
-    else:
-        graph.add_node("describe_scene", preset_node(ablation.description))
-        graph.add_conditional_edges("describe_scene", planning_graph.route_step, step_map)
-    graph.add_edge("plan_step", "record_outcome")
+    graph.add_conditional_edges(
+        "describe_scene", planning_graph.route_description, {**step_map, "check_description": "check_description"}
+    )
+    graph.add_conditional_edges(
+        "check_description", planning_graph.route_checked_description, {**step_map, "describe_scene": "describe_scene"}
+    )
+    graph.add_edge("plan_event", "check_plan")
+    graph.add_conditional_edges("check_plan", route_plan)
     graph.add_conditional_edges("record_outcome", planning_graph.route_step, step_map)
     return graph
 
 
-class PresetDescriptionGraph:
-    """The compiled planning graph, but a fresh thread starts with a preset description
-    (object list or scene graph), so its describer node passes straight on to planning.
-    Everything else is the wrapped graph's."""
-
-    def __init__(self, graph: Any, kind: DescriptionKind) -> None:
-        self.graph = graph
-        self.kind = kind
-
-    def astream(self, start: Any, *args: Any, **kwargs: Any) -> Any:
-        deps = kwargs.get("context")
-        if isinstance(start, dict) and "description" in start and start["description"] is None:
-            if not isinstance(deps, PlanningDeps):
-                raise TypeError("PresetDescriptionGraph.astream needs context=PlanningDeps")
-            start = {**start, "description": preset_description(self.kind, deps).model_dump()}
-        return self.graph.astream(start, *args, **kwargs)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.graph, name)
+def build_graph(ablation: Ablation) -> PlanningGraph:
+    """The uncompiled graph of ``ablation`` (the planning graph itself for the default)."""
+    describe = planning_graph.describe_scene if ablation.description == "describer" else preset_node(ablation.description)
+    if ablation.planner == "unified":
+        return build_unified_graph(describe)
+    if ablation.planner == "direct":
+        return planning_graph.build_planning_graph(describe, parse_event_as_coordinates, check_coordinates)
+    return planning_graph.build_planning_graph(describe)
 
 
 def compile_graph(ablation: Ablation, checkpointer: Any = None, **kwargs: Any) -> Any:
-    """The compiled graph of ``ablation``: the planning graph itself for the default."""
-    if ablation.planner == "event":
-        graph = planning_graph.compile_planning_graph(checkpointer, **kwargs)
-        return graph if ablation.description == "describer" else PresetDescriptionGraph(graph, ablation.description)
-    return build_ablation_graph(ablation).compile(checkpointer=checkpointer, **kwargs)
+    """The compiled graph of ``ablation``."""
+    return build_graph(ablation).compile(checkpointer=checkpointer, **kwargs)

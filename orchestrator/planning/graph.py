@@ -30,7 +30,8 @@ step's narrator and event-parser attempts are stored with its outcome in the sto
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from collections.abc import Awaitable
+from typing import Any, Literal, Protocol
 
 from langgraph.graph import END, START, StateGraph
 from langgraph.runtime import Runtime
@@ -58,13 +59,13 @@ NODES = (
 )
 
 
-async def _complete(deps: PlanningDeps, request: LLMRequest, state: PlanningState) -> LLMResponse:
+async def complete(deps: PlanningDeps, request: LLMRequest, state: PlanningState) -> LLMResponse:
     """One LLM call with the step's simulation frame attached (metadata, not hashed)."""
     return await deps.port.complete(request.model_copy(update={"sim_frame": state.sim_frame}))
 
 
-def _record_parsed(
-    deps: PlanningDeps, seq: int | None, node: Literal["describer", "narrator", "event_parser"],
+def record_parsed(
+    deps: PlanningDeps, seq: int | None, node: Literal["describer", "narrator", "event_parser", "planner"],
     parsed: Any = None, error: BaseException | None = None, feedback: str | None = None,
 ) -> None:
     sink = deps.trace_sink()
@@ -93,7 +94,7 @@ async def describe_scene(state: PlanningState, runtime: Runtime[PlanningDeps]) -
     if not state.describer_turns and path is not None and (hit := read_cached(path)) is not None:
         return {"description": hit}
     turns = tuple(t.as_turn() for t in state.describer_turns)
-    response = await _complete(deps, describer_request(deps.prompts, deps.describer_input(), turns), state)
+    response = await complete(deps, describer_request(deps.prompts, deps.describer_input(), turns), state)
     return {"describer_reply": response.text, "describer_seq": response.trace_seq, "llm_calls": state.llm_calls + 1}
 
 
@@ -107,11 +108,11 @@ async def check_description(state: PlanningState, runtime: Runtime[PlanningDeps]
     attempts = len(state.describer_turns) + 1
     update: dict[str, Any] = {"describer_reply": None, "describer_seq": None}
     if judged.areas is not None:
-        _record_parsed(deps, state.describer_seq, "describer", judged.areas.model_dump(mode="json"))
+        record_parsed(deps, state.describer_seq, "describer", judged.areas.model_dump(mode="json"))
         description = finish(inp, judged.areas, repaired=False, attempts=attempts)
     else:
         assert judged.turn is not None
-        _record_parsed(deps, state.describer_seq, "describer", error=judged.error, feedback=judged.turn.feedback)
+        record_parsed(deps, state.describer_seq, "describer", error=judged.error, feedback=judged.turn.feedback)
         turns = (*state.describer_turns, RetryTurn(reply=judged.turn.reply, feedback=judged.turn.feedback))
         update["describer_turns"] = turns
         if attempts <= deps.max_retries:
@@ -123,7 +124,8 @@ async def check_description(state: PlanningState, runtime: Runtime[PlanningDeps]
     return {**update, "description": description, "describer_turns": ()}
 
 
-def _narrator_input(state: PlanningState, deps: PlanningDeps) -> NarratorInput:
+def narrator_input(state: PlanningState, deps: PlanningDeps) -> NarratorInput:
+    """The narrator's input for the state's step (the one builder: ablation nodes use it too)."""
     assert state.description is not None
     return NarratorInput(
         scene_description=state.description.text,
@@ -140,7 +142,7 @@ def _with_seq(state: PlanningState, seq: int | None) -> tuple[int, ...]:
     return state.step_trace_seqs if seq is None else (*state.step_trace_seqs, seq)
 
 
-def _reply_update(state: PlanningState, role: Literal["narrator", "parser"], response: Any) -> dict[str, Any]:
+def reply_update(state: PlanningState, role: Literal["narrator", "parser"], response: Any) -> dict[str, Any]:
     """State update for one answered call: the reply, its trace seq, the step's seqs, the count."""
     return {
         f"{role}_reply": response.text,
@@ -155,13 +157,15 @@ async def narrate_event(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     deps = runtime.context
     turns = tuple(t.as_turn() for t in state.narrator_turns)
     try:
-        response = await _complete(deps, narrator_request(deps.prompts, _narrator_input(state, deps), turns), state)
+        response = await complete(deps, narrator_request(deps.prompts, narrator_input(state, deps), turns), state)
     except LLMError as exc:
-        return _unavailable(state, "narrator", exc)
-    return _reply_update(state, "narrator", response)
+        return unavailable(state, "narrator", exc)
+    return reply_update(state, "narrator", response)
 
 
-def _unavailable(state: PlanningState, node: Literal["narrator", "event_parser"], exc: LLMError) -> dict[str, Any]:
+def unavailable(
+    state: PlanningState, node: Literal["narrator", "event_parser", "planner"], exc: LLMError
+) -> dict[str, Any]:
     """The model gave no answer after the client's own retries and fallbacks: this step fails
     (the story goes on and asks again later). A replay miss is a bug in the run, not an outage,
     so it propagates."""
@@ -188,7 +192,7 @@ async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) 
         out = parse_narration(reply, state.roster)
     except REJECTIONS as exc:
         feedback = feedback_from_error(exc)
-        _record_parsed(deps, state.narrator_seq, "narrator", error=exc, feedback=feedback)
+        record_parsed(deps, state.narrator_seq, "narrator", error=exc, feedback=feedback)
         update: dict[str, Any] = {
             "narrator_turns": (*state.narrator_turns, RetryTurn(reply=reply, feedback=feedback)),
             "narrator_reply": None,
@@ -197,11 +201,12 @@ async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) 
         if attempts > deps.max_retries:
             update["failure"] = PlanningFailure(index=state.step, node="narrator", attempts=attempts, feedback=feedback)
         return update
-    _record_parsed(deps, state.narrator_seq, "narrator", out.model_dump(mode="json"))
+    record_parsed(deps, state.narrator_seq, "narrator", out.model_dump(mode="json"))
     return {"event": out.event, "narrator_attempts": attempts, "narrator_reply": None, "narrator_seq": None}
 
 
-def _parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
+def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
+    """The event parser's input for the state's event (the one builder: ablation nodes use it too)."""
     assert state.description is not None and state.event is not None
     return ParserInput(
         scene_description=state.description.text,
@@ -223,10 +228,10 @@ async def parse_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> d
     deps = runtime.context
     turns = tuple(t.as_turn() for t in state.parser_turns)
     try:
-        response = await _complete(deps, parser_request(deps.prompts, _parser_input(state, deps), turns), state)
+        response = await complete(deps, parser_request(deps.prompts, parser_input(state, deps), turns), state)
     except LLMError as exc:
-        return _unavailable(state, "event_parser", exc)
-    return _reply_update(state, "parser", response)
+        return unavailable(state, "event_parser", exc)
+    return reply_update(state, "parser", response)
 
 
 async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
@@ -250,7 +255,7 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
         )
     except REJECTIONS as exc:
         feedback = feedback_from_error(exc, instruction=PARSER_RETRY_INSTRUCTION)
-        _record_parsed(deps, state.parser_seq, "event_parser", error=exc, feedback=feedback)
+        record_parsed(deps, state.parser_seq, "event_parser", error=exc, feedback=feedback)
         update: dict[str, Any] = {
             "parser_turns": (*state.parser_turns, RetryTurn(reply=reply, feedback=feedback)),
             "parser_reply": None,
@@ -269,7 +274,7 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
         narrator_attempts=state.narrator_attempts,
         parser_attempts=attempts,
     )
-    _record_parsed(deps, state.parser_seq, "event_parser", {
+    record_parsed(deps, state.parser_seq, "event_parser", {
         "plans": [p.model_dump(mode="json") for p in result.plans], "program": result.program,
     })
     return {"parsed": parsed, "parser_reply": None, "parser_seq": None}
@@ -376,15 +381,29 @@ def route_program(state: PlanningState) -> Literal["parse_event", "record_outcom
     return "parse_event"
 
 
-def build_planning_graph() -> StateGraph:
-    """The uncompiled graph; compile with a checkpointer (see :func:`compile_planning_graph`)."""
+class NodeFn(Protocol):
+    """A node of the planning graph: state in, state update out, dependencies from the runtime."""
+
+    def __call__(self, state: PlanningState, *, runtime: Runtime[PlanningDeps]) -> Awaitable[dict[str, Any]]: ...
+
+
+PlanningGraph = StateGraph[PlanningState, PlanningDeps, PlanningState, PlanningState]
+
+
+def build_planning_graph(
+    describe: NodeFn = describe_scene, parse: NodeFn = parse_event, check: NodeFn = check_program
+) -> PlanningGraph:
+    """The uncompiled graph; compile with a checkpointer (see :func:`compile_planning_graph`).
+
+    The ablations swap nodes, never the wiring: ``describe`` (a preset description),
+    ``parse`` / ``check`` (the event parser's call and its check, e.g. coordinates)."""
     graph = StateGraph(PlanningState, context_schema=PlanningDeps)
-    graph.add_node("describe_scene", describe_scene)
+    graph.add_node("describe_scene", describe)
     graph.add_node("check_description", check_description)
     graph.add_node("narrate_event", narrate_event)
     graph.add_node("check_narration", check_narration)
-    graph.add_node("parse_event", parse_event)
-    graph.add_node("check_program", check_program)
+    graph.add_node("parse_event", parse)
+    graph.add_node("check_program", check)
     graph.add_node("record_outcome", record_outcome)
     graph.add_edge(START, "describe_scene")
     graph.add_conditional_edges("describe_scene", route_description)

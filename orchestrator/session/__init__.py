@@ -1,3 +1,11 @@
-"""The runtime of a story session: simulation and planning in one anyio task group, the step
-planner that drives the planning graph from a running simulation, and the plan / run jobs.
+"""The application logic of a story: the ``plan`` job (:mod:`~orchestrator.session.plan_job`,
+K graph steps without a simulation; the planning benchmark runs it too), the ``run`` job
+(:mod:`~orchestrator.session.run_job`), the roster and its world view
+(:mod:`~orchestrator.session.roster`), opening the LLM port
+(:mod:`~orchestrator.session.port_setup`), the session runtime (simulation and planning in one
+anyio task group) and the step planner that drives the planning graph from a running
+simulation.
+
+May import ``orchestrator.llm``, ``orchestrator.planning``, ``agents``, ``tools`` and ``sim``;
+never ``orchestrator.cli`` (the commands call into here, not the other way round).
 """

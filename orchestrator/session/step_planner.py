@@ -11,51 +11,21 @@ same thread without repeating finished LLM calls. The request's frame goes into 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
-from agents.messages import CharacterStatus
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.graph import recursion_limit
 from orchestrator.planning.state import PlanningDeps, PlanningState
+from orchestrator.session.roster import RosterWorld
 from orchestrator.session.runtime import Outcome, PlanningRequest
-from tools.character_states import CharacterState, WorldView
-
-
-class SessionWorld:
-    """World view for event programs: the roster plus where busy characters are heading."""
-
-    def __init__(self) -> None:
-        self.targets: dict[str, tuple[float, float]] = {}
-        self.seats: dict[str, str] = {}
-
-    def world_view(self, roster: Sequence[CharacterStatus]) -> WorldView:
-        chars = tuple(
-            CharacterState(
-                name=c.name,
-                position=c.position,
-                facing=c.facing,
-                action=c.action,
-                busy=c.busy,
-                seat=c.seat,
-                target_position=self.targets.get(c.name),
-            )
-            for c in roster
-        )
-        in_use = {c.seat: c.name for c in roster if c.seat}
-        in_use.update(self.seats)
-        return WorldView(characters=chars, objects_in_use=in_use)
-
-    def seats_in_use(self, roster: Sequence[CharacterStatus]) -> list[str]:
-        return sorted({*(c.seat for c in roster if c.seat), *self.seats})
 
 
 class GraphStepPlanner:
     """``StepPlanner`` over a compiled planning graph and its story log."""
 
     def __init__(self, graph: Any, deps: PlanningDeps, thread_id: str, instruction: str) -> None:
-        if not isinstance(deps.world, SessionWorld):
-            raise TypeError("GraphStepPlanner needs deps.world to be a SessionWorld")
+        if not isinstance(deps.world, RosterWorld):
+            raise TypeError("GraphStepPlanner needs deps.world to be a RosterWorld")
         self.graph = graph
         self.deps = deps
         self.thread_id = thread_id
@@ -63,8 +33,8 @@ class GraphStepPlanner:
         self.story: StoryLog = deps.story
 
     @property
-    def world(self) -> SessionWorld:
-        assert isinstance(self.deps.world, SessionWorld)
+    def world(self) -> RosterWorld:
+        assert isinstance(self.deps.world, RosterWorld)
         return self.deps.world
 
     def _config(self) -> dict[str, Any]:

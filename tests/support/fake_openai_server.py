@@ -2,10 +2,9 @@
 drive the real litellm -> openai SDK -> httpx path (``tests/test_llm_faults.py``,
 ``tests/test_ablations_cli.py``, ``tests/test_planning_benchmark.py``).
 
-Tests import it as ``from fake_openai_server import FakeOpenAI``: ``tests/`` has no
-``__init__.py``, so pytest's default ``prepend`` import mode puts ``tests/`` on ``sys.path``
-before it imports a test module. The file name does not match ``test_*.py``, so pytest does
-not collect it.
+Tests import it as ``from tests.support.fake_openai_server import FakeOpenAI`` (pytest puts
+the repository root on ``sys.path``, see ``pythonpath`` in ``pyproject.toml``). The file name
+does not match ``test_*.py``, so pytest does not collect it.
 
 Every ``POST`` (whatever the path; litellm posts to ``<base>/chat/completions``) is recorded
 and answered with one *action*. The action comes from, in this order:

@@ -1,0 +1,98 @@
+"""Ablation "w/o Event": one call (node ``planner``) plans the free characters directly.
+
+The model sees what the narrator sees (a :class:`~agents.narrator.NarratorInput`: scene
+description, characters, story so far, instruction) plus the action labels and the seats in
+use, and answers a ``parse_event()``; there is no explicit event, so the event is read back
+from the program's plans. A program that plans nobody (``pass``, or no character touched)
+is a wait; naming a busy character is rejected with feedback.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from agents.event_parser import ProgramRunner, check_plans, default_runner, extract_program
+from agents.llm_port import ChatMessage, LLMRequest
+from agents.messages import CharacterStatus, Event, ParsedEvent
+from agents.narrator import NarratorInput, characters_text, history_text
+from agents.prompt_templates import PromptLibrary
+from agents.retry_feedback import AnswerRejectedError, Turn, retry_temperature, with_turns
+from sim.scene.model import Scene
+
+
+def unified_max_tokens(free: int) -> int:
+    """80 + 110 per free character, at most 400 (as the event parser's budget; a small model
+    that is given more tends to repeat lines until the cap)."""
+    return min(400, 80 + 110 * max(1, free))
+
+
+def unified_request(
+    prompts: PromptLibrary,
+    inp: NarratorInput,
+    *,
+    action_labels: Sequence[str],
+    seats_in_use: Sequence[str],
+    turns: tuple[Turn, ...] = (),
+    max_tokens: int | None = None,
+) -> LLMRequest:
+    """The planner's request (``max_tokens`` None: :func:`unified_max_tokens`)."""
+    free = inp.free
+    system = prompts.render(
+        "planner/system.md",
+        scene_description=inp.scene_description.strip(),
+        action_labels=", ".join(action_labels),
+    )
+    user = prompts.render(
+        "planner/request.md",
+        characters=characters_text(inp.characters),
+        free=", ".join(free) if free else "(none)",
+        seats_in_use=", ".join(seats_in_use) if seats_in_use else "none",
+        history=history_text(inp.history),
+        instruction=inp.instruction.strip() or "(none: continue the story naturally)",
+    )
+    base = (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
+    return LLMRequest(
+        node="planner",
+        messages=with_turns(base, turns),
+        max_tokens=max_tokens or unified_max_tokens(len(free)),
+        seed=inp.seed,
+        temperature=retry_temperature(turns),
+    )
+
+
+def check_unified_reply(
+    reply: str,
+    *,
+    index: int,
+    scene: Scene,
+    characters: Sequence[CharacterStatus],
+    world: Any,
+    seed: int,
+    action_labels: Sequence[str],
+    graph: Any = None,
+    runner: ProgramRunner | None = None,
+) -> ParsedEvent | None:
+    """Run the reply; a program that plans nobody is a wait (None). Raises the typed errors
+    that become feedback (a busy character planned, a bad program)."""
+    program = extract_program(reply)
+    body = [ln.strip() for ln in program.splitlines()[1:] if ln.strip() and not ln.strip().startswith("#")]
+    if body == ["pass"]:
+        return None
+    busy = {c.name for c in characters if c.busy}
+    free = [c.name for c in characters if not c.busy]
+    run = runner or default_runner()
+    plans = run(scene, program, world, seed=seed, action_labels=list(action_labels), graph=graph)
+    if not plans:  # a program that touches nobody plans nothing: a wait
+        return None
+    names = tuple(dict.fromkeys(str(p.character) for p in plans))
+    bad = [n for n in names if n in busy]
+    if bad:
+        raise AnswerRejectedError(
+            [f"{n} is busy and cannot be planned" for n in bad] + [f"free characters are: {', '.join(free)}"]
+        )
+    event = Event(
+        characters=names,
+        activity="; ".join(f"{p.character}: {p.action} ({p.area})" for p in plans)[:320],
+    )
+    return ParsedEvent(index=index, event=event, plans=check_plans(event, plans), program=program)

@@ -1,0 +1,34 @@
+"""Typer options shared by ``storyteller plan`` and ``storyteller run`` (one help text each)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, NoReturn
+
+import typer
+
+SceneArg = Annotated[str, typer.Argument(help="Bundled scene name or path to a scene.")]
+Characters = Annotated[int, typer.Option("--characters", "-n", min=1, max=24, help="Number of characters.")]
+Instruction = Annotated[str, typer.Option("--instruction", "-i", help="What should happen.")]
+Config = Annotated[Path | None, typer.Option("--config", help="TOML run config.")]
+MaxRetries = Annotated[int, typer.Option("--max-retries", min=0, max=10, help="Retries per LLM role.")]
+ProgramGrammar = Annotated[
+    bool,
+    typer.Option(
+        "--program-grammar/--free-programs",
+        help="Local models write event programs under a grammar of the API's area functions and the scene's names "
+        "(--free-programs: free Python, as the paper).",
+    ),
+]
+Planner = Annotated[
+    str, typer.Option("--planner", help="event (narrator + event parser), unified (w/o Event) or direct (coordinates).")
+]
+Description = Annotated[
+    str, typer.Option("--description", help="Scene description: describer, object-list or scene-graph.")
+]
+
+
+def fail(message: str, code: int = 2) -> NoReturn:
+    """Print ``error: message`` to stderr and exit (2: a user error)."""
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(code)

@@ -1,0 +1,145 @@
+"""The ``plan`` job: K planning steps of one graph thread, without a simulation.
+
+Without a simulation nothing "finishes" by itself, so the story advances by steps: each
+planned event moves its characters to their sampled positions and keeps them busy for
+``busy_events`` further steps (0: the event counts as completed as soon as it is planned).
+Characters start idle at free floor points sampled with the seed
+(:func:`~orchestrator.session.roster.initial_roster`), unless the caller hands over a roster,
+a story so far, a world view and a description (the planning benchmark does, per test case).
+
+:func:`run_plan` is the one way the planning graph is driven for K steps:
+``storyteller plan`` and ``python -m benchmark.planning_benchmark`` both call it, so the
+benchmark measures the graph the product runs, request for request. The thread is
+checkpointed in SQLite (``runs_db``; ``":memory:"`` for a throwaway run); resuming a thread
+never repeats its finished LLM calls.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from agents.event_parser import scene_action_labels
+from agents.llm_port import LLMPort
+from agents.messages import (
+    CharacterStatus,
+    HistoryEntry,
+    ParsedEvent,
+    PlanningFailure,
+    SceneDescription,
+)
+from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from orchestrator.planning.ablation_graph import Ablation, compile_graph
+from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
+from orchestrator.planning.graph import recursion_limit
+from orchestrator.planning.state import PlanningDeps, PlanningState, WorldProvider
+from orchestrator.session.port_setup import describer_mode_for
+from orchestrator.session.roster import RosterWorld, initial_roster
+from sim.scene.model import Scene
+
+StepOutcome = ParsedEvent | PlanningFailure | None
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """Every step's outcome, in order, and the scene description the thread planned with."""
+
+    outcomes: list[tuple[int, StepOutcome]]
+    description: SceneDescription | None
+
+
+async def run_plan(
+    *,
+    scene: Scene,
+    port: LLMPort,
+    instruction: str,
+    events: int,
+    seed: int,
+    runs_db: Path | str,
+    thread_id: str,
+    characters: int = 2,
+    roster: Sequence[CharacterStatus] | None = None,
+    history: Sequence[HistoryEntry] = (),
+    world: WorldProvider | None = None,
+    description: SceneDescription | None = None,
+    action_labels: Sequence[str] | None = None,
+    scene_graph: Any = None,
+    describer_model: str = "unknown",
+    description_cache: Path | None = None,
+    busy_events: int = 0,
+    max_retries: int = 3,
+    prompts: PromptLibrary | None = None,
+    tags: tuple[str, ...] = BENCHMARK_TAGS,
+    on_outcome: Callable[[int, StepOutcome], None] | None = None,
+    ablation: Ablation | None = None,
+    program_grammar: bool = False,
+) -> PlanResult:
+    """Run (or resume) the planning graph for one thread.
+
+    A fresh thread starts from ``roster`` (default: ``characters`` idle characters placed with
+    ``seed``), the story ``history`` and ``description`` (None: the graph describes the scene);
+    event programs see ``world`` (default: :class:`RosterWorld`) and may use ``action_labels``
+    (default: the scene's). ``on_outcome(index, outcome)`` is called for each step as it is
+    recorded, in order, including steps recorded before a resume. ``ablation`` picks the
+    planner and the scene description (default: the full method with the describer).
+    Raises :class:`~orchestrator.session.roster.StartPositionError` when the characters do
+    not fit on the floor.
+    """
+    ablation = ablation or Ablation()
+    thread_id = ablation.thread_id(thread_id)
+    story = StoryLog(runs_db, thread_id)
+    printed = 0
+
+    def flush() -> None:
+        nonlocal printed
+        outcomes = story.outcomes()
+        for idx, outcome in outcomes[printed:]:
+            if on_outcome is not None:
+                on_outcome(idx, outcome)
+        printed = len(outcomes)
+
+    deps = PlanningDeps(
+        port=port,
+        scene=scene,
+        world=world or RosterWorld(),
+        story=story,
+        action_labels=tuple(action_labels) if action_labels is not None else scene_action_labels(scene),
+        prompts=prompts or PromptLibrary(),
+        tags=tags,
+        seed=seed,
+        max_retries=max_retries,
+        busy_for_events=busy_events,
+        describer_model=describer_model,
+        describer_mode=describer_mode_for(describer_model),
+        description_cache=description_cache,
+        scene_graph=scene_graph,
+        program_grammar=program_grammar,
+    )
+    config = {"configurable": {"thread_id": thread_id}, "recursion_limit": recursion_limit(events, max_retries)}
+    try:
+        async with open_checkpointer(runs_db) as saver:
+            graph = compile_graph(ablation, saver)
+            snapshot = await graph.aget_state(config)
+            start: dict[str, Any] | None
+            if snapshot.values:
+                start = None  # resume the interrupted thread
+            else:
+                start = PlanningState(
+                    instruction=instruction,
+                    events_target=events,
+                    roster=tuple(roster) if roster is not None else initial_roster(scene, characters, seed),
+                    recent=tuple(history),
+                    description=description,
+                ).model_dump()
+            async for _ in graph.astream(start, config=config, context=deps, durability="sync", stream_mode="updates"):
+                flush()
+            final = await graph.aget_state(config)
+        flush()
+        described = final.values.get("description")
+        if isinstance(described, dict):
+            described = SceneDescription.model_validate(described)
+        return PlanResult(outcomes=story.outcomes(), description=described)
+    finally:
+        story.close()

@@ -1,0 +1,222 @@
+"""The ``run`` job: plan and animate a story in a scene, then write its outputs.
+
+:func:`run_story` builds the world (characters at the start positions of the seed), the LLM
+port (recording to a trace, or replaying one), the planning graph of the chosen ablation and
+the story session, and runs them to the end; :func:`write_outputs` writes ``story.json``
+(:func:`story_json`), the motion exports and the pictures. With a replayed trace the session
+applies each planning result at the frame recorded there, so the same arguments give the same
+story and the same motion.
+
+Problems with the user's inputs (an unreadable trace or motion config, a model that cannot be
+opened, a session that cannot go on) are raised as :class:`RunSetupError`, one sentence each.
+"""
+
+from __future__ import annotations
+
+import json
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from agents.messages import ParsedEvent, PlanningFailure
+from orchestrator.planning.ablation_graph import Ablation
+from orchestrator.session.runtime import Pace, SessionResult, StoryEvent
+from sim.scene.model import Scene
+
+
+class RunSetupError(Exception):
+    """A run that cannot start or go on because of its inputs (the message says which)."""
+
+
+def applied_frames_from_trace(path: Path) -> list[int]:
+    """Frames at which a recorded run applied each planning step's result, in order."""
+    from orchestrator.llm.traces import AppliedRecord, read_trace
+
+    return [r.sim_frame for r in read_trace(path).records if isinstance(r, AppliedRecord)]
+
+
+def story_json(result: SessionResult, scene_name: str, names: list[str], instruction: str, fps: int) -> dict[str, Any]:
+    """``story.json``: every planning step with the frame it was applied at, and every event."""
+    steps = []
+    for (index, outcome), frame in zip(result.outcomes, result.applied_frames, strict=True):
+        entry: dict[str, Any] = {"index": index, "applied_frame": frame}
+        if outcome is None:
+            entry["kind"] = "wait"
+        elif isinstance(outcome, PlanningFailure):
+            entry.update(kind="failed", node=outcome.node, feedback=outcome.feedback)
+        elif isinstance(outcome, ParsedEvent):
+            entry.update(
+                kind="event",
+                characters=list(outcome.event.characters),
+                activity=outcome.event.activity,
+                plans=[
+                    {
+                        "character": p.character,
+                        "action": p.action,
+                        "area": p.area,
+                        "position": [round(p.position[0], 3), round(p.position[1], 3)],
+                        "facing": [round(p.facing[0], 3), round(p.facing[1], 3)],
+                        "seat": p.seat,
+                    }
+                    for p in outcome.plans
+                ],
+            )
+        steps.append(entry)
+    events = [
+        {
+            "event_id": e.event_id,
+            "index": e.index,
+            "characters": list(e.characters),
+            "activity": e.activity,
+            "requested_frame": e.requested_frame,
+            "applied_frame": e.applied_frame,
+            "state": e.state,
+            "finished_frame": e.finished_frame,
+            "failure": e.failure,
+        }
+        for e in result.events
+    ]
+    return {
+        "scene": scene_name,
+        "characters": names,
+        "instruction": instruction,
+        "fps": fps,
+        "frames": result.frames,
+        "steps": steps,
+        "events": events,
+    }
+
+
+async def run_story(
+    scene: Scene,
+    *,
+    characters: int,
+    instruction: str,
+    duration: float,
+    out: Path,
+    pace: Pace,
+    speed: float,
+    max_events: int | None,
+    trace_path: Path | None,
+    replay: Path | None,
+    config: Path | None,
+    motion_config: Path | None,
+    seed: int,
+    max_retries: int,
+    thread_id: str | None,
+    ablation: Ablation | None = None,
+    program_grammar: bool = False,
+    foot_ik: bool = True,
+    on_event: Callable[[StoryEvent, int], None] | None = None,
+) -> tuple[SessionResult, list[str], int, Any]:
+    """Run the story session; returns the result, the character names, the fps and the world.
+
+    ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails."""
+    from agents.event_parser import scene_action_labels
+    from agents.llm_port import LLMError
+    from agents.prompt_templates import PromptLibrary
+    from orchestrator.llm.traces import TraceCorruptError
+    from orchestrator.planning.ablation_graph import compile_graph
+    from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
+    from orchestrator.planning.state import PlanningDeps
+    from orchestrator.session.port_setup import close_port, describer_mode_for, open_port
+    from orchestrator.session.roster import (
+        RosterWorld,
+        StartPositionError,
+        character_names,
+        start_positions,
+    )
+    from orchestrator.session.runtime import Session, SessionError, SessionSettings
+    from orchestrator.session.step_planner import GraphStepPlanner
+    from sim.world.step import World, WorldConfig
+
+    names = character_names(characters)
+    try:
+        applied = applied_frames_from_trace(replay) if replay is not None else None
+    except (TraceCorruptError, OSError) as exc:
+        raise RunSetupError(str(exc)) from None
+    try:
+        port, describer_model = open_port(config, trace_path, replay)
+    except (LLMError, ValueError, OSError) as exc:
+        raise RunSetupError(str(exc)) from None
+    world_config = WorldConfig(seed=seed, foot_ik=foot_ik)
+    fps = world_config.fps
+    try:
+        positions = start_positions(scene, characters, seed)
+    except StartPositionError as exc:
+        await close_port(port)
+        raise RunSetupError(str(exc)) from None
+    motion = _motion_layer(motion_config)
+    world = World(scene, {n: (p, 0.0) for n, p in zip(names, positions, strict=True)}, motion, config=world_config)
+    ablation = ablation or Ablation()
+    thread = ablation.thread_id(thread_id or f"run-{uuid.uuid4().hex[:12]}")
+    runs_db = out / "runs.sqlite"
+    story = StoryLog(runs_db, thread)
+    deps = PlanningDeps(
+        port=port,
+        scene=scene,
+        world=RosterWorld(),
+        story=story,
+        action_labels=scene_action_labels(scene),
+        prompts=PromptLibrary(),
+        seed=seed,
+        max_retries=max_retries,
+        describer_model=describer_model,
+        describer_mode=describer_mode_for(describer_model),
+        description_cache=None,
+        program_grammar=program_grammar,
+    )
+    settings = SessionSettings(
+        frames=round(duration * fps),
+        pace=pace,
+        speed=speed,
+        max_steps=max_events,
+        applied_frames=applied,
+    )
+    try:
+        async with open_checkpointer(runs_db) as saver:
+            graph = compile_graph(ablation, saver)
+            planner = GraphStepPlanner(graph, deps, thread, instruction)
+            shown = None if on_event is None else (lambda e: on_event(e, fps))
+            session = Session(world, planner, settings, trace=getattr(port, "trace", None), on_event=shown)
+            result = await session.run()
+    except (LLMError, SessionError) as exc:
+        raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
+    finally:
+        story.close()
+        await close_port(port)
+    return result, names, fps, session.world
+
+
+def _motion_layer(motion_config: Path | None) -> Any:
+    from orchestrator.cache_paths import motion_cache_dir
+    from sim.motion.database import load_databases
+    from sim.motion.matching import MotionMatcher
+
+    if motion_config is None:
+        return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
+    from sim.motion.config import build_databases_from_config, load_motion_config
+
+    try:
+        cfg = load_motion_config(motion_config)
+        return MotionMatcher(build_databases_from_config(cfg, cache_dir=motion_cache_dir()))
+    except (ValueError, OSError) as exc:
+        raise RunSetupError(str(exc)) from None
+
+
+def write_outputs(
+    out: Path, scene: Scene, world: Any, result: SessionResult, names: list[str], instruction: str, fps: int, gif: bool
+) -> None:
+    """``story.json``, the motion exports (npz, BVH, GLB) and the top-down pictures in ``out``."""
+    from sim.export.bundle import export_run
+    from sim.export.video import recording_from_world, save_run_animation, save_run_png
+
+    payload = story_json(result, scene.name, names, instruction, fps)
+    (out / "story.json").write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
+    tracks = world.tracks()
+    export_run(out, scene, list(tracks.values()))
+    recording = recording_from_world(world)
+    save_run_png(out / "topdown.png", recording)
+    if gif:
+        save_run_animation(out / "story.gif", recording, stride=10, speed=4.0)
