@@ -3,7 +3,7 @@
 A case (``benchmark/test_cases/<tags>/testcase_<id>.json`` in the reference data) holds a
 scene name, the action labels allowed, a user instruction, a planning history (events with
 states ongoing / looping / completed), the current state of every character, and the expected
-plans: per character an action expression, a relationship expression (``||``, ``&&``,
+plans: per character an action expression, a relationship expression (``||``, ``&&``, ``!``,
 parentheses over atoms like ``sit on chair_3``) or, for position-inference (PI) cases, a
 ``sampled_position`` expression. ``allow_null_plan`` says whether waiting is acceptable.
 
