@@ -2,10 +2,11 @@
 
 Expressions are written as in the reference test cases: atoms such as "in front of fridge_1",
 "adjacent to coffee_maker_1", "close to table_3", "sit on chair_6", "between chair_1 and
-chair_3", combined with ``||``, ``&&`` and parentheses (``&&`` binds tighter than ``||``).
+chair_3", combined with ``||``, ``&&``, ``!`` and parentheses (grammar and precedence in
+:mod:`benchmark.expressions`: ``!`` over ``&&`` over ``||``).
 
 Each atom has a distance (metres, 0 when fully satisfied) and a tolerance (the reference
-thresholds); the atom passes when distance <= tolerance:
+thresholds); the atom holds when distance <= tolerance:
 
 - directional ("in front of", "behind", "to the left of", "to the right of"), tolerance 0.1 m:
   the distance from the point to the half-strip swept outward by that face of the anchor's
@@ -14,24 +15,37 @@ thresholds); the atom passes when distance <= tolerance:
   point straight in front at any distance has distance 0; a point 0.05 m past the side edge
   or 0.05 m behind the front face has distance 0.05 and still passes.
 - "adjacent to" (0.7 m), "close to" (1.4 m), "inside" (0.1 m): distance to the anchor's
-  footprint rectangle. "close to X" also accepts "adjacent to X" (implied: 0.7 < 1.4).
-- "sit on X" / "lie on X" (0.1 m): distance to X's footprint; X itself is then not an obstacle.
+  footprint rectangle. "close to X" accepts "adjacent to X" (every point within 0.7 m is within
+  1.4 m). "inside X" also holds when the plan sits or lies on X (the paper's equivalence).
+- "sit on X" / "lie on X" (0.1 m): when the plan says which seat it took, the atom holds
+  exactly when that seat is X; otherwise by the distance to X's footprint.
 - "between X and Y" (0.1 m): how far the point's projection falls outside the segment between
   the centres (in metres along it) plus how far the point is beyond 0.5 m off that line.
 
-``||`` passes when any side passes (error: the smaller), ``&&`` when both pass (error: the
-larger). A position also fails on collision: strictly inside the footprint of a floor-standing
-object (bottom within 0.1 m of the floor), except objects sat / lain on in the expression.
+The **error** is reported in metres with the verdict. Each atom measures an excess, distance
+minus tolerance (<= 0 when it holds); ``||`` takes the smallest excess of its operands, ``&&``
+the largest, ``!`` negates it (how far inside the excluded region the point is). The error of
+a failing expression is its excess clipped at 0; a passing one has error 0.
+
+A position also fails on **collision**: strictly inside the footprint of a floor-standing
+object (bottom within 0.1 m of the floor), except objects sat or lain on or named by "inside"
+in the expression and the plan's own seat; or closer than two body radii (0.5 m) to another
+character (``others``: where the characters that do not move are, and where the other planned
+characters go), the clearance the project's sampler keeps between characters.
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
+from benchmark.expressions import And, Atom, Expr, ExpressionError, Not, Or, atoms, parse_expression
 from sim.scene.model import Scene, SceneObject
+from tools.position_sampling import BODY_RADIUS
 from tools.scene_graph import point_footprint_distance
 
 TOLERANCES: dict[str, float] = {
@@ -46,8 +60,15 @@ TOLERANCES: dict[str, float] = {
     "lie on": 0.1,
     "between": 0.1,
 }
+"""Metres: an atom holds when its distance is at most this (the reference thresholds)."""
+DIRECTIONAL = ("in front of", "behind", "to the left of", "to the right of")
+SEATING = ("sit on", "lie on")
 FLOOR_SUPPORT = 0.10
+"""Metres: an object whose bottom is this close to the floor stands on it (an obstacle)."""
 BETWEEN_OFF_LINE = 0.5
+"""Metres: how far off the centre line a point may be and still be "between"."""
+CHARACTER_CLEARANCE = 2.0 * BODY_RADIUS
+"""Metres between two characters' positions below which their bodies overlap."""
 UNKNOWN_SEAT = object()
 """``check_position(seat=...)`` default: judge "sit on X" by the position alone."""
 
@@ -55,11 +76,19 @@ _ATOM = re.compile(
     r"^(?P<rel>in front of|behind|to the left of|to the right of|adjacent to|close to|inside|sit on|lie on)"
     r" (?P<a>\S+)$|^between (?P<b1>\S+) and (?P<b2>\S+)$"
 )
-_TOKENS = re.compile(r"(\|\||&&|\(|\))")  # capturing: split keeps the operators
 
 
-class PositionExpressionError(ValueError):
-    """An expression that cannot be parsed or names an unknown object."""
+class PositionExpressionError(ExpressionError):
+    """A position expression that cannot be parsed or names an unknown object; the message
+    names the expression and the column."""
+
+
+@dataclass(frozen=True)
+class PositionAtom:
+    """One atom read: its relation and the object(s) it names."""
+
+    relation: str
+    anchors: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -69,7 +98,36 @@ class CheckResult:
     passed: bool
     relation_passed: bool
     error: float
+    """Metres the position is off the expression (0 when it holds; see the module docstring)."""
     collision: str | None
+    """The object or character collided with, else None."""
+    collision_kind: Literal["object", "character"] | None = None
+    collision_depth: float = 0.0
+    """Metres: how deep inside the object's footprint, or how much closer than the clearance."""
+
+
+def read_atom(scene: Scene, atom: Atom, expression: str) -> PositionAtom:
+    """The relation and anchors of ``atom``; raises :class:`PositionExpressionError` naming the
+    column when it is not a known relation or names an object ``scene`` does not have."""
+    m = _ATOM.match(atom.text)
+    if m is None:
+        raise PositionExpressionError(f"cannot read '{atom.text}' (expected e.g. 'close to table_1')",
+                                      expression, atom.column)
+    anchors: tuple[str, ...]
+    if m.group("b1"):
+        relation, anchors = "between", (m.group("b1"), m.group("b2"))
+    else:
+        relation, anchors = m.group("rel"), (m.group("a"),)
+    for name in anchors:
+        if name not in scene.by_name:
+            raise PositionExpressionError(f"unknown object '{name}'", expression, atom.column)
+    return PositionAtom(relation, anchors)
+
+
+def parse_position_expression(scene: Scene, expression: str) -> tuple[Expr, dict[Atom, PositionAtom]]:
+    """The tree of ``expression`` and every atom read against ``scene`` (all errors up front)."""
+    tree = parse_expression(expression, error=PositionExpressionError)
+    return tree, {atom: read_atom(scene, atom, expression) for atom in atoms(tree)}
 
 
 def directional_distance(obj: SceneObject, relation: str, xy: np.ndarray) -> float:
@@ -85,7 +143,7 @@ def directional_distance(obj: SceneObject, relation: str, xy: np.ndarray) -> flo
     elif relation == "to the left of":
         along, across, half_along, half_across = -x, y, hw, hd
     else:
-        raise PositionExpressionError(f"not a directional relation: '{relation}'")
+        raise ValueError(f"not a directional relation: '{relation}'")
     d_along = max(half_along - along, 0.0)
     d_across = max(abs(across) - half_across, 0.0)
     return float(np.hypot(d_along, d_across))
@@ -104,115 +162,122 @@ def between_distance(a: SceneObject, b: SceneObject, xy: np.ndarray) -> float:
     return along + max(off - BETWEEN_OFF_LINE, 0.0)
 
 
-class _Parser:
-    def __init__(self, scene: Scene, expression: str, xy: np.ndarray, seat: str | object | None = UNKNOWN_SEAT):
-        self.scene = scene
-        self.xy = xy
-        self.seat = seat
-        self.tokens = [t.strip() for t in _TOKENS.split(expression) if t.strip()]
-        self.i = 0
-        self.seats: set[str] = set()
+def atom_distance(scene: Scene, atom: PositionAtom, xy: np.ndarray) -> float:
+    """Metres from ``xy`` to where ``atom`` holds exactly (0 inside; see the module docstring)."""
+    if atom.relation == "between":
+        return between_distance(scene.by_name[atom.anchors[0]], scene.by_name[atom.anchors[1]], xy)
+    obj = scene.by_name[atom.anchors[0]]
+    if atom.relation in DIRECTIONAL:
+        return directional_distance(obj, atom.relation, xy)
+    return float(point_footprint_distance(obj, xy))
 
-    def parse(self) -> tuple[bool, float]:
-        if not self.tokens:
-            raise PositionExpressionError("empty expression")
-        result = self._or()
-        if self.i != len(self.tokens):
-            raise PositionExpressionError(f"unexpected '{self.tokens[self.i]}'")
-        return result
 
-    def _or(self) -> tuple[bool, float]:
-        ok, err = self._and()
-        while self.i < len(self.tokens) and self.tokens[self.i] == "||":
-            self.i += 1
-            ok2, err2 = self._and()
-            ok, err = ok or ok2, min(err, err2)
-        return ok, err
-
-    def _and(self) -> tuple[bool, float]:
-        ok, err = self._factor()
-        while self.i < len(self.tokens) and self.tokens[self.i] == "&&":
-            self.i += 1
-            ok2, err2 = self._factor()
-            ok, err = ok and ok2, max(err, err2)
-        return ok, err
-
-    def _factor(self) -> tuple[bool, float]:
-        if self.i >= len(self.tokens):
-            raise PositionExpressionError("expression ends too early")
-        token = self.tokens[self.i]
-        self.i += 1
-        if token == "(":
-            result = self._or()
-            if self.i >= len(self.tokens) or self.tokens[self.i] != ")":
-                raise PositionExpressionError("missing ')'")
-            self.i += 1
-            return result
-        if token in ("||", "&&", ")"):
-            raise PositionExpressionError(f"unexpected '{token}'")
-        return self._atom(token)
-
-    def _object(self, name: str) -> SceneObject:
-        if name not in self.scene.by_name:
-            raise PositionExpressionError(f"unknown object '{name}'")
-        return self.scene.by_name[name]
-
-    def _atom(self, text: str) -> tuple[bool, float]:
-        m = _ATOM.match(text)
-        if m is None:
-            raise PositionExpressionError(f"cannot read '{text}'")
-        if m.group("b1"):
-            relation = "between"
-            distance = between_distance(
-                self._object(m.group("b1")), self._object(m.group("b2")), self.xy
-            )
-        else:
-            relation, obj = m.group("rel"), self._object(m.group("a"))
-            if relation in ("sit on", "lie on"):
-                self.seats.add(obj.name)
-                if self.seat is not UNKNOWN_SEAT:  # the plan says which seat it took
-                    return self.seat == obj.name, 0.0 if self.seat == obj.name else float("inf")
-            if relation in ("in front of", "behind", "to the left of", "to the right of"):
-                distance = directional_distance(obj, relation, self.xy)
-            else:
-                distance = float(point_footprint_distance(obj, self.xy))
-        tolerance = TOLERANCES[relation]
-        return distance <= tolerance, max(0.0, distance - tolerance)
+def _measure(
+    scene: Scene, tree: Expr, read: dict[Atom, PositionAtom], xy: np.ndarray, seat: str | object | None
+) -> tuple[bool, float]:
+    """(holds, excess in metres) of ``tree`` at ``xy`` (see the module docstring)."""
+    if isinstance(tree, Atom):
+        atom = read[tree]
+        excess = atom_distance(scene, atom, xy) - TOLERANCES[atom.relation]
+        holds = excess <= 0.0
+        if seat is not UNKNOWN_SEAT and atom.relation in SEATING:  # the plan says which seat it took
+            holds = seat == atom.anchors[0]
+        elif atom.relation == "inside" and seat == atom.anchors[0]:
+            holds = True
+        return holds, (min(excess, 0.0) if holds else max(excess, 0.0))
+    if isinstance(tree, Not):
+        holds, excess = _measure(scene, tree.operand, read, xy, seat)
+        return not holds, -excess
+    results = [_measure(scene, operand, read, xy, seat) for operand in tree.operands]
+    if isinstance(tree, Or):
+        return any(h for h, _ in results), min(e for _, e in results)
+    assert isinstance(tree, And)
+    return all(h for h, _ in results), max(e for _, e in results)
 
 
 def collision(
     scene: Scene, xy: np.ndarray, ignore: set[str] | frozenset[str] = frozenset()
 ) -> str | None:
     """The first floor-standing object whose footprint strictly contains ``xy``, else None."""
+    hit = object_collision(scene, xy, ignore)
+    return None if hit is None else hit[0]
+
+
+def object_collision(
+    scene: Scene, xy: np.ndarray, ignore: set[str] | frozenset[str] = frozenset()
+) -> tuple[str, float] | None:
+    """(name, metres inside its footprint) of the first floor-standing object whose footprint
+    strictly contains ``xy``, else None."""
     for obj in scene.objects:
         if obj.name in ignore or abs(obj.z_min - scene.floor_z) > FLOOR_SUPPORT:
             continue
         x, y = (float(v) for v in obj.to_local(xy))
         if abs(x) < obj.width / 2.0 and abs(y) < obj.depth / 2.0:
-            return obj.name
+            return obj.name, min(obj.width / 2.0 - abs(x), obj.depth / 2.0 - abs(y))
     return None
+
+
+def character_collision(
+    xy: np.ndarray, others: Sequence[tuple[str, tuple[float, float]]]
+) -> tuple[str, float] | None:
+    """(name, metres closer than the clearance) of the nearest character in ``others`` whose
+    position is closer than :data:`CHARACTER_CLEARANCE` to ``xy``, else None."""
+    nearest: tuple[str, float] | None = None
+    for name, point in others:
+        d = float(np.hypot(xy[0] - point[0], xy[1] - point[1]))
+        if d < CHARACTER_CLEARANCE and (nearest is None or CHARACTER_CLEARANCE - d > nearest[1]):
+            nearest = (name, CHARACTER_CLEARANCE - d)
+    return nearest
+
+
+def check_collision(
+    scene: Scene, position: tuple[float, float] | list[float], seat: str | None = None,
+    *,
+    others: Sequence[tuple[str, tuple[float, float]]] = (),
+) -> CheckResult:
+    """The collision check of :func:`check_position` alone, for a plan with no position
+    expression to meet (``relation_passed`` is True, ``error`` 0)."""
+    xy = np.asarray(position, dtype=float).reshape(2)
+    hit = object_collision(scene, xy, {seat} if seat else frozenset())
+    if hit is not None:
+        return CheckResult(False, True, 0.0, hit[0], "object", hit[1])
+    near = character_collision(xy, others)
+    if near is not None:
+        return CheckResult(False, True, 0.0, near[0], "character", near[1])
+    return CheckResult(True, True, 0.0, None)
 
 
 def check_position(
     scene: Scene, expression: str, position: tuple[float, float] | list[float],
     seat: str | object | None = UNKNOWN_SEAT,
+    *,
+    others: Sequence[tuple[str, tuple[float, float]]] = (),
 ) -> CheckResult:
     """Whether ``position`` (x, y in metres) satisfies ``expression`` without collision.
 
     ``seat``: the seat the plan took (None: standing). When given, "sit on X" / "lie on X"
     hold exactly when the plan took X, whatever the point (a standing point on a couch's
-    footprint is not sitting on it)."""
+    footprint is not sitting on it). ``others``: (name, position) of the other characters
+    where they will be. Raises :class:`PositionExpressionError` for a malformed expression."""
+    tree, read = parse_position_expression(scene, expression)
     xy = np.asarray(position, dtype=float).reshape(2)
     if not np.all(np.isfinite(xy)):
         return CheckResult(False, False, float("inf"), None)
-    parser = _Parser(scene, expression, xy, seat)
-    ok, error = parser.parse()
-    sat_on = parser.seats | ({seat} if isinstance(seat, str) else set())  # a seat is not an obstacle to its sitter
-    hit = collision(scene, xy, sat_on)
-    return CheckResult(ok and hit is None, ok, error, hit)
+    holds, excess = _measure(scene, tree, read, xy, seat)
+    error = 0.0 if holds else max(excess, 0.0)
+    exempt = {a.anchors[0] for a in read.values() if a.relation in (*SEATING, "inside")}
+    if isinstance(seat, str):
+        exempt.add(seat)  # a seat is not an obstacle to its sitter
+    hit = object_collision(scene, xy, exempt)
+    if hit is not None:
+        return CheckResult(False, holds, error, hit[0], "object", hit[1])
+    near = character_collision(xy, others)
+    if near is not None:
+        return CheckResult(False, holds, error, near[0], "character", near[1])
+    return CheckResult(holds, holds, error, None)
 
 
-def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dict[str, object]]:
+def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dict[str, float]]:
     """Run each PI case's program (``programs/testcase_<id>.py``) for ``seeds`` seeds; per case:
     passes, mean milliseconds per plan for the whole run (sandbox + sampling) and for sampling
     alone (``SpatialAPI.resolve``)."""
@@ -227,7 +292,7 @@ def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dic
     from tools.spatial_api import SpatialAPI
 
     ref = Path(reference)
-    rows: list[dict[str, object]] = []
+    rows: list[dict[str, float]] = []
     cache: dict[str, tuple[Scene, object]] = {}
     for case in sorted((ref / "benchmark" / "test_cases" / "6_PI").glob("testcase_*.json")):
         data = json.loads(case.read_text())
@@ -268,6 +333,6 @@ if (
               f"(sampling {row['sampling_ms_per_plan']:.2f} ms)")  # fmt: skip
     n = len(results)
     print(
-        f"mean: {sum(float(r['ms_per_plan']) for r in results) / n:.2f} ms per plan, "  # type: ignore[arg-type]
-        f"sampling {sum(float(r['sampling_ms_per_plan']) for r in results) / n:.2f} ms"
-    )  # type: ignore[arg-type]
+        f"mean: {sum(r['ms_per_plan'] for r in results) / n:.2f} ms per plan, "
+        f"sampling {sum(r['sampling_ms_per_plan'] for r in results) / n:.2f} ms"
+    )

@@ -3,7 +3,7 @@
 A case (``benchmark/test_cases/<tags>/testcase_<id>.json`` in the reference data) holds a
 scene name, the action labels allowed, a user instruction, a planning history (events with
 states ongoing / looping / completed), the current state of every character, and the expected
-plans: per character an action expression, a relationship expression (``||``, ``&&``,
+plans: per character an action expression, a relationship expression (``||``, ``&&``, ``!``,
 parentheses over atoms like ``sit on chair_3``) or, for position-inference (PI) cases, a
 ``sampled_position`` expression. ``allow_null_plan`` says whether waiting is acceptable.
 
@@ -18,7 +18,7 @@ import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -83,7 +83,7 @@ class BenchmarkCase(_Case):
     expected_plans: tuple[ExpectedPlan, ...]
     allow_null_plan: bool = False
     source: str = Field("", description="file the case was read from")
-    raw: dict = Field(default_factory=dict, exclude=True, repr=False)
+    raw: dict[str, Any] = Field(default_factory=dict, exclude=True, repr=False)
 
     @property
     def group(self) -> str:
