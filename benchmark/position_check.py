@@ -28,11 +28,15 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
 from sim.scene.model import Scene, SceneObject
 from tools.scene_graph import point_footprint_distance
+
+if TYPE_CHECKING:
+    from tools.scene_graph import SceneGraph
 
 TOLERANCES: dict[str, float] = {
     "in front of": 0.1,
@@ -212,7 +216,17 @@ def check_position(
     return CheckResult(ok and hit is None, ok, error, hit)
 
 
-def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dict[str, object]]:
+class PiCaseTiming(TypedDict):
+    """One PI case measured by :func:`measure_pi_cases`."""
+
+    case: int
+    passed: int
+    seeds: int
+    ms_per_plan: float
+    sampling_ms_per_plan: float
+
+
+def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[PiCaseTiming]:
     """Run each PI case's program (``programs/testcase_<id>.py``) for ``seeds`` seeds; per case:
     passes, mean milliseconds per plan for the whole run (sandbox + sampling) and for sampling
     alone (``SpatialAPI.resolve``)."""
@@ -227,8 +241,8 @@ def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dic
     from tools.spatial_api import SpatialAPI
 
     ref = Path(reference)
-    rows: list[dict[str, object]] = []
-    cache: dict[str, tuple[Scene, object]] = {}
+    rows: list[PiCaseTiming] = []
+    cache: dict[str, tuple[Scene, SceneGraph]] = {}
     for case in sorted((ref / "benchmark" / "test_cases" / "6_PI").glob("testcase_*.json")):
         data = json.loads(case.read_text())
         if data["scene_name"] not in cache:
@@ -241,7 +255,7 @@ def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dic
         passed, total_s, sample_s = 0, 0.0, 0.0
         for seed in range(seeds):
             t0 = time.perf_counter()
-            api = SpatialAPI(scene, graph, world, data["action_labels"])  # type: ignore[arg-type]
+            api = SpatialAPI(scene, graph, world, data["action_labels"])
             execute(source, api.namespace(), entry="parse_event")
             t1 = time.perf_counter()
             plans = api.resolve(seed)
@@ -268,6 +282,6 @@ if (
               f"(sampling {row['sampling_ms_per_plan']:.2f} ms)")  # fmt: skip
     n = len(results)
     print(
-        f"mean: {sum(float(r['ms_per_plan']) for r in results) / n:.2f} ms per plan, "  # type: ignore[arg-type]
-        f"sampling {sum(float(r['sampling_ms_per_plan']) for r in results) / n:.2f} ms"
-    )  # type: ignore[arg-type]
+        f"mean: {sum(r['ms_per_plan'] for r in results) / n:.2f} ms per plan, "
+        f"sampling {sum(r['sampling_ms_per_plan'] for r in results) / n:.2f} ms"
+    )

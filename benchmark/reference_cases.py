@@ -18,7 +18,7 @@ import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -83,7 +83,7 @@ class BenchmarkCase(_Case):
     expected_plans: tuple[ExpectedPlan, ...]
     allow_null_plan: bool = False
     source: str = Field("", description="file the case was read from")
-    raw: dict = Field(default_factory=dict, exclude=True, repr=False)
+    raw: dict[str, Any] = Field(default_factory=dict, exclude=True, repr=False)
 
     @property
     def group(self) -> str:
