@@ -1,19 +1,24 @@
 """The one LLM port every agent talks to: typed requests in, typed responses out.
 
 Implementations live in ``orchestrator/`` (litellm client, trace recorder, trace replayer);
-agents never import litellm or langgraph. A fake implementation for tests is any object with
-an ``async complete(request) -> LLMResponse`` method.
+agents never import litellm or langgraph. A port also says where callers record what they
+made of its answers (``trace``, or None when nothing is recorded) and releases what it holds
+on ``close()``; so no caller has to probe a port with ``getattr``. A fake for tests needs
+``complete`` plus two lines: ``trace = None`` and ``def close(self) -> None: pass``.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-from typing import Any, Literal, Protocol, runtime_checkable
+from collections.abc import Sequence
+from typing import Any, ClassVar, Literal, Protocol, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict, Field
 
 NodeName = Literal["describer", "narrator", "event_parser", "planner"]
+LLMErrorKind = Literal["llm_error", "llm_unavailable", "replay_miss"]
+"""``kind`` of an :class:`LLMError` (what a trace or a report calls the failure)."""
 
 
 class ChatMessage(BaseModel):
@@ -72,9 +77,40 @@ class LLMResponse(BaseModel):
     )
 
 
+class TraceRecorder(Protocol):
+    """Where callers record what became of an answer the port traced (``trace_seq``).
+
+    The orchestrator's trace sinks implement it (and more: attempt records, seq numbering)."""
+
+    def record_parsed(
+        self, ref_seq: int, parsed_output: Any, *, node: NodeName | None = None,
+        error_type: str | None = None, error_message: str | None = None,
+    ) -> None:
+        """The output accepted from attempt ``ref_seq``, or the error that rejected it
+        (``error_message`` = the feedback sent back to the model)."""
+        ...
+
+    def record_applied(
+        self, ref_seqs: Sequence[int], sim_frame: int, *, step: int | None = None,
+        requested_frame: int | None = None,
+    ) -> None:
+        """The simulation frame at which the outcome built from attempts ``ref_seqs`` took effect."""
+        ...
+
+
 @runtime_checkable
 class LLMPort(Protocol):
     async def complete(self, request: LLMRequest) -> LLMResponse: ...
+
+    @property
+    def trace(self) -> TraceRecorder | None:
+        """Where callers record parsed outputs and applied frames for this port's answers
+        (None: the port records nothing)."""
+        ...
+
+    def close(self) -> None:
+        """Release what the port holds (flush and close its trace file). Safe to call twice."""
+        ...
 
 
 class LLMError(Exception):
@@ -82,20 +118,20 @@ class LLMError(Exception):
 
     ``trace_seqs``: seqs of the traced attempts of the failed call (set by the client)."""
 
-    kind: str = "llm_error"
+    kind: ClassVar[LLMErrorKind] = "llm_error"
     trace_seqs: tuple[int, ...] = ()
 
 
 class LLMUnavailableError(LLMError):
     """No model is usable (weights missing, no API key...). The message says how to fix it."""
 
-    kind = "llm_unavailable"
+    kind: ClassVar[LLMErrorKind] = "llm_unavailable"
 
 
 class ReplayMissError(LLMError):
     """A replayed run asked for a request that the trace does not hold."""
 
-    kind = "replay_miss"
+    kind: ClassVar[LLMErrorKind] = "replay_miss"
 
     def __init__(self, message: str, *, node: str | None = None, diff: str | None = None) -> None:
         super().__init__(message)

@@ -15,30 +15,41 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.motion.database import SCAN_THRESHOLD, NearestFrameIndex, clip_raw_features
-from sim.motion.sources.procedural_locomotion import locomotion_clip, step_length
+from sim.motion.sources.procedural_locomotion import Profile, locomotion_clip, step_length
 
 
-def _features(frames: int, rng: np.random.Generator) -> np.ndarray:
-    rows: list[np.ndarray] = []
+def _constant(value: float) -> Profile:
+    """A speed or turn-rate profile that holds ``value`` at every time."""
+
+    def profile(t: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.full_like(t, value)
+
+    return profile
+
+
+def _features(frames: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    rows: list[NDArray[np.float64]] = []
     total = 0
     while total < frames:
         v = float(rng.uniform(0.5, 1.8))
         w = float(rng.uniform(-1.2, 1.2))
         period = 2 * 2 * float(step_length(v)) / v
-        clip = locomotion_clip("bench", lambda t, v=v: np.full_like(t, v), lambda t, w=w: np.full_like(t, w),
-                               period, loops=True)
+        clip = locomotion_clip("bench", _constant(v), _constant(w), period, loops=True)
         f = clip_raw_features(clip, "locomotion")
         rows.append(f)
         total += len(f)
     feats = np.concatenate(rows)[:frames]
-    return (feats - feats.mean(axis=0)) / np.maximum(feats.std(axis=0), 1e-6)
+    standardized: NDArray[np.float64] = (feats - feats.mean(axis=0)) / np.maximum(feats.std(axis=0), 1e-6)
+    return standardized
 
 
-def _time(fn, reps: int) -> float:  # type: ignore[no-untyped-def]
+def _time(fn: Callable[[], object], reps: int) -> float:
     t0 = time.perf_counter()
     for _ in range(reps):
         fn()

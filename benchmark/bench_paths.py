@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from orchestrator.reference_data import locate_reference
-from sim.paths.cooperative_astar import PathPlanner
+from sim.paths.cooperative_astar import Agent, Cell, PathPlanner
 from sim.paths.nav_grid import build_nav_grid, with_reference_grid_origin
 from sim.scene.files import load_scene
 
@@ -25,7 +25,7 @@ REFERENCE = locate_reference()  # absent: main() exits with REFERENCE.reason
 OFFICE = REFERENCE.path / "configs" / "scenes" / "Office"
 
 
-def _spaced(cells: list[tuple[int, int]], n: int, rng: np.random.Generator) -> list[tuple[int, int]]:
+def _spaced(cells: list[Cell], n: int, rng: np.random.Generator) -> list[Cell]:
     out: list[tuple[int, int]] = []
     for k in rng.permutation(len(cells)):
         c = cells[k]
@@ -36,7 +36,9 @@ def _spaced(cells: list[tuple[int, int]], n: int, rng: np.random.Generator) -> l
     return out
 
 
-def _time(planner: PathPlanner, starts: dict, goals: dict, repeats: int) -> tuple[float, int]:
+def _time(
+    planner: PathPlanner, starts: dict[Agent, Cell], goals: dict[Agent, Cell], repeats: int
+) -> tuple[float, int]:
     best = float("inf")
     failed = 0
     for _ in range(repeats):
@@ -55,7 +57,7 @@ def main() -> None:
     if not REFERENCE.found:
         raise SystemExit(REFERENCE.reason)
     grid = build_nav_grid(with_reference_grid_origin(load_scene(OFFICE), OFFICE))
-    cells = [tuple(map(int, c)) for c in np.argwhere(grid.component == grid.main_component)]
+    cells: list[Cell] = [(int(i), int(j)) for i, j in np.argwhere(grid.component == grid.main_component)]
     whca = PathPlanner(grid, window=20, seed=args.seed)
     full = PathPlanner(grid, window=150, max_expansions=200_000, seed=args.seed)
     python = PathPlanner(grid, window=20, seed=args.seed, backend="python")
@@ -68,8 +70,8 @@ def main() -> None:
         st = _spaced(cells, n, rng)
         gl = _spaced(cells, len(st), rng)
         m = min(len(st), len(gl))
-        starts = {a: st[a] for a in range(m)}
-        goals = {a: gl[a] for a in range(m)}
+        starts: dict[Agent, Cell] = {a: st[a] for a in range(m)}
+        goals: dict[Agent, Cell] = {a: gl[a] for a in range(m)}
         for g in goals.values():  # heuristics are cached per goal; warm them for both
             whca.heuristic(g)
             full.heuristic(g)

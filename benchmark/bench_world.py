@@ -34,16 +34,18 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.reference_data import locate_reference
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MotionMatcher, MotionQuery, Pose
-from sim.paths.cooperative_astar import PathPlanner, PlanResult
+from sim.paths.cooperative_astar import Agent, Cell, PathPlanner, PlanResult
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
@@ -148,9 +150,20 @@ class TimedPlanner(PathPlanner):
 
     counters: Counters
 
-    def plan(self, starts, goals, static_obstacles=(), t0=0, order=None, **kw) -> PlanResult:  # type: ignore[no-untyped-def, override]
+    def plan(
+        self,
+        starts: Mapping[Agent, Cell],
+        goals: Mapping[Agent, Cell | None],
+        static_obstacles: Sequence[NDArray[np.float64] | tuple[float, float]] = (),
+        t0: int = 0,
+        order: Sequence[Agent] | None = None,
+        static_segments: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]] = (),
+        hints: Mapping[Agent, tuple[Sequence[Cell], Cell]] | None = None,
+    ) -> PlanResult:
         t = time.perf_counter()
-        out = super().plan(starts, goals, static_obstacles, t0=t0, order=order, **kw)
+        kw = {"static_segments": static_segments, "hints": hints}
+        out = super().plan(starts, goals, static_obstacles, t0=t0, order=order, static_segments=static_segments,
+                           hints=hints)
         self.counters.plan_s += time.perf_counter() - t
         self.counters.plans += 1
         self.counters.problems.append((dict(starts), dict(goals), list(static_obstacles), t0, list(order or ()), kw))
@@ -235,7 +248,7 @@ class RunResult:
 def run_crowd(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: dict[str, MotionDatabase],
               brute: bool) -> RunResult:
     counters = Counters()
-    matcher = MotionMatcher({k: TimedDatabase(db, counters, brute) for k, db in dbs.items()})  # type: ignore[misc]
+    matcher = MotionMatcher({k: TimedDatabase(db, counters, brute) for k, db in dbs.items()})  # type: ignore[misc]  # TimedDatabase stands in for a MotionDatabase by delegation (__getattr__), not by subclassing
     planner = TimedPlanner(grid, seed=seed)
     planner.counters = counters
     errands = IdleErrands(grid, n, seed)
@@ -295,7 +308,7 @@ def main() -> None:
     print()
     print(hdr)
     print("-" * len(hdr), flush=True)
-    target: tuple[float, float] | None = None
+    target: tuple[float, float, float] | None = None
     for n in args.sizes:
         scene = office if n <= 120 else tiled(office, 2, 2)
         if scene.name not in grids:

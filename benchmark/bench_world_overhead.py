@@ -18,17 +18,20 @@ from __future__ import annotations
 import argparse
 import hashlib
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from benchmark.bench_world import OFFICE, REFERENCE, IdleErrands
 from orchestrator.cache_paths import motion_cache_dir
-from sim.motion.database import load_databases
+from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MotionMatcher
 from sim.paths.cooperative_astar import PathPlanner, PlanResult
-from sim.paths.nav_grid import build_nav_grid
+from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
+from sim.scene.model import Scene
+from sim.world.motion_layer import MotionQuery, Pose
 from sim.world.step import World, WorldConfig, step
 
 CLOCK = time.process_time
@@ -61,6 +64,12 @@ class TimedMotion:
     def initial_state(self, label: str, root_xy: Any, heading: float, seated: bool = False) -> Any:
         return self._m.initial_state(label, root_xy, heading, seated)
 
+    def step(self, state: Any, query: MotionQuery, dt: float) -> tuple[Any, Pose]:
+        t = CLOCK()
+        out = self._m.step(state, query, dt)
+        self._c.motion_s += CLOCK() - t
+        return out
+
     def step_many(self, states: Any, queries: Any, dt: float) -> Any:
         t = CLOCK()
         out = self._m.step_many(states, queries, dt)
@@ -68,7 +77,8 @@ class TimedMotion:
         return out
 
 
-def run(scene, grid, dbs, n: int, frames: int, seed: int) -> tuple[float, Counters, str]:  # type: ignore[no-untyped-def]
+def run(scene: Scene, grid: NavGrid, dbs: Mapping[str, MotionDatabase], n: int, frames: int,
+        seed: int) -> tuple[float, Counters, str]:
     """(seconds, counters, output fingerprint) of one crowd run (bench_world's scenario)."""
     counters = Counters()
     planner = TimedPlanner(grid, seed=seed)

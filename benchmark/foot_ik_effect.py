@@ -24,8 +24,10 @@ import sys
 import time
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from sim.body.foot_ik import LEG_JOINTS, FootSolver
@@ -95,11 +97,12 @@ def main() -> None:
         span = np.linalg.norm(chain.ankle - chain.hip, axis=-1)
         return int(np.sum(span > THIGH_LENGTH + SHIN_LENGTH - 1e-4))
 
-    def joint_speed(rotations: np.ndarray) -> np.ndarray:
+    def joint_speed(rotations: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
         """Angular speeds (rad/s) of the hips', knees' and ankles' local rotations, frame to frame."""
         legs = rotations[: b.length, :, list(LEG_JOINTS)].astype(float)
         rel = np.einsum("fnjba,fnjbc->fnjac", legs[:-1], legs[1:])
-        return np.linalg.norm(Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec(), axis=-1) * 30.0
+        speeds: NDArray[np.float64] = np.linalg.norm(Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec(), axis=-1) * 30.0
+        return speeds
 
     speed_before, speed_after = joint_speed(b.rotations), joint_speed(filtered)
     others = [j for j in range(filtered.shape[2]) if j not in LEG_JOINTS]

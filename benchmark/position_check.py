@@ -39,7 +39,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal, TypedDict
 
 import numpy as np
 
@@ -47,6 +47,9 @@ from benchmark.expressions import And, Atom, Expr, ExpressionError, Not, Or, ato
 from sim.scene.model import Scene, SceneObject
 from tools.position_sampling import BODY_RADIUS
 from tools.scene_graph import point_footprint_distance
+
+if TYPE_CHECKING:
+    from tools.scene_graph import SceneGraph
 
 TOLERANCES: dict[str, float] = {
     "in front of": 0.1,
@@ -277,7 +280,17 @@ def check_position(
     return CheckResult(holds, holds, error, None)
 
 
-def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dict[str, float]]:
+class PiCaseTiming(TypedDict):
+    """One PI case measured by :func:`measure_pi_cases`."""
+
+    case: int
+    passed: int
+    seeds: int
+    ms_per_plan: float
+    sampling_ms_per_plan: float
+
+
+def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[PiCaseTiming]:
     """Run each PI case's program (``programs/testcase_<id>.py``) for ``seeds`` seeds; per case:
     passes, mean milliseconds per plan for the whole run (sandbox + sampling) and for sampling
     alone (``SpatialAPI.resolve``)."""
@@ -292,8 +305,8 @@ def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dic
     from tools.spatial_api import SpatialAPI
 
     ref = Path(reference)
-    rows: list[dict[str, float]] = []
-    cache: dict[str, tuple[Scene, object]] = {}
+    rows: list[PiCaseTiming] = []
+    cache: dict[str, tuple[Scene, SceneGraph]] = {}
     for case in sorted((ref / "benchmark" / "test_cases" / "6_PI").glob("testcase_*.json")):
         data = json.loads(case.read_text())
         if data["scene_name"] not in cache:
@@ -306,7 +319,7 @@ def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[dic
         passed, total_s, sample_s = 0, 0.0, 0.0
         for seed in range(seeds):
             t0 = time.perf_counter()
-            api = SpatialAPI(scene, graph, world, data["action_labels"])  # type: ignore[arg-type]
+            api = SpatialAPI(scene, graph, world, data["action_labels"])
             execute(source, api.namespace(), entry="parse_event")
             t1 = time.perf_counter()
             plans = api.resolve(seed)

@@ -62,16 +62,17 @@ def _guarded_getaddrinfo(host: Any, *args: Any, **kwargs: Any) -> Any:
     return _real_getaddrinfo(host, *args, **kwargs)
 
 
+_guard = pytest.MonkeyPatch()  # session-wide: installed at configure, undone per allow_network test
+
+
 def _install_guard() -> None:
-    socket.socket.connect = _guarded_connect  # type: ignore[method-assign]
-    socket.socket.connect_ex = _guarded_connect_ex  # type: ignore[method-assign]
-    socket.getaddrinfo = _guarded_getaddrinfo
+    _guard.setattr(socket.socket, "connect", _guarded_connect)
+    _guard.setattr(socket.socket, "connect_ex", _guarded_connect_ex)
+    _guard.setattr(socket, "getaddrinfo", _guarded_getaddrinfo)
 
 
 def _remove_guard() -> None:
-    socket.socket.connect = _real_connect  # type: ignore[method-assign]
-    socket.socket.connect_ex = _real_connect_ex  # type: ignore[method-assign]
-    socket.getaddrinfo = _real_getaddrinfo
+    _guard.undo()
 
 
 def pytest_configure(config: pytest.Config) -> None:

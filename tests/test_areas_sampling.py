@@ -325,7 +325,7 @@ def test_bad_reference_cases_raise_typed_errors(
     scenes: dict[str, Scene], data: object, match: str
 ) -> None:
     with pytest.raises(ReferenceCaseError, match=match):
-        world_view_from_reference_case(data, scenes["House"])  # type: ignore[arg-type]
+        world_view_from_reference_case(data, scenes["House"])  # type: ignore[arg-type]  # ill-typed JSON on purpose: the runtime checks must reject it
 
 
 def test_area_from_text(scenes: dict[str, Scene]) -> None:
@@ -347,4 +347,4 @@ def test_combining_is_bounded_and_typed() -> None:
     with pytest.raises(ToolArgumentError, match="at most"):
         combined.intersect(a)
     with pytest.raises(ToolArgumentError, match="expects an Area"):
-        a.union("table_1")  # type: ignore[arg-type]
+        a.union("table_1")  # type: ignore[arg-type]  # a name instead of an Area on purpose, as a program might pass

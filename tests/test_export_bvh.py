@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import BODY_TO_WORLD, JOINT_NAMES, PARENTS, REST_OFFSETS
-from sim.export.bvh import END_SITES, bvh_text, depth_first_order, export_bvh
+from sim.export.bvh import END_SITES, Units, bvh_text, depth_first_order, export_bvh
 from sim.world.character_track import CharacterTrack
 from tests.support.random_tracks import random_track
 
@@ -54,9 +54,9 @@ def _read(path: Path) -> Bvh:
 
 
 @pytest.mark.parametrize(("units", "scale"), [("m", 1.0), ("cm", 100.0)])
-def test_bvh_roundtrip_with_independent_reader(tmp_path: Path, units: str, scale: float) -> None:
+def test_bvh_roundtrip_with_independent_reader(tmp_path: Path, units: Units, scale: float) -> None:
     track = random_track("ann", 120, seed=11, max_joint_angle=1.5)
-    path = export_bvh(track, tmp_path / "ann.bvh", units=units)  # type: ignore[arg-type]
+    path = export_bvh(track, tmp_path / "ann.bvh", units=units)
     mocap = _read(path)
     assert mocap.nframes == 120 == len(mocap.frames)
     assert mocap.frame_time == pytest.approx(1 / 30, abs=1e-8)
@@ -104,7 +104,7 @@ def test_bvh_is_deterministic_and_depth_first(tmp_path: Path) -> None:
 
 def test_bvh_rejects_unknown_units(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="units"):
-        export_bvh(random_track("d", 2, seed=1), tmp_path / "x.bvh", units="in")  # type: ignore[arg-type]
+        export_bvh(random_track("d", 2, seed=1), tmp_path / "x.bvh", units="in")  # type: ignore[arg-type]  # an unknown unit on purpose: the runtime check must reject it
 
 
 def test_bvh_angles_have_no_wraps(tmp_path: Path) -> None:

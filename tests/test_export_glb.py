@@ -175,14 +175,16 @@ def _world_matrices(doc: gl.GLTF2, frame: int) -> list[np.ndarray]:
     world: list[np.ndarray | None] = [None] * len(nodes)
 
     def visit(i: int, parent: np.ndarray) -> None:
-        world[i] = parent @ _local_matrix(nodes[i])
+        matrix = parent @ _local_matrix(nodes[i])
+        world[i] = matrix
         for child in doc.nodes[i].children:
-            visit(child, world[i])
+            visit(child, matrix)
 
     for root in doc.scenes[doc.scene].nodes:
         visit(root, np.eye(4))
-    assert all(m is not None for m in world)
-    return world  # type: ignore[return-value]
+    placed = [m for m in world if m is not None]
+    assert len(placed) == len(world), "a node is not reachable from the scene's roots"
+    return placed
 
 
 @pytest.mark.parametrize("frame", [0, 17, 29])

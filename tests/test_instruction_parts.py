@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from agents.instruction_parts import instruction_progress, part_states, split_instruction
-from agents.messages import CharacterStatus, HistoryEntry
+from agents.llm_port import LLMRequest, LLMResponse
+from agents.messages import CharacterStatus, EventState, HistoryEntry
 from agents.narrator import NarratorInput, narrate, narrator_request
 from agents.prompt_templates import PromptLibrary
 
@@ -13,8 +14,8 @@ COFFEE = "Ava makes coffee, then sits on the couch and drinks it."
 NAMES = ("Ava", "Ben")
 
 
-def ev(i: int, who: tuple[str, ...], activity: str, state: str = "completed") -> HistoryEntry:
-    return HistoryEntry(index=i, characters=who, activity=activity, state=state)  # type: ignore[arg-type]
+def ev(i: int, who: tuple[str, ...], activity: str, state: EventState = "completed") -> HistoryEntry:
+    return HistoryEntry(index=i, characters=who, activity=activity, state=state)
 
 
 @pytest.mark.parametrize(("instruction", "parts"), [
@@ -74,8 +75,13 @@ def test_progress_text_and_when_nothing_is_for_the_free() -> None:
 
 
 class NoCalls:
-    async def complete(self, request: object) -> object:
+    trace = None
+
+    async def complete(self, request: LLMRequest) -> LLMResponse:
         raise AssertionError("the narrator asked the model")
+
+    def close(self) -> None:
+        pass
 
 
 def _input(history: tuple[HistoryEntry, ...], busy: tuple[str, ...]) -> NarratorInput:
@@ -85,7 +91,7 @@ def _input(history: tuple[HistoryEntry, ...], busy: tuple[str, ...]) -> Narrator
 
 
 async def test_narrator_waits_without_a_call_when_the_rest_is_for_busy_characters() -> None:
-    accepted = await narrate(NoCalls(), PromptLibrary(), _input((ev(0, ("Ava",), "make coffee", "ongoing"),), ("Ava",)))  # type: ignore[arg-type]
+    accepted = await narrate(NoCalls(), PromptLibrary(), _input((ev(0, ("Ava",), "make coffee", "ongoing"),), ("Ava",)))
     assert accepted.value.event.is_wait and accepted.attempts == 0
 
 

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TypedDict
 
 import bvh as independent_bvh
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from sim.body.skeleton import JOINT_INDEX, REST_OFFSETS, matrix_to_axis_angle
+from sim.motion.clips import MotionClip
 from sim.motion.config import MotionConfigError, build_databases_from_config, load_motion_config
 from sim.motion.matching import foot_sliding
 from sim.motion.sources.amass_import import import_amass
@@ -24,7 +27,7 @@ from tests.support.reference import MOCAP, requires_mocap
 HEAD = JOINT_INDEX["head"]
 
 
-def _stats(clip):  # type: ignore[no-untyped-def]
+def _stats(clip: MotionClip) -> tuple[NDArray[np.float64], float, float]:
     pos = clip.joint_positions()
     height = float(np.median(pos[:, HEAD, 2] - pos[:, [10, 11], 2].min(axis=1)))
     speed = float(np.linalg.norm(np.diff(clip.root_xy, axis=0), axis=1).mean() * 30)
@@ -96,7 +99,17 @@ def test_bad_bvh_files_give_typed_errors(tmp_path: Path) -> None:
         parse_bvh(tmp_path / "missing.bvh")
 
 
-def _amass_arrays(clip):  # type: ignore[no-untyped-def]
+class AmassArrays(TypedDict):
+    """The arrays of an AMASS ``.npz`` (SMPL-X layout: 165 pose values per frame)."""
+
+    poses: NDArray[np.float64]
+    trans: NDArray[np.float64]
+    mocap_frame_rate: NDArray[np.float64]
+    betas: NDArray[np.float64]
+    gender: NDArray[np.str_]
+
+
+def _amass_arrays(clip: MotionClip) -> AmassArrays:
     aa = matrix_to_axis_angle(clip.local_rotations).reshape(clip.num_frames, 66)
     poses = np.concatenate([aa, np.zeros((clip.num_frames, 99))], axis=1)
     return {"poses": poses, "trans": clip.pelvis - REST_OFFSETS[0], "mocap_frame_rate": np.array(30.0),

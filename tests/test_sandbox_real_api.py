@@ -24,10 +24,16 @@ import select
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from tools.sandbox import Budget
+
+if TYPE_CHECKING:  # the worker subprocess imports these when it runs, not at collection
+    from sim.scene.model import Scene
+    from tools.character_states import WorldView
+    from tools.scene_graph import SceneGraph
 
 HERE = Path(__file__).resolve().parent
 HANG_TIMEOUT_S = 10.0
@@ -52,18 +58,18 @@ def _cases() -> list[tuple[str, object, str, object]]:
     return out
 
 
-def _snapshot(scene: object, graph: object, world: object) -> str:
+def _snapshot(scene: Scene, graph: SceneGraph, world: WorldView) -> str:
     return json.dumps(
         {
-            "scene": scene.model_dump(mode="json"),  # type: ignore[attr-defined]
-            "edges": graph.triples(),  # type: ignore[attr-defined]
-            "world": world.model_dump(mode="json"),  # type: ignore[attr-defined]
+            "scene": scene.model_dump(mode="json"),
+            "edges": graph.triples(),
+            "world": world.model_dump(mode="json"),
         },
         sort_keys=True,
     )
 
 
-def _world(scene: object, graph: object) -> object:
+def _world(scene: Scene, graph: SceneGraph) -> WorldView:
     """Mia standing near the fridge, Ava sitting on chair_2 (placed by a real program run)."""
     from tools.character_states import CharacterState, WorldView
     from tools.event_program import run_event_program
@@ -73,7 +79,7 @@ def _world(scene: object, graph: object) -> object:
         "    get_character('Mia').set_position(get_area_adjacent_to('fridge_1'))\n"
         "    get_character('Ava').set_position(get_area_to_sit_on('chair_2'))\n"
     )
-    plans = run_event_program(scene, setup, WorldView(), seed=0, graph=graph)  # type: ignore[arg-type]
+    plans = run_event_program(scene, setup, WorldView(), seed=0, graph=graph)
     states = tuple(
         CharacterState(
             name=p.character,
@@ -110,11 +116,12 @@ def worker(start: int) -> None:
         report: dict[str, object] = {"index": index, "name": name}
         try:
             if _expected == "value":
-                api = SpatialAPI(scene, graph, world)  # type: ignore[arg-type]
-                report["value"] = execute(source, api.namespace())  # type: ignore[arg-type]
+                assert isinstance(source, str)  # the value cases are range-membership programs
+                api = SpatialAPI(scene, graph, world)
+                report["value"] = execute(source, api.namespace())
                 report["plans"] = len(api.resolve(0))
             else:
-                plans = run_event_program(scene, source, world, seed=0, graph=graph)  # type: ignore[arg-type]
+                plans = run_event_program(scene, source, world, seed=0, graph=graph)  # type: ignore[arg-type]  # the corpus holds non-str sources on purpose
                 report["plans"] = len(plans)
         except EventProgramError as err:
             report["error"] = type(err).__name__

@@ -188,9 +188,9 @@ def test_thresholds_are_configurable_and_frozen() -> None:
     with pytest.raises(ValidationError):
         RelationThresholds(adjacent=-1.0)
     with pytest.raises(ValidationError):
-        RelationThresholds(unknown=1.0)  # type: ignore[call-arg]
+        RelationThresholds.model_validate({"unknown": 1.0})
     with pytest.raises(ValidationError):
-        wide.adjacent = 0.1  # type: ignore[misc]
+        wide.adjacent = 0.1  # type: ignore[misc]  # assigning to a frozen field on purpose: pydantic must refuse
 
 
 # ----- geometry -----------------------------------------------------------------------------

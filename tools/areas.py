@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from sim.scene.model import SceneObject
 from tools.errors import ToolArgumentError
@@ -35,7 +36,7 @@ SEAT_SLOT_WIDTH = 0.6  # m of seat width per sitting person
 SEAT_MATCH = 0.05  # m: a point this close to a seat slot is on it
 MAX_PARTS = 32  # most single-relation areas one combined area may hold
 
-Predicate = Callable[[np.ndarray], np.ndarray]
+Predicate = Callable[[NDArray[np.float64]], NDArray[np.bool_]]
 Box = tuple[float, float, float, float]  # xmin, ymin, xmax, ymax
 
 
@@ -64,7 +65,7 @@ class Area:
 
     sandbox_attributes: ClassVar[frozenset[str]] = frozenset({"description", "intersect", "union"})
 
-    def contains(self, xy: np.ndarray) -> np.ndarray:
+    def contains(self, xy: ArrayLike) -> NDArray[np.bool_]:
         """Whether xy points (N, 2) lie in the area (seat slots included)."""
         points = np.asarray(xy, dtype=float).reshape(-1, 2)
         return np.asarray(self.predicate(points), dtype=bool)
@@ -83,7 +84,7 @@ class Area:
             min(a.hint[3], b.hint[3]),
         )
 
-        def predicate(p: np.ndarray) -> np.ndarray:
+        def predicate(p: NDArray[np.float64]) -> NDArray[np.bool_]:
             return a.contains(p) & b.contains(p)
 
         return Area(
@@ -107,7 +108,7 @@ class Area:
             max(a.hint[3], b.hint[3]),
         )
 
-        def predicate(p: np.ndarray) -> np.ndarray:
+        def predicate(p: NDArray[np.float64]) -> NDArray[np.bool_]:
             return a.contains(p) | b.contains(p)
 
         return Area(
@@ -163,7 +164,7 @@ def _focus(obj: SceneObject) -> tuple[float, float]:
 def within_distance(obj: SceneObject, distance: float, relation: str) -> Area:
     """Points whose distance to the object's footprint is at most ``distance`` metres."""
 
-    def predicate(p: np.ndarray) -> np.ndarray:
+    def predicate(p: NDArray[np.float64]) -> NDArray[np.bool_]:
         return point_footprint_distance(obj, p) <= distance
 
     return Area(
@@ -201,7 +202,7 @@ def directional(obj: SceneObject, relation: str, reach: float = DIRECTIONAL_REAC
     axis, sign = _DIRECTIONS[relation]
     half = (obj.width / 2.0, obj.depth / 2.0)
 
-    def predicate(p: np.ndarray) -> np.ndarray:
+    def predicate(p: NDArray[np.float64]) -> NDArray[np.bool_]:
         local = obj.to_local(p)
         along = sign * local[:, axis]
         across = np.abs(local[:, 1 - axis])
@@ -246,7 +247,7 @@ def to_interact_with(obj: SceneObject, supporter: SceneObject | None = None) -> 
     if supporter is not None:  # stand at the supporter's edge: body radius + a short arm's reach
         reach = max(reach, inset_depth(obj, supporter) + EDGE_REACH)
 
-    def predicate(p: np.ndarray) -> np.ndarray:
+    def predicate(p: NDArray[np.float64]) -> NDArray[np.bool_]:
         near = point_footprint_distance(obj, p) <= reach
         if not obj.has_facing:
             return near
@@ -288,9 +289,10 @@ def to_sit_on(obj: SceneObject) -> Area:
     slots = seat_slots(obj)
     points = np.array([s.position for s in slots])
 
-    def predicate(p: np.ndarray) -> np.ndarray:
-        d = np.linalg.norm(p[:, None, :] - points[None, :, :], axis=2)
-        return d.min(axis=1) <= SEAT_MATCH
+    def predicate(p: NDArray[np.float64]) -> NDArray[np.bool_]:
+        d: NDArray[np.float64] = np.linalg.norm(p[:, None, :] - points[None, :, :], axis=2)
+        nearest: NDArray[np.float64] = d.min(axis=1)
+        return nearest <= SEAT_MATCH
 
     xs, ys = points[:, 0], points[:, 1]
     hint = (float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max()))
@@ -313,9 +315,9 @@ def _line_area(a: SceneObject, b: SceneObject, t_min: float, t_max: float, relat
     if length2 < 1e-12:
         raise ValueError(f"{a.name} and {b.name} have the same centre")
 
-    def predicate(p: np.ndarray) -> np.ndarray:
+    def predicate(p: NDArray[np.float64]) -> NDArray[np.bool_]:
         t = (p - c1) @ v / length2
-        off = np.linalg.norm(p - (c1 + t[:, None] * v), axis=1)
+        off: NDArray[np.float64] = np.linalg.norm(p - (c1 + t[:, None] * v), axis=1)
         return (t >= t_min) & (t <= t_max) & (off <= BETWEEN_OFF_LINE)
 
     ends = np.array([c1 + t_min * v, c1 + t_max * v])

@@ -16,6 +16,7 @@ import zlib
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from sim.scene.model import Scene, SceneObject
@@ -124,7 +125,7 @@ def area_from_text(text: str, scene: Scene) -> areas.Area:
     return areas.directional(anchor, rel)
 
 
-def _unit(v: np.ndarray) -> Point | None:
+def _unit(v: NDArray[np.float64]) -> Point | None:
     n = float(np.hypot(v[0], v[1]))
     if not math.isfinite(n) or n < 1e-6:
         return None

@@ -9,13 +9,14 @@ at distance 0 from it; two chairs 0.4 m apart are at 0.4.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 from sklearn.cluster import DBSCAN
 
 from sim.scene.model import Scene
 from tools.scene_graph import box_distance
 
 
-def distance_matrix(scene: Scene) -> np.ndarray:
+def distance_matrix(scene: Scene) -> NDArray[np.float64]:
     """Symmetric (N, N) matrix of box-to-box surface distances between the scene's objects, metres."""
     objects = scene.objects
     n = len(objects)

@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from sim.scene.model import Scene
 from tools.areas import Area, SeatSlot
@@ -50,7 +51,7 @@ class FloorMap:
         self.body_radius = body_radius
         self.obstacles = [o for o in scene.objects if abs(o.z_min - scene.floor_z) < floor_support]
 
-    def free(self, xy: np.ndarray) -> np.ndarray:
+    def free(self, xy: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Whether points (N, 2) are on free floor (inside the bounds, clear of furniture)."""
         p = np.asarray(xy, dtype=float).reshape(-1, 2)
         r = self.body_radius
@@ -94,21 +95,23 @@ class Placement:
 
 
 def _far_from(
-    points: np.ndarray, others: tuple[tuple[float, float], ...], distance: float
-) -> np.ndarray:
+    points: NDArray[np.float64], others: tuple[tuple[float, float], ...], distance: float
+) -> NDArray[np.bool_]:
     if not others or len(points) == 0:
         return np.ones(len(points), dtype=bool)
     o = np.asarray(others, dtype=float)
-    d = np.linalg.norm(points[:, None, :] - o[None, :, :], axis=2)
-    return d.min(axis=1) >= distance
+    d: NDArray[np.float64] = np.linalg.norm(points[:, None, :] - o[None, :, :], axis=2)
+    nearest: NDArray[np.float64] = d.min(axis=1)
+    return nearest >= distance
 
 
 def _near_all(
-    points: np.ndarray, others: tuple[tuple[float, float], ...], distance: float
-) -> np.ndarray:
+    points: NDArray[np.float64], others: tuple[tuple[float, float], ...], distance: float
+) -> NDArray[np.bool_]:
     o = np.asarray(others, dtype=float)
-    d = np.linalg.norm(points[:, None, :] - o[None, :, :], axis=2)
-    return d.max(axis=1) <= distance
+    d: NDArray[np.float64] = np.linalg.norm(points[:, None, :] - o[None, :, :], axis=2)
+    farthest: NDArray[np.float64] = d.max(axis=1)
+    return farthest <= distance
 
 
 def _free_seats(area: Area, c: Constraints) -> list[SeatSlot]:
@@ -122,7 +125,7 @@ def _free_seats(area: Area, c: Constraints) -> list[SeatSlot]:
     return free
 
 
-def _lattice(area: Area, scene: Scene, rng: np.random.Generator) -> np.ndarray:
+def _lattice(area: Area, scene: Scene, rng: np.random.Generator) -> NDArray[np.float64]:
     x0 = max(area.hint[0], scene.bounds_min[0])
     y0 = max(area.hint[1], scene.bounds_min[1])
     x1 = min(area.hint[2], scene.bounds_max[0])
@@ -142,7 +145,7 @@ def _lattice(area: Area, scene: Scene, rng: np.random.Generator) -> np.ndarray:
     return np.stack([gx.ravel(), gy.ravel()], axis=1)
 
 
-def _interior(area: Area, points: np.ndarray) -> np.ndarray:
+def _interior(area: Area, points: NDArray[np.float64]) -> NDArray[np.float64]:
     keep = np.ones(len(points), dtype=bool)
     for dx, dy in (
         (INTERIOR_MARGIN, 0.0),

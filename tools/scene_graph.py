@@ -26,6 +26,7 @@ from collections.abc import Iterable
 
 import networkx as nx
 import numpy as np
+from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from sim.scene.model import Scene, SceneObject
@@ -96,16 +97,19 @@ DEFAULT_THRESHOLDS = RelationThresholds()
 
 
 # ----- footprint geometry ---------------------------------------------------------------------
-def _point_segment_distances(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _point_segment_distances(
+    points: NDArray[np.float64], a: NDArray[np.float64], b: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Distances from points (N, 2) to the segment a-b."""
     ab = b - a
     denom = float(ab @ ab)
     t = np.zeros(len(points)) if denom < 1e-18 else np.clip((points - a) @ ab / denom, 0.0, 1.0)
     proj = a + t[:, None] * ab
-    return np.linalg.norm(points - proj, axis=1)
+    distances: NDArray[np.float64] = np.linalg.norm(points - proj, axis=1)
+    return distances
 
 
-def _separated(p: np.ndarray, q: np.ndarray) -> bool:
+def _separated(p: NDArray[np.float64], q: NDArray[np.float64]) -> bool:
     """Separating-axis test for two convex polygons (corners in order)."""
     for poly in (p, q):
         edges = np.roll(poly, -1, axis=0) - poly
@@ -119,7 +123,7 @@ def _separated(p: np.ndarray, q: np.ndarray) -> bool:
     return False
 
 
-def polygon_distance(p: np.ndarray, q: np.ndarray) -> float:
+def polygon_distance(p: NDArray[np.float64], q: NDArray[np.float64]) -> float:
     """Distance between two convex polygons (corners (N, 2) in order); 0 when they overlap."""
     if not _separated(p, q):
         return 0.0
@@ -151,7 +155,7 @@ def box_distance(a: SceneObject, b: SceneObject) -> float:
     return float(np.hypot(footprint_distance(a, b), vertical_gap(a, b)))
 
 
-def point_footprint_distance(obj: SceneObject, xy: np.ndarray) -> np.ndarray:
+def point_footprint_distance(obj: SceneObject, xy: NDArray[np.float64]) -> NDArray[np.float64]:
     """Distance from xy points (..., 2) to the object's footprint rectangle (0 inside), metres."""
     local = np.abs(obj.to_local(xy))
     dx = np.maximum(local[..., 0] - obj.width / 2.0, 0.0)
@@ -200,7 +204,7 @@ class SceneGraph:
     """Relations of one scene. ``graph`` nodes are object names with attributes ``label``,
     ``level`` (support level or None) and ``supporter`` (object name or None for the floor)."""
 
-    def __init__(self, scene: Scene, thresholds: RelationThresholds, graph: nx.MultiDiGraph):
+    def __init__(self, scene: Scene, thresholds: RelationThresholds, graph: nx.MultiDiGraph[str]):
         self.scene = scene
         self.thresholds = thresholds
         self.graph = graph
@@ -261,7 +265,7 @@ def build_scene_graph(
     """Compute every relation of ``scene`` (see the module docstring for the semantics)."""
     t = thresholds
     objects = scene.objects
-    graph: nx.MultiDiGraph = nx.MultiDiGraph()
+    graph: nx.MultiDiGraph[str] = nx.MultiDiGraph()
     on_floor = {o.name for o in objects if abs(o.z_min - scene.floor_z) < t.floor_support}
 
     # support: the closest anchor top under the subject's bottom wins
@@ -322,7 +326,7 @@ def _circle_gap(a: SceneObject, b: SceneObject) -> float:
 
 
 def _horizontal_edges(
-    graph: nx.MultiDiGraph, members: Iterable[SceneObject], t: RelationThresholds
+    graph: nx.MultiDiGraph[str], members: Iterable[SceneObject], t: RelationThresholds
 ) -> None:
     members = list(members)
     for subject in members:

@@ -109,10 +109,8 @@ class LiteLLMClient:
         register_local_provider()
 
     def close(self) -> None:
-        """Close the trace sink (if it is a file writer)."""
-        close = getattr(self.trace, "close", None)
-        if close is not None:
-            close()
+        """Close the trace sink (a file writer flushes and closes its file)."""
+        self.trace.close()
 
     def _params(self, node: NodeConfig, model: str, request: LLMRequest) -> tuple[dict[str, Any], bool]:
         max_tokens = node.max_tokens if request.max_tokens is None else min(request.max_tokens, node.max_tokens)
@@ -214,7 +212,7 @@ class LiteLLMClient:
                 assert text is not None
                 record(response_text=text, finish_reason=finish, parsed_output=parsed, usage=usage,
                        latency_s=latency, final=True)
-                return LLMResponse(text=text, model=model, usage=usage or TokenUsage(), latency_s=latency,
+                return LLMResponse(text=text, model=model, usage=usage, latency_s=latency,
                                    attempts=attempt_no, trace_seq=seq)
         err = _final_error(request, failures)
         err.trace_seqs = tuple(seqs)

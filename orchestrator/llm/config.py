@@ -53,6 +53,8 @@ from agents.llm_port import NodeName
 
 DEFAULT_MODEL = "local/qwen2.5-coder-0.5b"
 NODE_NAMES: tuple[NodeName, ...] = get_args(NodeName)
+FsyncPolicy = Literal["always", "close", "never"]
+"""When trace appends reach the disk: after every record, once at close, or when the OS decides."""
 _SECRET_WORDS = frozenset({"key", "apikey", "token", "secret", "password", "passwd", "credential", "credentials"})
 
 
@@ -119,7 +121,7 @@ class NodeConfig(BaseModel):
 class TraceConfig(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    fsync: Literal["always", "close", "never"] = Field(
+    fsync: FsyncPolicy = Field(
         default="always", description="When trace appends are fsync'ed to disk."
     )
 

@@ -31,7 +31,14 @@ os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
 
 import anyio
 import litellm
-from litellm import CustomLLM, ModelResponse
+from litellm import ModelResponse
+from litellm.exceptions import (
+    ContextWindowExceededError,
+    InternalServerError,
+    NotFoundError,
+    Timeout,
+)
+from litellm.llms.custom_llm import CustomLLM
 
 from agents.llm_port import LLMUnavailableError
 from orchestrator.llm.model_weights import (
@@ -183,7 +190,7 @@ def _llama_params(optional_params: dict[str, Any]) -> dict[str, Any]:
     }
     fmt = optional_params.get("response_format")
     if isinstance(fmt, dict) and fmt.get("type") == "gbnf":
-        from llama_cpp import LlamaGrammar
+        from llama_cpp.llama_grammar import LlamaGrammar
 
         try:
             params["grammar"] = LlamaGrammar.from_string(str(fmt.get("grammar", "")), verbose=False)
@@ -217,7 +224,7 @@ class LocalLlamaProvider(CustomLLM):
             spec = spec_for(model)
             self._check(model)
         except LLMUnavailableError as exc:
-            raise litellm.NotFoundError(message=str(exc), llm_provider="local", model=model) from None
+            raise NotFoundError(message=str(exc), llm_provider="local", model=model) from None
         return spec
 
     @staticmethod
@@ -241,14 +248,14 @@ class LocalLlamaProvider(CustomLLM):
 
     def _map_error(self, model: str, exc: BaseException, timeout_s: float) -> Exception:
         if isinstance(exc, _Abort):
-            return litellm.Timeout(message=f"local model exceeded {timeout_s:.1f} s", model=model, llm_provider="local")
+            return Timeout(message=f"local model exceeded {timeout_s:.1f} s", model=model, llm_provider="local")
         if isinstance(exc, ValueError) and "context window" in str(exc):
-            return litellm.ContextWindowExceededError(message=str(exc), model=model, llm_provider="local")
-        return litellm.InternalServerError(message=f"{type(exc).__name__}: {exc}", llm_provider="local", model=model)
+            return ContextWindowExceededError(message=str(exc), model=model, llm_provider="local")
+        return InternalServerError(message=f"{type(exc).__name__}: {exc}", llm_provider="local", model=model)
 
-    async def acompletion(self, model: str, messages: list, api_base: str, custom_prompt_dict: dict,  # type: ignore[override]
-                          model_response: ModelResponse, print_verbose: Callable, encoding: Any, api_key: Any,
-                          logging_obj: Any, optional_params: dict, acompletion: Any = None,
+    async def acompletion(self, model: str, messages: list[Any], api_base: str, custom_prompt_dict: dict[str, Any],
+                          model_response: ModelResponse, print_verbose: Callable[..., Any], encoding: Any, api_key: Any,
+                          logging_obj: Any, optional_params: dict[str, Any], acompletion: Any = None,
                           litellm_params: Any = None, logger_fn: Any = None, headers: Any = None,
                           timeout: Any = None, client: Any = None) -> ModelResponse:
         spec = self._spec(model)
@@ -266,9 +273,9 @@ class LocalLlamaProvider(CustomLLM):
             raise
         return self._to_response(model, out)
 
-    def completion(self, model: str, messages: list, api_base: str, custom_prompt_dict: dict,  # type: ignore[override]
-                   model_response: ModelResponse, print_verbose: Callable, encoding: Any, api_key: Any,
-                   logging_obj: Any, optional_params: dict, acompletion: Any = None, litellm_params: Any = None,
+    def completion(self, model: str, messages: list[Any], api_base: str, custom_prompt_dict: dict[str, Any],
+                   model_response: ModelResponse, print_verbose: Callable[..., Any], encoding: Any, api_key: Any,
+                   logging_obj: Any, optional_params: dict[str, Any], acompletion: Any = None, litellm_params: Any = None,
                    logger_fn: Any = None, headers: Any = None, timeout: Any = None, client: Any = None) -> ModelResponse:
         spec = self._spec(model)
         timeout_s = self._timeout(timeout)
@@ -287,9 +294,9 @@ def register_local_provider(provider: LocalLlamaProvider | None = None) -> Local
 
     Passing ``provider`` replaces a previous registration (tests use a fake chat function)."""
     with _provider_lock:
-        existing = [e for e in litellm.custom_provider_map if e.get("provider") == "local"]
-        if existing and provider is None:
-            return existing[0]["custom_handler"]
+        existing = [e["custom_handler"] for e in litellm.custom_provider_map if e.get("provider") == "local"]
+        if existing and isinstance(existing[0], LocalLlamaProvider) and provider is None:
+            return existing[0]
         handler = provider or LocalLlamaProvider()
         litellm.custom_provider_map = [
             e for e in litellm.custom_provider_map if e.get("provider") != "local"

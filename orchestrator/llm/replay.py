@@ -132,9 +132,8 @@ class ReplayClient:
         )
 
     def close(self) -> None:
-        close = getattr(self.trace, "close", None)
-        if close is not None:
-            close()
+        """Close the sink of the replayed run's own trace (when it records one)."""
+        self.trace.close()
 
 
 def build_llm_port(
@@ -146,8 +145,8 @@ def build_llm_port(
 ) -> LLMPort:
     """The run's LLM port: live (optionally recording to ``record``) or replaying ``replay``.
 
-    The returned object also has ``.trace`` (a :class:`TraceSink` for parsed/applied records)
-    and ``.close()``. Raises :class:`ConfigError` when both paths name the same file."""
+    Its ``trace`` (where callers record parsed outputs and applied frames) and ``close()`` are
+    part of :class:`agents.llm_port.LLMPort`. Raises :class:`ConfigError` when both paths name the same file."""
     if replay is not None:
         if record is not None and Path(record).resolve() == Path(replay).resolve():
             raise ConfigError("command line", "--record", "must name a different file than --replay")

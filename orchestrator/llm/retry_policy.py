@@ -31,27 +31,27 @@ _PERMANENT_STATUS = {400, 401, 403, 404, 405, 413, 415, 422}
 
 
 def _litellm_transient_types() -> tuple[type[BaseException], ...]:
-    import litellm
+    from litellm import exceptions
 
     return (
-        litellm.RateLimitError,
-        litellm.Timeout,
-        litellm.APIConnectionError,
-        litellm.InternalServerError,
-        litellm.ServiceUnavailableError,
-        litellm.BadGatewayError,
+        exceptions.RateLimitError,
+        exceptions.Timeout,
+        exceptions.APIConnectionError,
+        exceptions.InternalServerError,
+        exceptions.ServiceUnavailableError,
+        exceptions.BadGatewayError,
     )
 
 
 def _litellm_permanent_types() -> tuple[type[BaseException], ...]:
-    import litellm
+    from litellm import exceptions
 
     return (
-        litellm.BadRequestError,  # includes ContextWindowExceeded, ContentPolicyViolation
-        litellm.AuthenticationError,
-        litellm.PermissionDeniedError,
-        litellm.NotFoundError,
-        litellm.UnprocessableEntityError,
+        exceptions.BadRequestError,  # includes ContextWindowExceeded, ContentPolicyViolation
+        exceptions.AuthenticationError,
+        exceptions.PermissionDeniedError,
+        exceptions.NotFoundError,
+        exceptions.UnprocessableEntityError,
     )
 
 

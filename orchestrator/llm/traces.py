@@ -39,9 +39,10 @@ from typing import Annotated, Any, Literal, Protocol
 import structlog
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
-from agents.llm_port import LLMRequest, NodeName, TokenUsage
+from agents.llm_port import LLMRequest, NodeName, TokenUsage, TraceRecorder
+from orchestrator.llm.config import FsyncPolicy
+from orchestrator.llm.retry_policy import ErrorClass
 
-FsyncPolicy = Literal["always", "close", "never"]
 _log = structlog.get_logger("storyteller.traces")
 
 
@@ -76,7 +77,7 @@ class AttemptRecord(_Record):
     latency_s: float = Field(ge=0.0, description="Wall time of this attempt, seconds.")
     error_type: str | None = None
     error_message: str | None = None
-    error_class: Literal["transient", "permanent"] | None = None
+    error_class: ErrorClass | None = None
     final: bool = Field(description="True when this attempt's response was returned to the caller.")
 
     @property
@@ -193,8 +194,9 @@ def read_trace(path: Path | str) -> TraceContents:
     return TraceContents(records=records, torn_tail=torn)
 
 
-class TraceSink(Protocol):
-    """What the LLM client and the callers need from a trace destination."""
+class TraceSink(TraceRecorder, Protocol):
+    """What the LLM clients need from a trace destination; callers see it as the port's
+    :class:`agents.llm_port.TraceRecorder` (``record_parsed``, ``record_applied``)."""
 
     run_id: str
 
@@ -202,15 +204,9 @@ class TraceSink(Protocol):
 
     def write(self, record: TraceRecord) -> None: ...
 
-    def record_parsed(
-        self, ref_seq: int, parsed_output: Any, *, node: NodeName | None = None,
-        error_type: str | None = None, error_message: str | None = None,
-    ) -> None: ...
-
-    def record_applied(
-        self, ref_seqs: Sequence[int], sim_frame: int, *, step: int | None = None,
-        requested_frame: int | None = None,
-    ) -> None: ...
+    def close(self) -> None:
+        """Flush and close the destination (nothing to do for a sink that stores nothing). Safe to call twice."""
+        ...
 
 
 class NullTraceSink:
@@ -239,6 +235,9 @@ class NullTraceSink:
         self, ref_seqs: Sequence[int], sim_frame: int, *, step: int | None = None,
         requested_frame: int | None = None,
     ) -> None:
+        return None
+
+    def close(self) -> None:
         return None
 
 
