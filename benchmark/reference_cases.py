@@ -7,6 +7,11 @@ plans: per character an action expression, a relationship expression (``||``, ``
 parentheses over atoms like ``sit on chair_3``) or, for position-inference (PI) cases, a
 ``sampled_position`` expression. ``allow_null_plan`` says whether waiting is acceptable.
 
+A case set is the reference data's root or any folder in the same ``<tags>/testcase_<id>.json``
+layout (our own cases: ``benchmark/cases/ours``). A ``scene_name`` is a folder of the
+reference data's ``configs/scenes`` (``House``), or ``bundled:<name>`` for a scene shipped
+with the package (``bundled:home``; see :func:`scene_dir`).
+
 :func:`planning_inputs` turns a case into the planner's inputs: the roster
 (:class:`~agents.messages.CharacterStatus`, positions placed by the project's own sampler,
 deterministic per case), the narrator's history and the spatial API's world view.
@@ -17,12 +22,14 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agents.messages import CharacterStatus, HistoryEntry
+from sim.scene.bundled import bundled_scene_names
 from sim.scene.model import Scene
 from tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
 
@@ -125,10 +132,21 @@ def load_case(path: str | Path) -> BenchmarkCase:
 
 
 def case_files(reference: str | Path) -> list[Path]:
+    """The ``testcase_<id>.json`` files of a case set, by id.
+
+    ``reference`` is the reference data's root (cases under ``benchmark/test_cases/<tags>/``)
+    or a case folder in the same layout itself (``<tags>/testcase_<id>.json``, e.g.
+    ``benchmark/cases/ours``)."""
     root = Path(reference) / "benchmark" / "test_cases"
     if not root.is_dir():
-        raise BenchmarkCaseError(f"{root}: no test_cases folder (expected the reference data's layout)")
-    return sorted(root.glob("*/testcase_*.json"), key=lambda p: int(p.stem.split("_")[-1]))
+        root = Path(reference)
+    files = sorted(root.glob("*/testcase_*.json"), key=lambda p: int(p.stem.split("_")[-1]))
+    if not files:
+        raise BenchmarkCaseError(
+            f"{Path(reference)}: no test cases (expected benchmark/test_cases/<tags>/testcase_<id>.json "
+            "under the reference data, or <tags>/testcase_<id>.json in a case folder)"
+        )
+    return files
 
 
 def load_cases(
@@ -148,7 +166,24 @@ def load_cases(
     ]
 
 
+BUNDLED_PREFIX = "bundled:"
+"""A ``scene_name`` of ``bundled:<name>`` names a scene shipped with the package (``sim/scene/scenes``)."""
+
+
 def scene_dir(reference: str | Path, case: BenchmarkCase) -> Path:
+    """Where the case's scene is, for :func:`sim.scene.files.load_scene`.
+
+    A reference ``scene_name`` (``House``) is the folder ``configs/scenes/<name>`` of the
+    reference data; ``bundled:<name>`` (``bundled:home``) is the bundled scene's JSON file,
+    whatever ``reference`` is."""
+    if case.scene_name.startswith(BUNDLED_PREFIX):
+        name = case.scene_name[len(BUNDLED_PREFIX):]
+        if name not in bundled_scene_names():
+            raise BenchmarkCaseError(
+                f"{case.source}: field 'scene_name': {name!r} is not a bundled scene "
+                f"(bundled: {', '.join(bundled_scene_names())})"
+            )
+        return Path(str(resources.files("sim.scene") / "scenes" / f"{name}.json"))
     return Path(reference) / "configs" / "scenes" / case.scene_name
 
 
