@@ -230,7 +230,6 @@ async def _main(args: argparse.Namespace) -> int:
     from orchestrator.llm.config import load_config
     from orchestrator.llm.replay import build_llm_port
     from orchestrator.planning.checkpoints import default_runs_db
-    from orchestrator.session.port_setup import close_port
 
     if args.runs < 1:
         raise BenchmarkCaseError("--runs must be at least 1")
@@ -257,7 +256,7 @@ async def _main(args: argparse.Namespace) -> int:
             program_grammar=args.program_grammar, on_result=report,
         )
     finally:
-        await close_port(port)
+        port.close()
     if args.replay:  # the models that answered when the trace was recorded
         from orchestrator.llm.traces import read_trace
 

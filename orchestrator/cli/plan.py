@@ -48,7 +48,7 @@ from orchestrator.cli.options import (
 from orchestrator.planning.ablation_graph import Ablation, AblationChoiceError
 from orchestrator.planning.checkpoints import default_runs_db
 from orchestrator.session.plan_job import PlanResult, run_plan
-from orchestrator.session.port_setup import close_port, open_port
+from orchestrator.session.port_setup import open_port
 from orchestrator.session.roster import StartPositionError, character_names
 
 
@@ -170,7 +170,7 @@ def plan_command(
                 program_grammar=program_grammar,
             )
         finally:
-            await close_port(port)
+            port.close()
 
     try:
         result = asyncio.run(main())

@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from agents.describer import DescriberInput, describer_input_from_scene
 from agents.event_parser import ProgramRunner
-from agents.llm_port import LLMPort
+from agents.llm_port import LLMPort, TraceRecorder
 from agents.messages import (
     CharacterStatus,
     Event,
@@ -135,8 +135,8 @@ class PlanningDeps:
     """Where parsed outputs are recorded (None: the port's ``.trace``, if it has one)."""
     _describer_input: DescriberInput | None = field(default=None, init=False, repr=False)
 
-    def trace_sink(self) -> TraceSink | None:
-        return self.trace if self.trace is not None else getattr(self.port, "trace", None)
+    def trace_sink(self) -> TraceRecorder | None:
+        return self.trace if self.trace is not None else self.port.trace
 
     def describer_input(self) -> DescriberInput:
         """The describer's input for the scene (built once per run)."""

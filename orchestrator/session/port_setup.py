@@ -7,9 +7,8 @@ the describer's model, which picks the describer's mode (:func:`describer_mode_f
 
 from __future__ import annotations
 
-import asyncio
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 from agents.llm_port import LLMPort
 
@@ -26,14 +25,3 @@ def open_port(config_path: Path | None, record: Path | None, replay: Path | None
 
     config = load_config(config_path)
     return build_llm_port(config, record=record, replay=replay), config.node("describer").model
-
-
-async def close_port(port: Any) -> None:
-    """Release the port (``aclose`` or ``close``, awaited when it is a coroutine)."""
-    for name in ("aclose", "close"):
-        method = getattr(port, name, None)
-        if method is not None:
-            result = method()
-            if asyncio.iscoroutine(result):
-                await result
-            return

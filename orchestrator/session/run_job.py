@@ -120,7 +120,7 @@ async def run_story(
     from orchestrator.planning.ablation_graph import compile_graph
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
-    from orchestrator.session.port_setup import close_port, describer_mode_for, open_port
+    from orchestrator.session.port_setup import describer_mode_for, open_port
     from orchestrator.session.roster import (
         RosterWorld,
         StartPositionError,
@@ -145,7 +145,7 @@ async def run_story(
     try:
         positions = start_positions(scene, characters, seed)
     except StartPositionError as exc:
-        await close_port(port)
+        port.close()
         raise RunSetupError(str(exc)) from None
     motion = _motion_layer(motion_config)
     world = World(scene, {n: (p, 0.0) for n, p in zip(names, positions, strict=True)}, motion, config=world_config)
@@ -179,13 +179,13 @@ async def run_story(
             graph = compile_graph(ablation, saver)
             planner = GraphStepPlanner(graph, deps, thread, instruction)
             shown = None if on_event is None else (lambda e: on_event(e, fps))
-            session = Session(world, planner, settings, trace=getattr(port, "trace", None), on_event=shown)
+            session = Session(world, planner, settings, trace=port.trace, on_event=shown)
             result = await session.run()
     except (LLMError, SessionError) as exc:
         raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
     finally:
         story.close()
-        await close_port(port)
+        port.close()
     return result, names, fps, session.world
 
 

@@ -32,8 +32,8 @@ import structlog
 from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStream
 from pydantic import BaseModel, ConfigDict, Field
 
+from agents.llm_port import TraceRecorder
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
-from orchestrator.llm.traces import TraceSink
 from sim.world.events import AssignEvent, EventFailure, StepOutput
 from sim.world.step import World, step
 
@@ -185,7 +185,7 @@ class Session:
         planner: StepPlanner,
         settings: SessionSettings,
         *,
-        trace: TraceSink | None = None,
+        trace: TraceRecorder | None = None,
         on_event: Callable[[StoryEvent], None] | None = None,
         on_outcome: Callable[[int, Outcome, int], None] | None = None,
         clock: Callable[[], float] = time.monotonic,

@@ -36,6 +36,11 @@ class ScriptedLLM:
         self.by_node = isinstance(script, Mapping)
         self.model = model
         self.requests: list[LLMRequest] = []
+        self.trace = None  # records nothing
+        self.closed = False
+
+    def close(self) -> None:
+        self.closed = True
 
     def answer(self, request: LLMRequest) -> str:
         """The scripted reply to ``request`` (consumes it from a list)."""
