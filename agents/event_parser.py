@@ -33,6 +33,7 @@ from agents.retry_feedback import (
 )
 from sim.motion.action_labels import ACTION_LABELS, ACTION_SPECS, playable_seated
 from sim.scene.model import Scene
+from tools.spatial_api import SpatialAPI, handle_methods
 
 PARSER_RETRY_INSTRUCTION = "Fix this and reply with the whole corrected ```python block only."
 PARSER_FILES = ("event_parser/system.md", "event_parser/request.md")
@@ -128,9 +129,26 @@ def suggest_action_labels(activity: str, labels: Sequence[str], k: int = 4) -> l
     return best
 
 
+AREA_KINDS = ("area", "seat_area", "area_operation")
+
+
+def spatial_api_listing() -> dict[str, str]:
+    """The system prompt's function list, rendered from ``tools.spatial_api`` (the listed
+    functions and the character handle's methods), so the prompt names only what exists."""
+    listed = [f for f in SpatialAPI.functions() if f.listed]
+    characters = [f for f in listed if f.kind == "character"]
+    return {
+        "get_character": ", ".join(f.call for f in characters),
+        "character_methods": "\n".join(f"  c.{m.call}  # {m.summary}" for m in handle_methods()),
+        "area_functions": ", ".join(f.call for f in listed if f.kind in AREA_KINDS),
+        "query_functions": ", ".join(f.signature for f in listed if f.kind == "query"),
+    }
+
+
 def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessage, ...]:
     system = prompts.render(
         "event_parser/system.md",
+        **spatial_api_listing(),
         examples=prompts.examples("event_parser", inp.tags),
         scene_description=inp.scene_description.strip(),
         action_labels=", ".join(inp.action_labels),
