@@ -373,11 +373,12 @@ def parse_reply(reply: str, inp: DescriberInput) -> AreaList:
     return parse_areas(reply, inp.object_names)
 
 
-def judge_reply(reply: str, inp: DescriberInput) -> DescriberAttempt:
+def judge_reply(reply: str, inp: DescriberInput, prompts: PromptLibrary | None = None) -> DescriberAttempt:
     try:
         return DescriberAttempt(areas=parse_reply(reply, inp), turn=None)
     except (ValueError, AnswerRejectedError) as exc:  # JSONDecodeError and ValidationError are ValueErrors
-        return DescriberAttempt(areas=None, turn=Turn(reply=reply, feedback=feedback_from_error(exc)), error=exc)
+        feedback = feedback_from_error(exc, prompts=prompts)
+        return DescriberAttempt(areas=None, turn=Turn(reply=reply, feedback=feedback), error=exc)
 
 
 def finish(inp: DescriberInput, areas: AreaList, *, repaired: bool, attempts: int) -> SceneDescription:
@@ -418,7 +419,7 @@ async def describe_scene(
     turns: tuple[Turn, ...] = ()
     for attempt in range(1, max_retries + 2):
         response = await port.complete(describer_request(prompts, inp, turns, max_tokens=max_tokens))
-        judged = judge_reply(response.text, inp)
+        judged = judge_reply(response.text, inp, prompts)
         if judged.areas is not None:
             return finish(inp, judged.areas, repaired=False, attempts=attempt)
         assert judged.turn is not None

@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
 from agents.messages import CharacterStatus, Event, PlannedCharacter
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, package_prompts
 from agents.retry_feedback import (
     Accepted,
     AnswerRejectedError,
@@ -35,7 +35,8 @@ from sim.motion.action_labels import ACTION_LABELS, ACTION_SPECS, playable_seate
 from sim.scene.model import Scene
 from tools.spatial_api import SpatialAPI, handle_methods
 
-PARSER_RETRY_INSTRUCTION = "Fix this and reply with the whole corrected ```python block only."
+PARSER_RETRY_INSTRUCTION = "feedback/code_again.md"
+"""Prompt file of the instruction after a rejected program."""
 PARSER_FILES = ("event_parser/system.md", "event_parser/request.md")
 DEFAULT_MAX_TOKENS = 400
 MAX_PROGRAM_CHARS = 6000
@@ -192,13 +193,15 @@ def _function_at(code: str, start: int) -> str:
     return "\n".join(kept).rstrip() + "\n"
 
 
-def extract_program(reply: str) -> str:
+def extract_program(reply: str, prompts: PromptLibrary | None = None) -> str:
     """The ``parse_event()`` source in a reply; raises NoCodeError when there is none.
 
     Looks in fenced blocks first (any language tag; an unclosed fence runs to the end), then
     in the bare reply. A block of statements without ``def parse_event`` is wrapped into one.
-    Top-level lines after the function (e.g. a ``parse_event()`` call) are dropped.
+    Top-level lines after the function (e.g. a ``parse_event()`` call) are dropped. The
+    errors' texts are ``prompts/feedback/no_code.md`` and ``program_too_long.md``.
     """
+    lib = prompts or package_prompts()
     text = reply.replace("\r\n", "\n").replace("\t", "    ")
     blocks = [m.group(2) for m in _FENCE.finditer(text)]
     for candidate in (*blocks, text):
@@ -206,15 +209,13 @@ def extract_program(reply: str) -> str:
         if match:
             program = _function_at(candidate, match.start())
             if len(program) > MAX_PROGRAM_CHARS:
-                raise NoCodeError(f"Your parse_event() is longer than {MAX_PROGRAM_CHARS} characters; keep it short.")
+                raise NoCodeError(lib.render_text("feedback/program_too_long.md", limit=MAX_PROGRAM_CHARS))
             return program
     for candidate in (*blocks, text):
         body = textwrap.dedent(candidate).strip("\n")
         if "get_character(" in body and len(body) <= MAX_PROGRAM_CHARS:
             return "def parse_event():\n" + textwrap.indent(body, "    ") + "\n"
-    raise NoCodeError(
-        "Your reply has no parse_event() function. Reply with one ```python block that defines def parse_event():"
-    )
+    raise NoCodeError(lib.render_text("feedback/no_code.md"))
 
 
 def check_plans(event: Event, plans: Sequence[Any]) -> tuple[PlannedCharacter, ...]:
@@ -294,4 +295,5 @@ async def parse_event(
         max_attempts=max_retries + 1,
         node="event_parser",
         instruction=PARSER_RETRY_INSTRUCTION,
+        prompts=prompts,
     )

@@ -21,13 +21,16 @@ allow what the parser refuses or the other way round:
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from pydantic import BaseModel
 
-__all__ = ["Refine", "SchemaContractError", "reply_schema"]
+from agents.prompt_templates import PromptLibrary, package_prompts
+
+__all__ = ["Refine", "SchemaContractError", "reply_schema", "schema_instruction"]
 
 _DROPPED = ("title", "default")
 
@@ -135,3 +138,8 @@ def _check_bounded(node: Any, where: str) -> None:
         for v in node.values():
             _check_bounded(v, where)
 
+
+def schema_instruction(schema: Mapping[str, Any], prompts: PromptLibrary | None = None) -> str:
+    """The message that carries ``schema`` to a provider that cannot decode under it
+    (``prompts/llm/schema_instruction.md``; keys sorted, so the text is stable)."""
+    return (prompts or package_prompts()).render_text("llm/schema_instruction.md", schema=json.dumps(schema, sort_keys=True))

@@ -211,4 +211,5 @@ async def narrate(
         lambda text: parse_narration(text, inp.characters),
         max_attempts=max_retries + 1,
         node="narrator",
+        prompts=prompts,
     )
