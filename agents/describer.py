@@ -25,6 +25,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from agents.llm_schemas import Refine, reply_schema
 from agents.messages import SceneDescription
 from agents.prompt_templates import PromptLibrary
 from agents.retry_feedback import (
@@ -47,14 +48,19 @@ DESCRIBER_FILES = (
     "describer/request_regions.md",
 )
 MAX_AREAS = 8
+"""Areas a reply may have (the schema's bound; the parser accepts twice as many, so an
+over-long answer from a provider without schema decoding still gets precise feedback and can
+be repaired)."""
+MAX_AREA_NAME_CHARS = 40
+MAX_PURPOSE_CHARS = 80
 DEFAULT_MAX_TOKENS = 420
 
 
 class Area(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    name: str = Field(max_length=60, description="Short area name, e.g. 'kitchen'.")
-    purpose: str = Field(default="", max_length=160, description="What people do there.")
+    name: str = Field(max_length=MAX_AREA_NAME_CHARS, description="Short area name, e.g. 'kitchen'.")
+    purpose: str = Field(default="", max_length=MAX_PURPOSE_CHARS, description="What people do there.")
     objects: tuple[str, ...] = Field(description="Names of the objects in this area.")
 
 
@@ -62,6 +68,20 @@ class AreaList(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     areas: tuple[Area, ...] = Field(max_length=MAX_AREAS * 2)
+
+
+class RegionArea(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    name: str = Field(max_length=MAX_AREA_NAME_CHARS, description="Short area name, e.g. 'kitchen'.")
+    purpose: str = Field(default="", max_length=MAX_PURPOSE_CHARS, description="What people do there.")
+    regions: tuple[int, ...] = Field(description="Numbers of the regions in this area.")
+
+
+class RegionAreaList(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    areas: tuple[RegionArea, ...] = Field(max_length=MAX_AREAS * 2)
 
 
 @dataclass(frozen=True)
@@ -117,63 +137,25 @@ def describer_input_from_scene(
 
 
 def describer_schema(names: Sequence[str]) -> dict[str, Any]:
-    return {
-        "type": "object",
-        "properties": {
-            "areas": {
-                "type": "array",
-                "minItems": 1,
-                "maxItems": MAX_AREAS,
-                "items": {
-                    "type": "object",
-                    "properties": {
-                        "name": {"type": "string", "maxLength": 40},
-                        "purpose": {"type": "string", "maxLength": 80},
-                        "objects": {
-                            "type": "array",
-                            "items": {"type": "string", "enum": list(names)},
-                            "minItems": 1,
-                            "maxItems": len(names),
-                        },
-                    },
-                    "required": ["name", "purpose", "objects"],
-                    "additionalProperties": False,
-                },
-            }
+    """Schema of an objects-mode reply: at most MAX_AREAS areas, each naming scene objects."""
+    return reply_schema(
+        AreaList,
+        {
+            "areas": Refine(min_items=1, max_items=MAX_AREAS),
+            "areas.objects": Refine(enum=names, min_items=1, max_items=len(names)),
         },
-        "required": ["areas"],
-        "additionalProperties": False,
-    }
+    )
 
 
 def describer_regions_schema(n_regions: int) -> dict[str, Any]:
-    return {
-        "type": "object",
-        "properties": {
-            "areas": {
-                "type": "array",
-                "minItems": 1,
-                "maxItems": min(MAX_AREAS, n_regions),
-                "items": {
-                    "type": "object",
-                    "properties": {
-                        "name": {"type": "string", "maxLength": 40},
-                        "purpose": {"type": "string", "maxLength": 80},
-                        "regions": {
-                            "type": "array",
-                            "items": {"type": "integer", "enum": list(range(1, n_regions + 1))},
-                            "minItems": 1,
-                            "maxItems": n_regions,
-                        },
-                    },
-                    "required": ["name", "purpose", "regions"],
-                    "additionalProperties": False,
-                },
-            }
+    """Schema of a regions-mode reply: areas naming region numbers 1..n_regions."""
+    return reply_schema(
+        RegionAreaList,
+        {
+            "areas": Refine(min_items=1, max_items=min(MAX_AREAS, n_regions)),
+            "areas.regions": Refine(enum=range(1, n_regions + 1), min_items=1, max_items=n_regions),
         },
-        "required": ["areas"],
-        "additionalProperties": False,
-    }
+    )
 
 
 def describer_request(
@@ -208,20 +190,6 @@ def describer_request(
         seed=0,
         temperature=retry_temperature(turns),
     )
-
-
-class RegionArea(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    name: str = Field(max_length=60)
-    purpose: str = Field(default="", max_length=160)
-    regions: tuple[int, ...]
-
-
-class RegionAreaList(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    areas: tuple[RegionArea, ...] = Field(max_length=MAX_AREAS * 2)
 
 
 def region_problems(areas: RegionAreaList, n_regions: int) -> list[str]:
@@ -405,11 +373,12 @@ def parse_reply(reply: str, inp: DescriberInput) -> AreaList:
     return parse_areas(reply, inp.object_names)
 
 
-def judge_reply(reply: str, inp: DescriberInput) -> DescriberAttempt:
+def judge_reply(reply: str, inp: DescriberInput, prompts: PromptLibrary | None = None) -> DescriberAttempt:
     try:
         return DescriberAttempt(areas=parse_reply(reply, inp), turn=None)
     except (ValueError, AnswerRejectedError) as exc:  # JSONDecodeError and ValidationError are ValueErrors
-        return DescriberAttempt(areas=None, turn=Turn(reply=reply, feedback=feedback_from_error(exc)), error=exc)
+        feedback = feedback_from_error(exc, prompts=prompts)
+        return DescriberAttempt(areas=None, turn=Turn(reply=reply, feedback=feedback), error=exc)
 
 
 def finish(inp: DescriberInput, areas: AreaList, *, repaired: bool, attempts: int) -> SceneDescription:
@@ -450,7 +419,7 @@ async def describe_scene(
     turns: tuple[Turn, ...] = ()
     for attempt in range(1, max_retries + 2):
         response = await port.complete(describer_request(prompts, inp, turns, max_tokens=max_tokens))
-        judged = judge_reply(response.text, inp)
+        judged = judge_reply(response.text, inp, prompts)
         if judged.areas is not None:
             return finish(inp, judged.areas, repaired=False, attempts=attempt)
         assert judged.turn is not None

@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
 from agents.messages import CharacterStatus, Event, PlannedCharacter
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, package_prompts
 from agents.retry_feedback import (
     Accepted,
     AnswerRejectedError,
@@ -33,8 +33,10 @@ from agents.retry_feedback import (
 )
 from sim.motion.action_labels import ACTION_LABELS, ACTION_SPECS, playable_seated
 from sim.scene.model import Scene
+from tools.spatial_api import SpatialAPI, handle_methods
 
-PARSER_RETRY_INSTRUCTION = "Fix this and reply with the whole corrected ```python block only."
+PARSER_RETRY_INSTRUCTION = "feedback/code_again.md"
+"""Prompt file of the instruction after a rejected program."""
 PARSER_FILES = ("event_parser/system.md", "event_parser/request.md")
 DEFAULT_MAX_TOKENS = 400
 MAX_PROGRAM_CHARS = 6000
@@ -128,9 +130,26 @@ def suggest_action_labels(activity: str, labels: Sequence[str], k: int = 4) -> l
     return best
 
 
+AREA_KINDS = ("area", "seat_area", "area_operation")
+
+
+def spatial_api_listing() -> dict[str, str]:
+    """The system prompt's function list, rendered from ``tools.spatial_api`` (the listed
+    functions and the character handle's methods), so the prompt names only what exists."""
+    listed = [f for f in SpatialAPI.functions() if f.listed]
+    characters = [f for f in listed if f.kind == "character"]
+    return {
+        "get_character": ", ".join(f.call for f in characters),
+        "character_methods": "\n".join(f"  c.{m.call}  # {m.summary}" for m in handle_methods()),
+        "area_functions": ", ".join(f.call for f in listed if f.kind in AREA_KINDS),
+        "query_functions": ", ".join(f.signature for f in listed if f.kind == "query"),
+    }
+
+
 def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessage, ...]:
     system = prompts.render(
         "event_parser/system.md",
+        **spatial_api_listing(),
         examples=prompts.examples("event_parser", inp.tags),
         scene_description=inp.scene_description.strip(),
         action_labels=", ".join(inp.action_labels),
@@ -174,13 +193,15 @@ def _function_at(code: str, start: int) -> str:
     return "\n".join(kept).rstrip() + "\n"
 
 
-def extract_program(reply: str) -> str:
+def extract_program(reply: str, prompts: PromptLibrary | None = None) -> str:
     """The ``parse_event()`` source in a reply; raises NoCodeError when there is none.
 
     Looks in fenced blocks first (any language tag; an unclosed fence runs to the end), then
     in the bare reply. A block of statements without ``def parse_event`` is wrapped into one.
-    Top-level lines after the function (e.g. a ``parse_event()`` call) are dropped.
+    Top-level lines after the function (e.g. a ``parse_event()`` call) are dropped. The
+    errors' texts are ``prompts/feedback/no_code.md`` and ``program_too_long.md``.
     """
+    lib = prompts or package_prompts()
     text = reply.replace("\r\n", "\n").replace("\t", "    ")
     blocks = [m.group(2) for m in _FENCE.finditer(text)]
     for candidate in (*blocks, text):
@@ -188,15 +209,13 @@ def extract_program(reply: str) -> str:
         if match:
             program = _function_at(candidate, match.start())
             if len(program) > MAX_PROGRAM_CHARS:
-                raise NoCodeError(f"Your parse_event() is longer than {MAX_PROGRAM_CHARS} characters; keep it short.")
+                raise NoCodeError(lib.render_text("feedback/program_too_long.md", limit=MAX_PROGRAM_CHARS))
             return program
     for candidate in (*blocks, text):
         body = textwrap.dedent(candidate).strip("\n")
         if "get_character(" in body and len(body) <= MAX_PROGRAM_CHARS:
             return "def parse_event():\n" + textwrap.indent(body, "    ") + "\n"
-    raise NoCodeError(
-        "Your reply has no parse_event() function. Reply with one ```python block that defines def parse_event():"
-    )
+    raise NoCodeError(lib.render_text("feedback/no_code.md"))
 
 
 def check_plans(event: Event, plans: Sequence[Any]) -> tuple[PlannedCharacter, ...]:
@@ -276,4 +295,5 @@ async def parse_event(
         max_attempts=max_retries + 1,
         node="event_parser",
         instruction=PARSER_RETRY_INSTRUCTION,
+        prompts=prompts,
     )

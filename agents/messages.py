@@ -48,7 +48,7 @@ class Event(_Frozen):
     )
     activity: str = Field(
         default="",
-        max_length=MAX_ACTIVITY_CHARS * 2,
+        max_length=MAX_ACTIVITY_CHARS,
         description="What they do, in one short sentence naming objects, e.g. 'sit on chair_2 and read'.",
     )
 
@@ -61,7 +61,9 @@ class Event(_Frozen):
 class NarratorOutput(_Frozen):
     """The narrator's structured reply."""
 
-    reasoning: str = Field(default="", description="One short sentence: why this event now.")
+    reasoning: str = Field(
+        default="", max_length=MAX_REASONING_CHARS, description="One short sentence: why this event now."
+    )
     event: Event
 
 

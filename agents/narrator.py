@@ -18,10 +18,8 @@ from typing import Any
 
 from agents.instruction_parts import InstructionProgress, instruction_progress
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from agents.llm_schemas import Refine, reply_schema
 from agents.messages import (
-    MAX_ACTIVITY_CHARS,
-    MAX_EVENT_CHARACTERS,
-    MAX_REASONING_CHARS,
     CharacterStatus,
     Event,
     HistoryEntry,
@@ -89,28 +87,7 @@ def waits_without_a_call(
 def narrator_schema(free: Sequence[str]) -> dict[str, Any]:
     """JSON schema of the reply; ``characters`` may only name free characters (enum)."""
     names = list(dict.fromkeys(free))
-    item: dict[str, Any] = {"type": "string", "enum": names} if names else {"type": "string"}
-    return {
-        "type": "object",
-        "properties": {
-            "reasoning": {"type": "string", "maxLength": MAX_REASONING_CHARS},
-            "event": {
-                "type": "object",
-                "properties": {
-                    "characters": {
-                        "type": "array",
-                        "items": item,
-                        "maxItems": max(0, min(len(names), MAX_EVENT_CHARACTERS)),
-                    },
-                    "activity": {"type": "string", "maxLength": MAX_ACTIVITY_CHARS},
-                },
-                "required": ["characters", "activity"],
-                "additionalProperties": False,
-            },
-        },
-        "required": ["reasoning", "event"],
-        "additionalProperties": False,
-    }
+    return reply_schema(NarratorOutput, {"event.characters": Refine(enum=names, max_items=len(names))})
 
 
 def history_text(history: Sequence[HistoryEntry]) -> str:
@@ -234,4 +211,5 @@ async def narrate(
         lambda text: parse_narration(text, inp.characters),
         max_attempts=max_retries + 1,
         node="narrator",
+        prompts=prompts,
     )

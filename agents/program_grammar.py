@@ -11,7 +11,7 @@ has exactly one block per event character, in event order::
         c1.set_orientation("tv_1")
         c1.set_target_action("watch_tv")
 
-where the area is one of the spatial API's area functions over the scene's object names (a
+where the area is one of the spatial API's listed area functions (``SpatialAPI.functions()``) over the scene's object names (a
 seat function only over seats not in use), the orientation target an object or another
 character, and the action one of the offered labels. The program still runs in the sandbox and
 through the spatial API like any other; only what the model can write is narrowed. Providers
@@ -30,18 +30,19 @@ from sim.motion.action_labels import playable_seated
 from sim.scene.model import Scene, SceneObject
 from tools.areas import seat_slots
 from tools.position_sampling import MIN_SEPARATION
+from tools.spatial_api import SpatialAPI
 
-ONE_OBJECT_AREAS: tuple[str, ...] = (
-    "get_area_to_interact_with",
-    "get_area_adjacent_to",
-    "get_area_close_to",
-    "get_area_in_front_of",
-    "get_area_behind",
-    "get_area_left_of",
-    "get_area_right_of",
-)
-SEAT_AREA = "get_area_to_sit_on"
-TWO_OBJECT_AREA = "get_area_between"
+
+def area_functions() -> tuple[tuple[str, ...], tuple[str, ...], str]:
+    """The listed area functions of ``tools.spatial_api.SpatialAPI``: those on one object, those
+    on two objects, and the seat function (the grammar offers exactly what the prompt lists)."""
+    listed = [f for f in SpatialAPI.functions() if f.listed]
+    one = tuple(f.name for f in listed if f.kind == "area" and len(f.parameters) == 1)
+    two = tuple(f.name for f in listed if f.kind == "area" and len(f.parameters) == 2)
+    seat = [f.name for f in listed if f.kind == "seat_area"]
+    if len(seat) != 1 or not one:
+        raise ValueError(f"the spatial API lists {len(seat)} seat functions and {len(one)} one-object areas")
+    return one, two, seat[0]
 
 
 def _literal(text: str) -> str:
@@ -90,10 +91,11 @@ def program_grammar(
         stand = f"area {look} label {end}"
         body = f"( sitarea {look} sitlabel {end} | {stand} )" if can_sit else stand
         lines.append(f"block{i} ::= {head} {body}")
-    areas = [f"{_literal(fn + '(')} object {_literal(')')}" for fn in ONE_OBJECT_AREAS]
-    areas.append(f"{_literal(TWO_OBJECT_AREA + '(')} object {_literal(', ')} object {_literal(')')}")
+    one_object, two_objects, seat_area = area_functions()
+    areas = [f"{_literal(fn + '(')} object {_literal(')')}" for fn in one_object]
+    areas += [f"{_literal(fn + '(')} object {_literal(', ')} object {_literal(')')}" for fn in two_objects]
     if can_sit:
-        lines.append(f"sitarea ::= {_literal(SEAT_AREA + '(')} seat {_literal(')')}")
+        lines.append(f"sitarea ::= {_literal(seat_area + '(')} seat {_literal(')')}")
         lines.append(_choice("seat", seats))
         lines.append(_choice("sitlabel", sit_labels))
     lines.append("area ::= " + " | ".join(areas))

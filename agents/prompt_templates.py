@@ -13,6 +13,7 @@ edited copy). ``PromptLibrary.fingerprint`` hashes every file it has read, for c
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import re
 from collections.abc import Iterable, Mapping
@@ -87,6 +88,11 @@ class PromptLibrary:
     def render(self, relpath: str, **values: object) -> str:
         return render(self.text(relpath), values, source=relpath)
 
+    def render_text(self, relpath: str, **values: object) -> str:
+        """:meth:`render` without the file's final newline: for a short text placed inside a
+        message (a retry feedback sentence, an instruction)."""
+        return render(self.text(relpath).removesuffix("\n"), values, source=relpath)
+
     def examples(self, role: str, tags: Iterable[str]) -> str:
         """In-context examples of ``role`` for the given benchmark tags, in BENCHMARK_TAGS order."""
         wanted = set(tags)
@@ -105,3 +111,10 @@ class PromptLibrary:
             digest.update(self.text(relpath).encode("utf-8"))
             digest.update(b"\0")
         return digest.hexdigest()[:16]
+
+
+@functools.cache
+def package_prompts() -> PromptLibrary:
+    """The library of the installed ``prompts`` package (for texts built where no library is
+    passed, e.g. retry feedback raised deep in a parser)."""
+    return PromptLibrary()

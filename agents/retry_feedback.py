@@ -3,6 +3,7 @@
 Narrator, event parser, describer and the ablation planners all call
 :func:`feedback_from_error`, so every retry prompt reads alike: what was wrong, then what to
 do ("Fix this and answer again ..."). Modelled on pydantic-ai's ``RetryPromptPart.from_error``.
+The sentences are prompt files under ``prompts/feedback/``, rendered strictly.
 """
 
 from __future__ import annotations
@@ -15,11 +16,22 @@ from typing import Generic, TypeVar
 from pydantic import ValidationError
 
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from agents.prompt_templates import PromptLibrary, package_prompts
 from tools.errors import EventProgramError
 
 T = TypeVar("T")
 
 MAX_FEEDBACK_CHARS = 600
+ANSWER_AGAIN = "feedback/answer_again.md"
+"""The instruction after a rejected answer; an event parser's is ``feedback/code_again.md``."""
+FEEDBACK_FILES = (
+    "feedback/invalid_json.md",
+    "feedback/schema_mismatch.md",
+    "feedback/answer_rejected.md",
+    "feedback/program_failed.md",
+    "feedback/other_error.md",
+    ANSWER_AGAIN,
+)
 
 
 class AnswerRejectedError(Exception):
@@ -68,23 +80,28 @@ def _validation_lines(error: ValidationError) -> list[str]:
     return lines
 
 
-def feedback_from_error(error: BaseException, *, instruction: str = "Fix this and answer again.") -> str:
-    """Feedback text for the model after ``error``; bounded to MAX_FEEDBACK_CHARS."""
+def feedback_from_error(
+    error: BaseException, *, instruction: str = ANSWER_AGAIN, prompts: PromptLibrary | None = None
+) -> str:
+    """Feedback text for the model after ``error``, then the ``instruction`` prompt file's text;
+    the part about the error is bounded to MAX_FEEDBACK_CHARS. ``prompts``: where the files are
+    read (default: the ``prompts`` package)."""
+    lib = prompts or package_prompts()
     if isinstance(error, json.JSONDecodeError):
-        body = f"Your reply is not valid JSON ({error.msg} at character {error.pos})."
+        body = lib.render_text("feedback/invalid_json.md", message=error.msg, position=error.pos)
     elif isinstance(error, ValidationError):
-        body = "Your reply does not match the required JSON format: " + "; ".join(_validation_lines(error)) + "."
+        body = lib.render_text("feedback/schema_mismatch.md", problems="; ".join(_validation_lines(error)))
     elif isinstance(error, AnswerRejectedError):
-        body = "Your answer was rejected: " + "; ".join(error.problems) + "."
+        body = lib.render_text("feedback/answer_rejected.md", problems="; ".join(error.problems))
     elif isinstance(error, NoCodeError):
         body = str(error)
     elif isinstance(error, EventProgramError):
-        body = f"Running your parse_event() failed: {error.feedback}"
+        body = lib.render_text("feedback/program_failed.md", feedback=error.feedback)
     else:
-        body = f"Your answer failed: {type(error).__name__}: {error}"
+        body = lib.render_text("feedback/other_error.md", error_type=type(error).__name__, error=error)
     if len(body) > MAX_FEEDBACK_CHARS:
         body = body[: MAX_FEEDBACK_CHARS - 3] + "..."
-    return f"{body} {instruction}".strip()
+    return f"{body} {lib.render_text(instruction)}".strip()
 
 
 @dataclass(frozen=True)
@@ -143,12 +160,13 @@ async def ask_until_valid(
     *,
     max_attempts: int,
     node: str,
-    instruction: str = "Fix this and answer again.",
+    instruction: str = ANSWER_AGAIN,
+    prompts: PromptLibrary | None = None,
 ) -> Accepted[T]:
     """Call the model until ``parse`` accepts a reply, at most ``max_attempts`` times.
 
     ``parse`` raises on a bad reply; the error becomes feedback for the next attempt through
-    :func:`feedback_from_error`. LLM port errors (``LLMError``) are not caught.
+    :func:`feedback_from_error` (``instruction``: the prompt file said after it). LLM port errors (``LLMError``) are not caught.
     """
     if max_attempts < 1:
         raise ValueError("max_attempts must be >= 1")
@@ -159,7 +177,7 @@ async def ask_until_valid(
         try:
             value = parse(response.text)
         except REJECTIONS as exc:
-            feedback = feedback_from_error(exc, instruction=instruction)
+            feedback = feedback_from_error(exc, instruction=instruction, prompts=prompts)
             turns = (*turns, Turn(reply=response.text, feedback=feedback))
             continue
         return Accepted(value=value, attempts=attempt, reply=response.text)

@@ -109,7 +109,7 @@ def test_request_layout() -> None:
     req = parser_request(PromptLibrary(), make_input())
     assert req.node == "event_parser" and req.json_schema is None
     system, user = req.messages[0].content, req.messages[1].content
-    assert "get_area_to_sit_on(obj)" in system and "Action labels: idle, eat" in system
+    assert "get_area_to_sit_on(object)" in system and "Action labels: idle, eat" in system
     assert "- dining: table_1, chair_1" in system
     assert 'characters ["Ann"]' in user and "Seats in use: chair_9" in user and "[1.0" not in user
     assert "Suggested action label: eat" in user

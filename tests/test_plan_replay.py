@@ -128,6 +128,7 @@ async def test_embedded_model_narrator_and_parser_end_to_end(tmp_path: Path) -> 
 
     from agents.event_parser import PARSER_RETRY_INSTRUCTION, scene_action_labels
     from agents.messages import ParsedEvent, PlanningFailure, SceneDescription
+    from agents.prompt_templates import PromptLibrary
     from orchestrator.llm.config import load_config
     from orchestrator.llm.replay import build_llm_port
     from orchestrator.llm.traces import read_trace
@@ -174,6 +175,7 @@ async def test_embedded_model_narrator_and_parser_end_to_end(tmp_path: Path) -> 
         assert scene.bounds_min[0] <= outcome.plans[0].position[0] <= scene.bounds_max[0]
     else:  # a weak model may write a program that fails: typed feedback from the check, not an outage
         assert isinstance(outcome, PlanningFailure), outcome
-        assert outcome.node == "event_parser" and PARSER_RETRY_INSTRUCTION in outcome.feedback
+        assert outcome.node == "event_parser"
+        assert PromptLibrary().render_text(PARSER_RETRY_INSTRUCTION) in outcome.feedback
         (checked,) = contents.parsed_by_seq()[attempts[1].seq]
         assert not checked.ok and checked.error_type

@@ -11,10 +11,11 @@ wrote the program (unknown names come with "did you mean" suggestions).
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal, TypeVar
 
 import numpy as np
 
@@ -45,6 +46,7 @@ ASSOCIATED_DISTANCE = 0.3  # m: objects this close (box to box) are associated
 CLOSE_DISTANCE = 1.0  # m: box-to-box distance for get_objects_close_to
 MAX_NAME_CHARS = 40
 """Longest character name or action label a program may invent (when none are given)."""
+_F = TypeVar("_F", bound=Callable[..., Any])
 MAX_NEW_CHARACTERS = 12
 """Distinct characters a program may create when the world names none (no states given)."""
 
@@ -67,8 +69,9 @@ class CharacterHandle:
         return self._name
 
     def set_position(self, area: Any) -> None:
-        """Where the character goes: an Area (from a get_area_* function) or [x, y] in metres.
-        Raises UnsatisfiableAreaError at once if no free spot of the area is left, and
+        """Where the character stands or sits: an area from a get_area_* function.
+
+        An [x, y] point in metres is accepted too. Raises UnsatisfiableAreaError at once if no free spot of the area is left, and
         BlockedPositionError if [x, y] is not free floor (inside or within 0.25 m of floor
         furniture, or of the scene edge). An [x, y] within 0.5 m of another character's
         position or target is refused when the plans are made (the error names this line)."""
@@ -78,15 +81,108 @@ class CharacterHandle:
         record.position_line = PROGRAM_LINE.get()
 
     def set_orientation(self, target: Any) -> None:
-        """What the character faces: an object name, a character name, an Area or [x, y]."""
+        """The object or character the character looks at.
+
+        An Area or an [x, y] point is accepted too."""
         self._api._record(self._name).orientation = self._api._orientation_target(target)
 
     def set_target_action(self, label: Any) -> None:
-        """The action the character performs at its position (one of the available labels)."""
+        """The action label the character performs there (one of the action labels)."""
         self._api._record(self._name).action = self._api._action(label)
 
     def __repr__(self) -> str:
         return f"<character {self._name}>"
+
+
+ApiKind = Literal["character", "query", "area", "seat_area", "area_operation"]
+"""character: get_character; query: facts about objects; area: an Area built on object names;
+seat_area: the Area of a seat's places; area_operation: an Area built from other Areas."""
+
+_API_MARKS: dict[str, tuple[ApiKind, bool]] = {}
+"""Method name -> (kind, listed), filled by :func:`api_function` as the class is defined."""
+
+
+def api_function(kind: ApiKind, *, listed: bool = False) -> Callable[[_F], _F]:
+    """Mark a SpatialAPI method as callable from event programs.
+
+    ``listed``: also shown to the event-parser model (the prompt lists a few functions, which
+    keeps a small model's prompt short; the program grammar offers only listed area functions).
+    Every marked function may be called."""
+
+    def mark(fn: _F) -> _F:
+        _API_MARKS[fn.__name__] = (kind, listed)
+        return fn
+
+    return mark
+
+
+@dataclass(frozen=True)
+class ApiFunction:
+    """One API function as a prompt or a grammar names it."""
+
+    name: str
+    kind: ApiKind
+    listed: bool
+    parameters: tuple[str, ...]
+    """As written in a call: ``object``, ``label=None``, ``*more``."""
+    returns: str
+    summary: str
+    """The docstring's first paragraph, on one line."""
+
+    @property
+    def call(self) -> str:
+        """``get_area_between(object_1, object_2)``."""
+        return f"{self.name}({', '.join(self.parameters)})"
+
+    @property
+    def signature(self) -> str:
+        """``get_closest_object(anchor, label=None) -> str``."""
+        return f"{self.call} -> {self.returns}"
+
+
+def _parameters(fn: Callable[..., Any]) -> list[inspect.Parameter]:
+    return [p for p in inspect.signature(fn).parameters.values() if p.name != "self"]
+
+
+def _parameter_text(p: inspect.Parameter) -> str:
+    if p.kind is inspect.Parameter.VAR_POSITIONAL:
+        return f"*{p.name}"
+    return p.name if p.default is inspect.Parameter.empty else f"{p.name}={p.default!r}"
+
+
+def _summary(fn: Callable[..., Any]) -> str:
+    return " ".join((inspect.getdoc(fn) or "").split("\n\n", 1)[0].split())
+
+
+def _describe(name: str, fn: Callable[..., Any]) -> ApiFunction:
+    kind, listed = _API_MARKS[name]
+    params = _parameters(fn)
+    returns = inspect.signature(fn).return_annotation
+    return ApiFunction(
+        name=name,
+        kind=kind,
+        listed=listed,
+        parameters=tuple(_parameter_text(p) for p in params),
+        returns=returns if isinstance(returns, str) else getattr(returns, "__name__", str(returns)),
+        summary=_summary(fn),
+    )
+
+
+def handle_methods() -> tuple[ApiFunction, ...]:
+    """The methods of a character handle a program may call (``c.set_position(area)``...), in
+    the order CharacterHandle defines them."""
+    return tuple(
+        ApiFunction(
+            name=name,
+            kind="character",
+            listed=True,
+            parameters=tuple(_parameter_text(p) for p in _parameters(member)),
+            returns="None",
+            summary=_summary(member),
+        )
+        for name, member in vars(CharacterHandle).items()
+        if name in CharacterHandle.sandbox_attributes and inspect.isfunction(member)
+    )
 
 
 @dataclass
@@ -129,17 +225,12 @@ class SpatialAPI:
     # ----- what the sandbox exposes ---------------------------------------------------------
     def namespace(self) -> dict[str, Callable[..., Any]]:
         """Name -> function for every API function an event program may call."""
-        names = [
-            "get_character", "get_object_supporting", "get_objects_supported_by",
-            "get_objects_in_front_of", "get_objects_behind", "get_objects_left_of",
-            "get_objects_right_of", "get_objects_close_to", "get_objects_associated_with",
-            "get_objects_between", "get_closest_object", "get_intersected_area", "get_union_area",
-            "get_distance_between", "is_object_occupied", "is_object_of_label",
-            "get_area_to_interact_with", "get_area_to_sit_on", "get_area_adjacent_to",
-            "get_area_close_to", "get_area_in_front_of", "get_area_behind", "get_area_left_of",
-            "get_area_right_of", "get_area_between", "get_area_aligned_with",
-        ]  # fmt: skip
-        return {n: getattr(self, n) for n in names}
+        return {f.name: getattr(self, f.name) for f in self.functions()}
+
+    @classmethod
+    def functions(cls) -> tuple[ApiFunction, ...]:
+        """Every function an event program may call, in the order the class defines them."""
+        return tuple(_describe(name, member) for name, member in vars(cls).items() if name in _API_MARKS)
 
     # ----- argument checks ------------------------------------------------------------------
     def _object(self, name: Any, func: str) -> SceneObject:
@@ -310,6 +401,7 @@ class SpatialAPI:
         return self._records.setdefault(name, _Record())
 
     # ----- characters -----------------------------------------------------------------------
+    @api_function("character", listed=True)
     def get_character(self, name: str) -> CharacterHandle:
         """The handle of the character called ``name`` (the same handle on every call)."""
         name = self._character_name(name, "get_character")
@@ -318,10 +410,12 @@ class SpatialAPI:
         return self._handles[name]
 
     # ----- object queries -------------------------------------------------------------------
+    @api_function("query")
     def get_object_supporting(self, anchor: str) -> str | None:
         """The object that ``anchor`` stands on or in; None if it stands on the floor."""
         return self.graph.supporter(self._object(anchor, "get_object_supporting").name)
 
+    @api_function("query")
     def get_objects_supported_by(self, anchor: str, label: str | None = None) -> list[str]:
         """Objects standing on or in ``anchor`` (optionally only those with ``label``)."""
         obj = self._object(anchor, "get_objects_supported_by")
@@ -333,18 +427,22 @@ class SpatialAPI:
         obj = self._object(anchor, func)
         return self._filter(self.graph.subjects(relation, obj.name), self._label(label, func))
 
+    @api_function("query")
     def get_objects_in_front_of(self, anchor: str, label: str | None = None) -> list[str]:
         """Objects in front of ``anchor`` (its own front), on the same support level, within 2 m."""
         return self._related(anchor, label, "in front of", "get_objects_in_front_of")
 
+    @api_function("query")
     def get_objects_behind(self, anchor: str, label: str | None = None) -> list[str]:
         """Objects behind ``anchor`` (opposite its front), on the same support level, within 2 m."""
         return self._related(anchor, label, "behind", "get_objects_behind")
 
+    @api_function("query")
     def get_objects_left_of(self, anchor: str, label: str | None = None) -> list[str]:
         """Objects to the left of ``anchor`` (its own left), on the same support level, within 2 m."""
         return self._related(anchor, label, "to the left of", "get_objects_left_of")
 
+    @api_function("query")
     def get_objects_right_of(self, anchor: str, label: str | None = None) -> list[str]:
         """Objects to the right of ``anchor`` (its own right), on the same support level, within 2 m."""
         return self._related(anchor, label, "to the right of", "get_objects_right_of")
@@ -353,11 +451,13 @@ class SpatialAPI:
         pairs = [(box_distance(obj, o), o.name) for o in self.scene.objects if o.name != obj.name]
         return self._filter([n for d, n in sorted(pairs) if d < limit], label)
 
+    @api_function("query", listed=True)
     def get_objects_close_to(self, anchor: str, label: str | None = None) -> list[str]:
         """Objects whose box is less than 1.0 m from ``anchor``'s box, nearest first."""
         obj = self._object(anchor, "get_objects_close_to")
         return self._by_distance(obj, CLOSE_DISTANCE, self._label(label, "get_objects_close_to"))
 
+    @api_function("query")
     def get_objects_associated_with(self, anchor: str, label: str | None = None) -> list[str]:
         """Objects used together with ``anchor``: what it stands on, what stands on it, and objects
         whose box is less than 0.3 m away (e.g. the chairs of a table), nearest first."""
@@ -368,6 +468,7 @@ class SpatialAPI:
         names += [n for n in support if n is not None and n not in names]
         return self._filter(names, label)
 
+    @api_function("query")
     def get_objects_between(
         self, anchor_1: str, anchor_2: str, label: str | None = None
     ) -> list[str]:
@@ -384,6 +485,7 @@ class SpatialAPI:
         inside = area.contains(np.array([o.center[:2] for o in others]))
         return self._filter([o.name for o, ok in zip(others, inside, strict=True) if ok], label)
 
+    @api_function("query", listed=True)
     def get_closest_object(self, anchor: str, label: str | None = None) -> str:
         """The object whose box is nearest to ``anchor``'s box (optionally with ``label``)."""
         obj = self._object(anchor, "get_closest_object")
@@ -393,12 +495,14 @@ class SpatialAPI:
             raise ToolArgumentError(f"get_closest_object(): no other object with label '{label}'")
         return names[0]
 
+    @api_function("query")
     def get_distance_between(self, object_1: str, object_2: str) -> float:
         """Distance between the two objects' boxes in metres (0 when they touch)."""
         a = self._object(object_1, "get_distance_between")
         b = self._object(object_2, "get_distance_between")
         return round(box_distance(a, b), 3)
 
+    @api_function("query", listed=True)
     def is_object_occupied(self, object: str) -> bool:
         """Whether a character sits on or uses ``object`` (including earlier lines of this program)."""
         obj = self._object(object, "is_object_occupied")
@@ -416,6 +520,7 @@ class SpatialAPI:
                 return True
         return False
 
+    @api_function("query")
     def is_object_of_label(self, object: str, label: str) -> bool:
         """Whether ``object`` has the label ``label`` (e.g. is_object_of_label('chair_3', 'chair'))."""
         obj = self._object(object, "is_object_of_label")
@@ -424,6 +529,7 @@ class SpatialAPI:
         return obj.label == label
 
     # ----- areas ----------------------------------------------------------------------------
+    @api_function("area", listed=True)
     def get_area_to_interact_with(self, object: str) -> Area:
         """Where to use ``object``: a seat's seat; else <= 0.6 m from it (further if it stands deep
         on furniture: reached from the furniture's edge), on its front side if it has one."""
@@ -431,6 +537,7 @@ class SpatialAPI:
         supporter = self.graph.supporter(obj.name)
         return areas.to_interact_with(obj, self.scene.by_name[supporter] if supporter else None)
 
+    @api_function("seat_area", listed=True)
     def get_area_to_sit_on(self, object: str) -> Area:
         """The seat of a chair, stool, couch or sofa (a couch has one place per 0.6 m of width)."""
         obj = self._object(object, "get_area_to_sit_on")
@@ -441,10 +548,12 @@ class SpatialAPI:
             )
         return areas.to_sit_on(obj)
 
+    @api_function("area", listed=True)
     def get_area_adjacent_to(self, object: str) -> Area:
         """Floor within 0.5 m of ``object``'s footprint."""
         return areas.adjacent_to(self._object(object, "get_area_adjacent_to"))
 
+    @api_function("area", listed=True)
     def get_area_close_to(self, object: str) -> Area:
         """Floor within 1.0 m of ``object``'s footprint."""
         return areas.close_to(self._object(object, "get_area_close_to"))
@@ -457,18 +566,22 @@ class SpatialAPI:
             )
         return areas.directional(obj, relation)
 
+    @api_function("area", listed=True)
     def get_area_in_front_of(self, object: str) -> Area:
         """Floor in front of ``object``: up to 1.5 m out from its front face, as wide as that face."""
         return self._directional(object, "in front of", "get_area_in_front_of")
 
+    @api_function("area", listed=True)
     def get_area_behind(self, object: str) -> Area:
         """Floor behind ``object``: up to 1.5 m out from its back face, as wide as that face."""
         return self._directional(object, "behind", "get_area_behind")
 
+    @api_function("area", listed=True)
     def get_area_left_of(self, object: str) -> Area:
         """Floor on ``object``'s own left: up to 1.5 m out from its left side, as long as that side."""
         return self._directional(object, "to the left of", "get_area_left_of")
 
+    @api_function("area", listed=True)
     def get_area_right_of(self, object: str) -> Area:
         """Floor on ``object``'s own right: up to 1.5 m out from its right side, as long as that side."""
         return self._directional(object, "to the right of", "get_area_right_of")
@@ -481,15 +594,18 @@ class SpatialAPI:
             )
         return a, b
 
+    @api_function("area", listed=True)
     def get_area_between(self, object_1: str, object_2: str) -> Area:
         """Floor between the two objects' centres, <= 0.5 m off the line joining them."""
         return areas.between(*self._pair(object_1, object_2, "get_area_between"))
 
+    @api_function("area")
     def get_area_aligned_with(self, object_1: str, object_2: str) -> Area:
         """Floor on the line through both objects' centres (<= 0.5 m off it), from one centre
         distance before the first to one centre distance past the second."""
         return areas.aligned_with(*self._pair(object_1, object_2, "get_area_aligned_with"))
 
+    @api_function("area_operation", listed=True)
     def get_intersected_area(self, area_1: Area, area_2: Area, *more: Area) -> Area:
         """The part common to all given areas."""
         result = self._area(area_1, "get_intersected_area")
@@ -497,6 +613,7 @@ class SpatialAPI:
             result = result.intersect(self._area(other, "get_intersected_area"))
         return result
 
+    @api_function("area_operation")
     def get_union_area(self, area_1: Area, area_2: Area, *more: Area) -> Area:
         """Every point of any of the given areas."""
         result = self._area(area_1, "get_union_area")

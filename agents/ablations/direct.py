@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from agents.event_parser import ParserInput, ProgramResult, ProgramRunner, run_reply
 from agents.llm_port import ChatMessage, LLMRequest
+from agents.llm_schemas import Refine, reply_schema
 from agents.messages import Event
 from agents.prompt_templates import PromptLibrary
 from agents.retry_feedback import Turn, retry_temperature, with_turns
@@ -46,31 +47,18 @@ class DirectPlans(BaseModel):
 
 
 def direct_schema(characters: Sequence[str], labels: Sequence[str], targets: Sequence[str]) -> dict[str, Any]:
+    """The reply schema of one Direct Inference call, generated from :class:`DirectPlans`:
+    exactly one plan per event character, names, labels and look-at targets from the call."""
     n = len(characters)
-    return {
-        "type": "object",
-        "properties": {
-            "plans": {
-                "type": "array",
-                "minItems": n,
-                "maxItems": n,
-                "items": {
-                    "type": "object",
-                    "properties": {
-                        "character": {"type": "string", "enum": list(characters)},
-                        "action": {"type": "string", "enum": list(labels)},
-                        "x": {"type": "number"},
-                        "y": {"type": "number"},
-                        "look_at": {"type": "string", "enum": list(targets)},
-                    },
-                    "required": ["character", "action", "x", "y", "look_at"],
-                    "additionalProperties": False,
-                },
-            }
+    return reply_schema(
+        DirectPlans,
+        {
+            "plans": Refine(min_items=n, max_items=n),
+            "plans.character": Refine(enum=list(characters)),
+            "plans.action": Refine(enum=list(labels)),
+            "plans.look_at": Refine(enum=list(targets)),
         },
-        "required": ["plans"],
-        "additionalProperties": False,
-    }
+    )
 
 
 class BlockedPositionError(ToolError):

@@ -24,6 +24,7 @@ import litellm
 import structlog
 
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, LLMUnavailableError, TokenUsage
+from agents.llm_schemas import schema_instruction
 from orchestrator.llm.config import NodeConfig, StorytellerConfig
 from orchestrator.llm.local_model import (
     ensure_local_model_available,
@@ -76,11 +77,7 @@ def response_format_for(model: str, schema: dict[str, Any]) -> tuple[dict[str, A
 
 
 def _schema_instruction(schema: dict[str, Any]) -> dict[str, str]:
-    return {
-        "role": "system",
-        "content": "Reply with exactly one JSON value that matches this JSON schema:\n"
-        + json.dumps(schema, sort_keys=True),
-    }
+    return {"role": "system", "content": schema_instruction(schema)}
 
 
 class LiteLLMClient:

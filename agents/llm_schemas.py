@@ -1,0 +1,145 @@
+"""JSON schemas of LLM replies, generated from the pydantic models that parse the replies.
+
+A reply model (frozen, ``extra="forbid"``) is the one statement of a reply's contract: field
+names and types, string lengths (``max_length`` -> ``maxLength``), tuple lengths
+(``max_length`` -> ``maxItems``) and the ``Field(description=...)`` texts written for the model.
+:func:`reply_schema` turns it into the schema sent with a request, so the schema can never
+allow what the parser refuses or the other way round:
+
+- ``$ref``s are inlined; titles, defaults and class docstrings (written for developers) are
+  dropped; field descriptions are kept.
+- Every property is required and no other is allowed, so a grammar writes every field, in the
+  model's field order (OpenAI's strict mode asks the same). Fields with a default stay optional
+  for the parser.
+- Facts of one call are injected into named fields with :class:`Refine`: the names a field may
+  hold (free characters, scene objects, region numbers, action labels) and array bounds that
+  depend on the call. A refinement never loosens a bound the model states.
+- Every array is bounded by ``maxItems``: under llama.cpp's ``json_object`` schema an unbounded
+  array lets a small model loop until ``max_tokens`` (see DESIGN.md). An array left unbounded
+  is a :class:`SchemaContractError` here, not a silent default.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import BaseModel
+
+from agents.prompt_templates import PromptLibrary, package_prompts
+
+__all__ = ["Refine", "SchemaContractError", "reply_schema", "schema_instruction"]
+
+_DROPPED = ("title", "default")
+
+
+class SchemaContractError(ValueError):
+    """A model or a refinement that cannot give a schema a local model can be held to."""
+
+
+@dataclass(frozen=True)
+class Refine:
+    """What one call adds to one field (named by its dotted path, e.g. ``event.characters``;
+    arrays are walked through, so ``areas.objects`` is the objects of every area).
+
+    For an array field ``enum`` restricts its items; for a scalar field, the field itself. An
+    empty ``enum`` is only allowed on an array bounded to 0 items (it is then left out: an empty
+    enum admits nothing)."""
+
+    enum: Sequence[str | int] | None = None
+    min_items: int | None = None
+    max_items: int | None = None
+
+
+def reply_schema(model: type[BaseModel], refine: Mapping[str, Refine] | None = None) -> dict[str, Any]:
+    """The JSON schema of ``model`` for a request, with ``refine``'s per-call facts injected."""
+    raw = model.model_json_schema(mode="validation")
+    defs = raw.pop("$defs", {})
+    schema = _strict(_inline(raw, defs), top=True)
+    for path, rule in (refine or {}).items():
+        _apply(schema, path, rule)
+    _check_bounded(schema, model.__name__)
+    return schema
+
+
+def _inline(node: Any, defs: Mapping[str, Any]) -> Any:
+    """``node`` with every ``$ref`` replaced by its definition (a class docstring, the
+    definition's description, gives way to the referring field's own description)."""
+    if isinstance(node, list):
+        return [_inline(v, defs) for v in node]
+    if not isinstance(node, dict):
+        return node
+    if "$ref" in node:
+        target = dict(defs[node["$ref"].rsplit("/", 1)[-1]])
+        target.pop("description", None)
+        rest = {k: v for k, v in node.items() if k != "$ref"}
+        return _inline({**target, **rest}, defs)
+    return {k: _inline(v, defs) for k, v in node.items()}
+
+
+def _strict(node: Any, *, top: bool = False) -> Any:
+    if isinstance(node, list):
+        return [_strict(v) for v in node]
+    if not isinstance(node, dict):
+        return node
+    out = {k: _strict(v) for k, v in node.items() if k not in _DROPPED}
+    if out.get("type") == "object" and "properties" in out:
+        out["required"] = list(out["properties"])
+        out["additionalProperties"] = False
+        if top:  # the reply model's own docstring is for developers
+            out.pop("description", None)
+    return out
+
+
+def _field(schema: dict[str, Any], path: str) -> dict[str, Any]:
+    node = schema
+    for name in path.split("."):
+        while node.get("type") == "array":
+            node = node["items"]
+        props = node.get("properties", {})
+        if name not in props:
+            raise SchemaContractError(f"no field {path!r} in the reply model (at {name!r}; fields: {sorted(props)})")
+        node = props[name]
+    return node
+
+
+def _apply(schema: dict[str, Any], path: str, rule: Refine) -> None:
+    node = _field(schema, path)
+    is_array = node.get("type") == "array"
+    if not is_array and (rule.min_items is not None or rule.max_items is not None):
+        raise SchemaContractError(f"field {path!r} is not an array; it has no item bounds")
+    if is_array and rule.max_items is not None:
+        node["maxItems"] = min(node.get("maxItems", rule.max_items), max(0, rule.max_items))
+    if is_array and rule.min_items is not None:
+        node["minItems"] = max(node.get("minItems", 0), rule.min_items)
+    if rule.enum is not None:
+        values = list(dict.fromkeys(rule.enum))
+        if not values:
+            if not (is_array and node.get("maxItems") == 0):
+                raise SchemaContractError(f"field {path!r}: an empty enum admits nothing")
+            return
+        target = node["items"] if is_array else node
+        target["enum"] = values
+    if is_array and node.get("minItems", 0) > node.get("maxItems", node.get("minItems", 0)):
+        raise SchemaContractError(f"field {path!r}: minItems {node['minItems']} > maxItems {node['maxItems']}")
+
+
+def _check_bounded(node: Any, where: str) -> None:
+    if isinstance(node, list):
+        for v in node:
+            _check_bounded(v, where)
+    elif isinstance(node, dict):
+        if node.get("type") == "array" and "maxItems" not in node:
+            raise SchemaContractError(
+                f"{where}: an array has no maxItems; give the field a max_length or refine it per call"
+            )
+        for v in node.values():
+            _check_bounded(v, where)
+
+
+def schema_instruction(schema: Mapping[str, Any], prompts: PromptLibrary | None = None) -> str:
+    """The message that carries ``schema`` to a provider that cannot decode under it
+    (``prompts/llm/schema_instruction.md``; keys sorted, so the text is stable)."""
+    return (prompts or package_prompts()).render_text("llm/schema_instruction.md", schema=json.dumps(schema, sort_keys=True))
