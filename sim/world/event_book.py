@@ -48,14 +48,17 @@ from sim.world.phases import (
 )
 
 EventStatus = Literal["ongoing", "looping", "completed", "failed"]
+MemberStatus = Literal["active", "done", "left"]
+"""active: still on the way or acting; done: finished its part; left: gave up or was
+reassigned."""
 
 
 @dataclass
 class EventState:
-    """One accepted event: member name -> "active" | "done" | "left"."""
+    """One accepted event and the status of each member (by name)."""
 
     event: AssignEvent
-    members: dict[str, str]
+    members: dict[str, MemberStatus]
     status: EventStatus = "ongoing"
     started: bool = False
 
