@@ -216,7 +216,7 @@ class MotionMatcher:
             out = self._tables[key] = shared_table(self.databases[key], key)
         return out
 
-    def initial_state(self, label: str, root_xy: Sequence[float], heading: float, seated: bool = False) -> MatchState:
+    def initial_state(self, label: str, root_xy: Sequence[float] | NDArray[np.float64], heading: float, seated: bool = False) -> MatchState:
         db = self.database(label, seated)
         frame = int(np.flatnonzero(db.searchable)[0])
         z = np.zeros((NUM_JOINTS, 3))
