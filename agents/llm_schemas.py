@@ -57,7 +57,7 @@ def reply_schema(model: type[BaseModel], refine: Mapping[str, Refine] | None = N
     """The JSON schema of ``model`` for a request, with ``refine``'s per-call facts injected."""
     raw = model.model_json_schema(mode="validation")
     defs = raw.pop("$defs", {})
-    schema = _strict(_inline(raw, defs), top=True)
+    schema: dict[str, Any] = _strict(_inline(raw, defs), top=True)
     for path, rule in (refine or {}).items():
         _apply(schema, path, rule)
     _check_bounded(schema, model.__name__)

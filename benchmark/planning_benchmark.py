@@ -28,7 +28,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")  # before litellm is imported
 
@@ -54,8 +54,10 @@ from tools.scene_graph import SceneGraph, build_scene_graph
 
 DEFAULT_REFERENCE = locate_reference().path  # $STORYTELLER_REFERENCE, else ../shared/reference/event-driven-storytelling
 REFERENCE_DESCRIPTIONS = "openai-gpt-4o-2024-08-06-0.1"
-PLANNERS = ("event", "unified", "direct")
-DESCRIPTIONS = ("describer", "reference", "object-list", "scene-graph")
+DescriptionSource = Literal["describer", "reference", "object-list", "scene-graph"]
+"""The planning graph's description variants, and ``reference``: the authors' GPT-4o text."""
+PLANNERS: tuple[PlannerKind, ...] = get_args(PlannerKind)
+DESCRIPTIONS: tuple[DescriptionSource, ...] = get_args(DescriptionSource)
 PAPER = (
     "paper (full method, 40 cases): GPT-4o success 0.90 (execution 0.98), GPT-4o mini 0.74 (0.96), "
     "Qwen2.5-7B 0.39 (0.87); PI with area sampling 0.94 vs direct coordinates 0.46 (GPT-4o)"
@@ -92,7 +94,7 @@ class Descriptions:
     (``reference``), or the one the planning graph made (describer) or set (object list,
     scene graph) for an earlier case of the same scene; None until then (the graph makes it)."""
 
-    def __init__(self, source: str, reference: Path) -> None:
+    def __init__(self, source: DescriptionSource, reference: Path) -> None:
         if source not in DESCRIPTIONS:
             raise ValueError(f"unknown description {source!r}; expected one of {', '.join(DESCRIPTIONS)}")
         self.source, self.reference = source, reference
@@ -101,7 +103,7 @@ class Descriptions:
     @property
     def graph_description(self) -> DescriptionKind:
         """The planning graph's description variant for this source."""
-        return "describer" if self.source == "reference" else self.source  # type: ignore[return-value]
+        return "describer" if self.source == "reference" else self.source
 
     def get(self, scene: Scene) -> SceneDescription | None:
         if scene.name not in self._done and self.source == "reference":

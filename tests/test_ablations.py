@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from agents.ablations.descriptions import object_list_description, scene_graph_description
@@ -87,7 +88,7 @@ async def test_direct_inference_outputs_coordinates() -> None:
     cm = SCENE.get("coffee_maker_1")
     for dx in (0.0, 0.6, -0.6, 1.0, -1.0):
         for dy in (0.6, -0.6, 1.0, -1.0, 0.0):
-            if floor.free([[cm.center[0] + dx, cm.center[1] + dy]])[0]:
+            if floor.free(np.array([[cm.center[0] + dx, cm.center[1] + dy]]))[0]:
                 x, y = cm.center[0] + dx, cm.center[1] + dy
                 break
         else:
@@ -99,7 +100,8 @@ async def test_direct_inference_outputs_coordinates() -> None:
     assert isinstance(out, ParsedEvent), out
     assert out.plans[0].position == pytest.approx((x, y))
     req = port.requests[1]
-    schema = req.json_schema["properties"]["plans"]  # type: ignore[index]
+    assert req.json_schema is not None, "the coordinates are schema-constrained"
+    schema = req.json_schema["properties"]["plans"]
     assert schema["maxItems"] == 1 and schema["items"]["properties"]["character"]["enum"] == ["Ava"]
     assert "coffee_maker_1: position [" in req.messages[0].content  # coordinates available to the model
 
@@ -129,6 +131,7 @@ def test_direct_program_turns_a_point_on_a_seat_into_sitting() -> None:
 def test_direct_points_near_other_characters_or_off_the_floor_are_blocked() -> None:
     roster = initial_roster(SCENE, 2, seed=1)
     world = RosterWorld().world_view(roster)
+    assert roster[1].position is not None
     bx, by = roster[1].position
     near_ben = DirectPlans.model_validate({"plans": [{"character": "Ava", "action": "idle", "x": bx + 0.2, "y": by, "look_at": ""}]})
     (problem,) = blocked_positions(SCENE, world, near_ben)

@@ -13,6 +13,7 @@ from sim.world.events import Assignment
 from sim.world.phases import (
     INFINITE,
     CharacterState,
+    Phase,
     available,
     interaction_frames,
     phase_motion,
@@ -28,8 +29,12 @@ def _assign(action: str = "drink", seat: str | None = None, facing: tuple[float,
     return Assignment(character="a", action=action, target_xy=(1.0, 1.0), facing_xy=facing, seat=seat)
 
 
-def _state(**kw: object) -> CharacterState:
-    return CharacterState(name="a", xy=np.zeros(2), heading=0.0, **kw)  # type: ignore[arg-type]
+def _state(
+    *, phase: Phase = "idle", assignment: Assignment | None = None, seated: bool = False, turn_frames: int = 0,
+    phase_frame: int = 0,
+) -> CharacterState:
+    return CharacterState(name="a", xy=np.zeros(2), heading=0.0, phase=phase, assignment=assignment, seated=seated,
+                          turn_frames=turn_frames, phase_frame=phase_frame)
 
 
 @settings(max_examples=60, deadline=None)

@@ -39,6 +39,7 @@ from sim.paths.nav_grid import body_clearance
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
 from sim.world.events import AssignEvent, Assignment
+from sim.world.motion_layer import MotionLayer
 from sim.world.step import World, WorldConfig, step
 from tests.support.reference import OFFICE, reference_or_skip
 
@@ -80,7 +81,7 @@ def _spread_cells(cells: np.ndarray, count: int, rng: np.random.Generator, taken
     raise AssertionError(f"only {len(out)} spread cells available")
 
 
-def simulate_crowd(scene: Scene, n: int, frames: int, seed: int, motion, off_grid: float = 0.0,  # type: ignore[no-untyped-def]
+def simulate_crowd(scene: Scene, n: int, frames: int, seed: int, motion: MotionLayer, off_grid: float = 0.0,
                    foot_ik: bool = True) -> tuple[World, CrowdReport]:
     """Run the crowd; returns the world and the measured report.
 

@@ -40,9 +40,10 @@ PARTIAL = {"areas": [{"name": "kitchen", "purpose": "", "objects": ["fridge_1", 
 
 def test_schema_restricts_names_and_bounds_arrays() -> None:
     req = describer_request(PromptLibrary(), INP)
-    items = req.json_schema["properties"]["areas"]["items"]["properties"]["objects"]  # type: ignore[index]
+    assert req.json_schema is not None
+    items = req.json_schema["properties"]["areas"]["items"]["properties"]["objects"]
     assert items["items"]["enum"] == list(NAMES) and items["maxItems"] == len(NAMES)
-    assert req.json_schema["properties"]["areas"]["maxItems"] <= 8  # type: ignore[index]
+    assert req.json_schema["properties"]["areas"]["maxItems"] <= 8
     assert "fridge_1, cabinet_1, coffee_maker_1" in req.messages[1].content
 
 
@@ -124,7 +125,8 @@ REGIONS_INP = DescriberInput(
 async def test_regions_mode_names_clusters_and_checks_each_once() -> None:
     lib = PromptLibrary()
     req = describer_request(lib, REGIONS_INP)
-    regions = req.json_schema["properties"]["areas"]["items"]["properties"]["regions"]  # type: ignore[index]
+    assert req.json_schema is not None
+    regions = req.json_schema["properties"]["areas"]["items"]["properties"]["regions"]
     assert regions["items"]["enum"] == [1, 2, 3] and regions["maxItems"] == 3
     assert "region 2: couch_1" in req.messages[1].content
     bad = json.dumps({"areas": [{"name": "kitchen", "purpose": "", "regions": [1, 1]}, {"name": "x", "purpose": "", "regions": [7]}]})

@@ -108,7 +108,7 @@ def _strip_columns(tree: Expr) -> Expr:
     flat: list[Expr] = []
     for operand in tree.operands:  # a parenthesised group of the same operator reads back as one level
         o = _strip_columns(operand)
-        flat += list(o.operands) if type(o) is type(tree) else [o]  # type: ignore[union-attr]
+        flat += list(o.operands) if type(o) is type(tree) else [o]
     return type(tree)(tuple(flat))
 
 

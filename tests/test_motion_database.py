@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from sim.motion.database import (
     SCAN_THRESHOLD,
+    MotionDatabase,
     NearestFrameIndex,
     build_database,
     load_databases,
@@ -21,11 +22,11 @@ from sim.motion.sources.procedural_library import procedural_clips
 
 
 @pytest.fixture(scope="module")
-def walk_db():  # type: ignore[no-untyped-def]
+def walk_db() -> MotionDatabase:
     return build_database("walk", procedural_clips("walk")[:6])
 
 
-def test_layouts_and_database_shapes(walk_db) -> None:  # type: ignore[no-untyped-def]
+def test_layouts_and_database_shapes(walk_db: MotionDatabase) -> None:
     assert layout_size(FEATURE_LAYOUTS["locomotion"]) == 36
     assert walk_db.raw_features.shape == (walk_db.num_frames, 36)
     assert walk_db.local_rotations.shape == (walk_db.num_frames, 22, 3, 3)
@@ -53,7 +54,7 @@ def test_next_frame_loops_and_ends() -> None:
     assert loop.next_frame(int(e) - 1) == (int(s), False)
 
 
-def test_search_finds_the_frame_a_query_was_taken_from(walk_db) -> None:  # type: ignore[no-untyped-def]
+def test_search_finds_the_frame_a_query_was_taken_from(walk_db: MotionDatabase) -> None:
     for i in np.flatnonzero(walk_db.searchable)[::37]:
         frame, dist = walk_db.search(walk_db.raw_features[i])
         assert dist == pytest.approx(0.0, abs=1e-18)

@@ -26,7 +26,10 @@ def matcher() -> MotionMatcher:
     return MotionMatcher({k: build_database(k, procedural_clips(k)) for k in keys})
 
 
-def _walk(m: MotionMatcher, state: MatchState, x0: float, frames: int, v: float = 1.0):  # type: ignore[no-untyped-def]
+def _walk(
+    m: MotionMatcher, state: MatchState, x0: float, frames: int, v: float = 1.0
+) -> tuple[MatchState, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Walk along +x for ``frames``; the end state, joints, contacts and roots per frame, the end x."""
     joints, contacts, roots, x = [], [], [], x0
     for _ in range(frames):
         x += v * DT
@@ -174,14 +177,18 @@ def test_step_many_equals_step_per_character(matcher: MotionMatcher) -> None:
             np.testing.assert_allclose(p.root_xy, pose.root_xy, rtol=0, atol=1e-9)
             assert p.heading == pytest.approx(pose.heading, abs=1e-9)
             assert np.array_equal(p.contacts, pose.contacts)
-            np.testing.assert_allclose(b.offset_rot, solo[k].offset_rot, rtol=0, atol=1e-9)  # type: ignore[arg-type]
-            np.testing.assert_allclose(b.offset_pos, solo[k].offset_pos, rtol=0, atol=1e-9)  # type: ignore[arg-type]
+            one = solo[k]
+            assert b.offset_rot is not None and one.offset_rot is not None
+            assert b.offset_pos is not None and one.offset_pos is not None
+            np.testing.assert_allclose(b.offset_rot, one.offset_rot, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(b.offset_pos, one.offset_pos, rtol=0, atol=1e-9)
         seen_keys |= {s.key for s in batch}
     searches = sum(s.searches for s in batch)
     assert seen_keys == {"walk", "idle", "chat", "turn_on_tv", "sit_down"}
     assert searches > n * frames // 20 and sum(s.switches for s in batch) > n * 3
     # lazily computed joints and velocities match the pose
-    np.testing.assert_allclose(batch[0].joints_world, poses[0].joints(), atol=1e-12)  # type: ignore[arg-type]
+    assert batch[0].joints_world is not None
+    np.testing.assert_allclose(batch[0].joints_world, poses[0].joints(), atol=1e-12)
     assert batch[0].joint_vel_char is not None and np.isfinite(batch[0].joint_vel_char).all()
 
 

@@ -20,7 +20,7 @@ import pytest
 
 from orchestrator.cache_paths import motion_cache_dir
 from sim.body.skeleton import forward_kinematics
-from sim.motion.database import NearestFrameIndex, load_databases, squared_distances
+from sim.motion.database import MotionDatabase, NearestFrameIndex, load_databases, squared_distances
 from sim.motion.inertialization import rotation_exp, rotation_log
 from sim.motion.kernels import (
     fk_positions,
@@ -37,7 +37,7 @@ KEYS = ["walk", "idle", "chat", "turn_on_tv", "sit_down", "sit_idle", "drink@sea
 
 
 @pytest.fixture(scope="module")
-def dbs():  # type: ignore[no-untyped-def]
+def dbs() -> dict[str, MotionDatabase]:
     return load_databases(KEYS, cache_dir=motion_cache_dir())
 
 
@@ -102,7 +102,11 @@ def _initial(m: MotionMatcher) -> list[MatchState]:
             m.initial_state("idle", (0.0, -2.0), -0.3), m.initial_state("walk", (0.0, 1.0), 0.0)]
 
 
-def _run(m: MotionMatcher, initial: list[MatchState], queries: list[list[MotionQuery]], copy_every: int = 0):
+Frames = list[tuple[list[MatchState], list[Pose]]]
+"""Per frame: every character's state and pose after the step."""
+
+
+def _run(m: MotionMatcher, initial: list[MatchState], queries: list[list[MotionQuery]], copy_every: int = 0) -> Frames:
     states, out = list(initial), []
     for f, qs in enumerate(queries):
         if copy_every and f % copy_every == copy_every - 1:
@@ -112,7 +116,7 @@ def _run(m: MotionMatcher, initial: list[MatchState], queries: list[list[MotionQ
     return out
 
 
-def _assert_same(ref, new) -> None:  # type: ignore[no-untyped-def]
+def _assert_same(ref: Frames, new: Frames) -> None:
     assert len(ref) == len(new)
     for f, ((rs, rp), (ns, np_)) in enumerate(zip(ref, new, strict=True)):
         for i, (a, b) in enumerate(zip(rs, ns, strict=True)):
@@ -124,15 +128,15 @@ def _assert_same(ref, new) -> None:  # type: ignore[no-untyped-def]
                     np.testing.assert_allclose(y, x, rtol=0, atol=1e-12, err_msg=where)
                 else:
                     assert x == y, (where, x, y)
-        for i, (a, b) in enumerate(zip(rp, np_, strict=True)):
+        for i, (pa, pb) in enumerate(zip(rp, np_, strict=True)):
             for fl in fields(Pose):
                 where = f"frame {f} character {i} pose.{fl.name}"
-                np.testing.assert_allclose(np.asarray(getattr(b, fl.name), dtype=float),
-                                           np.asarray(getattr(a, fl.name), dtype=float), rtol=0, atol=1e-12,
+                np.testing.assert_allclose(np.asarray(getattr(pb, fl.name), dtype=float),
+                                           np.asarray(getattr(pa, fl.name), dtype=float), rtol=0, atol=1e-12,
                                            err_msg=where)
 
 
-def test_scripted_scenario_matches_the_reference_step(dbs) -> None:  # type: ignore[no-untyped-def]
+def test_scripted_scenario_matches_the_reference_step(dbs: dict[str, MotionDatabase]) -> None:
     queries = _scenario(160)
     ref_m, new_m = ReferenceMotionMatcher(dbs), MotionMatcher(dbs)
     ref = _run(ref_m, _initial(ref_m), queries, copy_every=37)
@@ -148,7 +152,7 @@ def test_scripted_scenario_matches_the_reference_step(dbs) -> None:  # type: ign
     assert not np.allclose(new[69][0][3].root_xy, new[0][0][3].root_xy)  # sat down on root motion
 
 
-def test_a_changed_step_is_caught(dbs) -> None:  # type: ignore[no-untyped-def]
+def test_a_changed_step_is_caught(dbs: dict[str, MotionDatabase]) -> None:
     """The comparison can fail: a matcher with another blend half-life differs from the reference."""
     queries = _scenario(40)
     ref_m, other = ReferenceMotionMatcher(dbs), MotionMatcher(dbs, blend_halflife=0.11)
@@ -196,7 +200,7 @@ def test_scan_rejects_non_finite_queries() -> None:
         index.query(np.array([0.0, np.nan, 0.0, 0.0]))
 
 
-def test_frame_tables_follow_next_frame(dbs) -> None:  # type: ignore[no-untyped-def]
+def test_frame_tables_follow_next_frame(dbs: dict[str, MotionDatabase]) -> None:
     m = MotionMatcher(dbs)
     for key, db in dbs.items():
         tab = m._table(key)
@@ -207,7 +211,7 @@ def test_frame_tables_follow_next_frame(dbs) -> None:  # type: ignore[no-untyped
     assert any(m._table("sit_down").end) and not all(m._table("sit_down").end)  # clips end at their last frame
 
 
-def test_matchers_over_the_same_databases_share_one_frame_store(dbs) -> None:  # type: ignore[no-untyped-def]
+def test_matchers_over_the_same_databases_share_one_frame_store(dbs: dict[str, MotionDatabase]) -> None:
     a, b = MotionMatcher(dbs), MotionMatcher(dict(dbs))
     assert a._store is b._store
     assert MotionMatcher({"walk": dbs["walk"]})._store is not a._store

@@ -13,7 +13,7 @@ from importlib import resources
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
+from typer.testing import CliRunner, Result
 
 from orchestrator.cli.app import app
 
@@ -27,7 +27,7 @@ GOLDEN = {
 }
 
 
-def run_cli(args: list[str], tmp_path: Path) -> object:
+def run_cli(args: list[str], tmp_path: Path) -> Result:
     return CliRunner().invoke(app, [*args, "--runs-db", str(tmp_path / "runs.sqlite")], catch_exceptions=False)
 
 
@@ -45,16 +45,16 @@ def test_replay_reproduces_the_recorded_output_byte_for_byte(
 
     monkeypatch.setattr(local_model, "get_llama", no_load)
     result = run_cli([*GOLDEN[name], "--replay", str(TRACES / f"{name}.jsonl")], tmp_path)
-    assert result.exit_code == 0, result.stderr  # type: ignore[attr-defined]
-    assert result.stdout == (TRACES / f"{name}.out").read_text(encoding="utf-8")  # type: ignore[attr-defined]
+    assert result.exit_code == 0, result.stderr
+    assert result.stdout == (TRACES / f"{name}.out").read_text(encoding="utf-8")
     assert loads == []  # no model was loaded
 
 
 @pytest.mark.parametrize("name", sorted(GOLDEN))
 def test_replay_json_lists_every_event_with_plans(name: str, tmp_path: Path) -> None:
     result = run_cli([*GOLDEN[name], "--replay", str(TRACES / f"{name}.jsonl"), "--json"], tmp_path)
-    assert result.exit_code == 0, result.stderr  # type: ignore[attr-defined]
-    payload = json.loads(result.stdout)  # type: ignore[attr-defined]
+    assert result.exit_code == 0, result.stderr
+    payload = json.loads(result.stdout)
     k = int(GOLDEN[name][GOLDEN[name].index("-k") + 1])
     assert len(payload["events"]) == k
     for event in payload["events"]:
@@ -94,7 +94,7 @@ def test_one_edited_character_in_a_prompt_fails_the_replay_naming_the_node(tmp_p
     name = "plan_home_2events"
     result = run_cli([*GOLDEN[name], "--replay", str(TRACES / f"{name}.jsonl"), "--prompts", str(prompts)], tmp_path)
     assert result.exit_code == 1
-    err = result.stderr  # type: ignore[attr-defined]
+    err = result.stderr
     assert "replay miss for node narrator" in err
     assert "characterz" in err and "characters" in err  # the diff shows both versions
 
@@ -103,12 +103,12 @@ def test_replay_with_a_different_instruction_fails(tmp_path: Path) -> None:
     name = "plan_home_2events"
     args = [*GOLDEN[name][:-1], "Ben dances.", "--replay", str(TRACES / f"{name}.jsonl")]
     result = run_cli(args, tmp_path)
-    assert result.exit_code == 1 and "replay miss for node narrator" in result.stderr  # type: ignore[attr-defined]
+    assert result.exit_code == 1 and "replay miss for node narrator" in result.stderr
 
 
 def test_bad_arguments_exit_2(tmp_path: Path) -> None:
     result = run_cli(["plan", "no_such_scene", "-i", "x"], tmp_path)
-    assert result.exit_code == 2 and "not a bundled scene" in result.stderr  # type: ignore[attr-defined]
+    assert result.exit_code == 2 and "not a bundled scene" in result.stderr
     result = run_cli(["plan", "home", "--record", "a.jsonl", "--replay", "b.jsonl"], tmp_path)
     assert result.exit_code == 2
 
@@ -158,7 +158,7 @@ async def test_embedded_model_narrator_and_parser_end_to_end(tmp_path: Path) -> 
         await graph.ainvoke(start.model_dump(), context=deps, durability="sync", config={
             "configurable": {"thread_id": "e2e"}, "recursion_limit": recursion_limit(1, 0)})
     finally:
-        port.close()  # type: ignore[attr-defined]
+        port.close()
     contents = read_trace(trace_path)
     attempts = list(contents.attempts())
     assert [a.node for a in attempts] == ["narrator", "event_parser"], [(a.node, a.error_type) for a in attempts]

@@ -17,6 +17,7 @@ from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailur
 from benchmark.plan_scoring import ActionExpressionError, action_matches, score_outcome
 from benchmark.planning_benchmark import Descriptions, main, run_cases, summary_rows
 from benchmark.reference_cases import (
+    BenchmarkCase,
     BenchmarkCaseError,
     load_case,
     load_cases,
@@ -24,6 +25,7 @@ from benchmark.reference_cases import (
     scene_dir,
 )
 from sim.scene.files import load_scene
+from sim.scene.model import Scene
 from tests.support.fake_openai_server import FakeOpenAI
 from tests.support.reference import REFERENCE, requires_reference
 from tests.support.scripted_llm import ScriptedLLM
@@ -63,7 +65,7 @@ def oracle(case_of: dict[str, int], broken: bool = False) -> ScriptedLLM:
     return ScriptedLLM(reply, model="oracle")
 
 
-def _scene(case_id: int):  # type: ignore[no-untyped-def]
+def _scene(case_id: int) -> tuple[BenchmarkCase, Scene]:
     case = load_cases(REFERENCE, [case_id])[0]
     return case, load_scene(scene_dir(REFERENCE, case))
 
@@ -118,7 +120,7 @@ def test_scoring_judges_action_relationship_seat_and_failures() -> None:
     assert wrong.executed and not wrong.passed and "does not match" in wrong.reason
     far = score_outcome(case, scene, _event("Ryan", "use_smartphone", (0.5, 0.5)))
     assert not far.passed and "is not 'close to table_3" in far.reason
-    inside = score_outcome(case, scene, _event("Ryan", "use_smartphone", tuple(float(v) for v in table.center[:2])))
+    inside = score_outcome(case, scene, _event("Ryan", "use_smartphone", (float(table.center[0]), float(table.center[1]))))
     assert not inside.passed and "collides with table_3" in inside.reason
     other = score_outcome(case, scene, _event("Jorge", "use_smartphone", near))
     assert not other.passed and "no plan for Ryan" in other.reason

@@ -22,7 +22,7 @@ import pytest
 from langgraph.checkpoint.memory import InMemorySaver
 
 from agents.llm_port import LLMRequest, LLMResponse
-from agents.messages import CharacterStatus
+from agents.messages import CharacterStatus, ParsedEvent, PlanningFailure
 from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
 from orchestrator.planning.graph import compile_planning_graph, recursion_limit, route_step
 from orchestrator.planning.state import PlanningDeps, PlanningState
@@ -34,7 +34,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def tiny_scene() -> Scene:
-    def obj(name: str, x: float, y: float, size=(0.5, 0.5, 0.9), seat: float = 0.0) -> SceneObject:
+    def obj(
+        name: str, x: float, y: float, size: tuple[float, float, float] = (0.5, 0.5, 0.9), seat: float = 0.0
+    ) -> SceneObject:
         label, idx = name.rsplit("_", 1)
         return SceneObject(
             name=name, label=label, idx=int(idx), center=(x, y, size[2] / 2), size=size,
@@ -63,7 +65,9 @@ class Plan:
     facing: tuple[float, float]
 
 
-def fake_runner(scene: Scene, source: str, world: Any, *, seed: int, action_labels=None, graph=None) -> list[Plan]:
+def fake_runner(
+    scene: Scene, source: str, world: Any, *, seed: int, action_labels: object = None, graph: object = None
+) -> list[Plan]:
     """Understands just enough: get_character("X") calls, unknown object names, actions."""
     for name in re.findall(r'"([a-z_]+_\d+)"', source):
         if name not in scene.by_name:
@@ -109,7 +113,7 @@ def initial_state(names: list[str], k: int) -> dict[str, Any]:
     ).model_dump()
 
 
-async def run_graph(port: ScriptedLLM, k: int, names: list[str], **kw: Any) -> tuple[dict, StoryLog]:
+async def run_graph(port: ScriptedLLM, k: int, names: list[str], **kw: Any) -> tuple[dict[str, Any], StoryLog]:
     story = StoryLog(":memory:", "t1")
     graph = compile_planning_graph(InMemorySaver())
     final = await graph.ainvoke(
@@ -161,8 +165,9 @@ async def test_retries_exhausted_is_a_failure_and_story_goes_on() -> None:
     })
     _, story = await run_graph(port, 2, ["Ann"], max_retries=2)
     outcomes = story.outcomes()
-    assert outcomes[0][1] is not None and outcomes[0][1].node == "narrator"  # type: ignore[union-attr]
-    assert outcomes[0][1].attempts == 3  # type: ignore[union-attr]
+    failure = outcomes[0][1]
+    assert isinstance(failure, PlanningFailure) and failure.node == "narrator"
+    assert failure.attempts == 3
     assert story.events()[0].event.characters == ("Ann",)
 
 
@@ -185,9 +190,9 @@ async def test_model_outage_fails_the_step_and_the_story_goes_on() -> None:
     })
     _, story = await run_graph(port, 2, ["Ann"])
     first, second = story.outcomes()
-    assert first[1] is not None and first[1].node == "event_parser"  # type: ignore[union-attr]
-    assert "Timeout" in first[1].feedback  # type: ignore[union-attr]
-    assert second[1] is not None and second[1].event.characters == ("Ann",)  # type: ignore[union-attr]
+    assert isinstance(first[1], PlanningFailure) and first[1].node == "event_parser"
+    assert "Timeout" in first[1].feedback
+    assert isinstance(second[1], ParsedEvent) and second[1].event.characters == ("Ann",)
 
     # a replay miss is not an outage: it stops the run
     class MissPort(ScriptedLLM):
@@ -202,15 +207,21 @@ async def test_model_outage_fails_the_step_and_the_story_goes_on() -> None:
 
 async def test_wait_and_busy_characters_are_not_offered() -> None:
     def narrator(req: LLMRequest) -> str:
-        enum = req.json_schema["properties"]["event"]["properties"]["characters"]["items"]["enum"]  # type: ignore[index]
+        assert req.json_schema is not None, "the narrator's reply is schema-constrained"
+        enum = req.json_schema["properties"]["event"]["properties"]["characters"]["items"]["enum"]
         return narration(enum[:1], "eat at table_1")
 
-    port = ScriptedLLM({"describer": [DESCRIPTION], "narrator": narrator,
-                         "event_parser": lambda r: PROGRAM.format(who=re.search(r'\["(\w+)"\]', r.messages[-1].content).group(1))})  # type: ignore[union-attr]
+    def parser(req: LLMRequest) -> str:
+        named = re.search(r'\["(\w+)"\]', req.messages[-1].content)
+        assert named is not None, "the parser's prompt names the event's characters"
+        return PROGRAM.format(who=named.group(1))
+
+    port = ScriptedLLM({"describer": [DESCRIPTION], "narrator": narrator, "event_parser": parser})
     _, story = await run_graph(port, 3, ["Ann", "Bob"], busy_for_events=1)
     outcomes = story.outcomes()
     # Ann is busy during step 1, so Bob is planned; in step 2 Ann is free again
-    assert [o.event.characters for _, o in outcomes] == [("Ann",), ("Bob",), ("Ann",)]  # type: ignore[union-attr]
+    assert [o.event.characters for _, o in outcomes if isinstance(o, ParsedEvent)] == [("Ann",), ("Bob",), ("Ann",)]
+    assert all(isinstance(o, ParsedEvent) for _, o in outcomes)
     narrator_calls = [c for c in port.requests if c.node == "narrator"]
     assert "Ann: busy" in narrator_calls[1].messages[1].content
 
@@ -451,8 +462,10 @@ async def test_the_rest_of_the_instruction_for_a_busy_character_is_a_wait_withou
                         context=make_deps(port, story, busy_for_events=1), durability="sync")
     outcomes = [o for _, o in story.outcomes()]
     assert outcomes[1] is None  # the wait
-    assert [o.event.characters for o in outcomes if o is not None] == [("Ann",), ("Ann",)]  # type: ignore[union-attr]
+    assert [o.event.characters for o in outcomes if isinstance(o, ParsedEvent)] == [("Ann",), ("Ann",)]
+    assert all(o is None or isinstance(o, ParsedEvent) for o in outcomes)
     assert port.count("narrator") == 2
     second = [c for c in port.requests if c.node == "narrator"][1]
     assert "1) [done] Ann eats.\n2) [next] Then Ann chats." in second.messages[-1].content
+    assert second.json_schema is not None
     assert second.json_schema["properties"]["event"]["properties"]["characters"]["items"]["enum"] == ["Ann"]

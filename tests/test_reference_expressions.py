@@ -12,10 +12,12 @@ of the case the expression does not name. Skipped with the resolver's reason wit
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import cache
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
 from agents.messages import Event, ParsedEvent, PlannedCharacter
 from benchmark.expressions import atoms, parse_expression
@@ -32,6 +34,11 @@ ACROSS = (0.0, 0.5, -0.5, 0.9, -0.9)  # where along the face, as a fraction of i
 HAND_PICKED = {  # expressions no single atom can satisfy: a point checked by hand on the map
     "(in front of couch_1 || in front of couch_2) && in front of couch_3": [(2.8, 2.9)],
 }
+
+
+def _xy(v: Sequence[float] | NDArray[np.float64]) -> tuple[float, float]:
+    """A point as two plain floats (from an array or a sequence)."""
+    return float(v[0]), float(v[1])
 
 
 @cache
@@ -79,7 +86,7 @@ def _candidates(obj: SceneObject, relation: str) -> list[tuple[float, float]]:
              "to the left of": [(-right, obj.width, front, obj.depth)]}
     out = faces.get(relation) or [*faces["in front of"], *faces["behind"], *faces["to the right of"],
                                   *faces["to the left of"]]
-    return [tuple(float(v) for v in obj.center_xy + d * (size / 2 + o) + k * along * span / 2)  # type: ignore[misc]
+    return [_xy(obj.center_xy + d * (size / 2 + o) + k * along * span / 2)
             for k in ACROSS for o in OFFSETS for d, size, along, span in out]
 
 
@@ -88,7 +95,7 @@ def _passing_points(scene: Scene, read: PositionAtom) -> list[tuple[float, float
         a, b = (scene.by_name[n].center_xy for n in read.anchors)
         mid, along = (a + b) / 2, (b - a) / float(np.linalg.norm(b - a))
         across = np.array([-along[1], along[0]])
-        return [tuple(float(v) for v in mid + s * o * across) for o in (0.0, *OFFSETS) for s in (1, -1)]  # type: ignore[misc]
+        return [_xy(mid + s * o * across) for o in (0.0, *OFFSETS) for s in (1, -1)]
     return _candidates(scene.by_name[read.anchors[0]], read.relation)
 
 
@@ -102,7 +109,7 @@ def _far_point(scene: Scene, names: set[str]) -> tuple[float, float]:
     for obj in scene.objects:  # on free floor, so the failure is the relation's, not a collision's
         far &= point_footprint_distance(obj, grid) > 0.3
     assert far.any(), f"no free point 1.5 m from {sorted(names)}"
-    return tuple(float(v) for v in grid[np.flatnonzero(far)[0]])  # type: ignore[return-value]
+    return _xy(grid[np.flatnonzero(far)[0]])
 
 
 def test_the_forty_cases_have_the_expressions_this_file_covers() -> None:
@@ -136,12 +143,12 @@ def test_every_position_expression_passes_and_fails(field: str) -> None:
         seats = [r.anchors[0] for r in read.values() if r.relation in ("sit on", "lie on")]
         if seats:  # every alternative seat passes; a seat the expression does not name fails
             for seat in seats:
-                point = tuple(float(v) for v in scene.by_name[seat].seat_point())
-                score = _score(case, expected, action, point, seat)  # type: ignore[arg-type]
+                point = _xy(scene.by_name[seat].seat_point())
+                score = _score(case, expected, action, point, seat)
                 assert score.passed, (case.id, text, seat, score.reason)
             other = next(o for o in scene.objects if o.is_seat and o.name not in seats)
-            point = tuple(float(v) for v in other.seat_point())
-            failed = _score(case, expected, action, point, other.name)  # type: ignore[arg-type]
+            point = _xy(other.seat_point())
+            failed = _score(case, expected, action, point, other.name)
             assert not failed.passed and f"is not '{text}'" in failed.reason, (case.id, text, failed.reason)
         else:
             points = HAND_PICKED.get(text) or [p for r in read.values() for p in _passing_points(scene, r)]
@@ -155,9 +162,9 @@ def test_every_position_expression_passes_and_fails(field: str) -> None:
             assert failed.characters[0].error is not None and failed.characters[0].error > 0.0
         if expected.target_action:  # the right place with the wrong action fails on the action alone
             wrong = next(label for label in case.action_labels if label not in expected.target_action)
-            seat = seats[0] if seats else None
-            where = tuple(float(v) for v in scene.by_name[seat].seat_point()) if seat else point
-            score = _score(case, expected, wrong, where, seat)  # type: ignore[arg-type]
+            first_seat = seats[0] if seats else None
+            where = _xy(scene.by_name[first_seat].seat_point()) if first_seat else point
+            score = _score(case, expected, wrong, where, first_seat)
             assert not score.passed and score.reason.endswith(f"does not match '{expected.target_action}'"), score.reason
         checked += 1
     assert checked == len(_distinct(field)) > 0

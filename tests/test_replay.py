@@ -9,8 +9,9 @@ from typing import Any
 
 import litellm
 import pytest
+from litellm.exceptions import RateLimitError
 
-from agents.llm_port import ChatMessage, LLMRequest, ReplayMissError
+from agents.llm_port import ChatMessage, LLMRequest, NodeName, ReplayMissError
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import ConfigError, default_config
 from orchestrator.llm.replay import ReplayClient, build_llm_port
@@ -19,8 +20,8 @@ from orchestrator.llm.traces import AttemptRecord, TraceCorruptError, TraceWrite
 PROMPT = "You are the narrator.\nCharacters: Ann, Bob.\nRules: one event at a time."
 
 
-def req(user: str, node: str = "narrator", system: str = PROMPT, frame: int = 0) -> LLMRequest:
-    return LLMRequest(node=node, messages=(ChatMessage(role="system", content=system),  # type: ignore[arg-type]
+def req(user: str, node: NodeName = "narrator", system: str = PROMPT, frame: int = 0) -> LLMRequest:
+    return LLMRequest(node=node, messages=(ChatMessage(role="system", content=system),
                                            ChatMessage(role="user", content=user)), sim_frame=frame)
 
 
@@ -110,7 +111,7 @@ async def test_unknown_node_lists_recorded_nodes(tmp_path: Path, no_live_calls: 
 
 async def test_failed_attempts_are_not_served(tmp_path: Path, no_live_calls: None) -> None:
     path = tmp_path / "t.jsonl"
-    boom = litellm.RateLimitError(message="slow down", llm_provider="openai", model="m")
+    boom = RateLimitError(message="slow down", llm_provider="openai", model="m")
     await record(path, [req("q")], [boom, "", "final answer"], model="openai/gpt-4o-mini")
     recs = list(read_trace(path).attempts())
     assert [r.final for r in recs] == [False, False, True]

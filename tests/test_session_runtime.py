@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import itertools
 import random
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import anyio
 import numpy as np
 import pytest
 
+from agents.llm_port import LLMPort
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
 from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.session.runtime import (
@@ -20,13 +23,21 @@ from orchestrator.session.runtime import (
     PlanningRequest,
     Session,
     SessionError,
+    SessionResult,
     SessionSettings,
+    StepPlanner,
 )
 from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher
 from sim.paths.nav_grid import build_nav_grid
 from sim.scene.bundled import resolve_scene
+from sim.scene.model import Scene
 from sim.world.step import World
+
+if TYPE_CHECKING:
+    import litellm
+
+    from orchestrator.llm.traces import AppliedRecord, TraceSink
 
 FPS = 30
 
@@ -37,11 +48,11 @@ def motion() -> MotionMatcher:
 
 
 @pytest.fixture(scope="module")
-def home():  # type: ignore[no-untyped-def]
+def home() -> Scene:
     return resolve_scene("home")
 
 
-def _free_points(scene, n: int, seed: int) -> list[tuple[float, float]]:  # type: ignore[no-untyped-def]
+def _free_points(scene: Scene, n: int, seed: int) -> list[tuple[float, float]]:
     grid = build_nav_grid(scene)
     cells = np.argwhere(grid.free)
     rng = np.random.default_rng(seed)
@@ -55,7 +66,7 @@ def _free_points(scene, n: int, seed: int) -> list[tuple[float, float]]:  # type
     raise AssertionError("not enough free points")
 
 
-def _world(scene, motion: MotionMatcher, names: list[str]) -> World:  # type: ignore[no-untyped-def]
+def _world(scene: Scene, motion: MotionMatcher, names: list[str]) -> World:
     starts = _free_points(scene, len(names), seed=1)
     return World(scene, {n: (p, 0.0) for n, p in zip(names, starts, strict=True)}, motion)
 
@@ -64,7 +75,7 @@ class ScriptedPlanner:
     """Gives every free character a short standing action at a free spot, deterministically
     from the request; optionally takes a random (wall-clock) time to answer."""
 
-    def __init__(self, scene, delays: bool = False, fail_at: int | None = None) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, scene: Scene, delays: bool = False, fail_at: int | None = None) -> None:
         self.spots = _free_points(scene, 12, seed=7)
         self.delays = random.Random(5) if delays else None
         self.fail_at = fail_at
@@ -91,14 +102,14 @@ class ScriptedPlanner:
                            plans=tuple(plans))
 
 
-def _run(world: World, planner: ScriptedPlanner, settings: SessionSettings):  # type: ignore[no-untyped-def]
-    async def main():  # type: ignore[no-untyped-def]
+def _run(world: World, planner: StepPlanner, settings: SessionSettings) -> SessionResult:
+    async def main() -> SessionResult:
         return await Session(world, planner, settings).run()
 
     return anyio.run(main)
 
 
-def test_lockstep_session_plans_and_completes_events(home, motion) -> None:  # type: ignore[no-untyped-def]
+def test_lockstep_session_plans_and_completes_events(home: Scene, motion: MotionMatcher) -> None:
     world = _world(home, motion, ["Ava", "Ben"])
     planner = ScriptedPlanner(home)
     result = _run(world, planner, SessionSettings(frames=40 * FPS, pace="lockstep", max_steps=6))
@@ -117,7 +128,7 @@ def test_lockstep_session_plans_and_completes_events(home, motion) -> None:  # t
     assert all(t.root_positions.shape == (40 * FPS, 3) for t in tracks.values())
 
 
-def test_live_run_replays_to_identical_events_and_motion(home, motion) -> None:  # type: ignore[no-untyped-def]
+def test_live_run_replays_to_identical_events_and_motion(home: Scene, motion: MotionMatcher) -> None:
     live_world = _world(home, motion, ["Ava", "Ben", "Cleo"])
     live = _run(live_world, ScriptedPlanner(home, delays=True), SessionSettings(frames=30 * FPS, pace="fast", max_steps=8))
     assert live.steps >= 3
@@ -137,13 +148,13 @@ def test_live_run_replays_to_identical_events_and_motion(home, motion) -> None: 
         assert np.array_equal(a[name].local_rotations, b[name].local_rotations)
 
 
-def test_replay_with_frames_that_cannot_fit_is_an_error(home, motion) -> None:  # type: ignore[no-untyped-def]
+def test_replay_with_frames_that_cannot_fit_is_an_error(home: Scene, motion: MotionMatcher) -> None:
     world = _world(home, motion, ["Ava"])
     with pytest.raises(SessionError, match="replay"):
         _run(world, ScriptedPlanner(home), SessionSettings(frames=5 * FPS, applied_frames=[10, 0]))
 
 
-def test_planner_crash_stops_planning_but_not_the_simulation(home, motion) -> None:  # type: ignore[no-untyped-def]
+def test_planner_crash_stops_planning_but_not_the_simulation(home: Scene, motion: MotionMatcher) -> None:
     world = _world(home, motion, ["Ava", "Ben"])
     result = _run(world, ScriptedPlanner(home, fail_at=1), SessionSettings(frames=10 * FPS, pace="lockstep"))
     assert result.frames == 10 * FPS
@@ -151,10 +162,10 @@ def test_planner_crash_stops_planning_but_not_the_simulation(home, motion) -> No
     assert result.steps == 1
 
 
-def test_settings_are_checked(home, motion) -> None:  # type: ignore[no-untyped-def]
+def test_settings_are_checked(home: Scene, motion: MotionMatcher) -> None:
     world = _world(home, motion, ["Ava"])
     with pytest.raises(SessionError):
-        Session(world, ScriptedPlanner(home), SessionSettings(frames=10, pace="sometimes"))  # type: ignore[arg-type]
+        Session(world, ScriptedPlanner(home), SessionSettings(frames=10, pace="sometimes"))  # type: ignore[arg-type]  # the run-time check is under test
     with pytest.raises(SessionError):
         Session(world, ScriptedPlanner(home), SessionSettings(frames=10, speed=0.0))
 
@@ -168,7 +179,7 @@ class ScriptedCompletion:
     def __init__(self) -> None:
         self.parser_calls = 0
 
-    async def __call__(self, *, model: str, messages: list[dict[str, str]], **kw: object):  # type: ignore[no-untyped-def]
+    async def __call__(self, *, model: str, messages: list[dict[str, str]], **kw: object) -> litellm.ModelResponse:
         import json
         import re
 
@@ -184,7 +195,9 @@ class ScriptedCompletion:
             text = json.dumps({"reasoning": "next", "event": {"characters": free[:1], "activity": "read near bookshelf_1"}})
         else:
             self.parser_calls += 1
-            who = re.search(r'Event: characters \["(\w+)"', messages[1]["content"]).group(1)  # type: ignore[union-attr]
+            named = re.search(r'Event: characters \["(\w+)"', messages[1]["content"])
+            assert named is not None, "the parser's prompt names the event's characters"
+            who = named.group(1)
             text = "I would let them read." if self.parser_calls == 1 else (
                 f'```python\ndef parse_event():\n    c = get_character("{who}")\n'
                 '    c.set_position(get_area_close_to("bookshelf_1"))\n    c.set_target_action("read_book")\n```'
@@ -195,7 +208,10 @@ class ScriptedCompletion:
         )
 
 
-async def _graph_session(scene, motion, port, trace, tmp_path, settings: SessionSettings, thread: str):  # type: ignore[no-untyped-def]
+async def _graph_session(
+    scene: Scene, motion: MotionMatcher, port: LLMPort, trace: TraceSink, tmp_path: Path, settings: SessionSettings,
+    thread: str,
+) -> SessionResult:
     from langgraph.checkpoint.memory import InMemorySaver
 
     from agents.event_parser import scene_action_labels
@@ -216,7 +232,7 @@ async def _graph_session(scene, motion, port, trace, tmp_path, settings: Session
         story.close()
 
 
-def _check_frames_and_parsed(path) -> list:  # type: ignore[no-untyped-def]
+def _check_frames_and_parsed(path: Path) -> list[AppliedRecord]:
     """Every narrator / parser attempt carries its step's request frame, is named by exactly
     one applied record and has one parsed record; no seq is skipped. Returns the applied records."""
     from orchestrator.llm.traces import AppliedRecord, AttemptRecord, read_trace
@@ -246,7 +262,7 @@ def _check_frames_and_parsed(path) -> list:  # type: ignore[no-untyped-def]
     return applied
 
 
-def test_graph_session_traces_request_and_applied_frames_and_replays(home, motion, tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_graph_session_traces_request_and_applied_frames_and_replays(home: Scene, motion: MotionMatcher, tmp_path: Path) -> None:
     from orchestrator.llm.client import LiteLLMClient
     from orchestrator.llm.config import default_config
     from orchestrator.llm.replay import ReplayClient
@@ -282,7 +298,7 @@ def test_graph_session_traces_request_and_applied_frames_and_replays(home, motio
     ]
 
 
-def test_an_event_the_motion_library_cannot_play_is_skipped_and_logged(home, motion) -> None:  # type: ignore[no-untyped-def]
+def test_an_event_the_motion_library_cannot_play_is_skipped_and_logged(home: Scene, motion: MotionMatcher) -> None:
     from structlog.testing import capture_logs
 
     seat = next(o for o in home.objects if o.is_seat)
@@ -308,7 +324,7 @@ def test_an_event_the_motion_library_cannot_play_is_skipped_and_logged(home, mot
 class WaitingPlanner:
     """Ava reads (a looping action, so she is free again at once); every later step waits."""
 
-    def __init__(self, scene) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, scene: Scene) -> None:
         self.spot = _free_points(scene, 1, seed=7)[0]
         self.requests: list[PlanningRequest] = []
 
@@ -321,7 +337,7 @@ class WaitingPlanner:
         return ParsedEvent(index=0, event=Event(characters=("Ava",), activity="read"), plans=(plan,))
 
 
-def test_after_a_wait_the_planner_is_asked_again_only_when_something_changed(home, motion) -> None:  # type: ignore[no-untyped-def]
+def test_after_a_wait_the_planner_is_asked_again_only_when_something_changed(home: Scene, motion: MotionMatcher) -> None:
     world = _world(home, motion, ["Ava", "Ben"])
     planner = WaitingPlanner(home)
     settings = SessionSettings(frames=40 * FPS, pace="lockstep", retry_after_s=1.0, recheck_after_s=15.0)

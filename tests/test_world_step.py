@@ -8,6 +8,7 @@ one smoke test here.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from orchestrator.cache_paths import motion_cache_dir
 from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
 from sim.motion.matching import MotionQuery, Pose
 from sim.paths.cooperative_astar import PathPlanner
-from sim.paths.nav_grid import build_nav_grid
+from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
 from sim.world.events import AssignEvent, Assignment, ReleaseCharacters, StepOutput
@@ -31,7 +32,9 @@ class StandInMotion:
     def __init__(self) -> None:
         self.queries: list[MotionQuery] = []
 
-    def initial_state(self, label: str, root_xy: object, heading: float, seated: bool = False) -> int:
+    def initial_state(
+        self, label: str, root_xy: Sequence[float] | np.ndarray, heading: float, seated: bool = False
+    ) -> int:
         return 0
 
     def step(self, state: int, query: MotionQuery, dt: float) -> tuple[int, Pose]:
@@ -44,37 +47,51 @@ class StandInMotion:
         return state + 1, Pose(np.array([*root, z]), rot, root, float(query.heading or 0.0), np.zeros(2, dtype=bool))
 
 
+Office = tuple[Scene, NavGrid, PathPlanner]
+
+
 @pytest.fixture(scope="module")
-def office() -> tuple[Scene, object, PathPlanner]:
+def office() -> Office:
     reference_or_skip()
     scene = load_scene(OFFICE)
     grid = build_nav_grid(scene)
     return scene, grid, PathPlanner(grid)
 
 
-def _world(office, chars: dict[str, tuple[tuple[float, float], float]], **cfg: object) -> World:  # type: ignore[no-untyped-def]
+def _world(
+    office: Office, chars: dict[str, tuple[tuple[float, float], float]], config: WorldConfig | None = None
+) -> World:
     scene, grid, planner = office
-    return World(scene, chars, StandInMotion(), grid=grid, planner=planner, config=WorldConfig(**cfg))  # type: ignore[arg-type]
+    return World(scene, chars, StandInMotion(), grid=grid, planner=planner, config=config)
 
 
-def _cell_xy(office, i: int, j: int) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+def _cell_xy(office: Office, i: int, j: int) -> tuple[float, float]:
     _, grid, _ = office
     assert grid.is_free(i, j)
     c = grid.center_of(i, j)
     return (float(c[0]), float(c[1]))
 
 
-def _free_cells(office) -> np.ndarray:  # type: ignore[no-untyped-def]
+def _free_cells(office: Office) -> np.ndarray:
     _, grid, _ = office
     return np.argwhere(grid.component == grid.main_component)
 
 
 def _go(name: str, xy: tuple[float, float], action: str = "idle", facing: tuple[float, float] = (1.0, 0.0),
         **kw: object) -> Assignment:
-    return Assignment(character=name, action=action, target_xy=xy, facing_xy=facing, **kw)  # type: ignore[arg-type]
+    return Assignment(character=name, action=action, target_xy=xy, facing_xy=facing, **kw)
 
 
-def _until(world: World, pred, limit: int = 2000, commands=()) -> list[StepOutput]:  # type: ignore[no-untyped-def]
+def _labels(world: World, name: str) -> tuple[str, ...]:
+    """The action label of every frame of ``name``'s track (the world always records them)."""
+    labels = world.tracks()[name].action_labels
+    assert labels is not None
+    return labels
+
+
+def _until(
+    world: World, pred: Callable[[StepOutput], object], limit: int = 2000, commands: Sequence[AssignEvent | ReleaseCharacters] = ()
+) -> list[StepOutput]:
     outs = []
     first = list(commands)
     for _ in range(limit):
@@ -86,7 +103,7 @@ def _until(world: World, pred, limit: int = 2000, commands=()) -> list[StepOutpu
     raise AssertionError("condition not reached")
 
 
-def test_a_walker_reaches_its_target_turns_and_loops(office) -> None:  # type: ignore[no-untyped-def]
+def test_a_walker_reaches_its_target_turns_and_loops(office: Office) -> None:
     cells = _free_cells(office)
     start, goal = _cell_xy(office, *cells[0]), _cell_xy(office, *cells[40])
     w = _world(office, {"ann": (start, 0.0)})
@@ -96,13 +113,13 @@ def test_a_walker_reaches_its_target_turns_and_loops(office) -> None:  # type: i
     assert ann.phase == "interacting"
     assert np.allclose(ann.xy, goal) and math.isclose(ann.heading, -math.pi / 2)
     assert outs[-1].available == ("ann",)  # looping: free for the narrator
-    labels = w.tracks()["ann"].action_labels
+    labels = _labels(w, "ann")
     assert labels[0] == "idle" and "walk" in labels
     # The recorded pelvis is the world's root, frame by frame.
     assert np.allclose(w.tracks()["ann"].root_positions[-1, :2], goal)
 
 
-def test_root_stays_on_the_navigator_path_while_walking(office) -> None:  # type: ignore[no-untyped-def]
+def test_root_stays_on_the_navigator_path_while_walking(office: Office) -> None:
     cells = _free_cells(office)
     w = _world(office, {"ann": (_cell_xy(office, *cells[0]), 0.0)})
     run(w, 120, {0: [AssignEvent(event_id="e", assignments=(_go("ann", _cell_xy(office, *cells[60])),))]})
@@ -113,7 +130,7 @@ def test_root_stays_on_the_navigator_path_while_walking(office) -> None:  # type
     assert step_len.sum() > 1.0
 
 
-def test_group_members_wait_for_each_other_then_start_together(office) -> None:  # type: ignore[no-untyped-def]
+def test_group_members_wait_for_each_other_then_start_together(office: Office) -> None:
     _scene, _grid, _ = office
     cells = _free_cells(office)
     near, far = cells[100], cells[0]
@@ -127,7 +144,7 @@ def test_group_members_wait_for_each_other_then_start_together(office) -> None: 
     ann_track = w.tracks()["ann"].root_positions[:, :2]
     arrived = int(np.flatnonzero(np.all(np.isclose(ann_track, _cell_xy(office, *meet_a)), axis=1))[0])
     assert len(outs) - arrived > 30  # ann waited at least a second for bob
-    labels = w.tracks()["ann"].action_labels
+    labels = _labels(w, "ann")
     assert set(labels[arrived:]) <= {"idle", "walk"}  # waiting (stepping aside for bob if needed)
     assert np.allclose(ann_track[-1], _cell_xy(office, *meet_a))  # on her cell when the event starts
     assert np.allclose(w.characters["bob"].xy, _cell_xy(office, *meet_b))
@@ -137,22 +154,23 @@ def test_group_members_wait_for_each_other_then_start_together(office) -> None: 
     assert outs[-1].looping_events == ("talk",)
     assert set(outs[-1].available) == {"ann", "bob"}
     # The partner action's motion target is the partner.
-    q = w.motion.queries[-1]  # type: ignore[attr-defined]
-    assert q.label == "chat" and np.allclose(q.target_xy, w.characters["ann"].xy)
+    assert isinstance(w.motion, StandInMotion)
+    q = w.motion.queries[-1]
+    assert q.label == "chat" and q.target_xy is not None and np.allclose(q.target_xy, w.characters["ann"].xy)
 
 
-def test_completing_action_completes_the_event(office) -> None:  # type: ignore[no-untyped-def]
+def test_completing_action_completes_the_event(office: Office) -> None:
     cells = _free_cells(office)
     w = _world(office, {"ann": (_cell_xy(office, *cells[5]), 0.0)})
     outs = _until(w, lambda o: bool(o.completed_events),
                   commands=[AssignEvent(event_id="sip", assignments=(_go("ann", _cell_xy(office, *cells[5]), "drink"),))])
     assert outs[-1].completed_events == ("sip",)
-    labels = w.tracks()["ann"].action_labels
+    labels = _labels(w, "ann")
     assert labels.count("drink") == 120  # ActionSpec duration 4 s at 30 fps
     assert outs[-1].available == ("ann",) and w.characters["ann"].phase == "idle"
 
 
-def test_sitting_walks_to_the_approach_cell_sits_acts_and_stands_up_for_the_next_event(office) -> None:  # type: ignore[no-untyped-def]
+def test_sitting_walks_to_the_approach_cell_sits_acts_and_stands_up_for_the_next_event(office: Office) -> None:
     scene, grid, _ = office
     chair = scene.get("chair_1")
     approach = grid.approach_cell(chair)
@@ -164,23 +182,23 @@ def test_sitting_walks_to_the_approach_cell_sits_acts_and_stands_up_for_the_next
     _until(w, lambda o: bool(o.completed_events), commands=[sit])
     ann = w.characters["ann"]
     assert ann.seated and ann.phase == "idle" and np.allclose(ann.xy, chair.seat_point())
-    labels = w.tracks()["ann"].action_labels
+    labels = _labels(w, "ann")
     assert labels.count("sit_down") == 60 and labels.count("drink@seated") == 120
     # the pelvis sat down: lower than when standing
     z = w.tracks()["ann"].root_positions[:, 2]
     assert z[-1] < z[0] - 0.2
     run(w, 5)
-    assert w.tracks()["ann"].action_labels[-1] == "sit_idle"
+    assert _labels(w, "ann")[-1] == "sit_idle"
     go = AssignEvent(event_id="go", assignments=(_go("ann", _cell_xy(office, *start)),))
     _until(w, lambda o: bool(o.looping_events), commands=[go])
-    labels = w.tracks()["ann"].action_labels
+    labels = _labels(w, "ann")
     assert labels.count("stand_up") == 54
     first_stand = labels.index("stand_up")
     assert "walk" in labels[first_stand:]
     assert np.allclose(w.characters["ann"].xy, _cell_xy(office, *start))
 
 
-def test_looping_event_completes_when_its_members_are_interrupted_or_released(office) -> None:  # type: ignore[no-untyped-def]
+def test_looping_event_completes_when_its_members_are_interrupted_or_released(office: Office) -> None:
     cells = _free_cells(office)
     a, b = cells[200], cells[204]
     w = _world(office, {"ann": (_cell_xy(office, *a), 0.0), "bob": (_cell_xy(office, *b), math.pi)})
@@ -199,7 +217,7 @@ def test_looping_event_completes_when_its_members_are_interrupted_or_released(of
     assert all(f == () for f in (o.failures for o in outs))
 
 
-def test_bad_assignments_fail_with_typed_reasons_and_nobody_moves(office) -> None:  # type: ignore[no-untyped-def]
+def test_bad_assignments_fail_with_typed_reasons_and_nobody_moves(office: Office) -> None:
     scene, _grid, _ = office
     cells = _free_cells(office)
     w = _world(office, {"ann": (_cell_xy(office, *cells[0]), 0.0), "bob": (_cell_xy(office, *cells[50]), 0.0)})
@@ -239,7 +257,7 @@ def test_a_blocked_walker_fails_as_stuck_instead_of_hanging() -> None:
     assert w.characters["ann"].phase == "idle" and "ann" in outs[-1].available
 
 
-def test_same_seed_same_frames_and_snapshots_replay_exactly(office) -> None:  # type: ignore[no-untyped-def]
+def test_same_seed_same_frames_and_snapshots_replay_exactly(office: Office) -> None:
     cells = _free_cells(office)
     chars = {f"c{k}": (_cell_xy(office, *cells[k * 37]), 0.1 * k) for k in range(6)}
     _, grid, _ = office
@@ -251,7 +269,7 @@ def test_same_seed_same_frames_and_snapshots_replay_exactly(office) -> None:  # 
     cmds = {0: [AssignEvent(event_id=f"e{k}", assignments=(_go(f"c{k}", target(k)),)) for k in range(6)]}
 
     def make() -> World:
-        return _world(office, chars, seed=3, initial_capacity=8)
+        return _world(office, chars, WorldConfig(seed=3, initial_capacity=8))
 
     w1, w2 = make(), make()
     run(w1, 150, cmds)
@@ -273,7 +291,7 @@ def test_same_seed_same_frames_and_snapshots_replay_exactly(office) -> None:  # 
         assert np.array_equal(a[n].local_rotations, b[n].local_rotations)
 
 
-def test_setup_errors_are_typed(office) -> None:  # type: ignore[no-untyped-def]
+def test_setup_errors_are_typed(office: Office) -> None:
     cells = _free_cells(office)
     xy = _cell_xy(office, *cells[0])
     with pytest.raises(WorldError, match="same cell"):
@@ -284,7 +302,7 @@ def test_setup_errors_are_typed(office) -> None:  # type: ignore[no-untyped-def]
         _world(office, {})
 
 
-def test_real_motion_matcher_drives_the_bodies_and_tracks_export(office, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_real_motion_matcher_drives_the_bodies_and_tracks_export(office: Office, tmp_path: Path) -> None:
     from sim.export.bundle import export_run
     from sim.motion.database import load_databases
     from sim.motion.matching import MotionMatcher
@@ -295,7 +313,7 @@ def test_real_motion_matcher_drives_the_bodies_and_tracks_export(office, tmp_pat
               grid=grid, planner=planner)
     run(w, 90, {0: [AssignEvent(event_id="e", assignments=(_go("ann", _cell_xy(office, *cells[80])),))]})
     t = w.tracks()["ann"]
-    assert t.num_frames == 90 and "walk" in t.action_labels
+    assert t.num_frames == 90 and "walk" in _labels(w, "ann")
     assert np.any(np.abs(t.local_rotations[:, 4:] - np.eye(3)) > 1e-3)  # the legs move
     assert np.all(np.isfinite(t.root_positions))
     assert w.foot_contacts()["ann"].shape == (90, 2)
@@ -304,14 +322,14 @@ def test_real_motion_matcher_drives_the_bodies_and_tracks_export(office, tmp_pat
     assert files.glb.exists() and files.bvh["ann"].exists() and files.smplx["ann"].exists()
 
 
-def _off_grid_point(office, k: int, d: tuple[float, float] = (0.11, -0.07)) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+def _off_grid_point(office: Office, k: int, d: tuple[float, float] = (0.11, -0.07)) -> tuple[float, float]:
     _, grid, _ = office
     p = np.asarray(_cell_xy(office, *_free_cells(office)[k])) + np.asarray(d)
     assert grid.is_free_xy(p)
     return (float(p[0]), float(p[1]))
 
 
-def test_a_standing_action_ends_on_the_exact_off_grid_target(office) -> None:  # type: ignore[no-untyped-def]
+def test_a_standing_action_ends_on_the_exact_off_grid_target(office: Office) -> None:
     cells = _free_cells(office)
     target = _off_grid_point(office, 40)
     w = _world(office, {"ann": (_cell_xy(office, *cells[0]), 0.0)})
@@ -332,7 +350,7 @@ def test_a_standing_action_ends_on_the_exact_off_grid_target(office) -> None:  #
     assert len(outs) > 1
 
 
-def test_a_blocked_target_falls_back_to_the_nearest_cell_with_a_typed_reason(office) -> None:  # type: ignore[no-untyped-def]
+def test_a_blocked_target_falls_back_to_the_nearest_cell_with_a_typed_reason(office: Office) -> None:
     _scene, grid, _ = office
     shelf = next(o for o in grid.obstacles if o.name.startswith("bookshelf"))
     inside = shelf.center_xy + np.asarray(shelf.facing) * (shelf.depth / 2.0 - 0.02)
@@ -347,7 +365,7 @@ def test_a_blocked_target_falls_back_to_the_nearest_cell_with_a_typed_reason(off
     assert np.allclose(ann.xy, grid.center_of(*ann.target.cell))
 
 
-def test_sitting_uses_the_seats_exact_approach_point(office) -> None:  # type: ignore[no-untyped-def]
+def test_sitting_uses_the_seats_exact_approach_point(office: Office) -> None:
     scene, grid, _ = office
     chair = scene.get("chair_1")
     ap = grid.approach_point(chair, component=grid.main_component)
@@ -361,13 +379,13 @@ def test_sitting_uses_the_seats_exact_approach_point(office) -> None:  # type: i
     _until(w, lambda o: bool(o.looping_events), commands=[AssignEvent(event_id="up", assignments=(
         _go("ann", _cell_xy(office, *cells[0])),))])
     xy = w.tracks()["ann"].root_positions[:, :2]
-    labels = w.tracks()["ann"].action_labels
+    labels = _labels(w, "ann")
     last_stand = len(labels) - 1 - labels[::-1].index("stand_up")
     assert np.linalg.norm(xy[last_stand] - np.asarray(ap.xy)) < 0.05  # stood up onto the approach point
     assert np.all(np.linalg.norm(np.diff(xy, axis=0), axis=1) <= math.sqrt(2) / 30 + 0.05)
 
 
-def test_an_exact_target_crowded_by_a_standing_body_settles_for_the_cell_centre(office) -> None:  # type: ignore[no-untyped-def]
+def test_an_exact_target_crowded_by_a_standing_body_settles_for_the_cell_centre(office: Office) -> None:
     _, grid, _ = office
     cells = _free_cells(office)
     free = {(int(i), int(j)) for i, j in cells}
@@ -375,7 +393,7 @@ def test_an_exact_target_crowded_by_a_standing_body_settles_for_the_cell_centre(
     bob_xy, goal = _cell_xy(office, i, j), grid.center_of(i + 2, j)
     target = goal + 0.14 * (np.asarray(bob_xy) - goal) / np.linalg.norm(np.asarray(bob_xy) - goal)
     assert grid.entry_cell(target) == (i + 2, j) and np.linalg.norm(target - bob_xy) < 0.5  # too close to bob
-    w = _world(office, {"bob": (bob_xy, 0.0), "ann": (_cell_xy(office, i + 5, j), 0.0)}, exact_patience_s=1.0)
+    w = _world(office, {"bob": (bob_xy, 0.0), "ann": (_cell_xy(office, i + 5, j), 0.0)}, WorldConfig(exact_patience_s=1.0))
     _until(w, lambda o: bool(o.looping_events), commands=[AssignEvent(event_id="hold", assignments=(_go("bob", bob_xy),))])
     outs = _until(w, lambda o: bool(o.looping_events), commands=[AssignEvent(event_id="go", assignments=(
         _go("ann", (float(target[0]), float(target[1]))),))])
@@ -386,7 +404,7 @@ def test_an_exact_target_crowded_by_a_standing_body_settles_for_the_cell_centre(
     assert np.linalg.norm(w.positions()[0] - w.positions()[1]) >= 0.5 - 1e-9
 
 
-def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office) -> None:  # type: ignore[no-untyped-def]
+def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office: Office) -> None:
     from sim.body.foot_ik import LEG_JOINTS
     from sim.body.skeleton import forward_kinematics
     from sim.motion.database import load_databases
@@ -425,7 +443,7 @@ def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office) -> No
     assert all(after < before for before, after in slide.values()), slide
 
 
-def test_many_short_events_and_a_reused_event_id_start_and_leave_no_queue_behind(office) -> None:  # type: ignore[no-untyped-def]
+def test_many_short_events_and_a_reused_event_id_start_and_leave_no_queue_behind(office: Office) -> None:
     # A story of hours creates thousands of events: the group start only looks at the ones that
     # have not started yet, and an id used again (after its event ended) starts like a new one.
     cells = _free_cells(office)

@@ -5,9 +5,12 @@ from __future__ import annotations
 import resource
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+
+if TYPE_CHECKING:  # the config module is imported when a command runs, not at CLI start-up
+    from orchestrator.llm.config import StorytellerConfig
 
 model_app = typer.Typer(help="Inspect and check the LLM configuration and embedded model.", no_args_is_help=True)
 
@@ -18,7 +21,7 @@ def register(app: typer.Typer) -> None:
     app.add_typer(model_app, name="model")
 
 
-def _load(config: Path | None):  # type: ignore[no-untyped-def]
+def _load(config: Path | None) -> StorytellerConfig:
     from orchestrator.llm.config import ConfigError, load_config
 
     try:
@@ -28,7 +31,7 @@ def _load(config: Path | None):  # type: ignore[no-untyped-def]
         raise typer.Exit(2) from None
 
 
-def _local_models(cfg) -> list[str]:  # type: ignore[no-untyped-def]
+def _local_models(cfg: StorytellerConfig) -> list[str]:
     return sorted({m for n in cfg.nodes.values() for m in n.models if m.startswith("local/")})
 
 
@@ -39,10 +42,10 @@ def info(config: ConfigOption = None) -> None:
 
     cfg = _load(config)
     typer.echo(f"config: {cfg.source}   trace fsync: {cfg.trace.fsync}")
-    for name, node in cfg.nodes.items():
+    for node_name, node in cfg.nodes.items():
         r = node.retry
         typer.echo(
-            f"{name:13s} model={node.model} fallbacks=[{', '.join(node.fallbacks)}] "
+            f"{node_name:13s} model={node.model} fallbacks=[{', '.join(node.fallbacks)}] "
             f"temperature={node.temperature} max_tokens={node.max_tokens} timeout_s={node.timeout_s} "
             f"retry(max_attempts={r.max_attempts}, backoff={r.backoff_base_s}..{r.backoff_max_s}s, "
             f"jitter={r.jitter}, seed={r.seed})"

@@ -7,6 +7,9 @@ from typing import Annotated, NoReturn
 
 import typer
 
+from orchestrator.planning.ablation_graph import DescriptionKind, PlannerKind
+from orchestrator.session.runtime import Pace
+
 SceneArg = Annotated[str, typer.Argument(help="Bundled scene name or path to a scene.")]
 Characters = Annotated[int, typer.Option("--characters", "-n", min=1, max=24, help="Number of characters.")]
 Instruction = Annotated[str, typer.Option("--instruction", "-i", help="What should happen.")]
@@ -20,12 +23,15 @@ ProgramGrammar = Annotated[
         "(--free-programs: free Python, as the paper).",
     ),
 ]
+# Literal-typed options: typer rejects any other value (exit code 2) and lists the choices
 Planner = Annotated[
-    str, typer.Option("--planner", help="event (narrator + event parser), unified (w/o Event) or direct (coordinates).")
+    PlannerKind, typer.Option("--planner", help="event (narrator + event parser), unified (w/o Event) or direct (coordinates).")
 ]
 Description = Annotated[
-    str, typer.Option("--description", help="Scene description: describer, object-list or scene-graph.")
+    DescriptionKind, typer.Option("--description", help="Scene description: describer, object-list or scene-graph.")
 ]
+
+PaceOption = Annotated[Pace, typer.Option("--pace", help="lockstep (sim waits for the planner), realtime, or fast.")]
 
 
 def fail(message: str, code: int = 2) -> NoReturn:

@@ -45,7 +45,7 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
-from orchestrator.planning.ablation_graph import Ablation, AblationChoiceError
+from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.planning.checkpoints import default_runs_db
 from orchestrator.session.plan_job import PlanResult, run_plan
 from orchestrator.session.port_setup import open_port
@@ -120,10 +120,7 @@ def plan_command(
     from sim.scene.bundled import resolve_scene
     from sim.scene.files import SceneFileError
 
-    try:
-        ablation = Ablation.parse(planner, description)
-    except AblationChoiceError as exc:
-        fail(str(exc))
+    ablation = Ablation(planner=planner, description=description)
     if record is not None and replay is not None:
         fail("--record and --replay cannot be used together")
     if prompts_dir is not None and not prompts_dir.is_dir():

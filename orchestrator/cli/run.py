@@ -31,6 +31,7 @@ from orchestrator.cli.options import (
     Description,
     Instruction,
     MaxRetries,
+    PaceOption,
     Planner,
     ProgramGrammar,
     SceneArg,
@@ -55,7 +56,7 @@ def run_command(
     instruction: Instruction = "",
     duration: Annotated[float, typer.Option("--duration", "-d", min=1.0, help="Simulated seconds.")] = 60.0,
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("out"),
-    pace: Annotated[str, typer.Option("--pace", help="lockstep (sim waits for the planner), realtime, or fast.")] = "lockstep",
+    pace: PaceOption = "lockstep",
     speed: Annotated[float, typer.Option("--speed", help="Simulated seconds per wall second (realtime pace).")] = 1.0,
     max_events: Annotated[int | None, typer.Option("--max-events", min=1, help="Planning steps at most.")] = None,
     record: Annotated[Path | None, typer.Option("--record", help="Trace file (default: OUT/trace.jsonl).")] = None,
@@ -72,17 +73,12 @@ def run_command(
     description: Description = "describer",
 ) -> None:
     """Plan and animate a story; write motion, pictures, the story log and the trace."""
-    from orchestrator.planning.ablation_graph import Ablation, AblationChoiceError
+    from orchestrator.planning.ablation_graph import Ablation
     from orchestrator.session.run_job import RunSetupError, run_story, write_outputs
     from sim.scene.bundled import resolve_scene
     from sim.scene.files import SceneFileError
 
-    try:
-        ablation = Ablation.parse(planner, description)
-    except AblationChoiceError as exc:
-        fail(str(exc))
-    if pace not in ("lockstep", "realtime", "fast"):
-        fail(f"--pace must be lockstep, realtime or fast, got {pace!r}")
+    ablation = Ablation(planner=planner, description=description)
     if not (math.isfinite(speed) and speed > 0):
         fail(f"--speed must be a positive number, got {speed}")
     try:
@@ -107,7 +103,7 @@ def run_command(
                 instruction=instruction,
                 duration=duration,
                 out=out,
-                pace=pace,  # type: ignore[arg-type]
+                pace=pace,
                 speed=speed,
                 max_events=max_events,
                 trace_path=trace_path,

@@ -41,7 +41,7 @@ miss propagates.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal, get_args
+from typing import Any, Literal
 
 from langgraph.graph import END, START, StateGraph
 from langgraph.runtime import Runtime
@@ -67,12 +67,6 @@ from orchestrator.planning.state import PlanningDeps, PlanningState, RetryTurn
 
 PlannerKind = Literal["event", "unified", "direct"]
 DescriptionKind = Literal["describer", "object-list", "scene-graph"]
-PLANNER_KINDS: tuple[str, ...] = get_args(PlannerKind)
-DESCRIPTION_KINDS: tuple[str, ...] = get_args(DescriptionKind)
-
-
-class AblationChoiceError(ValueError):
-    """An unknown ``--planner`` or ``--description`` value."""
 
 
 @dataclass(frozen=True)
@@ -81,17 +75,6 @@ class Ablation:
 
     planner: PlannerKind = "event"
     description: DescriptionKind = "describer"
-
-    @classmethod
-    def parse(cls, planner: str, description: str) -> Ablation:
-        """Validate command-line values; raises :class:`AblationChoiceError` naming the option."""
-        if planner not in PLANNER_KINDS:
-            raise AblationChoiceError(f"--planner must be one of {', '.join(PLANNER_KINDS)}; got {planner!r}")
-        if description not in DESCRIPTION_KINDS:
-            raise AblationChoiceError(
-                f"--description must be one of {', '.join(DESCRIPTION_KINDS)}; got {description!r}"
-            )
-        return cls(planner=planner, description=description)  # type: ignore[arg-type]
 
     @property
     def is_default(self) -> bool:

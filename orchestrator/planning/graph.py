@@ -33,7 +33,7 @@ from __future__ import annotations
 from collections.abc import Awaitable
 from typing import Any, Literal, Protocol
 
-from langgraph.graph import END, START, StateGraph
+from langgraph.graph import START, StateGraph
 from langgraph.runtime import Runtime
 
 from agents.describer import (
@@ -359,7 +359,7 @@ def route_step(state: PlanningState) -> Literal["narrate_event", "record_outcome
     """Next step: done after K steps; with no free character, or nothing of the instruction
     for the free ones now (``agents.instruction_parts``), the step is a wait, without a call."""
     if state.step >= state.events_target:
-        return END
+        return "__end__"  # langgraph's END, spelled as the literal the router's type names
     if waits_without_a_call(state.roster, state.instruction, state.recent):
         return "record_outcome"
     return "narrate_event"

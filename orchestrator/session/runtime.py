@@ -34,6 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from agents.llm_port import TraceRecorder
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
+from sim.world.event_book import EventStatus
 from sim.world.events import AssignEvent, EventFailure, StepOutput
 from sim.world.step import World, step
 
@@ -85,7 +86,7 @@ class StoryEvent:
     activity: str
     requested_frame: int
     applied_frame: int
-    state: Literal["ongoing", "looping", "completed", "failed"] = "ongoing"
+    state: EventStatus = "ongoing"
     finished_frame: int | None = None
     failure: str | None = None
 

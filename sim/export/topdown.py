@@ -24,6 +24,7 @@ import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypedDict, Unpack
 
 import numpy as np
 from matplotlib import colormaps
@@ -48,6 +49,22 @@ class CharacterMarker:
     position: tuple[float, float]
     heading: tuple[float, float] | None = None
     label: str | None = None  # e.g. the current action or event; shown under the name
+
+
+class TopdownLayers(TypedDict, total=False):
+    """The keyword arguments of :func:`draw_topdown` after the scene (see the module doc)."""
+
+    clusters: Sequence[Sequence[str]] | None
+    nav_free: NDArray[np.float64] | None
+    nav_origin: tuple[float, float]
+    nav_cell_size: float
+    characters: Sequence[CharacterMarker] | None
+    paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None
+    title: str | None
+    captions: Sequence[str] | None
+    show_names: bool
+    size_px: int
+    dpi: int
 
 
 def _figure_size(scene: Scene, size_px: int, dpi: int) -> tuple[float, float]:
@@ -237,24 +254,24 @@ def draw_topdown(
     return fig
 
 
-def render_topdown_rgb(scene: Scene, **layers: object) -> NDArray[np.uint8]:
+def render_topdown_rgb(scene: Scene, **layers: Unpack[TopdownLayers]) -> NDArray[np.uint8]:
     """The picture as an ``(H, W, 3)`` uint8 array (one frame of an animation)."""
-    fig = draw_topdown(scene, **layers)  # type: ignore[arg-type]
+    fig = draw_topdown(scene, **layers)
     canvas = fig.canvas
     assert isinstance(canvas, FigureCanvasAgg)
     canvas.draw()
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
-def topdown_png_bytes(scene: Scene, **layers: object) -> bytes:
+def topdown_png_bytes(scene: Scene, **layers: Unpack[TopdownLayers]) -> bytes:
     """The picture as PNG bytes."""
-    fig = draw_topdown(scene, **layers)  # type: ignore[arg-type]
+    fig = draw_topdown(scene, **layers)
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     return buf.getvalue()
 
 
-def save_topdown_png(path: Path | str, scene: Scene, **layers: object) -> Path:
+def save_topdown_png(path: Path | str, scene: Scene, **layers: Unpack[TopdownLayers]) -> Path:
     """Write the picture to ``path`` as PNG; returns the path."""
     path = Path(path)
     path.write_bytes(topdown_png_bytes(scene, **layers))

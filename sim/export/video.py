@@ -20,16 +20,18 @@ import importlib.util
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypedDict, Unpack
 
 import imageio.v3 as iio
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.export.topdown import CharacterMarker, render_topdown_rgb
+from sim.export.topdown import CharacterMarker, TopdownLayers, render_topdown_rgb
 from sim.paths.nav_grid import NavGrid
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack
 from sim.world.motion_layer import root_yaw
+from sim.world.step import World
 
 
 class RunVideoError(ValueError):
@@ -67,9 +69,9 @@ class RunRecording:
         return next(iter(self.tracks.values())).fps
 
 
-def recording_from_world(world: object) -> RunRecording:
-    """The recording of a ``sim.world.step.World`` (duck-typed: ``scene``, ``tracks()``, ``event_ids()``)."""
-    return RunRecording(world.scene, world.tracks(), world.event_ids(), world.grid)  # type: ignore[attr-defined]
+def recording_from_world(world: World) -> RunRecording:
+    """The recording of a ``sim.world.step.World``: its scene, tracks, event ids and grid."""
+    return RunRecording(world.scene, world.tracks(), world.event_ids(), world.grid)
 
 
 def _frame_index(rec: RunRecording, frame: int) -> int:
@@ -78,6 +80,16 @@ def _frame_index(rec: RunRecording, frame: int) -> int:
     if not 0 <= f < n:
         raise RunVideoError(f"frame {frame} is outside the run's {n} frames")
     return f
+
+
+class FrameStyle(TypedDict, total=False):
+    """The keyword arguments of :func:`run_frame_rgb` after the frame."""
+
+    trail_s: float
+    size_px: int
+    title: str | None
+    show_names: bool
+    show_grid: bool
 
 
 def run_frame_rgb(
@@ -101,19 +113,21 @@ def run_frame_rgb(
     caption = [f"t = {f / rec.fps:6.2f} s   frame {f}"]
     if under_way:
         caption.append("events: " + ", ".join(under_way))
-    grid: dict[str, object] = {}
+    layers: TopdownLayers = {
+        "characters": markers, "paths": trails, "title": title, "captions": caption,
+        "show_names": show_names, "size_px": size_px,
+    }
     if show_grid and rec.grid is not None:
-        grid = {"nav_free": rec.grid.free, "nav_origin": rec.grid.origin, "nav_cell_size": rec.grid.cell_size}
-    return render_topdown_rgb(
-        rec.scene, characters=markers, paths=trails, title=title, captions=caption,
-        show_names=show_names, size_px=size_px, **grid,
-    )
+        layers["nav_free"] = rec.grid.free
+        layers["nav_origin"] = rec.grid.origin
+        layers["nav_cell_size"] = rec.grid.cell_size
+    return render_topdown_rgb(rec.scene, **layers)
 
 
-def save_run_png(path: Path | str, rec: RunRecording, frame: int = -1, **kw: object) -> Path:
+def save_run_png(path: Path | str, rec: RunRecording, frame: int = -1, **kw: Unpack[FrameStyle]) -> Path:
     """Write one frame (default: the last, the run's final state) as a PNG; returns the path."""
     path = Path(path)
-    iio.imwrite(path, run_frame_rgb(rec, frame, **kw), extension=".png")  # type: ignore[arg-type]
+    iio.imwrite(path, run_frame_rgb(rec, frame, **kw), extension=".png")
     return path
 
 
@@ -123,7 +137,7 @@ def mp4_available() -> bool:
 
 
 def animation_frames(
-    rec: RunRecording, *, stride: int = 6, start: int = 0, stop: int | None = None, **kw: object
+    rec: RunRecording, *, stride: int = 6, start: int = 0, stop: int | None = None, **kw: Unpack[FrameStyle]
 ) -> list[NDArray[np.uint8]]:
     """Pictures of every ``stride``-th frame in [start, stop) (the last frame always included)."""
     if stride < 1:
@@ -134,12 +148,12 @@ def animation_frames(
         raise RunVideoError(f"no frame in [{start}, {end})")
     if picks[-1] != end - 1:
         picks.append(end - 1)
-    return [run_frame_rgb(rec, f, **kw) for f in picks]  # type: ignore[arg-type]
+    return [run_frame_rgb(rec, f, **kw) for f in picks]
 
 
 def save_run_animation(
     path: Path | str, rec: RunRecording, *, stride: int = 6, speed: float = 1.0, start: int = 0,
-    stop: int | None = None, **kw: object,
+    stop: int | None = None, **kw: Unpack[FrameStyle],
 ) -> Path:
     """Write an animated GIF (or MP4 for a ``.mp4`` path, when an encoder is available).
 

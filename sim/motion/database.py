@@ -258,8 +258,8 @@ class MotionDatabase:
 
     @classmethod
     def from_arrays(cls, a: Mapping[str, NDArray[np.float64]]) -> MotionDatabase:
-        key, family = (str(v) for v in a["meta"])
-        return cls(key, family, a["local_rotations"].astype(float), a["pelvis"], a["root_xy"],  # type: ignore[arg-type]
+        key = str(a["meta"][0])  # meta also stores the family, which follows from the key
+        return cls(key, family_of(key), a["local_rotations"].astype(float), a["pelvis"], a["root_xy"],
                    a["heading"], a["contacts"].astype(bool), a["clip_of_frame"], a["clip_ranges"],
                    a["clip_loops"].astype(bool), tuple(str(n) for n in a["clip_names"]), a["targets"],
                    a["raw_features"], a["mean"], a["scale"], a["searchable"].astype(bool))

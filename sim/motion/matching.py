@@ -144,10 +144,22 @@ def _pose_joints(states: Sequence[MatchState]) -> tuple[NDArray[np.float64], NDA
     """World joints (M,22,3) of the states' last poses and their character-frame velocities
     (M,22,3), with one batched forward-kinematics call. Every state must have a pose."""
     m = len(states)
-    has_prev = [s.prev_local is not None and s.pose_dt > 0 for s in states]
-    locs = [s.pose_local for s in states] + [s.prev_local for s, h in zip(states, has_prev, strict=True) if h]
-    pels = [s.pose_pelvis for s in states] + [s.prev_pelvis for s, h in zip(states, has_prev, strict=True) if h]
-    joints = forward_kinematics(np.stack(locs), np.stack(pels))[0]  # type: ignore[arg-type]
+    locs: list[NDArray[np.float64]] = []
+    pels: list[NDArray[np.float64]] = []
+    prev_locs: list[NDArray[np.float64]] = []
+    prev_pels: list[NDArray[np.float64]] = []
+    has_prev: list[bool] = []
+    for s in states:
+        if s.pose_local is None or s.pose_pelvis is None:
+            raise ValueError("every state needs a pose (a first matching step) before its joints are read")
+        locs.append(s.pose_local)
+        pels.append(s.pose_pelvis)
+        has = s.prev_local is not None and s.prev_pelvis is not None and s.pose_dt > 0
+        if s.prev_local is not None and s.prev_pelvis is not None and has:
+            prev_locs.append(s.prev_local)
+            prev_pels.append(s.prev_pelvis)
+        has_prev.append(has)
+    joints = forward_kinematics(np.stack(locs + prev_locs), np.stack(pels + prev_pels))[0]
     vel = np.zeros((m, NUM_JOINTS, 3))
     k = m
     for i, (s, h) in enumerate(zip(states, has_prev, strict=True)):

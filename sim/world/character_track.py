@@ -27,7 +27,7 @@ import numpy as np
 from sim.body.skeleton import NUM_JOINTS, forward_kinematics
 
 Gender = Literal["neutral", "male", "female"]
-GENDERS: tuple[str, ...] = ("neutral", "male", "female")
+GENDERS: tuple[Gender, ...] = ("neutral", "male", "female")
 NUM_BETAS = 10
 TRACK_FORMAT = "storyteller-track/1"
 # Tolerance on R^T R - I and det(R) - 1 for a matrix to count as a rotation.
@@ -95,10 +95,7 @@ class CharacterTrack:
             raise CharacterTrackError(
                 f"expected shape ({NUM_BETAS},), got {betas.shape}", field="betas"
             )
-        if self.gender not in GENDERS:
-            raise CharacterTrackError(
-                f"expected one of {list(GENDERS)}, got {self.gender!r}", field="gender"
-            )
+        _gender(self.gender)  # callers without a type checker may pass any string
         labels = self.action_labels
         if labels is not None:
             labels = tuple(labels)
@@ -171,11 +168,19 @@ class CharacterTrack:
                 local_rotations=arrays["local_rotations"],
                 fps=float(arrays["fps"]),
                 betas=arrays["betas"],
-                gender=str(arrays["gender"]),  # type: ignore[arg-type]
+                gender=_gender(str(arrays["gender"])),
                 action_labels=None if labels is None else tuple(str(s) for s in labels),
             )
         except CharacterTrackError as exc:
             raise CharacterTrackError(str(exc), field=exc.field, path=path) from None
+
+
+def _gender(value: str) -> Gender:
+    """``value`` as a :data:`Gender`; anything else is a :class:`CharacterTrackError`."""
+    for gender in GENDERS:
+        if value == gender:
+            return gender
+    raise CharacterTrackError(f"expected one of {list(GENDERS)}, got {value!r}", field="gender")
 
 
 def _as_float_array(value: object, name: str) -> np.ndarray:

@@ -48,14 +48,17 @@ from sim.world.phases import (
 )
 
 EventStatus = Literal["ongoing", "looping", "completed", "failed"]
+MemberStatus = Literal["active", "done", "left"]
+"""active: still on the way or acting; done: finished its part; left: gave up or was
+reassigned."""
 
 
 @dataclass
 class EventState:
-    """One accepted event: member name -> "active" | "done" | "left"."""
+    """One accepted event and the status of each member (by name)."""
 
     event: AssignEvent
-    members: dict[str, str]
+    members: dict[str, MemberStatus]
     status: EventStatus = "ongoing"
     started: bool = False
 
@@ -308,9 +311,9 @@ def member_done(w: EventWorld, c: CharacterState, out: StepReport) -> None:
     c.action_done = True
     eid = c.event_id
     ev = w.events.get(eid) if eid is not None else None
-    if ev is not None and ev.members.get(c.name) == "active":
+    if eid is not None and ev is not None and ev.members.get(c.name) == "active":
         ev.members[c.name] = "done"
-        _update_event(w, eid, ev, out)  # type: ignore[arg-type]
+        _update_event(w, eid, ev, out)
 
 
 def start_groups(w: EventWorld, out: StepReport) -> None:

@@ -78,11 +78,18 @@ class Assignment(_Frozen):
 
 
 class _PlanLike(Protocol):
-    character: str
-    action: str
-    position: Point
-    facing: Point
-    seat: str | None
+    """What :meth:`AssignEvent.from_plans` reads of a plan (read-only, so frozen models fit)."""
+
+    @property
+    def character(self) -> str: ...
+    @property
+    def action(self) -> str: ...
+    @property
+    def position(self) -> Point: ...
+    @property
+    def facing(self) -> Point: ...
+    @property
+    def seat(self) -> str | None: ...
 
 
 class AssignEvent(_Frozen):

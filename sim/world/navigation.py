@@ -25,10 +25,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from sim.paths.cooperative_astar import Cell, PathPlanner
-from sim.paths.following import CrowdNavigator, close_xy
+from sim.paths.following import Agent, CrowdNavigator, close_xy
 from sim.paths.nav_grid import ApproachPoint, NavGrid, NavGridError
 from sim.scene.model import SceneObject
-from sim.world.phases import StandTarget
+from sim.world.phases import StandTarget, TargetFallback
 
 OFF_GRID_EPS = 1e-6  # metres: a point closer than this to its cell centre is on the grid
 
@@ -118,17 +118,18 @@ class WorldNavigator:
         return close_xy(here, there)
 
     # ----- time ----------------------------------------------------------------------------------
-    def tick(self, ahead: Sequence[int] = ()) -> dict[str, np.ndarray]:
-        """Walker positions at this frame (then the navigator's clock advances); ``ahead``:
-        the frame offsets ``futures`` will be asked for (sampled in the same pass)."""
-        return self.nav.tick(ahead)  # type: ignore[return-value]
+    def tick(self, ahead: Sequence[int] = ()) -> dict[Agent, np.ndarray]:
+        """Walker positions at this frame, by name (then the navigator's clock advances);
+        ``ahead``: the frame offsets ``futures`` will be asked for (sampled in the same pass)."""
+        return self.nav.tick(ahead)
 
     def new_arrivals(self) -> list[str]:
         """Walkers that reached their goal since the last call, in order (with an exact target:
         once they stand on it)."""
-        out = [a for _, a in self.nav.arrivals[self._arrivals_seen :]]
+        # walkers are added by name (``add_walker``); stationary discs, keyed (name, k), never arrive
+        out = [a for _, a in self.nav.arrivals[self._arrivals_seen :] if isinstance(a, str)]
         self._arrivals_seen = len(self.nav.arrivals)
-        return out  # type: ignore[return-value]
+        return out
 
     def used_goal(self, name: str) -> Cell | None:
         """The goal the last plan actually used (the nearest free cell when the asked one was taken)."""
@@ -168,7 +169,8 @@ class StandTargets:
             if why is None:
                 off = float(np.linalg.norm(p - g.center_of(*cell))) > OFF_GRID_EPS
                 return StandTarget(cell, (float(p[0]), float(p[1])) if off else self._centre(cell), off)
-            reason, msg = "no_straight_approach", why
+            reason: TargetFallback = "no_straight_approach"
+            msg = why
         elif not g.is_free_xy(p):
             reason, msg = "target_blocked", (
                 f"a body of radius {g.body_radius} m cannot stand at ({p[0]:.2f}, {p[1]:.2f})")
@@ -178,7 +180,7 @@ class StandTargets:
         near = g.nearest_free_cell(p, component=component)
         if not g.is_free(*near):
             return None
-        return StandTarget(near, self._centre(near), False, reason, msg)  # type: ignore[arg-type]
+        return StandTarget(near, self._centre(near), False, reason, msg)
 
     def approach_point(self, obj: SceneObject, component: int) -> ApproachPoint | str:
         """``NavGrid.approach_point(obj, component=component)`` (cached), or why there is none."""

@@ -19,7 +19,8 @@ def _point_rect_distance(local: np.ndarray, hw: float, hd: float) -> np.ndarray:
     """Distance of local points (N, 2) to the axis-aligned rectangle [-hw, hw] x [-hd, hd]."""
     dx = np.maximum(np.abs(local[:, 0]) - hw, 0.0)
     dy = np.maximum(np.abs(local[:, 1]) - hd, 0.0)
-    return np.hypot(dx, dy)
+    distance: np.ndarray = np.hypot(dx, dy)
+    return distance
 
 
 def segment_rect_distance(a: np.ndarray, b: np.ndarray, hw: float, hd: float) -> np.ndarray:

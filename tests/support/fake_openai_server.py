@@ -175,6 +175,7 @@ class FakeOpenAI:
             def do_POST(self) -> None:
                 body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
                 action = outer._record_and_choose(body, self.headers.get("Authorization"))
+                arg: Any  # the reply text, a seconds count or an HTTP status, by kind
                 kind, arg = ("ok", action) if isinstance(action, str) else action
                 model = str(body.get("model"))
                 if kind == "drop":

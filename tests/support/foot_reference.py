@@ -20,7 +20,8 @@ _REACH_EPS = 1e-9  # m: reach comparisons of a lock start (the kernel's literal 
 
 def _smoothstep(x: np.ndarray) -> np.ndarray:
     x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
+    y: np.ndarray = x * x * (3.0 - 2.0 * x)
+    return y
 
 
 def apply_numpy(solver: FootSolver, pelvis: np.ndarray, rots: np.ndarray, contacts: np.ndarray, state: FootState,

@@ -79,6 +79,14 @@ def _ref_query_many(index: NearestFrameIndex, q: np.ndarray) -> np.ndarray:
     return _ref_scan_many(index, q)[0] if index.use_scan else index.query_many(q)[0]
 
 
+def _stack_all(arrays: Sequence[np.ndarray | None], what: str) -> np.ndarray:
+    """``np.stack`` of arrays every state has (a missing one is a bug in the caller)."""
+    present = [a for a in arrays if a is not None]
+    if len(present) != len(arrays):
+        raise ValueError(f"a state has no {what}")
+    return np.stack(present)
+
+
 def _ref_pose_joints(states: Sequence[MatchState]) -> tuple[np.ndarray, np.ndarray]:
     """World joints (M,22,3) of the states' last poses and their character-frame velocities
     (M,22,3), with one batched forward-kinematics call. Every state must have a pose."""
@@ -86,7 +94,7 @@ def _ref_pose_joints(states: Sequence[MatchState]) -> tuple[np.ndarray, np.ndarr
     has_prev = [s.prev_local is not None and s.pose_dt > 0 for s in states]
     locs = [s.pose_local for s in states] + [s.prev_local for s, h in zip(states, has_prev, strict=True) if h]
     pels = [s.pose_pelvis for s in states] + [s.prev_pelvis for s, h in zip(states, has_prev, strict=True) if h]
-    joints = forward_kinematics(np.stack(locs), np.stack(pels))[0]  # type: ignore[arg-type]
+    joints = forward_kinematics(_stack_all(locs, "pose"), _stack_all(pels, "pose"))[0]
     vel = np.zeros((m, NUM_JOINTS, 3))
     k = m
     for i, (s, h) in enumerate(zip(states, has_prev, strict=True)):
@@ -216,10 +224,10 @@ class ReferenceMotionMatcher(MotionMatcher):
             # the very states returned by the previous call: their offsets are rows of these arrays
             off_rot, off_av, off_pos, off_vel = (x.copy() for x in last[1])
         else:
-            off_rot = np.stack([s.offset_rot for s in states])  # type: ignore[arg-type]
-            off_av = np.stack([s.offset_ang_vel for s in states])  # type: ignore[arg-type]
-            off_pos = np.stack([s.offset_pos for s in states])  # type: ignore[arg-type]
-            off_vel = np.stack([s.offset_vel for s in states])  # type: ignore[arg-type]
+            off_rot = _stack_all([s.offset_rot for s in states], "offset_rot")
+            off_av = _stack_all([s.offset_ang_vel for s in states], "offset_ang_vel")
+            off_pos = _stack_all([s.offset_pos for s in states], "offset_pos")
+            off_vel = _stack_all([s.offset_vel for s in states], "offset_vel")
         new_keys = [s.key for s in states]
         new_frames = list(frames)
         switched: list[int] = []

@@ -27,6 +27,6 @@ def track_reference(path: Sequence[Cell], origin: tuple[float, float], cell_size
     kk = np.minimum(k, max(last - 1, 0))
     s = (u - kk)[:, None]
     nxt = np.minimum(kk + 1, last)
-    track = (1.0 - s) * centres[kk] + s * centres[nxt]
+    track: np.ndarray = (1.0 - s) * centres[kk] + s * centres[nxt]
     track[(u <= 0) | (k >= last)] = centres[np.where(u <= 0, 0, last)][(u <= 0) | (k >= last)]
     return track
