@@ -97,14 +97,21 @@ class Chromium:
         return result["result"].get("value")
 
     def wait_for(self, expression: str, *, timeout_s: float = 60.0) -> Any:
-        """Poll ``expression`` until it is truthy; returns its value (TimeoutError otherwise)."""
+        """Poll ``expression`` until it is truthy; returns its value (TimeoutError otherwise).
+
+        An expression that throws (the page is still loading) counts as false."""
         deadline = time.monotonic() + timeout_s
         while True:
-            value = self.evaluate(expression)
+            try:
+                value = self.evaluate(expression)
+            except RuntimeError as exc:
+                value, error = None, exc
+            else:
+                error = None
             if value:
                 return value
             if time.monotonic() > deadline:
-                raise TimeoutError(f"{expression!r} still false after {timeout_s} s")
+                raise TimeoutError(f"{expression!r} still false after {timeout_s} s") from error
             time.sleep(0.25)
 
     def screenshot(self, path: Path) -> bytes:
