@@ -73,4 +73,5 @@ def figure_points(rig: FigureRig, poses: BonePoses, frame: int) -> NDArray[np.fl
     rot = Rotation.from_quat(np.concatenate([wxyz[:, 1:], wxyz[:, :1]], axis=1)).as_matrix()
     bone = rig.skin_weights.argmax(axis=1)
     local = rig.vertices - rig.bind_positions[bone]
-    return np.einsum("vij,vj->vi", rot[bone], local) + pos[bone]
+    points: NDArray[np.float64] = np.einsum("vij,vj->vi", rot[bone], local) + pos[bone]
+    return points

@@ -101,7 +101,7 @@ class SceneView:
                 color=object_rgb(obj.label),
                 dimensions=(width, depth, height),
                 wxyz=_yaw_wxyz(obj.yaw - math.pi / 2),
-                position=tuple(obj.center),
+                position=np.array(obj.center),
             )
             if object_labels:
                 scene.add_label(
@@ -124,8 +124,8 @@ class SceneView:
             center = np.array([*(lo + hi) / 2, s.floor_z])
             size = float(np.max(hi - lo))
         cam = self.server.initial_camera
-        cam.look_at = tuple(center)
-        cam.position = tuple(center + np.array([0.0, -0.9 * size, 0.9 * size]))
+        cam.look_at = center
+        cam.position = center + np.array([0.0, -0.9 * size, 0.9 * size])
         cam.up = (0.0, 0.0, 1.0)
 
     # ----- per frame -----------------------------------------------------------------

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import viser
@@ -108,7 +109,7 @@ class ViewerApp:
             with self.events_folder:
                 for i, event in enumerate(run.events):
                     button = self.server.gui.add_button(event_line(event, run.fps))
-                    button.on_click(lambda _, i=i: self.jump_to_event(i))
+                    button.on_click(self._jumper(i))
                     self._event_buttons.append(button)
             self._active = []
             self.slider.max = max(run.num_frames - 1, 1)
@@ -130,7 +131,10 @@ class ViewerApp:
             if self.run is not None and index < len(self.run.events):
                 self.goto(self.run.events[index].applied_frame)
 
-    def _on_slider(self, event: viser.GuiEvent) -> None:
+    def _jumper(self, index: int) -> Callable[[viser.GuiEvent[viser.GuiButtonHandle]], None]:
+        return lambda _: self.jump_to_event(index)
+
+    def _on_slider(self, event: viser.GuiEvent[viser.GuiSliderHandle[int]]) -> None:
         if event.client is not None:  # moved in a browser (our own updates come with no client)
             self.goto(int(self.slider.value))
 
@@ -143,7 +147,7 @@ class ViewerApp:
             self.frame = min(max(int(frame), 0), last)
             self.position = float(self.frame)
             self.view.show(self.frame)
-            self.slider.value = self.frame
+            self.slider.value = self.frame  # type: ignore[misc]  # viser declares the setter on a subclass mypy does not see
             self.clock.content = f"{clock(self.frame, self.run.fps)} / {clock(last, self.run.fps)}"
             active = active_events(self.run.events, self.frame, last)
             if active != self._active:
