@@ -9,6 +9,7 @@ from orchestrator.cli import model as cli_model
 from orchestrator.cli import plan as cli_plan
 from orchestrator.cli import run as cli_run
 from orchestrator.cli import scene as cli_scene
+from orchestrator.cli import view as cli_view
 
 app = typer.Typer(
     name="storyteller",
@@ -37,6 +38,7 @@ cli_plan.register(app)
 cli_event.register(app)
 cli_model.register(app)
 cli_run.register(app)
+cli_view.register(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point

@@ -3,7 +3,7 @@
 The job is :mod:`orchestrator.session.run_job`: the simulation and the planner run
 concurrently (``orchestrator.session.runtime``). Outputs, all in ``--out``: ``story.json``
 (events with their frames and per-character plans), ``trace.jsonl`` (every LLM call,
-replayable), ``runs.sqlite`` (planning checkpoints and story log), per character
+replayable), ``runs.sqlite`` (planning checkpoints and story log), ``scene.json`` (the scene as run), per character
 ``<name>.smplx.npz`` / ``.bvh`` / ``.track.npz``, ``scene.glb`` (whole scene, skinned and
 animated), ``topdown.png`` and, with ``--gif``, ``story.gif``.
 

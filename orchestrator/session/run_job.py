@@ -208,10 +208,13 @@ def _motion_layer(motion_config: Path | None) -> Any:
 def write_outputs(
     out: Path, scene: Scene, world: Any, result: SessionResult, names: list[str], instruction: str, fps: int, gif: bool
 ) -> None:
-    """``story.json``, the motion exports (npz, BVH, GLB) and the top-down pictures in ``out``."""
+    """``story.json``, ``scene.json`` (the scene as run, for ``storyteller view``), the motion
+    exports (npz, BVH, GLB) and the top-down pictures in ``out``."""
     from sim.export.bundle import export_run
     from sim.export.video import recording_from_world, save_run_animation, save_run_png
+    from sim.scene.files import save_scene_json
 
+    save_scene_json(scene, out / "scene.json")
     payload = story_json(result, scene.name, names, instruction, fps)
     (out / "story.json").write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
     tracks = world.tracks()

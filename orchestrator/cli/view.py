@@ -1,0 +1,59 @@
+"""``storyteller view RUN_DIR``: watch a run in the browser (logic in ``orchestrator.viewer``).
+
+Serves an interactive 3D viewer on 127.0.0.1 (``--port``, the next free port when taken) and
+prints its URL; ``--export FILE`` instead writes one self-contained HTML file that plays the
+story. ``viser`` is imported only when the command runs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from orchestrator.cli.options import fail
+
+
+def register(app: typer.Typer) -> None:
+    app.command("view")(view_command)
+
+
+def view_command(
+    run_dir: Annotated[Path, typer.Argument(help="Output folder of `storyteller run` (may still be running).")],
+    port: Annotated[int, typer.Option("--port", min=0, max=65535, help="Port on 127.0.0.1 (0: any free port).")] = 8080,
+    export: Annotated[Path | None, typer.Option("--export", help="Write a self-contained HTML file instead of serving.")] = None,
+    play: Annotated[bool, typer.Option("--play/--paused", help="Start playing as soon as the run is loaded.")] = False,
+) -> None:
+    """Show a run in 3D in the browser: figures, paths, labels, timeline and event list."""
+    from orchestrator.viewer.run_folder import RunFolderError
+
+    if export is not None:
+        from orchestrator.viewer.export import export_html
+
+        try:
+            export_html(run_dir, export)
+        except RunFolderError as exc:
+            fail(str(exc))
+        except OSError as exc:
+            fail(f"{export}: cannot write ({exc.strerror})")
+        typer.echo(f"wrote {export}")
+        return
+    if run_dir.exists() and not run_dir.is_dir():
+        fail(f"{run_dir}: not a folder (expected the --out folder of `storyteller run`)")
+    import threading
+
+    from orchestrator.viewer.server import ViewerApp
+
+    viewer = ViewerApp(run_dir, port=port, autoplay=play)
+    viewer.start()
+    typer.echo(f"viewing {run_dir} at {viewer.url} (Ctrl-C to stop)", err=False)
+    try:
+        threading.Event().wait()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.stop()
+
+
+__all__ = ["register", "view_command"]

@@ -1,0 +1,22 @@
+"""The story viewer behind ``storyteller view``: a run folder shown in the browser.
+
+What lives here:
+
+- :mod:`.run_folder` reads a run folder (``story.json``, ``scene.json`` or the bundled scene
+  it names, ``<name>.track.npz``) into a :class:`~.run_folder.RunData`, and stamps the folder
+  so a viewer can notice a run that is still being written;
+- :mod:`.timeline` answers, per frame, which story events are on and what each character does
+  (pure functions of the run data);
+- :mod:`.figures` poses the stand-in figure (the GLB export's box body) as the 22 bones of a
+  skinned mesh, frame by frame (pure numpy);
+- :mod:`.scene_view` puts a run into a ``viser`` scene (boxes, paths, figures, labels) and
+  shows one frame; :mod:`.server` adds the timeline and event-list controls and serves it;
+  :mod:`.export` records the whole story into one self-contained HTML file.
+
+May import ``sim`` and the rest of ``orchestrator``; ``viser`` only inside :mod:`.scene_view`,
+:mod:`.server` and :mod:`.export`, which the command imports lazily.
+
+Guarantees: the viewer only reads the run folder (it never writes there); every frame it
+shows is a frame of the exported tracks (no resampling); the server listens on 127.0.0.1
+only and needs no network (the browser client is the one built into the ``viser`` wheel).
+"""

@@ -1,0 +1,144 @@
+"""Read a run folder written by ``storyteller run`` into what the viewer shows.
+
+A run folder holds ``story.json`` (events with their frames), one ``<slug>.track.npz`` per
+character and, from this version on, ``scene.json`` (the scene as it was run). Older folders
+have no ``scene.json``: the scene is then the bundled scene that ``story.json`` names, and a
+run on a scene file that is gone is shown without its objects (:attr:`RunData.scene_note`
+says so).
+
+:func:`folder_stamp` is a cheap fingerprint (names, sizes and modification times of the files
+the viewer reads): a viewer polls it to reload a run that is still being written.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from sim.scene.model import Scene
+from sim.world.character_track import CharacterTrack, CharacterTrackError
+
+STORY_FILE = "story.json"
+SCENE_FILE = "scene.json"
+TRACK_SUFFIX = ".track.npz"
+
+
+class RunFolderError(Exception):
+    """A run folder the viewer cannot show (the message names the file and what is wrong)."""
+
+
+class StoryEventRecord(BaseModel):
+    """One entry of ``story.json``'s ``events`` (as ``orchestrator.session.run_job`` writes it)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    event_id: str
+    index: int
+    characters: tuple[str, ...]
+    activity: str
+    requested_frame: int
+    applied_frame: int
+    state: Literal["ongoing", "looping", "completed", "failed"]
+    finished_frame: int | None
+    failure: str | None
+
+
+@dataclass(frozen=True)
+class RunData:
+    """Everything the viewer shows of one run."""
+
+    folder: Path
+    scene: Scene | None
+    scene_note: str | None
+    """Why the scene's objects are missing, when they are (None when the scene was found)."""
+    fps: float
+    tracks: tuple[CharacterTrack, ...]
+    events: tuple[StoryEventRecord, ...]
+    instruction: str
+
+    @property
+    def num_frames(self) -> int:
+        """Frames of the longest track (at least 1)."""
+        return max((t.num_frames for t in self.tracks), default=1)
+
+
+def folder_stamp(folder: Path) -> tuple[tuple[str, int, int], ...]:
+    """Names, sizes and mtimes (ns) of the files the viewer reads; changes when they change."""
+    if not folder.is_dir():
+        return ()
+    stamp = []
+    for path in sorted(folder.iterdir()):
+        if path.name in (STORY_FILE, SCENE_FILE) or path.name.endswith(TRACK_SUFFIX):
+            try:
+                st = path.stat()
+            except OSError:  # removed between listing and stat: the next poll sees it
+                continue
+            stamp.append((path.name, st.st_size, st.st_mtime_ns))
+    return tuple(stamp)
+
+
+def is_ready(folder: Path) -> bool:
+    """Whether the run has written its story log (the last of its outputs the viewer needs)."""
+    return (folder / STORY_FILE).is_file()
+
+
+def load_run(folder: Path) -> RunData:
+    """The run in ``folder``; :class:`RunFolderError` when a file is missing or malformed."""
+    if not folder.is_dir():
+        raise RunFolderError(f"{folder}: not a folder (expected the --out folder of `storyteller run`)")
+    story_path = folder / STORY_FILE
+    if not story_path.is_file():
+        raise RunFolderError(f"{story_path}: not found (the run has not written its story log yet)")
+    try:
+        story = json.loads(story_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise RunFolderError(f"{story_path}: not readable as JSON ({exc})") from None
+    if not isinstance(story, dict):
+        raise RunFolderError(f"{story_path}: expected a JSON object")
+    try:
+        events = tuple(StoryEventRecord.model_validate(e) for e in story.get("events", []))
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(p) for p in err["loc"])
+        raise RunFolderError(f"{story_path}: field 'events' ({where}): {err['msg']}") from None
+    fps = story.get("fps", 30)
+    if not isinstance(fps, int | float) or fps <= 0:
+        raise RunFolderError(f"{story_path}: field 'fps': expected a positive number, got {fps!r}")
+    tracks = []
+    for path in sorted(folder.glob(f"*{TRACK_SUFFIX}")):
+        try:
+            tracks.append(CharacterTrack.load(path))
+        except (CharacterTrackError, OSError, ValueError) as exc:
+            raise RunFolderError(f"{path}: {exc}") from None
+    order = {name: i for i, name in enumerate(story.get("characters", []))}
+    tracks.sort(key=lambda t: (order.get(t.name, len(order)), t.name))
+    scene, note = _scene_of(folder, story.get("scene"))
+    return RunData(
+        folder=folder,
+        scene=scene,
+        scene_note=note,
+        fps=float(fps),
+        tracks=tuple(tracks),
+        events=events,
+        instruction=str(story.get("instruction", "")),
+    )
+
+
+def _scene_of(folder: Path, name: object) -> tuple[Scene | None, str | None]:
+    from sim.scene.bundled import bundled_scene_names, load_bundled_scene
+    from sim.scene.errors import SceneFileError
+    from sim.scene.files import load_scene_json
+
+    path = folder / SCENE_FILE
+    if path.is_file():
+        try:
+            return load_scene_json(path), None
+        except SceneFileError as exc:
+            raise RunFolderError(str(exc)) from None
+    if isinstance(name, str) and name in bundled_scene_names():
+        return load_bundled_scene(name), None
+    return None, f"no {SCENE_FILE} in the run folder and {name!r} is not a bundled scene: objects not shown"

@@ -1,0 +1,151 @@
+"""A run in a ``viser`` scene: the scene's boxes, each character's path, figure and label.
+
+:class:`SceneView` adds the static parts once (floor, one labelled box per object, each
+character's path as a line on the floor) and, per frame, poses the figures (skinned meshes,
+:mod:`.figures`) and moves the labels ("name: action" above each head, and a caption with the
+events on at that frame). Everything goes through ``server.scene``, so every connected browser
+and a scene recording (:mod:`.export`) see the same thing. World frame: z up, metres.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+
+import numpy as np
+import viser
+
+from orchestrator.viewer.figures import BonePoses, bone_poses, standin_rig
+from orchestrator.viewer.run_folder import RunData
+from orchestrator.viewer.timeline import action_at, active_events, clock
+from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS
+
+CHARACTER_RGB: tuple[tuple[int, int, int], ...] = (
+    (217, 84, 64), (64, 140, 217), (89, 179, 89), (230, 179, 51),
+    (153, 102, 191), (51, 191, 191), (217, 115, 166), (140, 140, 140),
+)  # fmt: skip
+LABEL_ABOVE_HEAD = 0.35  # metres above the head joint
+PATH_LIFT = 0.01  # metres above the floor, so the path is not hidden by it
+PATH_STRIDE = 3  # frames between path points
+
+
+def object_rgb(label: str) -> tuple[int, int, int]:
+    """A stable pastel colour per object label (as in the GLB export)."""
+    h = zlib.crc32(label.encode("utf-8"))
+    return tuple(int(255 * (0.45 + 0.4 * (((h >> s) & 0xFF) / 255))) for s in (0, 8, 16))  # type: ignore[return-value]
+
+
+def _yaw_wxyz(angle: float) -> tuple[float, float, float, float]:
+    return (math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2))
+
+
+class SceneView:
+    """The viser scene of one run; :meth:`show` poses it at a frame."""
+
+    def __init__(self, server: viser.ViserServer, run: RunData, *, object_labels: bool = True) -> None:
+        self.server = server
+        self.run = run
+        self.last_frame = run.num_frames - 1
+        self.poses: dict[str, BonePoses] = {t.name: bone_poses(t) for t in run.tracks}
+        scene = server.scene
+        scene.set_up_direction("+z")
+        self._add_scene(object_labels)
+        rig = standin_rig()
+        identity = np.tile([1.0, 0.0, 0.0, 0.0], (NUM_JOINTS, 1))
+        self.figures: dict[str, viser.MeshSkinnedHandle] = {}
+        self.labels: dict[str, viser.LabelHandle] = {}
+        for i, track in enumerate(run.tracks):
+            rgb = CHARACTER_RGB[i % len(CHARACTER_RGB)]
+            root = track.root_positions
+            floor = self._floor_z()
+            pts = np.column_stack([root[::PATH_STRIDE, :2], np.full(len(root[::PATH_STRIDE]), floor + PATH_LIFT)])
+            if len(pts) >= 2:
+                scene.add_line_segments(
+                    f"/paths/{track.name}", np.stack([pts[:-1], pts[1:]], axis=1), rgb, thickness=0.03
+                )
+            self.figures[track.name] = scene.add_mesh_skinned(
+                f"/characters/{track.name}",
+                rig.vertices,
+                rig.faces,
+                bone_wxyzs=identity,
+                bone_positions=rig.bind_positions,
+                skin_weights=rig.skin_weights,
+                color=rgb,
+                flat_shading=True,
+            )
+            self.labels[track.name] = scene.add_label(
+                f"/labels/{track.name}", track.name, anchor="bottom-center", font_screen_scale=1.2
+            )
+        self.caption = scene.add_label("/caption", "", position=self._caption_position(), anchor="bottom-left")
+        self._set_camera()
+
+    # ----- static parts --------------------------------------------------------------
+    def _floor_z(self) -> float:
+        return self.run.scene.floor_z if self.run.scene is not None else 0.0
+
+    def _add_scene(self, object_labels: bool) -> None:
+        scene = self.server.scene
+        s = self.run.scene
+        if s is None:
+            scene.add_grid("/floor", width=10.0, height=10.0, plane="xy")
+            return
+        (x0, y0), (x1, y1) = s.bounds_min, s.bounds_max
+        scene.add_box(
+            "/floor", color=(225, 225, 220), dimensions=(x1 - x0, y1 - y0, 0.02),
+            position=((x0 + x1) / 2, (y0 + y1) / 2, s.floor_z - 0.01),
+        )  # fmt: skip
+        for obj in s.objects:
+            width, depth, height = (max(v, 1e-3) for v in obj.size)
+            scene.add_box(
+                f"/objects/{obj.name}",
+                color=object_rgb(obj.label),
+                dimensions=(width, depth, height),
+                wxyz=_yaw_wxyz(obj.yaw - math.pi / 2),
+                position=np.array(obj.center),
+            )
+            if object_labels:
+                scene.add_label(
+                    f"/object_names/{obj.name}", obj.name, position=(obj.center[0], obj.center[1], obj.z_max + 0.05),
+                    anchor="bottom-center", font_screen_scale=0.7,
+                )  # fmt: skip
+
+    def _caption_position(self) -> tuple[float, float, float]:
+        s = self.run.scene
+        if s is None:
+            return (-5.0, 5.0, 2.5)
+        return (s.bounds_min[0], s.bounds_max[1], s.floor_z + 2.5)
+
+    def _set_camera(self) -> None:
+        s = self.run.scene
+        if s is None:
+            center, size = np.zeros(3), 8.0
+        else:
+            lo, hi = np.array(s.bounds_min), np.array(s.bounds_max)
+            center = np.array([*(lo + hi) / 2, s.floor_z])
+            size = float(np.max(hi - lo))
+        cam = self.server.initial_camera
+        cam.look_at = center
+        cam.position = center + np.array([0.0, -0.9 * size, 0.9 * size])
+        cam.up = (0.0, 0.0, 1.0)
+
+    # ----- per frame -----------------------------------------------------------------
+    def caption_text(self, frame: int) -> str:
+        """The caption: the clock and the events on at ``frame``."""
+        on = active_events(self.run.events, frame, self.last_frame)
+        lines = [f"{clock(frame, self.run.fps)}"] + [self.run.events[i].activity for i in on]
+        return "\n".join(lines)
+
+    def show(self, frame: int) -> None:
+        """Pose every figure and label at ``frame`` (held at the last frame past a track's end)."""
+        head = JOINT_INDEX["head"]
+        with self.server.atomic():
+            for track in self.run.tracks:
+                wxyz, pos = self.poses[track.name].at(frame)
+                for j, bone in enumerate(self.figures[track.name].bones):
+                    bone.wxyz = wxyz[j]
+                    bone.position = pos[j]
+                label = self.labels[track.name]
+                label.position = pos[head] + np.array([0.0, 0.0, LABEL_ABOVE_HEAD])
+                action = action_at(track, frame)
+                label.text = f"{track.name}: {action}" if action else track.name
+            self.caption.text = self.caption_text(frame)

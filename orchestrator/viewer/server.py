@@ -1,0 +1,179 @@
+"""The interactive viewer: a :class:`~.scene_view.SceneView` plus timeline and event list.
+
+Controls (the panel of the ``viser`` client): Play / Pause, a speed choice, a frame slider
+(scrub), the clock, and the story's events as buttons, one per event, in story order; the
+events on at the current frame are coloured, and clicking one jumps to its start frame.
+
+Playback runs on a thread of this process: it advances the frame by ``speed * fps`` per wall
+second and stops at the last frame. A second thread polls the run folder
+(:func:`~.run_folder.folder_stamp`) and reloads the run when a file it shows changes, so a
+run that is still being written is shown as soon as it writes its outputs, and again each
+time it rewrites them; until then the panel says it is waiting. A folder that stops being
+readable keeps the last good run on screen and says why in the panel.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import viser
+
+from orchestrator.viewer.run_folder import RunData, RunFolderError, folder_stamp, is_ready, load_run
+from orchestrator.viewer.scene_view import SceneView
+from orchestrator.viewer.timeline import active_events, clock, event_line
+
+HOST = "127.0.0.1"
+SPEEDS = ("0.25", "0.5", "1", "2", "4")
+TICK_S = 1 / 30  # wall seconds between playback steps
+POLL_S = 1.0  # wall seconds between checks of the run folder
+
+
+class ViewerApp:
+    """Serve one run folder; :meth:`start` returns once the server listens."""
+
+    def __init__(self, folder: Path, *, port: int = 8080, autoplay: bool = False) -> None:
+        self.folder = folder
+        self.server = viser.ViserServer(host=HOST, port=port, label="storyteller", verbose=False)
+        self.lock = threading.RLock()
+        self.view: SceneView | None = None
+        self.run: RunData | None = None
+        self.frame = 0
+        self.position = 0.0  # fractional frame while playing
+        self.playing = autoplay
+        self._stamp: tuple[tuple[str, int, int], ...] | None = None
+        self._stop = threading.Event()
+        self._event_buttons: list[viser.GuiButtonHandle] = []
+        self._active: list[int] = []
+        gui = self.server.gui
+        gui.configure_theme(control_width="large")
+        self.status = gui.add_markdown(f"**{folder.name}**")
+        with gui.add_folder("Timeline"):
+            self.play = gui.add_button("Pause" if autoplay else "Play", icon=None)
+            self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1")
+            self.slider = gui.add_slider("Frame", min=0, max=1, step=1, initial_value=0)
+            self.clock = gui.add_markdown("")
+        self.events_folder = gui.add_folder("Events")
+        self.play.on_click(lambda _: self.toggle())
+        self.slider.on_update(self._on_slider)
+
+    # ----- lifecycle -----------------------------------------------------------------
+    @property
+    def url(self) -> str:
+        return f"http://{HOST}:{self.server.get_port()}"
+
+    def start(self) -> None:
+        """Load the run (or wait for it) and start the playback and folder-watch threads."""
+        self.reload_if_changed()
+        threading.Thread(target=self._play_loop, name="viewer-play", daemon=True).start()
+        threading.Thread(target=self._watch_loop, name="viewer-watch", daemon=True).start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self.server.stop()
+
+    # ----- loading -------------------------------------------------------------------
+    def reload_if_changed(self) -> bool:
+        """Reload the run when its files changed since the last look; True when it did."""
+        stamp = folder_stamp(self.folder)
+        if stamp == self._stamp:
+            return False
+        self._stamp = stamp
+        if not is_ready(self.folder):
+            self.status.content = f"**{self.folder.name}**: waiting for the run to write its outputs..."
+            return False
+        try:
+            run = load_run(self.folder)
+        except RunFolderError as exc:
+            self.status.content = f"**{self.folder.name}**: {exc}"
+            return False
+        self._show_run(run)
+        return True
+
+    def _show_run(self, run: RunData) -> None:
+        with self.lock:
+            self.server.scene.reset()
+            self.run = run
+            self.view = SceneView(self.server, run)
+            lines = [f"**{self.folder.name}**: {len(run.tracks)} characters, {clock(run.num_frames - 1, run.fps)}"]
+            if run.instruction:
+                lines.append(f"*{run.instruction}*")
+            if run.scene_note:
+                lines.append(run.scene_note)
+            self.status.content = "\n\n".join(lines)
+            for button in self._event_buttons:
+                button.remove()
+            self._event_buttons = []
+            with self.events_folder:
+                for i, event in enumerate(run.events):
+                    button = self.server.gui.add_button(event_line(event, run.fps))
+                    button.on_click(self._jumper(i))
+                    self._event_buttons.append(button)
+            self._active = []
+            self.slider.max = max(run.num_frames - 1, 1)
+            self.goto(min(self.frame, run.num_frames - 1))
+
+    # ----- controls ------------------------------------------------------------------
+    def toggle(self) -> None:
+        with self.lock:
+            if self.run is None:
+                return
+            if not self.playing and self.frame >= self.run.num_frames - 1:
+                self.goto(0)  # play again from the start
+            self.playing = not self.playing
+            self.position = float(self.frame)
+            self.play.label = "Pause" if self.playing else "Play"
+
+    def jump_to_event(self, index: int) -> None:
+        with self.lock:
+            if self.run is not None and index < len(self.run.events):
+                self.goto(self.run.events[index].applied_frame)
+
+    def _jumper(self, index: int) -> Callable[[viser.GuiEvent[viser.GuiButtonHandle]], None]:
+        return lambda _: self.jump_to_event(index)
+
+    def _on_slider(self, event: viser.GuiEvent[viser.GuiSliderHandle[int]]) -> None:
+        if event.client is not None:  # moved in a browser (our own updates come with no client)
+            self.goto(int(self.slider.value))
+
+    def goto(self, frame: int) -> None:
+        """Show ``frame`` (clamped to the run) in the scene, the slider, clock and event list."""
+        with self.lock:
+            if self.run is None or self.view is None:
+                return
+            last = self.run.num_frames - 1
+            self.frame = min(max(int(frame), 0), last)
+            self.position = float(self.frame)
+            self.view.show(self.frame)
+            self.slider.value = self.frame  # type: ignore[misc]  # viser declares the setter on a subclass mypy does not see
+            self.clock.content = f"{clock(self.frame, self.run.fps)} / {clock(last, self.run.fps)}"
+            active = active_events(self.run.events, self.frame, last)
+            if active != self._active:
+                for i, button in enumerate(self._event_buttons):
+                    button.color = "green" if i in active else None
+                self._active = active
+
+    # ----- threads -------------------------------------------------------------------
+    def _play_loop(self) -> None:
+        last = time.monotonic()
+        while not self._stop.wait(TICK_S):
+            now = time.monotonic()
+            dt, last = now - last, now
+            with self.lock:
+                if not self.playing or self.run is None:
+                    continue
+                end = self.run.num_frames - 1
+                self.position = min(self.position + float(self.speed.value) * dt * self.run.fps, end)
+                position = self.position
+                if int(position) != self.frame:
+                    self.goto(int(position))
+                    self.position = position  # goto() snaps it to the frame
+                if position >= end:
+                    self.playing = False
+                    self.play.label = "Play"
+
+    def _watch_loop(self) -> None:
+        while not self._stop.wait(POLL_S):
+            self.reload_if_changed()

@@ -1,0 +1,48 @@
+"""What is happening at a frame: the story's events and each character's action (pure).
+
+An event is *on* from the frame its plan was applied (``applied_frame``) to the frame it
+finished (``finished_frame``), or to the end of the run when it never finished (ongoing,
+looping). Frames are indices into the exported tracks, at the run's fps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from orchestrator.viewer.run_folder import StoryEventRecord
+from sim.world.character_track import CharacterTrack
+
+
+def event_span(event: StoryEventRecord, last_frame: int) -> tuple[int, int]:
+    """First and last frame (inclusive) the event is on, clamped to ``[0, last_frame]``."""
+    start = min(max(event.applied_frame, 0), last_frame)
+    end = last_frame if event.finished_frame is None else event.finished_frame
+    return start, min(max(end, start), last_frame)
+
+
+def active_events(events: Sequence[StoryEventRecord], frame: int, last_frame: int) -> list[int]:
+    """Indices (into ``events``) of the events on at ``frame``."""
+    out = []
+    for i, event in enumerate(events):
+        start, end = event_span(event, last_frame)
+        if start <= frame <= end:
+            out.append(i)
+    return out
+
+
+def action_at(track: CharacterTrack, frame: int) -> str:
+    """The character's action label at ``frame`` (the last one past the track's end; '' if none)."""
+    if not track.action_labels:
+        return ""
+    return track.action_labels[min(max(frame, 0), track.num_frames - 1)]
+
+
+def clock(frame: int, fps: float) -> str:
+    """``frame`` as seconds, e.g. ``'12.3 s'``."""
+    return f"{frame / fps:.1f} s"
+
+
+def event_line(event: StoryEventRecord, fps: float) -> str:
+    """One line of the event list: start time, activity and, when it ended, how."""
+    end = {"completed": " (done)", "failed": " (failed)", "looping": " (loops)"}.get(event.state, "")
+    return f"{event.applied_frame / fps:5.1f} s  {event.activity}{end}"
