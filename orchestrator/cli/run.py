@@ -18,10 +18,9 @@ driven by the same step planner.
 
 from __future__ import annotations
 
-import asyncio
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -36,7 +35,9 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
-from orchestrator.session.runtime import StoryEvent
+
+if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
+    from orchestrator.session.runtime import StoryEvent
 
 
 def register(app: typer.Typer) -> None:
@@ -72,6 +73,8 @@ def run_command(
     description: Description = "describer",
 ) -> None:
     """Plan and animate a story; write motion, pictures, the story log and the trace."""
+    import asyncio
+
     from orchestrator.planning.ablation_graph import Ablation, AblationChoiceError
     from orchestrator.session.run_job import RunSetupError, run_story, write_outputs
     from sim.scene.bundled import resolve_scene
