@@ -205,4 +205,4 @@ def _write_mp4(path: Path, frames: Iterator[NDArray[np.uint8]], fps: float) -> N
         macro_block_size=2, ffmpeg_log_level="error",
     ) as writer:
         for picture in frames:
-            writer.append_data(picture)
+            writer.append_data(picture)  # type: ignore[attr-defined]  # the FFMPEG writer has it; the stub's base class does not
