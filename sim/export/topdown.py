@@ -36,6 +36,7 @@ from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Polygon, Rectangle
 from matplotlib.text import Annotation, Text
 from numpy.typing import NDArray
@@ -323,7 +324,11 @@ class TopdownAnimation:
         canvas.draw()  # lays out the axes (equal aspect) and renders every static layer
         self._background = canvas.copy_from_bbox(self._fig.bbox)
         self._artists: list[Artist] = []  # the moving layers' artists, in drawing order
-        self._by_kind: dict[str, list[Artist]] = {}  # the same, by kind, in the order made
+        # the same, by kind, in the order _draw_moving made them
+        self._lines: list[Line2D] = []
+        self._discs: list[Circle] = []
+        self._arrows: list[Annotation] = []
+        self._texts: list[Text] = []
         self._layout: object = None
 
     def frame(
@@ -340,13 +345,10 @@ class TopdownAnimation:
                 artist.remove()
             self._artists = _draw_moving(self._ax, characters=characters, paths=paths, captions=captions)
             self._layout = _layout(characters, paths, captions)
-            self._by_kind = {"line": [], "disc": [], "arrow": [], "text": []}
-            for artist in self._artists:  # the order _draw_moving added them in
-                kind = (
-                    "arrow" if isinstance(artist, Annotation) else "text" if isinstance(artist, Text)
-                    else "disc" if isinstance(artist, Circle) else "line"
-                )  # fmt: skip
-                self._by_kind[kind].append(artist)
+            self._lines = [a for a in self._artists if isinstance(a, Line2D)]
+            self._discs = [a for a in self._artists if isinstance(a, Circle)]
+            self._arrows = [a for a in self._artists if isinstance(a, Annotation)]
+            self._texts = [a for a in self._artists if isinstance(a, Text) and not isinstance(a, Annotation)]
             # the order of a full draw: by z-order, ties in the order the artists were added
             self._artists.sort(key=lambda a: a.get_zorder())
         for artist in self._artists:
@@ -364,28 +366,27 @@ class TopdownAnimation:
         if self._layout is None or _layout(characters, paths, captions) != self._layout:
             return False
         assert isinstance(paths, Mapping) and characters is not None
-        by_kind = self._by_kind
-        lines = iter(by_kind["line"])
+        lines = iter(self._lines)
         for line in paths.values():
             pts = np.asarray(line, dtype=np.float64).reshape(-1, 2)
             trail, end = next(lines), next(lines)
-            trail.set_data(pts[:, 0], pts[:, 1])  # type: ignore[attr-defined]
-            end.set_data([pts[-1, 0]], [pts[-1, 1]])  # type: ignore[attr-defined]
-        arrows = iter(by_kind["arrow"])
-        texts = iter(by_kind["text"])
-        for marker, disc in zip(characters, by_kind["disc"], strict=True):
+            trail.set_data(pts[:, 0], pts[:, 1])
+            end.set_data([pts[-1, 0]], [pts[-1, 1]])
+        arrows = iter(self._arrows)
+        texts = iter(self._texts)
+        for marker, disc in zip(characters, self._discs, strict=True):
             px, py = marker.position
-            disc.set_center((px, py))  # type: ignore[attr-defined]
+            disc.set_center((px, py))
             h = np.asarray(marker.heading, dtype=np.float64)
             h = h / float(np.hypot(*h)) * (BODY_RADIUS + 0.2)
             arrow = next(arrows)
-            arrow.xy = (px + h[0], py + h[1])  # type: ignore[attr-defined]
-            arrow.set_position((px, py))  # type: ignore[attr-defined]
+            arrow.xy = (px + h[0], py + h[1])
+            arrow.set_position((px, py))
             label = next(texts)
-            label.set_position((px, py - BODY_RADIUS - 0.05))  # type: ignore[attr-defined]
-            label.set_text(marker.name if not marker.label else f"{marker.name}\n{marker.label}")  # type: ignore[attr-defined]
+            label.set_position((px, py - BODY_RADIUS - 0.05))
+            label.set_text(marker.name if not marker.label else f"{marker.name}\n{marker.label}")
         if captions:
-            next(texts).set_text("\n".join(captions))  # type: ignore[attr-defined]
+            next(texts).set_text("\n".join(captions))
         return True
 
 

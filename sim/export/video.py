@@ -24,6 +24,7 @@ import importlib.util
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import imageio.v3 as iio
 import numpy as np
@@ -84,7 +85,7 @@ def _frame_index(rec: RunRecording, frame: int) -> int:
     return f
 
 
-def _moving_layers(rec: RunRecording, f: int, trail_s: float) -> dict[str, object]:
+def _moving_layers(rec: RunRecording, f: int, trail_s: float) -> dict[str, Any]:
     """The layers of frame ``f`` that move: characters, their trails, the caption."""
     lo = max(0, f - round(trail_s * rec.fps))
     markers, trails, under_way = [], {}, []
@@ -104,7 +105,7 @@ def _moving_layers(rec: RunRecording, f: int, trail_s: float) -> dict[str, objec
     return {"characters": markers, "paths": trails, "captions": caption}
 
 
-def _grid_layers(rec: RunRecording, show_grid: bool) -> dict[str, object]:
+def _grid_layers(rec: RunRecording, show_grid: bool) -> dict[str, Any]:
     if show_grid and rec.grid is not None:
         return {"nav_free": rec.grid.free, "nav_origin": rec.grid.origin, "nav_cell_size": rec.grid.cell_size}
     return {}
@@ -159,21 +160,21 @@ def iter_animation_frames(
     one at a time; the static scene is drawn once. Bad arguments raise before the first picture."""
     picks = _picks(rec, stride, start, stop)
     animation = TopdownAnimation(
-        rec.scene, title=title, show_names=show_names, size_px=size_px, **_grid_layers(rec, show_grid)  # type: ignore[arg-type]
+        rec.scene, title=title, show_names=show_names, size_px=size_px, **_grid_layers(rec, show_grid)
     )
-    return (animation.frame(**_moving_layers(rec, f, trail_s)) for f in picks)  # type: ignore[arg-type]
+    return (animation.frame(**_moving_layers(rec, f, trail_s)) for f in picks)
 
 
 def animation_frames(
-    rec: RunRecording, *, stride: int = 6, start: int = 0, stop: int | None = None, **kw: object
+    rec: RunRecording, *, stride: int = 6, start: int = 0, stop: int | None = None, **kw: Any
 ) -> list[NDArray[np.uint8]]:
     """The pictures of ``iter_animation_frames`` as a list."""
-    return list(iter_animation_frames(rec, stride=stride, start=start, stop=stop, **kw))  # type: ignore[arg-type]
+    return list(iter_animation_frames(rec, stride=stride, start=start, stop=stop, **kw))
 
 
 def save_run_animation(
     path: Path | str, rec: RunRecording, *, stride: int = 6, speed: float = 1.0, start: int = 0,
-    stop: int | None = None, **kw: object,
+    stop: int | None = None, **kw: Any,
 ) -> Path:
     """Write an animated MP4 (for a ``.mp4`` path, when an encoder is installed) or GIF.
 
@@ -187,7 +188,7 @@ def save_run_animation(
         raise RunVideoError(f"{path}: no MP4 encoder here (imageio-ffmpeg is not installed); write a .gif")
     if not speed > 0:
         raise RunVideoError(f"speed must be > 0, got {speed}")
-    frames = iter_animation_frames(rec, stride=stride, start=start, stop=stop, **kw)  # type: ignore[arg-type]
+    frames = iter_animation_frames(rec, stride=stride, start=start, stop=stop, **kw)
     seconds_per_picture = stride / rec.fps / speed
     if ext == ".gif":
         iio.imwrite(path, np.stack(list(frames)), extension=".gif", duration=1000.0 * seconds_per_picture, loop=0)
