@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -80,9 +81,9 @@ def test_an_old_run_folder_falls_back_to_the_bundled_scene_or_to_no_objects(tmp_
         (lambda f: (f / "Ava.track.npz").write_bytes(b"junk"), "Ava.track.npz"),
     ],
 )
-def test_a_broken_run_folder_is_one_sentence_naming_the_file(tmp_path: Path, damage: object, message: str) -> None:
+def test_a_broken_run_folder_is_one_sentence_naming_the_file(tmp_path: Path, damage: Callable[[Path], object], message: str) -> None:
     folder = _run_folder(tmp_path)
-    damage(folder)  # type: ignore[operator]
+    damage(folder)
     with pytest.raises(RunFolderError, match=message.replace("(", r"\(")):
         load_run(folder)
 

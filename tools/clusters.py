@@ -4,13 +4,15 @@ The distance between two objects is ``tools.scene_graph.box_distance``: the dist
 their 2D footprints (oriented rectangles) combined with the gap between their height ranges,
 ``hypot(footprint distance, vertical gap)``, in metres. A coffee maker standing on a cabinet is
 at distance 0 from it; two chairs 0.4 m apart are at 0.4.
+
+scikit-learn (about 2 s to import) is imported by ``cluster_objects`` when it first runs, not
+with this module, so that importing the planning stack (and the CLI) stays quick.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from sklearn.cluster import DBSCAN
 
 from sim.scene.model import Scene
 from tools.scene_graph import box_distance
@@ -42,6 +44,8 @@ def cluster_objects(scene: Scene, eps: float = 1.0, min_samples: int = 2) -> lis
     names = scene.object_names
     if not names:
         return []
+    from sklearn.cluster import DBSCAN
+
     labels = DBSCAN(eps=eps, min_samples=min_samples, metric="precomputed").fit_predict(
         distance_matrix(scene)
     )

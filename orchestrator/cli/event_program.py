@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from pydantic import ValidationError
 
-from tools.character_states import CharacterPlan, WorldView
+if TYPE_CHECKING:  # imported by the command, so that other commands start without it
+    from tools.character_states import CharacterPlan, WorldView
 
 
 class _UsageError(Exception):
@@ -38,7 +38,9 @@ def _read_json(path: Path, what: str) -> Any:
 def load_states(path: Path, scene: Any) -> tuple[WorldView, list[str] | None]:
     """World view and action labels from a reference test case (``current_states``,
     ``planning_history``, ``action_labels``) or a project ``WorldView`` JSON (``characters``)."""
-    from tools.character_states import ReferenceCaseError, world_view_from_reference_case
+    from pydantic import ValidationError
+
+    from tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
 
     data = _read_json(path, "states")
     if not isinstance(data, dict):
@@ -101,6 +103,7 @@ def event_program(
     """Dry-run a parse_event() program: print each character's action, area, position and facing."""
     from sim.scene.bundled import resolve_scene
     from sim.scene.files import SceneFileError
+    from tools.character_states import WorldView
     from tools.errors import EventProgramError
     from tools.event_program import run_event_program
 

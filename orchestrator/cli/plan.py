@@ -22,18 +22,13 @@ started with (other options start their own thread).
 
 from __future__ import annotations
 
-import asyncio
 import json
 import uuid
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from agents.llm_port import LLMError
-from agents.messages import ParsedEvent, PlanningFailure
-from agents.prompt_templates import PromptLibrary, PromptTemplateError
-from agents.retry_feedback import RetriesExhaustedError
 from orchestrator.cli.options import (
     Characters,
     Config,
@@ -45,15 +40,15 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
-from orchestrator.planning.ablation_graph import Ablation
-from orchestrator.planning.checkpoints import default_runs_db
-from orchestrator.session.plan_job import PlanResult, run_plan
-from orchestrator.session.port_setup import open_port
-from orchestrator.session.roster import StartPositionError, character_names
 
+if TYPE_CHECKING:
+    from agents.messages import ParsedEvent, PlanningFailure
+    from orchestrator.session.plan_job import PlanResult
 
 def format_event_text(index: int, outcome: ParsedEvent | PlanningFailure | None) -> str:
     """Plain-text lines for one step (deterministic: fixed decimals, no timings)."""
+    from agents.messages import PlanningFailure
+
     head = f"event {index + 1}:"
     if outcome is None:
         return f"{head} wait"
@@ -69,6 +64,8 @@ def format_event_text(index: int, outcome: ParsedEvent | PlanningFailure | None)
 
 
 def outcome_json(index: int, outcome: ParsedEvent | PlanningFailure | None) -> dict[str, Any]:
+    from agents.messages import PlanningFailure
+
     if outcome is None:
         return {"index": index, "kind": "wait"}
     if isinstance(outcome, PlanningFailure):
@@ -117,6 +114,18 @@ def plan_command(
     description: Description = "describer",
 ) -> None:
     """Plan K events with the narrator and event parser (or an ablation) and print them."""
+    import asyncio
+
+    # The planning stack (langgraph, litellm, clustering) is imported here, not at module
+    # level, so that ``storyteller --help`` and the other commands start at once.
+    from agents.llm_port import LLMError
+    from agents.prompt_templates import PromptLibrary, PromptTemplateError
+    from agents.retry_feedback import RetriesExhaustedError
+    from orchestrator.planning.ablation_graph import Ablation
+    from orchestrator.planning.checkpoints import default_runs_db
+    from orchestrator.session.plan_job import run_plan
+    from orchestrator.session.port_setup import open_port
+    from orchestrator.session.roster import StartPositionError, character_names
     from sim.scene.bundled import resolve_scene
     from sim.scene.files import SceneFileError
 

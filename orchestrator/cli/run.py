@@ -5,7 +5,8 @@ concurrently (``orchestrator.session.runtime``). Outputs, all in ``--out``: ``st
 (events with their frames and per-character plans), ``trace.jsonl`` (every LLM call,
 replayable), ``runs.sqlite`` (planning checkpoints and story log), ``scene.json`` (the scene as run), per character
 ``<name>.smplx.npz`` / ``.bvh`` / ``.track.npz``, ``scene.glb`` (whole scene, skinned and
-animated), ``topdown.png`` and, with ``--gif``, ``story.gif``.
+animated), ``topdown.png`` and the animation: with ``--video``, ``story.mp4`` (or ``story.gif`` when
+imageio-ffmpeg is not installed); with ``--gif``, ``story.gif``.
 
 ``--replay T.jsonl`` serves every LLM call from a recorded trace and applies each planning
 result at the frame recorded there: the same arguments reproduce the same events and the same
@@ -18,10 +19,9 @@ driven by the same step planner.
 
 from __future__ import annotations
 
-import asyncio
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -37,7 +37,9 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
-from orchestrator.session.runtime import StoryEvent
+
+if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
+    from orchestrator.session.runtime import StoryEvent
 
 
 def register(app: typer.Typer) -> None:
@@ -66,13 +68,16 @@ def run_command(
     seed: Annotated[int, typer.Option("--seed", help="Seed of start positions, sampling and paths.")] = 0,
     max_retries: MaxRetries = 3,
     program_grammar: ProgramGrammar = True,
-    gif: Annotated[bool, typer.Option("--gif/--no-gif", help="Also write an animated top-down GIF.")] = False,
+    video: Annotated[bool, typer.Option("--video/--no-video", help="Also write an animated top-down story.mp4 (story.gif when imageio-ffmpeg is missing).")] = False,
+    gif: Annotated[bool, typer.Option("--gif/--no-gif", help="Also write an animated top-down story.gif.")] = False,
     foot_ik: Annotated[bool, typer.Option("--foot-ik/--raw-feet", help="Leg IK on the synthesized motion: feet pinned while planted and kept out of furniture (--raw-feet: the matched poses as they are).")] = True,
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this planning thread.")] = None,
     planner: Planner = "event",
     description: Description = "describer",
 ) -> None:
     """Plan and animate a story; write motion, pictures, the story log and the trace."""
+    import asyncio
+
     from orchestrator.planning.ablation_graph import Ablation
     from orchestrator.session.run_job import RunSetupError, run_story, write_outputs
     from sim.scene.bundled import resolve_scene
@@ -121,7 +126,7 @@ def run_command(
         )
     except RunSetupError as exc:
         fail(str(exc))
-    write_outputs(out, scene_obj, world, result, names, instruction, fps, gif)
+    write_outputs(out, scene_obj, world, result, names, instruction, fps, gif, video=video)
     typer.echo(
         f"{result.frames} frames ({result.frames / fps:.1f} s), {result.steps} planning steps, "
         f"{sum(e.state == 'completed' for e in result.events)} events completed -> {out}"

@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from sim.scene.model import Scene
+if TYPE_CHECKING:  # commands import what they need, so that ``scene list`` starts at once
+    from sim.scene.model import Scene
 
 scene_app = typer.Typer(help="Inspect scenes.", no_args_is_help=True)
 

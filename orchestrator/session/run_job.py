@@ -206,12 +206,18 @@ def _motion_layer(motion_config: Path | None) -> Any:
 
 
 def write_outputs(
-    out: Path, scene: Scene, world: Any, result: SessionResult, names: list[str], instruction: str, fps: int, gif: bool
+    out: Path, scene: Scene, world: Any, result: SessionResult, names: list[str], instruction: str, fps: int, gif: bool,
+    video: bool = False,
 ) -> None:
     """``story.json``, ``scene.json`` (the scene as run, for ``storyteller view``), the motion
     exports (npz, BVH, GLB) and the top-down pictures in ``out``."""
     from sim.export.bundle import export_run
-    from sim.export.video import recording_from_world, save_run_animation, save_run_png
+    from sim.export.video import (
+        animation_suffix,
+        recording_from_world,
+        save_run_animation,
+        save_run_png,
+    )
     from sim.scene.files import save_scene_json
 
     save_scene_json(scene, out / "scene.json")
@@ -221,5 +227,7 @@ def write_outputs(
     export_run(out, scene, list(tracks.values()))
     recording = recording_from_world(world)
     save_run_png(out / "topdown.png", recording)
-    if gif:
-        save_run_animation(out / "story.gif", recording, stride=10, speed=4.0)
+    # --video: story.mp4 (story.gif without imageio-ffmpeg); --gif: story.gif
+    animations = {name for name, wanted in (("story.gif", gif), (f"story{animation_suffix()}", video)) if wanted}
+    for name in sorted(animations):
+        save_run_animation(out / name, recording, stride=10, speed=4.0)

@@ -32,7 +32,8 @@ PATH_STRIDE = 3  # frames between path points
 def object_rgb(label: str) -> tuple[int, int, int]:
     """A stable pastel colour per object label (as in the GLB export)."""
     h = zlib.crc32(label.encode("utf-8"))
-    return tuple(int(255 * (0.45 + 0.4 * (((h >> s) & 0xFF) / 255))) for s in (0, 8, 16))  # type: ignore[return-value]
+    r, g, b = (int(255 * (0.45 + 0.4 * (((h >> s) & 0xFF) / 255))) for s in (0, 8, 16))
+    return r, g, b
 
 
 def _yaw_wxyz(angle: float) -> tuple[float, float, float, float]:

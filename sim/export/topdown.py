@@ -6,7 +6,12 @@ One pure drawing function and two outputs:
 - ``render_topdown_rgb(scene, **layers) -> (H, W, 3) uint8``: one frame, for assembling an
   animated GIF / MP4 of a run (same scene and ``size_px`` give frames of the same shape; both
   sides are even numbers of pixels, as video encoders want);
-- ``save_topdown_png(path, scene, **layers) -> Path``.
+- ``save_topdown_png(path, scene, **layers) -> Path``;
+- ``TopdownAnimation(scene, **static layers).frame(**moving layers)``: the frames of an
+  animation. The static layers (floor, grid, furniture, names, axes, title) are drawn once;
+  each frame restores that picture and draws only the moving layers on it (matplotlib
+  blitting), with the same artists and z-order as ``draw_topdown``, so a frame equals
+  ``render_topdown_rgb`` with the same layers up to anti-aliasing at the edges.
 
 Layers (all optional): ``clusters`` (lists of object names, one colour each),
 ``nav_free`` + ``nav_origin`` + ``nav_cell_size`` (a navigation-grid mask, ``nav_free[i, j]``
@@ -28,9 +33,13 @@ from typing import TypedDict, Unpack
 
 import numpy as np
 from matplotlib import colormaps
+from matplotlib.artist import Artist
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Polygon, Rectangle
+from matplotlib.text import Annotation, Text
 from numpy.typing import NDArray
 
 from sim.scene.model import Scene
@@ -51,22 +60,6 @@ class CharacterMarker:
     label: str | None = None  # e.g. the current action or event; shown under the name
 
 
-class TopdownLayers(TypedDict, total=False):
-    """The keyword arguments of :func:`draw_topdown` after the scene (see the module doc)."""
-
-    clusters: Sequence[Sequence[str]] | None
-    nav_free: NDArray[np.float64] | None
-    nav_origin: tuple[float, float]
-    nav_cell_size: float
-    characters: Sequence[CharacterMarker] | None
-    paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None
-    title: str | None
-    captions: Sequence[str] | None
-    show_names: bool
-    size_px: int
-    dpi: int
-
-
 def _figure_size(scene: Scene, size_px: int, dpi: int) -> tuple[float, float]:
     """Figure size in inches: width ``size_px`` pixels, height from the scene's aspect, both even."""
     dx = scene.bounds_max[0] - scene.bounds_min[0] + 1.0
@@ -76,32 +69,31 @@ def _figure_size(scene: Scene, size_px: int, dpi: int) -> tuple[float, float]:
     return width / dpi, height / dpi
 
 
-def draw_topdown(
-    scene: Scene,
-    *,
-    clusters: Sequence[Sequence[str]] | None = None,
-    nav_free: NDArray[np.float64] | None = None,
-    nav_origin: tuple[float, float] = (0.0, 0.0),
-    nav_cell_size: float = 0.3,
-    characters: Sequence[CharacterMarker] | None = None,
-    paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None = None,
-    title: str | None = None,
-    captions: Sequence[str] | None = None,
-    show_names: bool = True,
-    size_px: int = 900,
-    dpi: int = 100,
-) -> Figure:
-    """A top-down figure of ``scene`` with the given layers (see the module docstring)."""
+def _new_axes(scene: Scene, title: str | None, size_px: int, dpi: int) -> tuple[Figure, Axes]:
     fig = Figure(figsize=_figure_size(scene, size_px, dpi), dpi=dpi)
     FigureCanvasAgg(fig)
-    ax = fig.add_axes((0.07, 0.06, 0.9, 0.86 if title else 0.9))
+    return fig, fig.add_axes((0.07, 0.06, 0.9, 0.86 if title else 0.9))
+
+
+def _draw_static(
+    fig: Figure,
+    ax: Axes,
+    scene: Scene,
+    *,
+    clusters: Sequence[Sequence[str]] | None,
+    nav_free: NDArray[np.float64] | None,
+    nav_origin: tuple[float, float],
+    nav_cell_size: float,
+    title: str | None,
+    show_names: bool,
+) -> None:
+    """The layers that do not move: floor, blocked cells, furniture, names, axes, title."""
     (x0, y0), (x1, y1) = scene.bounds_min, scene.bounds_max
     ax.add_patch(
         Rectangle(
             (x0, y0), x1 - x0, y1 - y0, facecolor="#f7f5f0", edgecolor="#888888", lw=1.0, zorder=0
         )
     )
-
     if nav_free is not None:
         free = np.asarray(nav_free, dtype=bool)
         if free.ndim != 2:
@@ -187,6 +179,27 @@ def draw_topdown(
             angles="xy", scale_units="xy", scale=1.0, width=0.003, color="#c0392b", zorder=5,
         )  # fmt: skip
 
+    margin = 0.3
+    ax.set_xlim(x0 - margin, x1 + margin)
+    ax.set_ylim(y0 - margin, y1 + margin)
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel("x (m)", fontsize=7)
+    ax.set_ylabel("y (m)", fontsize=7)
+    ax.tick_params(labelsize=6)
+    if title:
+        fig.suptitle(title, fontsize=9)
+
+
+def _draw_moving(
+    ax: Axes,
+    *,
+    characters: Sequence[CharacterMarker] | None,
+    paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None,
+    captions: Sequence[str] | None,
+) -> list[Artist]:
+    """The layers of one moment (trails, characters, captions), drawn above every static layer
+    (z-order 7 and up); returns the artists added to ``ax``."""
+    before = set(ax.get_children())
     char_colour: dict[str, tuple[float, float, float, float]] = {}
     for k, marker in enumerate(characters or ()):
         char_colour[marker.name] = colormaps["tab10"](k % 10)
@@ -230,15 +243,6 @@ def draw_topdown(
             fontweight="bold",
         )
 
-    margin = 0.3
-    ax.set_xlim(x0 - margin, x1 + margin)
-    ax.set_ylim(y0 - margin, y1 + margin)
-    ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("x (m)", fontsize=7)
-    ax.set_ylabel("y (m)", fontsize=7)
-    ax.tick_params(labelsize=6)
-    if title:
-        fig.suptitle(title, fontsize=9)
     if captions:
         ax.text(
             0.01,
@@ -251,6 +255,47 @@ def draw_topdown(
             zorder=10,
             bbox={"boxstyle": "round,pad=0.3", "fc": "white", "ec": "#888888", "alpha": 0.85},
         )
+    return [a for a in ax.get_children() if a not in before]
+
+
+class TopdownLayers(TypedDict, total=False):
+    """The keyword arguments of :func:`draw_topdown` after the scene (see the module doc)."""
+
+    clusters: Sequence[Sequence[str]] | None
+    nav_free: NDArray[np.float64] | None
+    nav_origin: tuple[float, float]
+    nav_cell_size: float
+    characters: Sequence[CharacterMarker] | None
+    paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None
+    title: str | None
+    captions: Sequence[str] | None
+    show_names: bool
+    size_px: int
+    dpi: int
+
+
+def draw_topdown(
+    scene: Scene,
+    *,
+    clusters: Sequence[Sequence[str]] | None = None,
+    nav_free: NDArray[np.float64] | None = None,
+    nav_origin: tuple[float, float] = (0.0, 0.0),
+    nav_cell_size: float = 0.3,
+    characters: Sequence[CharacterMarker] | None = None,
+    paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None = None,
+    title: str | None = None,
+    captions: Sequence[str] | None = None,
+    show_names: bool = True,
+    size_px: int = 900,
+    dpi: int = 100,
+) -> Figure:
+    """A top-down figure of ``scene`` with the given layers (see the module docstring)."""
+    fig, ax = _new_axes(scene, title, size_px, dpi)
+    _draw_static(
+        fig, ax, scene, clusters=clusters, nav_free=nav_free, nav_origin=nav_origin,
+        nav_cell_size=nav_cell_size, title=title, show_names=show_names,
+    )  # fmt: skip
+    _draw_moving(ax, characters=characters, paths=paths, captions=captions)
     return fig
 
 
@@ -262,6 +307,121 @@ def render_topdown_rgb(scene: Scene, **layers: Unpack[TopdownLayers]) -> NDArray
     canvas.draw()
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
+
+class TopdownAnimation:
+    """Frames of one scene: the static layers drawn once, the moving ones per frame.
+
+    ``frame(characters=..., paths=..., captions=...)`` returns an ``(H, W, 3)`` uint8 picture
+    of the same shape as ``render_topdown_rgb(scene, size_px=...)``. Frames are independent:
+    each starts from the saved static picture, so the moving layers of one frame never show in
+    the next.
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        *,
+        clusters: Sequence[Sequence[str]] | None = None,
+        nav_free: NDArray[np.float64] | None = None,
+        nav_origin: tuple[float, float] = (0.0, 0.0),
+        nav_cell_size: float = 0.3,
+        title: str | None = None,
+        show_names: bool = True,
+        size_px: int = 900,
+        dpi: int = 100,
+    ) -> None:
+        self._fig, self._ax = _new_axes(scene, title, size_px, dpi)
+        _draw_static(
+            self._fig, self._ax, scene, clusters=clusters, nav_free=nav_free,
+            nav_origin=nav_origin, nav_cell_size=nav_cell_size, title=title, show_names=show_names,
+        )  # fmt: skip
+        canvas = self._fig.canvas
+        assert isinstance(canvas, FigureCanvasAgg)
+        self._canvas = canvas
+        canvas.draw()  # lays out the axes (equal aspect) and renders every static layer
+        self._background = canvas.copy_from_bbox(self._fig.bbox)
+        self._artists: list[Artist] = []  # the moving layers' artists, in drawing order
+        # the same, by kind, in the order _draw_moving made them
+        self._lines: list[Line2D] = []
+        self._discs: list[Circle] = []
+        self._arrows: list[Annotation] = []
+        self._texts: list[Text] = []
+        self._layout: object = None
+
+    def frame(
+        self,
+        *,
+        characters: Sequence[CharacterMarker] | None = None,
+        paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None = None,
+        captions: Sequence[str] | None = None,
+    ) -> NDArray[np.uint8]:
+        """The static picture with these moving layers drawn on it."""
+        self._canvas.restore_region(self._background)
+        if not self._update(characters, paths, captions):  # another cast: new artists
+            for artist in self._artists:
+                artist.remove()
+            self._artists = _draw_moving(self._ax, characters=characters, paths=paths, captions=captions)
+            self._layout = _layout(characters, paths, captions)
+            self._lines = [a for a in self._artists if isinstance(a, Line2D)]
+            self._discs = [a for a in self._artists if isinstance(a, Circle)]
+            self._arrows = [a for a in self._artists if isinstance(a, Annotation)]
+            self._texts = [a for a in self._artists if isinstance(a, Text) and not isinstance(a, Annotation)]
+            # the order of a full draw: by z-order, ties in the order the artists were added
+            self._artists.sort(key=lambda a: a.get_zorder())
+        for artist in self._artists:
+            self._ax.draw_artist(artist)
+        return np.asarray(self._canvas.buffer_rgba())[..., :3].copy()
+
+    def _update(
+        self,
+        characters: Sequence[CharacterMarker] | None,
+        paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None,
+        captions: Sequence[str] | None,
+    ) -> bool:
+        """Move the previous frame's artists to these layers; False when the layers are not
+        the same kinds of things as last time (then the artists are made anew)."""
+        if self._layout is None or _layout(characters, paths, captions) != self._layout:
+            return False
+        assert isinstance(paths, Mapping) and characters is not None
+        lines = iter(self._lines)
+        for line in paths.values():
+            pts = np.asarray(line, dtype=np.float64).reshape(-1, 2)
+            trail, end = next(lines), next(lines)
+            trail.set_data(pts[:, 0], pts[:, 1])
+            end.set_data([pts[-1, 0]], [pts[-1, 1]])
+        arrows = iter(self._arrows)
+        texts = iter(self._texts)
+        for marker, disc in zip(characters, self._discs, strict=True):
+            px, py = marker.position
+            disc.set_center((px, py))
+            h = np.asarray(marker.heading, dtype=np.float64)
+            h = h / float(np.hypot(*h)) * (BODY_RADIUS + 0.2)
+            arrow = next(arrows)
+            arrow.xy = (px + h[0], py + h[1])
+            arrow.set_position((px, py))
+            label = next(texts)
+            label.set_position((px, py - BODY_RADIUS - 0.05))
+            label.set_text(marker.name if not marker.label else f"{marker.name}\n{marker.label}")
+        if captions:
+            next(texts).set_text("\n".join(captions))
+        return True
+
+
+def _layout(
+    characters: Sequence[CharacterMarker] | None,
+    paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None,
+    captions: Sequence[str] | None,
+) -> object:
+    """What decides which artists a frame has; None when frames of this kind are drawn anew
+    each time (trails not keyed by character, a character without a heading, an empty trail)."""
+    if not isinstance(paths, Mapping) or characters is None:
+        return None
+    for marker in characters:
+        if marker.heading is None or float(np.hypot(*marker.heading)) <= 1e-9:
+            return None
+    if any(len(np.asarray(line).reshape(-1, 2)) == 0 for line in paths.values()):
+        return None
+    return (tuple(m.name for m in characters), tuple(paths), bool(captions))
 
 def topdown_png_bytes(scene: Scene, **layers: Unpack[TopdownLayers]) -> bytes:
     """The picture as PNG bytes."""

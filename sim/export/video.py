@@ -1,32 +1,36 @@
-"""Pictures of a run: a top-down PNG of one frame and an animated GIF (or MP4) of the whole run.
+"""Pictures of a run: a top-down PNG of one frame and an animated MP4 (or GIF) of the whole run.
 
 A ``RunRecording`` is what a picture needs from a run: the scene, one ``CharacterTrack`` per
 character (pelvis positions and root rotations at ``fps``), and optionally the event id each
 character belonged to at every frame (``World.event_ids()``). ``recording_from_world`` builds
 one from a ``sim.world.step.World``.
 
-Every picture is drawn by ``sim.export.topdown.render_topdown_rgb``: furniture, characters as
-discs with heading arrows and their current action / event under their names, the cells a
-body cannot stand on (shaded, when the recording has the grid), the last ``trail_s`` seconds of each character's path as a trail, and the events under way as captions.
+Every picture shows the layers of ``sim.export.topdown``: furniture, characters as discs with
+heading arrows and their current action / event under their names, the cells a body cannot
+stand on (shaded, when the recording has the grid), the last ``trail_s`` seconds of each
+character's path as a trail, and the events under way as captions. A single frame is drawn
+whole (``render_topdown_rgb``); an animation draws the static scene once and only the moving
+layers per picture (``TopdownAnimation``), the same picture as a whole frame up to
+anti-aliasing, so a 60 s story animates in seconds rather than minutes.
 
-Animations are GIF by default (imageio's Pillow writer). MP4 needs an ffmpeg encoder that
-imageio can find (``imageio-ffmpeg``); ``save_run_animation`` picks MP4 for a ``.mp4`` path
-only when one is available and raises ``RunVideoError`` otherwise.
+Animations are MP4 (H.264, through ``imageio-ffmpeg``, a dependency that ships its own ffmpeg)
+or GIF (imageio's Pillow writer), chosen by the path's extension; ``animation_suffix()`` is
+``.mp4`` when the encoder is installed and ``.gif`` otherwise. ``save_run_animation`` raises
+``RunVideoError`` for a ``.mp4`` path when no encoder is installed.
 """
-
 from __future__ import annotations
 
 import importlib.util
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TypedDict, Unpack
+from typing import Any, TypedDict, Unpack
 
 import imageio.v3 as iio
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.export.topdown import CharacterMarker, TopdownLayers, render_topdown_rgb
+from sim.export.topdown import CharacterMarker, TopdownAnimation, render_topdown_rgb
 from sim.paths.nav_grid import NavGrid
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack
@@ -70,7 +74,7 @@ class RunRecording:
 
 
 def recording_from_world(world: World) -> RunRecording:
-    """The recording of a ``sim.world.step.World``: its scene, tracks, event ids and grid."""
+    """The recording of a world's run so far."""
     return RunRecording(world.scene, world.tracks(), world.event_ids(), world.grid)
 
 
@@ -80,6 +84,32 @@ def _frame_index(rec: RunRecording, frame: int) -> int:
     if not 0 <= f < n:
         raise RunVideoError(f"frame {frame} is outside the run's {n} frames")
     return f
+
+
+def _moving_layers(rec: RunRecording, f: int, trail_s: float) -> dict[str, Any]:
+    """The layers of frame ``f`` that move: characters, their trails, the caption."""
+    lo = max(0, f - round(trail_s * rec.fps))
+    markers, trails, under_way = [], {}, []
+    for name, t in rec.tracks.items():
+        xy = t.root_positions[f, :2]
+        yaw = float(root_yaw(t.local_rotations[f, 0]))
+        action = t.action_labels[f] if t.action_labels is not None else None
+        event = rec.events[name][f] if rec.events is not None else ""
+        label = " / ".join(s for s in (action, event) if s) or None
+        markers.append(CharacterMarker(name, (float(xy[0]), float(xy[1])), (np.cos(yaw), np.sin(yaw)), label))
+        trails[name] = t.root_positions[lo : f + 1, :2]
+        if event and event not in under_way:
+            under_way.append(event)
+    caption = [f"t = {f / rec.fps:6.2f} s   frame {f}"]
+    if under_way:
+        caption.append("events: " + ", ".join(under_way))
+    return {"characters": markers, "paths": trails, "captions": caption}
+
+
+def _grid_layers(rec: RunRecording, show_grid: bool) -> dict[str, Any]:
+    if show_grid and rec.grid is not None:
+        return {"nav_free": rec.grid.free, "nav_origin": rec.grid.origin, "nav_cell_size": rec.grid.cell_size}
+    return {}
 
 
 class FrameStyle(TypedDict, total=False):
@@ -98,30 +128,10 @@ def run_frame_rgb(
 ) -> NDArray[np.uint8]:
     """One frame of the run as an (H, W, 3) uint8 picture (``frame`` may be negative)."""
     f = _frame_index(rec, frame)
-    lo = max(0, f - round(trail_s * rec.fps))
-    markers, trails, under_way = [], {}, []
-    for name, t in rec.tracks.items():
-        xy = t.root_positions[f, :2]
-        yaw = float(root_yaw(t.local_rotations[f, 0]))
-        action = t.action_labels[f] if t.action_labels is not None else None
-        event = rec.events[name][f] if rec.events is not None else ""
-        label = " / ".join(s for s in (action, event) if s) or None
-        markers.append(CharacterMarker(name, (float(xy[0]), float(xy[1])), (np.cos(yaw), np.sin(yaw)), label))
-        trails[name] = t.root_positions[lo : f + 1, :2]
-        if event and event not in under_way:
-            under_way.append(event)
-    caption = [f"t = {f / rec.fps:6.2f} s   frame {f}"]
-    if under_way:
-        caption.append("events: " + ", ".join(under_way))
-    layers: TopdownLayers = {
-        "characters": markers, "paths": trails, "title": title, "captions": caption,
-        "show_names": show_names, "size_px": size_px,
-    }
-    if show_grid and rec.grid is not None:
-        layers["nav_free"] = rec.grid.free
-        layers["nav_origin"] = rec.grid.origin
-        layers["nav_cell_size"] = rec.grid.cell_size
-    return render_topdown_rgb(rec.scene, **layers)
+    return render_topdown_rgb(
+        rec.scene, **_moving_layers(rec, f, trail_s), title=title, show_names=show_names, size_px=size_px,
+        **_grid_layers(rec, show_grid),
+    )
 
 
 def save_run_png(path: Path | str, rec: RunRecording, frame: int = -1, **kw: Unpack[FrameStyle]) -> Path:
@@ -136,10 +146,12 @@ def mp4_available() -> bool:
     return importlib.util.find_spec("imageio_ffmpeg") is not None
 
 
-def animation_frames(
-    rec: RunRecording, *, stride: int = 6, start: int = 0, stop: int | None = None, **kw: Unpack[FrameStyle]
-) -> list[NDArray[np.uint8]]:
-    """Pictures of every ``stride``-th frame in [start, stop) (the last frame always included)."""
+def animation_suffix() -> str:
+    """``.mp4`` when an MP4 encoder is installed here, ``.gif`` otherwise."""
+    return ".mp4" if mp4_available() else ".gif"
+
+
+def _picks(rec: RunRecording, stride: int, start: int, stop: int | None) -> list[int]:
     if stride < 1:
         raise RunVideoError(f"stride must be >= 1 frame, got {stride}")
     end = rec.num_frames if stop is None else min(stop, rec.num_frames)
@@ -148,14 +160,34 @@ def animation_frames(
         raise RunVideoError(f"no frame in [{start}, {end})")
     if picks[-1] != end - 1:
         picks.append(end - 1)
-    return [run_frame_rgb(rec, f, **kw) for f in picks]
+    return picks
+
+
+def iter_animation_frames(
+    rec: RunRecording, *, stride: int = 6, start: int = 0, stop: int | None = None, trail_s: float = 3.0,
+    size_px: int = 900, title: str | None = None, show_names: bool = True, show_grid: bool = True,
+) -> Iterator[NDArray[np.uint8]]:
+    """Pictures of every ``stride``-th frame in [start, stop) (the last frame always included),
+    one at a time; the static scene is drawn once. Bad arguments raise before the first picture."""
+    picks = _picks(rec, stride, start, stop)
+    animation = TopdownAnimation(
+        rec.scene, title=title, show_names=show_names, size_px=size_px, **_grid_layers(rec, show_grid)
+    )
+    return (animation.frame(**_moving_layers(rec, f, trail_s)) for f in picks)
+
+
+def animation_frames(
+    rec: RunRecording, *, stride: int = 6, start: int = 0, stop: int | None = None, **kw: Unpack[FrameStyle]
+) -> list[NDArray[np.uint8]]:
+    """The pictures of ``iter_animation_frames`` as a list."""
+    return list(iter_animation_frames(rec, stride=stride, start=start, stop=stop, **kw))
 
 
 def save_run_animation(
     path: Path | str, rec: RunRecording, *, stride: int = 6, speed: float = 1.0, start: int = 0,
     stop: int | None = None, **kw: Unpack[FrameStyle],
 ) -> Path:
-    """Write an animated GIF (or MP4 for a ``.mp4`` path, when an encoder is available).
+    """Write an animated MP4 (for a ``.mp4`` path, when an encoder is installed) or GIF.
 
     ``stride``: frames of the run per picture; ``speed``: playback speed (1.0 = real time).
     """
@@ -167,10 +199,22 @@ def save_run_animation(
         raise RunVideoError(f"{path}: no MP4 encoder here (imageio-ffmpeg is not installed); write a .gif")
     if not speed > 0:
         raise RunVideoError(f"speed must be > 0, got {speed}")
-    frames = animation_frames(rec, stride=stride, start=start, stop=stop, **kw)
+    frames = iter_animation_frames(rec, stride=stride, start=start, stop=stop, **kw)
     seconds_per_picture = stride / rec.fps / speed
     if ext == ".gif":
-        iio.imwrite(path, np.stack(frames), extension=".gif", duration=1000.0 * seconds_per_picture, loop=0)
-    else:  # pragma: no cover - needs imageio-ffmpeg
-        iio.imwrite(path, np.stack(frames), extension=".mp4", fps=1.0 / seconds_per_picture)
+        iio.imwrite(path, np.stack(list(frames)), extension=".gif", duration=1000.0 * seconds_per_picture, loop=0)
+    else:
+        _write_mp4(path, frames, fps=1.0 / seconds_per_picture)
     return path
+
+
+def _write_mp4(path: Path, frames: Iterator[NDArray[np.uint8]], fps: float) -> None:
+    """H.264 in yuv420p (plays everywhere), one picture at a time; sides are even already."""
+    import imageio.v2 as iio2
+
+    with iio2.get_writer(
+        path, format="FFMPEG", mode="I", fps=fps, codec="libx264", pixelformat="yuv420p", quality=8,
+        macro_block_size=2, ffmpeg_log_level="error",
+    ) as writer:
+        for picture in frames:
+            writer.append_data(picture)  # type: ignore[attr-defined]  # the FFMPEG writer has it; the stub's base class does not

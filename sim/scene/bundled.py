@@ -7,10 +7,12 @@ from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sim.scene.errors import SceneFileError
-from sim.scene.files import load_scene, load_scene_json
-from sim.scene.model import Scene
+
+if TYPE_CHECKING:  # loading is imported when a scene is loaded: ``scene list`` needs no numpy
+    from sim.scene.model import Scene
 
 
 def bundled_scene_names() -> list[str]:
@@ -24,6 +26,8 @@ def load_bundled_scene(name: str) -> Scene:
     if name not in bundled_scene_names():
         names = ", ".join(bundled_scene_names()) or "none"
         raise SceneFileError(name, f"not a bundled scene (bundled: {names})")
+    from sim.scene.files import load_scene_json
+
     with resources.as_file(resources.files("sim.scene") / "scenes" / f"{name}.json") as path:
         return load_scene_json(Path(path))
 
@@ -42,4 +46,6 @@ def resolve_scene(spec: str | Path) -> Scene:
         raise SceneFileError(
             path, f"no such file or folder, and not a bundled scene (bundled: {names})"
         )
+    from sim.scene.files import load_scene
+
     return load_scene(path)
