@@ -45,7 +45,8 @@ from benchmark.reference_cases import (
     planning_inputs,
     scene_dir,
 )
-from orchestrator.planning.ablation_graph import Ablation, DescriptionKind, PlannerKind
+from orchestrator.planning.ablation_graph import Ablation
+from orchestrator.planning.kinds import DescriptionKind, PlannerKind
 from orchestrator.reference_data import locate_reference
 from orchestrator.session.plan_job import run_plan
 from sim.scene.model import Scene

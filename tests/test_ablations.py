@@ -12,7 +12,8 @@ import pytest
 from agents.ablations.descriptions import object_list_description, scene_graph_description
 from agents.ablations.direct import DirectPlans, blocked_positions, direct_program
 from agents.messages import CharacterStatus, ParsedEvent, PlanningFailure, SceneDescription
-from orchestrator.planning.ablation_graph import Ablation, PlannerKind
+from orchestrator.planning.ablation_graph import Ablation
+from orchestrator.planning.kinds import PlannerKind
 from orchestrator.session.plan_job import StepOutcome, run_plan
 from orchestrator.session.roster import RosterWorld, initial_roster
 from sim.scene.bundled import resolve_scene

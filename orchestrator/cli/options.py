@@ -7,8 +7,8 @@ from typing import Annotated, NoReturn
 
 import typer
 
-from orchestrator.planning.ablation_graph import DescriptionKind, PlannerKind
-from orchestrator.session.runtime import Pace
+from orchestrator.planning.kinds import DescriptionKind, PlannerKind
+from orchestrator.session.pace import Pace
 
 SceneArg = Annotated[str, typer.Argument(help="Bundled scene name or path to a scene.")]
 Characters = Annotated[int, typer.Option("--characters", "-n", min=1, max=24, help="Number of characters.")]

@@ -63,10 +63,8 @@ from orchestrator.planning.graph import (
     reply_update,
     unavailable,
 )
+from orchestrator.planning.kinds import DescriptionKind, PlannerKind
 from orchestrator.planning.state import PlanningDeps, PlanningState, RetryTurn
-
-PlannerKind = Literal["event", "unified", "direct"]
-DescriptionKind = Literal["describer", "object-list", "scene-graph"]
 
 
 @dataclass(frozen=True)

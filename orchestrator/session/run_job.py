@@ -21,7 +21,8 @@ from typing import Any
 
 from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.planning.ablation_graph import Ablation
-from orchestrator.session.runtime import Pace, SessionResult, StoryEvent
+from orchestrator.session.pace import Pace
+from orchestrator.session.runtime import SessionResult, StoryEvent
 from sim.scene.model import Scene
 
 

@@ -25,7 +25,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Protocol
 
 import anyio
 import structlog
@@ -34,11 +34,11 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from agents.llm_port import TraceRecorder
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
+from orchestrator.session.pace import Pace
 from sim.world.event_book import EventStatus
 from sim.world.events import AssignEvent, EventFailure, StepOutput
 from sim.world.step import World, step
 
-Pace = Literal["lockstep", "realtime", "fast"]
 Outcome = ParsedEvent | PlanningFailure | None
 
 _log = structlog.get_logger("storyteller.session")
