@@ -15,8 +15,8 @@ from typing import Any
 import pytest
 
 from benchmark.story_suite.__main__ import main
-from benchmark.story_suite.evaluate import StoryLogError, score_run, score_story
-from benchmark.story_suite.runner import RunOptions, run_args, run_scenario
+from benchmark.story_suite.evaluate import ScenarioScore, StoryLogError, score_run, score_story
+from benchmark.story_suite.runner import RunOptions, record_scores, run_args, run_scenario
 from benchmark.story_suite.scenario import (
     SCENARIO_DIR,
     Scenario,
@@ -221,3 +221,13 @@ def test_scenario_names_come_from_the_file(tmp_path: Path) -> None:
     path.write_text(HEAD + '[[expect]]\nkind = "not_idle"\ncharacter = "Ben"\n', encoding="utf-8")
     scenario = load_scenario(path)
     assert isinstance(scenario, Scenario) and scenario.name == "mine" and scenario.names == ("Ava", "Ben")
+
+
+def test_recorded_scores_merge_per_scenario(tmp_path: Path) -> None:
+    one = score_story(COFFEE, HOME, story((0, [plan("Ava", "use_coffee_maker", AT_COFFEE_MAKER)])))
+    record_scores(tmp_path, [one], "local/m")
+    other = ScenarioScore("other", (), steps=0, events=0)
+    record_scores(tmp_path, [other], "local/m")
+    stored = json.loads((tmp_path / "scores.json").read_text())
+    assert list(stored["scenarios"]) == ["home_coffee_then_couch", "other"]
+    assert stored["scenarios"]["home_coffee_then_couch"]["met"] == 1

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from benchmark.story_suite.evaluate import StoryLogError, score_run
 from benchmark.story_suite.report import table, totals
-from benchmark.story_suite.runner import RunOptions, run_scenario, write_results
+from benchmark.story_suite.runner import RunOptions, record_scores, run_scenario, write_results
 from benchmark.story_suite.scenario import ScenarioError, load_scenarios
 
 
@@ -32,7 +32,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--scenarios", default="*", help="Glob over scenario names (default: all).")
     run.add_argument("--model", default=None, help="Model of every planning role (STORYTELLER_MODEL), e.g. local/qwen2.5-coder-1.5b.")
     mode = run.add_mutually_exclusive_group()
-    mode.add_argument("--record", type=Path, default=None, help="Keep each run's trace as DIR/<scenario>.jsonl.")
+    mode.add_argument("--record", type=Path, default=None,
+                      help="Keep each run's trace as DIR/<scenario>.jsonl and its score in DIR/scores.json.")  # fmt: skip
     mode.add_argument("--replay", type=Path, default=None, help="Replay DIR/<scenario>.jsonl (no model loaded).")
     run.add_argument("--out", type=Path, required=True, help="Folder of the runs, results.json and report.md.")
     score = sub.add_parser("score", help="Re-score the runs in an out folder of 'run'.")
@@ -60,6 +61,8 @@ def main(argv: list[str] | None = None) -> int:
             seconds[scenario.name] = round(took, 1)
             print(f"{scenario.name}: {score.met}/{score.total} ({took:.0f} s)", file=sys.stderr, flush=True)
         mode = "replay" if args.replay else ("record" if args.record else "live")
+        if args.record is not None:
+            print(f"-> {record_scores(args.record, scores, args.model or 'default')}", file=sys.stderr)
         meta: dict[str, object] = {"command": "run", "mode": mode, "model": args.model or "default",
                                    "seconds": seconds}  # fmt: skip
     else:

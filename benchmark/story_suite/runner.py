@@ -81,6 +81,17 @@ def run_scenario(scenario: Scenario, options: RunOptions) -> tuple[ScenarioScore
         return _failed(scenario, str(exc)), seconds
 
 
+def record_scores(record: Path, scores: list[ScenarioScore], model: str) -> Path:
+    """Merge the scores of recorded runs into ``record/scores.json`` (the replay test's truth)."""
+    path = record / "scores.json"
+    stored = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {"scenarios": {}}
+    stored["model"] = model
+    stored["scenarios"].update({s.scenario: s.to_json() for s in scores})
+    stored["scenarios"] = dict(sorted(stored["scenarios"].items()))
+    path.write_text(json.dumps(stored, indent=2) + "\n", encoding="utf-8")
+    return path
+
+
 def write_results(out: Path, scores: list[ScenarioScore], meta: dict[str, object]) -> None:
     """``results.json`` (every verdict) and ``report.md`` (the table and the unmet reasons)."""
     from benchmark.story_suite.report import markdown_report, totals
