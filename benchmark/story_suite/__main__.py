@@ -42,6 +42,19 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def model_name(model: str | None) -> str:
+    """The models the planning roles will use: ``--model``, else the run config's (env and
+    ``STORYTELLER_CONFIG`` as ``storyteller run`` reads them)."""
+    if model is not None:
+        return model
+    from orchestrator.llm.config import ConfigError, load_config
+
+    try:
+        return ", ".join(sorted({node.model for node in load_config().nodes.values()}))
+    except ConfigError as exc:
+        return f"unknown ({exc})"
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
@@ -62,8 +75,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{scenario.name}: {score.met}/{score.total} ({took:.0f} s)", file=sys.stderr, flush=True)
         mode = "replay" if args.replay else ("record" if args.record else "live")
         if args.record is not None:
-            print(f"-> {record_scores(args.record, scores, args.model or 'default')}", file=sys.stderr)
-        meta: dict[str, object] = {"command": "run", "mode": mode, "model": args.model or "default",
+            print(f"-> {record_scores(args.record, scores, model_name(args.model))}", file=sys.stderr)
+        meta: dict[str, object] = {"command": "run", "mode": mode, "model": model_name(args.model),
                                    "seconds": seconds}  # fmt: skip
     else:
         ran = [s for s in scenarios if (args.dir / s.name).is_dir()]
