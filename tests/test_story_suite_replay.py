@@ -21,7 +21,7 @@ from benchmark.story_suite.scenario import SCENARIO_DIR, load_scenario
 TRACES = Path(__file__).resolve().parents[1] / "traces" / "story_suite"
 RECORDED = json.loads((TRACES / "scores.json").read_text(encoding="utf-8"))["scenarios"]
 REPLAYED_IN_CI = tuple(RECORDED)
-"""Every recorded scenario (so far only the README's example story; see scores.json): a replay
+"""Every recorded scenario (so far two home scenarios; see scores.json): a replay
 is a full run of the simulation and its exports, tens of seconds on a loaded machine. When many
 more are recorded, name a few here, one per scene, and let the bookkeeping test cover the rest."""
 

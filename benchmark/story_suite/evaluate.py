@@ -19,6 +19,7 @@ replayed run and its live run score alike when their story logs are equal.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -115,7 +116,8 @@ def _meets(e: Does, scene: Scene, plan: PlanRecord) -> str | None:
     if e.where is not None:
         result = check_position(scene, e.where, plan.position, seat=plan.seat)
         if not result.relation_passed:
-            problems.append(f"not '{e.where}' (off by {result.error:.2f} m)")
+            off = f" (off by {result.error:.2f} m)" if math.isfinite(result.error) else ""  # inf: another seat
+            problems.append(f"not '{e.where}'{off}")
         elif result.collision is not None:
             problems.append(f"position collides with {result.collision}")
     if not problems and plan.failure is not None:
