@@ -185,7 +185,7 @@ HOSTILE: list[tuple[str, object, type[EventProgramError]]] = [
     ("join_bomb", body("return ','.join(['a' * 20000] * 20000)"), B),
     ("replace_bomb", body("return ('a' * 20000).replace('a', 'aaaa')"), B),
     ("repr_bomb", body("x = ['a' * 10000] * 20000\nreturn str(x)"), B),
-    ("self_referential_repr", body("a = []\na.append(a)\nreturn f'{a}'"), B),
+    ("shared_reference_repr", body("a = []\nfor i in range(40):\n    a = [a, a]\nreturn f'{a}'"), B),
     ("deep_compare", body("a = []\nb = []\na.append(a)\nb.append(b)\nreturn a == b"), B),
     ("deep_tuple_hash", body("t = ()\nfor i in range(15000):\n    t = (t,)\nreturn {t: 1}"), B),
     ("sorted_key_bomb", body("return sorted(range(100), key=lambda x: [0] * 10**9)"), B),

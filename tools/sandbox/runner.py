@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from tools.errors import EventProgramError
 from tools.sandbox.budget import Budget
 from tools.sandbox.checker import check_program
-from tools.sandbox.errors import BudgetExceededError, ProgramRuntimeError
+from tools.sandbox.errors import BudgetExceededError, ProgramRuntimeError, describe
 from tools.sandbox.interpreter import Interpreter
 
 
@@ -57,7 +57,7 @@ def run_program(
     budget = budget or Budget()
     interpreter: Interpreter | None = None
     try:
-        tree, local_names = check_program(source, namespace, budget=budget)
+        tree, local_names = check_program(source, namespace, budget=budget, clock=clock)
         interpreter = Interpreter(namespace, budget, clock, local_names)
         result = interpreter.run(tree, entry)
         return ProgramRun(result, tuple(interpreter.meter.output), interpreter.meter.steps)
@@ -70,4 +70,4 @@ def run_program(
             "the program nests or recurses too deeply, or uses too much memory"
         ) from None
     except (Exception, SystemExit, KeyboardInterrupt) as err:  # never let anything else out
-        raise ProgramRuntimeError(f"the program failed: {type(err).__name__}: {err}") from None
+        raise ProgramRuntimeError(f"the program failed: {describe(err)}") from None
