@@ -94,11 +94,7 @@ def did_you_mean(
     """
     if len(word) > SUGGESTION_CHARS:
         return ""
-    pool = [
-        c
-        for c in itertools.islice(candidates, limit)
-        if len(c) <= SUGGESTION_CHARS
-    ]
+    pool = [c for c in itertools.islice(candidates, limit) if len(c) <= SUGGESTION_CHARS]
     close = difflib.get_close_matches(word, pool, n=n, cutoff=0.6)
     if not close:
         return ""

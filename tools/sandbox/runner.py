@@ -21,6 +21,10 @@ from tools.sandbox.errors import BudgetExceededError, ProgramRuntimeError, descr
 from tools.sandbox.interpreter import Interpreter
 
 
+DEFAULT_CLOCK: Callable[[], float] = time.monotonic
+"""The clock a run uses when its caller injects none (the only clock the sandbox names)."""
+
+
 @dataclass(frozen=True)
 class ProgramRun:
     """What one successful run produced: the entry's return value and the printed lines."""
@@ -36,7 +40,7 @@ def execute(
     *,
     entry: str = "parse_event",
     budget: Budget | None = None,
-    clock: Callable[[], float] = time.monotonic,
+    clock: Callable[[], float] = DEFAULT_CLOCK,
 ) -> object:
     """Run ``source``'s module body, then ``entry()``; return what ``entry`` returns.
 
@@ -51,7 +55,7 @@ def run_program(
     *,
     entry: str = "parse_event",
     budget: Budget | None = None,
-    clock: Callable[[], float] = time.monotonic,
+    clock: Callable[[], float] = DEFAULT_CLOCK,
 ) -> ProgramRun:
     """Like ``execute`` but also returns the captured ``print`` output and the step count."""
     budget = budget or Budget()
