@@ -20,7 +20,6 @@ from tools.sandbox.checker import check_program
 from tools.sandbox.errors import BudgetExceededError, ProgramRuntimeError, describe
 from tools.sandbox.interpreter import Interpreter
 
-
 DEFAULT_CLOCK: Callable[[], float] = time.monotonic
 """The clock a run uses when its caller injects none (the only clock the sandbox names)."""
 
