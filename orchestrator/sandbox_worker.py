@@ -36,7 +36,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import asdict
-from typing import Any, BinaryIO
+from typing import IO, Any
 
 from sim.scene.model import Scene
 from tools import errors as tool_errors
@@ -71,13 +71,13 @@ ERROR_TYPES = _error_types()
 """Error classes a worker may name in an answer (anything else becomes ``EventProgramError``)."""
 
 
-def _write_frame(stream: BinaryIO, message: dict[str, Any]) -> None:
+def _write_frame(stream: IO[bytes], message: dict[str, Any]) -> None:
     body = json.dumps(message, separators=(",", ":")).encode("utf-8")
     stream.write(_HEADER.pack(len(body)) + body)
     stream.flush()
 
 
-def _read_exact(stream: BinaryIO, n: int) -> bytes | None:
+def _read_exact(stream: IO[bytes], n: int) -> bytes | None:
     chunks: list[bytes] = []
     while n:
         chunk = stream.read(n)
@@ -88,7 +88,7 @@ def _read_exact(stream: BinaryIO, n: int) -> bytes | None:
     return b"".join(chunks)
 
 
-def _read_frame(stream: BinaryIO) -> dict[str, Any] | None:
+def _read_frame(stream: IO[bytes]) -> dict[str, Any] | None:
     """The next message, or None at end of stream or on a malformed frame."""
     header = _read_exact(stream, _HEADER.size)
     if header is None:

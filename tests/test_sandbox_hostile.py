@@ -531,3 +531,57 @@ def test_suggestions_look_at_a_bounded_number_of_keys() -> None:
     with pytest.raises(ProgramRuntimeError, match="not in the dict") as info:
         run_program(source, {})
     assert info.value.steps is not None and info.value.steps < Budget().steps
+
+
+# ---------------------------------------------------------------- program text is data on the CLI
+
+MARKUP_NAMES = {
+    "[/]": "get_area_adjacent_to('fridge_1')",
+    "[red]Ivy[bold": "get_area_to_sit_on('chair_2')",
+}
+
+
+@pytest.mark.parametrize("in_process", [True, False], ids=["in_process", "worker"])
+def test_markup_and_escapes_in_names_are_printed_as_text(
+    tmp_path: object, in_process: bool
+) -> None:
+    from pathlib import Path
+
+    from typer.testing import CliRunner
+
+    from orchestrator.cli.app import app
+
+    assert isinstance(tmp_path, Path)
+    lines = [
+        f"    get_character({name!r}).set_position({area})" for name, area in MARKUP_NAMES.items()
+    ]
+    program = tmp_path / "p.py"
+    program.write_text("def parse_event():\n" + "\n".join(lines) + "\n", encoding="utf-8")
+    args = ["event-program", "home", "--program", str(program)]
+    result = CliRunner().invoke(app, args + (["--in-process"] if in_process else []))
+    assert result.exit_code == 0, result.output
+    assert result.exception is None
+    for name in MARKUP_NAMES:
+        assert name in result.output, result.output
+    # terminal escapes and bidi overrides in an error message reach the terminal as text
+    program.write_text(
+        "def parse_event():\n    assert False, '\\x1b[2J\\x1b[31mred \\u202eevil [/]'\n",
+        encoding="utf-8",
+    )
+    result = CliRunner().invoke(app, args + (["--in-process"] if in_process else []))
+    assert result.exit_code == 1
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    assert "\x1b" not in result.output and "\u202e" not in result.output
+    assert "\\x1b[31mred \\u202eevil [/]" in result.output, result.output
+
+
+def test_safe_text_strips_every_control_character() -> None:
+    from orchestrator.cli.safe_text import markup, plain
+
+    hostile = "".join(chr(c) for c in range(0x00, 0xA0)) + "\u202e\u2066"
+    cleaned = plain(hostile)
+    assert not any(ord(c) < 0x20 or 0x7F <= ord(c) < 0xA0 for c in cleaned)
+    assert "\u202e" not in cleaned
+    assert plain("a\nb", keep_newlines=True) == "a\nb"
+    assert plain("a\nb") == "a\\x0ab"
+    assert markup("[red]x[/]") == "\\[red]x\\[/]"

@@ -45,6 +45,7 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
+from orchestrator.cli.safe_text import plain
 from orchestrator.planning.ablation_graph import Ablation, AblationChoiceError
 from orchestrator.planning.checkpoints import default_runs_db
 from orchestrator.session.plan_job import PlanResult, run_plan
@@ -58,11 +59,11 @@ def format_event_text(index: int, outcome: ParsedEvent | PlanningFailure | None)
     if outcome is None:
         return f"{head} wait"
     if isinstance(outcome, PlanningFailure):
-        return f"{head} failed in {outcome.node} after {outcome.attempts} attempts: {outcome.feedback}"
-    lines = [f"{head} {', '.join(outcome.event.characters)}: {outcome.event.activity}"]
+        return f"{head} failed in {outcome.node} after {outcome.attempts} attempts: {plain(outcome.feedback, keep_newlines=True)}"
+    lines = [f"{head} {plain(', '.join(outcome.event.characters))}: {plain(outcome.event.activity)}"]
     for p in outcome.plans:
         lines.append(
-            f"  {p.character}: {p.action} | {p.area} | position [{p.position[0]:.2f}, {p.position[1]:.2f}]"
+            f"  {plain(p.character)}: {plain(p.action)} | {plain(p.area)} | position [{p.position[0]:.2f}, {p.position[1]:.2f}]"
             f" | facing [{p.facing[0]:.2f}, {p.facing[1]:.2f}]"
         )
     return "\n".join(lines)
