@@ -51,6 +51,9 @@ CPU_SECONDS = 4
 """``RLIMIT_CPU`` seconds per program (re-armed from the worker's CPU time so far)."""
 WALL_SECONDS = 5.0
 """Seconds the parent waits for one program's answer before killing the worker."""
+START_SECONDS = 60.0
+"""Seconds a new worker may take to import its modules, and a scene to load (not counted
+against any program's wall clock)."""
 SCENES_KEPT = 4
 """Scenes (with their scene graphs) the worker keeps loaded."""
 MAX_FRAME = 64 * 2**20
@@ -164,6 +167,12 @@ class WorkerRunner:
             env=env,
         )
         self.starts += 1
+        assert process.stdout is not None
+        ready, _, _ = select.select([process.stdout], [], [], START_SECONDS)
+        if not ready or _read_frame(process.stdout) != {"ready": True}:
+            process.kill()
+            process.wait()
+            raise EventProgramError("the event-program worker process did not start")
         return process
 
     def _worker(self) -> subprocess.Popen[bytes]:
@@ -191,8 +200,11 @@ class WorkerRunner:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _ask(self, request: dict[str, Any]) -> dict[str, Any]:
-        """Send one request and wait for its answer; kill the worker on a timeout or death."""
+    def _ask(self, request: dict[str, Any], extra_seconds: float = 0.0) -> dict[str, Any]:
+        """Send one request and wait for its answer; kill the worker on a timeout or death.
+
+        ``extra_seconds`` is added to the wall clock (loading a scene is not the program's).
+        """
         process = self._worker()
         assert process.stdin is not None and process.stdout is not None
         try:
@@ -202,7 +214,7 @@ class WorkerRunner:
             raise BudgetExceededError(
                 "the program's worker process died; it is restarted for the next program"
             ) from None
-        ready, _, _ = select.select([process.stdout], [], [], self.wall_seconds)
+        ready, _, _ = select.select([process.stdout], [], [], self.wall_seconds + extra_seconds)
         if not ready:
             self.close()
             raise BudgetExceededError(
@@ -249,7 +261,7 @@ class WorkerRunner:
         }
         answer = self._ask(request)
         if answer.get("need_scene"):
-            answer = self._ask({**request, "scene": scene_text})
+            answer = self._ask({**request, "scene": scene_text}, START_SECONDS)
         if answer.get("ok") is True and isinstance(answer.get("plans"), list):
             return [CharacterPlan.model_validate(p) for p in answer["plans"]]
         raise error_from(answer.get("error"))
@@ -286,6 +298,7 @@ def serve(address_space_bytes: int, cpu_seconds: int) -> None:
     os.dup2(2, 1)  # ... and anything printed by accident goes to stderr
     inp = os.fdopen(0, "rb")
     _limit_self(address_space_bytes)
+    _write_frame(out, {"ready": True})
     scenes: OrderedDict[str, tuple[Scene, SceneGraph]] = OrderedDict()
     while True:
         request = _read_frame(inp)
