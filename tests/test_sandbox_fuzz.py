@@ -184,7 +184,7 @@ def make_namespace() -> dict[str, object]:
     }
 
 
-BUDGET = Budget(steps=20_000, loop_iterations=2_000, allocated_items=200_000)
+BUDGET = Budget(steps=20_000, loop_iterations=2_000, memory_bytes=8 * 2**20)
 
 
 def run_and_check(source: str) -> None:

@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from sim.scene.model import SceneObject
 from tools.errors import ToolArgumentError
 from tools.scene_graph import point_footprint_distance
+from tools.value_text import show
 
 ADJACENT_DISTANCE = 0.5  # m from the footprint
 CLOSE_DISTANCE = 1.0  # m from the footprint
@@ -129,7 +130,9 @@ class Area:
 
 def _combinable(a: Area, b: object, method: str) -> Area:
     if not isinstance(b, Area):
-        raise ToolArgumentError(f"{method}() expects an Area from a get_area_* function, got {b!r}")
+        raise ToolArgumentError(
+            f"{method}() expects an Area from a get_area_* function, got {show(b)}"
+        )
     if a.parts + b.parts > MAX_PARTS:
         raise ToolArgumentError(f"an area may combine at most {MAX_PARTS} simple areas")
     return b

@@ -9,6 +9,7 @@ one-paragraph text to show the model; ``kind`` is a stable short tag for traces 
 from __future__ import annotations
 
 import difflib
+import itertools
 from collections.abc import Iterable
 from contextvars import ContextVar
 
@@ -76,9 +77,25 @@ def _clip(text: str) -> str:
     return text[: MAX_FEEDBACK - 20] + f"... ({len(text)} characters)"
 
 
-def did_you_mean(word: str, candidates: Iterable[str], *, n: int = 3) -> str:
-    """A suffix like " did you mean 'chair_1'?" (empty when nothing is close)."""
-    close = difflib.get_close_matches(word, list(candidates), n=n, cutoff=0.6)
+SUGGESTION_CANDIDATES = 200
+"""Candidates a "did you mean" search compares at most (the first ones it is given)."""
+SUGGESTION_CHARS = 40
+"""Longest word or candidate a "did you mean" search compares (longer ones are skipped)."""
+
+
+def did_you_mean(
+    word: str, candidates: Iterable[str], *, n: int = 3, limit: int = SUGGESTION_CANDIDATES
+) -> str:
+    """A suffix like " did you mean 'chair_1'?" (empty when nothing is close).
+
+    Bounded whatever the input: only the first ``limit`` candidates are read, and a word or
+    candidate longer than ``SUGGESTION_CHARS`` is not compared (difflib is quadratic in
+    length), so one search costs at most ``limit * SUGGESTION_CHARS**2`` character steps.
+    """
+    if len(word) > SUGGESTION_CHARS:
+        return ""
+    pool = [c for c in itertools.islice(candidates, limit) if len(c) <= SUGGESTION_CHARS]
+    close = difflib.get_close_matches(word, pool, n=n, cutoff=0.6)
     if not close:
         return ""
     return " did you mean " + " or ".join(f"'{c}'" for c in close) + "?"

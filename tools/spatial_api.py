@@ -40,6 +40,7 @@ from tools.scene_graph import (
     build_scene_graph,
     point_footprint_distance,
 )
+from tools.value_text import show
 
 Point = tuple[float, float]
 ASSOCIATED_DISTANCE = 0.3  # m: objects this close (box to box) are associated
@@ -236,7 +237,7 @@ class SpatialAPI:
     def _object(self, name: Any, func: str) -> SceneObject:
         if not isinstance(name, str):
             raise ToolArgumentError(
-                f"{func}() expects an object name string like 'chair_1', got {name!r}"
+                f"{func}() expects an object name string like 'chair_1', got {show(name)}"
             )
         obj = self.scene.by_name.get(name)
         if obj is not None:
@@ -255,7 +256,7 @@ class SpatialAPI:
             return None
         if not isinstance(label, str):
             raise ToolArgumentError(
-                f"{func}() expects label to be a string like 'chair' or None, got {label!r}"
+                f"{func}() expects label to be a string like 'chair' or None, got {show(label)}"
             )
         if label not in self.scene.labels:
             hint = did_you_mean(label, self.scene.labels)
@@ -271,14 +272,14 @@ class SpatialAPI:
 
     def _character_name(self, name: Any, func: str) -> str:
         if not isinstance(name, str) or not name:
-            raise ToolArgumentError(f"{func}() expects a character name string, got {name!r}")
+            raise ToolArgumentError(f"{func}() expects a character name string, got {show(name)}")
         if name in self.world.names:
             return name
         if self.allow_new_characters:
             if len(name) > MAX_NAME_CHARS or not name.isprintable():
                 raise ToolArgumentError(
                     f"{func}() expects a short one-line character name "
-                    f"(at most {MAX_NAME_CHARS} characters), got {name[:40]!r}..."
+                    f"(at most {MAX_NAME_CHARS} characters), got {show(name, 40)}"
                 )
             new = {n for n in self._handles if n not in self.world.names}
             if name not in new and len(new) >= MAX_NEW_CHARACTERS:
@@ -303,7 +304,9 @@ class SpatialAPI:
             or len(value) != 2
             or not all(_is_number(v) for v in value)
         ):
-            raise ToolArgumentError(f"{func}() expects an Area or [x, y] in metres, got {value!r}")
+            raise ToolArgumentError(
+                f"{func}() expects an Area or [x, y] in metres, got {show(value)}"
+            )
         try:
             x, y = float(value[0]), float(value[1])
         except OverflowError:
@@ -320,7 +323,7 @@ class SpatialAPI:
     def _area(self, value: Any, func: str) -> Area:
         if not isinstance(value, Area):
             raise ToolArgumentError(
-                f"{func}() expects Area values from get_area_* functions, got {value!r}"
+                f"{func}() expects Area values from get_area_* functions, got {show(value)}"
             )
         return value
 
@@ -381,12 +384,12 @@ class SpatialAPI:
     def _action(self, label: Any) -> str:
         if not isinstance(label, str) or not label:
             raise ToolArgumentError(
-                f"set_target_action() expects an action label string, got {label!r}"
+                f"set_target_action() expects an action label string, got {show(label)}"
             )
         if self.action_labels is None and (len(label) > MAX_NAME_CHARS or not label.isprintable()):
             raise ToolArgumentError(
                 f"set_target_action() expects a short one-line action label "
-                f"(at most {MAX_NAME_CHARS} characters), got {label[:40]!r}..."
+                f"(at most {MAX_NAME_CHARS} characters), got {show(label, 40)}"
             )
         if self.action_labels is not None and label not in self.action_labels:
             hint = did_you_mean(label, self.action_labels)
@@ -525,7 +528,9 @@ class SpatialAPI:
         """Whether ``object`` has the label ``label`` (e.g. is_object_of_label('chair_3', 'chair'))."""
         obj = self._object(object, "is_object_of_label")
         if not isinstance(label, str):
-            raise ToolArgumentError(f"is_object_of_label() expects a label string, got {label!r}")
+            raise ToolArgumentError(
+                f"is_object_of_label() expects a label string, got {show(label)}"
+            )
         return obj.label == label
 
     # ----- areas ----------------------------------------------------------------------------

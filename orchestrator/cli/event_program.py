@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from orchestrator.cli.safe_text import markup, plain
+
 if TYPE_CHECKING:  # imported by the command, so that other commands start without it
     from tools.character_states import CharacterPlan, WorldView
 
@@ -99,6 +101,13 @@ def event_program(
     ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the position sampler.")] = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    in_process: Annotated[
+        bool,
+        typer.Option(
+            "--in-process",
+            help="Run the program in this process (no worker process and its OS limits).",
+        ),
+    ] = False,
 ) -> None:
     """Dry-run a parse_event() program: print each character's action, area, position and facing."""
     from sim.scene.bundled import resolve_scene
@@ -117,11 +126,17 @@ def event_program(
             ) from None
         world, labels = load_states(states, loaded) if states is not None else (WorldView(), None)
     except (SceneFileError, _UsageError) as exc:
-        typer.echo(f"error: {exc}", err=True)
+        typer.echo(f"error: {plain(exc)}", err=True)
         raise typer.Exit(2) from None
 
     try:
-        plans = run_event_program(loaded, source, world, seed=seed, action_labels=labels)
+        if in_process:
+            plans = run_event_program(loaded, source, world, seed=seed, action_labels=labels)
+        else:
+            from orchestrator.sandbox_worker import WorkerRunner
+
+            with WorkerRunner() as run:
+                plans = run(loaded, source, world, seed=seed, action_labels=labels)
     except EventProgramError as exc:
         error = {
             "kind": exc.kind,
@@ -132,7 +147,7 @@ def event_program(
         if as_json:
             typer.echo(plans_json([], error))
         else:
-            typer.echo(f"error ({exc.kind}): {exc.feedback}", err=True)
+            typer.echo(f"error ({exc.kind}): {plain(exc.feedback)}", err=True)
         raise typer.Exit(1) from None
 
     if as_json:
@@ -141,14 +156,14 @@ def event_program(
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title=f"event program on {loaded.name} (seed {seed})")
+    table = Table(title=f"event program on {markup(loaded.name)} (seed {seed})")
     for column in ("character", "action", "area", "position [x, y]", "facing [dx, dy]"):
         table.add_column(column)
     for p in plans:
         table.add_row(
-            p.character,
-            p.action,
-            p.area,
+            markup(p.character),
+            markup(p.action),
+            markup(p.area),
             f"[{p.position[0]:.2f}, {p.position[1]:.2f}]",
             f"[{p.facing[0]:.2f}, {p.facing[1]:.2f}]",
         )

@@ -40,6 +40,7 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
+from orchestrator.cli.safe_text import plain
 
 if TYPE_CHECKING:
     from agents.messages import ParsedEvent, PlanningFailure
@@ -53,11 +54,11 @@ def format_event_text(index: int, outcome: ParsedEvent | PlanningFailure | None)
     if outcome is None:
         return f"{head} wait"
     if isinstance(outcome, PlanningFailure):
-        return f"{head} failed in {outcome.node} after {outcome.attempts} attempts: {outcome.feedback}"
-    lines = [f"{head} {', '.join(outcome.event.characters)}: {outcome.event.activity}"]
+        return f"{head} failed in {outcome.node} after {outcome.attempts} attempts: {plain(outcome.feedback, keep_newlines=True)}"
+    lines = [f"{head} {plain(', '.join(outcome.event.characters))}: {plain(outcome.event.activity)}"]
     for p in outcome.plans:
         lines.append(
-            f"  {p.character}: {p.action} | {p.area} | position [{p.position[0]:.2f}, {p.position[1]:.2f}]"
+            f"  {plain(p.character)}: {plain(p.action)} | {plain(p.area)} | position [{p.position[0]:.2f}, {p.position[1]:.2f}]"
             f" | facing [{p.facing[0]:.2f}, {p.facing[1]:.2f}]"
         )
     return "\n".join(lines)

@@ -37,6 +37,7 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
+from orchestrator.cli.safe_text import plain
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
     from orchestrator.session.runtime import StoryEvent
@@ -49,7 +50,7 @@ def register(app: typer.Typer) -> None:
 def _event_line(e: StoryEvent, fps: int) -> str:
     t = (e.finished_frame if e.finished_frame is not None else e.applied_frame) / fps
     what = {"ongoing": "starts", "looping": "loops", "completed": "done", "failed": "failed"}[e.state]
-    return f"[{t:7.1f}s] {e.event_id} {what}: {', '.join(e.characters)}: {e.activity}"
+    return f"[{t:7.1f}s] {plain(e.event_id)} {what}: {plain(', '.join(e.characters))}: {plain(e.activity)}"
 
 
 def run_command(
@@ -133,7 +134,7 @@ def run_command(
     )
     if result.planner_error is not None:
         err = result.planner_error
-        typer.echo(f"error: planning stopped: {type(err).__name__}: {err}", err=True)
+        typer.echo(f"error: planning stopped: {type(err).__name__}: {plain(err, keep_newlines=True)}", err=True)
         raise typer.Exit(1)
 
 

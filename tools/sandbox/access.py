@@ -19,16 +19,18 @@ from typing import Protocol, cast
 from tools import errors
 from tools.errors import EventProgramError, did_you_mean
 from tools.sandbox.boundary import check_key, detach, is_int, materialize, type_name
-from tools.sandbox.budget import Meter
+from tools.sandbox.budget import DICT_ITEM_BYTES, Meter, container_bytes, str_bytes
 from tools.sandbox.errors import (
     BudgetExceededError,
     ForbiddenConstructError,
     Line,
     ProgramRuntimeError,
     add_line,
+    describe,
 )
 from tools.sandbox.methods import METHODS, MethodImpl
 from tools.sandbox.values import INTERNAL_TYPES, BoundMethod
+from tools.value_text import show
 
 
 class _Indexable(Protocol):
@@ -38,9 +40,8 @@ class _Indexable(Protocol):
 
 
 def short_repr(value: object) -> str:
-    """A value as an error message shows it: short literals, else the type name."""
-    text = repr(value) if type(value) in (str, int, float, bool) else type_name(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+    """A value as an error message shows it: short literals (bounded), else the type name."""
+    return show(value, 60) if type(value) in (str, int, float, bool) else type_name(value)
 
 
 def get_attribute(obj: object, name: str, line: Line) -> object:
@@ -88,8 +89,8 @@ def get_item(container: object, key: object, meter: Meter, line: Line) -> object
         try:
             return container[key]
         except KeyError:
-            keys = [k for k in container if type(k) is str]
-            hint = did_you_mean(key, keys) if type(key) is str else ""
+            keys = (k for k in container if type(k) is str)
+            hint = meter.suggest(key, keys, line) if type(key) is str else ""
             raise ProgramRuntimeError(
                 f"key {short_repr(key)} is not in the dict;{hint or ' use d.get(key) to allow missing keys'}",
                 line=line,
@@ -102,7 +103,8 @@ def get_item(container: object, key: object, meter: Meter, line: Line) -> object
     ):
         if type(key) is slice:
             result = container[key]
-            meter.allocate(len(result), line)
+            n = len(result)
+            meter.charge(str_bytes(n) if type(result) is str else container_bytes(n), line)
             return result
         if not is_int(key):
             raise ProgramRuntimeError(
@@ -148,7 +150,7 @@ def set_item(container: object, key: object, value: object, meter: Meter, line: 
     elif type(container) is dict:
         check_key(key, line)
         if key not in container:
-            meter.check_len(len(container) + 1, line, added=1)
+            meter.check_len(len(container) + 1, line, added=1, item_bytes=DICT_ITEM_BYTES)
         container[key] = value
     else:
         raise ProgramRuntimeError(
@@ -174,7 +176,7 @@ def call_external(
     except (RecursionError, MemoryError):
         raise BudgetExceededError(f"{label}() ran out of stack or memory", line=line) from None
     except (Exception, SystemExit, KeyboardInterrupt) as err:
-        message = f"{label}() failed: {type(err).__name__}: {err}"
+        message = f"{label}() failed: {describe(err)}"
         if isinstance(err, TypeError):
             with contextlib.suppress(TypeError, ValueError):
                 message += f" (expected {label}{inspect.signature(fn)})"

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import numbers
 import re
-from collections.abc import Callable
 from typing import TypeAlias, TypeGuard
 
-from tools.sandbox.budget import Meter, text_len_bound
+from tools.sandbox.budget import Meter, int_bytes
 from tools.sandbox.errors import BudgetExceededError, Line, ProgramRuntimeError
+from tools.value_text import bounded_repr
 
 ITERABLE_TYPES = frozenset({list, tuple, str, dict, set, frozenset, range})
 INT_TYPES = frozenset({int, bool})
@@ -153,38 +153,61 @@ def iter_source(value: object, line: Line) -> Iterated:
     )
 
 
+def range_item_bytes(value: object) -> int:
+    """Bytes of each int a loop over ``value`` creates (0 unless ``value`` is a range)."""
+    if type(value) is not range:
+        return 0
+    return int_bytes(max(abs(value.start), abs(value.stop)).bit_length())
+
+
 def materialize(value: object, meter: Meter, line: Line, what: str = "") -> list[object]:
-    """All items of an iterable as a new list, after checking how many there are."""
+    """All items of an iterable as a new list, after checking how many there are.
+
+    The ints of a range are created here, so they are charged too (a range of 4096-bit
+    numbers is not free).
+    """
     src = iter_source(value, line)
     try:
         n = len(src)
     except OverflowError:
         n = meter.budget.container_len + 1
-    meter.check_len(n, line, what=what)
+    meter.check_len(n, line, what=what, item_bytes=8 + range_item_bytes(src))
     return list(src)
 
 
-_RENDER: dict[str, Callable[[object], str]] = {"s": str, "r": repr, "a": ascii}
+def _ascii(text: str) -> str:
+    """``ascii()`` from ``repr()`` text, as CPython derives it."""
+    return text.encode("ascii", "backslashreplace").decode("ascii")
 
 
 def to_text(value: object, meter: Meter, line: Line, conversion: str = "s") -> str:
-    """``str`` / ``repr`` / ``ascii`` of a value, bounded before rendering."""
+    """``str`` / ``repr`` / ``ascii`` of a value, through the bounded renderer.
+
+    The text is built piece by piece and refused as soon as it passes ``str_len``: the
+    work is bounded by the limit, never by the size of the value. Types a tool defined
+    with their own ``__str__`` use it (clipped to the limit after the fact: tools are
+    trusted code).
+    """
     t = type(value)
     if conversion == "s":
         if type(value) is str:
             return value
-        if t is int or t is float or t is bool or value is None:
+        if t is float or t is bool or value is None:
             return str(value)
+        if t not in OPERAND_TYPES and t is not range and t.__str__ is not object.__str__:
+            text = str(value)
+            meter.check_str(len(text), line)
+            return text
     limit = meter.budget.str_len
-    if t in OPERAND_TYPES or t is range:
-        bound = text_len_bound(value, limit)
-        if bound > limit:
-            raise BudgetExceededError(
-                f"converting a '{t.__name__}' to text would give about {bound} characters "
-                f"(limit {limit})",
-                line=line,
-            )
-    text = _RENDER[conversion](value)
+    text, complete = bounded_repr(value, limit + 1)
+    meter.work(len(text), line)
+    if not complete:
+        raise BudgetExceededError(
+            f"converting a '{t.__name__}' to text would give more than {limit} characters",
+            line=line,
+        )
+    if conversion == "a":
+        text = _ascii(text)
     meter.check_str(len(text), line)
     return text
 

@@ -2,18 +2,27 @@
 
 A ``Budget`` bounds everything an event program can spend: interpreter steps, loop
 iterations, the size of every string / int / container it builds (checked *before* the
-value is computed), the total number of items it allocates, call depth, wall time and
-printed lines. ``Meter`` counts one run against one budget and raises
-``BudgetExceededError`` the moment a limit is passed; its clock is injected (the runner
-passes one in), so this module reads no clock of its own.
+value is computed), the bytes it allocates over the run, call depth, wall time and
+printed lines; and what the static check may spend on a program (``check_*``). ``Meter``
+counts one run against one budget and raises ``BudgetExceededError`` the moment a limit is
+passed; its clock is injected (the runner passes one in), so this module reads no clock of
+its own.
+
+Memory is charged in bytes as CPython 3.11+ on 64 bits stores values (``str_bytes``,
+``int_bytes``, ``container_bytes``): every string, int and container a program creates is
+charged when it is created and never refunded, so the total bounds the peak. A string is
+charged one byte per character (CPython's ASCII layout); a wider string costs up to four
+times that, which ``str_len`` bounds per string and the worker's address-space limit bounds
+overall.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
 from typing import cast
 
+from tools.errors import SUGGESTION_CHARS, did_you_mean
 from tools.sandbox.errors import BudgetExceededError, Line
 
 
@@ -31,8 +40,9 @@ class Budget:
     """Bits in any one integer."""
     container_len: int = 20_000
     """Items in any one list / tuple / dict / set (and any iterable consumed whole)."""
-    allocated_items: int = 2_000_000
-    """Items plus characters created over the whole run (stops quadratic growth)."""
+    memory_bytes: int = 64 * 2**20
+    """Bytes of the strings, ints and containers created over the whole run (never refunded,
+    so this also stops quadratic growth)."""
     recursion_depth: int = 40
     """Nested calls of program-defined functions."""
     wall_time: float = 1.0
@@ -45,12 +55,47 @@ class Budget:
     """Depth of the syntax tree (nested expressions and blocks)."""
     format_width: int = 100
     """Largest width or precision in an f-string format spec."""
+    check_nodes: int = 20_000
+    """Syntax-tree nodes the static check visits."""
+    check_names: int = 2_000
+    """Distinct names (variables, functions, parameters, attributes) in the program text."""
+    check_time: float = 1.0
+    """Seconds of the injected clock the static check may take."""
+    suggestion_candidates: int = 200
+    """Names a "did you mean" suggestion compares against (the rest are not considered)."""
+
+
+STR_BYTES = 49
+"""Bytes of an empty ``str`` object; each ASCII character adds one."""
+CONTAINER_BYTES = 56
+"""Bytes of an empty list / tuple object (dicts and sets are larger: see ``*_ITEM_BYTES``)."""
+REF_BYTES = 8
+"""Bytes of one item slot of a list or tuple (a pointer)."""
+DICT_ITEM_BYTES = 72
+"""Bytes per dict entry (hash table slot, index and key/value pointers, over-allocation)."""
+SET_ITEM_BYTES = 40
+"""Bytes per set item (hash table slot with over-allocation)."""
+
+
+def int_bytes(bits: int) -> int:
+    """Bytes of an int of ``bits`` bits (28 bytes plus 4 per 30-bit digit)."""
+    return 28 + 4 * max((bits - 1) // 30, 0)
+
+
+def str_bytes(n: int) -> int:
+    """Bytes of an ASCII string of ``n`` characters."""
+    return STR_BYTES + n
+
+
+def container_bytes(n: int, item_bytes: int = REF_BYTES) -> int:
+    """Bytes of a new container of ``n`` items of ``item_bytes`` each."""
+    return CONTAINER_BYTES + n * item_bytes
 
 
 class Meter:
     """Counts one run against a ``Budget``; every ``charge_*`` raises ``BudgetExceededError``."""
 
-    __slots__ = ("allocated", "budget", "clock", "depth", "loops", "output", "start", "steps")
+    __slots__ = ("budget", "clock", "depth", "loops", "memory", "output", "start", "steps")
 
     def __init__(self, budget: Budget, clock: Callable[[], float]) -> None:
         self.budget = budget
@@ -58,7 +103,8 @@ class Meter:
         self.start = clock()
         self.steps = 0
         self.loops = 0
-        self.allocated = 0
+        self.memory = 0
+        """Bytes charged so far."""
         self.depth = 0
         self.output: list[str] = []
 
@@ -96,11 +142,13 @@ class Meter:
                 line=line,
             )
 
-    def allocate(self, n: int, line: Line) -> None:
-        self.allocated += n
-        if self.allocated > self.budget.allocated_items:
+    def charge(self, nbytes: int, line: Line) -> None:
+        """Charge ``nbytes`` of memory the program is about to create."""
+        self.memory += nbytes
+        if self.memory > self.budget.memory_bytes:
             raise BudgetExceededError(
-                f"the program built more than {self.budget.allocated_items} items in total",
+                f"the program built more than {self.budget.memory_bytes // 2**20} MiB of "
+                "values in total; event programs only need a few small lists",
                 line=line,
             )
 
@@ -110,13 +158,22 @@ class Meter:
             raise BudgetExceededError(
                 f"a string would have {n} characters (limit {self.budget.str_len})", line=line
             )
-        self.allocate(n, line)
+        self.charge(str_bytes(n), line)
 
-    def check_len(self, n: int, line: Line, *, added: int | None = None, what: str = "") -> None:
+    def check_len(
+        self,
+        n: int,
+        line: Line,
+        *,
+        added: int | None = None,
+        what: str = "",
+        item_bytes: int = REF_BYTES,
+    ) -> None:
         """Before building (or consuming whole) a container of ``n`` items.
 
-        ``added`` is how many items are new (default ``n``); ``what`` names a consumer
-        (e.g. ``"sum()"``) for the message.
+        ``added`` is how many items are new in an existing container (default: a new
+        container of ``n``); ``what`` names a consumer (e.g. ``"sum()"``) for the message;
+        ``item_bytes`` is the cost of one item's slot.
         """
         if n > self.budget.container_len:
             subject = (
@@ -125,15 +182,27 @@ class Meter:
             raise BudgetExceededError(
                 f"{subject} {n} items (limit {self.budget.container_len})", line=line
             )
-        self.allocate(n if added is None else added, line)
+        self.charge(container_bytes(n, item_bytes) if added is None else added * item_bytes, line)
 
     def check_bits(self, bits: int, line: Line) -> None:
-        """Before (or right after) building an integer of ``bits`` bits."""
+        """Before building an integer of ``bits`` bits (``made_int`` charges it once built)."""
         if bits > self.budget.int_bits:
             raise BudgetExceededError(
                 f"an integer would have about {bits} bits (limit {self.budget.int_bits})",
                 line=line,
             )
+
+    def made_int(self, value: int, line: Line) -> None:
+        """An integer was just built: check its size and charge its bytes."""
+        bits = value.bit_length()
+        self.check_bits(bits, line)
+        self.charge(int_bytes(bits), line)
+
+    def suggest(self, word: str, candidates: Iterable[str], line: Line, n: int = 3) -> str:
+        """``did_you_mean`` on at most ``suggestion_candidates`` candidates, charged as work."""
+        limit = self.budget.suggestion_candidates
+        self.work(limit * SUGGESTION_CHARS * 8, line)
+        return did_you_mean(word, candidates, n=n, limit=limit)
 
     def print_line(self, text: str, line: Line) -> None:
         if len(self.output) >= self.budget.output_lines:
@@ -141,43 +210,6 @@ class Meter:
                 f"the program printed more than {self.budget.output_lines} lines", line=line
             )
         self.output.append(text)
-
-
-def text_len_bound(value: object, limit: int) -> int:
-    """Upper bound of ``len(repr(value))``, walking containers without recursion.
-
-    Stops as soon as the bound passes ``limit`` (each visited item adds at least one
-    character, so the walk visits at most ``limit`` items). Unknown objects are rendered
-    with their own ``repr`` (tool-defined types only).
-    """
-    total = 0
-    stack: list[object] = [value]
-    while stack:
-        v = stack.pop()
-        t = type(v)
-        if type(v) is str:
-            total += 2 * len(v) + 2 if v.isascii() and v.isprintable() else 10 * len(v) + 2
-        elif type(v) is int:
-            total += int(v.bit_length() * 0.30103) + 3
-        elif t is bool or v is None:
-            total += 5
-        elif t is float:
-            total += 25
-        elif type(v) is list or type(v) is tuple or type(v) is set or type(v) is frozenset:
-            total += 12 + 2 * len(v)
-            stack.extend(v)
-        elif type(v) is dict:
-            total += 2 + 4 * len(v)
-            stack.extend(v.keys())
-            stack.extend(v.values())
-        elif type(v) is range:
-            stack.extend((v.start, v.stop, v.step))
-            total += 16
-        else:
-            total += len(repr(v))
-        if total > limit:
-            return total
-    return total
 
 
 _NESTED: frozenset[type] = frozenset({list, tuple, dict, set, frozenset})

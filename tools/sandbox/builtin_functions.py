@@ -21,7 +21,14 @@ from tools.sandbox.boundary import (
     to_text,
     type_name,
 )
-from tools.sandbox.budget import Meter
+from tools.sandbox.budget import (
+    DICT_ITEM_BYTES,
+    REF_BYTES,
+    SET_ITEM_BYTES,
+    Meter,
+    container_bytes,
+    int_bytes,
+)
 from tools.sandbox.errors import BudgetExceededError, Line, ProgramRuntimeError
 from tools.sandbox.operators import check_hash_spread, check_result, comparison_work
 
@@ -73,7 +80,7 @@ def _number(name: str, value: object, line: Line) -> int | float:
 def _keys(host: Host, items: list[object], key: object, line: Line) -> list[object]:
     if key is None:
         return items
-    host.meter.allocate(len(items), line)
+    host.meter.charge(container_bytes(len(items)), line)
     return [host.call_value(key, [item], {}, line) for item in items]
 
 
@@ -152,7 +159,7 @@ def _b_round(host: Host, args: list[object], kwargs: dict[str, object], line: Li
     ndigits = args[1] if len(args) > 1 else kwargs.get("ndigits")
     if ndigits is None:
         try:
-            return round(value)
+            return check_result(round(value), host.meter, line)
         except (ValueError, OverflowError) as err:
             raise ProgramRuntimeError(f"round(): {err}", line=line) from None
     if not is_int(ndigits) or not -30 <= ndigits <= 30:
@@ -191,12 +198,19 @@ def _b_enumerate(host: Host, args: list[object], kwargs: dict[str, object], line
     start = args[1] if len(args) > 1 else kwargs.get("start", 0)
     if not is_int(start):
         raise ProgramRuntimeError("enumerate() needs an integer start", line=line)
+    last = int(start) + len(items)
+    bits = max(abs(int(start)), abs(last)).bit_length()
+    host.meter.check_bits(bits, line)
+    pair = container_bytes(2) + int_bytes(bits)  # a 2-tuple and its new int
+    host.meter.check_len(len(items), line, item_bytes=REF_BYTES + pair)
     return [(start + i, item) for i, item in enumerate(items)]
 
 
 def _b_zip(host: Host, args: list[object], kwargs: dict[str, object], line: Line) -> object:
     arity("zip", args, kwargs, line, 0, 20)
     lists = [materialize(a, host.meter, line, "zip()") for a in args]
+    n = min(map(len, lists), default=0)
+    host.meter.check_len(n, line, item_bytes=REF_BYTES + container_bytes(len(lists)))
     return list(zip(*lists, strict=False))
 
 
@@ -216,6 +230,7 @@ def _b_set(host: Host, args: list[object], kwargs: dict[str, object], line: Line
     for item in items:
         check_key(item, line)
     check_hash_spread(items, host.meter, line)
+    host.meter.charge(container_bytes(len(items), SET_ITEM_BYTES), line)
     return set(items)
 
 
@@ -230,7 +245,7 @@ def dict_from(
             pairs: list[object] = list(source.items())
         else:
             pairs = materialize(source, host.meter, line)
-        host.meter.check_len(len(pairs) + len(kwargs), line)
+        host.meter.check_len(len(pairs) + len(kwargs), line, item_bytes=DICT_ITEM_BYTES)
         items: list[tuple[object, object]] = []
         for pair in pairs:
             if not (type(pair) is tuple or type(pair) is list) or len(pair) != 2:

@@ -4,16 +4,24 @@ Runs before any of the program does. Only the node types listed here are allowed
 classes, ``global``, ``with``, ``yield``, ``raise``, names and attributes starting with ``_``,
 rebinding a spatial-API name, and names defined nowhere are refused, every problem as an
 ``EventProgramError`` on its line (the earliest is raised). The checker also records each
-function's local names for the interpreter. Checked trees are cached per (source, namespace
-names, budget) and shared: callers must not mutate them.
+function's local names for the interpreter.
+
+The check is bounded like a run: the text by ``Budget.source_chars``, the tree by
+``check_nodes`` and ``nesting_depth``, the distinct names by ``check_names``, and the time by
+``check_time`` on the injected clock (checked every 256 nodes); a "did you mean" hint is
+computed only for the one problem reported, on a bounded number of candidates. Results are
+cached per (source, namespace names, budget), failures included (except running out of
+time, which depends on the machine), in a cache bounded in bytes (``CACHE_BYTES``, each
+entry charged for its text and tree). Cached trees are shared: callers must not mutate them.
 """
 
 from __future__ import annotations
 
 import ast
-import functools
 import warnings
-from collections.abc import Mapping, Sequence
+from collections import OrderedDict
+from collections.abc import Callable, Mapping, Sequence
+from typing import Final, TypeAlias
 
 from tools import errors
 from tools.errors import EventProgramError, ToolError, did_you_mean
@@ -129,39 +137,108 @@ def _parse(source: object, budget: Budget) -> ast.Module:
         ) from None
 
 
+Checked: TypeAlias = tuple[ast.Module, dict[int, frozenset[str]]]
+"""A checked tree and each function's local names (keyed by the id of its node)."""
+
+CACHE_BYTES: Final = 32 * 2**20
+"""Bytes the check cache may hold (estimated: ``NODE_BYTES`` per tree node plus the text)."""
+NODE_BYTES: Final = 400
+"""Estimated bytes of one syntax-tree node with its attributes."""
+ERROR_BYTES: Final = 1_000
+"""Estimated bytes of a cached failure."""
+
+
+class _CheckCache:
+    """Least recently used checks, bounded by their estimated bytes."""
+
+    def __init__(self, max_bytes: int) -> None:
+        self.max_bytes = max_bytes
+        self.bytes = 0
+        self.entries: OrderedDict[
+            tuple[str, frozenset[str], Budget], tuple[Checked | EventProgramError, int]
+        ] = OrderedDict()
+
+    def get(self, key: tuple[str, frozenset[str], Budget]) -> Checked | EventProgramError | None:
+        entry = self.entries.get(key)
+        if entry is None:
+            return None
+        self.entries.move_to_end(key)
+        return entry[0]
+
+    def put(
+        self,
+        key: tuple[str, frozenset[str], Budget],
+        value: Checked | EventProgramError,
+        size: int,
+    ) -> None:
+        if size > self.max_bytes or key in self.entries:
+            return
+        self.entries[key] = (value, size)
+        self.bytes += size
+        while self.bytes > self.max_bytes:
+            _, (_, old) = self.entries.popitem(last=False)
+            self.bytes -= old
+
+
+_CACHE = _CheckCache(CACHE_BYTES)
+
+
+class CheckTimeoutError(BudgetExceededError):
+    """The static check ran out of its time (not cached: it depends on the machine)."""
+
+
+def _fresh(err: EventProgramError) -> EventProgramError:
+    """A new exception equal to a cached one (raising one instance twice chains tracebacks)."""
+    copy = type(err)(err.feedback)
+    copy.line = err.line
+    return copy
+
+
 def check_program(
-    source: object, namespace: Mapping[str, object], *, budget: Budget | None = None
-) -> tuple[ast.Module, dict[int, frozenset[str]]]:
+    source: object,
+    namespace: Mapping[str, object],
+    *,
+    budget: Budget | None = None,
+    clock: Callable[[], float] | None = None,
+) -> Checked:
     """Parse and statically check a program; return its tree and each function's local names.
 
-    Raises the problem on the earliest line (syntax, forbidden construct, unknown name).
+    Raises the problem on the earliest line (syntax, forbidden construct, unknown name), or
+    ``BudgetExceededError`` when the program is too large to check or the check takes longer
+    than ``budget.check_time`` on ``clock`` (None: no time limit, only the size limits).
     """
     budget = budget or Budget()
-    if isinstance(source, str):
-        reserved = frozenset(k for k in namespace if not k.startswith("_"))
-        return _check_cached(source, reserved, budget)
-    return _check(source, frozenset(), budget)
-
-
-@functools.lru_cache(maxsize=128)
-def _check_cached(
-    source: str, reserved: frozenset[str], budget: Budget
-) -> tuple[ast.Module, dict[int, frozenset[str]]]:
-    """Checked trees are cached: the interpreter never mutates them (same program, many seeds)."""
-    return _check(source, reserved, budget)
+    if not isinstance(source, str):
+        return _check(source, frozenset(), budget, clock)[0]
+    reserved = frozenset(k for k in namespace if not k.startswith("_"))
+    key = (source, reserved, budget)
+    cached = _CACHE.get(key)
+    if isinstance(cached, EventProgramError):
+        raise _fresh(cached)
+    if cached is not None:
+        return cached
+    try:
+        checked, nodes = _check(source, reserved, budget, clock)
+    except CheckTimeoutError:
+        raise
+    except EventProgramError as err:
+        _CACHE.put(key, _fresh(err), len(source) + ERROR_BYTES)
+        raise
+    _CACHE.put(key, checked, len(source) + nodes * NODE_BYTES)
+    return checked
 
 
 def _check(
-    source: object, reserved: frozenset[str], budget: Budget
-) -> tuple[ast.Module, dict[int, frozenset[str]]]:
+    source: object, reserved: frozenset[str], budget: Budget, clock: Callable[[], float] | None
+) -> tuple[Checked, int]:
+    """The check and the number of tree nodes it visited."""
     tree = _parse(source, budget)
-    checker = _Checker(reserved, budget)
+    checker = _Checker(reserved, budget, clock)
     checker.visit(tree, 0, 0)
-    checker.check_names()
-    if checker.problems:
-        checker.problems.sort(key=lambda p: (p[0], p[1]))
-        raise checker.problems[0][2]
-    return tree, checker.local_names
+    problem = checker.first_problem()
+    if problem is not None:
+        raise problem
+    return (tree, checker.local_names), checker.nodes
 
 
 class _Checker:
@@ -172,9 +249,15 @@ class _Checker:
     excluded) for the interpreter.
     """
 
-    def __init__(self, reserved: frozenset[str], budget: Budget) -> None:
+    def __init__(
+        self, reserved: frozenset[str], budget: Budget, clock: Callable[[], float] | None
+    ) -> None:
         self.reserved = reserved
         self.budget = budget
+        self.clock = clock
+        self.deadline = None if clock is None else clock() + budget.check_time
+        self.nodes = 0
+        self.names: set[str] = set()
         self.problems: list[tuple[int, int, EventProgramError]] = []
         self.bound: set[str] = set()
         self.loads: list[ast.Name] = []
@@ -207,7 +290,35 @@ class _Checker:
         for child in nodes:
             self.visit(child, flags, depth)
 
+    def count(self, node: ast.AST) -> None:
+        """One more node visited: the tree size, name count and clock limits."""
+        self.nodes += 1
+        budget = self.budget
+        if self.nodes > budget.check_nodes:
+            raise BudgetExceededError(
+                f"the program has more than {budget.check_nodes} syntax nodes; "
+                "event programs are a few dozen lines",
+                line=getattr(node, "lineno", None),
+            )
+        if not self.nodes & 255:
+            if len(self.names) > budget.check_names:
+                raise BudgetExceededError(
+                    f"the program uses more than {budget.check_names} different names; "
+                    "event programs need only a few",
+                    line=getattr(node, "lineno", None),
+                )
+            if (
+                self.clock is not None
+                and self.deadline is not None
+                and self.clock() > self.deadline
+            ):
+                raise CheckTimeoutError(
+                    f"checking the program took longer than {budget.check_time:g} s; "
+                    "write a shorter program"
+                )
+
     def visit(self, node: ast.AST, flags: int, depth: int) -> None:
+        self.count(node)
         if depth > self.budget.nesting_depth:
             raise BudgetExceededError(
                 f"the program nests more than {self.budget.nesting_depth} levels deep; "
@@ -225,6 +336,7 @@ class _Checker:
             self.check_constant(node)
         elif isinstance(node, ast.Attribute):
             attr = node.attr
+            self.names.add(attr)
             if attr.startswith("_"):
                 self.forbid(node, f"attributes starting with '_' are not allowed ('.{attr}')")
             if type(node.ctx) is not ast.Load:
@@ -263,6 +375,8 @@ class _Checker:
             self.visit_all(node.body, flags | 2, depth)
             self.visit_all(node.orelse, flags, depth)
         elif isinstance(node, ast.comprehension):
+            if node.is_async:
+                self.forbid(node, "async code is not allowed")
             self.scopes.append(set())  # comprehension targets are not function locals
             self.visit(node.target, flags, depth)
             self.scopes.pop()
@@ -277,6 +391,7 @@ class _Checker:
             self.forbid(node, message)
 
     def check_name(self, node: ast.Name) -> None:
+        self.names.add(node.id)
         if type(node.ctx) is ast.Load:
             self.loads.append(node)
             if node.id.startswith("_") and node.id != "_":
@@ -353,16 +468,41 @@ class _Checker:
             self.check_binding(node, node.name)
         self.visit_all(node.body, flags, depth)
 
-    def check_names(self) -> None:
+    def first_problem(self) -> EventProgramError | None:
+        """The problem on the earliest line, unknown names included.
+
+        The "did you mean" hint is computed only for an unknown name that is reported, on at
+        most ``budget.suggestion_candidates`` known names.
+        """
+        if len(self.names) > self.budget.check_names:
+            return BudgetExceededError(
+                f"the program uses more than {self.budget.check_names} different names; "
+                "event programs need only a few"
+            )
         known = self.bound | self.reserved | BUILTINS.keys()
-        for node in self.loads:
-            name = node.id
-            if name in known or name.startswith("_"):
-                continue
+        unknown = min(
+            (n for n in self.loads if n.id not in known and not n.id.startswith("_")),
+            key=lambda n: (n.lineno, n.col_offset),
+            default=None,
+        )
+        if unknown is not None:
+            name = unknown.id
             if name in PYTHON_ONLY_BUILTINS:
-                self.forbid(node, f"'{name}' is not available in event programs")
+                self.forbid(unknown, f"'{name}' is not available in event programs")
             else:
-                hint = (
-                    did_you_mean(name, sorted(known), n=1) or " no such function or variable exists"
-                )
-                self.problem(node, UnknownNameError, f"name '{name}' is not defined;{hint}")
+                self.problem(unknown, UnknownNameError, f"name '{name}' is not defined;")
+        if not self.problems:
+            return None
+        err = min(self.problems, key=lambda p: (p[0], p[1]))[2]
+        if type(err) is UnknownNameError and unknown is not None:
+            # the likeliest names first: same initial, then similar length
+            first, size = unknown.id[:1], len(unknown.id)
+            candidates = sorted(known, key=lambda k: (k[:1] != first, abs(len(k) - size), k))
+            candidates = candidates[: self.budget.suggestion_candidates]
+            hint = did_you_mean(unknown.id, candidates, n=1)
+            return UnknownNameError(
+                f"name '{unknown.id}' is not defined;"
+                + (hint or " no such function or variable exists"),
+                line=err.line,
+            )
+        return err

@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import TypeAlias
 
 from tools.errors import EventProgramError
+from tools.value_text import show
 
 Line: TypeAlias = int | None
 """A program line (1-based); None when the failure has no line (e.g. the text is too long)."""
@@ -59,3 +60,15 @@ def add_line(err: EventProgramError, line: Line) -> None:
         err.line = line
         err.feedback = f"line {line}: {err.feedback}"
         err.args = (err.feedback,)
+
+
+def describe(err: BaseException) -> str:
+    """``"Type: message"`` of an unexpected Python exception, its values shown bounded.
+
+    A ``KeyError``'s text is ``repr(key)`` rendered on demand; it goes through the bounded
+    renderer instead (other CPython messages the sandbox could reach are intercepted before
+    the call that would build them, e.g. ``list.index``).
+    """
+    if isinstance(err, KeyError) and len(err.args) == 1:
+        return f"KeyError: {show(err.args[0])}"
+    return f"{type(err).__name__}: {err}"

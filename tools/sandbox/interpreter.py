@@ -17,7 +17,6 @@ import ast
 from collections.abc import Callable, Mapping
 from typing import TypeAlias, TypeVar, cast
 
-from tools.errors import did_you_mean
 from tools.sandbox.access import call_external, get_attribute, get_item
 from tools.sandbox.boundary import (
     OPERAND_TYPES,
@@ -26,10 +25,11 @@ from tools.sandbox.boundary import (
     format_value,
     iter_source,
     materialize,
+    range_item_bytes,
     to_text,
     type_name,
 )
-from tools.sandbox.budget import Budget, Meter
+from tools.sandbox.budget import DICT_ITEM_BYTES, SET_ITEM_BYTES, Budget, Meter
 from tools.sandbox.builtin_functions import BUILTINS
 from tools.sandbox.errors import (
     BudgetExceededError,
@@ -38,6 +38,7 @@ from tools.sandbox.errors import (
     MissingEntryError,
     ProgramRuntimeError,
     UnknownNameError,
+    describe,
 )
 from tools.sandbox.operators import binary, check_hash_spread, compare, unary
 from tools.sandbox.statements import Statements
@@ -85,7 +86,7 @@ class Interpreter(Statements):
         fn = module.vars.get(entry)
         if type(fn) is not SandboxFunction:
             defined = [k for k, v in module.vars.items() if type(v) is SandboxFunction]
-            hint = did_you_mean(entry, defined)
+            hint = self.meter.suggest(entry, defined, None)
             raise MissingEntryError(
                 f"the program must define a function `def {entry}():`;"
                 + (hint or f" it defines {', '.join(defined) or 'no functions'}")
@@ -137,8 +138,9 @@ class Interpreter(Statements):
         if builtin is not None:
             return builtin
         known = [k for k in self.namespace if not k.startswith("_")] + list(BUILTINS)
+        hint = self.meter.suggest(name, known, line, n=1)
         raise UnknownNameError(
-            f"name '{name}' is not defined;{did_you_mean(name, known, n=1) or ' no such function or variable exists'}",
+            f"name '{name}' is not defined;{hint or ' no such function or variable exists'}",
             line=line,
         )
 
@@ -216,7 +218,7 @@ class Interpreter(Statements):
                 raise
             except _METHOD_ERRORS as err:
                 raise ProgramRuntimeError(
-                    f"{type(method.obj).__name__}.{method.name}() failed: {type(err).__name__}: {err}",
+                    f"{type(method.obj).__name__}.{method.name}() failed: {describe(err)}",
                     line=line,
                 ) from None
         if t in OPERAND_TYPES or t is range or not callable(fn):
@@ -244,8 +246,9 @@ class Interpreter(Statements):
         bound = dict(zip(params, args, strict=False))
         for key, value in kwargs.items():
             if key not in params:
+                hint = meter.suggest(key, params, line)
                 raise ProgramRuntimeError(
-                    f"{fn.name}() got an unexpected keyword argument '{key}';{did_you_mean(key, params) or ' parameters: ' + ', '.join(params)}",
+                    f"{fn.name}() got an unexpected keyword argument '{key}';{hint or ' parameters: ' + ', '.join(params)}",
                     line=line,
                 )
             if key in bound:
@@ -335,14 +338,14 @@ class Interpreter(Statements):
                     raise ProgramRuntimeError(
                         f"'**' needs a dict, not '{type_name(other)}'", line=line
                     )
-                self.meter.check_len(len(out) + len(other), line)
+                self.meter.check_len(len(out) + len(other), line, item_bytes=DICT_ITEM_BYTES)
                 check_hash_spread([*out, *other], self.meter, line)
                 out.update(other)
                 continue
             key = self.eval(k, scope)
             check_key(key, line)
             out[key] = self.eval(v, scope)
-        self.meter.check_len(len(out), line)
+        self.meter.check_len(len(out), line, item_bytes=DICT_ITEM_BYTES)
         return out
 
     def comprehension(
@@ -364,8 +367,12 @@ class Interpreter(Statements):
     ) -> None:
         gen = gens[index]
         meter = self.meter
-        for item in iter_source(self.eval(gen.iter, scope), line):
+        source = iter_source(self.eval(gen.iter, scope), line)
+        item_bytes = range_item_bytes(source)
+        for item in source:
             meter.loop(line)
+            if item_bytes:
+                meter.charge(item_bytes, line)
             self.assign(gen.target, item, scope)
             if all(self.eval(cond, scope) for cond in gen.ifs):
                 if index + 1 < len(gens):
@@ -390,7 +397,7 @@ class Interpreter(Statements):
         def emit(inner: Scope) -> None:
             item = self.eval(node.elt, inner)
             check_key(item, node.lineno)
-            self.meter.check_len(len(out) + 1, node.lineno, added=1)
+            self.meter.check_len(len(out) + 1, node.lineno, added=1, item_bytes=SET_ITEM_BYTES)
             out.add(item)
 
         self.comprehension(node, scope, emit)
@@ -402,7 +409,7 @@ class Interpreter(Statements):
         def emit(inner: Scope) -> None:
             key = self.eval(node.key, inner)
             check_key(key, node.lineno)
-            self.meter.check_len(len(out) + 1, node.lineno, added=1)
+            self.meter.check_len(len(out) + 1, node.lineno, added=1, item_bytes=DICT_ITEM_BYTES)
             out[key] = self.eval(node.value, inner)
 
         self.comprehension(node, scope, emit)

@@ -8,13 +8,15 @@ A method that can grow a value checks the size first (``list.extend``, ``str.rep
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sized
+from collections.abc import Callable, Container, Sequence, Sized
 from typing import TypeAlias, TypeVar, cast
 
 from tools.sandbox.boundary import CONTAINER_TYPES, check_key, is_int, materialize, type_name
+from tools.sandbox.budget import SET_ITEM_BYTES, str_bytes
 from tools.sandbox.builtin_functions import Host, arity, dict_from, sort_items, words
 from tools.sandbox.errors import Line, ProgramRuntimeError
 from tools.sandbox.operators import check_hash_spread, comparison_work
+from tools.value_text import show
 
 _R = TypeVar("_R")
 
@@ -43,20 +45,55 @@ def _plain(name: str, key_arg: bool = False, searches: bool = False) -> MethodIm
     ) -> object:
         if key_arg and args:
             check_key(args[0], line)
+            if (
+                name in _RAISES_KEY
+                and len(args) == 1
+                and args[0] not in cast("Container[object]", obj)
+            ):
+                # CPython's KeyError renders repr(key) in full: report it bounded instead
+                raise ProgramRuntimeError(
+                    f"{type_name(obj)}.{name}(): {show(args[0])} is not in the {type_name(obj)}",
+                    line=line,
+                )
         if searches and args:
             comparison_work(host.meter, line, [args[0]], repeat=len(obj))
+            if name == "index" and not _contains_in(obj, args, line):
+                # CPython's "%R is not in list" renders the value in full: report it bounded
+                raise ProgramRuntimeError(
+                    f"{type_name(obj)}.index(): {show(args[0])} is not in the {type_name(obj)}",
+                    line=line,
+                )
         result = getattr(obj, name)(*args, **kwargs)
         t = type(result)
         if t is str:
             host.meter.check_str(len(result), line)
         elif t in CONTAINER_TYPES:
             host.meter.check_len(len(result), line)
+            if type(obj) is str:  # split / partition: new strings
+                host.meter.charge(sum(str_bytes(len(p)) for p in result), line)
         elif name in ("keys", "values", "items"):
             result = list(result)
             host.meter.check_len(len(result), line)
         return result
 
     return _on(impl)
+
+
+_RAISES_KEY = frozenset({"pop", "remove"})
+"""Methods that raise ``KeyError(key)`` for a missing key (``dict.pop``, ``set.remove``)."""
+
+
+def _contains_in(obj: Sized, args: list[object], line: Line) -> bool:
+    """Whether ``obj.index(*args)`` would find its value (``args``: value[, start[, stop]])."""
+    bounds: list[int] = []
+    for b in args[1:3]:
+        if not is_int(b):
+            raise ProgramRuntimeError("index() needs integer start and stop", line=line)
+        bounds.append(b)
+    haystack = cast("Sequence[object]", obj)
+    if bounds:
+        haystack = haystack[slice(*bounds)]
+    return args[0] in haystack
 
 
 def _str_join(
@@ -178,7 +215,7 @@ def _set_combine(name: str) -> MethodImpl:
     ) -> object:
         arity(f"set.{name}", args, kwargs, line, 0, 10)
         others = [materialize(a, host.meter, line) for a in args]
-        host.meter.check_len(len(obj) + sum(map(len, others)), line)
+        host.meter.check_len(len(obj) + sum(map(len, others)), line, item_bytes=SET_ITEM_BYTES)
         for other in others:
             for item in other:
                 check_key(item, line)

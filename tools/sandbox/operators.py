@@ -25,7 +25,7 @@ from tools.sandbox.boundary import (
     is_number,
     type_name,
 )
-from tools.sandbox.budget import Meter, nested_size
+from tools.sandbox.budget import SET_ITEM_BYTES, Meter, nested_size
 from tools.sandbox.errors import (
     BudgetExceededError,
     ForbiddenConstructError,
@@ -105,7 +105,7 @@ def binary(op: ast.operator, a: object, b: object, meter: Meter, line: Line) -> 
                 "'%' string formatting is not allowed; use an f-string", line=line
             )
     elif symbol in ("|", "&", "^", "-") and is_hashed(a) and is_hashed(b):
-        meter.check_len(len(a) + len(b), line)
+        meter.check_len(len(a) + len(b), line, item_bytes=SET_ITEM_BYTES)
         check_hash_spread([*a, *b], meter, line)
     try:
         result = fn(a, b)
@@ -126,10 +126,10 @@ def _check_repeat(seq: object, n: int, meter: Meter, line: Line) -> None:
 
 
 def check_result(value: _V, meter: Meter, line: Line) -> _V:
-    """Post-check of arithmetic results: integer size, no complex numbers."""
+    """Post-check of arithmetic results: integer size (charged in bytes), no complex numbers."""
     v: object = value
     if type(v) is int:
-        meter.check_bits(v.bit_length(), line)
+        meter.made_int(v, line)
     elif type(v) is complex:
         raise ProgramRuntimeError(
             "the result is a complex number (e.g. a negative number to a fractional power)",

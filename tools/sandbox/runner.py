@@ -17,8 +17,11 @@ from dataclasses import dataclass
 from tools.errors import EventProgramError
 from tools.sandbox.budget import Budget
 from tools.sandbox.checker import check_program
-from tools.sandbox.errors import BudgetExceededError, ProgramRuntimeError
+from tools.sandbox.errors import BudgetExceededError, ProgramRuntimeError, describe
 from tools.sandbox.interpreter import Interpreter
+
+DEFAULT_CLOCK: Callable[[], float] = time.monotonic
+"""The clock a run uses when its caller injects none (the only clock the sandbox names)."""
 
 
 @dataclass(frozen=True)
@@ -36,7 +39,7 @@ def execute(
     *,
     entry: str = "parse_event",
     budget: Budget | None = None,
-    clock: Callable[[], float] = time.monotonic,
+    clock: Callable[[], float] = DEFAULT_CLOCK,
 ) -> object:
     """Run ``source``'s module body, then ``entry()``; return what ``entry`` returns.
 
@@ -51,13 +54,13 @@ def run_program(
     *,
     entry: str = "parse_event",
     budget: Budget | None = None,
-    clock: Callable[[], float] = time.monotonic,
+    clock: Callable[[], float] = DEFAULT_CLOCK,
 ) -> ProgramRun:
     """Like ``execute`` but also returns the captured ``print`` output and the step count."""
     budget = budget or Budget()
     interpreter: Interpreter | None = None
     try:
-        tree, local_names = check_program(source, namespace, budget=budget)
+        tree, local_names = check_program(source, namespace, budget=budget, clock=clock)
         interpreter = Interpreter(namespace, budget, clock, local_names)
         result = interpreter.run(tree, entry)
         return ProgramRun(result, tuple(interpreter.meter.output), interpreter.meter.steps)
@@ -70,4 +73,4 @@ def run_program(
             "the program nests or recurses too deeply, or uses too much memory"
         ) from None
     except (Exception, SystemExit, KeyboardInterrupt) as err:  # never let anything else out
-        raise ProgramRuntimeError(f"the program failed: {type(err).__name__}: {err}") from None
+        raise ProgramRuntimeError(f"the program failed: {describe(err)}") from None

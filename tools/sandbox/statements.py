@@ -17,10 +17,22 @@ from typing import Protocol, TypeAlias, TypeVar, cast
 
 from tools.errors import EventProgramError, ToolError
 from tools.sandbox.access import get_item, set_item, short_repr
-from tools.sandbox.boundary import check_key, iter_source, materialize, to_text, type_name
+from tools.sandbox.boundary import (
+    check_key,
+    iter_source,
+    materialize,
+    range_item_bytes,
+    to_text,
+    type_name,
+)
 from tools.sandbox.budget import Meter
 from tools.sandbox.checker import CATCHABLE
-from tools.sandbox.errors import BudgetExceededError, ForbiddenConstructError, ProgramRuntimeError
+from tools.sandbox.errors import (
+    BudgetExceededError,
+    ForbiddenConstructError,
+    ProgramRuntimeError,
+    describe,
+)
 from tools.sandbox.operators import binary
 from tools.sandbox.values import BREAK, CONTINUE, MISSING, Return, SandboxFunction, Scope
 
@@ -77,9 +89,7 @@ class Statements(ABC):
                     line=stmt.lineno,
                 ) from None
             except Exception as err:
-                raise ProgramRuntimeError(
-                    f"{type(err).__name__}: {err}", line=stmt.lineno
-                ) from None
+                raise ProgramRuntimeError(describe(err), line=stmt.lineno) from None
             if signal is not None:
                 return signal
         return None
@@ -133,7 +143,7 @@ class Statements(ABC):
             current = self.e_name(target, scope)
         elif isinstance(target, ast.Subscript):
             container = self.eval(target.value, scope)
-            key = self.eval(target.slice, scope)
+            key = self.eval_index(target.slice, scope)
             current = get_item(container, key, self.meter, line)
         else:
             raise ForbiddenConstructError(
@@ -165,8 +175,12 @@ class Statements(ABC):
     def s_for(self, node: ast.For, scope: Scope) -> object:
         line = node.lineno
         meter = self.meter
-        for item in iter_source(self.eval(node.iter, scope), line):
+        source = iter_source(self.eval(node.iter, scope), line)
+        item_bytes = range_item_bytes(source)
+        for item in source:
             meter.loop(line)
+            if item_bytes:
+                meter.charge(item_bytes, line)
             self.assign(node.target, item, scope)
             signal = self.exec_block(node.body, scope)
             if signal is None or signal is CONTINUE:

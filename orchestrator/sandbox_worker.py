@@ -1,0 +1,353 @@
+"""Event programs in a worker process with OS limits: defence in depth around the sandbox.
+
+``WorkerRunner`` is a ``ProgramRunner`` (``run_event_program``'s signature) that runs each
+program in one long-lived child process (``python -m orchestrator.sandbox_worker``) instead
+of in-process. The child keeps the interpreter's own ``Budget`` and adds what only the OS can
+enforce: an address-space limit (``RLIMIT_AS``), a CPU-time limit per program
+(``RLIMIT_CPU``, re-armed before each program) and, from the parent, a hard wall-clock kill.
+A cost the interpreter fails to count therefore ends in ``BudgetExceededError`` for that
+program, never in a stalled story or a machine out of memory.
+
+Why here and not in ``tools/sandbox``: spawning and killing processes, setting limits and
+waiting on a clock are environment effects; ``tools/`` stays pure (no clock, no processes),
+and only ``orchestrator/`` may own them.
+
+What crosses the boundary is plain data, JSON in length-prefixed frames on the child's
+stdin / a private stdout (never pickle: the child runs untrusted programs, so the parent
+never unpickles what it sends): the program text, the world view, the seed, the labels and
+the budget one way; plans or a typed error (class name, feedback, line, steps) back. The
+scene crosses once per scene per worker: requests name it by the SHA-256 of its JSON, the
+child keeps the last ``SCENES_KEPT`` scenes (with their scene graphs) and answers
+``need_scene`` for one it lacks, and the parent then sends it. The child is reused across
+programs (no process start on the hot path) and restarted when it dies or is killed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import select
+import struct
+import subprocess
+import sys
+import time
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import asdict
+from typing import IO, Any
+
+from sim.scene.model import Scene
+from tools import errors as tool_errors
+from tools.character_states import CharacterPlan, WorldView
+from tools.errors import EventProgramError
+from tools.sandbox import Budget, BudgetExceededError
+from tools.sandbox import errors as sandbox_errors
+
+ADDRESS_SPACE_BYTES = 2**30
+"""``RLIMIT_AS`` of the worker (the runtime with numpy and a scene uses about 200 MiB of it)."""
+CPU_SECONDS = 4
+"""``RLIMIT_CPU`` seconds per program (re-armed from the worker's CPU time so far)."""
+WALL_SECONDS = 5.0
+"""Seconds the parent waits for one program's answer before killing the worker."""
+START_SECONDS = 60.0
+"""Seconds a new worker may take to import its modules, and a scene to load (not counted
+against any program's wall clock)."""
+SCENES_KEPT = 4
+"""Scenes (with their scene graphs) the worker keeps loaded."""
+MAX_FRAME = 64 * 2**20
+"""Largest message either side accepts (bytes)."""
+_HEADER = struct.Struct(">Q")
+
+
+def _error_types() -> dict[str, type[EventProgramError]]:
+    out: dict[str, type[EventProgramError]] = {"EventProgramError": EventProgramError}
+    for module in (tool_errors, sandbox_errors):
+        for name, value in vars(module).items():
+            if isinstance(value, type) and issubclass(value, EventProgramError):
+                out[name] = value
+    return out
+
+
+ERROR_TYPES = _error_types()
+"""Error classes a worker may name in an answer (anything else becomes ``EventProgramError``)."""
+
+
+def _write_frame(stream: IO[bytes], message: dict[str, Any]) -> None:
+    body = json.dumps(message, separators=(",", ":")).encode("utf-8")
+    stream.write(_HEADER.pack(len(body)) + body)
+    stream.flush()
+
+
+def _read_exact(stream: IO[bytes], n: int) -> bytes | None:
+    chunks: list[bytes] = []
+    while n:
+        chunk = stream.read(n)
+        if not chunk:
+            return None
+        chunks.append(chunk)
+        n -= len(chunk)
+    return b"".join(chunks)
+
+
+def _read_frame(stream: IO[bytes]) -> dict[str, Any] | None:
+    """The next message, or None at end of stream or on a malformed frame."""
+    header = _read_exact(stream, _HEADER.size)
+    if header is None:
+        return None
+    (size,) = _HEADER.unpack(header)
+    if size > MAX_FRAME:
+        return None
+    body = _read_exact(stream, size)
+    if body is None:
+        return None
+    try:
+        message = json.loads(body)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    return message if isinstance(message, dict) else None
+
+
+def error_from(data: object) -> EventProgramError:
+    """The typed error a worker reported (a malformed report is an ``EventProgramError``)."""
+    if not isinstance(data, dict):
+        return EventProgramError("the program's worker gave a malformed answer")
+    cls = ERROR_TYPES.get(str(data.get("type")), EventProgramError)
+    err = cls(str(data.get("feedback", ""))[: tool_errors.MAX_FEEDBACK + 40])
+    line = data.get("line")
+    err.line = line if isinstance(line, int) else None
+    steps = data.get("steps")
+    err.steps = steps if isinstance(steps, int) else None
+    return err
+
+
+class WorkerRunner:
+    """A ``ProgramRunner`` that runs programs in a reused, OS-limited child process.
+
+    ``budget`` is the interpreter budget inside the child (None: the default ``Budget``);
+    the OS limits are keyword arguments. Not thread-safe: one program at a time.
+    """
+
+    def __init__(
+        self,
+        *,
+        budget: Budget | None = None,
+        address_space_bytes: int = ADDRESS_SPACE_BYTES,
+        cpu_seconds: int = CPU_SECONDS,
+        wall_seconds: float = WALL_SECONDS,
+    ) -> None:
+        self.budget = budget
+        self.address_space_bytes = address_space_bytes
+        self.cpu_seconds = cpu_seconds
+        self.wall_seconds = wall_seconds
+        self.process: subprocess.Popen[bytes] | None = None
+        self.starts = 0
+        """Worker processes started so far (a restart after a death adds one)."""
+        self._scene: tuple[Scene, str, str] | None = None
+
+    # -- process management
+    def _start(self) -> subprocess.Popen[bytes]:
+        env = {
+            **os.environ,
+            "OPENBLAS_NUM_THREADS": "1",
+            "OMP_NUM_THREADS": "1",
+            "MKL_NUM_THREADS": "1",
+        }
+        process = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "orchestrator.sandbox_worker",
+                str(self.address_space_bytes),
+                str(self.cpu_seconds),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=env,
+        )
+        self.starts += 1
+        assert process.stdout is not None
+        ready, _, _ = select.select([process.stdout], [], [], START_SECONDS)
+        if not ready or _read_frame(process.stdout) != {"ready": True}:
+            process.kill()
+            process.wait()
+            raise EventProgramError("the event-program worker process did not start")
+        return process
+
+    def _worker(self) -> subprocess.Popen[bytes]:
+        if self.process is None or self.process.poll() is not None:
+            self.close()
+            self.process = self._start()
+        return self.process
+
+    def close(self) -> None:
+        """Stop the worker (the next program starts a new one)."""
+        process, self.process = self.process, None
+        if process is None:
+            return
+        with contextlib.suppress(OSError):
+            process.kill()
+        process.wait()
+        for stream in (process.stdin, process.stdout):
+            if stream is not None:
+                with contextlib.suppress(OSError):
+                    stream.close()
+
+    def __enter__(self) -> WorkerRunner:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _ask(self, request: dict[str, Any], extra_seconds: float = 0.0) -> dict[str, Any]:
+        """Send one request and wait for its answer; kill the worker on a timeout or death.
+
+        ``extra_seconds`` is added to the wall clock (loading a scene is not the program's).
+        """
+        process = self._worker()
+        assert process.stdin is not None and process.stdout is not None
+        try:
+            _write_frame(process.stdin, request)
+        except OSError:
+            self.close()
+            raise BudgetExceededError(
+                "the program's worker process died; it is restarted for the next program"
+            ) from None
+        ready, _, _ = select.select([process.stdout], [], [], self.wall_seconds + extra_seconds)
+        if not ready:
+            self.close()
+            raise BudgetExceededError(
+                f"the program ran longer than {self.wall_seconds:g} s and was stopped"
+            )
+        answer = _read_frame(process.stdout)
+        if answer is None:
+            self.close()
+            raise BudgetExceededError(
+                "the program's worker process was stopped by an operating-system limit "
+                "(memory or CPU time); use less memory and shorter loops"
+            )
+        return answer
+
+    # -- the ProgramRunner call
+    def _scene_key(self, scene: Scene) -> tuple[str, str]:
+        if self._scene is None or self._scene[0] is not scene:
+            text = scene.model_dump_json()
+            self._scene = (scene, hashlib.sha256(text.encode("utf-8")).hexdigest(), text)
+        return self._scene[1], self._scene[2]
+
+    def __call__(
+        self,
+        scene: Scene,
+        source: str,
+        world: Any,
+        *,
+        seed: int,
+        action_labels: Sequence[str] | None = None,
+        graph: Any = None,
+    ) -> list[CharacterPlan]:
+        """Run ``source`` like ``run_event_program`` (``graph`` is unused: the worker keeps
+        its own per scene)."""
+        if not isinstance(source, str):
+            raise EventProgramError("the program must be Python source text")
+        key, scene_text = self._scene_key(scene)
+        request: dict[str, Any] = {
+            "scene_key": key,
+            "source": source,
+            "world": WorldView.model_validate(world).model_dump(mode="json"),
+            "seed": seed,
+            "labels": None if action_labels is None else list(action_labels),
+            "budget": None if self.budget is None else asdict(self.budget),
+        }
+        answer = self._ask(request)
+        if answer.get("need_scene"):
+            answer = self._ask({**request, "scene": scene_text}, START_SECONDS)
+        if answer.get("ok") is True and isinstance(answer.get("plans"), list):
+            return [CharacterPlan.model_validate(p) for p in answer["plans"]]
+        raise error_from(answer.get("error"))
+
+
+# ---------------------------------------------------------------- the child process
+
+
+def _limit_self(address_space_bytes: int) -> None:
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_AS, (address_space_bytes, address_space_bytes))
+
+
+def _arm_cpu(cpu_seconds: int) -> None:
+    """Allow ``cpu_seconds`` more CPU from now (SIGXCPU then ends the worker)."""
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    used = int(usage.ru_utime + usage.ru_stime) + 1
+    _, hard = resource.getrlimit(resource.RLIMIT_CPU)
+    soft = used + cpu_seconds
+    if hard != resource.RLIM_INFINITY:
+        soft = min(soft, hard)
+    resource.setrlimit(resource.RLIMIT_CPU, (soft, hard))
+
+
+def serve(address_space_bytes: int, cpu_seconds: int) -> None:
+    """The worker loop: one request in, one answer out, until stdin closes."""
+    from tools.event_program import run_event_program
+    from tools.scene_graph import SceneGraph, build_scene_graph
+
+    out = os.fdopen(os.dup(1), "wb")  # answers go to a private copy of stdout ...
+    os.dup2(2, 1)  # ... and anything printed by accident goes to stderr
+    inp = os.fdopen(0, "rb")
+    _limit_self(address_space_bytes)
+    _write_frame(out, {"ready": True})
+    scenes: OrderedDict[str, tuple[Scene, SceneGraph]] = OrderedDict()
+    while True:
+        request = _read_frame(inp)
+        if request is None:
+            return
+        key = str(request.get("scene_key"))
+        if key not in scenes:
+            text = request.get("scene")
+            if not isinstance(text, str):
+                _write_frame(out, {"need_scene": True})
+                continue
+            scene = Scene.model_validate_json(text)
+            scenes[key] = (scene, build_scene_graph(scene))
+            while len(scenes) > SCENES_KEPT:
+                scenes.popitem(last=False)
+        scenes.move_to_end(key)
+        scene, graph = scenes[key]
+        budget_data = request.get("budget")
+        budget = Budget(**budget_data) if isinstance(budget_data, dict) else None
+        _arm_cpu(cpu_seconds)
+        try:
+            plans = run_event_program(
+                scene,
+                request["source"],
+                WorldView.model_validate(request["world"]),
+                seed=int(request["seed"]),
+                action_labels=request.get("labels"),
+                graph=graph,
+                budget=budget,
+                clock=time.monotonic,
+            )
+        except EventProgramError as err:
+            error = {
+                "type": type(err).__name__,
+                "feedback": err.feedback,
+                "line": err.line,
+                "steps": err.steps,
+            }
+            _write_frame(out, {"ok": False, "error": error})
+            continue
+        except MemoryError:
+            _write_frame(out, {"ok": False, "error": _budget_error("uses too much memory")})
+            continue
+        _write_frame(out, {"ok": True, "plans": [p.model_dump(mode="json") for p in plans]})
+
+
+def _budget_error(what: str) -> dict[str, Any]:
+    return {"type": "BudgetExceededError", "feedback": f"the program {what}", "line": None}
+
+
+if __name__ == "__main__":
+    serve(int(sys.argv[1]), int(sys.argv[2]))

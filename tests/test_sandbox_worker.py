@@ -1,0 +1,81 @@
+"""The worker process: same plans as in-process, typed errors, OS limits, restarts.
+
+No test asserts a time: the wall-clock kill is triggered by a program that never ends on
+its own, and the CPU and memory limits by programs whose interpreter budget is set so high
+that only the OS can stop them.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from orchestrator.sandbox_worker import WorkerRunner
+from sim.scene.bundled import load_bundled_scene
+from sim.scene.model import Scene
+from tools.character_states import WorldView
+from tools.errors import UnknownObjectError
+from tools.event_program import run_event_program
+from tools.sandbox import Budget, BudgetExceededError
+
+PLACE = (
+    "def parse_event():\n    get_character('Mia').set_position(get_area_adjacent_to('fridge_1'))\n"
+)
+FOREVER = "def parse_event():\n    while True:\n        pass\n"
+UNLIMITED = Budget(
+    steps=10**12, loop_iterations=10**12, wall_time=10**6, str_len=10**11, memory_bytes=10**13
+)
+
+
+@pytest.fixture(scope="module")
+def scene() -> Scene:
+    return load_bundled_scene("home")
+
+
+def test_worker_plans_equal_in_process_plans(scene: Scene) -> None:
+    with WorkerRunner() as run:
+        for seed in (0, 1):
+            assert run(scene, PLACE, WorldView(), seed=seed) == run_event_program(
+                scene, PLACE, WorldView(), seed=seed
+            )
+        assert run.starts == 1  # reused, not one process per program
+
+
+def test_typed_errors_cross_the_boundary(scene: Scene) -> None:
+    bad = "def parse_event():\n    get_area_to_sit_on('sofa_99')\n"
+    with WorkerRunner() as run, pytest.raises(UnknownObjectError) as info:
+        run(scene, bad, WorldView(), seed=0)
+    assert info.value.line == 2
+
+
+def test_wall_clock_kill_then_the_next_program_runs(scene: Scene) -> None:
+    with WorkerRunner(budget=UNLIMITED, wall_seconds=1.0, cpu_seconds=1000) as run:
+        with pytest.raises(BudgetExceededError, match="was stopped"):
+            run(scene, FOREVER, WorldView(), seed=0)
+        assert run.process is None  # killed
+        assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
+        assert run.starts == 2
+
+
+def test_cpu_limit_stops_what_the_budget_lets_through(scene: Scene) -> None:
+    with WorkerRunner(budget=UNLIMITED, wall_seconds=120.0, cpu_seconds=1) as run:
+        with pytest.raises(BudgetExceededError, match="operating-system limit"):
+            run(scene, FOREVER, WorldView(), seed=0)
+        assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
+
+
+def test_memory_bomb_only_the_os_limit_catches(scene: Scene) -> None:
+    bomb = "def parse_event():\n    x = 'x' * (2 ** 31)\n    return len(x)\n"
+    with WorkerRunner(budget=UNLIMITED, address_space_bytes=768 * 2**20) as run:
+        with pytest.raises(BudgetExceededError):
+            run(scene, bomb, WorldView(), seed=0)
+        assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
+
+
+def test_a_worker_killed_between_programs_is_restarted(scene: Scene) -> None:
+    with WorkerRunner() as run:
+        run(scene, PLACE, WorldView(), seed=0)
+        assert run.process is not None
+        run.process.kill()
+        run.process.wait()
+        assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
+        assert run.starts == 2
