@@ -13,10 +13,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from fake_openai_server import FakeOpenAI
 
 from benchmark.story_suite.runner import RunOptions, record_scores, run_scenario
 from benchmark.story_suite.scenario import Does, NotIdle, Scenario
+from tests.support.fake_openai_server import FakeOpenAI
 
 NODES = ("describer", "narrator", "event_parser", "planner")
 NARRATION = json.dumps({"reasoning": "r", "event": {"characters": ["Ava"], "activity": "make coffee with coffee_maker_1"}})
