@@ -189,10 +189,12 @@ def test_resume_after_kill_9_continues_the_story_without_gaps_duplicates_or_repe
     run_dir = tmp_path / "killed"
     with FakeOpenAI(responder=planner) as fake:
         cfg = write_config(tmp_path, fake.base)
-        child = subprocess.Popen(cli(*run, "--config", str(cfg), "--out", str(run_dir)), cwd=ROOT, env=os.environ.copy(),
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        log = tmp_path / "killed.log"
+        with log.open("wb") as sink:
+            child = subprocess.Popen(cli(*run, "--config", str(cfg), "--out", str(run_dir)), cwd=ROOT,
+                                     env=os.environ.copy(), stdout=sink, stderr=subprocess.STDOUT)
         try:
-            assert planner.arrived.wait(240), child.communicate(timeout=5)
+            assert planner.arrived.wait(240), log.read_text(encoding="utf-8")
             child.send_signal(signal.SIGKILL)  # mid-story: request 4 is in flight
             child.wait(30)
         finally:
@@ -213,6 +215,11 @@ def test_resume_after_kill_9_continues_the_story_without_gaps_duplicates_or_repe
                                  text=True, timeout=600)
         assert resumed.returncode == 0, resumed.stderr
         new_requests = fake.requests[requests_before:]
+    # the world came back from its last checkpoint (after step 2 was applied), not from frame 0
+    found = re.search(r"resuming at frame (\d+)", resumed.stderr)
+    assert found is not None, resumed.stderr
+    resumed_at = int(found.group(1))
+    assert resumed_at > max(r.sim_frame for r in before.records if isinstance(r, AppliedRecord))
 
     # only the cut call and the steps after it were asked again
     assert len(new_requests) == 6 - (kill_at - 1)

@@ -187,6 +187,7 @@ def _execute(
                 resume=resume,
                 on_event=show,
                 on_start=started,
+                on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
             )
         )
     except RunSetupError as exc:

@@ -102,6 +102,7 @@ async def run_story(
     resume: bool = False,
     on_event: Callable[[StoryEvent, int], None] | None = None,
     on_start: Callable[[RunManifest], None] | None = None,
+    on_resume: Callable[[int, int], None] | None = None,
 ) -> tuple[SessionResult, list[str], int, Any]:
     """Run the story session; returns the result, the character names, the fps and the world.
 
@@ -112,7 +113,8 @@ async def run_story(
     restored from it, steps whose result the trace already shows applied are applied at their
     recorded frames again, and the planner answers finished steps from its story log.
 
-    ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails."""
+    ``on_resume(frame, fps)`` tells the frame a resumed session goes on from (0: no checkpoint was
+    kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
@@ -213,6 +215,8 @@ async def run_story(
             session = Session(world, planner, settings, trace=port.trace, on_event=shown, on_checkpoint=keep)
             if checkpoint is not None:
                 session.resume(checkpoint)
+            if resume and on_resume is not None:
+                on_resume(session.world.frame, fps)
             result = await session.run()
     except (LLMError, SessionError) as exc:
         raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
