@@ -1,8 +1,12 @@
-"""``storyteller run``: plan and animate a story in a scene (the main job).
+"""``storyteller run``: plan and animate a story in a scene (the main job); ``storyteller
+resume RUN_DIR`` (go on after a stop, from ``run.json`` and ``session.snapshot``) and
+``storyteller replay RUN_DIR|TRACE --out DIR`` (the same run with no model loaded).
 
 The job is :mod:`orchestrator.session.run_job`: the simulation and the planner run
 concurrently (``orchestrator.session.runtime``). Outputs, all in ``--out``: ``story.json``
-(events with their frames and per-character plans), ``trace.jsonl`` (every LLM call,
+(events with their frames and per-character plans), ``story.md`` (the same as text),
+``metrics.json`` (LLM use per role, simulation speed, frame intervals), ``run.json`` (thread
+id and arguments), ``session.snapshot`` (last checkpoint), ``trace.jsonl`` (every LLM call,
 replayable), ``runs.sqlite`` (planning checkpoints and story log), ``scene.json`` (the scene as run), per character
 ``<name>.smplx.npz`` / ``.bvh`` / ``.track.npz``, ``scene.glb`` (whole scene, skinned and
 animated), ``topdown.png`` and the animation: with ``--video``, ``story.mp4`` (or ``story.gif`` when

@@ -3,9 +3,18 @@
 :func:`run_story` builds the world (characters at the start positions of the seed), the LLM
 port (recording to a trace, or replaying one), the planning graph of the chosen ablation and
 the story session, and runs them to the end; :func:`write_outputs` writes ``story.json``
-(:func:`story_json`), the motion exports and the pictures. With a replayed trace the session
-applies each planning result at the frame recorded there, so the same arguments give the same
-story and the same motion.
+(:func:`story_json`), ``story.md`` and ``metrics.json`` (``orchestrator.session.run_report``),
+the motion exports and the pictures. With a replayed trace the session applies each planning
+result at the frame recorded there, so the same arguments give the same story and the same
+motion.
+
+Resume: a run writes ``run.json`` (``orchestrator.session.run_manifest``) before its first
+frame and keeps its session's last checkpoint in ``session.snapshot``
+(``orchestrator.session.snapshot_file``). ``run_story(..., resume=True)`` restores the world
+and the story from it; steps the trace shows applied are applied again at their recorded
+frames (and not traced twice), and the planner answers finished steps from the story log and
+finishes a cut step from its langgraph checkpoint, so no event is lost or duplicated and no
+call whose node was checkpointed is repeated.
 
 Problems with the user's inputs (an unreadable trace or motion config, a model that cannot be
 opened, a session that cannot go on) are raised as :class:`RunSetupError`, one sentence each.

@@ -17,6 +17,12 @@ frame at which a result arrives; that frame is recorded. A replay reads the reco
 back and applies each result at exactly its frame, so the same events and the same motion
 come out. ``lockstep`` pace applies every result at the frame it was requested (the
 simulation pauses while the planner thinks), which is deterministic without a trace.
+
+Checkpoints: with ``checkpoint_every_s`` set, ``on_checkpoint`` gets a
+:class:`SessionCheckpoint` (between two frames) after every applied outcome and at least that
+often; ``Session.resume(checkpoint)`` on a world built from the same inputs goes on from it
+(the step in flight then is asked again), and ends as the uninterrupted session would in
+``lockstep`` pace or with ``recorded_frames`` for the steps applied after the checkpoint.
 """
 
 from __future__ import annotations
