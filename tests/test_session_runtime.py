@@ -148,6 +148,53 @@ def test_live_run_replays_to_identical_events_and_motion(home: Scene, motion: Mo
         assert np.array_equal(a[name].local_rotations, b[name].local_rotations)
 
 
+def test_a_session_resumed_from_a_saved_checkpoint_ends_as_the_uninterrupted_one(
+    home: Scene, motion: MotionMatcher, tmp_path: Path
+) -> None:
+    from orchestrator.session.runtime import SessionCheckpoint
+    from orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
+
+    names = ["Ava", "Ben", "Cleo"]
+    settings = SessionSettings(frames=30 * FPS, pace="lockstep", max_steps=8, checkpoint_every_s=4.0)
+    kept: list[SessionCheckpoint] = []
+    whole_world = _world(home, motion, names)
+
+    async def whole_run() -> tuple[SessionResult, World]:
+        session = Session(whole_world, ScriptedPlanner(home), settings, on_checkpoint=kept.append)
+        return await session.run(), session.world
+
+    whole, whole_end = anyio.run(whole_run)
+    # one checkpoint after every applied step, and at least one every 4 simulated seconds
+    assert len(kept) >= whole.steps and all(b.world.frame - a.world.frame <= 4 * FPS for a, b in itertools.pairwise(kept))
+    middle = next(cp for cp in kept if cp.world.frame > 8 * FPS)
+    assert 0 < len(middle.outcomes) < whole.steps
+    path = tmp_path / "session.snapshot"
+    save_checkpoint(path, whole_world, middle)
+    assert path.stat().st_size < 20_000_000  # the motion layer and the grids are stored by name only
+
+    fresh = _world(home, motion, names)
+    planner = ScriptedPlanner(home)
+
+    async def resumed_run() -> tuple[SessionResult, World]:
+        session = Session(fresh, planner, settings)
+        session.resume(load_checkpoint(path, fresh))
+        assert session.world.frame == middle.world.frame
+        return await session.run(), session.world
+
+    resumed, resumed_end = anyio.run(resumed_run)
+    # nothing applied before the checkpoint is asked again (a step in flight then is)
+    first = middle.in_flight.index if middle.in_flight is not None else middle.steps
+    assert [r.index for r in planner.requests] == list(range(first, whole.steps))
+    assert resumed.applied_frames == whole.applied_frames and resumed.outcomes == whole.outcomes
+    assert [(e.event_id, e.state, e.applied_frame, e.finished_frame) for e in resumed.events] == [
+        (e.event_id, e.state, e.applied_frame, e.finished_frame) for e in whole.events
+    ]
+    a, b = whole_end.tracks(), resumed_end.tracks()
+    for name in names:
+        assert np.array_equal(a[name].root_positions, b[name].root_positions)
+        assert np.array_equal(a[name].local_rotations, b[name].local_rotations)
+
+
 def test_replay_with_frames_that_cannot_fit_is_an_error(home: Scene, motion: MotionMatcher) -> None:
     world = _world(home, motion, ["Ava"])
     with pytest.raises(SessionError, match="replay"):

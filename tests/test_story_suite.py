@@ -233,7 +233,7 @@ def test_recorded_scores_merge_per_scenario(tmp_path: Path) -> None:
     assert stored["scenarios"]["home_coffee_then_couch"]["met"] == 1
 
 
-def test_another_seat_is_named_without_a_distance() -> None:
+def test_another_seat_is_named_with_its_distance() -> None:
     log = story((0, [plan("Ava", "drink", [2.4, 6.7], seat="armchair_1")]))
     reason = score_story(COFFEE, HOME, log).verdicts[1].reason
-    assert reason == "Ava: step 0: drink at seat armchair_1: not 'sit on couch_1'"
+    assert reason == "Ava: step 0: drink at seat armchair_1: not 'sit on couch_1' (off by 0.83 m)"

@@ -1,8 +1,12 @@
-"""``storyteller run``: plan and animate a story in a scene (the main job).
+"""``storyteller run``: plan and animate a story in a scene (the main job); ``storyteller
+resume RUN_DIR`` (go on after a stop, from ``run.json`` and ``session.snapshot``) and
+``storyteller replay RUN_DIR|TRACE --out DIR`` (the same run with no model loaded).
 
 The job is :mod:`orchestrator.session.run_job`: the simulation and the planner run
 concurrently (``orchestrator.session.runtime``). Outputs, all in ``--out``: ``story.json``
-(events with their frames and per-character plans), ``trace.jsonl`` (every LLM call,
+(events with their frames and per-character plans), ``story.md`` (the same as text),
+``metrics.json`` (LLM use per role, simulation speed, frame intervals), ``run.json`` (thread
+id and arguments), ``session.snapshot`` (last checkpoint), ``trace.jsonl`` (every LLM call,
 replayable), ``runs.sqlite`` (planning checkpoints and story log), ``scene.json`` (the scene as run), per character
 ``<name>.smplx.npz`` / ``.bvh`` / ``.track.npz``, ``scene.glb`` (whole scene, skinned and
 animated), ``topdown.png`` and the animation: with ``--video``, ``story.mp4`` (or ``story.gif`` when
@@ -40,11 +44,14 @@ from orchestrator.cli.options import (
 from orchestrator.cli.safe_text import plain
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
+    from orchestrator.session.run_manifest import RunArguments, RunManifest
     from orchestrator.session.runtime import StoryEvent
 
 
 def register(app: typer.Typer) -> None:
     app.command("run")(run_command)
+    app.command("resume")(resume_command)
+    app.command("replay")(replay_command)
 
 
 def _event_line(e: StoryEvent, fps: int) -> str:
@@ -56,6 +63,7 @@ def _event_line(e: StoryEvent, fps: int) -> str:
 def run_command(
     scene: SceneArg,
     characters: Characters = 2,
+    names: Annotated[str | None, typer.Option("--names", help="Character names, comma-separated (sets their number; overrides -n).")] = None,
     instruction: Instruction = "",
     duration: Annotated[float, typer.Option("--duration", "-d", min=1.0, help="Simulated seconds.")] = 60.0,
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("out"),
@@ -72,62 +80,125 @@ def run_command(
     video: Annotated[bool, typer.Option("--video/--no-video", help="Also write an animated top-down story.mp4 (story.gif when imageio-ffmpeg is missing).")] = False,
     gif: Annotated[bool, typer.Option("--gif/--no-gif", help="Also write an animated top-down story.gif.")] = False,
     foot_ik: Annotated[bool, typer.Option("--foot-ik/--raw-feet", help="Leg IK on the synthesized motion: feet pinned while planted and kept out of furniture (--raw-feet: the matched poses as they are).")] = True,
-    thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this planning thread.")] = None,
+    thread_id: Annotated[str | None, typer.Option("--thread-id", help="Planning thread id (default: a new one; see run.json).")] = None,
     planner: Planner = "event",
     description: Description = "describer",
 ) -> None:
     """Plan and animate a story; write motion, pictures, the story log and the trace."""
-    import asyncio
+    from orchestrator.session.roster import character_names
+    from orchestrator.session.run_manifest import RunArguments, absolute, parse_names
 
-    from orchestrator.planning.ablation_graph import Ablation
-    from orchestrator.session.run_job import RunSetupError, run_story, write_outputs
-    from sim.scene.bundled import resolve_scene
-    from sim.scene.files import SceneFileError
-
-    ablation = Ablation(planner=planner, description=description)
     if not (math.isfinite(speed) and speed > 0):
         fail(f"--speed must be a positive number, got {speed}")
     try:
-        scene_obj = resolve_scene(scene)
-    except SceneFileError as exc:
+        cast = parse_names(names) if names is not None else tuple(character_names(characters))
+    except ValueError as exc:
         fail(str(exc))
+    if len(cast) > 24:
+        fail(f"--names: at most 24 characters, got {len(cast)}")
     if replay is not None and not replay.is_file():
         fail(f"{replay}: trace file not found")
-    out.mkdir(parents=True, exist_ok=True)
+    scene_path = Path(scene)
+    args = RunArguments(
+        scene=absolute(scene_path) or scene if scene_path.is_file() else scene,
+        names=cast,
+        instruction=instruction,
+        duration=duration,
+        pace=pace,
+        speed=speed,
+        max_events=max_events,
+        config=absolute(config),
+        motion_config=absolute(motion_config),
+        seed=seed,
+        max_retries=max_retries,
+        program_grammar=program_grammar,
+        foot_ik=foot_ik,
+        planner=planner,
+        description=description,
+        video=video,
+        gif=gif,
+    )
     trace_path = record if record is not None else (None if replay is not None else out / "trace.jsonl")
     if trace_path is not None and replay is not None and trace_path.resolve() == replay.resolve():
         fail("--record must name a different file than --replay")
+    _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False)
+
+
+def resume_command(
+    run_dir: Annotated[Path, typer.Argument(help="Run folder written by `storyteller run` (holds run.json).")],
+) -> None:
+    """Go on with a run that was stopped (even by kill -9) from its last checkpoint."""
+    from orchestrator.session.run_manifest import ManifestError, read_manifest
+
+    try:
+        manifest = read_manifest(run_dir)
+    except ManifestError as exc:
+        fail(str(exc))
+    _execute(manifest.arguments, out=run_dir, trace_path=run_dir / "trace.jsonl", replay=None,
+             thread_id=manifest.thread_id, resume=True)
+
+
+def replay_command(
+    source: Annotated[Path, typer.Argument(help="Run folder (RUN_DIR/trace.jsonl) or a trace file next to its run.json.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output folder of the replayed run.")],
+) -> None:
+    """Replay a recorded run with no model loaded: same arguments (from run.json), same story, same motion."""
+    from orchestrator.session.run_manifest import ManifestError, read_manifest
+
+    trace = source / "trace.jsonl" if source.is_dir() else source
+    if not trace.is_file():
+        fail(f"{trace}: trace file not found")
+    try:
+        manifest = read_manifest(trace.parent)
+    except ManifestError as exc:
+        fail(str(exc))
+    if out.resolve() == trace.parent.resolve():
+        fail("--out must be a different folder than the replayed run's")
+    _execute(manifest.arguments, out=out, trace_path=out / "trace.jsonl", replay=trace, thread_id=None, resume=False)
+
+
+def _execute(
+    args: RunArguments, *, out: Path, trace_path: Path | None, replay: Path | None, thread_id: str | None, resume: bool
+) -> None:
+    import asyncio
+
+    from orchestrator.session.run_job import RunSetupError, run_story, write_outputs
+    from orchestrator.session.run_manifest import resume_command
+    from sim.scene.bundled import resolve_scene
+    from sim.scene.files import SceneFileError
+
+    try:
+        scene_obj = resolve_scene(args.scene)
+    except SceneFileError as exc:
+        fail(str(exc))
+    out.mkdir(parents=True, exist_ok=True)
 
     def show(e: StoryEvent, fps: int) -> None:
         typer.echo(_event_line(e, fps))
+
+    def started(manifest: RunManifest) -> None:
+        if replay is None:
+            typer.echo(f"thread {manifest.thread_id}; to resume after a stop: {resume_command(out)}", err=True)
 
     try:
         result, names, fps, world = asyncio.run(
             run_story(
                 scene_obj,
-                characters=characters,
-                instruction=instruction,
-                duration=duration,
+                args,
                 out=out,
-                pace=pace,
-                speed=speed,
-                max_events=max_events,
                 trace_path=trace_path,
                 replay=replay,
-                config=config,
-                motion_config=motion_config,
-                seed=seed,
-                max_retries=max_retries,
                 thread_id=thread_id,
-                ablation=ablation,
-                program_grammar=program_grammar,
-                foot_ik=foot_ik,
+                resume=resume,
                 on_event=show,
+                on_start=started,
+                on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
             )
         )
     except RunSetupError as exc:
         fail(str(exc))
-    write_outputs(out, scene_obj, world, result, names, instruction, fps, gif, video=video)
+    write_outputs(out, scene_obj, world, result, names, args.instruction, fps, args.gif, video=args.video,
+                  trace_path=trace_path)
     typer.echo(
         f"{result.frames} frames ({result.frames / fps:.1f} s), {result.steps} planning steps, "
         f"{sum(e.state == 'completed' for e in result.events)} events completed -> {out}"
@@ -138,4 +209,4 @@ def run_command(
         raise typer.Exit(1)
 
 
-__all__ = ["register", "run_command"]
+__all__ = ["register", "replay_command", "resume_command", "run_command"]

@@ -4,7 +4,9 @@ K graph steps without a simulation; the planning benchmark runs it too), the ``r
 (:mod:`~orchestrator.session.roster`), opening the LLM port
 (:mod:`~orchestrator.session.port_setup`), the session runtime (simulation and planning in one
 anyio task group) and the step planner that drives the planning graph from a running
-simulation.
+simulation; the run folder's ``run.json`` (:mod:`~orchestrator.session.run_manifest`),
+``story.md`` / ``metrics.json`` (:mod:`~orchestrator.session.run_report`) and the session's
+checkpoint file (:mod:`~orchestrator.session.snapshot_file`).
 
 May import ``orchestrator.llm``, ``orchestrator.planning``, ``agents``, ``tools`` and ``sim``;
 never ``orchestrator.cli`` (the commands call into here, not the other way round).

@@ -3,9 +3,18 @@
 :func:`run_story` builds the world (characters at the start positions of the seed), the LLM
 port (recording to a trace, or replaying one), the planning graph of the chosen ablation and
 the story session, and runs them to the end; :func:`write_outputs` writes ``story.json``
-(:func:`story_json`), the motion exports and the pictures. With a replayed trace the session
-applies each planning result at the frame recorded there, so the same arguments give the same
-story and the same motion.
+(:func:`story_json`), ``story.md`` and ``metrics.json`` (``orchestrator.session.run_report``),
+the motion exports and the pictures. With a replayed trace the session applies each planning
+result at the frame recorded there, so the same arguments give the same story and the same
+motion.
+
+Resume: a run writes ``run.json`` (``orchestrator.session.run_manifest``) before its first
+frame and keeps its session's last checkpoint in ``session.snapshot``
+(``orchestrator.session.snapshot_file``). ``run_story(..., resume=True)`` restores the world
+and the story from it; steps the trace shows applied are applied again at their recorded
+frames (and not traced twice), and the planner answers finished steps from the story log and
+finishes a cut step from its langgraph checkpoint, so no event is lost or duplicated and no
+call whose node was checkpointed is repeated.
 
 Problems with the user's inputs (an unreadable trace or motion config, a model that cannot be
 opened, a session that cannot go on) are raised as :class:`RunSetupError`, one sentence each.
@@ -21,9 +30,12 @@ from typing import Any
 
 from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.planning.ablation_graph import Ablation
-from orchestrator.session.pace import Pace
+from orchestrator.session.run_manifest import RunArguments, RunManifest
 from orchestrator.session.runtime import SessionResult, StoryEvent
 from sim.scene.model import Scene
+
+CHECKPOINT_EVERY_S = 10.0
+"""Simulated seconds between two session checkpoints at most (also one after every applied step)."""
 
 
 class RunSetupError(Exception):
@@ -91,29 +103,28 @@ def story_json(result: SessionResult, scene_name: str, names: list[str], instruc
 
 async def run_story(
     scene: Scene,
+    args: RunArguments,
     *,
-    characters: int,
-    instruction: str,
-    duration: float,
     out: Path,
-    pace: Pace,
-    speed: float,
-    max_events: int | None,
     trace_path: Path | None,
     replay: Path | None,
-    config: Path | None,
-    motion_config: Path | None,
-    seed: int,
-    max_retries: int,
-    thread_id: str | None,
-    ablation: Ablation | None = None,
-    program_grammar: bool = False,
-    foot_ik: bool = True,
+    thread_id: str | None = None,
+    resume: bool = False,
     on_event: Callable[[StoryEvent, int], None] | None = None,
+    on_start: Callable[[RunManifest], None] | None = None,
+    on_resume: Callable[[int, int], None] | None = None,
 ) -> tuple[SessionResult, list[str], int, Any]:
     """Run the story session; returns the result, the character names, the fps and the world.
 
-    ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails."""
+    A live or replayed run writes ``run.json`` before the first frame (``on_start(manifest)``
+    is called then) and keeps the session's last checkpoint in ``session.snapshot`` (after
+    every applied planning step and every :data:`CHECKPOINT_EVERY_S` simulated seconds).
+    ``resume=True`` goes on from that checkpoint on the thread ``thread_id``: the world is
+    restored from it, steps whose result the trace already shows applied are applied at their
+    recorded frames again, and the planner answers finished steps from its story log.
+
+    ``on_resume(frame, fps)`` tells the frame a resumed session goes on from (0: no checkpoint was
+    kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
@@ -122,36 +133,59 @@ async def run_story(
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
     from orchestrator.session.port_setup import describer_mode_for, open_port
-    from orchestrator.session.roster import (
-        RosterWorld,
-        StartPositionError,
-        character_names,
-        start_positions,
+    from orchestrator.session.roster import RosterWorld, StartPositionError, start_positions
+    from orchestrator.session.run_manifest import write_manifest
+    from orchestrator.session.runtime import (
+        Session,
+        SessionCheckpoint,
+        SessionError,
+        SessionSettings,
     )
-    from orchestrator.session.runtime import Session, SessionError, SessionSettings
+    from orchestrator.session.snapshot_file import (
+        SNAPSHOT_FILE,
+        SnapshotError,
+        load_checkpoint,
+        save_checkpoint,
+    )
     from orchestrator.session.step_planner import GraphStepPlanner
     from sim.world.step import World, WorldConfig
 
-    names = character_names(characters)
+    names = list(args.names)
+    config = Path(args.config) if args.config is not None else None
+    motion_config = Path(args.motion_config) if args.motion_config is not None else None
     try:
         applied = applied_frames_from_trace(replay) if replay is not None else None
+        recorded = recorded_frames(trace_path) if resume and trace_path is not None and trace_path.is_file() else {}
     except (TraceCorruptError, OSError) as exc:
         raise RunSetupError(str(exc)) from None
     try:
         port, describer_model = open_port(config, trace_path, replay)
     except (LLMError, ValueError, OSError) as exc:
         raise RunSetupError(str(exc)) from None
-    world_config = WorldConfig(seed=seed, foot_ik=foot_ik)
+    world_config = WorldConfig(seed=args.seed, foot_ik=args.foot_ik)
     fps = world_config.fps
     try:
-        positions = start_positions(scene, characters, seed)
+        positions = start_positions(scene, len(names), args.seed)
     except StartPositionError as exc:
         port.close()
         raise RunSetupError(str(exc)) from None
     motion = _motion_layer(motion_config)
     world = World(scene, {n: (p, 0.0) for n, p in zip(names, positions, strict=True)}, motion, config=world_config)
-    ablation = ablation or Ablation()
-    thread = ablation.thread_id(thread_id or f"run-{uuid.uuid4().hex[:12]}")
+    ablation = Ablation(planner=args.planner, description=args.description)
+    thread = thread_id if resume and thread_id is not None else ablation.thread_id(thread_id or f"run-{uuid.uuid4().hex[:12]}")
+    snapshot_path = out / SNAPSHOT_FILE
+    checkpoint: SessionCheckpoint | None = None
+    if resume and snapshot_path.is_file():
+        try:
+            checkpoint = load_checkpoint(snapshot_path, world)
+        except SnapshotError as exc:
+            port.close()
+            raise RunSetupError(str(exc)) from None
+    if not resume:
+        manifest = RunManifest(thread_id=thread, scene_name=scene.name, seed=args.seed, config=args.config, arguments=args)
+        write_manifest(out, manifest)
+        if on_start is not None:
+            on_start(manifest)
     runs_db = out / "runs.sqlite"
     story = StoryLog(runs_db, thread)
     deps = PlanningDeps(
@@ -161,26 +195,38 @@ async def run_story(
         story=story,
         action_labels=scene_action_labels(scene),
         prompts=PromptLibrary(),
-        seed=seed,
-        max_retries=max_retries,
+        seed=args.seed,
+        max_retries=args.max_retries,
         describer_model=describer_model,
         describer_mode=describer_mode_for(describer_model),
         description_cache=None,
-        program_grammar=program_grammar,
+        program_grammar=args.program_grammar,
     )
     settings = SessionSettings(
-        frames=round(duration * fps),
-        pace=pace,
-        speed=speed,
-        max_steps=max_events,
+        frames=round(args.duration * fps),
+        pace=args.pace,
+        speed=args.speed,
+        max_steps=args.max_events,
         applied_frames=applied,
+        recorded_frames=recorded,
+        checkpoint_every_s=CHECKPOINT_EVERY_S,
     )
+    session: Session | None = None
+
+    def keep(cp: SessionCheckpoint) -> None:
+        assert session is not None
+        save_checkpoint(snapshot_path, session.world, cp)
+
     try:
         async with open_checkpointer(runs_db) as saver:
             graph = compile_graph(ablation, saver)
-            planner = GraphStepPlanner(graph, deps, thread, instruction)
+            planner = GraphStepPlanner(graph, deps, thread, args.instruction)
             shown = None if on_event is None else (lambda e: on_event(e, fps))
-            session = Session(world, planner, settings, trace=port.trace, on_event=shown)
+            session = Session(world, planner, settings, trace=port.trace, on_event=shown, on_checkpoint=keep)
+            if checkpoint is not None:
+                session.resume(checkpoint)
+            if resume and on_resume is not None:
+                on_resume(session.world.frame, fps)
             result = await session.run()
     except (LLMError, SessionError) as exc:
         raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
@@ -188,6 +234,13 @@ async def run_story(
         story.close()
         port.close()
     return result, names, fps, session.world
+
+
+def recorded_frames(trace_path: Path) -> dict[int, int]:
+    """Step -> frame of every ``applied`` record with a step index in a trace."""
+    from orchestrator.llm.traces import AppliedRecord, read_trace
+
+    return {r.step: r.sim_frame for r in read_trace(trace_path).records if isinstance(r, AppliedRecord) and r.step is not None}
 
 
 def _motion_layer(motion_config: Path | None) -> Any:
@@ -209,9 +262,12 @@ def _motion_layer(motion_config: Path | None) -> Any:
 def write_outputs(
     out: Path, scene: Scene, world: Any, result: SessionResult, names: list[str], instruction: str, fps: int, gif: bool,
     video: bool = False,
+    trace_path: Path | None = None,
 ) -> None:
-    """``story.json``, ``scene.json`` (the scene as run, for ``storyteller view``), the motion
+    """``story.json``, ``story.md``, ``metrics.json`` (LLM use from ``trace_path``, when the run
+    wrote a trace), ``scene.json`` (the scene as run, for ``storyteller view``), the motion
     exports (npz, BVH, GLB) and the top-down pictures in ``out``."""
+    from orchestrator.session.run_report import run_metrics, story_markdown
     from sim.export.bundle import export_run
     from sim.export.video import (
         animation_suffix,
@@ -224,6 +280,9 @@ def write_outputs(
     save_scene_json(scene, out / "scene.json")
     payload = story_json(result, scene.name, names, instruction, fps)
     (out / "story.json").write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
+    (out / "story.md").write_text(story_markdown(payload), encoding="utf-8")
+    metrics = run_metrics(payload, trace_path, wall_s=result.wall_s, frame_intervals_s=list(result.frame_intervals_s))
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n", encoding="utf-8")
     tracks = world.tracks()
     export_run(out, scene, list(tracks.values()))
     recording = recording_from_world(world)

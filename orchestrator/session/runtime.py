@@ -17,13 +17,20 @@ frame at which a result arrives; that frame is recorded. A replay reads the reco
 back and applies each result at exactly its frame, so the same events and the same motion
 come out. ``lockstep`` pace applies every result at the frame it was requested (the
 simulation pauses while the planner thinks), which is deterministic without a trace.
+
+Checkpoints: with ``checkpoint_every_s`` set, ``on_checkpoint`` gets a
+:class:`SessionCheckpoint` (between two frames) after every applied outcome and at least that
+often; ``Session.resume(checkpoint)`` on a world built from the same inputs goes on from it
+(the step in flight then is asked again), and ends as the uninterrupted session would in
+``lockstep`` pace or with ``recorded_frames`` for the steps applied after the checkpoint.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from array import array
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -37,7 +44,7 @@ from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, Planning
 from orchestrator.session.pace import Pace
 from sim.world.event_book import EventStatus
 from sim.world.events import AssignEvent, EventFailure, StepOutput
-from sim.world.step import World, step
+from sim.world.step import World, WorldSnapshot, step
 
 Outcome = ParsedEvent | PlanningFailure | None
 
@@ -100,6 +107,10 @@ class SessionResult:
     applied_frames: list[int]
     failures: list[EventFailure] = field(default_factory=list)
     planner_error: BaseException | None = None
+    wall_s: float = 0.0
+    """Wall-clock seconds the simulation task ran (this process)."""
+    frame_intervals_s: Sequence[float] = ()
+    """Wall-clock seconds between consecutive frames (this process)."""
 
 
 @dataclass
@@ -120,6 +131,32 @@ class SessionSettings:
     retry_after_s: float = 3.0
     recheck_after_s: float = 30.0
     applied_frames: Sequence[int] | None = None
+    recorded_frames: Mapping[int, int] = field(default_factory=dict)
+    """Resume only: step -> frame at which an earlier process already applied (and traced) that
+    step's outcome; it is applied at that frame again and not traced twice."""
+    checkpoint_every_s: float | None = None
+    """Call ``on_checkpoint`` after every applied outcome and at least this often (simulated
+    seconds); None: never."""
+
+
+@dataclass
+class SessionCheckpoint:
+    """Everything a session needs to go on from a frame (``Session.checkpoint`` /
+    ``Session.resume``): the world's snapshot, the story so far and the planning request in
+    flight (re-sent on resume; the planner answers it from its own checkpoints)."""
+
+    world: WorldSnapshot
+    events: dict[str, StoryEvent]
+    outcomes: list[tuple[int, Outcome]]
+    applied_frames: list[int]
+    failures: list[EventFailure]
+    steps: int
+    next_plan_frame: int
+    in_flight: PlanningRequest | None
+    failures_in_a_row: int
+    changes: int
+    asked: tuple[tuple[str, ...], int] | None
+    unchanged_until: int | None
 
 
 def world_roster(world: World, events: dict[str, StoryEvent]) -> tuple[CharacterStatus, ...]:
@@ -189,6 +226,7 @@ class Session:
         trace: TraceRecorder | None = None,
         on_event: Callable[[StoryEvent], None] | None = None,
         on_outcome: Callable[[int, Outcome, int], None] | None = None,
+        on_checkpoint: Callable[[SessionCheckpoint], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if settings.pace not in ("lockstep", "realtime", "fast"):
@@ -201,6 +239,7 @@ class Session:
         self.trace = trace
         self.on_event = on_event
         self.on_outcome = on_outcome
+        self.on_checkpoint = on_checkpoint
         self.clock = clock
         self.events: dict[str, StoryEvent] = {}
         self.outcomes: list[tuple[int, Outcome]] = []
@@ -215,6 +254,45 @@ class Session:
         self._asked: tuple[tuple[str, ...], int] | None = None  # (free, changes) at the last request
         self._unchanged_until: int | None = None  # after a wait: no new request before this frame
         # unless the free characters or an event's state changed since the request
+        self.frame_intervals: array[float] = array("d")  # wall seconds between frames (8 B each)
+        self.wall_s = 0.0
+
+    # ----- checkpoints ---------------------------------------------------------------------
+    def checkpoint(self) -> SessionCheckpoint:
+        """A copy of the session's state at the current frame (between two frames)."""
+        import copy
+
+        return SessionCheckpoint(
+            world=self.world.snapshot(),
+            events=copy.deepcopy(self.events),
+            outcomes=list(self.outcomes),
+            applied_frames=list(self.applied_frames),
+            failures=list(self.failures),
+            steps=self._steps,
+            next_plan_frame=self._next_plan_frame,
+            in_flight=self._in_flight,
+            failures_in_a_row=self._failures_in_a_row,
+            changes=self._changes,
+            asked=self._asked,
+            unchanged_until=self._unchanged_until,
+        )
+
+    def resume(self, cp: SessionCheckpoint) -> None:
+        """Go on from ``cp`` (taken from a session on an equal world) instead of frame 0."""
+        import copy
+
+        self.world = self.world.restore(cp.world)
+        self.events = copy.deepcopy(cp.events)
+        self.outcomes = list(cp.outcomes)
+        self.applied_frames = list(cp.applied_frames)
+        self.failures = list(cp.failures)
+        self._steps = cp.steps
+        self._next_plan_frame = cp.next_plan_frame
+        self._in_flight = cp.in_flight
+        self._failures_in_a_row = cp.failures_in_a_row
+        self._changes = cp.changes
+        self._asked = cp.asked
+        self._unchanged_until = cp.unchanged_until
 
     # ----- planning side ------------------------------------------------------------------
     async def _planning_task(
@@ -253,7 +331,7 @@ class Session:
         frame = self.world.frame
         self.outcomes.append((request.index, outcome))
         self.applied_frames.append(frame)
-        if self.trace is not None:
+        if self.trace is not None and request.index not in self.settings.recorded_frames:
             seqs_of: Callable[[int], Sequence[int]] | None = getattr(self.planner, "trace_seqs", None)
             seqs = tuple(seqs_of(request.index)) if seqs_of is not None else ()
             self.trace.record_applied(seqs, frame, step=request.index, requested_frame=request.frame)
@@ -319,14 +397,22 @@ class Session:
         s = self.settings
         replay = list(s.applied_frames) if s.applied_frames is not None else None
         start = self.clock()
+        last = start
         out: StepOutput | None = None
+        every = None if s.checkpoint_every_s is None else max(1, round(s.checkpoint_every_s * self.world.config.fps))
+        last_checkpoint = self.world.frame
         async with requests, results:
+            if self._in_flight is not None:  # resumed with a step in flight: ask again
+                await requests.send(self._in_flight)
             while self.world.frame < s.frames:
                 commands: list[AssignEvent] = []
+                applied = False
                 if self._in_flight is not None:
                     got: tuple[PlanningRequest, Outcome] | None = None
-                    if replay is not None:
+                    due = s.recorded_frames.get(self._in_flight.index)
+                    if due is None and replay is not None:
                         due = replay[self._in_flight.index]
+                    if due is not None:
                         if due < self.world.frame:
                             raise SessionError(
                                 f"replay: step {self._in_flight.index} was applied at frame {due}, "
@@ -347,6 +433,7 @@ class Session:
                         request, outcome = got
                         self._in_flight = None
                         commands = self._apply(request, outcome)
+                        applied = True
                 self.world, out = step(self.world, commands, self.world.dt)
                 self._observe(out)
                 if self._wants_plan(out):
@@ -369,6 +456,15 @@ class Session:
                     await anyio.sleep(max(0.0, delay))
                 elif self.world.frame % 8 == 0 or self._in_flight is not None:
                     await anyio.sleep(0)
+                if self.on_checkpoint is not None and every is not None and (
+                    applied or self.world.frame - last_checkpoint >= every
+                ):
+                    self.on_checkpoint(self.checkpoint())
+                    last_checkpoint = self.world.frame
+                now = self.clock()
+                self.frame_intervals.append(now - last)
+                last = now
+            self.wall_s = last - start
             # Close the request side; a step still in flight is abandoned (not applied).
 
     async def _receive(
@@ -401,4 +497,6 @@ class Session:
             applied_frames=list(self.applied_frames),
             failures=list(self.failures),
             planner_error=self.planner_error,
+            wall_s=self.wall_s,
+            frame_intervals_s=self.frame_intervals,
         )

@@ -182,10 +182,16 @@ class World:
         self.feet: FootState | None = FootSolver.initial_state(len(self.names)) if self.foot_solver else None
 
     # ----- snapshots ---------------------------------------------------------------------------
-    def _shared_memo(self) -> dict[int, Any]:
+    def shared_objects(self) -> dict[str, Any]:
+        """The read-only objects a snapshot refers to instead of copying (scene, grids, path
+        planners, motion layer), by a stable name: a serialized snapshot stores these names and
+        is loaded against the same objects of a world built from the same inputs."""
         nav = self.navigator.nav
-        return {id(self.scene): self.scene, id(self.grid): self.grid, id(self.planner): self.planner,
-                id(self.motion): self.motion, id(nav.grid): nav.grid, id(nav.planner): nav.planner}
+        return {"scene": self.scene, "grid": self.grid, "planner": self.planner, "motion": self.motion,
+                "nav.grid": nav.grid, "nav.planner": nav.planner}
+
+    def _shared_memo(self) -> dict[int, Any]:
+        return {id(obj): obj for obj in self.shared_objects().values()}
 
     def snapshot(self) -> WorldSnapshot:
         """A copy of the mutable state; the world can go on stepping afterwards."""

@@ -1,0 +1,107 @@
+"""``run.json``: what a run folder was made with, so it can be resumed or replayed.
+
+``storyteller run`` writes it before the first frame (thread id, scene, config, seed and
+every argument, with file paths made absolute); ``storyteller resume RUN_DIR`` and
+``storyteller replay RUN_DIR`` read it back and rebuild the same run, so neither needs the
+original command line.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from orchestrator.planning.kinds import DescriptionKind, PlannerKind
+from orchestrator.session.pace import Pace
+
+MANIFEST_FILE = "run.json"
+_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]{0,31}$")
+
+
+class ManifestError(Exception):
+    """A run folder without a readable ``run.json`` (the message names the file and the field)."""
+
+
+class RunArguments(BaseModel):
+    """The arguments of ``storyteller run`` that decide the story (paths absolute)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    scene: str = Field(description="Bundled scene name or absolute path to a scene file.")
+    names: tuple[str, ...] = Field(min_length=1, description="Character names, in order.")
+    instruction: str = ""
+    duration: float = Field(gt=0, description="Simulated seconds.")
+    pace: Pace = "lockstep"
+    speed: float = Field(default=1.0, gt=0, description="Simulated seconds per wall second (realtime).")
+    max_events: int | None = None
+    config: str | None = None
+    motion_config: str | None = None
+    seed: int = 0
+    max_retries: int = 3
+    program_grammar: bool = True
+    foot_ik: bool = True
+    planner: PlannerKind = "event"
+    description: DescriptionKind = "describer"
+    video: bool = False
+    gif: bool = False
+
+
+class RunManifest(BaseModel):
+    """``run.json``."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    version: Literal[1] = 1
+    thread_id: str = Field(description="Planning thread in runs.sqlite (checkpoints and story log).")
+    scene_name: str
+    seed: int
+    config: str | None
+    arguments: RunArguments
+
+
+def parse_names(text: str) -> tuple[str, ...]:
+    """``--names A,B,..``: distinct names of a letter then letters, digits, ``_`` or ``-``."""
+    names = tuple(n.strip() for n in text.split(","))
+    bad = [n for n in names if not _NAME.match(n)]
+    if bad:
+        raise ValueError(
+            f"--names: {bad[0]!r} is not a name (expected a letter, then up to 31 letters, digits, _ or -)"
+        )
+    if len(set(names)) != len(names):
+        raise ValueError("--names: every name must be different")
+    return names
+
+
+def absolute(path: Path | None) -> str | None:
+    return None if path is None else str(path.expanduser().resolve())
+
+
+def write_manifest(out: Path, manifest: RunManifest) -> Path:
+    path = out / MANIFEST_FILE
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(manifest.model_dump_json(indent=2) + "\n", encoding="utf-8")
+    tmp.replace(path)
+    return path
+
+
+def read_manifest(run_dir: Path) -> RunManifest:
+    path = run_dir / MANIFEST_FILE
+    try:
+        return RunManifest.model_validate_json(path.read_text(encoding="utf-8"))
+    except OSError:
+        raise ManifestError(f"{path}: no run.json (is {run_dir} a folder written by `storyteller run`?)") from None
+    except (ValidationError, json.JSONDecodeError) as exc:
+        if isinstance(exc, ValidationError):
+            err = exc.errors()[0]
+            where = ".".join(str(p) for p in err["loc"]) or "(file)"
+            raise ManifestError(f"{path}: field {where}: {err['msg']}") from None
+        raise ManifestError(f"{path}: not JSON ({exc})") from None
+
+
+def resume_command(run_dir: Path) -> str:
+    return f"storyteller resume {shlex.quote(str(run_dir))}"

@@ -1,0 +1,237 @@
+"""The run folder a person reads and uses: ``story.md``, ``metrics.json``, ``run.json``,
+``storyteller replay RUN_DIR`` and ``storyteller resume RUN_DIR`` after a kill -9.
+
+The LLM is a scripted OpenAI-compatible server on 127.0.0.1 (``tests/support/fake_openai_server.py``)
+answering by request content, so a run that is killed and resumed gets the same answers as
+one that is not; the CLI runs in a child process so it can be killed with SIGKILL.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from typer.testing import CliRunner
+
+from orchestrator.cli.app import app
+from orchestrator.llm.traces import AppliedRecord, read_trace
+from orchestrator.session.run_report import md_text, story_markdown
+from tests.support.fake_openai_server import FakeOpenAI
+
+ROOT = Path(__file__).resolve().parents[1]
+TASKS = {"Zoe": ("coffee_maker_1", "use_coffee_maker"), "Max": ("toaster_1", "use_toaster")}
+
+
+def program(name: str) -> str:
+    obj, action = TASKS[name]
+    return (
+        f'```python\ndef parse_event():\n    a = get_character("{name}")\n'
+        f'    a.set_position(get_area_to_interact_with("{obj}"))\n'
+        f'    a.set_orientation("{obj}")\n    a.set_target_action("{action}")\n```'
+    )
+
+
+class Planner:
+    """Answers the unified planner by content: the first free character uses its appliance.
+    ``delay_s`` slows every answer; ``arrived`` is set when request ``kill_at`` (1-based) comes in."""
+
+    def __init__(self, delay_s: float = 0.0, kill_at: int | None = None) -> None:
+        self.delay_s = delay_s
+        self.kill_at = kill_at
+        self.count = 0
+        self.arrived = threading.Event()
+
+    def __call__(self, body: dict[str, Any]) -> str:
+        self.count += 1
+        if self.kill_at is not None and self.count >= self.kill_at:
+            self.arrived.set()
+            time.sleep(5.0)  # the client is killed meanwhile; nobody reads this answer
+        elif self.delay_s:
+            time.sleep(self.delay_s)
+        text = body["messages"][-1]["content"]
+        free = re.search(r"Free characters: (.*)", text)
+        assert free is not None, text
+        first = free.group(1).split(",")[0].strip()
+        return program(first)
+
+
+@pytest.fixture
+def env(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    monkeypatch.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
+    for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL"):
+        monkeypatch.delenv(var, raising=False)
+    yield
+
+
+def write_config(tmp_path: Path, api_base: str) -> Path:
+    path = tmp_path / "fake.toml"
+    path.write_text(
+        f'[llm]\nmodel = "openai/fake"\napi_base = "{api_base}"\napi_key_env = "FAKE_PROVIDER_KEY"\ntimeout_s = 20.0\n'
+        "[llm.retry]\nmax_attempts = 1\n",
+        encoding="utf-8",
+    )
+    return path
+
+
+RUN = ["run", "home", "--names", "Zoe,Max", "-d", "30", "--planner", "unified", "--description", "object-list"]
+
+
+# ----- story.md ---------------------------------------------------------------------------
+def test_md_text_strips_controls_and_escapes_markup() -> None:
+    assert md_text("a\x1b[31mb\x00c") == "a\\[31mbc"
+    assert md_text("line one\n## two\r\n|x|") == "line one \\#\\# two \\|x\\|"
+    assert md_text("*bold* [link](http://x) `code` <b>") == "\\*bold\\* \\[link\\]\\(http://x\\) \\`code\\` \\<b\\>"
+    assert md_text("\u202eevil") == "evil"
+
+
+def test_story_markdown_keeps_an_llm_activity_on_its_line() -> None:
+    story = {
+        "scene": "home", "characters": ["Ava"], "instruction": "# heading?", "fps": 30, "frames": 3600,
+        "steps": [{"index": 0, "applied_frame": 60, "kind": "event", "characters": ["Ava"], "activity": "x",
+                   "plans": [{"character": "Ava", "action": "use_coffee_maker", "area": "near *coffee*\n# x",
+                              "position": [1.0, 2.5], "facing": [1.0, 0.0], "seat": None}]},
+                  {"index": 1, "applied_frame": 900, "kind": "failed", "node": "planner", "feedback": "bad\nline"}],
+        "events": [{"event_id": "event-0000", "index": 0, "characters": ["Ava"], "activity": "make coffee\n# HACK",
+                    "requested_frame": 60, "applied_frame": 60, "state": "completed", "finished_frame": 1890,
+                    "failure": None}],
+    }
+    text = story_markdown(story)
+    assert "## 00:02.0 event\\-0000: Ava\n\nmake coffee \\# HACK\n" in text
+    assert "- Ava: use\\_coffee\\_maker at near \\*coffee\\* \\# x \\(1.00, 2.50\\)" in text
+    assert "*completed at 01:03.0*" in text
+    assert "- step 1 at 00:30.0 in planner: bad line" in text
+    assert "Instruction: \\# heading?" in text
+    assert not [line for line in text.splitlines() if line.startswith("# ") and "Story" not in line]
+
+
+# ----- run, then replay the folder ----------------------------------------------------------
+def test_run_writes_run_json_story_md_metrics_and_replays_from_the_folder(env: None, tmp_path: Path) -> None:
+    with FakeOpenAI(responder=Planner()) as fake:
+        cfg = write_config(tmp_path, fake.base)
+        live = CliRunner().invoke(app, [*RUN, "--max-events", "3", "--config", str(cfg), "--out", str(tmp_path / "live")],
+                                  catch_exceptions=False)
+        assert live.exit_code == 0, live.stderr
+        calls = len(fake.requests)
+    run_dir = tmp_path / "live"
+    manifest = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
+    assert manifest["arguments"]["names"] == ["Zoe", "Max"] and manifest["arguments"]["config"] == str(cfg.resolve())
+    assert manifest["thread_id"].startswith("run-") and f"storyteller resume {run_dir}" in live.stderr
+    assert manifest["thread_id"] in live.stderr
+    story = json.loads((run_dir / "story.json").read_text(encoding="utf-8"))
+    assert story["characters"] == ["Zoe", "Max"] and len(story["events"]) == 3
+    md = (run_dir / "story.md").read_text(encoding="utf-8")
+    assert "Characters: Zoe, Max" in md and "- Zoe: use\\_coffee\\_maker at " in md
+    assert md.count("\n## ") == 3
+    metrics = json.loads((run_dir / "metrics.json").read_text(encoding="utf-8"))
+    assert metrics["events"]["applied"] == 3 and metrics["planning_steps"] == {"total": 3, "event": 3}
+    planner = metrics["llm"]["roles"]["planner"]
+    assert planner["calls"] == calls == metrics["llm"]["calls"] and planner["retries"] == 0
+    assert planner["prompt_tokens"] == 11 * calls and planner["latency_s"]["p95"] >= planner["latency_s"]["p50"] >= 0
+    sim = metrics["simulation"]
+    assert sim["frames"] == 900 and sim["speed"] > 0 and sim["frame_interval_ms"]["p99"] >= sim["frame_interval_ms"]["p50"]
+
+    # the server is gone: the replay needs no model, and reads its arguments from run.json
+    again = CliRunner().invoke(app, ["replay", str(run_dir), "--out", str(tmp_path / "again")], catch_exceptions=False)
+    assert again.exit_code == 0, again.stderr
+    for name in ("story.json", "story.md", "Zoe.track.npz", "Max.smplx.npz"):
+        assert (tmp_path / "again" / name).read_bytes() == (run_dir / name).read_bytes(), name
+    replayed = json.loads((tmp_path / "again" / "metrics.json").read_text(encoding="utf-8"))
+    assert replayed["llm"]["roles"]["planner"]["replayed"] == calls
+    # a trace file names its folder's run.json too
+    third = CliRunner().invoke(app, ["replay", str(run_dir / "trace.jsonl"), "--out", str(tmp_path / "third")])
+    assert third.exit_code == 0, third.stderr
+    assert (tmp_path / "third" / "story.json").read_bytes() == (run_dir / "story.json").read_bytes()
+
+
+def test_replay_and_resume_of_a_folder_without_run_json_is_a_user_error(tmp_path: Path) -> None:
+    (tmp_path / "trace.jsonl").write_text("", encoding="utf-8")
+    for args in (["replay", str(tmp_path), "--out", str(tmp_path / "o")], ["resume", str(tmp_path)]):
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 2
+        assert f"{tmp_path / 'run.json'}: no run.json" in result.stderr
+
+
+def test_bad_names_are_a_user_error(tmp_path: Path) -> None:
+    result = CliRunner().invoke(app, ["run", "home", "--names", "Ava,Ava", "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and "--names: every name must be different" in result.stderr
+    result = CliRunner().invoke(app, ["run", "home", "--names", "Ava,**", "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and "'**' is not a name" in result.stderr
+
+
+# ----- kill -9, then resume -----------------------------------------------------------------
+def cli(*args: str) -> list[str]:
+    return [sys.executable, "-c", "from orchestrator.cli.app import main; main()", *args]
+
+
+def test_resume_after_kill_9_continues_the_story_without_gaps_duplicates_or_repeated_calls(
+    env: None, tmp_path: Path
+) -> None:
+    run = [*RUN, "-d", "60", "--max-events", "6"]
+    # the story as an uninterrupted run tells it (lockstep: the same answers give the same story)
+    with FakeOpenAI(responder=Planner()) as fake:
+        cfg = write_config(tmp_path, fake.base)
+        whole = CliRunner().invoke(app, [*run, "--config", str(cfg), "--out", str(tmp_path / "whole")],
+                                   catch_exceptions=False)
+        assert whole.exit_code == 0, whole.stderr
+
+    kill_at = 4
+    planner = Planner(delay_s=0.2, kill_at=kill_at)
+    run_dir = tmp_path / "killed"
+    with FakeOpenAI(responder=planner) as fake:
+        cfg = write_config(tmp_path, fake.base)
+        log = tmp_path / "killed.log"
+        with log.open("wb") as sink:
+            child = subprocess.Popen(cli(*run, "--config", str(cfg), "--out", str(run_dir)), cwd=ROOT,
+                                     env=os.environ.copy(), stdout=sink, stderr=subprocess.STDOUT)
+        try:
+            assert planner.arrived.wait(240), log.read_text(encoding="utf-8")
+            child.send_signal(signal.SIGKILL)  # mid-story: request 4 is in flight
+            child.wait(30)
+        finally:
+            if child.poll() is None:
+                child.kill()
+        assert child.returncode == -signal.SIGKILL
+        assert not (run_dir / "story.json").exists()
+        assert (run_dir / "run.json").is_file() and (run_dir / "session.snapshot").is_file()
+        before = read_trace(run_dir / "trace.jsonl")
+        done_before = [a for a in before.attempts() if a.final and a.ok]
+        assert len(done_before) == kill_at - 1
+        applied_before = [r.step for r in before.records if isinstance(r, AppliedRecord)]
+        assert applied_before == list(range(kill_at - 1))
+        requests_before = len(fake.requests)
+
+        planner.kill_at = None  # the provider answers again
+        resumed = subprocess.run(cli("resume", str(run_dir)), cwd=ROOT, env=os.environ.copy(), capture_output=True,
+                                 text=True, timeout=600)
+        assert resumed.returncode == 0, resumed.stderr
+        new_requests = fake.requests[requests_before:]
+    # the world came back from its last checkpoint (after step 2 was applied), not from frame 0
+    found = re.search(r"resuming at frame (\d+)", resumed.stderr)
+    assert found is not None, resumed.stderr
+    resumed_at = int(found.group(1))
+    assert resumed_at > max(r.sim_frame for r in before.records if isinstance(r, AppliedRecord))
+
+    # only the cut call and the steps after it were asked again
+    assert len(new_requests) == 6 - (kill_at - 1)
+    trace = read_trace(run_dir / "trace.jsonl")
+    done = [(a.node, a.request_hash) for a in trace.attempts() if a.final and a.ok]
+    assert len(done) == len(set(done)) == 6  # no completed call repeated
+    steps = [r.step for r in trace.records if isinstance(r, AppliedRecord)]
+    assert steps == list(range(6))  # every step applied (and traced) once
+    # the story continues without gap or duplicate: it is the uninterrupted story
+    story = json.loads((run_dir / "story.json").read_text(encoding="utf-8"))
+    assert [e["event_id"] for e in story["events"]] == [f"event-{i:04d}" for i in range(6)]
+    assert (run_dir / "story.json").read_bytes() == (tmp_path / "whole" / "story.json").read_bytes()
+    assert (run_dir / "story.md").read_bytes() == (tmp_path / "whole" / "story.md").read_bytes()
+    # motion of the frames before the kill was kept, and the rest equals the uninterrupted run
+    assert (run_dir / "Zoe.track.npz").read_bytes() == (tmp_path / "whole" / "Zoe.track.npz").read_bytes()
