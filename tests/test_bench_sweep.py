@@ -274,3 +274,21 @@ def test_the_plugin_module_imports_only_typer() -> None:
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('litellm', 'langgraph', 'matplotlib', 'orchestrator')))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "[]"
+
+
+def test_ray_executor_gives_the_same_files(finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path) -> None:
+    ray = pytest.importorskip("ray", reason="the optional [ray] extra is not installed")
+    from benchmark.sweep.ray_executor import ray_executor
+
+    out = tmp_path / "ray"
+    here = Path(__file__).resolve().parent  # workers unpickle the scripted port from this module
+    try:
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+                 runtime_env={"env_vars": {"PYTHONPATH": f"{here.parent}:{here}"}})
+        calls: list[str] = []  # calls made in the workers do not come back here: count the traces instead
+        asyncio.run(run_sweep(spec(), out, factory=scripted(calls), executor=ray_executor(2, factory=scripted([]))))
+    finally:
+        ray.shutdown()
+    assert calls == ["describer"]  # the description is made by the driver, the runs by the tasks
+    assert len(list((out / "traces" / "runs").glob("*.jsonl"))) == 6
+    assert snapshot(out) == finished[2]
