@@ -15,6 +15,9 @@ Every LLM call goes through the project's LLM port, so ``--config`` picks models
     python -m benchmark.planning_benchmark --cases 0 10 60 --replay bench.jsonl
 
 ``--help`` lists the options (planner, description, distraction level, runs, seed).
+
+For sweeps over case sets, levels, methods and models that resume, scale out and write
+reports, use ``storyteller bench run`` (:mod:`benchmark.sweep`); it drives the same graph.
 """
 
 from __future__ import annotations
