@@ -109,7 +109,7 @@ async def describe(ws: SweepWorkspace, key: RunKey, port: LLMPort) -> SceneDescr
     scene, graph = ws.scene(key.case_set, case)
     model = ws.spec.model(key.model)
     planned = await run_plan(
-        scene=scene, port=port, instruction=case.user_instruction, events=0, seed=ws.spec.seed,
+        scene=scene, port=port, instruction="", events=0, seed=ws.spec.seed,
         runs_db=":memory:", thread_id=f"describe-{description_key(case.scene_name, key.model)}", roster=(),
         scene_graph=graph, describer_model=model.config.node("describer").model, max_retries=ws.spec.feedback,
         program_grammar=ws.spec.program_grammar,
