@@ -292,3 +292,17 @@ def test_ray_executor_gives_the_same_files(finished: tuple[Path, list[str], dict
     assert calls == ["describer"]  # the description is made by the driver, the runs by the tasks
     assert len(list((out / "traces" / "runs").glob("*.jsonl"))) == 6
     assert snapshot(out) == finished[2]
+
+
+def test_case_sets_by_name_or_folder(tmp_path: Path) -> None:
+    from benchmark.reference_cases import load_cases
+    from benchmark.sweep.grid import case_set_for
+
+    ours = Path(__file__).resolve().parents[1] / "benchmark" / "cases" / "ours"
+    pi = case_set_for(str(REFERENCE / "benchmark" / "test_cases" / "6_PI"), REFERENCE, ours)
+    assert (pi.name, pi.scenes_root) == ("6_PI", str(REFERENCE))
+    assert [c.id for c in load_cases(pi.path)] == list(range(60, 70))  # one <tags> folder is a case set
+    assert case_set_for(str(REFERENCE), REFERENCE, ours).name == "reference"
+    assert case_set_for(str(ours), REFERENCE, ours) == case_set_for("ours", REFERENCE, ours)
+    with pytest.raises(SweepSpecError, match="not a folder"):
+        case_set_for(str(tmp_path / "none"), REFERENCE, ours)

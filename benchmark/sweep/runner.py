@@ -174,9 +174,9 @@ async def run_sweep(
     finished = {r.run_id: r for r in read_results(path) if r.run_id in {k.run_id for k in keys}}
     pending = [k for k in keys if k.run_id not in finished]
     progress = progress or NoProgress()
-    progress.start(len(keys), list(finished.values()))
+    descriptions = await descriptions_for(ws, pending, factory, replay=False)
+    progress.start(len(keys), list(finished.values()))  # after the descriptions: the ETA is the runs' pace
     try:
-        descriptions = await descriptions_for(ws, pending, factory, replay=False)
 
         def done(result: RunResult) -> None:
             append_result(path, result)
