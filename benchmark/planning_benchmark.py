@@ -15,6 +15,9 @@ Every LLM call goes through the project's LLM port, so ``--config`` picks models
     python -m benchmark.planning_benchmark --cases 0 10 60 --replay bench.jsonl
 
 ``--help`` lists the options (planner, description, distraction level, runs, seed).
+
+For sweeps over case sets, levels, methods and models that resume, scale out and write
+reports, use ``storyteller bench run`` (:mod:`benchmark.sweep`); it drives the same graph.
 """
 
 from __future__ import annotations
@@ -33,14 +36,15 @@ from typing import Any, Literal, get_args
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")  # before litellm is imported
 
 from agents.llm_port import LLMPort
-from agents.messages import CharacterStatus, ParsedEvent, SceneDescription
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from agents.messages import ParsedEvent, SceneDescription
+from agents.prompt_templates import PromptLibrary
 from benchmark.plan_scoring import CaseScore, score_outcome
 from benchmark.reference_cases import (
     TAGS,
     BenchmarkCase,
     BenchmarkCaseError,
-    PlanningInputs,
+    CaseWorld,
+    case_tags,
     load_cases,
     planning_inputs,
     scene_dir,
@@ -50,7 +54,6 @@ from orchestrator.planning.kinds import DescriptionKind, PlannerKind
 from orchestrator.reference_data import locate_reference
 from orchestrator.session.plan_job import run_plan
 from sim.scene.model import Scene
-from tools.character_states import WorldView
 from tools.scene_graph import SceneGraph, build_scene_graph
 
 DEFAULT_REFERENCE = locate_reference().path  # $STORYTELLER_REFERENCE, else ../shared/reference/event-driven-storytelling
@@ -73,21 +76,6 @@ class RunResult:
     seed: int
     score: CaseScore
     event: dict[str, Any] | None
-
-
-class CaseWorld:
-    """The spatial API's view of a test case as the reference data gives it (characters at
-    positions sampled from the case's area texts, the objects in use): fixed for the case's one
-    planning step, so it is not rebuilt from the roster."""
-
-    def __init__(self, inputs: PlanningInputs) -> None:
-        self.inputs = inputs
-
-    def world_view(self, roster: Sequence[CharacterStatus]) -> WorldView:
-        return self.inputs.world
-
-    def seats_in_use(self, roster: Sequence[CharacterStatus]) -> list[str]:
-        return list(self.inputs.seats_in_use)
 
 
 class Descriptions:
@@ -118,11 +106,6 @@ class Descriptions:
     def remember(self, scene: Scene, description: SceneDescription | None) -> None:
         if description is not None:
             self._done.setdefault(scene.name, description)
-
-
-def case_tags(case: BenchmarkCase) -> tuple[str, ...]:
-    """The prompt tags of ``case`` (its in-context examples): the benchmark tags it carries."""
-    return tuple(t for t in BENCHMARK_TAGS if t in case.tags)
 
 
 async def run_cases(

@@ -8,7 +8,7 @@ parentheses over atoms like ``sit on chair_3``) or, for position-inference (PI) 
 ``sampled_position`` expression. ``allow_null_plan`` says whether waiting is acceptable.
 
 A case set is the reference data's root or any folder in the same ``<tags>/testcase_<id>.json``
-layout (our own cases: ``benchmark/cases/ours``). A ``scene_name`` is a folder of the
+layout (our own cases: ``benchmark/cases/ours``), or one ``<tags>`` folder of either. A ``scene_name`` is a folder of the
 reference data's ``configs/scenes`` (``House``), or ``bundled:<name>`` for a scene shipped
 with the package (``bundled:home``; see :func:`scene_dir`).
 
@@ -29,6 +29,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agents.messages import CharacterStatus, HistoryEntry
+from agents.prompt_templates import BENCHMARK_TAGS
 from sim.scene.bundled import bundled_scene_names
 from sim.scene.model import Scene
 from tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
@@ -136,15 +137,17 @@ def case_files(reference: str | Path) -> list[Path]:
 
     ``reference`` is the reference data's root (cases under ``benchmark/test_cases/<tags>/``)
     or a case folder in the same layout itself (``<tags>/testcase_<id>.json``, e.g.
-    ``benchmark/cases/ours``)."""
+    ``benchmark/cases/ours``), or one ``<tags>`` folder of either (``.../test_cases/6_PI``)."""
     root = Path(reference) / "benchmark" / "test_cases"
     if not root.is_dir():
         root = Path(reference)
-    files = sorted(root.glob("*/testcase_*.json"), key=lambda p: int(p.stem.split("_")[-1]))
+    found = list(root.glob("*/testcase_*.json")) or list(root.glob("testcase_*.json"))
+    files = sorted(found, key=lambda p: int(p.stem.split("_")[-1]))
     if not files:
         raise BenchmarkCaseError(
             f"{Path(reference)}: no test cases (expected benchmark/test_cases/<tags>/testcase_<id>.json "
-            "under the reference data, or <tags>/testcase_<id>.json in a case folder)"
+            "under the reference data, <tags>/testcase_<id>.json in a case folder, or testcase_<id>.json "
+            "in one <tags> folder)"
         )
     return files
 
@@ -223,3 +226,23 @@ def planning_inputs(case: BenchmarkCase, scene: Scene) -> PlanningInputs:
 
 def expected_characters(case: BenchmarkCase) -> Sequence[str]:
     return [p.character for p in case.expected_plans]
+
+
+class CaseWorld:
+    """The spatial API's view of a test case as the reference data gives it (characters at
+    positions sampled from the case's area texts, the objects in use): fixed for the case's one
+    planning step, so it is not rebuilt from the roster."""
+
+    def __init__(self, inputs: PlanningInputs) -> None:
+        self.inputs = inputs
+
+    def world_view(self, roster: Sequence[CharacterStatus]) -> WorldView:
+        return self.inputs.world
+
+    def seats_in_use(self, roster: Sequence[CharacterStatus]) -> list[str]:
+        return list(self.inputs.seats_in_use)
+
+
+def case_tags(case: BenchmarkCase) -> tuple[str, ...]:
+    """The prompt tags of ``case`` (its in-context examples): the benchmark tags it carries."""
+    return tuple(t for t in BENCHMARK_TAGS if t in case.tags)

@@ -1,6 +1,18 @@
-"""The ``storyteller`` command. Each command group lives in its own module of ``orchestrator.cli``."""
+"""The ``storyteller`` command. Each command group lives in its own module of ``orchestrator.cli``.
+
+Command plugins: every entry point of the ``storyteller.commands`` group (``pyproject.toml``;
+e.g. ``bench = "benchmark.sweep.cli:register"``) names a ``register(app)`` function that adds
+its commands; :func:`register_plugins` calls each one. That is how ``storyteller bench`` joins
+without ``orchestrator`` importing ``benchmark``. A plugin module should import only typer at
+module level (it is loaded at start-up); one that cannot be loaded is reported on stderr and
+skipped, never fatal to the other commands.
+"""
 
 from __future__ import annotations
+
+import sys
+from collections.abc import Iterable
+from importlib.metadata import EntryPoint, entry_points
 
 import typer
 
@@ -39,6 +51,26 @@ cli_event.register(app)
 cli_model.register(app)
 cli_run.register(app)
 cli_view.register(app)
+
+PLUGIN_GROUP = "storyteller.commands"
+
+
+def register_plugins(target: typer.Typer, plugins: Iterable[EntryPoint] | None = None) -> list[str]:
+    """Call ``register(target)`` of every command plugin (default: the installed entry points of
+    :data:`PLUGIN_GROUP`); returns the names registered."""
+    names = []
+    for ep in entry_points(group=PLUGIN_GROUP) if plugins is None else plugins:
+        try:
+            register = ep.load()
+        except (ImportError, AttributeError) as exc:
+            print(f"warning: storyteller command plugin {ep.name!r} ({ep.value}) cannot be loaded: {exc}", file=sys.stderr)
+            continue
+        register(target)
+        names.append(ep.name)
+    return names
+
+
+register_plugins(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point

@@ -1,0 +1,171 @@
+"""The grid of a sweep and the stable id of each of its runs.
+
+A :class:`SweepSpec` (saved as ``sweep.json`` in the sweep folder) names the case sets, the
+distraction levels, the repeats, the methods, the models (a resolved run config per model
+label), the feedback budget and the seed. :func:`expand` lists its runs in grid order (case
+set, case, level, repeat, method, model); a run's id (:attr:`RunKey.run_id`) depends only on
+those coordinates, so a restarted sweep recognises the runs it finished.
+
+Methods are the paper's (Table 2): ``ours`` (event narrator + event parser, our describer),
+``wo-event`` (one planner call, "w/o Event"), ``object-list`` and ``scene-graph`` (the full
+method on a preset scene description) and ``direct`` ("Direct Inference": coordinates instead
+of an event program). Each is a variant of the planning graph
+(:class:`~orchestrator.planning.ablation_graph.Ablation`).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from orchestrator.llm.config import StorytellerConfig
+from orchestrator.planning.ablation_graph import Ablation
+
+METHODS: dict[str, Ablation] = {
+    "ours": Ablation(planner="event", description="describer"),
+    "wo-event": Ablation(planner="unified", description="describer"),
+    "object-list": Ablation(planner="event", description="object-list"),
+    "scene-graph": Ablation(planner="event", description="scene-graph"),
+    "direct": Ablation(planner="direct", description="describer"),
+}
+METHOD_TITLES: dict[str, str] = {
+    "ours": "Ours", "wo-event": "w/o Event", "object-list": "Object List",
+    "scene-graph": "Scene Graph", "direct": "Direct Inference",
+}
+LEVELS: tuple[int, ...] = (0, 1, 2)
+_UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+class SweepSpecError(ValueError):
+    """Arguments that do not make a sweep (unknown method, no model, a level out of range...)."""
+
+
+def slug(text: str) -> str:
+    """``text`` as a file-name-safe token (``local/qwen2.5-coder-0.5b`` -> ``local-qwen2.5-coder-0.5b``)."""
+    return _UNSAFE.sub("-", text).strip("-") or "x"
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class CaseSetSpec(_Frozen):
+    """A folder of cases in the reference format, and where its reference scenes are."""
+
+    name: str = Field(description="Short name used in run ids and reports (reference, ours, 6_PI...).")
+    path: str = Field(description="The case folder (absolute).")
+    scenes_root: str = Field(description="Folder holding configs/scenes/<Scene> for non-bundled scenes.")
+
+
+class ModelSpec(_Frozen):
+    """One point of the model axis: a label and the resolved config (a model per role)."""
+
+    label: str
+    config: StorytellerConfig
+
+    @property
+    def roles(self) -> dict[str, str]:
+        return {name: node.model for name, node in sorted(self.config.nodes.items())}
+
+
+class SweepSpec(_Frozen):
+    """Everything that decides which runs a sweep makes and what each run sends to a model."""
+
+    version: int = 1
+    case_sets: tuple[CaseSetSpec, ...]
+    case_ids: tuple[int, ...] | None = Field(default=None, description="Only these case ids (None: all).")
+    levels: tuple[int, ...] = (2,)
+    repeats: int = Field(default=1, ge=1)
+    seed: int = 0
+    methods: tuple[str, ...] = ("ours",)
+    models: tuple[ModelSpec, ...]
+    feedback: int = Field(default=0, ge=0, description="Retries with feedback per role (max_retries); 0 as in the paper.")
+    program_grammar: bool = True
+
+    def check(self) -> SweepSpec:
+        """Raise :class:`SweepSpecError` naming the first bad argument."""
+        if unknown := [m for m in self.methods if m not in METHODS]:
+            raise SweepSpecError(f"--method {unknown[0]!r}: expected one of {', '.join(METHODS)}")
+        if bad := [lv for lv in self.levels if lv not in LEVELS]:
+            raise SweepSpecError(f"--level {bad[0]}: expected 0, 1 or 2")
+        if not self.models:
+            raise SweepSpecError("no model: give --model or --config")
+        labels = [m.label for m in self.models]
+        if len(set(labels)) != len(labels):
+            raise SweepSpecError(f"two models share the label {labels[0]!r}")
+        names = [c.name for c in self.case_sets]
+        if len(set(names)) != len(names):
+            raise SweepSpecError(f"two case sets share the name {names[0]!r}")
+        return self
+
+    def model(self, label: str) -> ModelSpec:
+        return next(m for m in self.models if m.label == label)
+
+    def case_set(self, name: str) -> CaseSetSpec:
+        return next(c for c in self.case_sets if c.name == name)
+
+
+class RunKey(_Frozen):
+    """The coordinates of one run in the grid."""
+
+    case_set: str
+    case: int
+    level: int
+    repeat: int
+    method: str
+    model: str
+
+    @property
+    def run_id(self) -> str:
+        return (f"{slug(self.case_set)}-c{self.case:03d}-L{self.level}-r{self.repeat}-"
+                f"{self.method}-{slug(self.model)}")
+
+
+def expand(spec: SweepSpec, case_ids: dict[str, Sequence[int]]) -> list[RunKey]:
+    """Every run of ``spec`` in grid order; ``case_ids``: the ids of each case set (loaded)."""
+    return [
+        RunKey(case_set=cs.name, case=cid, level=level, repeat=r, method=method, model=m.label)
+        for cs in spec.case_sets
+        for cid in case_ids[cs.name]
+        for level in spec.levels
+        for r in range(spec.repeats)
+        for method in spec.methods
+        for m in spec.models
+    ]
+
+
+def case_set_for(arg: str, reference: Path, ours: Path) -> CaseSetSpec:
+    """The case set named on the command line: ``reference`` (the authors' 40 cases), ``ours``
+    (``benchmark/cases/ours``) or a folder in the reference format."""
+    if arg == "reference":
+        return CaseSetSpec(name="reference", path=str(reference), scenes_root=str(reference))
+    if arg == "ours":
+        return CaseSetSpec(name="ours", path=str(ours.resolve()), scenes_root=str(reference))
+    path = Path(arg).expanduser().resolve()
+    if not path.is_dir():
+        raise SweepSpecError(f"--cases {arg}: not a folder (expected reference, ours or a case folder)")
+    if path == ours.resolve():
+        return CaseSetSpec(name="ours", path=str(path), scenes_root=str(reference))
+    root = next((p for p in (path, *path.parents) if (p / "configs" / "scenes").is_dir()), reference)
+    if path == root:
+        return CaseSetSpec(name="reference", path=str(path), scenes_root=str(root))
+    return CaseSetSpec(name=slug(path.name), path=str(path), scenes_root=str(root))
+
+
+def model_specs(models: Sequence[str], configs: Sequence[Path]) -> tuple[ModelSpec, ...]:
+    """One :class:`ModelSpec` per ``--model`` (every role on that model) and per ``--config``
+    (its model per role, labelled by the file's stem); the default config when neither is given."""
+    from orchestrator.llm.config import load_config
+
+    out = [ModelSpec(label=slug(Path(c).stem), config=load_config(c)) for c in configs]
+    for name in models:
+        base = load_config(None, env={})
+        nodes = {k: v.model_copy(update={"model": name, "fallbacks": ()}) for k, v in base.nodes.items()}
+        out.append(ModelSpec(label=name, config=base.model_copy(update={"nodes": nodes, "source": f"--model {name}"})))
+    if not out:
+        config = load_config(None)
+        out.append(ModelSpec(label=config.node("narrator").model, config=config))
+    return tuple(out)

@@ -1,0 +1,308 @@
+"""``storyteller bench`` sweeps on three reference cases x two methods with a scripted model that
+writes real traces: every file is written, a killed sweep resumes with only its missing runs,
+``bench score`` replays the traces into the same bytes, the report has the paper's layout, and
+the command group registers as an entry-point plugin."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import re
+import time
+from importlib.metadata import EntryPoint
+from pathlib import Path
+
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from agents.llm_port import LLMRequest, LLMResponse, TokenUsage
+from benchmark.sweep.execute import PortFactory
+from benchmark.sweep.grid import CaseSetSpec, ModelSpec, SweepSpec, SweepSpecError, model_specs
+from benchmark.sweep.progress import LineProgress
+from benchmark.sweep.results import read_results
+from benchmark.sweep.runner import report_sweep, run_sweep, score_sweep
+from orchestrator.llm.traces import AttemptRecord, TraceWriter
+from tests.support.reference import REFERENCE, requires_reference
+
+pytestmark = requires_reference
+
+PROGRAMS = {  # correct answers, as an event parser would write them
+    0: ("Ryan", "text a friend near table_3", 'a = get_character("Ryan")\n'
+        '    a.set_position(get_area_close_to("table_3"))\n    a.set_target_action("use_smartphone")'),
+    20: ("Taylor", "read a book sitting on chair_3", 'a = get_character("Taylor")\n'
+         '    a.set_position(get_area_to_sit_on("chair_3"))\n    a.set_target_action("read_book")'),
+    60: ("Theodore", "wait in front of the fridge", 'a = get_character("Theodore")\n'
+         '    a.set_position(get_area_in_front_of("fridge_1"))\n    a.set_target_action("idle")'),
+}
+FILES = ("sweep.json", "results.jsonl", "results.csv", "report.md", "plots/success_by_characters.png",
+         "plots/tokens_by_description.png")
+
+
+def answer(request: LLMRequest) -> str:
+    """The describer gets an unusable reply (the graph repairs it from the clusters); the
+    narrator and parser get the known-good reply of the case whose character they name."""
+    if request.node == "describer":
+        return "{}"
+    text = " ".join(m.content for m in request.messages if m.role == "user")
+    case = next(c for c, (who, _, _) in PROGRAMS.items() if who in text)
+    who, activity, program = PROGRAMS[case]
+    if request.node == "narrator":
+        return json.dumps({"reasoning": "asked for", "event": {"characters": [who], "activity": activity}})
+    return f"```python\ndef parse_event():\n    {program}\n```"
+
+
+class TracedScript:
+    """An LLM port that answers with :func:`answer` and records each call to a trace, as the
+    live client does (fixed token counts and latency, so results are reproducible)."""
+
+    def __init__(self, trace: Path, calls: list[str]) -> None:
+        self.trace = TraceWriter(trace, fsync="never")
+        self.calls = calls
+
+    async def complete(self, request: LLMRequest) -> LLMResponse:
+        self.calls.append(request.node)
+        text = answer(request)
+        seq = self.trace.next_seq()
+        usage = TokenUsage(prompt_tokens=sum(len(m.content) for m in request.messages) // 4,
+                           completion_tokens=len(text) // 4)
+        self.trace.write(AttemptRecord(
+            run_id=self.trace.run_id, seq=seq, time_unix=time.time(), call=seq, node=request.node, attempt=1,
+            model="openai/scripted", params={}, request=request, request_hash=request.content_hash(),
+            response_text=text, usage=usage, latency_s=0.25, final=True,
+        ))
+        await asyncio.sleep(0)
+        return LLMResponse(text=text, model="openai/scripted", usage=usage, latency_s=0.25, attempts=1, trace_seq=seq)
+
+    def close(self) -> None:
+        self.trace.close()
+
+
+def scripted(calls: list[str]) -> PortFactory:
+    return lambda model, trace: TracedScript(trace, calls)
+
+
+def spec(**changes: object) -> SweepSpec:
+    base = SweepSpec(
+        case_sets=(CaseSetSpec(name="reference", path=str(REFERENCE), scenes_root=str(REFERENCE)),),
+        case_ids=(0, 20, 60), levels=(2,), methods=("ours", "object-list"),
+        models=(ModelSpec(label="scripted", config=model_specs(["openai/scripted"], [])[0].config),),
+    )
+    return base.model_copy(update=changes)
+
+
+def sweep(out: Path, calls: list[str] | None = None, **kw: object) -> list[str]:
+    calls = [] if calls is None else calls
+    asyncio.run(run_sweep(spec(), out, factory=scripted(calls), **kw))  # type: ignore[arg-type]
+    return calls
+
+
+def snapshot(out: Path) -> dict[str, bytes]:
+    return {f: (out / f).read_bytes() for f in FILES}
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[str], dict[str, bytes]]:
+    out = tmp_path_factory.mktemp("sweep")
+    calls = sweep(out)
+    return out, calls, snapshot(out)
+
+
+def test_sweep_writes_every_file_with_one_line_per_run(finished: tuple[Path, list[str], dict[str, bytes]]) -> None:
+    out, calls, files = finished
+    results = read_results(out / "results.jsonl")
+    assert [(r.case, r.method) for r in results] == [
+        (0, "ours"), (0, "object-list"), (20, "ours"), (20, "object-list"), (60, "ours"), (60, "object-list")]
+    assert calls.count("describer") == 1  # one description of House for the model, shared by the ours runs
+    assert calls.count("narrator") == calls.count("event_parser") == 6
+    assert all(r.verdict == "pass" and r.executed_first and r.error_class is None for r in results), \
+        [r.reason for r in results]
+    r = results[0]
+    assert r.models == {"describer": "openai/scripted", "event_parser": "openai/scripted",
+                        "narrator": "openai/scripted", "planner": "openai/scripted"}
+    assert [c.node for c in r.calls] == ["narrator", "event_parser"] and r.latency_s == 0.5
+    assert r.prompt_tokens == sum(c.prompt_tokens for c in r.calls) > 0
+    assert (out / "descriptions" / "House-scripted.json").exists()
+    assert len(list((out / "traces" / "runs").glob("*.jsonl"))) == 6
+    header, *rows = files["results.csv"].decode().splitlines()
+    assert header.startswith("run_id,case_set,case,group,characters,level") and len(rows) == 6
+    assert files["plots/success_by_characters.png"].startswith(b"\x89PNG")
+
+
+def test_report_has_the_papers_layout(finished: tuple[Path, list[str], dict[str, bytes]]) -> None:
+    report = finished[2]["report.md"].decode()
+    assert "| Model | Method | Total | OA | RC | SS |" in report
+    assert "| scripted | Ours | 1.00 (1.00) | 1.00 (1.00) | - | 1.00 (1.00) |" in report
+    assert "| scripted | Object List | 1.00 (1.00) | 1.00 (1.00) | - | 1.00 (1.00) |" in report
+    pi = report.split("### Position inference (PI)")[1]
+    assert "| scripted | Ours | 1.00 (1.00) |" in pi.split("###")[0]
+    assert "| Model | Method | level 2 |" in report
+    assert re.search(r"\| Model \| Method \| 1 char\. \| 5 char\. \| 6 char\. \|", report)
+    assert "| object-list | narrator | 3 |" in report and "| describer | event_parser | 3 |" in report
+    assert "| scripted | narrator | 6 | 0.25 | 0.25 | 0.25 |" in report
+
+
+def test_score_replays_the_traces_into_the_same_bytes(
+    finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path
+) -> None:
+    import shutil
+
+    out = tmp_path / "copy"
+    shutil.copytree(finished[0], out)
+    for name in ("results.csv", "report.md"):
+        (out / name).write_text("stale", encoding="utf-8")
+    replayed: list[str] = []
+
+    def counting_replay(model: ModelSpec, trace: Path):  # type: ignore[no-untyped-def]
+        from orchestrator.llm.replay import ReplayClient
+
+        replayed.append(trace.name)
+        return ReplayClient(trace)
+
+    asyncio.run(score_sweep(out, factory=counting_replay))
+    assert snapshot(out) == finished[2]
+    assert len(replayed) == 7  # one description, six runs
+    asyncio.run(score_sweep(out))
+    assert snapshot(out) == finished[2]
+    report_sweep(out)
+    assert snapshot(out) == finished[2]
+
+
+def test_score_fails_with_a_diff_when_a_trace_does_not_match(
+    finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path
+) -> None:
+    import shutil
+
+    from agents.llm_port import ReplayMissError
+
+    out = tmp_path / "copy"
+    shutil.copytree(finished[0], out)
+    sweep_json = json.loads((out / "sweep.json").read_text())
+    sweep_json["seed"] = 5  # other seeds: other requests than the recorded ones
+    (out / "sweep.json").write_text(json.dumps(sweep_json))
+    with pytest.raises(ReplayMissError, match="replay miss for node"):
+        asyncio.run(score_sweep(out))
+
+
+def test_a_killed_sweep_redoes_only_its_missing_runs(
+    finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path
+) -> None:
+    out = tmp_path / "killed"
+    sweep(out)
+    lines = (out / "results.jsonl").read_bytes().splitlines(keepends=True)
+    (out / "results.jsonl").write_bytes(b"".join(lines[:2]) + lines[2][:40])  # killed mid-append
+    in_flight = out / "traces" / "runs" / (json.loads(lines[3])["run_id"] + ".jsonl")
+    in_flight.write_bytes(in_flight.read_bytes()[:-30])  # its trace cut short too
+    for name in ("results.csv", "report.md"):
+        (out / name).unlink()
+    calls = sweep(out)
+    assert calls == ["narrator", "event_parser"] * 4  # four runs redone, the description reused
+    assert snapshot(out) == finished[2]
+    assert sweep(out) == []  # nothing left to do
+
+
+def test_parallel_runs_give_the_same_files(finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path) -> None:
+    out = tmp_path / "jobs"
+    calls = sweep(out, jobs=3)
+    assert len(calls) == 13
+    assert snapshot(out) == finished[2]
+
+
+def test_other_arguments_in_the_same_folder_are_refused(finished: tuple[Path, list[str], dict[str, bytes]]) -> None:
+    with pytest.raises(SweepSpecError, match="field 'levels' differs"):
+        asyncio.run(run_sweep(spec(levels=(0, 2)), finished[0], factory=scripted([])))
+
+
+def test_line_progress_reports_rate_and_eta(finished: tuple[Path, list[str], dict[str, bytes]]) -> None:
+    import io
+
+    now = [0.0]
+    stream = io.StringIO()
+    p = LineProgress(stream, clock=lambda: now[0])
+    base = read_results(finished[0] / "results.jsonl")[0]
+    p.start(4, [base])
+    now[0] = 30.0
+    p.advance(base.model_copy(update={"verdict": "fail", "run_id": "r2"}))
+    out = stream.getvalue().splitlines()
+    assert out == ["sweep: 4 runs, 1 already done", "[2/4] r2: fail (pass rate 0.50, ETA 1:00)"]
+
+
+def _app() -> typer.Typer:
+    from orchestrator.cli.app import register_plugins
+
+    app = typer.Typer(no_args_is_help=True)
+
+    @app.command("noop")
+    def _noop() -> None:  # a second command, so typer keeps subcommand names
+        """Nothing."""
+
+    names = register_plugins(app, [
+        EntryPoint(name="bench", value="benchmark.sweep.cli:register", group="storyteller.commands"),
+        EntryPoint(name="gone", value="benchmark.no_such_module:register", group="storyteller.commands"),
+    ])
+    assert names == ["bench"]
+    return app
+
+
+def test_bench_is_a_command_plugin_whose_commands_run(finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path) -> None:
+    import shutil
+
+    out = tmp_path / "cli"
+    shutil.copytree(finished[0], out)
+    app = _app()
+    runner = CliRunner()
+    res = runner.invoke(app, ["bench", "score", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "6 runs re-scored, 6 passed" in res.output
+    assert snapshot(out) == finished[2]
+    res = runner.invoke(app, ["bench", "report", str(out)])
+    assert res.exit_code == 0 and snapshot(out) == finished[2]
+    res = runner.invoke(app, ["bench", "run", "--out", str(tmp_path / "x"), "--method", "nope", "--model", "m"])
+    assert res.exit_code == 2 and "--method 'nope': expected one of ours, wo-event" in res.output
+    res = runner.invoke(app, ["bench", "score", str(tmp_path)])
+    assert res.exit_code == 2 and "not a sweep folder" in res.output
+    res = runner.invoke(app, ["bench", "run", "--out", str(out), "--case-id", "0", "--case-id", "20",
+                              "--case-id", "60", "--method", "ours", "--method", "object-list", "--model", "m"])
+    assert res.exit_code == 2 and "holds a sweep with other arguments" in res.output
+
+
+def test_the_plugin_module_imports_only_typer() -> None:
+    import subprocess
+    import sys
+
+    code = ("import sys, benchmark.sweep.cli; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('litellm', 'langgraph', 'matplotlib', 'orchestrator')))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]"
+
+
+def test_ray_executor_gives_the_same_files(finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path) -> None:
+    ray = pytest.importorskip("ray", reason="the optional [ray] extra is not installed")
+    from benchmark.sweep.ray_executor import ray_executor
+
+    out = tmp_path / "ray"
+    here = Path(__file__).resolve().parent  # workers unpickle the scripted port from this module
+    try:
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+                 runtime_env={"env_vars": {"PYTHONPATH": f"{here.parent}:{here}"}})
+        calls: list[str] = []  # calls made in the workers do not come back here: count the traces instead
+        asyncio.run(run_sweep(spec(), out, factory=scripted(calls), executor=ray_executor(2, factory=scripted([]))))
+    finally:
+        ray.shutdown()
+    assert calls == ["describer"]  # the description is made by the driver, the runs by the tasks
+    assert len(list((out / "traces" / "runs").glob("*.jsonl"))) == 6
+    assert snapshot(out) == finished[2]
+
+
+def test_case_sets_by_name_or_folder(tmp_path: Path) -> None:
+    from benchmark.reference_cases import load_cases
+    from benchmark.sweep.grid import case_set_for
+
+    ours = Path(__file__).resolve().parents[1] / "benchmark" / "cases" / "ours"
+    pi = case_set_for(str(REFERENCE / "benchmark" / "test_cases" / "6_PI"), REFERENCE, ours)
+    assert (pi.name, pi.scenes_root) == ("6_PI", str(REFERENCE))
+    assert [c.id for c in load_cases(pi.path)] == list(range(60, 70))  # one <tags> folder is a case set
+    assert case_set_for(str(REFERENCE), REFERENCE, ours).name == "reference"
+    assert case_set_for(str(ours), REFERENCE, ours) == case_set_for("ours", REFERENCE, ours)
+    with pytest.raises(SweepSpecError, match="not a folder"):
+        case_set_for(str(tmp_path / "none"), REFERENCE, ours)
