@@ -22,7 +22,7 @@ which is the model's own output except for its pose-corrective shapes (``posedir
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -195,3 +195,16 @@ def smplx_bodies(model_dir: Path, parameters: Mapping[str, Mapping[str, NDArray[
     """The bodies of several characters (parameters by character name), one model per gender."""
     models = SmplxModels(model_dir)
     return {name: models.body(params) for name, params in parameters.items()}
+
+
+def run_bodies(folder: Path, names: Sequence[str], models: SmplxModels) -> dict[str, SmplxBody]:
+    """The bodies of a run folder's characters, from their ``<slug>.smplx.npz`` files."""
+    from sim.export.bundle import file_slug
+
+    bodies = {}
+    for name in names:
+        path = folder / f"{file_slug(name)}.smplx.npz"
+        if not path.is_file():
+            raise SmplxModelError(f"{path}: not found (the SMPL-X parameters of {name!r} that `storyteller run` writes)")
+        bodies[name] = models.body(load_parameters(path))
+    return bodies
