@@ -171,3 +171,9 @@ def test_view_with_smplx_model_exports_and_names_a_bad_folder(model_dir: Path, t
     assert out.stat().st_size > 0
     bad = CliRunner().invoke(app, ["view", str(folder), "--export", str(out), "--smplx-model", str(tmp_path / "no")])
     assert bad.exit_code == 2 and "not a folder" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_run_names_a_bad_model_folder_before_running(tmp_path: Path) -> None:
+    result = CliRunner().invoke(app, ["run", "home", "--out", str(tmp_path / "o"), "--smplx-model", str(tmp_path / "no")])
+    assert result.exit_code == 2 and "SMPLX_NEUTRAL.npz" in result.stderr
+    assert not (tmp_path / "o").exists()  # refused before any planning or output
