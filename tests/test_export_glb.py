@@ -10,7 +10,6 @@ import pygltflib as gl
 import pytest
 import trimesh
 from pygltflib.validator import validate
-from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import (
     BODY_TO_WORLD,
@@ -23,15 +22,11 @@ from sim.export.bundle import export_run, file_slug
 from sim.export.glb import box_mesh, character_mesh, export_glb, glb_bytes
 from sim.scene.model import Scene, SceneObject
 from sim.world.character_track import CharacterTrack
+from tests.support.gltf_eval import COMPONENTS as _WIDTH
+from tests.support.gltf_eval import NUMPY_DTYPES as _NUMPY
+from tests.support.gltf_eval import read_accessor as _read
+from tests.support.gltf_eval import world_matrices as _world_matrices
 from tests.support.random_tracks import random_track
-
-_NUMPY = {
-    gl.FLOAT: np.float32,
-    gl.UNSIGNED_SHORT: np.uint16,
-    gl.UNSIGNED_BYTE: np.uint8,
-    gl.UNSIGNED_INT: np.uint32,
-}
-_WIDTH = {gl.SCALAR: 1, gl.VEC2: 2, gl.VEC3: 3, gl.VEC4: 4, gl.MAT4: 16}
 
 
 def _scene() -> Scene:
@@ -67,17 +62,6 @@ def _tracks() -> list[CharacterTrack]:
         random_track("bob", 45, seed=2),
         random_track("cy", 30, seed=3),
     ]
-
-
-def _read(doc: gl.GLTF2, index: int) -> np.ndarray:
-    acc = doc.accessors[index]
-    view = doc.bufferViews[acc.bufferView]
-    blob = doc.binary_blob()
-    dtype = np.dtype(_NUMPY[acc.componentType])
-    width = _WIDTH[acc.type]
-    start = view.byteOffset + acc.byteOffset
-    data = np.frombuffer(blob, dtype=dtype, count=acc.count * width, offset=start)
-    return data.reshape(acc.count, width) if width > 1 else data
 
 
 @pytest.fixture(scope="module")
@@ -150,41 +134,6 @@ def test_glb_nodes_skins_and_animation(glb: tuple[Path, gl.GLTF2]) -> None:
                 q = _read(doc, sampler.output)
                 np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-6)
                 assert (np.einsum("ni,ni->n", q[1:], q[:-1]) >= 0).all()  # sign-continuous
-
-
-def _local_matrix(node: gl.Node) -> np.ndarray:
-    m = np.eye(4)
-    if node.rotation is not None:
-        m[:3, :3] = Rotation.from_quat(node.rotation).as_matrix()
-    if node.scale is not None:
-        m[:3, :3] = m[:3, :3] @ np.diag(node.scale)
-    if node.translation is not None:
-        m[:3, 3] = node.translation
-    return m
-
-
-def _world_matrices(doc: gl.GLTF2, frame: int) -> list[np.ndarray]:
-    """Every node's world matrix with the animation sampled at key ``frame``."""
-    nodes = [
-        gl.Node(**{k: getattr(n, k) for k in ("rotation", "translation", "scale")})
-        for n in doc.nodes
-    ]
-    for c in doc.animations[0].channels:
-        value = _read(doc, doc.animations[0].samplers[c.sampler].output)[frame]
-        setattr(nodes[c.target.node], c.target.path, [float(x) for x in value])
-    world: list[np.ndarray | None] = [None] * len(nodes)
-
-    def visit(i: int, parent: np.ndarray) -> None:
-        matrix = parent @ _local_matrix(nodes[i])
-        world[i] = matrix
-        for child in doc.nodes[i].children:
-            visit(child, matrix)
-
-    for root in doc.scenes[doc.scene].nodes:
-        visit(root, np.eye(4))
-    placed = [m for m in world if m is not None]
-    assert len(placed) == len(world), "a node is not reachable from the scene's roots"
-    return placed
 
 
 @pytest.mark.parametrize("frame", [0, 17, 29])

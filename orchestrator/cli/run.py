@@ -83,6 +83,7 @@ def run_command(
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Planning thread id (default: a new one; see run.json).")] = None,
     planner: Planner = "event",
     description: Description = "describer",
+    smplx_model: Annotated[Path | None, typer.Option("--smplx-model", help="Folder with the SMPL-X model files (SMPLX_NEUTRAL.npz ...): the GLB carries SMPL-X body meshes instead of stand-in figures.")] = None,
 ) -> None:
     """Plan and animate a story; write motion, pictures, the story log and the trace."""
     from orchestrator.session.roster import character_names
@@ -98,6 +99,13 @@ def run_command(
         fail(f"--names: at most 24 characters, got {len(cast)}")
     if replay is not None and not replay.is_file():
         fail(f"{replay}: trace file not found")
+    if smplx_model is not None:
+        from orchestrator.bodies.smplx_meshes import SmplxModelError, model_file
+
+        try:
+            model_file(smplx_model, "neutral")
+        except SmplxModelError as exc:
+            fail(str(exc))
     scene_path = Path(scene)
     args = RunArguments(
         scene=absolute(scene_path) or scene if scene_path.is_file() else scene,
@@ -121,7 +129,8 @@ def run_command(
     trace_path = record if record is not None else (None if replay is not None else out / "trace.jsonl")
     if trace_path is not None and replay is not None and trace_path.resolve() == replay.resolve():
         fail("--record must name a different file than --replay")
-    _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False)
+    _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False,
+             smplx_model=smplx_model)
 
 
 def resume_command(
@@ -158,7 +167,8 @@ def replay_command(
 
 
 def _execute(
-    args: RunArguments, *, out: Path, trace_path: Path | None, replay: Path | None, thread_id: str | None, resume: bool
+    args: RunArguments, *, out: Path, trace_path: Path | None, replay: Path | None, thread_id: str | None, resume: bool,
+    smplx_model: Path | None = None,
 ) -> None:
     import asyncio
 
@@ -197,8 +207,13 @@ def _execute(
         )
     except RunSetupError as exc:
         fail(str(exc))
-    write_outputs(out, scene_obj, world, result, names, args.instruction, fps, args.gif, video=args.video,
-                  trace_path=trace_path)
+    from orchestrator.bodies.smplx_meshes import SmplxModelError
+
+    try:
+        write_outputs(out, scene_obj, world, result, names, args.instruction, fps, args.gif, video=args.video,
+                      trace_path=trace_path, smplx_model=smplx_model)
+    except SmplxModelError as exc:
+        fail(str(exc))
     typer.echo(
         f"{result.frames} frames ({result.frames / fps:.1f} s), {result.steps} planning steps, "
         f"{sum(e.state == 'completed' for e in result.events)} events completed -> {out}"

@@ -2,7 +2,9 @@
 
 Serves an interactive 3D viewer on 127.0.0.1 (``--port``, the next free port when taken) and
 prints its URL; ``--export FILE`` instead writes one self-contained HTML file that plays the
-story. ``viser`` is imported only when the command runs.
+story. ``--smplx-model DIR`` shows each character's SMPL-X body (computed from its
+``<name>.smplx.npz`` with the model files in DIR) instead of the stand-in figure. ``viser``,
+``smplx`` and ``torch`` are imported only when the command runs.
 """
 
 from __future__ import annotations
@@ -24,16 +26,23 @@ def view_command(
     port: Annotated[int, typer.Option("--port", min=0, max=65535, help="Port on 127.0.0.1 (0: any free port).")] = 8080,
     export: Annotated[Path | None, typer.Option("--export", help="Write a self-contained HTML file instead of serving.")] = None,
     play: Annotated[bool, typer.Option("--play/--paused", help="Start playing as soon as the run is loaded.")] = False,
+    smplx_model: Annotated[Path | None, typer.Option("--smplx-model", help="Folder with the SMPL-X model files (SMPLX_NEUTRAL.npz ...): show body meshes instead of stand-in figures.")] = None,
 ) -> None:
     """Show a run in 3D in the browser: figures, paths, labels, timeline and event list."""
+    from orchestrator.bodies.smplx_meshes import SmplxModelError, model_file
     from orchestrator.viewer.run_folder import RunFolderError
 
+    if smplx_model is not None:
+        try:
+            model_file(smplx_model, "neutral")
+        except SmplxModelError as exc:
+            fail(str(exc))
     if export is not None:
         from orchestrator.viewer.export import export_html
 
         try:
-            export_html(run_dir, export)
-        except RunFolderError as exc:
+            export_html(run_dir, export, smplx_model=smplx_model)
+        except (RunFolderError, SmplxModelError) as exc:
             fail(str(exc))
         except OSError as exc:
             fail(f"{export}: cannot write ({exc.strerror})")
@@ -45,7 +54,7 @@ def view_command(
 
     from orchestrator.viewer.server import ViewerApp
 
-    viewer = ViewerApp(run_dir, port=port, autoplay=play)
+    viewer = ViewerApp(run_dir, port=port, autoplay=play, smplx_model=smplx_model)
     viewer.start()
     typer.echo(f"viewing {run_dir} at {viewer.url} (Ctrl-C to stop)", err=False)
     try:

@@ -263,10 +263,12 @@ def write_outputs(
     out: Path, scene: Scene, world: Any, result: SessionResult, names: list[str], instruction: str, fps: int, gif: bool,
     video: bool = False,
     trace_path: Path | None = None,
+    smplx_model: Path | None = None,
 ) -> None:
     """``story.json``, ``story.md``, ``metrics.json`` (LLM use from ``trace_path``, when the run
     wrote a trace), ``scene.json`` (the scene as run, for ``storyteller view``), the motion
-    exports (npz, BVH, GLB) and the top-down pictures in ``out``."""
+    exports (npz, BVH, GLB; with ``smplx_model`` the GLB carries SMPL-X body meshes) and the
+    top-down pictures in ``out``."""
     from orchestrator.session.run_report import run_metrics, story_markdown
     from sim.export.bundle import export_run
     from sim.export.video import (
@@ -284,7 +286,14 @@ def write_outputs(
     metrics = run_metrics(payload, trace_path, wall_s=result.wall_s, frame_intervals_s=list(result.frame_intervals_s))
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n", encoding="utf-8")
     tracks = world.tracks()
-    export_run(out, scene, list(tracks.values()))
+    bodies = None
+    if smplx_model is not None:
+        from orchestrator.bodies.smplx_meshes import smplx_bodies
+        from sim.export.smplx_npz import smplx_parameters
+
+        params = {t.name: smplx_parameters(t) for t in tracks.values()}
+        bodies = {name: body.skin for name, body in smplx_bodies(smplx_model, params).items()}
+    export_run(out, scene, list(tracks.values()), bodies=bodies)
     recording = recording_from_world(world)
     save_run_png(out / "topdown.png", recording)
     # --video: story.mp4 (story.gif without imageio-ffmpeg); --gif: story.gif

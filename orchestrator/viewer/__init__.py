@@ -10,7 +10,8 @@ What lives here:
 - :mod:`.figures` poses the stand-in figure (the GLB export's box body) as the 22 bones of a
   skinned mesh, frame by frame (pure numpy);
 - :mod:`.scene_view` puts a run into a ``viser`` scene (boxes, paths, figures, labels) and
-  shows one frame; :mod:`.server` adds the timeline and event-list controls and serves it;
+  shows one frame; with ``--smplx-model`` the figures are the characters' SMPL-X bodies, computed
+  by :mod:`orchestrator.bodies` (``smplx`` and ``torch`` load only then); :mod:`.server` adds the timeline and event-list controls and serves it;
   :mod:`.export` records the whole story into one self-contained HTML file.
 
 May import ``sim`` and the rest of ``orchestrator``; ``viser`` only inside :mod:`.scene_view`,

@@ -21,13 +21,21 @@ from orchestrator.viewer.scene_view import SceneView
 EXPORT_FPS = 15.0  # recorded poses per second of story (the browser interpolates nothing)
 
 
-def export_html(folder: Path, out: Path) -> Path:
-    """Record the run in ``folder`` into the HTML file ``out``; returns ``out``."""
+def export_html(folder: Path, out: Path, smplx_model: Path | None = None) -> Path:
+    """Record the run in ``folder`` into the HTML file ``out``; returns ``out``.
+
+    With ``smplx_model`` the characters are their SMPL-X bodies (:mod:`orchestrator.bodies`).
+    """
     run = load_run(folder)
+    bodies = None
+    if smplx_model is not None:
+        from orchestrator.bodies.smplx_meshes import SmplxModels, run_bodies
+
+        bodies = run_bodies(folder, [t.name for t in run.tracks], SmplxModels(smplx_model))
     stride = max(1, round(run.fps / EXPORT_FPS))
     server = viser.ViserServer(host="127.0.0.1", port=0, label="storyteller", verbose=False)
     try:
-        view = SceneView(server, run)
+        view = SceneView(server, run, bodies=bodies)
         view.show(0)
         recording = server.get_scene_serializer()
         for frame in range(stride, run.num_frames, stride):

@@ -1,8 +1,9 @@
 """A run in a ``viser`` scene: the scene's boxes, each character's path, figure and label.
 
 :class:`SceneView` adds the static parts once (floor, one labelled box per object, each
-character's path as a line on the floor) and, per frame, poses the figures (skinned meshes,
-:mod:`.figures`) and moves the labels ("name: action" above each head, and a caption with the
+character's path as a line on the floor) and, per frame, poses the figures (skinned meshes: the stand-in
+figure of :mod:`.figures`, or a character's SMPL-X body from :mod:`orchestrator.bodies` when
+given) and moves the labels ("name: action" above each head, and a caption with the
 events on at that frame). Everything goes through ``server.scene``, so every connected browser
 and a scene recording (:mod:`.export`) see the same thing. World frame: z up, metres.
 """
@@ -11,11 +12,13 @@ from __future__ import annotations
 
 import math
 import zlib
+from collections.abc import Mapping
 
 import numpy as np
 import viser
 
-from orchestrator.viewer.figures import BonePoses, bone_poses, standin_rig
+from orchestrator.bodies.smplx_meshes import SmplxBody
+from orchestrator.viewer.figures import BonePoses, FigureRig, bone_poses, standin_rig
 from orchestrator.viewer.run_folder import RunData
 from orchestrator.viewer.timeline import action_at, active_events, clock
 from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS
@@ -40,18 +43,40 @@ def _yaw_wxyz(angle: float) -> tuple[float, float, float, float]:
     return (math.cos(angle / 2), 0.0, 0.0, math.sin(angle / 2))
 
 
+def _body_rig(body: SmplxBody) -> FigureRig:
+    """A body mesh as a viser skinned mesh (dense weights over the 22 bones)."""
+    skin = body.skin
+    weights = np.zeros((skin.vertices.shape[0], NUM_JOINTS))
+    np.add.at(weights, (np.arange(skin.vertices.shape[0])[:, None], skin.joints), skin.weights)
+    return FigureRig(vertices=skin.vertices, faces=skin.faces, skin_weights=weights, bind_positions=skin.bind_joints)
+
+
+def _body_poses(body: SmplxBody) -> BonePoses:
+    return BonePoses(wxyz=body.bone_wxyz, positions=body.bone_positions)
+
+
 class SceneView:
     """The viser scene of one run; :meth:`show` poses it at a frame."""
 
-    def __init__(self, server: viser.ViserServer, run: RunData, *, object_labels: bool = True) -> None:
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        run: RunData,
+        *,
+        object_labels: bool = True,
+        bodies: Mapping[str, SmplxBody] | None = None,
+    ) -> None:
         self.server = server
         self.run = run
         self.last_frame = run.num_frames - 1
-        self.poses: dict[str, BonePoses] = {t.name: bone_poses(t) for t in run.tracks}
+        bodies = bodies or {}
+        self.poses: dict[str, BonePoses] = {
+            t.name: bone_poses(t) if t.name not in bodies else _body_poses(bodies[t.name]) for t in run.tracks
+        }
         scene = server.scene
         scene.set_up_direction("+z")
         self._add_scene(object_labels)
-        rig = standin_rig()
+        standin = standin_rig()
         identity = np.tile([1.0, 0.0, 0.0, 0.0], (NUM_JOINTS, 1))
         self.figures: dict[str, viser.MeshSkinnedHandle] = {}
         self.labels: dict[str, viser.LabelHandle] = {}
@@ -64,6 +89,8 @@ class SceneView:
                 scene.add_line_segments(
                     f"/paths/{track.name}", np.stack([pts[:-1], pts[1:]], axis=1), rgb, thickness=0.03
                 )
+            body = bodies.get(track.name)
+            rig = standin if body is None else _body_rig(body)
             self.figures[track.name] = scene.add_mesh_skinned(
                 f"/characters/{track.name}",
                 rig.vertices,
@@ -72,7 +99,7 @@ class SceneView:
                 bone_positions=rig.bind_positions,
                 skin_weights=rig.skin_weights,
                 color=rgb,
-                flat_shading=True,
+                flat_shading=body is None,
             )
             self.labels[track.name] = scene.add_label(
                 f"/labels/{track.name}", track.name, anchor="bottom-center", font_screen_scale=1.2

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import viser
 
+from orchestrator.bodies.smplx_meshes import SmplxBody, SmplxModelError, SmplxModels, run_bodies
 from orchestrator.viewer.run_folder import RunData, RunFolderError, folder_stamp, is_ready, load_run
 from orchestrator.viewer.scene_view import SceneView
 from orchestrator.viewer.timeline import active_events, clock, event_line
@@ -34,8 +35,11 @@ POLL_S = 1.0  # wall seconds between checks of the run folder
 class ViewerApp:
     """Serve one run folder; :meth:`start` returns once the server listens."""
 
-    def __init__(self, folder: Path, *, port: int = 8080, autoplay: bool = False) -> None:
+    def __init__(
+        self, folder: Path, *, port: int = 8080, autoplay: bool = False, smplx_model: Path | None = None
+    ) -> None:
         self.folder = folder
+        self.models = SmplxModels(smplx_model) if smplx_model is not None else None
         self.server = viser.ViserServer(host=HOST, port=port, label="storyteller", verbose=False)
         self.lock = threading.RLock()
         self.view: SceneView | None = None
@@ -86,17 +90,19 @@ class ViewerApp:
             return False
         try:
             run = load_run(self.folder)
-        except RunFolderError as exc:
+            names = [t.name for t in run.tracks]
+            bodies = run_bodies(self.folder, names, self.models) if self.models is not None else None
+        except (RunFolderError, SmplxModelError) as exc:
             self.status.content = f"**{self.folder.name}**: {exc}"
             return False
-        self._show_run(run)
+        self._show_run(run, bodies)
         return True
 
-    def _show_run(self, run: RunData) -> None:
+    def _show_run(self, run: RunData, bodies: Mapping[str, SmplxBody] | None = None) -> None:
         with self.lock:
             self.server.scene.reset()
             self.run = run
-            self.view = SceneView(self.server, run)
+            self.view = SceneView(self.server, run, bodies=bodies)
             lines = [f"**{self.folder.name}**: {len(run.tracks)} characters, {clock(run.num_frames - 1, run.fps)}"]
             if run.instruction:
                 lines.append(f"*{run.instruction}*")

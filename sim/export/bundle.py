@@ -9,12 +9,12 @@ into ``_``): ``<slug>.smplx.npz`` (AMASS-style SMPL-X parameters), ``<slug>.bvh`
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from sim.export.bvh import Units, export_bvh
-from sim.export.glb import export_glb
+from sim.export.glb import SkinnedBody, export_glb
 from sim.export.smplx_npz import export_smplx_npz
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack
@@ -46,9 +46,11 @@ def export_run(
     tracks: Sequence[CharacterTrack],
     *,
     bvh_units: Units = "m",
+    bodies: Mapping[str, SkinnedBody] | None = None,
 ) -> RunExports:
     """Write all exports of a run into ``outdir`` (created if missing); returns their paths.
 
+    ``bodies`` (by character name) are body meshes for the GLB (see :func:`export_glb`).
     Raises ValueError when two characters would get the same file name.
     """
     outdir = Path(outdir)
@@ -65,5 +67,5 @@ def export_run(
         smplx[track.name] = export_smplx_npz(track, outdir / f"{slug}.smplx.npz")
         bvh[track.name] = export_bvh(track, outdir / f"{slug}.bvh", units=bvh_units)
         raw[track.name] = track.save(outdir / f"{slug}.track.npz")
-    glb = export_glb(outdir / "scene.glb", scene, tracks)
+    glb = export_glb(outdir / "scene.glb", scene, tracks, bodies)
     return RunExports(glb=glb, smplx=smplx, bvh=bvh, tracks=raw)

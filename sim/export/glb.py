@@ -17,13 +17,21 @@ Layout of the file:
 - one animation ``run``: per character, root translation + 22 joint rotations (unit
   quaternions, xyzw, sign-continuous), one key per frame at the track's rate, LINEAR.
 
+A character given a :class:`SkinnedBody` (a body mesh computed outside ``sim``, e.g. SMPL-X
+from its model files, passed in as plain arrays) gets that mesh instead of the boxes, skinned to
+the same 22 joint nodes with the body's own weights and inverse bind matrices; its joint nodes
+sit at the body's rest joints, and its pelvis follows the SMPL ``transl`` convention of the
+``.smplx.npz`` export (``pelvis = trans + J0`` of the body), so the GLB shows what the model
+shows for the exported parameters. The animated local rotations are the same.
+
 The static node transforms are the first frame's pose. Output bytes are deterministic.
 """
 
 from __future__ import annotations
 
 import zlib
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -152,6 +160,50 @@ def character_mesh() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[
     return positions, normals, triangles, joints
 
 
+@dataclass(frozen=True)
+class SkinnedBody:
+    """A body mesh in its rest pose, bound to our 22 joints (glTF frame = body frame, metres).
+
+    vertices (V, 3), faces (F, 3), joints (V, 4) joint ids and weights (V, 4) summing to 1
+    per vertex, bind_joints (22, 3) the rest joint positions the mesh is bound at.
+    """
+
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int64]
+    joints: NDArray[np.int64]
+    weights: NDArray[np.float64]
+    bind_joints: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        v = self.vertices.shape[0]
+        shapes = {
+            "vertices": (self.vertices.shape, (v, 3)),
+            "faces": (self.faces.shape[1:], (3,)),
+            "joints": (self.joints.shape, (v, 4)),
+            "weights": (self.weights.shape, (v, 4)),
+            "bind_joints": (self.bind_joints.shape, (NUM_JOINTS, 3)),
+        }
+        for field, (got, want) in shapes.items():
+            if got != want:
+                raise ValueError(f"SkinnedBody.{field}: expected shape {want}, got {got}")
+        if self.joints.min() < 0 or self.joints.max() >= NUM_JOINTS:
+            raise ValueError(f"SkinnedBody.joints: expected ids in [0, {NUM_JOINTS})")
+        if not np.allclose(self.weights.sum(axis=1), 1.0, atol=1e-4):
+            raise ValueError("SkinnedBody.weights: each vertex's weights must sum to 1")
+
+
+def vertex_normals(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Unit area-weighted vertex normals ((0, 1, 0) for a vertex on no face)."""
+    tri = vertices[faces]
+    face_n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normals = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(normals, faces[:, k], face_n)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    out: NDArray[np.float64] = np.where(length > 1e-12, normals / np.maximum(length, 1e-12), [[0.0, 1.0, 0.0]])
+    return out
+
+
 class _Writer:
     """Accumulates the binary buffer (4-byte aligned views) and the glTF objects."""
 
@@ -244,11 +296,40 @@ def _object_trs(obj: SceneObject) -> tuple[list[float], list[float], list[float]
     return [float(x) for x in t], [float(x) for x in _quat(rot)], [width, height, depth]
 
 
-def build_glb(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> gl.GLTF2:
-    """The glTF document (binary blob attached) for ``scene`` (may be None) and ``tracks``."""
+def _body_accessors(w: _Writer, body: SkinnedBody, name: str) -> tuple[gl.Attributes, int, int]:
+    """Accessors of a :class:`SkinnedBody`: attributes, indices, inverse bind matrices."""
+    attributes = gl.Attributes(
+        POSITION=w.accessor(body.vertices.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER, bounds=True, name=name),
+        NORMAL=w.accessor(vertex_normals(body.vertices, body.faces).astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER),
+        JOINTS_0=w.accessor(body.joints.astype(np.uint8), gl.VEC4, gl.UNSIGNED_BYTE, target=gl.ARRAY_BUFFER),
+        WEIGHTS_0=w.accessor(body.weights.astype(np.float32), gl.VEC4, gl.FLOAT, target=gl.ARRAY_BUFFER),
+    )  # fmt: skip
+    wide = body.vertices.shape[0] > 65535
+    indices = w.accessor(
+        body.faces.reshape(-1).astype(np.uint32 if wide else np.uint16),
+        gl.SCALAR,
+        gl.UNSIGNED_INT if wide else gl.UNSIGNED_SHORT,
+        target=gl.ELEMENT_ARRAY_BUFFER,
+    )
+    ibm = np.tile(np.eye(4, dtype=np.float32), (NUM_JOINTS, 1, 1))
+    ibm[:, :3, 3] = -body.bind_joints
+    ibm_acc = w.accessor(np.swapaxes(ibm, 1, 2).reshape(NUM_JOINTS, 16), gl.MAT4, gl.FLOAT, name=f"{name}:inverse_bind")
+    return attributes, indices, ibm_acc
+
+
+def build_glb(
+    scene: Scene | None, tracks: Sequence[CharacterTrack], bodies: Mapping[str, SkinnedBody] | None = None
+) -> gl.GLTF2:
+    """The glTF document (binary blob attached) for ``scene`` (may be None) and ``tracks``.
+
+    ``bodies`` (by character name) replaces a character's box figure with its body mesh.
+    """
     names = [t.name for t in tracks]
     if len(set(names)) != len(names):
         raise ValueError(f"character names must be unique, got {names}")
+    bodies = dict(bodies or {})
+    if unknown := sorted(set(bodies) - set(names)):
+        raise ValueError(f"bodies for characters not in the run: {unknown}")
     w = _Writer()
     top: list[int] = []
 
@@ -298,7 +379,7 @@ def build_glb(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> gl.GLTF2
             children.append(w.node(node))
         top.append(w.node(gl.Node(name="objects", children=children)))
 
-    if tracks:
+    if any(t.name not in bodies for t in tracks):
         positions, normals, triangles, joint_ids = character_mesh()
         body_pos = w.accessor(
             positions.astype(np.float32),
@@ -331,13 +412,20 @@ def build_glb(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> gl.GLTF2
     time_accessors: dict[tuple[int, float], int] = {}
     for index, track in enumerate(tracks):
         n = track.num_frames
-        root_t = track.root_positions @ WORLD_TO_GLTF.T
+        body_of = bodies.get(track.name)
+        if body_of is None:
+            offsets, root_world = REST_OFFSETS, track.root_positions
+        else:  # the body's rest joints, and its pelvis at trans + J0 (see the module docstring)
+            rest = body_of.bind_joints
+            offsets = np.vstack([rest[:1], rest[1:] - rest[list(PARENTS[1:])]])
+            root_world = track.root_positions + (rest[0] - REST_OFFSETS[0])
+        root_t = root_world @ WORLD_TO_GLTF.T
         rot = np.array(track.local_rotations)
         rot[:, 0] = WORLD_TO_GLTF @ rot[:, 0]
         quats = _continuous(_quat(rot))  # (N, 22, 4)
         node_ids: list[int] = []
         for j in range(NUM_JOINTS):
-            offset = root_t[0] if j == 0 else REST_OFFSETS[j]
+            offset = root_t[0] if j == 0 else offsets[j]
             node_ids.append(
                 w.node(
                     gl.Node(
@@ -350,13 +438,17 @@ def build_glb(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> gl.GLTF2
         for j in range(1, NUM_JOINTS):
             w.gltf.nodes[node_ids[PARENTS[j]]].children.append(node_ids[j])
         material = w.material(f"{track.name}:skin", CHARACTER_COLORS[index % len(CHARACTER_COLORS)])
-        attributes = gl.Attributes(
-            POSITION=body_pos, NORMAL=body_nrm, JOINTS_0=body_joints, WEIGHTS_0=body_weights
-        )
-        mesh = w.mesh(f"{track.name}:body", attributes, body_idx, material)
+        if body_of is None:
+            attributes = gl.Attributes(
+                POSITION=body_pos, NORMAL=body_nrm, JOINTS_0=body_joints, WEIGHTS_0=body_weights
+            )
+            indices, inverse_bind = body_idx, ibm_acc
+        else:
+            attributes, indices, inverse_bind = _body_accessors(w, body_of, f"{track.name}:body")
+        mesh = w.mesh(f"{track.name}:body", attributes, indices, material)
         w.gltf.skins.append(
             gl.Skin(
-                name=track.name, inverseBindMatrices=ibm_acc, skeleton=node_ids[0], joints=node_ids
+                name=track.name, inverseBindMatrices=inverse_bind, skeleton=node_ids[0], joints=node_ids
             )
         )
         body = w.node(gl.Node(name=f"{track.name}:body", mesh=mesh, skin=len(w.gltf.skins) - 1))
@@ -400,13 +492,20 @@ def build_glb(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> gl.GLTF2
     return w.gltf
 
 
-def glb_bytes(scene: Scene | None, tracks: Sequence[CharacterTrack]) -> bytes:
+def glb_bytes(
+    scene: Scene | None, tracks: Sequence[CharacterTrack], bodies: Mapping[str, SkinnedBody] | None = None
+) -> bytes:
     """The GLB file content for ``scene`` and ``tracks`` (deterministic)."""
-    return b"".join(build_glb(scene, tracks).save_to_bytes())
+    return b"".join(build_glb(scene, tracks, bodies).save_to_bytes())
 
 
-def export_glb(path: str | Path, scene: Scene | None, tracks: Sequence[CharacterTrack]) -> Path:
+def export_glb(
+    path: str | Path,
+    scene: Scene | None,
+    tracks: Sequence[CharacterTrack],
+    bodies: Mapping[str, SkinnedBody] | None = None,
+) -> Path:
     """Write the whole run as one GLB (see the module docstring). Returns the path."""
     path = Path(path)
-    path.write_bytes(glb_bytes(scene, tracks))
+    path.write_bytes(glb_bytes(scene, tracks, bodies))
     return path
