@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from sim.paths.astar_kernel import release_step, reserve_path, space_time_search
+from sim.paths.astar_kernel import kept_path, release_path, reserve_path, space_time_search
 from sim.paths.fallback import failed_first
 from sim.paths.nav_grid import MOVES, NavGrid
 
@@ -47,6 +47,7 @@ Cell = tuple[int, int]
 Agent = Hashable
 
 _WAIT = (0, 0)
+_WAIT_BIT = 1 << 6  # the move bit of waiting (move code 0)
 _EPS = 1e-9
 Backend = Literal["numba", "python"]
 BACKENDS: tuple[Backend, ...] = get_args(Backend)
@@ -94,7 +95,7 @@ class _Reservations:
         self.moves: list[dict[Agent, tuple[int, int]]] = [{} for _ in range(n_steps)]
         self._planner = planner
 
-    def add(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+    def add(self, agent: Agent, ids: Sequence[int] | NDArray[np.int64], upto: int) -> None:
         nyp = self._planner._ny_p
         masks = self._planner._near_masks
         full = self._planner._full_mask
@@ -129,34 +130,44 @@ class _Reservations:
 
 class _DenseReservations:
     """The same reservations as ``_Reservations`` on a dense (steps, cells) mask array, folded
-    by the compiled ``reserve_path`` and ``release_step`` (the ``numba`` backend)."""
+    by the compiled ``reserve_path`` and ``release_path`` (the ``numba`` backend). The moves
+    are kept per step in one column per agent (``cells``: the cell left, -1 for none;
+    ``vels``: the velocity code), so that adding a path is one compiled call."""
 
-    def __init__(self, n_steps: int, planner: PathPlanner) -> None:
+    def __init__(self, n_steps: int, planner: PathPlanner, agents: int = 16) -> None:
         self._planner = planner
         self.near = np.full((n_steps, planner._nx_p * planner._ny_p), planner._full_mask, dtype=np.int64)
-        self.moves: list[dict[Agent, tuple[int, int]]] = [{} for _ in range(n_steps)]
+        self.cells = np.full((n_steps, max(1, agents)), -1, dtype=np.int64)
+        self.vels = np.zeros((n_steps, max(1, agents)), dtype=np.int64)
+        self._slots: dict[Agent, int] = {}
 
-    def add(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+    def _slot(self, agent: Agent) -> int:
+        slot = self._slots.get(agent)
+        if slot is None:
+            slot = self._slots[agent] = len(self._slots)
+            if slot >= self.cells.shape[1]:  # grow the columns (doubling)
+                grow = self.cells.shape[1]
+                self.cells = np.hstack([self.cells, np.full((len(self.near), grow), -1, dtype=np.int64)])
+                self.vels = np.hstack([self.vels, np.zeros((len(self.near), grow), dtype=np.int64)])
+        return slot
+
+    def add(self, agent: Agent, ids: Sequence[int] | NDArray[np.int64], upto: int) -> None:
         pl = self._planner
         steps = min(upto, len(ids) - 1, len(self.near))
         if steps <= 0:
             return
         arr = np.asarray(ids, dtype=np.int64)
-        vels = reserve_path(self.near, arr, steps, pl._ny_p, pl._nbhd_off, pl._nbhd_base, pl._mask_arr, pl._free_arr)
-        for t, a, vel in zip(range(steps), arr[:steps].tolist(), vels.tolist(), strict=True):
-            self.moves[t][agent] = (a, vel)
+        reserve_path(self.near, arr, steps, pl._ny_p, pl._nbhd_off, pl._nbhd_base, pl._mask_arr, pl._free_arr,
+                     self.cells, self.vels, self._slot(agent))
 
-    def remove(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+    def remove(self, agent: Agent, ids: Sequence[int] | NDArray[np.int64], upto: int) -> None:
+        slot = self._slots.get(agent)
+        steps = min(upto, len(ids) - 1, len(self.near))
+        if slot is None or steps <= 0:
+            return
         pl = self._planner
-        for t in range(min(upto, len(ids) - 1, len(self.near))):
-            moves = self.moves[t]
-            gone = moves.pop(agent, None)
-            if gone is None:
-                continue
-            cells = np.fromiter((m[0] for m in moves.values()), dtype=np.int64, count=len(moves))
-            vels = np.fromiter((m[1] for m in moves.values()), dtype=np.int64, count=len(moves))
-            release_step(self.near[t], gone[0], pl._nbhd_off, pl._free_arr, cells, vels, pl._ny_p, pl.reach - 1,
-                         pl._mask_arr, pl._full_mask)
+        release_path(self.near, steps, slot, self.cells, self.vels, pl._nbhd_off, pl._free_arr, pl._ny_p,
+                     pl.reach - 1, pl._mask_arr, pl._full_mask)
 
     def allow(self, t: int, cid: int) -> int:
         return int(self.near[t, cid]) if t < len(self.near) else self._planner._full_mask
@@ -214,8 +225,9 @@ class PathPlanner:
         self._build_clearance_table(d_cells)
         self._build_move_masks()
         self._build_dense_tables()
-        self._heuristics: dict[int, list[float]] = {}
+        self._heuristics: dict[int, list[float]] = {}  # list views of some of _h_arrays
         self._h_arrays: dict[int, NDArray[np.float64]] = {}
+        self._h_capacity = max(513, (256 << 20) // (8 * self._nx_p * self._ny_p))
         self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
         self._graph = self._static_graph()
 
@@ -302,6 +314,8 @@ class PathPlanner:
         self._nbhd_base = np.array([base for _, base in self._nbhd_bases], dtype=np.int64)
         self._mask_arr = np.array(self._mask_of, dtype=np.int64)
         self._all_allowed = np.full(n, self._full_mask, dtype=np.int64)
+        self._cell_bits = np.bitwise_or.reduce(self._nb_bit, axis=1)  # the moves a cell has
+        self._removed_bits_memo: dict[tuple[bytes, bytes], tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
         self._scratch: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]] | None = None
         self._token = 0
 
@@ -311,6 +325,39 @@ class PathPlanner:
             self._scratch = (np.zeros(size), np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64))
             self._token = 0
         return self._scratch
+
+    def _static_allow_of(
+        self, statics: Sequence[NDArray[np.float64]], segments: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]]
+    ) -> NDArray[np.int64]:
+        """``_static_allow(overrides)`` for the overrides ``_static_overrides(statics, segments)``
+        would build, folded directly from the memoised removed moves of each body (arrays)."""
+        segs = [(np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)) for p, q in segments]
+        segs += [(np.asarray(p, dtype=np.float64), np.asarray(p, dtype=np.float64)) for p in statics]
+        if not segs:
+            return self._all_allowed
+        parts = [self._removed_bits(p, q) for p, q in segs]
+        cids = np.concatenate([c for c, _ in parts])
+        bits = np.concatenate([b for _, b in parts])
+        removed = np.zeros(len(self._all_allowed), dtype=np.int64)
+        np.bitwise_or.at(removed, cids, bits)
+        out = self._all_allowed.copy()
+        touched = np.unique(cids)
+        out[touched] = self._cell_bits[touched] & ~removed[touched]
+        return out
+
+    def _removed_bits(self, p: NDArray[np.float64], q: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """``_removed_moves(p, q)`` as (cell ids, bit mask of the removed moves per cell), memoised."""
+        key = (p.tobytes(), q.tobytes())
+        hit = self._removed_bits_memo.get(key)
+        if hit is None:
+            per = self._removed_moves(p, q)
+            cids = np.fromiter(per, dtype=np.int64, count=len(per))
+            bits = np.array([sum(1 << (self._nbrs[cid][k][4] + 6) for k in ks) for cid, ks in per.items()],
+                            dtype=np.int64).reshape(-1)
+            if len(self._removed_bits_memo) > 4096:
+                self._removed_bits_memo.clear()
+            hit = self._removed_bits_memo[key] = (cids, bits)
+        return hit
 
     def _static_allow(self, overrides: Mapping[int, list[_Move]]) -> NDArray[np.int64]:
         """Per padded cell, the bit mask of the moves left by ``overrides`` (all elsewhere)."""
@@ -351,32 +398,34 @@ class PathPlanner:
         """Exact static distances (cells) to ``goal`` indexed by padded cell id (inf: unreachable)."""
         gid = self.cell_id(goal)
         h = self._heuristics.get(gid)
-        if h is None:
+        if h is None:  # the list view (pure-Python code) of the cached array, made on first use
+            h = self._heuristic_array(goal).tolist()
+            self._heuristics[gid] = h
+        return h
+
+    def _heuristic_array(self, goal: Cell) -> NDArray[np.float64]:
+        """``heuristic(goal)`` as a float array (the compiled search's view), cached per goal.
+
+        The cache holds at least 512 goals and as many more as fit in about 256 MB (a crowd
+        of N walkers has up to N goals; a goal evicted while still in use costs a Dijkstra
+        over the grid per replan); the oldest goal goes first."""
+        gid = self.cell_id(goal)
+        arr = self._h_arrays.get(gid)
+        if arr is None:
             nx, ny = self.grid.shape
             d = dijkstra(self._graph, directed=True, indices=[goal[0] * ny + goal[1]])[0]
             full = np.full((self._nx_p, self._ny_p), np.inf)
             full[self._pad : self._pad + nx, self._pad : self._pad + ny] = d.reshape(nx, ny)
-            h = full.ravel().tolist()
-            if len(self._heuristics) > 512:
-                old = next(iter(self._heuristics))
-                self._heuristics.pop(old)
-                self._h_arrays.pop(old, None)
-            self._heuristics[gid] = h
-            self._h_arrays[gid] = full.ravel()
-        return h
-
-    def _heuristic_array(self, goal: Cell) -> NDArray[np.float64]:
-        """``heuristic(goal)`` as a float array (the compiled search's view)."""
-        gid = self.cell_id(goal)
-        arr = self._h_arrays.get(gid)
-        if arr is None or gid not in self._heuristics:
-            self.heuristic(goal)
-            arr = self._h_arrays[gid]
+            if len(self._h_arrays) >= self._h_capacity:
+                old = next(iter(self._h_arrays))
+                self._h_arrays.pop(old)
+                self._heuristics.pop(old, None)
+            arr = self._h_arrays[gid] = full.ravel()
         return arr
 
     def distance(self, start: Cell, goal: Cell) -> float:
         """Shortest static path length from ``start`` to ``goal`` in metres (inf: unreachable)."""
-        return self.heuristic(goal)[self.cell_id(start)] * self.grid.cell_size
+        return float(self._heuristic_array(goal)[self.cell_id(start)]) * self.grid.cell_size
 
     # ----- static obstacles ------------------------------------------------------------------------
     def _static_overrides(
@@ -490,10 +539,15 @@ class PathPlanner:
         else:
             missing = set(agents) - set(order)
             order = [a for a in order if a in starts] + [a for a in agents if a in missing]
-        kept = self._static_overrides([np.asarray(p, dtype=np.float64) for p in static_obstacles], static_segments)
-        used_goals = {a: self._usable_goal(starts[a], goals.get(a), kept) for a in agents}
-        overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in kept.items()}
-        static_allow = self._static_allow(overrides) if self.backend == "numba" else None  # once for all passes
+        statics = [np.asarray(p, dtype=np.float64) for p in static_obstacles]
+        overrides: dict[int, list[_Move]] = {}
+        if self.backend == "numba":  # the compiled passes read the moves left as one mask per cell
+            static_allow = self._static_allow_of(statics, static_segments)
+        else:
+            kept = self._static_overrides(statics, static_segments)
+            overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in kept.items()}
+            static_allow = self._static_allow(overrides)
+        used_goals = {a: self._usable_goal(starts[a], goals.get(a), static_allow) for a in agents}
         # Pass 1: plain WHCA*. An agent whose search fails was cornered by the first steps of
         # agents planned before it; its wait is then reserved for the committed steps and the
         # call planned again (lazy wait reservation: only agents that need it hold their
@@ -532,24 +586,25 @@ class PathPlanner:
             reused=result.reused,
         )
 
-    def _usable_goal(self, start: Cell, goal: Cell | None, overrides: Mapping[int, list[_Neighbour]]) -> Cell:
+    def _usable_goal(self, start: Cell, goal: Cell | None, static_allow: NDArray[np.int64]) -> Cell:
+        """``goal`` when it is reachable from ``start`` and a body may wait on it (``static_allow``:
+        the moves stationary bodies leave, per padded cell); else the nearest such cell."""
         if goal is None:
             return start
-        h = self.heuristic(goal) if self.grid.is_free(*goal) else None
-        gid = self.cell_id(goal) if h is not None else -1
-        waits_ok = gid in self._nbrs and any(nb[0] == gid for nb in overrides.get(gid, self._nbrs[gid]))
-        if h is not None and h[self.cell_id(start)] < math.inf and waits_ok:
-            return goal
+        if self.grid.is_free(*goal):
+            h = self._heuristic_array(goal)
+            if h[self.cell_id(start)] < math.inf and static_allow[self.cell_id(goal)] & _WAIT_BIT:
+                return goal
         # Nearest cell (to the requested goal) that is reachable from the start and not taken.
         comp = self.grid.component[start]
         cells = np.argwhere(self.grid.component == comp)
         centers = self.grid.centers(cells)
         target = self.grid.center_of(*goal)
-        for k in np.argsort(np.sum((centers - target) ** 2, axis=1), kind="stable"):
-            c = (int(cells[k][0]), int(cells[k][1]))
-            cid = self.cell_id(c)
-            if any(nb[0] == cid for nb in overrides.get(cid, self._nbrs[cid])):
-                return c
+        near_first = cells[np.argsort(np.sum((centers - target) ** 2, axis=1), kind="stable")]
+        ids = (near_first[:, 0] + self._pad) * self._ny_p + near_first[:, 1] + self._pad
+        waits = np.flatnonzero(static_allow[ids] & _WAIT_BIT)
+        if len(waits):
+            return (int(near_first[waits[0], 0]), int(near_first[waits[0], 1]))
         return start
 
     def _pass(
@@ -565,7 +620,8 @@ class PathPlanner:
     ) -> PlanResult:
         w_max = self.window * (2 if extended else 1)
         dense = self.backend == "numba"
-        res: _Reservations | _DenseReservations = _DenseReservations(w_max, self) if dense else _Reservations(w_max, self)
+        res: _Reservations | _DenseReservations = (
+            _DenseReservations(w_max, self, len(order)) if dense else _Reservations(w_max, self))
         if dense and static_allow is None:
             static_allow = self._static_allow(overrides)
         waits = {a: [self.cell_id(starts[a])] * (self.commit_steps + 1) for a in order}
@@ -581,7 +637,12 @@ class PathPlanner:
                 res.remove(a, waits[a], self.commit_steps)
             window = self.window * 2 if a in extended else self.window
             hint = hints.get(a) if hints and a not in extended else None
-            ids = self._kept_path(hint, goals[a], window, res, overrides) if hint else None
+            ids: list[int] | NDArray[np.int64] | None = None
+            if hint and isinstance(res, _DenseReservations):
+                assert static_allow is not None  # filled in above for the dense backend
+                ids = self._kept_path_compiled(hint, goals[a], window, res, static_allow)
+            elif hint:
+                ids = self._kept_path(hint, goals[a], window, res, overrides)
             if ids is not None:
                 reused.add(a)
             else:
@@ -639,9 +700,17 @@ class PathPlanner:
             path.append(best[2])
         return path
 
+    def _kept_path_compiled(
+        self, hint: list[int], goal: Cell, window: int, res: _DenseReservations, static_allow: NDArray[np.int64]
+    ) -> NDArray[np.int64] | None:
+        """``_kept_path`` run by the compiled kernel on the dense tables (same result)."""
+        path = kept_path(np.asarray(hint, dtype=np.int64), self.cell_id(goal), window, self._heuristic_array(goal),
+                         self._nb_id, self._nb_cost, self._nb_bit, static_allow, res.near, self._full_mask)
+        return path if len(path) else None
+
     def _search_compiled(
         self, start: int, goal: Cell, window: int, res: _DenseReservations, static_allow: NDArray[np.int64]
-    ) -> tuple[list[int] | None, int]:
+    ) -> tuple[NDArray[np.int64] | None, int]:
         """``_search`` run by the compiled kernel on the dense tables (same result)."""
         h = self._heuristic_array(goal)
         g_best, stamp, parent = self._search_scratch(window)
@@ -650,7 +719,7 @@ class PathPlanner:
             start, self.cell_id(goal), window, h, self._nb_id, self._nb_cost, self._nb_bit, static_allow,
             res.near, self._full_mask, self.max_expansions, g_best, stamp, parent, self._token,
         )
-        return (path.tolist() if len(path) else None), int(n)
+        return (path if len(path) else None), int(n)
 
     def _search(
         self,
