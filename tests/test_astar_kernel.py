@@ -138,3 +138,23 @@ def test_compiled_crowd_walks_the_same_trajectories(grid: NavGrid) -> None:
 def test_unknown_backend_is_a_typed_error(grid: NavGrid) -> None:
     with pytest.raises(PlanningError, match="backend"):
         PathPlanner(grid, backend="cuda")
+
+
+def test_repair_pass_reuses_unchanged_searches_exactly(grid: NavGrid) -> None:
+    # A repair pass given the pass before takes that pass's outcome for agents whose reads are
+    # unchanged; its result equals a repair pass that searches every agent again.
+    rng = np.random.default_rng(11)
+    cells = _free_cells(grid)
+    starts = dict(enumerate(_spaced(cells, 200, rng)))
+    planner = PathPlanner(grid, seed=0)
+    goals = planner.plan(starts, dict(enumerate(_spaced(cells, len(starts), rng)))).goals  # usable goals
+    order = list(starts)
+    allow = planner._all_allowed
+    first, record = planner._dense_pass(order, starts, goals, frozenset(), frozenset(), {}, allow)
+    assert first.failed
+    again, outcomes = planner._dense_pass(order, starts, goals, frozenset(), first.failed, {}, allow,
+                                          previous=(record, frozenset()))
+    fresh, _ = planner._dense_pass(order, starts, goals, frozenset(), first.failed, {}, allow)
+    _same(again, fresh)
+    kept = [a for a in order if outcomes[a] is record[a]]
+    assert 0 < len(kept) < len(order)  # some taken over, some searched again

@@ -109,11 +109,13 @@ def release_path(near: NDArray[np.int64], steps: int, slot: int, cells: NDArray[
 def kept_path(hint: NDArray[np.int64], goal: int, window: int, h: NDArray[np.float64],
               nb_id: NDArray[np.int64], nb_cost: NDArray[np.float64], nb_bit: NDArray[np.int64],
               static_allow: NDArray[np.int64], near: NDArray[np.int64],
-              full: int) -> NDArray[np.int64]:  # pragma: no cover - compiled
+              full: int) -> tuple[NDArray[np.int64], int, bool]:  # pragma: no cover - compiled
     """``hint`` (padded ids from the start) checked step by step against the reservations
     ``near`` and ``static_allow``, then extended to ``window`` steps, each extra step the
-    allowed move with the least (cost + h, h, cell id), waiting on ``goal`` free. Returns the
-    window + 1 ids, or an empty array when a step fails (same as ``PathPlanner._kept_path``)."""
+    allowed move with the least (cost + h, h, cell id), waiting on ``goal`` free. Returns
+    ``(path, s, ok)``: ``ok`` when every step passed (then ``path`` holds the window + 1 ids,
+    the result of ``PathPlanner._kept_path``; else that is None), and the number of steps
+    ``s`` read: ``near`` is read at ``(t, path[t])`` for t < s only."""
     n_steps = near.shape[0]
     path = np.empty(window + 1, dtype=np.int64)
     m = min(hint.shape[0], window + 1)
@@ -132,7 +134,7 @@ def kept_path(hint: NDArray[np.int64], goal: int, window: int, h: NDArray[np.flo
                 ok = True
                 break
         if not ok or h[nid] == _INF:
-            return np.empty(0, dtype=np.int64)
+            return path, t + 1, False
     for t in range(m - 1, window):
         cid = path[t]
         allow = (near[t, cid] if t < n_steps else full) & static_allow[cid]
@@ -150,9 +152,9 @@ def kept_path(hint: NDArray[np.int64], goal: int, window: int, h: NDArray[np.flo
             if best_id < 0 or f < best_f or (f == best_f and (hn < best_h or (hn == best_h and nid < best_id))):
                 best_f, best_h, best_id = f, hn, nid
         if best_id < 0:
-            return np.empty(0, dtype=np.int64)
+            return path, t + 1, False
         path[t + 1] = best_id
-    return path
+    return path, window, True
 
 
 @njit(cache=True, nogil=True)
@@ -161,6 +163,7 @@ def space_time_search(
     nb_cost: NDArray[np.float64], nb_bit: NDArray[np.int64], static_allow: NDArray[np.int64],
     near: NDArray[np.int64], full: int, max_expansions: int,
     g_best: NDArray[np.float64], stamp: NDArray[np.int64], parent: NDArray[np.int64], token: int,
+    expanded: NDArray[np.int64],
 ) -> tuple[NDArray[np.int64], int]:  # pragma: no cover - compiled
     """Space-time A* from padded cell ``start`` for ``window`` steps.
 
@@ -169,7 +172,10 @@ def space_time_search(
     bit. ``static_allow`` (cells,): bit mask of the moves stationary bodies leave. ``near``
     (steps, cells): per step, the moves the reserved agents leave (steps beyond: all).
     ``g_best/stamp/parent``: scratch of size (window + 1) * cells, valid where
-    ``stamp == token`` (so nothing is cleared between searches).
+    ``stamp == token`` (so nothing is cleared between searches). ``expanded`` (>=
+    ``max_expansions``): filled with the key ``t * cells + cell`` of each expanded node in
+    order, the only entries of ``near`` the search reads (so a search whose expanded entries
+    are unchanged in another table returns the same result there).
     Returns (padded ids of the window + 1 cells, expansions), or (empty, expansions) when the
     budget runs out or no path exists. Waiting on the goal is free.
     """
@@ -199,6 +205,7 @@ def space_time_search(
         expansions += 1
         if expansions > max_expansions:
             return np.empty(0, dtype=np.int64), expansions
+        expanded[expansions - 1] = key
         allow = near[t, cid] if t < n_steps else full
         allow &= static_allow[cid]
         nt = t + 1

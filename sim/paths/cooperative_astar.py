@@ -80,6 +80,19 @@ class PlanResult:
     reused: frozenset[Agent] = frozenset()
 
 
+@dataclass(frozen=True)
+class _Outcome:
+    """One agent's result in a dense pass: the padded ids it reserved (its path, or its wait),
+    the reservation entries (``t * cells + cell``) its kept-path check and search read, the
+    search's expansions, and whether the path was a kept hint or the search failed."""
+
+    ids: NDArray[np.int64]
+    reads: NDArray[np.int64]
+    expansions: int
+    reused: bool
+    failed: bool
+
+
 class _Reservations:
     """Per step t (relative to the plan start): for every cell id near a reserved agent, the
     moves those agents still allow there, so that a search looks up one int per expansion.
@@ -317,6 +330,7 @@ class PathPlanner:
         self._cell_bits = np.bitwise_or.reduce(self._nb_bit, axis=1)  # the moves a cell has
         self._removed_bits_memo: dict[tuple[bytes, bytes], tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
         self._scratch: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]] | None = None
+        self._expanded = np.zeros(max(1, self.max_expansions), dtype=np.int64)  # the search's expanded keys
         self._token = 0
 
     def _search_scratch(self, window: int) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
@@ -559,23 +573,23 @@ class PathPlanner:
             if a in starts and path and tuple(path[0]) == tuple(starts[a]) and tuple(goal) == tuple(used_goals[a]):
                 usable[a] = [self.cell_id(c) for c in path[: self.window + 1]]
         reserved: frozenset[Agent] = frozenset()
-        result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved,
-                            hints=usable, static_allow=static_allow)
+        result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable, static_allow)
         fallback = set(result.failed)
         expansions = result.expansions
         for _ in range(self.repair_passes):
             if result.failed <= reserved:
                 break
-            reserved = reserved | result.failed
-            result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved,
-                                hints=usable, static_allow=static_allow)
+            # same order, hints and window as the pass before: agents whose search reads only
+            # reservations that did not change take that pass's result (``_dense_pass``)
+            before, reserved = reserved, reserved | result.failed
+            result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable,
+                                            static_allow, previous=(record, before))
             fallback |= result.failed
             expansions += result.expansions
         if not result.failed <= reserved:
             order2 = failed_first(order, result.failed) if self.fallback else list(order)
             ext = result.failed if self.fallback else frozenset()
-            result = self._pass(order2, starts, used_goals, overrides, extended=ext, reserve_waits=frozenset(order),
-                                static_allow=static_allow)
+            result, _ = self._run_pass(order2, starts, used_goals, overrides, ext, frozenset(order), {}, static_allow)
             expansions += result.expansions
         return PlanResult(
             paths=result.paths,
@@ -607,6 +621,24 @@ class PathPlanner:
             return (int(near_first[waits[0], 0]), int(near_first[waits[0], 1]))
         return start
 
+    def _run_pass(
+        self,
+        order: Sequence[Agent],
+        starts: Mapping[Agent, Cell],
+        goals: Mapping[Agent, Cell],
+        overrides: Mapping[int, list[_Move]],
+        extended: frozenset[Agent],
+        reserve_waits: frozenset[Agent],
+        hints: Mapping[Agent, list[int]],
+        static_allow: NDArray[np.int64],
+        previous: tuple[dict[Agent, _Outcome], frozenset[Agent]] | None = None,
+    ) -> tuple[PlanResult, dict[Agent, _Outcome]]:
+        """One planning pass on this planner's backend; the dense pass also returns what each
+        agent's search read (for the next repair pass, see ``_dense_pass``)."""
+        if self.backend == "numba":
+            return self._dense_pass(order, starts, goals, extended, reserve_waits, hints, static_allow, previous)
+        return self._pass(order, starts, goals, overrides, extended, reserve_waits, hints), {}
+
     def _pass(
         self,
         order: Sequence[Agent],
@@ -616,14 +648,11 @@ class PathPlanner:
         extended: frozenset[Agent],
         reserve_waits: frozenset[Agent],
         hints: Mapping[Agent, list[int]] | None = None,
-        static_allow: NDArray[np.int64] | None = None,
     ) -> PlanResult:
+        """One prioritized pass (pure-Python backend): every agent in ``order`` keeps its hint or
+        searches against the reservations of those before it (and the reserved waits)."""
         w_max = self.window * (2 if extended else 1)
-        dense = self.backend == "numba"
-        res: _Reservations | _DenseReservations = (
-            _DenseReservations(w_max, self, len(order)) if dense else _Reservations(w_max, self))
-        if dense and static_allow is None:
-            static_allow = self._static_allow(overrides)
+        res = _Reservations(w_max, self)
         waits = {a: [self.cell_id(starts[a])] * (self.commit_steps + 1) for a in order}
         for a in order:
             if a in reserve_waits:
@@ -637,29 +666,123 @@ class PathPlanner:
                 res.remove(a, waits[a], self.commit_steps)
             window = self.window * 2 if a in extended else self.window
             hint = hints.get(a) if hints and a not in extended else None
-            ids: list[int] | NDArray[np.int64] | None = None
-            if hint and isinstance(res, _DenseReservations):
-                assert static_allow is not None  # filled in above for the dense backend
-                ids = self._kept_path_compiled(hint, goals[a], window, res, static_allow)
-            elif hint:
-                ids = self._kept_path(hint, goals[a], window, res, overrides)
+            ids = self._kept_path(hint, goals[a], window, res, overrides) if hint else None
             if ids is not None:
                 reused.add(a)
             else:
-                if isinstance(res, _DenseReservations):
-                    assert static_allow is not None  # filled in above for the dense backend
-                    ids, n = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow)
-                else:
-                    ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
+                ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
                 total += n
             if ids is None:  # wait: safe for the committed steps, which is all it claims
                 failed.add(a)
                 ids = waits[a]
             res.add(a, ids, len(res.near))
-            keep = np.asarray(ids[: self.window + 1], dtype=np.int64)
-            paths[a] = list(zip((keep // self._ny_p - self._pad).tolist(), (keep % self._ny_p - self._pad).tolist(), strict=True))
+            paths[a] = self._cells_of(np.asarray(ids, dtype=np.int64))
         return PlanResult(paths=paths, failed=frozenset(failed), fallback=frozenset(), goals=dict(goals), expansions=total,
                           reused=frozenset(reused))
+
+    def _cells_of(self, ids: NDArray[np.int64]) -> list[Cell]:
+        keep = ids[: self.window + 1]
+        return list(zip((keep // self._ny_p - self._pad).tolist(), (keep % self._ny_p - self._pad).tolist(), strict=True))
+
+    def _dense_pass(
+        self,
+        order: Sequence[Agent],
+        starts: Mapping[Agent, Cell],
+        goals: Mapping[Agent, Cell],
+        extended: frozenset[Agent],
+        reserve_waits: frozenset[Agent],
+        hints: Mapping[Agent, list[int]],
+        static_allow: NDArray[np.int64],
+        previous: tuple[dict[Agent, _Outcome], frozenset[Agent]] | None = None,
+    ) -> tuple[PlanResult, dict[Agent, _Outcome]]:
+        """``_pass`` on the compiled kernels (same result), recording each agent's outcome.
+
+        ``previous``: the outcomes of the pass before (same order, hints and window) and the
+        waits it reserved. A search (or kept-path check) is a function of the reservation
+        entries it reads, so an agent whose previous reads all fall outside the entries that
+        may differ between the two passes (``dirty``: near the newly reserved waits, and near
+        every move that an agent planned earlier in this pass made differently) gets its
+        previous outcome without searching. Conservative, hence exact: the same plans.
+        """
+        w_max = self.window * (2 if extended else 1)
+        stride = self._nx_p * self._ny_p
+        res = _DenseReservations(w_max, self, len(order))
+        cmt = self.commit_steps
+        waits = {a: np.full(cmt + 1, self.cell_id(starts[a]), dtype=np.int64) for a in order}
+        for a in order:
+            if a in reserve_waits:
+                res.add(a, waits[a], cmt)
+        dirty: NDArray[np.bool_] | None = None
+        before: dict[Agent, _Outcome] = {}
+        if previous is not None:
+            before = previous[0]
+            dirty = np.zeros(w_max * stride, dtype=np.bool_)
+            for a in reserve_waits ^ previous[1]:
+                self._mark(dirty, waits[a], cmt, stride)
+        outcomes: dict[Agent, _Outcome] = {}
+        paths: dict[Agent, list[Cell]] = {}
+        total = 0
+        for a in order:
+            if a in reserve_waits:
+                res.remove(a, waits[a], cmt)
+            old = before.get(a)
+            if old is not None and dirty is not None and not dirty[old.reads].any():
+                out = old
+            else:
+                out = self._dense_outcome(a, starts, goals, extended, hints, static_allow, res, waits[a], stride)
+                if old is not None and dirty is not None:
+                    self._mark_changes(dirty, old.ids, out.ids, w_max, stride)
+            outcomes[a] = out
+            total += out.expansions
+            res.add(a, out.ids, w_max)
+            paths[a] = self._cells_of(out.ids)
+        result = PlanResult(
+            paths=paths, failed=frozenset(a for a in order if outcomes[a].failed), fallback=frozenset(),
+            goals=dict(goals), expansions=total, reused=frozenset(a for a in order if outcomes[a].reused),
+        )
+        return result, outcomes
+
+    def _dense_outcome(
+        self, a: Agent, starts: Mapping[Agent, Cell], goals: Mapping[Agent, Cell], extended: frozenset[Agent],
+        hints: Mapping[Agent, list[int]], static_allow: NDArray[np.int64], res: _DenseReservations,
+        wait: NDArray[np.int64], stride: int,
+    ) -> _Outcome:
+        """Agent ``a``'s kept hint or search against ``res``, and the reservation entries read."""
+        window = self.window * 2 if a in extended else self.window
+        hint = hints.get(a) if a not in extended else None
+        reads: list[NDArray[np.int64]] = []
+        if hint:
+            gid = self.cell_id(goals[a])
+            path, steps, ok = kept_path(np.asarray(hint, dtype=np.int64), gid, window, self._heuristic_array(goals[a]),
+                                        self._nb_id, self._nb_cost, self._nb_bit, static_allow, res.near, self._full_mask)
+            reads.append(np.arange(steps, dtype=np.int64) * stride + path[:steps])
+            if ok:
+                return _Outcome(path, reads[0], 0, reused=True, failed=False)
+        ids, n, expanded = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow)
+        reads.append(expanded)
+        keys = np.concatenate(reads)
+        if ids is None:  # wait: safe for the committed steps, which is all it claims
+            return _Outcome(wait, keys, n, reused=False, failed=True)
+        return _Outcome(ids, keys, n, reused=False, failed=False)
+
+    def _mark(self, dirty: NDArray[np.bool_], ids: NDArray[np.int64], steps: int, stride: int) -> None:
+        """Flag the reservation entries that the first ``steps`` moves of ``ids`` touch."""
+        for t in range(min(steps, len(ids) - 1)):
+            dirty[t * stride + int(ids[t]) - self._nbhd_off] = True
+
+    def _mark_changes(self, dirty: NDArray[np.bool_], old: NDArray[np.int64], new: NDArray[np.int64], w_max: int,
+                      stride: int) -> None:
+        """Flag the entries touched by the moves (within ``w_max`` steps) that differ between
+        two reserved paths (both paths' cells: one reservation left, the other came)."""
+        n_old, n_new = min(w_max, len(old) - 1), min(w_max, len(new) - 1)
+        for t in range(max(n_old, n_new)):
+            same = t < n_old and t < n_new and old[t] == new[t] and old[t + 1] == new[t + 1]
+            if same:
+                continue
+            if t < n_old:
+                dirty[t * stride + int(old[t]) - self._nbhd_off] = True
+            if t < n_new:
+                dirty[t * stride + int(new[t]) - self._nbhd_off] = True
 
     def _kept_path(
         self, hint: list[int], goal: Cell, window: int, res: _Reservations | _DenseReservations,
@@ -700,26 +823,19 @@ class PathPlanner:
             path.append(best[2])
         return path
 
-    def _kept_path_compiled(
-        self, hint: list[int], goal: Cell, window: int, res: _DenseReservations, static_allow: NDArray[np.int64]
-    ) -> NDArray[np.int64] | None:
-        """``_kept_path`` run by the compiled kernel on the dense tables (same result)."""
-        path = kept_path(np.asarray(hint, dtype=np.int64), self.cell_id(goal), window, self._heuristic_array(goal),
-                         self._nb_id, self._nb_cost, self._nb_bit, static_allow, res.near, self._full_mask)
-        return path if len(path) else None
-
     def _search_compiled(
         self, start: int, goal: Cell, window: int, res: _DenseReservations, static_allow: NDArray[np.int64]
-    ) -> tuple[NDArray[np.int64] | None, int]:
-        """``_search`` run by the compiled kernel on the dense tables (same result)."""
+    ) -> tuple[NDArray[np.int64] | None, int, NDArray[np.int64]]:
+        """``_search`` run by the compiled kernel on the dense tables (same result); also the
+        reservation entries it read (the keys of the expanded nodes)."""
         h = self._heuristic_array(goal)
         g_best, stamp, parent = self._search_scratch(window)
         self._token += 1
         path, n = space_time_search(
             start, self.cell_id(goal), window, h, self._nb_id, self._nb_cost, self._nb_bit, static_allow,
-            res.near, self._full_mask, self.max_expansions, g_best, stamp, parent, self._token,
+            res.near, self._full_mask, self.max_expansions, g_best, stamp, parent, self._token, self._expanded,
         )
-        return (path if len(path) else None), int(n)
+        return (path if len(path) else None), int(n), self._expanded[: min(int(n), self.max_expansions)].copy()
 
     def _search(
         self,
