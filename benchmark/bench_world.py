@@ -193,32 +193,47 @@ def tiled(scene: Scene, nx: int, ny: int) -> Scene:
                  objects=tuple(objs), nav=scene.nav.model_copy(update={"occupied": (), "unoccupied": ()}))
 
 
-def spread_cells(cells: np.ndarray, count: int, rng: np.random.Generator, taken: list[np.ndarray]) -> list[np.ndarray]:
+class Stamps:
+    """How many taken cells lie within 1 cell (Chebyshev) of each grid cell: a cell is at least
+    2 cells from every taken one when its count is 0. Adding or removing a taken cell is O(1)."""
+
+    def __init__(self, cells: np.ndarray) -> None:
+        self.count = np.zeros((int(cells[:, 0].max()) + 3, int(cells[:, 1].max()) + 3), dtype=np.int64)
+
+    def add(self, c: np.ndarray, k: int = 1) -> None:
+        i, j = int(c[0]), int(c[1])  # count[i + 1, j + 1] belongs to cell (i, j)
+        if -1 <= i < self.count.shape[0] - 1 and -1 <= j < self.count.shape[1] - 1:  # else: blocks no cell
+            self.count[max(0, i): i + 3, max(0, j): j + 3] += k
+
+    def free(self, cells: np.ndarray) -> np.ndarray:
+        return np.asarray(self.count[cells[:, 0] + 1, cells[:, 1] + 1] == 0)
+
+
+def spread_cells(cells: np.ndarray, count: int, rng: np.random.Generator, taken: list[np.ndarray] | Stamps,
+                 ) -> list[np.ndarray]:
     """``count`` cells of ``cells`` (rows (i, j)) in the order of one random permutation, each at
-    least 2 cells (Chebyshev) from ``taken`` and from the ones picked before it. The taken
-    cells are stamped on a grid, so a pick costs O(1) per candidate, not O(len(taken))."""
+    least 2 cells (Chebyshev) from ``taken`` and from the ones picked before it (``taken``
+    given as ``Stamps`` is left as it was). O(1) per candidate, not O(len(taken))."""
     out: list[np.ndarray] = []
     perm = rng.permutation(len(cells))
     if count <= 0:
         return out
-    shape = (int(cells[:, 0].max()) + 3, int(cells[:, 1].max()) + 3)
-    near = np.zeros(shape, dtype=bool)  # near[i + 1, j + 1]: a taken cell is within 1 of (i, j)
-
-    def stamp(c: np.ndarray) -> None:
-        i, j = int(c[0]), int(c[1])
-        if -1 <= i < shape[0] - 1 and -1 <= j < shape[1] - 1:  # else: too far to block any cell
-            near[max(0, i): i + 3, max(0, j): j + 3] = True
-
-    for o in taken:
-        stamp(o)
-    ok = ~near[cells[perm, 0] + 1, cells[perm, 1] + 1]
-    for k in perm[ok]:
+    stamps = taken if isinstance(taken, Stamps) else Stamps(cells)
+    if not isinstance(taken, Stamps):
+        for o in taken:
+            stamps.add(o)
+    for k in perm[stamps.free(cells[perm])]:
         c = cells[k]
-        if not near[c[0] + 1, c[1] + 1]:
+        if stamps.count[c[0] + 1, c[1] + 1] == 0:
             out.append(c)
             if len(out) == count:
-                return out
-            stamp(c)
+                break
+            stamps.add(c)
+    if taken is stamps:
+        for c in out[:-1]:
+            stamps.add(c, -1)
+    if len(out) == count:
+        return out
     raise SystemExit(f"only {len(out)} of {count} characters fit 2 cells apart")
 
 
@@ -236,6 +251,9 @@ class IdleErrands:
         self.names = [f"p{i:03d}" for i in range(n)]
         self.starts = {nm: (tuple(grid.center_of(*c)), 0.0) for nm, c in zip(self.names, starts, strict=True)}
         self.targets = dict(zip(self.names, starts, strict=True))
+        self.stamps = Stamps(self.cells)  # every walker's current target
+        for c in starts:
+            self.stamps.add(c)
         self.count = dict.fromkeys(self.names, 0)
         self.todo = set(self.names)
 
@@ -243,7 +261,9 @@ class IdleErrands:
         """New events for the walkers that need one (then none until ``observe`` says so)."""
         cmds = []
         for nm in sorted(self.todo):
-            cell = spread_cells(self.cells, 1, self.rng, [self.targets[o] for o in self.names if o != nm])[0]
+            self.stamps.add(self.targets[nm], -1)  # 2 cells from every other walker's target
+            cell = spread_cells(self.cells, 1, self.rng, self.stamps)[0]
+            self.stamps.add(cell)
             self.targets[nm] = cell
             self.count[nm] += 1
             theta = float(self.rng.uniform(-math.pi, math.pi))

@@ -84,13 +84,15 @@ class PlanResult:
 class _Outcome:
     """One agent's result in a dense pass: the padded ids it reserved (its path, or its wait),
     the reservation entries (``t * cells + cell``) its kept-path check and search read, the
-    search's expansions, and whether the path was a kept hint or the search failed."""
+    search's expansions, whether the path was a kept hint or the search failed, and the
+    path's first window + 1 cells (what ``PlanResult.paths`` holds)."""
 
     ids: NDArray[np.int64]
     reads: NDArray[np.int64]
     expansions: int
     reused: bool
     failed: bool
+    cells: list[Cell]
 
 
 class _Reservations:
@@ -735,7 +737,7 @@ class PathPlanner:
             outcomes[a] = out
             total += out.expansions
             res.add(a, out.ids, w_max)
-            paths[a] = self._cells_of(out.ids)
+            paths[a] = list(out.cells)
         result = PlanResult(
             paths=paths, failed=frozenset(a for a in order if outcomes[a].failed), fallback=frozenset(),
             goals=dict(goals), expansions=total, reused=frozenset(a for a in order if outcomes[a].reused),
@@ -757,13 +759,13 @@ class PathPlanner:
                                         self._nb_id, self._nb_cost, self._nb_bit, static_allow, res.near, self._full_mask)
             reads.append(np.arange(steps, dtype=np.int64) * stride + path[:steps])
             if ok:
-                return _Outcome(path, reads[0], 0, reused=True, failed=False)
+                return _Outcome(path, reads[0], 0, reused=True, failed=False, cells=self._cells_of(path))
         ids, n, expanded = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow)
         reads.append(expanded)
         keys = np.concatenate(reads)
         if ids is None:  # wait: safe for the committed steps, which is all it claims
-            return _Outcome(wait, keys, n, reused=False, failed=True)
-        return _Outcome(ids, keys, n, reused=False, failed=False)
+            return _Outcome(wait, keys, n, reused=False, failed=True, cells=self._cells_of(wait))
+        return _Outcome(ids, keys, n, reused=False, failed=False, cells=self._cells_of(ids))
 
     def _mark(self, dirty: NDArray[np.bool_], ids: NDArray[np.int64], steps: int, stride: int) -> None:
         """Flag the reservation entries that the first ``steps`` moves of ``ids`` touch."""
