@@ -242,6 +242,7 @@ class PathPlanner:
         self._build_dense_tables()
         self._heuristics: dict[int, list[float]] = {}  # list views of some of _h_arrays
         self._h_arrays: dict[int, NDArray[np.float64]] = {}
+        self._components: dict[int, tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]] = {}
         self._h_capacity = max(513, (256 << 20) // (8 * self._nx_p * self._ny_p))
         self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
         self._graph = self._static_graph()
@@ -612,16 +613,22 @@ class PathPlanner:
             if h[self.cell_id(start)] < math.inf and static_allow[self.cell_id(goal)] & _WAIT_BIT:
                 return goal
         # Nearest cell (to the requested goal) that is reachable from the start and not taken.
-        comp = self.grid.component[start]
-        cells = np.argwhere(self.grid.component == comp)
-        centers = self.grid.centers(cells)
-        target = self.grid.center_of(*goal)
-        near_first = cells[np.argsort(np.sum((centers - target) ** 2, axis=1), kind="stable")]
-        ids = (near_first[:, 0] + self._pad) * self._ny_p + near_first[:, 1] + self._pad
-        waits = np.flatnonzero(static_allow[ids] & _WAIT_BIT)
+        cells, centers, ids = self._component_cells(int(self.grid.component[start]))
+        order = np.argsort(np.sum((centers - self.grid.center_of(*goal)) ** 2, axis=1), kind="stable")
+        waits = np.flatnonzero(static_allow[ids[order]] & _WAIT_BIT)
         if len(waits):
-            return (int(near_first[waits[0], 0]), int(near_first[waits[0], 1]))
+            k = order[waits[0]]
+            return (int(cells[k, 0]), int(cells[k, 1]))
         return start
+
+    def _component_cells(self, comp: int) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
+        """The cells of grid component ``comp`` (row-major), their centres and padded ids (memoised)."""
+        hit = self._components.get(comp)
+        if hit is None:
+            cells = np.argwhere(self.grid.component == comp)
+            ids = (cells[:, 0] + self._pad) * self._ny_p + cells[:, 1] + self._pad
+            hit = self._components[comp] = (cells, self.grid.centers(cells), ids)
+        return hit
 
     def _run_pass(
         self,
@@ -683,8 +690,9 @@ class PathPlanner:
                           reused=frozenset(reused))
 
     def _cells_of(self, ids: NDArray[np.int64]) -> list[Cell]:
-        keep = ids[: self.window + 1]
-        return list(zip((keep // self._ny_p - self._pad).tolist(), (keep % self._ny_p - self._pad).tolist(), strict=True))
+        """The cells of the first window + 1 padded ids."""
+        nyp, pad = self._ny_p, self._pad
+        return [(c // nyp - pad, c % nyp - pad) for c in ids[: self.window + 1].tolist()]
 
     def _dense_pass(
         self,
