@@ -90,12 +90,16 @@ def test_released_reservation_equals_never_reserved(grid: NavGrid) -> None:
             ids.append(moves[int(rng.integers(len(moves)))])
         paths[k] = ids
     dense, plain = _DenseReservations(4, planner), _Reservations(4, planner)
+    grown = _DenseReservations(4, planner, agents=1)  # its agent columns grow as agents come
     for k, ids in paths.items():
         dense.add(k, ids, 4)
         plain.add(k, ids, 4)
+        grown.add(k, ids, 4)
     for k in (3, 7, 0):
         dense.remove(k, paths[k], 4)
         plain.remove(k, paths[k], 4)
+        grown.remove(k, paths[k], 4)
+    assert np.array_equal(grown.near, dense.near)
     fresh = _DenseReservations(4, planner)
     for k, ids in paths.items():
         if k not in (3, 7, 0):
