@@ -172,8 +172,9 @@ class _DenseReservations:
         if steps <= 0:
             return
         arr = np.asarray(ids, dtype=np.int64)
+        slot = self._slot(agent)  # first: it may grow (replace) the column arrays
         reserve_path(self.near, arr, steps, pl._ny_p, pl._nbhd_off, pl._nbhd_base, pl._mask_arr, pl._free_arr,
-                     self.cells, self.vels, self._slot(agent))
+                     self.cells, self.vels, slot)
 
     def remove(self, agent: Agent, ids: Sequence[int] | NDArray[np.int64], upto: int) -> None:
         slot = self._slots.get(agent)
