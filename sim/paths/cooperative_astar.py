@@ -646,7 +646,8 @@ class PathPlanner:
         """One planning pass on this planner's backend; the dense pass also returns what each
         agent's search read (for the next repair pass, see ``_dense_pass``)."""
         if self.backend == "numba":
-            return self._dense_pass(order, starts, goals, extended, reserve_waits, hints, static_allow, previous)
+            arrays = {a: np.asarray(h, dtype=np.int64) for a, h in hints.items()}
+            return self._dense_pass(order, starts, goals, extended, reserve_waits, arrays, static_allow, previous)
         return self._pass(order, starts, goals, overrides, extended, reserve_waits, hints), {}
 
     def _pass(
@@ -702,7 +703,7 @@ class PathPlanner:
         goals: Mapping[Agent, Cell],
         extended: frozenset[Agent],
         reserve_waits: frozenset[Agent],
-        hints: Mapping[Agent, list[int]],
+        hints: Mapping[Agent, NDArray[np.int64]],
         static_allow: NDArray[np.int64],
         previous: tuple[dict[Agent, _Outcome], frozenset[Agent]] | None = None,
     ) -> tuple[PlanResult, dict[Agent, _Outcome]]:
@@ -719,10 +720,9 @@ class PathPlanner:
         stride = self._nx_p * self._ny_p
         res = _DenseReservations(w_max, self, len(order))
         cmt = self.commit_steps
-        waits = {a: np.full(cmt + 1, self.cell_id(starts[a]), dtype=np.int64) for a in order}
-        for a in order:
-            if a in reserve_waits:
-                res.add(a, waits[a], cmt)
+        waits = {a: np.full(cmt + 1, self.cell_id(starts[a]), dtype=np.int64) for a in order if a in reserve_waits}
+        for a, wait in waits.items():
+            res.add(a, wait, cmt)
         dirty: NDArray[np.bool_] | None = None
         before: dict[Agent, _Outcome] = {}
         if previous is not None:
@@ -740,7 +740,7 @@ class PathPlanner:
             if old is not None and dirty is not None and not dirty[old.reads].any():
                 out = old
             else:
-                out = self._dense_outcome(a, starts, goals, extended, hints, static_allow, res, waits[a], stride)
+                out = self._dense_outcome(a, starts, goals, extended, hints, static_allow, res, stride)
                 if old is not None and dirty is not None:
                     self._mark_changes(dirty, old.ids, out.ids, w_max, stride)
             outcomes[a] = out
@@ -755,24 +755,24 @@ class PathPlanner:
 
     def _dense_outcome(
         self, a: Agent, starts: Mapping[Agent, Cell], goals: Mapping[Agent, Cell], extended: frozenset[Agent],
-        hints: Mapping[Agent, list[int]], static_allow: NDArray[np.int64], res: _DenseReservations,
-        wait: NDArray[np.int64], stride: int,
+        hints: Mapping[Agent, NDArray[np.int64]], static_allow: NDArray[np.int64], res: _DenseReservations,
+        stride: int,
     ) -> _Outcome:
         """Agent ``a``'s kept hint or search against ``res``, and the reservation entries read."""
         window = self.window * 2 if a in extended else self.window
         hint = hints.get(a) if a not in extended else None
         reads: list[NDArray[np.int64]] = []
-        if hint:
+        if hint is not None and len(hint):
             gid = self.cell_id(goals[a])
-            path, steps, ok = kept_path(np.asarray(hint, dtype=np.int64), gid, window, self._heuristic_array(goals[a]),
+            path, steps, ok = kept_path(hint, gid, window, self._heuristic_array(goals[a]),
                                         self._nb_id, self._nb_cost, self._nb_bit, static_allow, res.near, self._full_mask)
             reads.append(np.arange(steps, dtype=np.int64) * stride + path[:steps])
             if ok:
                 return _Outcome(path, reads[0], 0, reused=True, failed=False, cells=self._cells_of(path))
         ids, n, expanded = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow)
-        reads.append(expanded)
-        keys = np.concatenate(reads)
+        keys = np.concatenate([*reads, expanded]) if reads else expanded
         if ids is None:  # wait: safe for the committed steps, which is all it claims
+            wait = np.full(self.commit_steps + 1, self.cell_id(starts[a]), dtype=np.int64)
             return _Outcome(wait, keys, n, reused=False, failed=True, cells=self._cells_of(wait))
         return _Outcome(ids, keys, n, reused=False, failed=False, cells=self._cells_of(ids))
 
