@@ -20,7 +20,10 @@ Planning pass (prioritized): agents plan one after another in a space-time A* ov
 If some agent's search fails (it is cornered), the call is planned again with every agent's
 "wait where it stands" for the first ``commit_steps`` steps reserved up front and the failed
 agents first: then an agent whose search still fails can safely wait, so the committed prefix
-of every returned plan is conflict-free.
+of every returned plan is conflict-free. A repair pass (same order, hints and window) takes
+the pass before's result for every agent whose search read only reservation entries that
+cannot have changed (the compiled search reports the entries it read), so its cost grows with
+the neighbourhood of the failed agents, not with the crowd; the plans are the same.
 Costs: a move costs its length in cells, waiting costs 1 per step except at the goal (free).
 The heuristic is the exact distance on the static grid (backward Dijkstra per goal, cached).
 Plans are deterministic: fixed move order, tie-breaking on (f, h, cell), explicit orders.
