@@ -90,12 +90,16 @@ def test_released_reservation_equals_never_reserved(grid: NavGrid) -> None:
             ids.append(moves[int(rng.integers(len(moves)))])
         paths[k] = ids
     dense, plain = _DenseReservations(4, planner), _Reservations(4, planner)
+    grown = _DenseReservations(4, planner, agents=1)  # its agent columns grow as agents come
     for k, ids in paths.items():
         dense.add(k, ids, 4)
         plain.add(k, ids, 4)
+        grown.add(k, ids, 4)
     for k in (3, 7, 0):
         dense.remove(k, paths[k], 4)
         plain.remove(k, paths[k], 4)
+        grown.remove(k, paths[k], 4)
+    assert np.array_equal(grown.near, dense.near)
     fresh = _DenseReservations(4, planner)
     for k, ids in paths.items():
         if k not in (3, 7, 0):
@@ -138,3 +142,23 @@ def test_compiled_crowd_walks_the_same_trajectories(grid: NavGrid) -> None:
 def test_unknown_backend_is_a_typed_error(grid: NavGrid) -> None:
     with pytest.raises(PlanningError, match="backend"):
         PathPlanner(grid, backend="cuda")
+
+
+def test_repair_pass_reuses_unchanged_searches_exactly(grid: NavGrid) -> None:
+    # A repair pass given the pass before takes that pass's outcome for agents whose reads are
+    # unchanged; its result equals a repair pass that searches every agent again.
+    rng = np.random.default_rng(11)
+    cells = _free_cells(grid)
+    starts = dict(enumerate(_spaced(cells, 40, rng)))
+    planner = PathPlanner(grid, seed=0, max_expansions=60)  # a tight budget: a few searches fail
+    goals = planner.plan(starts, dict(enumerate(_spaced(cells, len(starts), rng)))).goals  # usable goals
+    order = list(starts)
+    allow = planner._all_allowed
+    first, record = planner._dense_pass(order, starts, goals, frozenset(), frozenset(), {}, allow)
+    assert first.failed
+    again, outcomes = planner._dense_pass(order, starts, goals, frozenset(), first.failed, {}, allow,
+                                          previous=(record, frozenset()))
+    fresh, _ = planner._dense_pass(order, starts, goals, frozenset(), first.failed, {}, allow)
+    _same(again, fresh)
+    kept = [a for a in order if outcomes[a] is record[a]]
+    assert 0 < len(kept) < len(order)  # some taken over, some searched again

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim.body.foot_clearance import _push_out_kernel
+from sim.body.foot_clearance import BoxGrid, _may_be_inside, _push_out_kernel
+from sim.body.foot_clearance import _depth as _box_depth
 from sim.body.foot_ik import (
     HIP_JOINTS,
     KNEE_JOINTS,
@@ -425,3 +426,25 @@ def test_compiled_apply_equals_the_array_steps(release_frames: int) -> None:
         locks += int(fast.locked.sum())
         pushed += int(_depth(forward_kinematics(rots, p)[0][0, list(FOOT_JOINTS), :2], box).max() > 0)
     assert locks > 20 and pushed > 3  # the scenario really pins feet and walks a foot into the box
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_box_grid_finds_every_box_a_point_is_in(seed: int) -> None:
+    # The grid filter of the push-out equals testing every box (rotated boxes, points on and
+    # around their edges, points outside the grid).
+    rng = np.random.default_rng(seed)
+    n = 40
+    ang = rng.uniform(-np.pi, np.pi, n)
+    rights = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    fp = Footprints(centers=rng.uniform(0, 12, (n, 2)), rights=rights, facings=np.stack([-rights[:, 1], rights[:, 0]], axis=1),
+                    halves=rng.uniform(0.05, 1.5, (n, 2)))
+    grid = BoxGrid.of(fp, cell=0.7)
+    pts = rng.uniform(-2, 14, (3000, 2, 2))
+    corner = fp.centers[:, None] + fp.rights[:, None] * fp.halves[:, :1, None] + fp.facings[:, None] * fp.halves[:, 1:, None]
+    pts[:n, 0] = corner[:, 0]  # exactly on a corner: not inside that box
+    got = _may_be_inside(pts, fp.centers, fp.rights, fp.facings, fp.halves, grid.origin, grid.cell, *grid.shape,
+                         grid.starts, grid.items)
+    want = np.array([any(_box_depth(x, y, fp.centers, fp.rights, fp.facings, fp.halves, b) > 0.0
+                         for x, y in pts[m] for b in range(n)) for m in range(len(pts))])
+    assert np.array_equal(got, want)
+    assert 0 < want.sum() < len(want)

@@ -6,7 +6,9 @@ and toe) out of every footprint at once: each pass tries, for every box the grou
 exits through its four sides and keeps the one that leaves the least summed depth inside all
 boxes, then the shortest (a chair's box under a table's is left through a side that clears
 both). The loop is a numba kernel; ``_push_out_kernel.py_func`` is the same code in Python
-(``tests/test_foot_ik.py`` checks they agree bit for bit).
+(``tests/test_foot_ik.py`` checks they agree bit for bit). A group that starts inside no box
+is not moved; ``BoxGrid`` finds, per point, the few boxes it may be inside, so a crowd's feet
+are not each tested against every box of a large scene (``_may_be_inside``).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from numpy.typing import NDArray
 
 from sim.scene.model import Scene
 
-__all__ = ["Footprints", "push_out"]
+__all__ = ["BoxGrid", "Footprints", "push_out"]
 
 
 @dataclass(frozen=True)
@@ -124,6 +126,65 @@ def _push_out_kernel(points: NDArray[np.float64], centers: NDArray[np.float64], 
         shift[m, 0] = sx
         shift[m, 1] = sy
     return shift
+
+
+@dataclass(frozen=True)
+class BoxGrid:
+    """A uniform grid over footprints: cell (i, j) lists (``items[starts[k]:starts[k + 1]]``,
+    k = i * ny + j) every box whose bounding circle (grown by ``SLACK``) overlaps it, so the
+    boxes a point may be inside are found without visiting every box of the scene."""
+
+    origin: NDArray[np.float64]  # (2,) xy of cell (0, 0)'s corner, metres
+    cell: float  # metres
+    shape: tuple[int, int]
+    starts: NDArray[np.int64]
+    items: NDArray[np.int64]
+
+    SLACK = 0.01  # metres added to a box's circumradius (rounding of its axes)
+
+    @classmethod
+    def of(cls, footprints: Footprints, cell: float = 1.0) -> BoxGrid:
+        c, h = footprints.centers, footprints.halves
+        if len(c) == 0:
+            return cls(np.zeros(2), cell, (0, 0), np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        r = np.hypot(h[:, 0], h[:, 1]) + cls.SLACK
+        lo, hi = (c - r[:, None]).min(axis=0), (c + r[:, None]).max(axis=0)
+        nx, ny = (int(v) + 1 for v in np.floor((hi - lo) / cell))
+        lists: list[list[int]] = [[] for _ in range(nx * ny)]
+        for b in range(len(c)):
+            i0, j0 = (int(v) for v in np.floor((c[b] - r[b] - lo) / cell))
+            i1, j1 = (int(v) for v in np.floor((c[b] + r[b] - lo) / cell))
+            for i in range(max(i0, 0), min(i1, nx - 1) + 1):
+                for j in range(max(j0, 0), min(j1, ny - 1) + 1):
+                    lists[i * ny + j].append(b)
+        starts = np.cumsum([0] + [len(x) for x in lists]).astype(np.int64)
+        items = np.array([b for x in lists for b in x], dtype=np.int64)
+        return cls(lo.astype(np.float64), float(cell), (nx, ny), starts, items)
+
+
+@njit(cache=True)
+def _may_be_inside(points: NDArray[np.float64], centers: NDArray[np.float64], rights: NDArray[np.float64],
+                   facings: NDArray[np.float64], halves: NDArray[np.float64], origin: NDArray[np.float64],
+                   cell: float, nx: int, ny: int, starts: NDArray[np.int64],
+                   items: NDArray[np.int64]) -> NDArray[np.bool_]:  # pragma: no cover - compiled
+    """Per group m of ``points`` (M, P, 2): whether some point is inside some box (depth > 0),
+    the test ``_push_out_kernel`` starts with, on the boxes of the point's grid cell only."""
+    out = np.zeros(points.shape[0], dtype=np.bool_)
+    for m in range(points.shape[0]):
+        for p in range(points.shape[1]):
+            x, y = points[m, p, 0], points[m, p, 1]
+            i = int(np.floor((x - origin[0]) / cell))
+            j = int(np.floor((y - origin[1]) / cell))
+            if i < 0 or j < 0 or i >= nx or j >= ny:
+                continue
+            k = i * ny + j
+            for q in range(starts[k], starts[k + 1]):
+                if _depth(x + 0.0, y + 0.0, centers, rights, facings, halves, items[q]) > 0.0:
+                    out[m] = True
+                    break
+            if out[m]:
+                break
+    return out
 
 
 def push_out(points: NDArray[np.float64], footprints: Footprints, passes: int = 4) -> NDArray[np.float64]:

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.foot_clearance import Footprints, push_out
+from sim.body.foot_clearance import BoxGrid, Footprints, push_out
 from sim.body.foot_kernel import apply_frame
 from sim.body.leg_ik import (
     HIP_JOINTS,
@@ -109,6 +109,7 @@ class FootSolver:
                 "need max_drift > 0, 0 < max_reach <= 1, release_frames >= 0 and passes >= 1, got "
                 f"{max_drift}, {max_reach}, {release_frames}, {passes}")
         self.footprints = footprints
+        self._grid = BoxGrid.of(footprints)
         self.max_drift = float(max_drift)
         self.max_reach = float(max_reach)
         self.release_frames = int(release_frames)
@@ -149,10 +150,11 @@ class FootSolver:
         if not (np.isfinite(pelvis).all() and np.isfinite(rots).all()):
             raise FootIKError("pelvis and rotations must be finite")
         act = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool).reshape(n)
-        fp = self.footprints
+        fp, g = self.footprints, self._grid
         out, locked, lock, offset, release, drifted = apply_frame(
             np.ascontiguousarray(pelvis), np.ascontiguousarray(rots), np.ascontiguousarray(contacts, dtype=bool),
             np.ascontiguousarray(act), state.locked, state.lock, state.offset, state.release, state.drifted,
             self.max_reach * (THIGH_LENGTH + SHIN_LENGTH), THIGH_LENGTH, SHIN_LENGTH, self.max_drift,
-            self.release_frames, fp.centers, fp.rights, fp.facings, fp.halves, self.passes)
+            self.release_frames, fp.centers, fp.rights, fp.facings, fp.halves, self.passes,
+            g.origin, g.cell, g.shape[0], g.shape[1], g.starts, g.items)
         return out, FootState(locked=locked, lock=lock, offset=offset, release=release, drifted=drifted)

@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from sim.body.foot_clearance import _push_out_kernel
+from sim.body.foot_clearance import _may_be_inside, _push_out_kernel
 from sim.body.leg_ik import (
     _ANKLE_OFF,
     _HIP_OFF,
@@ -44,10 +44,13 @@ def apply_frame(
     drifted: NDArray[np.bool_],
     full: NDArray[np.float64], thigh: NDArray[np.float64], shin: NDArray[np.float64], max_drift: float, release_frames: int,
     centers: NDArray[np.float64], rights: NDArray[np.float64], facings: NDArray[np.float64], halves: NDArray[np.float64], passes: int,
+    grid_origin: NDArray[np.float64], grid_cell: float, grid_nx: int, grid_ny: int, grid_starts: NDArray[np.int64],
+    grid_items: NDArray[np.int64],
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64], NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:  # pragma: no cover
     """(rotations, locked, lock, offset, release, drifted) after one frame; see
     ``apply_numpy`` in ``tests/support/foot_reference.py`` for the steps (the same, per character
-    and leg)."""
+    and leg). ``grid_*``: the footprints' ``BoxGrid``; only the feet it finds inside a box run
+    the push-out (the others it would leave in place)."""
     n = pelvis.shape[0]
     out = rots.copy()
     n_locked = np.zeros((n, 2), dtype=np.bool_)
@@ -126,7 +129,12 @@ def apply_frame(
                             pts[k, 0, j] = target[c, leg, j] - foot[c, leg, j]
                             pts[k, 1, j] = target[c, leg, j]
                         k += 1
-            shift = _push_out_kernel(pts, centers, rights, facings, halves, passes)
+            inside = _may_be_inside(pts, centers, rights, facings, halves, grid_origin, grid_cell, grid_nx, grid_ny,
+                                    grid_starts, grid_items)
+            shift = np.zeros((m_act, 2))
+            sel = np.flatnonzero(inside)
+            if sel.shape[0] > 0:
+                shift[sel] = _push_out_kernel(pts[sel], centers, rights, facings, halves, passes)
             k = 0
             for c in range(n):
                 if act[c]:

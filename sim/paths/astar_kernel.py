@@ -5,8 +5,11 @@ tables); these numba kernels only run its two hot loops on dense arrays:
 
 - ``reserve_step`` / ``reserve_path``: fold one agent's move during one step (or the moves
   of a whole path) into the reservation masks of the cells near it (the per-cell bit masks of
-  the moves that stay clear of it); ``release_step`` takes one agent's move out again;
-- ``space_time_search``: the space-time A* of one agent over ``window`` steps.
+  the moves that stay clear of it); ``release_step`` takes one agent's move out again,
+  ``release_path`` all its moves (from the per-step table of reserved moves, one column per
+  agent, that ``reserve_path`` fills);
+- ``space_time_search``: the space-time A* of one agent over ``window`` steps;
+- ``kept_path``: the check and greedy extension of a previous plan (``PathPlanner._kept_path``).
 
 Both take the same decisions as the pure-Python code (same float operations, the same heap
 order on ``(f, h, t, cell)`` tuples, the same tie-breaking), which
@@ -23,7 +26,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["release_step", "reserve_path", "reserve_step", "space_time_search"]
+__all__ = ["kept_path", "release_path", "release_step", "reserve_path", "reserve_step", "space_time_search"]
 
 _INF = np.inf
 
@@ -48,7 +51,8 @@ def release_step(near_t: NDArray[np.int64], cell: int, offsets: NDArray[np.int64
                  full: int) -> None:  # pragma: no cover
     """Undo one agent's reservation at ``cell`` during a step: the masks of the free cells
     around it are folded again from the agents still reserved in that step (``cells``,
-    ``vels``), so only the neighbourhood of the released agent is recomputed."""
+    ``vels``; a negative cell is an empty slot), so only the neighbourhood of the released
+    agent is recomputed."""
     side = 2 * reach + 1
     for k in range(offsets.shape[0]):
         c = cell - offsets[k]
@@ -57,6 +61,8 @@ def release_step(near_t: NDArray[np.int64], cell: int, offsets: NDArray[np.int64
         ci, cj = c // nyp, c % nyp
         val = full
         for b in range(cells.shape[0]):
+            if cells[b] < 0:
+                continue
             di = cells[b] // nyp - ci
             dj = cells[b] % nyp - cj
             if -reach <= di <= reach and -reach <= dj <= reach:
@@ -67,10 +73,11 @@ def release_step(near_t: NDArray[np.int64], cell: int, offsets: NDArray[np.int64
 @njit(cache=True, nogil=True)
 def reserve_path(near: NDArray[np.int64], ids: NDArray[np.int64], steps: int, nyp: int,
                  offsets: NDArray[np.int64], bases: NDArray[np.int64], mask_of: NDArray[np.int64],
-                 free: NDArray[np.bool_]) -> NDArray[np.int64]:  # pragma: no cover - compiled
-    """Fold the first ``steps`` moves of a path (padded ids) into ``near`` (one row per step);
-    returns the velocity code ``(dx + 2) * 5 + (dy + 2)`` of each move."""
-    vels = np.empty(steps, dtype=np.int64)
+                 free: NDArray[np.bool_], cells: NDArray[np.int64], vels: NDArray[np.int64],
+                 slot: int) -> None:  # pragma: no cover - compiled
+    """Fold the first ``steps`` moves of a path (padded ids) into ``near`` (one row per step)
+    and record each move in column ``slot`` of ``cells`` (the cell left) and ``vels`` (the
+    velocity code ``(dx + 2) * 5 + (dy + 2)``), both (steps, agents)."""
     for t in range(steps):
         a = ids[t]
         d = ids[t + 1] - a
@@ -79,9 +86,75 @@ def reserve_path(near: NDArray[np.int64], ids: NDArray[np.int64], steps: int, ny
             dx = int(np.round(d / nyp))
         dy = d - dx * nyp
         vel = (dx + 2) * 5 + (dy + 2)
-        vels[t] = vel
+        cells[t, slot] = a
+        vels[t, slot] = vel
         reserve_step(near[t], a, vel, offsets, bases, mask_of, free)
-    return vels
+
+
+@njit(cache=True, nogil=True)
+def release_path(near: NDArray[np.int64], steps: int, slot: int, cells: NDArray[np.int64],
+                 vels: NDArray[np.int64], offsets: NDArray[np.int64], free: NDArray[np.bool_],
+                 nyp: int, reach: int, mask_of: NDArray[np.int64], full: int) -> None:  # pragma: no cover
+    """Take the moves of column ``slot`` out of the first ``steps`` rows of ``near`` (steps
+    where the slot holds no move are left alone) and empty the column."""
+    for t in range(steps):
+        gone = cells[t, slot]
+        if gone < 0:
+            continue
+        cells[t, slot] = -1
+        release_step(near[t], gone, offsets, free, cells[t], vels[t], nyp, reach, mask_of, full)
+
+
+@njit(cache=True, nogil=True)
+def kept_path(hint: NDArray[np.int64], goal: int, window: int, h: NDArray[np.float64],
+              nb_id: NDArray[np.int64], nb_cost: NDArray[np.float64], nb_bit: NDArray[np.int64],
+              static_allow: NDArray[np.int64], near: NDArray[np.int64],
+              full: int) -> tuple[NDArray[np.int64], int, bool]:  # pragma: no cover - compiled
+    """``hint`` (padded ids from the start) checked step by step against the reservations
+    ``near`` and ``static_allow``, then extended to ``window`` steps, each extra step the
+    allowed move with the least (cost + h, h, cell id), waiting on ``goal`` free. Returns
+    ``(path, s, ok)``: ``ok`` when every step passed (then ``path`` holds the window + 1 ids,
+    the result of ``PathPlanner._kept_path``; else that is None), and the number of steps
+    ``s`` read: ``near`` is read at ``(t, path[t])`` for t < s only."""
+    n_steps = near.shape[0]
+    path = np.empty(window + 1, dtype=np.int64)
+    m = min(hint.shape[0], window + 1)
+    for t in range(m):
+        path[t] = hint[t]
+    for t in range(m - 1):
+        cid = path[t]
+        nid = path[t + 1]
+        allow = (near[t, cid] if t < n_steps else full) & static_allow[cid]
+        ok = False
+        for k in range(nb_id.shape[1]):
+            x = nb_id[cid, k]
+            if x < 0:
+                break
+            if x == nid and (allow & nb_bit[cid, k]) != 0:
+                ok = True
+                break
+        if not ok or h[nid] == _INF:
+            return path, t + 1, False
+    for t in range(m - 1, window):
+        cid = path[t]
+        allow = (near[t, cid] if t < n_steps else full) & static_allow[cid]
+        best_f = _INF
+        best_h = _INF
+        best_id = -1
+        for k in range(nb_id.shape[1]):
+            nid = nb_id[cid, k]
+            if nid < 0:
+                break
+            hn = h[nid]
+            if (allow & nb_bit[cid, k]) == 0 or hn == _INF:
+                continue
+            f = (0.0 if (cid == goal and nid == cid) else nb_cost[cid, k]) + hn
+            if best_id < 0 or f < best_f or (f == best_f and (hn < best_h or (hn == best_h and nid < best_id))):
+                best_f, best_h, best_id = f, hn, nid
+        if best_id < 0:
+            return path, t + 1, False
+        path[t + 1] = best_id
+    return path, window, True
 
 
 @njit(cache=True, nogil=True)
@@ -90,6 +163,7 @@ def space_time_search(
     nb_cost: NDArray[np.float64], nb_bit: NDArray[np.int64], static_allow: NDArray[np.int64],
     near: NDArray[np.int64], full: int, max_expansions: int,
     g_best: NDArray[np.float64], stamp: NDArray[np.int64], parent: NDArray[np.int64], token: int,
+    expanded: NDArray[np.int64],
 ) -> tuple[NDArray[np.int64], int]:  # pragma: no cover - compiled
     """Space-time A* from padded cell ``start`` for ``window`` steps.
 
@@ -98,7 +172,10 @@ def space_time_search(
     bit. ``static_allow`` (cells,): bit mask of the moves stationary bodies leave. ``near``
     (steps, cells): per step, the moves the reserved agents leave (steps beyond: all).
     ``g_best/stamp/parent``: scratch of size (window + 1) * cells, valid where
-    ``stamp == token`` (so nothing is cleared between searches).
+    ``stamp == token`` (so nothing is cleared between searches). ``expanded`` (>=
+    ``max_expansions``): filled with the key ``t * cells + cell`` of each expanded node in
+    order, the only entries of ``near`` the search reads (so a search whose expanded entries
+    are unchanged in another table returns the same result there).
     Returns (padded ids of the window + 1 cells, expansions), or (empty, expansions) when the
     budget runs out or no path exists. Waiting on the goal is free.
     """
@@ -128,6 +205,7 @@ def space_time_search(
         expansions += 1
         if expansions > max_expansions:
             return np.empty(0, dtype=np.int64), expansions
+        expanded[expansions - 1] = key
         allow = near[t, cid] if t < n_steps else full
         allow &= static_allow[cid]
         nt = t + 1

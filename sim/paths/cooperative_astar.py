@@ -20,7 +20,10 @@ Planning pass (prioritized): agents plan one after another in a space-time A* ov
 If some agent's search fails (it is cornered), the call is planned again with every agent's
 "wait where it stands" for the first ``commit_steps`` steps reserved up front and the failed
 agents first: then an agent whose search still fails can safely wait, so the committed prefix
-of every returned plan is conflict-free.
+of every returned plan is conflict-free. A repair pass (same order, hints and window) takes
+the pass before's result for every agent whose search read only reservation entries that
+cannot have changed (the compiled search reports the entries it read), so its cost grows with
+the neighbourhood of the failed agents, not with the crowd; the plans are the same.
 Costs: a move costs its length in cells, waiting costs 1 per step except at the goal (free).
 The heuristic is the exact distance on the static grid (backward Dijkstra per goal, cached).
 Plans are deterministic: fixed move order, tie-breaking on (f, h, cell), explicit orders.
@@ -39,7 +42,7 @@ from numpy.typing import NDArray
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from sim.paths.astar_kernel import release_step, reserve_path, space_time_search
+from sim.paths.astar_kernel import kept_path, release_path, reserve_path, space_time_search
 from sim.paths.fallback import failed_first
 from sim.paths.nav_grid import MOVES, NavGrid
 
@@ -47,6 +50,7 @@ Cell = tuple[int, int]
 Agent = Hashable
 
 _WAIT = (0, 0)
+_WAIT_BIT = 1 << 6  # the move bit of waiting (move code 0)
 _EPS = 1e-9
 Backend = Literal["numba", "python"]
 BACKENDS: tuple[Backend, ...] = get_args(Backend)
@@ -79,6 +83,21 @@ class PlanResult:
     reused: frozenset[Agent] = frozenset()
 
 
+@dataclass(frozen=True)
+class _Outcome:
+    """One agent's result in a dense pass: the padded ids it reserved (its path, or its wait),
+    the reservation entries (``t * cells + cell``) its kept-path check and search read, the
+    search's expansions, whether the path was a kept hint or the search failed, and the
+    path's first window + 1 cells (what ``PlanResult.paths`` holds)."""
+
+    ids: NDArray[np.int64]
+    reads: NDArray[np.int64]
+    expansions: int
+    reused: bool
+    failed: bool
+    cells: list[Cell]
+
+
 class _Reservations:
     """Per step t (relative to the plan start): for every cell id near a reserved agent, the
     moves those agents still allow there, so that a search looks up one int per expansion.
@@ -94,7 +113,7 @@ class _Reservations:
         self.moves: list[dict[Agent, tuple[int, int]]] = [{} for _ in range(n_steps)]
         self._planner = planner
 
-    def add(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+    def add(self, agent: Agent, ids: Sequence[int] | NDArray[np.int64], upto: int) -> None:
         nyp = self._planner._ny_p
         masks = self._planner._near_masks
         full = self._planner._full_mask
@@ -129,34 +148,45 @@ class _Reservations:
 
 class _DenseReservations:
     """The same reservations as ``_Reservations`` on a dense (steps, cells) mask array, folded
-    by the compiled ``reserve_path`` and ``release_step`` (the ``numba`` backend)."""
+    by the compiled ``reserve_path`` and ``release_path`` (the ``numba`` backend). The moves
+    are kept per step in one column per agent (``cells``: the cell left, -1 for none;
+    ``vels``: the velocity code), so that adding a path is one compiled call."""
 
-    def __init__(self, n_steps: int, planner: PathPlanner) -> None:
+    def __init__(self, n_steps: int, planner: PathPlanner, agents: int = 16) -> None:
         self._planner = planner
         self.near = np.full((n_steps, planner._nx_p * planner._ny_p), planner._full_mask, dtype=np.int64)
-        self.moves: list[dict[Agent, tuple[int, int]]] = [{} for _ in range(n_steps)]
+        self.cells = np.full((n_steps, max(1, agents)), -1, dtype=np.int64)
+        self.vels = np.zeros((n_steps, max(1, agents)), dtype=np.int64)
+        self._slots: dict[Agent, int] = {}
 
-    def add(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+    def _slot(self, agent: Agent) -> int:
+        slot = self._slots.get(agent)
+        if slot is None:
+            slot = self._slots[agent] = len(self._slots)
+            if slot >= self.cells.shape[1]:  # grow the columns (doubling)
+                grow = self.cells.shape[1]
+                self.cells = np.hstack([self.cells, np.full((len(self.near), grow), -1, dtype=np.int64)])
+                self.vels = np.hstack([self.vels, np.zeros((len(self.near), grow), dtype=np.int64)])
+        return slot
+
+    def add(self, agent: Agent, ids: Sequence[int] | NDArray[np.int64], upto: int) -> None:
         pl = self._planner
         steps = min(upto, len(ids) - 1, len(self.near))
         if steps <= 0:
             return
         arr = np.asarray(ids, dtype=np.int64)
-        vels = reserve_path(self.near, arr, steps, pl._ny_p, pl._nbhd_off, pl._nbhd_base, pl._mask_arr, pl._free_arr)
-        for t, a, vel in zip(range(steps), arr[:steps].tolist(), vels.tolist(), strict=True):
-            self.moves[t][agent] = (a, vel)
+        slot = self._slot(agent)  # first: it may grow (replace) the column arrays
+        reserve_path(self.near, arr, steps, pl._ny_p, pl._nbhd_off, pl._nbhd_base, pl._mask_arr, pl._free_arr,
+                     self.cells, self.vels, slot)
 
-    def remove(self, agent: Agent, ids: Sequence[int], upto: int) -> None:
+    def remove(self, agent: Agent, ids: Sequence[int] | NDArray[np.int64], upto: int) -> None:
+        slot = self._slots.get(agent)
+        steps = min(upto, len(ids) - 1, len(self.near))
+        if slot is None or steps <= 0:
+            return
         pl = self._planner
-        for t in range(min(upto, len(ids) - 1, len(self.near))):
-            moves = self.moves[t]
-            gone = moves.pop(agent, None)
-            if gone is None:
-                continue
-            cells = np.fromiter((m[0] for m in moves.values()), dtype=np.int64, count=len(moves))
-            vels = np.fromiter((m[1] for m in moves.values()), dtype=np.int64, count=len(moves))
-            release_step(self.near[t], gone[0], pl._nbhd_off, pl._free_arr, cells, vels, pl._ny_p, pl.reach - 1,
-                         pl._mask_arr, pl._full_mask)
+        release_path(self.near, steps, slot, self.cells, self.vels, pl._nbhd_off, pl._free_arr, pl._ny_p,
+                     pl.reach - 1, pl._mask_arr, pl._full_mask)
 
     def allow(self, t: int, cid: int) -> int:
         return int(self.near[t, cid]) if t < len(self.near) else self._planner._full_mask
@@ -214,8 +244,10 @@ class PathPlanner:
         self._build_clearance_table(d_cells)
         self._build_move_masks()
         self._build_dense_tables()
-        self._heuristics: dict[int, list[float]] = {}
+        self._heuristics: dict[int, list[float]] = {}  # list views of some of _h_arrays
         self._h_arrays: dict[int, NDArray[np.float64]] = {}
+        self._components: dict[int, tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]] = {}
+        self._h_capacity = max(513, (256 << 20) // (8 * self._nx_p * self._ny_p))
         self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
         self._graph = self._static_graph()
 
@@ -302,7 +334,10 @@ class PathPlanner:
         self._nbhd_base = np.array([base for _, base in self._nbhd_bases], dtype=np.int64)
         self._mask_arr = np.array(self._mask_of, dtype=np.int64)
         self._all_allowed = np.full(n, self._full_mask, dtype=np.int64)
+        self._cell_bits = np.bitwise_or.reduce(self._nb_bit, axis=1)  # the moves a cell has
+        self._removed_bits_memo: dict[tuple[bytes, bytes], tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
         self._scratch: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]] | None = None
+        self._expanded = np.zeros(max(1, self.max_expansions), dtype=np.int64)  # the search's expanded keys
         self._token = 0
 
     def _search_scratch(self, window: int) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
@@ -311,6 +346,39 @@ class PathPlanner:
             self._scratch = (np.zeros(size), np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64))
             self._token = 0
         return self._scratch
+
+    def _static_allow_of(
+        self, statics: Sequence[NDArray[np.float64]], segments: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]]
+    ) -> NDArray[np.int64]:
+        """``_static_allow(overrides)`` for the overrides ``_static_overrides(statics, segments)``
+        would build, folded directly from the memoised removed moves of each body (arrays)."""
+        segs = [(np.asarray(p, dtype=np.float64), np.asarray(q, dtype=np.float64)) for p, q in segments]
+        segs += [(np.asarray(p, dtype=np.float64), np.asarray(p, dtype=np.float64)) for p in statics]
+        if not segs:
+            return self._all_allowed
+        parts = [self._removed_bits(p, q) for p, q in segs]
+        cids = np.concatenate([c for c, _ in parts])
+        bits = np.concatenate([b for _, b in parts])
+        removed = np.zeros(len(self._all_allowed), dtype=np.int64)
+        np.bitwise_or.at(removed, cids, bits)
+        out = self._all_allowed.copy()
+        touched = np.unique(cids)
+        out[touched] = self._cell_bits[touched] & ~removed[touched]
+        return out
+
+    def _removed_bits(self, p: NDArray[np.float64], q: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """``_removed_moves(p, q)`` as (cell ids, bit mask of the removed moves per cell), memoised."""
+        key = (p.tobytes(), q.tobytes())
+        hit = self._removed_bits_memo.get(key)
+        if hit is None:
+            per = self._removed_moves(p, q)
+            cids = np.fromiter(per, dtype=np.int64, count=len(per))
+            bits = np.array([sum(1 << (self._nbrs[cid][k][4] + 6) for k in ks) for cid, ks in per.items()],
+                            dtype=np.int64).reshape(-1)
+            if len(self._removed_bits_memo) > 4096:
+                self._removed_bits_memo.clear()
+            hit = self._removed_bits_memo[key] = (cids, bits)
+        return hit
 
     def _static_allow(self, overrides: Mapping[int, list[_Move]]) -> NDArray[np.int64]:
         """Per padded cell, the bit mask of the moves left by ``overrides`` (all elsewhere)."""
@@ -351,32 +419,34 @@ class PathPlanner:
         """Exact static distances (cells) to ``goal`` indexed by padded cell id (inf: unreachable)."""
         gid = self.cell_id(goal)
         h = self._heuristics.get(gid)
-        if h is None:
+        if h is None:  # the list view (pure-Python code) of the cached array, made on first use
+            h = self._heuristic_array(goal).tolist()
+            self._heuristics[gid] = h
+        return h
+
+    def _heuristic_array(self, goal: Cell) -> NDArray[np.float64]:
+        """``heuristic(goal)`` as a float array (the compiled search's view), cached per goal.
+
+        The cache holds at least 512 goals and as many more as fit in about 256 MB (a crowd
+        of N walkers has up to N goals; a goal evicted while still in use costs a Dijkstra
+        over the grid per replan); the oldest goal goes first."""
+        gid = self.cell_id(goal)
+        arr = self._h_arrays.get(gid)
+        if arr is None:
             nx, ny = self.grid.shape
             d = dijkstra(self._graph, directed=True, indices=[goal[0] * ny + goal[1]])[0]
             full = np.full((self._nx_p, self._ny_p), np.inf)
             full[self._pad : self._pad + nx, self._pad : self._pad + ny] = d.reshape(nx, ny)
-            h = full.ravel().tolist()
-            if len(self._heuristics) > 512:
-                old = next(iter(self._heuristics))
-                self._heuristics.pop(old)
-                self._h_arrays.pop(old, None)
-            self._heuristics[gid] = h
-            self._h_arrays[gid] = full.ravel()
-        return h
-
-    def _heuristic_array(self, goal: Cell) -> NDArray[np.float64]:
-        """``heuristic(goal)`` as a float array (the compiled search's view)."""
-        gid = self.cell_id(goal)
-        arr = self._h_arrays.get(gid)
-        if arr is None or gid not in self._heuristics:
-            self.heuristic(goal)
-            arr = self._h_arrays[gid]
+            if len(self._h_arrays) >= self._h_capacity:
+                old = next(iter(self._h_arrays))
+                self._h_arrays.pop(old)
+                self._heuristics.pop(old, None)
+            arr = self._h_arrays[gid] = full.ravel()
         return arr
 
     def distance(self, start: Cell, goal: Cell) -> float:
         """Shortest static path length from ``start`` to ``goal`` in metres (inf: unreachable)."""
-        return self.heuristic(goal)[self.cell_id(start)] * self.grid.cell_size
+        return float(self._heuristic_array(goal)[self.cell_id(start)]) * self.grid.cell_size
 
     # ----- static obstacles ------------------------------------------------------------------------
     def _static_overrides(
@@ -490,10 +560,15 @@ class PathPlanner:
         else:
             missing = set(agents) - set(order)
             order = [a for a in order if a in starts] + [a for a in agents if a in missing]
-        kept = self._static_overrides([np.asarray(p, dtype=np.float64) for p in static_obstacles], static_segments)
-        used_goals = {a: self._usable_goal(starts[a], goals.get(a), kept) for a in agents}
-        overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in kept.items()}
-        static_allow = self._static_allow(overrides) if self.backend == "numba" else None  # once for all passes
+        statics = [np.asarray(p, dtype=np.float64) for p in static_obstacles]
+        overrides: dict[int, list[_Move]] = {}
+        if self.backend == "numba":  # the compiled passes read the moves left as one mask per cell
+            static_allow = self._static_allow_of(statics, static_segments)
+        else:
+            kept = self._static_overrides(statics, static_segments)
+            overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in kept.items()}
+            static_allow = self._static_allow(overrides)
+        used_goals = {a: self._usable_goal(starts[a], goals.get(a), static_allow) for a in agents}
         # Pass 1: plain WHCA*. An agent whose search fails was cornered by the first steps of
         # agents planned before it; its wait is then reserved for the committed steps and the
         # call planned again (lazy wait reservation: only agents that need it hold their
@@ -505,23 +580,23 @@ class PathPlanner:
             if a in starts and path and tuple(path[0]) == tuple(starts[a]) and tuple(goal) == tuple(used_goals[a]):
                 usable[a] = [self.cell_id(c) for c in path[: self.window + 1]]
         reserved: frozenset[Agent] = frozenset()
-        result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved,
-                            hints=usable, static_allow=static_allow)
+        result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable, static_allow)
         fallback = set(result.failed)
         expansions = result.expansions
         for _ in range(self.repair_passes):
             if result.failed <= reserved:
                 break
-            reserved = reserved | result.failed
-            result = self._pass(order, starts, used_goals, overrides, extended=frozenset(), reserve_waits=reserved,
-                                hints=usable, static_allow=static_allow)
+            # same order, hints and window as the pass before: agents whose search reads only
+            # reservations that did not change take that pass's result (``_dense_pass``)
+            before, reserved = reserved, reserved | result.failed
+            result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable,
+                                            static_allow, previous=(record, before))
             fallback |= result.failed
             expansions += result.expansions
         if not result.failed <= reserved:
             order2 = failed_first(order, result.failed) if self.fallback else list(order)
             ext = result.failed if self.fallback else frozenset()
-            result = self._pass(order2, starts, used_goals, overrides, extended=ext, reserve_waits=frozenset(order),
-                                static_allow=static_allow)
+            result, _ = self._run_pass(order2, starts, used_goals, overrides, ext, frozenset(order), {}, static_allow)
             expansions += result.expansions
         return PlanResult(
             paths=result.paths,
@@ -532,25 +607,51 @@ class PathPlanner:
             reused=result.reused,
         )
 
-    def _usable_goal(self, start: Cell, goal: Cell | None, overrides: Mapping[int, list[_Neighbour]]) -> Cell:
+    def _usable_goal(self, start: Cell, goal: Cell | None, static_allow: NDArray[np.int64]) -> Cell:
+        """``goal`` when it is reachable from ``start`` and a body may wait on it (``static_allow``:
+        the moves stationary bodies leave, per padded cell); else the nearest such cell."""
         if goal is None:
             return start
-        h = self.heuristic(goal) if self.grid.is_free(*goal) else None
-        gid = self.cell_id(goal) if h is not None else -1
-        waits_ok = gid in self._nbrs and any(nb[0] == gid for nb in overrides.get(gid, self._nbrs[gid]))
-        if h is not None and h[self.cell_id(start)] < math.inf and waits_ok:
-            return goal
+        if self.grid.is_free(*goal):
+            h = self._heuristic_array(goal)
+            if h[self.cell_id(start)] < math.inf and static_allow[self.cell_id(goal)] & _WAIT_BIT:
+                return goal
         # Nearest cell (to the requested goal) that is reachable from the start and not taken.
-        comp = self.grid.component[start]
-        cells = np.argwhere(self.grid.component == comp)
-        centers = self.grid.centers(cells)
-        target = self.grid.center_of(*goal)
-        for k in np.argsort(np.sum((centers - target) ** 2, axis=1), kind="stable"):
-            c = (int(cells[k][0]), int(cells[k][1]))
-            cid = self.cell_id(c)
-            if any(nb[0] == cid for nb in overrides.get(cid, self._nbrs[cid])):
-                return c
+        cells, centers, ids = self._component_cells(int(self.grid.component[start]))
+        order = np.argsort(np.sum((centers - self.grid.center_of(*goal)) ** 2, axis=1), kind="stable")
+        waits = np.flatnonzero(static_allow[ids[order]] & _WAIT_BIT)
+        if len(waits):
+            k = order[waits[0]]
+            return (int(cells[k, 0]), int(cells[k, 1]))
         return start
+
+    def _component_cells(self, comp: int) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
+        """The cells of grid component ``comp`` (row-major), their centres and padded ids (memoised)."""
+        hit = self._components.get(comp)
+        if hit is None:
+            cells = np.argwhere(self.grid.component == comp)
+            ids = (cells[:, 0] + self._pad) * self._ny_p + cells[:, 1] + self._pad
+            hit = self._components[comp] = (cells, self.grid.centers(cells), ids)
+        return hit
+
+    def _run_pass(
+        self,
+        order: Sequence[Agent],
+        starts: Mapping[Agent, Cell],
+        goals: Mapping[Agent, Cell],
+        overrides: Mapping[int, list[_Move]],
+        extended: frozenset[Agent],
+        reserve_waits: frozenset[Agent],
+        hints: Mapping[Agent, list[int]],
+        static_allow: NDArray[np.int64],
+        previous: tuple[dict[Agent, _Outcome], frozenset[Agent]] | None = None,
+    ) -> tuple[PlanResult, dict[Agent, _Outcome]]:
+        """One planning pass on this planner's backend; the dense pass also returns what each
+        agent's search read (for the next repair pass, see ``_dense_pass``)."""
+        if self.backend == "numba":
+            arrays = {a: np.asarray(h, dtype=np.int64) for a, h in hints.items()}
+            return self._dense_pass(order, starts, goals, extended, reserve_waits, arrays, static_allow, previous)
+        return self._pass(order, starts, goals, overrides, extended, reserve_waits, hints), {}
 
     def _pass(
         self,
@@ -561,13 +662,11 @@ class PathPlanner:
         extended: frozenset[Agent],
         reserve_waits: frozenset[Agent],
         hints: Mapping[Agent, list[int]] | None = None,
-        static_allow: NDArray[np.int64] | None = None,
     ) -> PlanResult:
+        """One prioritized pass (pure-Python backend): every agent in ``order`` keeps its hint or
+        searches against the reservations of those before it (and the reserved waits)."""
         w_max = self.window * (2 if extended else 1)
-        dense = self.backend == "numba"
-        res: _Reservations | _DenseReservations = _DenseReservations(w_max, self) if dense else _Reservations(w_max, self)
-        if dense and static_allow is None:
-            static_allow = self._static_allow(overrides)
+        res = _Reservations(w_max, self)
         waits = {a: [self.cell_id(starts[a])] * (self.commit_steps + 1) for a in order}
         for a in order:
             if a in reserve_waits:
@@ -585,20 +684,119 @@ class PathPlanner:
             if ids is not None:
                 reused.add(a)
             else:
-                if isinstance(res, _DenseReservations):
-                    assert static_allow is not None  # filled in above for the dense backend
-                    ids, n = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow)
-                else:
-                    ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
+                ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
                 total += n
             if ids is None:  # wait: safe for the committed steps, which is all it claims
                 failed.add(a)
                 ids = waits[a]
             res.add(a, ids, len(res.near))
-            keep = np.asarray(ids[: self.window + 1], dtype=np.int64)
-            paths[a] = list(zip((keep // self._ny_p - self._pad).tolist(), (keep % self._ny_p - self._pad).tolist(), strict=True))
+            paths[a] = self._cells_of(np.asarray(ids, dtype=np.int64))
         return PlanResult(paths=paths, failed=frozenset(failed), fallback=frozenset(), goals=dict(goals), expansions=total,
                           reused=frozenset(reused))
+
+    def _cells_of(self, ids: NDArray[np.int64]) -> list[Cell]:
+        """The cells of the first window + 1 padded ids."""
+        nyp, pad = self._ny_p, self._pad
+        return [(c // nyp - pad, c % nyp - pad) for c in ids[: self.window + 1].tolist()]
+
+    def _dense_pass(
+        self,
+        order: Sequence[Agent],
+        starts: Mapping[Agent, Cell],
+        goals: Mapping[Agent, Cell],
+        extended: frozenset[Agent],
+        reserve_waits: frozenset[Agent],
+        hints: Mapping[Agent, NDArray[np.int64]],
+        static_allow: NDArray[np.int64],
+        previous: tuple[dict[Agent, _Outcome], frozenset[Agent]] | None = None,
+    ) -> tuple[PlanResult, dict[Agent, _Outcome]]:
+        """``_pass`` on the compiled kernels (same result), recording each agent's outcome.
+
+        ``previous``: the outcomes of the pass before (same order, hints and window) and the
+        waits it reserved. A search (or kept-path check) is a function of the reservation
+        entries it reads, so an agent whose previous reads all fall outside the entries that
+        may differ between the two passes (``dirty``: near the newly reserved waits, and near
+        every move that an agent planned earlier in this pass made differently) gets its
+        previous outcome without searching. Conservative, hence exact: the same plans.
+        """
+        w_max = self.window * (2 if extended else 1)
+        stride = self._nx_p * self._ny_p
+        res = _DenseReservations(w_max, self, len(order))
+        cmt = self.commit_steps
+        waits = {a: np.full(cmt + 1, self.cell_id(starts[a]), dtype=np.int64) for a in order if a in reserve_waits}
+        for a, wait in waits.items():
+            res.add(a, wait, cmt)
+        dirty: NDArray[np.bool_] | None = None
+        before: dict[Agent, _Outcome] = {}
+        if previous is not None:
+            before = previous[0]
+            dirty = np.zeros(w_max * stride, dtype=np.bool_)
+            for a in reserve_waits ^ previous[1]:
+                self._mark(dirty, waits[a], cmt, stride)
+        outcomes: dict[Agent, _Outcome] = {}
+        paths: dict[Agent, list[Cell]] = {}
+        total = 0
+        for a in order:
+            if a in reserve_waits:
+                res.remove(a, waits[a], cmt)
+            old = before.get(a)
+            if old is not None and dirty is not None and not dirty[old.reads].any():
+                out = old
+            else:
+                out = self._dense_outcome(a, starts, goals, extended, hints, static_allow, res, stride)
+                if old is not None and dirty is not None:
+                    self._mark_changes(dirty, old.ids, out.ids, w_max, stride)
+            outcomes[a] = out
+            total += out.expansions
+            res.add(a, out.ids, w_max)
+            paths[a] = list(out.cells)
+        result = PlanResult(
+            paths=paths, failed=frozenset(a for a in order if outcomes[a].failed), fallback=frozenset(),
+            goals=dict(goals), expansions=total, reused=frozenset(a for a in order if outcomes[a].reused),
+        )
+        return result, outcomes
+
+    def _dense_outcome(
+        self, a: Agent, starts: Mapping[Agent, Cell], goals: Mapping[Agent, Cell], extended: frozenset[Agent],
+        hints: Mapping[Agent, NDArray[np.int64]], static_allow: NDArray[np.int64], res: _DenseReservations,
+        stride: int,
+    ) -> _Outcome:
+        """Agent ``a``'s kept hint or search against ``res``, and the reservation entries read."""
+        window = self.window * 2 if a in extended else self.window
+        hint = hints.get(a) if a not in extended else None
+        reads: list[NDArray[np.int64]] = []
+        if hint is not None and len(hint):
+            gid = self.cell_id(goals[a])
+            path, steps, ok = kept_path(hint, gid, window, self._heuristic_array(goals[a]),
+                                        self._nb_id, self._nb_cost, self._nb_bit, static_allow, res.near, self._full_mask)
+            reads.append(np.arange(steps, dtype=np.int64) * stride + path[:steps])
+            if ok:
+                return _Outcome(path, reads[0], 0, reused=True, failed=False, cells=self._cells_of(path))
+        ids, n, expanded = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow)
+        keys = np.concatenate([*reads, expanded]) if reads else expanded
+        if ids is None:  # wait: safe for the committed steps, which is all it claims
+            wait = np.full(self.commit_steps + 1, self.cell_id(starts[a]), dtype=np.int64)
+            return _Outcome(wait, keys, n, reused=False, failed=True, cells=self._cells_of(wait))
+        return _Outcome(ids, keys, n, reused=False, failed=False, cells=self._cells_of(ids))
+
+    def _mark(self, dirty: NDArray[np.bool_], ids: NDArray[np.int64], steps: int, stride: int) -> None:
+        """Flag the reservation entries that the first ``steps`` moves of ``ids`` touch."""
+        for t in range(min(steps, len(ids) - 1)):
+            dirty[t * stride + int(ids[t]) - self._nbhd_off] = True
+
+    def _mark_changes(self, dirty: NDArray[np.bool_], old: NDArray[np.int64], new: NDArray[np.int64], w_max: int,
+                      stride: int) -> None:
+        """Flag the entries touched by the moves (within ``w_max`` steps) that differ between
+        two reserved paths (both paths' cells: one reservation left, the other came)."""
+        n_old, n_new = min(w_max, len(old) - 1), min(w_max, len(new) - 1)
+        for t in range(max(n_old, n_new)):
+            same = t < n_old and t < n_new and old[t] == new[t] and old[t + 1] == new[t + 1]
+            if same:
+                continue
+            if t < n_old:
+                dirty[t * stride + int(old[t]) - self._nbhd_off] = True
+            if t < n_new:
+                dirty[t * stride + int(new[t]) - self._nbhd_off] = True
 
     def _kept_path(
         self, hint: list[int], goal: Cell, window: int, res: _Reservations | _DenseReservations,
@@ -641,16 +839,17 @@ class PathPlanner:
 
     def _search_compiled(
         self, start: int, goal: Cell, window: int, res: _DenseReservations, static_allow: NDArray[np.int64]
-    ) -> tuple[list[int] | None, int]:
-        """``_search`` run by the compiled kernel on the dense tables (same result)."""
+    ) -> tuple[NDArray[np.int64] | None, int, NDArray[np.int64]]:
+        """``_search`` run by the compiled kernel on the dense tables (same result); also the
+        reservation entries it read (the keys of the expanded nodes)."""
         h = self._heuristic_array(goal)
         g_best, stamp, parent = self._search_scratch(window)
         self._token += 1
         path, n = space_time_search(
             start, self.cell_id(goal), window, h, self._nb_id, self._nb_cost, self._nb_bit, static_allow,
-            res.near, self._full_mask, self.max_expansions, g_best, stamp, parent, self._token,
+            res.near, self._full_mask, self.max_expansions, g_best, stamp, parent, self._token, self._expanded,
         )
-        return (path.tolist() if len(path) else None), int(n)
+        return (path if len(path) else None), int(n), self._expanded[: min(int(n), self.max_expansions)].copy()
 
     def _search(
         self,

@@ -144,7 +144,6 @@ def assign(w: EventWorld, cmd: AssignEvent, out: StepReport) -> None:
     eid = cmd.event_id
     if eid in w.events and w.events[eid].status in ("ongoing", "looping"):
         raise WorldError(f"event {eid!r} is already running")
-    free = set(free_characters(w))
     goals: dict[str, StandTarget] = {}
     problems: list[tuple[str, FailureReason, str]] = []
     for a in cmd.assignments:
@@ -158,7 +157,7 @@ def assign(w: EventWorld, cmd: AssignEvent, out: StepReport) -> None:
         if a.seat is not None and a.seat not in w.scene.by_name:
             problems.append((a.character, "unknown_seat", f"no object called {a.seat!r} in the scene"))
             continue
-        if a.character not in free:
+        if not is_free(w, a.character):
             problems.append((a.character, "busy", f"{a.character} is busy with event "
                              f"{w.characters[a.character].event_id!r}"))
             continue
@@ -341,14 +340,14 @@ def start_groups(w: EventWorld, out: StepReport) -> None:
 
 def free_characters(w: EventWorld) -> tuple[str, ...]:
     """Characters the narrator may give a new event (see ``sim.world.phases.available``)."""
-    out = []
-    events = w.events
-    for name in w.names:
-        c = w.characters[name]
-        if c.event_id is None:  # no event: free (available(c, False))
-            out.append(name)
-            continue
-        ev = events.get(c.event_id)
-        if available(c, ev is not None and ev.status == "ongoing"):
-            out.append(name)
-    return tuple(out)
+    return tuple(name for name in w.names if is_free(w, name))
+
+
+def is_free(w: EventWorld, name: str) -> bool:
+    """Whether ``name`` is one of ``free_characters(w)`` (one character: O(1), so that accepting
+    an event does not visit the whole crowd)."""
+    c = w.characters[name]
+    if c.event_id is None:  # no event: free (available(c, False))
+        return True
+    ev = w.events.get(c.event_id)
+    return available(c, ev is not None and ev.status == "ongoing")
