@@ -11,6 +11,7 @@ import re
 import time
 from importlib.metadata import EntryPoint
 from pathlib import Path
+from typing import Any
 
 import pytest
 import typer
@@ -93,7 +94,7 @@ def spec(**changes: object) -> SweepSpec:
 
 def sweep(out: Path, calls: list[str] | None = None, **kw: object) -> list[str]:
     calls = [] if calls is None else calls
-    asyncio.run(run_sweep(spec(), out, factory=scripted(calls), **kw))  # type: ignore[arg-type]
+    asyncio.run(run_sweep(spec(), out, factory=scripted(calls), **kw))  # type: ignore[arg-type]  # the tests pass run_sweep's keywords through untyped
     return calls
 
 
@@ -153,7 +154,7 @@ def test_score_replays_the_traces_into_the_same_bytes(
         (out / name).write_text("stale", encoding="utf-8")
     replayed: list[str] = []
 
-    def counting_replay(model: ModelSpec, trace: Path):  # type: ignore[no-untyped-def]
+    def counting_replay(model: ModelSpec, trace: Path) -> Any:
         from orchestrator.llm.replay import ReplayClient
 
         replayed.append(trace.name)

@@ -437,7 +437,7 @@ def test_tool_argument_errors_show_a_bounded_value() -> None:
         lambda: ns["get_character"]("Mia").set_position([big]),
     ):
         with pytest.raises(ToolArgumentError) as info:
-            call()  # type: ignore[no-untyped-call]
+            call()  # type: ignore[no-untyped-call]  # namespace() hands out the API's functions untyped, as a program sees them
         assert len(info.value.feedback) < 300
 
 

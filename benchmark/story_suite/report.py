@@ -2,10 +2,20 @@
 
 from __future__ import annotations
 
+from typing import TypedDict
+
 from benchmark.story_suite.evaluate import ScenarioScore
 
 
-def totals(scores: list[ScenarioScore]) -> dict[str, object]:
+class Totals(TypedDict):
+    """Expectations met over the whole suite."""
+
+    met: int
+    total: int
+    share: float
+
+
+def totals(scores: list[ScenarioScore]) -> Totals:
     met, total = sum(s.met for s in scores), sum(s.total for s in scores)
     return {"met": met, "total": total, "share": round(met / total, 4) if total else 0.0}
 
@@ -16,7 +26,7 @@ def table(scores: list[ScenarioScore]) -> str:
     for s in scores:
         lines.append(f"{s.scenario:{width}s}  {s.met:>4d}/{s.total:<4d}  {s.share:5.2f}")
     t = totals(scores)
-    lines.append(f"{'total':{width}s}  {t['met']:>4d}/{t['total']:<4d}  {float(t['share']):5.2f}")  # type: ignore[arg-type]
+    lines.append(f"{'total':{width}s}  {t['met']:>4d}/{t['total']:<4d}  {t['share']:5.2f}")
     return "\n".join(lines)
 
 
@@ -24,7 +34,7 @@ def markdown_report(scores: list[ScenarioScore], meta: dict[str, object]) -> str
     t = totals(scores)
     out = ["# Story suite", ""]
     out += [f"- {k}: {v}" for k, v in meta.items()]
-    out += [f"- expectations met: {t['met']} / {t['total']} ({float(t['share']):.0%})", "",  # type: ignore[arg-type]
+    out += [f"- expectations met: {t['met']} / {t['total']} ({t['share']:.0%})", "",
             "| scenario | met / total | share |", "|---|---|---|"]  # fmt: skip
     out += [f"| {s.scenario} | {s.met} / {s.total} | {s.share:.2f} |" for s in scores]
     out += ["", "## Verdicts", ""]

@@ -11,16 +11,20 @@ from __future__ import annotations
 import io
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from benchmark.sweep.grid import METHOD_TITLES
 from benchmark.sweep.results import RunResult, write_atomic
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 _META = {"Software": None}  # no matplotlib version in the file
 
 
-def _png(fig: object) -> bytes:
+def _png(fig: Figure) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100, metadata=_META)  # type: ignore[attr-defined]
+    fig.savefig(buf, format="png", dpi=100, metadata=_META)
     return buf.getvalue()
 
 

@@ -22,6 +22,18 @@ from benchmark.sweep.results import RunResult, results_csv, write_atomic
 PLOTS = ("success_by_characters.png", "tokens_by_description.png")
 
 
+
+def _has_tag(tag: str) -> Callable[[RunResult], bool]:
+    return lambda r: tag in _tags(r)
+
+
+def _at_level(level: int) -> Callable[[RunResult], bool]:
+    return lambda r: r.level == level
+
+
+def _with_characters(n: int) -> Callable[[RunResult], bool]:
+    return lambda r: r.characters == n
+
 def cell(results: Sequence[RunResult]) -> str:
     """``success (execution)`` with two decimals, or ``-`` without runs."""
     if not results:
@@ -58,7 +70,7 @@ def case_set_section(name: str, results: Sequence[RunResult], feedback: int) -> 
     if plain:
         lines += ["### Success (execution) by tag", ""]
         cols: list[tuple[str, Callable[[RunResult], bool]]] = [("Total", lambda r: True)]
-        cols += [(t, lambda r, t=t: t in _tags(r)) for t in ("OA", "RC", "SS")]  # type: ignore[misc]
+        cols += [(t, _has_tag(t)) for t in ("OA", "RC", "SS")]
         lines += _table(["Model", "Method", *(c for c, _ in cols)], _rows_by(plain, cols))
     pi = [r for r in results if "PI" in _tags(r)]
     if pi:
@@ -73,11 +85,11 @@ def case_set_section(name: str, results: Sequence[RunResult], feedback: int) -> 
     levels = sorted({r.level for r in results})
     lines += ["### By distraction level", ""]
     lines += _table(["Model", "Method", *(f"level {lv}" for lv in levels)],
-                    _rows_by(results, [(str(lv), lambda r, lv=lv: r.level == lv) for lv in levels]))  # type: ignore[misc]
+                    _rows_by(results, [(str(lv), _at_level(lv)) for lv in levels]))
     counts = sorted({r.characters for r in results})
     lines += ["### By number of characters", ""]
     lines += _table(["Model", "Method", *(f"{n} char." for n in counts)],
-                    _rows_by(results, [(str(n), lambda r, n=n: r.characters == n) for n in counts]))  # type: ignore[misc]
+                    _rows_by(results, [(str(n), _with_characters(n)) for n in counts]))
     return lines
 
 
