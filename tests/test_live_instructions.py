@@ -210,6 +210,7 @@ def test_run_with_an_instruction_script_records_it_and_the_replay_reproduces_the
         live = CliRunner().invoke(app, [*RUN, "-i", "Zoe makes coffee", "--instructions", str(script),
                                         "--config", str(cfg), "--out", str(tmp_path / "live")], catch_exceptions=False)
         assert live.exit_code == 0, live.stderr
+    assert "[    8.0s] instruction (script): Max makes toast for Zoe" in live.stdout
     run_dir = tmp_path / "live"
     trace = read_trace(run_dir / "trace.jsonl")
     (rec,) = trace.instructions()

@@ -222,6 +222,9 @@ def _execute(
                 resume=resume,
                 interactive=interactive,
                 on_event=show,
+                on_instruction=lambda i, fps: typer.echo(
+                    f"[{i.frame / fps:7.1f}s] instruction ({i.source}): {plain(i.text)}"
+                ),
                 on_start=started,
                 on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
             )

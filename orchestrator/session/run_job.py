@@ -150,6 +150,7 @@ async def run_story(
     on_event: Callable[[StoryEvent, int], None] | None = None,
     on_start: Callable[[RunManifest], None] | None = None,
     on_resume: Callable[[int, int], None] | None = None,
+    on_instruction: Callable[[TimedInstruction, int], None] | None = None,
 ) -> tuple[SessionResult, list[str], int, Any]:
     """Run the story session; returns the result, the character names, the fps and the world.
 
@@ -162,7 +163,7 @@ async def run_story(
 
     ``on_resume(frame, fps)`` tells the frame a resumed session goes on from (0: no checkpoint was
     kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails.
-    ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay)."""
+    ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay)."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
@@ -265,6 +266,8 @@ async def run_story(
     def said_now(timed: TimedInstruction) -> None:
         if writer is not None:
             writer.record_instruction(timed.text, timed.frame, source=timed.source)
+        if on_instruction is not None:
+            on_instruction(timed, fps)
 
     def keep(cp: SessionCheckpoint) -> None:
         assert session is not None
