@@ -142,6 +142,25 @@ def test_a_resumed_session_keeps_the_instructions_already_applied(
     assert resumed.applied_frames == whole.applied_frames and resumed.outcomes == whole.outcomes
 
 
+def test_resume_schedules_the_recorded_instructions_and_the_script_lines_not_yet_applied(tmp_path: Path) -> None:
+    from orchestrator.session.run_job import instructions_from_trace, scheduled_instructions
+    from orchestrator.session.run_manifest import RunArguments
+
+    args = RunArguments(scene="home", names=("Ava", "Ben"), duration=60.0, instructions=(
+        ScriptLine(time_s=5.0, text="Ava sits"), ScriptLine(time_s=40.0, text="Ben waves")))
+    fresh = scheduled_instructions(args, FPS, replay=None, recorded=[])
+    assert [(i.frame, i.text, i.recorded) for i in fresh] == [(150, "Ava sits", False), (1200, "Ben waves", False)]
+    with TraceWriter(tmp_path / "trace.jsonl") as w:  # the run was killed after these two
+        w.record_instruction("Ava sits", 150, source="script")
+        w.record_instruction("Ben reads", 300, source="stdin")
+    said = instructions_from_trace(tmp_path / "trace.jsonl")
+    resumed = scheduled_instructions(args, FPS, replay=None, recorded=said)
+    assert [(i.frame, i.text, i.source, i.recorded) for i in resumed] == [
+        (150, "Ava sits", "script", True), (300, "Ben reads", "stdin", True), (1200, "Ben waves", "script", False)]
+    # a replay takes the trace's, not the script's
+    assert scheduled_instructions(args, FPS, replay=tmp_path / "trace.jsonl", recorded=[]) == said
+
+
 # ----- events planned under the old instruction -------------------------------------------
 def test_events_before_the_instruction_changed_mark_none_of_its_parts_done() -> None:
     names = ("Ava", "Ben")
