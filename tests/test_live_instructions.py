@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 from agents.instruction_parts import instruction_progress, part_states, split_instruction
 from agents.messages import HistoryEntry
 from orchestrator.cli.app import app
-from orchestrator.llm.traces import AttemptRecord, InstructionRecord, TraceWriter, read_trace
+from orchestrator.llm.traces import AttemptRecord, InstructionRecord, RunRecord, TraceWriter, read_trace
 from orchestrator.session.instruction_script import (
     InstructionScriptError,
     ScriptLine,
@@ -214,8 +214,10 @@ def test_a_bad_script_is_a_user_error_on_the_command_line(tmp_path: Path) -> Non
 def test_trace_instruction_records_round_trip(tmp_path: Path) -> None:
     with TraceWriter(tmp_path / "t.jsonl") as w:
         w.record_instruction("Ben waves", 150, source="script")
+    records = read_trace(tmp_path / "t.jsonl").records
+    assert [type(r) for r in records] == [RunRecord, InstructionRecord]
     (rec,) = read_trace(tmp_path / "t.jsonl").instructions()
-    assert isinstance(rec, InstructionRecord) and (rec.text, rec.sim_frame, rec.source) == ("Ben waves", 150, "script")
+    assert (rec.text, rec.sim_frame, rec.source) == ("Ben waves", 150, "script")
 
 
 # ----- the command line: script, trace, replay --------------------------------------------
