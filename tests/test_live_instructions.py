@@ -19,7 +19,13 @@ from typer.testing import CliRunner
 from agents.instruction_parts import instruction_progress, part_states, split_instruction
 from agents.messages import HistoryEntry
 from orchestrator.cli.app import app
-from orchestrator.llm.traces import AttemptRecord, InstructionRecord, RunRecord, TraceWriter, read_trace
+from orchestrator.llm.traces import (
+    AttemptRecord,
+    InstructionRecord,
+    RunRecord,
+    TraceWriter,
+    read_trace,
+)
 from orchestrator.session.instruction_script import (
     InstructionScriptError,
     ScriptLine,
