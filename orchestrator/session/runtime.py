@@ -358,7 +358,8 @@ class Session:
     async def instruct(self, text: str, source: InstructionSource = "api") -> int | None:
         """Make ``text`` the instruction from the next frame the simulation starts; returns
         that frame once it took effect (None: ignored, in a replay, or the story had ended).
-        Raises ValueError for an empty text."""
+        Called before :meth:`run`, it waits for the run's first frame. Raises ValueError for
+        an empty text."""
         event = anyio.Event()
         if not self._enqueue(text, source, event):
             return None
