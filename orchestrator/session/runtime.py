@@ -139,7 +139,8 @@ class SessionResult:
     applied_frames: list[int]
     failures: list[EventFailure] = field(default_factory=list)
     instructions: list[TimedInstruction] = field(default_factory=list)
-    """Every instruction that took effect after frame 0's, in order, with its frame."""
+    """Every instruction that took effect while the story ran (``SessionSettings.instruction``, the
+    one at the start, is not listed), in order, with its frame."""
     planner_error: BaseException | None = None
     wall_s: float = 0.0
     """Wall-clock seconds the simulation task ran (this process)."""
