@@ -17,7 +17,10 @@ LLM) still chooses and writes the event.
   actors (the first run of names in it) include one of its characters, earliest first on
   ties; an event sharing no word, or repeating an earlier event's activity, matches nothing.
   A matched part is ``ongoing`` while its event is, ``done`` once the event
-  completed or loops (its characters are free again).
+  completed or loops (its characters are free again). Only events from index ``since`` on
+  count: the instruction can change mid-story, and an event planned under an earlier one
+  ("Ben walks to the kitchen") must not mark a part of the new one ("Ben leaves the
+  kitchen") done because their words share stems.
 - ``next part``: the first unmatched part whose actors are all free (a part naming nobody
   needs any free character). The prompt names it on a line of its own. When parts are left
   but none is next (what is left waits for busy characters), the instruction has nothing for
@@ -119,12 +122,12 @@ def split_instruction(instruction: str, names: Sequence[str] = ()) -> list[Instr
 
 
 def part_states(
-    parts: Sequence[InstructionPart], history: Sequence[HistoryEntry], free: Iterable[str]
+    parts: Sequence[InstructionPart], history: Sequence[HistoryEntry], free: Iterable[str], since: int = 0
 ) -> list[PartState]:
     """How far the story has got with each part (see the module docstring)."""
     states: list[PartState] = [""] * len(parts)
     seen: set[str] = set()
-    for h in sorted(history, key=lambda e: e.index):
+    for h in sorted((h for h in history if h.index >= since), key=lambda e: e.index):
         said = " ".join(h.activity.lower().split())
         if said in seen:  # the same activity again covers no new part
             continue
@@ -158,12 +161,14 @@ class InstructionProgress:
 
 
 def instruction_progress(
-    instruction: str, names: Sequence[str] = (), history: Sequence[HistoryEntry] = (), free: Iterable[str] = ()
+    instruction: str, names: Sequence[str] = (), history: Sequence[HistoryEntry] = (), free: Iterable[str] = (),
+    *, since: int = 0,
 ) -> InstructionProgress:
+    """``since``: the index of the first event planned under ``instruction`` (earlier ones never match)."""
     parts = split_instruction(instruction, names)
     if not parts:
         return InstructionProgress("(none: continue the story naturally)", None, (), False)
-    states = part_states(parts, history, free)
+    states = part_states(parts, history, free, since)
     nxt = next((p for p, s in zip(parts, states, strict=True) if s == "next"), None)
     if len(parts) == 1:
         text = f"[{states[0]}] {parts[0].text}" if states[0] in ("done", "ongoing") else parts[0].text

@@ -49,6 +49,7 @@ class NarratorInput:
     characters: Sequence[CharacterStatus]
     instruction: str
     history: Sequence[HistoryEntry] = ()
+    instruction_since: int = 0  # events before this index were planned under an earlier instruction
     tags: tuple[str, ...] = BENCHMARK_TAGS
     seed: int | None = None
     sim_frame: int | None = None
@@ -72,16 +73,19 @@ class NarratorInput:
     @property
     def progress(self) -> InstructionProgress:
         """The instruction's parts and how far the story has got with them."""
-        return instruction_progress(self.instruction, [c.name for c in self.characters], self.history, self.free)
+        return instruction_progress(
+            self.instruction, [c.name for c in self.characters], self.history, self.free, since=self.instruction_since
+        )
 
 
 def waits_without_a_call(
-    characters: Sequence[CharacterStatus], instruction: str, history: Sequence[HistoryEntry]
+    characters: Sequence[CharacterStatus], instruction: str, history: Sequence[HistoryEntry], since: int = 0
 ) -> bool:
     """The narrator's step is a wait the model need not be asked about: nobody is free, or
     what is left of the instruction is for busy characters only (``agents.instruction_parts``)."""
     free = [c.name for c in characters if not c.busy]
-    return not free or instruction_progress(instruction, [c.name for c in characters], history, free).nothing_for_the_free
+    names = [c.name for c in characters]
+    return not free or instruction_progress(instruction, names, history, free, since=since).nothing_for_the_free
 
 
 def narrator_schema(free: Sequence[str]) -> dict[str, Any]:
@@ -203,7 +207,7 @@ async def narrate(
     ``agents.instruction_parts``), the answer is a wait, without an LLM call (attempts = 0).
     Raises :class:`~agents.retry_feedback.RetriesExhaustedError` when every reply is rejected.
     """
-    if waits_without_a_call(inp.characters, inp.instruction, inp.history):
+    if waits_without_a_call(inp.characters, inp.instruction, inp.history, inp.instruction_since):
         return Accepted(value=WAIT if not inp.free else WAIT_FOR_BUSY, attempts=0, reply="")
     return await ask_until_valid(
         port,

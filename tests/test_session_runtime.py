@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import random
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -271,10 +272,10 @@ async def _graph_session(
     story = StoryLog(tmp_path / "runs.sqlite", thread)
     deps = PlanningDeps(port=port, scene=scene, world=RosterWorld(), story=story,
                         action_labels=scene_action_labels(scene), seed=0)
-    planner = GraphStepPlanner(compile_planning_graph(InMemorySaver()), deps, thread, "Everyone reads.")
+    planner = GraphStepPlanner(compile_planning_graph(InMemorySaver()), deps, thread)
     world = _world(scene, motion, ["Ava", "Ben"])
     try:
-        return await Session(world, planner, settings, trace=trace).run()
+        return await Session(world, planner, replace(settings, instruction="Everyone reads."), trace=trace).run()
     finally:
         story.close()
 

@@ -16,6 +16,12 @@ imageio-ffmpeg is not installed); with ``--gif``, ``story.gif``.
 result at the frame recorded there: the same arguments reproduce the same events and the same
 motion, with no model loaded.
 
+Live instructions: the narrator always sees the latest instruction (a new one replaces the
+old). ``--instructions FILE`` is a timed script (``00:30 Ben leaves the kitchen``, simulated
+time; see ``orchestrator.session.instruction_script``); with ``--interactive`` (the default
+when stdin is a terminal) every line typed while the story runs becomes the instruction at
+the next frame. The trace records each one with its frame, and a replay applies it there.
+
 ``--planner unified|direct`` and ``--description object-list|scene-graph`` plan with the
 paper's ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``),
 driven by the same step planner.
@@ -44,6 +50,7 @@ from orchestrator.cli.options import (
 from orchestrator.cli.safe_text import plain
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
+    from orchestrator.session.instruction_script import ScriptLine
     from orchestrator.session.run_manifest import RunArguments, RunManifest
     from orchestrator.session.runtime import StoryEvent
 
@@ -65,6 +72,8 @@ def run_command(
     characters: Characters = 2,
     names: Annotated[str | None, typer.Option("--names", help="Character names, comma-separated (sets their number; overrides -n).")] = None,
     instruction: Instruction = "",
+    instructions: Annotated[Path | None, typer.Option("--instructions", help="Timed script of instructions: lines 'MM:SS text' in simulated time ('#' comments).")] = None,
+    interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction while the story runs (default: when stdin is a terminal).")] = None,
     duration: Annotated[float, typer.Option("--duration", "-d", min=1.0, help="Simulated seconds.")] = 60.0,
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("out"),
     pace: PaceOption = "lockstep",
@@ -106,11 +115,23 @@ def run_command(
             model_file(smplx_model, "neutral")
         except SmplxModelError as exc:
             fail(str(exc))
+    script: tuple[ScriptLine, ...] = ()
+    if instructions is not None:
+        from orchestrator.session.instruction_script import (
+            InstructionScriptError,
+            read_instruction_script,
+        )
+
+        try:
+            script = read_instruction_script(instructions)
+        except InstructionScriptError as exc:
+            fail(str(exc))
     scene_path = Path(scene)
     args = RunArguments(
         scene=absolute(scene_path) or scene if scene_path.is_file() else scene,
         names=cast,
         instruction=instruction,
+        instructions=script,
         duration=duration,
         pace=pace,
         speed=speed,
@@ -130,11 +151,18 @@ def run_command(
     if trace_path is not None and replay is not None and trace_path.resolve() == replay.resolve():
         fail("--record must name a different file than --replay")
     _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False,
-             smplx_model=smplx_model)
+             interactive=_interactive(interactive) and replay is None, smplx_model=smplx_model)
+
+
+def _interactive(flag: bool | None) -> bool:
+    import sys
+
+    return flag if flag is not None else sys.stdin.isatty()
 
 
 def resume_command(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `storyteller run` (holds run.json).")],
+    interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction (default: when stdin is a terminal).")] = None,
 ) -> None:
     """Go on with a run that was stopped (even by kill -9) from its last checkpoint."""
     from orchestrator.session.run_manifest import ManifestError, read_manifest
@@ -144,7 +172,7 @@ def resume_command(
     except ManifestError as exc:
         fail(str(exc))
     _execute(manifest.arguments, out=run_dir, trace_path=run_dir / "trace.jsonl", replay=None,
-             thread_id=manifest.thread_id, resume=True)
+             thread_id=manifest.thread_id, resume=True, interactive=_interactive(interactive))
 
 
 def replay_command(
@@ -169,6 +197,7 @@ def replay_command(
 def _execute(
     args: RunArguments, *, out: Path, trace_path: Path | None, replay: Path | None, thread_id: str | None, resume: bool,
     smplx_model: Path | None = None,
+    interactive: bool = False,
 ) -> None:
     import asyncio
 
@@ -200,7 +229,11 @@ def _execute(
                 replay=replay,
                 thread_id=thread_id,
                 resume=resume,
+                interactive=interactive,
                 on_event=show,
+                on_instruction=lambda i, fps: typer.echo(
+                    f"[{i.frame / fps:7.1f}s] instruction ({i.source}): {plain(i.text)}"
+                ),
                 on_start=started,
                 on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
             )

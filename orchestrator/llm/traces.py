@@ -10,7 +10,10 @@ One line per record. Record kinds (``kind`` discriminator):
   error that rejected it (``error_type``, ``error_message`` = the feedback sent back);
 - ``applied``: the simulation frame at which one planning step's outcome took effect, with
   ``ref_seqs`` = the seqs of the attempts that produced it (the final attempt of every
-  narrator and event-parser call of that step; all attempts of a call that failed outright).
+  narrator and event-parser call of that step; all attempts of a call that failed outright);
+- ``instruction``: a new instruction (``text``, from ``source``: a timed script, the Python
+  API, stdin, ...) and the simulation frame it took effect at (before that frame's step);
+  a replay applies the recorded ones at the same frames and ignores live sources.
 
 Simulation frames: an attempt's ``request.sim_frame`` is the frame of the world snapshot the
 request was built from (metadata: it is not part of ``request_hash``, so a replay matches
@@ -120,8 +123,17 @@ class AppliedRecord(_Record):
         return data
 
 
+class InstructionRecord(_Record):
+    """A new instruction (it replaces the one before) and the frame it took effect at."""
+
+    kind: Literal["instruction"] = "instruction"
+    text: str = Field(min_length=1)
+    source: str = Field(description="Where it came from: script, api, stdin, replay, ...")
+    sim_frame: int = Field(ge=0, description="Simulation frame it took effect at (before that frame's step).")
+
+
 TraceRecord = Annotated[
-    RunRecord | AttemptRecord | ParsedRecord | AppliedRecord, Field(discriminator="kind")
+    RunRecord | AttemptRecord | ParsedRecord | AppliedRecord | InstructionRecord, Field(discriminator="kind")
 ]
 _RECORD_ADAPTER: TypeAdapter[TraceRecord] = TypeAdapter(TraceRecord)
 
@@ -159,6 +171,10 @@ class TraceContents:
             if isinstance(r, ParsedRecord):
                 out.setdefault(r.ref_seq, []).append(r)
         return out
+
+    def instructions(self) -> list[InstructionRecord]:
+        """The instructions that took effect, in the order they did."""
+        return [r for r in self.records if isinstance(r, InstructionRecord)]
 
     def applied_frame_by_seq(self) -> dict[int, int]:
         """Attempt seq -> the frame at which the outcome it contributed to was applied."""
@@ -204,6 +220,10 @@ class TraceSink(TraceRecorder, Protocol):
 
     def write(self, record: TraceRecord) -> None: ...
 
+    def record_instruction(self, text: str, sim_frame: int, *, source: str) -> None:
+        """A new instruction took effect at ``sim_frame``."""
+        ...
+
     def close(self) -> None:
         """Flush and close the destination (nothing to do for a sink that stores nothing). Safe to call twice."""
         ...
@@ -235,6 +255,9 @@ class NullTraceSink:
         self, ref_seqs: Sequence[int], sim_frame: int, *, step: int | None = None,
         requested_frame: int | None = None,
     ) -> None:
+        return None
+
+    def record_instruction(self, text: str, sim_frame: int, *, source: str) -> None:
         return None
 
     def close(self) -> None:
@@ -303,6 +326,11 @@ class TraceWriter:
         self.write(AppliedRecord(run_id=self.run_id, seq=self.next_seq(), time_unix=time.time(),
                                  ref_seqs=tuple(ref_seqs), step=step, requested_frame=requested_frame,
                                  sim_frame=sim_frame))
+
+    def record_instruction(self, text: str, sim_frame: int, *, source: str) -> None:
+        """A new instruction took effect at ``sim_frame``."""
+        self.write(InstructionRecord(run_id=self.run_id, seq=self.next_seq(), time_unix=time.time(),
+                                     text=text, source=source, sim_frame=sim_frame))
 
     def close(self) -> None:
         with self._lock:

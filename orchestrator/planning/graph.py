@@ -131,6 +131,7 @@ def narrator_input(state: PlanningState, deps: PlanningDeps) -> NarratorInput:
         scene_description=state.description.text,
         characters=state.roster,
         instruction=state.instruction,
+        instruction_since=state.instruction_since,
         history=state.recent,
         tags=deps.tags,
         seed=deps.seed,
@@ -360,7 +361,7 @@ def route_step(state: PlanningState) -> Literal["narrate_event", "record_outcome
     for the free ones now (``agents.instruction_parts``), the step is a wait, without a call."""
     if state.step >= state.events_target:
         return "__end__"  # langgraph's END, spelled as the literal the router's type names
-    if waits_without_a_call(state.roster, state.instruction, state.recent):
+    if waits_without_a_call(state.roster, state.instruction, state.recent, state.instruction_since):
         return "record_outcome"
     return "narrate_event"
 

@@ -55,6 +55,10 @@ class PlanningState(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     instruction: str = ""
+    instruction_since: int = Field(
+        default=0, ge=0, description="First step planned under the instruction (it can change mid-story): "
+        "earlier events never count as its parts done.",
+    )
     events_target: int = Field(default=1, ge=0, description="Planning steps to run (K).")
     step: int = Field(default=0, ge=0, description="Steps finished so far (events, waits or failures).")
     description: SceneDescription | None = None

@@ -6,7 +6,9 @@ K graph steps without a simulation; the planning benchmark runs it too), the ``r
 anyio task group) and the step planner that drives the planning graph from a running
 simulation; the run folder's ``run.json`` (:mod:`~orchestrator.session.run_manifest`),
 ``story.md`` / ``metrics.json`` (:mod:`~orchestrator.session.run_report`) and the session's
-checkpoint file (:mod:`~orchestrator.session.snapshot_file`).
+checkpoint file (:mod:`~orchestrator.session.snapshot_file`); live instructions: the timed
+script of ``--instructions FILE`` (:mod:`~orchestrator.session.instruction_script`) and the
+stdin reader of ``--interactive`` (:mod:`~orchestrator.session.stdin_instructions`).
 
 May import ``orchestrator.llm``, ``orchestrator.planning``, ``agents``, ``tools`` and ``sim``;
 never ``orchestrator.cli`` (the commands call into here, not the other way round).

@@ -16,6 +16,12 @@ frames (and not traced twice), and the planner answers finished steps from the s
 finishes a cut step from its langgraph checkpoint, so no event is lost or duplicated and no
 call whose node was checkpointed is repeated.
 
+Instructions: the timed script (``RunArguments.instructions``) is scheduled at its frames,
+lines typed on stdin (``interactive``) take effect at the next frame, and every one is
+written to the trace as an ``instruction`` record with its frame. A replay schedules the
+trace's instruction records at their frames and ignores the script and stdin; a resume
+applies the recorded ones again (not traced twice) and the script lines not yet applied.
+
 Problems with the user's inputs (an unreadable trace or motion config, a model that cannot be
 opened, a session that cannot go on) are raised as :class:`RunSetupError`, one sentence each.
 """
@@ -31,7 +37,7 @@ from typing import Any
 from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.session.run_manifest import RunArguments, RunManifest
-from orchestrator.session.runtime import SessionResult, StoryEvent
+from orchestrator.session.runtime import SessionResult, StoryEvent, TimedInstruction
 from sim.scene.model import Scene
 
 CHECKPOINT_EVERY_S = 10.0
@@ -47,6 +53,32 @@ def applied_frames_from_trace(path: Path) -> list[int]:
     from orchestrator.llm.traces import AppliedRecord, read_trace
 
     return [r.sim_frame for r in read_trace(path).records if isinstance(r, AppliedRecord)]
+
+
+def instructions_from_trace(path: Path) -> list[TimedInstruction]:
+    """The instructions a recorded run applied, with their frames and sources, in order."""
+    from orchestrator.llm.traces import read_trace
+
+    out = []
+    for r in read_trace(path).instructions():
+        source = r.source if r.source in ("initial", "script", "api", "stdin", "replay") else "replay"
+        out.append(TimedInstruction.model_validate({"frame": r.sim_frame, "text": r.text, "source": source}))
+    return out
+
+
+def scheduled_instructions(
+    args: RunArguments, fps: int, *, replay: Path | None, recorded: list[TimedInstruction]
+) -> list[TimedInstruction]:
+    """What the session schedules: a replay's recorded instructions; otherwise the script's
+    lines at their frames, and on resume (``recorded``: the trace's instruction records so
+    far) the recorded ones again, marked so they are not traced twice, in place of the
+    script lines they applied."""
+    if replay is not None:
+        return instructions_from_trace(replay)
+    applied_script = sum(1 for i in recorded if i.source == "script")
+    script = [TimedInstruction(frame=round(line.time_s * fps), text=line.text, source="script")
+              for line in args.instructions]
+    return [*(i.model_copy(update={"recorded": True}) for i in recorded), *script[applied_script:]]
 
 
 def story_json(result: SessionResult, scene_name: str, names: list[str], instruction: str, fps: int) -> dict[str, Any]:
@@ -94,6 +126,10 @@ def story_json(result: SessionResult, scene_name: str, names: list[str], instruc
         "scene": scene_name,
         "characters": names,
         "instruction": instruction,
+        "instructions": [
+            {"frame": i.frame, "time_s": round(i.frame / fps, 3), "source": i.source, "text": i.text}
+            for i in result.instructions
+        ],
         "fps": fps,
         "frames": result.frames,
         "steps": steps,
@@ -110,9 +146,11 @@ async def run_story(
     replay: Path | None,
     thread_id: str | None = None,
     resume: bool = False,
+    interactive: bool = False,
     on_event: Callable[[StoryEvent, int], None] | None = None,
     on_start: Callable[[RunManifest], None] | None = None,
     on_resume: Callable[[int, int], None] | None = None,
+    on_instruction: Callable[[TimedInstruction, int], None] | None = None,
 ) -> tuple[SessionResult, list[str], int, Any]:
     """Run the story session; returns the result, the character names, the fps and the world.
 
@@ -124,11 +162,12 @@ async def run_story(
     recorded frames again, and the planner answers finished steps from its story log.
 
     ``on_resume(frame, fps)`` tells the frame a resumed session goes on from (0: no checkpoint was
-    kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails."""
+    kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails.
+    ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay)."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
-    from orchestrator.llm.traces import TraceCorruptError
+    from orchestrator.llm.traces import TraceCorruptError, TraceWriter
     from orchestrator.planning.ablation_graph import compile_graph
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
@@ -155,7 +194,9 @@ async def run_story(
     motion_config = Path(args.motion_config) if args.motion_config is not None else None
     try:
         applied = applied_frames_from_trace(replay) if replay is not None else None
-        recorded = recorded_frames(trace_path) if resume and trace_path is not None and trace_path.is_file() else {}
+        resumed_trace = resume and trace_path is not None and trace_path.is_file()
+        recorded = recorded_frames(trace_path) if resumed_trace and trace_path is not None else {}
+        said = instructions_from_trace(trace_path) if resumed_trace and trace_path is not None else []
     except (TraceCorruptError, OSError) as exc:
         raise RunSetupError(str(exc)) from None
     try:
@@ -164,6 +205,11 @@ async def run_story(
         raise RunSetupError(str(exc)) from None
     world_config = WorldConfig(seed=args.seed, foot_ik=args.foot_ik)
     fps = world_config.fps
+    try:
+        scheduled = scheduled_instructions(args, fps, replay=replay, recorded=said)
+    except (TraceCorruptError, OSError) as exc:
+        port.close()
+        raise RunSetupError(str(exc)) from None
     try:
         positions = start_positions(scene, len(names), args.seed)
     except StartPositionError as exc:
@@ -210,8 +256,18 @@ async def run_story(
         applied_frames=applied,
         recorded_frames=recorded,
         checkpoint_every_s=CHECKPOINT_EVERY_S,
+        instruction=args.instruction,
+        instructions=scheduled,
+        live_instructions=replay is None,
     )
     session: Session | None = None
+    writer = port.trace if isinstance(port.trace, TraceWriter) else None
+
+    def said_now(timed: TimedInstruction) -> None:
+        if writer is not None:
+            writer.record_instruction(timed.text, timed.frame, source=timed.source)
+        if on_instruction is not None:
+            on_instruction(timed, fps)
 
     def keep(cp: SessionCheckpoint) -> None:
         assert session is not None
@@ -220,13 +276,18 @@ async def run_story(
     try:
         async with open_checkpointer(runs_db) as saver:
             graph = compile_graph(ablation, saver)
-            planner = GraphStepPlanner(graph, deps, thread, args.instruction)
+            planner = GraphStepPlanner(graph, deps, thread)
             shown = None if on_event is None else (lambda e: on_event(e, fps))
-            session = Session(world, planner, settings, trace=port.trace, on_event=shown, on_checkpoint=keep)
+            session = Session(world, planner, settings, trace=port.trace, on_event=shown, on_checkpoint=keep,
+                              on_instruction=said_now)
             if checkpoint is not None:
                 session.resume(checkpoint)
             if resume and on_resume is not None:
                 on_resume(session.world.frame, fps)
+            if interactive and replay is None:
+                from orchestrator.session.stdin_instructions import start_stdin_reader
+
+                start_stdin_reader(session)
             result = await session.run()
     except (LLMError, SessionError) as exc:
         raise RunSetupError(f"{type(exc).__name__}: {exc}") from None

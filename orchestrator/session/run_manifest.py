@@ -17,6 +17,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from orchestrator.planning.kinds import DescriptionKind, PlannerKind
+from orchestrator.session.instruction_script import ScriptLine
 from orchestrator.session.pace import Pace
 
 MANIFEST_FILE = "run.json"
@@ -35,6 +36,9 @@ class RunArguments(BaseModel):
     scene: str = Field(description="Bundled scene name or absolute path to a scene file.")
     names: tuple[str, ...] = Field(min_length=1, description="Character names, in order.")
     instruction: str = ""
+    instructions: tuple[ScriptLine, ...] = Field(
+        default=(), description="The timed script of ``--instructions FILE``, as read when the run started."
+    )
     duration: float = Field(gt=0, description="Simulated seconds.")
     pace: Pace = "lockstep"
     speed: float = Field(default=1.0, gt=0, description="Simulated seconds per wall second (realtime).")

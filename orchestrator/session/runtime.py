@@ -23,6 +23,17 @@ Checkpoints: with ``checkpoint_every_s`` set, ``on_checkpoint`` gets a
 often; ``Session.resume(checkpoint)`` on a world built from the same inputs goes on from it
 (the step in flight then is asked again), and ends as the uninterrupted session would in
 ``lockstep`` pace or with ``recorded_frames`` for the steps applied after the checkpoint.
+
+Instructions: the narrator always sees the latest one (a new instruction replaces the old).
+A new instruction takes effect at the start of a frame, before the world steps: scheduled
+ones (``SessionSettings.instructions``: a timed script, or a replay's recorded ones) at their
+frame, live ones (:meth:`Session.instruct`, :meth:`Session.instruct_nowait`, e.g. from stdin)
+at the first frame the simulation starts after they arrive. Every request made after that
+frame carries it, with ``instruction_since`` = its own step index, so events planned under an
+earlier instruction never count as parts of this one done (``agents.instruction_parts``).
+Each one is reported to ``on_instruction`` (the run job records it in the trace with its
+frame); a replay passes the recorded ones as scheduled and ignores live ones, so they take
+effect at the same frames again.
 """
 
 from __future__ import annotations
@@ -30,9 +41,10 @@ from __future__ import annotations
 import math
 import time
 from array import array
+from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Literal, Protocol
 
 import anyio
 import structlog
@@ -67,6 +79,26 @@ class PlanningRequest(BaseModel):
     )
     objects_in_use: dict[str, str] = Field(
         default_factory=dict, description="Seat object -> character who sits or is about to sit on it."
+    )
+    instruction: str = Field(default="", description="The latest instruction as of ``frame``.")
+    instruction_since: int = Field(
+        default=0, ge=0, description="First step planned under it: earlier events are not matched to its parts."
+    )
+
+
+InstructionSource = Literal["initial", "script", "api", "stdin", "replay"]
+
+
+class TimedInstruction(BaseModel):
+    """An instruction and the frame at which it takes (or took) effect."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    frame: int = Field(ge=0, description="Simulation frame it takes effect at (before that frame's step).")
+    text: str = Field(min_length=1)
+    source: InstructionSource = "script"
+    recorded: bool = Field(
+        default=False, description="Resume only: already in the trace; applied again, not reported again."
     )
 
 
@@ -106,6 +138,9 @@ class SessionResult:
     outcomes: list[tuple[int, Outcome]]
     applied_frames: list[int]
     failures: list[EventFailure] = field(default_factory=list)
+    instructions: list[TimedInstruction] = field(default_factory=list)
+    """Every instruction that took effect while the story ran (``SessionSettings.instruction``, the
+    one at the start, is not listed), in order, with its frame."""
     planner_error: BaseException | None = None
     wall_s: float = 0.0
     """Wall-clock seconds the simulation task ran (this process)."""
@@ -137,6 +172,12 @@ class SessionSettings:
     checkpoint_every_s: float | None = None
     """Call ``on_checkpoint`` after every applied outcome and at least this often (simulated
     seconds); None: never."""
+    instruction: str = ""
+    """The instruction at frame 0."""
+    instructions: Sequence[TimedInstruction] = ()
+    """Instructions that take effect at their frames (a timed script, or a replay's recorded ones)."""
+    live_instructions: bool = True
+    """Accept :meth:`Session.instruct` (False in a replay: only the recorded ones count)."""
 
 
 @dataclass
@@ -157,6 +198,9 @@ class SessionCheckpoint:
     changes: int
     asked: tuple[tuple[str, ...], int] | None
     unchanged_until: int | None
+    instruction: str = ""
+    instruction_since: int = 0
+    instructions: list[TimedInstruction] = field(default_factory=list)
 
 
 def world_roster(world: World, events: dict[str, StoryEvent]) -> tuple[CharacterStatus, ...]:
@@ -227,6 +271,7 @@ class Session:
         on_event: Callable[[StoryEvent], None] | None = None,
         on_outcome: Callable[[int, Outcome, int], None] | None = None,
         on_checkpoint: Callable[[SessionCheckpoint], None] | None = None,
+        on_instruction: Callable[[TimedInstruction], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if settings.pace not in ("lockstep", "realtime", "fast"):
@@ -240,6 +285,7 @@ class Session:
         self.on_event = on_event
         self.on_outcome = on_outcome
         self.on_checkpoint = on_checkpoint
+        self.on_instruction = on_instruction
         self.clock = clock
         self.events: dict[str, StoryEvent] = {}
         self.outcomes: list[tuple[int, Outcome]] = []
@@ -254,6 +300,13 @@ class Session:
         self._asked: tuple[tuple[str, ...], int] | None = None  # (free, changes) at the last request
         self._unchanged_until: int | None = None  # after a wait: no new request before this frame
         # unless the free characters or an event's state changed since the request
+        self.instruction = settings.instruction
+        self._instruction_since = 0
+        self.instructions: list[TimedInstruction] = []  # taken effect, in order
+        self._scheduled = sorted(settings.instructions, key=lambda i: i.frame)  # stable: file order on ties
+        self._live: deque[tuple[str, InstructionSource, anyio.Event | None]] = deque()  # thread-safe appends
+        self._taken: dict[int, int] = {}  # id(event) of a waiting instruct() -> frame it took effect at
+        self._ended = False
         self.frame_intervals: array[float] = array("d")  # wall seconds between frames (8 B each)
         self.wall_s = 0.0
 
@@ -275,6 +328,9 @@ class Session:
             changes=self._changes,
             asked=self._asked,
             unchanged_until=self._unchanged_until,
+            instruction=self.instruction,
+            instruction_since=self._instruction_since,
+            instructions=list(self.instructions),
         )
 
     def resume(self, cp: SessionCheckpoint) -> None:
@@ -293,6 +349,68 @@ class Session:
         self._changes = cp.changes
         self._asked = cp.asked
         self._unchanged_until = cp.unchanged_until
+        self.instruction = cp.instruction
+        self._instruction_since = cp.instruction_since
+        self.instructions = list(cp.instructions)
+        # scheduled instructions before the checkpoint's frame took effect already
+        self._scheduled = [i for i in self._scheduled if i.frame >= self.world.frame]
+
+    # ----- instructions ------------------------------------------------------------------
+    async def instruct(self, text: str, source: InstructionSource = "api") -> int | None:
+        """Make ``text`` the instruction from the next frame the simulation starts; returns
+        that frame once it took effect (None: ignored, in a replay, or the story had ended).
+        Called before :meth:`run`, it waits for the run's first frame. Raises ValueError for
+        an empty text."""
+        event = anyio.Event()
+        if not self._enqueue(text, source, event):
+            return None
+        await event.wait()
+        return self._taken.pop(id(event), None)
+
+    def instruct_nowait(self, text: str, source: InstructionSource = "stdin") -> bool:
+        """:meth:`instruct` without waiting; safe to call from any thread (e.g. a stdin reader).
+        False when the instruction is ignored (a replay, or the story has ended)."""
+        return self._enqueue(text, source, None)
+
+    def _enqueue(self, text: str, source: InstructionSource, event: anyio.Event | None) -> bool:
+        text = " ".join(text.split())
+        if not text:
+            raise ValueError("an instruction must not be empty")
+        if not self.settings.live_instructions or self._ended:
+            _log.warning("instruction_ignored", text=text, reason="replay" if not self._ended else "story ended")
+            return False
+        self._live.append((text, source, event))
+        return True
+
+    def _take_instructions(self) -> None:
+        """Apply the instructions due at the current frame (before it steps), in order."""
+        frame = self.world.frame
+        due: list[tuple[TimedInstruction, anyio.Event | None]] = []
+        while self._scheduled and self._scheduled[0].frame <= frame:
+            due.append((self._scheduled.pop(0), None))
+        while self._live:
+            text, source, event = self._live.popleft()
+            due.append((TimedInstruction(frame=frame, text=text, source=source), event))
+        for timed, event in due:
+            if timed.frame != frame:
+                raise SessionError(f"instruction for frame {timed.frame} reached at frame {frame}")
+            self.instruction = timed.text
+            self._instruction_since = self._steps
+            self._unchanged_until = None  # a new instruction is a change: ask again
+            self.instructions.append(timed.model_copy(update={"recorded": False}))
+            if self.on_instruction is not None and not timed.recorded:
+                self.on_instruction(timed)
+            _log.info("instruction", frame=frame, source=timed.source, text=timed.text)
+            if event is not None:
+                self._taken[id(event)] = frame
+                event.set()
+
+    def _release_waiters(self) -> None:
+        self._ended = True
+        while self._live:
+            _, _, event = self._live.popleft()
+            if event is not None:
+                event.set()
 
     # ----- planning side ------------------------------------------------------------------
     async def _planning_task(
@@ -405,6 +523,7 @@ class Session:
             if self._in_flight is not None:  # resumed with a step in flight: ask again
                 await requests.send(self._in_flight)
             while self.world.frame < s.frames:
+                self._take_instructions()
                 commands: list[AssignEvent] = []
                 applied = False
                 if self._in_flight is not None:
@@ -445,6 +564,8 @@ class Session:
                         history=story_history(self.events),
                         targets=targets,
                         objects_in_use=seats,
+                        instruction=self.instruction,
+                        instruction_since=self._instruction_since,
                     )
                     self._steps += 1
                     self._asked = (tuple(out.available), self._changes)
@@ -483,7 +604,10 @@ class Session:
         try:
             async with anyio.create_task_group() as tg:
                 tg.start_soon(self._planning_task, req_recv, res_send)
-                await self._simulation_task(req_send, res_recv)
+                try:
+                    await self._simulation_task(req_send, res_recv)
+                finally:
+                    self._release_waiters()
                 tg.cancel_scope.cancel()
         except BaseExceptionGroup as group:  # surface a lone error as itself
             if len(group.exceptions) == 1:
@@ -496,6 +620,7 @@ class Session:
             outcomes=list(self.outcomes),
             applied_frames=list(self.applied_frames),
             failures=list(self.failures),
+            instructions=list(self.instructions),
             planner_error=self.planner_error,
             wall_s=self.wall_s,
             frame_intervals_s=self.frame_intervals,

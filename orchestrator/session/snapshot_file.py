@@ -21,7 +21,7 @@ from orchestrator.session.runtime import SessionCheckpoint
 from sim.world.step import World
 
 SNAPSHOT_FILE = "session.snapshot"
-_FORMAT = 1
+_FORMAT = 2  # 2: the checkpoint holds the session's instructions
 
 
 class SnapshotError(Exception):

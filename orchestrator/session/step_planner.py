@@ -5,7 +5,8 @@ one step whenever characters become available. Each step starts a new run of the
 langgraph thread with the simulation's roster and event history as input (the checkpointed
 state keeps the scene description and the step counter), so a killed session resumes on the
 same thread without repeating finished LLM calls. The request's frame goes into the state
-(``sim_frame``), so every LLM request of the step carries it as trace metadata, and
+(``sim_frame``), and so does the request's instruction (the latest one, see
+``orchestrator.session.runtime``) with the first step planned under it, so every LLM request of the step carries it as trace metadata, and
 :meth:`GraphStepPlanner.trace_seqs` tells the session which trace records produced a step.
 """
 
@@ -23,13 +24,12 @@ from orchestrator.session.runtime import Outcome, PlanningRequest
 class GraphStepPlanner:
     """``StepPlanner`` over a compiled planning graph and its story log."""
 
-    def __init__(self, graph: Any, deps: PlanningDeps, thread_id: str, instruction: str) -> None:
+    def __init__(self, graph: Any, deps: PlanningDeps, thread_id: str) -> None:
         if not isinstance(deps.world, RosterWorld):
             raise TypeError("GraphStepPlanner needs deps.world to be a RosterWorld")
         self.graph = graph
         self.deps = deps
         self.thread_id = thread_id
-        self.instruction = instruction
         self.story: StoryLog = deps.story
 
     @property
@@ -58,7 +58,8 @@ class GraphStepPlanner:
         start: dict[str, Any] | None
         if not snapshot.values:
             start = PlanningState(
-                instruction=self.instruction,
+                instruction=request.instruction,
+                instruction_since=request.instruction_since,
                 events_target=request.index + 1,
                 step=request.index,
                 roster=request.roster,
@@ -69,7 +70,8 @@ class GraphStepPlanner:
             start = None  # a step was cut off mid-way: finish it from its checkpoint
         else:
             start = {
-                "instruction": self.instruction,
+                "instruction": request.instruction,
+                "instruction_since": request.instruction_since,
                 "events_target": request.index + 1,
                 "roster": [c.model_dump() for c in request.roster],
                 "recent": [h.model_dump() for h in request.history],
