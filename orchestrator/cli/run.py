@@ -33,6 +33,7 @@ from orchestrator.cli.options import (
     Characters,
     Config,
     Description,
+    InProcessPrograms,
     Instruction,
     MaxRetries,
     PaceOption,
@@ -77,6 +78,7 @@ def run_command(
     seed: Annotated[int, typer.Option("--seed", help="Seed of start positions, sampling and paths.")] = 0,
     max_retries: MaxRetries = 3,
     program_grammar: ProgramGrammar = True,
+    in_process_programs: InProcessPrograms = False,
     video: Annotated[bool, typer.Option("--video/--no-video", help="Also write an animated top-down story.mp4 (story.gif when imageio-ffmpeg is missing).")] = False,
     gif: Annotated[bool, typer.Option("--gif/--no-gif", help="Also write an animated top-down story.gif.")] = False,
     foot_ik: Annotated[bool, typer.Option("--foot-ik/--raw-feet", help="Leg IK on the synthesized motion: feet pinned while planted and kept out of furniture (--raw-feet: the matched poses as they are).")] = True,
@@ -121,7 +123,8 @@ def run_command(
     trace_path = record if record is not None else (None if replay is not None else out / "trace.jsonl")
     if trace_path is not None and replay is not None and trace_path.resolve() == replay.resolve():
         fail("--record must name a different file than --replay")
-    _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False)
+    _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False,
+             in_process_programs=in_process_programs)
 
 
 def resume_command(
@@ -158,7 +161,8 @@ def replay_command(
 
 
 def _execute(
-    args: RunArguments, *, out: Path, trace_path: Path | None, replay: Path | None, thread_id: str | None, resume: bool
+    args: RunArguments, *, out: Path, trace_path: Path | None, replay: Path | None, thread_id: str | None, resume: bool,
+    in_process_programs: bool = False,
 ) -> None:
     import asyncio
 
@@ -193,6 +197,7 @@ def _execute(
                 on_event=show,
                 on_start=started,
                 on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
+                in_process_programs=in_process_programs,
             )
         )
     except RunSetupError as exc:

@@ -113,6 +113,7 @@ async def run_story(
     on_event: Callable[[StoryEvent, int], None] | None = None,
     on_start: Callable[[RunManifest], None] | None = None,
     on_resume: Callable[[int, int], None] | None = None,
+    in_process_programs: bool = False,
 ) -> tuple[SessionResult, list[str], int, Any]:
     """Run the story session; returns the result, the character names, the fps and the world.
 
@@ -124,7 +125,10 @@ async def run_story(
     recorded frames again, and the planner answers finished steps from its story log.
 
     ``on_resume(frame, fps)`` tells the frame a resumed session goes on from (0: no checkpoint was
-    kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails."""
+    kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails.
+
+    Event programs run in an OS-limited worker process started for the run and stopped when
+    it ends (``in_process_programs``: in this process instead; the plans are the same)."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
@@ -132,6 +136,7 @@ async def run_story(
     from orchestrator.planning.ablation_graph import compile_graph
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
+    from orchestrator.sandbox_worker import WorkerRunner
     from orchestrator.session.port_setup import describer_mode_for, open_port
     from orchestrator.session.roster import RosterWorld, StartPositionError, start_positions
     from orchestrator.session.run_manifest import write_manifest
@@ -201,6 +206,7 @@ async def run_story(
         describer_mode=describer_mode_for(describer_model),
         description_cache=None,
         program_grammar=args.program_grammar,
+        runner=None if in_process_programs else WorkerRunner(),
     )
     settings = SessionSettings(
         frames=round(args.duration * fps),
@@ -233,6 +239,8 @@ async def run_story(
     finally:
         story.close()
         port.close()
+        if isinstance(deps.runner, WorkerRunner):
+            deps.runner.close()
     return result, names, fps, session.world
 
 
