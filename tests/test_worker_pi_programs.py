@@ -9,10 +9,10 @@ import json
 import pytest
 
 import orchestrator.sandbox_worker
-from orchestrator.sandbox_worker import WorkerRunner
-from orchestrator.session.plan_job import run_plan
 from benchmark.planning_benchmark import CaseWorld, case_tags
 from benchmark.reference_cases import planning_inputs
+from orchestrator.sandbox_worker import WorkerRunner
+from orchestrator.session.plan_job import run_plan
 from tests.support.reference import requires_reference
 from tests.support.scripted_llm import ScriptedLLM
 from tests.test_one_pipeline import MODEL, SEED, answer, the_case
