@@ -186,7 +186,7 @@ class FakeOpenAI:
             def do_POST(self) -> None:
                 body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
                 headers = {name.lower(): value for name, value in self.headers.items()}
-                self._echo = json.dumps(headers) if outer.echo_headers else None
+                self._echo: str | None = json.dumps(headers) if outer.echo_headers else None
                 action = outer._record_and_choose(body, headers)
                 arg: Any  # the reply text, a seconds count or an HTTP status, by kind
                 kind, arg = ("ok", action) if isinstance(action, str) else action
@@ -214,8 +214,6 @@ class FakeOpenAI:
                     self._send(200, completion(model, arg, "length" if kind == "length" else "stop"))
                 else:
                     raise ValueError(f"unknown FakeOpenAI action {kind!r}")
-
-            _echo: str | None = None
 
             def _send(self, code: int, payload: dict[str, Any]) -> None:
                 if self._echo is not None:
