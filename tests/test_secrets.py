@@ -113,3 +113,20 @@ def test_secret_values_and_redact() -> None:
     assert set(secrets) == {CANARY, OTHER, "custom-value-123"}  # named, secret-looking; not HOME, not short
     assert redact(f"Bearer {CANARY} and {OTHER}", secrets) == f"Bearer {REDACTED} and {REDACTED}"
     assert redact("nothing here", secrets) == "nothing here"
+
+
+def test_the_program_worker_inherits_no_secret(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The worker runs untrusted programs: its process environment holds no key, whatever the parent's."""
+    from orchestrator.sandbox_worker import WorkerRunner
+    from sim.scene.bundled import load_bundled_scene
+    from tools.character_states import WorldView
+
+    monkeypatch.setenv("OPENAI_API_KEY", CANARY)
+    monkeypatch.setenv("MY_SERVICE_TOKEN", OTHER)
+    with WorkerRunner() as runner:
+        program = "def parse_event():\n    get_character('Mia').set_position(get_area_adjacent_to('fridge_1'))\n"
+        assert runner(load_bundled_scene("home"), program, WorldView(), seed=0)
+        assert runner.process is not None
+        environ = Path(f"/proc/{runner.process.pid}/environ").read_bytes()
+    assert b"PATH=" in environ  # the file was read, and holds the variables the worker needs
+    assert CANARY.encode() not in environ and OTHER.encode() not in environ
