@@ -129,40 +129,42 @@ async def run_cases(
     Each run is one planning step of the planning graph (or its ``planner`` variant), driven
     by :func:`orchestrator.session.plan_job.run_plan` as ``storyteller plan`` drives it, from
     the case's roster, story so far, world view and action labels, on a throwaway thread."""
+    from orchestrator.sandbox_worker import WorkerRunner
     from sim.scene.files import load_scene
 
     prompts = prompts or PromptLibrary()
     ablation = Ablation(planner=planner, description=descriptions.graph_description)
     scenes: dict[str, tuple[Scene, SceneGraph]] = {}
     results: list[RunResult] = []
-    for case in cases:
-        if case.scene_name not in scenes:
-            scene = load_scene(scene_dir(reference, case))
-            scenes[case.scene_name] = (scene, build_scene_graph(scene))
-        scene, graph = scenes[case.scene_name]
-        inputs = planning_inputs(case, scene)
-        for r in range(runs):
-            planned = await run_plan(
-                scene=scene, port=port, instruction=case.user_instruction, events=1, seed=seed + r,
-                runs_db=":memory:", thread_id=f"case-{case.id}-run-{r}", roster=inputs.roster,
-                history=inputs.history, world=CaseWorld(inputs), description=descriptions.get(scene),
-                action_labels=case.action_labels, scene_graph=graph, describer_model=describer_model,
-                description_cache=description_cache, max_retries=max_retries, prompts=prompts,
-                tags=case_tags(case), ablation=ablation, program_grammar=program_grammar,
-            )
-            descriptions.remember(scene, planned.description)
-            ((_, outcome),) = planned.outcomes
-            event = None
-            if isinstance(outcome, ParsedEvent):
-                event = {
-                    "characters": list(outcome.event.characters), "activity": outcome.event.activity,
-                    "plans": [{"character": p.character, "action": p.action, "area": p.area, "seat": p.seat,
-                               "position": [round(p.position[0], 3), round(p.position[1], 3)]} for p in outcome.plans],
-                }
-            result = RunResult(case.id, case.group, r, seed + r, score_outcome(case, scene, outcome), event)
-            results.append(result)
-            if on_result is not None:
-                on_result(result)
+    with WorkerRunner() as runner:  # one worker process for every case
+        for case in cases:
+            if case.scene_name not in scenes:
+                scene = load_scene(scene_dir(reference, case))
+                scenes[case.scene_name] = (scene, build_scene_graph(scene))
+            scene, graph = scenes[case.scene_name]
+            inputs = planning_inputs(case, scene)
+            for r in range(runs):
+                planned = await run_plan(
+                    scene=scene, port=port, instruction=case.user_instruction, events=1, seed=seed + r,
+                    runs_db=":memory:", thread_id=f"case-{case.id}-run-{r}", roster=inputs.roster,
+                    history=inputs.history, world=CaseWorld(inputs), description=descriptions.get(scene),
+                    action_labels=case.action_labels, scene_graph=graph, describer_model=describer_model,
+                    description_cache=description_cache, max_retries=max_retries, prompts=prompts,
+                    tags=case_tags(case), ablation=ablation, program_grammar=program_grammar, runner=runner,
+                )
+                descriptions.remember(scene, planned.description)
+                ((_, outcome),) = planned.outcomes
+                event = None
+                if isinstance(outcome, ParsedEvent):
+                    event = {
+                        "characters": list(outcome.event.characters), "activity": outcome.event.activity,
+                        "plans": [{"character": p.character, "action": p.action, "area": p.area, "seat": p.seat,
+                                   "position": [round(p.position[0], 3), round(p.position[1], 3)]} for p in outcome.plans],
+                    }
+                result = RunResult(case.id, case.group, r, seed + r, score_outcome(case, scene, outcome), event)
+                results.append(result)
+                if on_result is not None:
+                    on_result(result)
     return results
 
 

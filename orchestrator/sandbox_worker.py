@@ -19,7 +19,8 @@ the budget one way; plans or a typed error (class name, feedback, line, steps) b
 scene crosses once per scene per worker: requests name it by the SHA-256 of its JSON, the
 child keeps the last ``SCENES_KEPT`` scenes (with their scene graphs) and answers
 ``need_scene`` for one it lacks, and the parent then sends it. The child is reused across
-programs (no process start on the hot path) and restarted when it dies or is killed.
+programs (no process start on the hot path) and restarted when it dies or is killed. It
+inherits only :data:`WORKER_ENV` from the parent's environment, never an API key.
 """
 
 from __future__ import annotations
@@ -59,6 +60,9 @@ SCENES_KEPT = 4
 MAX_FRAME = 64 * 2**20
 """Largest message either side accepts (bytes)."""
 _HEADER = struct.Struct(">Q")
+WORKER_ENV = ("PATH", "PYTHONPATH", "PYTHONHASHSEED", "HOME", "LANG", "LC_ALL", "LC_CTYPE", "TMPDIR", "VIRTUAL_ENV")
+"""The only environment variables a worker inherits: it runs untrusted programs, so API keys
+and other secrets of the parent's environment never reach its process."""
 
 
 def _error_types() -> dict[str, type[EventProgramError]]:
@@ -149,7 +153,7 @@ class WorkerRunner:
     # -- process management
     def _start(self) -> subprocess.Popen[bytes]:
         env = {
-            **os.environ,
+            **{name: os.environ[name] for name in WORKER_ENV if name in os.environ},
             "OPENBLAS_NUM_THREADS": "1",
             "OMP_NUM_THREADS": "1",
             "MKL_NUM_THREADS": "1",

@@ -23,6 +23,14 @@ ProgramGrammar = Annotated[
         "(--free-programs: free Python, as the paper).",
     ),
 ]
+InProcessPrograms = Annotated[
+    bool,
+    typer.Option(
+        "--in-process-programs",
+        help="Run event programs in this process (default: a worker process with memory, CPU and wall-clock "
+        "limits; the plans are the same).",
+    ),
+]
 # Literal-typed options: typer rejects any other value (exit code 2) and lists the choices
 Planner = Annotated[
     PlannerKind, typer.Option("--planner", help="event (narrator + event parser), unified (w/o Event) or direct (coordinates).")

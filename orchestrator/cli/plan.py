@@ -33,6 +33,7 @@ from orchestrator.cli.options import (
     Characters,
     Config,
     Description,
+    InProcessPrograms,
     Instruction,
     MaxRetries,
     Planner,
@@ -107,6 +108,7 @@ def plan_command(
     busy_events: Annotated[int, typer.Option("--busy-events", min=0, help="Steps an event keeps its characters busy.")] = 0,
     max_retries: MaxRetries = 3,
     program_grammar: ProgramGrammar = True,
+    in_process_programs: InProcessPrograms = False,
     runs_db: Annotated[Path | None, typer.Option("--runs-db", help="SQLite file of checkpoints.")] = None,
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Resume this run.")] = None,
     prompts_dir: Annotated[Path | None, typer.Option("--prompts", help="Use prompt files from this folder.")] = None,
@@ -175,6 +177,7 @@ def plan_command(
                 on_outcome=show,
                 ablation=ablation,
                 program_grammar=program_grammar,
+                in_process_programs=in_process_programs,
             )
         finally:
             port.close()

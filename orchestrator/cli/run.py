@@ -39,6 +39,7 @@ from orchestrator.cli.options import (
     Characters,
     Config,
     Description,
+    InProcessPrograms,
     Instruction,
     MaxRetries,
     PaceOption,
@@ -86,6 +87,7 @@ def run_command(
     seed: Annotated[int, typer.Option("--seed", help="Seed of start positions, sampling and paths.")] = 0,
     max_retries: MaxRetries = 3,
     program_grammar: ProgramGrammar = True,
+    in_process_programs: InProcessPrograms = False,
     video: Annotated[bool, typer.Option("--video/--no-video", help="Also write an animated top-down story.mp4 (story.gif when imageio-ffmpeg is missing).")] = False,
     gif: Annotated[bool, typer.Option("--gif/--no-gif", help="Also write an animated top-down story.gif.")] = False,
     foot_ik: Annotated[bool, typer.Option("--foot-ik/--raw-feet", help="Leg IK on the synthesized motion: feet pinned while planted and kept out of furniture (--raw-feet: the matched poses as they are).")] = True,
@@ -151,7 +153,8 @@ def run_command(
     if trace_path is not None and replay is not None and trace_path.resolve() == replay.resolve():
         fail("--record must name a different file than --replay")
     _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False,
-             interactive=_interactive(interactive) and replay is None, smplx_model=smplx_model)
+             interactive=_interactive(interactive) and replay is None, smplx_model=smplx_model,
+             in_process_programs=in_process_programs)
 
 
 def _interactive(flag: bool | None) -> bool:
@@ -198,6 +201,7 @@ def _execute(
     args: RunArguments, *, out: Path, trace_path: Path | None, replay: Path | None, thread_id: str | None, resume: bool,
     smplx_model: Path | None = None,
     interactive: bool = False,
+    in_process_programs: bool = False,
 ) -> None:
     import asyncio
 
@@ -236,6 +240,7 @@ def _execute(
                 ),
                 on_start=started,
                 on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
+                in_process_programs=in_process_programs,
             )
         )
     except RunSetupError as exc:

@@ -6,6 +6,11 @@ an exponential, jittered, seeded delay between attempts; a permanent error (400,
 404, 422, missing weights or key) moves on to the next model at once, and so does an
 unusable answer (empty, truncated, not JSON) from the deterministic embedded model. litellm's own retries
 are disabled (``max_retries=0``, never ``num_retries``).
+
+Secrets stay secret: every reply, trace record and error this client produces has the known
+secret values (``orchestrator.llm.secrets``: the ``api_key_env`` variables and every secret-named
+environment variable) replaced by ``[redacted]``, so a provider echoing the key it was sent puts
+it in no trace, story or message.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from orchestrator.llm.local_model import (
     register_local_provider,
 )
 from orchestrator.llm.retry_policy import InvalidResponseError, RetryPolicy, classify_error
+from orchestrator.llm.secrets import redact, secret_values
 from orchestrator.llm.traces import AttemptRecord, NullTraceSink, TraceSink
 
 litellm.suppress_debug_info = True
@@ -143,6 +149,7 @@ class LiteLLMClient:
 
     async def complete(self, request: LLMRequest) -> LLMResponse:
         node = self.config.node(request.node)
+        secrets = secret_values(n.api_key_env for n in self.config.nodes.values() if n.api_key_env)
         request_hash = request.content_hash()
         messages = [m.model_dump() for m in request.messages]
         call_seq = -1  # seq of the first attempt, set below
@@ -165,6 +172,9 @@ class LiteLLMClient:
                 traced_params = {**params, "schema_in_prompt": True} if schema_in_prompt else params
 
                 def record(**fields: Any) -> None:
+                    for name in ("response_text", "error_message"):
+                        if fields.get(name) is not None:
+                            fields[name] = redact(fields[name], secrets)
                     self.trace.write(AttemptRecord(
                         run_id=self.trace.run_id, seq=seq, time_unix=time.time(), call=call_seq,  # noqa: B023
                         node=request.node, attempt=attempt_no, model=model, params=traced_params,  # noqa: B023
@@ -184,6 +194,7 @@ class LiteLLMClient:
                         **({"api_key": api_key} if api_key else {}), **params,
                     )
                     text, finish, usage = _extract(raw)
+                    text = redact(text, secrets)
                     parsed = _validate(text, finish, request)
                 except Exception as exc:
                     latency = self._clock() - t0
@@ -211,7 +222,7 @@ class LiteLLMClient:
                        latency_s=latency, final=True)
                 return LLMResponse(text=text, model=model, usage=usage, latency_s=latency,
                                    attempts=attempt_no, trace_seq=seq)
-        err = _final_error(request, failures)
+        err = _final_error(request, failures, secrets)
         err.trace_seqs = tuple(seqs)
         raise err
 
@@ -245,16 +256,22 @@ def _validate(text: str, finish: str | None, request: LLMRequest) -> Any:
         raise InvalidResponseError(f"response is not valid JSON ({exc})", text) from None
 
 
-def _final_error(request: LLMRequest, failures: list[tuple[str, BaseException]]) -> LLMError:
+def _final_error(request: LLMRequest, failures: list[tuple[str, BaseException]], secrets: tuple[str, ...] = ()) -> LLMError:
+    """The error a failed call raises; its message and cause name no secret value."""
     if failures and all(isinstance(e, LLMUnavailableError) for _, e in failures):
-        msgs = "; ".join(dict.fromkeys(str(e) for _, e in failures))
+        msgs = "; ".join(dict.fromkeys(redact(str(e), secrets) for _, e in failures))
         err: LLMError = LLMUnavailableError(f"node {request.node}: no usable model: {msgs}")
     else:
         per_model: dict[str, str] = {}
         for model, exc in failures:
-            per_model[model] = f"{type(exc).__name__}: {str(exc)[:200]}"
+            per_model[model] = f"{type(exc).__name__}: {redact(str(exc), secrets)[:200]}"
         summary = "; ".join(f"{m} -> {e}" for m, e in per_model.items())
         err = LLMError(f"node {request.node}: all {len(failures)} attempts failed ({summary})")
     if failures:
-        err.__cause__ = failures[-1][1]
+        cause = failures[-1][1]
+        # a cause quoting a secret (in its message or arguments) is left off: a traceback would show it
+        if all(redact(str(part), secrets) == str(part) for part in (cause, *cause.args)):
+            err.__cause__ = cause
+        else:
+            err.__suppress_context__ = True
     return err

@@ -58,8 +58,11 @@ FsyncPolicy = Literal["always", "close", "never"]
 _SECRET_WORDS = frozenset({"key", "apikey", "token", "secret", "password", "passwd", "credential", "credentials"})
 
 
-class ConfigError(Exception):
-    """A configuration problem, reported as one sentence naming the source and the field."""
+class ConfigError(ValueError):
+    """A configuration problem, reported as one sentence naming the source and the field.
+
+    A ``ValueError``, so the commands that report bad inputs as ``ValueError`` (``plan`` and
+    ``run`` opening their LLM port) report it as one line with exit code 2, not a traceback."""
 
     def __init__(self, source: str, field: str | None, message: str) -> None:
         self.source = source

@@ -12,6 +12,12 @@ a story so far, a world view and a description (the planning benchmark does, per
 benchmark measures the graph the product runs, request for request. The thread is
 checkpointed in SQLite (``runs_db``; ``":memory:"`` for a throwaway run); resuming a thread
 never repeats its finished LLM calls.
+
+Event programs run in an OS-limited worker process
+(:class:`~orchestrator.sandbox_worker.WorkerRunner`) started for the run and stopped when it
+ends, unless the caller hands over a ``runner`` (it then owns it) or asks for
+``in_process_programs`` (``tools.event_program.run_event_program`` in this process). Both give
+the same plans for the same program, seed and world.
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from agents.event_parser import scene_action_labels
+from agents.event_parser import ProgramRunner, scene_action_labels
 from agents.llm_port import LLMPort
 from agents.messages import (
     CharacterStatus,
@@ -75,6 +81,8 @@ async def run_plan(
     on_outcome: Callable[[int, StepOutcome], None] | None = None,
     ablation: Ablation | None = None,
     program_grammar: bool = False,
+    runner: ProgramRunner | None = None,
+    in_process_programs: bool = False,
 ) -> PlanResult:
     """Run (or resume) the planning graph for one thread.
 
@@ -84,9 +92,14 @@ async def run_plan(
     (default: the scene's). ``on_outcome(index, outcome)`` is called for each step as it is
     recorded, in order, including steps recorded before a resume. ``ablation`` picks the
     planner and the scene description (default: the full method with the describer).
+    ``runner`` runs the event programs (the caller closes it; None: a worker process for this
+    run, or in this process with ``in_process_programs``).
     Raises :class:`~orchestrator.session.roster.StartPositionError` when the characters do
     not fit on the floor.
     """
+    from orchestrator.sandbox_worker import WorkerRunner
+
+    own_runner = WorkerRunner() if runner is None and not in_process_programs else None
     ablation = ablation or Ablation()
     thread_id = ablation.thread_id(thread_id)
     story = StoryLog(runs_db, thread_id)
@@ -116,6 +129,7 @@ async def run_plan(
         description_cache=description_cache,
         scene_graph=scene_graph,
         program_grammar=program_grammar,
+        runner=runner if runner is not None else own_runner,
     )
     config = {"configurable": {"thread_id": thread_id}, "recursion_limit": recursion_limit(events, max_retries)}
     try:
@@ -143,3 +157,5 @@ async def run_plan(
         return PlanResult(outcomes=story.outcomes(), description=described)
     finally:
         story.close()
+        if own_runner is not None:
+            own_runner.close()

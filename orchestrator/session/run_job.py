@@ -151,6 +151,7 @@ async def run_story(
     on_start: Callable[[RunManifest], None] | None = None,
     on_resume: Callable[[int, int], None] | None = None,
     on_instruction: Callable[[TimedInstruction, int], None] | None = None,
+    in_process_programs: bool = False,
 ) -> tuple[SessionResult, list[str], int, Any]:
     """Run the story session; returns the result, the character names, the fps and the world.
 
@@ -163,7 +164,9 @@ async def run_story(
 
     ``on_resume(frame, fps)`` tells the frame a resumed session goes on from (0: no checkpoint was
     kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails.
-    ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay)."""
+    ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay).
+    Event programs run in an OS-limited worker process started for the run and stopped when
+    it ends (``in_process_programs``: in this process instead; the plans are the same)."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
@@ -171,6 +174,7 @@ async def run_story(
     from orchestrator.planning.ablation_graph import compile_graph
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
+    from orchestrator.sandbox_worker import WorkerRunner
     from orchestrator.session.port_setup import describer_mode_for, open_port
     from orchestrator.session.roster import RosterWorld, StartPositionError, start_positions
     from orchestrator.session.run_manifest import write_manifest
@@ -247,6 +251,7 @@ async def run_story(
         describer_mode=describer_mode_for(describer_model),
         description_cache=None,
         program_grammar=args.program_grammar,
+        runner=None if in_process_programs else WorkerRunner(),
     )
     settings = SessionSettings(
         frames=round(args.duration * fps),
@@ -294,6 +299,8 @@ async def run_story(
     finally:
         story.close()
         port.close()
+        if isinstance(deps.runner, WorkerRunner):
+            deps.runner.close()
     return result, names, fps, session.world
 
 

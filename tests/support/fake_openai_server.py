@@ -30,6 +30,13 @@ An action is a plain string (shorthand for ``("ok", text)``) or one of these tup
     shorter than ``seconds`` sees a timeout. :meth:`FakeOpenAI.stop` cuts the wait short.
 ``("drop", None)``
     Shuts the connection down without any response (the client sees a dropped connection).
+``("echo", code)``
+    HTTP ``code`` echoing every request header: for 200, a chat completion whose content is the
+    headers as JSON; otherwise an OpenAI-style error whose message quotes them (as a careless
+    provider or proxy does with a rejected ``Authorization`` header).
+
+With ``echo_headers=True`` every answer also carries the request headers: in an
+``X-Echo-Request-Headers`` response header and an ``"echo"`` field of the JSON body.
 
 Each completion reports usage ``prompt_tokens``/``completion_tokens`` of
 :data:`PROMPT_TOKENS`/:data:`COMPLETION_TOKENS`.
@@ -91,13 +98,16 @@ class FakeOpenAI:
             the request body, e.g. ``"fake-a"`` for litellm's ``"openai/fake-a"``).
         requests: every decoded request body, in arrival order.
         auth: the ``Authorization`` header of every request (``None`` if absent), same order.
+        headers: every request's headers (names in lower case), same order.
     """
 
     def __init__(self, *, default: Action = '{"ok": true}', responder: Responder | None = None,
-                 default_sleep_reply: str = '{"ok": true}') -> None:
+                 default_sleep_reply: str = '{"ok": true}', echo_headers: bool = False) -> None:
         self.script: dict[str, list[Action]] = {}
         self.requests: list[dict[str, Any]] = []
         self.auth: list[str | None] = []
+        self.headers: list[dict[str, str]] = []
+        self.echo_headers = echo_headers
         self.default = default
         self.responder = responder
         self.default_sleep_reply = default_sleep_reply
@@ -148,14 +158,15 @@ class FakeOpenAI:
         return len(self.to(model))
 
     # ----- serving ------------------------------------------------------------------------
-    def _record_and_choose(self, body: dict[str, Any], authorization: str | None) -> Action:
+    def _record_and_choose(self, body: dict[str, Any], headers: dict[str, str]) -> Action:
         """Record one request and pick its action (atomically, so concurrent requests to one
         model still walk its script in order)."""
         with self._lock:
             model = body.get("model")
             seen = sum(1 for r in self.requests if r.get("model") == model)
             self.requests.append(body)
-            self.auth.append(authorization)
+            self.auth.append(headers.get("authorization"))
+            self.headers.append(headers)
             if self.responder is not None:
                 return self.responder(body)
             actions = self.script.get(model) if isinstance(model, str) else None
@@ -174,7 +185,9 @@ class FakeOpenAI:
 
             def do_POST(self) -> None:
                 body = json.loads(self.rfile.read(int(self.headers["Content-Length"])))
-                action = outer._record_and_choose(body, self.headers.get("Authorization"))
+                headers = {name.lower(): value for name, value in self.headers.items()}
+                self._echo: str | None = json.dumps(headers) if outer.echo_headers else None
+                action = outer._record_and_choose(body, headers)
                 arg: Any  # the reply text, a seconds count or an HTTP status, by kind
                 kind, arg = ("ok", action) if isinstance(action, str) else action
                 model = str(body.get("model"))
@@ -187,6 +200,14 @@ class FakeOpenAI:
                     if outer._stopping.wait(arg):
                         return  # the server is stopping; nobody waits for this answer
                     kind, arg = "ok", outer.default_sleep_reply
+                if kind == "echo":
+                    self._echo = json.dumps(headers)
+                    if arg == 200:
+                        kind, arg = "ok", self._echo
+                    else:
+                        self._send(arg, {"error": {"message": f"rejected request with headers {self._echo}",
+                                                   "type": "fake", "code": arg}})
+                        return
                 if kind == "status":
                     self._send(arg, {"error": {"message": f"scripted {arg}", "type": "fake", "code": arg}})
                 elif kind in ("ok", "length"):
@@ -195,10 +216,14 @@ class FakeOpenAI:
                     raise ValueError(f"unknown FakeOpenAI action {kind!r}")
 
             def _send(self, code: int, payload: dict[str, Any]) -> None:
+                if self._echo is not None:
+                    payload = {**payload, "echo": self._echo}
                 data = json.dumps(payload).encode()
                 with contextlib.suppress(BrokenPipeError, ConnectionResetError):
                     self.send_response(code)
                     self.send_header("Content-Type", "application/json")
+                    if self._echo is not None:
+                        self.send_header("X-Echo-Request-Headers", self._echo)
                     self.send_header("Content-Length", str(len(data)))
                     self.end_headers()
                     self.wfile.write(data)
