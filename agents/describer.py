@@ -58,6 +58,13 @@ over-long answer from a provider without schema decoding still gets precise feed
 be repaired)."""
 MAX_REGIONS = 64
 """Regions a regions-mode reply may name (the schema pins the scene's own count)."""
+AREA_KINDS = (
+    "kitchen", "dining area", "living room", "lounge", "reading corner", "music corner", "work area",
+    "office", "meeting room", "bar", "reception", "entrance", "hallway", "bedroom", "bathroom",
+    "storage", "garden", "play area", "other",
+)
+"""Area names a regions-mode reply chooses from (general room kinds, not any scene's): a 0.5B
+model asked for a free name writes the region's first object name (``fridge_1``) instead."""
 MAX_AREA_NAME_CHARS = 40
 MAX_PURPOSE_CHARS = 80
 DEFAULT_MAX_TOKENS = 420
@@ -163,8 +170,11 @@ def describer_schema(names: Sequence[str]) -> dict[str, Any]:
 
 def describer_regions_schema(n_regions: int) -> dict[str, Any]:
     """Schema of a regions-mode reply: exactly one entry per region 1..n_regions, in order,
-    each entry's region number fixed (only the area name and purpose are free)."""
-    return reply_schema(RegionNaming, {"regions": Refine(pin=("region", range(1, n_regions + 1)))})
+    each entry's region number fixed; the area name one of AREA_KINDS, the purpose free."""
+    return reply_schema(RegionNaming, {
+        "regions.area": Refine(enum=AREA_KINDS),
+        "regions": Refine(pin=("region", range(1, n_regions + 1))),
+    })
 
 
 def regions_max_tokens(n_regions: int) -> int:
@@ -183,6 +193,7 @@ def describer_request(
             scene_graph=inp.scene_graph_json.strip(),
             regions=regions,
             count=len(inp.clusters),
+            area_kinds=", ".join(AREA_KINDS),
         )
         schema = describer_regions_schema(len(inp.clusters))
         max_tokens = max(max_tokens, regions_max_tokens(len(inp.clusters)))
