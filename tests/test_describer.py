@@ -151,11 +151,13 @@ def test_the_regions_schema_admits_only_complete_answers_in_order() -> None:
     missing, repeated or reordered region (checked with a JSON-schema validator)."""
     jsonschema = pytest.importorskip("jsonschema")
     schema = describer_regions_schema(3)
-    entry = lambda r: {"region": r, "area": "a", "purpose": ""}  # noqa: E731
+    entry = lambda r: {"region": r, "area": "kitchen", "purpose": ""}  # noqa: E731
     jsonschema.validate({"regions": [entry(1), entry(2), entry(3)]}, schema)
     for wrong in ([1, 2], [1, 2, 2], [2, 1, 3], [1, 2, 3, 4]):
         with pytest.raises(jsonschema.ValidationError):
             jsonschema.validate({"regions": [entry(r) for r in wrong]}, schema)
+    with pytest.raises(jsonschema.ValidationError):  # an object name is no area name
+        jsonschema.validate({"regions": [entry(1), entry(2), {**entry(3), "area": "fridge_1"}]}, schema)
 
 
 async def test_regions_mode_repairs_after_last_try() -> None:
