@@ -8,6 +8,11 @@ clusters (each missing object joins the area holding most of its cluster, else a
 objects" area) and the result is flagged ``repaired``. The text the other agents read is
 rendered by :func:`render_description`, one line per area, with supports (``on counter_1``).
 
+In regions mode (small local models) the model instead answers one entry per region (cluster)
+``{"regions": [{"region": 1, "area", "purpose"}, ...]}``; the schema pins the entries' region
+numbers (1..n, in order), so under grammar decoding every region appears exactly once and the
+answer needs no rejected attempt; regions named alike form one area.
+
 Descriptions are cached on disk per (scene content, model, prompt files) hash.
 """
 
@@ -51,6 +56,15 @@ MAX_AREAS = 8
 """Areas a reply may have (the schema's bound; the parser accepts twice as many, so an
 over-long answer from a provider without schema decoding still gets precise feedback and can
 be repaired)."""
+MAX_REGIONS = 64
+"""Regions a regions-mode reply may name (the schema pins the scene's own count)."""
+AREA_KINDS = (
+    "kitchen", "dining area", "living room", "lounge", "reading corner", "music corner", "work area",
+    "office", "meeting room", "bar", "reception", "entrance", "hallway", "bedroom", "bathroom",
+    "storage", "garden", "play area", "other",
+)
+"""Area names a regions-mode reply chooses from (general room kinds, not any scene's): a 0.5B
+model asked for a free name writes the region's first object name (``fridge_1``) instead."""
 MAX_AREA_NAME_CHARS = 40
 MAX_PURPOSE_CHARS = 80
 DEFAULT_MAX_TOKENS = 420
@@ -70,18 +84,24 @@ class AreaList(BaseModel):
     areas: tuple[Area, ...] = Field(max_length=MAX_AREAS * 2)
 
 
-class RegionArea(BaseModel):
+class RegionName(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    name: str = Field(max_length=MAX_AREA_NAME_CHARS, description="Short area name, e.g. 'kitchen'.")
+    region: int = Field(description="The region's number.")
+    area: str = Field(
+        min_length=1, max_length=MAX_AREA_NAME_CHARS,
+        description="Short name of the area the region belongs to; regions of one area share it.",
+    )
     purpose: str = Field(default="", max_length=MAX_PURPOSE_CHARS, description="What people do there.")
-    regions: tuple[int, ...] = Field(description="Numbers of the regions in this area.")
 
 
-class RegionAreaList(BaseModel):
+class RegionNaming(BaseModel):
+    """A regions-mode reply: one entry per region, in region order (the schema pins each
+    entry's number, so a grammar-decoded answer always covers every region exactly once)."""
+
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    areas: tuple[RegionArea, ...] = Field(max_length=MAX_AREAS * 2)
+    regions: tuple[RegionName, ...] = Field(max_length=MAX_REGIONS)
 
 
 @dataclass(frozen=True)
@@ -95,8 +115,9 @@ class DescriberInput:
     supports: Mapping[str, str]
     """object name -> name of the object it stands on or is inside (absent: on the floor)."""
     mode: Literal["objects", "regions"] = "objects"
-    """objects: the model lists every object; regions: the model names the clusters (numbered
-    regions) and the objects follow from them, so a small model writes ~5x fewer tokens."""
+    """objects: the model lists every object; regions: the model names the area of each
+    cluster (numbered region), one entry per region in order, and the objects follow from
+    them, so a small model writes ~5x fewer tokens and cannot leave a region out."""
 
 
 COMPACT_RELATIONS = ("on", "inside", "adjacent to")
@@ -148,14 +169,17 @@ def describer_schema(names: Sequence[str]) -> dict[str, Any]:
 
 
 def describer_regions_schema(n_regions: int) -> dict[str, Any]:
-    """Schema of a regions-mode reply: areas naming region numbers 1..n_regions."""
-    return reply_schema(
-        RegionAreaList,
-        {
-            "areas": Refine(min_items=1, max_items=min(MAX_AREAS, n_regions)),
-            "areas.regions": Refine(enum=range(1, n_regions + 1), min_items=1, max_items=n_regions),
-        },
-    )
+    """Schema of a regions-mode reply: exactly one entry per region 1..n_regions, in order,
+    each entry's region number fixed; the area name one of AREA_KINDS, the purpose free."""
+    return reply_schema(RegionNaming, {
+        "regions.area": Refine(enum=AREA_KINDS),
+        "regions": Refine(pin=("region", range(1, n_regions + 1))),
+    })
+
+
+def regions_max_tokens(n_regions: int) -> int:
+    """Token budget of a regions-mode reply: about 50 tokens per entry at the string limits."""
+    return max(DEFAULT_MAX_TOKENS, 40 + 50 * n_regions)
 
 
 def describer_request(
@@ -169,8 +193,10 @@ def describer_request(
             scene_graph=inp.scene_graph_json.strip(),
             regions=regions,
             count=len(inp.clusters),
+            area_kinds=", ".join(AREA_KINDS),
         )
         schema = describer_regions_schema(len(inp.clusters))
+        max_tokens = max(max_tokens, regions_max_tokens(len(inp.clusters)))
     else:
         system = prompts.render("describer/system.md")
         user = prompts.render(
@@ -192,28 +218,31 @@ def describer_request(
     )
 
 
-def region_problems(areas: RegionAreaList, n_regions: int) -> list[str]:
-    counts = Counter(r for a in areas.areas for r in a.regions)
-    problems = []
-    unknown = sorted(r for r in counts if not 1 <= r <= n_regions)
-    repeated = sorted(r for r, k in counts.items() if k > 1 and 1 <= r <= n_regions)
-    missing = [r for r in range(1, n_regions + 1) if r not in counts]
-    if unknown:
-        problems.append("no such region: " + ", ".join(map(str, unknown)) + f" (regions are 1 to {n_regions})")
-    if repeated:
-        problems.append("region(s) used in more than one area: " + ", ".join(map(str, repeated)))
-    if missing:
-        problems.append("region(s) missing (put each into one area): " + ", ".join(map(str, missing)))
-    return problems
+def region_problems(naming: RegionNaming, n_regions: int) -> list[str]:
+    """Entries that are not regions 1..n_regions in order (only possible without a grammar)."""
+    got = [r.region for r in naming.regions]
+    if got == list(range(1, n_regions + 1)):
+        return []
+    return [f"answer once per region, in order: regions 1 to {n_regions} (got {', '.join(map(str, got)) or 'none'})"]
 
 
-def regions_to_areas(areas: RegionAreaList, inp: DescriberInput) -> AreaList:
-    """Objects of each area's regions, in region order (unknown region numbers skipped)."""
-    out = []
-    for a in areas.areas:
-        objs = [n for r in a.regions if 1 <= r <= len(inp.clusters) for n in inp.clusters[r - 1]]
-        out.append(Area(name=a.name, purpose=a.purpose, objects=tuple(objs)))
-    return AreaList(areas=tuple(out))
+def _area_key(name: str) -> str:
+    return " ".join(name.lower().split())
+
+
+def regions_to_areas(naming: RegionNaming, inp: DescriberInput) -> AreaList:
+    """Regions named alike become one area (in order of first mention; the first non-empty
+    purpose); its objects are its regions' objects in region order. Unknown or repeated
+    region numbers are skipped."""
+    grouped: dict[str, tuple[str, str, list[str]]] = {}
+    seen: set[int] = set()
+    for r in naming.regions:
+        if not 1 <= r.region <= len(inp.clusters) or r.region in seen:
+            continue
+        seen.add(r.region)
+        name, purpose, objects = grouped.setdefault(_area_key(r.area), (r.area.strip(), "", []))
+        grouped[_area_key(r.area)] = (name, purpose or r.purpose.strip(), [*objects, *inp.clusters[r.region - 1]])
+    return AreaList(areas=tuple(Area(name=n, purpose=p, objects=tuple(o)) for n, p, o in grouped.values()))
 
 
 def _json_blob(text: str) -> Any:
@@ -224,7 +253,7 @@ def _json_blob(text: str) -> Any:
 def _load_areas(text: str, inp: DescriberInput | None = None) -> AreaList:
     """Parse a reply of either mode into objects per area (no completeness check)."""
     if inp is not None and inp.mode == "regions":
-        return regions_to_areas(RegionAreaList.model_validate(_json_blob(text)), inp)
+        return regions_to_areas(RegionNaming.model_validate(_json_blob(text)), inp)
     return AreaList.model_validate(_json_blob(text))
 
 
@@ -365,11 +394,11 @@ class DescriberAttempt:
 def parse_reply(reply: str, inp: DescriberInput) -> AreaList:
     """Check a reply of ``inp.mode``; raises JSONDecodeError, ValidationError or AnswerRejectedError."""
     if inp.mode == "regions":
-        regions = RegionAreaList.model_validate(_json_blob(reply))
-        problems = region_problems(regions, len(inp.clusters))
+        naming = RegionNaming.model_validate(_json_blob(reply))
+        problems = region_problems(naming, len(inp.clusters))
         if problems:
             raise AnswerRejectedError(problems)
-        return regions_to_areas(regions, inp)
+        return regions_to_areas(naming, inp)
     return parse_areas(reply, inp.object_names)
 
 

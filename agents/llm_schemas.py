@@ -14,6 +14,10 @@ allow what the parser refuses or the other way round:
 - Facts of one call are injected into named fields with :class:`Refine`: the names a field may
   hold (free characters, scene objects, region numbers, action labels) and array bounds that
   depend on the call. A refinement never loosens a bound the model states.
+- An array whose items are known one by one (one entry per region, in order) is pinned with
+  ``Refine(pin=(field, values))``: item ``i`` must carry ``values[i]`` in ``field`` (JSON
+  schema ``prefixItems`` with a ``const`` each, exactly ``len(values)`` items), so a grammar
+  writes every value, in order, and the model only fills in the rest.
 - Every array is bounded by ``maxItems``: under llama.cpp's ``json_object`` schema an unbounded
   array lets a small model loop until ``max_tokens`` (see DESIGN.md). An array left unbounded
   is a :class:`SchemaContractError` here, not a silent default.
@@ -51,6 +55,9 @@ class Refine:
     enum: Sequence[str | int] | None = None
     min_items: int | None = None
     max_items: int | None = None
+    pin: tuple[str, Sequence[str | int]] | None = None
+    """(field, values): the array has exactly one item per value, item ``i`` with
+    ``field == values[i]`` (applied after ``enum`` and the bounds)."""
 
 
 def reply_schema(model: type[BaseModel], refine: Mapping[str, Refine] | None = None) -> dict[str, Any]:
@@ -124,6 +131,23 @@ def _apply(schema: dict[str, Any], path: str, rule: Refine) -> None:
         target["enum"] = values
     if is_array and node.get("minItems", 0) > node.get("maxItems", node.get("minItems", 0)):
         raise SchemaContractError(f"field {path!r}: minItems {node['minItems']} > maxItems {node['maxItems']}")
+    if rule.pin is not None:
+        _pin(node, path, *rule.pin)
+
+
+def _pin(node: dict[str, Any], path: str, field: str, values: Sequence[str | int]) -> None:
+    """Replace the array's ``items`` by one ``prefixItems`` entry per value (llama.cpp's
+    schema converter reads ``prefixItems`` only when ``items`` is absent)."""
+    items = node.get("items", {})
+    if node.get("type") != "array" or field not in items.get("properties", {}):
+        raise SchemaContractError(f"field {path!r}: cannot pin {field!r} (not an array of objects with that field)")
+    if not values:
+        raise SchemaContractError(f"field {path!r}: nothing to pin")
+    del node["items"]
+    node["prefixItems"] = [
+        {**items, "properties": {**items["properties"], field: {**items["properties"][field], "const": v}}} for v in values
+    ]
+    node["minItems"] = node["maxItems"] = len(values)
 
 
 def _check_bounded(node: Any, where: str) -> None:

@@ -13,7 +13,10 @@ has exactly one block per event character, in event order::
 
 where the area is one of the spatial API's listed area functions (``SpatialAPI.functions()``) over the scene's object names (a
 seat function only over seats not in use), the orientation target an object or another
-character, and the action one of the offered labels. The program still runs in the sandbox and
+character, and the action one of the offered labels. For an event, :func:`event_program_grammar`
+narrows the objects and seats further to the shortlist its words single out
+(:mod:`agents.shortlist`: "sits on the couch" offers the free couches, "the chair by the
+window" the chairs close to a window), or keeps them all when the words name nothing. The program still runs in the sandbox and
 through the spatial API like any other; only what the model can write is narrowed. Providers
 that cannot decode under a grammar ignore it and get the same prompt.
 """
@@ -26,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from agents.shortlist import event_shortlist
 from sim.motion.action_labels import playable_seated
 from sim.scene.model import Scene, SceneObject
 from tools.areas import seat_slots
@@ -108,11 +112,12 @@ def program_grammar(
 
 def event_program_grammar(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[Any],
-    seats_in_use: Sequence[str], action_labels: Sequence[str],
+    seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "",
 ) -> str:
-    """:func:`program_grammar` for an event in ``scene``: every object, the seats nobody else
-    holds or stands on, the offered labels; ``characters`` are the roster (objects with
-    ``name``, ``seat``, ``position``)."""
+    """:func:`program_grammar` for an event in ``scene``: the objects and the seats nobody else
+    holds or stands on, narrowed to the event's shortlist (:func:`agents.shortlist.event_shortlist`
+    of ``activity``; all of them when it has none), the offered labels; ``characters`` are the
+    roster (objects with ``name``, ``seat``, ``position``)."""
     others = [c for c in characters if c.name not in event_characters]
     taken = set(seats_in_use) | {c.seat for c in others if getattr(c, "seat", None)}
     placed = np.array([c.position for c in others if c.position is not None], dtype=float).reshape(-1, 2)
@@ -127,10 +132,12 @@ def event_program_grammar(
             return True
         return any(float(np.min(np.linalg.norm(placed - np.asarray(s.position), axis=1))) >= MIN_SEPARATION for s in slots)
 
+    free_seats = [o.name for o in scene.objects if o.is_seat and free(o)]
+    shortlist = event_shortlist(scene, activity, free_seats, action_labels)
     return program_grammar(
         event_characters,
-        [o.name for o in scene.objects],
-        [o.name for o in scene.objects if o.is_seat and free(o)],
+        list(shortlist.objects) or [o.name for o in scene.objects],
+        list(shortlist.seats) or free_seats,
         action_labels,
         [c.name for c in characters if c.name not in event_characters],
         seated_labels=[a for a in action_labels if playable_seated(a)],

@@ -8,12 +8,14 @@ from pathlib import Path
 import pytest
 
 from agents.describer import (
+    AREA_KINDS,
     AreaList,
     DescriberInput,
     cache_path,
     describe_scene,
     describe_scene_cached,
     describer_input_from_scene,
+    describer_regions_schema,
     describer_request,
     parse_areas,
     render_description,
@@ -122,25 +124,43 @@ REGIONS_INP = DescriberInput(
 )
 
 
-async def test_regions_mode_names_clusters_and_checks_each_once() -> None:
+async def test_regions_mode_pins_one_entry_per_region_and_groups_by_name() -> None:
     lib = PromptLibrary()
     req = describer_request(lib, REGIONS_INP)
     assert req.json_schema is not None
-    regions = req.json_schema["properties"]["areas"]["items"]["properties"]["regions"]
-    assert regions["items"]["enum"] == [1, 2, 3] and regions["maxItems"] == 3
+    regions = req.json_schema["properties"]["regions"]
+    assert [e["properties"]["region"]["const"] for e in regions["prefixItems"]] == [1, 2, 3]
+    assert regions["minItems"] == regions["maxItems"] == 3 and "items" not in regions
+    assert all(e["properties"]["area"]["enum"] == list(AREA_KINDS) for e in regions["prefixItems"])
+    assert "Area names: kitchen, dining area" in req.messages[1].content
     assert "region 2: couch_1" in req.messages[1].content
-    bad = json.dumps({"areas": [{"name": "kitchen", "purpose": "", "regions": [1, 1]}, {"name": "x", "purpose": "", "regions": [7]}]})
-    good = json.dumps({"areas": [{"name": "kitchen", "purpose": "coffee", "regions": [1]},
-                                 {"name": "living room", "purpose": "", "regions": [2, 3]}]})
+    bad = json.dumps({"regions": [{"region": 1, "area": "kitchen", "purpose": ""}, {"region": 3, "area": "x", "purpose": ""}]})
+    good = json.dumps({"regions": [{"region": 1, "area": "kitchen", "purpose": "coffee"},
+                                   {"region": 2, "area": "Living room", "purpose": ""},
+                                   {"region": 3, "area": "living  room", "purpose": "watch TV"}]})
     port = ScriptedLLM([bad, good])
     desc = await describe_scene(port, lib, REGIONS_INP)
     feedback = port.requests[1].messages[-1].content
-    assert "region(s) used in more than one area: 1" in feedback and "no such region: 7" in feedback
-    assert "region(s) missing (put each into one area): 2, 3" in feedback
-    assert desc.text == "- kitchen (coffee): fridge_1, cabinet_1 (with coffee_maker_1 on it)\n- living room: couch_1, tv_1"
+    assert "answer once per region, in order: regions 1 to 3 (got 1, 3)" in feedback
+    assert desc.attempts == 2 and not desc.repaired
+    assert desc.text == "- kitchen (coffee): fridge_1, cabinet_1 (with coffee_maker_1 on it)\n- Living room (watch TV): couch_1, tv_1"
+
+
+def test_the_regions_schema_admits_only_complete_answers_in_order() -> None:
+    """What the grammar decodes is what the parser accepts: the pinned schema rejects a
+    missing, repeated or reordered region (checked with a JSON-schema validator)."""
+    jsonschema = pytest.importorskip("jsonschema")
+    schema = describer_regions_schema(3)
+    entry = lambda r: {"region": r, "area": "kitchen", "purpose": ""}  # noqa: E731
+    jsonschema.validate({"regions": [entry(1), entry(2), entry(3)]}, schema)
+    for wrong in ([1, 2], [1, 2, 2], [2, 1, 3], [1, 2, 3, 4]):
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate({"regions": [entry(r) for r in wrong]}, schema)
+    with pytest.raises(jsonschema.ValidationError):  # an object name is no area name
+        jsonschema.validate({"regions": [entry(1), entry(2), {**entry(3), "area": "fridge_1"}]}, schema)
 
 
 async def test_regions_mode_repairs_after_last_try() -> None:
-    partial = json.dumps({"areas": [{"name": "kitchen", "purpose": "", "regions": [1]}]})
+    partial = json.dumps({"regions": [{"region": 1, "area": "kitchen", "purpose": ""}]})
     desc = await describe_scene(ScriptedLLM([partial]), PromptLibrary(), REGIONS_INP, max_retries=0)
     assert desc.repaired and "couch_1" in desc.text and "tv_1" in desc.text

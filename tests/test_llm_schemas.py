@@ -11,7 +11,7 @@ from agents.describer import (
     MAX_AREA_NAME_CHARS,
     MAX_AREAS,
     AreaList,
-    RegionAreaList,
+    RegionNaming,
     describer_regions_schema,
     describer_schema,
 )
@@ -124,15 +124,18 @@ def test_narrator_schema_carries_the_models_limits_and_the_free_names() -> None:
 
 
 def test_describer_schemas_agree_with_the_models_string_limits() -> None:
-    for schema, model in ((describer_schema(["a_1"]), AreaList), (describer_regions_schema(2), RegionAreaList)):
-        area = schema["properties"]["areas"]["items"]["properties"]
-        assert area["name"]["maxLength"] == MAX_AREA_NAME_CHARS
-        members = "objects" if model is AreaList else "regions"
-        model.model_validate({"areas": [{"name": "x" * MAX_AREA_NAME_CHARS, members: []}]})
-        with pytest.raises(ValueError, match="at most 40 characters"):
-            model.model_validate({"areas": [{"name": "x" * (MAX_AREA_NAME_CHARS + 1), members: []}]})
-    regions = describer_regions_schema(3)["properties"]["areas"]
-    assert regions["maxItems"] == 3 and regions["items"]["properties"]["regions"]["items"]["enum"] == [1, 2, 3]
+    area = describer_schema(["a_1"])["properties"]["areas"]["items"]["properties"]
+    assert area["name"]["maxLength"] == MAX_AREA_NAME_CHARS
+    AreaList.model_validate({"areas": [{"name": "x" * MAX_AREA_NAME_CHARS, "objects": []}]})
+    with pytest.raises(ValueError, match="at most 40 characters"):
+        AreaList.model_validate({"areas": [{"name": "x" * (MAX_AREA_NAME_CHARS + 1), "objects": []}]})
+    regions = describer_regions_schema(3)["properties"]["regions"]
+    assert regions["minItems"] == regions["maxItems"] == 3
+    for i, entry in enumerate(regions["prefixItems"], start=1):
+        assert entry["properties"]["region"]["const"] == i and entry["properties"]["area"]["maxLength"] == MAX_AREA_NAME_CHARS
+    RegionNaming.model_validate({"regions": [{"region": 1, "area": "x" * MAX_AREA_NAME_CHARS}]})
+    with pytest.raises(ValueError, match="at most 40 characters"):
+        RegionNaming.model_validate({"regions": [{"region": 1, "area": "x" * (MAX_AREA_NAME_CHARS + 1)}]})
     assert describer_schema(["a_1"])["properties"]["areas"]["maxItems"] == MAX_AREAS
 
 
@@ -168,3 +171,17 @@ def test_the_direct_planners_schema_is_generated_from_its_model() -> None:
         "additionalProperties": False,
     }
     assert "description" in generated["properties"]["plans"]["items"]["properties"]["x"]
+
+
+def test_a_pinned_array_has_one_item_per_value_in_order() -> None:
+    schema = reply_schema(Outer, {"items": Refine(pin=("label", ["a", "b"]))})
+    items = schema["properties"]["items"]
+    assert "items" not in items and items["minItems"] == items["maxItems"] == 2
+    assert [e["properties"]["label"]["const"] for e in items["prefixItems"]] == ["a", "b"]
+    assert items["prefixItems"][0]["properties"]["tags"]["maxItems"] == 3  # the rest of the item is kept
+    with pytest.raises(SchemaContractError, match="cannot pin 'nothing'"):
+        reply_schema(Outer, {"items": Refine(pin=("nothing", ["a"]))})
+    with pytest.raises(SchemaContractError, match="cannot pin"):
+        reply_schema(Outer, {"note": Refine(pin=("label", ["a"]))})
+    with pytest.raises(SchemaContractError, match="nothing to pin"):
+        reply_schema(Outer, {"items": Refine(pin=("label", []))})

@@ -58,6 +58,24 @@ def test_grammar_names_only_scene_objects_free_seats_and_offered_labels() -> Non
     assert "get_area_to_sit_on" not in no_seats and "seat ::=" not in no_seats
 
 
+def _alternatives(grammar: str, rule: str) -> set[str]:
+    rules = dict(line.split(" ::= ", 1) for line in grammar.strip().splitlines())
+    return set(re.findall(r'\\"([^"\\]+)\\"', rules[rule]))
+
+
+def test_the_events_words_narrow_objects_and_seats_to_its_shortlist() -> None:
+    """"sits on the couch and watches TV" offers the couch and the TV, not the 30 other objects;
+    the seat a character holds stays out; words that name nothing keep everything."""
+    grammar = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity="sit on the couch and watch TV")
+    assert _alternatives(grammar, "object") == {"couch_1", "tv_1"}
+    assert _alternatives(grammar, "seat") == {"couch_1"}
+    assert {"couch_1", "tv_1", "Ben"} <= _alternatives(grammar, "look")
+    vague = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity="wait for a friend")
+    assert _alternatives(vague, "object") == {o.name for o in SCENE.objects}
+    table = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity="sit on a chair at the table")
+    assert "chair_2" not in _alternatives(table, "seat") and _alternatives(table, "seat") <= {f"chair_{i}" for i in range(1, 6)}
+
+
 def test_a_program_of_the_grammar_runs_in_the_sandbox() -> None:
     program = ('```python\ndef parse_event():\n    c1 = get_character("Ava")\n'
                '    c1.set_position(get_area_to_interact_with("coffee_maker_1"))\n'

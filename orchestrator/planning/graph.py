@@ -219,7 +219,8 @@ def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
         seed=deps.seed,
         sim_frame=state.sim_frame,
         grammar=event_program_grammar(
-            deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), deps.action_labels
+            deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), deps.action_labels,
+            activity=state.event.activity,
         ) if deps.program_grammar else None,
     )
 

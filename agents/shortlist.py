@@ -1,0 +1,134 @@
+"""Shortlists of the objects and seats an event is about, from its words and the scene.
+
+A 0.5B model asked to pick one of 40 objects or 10 seats picks the first one listed about as
+often as the right one. Most events name what they are about: an object (``couch_1``), an
+object label (``the couch``, ``the coffee maker``), an action whose label names an object
+label (``makes coffee`` -> ``use_coffee_maker`` -> ``coffee_maker``), or a place relative to
+another object (``the chair by the window``). :func:`event_shortlist` turns those words into
+candidates, and :mod:`agents.program_grammar` offers only those to the model:
+
+- objects: every object named, or of a label named (a label's last word, ``table``, matches
+  every label ending in it unless a longer label matches in full, ``coffee table``), or of a
+  label the best-matching action labels name; with two named groups and a proximity word
+  (``by``, ``near``, ``next to``, ``nearest``, ``farthest``...) the first group keeps only its
+  members close to (within ``CLOSE_M`` of) the second, or the nearest / farthest one;
+- seats: the free seats among those objects (those close to a named non-seat object when there
+  are such: "a chair at the table"), else the free seats within ``CLOSE_M`` of the named
+  objects (sitting at a table, at the desk with the laptop; within ``VIEWED_M`` of a thing watched
+  from afar, a TV).
+
+An empty shortlist means "no evidence": the caller offers everything. Pure: no LLM, no I/O.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from sim.scene.model import Scene, SceneObject
+from tools.scene_graph import footprint_distance
+
+CLOSE_M = 1.0
+"""Horizontal gap (m) under which an object counts as close to another (the scene graph's
+``close to``)."""
+SYNONYMS = {"sofa": "couch", "television": "tv", "refrigerator": "fridge", "telly": "tv", "turntable": "record player"}
+"""Common words for the same kind of object (general English, not any case's wording)."""
+VIEWED_M = 4.0
+"""Seats within this gap of a thing watched from afar (``VIEWED``) count as seats for it."""
+VIEWED = frozenset({"tv", "screen", "whiteboard", "projector", "window", "fireplace", "stage"})
+NEAR_WORDS = ("near", "nearest", "closest", "next to", "beside", "by the", "close to", "at the end", "facing", "with the")
+FAR_WORDS = ("farthest", "furthest", "away from")
+
+_WORD = re.compile(r"[a-z0-9]+")
+
+
+@dataclass(frozen=True)
+class Shortlist:
+    """Candidates for one event (empty: no evidence, offer everything)."""
+
+    objects: tuple[str, ...]
+    seats: tuple[str, ...]
+
+
+def _words(text: str) -> list[str]:
+    out = []
+    for w in _WORD.findall(text.lower().replace("_", " ")):
+        out.extend(SYNONYMS.get(w, w).split())
+        if len(w) > 3 and w.endswith("s"):  # plurals: "plates" also reads as "plate"
+            out.extend(SYNONYMS.get(w[:-1], w[:-1]).split())
+    return out
+
+
+def _contains(words: Sequence[str], phrase: Sequence[str]) -> int:
+    """Index of the first occurrence of ``phrase`` in ``words`` (-1: absent)."""
+    n = len(phrase)
+    for i in range(len(words) - n + 1):
+        if list(words[i : i + n]) == list(phrase):
+            return i
+    return -1
+
+
+def mentioned_labels(text: str, labels: Sequence[str]) -> list[str]:
+    """Object labels the text names, in order of first mention (see the module docstring)."""
+    words = _words(text)
+    found: dict[str, int] = {}
+    by_head: dict[str, list[str]] = {}
+    for label in dict.fromkeys(labels):
+        parts = label.split("_")
+        by_head.setdefault(parts[-1], []).append(label)
+        if (at := _contains(words, parts)) >= 0:
+            found[label] = at
+    for head, group in by_head.items():
+        if any(label in found for label in group):
+            continue
+        if (at := _contains(words, [head])) >= 0:
+            for label in group:
+                found[label] = at
+    return sorted(found, key=lambda label: found[label])
+
+
+def _near_filter(first: list[SceneObject], others: list[SceneObject], text: str) -> list[SceneObject]:
+    lowered = " " + " ".join(_WORD.findall(text.lower())) + " "
+    far = any(f" {w} " in lowered for w in FAR_WORDS)
+    near = any(f" {w} " in lowered for w in NEAR_WORDS)
+    if not others or not (far or near):
+        return first
+    gap = {o.name: min(footprint_distance(o, b) for b in others) for o in first}
+    if far:
+        best = max(gap.values())
+        return [o for o in first if gap[o.name] == best]
+    if " nearest " in lowered or " closest " in lowered:
+        best = min(gap.values())
+        return [o for o in first if gap[o.name] == best]
+    return [o for o in first if gap[o.name] <= CLOSE_M] or first
+
+
+def event_shortlist(scene: Scene, text: str, free_seats: Sequence[str], action_labels: Sequence[str] = ()) -> Shortlist:
+    """The objects and free seats ``text`` (an event's activity) is about, best evidence first."""
+    by_name = {o.name: o for o in scene.objects}
+    lowered = text.lower()
+    named = [o for o in scene.objects if re.search(rf"\b{re.escape(o.name.lower())}\b", lowered)]
+    labels = mentioned_labels(text, scene.labels)
+    groups = [[o for o in scene.objects if o.label == label] for label in labels]
+    if len(groups) >= 2:
+        groups[0] = _near_filter(groups[0], [o for g in groups[1:] for o in g], text)
+    words = set(_words(text))  # an action whose label names an object label: "makes coffee" -> use_coffee_maker
+    acted = [a for a in action_labels if words & set(a.split("_")) - {"on", "off", "to", "use", "the"}]
+    implied = [o for lab in scene.labels if lab not in labels and any(lab in a for a in acted) for o in scene.objects if o.label == lab]
+    objects = list(dict.fromkeys([o.name for o in named] + [o.name for g in groups for o in g] + [o.name for o in implied]))
+    # seats go by what the event is about (not its landmarks), or by any named thing when that is a seat
+    anchors = [o for o in (*named, *(groups[0] if groups else implied)) if not o.is_seat]
+    anchors = anchors or [o for g in groups for o in g if not o.is_seat]
+    free = [by_name[s] for s in free_seats if s in by_name]
+    def reach(o: SceneObject) -> float:
+        return VIEWED_M if o.label.split("_")[-1] in VIEWED else CLOSE_M
+
+    near_chosen = [s.name for s in free
+                   if any(o.name != s.name and footprint_distance(s, o) <= reach(o) for o in anchors)]
+    seats = [s.name for s in free if s.name in objects]
+    if seats and near_chosen:  # "a chair at the table": the named seats by the named things
+        seats = [s for s in seats if s in near_chosen] or seats
+    elif not seats:  # sit at / by what the event names
+        seats = near_chosen
+    return Shortlist(objects=tuple(objects), seats=tuple(seats))

@@ -1,0 +1,58 @@
+"""Shortlists of an event's objects and seats from its words and the scene's geometry."""
+
+from __future__ import annotations
+
+from agents.event_parser import scene_action_labels
+from agents.shortlist import event_shortlist, mentioned_labels
+from sim.scene.bundled import resolve_scene
+from sim.scene.model import Scene
+from tools.scene_graph import footprint_distance
+
+HOME = resolve_scene("home")
+RESTAURANT = resolve_scene("restaurant")
+
+
+def seats(scene: Scene) -> list[str]:
+    return [o.name for o in scene.objects if o.is_seat]
+
+
+def test_labels_are_found_by_full_name_head_word_plural_and_common_synonym() -> None:
+    labels = ["coffee_table", "dining_table", "couch", "tv", "tv_stand", "plate", "record_player"]
+    assert mentioned_labels("puts the cup on the coffee table", labels) == ["coffee_table"]
+    assert mentioned_labels("sits at a table", labels) == ["coffee_table", "dining_table"]
+    assert mentioned_labels("watches television from the sofa", labels) == ["tv", "couch"]
+    assert mentioned_labels("clears the plates", labels) == ["plate"]
+    assert mentioned_labels("switches on the turntable", labels) == ["record_player"]
+    assert mentioned_labels("waits for a friend", labels) == []
+
+
+def test_named_objects_and_objects_implied_by_the_action_are_candidates() -> None:
+    s = event_shortlist(HOME, "make coffee sitting on couch_1", seats(HOME), scene_action_labels(HOME))
+    assert s.objects == ("couch_1", "coffee_maker_1") and s.seats == ("couch_1",)
+    assert event_shortlist(HOME, "Ava makes coffee", seats(HOME), scene_action_labels(HOME)).objects == ("coffee_maker_1",)
+
+
+def test_seats_follow_what_the_event_is_about_and_only_free_ones() -> None:
+    laptop = next(o for o in HOME.objects if o.label == "laptop")
+    s = event_shortlist(HOME, "types an email on the laptop", seats(HOME))
+    assert s.seats and all(footprint_distance(next(o for o in HOME.objects if o.name == n), laptop) <= 1.0 for n in s.seats)
+    free = [n for n in seats(HOME) if n != "couch_1"]
+    assert "couch_1" not in event_shortlist(HOME, "sits on the couch", free).seats
+    tv = event_shortlist(HOME, "watches TV", seats(HOME))
+    assert "couch_1" in tv.seats  # a TV is watched from across the room
+
+
+def test_nearest_and_farthest_pick_by_distance_to_the_landmark() -> None:
+    tables = [o for o in RESTAURANT.objects if o.label == "table"]
+    bar = [o for o in RESTAURANT.objects if o.label == "bar_counter"]
+    gap = {t.name: min(footprint_distance(t, b) for b in bar) for t in tables}
+    near = event_shortlist(RESTAURANT, "eats at the table nearest the bar counter", seats(RESTAURANT))
+    far = event_shortlist(RESTAURANT, "eats at the table farthest from the bar counter", seats(RESTAURANT))
+    assert [n for n in near.objects if n in gap] == [min(gap, key=gap.__getitem__)]
+    assert [n for n in far.objects if n in gap] == [max(gap, key=gap.__getitem__)]
+    assert near.seats != far.seats
+
+
+def test_words_that_name_nothing_give_an_empty_shortlist() -> None:
+    s = event_shortlist(HOME, "chats with a friend", seats(HOME), scene_action_labels(HOME))
+    assert s.objects == () and s.seats == ()
