@@ -19,6 +19,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from agents.action_shortlist import suggested_action
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
 from agents.messages import CharacterStatus, Event, PlannedCharacter
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, package_prompts
@@ -77,6 +78,10 @@ class ParserInput:
     sim_frame: int | None = None
     grammar: str | None = None
     """GBNF grammar of the reply (see agents.program_grammar); None: free text."""
+    instruction_part: str = ""
+    """The part of the user's instruction the event carries out ("" when none): its own words,
+    which the narrator's activity may have lost ("the laptop" in "takes the seat from which
+    the laptop can be reached")."""
     max_tokens: int | None = None
     """None: 80 + 110 per event character (capped at DEFAULT_MAX_TOKENS), enough for the
     function; a small model otherwise goes on writing more examples."""
@@ -115,21 +120,6 @@ def _status_line(c: CharacterStatus) -> str:
 _WORD = re.compile(r"[a-z]+")
 
 
-def suggest_action_labels(activity: str, labels: Sequence[str], k: int = 4) -> list[str]:
-    """Labels sharing the most words with the activity (``watch TV`` -> ``watch_tv``), best
-    first, ties in list order; at least ``idle``. Shown to the model as likely choices."""
-    words = set(_WORD.findall(activity.lower()))
-    scored = []
-    for i, label in enumerate(labels):
-        overlap = len(words & set(label.split("_")) - {"on", "off", "to", "out", "the"})
-        if overlap:
-            scored.append((-overlap, i, label))
-    best = [label for _, _, label in sorted(scored)[:k]]
-    if "idle" in labels and "idle" not in best:
-        best.append("idle")
-    return best
-
-
 AREA_KINDS = ("area", "seat_area", "area_operation")
 
 
@@ -146,6 +136,12 @@ def spatial_api_listing() -> dict[str, str]:
     }
 
 
+def event_text(activity: str, instruction_part: str = "") -> str:
+    """What the event's words are, for the label and object shortlists: the activity and the
+    instruction part it carries out."""
+    return f"{activity.strip()} {instruction_part.strip()}".strip()
+
+
 def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessage, ...]:
     system = prompts.render(
         "event_parser/system.md",
@@ -160,7 +156,9 @@ def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessa
         seats_in_use=", ".join(inp.seats_in_use) if inp.seats_in_use else "none",
         event_characters=", ".join(f'"{n}"' for n in inp.event.characters),
         activity=inp.event.activity.strip(),
-        likely_action=suggest_action_labels(inp.event.activity, inp.action_labels, k=1)[0] if inp.action_labels else "idle",
+        instruction_part="\n" + prompts.render_text("event_parser/instruction_part.md", part=inp.instruction_part.strip())
+        if inp.instruction_part.strip() else "",
+        likely_action=suggested_action(event_text(inp.event.activity, inp.instruction_part), inp.action_labels),
     )
     return (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
 

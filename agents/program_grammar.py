@@ -7,13 +7,14 @@ has exactly one block per event character, in event order::
 
     def parse_event():
         c1 = get_character("Ava")
+        c1.set_target_action("watch_tv")
         c1.set_position(get_area_close_to("table_3"))
         c1.set_orientation("tv_1")
-        c1.set_target_action("watch_tv")
 
-where the area is one of the spatial API's listed area functions (``SpatialAPI.functions()``) over the scene's object names (a
+where the action comes first (a label without a seated motion admits standing areas only), the area is one of the spatial API's listed area functions (``SpatialAPI.functions()``) over the scene's object names (a
 seat function only over seats not in use), the orientation target an object or another
-character, and the action one of the offered labels. For an event, :func:`event_program_grammar`
+character, and the action one of the offered labels (those the event's words point to,
+:mod:`agents.action_shortlist`). For an event, :func:`event_program_grammar`
 narrows the objects and seats further to the shortlist its words single out
 (:mod:`agents.shortlist`: "sits on the couch" offers the free couches, "the chair by the
 window" the chairs close to a window), or keeps them all when the words name nothing. The program still runs in the sandbox and
@@ -29,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from agents.action_shortlist import action_shortlist
 from agents.shortlist import event_shortlist
 from sim.motion.action_labels import playable_seated
 from sim.scene.model import Scene, SceneObject
@@ -72,41 +74,64 @@ def program_grammar(
     action_labels: Sequence[str],
     other_characters: Sequence[str] = (),
     seated_labels: Sequence[str] | None = None,
+    interact_objects: Sequence[str] | None = None,
 ) -> str:
     """The grammar of one event's program (see the module docstring).
 
     ``objects``: every object an area may be built on; ``seats``: the free seats (the sit
     function is offered only when there is one); ``other_characters``: characters that may be
     looked at besides the objects and the event's own characters; ``seated_labels``: the
-    labels that can be played sitting (None: all), the only ones offered after a sit area."""
+    labels that can be played sitting (None: all); ``interact_objects``: the objects
+    ``get_area_to_interact_with`` may take (None: ``objects``; a seat someone holds cannot be
+    interacted with). Each block sets the action first, then the position: a label that has
+    no seated motion is followed by standing areas only, and the action, the decision the
+    event's words say most about, is made before the place that must suit it."""
     if not event_characters:
         raise ValueError("an event without characters has no program")
     if not action_labels:
         raise ValueError("no action labels to choose from")
-    sit_labels = list(action_labels if seated_labels is None else [a for a in action_labels if a in set(seated_labels)])
+    seated = set(action_labels if seated_labels is None else seated_labels)
+    sit_labels = [a for a in action_labels if a in seated]
+    stand_labels = [a for a in action_labels if a not in seated]
     can_sit = bool(seats) and bool(sit_labels)
     lines = ["root ::= " + _literal("```python\ndef parse_event():\n") + " "
              + " ".join(f"block{i}" for i in range(1, len(event_characters) + 1)) + " " + _literal("```")]
     for i, name in enumerate(event_characters, start=1):
         var = f"c{i}"
-        head = _literal(f"    {var} = get_character({json.dumps(name)})\n    {var}.set_position(")
-        look = _literal(f")\n    {var}.set_orientation(") + " look " + _literal(f")\n    {var}.set_target_action(")
-        end = _literal(")\n")
-        stand = f"area {look} label {end}"
-        body = f"( sitarea {look} sitlabel {end} | {stand} )" if can_sit else stand
-        lines.append(f"block{i} ::= {head} {body}")
+        head = _literal(f"    {var} = get_character({json.dumps(name)})\n    {var}.set_target_action(")
+        place = _literal(f")\n    {var}.set_position(")
+        look = _literal(f")\n    {var}.set_orientation(") + " look " + _literal(")\n")
+        branches = []
+        if can_sit:
+            branches.append(f"sitlabel {place} ( sitarea | area )")
+            if stand_labels:
+                branches.append(f"standlabel {place} area")
+        else:
+            branches.append(f"label {place} area")
+        lines.append(f"block{i} ::= {head} ( {' | '.join(branches)} ) {look}")
     one_object, two_objects, seat_area = area_functions()
-    areas = [f"{_literal(fn + '(')} object {_literal(')')}" for fn in one_object]
+    interact = "get_area_to_interact_with"
+    use_interact_rule = interact_objects is not None and interact in one_object and list(interact_objects) != list(objects)
+    areas = [
+        f"{_literal(fn + '(')} {'interactobject' if use_interact_rule and fn == interact else 'object'} {_literal(')')}"
+        for fn in one_object
+        if not (use_interact_rule and fn == interact and not interact_objects)
+    ]
     areas += [f"{_literal(fn + '(')} object {_literal(', ')} object {_literal(')')}" for fn in two_objects]
     if can_sit:
         lines.append(f"sitarea ::= {_literal(seat_area + '(')} seat {_literal(')')}")
         lines.append(_choice("seat", seats))
         lines.append(_choice("sitlabel", sit_labels))
+        if stand_labels:
+            lines.append(_choice("standlabel", stand_labels))
+    else:
+        lines.append(_choice("label", action_labels))
     lines.append("area ::= " + " | ".join(areas))
     lines.append(_choice("object", objects))
+    if use_interact_rule and interact_objects:
+        lines.append(_choice("interactobject", interact_objects))
     lookable = [*objects, *(c for c in (*event_characters, *other_characters) if c not in objects)]
     lines.append(_choice("look", lookable))
-    lines.append(_choice("label", action_labels))
     return "\n".join(lines) + "\n"
 
 
@@ -114,9 +139,12 @@ def event_program_grammar(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[Any],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "",
 ) -> str:
-    """:func:`program_grammar` for an event in ``scene``: the objects and the seats nobody else
-    holds or stands on, narrowed to the event's shortlist (:func:`agents.shortlist.event_shortlist`
-    of ``activity``; all of them when it has none), the offered labels; ``characters`` are the
+    """:func:`program_grammar` for an event in ``scene``: the labels its words point to
+    (:func:`agents.action_shortlist.action_shortlist` of ``activity``; every offered label
+    when they point to none), the objects and the seats nobody else holds or stands on,
+    narrowed to the event's shortlist (:func:`agents.shortlist.event_shortlist`; all of them
+    when it has none), and no held seat to interact with. ``activity`` is the event's text
+    (the narrator's activity and the instruction part it comes from); ``characters`` are the
     roster (objects with ``name``, ``seat``, ``position``)."""
     others = [c for c in characters if c.name not in event_characters]
     taken = set(seats_in_use) | {c.seat for c in others if getattr(c, "seat", None)}
@@ -133,13 +161,17 @@ def event_program_grammar(
         return any(float(np.min(np.linalg.norm(placed - np.asarray(s.position), axis=1))) >= MIN_SEPARATION for s in slots)
 
     free_seats = [o.name for o in scene.objects if o.is_seat and free(o)]
-    shortlist = event_shortlist(scene, activity, free_seats, action_labels)
+    labels = list(action_shortlist(activity, action_labels, scene.labels)) or list(action_labels)
+    shortlist = event_shortlist(scene, activity, free_seats, labels)
+    objects = list(shortlist.objects) or [o.name for o in scene.objects]
+    held = {o.name for o in scene.objects if o.is_seat and o.name not in free_seats}
     return program_grammar(
         event_characters,
-        list(shortlist.objects) or [o.name for o in scene.objects],
+        objects,
         list(shortlist.seats) or free_seats,
-        action_labels,
+        labels,
         [c.name for c in characters if c.name not in event_characters],
-        seated_labels=[a for a in action_labels if playable_seated(a)],
+        seated_labels=[a for a in labels if playable_seated(a)],
+        interact_objects=[o for o in objects if o not in held],
     )
 

@@ -6,6 +6,8 @@ test runs the real ``run_event_program`` on a small scene.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import contextlib
 from dataclasses import dataclass
 
@@ -158,13 +160,19 @@ def test_real_event_program_runner() -> None:
                   world=world, seed=0, action_labels=("idle", "eat"))
 
 
-def test_likely_action_labels_follow_the_activity_words() -> None:
-    from agents.event_parser import suggest_action_labels
+def test_the_suggested_label_and_the_instruction_part_reach_the_request() -> None:
+    from agents.event_parser import parser_messages
 
-    labels = ("idle", "watch_tv", "turn_on_tv", "use_coffee_maker", "read_book")
-    assert suggest_action_labels("make coffee with coffee_maker_1", labels) == ["use_coffee_maker", "idle"]
-    assert suggest_action_labels("watch TV on couch_1", labels)[:2] == ["watch_tv", "turn_on_tv"]
-    assert suggest_action_labels("stand still", labels) == ["idle"]
+    inp = make_input()
+    labels = ("idle", "watch_tv", "use_laptop", "read_book")
+    event = Event(characters=inp.event.characters, activity="take the seat from which it can be reached")
+    bare = replace(inp, event=event, action_labels=labels)
+    user = parser_messages(PromptLibrary(), bare)[-1].content
+    assert "Suggested action label: idle" in user and "part of the instruction" not in user
+    part = "Ann types up her notes on the laptop, so she takes the seat from which it can be reached."
+    user = parser_messages(PromptLibrary(), replace(bare, instruction_part=part))[-1].content
+    assert "Suggested action label: use_laptop" in user
+    assert f'It comes from this part of the instruction: "{part}"' in user
 
 
 async def test_parser_retry_asks_for_the_code_block_only() -> None:

@@ -27,6 +27,7 @@ ROSTER = (CharacterStatus(name="Ava", position=(1.0, 1.0)), CharacterStatus(name
 WORLD = WorldView(characters=tuple(CharacterState(name=c.name, position=c.position, busy=c.busy, seat=c.seat) for c in ROSTER),
                   objects_in_use={"couch_1": "Ben"})
 EVENT = Event(characters=("Ava",), activity="make coffee with coffee_maker_1")
+VAGUE = Event(characters=("Ava",), activity="pass the time")
 
 
 LABELS = scene_action_labels(SCENE)
@@ -35,18 +36,18 @@ SEATS_IN_USE = ("couch_1", "chair_2")
 
 def event_grammar(event: Event) -> str:
     """The grammar the planning graph's parser input carries for ``event`` (free seats, offered labels)."""
-    return event_program_grammar(SCENE, event.characters, ROSTER, SEATS_IN_USE, LABELS)
+    return event_program_grammar(SCENE, event.characters, ROSTER, SEATS_IN_USE, LABELS, activity=event.activity)
 
 
 def test_grammar_names_only_scene_objects_free_seats_and_offered_labels() -> None:
-    g = event_grammar(EVENT)
+    g = event_grammar(VAGUE)
     rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
     objects = set(re.findall(r'\\"([^"\\]+)\\"', rules["object"]))
     assert objects == {o.name for o in SCENE.objects}
     seats = set(re.findall(r'\\"([^"\\]+)\\"', rules["seat"]))
     assert "chair_2" not in seats and seats <= {o.name for o in SCENE.objects if o.is_seat}
     assert "couch_1" in seats  # Ben holds one of its three places
-    labels = set(re.findall(r'\\"([^"\\]+)\\"', rules["label"]))
+    labels = set(re.findall(r'\\"([^"\\]+)\\"', rules["sitlabel"] + rules["standlabel"]))
     assert labels == set(scene_action_labels(SCENE))
     assert '\\"Ben\\"' in rules["look"]  # another character may be looked at
     assert rules["root"].count("block") == 1 and 'get_character(\\"Ava\\")' in rules["block1"]
@@ -77,9 +78,10 @@ def test_the_events_words_narrow_objects_and_seats_to_its_shortlist() -> None:
 
 
 def test_a_program_of_the_grammar_runs_in_the_sandbox() -> None:
-    program = ('```python\ndef parse_event():\n    c1 = get_character("Ava")\n'
+    program = ('```python\ndef parse_event():\n    c1 = get_character("Ava")\n    c1.set_target_action("use_coffee_maker")\n'
                '    c1.set_position(get_area_to_interact_with("coffee_maker_1"))\n'
-               '    c1.set_orientation("coffee_maker_1")\n    c1.set_target_action("use_coffee_maker")\n```')
+               '    c1.set_orientation("coffee_maker_1")\n```')
+    assert _admits(event_grammar(EVENT), program)
     result = run_reply(program, scene=SCENE, event=EVENT, world=WORLD, seed=1, action_labels=scene_action_labels(SCENE))
     assert result.plans[0].action == "use_coffee_maker"
 
@@ -154,12 +156,61 @@ def test_after_a_sit_area_only_seated_actions_are_offered_and_the_check_agrees()
     from agents.retry_feedback import AnswerRejectedError
     from tools.character_states import CharacterPlan
 
-    g = event_grammar(EVENT)
+    g = event_grammar(VAGUE)
     rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
-    assert '\\"use_coffee_maker\\"' in rules["label"] and '\\"use_coffee_maker\\"' not in rules["sitlabel"]
+    assert '\\"use_coffee_maker\\"' in rules["standlabel"] and '\\"use_coffee_maker\\"' not in rules["sitlabel"]
+    assert "sitlabel" in rules["block1"] and "sitarea" in rules["block1"].split("standlabel")[0]
+    assert "sitarea" not in rules["block1"].split("standlabel")[1]  # a standing-only action never sits
     assert '\\"idle\\"' in rules["sitlabel"]
     seated = CharacterPlan(character="Ava", action="use_coffee_maker", area="sit on chair_1", position=(1.0, 1.0),
                            facing=(1.0, 0.0), seat="chair_1")
     with pytest.raises(AnswerRejectedError, match="cannot use_coffee_maker while sitting on chair_1"):
         check_plans(EVENT, [seated])
     assert check_plans(EVENT, [seated.model_copy(update={"action": "idle"})])[0].seat == "chair_1"
+
+
+_GBNF_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[A-Za-z0-9_]+|[()|]')
+
+
+def _admits(grammar: str, text: str) -> bool:
+    """Whether ``text`` is a sentence of ``grammar``: the event grammar has no recursion and only
+    literals, rule names, groups and alternatives, so it expands into one regular expression."""
+    rules = dict(line.split(" ::= ", 1) for line in grammar.strip().splitlines())
+
+    def expand(name: str) -> str:
+        out = []
+        for tok in _GBNF_TOKEN.findall(rules[name]):
+            if tok.startswith('"'):
+                out.append(re.escape(json.loads(tok)))
+            elif tok in "()|":
+                out.append({"(": "(?:", ")": ")", "|": "|"}[tok])
+            else:
+                out.append(f"(?:{expand(tok)})")
+        return "".join(out)
+
+    return re.fullmatch(expand("root"), text) is not None
+
+
+def test_the_events_words_narrow_the_labels_and_the_action_comes_first() -> None:
+    """"make coffee" offers the coffee maker's label only, and a standing one: no seat area."""
+    g = event_grammar(EVENT)
+    rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
+    assert _alternatives(g, "label") == {"use_coffee_maker"}
+    assert "sitarea" not in rules["block1"] and "seat" not in rules
+    block = rules["block1"]
+    assert block.index("set_target_action") < block.index("set_position") < block.index("set_orientation")
+    seated = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS,
+                                   activity="sit on the couch and read a book")
+    assert _alternatives(seated, "sitlabel") == {"read_book"} and "standlabel" not in seated
+
+
+def test_a_held_seat_is_not_offered_to_interact_with() -> None:
+    """Ben sits on the only armchair: "interact with armchair_1" cannot be placed, so it is not
+    offered, while the armchair stays a landmark for other areas."""
+    roster = (CharacterStatus(name="Ava"), CharacterStatus(name="Ben", busy=True, seat="armchair_1"))
+    g = event_program_grammar(SCENE, ("Ava",), roster, ("armchair_1",), LABELS, activity="pass the time")
+    assert "armchair_1" in _alternatives(g, "object")
+    assert "armchair_1" not in _alternatives(g, "interactobject") and "tv_1" in _alternatives(g, "interactobject")
+    program = ('```python\ndef parse_event():\n    c1 = get_character("Ava")\n    c1.set_target_action("idle")\n'
+               '    c1.set_position(get_area_{}("armchair_1"))\n    c1.set_orientation("tv_1")\n```')
+    assert _admits(g, program.format("close_to")) and not _admits(g, program.format("to_interact_with"))

@@ -45,7 +45,13 @@ from agents.describer import (
     read_cached,
     write_cached,
 )
-from agents.event_parser import PARSER_RETRY_INSTRUCTION, ParserInput, parser_request, run_reply
+from agents.event_parser import (
+    PARSER_RETRY_INSTRUCTION,
+    ParserInput,
+    event_text,
+    parser_request,
+    run_reply,
+)
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
 from agents.narrator import NarratorInput, narrator_request, parse_narration, waits_without_a_call
@@ -206,9 +212,22 @@ async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) 
     return {"event": out.event, "narrator_attempts": attempts, "narrator_reply": None, "narrator_seq": None}
 
 
+def instruction_part(state: PlanningState, deps: PlanningDeps) -> str:
+    """The instruction part the state's event carries out: the part the narrator was asked to
+    take next, when the event's characters are among its actors ("" otherwise)."""
+    assert state.event is not None
+    progress = narrator_input(state, deps).progress
+    if progress.next_part is None or not state.event.characters:
+        return ""
+    if progress.next_actors and not set(state.event.characters) <= set(progress.next_actors):
+        return ""
+    return progress.next_part
+
+
 def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
     """The event parser's input for the state's event (the one builder: ablation nodes use it too)."""
     assert state.description is not None and state.event is not None
+    part = instruction_part(state, deps)
     return ParserInput(
         scene_description=state.description.text,
         event=state.event,
@@ -218,9 +237,10 @@ def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
         seats_in_use=deps.world.seats_in_use(state.roster),
         seed=deps.seed,
         sim_frame=state.sim_frame,
+        instruction_part=part,
         grammar=event_program_grammar(
             deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), deps.action_labels,
-            activity=state.event.activity,
+            activity=event_text(state.event.activity, part),
         ) if deps.program_grammar else None,
     )
 

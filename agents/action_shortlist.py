@@ -1,0 +1,254 @@
+"""Which action labels an event is about, ranked from its words.
+
+A 0.5B model choosing among 25-40 action labels picks one whose name shares a word with the
+event (``listen_to_music`` for "put some music on") or the one it just used, about as often as
+the right one. The event's words usually say which label fits: a verb (``drinks``, ``dances``,
+``pays``), an object with a verb (``switch on the TV``, ``open the fridge``), or a thing only
+one action uses (``the bill``, ``the menu``, ``a desktop monitor``). :func:`rank_action_labels`
+scores every offered label against the text with a small lexicon of general English cue
+phrases per label (:data:`CUES`), plus the object the label names when the text names that
+object (``use_toaster`` and "the toaster"), with the direction of switch-like labels taken
+from the text (``on`` / ``off``, ``open`` / ``close``); :func:`action_shortlist` keeps the labels
+close to the best. The event parser's grammar then offers only those (``agents.program_grammar``)
+and the prompt names the best as the suggestion.
+
+The lexicon is written for the product's action labels (``sim.motion.action_labels``) from
+everyday wording, not from any benchmark case. A label absent from :data:`CUES` is still ranked
+by the words of its own name. Pure: no LLM, no I/O.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+from agents.shortlist import mentioned_labels
+
+_TOKEN = re.compile(r"[a-z0-9]+|[,.;:!?]")
+_SYNONYMS = {
+    "sofa": "couch", "television": "tv", "telly": "tv", "refrigerator": "fridge",
+    "turntable": "record player", "whiteboard": "white board", "cellphone": "phone",
+    "mobile": "phone", "pc": "computer", "cupboard": "cabinet",
+}
+_IGNORED_LABEL_WORDS = frozenset({"on", "off", "to", "out", "the", "use", "take", "turn", "open", "close"})
+
+CUES: dict[str, tuple[tuple[str, int], ...]] = {
+    "idle": (("wait", 2), ("rest", 2), ("relax", 2), ("pause", 2), ("nothing", 1), ("stand still", 3), ("sit still", 3),
+             ("idle", 3), ("stay", 1), ("linger", 2), ("daydream", 2), ("think", 1)),
+    "chat": (("chat", 3), ("talk", 3), ("conversation", 3), ("gossip", 3), ("speak", 2), ("joke", 2), ("catch up with", 2),
+             ("tell", 1), ("small talk", 3), ("socialis", 2)),
+    "discuss": (("discuss", 3), ("debate", 3), ("brainstorm", 3), ("argue", 2), ("go over", 2), ("review", 2), ("plan", 1),
+                ("compare notes", 3)),
+    "attend_meeting": (("meeting", 3), ("attend", 2), ("presentation", 2), ("stand up meeting", 3), ("conference", 2),
+                       ("briefing", 2)),
+    "handshake": (("shake hand", 4), ("handshake", 4), ("shakes hand", 4), ("introduce", 1), ("deal", 1)),
+    "hug": (("hug", 4), ("embrace", 4), ("cuddle", 3)),
+    "dance": (("danc", 4), ("waltz", 3), ("groove", 2), ("boogie", 3), ("tango", 3)),
+    "drink": (("drink", 3), ("sip", 3), ("thirst", 1), ("coffee", 1), ("tea", 1), ("juice", 1), ("beer", 1), ("wine", 1),
+              ("mug", 1), ("glass of", 1), ("cup of", 1), ("cocktail", 1), ("soda", 1)),
+    "eat": (("eat", 3), ("meal", 2), ("breakfast", 2), ("lunch", 2), ("dinner", 2), ("snack", 2), ("dine", 2),
+            ("supper", 2), ("bite", 1), ("sandwich", 1), ("toast", 1), ("food", 1), ("dessert", 2)),
+    "use_smartphone": (("phone", 3), ("text", 2), ("scroll", 2), ("message", 2), ("call", 1), ("selfie", 3),
+                       ("social media", 3)),
+    "read_book": (("read", 3), ("book", 2), ("novel", 3), ("magazine", 3), ("newspaper", 3), ("chapter", 2),
+                  ("page", 1), ("story", 1)),
+    "use_laptop": (("laptop", 4), ("type", 2), ("notes", 1), ("notebook", 1)),
+    "work_on_computer": (("computer", 4), ("monitor", 3), ("desktop", 3), ("email", 2), ("mail", 1), ("spreadsheet", 3),
+                         ("code", 2), ("program", 1), ("keyboard", 2), ("screen", 1), ("work", 1)),
+    "watch_tv": (("watch", 3), ("tv", 2), ("show", 2), ("film", 2), ("movie", 2), ("news", 2), ("series", 2),
+                 ("match", 1), ("episode", 2), ("cartoon", 2)),
+    "listen_to_music": (("listen", 3), ("music", 2), ("song", 2), ("tune", 1), ("album", 2), ("record", 1),
+                        ("melody", 2), ("radio", 2), ("playlist", 2)),
+    "wave": (("wave", 4), ("greet", 2), ("hello", 2), ("goodbye", 2), ("bye", 2), ("hi to", 2), ("signal", 1)),
+    "turn_on_tv": (("switch on the tv", 4), ("turn on the tv", 4), ("tv on", 3)),
+    "turn_off_tv": (("switch off the tv", 4), ("turn off the tv", 4), ("tv off", 3)),
+    "turn_on_record_player": (("put on a record", 4), ("put some music on", 4), ("put music on", 4), ("put on some music", 4),
+                              ("play a record", 4), ("start the music", 3), ("music on", 3)),
+    "turn_off_record_player": (("stop the music", 4), ("music off", 3), ("turn the music off", 4)),
+    "open_fridge": (("open the fridge", 4), ("look in the fridge", 3), ("check the fridge", 3)),
+    "close_fridge": (("close the fridge", 4), ("shut the fridge", 4)),
+    "open_cabinet": (("open the cabinet", 4), ("look in the cabinet", 3)),
+    "close_cabinet": (("close the cabinet", 4), ("shut the cabinet", 4)),
+    "use_coffee_maker": (("make coffee", 4), ("makes coffee", 4), ("making coffee", 4), ("brew", 3), ("espresso", 3),
+                         ("cappuccino", 3), ("latte", 2), ("coffee machine", 4)),
+    "use_toaster": (("toast", 3), ("toaster", 4)),
+    "use_microwave": (("microwave", 4), ("heat up", 3), ("reheat", 3), ("warm up", 3), ("heat", 2), ("warm", 1),
+                      ("leftover", 2), ("popcorn", 2)),
+    "use_dishwasher": (("dishwasher", 4), ("load the dish", 4), ("dishes", 2), ("wash up", 3), ("dirty", 2),
+                       ("unload", 2)),
+    "use_water_dispenser": (("water dispenser", 4), ("water cooler", 4), ("fill", 3), ("refill", 3), ("water", 2),
+                            ("top up", 2)),
+    "take_out_drink": (("take out a drink", 4), ("take a drink out", 4), ("grab a drink", 4), ("get a drink", 4),
+                       ("take out", 1), ("grab", 1), ("fetch", 1), ("can of", 2), ("bottle", 2), ("soda", 2)),
+    "take_out_document": (("document", 4), ("file", 3), ("folder", 3), ("paper", 2), ("report", 2), ("contract", 2),
+                          ("printout", 3), ("form", 1)),
+    "take_out_book": (("take out a book", 4), ("take a book", 4), ("pick a book", 4), ("get a book", 4),
+                      ("borrow", 3), ("from the shelf", 3), ("bookshelf", 2), ("bookcase", 2)),
+    "clean_white_board": (("clean the white board", 5), ("wipe the white board", 5), ("erase", 4), ("wipe", 2),
+                          ("clean", 2), ("rub out", 3)),
+    "write_on_white_board": (("write on the white board", 5), ("write", 3), ("draw", 3), ("sketch", 3),
+                             ("white board", 2), ("diagram", 2), ("jot", 2)),
+    "clean_table": (("clean the table", 5), ("wipe the table", 5), ("wipe", 2), ("clean", 2), ("tidy", 2),
+                    ("crumb", 2), ("clear the table", 4)),
+    "deliver_menu": (("menu", 4), ("bring the menu", 5), ("hand out", 2)),
+    "serve_food": (("serve", 2), ("bring", 1), ("dish", 2), ("plate", 1), ("food", 1), ("meal", 1), ("course", 2),
+                   ("carry", 1), ("deliver", 1)),
+    "serve_drink": (("serve", 2), ("bring", 1), ("drink", 1), ("carry", 1), ("deliver", 1), ("tray", 1)),
+    "take_order": (("take the order", 5), ("take order", 5), ("takes the order", 5), ("taking the order", 5),
+                   ("note down", 3), ("write down", 3), ("what they want", 3), ("order", 1)),
+    "order_food": (("order food", 5), ("order a meal", 5), ("order", 2), ("food", 1), ("meal", 1), ("dish", 1),
+                   ("pizza", 1), ("salad", 1), ("soup", 1), ("burger", 1), ("pasta", 1)),
+    "order_drink": (("order a drink", 5), ("order", 2), ("drink", 1), ("coffee", 1), ("beer", 1), ("wine", 1),
+                    ("juice", 1), ("tea", 1)),
+    "pay_bill": (("pay", 4), ("bill", 4), ("check please", 4), ("cheque", 3), ("settle", 3), ("the tab", 3),
+                 ("receipt", 2)),
+}
+"""Cue phrases per label with a weight. A cue word matches a text word that starts with it
+(``drink`` matches "drinks", "drinking"), so cues are stems; phrases match consecutive words."""
+
+SWITCHES = {
+    "turn_on_": ("on", "start", "power"),
+    "turn_off_": ("off", "stop", "shut"),
+    "open_": ("open",),
+    "close_": ("close", "shut"),
+    "take_out_": ("take", "grab", "fetch", "get", "pick", "pull", "remove"),
+}
+"""Label prefixes whose direction the text must give, and the words that give it."""
+
+KEEP_RATIO = 0.5
+"""A label stays on the shortlist when its score is at least this share of the best score."""
+MAX_SHORTLIST = 4
+
+
+@dataclass(frozen=True)
+class RankedLabel:
+    label: str
+    score: int
+
+
+def _tokens(text: str) -> list[str]:
+    out: list[str] = []
+    for w in _TOKEN.findall(text.lower().replace("_", " ").replace("-", " ")):
+        out.extend(_SYNONYMS.get(w, w).split())
+    return out
+
+
+def _word_matches(cue: str, word: str) -> bool:
+    if word == cue:
+        return True
+    if not word[0].isalnum():
+        return False
+    return len(cue) >= 3 and word.startswith(cue) and len(word) - len(cue) <= 3
+
+
+def _phrase_at(tokens: Sequence[str], phrase: Sequence[str]) -> list[int]:
+    n = len(phrase)
+    return [i for i in range(len(tokens) - n + 1) if all(_word_matches(p, tokens[i + k]) for k, p in enumerate(phrase))]
+
+
+def _without_proximity(tokens: list[str]) -> list[str]:
+    """Drop "close to" / "close by" / "next to": places, not the close / shut action."""
+    out: list[str] = []
+    for i, t in enumerate(tokens):
+        if t == "close" and i + 1 < len(tokens) and tokens[i + 1] in {"to", "by"}:
+            out.append("near")
+            continue
+        out.append(t)
+    return out
+
+
+_SWITCH_VERBS = ("switch", "turn", "put", "power", "flip", "click", "shut")
+
+
+_LANDMARK_HEADS = ("near", "nearest", "closest", "beside", "facing", "opposite", "behind", "by", "next", "across")
+_LANDMARK_ENDS = frozenset({"and", "then", "to", "while", "so", "but", "or", "after", "before", "where", "which", "who"})
+LANDMARK_SPAN = 4
+"""Words after a place word ("nearest the water dispenser") name a landmark, not what the
+character does: cues there do not count."""
+
+
+def _landmark_mask(tokens: Sequence[str]) -> list[bool]:
+    mask = [False] * len(tokens)
+    for i, t in enumerate(tokens):
+        if t in _LANDMARK_HEADS or (t == "front" and i > 0 and tokens[i - 1] == "in"):
+            for k in range(i + 1, min(len(tokens), i + 1 + LANDMARK_SPAN)):
+                if tokens[k] in _LANDMARK_ENDS or not tokens[k][0].isalnum():
+                    break
+                mask[k] = True
+    return mask
+
+
+def _direction(tokens: Sequence[str], prefix: str) -> bool:
+    """Whether the text gives the label's direction: "on" / "off" within three words after a
+    switching verb ("switch the TV on"; "sits on the couch" is no direction), or a verb of it
+    ("starts", "opens", "shuts")."""
+    words = SWITCHES[prefix]
+    for i, t in enumerate(tokens):
+        if t in ("on", "off"):
+            if t in words and any(_word_matches(v, w) for v in _SWITCH_VERBS for w in tokens[max(0, i - 4) : i]):
+                return True
+        elif any(_word_matches(w, t) for w in words if w not in ("on", "off")):
+            return True
+    return False
+
+
+def label_score(label: str, tokens: Sequence[str], named_objects: Iterable[str]) -> int:
+    """Score of one label for the event's tokens; ``named_objects`` are the object labels the
+    text names (``coffee_maker``)."""
+    score = 0
+    landmark = _landmark_mask(tokens)
+    for phrase, weight in CUES.get(label, ()):
+        if any(not landmark[i] for i in _phrase_at(tokens, _tokens(phrase))):
+            score += weight
+    words = [w for w in label.split("_") if w not in _IGNORED_LABEL_WORDS]
+    if label not in CUES:
+        score += 2 * sum(1 for w in words if any(_word_matches(w, t) for t in tokens))
+    prefix = next((p for p in SWITCHES if label.startswith(p)), None)
+    target = label.removeprefix(prefix) if prefix else label.removeprefix("use_")
+    if any(obj == target or obj.endswith("_" + target) for obj in named_objects):
+        score += 3
+    if prefix is not None:
+        score = score + 2 if score and _direction(tokens, prefix) else score // 2
+    return score
+
+
+def rank_action_labels(text: str, labels: Sequence[str], object_labels: Sequence[str] = ()) -> list[RankedLabel]:
+    """Every label with a positive score, best first (ties in ``labels`` order)."""
+    tokens = _without_proximity(_tokens(text))
+    landmark = _landmark_mask(tokens)
+    acted_on = " ".join(t for t, skip in zip(tokens, landmark, strict=True) if not skip)
+    named = mentioned_labels(acted_on, list(dict.fromkeys([*object_labels, *(_label_objects(labels))])))
+    scored = [(label_score(label, tokens, named), i, label) for i, label in enumerate(labels)]
+    return [RankedLabel(label, s) for s, _, label in sorted(scored, key=lambda t: (-t[0], t[1])) if s > 0]
+
+
+def _label_objects(labels: Sequence[str]) -> list[str]:
+    """The objects labels name (``use_toaster`` -> ``toaster``), so the text's mention of one
+    counts even when the scene's object labels were not given."""
+    out = []
+    for label in labels:
+        prefix = next((p for p in SWITCHES if label.startswith(p)), None)
+        if prefix:
+            out.append(label.removeprefix(prefix))
+        elif label.startswith("use_"):
+            out.append(label.removeprefix("use_"))
+    return out
+
+
+def action_shortlist(text: str, labels: Sequence[str], object_labels: Sequence[str] = ()) -> tuple[str, ...]:
+    """The labels close to the best (at most :data:`MAX_SHORTLIST`), best first; empty when the
+    text gives no evidence (the caller then offers every label)."""
+    ranked = rank_action_labels(text, labels, object_labels)
+    if not ranked:
+        return ()
+    best = ranked[0].score
+    return tuple(r.label for r in ranked if r.score >= KEEP_RATIO * best)[:MAX_SHORTLIST]
+
+
+def suggested_action(text: str, labels: Sequence[str], object_labels: Sequence[str] = ()) -> str:
+    """The best label for the text, or ``idle`` (the first label when idle is not offered)."""
+    ranked = rank_action_labels(text, labels, object_labels)
+    if ranked:
+        return ranked[0].label
+    return "idle" if "idle" in labels or not labels else labels[0]

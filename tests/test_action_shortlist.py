@@ -1,0 +1,77 @@
+"""Action labels ranked from an event's words (agents.action_shortlist): the right label first
+for everyday wording, landmarks and places not read as actions, switch directions from the text."""
+
+from __future__ import annotations
+
+import pytest
+
+from agents.action_shortlist import CUES, action_shortlist, rank_action_labels, suggested_action
+from sim.motion.action_labels import ACTION_LABELS
+
+HOME = (
+    "idle", "drink", "eat", "watch_tv", "dance", "chat", "handshake", "listen_to_music", "turn_on_record_player",
+    "turn_off_record_player", "turn_on_tv", "turn_off_tv", "open_fridge", "close_fridge", "open_cabinet", "close_cabinet",
+    "use_coffee_maker", "use_toaster", "use_microwave", "use_dishwasher", "use_smartphone", "use_laptop", "read_book",
+)
+OFFICE = (
+    "idle", "chat", "discuss", "attend_meeting", "handshake", "drink", "use_smartphone", "work_on_computer", "use_laptop",
+    "use_water_dispenser", "take_out_document", "clean_white_board", "write_on_white_board", "use_coffee_maker",
+)
+RESTAURANT = ("idle", "chat", "eat", "drink", "deliver_menu", "serve_food", "serve_drink", "take_order", "order_food",
+              "order_drink", "pay_bill", "clean_table", "wave")
+
+
+@pytest.mark.parametrize(("text", "labels", "best"), [
+    ("Zoe brews an espresso before work", HOME, "use_coffee_maker"),
+    ("Tom sips his tea on the couch", HOME, "drink"),
+    ("Noor flicks the telly on", HOME, "turn_on_tv"),
+    ("Noor switches the television off and stretches", HOME, "turn_off_tv"),
+    ("Ivo warms up yesterday's soup", HOME, "use_microwave"),
+    ("Ivo loads the dirty plates into the dishwasher", HOME, "use_dishwasher"),
+    ("Ada curls up with a novel", HOME, "read_book"),
+    ("the twins dance to the radio", HOME, "dance"),
+    ("Kim opens the fridge to look for milk", HOME, "open_fridge"),
+    ("Kim stands close to the fridge and scrolls through her phone", HOME, "use_smartphone"),
+    ("Raj answers emails at the desktop computer", OFFICE, "work_on_computer"),
+    ("Raj refills his bottle at the water cooler", OFFICE, "use_water_dispenser"),
+    ("Lea erases yesterday's diagram from the whiteboard", OFFICE, "clean_white_board"),
+    ("Lea sketches the new floor plan on the whiteboard", OFFICE, "write_on_white_board"),
+    ("Ola and Ben go over the budget together", OFFICE, "discuss"),
+    ("the guest at table four settles the bill", RESTAURANT, "pay_bill"),
+    ("the waiter hands the couple a menu", RESTAURANT, "deliver_menu"),
+    ("the waiter takes the order of the family", RESTAURANT, "take_order"),
+    ("Omar waits by the window for his friend", RESTAURANT, "idle"),
+])
+def test_the_best_label_follows_everyday_wording(text: str, labels: tuple[str, ...], best: str) -> None:
+    assert suggested_action(text, labels) == best
+    assert action_shortlist(text, labels)[0] == best
+
+
+def test_a_landmark_is_not_the_action() -> None:
+    """"at the table nearest the coffee maker": the coffee maker says where, not what."""
+    ranked = [r.label for r in rank_action_labels("Mo eats a sandwich at the table nearest the coffee maker", HOME)]
+    assert ranked[0] == "eat" and "use_coffee_maker" not in ranked
+
+
+def test_close_to_is_a_place_and_on_the_couch_is_no_switch() -> None:
+    assert "close_fridge" not in action_shortlist("chat close to the fridge", HOME)
+    assert action_shortlist("watch the news sitting on the couch", HOME) == ("watch_tv",)
+
+
+def test_no_evidence_gives_an_empty_shortlist_and_idle() -> None:
+    assert action_shortlist("pass the time", HOME) == ()
+    assert suggested_action("pass the time", HOME) == "idle"
+    assert suggested_action("pass the time", ("chat", "eat")) == "chat"
+
+
+def test_the_shortlist_is_bounded_and_close_to_the_best() -> None:
+    labels = ACTION_LABELS
+    short = action_shortlist("serve the food and the drinks, then take the order", labels)
+    assert 1 <= len(short) <= 4
+    ranked = {r.label: r.score for r in rank_action_labels("serve the food and the drinks, then take the order", labels)}
+    assert all(ranked[label] >= ranked[short[0]] / 2 for label in short)
+
+
+def test_every_cue_names_a_known_label_and_labels_without_cues_still_rank() -> None:
+    assert set(CUES) <= set(ACTION_LABELS)
+    assert suggested_action("use the photocopier", ("idle", "use_photocopier")) == "use_photocopier"
