@@ -97,9 +97,9 @@ CUES: dict[str, tuple[tuple[str, int], ...]] = {
     "serve_drink": (("serve", 2), ("bring", 1), ("drink", 1), ("carry", 1), ("deliver", 1), ("tray", 1)),
     "take_order": (("take the order", 5), ("take order", 5), ("takes the order", 5), ("taking the order", 5),
                    ("note down", 3), ("write down", 3), ("what they want", 3), ("order", 1)),
-    "order_food": (("order food", 5), ("order a meal", 5), ("order", 2), ("food", 1), ("meal", 1), ("dish", 1),
+    "order_food": (("order food", 5), ("order a meal", 5), ("order", 2), ("ask for", 2), ("food", 1), ("meal", 1), ("dish", 1),
                    ("pizza", 1), ("salad", 1), ("soup", 1), ("burger", 1), ("pasta", 1)),
-    "order_drink": (("order a drink", 5), ("order", 2), ("drink", 1), ("coffee", 1), ("beer", 1), ("wine", 1),
+    "order_drink": (("order a drink", 5), ("order", 2), ("ask for", 2), ("drink", 1), ("coffee", 1), ("beer", 1), ("wine", 1),
                     ("juice", 1), ("tea", 1)),
     "pay_bill": (("pay", 4), ("bill", 4), ("check please", 4), ("cheque", 3), ("settle", 3), ("the tab", 3),
                  ("receipt", 2)),
@@ -139,7 +139,9 @@ def _word_matches(cue: str, word: str) -> bool:
         return True
     if not word[0].isalnum():
         return False
-    return len(cue) >= 3 and word.startswith(cue) and len(word) - len(cue) <= 3
+    if len(cue) <= 3:  # short stems only inflect: "sip" -> "sipping", not "tab" -> "table"
+        return word in {cue + "s", cue + "es", cue + "ed", cue + "ing", cue + cue[-1] + "ing", cue + cue[-1] + "ed"}
+    return word.startswith(cue) and len(word) - len(cue) <= 3
 
 
 def _phrase_at(tokens: Sequence[str], phrase: Sequence[str]) -> list[int]:
@@ -161,7 +163,7 @@ def _without_proximity(tokens: list[str]) -> list[str]:
 _SWITCH_VERBS = ("switch", "turn", "put", "power", "flip", "click", "shut")
 
 
-_LANDMARK_HEADS = ("near", "nearest", "closest", "beside", "facing", "opposite", "behind", "by", "next", "across")
+_LANDMARK_HEADS = ("near", "nearest", "closest", "beside", "facing", "opposite", "behind", "by", "next", "across", "where")
 _LANDMARK_ENDS = frozenset({"and", "then", "to", "while", "so", "but", "or", "after", "before", "where", "which", "who"})
 LANDMARK_SPAN = 4
 """Words after a place word ("nearest the water dispenser") name a landmark, not what the
