@@ -48,7 +48,8 @@ CUES: dict[str, tuple[tuple[str, int], ...]] = {
     "drink": (("drink", 3), ("sip", 3), ("thirst", 1), ("coffee", 1), ("tea", 1), ("juice", 1), ("beer", 1), ("wine", 1),
               ("mug", 1), ("glass of", 1), ("cup of", 1), ("cocktail", 1), ("soda", 1)),
     "eat": (("eat", 3), ("meal", 2), ("breakfast", 2), ("lunch", 2), ("dinner", 2), ("snack", 2), ("dine", 2),
-            ("supper", 2), ("bite", 1), ("sandwich", 1), ("toast", 1), ("food", 1), ("dessert", 2)),
+            ("supper", 2), ("bite", 1), ("sandwich", 1), ("toast", 1), ("food", 1), ("dessert", 2),
+            ("bowl", 1), ("cereal", 2), ("fork", 1), ("spoon", 1)),
     "use_smartphone": (("phone", 3), ("text", 2), ("scroll", 2), ("message", 2), ("call", 1), ("selfie", 3),
                        ("social media", 3)),
     "read_book": (("read", 3), ("book", 2), ("novel", 3), ("magazine", 3), ("newspaper", 3), ("chapter", 2),
@@ -150,11 +151,16 @@ def _phrase_at(tokens: Sequence[str], phrase: Sequence[str]) -> list[int]:
 
 
 def _without_proximity(tokens: list[str]) -> list[str]:
-    """Drop "close to" / "close by" / "next to": places, not the close / shut action."""
+    """Read "close to" / "close by" / "next to" as "near": places, not the close / shut action."""
     out: list[str] = []
+    skip = False
     for i, t in enumerate(tokens):
-        if t == "close" and i + 1 < len(tokens) and tokens[i + 1] in {"to", "by"}:
+        if skip:
+            skip = False
+            continue
+        if t in ("close", "next") and i + 1 < len(tokens) and tokens[i + 1] in {"to", "by"}:
             out.append("near")
+            skip = True
             continue
         out.append(t)
     return out
@@ -246,6 +252,28 @@ def action_shortlist(text: str, labels: Sequence[str], object_labels: Sequence[s
         return ()
     best = ranked[0].score
     return tuple(r.label for r in ranked if r.score >= KEEP_RATIO * best)[:MAX_SHORTLIST]
+
+
+_SIT_WORDS = ("sit", "seat", "chair", "stool", "couch", "armchair", "bench", "perch")
+_STAND_WORDS = ("stand", "upright")
+_RELATIVE = frozenset({"which", "whichever", "that", "where", "whose"})
+
+
+def posture(text: str) -> str | None:
+    """``"sit"`` when the event's words say the characters sit ("takes a seat", "seated",
+    "on the couch"), ``"stand"`` when they say they stand, None when they say neither or both.
+    Words naming a landmark ("chats next to the couch") do not count."""
+    tokens = _without_proximity(_tokens(text))
+    landmark = _landmark_mask(tokens)
+    said = [t for t, skip in zip(tokens, landmark, strict=True) if not skip]
+    sit = any(_word_matches(w, t) for w in _SIT_WORDS for t in said)
+    stand = any(
+        _word_matches(w, t) and not _RELATIVE & set(said[max(0, i - 4) : i])  # "the table which stands by"
+        for i, t in enumerate(said) for w in _STAND_WORDS
+    )
+    if sit == stand:
+        return None
+    return "sit" if sit else "stand"
 
 
 def suggested_action(text: str, labels: Sequence[str], object_labels: Sequence[str] = ()) -> str:

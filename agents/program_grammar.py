@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.action_shortlist import action_shortlist
+from agents.action_shortlist import action_shortlist, posture
 from agents.shortlist import event_shortlist
 from sim.motion.action_labels import playable_seated
 from sim.scene.model import Scene, SceneObject
@@ -75,6 +75,7 @@ def program_grammar(
     other_characters: Sequence[str] = (),
     seated_labels: Sequence[str] | None = None,
     interact_objects: Sequence[str] | None = None,
+    posture: str | None = None,
 ) -> str:
     """The grammar of one event's program (see the module docstring).
 
@@ -85,7 +86,9 @@ def program_grammar(
     ``get_area_to_interact_with`` may take (None: ``objects``; a seat someone holds cannot be
     interacted with). Each block sets the action first, then the position: a label that has
     no seated motion is followed by standing areas only, and the action, the decision the
-    event's words say most about, is made before the place that must suit it."""
+    event's words say most about, is made before the place that must suit it. ``posture``
+    (``"sit"`` / ``"stand"``, from the event's words): with "sit" and a free seat, only seated
+    labels and seat areas are offered; with "stand", no seat area."""
     if not event_characters:
         raise ValueError("an event without characters has no program")
     if not action_labels:
@@ -93,7 +96,8 @@ def program_grammar(
     seated = set(action_labels if seated_labels is None else seated_labels)
     sit_labels = [a for a in action_labels if a in seated]
     stand_labels = [a for a in action_labels if a not in seated]
-    can_sit = bool(seats) and bool(sit_labels)
+    can_sit = bool(seats) and bool(sit_labels) and posture != "stand"
+    must_sit = can_sit and posture == "sit"
     lines = ["root ::= " + _literal("```python\ndef parse_event():\n") + " "
              + " ".join(f"block{i}" for i in range(1, len(event_characters) + 1)) + " " + _literal("```")]
     for i, name in enumerate(event_characters, start=1):
@@ -102,7 +106,9 @@ def program_grammar(
         place = _literal(f")\n    {var}.set_position(")
         look = _literal(f")\n    {var}.set_orientation(") + " look " + _literal(")\n")
         branches = []
-        if can_sit:
+        if must_sit:
+            branches.append(f"sitlabel {place} sitarea")
+        elif can_sit:
             branches.append(f"sitlabel {place} ( sitarea | area )")
             if stand_labels:
                 branches.append(f"standlabel {place} area")
@@ -122,7 +128,7 @@ def program_grammar(
         lines.append(f"sitarea ::= {_literal(seat_area + '(')} seat {_literal(')')}")
         lines.append(_choice("seat", seats))
         lines.append(_choice("sitlabel", sit_labels))
-        if stand_labels:
+        if stand_labels and not must_sit:
             lines.append(_choice("standlabel", stand_labels))
     else:
         lines.append(_choice("label", action_labels))
@@ -173,5 +179,6 @@ def event_program_grammar(
         [c.name for c in characters if c.name not in event_characters],
         seated_labels=[a for a in labels if playable_seated(a)],
         interact_objects=[o for o in objects if o not in held],
+        posture=posture(activity),
     )
 

@@ -6,10 +6,8 @@ test runs the real ``run_event_program`` on a small scene.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import contextlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import pytest
 from hypothesis import given, settings
