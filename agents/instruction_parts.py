@@ -25,7 +25,9 @@ LLM) still chooses and writes the event.
   needs any free character). The prompt names it on a line of its own. When parts are left
   but none is next (what is left waits for busy characters), the instruction has nothing for
   the free characters now: the narrator's rule says to wait, and the planner records the wait
-  without asking the model. Once every part has happened the model is asked as before (its
+  without asking the model, unless some free characters are *bystanders* (the instruction
+  never names them): they are asked for an event of their own (the reply may name only them),
+  so nobody the user did not mention stands idle while the others carry the instruction out. Once every part has happened the model is asked as before (its
   rules say what to do with free characters the instruction no longer needs).
   When the next part has actors, the narrator's reply may name only them (the schema's enum):
   a small model otherwise adds whoever else is free.
@@ -158,6 +160,8 @@ class InstructionProgress:
     next_part: str | None  # the part to take now, if any
     next_actors: tuple[str, ...]  # who acts in it (empty: it names nobody, or there is none)
     nothing_for_the_free: bool  # what is left of the instruction is for busy characters only
+    bystanders: tuple[str, ...] = ()  # free characters the instruction never names, asked for
+    # an event of their own while what is left of it waits for busy characters
 
 
 def instruction_progress(
@@ -165,6 +169,7 @@ def instruction_progress(
     *, since: int = 0,
 ) -> InstructionProgress:
     """``since``: the index of the first event planned under ``instruction`` (earlier ones never match)."""
+    free = tuple(free)
     parts = split_instruction(instruction, names)
     if not parts:
         return InstructionProgress("(none: continue the story naturally)", None, (), False)
@@ -176,6 +181,10 @@ def instruction_progress(
         marked = [f"[{s}] {p.text}" if s else p.text for p, s in zip(parts, states, strict=True)]
         text = "\n" + "\n".join(f"{i + 1}) {m}" for i, m in enumerate(marked))
     if nxt is None:  # waiting for busy characters, or every part has happened
+        named = {n for p in parts for n in p.names}
+        bystanders = tuple(n for n in free if n not in named) if "" in states else ()
+        if bystanders:
+            return InstructionProgress(text, None, bystanders, False, bystanders)
         return InstructionProgress(text, None, (), "" in states)
     return InstructionProgress(text, nxt.text, nxt.actors, False)
 

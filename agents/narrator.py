@@ -88,10 +88,14 @@ def waits_without_a_call(
     return not free or instruction_progress(instruction, names, history, free, since=since).nothing_for_the_free
 
 
-def narrator_schema(free: Sequence[str]) -> dict[str, Any]:
-    """JSON schema of the reply; ``characters`` may only name free characters (enum)."""
+def narrator_schema(free: Sequence[str], at_least_one: bool = False) -> dict[str, Any]:
+    """JSON schema of the reply; ``characters`` may only name free characters (enum), and must
+    name one when ``at_least_one`` (bystanders asked for an event of their own)."""
     names = list(dict.fromkeys(free))
-    return reply_schema(NarratorOutput, {"event.characters": Refine(enum=names, max_items=len(names))})
+    return reply_schema(
+        NarratorOutput,
+        {"event.characters": Refine(enum=names, max_items=len(names), min_items=1 if at_least_one and names else None)},
+    )
 
 
 def history_text(history: Sequence[HistoryEntry]) -> str:
@@ -120,9 +124,11 @@ def characters_text(characters: Sequence[CharacterStatus]) -> str:
     return "\n".join(lines)
 
 
-def _next_part_line(instruction: str, progress: InstructionProgress) -> str:
+def _next_part_line(prompts: PromptLibrary, instruction: str, progress: InstructionProgress) -> str:
     if progress.next_part is not None:
         return progress.next_part
+    if progress.bystanders:
+        return prompts.render_text("narrator/bystanders.md", names=", ".join(progress.bystanders))
     if progress.nothing_for_the_free:
         return "nothing for the free characters now: wait"
     return "every part has happened" if instruction.strip() else "(none: continue the story naturally)"
@@ -142,7 +148,7 @@ def narrator_messages(prompts: PromptLibrary, inp: NarratorInput) -> tuple[ChatM
         free=", ".join(free) if free else "(none)",
         history=history_text(inp.history),
         instruction=progress.text,
-        next_part=_next_part_line(inp.instruction, progress),
+        next_part=_next_part_line(prompts, inp.instruction, progress),
     )
     return (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
 
@@ -151,7 +157,7 @@ def narrator_request(prompts: PromptLibrary, inp: NarratorInput, turns: tuple[Tu
     return LLMRequest(
         node="narrator",
         messages=with_turns(narrator_messages(prompts, inp), turns),
-        json_schema=narrator_schema(inp.candidates),
+        json_schema=narrator_schema(inp.candidates, at_least_one=bool(inp.progress.bystanders)),
         max_tokens=inp.max_tokens,
         seed=inp.seed,
         temperature=retry_temperature(turns),

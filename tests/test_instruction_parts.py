@@ -11,6 +11,7 @@ from agents.narrator import NarratorInput, narrate, narrator_request
 from agents.prompt_templates import PromptLibrary
 
 COFFEE = "Ava makes coffee, then sits on the couch and drinks it."
+WITH_BEN = "Ava makes coffee, then sits on the couch next to Ben and drinks it."
 NAMES = ("Ava", "Ben")
 
 
@@ -61,8 +62,11 @@ def test_progress_text_and_when_nothing_is_for_the_free() -> None:
     p = instruction_progress(COFFEE, NAMES, (), NAMES)
     assert p.text == "\n1) [next] Ava makes coffee.\n2) Then Ava sits on the couch and drinks it."
     assert p.next_part == "Ava makes coffee." and not p.nothing_for_the_free
-    busy = instruction_progress(COFFEE, NAMES, [ev(0, ("Ava",), "make coffee", "ongoing")], ["Ben"])
-    assert busy.next_part is None and busy.nothing_for_the_free
+    busy = instruction_progress(WITH_BEN, NAMES, [ev(0, ("Ava",), "make coffee", "ongoing")], ["Ben"])
+    assert busy.next_part is None and busy.nothing_for_the_free and busy.bystanders == ()
+    bystander = instruction_progress(COFFEE, NAMES, [ev(0, ("Ava",), "make coffee", "ongoing")], ["Ben"])
+    assert bystander.next_part is None and not bystander.nothing_for_the_free
+    assert bystander.bystanders == ("Ben",) and bystander.next_actors == ("Ben",)
     one = instruction_progress("Ben reads a book.", NAMES, [ev(0, ("Ben",), "read book_1 on couch_1", "ongoing")], ["Ava"])
     assert one.text == "[ongoing] Ben reads a book." and one.next_part is None
     assert not one.nothing_for_the_free  # every part has happened: the model decides about Ava
@@ -84,15 +88,27 @@ class NoCalls:
         pass
 
 
-def _input(history: tuple[HistoryEntry, ...], busy: tuple[str, ...]) -> NarratorInput:
+def _input(history: tuple[HistoryEntry, ...], busy: tuple[str, ...], instruction: str = COFFEE) -> NarratorInput:
     roster = tuple(CharacterStatus(name=n, busy=n in busy, event_index=0 if n in busy else None) for n in NAMES)
     return NarratorInput(scene_description="- kitchen: coffee_maker_1\n- living room: couch_1", characters=roster,
-                         instruction=COFFEE, history=history)
+                         instruction=instruction, history=history)
 
 
 async def test_narrator_waits_without_a_call_when_the_rest_is_for_busy_characters() -> None:
-    accepted = await narrate(NoCalls(), PromptLibrary(), _input((ev(0, ("Ava",), "make coffee", "ongoing"),), ("Ava",)))
+    making = (ev(0, ("Ava",), "make coffee", "ongoing"),)
+    accepted = await narrate(NoCalls(), PromptLibrary(), _input(making, ("Ava",), WITH_BEN))
     assert accepted.value.event.is_wait and accepted.attempts == 0
+
+
+def test_a_bystander_is_asked_for_an_event_of_their_own() -> None:
+    """Ben is never named: while Ava carries the instruction out, he gets something to do
+    (the reply must name him and only him) instead of standing idle for the whole story."""
+    req = narrator_request(PromptLibrary(), _input((ev(0, ("Ava",), "make coffee", "ongoing"),), ("Ava",)))
+    user = req.messages[-1].content
+    assert "Next part: the instruction has nothing for Ben now: give them something of their own to do" in user
+    assert req.json_schema is not None
+    chars = req.json_schema["properties"]["event"]["properties"]["characters"]
+    assert chars["items"]["enum"] == ["Ben"] and chars["minItems"] == 1
 
 
 def test_the_prompt_shows_the_marked_parts_and_the_next_one() -> None:
