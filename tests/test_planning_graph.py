@@ -447,15 +447,16 @@ async def test_sqlite_checkpoints_rebuild_our_types_without_warnings(tmp_path: P
 
 
 async def test_the_rest_of_the_instruction_for_a_busy_character_is_a_wait_without_a_call() -> None:
-    # "Ann eats, then chats": while Ann eats (busy for one step) the second part is hers, so
-    # Bob's step is a wait with no narrator call; then Ann is free and takes part 2.
+    # "Ann eats, then chats with Bob": while Ann eats (busy for one step) the second part is
+    # hers, so Bob's step is a wait with no narrator call (he is named: no bystander); then Ann
+    # is free and takes part 2.
     port = ScriptedLLM({
         "describer": [DESCRIPTION],
         "narrator": [narration(["Ann"], "eat at table_1"), narration(["Ann"], "chat next to table_1")],
         "event_parser": [PROGRAM.format(who="Ann"), PROGRAM.format(who="Ann")],
     })
     story = StoryLog(":memory:", "t1")
-    state = PlanningState(instruction="Ann eats, then chats.", events_target=3,
+    state = PlanningState(instruction="Ann eats, then chats with Bob.", events_target=3,
                           roster=(CharacterStatus(name="Ann"), CharacterStatus(name="Bob"))).model_dump()
     graph = compile_planning_graph(InMemorySaver())
     await graph.ainvoke(state, config={"configurable": {"thread_id": "t1"}, "recursion_limit": recursion_limit(3, 3)},
@@ -466,6 +467,6 @@ async def test_the_rest_of_the_instruction_for_a_busy_character_is_a_wait_withou
     assert all(o is None or isinstance(o, ParsedEvent) for o in outcomes)
     assert port.count("narrator") == 2
     second = [c for c in port.requests if c.node == "narrator"][1]
-    assert "1) [done] Ann eats.\n2) [next] Then Ann chats." in second.messages[-1].content
+    assert "1) [done] Ann eats.\n2) [next] Then Ann chats with Bob." in second.messages[-1].content
     assert second.json_schema is not None
     assert second.json_schema["properties"]["event"]["properties"]["characters"]["items"]["enum"] == ["Ann"]
