@@ -218,13 +218,15 @@ class World:
         ``store`` (which must hold exactly the frames this world's buffers have passed on)."""
         self.buffers.stream_to(store, window)
 
-    def restore(self, snap: WorldSnapshot) -> World:
+    def restore(self, snap: WorldSnapshot, *, store: ChunkStore | None = None) -> World:
         """A new world in the state of ``snap`` (sharing scene, grid, planner and motion layer).
 
-        A streaming world keeps streaming to its store, cut back to the snapshot's frames in the
-        store (``WorldError`` when the store holds fewer, or the world has no store and the
-        snapshot's first frames are in one)."""
-        store, window = self.buffers.store, self.buffers.window
+        A streaming world keeps streaming to its store (or to ``store``, e.g. the chunk files of
+        an earlier process), cut back to the snapshot's frames in the store (``WorldError`` when
+        the store holds fewer, or there is no store and the snapshot's first frames are in one)."""
+        window = self.buffers.window or STREAM_WINDOW
+        if store is None:
+            store = self.buffers.store
         base = snap.buffers.base
         if store is None and base > 0:
             raise WorldError(f"the snapshot's first {base} frames are in chunk files; stream_tracks() to them first")

@@ -42,6 +42,8 @@ from sim.body.skeleton import NUM_JOINTS
 MAGIC = b"STKC"
 VERSION = 1
 CHUNK_SUFFIX = ".chunks"
+MOTION_FOLDER = "motion"
+"""The sub-folder of a run folder that holds the chunk files."""
 _HEADER = struct.Struct("<4sHHQIIQI")
 HEADER_BYTES = _HEADER.size
 _UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
