@@ -9,6 +9,7 @@ targets and acting), so rotations, labels, contacts and event ids are the real t
 from __future__ import annotations
 
 import pickle
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -156,3 +157,28 @@ def test_a_torn_last_record_is_dropped_and_a_bad_middle_one_refused(
     path.write_bytes(bytes(broken))
     with pytest.raises(ChunkError, match="fails its CRC"):
         scan(path)
+
+
+# ----- the GIF recorder streams ---------------------------------------------------------------
+def test_the_gif_is_written_picture_by_picture_and_shows_the_same_pictures(tmp_path: Path) -> None:
+    import imageio.v3 as iio
+
+    from sim.export.video import _write_gif, iter_animation_frames
+    from sim.paths.nav_grid import build_nav_grid
+    from tests.support.random_tracks import wandering_story
+
+    scene = load_bundled_scene("office")
+    rec = wandering_story(scene, build_nav_grid(scene), characters=3, seconds=4.0, seed=3)
+    pictures = list(iter_animation_frames(rec, stride=10, size_px=240))
+    path = tmp_path / "new.gif"
+    sizes: list[int] = []
+
+    def produced() -> Iterator[np.ndarray]:
+        for picture in pictures:
+            sizes.append(path.stat().st_size if path.exists() else 0)
+            yield picture
+
+    _write_gif(path, produced(), duration_ms=1000.0 / 3)
+    assert all(b > a for a, b in zip(sizes[1:], sizes[2:], strict=False))  # each picture on disk before the next
+    iio.imwrite(tmp_path / "old.gif", np.stack(pictures), extension=".gif", duration=1000.0 / 3, loop=0)
+    assert np.array_equal(iio.imread(path, index=None), iio.imread(tmp_path / "old.gif", index=None))
