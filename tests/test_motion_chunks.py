@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import pickle
 from collections.abc import Iterator
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -179,6 +180,6 @@ def test_the_gif_is_written_picture_by_picture_and_shows_the_same_pictures(tmp_p
             yield picture
 
     _write_gif(path, produced(), duration_ms=1000.0 / 3)
-    assert all(b > a for a, b in zip(sizes[1:], sizes[2:], strict=False))  # each picture on disk before the next
+    assert all(b > a for a, b in pairwise(sizes))  # each picture on disk before the next
     iio.imwrite(tmp_path / "old.gif", np.stack(pictures), extension=".gif", duration=1000.0 / 3, loop=0)
     assert np.array_equal(iio.imread(path, index=None), iio.imread(tmp_path / "old.gif", index=None))
