@@ -183,3 +183,26 @@ def test_the_gif_is_written_picture_by_picture_and_shows_the_same_pictures(tmp_p
     assert all(b > a for a, b in pairwise(sizes))  # each picture on disk before the next
     iio.imwrite(tmp_path / "old.gif", np.stack(pictures), extension=".gif", duration=1000.0 / 3, loop=0)
     assert np.array_equal(iio.imread(path, index=None), iio.imread(tmp_path / "old.gif", index=None))
+
+
+# ----- the viewer reads streamed motion --------------------------------------------------------
+def test_the_viewer_shows_a_run_stopped_before_its_exports_from_its_chunks(
+    home: tuple[Scene, MotionMatcher], tmp_path: Path
+) -> None:
+    import json
+
+    from orchestrator.viewer.run_folder import folder_stamp, load_run
+
+    world = _world(home)
+    store = ChunkStore.open(tmp_path / "motion", NAMES)
+    world.stream_tracks(store, WINDOW)
+    _run(world, 0, 2 * WINDOW + 3)
+    story = {"scene": "home", "characters": list(NAMES), "fps": 30, "events": [], "instruction": ""}
+    (tmp_path / "story.json").write_text(json.dumps(story), encoding="utf-8")
+    before = folder_stamp(tmp_path)
+    run = load_run(tmp_path)
+    assert [t.name for t in run.tracks] == list(NAMES)
+    for t in run.tracks:  # the whole records: the frames still in memory are not on disk yet
+        assert np.array_equal(t.local_rotations, world.track(t.name).local_rotations[: 2 * WINDOW])
+    _run(world, 2 * WINDOW + 3, 3 * WINDOW + 1)
+    assert folder_stamp(tmp_path) != before  # a watching viewer reloads as the chunks grow

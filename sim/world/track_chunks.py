@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.body.skeleton import NUM_JOINTS
+from sim.world.character_track import CharacterTrack
 
 MAGIC = b"STKC"
 VERSION = 1
@@ -294,3 +295,14 @@ class ChunkStore:
 
     def __getstate__(self) -> None:
         raise TypeError("a ChunkStore holds open files; a snapshot records its frame count instead")
+
+
+def chunked_track(path: Path, name: str, fps: float = 30.0) -> CharacterTrack | None:
+    """The ``CharacterTrack`` of the whole records in ``path`` (a run still being written, or one
+    stopped before its exports); None when there is no whole frame yet. The same track as
+    ``World.track(name)`` gives for those frames."""
+    frames = read_frames(path)
+    if frames.count == 0:
+        return None
+    return CharacterTrack(name=name, root_positions=frames.pelvis, local_rotations=frames.rotations.astype(float),
+                          fps=fps, action_labels=frames.labels)
