@@ -371,8 +371,8 @@ def write_outputs(
     from orchestrator.session.run_report import run_metrics, story_markdown
     from sim.export.bundle import export_run
     from sim.export.video import (
+        RunRecording,
         animation_suffix,
-        recording_from_world,
         save_run_animation,
         save_run_png,
     )
@@ -393,7 +393,7 @@ def write_outputs(
         params = {t.name: smplx_parameters(t) for t in tracks.values()}
         bodies = {name: body.skin for name, body in smplx_bodies(smplx_model, params).items()}
     export_run(out, scene, list(tracks.values()), bodies=bodies)
-    recording = recording_from_world(world)
+    recording = RunRecording(scene, tracks, world.event_ids(), world.grid)  # the tracks read above, not again
     save_run_png(out / "topdown.png", recording)
     # --video: story.mp4 (story.gif without imageio-ffmpeg); --gif: story.gif
     animations = {name for name, wanted in (("story.gif", gif), (f"story{animation_suffix()}", video)) if wanted}

@@ -267,7 +267,7 @@ class World:
         return CharacterTrack(
             name=name,
             root_positions=f.pelvis,
-            local_rotations=f.rotations.astype(float),
+            local_rotations=f.rotations,  # float32; the track keeps a float64 copy
             fps=float(self.config.fps),
             action_labels=f.labels,
         )
