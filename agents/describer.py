@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
 from agents.llm_schemas import Refine, reply_schema
 from agents.messages import SceneDescription
-from agents.prompt_templates import PromptLibrary
+from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.retry_feedback import (
     AnswerRejectedError,
     RetriesExhaustedError,
@@ -185,7 +185,7 @@ def regions_max_tokens(n_regions: int) -> int:
 def describer_request(
     prompts: PromptLibrary, inp: DescriberInput, turns: tuple[Turn, ...] = (), *, max_tokens: int = DEFAULT_MAX_TOKENS
 ) -> LLMRequest:
-    regions = clusters_text([list(c) for c in inp.clusters]) or "(none)"
+    regions = clusters_text([list(c) for c in inp.clusters]) or prompts.render_text("describer/no_regions.md")
     if inp.mode == "regions":
         system = prompts.render("describer/system_regions.md")
         user = prompts.render(
@@ -218,12 +218,14 @@ def describer_request(
     )
 
 
-def region_problems(naming: RegionNaming, n_regions: int) -> list[str]:
+def region_problems(naming: RegionNaming, n_regions: int, prompts: PromptLibrary | None = None) -> list[str]:
     """Entries that are not regions 1..n_regions in order (only possible without a grammar)."""
+    lib = prompts or package_prompts()
     got = [r.region for r in naming.regions]
     if got == list(range(1, n_regions + 1)):
         return []
-    return [f"answer once per region, in order: regions 1 to {n_regions} (got {', '.join(map(str, got)) or 'none'})"]
+    listed = ", ".join(map(str, got)) or lib.render_text("feedback/none.md")
+    return [lib.render_text("feedback/describer/region_order.md", count=n_regions, got=listed)]
 
 
 def _area_key(name: str) -> str:
@@ -257,8 +259,10 @@ def _load_areas(text: str, inp: DescriberInput | None = None) -> AreaList:
     return AreaList.model_validate(_json_blob(text))
 
 
-def area_problems(areas: AreaList, names: Sequence[str]) -> list[str]:
-    """Missing, repeated and unknown object names (empty when the answer is complete)."""
+def area_problems(areas: AreaList, names: Sequence[str], prompts: PromptLibrary | None = None) -> list[str]:
+    """Missing, repeated and unknown object names (empty when the answer is complete); the
+    sentences are ``prompts/feedback/describer/*.md``."""
+    lib = prompts or package_prompts()
     counts = Counter(n for a in areas.areas for n in a.objects)
     known = set(names)
     problems = []
@@ -266,13 +270,13 @@ def area_problems(areas: AreaList, names: Sequence[str]) -> list[str]:
     repeated = sorted(n for n, k in counts.items() if k > 1 and n in known)
     missing = [n for n in names if n not in counts]
     if unknown:
-        problems.append("not objects of this scene: " + ", ".join(unknown))
+        problems.append(lib.render_text("feedback/describer/unknown_objects.md", names=", ".join(unknown)))
     if repeated:
-        problems.append("named more than once: " + ", ".join(repeated))
+        problems.append(lib.render_text("feedback/describer/repeated_objects.md", names=", ".join(repeated)))
     if missing:
-        problems.append("missing (put each into one area): " + ", ".join(missing))
+        problems.append(lib.render_text("feedback/describer/missing_objects.md", names=", ".join(missing)))
     if len(areas.areas) > MAX_AREAS:
-        problems.append(f"use at most {MAX_AREAS} areas")
+        problems.append(lib.render_text("feedback/describer/too_many_areas.md", limit=MAX_AREAS))
     return problems
 
 
@@ -285,9 +289,10 @@ def parse_areas(text: str, names: Sequence[str]) -> AreaList:
     return areas
 
 
-def repair_areas(areas: AreaList, inp: DescriberInput) -> AreaList:
+def repair_areas(areas: AreaList, inp: DescriberInput, prompts: PromptLibrary | None = None) -> AreaList:
     """Complete an answer: unknown names dropped, repeats kept at their first area,
-    missing objects added to the area holding most of their cluster (else 'other objects')."""
+    missing objects added to the area holding most of their cluster (else an area named by
+    ``prompts/describer/other_area.md``)."""
     known = set(inp.object_names)
     seen: set[str] = set()
     kept: list[tuple[str, str, list[str]]] = []
@@ -314,14 +319,16 @@ def repair_areas(areas: AreaList, inp: DescriberInput) -> AreaList:
         seen.add(name)
     result = [Area(name=n, purpose=p, objects=tuple(o)) for n, p, o in kept if o]
     if other:
-        result.append(Area(name="other objects", purpose="", objects=tuple(other)))
+        name = (prompts or package_prompts()).render_text("describer/other_area.md")
+        result.append(Area(name=name, purpose="", objects=tuple(other)))
     return AreaList(areas=tuple(result))
 
 
-def render_description(areas: AreaList, supports: Mapping[str, str]) -> str:
+def render_description(areas: AreaList, supports: Mapping[str, str], prompts: PromptLibrary | None = None) -> str:
     """One line per area, each object named exactly once; objects standing on another object
     of the same area are listed with it: ``- kitchen (make coffee): fridge_1, cabinet_1 (with
-    coffee_maker_1, toaster_1 on it)``."""
+    coffee_maker_1, toaster_1 on it)`` (``prompts/describer/area_line*.md``, ``carrier.md``)."""
+    lib = prompts or package_prompts()
     lines = []
     for a in areas.areas:
         members = set(a.objects)
@@ -338,11 +345,14 @@ def render_description(areas: AreaList, supports: Mapping[str, str]) -> str:
             if n in nested:
                 continue
             if n in carried:
-                parts.append(f"{n} (with {', '.join(carried[n])} on it)")
+                parts.append(lib.render_text("describer/carrier.md", name=n, carried=", ".join(carried[n])))
             else:
                 parts.append(n)
-        purpose = f" ({a.purpose.strip()})" if a.purpose.strip() else ""
-        lines.append(f"- {a.name.strip()}{purpose}: {', '.join(parts)}")
+        name, purpose, objects = a.name.strip(), a.purpose.strip(), ", ".join(parts)
+        if purpose:
+            lines.append(lib.render_text("describer/area_line_with_purpose.md", name=name, purpose=purpose, objects=objects))
+        else:
+            lines.append(lib.render_text("describer/area_line.md", name=name, objects=objects))
     return "\n".join(lines)
 
 

@@ -110,11 +110,11 @@ def scene_action_labels(scene: Scene, labels: Sequence[str] | None = None) -> tu
     return tuple(out)
 
 
-def _status_line(c: CharacterStatus) -> str:
+def _status_line(prompts: PromptLibrary, c: CharacterStatus) -> str:
     """One character for the parser: no coordinates (a small model copies them into
     set_position instead of choosing an area)."""
-    seat = f", sitting on {c.seat}" if c.seat else ""
-    return f"- {c.name}: {'busy' if c.busy else 'free'}, {c.action}{seat}"
+    line = prompts.render_text("story/character_busy.md" if c.busy else "story/character_free.md", name=c.name, action=c.action)
+    return line + prompts.render_text("story/character_sitting_on.md", seat=c.seat) if c.seat else line
 
 
 _WORD = re.compile(r"[a-z]+")
@@ -123,14 +123,17 @@ _WORD = re.compile(r"[a-z]+")
 AREA_KINDS = ("area", "seat_area", "area_operation")
 
 
-def spatial_api_listing() -> dict[str, str]:
+def spatial_api_listing(prompts: PromptLibrary | None = None) -> dict[str, str]:
     """The system prompt's function list, rendered from ``tools.spatial_api`` (the listed
     functions and the character handle's methods), so the prompt names only what exists."""
+    lib = prompts or package_prompts()
     listed = [f for f in SpatialAPI.functions() if f.listed]
     characters = [f for f in listed if f.kind == "character"]
     return {
         "get_character": ", ".join(f.call for f in characters),
-        "character_methods": "\n".join(f"  c.{m.call}  # {m.summary}" for m in handle_methods()),
+        "character_methods": "\n".join(
+            lib.render_text("event_parser/api_method.md", call=m.call, summary=m.summary) for m in handle_methods()
+        ),
         "area_functions": ", ".join(f.call for f in listed if f.kind in AREA_KINDS),
         "query_functions": ", ".join(f.signature for f in listed if f.kind == "query"),
     }
@@ -145,15 +148,15 @@ def event_text(activity: str, instruction_part: str = "") -> str:
 def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessage, ...]:
     system = prompts.render(
         "event_parser/system.md",
-        **spatial_api_listing(),
+        **spatial_api_listing(prompts),
         examples=prompts.examples("event_parser", inp.tags),
         scene_description=inp.scene_description.strip(),
         action_labels=", ".join(inp.action_labels),
     )
     user = prompts.render(
         "event_parser/request.md",
-        characters="\n".join(_status_line(c) for c in inp.characters),
-        seats_in_use=", ".join(inp.seats_in_use) if inp.seats_in_use else "none",
+        characters="\n".join(_status_line(prompts, c) for c in inp.characters),
+        seats_in_use=", ".join(inp.seats_in_use) if inp.seats_in_use else prompts.render_text("story/no_seats_in_use.md"),
         event_characters=", ".join(f'"{n}"' for n in inp.event.characters),
         activity=inp.event.activity.strip(),
         instruction_part="\n" + prompts.render_text("event_parser/instruction_part.md", part=inp.instruction_part.strip())
@@ -216,22 +219,29 @@ def extract_program(reply: str, prompts: PromptLibrary | None = None) -> str:
     raise NoCodeError(lib.render_text("feedback/no_code.md"))
 
 
-def check_plans(event: Event, plans: Sequence[Any]) -> tuple[PlannedCharacter, ...]:
-    """Copy the program's plans; every event character, and no other, must have one."""
+def check_plans(
+    event: Event, plans: Sequence[Any], prompts: PromptLibrary | None = None
+) -> tuple[PlannedCharacter, ...]:
+    """Copy the program's plans; every event character, and no other, must have one (the
+    problems are ``prompts/feedback/event_parser/*.md``)."""
+    lib = prompts or package_prompts()
     out = tuple(PlannedCharacter.from_tool_plan(p) for p in plans)
     got = [p.character for p in out]
     problems = []
     missing = [n for n in event.characters if n not in got]
     extra = [n for n in got if n not in event.characters]
     if missing:
-        problems.append("no position was set for " + ", ".join(missing) + " (call set_position for each)")
+        problems.append(lib.render_text("feedback/event_parser/no_position.md", missing=", ".join(missing)))
     if extra:
-        problems.append(", ".join(extra) + " not in this event; plan only " + ", ".join(event.characters))
+        problems.append(
+            lib.render_text(
+                "feedback/event_parser/not_in_event.md", extra=", ".join(extra), characters=", ".join(event.characters)
+            )
+        )
     for p in out:  # the motion library must be able to play the action in that posture
         if p.seat is not None and p.action in ACTION_SPECS and not playable_seated(p.action):
             problems.append(
-                f"{p.character} cannot {p.action} while sitting on {p.seat}: stand with an area such as "
-                f"get_area_to_interact_with(...) or get_area_close_to(...), or choose an action done seated"
+                lib.render_text("feedback/event_parser/cannot_act_seated.md", character=p.character, action=p.action, seat=p.seat)
             )
     if problems:
         raise AnswerRejectedError(problems)

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from agents.messages import HistoryEntry
+from agents.prompt_templates import PromptLibrary, package_prompts
 
 PartState = Literal["done", "ongoing", "next", ""]
 
@@ -101,8 +102,12 @@ def _leading_subject(text: str, names: Sequence[str]) -> str:
     return m.group(1) if m else ""
 
 
-def split_instruction(instruction: str, names: Sequence[str] = ()) -> list[InstructionPart]:
-    """The parts of ``instruction``; ``names``: the story's characters."""
+def split_instruction(
+    instruction: str, names: Sequence[str] = (), prompts: PromptLibrary | None = None
+) -> list[InstructionPart]:
+    """The parts of ``instruction``; ``names``: the story's characters. A part after "then"
+    reads ``prompts/story/instruction_then.md`` ("Then ...")."""
+    lib = prompts or package_prompts()
     parts: list[InstructionPart] = []
     for sentence in _PARTS.split(instruction.strip()):
         sentence = sentence.strip()
@@ -111,14 +116,15 @@ def split_instruction(instruction: str, names: Sequence[str] = ()) -> list[Instr
         pieces = [p.strip() for p in _THEN.split(sentence) if p.strip()]
         subject = ""
         for k, piece in enumerate(pieces):
-            if k > 0:
-                if not _leading_subject(piece, names):
-                    piece = f"{subject} {piece}" if subject and piece[:1].islower() else piece[0].lower() + piece[1:]
-                piece = f"Then {piece}"
+            if k > 0 and not _leading_subject(piece, names):
+                piece = f"{subject} {piece}" if subject and piece[:1].islower() else piece[0].lower() + piece[1:]
             if k < len(pieces) - 1 and piece[-1:] not in ".!?;":
                 piece += "."
+            own = piece if k > 0 else piece.removeprefix("Then ")  # the part's subject opens it
+            if k > 0:
+                piece = lib.render_text("story/instruction_then.md", part=piece)
             mentioned = _mentioned(piece, names)
-            subject = _leading_subject(piece.removeprefix("Then "), names) or (mentioned[0] if mentioned else subject)
+            subject = _leading_subject(own, names) or (mentioned[0] if mentioned else subject)
             parts.append(InstructionPart(piece, mentioned, _actors(piece, names), content_stems(piece, names)))
     return parts
 
@@ -166,20 +172,28 @@ class InstructionProgress:
 
 def instruction_progress(
     instruction: str, names: Sequence[str] = (), history: Sequence[HistoryEntry] = (), free: Iterable[str] = (),
-    *, since: int = 0,
+    *, since: int = 0, prompts: PromptLibrary | None = None,
 ) -> InstructionProgress:
-    """``since``: the index of the first event planned under ``instruction`` (earlier ones never match)."""
+    """``since``: the index of the first event planned under ``instruction`` (earlier ones never
+    match). The texts are ``prompts/story/instruction_*.md`` and ``no_instruction.md``."""
     free = tuple(free)
-    parts = split_instruction(instruction, names)
+    lib = prompts or package_prompts()
+    parts = split_instruction(instruction, names, lib)
     if not parts:
-        return InstructionProgress("(none: continue the story naturally)", None, (), False)
+        return InstructionProgress(lib.render_text("story/no_instruction.md"), None, (), False)
     states = part_states(parts, history, free, since)
     nxt = next((p for p, s in zip(parts, states, strict=True) if s == "next"), None)
+
+    def marked(part: InstructionPart, state: PartState) -> str:
+        return lib.render_text("story/instruction_part_marked.md", state=state, part=part.text)
+
     if len(parts) == 1:
-        text = f"[{states[0]}] {parts[0].text}" if states[0] in ("done", "ongoing") else parts[0].text
+        text = marked(parts[0], states[0]) if states[0] in ("done", "ongoing") else parts[0].text
     else:
-        marked = [f"[{s}] {p.text}" if s else p.text for p, s in zip(parts, states, strict=True)]
-        text = "\n" + "\n".join(f"{i + 1}) {m}" for i, m in enumerate(marked))
+        lines = [marked(p, s) if s else p.text for p, s in zip(parts, states, strict=True)]
+        text = "\n" + "\n".join(
+            lib.render_text("story/instruction_part_numbered.md", number=i + 1, part=m) for i, m in enumerate(lines)
+        )
     if nxt is None:  # waiting for busy characters, or every part has happened
         named = {n for p in parts for n in p.names}
         bystanders = tuple(n for n in free if n not in named) if "" in states else ()

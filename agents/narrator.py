@@ -25,7 +25,7 @@ from agents.messages import (
     HistoryEntry,
     NarratorOutput,
 )
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, package_prompts
 from agents.retry_feedback import (
     Accepted,
     AnswerRejectedError,
@@ -98,29 +98,42 @@ def narrator_schema(free: Sequence[str], at_least_one: bool = False) -> dict[str
     )
 
 
-def history_text(history: Sequence[HistoryEntry]) -> str:
-    """One line per event, oldest first: ``3. [ongoing] Ann, Bob: chat by sofa_1``."""
+def history_text(history: Sequence[HistoryEntry], prompts: PromptLibrary | None = None) -> str:
+    """One line per event, oldest first: ``3. [ongoing] Ann, Bob: chat by sofa_1``
+    (``prompts/story/history_*.md``)."""
+    lib = prompts or package_prompts()
     if not history:
-        return "(nothing has happened yet)"
+        return lib.render_text("story/history_empty.md")
     shown = [h for h in history if h.state != "completed"]
     completed = [h for h in history if h.state == "completed"][-HISTORY_WINDOW:]
     entries = sorted({h.index: h for h in (*shown, *completed)}.values(), key=lambda h: h.index)
     lines = []
     if len(entries) < len(history):
-        lines.append(f"({len(history) - len(entries)} older completed events not shown)")
+        lines.append(lib.render_text("story/history_hidden.md", count=len(history) - len(entries)))
     for h in entries:
-        lines.append(f"{h.index + 1}. [{h.state}] {', '.join(h.characters)}: {h.activity}")
+        lines.append(
+            lib.render_text(
+                "story/history_line.md",
+                number=h.index + 1,
+                state=h.state,
+                characters=", ".join(h.characters),
+                activity=h.activity,
+            )
+        )
     return "\n".join(lines)
 
 
-def characters_text(characters: Sequence[CharacterStatus]) -> str:
+def characters_text(characters: Sequence[CharacterStatus], prompts: PromptLibrary | None = None) -> str:
+    """One line per character, busy ones with their event (``prompts/story/character_*.md``)."""
+    lib = prompts or package_prompts()
     lines = []
     for c in characters:
-        if c.busy:
-            where = f" (event {c.event_index + 1})" if c.event_index is not None else ""
-            lines.append(f"- {c.name}: busy, {c.action}{where}")
+        if c.busy and c.event_index is not None:
+            lines.append(
+                lib.render_text("story/character_busy_in_event.md", name=c.name, action=c.action, event=c.event_index + 1)
+            )
         else:
-            lines.append(f"- {c.name}: free, {c.action}")
+            lines.append(lib.render_text("story/character_busy.md" if c.busy else "story/character_free.md", name=c.name, action=c.action))
     return "\n".join(lines)
 
 
@@ -130,8 +143,8 @@ def _next_part_line(prompts: PromptLibrary, instruction: str, progress: Instruct
     if progress.bystanders:
         return prompts.render_text("narrator/bystanders.md", names=", ".join(progress.bystanders))
     if progress.nothing_for_the_free:
-        return "nothing for the free characters now: wait"
-    return "every part has happened" if instruction.strip() else "(none: continue the story naturally)"
+        return prompts.render_text("narrator/next_part_wait.md")
+    return prompts.render_text("narrator/next_part_all_done.md" if instruction.strip() else "story/no_instruction.md")
 
 
 def narrator_messages(prompts: PromptLibrary, inp: NarratorInput) -> tuple[ChatMessage, ...]:
@@ -144,9 +157,9 @@ def narrator_messages(prompts: PromptLibrary, inp: NarratorInput) -> tuple[ChatM
     progress = inp.progress
     user = prompts.render(
         "narrator/request.md",
-        characters=characters_text(inp.characters),
-        free=", ".join(free) if free else "(none)",
-        history=history_text(inp.history),
+        characters=characters_text(inp.characters, prompts),
+        free=", ".join(free) if free else prompts.render_text("story/nobody_free.md"),
+        history=history_text(inp.history, prompts),
         instruction=progress.text,
         next_part=_next_part_line(prompts, inp.instruction, progress),
     )
@@ -165,8 +178,12 @@ def narrator_request(prompts: PromptLibrary, inp: NarratorInput, turns: tuple[Tu
     )
 
 
-def parse_narration(text: str, characters: Sequence[CharacterStatus]) -> NarratorOutput:
-    """Check a reply. Raises JSONDecodeError, ValidationError or AnswerRejectedError."""
+def parse_narration(
+    text: str, characters: Sequence[CharacterStatus], prompts: PromptLibrary | None = None
+) -> NarratorOutput:
+    """Check a reply. Raises JSONDecodeError, ValidationError or AnswerRejectedError, whose
+    problems are ``prompts/feedback/narrator/*.md``."""
+    lib = prompts or package_prompts()
     data = json.loads(_json_slice(text))
     out = NarratorOutput.model_validate(data)
     known = {c.name: c for c in characters}
@@ -174,20 +191,23 @@ def parse_narration(text: str, characters: Sequence[CharacterStatus]) -> Narrato
     seen: set[str] = set()
     for name in out.event.characters:
         if name in seen:
-            problems.append(f"{name} is listed twice")
+            problems.append(lib.render_text("feedback/narrator/listed_twice.md", name=name))
             continue
         seen.add(name)
         status = known.get(name)
         if status is None:
-            problems.append(f"{name} is not a character in this story")
+            problems.append(lib.render_text("feedback/narrator/not_a_character.md", name=name))
+        elif status.busy and status.event_index is not None:
+            problems.append(lib.render_text("feedback/narrator/busy_in_event.md", name=name, event=status.event_index + 1))
         elif status.busy:
-            where = f" in event {status.event_index + 1}" if status.event_index is not None else ""
-            problems.append(f"{name} is busy{where} and cannot join a new event")
+            problems.append(lib.render_text("feedback/narrator/busy.md", name=name))
     if out.event.characters and not out.event.activity.strip():
-        problems.append("the activity is empty; describe what the characters do")
+        problems.append(lib.render_text("feedback/narrator/empty_activity.md"))
     if problems:
         free = [c.name for c in characters if not c.busy]
-        problems.append(f"free characters are: {', '.join(free) if free else 'none'}")
+        problems.append(
+            lib.render_text("feedback/free_characters.md", free=", ".join(free) if free else lib.render_text("feedback/none.md"))
+        )
         raise AnswerRejectedError(problems)
     return out
 
@@ -218,7 +238,7 @@ async def narrate(
     return await ask_until_valid(
         port,
         lambda turns: narrator_request(prompts, inp, turns),
-        lambda text: parse_narration(text, inp.characters),
+        lambda text: parse_narration(text, inp.characters, prompts),
         max_attempts=max_retries + 1,
         node="narrator",
         prompts=prompts,

@@ -9,6 +9,13 @@ e.g. JSON in examples, need no escaping: only ``{{ identifier }}`` is a placehol
 Files are read with :mod:`importlib.resources` from the ``prompts`` package by default; a
 :class:`PromptLibrary` can be pointed at another folder (a user's prompt overrides, or a test's
 edited copy). ``PromptLibrary.fingerprint`` hashes every file it has read, for cache keys.
+
+Every text an LLM reads is such a file, down to one-line phrases (rendered with
+:meth:`PromptLibrary.render_text`): a folder per role (``narrator/``, ``event_parser/``,
+``describer/``, ``planner/``, ``direct/``), ``story/`` for the character, history and
+instruction lines several roles share, ``feedback/`` for retry sentences (rule problems in a
+sub-folder per role). ``tests/test_prompt_sources.py`` fails when code names a missing file or
+writes a prompt file's sentence as a string literal.
 """
 
 from __future__ import annotations

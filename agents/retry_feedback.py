@@ -72,11 +72,11 @@ def error_kind(error: BaseException) -> str:
     return str(getattr(error, "kind", type(error).__name__))
 
 
-def _validation_lines(error: ValidationError) -> list[str]:
+def _validation_lines(lib: PromptLibrary, error: ValidationError) -> list[str]:
     lines = []
     for item in error.errors()[:5]:
-        loc = ".".join(str(p) for p in item["loc"]) or "(root)"
-        lines.append(f"field '{loc}': {item['msg']}")
+        loc = ".".join(str(p) for p in item["loc"]) or lib.render_text("feedback/schema_root.md")
+        lines.append(lib.render_text("feedback/schema_field.md", location=loc, message=item["msg"]))
     return lines
 
 
@@ -90,7 +90,7 @@ def feedback_from_error(
     if isinstance(error, json.JSONDecodeError):
         body = lib.render_text("feedback/invalid_json.md", message=error.msg, position=error.pos)
     elif isinstance(error, ValidationError):
-        body = lib.render_text("feedback/schema_mismatch.md", problems="; ".join(_validation_lines(error)))
+        body = lib.render_text("feedback/schema_mismatch.md", problems="; ".join(_validation_lines(lib, error)))
     elif isinstance(error, AnswerRejectedError):
         body = lib.render_text("feedback/answer_rejected.md", problems="; ".join(error.problems))
     elif isinstance(error, NoCodeError):

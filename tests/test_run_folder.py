@@ -26,6 +26,7 @@ from typer.testing import CliRunner
 from orchestrator.cli.app import app
 from orchestrator.llm.traces import AppliedRecord, read_trace
 from orchestrator.session.run_report import md_text, story_markdown
+from sim.world.track_chunks import scan
 from tests.support.fake_openai_server import FakeOpenAI
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -203,6 +204,8 @@ def test_resume_after_kill_9_continues_the_story_without_gaps_duplicates_or_repe
         assert child.returncode == -signal.SIGKILL
         assert not (run_dir / "story.json").exists()
         assert (run_dir / "run.json").is_file() and (run_dir / "session.snapshot").is_file()
+        streamed = scan(run_dir / "motion" / "Zoe.chunks").frames
+        assert streamed > 0  # motion streamed before the kill is on disk
         before = read_trace(run_dir / "trace.jsonl")
         done_before = [a for a in before.attempts() if a.final and a.ok]
         assert len(done_before) == kill_at - 1
@@ -235,3 +238,4 @@ def test_resume_after_kill_9_continues_the_story_without_gaps_duplicates_or_repe
     assert (run_dir / "story.md").read_bytes() == (tmp_path / "whole" / "story.md").read_bytes()
     # motion of the frames before the kill was kept, and the rest equals the uninterrupted run
     assert (run_dir / "Zoe.track.npz").read_bytes() == (tmp_path / "whole" / "Zoe.track.npz").read_bytes()
+    assert scan(run_dir / "motion" / "Zoe.chunks").frames == story["frames"]  # the chunks hold the whole story

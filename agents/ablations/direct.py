@@ -21,8 +21,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from agents.event_parser import ParserInput, ProgramResult, ProgramRunner, run_reply
 from agents.llm_port import ChatMessage, LLMRequest
 from agents.llm_schemas import Refine, reply_schema
-from agents.messages import Event
-from agents.prompt_templates import PromptLibrary
+from agents.messages import CharacterStatus, Event
+from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.retry_feedback import Turn, retry_temperature, with_turns
 from sim.scene.model import Scene
 from tools.errors import ToolError
@@ -93,11 +93,13 @@ def direct_program(plans: DirectPlans, scene: Scene | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def blocked_positions(scene: Scene, world: Any, plans: DirectPlans) -> list[str]:
+def blocked_positions(scene: Scene, world: Any, plans: DirectPlans, prompts: PromptLibrary | None = None) -> list[str]:
     """Problems of the standing points of ``plans`` (checked before the program runs, so the
     feedback speaks of coordinates): inside furniture or too near the scene's edge, or closer
     than MIN_SEPARATION to another character (planned earlier in the same event, or anyone
-    else's position or target). Points on a seat are seats (see :func:`direct_program`)."""
+    else's position or target). Points on a seat are seats (see :func:`direct_program`). The
+    sentences are ``prompts/feedback/direct/*.md``."""
+    lib = prompts or package_prompts()
     floor = FloorMap(scene)
     moving = {p.character for p in plans.plans}
     others: list[tuple[str, tuple[float, float]]] = []
@@ -108,22 +110,37 @@ def blocked_positions(scene: Scene, world: Any, plans: DirectPlans) -> list[str]
     for p in plans.plans:
         if seat_at(scene, p.x, p.y) is not None:
             continue
-        where = f"{p.character} at [{p.x:.2f}, {p.y:.2f}]"
+        where = {"character": p.character, "x": f"{p.x:.2f}", "y": f"{p.y:.2f}"}
         inside = floor.colliding_objects((p.x, p.y))
         if inside:
             problems.append(
-                f"{where} is inside {', '.join(inside)} (stand on free floor at least "
-                f"{floor.body_radius:.2f} m from furniture)"
+                lib.render_text(
+                    "feedback/direct/inside_furniture.md",
+                    **where, objects=", ".join(inside), clearance=f"{floor.body_radius:.2f}",
+                )
             )
         elif not bool(floor.free(np.array([[p.x, p.y]]))[0]):
-            problems.append(f"{where} is off the free floor (too close to the edge of the scene)")
+            problems.append(lib.render_text("feedback/direct/off_floor.md", **where))
         for name, q in others:
             d = float(np.hypot(p.x - q[0], p.y - q[1]))
             if d < MIN_SEPARATION:
-                problems.append(f"{where} is {d:.2f} m from {name} (keep {MIN_SEPARATION:.1f} m apart)")
+                problems.append(
+                    lib.render_text(
+                        "feedback/direct/too_close.md",
+                        **where, distance=f"{d:.2f}", other=name, separation=f"{MIN_SEPARATION:.1f}",
+                    )
+                )
                 break
         others.append((p.character, (p.x, p.y)))
     return problems
+
+
+def _status_line(prompts: PromptLibrary, c: CharacterStatus) -> str:
+    """One character with its floor position (the coordinates the model answers in)."""
+    line = prompts.render_text("story/character_busy.md" if c.busy else "story/character_free.md", name=c.name, action=c.action)
+    if not c.position:
+        return line
+    return line + prompts.render_text("story/character_at_position.md", x=f"{c.position[0]:.1f}", y=f"{c.position[1]:.1f}")
 
 
 def direct_max_tokens(event_characters: int) -> int:
@@ -145,16 +162,14 @@ def direct_request(
     appended so the model has coordinates to answer with."""
     description = inp.scene_description.strip()
     if not lists_objects:
-        description += "\n\nObjects:\n" + object_list_text(scene)
+        description = prompts.render_text(
+            "direct/description_with_objects.md", description=description, objects=object_list_text(scene)
+        )
     system = prompts.render("direct/system.md", scene_description=description, action_labels=", ".join(inp.action_labels))
     user = prompts.render(
         "direct/request.md",
-        characters="\n".join(
-            f"- {c.name}: {'busy' if c.busy else 'free'}, {c.action}"
-            + (f", at [{c.position[0]:.1f}, {c.position[1]:.1f}]" if c.position else "")
-            for c in inp.characters
-        ),
-        seats_in_use=", ".join(inp.seats_in_use) if inp.seats_in_use else "none",
+        characters="\n".join(_status_line(prompts, c) for c in inp.characters),
+        seats_in_use=", ".join(inp.seats_in_use) if inp.seats_in_use else prompts.render_text("story/no_seats_in_use.md"),
         event_characters=", ".join(f'"{n}"' for n in inp.event.characters),
         activity=inp.event.activity.strip(),
     )

@@ -16,7 +16,7 @@ from agents.event_parser import ProgramRunner, check_plans, default_runner, extr
 from agents.llm_port import ChatMessage, LLMRequest
 from agents.messages import CharacterStatus, Event, ParsedEvent
 from agents.narrator import NarratorInput, characters_text, history_text
-from agents.prompt_templates import PromptLibrary
+from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.retry_feedback import AnswerRejectedError, Turn, retry_temperature, with_turns
 from sim.scene.model import Scene
 
@@ -45,11 +45,11 @@ def unified_request(
     )
     user = prompts.render(
         "planner/request.md",
-        characters=characters_text(inp.characters),
-        free=", ".join(free) if free else "(none)",
-        seats_in_use=", ".join(seats_in_use) if seats_in_use else "none",
-        history=history_text(inp.history),
-        instruction=inp.instruction.strip() or "(none: continue the story naturally)",
+        characters=characters_text(inp.characters, prompts),
+        free=", ".join(free) if free else prompts.render_text("story/nobody_free.md"),
+        seats_in_use=", ".join(seats_in_use) if seats_in_use else prompts.render_text("story/no_seats_in_use.md"),
+        history=history_text(inp.history, prompts),
+        instruction=inp.instruction.strip() or prompts.render_text("story/no_instruction.md"),
     )
     base = (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
     return LLMRequest(
@@ -72,9 +72,12 @@ def check_unified_reply(
     action_labels: Sequence[str],
     graph: Any = None,
     runner: ProgramRunner | None = None,
+    prompts: PromptLibrary | None = None,
 ) -> ParsedEvent | None:
     """Run the reply; a program that plans nobody is a wait (None). Raises the typed errors
-    that become feedback (a busy character planned, a bad program)."""
+    that become feedback (a busy character planned, a bad program); the event's activity
+    sums the plans up (``prompts/planner/plan_summary.md``)."""
+    lib = prompts or package_prompts()
     program = extract_program(reply)
     body = [ln.strip() for ln in program.splitlines()[1:] if ln.strip() and not ln.strip().startswith("#")]
     if body == ["pass"]:
@@ -89,10 +92,9 @@ def check_unified_reply(
     bad = [n for n in names if n in busy]
     if bad:
         raise AnswerRejectedError(
-            [f"{n} is busy and cannot be planned" for n in bad] + [f"free characters are: {', '.join(free)}"]
+            [lib.render_text("feedback/planner/busy.md", name=n) for n in bad]
+            + [lib.render_text("feedback/free_characters.md", free=", ".join(free))]
         )
-    event = Event(
-        characters=names,
-        activity="; ".join(f"{p.character}: {p.action} ({p.area})" for p in plans)[:320],
-    )
-    return ParsedEvent(index=index, event=event, plans=check_plans(event, plans), program=program)
+    summaries = (lib.render_text("planner/plan_summary.md", character=p.character, action=p.action, area=p.area) for p in plans)
+    event = Event(characters=names, activity="; ".join(summaries)[:320])
+    return ParsedEvent(index=index, event=event, plans=check_plans(event, plans, lib), program=program)

@@ -16,6 +16,11 @@ frames (and not traced twice), and the planner answers finished steps from the s
 finishes a cut step from its langgraph checkpoint, so no event is lost or duplicated and no
 call whose node was checkpointed is repeated.
 
+Motion: the world streams its frames to ``motion/<name>.chunks`` in the run folder
+(``sim.world.track_chunks``) and keeps one window of them in memory; the checkpoint holds only
+the frames not yet in the chunk files and how many are. A resume keeps the streamed frames up
+to that count and goes on from the checkpoint; the exports read the chunk files.
+
 Instructions: the timed script (``RunArguments.instructions``) is scheduled at its frames,
 lines typed on stdin (``interactive``) take effect at the next frame, and every one is
 written to the trace as an ``instruction`` record with its frame. A replay schedules the
@@ -231,6 +236,11 @@ async def run_story(
         except SnapshotError as exc:
             port.close()
             raise RunSetupError(str(exc)) from None
+    try:
+        world = _stream_motion(world, out, names, checkpoint)
+    except ValueError as exc:  # ChunkError, WorldError: chunk files that do not fit the checkpoint
+        port.close()
+        raise RunSetupError(str(exc)) from None
     if not resume:
         manifest = RunManifest(thread_id=thread, scene_name=scene.name, seed=args.seed, config=args.config, arguments=args)
         write_manifest(out, manifest)
@@ -301,7 +311,28 @@ async def run_story(
         port.close()
         if isinstance(deps.runner, WorkerRunner):
             deps.runner.close()
+    end = session.world.buffers
+    if end.store is not None:  # the whole story in the chunk files (the viewer reads them)
+        end.spill()
+        end.store.sync()
+        end.store.close()  # read back by path from here on
     return result, names, fps, session.world
+
+
+def _stream_motion(world: Any, out: Path, names: list[str], checkpoint: Any) -> Any:
+    """``world`` streaming its motion to ``out/motion/<name>.chunks``: new files for a new run;
+    on resume the files of the killed process, cut back to the frames the checkpoint says are
+    there (a torn last record and frames after the checkpoint are dropped), with the world
+    restored from the checkpoint."""
+    from sim.world.track_chunks import MOTION_FOLDER, ChunkStore
+
+    folder = out / MOTION_FOLDER
+    if checkpoint is None:
+        store = ChunkStore.open(folder, names)
+        world.stream_tracks(store)
+        return world
+    store = ChunkStore.open(folder, names, frames=checkpoint.world.buffers.base)
+    return world.restore(checkpoint.world, store=store)
 
 
 def recorded_frames(trace_path: Path) -> dict[int, int]:
@@ -340,8 +371,8 @@ def write_outputs(
     from orchestrator.session.run_report import run_metrics, story_markdown
     from sim.export.bundle import export_run
     from sim.export.video import (
+        RunRecording,
         animation_suffix,
-        recording_from_world,
         save_run_animation,
         save_run_png,
     )
@@ -362,7 +393,7 @@ def write_outputs(
         params = {t.name: smplx_parameters(t) for t in tracks.values()}
         bodies = {name: body.skin for name, body in smplx_bodies(smplx_model, params).items()}
     export_run(out, scene, list(tracks.values()), bodies=bodies)
-    recording = recording_from_world(world)
+    recording = RunRecording(scene, tracks, world.event_ids(), world.grid)  # the tracks read above, not again
     save_run_png(out / "topdown.png", recording)
     # --video: story.mp4 (story.gif without imageio-ffmpeg); --gif: story.gif
     animations = {name for name, wanted in (("story.gif", gif), (f"story{animation_suffix()}", video)) if wanted}

@@ -5,7 +5,9 @@ pickle, atomically: to a temporary file in the same folder, fsynced, then rename
 one, so a kill -9 at any moment leaves either the previous checkpoint or the new one, never a
 torn file. The world's read-only parts (scene, navigation grids, path planners, motion layer:
 ``World.shared_objects``) are stored by name only; :func:`load_checkpoint` binds those names to
-the objects of a world built from the same run arguments. The file is the run's own state,
+the objects of a world built from the same run arguments. A streaming world's checkpoint holds
+only its frames not yet in the chunk files (``sim.world.track_chunks``) and how many are there;
+those are fsynced before the checkpoint is written, so the count it gives is always on disk. The file is the run's own state,
 read back only by ``storyteller resume`` of the same run folder (never an untrusted file).
 """
 
@@ -21,7 +23,7 @@ from orchestrator.session.runtime import SessionCheckpoint
 from sim.world.step import World
 
 SNAPSHOT_FILE = "session.snapshot"
-_FORMAT = 2  # 2: the checkpoint holds the session's instructions
+_FORMAT = 3  # 2: the checkpoint holds the session's instructions; 3: the world's motion is in the chunk files
 
 
 class SnapshotError(Exception):
@@ -49,7 +51,10 @@ class _Unpickler(pickle.Unpickler):
 
 
 def save_checkpoint(path: Path, world: World, checkpoint: SessionCheckpoint) -> None:
-    """Write ``checkpoint`` (of a session on ``world``) to ``path`` atomically."""
+    """Write ``checkpoint`` (of a session on ``world``) to ``path`` atomically, after making the
+    motion chunks it counts on durable."""
+    if world.buffers.store is not None:
+        world.buffers.store.sync()
     buf = io.BytesIO()
     shared = {id(obj): name for name, obj in world.shared_objects().items()}
     _Pickler(buf, shared).dump((_FORMAT, checkpoint))

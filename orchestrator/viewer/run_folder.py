@@ -4,7 +4,8 @@ A run folder holds ``story.json`` (events with their frames), one ``<slug>.track
 character and, from this version on, ``scene.json`` (the scene as it was run). Older folders
 have no ``scene.json``: the scene is then the bundled scene that ``story.json`` names, and a
 run on a scene file that is gone is shown without its objects (:attr:`RunData.scene_note`
-says so).
+says so). A character without a ``.track.npz`` (a run stopped before its exports, e.g. by a
+kill) is read from the motion the run streamed, ``motion/<slug>.chunks`` (whole records only).
 
 :func:`folder_stamp` is a cheap fingerprint (names, sizes and modification times of the files
 the viewer reads): a viewer polls it to reload a run that is still being written.
@@ -21,6 +22,13 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack, CharacterTrackError
+from sim.world.track_chunks import (
+    CHUNK_SUFFIX,
+    MOTION_FOLDER,
+    ChunkError,
+    chunk_path,
+    chunked_track,
+)
 
 STORY_FILE = "story.json"
 SCENE_FILE = "scene.json"
@@ -71,8 +79,10 @@ def folder_stamp(folder: Path) -> tuple[tuple[str, int, int], ...]:
     if not folder.is_dir():
         return ()
     stamp = []
-    for path in sorted(folder.iterdir()):
-        if path.name in (STORY_FILE, SCENE_FILE) or path.name.endswith(TRACK_SUFFIX):
+    chunks = folder / MOTION_FOLDER
+    streamed = sorted(chunks.glob(f"*{CHUNK_SUFFIX}")) if chunks.is_dir() else []
+    for path in [*sorted(folder.iterdir()), *streamed]:
+        if path.name in (STORY_FILE, SCENE_FILE) or path.name.endswith((TRACK_SUFFIX, CHUNK_SUFFIX)):
             try:
                 st = path.stat()
             except OSError:  # removed between listing and stat: the next poll sees it
@@ -114,6 +124,17 @@ def load_run(folder: Path) -> RunData:
             tracks.append(CharacterTrack.load(path))
         except (CharacterTrackError, OSError, ValueError) as exc:
             raise RunFolderError(f"{path}: {exc}") from None
+    have = {t.name for t in tracks}
+    for name in story.get("characters", []):
+        path = chunk_path(folder / MOTION_FOLDER, str(name))
+        if name in have or not path.is_file():
+            continue
+        try:
+            track = chunked_track(path, str(name), float(fps))
+        except (ChunkError, CharacterTrackError, OSError) as exc:
+            raise RunFolderError(f"{path}: {exc}") from None
+        if track is not None:
+            tracks.append(track)
     order = {name: i for i, name in enumerate(story.get("characters", []))}
     tracks.sort(key=lambda t: (order.get(t.name, len(order)), t.name))
     scene, note = _scene_of(folder, story.get("scene"))

@@ -14,7 +14,8 @@ layers per picture (``TopdownAnimation``), the same picture as a whole frame up 
 anti-aliasing, so a 60 s story animates in seconds rather than minutes.
 
 Animations are MP4 (H.264, through ``imageio-ffmpeg``, a dependency that ships its own ffmpeg)
-or GIF (imageio's Pillow writer), chosen by the path's extension; ``animation_suffix()`` is
+or GIF (Pillow's GIF encoder, written one picture at a time), chosen by the path's extension;
+both stream: the pictures are drawn and written one at a time, never all held in memory; ``animation_suffix()`` is
 ``.mp4`` when the encoder is installed and ``.gif`` otherwise. ``save_run_animation`` raises
 ``RunVideoError`` for a ``.mp4`` path when no encoder is installed.
 """
@@ -202,10 +203,29 @@ def save_run_animation(
     frames = iter_animation_frames(rec, stride=stride, start=start, stop=stop, **kw)
     seconds_per_picture = stride / rec.fps / speed
     if ext == ".gif":
-        iio.imwrite(path, np.stack(list(frames)), extension=".gif", duration=1000.0 * seconds_per_picture, loop=0)
+        _write_gif(path, frames, duration_ms=1000.0 * seconds_per_picture)
     else:
         _write_mp4(path, frames, fps=1.0 / seconds_per_picture)
     return path
+
+
+def _write_gif(path: Path, frames: Iterator[NDArray[np.uint8]], duration_ms: float) -> None:
+    """An animated GIF (looping), one picture at a time: each picture is quantized to its own
+    adaptive palette (as Pillow's GIF writer does) and written whole with it as a local colour
+    table, so only the picture being encoded is in memory, however long the run."""
+    from PIL import GifImagePlugin, Image
+
+    with path.open("wb") as fh:
+        first = True
+        for picture in frames:
+            im = Image.fromarray(np.ascontiguousarray(picture), mode="RGB").convert("P", palette=Image.Palette.ADAPTIVE)
+            if first:
+                header, _ = GifImagePlugin.getheader(im, info={"loop": 0, "duration": duration_ms})
+                fh.write(b"".join(header))
+                first = False
+            for part in GifImagePlugin.getdata(im, duration=duration_ms, include_color_table=True):
+                fh.write(part)
+        fh.write(b";")  # trailer
 
 
 def _write_mp4(path: Path, frames: Iterator[NDArray[np.uint8]], fps: float) -> None:

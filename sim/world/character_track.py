@@ -33,6 +33,7 @@ TRACK_FORMAT = "storyteller-track/1"
 # Tolerance on R^T R - I and det(R) - 1 for a matrix to count as a rotation.
 ROTATION_TOLERANCE = 1e-4
 _ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
+_CHECK_FRAMES = 4096  # frames whose rotations are checked at once
 
 
 class CharacterTrackError(ValueError):
@@ -81,15 +82,17 @@ class CharacterTrack:
                 f"expected shape ({n}, {NUM_JOINTS}, 3, 3) to match root_positions, got {rot.shape}",
                 field="local_rotations",
             )
-        ortho = np.abs(np.swapaxes(rot, -1, -2) @ rot - np.eye(3)).max(axis=(-1, -2))
-        det = np.linalg.det(rot)
-        bad = (ortho > ROTATION_TOLERANCE) | (np.abs(det - 1.0) > ROTATION_TOLERANCE)
-        if bad.any():
-            frame, joint = np.argwhere(bad)[0]
-            raise CharacterTrackError(
-                f"frame {frame} joint {joint} is not a rotation matrix (orthonormal, det +1)",
-                field="local_rotations",
-            )
+        for lo in range(0, n, _CHECK_FRAMES):  # in blocks: a long track's temporaries stay small
+            block = rot[lo : lo + _CHECK_FRAMES]
+            ortho = np.abs(np.swapaxes(block, -1, -2) @ block - np.eye(3)).max(axis=(-1, -2))
+            det = np.linalg.det(block)
+            bad = (ortho > ROTATION_TOLERANCE) | (np.abs(det - 1.0) > ROTATION_TOLERANCE)
+            if bad.any():
+                frame, joint = np.argwhere(bad)[0]
+                raise CharacterTrackError(
+                    f"frame {lo + frame} joint {joint} is not a rotation matrix (orthonormal, det +1)",
+                    field="local_rotations",
+                )
         betas = _as_float_array(self.betas, "betas")
         if betas.shape != (NUM_BETAS,):
             raise CharacterTrackError(

@@ -5,7 +5,10 @@
 appends a pose per character to the world's track buffers and reports completed / looping /
 failed events and the characters available to the narrator. The world is advanced in place
 and returned; ``World.snapshot()`` / ``World.restore(snapshot)`` copy its state (plain data:
-dataclasses, dicts and numpy arrays) for replays and tests.
+dataclasses, dicts and numpy arrays) for replays and tests. ``World.stream_tracks(store)``
+makes the track buffers stream to chunk files (``sim.world.track_chunks``): memory then holds
+one window of frames, a snapshot holds only the frames not yet in the store (and how many are),
+and restoring it cuts the store back to that count.
 
 The step is three parts: event bookkeeping (``sim.world.event_book``: assigning and releasing,
 the start queue and group starts, completion and failure, who is free), the phases and
@@ -83,7 +86,11 @@ from sim.world.phases import (
     TargetFallback,
     interaction_frames,
 )
+from sim.world.track_chunks import ChunkStore
 from sim.world.tracks import TrackBuffers
+
+STREAM_WINDOW = 300
+"""Frames (10 s at 30 fps) a streaming world keeps in memory per character at most."""
 
 
 @dataclass(frozen=True)
@@ -206,8 +213,27 @@ class World:
             feet=copy.deepcopy(self.feet),
         )
 
-    def restore(self, snap: WorldSnapshot) -> World:
-        """A new world in the state of ``snap`` (sharing scene, grid, planner and motion layer)."""
+    def stream_tracks(self, store: ChunkStore, window: int = STREAM_WINDOW) -> None:
+        """Keep at most ``window`` frames per character in memory from now on, the older ones in
+        ``store`` (which must hold exactly the frames this world's buffers have passed on)."""
+        self.buffers.stream_to(store, window)
+
+    def restore(self, snap: WorldSnapshot, *, store: ChunkStore | None = None) -> World:
+        """A new world in the state of ``snap`` (sharing scene, grid, planner and motion layer).
+
+        A streaming world keeps streaming to its store (or to ``store``, e.g. the chunk files of
+        an earlier process), cut back to the snapshot's frames in the store (``WorldError`` when
+        the store holds fewer, or there is no store and the snapshot's first frames are in one)."""
+        window = self.buffers.window or STREAM_WINDOW
+        if store is None:
+            store = self.buffers.store
+        base = snap.buffers.base
+        if store is None and base > 0:
+            raise WorldError(f"the snapshot's first {base} frames are in chunk files; stream_tracks() to them first")
+        if store is not None:
+            if store.frames < base:
+                raise WorldError(f"the chunk files hold {store.frames} frames, the snapshot needs {base}")
+            store.cut(base)
         out = copy.copy(self)
         memo = self._shared_memo()
         out.frame = snap.frame
@@ -217,6 +243,8 @@ class World:
         out.motion_states = copy.deepcopy(snap.motion_states, memo)
         out.navigator = copy.deepcopy(snap.navigator, memo)
         out.buffers = snap.buffers.trimmed()
+        if store is not None:
+            out.buffers.stream_to(store, window)
         out.feet = copy.deepcopy(snap.feet)
         return out
 
@@ -227,30 +255,30 @@ class World:
 
     def tracks(self) -> dict[str, CharacterTrack]:
         """One ``CharacterTrack`` per character with every frame produced so far."""
-        b = self.buffers
-        if b.length == 0:
+        if self.buffers.length == 0:
             raise WorldError("no frame has been produced yet")
-        out = {}
-        for k, name in enumerate(self.names):
-            labels = tuple(b.label_names[i] for i in b.labels[: b.length, k])
-            out[name] = CharacterTrack(
-                name=name,
-                root_positions=b.pelvis[: b.length, k].copy(),
-                local_rotations=b.rotations[: b.length, k].astype(float),
-                fps=float(self.config.fps),
-                action_labels=labels,
-            )
-        return out
+        return {name: self.track(name) for name in self.names}
+
+    def track(self, name: str) -> CharacterTrack:
+        """The ``CharacterTrack`` of one character (read from the chunk store when streaming)."""
+        if self.buffers.length == 0:
+            raise WorldError("no frame has been produced yet")
+        f = self.buffers.frames(self.names.index(name))
+        return CharacterTrack(
+            name=name,
+            root_positions=f.pelvis,
+            local_rotations=f.rotations,  # float32; the track keeps a float64 copy
+            fps=float(self.config.fps),
+            action_labels=f.labels,
+        )
 
     def foot_contacts(self) -> dict[str, np.ndarray]:
         """Per character, the motion layer's left/right foot contact flags (frames, 2)."""
-        b = self.buffers
-        return {name: b.contacts[: b.length, k].copy() for k, name in enumerate(self.names)}
+        return {name: self.buffers.frames(k).contacts for k, name in enumerate(self.names)}
 
     def event_ids(self) -> dict[str, tuple[str, ...]]:
         """Per character, the event it belonged to at every frame ("" when none)."""
-        b = self.buffers
-        return {name: tuple(b.label_names[i] for i in b.events[: b.length, k]) for k, name in enumerate(self.names)}
+        return {name: self.buffers.frames(k).events for k, name in enumerate(self.names)}
 
     def positions(self) -> np.ndarray:
         """Current root xy (N, 2) in ``names`` order."""
@@ -448,4 +476,4 @@ def run(world: World, frames: int, commands_at: Mapping[int, Sequence[AssignEven
     return outs
 
 
-__all__ = ["INFINITE", "EventState", "World", "WorldConfig", "WorldError", "WorldSnapshot", "run", "step"]
+__all__ = ["INFINITE", "STREAM_WINDOW", "EventState", "World", "WorldConfig", "WorldError", "WorldSnapshot", "run", "step"]

@@ -1,0 +1,308 @@
+"""Motion frames on disk: one append-only chunk file per character, written as the story runs.
+
+A world whose track buffers stream (``TrackBuffers.stream_to``) hands every full window of
+frames to a :class:`ChunkStore`, which appends one *record* per character to
+``<folder>/<slug>.chunks`` and forgets the frames; memory then holds at most one window.
+Readers (:func:`read_frames`, the exporters through ``World.tracks()``, the viewer) get the
+frames back exactly as the world produced them (same dtypes, same values).
+
+A record is a fixed header, then its payload::
+
+    magic b"STKC" | version u16 | reserved u16 | start frame u64 | frames u32 | names bytes u32
+    | payload bytes u64 | crc32 of the payload u32              (little-endian, 36 bytes)
+    payload: pelvis f8 (n, 3) | rotations f4 (n, 22, 3, 3) | contacts u1 (n, 2)
+             | labels i4 (n,) | events i4 (n,) | names (JSON list of str, UTF-8)
+
+``labels`` and ``events`` index the record's own ``names`` list, so each record reads on its
+own. Records follow each other without gaps: record k starts at the frame record k-1 ended.
+
+Durability under kill -9: a record is written with one ``write`` call on a file opened for
+appending, so a record whose write returned is in the kernel and survives the process; the
+header's length and CRC detect a torn last record (a crash in the middle of a write, or a
+power loss before :meth:`ChunkStore.sync`), which :func:`scan` reports and
+:meth:`ChunkStore.open` cuts off. ``sync`` fsyncs every file: a checkpoint that says "N frames
+are durable" is written only after it. Plain file I/O: no clock, no logging.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import struct
+import zlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sim.body.skeleton import NUM_JOINTS
+from sim.world.character_track import CharacterTrack
+
+MAGIC = b"STKC"
+VERSION = 1
+CHUNK_SUFFIX = ".chunks"
+MOTION_FOLDER = "motion"
+"""The sub-folder of a run folder that holds the chunk files."""
+_HEADER = struct.Struct("<4sHHQIIQI")
+HEADER_BYTES = _HEADER.size
+_UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
+
+
+class ChunkError(ValueError):
+    """A chunk file that does not hold what it should (the message names the file and why)."""
+
+
+def chunk_slug(name: str) -> str:
+    """The file-name-safe form of a character name (as ``sim.export.bundle.file_slug``)."""
+    return _UNSAFE.sub("_", name.strip()) or "character"
+
+
+def chunk_path(folder: Path, name: str) -> Path:
+    return folder / f"{chunk_slug(name)}{CHUNK_SUFFIX}"
+
+
+@dataclass(frozen=True)
+class Frames:
+    """Consecutive frames of one character from ``start``: the track buffer's columns, with
+    ``labels`` / ``events`` as strings (motion label and event id, "" outside events)."""
+
+    start: int
+    pelvis: np.ndarray  # (n, 3) float64
+    rotations: np.ndarray  # (n, 22, 3, 3) float32
+    contacts: np.ndarray  # (n, 2) bool
+    labels: tuple[str, ...]
+    events: tuple[str, ...]
+
+    @property
+    def count(self) -> int:
+        return int(self.pelvis.shape[0])
+
+
+def encode_record(start: int, pelvis: np.ndarray, rotations: np.ndarray, contacts: np.ndarray,
+                  labels: Sequence[str], events: Sequence[str]) -> bytes:
+    """One record (header and payload) of ``n`` frames from ``start``."""
+    n = int(pelvis.shape[0])
+    if rotations.shape != (n, NUM_JOINTS, 3, 3) or contacts.shape != (n, 2) or len(labels) != n or len(events) != n:
+        raise ChunkError(f"a chunk of {n} frames needs {n} rows in every column")
+    table: dict[str, int] = {}
+    label_ids = np.array([table.setdefault(s, len(table)) for s in labels], dtype="<i4")
+    event_ids = np.array([table.setdefault(s, len(table)) for s in events], dtype="<i4")
+    names = json.dumps(list(table), ensure_ascii=False).encode("utf-8")
+    payload = b"".join((
+        np.ascontiguousarray(pelvis, dtype="<f8").tobytes(),
+        np.ascontiguousarray(rotations, dtype="<f4").tobytes(),
+        np.ascontiguousarray(contacts, dtype=np.uint8).tobytes(),
+        label_ids.tobytes(),
+        event_ids.tobytes(),
+        names,
+    ))
+    header = _HEADER.pack(MAGIC, VERSION, 0, start, n, len(names), len(payload), zlib.crc32(payload))
+    return header + payload
+
+
+def _decode_payload(start: int, n: int, names_len: int, payload: bytes, path: Path) -> Frames:
+    sizes = (n * 3 * 8, n * NUM_JOINTS * 9 * 4, n * 2, n * 4, n * 4)
+    if sum(sizes) + names_len != len(payload):
+        raise ChunkError(f"{path}: record at frame {start} has {len(payload)} payload bytes, expected "
+                         f"{sum(sizes) + names_len}")
+    offs = np.cumsum((0, *sizes))
+    pelvis = np.frombuffer(payload, "<f8", n * 3, int(offs[0])).reshape(n, 3).astype(np.float64)
+    rotations = np.frombuffer(payload, "<f4", n * NUM_JOINTS * 9, int(offs[1])).reshape(n, NUM_JOINTS, 3, 3)
+    contacts = np.frombuffer(payload, np.uint8, n * 2, int(offs[2])).reshape(n, 2).astype(bool)
+    label_ids = np.frombuffer(payload, "<i4", n, int(offs[3]))
+    event_ids = np.frombuffer(payload, "<i4", n, int(offs[4]))
+    try:
+        names = json.loads(payload[int(offs[5]):].decode("utf-8"))
+        labels = tuple(names[i] for i in label_ids)
+        events = tuple(names[i] for i in event_ids)
+    except (ValueError, IndexError, TypeError) as exc:
+        raise ChunkError(f"{path}: record at frame {start} has a bad name table ({exc})") from None
+    return Frames(start, pelvis, rotations.astype(np.float32), contacts, labels, events)
+
+
+@dataclass(frozen=True)
+class Scan:
+    """What :func:`scan` found in a chunk file: ``frames`` whole frames in records ending at byte
+    ``good_bytes``; ``torn``: bytes after them that do not form a whole, valid record."""
+
+    frames: int
+    good_bytes: int
+    torn: int
+    records: tuple[tuple[int, int, int], ...]  # (byte offset, start frame, frames) of each record
+
+
+def scan(path: Path) -> Scan:
+    """The whole records of ``path`` (a missing file has none); a bad record that is not the
+    last (frames out of order, a bad CRC followed by more data) raises :class:`ChunkError`."""
+    try:
+        data_size = path.stat().st_size
+    except FileNotFoundError:
+        return Scan(0, 0, 0, ())
+    records: list[tuple[int, int, int]] = []
+    offset = frames = 0
+    with path.open("rb") as fh:
+        while offset < data_size:
+            header = fh.read(HEADER_BYTES)
+            if len(header) < HEADER_BYTES:
+                break
+            magic, version, _, start, n, _names_len, size, crc = _HEADER.unpack(header)
+            if magic != MAGIC or version != VERSION:
+                break
+            end = offset + HEADER_BYTES + size
+            if end > data_size:
+                break
+            payload = fh.read(size)
+            if zlib.crc32(payload) != crc:
+                if end < data_size:
+                    raise ChunkError(f"{path}: record at byte {offset} fails its CRC and is not the last one")
+                break
+            if start != frames:
+                raise ChunkError(f"{path}: record at byte {offset} starts at frame {start}, expected {frames}")
+            records.append((offset, start, n))
+            frames += n
+            offset = end
+    return Scan(frames, offset, data_size - offset, tuple(records))
+
+
+def read_frames(path: Path, frames: int | None = None, *, start: int = 0) -> Frames:
+    """Frames ``[start, start + frames)`` of ``path`` (``frames`` None: up to the last whole
+    record; a torn tail is ignored). Raises :class:`ChunkError` when fewer are there."""
+    found = scan(path)
+    stop = found.frames if frames is None else start + frames
+    if not 0 <= start <= stop <= found.frames:
+        raise ChunkError(f"{path}: holds {found.frames} whole frames, asked for [{start}, {stop})")
+    parts: list[Frames] = []
+    if not found.records:
+        return concat_frames(start, parts)
+    with path.open("rb") as fh:
+        for offset, first, n in found.records:
+            if first + n <= start or first >= stop:
+                continue
+            fh.seek(offset)
+            _, _, _, _, _, names_len, size, _ = _HEADER.unpack(fh.read(HEADER_BYTES))
+            part = _decode_payload(first, n, names_len, fh.read(size), path)
+            lo, hi = max(start, first) - first, min(stop, first + n) - first
+            parts.append(Frames(first + lo, part.pelvis[lo:hi], part.rotations[lo:hi], part.contacts[lo:hi],
+                                part.labels[lo:hi], part.events[lo:hi]))
+    return concat_frames(start, parts)
+
+
+def concat_frames(start: int, parts: Sequence[Frames]) -> Frames:
+    """``parts`` (consecutive, from ``start``) as one :class:`Frames`."""
+    if not parts:
+        return Frames(start, np.zeros((0, 3)), np.zeros((0, NUM_JOINTS, 3, 3), np.float32),
+                      np.zeros((0, 2), bool), (), ())
+    if len(parts) == 1:
+        return parts[0]
+    return Frames(
+        start,
+        np.concatenate([p.pelvis for p in parts]),
+        np.concatenate([p.rotations for p in parts]),
+        np.concatenate([p.contacts for p in parts]),
+        tuple(s for p in parts for s in p.labels),
+        tuple(s for p in parts for s in p.events),
+    )
+
+
+class ChunkStore:
+    """The chunk files of one world's characters in ``folder``: append, sync, cut back, read.
+
+    Build with :meth:`open`, which cuts a torn last record off every file (and, given
+    ``frames``, every record past that frame), so the files agree on one frame count.
+    """
+
+    def __init__(self, folder: Path, names: Sequence[str], frames: int) -> None:
+        self.folder = folder
+        self.names = tuple(names)
+        self.frames = frames
+        """Frames written (each file holds exactly this many)."""
+        self._paths = {name: chunk_path(folder, name) for name in self.names}
+        if len({p.name.lower() for p in self._paths.values()}) != len(self.names):
+            raise ChunkError(f"character names {list(self.names)} collide as chunk file names")
+        self._fds: dict[str, int] = {}
+
+    @classmethod
+    def open(cls, folder: Path, names: Sequence[str], frames: int | None = None) -> ChunkStore:
+        """The store in ``folder`` (created if missing). ``frames`` None: a new store, every
+        file emptied; otherwise keep the first ``frames`` frames of each file (a resume),
+        raising :class:`ChunkError` when a file holds fewer whole frames."""
+        folder.mkdir(parents=True, exist_ok=True)
+        store = cls(folder, names, 0)
+        for name, path in store._paths.items():
+            store._fds[name] = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            if frames is None:
+                os.ftruncate(store._fds[name], 0)
+        store.frames = frames if frames is not None else 0
+        if frames is not None:
+            store.cut(frames, check=True)
+        store.sync()
+        return store
+
+    def cut(self, frames: int, *, check: bool = False) -> None:
+        """Keep only the first ``frames`` frames of every file (drops a torn last record, and
+        the records of frames a restored world will simulate again). ``check``: scan every
+        file even when ``frames`` is what this store wrote (on opening files of an earlier
+        process)."""
+        if not check and frames == self.frames:
+            return
+        for name, path in self._paths.items():
+            found = scan(path)
+            if found.frames < frames:
+                raise ChunkError(f"{path}: holds {found.frames} whole frames, {frames} are needed")
+            kept = [r for r in found.records if r[1] + r[2] <= frames]
+            if sum(r[2] for r in kept) != frames:
+                raise ChunkError(f"{path}: no record ends at frame {frames}")
+            keep_bytes = found.records[len(kept)][0] if len(kept) < len(found.records) else found.good_bytes
+            os.ftruncate(self._fds[name], keep_bytes)
+        self.frames = frames
+
+    def path(self, name: str) -> Path:
+        return self._paths[name]
+
+    def append(self, start: int, pelvis: np.ndarray, rotations: np.ndarray, contacts: np.ndarray,
+               labels: Sequence[Sequence[str]], events: Sequence[Sequence[str]]) -> None:
+        """Append frames ``[start, start + n)`` of every character: columns indexed (frame,
+        character, ...) in ``names`` order; ``labels`` / ``events`` per character."""
+        if start != self.frames:
+            raise ChunkError(f"{self.folder}: chunk starts at frame {start}, the files end at {self.frames}")
+        for k, name in enumerate(self.names):
+            record = encode_record(start, pelvis[:, k], rotations[:, k], contacts[:, k], labels[k], events[k])
+            view = memoryview(record)
+            while view:
+                view = view[os.write(self._fds[name], view):]
+        self.frames = start + int(pelvis.shape[0])
+
+    def sync(self) -> None:
+        """Make every record written so far durable (fsync each file and the folder)."""
+        for fd in self._fds.values():
+            os.fsync(fd)
+        dir_fd = os.open(self.folder, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+
+    def read(self, name: str, frames: int | None = None, *, start: int = 0) -> Frames:
+        """Frames ``[start, start + frames)`` of ``name`` (None: all written)."""
+        return read_frames(self._paths[name], self.frames - start if frames is None else frames, start=start)
+
+    def close(self) -> None:
+        for fd in self._fds.values():
+            os.close(fd)
+        self._fds.clear()
+
+    def __getstate__(self) -> None:
+        raise TypeError("a ChunkStore holds open files; a snapshot records its frame count instead")
+
+
+def chunked_track(path: Path, name: str, fps: float = 30.0) -> CharacterTrack | None:
+    """The ``CharacterTrack`` of the whole records in ``path`` (a run still being written, or one
+    stopped before its exports); None when there is no whole frame yet. The same track as
+    ``World.track(name)`` gives for those frames."""
+    frames = read_frames(path)
+    if frames.count == 0:
+        return None
+    return CharacterTrack(name=name, root_positions=frames.pelvis, local_rotations=frames.rotations.astype(float),
+                          fps=fps, action_labels=frames.labels)
