@@ -105,7 +105,7 @@ def test_a_bystander_is_asked_for_an_event_of_their_own() -> None:
     (the reply must name him and only him) instead of standing idle for the whole story."""
     req = narrator_request(PromptLibrary(), _input((ev(0, ("Ava",), "make coffee", "ongoing"),), ("Ava",)))
     user = req.messages[-1].content
-    assert "Next part: the instruction has nothing for Ben now: give them something of their own to do" in user
+    assert "Next part: no part of the instruction is for Ben now: give them something of their own to do" in user
     assert req.json_schema is not None
     chars = req.json_schema["properties"]["event"]["properties"]["characters"]
     assert chars["items"]["enum"] == ["Ben"] and chars["minItems"] == 1
