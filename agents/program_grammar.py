@@ -168,7 +168,8 @@ def event_program_grammar(
 
     free_seats = [o.name for o in scene.objects if o.is_seat and free(o)]
     labels = list(action_shortlist(activity, action_labels, scene.labels)) or list(action_labels)
-    shortlist = event_shortlist(scene, activity, free_seats, labels)
+    where = {c.name: (float(c.position[0]), float(c.position[1])) for c in others if c.position is not None}
+    shortlist = event_shortlist(scene, activity, free_seats, labels, others=where)
     objects = list(shortlist.objects) or [o.name for o in scene.objects]
     held = {o.name for o in scene.objects if o.is_seat and o.name not in free_seats}
     return program_grammar(

@@ -22,11 +22,13 @@ An empty shortlist means "no evidence": the caller offers everything. Pure: no L
 
 from __future__ import annotations
 
+import math
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from sim.scene.model import Scene, SceneObject
+from tools.areas import seat_slots
 from tools.scene_graph import footprint_distance
 
 CLOSE_M = 1.0
@@ -34,6 +36,15 @@ CLOSE_M = 1.0
 ``close to``)."""
 SYNONYMS = {"sofa": "couch", "television": "tv", "refrigerator": "fridge", "telly": "tv", "turntable": "record player"}
 """Common words for the same kind of object (general English, not any case's wording)."""
+PHRASES = (
+    (re.compile(r"\b(?:coffee|espresso) machines?\b"), "coffee maker"),
+    (re.compile(r"\bbar\b(?!\s+(?:stool|counter|chair))"), "bar counter"),
+    (re.compile(r"\bwork ?stations?\b"), "desk"),
+)
+"""Common several-word names of the same kind of object, rewritten before matching."""
+CHARACTER_NEAR_M = 1.5
+"""Free seats within this distance (m) of a character the event names ("joins Gus at his
+table") are the seats for it."""
 VIEWED_M = 4.0
 """Seats within this gap of a thing watched from afar (``VIEWED``) count as seats for it."""
 VIEWED = frozenset({"tv", "screen", "whiteboard", "projector", "window", "fireplace", "stage"})
@@ -51,9 +62,16 @@ class Shortlist:
     seats: tuple[str, ...]
 
 
+def _rewrite(text: str) -> str:
+    text = text.lower().replace("_", " ")
+    for pattern, name in PHRASES:
+        text = pattern.sub(name, text)
+    return text
+
+
 def _words(text: str) -> list[str]:
     out = []
-    for w in _WORD.findall(text.lower().replace("_", " ")):
+    for w in _WORD.findall(_rewrite(text)):
         out.extend(SYNONYMS.get(w, w).split())
         if len(w) > 3 and w.endswith("s"):  # plurals: "plates" also reads as "plate"
             out.extend(SYNONYMS.get(w[:-1], w[:-1]).split())
@@ -88,6 +106,15 @@ def mentioned_labels(text: str, labels: Sequence[str]) -> list[str]:
     return sorted(found, key=lambda label: found[label])
 
 
+def _after_proximity(text: str) -> str:
+    """The words after the last proximity word: they name the landmark ("the stool at the end
+    of the bar nearest the coffee maker": the coffee maker), "" when there is none."""
+    words = _WORD.findall(_rewrite(text))
+    lowered = " " + " ".join(words) + " "
+    at = [lowered.rfind(f" {w} ") for w in (*NEAR_WORDS, *FAR_WORDS) if f" {w} " in lowered]
+    return lowered[max(at):] if at else ""
+
+
 def _near_filter(first: list[SceneObject], others: list[SceneObject], text: str) -> list[SceneObject]:
     lowered = " " + " ".join(_WORD.findall(text.lower())) + " "
     far = any(f" {w} " in lowered for w in FAR_WORDS)
@@ -104,15 +131,22 @@ def _near_filter(first: list[SceneObject], others: list[SceneObject], text: str)
     return [o for o in first if gap[o.name] <= CLOSE_M] or first
 
 
-def event_shortlist(scene: Scene, text: str, free_seats: Sequence[str], action_labels: Sequence[str] = ()) -> Shortlist:
-    """The objects and free seats ``text`` (an event's activity) is about, best evidence first."""
+def event_shortlist(
+    scene: Scene, text: str, free_seats: Sequence[str], action_labels: Sequence[str] = (),
+    others: Mapping[str, tuple[float, float]] | None = None,
+) -> Shortlist:
+    """The objects and free seats ``text`` (an event's activity) is about, best evidence first.
+    ``others``: where the characters outside the event are; when the text names one of them
+    ("sits down at Gus's table"), the free seats near them come first."""
     by_name = {o.name: o for o in scene.objects}
     lowered = text.lower()
     named = [o for o in scene.objects if re.search(rf"\b{re.escape(o.name.lower())}\b", lowered)]
     labels = mentioned_labels(text, scene.labels)
     groups = [[o for o in scene.objects if o.label == label] for label in labels]
     if len(groups) >= 2:
-        groups[0] = _near_filter(groups[0], [o for g in groups[1:] for o in g], text)
+        after = set(mentioned_labels(_after_proximity(text), scene.labels))
+        references = [g for label, g in zip(labels[1:], groups[1:], strict=True) if label in after] or groups[1:]
+        groups[0] = _near_filter(groups[0], [o for g in references for o in g], text)
     words = set(_words(text))  # an action whose label names an object label: "makes coffee" -> use_coffee_maker
     acted = [a for a in action_labels if words & set(a.split("_")) - {"on", "off", "to", "use", "the"}]
     implied = [o for lab in scene.labels if lab not in labels and any(lab in a for a in acted) for o in scene.objects if o.label == lab]
@@ -131,4 +165,23 @@ def event_shortlist(scene: Scene, text: str, free_seats: Sequence[str], action_l
         seats = [s for s in seats if s in near_chosen] or seats
     elif not seats:  # sit at / by what the event names
         seats = near_chosen
+    by_character = _seats_by_named_characters(text, free, others or {})
+    if by_character:
+        seats = [s for s in seats if s in by_character] or by_character
     return Shortlist(objects=tuple(objects), seats=tuple(seats))
+
+
+def _seats_by_named_characters(
+    text: str, free: Sequence[SceneObject], others: Mapping[str, tuple[float, float]]
+) -> list[str]:
+    """Free seats within ``CHARACTER_NEAR_M`` of the characters ``text`` names."""
+    named = [pos for name, pos in others.items() if re.search(rf"\b{re.escape(name)}\b", text, re.IGNORECASE)]
+    if not named:
+        return []
+    out = []
+    for seat in free:
+        slots = seat_slots(seat) or []
+        points = [tuple(s.position) for s in slots] or [tuple(seat.center[:2])]
+        if any(math.dist(p, q) <= CHARACTER_NEAR_M for p in points for q in named):
+            out.append(seat.name)
+    return out

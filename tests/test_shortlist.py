@@ -56,3 +56,28 @@ def test_nearest_and_farthest_pick_by_distance_to_the_landmark() -> None:
 def test_words_that_name_nothing_give_an_empty_shortlist() -> None:
     s = event_shortlist(HOME, "chats with a friend", seats(HOME), scene_action_labels(HOME))
     assert s.objects == () and s.seats == ()
+
+
+def test_the_landmark_is_what_follows_the_last_place_word() -> None:
+    """"the stool at the end of the bar nearest the espresso machine": the bar runs along every
+    stool, so the espresso machine (after "nearest") is what picks the stool."""
+    stools = [o for o in RESTAURANT.objects if o.label == "stool"]
+    maker = [o for o in RESTAURANT.objects if o.label == "coffee_maker"]
+    gap = {s.name: min(footprint_distance(s, m) for m in maker) for s in stools}
+    s = event_shortlist(RESTAURANT, "orders a drink from the stool at the end of the bar nearest the espresso machine",
+                        seats(RESTAURANT), ("order_drink",))
+    assert s.seats == (min(gap, key=gap.__getitem__),)
+    assert mentioned_labels("leans on the bar", RESTAURANT.labels) == ["bar_counter"]
+    assert mentioned_labels("takes a bar stool", RESTAURANT.labels) == ["stool"]
+
+
+def test_a_named_character_brings_the_seats_near_them() -> None:
+    """"sits down at Gus's table": the free seats next to where Gus is, not every chair."""
+    chair = next(o for o in RESTAURANT.objects if o.label == "chair")
+    gus = (float(chair.center[0]) + 0.9, float(chair.center[1]))
+    s = event_shortlist(RESTAURANT, "joins Gus and sits down at his table", seats(RESTAURANT), ("eat",),
+                        others={"Gus": gus, "Ida": (100.0, 100.0)})
+    assert chair.name in s.seats and 0 < len(s.seats) < len(seats(RESTAURANT))
+    far = event_shortlist(RESTAURANT, "joins Gus and sits down at his table", seats(RESTAURANT), ("eat",),
+                          others={"Ida": gus})
+    assert chair.name not in far.seats or len(far.seats) > len(s.seats)
