@@ -23,14 +23,22 @@ trace's instruction records at their frames and ignores the script and stdin; a 
 applies the recorded ones again (not traced twice) and the script lines not yet applied.
 
 Problems with the user's inputs (an unreadable trace or motion config, a model that cannot be
-opened, a session that cannot go on) are raised as :class:`RunSetupError`, one sentence each.
+opened, a damaged ``runs.sqlite``, a session that cannot go on) are raised as
+:class:`RunSetupError`, one sentence each, naming the file. A write that fails (a full disk)
+raises ``OSError`` naming the file; what was written before stays readable (the trace keeps
+whole lines, ``session.snapshot`` the previous checkpoint). A run stopped through ``stop``
+(SIGINT, SIGTERM) saves its checkpoint at the frame it stopped at and returns the story so far.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import json
+import sqlite3
 import uuid
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +54,18 @@ CHECKPOINT_EVERY_S = 10.0
 
 class RunSetupError(Exception):
     """A run that cannot start or go on because of its inputs (the message says which)."""
+
+
+@dataclass(frozen=True)
+class StoryRun:
+    """What :func:`run_story` returns: the session's result, the names, the fps, the world, and
+    whether the run was stopped early (``stop`` was set) rather than played to its end."""
+
+    result: SessionResult
+    names: list[str]
+    fps: int
+    world: Any
+    stopped: bool = False
 
 
 def applied_frames_from_trace(path: Path) -> list[int]:
@@ -152,7 +172,8 @@ async def run_story(
     on_resume: Callable[[int, int], None] | None = None,
     on_instruction: Callable[[TimedInstruction, int], None] | None = None,
     in_process_programs: bool = False,
-) -> tuple[SessionResult, list[str], int, Any]:
+    stop: asyncio.Event | None = None,
+) -> StoryRun:
     """Run the story session; returns the result, the character names, the fps and the world.
 
     A live or replayed run writes ``run.json`` before the first frame (``on_start(manifest)``
@@ -166,7 +187,12 @@ async def run_story(
     kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails.
     ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay).
     Event programs run in an OS-limited worker process started for the run and stopped when
-    it ends (``in_process_programs``: in this process instead; the plans are the same)."""
+    it ends (``in_process_programs``: in this process instead; the plans are the same).
+
+    ``stop``: once set (by a signal handler), the session is cancelled where it waits (a frame
+    is never cut in half), its checkpoint at that frame is saved and the story so far is
+    returned with ``stopped=True``; an LLM call in flight is abandoned, and resume asks it
+    again unless its node was checkpointed."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
@@ -237,7 +263,12 @@ async def run_story(
         if on_start is not None:
             on_start(manifest)
     runs_db = out / "runs.sqlite"
-    story = StoryLog(runs_db, thread)
+    try:
+        check_runs_db(runs_db)
+        story = StoryLog(runs_db, thread)
+    except (RunSetupError, sqlite3.DatabaseError) as exc:
+        port.close()
+        raise RunSetupError(str(exc) if isinstance(exc, RunSetupError) else f"{runs_db}: {exc}") from None
     deps = PlanningDeps(
         port=port,
         scene=scene,
@@ -293,7 +324,9 @@ async def run_story(
                 from orchestrator.session.stdin_instructions import start_stdin_reader
 
                 start_stdin_reader(session)
-            result = await session.run()
+            result, stopped = await _run_until_stopped(session, stop)
+            if stopped:
+                keep(session.checkpoint())
     except (LLMError, SessionError) as exc:
         raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
     finally:
@@ -301,7 +334,42 @@ async def run_story(
         port.close()
         if isinstance(deps.runner, WorkerRunner):
             deps.runner.close()
-    return result, names, fps, session.world
+    return StoryRun(result, names, fps, session.world, stopped)
+
+
+async def _run_until_stopped(session: Any, stop: asyncio.Event | None) -> tuple[SessionResult, bool]:
+    """``session.run()``, cancelled when ``stop`` is set first; (the story so far, stopped?)."""
+    if stop is None:
+        return await session.run(), False
+    running = asyncio.ensure_future(session.run())
+    stopping = asyncio.ensure_future(stop.wait())
+    try:
+        await asyncio.wait({running, stopping}, return_when=asyncio.FIRST_COMPLETED)
+    except BaseException:
+        running.cancel()
+        raise
+    finally:
+        stopping.cancel()
+    if running.done():
+        return running.result(), False
+    running.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await running
+    return session.result(), True
+
+
+def check_runs_db(path: Path) -> None:
+    """Raise :class:`RunSetupError` naming ``path`` when it exists but is not a sound SQLite
+    database (garbage, truncated, damaged pages), before any checkpoint is read from it."""
+    if not path.is_file():
+        return
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as conn:
+            verdict = conn.execute("PRAGMA quick_check").fetchone()[0]
+    except sqlite3.DatabaseError as exc:
+        raise RunSetupError(f"{path}: not a readable checkpoint database ({exc})") from None
+    if verdict != "ok":
+        raise RunSetupError(f"{path}: the checkpoint database is damaged ({verdict})")
 
 
 def recorded_frames(trace_path: Path) -> dict[int, int]:
