@@ -27,7 +27,6 @@ import resource
 import signal
 import subprocess
 import sys
-import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -40,50 +39,10 @@ from orchestrator.cli.app import app
 from orchestrator.llm import traces
 from orchestrator.llm.traces import AppliedRecord, read_trace
 from tests.support.fake_openai_server import FakeOpenAI
+from tests.support.story_planner import RUN, Planner, write_config
 
 ROOT = Path(__file__).resolve().parents[1]
-TASKS = {"Zoe": ("coffee_maker_1", "use_coffee_maker"), "Max": ("microwave_1", "use_microwave")}
 FPS = 30
-RUN = ["run", "home", "--names", "Zoe,Max", "--planner", "unified", "--description", "object-list", "--raw-feet",
-       "--no-interactive"]
-
-
-def program(name: str) -> str:
-    obj, action = TASKS[name]
-    return (
-        f'```python\ndef parse_event():\n    a = get_character("{name}")\n'
-        f'    a.set_position(get_area_to_interact_with("{obj}"))\n'
-        f'    a.set_orientation("{obj}")\n    a.set_target_action("{action}")\n```'
-    )
-
-
-def first_free(body: dict[str, Any]) -> str:
-    """The program for the first free character of the request (a retry's feedback comes after it)."""
-    asked = [m["content"] for m in body["messages"] if "Free characters: " in m["content"]]
-    free = re.findall(r"Free characters: (.*)", asked[-1])
-    return program(free[-1].split(",")[0].strip())
-
-
-class Planner:
-    """Answers by content. ``faults`` maps a 1-based request number to an action played
-    instead (``("status", 500)``, ``("sleep", s)``); request ``block_at`` waits until
-    ``release`` is set (``arrived`` tells the test it came in)."""
-
-    def __init__(self, faults: dict[int, Any] | None = None, block_at: int | None = None) -> None:
-        self.faults = faults or {}
-        self.block_at = block_at
-        self.count = 0
-        self.arrived = threading.Event()
-        self.release = threading.Event()
-
-    def __call__(self, body: dict[str, Any]) -> Any:
-        self.count += 1
-        if self.count in self.faults:
-            return self.faults[self.count]
-        if self.block_at is not None and self.count == self.block_at:
-            self.arrived.set()
-            self.release.wait(60)  # the client is stopped meanwhile; nobody reads this answer
-        return first_free(body)
 
 
 @pytest.fixture
@@ -92,17 +51,6 @@ def env(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, str]]:
     for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL"):
         monkeypatch.delenv(var, raising=False)
     yield {**os.environ, "PYTHONPATH": str(ROOT)}
-
-
-def write_config(tmp_path: Path, api_base: str, *, attempts: int = 1, timeout_s: float = 20.0) -> Path:
-    path = tmp_path / "fake.toml"
-    path.write_text(
-        f'[llm]\nmodel = "openai/fake"\napi_base = "{api_base}"\napi_key_env = "FAKE_PROVIDER_KEY"\n'
-        f"timeout_s = {timeout_s}\n[llm.retry]\nmax_attempts = {attempts}\nbackoff_base_s = 0.05\n"
-        "backoff_max_s = 0.1\n",
-        encoding="utf-8",
-    )
-    return path
 
 
 def cli(*args: str) -> list[str]:
@@ -180,7 +128,7 @@ def test_a_signal_stops_the_run_cleanly_and_resume_goes_on_from_there(
     env: dict[str, str], tmp_path: Path, signum: signal.Signals
 ) -> None:
     run_dir = tmp_path / "run"
-    seconds = 30
+    seconds = 12  # the third request comes when Zoe finishes her coffee, at 9.2 s
     planner = Planner(block_at=3)  # Zoe and Max got their events; the third request hangs
     with FakeOpenAI(responder=planner) as fake:
         cfg = write_config(tmp_path, fake.base)

@@ -75,6 +75,20 @@ def applied_frames_from_trace(path: Path) -> list[int]:
     return [r.sim_frame for r in read_trace(path).records if isinstance(r, AppliedRecord)]
 
 
+def replayable_frames(path: Path) -> list[int]:
+    """:func:`applied_frames_from_trace` of a trace to replay, which must end with a whole line:
+    a cut last record (a run killed mid-write) is a :class:`RunSetupError`, not a shorter story."""
+    from orchestrator.llm.traces import AppliedRecord, read_trace
+
+    contents = read_trace(path)
+    if contents.torn_tail is not None:
+        raise RunSetupError(
+            f"{path}: line {contents.torn_tail.line_no} is cut short ({contents.torn_tail.size} bytes; the run "
+            "stopped while writing it): `storyteller resume` the run to repair it, or replay a complete trace"
+        )
+    return [r.sim_frame for r in contents.records if isinstance(r, AppliedRecord)]
+
+
 def instructions_from_trace(path: Path) -> list[TimedInstruction]:
     """The instructions a recorded run applied, with their frames and sources, in order."""
     from orchestrator.llm.traces import read_trace
@@ -223,7 +237,7 @@ async def run_story(
     config = Path(args.config) if args.config is not None else None
     motion_config = Path(args.motion_config) if args.motion_config is not None else None
     try:
-        applied = applied_frames_from_trace(replay) if replay is not None else None
+        applied = replayable_frames(replay) if replay is not None else None
         resumed_trace = resume and trace_path is not None and trace_path.is_file()
         recorded = recorded_frames(trace_path) if resumed_trace and trace_path is not None else {}
         said = instructions_from_trace(trace_path) if resumed_trace and trace_path is not None else []
