@@ -50,7 +50,7 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
-from orchestrator.cli.safe_text import plain
+from orchestrator.safe_text import plain
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
     from orchestrator.session.instruction_script import ScriptLine
