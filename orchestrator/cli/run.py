@@ -25,6 +25,13 @@ the next frame. The trace records each one with its frame, and a replay applies 
 ``--planner unified|direct`` and ``--description object-list|scene-graph`` plan with the
 paper's ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``),
 driven by the same step planner.
+
+Exit codes: 0 the story ran to its end; 1 planning stopped (the error is printed) or a write
+failed (``error: cannot write FILE: ...``, a full disk: what was written before stays readable
+and ``resume`` goes on once there is space); 2 a user error (bad argument, damaged run folder,
+one line naming the file); 130 / 143 (128 + the signal) stopped by SIGINT / SIGTERM: the run
+stops at a frame boundary, writes the story so far, its motion and its checkpoint at that
+frame, says so in one line, and ``storyteller resume`` goes on from there.
 """
 
 from __future__ import annotations
