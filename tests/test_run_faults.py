@@ -3,8 +3,9 @@
 - The provider fails for a stretch of calls (HTTP 500, a reply that never comes before the
   timeout): the lockstep story waits for the planner and goes on; the trace records every
   failed attempt; the story ends with all its events.
-- SIGTERM or SIGINT to a running ``storyteller run`` (a real child process): it stops at a
-  frame boundary with exit code 128 + the signal (143, 130) and one line on stderr, having
+- SIGTERM (to the process, as ``kill`` sends it) or SIGINT (to its process group, as Ctrl-C
+  on a terminal does, so the event-program worker gets it too) to a running ``storyteller
+  run`` (a real child process): it stops at a frame boundary with exit code 128 + the signal (143, 130) and one line on stderr, having
   written the story so far, its motion, the trace, ``run.json`` and its checkpoint at that
   frame; ``storyteller resume RUN_DIR`` goes on from that very frame to the end.
 - A full disk: the trace (an ``os.write`` failing with ENOSPC mid-line) or the story folder
@@ -135,11 +136,15 @@ def test_a_signal_stops_the_run_cleanly_and_resume_goes_on_from_there(
         log, errors = tmp_path / "run.log", tmp_path / "run.err"
         with log.open("wb") as sink, errors.open("wb") as err_sink:
             child = subprocess.Popen(cli(*RUN, "-d", str(seconds), "--max-events", "3", "--config", str(cfg),
-                                         "--out", str(run_dir)), cwd=tmp_path, env=env, stdout=sink, stderr=err_sink)
+                                         "--out", str(run_dir)), cwd=tmp_path, env=env, stdout=sink, stderr=err_sink,
+                                     start_new_session=True)
         try:
             while not planner.arrived.wait(0.2):
                 assert child.poll() is None, log.read_text(encoding="utf-8") + errors.read_text(encoding="utf-8")
-            child.send_signal(signum)
+            if signum == signal.SIGINT:  # as Ctrl-C on a terminal: to the whole process group (the
+                os.killpg(child.pid, signum)  # event-program worker too)
+            else:  # as `kill PID` or a container stop: to the process
+                child.send_signal(signum)
             child.wait(60)
         finally:
             planner.release.set()
