@@ -7,7 +7,8 @@
   on a terminal does, so the event-program worker gets it too) to a running ``storyteller
   run`` (a real child process): it stops at a frame boundary with exit code 128 + the signal (143, 130) and one line on stderr, having
   written the story so far, its motion, the trace, ``run.json`` and its checkpoint at that
-  frame; ``storyteller resume RUN_DIR`` goes on from that very frame to the end.
+  frame; ``storyteller resume RUN_DIR`` goes on from that very frame to the end, asking only
+  the cut call again, and the resulting trace replays the same story and motion.
 - A full disk: the trace (an ``os.write`` failing with ENOSPC mid-line) or the story folder
   (a child whose ``RLIMIT_FSIZE`` is exhausted, as an unprivileged CI container allows; the
   limit makes ``write`` fail with EFBIG once ``SIGXFSZ`` is ignored): one ``error:`` line naming
@@ -184,6 +185,11 @@ def test_a_signal_stops_the_run_cleanly_and_resume_goes_on_from_there(
     assert story["frames"] == seconds * FPS
     assert [e["event_id"] for e in story["events"]] == ["event-0000", "event-0001", "event-0002"]
     assert track_frames(run_dir / "Zoe.track.npz") == seconds * FPS
+    # the trace of the stopped and resumed run (the cut call is in it, as cancelled) replays the same story
+    again = CliRunner().invoke(app, ["replay", str(run_dir), "--out", str(tmp_path / "again")])
+    assert again.exit_code == 0, again.stderr
+    for name in ("story.json", "Zoe.track.npz", "Max.track.npz"):
+        assert (tmp_path / "again" / name).read_bytes() == (run_dir / name).read_bytes(), name
 
 
 # ----- a full disk --------------------------------------------------------------------------

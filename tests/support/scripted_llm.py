@@ -44,6 +44,7 @@ class ScriptedLLM:
         self.model = model
         self.requests: list[LLMRequest] = []
         self.trace = trace  # None: records nothing
+        self._writes_attempts = trace is not None
         self.closed = False
 
     def close(self) -> None:
@@ -61,7 +62,7 @@ class ScriptedLLM:
     async def complete(self, request: LLMRequest) -> LLMResponse:
         self.requests.append(request)
         text = self.answer(request)
-        if self.trace is None:
+        if not self._writes_attempts:
             return LLMResponse(text=text, model=self.model)
         from orchestrator.llm.traces import AttemptRecord
 
