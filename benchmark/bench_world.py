@@ -33,6 +33,19 @@ Usage: ``python -m benchmark.bench_world [--sizes 1 10 50 200 1000] [--seconds 1
 The 200-character case runs half of ``--seconds``, the 1,000-character case a fifth.
 Targets: 10 characters >= 30x real time on one core (issue 8); 50 characters >= 20x, 200
 characters >= 5x (30,000 character-frames per second), 1,000 characters measured (issue 14).
+
+Issue 14 figures (2026-12-02, ``--sizes 50 200 1000``, under ``nice`` on a 2-core machine shared
+with other jobs, load average 9-10: the wall figures are several times below a quiet core's,
+the CPU-time figures steadier): 50 characters 10.3x wall / 23.0x CPU; 200 ("Office x4") 0.74x
+wall / 4.07x CPU (about 24,000 character-frames per CPU second); 1,000 ("Office x16", 2 s)
+0.22x wall / 0.63x CPU. Against the code before (commit dc64721, interleaved in the same
+session, least CPU of 3): 200 characters 0.96 -> 0.85 s CPU, 1,000 characters 4.81 -> 3.64 s
+(replan 549 -> 248 ms), with the same positions and motion searches. Where the time goes at
+200: planning about 40% (the compiled space-time search half of it), motion matching about
+20%, leg IK about 7%, the rest per-frame bookkeeping. The short 1,000-character run is
+dominated by its first replan, which computes a goal-distance field for each of the 1,000
+new goals at once (each O(grid): the superlinear part; a longer run computes one per
+arrival); the field is a compiled bucket-queue Dijkstra (``astar_kernel.goal_distances``).
 """
 
 from __future__ import annotations
