@@ -295,6 +295,11 @@ def _arm_cpu(cpu_seconds: int) -> None:
 
 def serve(address_space_bytes: int, cpu_seconds: int) -> None:
     """The worker loop: one request in, one answer out, until stdin closes."""
+    import signal
+
+    # Ctrl-C on a terminal reaches the whole process group: the run that owns this worker stops
+    # cleanly and closes it; the worker itself must not die with a traceback meanwhile.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     from tools.event_program import run_event_program
     from tools.scene_graph import SceneGraph, build_scene_graph
 

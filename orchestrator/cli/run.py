@@ -25,13 +25,22 @@ the next frame. The trace records each one with its frame, and a replay applies 
 ``--planner unified|direct`` and ``--description object-list|scene-graph`` plan with the
 paper's ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``),
 driven by the same step planner.
+
+Exit codes: 0 the story ran to its end; 1 planning stopped (the error is printed) or a write
+failed (``error: cannot write FILE: ...``, a full disk: what was written before stays readable
+and ``resume`` goes on once there is space); 2 a user error (bad argument, damaged run folder,
+one line naming the file); 130 / 143 (128 + the signal) stopped by SIGINT / SIGTERM: the run
+stops at a frame boundary, writes the story so far, its motion and its checkpoint at that
+frame, says so in one line, and ``storyteller resume`` goes on from there.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import typer
 
@@ -48,7 +57,7 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
-from orchestrator.cli.safe_text import plain
+from orchestrator.safe_text import plain
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
     from orchestrator.session.instruction_script import ScriptLine
@@ -205,7 +214,7 @@ def _execute(
 ) -> None:
     import asyncio
 
-    from orchestrator.session.run_job import RunSetupError, run_story, write_outputs
+    from orchestrator.session.run_job import RunSetupError, StoryRun, run_story, write_outputs
     from orchestrator.session.run_manifest import resume_command
     from sim.scene.bundled import resolve_scene
     from sim.scene.files import SceneFileError
@@ -214,7 +223,10 @@ def _execute(
         scene_obj = resolve_scene(args.scene)
     except SceneFileError as exc:
         fail(str(exc))
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _cannot_write(exc, out, resumable=False)
 
     def show(e: StoryEvent, fps: int) -> None:
         typer.echo(_event_line(e, fps))
@@ -223,9 +235,20 @@ def _execute(
         if replay is None:
             typer.echo(f"thread {manifest.thread_id}; to resume after a stop: {resume_command(out)}", err=True)
 
-    try:
-        result, names, fps, world = asyncio.run(
-            run_story(
+    signals: list[int] = []  # the signals received, in order
+
+    async def main() -> StoryRun:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+
+        def on_signal(signum: int) -> None:
+            signals.append(signum)
+            stop.set()
+
+        for signum in STOP_SIGNALS:
+            loop.add_signal_handler(signum, on_signal, signum)
+        try:
+            return await run_story(
                 scene_obj,
                 args,
                 out=out,
@@ -241,25 +264,111 @@ def _execute(
                 on_start=started,
                 on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
                 in_process_programs=in_process_programs,
+                stop=stop,
             )
-        )
-    except RunSetupError as exc:
-        fail(str(exc))
-    from orchestrator.bodies.smplx_meshes import SmplxModelError
+        finally:
+            for signum in STOP_SIGNALS:
+                loop.remove_signal_handler(signum)
 
     try:
-        write_outputs(out, scene_obj, world, result, names, args.instruction, fps, args.gif, video=args.video,
-                      trace_path=trace_path, smplx_model=smplx_model)
+        run = asyncio.run(main())
+    except RunSetupError as exc:
+        fail(str(exc))
+    except OSError as exc:
+        _cannot_write(exc, out, resumable=replay is None)
+    result, fps = run.result, run.fps
+    from orchestrator.bodies.smplx_meshes import SmplxModelError
+
+    failed_write = _failed_write(result.planner_error, out)  # the first write that failed is reported
+    try:
+        with _signals_interrupt():
+            write_outputs(out, scene_obj, run.world, result, run.names, args.instruction, fps,
+                          args.gif and not run.stopped, video=args.video and not run.stopped,
+                          trace_path=trace_path, smplx_model=smplx_model)
     except SmplxModelError as exc:
         fail(str(exc))
+    except OSError as exc:
+        failed_write = failed_write or exc
+    except _Interrupted as exc:
+        signals.append(exc.signum)
+    if failed_write is not None:
+        _cannot_write(failed_write, out, resumable=replay is None)
     typer.echo(
         f"{result.frames} frames ({result.frames / fps:.1f} s), {result.steps} planning steps, "
         f"{sum(e.state == 'completed' for e in result.events)} events completed -> {out}"
     )
+    if signals:
+        signum = signals[0]
+        again = "" if replay is not None else f"; go on with: {resume_command(out)}"
+        typer.echo(
+            f"stopped by {signal_name(signum)} at frame {result.frames} ({result.frames / fps:.1f} s); "
+            f"the story so far, its motion, trace and checkpoint are in {out}{again}",
+            err=True,
+        )
+        raise typer.Exit(128 + signum)
     if result.planner_error is not None:
         err = result.planner_error
         typer.echo(f"error: planning stopped: {type(err).__name__}: {plain(err, keep_newlines=True)}", err=True)
         raise typer.Exit(1)
+
+
+STOP_SIGNALS = (2, 15)  # SIGINT, SIGTERM (the same numbers on every POSIX system)
+"""The signals that stop a run cleanly; it exits with 128 + the signal's number (130, 143)."""
+
+
+def signal_name(signum: int) -> str:
+    import signal
+
+    return signal.Signals(signum).name
+
+
+class _Interrupted(Exception):
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal_name(signum))
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _signals_interrupt() -> Iterator[None]:
+    """While the outputs are written, a stop signal ends the writing (the run stays resumable)."""
+    import signal
+
+    def interrupt(signum: int, _frame: object) -> None:
+        raise _Interrupted(signum)
+
+    previous = {signum: signal.signal(signum, interrupt) for signum in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _failed_write(error: BaseException | None, out: Path) -> OSError | None:
+    """``error`` (the planner's) as the write that failed, when it is one: an ``OSError`` (the
+    trace), or SQLite's disk errors (``runs.sqlite``, whose checkpoints the planner writes)."""
+    import sqlite3
+
+    if isinstance(error, OSError):
+        return error
+    if isinstance(error, sqlite3.OperationalError) and any(
+        words in str(error) for words in ("disk I/O error", "disk is full", "readonly database")
+    ):
+        return OSError(None, str(error), str(out / "runs.sqlite"))
+    return None
+
+
+def _cannot_write(exc: OSError, out: Path, *, resumable: bool) -> NoReturn:
+    """A write that failed (a full disk, a file-size limit, no permission): one line, exit 1."""
+    from orchestrator.session.run_manifest import resume_command
+
+    where = exc.filename if exc.filename is not None else out
+    then = f"; once it can be written, go on with: {resume_command(out)}" if resumable else ""
+    typer.echo(
+        f"error: cannot write {plain(where)}: {plain(exc.strerror or exc)}; what was written before is kept{then}",
+        err=True,
+    )
+    raise typer.Exit(1)
 
 
 __all__ = ["register", "replay_command", "resume_command", "run_command"]

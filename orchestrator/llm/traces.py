@@ -26,10 +26,13 @@ Each record is written with a single ``os.write`` of one complete line on an ``O
 descriptor, so a killed writer leaves at most one torn line, at the end. Reading tolerates
 and reports a torn last line; a bad line anywhere else raises :class:`TraceCorruptError`.
 Reopening a file with a torn tail for writing cuts that tail off first (and logs it).
+A write that fails (a full disk, a file-size limit) cuts the part of its line that was
+written and raises ``OSError`` naming the file: the lines before it stay whole.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
@@ -304,12 +307,18 @@ class TraceWriter:
         with self._lock:
             if self._fd is None:
                 raise ValueError(f"trace writer for {self.path} is closed")
+            start = os.fstat(self._fd).st_size
             view = memoryview(line)
-            while view:  # a regular-file write is complete unless the disk is full
-                n = os.write(self._fd, view)
-                view = view[n:]
-            if self.fsync == "always":
-                os.fsync(self._fd)
+            try:
+                while view:  # a regular-file write is complete unless the disk is full
+                    n = os.write(self._fd, view)
+                    view = view[n:]
+                if self.fsync == "always":
+                    os.fsync(self._fd)
+            except OSError as exc:  # a full disk, a file-size limit: keep the file whole lines
+                with contextlib.suppress(OSError):
+                    os.ftruncate(self._fd, start)
+                raise OSError(exc.errno, exc.strerror, str(self.path)) from None
 
     def record_parsed(
         self, ref_seq: int, parsed_output: Any, *, node: NodeName | None = None,

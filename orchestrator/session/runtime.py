@@ -613,6 +613,10 @@ class Session:
             if len(group.exceptions) == 1:
                 raise group.exceptions[0] from None
             raise
+        return self.result()
+
+    def result(self) -> SessionResult:
+        """The story so far (what :meth:`run` returns at its end; also after a cancelled run)."""
         return SessionResult(
             frames=self.world.frame,
             steps=len(self.outcomes),

@@ -3,6 +3,9 @@
 Controls (the panel of the ``viser`` client): Play / Pause, a speed choice, a frame slider
 (scrub), the clock, and the story's events as buttons, one per event, in story order; the
 events on at the current frame are coloured, and clicking one jumps to its start frame.
+Text from the run folder (its name, the instruction, activities, error messages) is data: the
+panel's markdown gets it through :func:`orchestrator.safe_text.markdown` (viser renders raw HTML
+in markdown), buttons and labels through :func:`orchestrator.safe_text.plain`.
 
 Playback runs on a thread of this process: it advances the frame by ``speed * fps`` per wall
 second and stops at the last frame. A second thread polls the run folder
@@ -22,6 +25,7 @@ from pathlib import Path
 import viser
 
 from orchestrator.bodies.smplx_meshes import SmplxBody, SmplxModelError, SmplxModels, run_bodies
+from orchestrator.safe_text import markdown
 from orchestrator.viewer.run_folder import RunData, RunFolderError, folder_stamp, is_ready, load_run
 from orchestrator.viewer.scene_view import SceneView
 from orchestrator.viewer.timeline import active_events, clock, event_line
@@ -53,7 +57,7 @@ class ViewerApp:
         self._active: list[int] = []
         gui = self.server.gui
         gui.configure_theme(control_width="large")
-        self.status = gui.add_markdown(f"**{folder.name}**")
+        self.status = gui.add_markdown(f"**{markdown(folder.name)}**")
         with gui.add_folder("Timeline"):
             self.play = gui.add_button("Pause" if autoplay else "Play", icon=None)
             self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1")
@@ -86,14 +90,14 @@ class ViewerApp:
             return False
         self._stamp = stamp
         if not is_ready(self.folder):
-            self.status.content = f"**{self.folder.name}**: waiting for the run to write its outputs..."
+            self.status.content = f"**{markdown(self.folder.name)}**: waiting for the run to write its outputs..."
             return False
         try:
             run = load_run(self.folder)
             names = [t.name for t in run.tracks]
             bodies = run_bodies(self.folder, names, self.models) if self.models is not None else None
         except (RunFolderError, SmplxModelError) as exc:
-            self.status.content = f"**{self.folder.name}**: {exc}"
+            self.status.content = f"**{markdown(self.folder.name)}**: {markdown(exc)}"
             return False
         self._show_run(run, bodies)
         return True
@@ -103,11 +107,12 @@ class ViewerApp:
             self.server.scene.reset()
             self.run = run
             self.view = SceneView(self.server, run, bodies=bodies)
-            lines = [f"**{self.folder.name}**: {len(run.tracks)} characters, {clock(run.num_frames - 1, run.fps)}"]
+            lines = [f"**{markdown(self.folder.name)}**: {len(run.tracks)} characters, "
+                     f"{clock(run.num_frames - 1, run.fps)}"]
             if run.instruction:
-                lines.append(f"*{run.instruction}*")
+                lines.append(f"*{markdown(run.instruction)}*")
             if run.scene_note:
-                lines.append(run.scene_note)
+                lines.append(markdown(run.scene_note))
             self.status.content = "\n\n".join(lines)
             for button in self._event_buttons:
                 button.remove()
