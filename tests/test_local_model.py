@@ -282,6 +282,43 @@ def test_get_llama_hashes_the_file_before_loading_and_refuses_a_tampered_one(
         local_model._instances.pop(spec.model, None)
 
 
+def test_each_system_prompt_keeps_its_own_instance_up_to_the_slot_count(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Narrator and parser calls taking turns each find their prefix in their own instance's
+    KV cache; a fourth prompt takes the least recently used instance over."""
+    import hashlib
+    import sys
+    import types
+
+    from orchestrator.llm import local_model
+
+    blob = b"GGUF" + bytes(range(256)) * 8
+    spec = WeightsSpec(model="fake-slots", filename="fake-slots.gguf", packages=("x",), version="1",
+                       sha256=hashlib.sha256(blob).hexdigest(), size=len(blob), description="test")
+    monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path))
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / spec.filename).write_bytes(blob)
+    ensure_weights(spec)
+    monkeypatch.setitem(sys.modules, "llama_cpp", types.SimpleNamespace(Llama=FakeLlamaClass))
+    monkeypatch.setattr(local_model, "PREFIX_SLOTS", 3)
+    FakeLlamaClass.loads = []
+    key = lambda text: local_model.prompt_key([{"role": "system", "content": text}, {"role": "user", "content": "x"}])  # noqa: E731
+    try:
+        narrator, lock = local_model.get_llama(spec, key("narrator rules"))
+        parser, lock2 = local_model.get_llama(spec, key("parser rules"))
+        assert narrator is not parser and lock is lock2  # one model, calls serialised
+        assert local_model.get_llama(spec, key("narrator rules"))[0] is narrator
+        describer = local_model.get_llama(spec, key("describer rules"))[0]
+        assert len(FakeLlamaClass.loads) == 3
+        assert local_model.get_llama(spec, key("planner rules"))[0] is parser  # least recently used
+        assert local_model.get_llama(spec, key("narrator rules"))[0] is narrator
+        assert len(FakeLlamaClass.loads) == 3 and describer is not narrator
+        assert local_model.prompt_key([{"role": "user", "content": "x"}]) == ""
+    finally:
+        local_model._instances.pop(spec.model, None)
+
+
 async def test_missing_quality_weights_message_names_the_install_command(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

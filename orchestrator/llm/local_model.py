@@ -1,9 +1,10 @@
 """The embedded model as a litellm custom provider ``local`` (llama-cpp-python, in process).
 
-Model names: ``local/qwen2.5-coder-0.5b`` (default) and ``local/qwen2.5-coder-1.5b``. One
-``llama_cpp.Llama`` per model per process, created lazily, shared by every call: llama.cpp
-then reuses the longest common prompt prefix held in its KV cache, so prompts that put
-their stable part first are cheap to repeat. No ``LlamaRAMCache``: it snapshots whole
+Model names: ``local/qwen2.5-coder-0.5b`` (default) and ``local/qwen2.5-coder-1.5b``. Up to
+:data:`PREFIX_SLOTS` ``llama_cpp.Llama`` instances per model per process, created lazily, one
+per role's system prompt (:func:`get_llama`): llama.cpp reuses the longest common prompt prefix
+held in an instance's KV cache, so with narrator and parser calls taking turns each role's
+stable prefix (rules, examples, scene description) is evaluated once per story, not per call. No ``LlamaRAMCache``: it snapshots whole
 states, each holding n_ctx x vocab logits (GBs with Qwen's 152k vocab).
 
 Calls are serialised per model (a Llama object is not thread-safe) and run in a worker
@@ -21,10 +22,13 @@ much slower; ``max_tokens`` still bounds a runaway generation.
 from __future__ import annotations
 
 import atexit
+import hashlib
 import os
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")
@@ -63,8 +67,21 @@ LOAD_MARGIN = 10.0
 BASE_TIMEOUT_S = 30.0
 CHARS_PER_TOKEN = 3.0
 
+PREFIX_SLOTS = max(1, int(os.environ.get("STORYTELLER_LOCAL_PREFIX_SLOTS", "3")))
+"""Llama instances per model, each keeping the KV cache of the last prompt it saw."""
+
+
+@dataclass
+class _Pool:
+    """The instances of one model: by prompt key (the system message), least recently used
+    first, and the lock that serialises every call to the model."""
+
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    slots: OrderedDict[str, Any] = field(default_factory=OrderedDict)
+
+
 _load_lock = threading.Lock()
-_instances: dict[str, tuple[Any, threading.Lock]] = {}
+_instances: dict[str, _Pool] = {}
 
 
 class _Abort(Exception):
@@ -108,13 +125,23 @@ def bound_arrays(schema: Any, max_items: int = DEFAULT_ARRAY_MAX_ITEMS) -> Any:
     return schema
 
 
-def get_llama(spec: WeightsSpec) -> tuple[Any, threading.Lock]:
-    """The process-wide Llama instance for ``spec`` and the lock that serialises its use.
+def get_llama(spec: WeightsSpec, key: str = "") -> tuple[Any, threading.Lock]:
+    """A Llama instance for ``spec`` and the lock that serialises the model's use.
 
-    The weights file is sha256-checked in full right before it is loaded (the stamp alone
-    does not see in-place edits); a mismatch raises :class:`WeightsIntegrityError`."""
+    Calls with the same ``key`` (the prompt's stable system message) go to the same instance,
+    whose KV cache still holds that prefix: a narrator call after a parser call evaluates only
+    its new tokens instead of its whole prompt. There are at most :data:`PREFIX_SLOTS`
+    instances per model (they share the memory-mapped weights; each adds its KV cache); a new
+    key takes the least recently used one over.
+
+    The weights file is sha256-checked in full right before an instance is loaded (the stamp
+    alone does not see in-place edits); a mismatch raises :class:`WeightsIntegrityError`."""
     with _load_lock:
-        if spec.model not in _instances:
+        pool = _instances.get(spec.model)
+        if pool is not None and key in pool.slots:
+            pool.slots.move_to_end(key)
+            return pool.slots[key], pool.lock
+        if pool is None or len(pool.slots) < PREFIX_SLOTS:
             from llama_cpp import Llama
 
             path = verified_weights_path(spec)
@@ -122,8 +149,19 @@ def get_llama(spec: WeightsSpec) -> tuple[Any, threading.Lock]:
                 model_path=str(path), n_ctx=N_CTX, n_threads=N_THREADS, n_threads_batch=N_THREADS,
                 seed=SEED, n_gpu_layers=0, verbose=False,
             )
-            _instances[spec.model] = (llm, threading.Lock())
-        return _instances[spec.model]
+            pool = _instances.setdefault(spec.model, _Pool())
+        else:
+            _, llm = pool.slots.popitem(last=False)
+        pool.slots[key] = llm
+        return llm, pool.lock
+
+
+def prompt_key(messages: list[dict[str, Any]]) -> str:
+    """The routing key of a chat: a digest of its system message ("" without one)."""
+    first = messages[0] if messages else {}
+    if first.get("role") != "system":
+        return ""
+    return hashlib.sha256(str(first.get("content", "")).encode()).hexdigest()[:16]
 
 
 def loaded_models() -> list[str]:
@@ -136,9 +174,10 @@ def close_models() -> None:
     (left to ``__del__`` at shutdown they fail noisily on half-torn-down modules)."""
     with _load_lock:
         while _instances:
-            _, (llm, lock) = _instances.popitem()
-            with lock:
-                llm.close()
+            _, pool = _instances.popitem()
+            with pool.lock:
+                for llm in pool.slots.values():
+                    llm.close()
 
 
 def _chat_blocking(
@@ -153,7 +192,7 @@ def _chat_blocking(
     Streaming is what makes the abort possible: exceptions raised in llama.cpp sampler
     callbacks are swallowed by ctypes. Usage: completion tokens = streamed content pieces,
     prompt tokens = tokens in the context afterwards minus those."""
-    llm, lock = get_llama(spec)
+    llm, lock = get_llama(spec, prompt_key(messages))
     with lock:
         deadline = time.monotonic() + timeout_s
         pieces: list[str] = []
