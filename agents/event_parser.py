@@ -140,9 +140,10 @@ def spatial_api_listing(prompts: PromptLibrary | None = None) -> dict[str, str]:
 
 
 def event_text(activity: str, instruction_part: str = "") -> str:
-    """What the event's words are, for the label and object shortlists: the activity and the
-    instruction part it carries out."""
-    return f"{activity.strip()} {instruction_part.strip()}".strip()
+    """What the event is about, for the label and object shortlists: the instruction part it
+    carries out when there is one (the user's own words; a small narrator adds places of its
+    own, "... sitting on chair_1"), else the narrator's activity."""
+    return instruction_part.strip() or activity.strip()
 
 
 def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessage, ...]:

@@ -83,8 +83,8 @@ def program_grammar(
     function is offered only when there is one); ``other_characters``: characters that may be
     looked at besides the objects and the event's own characters; ``seated_labels``: the
     labels that can be played sitting (None: all); ``interact_objects``: the objects
-    ``get_area_to_interact_with`` may take (None: ``objects``; a seat someone holds cannot be
-    interacted with). Each block sets the action first, then the position: a label that has
+    ``get_area_to_interact_with`` may take (None: ``objects``; interacting with a seat means
+    sitting on it, which the seat function offers, and only on a free seat). Each block sets the action first, then the position: a label that has
     no seated motion is followed by standing areas only, and the action, the decision the
     event's words say most about, is made before the place that must suit it. ``posture``
     (``"sit"`` / ``"stand"``, from the event's words): with "sit" and a free seat, only seated
@@ -149,7 +149,7 @@ def event_program_grammar(
     (:func:`agents.action_shortlist.action_shortlist` of ``activity``; every offered label
     when they point to none), the objects and the seats nobody else holds or stands on,
     narrowed to the event's shortlist (:func:`agents.shortlist.event_shortlist`; all of them
-    when it has none), and no held seat to interact with. ``activity`` is the event's text
+    when it has none), and no seat to interact with (sitting goes through the seat function). ``activity`` is the event's text
     (the narrator's activity and the instruction part it comes from); ``characters`` are the
     roster (objects with ``name``, ``seat``, ``position``)."""
     others = [c for c in characters if c.name not in event_characters]
@@ -171,7 +171,7 @@ def event_program_grammar(
     where = {c.name: (float(c.position[0]), float(c.position[1])) for c in others if c.position is not None}
     shortlist = event_shortlist(scene, activity, free_seats, labels, others=where)
     objects = list(shortlist.objects) or [o.name for o in scene.objects]
-    held = {o.name for o in scene.objects if o.is_seat and o.name not in free_seats}
+    seat_names = {o.name for o in scene.objects if o.is_seat}  # sitting is get_area_to_sit_on's
     return program_grammar(
         event_characters,
         objects,
@@ -179,7 +179,7 @@ def event_program_grammar(
         labels,
         [c.name for c in characters if c.name not in event_characters],
         seated_labels=[a for a in labels if playable_seated(a)],
-        interact_objects=[o for o in objects if o not in held],
+        interact_objects=[o for o in objects if o not in seat_names],
         posture=posture(activity),
     )
 

@@ -204,9 +204,9 @@ def test_the_events_words_narrow_the_labels_and_the_action_comes_first() -> None
     assert _alternatives(seated, "sitlabel") == {"read_book"} and "standlabel" not in seated
 
 
-def test_a_held_seat_is_not_offered_to_interact_with() -> None:
-    """Ben sits on the only armchair: "interact with armchair_1" cannot be placed, so it is not
-    offered, while the armchair stays a landmark for other areas."""
+def test_seats_are_sat_on_not_interacted_with() -> None:
+    """"interact with armchair_1" means sitting on it (and Ben holds it): seats are offered to
+    the seat function only (when free), and stay landmarks for the other areas."""
     roster = (CharacterStatus(name="Ava"), CharacterStatus(name="Ben", busy=True, seat="armchair_1"))
     g = event_program_grammar(SCENE, ("Ava",), roster, ("armchair_1",), LABELS, activity="pass the time")
     assert "armchair_1" in _alternatives(g, "object")
@@ -214,3 +214,5 @@ def test_a_held_seat_is_not_offered_to_interact_with() -> None:
     program = ('```python\ndef parse_event():\n    c1 = get_character("Ava")\n    c1.set_target_action("idle")\n'
                '    c1.set_position(get_area_{}("armchair_1"))\n    c1.set_orientation("tv_1")\n```')
     assert _admits(g, program.format("close_to")) and not _admits(g, program.format("to_interact_with"))
+    assert not _alternatives(g, "interactobject") & {o.name for o in SCENE.objects if o.is_seat}
+    assert "chair_1" in _alternatives(g, "seat")
