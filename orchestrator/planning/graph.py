@@ -25,6 +25,10 @@ task keeps its frame rate while a step is checked.
 Routers return ``Literal[...]`` node names. Dependencies (LLM port, scene, world view
 provider, story log, trace sink) come from ``Runtime[PlanningDeps]``.
 
+Progress: with ``deps.progress`` set (a story session does, per step), :func:`complete` reports
+every call's latency and ``check_narration`` reports the accepted event's characters before
+the event parser is asked, so the session may plan the next event beside this one.
+
 Traces: every request carries ``state.sim_frame`` (the frame of the world snapshot the step
 plans from; None without a simulation) as metadata outside the request hash. The check
 nodes record, for the attempt they judged, the parsed output (narrator event, event-parser
@@ -35,6 +39,7 @@ step's narrator and event-parser attempts are stored with its outcome in the sto
 
 from __future__ import annotations
 
+import time
 from collections.abc import Awaitable, Callable
 from typing import Any, Literal, Protocol, TypeVar
 
@@ -75,8 +80,19 @@ async def off_loop(fn: Callable[[], _T]) -> _T:
 
 
 async def complete(deps: PlanningDeps, request: LLMRequest, state: PlanningState) -> LLMResponse:
-    """One LLM call with the step's simulation frame attached (metadata, not hashed)."""
-    return await deps.port.complete(request.model_copy(update={"sim_frame": state.sim_frame}))
+    """One LLM call with the step's simulation frame attached (metadata, not hashed); its
+    latency goes to ``deps.progress`` (the response's, which a replay takes from the trace;
+    the wall time of a call that failed)."""
+    started = time.monotonic()
+    try:
+        response = await deps.port.complete(request.model_copy(update={"sim_frame": state.sim_frame}))
+    except LLMError:
+        if deps.progress is not None:
+            deps.progress.llm_call(request.node, time.monotonic() - started)
+        raise
+    if deps.progress is not None:
+        deps.progress.llm_call(request.node, response.latency_s)
+    return response
 
 
 def record_parsed(
@@ -219,6 +235,8 @@ async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) 
             update["failure"] = PlanningFailure(index=state.step, node="narrator", attempts=attempts, feedback=feedback)
         return update
     record_parsed(deps, state.narrator_seq, "narrator", out.model_dump(mode="json"))
+    if deps.progress is not None and not out.event.is_wait:
+        deps.progress.claim(out.event.characters, out.event.activity)
     return {"event": out.event, "narrator_attempts": attempts, "narrator_reply": None, "narrator_seq": None}
 
 

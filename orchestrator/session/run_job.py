@@ -22,6 +22,12 @@ written to the trace as an ``instruction`` record with its frame. A replay sched
 trace's instruction records at their frames and ignores the script and stdin; a resume
 applies the recorded ones again (not traced twice) and the script lines not yet applied.
 
+Overlapping planning (``RunArguments.planners`` > 1): the trace gets a ``requested`` record per
+step, and a replay makes every request where the recorded run did
+(``SessionSettings.schedule``). Any error other than the user's inputs or the LLM's (a bug, a
+failing disk) cancels the session's task group and is raised from :func:`run_story` after the
+trace, the story log and the program worker are closed.
+
 Problems with the user's inputs (an unreadable trace or motion config, a model that cannot be
 opened, a session that cannot go on) are raised as :class:`RunSetupError`, one sentence each.
 """
@@ -37,7 +43,12 @@ from typing import Any
 from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.session.run_manifest import RunArguments, RunManifest
-from orchestrator.session.runtime import SessionResult, StoryEvent, TimedInstruction
+from orchestrator.session.runtime import (
+    RecordedRequest,
+    SessionResult,
+    StoryEvent,
+    TimedInstruction,
+)
 from sim.scene.model import Scene
 
 CHECKPOINT_EVERY_S = 10.0
@@ -53,6 +64,14 @@ def applied_frames_from_trace(path: Path) -> list[int]:
     from orchestrator.llm.traces import AppliedRecord, read_trace
 
     return [r.sim_frame for r in read_trace(path).records if isinstance(r, AppliedRecord)]
+
+
+def schedule_from_trace(path: Path) -> list[RecordedRequest]:
+    """When a recorded run with overlapping planning steps requested each step."""
+    from orchestrator.llm.traces import read_trace
+
+    return [RecordedRequest(step=r.step, frame=r.sim_frame, phase=r.phase, after=r.after_steps)
+            for r in read_trace(path).requests()]
 
 
 def instructions_from_trace(path: Path) -> list[TimedInstruction]:
@@ -198,6 +217,7 @@ async def run_story(
     motion_config = Path(args.motion_config) if args.motion_config is not None else None
     try:
         applied = applied_frames_from_trace(replay) if replay is not None else None
+        schedule = schedule_from_trace(replay) if replay is not None and args.planners > 1 else None
         resumed_trace = resume and trace_path is not None and trace_path.is_file()
         recorded = recorded_frames(trace_path) if resumed_trace and trace_path is not None else {}
         said = instructions_from_trace(trace_path) if resumed_trace and trace_path is not None else []
@@ -264,6 +284,9 @@ async def run_story(
         instruction=args.instruction,
         instructions=scheduled,
         live_instructions=replay is None,
+        planners=args.planners,
+        offline_latency_s=args.offline_latency,
+        schedule=schedule,
     )
     session: Session | None = None
     writer = port.trace if isinstance(port.trace, TraceWriter) else None
@@ -274,6 +297,10 @@ async def run_story(
         if on_instruction is not None:
             on_instruction(timed, fps)
 
+    def requested(r: RecordedRequest) -> None:
+        if writer is not None:
+            writer.record_requested(r.step, r.frame, phase=r.phase, after_steps=r.after)
+
     def keep(cp: SessionCheckpoint) -> None:
         assert session is not None
         save_checkpoint(snapshot_path, session.world, cp)
@@ -281,10 +308,10 @@ async def run_story(
     try:
         async with open_checkpointer(runs_db) as saver:
             graph = compile_graph(ablation, saver)
-            planner = GraphStepPlanner(graph, deps, thread)
+            planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
             shown = None if on_event is None else (lambda e: on_event(e, fps))
             session = Session(world, planner, settings, trace=port.trace, on_event=shown, on_checkpoint=keep,
-                              on_instruction=said_now)
+                              on_instruction=said_now, on_request=requested)
             if checkpoint is not None:
                 session.resume(checkpoint)
             if resume and on_resume is not None:
