@@ -564,15 +564,15 @@ class Session:
 
     def _pending(self, fl: _Flight, frame: int) -> bool:
         """More news of ``fl`` is needed before ``frame`` steps: its outcome may be applied then."""
+        due = self._recorded_due(fl.request.index)
+        if due is not None and due < frame:
+            raise SessionError(
+                f"replay: step {fl.request.index} was applied at frame {due}, "
+                f"but its request was made at frame {fl.request.frame}"
+            )
         if fl.done:
             return False
-        due = self._recorded_due(fl.request.index)
         if due is not None:
-            if due < frame:
-                raise SessionError(
-                    f"replay: step {fl.request.index} was applied at frame {due}, "
-                    f"but its request was made at frame {fl.request.frame}"
-                )
             return due == frame
         if self._replaying():
             return False  # requested but never applied in the recorded run
