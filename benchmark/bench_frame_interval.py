@@ -87,12 +87,12 @@ def run_once(mode: str, duration: float, latency: float, tmp: Path) -> tuple[np.
         out = tmp / mode
         out.mkdir()
         if mode == "on-loop":
-            graph.off_loop = _inline  # type: ignore[assignment]  # the baseline: work on the event loop
+            graph.off_loop = _inline  # the baseline: work on the event loop
         try:
             result, *_ = asyncio.run(run_story(resolve_scene("home"), args, out=out, trace_path=out / "trace.jsonl",
                                                replay=None))
         finally:
-            graph.off_loop = original  # type: ignore[assignment]
+            graph.off_loop = original
     return np.asarray(result.frame_intervals_s[1:]) * 1000.0, result.steps
 
 

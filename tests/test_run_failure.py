@@ -97,7 +97,7 @@ def test_run_story_leaves_no_task_pending_after_the_error(exploding: dict[str, A
         with pytest.raises(RuntimeError, match="adapter bug"):
             await run_story(resolve_scene("home"), args, out=tmp_path, trace_path=tmp_path / "trace.jsonl",
                             replay=None, in_process_programs=True)
-        return asyncio.all_tasks() - {asyncio.current_task()}  # type: ignore[operator]
+        return asyncio.all_tasks() - {asyncio.current_task()}
 
     assert asyncio.run(main()) == set()
     assert exploding["port"].closed and exploding["story_closed"] == 1

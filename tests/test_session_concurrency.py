@@ -11,6 +11,7 @@ from __future__ import annotations
 import itertools
 import random
 from collections.abc import Sequence
+from pathlib import Path
 
 import anyio
 import pytest
@@ -238,3 +239,48 @@ def test_settings_for_planners_and_offline_latency_are_checked(home: Scene, moti
         Session(world, ClaimingPlanner(home), SessionSettings(frames=10, planners=0))
     with pytest.raises(SessionError, match="offline latency"):
         Session(world, ClaimingPlanner(home), SessionSettings(frames=10, pace="offline", offline_latency_s=-1.0))
+
+
+def test_the_planning_graph_runs_two_steps_at_once_on_two_lanes(home: Scene, motion: MotionMatcher, tmp_path: Path) -> None:  # noqa: F811
+    from langgraph.checkpoint.memory import InMemorySaver
+
+    from agents.event_parser import scene_action_labels
+    from orchestrator.llm.client import LiteLLMClient
+    from orchestrator.llm.config import default_config
+    from orchestrator.llm.traces import AttemptRecord, TraceWriter, read_trace
+    from orchestrator.planning.checkpoints import StoryLog
+    from orchestrator.planning.graph import compile_planning_graph
+    from orchestrator.planning.state import PlanningDeps
+    from orchestrator.session.roster import RosterWorld
+    from orchestrator.session.step_planner import GraphStepPlanner
+    from tests.test_session_runtime import ScriptedCompletion
+
+    path = tmp_path / "trace.jsonl"
+    client = LiteLLMClient(default_config(), TraceWriter(path, fsync="never"), acompletion=ScriptedCompletion(),
+                           check_local=lambda m: None)
+    story = StoryLog(tmp_path / "runs.sqlite", "lanes")
+    deps = PlanningDeps(port=client, scene=home, world=RosterWorld(), story=story,
+                        action_labels=scene_action_labels(home), seed=0)
+    planner = GraphStepPlanner(compile_planning_graph(InMemorySaver()), deps, "lanes", lanes=2)
+    settings = SessionSettings(frames=20 * FPS, pace="lockstep", max_steps=4, planners=2, instruction="Everyone reads.")
+
+    async def main() -> SessionResult:
+        try:
+            return await Session(_world(home, motion, ["Ava", "Ben", "Cleo"]), planner, settings,
+                                 trace=client.trace).run()
+        finally:
+            story.close()
+            client.close()
+
+    result = anyio.run(main)
+    assert result.steps == 4 and all(isinstance(o, ParsedEvent) for _, o in result.outcomes)
+    attempts = [r for r in read_trace(path).records if isinstance(r, AttemptRecord)]
+    assert [r.node for r in attempts].count("describer") == 1  # lane 1 starts from lane 0's description
+    narrated = [r.request.sim_frame for r in attempts if r.node == "narrator"]
+    assert len(narrated) > len(set(narrated))  # two steps asked at one frame: the second beside the first
+    who = [set(o.event.characters) for _, o in result.outcomes if isinstance(o, ParsedEvent)]
+    frames = result.applied_frames
+    for i in range(len(who)):
+        for j in range(i + 1, len(who)):
+            if frames[i] == frames[j]:
+                assert not who[i] & who[j]
