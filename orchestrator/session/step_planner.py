@@ -24,6 +24,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+import anyio
+
 from agents.messages import Event, SceneDescription
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.graph import recursion_limit
@@ -47,6 +49,7 @@ class GraphStepPlanner:
         self.lanes = lanes
         self.story: StoryLog = deps.story
         self._busy: set[int] = set()
+        self._choosing: anyio.Lock | None = None  # one lane choice at a time (resumed steps come together)
 
     @property
     def world(self) -> RosterWorld:
@@ -92,8 +95,11 @@ class GraphStepPlanner:
         recorded = dict(self.story.outcomes())
         if request.index in recorded:  # finished before a restart: never call the LLM again
             return recorded[request.index]
-        lane, snapshot = await self._lane_for(request.index)
-        self._busy.add(lane)
+        if self._choosing is None:
+            self._choosing = anyio.Lock()
+        async with self._choosing:
+            lane, snapshot = await self._lane_for(request.index)
+            self._busy.add(lane)
         try:
             return await self._run(lane, snapshot, request, progress)
         finally:
