@@ -59,11 +59,20 @@ class RunSetupError(Exception):
     """A run that cannot start or go on because of its inputs (the message says which)."""
 
 
-def applied_frames_from_trace(path: Path) -> list[int]:
-    """Frames at which a recorded run applied each planning step's result, in order."""
+def applied_frames_from_trace(path: Path) -> list[int | None]:
+    """Frame at which a recorded run applied each planning step's result, by step (overlapping
+    steps may be applied out of order; None: a step it never applied). Records without a step
+    (older traces) count in the order written."""
     from orchestrator.llm.traces import AppliedRecord, read_trace
 
-    return [r.sim_frame for r in read_trace(path).records if isinstance(r, AppliedRecord)]
+    records = [r for r in read_trace(path).records if isinstance(r, AppliedRecord)]
+    if any(r.step is None for r in records):
+        return [r.sim_frame for r in records]
+    frames: list[int | None] = [None] * (max((r.step for r in records if r.step is not None), default=-1) + 1)
+    for r in records:
+        assert r.step is not None
+        frames[r.step] = r.sim_frame
+    return frames
 
 
 def schedule_from_trace(path: Path) -> list[RecordedRequest]:

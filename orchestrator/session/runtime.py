@@ -216,7 +216,8 @@ class SessionSettings:
     an event's state (looping, completed, failed) changed since the request, or after this many
     simulated seconds (the same question would get the same answer: a wait costs a planning
     step, so waits are not repeated every ``retry_after_s`` for nothing);
-    applied_frames: replay only, the recorded frame of every planning step's result."""
+    applied_frames: replay only, the recorded frame of every planning step's result, by step
+    (None: a step the recorded run requested but never applied, e.g. in flight at its end)."""
 
     frames: int
     pace: Pace = "lockstep"
@@ -224,7 +225,7 @@ class SessionSettings:
     max_steps: int | None = None
     retry_after_s: float = 3.0
     recheck_after_s: float = 30.0
-    applied_frames: Sequence[int] | None = None
+    applied_frames: Sequence[int | None] | None = None
     recorded_frames: Mapping[int, int] = field(default_factory=dict)
     """Resume only: step -> frame at which an earlier process already applied (and traced) that
     step's outcome; it is applied at that frame again and not traced twice."""
