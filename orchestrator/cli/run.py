@@ -88,6 +88,8 @@ def run_command(
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("out"),
     pace: PaceOption = "lockstep",
     speed: Annotated[float, typer.Option("--speed", help="Simulated seconds per wall second (realtime pace).")] = 1.0,
+    planners: Annotated[int | None, typer.Option("--planners", min=1, max=8, help="Planning steps in flight at most, for disjoint characters (default: 1 in lockstep pace, 2 otherwise).")] = None,
+    offline_latency: Annotated[float | None, typer.Option("--offline-latency", min=0.0, help="offline pace: simulated seconds each LLM call takes (default: the call's own latency).")] = None,
     max_events: Annotated[int | None, typer.Option("--max-events", min=1, help="Planning steps at most.")] = None,
     record: Annotated[Path | None, typer.Option("--record", help="Trace file (default: OUT/trace.jsonl).")] = None,
     replay: Annotated[Path | None, typer.Option("--replay", help="Serve LLM calls and frames from this trace.")] = None,
@@ -146,6 +148,8 @@ def run_command(
         duration=duration,
         pace=pace,
         speed=speed,
+        planners=planners if planners is not None else default_planners(pace),
+        offline_latency=offline_latency,
         max_events=max_events,
         config=absolute(config),
         motion_config=absolute(motion_config),
@@ -164,6 +168,13 @@ def run_command(
     _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False,
              interactive=_interactive(interactive) and replay is None, smplx_model=smplx_model,
              in_process_programs=in_process_programs)
+
+
+def default_planners(pace: str) -> int:
+    """Steps in flight at most without ``--planners``: one in lockstep pace (the story of a
+    lockstep run stays what it always was), two otherwise (narrate the next event while the
+    current one is parsed)."""
+    return 1 if pace == "lockstep" else 2
 
 
 def _interactive(flag: bool | None) -> bool:
@@ -276,6 +287,8 @@ def _execute(
         fail(str(exc))
     except OSError as exc:
         _cannot_write(exc, out, resumable=replay is None)
+    except Exception as exc:  # a bug or the environment: the session was cancelled and its files closed
+        fail(f"the run stopped: {type(exc).__name__}: {plain(exc)}", code=1)
     result, fps = run.result, run.fps
     from orchestrator.bodies.smplx_meshes import SmplxModelError
 

@@ -27,6 +27,12 @@ written to the trace as an ``instruction`` record with its frame. A replay sched
 trace's instruction records at their frames and ignores the script and stdin; a resume
 applies the recorded ones again (not traced twice) and the script lines not yet applied.
 
+Overlapping planning (``RunArguments.planners`` > 1): the trace gets a ``requested`` record per
+step, and a replay makes every request where the recorded run did
+(``SessionSettings.schedule``). Any error other than the user's inputs or the LLM's (a bug, a
+failing disk) cancels the session's task group and is raised from :func:`run_story` after the
+trace, the story log and the program worker are closed.
+
 Problems with the user's inputs (an unreadable trace or motion config, a model that cannot be
 opened, a damaged ``runs.sqlite``, a session that cannot go on) are raised as
 :class:`RunSetupError`, one sentence each, naming the file. A write that fails (a full disk)
@@ -50,7 +56,12 @@ from typing import Any
 from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.session.run_manifest import RunArguments, RunManifest
-from orchestrator.session.runtime import SessionResult, StoryEvent, TimedInstruction
+from orchestrator.session.runtime import (
+    RecordedRequest,
+    SessionResult,
+    StoryEvent,
+    TimedInstruction,
+)
 from sim.scene.model import Scene
 
 CHECKPOINT_EVERY_S = 10.0
@@ -73,17 +84,34 @@ class StoryRun:
     stopped: bool = False
 
 
-def applied_frames_from_trace(path: Path) -> list[int]:
-    """Frames at which a recorded run applied each planning step's result, in order."""
+def applied_frames_from_trace(path: Path) -> list[int | None]:
+    """Frame at which a recorded run applied each planning step's result, by step (overlapping
+    steps may be applied out of order; None: a step it never applied). Records without a step
+    (older traces) count in the order written."""
     from orchestrator.llm.traces import AppliedRecord, read_trace
 
-    return [r.sim_frame for r in read_trace(path).records if isinstance(r, AppliedRecord)]
+    records = [r for r in read_trace(path).records if isinstance(r, AppliedRecord)]
+    if any(r.step is None for r in records):
+        return [r.sim_frame for r in records]
+    frames: list[int | None] = [None] * (max((r.step for r in records if r.step is not None), default=-1) + 1)
+    for r in records:
+        assert r.step is not None
+        frames[r.step] = r.sim_frame
+    return frames
 
 
-def replayable_frames(path: Path) -> list[int]:
+def schedule_from_trace(path: Path) -> list[RecordedRequest]:
+    """When a recorded run with overlapping planning steps requested each step."""
+    from orchestrator.llm.traces import read_trace
+
+    return [RecordedRequest(step=r.step, frame=r.sim_frame, phase=r.phase, after=r.after_steps)
+            for r in read_trace(path).requests()]
+
+
+def replayable_frames(path: Path) -> list[int | None]:
     """:func:`applied_frames_from_trace` of a trace to replay, which must end with a whole line:
     a cut last record (a run killed mid-write) is a :class:`RunSetupError`, not a shorter story."""
-    from orchestrator.llm.traces import AppliedRecord, read_trace
+    from orchestrator.llm.traces import read_trace
 
     contents = read_trace(path)
     if contents.torn_tail is not None:
@@ -91,7 +119,7 @@ def replayable_frames(path: Path) -> list[int]:
             f"{path}: line {contents.torn_tail.line_no} is cut short ({contents.torn_tail.size} bytes; the run "
             "stopped while writing it): `storyteller resume` the run to repair it, or replay a complete trace"
         )
-    return [r.sim_frame for r in contents.records if isinstance(r, AppliedRecord)]
+    return applied_frames_from_trace(path)
 
 
 def instructions_from_trace(path: Path) -> list[TimedInstruction]:
@@ -243,6 +271,7 @@ async def run_story(
     motion_config = Path(args.motion_config) if args.motion_config is not None else None
     try:
         applied = replayable_frames(replay) if replay is not None else None
+        schedule = schedule_from_trace(replay) if replay is not None and args.planners > 1 else None
         resumed_trace = resume and trace_path is not None and trace_path.is_file()
         recorded = recorded_frames(trace_path) if resumed_trace and trace_path is not None else {}
         said = instructions_from_trace(trace_path) if resumed_trace and trace_path is not None else []
@@ -319,6 +348,9 @@ async def run_story(
         instruction=args.instruction,
         instructions=scheduled,
         live_instructions=replay is None,
+        planners=args.planners,
+        offline_latency_s=args.offline_latency,
+        schedule=schedule,
     )
     session: Session | None = None
     writer = port.trace if isinstance(port.trace, TraceWriter) else None
@@ -329,6 +361,10 @@ async def run_story(
         if on_instruction is not None:
             on_instruction(timed, fps)
 
+    def requested(r: RecordedRequest) -> None:
+        if writer is not None:
+            writer.record_requested(r.step, r.frame, phase=r.phase, after_steps=r.after)
+
     def keep(cp: SessionCheckpoint) -> None:
         assert session is not None
         save_checkpoint(snapshot_path, session.world, cp)
@@ -336,10 +372,10 @@ async def run_story(
     try:
         async with open_checkpointer(runs_db) as saver:
             graph = compile_graph(ablation, saver)
-            planner = GraphStepPlanner(graph, deps, thread)
+            planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
             shown = None if on_event is None else (lambda e: on_event(e, fps))
             session = Session(world, planner, settings, trace=port.trace, on_event=shown, on_checkpoint=keep,
-                              on_instruction=said_now)
+                              on_instruction=said_now, on_request=requested)
             if checkpoint is not None:
                 session.resume(checkpoint)
             if resume and on_resume is not None:
