@@ -180,8 +180,8 @@ def _seats_by_named_characters(
         return []
     out = []
     for seat in free:
-        slots = seat_slots(seat) or []
-        points = [tuple(s.position) for s in slots] or [tuple(seat.center[:2])]
+        points: list[tuple[float, ...]] = [tuple(float(v) for v in s.position) for s in seat_slots(seat)]
+        points = points or [tuple(float(v) for v in seat.center[:2])]
         if any(math.dist(p, q) <= CHARACTER_NEAR_M for p in points for q in named):
             out.append(seat.name)
     return out
