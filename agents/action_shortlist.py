@@ -169,7 +169,10 @@ def _without_proximity(tokens: list[str]) -> list[str]:
 _SWITCH_VERBS = ("switch", "turn", "put", "power", "flip", "click", "shut")
 
 
-_LANDMARK_HEADS = ("near", "nearest", "closest", "beside", "facing", "opposite", "behind", "by", "next", "across", "where")
+_LANDMARK_HEADS = (
+    "near", "nearest", "closest", "beside", "facing", "opposite", "behind", "by", "next", "across", "where", "between",
+    "left", "right",
+)
 _LANDMARK_ENDS = frozenset({"and", "then", "to", "while", "so", "but", "or", "after", "before", "where", "which", "who"})
 LANDMARK_SPAN = 4
 """Words after a place word ("nearest the water dispenser") name a landmark, not what the
@@ -180,8 +183,11 @@ def _landmark_mask(tokens: Sequence[str]) -> list[bool]:
     mask = [False] * len(tokens)
     for i, t in enumerate(tokens):
         if t in _LANDMARK_HEADS or (t == "front" and i > 0 and tokens[i - 1] == "in"):
-            for k in range(i + 1, min(len(tokens), i + 1 + LANDMARK_SPAN)):
-                if tokens[k] in _LANDMARK_ENDS or not tokens[k][0].isalnum():
+            pair = t == "between"  # "between the table and the couch": one "and" belongs to it
+            for k in range(i + 1, min(len(tokens), i + 1 + LANDMARK_SPAN * (2 if pair else 1))):
+                if pair and tokens[k] == "and":
+                    pair = False
+                elif tokens[k] in _LANDMARK_ENDS or not tokens[k][0].isalnum():
                     break
                 mask[k] = True
     return mask

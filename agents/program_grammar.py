@@ -31,12 +31,15 @@ from typing import Any
 import numpy as np
 
 from agents.action_shortlist import action_shortlist, posture
-from agents.shortlist import event_shortlist
+from agents.shortlist import RELATIONS, event_shortlist, relation_areas
 from sim.motion.action_labels import playable_seated
 from sim.scene.model import Scene, SceneObject
 from tools.areas import seat_slots
 from tools.position_sampling import MIN_SEPARATION
 from tools.spatial_api import SpatialAPI
+
+DIRECTIONAL = frozenset(fn for fn, _ in RELATIONS)
+"""Area functions of a place beside a thing (behind it, left of it...): places to stand."""
 
 
 def area_functions() -> tuple[tuple[str, ...], tuple[str, ...], str]:
@@ -76,6 +79,7 @@ def program_grammar(
     seated_labels: Sequence[str] | None = None,
     interact_objects: Sequence[str] | None = None,
     posture: str | None = None,
+    area_names: Sequence[str] = (),
 ) -> str:
     """The grammar of one event's program (see the module docstring).
 
@@ -88,7 +92,9 @@ def program_grammar(
     no seated motion is followed by standing areas only, and the action, the decision the
     event's words say most about, is made before the place that must suit it. ``posture``
     (``"sit"`` / ``"stand"``, from the event's words): with "sit" and a free seat, only seated
-    labels and seat areas are offered; with "stand", no seat area."""
+    labels and seat areas are offered; with "stand", no seat area. ``area_names``: the area
+    functions the event's where-words name (``get_area_behind``); when given, the only standing
+    areas offered."""
     if not event_characters:
         raise ValueError("an event without characters has no program")
     if not action_labels:
@@ -118,12 +124,14 @@ def program_grammar(
     one_object, two_objects, seat_area = area_functions()
     interact = "get_area_to_interact_with"
     use_interact_rule = interact_objects is not None and interact in one_object and list(interact_objects) != list(objects)
+    named = set(area_names) & {*one_object, *two_objects}
     areas = [
         f"{_literal(fn + '(')} {'interactobject' if use_interact_rule and fn == interact else 'object'} {_literal(')')}"
         for fn in one_object
-        if not (use_interact_rule and fn == interact and not interact_objects)
+        if not (use_interact_rule and fn == interact and not interact_objects) and (not named or fn in named)
     ]
-    areas += [f"{_literal(fn + '(')} object {_literal(', ')} object {_literal(')')}" for fn in two_objects]
+    areas += [f"{_literal(fn + '(')} object {_literal(', ')} object {_literal(')')}" for fn in two_objects
+              if not named or fn in named]
     if can_sit:
         lines.append(f"sitarea ::= {_literal(seat_area + '(')} seat {_literal(')')}")
         lines.append(_choice("seat", seats))
@@ -168,6 +176,7 @@ def event_program_grammar(
 
     free_seats = [o.name for o in scene.objects if o.is_seat and free(o)]
     labels = list(action_shortlist(activity, action_labels, scene.labels)) or list(action_labels)
+    relations = relation_areas(activity)
     where = {c.name: (float(c.position[0]), float(c.position[1])) for c in others if c.position is not None}
     shortlist = event_shortlist(scene, activity, free_seats, labels, others=where)
     objects = list(shortlist.objects) or [o.name for o in scene.objects]
@@ -180,6 +189,7 @@ def event_program_grammar(
         [c.name for c in characters if c.name not in event_characters],
         seated_labels=[a for a in labels if playable_seated(a)],
         interact_objects=[o for o in objects if o not in seat_names],
-        posture=posture(activity),
+        posture=posture(activity) or ("stand" if set(relations) & DIRECTIONAL else None),
+        area_names=relations,
     )
 

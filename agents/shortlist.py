@@ -54,6 +54,31 @@ FAR_WORDS = ("farthest", "furthest", "away from")
 _WORD = re.compile(r"[a-z0-9]+")
 
 
+RELATIONS = (
+    ("get_area_behind", re.compile(r"\bbehind\b")),
+    ("get_area_left_of", re.compile(r"\bleft(?:[- ]hand)?(?: side)? of\b|\bto the left\b")),
+    ("get_area_right_of", re.compile(r"\bright(?:[- ]hand)?(?: side)? of\b|\bto the right\b")),
+    ("get_area_in_front_of", re.compile(r"\bin front of\b")),
+    ("get_area_between", re.compile(r"\bbetween\b")),
+)
+"""Where-words that name one area function of the spatial API ("on the right-hand side of the
+armchair" is ``get_area_right_of``); a place of that kind is a place to stand."""
+NEXT_TO = re.compile(r"\bnext to\b|\bbeside\b|\badjacent to\b|\balongside\b")
+
+
+def relation_areas(text: str) -> tuple[str, ...]:
+    """The area functions the text's where-words name: the directional ones (behind, left /
+    right of, in front of, between), else adjacent / close for "next to" and "beside"; () when
+    it names none (every area function stays on offer)."""
+    lowered = " ".join(_WORD.findall(text.lower().replace("-", " ")))
+    found = tuple(fn for fn, pattern in RELATIONS if pattern.search(lowered))
+    if found:
+        return found
+    if NEXT_TO.search(lowered):
+        return ("get_area_adjacent_to", "get_area_close_to")
+    return ()
+
+
 @dataclass(frozen=True)
 class Shortlist:
     """Candidates for one event (empty: no evidence, offer everything)."""

@@ -216,3 +216,28 @@ def test_seats_are_sat_on_not_interacted_with() -> None:
     assert _admits(g, program.format("close_to")) and not _admits(g, program.format("to_interact_with"))
     assert not _alternatives(g, "interactobject") & {o.name for o in SCENE.objects if o.is_seat}
     assert "chair_1" in _alternatives(g, "seat")
+
+
+@pytest.mark.parametrize(("activity", "functions"), [
+    ("waits behind the couch", {"get_area_behind"}),
+    ("stands on the left-hand side of the fridge", {"get_area_left_of"}),
+    ("stands to the right of the bookshelf", {"get_area_right_of"}),
+    ("waits in the gap between the table and the couch", {"get_area_between"}),
+    ("waits right next to the fridge", {"get_area_adjacent_to", "get_area_close_to"}),
+])
+def test_where_words_name_the_area_function_and_a_place_beside_a_thing_is_stood_in(
+    activity: str, functions: set[str]
+) -> None:
+    g = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity=activity)
+    rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
+    offered = set(re.findall(r'"(get_area_[a-z_]+)\(', rules["area"]))
+    assert offered == functions
+    directional = functions.isdisjoint({"get_area_adjacent_to"})
+    assert ("sitarea" not in rules["block1"]) == directional  # behind the couch is not on it
+
+
+def test_a_sitting_word_keeps_the_seat_even_with_a_where_word() -> None:
+    g = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS,
+                              activity="sits on a chair in front of the tv and watches the news")
+    rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
+    assert "sitarea" in rules["block1"] and "standlabel" not in rules
