@@ -288,6 +288,9 @@ def _execute(
     except OSError as exc:
         _cannot_write(exc, out, resumable=replay is None)
     except Exception as exc:  # a bug or the environment: the session was cancelled and its files closed
+        failed = _failed_write(exc, out)
+        if failed is not None:  # runs.sqlite on a full disk: the write that failed, as for the trace
+            _cannot_write(failed, out, resumable=replay is None)
         fail(f"the run stopped: {type(exc).__name__}: {plain(exc)}", code=1)
     result, fps = run.result, run.fps
     from orchestrator.bodies.smplx_meshes import SmplxModelError
