@@ -113,19 +113,38 @@ def split_instruction(
         sentence = sentence.strip()
         if not sentence:
             continue
-        pieces = [p.strip() for p in _THEN.split(sentence) if p.strip()]
-        subject = ""
-        for k, piece in enumerate(pieces):
-            if k > 0 and not _leading_subject(piece, names):
-                piece = f"{subject} {piece}" if subject and piece[:1].islower() else piece[0].lower() + piece[1:]
-            if k < len(pieces) - 1 and piece[-1:] not in ".!?;":
-                piece += "."
-            own = piece if k > 0 else piece.removeprefix("Then ")  # the part's subject opens it
-            if k > 0:
-                piece = lib.render_text("story/instruction_then.md", part=piece)
-            mentioned = _mentioned(piece, names)
-            subject = _leading_subject(own, names) or (mentioned[0] if mentioned else subject)
-            parts.append(InstructionPart(piece, mentioned, _actors(piece, names), content_stems(piece, names)))
+        for clause in _at_the_same_time(sentence, names):
+            parts.extend(_then_parts(clause, names, lib))
+    return parts
+
+
+def _at_the_same_time(sentence: str, names: Sequence[str]) -> list[str]:
+    """``sentence`` cut where another character's clause starts alongside ("Ben works on the
+    laptop, while Ava watches TV" is two parts, one per character)."""
+    run = _name_run(names)
+    if not run:
+        return [sentence]
+    cut = re.compile(rf",?\s+(?:while|whilst|meanwhile|as)\s+(?=(?:{run})\b)|;\s+(?=(?:{run})\b)")
+    clauses = [c.strip() for c in cut.split(sentence) if c.strip()]
+    return [c if c[-1:] in ".!?" or i == len(clauses) - 1 else c + "." for i, c in enumerate(clauses)]
+
+
+def _then_parts(sentence: str, names: Sequence[str], lib: PromptLibrary) -> list[InstructionPart]:
+    """The parts of one clause: "then" starts a new one (see :func:`split_instruction`)."""
+    parts: list[InstructionPart] = []
+    pieces = [p.strip() for p in _THEN.split(sentence) if p.strip()]
+    subject = ""
+    for k, piece in enumerate(pieces):
+        if k > 0 and not _leading_subject(piece, names):
+            piece = f"{subject} {piece}" if subject and piece[:1].islower() else piece[0].lower() + piece[1:]
+        if k < len(pieces) - 1 and piece[-1:] not in ".!?;":
+            piece += "."
+        own = piece if k > 0 else piece.removeprefix("Then ")  # the part's subject opens it
+        if k > 0:
+            piece = lib.render_text("story/instruction_then.md", part=piece)
+        mentioned = _mentioned(piece, names)
+        subject = _leading_subject(own, names) or (mentioned[0] if mentioned else subject)
+        parts.append(InstructionPart(piece, mentioned, _actors(piece, names), content_stems(piece, names)))
     return parts
 
 

@@ -26,6 +26,8 @@ def ev(i: int, who: tuple[str, ...], activity: str, state: EventState = "complet
     ("Ava cooks; then, Ben eats.\nAva rests", ["Ava cooks;", "then, Ben eats.", "Ava rests"]),
     ("Ben then sits down.", ["Ben then sits down."]),  # "then" without a comma or "and" joins
     ("Ava makes tea, then Ben drinks it.", ["Ava makes tea.", "Then Ben drinks it."]),
+    ("Ben works on the laptop, while Ava watches TV.", ["Ben works on the laptop.", "Ava watches TV."]),
+    ("Ava and Ben dance while the music plays.", ["Ava and Ben dance while the music plays."]),
 ])
 def test_split_by_sentence_and_then_with_the_subject_carried_over(instruction: str, parts: list[str]) -> None:
     assert [p.text for p in split_instruction(instruction, NAMES)] == parts
