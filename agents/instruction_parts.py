@@ -124,8 +124,22 @@ def _at_the_same_time(sentence: str, names: Sequence[str]) -> list[str]:
     run = _name_run(names)
     if not run:
         return [sentence]
-    cut = re.compile(rf",?\s+(?:while|whilst|meanwhile|as)\s+(?=(?:{run})\b)|;\s+(?=(?:{run})\b)")
-    clauses = [c.strip() for c in cut.split(sentence) if c.strip()]
+    cut = re.compile(
+        rf",?\s+(?:while|whilst|meanwhile|as)\s+(?=(?:{run})\b)|;\s+(?=(?:{run})\b)"
+        rf"|,\s*(?:and\s+)?(?=(?:{run})\s+[a-z])"  # ", Cleo and Dan talk ...": a new subject and its verb
+    )
+    ends_with_name = re.compile(rf"(?:{run})\W*$")
+    clauses: list[str] = []
+    start = 0
+    for m in cut.finditer(sentence):
+        before = sentence[start : m.start()].strip()
+        # a clause of its own has a subject ("Meanwhile, Ben ..." does not cut) and does not end
+        # with a name ("Ava, Ben and Cleo dance" stays one)
+        if _mentioned(before, names) and not ends_with_name.search(before):
+            clauses.append(before)
+            start = m.end()
+    clauses.append(sentence[start:].strip())
+    clauses = [c for c in clauses if c]
     return [c if c[-1:] in ".!?" or i == len(clauses) - 1 else c + "." for i, c in enumerate(clauses)]
 
 

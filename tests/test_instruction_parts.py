@@ -28,9 +28,12 @@ def ev(i: int, who: tuple[str, ...], activity: str, state: EventState = "complet
     ("Ava makes tea, then Ben drinks it.", ["Ava makes tea.", "Then Ben drinks it."]),
     ("Ben works on the laptop, while Ava watches TV.", ["Ben works on the laptop.", "Ava watches TV."]),
     ("Ava and Ben dance while the music plays.", ["Ava and Ben dance while the music plays."]),
+    ("Ava and Ben dance, Cy and Di talk at the table, and Ed sits.",
+     ["Ava and Ben dance.", "Cy and Di talk at the table.", "Ed sits."]),
+    ("Ava, Ben and Cy dance.", ["Ava, Ben and Cy dance."]),
 ])
 def test_split_by_sentence_and_then_with_the_subject_carried_over(instruction: str, parts: list[str]) -> None:
-    assert [p.text for p in split_instruction(instruction, NAMES)] == parts
+    assert [p.text for p in split_instruction(instruction, (*NAMES, "Cy", "Di", "Ed"))] == parts
 
 
 def test_parts_know_their_characters_and_words() -> None:
