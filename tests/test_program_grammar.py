@@ -241,3 +241,24 @@ def test_a_sitting_word_keeps_the_seat_even_with_a_where_word() -> None:
                               activity="sits on a chair in front of the tv and watches the news")
     rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
     assert "sitarea" in rules["block1"] and "standlabel" not in rules
+
+
+def test_two_characters_sent_to_one_chair_sit_together_and_never_on_a_held_seat() -> None:
+    """"Ava and Cy sit on chair_1": Cy takes the nearest free chair instead of failing; but a
+    chair held by someone outside the event is still refused."""
+    from tools.errors import UnsatisfiableAreaError
+
+    event = Event(characters=("Ava", "Cy"), activity="chat at the table")
+    program = ('```python\ndef parse_event():\n'
+               + "".join(f'    c{i} = get_character("{n}")\n    c{i}.set_target_action("chat")\n'
+                         f'    c{i}.set_position(get_area_to_sit_on("chair_1"))\n    c{i}.set_orientation("table_1")\n'
+                         for i, n in enumerate(("Ava", "Cy"), start=1))
+               + '```')
+    world = WorldView(characters=(CharacterState(name="Ava", position=(1.0, 1.0)), CharacterState(name="Cy", position=(1.5, 1.0))))
+    result = run_reply(program, scene=SCENE, event=event, world=world, seed=0, action_labels=LABELS)
+    seats = [p.seat for p in result.plans]
+    assert seats[0] == "chair_1" and seats[1] not in (None, "chair_1") and seats[1].startswith("chair_")
+    held = WorldView(characters=(*world.characters, CharacterState(name="Ben", busy=True, seat="chair_1")),
+                     objects_in_use={"chair_1": "Ben"})
+    with pytest.raises(UnsatisfiableAreaError, match="chair_1"):
+        run_reply(program, scene=SCENE, event=event, world=held, seed=0, action_labels=LABELS)

@@ -213,11 +213,21 @@ def test_effects_are_collected_and_resolved_after_the_program(
 
 
 def test_second_character_cannot_take_the_same_seat(api: SpatialAPI) -> None:
+    """Sent to one chair, the second member of the event gets the nearest free chair (the group
+    sits together), never the same one; with no such chair near, the area is refused."""
+    from tools import position_sampling
+
     ns = api.namespace()
     ns["get_character"]("Ryan").set_position(ns["get_area_to_sit_on"]("chair_4"))
     ns["get_character"]("Jorge").set_position(ns["get_area_to_sit_on"]("chair_4"))
-    with pytest.raises(UnsatisfiableAreaError, match="Jorge: no free seat"):
-        api.resolve(seed=0)
+    ryan, jorge = api.resolve(seed=0)
+    assert ryan.seat == "chair_4" and jorge.seat is not None and jorge.seat.startswith("chair_") and jorge.seat != "chair_4"
+    try:
+        position_sampling.NEIGHBOUR_SEAT_M = 0.0
+        with pytest.raises(UnsatisfiableAreaError, match="Jorge: no free seat"):
+            api.resolve(seed=0)
+    finally:
+        position_sampling.NEIGHBOUR_SEAT_M = 1.5
 
 
 def test_moving_a_seated_character_frees_its_own_seat(api: SpatialAPI) -> None:

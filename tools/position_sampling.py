@@ -10,7 +10,9 @@ Rules (all distances in metres):
   ``group_radius`` (1.5) of all of them (a preference: if no such point exists, the area wins);
 - seats: a seat slot is used as is (its position and the seat's facing); a slot is free when no
   avoided point is within ``min_separation`` of it and its object is not taken; an area with
-  seat slots prefers them;
+  seat slots prefers them; when a companion of the same event already took every seat of the
+  area, the nearest free seat of the same kind within ``NEIGHBOUR_SEAT_M`` stands in (the group
+  sits together) — never a seat someone outside the event holds;
 - margin: points that stay inside the area when moved 0.1 m in any axis direction are preferred
   (so that a tolerance-free check of the same relation still holds);
 - the candidates are a lattice of step 0.05 with a seeded offset; one is drawn uniformly with a
@@ -28,9 +30,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sim.scene.model import Scene
-from tools.areas import Area, SeatSlot
+from tools.areas import Area, SeatSlot, seat_slots
 from tools.errors import UnsatisfiableAreaError
-from tools.scene_graph import point_footprint_distance
+from tools.scene_graph import footprint_distance, point_footprint_distance
 
 BODY_RADIUS = 0.25
 MIN_SEPARATION = 0.5
@@ -81,6 +83,8 @@ class Constraints:
     avoid: tuple[tuple[float, float], ...] = ()
     group: tuple[tuple[float, float], ...] = ()
     taken_objects: frozenset[str] = frozenset()
+    taken_by_group: frozenset[str] = frozenset()
+    """Seats taken by members of the same event placed before this character."""
     min_separation: float = MIN_SEPARATION
     group_radius: float = GROUP_RADIUS
 
@@ -125,6 +129,38 @@ def _free_seats(area: Area, c: Constraints) -> list[SeatSlot]:
     return free
 
 
+NEIGHBOUR_SEAT_M = 1.5
+"""How far (m, between seat footprints) a seat of the same kind may be to stand in for one a
+companion already took."""
+
+
+def _companion_seats(area: Area, scene: Scene, c: Constraints) -> list[SeatSlot]:
+    """When every seat ``area`` offers was taken by members of the same event ("Cy and Di sit on
+    chair_5" for a one-place chair), the free seat of the same kind nearest to it (within
+    ``NEIGHBOUR_SEAT_M``): the group sits together. Empty otherwise."""
+    wanted = {s.seat for s in area.seats}
+    if not wanted or not wanted <= c.taken_by_group:
+        return []
+    by_name = {o.name: o for o in scene.objects}
+    chosen = [by_name[n] for n in sorted(wanted) if n in by_name]
+    labels = {o.label for o in chosen}
+    best: list[tuple[float, str, SeatSlot]] = []
+    for o in scene.objects:
+        if not o.is_seat or o.label not in labels or o.name in wanted:
+            continue
+        gap = min(footprint_distance(o, w) for w in chosen)
+        if gap > NEIGHBOUR_SEAT_M:
+            continue
+        slots = seat_slots(o)
+        for slot in slots:
+            if len(slots) == 1 and o.name in c.taken_objects:
+                continue
+            if bool(_far_from(np.array([slot.position]), c.avoid, c.min_separation)[0]):
+                best.append((gap, o.name, slot))
+    best.sort(key=lambda t: (t[0], t[1]))
+    return [best[0][2]] if best else []
+
+
 def _lattice(area: Area, scene: Scene, rng: np.random.Generator) -> NDArray[np.float64]:
     x0 = max(area.hint[0], scene.bounds_min[0])
     y0 = max(area.hint[1], scene.bounds_min[1])
@@ -163,7 +199,7 @@ def sample_position(
     """One admissible position in ``area`` (see the module docstring for the rules)."""
     c = constraints
     if area.seats:
-        seats = _free_seats(area, c)
+        seats = _free_seats(area, c) or _companion_seats(area, floor.scene, c)
         if seats:
             if c.group:
                 points = np.array([s.position for s in seats])

@@ -652,6 +652,7 @@ class SpatialAPI:
         }
         taken = {o for o, who in self.world.objects_in_use.items() if who not in planned}
         group: list[Point] = []
+        group_seats: set[str] = set()
         placed: dict[str, tuple[Placement, str, Area | None]] = {}
         for i, (name, record) in enumerate(self._records.items()):
             rng = np.random.default_rng([seed & 0xFFFFFFFF, i])
@@ -664,7 +665,8 @@ class SpatialAPI:
                         area,
                         floor,
                         Constraints(
-                            avoid=tuple(avoid), group=tuple(group), taken_objects=frozenset(taken)
+                            avoid=tuple(avoid), group=tuple(group), taken_objects=frozenset(taken),
+                            taken_by_group=frozenset(group_seats),
                         ),
                         rng,
                     )
@@ -694,6 +696,7 @@ class SpatialAPI:
             group.append(placement.position)
             if placement.seat is not None:
                 taken.add(placement.seat)
+                group_seats.add(placement.seat)
 
         plans = []
         for name, record in self._records.items():
