@@ -42,6 +42,8 @@ PHRASES = (
     (re.compile(r"\bwork ?stations?\b"), "desk"),
 )
 """Common several-word names of the same kind of object, rewritten before matching."""
+DINING = re.compile(r"\b(?:dining|dinner|kitchen|breakfast) tables?\b")
+"""A table people eat at: of the tables named, those with the most chairs around them."""
 CHARACTER_NEAR_M = 1.5
 """Free seats within this distance (m) of a character the event names ("joins Gus at his
 table") are the seats for it."""
@@ -131,6 +133,14 @@ def mentioned_labels(text: str, labels: Sequence[str]) -> list[str]:
     return sorted(found, key=lambda label: found[label])
 
 
+def _most_chairs(tables: list[SceneObject], scene: Scene) -> list[SceneObject]:
+    """The tables with the most chairs within ``CLOSE_M`` (a dining table, not a coffee table)."""
+    chairs = [o for o in scene.objects if o.is_seat and o.label.split("_")[-1] == "chair"]
+    count = {t.name: sum(footprint_distance(t, c) <= CLOSE_M for c in chairs) for t in tables}
+    best = max(count.values(), default=0)
+    return [t for t in tables if count[t.name] == best] if best else tables
+
+
 def _after_proximity(text: str) -> str:
     """The words after the last proximity word: they name the landmark ("the stool at the end
     of the bar nearest the coffee maker": the coffee maker), "" when there is none."""
@@ -168,6 +178,8 @@ def event_shortlist(
     named = [o for o in scene.objects if re.search(rf"\b{re.escape(o.name.lower())}\b", lowered)]
     labels = mentioned_labels(text, scene.labels)
     groups = [[o for o in scene.objects if o.label == label] for label in labels]
+    if DINING.search(_rewrite(text)) and not _after_proximity(text):  # "the dining table nearest X" picks by place
+        groups = [_most_chairs(g, scene) if g and g[0].label.split("_")[-1] == "table" else g for g in groups]
     if len(groups) >= 2:
         after = set(mentioned_labels(_after_proximity(text), scene.labels))
         references = [g for label, g in zip(labels[1:], groups[1:], strict=True) if label in after] or groups[1:]

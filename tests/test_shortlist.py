@@ -81,3 +81,11 @@ def test_a_named_character_brings_the_seats_near_them() -> None:
     far = event_shortlist(RESTAURANT, "joins Gus and sits down at his table", seats(RESTAURANT), ("eat",),
                           others={"Ida": gus})
     assert chair.name not in far.seats or len(far.seats) > len(s.seats)
+
+
+def test_a_dining_table_is_one_with_chairs_around_it() -> None:
+    """"the dining table" in the home scene: the table with the chairs, not the coffee table by
+    the couch (whose nearest seat is the couch)."""
+    s = event_shortlist(HOME, "sits down at the dining table to eat", seats(HOME), ("eat",))
+    assert "couch_1" not in s.seats and s.seats and all(n.startswith("chair_") for n in s.seats)
+    assert len([o for o in s.objects if o.startswith("table_")]) == 1
