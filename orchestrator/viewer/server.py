@@ -6,10 +6,16 @@ events on at the current frame are coloured, and clicking one jumps to its start
 
 Playback runs on a thread of this process: it advances the frame by ``speed * fps`` per wall
 second and stops at the last frame. A second thread polls the run folder
-(:func:`~.run_folder.folder_stamp`) and reloads the run when a file it shows changes, so a
-run that is still being written is shown as soon as it writes its outputs, and again each
-time it rewrites them; until then the panel says it is waiting. A folder that stops being
-readable keeps the last good run on screen and says why in the panel.
+(:func:`~.run_folder.folder_stamp`) and reloads the run when a file it shows changes.
+
+Live: a run still in progress is shown as soon as it has written its story stream and first
+chunk records (:func:`~.run_folder.is_ready`; until then the panel says it is waiting). Each
+time the chunk files or the story stream grow, the new frames are added to the scene
+(:meth:`~.scene_view.SceneView.extend`), the slider and clock reach further and the event list
+gets the new events and states; playing at the last frame of a live run waits there and goes
+on as frames arrive (it follows the run). When the run ends it writes ``story.json`` and its
+exports, and the viewer shows them. A folder that stops being readable keeps the last good
+run on screen and says why in the panel.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from pathlib import Path
 import viser
 
 from orchestrator.bodies.smplx_meshes import SmplxBody, SmplxModelError, SmplxModels, run_bodies
+from orchestrator.session.run_report import md_text
 from orchestrator.viewer.run_folder import RunData, RunFolderError, folder_stamp, is_ready, load_run
 from orchestrator.viewer.scene_view import SceneView
 from orchestrator.viewer.timeline import active_events, clock, event_line
@@ -53,7 +60,7 @@ class ViewerApp:
         self._active: list[int] = []
         gui = self.server.gui
         gui.configure_theme(control_width="large")
-        self.status = gui.add_markdown(f"**{folder.name}**")
+        self.status = gui.add_markdown(f"**{md_text(folder.name)}**")
         with gui.add_folder("Timeline"):
             self.play = gui.add_button("Pause" if autoplay else "Play", icon=None)
             self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1")
@@ -86,40 +93,63 @@ class ViewerApp:
             return False
         self._stamp = stamp
         if not is_ready(self.folder):
-            self.status.content = f"**{self.folder.name}**: waiting for the run to write its outputs..."
+            self.status.content = f"**{md_text(self.folder.name)}**: waiting for the run to write its outputs..."
             return False
         try:
             run = load_run(self.folder)
-            names = [t.name for t in run.tracks]
-            bodies = run_bodies(self.folder, names, self.models) if self.models is not None else None
+            bodies = self._bodies(run) if self.models is not None else None
         except (RunFolderError, SmplxModelError) as exc:
-            self.status.content = f"**{self.folder.name}**: {exc}"
+            self.status.content = f"**{md_text(self.folder.name)}**: {md_text(str(exc))}"
+            return False
+        if run.live and not run.tracks:  # the story stream is there, no whole chunk record yet
+            self.status.content = f"**{md_text(self.folder.name)}**: waiting for the run's first frames..."
             return False
         self._show_run(run, bodies)
         return True
 
+    def _bodies(self, run: RunData) -> dict[str, SmplxBody]:
+        """SMPL-X bodies: from the run's ``.smplx.npz`` exports, or from the streamed tracks while
+        it runs (the exports do not exist yet)."""
+        assert self.models is not None
+        if not run.live:
+            return run_bodies(self.folder, [t.name for t in run.tracks], self.models)
+        from sim.export.smplx_npz import smplx_parameters
+
+        return {t.name: self.models.body(smplx_parameters(t)) for t in run.tracks}
+
     def _show_run(self, run: RunData, bodies: Mapping[str, SmplxBody] | None = None) -> None:
         with self.lock:
-            self.server.scene.reset()
+            if self.view is None or bodies is not None or not self.view.extend(run):
+                self.server.scene.reset()
+                self.view = SceneView(self.server, run, bodies=bodies)
             self.run = run
-            self.view = SceneView(self.server, run, bodies=bodies)
-            lines = [f"**{self.folder.name}**: {len(run.tracks)} characters, {clock(run.num_frames - 1, run.fps)}"]
+            length = clock(run.num_frames - 1, run.fps)
+            what = f"live, {length} so far (the run is still going)" if run.live else length
+            lines = [f"**{md_text(self.folder.name)}**: {len(run.tracks)} characters, {what}"]
             if run.instruction:
-                lines.append(f"*{run.instruction}*")
+                lines.append(f"*{md_text(run.instruction)}*")
             if run.scene_note:
-                lines.append(run.scene_note)
+                lines.append(md_text(run.scene_note))
             self.status.content = "\n\n".join(lines)
-            for button in self._event_buttons:
-                button.remove()
-            self._event_buttons = []
-            with self.events_folder:
-                for i, event in enumerate(run.events):
-                    button = self.server.gui.add_button(event_line(event, run.fps))
-                    button.on_click(self._jumper(i))
-                    self._event_buttons.append(button)
+            self._list_events(run)
             self._active = []
             self.slider.max = max(run.num_frames - 1, 1)
             self.goto(min(self.frame, run.num_frames - 1))
+
+    def _list_events(self, run: RunData) -> None:
+        """One button per event: relabel the ones there, add the new ones, drop the rest."""
+        lines = [event_line(event, run.fps) for event in run.events]
+        for button, line in zip(self._event_buttons, lines, strict=False):
+            if button.label != line:
+                button.label = line
+        for button in self._event_buttons[len(lines) :]:
+            button.remove()
+        del self._event_buttons[len(lines) :]
+        with self.events_folder:
+            for i in range(len(self._event_buttons), len(lines)):
+                button = self.server.gui.add_button(lines[i])
+                button.on_click(self._jumper(i))
+                self._event_buttons.append(button)
 
     # ----- controls ------------------------------------------------------------------
     def toggle(self) -> None:
@@ -176,7 +206,7 @@ class ViewerApp:
                 if int(position) != self.frame:
                     self.goto(int(position))
                     self.position = position  # goto() snaps it to the frame
-                if position >= end:
+                if position >= end and not self.run.live:  # a live run: wait here for more frames
                     self.playing = False
                     self.play.label = "Play"
 
