@@ -192,23 +192,28 @@ class ViewerApp:
                 self._active = active
 
     # ----- threads -------------------------------------------------------------------
+    def advance(self, dt: float) -> None:
+        """One playback step: ``dt`` wall seconds later. At the last frame playing stops, except
+        in a live run, which waits there and goes on when frames arrive (it follows the run)."""
+        with self.lock:
+            if not self.playing or self.run is None:
+                return
+            end = self.run.num_frames - 1
+            self.position = min(self.position + float(self.speed.value) * dt * self.run.fps, end)
+            position = self.position
+            if int(position) != self.frame:
+                self.goto(int(position))
+                self.position = position  # goto() snaps it to the frame
+            if position >= end and not self.run.live:
+                self.playing = False
+                self.play.label = "Play"
+
     def _play_loop(self) -> None:
         last = time.monotonic()
         while not self._stop.wait(TICK_S):
             now = time.monotonic()
             dt, last = now - last, now
-            with self.lock:
-                if not self.playing or self.run is None:
-                    continue
-                end = self.run.num_frames - 1
-                self.position = min(self.position + float(self.speed.value) * dt * self.run.fps, end)
-                position = self.position
-                if int(position) != self.frame:
-                    self.goto(int(position))
-                    self.position = position  # goto() snaps it to the frame
-                if position >= end and not self.run.live:  # a live run: wait here for more frames
-                    self.playing = False
-                    self.play.label = "Play"
+            self.advance(dt)
 
     def _watch_loop(self) -> None:
         while not self._stop.wait(POLL_S):
