@@ -182,9 +182,11 @@ def test_the_viewer_follows_a_growing_run_then_shows_the_finished_one(tmp_path: 
     viewer.advance(0.5)
     assert viewer.frame == WINDOW - 1 + 15  # and goes on as frames arrive
 
-    stream.event(Event(0, "event-0000", ("Ava",), "Ava walks", 0, 2, "completed", 50))
+    assert viewer._event_buttons[0].color == "green"  # on at the frame shown
+    stream.event(Event(0, "event-0000", ("Ava",), "Ava walks", 0, 2, "completed", 40))
     assert viewer.reload_if_changed()
     assert [b.label for b in viewer._event_buttons] == ["  0.1 s  Ava walks (done)"]
+    assert viewer._event_buttons[0].color is None  # over by the frame shown (44)
 
     # the run ends: story.json (here with the chunk files as the motion, as after a kill)
     story = {"scene": "home", "characters": list(NAMES), "instruction": "x", "fps": 30, "frames": 2 * WINDOW,

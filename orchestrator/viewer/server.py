@@ -132,6 +132,8 @@ class ViewerApp:
                 lines.append(md_text(run.scene_note))
             self.status.content = "\n\n".join(lines)
             self._list_events(run)
+            for button in self._event_buttons:  # goto() colours the events on at the frame
+                button.color = None
             self._active = []
             self.slider.max = max(run.num_frames - 1, 1)
             self.goto(min(self.frame, run.num_frames - 1))
@@ -156,8 +158,8 @@ class ViewerApp:
         with self.lock:
             if self.run is None:
                 return
-            if not self.playing and self.frame >= self.run.num_frames - 1:
-                self.goto(0)  # play again from the start
+            if not self.playing and self.frame >= self.run.num_frames - 1 and not self.run.live:
+                self.goto(0)  # play again from the start (a live run: go on as frames arrive)
             self.playing = not self.playing
             self.position = float(self.frame)
             self.play.label = "Pause" if self.playing else "Play"
