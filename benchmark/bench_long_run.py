@@ -128,10 +128,11 @@ def main(argv: list[str] | None = None) -> int:
             )
             args = RunArguments(scene="home", names=tuple(ERRANDS), duration=opts.minutes * 60.0, pace="fast",
                                 config=str(cfg), planner="unified", description="object-list")
-            result, names, fps, world = asyncio.run(run_story(
+            story = asyncio.run(run_story(
                 scene, args, out=out, trace_path=out / "trace.jsonl", replay=None, on_event=on_event,
                 in_process_programs=True,
             ))
+            result, names, fps, world = story.result, story.names, story.fps, story.world
         report(result.frames / fps / 60.0, "  (end of story)")
         peak_story = rows[-1][3]
         if opts.export:

@@ -33,6 +33,19 @@ Usage: ``python -m benchmark.bench_world [--sizes 1 10 50 200 1000] [--seconds 1
 The 200-character case runs half of ``--seconds``, the 1,000-character case a fifth.
 Targets: 10 characters >= 30x real time on one core (issue 8); 50 characters >= 20x, 200
 characters >= 5x (30,000 character-frames per second), 1,000 characters measured (issue 14).
+
+Issue 14 figures (2026-12-02, ``--sizes 50 200 1000``, under ``nice`` on a 2-core machine shared
+with other jobs, load average 9-10: the wall figures are several times below a quiet core's,
+the CPU-time figures steadier): 50 characters 10.3x wall / 23.0x CPU; 200 ("Office x4") 0.74x
+wall / 4.07x CPU (about 24,000 character-frames per CPU second); 1,000 ("Office x16", 2 s)
+0.22x wall / 0.63x CPU. Against the code before (commit dc64721, interleaved in the same
+session, least CPU of 3): 200 characters 0.96 -> 0.85 s CPU, 1,000 characters 4.81 -> 3.64 s
+(replan 549 -> 248 ms), with the same positions and motion searches. Where the time goes at
+200: planning about 40% (the compiled space-time search half of it), motion matching about
+20%, leg IK about 7%, the rest per-frame bookkeeping. The short 1,000-character run is
+dominated by its first replan, which computes a goal-distance field for each of the 1,000
+new goals at once (each O(grid): the superlinear part; a longer run computes one per
+arrival); the field is a compiled bucket-queue Dijkstra (``astar_kernel.goal_distances``).
 """
 
 from __future__ import annotations
@@ -214,7 +227,9 @@ def spread_cells(cells: np.ndarray, count: int, rng: np.random.Generator, taken:
                  ) -> list[np.ndarray]:
     """``count`` cells of ``cells`` (rows (i, j)) in the order of one random permutation, each at
     least 2 cells (Chebyshev) from ``taken`` and from the ones picked before it (``taken``
-    given as ``Stamps`` is left as it was). O(1) per candidate, not O(len(taken))."""
+    given as ``Stamps`` is left as it was). O(1) per candidate, not O(len(taken)); candidates
+    are tested in chunks of the permutation, so one pick does not test every cell of a large
+    layout (the permutation itself is drawn whole: the generator's draws stay the same)."""
     out: list[np.ndarray] = []
     perm = rng.permutation(len(cells))
     if count <= 0:
@@ -223,13 +238,18 @@ def spread_cells(cells: np.ndarray, count: int, rng: np.random.Generator, taken:
     if not isinstance(taken, Stamps):
         for o in taken:
             stamps.add(o)
-    for k in perm[stamps.free(cells[perm])]:
-        c = cells[k]
-        if stamps.count[c[0] + 1, c[1] + 1] == 0:
-            out.append(c)
-            if len(out) == count:
-                break
-            stamps.add(c)
+    chunk = 64  # candidates checked per vectorised test: usually the first chunk has a free one
+    for lo in range(0, len(perm), chunk):
+        part = perm[lo: lo + chunk]
+        for k in part[stamps.free(cells[part])]:
+            c = cells[k]
+            if stamps.count[c[0] + 1, c[1] + 1] == 0:
+                out.append(c)
+                if len(out) == count:
+                    break
+                stamps.add(c)
+        if len(out) == count:
+            break
     if taken is stamps:
         for c in out[:-1]:
             stamps.add(c, -1)

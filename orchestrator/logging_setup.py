@@ -2,6 +2,12 @@
 
 Console rendering when stderr is a terminal, one JSON object per line otherwise. ``sim/``
 and ``tools/`` never log; they return diagnostics that the orchestrator logs.
+
+Log values often carry text from a model or an event program (an activity, an error message),
+so every string value and key goes through :func:`orchestrator.safe_text.plain` before it is
+rendered (:func:`escape_controls`): a log record is one line with no control character (no
+terminal escape sequence reaches a console), whichever renderer; a formatted traceback keeps
+its line breaks.
 """
 
 from __future__ import annotations
@@ -12,7 +18,19 @@ from typing import TextIO
 
 import structlog
 
+from orchestrator.safe_text import plain
+
 _configured = False
+_MULTILINE_KEYS = frozenset({"exception", "stack"})  # formatted tracebacks keep their line breaks
+
+
+def escape_controls(_logger: object, _method: str, event_dict: structlog.typing.EventDict) -> structlog.typing.EventDict:
+    """A structlog processor: every string key and value with its control characters shown as
+    escapes (``plain``); nested values are rendered by ``repr``/JSON, which escape them already."""
+    return {
+        plain(key): plain(value, keep_newlines=key in _MULTILINE_KEYS) if isinstance(value, str) else value
+        for key, value in event_dict.items()
+    }
 
 
 class _StderrLogger:
@@ -53,6 +71,7 @@ def configure_logging(level: str | int = "INFO", *, json: bool | None = None, st
             structlog.processors.TimeStamper(fmt="iso", utc=True),
             structlog.processors.StackInfoRenderer(),
             structlog.processors.format_exc_info,
+            escape_controls,
             renderer,
         ],
         wrapper_class=structlog.make_filtering_bound_logger(numeric),

@@ -33,6 +33,7 @@ import select
 import struct
 import subprocess
 import sys
+import threading
 import time
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -130,7 +131,8 @@ class WorkerRunner:
     """A ``ProgramRunner`` that runs programs in a reused, OS-limited child process.
 
     ``budget`` is the interpreter budget inside the child (None: the default ``Budget``);
-    the OS limits are keyword arguments. Not thread-safe: one program at a time.
+    the OS limits are keyword arguments. Thread-safe: calls from several threads (planning
+    steps checked concurrently, each in a worker thread) run one program at a time.
     """
 
     def __init__(
@@ -149,6 +151,7 @@ class WorkerRunner:
         self.starts = 0
         """Worker processes started so far (a restart after a death adds one)."""
         self._scene: tuple[Scene, str, str] | None = None
+        self._lock = threading.Lock()
 
     # -- process management
     def _start(self) -> subprocess.Popen[bytes]:
@@ -254,6 +257,12 @@ class WorkerRunner:
         its own per scene)."""
         if not isinstance(source, str):
             raise EventProgramError("the program must be Python source text")
+        with self._lock:
+            return self._run(scene, source, world, seed=seed, action_labels=action_labels)
+
+    def _run(
+        self, scene: Scene, source: str, world: Any, *, seed: int, action_labels: Sequence[str] | None
+    ) -> list[CharacterPlan]:
         key, scene_text = self._scene_key(scene)
         request: dict[str, Any] = {
             "scene_key": key,
@@ -295,6 +304,11 @@ def _arm_cpu(cpu_seconds: int) -> None:
 
 def serve(address_space_bytes: int, cpu_seconds: int) -> None:
     """The worker loop: one request in, one answer out, until stdin closes."""
+    import signal
+
+    # Ctrl-C on a terminal reaches the whole process group: the run that owns this worker stops
+    # cleanly and closes it; the worker itself must not die with a traceback meanwhile.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     from tools.event_program import run_event_program
     from tools.scene_graph import SceneGraph, build_scene_graph
 

@@ -239,7 +239,7 @@ def test_event_planner_with_the_object_list_skips_the_describer(fake: FakeOpenAI
         ("plan", "--description", "objects", "'describer', 'object-list', 'scene-graph'"),
         ("run", "--planner", "Unified", "'event', 'unified', 'direct'"),
         ("run", "--description", "graph", "'describer', 'object-list', 'scene-graph'"),
-        ("run", "--pace", "slow", "'lockstep', 'realtime', 'fast'"),
+        ("run", "--pace", "slow", "'lockstep', 'realtime', 'fast', 'offline'"),
     ],
 )
 def test_bad_choices_exit_2_with_a_clear_message(

@@ -4,7 +4,8 @@ Both backends of ``PathPlanner`` run the same algorithm (``sim.paths.astar_kerne
 version of ``PathPlanner._search`` and the reservation folding); here they must return equal
 ``PlanResult``s on crowded problems in the reference Office scene, with stationary bodies,
 off-grid segments, hints, tight budgets (failures, repair and fallback passes), and drive a
-crowd of walkers along identical trajectories.
+crowd of walkers along identical trajectories. The compiled heuristic (``goal_distances``)
+gives the floats the scipy Dijkstra it replaced gave, for every goal.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from sim.paths.cooperative_astar import (
 from sim.paths.following import CrowdNavigator
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
+from tests.support.goal_distance_reference import scipy_goal_distances
 from tests.support.reference import OFFICE, reference_or_skip
 
 
@@ -162,3 +164,15 @@ def test_repair_pass_reuses_unchanged_searches_exactly(grid: NavGrid) -> None:
     _same(again, fresh)
     kept = [a for a in order if outcomes[a] is record[a]]
     assert 0 < len(kept) < len(order)  # some taken over, some searched again
+
+
+def test_goal_distances_equal_scipy_dijkstra_bit_for_bit(grid: NavGrid) -> None:
+    """Every free cell of the Office as a goal (and a blocked one): the same floats, inf alike."""
+    planner = PathPlanner(grid)
+    goals = [(int(i), int(j)) for i, j in np.argwhere(grid.free)] + [tuple(int(v) for v in np.argwhere(~grid.free)[0])]
+    for goal in goals:
+        got = planner._heuristic_array(goal)
+        want = scipy_goal_distances(planner, goal)
+        assert np.array_equal(got, want), goal
+    # some cells are unreachable from some goals (blocked goal: only itself is at 0)
+    assert np.isinf(planner._heuristic_array(goals[-1])).sum() == got.size - 1

@@ -576,7 +576,7 @@ def test_markup_and_escapes_in_names_are_printed_as_text(
 
 
 def test_safe_text_strips_every_control_character() -> None:
-    from orchestrator.cli.safe_text import markup, plain
+    from orchestrator.safe_text import markup, plain
 
     hostile = "".join(chr(c) for c in range(0x00, 0xA0)) + "\u202e\u2066"
     cleaned = plain(hostile)

@@ -16,7 +16,7 @@ import anyio
 import numpy as np
 import pytest
 
-from agents.llm_port import LLMPort
+from agents.llm_port import LLMError, LLMPort
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
 from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.session.runtime import (
@@ -27,6 +27,7 @@ from orchestrator.session.runtime import (
     SessionResult,
     SessionSettings,
     StepPlanner,
+    StepProgress,
 )
 from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher
@@ -82,12 +83,12 @@ class ScriptedPlanner:
         self.fail_at = fail_at
         self.requests: list[PlanningRequest] = []
 
-    async def plan(self, request: PlanningRequest) -> Outcome:
+    async def plan(self, request: PlanningRequest, progress: StepProgress | None = None) -> Outcome:
         self.requests.append(request)
         if self.delays is not None:
             await anyio.sleep(self.delays.uniform(0.0, 0.02))
         if self.fail_at is not None and request.index == self.fail_at:
-            raise ConnectionError("provider unreachable")
+            raise LLMError("provider unreachable")
         free = [c.name for c in request.roster if not c.busy]
         if request.index % 4 == 3:
             return None  # the narrator waits
@@ -206,7 +207,7 @@ def test_planner_crash_stops_planning_but_not_the_simulation(home: Scene, motion
     world = _world(home, motion, ["Ava", "Ben"])
     result = _run(world, ScriptedPlanner(home, fail_at=1), SessionSettings(frames=10 * FPS, pace="lockstep"))
     assert result.frames == 10 * FPS
-    assert isinstance(result.planner_error, ConnectionError)
+    assert isinstance(result.planner_error, LLMError)
     assert result.steps == 1
 
 
@@ -352,7 +353,7 @@ def test_an_event_the_motion_library_cannot_play_is_skipped_and_logged(home: Sce
     seat = next(o for o in home.objects if o.is_seat)
 
     class SeatedCoffee(ScriptedPlanner):
-        async def plan(self, request: PlanningRequest) -> Outcome:
+        async def plan(self, request: PlanningRequest, progress: StepProgress | None = None) -> Outcome:
             self.requests.append(request)
             if request.index > 0:
                 return None
@@ -376,7 +377,7 @@ class WaitingPlanner:
         self.spot = _free_points(scene, 1, seed=7)[0]
         self.requests: list[PlanningRequest] = []
 
-    async def plan(self, request: PlanningRequest) -> Outcome:
+    async def plan(self, request: PlanningRequest, progress: StepProgress | None = None) -> Outcome:
         self.requests.append(request)
         if request.index > 0:
             return None

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from orchestrator.cli.safe_text import markup, plain
+from orchestrator.safe_text import markup, plain
 
 if TYPE_CHECKING:  # imported by the command, so that other commands start without it
     from tools.character_states import CharacterPlan, WorldView

@@ -39,7 +39,9 @@ Description = Annotated[
     DescriptionKind, typer.Option("--description", help="Scene description: describer, object-list or scene-graph.")
 ]
 
-PaceOption = Annotated[Pace, typer.Option("--pace", help="lockstep (sim waits for the planner), realtime, or fast.")]
+PaceOption = Annotated[Pace, typer.Option(
+    "--pace", help="lockstep (sim waits for the planner), realtime, fast, or offline (each LLM call takes its latency in simulated time)."
+)]
 
 
 def fail(message: str, code: int = 2) -> NoReturn:

@@ -41,7 +41,7 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
-from orchestrator.cli.safe_text import plain
+from orchestrator.safe_text import plain
 
 if TYPE_CHECKING:
     from agents.messages import ParsedEvent, PlanningFailure

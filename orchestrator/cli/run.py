@@ -26,13 +26,22 @@ the next frame. The trace records each one with its frame, and a replay applies 
 ``--planner unified|direct`` and ``--description object-list|scene-graph`` plan with the
 paper's ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``),
 driven by the same step planner.
+
+Exit codes: 0 the story ran to its end; 1 planning stopped (the error is printed) or a write
+failed (``error: cannot write FILE: ...``, a full disk: what was written before stays readable
+and ``resume`` goes on once there is space); 2 a user error (bad argument, damaged run folder,
+one line naming the file); 130 / 143 (128 + the signal) stopped by SIGINT / SIGTERM: the run
+stops at a frame boundary, writes the story so far, its motion and its checkpoint at that
+frame, says so in one line, and ``storyteller resume`` goes on from there.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import typer
 
@@ -49,7 +58,7 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
-from orchestrator.cli.safe_text import plain
+from orchestrator.safe_text import plain
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
     from orchestrator.session.instruction_script import ScriptLine
@@ -90,6 +99,8 @@ def run_command(
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("out"),
     pace: PaceOption = "lockstep",
     speed: Annotated[float, typer.Option("--speed", help="Simulated seconds per wall second (realtime pace).")] = 1.0,
+    planners: Annotated[int | None, typer.Option("--planners", min=1, max=8, help="Planning steps in flight at most, for disjoint characters (default: 1 in lockstep pace, 2 otherwise).")] = None,
+    offline_latency: Annotated[float | None, typer.Option("--offline-latency", min=0.0, help="offline pace: simulated seconds each LLM call takes (default: the call's own latency).")] = None,
     max_events: Annotated[int | None, typer.Option("--max-events", min=1, help="Planning steps at most.")] = None,
     record: Annotated[Path | None, typer.Option("--record", help="Trace file (default: OUT/trace.jsonl).")] = None,
     replay: Annotated[Path | None, typer.Option("--replay", help="Serve LLM calls and frames from this trace.")] = None,
@@ -142,6 +153,8 @@ def run_command(
         duration=duration,
         pace=pace,
         speed=speed,
+        planners=planners if planners is not None else default_planners(pace),
+        offline_latency=offline_latency,
         max_events=max_events,
         config=absolute(config),
         motion_config=absolute(motion_config),
@@ -172,6 +185,13 @@ def _check_smplx_model(smplx_model: Path | None) -> None:
         model_file(smplx_model, "neutral")
     except SmplxModelError as exc:
         fail(str(exc))
+
+
+def default_planners(pace: str) -> int:
+    """Steps in flight at most without ``--planners``: one in lockstep pace (the story of a
+    lockstep run stays what it always was), two otherwise (narrate the next event while the
+    current one is parsed)."""
+    return 1 if pace == "lockstep" else 2
 
 
 def _interactive(flag: bool | None) -> bool:
@@ -227,7 +247,7 @@ def _execute(
 ) -> None:
     import asyncio
 
-    from orchestrator.session.run_job import RunSetupError, run_story, write_outputs
+    from orchestrator.session.run_job import RunSetupError, StoryRun, run_story, write_outputs
     from orchestrator.session.run_manifest import resume_command
     from sim.scene.bundled import resolve_scene
     from sim.scene.files import SceneFileError
@@ -236,7 +256,10 @@ def _execute(
         scene_obj = resolve_scene(args.scene)
     except SceneFileError as exc:
         fail(str(exc))
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _cannot_write(exc, out, resumable=False)
 
     def show(e: StoryEvent, fps: int) -> None:
         typer.echo(_event_line(e, fps))
@@ -245,9 +268,20 @@ def _execute(
         if replay is None:
             typer.echo(f"thread {manifest.thread_id}; to resume after a stop: {resume_command(out)}", err=True)
 
-    try:
-        result, names, fps, world = asyncio.run(
-            run_story(
+    signals: list[int] = []  # the signals received, in order
+
+    async def main() -> StoryRun:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+
+        def on_signal(signum: int) -> None:
+            signals.append(signum)
+            stop.set()
+
+        for signum in STOP_SIGNALS:
+            loop.add_signal_handler(signum, on_signal, signum)
+        try:
+            return await run_story(
                 scene_obj,
                 args,
                 out=out,
@@ -263,25 +297,116 @@ def _execute(
                 on_start=started,
                 on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
                 in_process_programs=in_process_programs,
+                stop=stop,
             )
-        )
-    except RunSetupError as exc:
-        fail(str(exc))
-    from orchestrator.bodies.smplx_meshes import SmplxModelError
+        finally:
+            for signum in STOP_SIGNALS:
+                loop.remove_signal_handler(signum)
 
     try:
-        write_outputs(out, scene_obj, world, result, names, args.instruction, fps, args.gif, video=args.video,
-                      trace_path=trace_path, smplx_model=smplx_model)
+        run = asyncio.run(main())
+    except RunSetupError as exc:
+        fail(str(exc))
+    except OSError as exc:
+        _cannot_write(exc, out, resumable=replay is None)
+    except Exception as exc:  # a bug or the environment: the session was cancelled and its files closed
+        failed = _failed_write(exc, out)
+        if failed is not None:  # runs.sqlite on a full disk: the write that failed, as for the trace
+            _cannot_write(failed, out, resumable=replay is None)
+        fail(f"the run stopped: {type(exc).__name__}: {plain(exc)}", code=1)
+    result, fps = run.result, run.fps
+    from orchestrator.bodies.smplx_meshes import SmplxModelError
+
+    failed_write = _failed_write(result.planner_error, out)  # the first write that failed is reported
+    try:
+        with _signals_interrupt():
+            write_outputs(out, scene_obj, run.world, result, run.names, args.instruction, fps,
+                          args.gif and not run.stopped, video=args.video and not run.stopped,
+                          trace_path=trace_path, smplx_model=smplx_model)
     except SmplxModelError as exc:
         fail(str(exc))
+    except OSError as exc:
+        failed_write = failed_write or exc
+    except _Interrupted as exc:
+        signals.append(exc.signum)
+    if failed_write is not None:
+        _cannot_write(failed_write, out, resumable=replay is None)
     typer.echo(
         f"{result.frames} frames ({result.frames / fps:.1f} s), {result.steps} planning steps, "
         f"{sum(e.state == 'completed' for e in result.events)} events completed -> {out}"
     )
+    if signals:
+        signum = signals[0]
+        again = "" if replay is not None else f"; go on with: {resume_command(out)}"
+        typer.echo(
+            f"stopped by {signal_name(signum)} at frame {result.frames} ({result.frames / fps:.1f} s); "
+            f"the story so far, its motion, trace and checkpoint are in {out}{again}",
+            err=True,
+        )
+        raise typer.Exit(128 + signum)
     if result.planner_error is not None:
         err = result.planner_error
         typer.echo(f"error: planning stopped: {type(err).__name__}: {plain(err, keep_newlines=True)}", err=True)
         raise typer.Exit(1)
+
+
+STOP_SIGNALS = (2, 15)  # SIGINT, SIGTERM (the same numbers on every POSIX system)
+"""The signals that stop a run cleanly; it exits with 128 + the signal's number (130, 143)."""
+
+
+def signal_name(signum: int) -> str:
+    import signal
+
+    return signal.Signals(signum).name
+
+
+class _Interrupted(Exception):
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal_name(signum))
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _signals_interrupt() -> Iterator[None]:
+    """While the outputs are written, a stop signal ends the writing (the run stays resumable)."""
+    import signal
+
+    def interrupt(signum: int, _frame: object) -> None:
+        raise _Interrupted(signum)
+
+    previous = {signum: signal.signal(signum, interrupt) for signum in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _failed_write(error: BaseException | None, out: Path) -> OSError | None:
+    """``error`` (the planner's) as the write that failed, when it is one: an ``OSError`` (the
+    trace), or SQLite's disk errors (``runs.sqlite``, whose checkpoints the planner writes)."""
+    import sqlite3
+
+    if isinstance(error, OSError):
+        return error
+    if isinstance(error, sqlite3.OperationalError) and any(
+        words in str(error) for words in ("disk I/O error", "disk is full", "readonly database")
+    ):
+        return OSError(None, str(error), str(out / "runs.sqlite"))
+    return None
+
+
+def _cannot_write(exc: OSError, out: Path, *, resumable: bool) -> NoReturn:
+    """A write that failed (a full disk, a file-size limit, no permission): one line, exit 1."""
+    from orchestrator.session.run_manifest import resume_command
+
+    where = exc.filename if exc.filename is not None else out
+    then = f"; once it can be written, go on with: {resume_command(out)}" if resumable else ""
+    typer.echo(
+        f"error: cannot write {plain(where)}: {plain(exc.strerror or exc)}; what was written before is kept{then}",
+        err=True,
+    )
+    raise typer.Exit(1)
 
 
 __all__ = ["register", "replay_command", "resume_command", "run_command"]

@@ -11,6 +11,9 @@ One line per record. Record kinds (``kind`` discriminator):
 - ``applied``: the simulation frame at which one planning step's outcome took effect, with
   ``ref_seqs`` = the seqs of the attempts that produced it (the final attempt of every
   narrator and event-parser call of that step; all attempts of a call that failed outright);
+- ``requested``: when a planning step was requested (frame, phase of the frame, the steps in
+  flight beside it); written only by a session with more than one step in flight at once, so
+  a replay makes every request at the same point;
 - ``instruction``: a new instruction (``text``, from ``source``: a timed script, the Python
   API, stdin, ...) and the simulation frame it took effect at (before that frame's step);
   a replay applies the recorded ones at the same frames and ignores live sources.
@@ -26,10 +29,13 @@ Each record is written with a single ``os.write`` of one complete line on an ``O
 descriptor, so a killed writer leaves at most one torn line, at the end. Reading tolerates
 and reports a torn last line; a bad line anywhere else raises :class:`TraceCorruptError`.
 Reopening a file with a torn tail for writing cuts that tail off first (and logs it).
+A write that fails (a full disk, a file-size limit) cuts the part of its line that was
+written and raises ``OSError`` naming the file: the lines before it stay whole.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
@@ -123,6 +129,18 @@ class AppliedRecord(_Record):
         return data
 
 
+class RequestedRecord(_Record):
+    """When one planning step was requested, beside which steps in flight (overlapping planning)."""
+
+    kind: Literal["requested"] = "requested"
+    step: int = Field(ge=0, description="Planning step index.")
+    sim_frame: int = Field(ge=0, description="Frame the step's request was built at.")
+    phase: Literal["frame_start", "frame_end"] = Field(
+        description="frame_start: before that frame's outcomes were applied; frame_end: after the world stepped."
+    )
+    after_steps: tuple[int, ...] = Field(default=(), description="Steps in flight then (their characters left out).")
+
+
 class InstructionRecord(_Record):
     """A new instruction (it replaces the one before) and the frame it took effect at."""
 
@@ -133,7 +151,8 @@ class InstructionRecord(_Record):
 
 
 TraceRecord = Annotated[
-    RunRecord | AttemptRecord | ParsedRecord | AppliedRecord | InstructionRecord, Field(discriminator="kind")
+    RunRecord | AttemptRecord | ParsedRecord | AppliedRecord | RequestedRecord | InstructionRecord,
+    Field(discriminator="kind"),
 ]
 _RECORD_ADAPTER: TypeAdapter[TraceRecord] = TypeAdapter(TraceRecord)
 
@@ -175,6 +194,10 @@ class TraceContents:
     def instructions(self) -> list[InstructionRecord]:
         """The instructions that took effect, in the order they did."""
         return [r for r in self.records if isinstance(r, InstructionRecord)]
+
+    def requests(self) -> list[RequestedRecord]:
+        """The ``requested`` records (runs with overlapping planning steps), in step order."""
+        return sorted((r for r in self.records if isinstance(r, RequestedRecord)), key=lambda r: r.step)
 
     def applied_frame_by_seq(self) -> dict[int, int]:
         """Attempt seq -> the frame at which the outcome it contributed to was applied."""
@@ -224,6 +247,10 @@ class TraceSink(TraceRecorder, Protocol):
         """A new instruction took effect at ``sim_frame``."""
         ...
 
+    def record_requested(self, step: int, sim_frame: int, *, phase: str, after_steps: Sequence[int]) -> None:
+        """Planning step ``step`` was requested at ``sim_frame`` beside the steps ``after_steps``."""
+        ...
+
     def close(self) -> None:
         """Flush and close the destination (nothing to do for a sink that stores nothing). Safe to call twice."""
         ...
@@ -258,6 +285,9 @@ class NullTraceSink:
         return None
 
     def record_instruction(self, text: str, sim_frame: int, *, source: str) -> None:
+        return None
+
+    def record_requested(self, step: int, sim_frame: int, *, phase: str, after_steps: Sequence[int]) -> None:
         return None
 
     def close(self) -> None:
@@ -304,12 +334,18 @@ class TraceWriter:
         with self._lock:
             if self._fd is None:
                 raise ValueError(f"trace writer for {self.path} is closed")
+            start = os.fstat(self._fd).st_size
             view = memoryview(line)
-            while view:  # a regular-file write is complete unless the disk is full
-                n = os.write(self._fd, view)
-                view = view[n:]
-            if self.fsync == "always":
-                os.fsync(self._fd)
+            try:
+                while view:  # a regular-file write is complete unless the disk is full
+                    n = os.write(self._fd, view)
+                    view = view[n:]
+                if self.fsync == "always":
+                    os.fsync(self._fd)
+            except OSError as exc:  # a full disk, a file-size limit: keep the file whole lines
+                with contextlib.suppress(OSError):
+                    os.ftruncate(self._fd, start)
+                raise OSError(exc.errno, exc.strerror, str(self.path)) from None
 
     def record_parsed(
         self, ref_seq: int, parsed_output: Any, *, node: NodeName | None = None,
@@ -331,6 +367,13 @@ class TraceWriter:
         """A new instruction took effect at ``sim_frame``."""
         self.write(InstructionRecord(run_id=self.run_id, seq=self.next_seq(), time_unix=time.time(),
                                      text=text, source=source, sim_frame=sim_frame))
+
+    def record_requested(self, step: int, sim_frame: int, *, phase: str, after_steps: Sequence[int]) -> None:
+        """Planning step ``step`` was requested at ``sim_frame`` beside the steps ``after_steps``."""
+        self.write(RequestedRecord.model_validate({
+            "run_id": self.run_id, "seq": self.next_seq(), "time_unix": time.time(), "step": step,
+            "sim_frame": sim_frame, "phase": phase, "after_steps": tuple(after_steps),
+        }))
 
     def close(self) -> None:
         with self._lock:

@@ -58,6 +58,7 @@ from orchestrator.planning.graph import (
     PlanningGraph,
     complete,
     narrator_input,
+    off_loop,
     parser_input,
     record_parsed,
     reply_update,
@@ -138,10 +139,10 @@ async def parse_event_as_coordinates(state: PlanningState, runtime: Runtime[Plan
     deps = runtime.context
     assert state.description is not None
     turns = tuple(t.as_turn() for t in state.parser_turns)
-    request = direct_request(
-        deps.prompts, parser_input(state, deps), deps.scene,
-        lists_objects=state.description.source == "object_list", turns=turns,
-    )
+    lists_objects = state.description.source == "object_list"
+    request = await off_loop(lambda: direct_request(
+        deps.prompts, parser_input(state, deps), deps.scene, lists_objects=lists_objects, turns=turns,
+    ))
     try:
         response = await complete(deps, request, state)
     except LLMError as exc:
@@ -157,10 +158,11 @@ async def check_coordinates(state: PlanningState, runtime: Runtime[PlanningDeps]
     assert state.event is not None
     reply = state.parser_reply or ""
     try:
-        result = check_direct_reply(
-            reply, scene=deps.scene, event=state.event, world=deps.world.world_view(state.roster),
+        event = state.event
+        result = await off_loop(lambda: check_direct_reply(
+            reply, scene=deps.scene, event=event, world=deps.world.world_view(state.roster),
             seed=deps.seed + state.step, action_labels=deps.action_labels, graph=deps.scene_graph, runner=deps.runner,
-        )
+        ))
     except REJECTIONS as exc:
         return _rejected(state, deps, "event_parser", reply, exc)
     parsed = ParsedEvent(
@@ -194,11 +196,11 @@ async def check_plan(state: PlanningState, runtime: Runtime[PlanningDeps]) -> di
         return {}
     reply = state.parser_reply or ""
     try:
-        parsed = check_unified_reply(
+        parsed = await off_loop(lambda: check_unified_reply(
             reply, index=state.step, scene=deps.scene, characters=state.roster,
             world=deps.world.world_view(state.roster), seed=deps.seed + state.step,
             action_labels=deps.action_labels, graph=deps.scene_graph, runner=deps.runner,
-        )
+        ))
     except REJECTIONS as exc:
         return _rejected(state, deps, "planner", reply, exc)
     record_parsed(deps, state.parser_seq, "planner", _plans_json(parsed))

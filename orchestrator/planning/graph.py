@@ -17,8 +17,17 @@ finished description is also cached on disk per scene, model and prompts.
                  +- record_outcome <-- check_program <-- parse_event <+
                           (retries loop back through the routers)
 
+Off the event loop: running an event program (scene-graph queries, position sampling, or the
+wait on the program's worker process), building the parser's input (its grammar) and the
+describer's clusters happen in a worker thread (:func:`off_loop`), so a session's simulation
+task keeps its frame rate while a step is checked.
+
 Routers return ``Literal[...]`` node names. Dependencies (LLM port, scene, world view
 provider, story log, trace sink) come from ``Runtime[PlanningDeps]``.
+
+Progress: with ``deps.progress`` set (a story session does, per step), :func:`complete` reports
+every call's latency and ``check_narration`` reports the accepted event's characters before
+the event parser is asked, so the session may plan the next event beside this one.
 
 Traces: every request carries ``state.sim_frame`` (the frame of the world snapshot the step
 plans from; None without a simulation) as metadata outside the request hash. The check
@@ -30,9 +39,11 @@ step's narrator and event-parser attempts are stored with its outcome in the sto
 
 from __future__ import annotations
 
-from collections.abc import Awaitable
-from typing import Any, Literal, Protocol
+import time
+from collections.abc import Awaitable, Callable
+from typing import Any, Literal, Protocol, TypeVar
 
+import anyio.to_thread
 from langgraph.graph import START, StateGraph
 from langgraph.runtime import Runtime
 
@@ -59,9 +70,29 @@ NODES = (
 )
 
 
+_T = TypeVar("_T")
+
+
+async def off_loop(fn: Callable[[], _T]) -> _T:
+    """``fn()`` in a worker thread (CPU work and blocking waits never run on the event loop);
+    its exception is raised here. A cancelled caller waits for ``fn`` to return."""
+    return await anyio.to_thread.run_sync(fn)
+
+
 async def complete(deps: PlanningDeps, request: LLMRequest, state: PlanningState) -> LLMResponse:
-    """One LLM call with the step's simulation frame attached (metadata, not hashed)."""
-    return await deps.port.complete(request.model_copy(update={"sim_frame": state.sim_frame}))
+    """One LLM call with the step's simulation frame attached (metadata, not hashed); its
+    latency goes to ``deps.progress`` (the response's, which a replay takes from the trace;
+    the wall time of a call that failed)."""
+    started = time.monotonic()
+    try:
+        response = await deps.port.complete(request.model_copy(update={"sim_frame": state.sim_frame}))
+    except LLMError:
+        if deps.progress is not None:
+            deps.progress.llm_call(request.node, time.monotonic() - started)
+        raise
+    if deps.progress is not None:
+        deps.progress.llm_call(request.node, response.latency_s)
+    return response
 
 
 def record_parsed(
@@ -94,7 +125,8 @@ async def describe_scene(state: PlanningState, runtime: Runtime[PlanningDeps]) -
     if not state.describer_turns and path is not None and (hit := read_cached(path)) is not None:
         return {"description": hit}
     turns = tuple(t.as_turn() for t in state.describer_turns)
-    response = await complete(deps, describer_request(deps.prompts, deps.describer_input(), turns), state)
+    inp = await off_loop(deps.describer_input)
+    response = await complete(deps, describer_request(deps.prompts, inp, turns), state)
     return {"describer_reply": response.text, "describer_seq": response.trace_seq, "llm_calls": state.llm_calls + 1}
 
 
@@ -102,9 +134,9 @@ async def check_description(state: PlanningState, runtime: Runtime[PlanningDeps]
     """Accept the describer's reply, or keep its feedback for another call; after the last
     rejected call, repair the best answer from the clusters."""
     deps = runtime.context
-    inp = deps.describer_input()
+    inp = await off_loop(deps.describer_input)
     reply = state.describer_reply or ""
-    judged = judge_reply(reply, inp)
+    judged = await off_loop(lambda: judge_reply(reply, inp))
     attempts = len(state.describer_turns) + 1
     update: dict[str, Any] = {"describer_reply": None, "describer_seq": None}
     if judged.areas is not None:
@@ -117,7 +149,7 @@ async def check_description(state: PlanningState, runtime: Runtime[PlanningDeps]
         update["describer_turns"] = turns
         if attempts <= deps.max_retries:
             return update
-        description = best_effort(inp, [t.as_turn() for t in turns])
+        description = await off_loop(lambda: best_effort(inp, [t.as_turn() for t in turns]))
     path = _description_cache(deps)
     if path is not None:
         write_cached(path, description)
@@ -203,6 +235,8 @@ async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) 
             update["failure"] = PlanningFailure(index=state.step, node="narrator", attempts=attempts, feedback=feedback)
         return update
     record_parsed(deps, state.narrator_seq, "narrator", out.model_dump(mode="json"))
+    if deps.progress is not None and not out.event.is_wait:
+        deps.progress.claim(out.event.characters, out.event.activity)
     return {"event": out.event, "narrator_attempts": attempts, "narrator_reply": None, "narrator_seq": None}
 
 
@@ -229,8 +263,9 @@ async def parse_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> d
     """One event-parser call; the program in its reply is run by the next node."""
     deps = runtime.context
     turns = tuple(t.as_turn() for t in state.parser_turns)
+    request = await off_loop(lambda: parser_request(deps.prompts, parser_input(state, deps), turns))
     try:
-        response = await complete(deps, parser_request(deps.prompts, parser_input(state, deps), turns), state)
+        response = await complete(deps, request, state)
     except LLMError as exc:
         return unavailable(state, "event_parser", exc)
     return reply_update(state, "parser", response)
@@ -244,17 +279,18 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     assert state.event is not None
     reply = state.parser_reply or ""
     attempts = len(state.parser_turns) + 1
+    event = state.event
     try:
-        result = run_reply(
+        result = await off_loop(lambda: run_reply(
             reply,
             scene=deps.scene,
-            event=state.event,
+            event=event,
             world=deps.world.world_view(state.roster),
             seed=deps.seed + state.step,
             action_labels=deps.action_labels,
             graph=deps.scene_graph,
             runner=deps.runner,
-        )
+        ))
     except REJECTIONS as exc:
         feedback = feedback_from_error(exc, instruction=PARSER_RETRY_INSTRUCTION)
         record_parsed(deps, state.parser_seq, "event_parser", error=exc, feedback=feedback)

@@ -98,6 +98,16 @@ class PlanningState(BaseModel):
         return [c.name for c in self.roster if not c.busy]
 
 
+class StepProgress(Protocol):
+    """Where a running step reports to a story session (``orchestrator.session.runtime``):
+    every LLM call's latency, and the narrator's accepted event (its characters) as soon as it
+    is known, so a session can plan the next event for the characters still free."""
+
+    def llm_call(self, node: str, latency_s: float) -> None: ...
+
+    def claim(self, characters: Sequence[str], activity: str) -> None: ...
+
+
 class WorldProvider(Protocol):
     """Supplies the spatial API's view of the characters for the event program.
 
@@ -137,6 +147,8 @@ class PlanningDeps:
     """Decode event programs under agents.program_grammar (local llama.cpp models)."""
     trace: TraceSink | None = None
     """Where parsed outputs are recorded (None: the port's ``.trace``, if it has one)."""
+    progress: StepProgress | None = None
+    """The current step's progress sink (a session sets one per step; None: nobody listens)."""
     _describer_input: DescriberInput | None = field(default=None, init=False, repr=False)
 
     def trace_sink(self) -> TraceRecorder | None:

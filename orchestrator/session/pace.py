@@ -7,7 +7,10 @@ from __future__ import annotations
 
 from typing import Literal
 
-Pace = Literal["lockstep", "realtime", "fast"]
+Pace = Literal["lockstep", "realtime", "fast", "offline"]
 """``lockstep``: the simulation waits for the planner (results land at the frame they were
 asked for); ``realtime``: the simulation runs at wall-clock speed (times ``--speed``) while the
-planner thinks; ``fast``: the simulation runs as fast as it can."""
+planner thinks; ``fast``: the simulation runs as fast as it can; ``offline``: simulated time
+advances during each LLM call by the call's latency (as measured, as recorded in a replayed
+trace, or ``--offline-latency S``), so a result lands at its request frame plus its calls'
+latency whatever the machine's speed."""

@@ -32,22 +32,41 @@ written to the trace as an ``instruction`` record with its frame. A replay sched
 trace's instruction records at their frames and ignores the script and stdin; a resume
 applies the recorded ones again (not traced twice) and the script lines not yet applied.
 
+Overlapping planning (``RunArguments.planners`` > 1): the trace gets a ``requested`` record per
+step, and a replay makes every request where the recorded run did
+(``SessionSettings.schedule``). Any error other than the user's inputs or the LLM's (a bug, a
+failing disk) cancels the session's task group and is raised from :func:`run_story` after the
+trace, the story log and the program worker are closed.
+
 Problems with the user's inputs (an unreadable trace or motion config, a model that cannot be
-opened, a session that cannot go on) are raised as :class:`RunSetupError`, one sentence each.
+opened, a damaged ``runs.sqlite``, a session that cannot go on) are raised as
+:class:`RunSetupError`, one sentence each, naming the file. A write that fails (a full disk)
+raises ``OSError`` naming the file; what was written before stays readable (the trace keeps
+whole lines, ``session.snapshot`` the previous checkpoint). A run stopped through ``stop``
+(SIGINT, SIGTERM) saves its checkpoint at the frame it stopped at and returns the story so far.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import json
+import sqlite3
 import uuid
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.session.run_manifest import RunArguments, RunManifest
-from orchestrator.session.runtime import SessionResult, StoryEvent, TimedInstruction
+from orchestrator.session.runtime import (
+    RecordedRequest,
+    SessionResult,
+    StoryEvent,
+    TimedInstruction,
+)
 from sim.scene.model import Scene
 
 CHECKPOINT_EVERY_S = 10.0
@@ -58,11 +77,54 @@ class RunSetupError(Exception):
     """A run that cannot start or go on because of its inputs (the message says which)."""
 
 
-def applied_frames_from_trace(path: Path) -> list[int]:
-    """Frames at which a recorded run applied each planning step's result, in order."""
+@dataclass(frozen=True)
+class StoryRun:
+    """What :func:`run_story` returns: the session's result, the names, the fps, the world, and
+    whether the run was stopped early (``stop`` was set) rather than played to its end."""
+
+    result: SessionResult
+    names: list[str]
+    fps: int
+    world: Any
+    stopped: bool = False
+
+
+def applied_frames_from_trace(path: Path) -> list[int | None]:
+    """Frame at which a recorded run applied each planning step's result, by step (overlapping
+    steps may be applied out of order; None: a step it never applied). Records without a step
+    (older traces) count in the order written."""
     from orchestrator.llm.traces import AppliedRecord, read_trace
 
-    return [r.sim_frame for r in read_trace(path).records if isinstance(r, AppliedRecord)]
+    records = [r for r in read_trace(path).records if isinstance(r, AppliedRecord)]
+    if any(r.step is None for r in records):
+        return [r.sim_frame for r in records]
+    frames: list[int | None] = [None] * (max((r.step for r in records if r.step is not None), default=-1) + 1)
+    for r in records:
+        assert r.step is not None
+        frames[r.step] = r.sim_frame
+    return frames
+
+
+def schedule_from_trace(path: Path) -> list[RecordedRequest]:
+    """When a recorded run with overlapping planning steps requested each step."""
+    from orchestrator.llm.traces import read_trace
+
+    return [RecordedRequest(step=r.step, frame=r.sim_frame, phase=r.phase, after=r.after_steps)
+            for r in read_trace(path).requests()]
+
+
+def replayable_frames(path: Path) -> list[int | None]:
+    """:func:`applied_frames_from_trace` of a trace to replay, which must end with a whole line:
+    a cut last record (a run killed mid-write) is a :class:`RunSetupError`, not a shorter story."""
+    from orchestrator.llm.traces import read_trace
+
+    contents = read_trace(path)
+    if contents.torn_tail is not None:
+        raise RunSetupError(
+            f"{path}: line {contents.torn_tail.line_no} is cut short ({contents.torn_tail.size} bytes; the run "
+            "stopped while writing it): `storyteller resume` the run to repair it, or replay a complete trace"
+        )
+    return applied_frames_from_trace(path)
 
 
 def instructions_from_trace(path: Path) -> list[TimedInstruction]:
@@ -162,7 +224,8 @@ async def run_story(
     on_resume: Callable[[int, int], None] | None = None,
     on_instruction: Callable[[TimedInstruction, int], None] | None = None,
     in_process_programs: bool = False,
-) -> tuple[SessionResult, list[str], int, Any]:
+    stop: asyncio.Event | None = None,
+) -> StoryRun:
     """Run the story session; returns the result, the character names, the fps and the world.
 
     A live or replayed run writes ``run.json`` before the first frame (``on_start(manifest)``
@@ -176,7 +239,12 @@ async def run_story(
     kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails.
     ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay).
     Event programs run in an OS-limited worker process started for the run and stopped when
-    it ends (``in_process_programs``: in this process instead; the plans are the same)."""
+    it ends (``in_process_programs``: in this process instead; the plans are the same).
+
+    ``stop``: once set (by a signal handler), the session is cancelled where it waits (a frame
+    is never cut in half), its checkpoint at that frame is saved and the story so far is
+    returned with ``stopped=True``; an LLM call in flight is abandoned, and resume asks it
+    again unless its node was checkpointed."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
@@ -209,7 +277,8 @@ async def run_story(
     config = Path(args.config) if args.config is not None else None
     motion_config = Path(args.motion_config) if args.motion_config is not None else None
     try:
-        applied = applied_frames_from_trace(replay) if replay is not None else None
+        applied = replayable_frames(replay) if replay is not None else None
+        schedule = schedule_from_trace(replay) if replay is not None and args.planners > 1 else None
         resumed_trace = resume and trace_path is not None and trace_path.is_file()
         recorded = recorded_frames(trace_path) if resumed_trace and trace_path is not None else {}
         said = instructions_from_trace(trace_path) if resumed_trace and trace_path is not None else []
@@ -257,7 +326,12 @@ async def run_story(
     save_scene_json(scene, out / "scene.json")
     (out / "story.json").unlink(missing_ok=True)
     runs_db = out / "runs.sqlite"
-    story = StoryLog(runs_db, thread)
+    try:
+        check_runs_db(runs_db)
+        story = StoryLog(runs_db, thread)
+    except (RunSetupError, sqlite3.DatabaseError) as exc:
+        port.close()
+        raise RunSetupError(str(exc) if isinstance(exc, RunSetupError) else f"{runs_db}: {exc}") from None
     deps = PlanningDeps(
         port=port,
         scene=scene,
@@ -284,6 +358,9 @@ async def run_story(
         instruction=args.instruction,
         instructions=scheduled,
         live_instructions=replay is None,
+        planners=args.planners,
+        offline_latency_s=args.offline_latency,
+        schedule=schedule,
     )
     session: Session | None = None
     writer = port.trace if isinstance(port.trace, TraceWriter) else None
@@ -293,6 +370,10 @@ async def run_story(
             writer.record_instruction(timed.text, timed.frame, source=timed.source)
         if on_instruction is not None:
             on_instruction(timed, fps)
+
+    def requested(r: RecordedRequest) -> None:
+        if writer is not None:
+            writer.record_requested(r.step, r.frame, phase=r.phase, after_steps=r.after)
 
     def keep(cp: SessionCheckpoint) -> None:
         assert session is not None
@@ -307,9 +388,9 @@ async def run_story(
     try:
         async with open_checkpointer(runs_db) as saver:
             graph = compile_graph(ablation, saver)
-            planner = GraphStepPlanner(graph, deps, thread)
+            planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
             session = Session(world, planner, settings, trace=port.trace, on_event=streamed, on_checkpoint=keep,
-                              on_instruction=said_now)
+                              on_instruction=said_now, on_request=requested)
             if checkpoint is not None:
                 session.resume(checkpoint)
             stream.start(
@@ -323,7 +404,9 @@ async def run_story(
                 from orchestrator.session.stdin_instructions import start_stdin_reader
 
                 start_stdin_reader(session)
-            result = await session.run()
+            result, stopped = await _run_until_stopped(session, stop)
+            if stopped:
+                keep(session.checkpoint())
     except (LLMError, SessionError) as exc:
         raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
     finally:
@@ -337,7 +420,42 @@ async def run_story(
         end.spill()
         end.store.sync()
         end.store.close()  # read back by path from here on
-    return result, names, fps, session.world
+    return StoryRun(result, names, fps, session.world, stopped)
+
+
+async def _run_until_stopped(session: Any, stop: asyncio.Event | None) -> tuple[SessionResult, bool]:
+    """``session.run()``, cancelled when ``stop`` is set first; (the story so far, stopped?)."""
+    if stop is None:
+        return await session.run(), False
+    running = asyncio.ensure_future(session.run())
+    stopping = asyncio.ensure_future(stop.wait())
+    try:
+        await asyncio.wait({running, stopping}, return_when=asyncio.FIRST_COMPLETED)
+    except BaseException:
+        running.cancel()
+        raise
+    finally:
+        stopping.cancel()
+    if running.done():
+        return running.result(), False
+    running.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await running
+    return session.result(), True
+
+
+def check_runs_db(path: Path) -> None:
+    """Raise :class:`RunSetupError` naming ``path`` when it exists but is not a sound SQLite
+    database (garbage, truncated, damaged pages), before any checkpoint is read from it."""
+    if not path.is_file():
+        return
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as conn:
+            verdict = conn.execute("PRAGMA quick_check").fetchone()[0]
+    except sqlite3.DatabaseError as exc:
+        raise RunSetupError(f"{path}: not a readable checkpoint database ({exc})") from None
+    if verdict != "ok":
+        raise RunSetupError(f"{path}: the checkpoint database is damaged ({verdict})")
 
 
 def _stream_motion(world: Any, out: Path, names: list[str], checkpoint: Any) -> Any:

@@ -42,6 +42,10 @@ class RunArguments(BaseModel):
     duration: float = Field(gt=0, description="Simulated seconds.")
     pace: Pace = "lockstep"
     speed: float = Field(default=1.0, gt=0, description="Simulated seconds per wall second (realtime).")
+    planners: int = Field(default=1, ge=1, le=8, description="Planning steps in flight at most (1: one at a time).")
+    offline_latency: float | None = Field(
+        default=None, ge=0, description="offline pace: simulated seconds per LLM call (None: each call's own latency)."
+    )
     max_events: int | None = None
     config: str | None = None
     motion_config: str | None = None

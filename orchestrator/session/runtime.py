@@ -1,11 +1,12 @@
 """A story session: the simulation and the planner run concurrently in one anyio task group.
 
 The simulation task owns the world and steps it frame by frame; it never waits on an LLM
-call (except in ``lockstep`` pace or when a replay says a result was applied at this frame).
-When characters are available and no planning step is in flight, it takes a snapshot of the
-world (roster and event history, at a known frame) and hands it to the planning task through a
-memory channel; the planning task runs one step of the planning graph (narrator, event
-parser, their retries) and sends the outcome back. The simulation applies the outcome at the
+call (except in ``lockstep`` and ``offline`` pace or when a replay says a result was applied at
+this frame). When characters are available and no planning step is in flight, it takes a
+snapshot of the world (roster and event history, at a known frame) and starts a planning task
+for it in the session's task group; the task runs one step of the planning graph (narrator,
+event parser, their retries) and sends its news (calls, claim, outcome) back through a memory
+channel. The simulation applies the outcome at the
 frame it arrives and records that frame (story log and trace ``applied`` record). The
 ``applied`` record names the step, the frame its request was made at and the seqs of the
 trace records that produced the outcome, as the planner reports them
@@ -17,6 +18,34 @@ frame at which a result arrives; that frame is recorded. A replay reads the reco
 back and applies each result at exactly its frame, so the same events and the same motion
 come out. ``lockstep`` pace applies every result at the frame it was requested (the
 simulation pauses while the planner thinks), which is deterministic without a trace.
+
+Overlapping steps (``SessionSettings.planners`` = N > 1): a step names its characters as soon
+as the narrator's event is accepted (``StepProgress.claim``), before its program is written
+and run. Once every step in flight has done so, and fewer than N are in flight, the next step
+is requested for the free characters left: their roster shows the claimed ones busy, and the
+history shows the claimed events ongoing, so no character is in two events. Such a request is
+made at the start of a frame (``frame_start``, before the frame's outcomes are applied) or,
+like every request with N = 1, after the world stepped (``frame_end``). With N = 1 nothing is
+requested while a step is in flight, exactly as before. ``lockstep`` stays deterministic with
+N > 1: it waits for every step in flight to claim or finish before deciding, and applies every
+outcome at its request frame. In ``realtime`` / ``fast`` pace the requests are reported to
+``on_request`` (the run job writes them to the trace) and a replay makes each at its recorded
+frame and phase (``SessionSettings.schedule``), after the steps it saw in flight claimed.
+
+``offline`` pace: the planner reports each LLM call's latency (``StepProgress.llm_call``);
+a step's claim is known at its request frame plus the latency of the calls before it, its
+outcome applied at its request frame plus the latency of all its calls (or
+``offline_latency_s`` per call). The simulation steps ahead freely up to the frame where a
+step in flight might next produce news, and waits there, so the story is the same however
+fast the machine or the model is.
+
+Off the event loop: nothing here blocks; the planning graph runs event programs and other CPU
+work in worker threads (``orchestrator.planning.graph.off_loop``), so in ``realtime`` pace the
+simulation task keeps its frame rate while steps are planned.
+
+Failures: an ``LLMError`` from the planner stops planning and the story goes on
+(``SessionResult.planner_error``); any other exception in any task cancels the task group
+(every step in flight is cancelled, none is left pending) and :meth:`Session.run` raises it.
 
 Checkpoints: with ``checkpoint_every_s`` set, ``on_checkpoint`` gets a
 :class:`SessionCheckpoint` (between two frames) after every applied outcome and at least that
@@ -38,6 +67,7 @@ effect at the same frames again.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from array import array
@@ -47,11 +77,12 @@ from dataclasses import dataclass, field
 from typing import Literal, Protocol
 
 import anyio
+import anyio.abc
 import structlog
 from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStream
 from pydantic import BaseModel, ConfigDict, Field
 
-from agents.llm_port import TraceRecorder
+from agents.llm_port import LLMError, TraceRecorder
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
 from orchestrator.session.pace import Pace
 from sim.world.event_book import EventStatus
@@ -102,13 +133,41 @@ class TimedInstruction(BaseModel):
     )
 
 
+RequestPhase = Literal["frame_start", "frame_end"]
+"""Where in a frame a request was made: ``frame_end`` after the world stepped (the only phase
+with ``planners`` = 1), ``frame_start`` before the frame's outcomes are applied (a step in
+flight just named its characters)."""
+
+
+class RecordedRequest(BaseModel):
+    """When one planning step was requested (a ``requested`` trace record)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    step: int = Field(ge=0)
+    frame: int = Field(ge=0, description="World frame the request was built at.")
+    phase: RequestPhase
+    after: tuple[int, ...] = Field(default=(), description="Steps in flight then; their characters were left out.")
+
+
+class StepProgress(Protocol):
+    """What a planner tells the session while a step runs (see ``orchestrator.planning.state``)."""
+
+    def llm_call(self, node: str, latency_s: float) -> None:
+        """An LLM call of the step returned (or failed) after ``latency_s`` seconds."""
+
+    def claim(self, characters: Sequence[str], activity: str) -> None:
+        """The step's event is decided: these characters take part (before any program runs)."""
+
+
 class StepPlanner(Protocol):
-    """One planning step at a time (the planning graph behind it).
+    """Planning steps (the planning graph behind it); with ``planners`` > 1 several run at once.
 
-    A planner may also define ``trace_seqs(index) -> Sequence[int]``: the seqs of the trace
-    records (LLM attempts) that produced step ``index``'s outcome."""
+    ``progress`` gets the step's LLM calls and, as soon as the narrator's event is accepted,
+    its characters. A planner may also define ``trace_seqs(index) -> Sequence[int]``: the seqs
+    of the trace records (LLM attempts) that produced step ``index``'s outcome."""
 
-    async def plan(self, request: PlanningRequest) -> Outcome: ...
+    async def plan(self, request: PlanningRequest, progress: StepProgress | None = None) -> Outcome: ...
 
 
 class SessionError(Exception):
@@ -157,7 +216,8 @@ class SessionSettings:
     an event's state (looping, completed, failed) changed since the request, or after this many
     simulated seconds (the same question would get the same answer: a wait costs a planning
     step, so waits are not repeated every ``retry_after_s`` for nothing);
-    applied_frames: replay only, the recorded frame of every planning step's result."""
+    applied_frames: replay only, the recorded frame of every planning step's result, by step
+    (None: a step the recorded run requested but never applied, e.g. in flight at its end)."""
 
     frames: int
     pace: Pace = "lockstep"
@@ -165,7 +225,7 @@ class SessionSettings:
     max_steps: int | None = None
     retry_after_s: float = 3.0
     recheck_after_s: float = 30.0
-    applied_frames: Sequence[int] | None = None
+    applied_frames: Sequence[int | None] | None = None
     recorded_frames: Mapping[int, int] = field(default_factory=dict)
     """Resume only: step -> frame at which an earlier process already applied (and traced) that
     step's outcome; it is applied at that frame again and not traced twice."""
@@ -178,6 +238,16 @@ class SessionSettings:
     """Instructions that take effect at their frames (a timed script, or a replay's recorded ones)."""
     live_instructions: bool = True
     """Accept :meth:`Session.instruct` (False in a replay: only the recorded ones count)."""
+    planners: int = 1
+    """Planning steps in flight at most. Above 1, a new step starts once every step in flight has
+    named its characters (the narrator's event), for the free characters left: see the module doc."""
+    offline_latency_s: float | None = None
+    """``offline`` pace: simulated seconds each LLM call takes (None: the call's own latency,
+    as measured or as recorded in the replayed trace)."""
+    schedule: Sequence[RecordedRequest] | None = None
+    """Replay of a run with ``planners`` > 1: when each step was requested (the trace's
+    ``requested`` records); the replay makes each request at its frame and phase, after the
+    steps it saw in flight named their characters."""
 
 
 @dataclass
@@ -201,6 +271,8 @@ class SessionCheckpoint:
     instruction: str = ""
     instruction_since: int = 0
     instructions: list[TimedInstruction] = field(default_factory=list)
+    more_in_flight: tuple[PlanningRequest, ...] = ()
+    """Further steps in flight (``planners`` > 1), after ``in_flight``; re-sent on resume."""
 
 
 def world_roster(world: World, events: dict[str, StoryEvent]) -> tuple[CharacterStatus, ...]:
@@ -272,12 +344,18 @@ class Session:
         on_outcome: Callable[[int, Outcome, int], None] | None = None,
         on_checkpoint: Callable[[SessionCheckpoint], None] | None = None,
         on_instruction: Callable[[TimedInstruction], None] | None = None,
+        on_request: Callable[[RecordedRequest], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        if settings.pace not in ("lockstep", "realtime", "fast"):
-            raise SessionError(f"unknown pace {settings.pace!r}; expected lockstep, realtime or fast")
+        if settings.pace not in ("lockstep", "realtime", "fast", "offline"):
+            raise SessionError(f"unknown pace {settings.pace!r}; expected lockstep, realtime, fast or offline")
         if settings.speed <= 0 or not math.isfinite(settings.speed):
             raise SessionError(f"speed must be a positive number, got {settings.speed!r}")
+        if settings.planners < 1:
+            raise SessionError(f"planners must be at least 1, got {settings.planners!r}")
+        lat = settings.offline_latency_s
+        if lat is not None and not (math.isfinite(lat) and lat >= 0):
+            raise SessionError(f"offline latency must be a non-negative number of seconds, got {lat!r}")
         self.world = world
         self.planner = planner
         self.settings = settings
@@ -286,6 +364,7 @@ class Session:
         self.on_outcome = on_outcome
         self.on_checkpoint = on_checkpoint
         self.on_instruction = on_instruction
+        self.on_request = on_request
         self.clock = clock
         self.events: dict[str, StoryEvent] = {}
         self.outcomes: list[tuple[int, Outcome]] = []
@@ -293,7 +372,10 @@ class Session:
         self.failures: list[EventFailure] = []
         self._steps = 0
         self._next_plan_frame = 0
-        self._in_flight: PlanningRequest | None = None
+        self._flights: dict[int, _Flight] = {}  # steps in flight, by index
+        self._schedule = list(settings.schedule) if settings.schedule is not None else None
+        self._news_send: MemoryObjectSendStream[_News] | None = None
+        self._tg: anyio.abc.TaskGroup | None = None
         self.planner_error: BaseException | None = None
         self._failures_in_a_row = 0
         self._changes = 0  # event state changes seen so far (looping, completed, failed)
@@ -307,6 +389,7 @@ class Session:
         self._live: deque[tuple[str, InstructionSource, anyio.Event | None]] = deque()  # thread-safe appends
         self._taken: dict[int, int] = {}  # id(event) of a waiting instruct() -> frame it took effect at
         self._ended = False
+        self._resent: list[PlanningRequest] = []  # resumed: steps in flight at the checkpoint, asked again
         self.frame_intervals: array[float] = array("d")  # wall seconds between frames (8 B each)
         self.wall_s = 0.0
 
@@ -315,6 +398,7 @@ class Session:
         """A copy of the session's state at the current frame (between two frames)."""
         import copy
 
+        flying = [f.request for _, f in sorted(self._flights.items())]
         return SessionCheckpoint(
             world=self.world.snapshot(),
             events=copy.deepcopy(self.events),
@@ -323,7 +407,8 @@ class Session:
             failures=list(self.failures),
             steps=self._steps,
             next_plan_frame=self._next_plan_frame,
-            in_flight=self._in_flight,
+            in_flight=flying[0] if flying else None,
+            more_in_flight=tuple(flying[1:]),
             failures_in_a_row=self._failures_in_a_row,
             changes=self._changes,
             asked=self._asked,
@@ -344,7 +429,7 @@ class Session:
         self.failures = list(cp.failures)
         self._steps = cp.steps
         self._next_plan_frame = cp.next_plan_frame
-        self._in_flight = cp.in_flight
+        self._resent = [r for r in (cp.in_flight, *cp.more_in_flight) if r is not None]
         self._failures_in_a_row = cp.failures_in_a_row
         self._changes = cp.changes
         self._asked = cp.asked
@@ -413,37 +498,231 @@ class Session:
                 event.set()
 
     # ----- planning side ------------------------------------------------------------------
-    async def _planning_task(
-        self,
-        requests: MemoryObjectReceiveStream[PlanningRequest],
-        results: MemoryObjectSendStream[tuple[PlanningRequest, Outcome]],
-    ) -> None:
-        async with requests, results:
-            async for request in requests:
-                try:
-                    outcome = await self.planner.plan(request)
-                except Exception as exc:  # the story goes on without a planner; the caller reports it
-                    self.planner_error = exc
-                    _log.error("planner_stopped", step=request.index, error=f"{type(exc).__name__}: {exc}")
-                    return
-                await results.send((request, outcome))
+    async def _plan_step(self, request: PlanningRequest, news: MemoryObjectSendStream[_News]) -> None:
+        """One planning step; its progress and outcome go to the simulation as news. An
+        ``LLMError`` stops planning (the story goes on, see ``planner_error``); any other
+        exception ends the session (the task group cancels every task)."""
+        with news:
+            try:
+                outcome = await self.planner.plan(request, _Progress(request.index, news))
+            except LLMError as exc:
+                _post(news, _News(request.index, "stopped", error=exc))
+                return
+            _post(news, _News(request.index, "outcome", outcome=outcome))
 
-    # ----- simulation side ----------------------------------------------------------------
-    def _wants_plan(self, out: StepOutput | None) -> bool:
-        if self._in_flight is not None or self.planner_error is not None:
+    def _send(self, request: PlanningRequest, phase: RequestPhase, *, resent: bool = False) -> None:
+        assert self._tg is not None and self._news_send is not None
+        after = tuple(sorted(self._flights))
+        self._flights[request.index] = _Flight(request)
+        if self.on_request is not None and self.settings.planners > 1 and not resent:
+            self.on_request(RecordedRequest(step=request.index, frame=request.frame, phase=phase, after=after))
+        self._tg.start_soon(self._plan_step, request, self._news_send.clone())
+
+    def _note(self, news: _News) -> None:
+        fl = self._flights.get(news.index)
+        if fl is None:
+            return
+        fps = self.world.config.fps
+        if news.kind == "call":
+            fixed = self.settings.offline_latency_s
+            fl.latency_s += fixed if fixed is not None else news.latency_s
+        elif news.kind == "claim":
+            fl.claim = news.characters
+            fl.activity = news.activity
+            fl.claim_frame = fl.request.frame + round(fl.latency_s * fps) if self.settings.pace == "offline" else None
+        elif news.kind == "outcome":
+            fl.done = True
+            fl.outcome = news.outcome
+            if self.settings.pace == "offline":
+                fl.due = fl.request.frame + round(fl.latency_s * fps)
+        else:  # stopped: the story goes on without a planner; the caller reports it
+            self.planner_error = news.error
+            _log.error("planner_stopped", step=news.index, error=f"{type(news.error).__name__}: {news.error}")
+            del self._flights[news.index]
+
+    def _drain(self, news: MemoryObjectReceiveStream[_News]) -> None:
+        while True:
+            try:
+                self._note(news.receive_nowait())
+            except anyio.WouldBlock:
+                return
+
+    async def _next_news(self, news: MemoryObjectReceiveStream[_News]) -> None:
+        self._note(await news.receive())
+
+    def _recorded_due(self, index: int) -> int | None:
+        due = self.settings.recorded_frames.get(index)
+        if due is None and self.settings.applied_frames is not None and index < len(self.settings.applied_frames):
+            due = self.settings.applied_frames[index]
+        return due
+
+    def _replaying(self) -> bool:
+        return self.settings.applied_frames is not None
+
+    def _horizon(self, fl: _Flight) -> int:
+        """``offline``: nothing of ``fl`` can happen before this frame (its calls so far took that long)."""
+        return fl.request.frame + round(fl.latency_s * self.world.config.fps)
+
+    def _pending(self, fl: _Flight, frame: int) -> bool:
+        """More news of ``fl`` is needed before ``frame`` steps: its outcome may be applied then."""
+        due = self._recorded_due(fl.request.index)
+        if due is not None and due < frame:
+            raise SessionError(
+                f"replay: step {fl.request.index} was applied at frame {due}, "
+                f"but its request was made at frame {fl.request.frame}"
+            )
+        if fl.done:
             return False
-        if self.settings.max_steps is not None and self._steps >= self.settings.max_steps:
+        if due is not None:
+            return due == frame
+        if self._replaying():
+            return False  # requested but never applied in the recorded run
+        pace = self.settings.pace
+        if pace == "lockstep":
+            return True
+        if pace == "offline":
+            return self._horizon(fl) <= frame
+        return False
+
+    def _unsettled(self, fl: _Flight, frame: int) -> bool:
+        """More news of ``fl`` is needed to know whether it named its characters as of ``frame``."""
+        if fl.done or self._replaying():
             return False
-        if self.settings.applied_frames is not None and self._steps >= len(self.settings.applied_frames):
-            return False
-        available = out.available if out is not None else self.world.available()
-        if not available or self.world.frame < self._next_plan_frame:
-            return False
-        if self._unchanged_until is not None:
-            if (tuple(available), self._changes) == self._asked and self.world.frame < self._unchanged_until:
+        pace = self.settings.pace
+        if pace == "lockstep":
+            return fl.claim is None
+        if pace == "offline":
+            if fl.claim is not None and fl.claim_frame is not None and fl.claim_frame <= frame:
                 return False
+            return self._horizon(fl) <= frame
+        return False
+
+    def _due(self, fl: _Flight, frame: int) -> bool:
+        """``fl``'s outcome is applied at ``frame`` (before the world steps)."""
+        due = self._recorded_due(fl.request.index)
+        if due is not None:
+            return due == frame
+        if self._replaying():
+            return False
+        if self.settings.pace == "offline":
+            if fl.due is not None and fl.due < frame:
+                raise SessionError(f"offline: step {fl.request.index} landed at frame {fl.due}, before frame {frame}")
+            return fl.due == frame
+        return self.settings.pace == "lockstep" or fl.done
+
+    def _claimed(self, frame: int) -> dict[str, _Flight] | None:
+        """Character -> the step in flight it takes part in, as of ``frame``; None while a step
+        in flight has not named its characters yet (nothing can be planned beside it)."""
+        out: dict[str, _Flight] = {}
+        offline = self.settings.pace == "offline" and not self._replaying()  # a replay: the recorded schedule
+        for fl in self._flights.values():
+            if fl.claim is not None and (not offline or (fl.claim_frame is not None and fl.claim_frame <= frame)):
+                names: Sequence[str] = fl.claim
+            elif fl.done and (not offline or (fl.due is not None and fl.due <= frame)):
+                names = fl.outcome.event.characters if isinstance(fl.outcome, ParsedEvent) else ()
+            else:
+                return None
+            out.update((n, fl) for n in names)
+        return out
+
+    def _wants_plan(self, available: Sequence[str], frame: int) -> tuple[str, ...] | None:
+        """The free characters to plan for now (not in a step in flight), or None."""
+        s = self.settings
+        if len(self._flights) >= s.planners or self.planner_error is not None:
+            return None
+        if s.max_steps is not None and self._steps >= s.max_steps:
+            return None
+        if s.applied_frames is not None and self._steps >= len(s.applied_frames):
+            return None
+        claimed = self._claimed(frame)
+        if claimed is None:
+            return None
+        free = tuple(a for a in available if a not in claimed)
+        if not free or self.world.frame < self._next_plan_frame:
+            return None
+        if self._unchanged_until is not None:
+            if (free, self._changes) == self._asked and self.world.frame < self._unchanged_until:
+                return None
             self._unchanged_until = None
-        return True
+        return free
+
+    def _request(self, frame: int) -> PlanningRequest:
+        """The request for the next step, from the world now; characters of the steps in
+        flight show as busy with their event, which shows as ongoing in the history."""
+        targets, seats = world_commitments(self.world)
+        roster = world_roster(self.world, self.events)
+        history = story_history(self.events)
+        claimed = self._claimed(frame) or {}
+        if claimed:
+            roster = tuple(
+                c.model_copy(update={"busy": True, "event_index": claimed[c.name].request.index})
+                if c.name in claimed else c
+                for c in roster
+            )
+            pending = [
+                HistoryEntry(index=fl.request.index, characters=fl.claim, activity=fl.activity, state="ongoing")
+                for fl in sorted({f.request.index: f for f in claimed.values()}.values(), key=lambda f: f.request.index)
+                if fl.claim
+            ]
+            history = tuple(sorted((*history, *pending), key=lambda h: h.index))[-HISTORY_WINDOW:]
+        return PlanningRequest(
+            index=self._steps,
+            frame=self.world.frame,
+            roster=roster,
+            history=history,
+            targets=targets,
+            objects_in_use=seats,
+            instruction=self.instruction,
+            instruction_since=self._instruction_since,
+        )
+
+    def _ask(self, free: Sequence[str], frame: int, phase: RequestPhase) -> None:
+        request = self._request(frame)
+        self._steps += 1
+        self._asked = (tuple(free), self._changes)
+        self._send(request, phase)
+
+    async def _ask_scheduled(self, news: MemoryObjectReceiveStream[_News], phase: RequestPhase) -> None:
+        """Replay of a concurrent run: make the requests recorded at this frame and phase."""
+        assert self._schedule is not None
+        frame = self.world.frame
+        while self._schedule and (self._schedule[0].frame, self._schedule[0].phase) == (frame, phase):
+            rec = self._schedule.pop(0)
+            while self._claimed(frame) is None:
+                await self._next_news(news)
+            if rec.step != self._steps or tuple(sorted(self._flights)) != rec.after:
+                raise SessionError(
+                    f"replay: step {rec.step} was requested at frame {rec.frame} beside steps {list(rec.after)}, "
+                    f"but the replay is at step {self._steps} beside {sorted(self._flights)}"
+                )
+            request = self._request(frame)
+            self._steps += 1
+            self._send(request, phase)
+        if self._schedule and self._schedule[0].frame < frame:
+            raise SessionError(f"replay: step {self._schedule[0].step} was requested at frame {self._schedule[0].frame}, "
+                               f"which the replay passed")
+
+    async def _settle(self, news: MemoryObjectReceiveStream[_News]) -> list[_Flight]:
+        """Take the news the current frame needs (waiting for it in ``lockstep`` and
+        ``offline`` pace, and for recorded frames), start the steps it allows beside the ones
+        in flight, and return the steps whose outcome is applied at this frame, in step order."""
+        frame = self.world.frame
+        while True:
+            self._drain(news)
+            if any(self._unsettled(fl, frame) for fl in list(self._flights.values())):
+                await self._next_news(news)
+                continue
+            if self._schedule is not None:
+                await self._ask_scheduled(news, "frame_start")
+            elif self._flights and self.settings.planners > 1:
+                free = self._wants_plan(self.world.available(), frame)
+                if free is not None:
+                    self._ask(free, frame, "frame_start")
+                    continue
+            if any(self._pending(fl, frame) for fl in list(self._flights.values())):
+                await self._next_news(news)
+                continue
+            return sorted((fl for fl in self._flights.values() if self._due(fl, frame)), key=lambda f: f.request.index)
 
     def _apply(self, request: PlanningRequest, outcome: Outcome) -> list[AssignEvent]:
         frame = self.world.frame
@@ -507,112 +786,75 @@ class Session:
                 if self.on_event is not None:
                     self.on_event(ev)
 
-    async def _simulation_task(
-        self,
-        requests: MemoryObjectSendStream[PlanningRequest],
-        results: MemoryObjectReceiveStream[tuple[PlanningRequest, Outcome]],
-    ) -> None:
+    async def _simulation_task(self, news: MemoryObjectReceiveStream[_News]) -> None:
         s = self.settings
-        replay = list(s.applied_frames) if s.applied_frames is not None else None
         start = self.clock()
         last = start
-        out: StepOutput | None = None
         every = None if s.checkpoint_every_s is None else max(1, round(s.checkpoint_every_s * self.world.config.fps))
         last_checkpoint = self.world.frame
-        async with requests, results:
-            if self._in_flight is not None:  # resumed with a step in flight: ask again
-                await requests.send(self._in_flight)
-            while self.world.frame < s.frames:
-                self._take_instructions()
-                commands: list[AssignEvent] = []
-                applied = False
-                if self._in_flight is not None:
-                    got: tuple[PlanningRequest, Outcome] | None = None
-                    due = s.recorded_frames.get(self._in_flight.index)
-                    if due is None and replay is not None:
-                        due = replay[self._in_flight.index]
-                    if due is not None:
-                        if due < self.world.frame:
-                            raise SessionError(
-                                f"replay: step {self._in_flight.index} was applied at frame {due}, "
-                                f"but its request was made at frame {self._in_flight.frame}"
-                            )
-                        if due == self.world.frame:
-                            got = await self._receive(results)
-                    elif s.pace == "lockstep":
-                        got = await self._receive(results)
-                    else:
-                        try:
-                            got = results.receive_nowait()
-                        except anyio.WouldBlock:
-                            got = None
-                        except (anyio.EndOfStream, anyio.ClosedResourceError):
-                            self._in_flight = None
-                    if got is not None:
-                        request, outcome = got
-                        self._in_flight = None
-                        commands = self._apply(request, outcome)
-                        applied = True
-                self.world, out = step(self.world, commands, self.world.dt)
-                self._observe(out)
-                if self._wants_plan(out):
-                    targets, seats = world_commitments(self.world)
-                    request = PlanningRequest(
-                        index=self._steps,
-                        frame=self.world.frame,
-                        roster=world_roster(self.world, self.events),
-                        history=story_history(self.events),
-                        targets=targets,
-                        objects_in_use=seats,
-                        instruction=self.instruction,
-                        instruction_since=self._instruction_since,
-                    )
-                    self._steps += 1
-                    self._asked = (tuple(out.available), self._changes)
-                    self._in_flight = request
-                    await requests.send(request)
-                if s.pace == "realtime":
-                    due_time = start + self.world.frame / (self.world.config.fps * s.speed)
-                    delay = due_time - self.clock()
-                    await anyio.sleep(max(0.0, delay))
-                elif self.world.frame % 8 == 0 or self._in_flight is not None:
-                    await anyio.sleep(0)
-                if self.on_checkpoint is not None and every is not None and (
-                    applied or self.world.frame - last_checkpoint >= every
-                ):
-                    self.on_checkpoint(self.checkpoint())
-                    last_checkpoint = self.world.frame
-                now = self.clock()
-                self.frame_intervals.append(now - last)
-                last = now
-            self.wall_s = last - start
-            # Close the request side; a step still in flight is abandoned (not applied).
-
-    async def _receive(
-        self, results: MemoryObjectReceiveStream[tuple[PlanningRequest, Outcome]]
-    ) -> tuple[PlanningRequest, Outcome] | None:
-        """The next planning result, or None when the planner stopped (see ``planner_error``)."""
-        try:
-            return await results.receive()
-        except (anyio.EndOfStream, anyio.ClosedResourceError):
-            self._in_flight = None
-            return None
+        for request in self._resent:  # resumed with steps in flight: ask again
+            self._send(request, "frame_end", resent=True)
+        self._resent = []
+        while self.world.frame < s.frames:
+            self._take_instructions()
+            commands: list[AssignEvent] = []
+            applied = False
+            for fl in await self._settle(news):
+                del self._flights[fl.request.index]
+                commands += self._apply(fl.request, fl.outcome)
+                applied = True
+            self.world, out = step(self.world, commands, self.world.dt)
+            self._observe(out)
+            if self._schedule is not None:
+                await self._ask_scheduled(news, "frame_end")
+            else:
+                free = self._wants_plan(out.available, self.world.frame - 1)
+                if free is not None:
+                    self._ask(free, self.world.frame - 1, "frame_end")
+            if s.pace == "realtime":
+                due_time = start + self.world.frame / (self.world.config.fps * s.speed)
+                delay = due_time - self.clock()
+                await anyio.sleep(max(0.0, delay))
+            elif self.world.frame % 8 == 0 or self._flights:
+                await anyio.sleep(0)
+            if self.on_checkpoint is not None and every is not None and (
+                applied or self.world.frame - last_checkpoint >= every
+            ):
+                self.on_checkpoint(self.checkpoint())
+                last_checkpoint = self.world.frame
+            now = self.clock()
+            self.frame_intervals.append(now - last)
+            last = now
+        self.wall_s = last - start
+        # steps still in flight are abandoned (not applied); run() cancels them
 
     async def run(self) -> SessionResult:
-        req_send, req_recv = anyio.create_memory_object_stream[PlanningRequest](1)
-        res_send, res_recv = anyio.create_memory_object_stream[tuple[PlanningRequest, Outcome]](1)
+        """Run the story to its last frame. An ``LLMError`` of the planner stops planning (see
+        ``SessionResult.planner_error``); any other exception in any task cancels the others
+        and is raised here (alone, not in an exception group)."""
+        news_send, news_recv = anyio.create_memory_object_stream[_News](math.inf)
         try:
             async with anyio.create_task_group() as tg:
-                tg.start_soon(self._planning_task, req_recv, res_send)
+                self._tg = tg
+                self._news_send = news_send
                 try:
-                    await self._simulation_task(req_send, res_recv)
+                    with news_recv:
+                        await self._simulation_task(news_recv)
                 finally:
                     self._release_waiters()
+                    news_send.close()
                 tg.cancel_scope.cancel()
         except BaseExceptionGroup as group:  # surface a lone error as itself
             if len(group.exceptions) == 1:
                 raise group.exceptions[0] from None
             raise
+        finally:
+            self._tg = None
+            self._news_send = None
+        return self.result()
+
+    def result(self) -> SessionResult:
+        """The story so far (what :meth:`run` returns at its end; also after a cancelled run)."""
         return SessionResult(
             frames=self.world.frame,
             steps=len(self.outcomes),
@@ -625,3 +867,51 @@ class Session:
             wall_s=self.wall_s,
             frame_intervals_s=self.frame_intervals,
         )
+
+
+@dataclass
+class _Flight:
+    """A planning step in flight, as far as its news went."""
+
+    request: PlanningRequest
+    latency_s: float = 0.0
+    """LLM seconds of the step so far (``offline``: the configured latency per call, if set)."""
+    claim: tuple[str, ...] | None = None
+    activity: str = ""
+    claim_frame: int | None = None
+    """``offline``: the frame the claim is known at (request frame + the latency before it)."""
+    done: bool = False
+    outcome: Outcome = None
+    due: int | None = None
+    """``offline``: the frame the outcome is applied at (request frame + the step's latency)."""
+
+
+@dataclass(frozen=True)
+class _News:
+    index: int
+    kind: Literal["call", "claim", "outcome", "stopped"]
+    latency_s: float = 0.0
+    characters: tuple[str, ...] = ()
+    activity: str = ""
+    outcome: Outcome = None
+    error: BaseException | None = None
+
+
+class _Progress:
+    """:class:`StepProgress` of one step: news to the simulation (never blocks)."""
+
+    def __init__(self, index: int, news: MemoryObjectSendStream[_News]) -> None:
+        self.index = index
+        self.news = news
+
+    def llm_call(self, node: str, latency_s: float) -> None:
+        _post(self.news, _News(self.index, "call", latency_s=latency_s))
+
+    def claim(self, characters: Sequence[str], activity: str) -> None:
+        _post(self.news, _News(self.index, "claim", characters=tuple(characters), activity=activity))
+
+
+def _post(news: MemoryObjectSendStream[_News], item: _News) -> None:
+    """Send without waiting; after the simulation ended nobody reads news, and it is dropped."""
+    with contextlib.suppress(anyio.ClosedResourceError, anyio.BrokenResourceError):
+        news.send_nowait(item)

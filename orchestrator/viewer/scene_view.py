@@ -5,7 +5,9 @@ character's path as a line on the floor) and, per frame, poses the figures (skin
 figure of :mod:`.figures`, or a character's SMPL-X body from :mod:`orchestrator.bodies` when
 given) and moves the labels ("name: action" above each head, and a caption with the
 events on at that frame). Everything goes through ``server.scene``, so every connected browser
-and a scene recording (:mod:`.export`) see the same thing. World frame: z up, metres.
+and a scene recording (:mod:`.export`) see the same thing. World frame: z up, metres. Names,
+actions and activities are data: labels get them with control characters shown as escapes
+(:func:`orchestrator.safe_text.plain`; viser draws label text literally, no markup).
 
 A run in progress grows: :meth:`SceneView.extend` poses only the frames that arrived and redraws
 the paths, so a live viewer neither rebuilds the scene nor re-poses the whole story per chunk.
@@ -21,6 +23,7 @@ import numpy as np
 import viser
 
 from orchestrator.bodies.smplx_meshes import SmplxBody
+from orchestrator.safe_text import plain
 from orchestrator.viewer.figures import BonePoses, FigureRig, bone_poses, standin_rig
 from orchestrator.viewer.run_folder import RunData
 from orchestrator.viewer.timeline import action_at, active_events, clock
@@ -102,7 +105,7 @@ class SceneView:
                 flat_shading=body is None,
             )
             self.labels[track.name] = scene.add_label(
-                f"/labels/{track.name}", track.name, anchor="bottom-center", font_screen_scale=1.2
+                f"/labels/{track.name}", plain(track.name), anchor="bottom-center", font_screen_scale=1.2
             )
         self.caption = scene.add_label("/caption", "", position=self._caption_position(), anchor="bottom-left")
         self._set_camera()
@@ -162,7 +165,7 @@ class SceneView:
             )
             if object_labels:
                 scene.add_label(
-                    f"/object_names/{obj.name}", obj.name, position=(obj.center[0], obj.center[1], obj.z_max + 0.05),
+                    f"/object_names/{obj.name}", plain(obj.name), position=(obj.center[0], obj.center[1], obj.z_max + 0.05),
                     anchor="bottom-center", font_screen_scale=0.7,
                 )  # fmt: skip
 
@@ -189,7 +192,7 @@ class SceneView:
     def caption_text(self, frame: int) -> str:
         """The caption: the clock and the events on at ``frame``."""
         on = active_events(self.run.events, frame, self.last_frame)
-        lines = [f"{clock(frame, self.run.fps)}"] + [self.run.events[i].activity for i in on]
+        lines = [f"{clock(frame, self.run.fps)}"] + [plain(self.run.events[i].activity) for i in on]
         return "\n".join(lines)
 
     def show(self, frame: int) -> None:
@@ -204,5 +207,5 @@ class SceneView:
                 label = self.labels[track.name]
                 label.position = pos[head] + np.array([0.0, 0.0, LABEL_ABOVE_HEAD])
                 action = action_at(track, frame)
-                label.text = f"{track.name}: {action}" if action else track.name
+                label.text = plain(f"{track.name}: {action}" if action else track.name)
             self.caption.text = self.caption_text(frame)

@@ -3,6 +3,9 @@
 Controls (the panel of the ``viser`` client): Play / Pause, a speed choice, a frame slider
 (scrub), the clock, and the story's events as buttons, one per event, in story order; the
 events on at the current frame are coloured, and clicking one jumps to its start frame.
+Text from the run folder (its name, the instruction, activities, error messages) is data: the
+panel's markdown gets it through :func:`orchestrator.safe_text.markdown` (viser renders raw HTML
+in markdown), buttons and labels through :func:`orchestrator.safe_text.plain`.
 
 Playback runs on a thread of this process: it advances the frame by ``speed * fps`` per wall
 second and stops at the last frame. A second thread polls the run folder
@@ -28,7 +31,7 @@ from pathlib import Path
 import viser
 
 from orchestrator.bodies.smplx_meshes import SmplxBody, SmplxModelError, SmplxModels, run_bodies
-from orchestrator.session.run_report import md_text
+from orchestrator.safe_text import markdown
 from orchestrator.viewer.run_folder import RunData, RunFolderError, folder_stamp, is_ready, load_run
 from orchestrator.viewer.scene_view import SceneView
 from orchestrator.viewer.timeline import active_events, clock, event_line
@@ -60,7 +63,7 @@ class ViewerApp:
         self._active: list[int] = []
         gui = self.server.gui
         gui.configure_theme(control_width="large")
-        self.status = gui.add_markdown(f"**{md_text(folder.name)}**")
+        self.status = gui.add_markdown(f"**{markdown(folder.name)}**")
         with gui.add_folder("Timeline"):
             self.play = gui.add_button("Pause" if autoplay else "Play", icon=None)
             self.speed = gui.add_dropdown("Speed", SPEEDS, initial_value="1")
@@ -93,16 +96,16 @@ class ViewerApp:
             return False
         self._stamp = stamp
         if not is_ready(self.folder):
-            self.status.content = f"**{md_text(self.folder.name)}**: waiting for the run to write its outputs..."
+            self.status.content = f"**{markdown(self.folder.name)}**: waiting for the run to write its outputs..."
             return False
         try:
             run = load_run(self.folder)
             bodies = self._bodies(run) if self.models is not None else None
         except (RunFolderError, SmplxModelError) as exc:
-            self.status.content = f"**{md_text(self.folder.name)}**: {md_text(str(exc))}"
+            self.status.content = f"**{markdown(self.folder.name)}**: {markdown(exc)}"
             return False
         if run.live and not run.tracks:  # the story stream is there, no whole chunk record yet
-            self.status.content = f"**{md_text(self.folder.name)}**: waiting for the run's first frames..."
+            self.status.content = f"**{markdown(self.folder.name)}**: waiting for the run's first frames..."
             return False
         self._show_run(run, bodies)
         return True
@@ -125,11 +128,11 @@ class ViewerApp:
             self.run = run
             length = clock(run.num_frames - 1, run.fps)
             what = f"live, {length} so far (the run is still going)" if run.live else length
-            lines = [f"**{md_text(self.folder.name)}**: {len(run.tracks)} characters, {what}"]
+            lines = [f"**{markdown(self.folder.name)}**: {len(run.tracks)} characters, {what}"]
             if run.instruction:
-                lines.append(f"*{md_text(run.instruction)}*")
+                lines.append(f"*{markdown(run.instruction)}*")
             if run.scene_note:
-                lines.append(md_text(run.scene_note))
+                lines.append(markdown(run.scene_note))
             self.status.content = "\n\n".join(lines)
             self._list_events(run)
             for button in self._event_buttons:  # goto() colours the events on at the frame

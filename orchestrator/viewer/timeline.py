@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from orchestrator.safe_text import plain
 from orchestrator.session.story_stream import StoryEventRecord
 from sim.world.character_track import CharacterTrack
 
@@ -43,6 +44,7 @@ def clock(frame: int, fps: float) -> str:
 
 
 def event_line(event: StoryEventRecord, fps: float) -> str:
-    """One line of the event list: start time, activity and, when it ended, how."""
+    """One line of the event list: start time, activity (control characters shown as escapes)
+    and, when it ended, how."""
     end = {"completed": " (done)", "failed": " (failed)", "looping": " (loops)"}.get(event.state, "")
-    return f"{event.applied_frame / fps:5.1f} s  {event.activity}{end}"
+    return f"{event.applied_frame / fps:5.1f} s  {plain(event.activity)}{end}"

@@ -4,12 +4,17 @@
 state machine, the reach clamp, the footprint push, lock starts, the IK); on a crowd of ten
 characters each step costs more in numpy call overhead than in arithmetic. ``apply_frame``
 does the same steps per character and leg in one numba kernel, calling the same compiled
-push-out and IK kernels (``sim.body.foot_clearance``, ``sim.body.leg_ik``). The array version is
+push-out and IK kernels (``sim.body.foot_clearance``, ``sim.body.leg_ik``). Its per-leg
+arithmetic works on scalars and writes into preallocated rows (no temporary 3-vectors, which
+cost a heap allocation each), with the float operations in the same order, so the result is
+bit for bit the one of the vector form. The array version is
 kept as a test oracle (``tests/support/foot_reference.py``); ``tests/test_foot_ik.py`` checks
 both give the same rotations and states (to 1e-12) on a recorded crowd.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -24,9 +29,6 @@ from sim.body.leg_ik import (
     HIP_JOINTS,
     KNEE_JOINTS,
     _ik_kernel,
-    _matmul3,
-    _matvec3,
-    _norm3,
 )
 from sim.motion.clips import ANKLE_JOINTS
 
@@ -35,6 +37,28 @@ __all__ = ["apply_frame"]
 _HIP_J = np.array(HIP_JOINTS, dtype=np.int64)  # (left, right)
 _KNEE_J = np.array(KNEE_JOINTS, dtype=np.int64)
 _ANKLE_J = np.array(ANKLE_JOINTS, dtype=np.int64)
+
+
+@njit(cache=True, inline="always")
+def _hyp3(x: float, y: float, z: float) -> float:  # pragma: no cover - compiled
+    """``_norm3`` of the vector (x, y, z), the same float operations."""
+    return math.sqrt(x * x + y * y + z * z)
+
+
+@njit(cache=True)
+def _affine_into(p: NDArray[np.float64], a: NDArray[np.float64], v: NDArray[np.float64],
+                 out: NDArray[np.float64]) -> None:  # pragma: no cover - compiled
+    """``out = p + _matvec3(a, v)``, the same float operations, without a temporary array."""
+    for i in range(3):
+        out[i] = p[i] + (a[i, 0] * v[0] + a[i, 1] * v[1] + a[i, 2] * v[2])
+
+
+@njit(cache=True)
+def _matmul3_into(a: NDArray[np.float64], b: NDArray[np.float64], out: NDArray[np.float64]) -> None:  # pragma: no cover
+    """``out = _matmul3(a, b)`` without a temporary array."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
 
 
 @njit(cache=True)
@@ -70,22 +94,29 @@ def apply_frame(
     for c in range(n):
         g0 = rots[c, 0]
         for leg in range(2):
-            hip[c, leg] = pelvis[c] + _matvec3(g0, _HIP_OFF[leg])
-            hip_r[c, leg] = _matmul3(g0, rots[c, _HIP_J[leg]])
-            knee[c, leg] = hip[c, leg] + _matvec3(hip_r[c, leg], _KNEE_OFF[leg])
-            knee_r[c, leg] = _matmul3(hip_r[c, leg], rots[c, _KNEE_J[leg]])
-            ankle[c, leg] = knee[c, leg] + _matvec3(knee_r[c, leg], _ANKLE_OFF[leg])
-            ankle_r[c, leg] = _matmul3(knee_r[c, leg], rots[c, _ANKLE_J[leg]])
-            toe[c, leg] = ankle[c, leg] + _matvec3(ankle_r[c, leg], _TOE_OFF[leg])
-            foot[c, leg] = toe[c, leg] - ankle[c, leg]
+            # forward kinematics of the leg (the float operations of ``_matvec3`` / ``_matmul3``,
+            # written into the outputs: no temporary arrays per character)
+            _affine_into(pelvis[c], g0, _HIP_OFF[leg], hip[c, leg])
+            _matmul3_into(g0, rots[c, _HIP_J[leg]], hip_r[c, leg])
+            _affine_into(hip[c, leg], hip_r[c, leg], _KNEE_OFF[leg], knee[c, leg])
+            _matmul3_into(hip_r[c, leg], rots[c, _KNEE_J[leg]], knee_r[c, leg])
+            _affine_into(knee[c, leg], knee_r[c, leg], _ANKLE_OFF[leg], ankle[c, leg])
+            _matmul3_into(knee_r[c, leg], rots[c, _ANKLE_J[leg]], ankle_r[c, leg])
+            _affine_into(ankle[c, leg], ankle_r[c, leg], _TOE_OFF[leg], toe[c, leg])
+            for i in range(3):
+                foot[c, leg, i] = toe[c, leg, i] - ankle[c, leg, i]
             contact = contacts[c, leg] and act[c]
             # pinning: release, blend, lock
-            drift = _norm3(lock[c, leg] - toe[c, leg])
-            overreach = _norm3(lock[c, leg] - foot[c, leg] - hip[c, leg]) > full[leg]
+            lk, tp, ft, hp = lock[c, leg], toe[c, leg], foot[c, leg], hip[c, leg]
+            drift = _hyp3(lk[0] - tp[0], lk[1] - tp[1], lk[2] - tp[2])
+            overreach = _hyp3(lk[0] - ft[0] - hp[0], lk[1] - ft[1] - hp[1], lk[2] - ft[2] - hp[2]) > full[leg]
             was = locked[c, leg]
             drifted_now = was and contact and (drift > max_drift or overreach)
             released = (was and not contact) or drifted_now
-            off = lock[c, leg] - toe[c, leg] if released else offset[c, leg].copy()
+            if released:
+                o0, o1, o2 = lk[0] - tp[0], lk[1] - tp[1], lk[2] - tp[2]
+            else:
+                o0, o1, o2 = offset[c, leg, 0], offset[c, leg, 1], offset[c, leg, 2]
             if released:
                 rel = release_frames
             elif was:
@@ -100,17 +131,22 @@ def apply_frame(
             else:
                 weight = 0.0
             if rel <= 0:
-                off = np.zeros(3)
-            tgt = lock[c, leg].copy() if still else toe[c, leg] + off * weight
+                o0, o1, o2 = 0.0, 0.0, 0.0
+            if still:
+                t0, t1, t2 = lk[0], lk[1], lk[2]
+            else:
+                t0, t1, t2 = tp[0] + o0 * weight, tp[1] + o1 * weight, tp[2] + o2 * weight
             # a pinned or blending foot stays within reach of the leg, pulled towards the hip
-            ankle_to = tgt - foot[c, leg] - hip[c, leg]
-            dist = _norm3(ankle_to)
-            limit = max(full[leg], _norm3(ankle[c, leg] - hip[c, leg]))
+            a0, a1, a2 = t0 - ft[0] - hp[0], t1 - ft[1] - hp[1], t2 - ft[2] - hp[2]
+            dist = _hyp3(a0, a1, a2)
+            an = ankle[c, leg]
+            limit = max(full[leg], _hyp3(an[0] - hp[0], an[1] - hp[1], an[2] - hp[2]))
             if dist > limit:
-                tgt = hip[c, leg] + ankle_to * (limit / max(dist, 1e-12)) + foot[c, leg]
-            target[c, leg] = tgt
+                f = limit / max(dist, 1e-12)
+                t0, t1, t2 = hp[0] + a0 * f + ft[0], hp[1] + a1 * f + ft[1], hp[2] + a2 * f + ft[2]
+            target[c, leg, 0], target[c, leg, 1], target[c, leg, 2] = t0, t1, t2
             n_locked[c, leg] = still
-            n_offset[c, leg] = off
+            n_offset[c, leg, 0], n_offset[c, leg, 1], n_offset[c, leg, 2] = o0, o1, o2
             n_release[c, leg] = rel
             n_drifted[c, leg] = dr
     # clearance: the rigid foot (ankle, toe) of every active character out of every footprint
@@ -148,15 +184,17 @@ def apply_frame(
     for c in range(n):
         for leg in range(2):
             contact = contacts[c, leg] and act[c]
-            reach = _norm3(target[c, leg] - foot[c, leg] - hip[c, leg])
+            tg, ft, hp, tp = target[c, leg], foot[c, leg], hip[c, leg], toe[c, leg]
+            reach = _hyp3(tg[0] - ft[0] - hp[0], tg[1] - ft[1] - hp[1], tg[2] - ft[2] - hp[2])
             start = contact and not n_locked[c, leg] and not n_drifted[c, leg] and reach <= full[leg] + 1e-9  # m: reach tolerance of a lock start
-            lk = target[c, leg].copy() if start else lock[c, leg].copy()
+            lk = tg if start else lock[c, leg]
             if start:
                 n_locked[c, leg] = True
                 n_release[c, leg] = 0
-                n_offset[c, leg] = np.zeros(3)
-            n_lock[c, leg] = lk if n_locked[c, leg] else np.zeros(3)
-            solve[c, leg] = _norm3(target[c, leg] - toe[c, leg]) > 0.0 or act[c]
+                n_offset[c, leg, 0], n_offset[c, leg, 1], n_offset[c, leg, 2] = 0.0, 0.0, 0.0
+            for i in range(3):
+                n_lock[c, leg, i] = lk[i] if n_locked[c, leg] else 0.0
+            solve[c, leg] = _hyp3(tg[0] - tp[0], tg[1] - tp[1], tg[2] - tp[2]) > 0.0 or act[c]
             if solve[c, leg]:
                 m_solve += 1
     if m_solve > 0:
@@ -181,7 +219,8 @@ def apply_frame(
                     s_hr[k] = hip_r[c, leg]
                     s_kr[k] = knee_r[c, leg]
                     s_ar[k] = ankle_r[c, leg]
-                    s_tg[k] = target[c, leg] - foot[c, leg]
+                    for i in range(3):
+                        s_tg[k, i] = target[c, leg, i] - foot[c, leg, i]
                     s_th[k] = thigh[leg]
                     s_sh[k] = shin[leg]
                     k += 1

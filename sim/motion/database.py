@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -71,7 +72,8 @@ class NearestFrameIndex:
 
     ``query`` returns (row index, squared distance); KD-tree and brute force agree exactly.
     The tree is built on the rows rotated onto their principal axes (a rotation keeps
-    distances, and splitting along the directions the data spreads in prunes far better);
+    distances, and splitting along the directions the data spreads in prunes far better),
+    on the first tree search: an index of at most ``SCAN_THRESHOLD`` rows always scans;
     candidates within a tiny slack of the tree's best distance are re-ranked with the exact
     distance in the original space, so rounding in the rotation cannot change the answer.
     """
@@ -86,15 +88,25 @@ class NearestFrameIndex:
             raise ValueError("a motion search index needs at least one candidate frame")
         self.rows = self.features[self.candidates]
         self.center = self.rows.mean(axis=0)
-        if rotate and len(self.rows) > self.rows.shape[1]:
-            sample = self.rows[:: max(1, len(self.rows) // 20000)] - self.center
-            self.basis = np.linalg.svd(sample, full_matrices=False)[2].T
-        else:
-            self.basis = np.eye(self.rows.shape[1])
-        self.tree = cKDTree((self.rows - self.center) @ self.basis, leafsize=leafsize, balanced_tree=False,
-                            compact_nodes=True)
+        self._rotate, self._leafsize = rotate, leafsize
         self._rows_t = np.ascontiguousarray(self.rows.T)  # scan path: one dimension of all rows at a time
         self.use_scan = len(self.rows) <= SCAN_THRESHOLD
+
+    @cached_property
+    def basis(self) -> NDArray[np.float64]:
+        """The principal axes of the rows (columns), or the identity (built on first use: an
+        index that scans never needs it)."""
+        if self._rotate and len(self.rows) > self.rows.shape[1]:
+            sample = self.rows[:: max(1, len(self.rows) // 20000)] - self.center
+            basis: NDArray[np.float64] = np.linalg.svd(sample, full_matrices=False)[2].T
+            return basis
+        return np.eye(self.rows.shape[1])
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        """The KD-tree over the rotated rows (built on first use, like ``basis``)."""
+        return cKDTree((self.rows - self.center) @ self.basis, leafsize=self._leafsize, balanced_tree=False,
+                       compact_nodes=True)
 
     def _tree_space(self, q: NDArray[np.float64]) -> NDArray[np.float64]:
         rotated: NDArray[np.float64] = (q - self.center) @ self.basis

@@ -229,3 +229,48 @@ def space_time_search(
                 parent[nkey] = cid
                 heapq.heappush(heap, (ng + hn, hn, nt, nid))
     return np.empty(0, dtype=np.int64), expansions
+
+
+@njit(cache=True, nogil=True)
+def goal_distances(goal: int, nb_id: NDArray[np.int64], nb_cost: NDArray[np.float64],
+                   ring: NDArray[np.int64]) -> NDArray[np.float64]:  # pragma: no cover - compiled
+    """Shortest distances (cells) from padded cell ``goal`` along the moves of ``nb_id`` /
+    ``nb_cost`` (the first column, the wait, is skipped), one per padded cell; inf where no
+    path reaches. Every move costs 1 or sqrt(2).
+
+    Dijkstra with a bucket queue of width 1: a cell enters bucket ``floor(d)`` (again when its
+    distance improves; stale entries are skipped). A move adds 1 or sqrt(2), so a cell of
+    bucket b lands in bucket b + 1 or b + 2: no cell of a bucket improves another of the same
+    bucket, so all of them are final when it is reached and are scanned in any order (a
+    label-setting Dijkstra: the same floats as any other, see the module docstring). Three
+    buckets are live at a time: ``ring`` (3, >= 8 * cells + 1) holds them, scratch."""
+    n = nb_id.shape[0]
+    cols = nb_id.shape[1]
+    dist = np.full(n, _INF)
+    done = np.zeros(n, dtype=np.bool_)
+    size = np.zeros(3, dtype=np.int64)
+    dist[goal] = 0.0
+    ring[0, 0] = goal
+    size[0] = 1
+    b = 0
+    while size[0] + size[1] + size[2] > 0:
+        slot = b % 3
+        for e in range(size[slot]):  # entries come from buckets b - 1, b - 2 only: fixed now
+            u = ring[slot, e]
+            if done[u]:
+                continue
+            done[u] = True
+            d = dist[u]
+            for m in range(1, cols):
+                v = nb_id[u, m]
+                if v < 0:
+                    break
+                nd = d + nb_cost[u, m]
+                if nd < dist[v]:
+                    dist[v] = nd
+                    k = int(nd) % 3
+                    ring[k, size[k]] = v
+                    size[k] += 1
+        size[slot] = 0
+        b += 1
+    return dist

@@ -25,7 +25,7 @@ the pass before's result for every agent whose search read only reservation entr
 cannot have changed (the compiled search reports the entries it read), so its cost grows with
 the neighbourhood of the failed agents, not with the crowd; the plans are the same.
 Costs: a move costs its length in cells, waiting costs 1 per step except at the goal (free).
-The heuristic is the exact distance on the static grid (backward Dijkstra per goal, cached).
+The heuristic is the exact distance on the static grid (Dijkstra per goal, compiled, cached).
 Plans are deterministic: fixed move order, tie-breaking on (f, h, cell), explicit orders.
 """
 
@@ -39,10 +39,14 @@ from typing import Literal, get_args
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import coo_matrix, csr_matrix
-from scipy.sparse.csgraph import dijkstra
 
-from sim.paths.astar_kernel import kept_path, release_path, reserve_path, space_time_search
+from sim.paths.astar_kernel import (
+    goal_distances,
+    kept_path,
+    release_path,
+    reserve_path,
+    space_time_search,
+)
 from sim.paths.fallback import failed_first
 from sim.paths.nav_grid import MOVES, NavGrid
 
@@ -249,7 +253,7 @@ class PathPlanner:
         self._components: dict[int, tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]] = {}
         self._h_capacity = max(513, (256 << 20) // (8 * self._nx_p * self._ny_p))
         self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
-        self._graph = self._static_graph()
+        self._ring: NDArray[np.int64] | None = None  # goal_distances' bucket scratch, made on first use
 
     # ----- ids -----------------------------------------------------------------------------
     def cell_id(self, cell: Cell) -> int:
@@ -403,17 +407,6 @@ class PathPlanner:
             self._near_mask_memo[key] = out
         return out
 
-    def _static_graph(self) -> csr_matrix[np.float64]:
-        g = self.grid
-        nx, ny = g.shape
-        rows, cols, w = [], [], []
-        for k, (dx, dy) in enumerate(MOVES):
-            src = np.argwhere(g.moves[:, :, k])
-            rows.append(src[:, 0] * ny + src[:, 1])
-            cols.append((src[:, 0] + dx) * ny + src[:, 1] + dy)
-            w.append(np.full(len(src), math.hypot(dx, dy)))
-        return coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))), shape=(nx * ny, nx * ny)).tocsr()
-
     # ----- heuristic -----------------------------------------------------------------------------
     def heuristic(self, goal: Cell) -> list[float]:
         """Exact static distances (cells) to ``goal`` indexed by padded cell id (inf: unreachable)."""
@@ -425,7 +418,9 @@ class PathPlanner:
         return h
 
     def _heuristic_array(self, goal: Cell) -> NDArray[np.float64]:
-        """``heuristic(goal)`` as a float array (the compiled search's view), cached per goal.
+        """``heuristic(goal)`` as a float array (the compiled search's view), cached per goal:
+        ``goal_distances`` on the move table, the floats ``scipy.sparse.csgraph.dijkstra`` gives
+        on the same graph (``tests/test_astar_kernel.py``).
 
         The cache holds at least 512 goals and as many more as fit in about 256 MB (a crowd
         of N walkers has up to N goals; a goal evicted while still in use costs a Dijkstra
@@ -433,15 +428,13 @@ class PathPlanner:
         gid = self.cell_id(goal)
         arr = self._h_arrays.get(gid)
         if arr is None:
-            nx, ny = self.grid.shape
-            d = dijkstra(self._graph, directed=True, indices=[goal[0] * ny + goal[1]])[0]
-            full = np.full((self._nx_p, self._ny_p), np.inf)
-            full[self._pad : self._pad + nx, self._pad : self._pad + ny] = d.reshape(nx, ny)
+            if self._ring is None:
+                self._ring = np.zeros((3, self._nb_id.shape[0] * self._nb_id.shape[1] + 1), dtype=np.int64)
             if len(self._h_arrays) >= self._h_capacity:
                 old = next(iter(self._h_arrays))
                 self._h_arrays.pop(old)
                 self._heuristics.pop(old, None)
-            arr = self._h_arrays[gid] = full.ravel()
+            arr = self._h_arrays[gid] = goal_distances(gid, self._nb_id, self._nb_cost, self._ring)
         return arr
 
     def distance(self, start: Cell, goal: Cell) -> float:

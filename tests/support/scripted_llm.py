@@ -8,11 +8,18 @@
 
 A script that runs out raises ``IndexError`` (a test asked for more calls than it planned),
 an unscripted node raises ``KeyError``: neither is ever turned into a reply.
+
+With ``trace=`` a trace sink (``orchestrator.llm.traces.TraceWriter``), every call is written
+as one successful ``attempt`` record and its response carries that record's ``trace_seq``, so
+the planning graph records what it made of each reply (``parsed`` records with the error type
+that rejected it), as with a real client.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 from agents.llm_port import LLMRequest, LLMResponse
 
@@ -23,7 +30,7 @@ Script = Sequence[str] | Mapping[str, Sequence[str] | Reply] | Reply
 class ScriptedLLM:
     """An LLM port that answers from a script; ``requests`` holds what it was asked, in order."""
 
-    def __init__(self, script: Script, *, model: str = "scripted") -> None:
+    def __init__(self, script: Script, *, model: str = "scripted", trace: Any = None) -> None:
         if callable(script):
             self._reply: Reply | None = script
             self._queue: list[str] = []
@@ -36,7 +43,8 @@ class ScriptedLLM:
         self.by_node = isinstance(script, Mapping)
         self.model = model
         self.requests: list[LLMRequest] = []
-        self.trace = None  # records nothing
+        self.trace = trace  # None: records nothing
+        self._writes_attempts = trace is not None
         self.closed = False
 
     def close(self) -> None:
@@ -53,7 +61,18 @@ class ScriptedLLM:
 
     async def complete(self, request: LLMRequest) -> LLMResponse:
         self.requests.append(request)
-        return LLMResponse(text=self.answer(request), model=self.model)
+        text = self.answer(request)
+        if not self._writes_attempts:
+            return LLMResponse(text=text, model=self.model)
+        from orchestrator.llm.traces import AttemptRecord
+
+        seq = self.trace.next_seq()
+        self.trace.write(AttemptRecord(
+            run_id=self.trace.run_id, seq=seq, time_unix=time.time(), call=seq, node=request.node, attempt=1,
+            model=self.model, params={}, request=request, request_hash=request.content_hash(), response_text=text,
+            latency_s=0.0, final=True,
+        ))
+        return LLMResponse(text=text, model=self.model, trace_seq=seq)
 
     def count(self, node: str) -> int:
         """Requests sent to ``node`` so far."""

@@ -1,0 +1,32 @@
+"""The planner's heuristic as it was first computed: ``scipy.sparse.csgraph.dijkstra`` on a
+sparse graph of the grid's moves. The oracle of the compiled ``sim.paths.astar_kernel.goal_distances``
+(``tests/test_astar_kernel.py`` checks the very same floats). Not used by the simulation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from sim.paths.cooperative_astar import Cell, PathPlanner
+from sim.paths.nav_grid import MOVES
+
+
+def scipy_goal_distances(planner: PathPlanner, goal: Cell) -> np.ndarray:
+    """Static distances (cells) to ``goal`` per padded cell id (inf: unreachable)."""
+    g = planner.grid
+    nx, ny = g.shape
+    rows, cols, w = [], [], []
+    for k, (dx, dy) in enumerate(MOVES):
+        src = np.argwhere(g.moves[:, :, k])
+        rows.append(src[:, 0] * ny + src[:, 1])
+        cols.append((src[:, 0] + dx) * ny + src[:, 1] + dy)
+        w.append(np.full(len(src), math.hypot(dx, dy)))
+    graph = coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))), shape=(nx * ny, nx * ny)).tocsr()
+    d = dijkstra(graph, directed=True, indices=[goal[0] * ny + goal[1]])[0]
+    full = np.full((planner._nx_p, planner._ny_p), np.inf)
+    full[planner._pad: planner._pad + nx, planner._pad: planner._pad + ny] = d.reshape(nx, ny)
+    return full.ravel()

@@ -1,0 +1,68 @@
+"""A scripted planner for whole ``storyteller run`` tests against the fake OpenAI server
+(``tests/support/fake_openai_server.py``): the unified planner (``--planner unified
+--description object-list``, one LLM role) is answered by request content, so a stopped and
+resumed run gets the same answers as an uninterrupted one, and faults are injected by request
+number. Used by ``tests/test_run_faults.py`` and ``tests/test_run_corrupt_files.py``.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+from pathlib import Path
+from typing import Any
+
+RUN = ["run", "home", "--names", "Zoe,Max", "--planner", "unified", "--description", "object-list", "--raw-feet",
+       "--no-interactive"]
+"""``storyteller run`` arguments of the scripted story (add ``-d``, ``--max-events``, ``--config``, ``--out``)."""
+
+TASKS = {"Zoe": ("coffee_maker_1", "use_coffee_maker"), "Max": ("microwave_1", "use_microwave")}
+
+
+def program(name: str) -> str:
+    obj, action = TASKS[name]
+    return (
+        f'```python\ndef parse_event():\n    a = get_character("{name}")\n'
+        f'    a.set_position(get_area_to_interact_with("{obj}"))\n'
+        f'    a.set_orientation("{obj}")\n    a.set_target_action("{action}")\n```'
+    )
+
+
+def first_free(body: dict[str, Any]) -> str:
+    """The program for the first free character of the request (a retry's feedback comes after it)."""
+    asked = [m["content"] for m in body["messages"] if "Free characters: " in m["content"]]
+    free = re.findall(r"Free characters: (.*)", asked[-1])
+    return program(free[-1].split(",")[0].strip())
+
+
+class Planner:
+    """Answers by content. ``faults`` maps a 1-based request number to an action played
+    instead (``("status", 500)``, ``("sleep", s)``); request ``block_at`` waits until
+    ``release`` is set (``arrived`` tells the test it came in)."""
+
+    def __init__(self, faults: dict[int, Any] | None = None, block_at: int | None = None) -> None:
+        self.faults = faults or {}
+        self.block_at = block_at
+        self.count = 0
+        self.arrived = threading.Event()
+        self.release = threading.Event()
+
+    def __call__(self, body: dict[str, Any]) -> Any:
+        self.count += 1
+        if self.count in self.faults:
+            return self.faults[self.count]
+        if self.block_at is not None and self.count == self.block_at:
+            self.arrived.set()
+            self.release.wait(60)  # the client is stopped meanwhile; nobody reads this answer
+        return first_free(body)
+
+
+def write_config(tmp_path: Path, api_base: str, *, attempts: int = 1, timeout_s: float = 20.0) -> Path:
+    path = tmp_path / "fake.toml"
+    path.write_text(
+        f'[llm]\nmodel = "openai/fake"\napi_base = "{api_base}"\napi_key_env = "FAKE_PROVIDER_KEY"\n'
+        f"timeout_s = {timeout_s}\n[llm.retry]\nmax_attempts = {attempts}\nbackoff_base_s = 0.05\n"
+        "backoff_max_s = 0.1\n",
+        encoding="utf-8",
+    )
+    return path
