@@ -201,6 +201,8 @@ def test_a_full_disk_under_the_trace_is_one_error_line_and_the_trace_stays_whole
     records = {"n": 0}
 
     def full_disk_write(fd: int, data: Any) -> int:
+        if not os.readlink(f"/proc/self/fd/{fd}").endswith("trace.jsonl"):  # story.jsonl writes with os.write too
+            return real_write(fd, data)
         records["n"] += 1
         if records["n"] < 4:
             return real_write(fd, data)
@@ -208,7 +210,7 @@ def test_a_full_disk_under_the_trace_is_one_error_line_and_the_trace_stays_whole
             return real_write(fd, bytes(data[: len(data) // 2]))  # the disk fills up mid-line
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(traces.os, "write", full_disk_write)  # only the trace module's calls
+    monkeypatch.setattr(traces.os, "write", full_disk_write)  # only the trace file's writes fail
     out = tmp_path / "out"
     with FakeOpenAI(responder=Planner()) as fake:
         cfg = write_config(tmp_path, fake.base)

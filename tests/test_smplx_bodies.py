@@ -177,3 +177,54 @@ def test_run_names_a_bad_model_folder_before_running(tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["run", "home", "--out", str(tmp_path / "o"), "--smplx-model", str(tmp_path / "no")])
     assert result.exit_code == 2 and "SMPLX_NEUTRAL.npz" in result.stderr
     assert not (tmp_path / "o").exists()  # refused before any planning or output
+
+
+COFFEE = (
+    '```python\ndef parse_event():\n    a = get_character("Ava")\n'
+    '    a.set_position(get_area_to_interact_with("coffee_maker_1"))\n'
+    '    a.set_orientation("coffee_maker_1")\n    a.set_target_action("use_coffee_maker")\n```'
+)
+
+
+def _body_vertex_count(glb: Path, name: str) -> int:
+    doc = gl.GLTF2.load(str(glb))
+    mesh = doc.meshes[next(n for n in doc.nodes if n.name == f"{name}:body").mesh]
+    return int(doc.accessors[mesh.primitives[0].attributes.POSITION].count)
+
+
+def test_resume_and_replay_export_smplx_bodies_with_smplx_model(
+    model_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from tests.support.fake_openai_server import FakeOpenAI
+
+    monkeypatch.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
+    monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))
+    for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL", "STORYTELLER_PLANNER_MODEL"):
+        monkeypatch.delenv(var, raising=False)
+    run, replayed = tmp_path / "run", tmp_path / "replayed"
+    cli = CliRunner()
+    with FakeOpenAI(default='{"error": "no script"}') as fake:
+        cfg = tmp_path / "fake.toml"
+        cfg.write_text(
+            f'[llm]\napi_base = "{fake.base}"\napi_key_env = "FAKE_PROVIDER_KEY"\ntimeout_s = 10.0\n'
+            '[llm.retry]\nmax_attempts = 1\n[nodes.planner]\nmodel = "openai/fake-planner"\n',
+            encoding="utf-8",
+        )
+        fake.script["fake-planner"] = [COFFEE]
+        args = ["run", "home", "-n", "1", "--names", "Ava", "-d", "2", "--max-events", "1", "--planner", "unified",
+                "--description", "object-list", "--config", str(cfg), "--out", str(run), "--no-interactive"]  # fmt: skip
+        result = cli.invoke(app, args, catch_exceptions=False)
+        assert result.exit_code == 0, result.stderr
+        assert _body_vertex_count(run / "scene.glb", "Ava") < 2000  # without --smplx-model: the stand-in figure
+        for bad in (["resume", str(run)], ["replay", str(run), "--out", str(replayed)]):
+            refused = cli.invoke(app, [*bad, "--smplx-model", str(tmp_path / "no")])
+            assert refused.exit_code == 2 and "SMPLX_NEUTRAL.npz" in refused.stderr, refused.stderr
+        assert not replayed.exists()  # refused before anything ran
+        resumed = cli.invoke(app, ["resume", str(run), "--no-interactive", "--smplx-model", str(model_dir)],
+                             catch_exceptions=False)  # fmt: skip
+        assert resumed.exit_code == 0, resumed.stderr
+    assert _body_vertex_count(run / "scene.glb", "Ava") == NUM_VERTICES
+    again = cli.invoke(app, ["replay", str(run), "--out", str(replayed), "--smplx-model", str(model_dir)],
+                       catch_exceptions=False)  # fmt: skip
+    assert again.exit_code == 0, again.stderr
+    assert _body_vertex_count(replayed / "scene.glb", "Ava") == NUM_VERTICES

@@ -1,6 +1,7 @@
 """``storyteller run``: plan and animate a story in a scene (the main job); ``storyteller
 resume RUN_DIR`` (go on after a stop, from ``run.json`` and ``session.snapshot``) and
-``storyteller replay RUN_DIR|TRACE --out DIR`` (the same run with no model loaded).
+``storyteller replay RUN_DIR|TRACE --out DIR`` (the same run with no model loaded). All three
+take ``--smplx-model DIR`` (the GLB export with SMPL-X body meshes).
 
 The job is :mod:`orchestrator.session.run_job`: the simulation and the planner run
 concurrently (``orchestrator.session.runtime``). Outputs, all in ``--out``: ``story.json``
@@ -65,6 +66,16 @@ if TYPE_CHECKING:  # the session (simulation, planner) is imported by the comman
     from orchestrator.session.runtime import StoryEvent
 
 
+SmplxModelOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--smplx-model",
+        help="Folder with the SMPL-X model files (SMPLX_NEUTRAL.npz ...): the GLB carries SMPL-X body meshes "
+        "instead of stand-in figures.",
+    ),
+]
+
+
 def register(app: typer.Typer) -> None:
     app.command("run")(run_command)
     app.command("resume")(resume_command)
@@ -105,7 +116,7 @@ def run_command(
     thread_id: Annotated[str | None, typer.Option("--thread-id", help="Planning thread id (default: a new one; see run.json).")] = None,
     planner: Planner = "event",
     description: Description = "describer",
-    smplx_model: Annotated[Path | None, typer.Option("--smplx-model", help="Folder with the SMPL-X model files (SMPLX_NEUTRAL.npz ...): the GLB carries SMPL-X body meshes instead of stand-in figures.")] = None,
+    smplx_model: SmplxModelOption = None,
 ) -> None:
     """Plan and animate a story; write motion, pictures, the story log and the trace."""
     from orchestrator.session.roster import character_names
@@ -121,13 +132,7 @@ def run_command(
         fail(f"--names: at most 24 characters, got {len(cast)}")
     if replay is not None and not replay.is_file():
         fail(f"{replay}: trace file not found")
-    if smplx_model is not None:
-        from orchestrator.bodies.smplx_meshes import SmplxModelError, model_file
-
-        try:
-            model_file(smplx_model, "neutral")
-        except SmplxModelError as exc:
-            fail(str(exc))
+    _check_smplx_model(smplx_model)
     script: tuple[ScriptLine, ...] = ()
     if instructions is not None:
         from orchestrator.session.instruction_script import (
@@ -170,6 +175,18 @@ def run_command(
              in_process_programs=in_process_programs)
 
 
+def _check_smplx_model(smplx_model: Path | None) -> None:
+    """Refuse a ``--smplx-model`` folder without the neutral model file before anything runs."""
+    if smplx_model is None:
+        return
+    from orchestrator.bodies.smplx_meshes import SmplxModelError, model_file
+
+    try:
+        model_file(smplx_model, "neutral")
+    except SmplxModelError as exc:
+        fail(str(exc))
+
+
 def default_planners(pace: str) -> int:
     """Steps in flight at most without ``--planners``: one in lockstep pace (the story of a
     lockstep run stays what it always was), two otherwise (narrate the next event while the
@@ -186,6 +203,7 @@ def _interactive(flag: bool | None) -> bool:
 def resume_command(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `storyteller run` (holds run.json).")],
     interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction (default: when stdin is a terminal).")] = None,
+    smplx_model: SmplxModelOption = None,
 ) -> None:
     """Go on with a run that was stopped (even by kill -9) from its last checkpoint."""
     from orchestrator.session.run_manifest import ManifestError, read_manifest
@@ -194,13 +212,15 @@ def resume_command(
         manifest = read_manifest(run_dir)
     except ManifestError as exc:
         fail(str(exc))
+    _check_smplx_model(smplx_model)
     _execute(manifest.arguments, out=run_dir, trace_path=run_dir / "trace.jsonl", replay=None,
-             thread_id=manifest.thread_id, resume=True, interactive=_interactive(interactive))
+             thread_id=manifest.thread_id, resume=True, interactive=_interactive(interactive), smplx_model=smplx_model)
 
 
 def replay_command(
     source: Annotated[Path, typer.Argument(help="Run folder (RUN_DIR/trace.jsonl) or a trace file next to its run.json.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder of the replayed run.")],
+    smplx_model: SmplxModelOption = None,
 ) -> None:
     """Replay a recorded run with no model loaded: same arguments (from run.json), same story, same motion."""
     from orchestrator.session.run_manifest import ManifestError, read_manifest
@@ -214,7 +234,9 @@ def replay_command(
         fail(str(exc))
     if out.resolve() == trace.parent.resolve():
         fail("--out must be a different folder than the replayed run's")
-    _execute(manifest.arguments, out=out, trace_path=out / "trace.jsonl", replay=trace, thread_id=None, resume=False)
+    _check_smplx_model(smplx_model)
+    _execute(manifest.arguments, out=out, trace_path=out / "trace.jsonl", replay=trace, thread_id=None, resume=False,
+             smplx_model=smplx_model)
 
 
 def _execute(

@@ -21,6 +21,11 @@ Motion: the world streams its frames to ``motion/<name>.chunks`` in the run fold
 the frames not yet in the chunk files and how many are. A resume keeps the streamed frames up
 to that count and goes on from the checkpoint; the exports read the chunk files.
 
+Live viewing: ``scene.json`` is written (and a ``story.json`` of an earlier run in the folder
+removed) before the first frame, and ``story.jsonl`` (``orchestrator.session.story_stream``)
+gets a line whenever an event starts, completes or fails, so ``storyteller view`` can follow a
+run in progress from them and the chunk files; ``story.json`` appears when the run ends.
+
 Instructions: the timed script (``RunArguments.instructions``) is scheduled at its frames,
 lines typed on stdin (``interactive``) take effect at the next frame, and every one is
 written to the trace as an ``instruction`` record with its frame. A replay schedules the
@@ -264,6 +269,8 @@ async def run_story(
         save_checkpoint,
     )
     from orchestrator.session.step_planner import GraphStepPlanner
+    from orchestrator.session.story_stream import StoryStream, StreamStart
+    from sim.scene.files import save_scene_json
     from sim.world.step import World, WorldConfig
 
     names = list(args.names)
@@ -315,6 +322,9 @@ async def run_story(
         write_manifest(out, manifest)
         if on_start is not None:
             on_start(manifest)
+    # for a live viewer: the scene before the first frame, and no story.json (it marks a finished run)
+    save_scene_json(scene, out / "scene.json")
+    (out / "story.json").unlink(missing_ok=True)
     runs_db = out / "runs.sqlite"
     try:
         check_runs_db(runs_db)
@@ -369,15 +379,25 @@ async def run_story(
         assert session is not None
         save_checkpoint(snapshot_path, session.world, cp)
 
+    def streamed(event: StoryEvent) -> None:
+        stream.event(event)
+        if on_event is not None:
+            on_event(event, fps)
+
+    stream = StoryStream(out)
     try:
         async with open_checkpointer(runs_db) as saver:
             graph = compile_graph(ablation, saver)
             planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
-            shown = None if on_event is None else (lambda e: on_event(e, fps))
-            session = Session(world, planner, settings, trace=port.trace, on_event=shown, on_checkpoint=keep,
+            session = Session(world, planner, settings, trace=port.trace, on_event=streamed, on_checkpoint=keep,
                               on_instruction=said_now, on_request=requested)
             if checkpoint is not None:
                 session.resume(checkpoint)
+            stream.start(
+                StreamStart(scene=scene.name, characters=tuple(names), instruction=args.instruction, fps=fps,
+                            frame=session.world.frame),
+                checkpoint.events.values() if checkpoint is not None else (),
+            )
             if resume and on_resume is not None:
                 on_resume(session.world.frame, fps)
             if interactive and replay is None:
@@ -390,6 +410,7 @@ async def run_story(
     except (LLMError, SessionError) as exc:
         raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
     finally:
+        stream.close()
         story.close()
         port.close()
         if isinstance(deps.runner, WorkerRunner):

@@ -3,8 +3,9 @@
 What lives here:
 
 - :mod:`.run_folder` reads a run folder (``story.json``, ``scene.json`` or the bundled scene
-  it names, ``<name>.track.npz``) into a :class:`~.run_folder.RunData`, and stamps the folder
-  so a viewer can notice a run that is still being written;
+  it names, ``<name>.track.npz``; for a run still in progress ``story.jsonl`` and the motion
+  chunk files) into a :class:`~.run_folder.RunData`, and stamps the folder so a viewer can
+  notice a run that is still being written;
 - :mod:`.timeline` answers, per frame, which story events are on and what each character does
   (pure functions of the run data);
 - :mod:`.figures` poses the stand-in figure (the GLB export's box body) as the 22 bones of a

@@ -41,6 +41,12 @@ class BonePoses:
     def num_frames(self) -> int:
         return int(self.positions.shape[0])
 
+    def then(self, more: BonePoses) -> BonePoses:
+        """These poses followed by ``more`` (the next frames)."""
+        return BonePoses(
+            wxyz=np.concatenate([self.wxyz, more.wxyz]), positions=np.concatenate([self.positions, more.positions])
+        )
+
     def at(self, frame: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The pose at ``frame``, held at the last frame past the end."""
         k = min(max(frame, 0), self.num_frames - 1)
@@ -59,9 +65,13 @@ def standin_rig() -> FigureRig:
     )
 
 
-def bone_poses(track: CharacterTrack) -> BonePoses:
-    """World bone transforms of every frame of ``track`` (unit quaternions, sign-continuous)."""
-    positions, rotations = forward_kinematics(track.local_rotations, track.root_positions)
+def bone_poses(track: CharacterTrack, start: int = 0) -> BonePoses:
+    """World bone transforms of the frames of ``track`` from ``start`` on (unit quaternions).
+
+    Each frame's pose depends on that frame only, so the poses of a growing track are the
+    poses already computed followed by ``bone_poses(track, start=computed)`` (:meth:`BonePoses.then`).
+    """
+    positions, rotations = forward_kinematics(track.local_rotations[start:], track.root_positions[start:])
     xyzw = Rotation.from_matrix(rotations.reshape(-1, 3, 3)).as_quat().reshape(*rotations.shape[:-2], 4)
     wxyz = np.concatenate([xyzw[..., 3:], xyzw[..., :3]], axis=-1)
     return BonePoses(wxyz=wxyz, positions=positions)

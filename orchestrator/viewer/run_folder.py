@@ -1,11 +1,18 @@
 """Read a run folder written by ``storyteller run`` into what the viewer shows.
 
-A run folder holds ``story.json`` (events with their frames), one ``<slug>.track.npz`` per
-character and, from this version on, ``scene.json`` (the scene as it was run). Older folders
+A finished run folder holds ``story.json`` (events with their frames), one
+``<slug>.track.npz`` per character and ``scene.json`` (the scene as it was run). Older folders
 have no ``scene.json``: the scene is then the bundled scene that ``story.json`` names, and a
 run on a scene file that is gone is shown without its objects (:attr:`RunData.scene_note`
 says so). A character without a ``.track.npz`` (a run stopped before its exports, e.g. by a
 kill) is read from the motion the run streamed, ``motion/<slug>.chunks`` (whole records only).
+
+A run still in progress has no ``story.json`` yet (a run removes an earlier one when it
+starts): it is read *live* (:attr:`RunData.live`) from what the run writes as it goes,
+``story.jsonl`` (the characters, fps and the events so far, ``orchestrator.session.story_stream``),
+``scene.json`` and the chunk files, which grow by one record per 10 simulated seconds.
+:func:`is_ready` says when there is something to show: ``story.json``, or ``story.jsonl``
+and a first chunk record.
 
 :func:`folder_stamp` is a cheap fingerprint (names, sizes and modification times of the files
 the viewer reads): a viewer polls it to reload a run that is still being written.
@@ -16,14 +23,20 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import ValidationError
 
+from orchestrator.session.story_stream import (
+    STREAM_FILE,
+    StoryEventRecord,
+    StoryStreamError,
+    read_story_stream,
+)
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack, CharacterTrackError
 from sim.world.track_chunks import (
     CHUNK_SUFFIX,
+    HEADER_BYTES,
     MOTION_FOLDER,
     ChunkError,
     chunk_path,
@@ -39,22 +52,6 @@ class RunFolderError(Exception):
     """A run folder the viewer cannot show (the message names the file and what is wrong)."""
 
 
-class StoryEventRecord(BaseModel):
-    """One entry of ``story.json``'s ``events`` (as ``orchestrator.session.run_job`` writes it)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    event_id: str
-    index: int
-    characters: tuple[str, ...]
-    activity: str
-    requested_frame: int
-    applied_frame: int
-    state: Literal["ongoing", "looping", "completed", "failed"]
-    finished_frame: int | None
-    failure: str | None
-
-
 @dataclass(frozen=True)
 class RunData:
     """Everything the viewer shows of one run."""
@@ -67,6 +64,8 @@ class RunData:
     tracks: tuple[CharacterTrack, ...]
     events: tuple[StoryEventRecord, ...]
     instruction: str
+    live: bool = False
+    """Read from a run still in progress (``story.jsonl`` and the chunk files, no ``story.json``)."""
 
     @property
     def num_frames(self) -> int:
@@ -82,7 +81,7 @@ def folder_stamp(folder: Path) -> tuple[tuple[str, int, int], ...]:
     chunks = folder / MOTION_FOLDER
     streamed = sorted(chunks.glob(f"*{CHUNK_SUFFIX}")) if chunks.is_dir() else []
     for path in [*sorted(folder.iterdir()), *streamed]:
-        if path.name in (STORY_FILE, SCENE_FILE) or path.name.endswith((TRACK_SUFFIX, CHUNK_SUFFIX)):
+        if path.name in (STORY_FILE, STREAM_FILE, SCENE_FILE) or path.name.endswith((TRACK_SUFFIX, CHUNK_SUFFIX)):
             try:
                 st = path.stat()
             except OSError:  # removed between listing and stat: the next poll sees it
@@ -92,8 +91,21 @@ def folder_stamp(folder: Path) -> tuple[tuple[str, int, int], ...]:
 
 
 def is_ready(folder: Path) -> bool:
-    """Whether the run has written its story log (the last of its outputs the viewer needs)."""
-    return (folder / STORY_FILE).is_file()
+    """Whether there is a run to show: its story log (a finished run), or the story stream and
+    a first chunk record (a run in progress)."""
+    if (folder / STORY_FILE).is_file():
+        return True
+    stream, motion = folder / STREAM_FILE, folder / MOTION_FOLDER
+    if not (stream.is_file() and motion.is_dir()):
+        return False
+    return any(_size(p) >= HEADER_BYTES for p in motion.glob(f"*{CHUNK_SUFFIX}"))
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
 
 
 def load_run(folder: Path) -> RunData:
@@ -102,7 +114,7 @@ def load_run(folder: Path) -> RunData:
         raise RunFolderError(f"{folder}: not a folder (expected the --out folder of `storyteller run`)")
     story_path = folder / STORY_FILE
     if not story_path.is_file():
-        raise RunFolderError(f"{story_path}: not found (the run has not written its story log yet)")
+        return _live_run(folder)
     try:
         story = json.loads(story_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -125,16 +137,7 @@ def load_run(folder: Path) -> RunData:
         except (CharacterTrackError, OSError, ValueError) as exc:
             raise RunFolderError(f"{path}: {exc}") from None
     have = {t.name for t in tracks}
-    for name in story.get("characters", []):
-        path = chunk_path(folder / MOTION_FOLDER, str(name))
-        if name in have or not path.is_file():
-            continue
-        try:
-            track = chunked_track(path, str(name), float(fps))
-        except (ChunkError, CharacterTrackError, OSError) as exc:
-            raise RunFolderError(f"{path}: {exc}") from None
-        if track is not None:
-            tracks.append(track)
+    tracks += _chunk_tracks(folder, [str(n) for n in story.get("characters", []) if n not in have], float(fps))
     order = {name: i for i, name in enumerate(story.get("characters", []))}
     tracks.sort(key=lambda t: (order.get(t.name, len(order)), t.name))
     scene, note = _scene_of(folder, story.get("scene"))
@@ -147,6 +150,46 @@ def load_run(folder: Path) -> RunData:
         events=events,
         instruction=str(story.get("instruction", "")),
     )
+
+
+def _live_run(folder: Path) -> RunData:
+    """A run in progress, from ``story.jsonl``, ``scene.json`` and the chunk files."""
+    stream = folder / STREAM_FILE
+    try:
+        start, events = read_story_stream(stream)
+    except (StoryStreamError, OSError) as exc:
+        raise RunFolderError(str(exc)) from None
+    if start is None:
+        raise RunFolderError(
+            f"{folder / STORY_FILE}: not found, and {stream} has no start line yet (the run has not started)"
+        )
+    scene, note = _scene_of(folder, start.scene)
+    return RunData(
+        folder=folder,
+        scene=scene,
+        scene_note=note,
+        fps=start.fps,
+        tracks=tuple(_chunk_tracks(folder, list(start.characters), start.fps)),
+        events=events,
+        instruction=start.instruction,
+        live=True,
+    )
+
+
+def _chunk_tracks(folder: Path, names: list[str], fps: float) -> list[CharacterTrack]:
+    """The tracks of ``names`` in ``motion/`` (whole records; a file with none is left out)."""
+    tracks = []
+    for name in names:
+        path = chunk_path(folder / MOTION_FOLDER, name)
+        if not path.is_file():
+            continue
+        try:
+            track = chunked_track(path, name, fps)
+        except (ChunkError, CharacterTrackError, OSError) as exc:
+            raise RunFolderError(f"{path}: {exc}") from None
+        if track is not None:
+            tracks.append(track)
+    return tracks
 
 
 def _scene_of(folder: Path, name: object) -> tuple[Scene | None, str | None]:
@@ -163,3 +206,9 @@ def _scene_of(folder: Path, name: object) -> tuple[Scene | None, str | None]:
     if isinstance(name, str) and name in bundled_scene_names():
         return load_bundled_scene(name), None
     return None, f"no {SCENE_FILE} in the run folder and {name!r} is not a bundled scene: objects not shown"
+
+
+__all__ = [
+    "SCENE_FILE", "STORY_FILE", "STREAM_FILE", "TRACK_SUFFIX", "RunData", "RunFolderError", "StoryEventRecord",
+    "folder_stamp", "is_ready", "load_run",
+]  # fmt: skip

@@ -8,6 +8,9 @@ events on at that frame). Everything goes through ``server.scene``, so every con
 and a scene recording (:mod:`.export`) see the same thing. World frame: z up, metres. Names,
 actions and activities are data: labels get them with control characters shown as escapes
 (:func:`orchestrator.safe_text.plain`; viser draws label text literally, no markup).
+
+A run in progress grows: :meth:`SceneView.extend` poses only the frames that arrived and redraws
+the paths, so a live viewer neither rebuilds the scene nor re-poses the whole story per chunk.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from orchestrator.viewer.figures import BonePoses, FigureRig, bone_poses, standi
 from orchestrator.viewer.run_folder import RunData
 from orchestrator.viewer.timeline import action_at, active_events, clock
 from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS
+from sim.world.character_track import CharacterTrack
 
 CHARACTER_RGB: tuple[tuple[int, int, int], ...] = (
     (217, 84, 64), (64, 140, 217), (89, 179, 89), (230, 179, 51),
@@ -83,15 +87,11 @@ class SceneView:
         identity = np.tile([1.0, 0.0, 0.0, 0.0], (NUM_JOINTS, 1))
         self.figures: dict[str, viser.MeshSkinnedHandle] = {}
         self.labels: dict[str, viser.LabelHandle] = {}
+        self.grows = not bodies
+        """Whether :meth:`extend` can add frames (not with SMPL-X bodies, computed for the whole run)."""
         for i, track in enumerate(run.tracks):
             rgb = CHARACTER_RGB[i % len(CHARACTER_RGB)]
-            root = track.root_positions
-            floor = self._floor_z()
-            pts = np.column_stack([root[::PATH_STRIDE, :2], np.full(len(root[::PATH_STRIDE]), floor + PATH_LIFT)])
-            if len(pts) >= 2:
-                scene.add_line_segments(
-                    f"/paths/{track.name}", np.stack([pts[:-1], pts[1:]], axis=1), rgb, thickness=0.03
-                )
+            self._add_path(track, rgb)
             body = bodies.get(track.name)
             rig = standin if body is None else _body_rig(body)
             self.figures[track.name] = scene.add_mesh_skinned(
@@ -110,7 +110,36 @@ class SceneView:
         self.caption = scene.add_label("/caption", "", position=self._caption_position(), anchor="bottom-left")
         self._set_camera()
 
+    def extend(self, run: RunData) -> bool:
+        """Show ``run`` when it is this view's run with more frames (a run in progress): pose
+        the new frames and redraw the paths, the rest of the scene untouched. False, changing
+        nothing, when it is not (other characters or scene, frames that differ or are gone,
+        SMPL-X bodies): the caller builds a new view then."""
+        old = self.run
+        if not self.grows or run.scene != old.scene or [t.name for t in run.tracks] != [t.name for t in old.tracks]:
+            return False
+        for before, after in zip(old.tracks, run.tracks, strict=True):
+            k = before.num_frames
+            if after.num_frames < k or not np.array_equal(after.root_positions[:k], before.root_positions):
+                return False
+        for i, (before, after) in enumerate(zip(old.tracks, run.tracks, strict=True)):
+            if after.num_frames > before.num_frames:
+                self.poses[after.name] = self.poses[after.name].then(bone_poses(after, start=before.num_frames))
+                self._add_path(after, CHARACTER_RGB[i % len(CHARACTER_RGB)])
+        self.run = run
+        self.last_frame = run.num_frames - 1
+        return True
+
     # ----- static parts --------------------------------------------------------------
+    def _add_path(self, track: CharacterTrack, rgb: tuple[int, int, int]) -> None:
+        """The character's path on the floor (replaces the one drawn before)."""
+        root = track.root_positions[::PATH_STRIDE]
+        pts = np.column_stack([root[:, :2], np.full(len(root), self._floor_z() + PATH_LIFT)])
+        if len(pts) >= 2:
+            self.server.scene.add_line_segments(
+                f"/paths/{track.name}", np.stack([pts[:-1], pts[1:]], axis=1), rgb, thickness=0.03
+            )
+
     def _floor_z(self) -> float:
         return self.run.scene.floor_z if self.run.scene is not None else 0.0
 

@@ -9,10 +9,16 @@ in markdown), buttons and labels through :func:`orchestrator.safe_text.plain`.
 
 Playback runs on a thread of this process: it advances the frame by ``speed * fps`` per wall
 second and stops at the last frame. A second thread polls the run folder
-(:func:`~.run_folder.folder_stamp`) and reloads the run when a file it shows changes, so a
-run that is still being written is shown as soon as it writes its outputs, and again each
-time it rewrites them; until then the panel says it is waiting. A folder that stops being
-readable keeps the last good run on screen and says why in the panel.
+(:func:`~.run_folder.folder_stamp`) and reloads the run when a file it shows changes.
+
+Live: a run still in progress is shown as soon as it has written its story stream and first
+chunk records (:func:`~.run_folder.is_ready`; until then the panel says it is waiting). Each
+time the chunk files or the story stream grow, the new frames are added to the scene
+(:meth:`~.scene_view.SceneView.extend`), the slider and clock reach further and the event list
+gets the new events and states; playing at the last frame of a live run waits there and goes
+on as frames arrive (it follows the run). When the run ends it writes ``story.json`` and its
+exports, and the viewer shows them. A folder that stops being readable keeps the last good
+run on screen and says why in the panel.
 """
 
 from __future__ import annotations
@@ -94,45 +100,69 @@ class ViewerApp:
             return False
         try:
             run = load_run(self.folder)
-            names = [t.name for t in run.tracks]
-            bodies = run_bodies(self.folder, names, self.models) if self.models is not None else None
+            bodies = self._bodies(run) if self.models is not None else None
         except (RunFolderError, SmplxModelError) as exc:
             self.status.content = f"**{markdown(self.folder.name)}**: {markdown(exc)}"
+            return False
+        if run.live and not run.tracks:  # the story stream is there, no whole chunk record yet
+            self.status.content = f"**{markdown(self.folder.name)}**: waiting for the run's first frames..."
             return False
         self._show_run(run, bodies)
         return True
 
+    def _bodies(self, run: RunData) -> dict[str, SmplxBody]:
+        """SMPL-X bodies: from the run's ``.smplx.npz`` exports, or from the streamed tracks while
+        it runs (the exports do not exist yet)."""
+        assert self.models is not None
+        if not run.live:
+            return run_bodies(self.folder, [t.name for t in run.tracks], self.models)
+        from sim.export.smplx_npz import smplx_parameters
+
+        return {t.name: self.models.body(smplx_parameters(t)) for t in run.tracks}
+
     def _show_run(self, run: RunData, bodies: Mapping[str, SmplxBody] | None = None) -> None:
         with self.lock:
-            self.server.scene.reset()
+            if self.view is None or bodies is not None or not self.view.extend(run):
+                self.server.scene.reset()
+                self.view = SceneView(self.server, run, bodies=bodies)
             self.run = run
-            self.view = SceneView(self.server, run, bodies=bodies)
-            lines = [f"**{markdown(self.folder.name)}**: {len(run.tracks)} characters, "
-                     f"{clock(run.num_frames - 1, run.fps)}"]
+            length = clock(run.num_frames - 1, run.fps)
+            what = f"live, {length} so far (the run is still going)" if run.live else length
+            lines = [f"**{markdown(self.folder.name)}**: {len(run.tracks)} characters, {what}"]
             if run.instruction:
                 lines.append(f"*{markdown(run.instruction)}*")
             if run.scene_note:
                 lines.append(markdown(run.scene_note))
             self.status.content = "\n\n".join(lines)
-            for button in self._event_buttons:
-                button.remove()
-            self._event_buttons = []
-            with self.events_folder:
-                for i, event in enumerate(run.events):
-                    button = self.server.gui.add_button(event_line(event, run.fps))
-                    button.on_click(self._jumper(i))
-                    self._event_buttons.append(button)
+            self._list_events(run)
+            for button in self._event_buttons:  # goto() colours the events on at the frame
+                button.color = None
             self._active = []
             self.slider.max = max(run.num_frames - 1, 1)
             self.goto(min(self.frame, run.num_frames - 1))
+
+    def _list_events(self, run: RunData) -> None:
+        """One button per event: relabel the ones there, add the new ones, drop the rest."""
+        lines = [event_line(event, run.fps) for event in run.events]
+        for button, line in zip(self._event_buttons, lines, strict=False):
+            if button.label != line:
+                button.label = line
+        for button in self._event_buttons[len(lines) :]:
+            button.remove()
+        del self._event_buttons[len(lines) :]
+        with self.events_folder:
+            for i in range(len(self._event_buttons), len(lines)):
+                button = self.server.gui.add_button(lines[i])
+                button.on_click(self._jumper(i))
+                self._event_buttons.append(button)
 
     # ----- controls ------------------------------------------------------------------
     def toggle(self) -> None:
         with self.lock:
             if self.run is None:
                 return
-            if not self.playing and self.frame >= self.run.num_frames - 1:
-                self.goto(0)  # play again from the start
+            if not self.playing and self.frame >= self.run.num_frames - 1 and not self.run.live:
+                self.goto(0)  # play again from the start (a live run: go on as frames arrive)
             self.playing = not self.playing
             self.position = float(self.frame)
             self.play.label = "Pause" if self.playing else "Play"
@@ -167,23 +197,28 @@ class ViewerApp:
                 self._active = active
 
     # ----- threads -------------------------------------------------------------------
+    def advance(self, dt: float) -> None:
+        """One playback step: ``dt`` wall seconds later. At the last frame playing stops, except
+        in a live run, which waits there and goes on when frames arrive (it follows the run)."""
+        with self.lock:
+            if not self.playing or self.run is None:
+                return
+            end = self.run.num_frames - 1
+            self.position = min(self.position + float(self.speed.value) * dt * self.run.fps, end)
+            position = self.position
+            if int(position) != self.frame:
+                self.goto(int(position))
+                self.position = position  # goto() snaps it to the frame
+            if position >= end and not self.run.live:
+                self.playing = False
+                self.play.label = "Play"
+
     def _play_loop(self) -> None:
         last = time.monotonic()
         while not self._stop.wait(TICK_S):
             now = time.monotonic()
             dt, last = now - last, now
-            with self.lock:
-                if not self.playing or self.run is None:
-                    continue
-                end = self.run.num_frames - 1
-                self.position = min(self.position + float(self.speed.value) * dt * self.run.fps, end)
-                position = self.position
-                if int(position) != self.frame:
-                    self.goto(int(position))
-                    self.position = position  # goto() snaps it to the frame
-                if position >= end:
-                    self.playing = False
-                    self.play.label = "Play"
+            self.advance(dt)
 
     def _watch_loop(self) -> None:
         while not self._stop.wait(POLL_S):

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from orchestrator.safe_text import plain
-from orchestrator.viewer.run_folder import StoryEventRecord
+from orchestrator.session.story_stream import StoryEventRecord
 from sim.world.character_track import CharacterTrack
 
 

@@ -1,0 +1,135 @@
+"""``story.jsonl``: the story as it happens, one JSON line per change, for a live viewer.
+
+``story.json`` is written when a run ends; ``story.jsonl`` grows while it runs, so
+``storyteller view`` can show the events of a run still in progress. The file is append-only
+and every line is one JSON object (``json.dumps`` with ASCII escapes: text from the model or
+the user is data, and a newline in it cannot split a line):
+
+- ``{"kind": "start", ...}`` (:class:`StreamStart`): the scene, the characters in order, the
+  instruction at the start, the fps and the frame the session starts from (0, or the frame a
+  ``resume`` goes on from). Every later line belongs to this start;
+- ``{"kind": "event", "event": {...}}`` (:class:`StreamEvent`): an event as it is now, with the
+  fields of a ``story.json`` event (:class:`StoryEventRecord`); an event appears again each
+  time it starts, completes or fails.
+
+A resume appends a new start line, then every event of the checkpoint it goes on from, so a
+reader keeps only what follows the last start line (:func:`read_story_stream`): the events
+of the killed process after its checkpoint are dropped, as their frames are. Each line is
+written with one ``write`` on a file opened for appending; a reader ignores a last line with
+no newline (a write in progress).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+STREAM_FILE = "story.jsonl"
+
+
+class StoryEventRecord(BaseModel):
+    """One event of ``story.json``'s ``events`` (as :func:`~.run_job.story_json` writes it)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    event_id: str
+    index: int
+    characters: tuple[str, ...]
+    activity: str
+    requested_frame: int
+    applied_frame: int
+    state: Literal["ongoing", "looping", "completed", "failed"]
+    finished_frame: int | None
+    failure: str | None
+
+
+class StreamStart(BaseModel):
+    """The first line of a session in ``story.jsonl``."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    kind: Literal["start"] = "start"
+    scene: str = Field(description="The scene's name (the scene itself is in scene.json).")
+    characters: tuple[str, ...]
+    instruction: str
+    fps: float = Field(gt=0)
+    frame: int = Field(ge=0, description="The frame the session starts from (a resume: its checkpoint's).")
+
+
+class StreamEvent(BaseModel):
+    """An event as it is at one of its changes."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    kind: Literal["event"] = "event"
+    event: StoryEventRecord
+
+
+StreamLine = Annotated[StreamStart | StreamEvent, Field(discriminator="kind")]
+_LINE: TypeAdapter[StreamStart | StreamEvent] = TypeAdapter(StreamLine)
+
+
+class StoryStreamError(ValueError):
+    """A ``story.jsonl`` line that is not a stream record (the message names the file and line)."""
+
+
+class StoryStream:
+    """Appends to ``<out>/story.jsonl``; :meth:`close` when the run ends."""
+
+    def __init__(self, out: Path) -> None:
+        self.path = out / STREAM_FILE
+        self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+
+    def start(self, start: StreamStart, events: Iterable[object] = ()) -> None:
+        """A new session from ``start.frame``, with the events it starts with (a resume's)."""
+        self._write(start)
+        for event in events:
+            self.event(event)
+
+    def event(self, event: object) -> None:
+        """``event`` (a ``StoryEvent`` of the runtime, read by attribute) as it is now."""
+        record = StoryEventRecord.model_validate(event, from_attributes=True)
+        self._write(StreamEvent(event=record))
+
+    def _write(self, line: StreamStart | StreamEvent) -> None:
+        if self._fd is None:
+            raise ValueError(f"{self.path}: the story stream is closed")
+        data = (json.dumps(line.model_dump(mode="json"), ensure_ascii=True) + "\n").encode("ascii")
+        view = memoryview(data)
+        while view:
+            view = view[os.write(self._fd, view) :]
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+def read_story_stream(path: Path) -> tuple[StreamStart | None, tuple[StoryEventRecord, ...]]:
+    """The last session's start line and its events (each as last written, in story order);
+    ``(None, ())`` for a missing or empty file. A malformed whole line raises
+    :class:`StoryStreamError`; a last line with no newline is not read yet."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return None, ()
+    start: StreamStart | None = None
+    events: dict[str, StoryEventRecord] = {}
+    whole = data[: data.rfind(b"\n") + 1]
+    for number, raw in enumerate(whole.splitlines(), start=1):
+        try:
+            line = _LINE.validate_json(raw)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            where = ".".join(str(p) for p in err["loc"]) or "(line)"
+            raise StoryStreamError(f"{path}: line {number}: {where}: {err['msg']}") from None
+        if isinstance(line, StreamStart):
+            start, events = line, {}
+        elif start is not None:
+            events[line.event.event_id] = line.event
+    return start, tuple(sorted(events.values(), key=lambda e: (e.index, e.event_id)))
