@@ -82,6 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every", type=float, default=10.0, help="simulated minutes between two reports")
     parser.add_argument("--export", action="store_true", help="also write the run's files and report after them")
     parser.add_argument("--out", type=Path, default=None, help="run folder (default: a temporary one)")
+    parser.add_argument("--pace", choices=("fast", "offline", "lockstep"), default="fast",
+                        help="fast (default, as the issue measures it), or offline / lockstep: the same events "
+                             "whatever the machine's speed")
     opts = parser.parse_args(argv)
     if opts.minutes <= 0 or opts.every <= 0:
         parser.error("--minutes and --every must be > 0")
@@ -126,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
                 "timeout_s = 30.0\n[llm.retry]\nmax_attempts = 1\n",
                 encoding="utf-8",
             )
-            args = RunArguments(scene="home", names=tuple(ERRANDS), duration=opts.minutes * 60.0, pace="fast",
+            args = RunArguments(scene="home", names=tuple(ERRANDS), duration=opts.minutes * 60.0, pace=opts.pace,
                                 config=str(cfg), planner="unified", description="object-list")
             story = asyncio.run(run_story(
                 scene, args, out=out, trace_path=out / "trace.jsonl", replay=None, on_event=on_event,
