@@ -23,13 +23,12 @@ import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
-from agents.shortlist import mentioned_labels
+from agents.shortlist import SYNONYMS, mentioned_labels
 
 _TOKEN = re.compile(r"[a-z0-9]+|[,.;:!?]")
 _SYNONYMS = {
-    "sofa": "couch", "television": "tv", "telly": "tv", "refrigerator": "fridge",
-    "turntable": "record player", "whiteboard": "white board", "cellphone": "phone",
-    "mobile": "phone", "pc": "computer", "cupboard": "cabinet",
+    **SYNONYMS,  # the object synonyms the object shortlist reads too
+    "whiteboard": "white board", "cellphone": "phone", "mobile": "phone", "pc": "computer", "cupboard": "cabinet",
 }
 _IGNORED_LABEL_WORDS = frozenset({"on", "off", "to", "out", "the", "use", "take", "turn", "open", "close"})
 

@@ -28,6 +28,7 @@ from orchestrator.llm.traces import AppliedRecord, read_trace
 from orchestrator.session.run_report import md_text, story_markdown
 from sim.world.track_chunks import scan
 from tests.support.fake_openai_server import FakeOpenAI
+from tests.support.story_planner import interact_program
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = {"Zoe": ("coffee_maker_1", "use_coffee_maker"), "Max": ("toaster_1", "use_toaster")}
@@ -35,11 +36,7 @@ TASKS = {"Zoe": ("coffee_maker_1", "use_coffee_maker"), "Max": ("toaster_1", "us
 
 def program(name: str) -> str:
     obj, action = TASKS[name]
-    return (
-        f'```python\ndef parse_event():\n    a = get_character("{name}")\n'
-        f'    a.set_position(get_area_to_interact_with("{obj}"))\n'
-        f'    a.set_orientation("{obj}")\n    a.set_target_action("{action}")\n```'
-    )
+    return interact_program(name, obj, action)
 
 
 class Planner:

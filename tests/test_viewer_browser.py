@@ -30,19 +30,12 @@ from typer.testing import CliRunner
 from orchestrator.cli.app import app
 from tests.support.fake_openai_server import FakeOpenAI
 from tests.support.headless_chromium import Chromium, chromium_binary
+from tests.support.story_planner import interact_program
 
 pytestmark = pytest.mark.skipif(chromium_binary() is None, reason="chromium not installed (apt-get install chromium)")
 
-COFFEE = (
-    '```python\ndef parse_event():\n    a = get_character("Ava")\n'
-    '    a.set_position(get_area_to_interact_with("coffee_maker_1"))\n'
-    '    a.set_orientation("coffee_maker_1")\n    a.set_target_action("use_coffee_maker")\n```'
-)
-MICROWAVE = (
-    '```python\ndef parse_event():\n    b = get_character("Ben")\n'
-    '    b.set_position(get_area_to_interact_with("microwave_1"))\n'
-    '    b.set_orientation("microwave_1")\n    b.set_target_action("use_microwave")\n```'
-)
+COFFEE = interact_program("Ava", "coffee_maker_1", "use_coffee_maker")
+MICROWAVE = interact_program("Ben", "microwave_1", "use_microwave", var="b")
 AVA_RGB = np.array([217, 84, 64])  # orchestrator.viewer.scene_view.CHARACTER_RGB[0]
 MIN_STD = 10.0  # grey-level standard deviation of a picture that shows something
 MIN_SHIFT_PX = 8.0  # how far Ava's pixels must move in two seconds of walking

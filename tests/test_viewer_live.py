@@ -41,6 +41,7 @@ from sim.scene.files import save_scene_json
 from sim.world.track_chunks import MOTION_FOLDER, ChunkStore
 from tests.support.fake_openai_server import FakeOpenAI
 from tests.support.headless_chromium import Chromium, chromium_binary
+from tests.support.story_planner import interact_program
 
 NAMES = ("Ava", "Ben")
 WINDOW = 30  # frames per chunk record in the unit tests
@@ -201,16 +202,8 @@ def test_the_viewer_follows_a_growing_run_then_shows_the_finished_one(tmp_path: 
 
 
 # ----- end to end: storyteller run, and storyteller view on it while it runs ---------------------
-COFFEE = (
-    '```python\ndef parse_event():\n    a = get_character("Ava")\n'
-    '    a.set_position(get_area_to_interact_with("coffee_maker_1"))\n'
-    '    a.set_orientation("coffee_maker_1")\n    a.set_target_action("use_coffee_maker")\n```'
-)
-MICROWAVE = (
-    '```python\ndef parse_event():\n    b = get_character("Ben")\n'
-    '    b.set_position(get_area_to_interact_with("microwave_1"))\n'
-    '    b.set_orientation("microwave_1")\n    b.set_target_action("use_microwave")\n```'
-)
+COFFEE = interact_program("Ava", "coffee_maker_1", "use_coffee_maker")
+MICROWAVE = interact_program("Ben", "microwave_1", "use_microwave", var="b")
 DURATION_S = 60  # simulated; at --speed 3 about 20 wall seconds, a chunk record every 3.3 s
 TOTAL = re.compile(r"\d+\.\d s / (\d+\.\d) s")
 

@@ -19,13 +19,18 @@ RUN = ["run", "home", "--names", "Zoe,Max", "--planner", "unified", "--descripti
 TASKS = {"Zoe": ("coffee_maker_1", "use_coffee_maker"), "Max": ("microwave_1", "use_microwave")}
 
 
+def interact_program(name: str, obj: str, action: str, var: str = "a") -> str:
+    """The reply of a model placing ``name`` to interact with ``obj`` doing ``action``."""
+    return (
+        f'```python\ndef parse_event():\n    {var} = get_character("{name}")\n'
+        f'    {var}.set_position(get_area_to_interact_with("{obj}"))\n'
+        f'    {var}.set_orientation("{obj}")\n    {var}.set_target_action("{action}")\n```'
+    )
+
+
 def program(name: str) -> str:
     obj, action = TASKS[name]
-    return (
-        f'```python\ndef parse_event():\n    a = get_character("{name}")\n'
-        f'    a.set_position(get_area_to_interact_with("{obj}"))\n'
-        f'    a.set_orientation("{obj}")\n    a.set_target_action("{action}")\n```'
-    )
+    return interact_program(name, obj, action)
 
 
 def first_free(body: dict[str, Any]) -> str:
