@@ -19,6 +19,7 @@ by the words of its own name. Pure: no LLM, no I/O.
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -206,13 +207,21 @@ def _direction(tokens: Sequence[str], prefix: str) -> bool:
     return False
 
 
-def label_score(label: str, tokens: Sequence[str], named_objects: Iterable[str]) -> int:
+@functools.cache
+def _cue_tokens(phrase: str) -> tuple[str, ...]:
+    return tuple(_tokens(phrase))
+
+
+def label_score(
+    label: str, tokens: Sequence[str], named_objects: Iterable[str], landmark: Sequence[bool] | None = None
+) -> int:
     """Score of one label for the event's tokens; ``named_objects`` are the object labels the
-    text names (``coffee_maker``)."""
+    text names (``coffee_maker``); ``landmark``: :func:`_landmark_mask` of the tokens (computed
+    when not given)."""
     score = 0
-    landmark = _landmark_mask(tokens)
+    landmark = _landmark_mask(tokens) if landmark is None else landmark
     for phrase, weight in CUES.get(label, ()):
-        if any(not landmark[i] for i in _phrase_at(tokens, _tokens(phrase))):
+        if any(not landmark[i] for i in _phrase_at(tokens, _cue_tokens(phrase))):
             score += weight
     words = [w for w in label.split("_") if w not in _IGNORED_LABEL_WORDS]
     if label not in CUES:
@@ -232,7 +241,7 @@ def rank_action_labels(text: str, labels: Sequence[str], object_labels: Sequence
     landmark = _landmark_mask(tokens)
     acted_on = " ".join(t for t, skip in zip(tokens, landmark, strict=True) if not skip)
     named = mentioned_labels(acted_on, list(dict.fromkeys([*object_labels, *(_label_objects(labels))])))
-    scored = [(label_score(label, tokens, named), i, label) for i, label in enumerate(labels)]
+    scored = [(label_score(label, tokens, named, landmark), i, label) for i, label in enumerate(labels)]
     return [RankedLabel(label, s) for s, _, label in sorted(scored, key=lambda t: (-t[0], t[1])) if s > 0]
 
 
