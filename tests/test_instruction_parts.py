@@ -143,3 +143,41 @@ def test_the_reply_may_name_only_the_next_parts_actors() -> None:
     assert anyone.candidates == ["Ava", "Ben", "Cy"]
     free_story = NarratorInput(scene_description="-", characters=roster, instruction="")
     assert free_story.candidates == ["Ava", "Ben", "Cy"] and not free_story.progress.nothing_for_the_free
+
+
+PARTY = "Ava and Ben dance. Cy and Di talk at the table. Ava eats."
+PARTY_NAMES = ("Ava", "Ben", "Cy", "Di")
+
+
+def planned(i: int, who: tuple[str, ...], activity: str, part: str, state: EventState = "completed") -> HistoryEntry:
+    return HistoryEntry(index=i, characters=who, activity=activity, state=state, part=part)
+
+
+def test_an_event_planned_for_a_part_marks_that_part_whatever_its_words() -> None:
+    parts = split_instruction(PARTY, PARTY_NAMES)
+    # the narrator's words match nothing, and repeat the next event's words: the part decides
+    history = [planned(0, ("Ava", "Ben"), "bring menus to table_4", parts[0].text),
+               planned(1, ("Cy", "Di"), "bring menus to table_4", parts[1].text, "ongoing")]
+    assert part_states(parts, history, PARTY_NAMES) == ["done", "ongoing", "next"]
+
+
+def test_a_failed_part_stays_open_goes_after_untried_ones_and_is_given_up_after_two_failures() -> None:
+    parts = split_instruction(PARTY, PARTY_NAMES)
+    once = [planned(0, ("Ava", "Ben"), "dance in front of tv_1", parts[0].text, "failed")]
+    # untried part 2 goes first; part 3 (Ava) waits for Ava's open part 1
+    assert part_states(parts, once, PARTY_NAMES) == ["", "next", ""]
+    assert part_states(parts, once, ("Ava", "Ben")) == ["next", "", ""]
+    twice = [*once, planned(1, ("Ava", "Ben"), "dance by tv_1", parts[0].text, "failed")]
+    assert part_states(parts, twice, ("Ava", "Ben")) == ["failed", "", "next"]
+    progress = instruction_progress(PARTY, PARTY_NAMES, twice, ("Ava", "Ben"))
+    assert "[failed] Ava and Ben dance." in progress.text and progress.next_part == "Ava eats."
+    # a failed attempt followed by a success: done
+    fixed = [*once, planned(1, ("Ava", "Ben"), "dance", parts[0].text)]
+    assert part_states(parts, fixed, ("Ava", "Ben"))[0] == "done"
+
+
+def test_a_later_part_of_the_same_character_waits_for_the_earlier_one() -> None:
+    parts = split_instruction("Ava and Ben chat. Ben reads.", NAMES)
+    # Ava is busy elsewhere: Ben's reading comes after the chat, not instead of it
+    assert part_states(parts, [], ("Ben",)) == ["", ""]
+    assert part_states(parts, [], NAMES) == ["next", ""]
