@@ -135,7 +135,8 @@ def _at_the_same_time(sentence: str, names: Sequence[str]) -> list[str]:
         return [sentence]
     cut = re.compile(
         rf",?\s+(?:while|whilst|meanwhile|as)\s+(?=(?:{run})\b)|;\s+(?=(?:{run})\b)"
-        rf"|,\s*(?:and\s+)?(?=(?:{run})\s+[a-z])"  # ", Cleo and Dan talk ...": a new subject and its verb
+        rf"|,\s*(?:and\s+)?(?=(?:{run})(?:,[^,.;]{{1,40}},)?\s+[a-z])"  # ", Cleo and Dan talk ...": a new subject
+        # and its verb, maybe with an apposition between them (", and Cleo, their waiter, takes ...")
     )
     ends_with_name = re.compile(rf"(?:{run})\W*$")
     clauses: list[str] = []

@@ -31,6 +31,8 @@ def ev(i: int, who: tuple[str, ...], activity: str, state: EventState = "complet
     ("Ava and Ben dance, Cy and Di talk at the table, and Ed sits.",
      ["Ava and Ben dance.", "Cy and Di talk at the table.", "Ed sits."]),
     ("Ava, Ben and Cy dance.", ["Ava, Ben and Cy dance."]),
+    ("Ava and Ben order food, and Cy, their waiter, takes the order.",
+     ["Ava and Ben order food.", "Cy, their waiter, takes the order."]),
 ])
 def test_split_by_sentence_and_then_with_the_subject_carried_over(instruction: str, parts: list[str]) -> None:
     assert [p.text for p in split_instruction(instruction, (*NAMES, "Cy", "Di", "Ed"))] == parts
