@@ -30,8 +30,8 @@ LLM) still chooses and writes the event.
   goes after the untried ones. The prompt names it on a line of its own. When parts are left
   but none is next (what is left waits for busy characters), the instruction has nothing for
   the free characters now: the narrator's rule says to wait, and the planner records the wait
-  without asking the model, unless some free characters are *bystanders* (the instruction
-  never names them): they are asked for an event of their own (the reply may name only them),
+  without asking the model, unless some free characters are *bystanders* (no part still open
+  names them: the instruction never did, or their parts are over): they are asked for an event of their own (the reply may name only them),
   so nobody the user did not mention stands idle while the others carry the instruction out. Once every part has happened the model is asked as before (its
   rules say what to do with free characters the instruction no longer needs).
   When the next part has actors, the narrator's reply may name only them (the schema's enum):
@@ -262,8 +262,8 @@ def instruction_progress(
             lib.render_text("story/instruction_part_numbered.md", number=i + 1, part=m) for i, m in enumerate(lines)
         )
     if nxt is None:  # waiting for busy characters, or every part has happened
-        named = {n for p in parts for n in p.names}
-        bystanders = tuple(n for n in free if n not in named) if "" in states else ()
+        needed = {n for p, st in zip(parts, states, strict=True) if st not in ("done", "failed") for n in p.names}
+        bystanders = tuple(n for n in free if n not in needed) if "" in states else ()
         if bystanders:
             return InstructionProgress(text, None, bystanders, False, bystanders)
         return InstructionProgress(text, None, (), "" in states)

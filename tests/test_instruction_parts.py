@@ -183,3 +183,18 @@ def test_a_later_part_of_the_same_character_waits_for_the_earlier_one() -> None:
     # Ava is busy elsewhere: Ben's reading comes after the chat, not instead of it
     assert part_states(parts, [], ("Ben",)) == ["", ""]
     assert part_states(parts, [], NAMES) == ["next", ""]
+
+
+def test_a_character_whose_parts_are_over_is_given_something_to_do_while_others_go_on() -> None:
+    text = "Ava and Ben take seats at the table. Cy brings them menus, then takes their order."
+    names = ("Ava", "Ben", "Cy")
+    parts = split_instruction(text, names)
+    seated = [planned(0, ("Ava", "Ben"), "sit at table_1", parts[0].text),
+              planned(1, ("Cy",), "bring menus", parts[1].text, "ongoing")]
+    progress = instruction_progress(text, names, seated, ("Ava", "Ben"))
+    assert progress.bystanders == ("Ava", "Ben")
+    # a character an open part still names waits for it
+    waiter = "Ava sits at the table. Cy serves Ava."
+    parts = split_instruction(waiter, names)
+    sat = [planned(0, ("Ava",), "sit", parts[0].text)]
+    assert instruction_progress(waiter, names, sat, ("Ava",)).bystanders == ()
