@@ -62,8 +62,10 @@ CUES: dict[str, tuple[tuple[str, int], ...]] = {
     "listen_to_music": (("listen", 3), ("music", 2), ("song", 2), ("tune", 1), ("album", 2), ("record", 1),
                         ("melody", 2), ("radio", 2), ("playlist", 2)),
     "wave": (("wave", 4), ("greet", 2), ("hello", 2), ("goodbye", 2), ("bye", 2), ("hi to", 2), ("signal", 1)),
-    "turn_on_tv": (("switch on the tv", 4), ("turn on the tv", 4), ("tv on", 3)),
-    "turn_off_tv": (("switch off the tv", 4), ("turn off the tv", 4), ("tv off", 3)),
+    "turn_on_tv": (("switch on the tv", 4), ("turn on the tv", 4), ("tv on", 3), ("switch on the screen", 4),
+                   ("turn on the screen", 4), ("screen on", 3)),
+    "turn_off_tv": (("switch off the tv", 4), ("turn off the tv", 4), ("tv off", 3), ("switch off the screen", 4),
+                    ("turn off the screen", 4), ("screen off", 3)),
     "turn_on_record_player": (("put on a record", 4), ("put some music on", 4), ("put music on", 4), ("put on some music", 4),
                               ("play a record", 4), ("start the music", 3), ("music on", 3)),
     "turn_off_record_player": (("stop the music", 4), ("music off", 3), ("turn the music off", 4)),
@@ -71,7 +73,8 @@ CUES: dict[str, tuple[tuple[str, int], ...]] = {
     "close_fridge": (("close the fridge", 4), ("shut the fridge", 4)),
     "open_cabinet": (("open the cabinet", 4), ("look in the cabinet", 3)),
     "close_cabinet": (("close the cabinet", 4), ("shut the cabinet", 4)),
-    "use_coffee_maker": (("make coffee", 4), ("makes coffee", 4), ("making coffee", 4), ("brew", 3), ("espresso", 3),
+    "use_coffee_maker": (("make coffee", 4), ("makes coffee", 4), ("making coffee", 4), ("make cup", 3), ("brew", 3),
+                         ("coffee is made", 4), ("coffee gets made", 4), ("espresso", 3),
                          ("cappuccino", 3), ("latte", 2), ("coffee machine", 4)),
     "use_toaster": (("toast", 3), ("toaster", 4)),
     "use_microwave": (("microwave", 4), ("heat up", 3), ("reheat", 3), ("warm up", 3), ("heat", 2), ("warm", 1),
@@ -149,9 +152,24 @@ def _word_matches(cue: str, word: str) -> bool:
     return word.startswith(cue) and len(word) - len(cue) <= 3
 
 
+_FILLERS = frozenset({"a", "an", "some", "himself", "herself", "themselves", "myself", "yourself", "ourselves"})
+"""Words a cue phrase may skip between its own words: "makes himself a coffee" says "make coffee"."""
+
+
 def _phrase_at(tokens: Sequence[str], phrase: Sequence[str]) -> list[int]:
-    n = len(phrase)
-    return [i for i in range(len(tokens) - n + 1) if all(_word_matches(p, tokens[i + k]) for k, p in enumerate(phrase))]
+    """Where ``phrase`` starts in ``tokens``: its words in order, consecutive but for fillers."""
+    starts = []
+    for i in range(len(tokens)):
+        j = i
+        for k, p in enumerate(phrase):
+            while k > 0 and j < len(tokens) and tokens[j] in _FILLERS and not _word_matches(p, tokens[j]):
+                j += 1
+            if j >= len(tokens) or not _word_matches(p, tokens[j]):
+                break
+            j += 1
+        else:
+            starts.append(i)
+    return starts
 
 
 def _without_proximity(tokens: list[str]) -> list[str]:
@@ -183,9 +201,20 @@ LANDMARK_SPAN = 4
 character does: cues there do not count."""
 
 
+_ROOMS = frozenset({
+    "room", "kitchen", "kitchenette", "office", "area", "corner", "lounge", "hall", "hallway", "lobby", "corridor",
+    "bedroom", "bathroom", "studio", "cafeteria", "canteen", "pantry",
+})
+"""Words ending a place name after "in" ("in the meeting room"): the words before them name a place."""
+
+
 def _landmark_mask(tokens: Sequence[str]) -> list[bool]:
     mask = [False] * len(tokens)
     for i, t in enumerate(tokens):
+        if t == "in":  # "in the meeting room": a place, not what is done there
+            end = next((k for k in range(i + 1, min(len(tokens), i + 1 + LANDMARK_SPAN)) if tokens[k] in _ROOMS), None)
+            for k in range(i + 1, end + 1 if end is not None else i + 1):
+                mask[k] = True
         if t in _LANDMARK_HEADS or (t == "front" and i > 0 and tokens[i - 1] == "in"):
             pair = t == "between"  # "between the table and the couch": one "and" belongs to it
             for k in range(i + 1, min(len(tokens), i + 1 + LANDMARK_SPAN * (2 if pair else 1))):
@@ -239,14 +268,24 @@ def label_score(
     return score
 
 
-def rank_action_labels(text: str, labels: Sequence[str], object_labels: Sequence[str] = ()) -> list[RankedLabel]:
-    """Every label with a positive score, best first (ties in ``labels`` order)."""
+def _scores(text: str, labels: Sequence[str], object_labels: Sequence[str]) -> list[int]:
     tokens = _without_proximity(_tokens(text))
     landmark = _landmark_mask(tokens)
     acted_on = " ".join(t for t, skip in zip(tokens, landmark, strict=True) if not skip)
     named = mentioned_labels(acted_on, list(dict.fromkeys([*object_labels, *(_label_objects(labels))])))
-    scored = [(label_score(label, tokens, named, landmark), i, label) for i, label in enumerate(labels)]
-    return [RankedLabel(label, s) for s, _, label in sorted(scored, key=lambda t: (-t[0], t[1])) if s > 0]
+    return [label_score(label, tokens, named, landmark) for label in labels]
+
+
+def rank_action_labels(
+    text: str, labels: Sequence[str], object_labels: Sequence[str] = (), context: str = ""
+) -> list[RankedLabel]:
+    """Every label with a positive score, best first; ties go to the label ``context`` (other
+    words about the same event, e.g. the narrator's activity) scores higher, then ``labels``
+    order ("serves it to him" is serve_food or serve_drink; "serve drink to him" decides)."""
+    scores = _scores(text, labels, object_labels)
+    second = _scores(context, labels, object_labels) if context.strip() else [0] * len(labels)
+    order = sorted(range(len(labels)), key=lambda i: (-scores[i], -second[i], i))
+    return [RankedLabel(labels[i], scores[i]) for i in order if scores[i] > 0]
 
 
 def _label_objects(labels: Sequence[str]) -> list[str]:
@@ -262,10 +301,12 @@ def _label_objects(labels: Sequence[str]) -> list[str]:
     return out
 
 
-def action_shortlist(text: str, labels: Sequence[str], object_labels: Sequence[str] = ()) -> tuple[str, ...]:
+def action_shortlist(
+    text: str, labels: Sequence[str], object_labels: Sequence[str] = (), context: str = ""
+) -> tuple[str, ...]:
     """The labels close to the best (at most :data:`MAX_SHORTLIST`), best first; empty when the
     text gives no evidence (the caller then offers every label)."""
-    ranked = rank_action_labels(text, labels, object_labels)
+    ranked = rank_action_labels(text, labels, object_labels, context)
     if not ranked:
         return ()
     best = ranked[0].score
@@ -294,9 +335,9 @@ def posture(text: str) -> str | None:
     return "sit" if sit else "stand"
 
 
-def suggested_action(text: str, labels: Sequence[str], object_labels: Sequence[str] = ()) -> str:
+def suggested_action(text: str, labels: Sequence[str], object_labels: Sequence[str] = (), context: str = "") -> str:
     """The best label for the text, or ``idle`` (the first label when idle is not offered)."""
-    ranked = rank_action_labels(text, labels, object_labels)
+    ranked = rank_action_labels(text, labels, object_labels, context)
     if ranked:
         return ranked[0].label
     return "idle" if "idle" in labels or not labels else labels[0]

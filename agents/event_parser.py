@@ -162,7 +162,10 @@ def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessa
         activity=inp.event.activity.strip(),
         instruction_part="\n" + prompts.render_text("event_parser/instruction_part.md", part=inp.instruction_part.strip())
         if inp.instruction_part.strip() else "",
-        likely_action=suggested_action(event_text(inp.event.activity, inp.instruction_part), inp.action_labels),
+        likely_action=suggested_action(
+            event_text(inp.event.activity, inp.instruction_part), inp.action_labels,
+            context=inp.event.activity if inp.instruction_part.strip() else "",
+        ),
     )
     return (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
 

@@ -57,6 +57,7 @@ before the part is given up (``failed``) and the story moves on to the next."""
 _PARTS = re.compile(r"(?<=[.!?;])\s+|\n+")
 _THEN = re.compile(r"(?:,\s*(?:and\s+)?|\s+and\s+)then,?\s+(?=[A-Za-z])", re.IGNORECASE)
 _WORD = re.compile(r"[A-Za-z]+")
+_PRONOUN = re.compile(r"(he|she|they)\b", re.IGNORECASE)
 _STOP = frozenset(str.split(
     "the a an and or of to in on at by for with from into onto near next his her their its it "
     "them they he she him then first after before while when that which this these those is are "
@@ -159,6 +160,9 @@ def _then_parts(sentence: str, names: Sequence[str], lib: PromptLibrary) -> list
     pieces = [p.strip() for p in _THEN.split(sentence) if p.strip()]
     subject = ""
     for k, piece in enumerate(pieces):
+        pronoun = _PRONOUN.match(piece)
+        if k > 0 and subject and pronoun:  # "then she and Ben dance": she is the part before's subject
+            piece = subject + piece[pronoun.end(1):]
         if k > 0 and not _leading_subject(piece, names):
             piece = f"{subject} {piece}" if subject and piece[:1].islower() else piece[0].lower() + piece[1:]
         if k < len(pieces) - 1 and piece[-1:] not in ".!?;":

@@ -31,6 +31,8 @@ def ev(i: int, who: tuple[str, ...], activity: str, state: EventState = "complet
     ("Ava and Ben dance, Cy and Di talk at the table, and Ed sits.",
      ["Ava and Ben dance.", "Cy and Di talk at the table.", "Ed sits."]),
     ("Ava, Ben and Cy dance.", ["Ava, Ben and Cy dance."]),
+    ("Ava puts a record on, then she and Ben dance.", ["Ava puts a record on.", "Then Ava and Ben dance."]),
+    ("Ava and Cy cook, then they eat.", ["Ava and Cy cook.", "Then Ava and Cy eat."]),
     ("Ava and Ben order food, and Cy, their waiter, takes the order.",
      ["Ava and Ben order food.", "Cy, their waiter, takes the order."]),
 ])

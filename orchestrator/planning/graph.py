@@ -277,6 +277,7 @@ def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
             deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), deps.action_labels,
             activity=event_text(state.event.activity, part),
             widen=any(t.error == "UnsatisfiableAreaError" for t in state.parser_turns),
+            context=state.event.activity if part else "",
         ) if deps.program_grammar else None,
     )
 
