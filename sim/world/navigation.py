@@ -79,6 +79,11 @@ class WorldNavigator:
         """Why a body cannot walk straight from ``cell``'s centre to ``xy`` and stand there."""
         return self.nav.target_problem(cell, xy)
 
+    def detour_distance(self, name: str) -> float | None:
+        """Metres left on the walker's route around stationary bodies, when it was planned so
+        (``CrowdNavigator.detour_distance``); else None."""
+        return self.nav.detour_distance(name)
+
     def position(self, name: str) -> np.ndarray:
         """The walker's xy at the last produced frame (metres)."""
         return self.nav.position(name)
