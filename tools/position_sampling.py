@@ -4,6 +4,11 @@ Rules (all distances in metres):
 
 - free floor: the body centre stays ``body_radius`` (0.25) inside the scene bounds and at least
   ``body_radius`` from the footprint of every floor-standing object;
+- reachable: a character can walk there: some cell of the scene's main walkable component of
+  the navigation grid (``sim.paths.nav_grid``, the path planner's own clearance and cells)
+  within two cells has a straight furniture-free walk to the point (``NavGrid.entry_cell``);
+  free floor in a pocket enclosed by furniture is not admissible. The grid is built once per
+  scene (cached);
 - other characters: at least ``min_separation`` (0.5) from every point in ``avoid`` (other
   characters' positions and targets);
 - group: when members of the same event were already placed, prefer points within
@@ -25,6 +30,8 @@ falls back to a random point.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +40,9 @@ from sim.scene.model import Scene
 from tools.areas import Area, SeatSlot, seat_slots
 from tools.errors import UnsatisfiableAreaError
 from tools.scene_graph import footprint_distance, point_footprint_distance
+
+if TYPE_CHECKING:
+    from sim.paths.nav_grid import NavGrid
 
 BODY_RADIUS = 0.25
 MIN_SEPARATION = 0.5
@@ -66,6 +76,40 @@ class FloorMap:
             ok[idx] = point_footprint_distance(obj, p[idx]) >= r
         return ok
 
+    def reachable(self, xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Whether points (N, 2) can be walked to (see the module docstring: an entry cell of
+        the main walkable component with a straight clear walk to the point)."""
+        p = np.asarray(xy, dtype=float).reshape(-1, 2)
+        grid = scene_nav_grid(self.scene)
+        from sim.paths.nav_grid import body_clearance  # numba: only when sampling
+
+        main = grid.main_component
+        base = np.floor((p - np.asarray(grid.origin)) / grid.cell_size).astype(np.int64)
+        nx, ny = grid.shape
+        r = grid.body_radius
+        ok = np.zeros(len(p), dtype=bool)
+        # the point itself must be clear of everything the grid blocks (wall-mounted things too)
+        ok |= body_clearance(grid.obstacles, p, p, cutoff=r) < r - 1e-9
+        lo, hi = np.asarray(grid.bounds_min) + r, np.asarray(grid.bounds_max) - r
+        ok |= np.any((p < lo) | (p > hi), axis=1)
+        blocked = ok.copy()
+        for di in range(-2, 3):
+            for dj in range(-2, 3):
+                todo = np.flatnonzero(~ok)
+                if len(todo) == 0:
+                    return ok & ~blocked
+                i, j = base[todo, 0] + di, base[todo, 1] + dj
+                inside = (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
+                todo, i, j = todo[inside], i[inside], j[inside]
+                walk = grid.component[i, j] == main
+                todo, i, j = todo[walk], i[walk], j[walk]
+                if len(todo) == 0:
+                    continue
+                centres = grid.centers(np.stack([i, j], axis=1))
+                clear = body_clearance(grid.obstacles, centres, p[todo], cutoff=r) >= r
+                ok[todo[clear]] = True
+        return ok & ~blocked
+
     def colliding_objects(self, xy: tuple[float, float]) -> list[str]:
         """Floor-standing objects whose footprint grown by the body radius contains ``xy``."""
         p = np.asarray(xy, dtype=float).reshape(1, 2)
@@ -74,6 +118,14 @@ class FloorMap:
             for o in self.obstacles
             if float(point_footprint_distance(o, p)[0]) < self.body_radius
         ]
+
+
+@lru_cache(maxsize=4)
+def scene_nav_grid(scene: Scene) -> NavGrid:
+    """The path planner's navigation grid of ``scene`` (built once per scene content)."""
+    from sim.paths.nav_grid import build_nav_grid  # numba: only when sampling
+
+    return build_nav_grid(scene)
 
 
 @dataclass(frozen=True)
@@ -226,6 +278,11 @@ def sample_position(
     if len(free) == 0:
         raise UnsatisfiableAreaError(
             f"no free floor in '{area.description}': it is covered by furniture or too close to a wall"
+        )
+    free = free[floor.reachable(free)]
+    if len(free) == 0:
+        raise UnsatisfiableAreaError(
+            f"no reachable floor in '{area.description}': its free floor is enclosed by furniture"
         )
     clear = free[_far_from(free, c.avoid, c.min_separation)]
     if len(clear) == 0:
