@@ -62,6 +62,8 @@ class FloorMap:
         self.scene = scene
         self.body_radius = body_radius
         self.obstacles = [o for o in scene.objects if abs(o.z_min - scene.floor_z) < floor_support]
+        # built (or found in the cache) here, before any event program's time budget starts
+        self.grid = scene_nav_grid(scene)
 
     def free(self, xy: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Whether points (N, 2) are on free floor (inside the bounds, clear of furniture)."""
@@ -80,7 +82,7 @@ class FloorMap:
         """Whether points (N, 2) can be walked to (see the module docstring: an entry cell of
         the main walkable component with a straight clear walk to the point)."""
         p = np.asarray(xy, dtype=float).reshape(-1, 2)
-        grid = scene_nav_grid(self.scene)
+        grid = self.grid
         from sim.paths.nav_grid import body_clearance  # numba: only when sampling
 
         main = grid.main_component
