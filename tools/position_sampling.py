@@ -21,14 +21,21 @@ Rules (all distances in metres):
 - margin: points that stay inside the area when moved 0.1 m in any axis direction are preferred
   (so that a tolerance-free check of the same relation still holds);
 - the candidates are a lattice of step 0.05 with a seeded offset; one is drawn uniformly with a
-  seeded ``numpy.random.Generator``: the same seed and inputs give the same position.
+  seeded ``numpy.random.Generator``: the same seed and inputs give the same position;
+- relaxation: a single directional area (``tools.areas.directional``) whose lattice has no
+  free reachable point (whoever else is there) is replaced by its smallest relaxation that has
+  an admissible point (``Area.relaxations``: the same side of the object, wider and further
+  out), and within it the points nearest the strict area are drawn from (``RELAXED_BAND``).
+  Only then: an area with room gives exactly the position it gives without relaxations, and
+  combined areas, which have none, are never relaxed.
 
-An area with no admissible point raises ``UnsatisfiableAreaError`` naming the reason; it never
-falls back to a random point.
+An area with no admissible point (nor, for a directional one, its widest relaxation) raises
+``UnsatisfiableAreaError`` naming the reason; it never falls back to a random point.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import TYPE_CHECKING
@@ -51,6 +58,9 @@ LATTICE_STEP = 0.05
 INTERIOR_MARGIN = 0.1
 MAX_CANDIDATES = 250_000
 FLOOR_SUPPORT = 0.10
+RELAXED_BAND = 0.1
+"""m: in a relaxed area, only points within this much of the smallest excess over the strict
+area are drawn from (``tools.areas.Relaxation.excess``)."""
 
 
 class FloorMap:
@@ -272,6 +282,17 @@ def sample_position(
             f"the area '{area.description}' is empty (its parts do not overlap)"
         )
 
+    try:
+        free = _walkable(area, floor, rng)
+    except UnsatisfiableAreaError as strict:
+        if not area.relaxations:
+            raise
+        return _sample_relaxed(area, floor, c, rng, strict)
+    return _draw(area, free, c, rng)
+
+
+def _walkable(area: Area, floor: FloorMap, rng: np.random.Generator) -> NDArray[np.float64]:
+    """The lattice points of ``area`` on free, reachable floor (others' positions aside)."""
     points = _lattice(area, floor.scene, rng)
     inside = points[area.contains(points)] if len(points) else points
     if len(inside) == 0:
@@ -286,11 +307,26 @@ def sample_position(
         raise UnsatisfiableAreaError(
             f"no reachable floor in '{area.description}': its free floor is enclosed by furniture"
         )
+    return free
+
+
+def _draw(
+    area: Area,
+    free: NDArray[np.float64],
+    c: Constraints,
+    rng: np.random.Generator,
+    excess: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
+) -> Placement:
+    """One of the ``free`` points of ``area`` away from others, by the preferences of the
+    module docstring (with ``excess``: first the points nearest the strict area)."""
     clear = free[_far_from(free, c.avoid, c.min_separation)]
     if len(clear) == 0:
         raise UnsatisfiableAreaError(
             f"every free spot in '{area.description}' is within {c.min_separation} m of another character"
         )
+    if excess is not None:
+        e = excess(clear)
+        clear = clear[e <= e.min() + RELAXED_BAND]
     if c.group:
         near = _near_all(clear, c.group, c.group_radius)
         if near.any():
@@ -300,3 +336,34 @@ def sample_position(
         clear = clear[interior]
     chosen = clear[int(rng.integers(len(clear)))]
     return Placement((float(chosen[0]), float(chosen[1])))
+
+
+def _sample_relaxed(
+    area: Area,
+    floor: FloorMap,
+    c: Constraints,
+    rng: np.random.Generator,
+    strict: UnsatisfiableAreaError,
+) -> Placement:
+    """A point of the smallest relaxation of ``area`` with room (``strict``: why the area itself
+    has none), else UnsatisfiableAreaError saying that the widest relaxation has none either."""
+    crowded = False
+    for relaxation in area.relaxations:
+        try:
+            free = _walkable(relaxation.area, floor, rng)
+        except UnsatisfiableAreaError:
+            continue
+        try:
+            return _draw(relaxation.area, free, c, rng, relaxation.excess)
+        except UnsatisfiableAreaError:
+            crowded = True
+    widest = area.relaxations[-1]
+    where = f"{widest.side:g} m past its sides and {widest.reach:g} m out"
+    if crowded:
+        raise UnsatisfiableAreaError(
+            f"{strict.feedback}; relaxed up to {where}, every free spot is within "
+            f"{c.min_separation} m of another character"
+        )
+    raise UnsatisfiableAreaError(
+        f"{strict.feedback}; relaxed up to {where}, there is no free reachable floor either"
+    )
