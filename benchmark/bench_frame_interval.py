@@ -5,7 +5,8 @@ OpenAI-compatible provider on 127.0.0.1 (``tests/support/fake_openai_server.py``
 ``--latency`` seconds (default 5) per call and answers every call with an event program for the
 first free character. Event programs run in the worker process, as in ``storyteller run``.
 
-Two runs per repeat, same arguments, alternating so both see the same machine state:
+Two runs per repeat, same arguments, alternating so both see the same machine state, each in
+a fresh interpreter (cold imports and compiled kernels, as a ``storyteller run``):
 ``baseline`` writes each session checkpoint on the event loop (``save_checkpoint`` inline in
 the frame, as before ``orchestrator.session.checkpoint_writer``: fsyncs of every motion chunk
 file and the snapshot), ``product`` is ``storyteller run`` as it is (the checkpoint writer
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import multiprocessing
 import os
 import re
 import tempfile
@@ -157,12 +159,14 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=1, help="Runs per mode, alternating baseline and product.")
     ns = parser.parse_args()
     runs: dict[str, list[Run]] = {mode: [] for mode in MODES}
+    spawn = multiprocessing.get_context("spawn")  # each run in a fresh interpreter: cold, as `storyteller run`
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(ns.repeat):
             for mode in MODES:
                 folder = Path(tmp) / str(k)
                 folder.mkdir(exist_ok=True)
-                runs[mode].append(run_once(mode, ns.duration, ns.latency, folder))
+                with spawn.Pool(1) as pool:
+                    runs[mode].append(pool.apply(run_once, (mode, ns.duration, ns.latency, folder)))
     rows = {mode: merge(r) for mode, r in runs.items()}
     print(f"realtime, 20 characters, {ns.latency:g} s per LLM call, {ns.duration:g} s per run, {ns.repeat} run(s) per mode")
     print(f"{'mode':9} {'p50 ms':>7} {'p95 ms':>7} {'p99 ms':>7} {'max ms':>7} {'>33.3ms':>8} {'>40ms':>7} "
