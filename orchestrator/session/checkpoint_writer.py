@@ -13,6 +13,11 @@ the file in the order they were taken, each atomically (the previous file stays 
 one is renamed over it), and :meth:`flush` / :meth:`close` return once the newest one taken is
 on disk. A failed write (a full disk) is raised, naming the file, by the next :meth:`submit`,
 :meth:`flush` or :meth:`close` in the caller's thread; nothing is written after it.
+
+A kill -9 may now find on disk the checkpoint before the one being written (a few frames or
+one applied step older). ``storyteller resume`` handles it as any earlier checkpoint: steps the
+trace shows applied after it are applied again at their recorded frames, answered from the
+planner's story log (``orchestrator.session.run_job``).
 """
 
 from __future__ import annotations
