@@ -18,11 +18,19 @@ checks the replay wrote the same ``story.json`` as the recording. It prints the 
 time, the replay's, their ratio, and the start-up floor (``import orchestrator.cli.app`` in a
 fresh process) next to them.
 
+Import-time breakdown: one more replay under ``python -X importtime``, its import time summed by
+top-level package (self time, so each module counts once) and the total, against the replay's
+wall time in that run (``-X importtime`` itself slows imports a little).
+
+Before / after in one run: ``--baseline DIR`` (a checkout of the project, e.g. the main branch)
+replays the same recording with that code too (``PYTHONPATH=DIR``), interleaved with this
+checkout's replays so both see the same machine load, and prints its figures and the speed-up.
+
 Target (issue 14): the replay of a recorded 60 s story at least 20x faster than its recorded
 wall time.
 
 Usage: ``python -m benchmark.bench_replay [--latency S] [--seconds 60] [--max-events 8] [--repeats 3]
-[--keep DIR]``.
+[--keep DIR] [--baseline DIR]``.
 """
 
 from __future__ import annotations
@@ -93,6 +101,33 @@ def timed(args: list[str], env: dict[str, str]) -> tuple[float, float]:
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
+def import_breakdown(stderr: str) -> tuple[float, list[tuple[str, float]]]:
+    """(total seconds, [(top-level package, seconds)] largest first) of ``-X importtime`` output."""
+    by_top: dict[str, float] = {}
+    for m in re.finditer(r"^import time:\s+(\d+) \|\s+\d+ \|\s*(\S+)$", stderr, flags=re.M):
+        top = m.group(2).split(".")[0]
+        by_top[top] = by_top.get(top, 0.0) + int(m.group(1)) / 1e6
+    return sum(by_top.values()), sorted(by_top.items(), key=lambda kv: -kv[1])
+
+
+def replay_imports(run_dir: Path, out: Path, env: dict[str, str]) -> tuple[float, float, list[tuple[str, float]]]:
+    """(wall seconds, import seconds, by package) of one replay under ``-X importtime``."""
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, "-X", "importtime", "-c", CLI, "replay", str(run_dir), "--out", str(out)],
+                          cwd=ROOT, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise SystemExit(f"replay under -X importtime failed ({done.returncode}):\n{done.stderr[-2000:]}")
+    total, by_top = import_breakdown(done.stderr)
+    return wall, total, by_top
+
+
+def with_code(env: dict[str, str], root: Path) -> dict[str, str]:
+    """``env`` running the code of the checkout ``root`` (first on ``PYTHONPATH``)."""
+    rest = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and Path(p).resolve() != ROOT]
+    return {**env, "PYTHONPATH": os.pathsep.join([str(root), *rest])}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--latency", type=float, default=None,
@@ -101,7 +136,12 @@ def main() -> None:
     ap.add_argument("--max-events", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=3, help="replays; the fastest counts")
     ap.add_argument("--keep", type=Path, default=None, help="write the run folders here (default: a temp folder)")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="a checkout of the project whose replay of the same recording is timed too (before / after)")
+    ap.add_argument("--top", type=int, default=12, help="packages shown in the import-time breakdown")
     args = ap.parse_args()
+    if args.baseline is not None and not (args.baseline / "orchestrator" / "cli" / "app.py").is_file():
+        raise SystemExit(f"--baseline {args.baseline}: not a checkout of this project (no orchestrator/cli/app.py)")
     latency = recorded_latency() if args.latency is None else args.latency
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -123,25 +163,43 @@ def main() -> None:
                               str(args.max_events), "--config", str(cfg), "--out", str(run_dir)], env)
         metrics = json.loads((run_dir / "metrics.json").read_text(encoding="utf-8"))
         floor = min(timed(["-c", "import orchestrator.cli.app"], env)[0] for _ in range(3))
-        walls, cpus = [], []
+        codes = {"this checkout": env}
+        if args.baseline is not None:
+            codes["baseline"] = with_code(env, args.baseline.resolve())
+        walls: dict[str, list[float]] = {name: [] for name in codes}
+        cpus: dict[str, list[float]] = {name: [] for name in codes}
         for k in range(max(1, args.repeats)):
-            out = base / f"replay{k}"
-            wall, cpu = timed(["-c", CLI, "replay", str(run_dir), "--out", str(out)], env)
-            walls.append(wall)
-            cpus.append(cpu)
-            if (out / "story.json").read_bytes() != (run_dir / "story.json").read_bytes():
-                raise SystemExit(f"{out / 'story.json'} differs from the recording's")
-        best, median = min(walls), statistics.median(walls)
-        ratio = recorded / best
+            for j, (name, code_env) in enumerate(codes.items()):  # interleaved: both see the same load
+                out = base / f"replay{k}-{j}"
+                wall, cpu = timed(["-c", CLI, "replay", str(run_dir), "--out", str(out)], code_env)
+                walls[name].append(wall)
+                cpus[name].append(cpu)
+                if (out / "story.json").read_bytes() != (run_dir / "story.json").read_bytes():
+                    raise SystemExit(f"{out / 'story.json'} ({name}) differs from the recording's")
+        imports = {name: replay_imports(run_dir, base / f"importtime-{j}", code_env)
+                   for j, (name, code_env) in enumerate(codes.items())}
         print()
         print(f"story: {metrics['simulation']['frames'] / 30:.0f} simulated s, {planner.calls} LLM calls, "
-              f"{metrics['events']['applied']} events applied")
+              f"{metrics['events']['applied']} events applied; load average {os.getloadavg()[0]:.2f} "
+              f"on {os.cpu_count()} cores at the end")
         print(f"recorded run (fresh process, {latency:.2f} s per call): {recorded:8.2f} s wall")
-        print(f"replay (fresh process, fastest of {len(walls)}):      {best:8.2f} s wall "
-              f"(median {median:.2f} s; runs {', '.join(f'{w:.2f}' for w in walls)})")
-        print(f"replay CPU time (user + system, least of {len(cpus)}):  {min(cpus):8.2f} s")
+        for name in codes:
+            best, median, cpu = min(walls[name]), statistics.median(walls[name]), min(cpus[name])
+            print(f"replay, {name} (fresh process, fastest of {len(walls[name])}): {best:8.2f} s wall "
+                  f"(median {median:.2f} s; runs {', '.join(f'{w:.2f}' for w in walls[name])}); "
+                  f"CPU (user + system, least) {cpu:.2f} s; {recorded / best:.1f}x wall, {recorded / cpu:.1f}x by CPU")
+        if args.baseline is not None:
+            here, then = "this checkout", "baseline"
+            print(f"speed-up over the baseline: {min(walls[then]) / min(walls[here]):.2f}x wall (fastest), "
+                  f"{statistics.median(walls[then]) / statistics.median(walls[here]):.2f}x wall (median), "
+                  f"{min(cpus[then]) / min(cpus[here]):.2f}x CPU")
         print(f"start-up floor (import orchestrator.cli.app):      {floor:8.2f} s wall")
-        cpu_ratio = recorded / min(cpus)
+        for name, (wall, total, by_top) in imports.items():
+            shown = ", ".join(f"{top} {sec:.2f}" for top, sec in by_top[: args.top])
+            print(f"imports of one replay, {name} (-X importtime, self time): {total:.2f} s of {wall:.2f} s wall; "
+                  f"by package (s): {shown}")
+        best, cpu = min(walls["this checkout"]), min(cpus["this checkout"])
+        ratio, cpu_ratio = recorded / best, recorded / cpu
         verdict = "met" if ratio >= 20 else "met by CPU time only" if cpu_ratio >= 20 else "NOT met"
         print(f"issue 14 target (replay >= 20x faster than recorded): {ratio:.1f}x wall, {cpu_ratio:.1f}x by CPU time "
               f"-> {verdict}")
