@@ -21,6 +21,7 @@ from pathlib import Path
 
 from sim.export.bvh import Units, export_bvh
 from sim.export.glb import SkinnedBody, export_glb
+from sim.export.joint_rotations import JointRotations
 from sim.export.smplx_npz import export_smplx_npz
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack
@@ -69,6 +70,7 @@ def export_run(
             f"character names {[t.name for t in tracks]} collide as file names {slugs}"
         )
     outdir.mkdir(parents=True, exist_ok=True)
+    rotations = {t.name: JointRotations.of(t) for t in tracks}  # once for the npz, BVH and GLB
     with ThreadPoolExecutor(max_workers=WRITER_THREADS, thread_name_prefix="export") as pool:
 
         def each(write: Callable[[CharacterTrack, Path], Path], suffix: str) -> dict[str, Future[Path]]:
@@ -76,9 +78,9 @@ def export_run(
 
         # the npz writers first: their zlib work overlaps the others' Python work
         raw = each(lambda t, path: t.save(path), ".track.npz")
-        smplx = each(export_smplx_npz, ".smplx.npz")
-        bvh = each(lambda t, path: export_bvh(t, path, units=bvh_units), ".bvh")
-        glb = pool.submit(export_glb, outdir / "scene.glb", scene, tracks, bodies)
+        smplx = each(lambda t, path: export_smplx_npz(t, path, rotations=rotations[t.name]), ".smplx.npz")
+        bvh = each(lambda t, path: export_bvh(t, path, units=bvh_units, rotations=rotations[t.name]), ".bvh")
+        glb = pool.submit(export_glb, outdir / "scene.glb", scene, tracks, bodies, rotations)
     written = [glb, *raw.values(), *smplx.values(), *bvh.values()]
     for failed in (f.exception() for f in written):
         if failed is not None:
