@@ -16,7 +16,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sim.export.bundle import export_run, file_slug
-from sim.export.bvh import EULER_ORDER, WORLD_TO_BVH, bvh_motion_values, depth_first_order, export_bvh
+from sim.export.bvh import (
+    EULER_ORDER,
+    WORLD_TO_BVH,
+    bvh_motion_values,
+    depth_first_order,
+    export_bvh,
+)
 from sim.export.glb import WORLD_TO_GLTF, export_glb
 from sim.export.joint_rotations import JointRotations
 from sim.export.smplx_npz import export_smplx_npz, smplx_parameters
