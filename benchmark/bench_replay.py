@@ -30,7 +30,8 @@ Target (issue 14): the replay of a recorded 60 s story at least 20x faster than 
 wall time.
 
 Usage: ``python -m benchmark.bench_replay [--latency S] [--seconds 60] [--max-events 8] [--repeats 3]
-[--keep DIR] [--baseline DIR]``.
+[--keep DIR] [--baseline DIR] [--reuse DIR]``; ``--reuse`` replays the recording a ``--keep`` run left
+(with its recorded wall time) instead of recording again.
 """
 
 from __future__ import annotations
@@ -88,12 +89,13 @@ class Planner:
                 f'    a.set_orientation("{obj}")\n    a.set_target_action("{action}")\n```')
 
 
-def timed(args: list[str], env: dict[str, str]) -> tuple[float, float]:
+def timed(args: list[str], env: dict[str, str], cwd: Path = ROOT) -> tuple[float, float]:
     """(wall seconds, CPU seconds: user + system) of one fresh ``python`` process running
-    ``args``; exits on failure. The CPU time is what a loaded machine disturbs less."""
+    ``args`` in ``cwd`` (whose code ``python -c`` imports first); exits on failure. The CPU time
+    (the process and the children it waited for) is what a loaded machine disturbs less."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    done = subprocess.run([sys.executable, *args], cwd=ROOT, env=env, capture_output=True, text=True)
+    done = subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
@@ -110,11 +112,13 @@ def import_breakdown(stderr: str) -> tuple[float, list[tuple[str, float]]]:
     return sum(by_top.values()), sorted(by_top.items(), key=lambda kv: -kv[1])
 
 
-def replay_imports(run_dir: Path, out: Path, env: dict[str, str]) -> tuple[float, float, list[tuple[str, float]]]:
+def replay_imports(
+    run_dir: Path, out: Path, env: dict[str, str], cwd: Path
+) -> tuple[float, float, list[tuple[str, float]]]:
     """(wall seconds, import seconds, by package) of one replay under ``-X importtime``."""
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, "-X", "importtime", "-c", CLI, "replay", str(run_dir), "--out", str(out)],
-                          cwd=ROOT, env=env, capture_output=True, text=True)
+                          cwd=cwd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if done.returncode != 0:
         raise SystemExit(f"replay under -X importtime failed ({done.returncode}):\n{done.stderr[-2000:]}")
@@ -128,6 +132,31 @@ def with_code(env: dict[str, str], root: Path) -> dict[str, str]:
     return {**env, "PYTHONPATH": os.pathsep.join([str(root), *rest])}
 
 
+def code_folder(env: dict[str, str], cwd: Path) -> str:
+    """The folder a replay run with ``env`` in ``cwd`` imports ``orchestrator`` from."""
+    done = subprocess.run([sys.executable, "-c", "import orchestrator, os; print(os.path.dirname(orchestrator.__file__))"],
+                          cwd=cwd, env=env, capture_output=True, text=True, check=True)
+    return done.stdout.strip()
+
+
+def record(args: argparse.Namespace, base: Path, run_dir: Path, planner: Planner, env: dict[str, str]) -> float:
+    """Record the story into ``run_dir`` against the scripted server; its wall seconds."""
+    latency = planner.delay_s
+    with FakeOpenAI(responder=planner) as fake:
+        cfg = base / "fake.toml"
+        cfg.write_text(f'[llm]\nmodel = "openai/fake"\napi_base = "{fake.base}"\napi_key_env = "FAKE_PROVIDER_KEY"\n'
+                       f"timeout_s = {max(60.0, 4 * latency):.1f}\n[llm.retry]\nmax_attempts = 1\n", encoding="utf-8")
+        print(f"recording a {args.seconds:.0f} s story, {latency:.2f} s per LLM call ...", flush=True)
+        recorded, _ = timed(["-c", CLI, "run", "home", "--names", "Zoe,Max", "-d", f"{args.seconds:g}",
+                             "--planner", "unified", "--description", "object-list", "--max-events",
+                             str(args.max_events), "--config", str(cfg), "--out", str(run_dir)], env)
+    return recorded
+
+
+RECORDING = "recording.json"
+"""In a ``--keep`` folder: the recorded run's wall time, latency and calls, for ``--reuse``."""
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--latency", type=float, default=None,
@@ -139,7 +168,11 @@ def main() -> None:
     ap.add_argument("--baseline", type=Path, default=None,
                     help="a checkout of the project whose replay of the same recording is timed too (before / after)")
     ap.add_argument("--top", type=int, default=12, help="packages shown in the import-time breakdown")
+    ap.add_argument("--reuse", type=Path, default=None,
+                    help="a --keep folder of an earlier run: replay its recording (and its recorded wall time) again")
     args = ap.parse_args()
+    if args.reuse is not None and not (args.reuse / RECORDING).is_file():
+        raise SystemExit(f"--reuse {args.reuse}: no {RECORDING} (write one with --keep)")
     if args.baseline is not None and not (args.baseline / "orchestrator" / "cli" / "app.py").is_file():
         raise SystemExit(f"--baseline {args.baseline}: not a checkout of this project (no orchestrator/cli/app.py)")
     latency = recorded_latency() if args.latency is None else args.latency
@@ -153,31 +186,31 @@ def main() -> None:
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
         run_dir = base / "recorded"
         planner = Planner(latency)
-        with FakeOpenAI(responder=planner) as fake:
-            cfg = base / "fake.toml"
-            cfg.write_text(f'[llm]\nmodel = "openai/fake"\napi_base = "{fake.base}"\napi_key_env = "FAKE_PROVIDER_KEY"\n'
-                           f"timeout_s = {max(60.0, 4 * latency):.1f}\n[llm.retry]\nmax_attempts = 1\n", encoding="utf-8")
-            print(f"recording a {args.seconds:.0f} s story, {latency:.2f} s per LLM call ...", flush=True)
-            recorded, _ = timed(["-c", CLI, "run", "home", "--names", "Zoe,Max", "-d", f"{args.seconds:g}",
-                              "--planner", "unified", "--description", "object-list", "--max-events",
-                              str(args.max_events), "--config", str(cfg), "--out", str(run_dir)], env)
+        if args.reuse is not None:
+            kept = json.loads((args.reuse / RECORDING).read_text(encoding="utf-8"))
+            run_dir, recorded, latency, planner.calls = args.reuse / "recorded", kept["wall_s"], kept["latency_s"], kept["calls"]
+            print(f"replaying {run_dir}, recorded in {recorded:.2f} s ({latency:.2f} s per LLM call)", flush=True)
+        else:
+            recorded = record(args, base, run_dir, planner, env)
+            (base / RECORDING).write_text(json.dumps({"wall_s": recorded, "latency_s": latency, "calls": planner.calls}),
+                                          encoding="utf-8")
         metrics = json.loads((run_dir / "metrics.json").read_text(encoding="utf-8"))
         floor = min(timed(["-c", "import orchestrator.cli.app"], env)[0] for _ in range(3))
-        codes = {"this checkout": env}
+        codes = {"this checkout": (env, ROOT)}
         if args.baseline is not None:
-            codes["baseline"] = with_code(env, args.baseline.resolve())
+            codes["baseline"] = (with_code(env, args.baseline.resolve()), args.baseline.resolve())
         walls: dict[str, list[float]] = {name: [] for name in codes}
         cpus: dict[str, list[float]] = {name: [] for name in codes}
         for k in range(max(1, args.repeats)):
-            for j, (name, code_env) in enumerate(codes.items()):  # interleaved: both see the same load
+            for j, (name, (code_env, code_root)) in enumerate(codes.items()):  # interleaved: the same load
                 out = base / f"replay{k}-{j}"
-                wall, cpu = timed(["-c", CLI, "replay", str(run_dir), "--out", str(out)], code_env)
+                wall, cpu = timed(["-c", CLI, "replay", str(run_dir), "--out", str(out)], code_env, code_root)
                 walls[name].append(wall)
                 cpus[name].append(cpu)
                 if (out / "story.json").read_bytes() != (run_dir / "story.json").read_bytes():
                     raise SystemExit(f"{out / 'story.json'} ({name}) differs from the recording's")
-        imports = {name: replay_imports(run_dir, base / f"importtime-{j}", code_env)
-                   for j, (name, code_env) in enumerate(codes.items())}
+        imports = {name: replay_imports(run_dir, base / f"importtime-{j}", code_env, code_root)
+                   for j, (name, (code_env, code_root)) in enumerate(codes.items())}
         print()
         print(f"story: {metrics['simulation']['frames'] / 30:.0f} simulated s, {planner.calls} LLM calls, "
               f"{metrics['events']['applied']} events applied; load average {os.getloadavg()[0]:.2f} "
@@ -193,6 +226,8 @@ def main() -> None:
             print(f"speed-up over the baseline: {min(walls[then]) / min(walls[here]):.2f}x wall (fastest), "
                   f"{statistics.median(walls[then]) / statistics.median(walls[here]):.2f}x wall (median), "
                   f"{min(cpus[then]) / min(cpus[here]):.2f}x CPU")
+        for name, (code_env, code_root) in codes.items():
+            print(f"code of {name}: {code_folder(code_env, code_root)}")
         print(f"start-up floor (import orchestrator.cli.app):      {floor:8.2f} s wall")
         for name, (wall, total, by_top) in imports.items():
             shown = ", ".join(f"{top} {sec:.2f}" for top, sec in by_top[: args.top])
