@@ -20,8 +20,9 @@ scene crosses once per scene per worker: requests name it by the SHA-256 of its 
 child keeps the last ``SCENES_KEPT`` scenes (with their scene graphs) and answers
 ``need_scene`` for one it lacks, and the parent then sends it. Loading a scene also builds
 what the position sampler needs for it (navigation grid, compiled kernels), outside every
-program's budget and CPU limit. The child is reused across
-programs (no process start on the hot path) and restarted when it dies or is killed. It
+program's budget and CPU limit. The child is reused across programs (no process start on the
+hot path) and restarted when it dies or is killed; it starts with the first program, or ahead
+of it with ``prestart()`` (its imports then overlap the caller's set-up). It
 inherits only :data:`WORKER_ENV` from the parent's environment, never an API key.
 """
 
@@ -157,9 +158,25 @@ class WorkerRunner:
         """Worker processes started so far (a restart after a death adds one)."""
         self._scene: tuple[Scene, str, str] | None = None
         self._lock = threading.Lock()
+        self._starting = False
+        """``process`` was started by :meth:`prestart` and has not said it is ready yet."""
 
     # -- process management
+    def prestart(self) -> None:
+        """Start the worker process now and return at once: its imports run while the caller
+        goes on with its own set-up, and the first program waits for it to be ready. A worker
+        already running (or starting) is kept."""
+        with self._lock:
+            if self.process is None:
+                self.process = self._spawn()
+                self._starting = True
+
     def _start(self) -> subprocess.Popen[bytes]:
+        process = self._spawn()
+        self._await_ready(process)
+        return process
+
+    def _spawn(self) -> subprocess.Popen[bytes]:
         env = {
             **{name: os.environ[name] for name in WORKER_ENV if name in os.environ},
             "OPENBLAS_NUM_THREADS": "1",
@@ -179,15 +196,24 @@ class WorkerRunner:
             env=env,
         )
         self.starts += 1
+        return process
+
+    @staticmethod
+    def _await_ready(process: subprocess.Popen[bytes]) -> None:
         assert process.stdout is not None
         ready, _, _ = select.select([process.stdout], [], [], START_SECONDS)
         if not ready or _read_frame(process.stdout) != {"ready": True}:
             process.kill()
             process.wait()
             raise EventProgramError("the event-program worker process did not start")
-        return process
 
     def _worker(self) -> subprocess.Popen[bytes]:
+        if self._starting and self.process is not None:  # prestarted: wait for its ready frame
+            self._starting = False
+            try:
+                self._await_ready(self.process)
+            except EventProgramError:  # it died while starting: started again below, as any dead worker
+                self.close()
         if self.process is None or self.process.poll() is not None:
             self.close()
             self.process = self._start()
@@ -196,6 +222,7 @@ class WorkerRunner:
     def close(self) -> None:
         """Stop the worker (the next program starts a new one)."""
         process, self.process = self.process, None
+        self._starting = False
         if process is None:
             return
         with contextlib.suppress(OSError):

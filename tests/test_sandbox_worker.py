@@ -114,3 +114,31 @@ def test_the_first_program_on_a_new_worker_imports_and_builds_nothing() -> None:
     line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("FIRST ")), None)
     assert line is not None, proc.stderr[-2000:]
     assert json.loads(line.removeprefix("FIRST ")) == {"imported": [], "grids_built": 0}
+
+
+def test_a_prestarted_worker_runs_the_first_program(scene: Scene) -> None:
+    with WorkerRunner() as run:
+        run.prestart()
+        run.prestart()  # one worker, however often
+        assert run.starts == 1 and run.process is not None
+        assert run(scene, PLACE, WorldView(), seed=0) == run_event_program(scene, PLACE, WorldView(), seed=0)
+        assert run.starts == 1
+
+
+def test_a_prestarted_worker_that_died_before_its_first_program_is_restarted(scene: Scene) -> None:
+    with WorkerRunner() as run:
+        run.prestart()
+        assert run.process is not None
+        run.process.kill()
+        run.process.wait()
+        assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
+        assert run.starts == 2
+
+
+def test_closing_a_prestarted_worker_stops_it() -> None:
+    run = WorkerRunner()
+    run.prestart()
+    process = run.process
+    assert process is not None
+    run.close()
+    assert run.process is None and process.poll() is not None

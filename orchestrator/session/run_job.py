@@ -386,6 +386,8 @@ async def run_story(
     checkpoints = CheckpointWriter(snapshot_path)
     finished = False
     try:
+        if isinstance(deps.runner, WorkerRunner):
+            deps.runner.prestart()  # the worker imports while the graph is built and the first frames run
         async with open_checkpointer(runs_db) as saver:
             graph = compile_graph(ablation, saver)
             planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
