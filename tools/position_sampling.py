@@ -72,8 +72,10 @@ class FloorMap:
         self.scene = scene
         self.body_radius = body_radius
         self.obstacles = [o for o in scene.objects if abs(o.z_min - scene.floor_z) < floor_support]
-        # built (or found in the cache) here, before any event program's time budget starts
+        # built (or found in the cache) here, and the compiled reachability test loaded, before
+        # any event program's time budget starts
         self.grid = scene_nav_grid(scene)
+        self.reachable((np.asarray(scene.bounds_min) + np.asarray(scene.bounds_max)).reshape(1, 2) / 2.0)
 
     def free(self, xy: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Whether points (N, 2) are on free floor (inside the bounds, clear of furniture)."""
