@@ -128,10 +128,14 @@ class RankedLabel:
     score: int
 
 
+_DETERMINERS = frozenset({"their", "his", "her", "its", "our", "my", "your"})
+"""Possessives read as "the", so a cue phrase names its thing whoever owns it ("takes their order")."""
+
+
 def _tokens(text: str) -> list[str]:
     out: list[str] = []
     for w in _TOKEN.findall(text.lower().replace("_", " ").replace("-", " ")):
-        out.extend(_SYNONYMS.get(w, w).split())
+        out.extend(("the",) if w in _DETERMINERS else _SYNONYMS.get(w, w).split())
     return out
 
 

@@ -12,7 +12,11 @@ LLM) still chooses and writes the event.
 - ``split_instruction``: sentences, lines and ``;`` make parts, and so does "then" inside a
   sentence (", then", "and then"); a part without a subject of its own ("then sits on the
   couch") takes the characters that open the part before it.
-- ``part_states``: each history event is matched to the not yet matched part that shares the
+- ``part_states``: an event that says which part it was planned for (``HistoryEntry.part``,
+  set by the planner) marks that part; one that failed (it could not be placed, or failed in
+  the simulation) leaves the part open, and after ``PART_ATTEMPTS`` such failures the part is
+  ``failed`` and the story moves on to the next. Any other history event (older traces, the
+  benchmark's cases) is matched by its words: to the not yet matched part that shares the
   most content words with its activity (word stems, object names split at ``_``) and whose
   actors (the first run of names in it) include one of its characters, earliest first on
   ties; an event sharing no word, or repeating an earlier event's activity, matches nothing.
@@ -21,12 +25,13 @@ LLM) still chooses and writes the event.
   count: the instruction can change mid-story, and an event planned under an earlier one
   ("Ben walks to the kitchen") must not mark a part of the new one ("Ben leaves the
   kitchen") done because their words share stems.
-- ``next part``: the first unmatched part whose actors are all free (a part naming nobody
-  needs any free character). The prompt names it on a line of its own. When parts are left
+- ``next part``: the first unmatched part whose actors are all free and have no earlier
+  part still open (a part naming nobody needs any free character); a part that failed once
+  goes after the untried ones. The prompt names it on a line of its own. When parts are left
   but none is next (what is left waits for busy characters), the instruction has nothing for
   the free characters now: the narrator's rule says to wait, and the planner records the wait
-  without asking the model, unless some free characters are *bystanders* (the instruction
-  never names them): they are asked for an event of their own (the reply may name only them),
+  without asking the model, unless some free characters are *bystanders* (no part still open
+  names them: the instruction never did, or their parts are over): they are asked for an event of their own (the reply may name only them),
   so nobody the user did not mention stands idle while the others carry the instruction out. Once every part has happened the model is asked as before (its
   rules say what to do with free characters the instruction no longer needs).
   When the next part has actors, the narrator's reply may name only them (the schema's enum):
@@ -43,7 +48,11 @@ from typing import Literal
 from agents.messages import HistoryEntry
 from agents.prompt_templates import PromptLibrary, package_prompts
 
-PartState = Literal["done", "ongoing", "next", ""]
+PartState = Literal["done", "ongoing", "failed", "next", ""]
+
+PART_ATTEMPTS = 2
+"""Events planned for one part that failed (could not be placed, or failed in the simulation)
+before the part is given up (``failed``) and the story moves on to the next."""
 
 _PARTS = re.compile(r"(?<=[.!?;])\s+|\n+")
 _THEN = re.compile(r"(?:,\s*(?:and\s+)?|\s+and\s+)then,?\s+(?=[A-Za-z])", re.IGNORECASE)
@@ -126,7 +135,8 @@ def _at_the_same_time(sentence: str, names: Sequence[str]) -> list[str]:
         return [sentence]
     cut = re.compile(
         rf",?\s+(?:while|whilst|meanwhile|as)\s+(?=(?:{run})\b)|;\s+(?=(?:{run})\b)"
-        rf"|,\s*(?:and\s+)?(?=(?:{run})\s+[a-z])"  # ", Cleo and Dan talk ...": a new subject and its verb
+        rf"|,\s*(?:and\s+)?(?=(?:{run})(?:,[^,.;]{{1,40}},)?\s+[a-z])"  # ", Cleo and Dan talk ...": a new subject
+        # and its verb, maybe with an apposition between them (", and Cleo, their waiter, takes ...")
     )
     ends_with_name = re.compile(rf"(?:{run})\W*$")
     clauses: list[str] = []
@@ -167,8 +177,24 @@ def part_states(
 ) -> list[PartState]:
     """How far the story has got with each part (see the module docstring)."""
     states: list[PartState] = [""] * len(parts)
+    failures = [0] * len(parts)
+    entries = sorted((h for h in history if h.index >= since), key=lambda e: e.index)
+    for h in entries:  # events that say which part they were planned for
+        if not h.part:
+            continue
+        i = next((i for i, p in enumerate(parts) if p.text == h.part and states[i] not in ("done", "ongoing")), -1)
+        if i < 0:
+            continue
+        if h.state == "failed":
+            failures[i] += 1
+            if failures[i] >= PART_ATTEMPTS:
+                states[i] = "failed"
+        else:
+            states[i] = "ongoing" if h.state == "ongoing" else "done"
     seen: set[str] = set()
-    for h in sorted((h for h in history if h.index >= since), key=lambda e: e.index):
+    for h in entries:  # the others: by their words
+        if h.part or h.state == "failed":
+            continue
         said = " ".join(h.activity.lower().split())
         if said in seen:  # the same activity again covers no new part
             continue
@@ -184,10 +210,18 @@ def part_states(
         if best >= 0:
             states[best] = "ongoing" if h.state == "ongoing" else "done"
     free_set = set(free)
+    waiting: set[str] = set()  # actors of earlier parts not yet done: their later parts wait
+    candidates: list[int] = []
     for i, p in enumerate(parts):
-        if not states[i] and ((p.actors and set(p.actors) <= free_set) or (not p.actors and free_set)):
-            states[i] = "next"
-            break
+        if states[i] in ("done", "failed"):
+            continue
+        if not states[i] and (
+            (p.actors and set(p.actors) <= free_set and not set(p.actors) & waiting) or (not p.actors and free_set)
+        ):
+            candidates.append(i)
+        waiting |= set(p.actors)
+    if candidates:  # a part that failed before goes after the untried ones
+        states[min(candidates, key=lambda i: (failures[i], i))] = "next"
     return states
 
 
@@ -221,15 +255,15 @@ def instruction_progress(
         return lib.render_text("story/instruction_part_marked.md", state=state, part=part.text)
 
     if len(parts) == 1:
-        text = marked(parts[0], states[0]) if states[0] in ("done", "ongoing") else parts[0].text
+        text = marked(parts[0], states[0]) if states[0] in ("done", "ongoing", "failed") else parts[0].text
     else:
         lines = [marked(p, s) if s else p.text for p, s in zip(parts, states, strict=True)]
         text = "\n" + "\n".join(
             lib.render_text("story/instruction_part_numbered.md", number=i + 1, part=m) for i, m in enumerate(lines)
         )
     if nxt is None:  # waiting for busy characters, or every part has happened
-        named = {n for p in parts for n in p.names}
-        bystanders = tuple(n for n in free if n not in named) if "" in states else ()
+        needed = {n for p, st in zip(parts, states, strict=True) if st not in ("done", "failed") for n in p.names}
+        bystanders = tuple(n for n in free if n not in needed) if "" in states else ()
         if bystanders:
             return InstructionProgress(text, None, bystanders, False, bystanders)
         return InstructionProgress(text, None, (), "" in states)

@@ -25,9 +25,10 @@ __all__ = [
     "SceneDescription",
 ]
 
-EventState = Literal["ongoing", "looping", "completed"]
+EventState = Literal["ongoing", "looping", "completed", "failed"]
 """ongoing: its characters are busy; looping: they keep acting but may be given a new event
-(interruptible); completed: finished, its characters are free."""
+(interruptible); completed: finished, its characters are free; failed: it could not be planned
+or carried out (its characters are free, and the instruction part it was for is still open)."""
 
 MAX_EVENT_CHARACTERS = 6
 MAX_ACTIVITY_CHARS = 160
@@ -74,6 +75,10 @@ class HistoryEntry(_Frozen):
     characters: tuple[str, ...]
     activity: str
     state: EventState
+    part: str = Field(
+        default="", description="The instruction part the event was planned for (exactly as the narrator was "
+        "shown it); empty when it carried out none.",
+    )
 
 
 class CharacterStatus(_Frozen):
@@ -124,6 +129,7 @@ class ParsedEvent(_Frozen):
     program: str = Field(default="", description="The parse_event() source that was run.")
     narrator_attempts: int = Field(default=1, ge=0)
     parser_attempts: int = Field(default=1, ge=0)
+    part: str = Field(default="", description="The instruction part the event carries out (empty: none).")
 
 
 class SceneDescription(_Frozen):
@@ -147,3 +153,5 @@ class PlanningFailure(_Frozen):
     node: Literal["describer", "narrator", "event_parser", "planner"]
     attempts: int
     feedback: str
+    event: Event | None = Field(default=None, description="The narrator's event, when the parser failed on it.")
+    part: str = Field(default="", description="The instruction part that event was for (empty: none).")

@@ -104,8 +104,8 @@ def history_text(history: Sequence[HistoryEntry], prompts: PromptLibrary | None 
     lib = prompts or package_prompts()
     if not history:
         return lib.render_text("story/history_empty.md")
-    shown = [h for h in history if h.state != "completed"]
-    completed = [h for h in history if h.state == "completed"][-HISTORY_WINDOW:]
+    shown = [h for h in history if h.state not in ("completed", "failed")]
+    completed = [h for h in history if h.state in ("completed", "failed")][-HISTORY_WINDOW:]
     entries = sorted({h.index: h for h in (*shown, *completed)}.values(), key=lambda h: h.index)
     lines = []
     if len(entries) < len(history):

@@ -151,7 +151,7 @@ def program_grammar(
 
 def event_program_grammar(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[Any],
-    seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "",
+    seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
 ) -> str:
     """:func:`program_grammar` for an event in ``scene``: the labels its words point to
     (:func:`agents.action_shortlist.action_shortlist` of ``activity``; every offered label
@@ -159,7 +159,9 @@ def event_program_grammar(
     narrowed to the event's shortlist (:func:`agents.shortlist.event_shortlist`; all of them
     when it has none), and no seat to interact with (sitting goes through the seat function). ``activity`` is the event's text
     (the narrator's activity and the instruction part it comes from); ``characters`` are the
-    roster (objects with ``name``, ``seat``, ``position``)."""
+    roster (objects with ``name``, ``seat``, ``position``). ``widen`` (a retry after the named
+    place had no room): every area function over the shortlist, not only those the where-words
+    name, so the model can pick another place by the same things."""
     others = [c for c in characters if c.name not in event_characters]
     taken = set(seats_in_use) | {c.seat for c in others if getattr(c, "seat", None)}
     placed = np.array([c.position for c in others if c.position is not None], dtype=float).reshape(-1, 2)
@@ -176,7 +178,7 @@ def event_program_grammar(
 
     free_seats = [o.name for o in scene.objects if o.is_seat and free(o)]
     labels = list(action_shortlist(activity, action_labels, scene.labels)) or list(action_labels)
-    relations = relation_areas(activity)
+    relations = () if widen else relation_areas(activity)
     where = {c.name: (float(c.position[0]), float(c.position[1])) for c in others if c.position is not None}
     shortlist = event_shortlist(scene, activity, free_seats, labels, others=where)
     objects = list(shortlist.objects) or [o.name for o in scene.objects]

@@ -24,6 +24,7 @@ RESTAURANT = ("idle", "chat", "eat", "drink", "deliver_menu", "serve_food", "ser
 @pytest.mark.parametrize(("text", "labels", "best"), [
     ("Zoe brews an espresso before work", HOME, "use_coffee_maker"),
     ("Tom sips his tea on the couch", HOME, "drink"),
+    ("Then Lena takes their order at the corner table", ("take_order", "order_food", "order_drink", "idle"), "take_order"),
     ("Noor flicks the telly on", HOME, "turn_on_tv"),
     ("Noor switches the television off and stretches", HOME, "turn_off_tv"),
     ("Ivo warms up yesterday's soup", HOME, "use_microwave"),

@@ -31,6 +31,8 @@ def ev(i: int, who: tuple[str, ...], activity: str, state: EventState = "complet
     ("Ava and Ben dance, Cy and Di talk at the table, and Ed sits.",
      ["Ava and Ben dance.", "Cy and Di talk at the table.", "Ed sits."]),
     ("Ava, Ben and Cy dance.", ["Ava, Ben and Cy dance."]),
+    ("Ava and Ben order food, and Cy, their waiter, takes the order.",
+     ["Ava and Ben order food.", "Cy, their waiter, takes the order."]),
 ])
 def test_split_by_sentence_and_then_with_the_subject_carried_over(instruction: str, parts: list[str]) -> None:
     assert [p.text for p in split_instruction(instruction, (*NAMES, "Cy", "Di", "Ed"))] == parts
@@ -143,3 +145,56 @@ def test_the_reply_may_name_only_the_next_parts_actors() -> None:
     assert anyone.candidates == ["Ava", "Ben", "Cy"]
     free_story = NarratorInput(scene_description="-", characters=roster, instruction="")
     assert free_story.candidates == ["Ava", "Ben", "Cy"] and not free_story.progress.nothing_for_the_free
+
+
+PARTY = "Ava and Ben dance. Cy and Di talk at the table. Ava eats."
+PARTY_NAMES = ("Ava", "Ben", "Cy", "Di")
+
+
+def planned(i: int, who: tuple[str, ...], activity: str, part: str, state: EventState = "completed") -> HistoryEntry:
+    return HistoryEntry(index=i, characters=who, activity=activity, state=state, part=part)
+
+
+def test_an_event_planned_for_a_part_marks_that_part_whatever_its_words() -> None:
+    parts = split_instruction(PARTY, PARTY_NAMES)
+    # the narrator's words match nothing, and repeat the next event's words: the part decides
+    history = [planned(0, ("Ava", "Ben"), "bring menus to table_4", parts[0].text),
+               planned(1, ("Cy", "Di"), "bring menus to table_4", parts[1].text, "ongoing")]
+    assert part_states(parts, history, PARTY_NAMES) == ["done", "ongoing", "next"]
+
+
+def test_a_failed_part_stays_open_goes_after_untried_ones_and_is_given_up_after_two_failures() -> None:
+    parts = split_instruction(PARTY, PARTY_NAMES)
+    once = [planned(0, ("Ava", "Ben"), "dance in front of tv_1", parts[0].text, "failed")]
+    # untried part 2 goes first; part 3 (Ava) waits for Ava's open part 1
+    assert part_states(parts, once, PARTY_NAMES) == ["", "next", ""]
+    assert part_states(parts, once, ("Ava", "Ben")) == ["next", "", ""]
+    twice = [*once, planned(1, ("Ava", "Ben"), "dance by tv_1", parts[0].text, "failed")]
+    assert part_states(parts, twice, ("Ava", "Ben")) == ["failed", "", "next"]
+    progress = instruction_progress(PARTY, PARTY_NAMES, twice, ("Ava", "Ben"))
+    assert "[failed] Ava and Ben dance." in progress.text and progress.next_part == "Ava eats."
+    # a failed attempt followed by a success: done
+    fixed = [*once, planned(1, ("Ava", "Ben"), "dance", parts[0].text)]
+    assert part_states(parts, fixed, ("Ava", "Ben"))[0] == "done"
+
+
+def test_a_later_part_of_the_same_character_waits_for_the_earlier_one() -> None:
+    parts = split_instruction("Ava and Ben chat. Ben reads.", NAMES)
+    # Ava is busy elsewhere: Ben's reading comes after the chat, not instead of it
+    assert part_states(parts, [], ("Ben",)) == ["", ""]
+    assert part_states(parts, [], NAMES) == ["next", ""]
+
+
+def test_a_character_whose_parts_are_over_is_given_something_to_do_while_others_go_on() -> None:
+    text = "Ava and Ben take seats at the table. Cy brings them menus, then takes their order."
+    names = ("Ava", "Ben", "Cy")
+    parts = split_instruction(text, names)
+    seated = [planned(0, ("Ava", "Ben"), "sit at table_1", parts[0].text),
+              planned(1, ("Cy",), "bring menus", parts[1].text, "ongoing")]
+    progress = instruction_progress(text, names, seated, ("Ava", "Ben"))
+    assert progress.bystanders == ("Ava", "Ben")
+    # a character an open part still names waits for it
+    waiter = "Ava sits at the table. Cy serves Ava."
+    parts = split_instruction(waiter, names)
+    sat = [planned(0, ("Ava",), "sit", parts[0].text)]
+    assert instruction_progress(waiter, names, sat, ("Ava",)).bystanders == ()

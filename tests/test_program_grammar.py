@@ -262,3 +262,17 @@ def test_two_characters_sent_to_one_chair_sit_together_and_never_on_a_held_seat(
                      objects_in_use={"chair_1": "Ben"})
     with pytest.raises(UnsatisfiableAreaError, match="chair_1"):
         run_reply(program, scene=SCENE, event=event, world=held, seed=0, action_labels=LABELS)
+
+
+def test_a_retry_after_a_place_without_room_offers_every_area_function_by_the_same_things() -> None:
+    strict = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity="waits behind the couch")
+    wide = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity="waits behind the couch",
+                                 widen=True)
+
+    def offered(g: str) -> set[str]:
+        rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
+        return set(re.findall(r'"(get_area_[a-z_]+)\(', rules["area"]))
+
+    assert offered(strict) == {"get_area_behind"}
+    assert {"get_area_behind", "get_area_close_to", "get_area_adjacent_to"} <= offered(wide)
+    assert _alternatives(wide, "object") == _alternatives(strict, "object")

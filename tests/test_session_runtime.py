@@ -465,3 +465,22 @@ def test_realtime_pace_slips_after_a_stall_instead_of_bursting_catch_up_frames(
 
 def _run_async(main: Callable[[], Awaitable[SessionResult]]) -> SessionResult:
     return anyio.run(main)
+
+
+def test_the_history_shows_unplaced_events_as_failed_with_their_part() -> None:
+    from agents.messages import HistoryEntry
+    from orchestrator.session.runtime import StoryEvent, story_history
+
+    done = StoryEvent(index=0, event_id="event-0000", characters=("Ava",), activity="make coffee",
+                      requested_frame=1, applied_frame=1, state="completed", part="Ava makes coffee.")
+    broken = StoryEvent(index=2, event_id="event-0002", characters=("Ava",), activity="sit",
+                        requested_frame=5, applied_frame=5, state="failed", part="Then Ava sits.")
+    unplaced = PlanningFailure(index=1, node="event_parser", attempts=4, feedback="no free floor",
+                               event=Event(characters=("Ben",), activity="dance by tv_1"), part="Ben dances.")
+    narrator_gave_up = PlanningFailure(index=3, node="narrator", attempts=4, feedback="bad JSON")
+    history = story_history({e.event_id: e for e in (done, broken)}, [(1, unplaced), (3, narrator_gave_up)])
+    assert history == (
+        HistoryEntry(index=0, characters=("Ava",), activity="make coffee", state="completed", part="Ava makes coffee."),
+        HistoryEntry(index=1, characters=("Ben",), activity="dance by tv_1", state="failed", part="Ben dances."),
+        HistoryEntry(index=2, characters=("Ava",), activity="sit", state="failed", part="Then Ava sits."),
+    )

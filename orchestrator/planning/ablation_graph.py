@@ -123,7 +123,9 @@ def _rejected(
         "parser_seq": None,
     }
     if attempts > deps.max_retries:
-        update["failure"] = PlanningFailure(index=state.step, node=node, attempts=attempts, feedback=feedback)
+        update["failure"] = PlanningFailure(
+            index=state.step, node=node, attempts=attempts, feedback=feedback, event=state.event, part=state.part
+        )
     return update
 
 
@@ -167,7 +169,7 @@ async def check_coordinates(state: PlanningState, runtime: Runtime[PlanningDeps]
         return _rejected(state, deps, "event_parser", reply, exc)
     parsed = ParsedEvent(
         index=state.step, event=state.event, plans=result.plans, program=result.program,
-        narrator_attempts=state.narrator_attempts, parser_attempts=len(state.parser_turns) + 1,
+        narrator_attempts=state.narrator_attempts, parser_attempts=len(state.parser_turns) + 1, part=state.part,
     )
     record_parsed(deps, state.parser_seq, "event_parser", _plans_json(parsed))
     return {"parsed": parsed, "parser_reply": None, "parser_seq": None}

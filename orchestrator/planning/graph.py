@@ -64,7 +64,7 @@ from agents.event_parser import (
     run_reply,
 )
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
-from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
+from agents.messages import CharacterStatus, Event, HistoryEntry, ParsedEvent, PlanningFailure
 from agents.narrator import NarratorInput, narrator_request, parse_narration, waits_without_a_call
 from agents.program_grammar import event_program_grammar
 from agents.retry_feedback import REJECTIONS, feedback_from_error
@@ -213,7 +213,8 @@ def unavailable(
     turns = state.narrator_turns if node == "narrator" else state.parser_turns
     return {
         "failure": PlanningFailure(
-            index=state.step, node=node, attempts=len(turns) + 1, feedback=f"{type(exc).__name__}: {exc}"
+            index=state.step, node=node, attempts=len(turns) + 1, feedback=f"{type(exc).__name__}: {exc}",
+            event=state.event if node == "event_parser" else None, part=state.part if node == "event_parser" else "",
         ),
         "step_trace_seqs": (*state.step_trace_seqs, *exc.trace_seqs),
         "llm_calls": state.llm_calls + 1,
@@ -241,19 +242,19 @@ async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) 
             update["failure"] = PlanningFailure(index=state.step, node="narrator", attempts=attempts, feedback=feedback)
         return update
     record_parsed(deps, state.narrator_seq, "narrator", out.model_dump(mode="json"))
+    part = instruction_part(state, deps, out.event)
     if deps.progress is not None and not out.event.is_wait:
-        deps.progress.claim(out.event.characters, out.event.activity)
-    return {"event": out.event, "narrator_attempts": attempts, "narrator_reply": None, "narrator_seq": None}
+        deps.progress.claim(out.event.characters, out.event.activity, part)
+    return {"event": out.event, "part": part, "narrator_attempts": attempts, "narrator_reply": None, "narrator_seq": None}
 
 
-def instruction_part(state: PlanningState, deps: PlanningDeps) -> str:
-    """The instruction part the state's event carries out: the part the narrator was asked to
-    take next, when the event's characters are among its actors ("" otherwise)."""
-    assert state.event is not None
+def instruction_part(state: PlanningState, deps: PlanningDeps, event: Event) -> str:
+    """The instruction part ``event`` carries out: the part the narrator was asked to take
+    next, when the event's characters are among its actors ("" otherwise)."""
     progress = narrator_input(state, deps).progress
-    if progress.next_part is None or not state.event.characters:
+    if progress.next_part is None or not event.characters:
         return ""
-    if progress.next_actors and not set(state.event.characters) <= set(progress.next_actors):
+    if progress.next_actors and not set(event.characters) <= set(progress.next_actors):
         return ""
     return progress.next_part
 
@@ -261,7 +262,7 @@ def instruction_part(state: PlanningState, deps: PlanningDeps) -> str:
 def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
     """The event parser's input for the state's event (the one builder: ablation nodes use it too)."""
     assert state.description is not None and state.event is not None
-    part = instruction_part(state, deps)
+    part = state.part
     return ParserInput(
         scene_description=state.description.text,
         event=state.event,
@@ -275,6 +276,7 @@ def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
         grammar=event_program_grammar(
             deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), deps.action_labels,
             activity=event_text(state.event.activity, part),
+            widen=any(t.error == "UnsatisfiableAreaError" for t in state.parser_turns),
         ) if deps.program_grammar else None,
     )
 
@@ -315,13 +317,14 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
         feedback = feedback_from_error(exc, instruction=PARSER_RETRY_INSTRUCTION)
         record_parsed(deps, state.parser_seq, "event_parser", error=exc, feedback=feedback)
         update: dict[str, Any] = {
-            "parser_turns": (*state.parser_turns, RetryTurn(reply=reply, feedback=feedback)),
+            "parser_turns": (*state.parser_turns, RetryTurn(reply=reply, feedback=feedback, error=type(exc).__name__)),
             "parser_reply": None,
             "parser_seq": None,
         }
         if attempts > deps.max_retries:
             update["failure"] = PlanningFailure(
-                index=state.step, node="event_parser", attempts=attempts, feedback=feedback
+                index=state.step, node="event_parser", attempts=attempts, feedback=feedback,
+                event=state.event, part=state.part,
             )
         return update
     parsed = ParsedEvent(
@@ -331,6 +334,7 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
         program=result.program,
         narrator_attempts=state.narrator_attempts,
         parser_attempts=attempts,
+        part=state.part,
     )
     record_parsed(deps, state.parser_seq, "event_parser", {
         "plans": [p.model_dump(mode="json") for p in result.plans], "program": result.program,
@@ -366,8 +370,14 @@ async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -
                 characters=state.parsed.event.characters,
                 activity=state.parsed.event.activity,
                 state="ongoing" if ongoing else "completed",
+                part=state.parsed.part,
             )
         )
+    elif state.failure is not None and state.failure.event is not None:  # the part stays open
+        recent.append(HistoryEntry(
+            index=step, characters=state.failure.event.characters, activity=state.failure.event.activity,
+            state="failed", part=state.failure.part,
+        ))
     next_step = step + 1
     for name, until in list(busy_until.items()):
         if next_step > until:
@@ -389,6 +399,7 @@ async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -
         "narrator_seq": None,
         "narrator_turns": (),
         "event": None,
+        "part": "",
         "narrator_attempts": 0,
         "parser_reply": None,
         "parser_seq": None,

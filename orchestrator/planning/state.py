@@ -44,6 +44,7 @@ class RetryTurn(BaseModel):
 
     reply: str
     feedback: str
+    error: str = Field(default="", description="The rejection's error type, e.g. UnsatisfiableAreaError.")
 
     def as_turn(self) -> Turn:
         return Turn(reply=self.reply, feedback=self.feedback)
@@ -85,6 +86,7 @@ class PlanningState(BaseModel):
     narrator_seq: int | None = Field(default=None, description="Trace seq of ``narrator_reply``.")
     narrator_turns: tuple[RetryTurn, ...] = ()
     event: Event | None = None
+    part: str = Field(default="", description="The instruction part ``event`` carries out (empty: none).")
     narrator_attempts: int = 0
     parser_reply: str | None = None
     parser_seq: int | None = Field(default=None, description="Trace seq of ``parser_reply``.")
@@ -105,7 +107,7 @@ class StepProgress(Protocol):
 
     def llm_call(self, node: str, latency_s: float) -> None: ...
 
-    def claim(self, characters: Sequence[str], activity: str) -> None: ...
+    def claim(self, characters: Sequence[str], activity: str, part: str = "") -> None: ...
 
 
 class WorldProvider(Protocol):

@@ -193,6 +193,7 @@ def story_json(result: SessionResult, scene_name: str, names: list[str], instruc
             "state": e.state,
             "finished_frame": e.finished_frame,
             "failure": e.failure,
+            "part": e.part,
         }
         for e in result.events
     ]

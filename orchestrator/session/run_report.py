@@ -64,6 +64,8 @@ def story_markdown(story: dict[str, Any]) -> str:
         lines.append(f"## {clock(int(e['applied_frame']), fps)} {md_text(e['event_id'])}: {who}")
         lines.append("")
         lines.append(md_text(e["activity"]))
+        if e.get("part"):
+            lines.append(f"(for the instruction's part: {md_text(e['part'])})")
         lines.append("")
         for p in plans_of.get(e["index"], []):
             x, y = p["position"]

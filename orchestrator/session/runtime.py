@@ -165,8 +165,9 @@ class StepProgress(Protocol):
     def llm_call(self, node: str, latency_s: float) -> None:
         """An LLM call of the step returned (or failed) after ``latency_s`` seconds."""
 
-    def claim(self, characters: Sequence[str], activity: str) -> None:
-        """The step's event is decided: these characters take part (before any program runs)."""
+    def claim(self, characters: Sequence[str], activity: str, part: str = "") -> None:
+        """The step's event is decided: these characters take part (before any program runs),
+        for instruction ``part`` (empty: none)."""
 
 
 class StepPlanner(Protocol):
@@ -196,6 +197,8 @@ class StoryEvent:
     state: EventStatus = "ongoing"
     finished_frame: int | None = None
     failure: str | None = None
+    part: str = ""
+    """The instruction part the event carries out (empty: none)."""
 
 
 @dataclass
@@ -327,17 +330,21 @@ def world_commitments(world: World) -> tuple[dict[str, tuple[float, float]], dic
     return targets, seats
 
 
-def story_history(events: dict[str, StoryEvent]) -> tuple[HistoryEntry, ...]:
-    entries = sorted(events.values(), key=lambda e: e.index)[-HISTORY_WINDOW:]
-    return tuple(
-        HistoryEntry(
-            index=e.index,
-            characters=e.characters,
-            activity=e.activity,
-            state="completed" if e.state == "failed" else e.state,
-        )
-        for e in entries
-    )
+def story_history(
+    events: dict[str, StoryEvent], outcomes: Sequence[tuple[int, Outcome]] = ()
+) -> tuple[HistoryEntry, ...]:
+    """The narrator's history: the applied events, and the steps whose event could not be
+    placed (``failed``, like an event that failed in the simulation: its part stays open)."""
+    entries = [
+        HistoryEntry(index=e.index, characters=e.characters, activity=e.activity, state=e.state, part=e.part)
+        for e in events.values()
+    ]
+    entries += [
+        HistoryEntry(index=i, characters=o.event.characters, activity=o.event.activity, state="failed", part=o.part)
+        for i, o in outcomes
+        if isinstance(o, PlanningFailure) and o.event is not None and o.event.characters
+    ]
+    return tuple(sorted(entries, key=lambda h: h.index)[-HISTORY_WINDOW:])
 
 
 def event_id_for(index: int) -> str:
@@ -545,6 +552,7 @@ class Session:
         elif news.kind == "claim":
             fl.claim = news.characters
             fl.activity = news.activity
+            fl.part = news.part
             fl.claim_frame = fl.request.frame + round(fl.latency_s * fps) if self.settings.pace == "offline" else None
         elif news.kind == "outcome":
             fl.done = True
@@ -667,7 +675,7 @@ class Session:
         flight show as busy with their event, which shows as ongoing in the history."""
         targets, seats = world_commitments(self.world)
         roster = world_roster(self.world, self.events)
-        history = story_history(self.events)
+        history = story_history(self.events, self.outcomes)
         claimed = self._claimed(frame) or {}
         if claimed:
             roster = tuple(
@@ -676,7 +684,9 @@ class Session:
                 for c in roster
             )
             pending = [
-                HistoryEntry(index=fl.request.index, characters=fl.claim, activity=fl.activity, state="ongoing")
+                HistoryEntry(
+                    index=fl.request.index, characters=fl.claim, activity=fl.activity, state="ongoing", part=fl.part
+                )
                 for fl in sorted({f.request.index: f for f in claimed.values()}.values(), key=lambda f: f.request.index)
                 if fl.claim
             ]
@@ -775,6 +785,7 @@ class Session:
             activity=outcome.event.activity,
             requested_frame=request.frame,
             applied_frame=frame,
+            part=outcome.part,
         )
         self.events[eid] = ev
         if self.on_event is not None:
@@ -909,6 +920,7 @@ class _Flight:
     """LLM seconds of the step so far (``offline``: the configured latency per call, if set)."""
     claim: tuple[str, ...] | None = None
     activity: str = ""
+    part: str = ""
     claim_frame: int | None = None
     """``offline``: the frame the claim is known at (request frame + the latency before it)."""
     done: bool = False
@@ -924,6 +936,7 @@ class _News:
     latency_s: float = 0.0
     characters: tuple[str, ...] = ()
     activity: str = ""
+    part: str = ""
     outcome: Outcome = None
     error: BaseException | None = None
 
@@ -938,8 +951,8 @@ class _Progress:
     def llm_call(self, node: str, latency_s: float) -> None:
         _post(self.news, _News(self.index, "call", latency_s=latency_s))
 
-    def claim(self, characters: Sequence[str], activity: str) -> None:
-        _post(self.news, _News(self.index, "claim", characters=tuple(characters), activity=activity))
+    def claim(self, characters: Sequence[str], activity: str, part: str = "") -> None:
+        _post(self.news, _News(self.index, "claim", characters=tuple(characters), activity=activity, part=part))
 
 
 def _post(news: MemoryObjectSendStream[_News], item: _News) -> None:

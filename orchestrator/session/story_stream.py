@@ -46,6 +46,7 @@ class StoryEventRecord(BaseModel):
     state: Literal["ongoing", "looping", "completed", "failed"]
     finished_frame: int | None
     failure: str | None
+    part: str = ""
 
 
 class StreamStart(BaseModel):
