@@ -18,11 +18,20 @@ checks the replay wrote the same ``story.json`` as the recording. It prints the 
 time, the replay's, their ratio, and the start-up floor (``import orchestrator.cli.app`` in a
 fresh process) next to them.
 
+Import-time breakdown: one more replay under ``python -X importtime``, its import time summed by
+top-level package (self time, so each module counts once) and the total, against the replay's
+wall time in that run (``-X importtime`` itself slows imports a little).
+
+Before / after in one run: ``--baseline DIR`` (a checkout of the project, e.g. the main branch)
+replays the same recording with that code too (``PYTHONPATH=DIR``), interleaved with this
+checkout's replays so both see the same machine load, and prints its figures and the speed-up.
+
 Target (issue 14): the replay of a recorded 60 s story at least 20x faster than its recorded
 wall time.
 
 Usage: ``python -m benchmark.bench_replay [--latency S] [--seconds 60] [--max-events 8] [--repeats 3]
-[--keep DIR]``.
+[--keep DIR] [--baseline DIR] [--reuse DIR]``; ``--reuse`` replays the recording a ``--keep`` run left
+(with its recorded wall time) instead of recording again.
 """
 
 from __future__ import annotations
@@ -80,17 +89,72 @@ class Planner:
                 f'    a.set_orientation("{obj}")\n    a.set_target_action("{action}")\n```')
 
 
-def timed(args: list[str], env: dict[str, str]) -> tuple[float, float]:
+def timed(args: list[str], env: dict[str, str], cwd: Path = ROOT) -> tuple[float, float]:
     """(wall seconds, CPU seconds: user + system) of one fresh ``python`` process running
-    ``args``; exits on failure. The CPU time is what a loaded machine disturbs less."""
+    ``args`` in ``cwd`` (whose code ``python -c`` imports first); exits on failure. The CPU time
+    (the process and the children it waited for) is what a loaded machine disturbs less."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    done = subprocess.run([sys.executable, *args], cwd=ROOT, env=env, capture_output=True, text=True)
+    done = subprocess.run([sys.executable, *args], cwd=cwd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if done.returncode != 0:
         raise SystemExit(f"{' '.join(args[2:])} failed ({done.returncode}):\n{done.stderr[-2000:]}")
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def import_breakdown(stderr: str) -> tuple[float, list[tuple[str, float]]]:
+    """(total seconds, [(top-level package, seconds)] largest first) of ``-X importtime`` output."""
+    by_top: dict[str, float] = {}
+    for m in re.finditer(r"^import time:\s+(\d+) \|\s+\d+ \|\s*(\S+)$", stderr, flags=re.M):
+        top = m.group(2).split(".")[0]
+        by_top[top] = by_top.get(top, 0.0) + int(m.group(1)) / 1e6
+    return sum(by_top.values()), sorted(by_top.items(), key=lambda kv: -kv[1])
+
+
+def replay_imports(
+    run_dir: Path, out: Path, env: dict[str, str], cwd: Path
+) -> tuple[float, float, list[tuple[str, float]]]:
+    """(wall seconds, import seconds, by package) of one replay under ``-X importtime``."""
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, "-X", "importtime", "-c", CLI, "replay", str(run_dir), "--out", str(out)],
+                          cwd=cwd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise SystemExit(f"replay under -X importtime failed ({done.returncode}):\n{done.stderr[-2000:]}")
+    total, by_top = import_breakdown(done.stderr)
+    return wall, total, by_top
+
+
+def with_code(env: dict[str, str], root: Path) -> dict[str, str]:
+    """``env`` running the code of the checkout ``root`` (first on ``PYTHONPATH``)."""
+    rest = [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p and Path(p).resolve() != ROOT]
+    return {**env, "PYTHONPATH": os.pathsep.join([str(root), *rest])}
+
+
+def code_folder(env: dict[str, str], cwd: Path) -> str:
+    """The folder a replay run with ``env`` in ``cwd`` imports ``orchestrator`` from."""
+    done = subprocess.run([sys.executable, "-c", "import orchestrator, os; print(os.path.dirname(orchestrator.__file__))"],
+                          cwd=cwd, env=env, capture_output=True, text=True, check=True)
+    return done.stdout.strip()
+
+
+def record(args: argparse.Namespace, base: Path, run_dir: Path, planner: Planner, env: dict[str, str]) -> float:
+    """Record the story into ``run_dir`` against the scripted server; its wall seconds."""
+    latency = planner.delay_s
+    with FakeOpenAI(responder=planner) as fake:
+        cfg = base / "fake.toml"
+        cfg.write_text(f'[llm]\nmodel = "openai/fake"\napi_base = "{fake.base}"\napi_key_env = "FAKE_PROVIDER_KEY"\n'
+                       f"timeout_s = {max(60.0, 4 * latency):.1f}\n[llm.retry]\nmax_attempts = 1\n", encoding="utf-8")
+        print(f"recording a {args.seconds:.0f} s story, {latency:.2f} s per LLM call ...", flush=True)
+        recorded, _ = timed(["-c", CLI, "run", "home", "--names", "Zoe,Max", "-d", f"{args.seconds:g}",
+                             "--planner", "unified", "--description", "object-list", "--max-events",
+                             str(args.max_events), "--config", str(cfg), "--out", str(run_dir)], env)
+    return recorded
+
+
+RECORDING = "recording.json"
+"""In a ``--keep`` folder: the recorded run's wall time, latency and calls, for ``--reuse``."""
 
 
 def main() -> None:
@@ -101,7 +165,16 @@ def main() -> None:
     ap.add_argument("--max-events", type=int, default=8)
     ap.add_argument("--repeats", type=int, default=3, help="replays; the fastest counts")
     ap.add_argument("--keep", type=Path, default=None, help="write the run folders here (default: a temp folder)")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="a checkout of the project whose replay of the same recording is timed too (before / after)")
+    ap.add_argument("--top", type=int, default=12, help="packages shown in the import-time breakdown")
+    ap.add_argument("--reuse", type=Path, default=None,
+                    help="a --keep folder of an earlier run: replay its recording (and its recorded wall time) again")
     args = ap.parse_args()
+    if args.reuse is not None and not (args.reuse / RECORDING).is_file():
+        raise SystemExit(f"--reuse {args.reuse}: no {RECORDING} (write one with --keep)")
+    if args.baseline is not None and not (args.baseline / "orchestrator" / "cli" / "app.py").is_file():
+        raise SystemExit(f"--baseline {args.baseline}: not a checkout of this project (no orchestrator/cli/app.py)")
     latency = recorded_latency() if args.latency is None else args.latency
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -113,35 +186,55 @@ def main() -> None:
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
         run_dir = base / "recorded"
         planner = Planner(latency)
-        with FakeOpenAI(responder=planner) as fake:
-            cfg = base / "fake.toml"
-            cfg.write_text(f'[llm]\nmodel = "openai/fake"\napi_base = "{fake.base}"\napi_key_env = "FAKE_PROVIDER_KEY"\n'
-                           f"timeout_s = {max(60.0, 4 * latency):.1f}\n[llm.retry]\nmax_attempts = 1\n", encoding="utf-8")
-            print(f"recording a {args.seconds:.0f} s story, {latency:.2f} s per LLM call ...", flush=True)
-            recorded, _ = timed(["-c", CLI, "run", "home", "--names", "Zoe,Max", "-d", f"{args.seconds:g}",
-                              "--planner", "unified", "--description", "object-list", "--max-events",
-                              str(args.max_events), "--config", str(cfg), "--out", str(run_dir)], env)
+        if args.reuse is not None:
+            kept = json.loads((args.reuse / RECORDING).read_text(encoding="utf-8"))
+            run_dir, recorded, latency, planner.calls = args.reuse / "recorded", kept["wall_s"], kept["latency_s"], kept["calls"]
+            print(f"replaying {run_dir}, recorded in {recorded:.2f} s ({latency:.2f} s per LLM call)", flush=True)
+        else:
+            recorded = record(args, base, run_dir, planner, env)
+            (base / RECORDING).write_text(json.dumps({"wall_s": recorded, "latency_s": latency, "calls": planner.calls}),
+                                          encoding="utf-8")
         metrics = json.loads((run_dir / "metrics.json").read_text(encoding="utf-8"))
         floor = min(timed(["-c", "import orchestrator.cli.app"], env)[0] for _ in range(3))
-        walls, cpus = [], []
+        codes = {"this checkout": (env, ROOT)}
+        if args.baseline is not None:
+            codes["baseline"] = (with_code(env, args.baseline.resolve()), args.baseline.resolve())
+        walls: dict[str, list[float]] = {name: [] for name in codes}
+        cpus: dict[str, list[float]] = {name: [] for name in codes}
         for k in range(max(1, args.repeats)):
-            out = base / f"replay{k}"
-            wall, cpu = timed(["-c", CLI, "replay", str(run_dir), "--out", str(out)], env)
-            walls.append(wall)
-            cpus.append(cpu)
-            if (out / "story.json").read_bytes() != (run_dir / "story.json").read_bytes():
-                raise SystemExit(f"{out / 'story.json'} differs from the recording's")
-        best, median = min(walls), statistics.median(walls)
-        ratio = recorded / best
+            for j, (name, (code_env, code_root)) in enumerate(codes.items()):  # interleaved: the same load
+                out = base / f"replay{k}-{j}"
+                wall, cpu = timed(["-c", CLI, "replay", str(run_dir), "--out", str(out)], code_env, code_root)
+                walls[name].append(wall)
+                cpus[name].append(cpu)
+                if (out / "story.json").read_bytes() != (run_dir / "story.json").read_bytes():
+                    raise SystemExit(f"{out / 'story.json'} ({name}) differs from the recording's")
+        imports = {name: replay_imports(run_dir, base / f"importtime-{j}", code_env, code_root)
+                   for j, (name, (code_env, code_root)) in enumerate(codes.items())}
         print()
         print(f"story: {metrics['simulation']['frames'] / 30:.0f} simulated s, {planner.calls} LLM calls, "
-              f"{metrics['events']['applied']} events applied")
+              f"{metrics['events']['applied']} events applied; load average {os.getloadavg()[0]:.2f} "
+              f"on {os.cpu_count()} cores at the end")
         print(f"recorded run (fresh process, {latency:.2f} s per call): {recorded:8.2f} s wall")
-        print(f"replay (fresh process, fastest of {len(walls)}):      {best:8.2f} s wall "
-              f"(median {median:.2f} s; runs {', '.join(f'{w:.2f}' for w in walls)})")
-        print(f"replay CPU time (user + system, least of {len(cpus)}):  {min(cpus):8.2f} s")
+        for name in codes:
+            best, median, cpu = min(walls[name]), statistics.median(walls[name]), min(cpus[name])
+            print(f"replay, {name} (fresh process, fastest of {len(walls[name])}): {best:8.2f} s wall "
+                  f"(median {median:.2f} s; runs {', '.join(f'{w:.2f}' for w in walls[name])}); "
+                  f"CPU (user + system, least) {cpu:.2f} s; {recorded / best:.1f}x wall, {recorded / cpu:.1f}x by CPU")
+        if args.baseline is not None:
+            here, then = "this checkout", "baseline"
+            print(f"speed-up over the baseline: {min(walls[then]) / min(walls[here]):.2f}x wall (fastest), "
+                  f"{statistics.median(walls[then]) / statistics.median(walls[here]):.2f}x wall (median), "
+                  f"{min(cpus[then]) / min(cpus[here]):.2f}x CPU")
+        for name, (code_env, code_root) in codes.items():
+            print(f"code of {name}: {code_folder(code_env, code_root)}")
         print(f"start-up floor (import orchestrator.cli.app):      {floor:8.2f} s wall")
-        cpu_ratio = recorded / min(cpus)
+        for name, (wall, total, by_top) in imports.items():
+            shown = ", ".join(f"{top} {sec:.2f}" for top, sec in by_top[: args.top])
+            print(f"imports of one replay, {name} (-X importtime, self time): {total:.2f} s of {wall:.2f} s wall; "
+                  f"by package (s): {shown}")
+        best, cpu = min(walls["this checkout"]), min(cpus["this checkout"])
+        ratio, cpu_ratio = recorded / best, recorded / cpu
         verdict = "met" if ratio >= 20 else "met by CPU time only" if cpu_ratio >= 20 else "NOT met"
         print(f"issue 14 target (replay >= 20x faster than recorded): {ratio:.1f}x wall, {cpu_ratio:.1f}x by CPU time "
               f"-> {verdict}")

@@ -53,7 +53,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -178,11 +178,12 @@ class TimedPlanner(PathPlanner):
         order: Sequence[Agent] | None = None,
         static_segments: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]] = (),
         hints: Mapping[Agent, tuple[Sequence[Cell], Cell]] | None = None,
+        detour: Collection[Agent] = (),
     ) -> PlanResult:
         t = time.perf_counter()
         kw = {"static_segments": static_segments, "hints": hints}
         out = super().plan(starts, goals, static_obstacles, t0=t0, order=order, static_segments=static_segments,
-                           hints=hints)
+                           hints=hints, detour=detour)
         self.counters.plan_s += time.perf_counter() - t
         self.counters.plans += 1
         self.counters.problems.append((dict(starts), dict(goals), list(static_obstacles), t0, list(order or ()), kw))

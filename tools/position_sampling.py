@@ -4,6 +4,11 @@ Rules (all distances in metres):
 
 - free floor: the body centre stays ``body_radius`` (0.25) inside the scene bounds and at least
   ``body_radius`` from the footprint of every floor-standing object;
+- reachable: a character can walk there: some cell of the scene's main walkable component of
+  the navigation grid (``sim.paths.nav_grid``, the path planner's own clearance and cells)
+  within two cells has a straight furniture-free walk to the point (``NavGrid.entry_cell``);
+  free floor in a pocket enclosed by furniture is not admissible. The grid is built once per
+  scene (cached);
 - other characters: at least ``min_separation`` (0.5) from every point in ``avoid`` (other
   characters' positions and targets);
 - group: when members of the same event were already placed, prefer points within
@@ -16,15 +21,24 @@ Rules (all distances in metres):
 - margin: points that stay inside the area when moved 0.1 m in any axis direction are preferred
   (so that a tolerance-free check of the same relation still holds);
 - the candidates are a lattice of step 0.05 with a seeded offset; one is drawn uniformly with a
-  seeded ``numpy.random.Generator``: the same seed and inputs give the same position.
+  seeded ``numpy.random.Generator``: the same seed and inputs give the same position;
+- relaxation: a single directional area (``tools.areas.directional``) whose lattice has no
+  free reachable point (whoever else is there) is replaced by its smallest relaxation that has
+  an admissible point (``Area.relaxations``: the same side of the object, wider and further
+  out), and within it the points nearest the strict area are drawn from (``RELAXED_BAND``).
+  Only then: an area with room gives exactly the position it gives without relaxations, and
+  combined areas, which have none, are never relaxed.
 
-An area with no admissible point raises ``UnsatisfiableAreaError`` naming the reason; it never
-falls back to a random point.
+An area with no admissible point (nor, for a directional one, its widest relaxation) raises
+``UnsatisfiableAreaError`` naming the reason; it never falls back to a random point.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,6 +48,9 @@ from tools.areas import Area, SeatSlot, seat_slots
 from tools.errors import UnsatisfiableAreaError
 from tools.scene_graph import footprint_distance, point_footprint_distance
 
+if TYPE_CHECKING:
+    from sim.paths.nav_grid import NavGrid
+
 BODY_RADIUS = 0.25
 MIN_SEPARATION = 0.5
 GROUP_RADIUS = 1.5
@@ -41,6 +58,9 @@ LATTICE_STEP = 0.05
 INTERIOR_MARGIN = 0.1
 MAX_CANDIDATES = 250_000
 FLOOR_SUPPORT = 0.10
+RELAXED_BAND = 0.1
+"""m: in a relaxed area, only points within this much of the smallest excess over the strict
+area are drawn from (``tools.areas.Relaxation.excess``)."""
 
 
 class FloorMap:
@@ -52,6 +72,10 @@ class FloorMap:
         self.scene = scene
         self.body_radius = body_radius
         self.obstacles = [o for o in scene.objects if abs(o.z_min - scene.floor_z) < floor_support]
+        # built (or found in the cache) here, and the compiled reachability test loaded, before
+        # any event program's time budget starts
+        self.grid = scene_nav_grid(scene)
+        self.reachable((np.asarray(scene.bounds_min) + np.asarray(scene.bounds_max)).reshape(1, 2) / 2.0)
 
     def free(self, xy: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Whether points (N, 2) are on free floor (inside the bounds, clear of furniture)."""
@@ -66,6 +90,40 @@ class FloorMap:
             ok[idx] = point_footprint_distance(obj, p[idx]) >= r
         return ok
 
+    def reachable(self, xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Whether points (N, 2) can be walked to (see the module docstring: an entry cell of
+        the main walkable component with a straight clear walk to the point)."""
+        p = np.asarray(xy, dtype=float).reshape(-1, 2)
+        grid = self.grid
+        from sim.paths.nav_grid import body_clearance  # numba: only when sampling
+
+        main = grid.main_component
+        base = np.floor((p - np.asarray(grid.origin)) / grid.cell_size).astype(np.int64)
+        nx, ny = grid.shape
+        r = grid.body_radius
+        ok = np.zeros(len(p), dtype=bool)
+        # the point itself must be clear of everything the grid blocks (wall-mounted things too)
+        ok |= body_clearance(grid.obstacles, p, p, cutoff=r) < r - 1e-9
+        lo, hi = np.asarray(grid.bounds_min) + r, np.asarray(grid.bounds_max) - r
+        ok |= np.any((p < lo) | (p > hi), axis=1)
+        blocked = ok.copy()
+        for di in range(-2, 3):
+            for dj in range(-2, 3):
+                todo = np.flatnonzero(~ok)
+                if len(todo) == 0:
+                    return ok & ~blocked
+                i, j = base[todo, 0] + di, base[todo, 1] + dj
+                inside = (i >= 0) & (i < nx) & (j >= 0) & (j < ny)
+                todo, i, j = todo[inside], i[inside], j[inside]
+                walk = grid.component[i, j] == main
+                todo, i, j = todo[walk], i[walk], j[walk]
+                if len(todo) == 0:
+                    continue
+                centres = grid.centers(np.stack([i, j], axis=1))
+                clear = body_clearance(grid.obstacles, centres, p[todo], cutoff=r) >= r
+                ok[todo[clear]] = True
+        return ok & ~blocked
+
     def colliding_objects(self, xy: tuple[float, float]) -> list[str]:
         """Floor-standing objects whose footprint grown by the body radius contains ``xy``."""
         p = np.asarray(xy, dtype=float).reshape(1, 2)
@@ -74,6 +132,14 @@ class FloorMap:
             for o in self.obstacles
             if float(point_footprint_distance(o, p)[0]) < self.body_radius
         ]
+
+
+@lru_cache(maxsize=4)
+def scene_nav_grid(scene: Scene) -> NavGrid:
+    """The path planner's navigation grid of ``scene`` (built once per scene content)."""
+    from sim.paths.nav_grid import build_nav_grid  # numba: only when sampling
+
+    return build_nav_grid(scene)
 
 
 @dataclass(frozen=True)
@@ -218,6 +284,17 @@ def sample_position(
             f"the area '{area.description}' is empty (its parts do not overlap)"
         )
 
+    try:
+        free = _walkable(area, floor, rng)
+    except UnsatisfiableAreaError as strict:
+        if not area.relaxations:
+            raise
+        return _sample_relaxed(area, floor, c, rng, strict)
+    return _draw(area, free, c, rng)
+
+
+def _walkable(area: Area, floor: FloorMap, rng: np.random.Generator) -> NDArray[np.float64]:
+    """The lattice points of ``area`` on free, reachable floor (others' positions aside)."""
     points = _lattice(area, floor.scene, rng)
     inside = points[area.contains(points)] if len(points) else points
     if len(inside) == 0:
@@ -227,11 +304,31 @@ def sample_position(
         raise UnsatisfiableAreaError(
             f"no free floor in '{area.description}': it is covered by furniture or too close to a wall"
         )
+    free = free[floor.reachable(free)]
+    if len(free) == 0:
+        raise UnsatisfiableAreaError(
+            f"no reachable floor in '{area.description}': its free floor is enclosed by furniture"
+        )
+    return free
+
+
+def _draw(
+    area: Area,
+    free: NDArray[np.float64],
+    c: Constraints,
+    rng: np.random.Generator,
+    excess: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
+) -> Placement:
+    """One of the ``free`` points of ``area`` away from others, by the preferences of the
+    module docstring (with ``excess``: first the points nearest the strict area)."""
     clear = free[_far_from(free, c.avoid, c.min_separation)]
     if len(clear) == 0:
         raise UnsatisfiableAreaError(
             f"every free spot in '{area.description}' is within {c.min_separation} m of another character"
         )
+    if excess is not None:
+        e = excess(clear)
+        clear = clear[e <= e.min() + RELAXED_BAND]
     if c.group:
         near = _near_all(clear, c.group, c.group_radius)
         if near.any():
@@ -241,3 +338,34 @@ def sample_position(
         clear = clear[interior]
     chosen = clear[int(rng.integers(len(clear)))]
     return Placement((float(chosen[0]), float(chosen[1])))
+
+
+def _sample_relaxed(
+    area: Area,
+    floor: FloorMap,
+    c: Constraints,
+    rng: np.random.Generator,
+    strict: UnsatisfiableAreaError,
+) -> Placement:
+    """A point of the smallest relaxation of ``area`` with room (``strict``: why the area itself
+    has none), else UnsatisfiableAreaError saying that the widest relaxation has none either."""
+    crowded = False
+    for relaxation in area.relaxations:
+        try:
+            free = _walkable(relaxation.area, floor, rng)
+        except UnsatisfiableAreaError:
+            continue
+        try:
+            return _draw(relaxation.area, free, c, rng, relaxation.excess)
+        except UnsatisfiableAreaError:
+            crowded = True
+    widest = area.relaxations[-1]
+    where = f"{widest.side:g} m past its sides and {widest.reach:g} m out"
+    if crowded:
+        raise UnsatisfiableAreaError(
+            f"{strict.feedback}; relaxed up to {where}, every free spot is within "
+            f"{c.min_separation} m of another character"
+        )
+    raise UnsatisfiableAreaError(
+        f"{strict.feedback}; relaxed up to {where}, there is no free reachable floor either"
+    )

@@ -23,13 +23,16 @@ All distances are metres; surface distances are between 2D footprints (see ``foo
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
-import networkx as nx
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from sim.scene.model import Scene, SceneObject
+
+if TYPE_CHECKING:  # networkx (0.1 s to import) is loaded by build_scene_graph, when a graph is built
+    import networkx as nx
 
 RELATIONS: tuple[str, ...] = (
     "on", "inside", "above", "below", "in front of", "behind",
@@ -263,6 +266,8 @@ def build_scene_graph(
     scene: Scene, thresholds: RelationThresholds = DEFAULT_THRESHOLDS
 ) -> SceneGraph:
     """Compute every relation of ``scene`` (see the module docstring for the semantics)."""
+    import networkx as nx
+
     t = thresholds
     objects = scene.objects
     graph: nx.MultiDiGraph[str] = nx.MultiDiGraph()

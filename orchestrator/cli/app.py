@@ -74,4 +74,9 @@ register_plugins(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point
-    app()
+    from orchestrator.cli.collector import skip_final_collection
+
+    try:
+        app()
+    finally:  # typer ends with SystemExit: the command is done, its files closed
+        skip_final_collection()

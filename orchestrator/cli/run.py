@@ -246,11 +246,18 @@ def _execute(
     in_process_programs: bool = False,
 ) -> None:
     import asyncio
+    import importlib
 
-    from orchestrator.session.run_job import RunSetupError, StoryRun, run_story, write_outputs
-    from orchestrator.session.run_manifest import resume_command
-    from sim.scene.bundled import resolve_scene
-    from sim.scene.files import SceneFileError
+    from orchestrator.cli.collector import imports_paused
+
+    with imports_paused():
+        from orchestrator.session.run_job import RunSetupError, StoryRun, run_story, write_outputs
+        from orchestrator.session.run_manifest import resume_command
+        from sim.scene.bundled import resolve_scene
+        from sim.scene.files import SceneFileError
+
+        for module in OUTPUT_MODULES:
+            importlib.import_module(module)
 
     try:
         scene_obj = resolve_scene(args.scene)
@@ -349,6 +356,10 @@ def _execute(
         typer.echo(f"error: planning stopped: {type(err).__name__}: {plain(err, keep_newlines=True)}", err=True)
         raise typer.Exit(1)
 
+
+OUTPUT_MODULES = ("sim.export.bundle", "sim.export.video", "orchestrator.bodies.smplx_meshes")
+"""Modules the outputs are written with at the end of a run: imported with the job's modules while
+the garbage collector is paused (``orchestrator.cli.collector``), not when the story is over."""
 
 STOP_SIGNALS = (2, 15)  # SIGINT, SIGTERM (the same numbers on every POSIX system)
 """The signals that stop a run cleanly; it exits with 128 + the signal's number (130, 143)."""

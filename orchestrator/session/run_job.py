@@ -10,7 +10,9 @@ motion.
 
 Resume: a run writes ``run.json`` (``orchestrator.session.run_manifest``) before its first
 frame and keeps its session's last checkpoint in ``session.snapshot``
-(``orchestrator.session.snapshot_file``). ``run_story(..., resume=True)`` restores the world
+(``orchestrator.session.snapshot_file``), written by a worker thread
+(``orchestrator.session.checkpoint_writer``: the frames never wait on its fsyncs; the newest
+checkpoint is on disk before :func:`run_story` returns or raises). ``run_story(..., resume=True)`` restores the world
 and the story from it; steps the trace shows applied are applied again at their recorded
 frames (and not traced twice), and the planner answers finished steps from the story log and
 finishes a cut step from its langgraph checkpoint, so no event is lost or duplicated and no
@@ -254,6 +256,7 @@ async def run_story(
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
     from orchestrator.sandbox_worker import WorkerRunner
+    from orchestrator.session.checkpoint_writer import CheckpointWriter
     from orchestrator.session.port_setup import describer_mode_for, open_port
     from orchestrator.session.roster import RosterWorld, StartPositionError, start_positions
     from orchestrator.session.run_manifest import write_manifest
@@ -263,12 +266,7 @@ async def run_story(
         SessionError,
         SessionSettings,
     )
-    from orchestrator.session.snapshot_file import (
-        SNAPSHOT_FILE,
-        SnapshotError,
-        load_checkpoint,
-        save_checkpoint,
-    )
+    from orchestrator.session.snapshot_file import SNAPSHOT_FILE, SnapshotError, load_checkpoint
     from orchestrator.session.step_planner import GraphStepPlanner
     from orchestrator.session.story_stream import StoryStream, StreamStart
     from sim.scene.files import save_scene_json
@@ -376,9 +374,9 @@ async def run_story(
         if writer is not None:
             writer.record_requested(r.step, r.frame, phase=r.phase, after_steps=r.after)
 
-    def keep(cp: SessionCheckpoint) -> None:
+    def keep(cp: SessionCheckpoint) -> None:  # written in the writer's thread: the frames go on
         assert session is not None
-        save_checkpoint(snapshot_path, session.world, cp)
+        checkpoints.submit(session.world, cp)
 
     def streamed(event: StoryEvent) -> None:
         stream.event(event)
@@ -386,7 +384,11 @@ async def run_story(
             on_event(event, fps)
 
     stream = StoryStream(out)
+    checkpoints = CheckpointWriter(snapshot_path)
+    finished = False
     try:
+        if isinstance(deps.runner, WorkerRunner):
+            deps.runner.prestart()  # the worker imports while the graph is built and the first frames run
         async with open_checkpointer(runs_db) as saver:
             graph = compile_graph(ablation, saver)
             planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
@@ -408,14 +410,19 @@ async def run_story(
             result, stopped = await _run_until_stopped(session, stop)
             if stopped:
                 keep(session.checkpoint())
+            checkpoints.flush()  # the last checkpoint on disk before the run returns
+            finished = True
     except (LLMError, SessionError) as exc:
         raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
     finally:
-        stream.close()
-        story.close()
-        port.close()
-        if isinstance(deps.runner, WorkerRunner):
-            deps.runner.close()
+        try:
+            checkpoints.close(raise_errors=finished)  # after an error: the newest checkpoint still lands
+        finally:
+            stream.close()
+            story.close()
+            port.close()
+            if isinstance(deps.runner, WorkerRunner):
+                deps.runner.close()
     end = session.world.buffers
     if end.store is not None:  # the whole story in the chunk files (the viewer reads them)
         end.spill()

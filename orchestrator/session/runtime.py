@@ -43,6 +43,14 @@ Off the event loop: nothing here blocks; the planning graph runs event programs 
 work in worker threads (``orchestrator.planning.graph.off_loop``), so in ``realtime`` pace the
 simulation task keeps its frame rate while steps are planned.
 
+``realtime`` pace: frame k is due ``k / (fps * speed)`` wall seconds after the start, and the
+simulation task sleeps until then. A checkpoint is taken before that sleep, which absorbs its
+cost. A frame that ends more than one frame period late (a stall) is not followed by a burst
+of catch-up frames: the schedule slips by the delay instead (``SessionResult.slipped_s``), and
+the next frame is due one period after it. Where each frame's wall time went is kept in
+``SessionResult.frame_profile`` (``orchestrator.session.frame_profile``); timing decides
+nothing but when a realtime frame starts, so it never changes a story in the other paces.
+
 Failures: an ``LLMError`` from the planner stops planning and the story goes on
 (``SessionResult.planner_error``); any other exception in any task cancels the task group
 (every step in flight is cancelled, none is left pending) and :meth:`Session.run` raises it.
@@ -84,6 +92,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from agents.llm_port import LLMError, TraceRecorder
 from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
+from orchestrator.session.frame_profile import FrameProfile
 from orchestrator.session.pace import Pace
 from sim.world.event_book import EventStatus
 from sim.world.events import AssignEvent, EventFailure, StepOutput
@@ -208,6 +217,11 @@ class SessionResult:
     """Wall-clock seconds the simulation task ran (this process)."""
     frame_intervals_s: Sequence[float] = ()
     """Wall-clock seconds between consecutive frames (this process)."""
+    frame_profile: FrameProfile = field(default_factory=FrameProfile)
+    """Where each of those frames' wall time went (``orchestrator.session.frame_profile``)."""
+    slipped_s: float = 0.0
+    """``realtime``: wall seconds the frame schedule slipped after frames that ran more than a
+    frame late (simulated time is behind the wall clock by this much times ``speed``)."""
 
 
 @dataclass
@@ -398,6 +412,8 @@ class Session:
         self._ended = False
         self._resent: list[PlanningRequest] = []  # resumed: steps in flight at the checkpoint, asked again
         self.frame_intervals: array[float] = array("d")  # wall seconds between frames (8 B each)
+        self.profile = FrameProfile()  # where each frame's wall time went (24 B each)
+        self.slipped_s = 0.0  # realtime: wall seconds the schedule slipped after stalls
         self.wall_s = 0.0
 
     # ----- checkpoints ---------------------------------------------------------------------
@@ -799,13 +815,14 @@ class Session:
 
     async def _simulation_task(self, news: MemoryObjectReceiveStream[_News]) -> None:
         s = self.settings
-        start = self.clock()
+        start = begin = self.clock()  # ``start`` moves on when a realtime schedule slips
         last = start
         every = None if s.checkpoint_every_s is None else max(1, round(s.checkpoint_every_s * self.world.config.fps))
         last_checkpoint = self.world.frame
         for request in self._resent:  # resumed with steps in flight: ask again
             self._send(request, "frame_end", resent=True)
         self._resent = []
+        clock = self.clock
         while self.world.frame < s.frames:
             self._take_instructions()
             commands: list[AssignEvent] = []
@@ -814,29 +831,41 @@ class Session:
                 del self._flights[fl.request.index]
                 commands += self._apply(fl.request, fl.outcome)
                 applied = True
+            t_step = clock()
             self.world, out = step(self.world, commands, self.world.dt)
             self._observe(out)
+            t_ask = clock()
             if self._schedule is not None:
                 await self._ask_scheduled(news, "frame_end")
             else:
                 free = self._wants_plan(out.available, self.world.frame - 1)
                 if free is not None:
                     self._ask(free, self.world.frame - 1, "frame_end")
-            if s.pace == "realtime":
-                due_time = start + self.world.frame / (self.world.config.fps * s.speed)
-                delay = due_time - self.clock()
-                await anyio.sleep(max(0.0, delay))
-            elif self.world.frame % 8 == 0 or self._flights:
-                await anyio.sleep(0)
+            t_checkpoint = clock()
             if self.on_checkpoint is not None and every is not None and (
                 applied or self.world.frame - last_checkpoint >= every
-            ):
+            ):  # before the sleep, which absorbs its cost (nothing changes the session in between)
                 self.on_checkpoint(self.checkpoint())
                 last_checkpoint = self.world.frame
-            now = self.clock()
+            t_sleep = clock()
+            delay = 0.0
+            if s.pace == "realtime":
+                period = 1.0 / (self.world.config.fps * s.speed)
+                behind = t_sleep - (start + self.world.frame * period)
+                if behind > period:  # a stall: no burst of catch-up frames, the schedule slips instead
+                    start += behind
+                    self.slipped_s += behind
+                    behind = 0.0
+                delay = max(0.0, -behind)
+                await anyio.sleep(delay)
+            elif self.world.frame % 8 == 0 or self._flights:
+                await anyio.sleep(0)
+            now = clock()
             self.frame_intervals.append(now - last)
+            self.profile.add(t_step - last, t_ask - t_step, t_checkpoint - t_ask, t_sleep - t_checkpoint, delay,
+                             max(0.0, now - t_sleep - delay))
             last = now
-        self.wall_s = last - start
+        self.wall_s = last - begin
         # steps still in flight are abandoned (not applied); run() cancels them
 
     async def run(self) -> SessionResult:
@@ -877,6 +906,8 @@ class Session:
             planner_error=self.planner_error,
             wall_s=self.wall_s,
             frame_intervals_s=self.frame_intervals,
+            frame_profile=self.profile,
+            slipped_s=self.slipped_s,
         )
 
 

@@ -21,6 +21,7 @@ from typing import Any
 
 from orchestrator.session.runtime import SessionCheckpoint
 from sim.world.step import World
+from sim.world.track_chunks import ChunkStore
 
 SNAPSHOT_FILE = "session.snapshot"
 _FORMAT = 3  # 2: the checkpoint holds the session's instructions; 3: the world's motion is in the chunk files
@@ -53,10 +54,23 @@ class _Unpickler(pickle.Unpickler):
 def save_checkpoint(path: Path, world: World, checkpoint: SessionCheckpoint) -> None:
     """Write ``checkpoint`` (of a session on ``world``) to ``path`` atomically, after making the
     motion chunks it counts on durable."""
-    if world.buffers.store is not None:
-        world.buffers.store.sync()
+    write_checkpoint(path, checkpoint, shared_names(world), world.buffers.store)
+
+
+def shared_names(world: World) -> dict[int, str]:
+    """``id`` -> name of ``world``'s shared objects, as a checkpoint file stores them."""
+    return {id(obj): name for name, obj in world.shared_objects().items()}
+
+
+def write_checkpoint(path: Path, checkpoint: SessionCheckpoint, shared: dict[int, str], store: ChunkStore | None) -> None:
+    """:func:`save_checkpoint` with the world's parts it needs taken beforehand (``shared``:
+    :func:`shared_names`; ``store``: its chunk store, synced first), so it can run in a worker
+    thread while the world steps on: ``checkpoint`` is a copy the session no longer touches, and
+    the chunk files only grow while the world runs (the frames the checkpoint counts were
+    written before it was taken)."""
+    if store is not None:
+        store.sync()
     buf = io.BytesIO()
-    shared = {id(obj): name for name, obj in world.shared_objects().items()}
     _Pickler(buf, shared).dump((_FORMAT, checkpoint))
     tmp = path.with_name(path.name + ".tmp")
     try:

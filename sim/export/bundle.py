@@ -4,22 +4,32 @@ Per character ``<slug>`` (its name with anything but letters, digits, ``-`` and 
 into ``_``): ``<slug>.smplx.npz`` (AMASS-style SMPL-X parameters), ``<slug>.bvh`` and
 ``<slug>.track.npz`` (the raw track, reloadable with ``CharacterTrack.load``); plus one
 ``scene.glb`` with the scene and every character.
+
+The files are written by :data:`WRITER_THREADS` threads: each file's bytes depend only on its
+track (and the scene), never on the order, and the npz files spend most of their time in zlib,
+which runs without the interpreter lock, so the text and GLB writers go on meanwhile. The first
+error raised by a writer is raised once every writer has finished.
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 from sim.export.bvh import Units, export_bvh
 from sim.export.glb import SkinnedBody, export_glb
+from sim.export.joint_rotations import JointRotations
 from sim.export.smplx_npz import export_smplx_npz
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack
 
 _UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
+
+WRITER_THREADS = 2
+"""Threads that write a run's files (the machines this runs on have two cores)."""
 
 
 @dataclass(frozen=True)
@@ -60,12 +70,23 @@ def export_run(
             f"character names {[t.name for t in tracks]} collide as file names {slugs}"
         )
     outdir.mkdir(parents=True, exist_ok=True)
-    smplx: dict[str, Path] = {}
-    bvh: dict[str, Path] = {}
-    raw: dict[str, Path] = {}
-    for track, slug in zip(tracks, slugs, strict=True):
-        smplx[track.name] = export_smplx_npz(track, outdir / f"{slug}.smplx.npz")
-        bvh[track.name] = export_bvh(track, outdir / f"{slug}.bvh", units=bvh_units)
-        raw[track.name] = track.save(outdir / f"{slug}.track.npz")
-    glb = export_glb(outdir / "scene.glb", scene, tracks, bodies)
-    return RunExports(glb=glb, smplx=smplx, bvh=bvh, tracks=raw)
+    rotations = {t.name: JointRotations.of(t) for t in tracks}  # once for the npz, BVH and GLB
+    with ThreadPoolExecutor(max_workers=WRITER_THREADS, thread_name_prefix="export") as pool:
+
+        def each(write: Callable[[CharacterTrack, Path], Path], suffix: str) -> dict[str, Future[Path]]:
+            return {t.name: pool.submit(write, t, outdir / f"{slug}{suffix}") for t, slug in zip(tracks, slugs, strict=True)}
+
+        # the npz writers first: their zlib work overlaps the others' Python work
+        raw = each(lambda t, path: t.save(path), ".track.npz")
+        smplx = each(lambda t, path: export_smplx_npz(t, path, rotations=rotations[t.name]), ".smplx.npz")
+        bvh = each(lambda t, path: export_bvh(t, path, units=bvh_units, rotations=rotations[t.name]), ".bvh")
+        glb = pool.submit(export_glb, outdir / "scene.glb", scene, tracks, bodies, rotations)
+    written = [glb, *raw.values(), *smplx.values(), *bvh.values()]
+    for failed in (f.exception() for f in written):
+        if failed is not None:
+            raise failed
+
+    def paths(futures: dict[str, Future[Path]]) -> dict[str, Path]:
+        return {name: f.result() for name, f in futures.items()}
+
+    return RunExports(glb=glb.result(), smplx=paths(smplx), bvh=paths(bvh), tracks=paths(raw))

@@ -25,7 +25,6 @@ from typing import Final, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import (
     BODY_TO_WORLD,
@@ -35,6 +34,7 @@ from sim.body.skeleton import (
     PARENTS,
     REST_OFFSETS,
 )
+from sim.export.joint_rotations import JointRotations
 from sim.world.character_track import CharacterTrack
 
 Units = Literal["m", "cm"]
@@ -105,21 +105,22 @@ def bvh_hierarchy(units: Units = "m") -> str:
     return "\n".join(lines) + "\n"
 
 
-def bvh_motion_values(track: CharacterTrack, units: Units = "m") -> NDArray[np.float64]:
-    """The MOTION rows (N, 6 + 3 * 21): root position and Euler degrees, depth-first order."""
+def bvh_motion_values(
+    track: CharacterTrack, units: Units = "m", rotations: JointRotations | None = None
+) -> NDArray[np.float64]:
+    """The MOTION rows (N, 6 + 3 * 21): root position and Euler degrees, depth-first order.
+    ``rotations``: the track's, converted once for every exporter (default: converted here)."""
     n = track.num_frames
-    rotations = np.array(track.local_rotations)
-    rotations[:, 0] = WORLD_TO_BVH @ rotations[:, 0]
-    order = depth_first_order()
-    euler = Rotation.from_matrix(rotations[:, order].reshape(-1, 3, 3)).as_euler(EULER_ORDER)
+    joints = rotations if rotations is not None else JointRotations.of(track)
+    euler = joints.with_root(WORLD_TO_BVH, depth_first_order()).as_euler(EULER_ORDER)
     euler = np.degrees(np.unwrap(euler.reshape(n, NUM_JOINTS, 3), axis=0))
     root = (track.root_positions @ WORLD_TO_BVH.T) * UNIT_SCALE[units]
     return np.concatenate([root, euler.reshape(n, NUM_JOINTS * 3)], axis=1)
 
 
-def bvh_text(track: CharacterTrack, units: Units = "m") -> str:
+def bvh_text(track: CharacterTrack, units: Units = "m", rotations: JointRotations | None = None) -> str:
     """The whole BVH file as text (deterministic for identical input)."""
-    values = bvh_motion_values(track, units) + 0.0  # no negative zeros
+    values = bvh_motion_values(track, units, rotations) + 0.0  # no negative zeros
     out = io.StringIO()
     out.write(bvh_hierarchy(units))
     out.write(f"MOTION\nFrames: {track.num_frames}\nFrame Time: {1.0 / track.fps:.8f}\n")
@@ -127,12 +128,14 @@ def bvh_text(track: CharacterTrack, units: Units = "m") -> str:
     return out.getvalue()
 
 
-def export_bvh(track: CharacterTrack, path: str | Path, units: Units = "m") -> Path:
+def export_bvh(
+    track: CharacterTrack, path: str | Path, units: Units = "m", rotations: JointRotations | None = None
+) -> Path:
     """Write ``track`` as a BVH file (see the module docstring). Returns the path."""
     if units not in UNIT_SCALE:
         raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
     path = Path(path)
-    path.write_text(bvh_text(track, units), encoding="ascii", newline="\n")
+    path.write_text(bvh_text(track, units, rotations), encoding="ascii", newline="\n")
     return path
 
 

@@ -50,6 +50,7 @@ from sim.body.skeleton import (
     rest_positions,
 )
 from sim.export.bvh import END_SITES
+from sim.export.joint_rotations import JointRotations
 from sim.scene.model import Scene, SceneObject
 from sim.world.character_track import CharacterTrack
 
@@ -318,11 +319,16 @@ def _body_accessors(w: _Writer, body: SkinnedBody, name: str) -> tuple[gl.Attrib
 
 
 def build_glb(
-    scene: Scene | None, tracks: Sequence[CharacterTrack], bodies: Mapping[str, SkinnedBody] | None = None
+    scene: Scene | None,
+    tracks: Sequence[CharacterTrack],
+    bodies: Mapping[str, SkinnedBody] | None = None,
+    rotations: Mapping[str, JointRotations] | None = None,
 ) -> gl.GLTF2:
     """The glTF document (binary blob attached) for ``scene`` (may be None) and ``tracks``.
 
     ``bodies`` (by character name) replaces a character's box figure with its body mesh.
+    ``rotations`` (by character name): a track's joint rotations converted once for every
+    exporter (default: converted here).
     """
     names = [t.name for t in tracks]
     if len(set(names)) != len(names):
@@ -420,9 +426,10 @@ def build_glb(
             offsets = np.vstack([rest[:1], rest[1:] - rest[list(PARENTS[1:])]])
             root_world = track.root_positions + (rest[0] - REST_OFFSETS[0])
         root_t = root_world @ WORLD_TO_GLTF.T
-        rot = np.array(track.local_rotations)
-        rot[:, 0] = WORLD_TO_GLTF @ rot[:, 0]
-        quats = _continuous(_quat(rot))  # (N, 22, 4)
+        joints = (rotations or {}).get(track.name)
+        if joints is None:
+            joints = JointRotations.of(track)
+        quats = _continuous(joints.with_root(WORLD_TO_GLTF).as_quat().reshape(n, NUM_JOINTS, 4))
         node_ids: list[int] = []
         for j in range(NUM_JOINTS):
             offset = root_t[0] if j == 0 else offsets[j]
@@ -493,10 +500,13 @@ def build_glb(
 
 
 def glb_bytes(
-    scene: Scene | None, tracks: Sequence[CharacterTrack], bodies: Mapping[str, SkinnedBody] | None = None
+    scene: Scene | None,
+    tracks: Sequence[CharacterTrack],
+    bodies: Mapping[str, SkinnedBody] | None = None,
+    rotations: Mapping[str, JointRotations] | None = None,
 ) -> bytes:
     """The GLB file content for ``scene`` and ``tracks`` (deterministic)."""
-    return b"".join(build_glb(scene, tracks, bodies).save_to_bytes())
+    return b"".join(build_glb(scene, tracks, bodies, rotations).save_to_bytes())
 
 
 def export_glb(
@@ -504,8 +514,9 @@ def export_glb(
     scene: Scene | None,
     tracks: Sequence[CharacterTrack],
     bodies: Mapping[str, SkinnedBody] | None = None,
+    rotations: Mapping[str, JointRotations] | None = None,
 ) -> Path:
     """Write the whole run as one GLB (see the module docstring). Returns the path."""
     path = Path(path)
-    path.write_bytes(glb_bytes(scene, tracks, bodies))
+    path.write_bytes(glb_bytes(scene, tracks, bodies, rotations))
     return path

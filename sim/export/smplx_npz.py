@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, matrix_to_axis_angle
+from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS
+from sim.export.joint_rotations import JointRotations
 from sim.world.character_track import CharacterTrack, write_npz
 
 NUM_POSE_PARAMS = 165
@@ -36,12 +37,14 @@ HANDS_SLICE = slice(75, 165)
 
 
 def smplx_parameters(
-    track: CharacterTrack, pelvis_rest: NDArray[np.float64] | None = None
+    track: CharacterTrack, pelvis_rest: NDArray[np.float64] | None = None, rotations: JointRotations | None = None
 ) -> dict[str, NDArray[np.float64]]:
-    """The AMASS-style arrays for ``track`` (see the module docstring), float64 except strings."""
+    """The AMASS-style arrays for ``track`` (see the module docstring), float64 except strings.
+    ``rotations``: the track's, converted once for every exporter (default: converted here)."""
     j0 = REST_OFFSETS[0] if pelvis_rest is None else np.asarray(pelvis_rest, dtype=np.float64).reshape(3)
     n = track.num_frames
-    aa = matrix_to_axis_angle(track.local_rotations)  # (N, 22, 3)
+    local = (rotations if rotations is not None else JointRotations.of(track)).local
+    aa = local.as_rotvec().reshape(n, NUM_JOINTS, 3)
     poses = np.zeros((n, NUM_POSE_PARAMS))
     poses[:, : NUM_JOINTS * 3] = aa.reshape(n, NUM_JOINTS * 3)
     arrays: dict[str, NDArray[np.float64]] = {
@@ -64,7 +67,10 @@ def smplx_parameters(
 
 
 def export_smplx_npz(
-    track: CharacterTrack, path: str | Path, pelvis_rest: NDArray[np.float64] | None = None
+    track: CharacterTrack,
+    path: str | Path,
+    pelvis_rest: NDArray[np.float64] | None = None,
+    rotations: JointRotations | None = None,
 ) -> Path:
     """Write ``track`` as an AMASS-style SMPL-X ``.npz`` (deterministic bytes). Returns the path."""
-    return write_npz(path, smplx_parameters(track, pelvis_rest))
+    return write_npz(path, smplx_parameters(track, pelvis_rest, rotations))

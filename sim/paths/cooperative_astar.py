@@ -26,15 +26,21 @@ cannot have changed (the compiled search reports the entries it read), so its co
 the neighbourhood of the failed agents, not with the crowd; the plans are the same.
 Costs: a move costs its length in cells, waiting costs 1 per step except at the goal (free).
 The heuristic is the exact distance on the static grid (Dijkstra per goal, compiled, cached).
+Agents named in ``plan(detour=...)`` (walkers that stopped making progress: a stationary body,
+such as a member waiting at its target, closes the corridor the static distance leads into)
+use instead the exact distance along the moves the stationary bodies leave (Dijkstra per goal
+and set of stationary bodies), so their search walks around the blockage; when the bodies
+cut the goal off entirely they keep the static distance (and wait for the way to open).
 Plans are deterministic: fixed move order, tie-breaking on (f, h, cell), explicit orders.
 """
 
 from __future__ import annotations
 
+import hashlib
 import heapq
 import math
-from collections.abc import Hashable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Collection, Hashable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Literal, get_args
 
 import numpy as np
@@ -85,6 +91,9 @@ class PlanResult:
     goals: dict[Agent, Cell]
     expansions: int = 0
     reused: frozenset[Agent] = frozenset()
+    detour: dict[Agent, float] = field(default_factory=dict)
+    """For the ``detour`` agents planned around the stationary bodies: the distance (cells)
+    from the start to the used goal along the moves those bodies leave."""
 
 
 @dataclass(frozen=True)
@@ -254,6 +263,7 @@ class PathPlanner:
         self._h_capacity = max(513, (256 << 20) // (8 * self._nx_p * self._ny_p))
         self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
         self._ring: NDArray[np.int64] | None = None  # goal_distances' bucket scratch, made on first use
+        self._detour_memo: dict[tuple[int, bytes], NDArray[np.float64]] = {}  # see detour_distances
 
     # ----- ids -----------------------------------------------------------------------------
     def cell_id(self, cell: Cell) -> int:
@@ -339,6 +349,9 @@ class PathPlanner:
         self._mask_arr = np.array(self._mask_of, dtype=np.int64)
         self._all_allowed = np.full(n, self._full_mask, dtype=np.int64)
         self._cell_bits = np.bitwise_or.reduce(self._nb_bit, axis=1)  # the moves a cell has
+        # the bit of the opposite move (v -> u for the entry u -> v): bit 1 << (c + 6) <-> 1 << (6 - c)
+        code = np.log2(np.maximum(self._nb_bit, 1)).round().astype(np.int64)
+        self._nb_rev_bit = np.where(self._nb_bit > 0, np.left_shift(1, 12 - code), 0).astype(np.int64)
         self._removed_bits_memo: dict[tuple[bytes, bytes], tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
         self._scratch: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]] | None = None
         self._expanded = np.zeros(max(1, self.max_expansions), dtype=np.int64)  # the search's expanded keys
@@ -437,6 +450,25 @@ class PathPlanner:
             arr = self._h_arrays[gid] = goal_distances(gid, self._nb_id, self._nb_cost, self._ring)
         return arr
 
+    def detour_distances(self, goal: Cell, static_allow: NDArray[np.int64]) -> NDArray[np.float64]:
+        """Distances (cells) to ``goal`` per padded cell id along the moves ``static_allow``
+        leaves (the moves stationary bodies do not block; inf: no such path). Memoised per goal
+        and ``static_allow``."""
+        gid = self.cell_id(goal)
+        key = (gid, hashlib.blake2b(static_allow.tobytes(), digest_size=16).digest())
+        hit = self._detour_memo.get(key)
+        if hit is None:
+            if self._ring is None:
+                self._ring = np.zeros((3, self._nb_id.shape[0] * self._nb_id.shape[1] + 1), dtype=np.int64)
+            # Dijkstra from the goal: the entry u -> v stands for the walker's move v -> u
+            into = np.where(self._nb_id >= 0, self._nb_id, 0)
+            ok = (static_allow[into] & self._nb_rev_bit) != 0
+            cost = np.where(ok, self._nb_cost, np.inf)
+            if len(self._detour_memo) >= 256:
+                self._detour_memo.clear()
+            hit = self._detour_memo[key] = goal_distances(gid, self._nb_id, cost, self._ring)
+        return hit
+
     def distance(self, start: Cell, goal: Cell) -> float:
         """Shortest static path length from ``start`` to ``goal`` in metres (inf: unreachable)."""
         return float(self._heuristic_array(goal)[self.cell_id(start)]) * self.grid.cell_size
@@ -523,6 +555,7 @@ class PathPlanner:
         order: Sequence[Agent] | None = None,
         static_segments: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]] = (),
         hints: Mapping[Agent, tuple[Sequence[Cell], Cell]] | None = None,
+        detour: Collection[Agent] = (),
     ) -> PlanResult:
         """Plan ``window`` steps for every agent in ``starts``.
 
@@ -541,6 +574,10 @@ class PathPlanner:
         along the static distance. A kept path is feasible, so the clearance guarantee is the
         same; it may be longer than a new search would find, which is why callers give hints
         only every other replan (``CrowdNavigator``).
+
+        ``detour``: agents whose search is guided by the distance around the stationary bodies
+        (``detour_distances``) instead of the static distance, when that distance is finite;
+        they keep no hint. ``PlanResult.detour`` gives their remaining distance.
         """
         agents = list(starts)
         for a in agents:
@@ -562,6 +599,12 @@ class PathPlanner:
             overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in kept.items()}
             static_allow = self._static_allow(overrides)
         used_goals = {a: self._usable_goal(starts[a], goals.get(a), static_allow) for a in agents}
+        heuristics: dict[Agent, NDArray[np.float64]] = {}
+        for a in detour:
+            if a in starts:
+                h = self.detour_distances(used_goals[a], static_allow)
+                if h[self.cell_id(starts[a])] < math.inf:
+                    heuristics[a] = h
         # Pass 1: plain WHCA*. An agent whose search fails was cornered by the first steps of
         # agents planned before it; its wait is then reserved for the committed steps and the
         # call planned again (lazy wait reservation: only agents that need it hold their
@@ -570,10 +613,12 @@ class PathPlanner:
         # failed agents first with a doubled window (always safe).
         usable: dict[Agent, list[int]] = {}
         for a, (path, goal) in (hints or {}).items():
-            if a in starts and path and tuple(path[0]) == tuple(starts[a]) and tuple(goal) == tuple(used_goals[a]):
+            if (a in starts and a not in heuristics and path and tuple(path[0]) == tuple(starts[a])
+                    and tuple(goal) == tuple(used_goals[a])):
                 usable[a] = [self.cell_id(c) for c in path[: self.window + 1]]
         reserved: frozenset[Agent] = frozenset()
-        result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable, static_allow)
+        result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable, static_allow,
+                                        heuristics)
         fallback = set(result.failed)
         expansions = result.expansions
         for _ in range(self.repair_passes):
@@ -583,13 +628,14 @@ class PathPlanner:
             # reservations that did not change take that pass's result (``_dense_pass``)
             before, reserved = reserved, reserved | result.failed
             result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable,
-                                            static_allow, previous=(record, before))
+                                            static_allow, heuristics, previous=(record, before))
             fallback |= result.failed
             expansions += result.expansions
         if not result.failed <= reserved:
             order2 = failed_first(order, result.failed) if self.fallback else list(order)
             ext = result.failed if self.fallback else frozenset()
-            result, _ = self._run_pass(order2, starts, used_goals, overrides, ext, frozenset(order), {}, static_allow)
+            result, _ = self._run_pass(order2, starts, used_goals, overrides, ext, frozenset(order), {}, static_allow,
+                                       heuristics)
             expansions += result.expansions
         return PlanResult(
             paths=result.paths,
@@ -598,6 +644,7 @@ class PathPlanner:
             goals=used_goals,
             expansions=expansions,
             reused=result.reused,
+            detour={a: float(h[self.cell_id(starts[a])]) for a, h in heuristics.items()},
         )
 
     def _usable_goal(self, start: Cell, goal: Cell | None, static_allow: NDArray[np.int64]) -> Cell:
@@ -637,14 +684,17 @@ class PathPlanner:
         reserve_waits: frozenset[Agent],
         hints: Mapping[Agent, list[int]],
         static_allow: NDArray[np.int64],
+        heuristics: Mapping[Agent, NDArray[np.float64]],
         previous: tuple[dict[Agent, _Outcome], frozenset[Agent]] | None = None,
     ) -> tuple[PlanResult, dict[Agent, _Outcome]]:
         """One planning pass on this planner's backend; the dense pass also returns what each
-        agent's search read (for the next repair pass, see ``_dense_pass``)."""
+        agent's search read (for the next repair pass, see ``_dense_pass``). ``heuristics``:
+        per agent, the distances that replace its goal's static distance (see ``plan``)."""
         if self.backend == "numba":
             arrays = {a: np.asarray(h, dtype=np.int64) for a, h in hints.items()}
-            return self._dense_pass(order, starts, goals, extended, reserve_waits, arrays, static_allow, previous)
-        return self._pass(order, starts, goals, overrides, extended, reserve_waits, hints), {}
+            return self._dense_pass(order, starts, goals, extended, reserve_waits, arrays, static_allow, previous,
+                                    heuristics)
+        return self._pass(order, starts, goals, overrides, extended, reserve_waits, heuristics, hints), {}
 
     def _pass(
         self,
@@ -654,6 +704,7 @@ class PathPlanner:
         overrides: Mapping[int, list[_Move]],
         extended: frozenset[Agent],
         reserve_waits: frozenset[Agent],
+        heuristics: Mapping[Agent, NDArray[np.float64]],
         hints: Mapping[Agent, list[int]] | None = None,
     ) -> PlanResult:
         """One prioritized pass (pure-Python backend): every agent in ``order`` keeps its hint or
@@ -677,7 +728,9 @@ class PathPlanner:
             if ids is not None:
                 reused.add(a)
             else:
-                ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides)
+                h = heuristics.get(a)
+                ids, n = self._search(a, self.cell_id(starts[a]), goals[a], window, res, overrides,
+                                      None if h is None else h.tolist())
                 total += n
             if ids is None:  # wait: safe for the committed steps, which is all it claims
                 failed.add(a)
@@ -702,6 +755,7 @@ class PathPlanner:
         hints: Mapping[Agent, NDArray[np.int64]],
         static_allow: NDArray[np.int64],
         previous: tuple[dict[Agent, _Outcome], frozenset[Agent]] | None = None,
+        heuristics: Mapping[Agent, NDArray[np.float64]] | None = None,
     ) -> tuple[PlanResult, dict[Agent, _Outcome]]:
         """``_pass`` on the compiled kernels (same result), recording each agent's outcome.
 
@@ -736,7 +790,8 @@ class PathPlanner:
             if old is not None and dirty is not None and not dirty[old.reads].any():
                 out = old
             else:
-                out = self._dense_outcome(a, starts, goals, extended, hints, static_allow, res, stride)
+                out = self._dense_outcome(a, starts, goals, extended, hints, static_allow, res, stride,
+                                          heuristics.get(a) if heuristics else None)
                 if old is not None and dirty is not None:
                     self._mark_changes(dirty, old.ids, out.ids, w_max, stride)
             outcomes[a] = out
@@ -752,7 +807,7 @@ class PathPlanner:
     def _dense_outcome(
         self, a: Agent, starts: Mapping[Agent, Cell], goals: Mapping[Agent, Cell], extended: frozenset[Agent],
         hints: Mapping[Agent, NDArray[np.int64]], static_allow: NDArray[np.int64], res: _DenseReservations,
-        stride: int,
+        stride: int, h: NDArray[np.float64] | None = None,
     ) -> _Outcome:
         """Agent ``a``'s kept hint or search against ``res``, and the reservation entries read."""
         window = self.window * 2 if a in extended else self.window
@@ -765,7 +820,7 @@ class PathPlanner:
             reads.append(np.arange(steps, dtype=np.int64) * stride + path[:steps])
             if ok:
                 return _Outcome(path, reads[0], 0, reused=True, failed=False, cells=self._cells_of(path))
-        ids, n, expanded = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow)
+        ids, n, expanded = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow, h)
         keys = np.concatenate([*reads, expanded]) if reads else expanded
         if ids is None:  # wait: safe for the committed steps, which is all it claims
             wait = np.full(self.commit_steps + 1, self.cell_id(starts[a]), dtype=np.int64)
@@ -831,11 +886,14 @@ class PathPlanner:
         return path
 
     def _search_compiled(
-        self, start: int, goal: Cell, window: int, res: _DenseReservations, static_allow: NDArray[np.int64]
+        self, start: int, goal: Cell, window: int, res: _DenseReservations, static_allow: NDArray[np.int64],
+        h: NDArray[np.float64] | None = None,
     ) -> tuple[NDArray[np.int64] | None, int, NDArray[np.int64]]:
         """``_search`` run by the compiled kernel on the dense tables (same result); also the
-        reservation entries it read (the keys of the expanded nodes)."""
-        h = self._heuristic_array(goal)
+        reservation entries it read (the keys of the expanded nodes). ``h``: distances to use
+        instead of the goal's static distance."""
+        if h is None:
+            h = self._heuristic_array(goal)
         g_best, stamp, parent = self._search_scratch(window)
         self._token += 1
         path, n = space_time_search(
@@ -852,9 +910,12 @@ class PathPlanner:
         window: int,
         res: _Reservations,
         overrides: Mapping[int, list[_Move]],
+        h: list[float] | None = None,
     ) -> tuple[list[int] | None, int]:
-        """Space-time A* from ``start`` for ``window`` steps; returns padded ids (window + 1) or None."""
-        h = self.heuristic(goal)
+        """Space-time A* from ``start`` for ``window`` steps; returns padded ids (window + 1) or None.
+        ``h``: distances to use instead of the goal's static distance."""
+        if h is None:
+            h = self.heuristic(goal)
         gid = self.cell_id(goal)
         nbrs = self._snbrs
         full = self._full_mask

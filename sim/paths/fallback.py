@@ -71,6 +71,11 @@ class PriorityKeeper:
                 self.boost[a] = self.boost.get(a, 0) + 1
                 self._since[a] = 0
 
+    def stalled_steps(self, agent: Agent) -> int:
+        """Steps since the agent last got closer to its goal (0 before any observation; back to
+        0 whenever its boost grows)."""
+        return self._since.get(agent, 0)
+
     def order(self, walking: Iterable[Agent], arrived: Iterable[Agent]) -> list[Agent]:
         """Who plans first: higher boost, then lower rank; agents on their goal last."""
         walking = list(walking)

@@ -18,6 +18,12 @@ a static segment / disc for the planner, which then keeps every move from gettin
 when the goal is set (``PlanningError`` if a body cannot stand at, or walk straight to, the
 point; ``target_problem`` gives the reason without raising).
 
+Detours. A walker that made no progress towards its goal for ``detour_after`` steps (default
+``2 * stall_steps``, 3.6 s) is planned around the stationary bodies from then on (``PathPlanner.plan(detour=...)``)
+until it arrives or gets a new goal: a member waiting on its exact target in a one-cell
+corridor is an obstacle the static distance does not know, and without the detour the walker
+behind it would wait for good. ``detour_distance`` gives its remaining distance on that route.
+
 Because positions are exactly the planner's piecewise-linear paths plus these legs, the
 clearance rule holds for these positions at every frame: walkers stay ``2 * body_radius``
 apart and bodies never touch a blocking footprint. Pure: the clock is the frame counter.
@@ -81,6 +87,7 @@ class CrowdNavigator:
         seed: int = 0,
         stall_steps: int = 6,
         reuse_plans: bool = True,
+        detour_after: int | None = None,
     ) -> None:
         self.grid = grid
         self.planner = planner or PathPlanner(grid, seed=seed)
@@ -94,6 +101,8 @@ class CrowdNavigator:
         self.speed = grid.cell_size / self.planner.step_time  # metres per second on a straight move
         self.keeper = PriorityKeeper(seed=seed, stall_steps=stall_steps)
         self.reuse_plans = bool(reuse_plans)
+        self.detour_after = int(2 * stall_steps if detour_after is None else detour_after)
+        self._detour: set[Agent] = set()  # walkers planned around the stationary bodies (see the module docstring)
         self.frame = 0
         self._cells: dict[Agent, Cell] = {}
         self._goals: dict[Agent, Cell | None] = {}
@@ -185,6 +194,7 @@ class CrowdNavigator:
             self._final.pop(agent, None)
         self._goals[agent] = None if goal is None else (int(goal[0]), int(goal[1]))
         self.keeper.reset(agent)
+        self._detour.discard(agent)
         self._needs_plan = True
 
     def target_problem(self, goal: Cell, xy: NDArray[np.float64] | tuple[float, float]) -> str | None:
@@ -235,6 +245,7 @@ class CrowdNavigator:
         self._final.pop(agent, None)
         self._parked.pop(agent, None)
         self._legs.pop(agent, None)
+        self._detour.discard(agent)
         self._static[agent] = np.asarray(xy, dtype=np.float64)
         self._needs_plan = True
 
@@ -249,6 +260,13 @@ class CrowdNavigator:
     def cell(self, agent: Agent) -> Cell:
         """The walker's current cell (its entry cell while off the grid)."""
         return self._cells[agent]
+
+    def detour_distance(self, agent: Agent) -> float | None:
+        """Metres left to the walker's goal around the stationary bodies, when the last plan
+        routed it so (see the module docstring); else None."""
+        res = self.last_result
+        d = None if res is None or agent not in self._detour else res.detour.get(agent)
+        return None if d is None else d * self.grid.cell_size
 
     def is_off_grid(self, agent: Agent) -> bool:
         """Whether the walker stands at, or walks to or from, an exact point off its cell centre."""
@@ -406,6 +424,7 @@ class CrowdNavigator:
                 self.arrivals.append((self.frame, a))
                 self._goals[a] = None
                 self.keeper.reset(a)
+                self._detour.discard(a)
         self._start_legs()
         if k > 0:
             dist = {
@@ -417,6 +436,7 @@ class CrowdNavigator:
             res = self.last_result
             failed = res.failed | res.fallback if res is not None else frozenset()
             self.keeper.observe(dist, failed, steps=k)
+            self._detour.update(a for a in dist if self.keeper.stalled_steps(a) >= self.detour_after)
         if k >= self.planner.commit_steps or k == 0 or self._needs_plan:
             self._replan()
 
@@ -432,6 +452,7 @@ class CrowdNavigator:
                 self._goals[a] = None
                 self.arrivals.append((self.frame, a))
                 self.keeper.reset(a)
+                self._detour.discard(a)
             # outbound: back on the cell centre, a normal walker again
 
     def _start_legs(self) -> None:
@@ -528,6 +549,7 @@ class CrowdNavigator:
             order=order,
             static_segments=segments,
             hints=self._hints(planned),
+            detour=sorted(self._detour & set(planned), key=planned.index),
         )
         self._paths = {a: list(p) for a, p in result.paths.items()}
         self._stack = None

@@ -205,6 +205,8 @@ class NavGrid:
         resolution: float = 0.05,
         search_radius: float = 1.5,
         component: int | None = None,
+        seat_xy: tuple[float, float] | None = None,
+        avoid: Sequence[tuple[float, float]] = (),
     ) -> ApproachPoint:
         """The best exact standing point (not a cell centre) from which to sit on / use ``obj``.
 
@@ -226,6 +228,11 @@ class NavGrid:
         tucked 0.37-0.46 m from their tables no body (0.5 m across) fits in front of them; the point
         is then beside the chair and ``gap`` is larger (e.g. 0.5-0.8 m): callers decide whether that
         is acceptable. Raises ``NavGridError`` when no candidate is reachable.
+
+        ``seat_xy``: one sitting place of a wide seat (a couch's slot) instead of its seat point:
+        the ideal point moves sideways with it and the gap is measured to it. ``avoid``: points
+        (other bodies) that neither the candidate nor the straight walk onto it from its cell's
+        centre may come within two body radii of.
         """
         if not (math.isfinite(resolution) and resolution > 0.0 and math.isfinite(search_radius) and search_radius > 0):
             raise NavGridError("approach_point needs a positive resolution and search_radius in metres")
@@ -244,15 +251,21 @@ class NavGrid:
         keep = (edge <= search_radius) & _inside_bounds(pts, self.bounds_min, self.bounds_max, r)
         pts, local, edge = pts[keep], local[keep], edge[keep]
         keep = body_clearance(self.obstacles, pts, pts) >= r
+        taken = np.asarray(avoid, dtype=float).reshape(-1, 2)
+        if len(taken):
+            keep &= np.min(np.linalg.norm(pts[:, None, :] - taken[None, :, :], axis=2), axis=1) >= 2.0 * r
         pts, local, edge = pts[keep], local[keep], edge[keep]
         if len(pts) == 0:
             raise NavGridError(f"no point near {obj.name} has room for a body of radius {r} m")
-        target = obj.seat_point() if obj.is_seat else obj.center_xy
+        target = np.asarray(seat_xy, dtype=float) if seat_xy is not None else (
+            obj.seat_point() if obj.is_seat else obj.center_xy)
         others = [o for o in self.obstacles if o.name != obj.name]
         visible = body_clearance(others, pts, np.broadcast_to(target, pts.shape)) > 0.0
         facing = obj.has_facing or obj.is_seat
         if facing:
             ideal = c + np.asarray(obj.facing, dtype=float) * (hd + r + standoff)
+            if seat_xy is not None:  # in front of that place
+                ideal = ideal + obj.right * float((target - c) @ obj.right)
             score = np.linalg.norm(pts - ideal, axis=1)
             in_front = local[:, 1] > hd
         else:
@@ -264,6 +277,8 @@ class NavGrid:
             p = pts[k]
             cell = self._entry_cell(p, component)
             if cell is None:
+                continue
+            if len(taken) and _segment_point_distance(self.center_of(*cell), p, taken) < 2.0 * r:
                 continue
             gap = float(np.linalg.norm(p - target)) if obj.is_seat else float(edge[k])
             return ApproachPoint(
@@ -316,6 +331,14 @@ class NavGrid:
 
 
 # ----- geometry ---------------------------------------------------------------------------------
+def _segment_point_distance(a: NDArray[np.float64], b: NDArray[np.float64], q: NDArray[np.float64]) -> float:
+    """Smallest distance (metres) from the points ``q`` (N, 2) to the segment a-b."""
+    ab = b - a
+    denom = float(ab @ ab)
+    t = np.zeros(len(q)) if denom <= 0.0 else np.clip((q - a) @ ab / denom, 0.0, 1.0)
+    return float(np.min(np.linalg.norm(q - (a + t[:, None] * ab), axis=1)))
+
+
 def _point_rect_distance(local: NDArray[np.float64], hw: float, hd: float) -> NDArray[np.float64]:
     """Distance of local points (N, 2) to the axis-aligned rectangle [-hw, hw] x [-hd, hd]."""
     dx = np.maximum(np.abs(local[:, 0]) - hw, 0.0)

@@ -22,6 +22,7 @@ Deterministic: no randomness, no clock; events are visited in the order they wer
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal, Protocol
 
@@ -38,7 +39,7 @@ from sim.world.events import (
     FailureReason,
     ReleaseCharacters,
 )
-from sim.world.navigation import StandTargets, WorldNavigator
+from sim.world.navigation import StandTargets, WorldNavigator, seat_place
 from sim.world.phases import (
     CharacterState,
     StandTarget,
@@ -119,13 +120,40 @@ def _fail(out: StepReport, event_id: str, character: str, reason: FailureReason,
     out.failures.append(EventFailure(event_id=event_id, character=character, reason=reason, message=message))
 
 
-def stand_target_for(w: EventWorld, c: CharacterState, a: Assignment) -> tuple[StandTarget | None, str]:
-    """Where ``a``'s walk ends (see ``StandTargets``), or (None, why not)."""
+def taken_points(w: EventWorld, skip: Iterable[str]) -> list[tuple[float, float]]:
+    """Where the characters not in ``skip`` stand or will stand for their events: the end of
+    their walk and the cell centre they step onto it from, and for a seated one the discs of
+    its sit-down path (metres)."""
+    out: list[tuple[float, float]] = []
+    gone = set(skip)
+    for o in w.characters.values():
+        if o.name in gone or o.event_id is None or o.target is None:
+            continue
+        out.extend(_body_points(o.target, o.assignment, w))
+    return out
+
+
+def _body_points(target: StandTarget, a: Assignment | None, w: EventWorld) -> list[tuple[float, float]]:
+    """A body at ``target`` (its cell centre and its point) and, when ``a`` sits, the discs
+    of its way onto the seat."""
+    cell = w.grid.center_of(*target.cell)
+    out = [(float(cell[0]), float(cell[1])), (float(target.xy[0]), float(target.xy[1]))]
+    if a is not None and a.seat is not None and a.seat in w.scene.by_name:
+        seat = np.asarray(seat_place(w.scene.by_name[a.seat], a.target_xy))
+        out += [(float(p[0]), float(p[1])) for p in seat_discs(np.asarray(target.xy, dtype=float), seat)[1:]]
+    return out
+
+
+def stand_target_for(w: EventWorld, c: CharacterState, a: Assignment,
+                     avoid: Sequence[tuple[float, float]] = ()) -> tuple[StandTarget | None, str]:
+    """Where ``a``'s walk ends (see ``StandTargets``), or (None, why not). A seat's approach
+    point keeps two body radii from the points of ``avoid`` when it can (others' bodies)."""
     g = w.grid
     here = w.navigator.cell(c.name) if w.navigator.is_walker(c.name) else c.anchor_cell
     comp = int(g.component[here]) if g.is_free(*here) else g.main_component
     if a.seat is not None:
-        target = w.targets.seated(w.navigator, w.scene.by_name[a.seat], comp)
+        obj = w.scene.by_name[a.seat]
+        target = w.targets.seated(w.navigator, obj, comp, seat_place(obj, a.target_xy), avoid)
         if target is None:
             return None, f"{c.name} cannot reach a free cell in front of {a.seat}"
         return target, ""
@@ -146,6 +174,8 @@ def assign(w: EventWorld, cmd: AssignEvent, out: StepReport) -> None:
         raise WorldError(f"event {eid!r} is already running")
     goals: dict[str, StandTarget] = {}
     problems: list[tuple[str, FailureReason, str]] = []
+    # where other bodies will be, for the seats' approach points (members placed so far included)
+    taken = taken_points(w, cmd.characters) if any(a.seat is not None for a in cmd.assignments) else None
     for a in cmd.assignments:
         if a.character not in w.characters:
             problems.append((a.character, "unknown_character", f"no character called {a.character!r}"))
@@ -161,11 +191,13 @@ def assign(w: EventWorld, cmd: AssignEvent, out: StepReport) -> None:
             problems.append((a.character, "busy", f"{a.character} is busy with event "
                              f"{w.characters[a.character].event_id!r}"))
             continue
-        goal, why = stand_target_for(w, w.characters[a.character], a)
+        goal, why = stand_target_for(w, w.characters[a.character], a, [] if taken is None else taken)
         if goal is None:
             problems.append((a.character, "no_path", why))
             continue
         goals[a.character] = goal
+        if taken is not None:  # the next members keep clear of this one
+            taken.extend(_body_points(goal, a, w))
     if problems:
         for name, reason, msg in problems:
             _fail(out, eid, name, reason, msg)
@@ -299,7 +331,8 @@ def _begin_transition_in(w: EventWorld, c: CharacterState) -> None:
     c.xy = c.anchor_xy.copy()
     c.walker = False
     if a.seat is not None:
-        c.seat_xy = w.scene.by_name[a.seat].seat_point()
+        seat = w.scene.by_name[a.seat]
+        c.seat_xy = np.asarray(seat_place(seat, a.target_xy), dtype=float)
         w.navigator.make_stationary(c.name, seat_discs(c.anchor_xy, c.seat_xy))
     else:
         w.navigator.make_stationary(c.name, [c.anchor_xy])

@@ -79,6 +79,11 @@ class WorldNavigator:
         """Why a body cannot walk straight from ``cell``'s centre to ``xy`` and stand there."""
         return self.nav.target_problem(cell, xy)
 
+    def detour_distance(self, name: str) -> float | None:
+        """Metres left on the walker's route around stationary bodies, when it was planned so
+        (``CrowdNavigator.detour_distance``); else None."""
+        return self.nav.detour_distance(name)
+
     def position(self, name: str) -> np.ndarray:
         """The walker's xy at the last produced frame (metres)."""
         return self.nav.position(name)
@@ -145,13 +150,31 @@ class WorldNavigator:
         return self.nav.futures(names, frames)
 
 
+SEAT_PLACE_WIDTH = 0.6  # metres of a seat's width one sitting body takes (a seat twice as wide seats several)
+
+
+def seat_place(obj: SceneObject, target_xy: Sequence[float]) -> tuple[float, float]:
+    """Where on ``obj`` a body sent to ``target_xy`` sits: the seat point of a one-place seat;
+    on a seat wide enough for several (a couch), the point of its seat line nearest to
+    ``target_xy`` (kept half a place inside the ends), so that two people share it side by side."""
+    base = obj.seat_point()
+    if obj.width < 2 * SEAT_PLACE_WIDTH:
+        return (float(base[0]), float(base[1]))
+    half = obj.width / 2.0 - SEAT_PLACE_WIDTH / 2.0
+    lateral = float(np.clip((np.asarray(target_xy, dtype=float) - base) @ obj.right, -half, half))
+    p = base + obj.right * lateral
+    return (float(p[0]), float(p[1]))
+
+
 class StandTargets:
     """Resolves assignments to ``StandTarget``s on one grid; approach points are cached per
-    (object, component) because ``NavGrid.approach_point`` is slow (~0.15 s). Deterministic."""
+    (object, component, sitting place) because ``NavGrid.approach_point`` is slow (~0.15 s);
+    one that another body's standing point crowds is searched again without the cache.
+    Deterministic."""
 
     def __init__(self, grid: NavGrid) -> None:
         self.grid = grid
-        self._approach: dict[tuple[str, int], ApproachPoint | str] = {}
+        self._approach: dict[tuple[str, int, tuple[float, float]], ApproachPoint | str] = {}
 
     def _centre(self, cell: Cell) -> tuple[float, float]:
         c = self.grid.center_of(*cell)
@@ -182,22 +205,43 @@ class StandTargets:
             return None
         return StandTarget(near, self._centre(near), False, reason, msg)
 
-    def approach_point(self, obj: SceneObject, component: int) -> ApproachPoint | str:
-        """``NavGrid.approach_point(obj, component=component)`` (cached), or why there is none."""
-        key = (obj.name, int(component))
+    def approach_point(self, obj: SceneObject, component: int, place: tuple[float, float] | None = None,
+                       avoid: Sequence[tuple[float, float]] = ()) -> ApproachPoint | str:
+        """``NavGrid.approach_point(obj, component=component, seat_xy=place)`` (cached), or why
+        there is none; when it (or the walk onto it from its cell's centre) comes within two
+        body radii of a point of ``avoid`` (where other bodies stand or sit down), the best one
+        clear of them (not cached)."""
+        seat = obj.seat_point() if place is None else np.asarray(place, dtype=float)
+        if place is not None and float(np.linalg.norm(seat - obj.seat_point())) <= 1e-9:
+            place = None  # the seat point itself: the object's own approach point
+        key = (obj.name, int(component), (round(float(seat[0]), 6), round(float(seat[1]), 6)))
         hit = self._approach.get(key)
         if hit is None:
-            try:
-                hit = self.grid.approach_point(obj, component=int(component))
-            except NavGridError as exc:
-                hit = str(exc)
+            hit = self._search(obj, component, place, ())
             self._approach[key] = hit
+        if isinstance(hit, ApproachPoint) and len(avoid):
+            taken = np.asarray(avoid, dtype=float).reshape(-1, 2)
+            a, b = self.grid.center_of(*hit.cell), np.asarray(hit.xy)
+            t = np.clip((taken - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-12), 0.0, 1.0)
+            near = float(np.min(np.linalg.norm(taken - (a + t[:, None] * (b - a)), axis=1)))
+            if near < 2.0 * self.grid.body_radius:  # the point or the walk onto it
+                return self._search(obj, component, place, avoid)
         return hit
 
-    def seated(self, nav: WorldNavigator, obj: SceneObject, component: int) -> StandTarget | None:
-        """The approach point of ``obj`` reachable in ``component``; else the object's approach
-        cell (``no_approach_point``). None when neither is reachable from ``component``."""
-        ap = self.approach_point(obj, component)
+    def _search(self, obj: SceneObject, component: int, place: tuple[float, float] | None,
+                avoid: Sequence[tuple[float, float]]) -> ApproachPoint | str:
+        try:
+            return self.grid.approach_point(obj, component=int(component), seat_xy=place, avoid=avoid)
+        except NavGridError as exc:
+            return str(exc)
+
+    def seated(self, nav: WorldNavigator, obj: SceneObject, component: int, place: tuple[float, float] | None = None,
+               avoid: Sequence[tuple[float, float]] = ()) -> StandTarget | None:
+        """The approach point of ``obj`` (for the sitting ``place`` on it, default its seat point)
+        reachable in ``component`` and clear of ``avoid`` (see ``approach_point``); else the
+        object's approach cell (``no_approach_point``). None when neither is reachable from
+        ``component``."""
+        ap = self.approach_point(obj, component, place, avoid)
         if isinstance(ap, ApproachPoint):
             p = np.asarray(ap.xy, dtype=float)
             if nav.target_problem(ap.cell, p) is None:

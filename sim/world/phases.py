@@ -79,7 +79,10 @@ class CharacterState:
     ``phase_length``: frames the phase lasts (``INFINITE``: until something happens);
     ``turn_frames``: the part of a transition in spent turning; ``action_done``: the action of
     the current event is finished (or, looping, under way); ``pending``: the assignment to
-    start (event id, assignment, stand target) once the current transition out ends.
+    start (event id, assignment, stand target) once the current transition out ends;
+    ``best_distance`` / ``stalled_frames``: the walker's closest approach to its goal and the
+    frames since (the stuck check), measured around stationary bodies while ``rerouted`` (the
+    navigator's detour; entering it starts the count afresh).
     """
 
     name: str
@@ -104,6 +107,7 @@ class CharacterState:
     action_done: bool = False
     best_distance: float = math.inf
     stalled_frames: int = 0
+    rerouted: bool = False
     motion_key: str = "idle"
 
     def enter(self, phase: Phase, length: int = INFINITE) -> None:

@@ -421,7 +421,11 @@ class World:
             ) <= 1:
                 self._arrive(c, "goal_cell_taken")  # the neighbour the planner chose will do
                 continue
-            d = self.planner.distance(cell, c.goal_cell)
+            around = nav.detour_distance(c.name)  # planned around stationary bodies: progress counts on that route
+            if around is not None and not c.rerouted:
+                c.best_distance = math.inf
+            c.rerouted = around is not None
+            d = self.planner.distance(cell, c.goal_cell) if around is None else around
             if d < c.best_distance - 1e-9:
                 c.best_distance, c.stalled_frames = d, 0
             else:
