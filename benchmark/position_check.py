@@ -28,8 +28,9 @@ the largest, ``!`` negates it (how far inside the excluded region the point is).
 a failing expression is its excess clipped at 0; a passing one has error 0.
 
 A position also fails on **collision**: strictly inside the footprint of a floor-standing
-object (bottom within 0.1 m of the floor), except objects sat or lain on or named by "inside"
-in the expression and the plan's own seat; or closer than two body radii (0.5 m) to another
+object (bottom within 0.1 m of the floor), except the plan's own seat, objects named by
+"inside" in the expression and, only when the seat is not given, objects named by "sit on" /
+"lie on" (a plan that says it stands inside a chair's footprint collides with the chair); or closer than two body radii (0.5 m) to another
 character (``others``: where the characters that do not move are, and where the other planned
 characters go), the clearance the project's sampler keeps between characters.
 """
@@ -268,7 +269,10 @@ def check_position(
         return CheckResult(False, False, float("inf"), None)
     holds, excess = _measure(scene, tree, read, xy, seat)
     error = 0.0 if holds else max(excess, 0.0)
-    exempt = {a.anchors[0] for a in read.values() if a.relation in (*SEATING, "inside")}
+    # "inside X" puts the point in X's footprint, so X is no obstacle; "sit on X" does only while
+    # the seat is unknown (judged by the point): a plan that says it stands collides with X
+    exempt_relations = ("inside", *SEATING) if seat is UNKNOWN_SEAT else ("inside",)
+    exempt = {a.anchors[0] for a in read.values() if a.relation in exempt_relations}
     if isinstance(seat, str):
         exempt.add(seat)  # a seat is not an obstacle to its sitter
     hit = object_collision(scene, xy, exempt)

@@ -109,3 +109,27 @@ def test_the_room_world_places_bo_on_chair_2() -> None:
     bo = world.character("Bo")
     assert bo is not None and bo.seat == "chair_2" and bo.position == pytest.approx((3.0, 2.8))
     assert {c.name for c in world.characters if c.position is None} == {"Ana", "Dee"}
+
+
+def test_case_1_standing_inside_an_alternative_seat_collides_with_it() -> None:
+    """Reference case 1 (Office): Chad standing (no seat) at chair_13's seat point, inside the
+    chair's footprint, fails on the expression and also collides with chair_13: "sit on X"
+    exempts X from the collision check only for a plan that sits on it or does not say. Found
+    by tests/test_scorer_agreement.py; before the fix the collision went unreported, and
+    "sit on chair_13 || adjacent to table_6" passed a point standing inside the chair."""
+    case, scene = _reference_case(1)
+    seat_point = tuple(float(v) for v in scene.by_name["chair_13"].seat_point())
+    standing = PlannedCharacter(character="Chad", action="work_on_computer", position=seat_point,
+                                facing=(1.0, 0.0), seat=None)
+    outcome = ParsedEvent(index=0, event=Event(characters=("Chad",), activity="stands"), plans=(standing,))
+    score = score_outcome(case, scene, outcome)
+    assert not score.passed and score.characters[0].collision == "chair_13"
+
+    from benchmark.position_check import check_position
+
+    mixed = "sit on chair_13 || adjacent to table_6"
+    standing_result = check_position(scene, mixed, seat_point, seat=None)
+    assert standing_result.relation_passed and not standing_result.passed
+    assert standing_result.collision == "chair_13"
+    assert check_position(scene, mixed, seat_point, seat="chair_13").passed
+    assert check_position(scene, mixed, seat_point).passed  # seat not given: judged by the point
