@@ -41,7 +41,7 @@ from tools.spatial_api import SpatialAPI
 DIRECTIONAL = frozenset(fn for fn, _ in RELATIONS)
 """Area functions of a place beside a thing (behind it, left of it...): places to stand."""
 
-SEATED_ACTIVITIES = frozenset({"eat", "order_food", "order_drink", "use_laptop", "work_on_computer"})
+SEATED_ACTIVITIES = frozenset({"eat", "order_food", "order_drink", "use_laptop", "work_on_computer", "attend_meeting"})
 """Labels people do sitting unless the words say otherwise (a meal at a table, work at a desk):
 when the best label for the words is one of them and there is a free seat, the grammar offers
 seats only."""
