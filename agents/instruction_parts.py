@@ -31,7 +31,8 @@ LLM) still chooses and writes the event.
   but none is next (what is left waits for busy characters), the instruction has nothing for
   the free characters now: the narrator's rule says to wait, and the planner records the wait
   without asking the model, unless some free characters are *bystanders* (no part still open
-  names them: the instruction never did, or their parts are over): they are asked for an event of their own (the reply may name only them),
+  names them: the instruction never did, or their parts are over; and they are not still at
+  their last activity, a looping one that is not just idling): they are asked for an event of their own (the reply may name only them),
   so nobody the user did not mention stands idle while the others carry the instruction out. Once every part has happened the model is asked as before (its
   rules say what to do with free characters the instruction no longer needs).
   When the next part has actors, the narrator's reply may name only them (the schema's enum):
@@ -243,10 +244,11 @@ class InstructionProgress:
 
 def instruction_progress(
     instruction: str, names: Sequence[str] = (), history: Sequence[HistoryEntry] = (), free: Iterable[str] = (),
-    *, since: int = 0, prompts: PromptLibrary | None = None,
+    *, since: int = 0, prompts: PromptLibrary | None = None, idle: Iterable[str] = (),
 ) -> InstructionProgress:
     """``since``: the index of the first event planned under ``instruction`` (earlier ones never
-    match). The texts are ``prompts/story/instruction_*.md`` and ``no_instruction.md``."""
+    match); ``idle``: free characters whose current action is an idle one (sitting or standing
+    there), who count as bystanders even while their last event loops. The texts are ``prompts/story/instruction_*.md`` and ``no_instruction.md``."""
     free = tuple(free)
     lib = prompts or package_prompts()
     parts = split_instruction(instruction, names, lib)
@@ -267,7 +269,13 @@ def instruction_progress(
         )
     if nxt is None:  # waiting for busy characters, or every part has happened
         needed = {n for p, st in zip(parts, states, strict=True) if st not in ("done", "failed") for n in p.names}
-        bystanders = tuple(n for n in free if n not in needed) if "" in states else ()
+        last: dict[str, str] = {}
+        for h in sorted(history, key=lambda e: e.index):
+            last.update(dict.fromkeys(h.characters, h.state))
+        resting = set(idle)
+        bystanders = tuple(
+            n for n in free if n not in needed and (last.get(n) != "looping" or n in resting)  # still at it: not idle
+        ) if "" in states else ()
         if bystanders:
             return InstructionProgress(text, None, bystanders, False, bystanders)
         return InstructionProgress(text, None, (), "" in states)

@@ -74,8 +74,13 @@ class NarratorInput:
     def progress(self) -> InstructionProgress:
         """The instruction's parts and how far the story has got with them."""
         return instruction_progress(
-            self.instruction, [c.name for c in self.characters], self.history, self.free, since=self.instruction_since
+            self.instruction, [c.name for c in self.characters], self.history, self.free, since=self.instruction_since,
+            idle=[c.name for c in self.characters if not c.busy and c.action in IDLE_ACTIONS],
         )
+
+
+IDLE_ACTIONS = frozenset({"idle", "sit_idle"})
+"""Actions of a character who is only there (standing or sitting), doing nothing in particular."""
 
 
 def waits_without_a_call(
@@ -85,7 +90,8 @@ def waits_without_a_call(
     what is left of the instruction is for busy characters only (``agents.instruction_parts``)."""
     free = [c.name for c in characters if not c.busy]
     names = [c.name for c in characters]
-    return not free or instruction_progress(instruction, names, history, free, since=since).nothing_for_the_free
+    idle = [c.name for c in characters if not c.busy and c.action in IDLE_ACTIONS]
+    return not free or instruction_progress(instruction, names, history, free, since=since, idle=idle).nothing_for_the_free
 
 
 def narrator_schema(free: Sequence[str], at_least_one: bool = False) -> dict[str, Any]:

@@ -41,6 +41,11 @@ from tools.spatial_api import SpatialAPI
 DIRECTIONAL = frozenset(fn for fn, _ in RELATIONS)
 """Area functions of a place beside a thing (behind it, left of it...): places to stand."""
 
+SEATED_ACTIVITIES = frozenset({"eat", "order_food", "order_drink", "use_laptop", "work_on_computer", "attend_meeting"})
+"""Labels people do sitting unless the words say otherwise (a meal at a table, work at a desk):
+when the best label for the words is one of them and there is a free seat, the grammar offers
+seats only."""
+
 
 def area_functions() -> tuple[tuple[str, ...], tuple[str, ...], str]:
     """The listed area functions of ``tools.spatial_api.SpatialAPI``: those on one object, those
@@ -193,7 +198,8 @@ def event_program_grammar(
         [c.name for c in characters if c.name not in event_characters],
         seated_labels=[a for a in labels if playable_seated(a)],
         interact_objects=[o for o in objects if o not in seat_names],
-        posture=posture(activity) or ("stand" if set(relations) & DIRECTIONAL else None),
+        posture=posture(activity) or ("stand" if set(relations) & DIRECTIONAL else None)
+        or ("sit" if labels[0] in SEATED_ACTIVITIES else None),
         area_names=relations,
     )
 

@@ -141,6 +141,27 @@ def _most_chairs(tables: list[SceneObject], scene: Scene) -> list[SceneObject]:
     return [t for t in tables if count[t.name] == best] if best else tables
 
 
+_NUMBERS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "ten": 10, "twelve": 12}
+CAPACITY = re.compile(r"\btables?\s+(?:for|seating|that seats|which seats)\s+(\d+|" + "|".join(_NUMBERS) + r")\b")
+"""A table named by how many it seats: "a table for four", "the table that seats six"."""
+
+
+def seats_around(table: SceneObject, scene: Scene) -> int:
+    """How many people can sit at ``table``: the places (seat slots) of the seats within
+    ``CLOSE_M`` of it."""
+    return sum(max(1, len(seat_slots(o))) for o in scene.objects if o.is_seat and footprint_distance(table, o) <= CLOSE_M)
+
+
+def _by_capacity(tables: list[SceneObject], scene: Scene, wanted: int) -> list[SceneObject]:
+    """The tables that seat exactly ``wanted`` (else the smallest that seat more; else all)."""
+    count = {t.name: seats_around(t, scene) for t in tables}
+    exact = [t for t in tables if count[t.name] == wanted]
+    if exact:
+        return exact
+    more = [count[t.name] for t in tables if count[t.name] > wanted]
+    return [t for t in tables if count[t.name] == min(more)] if more else tables
+
+
 def _after_proximity(text: str) -> str:
     """The words after the last proximity word: they name the landmark ("the stool at the end
     of the bar nearest the coffee maker": the coffee maker), "" when there is none."""
@@ -180,6 +201,9 @@ def event_shortlist(
     groups = [[o for o in scene.objects if o.label == label] for label in labels]
     if DINING.search(_rewrite(text)) and not _after_proximity(text):  # "the dining table nearest X" picks by place
         groups = [_most_chairs(g, scene) if g and g[0].label.split("_")[-1] == "table" else g for g in groups]
+    if (capacity := CAPACITY.search(_rewrite(text))) is not None:  # "a small table for two"
+        wanted = int(capacity.group(1)) if capacity.group(1).isdigit() else _NUMBERS[capacity.group(1)]
+        groups = [_by_capacity(g, scene, wanted) if g and g[0].label.split("_")[-1] == "table" else g for g in groups]
     if len(groups) >= 2:
         after = set(mentioned_labels(_after_proximity(text), scene.labels))
         references = [g for label, g in zip(labels[1:], groups[1:], strict=True) if label in after] or groups[1:]

@@ -195,6 +195,11 @@ def test_a_character_whose_parts_are_over_is_given_something_to_do_while_others_
               planned(1, ("Cy",), "bring menus", parts[1].text, "ongoing")]
     progress = instruction_progress(text, names, seated, ("Ava", "Ben"))
     assert progress.bystanders == ("Ava", "Ben")
+    # still at their own part (a looping event): they carry on, nobody gives them another
+    still = [planned(0, ("Ava", "Ben"), "sit at table_1", parts[0].text, "looping"), seated[1]]
+    assert instruction_progress(text, names, still, ("Ava", "Ben")).bystanders == ()
+    # ... unless all they do there is sit
+    assert instruction_progress(text, names, still, ("Ava", "Ben"), idle=("Ben",)).bystanders == ("Ben",)
     # a character an open part still names waits for it
     waiter = "Ava sits at the table. Cy serves Ava."
     parts = split_instruction(waiter, names)

@@ -276,3 +276,14 @@ def test_a_retry_after_a_place_without_room_offers_every_area_function_by_the_sa
     assert offered(strict) == {"get_area_behind"}
     assert {"get_area_behind", "get_area_close_to", "get_area_adjacent_to"} <= offered(wide)
     assert _alternatives(wide, "object") == _alternatives(strict, "object")
+
+
+@pytest.mark.parametrize(("activity", "seated"), [
+    ("shares a meal at the kitchen table", True),  # eating at a table: on a chair
+    ("eats a sandwich standing at the kitchen table", False),  # unless the words say otherwise
+    ("wipes the kitchen table", False),
+])
+def test_a_meal_or_desk_work_is_done_sitting_unless_the_words_say_otherwise(activity: str, seated: bool) -> None:
+    g = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity=activity)
+    rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
+    assert ("standlabel" not in rules and "label" not in rules and "| area" not in rules["block1"]) == seated

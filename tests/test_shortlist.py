@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from agents.event_parser import scene_action_labels
 from agents.shortlist import event_shortlist, mentioned_labels
 from sim.scene.bundled import resolve_scene
@@ -89,3 +91,19 @@ def test_a_dining_table_is_one_with_chairs_around_it() -> None:
     s = event_shortlist(HOME, "sits down at the dining table to eat", seats(HOME), ("eat",))
     assert "couch_1" not in s.seats and s.seats and all(n.startswith("chair_") for n in s.seats)
     assert len([o for o in s.objects if o.startswith("table_")]) == 1
+
+
+@pytest.mark.parametrize(("text", "tables"), [
+    ("Two friends eat at one of the small tables for two", {"table_3", "table_4"}),
+    ("The family sits down at a table for 4", {"table_1", "table_2"}),
+    ("Three guests take the table for three", {"table_1", "table_2"}),  # none seats exactly three: the next size up
+])
+def test_a_table_named_by_how_many_it_seats(text: str, tables: set[str]) -> None:
+    from agents.shortlist import seats_around
+
+    assert {t: seats_around(o, RESTAURANT) for t, o in ((o.name, o) for o in RESTAURANT.objects if o.label == "table")} \
+        == {"table_1": 4, "table_2": 4, "table_3": 2, "table_4": 2}
+    short = event_shortlist(RESTAURANT, text, seats(RESTAURANT), ["eat"])
+    assert {o for o in short.objects if o.startswith("table_")} == tables
+    near = {f"chair_{i}" for i in ((9, 10, 11, 12) if tables == {"table_3", "table_4"} else range(1, 9))}
+    assert set(short.seats) == near
