@@ -18,9 +18,10 @@ finished description is also cached on disk per scene, model and prompts.
                           (retries loop back through the routers)
 
 Off the event loop: running an event program (scene-graph queries, position sampling, or the
-wait on the program's worker process), building the parser's input (its grammar) and the
-describer's clusters happen in a worker thread (:func:`off_loop`), so a session's simulation
-task keeps its frame rate while a step is checked.
+wait on the program's worker process), building the parser's input (its grammar), the
+describer's clusters, and logging a step's outcome (the trace's fsync, then the story log's
+SQLite commit) happen in a worker thread (:func:`off_loop`), so a session's simulation task
+keeps its frame rate while a step is checked.
 
 Routers return ``Literal[...]`` node names. Dependencies (LLM port, scene, world view
 provider, story log, trace sink) come from ``Runtime[PlanningDeps]``.
@@ -348,7 +349,14 @@ async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -
     deps = runtime.context
     step = state.step
     outcome: ParsedEvent | PlanningFailure | None = state.parsed or state.failure
-    deps.story.record(step, outcome, trace_seqs=state.step_trace_seqs)
+    sink = deps.trace_sink()
+
+    def log() -> None:  # the step's trace records on disk first: the log (and the session) count on them
+        if sink is not None:
+            sink.sync()
+        deps.story.record(step, outcome, trace_seqs=state.step_trace_seqs)
+
+    await off_loop(log)
     roster = {c.name: c for c in state.roster}
     busy_until = dict(state.busy_until)
     recent = list(state.recent)
