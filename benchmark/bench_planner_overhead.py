@@ -7,8 +7,8 @@ Two costs that ran on the event loop at every step of a story session:
   planning graph is replaced by a stand-in that only records a realistic outcome (an event of
   two characters with its ~600-character event program) in the story log, so what is timed is
   the planner itself; the story log is an in-memory SQLite database, so no fsync is timed either;
-- the narrator's history the session builds for the request (``story_history`` in
-  ``orchestrator.session.runtime``) from the events so far.
+- the narrator's history the session builds for the request (``history_window`` in
+  ``orchestrator.session.runtime``: the latest events, the ones before summarised) from the events so far.
 
 For each story length it prints the wall milliseconds of one step at step 10 and at step
 ``--steps`` (median over ``--repeat`` steps), their ratio (1.0: flat), and, as the baseline
@@ -41,7 +41,7 @@ from orchestrator.llm.traces import AttemptRecord, TraceWriter
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.state import PlanningDeps
 from orchestrator.session.roster import RosterWorld
-from orchestrator.session.runtime import PlanningRequest, StoryEvent, story_history
+from orchestrator.session.runtime import PlanningRequest, StoryEvent, history_window
 from orchestrator.session.step_planner import GraphStepPlanner
 
 NAMES = ("Ava", "Ben", "Cleo", "Dan")
@@ -108,7 +108,7 @@ def planner_at(story_len: int, repeat: int) -> tuple[float, float, float]:
         asyncio.run(planner.plan(request))
         plan_ms.append((time.perf_counter() - t0) * 1000)
         t0 = time.perf_counter()
-        story_history(events, ())
+        history_window(events, ())
         history_ms.append((time.perf_counter() - t0) * 1000)
     read_ms = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -65,7 +65,14 @@ from agents.event_parser import (
     run_reply,
 )
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
-from agents.messages import CharacterStatus, Event, HistoryEntry, ParsedEvent, PlanningFailure
+from agents.messages import (
+    CharacterStatus,
+    EarlierEvents,
+    Event,
+    HistoryEntry,
+    ParsedEvent,
+    PlanningFailure,
+)
 from agents.narrator import NarratorInput, narrator_request, parse_narration, waits_without_a_call
 from agents.program_grammar import event_program_grammar
 from agents.retry_feedback import REJECTIONS, feedback_from_error
@@ -172,6 +179,7 @@ def narrator_input(state: PlanningState, deps: PlanningDeps) -> NarratorInput:
         instruction=state.instruction,
         instruction_since=state.instruction_since,
         history=state.recent,
+        earlier=state.earlier,
         tags=deps.tags,
         seed=deps.seed,
         sim_frame=state.sim_frame,
@@ -397,12 +405,15 @@ async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -
     recent = [
         h if h.state != "ongoing" or any(c in still_busy for c in h.characters) else h.model_copy(update={"state": "completed"})
         for h in recent
-    ][-RECENT_WINDOW:]
+    ]
+    earlier = EarlierEvents.fold(state.earlier, ((h.characters, h.activity) for h in recent[:-RECENT_WINDOW]))
+    recent = recent[-RECENT_WINDOW:]
     return {
         "step": next_step,
         "roster": tuple(roster[c.name] for c in state.roster),
         "busy_until": busy_until,
         "recent": tuple(recent),
+        "earlier": earlier,
         "step_trace_seqs": (),
         "narrator_reply": None,
         "narrator_seq": None,

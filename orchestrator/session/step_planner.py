@@ -119,6 +119,7 @@ class GraphStepPlanner:
                 step=request.index,
                 roster=request.roster,
                 recent=request.history,
+                earlier=request.earlier,
                 sim_frame=request.frame,
                 description=await self._description() if lane > 0 else None,
             ).model_dump()
@@ -136,6 +137,7 @@ class GraphStepPlanner:
                 "events_target": request.index + 1,
                 "roster": [c.model_dump() for c in request.roster],
                 "recent": [h.model_dump() for h in request.history],
+                "earlier": request.earlier.model_dump() if request.earlier is not None else None,
                 "sim_frame": request.frame,
             }
             if snapshot.values.get("step") != request.index:  # a lane that skipped the steps of others
