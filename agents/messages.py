@@ -88,7 +88,7 @@ class CharacterSoFar(_Frozen):
     """One character's part in the events the narrator's history leaves out."""
 
     name: str
-    events: int = Field(ge=1, description="Events it took part in.")
+    events: int = Field(ge=1, description="How many of those events name it.")
     last_activity: str = Field(description="The activity of the latest of them.")
 
 

@@ -82,6 +82,12 @@ def test_durable_lets_the_loop_run_while_the_disk_syncs(tmp_path: Path, monkeypa
 
 
 def test_fsync_policies_close_and_never_leave_writes_alone(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import anyio.to_thread
+
+    def no_thread(*_: object, **__: object) -> None:
+        raise AssertionError("durable() left the task although nothing waits for an fsync")
+
+    monkeypatch.setattr(anyio.to_thread, "run_sync", no_thread)
     seen = watch_fsyncs(monkeypatch)
     for policy, fsyncs in (("close", 1), ("never", 0)):
         w = TraceWriter(tmp_path / f"{policy}.jsonl", fsync=policy)  # type: ignore[arg-type]

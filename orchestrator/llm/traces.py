@@ -398,7 +398,9 @@ class TraceWriter:
 
     async def durable(self) -> None:
         """:meth:`sync` in a worker thread, so the event loop goes on; returns without leaving
-        the task when nothing is waiting for its fsync."""
+        the task when nothing is waiting for its fsync (always with ``fsync`` "close" or "never")."""
+        if self._syncer is None:
+            return
         with self._synced_cv:
             if self._synced >= self._written and self._sync_error is None:
                 return
