@@ -97,6 +97,12 @@ class TraceRecorder(Protocol):
         """The simulation frame at which the outcome built from attempts ``ref_seqs`` took effect."""
         ...
 
+    def sync(self) -> None:
+        """Block until every record so far is as durable as the recorder promises (a trace file
+        with fsync "always": on disk). Callers run it off the event loop, before they write
+        anything durable that counts on those records (e.g. a step's outcome)."""
+        ...
+
 
 @runtime_checkable
 class LLMPort(Protocol):

@@ -6,6 +6,7 @@ what an LLM sees in a JSON schema, so they are written for it.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -14,7 +15,9 @@ from tools.character_states import CharacterPlan
 
 __all__ = [
     "CharacterPlan",
+    "CharacterSoFar",
     "CharacterStatus",
+    "EarlierEvents",
     "Event",
     "EventState",
     "HistoryEntry",
@@ -79,6 +82,40 @@ class HistoryEntry(_Frozen):
         default="", description="The instruction part the event was planned for (exactly as the narrator was "
         "shown it); empty when it carried out none.",
     )
+
+
+class CharacterSoFar(_Frozen):
+    """One character's part in the events the narrator's history leaves out."""
+
+    name: str
+    events: int = Field(ge=1, description="How many of those events name it.")
+    last_activity: str = Field(description="The activity of the latest of them.")
+
+
+class EarlierEvents(_Frozen):
+    """The events older than the narrator's history window, summarised: how many, and per
+    character (in order of first appearance) how many it took part in and the latest one's
+    activity. Deterministic: a function of the events and their order only."""
+
+    count: int = Field(ge=1, description="Events left out.")
+    characters: tuple[CharacterSoFar, ...] = ()
+
+    @staticmethod
+    def fold(earlier: EarlierEvents | None, events: Iterable[tuple[Sequence[str], str]]) -> EarlierEvents | None:
+        """``earlier`` with ``events`` ((characters, activity), oldest first, all newer than
+        the ones it holds) left out too; None when there is nothing left out."""
+        count = earlier.count if earlier is not None else 0
+        seen = {c.name: (c.events, c.last_activity) for c in earlier.characters} if earlier is not None else {}
+        for names, activity in events:
+            count += 1
+            for name in names:
+                seen[name] = (seen.get(name, (0, ""))[0] + 1, activity)
+        if count == 0:
+            return None
+        return EarlierEvents(
+            count=count,
+            characters=tuple(CharacterSoFar(name=n, events=k, last_activity=a) for n, (k, a) in seen.items()),
+        )
 
 
 class CharacterStatus(_Frozen):

@@ -21,6 +21,7 @@ from agents.llm_port import ChatMessage, LLMPort, LLMRequest
 from agents.llm_schemas import Refine, reply_schema
 from agents.messages import (
     CharacterStatus,
+    EarlierEvents,
     Event,
     HistoryEntry,
     NarratorOutput,
@@ -49,6 +50,7 @@ class NarratorInput:
     characters: Sequence[CharacterStatus]
     instruction: str
     history: Sequence[HistoryEntry] = ()
+    earlier: EarlierEvents | None = None  # the events before ``history`` (a long story), summarised
     instruction_since: int = 0  # events before this index were planned under an earlier instruction
     tags: tuple[str, ...] = BENCHMARK_TAGS
     seed: int | None = None
@@ -104,17 +106,32 @@ def narrator_schema(free: Sequence[str], at_least_one: bool = False) -> dict[str
     )
 
 
-def history_text(history: Sequence[HistoryEntry], prompts: PromptLibrary | None = None) -> str:
+def history_text(
+    history: Sequence[HistoryEntry], prompts: PromptLibrary | None = None, earlier: EarlierEvents | None = None
+) -> str:
     """One line per event, oldest first: ``3. [ongoing] Ann, Bob: chat by sofa_1``
-    (``prompts/story/history_*.md``)."""
+    (``prompts/story/history_*.md``). Completed and failed events before the last
+    ``HISTORY_WINDOW`` of them are left out and counted; with ``earlier`` (the events before
+    ``history``, which a long story leaves out) every event left out is summarised in one line
+    instead: how many, and per character how many and the latest one's activity."""
     lib = prompts or package_prompts()
-    if not history:
+    if not history and earlier is None:
         return lib.render_text("story/history_empty.md")
     shown = [h for h in history if h.state not in ("completed", "failed")]
     completed = [h for h in history if h.state in ("completed", "failed")][-HISTORY_WINDOW:]
     entries = sorted({h.index: h for h in (*shown, *completed)}.values(), key=lambda h: h.index)
     lines = []
-    if len(entries) < len(history):
+    if earlier is not None:
+        kept = {h.index for h in entries}
+        hidden = sorted((h for h in history if h.index not in kept), key=lambda h: h.index)
+        left_out = EarlierEvents.fold(earlier, ((h.characters, h.activity) for h in hidden))
+        assert left_out is not None
+        who = [
+            lib.render_text("story/history_earlier_character.md", name=c.name, events=c.events, activity=c.last_activity)
+            for c in left_out.characters
+        ]
+        lines.append(lib.render_text("story/history_earlier.md", count=left_out.count, characters="; ".join(who)))
+    elif len(entries) < len(history):
         lines.append(lib.render_text("story/history_hidden.md", count=len(history) - len(entries)))
     for h in entries:
         lines.append(
@@ -165,7 +182,7 @@ def narrator_messages(prompts: PromptLibrary, inp: NarratorInput) -> tuple[ChatM
         "narrator/request.md",
         characters=characters_text(inp.characters, prompts),
         free=", ".join(free) if free else prompts.render_text("story/nobody_free.md"),
-        history=history_text(inp.history, prompts),
+        history=history_text(inp.history, prompts, inp.earlier),
         instruction=progress.text,
         next_part=_next_part_line(prompts, inp.instruction, progress),
     )

@@ -74,8 +74,8 @@ class Responder:
 class InlineCheckpoints:
     """The baseline's checkpoint writer: every checkpoint written in the frame that took it."""
 
-    def __init__(self, path: Path) -> None:
-        self.path = path
+    def __init__(self, path: Path, write: Any = None) -> None:
+        self.path = path  # ``write`` (the run's trace barrier, then the write) is the threaded writer's
 
     def submit(self, world: Any, checkpoint: Any) -> None:
         from orchestrator.session.snapshot_file import save_checkpoint

@@ -48,7 +48,7 @@ def unified_request(
         characters=characters_text(inp.characters, prompts),
         free=", ".join(free) if free else prompts.render_text("story/nobody_free.md"),
         seats_in_use=", ".join(seats_in_use) if seats_in_use else prompts.render_text("story/no_seats_in_use.md"),
-        history=history_text(inp.history, prompts),
+        history=history_text(inp.history, prompts, inp.earlier),
         instruction=inp.instruction.strip() or prompts.render_text("story/no_instruction.md"),
     )
     base = (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))

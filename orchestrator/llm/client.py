@@ -220,10 +220,12 @@ class LiteLLMClient:
                 assert text is not None
                 record(response_text=text, finish_reason=finish, parsed_output=parsed, usage=usage,
                        latency_s=latency, final=True)
+                await self.trace.durable()  # on disk before the caller checkpoints what it made of it
                 return LLMResponse(text=text, model=model, usage=usage, latency_s=latency,
                                    attempts=attempt_no, trace_seq=seq)
         err = _final_error(request, failures, secrets)
         err.trace_seqs = tuple(seqs)
+        await self.trace.durable()
         raise err
 
 

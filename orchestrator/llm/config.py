@@ -125,7 +125,9 @@ class TraceConfig(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
     fsync: FsyncPolicy = Field(
-        default="always", description="When trace appends are fsync'ed to disk."
+        default="always",
+        description="When trace appends are fsync'ed to disk: always (each record, in the trace writer's own "
+        "thread; the run waits for it before it relies on the record), close (when the trace closes), never.",
     )
 
 

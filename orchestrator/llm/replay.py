@@ -126,6 +126,7 @@ class ReplayClient:
                 "time_unix": time.time(), "request": request,
                 "params": {**rec.params, "replayed_from_seq": rec.seq},
             }))
+            await self.trace.durable()
         return LLMResponse(
             text=rec.response_text, model=rec.model, usage=rec.usage or TokenUsage(),
             latency_s=rec.latency_s, attempts=rec.attempt, trace_seq=seq,

@@ -18,9 +18,10 @@ finished description is also cached on disk per scene, model and prompts.
                           (retries loop back through the routers)
 
 Off the event loop: running an event program (scene-graph queries, position sampling, or the
-wait on the program's worker process), building the parser's input (its grammar) and the
-describer's clusters happen in a worker thread (:func:`off_loop`), so a session's simulation
-task keeps its frame rate while a step is checked.
+wait on the program's worker process), building the parser's input (its grammar), the
+describer's clusters, and logging a step's outcome (the trace's fsync, then the story log's
+SQLite commit) happen in a worker thread (:func:`off_loop`), so a session's simulation task
+keeps its frame rate while a step is checked.
 
 Routers return ``Literal[...]`` node names. Dependencies (LLM port, scene, world view
 provider, story log, trace sink) come from ``Runtime[PlanningDeps]``.
@@ -64,7 +65,14 @@ from agents.event_parser import (
     run_reply,
 )
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
-from agents.messages import CharacterStatus, Event, HistoryEntry, ParsedEvent, PlanningFailure
+from agents.messages import (
+    CharacterStatus,
+    EarlierEvents,
+    Event,
+    HistoryEntry,
+    ParsedEvent,
+    PlanningFailure,
+)
 from agents.narrator import NarratorInput, narrator_request, parse_narration, waits_without_a_call
 from agents.program_grammar import event_program_grammar
 from agents.retry_feedback import REJECTIONS, feedback_from_error
@@ -171,6 +179,7 @@ def narrator_input(state: PlanningState, deps: PlanningDeps) -> NarratorInput:
         instruction=state.instruction,
         instruction_since=state.instruction_since,
         history=state.recent,
+        earlier=state.earlier,
         tags=deps.tags,
         seed=deps.seed,
         sim_frame=state.sim_frame,
@@ -348,7 +357,14 @@ async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -
     deps = runtime.context
     step = state.step
     outcome: ParsedEvent | PlanningFailure | None = state.parsed or state.failure
-    deps.story.record(step, outcome, trace_seqs=state.step_trace_seqs)
+    sink = deps.trace_sink()
+
+    def log() -> None:  # the step's trace records on disk first: the log (and the session) count on them
+        if sink is not None:
+            sink.sync()
+        deps.story.record(step, outcome, trace_seqs=state.step_trace_seqs)
+
+    await off_loop(log)
     roster = {c.name: c for c in state.roster}
     busy_until = dict(state.busy_until)
     recent = list(state.recent)
@@ -389,12 +405,15 @@ async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -
     recent = [
         h if h.state != "ongoing" or any(c in still_busy for c in h.characters) else h.model_copy(update={"state": "completed"})
         for h in recent
-    ][-RECENT_WINDOW:]
+    ]
+    earlier = EarlierEvents.fold(state.earlier, ((h.characters, h.activity) for h in recent[:-RECENT_WINDOW]))
+    recent = recent[-RECENT_WINDOW:]
     return {
         "step": next_step,
         "roster": tuple(roster[c.name] for c in state.roster),
         "busy_until": busy_until,
         "recent": tuple(recent),
+        "earlier": earlier,
         "step_trace_seqs": (),
         "narrator_reply": None,
         "narrator_seq": None,

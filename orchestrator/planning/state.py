@@ -21,6 +21,7 @@ from agents.event_parser import ProgramRunner
 from agents.llm_port import LLMPort, TraceRecorder
 from agents.messages import (
     CharacterStatus,
+    EarlierEvents,
     Event,
     HistoryEntry,
     ParsedEvent,
@@ -65,6 +66,9 @@ class PlanningState(BaseModel):
     description: SceneDescription | None = None
     roster: tuple[CharacterStatus, ...] = ()
     recent: tuple[HistoryEntry, ...] = Field(default=(), description=f"The last {RECENT_WINDOW} events.")
+    earlier: EarlierEvents | None = Field(
+        default=None, description="The events before ``recent``, summarised for the narrator (None: there are none)."
+    )
     busy_until: dict[str, int] = Field(
         default_factory=dict, description="Character -> step at which its current event completes."
     )

@@ -266,7 +266,12 @@ async def run_story(
         SessionError,
         SessionSettings,
     )
-    from orchestrator.session.snapshot_file import SNAPSHOT_FILE, SnapshotError, load_checkpoint
+    from orchestrator.session.snapshot_file import (
+        SNAPSHOT_FILE,
+        SnapshotError,
+        load_checkpoint,
+        write_checkpoint,
+    )
     from orchestrator.session.step_planner import GraphStepPlanner
     from orchestrator.session.story_stream import StoryStream, StreamStart
     from sim.scene.files import save_scene_json
@@ -383,8 +388,13 @@ async def run_story(
         if on_event is not None:
             on_event(event, fps)
 
+    def write_after_trace(path: Path, cp: SessionCheckpoint, shared: dict[int, str], store: Any) -> None:
+        if writer is not None:  # the checkpoint counts on the trace's applied records: on disk first
+            writer.sync()
+        write_checkpoint(path, cp, shared, store)
+
     stream = StoryStream(out)
-    checkpoints = CheckpointWriter(snapshot_path)
+    checkpoints = CheckpointWriter(snapshot_path, write=write_after_trace)
     finished = False
     try:
         if isinstance(deps.runner, WorkerRunner):

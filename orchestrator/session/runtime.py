@@ -91,7 +91,13 @@ from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStre
 from pydantic import BaseModel, ConfigDict, Field
 
 from agents.llm_port import LLMError, TraceRecorder
-from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
+from agents.messages import (
+    CharacterStatus,
+    EarlierEvents,
+    HistoryEntry,
+    ParsedEvent,
+    PlanningFailure,
+)
 from orchestrator.session.frame_profile import FrameProfile
 from orchestrator.session.pace import Pace
 from sim.world.event_book import EventStatus
@@ -103,6 +109,8 @@ Outcome = ParsedEvent | PlanningFailure | None
 _log = structlog.get_logger("storyteller.session")
 
 HISTORY_WINDOW = 12
+"""Events a planning request lists (the latest, by step); the ones before are summarised in its
+``earlier`` (how many, and per character how many and the latest one's activity)."""
 
 
 class PlanningRequest(BaseModel):
@@ -114,6 +122,9 @@ class PlanningRequest(BaseModel):
     frame: int = Field(ge=0, description="Simulation frame the snapshot was taken at.")
     roster: tuple[CharacterStatus, ...]
     history: tuple[HistoryEntry, ...]
+    earlier: EarlierEvents | None = Field(
+        default=None, description="The events before ``history``, summarised (None: there are none)."
+    )
     targets: dict[str, tuple[float, float]] = Field(
         default_factory=dict, description="Character -> where its current event sends it (x, y)."
     )
@@ -333,18 +344,35 @@ def world_commitments(world: World) -> tuple[dict[str, tuple[float, float]], dic
 def story_history(
     events: dict[str, StoryEvent], outcomes: Sequence[tuple[int, Outcome]] = ()
 ) -> tuple[HistoryEntry, ...]:
-    """The narrator's history: the applied events, and the steps whose event could not be
-    placed (``failed``, like an event that failed in the simulation: its part stays open)."""
-    entries = [
-        HistoryEntry(index=e.index, characters=e.characters, activity=e.activity, state=e.state, part=e.part)
-        for e in events.values()
-    ]
-    entries += [
-        HistoryEntry(index=i, characters=o.event.characters, activity=o.event.activity, state="failed", part=o.part)
+    """The narrator's history: the latest ``HISTORY_WINDOW`` of the applied events and the steps
+    whose event could not be placed (``failed``, like an event that failed in the simulation:
+    its part stays open). See :func:`history_window` for the ones before."""
+    return history_window(events, outcomes)[0]
+
+
+_Row = tuple[int, tuple[str, ...], str, str, str]  # index, characters, activity, state, part
+
+
+def history_window(
+    events: dict[str, StoryEvent], outcomes: Sequence[tuple[int, Outcome]] = (), pending: Sequence[HistoryEntry] = ()
+) -> tuple[tuple[HistoryEntry, ...], EarlierEvents | None]:
+    """(the history of :func:`story_history`, with ``pending`` (steps in flight whose event is
+    known) among the events; the events before it summarised, None when there are none).
+    Linear in the story's length with a small constant: entries are built for the window only."""
+    rows: list[_Row] = [(e.index, e.characters, e.activity, e.state, e.part) for e in events.values()]
+    rows += [
+        (i, o.event.characters, o.event.activity, "failed", o.part)
         for i, o in outcomes
         if isinstance(o, PlanningFailure) and o.event is not None and o.event.characters
     ]
-    return tuple(sorted(entries, key=lambda h: h.index)[-HISTORY_WINDOW:])
+    rows += [(h.index, h.characters, h.activity, h.state, h.part) for h in pending]
+    rows.sort(key=lambda r: r[0])
+    cut = max(0, len(rows) - HISTORY_WINDOW)
+    window = tuple(
+        HistoryEntry(index=i, characters=chars, activity=activity, state=state, part=part)
+        for i, chars, activity, state, part in rows[cut:]
+    )
+    return window, EarlierEvents.fold(None, ((r[1], r[2]) for r in rows[:cut]))
 
 
 def event_id_for(index: int) -> str:
@@ -675,8 +703,8 @@ class Session:
         flight show as busy with their event, which shows as ongoing in the history."""
         targets, seats = world_commitments(self.world)
         roster = world_roster(self.world, self.events)
-        history = story_history(self.events, self.outcomes)
         claimed = self._claimed(frame) or {}
+        pending: list[HistoryEntry] = []
         if claimed:
             roster = tuple(
                 c.model_copy(update={"busy": True, "event_index": claimed[c.name].request.index})
@@ -690,12 +718,13 @@ class Session:
                 for fl in sorted({f.request.index: f for f in claimed.values()}.values(), key=lambda f: f.request.index)
                 if fl.claim
             ]
-            history = tuple(sorted((*history, *pending), key=lambda h: h.index))[-HISTORY_WINDOW:]
+        history, earlier = history_window(self.events, self.outcomes, pending)
         return PlanningRequest(
             index=self._steps,
             frame=self.world.frame,
             roster=roster,
             history=history,
+            earlier=earlier,
             targets=targets,
             objects_in_use=seats,
             instruction=self.instruction,

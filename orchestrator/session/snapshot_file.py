@@ -24,7 +24,8 @@ from sim.world.step import World
 from sim.world.track_chunks import ChunkStore
 
 SNAPSHOT_FILE = "session.snapshot"
-_FORMAT = 3  # 2: the checkpoint holds the session's instructions; 3: the world's motion is in the chunk files
+_FORMAT = 4  # 2: the checkpoint holds the session's instructions; 3: the world's motion is in the chunk files;
+# 4: planning requests carry the summary of the events before their history (``earlier``)
 
 
 class SnapshotError(Exception):

@@ -1,0 +1,102 @@
+"""A long story's narrator history: the latest events listed, every event left out summarised in
+one deterministic line (how many, and per character how many and the latest one's activity),
+in a story session and in ``storyteller plan``'s graph; a short story's prompt is unchanged."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from langgraph.checkpoint.memory import InMemorySaver
+
+from agents.messages import CharacterStatus, EarlierEvents, HistoryEntry, PlanningFailure
+from agents.narrator import NarratorInput, history_text, narrator_messages
+from agents.prompt_templates import PromptLibrary
+from orchestrator.planning.checkpoints import StoryLog
+from orchestrator.planning.graph import compile_planning_graph, recursion_limit
+from orchestrator.planning.state import PlanningState
+from orchestrator.session.runtime import HISTORY_WINDOW, StoryEvent, history_window, story_history
+from tests.support.scripted_llm import ScriptedLLM
+from tests.test_planning_graph import DESCRIPTION, PROGRAM, make_deps, narration
+
+NAMES = ("Ava", "Ben", "Cleo")
+
+
+def story(n: int) -> dict[str, StoryEvent]:
+    """``n`` completed events: event i is NAMES[i % 3]'s (with Ava in every fifth too)."""
+    out = {}
+    for i in range(n):
+        chars = (NAMES[i % 3], "Ava") if i % 5 == 0 and i % 3 else (NAMES[i % 3],)
+        out[f"event-{i:04d}"] = StoryEvent(index=i, event_id=f"event-{i:04d}", characters=chars, activity=f"task {i}",
+                                           requested_frame=i, applied_frame=i, state="completed")
+    return out
+
+
+def user_prompt(history: tuple[HistoryEntry, ...], earlier: EarlierEvents | None) -> str:
+    inp = NarratorInput(scene_description="- room: table_1", characters=tuple(CharacterStatus(name=n) for n in NAMES),
+                        instruction="", history=history, earlier=earlier)
+    return narrator_messages(PromptLibrary(), inp)[1].content
+
+
+def test_the_prompt_of_a_long_story_counts_and_summarises_every_event_left_out() -> None:
+    history, earlier = history_window(story(500))
+    assert [h.index for h in history] == list(range(500 - HISTORY_WINDOW, 500))
+    assert earlier is not None and earlier.count == 500 - HISTORY_WINDOW
+    text = user_prompt(history, earlier)
+    # 488 before the window, and the window's 4 oldest completed ones (8 are listed)
+    line = ("(earlier: 492 events not shown; Ava took part in 230, last: task 490; "
+            "Ben took part in 164, last: task 490; Cleo took part in 164, last: task 491)")
+    assert line in text.splitlines()
+    assert "older completed events not shown" not in text
+    assert "493. [completed] Ava: task 492" in text and "492. [completed]" not in text
+
+
+def test_a_short_storys_prompt_is_unchanged() -> None:
+    history, earlier = history_window(story(HISTORY_WINDOW))
+    assert earlier is None and history == story_history(story(HISTORY_WINDOW))
+    text = history_text(history)
+    assert text.splitlines()[0] == "(4 older completed events not shown)" and "earlier" not in text
+    assert history_text(history, earlier=None) == text
+
+
+def test_steps_in_flight_and_failed_steps_take_their_place_in_the_window() -> None:
+    events = story(20)
+    failed = PlanningFailure(index=20, node="event_parser", attempts=4, feedback="no room",
+                             event={"characters": ("Ben",), "activity": "dance"})  # type: ignore[arg-type]
+    pending = [HistoryEntry(index=21, characters=("Cleo",), activity="sing", state="ongoing")]
+    history, earlier = history_window(events, [(20, failed)], pending)
+    assert [h.index for h in history] == list(range(10, 22)) and history[-2].state == "failed"
+    assert earlier is not None and earlier.count == 10
+    assert [(c.name, c.events, c.last_activity) for c in earlier.characters] == [
+        ("Ava", 5, "task 9"), ("Ben", 3, "task 7"), ("Cleo", 3, "task 8")
+    ]
+
+
+def test_fold_is_deterministic_and_keeps_first_appearance_order() -> None:
+    first = EarlierEvents.fold(None, [(("Ben",), "a"), (("Ava", "Ben"), "b")])
+    assert first == EarlierEvents.fold(None, [(("Ben",), "a"), (("Ava", "Ben"), "b")])
+    again = EarlierEvents.fold(first, [(("Cleo",), "c"), (("Ava",), "d")])
+    assert again is not None and again.count == 4
+    assert [(c.name, c.events, c.last_activity) for c in again.characters] == [
+        ("Ben", 2, "b"), ("Ava", 2, "d"), ("Cleo", 1, "c")
+    ]
+    assert EarlierEvents.fold(None, []) is None
+
+
+async def test_the_planning_graph_summarises_the_events_its_window_drops() -> None:
+    steps = 14
+    port = ScriptedLLM({
+        "describer": [DESCRIPTION],
+        "narrator": [narration(["Ann"], f"eat {i}") for i in range(steps)],
+        "event_parser": [PROGRAM.format(who="Ann")] * steps,
+    })
+    start: dict[str, Any] = PlanningState(
+        instruction="", events_target=steps, roster=(CharacterStatus(name="Ann"),)
+    ).model_dump()
+    final = await compile_planning_graph(InMemorySaver()).ainvoke(
+        start, config={"configurable": {"thread_id": "t"}, "recursion_limit": recursion_limit(steps, 3)},
+        context=make_deps(port, StoryLog(":memory:", "t")), durability="sync",
+    )
+    assert final["earlier"] == EarlierEvents.fold(None, [(("Ann",), "eat 0"), (("Ann",), "eat 1")])
+    narrator = [r.messages[1].content for r in port.requests if r.node == "narrator"]
+    assert all("earlier" not in t for t in narrator[:13])
+    assert "(earlier: 5 events not shown; Ann took part in 5, last: eat 4)" in narrator[13].splitlines()
