@@ -42,8 +42,8 @@ PHRASES = (
     (re.compile(r"\bwork ?stations?\b"), "desk"),
 )
 """Common several-word names of the same kind of object, rewritten before matching."""
-DINING = re.compile(r"\b(?:dining|dinner|kitchen|breakfast) tables?\b")
-"""A table people eat at: of the tables named, those with the most chairs around them."""
+DINING = re.compile(r"\b(?:dining|dinner|kitchen|breakfast|conference|meeting|boardroom) tables?\b")
+"""A table people eat or meet at: of the tables named, those with the most chairs around them."""
 CHARACTER_NEAR_M = 1.5
 """Free seats within this distance (m) of a character the event names ("joins Gus at his
 table") are the seats for it."""

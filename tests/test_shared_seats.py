@@ -57,3 +57,18 @@ def test_seat_place_is_the_seat_point_of_a_chair_and_the_nearest_place_on_a_couc
     assert seat_place(chair, (0.0, 0.0)) == tuple(float(v) for v in chair.seat_point())
     assert np.allclose(seat_place(couch, (7.333, 7.41)), (7.333, 7.41))
     assert np.allclose(seat_place(couch, (0.0, 7.41)), (7.3, 7.41))  # half a place inside the end
+
+
+def test_a_group_larger_than_the_couch_sends_the_last_one_to_the_nearest_other_seat() -> None:
+    from sim.scene.bundled import load_bundled_scene
+    from tools.character_states import WorldView
+    from tools.event_program import run_event_program
+
+    home = load_bundled_scene("home")  # couch_1 has three places; armchair_1 stands beside it
+    program = "def parse_event():\n" + "".join(
+        f'    c{i} = get_character("{n}")\n    c{i}.set_target_action("watch_tv")\n'
+        f'    c{i}.set_position(get_area_to_sit_on("couch_1"))\n'
+        for i, n in enumerate(["Ava", "Ben", "Cleo", "Dan"], 1)
+    )
+    plans = run_event_program(home, program, WorldView(), seed=0)
+    assert [p.seat for p in plans] == ["couch_1", "couch_1", "couch_1", "armchair_1"]

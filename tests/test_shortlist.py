@@ -107,3 +107,10 @@ def test_a_table_named_by_how_many_it_seats(text: str, tables: set[str]) -> None
     assert {o for o in short.objects if o.startswith("table_")} == tables
     near = {f"chair_{i}" for i in ((9, 10, 11, 12) if tables == {"table_3", "table_4"} else range(1, 9))}
     assert set(short.seats) == near
+
+
+def test_a_conference_table_is_the_one_people_sit_around() -> None:
+    office = resolve_scene("office")
+    short = event_shortlist(office, "Four colleagues meet around the conference table", seats(office), ["attend_meeting"])
+    assert short.objects == ("table_1",)
+    assert set(short.seats) == {f"chair_{i}" for i in range(1, 7)}

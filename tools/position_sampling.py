@@ -202,17 +202,18 @@ companion already took."""
 
 def _companion_seats(area: Area, scene: Scene, c: Constraints) -> list[SeatSlot]:
     """When every seat ``area`` offers was taken by members of the same event ("Cy and Di sit on
-    chair_5" for a one-place chair), the free seat of the same kind nearest to it (within
-    ``NEIGHBOUR_SEAT_M``): the group sits together. Empty otherwise."""
+    chair_5" for a one-place chair, or four on a three-place couch), the free seat nearest to
+    it (within ``NEIGHBOUR_SEAT_M``), one of the same kind first: the group sits together.
+    Empty otherwise."""
     wanted = {s.seat for s in area.seats}
     if not wanted or not wanted <= c.taken_by_group:
         return []
     by_name = {o.name: o for o in scene.objects}
     chosen = [by_name[n] for n in sorted(wanted) if n in by_name]
     labels = {o.label for o in chosen}
-    best: list[tuple[float, str, SeatSlot]] = []
+    best: list[tuple[bool, float, str, SeatSlot]] = []
     for o in scene.objects:
-        if not o.is_seat or o.label not in labels or o.name in wanted:
+        if not o.is_seat or o.name in wanted:
             continue
         gap = min(footprint_distance(o, w) for w in chosen)
         if gap > NEIGHBOUR_SEAT_M:
@@ -222,9 +223,9 @@ def _companion_seats(area: Area, scene: Scene, c: Constraints) -> list[SeatSlot]
             if len(slots) == 1 and o.name in c.taken_objects:
                 continue
             if bool(_far_from(np.array([slot.position]), c.avoid, c.min_separation)[0]):
-                best.append((gap, o.name, slot))
-    best.sort(key=lambda t: (t[0], t[1]))
-    return [best[0][2]] if best else []
+                best.append((o.label not in labels, gap, o.name, slot))
+    best.sort(key=lambda t: (t[0], t[1], t[2]))
+    return [best[0][3]] if best else []
 
 
 def _lattice(area: Area, scene: Scene, rng: np.random.Generator) -> NDArray[np.float64]:
