@@ -122,12 +122,12 @@ def run_once(mode: str, duration: float, latency: float, tmp: Path) -> Run:
         out = tmp / mode
         out.mkdir()
         if mode == "baseline":
-            checkpoint_writer.CheckpointWriter = InlineCheckpoints  # type: ignore[misc,assignment]
+            checkpoint_writer.CheckpointWriter = InlineCheckpoints  # type: ignore[misc,assignment]  # the baseline swaps in an inline writer for one run
         try:
             result = asyncio.run(run_story(resolve_scene("home"), args, out=out, trace_path=out / "trace.jsonl",
                                            replay=None)).result
         finally:
-            checkpoint_writer.CheckpointWriter = original  # type: ignore[misc]
+            checkpoint_writer.CheckpointWriter = original  # type: ignore[misc]  # restores the real writer
     profile = result.frame_profile
     parts = {name: np.asarray(profile.part(name), dtype=float)[1:] * 1000.0 for name in PARTS}
     return Run(np.asarray(result.frame_intervals_s[1:]) * 1000.0, parts, result.steps, result.slipped_s)

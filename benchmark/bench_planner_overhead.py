@@ -93,7 +93,7 @@ def planner_at(story_len: int, repeat: int) -> tuple[float, float, float]:
         story.record(i, outcome(i), trace_seqs=(2 * i, 2 * i + 1))
     graph = RecordingGraph(story)
     graph.step = story_len
-    deps = PlanningDeps(port=None, scene=None, world=RosterWorld(), story=story, action_labels=())  # type: ignore[arg-type]
+    deps = PlanningDeps(port=None, scene=None, world=RosterWorld(), story=story, action_labels=())  # type: ignore[arg-type]  # the bookkeeping measured never touches port or scene
     planner = GraphStepPlanner(graph, deps, "bench")
     events = {
         f"event-{i:04d}": StoryEvent(index=i, event_id=f"event-{i:04d}", characters=o.event.characters,

@@ -61,7 +61,7 @@ def test_a_short_storys_prompt_is_unchanged() -> None:
 def test_steps_in_flight_and_failed_steps_take_their_place_in_the_window() -> None:
     events = story(20)
     failed = PlanningFailure(index=20, node="event_parser", attempts=4, feedback="no room",
-                             event={"characters": ("Ben",), "activity": "dance"})  # type: ignore[arg-type]
+                             event={"characters": ("Ben",), "activity": "dance"})  # type: ignore[arg-type]  # pydantic validates the dict into an Event
     pending = [HistoryEntry(index=21, characters=("Cleo",), activity="sing", state="ongoing")]
     history, earlier = history_window(events, [(20, failed)], pending)
     assert [h.index for h in history] == list(range(10, 22)) and history[-2].state == "failed"

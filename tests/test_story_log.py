@@ -54,7 +54,7 @@ class RecordingGraph:
 
 def planner_for(story: StoryLog) -> tuple[GraphStepPlanner, RecordingGraph]:
     graph = RecordingGraph(story)
-    deps = PlanningDeps(port=None, scene=None, world=RosterWorld(), story=story, action_labels=())  # type: ignore[arg-type]
+    deps = PlanningDeps(port=None, scene=None, world=RosterWorld(), story=story, action_labels=())  # type: ignore[arg-type]  # record_outcome never touches port or scene
     return GraphStepPlanner(graph, deps, "t"), graph
 
 

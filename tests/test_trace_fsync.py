@@ -90,7 +90,7 @@ def test_fsync_policies_close_and_never_leave_writes_alone(tmp_path: Path, monke
     monkeypatch.setattr(anyio.to_thread, "run_sync", no_thread)
     seen = watch_fsyncs(monkeypatch)
     for policy, fsyncs in (("close", 1), ("never", 0)):
-        w = TraceWriter(tmp_path / f"{policy}.jsonl", fsync=policy)  # type: ignore[arg-type]
+        w = TraceWriter(tmp_path / f"{policy}.jsonl", fsync=policy)  # type: ignore[arg-type]  # every policy name, typed as a plain str by parametrize
         attempt(w)
         w.sync()
         asyncio.run(w.durable())
@@ -166,7 +166,7 @@ def test_a_steps_outcome_is_logged_off_the_loop_after_its_records_are_on_disk(
         def record(self, index: int, outcome: Outcome, trace_seqs: object = ()) -> None:
             assert threading.get_ident() != loop_thread, "the story log was written on the event loop"
             logged.append((index, bool(seen) and seen[-1][2] == path.stat().st_size))
-            super().record(index, outcome, trace_seqs)  # type: ignore[arg-type]
+            super().record(index, outcome, trace_seqs)  # type: ignore[arg-type]  # the wrapped outcome is passed through as given
 
     class TracedPort(ScriptedLLM):  # answers numbered in the trace, so their parsed records are written
         async def complete(self, request: LLMRequest) -> LLMResponse:
