@@ -396,3 +396,15 @@ async def test_default_local_timeout_grows_with_the_prompt_and_an_explicit_one_w
     cfg.write_text("[llm]\ntimeout_s = 45.0\n", encoding="utf-8")
     await LiteLLMClient(load_config(cfg, env={}), check_local=lambda m: None).complete(long_prompt)
     assert fake_llama.calls[2]["timeout_s"] == 45.0
+
+
+def test_models_load_without_repacked_weight_buffers() -> None:
+    """AMX repacking segfaults on the first decode (llama.cpp issue 20824): every load turns
+    llama.cpp's extra weight buffers off, and only for the duration of the load."""
+    bindings = pytest.importorskip("llama_cpp.llama_cpp")
+    from orchestrator.llm.local_model import plain_cpu_buffers
+
+    assert bindings.llama_model_default_params().use_extra_bufts is True
+    with plain_cpu_buffers():
+        assert bindings.llama_model_default_params().use_extra_bufts is False
+    assert bindings.llama_model_default_params().use_extra_bufts is True

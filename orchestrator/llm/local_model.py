@@ -27,7 +27,8 @@ import os
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -125,6 +126,40 @@ def bound_arrays(schema: Any, max_items: int = DEFAULT_ARRAY_MAX_ITEMS) -> Any:
     return schema
 
 
+@contextmanager
+def plain_cpu_buffers() -> Iterator[None]:
+    """Load models with llama.cpp's plain CPU weight buffers (``use_extra_bufts`` off).
+
+    llama-cpp-python builds llama.cpp with ``-march=native``; on a CPU with AMX (Intel Sapphire
+    Rapids and later) the weights are then repacked into an AMX buffer whose matrix product
+    segfaults on the first decode of our Q4_K_M files (llama.cpp issue 20824, closed unfixed).
+    Repacking also makes the model's output depend on the machine's instruction set. Measured
+    on a 2-core Xeon with AMX: 200 prompt tokens/s and 25 generated tokens/s with and without
+    the extra buffers, so nothing is lost by turning them off everywhere.
+
+    ``Llama()`` takes no switch for it and builds its parameters from
+    ``llama_model_default_params()`` inside its constructor, so that function is wrapped for the
+    duration of the load (callers hold ``_load_lock``; nothing else loads a model meanwhile)."""
+    try:
+        import llama_cpp.llama_cpp as bindings
+    except ImportError:  # a stand-in ``llama_cpp`` (tests) has no C bindings to configure
+        yield
+        return
+    original = bindings.llama_model_default_params
+
+    def defaults_without_repacking() -> Any:
+        params = original()
+        if hasattr(params, "use_extra_bufts"):
+            params.use_extra_bufts = False
+        return params
+
+    bindings.llama_model_default_params = defaults_without_repacking
+    try:
+        yield
+    finally:
+        bindings.llama_model_default_params = original
+
+
 def get_llama(spec: WeightsSpec, key: str = "") -> tuple[Any, threading.Lock]:
     """A Llama instance for ``spec`` and the lock that serialises the model's use.
 
@@ -145,10 +180,11 @@ def get_llama(spec: WeightsSpec, key: str = "") -> tuple[Any, threading.Lock]:
             from llama_cpp import Llama
 
             path = verified_weights_path(spec)
-            llm = Llama(
-                model_path=str(path), n_ctx=N_CTX, n_threads=N_THREADS, n_threads_batch=N_THREADS,
-                seed=SEED, n_gpu_layers=0, verbose=False,
-            )
+            with plain_cpu_buffers():
+                llm = Llama(
+                    model_path=str(path), n_ctx=N_CTX, n_threads=N_THREADS,
+                    n_threads_batch=N_THREADS, seed=SEED, n_gpu_layers=0, verbose=False,
+                )
             pool = _instances.setdefault(spec.model, _Pool())
         else:
             _, llm = pool.slots.popitem(last=False)
