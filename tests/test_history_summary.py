@@ -4,6 +4,7 @@ in a story session and in ``storyteller plan``'s graph; a short story's prompt i
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from langgraph.checkpoint.memory import InMemorySaver
@@ -100,3 +101,38 @@ async def test_the_planning_graph_summarises_the_events_its_window_drops() -> No
     narrator = [r.messages[1].content for r in port.requests if r.node == "narrator"]
     assert all("earlier" not in t for t in narrator[:13])
     assert "(earlier: 5 events not shown; Ann took part in 5, last: eat 4)" in narrator[13].splitlines()
+
+
+def test_a_part_done_long_ago_stays_done_and_a_given_up_part_stays_given_up() -> None:
+    """Hours into a story the instruction's first part is far behind the window: its event is
+    kept for the instruction's progress (and only counted in the narrator's summary)."""
+    from agents.instruction_parts import PART_ATTEMPTS, instruction_progress, split_instruction
+
+    instruction = "Ava makes coffee, then Ben dances."
+    first, second = (p.text for p in split_instruction(instruction, NAMES, PromptLibrary()))
+    events = story(60)
+    done = dataclasses.replace(events["event-0003"], characters=("Ava",), activity="brew", part=first)
+    events["event-0003"] = done
+    fails = [
+        (i, PlanningFailure(index=i, node="event_parser", attempts=1, feedback="no room", part=second,
+                            event={"characters": ("Ben",), "activity": "dance"}))  # type: ignore[arg-type]  # pydantic validates the dict into an Event
+        for i in (60, 61, 62)
+    ]
+    history, earlier = history_window(events, fails[:1], since=2)
+    assert [h.index for h in history if h.part] == [3, 60]
+    progress = instruction_progress(instruction, NAMES, history, free=NAMES, since=2)
+    assert "[done]" in progress.text and "[failed]" not in progress.text  # one failure < PART_ATTEMPTS
+    assert progress.next_part == second
+
+    for i in range(63, 63 + 2 * HISTORY_WINDOW):  # the failures fall out of the window too
+        events[f"event-{i:04d}"] = dataclasses.replace(events["event-0000"], index=i, event_id=f"event-{i:04d}")
+    history, earlier = history_window(events, fails, since=2)
+    assert [h.index for h in history if h.part] == [3, *range(63 - PART_ATTEMPTS, 63)]
+    progress = instruction_progress(instruction, NAMES, history, free=NAMES, since=2)
+    assert "[done]" in progress.text and "[failed]" in progress.text and progress.next_part is None
+    assert earlier is not None and earlier.count == 63 + 2 * HISTORY_WINDOW - HISTORY_WINDOW - 3  # kept rows not folded
+    text = user_prompt(history, earlier)
+    assert "4. [completed] Ava: brew" not in text  # kept for the progress, not listed
+
+    history, _ = history_window(events, fails, since=4)  # a later instruction: the old part is not its
+    assert [h.index for h in history if h.part] == list(range(63 - PART_ATTEMPTS, 63))

@@ -90,6 +90,7 @@ import structlog
 from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStream
 from pydantic import BaseModel, ConfigDict, Field
 
+from agents.instruction_parts import PART_ATTEMPTS
 from agents.llm_port import LLMError, TraceRecorder
 from agents.messages import (
     CharacterStatus,
@@ -354,11 +355,18 @@ _Row = tuple[int, tuple[str, ...], str, str, str]  # index, characters, activity
 
 
 def history_window(
-    events: dict[str, StoryEvent], outcomes: Sequence[tuple[int, Outcome]] = (), pending: Sequence[HistoryEntry] = ()
+    events: dict[str, StoryEvent], outcomes: Sequence[tuple[int, Outcome]] = (), pending: Sequence[HistoryEntry] = (),
+    *, since: int = 0,
 ) -> tuple[tuple[HistoryEntry, ...], EarlierEvents | None]:
     """(the history of :func:`story_history`, with ``pending`` (steps in flight whose event is
     known) among the events; the events before it summarised, None when there are none).
-    Linear in the story's length with a small constant: entries are built for the window only."""
+
+    Events older than the window that were planned for a part of the current instruction
+    (index >= ``since``) stay in it: per part, its latest event that was not a failure and up
+    to ``PART_ATTEMPTS`` failures, so the instruction's progress (``part_states``) still sees
+    a part done or given up hours later. The narrator shows only its latest events; the others
+    are counted with the summary. Linear in the story's length with a small constant: entries
+    are built for the window and those kept rows only."""
     rows: list[_Row] = [(e.index, e.characters, e.activity, e.state, e.part) for e in events.values()]
     rows += [
         (i, o.event.characters, o.event.activity, "failed", o.part)
@@ -368,11 +376,30 @@ def history_window(
     rows += [(h.index, h.characters, h.activity, h.state, h.part) for h in pending]
     rows.sort(key=lambda r: r[0])
     cut = max(0, len(rows) - HISTORY_WINDOW)
+    kept = _part_rows(rows[:cut], since)
+    kept_set = set(kept)
     window = tuple(
         HistoryEntry(index=i, characters=chars, activity=activity, state=state, part=part)
-        for i, chars, activity, state, part in rows[cut:]
+        for i, chars, activity, state, part in (*kept, *rows[cut:])
     )
-    return window, EarlierEvents.fold(None, ((r[1], r[2]) for r in rows[:cut]))
+    return window, EarlierEvents.fold(None, ((r[1], r[2]) for r in rows[:cut] if r not in kept_set))
+
+
+def _part_rows(rows: Sequence[_Row], since: int) -> list[_Row]:
+    """The rows of ``rows`` (oldest first) that the instruction's progress needs: per part of
+    the instruction, its latest row that is not a failure and its last ``PART_ATTEMPTS``
+    failures (see :func:`history_window`)."""
+    latest: dict[str, _Row] = {}
+    failures: dict[str, list[_Row]] = {}
+    for row in rows:
+        if row[0] < since or not row[4]:
+            continue
+        if row[3] == "failed":
+            failures.setdefault(row[4], []).append(row)
+        else:
+            latest[row[4]] = row
+    kept = [*latest.values(), *(r for rs in failures.values() for r in rs[-PART_ATTEMPTS:])]
+    return sorted(kept, key=lambda r: r[0])
 
 
 def event_id_for(index: int) -> str:
@@ -718,7 +745,7 @@ class Session:
                 for fl in sorted({f.request.index: f for f in claimed.values()}.values(), key=lambda f: f.request.index)
                 if fl.claim
             ]
-        history, earlier = history_window(self.events, self.outcomes, pending)
+        history, earlier = history_window(self.events, self.outcomes, pending, since=self._instruction_since)
         return PlanningRequest(
             index=self._steps,
             frame=self.world.frame,
