@@ -404,6 +404,33 @@ def test_an_exact_target_crowded_by_a_standing_body_settles_for_the_cell_centre(
     assert np.linalg.norm(w.positions()[0] - w.positions()[1]) >= 0.5 - 1e-9
 
 
+def test_a_goal_cell_crowded_by_a_still_body_lets_the_walker_stop_beside_it(office: Office) -> None:
+    """The exact target is clear but its goal cell's centre is within two body radii of a body
+    standing still on an exact point: the walker stops on the neighbouring cell it reached
+    instead of waiting there until the event fails as stuck."""
+    _, grid, _ = office
+    cells = _free_cells(office)
+    free = {(int(i), int(j)) for i, j in cells}
+    i, j = next((int(i), int(j)) for i, j in cells[150:] if all((i + k, j + m) in free for k in range(7) for m in (-1, 0, 1)))
+    bob_xy = grid.center_of(i, j) + np.array([0.14, 0.0])
+    goal = grid.center_of(i + 2, j)
+    target = goal + np.array([0.06, -0.1])
+    assert grid.entry_cell(target) == (i + 2, j)
+    assert np.linalg.norm(goal - bob_xy) < 0.5 <= np.linalg.norm(target - bob_xy)  # cell crowded, point clear
+    w = _world(office, {"bob": (_cell_xy(office, i, j), 0.0), "ann": (_cell_xy(office, i + 6, j), 0.0)},
+               WorldConfig(exact_patience_s=1.0, stuck_after_s=8.0))
+    _until(w, lambda o: bool(o.looping_events), commands=[AssignEvent(event_id="hold", assignments=(
+        _go("bob", (float(bob_xy[0]), float(bob_xy[1]))),))])
+    outs = _until(w, lambda o: bool(o.looping_events or any(o.failures)), commands=[AssignEvent(
+        event_id="go", assignments=(_go("ann", (float(target[0]), float(target[1]))),))])
+    ann = w.characters["ann"]
+    assert [f for o in outs for f in o.failures] == []
+    assert ann.target is not None and ann.target.fallback == "goal_cell_taken"
+    stop = ann.target.cell
+    assert max(abs(stop[0] - (i + 2)), abs(stop[1] - j)) == 1 and np.allclose(ann.xy, grid.center_of(*stop))
+    assert np.linalg.norm(w.positions()[0] - w.positions()[1]) >= 0.5 - 1e-9
+
+
 def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office: Office) -> None:
     from sim.body.foot_ik import LEG_JOINTS
     from sim.body.skeleton import forward_kinematics

@@ -257,6 +257,17 @@ class CrowdNavigator:
     def is_walker(self, agent: Agent) -> bool:
         return agent in self._cells
 
+    def crowded_by_still_bodies(self, cell: Cell) -> bool:
+        """Whether a body standing still (stationary, or a walker parked on an exact point) is
+        closer than the planner's minimum distance to ``cell``'s centre: no walker can end there
+        until it leaves."""
+        centre = self.grid.center_of(int(cell[0]), int(cell[1]))
+        still = [*self._static.values(), *self._parked.values()]
+        if not still:
+            return False
+        d = np.linalg.norm(np.asarray(still) - centre, axis=1)
+        return bool(np.any(d < self.planner.min_distance - 1e-9))
+
     def cell(self, agent: Agent) -> Cell:
         """The walker's current cell (its entry cell while off the grid)."""
         return self._cells[agent]

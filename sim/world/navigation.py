@@ -115,6 +115,10 @@ class WorldNavigator:
     def cell(self, name: str) -> Cell:
         return self.nav.cell(name)
 
+    def crowded_by_still_bodies(self, cell: Cell) -> bool:
+        """Whether a body standing still keeps every walker off ``cell``'s centre."""
+        return self.nav.crowded_by_still_bodies(cell)
+
     def can_freeze(self, name: str) -> bool:
         """Whether the walker's current plan keeps it in place for the committed step (call
         right after a boundary ``tick``)."""

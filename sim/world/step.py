@@ -421,6 +421,12 @@ class World:
             ) <= 1:
                 self._arrive(c, "goal_cell_taken")  # the neighbour the planner chose will do
                 continue
+            if (c.phase == "approaching" and cell != c.goal_cell and c.stalled_frames >= patience
+                    and max(abs(cell[0] - c.goal_cell[0]), abs(cell[1] - c.goal_cell[1])) <= 1
+                    and not nav.is_off_grid(c.name) and nav.crowded_by_still_bodies(c.goal_cell)
+                    and nav.can_freeze(c.name)):
+                self._arrive(c, "goal_cell_taken")  # a still body keeps everyone off that cell: stop beside it
+                continue
             around = nav.detour_distance(c.name)  # planned around stationary bodies: progress counts on that route
             if around is not None and not c.rerouted:
                 c.best_distance = math.inf
