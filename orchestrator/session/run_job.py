@@ -63,6 +63,7 @@ from typing import Any
 from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.session.run_manifest import RunArguments, RunManifest
+from orchestrator.session.run_status import RunStatus
 from orchestrator.session.runtime import (
     RecordedRequest,
     SessionResult,
@@ -228,6 +229,7 @@ async def run_story(
     on_instruction: Callable[[TimedInstruction, int], None] | None = None,
     in_process_programs: bool = False,
     stop: asyncio.Event | None = None,
+    status: RunStatus | None = None,
 ) -> StoryRun:
     """Run the story session; returns the result, the character names, the fps and the world.
 
@@ -247,11 +249,15 @@ async def run_story(
     ``stop``: once set (by a signal handler), the session is cancelled where it waits (a frame
     is never cut in half), its checkpoint at that frame is saved and the story so far is
     returned with ``stopped=True``; an LLM call in flight is abandoned, and resume asks it
-    again unless its node was checkpointed."""
+    again unless its node was checkpointed.
+
+    ``status``: told every happening of the run (its frames, events, outcomes, instructions and
+    LLM calls; ``orchestrator.session.run_status``), for a live view."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
     from orchestrator.llm.traces import TraceCorruptError, TraceWriter
+    from orchestrator.llm.watched_port import WatchedPort
     from orchestrator.planning.ablation_graph import compile_graph
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
@@ -292,6 +298,8 @@ async def run_story(
         port, describer_model = open_port(config, trace_path, replay)
     except (LLMError, ValueError, OSError) as exc:
         raise RunSetupError(str(exc)) from None
+    if status is not None:
+        port = WatchedPort(port, status)
     world_config = WorldConfig(seed=args.seed, foot_ik=args.foot_ik)
     fps = world_config.fps
     try:
@@ -372,6 +380,8 @@ async def run_story(
     def said_now(timed: TimedInstruction) -> None:
         if writer is not None:
             writer.record_instruction(timed.text, timed.frame, source=timed.source)
+        if status is not None:
+            status.instruction(timed)
         if on_instruction is not None:
             on_instruction(timed, fps)
 
@@ -385,6 +395,8 @@ async def run_story(
 
     def streamed(event: StoryEvent) -> None:
         stream.event(event)
+        if status is not None:
+            status.event(event)
         if on_event is not None:
             on_event(event, fps)
 
@@ -403,9 +415,15 @@ async def run_story(
             graph = compile_graph(ablation, saver)
             planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
             session = Session(world, planner, settings, trace=port.trace, on_event=streamed, on_checkpoint=keep,
-                              on_instruction=said_now, on_request=requested)
+                              on_instruction=said_now, on_request=requested,
+                              on_outcome=status.outcome if status is not None else None,
+                              on_frame=status.frame if status is not None else None)
             if checkpoint is not None:
                 session.resume(checkpoint)
+            if status is not None:
+                status.started(session.world, frames=settings.frames, pace=settings.pace,
+                               instruction=session.instruction, events=session.events.values(),
+                               outcomes=session.outcomes)
             stream.start(
                 StreamStart(scene=scene.name, characters=tuple(names), instruction=args.instruction, fps=fps,
                             frame=session.world.frame),
