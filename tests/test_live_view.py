@@ -259,6 +259,7 @@ def test_run_with_the_live_view_forced_and_without_it(env: None, tmp_path: Path)
     # live: the same story lines, each once, above the view; the summary line after it
     text = Text.from_ansi(shown.stdout).plain
     assert [line for line in text.splitlines() if EVENT_LINE.match(line)] == events
+    assert all(shown.stdout.count(line) == 1 for line in events)
     assert text.rstrip().splitlines()[-1] == lines[-1].replace("plain", "live")
     assert "\x1b[" in shown.stdout and "LLM role" in text
     # the last state drawn: the clock at the end, every call done, its tokens as in metrics.json
