@@ -274,3 +274,11 @@ def test_run_with_the_live_view_forced_and_without_it(env: None, tmp_path: Path)
     # the run folders tell the same story
     for name in ("story.json", "story.md"):
         assert (tmp_path / "live" / name).read_bytes() == (tmp_path / "plain" / name).read_bytes(), name
+
+
+def test_a_run_that_fails_stops_the_live_view_before_its_error(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text("not a trace\n", encoding="utf-8")
+    result = CliRunner().invoke(app, ["run", "home", "--live", "--replay", str(bad), "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and result.stderr.startswith(f"error: {bad}"), result.stderr
+    assert "\x1b[?25l" in result.stdout and result.stdout.endswith("\x1b[?25h")  # the cursor hidden, then shown again
