@@ -14,7 +14,6 @@ from pathlib import Path
 
 import anyio
 import pytest
-import typer
 from anyio import wait_all_tasks_blocked
 from rich.console import Console
 from rich.text import Text
@@ -210,14 +209,13 @@ class _Tty(io.StringIO):
 @pytest.mark.parametrize(
     ("stdin_tty", "stdout_tty", "live", "interactive", "expected"),
     [
-        (True, True, None, None, (False, True)),  # a terminal: typing wins by default
-        (False, True, None, None, (True, False)),  # stdin piped: the live view
-        (True, False, None, None, (False, True)),
-        (False, False, None, None, (False, False)),  # plain lines
-        (True, True, True, None, (True, False)),  # --live: no typing unless asked
-        (True, True, None, False, (True, False)),  # --no-interactive: the live view
+        (True, True, None, None, (True, True)),  # a terminal: the live view, its last line the typed instruction
+        (False, True, None, None, (True, False)),
+        (True, False, None, None, (False, True)),  # output piped: plain lines, typing as before
+        (False, False, None, None, (False, False)),
         (True, True, False, None, (False, True)),
-        (False, False, True, None, (True, False)),  # --live on a pipe: forced
+        (True, True, None, False, (True, False)),
+        (False, False, True, True, (True, True)),  # forced on a pipe
     ],
 )
 def test_live_and_interactive_defaults(monkeypatch: pytest.MonkeyPatch, stdin_tty: bool, stdout_tty: bool,
@@ -225,15 +223,8 @@ def test_live_and_interactive_defaults(monkeypatch: pytest.MonkeyPatch, stdin_tt
     monkeypatch.setattr(sys, "stdin", _Tty(stdin_tty))
     monkeypatch.setattr(sys, "stdout", _Tty(stdout_tty))
     assert live_and_interactive(live, interactive, reads_stdin=True) == expected
-    # a replay never reads stdin: the live view on a terminal
-    assert live_and_interactive(live, None, reads_stdin=False) == (live if live is not None else stdout_tty, False)
-
-
-def test_live_and_interactive_together_is_a_user_error(tmp_path: Path) -> None:
-    with pytest.raises(typer.Exit):
-        live_and_interactive(True, True, reads_stdin=True)
-    result = CliRunner().invoke(app, ["run", "home", "--live", "--interactive", "--out", str(tmp_path / "o")])
-    assert result.exit_code == 2 and "--live and --interactive cannot be combined" in result.stderr
+    # a replay never reads stdin
+    assert live_and_interactive(live, interactive, reads_stdin=False) == (expected[0], False)
 
 
 EVENT_LINE = re.compile(r"^\[ *\d+\.\ds\] event-\d{4} (starts|loops|done|failed): ")

@@ -5,7 +5,9 @@ What it shows (:func:`live_view`): the simulated clock against the story's lengt
 (simulated seconds per wall second) and the pace; one row per character (state, current event
 and what it is, action label, place); per LLM role the calls in flight and for how long the
 oldest has run, the calls so far, the failed ones and the tokens of the answers; the events
-by state, the planning steps and the latest instruction. The story's lines
+by state, the planning steps and the latest instruction; with ``--interactive`` on the same
+terminal, the instruction being typed on its last line (``orchestrator.session.terminal_prompt``
+takes the echo from the terminal, which would otherwise be drawn over). The story's lines
 (``[  10.6s] event-0000 starts: ...``) are printed above the display (:meth:`LiveView.line`),
 once each, so they stay in the terminal's scroll-back as the plain output would.
 
@@ -22,7 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from typing import TextIO
 
@@ -165,12 +167,27 @@ def _footer(s: RunSnapshot) -> list[Text]:
     return lines
 
 
-def live_view(s: RunSnapshot, width: int = 120) -> RenderableType:
-    """The display of one snapshot, ``width`` cells wide."""
+def _prompt(typed: str, width: int) -> Text:
+    """The instruction being typed (its end, when it is longer than the line), or a hint."""
+    head = "instruction> "
+    if not typed:
+        return Text.assemble((head, "bold"), ("type a new instruction, Enter gives it", "dim"), no_wrap=True)
+    room = max(8, width - len(head) - 2)
+    shown = Text(plain(typed))
+    if shown.cell_len > room:
+        shown = Text("\u2026" + plain(typed)[-(room - 1):])
+    return Text.assemble((head, "bold"), shown, ("\u2588", "dim"), no_wrap=True, overflow="crop")
+
+
+def live_view(s: RunSnapshot, width: int = 120, typed: str | None = None) -> RenderableType:
+    """The display of one snapshot, ``width`` cells wide; ``typed``: the instruction being
+    typed below it (None: instructions are not typed here)."""
     lines = [_header(s), Text("")]
     if s.characters:
         lines += [*_characters(s, width), Text("")]
     lines += [*_calls(s, width), Text(""), *_footer(s)]
+    if typed is not None:
+        lines.append(_prompt(typed, width))
     return Group(*lines)
 
 
@@ -178,18 +195,34 @@ class LiveView:
     """A ``rich.live.Live`` display of ``status`` on ``console`` (see the module doc).
 
     ``redirect_stderr``: lines written to ``sys.stderr`` while it runs (log lines) are printed
-    above the display instead of through it; right when stderr is the same terminal."""
+    above the display instead of through it; right when stderr is the same terminal.
+    ``typed``: the instruction being typed so far (``orchestrator.session.terminal_prompt``),
+    drawn on the display's last line; None when instructions are not typed here."""
 
     def __init__(self, status: RunStatus, console: Console, *, period_s: float = REFRESH_PERIOD_S,
-                 redirect_stderr: bool = False) -> None:
+                 redirect_stderr: bool = False, typed: Callable[[], str] | None = None) -> None:
         self.status = status
         self.console = console
         self.period_s = period_s
+        self.typed = typed
         self.live = Live(console=console, auto_refresh=False, transient=False, redirect_stdout=True,
                          redirect_stderr=redirect_stderr)
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     def refresh(self) -> None:
-        self.live.update(live_view(self.status.snapshot(), self.console.width), refresh=True)
+        typed = self.typed() if self.typed is not None else None
+        self.live.update(live_view(self.status.snapshot(), self.console.width, typed), refresh=True)
+
+    def refresh_soon(self) -> None:
+        """Refresh on the event loop as soon as it can (safe from any thread: a key typed)."""
+        loop = self._loop
+        if loop is not None:
+            with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+                loop.call_soon_threadsafe(self._refresh_if_running)
+
+    def _refresh_if_running(self) -> None:
+        if self._loop is not None:
+            self.refresh()
 
     def line(self, text: str) -> None:
         """A line of the story (``plain`` text) above the display, as the plain output prints it."""
@@ -203,12 +236,15 @@ class LiveView:
     @contextlib.asynccontextmanager
     async def running(self) -> AsyncIterator[RunStatus]:
         """The display on screen while the body runs (refreshed by a task on the running event
-        loop); stopped with its last state kept when the body ends or raises."""
+        loop); stopped with its last state kept (without the prompt line) when the body ends or raises."""
         self.live.start()
+        self._loop = asyncio.get_running_loop()
         task = asyncio.ensure_future(self._refreshing())
         try:
             yield self.status
         finally:
+            self._loop = None
+            self.typed = None  # nothing is read any more: the last state without the prompt line
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task
@@ -218,7 +254,8 @@ class LiveView:
                 self.live.stop()
 
 
-def terminal_view(stream: TextIO, *, stderr_is_terminal: bool) -> LiveView:
+def terminal_view(stream: TextIO, *, stderr_is_terminal: bool, typed: Callable[[], str] | None = None) -> LiveView:
     """A live view on ``stream`` (stdout), drawn as on a terminal even when it is not one (an
     explicit ``--live``)."""
-    return LiveView(RunStatus(), Console(file=stream, force_terminal=True), redirect_stderr=stderr_is_terminal)
+    return LiveView(RunStatus(), Console(file=stream, force_terminal=True), redirect_stderr=stderr_is_terminal,
+                    typed=typed)

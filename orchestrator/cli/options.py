@@ -46,8 +46,8 @@ PaceOption = Annotated[Pace, typer.Option(
 LiveOption = Annotated[bool | None, typer.Option(
     "--live/--no-live",
     help="A live view on the terminal: simulated time and speed, each character's state and event, LLM calls in "
-    "flight, tokens so far; the story's lines print above it (default: when stdout is a terminal and stdin is not "
-    "read for instructions: it cannot be combined with --interactive). --no-live: plain lines only.",
+    "flight, tokens so far; the story's lines print above it (default: when stdout is a terminal). --no-live: plain "
+    "lines only.",
 )]
 
 

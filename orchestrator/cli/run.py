@@ -29,9 +29,10 @@ driven by the same step planner.
 
 Output: a line per event as it starts, loops, completes or fails (``[   10.6s] event-0000 starts:
 Ava: ...``) and per instruction, then a summary line. On a terminal (``--live``, the default
-when stdout is a terminal and stdin is not read for instructions) a live view
-(``orchestrator.cli.live_view``) shows below those lines: simulated time and speed, each
-character's state and event, LLM calls in flight, tokens so far.
+when stdout is a terminal) a live view (``orchestrator.cli.live_view``) shows below those
+lines: simulated time and speed, each character's state and event, LLM calls in flight,
+tokens so far; with ``--interactive`` on the same terminal its last line is the instruction
+being typed (``orchestrator.session.terminal_prompt``).
 
 Exit codes: 0 the story ran to its end; 1 planning stopped (the error is printed) or a write
 failed (``error: cannot write FILE: ...``, a full disk: what was written before stays readable
@@ -71,6 +72,7 @@ if TYPE_CHECKING:  # the session (simulation, planner) is imported by the comman
     from orchestrator.session.instruction_script import ScriptLine
     from orchestrator.session.run_manifest import RunArguments, RunManifest
     from orchestrator.session.runtime import StoryEvent
+    from orchestrator.session.terminal_prompt import TerminalPrompt
 
 
 SmplxModelOption = Annotated[
@@ -101,7 +103,7 @@ def run_command(
     names: Annotated[str | None, typer.Option("--names", help="Character names, comma-separated (sets their number; overrides -n).")] = None,
     instruction: Instruction = "",
     instructions: Annotated[Path | None, typer.Option("--instructions", help="Timed script of instructions: lines 'MM:SS text' in simulated time ('#' comments).")] = None,
-    interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction while the story runs (default: when stdin is a terminal and no --live).")] = None,
+    interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction while the story runs (default: when stdin is a terminal; under the live view the line being typed shows on its last line).")] = None,
     live: LiveOption = None,
     duration: Annotated[float, typer.Option("--duration", "-d", min=1.0, help="Simulated seconds.")] = 60.0,
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("out"),
@@ -204,23 +206,33 @@ def default_planners(pace: str) -> int:
 
 def live_and_interactive(live: bool | None, interactive: bool | None, *, reads_stdin: bool) -> tuple[bool, bool]:
     """(show the live view?, read instructions typed on stdin?) from ``--live/--no-live`` and
-    ``--interactive/--no-interactive`` (None: not given). Typing is the default when stdin is a
-    terminal and no ``--live`` was given; the live view when stdout is a terminal and stdin is
-    not read (typed characters echo into the display, which redraws over them). Both asked for
-    is a user error. ``reads_stdin``: False in a replay (stdin is never read)."""
+    ``--interactive/--no-interactive`` (None: not given): the live view by default when stdout
+    is a terminal, typing when stdin is one (both on one terminal: the typed line is drawn in
+    the live view, see :func:`_typing_prompt`). ``reads_stdin``: False in a replay (stdin is
+    never read)."""
     import sys
 
-    if live and interactive and reads_stdin:
-        fail("--live and --interactive cannot be combined (the live view redraws over the typed text); "
-             "use --no-live to type instructions, or --instructions FILE for a timed script")
-    typing = reads_stdin and (interactive if interactive is not None else live is not True and sys.stdin.isatty())
-    shown = live if live is not None else sys.stdout.isatty() and not typing
+    typing = reads_stdin and (interactive if interactive is not None else sys.stdin.isatty())
+    shown = live if live is not None else sys.stdout.isatty()
     return shown, typing
+
+
+def _typing_prompt(live: bool, interactive: bool) -> TerminalPrompt | None:
+    """The prompt that reads typed instructions key by key and lets the live view draw them,
+    when both are on and stdin is a terminal (its echo would be drawn over); None otherwise
+    (the plain line reader: no live view, or stdin is not a terminal and echoes nothing)."""
+    import sys
+
+    if not (live and interactive and sys.stdin.isatty()):
+        return None
+    from orchestrator.session.terminal_prompt import TerminalPrompt
+
+    return TerminalPrompt(sys.stdin.fileno())
 
 
 def resume_command(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `storyteller run` (holds run.json).")],
-    interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction (default: when stdin is a terminal and no --live).")] = None,
+    interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction (default: when stdin is a terminal).")] = None,
     live: LiveOption = None,
     smplx_model: SmplxModelOption = None,
 ) -> None:
@@ -293,7 +305,11 @@ def _execute(
     except OSError as exc:
         _cannot_write(exc, out, resumable=False)
 
-    view = terminal_view(sys.stdout, stderr_is_terminal=sys.stderr.isatty()) if live else None
+    prompt = _typing_prompt(live, interactive)
+    view = terminal_view(sys.stdout, stderr_is_terminal=sys.stderr.isatty(),
+                         typed=(lambda: prompt.text) if prompt is not None else None) if live else None
+    if prompt is not None and view is not None:
+        prompt.on_change = view.refresh_soon
 
     def say(line: str) -> None:  # a story line: above the live view, or plain
         if view is not None:
@@ -338,8 +354,11 @@ def _execute(
                     in_process_programs=in_process_programs,
                     stop=stop,
                     status=status,
+                    stdin_reader=prompt.start if prompt is not None else None,
                 )
         finally:
+            if prompt is not None:
+                prompt.close()  # the terminal's echo and line editing back
             for signum in STOP_SIGNALS:
                 loop.remove_signal_handler(signum)
 

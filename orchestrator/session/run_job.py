@@ -66,6 +66,7 @@ from orchestrator.session.run_manifest import RunArguments, RunManifest
 from orchestrator.session.run_status import RunStatus
 from orchestrator.session.runtime import (
     RecordedRequest,
+    Session,
     SessionResult,
     StoryEvent,
     TimedInstruction,
@@ -230,6 +231,7 @@ async def run_story(
     in_process_programs: bool = False,
     stop: asyncio.Event | None = None,
     status: RunStatus | None = None,
+    stdin_reader: Callable[[Session], object] | None = None,
 ) -> StoryRun:
     """Run the story session; returns the result, the character names, the fps and the world.
 
@@ -242,7 +244,9 @@ async def run_story(
 
     ``on_resume(frame, fps)`` tells the frame a resumed session goes on from (0: no checkpoint was
     kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails.
-    ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay).
+    ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay),
+    read by ``stdin_reader(session)`` when given (e.g. ``orchestrator.session.terminal_prompt``
+    under a live view), else by ``orchestrator.session.stdin_instructions``.
     Event programs run in an OS-limited worker process started for the run and stopped when
     it ends (``in_process_programs``: in this process instead; the plans are the same).
 
@@ -267,7 +271,6 @@ async def run_story(
     from orchestrator.session.roster import RosterWorld, StartPositionError, start_positions
     from orchestrator.session.run_manifest import write_manifest
     from orchestrator.session.runtime import (
-        Session,
         SessionCheckpoint,
         SessionError,
         SessionSettings,
@@ -434,7 +437,7 @@ async def run_story(
             if interactive and replay is None:
                 from orchestrator.session.stdin_instructions import start_stdin_reader
 
-                start_stdin_reader(session)
+                (stdin_reader or start_stdin_reader)(session)
             result, stopped = await _run_until_stopped(session, stop)
             if stopped:
                 keep(session.checkpoint())
