@@ -27,7 +27,7 @@ the next frame. The trace records each one with its frame, and a replay applies 
 paper's ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``),
 driven by the same step planner.
 
-Output: a line per event as it starts, loops, completes or fails (``[   10.6s] event-0000 starts:
+Output: a line per event as it starts, completes or fails (``[   10.6s] event-0000 starts:
 Ava: ...``) and per instruction, then a summary line. On a terminal (``--live``, the default
 when stdout is a terminal) a live view (``orchestrator.cli.live_view``) shows below those
 lines: simulated time and speed, each character's state and event, LLM calls in flight,
