@@ -43,6 +43,13 @@ PaceOption = Annotated[Pace, typer.Option(
     "--pace", help="lockstep (sim waits for the planner), realtime, fast, or offline (each LLM call takes its latency in simulated time)."
 )]
 
+LiveOption = Annotated[bool | None, typer.Option(
+    "--live/--no-live",
+    help="A live view on the terminal: simulated time and speed, each character's state and event, LLM calls in "
+    "flight, tokens so far; the story's lines print above it (default: when stdout is a terminal). --no-live: plain "
+    "lines only.",
+)]
+
 
 def fail(message: str, code: int = 2) -> NoReturn:
     """Print ``error: message`` to stderr and exit (2: a user error)."""

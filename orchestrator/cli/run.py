@@ -27,6 +27,13 @@ the next frame. The trace records each one with its frame, and a replay applies 
 paper's ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``),
 driven by the same step planner.
 
+Output: a line per event as it starts, completes or fails (``[   10.6s] event-0000 starts:
+Ava: ...``) and per instruction, then a summary line. On a terminal (``--live``, the default
+when stdout is a terminal) a live view (``orchestrator.cli.live_view``) shows below those
+lines: simulated time and speed, each character's state and event, LLM calls in flight,
+tokens so far; with ``--interactive`` on the same terminal its last line is the instruction
+being typed (``orchestrator.session.terminal_prompt``).
+
 Exit codes: 0 the story ran to its end; 1 planning stopped (the error is printed) or a write
 failed (``error: cannot write FILE: ...``, a full disk: what was written before stays readable
 and ``resume`` goes on once there is space); 2 a user error (bad argument, damaged run folder,
@@ -51,6 +58,7 @@ from orchestrator.cli.options import (
     Description,
     InProcessPrograms,
     Instruction,
+    LiveOption,
     MaxRetries,
     PaceOption,
     Planner,
@@ -64,6 +72,7 @@ if TYPE_CHECKING:  # the session (simulation, planner) is imported by the comman
     from orchestrator.session.instruction_script import ScriptLine
     from orchestrator.session.run_manifest import RunArguments, RunManifest
     from orchestrator.session.runtime import StoryEvent
+    from orchestrator.session.terminal_prompt import TerminalPrompt
 
 
 SmplxModelOption = Annotated[
@@ -94,7 +103,8 @@ def run_command(
     names: Annotated[str | None, typer.Option("--names", help="Character names, comma-separated (sets their number; overrides -n).")] = None,
     instruction: Instruction = "",
     instructions: Annotated[Path | None, typer.Option("--instructions", help="Timed script of instructions: lines 'MM:SS text' in simulated time ('#' comments).")] = None,
-    interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction while the story runs (default: when stdin is a terminal).")] = None,
+    interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction while the story runs (default: when stdin is a terminal; under the live view the line being typed shows on its last line).")] = None,
+    live: LiveOption = None,
     duration: Annotated[float, typer.Option("--duration", "-d", min=1.0, help="Simulated seconds.")] = 60.0,
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("out"),
     pace: PaceOption = "lockstep",
@@ -170,9 +180,9 @@ def run_command(
     trace_path = record if record is not None else (None if replay is not None else out / "trace.jsonl")
     if trace_path is not None and replay is not None and trace_path.resolve() == replay.resolve():
         fail("--record must name a different file than --replay")
+    shown, typing = live_and_interactive(live, interactive, reads_stdin=replay is None)
     _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False,
-             interactive=_interactive(interactive) and replay is None, smplx_model=smplx_model,
-             in_process_programs=in_process_programs)
+             interactive=typing, live=shown, smplx_model=smplx_model, in_process_programs=in_process_programs)
 
 
 def _check_smplx_model(smplx_model: Path | None) -> None:
@@ -194,15 +204,36 @@ def default_planners(pace: str) -> int:
     return 1 if pace == "lockstep" else 2
 
 
-def _interactive(flag: bool | None) -> bool:
+def live_and_interactive(live: bool | None, interactive: bool | None, *, reads_stdin: bool) -> tuple[bool, bool]:
+    """(show the live view?, read instructions typed on stdin?) from ``--live/--no-live`` and
+    ``--interactive/--no-interactive`` (None: not given): the live view by default when stdout
+    is a terminal, typing when stdin is one (both on one terminal: the typed line is drawn in
+    the live view, see :func:`_typing_prompt`). ``reads_stdin``: False in a replay (stdin is
+    never read)."""
     import sys
 
-    return flag if flag is not None else sys.stdin.isatty()
+    typing = reads_stdin and (interactive if interactive is not None else sys.stdin.isatty())
+    shown = live if live is not None else sys.stdout.isatty()
+    return shown, typing
+
+
+def _typing_prompt(live: bool, interactive: bool) -> TerminalPrompt | None:
+    """The prompt that reads typed instructions key by key and lets the live view draw them,
+    when both are on and stdin is a terminal (its echo would be drawn over); None otherwise
+    (the plain line reader: no live view, or stdin is not a terminal and echoes nothing)."""
+    import sys
+
+    if not (live and interactive and sys.stdin.isatty()):
+        return None
+    from orchestrator.session.terminal_prompt import TerminalPrompt
+
+    return TerminalPrompt(sys.stdin.fileno())
 
 
 def resume_command(
     run_dir: Annotated[Path, typer.Argument(help="Run folder written by `storyteller run` (holds run.json).")],
     interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction (default: when stdin is a terminal).")] = None,
+    live: LiveOption = None,
     smplx_model: SmplxModelOption = None,
 ) -> None:
     """Go on with a run that was stopped (even by kill -9) from its last checkpoint."""
@@ -213,13 +244,15 @@ def resume_command(
     except ManifestError as exc:
         fail(str(exc))
     _check_smplx_model(smplx_model)
+    shown, typing = live_and_interactive(live, interactive, reads_stdin=True)
     _execute(manifest.arguments, out=run_dir, trace_path=run_dir / "trace.jsonl", replay=None,
-             thread_id=manifest.thread_id, resume=True, interactive=_interactive(interactive), smplx_model=smplx_model)
+             thread_id=manifest.thread_id, resume=True, interactive=typing, live=shown, smplx_model=smplx_model)
 
 
 def replay_command(
     source: Annotated[Path, typer.Argument(help="Run folder (RUN_DIR/trace.jsonl) or a trace file next to its run.json.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder of the replayed run.")],
+    live: LiveOption = None,
     smplx_model: SmplxModelOption = None,
 ) -> None:
     """Replay a recorded run with no model loaded: same arguments (from run.json), same story, same motion."""
@@ -235,22 +268,26 @@ def replay_command(
     if out.resolve() == trace.parent.resolve():
         fail("--out must be a different folder than the replayed run's")
     _check_smplx_model(smplx_model)
+    shown, _ = live_and_interactive(live, None, reads_stdin=False)
     _execute(manifest.arguments, out=out, trace_path=out / "trace.jsonl", replay=trace, thread_id=None, resume=False,
-             smplx_model=smplx_model)
+             live=shown, smplx_model=smplx_model)
 
 
 def _execute(
     args: RunArguments, *, out: Path, trace_path: Path | None, replay: Path | None, thread_id: str | None, resume: bool,
     smplx_model: Path | None = None,
     interactive: bool = False,
+    live: bool = False,
     in_process_programs: bool = False,
 ) -> None:
     import asyncio
     import importlib
+    import sys
 
     from orchestrator.cli.collector import imports_paused
 
     with imports_paused():
+        from orchestrator.cli.live_view import terminal_view
         from orchestrator.session.run_job import RunSetupError, StoryRun, run_story, write_outputs
         from orchestrator.session.run_manifest import resume_command
         from sim.scene.bundled import resolve_scene
@@ -268,8 +305,20 @@ def _execute(
     except OSError as exc:
         _cannot_write(exc, out, resumable=False)
 
+    prompt = _typing_prompt(live, interactive)
+    view = terminal_view(sys.stdout, stderr_is_terminal=sys.stderr.isatty(),
+                         typed=(lambda: prompt.text) if prompt is not None else None) if live else None
+    if prompt is not None and view is not None:
+        prompt.on_change = view.refresh_soon
+
+    def say(line: str) -> None:  # a story line: above the live view, or plain
+        if view is not None:
+            view.line(line)
+        else:
+            typer.echo(line)
+
     def show(e: StoryEvent, fps: int) -> None:
-        typer.echo(_event_line(e, fps))
+        say(_event_line(e, fps))
 
     def started(manifest: RunManifest) -> None:
         if replay is None:
@@ -288,25 +337,28 @@ def _execute(
         for signum in STOP_SIGNALS:
             loop.add_signal_handler(signum, on_signal, signum)
         try:
-            return await run_story(
-                scene_obj,
-                args,
-                out=out,
-                trace_path=trace_path,
-                replay=replay,
-                thread_id=thread_id,
-                resume=resume,
-                interactive=interactive,
-                on_event=show,
-                on_instruction=lambda i, fps: typer.echo(
-                    f"[{i.frame / fps:7.1f}s] instruction ({i.source}): {plain(i.text)}"
-                ),
-                on_start=started,
-                on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
-                in_process_programs=in_process_programs,
-                stop=stop,
-            )
+            async with view.running() if view is not None else contextlib.nullcontext(None) as status:
+                return await run_story(
+                    scene_obj,
+                    args,
+                    out=out,
+                    trace_path=trace_path,
+                    replay=replay,
+                    thread_id=thread_id,
+                    resume=resume,
+                    interactive=interactive,
+                    on_event=show,
+                    on_instruction=lambda i, fps: say(f"[{i.frame / fps:7.1f}s] instruction ({i.source}): {plain(i.text)}"),
+                    on_start=started,
+                    on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
+                    in_process_programs=in_process_programs,
+                    stop=stop,
+                    status=status,
+                    stdin_reader=prompt.start if prompt is not None else None,
+                )
         finally:
+            if prompt is not None:
+                prompt.close()  # the terminal's echo and line editing back
             for signum in STOP_SIGNALS:
                 loop.remove_signal_handler(signum)
 

@@ -8,7 +8,9 @@ simulation; the run folder's ``run.json`` (:mod:`~orchestrator.session.run_manif
 ``story.md`` / ``metrics.json`` (:mod:`~orchestrator.session.run_report`) and the session's
 checkpoint file (:mod:`~orchestrator.session.snapshot_file`); live instructions: the timed
 script of ``--instructions FILE`` (:mod:`~orchestrator.session.instruction_script`) and the
-stdin reader of ``--interactive`` (:mod:`~orchestrator.session.stdin_instructions`).
+stdin reader of ``--interactive`` (:mod:`~orchestrator.session.stdin_instructions`), or, under
+the live view on the same terminal, the key-by-key prompt (:mod:`~orchestrator.session.terminal_prompt`);
+what a running story looks like now, for that live view (:mod:`~orchestrator.session.run_status`).
 
 May import ``orchestrator.llm``, ``orchestrator.planning``, ``agents``, ``tools`` and ``sim``;
 never ``orchestrator.cli`` (the commands call into here, not the other way round).

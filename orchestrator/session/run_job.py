@@ -63,8 +63,10 @@ from typing import Any
 from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.session.run_manifest import RunArguments, RunManifest
+from orchestrator.session.run_status import RunStatus
 from orchestrator.session.runtime import (
     RecordedRequest,
+    Session,
     SessionResult,
     StoryEvent,
     TimedInstruction,
@@ -228,6 +230,8 @@ async def run_story(
     on_instruction: Callable[[TimedInstruction, int], None] | None = None,
     in_process_programs: bool = False,
     stop: asyncio.Event | None = None,
+    status: RunStatus | None = None,
+    stdin_reader: Callable[[Session], object] | None = None,
 ) -> StoryRun:
     """Run the story session; returns the result, the character names, the fps and the world.
 
@@ -240,18 +244,24 @@ async def run_story(
 
     ``on_resume(frame, fps)`` tells the frame a resumed session goes on from (0: no checkpoint was
     kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails.
-    ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay).
+    ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay),
+    read by ``stdin_reader(session)`` when given (e.g. ``orchestrator.session.terminal_prompt``
+    under a live view), else by ``orchestrator.session.stdin_instructions``.
     Event programs run in an OS-limited worker process started for the run and stopped when
     it ends (``in_process_programs``: in this process instead; the plans are the same).
 
     ``stop``: once set (by a signal handler), the session is cancelled where it waits (a frame
     is never cut in half), its checkpoint at that frame is saved and the story so far is
     returned with ``stopped=True``; an LLM call in flight is abandoned, and resume asks it
-    again unless its node was checkpointed."""
+    again unless its node was checkpointed.
+
+    ``status``: told every happening of the run (its frames, events, outcomes, instructions and
+    LLM calls; ``orchestrator.session.run_status``), for a live view."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
     from orchestrator.llm.traces import TraceCorruptError, TraceWriter
+    from orchestrator.llm.watched_port import WatchedPort
     from orchestrator.planning.ablation_graph import compile_graph
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
@@ -261,7 +271,6 @@ async def run_story(
     from orchestrator.session.roster import RosterWorld, StartPositionError, start_positions
     from orchestrator.session.run_manifest import write_manifest
     from orchestrator.session.runtime import (
-        Session,
         SessionCheckpoint,
         SessionError,
         SessionSettings,
@@ -292,6 +301,8 @@ async def run_story(
         port, describer_model = open_port(config, trace_path, replay)
     except (LLMError, ValueError, OSError) as exc:
         raise RunSetupError(str(exc)) from None
+    if status is not None:
+        port = WatchedPort(port, status)
     world_config = WorldConfig(seed=args.seed, foot_ik=args.foot_ik)
     fps = world_config.fps
     try:
@@ -372,6 +383,8 @@ async def run_story(
     def said_now(timed: TimedInstruction) -> None:
         if writer is not None:
             writer.record_instruction(timed.text, timed.frame, source=timed.source)
+        if status is not None:
+            status.instruction(timed)
         if on_instruction is not None:
             on_instruction(timed, fps)
 
@@ -385,6 +398,8 @@ async def run_story(
 
     def streamed(event: StoryEvent) -> None:
         stream.event(event)
+        if status is not None:
+            status.event(event)
         if on_event is not None:
             on_event(event, fps)
 
@@ -403,9 +418,15 @@ async def run_story(
             graph = compile_graph(ablation, saver)
             planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
             session = Session(world, planner, settings, trace=port.trace, on_event=streamed, on_checkpoint=keep,
-                              on_instruction=said_now, on_request=requested)
+                              on_instruction=said_now, on_request=requested,
+                              on_outcome=status.outcome if status is not None else None,
+                              on_frame=status.frame if status is not None else None)
             if checkpoint is not None:
                 session.resume(checkpoint)
+            if status is not None:
+                status.started(session.world, frames=settings.frames, pace=settings.pace,
+                               instruction=session.instruction, events=session.events.values(),
+                               outcomes=session.outcomes)
             stream.start(
                 StreamStart(scene=scene.name, characters=tuple(names), instruction=args.instruction, fps=fps,
                             frame=session.world.frame),
@@ -416,7 +437,7 @@ async def run_story(
             if interactive and replay is None:
                 from orchestrator.session.stdin_instructions import start_stdin_reader
 
-                start_stdin_reader(session)
+                (stdin_reader or start_stdin_reader)(session)
             result, stopped = await _run_until_stopped(session, stop)
             if stopped:
                 keep(session.checkpoint())

@@ -407,7 +407,12 @@ def event_id_for(index: int) -> str:
 
 
 class Session:
-    """Runs one story: ``await Session(world, planner, settings).run()``."""
+    """Runs one story: ``await Session(world, planner, settings).run()``.
+
+    Callbacks (all on the event loop): ``on_event`` when an event starts, loops, completes or
+    fails; ``on_outcome(index, outcome, frame)`` when a step's outcome is applied;
+    ``on_instruction``, ``on_request``, ``on_checkpoint`` (see the module doc); ``on_frame(world)``
+    after every frame is stepped (it runs for every frame: keep it O(1))."""
 
     def __init__(
         self,
@@ -421,6 +426,7 @@ class Session:
         on_checkpoint: Callable[[SessionCheckpoint], None] | None = None,
         on_instruction: Callable[[TimedInstruction], None] | None = None,
         on_request: Callable[[RecordedRequest], None] | None = None,
+        on_frame: Callable[[World], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if settings.pace not in ("lockstep", "realtime", "fast", "offline"):
@@ -441,6 +447,7 @@ class Session:
         self.on_checkpoint = on_checkpoint
         self.on_instruction = on_instruction
         self.on_request = on_request
+        self.on_frame = on_frame
         self.clock = clock
         self.events: dict[str, StoryEvent] = {}
         self.outcomes: list[tuple[int, Outcome]] = []
@@ -890,6 +897,8 @@ class Session:
             t_step = clock()
             self.world, out = step(self.world, commands, self.world.dt)
             self._observe(out)
+            if self.on_frame is not None:
+                self.on_frame(self.world)
             t_ask = clock()
             if self._schedule is not None:
                 await self._ask_scheduled(news, "frame_end")

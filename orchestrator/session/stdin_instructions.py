@@ -19,6 +19,12 @@ from orchestrator.session.runtime import Session
 _log = structlog.get_logger("storyteller.session")
 
 
+def typed_instruction(line: str) -> str | None:
+    """The instruction a typed line gives (None: an empty line or a ``#`` comment)."""
+    text = line.strip()
+    return None if not text or text.startswith("#") else text
+
+
 def start_stdin_reader(session: Session, stream: TextIO | None = None) -> threading.Thread:
     """Start the reader thread on ``stream`` (default: ``sys.stdin``); it ends at end of file
     or once the session no longer takes instructions."""
@@ -26,10 +32,8 @@ def start_stdin_reader(session: Session, stream: TextIO | None = None) -> thread
 
     def read() -> None:
         for line in source:
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            if not session.instruct_nowait(text, "stdin"):
+            text = typed_instruction(line)
+            if text is not None and not session.instruct_nowait(text, "stdin"):
                 return
         _log.debug("stdin_closed")
 
