@@ -470,3 +470,24 @@ async def test_the_rest_of_the_instruction_for_a_busy_character_is_a_wait_withou
     assert "1) [done] Ann eats.\n2) [next] Then Ann chats with Bob." in second.messages[-1].content
     assert second.json_schema is not None
     assert second.json_schema["properties"]["event"]["properties"]["characters"]["items"]["enum"] == ["Ann"]
+
+
+async def test_an_event_naming_some_of_a_parts_actors_takes_them_all() -> None:
+    # "Ann and Bob eat": the narrator names Bob alone; the part is theirs together, so the event
+    # (and the parser's prompt) has both, and it is marked as that part's.
+    both = PROGRAM.format(who="Ann").removesuffix("\n```") + "\n" + "\n".join(
+        PROGRAM.format(who="Bob").splitlines()[2:])
+    port = ScriptedLLM({"describer": [DESCRIPTION], "narrator": [narration(["Bob"], "eat at table_1")],
+                        "event_parser": [both]})
+    story = StoryLog(":memory:", "t1")
+    state = PlanningState(instruction="Ann and Bob eat at the table.", events_target=1,
+                          roster=(CharacterStatus(name="Ann"), CharacterStatus(name="Bob"), CharacterStatus(name="Cy"))
+                          ).model_dump()
+    graph = compile_planning_graph(InMemorySaver())
+    await graph.ainvoke(state, config={"configurable": {"thread_id": "t1"}, "recursion_limit": recursion_limit(1, 3)},
+                        context=make_deps(port, story), durability="sync")
+    (outcome,) = [o for _, o in story.outcomes()]
+    assert isinstance(outcome, ParsedEvent) and outcome.event.characters == ("Ann", "Bob")
+    assert outcome.part == "Ann and Bob eat at the table."
+    parser = next(c for c in port.requests if c.node == "event_parser")
+    assert "Ann" in parser.messages[-1].content and "Bob" in parser.messages[-1].content

@@ -64,6 +64,7 @@ from agents.event_parser import (
     parser_request,
     run_reply,
 )
+from agents.instruction_parts import InstructionProgress
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
 from agents.messages import (
     CharacterStatus,
@@ -251,16 +252,27 @@ async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) 
             update["failure"] = PlanningFailure(index=state.step, node="narrator", attempts=attempts, feedback=feedback)
         return update
     record_parsed(deps, state.narrator_seq, "narrator", out.model_dump(mode="json"))
-    part = instruction_part(state, deps, out.event)
-    if deps.progress is not None and not out.event.is_wait:
-        deps.progress.claim(out.event.characters, out.event.activity, part)
-    return {"event": out.event, "part": part, "narrator_attempts": attempts, "narrator_reply": None, "narrator_seq": None}
+    progress = narrator_input(state, deps).progress
+    event = with_all_part_actors(out.event, progress)
+    part = instruction_part(progress, event)
+    if deps.progress is not None and not event.is_wait:
+        deps.progress.claim(event.characters, event.activity, part)
+    return {"event": event, "part": part, "narrator_attempts": attempts, "narrator_reply": None, "narrator_seq": None}
 
 
-def instruction_part(state: PlanningState, deps: PlanningDeps, event: Event) -> str:
+def with_all_part_actors(event: Event, progress: InstructionProgress) -> Event:
+    """``event``, with every actor of the part the narrator was asked to take next when it
+    named only some of them ("Ava and Ben hug" narrated for Ben alone): the part is theirs
+    together, and they are all free (a part is only offered when they are)."""
+    actors = progress.next_actors
+    if progress.next_part is None or not event.characters or not set(event.characters) < set(actors):
+        return event
+    return event.model_copy(update={"characters": tuple(actors)})
+
+
+def instruction_part(progress: InstructionProgress, event: Event) -> str:
     """The instruction part ``event`` carries out: the part the narrator was asked to take
     next, when the event's characters are among its actors ("" otherwise)."""
-    progress = narrator_input(state, deps).progress
     if progress.next_part is None or not event.characters:
         return ""
     if progress.next_actors and not set(event.characters) <= set(progress.next_actors):
