@@ -86,7 +86,7 @@ class Scenario(_Frozen):
     characters: int = Field(ge=2, le=6)
     instruction: str = Field(min_length=1)
     duration: float = Field(gt=0, le=120, description="Simulated seconds.")
-    max_events: int = Field(ge=1, le=8, description="Planning steps at most.")
+    max_events: int = Field(ge=1, le=8, description="Planning steps at most (waits do not count).")
     seed: int = 0
     expect: tuple[Expectation, ...] = Field(min_length=1)
 

@@ -111,7 +111,7 @@ def run_command(
     speed: Annotated[float, typer.Option("--speed", help="Simulated seconds per wall second (realtime pace).")] = 1.0,
     planners: Annotated[int | None, typer.Option("--planners", min=1, max=8, help="Planning steps in flight at most, for disjoint characters (default: 1 in lockstep pace, 2 otherwise).")] = None,
     offline_latency: Annotated[float | None, typer.Option("--offline-latency", min=0.0, help="offline pace: simulated seconds each LLM call takes (default: the call's own latency).")] = None,
-    max_events: Annotated[int | None, typer.Option("--max-events", min=1, help="Planning steps at most.")] = None,
+    max_events: Annotated[int | None, typer.Option("--max-events", min=1, help="Planning steps at most; a step that comes back as a wait does not count.")] = None,
     record: Annotated[Path | None, typer.Option("--record", help="Trace file (default: OUT/trace.jsonl).")] = None,
     replay: Annotated[Path | None, typer.Option("--replay", help="Serve LLM calls and frames from this trace.")] = None,
     config: Config = None,

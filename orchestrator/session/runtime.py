@@ -239,7 +239,8 @@ class SessionResult:
 @dataclass
 class SessionSettings:
     """frames: frames to simulate; pace: see module doc; speed: simulated seconds per wall
-    second in ``realtime`` pace; max_steps: planning steps at most (None: unbounded);
+    second in ``realtime`` pace; max_steps: planning steps at most, not counting steps that
+    came back as a wait (None: unbounded);
     retry_after_s: simulated seconds before asking again after a wait or a failed step;
     recheck_after_s: after a wait, the planner is asked again only once the free characters or
     an event's state (looping, completed, failed) changed since the request, or after this many
@@ -451,6 +452,7 @@ class Session:
         self.clock = clock
         self.events: dict[str, StoryEvent] = {}
         self.outcomes: list[tuple[int, Outcome]] = []
+        self._waits = 0  # outcomes that are waits
         self.applied_frames: list[int] = []
         self.failures: list[EventFailure] = []
         self._steps = 0
@@ -510,6 +512,7 @@ class Session:
         self.world = self.world.restore(cp.world)
         self.events = copy.deepcopy(cp.events)
         self.outcomes = list(cp.outcomes)
+        self._waits = sum(1 for _, o in self.outcomes if o is None)
         self.applied_frames = list(cp.applied_frames)
         self.failures = list(cp.failures)
         self._steps = cp.steps
@@ -716,7 +719,7 @@ class Session:
         s = self.settings
         if len(self._flights) >= s.planners or self.planner_error is not None:
             return None
-        if s.max_steps is not None and self._steps >= s.max_steps:
+        if s.max_steps is not None and self._steps - self._waits >= s.max_steps:
             return None
         if s.applied_frames is not None and self._steps >= len(s.applied_frames):
             return None
@@ -816,6 +819,7 @@ class Session:
     def _apply(self, request: PlanningRequest, outcome: Outcome) -> list[AssignEvent]:
         frame = self.world.frame
         self.outcomes.append((request.index, outcome))
+        self._waits += outcome is None  # a wait does not use up max_steps
         self.applied_frames.append(frame)
         if self.trace is not None and request.index not in self.settings.recorded_frames:
             seqs_of: Callable[[int], Sequence[int]] | None = getattr(self.planner, "trace_seqs", None)
