@@ -142,8 +142,56 @@ def _most_chairs(tables: list[SceneObject], scene: Scene) -> list[SceneObject]:
 
 
 _NUMBERS = {"one": 1, "two": 2, "three": 3, "four": 4, "five": 5, "six": 6, "seven": 7, "eight": 8, "ten": 10, "twelve": 12}
-CAPACITY = re.compile(r"\btables?\s+(?:for|seating|that seats|which seats)\s+(\d+|" + "|".join(_NUMBERS) + r")\b")
-"""A table named by how many it seats: "a table for four", "the table that seats six"."""
+_COUNT = r"(\d+|" + "|".join(_NUMBERS) + r")"
+CAPACITY = re.compile(
+    r"\btables?\s+(?:(?:for|seating|that seats|which seats)\s+" + _COUNT
+    + r"|with\s+" + _COUNT + r"\s+(?:chairs|seats|stools|places))\b"
+)
+"""A table named by how many it seats: "a table for four", "the table that seats six", "the
+table with two chairs"."""
+SMALL = frozenset({"small", "smaller", "smallest", "little", "tiny"})
+LARGE = frozenset({"big", "bigger", "biggest", "large", "larger", "largest", "huge"})
+ROUND = frozenset({"round", "circular", "square"})
+LONG = frozenset({"long", "rectangular", "oblong"})
+"""Size and shape words in front of an object's label ("the small round table") pick among the
+objects of that label by footprint: the smallest / largest area (within ``SIZE_TIE``), a
+footprint about as deep as wide (within ``ROUND_RATIO``) or clearly longer than deep."""
+SIZE_TIE = 1.15
+ROUND_RATIO = 1.25
+
+
+def _aspect(o: SceneObject) -> float:
+    short, long_ = sorted((max(o.width, 1e-6), max(o.depth, 1e-6)))
+    return long_ / short
+
+
+def _by_look(group: list[SceneObject], adjectives: set[str]) -> list[SceneObject]:
+    """``group`` narrowed by the size and shape words ``adjectives`` (each kept only when some
+    object fits it; see ``SMALL``)."""
+    out = group
+    if adjectives & ROUND:
+        out = [o for o in out if _aspect(o) <= ROUND_RATIO] or out
+    if adjectives & LONG:
+        out = [o for o in out if _aspect(o) > ROUND_RATIO] or out
+    if adjectives & (SMALL | LARGE) and len(out) > 1:
+        area = {o.name: o.width * o.depth for o in out}
+        if adjectives & SMALL:
+            least = min(area.values())
+            out = [o for o in out if area[o.name] <= least * SIZE_TIE]
+        else:
+            most = max(area.values())
+            out = [o for o in out if area[o.name] * SIZE_TIE >= most]
+    return out
+
+
+def _adjectives_before(text: str, label: str, span: int = 3) -> set[str]:
+    """The words up to ``span`` before the first mention of ``label`` (or its last word)."""
+    words = _words(text)
+    parts = label.split("_")
+    at = _contains(words, parts)
+    if at < 0:
+        at = _contains(words, parts[-1:])
+    return set(words[max(0, at - span) : at]) if at > 0 else set()
 
 
 def seats_around(table: SceneObject, scene: Scene) -> int:
@@ -202,8 +250,11 @@ def event_shortlist(
     if DINING.search(_rewrite(text)) and not _after_proximity(text):  # "the dining table nearest X" picks by place
         groups = [_most_chairs(g, scene) if g and g[0].label.split("_")[-1] == "table" else g for g in groups]
     if (capacity := CAPACITY.search(_rewrite(text))) is not None:  # "a small table for two"
-        wanted = int(capacity.group(1)) if capacity.group(1).isdigit() else _NUMBERS[capacity.group(1)]
+        count = capacity.group(1) or capacity.group(2)
+        wanted = int(count) if count.isdigit() else _NUMBERS[count]
         groups = [_by_capacity(g, scene, wanted) if g and g[0].label.split("_")[-1] == "table" else g for g in groups]
+    groups = [_by_look(g, _adjectives_before(text, label)) if len(g) > 1 else g
+              for label, g in zip(labels, groups, strict=True)]  # "the small round table"
     if len(groups) >= 2:
         after = set(mentioned_labels(_after_proximity(text), scene.labels))
         references = [g for label, g in zip(labels[1:], groups[1:], strict=True) if label in after] or groups[1:]

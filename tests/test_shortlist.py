@@ -114,3 +114,23 @@ def test_a_conference_table_is_the_one_people_sit_around() -> None:
     short = event_shortlist(office, "Four colleagues meet around the conference table", seats(office), ["attend_meeting"])
     assert short.objects == ("table_1",)
     assert set(short.seats) == {f"chair_{i}" for i in range(1, 7)}
+
+
+@pytest.mark.parametrize(("text", "tables"), [
+    ("sit at the small round table and chat", {"table_3"}),  # round: 0.8 x 0.8; the coffee table is smaller but long
+    ("eats at the little table with two chairs", {"table_3"}),  # two chairs around it
+    ("puts the magazine on the small table", {"table_2"}),  # the smallest footprint
+    ("spreads the plans on the big table", {"table_1"}),
+    ("waits by the long table", {"table_1", "table_2"}),
+    ("sits at a table", {"table_1", "table_2", "table_3"}),  # no size or shape word: every table
+])
+def test_size_and_shape_words_pick_among_objects_of_a_label(text: str, tables: set[str]) -> None:
+    office = resolve_scene("office")
+    short = event_shortlist(office, text, seats(office), ["eat", "chat"])
+    assert {o for o in short.objects if o.startswith("table_")} == tables
+
+
+def test_a_round_table_brings_only_its_own_chairs() -> None:
+    office = resolve_scene("office")
+    short = event_shortlist(office, "sit at the small round table and chat", seats(office), ["chat"])
+    assert set(short.seats) == {"chair_7", "chair_8"}
