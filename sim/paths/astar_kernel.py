@@ -11,16 +11,14 @@ tables); these numba kernels only run its two hot loops on dense arrays:
 - ``space_time_search``: the space-time A* of one agent over ``window`` steps;
 - ``kept_path``: the check and greedy extension of a previous plan (``PathPlanner._kept_path``).
 
-Both take the same decisions as the pure-Python code (same float operations, the same heap
-order on ``(f, h, t, cell)`` tuples, the same tie-breaking), which
+Both take the same decisions as the pure-Python code (same float operations, the same pop
+order as its heap of ``(f, h, t, cell)`` tuples, the same tie-breaking), which
 ``tests/test_astar_kernel.py`` checks plan for plan. Indices are the planner's padded cell ids;
 ``stride`` is the number of padded cells. The kernels are compiled on first use and cached
 on disk (``cache=True``), so only the first process on a machine pays the compile time.
 """
 
 from __future__ import annotations
-
-import heapq
 
 import numpy as np
 from numba import njit
@@ -157,13 +155,55 @@ def kept_path(hint: NDArray[np.int64], goal: int, window: int, h: NDArray[np.flo
     return path, window, True
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _before(f: float, h: float, k: int, f2: float, h2: float, k2: int) -> bool:  # pragma: no cover - compiled
+    """(f, h, k) < (f2, h2, k2), lexicographically."""
+    return f < f2 or (f == f2 and (h < h2 or (h == h2 and k < k2)))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _heap_push(hf: NDArray[np.float64], hh: NDArray[np.float64], hk: NDArray[np.int64], size: int,
+               f: float, h: float, k: int) -> int:  # pragma: no cover - compiled
+    """Add (f, h, k) to the binary min-heap held in the first ``size`` entries; the new size."""
+    i = size
+    while i > 0:
+        p = (i - 1) >> 1
+        if not _before(f, h, k, hf[p], hh[p], hk[p]):
+            break
+        hf[i], hh[i], hk[i] = hf[p], hh[p], hk[p]
+        i = p
+    hf[i], hh[i], hk[i] = f, h, k
+    return size + 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _heap_pop_into(hf: NDArray[np.float64], hh: NDArray[np.float64], hk: NDArray[np.int64],
+                   size: int) -> None:  # pragma: no cover - compiled
+    """Remove the root of a heap of ``size`` > 0 entries (the caller read it first)."""
+    last = size - 1
+    f, h, k = hf[last], hh[last], hk[last]
+    i = 0
+    while True:
+        c = 2 * i + 1
+        if c >= last:
+            break
+        if c + 1 < last and _before(hf[c + 1], hh[c + 1], hk[c + 1], hf[c], hh[c], hk[c]):
+            c += 1
+        if not _before(hf[c], hh[c], hk[c], f, h, k):
+            break
+        hf[i], hh[i], hk[i] = hf[c], hh[c], hk[c]
+        i = c
+    hf[i], hh[i], hk[i] = f, h, k
+
+
 @njit(cache=True, nogil=True)
 def space_time_search(
     start: int, goal: int, window: int, h: NDArray[np.float64], nb_id: NDArray[np.int64],
     nb_cost: NDArray[np.float64], nb_bit: NDArray[np.int64], static_allow: NDArray[np.int64],
     near: NDArray[np.int64], full: int, max_expansions: int,
     g_best: NDArray[np.float64], stamp: NDArray[np.int64], parent: NDArray[np.int64], token: int,
-    expanded: NDArray[np.int64],
+    expanded: NDArray[np.int64], heap_f: NDArray[np.float64], heap_h: NDArray[np.float64],
+    heap_k: NDArray[np.int64],
 ) -> tuple[NDArray[np.int64], int]:  # pragma: no cover - compiled
     """Space-time A* from padded cell ``start`` for ``window`` steps.
 
@@ -176,19 +216,28 @@ def space_time_search(
     ``max_expansions``): filled with the key ``t * cells + cell`` of each expanded node in
     order, the only entries of ``near`` the search reads (so a search whose expanded entries
     are unchanged in another table returns the same result there).
+    ``heap_f/heap_h/heap_k`` (>= ``nb_id.shape[1] * max_expansions + 1``): the open list, a
+    binary heap of (f, h, key) in parallel arrays. Nodes leave it in the order of the Python
+    search's ``heapq`` of (f, h, t, cell) tuples: key = t * cells + cell orders as (t, cell),
+    and no two entries are equal (a node is pushed again only with a smaller g), so any
+    correct heap pops the same sequence.
     Returns (padded ids of the window + 1 cells, expansions), or (empty, expansions) when the
     budget runs out or no path exists. Waiting on the goal is free.
     """
     stride = nb_id.shape[0]
     n_steps = near.shape[0]
+    cols = nb_id.shape[1]
     h0 = h[start]
-    heap = [(h0, h0, 0, start)]
+    size = _heap_push(heap_f, heap_h, heap_k, 0, h0, h0, start)
     g_best[start] = 0.0
     stamp[start] = token
     expansions = 0
-    while len(heap) > 0:
-        f, hc, t, cid = heapq.heappop(heap)
-        key = t * stride + cid
+    while size > 0:
+        f, hc, key = heap_f[0], heap_h[0], heap_k[0]
+        _heap_pop_into(heap_f, heap_h, heap_k, size)
+        size -= 1
+        t = key // stride
+        cid = key - t * stride
         g = f - hc
         best = g_best[key] if stamp[key] == token else _INF
         if g > best + 1e-9:
@@ -211,7 +260,7 @@ def space_time_search(
         nt = t + 1
         nbase = nt * stride
         at_goal = cid == goal
-        for m in range(nb_id.shape[1]):
+        for m in range(cols):
             nid = nb_id[cid, m]
             if nid < 0:
                 break
@@ -227,7 +276,7 @@ def space_time_search(
                 g_best[nkey] = ng
                 stamp[nkey] = token
                 parent[nkey] = cid
-                heapq.heappush(heap, (ng + hn, hn, nt, nid))
+                size = _heap_push(heap_f, heap_h, heap_k, size, ng + hn, hn, nkey)
     return np.empty(0, dtype=np.int64), expansions
 
 

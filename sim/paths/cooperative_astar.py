@@ -355,6 +355,8 @@ class PathPlanner:
         self._removed_bits_memo: dict[tuple[bytes, bytes], tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
         self._scratch: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]] | None = None
         self._expanded = np.zeros(max(1, self.max_expansions), dtype=np.int64)  # the search's expanded keys
+        open_size = 9 * max(1, self.max_expansions) + 1  # pushes: the start, then <= 9 per expansion
+        self._open = (np.zeros(open_size), np.zeros(open_size), np.zeros(open_size, dtype=np.int64))  # the search's heap
         self._token = 0
 
     def _search_scratch(self, window: int) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
@@ -899,6 +901,7 @@ class PathPlanner:
         path, n = space_time_search(
             start, self.cell_id(goal), window, h, self._nb_id, self._nb_cost, self._nb_bit, static_allow,
             res.near, self._full_mask, self.max_expansions, g_best, stamp, parent, self._token, self._expanded,
+            *self._open,
         )
         return (path if len(path) else None), int(n), self._expanded[: min(int(n), self.max_expansions)].copy()
 
