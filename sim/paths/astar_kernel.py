@@ -1,7 +1,7 @@
 """Compiled inner loops of the windowed cooperative A* (``sim.paths.cooperative_astar``).
 
 The planner keeps its rules in Python (priorities, repair passes, fallbacks, clearance
-tables); these numba kernels only run its two hot loops on dense arrays:
+tables); these numba kernels run its hot loops on dense arrays:
 
 - ``reserve_step`` / ``reserve_path``: fold one agent's move during one step (or the moves
   of a whole path) into the reservation masks of the cells near it (the per-cell bit masks of
@@ -9,9 +9,12 @@ tables); these numba kernels only run its two hot loops on dense arrays:
   ``release_path`` all its moves (from the per-step table of reserved moves, one column per
   agent, that ``reserve_path`` fills);
 - ``space_time_search``: the space-time A* of one agent over ``window`` steps;
-- ``kept_path``: the check and greedy extension of a previous plan (``PathPlanner._kept_path``).
+- ``kept_path``: the check and greedy extension of a previous plan (``PathPlanner._kept_path``);
+- ``dense_pass``: one prioritized planning pass over all agents with the kernels above (the
+  numba backend's ``PathPlanner._dense_pass``: waits reserved up front, kept hints, searches,
+  the repair pass's reuse of unchanged outcomes), so a pass costs one call, not several per agent.
 
-Both take the same decisions as the pure-Python code (same float operations, the same pop
+They take the same decisions as the pure-Python code (same float operations, the same pop
 order as its heap of ``(f, h, t, cell)`` tuples, the same tie-breaking), which
 ``tests/test_astar_kernel.py`` checks plan for plan. Indices are the planner's padded cell ids;
 ``stride`` is the number of padded cells. The kernels are compiled on first use and cached
@@ -24,7 +27,9 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["kept_path", "release_path", "release_step", "reserve_path", "reserve_step", "space_time_search"]
+__all__ = [
+    "dense_pass", "kept_path", "release_path", "release_step", "reserve_path", "reserve_step", "space_time_search",
+]
 
 _INF = np.inf
 
@@ -323,3 +328,172 @@ def goal_distances(goal: int, nb_id: NDArray[np.int64], nb_cost: NDArray[np.floa
         size[slot] = 0
         b += 1
     return dist
+
+
+@njit(cache=True, nogil=True)
+def _mark_moves(dirty: NDArray[np.bool_], ids: NDArray[np.int64], steps: int, stride: int,
+                offsets: NDArray[np.int64]) -> None:  # pragma: no cover - compiled
+    """Flag the reservation entries ``t * stride + cell`` near the first ``steps`` moves of ``ids``."""
+    for t in range(min(steps, ids.shape[0] - 1)):
+        base = t * stride + ids[t]
+        for k in range(offsets.shape[0]):
+            dirty[base - offsets[k]] = True
+
+
+@njit(cache=True, nogil=True)
+def _mark_changes(dirty: NDArray[np.bool_], old: NDArray[np.int64], new: NDArray[np.int64], w_max: int, stride: int,
+                  offsets: NDArray[np.int64]) -> None:  # pragma: no cover - compiled
+    """Flag the entries near the moves (within ``w_max`` steps) that differ between two
+    reserved paths (both paths' cells: one reservation left, the other came)."""
+    n_old, n_new = min(w_max, old.shape[0] - 1), min(w_max, new.shape[0] - 1)
+    for t in range(max(n_old, n_new)):
+        if t < n_old and t < n_new and old[t] == new[t] and old[t + 1] == new[t + 1]:
+            continue
+        if t < n_old:
+            base = t * stride + old[t]
+            for k in range(offsets.shape[0]):
+                dirty[base - offsets[k]] = True
+        if t < n_new:
+            base = t * stride + new[t]
+            for k in range(offsets.shape[0]):
+                dirty[base - offsets[k]] = True
+
+
+@njit(cache=True, nogil=True)
+def _grown(buf: NDArray[np.int64], need: int) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """``buf``, or a copy with room for at least ``need`` entries (doubling)."""
+    if need <= buf.shape[0]:
+        return buf
+    out = np.empty(max(need, 2 * buf.shape[0]), dtype=np.int64)
+    out[: buf.shape[0]] = buf
+    return out
+
+
+@njit(cache=True, nogil=True)
+def dense_pass(
+    starts: NDArray[np.int64], goals: NDArray[np.int64], windows: NDArray[np.int64], reserve: NDArray[np.bool_],
+    hints: NDArray[np.int64], hint_len: NDArray[np.int64], h_table: NDArray[np.float64], h_kept: NDArray[np.int64],
+    h_search: NDArray[np.int64], h_extra: NDArray[np.float64],
+    nb_id: NDArray[np.int64], nb_cost: NDArray[np.float64], nb_bit: NDArray[np.int64], static_allow: NDArray[np.int64],
+    full: int, max_expansions: int, commit: int, w_max: int,
+    nyp: int, offsets: NDArray[np.int64], bases: NDArray[np.int64], mask_of: NDArray[np.int64], free: NDArray[np.bool_],
+    reach: int,
+    g_best: NDArray[np.float64], stamp: NDArray[np.int64], parent: NDArray[np.int64], token: int,
+    expanded: NDArray[np.int64], heap_f: NDArray[np.float64], heap_h: NDArray[np.float64], heap_k: NDArray[np.int64],
+    prev_idx: NDArray[np.int64], prev_reserve: NDArray[np.bool_], prev_ids: NDArray[np.int64], prev_len: NDArray[np.int64],
+    prev_reads: NDArray[np.int64], prev_off: NDArray[np.int64], prev_exp: NDArray[np.int64], prev_reused: NDArray[np.bool_],
+    prev_failed: NDArray[np.bool_],
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64],
+           NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_], int]:  # pragma: no cover - compiled
+    """One prioritized pass of A agents, in priority order (row a: the a-th agent to plan).
+
+    Per agent: padded start and goal ids, search ``windows``, ``reserve`` (its wait is
+    reserved for the ``commit`` first steps until its turn), its hint (``hints[a, :hint_len[a]]``,
+    none when 0) and heuristics: ``h_table[h_kept[a]]`` (the static distance to its goal, for the
+    kept-path check) and the search's distances ``h_table[h_search[a]]``, or
+    ``h_extra[-1 - h_search[a]]`` when negative. The reservation table has ``w_max`` steps; the
+    other arguments are the planner's tables (see ``reserve_path``, ``release_path``,
+    ``kept_path``, ``space_time_search``; ``token``: the last search token used).
+
+    ``prev_*``: the outcomes of the pass before (same hints and windows), agent ``a``'s at row
+    ``prev_idx[a]`` (-1: none; all -1 without a pass before), with that pass's reserved waits
+    ``prev_reserve`` (in this pass's rows). An agent whose previous reads (entries of the
+    reservation table) all lie outside the entries that may differ between the passes (near
+    the waits reserved in one pass only, and near every move an agent planned before it made
+    differently) takes its previous outcome without searching: the same plans.
+
+    Returns per agent the reserved ids (``ids[a, :ids_len[a]]``: the path, or the wait of a
+    failed search), the reservation entries read (``reads[off[a]:off[a + 1]]``), expansions,
+    whether the hint was kept, whether the search failed, whether the previous outcome was
+    taken; and the last search token used."""
+    n_agents = starts.shape[0]
+    stride = nb_id.shape[0]
+    near = np.full((w_max, stride), full, dtype=np.int64)
+    cells = np.full((w_max, max(1, n_agents)), -1, dtype=np.int64)
+    vels = np.zeros((w_max, max(1, n_agents)), dtype=np.int64)
+    wait = np.empty(commit + 1, dtype=np.int64)
+    wait_steps = min(commit, w_max)
+    for a in range(n_agents):  # every reserved wait first (a agent's slot is its row)
+        if reserve[a] and wait_steps > 0:
+            wait[:] = starts[a]
+            reserve_path(near, wait, wait_steps, nyp, offsets, bases, mask_of, free, cells, vels, a)
+    use_prev = False
+    for a in range(n_agents):
+        if prev_idx[a] >= 0:
+            use_prev = True
+    dirty = np.zeros(w_max * stride if use_prev else 0, dtype=np.bool_)
+    if use_prev:
+        for a in range(n_agents):
+            if reserve[a] != prev_reserve[a]:
+                wait[:] = starts[a]
+                _mark_moves(dirty, wait, commit, stride, offsets)
+    width = max(w_max, commit) + 1
+    ids = np.zeros((n_agents, width), dtype=np.int64)
+    ids_len = np.zeros(n_agents, dtype=np.int64)
+    off = np.zeros(n_agents + 1, dtype=np.int64)
+    exps = np.zeros(n_agents, dtype=np.int64)
+    reused = np.zeros(n_agents, dtype=np.bool_)
+    failed = np.zeros(n_agents, dtype=np.bool_)
+    taken = np.zeros(n_agents, dtype=np.bool_)
+    reads = np.empty(max(16, n_agents * (w_max + 1)), dtype=np.int64)
+    size = 0
+    for a in range(n_agents):
+        if reserve[a] and wait_steps > 0:
+            release_path(near, wait_steps, a, cells, vels, offsets, free, nyp, reach, mask_of, full)
+        p = prev_idx[a]
+        take = False
+        if p >= 0:
+            take = True
+            for r in range(prev_off[p], prev_off[p + 1]):
+                if dirty[prev_reads[r]]:
+                    take = False
+                    break
+        if take:
+            n = prev_len[p]
+            ids[a, :n] = prev_ids[p, :n]
+            ids_len[a] = n
+            k0, k1 = prev_off[p], prev_off[p + 1]
+            reads = _grown(reads, size + k1 - k0)
+            reads[size: size + k1 - k0] = prev_reads[k0:k1]
+            size += k1 - k0
+            exps[a], reused[a], failed[a], taken[a] = prev_exp[p], prev_reused[p], prev_failed[p], True
+        else:
+            window = windows[a]
+            kept = False
+            if hint_len[a] > 0:
+                path, steps, ok = kept_path(hints[a, : hint_len[a]], goals[a], window, h_table[h_kept[a]], nb_id,
+                                            nb_cost, nb_bit, static_allow, near, full)
+                reads = _grown(reads, size + steps)
+                for t in range(steps):
+                    reads[size + t] = t * stride + path[t]
+                size += steps
+                if ok:
+                    kept = True
+                    ids[a, : window + 1] = path
+                    ids_len[a] = window + 1
+                    reused[a] = True
+            if not kept:
+                h = h_table[h_search[a]] if h_search[a] >= 0 else h_extra[-1 - h_search[a]]
+                token += 1
+                path, n = space_time_search(starts[a], goals[a], window, h, nb_id, nb_cost, nb_bit, static_allow, near,
+                                            full, max_expansions, g_best, stamp, parent, token, expanded,
+                                            heap_f, heap_h, heap_k)
+                m = min(n, max_expansions)
+                reads = _grown(reads, size + m)
+                reads[size: size + m] = expanded[:m]
+                size += m
+                exps[a] = n
+                if path.shape[0] > 0:
+                    ids[a, : path.shape[0]] = path
+                    ids_len[a] = path.shape[0]
+                else:  # wait: safe for the committed steps, which is all it claims
+                    ids[a, : commit + 1] = starts[a]
+                    ids_len[a] = commit + 1
+                    failed[a] = True
+            if p >= 0:
+                _mark_changes(dirty, prev_ids[p, : prev_len[p]], ids[a, : ids_len[a]], w_max, stride, offsets)
+        off[a + 1] = size
+        steps = min(w_max, ids_len[a] - 1)
+        if steps > 0:
+            reserve_path(near, ids[a, : ids_len[a]], steps, nyp, offsets, bases, mask_of, free, cells, vels, a)
+    return ids, ids_len, reads[:size].copy(), off, exps, reused, failed, taken, token
