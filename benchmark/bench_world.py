@@ -63,7 +63,7 @@ from numpy.typing import NDArray
 from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.reference_data import locate_reference
 from sim.motion.database import MotionDatabase, load_databases
-from sim.motion.matching import MotionMatcher, MotionQuery, Pose
+from sim.motion.matching import MotionMatcher, MotionQuery, Pose, PoseBatch
 from sim.paths.cooperative_astar import Agent, Cell, PathPlanner, PlanResult
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
@@ -157,9 +157,16 @@ class TimedMotion:
         return out
 
     def step_many(self, states: Any, queries: Any, dt: float) -> tuple[list[Any], list[Pose]]:
-        """The batched path the world uses (``MotionMatcher.step_many``), timed."""
+        """The batched path (``MotionMatcher.step_many``), timed."""
         t0 = time.perf_counter()
         out = self._m.step_many(states, queries, dt)
+        self._c.motion_s += time.perf_counter() - t0
+        return out
+
+    def step_batch(self, states: Any, queries: Any, dt: float) -> tuple[list[Any], PoseBatch]:
+        """The batched path the world uses (``MotionMatcher.step_batch``: poses as arrays), timed."""
+        t0 = time.perf_counter()
+        out = self._m.step_batch(states, queries, dt)
         self._c.motion_s += time.perf_counter() - t0
         return out
 
