@@ -382,7 +382,7 @@ def dense_pass(
     expanded: NDArray[np.int64], heap_f: NDArray[np.float64], heap_h: NDArray[np.float64], heap_k: NDArray[np.int64],
     prev_idx: NDArray[np.int64], prev_reserve: NDArray[np.bool_], prev_ids: NDArray[np.int64], prev_len: NDArray[np.int64],
     prev_reads: NDArray[np.int64], prev_off: NDArray[np.int64], prev_exp: NDArray[np.int64], prev_reused: NDArray[np.bool_],
-    prev_failed: NDArray[np.bool_],
+    prev_failed: NDArray[np.bool_], near_scratch: NDArray[np.int64], dirty_scratch: NDArray[np.bool_],
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64],
            NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_], int]:  # pragma: no cover - compiled
     """One prioritized pass of A agents, in priority order (row a: the a-th agent to plan).
@@ -405,10 +405,13 @@ def dense_pass(
     Returns per agent the reserved ids (``ids[a, :ids_len[a]]``: the path, or the wait of a
     failed search), the reservation entries read (``reads[off[a]:off[a + 1]]``), expansions,
     whether the hint was kept, whether the search failed, whether the previous outcome was
-    taken; and the last search token used."""
+    taken; and the last search token used. ``near_scratch`` (>= ``w_max`` rows of ``stride``) and
+    ``dirty_scratch`` (>= ``w_max * stride``): memory for the reservation table and the
+    entries that changed since the pass before (overwritten)."""
     n_agents = starts.shape[0]
     stride = nb_id.shape[0]
-    near = np.full((w_max, stride), full, dtype=np.int64)
+    near = near_scratch[:w_max]
+    near[:, :] = full
     cells = np.full((w_max, max(1, n_agents)), -1, dtype=np.int64)
     vels = np.zeros((w_max, max(1, n_agents)), dtype=np.int64)
     wait = np.empty(commit + 1, dtype=np.int64)
@@ -421,7 +424,8 @@ def dense_pass(
     for a in range(n_agents):
         if prev_idx[a] >= 0:
             use_prev = True
-    dirty = np.zeros(w_max * stride if use_prev else 0, dtype=np.bool_)
+    dirty = dirty_scratch[: w_max * stride if use_prev else 0]
+    dirty[:] = False
     if use_prev:
         for a in range(n_agents):
             if reserve[a] != prev_reserve[a]:

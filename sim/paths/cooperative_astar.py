@@ -372,6 +372,8 @@ class PathPlanner:
         open_size = self._nb_id.shape[1] * max(1, self.max_expansions) + 1  # pushes: the start, then <= 9 per expansion
         self._open = (np.zeros(open_size), np.zeros(open_size), np.zeros(open_size, dtype=np.int64))  # the search's heap
         self._token = 0
+        self._near_scratch: NDArray[np.int64] | None = None  # see _pass_scratch
+        self._dirty_scratch = np.zeros(0, dtype=np.bool_)
 
     def _search_scratch(self, window: int) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
         size = (window + 1) * self._nx_p * self._ny_p
@@ -379,6 +381,14 @@ class PathPlanner:
             self._scratch = (np.zeros(size), np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64))
             self._token = 0
         return self._scratch
+
+    def _pass_scratch(self, w_max: int) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+        """Memory for ``dense_pass``'s reservation table and changed entries, kept between passes."""
+        stride = self._nx_p * self._ny_p
+        if self._near_scratch is None or len(self._near_scratch) < w_max:
+            self._near_scratch = np.empty((w_max, stride), dtype=np.int64)
+            self._dirty_scratch = np.empty(w_max * stride, dtype=np.bool_)
+        return self._near_scratch, self._dirty_scratch
 
     def _static_allow_of(
         self, statics: Sequence[NDArray[np.float64]], segments: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]]
@@ -867,7 +877,7 @@ class PathPlanner:
             self._nb_id, self._nb_cost, self._nb_bit, static_allow, self._full_mask, self.max_expansions,
             self.commit_steps, w_max, self._ny_p, self._nbhd_off, self._nbhd_base, self._mask_arr, self._free_arr,
             self.reach - 1, g_best, stamp, parent, self._token, self._expanded, *self._open,
-            prev_idx, prev_reserve, *prev,
+            prev_idx, prev_reserve, *prev, *self._pass_scratch(w_max),
         )
         record = _PassRecord(tuple(order), ids, ids_len, reads, off, exps, reused, failed, taken)
         # the cells of each path's first window + 1 ids (what ``PlanResult.paths`` holds)
