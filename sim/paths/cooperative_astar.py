@@ -660,7 +660,7 @@ class PathPlanner:
             kept = self._static_overrides(statics, static_segments)
             overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in kept.items()}
             static_allow = self._static_allow(overrides)
-        used_goals = {a: self._usable_goal(starts[a], goals.get(a), static_allow) for a in agents}
+        used_goals = self._usable_goals(agents, starts, goals, static_allow)
         heuristics: dict[Agent, NDArray[np.float64]] = {}
         for a in detour:
             if a in starts:
@@ -673,11 +673,11 @@ class PathPlanner:
         # place, the others may still be pushed), up to ``repair_passes`` times. A pass is safe
         # when every failed agent had its wait reserved. Last resort: everyone's wait reserved,
         # failed agents first with a doubled window (always safe).
-        usable: dict[Agent, list[int]] = {}
-        for a, (path, goal) in (hints or {}).items():
+        usable = self._hint_ids({
+            a: path for a, (path, goal) in (hints or {}).items()
             if (a in starts and a not in heuristics and path and tuple(path[0]) == tuple(starts[a])
-                    and tuple(goal) == tuple(used_goals[a])):
-                usable[a] = [self.cell_id(c) for c in path[: self.window + 1]]
+                and tuple(goal) == tuple(used_goals[a]))
+        })
         reserved: frozenset[Agent] = frozenset()
         result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable, static_allow,
                                         heuristics)
@@ -709,6 +709,44 @@ class PathPlanner:
             reused=result.reused,
             detour={a: float(h[self.cell_id(starts[a])]) for a, h in heuristics.items()},
         )
+
+    def _hint_ids(self, paths: Mapping[Agent, Sequence[Cell]]) -> dict[Agent, NDArray[np.int64]]:
+        """The padded ids of each path's first window + 1 cells (all paths converted at once)."""
+        if not paths:
+            return {}
+        w = self.window + 1
+        lens = [min(len(p), w) for p in paths.values()]
+        flat = np.array([c for p in paths.values() for c in p[:w]], dtype=np.int64).reshape(-1, 2)
+        ids = (flat[:, 0] + self._pad) * self._ny_p + flat[:, 1] + self._pad
+        return dict(zip(paths, np.split(ids, np.cumsum(lens)[:-1]), strict=True))
+
+    def _usable_goals(self, agents: Sequence[Agent], starts: Mapping[Agent, Cell], goals: Mapping[Agent, Cell | None],
+                      static_allow: NDArray[np.int64]) -> dict[Agent, Cell]:
+        """``_usable_goal`` of every agent: the goals that are usable as they are are found with
+        one look-up of the goal-distance table for all; the others go one by one."""
+        out: list[Cell | None] = []
+        check: list[tuple[int, Cell]] = []  # goals on free cells: usable when reachable and free to wait on
+        free, (nx, ny) = self.grid.free, self.grid.shape
+        for k, a in enumerate(agents):
+            g = goals.get(a)
+            if g is None:
+                out.append(starts[a])
+                continue
+            out.append(None)
+            if 0 <= g[0] < nx and 0 <= g[1] < ny and free[g[0], g[1]]:
+                check.append((k, g))
+        if check:
+            cid = self.cell_id
+            gids = [cid(g) for _, g in check]
+            rows = [self._heuristic_row(g) for g in gids]
+            assert self._h_table is not None
+            reach = self._h_table[rows, [cid(starts[agents[k]]) for k, _ in check]] < math.inf
+            ok = reach & ((static_allow[gids] & _WAIT_BIT) != 0)
+            for (k, g), good in zip(check, ok.tolist(), strict=True):
+                if good:
+                    out[k] = g
+        return {a: self._usable_goal(starts[a], goals.get(a), static_allow) if g is None else g
+                for a, g in zip(agents, out, strict=True)}
 
     def _usable_goal(self, start: Cell, goal: Cell | None, static_allow: NDArray[np.int64]) -> Cell:
         """``goal`` when it is reachable from ``start`` and a body may wait on it (``static_allow``:
@@ -745,7 +783,7 @@ class PathPlanner:
         overrides: Mapping[int, list[_Move]],
         extended: frozenset[Agent],
         reserve_waits: frozenset[Agent],
-        hints: Mapping[Agent, list[int]],
+        hints: Mapping[Agent, NDArray[np.int64]],
         static_allow: NDArray[np.int64],
         heuristics: Mapping[Agent, NDArray[np.float64]],
         previous: tuple[_PassRecord, frozenset[Agent]] | None = None,
@@ -756,7 +794,8 @@ class PathPlanner:
         if self.backend == "numba":
             return self._dense_pass(order, starts, goals, extended, reserve_waits, hints, static_allow, previous,
                                     heuristics)
-        return self._pass(order, starts, goals, overrides, extended, reserve_waits, heuristics, hints), None
+        lists = {a: np.asarray(h).tolist() for a, h in hints.items()}
+        return self._pass(order, starts, goals, overrides, extended, reserve_waits, heuristics, lists), None
 
     def _pass(
         self,
