@@ -697,11 +697,11 @@ class PathPlanner:
         if not result.failed <= reserved:
             order2 = failed_first(order, result.failed) if self.fallback else list(order)
             ext = result.failed if self.fallback else frozenset()
-            result, _ = self._run_pass(order2, starts, used_goals, overrides, ext, frozenset(order), {}, static_allow,
+            result, record = self._run_pass(order2, starts, used_goals, overrides, ext, frozenset(order), {}, static_allow,
                                        heuristics)
             expansions += result.expansions
         return PlanResult(
-            paths=result.paths,
+            paths=result.paths if record is None else self._record_paths(record),
             failed=result.failed,
             fallback=frozenset(fallback),
             goals=used_goals,
@@ -791,9 +791,9 @@ class PathPlanner:
         """One planning pass on this planner's backend; the dense pass also returns what each
         agent's search read (for the next repair pass, see ``_dense_pass``). ``heuristics``:
         per agent, the distances that replace its goal's static distance (see ``plan``)."""
-        if self.backend == "numba":
+        if self.backend == "numba":  # the cells of the paths: only for the last pass (see plan)
             return self._dense_pass(order, starts, goals, extended, reserve_waits, hints, static_allow, previous,
-                                    heuristics)
+                                    heuristics, cells=False)
         lists = {a: np.asarray(h).tolist() for a, h in hints.items()}
         return self._pass(order, starts, goals, overrides, extended, reserve_waits, heuristics, lists), None
 
@@ -857,9 +857,11 @@ class PathPlanner:
         static_allow: NDArray[np.int64],
         previous: tuple[_PassRecord, frozenset[Agent]] | None = None,
         heuristics: Mapping[Agent, NDArray[np.float64]] | None = None,
+        cells: bool = True,
     ) -> tuple[PlanResult, _PassRecord]:
         """``_pass`` run by the compiled ``astar_kernel.dense_pass`` (same result), recording
-        each agent's outcome.
+        each agent's outcome. ``cells`` off: ``PlanResult.paths`` is left empty (the record
+        has the paths; ``_record_paths`` turns them into cells).
 
         ``previous``: the record of the pass before (same hints and window) and the waits it
         reserved. A search (or kept-path check) is a function of the reservation entries it
@@ -919,18 +921,21 @@ class PathPlanner:
             prev_idx, prev_reserve, *prev, *self._pass_scratch(w_max),
         )
         record = _PassRecord(tuple(order), ids, ids_len, reads, off, exps, reused, failed, taken)
-        # the cells of each path's first window + 1 ids (what ``PlanResult.paths`` holds)
-        shown = ids[:, : self.window + 1]
-        ci = (shown // self._ny_p - self._pad).tolist()
-        cj = (shown % self._ny_p - self._pad).tolist()
-        lens = np.minimum(ids_len, self.window + 1).tolist()
-        paths = {a: list(zip(ci[k][: lens[k]], cj[k][: lens[k]], strict=True)) for k, a in enumerate(order)}
         result = PlanResult(
-            paths=paths, failed=frozenset(order[k] for k in np.flatnonzero(failed).tolist()), fallback=frozenset(),
+            paths=self._record_paths(record) if cells else {},
+            failed=frozenset(order[k] for k in np.flatnonzero(failed).tolist()), fallback=frozenset(),
             goals=dict(goals), expansions=int(exps.sum()),
             reused=frozenset(order[k] for k in np.flatnonzero(reused).tolist()),
         )
         return result, record
+
+    def _record_paths(self, record: _PassRecord) -> dict[Agent, list[Cell]]:
+        """The cells of each path's first window + 1 ids in a pass record (``PlanResult.paths``)."""
+        shown = record.ids[:, : self.window + 1]
+        ci = (shown // self._ny_p - self._pad).tolist()
+        cj = (shown % self._ny_p - self._pad).tolist()
+        lens = np.minimum(record.ids_len, self.window + 1).tolist()
+        return {a: list(zip(ci[k][: lens[k]], cj[k][: lens[k]], strict=True)) for k, a in enumerate(record.order)}
 
     def _kept_path(
         self, hint: list[int], goal: Cell, window: int, res: _Reservations | _DenseReservations,
