@@ -911,14 +911,17 @@ class PathPlanner:
             prev_reserve = np.zeros(n, dtype=np.bool_)
             prev = _NO_RECORD
         g_best, stamp, parent = self._search_scratch(w_max)
+        heap_f, heap_h, heap_k = self._open
+        near, dirty = self._pass_scratch(w_max)
+        p_ids, p_len, p_reads, p_off, p_exp, p_reused, p_failed = prev
         assert self._h_table is not None or n == 0
         table = self._h_table if self._h_table is not None else np.zeros((1, len(self._nb_id)))
         ids, ids_len, reads, off, exps, reused, failed, taken, self._token = dense_pass(
             start_ids, goal_ids, windows, reserve, hint_arr, hint_len, table, h_kept, h_search, h_extra,
             self._nb_id, self._nb_cost, self._nb_bit, static_allow, self._full_mask, self.max_expansions,
             self.commit_steps, w_max, self._ny_p, self._nbhd_off, self._nbhd_base, self._mask_arr, self._free_arr,
-            self.reach - 1, g_best, stamp, parent, self._token, self._expanded, *self._open,
-            prev_idx, prev_reserve, *prev, *self._pass_scratch(w_max),
+            self.reach - 1, g_best, stamp, parent, self._token, self._expanded, heap_f, heap_h, heap_k,
+            prev_idx, prev_reserve, p_ids, p_len, p_reads, p_off, p_exp, p_reused, p_failed, near, dirty,
         )
         record = _PassRecord(tuple(order), ids, ids_len, reads, off, exps, reused, failed, taken)
         result = PlanResult(
