@@ -465,8 +465,8 @@ class MotionMatcher:
             prior = _Batch.of(states, [(keys.get(s.key) or self._key(s.key)).index for s in states])
         step_dbs = self._step_dbs
         base, nxt, end, loops, completes, entry_key = self._clip_tables()
-        info_idx = np.fromiter((k.index for k in infos), dtype=np.int64, count=n)
-        force = np.fromiter((q.force_search for q in queries), dtype=np.bool_, count=n)
+        info_idx = np.array([k.index for k in infos], dtype=np.int64)
+        force = np.array([q.force_search for q in queries], dtype=np.bool_)
         frames_a, clocks_a, since_a, need_a, changed_a, entry_a, done_a = advance_clips(
             prior.frame, prior.clock, prior.since, prior.done, prior.key, info_idx, force, float(step_frames),
             self.search_interval, base, nxt, end, loops, completes, entry_key)
@@ -548,12 +548,13 @@ class MotionMatcher:
         reals[:, 0] = headings
         reals[:, 1:3] = roots
         reals[:, 3] = 0.0
-        seats = np.array([k.seat for k in step_dbs], dtype=np.bool_)
-        for i in np.flatnonzero(seats[out_key]).tolist():
-            q = queries[i]
-            if q.seat_height is not None:
-                info = step_dbs[int(out_key[i])]
-                reals[i, 3] = self._seat_correction_cached(info.db, info.frames, new_frames[i], q)
+        if any(k.seat for k in step_dbs):  # seat heights correct a seated pelvis
+            seats = np.array([k.seat for k in step_dbs], dtype=np.bool_)
+            for i in np.flatnonzero(seats[out_key]).tolist():
+                q = queries[i]
+                if q.seat_height is not None:
+                    info = step_dbs[int(out_key[i])]
+                    reals[i, 3] = self._seat_correction_cached(info.db, info.frames, new_frames[i], q)
         y = 2.0 * LN2 / max(self.blend_halflife, 1e-5) / 2.0
         eydt = float(np.exp(-y * dt))
         new_rot, new_av = np.empty((n, NUM_JOINTS, 3)), np.empty((n, NUM_JOINTS, 3))
