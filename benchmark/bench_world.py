@@ -35,14 +35,21 @@ Targets: 10 characters >= 30x real time on one core (issue 8); 50 characters >= 
 characters >= 5x (30,000 character-frames per second), 1,000 characters measured (issue 14).
 
 Issue 14 figures (2026-12-02, ``--sizes 50 200 1000``, under ``nice`` on a 2-core machine shared
-with other jobs, load average 9-10: the wall figures are several times below a quiet core's,
-the CPU-time figures steadier): 50 characters 10.3x wall / 23.0x CPU; 200 ("Office x4") 0.74x
-wall / 4.07x CPU (about 24,000 character-frames per CPU second); 1,000 ("Office x16", 2 s)
-0.22x wall / 0.63x CPU. Against the code before (commit dc64721, interleaved in the same
-session, least CPU of 3): 200 characters 0.96 -> 0.85 s CPU, 1,000 characters 4.81 -> 3.64 s
-(replan 549 -> 248 ms), with the same positions and motion searches. Where the time goes at
-200: planning about 40% (the compiled space-time search half of it), motion matching about
-20%, leg IK about 7%, the rest per-frame bookkeeping. The short 1,000-character run is
+with an LLM job, load average 3.5-4; two runs of the script, each interleaved with a run of the
+code before this round of speed-ups (commit 67f9f56) in the same session): 50 characters
+26.4-26.7x wall (before 20.2-22.3x); 200 ("Office x4") 7.2-7.3x wall / 7.3-7.7x CPU, about
+43,000 character-frames per second (before 5.4-6.2x wall, 32,500-37,000); 1,000 ("Office x16",
+2 s) 0.94-0.98x wall (before 0.70-0.74x); windowed replan at 200 11.1-11.5 ms (before 16.4-17.3).
+CPU time of the timed loop, least of the interleaved runs (9 / 6 / 3 per version): 200
+characters 0.81 -> 0.61 s per 150 frames (-24%), 50 characters 0.45 -> 0.37 s per 300 frames,
+1,000 characters 2.53 -> 2.03 s per 60 frames; the same positions, motion searches, track
+buffers and foot states bit for bit.
+(The figures before, 23.0x / 4.07x CPU at 50 / 200, were taken at load average 9-10.)
+Where the CPU time goes at 200: planning about 31% (the compiled space-time search about 20%;
+a planning pass is one compiled call), motion matching about 26%, leg IK about 7%, the rest
+per-frame bookkeeping and Python's garbage collector: a full collection walks the process's
+~140,000 objects (about 50 ms each time it comes, roughly once per 150 frames here; an
+application can skip them with ``gc.freeze()`` after loading). The short 1,000-character run is
 dominated by its first replan, which computes a goal-distance field for each of the 1,000
 new goals at once (each O(grid): the superlinear part; a longer run computes one per
 arrival); the field is a compiled bucket-queue Dijkstra (``astar_kernel.goal_distances``).
@@ -63,7 +70,7 @@ from numpy.typing import NDArray
 from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.reference_data import locate_reference
 from sim.motion.database import MotionDatabase, load_databases
-from sim.motion.matching import MotionMatcher, MotionQuery, Pose
+from sim.motion.matching import MotionMatcher, MotionQuery, Pose, PoseBatch
 from sim.paths.cooperative_astar import Agent, Cell, PathPlanner, PlanResult
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
@@ -157,9 +164,16 @@ class TimedMotion:
         return out
 
     def step_many(self, states: Any, queries: Any, dt: float) -> tuple[list[Any], list[Pose]]:
-        """The batched path the world uses (``MotionMatcher.step_many``), timed."""
+        """The batched path (``MotionMatcher.step_many``), timed."""
         t0 = time.perf_counter()
         out = self._m.step_many(states, queries, dt)
+        self._c.motion_s += time.perf_counter() - t0
+        return out
+
+    def step_batch(self, states: Any, queries: Any, dt: float) -> tuple[list[Any], PoseBatch]:
+        """The batched path the world uses (``MotionMatcher.step_batch``: poses as arrays), timed."""
+        t0 = time.perf_counter()
+        out = self._m.step_batch(states, queries, dt)
         self._c.motion_s += time.perf_counter() - t0
         return out
 

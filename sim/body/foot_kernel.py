@@ -10,6 +10,10 @@ cost a heap allocation each), with the float operations in the same order, so th
 bit for bit the one of the vector form. The array version is
 kept as a test oracle (``tests/support/foot_reference.py``); ``tests/test_foot_ik.py`` checks
 both give the same rotations and states (to 1e-12) on a recorded crowd.
+
+numba's on-disk cache of ``apply_frame`` is checked against this file only: the kernels it
+calls (``leg_ik._ik_kernel``, ``foot_clearance``) are compiled into it, so a change to them
+reaches ``apply_frame`` only once this file changes too (or its ``__pycache__`` entries go).
 """
 
 from __future__ import annotations

@@ -149,6 +149,9 @@ class StepDatabase:
     seat: bool
     sources: np.ndarray
     base: int
+    index: int = 0
+    """Its position among the databases of the matcher that made it (the step's arrays of
+    per-database facts are indexed by it)."""
 
 
 _SOURCES: dict[str, np.ndarray] = {}

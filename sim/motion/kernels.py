@@ -403,3 +403,60 @@ def nearest_rows(rows_t: NDArray[np.float64], queries: NDArray[np.float64]) -> t
         idx[q] = best
         dist[q] = bd
     return idx, dist
+
+
+@njit(cache=True)
+def advance_clips(
+    frame: NDArray[np.int64], clock: NDArray[np.float64], since: NDArray[np.int64], done: NDArray[np.bool_],
+    cur: NDArray[np.int64], info: NDArray[np.int64], force: NDArray[np.bool_], step_frames: float, interval: int,
+    base: NDArray[np.int64], nxt: NDArray[np.int64], end: NDArray[np.bool_], loops: NDArray[np.bool_],
+    completes: NDArray[np.bool_], entry_key: NDArray[np.bool_],
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_], NDArray[np.bool_],
+           NDArray[np.bool_], NDArray[np.bool_]]:
+    """The clip bookkeeping of one matcher step for N characters (``MotionMatcher.step_many``'s
+    rules): the frame clock advances by ``step_frames``; the frame follows its clip's next-frame
+    table for every whole frame passed (stopping at a non-looping end); a search is needed on a
+    database change (``info`` != ``cur``, the key indices of the query's and the state's
+    databases), a forced search, after ``interval`` frames and at a clip's end, except that a
+    completing database (``completes``) plays a non-looping clip through.
+
+    Frames are per database; ``base[key]`` places a database's frames in the tables ``nxt``
+    (next frame, per database), ``end`` (a non-loop end) and ``loops`` (the frame's clip
+    loops). Returns (frame, clock, since-search, need search, database changed, search the
+    entry index, done) per character."""
+    n = frame.shape[0]
+    out_frame = np.empty(n, dtype=np.int64)
+    out_clock = np.empty(n)
+    out_since = np.empty(n, dtype=np.int64)
+    need = np.empty(n, dtype=np.bool_)
+    changed = np.empty(n, dtype=np.bool_)
+    entry = np.empty(n, dtype=np.bool_)
+    out_done = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        c = clock[i] + step_frames
+        n_adv = math.floor(c + 1e-9)
+        c -= n_adv
+        b = base[cur[i]]
+        f = frame[i]
+        ended = False
+        for _ in range(n_adv):
+            if end[b + f]:
+                ended = True
+                break
+            f = nxt[b + f]
+        ch = info[i] != cur[i]
+        comp = (not ch) and completes[info[i]] and not loops[b + f]
+        dn = done[i] and not ch
+        sn = since[i] + n_adv
+        nd = ch or force[i] or (sn >= interval and not comp) or (ended and not comp)
+        if ended and comp:  # completing actions play through
+            dn = True
+            nd = ch or force[i]
+        out_frame[i] = f
+        out_clock[i] = c
+        out_since[i] = 0 if nd else sn
+        need[i] = nd
+        changed[i] = ch
+        entry[i] = ch and entry_key[info[i]]
+        out_done[i] = dn
+    return out_frame, out_clock, out_since, need, changed, entry, out_done

@@ -45,7 +45,7 @@ from sim.motion.frames import (
     shared_table,
 )
 from sim.motion.inertialization import LN2
-from sim.motion.kernels import OFFSETS, PARENT_INDEX, query_features, step_poses
+from sim.motion.kernels import OFFSETS, PARENT_INDEX, advance_clips, query_features, step_poses
 
 
 class MotionMatchingError(ValueError):
@@ -172,6 +172,72 @@ def _pose_joints(states: Sequence[MatchState]) -> tuple[NDArray[np.float64], NDA
 _NO_SWITCH = (np.empty((0, 2), dtype=np.int64), np.empty((2, 0, NUM_JOINTS, 3)), np.empty((2, 0, 3)))
 
 
+@dataclass(frozen=True)
+class PoseBatch:
+    """The output poses of a batched step as arrays, row i for character i: pelvis (N,3),
+    local_rotations (N,22,3,3) (joint 0 the world pelvis rotation), root_xy / heading per
+    character, contacts (N,2) bool. ``poses()`` gives them as ``Pose`` objects."""
+
+    pelvis: NDArray[np.float64]
+    local_rotations: NDArray[np.float64]
+    root_xy: Sequence[NDArray[np.float64]]
+    heading: Sequence[float]
+    contacts: NDArray[np.bool_]
+
+    def poses(self) -> list[Pose]:
+        new = object.__new__
+        out = []
+        for pel, loc, root, head, con in zip(list(self.pelvis), list(self.local_rotations), self.root_xy, self.heading,
+                                             list(self.contacts), strict=True):
+            pose = new(Pose)  # a frozen dataclass, filled as its __init__ would
+            pose.__dict__.update(pelvis=pel, local_rotations=loc, root_xy=root, heading=head, contacts=con)
+            out.append(pose)
+        return out
+
+
+_ClipTables = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_],
+                    NDArray[np.bool_]]
+"""``advance_clips``'s tables: per database base, per global frame next frame, non-loop end and
+looping clip, per database completes and entry index (``MotionMatcher._clip_tables``)."""
+
+
+@dataclass(frozen=True)
+class _Batch:
+    """The states a batched step returned, with their fields as arrays (row i: state i), so
+    that the next step, handed those very states back, reads arrays instead of N objects:
+    database index (``StepDatabase.index``), frame, frame clock, frames since the last
+    search, done, elapsed, switches, searches, the offset arrays (rotation, angular velocity,
+    pelvis, pelvis velocity) and the output poses (rows)."""
+
+    states: tuple[MatchState, ...]
+    key: NDArray[np.int64]
+    frame: NDArray[np.int64]
+    clock: NDArray[np.float64]
+    since: NDArray[np.int64]
+    done: NDArray[np.bool_]
+    elapsed: NDArray[np.float64]
+    switches: NDArray[np.int64]
+    searches: NDArray[np.int64]
+    offsets: tuple[NDArray[np.float64], ...] = ()
+    pose_local: Sequence[NDArray[np.float64] | None] = ()
+    pose_pelvis: Sequence[NDArray[np.float64] | None] = ()
+
+    @classmethod
+    def of(cls, states: Sequence[MatchState], keys: Sequence[int]) -> _Batch:
+        """The array fields of any states (``keys``: their database indices); no offsets or poses."""
+        n = len(states)
+        return cls(
+            states=tuple(states), key=np.array(keys, dtype=np.int64).reshape(n),
+            frame=np.fromiter((s.frame for s in states), dtype=np.int64, count=n),
+            clock=np.fromiter((s.frame_clock for s in states), dtype=np.float64, count=n),
+            since=np.fromiter((s.since_search for s in states), dtype=np.int64, count=n),
+            done=np.fromiter((s.done for s in states), dtype=np.bool_, count=n),
+            elapsed=np.fromiter((s.elapsed for s in states), dtype=np.float64, count=n),
+            switches=np.fromiter((s.switches for s in states), dtype=np.int64, count=n),
+            searches=np.fromiter((s.searches for s in states), dtype=np.int64, count=n),
+        )
+
+
 class MotionMatcher:
     """Motion matching over ``databases`` (database key -> MotionDatabase)."""
 
@@ -191,9 +257,12 @@ class MotionMatcher:
         self._keys: dict[str, StepDatabase] = {}
         self._store = shared_store(self.databases)
         self._by_label: dict[tuple[str, bool], StepDatabase] = {}
-        # (states returned by the last step_many, their offset arrays): lets the next call skip
-        # re-stacking per-character offsets when it gets those very states back
-        self._last_batch: tuple[tuple[MatchState, ...], tuple[NDArray[np.float64], ...]] | None = None
+        self._step_dbs: list[StepDatabase] = []  # by StepDatabase.index
+        self._clip_arrays_for = 0  # databases in _clip_arrays
+        self._clip_arrays: _ClipTables | None = None  # see _clip_tables
+        # the states returned by the last step and their fields as arrays: lets the next call
+        # skip reading N objects when it gets those very states back
+        self._last_batch: _Batch | None = None
 
     def database(self, label: str, seated: bool = False) -> MotionDatabase:
         key = database_key(label, seated)
@@ -282,7 +351,9 @@ class MotionMatcher:
             frames, tab = self.frames(key), self._table(key)
             out = self._keys[key] = StepDatabase(
                 key=key, db=db, tab=tab, frames=frames, seat=db.layout_name in ("sitting", "seated"),
-                sources=feature_sources(db.layout_name), base=self._store.base(key, frames, db.contacts))
+                sources=feature_sources(db.layout_name), base=self._store.base(key, frames, db.contacts),
+                index=len(self._step_dbs))
+            self._step_dbs.append(out)
         return out
 
     def _query_key(self, query: MotionQuery) -> StepDatabase:
@@ -346,85 +417,89 @@ class MotionMatcher:
     def step_many(self, states: Sequence[MatchState], queries: Sequence[MotionQuery],
                   dt: float) -> tuple[list[MatchState], list[Pose]]:
         """Advance several independent characters by ``dt`` seconds, batched: searches are
-        grouped per database; inertialization, the output poses and the query features run in
-        compiled kernels over all characters (``sim.motion.kernels``). Same result as ``step``
-        on each character, and as the numpy version (``tests.support.motion_reference``)."""
+        grouped per database; the clip bookkeeping, inertialization, the output poses and the
+        query features run in compiled kernels over all characters (``sim.motion.kernels``).
+        Same result as ``step`` on each character, and as the numpy version
+        (``tests.support.motion_reference``)."""
+        out_states, batch = self.step_batch(states, queries, dt)
+        return out_states, batch.poses()
+
+    def _clip_tables(self) -> _ClipTables:
+        """The frame tables of the databases used so far, for ``advance_clips``: per database
+        index (``StepDatabase.index``) its base and whether it completes / has an entry index;
+        per global frame (base + frame) the next frame, non-loop end, looping clip."""
+        n_keys = len(self._step_dbs)
+        if self._clip_arrays is None or self._clip_arrays_for != n_keys:
+            size = max((k.base + len(k.tab.nxt) for k in self._step_dbs), default=0)
+            nxt = np.zeros(size, dtype=np.int64)
+            end = np.zeros(size, dtype=np.bool_)
+            loops = np.zeros(size, dtype=np.bool_)
+            for k in self._step_dbs:
+                f = len(k.tab.nxt)
+                nxt[k.base: k.base + f] = k.tab.nxt
+                end[k.base: k.base + f] = k.tab.end
+                loops[k.base: k.base + f] = k.tab.loops
+            self._clip_arrays = (np.array([k.base for k in self._step_dbs], dtype=np.int64), nxt, end, loops,
+                            np.array([k.tab.completes for k in self._step_dbs], dtype=np.bool_),
+                            np.array([k.tab.entry for k in self._step_dbs], dtype=np.bool_))
+            self._clip_arrays_for = n_keys
+        return self._clip_arrays
+
+    def step_batch(self, states: Sequence[MatchState], queries: Sequence[MotionQuery],
+                   dt: float) -> tuple[list[MatchState], PoseBatch]:
+        """``step_many`` with the poses as arrays (``PoseBatch``), for callers that use them
+        as arrays (the world's frame assembly): no per-character ``Pose`` objects."""
         if len(states) != len(queries):
             raise ValueError(f"{len(states)} states but {len(queries)} queries")
         n = len(states)
         if n == 0:
-            return [], []
+            return [], PoseBatch(np.empty((0, 3)), np.empty((0, NUM_JOINTS, 3, 3)), [], [], np.empty((0, 2), dtype=bool))
         step_frames = dt * FPS
-        interval = self.search_interval
-        keys, by_label = self._keys, self._by_label
+        by_label = self._by_label
         infos = [by_label.get((q.label, q.seated)) or self._query_key(q) for q in queries]
-        curs: list[StepDatabase] = []
-        clocks, roots, headings, frames, since = [], [], [], [], []
-        changed, entry, done, need = [], [], [], []
-        for state, query, info in zip(states, queries, infos, strict=True):
-            cur = keys.get(state.key) or self._key(state.key)
-            curs.append(cur)
-            clock = state.frame_clock + step_frames
-            n_adv = math.floor(clock + 1e-9)
-            clock -= n_adv
-            frame, ended = state.frame, False
+        keys = self._keys
+        last = self._last_batch
+        if last is not None and len(last.states) == n and all(a is b for a, b in zip(last.states, states, strict=True)):
+            prior = last  # the very states returned last time: their fields are rows of these arrays
+        else:
+            prior = _Batch.of(states, [(keys.get(s.key) or self._key(s.key)).index for s in states])
+        step_dbs = self._step_dbs
+        base, nxt, end, loops, completes, entry_key = self._clip_tables()
+        info_idx = np.array([k.index for k in infos], dtype=np.int64)
+        force = np.array([q.force_search for q in queries], dtype=np.bool_)
+        frames_a, clocks_a, since_a, need_a, changed_a, entry_a, done_a = advance_clips(
+            prior.frame, prior.clock, prior.since, prior.done, prior.key, info_idx, force, float(step_frames),
+            self.search_interval, base, nxt, end, loops, completes, entry_key)
+        roots: list[NDArray[np.float64]] = []
+        headings: list[float] = []
+        f64 = np.float64
+        for i, query in enumerate(queries):
             q_root, q_head = query.root_xy, query.heading
             if q_root is not None and q_head is not None:  # root given: no root motion
-                tab = cur.tab
-                nxt_of, end_of = tab.nxt, tab.end
-                for _ in range(n_adv):
-                    if end_of[frame]:
-                        ended = True
-                        break
-                    frame = nxt_of[frame]
-                if type(q_root) is np.ndarray and q_root.dtype == np.float64 and q_root.shape == (2,):
-                    root_xy = q_root
+                if type(q_root) is np.ndarray and q_root.dtype == f64 and q_root.shape == (2,):
+                    roots.append(q_root)
                 else:
-                    root_xy = np.asarray(q_root, dtype=np.float64).reshape(2)
-                heading = float(q_head)
-            else:
-                db = cur.db
-                root_xy, heading = state.root_xy.copy(), state.heading
-                for _ in range(n_adv):
-                    nxt, end = db.next_frame(frame)
-                    if end:
-                        ended = True
-                        break
-                    if nxt == frame + 1:  # root motion of the database (not across a loop seam)
-                        d = db.root_xy[nxt] - db.root_xy[frame]
-                        c, s = np.cos(heading - db.heading[frame]), np.sin(heading - db.heading[frame])
-                        root_xy = root_xy + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
-                        heading += float(db.heading[nxt] - db.heading[frame])
-                    frame = nxt
+                    roots.append(np.asarray(q_root, dtype=np.float64).reshape(2))
+                headings.append(float(q_head))
+            else:  # the database's root motion over the frames the clock passed
+                root_xy, heading = self._root_motion(states[i], step_dbs[int(prior.key[i])].db, step_frames)
                 if q_root is not None:
                     root_xy = np.asarray(q_root, dtype=np.float64).reshape(2)
                 if q_head is not None:
                     heading = float(q_head)
-            ch = info is not cur
-            comp = not ch and info.tab.completes and not info.tab.loops[frame]
-            dn = state.done and not ch
-            sn = state.since_search + n_adv
-            nd = ch or query.force_search or (sn >= interval and not comp) or (ended and not comp)
-            if ended and comp:  # completing actions play through
-                dn = True
-                nd = ch or query.force_search
-            clocks.append(clock)
-            roots.append(root_xy)
-            headings.append(float(heading))
-            frames.append(frame)
-            since.append(0 if nd else sn)
-            changed.append(ch)
-            entry.append(ch and info.tab.entry)
-            done.append(dn)
-            need.append(nd)
+                roots.append(root_xy)
+                headings.append(float(heading))
+        frames = frames_a.tolist()
+        changed = changed_a.tolist()
+        entry = entry_a.tolist()
+        curs = [step_dbs[k] for k in prior.key.tolist()]
 
         # searches, grouped per (database, entry index)
         new_frames = list(frames)
         switched: list[int] = []
         groups: dict[tuple[str, bool], list[int]] = {}
-        for i in range(n):
-            if need[i]:
-                groups.setdefault((infos[i].key, entry[i]), []).append(i)
+        for i in np.flatnonzero(need_a).tolist():
+            groups.setdefault((infos[i].key, entry[i]), []).append(i)
         for (_key, ent), members in groups.items():
             info = infos[members[0]]
             db = info.db
@@ -442,14 +517,15 @@ class MotionMatcher:
                     new_frames[i] = b
         switched.sort()
 
-        last = self._last_batch
-        if last is not None and len(last[0]) == n and all(a is b for a, b in zip(last[0], states, strict=True)):
-            off_rot, off_av, off_pos, off_vel = last[1]  # the states returned last time: rows of these
+        if prior is last:
+            off_rot, off_av, off_pos, off_vel = last.offsets
         else:
             off_rot, off_av, off_pos, off_vel = (
                 np.ascontiguousarray(np.stack([getattr(s, f) for s in states]), dtype=np.float64)
                 for f in ("offset_rot", "offset_ang_vel", "offset_pos", "offset_vel"))
-        slot = [-1] * n
+        out_key = prior.key.copy()
+        slot = np.full(n, -1, dtype=np.int64)
+        done_a = done_a.copy()
         if switched:
             m = len(switched)
             sw_idx = np.empty((m, 2), dtype=np.int64)
@@ -460,17 +536,25 @@ class MotionMatcher:
                 sf, df = frames[i], new_frames[i]
                 sw_idx[r] = src.base + sf, dst.base + df
                 (sw_av[0, r], sw_lin[0, r]), (sw_av[1, r], sw_lin[1, r]) = src.frames.motion(sf), dst.frames.motion(df)
-                done[i] = False
+                done_a[i] = False
+                out_key[i] = dst.index
         else:
             sw_idx, sw_av, sw_lin = _NO_SWITCH
-        out_info = [infos[i] if slot[i] >= 0 else curs[i] for i in range(n)]
-        chars = np.array([(k.base + f, sl) for k, f, sl in zip(out_info, new_frames, slot, strict=True)],
-                         dtype=np.int64)
+        new_frames_a = np.array(new_frames, dtype=np.int64)
+        chars = np.empty((n, 2), dtype=np.int64)
+        chars[:, 0] = base[out_key] + new_frames_a
+        chars[:, 1] = slot
         reals = np.empty((n, 4))
         reals[:, 0] = headings
         reals[:, 1:3] = roots
-        reals[:, 3] = [self._seat_correction_cached(info.db, info.frames, f, q) if info.seat and q.seat_height is not None
-                       else 0.0 for info, f, q in zip(out_info, new_frames, queries, strict=True)]
+        reals[:, 3] = 0.0
+        if any(k.seat for k in step_dbs):  # seat heights correct a seated pelvis
+            seats = np.array([k.seat for k in step_dbs], dtype=np.bool_)
+            for i in np.flatnonzero(seats[out_key]).tolist():
+                q = queries[i]
+                if q.seat_height is not None:
+                    info = step_dbs[int(out_key[i])]
+                    reals[i, 3] = self._seat_correction_cached(info.db, info.frames, new_frames[i], q)
         y = 2.0 * LN2 / max(self.blend_halflife, 1e-5) / 2.0
         eydt = float(np.exp(-y * dt))
         new_rot, new_av = np.empty((n, NUM_JOINTS, 3)), np.empty((n, NUM_JOINTS, 3))
@@ -480,28 +564,53 @@ class MotionMatcher:
         step_poses(off_rot, off_av, off_pos, off_vel, chars, reals, sw_idx, sw_av, sw_lin, store.rot, store.aux,
                    y, float(dt), eydt, new_rot, new_av, new_pos, new_vel, local, pelvis, contacts)
 
-        out_states, poses = [], []
+        elapsed_a = np.where(changed_a, 0.0, prior.elapsed + dt)
+        switches_a = prior.switches + (slot >= 0)
+        searches_a = prior.searches + need_a
+        out_states = []
         pose_dt = float(dt)
         new = object.__new__
         rots, avs, poss, vels = list(new_rot), list(new_av), list(new_pos), list(new_vel)
-        locs, pels, cons = list(local), list(pelvis), list(contacts)
-        for i, state in enumerate(states):
-            pose = new(Pose)
-            pose.__dict__.update(pelvis=pels[i], local_rotations=locs[i], root_xy=roots[i], heading=headings[i],
-                                 contacts=cons[i])
-            poses.append(pose)
+        locs, pels = list(local), list(pelvis)
+        prev_l, prev_p = (last.pose_local, last.pose_pelvis) if prior is last else (
+            [s.pose_local for s in states], [s.pose_pelvis for s in states])
+        key_names = [k.key for k in step_dbs]
+        for i, (key, frame, clock, since_i, el, dn, sw, se) in enumerate(zip(
+                out_key.tolist(), new_frames, clocks_a.tolist(), since_a.tolist(), elapsed_a.tolist(), done_a.tolist(),
+                switches_a.tolist(), searches_a.tolist(), strict=True)):
             st = new(MatchState)
             st.__dict__.update(
-                key=out_info[i].key, frame=new_frames[i], root_xy=roots[i], heading=headings[i],
-                frame_clock=clocks[i], since_search=since[i], offset_rot=rots[i], offset_ang_vel=avs[i],
+                key=key_names[key], frame=frame, root_xy=roots[i], heading=headings[i],
+                frame_clock=clock, since_search=since_i, offset_rot=rots[i], offset_ang_vel=avs[i],
                 offset_pos=poss[i], offset_vel=vels[i], pose_local=locs[i], pose_pelvis=pels[i],
-                prev_local=state.pose_local, prev_pelvis=state.pose_pelvis, pose_dt=pose_dt,
-                elapsed=0.0 if changed[i] else state.elapsed + dt, done=done[i],
-                switches=state.switches + (1 if slot[i] >= 0 else 0), searches=state.searches + int(need[i]),
+                prev_local=prev_l[i], prev_pelvis=prev_p[i], pose_dt=pose_dt, elapsed=el, done=dn,
+                switches=sw, searches=se,
             )
             out_states.append(st)
-        self._last_batch = (tuple(out_states), (new_rot, new_av, new_pos, new_vel))
-        return out_states, poses
+        self._last_batch = _Batch(
+            states=tuple(out_states), offsets=(new_rot, new_av, new_pos, new_vel), key=out_key, frame=new_frames_a,
+            clock=clocks_a, since=since_a, done=done_a, elapsed=elapsed_a, switches=switches_a, searches=searches_a,
+            pose_local=locs, pose_pelvis=pels)
+        return out_states, PoseBatch(pelvis, local, roots, headings, contacts)
+
+    @staticmethod
+    def _root_motion(state: MatchState, db: MotionDatabase, step_frames: float) -> tuple[NDArray[np.float64], float]:
+        """Root xy and heading after the database's own root motion over the frames the clock
+        passes this step (a character whose query gives no root)."""
+        n_adv = math.floor(state.frame_clock + step_frames + 1e-9)
+        frame = state.frame
+        root_xy, heading = state.root_xy.copy(), state.heading
+        for _ in range(n_adv):
+            nxt, end = db.next_frame(frame)
+            if end:
+                break
+            if nxt == frame + 1:  # root motion of the database (not across a loop seam)
+                d = db.root_xy[nxt] - db.root_xy[frame]
+                c, s = np.cos(heading - db.heading[frame]), np.sin(heading - db.heading[frame])
+                root_xy = root_xy + np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+                heading += float(db.heading[nxt] - db.heading[frame])
+            frame = nxt
+        return root_xy, heading
 
     @staticmethod
     def _seat_correction_cached(db: MotionDatabase, frames: DatabaseFrames, frame: int, query: MotionQuery) -> float:

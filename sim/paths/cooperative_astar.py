@@ -41,17 +41,16 @@ import heapq
 import math
 from collections.abc import Collection, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Literal, get_args
+from typing import Any, Literal, get_args
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sim.paths.astar_kernel import (
+    dense_pass,
     goal_distances,
-    kept_path,
     release_path,
     reserve_path,
-    space_time_search,
 )
 from sim.paths.fallback import failed_first
 from sim.paths.nav_grid import MOVES, NavGrid
@@ -97,18 +96,29 @@ class PlanResult:
 
 
 @dataclass(frozen=True)
-class _Outcome:
-    """One agent's result in a dense pass: the padded ids it reserved (its path, or its wait),
-    the reservation entries (``t * cells + cell``) its kept-path check and search read, the
-    search's expansions, whether the path was a kept hint or the search failed, and the
-    path's first window + 1 cells (what ``PlanResult.paths`` holds)."""
+class _PassRecord:
+    """The outcomes of one dense pass (``astar_kernel.dense_pass``), row k for ``order[k]``:
+    the padded ids it reserved (``ids[k, :ids_len[k]]``: its path, or its wait), the
+    reservation entries (``t * cells + cell``) its kept-path check and search read
+    (``reads[off[k]:off[k + 1]]``), the search's expansions, whether the path was a kept hint,
+    whether the search failed, and whether the outcome was taken over from the pass before."""
 
+    order: tuple[Agent, ...]
     ids: NDArray[np.int64]
+    ids_len: NDArray[np.int64]
     reads: NDArray[np.int64]
-    expansions: int
-    reused: bool
-    failed: bool
-    cells: list[Cell]
+    off: NDArray[np.int64]
+    expansions: NDArray[np.int64]
+    reused: NDArray[np.bool_]
+    failed: NDArray[np.bool_]
+    taken: NDArray[np.bool_]
+
+
+# ``dense_pass``'s previous-pass arguments when there is no pass before
+_NO_RECORD: tuple[NDArray[Any], ...] = (
+    np.zeros((1, 1), dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64),
+    np.zeros(2, dtype=np.int64), np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.bool_), np.zeros(1, dtype=np.bool_),
+)
 
 
 class _Reservations:
@@ -257,8 +267,12 @@ class PathPlanner:
         self._build_clearance_table(d_cells)
         self._build_move_masks()
         self._build_dense_tables()
-        self._heuristics: dict[int, list[float]] = {}  # list views of some of _h_arrays
-        self._h_arrays: dict[int, NDArray[np.float64]] = {}
+        self._heuristics: dict[int, list[float]] = {}  # list views of some rows of _h_table
+        # goal distances, one row per goal (see _heuristic_row): the compiled pass reads them by row
+        self._h_table: NDArray[np.float64] | None = None
+        self._h_rows: dict[int, int] = {}  # goal id -> row, oldest first
+        self._h_pinned: NDArray[np.int64] = np.zeros(0, dtype=np.int64)  # per row: the pass that last read it
+        self._h_epoch = 0
         self._components: dict[int, tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]] = {}
         self._h_capacity = max(513, (256 << 20) // (8 * self._nx_p * self._ny_p))
         self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
@@ -355,7 +369,11 @@ class PathPlanner:
         self._removed_bits_memo: dict[tuple[bytes, bytes], tuple[NDArray[np.int64], NDArray[np.int64]]] = {}
         self._scratch: tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]] | None = None
         self._expanded = np.zeros(max(1, self.max_expansions), dtype=np.int64)  # the search's expanded keys
+        open_size = self._nb_id.shape[1] * max(1, self.max_expansions) + 1  # pushes: the start, then <= 9 per expansion
+        self._open = (np.zeros(open_size), np.zeros(open_size), np.zeros(open_size, dtype=np.int64))  # the search's heap
         self._token = 0
+        self._near_scratch: NDArray[np.int64] | None = None  # see _pass_scratch
+        self._dirty_scratch = np.zeros(0, dtype=np.bool_)
 
     def _search_scratch(self, window: int) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
         size = (window + 1) * self._nx_p * self._ny_p
@@ -363,6 +381,14 @@ class PathPlanner:
             self._scratch = (np.zeros(size), np.zeros(size, dtype=np.int64), np.zeros(size, dtype=np.int64))
             self._token = 0
         return self._scratch
+
+    def _pass_scratch(self, w_max: int) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+        """Memory for ``dense_pass``'s reservation table and changed entries, kept between passes."""
+        stride = self._nx_p * self._ny_p
+        if self._near_scratch is None or len(self._near_scratch) < w_max:
+            self._near_scratch = np.empty((w_max, stride), dtype=np.int64)
+            self._dirty_scratch = np.empty(w_max * stride, dtype=np.bool_)
+        return self._near_scratch, self._dirty_scratch
 
     def _static_allow_of(
         self, statics: Sequence[NDArray[np.float64]], segments: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]]
@@ -431,24 +457,59 @@ class PathPlanner:
         return h
 
     def _heuristic_array(self, goal: Cell) -> NDArray[np.float64]:
-        """``heuristic(goal)`` as a float array (the compiled search's view), cached per goal:
-        ``goal_distances`` on the move table, the floats ``scipy.sparse.csgraph.dijkstra`` gives
-        on the same graph (``tests/test_astar_kernel.py``).
+        """``heuristic(goal)`` as a float array (the compiled search's view): a row of the
+        goal-distance cache (``_heuristic_row``). The row is this goal's until the cache evicts
+        it: read it before asking for other goals' distances, or copy it."""
+        table_row: NDArray[np.float64] = self._h_table_row(self._heuristic_row(self.cell_id(goal)))
+        return table_row
+
+    def _h_table_row(self, row: int) -> NDArray[np.float64]:
+        assert self._h_table is not None
+        out: NDArray[np.float64] = self._h_table[row]
+        return out
+
+    def _heuristic_row(self, gid: int) -> int:
+        """The row of ``_h_table`` holding the distances to goal id ``gid``: ``goal_distances``
+        on the move table, the floats ``scipy.sparse.csgraph.dijkstra`` gives on the same graph
+        (``tests/test_astar_kernel.py``), computed on first use and cached.
 
         The cache holds at least 512 goals and as many more as fit in about 256 MB (a crowd
         of N walkers has up to N goals; a goal evicted while still in use costs a Dijkstra
-        over the grid per replan); the oldest goal goes first."""
-        gid = self.cell_id(goal)
-        arr = self._h_arrays.get(gid)
-        if arr is None:
+        over the grid per replan); the oldest goal goes first, except that a row read in the
+        current pass (``_h_epoch``) is never evicted (the table grows instead), so a pass can
+        look up all its rows before it runs. The table is allocated at its full size on first
+        use (memory pages are only taken as rows are written)."""
+        row = self._h_rows.get(gid)
+        if row is None:
+            row = self._free_heuristic_row()
             if self._ring is None:
                 self._ring = np.zeros((3, self._nb_id.shape[0] * self._nb_id.shape[1] + 1), dtype=np.int64)
-            if len(self._h_arrays) >= self._h_capacity:
-                old = next(iter(self._h_arrays))
-                self._h_arrays.pop(old)
-                self._heuristics.pop(old, None)
-            arr = self._h_arrays[gid] = goal_distances(gid, self._nb_id, self._nb_cost, self._ring)
-        return arr
+            assert self._h_table is not None
+            self._h_table[row] = goal_distances(gid, self._nb_id, self._nb_cost, self._ring)
+            self._h_rows[gid] = row
+        self._h_pinned[row] = self._h_epoch
+        return row
+
+    def _free_heuristic_row(self) -> int:
+        """A row for a new goal: an unused one, else the oldest goal's (dropped from the cache)
+        that the current pass has not read, else a new one (the table grows)."""
+        n = self._nb_id.shape[0]
+        if self._h_table is None:
+            self._h_table = np.empty((self._h_capacity, n))
+            self._h_pinned = np.full(self._h_capacity, -1, dtype=np.int64)
+        used = len(self._h_rows)  # rows 0 .. used - 1 hold goals
+        if used < self._h_capacity:
+            return used
+        for gid, row in self._h_rows.items():
+            if self._h_pinned[row] != self._h_epoch:
+                del self._h_rows[gid]
+                self._heuristics.pop(gid, None)
+                return row
+        if used == len(self._h_table):  # every cached goal is read by this pass: rare
+            grow = max(16, len(self._h_table) // 4)
+            self._h_table = np.concatenate([self._h_table, np.empty((grow, n))])
+            self._h_pinned = np.concatenate([self._h_pinned, np.full(grow, -1, dtype=np.int64)])
+        return used
 
     def detour_distances(self, goal: Cell, static_allow: NDArray[np.int64]) -> NDArray[np.float64]:
         """Distances (cells) to ``goal`` per padded cell id along the moves ``static_allow``
@@ -580,6 +641,7 @@ class PathPlanner:
         they keep no hint. ``PlanResult.detour`` gives their remaining distance.
         """
         agents = list(starts)
+        self._h_epoch += 1  # goal distances read by an earlier call may be evicted (see _heuristic_row)
         for a in agents:
             s = starts[a]
             if not self.grid.is_free(*s):
@@ -598,7 +660,7 @@ class PathPlanner:
             kept = self._static_overrides(statics, static_segments)
             overrides = {cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in kept.items()}
             static_allow = self._static_allow(overrides)
-        used_goals = {a: self._usable_goal(starts[a], goals.get(a), static_allow) for a in agents}
+        used_goals = self._usable_goals(agents, starts, goals, static_allow)
         heuristics: dict[Agent, NDArray[np.float64]] = {}
         for a in detour:
             if a in starts:
@@ -611,11 +673,11 @@ class PathPlanner:
         # place, the others may still be pushed), up to ``repair_passes`` times. A pass is safe
         # when every failed agent had its wait reserved. Last resort: everyone's wait reserved,
         # failed agents first with a doubled window (always safe).
-        usable: dict[Agent, list[int]] = {}
-        for a, (path, goal) in (hints or {}).items():
+        usable = self._hint_ids({
+            a: path for a, (path, goal) in (hints or {}).items()
             if (a in starts and a not in heuristics and path and tuple(path[0]) == tuple(starts[a])
-                    and tuple(goal) == tuple(used_goals[a])):
-                usable[a] = [self.cell_id(c) for c in path[: self.window + 1]]
+                and tuple(goal) == tuple(used_goals[a]))
+        })
         reserved: frozenset[Agent] = frozenset()
         result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable, static_allow,
                                         heuristics)
@@ -628,17 +690,18 @@ class PathPlanner:
             # reservations that did not change take that pass's result (``_dense_pass``)
             before, reserved = reserved, reserved | result.failed
             result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable,
-                                            static_allow, heuristics, previous=(record, before))
+                                            static_allow, heuristics,
+                                            previous=None if record is None else (record, before))
             fallback |= result.failed
             expansions += result.expansions
         if not result.failed <= reserved:
             order2 = failed_first(order, result.failed) if self.fallback else list(order)
             ext = result.failed if self.fallback else frozenset()
-            result, _ = self._run_pass(order2, starts, used_goals, overrides, ext, frozenset(order), {}, static_allow,
+            result, record = self._run_pass(order2, starts, used_goals, overrides, ext, frozenset(order), {}, static_allow,
                                        heuristics)
             expansions += result.expansions
         return PlanResult(
-            paths=result.paths,
+            paths=result.paths if record is None else self._record_paths(record),
             failed=result.failed,
             fallback=frozenset(fallback),
             goals=used_goals,
@@ -646,6 +709,44 @@ class PathPlanner:
             reused=result.reused,
             detour={a: float(h[self.cell_id(starts[a])]) for a, h in heuristics.items()},
         )
+
+    def _hint_ids(self, paths: Mapping[Agent, Sequence[Cell]]) -> dict[Agent, NDArray[np.int64]]:
+        """The padded ids of each path's first window + 1 cells (all paths converted at once)."""
+        if not paths:
+            return {}
+        w = self.window + 1
+        lens = [min(len(p), w) for p in paths.values()]
+        flat = np.array([c for p in paths.values() for c in p[:w]], dtype=np.int64).reshape(-1, 2)
+        ids = (flat[:, 0] + self._pad) * self._ny_p + flat[:, 1] + self._pad
+        return dict(zip(paths, np.split(ids, np.cumsum(lens)[:-1]), strict=True))
+
+    def _usable_goals(self, agents: Sequence[Agent], starts: Mapping[Agent, Cell], goals: Mapping[Agent, Cell | None],
+                      static_allow: NDArray[np.int64]) -> dict[Agent, Cell]:
+        """``_usable_goal`` of every agent: the goals that are usable as they are are found with
+        one look-up of the goal-distance table for all; the others go one by one."""
+        out: list[Cell | None] = []
+        check: list[tuple[int, Cell]] = []  # goals on free cells: usable when reachable and free to wait on
+        free, (nx, ny) = self.grid.free, self.grid.shape
+        for k, a in enumerate(agents):
+            g = goals.get(a)
+            if g is None:
+                out.append(starts[a])
+                continue
+            out.append(None)
+            if 0 <= g[0] < nx and 0 <= g[1] < ny and free[g[0], g[1]]:
+                check.append((k, g))
+        if check:
+            cid = self.cell_id
+            gids = [cid(g) for _, g in check]
+            rows = [self._heuristic_row(g) for g in gids]
+            assert self._h_table is not None
+            reach = self._h_table[rows, [cid(starts[agents[k]]) for k, _ in check]] < math.inf
+            ok = reach & ((static_allow[gids] & _WAIT_BIT) != 0)
+            for (k, g), good in zip(check, ok.tolist(), strict=True):
+                if good:
+                    out[k] = g
+        return {a: self._usable_goal(starts[a], goals.get(a), static_allow) if g is None else g
+                for a, g in zip(agents, out, strict=True)}
 
     def _usable_goal(self, start: Cell, goal: Cell | None, static_allow: NDArray[np.int64]) -> Cell:
         """``goal`` when it is reachable from ``start`` and a body may wait on it (``static_allow``:
@@ -682,19 +783,19 @@ class PathPlanner:
         overrides: Mapping[int, list[_Move]],
         extended: frozenset[Agent],
         reserve_waits: frozenset[Agent],
-        hints: Mapping[Agent, list[int]],
+        hints: Mapping[Agent, NDArray[np.int64]],
         static_allow: NDArray[np.int64],
         heuristics: Mapping[Agent, NDArray[np.float64]],
-        previous: tuple[dict[Agent, _Outcome], frozenset[Agent]] | None = None,
-    ) -> tuple[PlanResult, dict[Agent, _Outcome]]:
+        previous: tuple[_PassRecord, frozenset[Agent]] | None = None,
+    ) -> tuple[PlanResult, _PassRecord | None]:
         """One planning pass on this planner's backend; the dense pass also returns what each
         agent's search read (for the next repair pass, see ``_dense_pass``). ``heuristics``:
         per agent, the distances that replace its goal's static distance (see ``plan``)."""
-        if self.backend == "numba":
-            arrays = {a: np.asarray(h, dtype=np.int64) for a, h in hints.items()}
-            return self._dense_pass(order, starts, goals, extended, reserve_waits, arrays, static_allow, previous,
-                                    heuristics)
-        return self._pass(order, starts, goals, overrides, extended, reserve_waits, heuristics, hints), {}
+        if self.backend == "numba":  # the cells of the paths: only for the last pass (see plan)
+            return self._dense_pass(order, starts, goals, extended, reserve_waits, hints, static_allow, previous,
+                                    heuristics, cells=False)
+        lists = {a: np.asarray(h).tolist() for a, h in hints.items()}
+        return self._pass(order, starts, goals, overrides, extended, reserve_waits, heuristics, lists), None
 
     def _pass(
         self,
@@ -752,99 +853,92 @@ class PathPlanner:
         goals: Mapping[Agent, Cell],
         extended: frozenset[Agent],
         reserve_waits: frozenset[Agent],
-        hints: Mapping[Agent, NDArray[np.int64]],
+        hints: Mapping[Agent, Sequence[int] | NDArray[np.int64]],
         static_allow: NDArray[np.int64],
-        previous: tuple[dict[Agent, _Outcome], frozenset[Agent]] | None = None,
+        previous: tuple[_PassRecord, frozenset[Agent]] | None = None,
         heuristics: Mapping[Agent, NDArray[np.float64]] | None = None,
-    ) -> tuple[PlanResult, dict[Agent, _Outcome]]:
-        """``_pass`` on the compiled kernels (same result), recording each agent's outcome.
+        cells: bool = True,
+    ) -> tuple[PlanResult, _PassRecord]:
+        """``_pass`` run by the compiled ``astar_kernel.dense_pass`` (same result), recording
+        each agent's outcome. ``cells`` off: ``PlanResult.paths`` is left empty (the record
+        has the paths; ``_record_paths`` turns them into cells).
 
-        ``previous``: the outcomes of the pass before (same order, hints and window) and the
-        waits it reserved. A search (or kept-path check) is a function of the reservation
-        entries it reads, so an agent whose previous reads all fall outside the entries that
-        may differ between the two passes (``dirty``: near the newly reserved waits, and near
-        every move that an agent planned earlier in this pass made differently) gets its
-        previous outcome without searching. Conservative, hence exact: the same plans.
+        ``previous``: the record of the pass before (same hints and window) and the waits it
+        reserved. A search (or kept-path check) is a function of the reservation entries it
+        reads, so an agent whose previous reads all fall outside the entries that may differ
+        between the two passes (near the newly reserved waits, and near every move that an
+        agent planned earlier in this pass made differently) gets its previous outcome without
+        searching. Conservative, hence exact: the same plans.
         """
+        n = len(order)
         w_max = self.window * (2 if extended else 1)
-        stride = self._nx_p * self._ny_p
-        res = _DenseReservations(w_max, self, len(order))
-        cmt = self.commit_steps
-        waits = {a: np.full(cmt + 1, self.cell_id(starts[a]), dtype=np.int64) for a in order if a in reserve_waits}
-        for a, wait in waits.items():
-            res.add(a, wait, cmt)
-        dirty: NDArray[np.bool_] | None = None
-        before: dict[Agent, _Outcome] = {}
-        if previous is not None:
-            before = previous[0]
-            dirty = np.zeros(w_max * stride, dtype=np.bool_)
-            for a in reserve_waits ^ previous[1]:
-                self._mark(dirty, waits[a], cmt, stride)
-        outcomes: dict[Agent, _Outcome] = {}
-        paths: dict[Agent, list[Cell]] = {}
-        total = 0
-        for a in order:
+        cid = self.cell_id
+        self._h_epoch += 1  # the heuristic rows read below stay in the cache until the pass ran
+        start_ids = np.fromiter((cid(starts[a]) for a in order), dtype=np.int64, count=n)
+        goal_ids = np.fromiter((cid(goals[a]) for a in order), dtype=np.int64, count=n)
+        h_kept = np.fromiter((self._heuristic_row(g) for g in goal_ids.tolist()), dtype=np.int64, count=n)
+        h_search = h_kept.copy()
+        extra: list[NDArray[np.float64]] = []  # the agents' own distances (``heuristics``), by -1 - row
+        windows = np.full(n, self.window, dtype=np.int64)
+        reserve = np.zeros(n, dtype=np.bool_)
+        hint_arr = np.zeros((n, self.window + 1), dtype=np.int64)
+        hint_len = np.zeros(n, dtype=np.int64)
+        for k, a in enumerate(order):
             if a in reserve_waits:
-                res.remove(a, waits[a], cmt)
-            old = before.get(a)
-            if old is not None and dirty is not None and not dirty[old.reads].any():
-                out = old
+                reserve[k] = True
+            if a in extended:
+                windows[k] = 2 * self.window
             else:
-                out = self._dense_outcome(a, starts, goals, extended, hints, static_allow, res, stride,
-                                          heuristics.get(a) if heuristics else None)
-                if old is not None and dirty is not None:
-                    self._mark_changes(dirty, old.ids, out.ids, w_max, stride)
-            outcomes[a] = out
-            total += out.expansions
-            res.add(a, out.ids, w_max)
-            paths[a] = list(out.cells)
-        result = PlanResult(
-            paths=paths, failed=frozenset(a for a in order if outcomes[a].failed), fallback=frozenset(),
-            goals=dict(goals), expansions=total, reused=frozenset(a for a in order if outcomes[a].reused),
+                hint = hints.get(a)
+                if hint is not None and len(hint):
+                    m = min(len(hint), self.window + 1)
+                    hint_arr[k, :m] = hint[:m]
+                    hint_len[k] = m
+            h = heuristics.get(a) if heuristics else None
+            if h is not None:
+                extra.append(h)
+                h_search[k] = -len(extra)
+        h_extra = np.stack(extra) if extra else np.zeros((1, len(self._nb_id)))
+        if previous is not None:
+            rec, before = previous
+            row = {a: k for k, a in enumerate(rec.order)}
+            prev_idx = np.fromiter((row.get(a, -1) for a in order), dtype=np.int64, count=n)
+            prev_reserve = np.fromiter((a in before for a in order), dtype=np.bool_, count=n)
+            prev: tuple[NDArray[Any], ...] = (rec.ids, rec.ids_len, rec.reads, rec.off, rec.expansions, rec.reused,
+                                              rec.failed)
+        else:
+            prev_idx = np.full(n, -1, dtype=np.int64)
+            prev_reserve = np.zeros(n, dtype=np.bool_)
+            prev = _NO_RECORD
+        g_best, stamp, parent = self._search_scratch(w_max)
+        heap_f, heap_h, heap_k = self._open
+        near, dirty = self._pass_scratch(w_max)
+        p_ids, p_len, p_reads, p_off, p_exp, p_reused, p_failed = prev
+        assert self._h_table is not None or n == 0
+        table = self._h_table if self._h_table is not None else np.zeros((1, len(self._nb_id)))
+        ids, ids_len, reads, off, exps, reused, failed, taken, self._token = dense_pass(
+            start_ids, goal_ids, windows, reserve, hint_arr, hint_len, table, h_kept, h_search, h_extra,
+            self._nb_id, self._nb_cost, self._nb_bit, static_allow, self._full_mask, self.max_expansions,
+            self.commit_steps, w_max, self._ny_p, self._nbhd_off, self._nbhd_base, self._mask_arr, self._free_arr,
+            self.reach - 1, g_best, stamp, parent, self._token, self._expanded, heap_f, heap_h, heap_k,
+            prev_idx, prev_reserve, p_ids, p_len, p_reads, p_off, p_exp, p_reused, p_failed, near, dirty,
         )
-        return result, outcomes
+        record = _PassRecord(tuple(order), ids, ids_len, reads, off, exps, reused, failed, taken)
+        result = PlanResult(
+            paths=self._record_paths(record) if cells else {},
+            failed=frozenset(order[k] for k in np.flatnonzero(failed).tolist()), fallback=frozenset(),
+            goals=dict(goals), expansions=int(exps.sum()),
+            reused=frozenset(order[k] for k in np.flatnonzero(reused).tolist()),
+        )
+        return result, record
 
-    def _dense_outcome(
-        self, a: Agent, starts: Mapping[Agent, Cell], goals: Mapping[Agent, Cell], extended: frozenset[Agent],
-        hints: Mapping[Agent, NDArray[np.int64]], static_allow: NDArray[np.int64], res: _DenseReservations,
-        stride: int, h: NDArray[np.float64] | None = None,
-    ) -> _Outcome:
-        """Agent ``a``'s kept hint or search against ``res``, and the reservation entries read."""
-        window = self.window * 2 if a in extended else self.window
-        hint = hints.get(a) if a not in extended else None
-        reads: list[NDArray[np.int64]] = []
-        if hint is not None and len(hint):
-            gid = self.cell_id(goals[a])
-            path, steps, ok = kept_path(hint, gid, window, self._heuristic_array(goals[a]),
-                                        self._nb_id, self._nb_cost, self._nb_bit, static_allow, res.near, self._full_mask)
-            reads.append(np.arange(steps, dtype=np.int64) * stride + path[:steps])
-            if ok:
-                return _Outcome(path, reads[0], 0, reused=True, failed=False, cells=self._cells_of(path))
-        ids, n, expanded = self._search_compiled(self.cell_id(starts[a]), goals[a], window, res, static_allow, h)
-        keys = np.concatenate([*reads, expanded]) if reads else expanded
-        if ids is None:  # wait: safe for the committed steps, which is all it claims
-            wait = np.full(self.commit_steps + 1, self.cell_id(starts[a]), dtype=np.int64)
-            return _Outcome(wait, keys, n, reused=False, failed=True, cells=self._cells_of(wait))
-        return _Outcome(ids, keys, n, reused=False, failed=False, cells=self._cells_of(ids))
-
-    def _mark(self, dirty: NDArray[np.bool_], ids: NDArray[np.int64], steps: int, stride: int) -> None:
-        """Flag the reservation entries that the first ``steps`` moves of ``ids`` touch."""
-        for t in range(min(steps, len(ids) - 1)):
-            dirty[t * stride + int(ids[t]) - self._nbhd_off] = True
-
-    def _mark_changes(self, dirty: NDArray[np.bool_], old: NDArray[np.int64], new: NDArray[np.int64], w_max: int,
-                      stride: int) -> None:
-        """Flag the entries touched by the moves (within ``w_max`` steps) that differ between
-        two reserved paths (both paths' cells: one reservation left, the other came)."""
-        n_old, n_new = min(w_max, len(old) - 1), min(w_max, len(new) - 1)
-        for t in range(max(n_old, n_new)):
-            same = t < n_old and t < n_new and old[t] == new[t] and old[t + 1] == new[t + 1]
-            if same:
-                continue
-            if t < n_old:
-                dirty[t * stride + int(old[t]) - self._nbhd_off] = True
-            if t < n_new:
-                dirty[t * stride + int(new[t]) - self._nbhd_off] = True
+    def _record_paths(self, record: _PassRecord) -> dict[Agent, list[Cell]]:
+        """The cells of each path's first window + 1 ids in a pass record (``PlanResult.paths``)."""
+        shown = record.ids[:, : self.window + 1]
+        ci = (shown // self._ny_p - self._pad).tolist()
+        cj = (shown % self._ny_p - self._pad).tolist()
+        lens = np.minimum(record.ids_len, self.window + 1).tolist()
+        return {a: list(zip(ci[k][: lens[k]], cj[k][: lens[k]], strict=True)) for k, a in enumerate(record.order)}
 
     def _kept_path(
         self, hint: list[int], goal: Cell, window: int, res: _Reservations | _DenseReservations,
@@ -884,23 +978,6 @@ class PathPlanner:
                 return None
             path.append(best[2])
         return path
-
-    def _search_compiled(
-        self, start: int, goal: Cell, window: int, res: _DenseReservations, static_allow: NDArray[np.int64],
-        h: NDArray[np.float64] | None = None,
-    ) -> tuple[NDArray[np.int64] | None, int, NDArray[np.int64]]:
-        """``_search`` run by the compiled kernel on the dense tables (same result); also the
-        reservation entries it read (the keys of the expanded nodes). ``h``: distances to use
-        instead of the goal's static distance."""
-        if h is None:
-            h = self._heuristic_array(goal)
-        g_best, stamp, parent = self._search_scratch(window)
-        self._token += 1
-        path, n = space_time_search(
-            start, self.cell_id(goal), window, h, self._nb_id, self._nb_cost, self._nb_bit, static_allow,
-            res.near, self._full_mask, self.max_expansions, g_best, stamp, parent, self._token, self._expanded,
-        )
-        return (path if len(path) else None), int(n), self._expanded[: min(int(n), self.max_expansions)].copy()
 
     def _search(
         self,

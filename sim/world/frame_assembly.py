@@ -2,8 +2,8 @@
 
 ``write_frame`` turns every character's state into one ``MotionQuery`` (label and seated flag
 from its phase, root and heading, the planned future of a walker, the target of its action),
-steps the motion layer (batched when it has ``step_many``, with the same result as one by
-one), puts each pose on its character's root (``compose_poses``: the pelvis stays where the
+steps the motion layer (batched when it has ``step_batch`` (poses as arrays) or ``step_many``,
+with the same result as one by one), puts each pose on its character's root (``compose_poses``: the pelvis stays where the
 world put the root), runs the leg IK when the world has a foot solver, and appends one row per
 character to the track buffers. A character's root is never moved by the motion layer:
 walkers take the navigator's position, everyone else the point its phase puts it on
@@ -27,7 +27,7 @@ from sim.body.skeleton import NUM_JOINTS
 from sim.motion.action_labels import action_spec, database_key
 from sim.paths.tracks import walker_headings
 from sim.scene.model import Scene
-from sim.world.motion_layer import MotionLayer, MotionQuery, compose_poses
+from sim.world.motion_layer import BatchedMotionLayer, MotionLayer, MotionQuery, compose_poses
 from sim.world.navigation import WorldNavigator
 from sim.world.phases import CharacterState, phase_motion, smoothstep, wrap_angle
 from sim.world.tracks import TrackBuffers
@@ -115,19 +115,26 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
     heading = np.array(heading_l, dtype=float)
     root = np.array(root_l, dtype=float).reshape(n, 2)
     states = [w.motion_states[name] for name in names]
-    step_many = getattr(w.motion, "step_many", None)
-    if step_many is not None:  # a layer may batch characters (same result as one by one)
-        new_states, poses = step_many(states, queries, dt)
+    motion = w.motion
+    if isinstance(motion, BatchedMotionLayer):  # the poses come as arrays (same result as one by one)
+        new_states, batch = motion.step_batch(states, queries, dt)
+        rots = np.asarray(batch.local_rotations, dtype=float).reshape(n, NUM_JOINTS, 3, 3)
+        pz = np.asarray(batch.pelvis, dtype=float).reshape(n, 3)[:, 2]
+        contacts = np.asarray(batch.contacts, dtype=bool).reshape(n, 2)
     else:
-        pairs = [w.motion.step(s, q, dt) for s, q in zip(states, queries, strict=True)]
-        new_states, poses = [p[0] for p in pairs], [p[1] for p in pairs]
+        step_many = getattr(motion, "step_many", None)
+        if step_many is not None:  # a layer may batch characters (same result as one by one)
+            new_states, poses = step_many(states, queries, dt)
+        else:
+            pairs = [motion.step(s, q, dt) for s, q in zip(states, queries, strict=True)]
+            new_states, poses = [p[0] for p in pairs], [p[1] for p in pairs]
+        rots = np.array([p.local_rotations for p in poses], dtype=float).reshape(n, NUM_JOINTS, 3, 3)
+        pz = np.array([p.pelvis[2] for p in poses], dtype=float)
+        try:  # the usual case: every pose has its (2,) contact flags
+            contacts = np.array([p.contacts for p in poses], dtype=bool).reshape(n, 2)
+        except (AttributeError, TypeError, ValueError):
+            contacts = _contacts_of(poses)
     w.motion_states.update(zip(names, new_states, strict=True))
-    rots = np.array([p.local_rotations for p in poses], dtype=float).reshape(n, NUM_JOINTS, 3, 3)
-    pz = np.array([p.pelvis[2] for p in poses], dtype=float)
-    try:  # the usual case: every pose has its (2,) contact flags
-        contacts = np.array([p.contacts for p in poses], dtype=bool).reshape(n, 2)
-    except (AttributeError, TypeError, ValueError):
-        contacts = _contacts_of(poses)
     pelvis, rots = compose_poses(rots, pz, root, heading)
     if w.foot_solver is not None and w.feet is not None:
         rots, w.feet = w.foot_solver.apply(pelvis, rots, contacts, w.feet, active=~np.array(still_feet))

@@ -15,15 +15,16 @@ heading.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sim.body.skeleton import NUM_JOINTS
-from sim.motion.matching import MotionQuery, Pose
+from sim.motion.matching import MotionQuery, Pose, PoseBatch
 
-__all__ = ["FUTURE_FRAMES", "MotionLayer", "MotionQuery", "Pose", "compose_poses", "root_yaw"]
+__all__ = ["FUTURE_FRAMES", "BatchedMotionLayer", "MotionLayer", "MotionQuery", "Pose", "PoseBatch", "compose_poses",
+           "root_yaw"]
 
 FUTURE_FRAMES = (10, 20, 30)
 
@@ -42,6 +43,17 @@ class MotionLayer(Protocol):
 
     def step(self, state: Any, query: MotionQuery, dt: float) -> tuple[Any, Pose]:
         """Advance one frame of ``dt`` seconds; returns the new state and the pose."""
+        ...
+
+
+@runtime_checkable
+class BatchedMotionLayer(MotionLayer, Protocol):
+    """A motion layer that steps all characters at once and gives the poses as arrays
+    (``sim.motion.matching.MotionMatcher.step_batch``), with the same result as ``step`` on
+    each character: the world reads the arrays without per-character pose objects."""
+
+    def step_batch(self, states: Sequence[Any], queries: Sequence[MotionQuery], dt: float) -> tuple[list[Any], PoseBatch]:
+        """Advance every character one frame; returns the new states and the poses as arrays."""
         ...
 
 

@@ -79,10 +79,17 @@ class TrackBuffers:
             self.capacity += grow
         self.pelvis[f] = pelvis
         self.rotations[f] = rotations
-        self.labels[f] = [self.label_id(s) for s in labels]
+        self.labels[f] = self._label_ids(labels)
         self.contacts[f] = contacts
-        self.events[f] = [self.label_id(s) for s in events]
+        self.events[f] = self._label_ids(events)
         self.length += 1
+
+    def _label_ids(self, names: Sequence[str]) -> list[int]:
+        """``label_id`` of every name (one dictionary lookup each when all are known)."""
+        try:
+            return list(map(self._label_index.__getitem__, names))
+        except KeyError:  # a new name: added in order
+            return [self.label_id(s) for s in names]
 
     @property
     def held(self) -> int:

@@ -109,6 +109,9 @@ def _ref_pose_joints(states: Sequence[MatchState]) -> tuple[np.ndarray, np.ndarr
 class ReferenceMotionMatcher(MotionMatcher):
     """``MotionMatcher`` with the step as it was before the motion kernels (the baseline)."""
 
+    # (states returned by the last step_many, their offset arrays)
+    _ref_last: tuple[tuple[MatchState, ...], tuple[np.ndarray, ...]] | None = None
+
     def _query_features_many(self, db: MotionDatabase, states: Sequence[MatchState], queries: Sequence[MotionQuery],
                              roots: Sequence[np.ndarray], headings: Sequence[float]) -> np.ndarray:
         """Raw query vectors (M,D) for characters searching ``db`` (one FK call for all)."""
@@ -219,7 +222,7 @@ class ReferenceMotionMatcher(MotionMatcher):
                 index = db.entry_index if ent else db.index
                 best[np.array(members)] = _ref_query_many(index, db.normalize(raw))
 
-        last = self._last_batch
+        last = self._ref_last
         if last is not None and len(last[0]) == n and all(a is b for a, b in zip(last[0], states, strict=True)):
             # the very states returned by the previous call: their offsets are rows of these arrays
             off_rot, off_av, off_pos, off_vel = (x.copy() for x in last[1])
@@ -289,7 +292,7 @@ class ReferenceMotionMatcher(MotionMatcher):
                 elapsed=0.0 if changed[i] else state.elapsed + dt, done=done[i],
                 switches=state.switches + (1 if i in switched_set else 0), searches=state.searches + int(need[i]),
             ))
-        self._last_batch = (tuple(out_states), (off_rot, off_av, off_pos, off_vel))
+        self._ref_last = (tuple(out_states), (off_rot, off_av, off_pos, off_vel))
         return out_states, poses
 
     def _control(self, state: MatchState, query: MotionQuery, root_xy: np.ndarray, heading: float) -> Control:
