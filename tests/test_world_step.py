@@ -431,6 +431,27 @@ def test_a_goal_cell_crowded_by_a_still_body_lets_the_walker_stop_beside_it(offi
     assert np.linalg.norm(w.positions()[0] - w.positions()[1]) >= 0.5 - 1e-9
 
 
+def test_a_walker_kept_a_little_short_of_its_target_acts_where_it_stands(office: Office) -> None:
+    """Someone stands still right on the target: the walker gets within a metre, no closer, and
+    after ``near_patience_s`` acts there (``stopped_near``) instead of failing as stuck."""
+    _, grid, _ = office
+    cells = _free_cells(office)
+    free = {(int(i), int(j)) for i, j in cells}
+    i, j = next((int(i), int(j)) for i, j in cells[150:]
+                if all((i + k, j + m) in free for k in range(-3, 7) for m in (-1, 0, 1)))
+    target = _cell_xy(office, i, j)
+    w = _world(office, {"bob": (_cell_xy(office, i - 3, j), 0.0), "ann": (_cell_xy(office, i + 6, j), 0.0)},
+               WorldConfig(exact_patience_s=1.0, near_patience_s=3.0, stuck_after_s=12.0))
+    _until(w, lambda o: bool(o.looping_events), commands=[AssignEvent(event_id="hold", assignments=(_go("bob", target),))])
+    outs = _until(w, lambda o: bool(o.looping_events or any(o.failures)), commands=[AssignEvent(
+        event_id="go", assignments=(_go("ann", target, action="use_smartphone"),))])
+    ann = w.characters["ann"]
+    assert [f for o in outs for f in o.failures] == []
+    assert ann.target is not None and ann.target.fallback == "stopped_near" and "no closer than" in ann.target.message
+    gap = float(np.linalg.norm(ann.xy - np.asarray(target)))
+    assert 0.5 - 1e-9 <= gap <= 1.0
+
+
 def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office: Office) -> None:
     from sim.body.foot_ik import LEG_JOINTS
     from sim.body.skeleton import forward_kinematics

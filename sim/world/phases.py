@@ -32,7 +32,7 @@ from sim.world.events import Assignment
 FPS = 30
 Phase = Literal["idle", "approaching", "transition_in", "interacting", "transition_out"]
 TargetFallback = Literal["target_blocked", "no_straight_approach", "no_approach_point", "goal_cell_taken",
-                         "target_occupied"]
+                         "target_occupied", "stopped_near"]
 """Why a character stands on a cell centre instead of the exact point it was sent to:
 ``target_blocked``: a body at the target would overlap furniture or leave the floor;
 ``no_straight_approach``: no free cell nearby has a straight, furniture-free walk to the target;
@@ -40,7 +40,9 @@ TargetFallback = Literal["target_blocked", "no_straight_approach", "no_approach_
 cell is used); ``goal_cell_taken``: someone else held the goal cell, the walker stopped on the
 neighbouring cell the planner chose; ``target_occupied``: another body stayed too close to the
 straight walk onto the point for ``WorldConfig.exact_patience_s``, the walker stopped on its
-goal cell's centre."""
+goal cell's centre; ``stopped_near``: a standing walker within ``WorldConfig.near_enough_m`` of its
+target got no closer for ``WorldConfig.near_patience_s`` (bodies standing still in the way), and
+does its action where it stands rather than failing the event as stuck."""
 PHASES: tuple[Phase, ...] = ("idle", "approaching", "transition_in", "interacting", "transition_out")
 
 TURN_SPEED = math.pi  # rad/s when turning on the spot before acting

@@ -102,7 +102,9 @@ class WorldConfig:
     max_target_offset: metres between a target and the nearest reachable cell centre beyond
     which the target counts as unreachable; exact_patience_s: seconds a walker on its goal cell
     waits for room to step onto its exact target before it settles for the cell centre
-    (``target_occupied``); initial_capacity: frames pre-allocated per track; foot_ik: run the
+    (``target_occupied``); near_enough_m, near_patience_s: a standing walker that got no closer
+    for ``near_patience_s`` within ``near_enough_m`` of its target acts where it stands
+    (``stopped_near``); initial_capacity: frames pre-allocated per track; foot_ik: run the
     leg IK (``sim.body.foot_ik.FootSolver``) on every frame's poses: feet kept out of floor-standing
     furniture and pinned while in contact (characters sitting, sitting down or standing up are
     left as animated)."""
@@ -112,6 +114,8 @@ class WorldConfig:
     walk_turn_rate: float = 2.0
     heading_lookahead: int = 20
     stuck_after_s: float = 20.0
+    near_enough_m: float = 1.0
+    near_patience_s: float = 6.0
     max_target_offset: float = 0.75
     exact_patience_s: float = 3.0
     initial_capacity: int = 512
@@ -319,10 +323,15 @@ class World:
         c.anchor_cell = cell
         c.anchor_xy = nav.position(c.name).copy() if nav.is_off_grid(c.name) else self.grid.center_of(*cell)
         if fallback is not None and c.target is not None:
-            msg = (f"cell {c.target.cell} was taken; {c.name} stopped on the neighbouring cell {cell}"
-                   if fallback == "goal_cell_taken" else
-                   f"others stayed too close to ({c.target.xy[0]:.2f}, {c.target.xy[1]:.2f}) for "
-                   f"{self.config.exact_patience_s:g} s; {c.name} stopped on the centre of cell {cell}")
+            if fallback == "goal_cell_taken":
+                msg = f"cell {c.target.cell} was taken; {c.name} stopped on the neighbouring cell {cell}"
+            elif fallback == "stopped_near":
+                gap = float(np.linalg.norm(c.anchor_xy - np.asarray(c.target.xy)))
+                msg = (f"{c.name} got no closer than {gap:.2f} m to ({c.target.xy[0]:.2f}, {c.target.xy[1]:.2f}) "
+                       f"for {self.config.near_patience_s:g} s; it stopped on the centre of cell {cell}")
+            else:
+                msg = (f"others stayed too close to ({c.target.xy[0]:.2f}, {c.target.xy[1]:.2f}) for "
+                       f"{self.config.exact_patience_s:g} s; {c.name} stopped on the centre of cell {cell}")
             c.target = StandTarget(cell, (float(c.anchor_xy[0]), float(c.anchor_xy[1])), False, fallback, msg)
         c.best_distance, c.stalled_frames = 0.0, 0
         if nav.goal_of(c.name) is not None:
@@ -405,6 +414,7 @@ class World:
                 nav.set_goal(name, c.goal_cell, final_xy=final_of(c.target))
         limit = int(self.config.stuck_after_s * self.config.fps)
         patience = int(self.config.exact_patience_s * self.config.fps)
+        near_patience = int(self.config.near_patience_s * self.config.fps)
         for c in self.characters.values():
             if not c.walker or c.goal_cell is None or not (c.phase == "approaching" or c.waiting):
                 continue
@@ -439,6 +449,12 @@ class World:
             if (c.phase == "approaching" and c.target is not None and c.target.off_grid and cell == c.goal_cell
                     and not nav.is_off_grid(c.name) and c.stalled_frames >= patience and nav.can_freeze(c.name)):
                 self._arrive(c, "target_occupied")  # the cell centre is clear; the point is not
+                continue
+            if (c.phase == "approaching" and c.stalled_frames >= near_patience and c.assignment is not None
+                    and c.assignment.seat is None and c.target is not None and not nav.is_off_grid(c.name)
+                    and float(np.linalg.norm(nav.position(c.name) - np.asarray(c.target.xy))) <= self.config.near_enough_m
+                    and nav.can_freeze(c.name)):
+                self._arrive(c, "stopped_near")  # close enough to stand in: act here rather than fail as stuck
                 continue
             if c.stalled_frames > limit and c.event_id is not None:
                 fail_event(self, c.event_id, c.name, "stuck",
