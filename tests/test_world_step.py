@@ -434,7 +434,6 @@ def test_a_goal_cell_crowded_by_a_still_body_lets_the_walker_stop_beside_it(offi
 def test_a_walker_kept_a_little_short_of_its_target_acts_where_it_stands(office: Office) -> None:
     """Someone stands still right on the target: the walker gets within a metre, no closer, and
     after ``near_patience_s`` acts there (``stopped_near``) instead of failing as stuck."""
-    _, grid, _ = office
     cells = _free_cells(office)
     free = {(int(i), int(j)) for i, j in cells}
     i, j = next((int(i), int(j)) for i, j in cells[150:]
