@@ -29,6 +29,24 @@ checkout's replays so both see the same machine load, and prints its figures and
 Target (issue 14): the replay of a recorded 60 s story at least 20x faster than its recorded
 wall time.
 
+Figures (2 cores shared with other sessions' LLMs: load average 2.3-2.8, both cores busy):
+recorded 60.6 s; replay fastest of 5 3.82 s wall (median 4.00 s), CPU 3.52 s: 15.8x wall, 17.2x
+by CPU; the main branch before this round in the same run 3.67 s (median 3.95 s), CPU 3.49 s
+(0.96x / 0.99x: the same, within the noise). Where a replay's time goes (one process per run,
+in-process marks): the command's process ~2.9 s CPU (imports ~1.5 s: langgraph with
+langchain-core and langsmith ~0.4 s, scipy ~0.2 s, matplotlib ~0.2 s, numba ~0.1 s plus its
+first kernel load ~0.2 s; the 1,800 frames and 8 planning steps ~0.65 s; outputs ~0.55 s) and
+the event-program worker ~0.7 s CPU (numpy, numba, scipy, networkx, the scene's grid), plus
+~0.3-0.45 s of waiting on fsyncs (runs.sqlite commits and trace records, per planning node).
+The worker now starts first and loads the scene while the command imports (the first planning
+step no longer waits ~0.6 s for it), which shortens a replay only when a core is free; on the
+busy machine above the two processes share one core's worth of time and the wall time is the
+CPU time. Not changed, measured here as options: programs in this process (``storyteller run
+... --replay T --in-process-programs``: -0.3 to -0.4 s), no fsync of the replay's trace and
+``synchronous=NORMAL`` for its runs.sqlite (-0.3 to -0.45 s; weaker after a power loss), .pyc
+files for the checkout (this sandbox sets ``PYTHONDONTWRITEBYTECODE``: every replay compiles
+the project's modules from source, about 0.1 s).
+
 Usage: ``python -m benchmark.bench_replay [--latency S] [--seconds 60] [--max-events 8] [--repeats 3]
 [--keep DIR] [--baseline DIR] [--reuse DIR]``; ``--reuse`` replays the recording a ``--keep`` run left
 (with its recorded wall time) instead of recording again.
@@ -229,6 +247,8 @@ def main() -> None:
         for name, (code_env, code_root) in codes.items():
             print(f"code of {name}: {code_folder(code_env, code_root)}")
         print(f"start-up floor (import orchestrator.cli.app):      {floor:8.2f} s wall")
+        if os.environ.get("PYTHONDONTWRITEBYTECODE"):
+            print("note: PYTHONDONTWRITEBYTECODE is set: modules without a .pyc are compiled from source in every replay")
         for name, (wall, total, by_top) in imports.items():
             shown = ", ".join(f"{top} {sec:.2f}" for top, sec in by_top[: args.top])
             print(f"imports of one replay, {name} (-X importtime, self time): {total:.2f} s of {wall:.2f} s wall; "

@@ -22,7 +22,9 @@ child keeps the last ``SCENES_KEPT`` scenes (with their scene graphs) and answer
 what the position sampler needs for it (navigation grid, compiled kernels), outside every
 program's budget and CPU limit. The child is reused across programs (no process start on the
 hot path) and restarted when it dies or is killed; it starts with the first program, or ahead
-of it with ``prestart()`` (its imports then overlap the caller's set-up). It
+of it with ``prestart()`` (its imports then overlap the caller's set-up); ``prestart(scene)``
+also sends it that scene as its first message (``--scene-first``), loaded before it says it
+is ready, so a run's first planning step does not wait for the scene either. It
 inherits only :data:`WORKER_ENV` from the parent's environment, never an API key.
 """
 
@@ -160,23 +162,34 @@ class WorkerRunner:
         self._lock = threading.Lock()
         self._starting = False
         """``process`` was started by :meth:`prestart` and has not said it is ready yet."""
+        self._preload: threading.Thread | None = None
+        """Writes a prestarted worker the scene to load (:meth:`prestart`); done once the
+        worker said it is ready (it reads and loads the scene first) or died."""
 
     # -- process management
-    def prestart(self) -> None:
+    def prestart(self, scene: Scene | None = None) -> None:
         """Start the worker process now and return at once: its imports run while the caller
-        goes on with its own set-up, and the first program waits for it to be ready. A worker
-        already running (or starting) is kept."""
+        goes on with its own set-up, and the first program waits for it to be ready. With
+        ``scene`` the worker also loads that scene (as a first program on it would) right after
+        its imports. A worker already running (or starting) is kept."""
         with self._lock:
             if self.process is None:
-                self.process = self._spawn()
+                self.process = self._spawn(scene_first=scene is not None)
                 self._starting = True
+                if scene is not None:  # the worker reads it before it says it is ready
+                    key, text = self._scene_key(scene)
+                    self._preload = threading.Thread(
+                        target=_send_quietly, args=(self.process, {"scene_key": key, "scene": text}),
+                        name="worker-preload", daemon=True,
+                    )
+                    self._preload.start()  # a thread: a large scene fills the pipe until the worker reads
 
     def _start(self) -> subprocess.Popen[bytes]:
         process = self._spawn()
         self._await_ready(process)
         return process
 
-    def _spawn(self) -> subprocess.Popen[bytes]:
+    def _spawn(self, *, scene_first: bool = False) -> subprocess.Popen[bytes]:
         env = {
             **{name: os.environ[name] for name in WORKER_ENV if name in os.environ},
             "OPENBLAS_NUM_THREADS": "1",
@@ -190,6 +203,7 @@ class WorkerRunner:
                 "orchestrator.sandbox_worker",
                 str(self.address_space_bytes),
                 str(self.cpu_seconds),
+                *(["--scene-first"] if scene_first else []),
             ],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
@@ -210,10 +224,13 @@ class WorkerRunner:
     def _worker(self) -> subprocess.Popen[bytes]:
         if self._starting and self.process is not None:  # prestarted: wait for its ready frame
             self._starting = False
+            preload, self._preload = self._preload, None
             try:
-                self._await_ready(self.process)
+                self._await_ready(self.process)  # (a preloaded scene was read and loaded before)
             except EventProgramError:  # it died while starting: started again below, as any dead worker
                 self.close()
+            if preload is not None:  # done: the worker read it, or died
+                preload.join()
         if self.process is None or self.process.poll() is not None:
             self.close()
             self.process = self._start()
@@ -223,11 +240,14 @@ class WorkerRunner:
         """Stop the worker (the next program starts a new one)."""
         process, self.process = self.process, None
         self._starting = False
+        preload, self._preload = self._preload, None
         if process is None:
             return
         with contextlib.suppress(OSError):
             process.kill()
         process.wait()
+        if preload is not None:  # its write ends with the process (a broken pipe)
+            preload.join()
         for stream in (process.stdin, process.stdout):
             if stream is not None:
                 with contextlib.suppress(OSError):
@@ -315,6 +335,14 @@ class WorkerRunner:
 # ---------------------------------------------------------------- the child process
 
 
+def _send_quietly(process: subprocess.Popen[bytes], message: dict[str, Any]) -> None:
+    """Write ``message`` to the worker; a worker that died meanwhile is found by the next
+    request (and restarted), so a failed write is not an error here."""
+    assert process.stdin is not None
+    with contextlib.suppress(OSError, ValueError):  # ValueError: the pipe was closed
+        _write_frame(process.stdin, message)
+
+
 def _limit_self(address_space_bytes: int) -> None:
     import resource
 
@@ -352,8 +380,10 @@ def load_scene(text: str) -> tuple[Scene, SceneGraph]:
     return scene, graph
 
 
-def serve(address_space_bytes: int, cpu_seconds: int) -> None:
-    """The worker loop: one request in, one answer out, until stdin closes."""
+def serve(address_space_bytes: int, cpu_seconds: int, *, scene_first: bool = False) -> None:
+    """The worker loop: one request in, one answer out, until stdin closes. ``scene_first``:
+    the first message is a scene to load (``scene_key``, ``scene``; no answer), read and loaded
+    before the worker says it is ready."""
     import signal
 
     # Ctrl-C on a terminal reaches the whole process group: the run that owns this worker stops
@@ -365,8 +395,15 @@ def serve(address_space_bytes: int, cpu_seconds: int) -> None:
     os.dup2(2, 1)  # ... and anything printed by accident goes to stderr
     inp = os.fdopen(0, "rb")
     _limit_self(address_space_bytes)
-    _write_frame(out, {"ready": True})
     scenes: OrderedDict[str, tuple[Scene, SceneGraph]] = OrderedDict()
+    if scene_first:
+        first = _read_frame(inp)
+        if first is None:
+            return
+        text = first.get("scene")
+        if isinstance(text, str):
+            scenes[str(first.get("scene_key"))] = load_scene(text)
+    _write_frame(out, {"ready": True})
     while True:
         request = _read_frame(inp)
         if request is None:
@@ -416,4 +453,4 @@ def _budget_error(what: str) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    serve(int(sys.argv[1]), int(sys.argv[2]))
+    serve(int(sys.argv[1]), int(sys.argv[2]), scene_first="--scene-first" in sys.argv[3:])

@@ -101,3 +101,31 @@ def test_run_story_leaves_no_task_pending_after_the_error(exploding: dict[str, A
 
     assert asyncio.run(main()) == set()
     assert exploding["port"].closed and exploding["story_closed"] == 1
+
+
+def test_run_story_stops_the_program_worker_it_was_given_when_the_run_fails(
+    exploding: dict[str, Any], tmp_path: Path
+) -> None:
+    """The command starts the event-program worker (with the scene) before it imports the job and
+    hands it to ``run_story``, which stops it however the run ends."""
+    from orchestrator.sandbox_worker import WorkerRunner
+    from orchestrator.session.run_job import run_story
+    from orchestrator.session.run_manifest import RunArguments
+    from sim.scene.bundled import resolve_scene
+
+    args = RunArguments(scene="home", names=("Ava", "Ben"), duration=20.0, pace="lockstep", planners=2,
+                        instruction="Everyone reads.")
+    scene = resolve_scene("home")
+    programs = WorkerRunner()
+    programs.prestart(scene)
+    process = programs.process
+    assert process is not None
+
+    async def main() -> None:
+        with pytest.raises(RuntimeError, match="adapter bug"):
+            await run_story(scene, args, out=tmp_path, trace_path=tmp_path / "trace.jsonl", replay=None,
+                            programs=programs)
+
+    asyncio.run(main())
+    assert programs.process is None and process.poll() is not None
+    assert programs.starts == 1  # the one it was given: run_story started none of its own

@@ -12,6 +12,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -133,6 +134,48 @@ def test_a_prestarted_worker_that_died_before_its_first_program_is_restarted(sce
         run.process.wait()
         assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
         assert run.starts == 2
+
+
+class CountingRunner(WorkerRunner):
+    """A ``WorkerRunner`` that counts the requests it sends its worker."""
+
+    asked = 0
+
+    def _ask(self, request: dict[str, Any], extra_seconds: float = 0.0) -> dict[str, Any]:
+        self.asked += 1
+        return super()._ask(request, extra_seconds)
+
+
+@pytest.mark.parametrize("preload", [True, False])
+def test_a_worker_prestarted_with_the_scene_has_it_loaded_for_the_first_program(scene: Scene, preload: bool) -> None:
+    """``prestart(scene)``: the worker loads the scene before it says it is ready, so the first
+    program is one request (without it, the worker asks for the scene and the program is sent
+    again with it); the plans are the in-process ones either way."""
+    with CountingRunner() as run:
+        run.prestart(scene if preload else None)
+        assert run(scene, PLACE, WorldView(), seed=0) == run_event_program(scene, PLACE, WorldView(), seed=0)
+        assert (run.asked, run.starts) == (1 if preload else 2, 1)
+        run(scene, PLACE, WorldView(), seed=1)
+        assert run.asked == (2 if preload else 3)
+
+
+def test_a_worker_prestarted_with_the_scene_that_died_is_restarted(scene: Scene) -> None:
+    with WorkerRunner() as run:
+        run.prestart(scene)
+        assert run.process is not None
+        run.process.kill()
+        run.process.wait()
+        assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
+        assert run.starts == 2
+
+
+def test_closing_a_worker_prestarted_with_the_scene_stops_it(scene: Scene) -> None:
+    run = WorkerRunner()
+    run.prestart(scene)
+    process = run.process
+    assert process is not None
+    run.close()
+    assert run.process is None and process.poll() is not None
 
 
 def test_closing_a_prestarted_worker_stops_it() -> None:

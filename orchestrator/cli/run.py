@@ -69,10 +69,12 @@ from orchestrator.cli.options import (
 from orchestrator.safe_text import plain
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
+    from orchestrator.sandbox_worker import WorkerRunner
     from orchestrator.session.instruction_script import ScriptLine
     from orchestrator.session.run_manifest import RunArguments, RunManifest
     from orchestrator.session.runtime import StoryEvent
     from orchestrator.session.terminal_prompt import TerminalPrompt
+    from sim.scene.model import Scene
 
 
 SmplxModelOption = Annotated[
@@ -280,6 +282,38 @@ def _execute(
     live: bool = False,
     in_process_programs: bool = False,
 ) -> None:
+    """Run the job and write its outputs. The event-program worker process (unless
+    ``in_process_programs``) is started first, with the scene to load, so its imports and the
+    scene's navigation grid overlap this process's imports of the job instead of delaying the
+    first planning step; the job stops it when the story ends."""
+    from orchestrator.cli.collector import imports_paused
+
+    with imports_paused():
+        from orchestrator.sandbox_worker import WorkerRunner
+        from sim.scene.bundled import resolve_scene
+        from sim.scene.files import SceneFileError
+
+    try:
+        scene_obj = resolve_scene(args.scene)
+    except SceneFileError as exc:
+        fail(str(exc))
+    programs = None if in_process_programs else WorkerRunner()
+    if programs is not None:
+        programs.prestart(scene_obj)
+    try:
+        _run_job(args, scene_obj, programs, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id,
+                 resume=resume, smplx_model=smplx_model, interactive=interactive, live=live,
+                 in_process_programs=in_process_programs)
+    finally:
+        if programs is not None:
+            programs.close()  # stopped by the job already, unless it failed before it started
+
+
+def _run_job(
+    args: RunArguments, scene_obj: Scene, programs: WorkerRunner | None, *, out: Path, trace_path: Path | None,
+    replay: Path | None, thread_id: str | None, resume: bool, smplx_model: Path | None, interactive: bool, live: bool,
+    in_process_programs: bool,
+) -> None:
     import asyncio
     import importlib
     import sys
@@ -290,16 +324,10 @@ def _execute(
         from orchestrator.cli.live_view import terminal_view
         from orchestrator.session.run_job import RunSetupError, StoryRun, run_story, write_outputs
         from orchestrator.session.run_manifest import resume_command
-        from sim.scene.bundled import resolve_scene
-        from sim.scene.files import SceneFileError
 
         for module in OUTPUT_MODULES:
             importlib.import_module(module)
 
-    try:
-        scene_obj = resolve_scene(args.scene)
-    except SceneFileError as exc:
-        fail(str(exc))
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -352,6 +380,7 @@ def _execute(
                     on_start=started,
                     on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
                     in_process_programs=in_process_programs,
+                    programs=programs,
                     stop=stop,
                     status=status,
                     stdin_reader=prompt.start if prompt is not None else None,

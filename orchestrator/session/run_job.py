@@ -58,7 +58,7 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.planning.ablation_graph import Ablation
@@ -72,6 +72,9 @@ from orchestrator.session.runtime import (
     TimedInstruction,
 )
 from sim.scene.model import Scene
+
+if TYPE_CHECKING:
+    from orchestrator.sandbox_worker import WorkerRunner
 
 CHECKPOINT_EVERY_S = 10.0
 """Simulated seconds between two session checkpoints at most (also one after every applied step)."""
@@ -232,6 +235,7 @@ async def run_story(
     stop: asyncio.Event | None = None,
     status: RunStatus | None = None,
     stdin_reader: Callable[[Session], object] | None = None,
+    programs: WorkerRunner | None = None,
 ) -> StoryRun:
     """Run the story session; returns the result, the character names, the fps and the world.
 
@@ -248,7 +252,10 @@ async def run_story(
     read by ``stdin_reader(session)`` when given (e.g. ``orchestrator.session.terminal_prompt``
     under a live view), else by ``orchestrator.session.stdin_instructions``.
     Event programs run in an OS-limited worker process started for the run and stopped when
-    it ends (``in_process_programs``: in this process instead; the plans are the same).
+    it ends (``in_process_programs``: in this process instead; the plans are the same). It is
+    started first, with the scene to load, so its imports and the scene's navigation grid
+    overlap this set-up; ``programs``: that worker, started (:meth:`WorkerRunner.prestart`)
+    by the caller even earlier (the command, before it imports this job), stopped here too.
 
     ``stop``: once set (by a signal handler), the session is cancelled where it waits (a frame
     is never cut in half), its checkpoint at that frame is saved and the story so far is
@@ -257,6 +264,44 @@ async def run_story(
 
     ``status``: told every happening of the run (its frames, events, outcomes, instructions and
     LLM calls; ``orchestrator.session.run_status``), for a live view."""
+    from orchestrator.sandbox_worker import WorkerRunner
+
+    if programs is None and not in_process_programs:
+        programs = WorkerRunner()
+    if programs is not None:
+        programs.prestart(scene)  # its imports and the scene's grid overlap the set-up below
+    try:
+        return await _run_story(
+            scene, args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=resume,
+            interactive=interactive, on_event=on_event, on_start=on_start, on_resume=on_resume,
+            on_instruction=on_instruction, stop=stop, status=status, stdin_reader=stdin_reader, programs=programs,
+        )
+    finally:
+        if programs is not None:
+            programs.close()
+
+
+async def _run_story(
+    scene: Scene,
+    args: RunArguments,
+    *,
+    out: Path,
+    trace_path: Path | None,
+    replay: Path | None,
+    thread_id: str | None,
+    resume: bool,
+    interactive: bool,
+    on_event: Callable[[StoryEvent, int], None] | None,
+    on_start: Callable[[RunManifest], None] | None,
+    on_resume: Callable[[int, int], None] | None,
+    on_instruction: Callable[[TimedInstruction, int], None] | None,
+    stop: asyncio.Event | None,
+    status: RunStatus | None,
+    stdin_reader: Callable[[Session], object] | None,
+    programs: WorkerRunner | None,
+) -> StoryRun:
+    """:func:`run_story` once its program worker (``programs``; None: programs run in this
+    process) is started; the caller stops it."""
     from agents.event_parser import scene_action_labels
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary
@@ -265,7 +310,6 @@ async def run_story(
     from orchestrator.planning.ablation_graph import compile_graph
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
-    from orchestrator.sandbox_worker import WorkerRunner
     from orchestrator.session.checkpoint_writer import CheckpointWriter
     from orchestrator.session.port_setup import describer_mode_for, open_port
     from orchestrator.session.roster import RosterWorld, StartPositionError, start_positions
@@ -360,7 +404,7 @@ async def run_story(
         describer_mode=describer_mode_for(describer_model),
         description_cache=None,
         program_grammar=args.program_grammar,
-        runner=None if in_process_programs else WorkerRunner(),
+        runner=programs,
     )
     settings = SessionSettings(
         frames=round(args.duration * fps),
@@ -412,8 +456,6 @@ async def run_story(
     checkpoints = CheckpointWriter(snapshot_path, write=write_after_trace)
     finished = False
     try:
-        if isinstance(deps.runner, WorkerRunner):
-            deps.runner.prestart()  # the worker imports while the graph is built and the first frames run
         async with open_checkpointer(runs_db) as saver:
             graph = compile_graph(ablation, saver)
             planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
@@ -452,8 +494,8 @@ async def run_story(
             stream.close()
             story.close()
             port.close()
-            if isinstance(deps.runner, WorkerRunner):
-                deps.runner.close()
+            if programs is not None:
+                programs.close()  # before the chunk files are closed and the outputs written
     end = session.world.buffers
     if end.store is not None:  # the whole story in the chunk files (the viewer reads them)
         end.spill()

@@ -27,7 +27,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypedDict, Unpack
 
-import imageio.v3 as iio
 import numpy as np
 from numpy.typing import NDArray
 
@@ -136,9 +135,14 @@ def run_frame_rgb(
 
 
 def save_run_png(path: Path | str, rec: RunRecording, frame: int = -1, **kw: Unpack[FrameStyle]) -> Path:
-    """Write one frame (default: the last, the run's final state) as a PNG; returns the path."""
+    """Write one frame (default: the last, the run's final state) as a PNG; returns the path.
+
+    Pillow's PNG encoder with its defaults, called directly: the bytes ``imageio.v3.imwrite``
+    gave, without it loading every Pillow format plugin first."""
+    from PIL import Image
+
     path = Path(path)
-    iio.imwrite(path, run_frame_rgb(rec, frame, **kw), extension=".png")
+    Image.fromarray(run_frame_rgb(rec, frame, **kw), mode="RGB").save(path, format="PNG")
     return path
 
 
