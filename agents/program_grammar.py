@@ -85,6 +85,7 @@ def program_grammar(
     interact_objects: Sequence[str] | None = None,
     posture: str | None = None,
     area_names: Sequence[str] = (),
+    choose_characters: bool = False,
 ) -> str:
     """The grammar of one event's program (see the module docstring).
 
@@ -99,7 +100,9 @@ def program_grammar(
     (``"sit"`` / ``"stand"``, from the event's words): with "sit" and a free seat, only seated
     labels and seat areas are offered; with "stand", no seat area. ``area_names``: the area
     functions the event's where-words name (``get_area_behind``); when given, the only standing
-    areas offered."""
+    areas offered. ``choose_characters`` (the "w/o Event" ablation, which has no event to say
+    who acts): the program is ``pass`` or one to ``len(event_characters)`` blocks, each on a
+    character the model picks from ``event_characters`` (variable ``c`` in every block)."""
     if not event_characters:
         raise ValueError("an event without characters has no program")
     if not action_labels:
@@ -109,11 +112,19 @@ def program_grammar(
     stand_labels = [a for a in action_labels if a not in seated]
     can_sit = bool(seats) and bool(sit_labels) and posture != "stand"
     must_sit = can_sit and posture == "sit"
-    lines = ["root ::= " + _literal("```python\ndef parse_event():\n") + " "
-             + " ".join(f"block{i}" for i in range(1, len(event_characters) + 1)) + " " + _literal("```")]
-    for i, name in enumerate(event_characters, start=1):
-        var = f"c{i}"
-        head = _literal(f"    {var} = get_character({json.dumps(name)})\n    {var}.set_target_action(")
+    start, end = _literal("```python\ndef parse_event():\n"), _literal("```")
+    if choose_characters:
+        blocks = "block"
+        for _ in event_characters[1:]:  # one to n blocks: block ( block ( block )? )?
+            blocks = f"block ( {blocks} )?"
+        wait = _literal("    pass\n")
+        lines = [f"root ::= {start} ( {wait} | {blocks} ) {end}"]
+        heads = [("block", "c", _literal("    c = get_character(") + " who " + _literal(")\n    c.set_target_action("))]
+    else:
+        lines = [f"root ::= {start} " + " ".join(f"block{i}" for i in range(1, len(event_characters) + 1)) + f" {end}"]
+        heads = [(f"block{i}", f"c{i}", _literal(f"    c{i} = get_character({json.dumps(name)})\n    c{i}.set_target_action("))
+                 for i, name in enumerate(event_characters, start=1)]
+    for rule, var, head in heads:
         place = _literal(f")\n    {var}.set_position(")
         look = _literal(f")\n    {var}.set_orientation(") + " look " + _literal(")\n")
         branches = []
@@ -125,7 +136,7 @@ def program_grammar(
                 branches.append(f"standlabel {place} area")
         else:
             branches.append(f"label {place} area")
-        lines.append(f"block{i} ::= {head} ( {' | '.join(branches)} ) {look}")
+        lines.append(f"{rule} ::= {head} ( {' | '.join(branches)} ) {look}")
     one_object, two_objects, seat_area = area_functions()
     interact = "get_area_to_interact_with"
     use_interact_rule = interact_objects is not None and interact in one_object and list(interact_objects) != list(objects)
@@ -149,6 +160,8 @@ def program_grammar(
     lines.append(_choice("object", objects))
     if use_interact_rule and interact_objects:
         lines.append(_choice("interactobject", interact_objects))
+    if choose_characters:
+        lines.append(_choice("who", event_characters))
     lookable = [*objects, *(c for c in (*event_characters, *other_characters) if c not in objects)]
     lines.append(_choice("look", lookable))
     return "\n".join(lines) + "\n"
@@ -203,3 +216,29 @@ def event_program_grammar(
         area_names=relations,
     )
 
+
+
+def open_program_grammar(
+    scene: Scene, characters: Sequence[Any], seats_in_use: Sequence[str], action_labels: Sequence[str],
+) -> str:
+    """The grammar of the "w/o Event" planner's program: the same well-formed programs as an
+    event's (:func:`program_grammar`) but with nothing an event would narrow: the model picks
+    which free characters act (or ``pass``), any offered label, any object of the scene and any
+    seat nobody holds. The ablation then measures what the event adds, not what the grammar does.
+    ``characters``: the roster (objects with ``name``, ``busy``, ``seat``)."""
+    free = [c.name for c in characters if not getattr(c, "busy", False)]
+    if not free:
+        raise ValueError("nobody is free: there is no program to write")
+    taken = set(seats_in_use) | {c.seat for c in characters if getattr(c, "seat", None)}
+    seat_names = {o.name for o in scene.objects if o.is_seat}
+    objects = [o.name for o in scene.objects]
+    return program_grammar(
+        free,
+        objects,
+        [o.name for o in scene.objects if o.is_seat and o.name not in taken],
+        list(action_labels),
+        [c.name for c in characters if c.name not in free],
+        seated_labels=[a for a in action_labels if playable_seated(a)],
+        interact_objects=[o for o in objects if o not in seat_names],
+        choose_characters=True,
+    )

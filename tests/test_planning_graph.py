@@ -413,6 +413,30 @@ async def test_program_grammar_reaches_the_parser_request_only_when_asked() -> N
     assert all(c.grammar is None for c in constrained.requests if c.node != "event_parser")
 
 
+async def test_the_w_o_event_planner_decodes_under_the_open_grammar_when_asked() -> None:
+    """The "w/o Event" ablation gets the same well-formed-program grammar as the event parser,
+    with the free characters to pick from instead of an event's (busy Bob is not offered)."""
+    from orchestrator.planning.ablation_graph import Ablation, compile_graph
+
+    for asked in (False, True):
+        port = ScriptedLLM({"describer": [DESCRIPTION], "planner": [PROGRAM.format(who="Ann")]})
+        story = StoryLog(":memory:", "t1")
+        roster = (CharacterStatus(name="Ann"), CharacterStatus(name="Cy"), CharacterStatus(name="Bob", busy=True))
+        state = PlanningState(instruction="Ann eats.", events_target=1, roster=roster).model_dump()
+        await compile_graph(Ablation(planner="unified", description="describer"), InMemorySaver()).ainvoke(
+            state, config={"configurable": {"thread_id": "t1"}, "recursion_limit": recursion_limit(1, 3)},
+            context=make_deps(port, story, program_grammar=asked), durability="sync",
+        )
+        (grammar,) = [c.grammar for c in port.requests if c.node == "planner"]
+        if not asked:
+            assert grammar is None
+            continue
+        assert grammar is not None
+        who = dict(line.split(" ::= ", 1) for line in grammar.strip().splitlines())["who"]
+        assert who == '"\\"Ann\\"" | "\\"Cy\\""'
+        assert story.events()[0].event.characters == ("Ann",)
+
+
 async def test_sqlite_checkpoints_rebuild_our_types_without_warnings(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     import logging
 

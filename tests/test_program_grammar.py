@@ -14,7 +14,7 @@ import pytest
 from agents.event_parser import ParserInput, parser_request, run_reply, scene_action_labels
 from agents.llm_port import ChatMessage, LLMRequest
 from agents.messages import CharacterStatus, Event
-from agents.program_grammar import event_program_grammar, program_grammar
+from agents.program_grammar import event_program_grammar, open_program_grammar, program_grammar
 from agents.prompt_templates import PromptLibrary
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import default_config
@@ -169,7 +169,7 @@ def test_after_a_sit_area_only_seated_actions_are_offered_and_the_check_agrees()
     assert check_plans(EVENT, [seated.model_copy(update={"action": "idle"})])[0].seat == "chair_1"
 
 
-_GBNF_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[A-Za-z0-9_]+|[()|]')
+_GBNF_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[A-Za-z0-9_]+|[()|?]')
 
 
 def _admits(grammar: str, text: str) -> bool:
@@ -182,8 +182,8 @@ def _admits(grammar: str, text: str) -> bool:
         for tok in _GBNF_TOKEN.findall(rules[name]):
             if tok.startswith('"'):
                 out.append(re.escape(json.loads(tok)))
-            elif tok in "()|":
-                out.append({"(": "(?:", ")": ")", "|": "|"}[tok])
+            elif tok in "()|?":
+                out.append({"(": "(?:", ")": ")", "|": "|", "?": "?"}[tok])
             else:
                 out.append(f"(?:{expand(tok)})")
         return "".join(out)
@@ -287,3 +287,38 @@ def test_a_meal_or_desk_work_is_done_sitting_unless_the_words_say_otherwise(acti
     g = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity=activity)
     rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
     assert ("standlabel" not in rules and "label" not in rules and "| area" not in rules["block1"]) == seated
+
+
+def _block(name: str, action: str, area: str, look: str) -> str:
+    return (f'    c = get_character("{name}")\n    c.set_target_action("{action}")\n'
+            f'    c.set_position({area})\n    c.set_orientation("{look}")\n')
+
+
+def test_the_open_grammar_of_w_o_event_lets_the_model_pick_who_acts_and_nothing_is_narrowed() -> None:
+    """"w/o Event" has no event, so its grammar offers every free character (one block each at
+    most, any subset, or ``pass``), every label, every object and every free seat."""
+    roster = (*ROSTER, CharacterStatus(name="Cy", position=(3.0, 1.0)))
+    grammar = open_program_grammar(SCENE, roster, SEATS_IN_USE, LABELS)
+    assert _alternatives(grammar, "who") == {"Ava", "Cy"}  # Ben is busy
+    assert _alternatives(grammar, "object") == {o.name for o in SCENE.objects}
+    assert _alternatives(grammar, "sitlabel") | _alternatives(grammar, "standlabel") == set(LABELS)
+    seats = _alternatives(grammar, "seat")
+    assert seats and not seats & {"couch_1", "chair_2"}  # in use
+    start, end = "```python\ndef parse_event():\n", "```"
+    coffee = _block("Cy", "use_coffee_maker", 'get_area_to_interact_with("coffee_maker_1")', "coffee_maker_1")
+    sit = _block("Ava", "read_book", 'get_area_to_sit_on("chair_1")', "table_1")
+    assert _admits(grammar, start + "    pass\n" + end)
+    assert _admits(grammar, start + coffee + end) and _admits(grammar, start + coffee + sit + end)
+    assert not _admits(grammar, start + end)  # nobody and no pass
+    assert not _admits(grammar, start + coffee + sit + coffee + end)  # more blocks than free characters
+    assert not _admits(grammar, start + _block("Ben", "idle", 'get_area_close_to("tv_1")', "tv_1") + end)
+    assert not _admits(grammar, start + _block("Ava", "read_book", 'get_area_to_sit_on("couch_1")', "tv_1") + end)
+    with pytest.raises(ValueError, match="nobody is free"):
+        open_program_grammar(SCENE, (ROSTER[1],), SEATS_IN_USE, LABELS)
+
+
+def test_the_open_grammar_parses_in_llama_cpp() -> None:
+    pytest.importorskip("llama_cpp")
+    from llama_cpp import LlamaGrammar
+
+    assert LlamaGrammar.from_string(open_program_grammar(SCENE, ROSTER, SEATS_IN_USE, LABELS), verbose=False) is not None

@@ -35,8 +35,10 @@ def unified_request(
     seats_in_use: Sequence[str],
     turns: tuple[Turn, ...] = (),
     max_tokens: int | None = None,
+    grammar: str | None = None,
 ) -> LLMRequest:
-    """The planner's request (``max_tokens`` None: :func:`unified_max_tokens`)."""
+    """The planner's request (``max_tokens`` None: :func:`unified_max_tokens`; ``grammar``:
+    :func:`agents.program_grammar.open_program_grammar`, or None for free text)."""
     free = inp.free
     system = prompts.render(
         "planner/system.md",
@@ -58,6 +60,7 @@ def unified_request(
         max_tokens=max_tokens or unified_max_tokens(len(free)),
         seed=inp.seed,
         temperature=retry_temperature(turns),
+        grammar=grammar,
     )
 
 

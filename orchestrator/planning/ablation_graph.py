@@ -51,6 +51,7 @@ from agents.ablations.direct import check_direct_reply, direct_request
 from agents.ablations.unified import check_unified_reply, unified_request
 from agents.llm_port import LLMError
 from agents.messages import Event, ParsedEvent, PlanningFailure, SceneDescription
+from agents.program_grammar import open_program_grammar
 from agents.retry_feedback import REJECTIONS, feedback_from_error
 from orchestrator.planning import graph as planning_graph
 from orchestrator.planning.graph import (
@@ -180,9 +181,13 @@ async def plan_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> di
     """One planner call (no narrator); its reply is checked by the next node."""
     deps = runtime.context
     turns = tuple(t.as_turn() for t in state.parser_turns)
+    seats_in_use = deps.world.seats_in_use(state.roster)
+    grammar = None
+    if deps.program_grammar and any(not c.busy for c in state.roster):
+        grammar = open_program_grammar(deps.scene, state.roster, seats_in_use, deps.action_labels)
     request = unified_request(
         deps.prompts, narrator_input(state, deps), action_labels=deps.action_labels,
-        seats_in_use=deps.world.seats_in_use(state.roster), turns=turns,
+        seats_in_use=seats_in_use, turns=turns, grammar=grammar,
     )
     try:
         response = await complete(deps, request, state)
