@@ -214,6 +214,36 @@ def test_other_arguments_in_the_same_folder_are_refused(finished: tuple[Path, li
         asyncio.run(run_sweep(spec(levels=(0, 2)), finished[0], factory=scripted([])))
 
 
+def test_a_sweep_moved_to_another_machine_resumes_where_its_cases_and_config_now_are(
+    finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path,
+) -> None:
+    """Where the reference cases and the config file are is not part of the sweep: the same
+    arguments from another folder resume it (nothing to redo) and sweep.json takes the new places."""
+    import shutil
+
+    out = tmp_path / "moved"
+    shutil.copytree(finished[0], out)
+    cases = tmp_path / "elsewhere"
+    cases.symlink_to(REFERENCE)
+    base = spec()
+    config = base.models[0].config.model_copy(update={"source": "/another/machine/config.toml"})
+    moved = base.model_copy(update={
+        "case_sets": (CaseSetSpec(name="reference", path=str(cases), scenes_root=str(cases)),),
+        "models": (base.models[0].model_copy(update={"config": config}),),
+    })
+    calls: list[str] = []
+    asyncio.run(run_sweep(moved, out, factory=scripted(calls)))
+    assert calls == []
+    assert {k: v for k, v in snapshot(out).items() if k != "sweep.json"} == {
+        k: v for k, v in finished[2].items() if k != "sweep.json"}
+    saved = json.loads((out / "sweep.json").read_text(encoding="utf-8"))
+    assert saved["case_sets"][0]["path"] == str(cases)
+    assert saved["models"][0]["config"]["source"] == "/another/machine/config.toml"
+    renamed = moved.model_copy(update={"case_sets": (CaseSetSpec(name="mine", path=str(cases), scenes_root=str(cases)),)})
+    with pytest.raises(SweepSpecError, match="field 'case_sets' differs"):
+        asyncio.run(run_sweep(renamed, out, factory=scripted([])))
+
+
 def test_line_progress_reports_rate_and_eta(finished: tuple[Path, list[str], dict[str, bytes]]) -> None:
     import io
 

@@ -85,6 +85,15 @@ class SweepSpec(_Frozen):
     feedback: int = Field(default=0, ge=0, description="Retries with feedback per role (max_retries); 0 as in the paper.")
     program_grammar: bool = True
 
+    def decisive(self) -> dict[str, object]:
+        """The spec without where things were found (case folders, the config file's path):
+        a sweep resumed on another machine, or after the config file moved, is the same sweep."""
+        data = self.model_dump(mode="json")
+        data["case_sets"] = [c["name"] for c in data["case_sets"]]
+        for model in data["models"]:
+            model["config"].pop("source", None)
+        return data
+
     def check(self) -> SweepSpec:
         """Raise :class:`SweepSpecError` naming the first bad argument."""
         if unknown := [m for m in self.methods if m not in METHODS]:

@@ -18,9 +18,23 @@ from pathlib import Path
 
 from benchmark.sweep.grid import METHOD_TITLES, SweepSpec
 from benchmark.sweep.results import RunResult, results_csv, write_atomic
+from orchestrator.reference_data import PROJECT_ROOT, REFERENCE_ENV, locate_reference
 
 PLOTS = ("success_by_characters.png", "tokens_by_description.png")
 
+
+
+def where(path: str) -> str:
+    """A case folder as a reader can find it on their machine: under the reference data
+    (``$STORYTELLER_REFERENCE/...``), under the project, else as given. The report then reads
+    the same wherever the sweep ran."""
+    folder = Path(path).resolve()
+    reference = locate_reference()
+    for root, name in ((reference.path if reference.found else None, f"${REFERENCE_ENV}"), (PROJECT_ROOT, ".")):
+        if root is not None and folder.is_relative_to(root):
+            rel = folder.relative_to(root).as_posix()
+            return name if rel == "." else f"{name}/{rel}"
+    return path
 
 
 def _has_tag(tag: str) -> Callable[[RunResult], bool]:
@@ -131,7 +145,7 @@ def report_markdown(spec: SweepSpec, results: Sequence[RunResult]) -> str:
                 if spec.feedback else "off, as in the paper")
     lines = [
         "# Planning benchmark sweep", "",
-        f"- case sets: {', '.join(f'`{c.name}` ({c.path})' for c in spec.case_sets)}",
+        f"- case sets: {', '.join(f'`{c.name}` ({where(c.path)})' for c in spec.case_sets)}",
         f"- distraction levels: {', '.join(map(str, spec.levels))}; repeats: {spec.repeats}; seed: {spec.seed}",
         f"- methods: {', '.join(METHOD_TITLES[m] for m in spec.methods)}; self-feedback: {feedback}",
         f"- program grammar for local models: {'on' if spec.program_grammar else 'off'}",

@@ -77,17 +77,21 @@ def sweep_file(out: Path) -> Path:
 
 
 def save_or_check_spec(spec: SweepSpec, out: Path) -> None:
-    """Write ``sweep.json``, or check that the one there describes the same sweep."""
+    """Write ``sweep.json``, or check that the one there describes the same sweep
+    (:meth:`SweepSpec.decisive`: the same arguments, wherever the cases and the config file
+    are now; the file is then rewritten with the current locations)."""
     path = sweep_file(out)
     text = spec.model_dump_json(indent=1) + "\n"
     if path.exists():
-        old = SweepSpec.model_validate_json(path.read_text(encoding="utf-8"))
-        if old != spec:
-            mine, theirs = spec.model_dump(mode="json"), old.model_dump(mode="json")
+        raw = path.read_text(encoding="utf-8")
+        old = SweepSpec.model_validate_json(raw)
+        mine, theirs = spec.decisive(), old.decisive()
+        if mine != theirs:
             field = next((k for k in mine if mine[k] != theirs.get(k)), "?")
             raise SweepSpecError(f"{path}: this folder holds a sweep with other arguments (field '{field}' differs); "
                                  "rerun with the same arguments to resume, or choose another --out")
-        return
+        if raw == text:
+            return
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(path, text.encode("utf-8"))
 
