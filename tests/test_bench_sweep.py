@@ -244,6 +244,25 @@ def test_a_sweep_moved_to_another_machine_resumes_where_its_cases_and_config_now
         asyncio.run(run_sweep(renamed, out, factory=scripted([])))
 
 
+def test_a_published_sweep_scores_on_a_machine_where_its_case_folder_is_elsewhere(
+    finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path,
+) -> None:
+    """sweep.json names the folder of the machine that ran it; ``bench score`` elsewhere finds
+    the reference cases through the resolver and writes the same files."""
+    import shutil
+
+    out = tmp_path / "published"
+    shutil.copytree(finished[0], out)
+    recorded = (out / "sweep.json").read_text(encoding="utf-8")
+    away = recorded.replace(json.dumps(str(REFERENCE)), json.dumps("/nowhere/reference"))
+    assert away != recorded
+    (out / "sweep.json").write_text(away, encoding="utf-8")
+    (out / "results.csv").unlink()
+    asyncio.run(score_sweep(out))
+    assert {k: v for k, v in snapshot(out).items() if k != "sweep.json"} == {
+        k: v for k, v in finished[2].items() if k != "sweep.json"}
+
+
 def test_line_progress_reports_rate_and_eta(finished: tuple[Path, list[str], dict[str, bytes]]) -> None:
     import io
 

@@ -36,7 +36,7 @@ from benchmark.sweep.execute import (
     record_port,
     replay_port,
 )
-from benchmark.sweep.grid import RunKey, SweepSpec, SweepSpecError, expand
+from benchmark.sweep.grid import RunKey, SweepSpec, SweepSpecError, case_set_for, expand
 from benchmark.sweep.results import (
     RunResult,
     append_result,
@@ -97,10 +97,32 @@ def save_or_check_spec(spec: SweepSpec, out: Path) -> None:
 
 
 def load_spec(out: Path) -> SweepSpec:
+    """``sweep.json`` of ``out``, with the ``reference`` and ``ours`` case sets found where they
+    are on this machine when the recorded folders are not here (a published sweep scored
+    elsewhere)."""
     path = sweep_file(out)
     if not path.exists():
         raise SweepSpecError(f"{out}: not a sweep folder (no sweep.json)")
-    return SweepSpec.model_validate_json(path.read_text(encoding="utf-8"))
+    return relocated(SweepSpec.model_validate_json(path.read_text(encoding="utf-8")))
+
+
+def relocated(spec: SweepSpec) -> SweepSpec:
+    """``spec`` with each missing ``reference`` / ``ours`` case folder replaced by this
+    machine's (``$STORYTELLER_REFERENCE``, ``benchmark/cases/ours``); others stay as recorded."""
+    if all(Path(c.path).is_dir() and Path(c.scenes_root).is_dir() for c in spec.case_sets):
+        return spec
+    from orchestrator.reference_data import locate_reference
+
+    reference = locate_reference()
+    if not reference.found:
+        return spec
+    ours = Path(__file__).resolve().parents[1] / "cases" / "ours"
+    moved = tuple(
+        case_set_for(c.name, reference.path, ours)
+        if c.name in ("reference", "ours") and not (Path(c.path).is_dir() and Path(c.scenes_root).is_dir()) else c
+        for c in spec.case_sets
+    )
+    return spec.model_copy(update={"case_sets": moved})
 
 
 def grid(ws: SweepWorkspace) -> list[RunKey]:
