@@ -86,6 +86,7 @@ def program_grammar(
     posture: str | None = None,
     area_names: Sequence[str] = (),
     choose_characters: bool = False,
+    max_blocks: int | None = None,
 ) -> str:
     """The grammar of one event's program (see the module docstring).
 
@@ -102,7 +103,8 @@ def program_grammar(
     functions the event's where-words name (``get_area_behind``); when given, the only standing
     areas offered. ``choose_characters`` (the "w/o Event" ablation, which has no event to say
     who acts): the program is ``pass`` or one to ``len(event_characters)`` blocks, each on a
-    character the model picks from ``event_characters`` (variable ``c`` in every block)."""
+    character the model picks from ``event_characters`` (variable ``c`` in every block), at
+    most ``max_blocks`` of them (None: one per character)."""
     if not event_characters:
         raise ValueError("an event without characters has no program")
     if not action_labels:
@@ -115,7 +117,7 @@ def program_grammar(
     start, end = _literal("```python\ndef parse_event():\n"), _literal("```")
     if choose_characters:
         blocks = "block"
-        for _ in event_characters[1:]:  # one to n blocks: block ( block ( block )? )?
+        for _ in range(min(len(event_characters), max_blocks or len(event_characters)) - 1):  # block ( block )?
             blocks = f"block ( {blocks} )?"
         wait = _literal("    pass\n")
         lines = [f"root ::= {start} ( {wait} | {blocks} ) {end}"]
@@ -224,7 +226,8 @@ def open_program_grammar(
     """The grammar of the "w/o Event" planner's program: the same well-formed programs as an
     event's (:func:`program_grammar`) but with nothing an event would narrow: the model picks
     which free characters act (or ``pass``), any offered label, any object of the scene and any
-    seat nobody holds. The ablation then measures what the event adds, not what the grammar does.
+    seat nobody holds, for one to three characters (an event's size in the narrator's rules).
+    The ablation then measures what the event adds, not what the grammar does.
     ``characters``: the roster (objects with ``name``, ``busy``, ``seat``)."""
     free = [c.name for c in characters if not getattr(c, "busy", False)]
     if not free:
@@ -241,4 +244,5 @@ def open_program_grammar(
         seated_labels=[a for a in action_labels if playable_seated(a)],
         interact_objects=[o for o in objects if o not in seat_names],
         choose_characters=True,
+        max_blocks=3,
     )

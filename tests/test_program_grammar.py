@@ -313,6 +313,11 @@ def test_the_open_grammar_of_w_o_event_lets_the_model_pick_who_acts_and_nothing_
     assert not _admits(grammar, start + coffee + sit + coffee + end)  # more blocks than free characters
     assert not _admits(grammar, start + _block("Ben", "idle", 'get_area_close_to("tv_1")', "tv_1") + end)
     assert not _admits(grammar, start + _block("Ava", "read_book", 'get_area_to_sit_on("couch_1")', "tv_1") + end)
+    crowd = (*roster, *(CharacterStatus(name=n, position=(float(i), 2.0)) for i, n in enumerate(("Di", "Eve", "Fay"))))
+    many = open_program_grammar(SCENE, crowd, SEATS_IN_USE, LABELS)
+    blocks = [_block(n, "use_coffee_maker", 'get_area_to_interact_with("coffee_maker_1")', "coffee_maker_1")
+              for n in ("Ava", "Cy", "Di", "Eve")]
+    assert _admits(many, start + "".join(blocks[:3]) + end) and not _admits(many, start + "".join(blocks) + end)
     with pytest.raises(ValueError, match="nobody is free"):
         open_program_grammar(SCENE, (ROSTER[1],), SEATS_IN_USE, LABELS)
 
