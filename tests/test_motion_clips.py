@@ -18,6 +18,7 @@ from sim.motion.action_labels import (
     all_database_keys,
     database_key,
     family_of,
+    playable_seated,
 )
 from sim.motion.cache import cached_arrays, content_key
 from sim.motion.clips import FOOT_JOINTS, MotionClip
@@ -67,6 +68,25 @@ def test_label_families_looping_and_seated_variants() -> None:
         database_key("handshake", seated=True)
     assert "use_laptop@seated" in all_database_keys()
 
+
+
+def test_playable_seated_is_where_the_seated_database_key_exists() -> None:
+    """``playable_seated`` answers without building the error (whose difflib suggestions are
+    slow): True exactly where ``database_key(label, seated=True)`` returns, for every label,
+    every seated key and unknown labels; ``database_key`` keeps its errors."""
+    labels = [*ACTION_LABELS, *(f"{a}@seated" for a in ACTION_LABELS), "drnik", "", "@seated", "drink@seated@seated"]
+    for label in labels:
+        try:
+            database_key(label, seated=True)
+            exists = True
+        except UnknownActionLabelError:
+            exists = False
+        assert playable_seated(label) == exists, label
+    assert playable_seated("drink") and playable_seated("idle") and playable_seated("sit_down")
+    assert not playable_seated("handshake") and not playable_seated("drnik")
+    for args in (("handshake", True), ("handshake@seated", False)):
+        with pytest.raises(UnknownActionLabelError, match=r"^unknown action label 'handshake@seated'; did you mean 'handshake'\?$"):
+            database_key(*args)
 
 def _check_clip(clip: MotionClip) -> None:
     assert np.all(np.isfinite(clip.local_rotations)) and np.all(np.isfinite(clip.pelvis))

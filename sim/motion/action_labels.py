@@ -182,23 +182,32 @@ def database_key(label: str, seated: bool = False) -> str:
     Seated idle is the ``sit_idle`` database; other seatable labels get ``<label>@seated``.
     Raises UnknownActionLabelError for unknown labels and for seated non-seatable labels.
     """
-    spec = action_spec(label)
+    key = _database_key_or_none(label, seated)
+    if key is None:
+        action_spec(label)  # an unknown label: its own message
+        raise UnknownActionLabelError(f"{label}{SEATED_SUFFIX}")
+    return key
+
+
+def _database_key_or_none(label: str, seated: bool) -> str | None:
+    """``database_key(label, seated)``, or None where that raises. No error is built: its
+    message looks for close labels with difflib, about 1 ms a label, and the program grammars
+    ask this of every offered label for every planning step."""
+    spec = ACTION_SPECS.get(label.removesuffix(SEATED_SUFFIX))
+    if spec is None or (label.endswith(SEATED_SUFFIX) and not spec.seatable):
+        return None
     if not seated or spec.family == "sitting":
         return spec.label
     if spec.label == "idle":
         return "sit_idle"
     if not spec.seatable:
-        raise UnknownActionLabelError(f"{label}{SEATED_SUFFIX}")
+        return None
     return f"{spec.label}{SEATED_SUFFIX}"
 
 
 def playable_seated(label: str) -> bool:
     """Whether ``label`` has a seated motion (False for unknown labels)."""
-    try:
-        database_key(label, seated=True)
-    except UnknownActionLabelError:
-        return False
-    return True
+    return _database_key_or_none(label, seated=True) is not None
 
 
 def all_database_keys() -> tuple[str, ...]:
