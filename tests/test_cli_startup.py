@@ -1,5 +1,7 @@
-"""Commands start at once: ``storyteller --help``, ``scene list`` and ``model info`` import no
-LLM client, planning graph, clustering, plotting or compiled-kernel module.
+"""Commands start at once: ``storyteller --help``, ``scene list``, ``model info`` and the help of
+``run``, ``replay`` and ``resume`` import no LLM client, planning graph, clustering, plotting or
+compiled-kernel module (a run or replay imports its job's modules, the plotting of
+``topdown.png`` among them, only once it runs).
 
 Each command runs in a fresh interpreter (the test session itself has imported everything
 already), and the child reports the top-level packages in its ``sys.modules`` after the
@@ -44,7 +46,11 @@ def _imported_by(args: list[str], tmp_path: Path) -> set[str]:
     return set(json.loads(line.removeprefix("MODULES ")))
 
 
-@pytest.mark.parametrize("args", [["--help"], ["scene", "list"], ["model", "info"]], ids=" ".join)
+@pytest.mark.parametrize(
+    "args",
+    [["--help"], ["scene", "list"], ["model", "info"], ["run", "--help"], ["replay", "--help"], ["resume", "--help"]],
+    ids=" ".join,
+)
 def test_quick_commands_import_no_heavy_module(args: list[str], tmp_path: Path) -> None:
     heavy = sorted(set(HEAVY) & _imported_by(args, tmp_path))
     assert heavy == [], f"storyteller {' '.join(args)} imported {heavy}"
