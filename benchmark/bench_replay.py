@@ -29,23 +29,41 @@ checkout's replays so both see the same machine load, and prints its figures and
 Target (issue 14): the replay of a recorded 60 s story at least 20x faster than its recorded
 wall time.
 
-Figures (2 cores shared with other sessions' LLMs: load average 2.3-2.8, both cores busy):
-recorded 60.6 s; replay fastest of 5 3.82 s wall (median 4.00 s), CPU 3.52 s: 15.8x wall, 17.2x
-by CPU; the main branch before this round in the same run 3.67 s (median 3.95 s), CPU 3.49 s
-(0.96x / 0.99x: the same, within the noise). Where a replay's time goes (one process per run,
-in-process marks): the command's process ~2.9 s CPU (imports ~1.5 s: langgraph with
-langchain-core and langsmith ~0.4 s, scipy ~0.2 s, matplotlib ~0.2 s, numba ~0.1 s plus its
-first kernel load ~0.2 s; the 1,800 frames and 8 planning steps ~0.65 s; outputs ~0.55 s) and
-the event-program worker ~0.7 s CPU (numpy, numba, scipy, networkx, the scene's grid), plus
-~0.3-0.45 s of waiting on fsyncs (runs.sqlite commits and trace records, per planning node).
-The worker now starts first and loads the scene while the command imports (the first planning
-step no longer waits ~0.6 s for it), which shortens a replay only when a core is free; on the
-busy machine above the two processes share one core's worth of time and the wall time is the
-CPU time. Not changed, measured here as options: programs in this process (``storyteller run
-... --replay T --in-process-programs``: -0.3 to -0.4 s), no fsync of the replay's trace and
-``synchronous=NORMAL`` for its runs.sqlite (-0.3 to -0.45 s; weaker after a power loss), .pyc
-files for the checkout (this sandbox sets ``PYTHONDONTWRITEBYTECODE``: every replay compiles
-the project's modules from source, about 0.1 s).
+Figures (this round; the 2 cores busy with a model job, load average 3.1-3.7, so the figures
+vary by +-0.5 s from run to run): ``--repeats 3 --latency 3 --baseline`` the main branch, run
+twice: recorded 36.3 s / 33.5 s; replay fastest 7.02 s / 6.41 s wall, CPU 6.65 s / 5.81 s; main
+6.44 s / 7.10 s, CPU 5.92 s / 6.64 s (0.89x / 1.14x by CPU: three runs cannot tell the two apart
+on this load). The second recording replayed ten times by each, interleaved (``--reuse``): 5.54 s
+wall (median 6.43 s), CPU 5.13 s, against main's 5.98 s (median 7.19 s), CPU 5.44 s: 1.06x by
+CPU, 1.12x by median wall; 6.0x wall and 6.5x by CPU against its 33.5 s recording (on a quiet
+machine main replayed a 34.0 s recording in 4.24 s wall, 5.46 s CPU: 8.0x). Changed this round:
+``playable_seated`` no longer builds an ``UnknownActionLabelError`` (whose difflib suggestions
+cost about 1 ms a label; the w/o-Event grammar asks it of every label each step: 0.1-0.2 s).
+Measured and not taken: the navigation grid's components as a hand-written compiled kernel
+instead of ``scipy.sparse.csgraph`` (the worker would skip ``scipy.sparse``, about 0.04 s: not
+worth owning a graph algorithm that scipy keeps; the figures above were measured with it).
+
+Where a replay's time goes now (in-process marks, busy machine): the command 4.3-5.1 s CPU: imports
+~2.6 s (langgraph with langchain-core and langsmith ~0.8 s, matplotlib ~0.5 s, scipy.spatial ~0.3
+s, numpy and pydantic ~0.25 s, numba ~0.2 s, structlog with rich ~0.1 s, the project's modules
+compiled from source 0.3-0.6 s); the story ~1.6 s (numba's target context and 14 cached kernels
+at the first kernel call 0.3-0.5 s, 60 motion databases 0.12 s, start positions 0.2 s, the
+1,800 frames and 8 planning steps); outputs ~0.7-0.95 s (npz, BVH and GLB exports ~0.6 s in two threads,
+``topdown.png`` 0.25-0.3 s); the event-program worker ~1.1-1.2 s CPU (its imports 0.3 s, the
+scene's load 0.8-0.9 s: numba and its context, the grid, networkx and the scene graph), plus
+~0.3-0.45 s of waiting on fsyncs. Needed, so not changed: matplotlib (every run and replay
+writes ``topdown.png``; a picture command is not the only user); langsmith (``langgraph.graph``'s
+``__init__`` imports ``langgraph.graph.state``, whose ``langgraph._internal._runnable`` imports
+``langchain_core.tracers.langchain`` and so langsmith: no submodule path avoids it, only a patch
+of langgraph would); networkx in the worker (``get_area_to_interact_with`` reads the scene graph,
+so nearly every program needs it, and building it inside a program would count against the
+program's 1 s wall-clock budget). Not changed, measured here as options: programs in this
+process (``storyteller run ... --replay T --in-process-programs``: -0.3 to -0.4 s), no fsync of
+the replay's trace and ``synchronous=NORMAL`` for its runs.sqlite (-0.3 to -0.45 s; weaker after
+a power loss), .pyc files for the checkout (this sandbox sets ``PYTHONDONTWRITEBYTECODE``: every
+replay compiles the modules only the command imports from source; interleaved replays of a copy
+with compiled .pyc files: CPU 5.87 s against 6.45 s, fastest of four, 6.35 s against 6.65 s by
+median), a ``gc.freeze()`` after the run's set-up (the one full collection of the story, ~40 ms).
 
 Usage: ``python -m benchmark.bench_replay [--latency S] [--seconds 60] [--max-events 8] [--repeats 3]
 [--keep DIR] [--baseline DIR] [--reuse DIR]``; ``--reuse`` replays the recording a ``--keep`` run left

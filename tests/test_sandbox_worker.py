@@ -117,6 +117,29 @@ def test_the_first_program_on_a_new_worker_imports_and_builds_nothing() -> None:
     assert json.loads(line.removeprefix("FIRST ")) == {"imported": [], "grids_built": 0}
 
 
+WORKER_IMPORTS_PROBE = """
+import json, sys
+from orchestrator.sandbox_worker import load_scene
+
+load_scene(sys.stdin.read())  # the scene's JSON, as the parent sends it
+print("MODULES " + json.dumps(sorted(m for m in sys.modules if m.split(".")[0] in
+      ("matplotlib", "langgraph", "langsmith", "litellm", "sklearn", "torch"))))
+"""
+
+
+def test_a_worker_with_its_scene_loaded_imports_no_plotting_or_planning_module(scene: Scene) -> None:
+    """The worker's start-up (imports and ``load_scene``, paid by every run and replay) loads
+    what programs run on (the scene graph, the navigation grid and its compiled kernels) and no
+    plotting, LLM or planning-graph package."""
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-c", WORKER_IMPORTS_PROBE], input=scene.model_dump_json(),
+                          capture_output=True, text=True, cwd=root, env=env, timeout=300)
+    line = next((ln for ln in proc.stdout.splitlines() if ln.startswith("MODULES ")), None)
+    assert line is not None, proc.stderr[-2000:]
+    assert json.loads(line.removeprefix("MODULES ")) == []
+
+
 def test_a_prestarted_worker_runs_the_first_program(scene: Scene) -> None:
     with WorkerRunner() as run:
         run.prestart()
