@@ -66,8 +66,11 @@ with compiled .pyc files: CPU 5.87 s against 6.45 s, fastest of four, 6.35 s aga
 median), a ``gc.freeze()`` after the run's set-up (the one full collection of the story, ~40 ms).
 
 Usage: ``python -m benchmark.bench_replay [--latency S] [--seconds 60] [--max-events 8] [--repeats 3]
-[--keep DIR] [--baseline DIR] [--reuse DIR]``; ``--reuse`` replays the recording a ``--keep`` run left
-(with its recorded wall time) instead of recording again.
+[--keep DIR] [--baseline DIR] [--reuse DIR] [--no-bytecode]``; ``--reuse`` replays the recording a
+``--keep`` run left (with its recorded wall time) instead of recording again. Replays run with .pyc
+files, as an installed product has them (one untimed replay per checkout writes them, with
+``PYTHONDONTWRITEBYTECODE`` removed from the replays' environment); ``--no-bytecode`` keeps the
+variable when it is set, and every replay then compiles the modules from source.
 """
 
 from __future__ import annotations
@@ -204,6 +207,9 @@ def main() -> None:
     ap.add_argument("--baseline", type=Path, default=None,
                     help="a checkout of the project whose replay of the same recording is timed too (before / after)")
     ap.add_argument("--top", type=int, default=12, help="packages shown in the import-time breakdown")
+    ap.add_argument("--no-bytecode", action="store_true",
+                    help="keep PYTHONDONTWRITEBYTECODE if set (every replay compiles the modules from source) "
+                         "instead of replaying with .pyc files, as an installed product does")
     ap.add_argument("--reuse", type=Path, default=None,
                     help="a --keep folder of an earlier run: replay its recording (and its recorded wall time) again")
     args = ap.parse_args()
@@ -220,6 +226,8 @@ def main() -> None:
         for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL"):
             env.pop(var, None)
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+        if not args.no_bytecode:  # pip installs write .pyc files; a sandbox that forbids them is not a user's machine
+            env.pop("PYTHONDONTWRITEBYTECODE", None)
         run_dir = base / "recorded"
         planner = Planner(latency)
         if args.reuse is not None:
@@ -237,6 +245,9 @@ def main() -> None:
             codes["baseline"] = (with_code(env, args.baseline.resolve()), args.baseline.resolve())
         walls: dict[str, list[float]] = {name: [] for name in codes}
         cpus: dict[str, list[float]] = {name: [] for name in codes}
+        if "PYTHONDONTWRITEBYTECODE" not in env:  # one untimed replay per checkout writes its .pyc files
+            for j, (code_env, code_root) in enumerate(codes.values()):
+                timed(["-c", CLI, "replay", str(run_dir), "--out", str(base / f"warm-up-{j}")], code_env, code_root)
         for k in range(max(1, args.repeats)):
             for j, (name, (code_env, code_root)) in enumerate(codes.items()):  # interleaved: the same load
                 out = base / f"replay{k}-{j}"
@@ -265,8 +276,10 @@ def main() -> None:
         for name, (code_env, code_root) in codes.items():
             print(f"code of {name}: {code_folder(code_env, code_root)}")
         print(f"start-up floor (import orchestrator.cli.app):      {floor:8.2f} s wall")
-        if os.environ.get("PYTHONDONTWRITEBYTECODE"):
-            print("note: PYTHONDONTWRITEBYTECODE is set: modules without a .pyc are compiled from source in every replay")
+        if "PYTHONDONTWRITEBYTECODE" in env:
+            print("note: PYTHONDONTWRITEBYTECODE is set (--no-bytecode): modules are compiled from source in every replay")
+        else:
+            print("replays with .pyc files (written by one untimed replay per checkout), as from an installed product")
         for name, (wall, total, by_top) in imports.items():
             shown = ", ".join(f"{top} {sec:.2f}" for top, sec in by_top[: args.top])
             print(f"imports of one replay, {name} (-X importtime, self time): {total:.2f} s of {wall:.2f} s wall; "
