@@ -14,7 +14,7 @@ from typing import Any
 
 from agents.event_parser import ProgramRunner, check_plans, default_runner, extract_program
 from agents.llm_port import ChatMessage, LLMRequest
-from agents.messages import CharacterStatus, Event, ParsedEvent
+from agents.messages import MAX_ACTIVITY_CHARS, CharacterStatus, Event, ParsedEvent
 from agents.narrator import NarratorInput, characters_text, history_text
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.retry_feedback import AnswerRejectedError, Turn, retry_temperature, with_turns
@@ -99,5 +99,8 @@ def check_unified_reply(
             + [lib.render_text("feedback/free_characters.md", free=", ".join(free))]
         )
     summaries = (lib.render_text("planner/plan_summary.md", character=p.character, action=p.action, area=p.area) for p in plans)
-    event = Event(characters=names, activity="; ".join(summaries)[:320])
+    activity = "; ".join(summaries)
+    if len(activity) > MAX_ACTIVITY_CHARS:  # several characters' plans: cut at a word, marked
+        activity = activity[: MAX_ACTIVITY_CHARS - 3].rsplit(" ", 1)[0] + "..."
+    event = Event(characters=names, activity=activity)
     return ParsedEvent(index=index, event=event, plans=check_plans(event, plans, lib), program=program)
