@@ -119,6 +119,37 @@ async def test_failed_attempts_are_not_served(tmp_path: Path, no_live_calls: Non
     assert resp.text == "final answer" and resp.attempts == 3 and resp.model == "openai/gpt-4o-mini"
 
 
+async def test_a_call_that_failed_replays_as_the_same_error(tmp_path: Path, no_live_calls: None) -> None:
+    """A call whose every attempt failed raised an LLMError at record time (a prompt over the
+    context window, a provider out of retries): the replay raises the same type and message,
+    then serves the next recorded call of the same request."""
+    from litellm.exceptions import ContextWindowExceededError
+
+    from agents.llm_port import LLMError
+
+    path = tmp_path / "t.jsonl"
+    too_long = ContextWindowExceededError(message="Requested tokens (4895) exceed context window", model="m",
+                                          llm_provider="openai")
+    cfg = default_config()
+    cfg = cfg.model_copy(update={"nodes": {k: v.model_copy(update={"model": "openai/gpt-4o-mini"}) for k, v in cfg.nodes.items()}})
+    client = LiteLLMClient(cfg, TraceWriter(path), acompletion=ScriptedProvider([too_long, "second time lucky"]),
+                           sleep=no_sleep, check_local=lambda m: None)
+    with pytest.raises(LLMError) as recorded:
+        await client.complete(req("a very long prompt"))
+    answer = (await client.complete(req("a very long prompt"))).text
+    client.close()
+    replay = ReplayClient(path, trace_sink=TraceWriter(tmp_path / "replayed.jsonl"))
+    with pytest.raises(LLMError) as replayed:
+        await replay.complete(req("a very long prompt"))
+    assert type(replayed.value) is type(recorded.value) and str(replayed.value) == str(recorded.value)
+    assert "ContextWindowExceededError" in str(replayed.value)
+    assert (await replay.complete(req("a very long prompt"))).text == answer
+    replay.close()
+    copied = list(read_trace(tmp_path / "replayed.jsonl").attempts())
+    assert [(a.error_type, a.final) for a in copied] == [("ContextWindowExceededError", False), (None, True)]
+    assert replayed.value.trace_seqs == (copied[0].seq,)
+
+
 async def test_tampered_hash_is_corruption(tmp_path: Path) -> None:
     path = tmp_path / "t.jsonl"
     await record(path, [req("q")], ["A"])

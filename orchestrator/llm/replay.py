@@ -4,8 +4,12 @@
 to the caller when the trace was recorded, in recorded order when the same request repeats.
 A request that is not in the trace (or asked more often than recorded) raises
 :class:`ReplayMissError` naming the node and showing a unified diff against the closest
-recorded request of that node. It never falls through to a live call. Failed attempts in
-the trace are not replayed: only the final answer of each call matters to the run.
+recorded request of that node. It never falls through to a live call. Failed attempts of a
+call that then succeeded are not replayed (only the answer returned matters to the run); a call
+whose every attempt failed (the caller got an :class:`~agents.llm_port.LLMError`: a context
+window exceeded, a provider out of retries) is replayed as that error, with the same type and
+message, so a run that failed a step replays to the same failure. A call cut short by
+cancellation (a killed run) is not replayed: the resumed run asked again.
 """
 
 from __future__ import annotations
@@ -16,7 +20,16 @@ import time
 from collections import defaultdict, deque
 from pathlib import Path
 
-from agents.llm_port import LLMPort, LLMRequest, LLMResponse, NodeName, ReplayMissError, TokenUsage
+from agents.llm_port import (
+    LLMError,
+    LLMPort,
+    LLMRequest,
+    LLMResponse,
+    LLMUnavailableError,
+    NodeName,
+    ReplayMissError,
+    TokenUsage,
+)
 from orchestrator.llm.config import ConfigError, StorytellerConfig
 from orchestrator.llm.traces import (
     AttemptRecord,
@@ -63,20 +76,31 @@ class ReplayClient:
         self.path = Path(trace_path)
         self.trace: TraceSink = trace_sink if trace_sink is not None else NullTraceSink()
         contents = read_trace(self.path)
-        self._queues: dict[tuple[str, str], deque[AttemptRecord]] = defaultdict(deque)
+        self._queues: dict[tuple[str, str], deque[AttemptRecord | tuple[AttemptRecord, ...]]] = defaultdict(deque)
         self._recorded_counts: dict[tuple[str, str], int] = defaultdict(int)
         self._by_node: dict[NodeName, list[AttemptRecord]] = defaultdict(list)
+        calls: dict[int, list[AttemptRecord]] = defaultdict(list)
         for line_no, rec in enumerate(contents.records, start=1):
             if not isinstance(rec, AttemptRecord):
                 continue
             if rec.request.content_hash() != rec.request_hash:
                 raise TraceCorruptError(self.path, line_no, "request_hash does not match the recorded request")
-            if rec.final and rec.ok and rec.response_text is not None:
-                key = (rec.node, rec.request_hash)
-                self._queues[key].append(rec)
-                self._recorded_counts[key] += 1
-                if self._recorded_counts[key] == 1:
-                    self._by_node[rec.node].append(rec)
+            calls[rec.call].append(rec)
+        for call in sorted(calls):
+            attempts = calls[call]
+            last = attempts[-1]
+            outcome: AttemptRecord | tuple[AttemptRecord, ...]
+            if last.final and last.ok and last.response_text is not None:
+                outcome = last
+            elif all(a.error_class is not None and not a.final for a in attempts):
+                outcome = tuple(attempts)  # every attempt failed with an error the caller got
+            else:
+                continue  # cut short by cancellation
+            key = (last.node, last.request_hash)
+            self._queues[key].append(outcome)
+            self._recorded_counts[key] += 1
+            if self._recorded_counts[key] == 1:
+                self._by_node[last.node].append(last)
 
     def remaining(self) -> int:
         """Recorded answers not served yet."""
@@ -116,7 +140,10 @@ class ReplayClient:
         queue = self._queues.get((request.node, request_hash))
         if not queue:
             raise self._miss(request, request_hash)
-        rec = queue.popleft()
+        outcome = queue.popleft()
+        if isinstance(outcome, tuple):
+            raise await self._failed_call(request, outcome)
+        rec = outcome
         assert rec.response_text is not None
         seq = rec.seq
         if not isinstance(self.trace, NullTraceSink):
@@ -131,6 +158,32 @@ class ReplayClient:
             text=rec.response_text, model=rec.model, usage=rec.usage or TokenUsage(),
             latency_s=rec.latency_s, attempts=rec.attempt, trace_seq=seq,
         )
+
+    async def _failed_call(self, request: LLMRequest, attempts: tuple[AttemptRecord, ...]) -> LLMError:
+        """The error the recorded call raised, rebuilt from its attempts as the live client
+        builds it (same type, same message); the attempts go to this run's trace too."""
+        seqs: list[int] = []
+        if not isinstance(self.trace, NullTraceSink):
+            for a in attempts:
+                seq = self.trace.next_seq()
+                seqs.append(seq)
+                self.trace.write(a.model_copy(update={
+                    "run_id": self.trace.run_id, "seq": seq, "call": seqs[0], "time_unix": time.time(),
+                    "request": request, "params": {**a.params, "replayed_from_seq": a.seq},
+                }))
+            await self.trace.durable()
+        else:
+            seqs = [a.seq for a in attempts]
+        messages = [a.error_message or "" for a in attempts]
+        err: LLMError
+        if all(a.error_type == "LLMUnavailableError" for a in attempts):
+            err = LLMUnavailableError(f"node {request.node}: no usable model: {'; '.join(dict.fromkeys(messages))}")
+        else:
+            per_model = {a.model: f"{a.error_type}: {(a.error_message or '')[:200]}" for a in attempts}
+            summary = "; ".join(f"{m} -> {e}" for m, e in per_model.items())
+            err = LLMError(f"node {request.node}: all {len(attempts)} attempts failed ({summary})")
+        err.trace_seqs = tuple(seqs)
+        return err
 
     def close(self) -> None:
         """Close the sink of the replayed run's own trace (when it records one)."""
