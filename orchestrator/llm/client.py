@@ -36,7 +36,12 @@ from orchestrator.llm.local_model import (
     local_timeout_s,
     register_local_provider,
 )
-from orchestrator.llm.retry_policy import InvalidResponseError, RetryPolicy, classify_error
+from orchestrator.llm.retry_policy import (
+    InvalidResponseError,
+    RetryPolicy,
+    classify_error,
+    failed_call_error,
+)
 from orchestrator.llm.secrets import redact, secret_values
 from orchestrator.llm.traces import AttemptRecord, NullTraceSink, TraceSink
 
@@ -260,15 +265,10 @@ def _validate(text: str, finish: str | None, request: LLMRequest) -> Any:
 
 def _final_error(request: LLMRequest, failures: list[tuple[str, BaseException]], secrets: tuple[str, ...] = ()) -> LLMError:
     """The error a failed call raises; its message and cause name no secret value."""
-    if failures and all(isinstance(e, LLMUnavailableError) for _, e in failures):
-        msgs = "; ".join(dict.fromkeys(redact(str(e), secrets) for _, e in failures))
-        err: LLMError = LLMUnavailableError(f"node {request.node}: no usable model: {msgs}")
-    else:
-        per_model: dict[str, str] = {}
-        for model, exc in failures:
-            per_model[model] = f"{type(exc).__name__}: {redact(str(exc), secrets)[:200]}"
-        summary = "; ".join(f"{m} -> {e}" for m, e in per_model.items())
-        err = LLMError(f"node {request.node}: all {len(failures)} attempts failed ({summary})")
+    err = failed_call_error(
+        request.node, [(model, type(exc).__name__, redact(str(exc), secrets)) for model, exc in failures],
+        unavailable=bool(failures) and all(isinstance(e, LLMUnavailableError) for _, e in failures),
+    )
     if failures:
         cause = failures[-1][1]
         # a cause quoting a secret (in its message or arguments) is left off: a traceback would show it

@@ -25,12 +25,12 @@ from agents.llm_port import (
     LLMPort,
     LLMRequest,
     LLMResponse,
-    LLMUnavailableError,
     NodeName,
     ReplayMissError,
     TokenUsage,
 )
 from orchestrator.llm.config import ConfigError, StorytellerConfig
+from orchestrator.llm.retry_policy import failed_call_error, unavailable_error_names
 from orchestrator.llm.traces import (
     AttemptRecord,
     NullTraceSink,
@@ -174,14 +174,11 @@ class ReplayClient:
             await self.trace.durable()
         else:
             seqs = [a.seq for a in attempts]
-        messages = [a.error_message or "" for a in attempts]
-        err: LLMError
-        if all(a.error_type == "LLMUnavailableError" for a in attempts):
-            err = LLMUnavailableError(f"node {request.node}: no usable model: {'; '.join(dict.fromkeys(messages))}")
-        else:
-            per_model = {a.model: f"{a.error_type}: {(a.error_message or '')[:200]}" for a in attempts}
-            summary = "; ".join(f"{m} -> {e}" for m, e in per_model.items())
-            err = LLMError(f"node {request.node}: all {len(attempts)} attempts failed ({summary})")
+        names = unavailable_error_names()
+        err = failed_call_error(
+            request.node, [(a.model, a.error_type or "", a.error_message or "") for a in attempts],
+            unavailable=all(a.error_type in names for a in attempts),
+        )
         err.trace_seqs = tuple(seqs)
         return err
 

@@ -10,9 +10,10 @@ retried on the same model; the next fallback model is still tried.
 from __future__ import annotations
 
 import random
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import Literal
 
+from agents.llm_port import LLMError, LLMUnavailableError
 from orchestrator.llm.config import RetryConfig
 
 ErrorClass = Literal["transient", "permanent"]
@@ -96,3 +97,28 @@ class RetryPolicy:
         """The delays before attempts 2..max_attempts."""
         for k in range(1, self.config.max_attempts):
             yield self.delay_s(k)
+
+
+def failed_call_error(node: str, failures: Sequence[tuple[str, str, str]], *, unavailable: bool) -> LLMError:
+    """The error a call raises when every attempt failed: ``failures`` are (model, error type
+    name, redacted message) per attempt; ``unavailable`` when every one was an
+    :class:`LLMUnavailableError`. The live client and the replay both build it here, so a
+    replayed failure has the recorded message exactly."""
+    if unavailable:
+        msgs = "; ".join(dict.fromkeys(message for _, _, message in failures))
+        return LLMUnavailableError(f"node {node}: no usable model: {msgs}")
+    per_model = {model: f"{kind}: {message[:200]}" for model, kind, message in failures}
+    summary = "; ".join(f"{m} -> {e}" for m, e in per_model.items())
+    return LLMError(f"node {node}: all {len(failures)} attempts failed ({summary})")
+
+
+def unavailable_error_names() -> frozenset[str]:
+    """Names of :class:`LLMUnavailableError` and its subclasses (as a trace records them)."""
+    import orchestrator.llm.model_weights  # noqa: F401  # defines subclasses (weights missing or corrupt)
+
+    names, todo = set(), [LLMUnavailableError]
+    while todo:
+        cls = todo.pop()
+        names.add(cls.__name__)
+        todo.extend(cls.__subclasses__())
+    return frozenset(names)
