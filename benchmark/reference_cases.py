@@ -173,12 +173,13 @@ BUNDLED_PREFIX = "bundled:"
 """A ``scene_name`` of ``bundled:<name>`` names a scene shipped with the package (``sim/scene/scenes``)."""
 
 
-def scene_dir(reference: str | Path, case: BenchmarkCase) -> Path:
+def scene_dir(reference: str | Path | None, case: BenchmarkCase) -> Path:
     """Where the case's scene is, for :func:`sim.scene.files.load_scene`.
 
     A reference ``scene_name`` (``House``) is the folder ``configs/scenes/<name>`` of the
-    reference data; ``bundled:<name>`` (``bundled:home``) is the bundled scene's JSON file,
-    whatever ``reference`` is."""
+    reference data (``reference``; None: not given, which such a case refuses);
+    ``bundled:<name>`` (``bundled:home``) is the bundled scene's JSON file, whatever
+    ``reference`` is."""
     if case.scene_name.startswith(BUNDLED_PREFIX):
         name = case.scene_name[len(BUNDLED_PREFIX):]
         if name not in bundled_scene_names():
@@ -187,6 +188,11 @@ def scene_dir(reference: str | Path, case: BenchmarkCase) -> Path:
                 f"(bundled: {', '.join(bundled_scene_names())})"
             )
         return Path(str(resources.files("sim.scene") / "scenes" / f"{name}.json"))
+    if reference is None:
+        raise BenchmarkCaseError(
+            f"{case.source}: field 'scene_name': {case.scene_name!r} is a scene of the reference data, "
+            "which was not given for these cases"
+        )
     return Path(reference) / "configs" / "scenes" / case.scene_name
 
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 import asyncio
 import json
 import re
-import time
 from importlib.metadata import EntryPoint
 from pathlib import Path
 from typing import Any
@@ -17,14 +16,15 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from agents.llm_port import LLMRequest, LLMResponse, TokenUsage
+from agents.llm_port import LLMRequest
 from benchmark.sweep.execute import PortFactory
 from benchmark.sweep.grid import CaseSetSpec, ModelSpec, SweepSpec, SweepSpecError, model_specs
 from benchmark.sweep.progress import LineProgress
 from benchmark.sweep.results import read_results
 from benchmark.sweep.runner import report_sweep, run_sweep, score_sweep
-from orchestrator.llm.traces import AttemptRecord, TraceWriter
+from orchestrator.reference_data import locate_reference
 from tests.support.reference import REFERENCE, requires_reference
+from tests.support.scripted_sweep import scripted as scripted_port
 
 pytestmark = requires_reference
 
@@ -53,34 +53,8 @@ def answer(request: LLMRequest) -> str:
     return f"```python\ndef parse_event():\n    {program}\n```"
 
 
-class TracedScript:
-    """An LLM port that answers with :func:`answer` and records each call to a trace, as the
-    live client does (fixed token counts and latency, so results are reproducible)."""
-
-    def __init__(self, trace: Path, calls: list[str]) -> None:
-        self.trace = TraceWriter(trace, fsync="never")
-        self.calls = calls
-
-    async def complete(self, request: LLMRequest) -> LLMResponse:
-        self.calls.append(request.node)
-        text = answer(request)
-        seq = self.trace.next_seq()
-        usage = TokenUsage(prompt_tokens=sum(len(m.content) for m in request.messages) // 4,
-                           completion_tokens=len(text) // 4)
-        self.trace.write(AttemptRecord(
-            run_id=self.trace.run_id, seq=seq, time_unix=time.time(), call=seq, node=request.node, attempt=1,
-            model="openai/scripted", params={}, request=request, request_hash=request.content_hash(),
-            response_text=text, usage=usage, latency_s=0.25, final=True,
-        ))
-        await asyncio.sleep(0)
-        return LLMResponse(text=text, model="openai/scripted", usage=usage, latency_s=0.25, attempts=1, trace_seq=seq)
-
-    def close(self) -> None:
-        self.trace.close()
-
-
 def scripted(calls: list[str]) -> PortFactory:
-    return lambda model, trace: TracedScript(trace, calls)
+    return scripted_port(calls, answer)
 
 
 def spec(**changes: object) -> SweepSpec:
@@ -331,7 +305,7 @@ def test_ray_executor_gives_the_same_files(finished: tuple[Path, list[str], dict
     from benchmark.sweep.ray_executor import ray_executor
 
     out = tmp_path / "ray"
-    here = Path(__file__).resolve().parent  # workers unpickle the scripted port from this module
+    here = Path(__file__).resolve().parent  # workers unpickle the scripted port (tests.support) and answer (this module)
     try:
         ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
                  runtime_env={"env_vars": {"PYTHONPATH": f"{here.parent}:{here}"}})
@@ -349,10 +323,13 @@ def test_case_sets_by_name_or_folder(tmp_path: Path) -> None:
     from benchmark.sweep.grid import case_set_for
 
     ours = Path(__file__).resolve().parents[1] / "benchmark" / "cases" / "ours"
-    pi = case_set_for(str(REFERENCE / "benchmark" / "test_cases" / "6_PI"), REFERENCE, ours)
+    reference = locate_reference()
+    pi = case_set_for(str(REFERENCE / "benchmark" / "test_cases" / "6_PI"), reference, ours)
     assert (pi.name, pi.scenes_root) == ("6_PI", str(REFERENCE))
     assert [c.id for c in load_cases(pi.path)] == list(range(60, 70))  # one <tags> folder is a case set
-    assert case_set_for(str(REFERENCE), REFERENCE, ours).name == "reference"
-    assert case_set_for(str(ours), REFERENCE, ours) == case_set_for("ours", REFERENCE, ours)
+    assert case_set_for(str(REFERENCE), reference, ours).name == "reference"
+    assert case_set_for("reference", reference, ours).scenes_root == str(REFERENCE)
+    assert case_set_for(str(ours), reference, ours) == case_set_for("ours", reference, ours)
+    assert case_set_for("ours", reference, ours).scenes_root is None  # bundled scenes only
     with pytest.raises(SweepSpecError, match="not a folder"):
-        case_set_for(str(tmp_path / "none"), REFERENCE, ours)
+        case_set_for(str(tmp_path / "none"), reference, ours)

@@ -217,6 +217,7 @@ def test_expression_atoms_normalise_and_refuse_conjunctions() -> None:
 def test_bundled_scene_names_resolve_whatever_the_folder(tmp_path: Path) -> None:
     case = load_case(next(OURS.glob("*/testcase_*.json")))
     assert scene_dir(tmp_path, case).name == f"{case.scene_name.removeprefix('bundled:')}.json"
+    assert scene_dir(None, case) == scene_dir(tmp_path, case)  # no reference data needed
     unknown = case.model_copy(update={"scene_name": "bundled:castle"})
     with pytest.raises(BenchmarkCaseError, match="'castle' is not a bundled scene"):
         scene_dir(tmp_path, unknown)
@@ -228,6 +229,8 @@ def test_reference_scene_names_still_name_reference_folders(tmp_path: Path) -> N
     case = load_case(next(OURS.glob("*/testcase_*.json")))
     legacy = case.model_copy(update={"scene_name": "House"})
     assert scene_dir(tmp_path, legacy) == tmp_path / "configs" / "scenes" / "House"
+    with pytest.raises(BenchmarkCaseError, match="'House' is a scene of the reference data, which was not given"):
+        scene_dir(None, legacy)
 
 
 def test_a_level_copy_keeps_the_derivation_block() -> None:

@@ -30,7 +30,7 @@ from benchmark.reference_cases import (
     planning_inputs,
     scene_dir,
 )
-from benchmark.sweep.grid import METHODS, ModelSpec, RunKey, SweepSpec, slug
+from benchmark.sweep.grid import METHODS, ModelSpec, RunKey, SweepSpec, SweepSpecError, slug
 from benchmark.sweep.results import CallStat, RunResult
 from orchestrator.llm.traces import AttemptRecord, ParsedRecord, TraceContents, read_trace
 from sim.scene.model import Scene
@@ -63,10 +63,17 @@ class SweepWorkspace:
 
     def __init__(self, spec: SweepSpec, out: Path) -> None:
         self.spec, self.out = spec, out
+        for cs in spec.case_sets:
+            if not Path(cs.path).is_dir():
+                if cs.name == "reference":
+                    from orchestrator.reference_data import locate_reference
+
+                    locate_reference().require()  # absent: its reason says how to provide it
+                raise SweepSpecError(f"case set {cs.name!r}: {cs.path} is not a folder on this machine")
         self.cases: dict[str, dict[int, BenchmarkCase]] = {
             cs.name: {c.id: c for c in load_cases(cs.path, spec.case_ids)} for cs in spec.case_sets
         }
-        self._scenes: dict[tuple[str, str], tuple[Scene, Any]] = {}
+        self._scenes: dict[tuple[str | None, str], tuple[Scene, Any]] = {}
 
     def case(self, key: RunKey) -> BenchmarkCase:
         return self.cases[key.case_set][key.case].at_level(key.level)

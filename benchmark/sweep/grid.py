@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from orchestrator.llm.config import StorytellerConfig
 from orchestrator.planning.ablation_graph import Ablation
+from orchestrator.reference_data import DataFolder, ReferenceDataNotFound
 
 METHODS: dict[str, Ablation] = {
     "ours": Ablation(planner="event", description="describer"),
@@ -57,7 +58,9 @@ class CaseSetSpec(_Frozen):
 
     name: str = Field(description="Short name used in run ids and reports (reference, ours, 6_PI...).")
     path: str = Field(description="The case folder (absolute).")
-    scenes_root: str = Field(description="Folder holding configs/scenes/<Scene> for non-bundled scenes.")
+    scenes_root: str | None = Field(
+        default=None, description="Folder holding configs/scenes/<Scene> for the cases' non-bundled scenes "
+        "(None: every case is on a bundled scene, the reference data is not needed).")
 
 
 class ModelSpec(_Frozen):
@@ -146,22 +149,44 @@ def expand(spec: SweepSpec, case_ids: dict[str, Sequence[int]]) -> list[RunKey]:
     ]
 
 
-def case_set_for(arg: str, reference: Path, ours: Path) -> CaseSetSpec:
+def case_set_for(arg: str, reference: DataFolder, ours: Path) -> CaseSetSpec:
     """The case set named on the command line: ``reference`` (the authors' 40 cases), ``ours``
-    (``benchmark/cases/ours``) or a folder in the reference format."""
+    (``benchmark/cases/ours``) or a folder in the reference format.
+
+    ``reference`` (the lookup of :func:`~orchestrator.reference_data.locate_reference`) is
+    required only by the case sets that need it: ``reference`` itself, and a folder outside the
+    reference data with a case on a scene that is not bundled (``scene_name`` without
+    ``bundled:``); then its absence raises :class:`ReferenceDataNotFound` with the lookup's reason.
+    A folder inside a checkout of the reference data takes its scenes from that checkout."""
     if arg == "reference":
-        return CaseSetSpec(name="reference", path=str(reference), scenes_root=str(reference))
+        found = str(reference.require())
+        return CaseSetSpec(name="reference", path=found, scenes_root=found)
     if arg == "ours":
-        return CaseSetSpec(name="ours", path=str(ours.resolve()), scenes_root=str(reference))
+        path = ours.resolve()
+        return CaseSetSpec(name="ours", path=str(path), scenes_root=_scenes_root(path, reference))
     path = Path(arg).expanduser().resolve()
     if not path.is_dir():
         raise SweepSpecError(f"--cases {arg}: not a folder (expected reference, ours or a case folder)")
     if path == ours.resolve():
-        return CaseSetSpec(name="ours", path=str(path), scenes_root=str(reference))
-    root = next((p for p in (path, *path.parents) if (p / "configs" / "scenes").is_dir()), reference)
-    if path == root:
-        return CaseSetSpec(name="reference", path=str(path), scenes_root=str(root))
-    return CaseSetSpec(name=slug(path.name), path=str(path), scenes_root=str(root))
+        return case_set_for("ours", reference, ours)
+    root = next((p for p in (path, *path.parents) if (p / "configs" / "scenes").is_dir()), None)
+    if root is None:
+        return CaseSetSpec(name=slug(path.name), path=str(path), scenes_root=_scenes_root(path, reference))
+    return CaseSetSpec(name="reference" if path == root else slug(path.name), path=str(path), scenes_root=str(root))
+
+
+def _scenes_root(folder: Path, reference: DataFolder) -> str | None:
+    """None when every case in ``folder`` is on a bundled scene; else the reference data
+    (:class:`ReferenceDataNotFound` naming the first such case when it is absent)."""
+    from benchmark.reference_cases import BUNDLED_PREFIX, load_cases
+
+    needs = next((c for c in load_cases(folder) if not c.scene_name.startswith(BUNDLED_PREFIX)), None)
+    if needs is None:
+        return None
+    if not reference.found:
+        raise ReferenceDataNotFound(f"{needs.source}: case {needs.id} is on the reference scene "
+                                    f"{needs.scene_name!r}; {reference.reason}")
+    return str(reference.path)
 
 
 def model_specs(models: Sequence[str], configs: Sequence[Path]) -> tuple[ModelSpec, ...]:

@@ -36,7 +36,14 @@ from benchmark.sweep.execute import (
     record_port,
     replay_port,
 )
-from benchmark.sweep.grid import RunKey, SweepSpec, SweepSpecError, case_set_for, expand
+from benchmark.sweep.grid import (
+    CaseSetSpec,
+    RunKey,
+    SweepSpec,
+    SweepSpecError,
+    case_set_for,
+    expand,
+)
 from benchmark.sweep.results import (
     RunResult,
     append_result,
@@ -107,22 +114,32 @@ def load_spec(out: Path) -> SweepSpec:
 
 
 def relocated(spec: SweepSpec) -> SweepSpec:
-    """``spec`` with each missing ``reference`` / ``ours`` case folder replaced by this
-    machine's (``$STORYTELLER_REFERENCE``, ``benchmark/cases/ours``); others stay as recorded."""
-    if all(Path(c.path).is_dir() and Path(c.scenes_root).is_dir() for c in spec.case_sets):
+    """``spec`` with each missing ``reference`` / ``ours`` case folder (or scene folder) replaced
+    by this machine's (``$STORYTELLER_REFERENCE``, ``benchmark/cases/ours``); others stay as
+    recorded. The reference data is looked for only by the case sets that need it
+    (:func:`~benchmark.sweep.grid.case_set_for`): ``ours`` relocates without it; a case set
+    that needs it while it is absent stays as recorded (``bench report`` needs no case)."""
+    if all(_here(c) for c in spec.case_sets):
         return spec
-    from orchestrator.reference_data import locate_reference
+    from orchestrator.reference_data import ReferenceDataNotFound, locate_reference
 
     reference = locate_reference()
-    if not reference.found:
-        return spec
     ours = Path(__file__).resolve().parents[1] / "cases" / "ours"
-    moved = tuple(
-        case_set_for(c.name, reference.path, ours)
-        if c.name in ("reference", "ours") and not (Path(c.path).is_dir() and Path(c.scenes_root).is_dir()) else c
-        for c in spec.case_sets
-    )
-    return spec.model_copy(update={"case_sets": moved})
+
+    def here_now(c: CaseSetSpec) -> CaseSetSpec:
+        if c.name not in ("reference", "ours") or _here(c):
+            return c
+        try:
+            return case_set_for(c.name, reference, ours)
+        except ReferenceDataNotFound:
+            return c
+
+    return spec.model_copy(update={"case_sets": tuple(here_now(c) for c in spec.case_sets)})
+
+
+def _here(case_set: CaseSetSpec) -> bool:
+    """Whether the case set's folders are on this machine."""
+    return Path(case_set.path).is_dir() and (case_set.scenes_root is None or Path(case_set.scenes_root).is_dir())
 
 
 def grid(ws: SweepWorkspace) -> list[RunKey]:
