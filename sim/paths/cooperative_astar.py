@@ -278,6 +278,9 @@ class PathPlanner:
         self._removed_memo: dict[tuple[bytes, bytes], dict[int, frozenset[int]]] = {}
         self._ring: NDArray[np.int64] | None = None  # goal_distances' bucket scratch, made on first use
         self._detour_memo: dict[tuple[int, bytes], NDArray[np.float64]] = {}  # see detour_distances
+        self._detour_graph_memo: tuple[bytes, NDArray[np.float64]] | None = None  # see _detour_graph
+        # the last stack of the agents' own distances a dense pass read, and the arrays stacked
+        self._extra_memo: tuple[list[NDArray[np.float64]], NDArray[np.float64]] | None = None
 
     # ----- ids -----------------------------------------------------------------------------
     def cell_id(self, cell: Cell) -> int:
@@ -515,19 +518,31 @@ class PathPlanner:
         """Distances (cells) to ``goal`` per padded cell id along the moves ``static_allow``
         leaves (the moves stationary bodies do not block; inf: no such path). Memoised per goal
         and ``static_allow``."""
-        gid = self.cell_id(goal)
-        key = (gid, hashlib.blake2b(static_allow.tobytes(), digest_size=16).digest())
+        return self._detour_field(self.cell_id(goal), self._detour_graph(static_allow))
+
+    def _detour_graph(self, static_allow: NDArray[np.int64]) -> tuple[bytes, NDArray[np.float64]]:
+        """(digest of ``static_allow``, the move costs ``goal_distances`` walks for it: inf for
+        the moves it blocks). One per planning call, shared by its detour walkers (the digest
+        and the costs take about as long as a Dijkstra each on a large grid); the last one is kept."""
+        digest = hashlib.blake2b(static_allow.tobytes(), digest_size=16).digest()
+        hit = self._detour_graph_memo
+        if hit is None or hit[0] != digest:
+            # Dijkstra from the goal: the entry u -> v stands for the walker's move v -> u
+            into = np.where(self._nb_id >= 0, self._nb_id, 0)
+            ok = (static_allow[into] & self._nb_rev_bit) != 0
+            hit = self._detour_graph_memo = (digest, np.where(ok, self._nb_cost, np.inf))
+        return hit
+
+    def _detour_field(self, gid: int, graph: tuple[bytes, NDArray[np.float64]]) -> NDArray[np.float64]:
+        """``detour_distances`` to goal id ``gid`` on ``graph`` (``_detour_graph``), memoised."""
+        key = (gid, graph[0])
         hit = self._detour_memo.get(key)
         if hit is None:
             if self._ring is None:
                 self._ring = np.zeros((3, self._nb_id.shape[0] * self._nb_id.shape[1] + 1), dtype=np.int64)
-            # Dijkstra from the goal: the entry u -> v stands for the walker's move v -> u
-            into = np.where(self._nb_id >= 0, self._nb_id, 0)
-            ok = (static_allow[into] & self._nb_rev_bit) != 0
-            cost = np.where(ok, self._nb_cost, np.inf)
             if len(self._detour_memo) >= 256:
                 self._detour_memo.clear()
-            hit = self._detour_memo[key] = goal_distances(gid, self._nb_id, cost, self._ring)
+            hit = self._detour_memo[key] = goal_distances(gid, self._nb_id, graph[1], self._ring)
         return hit
 
     def distance(self, start: Cell, goal: Cell) -> float:
@@ -662,9 +677,10 @@ class PathPlanner:
             static_allow = self._static_allow(overrides)
         used_goals = self._usable_goals(agents, starts, goals, static_allow)
         heuristics: dict[Agent, NDArray[np.float64]] = {}
+        graph = self._detour_graph(static_allow) if any(a in starts for a in detour) else None
         for a in detour:
-            if a in starts:
-                h = self.detour_distances(used_goals[a], static_allow)
+            if a in starts and graph is not None:
+                h = self._detour_field(self.cell_id(used_goals[a]), graph)
                 if h[self.cell_id(starts[a])] < math.inf:
                     heuristics[a] = h
         # Pass 1: plain WHCA*. An agent whose search fails was cornered by the first steps of
@@ -898,7 +914,7 @@ class PathPlanner:
             if h is not None:
                 extra.append(h)
                 h_search[k] = -len(extra)
-        h_extra = np.stack(extra) if extra else np.zeros((1, len(self._nb_id)))
+        h_extra = self._extra_stack(extra)
         if previous is not None:
             rec, before = previous
             row = {a: k for k, a in enumerate(rec.order)}
@@ -931,6 +947,18 @@ class PathPlanner:
             reused=frozenset(order[k] for k in np.flatnonzero(reused).tolist()),
         )
         return result, record
+
+    def _extra_stack(self, extra: list[NDArray[np.float64]]) -> NDArray[np.float64]:
+        """``extra`` stacked, one row per array (one zero row for none). The passes of one call
+        read the same arrays (in the same order but for the fallback pass): the stack of the
+        last call is kept, with the arrays themselves (so that they compare by identity), and
+        reused while the arrays are the same objects (which are never written)."""
+        if not extra:
+            return np.zeros((1, len(self._nb_id)))
+        hit = self._extra_memo
+        if hit is None or len(hit[0]) != len(extra) or any(x is not y for x, y in zip(hit[0], extra, strict=True)):
+            hit = self._extra_memo = (list(extra), np.stack(extra))
+        return hit[1]
 
     def _record_paths(self, record: _PassRecord) -> dict[Agent, list[Cell]]:
         """The cells of each path's first window + 1 ids in a pass record (``PlanResult.paths``)."""
