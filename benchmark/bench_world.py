@@ -29,7 +29,8 @@ Each scene first gets an untimed warm-up run (``--warmup`` simulated seconds, an
 that one-off first-use costs of the process (per-database motion tables, the planner's move
 masks for the grid) do not land in whichever run comes first.
 
-Usage: ``python -m benchmark.bench_world [--sizes 1 10 50 200 1000] [--seconds 10] [--seed 0] [--repeats 3] [--warmup 2]``.
+Usage: ``python -m benchmark.bench_world [--sizes 1 10 50 200 1000] [--seconds 10] [--seed 0] [--repeats 3] [--warmup 2]``,
+or ``python -m benchmark.bench_world --scaling [N ...] [--scaling-seconds 10] [--repeats 2]`` (below).
 The 200-character case runs half of ``--seconds``, the 1,000-character case a fifth.
 Targets: 10 characters >= 30x real time on one core (issue 8); 50 characters >= 20x, 200
 characters >= 5x (30,000 character-frames per second), 1,000 characters measured (issue 14).
@@ -51,16 +52,62 @@ per-frame bookkeeping and Python's garbage collector: a full collection walks th
 ~140,000 objects (about 50 ms each time it comes, roughly once per 150 frames here; an
 application can skip them with ``gc.freeze()`` after loading). The short 1,000-character run is
 dominated by its first replan, which computes a goal-distance field for each of the 1,000
-new goals at once (each O(grid): the superlinear part; a longer run computes one per
-arrival); the field is a compiled bucket-queue Dijkstra (``astar_kernel.goal_distances``).
+new goals at once; the field is a compiled bucket-queue Dijkstra (``astar_kernel.goal_distances``)
+over the whole grid. Whether anything else grows with the crowd: ``--scaling``.
+
+Scaling (``--scaling``; sizes default 125 250 500 1000): the crowds walk in ONE layout, "Office
+x16" (14,832 walkable cells), so that a cost growing with the crowd is not mistaken for one
+growing with the floor. Per size: CPU time of the first step (it runs the first planning pass:
+a goal-distance field per new goal, counted and timed by the planner wrapper) and CPU per
+character-frame over the frames after it, split into planning (fields included), motion and
+the rest; search expansions per agent per planning call; the fastest of the interleaved runs
+(all bit-identical). A last row runs a quarter of the largest crowd in "Office x4": a quarter
+of the floor, the same walkers per cell. Then one field is timed on each layout. Figures
+(2026-12-03, ``--scaling --repeats 2``, 10 simulated s per crowd, 83 s in all, under ``nice``
+on the 2-core machine shared with an LLM job, load average 5-6)::
+
+       N  layout      per 100 cells  first step s (fields)  us/char-frame  plan  motion  rest  exp/agent
+     125  Office x16            0.8          0.16 (0.06)             26.6   4.7     7.8  14.2         21
+     250  Office x16            1.7          0.41 (0.15)             28.8   5.0     9.1  14.7         42
+     500  Office x16            3.4          0.84 (0.29)             31.9   7.9     7.9  16.1         83
+    1000  Office x16            6.7          1.31 (0.49)             41.1  17.8     7.8  15.5        459
+     250  Office x4             6.8          0.14 (0.03)             37.8  15.2     9.4  13.1        498
+
+    one goal-distance field: Office (521 walkable cells) 14 us, x4 (3,670) 83 us, x16 (14,832) 491 us
+
+What is and is not superlinear. Motion (matching and IK) and the rest of the step cost the same
+per character at every size (within the noise of the shared machine; a profile finds no
+function of theirs whose cost per character grows), except Python's full garbage collections:
+they come more often with more characters, 2.2-2.5 us per character-frame at 250, 3.6-4.4 at
+1,000 (200-frame runs, timed with ``gc.callbacks``). Planning per character-frame
+grows, 4.7 -> 17.8 us from 125 to 1,000 walkers on the same floor, and it follows the crowd's
+density, not its size: each walker's windowed search expands about twice as many nodes when
+the crowd doubles on the same floor (more reserved paths to go around), and at 6.7 walkers
+per 100 cells the crowd starts to jam (failed searches, repair passes, walkers planned around
+the stationary bodies). The same density on a quarter of the floor (last row) costs the same
+per character (498 expansions per agent, 37.8 us). That growth is the cooperative search
+doing more work, not overhead; this round leaves it. The goal-distance fields are O(floor)
+each: one per new goal (the first step: linear in N on one floor, 0.5 ms per walker on
+"Office x16") and, after it, one per arrival and one per detour walker and planning call
+(when the stationary bodies changed, as they do every call in a large crowd). On one
+floor they are linear in N; they become N x floor only when the floor grows with the crowd,
+as it does in the main table (a field costs 35x more on "Office x16" than on the Office, for
+28x the walkable cells). Removed in this round: each detour walker also paid an O(floor)
+setup of its own (a digest of the stationary bodies' masks and the blocked-move costs: 1.4 ms
+on "Office x16", three times its Dijkstra) and every planning pass re-stacked the detour fields; both are now done
+once per planning call (``PathPlanner._detour_graph``, ``_extra_stack``). 1,000 walkers in
+"Office x16" for 16 simulated s (the jam builds after about 5 s; by 20 s about 250 of them
+are planned around stationary bodies per call): 38.3 and 40.7 s CPU before, 30.6 and 30.6 s
+after (two interleaved pairs), positions bit for bit the same.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import time
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -71,6 +118,7 @@ from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.reference_data import locate_reference
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MotionMatcher, MotionQuery, Pose, PoseBatch
+from sim.paths.astar_kernel import goal_distances
 from sim.paths.cooperative_astar import Agent, Cell, PathPlanner, PlanResult
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
@@ -92,6 +140,15 @@ class Counters:
     plans: int = 0
     problems: list[tuple[Any, ...]] = field(default_factory=list)
     results: list[int] = field(default_factory=list)
+    clock: Callable[[], float] = time.perf_counter  # what the wrappers time with (process_time: CPU)
+    record: bool = True  # keep every planning problem (for the replan baselines)
+    fields: int = 0  # goal-distance fields computed (static distance per new goal)
+    field_s: float = 0.0
+    detour_fields: int = 0  # fields computed for detour walkers (around the stationary bodies)
+    detour_s: float = 0.0
+    planned: int = 0  # agents planned, summed over the planning calls
+    expansions: int = 0  # search expansions, summed over the planning calls
+    detoured: int = 0  # detour walkers, summed over the planning calls
 
 
 class TimedIndex:
@@ -107,13 +164,13 @@ class TimedIndex:
         return value
 
     def query_many(self, queries: np.ndarray, k: int = 4, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        t0 = time.perf_counter()
+        t0 = self._c.clock()
         if self._brute:
             pairs = [self._ix.brute_force(q) for q in np.asarray(queries, dtype=float)]
             out = (np.array([p[0] for p in pairs], dtype=np.int64), np.array([p[1] for p in pairs]))
         else:
             out = self._ix.query_many(queries, k=k, workers=workers)
-        self._c.search_s += time.perf_counter() - t0
+        self._c.search_s += self._c.clock() - t0
         self._c.searches += len(out[0])
         self._c.results.extend(int(i) for i in out[0])
         return out
@@ -136,13 +193,13 @@ class TimedDatabase:
 
     def search(self, raw_query: np.ndarray, entry: bool = False) -> tuple[int, float]:
         db = self._db
-        t0 = time.perf_counter()
+        t0 = self._c.clock()
         if self._brute:
             index = db.entry_index if entry else db.index
             out = index.brute_force(db.normalize(raw_query))
         else:
             out = db.search(raw_query, entry=entry)
-        self._c.search_s += time.perf_counter() - t0
+        self._c.search_s += self._c.clock() - t0
         self._c.searches += 1
         self._c.results.append(out[0])
         return out
@@ -158,23 +215,23 @@ class TimedMotion:
         return self._m.initial_state(label, root_xy, heading, seated)
 
     def step(self, state: Any, query: MotionQuery, dt: float) -> tuple[Any, Pose]:
-        t0 = time.perf_counter()
+        t0 = self._c.clock()
         out = self._m.step(state, query, dt)
-        self._c.motion_s += time.perf_counter() - t0
+        self._c.motion_s += self._c.clock() - t0
         return out
 
     def step_many(self, states: Any, queries: Any, dt: float) -> tuple[list[Any], list[Pose]]:
         """The batched path (``MotionMatcher.step_many``), timed."""
-        t0 = time.perf_counter()
+        t0 = self._c.clock()
         out = self._m.step_many(states, queries, dt)
-        self._c.motion_s += time.perf_counter() - t0
+        self._c.motion_s += self._c.clock() - t0
         return out
 
     def step_batch(self, states: Any, queries: Any, dt: float) -> tuple[list[Any], PoseBatch]:
         """The batched path the world uses (``MotionMatcher.step_batch``: poses as arrays), timed."""
-        t0 = time.perf_counter()
+        t0 = self._c.clock()
         out = self._m.step_batch(states, queries, dt)
-        self._c.motion_s += time.perf_counter() - t0
+        self._c.motion_s += self._c.clock() - t0
         return out
 
 
@@ -194,13 +251,40 @@ class TimedPlanner(PathPlanner):
         hints: Mapping[Agent, tuple[Sequence[Cell], Cell]] | None = None,
         detour: Collection[Agent] = (),
     ) -> PlanResult:
-        t = time.perf_counter()
+        c = self.counters
+        t = c.clock()
         kw = {"static_segments": static_segments, "hints": hints}
         out = super().plan(starts, goals, static_obstacles, t0=t0, order=order, static_segments=static_segments,
                            hints=hints, detour=detour)
-        self.counters.plan_s += time.perf_counter() - t
-        self.counters.plans += 1
-        self.counters.problems.append((dict(starts), dict(goals), list(static_obstacles), t0, list(order or ()), kw))
+        c.plan_s += c.clock() - t
+        c.plans += 1
+        c.planned += len(starts)
+        c.expansions += out.expansions
+        c.detoured += len(out.detour)
+        if c.record:
+            c.problems.append((dict(starts), dict(goals), list(static_obstacles), t0, list(order or ()), kw))
+        return out
+
+    def _heuristic_row(self, gid: int) -> int:
+        """The planner's goal-distance cache, with the fields it computes counted and timed."""
+        if gid in self._h_rows:
+            return super()._heuristic_row(gid)
+        c = self.counters
+        t = c.clock()
+        row = super()._heuristic_row(gid)
+        c.field_s += c.clock() - t
+        c.fields += 1
+        return row
+
+    def _detour_field(self, gid: int, graph: tuple[bytes, NDArray[np.float64]]) -> NDArray[np.float64]:
+        """The detour walkers' fields, counted and timed when computed (not memoised)."""
+        if (gid, graph[0]) in self._detour_memo:
+            return super()._detour_field(gid, graph)
+        c = self.counters
+        t = c.clock()
+        out = super()._detour_field(gid, graph)
+        c.detour_s += c.clock() - t
+        c.detour_fields += 1
         return out
 
 
@@ -360,6 +444,123 @@ def replan_baseline(grid: NavGrid, problems: list[tuple[Any, ...]], seed: int,
     return times["windowed"], times.get("full"), times["python"], plans["windowed"] == plans["python"]
 
 
+@dataclass
+class ScalingRun:
+    """One crowd at the fixed layout, CPU time (``time.process_time``): the first step (which
+    runs the first planning pass: a goal-distance field per new goal) apart from the frames after it."""
+
+    n: int
+    frames: int
+    first_s: float  # the first step
+    first: Counters  # its planning and fields
+    steady_s: float  # the other frames
+    steady: Counters  # theirs
+    positions: np.ndarray
+
+
+def scaling_run(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: dict[str, MotionDatabase]) -> ScalingRun:
+    """``run_crowd`` (KD-tree search) with CPU-time counters, the first step timed on its own."""
+    counters = Counters(clock=time.process_time, record=False)
+    matcher = MotionMatcher({k: TimedDatabase(db, counters, False) for k, db in dbs.items()})  # type: ignore[misc]  # as in run_crowd
+    planner = TimedPlanner(grid, seed=seed)
+    planner.counters = counters
+    errands = IdleErrands(grid, n, seed)
+    world = World(scene, errands.starts, TimedMotion(matcher, counters), grid=grid, planner=planner,
+                  config=WorldConfig(seed=seed, initial_capacity=frames))
+    c0 = time.process_time()
+    _, out = step(world, errands.commands(), world.dt)
+    errands.observe(out)
+    c1 = time.process_time()
+    first = dataclasses.replace(counters)
+    for _ in range(frames - 1):
+        _, out = step(world, errands.commands(), world.dt)
+        errands.observe(out)
+    c2 = time.process_time()
+    steady = Counters(**{f.name: getattr(counters, f.name) - getattr(first, f.name) for f in dataclasses.fields(Counters)
+                         if isinstance(getattr(first, f.name), int | float) and not isinstance(getattr(first, f.name), bool)})
+    return ScalingRun(n, frames, c1 - c0, first, c2 - c1, steady, world.positions())
+
+
+def scaling(office: Scene, dbs: dict[str, MotionDatabase], sizes: Sequence[int], seconds: float, seed: int,
+            repeats: int, warmup: float) -> None:
+    """The scaling section: crowds of ``sizes`` in one layout ("Office x16"), plus a quarter of
+    the largest crowd in "Office x4" (about the same walkers per walkable cell: does a cost
+    follow the crowd's size or its density?), then the cost of one goal-distance field per layout."""
+    layouts = {}
+    for nx in (4, 2):
+        scene = tiled(office, nx, nx)
+        grid = build_nav_grid(scene)
+        layouts[nx] = (scene, grid, int(np.count_nonzero(grid.component == grid.main_component)))
+        if warmup > 0:
+            run_crowd(scene, grid, 10, max(1, round(warmup * 30)), seed + 1, dbs, brute=False)
+    cases = [(4, n) for n in sizes] + ([(2, max(sizes) // 4)] if max(sizes) >= 4 else [])
+    frames = max(2, round(seconds * 30))
+    runs: dict[tuple[int, int], list[ScalingRun]] = {case: [] for case in cases}
+    for _ in range(max(1, repeats)):  # interleaved: every size sees the same machine
+        for nx, n in cases:
+            scene, grid, _ = layouts[nx]
+            runs[nx, n].append(scaling_run(scene, grid, n, frames, seed, dbs))
+    scene, grid, free = layouts[4]
+    print()
+    print(f"Scaling at one layout: {scene.name}, {free} walkable cells of {grid.cell_size} m, {frames} frames per crowd "
+          f"(the first step apart), CPU time, fastest of {max(1, repeats)} interleaved runs")
+    hdr = (f"{'N':>5} {'scene':<10} {'per 100 cells':>13} | {'first step s':>12} {'fields':>6} {'field s':>7} "
+           f"{'rest of plan s':>14} | {'us/char-frame':>13} {'plan':>6} {'fields':>6} {'motion':>6} {'rest':>6} {'x':>5} | "
+           f"{'exp/agent':>9} {'detour/plan':>11} {'new fields':>10} | same")
+    print(hdr)
+    print("-" * len(hdr))
+    base = None
+    for nx, n in cases:
+        scene, grid, free = layouts[nx]
+        r = min(runs[nx, n], key=lambda x: x.first_s + x.steady_s)
+        same = all(np.array_equal(x.positions, r.positions) for x in runs[nx, n])
+        f, c = r.first, r.steady
+        cf = n * (r.frames - 1)
+        per = 1e6 * r.steady_s / cf
+        base = per if base is None else base
+        fields_us = 1e6 * (c.field_s + c.detour_s) / cf
+        print(f"{n:>5} {scene.name:<10} {100 * n / free:>13.1f} | {r.first_s:>12.2f} {f.fields:>6} {f.field_s:>7.2f} "
+              f"{f.plan_s - f.field_s - f.detour_s:>14.2f} | {per:>13.1f} {1e6 * c.plan_s / cf:>6.1f} {fields_us:>6.1f} "
+              f"{1e6 * c.motion_s / cf:>6.1f} {1e6 * (r.steady_s - c.plan_s - c.motion_s) / cf:>6.1f} {per / base:>5.2f} | "
+              f"{c.expansions / max(1, c.planned):>9.1f} {c.detoured / max(1, c.plans):>11.1f} "
+              f"{c.fields + c.detour_fields:>10} | {'yes' if same else 'NO'}", flush=True)
+    print("per 100 cells: walkers per 100 walkable cells (the last row: the largest crowd's density, a quarter of")
+    print("     it in a quarter of the floor). first step: CPU of the step that runs the first planning pass;")
+    print("     fields: goal-distance fields it computed (one per new goal) and their CPU; rest of plan: the rest of that call.")
+    print("us/char-frame: CPU per character-frame over the frames after the first step; plan: planning calls (fields")
+    print("     included); fields: goal and detour fields computed then; rest: world step, events, IK, garbage collector.")
+    print("     x: relative to the first row. exp/agent: search expansions per agent and planning call;")
+    print("     detour/plan: walkers planned around stationary bodies per call; new fields: fields computed after the first step.")
+    print("same: the interleaved runs of a size agree bit for bit.")
+    field_costs(office, seed, repeats)
+
+
+def field_costs(office: Scene, seed: int, repeats: int, goals: int = 40) -> None:
+    """CPU per goal-distance field (``astar_kernel.goal_distances``, the planner's static distance
+    to one goal) on "Office", "Office x4" and "Office x16"."""
+    print()
+    print(f"One goal-distance field (astar_kernel.goal_distances), {goals} random goals per layout, CPU, best of "
+          f"{max(1, repeats)}:")
+    print(f"{'layout':<11} {'grid':>9} {'walkable':>8} {'padded':>7} | {'us/field':>8} {'ns/cell':>7}")
+    rng = np.random.default_rng(seed)
+    for nx in (1, 2, 4):
+        scene = office if nx == 1 else tiled(office, nx, nx)
+        grid = build_nav_grid(scene)
+        planner = PathPlanner(grid, seed=seed)
+        cells = np.argwhere(grid.component == grid.main_component)
+        gids = [planner.cell_id((int(i), int(j))) for i, j in cells[rng.choice(len(cells), goals, replace=False)]]
+        ring = np.zeros((3, planner._nb_id.size + 1), dtype=np.int64)
+        goal_distances(gids[0], planner._nb_id, planner._nb_cost, ring)  # compiled / loaded before timing
+        best = math.inf
+        for _ in range(max(1, repeats)):
+            c0 = time.process_time()
+            for g in gids:
+                goal_distances(g, planner._nb_id, planner._nb_cost, ring)
+            best = min(best, (time.process_time() - c0) / goals)
+        print(f"{scene.name:<11} {f'{grid.shape[0]}x{grid.shape[1]}':>9} {len(cells):>8} {planner._nb_id.shape[0]:>7} | "
+              f"{1e6 * best:>8.0f} {1e9 * best / len(cells):>7.1f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[1, 10, 50, 200, 1000])
@@ -371,6 +572,10 @@ def main() -> None:
                     help="simulated seconds of an untimed 10-character run per scene first (0: none)")
     ap.add_argument("--brute-max", type=int, default=200,
                     help="largest size that also runs brute-force search and the non-windowed baseline")
+    ap.add_argument("--scaling", type=int, nargs="*", metavar="N",
+                    help="instead of the table: crowds of these sizes (default 125 250 500 1000) in one layout "
+                         "(Office x16), CPU per character-frame, and the cost of one goal-distance field per layout")
+    ap.add_argument("--scaling-seconds", type=float, default=10.0, help="simulated seconds per --scaling crowd")
     args = ap.parse_args()
     if not REFERENCE.found:
         raise SystemExit(REFERENCE.reason)
@@ -383,6 +588,10 @@ def main() -> None:
         db.entry_index  # noqa: B018
     print(f"motion databases: {len(dbs)} keys, {sum(d.num_frames for d in dbs.values())} frames, "
           f"loaded in {time.perf_counter() - t0:.1f} s")
+    if args.scaling is not None:
+        scaling(office, dbs, args.scaling or [125, 250, 500, 1000], args.scaling_seconds, args.seed, args.repeats,
+                args.warmup)
+        return
     grids: dict[str, tuple[Scene, NavGrid]] = {}
     hdr = (f"{'N':>4} {'scene':<10} {'frames':>6} | {'char-fr/s':>9} {'brute':>8} {'ratio':>6} | {'RTF':>6} {'brute':>6} {'cpu':>6} | "
            f"{'search us':>9} {'brute':>8} {'ratio':>6} | {'replan ms':>9} {'full':>8} {'ratio':>6} {'python':>7} {'ratio':>6} | "
