@@ -390,6 +390,22 @@ def test_slow_tool_exhausts_wall_time() -> None:
         execute(source, {"slow_tool": slow_tool}, clock=lambda: now[0])
 
 
+def test_default_clock_counts_cpu_time_not_waiting() -> None:
+    # A busy machine must not change a verdict (a replay under load gives the recording's):
+    # the default clock is the thread's CPU time, so time spent not running is not counted.
+    import time
+
+    def waiting_tool() -> int:
+        time.sleep(0.6)  # the thread is off the CPU, as when the machine is busy
+        return 1
+
+    source = "def parse_event():\n    return waiting_tool() + waiting_tool()\n"
+    assert execute(source, {"waiting_tool": waiting_tool}) == 2
+    # the same program under a wall clock runs out of time (the old default)
+    with pytest.raises(BudgetExceededError, match="ran longer than 1 s"):
+        execute(source, {"waiting_tool": waiting_tool}, clock=time.monotonic)
+
+
 def test_print_is_captured() -> None:
     run = run_program("def parse_event():\n    print('a', 1, sep='-')\n    print('b\\nc')\n", {})
     assert run.output == ("a-1", "b", "c")

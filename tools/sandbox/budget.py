@@ -46,7 +46,9 @@ class Budget:
     recursion_depth: int = 40
     """Nested calls of program-defined functions."""
     wall_time: float = 1.0
-    """Seconds of the injected clock for the whole run, tool calls included."""
+    """Seconds of the injected clock for the whole run, tool calls included (by default the
+    thread's CPU time: see ``tools.sandbox.runner``; the name is kept for the budgets already
+    written)."""
     output_lines: int = 200
     """Lines the program may print."""
     source_chars: int = 20_000

@@ -4,8 +4,12 @@
 ``EventProgramError`` subclasses: ``ToolError`` from a tool unchanged (with its line), the
 sandbox's own errors from ``tools.sandbox.errors``, and anything else that escapes (even
 ``SystemExit``) as ``ProgramRuntimeError``; running out of Python stack or memory is
-``BudgetExceededError``. The clock that bounds wall time is a parameter; ``time.monotonic``
-is only its default.
+``BudgetExceededError``. The clock that bounds a run's time is a parameter; its default is the
+running thread's CPU time (``time.thread_time``), so whether a program runs out of time does not
+depend on how busy the machine is (a replay under load gives the verdict the recording got).
+A program cannot wait (no I/O, no sleep), so its CPU time is its wall time on an idle machine;
+a wall-clock bound, where one is needed, belongs to the caller (the worker's parent kills a
+program after ``orchestrator.sandbox_worker.WALL_SECONDS``).
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from tools.sandbox.checker import check_program
 from tools.sandbox.errors import BudgetExceededError, ProgramRuntimeError, describe
 from tools.sandbox.interpreter import Interpreter
 
-DEFAULT_CLOCK: Callable[[], float] = time.monotonic
+DEFAULT_CLOCK: Callable[[], float] = time.thread_time
 """The clock a run uses when its caller injects none (the only clock the sandbox names)."""
 
 
