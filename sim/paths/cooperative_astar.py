@@ -542,7 +542,9 @@ class PathPlanner:
                 self._ring = np.zeros((3, self._nb_id.shape[0] * self._nb_id.shape[1] + 1), dtype=np.int64)
             if len(self._detour_memo) >= 256:
                 self._detour_memo.clear()
-            hit = self._detour_memo[key] = goal_distances(gid, self._nb_id, graph[1], self._ring)
+            hit = goal_distances(gid, self._nb_id, graph[1], self._ring)
+            hit.flags.writeable = False  # shared by the memo, the pass stacks and callers
+            self._detour_memo[key] = hit
         return hit
 
     def distance(self, start: Cell, goal: Cell) -> float:

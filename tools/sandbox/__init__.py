@@ -17,7 +17,7 @@ Guarantee: every failure is an ``EventProgramError`` with a one-line ``feedback`
 program line. ``ToolError`` from a tool propagates unchanged (line added); a program may
 catch it with ``try/except`` (``except ToolError``, ``except Exception``, a ``ToolError``
 subclass name, or bare ``except``), never a budget or sandbox error. ``Budget`` bounds steps,
-loops, sizes, recursion and wall time, every size checked before the value is built.
+loops, sizes, recursion and time (an injected clock: the thread's CPU time by default), every size checked before the value is built.
 
 Modules, in dependency order: ``errors`` (every sandbox failure type), ``budget`` (limits and
 the meter), ``boundary`` (values entering and leaving the program), ``operators``,

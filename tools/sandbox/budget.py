@@ -2,8 +2,8 @@
 
 A ``Budget`` bounds everything an event program can spend: interpreter steps, loop
 iterations, the size of every string / int / container it builds (checked *before* the
-value is computed), the bytes it allocates over the run, call depth, wall time and
-printed lines; and what the static check may spend on a program (``check_*``). ``Meter``
+value is computed), the bytes it allocates over the run, call depth, time (the
+injected clock) and printed lines; and what the static check may spend on a program (``check_*``). ``Meter``
 counts one run against one budget and raises ``BudgetExceededError`` the moment a limit is
 passed; its clock is injected (the runner passes one in), so this module reads no clock of
 its own.
@@ -111,7 +111,7 @@ class Meter:
         self.output: list[str] = []
 
     def tick(self, line: Line) -> None:
-        """Called every 64 steps (and after tool calls): checks steps and wall time."""
+        """Called every 64 steps (and after tool calls): checks steps and time (the injected clock)."""
         if self.steps > self.budget.steps:
             raise BudgetExceededError(
                 f"the program took more than {self.budget.steps} steps; "

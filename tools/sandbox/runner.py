@@ -5,11 +5,14 @@
 sandbox's own errors from ``tools.sandbox.errors``, and anything else that escapes (even
 ``SystemExit``) as ``ProgramRuntimeError``; running out of Python stack or memory is
 ``BudgetExceededError``. The clock that bounds a run's time is a parameter; its default is the
-running thread's CPU time (``time.thread_time``), so whether a program runs out of time does not
-depend on how busy the machine is (a replay under load gives the verdict the recording got).
-A program cannot wait (no I/O, no sleep), so its CPU time is its wall time on an idle machine;
-a wall-clock bound, where one is needed, belongs to the caller (the worker's parent kills a
-program after ``orchestrator.sandbox_worker.WALL_SECONDS``).
+running thread's CPU time (``time.thread_time``), so whether a program runs out of time depends
+much less on how busy the machine is than with a wall clock (a replay under load should give the
+recording's verdict). A program cannot wait (no I/O, no sleep), so its CPU time is about its wall
+time on an idle machine. Limits: CPU time still grows a little when cores are shared (caches);
+it counts this thread only (no tool runs work in other threads today); and a wall-clock bound,
+where one is needed, belongs to the caller (the worker's parent kills a program after
+``orchestrator.sandbox_worker.WALL_SECONDS``, 5 s, so only a slow-down beyond 5x turns a
+program that passed into a time-out).
 """
 
 from __future__ import annotations
