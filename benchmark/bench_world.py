@@ -150,6 +150,11 @@ class Counters:
     expansions: int = 0  # search expansions, summed over the planning calls
     detoured: int = 0  # detour walkers, summed over the planning calls
 
+    def since(self, before: Counters) -> Counters:
+        """The counts and times added since ``before`` (a copy of these counters taken earlier)."""
+        return Counters(**{f.name: getattr(self, f.name) - getattr(before, f.name) for f in dataclasses.fields(self)
+                           if type(getattr(self, f.name)) in (int, float)})
+
 
 class TimedIndex:
     """A search index whose batched ``query_many`` (the matcher's grouped searches) is timed,
@@ -408,15 +413,22 @@ class RunResult:
     positions: np.ndarray
 
 
-def run_crowd(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: dict[str, MotionDatabase],
-              brute: bool) -> RunResult:
-    counters = Counters()
+def crowd_world(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: dict[str, MotionDatabase],
+                brute: bool, counters: Counters) -> tuple[World, IdleErrands]:
+    """A world of ``n`` walkers on random errands whose motion search and planner report to ``counters``."""
     matcher = MotionMatcher({k: TimedDatabase(db, counters, brute) for k, db in dbs.items()})  # type: ignore[misc]  # TimedDatabase stands in for a MotionDatabase by delegation (__getattr__), not by subclassing
     planner = TimedPlanner(grid, seed=seed)
     planner.counters = counters
     errands = IdleErrands(grid, n, seed)
     world = World(scene, errands.starts, TimedMotion(matcher, counters), grid=grid, planner=planner,
                   config=WorldConfig(seed=seed, initial_capacity=frames))
+    return world, errands
+
+
+def run_crowd(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: dict[str, MotionDatabase],
+              brute: bool) -> RunResult:
+    counters = Counters()
+    world, errands = crowd_world(scene, grid, n, frames, seed, dbs, brute, counters)
     t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(frames):
         _, out = step(world, errands.commands(), world.dt)
@@ -461,12 +473,7 @@ class ScalingRun:
 def scaling_run(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs: dict[str, MotionDatabase]) -> ScalingRun:
     """``run_crowd`` (KD-tree search) with CPU-time counters, the first step timed on its own."""
     counters = Counters(clock=time.process_time, record=False)
-    matcher = MotionMatcher({k: TimedDatabase(db, counters, False) for k, db in dbs.items()})  # type: ignore[misc]  # as in run_crowd
-    planner = TimedPlanner(grid, seed=seed)
-    planner.counters = counters
-    errands = IdleErrands(grid, n, seed)
-    world = World(scene, errands.starts, TimedMotion(matcher, counters), grid=grid, planner=planner,
-                  config=WorldConfig(seed=seed, initial_capacity=frames))
+    world, errands = crowd_world(scene, grid, n, frames, seed, dbs, False, counters)
     c0 = time.process_time()
     _, out = step(world, errands.commands(), world.dt)
     errands.observe(out)
@@ -476,8 +483,7 @@ def scaling_run(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs
         _, out = step(world, errands.commands(), world.dt)
         errands.observe(out)
     c2 = time.process_time()
-    steady = Counters(**{f.name: getattr(counters, f.name) - getattr(first, f.name) for f in dataclasses.fields(Counters)
-                         if isinstance(getattr(first, f.name), int | float) and not isinstance(getattr(first, f.name), bool)})
+    steady = counters.since(first)
     return ScalingRun(n, frames, c1 - c0, first, c2 - c1, steady, world.positions())
 
 
