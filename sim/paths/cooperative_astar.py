@@ -718,6 +718,7 @@ class PathPlanner:
             result, record = self._run_pass(order2, starts, used_goals, overrides, ext, frozenset(order), {}, static_allow,
                                        heuristics)
             expansions += result.expansions
+        self._extra_memo = None  # the passes of this call are done: do not hold its fields
         return PlanResult(
             paths=result.paths if record is None else self._record_paths(record),
             failed=result.failed,
@@ -952,9 +953,9 @@ class PathPlanner:
 
     def _extra_stack(self, extra: list[NDArray[np.float64]]) -> NDArray[np.float64]:
         """``extra`` stacked, one row per array (one zero row for none). The passes of one call
-        read the same arrays (in the same order but for the fallback pass): the stack of the
-        last call is kept, with the arrays themselves (so that they compare by identity), and
-        reused while the arrays are the same objects (which are never written)."""
+        read the same arrays (in the same order but for the fallback pass): the stack is kept
+        for the call, with the arrays themselves (so that they compare by identity), and reused
+        while the arrays are the same objects (read-only); ``plan`` drops it when it returns."""
         if not extra:
             return np.zeros((1, len(self._nb_id)))
         hit = self._extra_memo
