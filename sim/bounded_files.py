@@ -1,0 +1,164 @@
+"""Reading a file the project did not necessarily write: bounded in bytes, in nesting, in numbers.
+
+Every reader of a file that may come from someone else (a shared run folder, a downloaded
+scene, a trace) goes through two functions:
+
+- :func:`read_bounded_bytes` reads at most ``max_bytes`` bytes of a *regular* file: it opens
+  without blocking (a FIFO never hangs the reader), refuses anything that is not a regular file
+  (``/dev/zero``, a FIFO, a folder), optionally refuses a symbolic link (``O_NOFOLLOW``), and
+  reads ``max_bytes + 1`` bytes at most, so a file that grows or lies about its size still costs
+  no more than the cap;
+- :func:`load_bounded_json` parses JSON text into plain Python values with a nesting depth of at
+  most ``max_depth`` (deeper text is refused before a value is built from it, so no
+  ``RecursionError`` reaches the caller), integers of at most :data:`MAX_INT_DIGITS` digits and
+  finite numbers only (``NaN``, ``Infinity`` and ``1e999`` are refused).
+
+Both raise :class:`BoundedFileError` whose ``str()`` is one line naming the file (``what``)
+and what was wrong; nothing else escapes them (``OSError``, ``UnicodeDecodeError``,
+``JSONDecodeError``, ``RecursionError`` and ``MemoryError`` are all turned into it). The work
+is linear in the bytes given. Validation into typed models is the caller's next step.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import math
+import os
+import re
+import stat
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+MAX_INT_DIGITS = 64
+"""Digits of the longest integer :func:`load_bounded_json` accepts (a 64-bit seed has 20)."""
+
+_READ_CHUNK = 1 << 20  # bytes per read() call
+_DEPTH_CHUNK = 1 << 22  # brackets per step of the depth scan (32 MiB of running depths)
+
+# A JSON string, closed or running to the end of the text; it never fails to match at a quote,
+# so a scan over the text is linear (a pattern that must find the closing quote is quadratic on
+# a quote followed by many escaped quotes).
+_STRING = re.compile(rb'"(?:[^"\\]|\\.)*+"?', re.DOTALL)
+_NOT_BRACKETS = bytes(c for c in range(256) if c not in b"[]{}")  # deleted by bytes.translate
+
+
+class BoundedFileError(ValueError):
+    """A file that cannot be read within its limits; ``str()`` is one line for a user."""
+
+    def __init__(self, what: str, problem: str) -> None:
+        self.what = what
+        self.problem = problem
+        super().__init__(_one_line(f"{what}: {problem}"))
+
+
+def read_bounded_bytes(path: Path | str, max_bytes: int, what: str, *, follow_symlinks: bool = True) -> bytes:
+    """The bytes of the regular file ``path``, at most ``max_bytes`` of them (a larger file is a
+    :class:`BoundedFileError`). ``what`` names the file in errors (e.g. its path). With
+    ``follow_symlinks=False`` a symbolic link is refused instead of followed."""
+    flags = os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
+    if not follow_symlinks:
+        flags |= os.O_NOFOLLOW
+    try:
+        fd = os.open(path, flags)
+    except FileNotFoundError:
+        raise BoundedFileError(what, "file not found") from None
+    except IsADirectoryError:
+        raise BoundedFileError(what, "expected a file, found a folder") from None
+    except OSError as exc:
+        if not follow_symlinks and exc.errno == errno.ELOOP:
+            raise BoundedFileError(what, "is a symbolic link (refused: the file must be a regular file)") from None
+        raise BoundedFileError(what, f"cannot open ({exc.strerror or exc})") from None
+    try:
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise BoundedFileError(what, "expected a file, found a folder")
+        if not stat.S_ISREG(info.st_mode):
+            raise BoundedFileError(what, "is not a regular file (a device, a FIFO or a socket)")
+        if info.st_size > max_bytes:
+            raise BoundedFileError(what, f"is {info.st_size} bytes, more than the {max_bytes} allowed")
+        chunks: list[bytes] = []
+        left = max_bytes + 1
+        while left > 0:
+            chunk = os.read(fd, min(left, _READ_CHUNK))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+    except OSError as exc:
+        raise BoundedFileError(what, f"cannot read ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+    if left <= 0:
+        raise BoundedFileError(what, f"is more than the {max_bytes} bytes allowed")
+    return b"".join(chunks)
+
+
+def json_depth_exceeds(data: bytes, max_depth: int) -> bool:
+    """Whether the JSON text ``data`` nests arrays and objects more than ``max_depth`` deep
+    (brackets inside strings do not count). Linear in ``len(data)``; the text need not be valid."""
+    brackets = _STRING.sub(b"", data).translate(None, _NOT_BRACKETS)
+    if len(brackets) <= max_depth:
+        return False
+    depth = 0
+    for start in range(0, len(brackets), _DEPTH_CHUNK):
+        codes = np.frombuffer(brackets, dtype=np.uint8, count=min(_DEPTH_CHUNK, len(brackets) - start), offset=start)
+        steps = np.where((codes == ord("[")) | (codes == ord("{")), 1, -1).astype(np.int64)
+        running = np.cumsum(steps) + depth
+        if int(running.max()) > max_depth:
+            return True
+        depth = int(running[-1])
+    return False
+
+
+def load_bounded_json(data: bytes | str, max_depth: int, what: str) -> Any:
+    """The JSON value in ``data`` (UTF-8 bytes, a BOM allowed, or text), nested at most
+    ``max_depth`` deep, its integers at most :data:`MAX_INT_DIGITS` digits and its numbers
+    finite; :class:`BoundedFileError` (one line, naming ``what``) otherwise."""
+    raw = data.encode("utf-8", "surrogatepass") if isinstance(data, str) else data
+    if json_depth_exceeds(raw, max_depth):
+        raise BoundedFileError(what, f"JSON nested more than {max_depth} levels deep")
+    if isinstance(data, str):
+        text = data
+    else:
+        try:
+            text = data.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            raise BoundedFileError(what, f"not UTF-8 text (bad byte at offset {exc.start})") from None
+    try:
+        return json.loads(text, parse_constant=_refuse_constant, parse_float=_finite_float, parse_int=_bounded_int)
+    except json.JSONDecodeError as exc:
+        raise BoundedFileError(what, f"not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from None
+    except _NumberError as exc:
+        raise BoundedFileError(what, str(exc)) from None
+    except (RecursionError, MemoryError):  # unreachable after the depth check; kept as a floor
+        raise BoundedFileError(what, "JSON too large or too deeply nested to read") from None
+
+
+class _NumberError(ValueError):
+    pass
+
+
+def _refuse_constant(text: str) -> Any:
+    raise _NumberError(f"non-finite number {text} (numbers must be finite)")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise _NumberError(f"number {text[:40]}{'...' if len(text) > 40 else ''} is too large (numbers must be finite)")
+    return value
+
+
+def _bounded_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_INT_DIGITS:
+        raise _NumberError(f"an integer of {digits} digits (at most {MAX_INT_DIGITS} allowed)")
+    return int(text)
+
+
+def _one_line(text: str, limit: int = 400) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."

@@ -1,0 +1,119 @@
+"""``sim.bounded_files``: a file read back costs at most its cap, and bad JSON is one line.
+
+Each case is an input the plain ``Path.read_bytes`` / ``json.loads`` pair mishandles: reading
+``/dev/zero`` never ends, a FIFO blocks, deep nesting is a ``RecursionError``, 5,000 digits a
+``ValueError`` from the interpreter's int limit, ``1e400`` silently becomes infinity.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from sim.bounded_files import (
+    MAX_INT_DIGITS,
+    BoundedFileError,
+    json_depth_exceeds,
+    load_bounded_json,
+    read_bounded_bytes,
+)
+
+
+def one_line(exc: pytest.ExceptionInfo[BoundedFileError], *needles: str) -> str:
+    text = str(exc.value)
+    assert "\n" not in text
+    for needle in needles:
+        assert needle in text, text
+    return text
+
+
+def test_a_small_file_is_read_whole(tmp_path: Path) -> None:
+    path = tmp_path / "a.json"
+    path.write_bytes(b"x" * 100)
+    assert read_bounded_bytes(path, 100, str(path)) == b"x" * 100
+
+
+def test_a_file_over_its_cap_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "a.json"
+    path.write_bytes(b"x" * 101)
+    with pytest.raises(BoundedFileError) as exc:
+        read_bounded_bytes(path, 100, "the run file")
+    one_line(exc, "the run file", "100")
+
+
+def test_dev_zero_is_refused_not_read_forever() -> None:
+    with pytest.raises(BoundedFileError) as exc:
+        read_bounded_bytes("/dev/zero", 1 << 20, "run.json")
+    one_line(exc, "run.json", "not a regular file")
+
+
+def test_a_fifo_without_a_writer_does_not_block(tmp_path: Path) -> None:
+    fifo = tmp_path / "story.json"
+    os.mkfifo(fifo)
+    with pytest.raises(BoundedFileError) as exc:
+        read_bounded_bytes(fifo, 1 << 20, str(fifo))
+    one_line(exc, "not a regular file")
+
+
+def test_missing_file_and_folder(tmp_path: Path) -> None:
+    with pytest.raises(BoundedFileError) as exc:
+        read_bounded_bytes(tmp_path / "nope", 10, "nope")
+    one_line(exc, "not found")
+    with pytest.raises(BoundedFileError) as exc:
+        read_bounded_bytes(tmp_path, 10, "folder")
+    one_line(exc, "folder")
+
+
+def test_a_symlink_is_refused_when_asked(tmp_path: Path) -> None:
+    target = tmp_path / "secret"
+    target.write_bytes(b"secret")
+    link = tmp_path / "link"
+    link.symlink_to(target)
+    assert read_bounded_bytes(link, 10, "link") == b"secret"
+    with pytest.raises(BoundedFileError) as exc:
+        read_bounded_bytes(link, 10, "link", follow_symlinks=False)
+    one_line(exc, "symbolic link")
+
+
+def test_json_is_parsed() -> None:
+    assert load_bounded_json(b'\xef\xbb\xbf{"a": [1, -2.5, "]]]{{"], "b": null}', 2, "f") == {
+        "a": [1, -2.5, "]]]{{"],
+        "b": None,
+    }
+    assert load_bounded_json('{"a": 1}', 1, "f") == {"a": 1}
+
+
+@pytest.mark.parametrize(
+    ("data", "needle"),
+    [
+        (b"[" * 100_000 + b"]" * 100_000, "nested more than 64 levels"),
+        (b'{"a": ' * 70 + b"1" + b"}" * 70, "nested more than 64 levels"),
+        (b"[" * 100_000, "nested more than 64 levels"),  # not even valid: still no RecursionError
+        (b'{"time": ' + b"9" * 5000 + b"}", "5000 digits"),
+        (b'{"time": ' + b"9" * 400 + b".0}", "too large"),
+        (b"[1e400]", "too large"),
+        (b'{"a": NaN}', "non-finite"),
+        (b"[-Infinity]", "non-finite"),
+        (b'{"a": 1', "not valid JSON"),
+        (b"\xff\xfe{}", "not UTF-8"),
+    ],
+)
+def test_bad_json_is_one_line(data: bytes, needle: str) -> None:
+    with pytest.raises(BoundedFileError) as exc:
+        load_bounded_json(data, 64, "run.json")
+    one_line(exc, "run.json", needle)
+
+
+def test_depth_counts_brackets_outside_strings_only() -> None:
+    assert not json_depth_exceeds(b'[["[[[[[[[[", "\\"[[[["]]', 2)
+    assert json_depth_exceeds(b"[[[]]]", 2)
+    assert not json_depth_exceeds(b"[[]][[]][[]]", 2)
+    # a quote followed by many escaped quotes (a quadratic trap for a naive string pattern)
+    assert not json_depth_exceeds(b'"' + b'\\"' * 200_000, 2)
+
+
+def test_integers_up_to_the_limit_are_kept() -> None:
+    big = "9" * MAX_INT_DIGITS
+    assert load_bounded_json(f"[{big}, -{big}]", 2, "f") == [int(big), -int(big)]
