@@ -11,7 +11,13 @@ rendered by :func:`render_description`, one line per area, with supports (``on c
 In regions mode (small local models) the model instead answers one entry per region (cluster)
 ``{"regions": [{"region": 1, "area", "purpose"}, ...]}``; the schema pins the entries' region
 numbers (1..n, in order), so under grammar decoding every region appears exactly once and the
-answer needs no rejected attempt; regions named alike form one area.
+answer needs no rejected attempt; regions named alike form one area. Each entry's area name and
+purpose are chosen from the ones the room table (``agents.area_fit.region_choices``) gives its
+region, so a grammar-decoded answer names a couch and a TV a living room, never a dining area.
+
+Both modes: an answer whose area names or purposes do not fit their objects by the room table
+(``agents.area_fit``) is rejected with feedback naming the kinds that would fit; if the last
+try still disagrees, the misfits are renamed from the table (:func:`best_effort`).
 
 Descriptions are cached on disk per (scene content, model, prompt files) hash.
 """
@@ -23,12 +29,13 @@ import json
 import os
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from agents.area_fit import area_problems_by_table, fitting_kinds, region_choices, rule_areas
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
 from agents.llm_schemas import Refine, reply_schema
 from agents.messages import SceneDescription
@@ -41,6 +48,7 @@ from agents.retry_feedback import (
     retry_temperature,
     with_turns,
 )
+from agents.room_table import ROOMS_FILE, room_table
 from sim.scene.model import Scene
 from tools.clusters import cluster_objects
 from tools.scene_graph import SceneGraph, build_scene_graph
@@ -51,6 +59,8 @@ DESCRIBER_FILES = (
     "describer/request.md",
     "describer/system_regions.md",
     "describer/request_regions.md",
+    "describer/region_choices.md",
+    ROOMS_FILE,
 )
 MAX_AREAS = 8
 """Areas a reply may have (the schema's bound; the parser accepts twice as many, so an
@@ -58,13 +68,6 @@ over-long answer from a provider without schema decoding still gets precise feed
 be repaired)."""
 MAX_REGIONS = 64
 """Regions a regions-mode reply may name (the schema pins the scene's own count)."""
-AREA_KINDS = (
-    "kitchen", "dining area", "living room", "lounge", "reading corner", "music corner", "work area",
-    "office", "meeting room", "bar", "reception", "entrance", "hallway", "bedroom", "bathroom",
-    "storage", "garden", "play area", "other",
-)
-"""Area names a regions-mode reply chooses from (general room kinds, not any scene's): a 0.5B
-model asked for a free name writes the region's first object name (``fridge_1``) instead."""
 MAX_AREA_NAME_CHARS = 40
 MAX_PURPOSE_CHARS = 80
 DEFAULT_MAX_TOKENS = 420
@@ -118,6 +121,19 @@ class DescriberInput:
     """objects: the model lists every object; regions: the model names the area of each
     cluster (numbered region), one entry per region in order, and the objects follow from
     them, so a small model writes ~5x fewer tokens and cannot leave a region out."""
+    labels: Mapping[str, str] = field(default_factory=dict)
+    """object name -> its label (absent: the name without its ``_<idx>`` suffix)."""
+
+    def label_of(self, name: str) -> str:
+        if name in self.labels:
+            return self.labels[name]
+        base, _, idx = name.rpartition("_")
+        return base if base and idx.isdigit() else name
+
+    @property
+    def all_labels(self) -> dict[str, str]:
+        """object name -> label, for every object of the scene."""
+        return {n: self.label_of(n) for n in self.object_names}
 
 
 COMPACT_RELATIONS = ("on", "inside", "adjacent to")
@@ -154,6 +170,7 @@ def describer_input_from_scene(
         clusters=clusters,
         supports=supports,
         mode=mode,
+        labels={o.name: o.label for o in scene.objects},
     )
 
 
@@ -168,13 +185,37 @@ def describer_schema(names: Sequence[str]) -> dict[str, Any]:
     )
 
 
-def describer_regions_schema(n_regions: int) -> dict[str, Any]:
+RegionChoices = tuple[tuple[str, ...], tuple[str, ...]]
+"""A region's area names and purposes (best first), from :func:`agents.area_fit.region_choices`."""
+
+
+def describer_regions_schema(
+    n_regions: int, choices: Sequence[RegionChoices] | None = None, prompts: PromptLibrary | None = None
+) -> dict[str, Any]:
     """Schema of a regions-mode reply: exactly one entry per region 1..n_regions, in order,
-    each entry's region number fixed; the area name one of AREA_KINDS, the purpose free."""
-    return reply_schema(RegionNaming, {
-        "regions.area": Refine(enum=AREA_KINDS),
+    each entry's region number fixed. Entry ``i``'s area name is one of ``choices[i]``'s names
+    and its purpose one of its purposes (without ``choices``: any kind of the room table, a
+    free purpose)."""
+    kinds = tuple(room_table(prompts).kinds)
+    schema = reply_schema(RegionNaming, {
+        "regions.area": Refine(enum=kinds),
         "regions": Refine(pin=("region", range(1, n_regions + 1))),
     })
+    for entry, (names, purposes) in zip(schema["properties"]["regions"]["prefixItems"], choices or (), strict=False):
+        props = entry["properties"]  # one region's own choices: each entry a copy (see _pin)
+        props["area"] = {**props["area"], "enum": list(names or kinds)}
+        if purposes:
+            props["purpose"] = {**props["purpose"], "enum": list(purposes)}
+    return schema
+
+
+def regions_choices(inp: DescriberInput, prompts: PromptLibrary | None = None) -> list[RegionChoices]:
+    """Every region's area names and purposes by the room table; a region whose objects say
+    nothing about the room (a lone plant) may take the names the other regions fit."""
+    table = room_table(prompts)
+    labels = [[inp.label_of(n) for n in c] for c in inp.clusters]
+    scene_kinds = tuple(dict.fromkeys(k for labs in labels for k in fitting_kinds(labs, table)))
+    return [region_choices(labs, scene_kinds, table) for labs in labels]
 
 
 def regions_max_tokens(n_regions: int) -> int:
@@ -187,15 +228,22 @@ def describer_request(
 ) -> LLMRequest:
     regions = clusters_text([list(c) for c in inp.clusters]) or prompts.render_text("describer/no_regions.md")
     if inp.mode == "regions":
+        choices = regions_choices(inp, prompts)
+        lines = [
+            prompts.render_text(
+                "describer/region_choices.md", number=k, objects=", ".join(c), kinds=", ".join(names),
+                purposes=" / ".join(purposes),
+            )
+            for k, (c, (names, purposes)) in enumerate(zip(inp.clusters, choices, strict=True), start=1)
+        ]
         system = prompts.render("describer/system_regions.md")
         user = prompts.render(
             "describer/request_regions.md",
             scene_graph=inp.scene_graph_json.strip(),
-            regions=regions,
+            regions="\n".join(lines) or prompts.render_text("describer/no_regions.md"),
             count=len(inp.clusters),
-            area_kinds=", ".join(AREA_KINDS),
         )
-        schema = describer_regions_schema(len(inp.clusters))
+        schema = describer_regions_schema(len(inp.clusters), choices, prompts)
         max_tokens = max(max_tokens, regions_max_tokens(len(inp.clusters)))
     else:
         system = prompts.render("describer/system.md")
@@ -252,7 +300,7 @@ def _json_blob(text: str) -> Any:
     return json.loads(text[start : end + 1] if 0 <= start < end else text)
 
 
-def _load_areas(text: str, inp: DescriberInput | None = None) -> AreaList:
+def load_areas(text: str, inp: DescriberInput | None = None) -> AreaList:
     """Parse a reply of either mode into objects per area (no completeness check)."""
     if inp is not None and inp.mode == "regions":
         return regions_to_areas(RegionNaming.model_validate(_json_blob(text)), inp)
@@ -282,7 +330,7 @@ def area_problems(areas: AreaList, names: Sequence[str], prompts: PromptLibrary 
 
 def parse_areas(text: str, names: Sequence[str]) -> AreaList:
     """Check a reply; raises JSONDecodeError, ValidationError or AnswerRejectedError."""
-    areas = _load_areas(text)
+    areas = load_areas(text)
     problems = area_problems(areas, names)
     if problems:
         raise AnswerRejectedError(problems)
@@ -401,20 +449,41 @@ class DescriberAttempt:
     """The typed error that rejected the reply (JSONDecodeError, ValidationError, AnswerRejectedError)."""
 
 
-def parse_reply(reply: str, inp: DescriberInput) -> AreaList:
-    """Check a reply of ``inp.mode``; raises JSONDecodeError, ValidationError or AnswerRejectedError."""
+def fit_problems(areas: AreaList, inp: DescriberInput, prompts: PromptLibrary | None = None) -> list[str]:
+    """Areas whose name or purpose does not fit their objects by the room table (``agents.area_fit``)."""
+    return area_problems_by_table([(a.name, a.purpose, a.objects) for a in areas.areas], inp.all_labels, prompts=prompts)
+
+
+def fit_by_rule(areas: AreaList, inp: DescriberInput, prompts: PromptLibrary | None = None) -> AreaList:
+    """``areas`` with every misfit renamed from the room table (best fitting kind, the labels' functions)."""
+    renamed = rule_areas([(a.name, a.purpose, a.objects) for a in areas.areas], inp.all_labels, room_table(prompts))
+    merged: dict[str, tuple[str, str, tuple[str, ...]]] = {}  # areas renamed alike become one
+    for n, p, o in renamed:
+        name, purpose, objects = merged.get(_area_key(n), (n, p, ()))
+        merged[_area_key(n)] = (name, purpose or p, (*objects, *o))
+    return AreaList(areas=tuple(Area(name=n, purpose=p, objects=o) for n, p, o in merged.values()))
+
+
+def parse_reply(reply: str, inp: DescriberInput, prompts: PromptLibrary | None = None) -> AreaList:
+    """Check a reply of ``inp.mode``: complete, then fitting its objects (:func:`fit_problems`);
+    raises JSONDecodeError, ValidationError or AnswerRejectedError."""
     if inp.mode == "regions":
         naming = RegionNaming.model_validate(_json_blob(reply))
-        problems = region_problems(naming, len(inp.clusters))
+        problems = region_problems(naming, len(inp.clusters), prompts)
         if problems:
             raise AnswerRejectedError(problems)
-        return regions_to_areas(naming, inp)
-    return parse_areas(reply, inp.object_names)
+        areas = regions_to_areas(naming, inp)
+    else:
+        areas = parse_areas(reply, inp.object_names)
+    problems = fit_problems(areas, inp, prompts)
+    if problems:
+        raise AnswerRejectedError(problems)
+    return areas
 
 
 def judge_reply(reply: str, inp: DescriberInput, prompts: PromptLibrary | None = None) -> DescriberAttempt:
     try:
-        return DescriberAttempt(areas=parse_reply(reply, inp), turn=None)
+        return DescriberAttempt(areas=parse_reply(reply, inp, prompts), turn=None)
     except (ValueError, AnswerRejectedError) as exc:  # JSONDecodeError and ValidationError are ValueErrors
         feedback = feedback_from_error(exc, prompts=prompts)
         return DescriberAttempt(areas=None, turn=Turn(reply=reply, feedback=feedback), error=exc)
@@ -430,16 +499,31 @@ def finish(inp: DescriberInput, areas: AreaList, *, repaired: bool, attempts: in
     )
 
 
-def best_effort(inp: DescriberInput, turns: Sequence[Turn]) -> SceneDescription:
-    """After the last rejected try: repair the last parseable answer (or use the clusters)."""
+def best_effort_areas(inp: DescriberInput, turns: Sequence[Turn]) -> AreaList:
+    """After the last rejected try: the last parseable answer completed from the clusters (or
+    the clusters named by the room table when none parses), its misfits renamed by the table."""
     for turn in reversed(turns):
         try:
-            areas = _load_areas(turn.reply, inp)
+            areas = load_areas(turn.reply, inp)
         except ValueError:
             continue
-        return finish(inp, repair_areas(areas, inp), repaired=True, attempts=len(turns))
-    empty = AreaList(areas=())
-    return finish(inp, repair_areas(empty, inp), repaired=True, attempts=len(turns))
+        return fit_by_rule(repair_areas(areas, inp), inp)
+    return fit_by_rule(repair_areas(rule_made_areas(inp), inp), inp)
+
+
+def best_effort(inp: DescriberInput, turns: Sequence[Turn]) -> SceneDescription:
+    """The description of :func:`best_effort_areas` (flagged ``repaired``)."""
+    return finish(inp, best_effort_areas(inp, turns), repaired=True, attempts=len(turns))
+
+
+def rule_made_areas(inp: DescriberInput, prompts: PromptLibrary | None = None) -> AreaList:
+    """Areas from the clusters alone: each region takes its best area name and purpose by the
+    room table; regions named alike form one area (no answer of the model was usable)."""
+    naming = RegionNaming(regions=tuple(
+        RegionName(region=k, area=names[0] if names else "other", purpose=purposes[0] if purposes else "")
+        for k, (names, purposes) in enumerate(regions_choices(inp, prompts), start=1)
+    ))
+    return regions_to_areas(naming, inp)
 
 
 async def describe_scene(
