@@ -1,36 +1,55 @@
-"""Text from an LLM or a program, made safe to show: one helper per kind of printer.
+"""Text from outside, made safe to show: one helper per kind of printer.
 
-Names, labels, activities and error messages come from a model or from an event program,
-so they are data, never formatting: ``plain`` replaces control characters (C0, DEL, C1: the
-terminal escape sequences) and bidirectional overrides with visible ``\\xNN`` / ``\\uNNNN``
-escapes (terminal lines, log lines, the viewer's 3D labels and buttons, which draw text
-literally); ``markup`` additionally escapes rich markup (``[red]``, ``[/]``) for text printed
-through rich; ``markdown`` additionally escapes every markdown and HTML special character, for
-the viewer's panel (viser renders its markdown with raw HTML and no sanitizing). Guarantee: the
-result contains no control character, and through rich, or as markdown, it renders as the
-literal text.
+Names, labels, activities and error messages come from a model, an event program or a file
+someone shared, so they are data, never formatting: ``plain`` replaces every character of the
+Unicode categories Cc (controls: C0, DEL, C1, the terminal escape sequences), Cf (format:
+bidirectional overrides and isolates, U+061C, zero-width characters, U+2060, the BOM), Zl and
+Zp (U+2028, U+2029) and every lone surrogate (Cs) with a visible escape (``\\xNN``,
+``\\uNNNN`` or ``\\UNNNNNNNN``), chosen by ``unicodedata.category``, not a hand list. The one
+exception is ``keep_newlines``, for multi-line messages (error feedback): newline and tab stay.
+Used for terminal lines, log lines, the viewer's 3D labels and buttons, which draw text
+literally; ``markup`` additionally escapes rich markup (``[red]``, ``[/]``) for text printed
+through rich; ``markdown`` additionally escapes every markdown and HTML special character,
+for the viewer's panel (viser renders its markdown with raw HTML and no sanitizing).
+
+Guarantee: the result holds no character of those categories (but newline and tab with
+``keep_newlines``), it encodes to UTF-8 (no lone surrogate is left), and through rich, or as
+markdown, it renders as the literal text.
 """
 
 from __future__ import annotations
 
 import re
+import unicodedata
 
 from rich.markup import escape
 
-_UNSAFE = re.compile("[\x00-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
-_UNSAFE_IN_LINES = re.compile("[\x00-\x09\x0b-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
+UNSAFE_CATEGORIES = frozenset({"Cc", "Cf", "Zl", "Zp", "Cs"})
+"""Unicode categories never shown raw: controls, format characters, line and paragraph
+separators, surrogates."""
+
+_LINE_BREAKS = frozenset("\n\t")
 
 
-def _visible(match: re.Match[str]) -> str:
-    code = ord(match.group())
-    return f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}"
+def _visible(char: str) -> str:
+    code = ord(char)
+    if code < 0x100:
+        return f"\\x{code:02x}"
+    return f"\\u{code:04x}" if code < 0x10000 else f"\\U{code:08x}"
 
 
 def plain(text: object, *, keep_newlines: bool = False) -> str:
-    """``str(text)`` with every control character shown as an escape (newlines too, unless
-    ``keep_newlines``: for multi-line messages such as error feedback)."""
-    pattern = _UNSAFE_IN_LINES if keep_newlines else _UNSAFE
-    return pattern.sub(_visible, str(text))
+    """``str(text)`` with every control, format, separator and surrogate character shown as an
+    escape (newlines and tabs too, unless ``keep_newlines``: for multi-line messages such as
+    error feedback)."""
+    text = str(text)
+    if text.isprintable():  # fast path: no Cc, Cf, Cs, Zl, Zp (nor Co, Cn, Zs but the space)
+        return text
+    kept = _LINE_BREAKS if keep_newlines else frozenset()
+    return "".join(
+        _visible(c) if c not in kept and unicodedata.category(c) in UNSAFE_CATEGORIES else c
+        for c in text
+    )
 
 
 def markup(text: object) -> str:

@@ -41,7 +41,9 @@ def _setup(
     try:
         configure_logging(log_level)
     except ValueError as exc:
-        typer.echo(f"error: {exc}", err=True)
+        from orchestrator.safe_text import plain
+
+        typer.echo(f"error: {plain(exc)}", err=True)
         raise typer.Exit(2) from None
 
 

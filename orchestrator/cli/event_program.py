@@ -167,4 +167,4 @@ def event_program(
             f"[{p.position[0]:.2f}, {p.position[1]:.2f}]",
             f"[{p.facing[0]:.2f}, {p.facing[1]:.2f}]",
         )
-    Console().print(table)
+    Console(emoji=False).print(table)  # markup() escapes markup; a ':smile:' stays text too

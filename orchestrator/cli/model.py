@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from orchestrator.safe_text import plain
+
 if TYPE_CHECKING:  # the config module is imported when a command runs, not at CLI start-up
     from orchestrator.llm.config import StorytellerConfig
 
@@ -27,7 +29,7 @@ def _load(config: Path | None) -> StorytellerConfig:
     try:
         return load_config(config)
     except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
+        typer.echo(f"error: {plain(exc, keep_newlines=True)}", err=True)
         raise typer.Exit(2) from None
 
 
@@ -41,21 +43,21 @@ def info(config: ConfigOption = None) -> None:
     from orchestrator.llm.model_weights import KNOWN_WEIGHTS, install_command, weights_status
 
     cfg = _load(config)
-    typer.echo(f"config: {cfg.source}   trace fsync: {cfg.trace.fsync}")
+    typer.echo(f"config: {plain(cfg.source)}   trace fsync: {cfg.trace.fsync}")
     for node_name, node in cfg.nodes.items():
         r = node.retry
-        typer.echo(
+        typer.echo(plain(
             f"{node_name:13s} model={node.model} fallbacks=[{', '.join(node.fallbacks)}] "
             f"temperature={node.temperature} max_tokens={node.max_tokens} timeout_s={node.timeout_s} "
             f"retry(max_attempts={r.max_attempts}, backoff={r.backoff_base_s}..{r.backoff_max_s}s, "
             f"jitter={r.jitter}, seed={r.seed})"
             + (f" api_base={node.api_base}" if node.api_base else "")
             + (f" api_key_env={node.api_key_env}" if node.api_key_env else "")
-        )
+        ))  # names from the config file: shown as data
     used = _local_models(cfg)
     for model in used:
         if model.removeprefix("local/") not in KNOWN_WEIGHTS:
-            typer.echo(f"{model}: unknown local model")
+            typer.echo(f"{plain(model)}: unknown local model")
     typer.echo("embedded models:")
     for spec in KNOWN_WEIGHTS.values():
         name = f"local/{spec.model}"
@@ -71,6 +73,21 @@ def info(config: ConfigOption = None) -> None:
             typer.echo(f"    use: STORYTELLER_MODEL={name}, or model = \"{name}\" under [llm] in the config")
         if st.problem and name in used:
             typer.echo(f"    {st.problem}")
+    _echo_local_run_settings()
+
+
+def _echo_local_run_settings() -> None:
+    """The threads a local call would use now (and why) and the progress floors it is held to."""
+    from orchestrator.llm.cpu_threads import THREADS_ENV, ThreadChooser
+    from orchestrator.llm.decode_progress import ProgressFloor
+
+    try:
+        choice = ThreadChooser().choose()
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(f"local threads now: {choice.reason()}; chosen again before every call ({THREADS_ENV} fixes them)")
+    typer.echo(f"local progress floor: {ProgressFloor().describe()}; timeout_s is a hard cap")
 
 
 @model_app.command("check")
@@ -91,7 +108,7 @@ def check(
         try:
             path = ensure_weights(spec_for(model))
         except LLMError as exc:
-            typer.echo(f"{model}: FAILED: {exc}", err=True)
+            typer.echo(f"{plain(model)}: FAILED: {plain(exc, keep_newlines=True)}", err=True)
             failed = True
             continue
         typer.echo(f"{model}: weights verified ({path}, {time.perf_counter() - t0:.1f} s)")
@@ -109,12 +126,12 @@ def check(
         try:
             resp = anyio.run(LiteLLMClient(probe_cfg).complete, request)
         except LLMError as exc:
-            typer.echo(f"{model}: call FAILED: {exc}", err=True)
+            typer.echo(f"{plain(model)}: call FAILED: {plain(exc, keep_newlines=True)}", err=True)
             failed = True
             continue
         rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         rate = resp.usage.completion_tokens / resp.latency_s if resp.latency_s > 0 else 0.0
-        typer.echo(f"{model}: {resp.text}  ({resp.usage.prompt_tokens}+{resp.usage.completion_tokens} tokens, "
+        typer.echo(f"{plain(model)}: {plain(resp.text)}  ({resp.usage.prompt_tokens}+{resp.usage.completion_tokens} tokens, "
                    f"{resp.latency_s:.1f} s incl. load, {rate:.1f} tok/s, peak RSS {rss_mb:.0f} MB)")
     if failed:
         raise typer.Exit(1)

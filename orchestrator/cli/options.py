@@ -52,6 +52,10 @@ LiveOption = Annotated[bool | None, typer.Option(
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
-    """Print ``error: message`` to stderr and exit (2: a user error)."""
-    typer.echo(f"error: {message}", err=True)
+    """Print ``error: message`` to stderr and exit (2: a user error). The message names files
+    and quotes their content, so it goes through :func:`~orchestrator.safe_text.plain` (control,
+    format and bidi characters shown as escapes; its own newlines kept)."""
+    from orchestrator.safe_text import plain
+
+    typer.echo(f"error: {plain(message, keep_newlines=True)}", err=True)
     raise typer.Exit(code)

@@ -101,29 +101,41 @@ def inspect_data(scene: Scene) -> dict[str, Any]:
 
 
 def _print_tables(data: dict[str, Any]) -> None:
+    """The tables. Every name and label from the scene file is a rich ``Text`` of
+    :func:`~orchestrator.safe_text.plain` (control, format and bidi characters shown as
+    escapes), never a markup string: rich parses neither markup nor emoji codes in it."""
     from rich.console import Console
     from rich.table import Table
+    from rich.text import Text
+
+    from orchestrator.safe_text import plain
+
+    def text(value: object) -> Text:
+        return Text(plain(value))
 
     console = Console()
     if not console.is_terminal:  # piped: do not squeeze the tables into 80 columns
         console = Console(width=max(console.width, 120))
     lo, hi = data["bounds"]["min"], data["bounds"]["max"]
     console.print(
-        f"[bold]{data['scene']}[/bold]: {len(data['objects'])} objects, floor "
-        f"[{lo[0]:.2f}, {hi[0]:.2f}] x [{lo[1]:.2f}, {hi[1]:.2f}] m"
+        Text.assemble(
+            (plain(data["scene"]), "bold"),
+            f": {len(data['objects'])} objects, floor "
+            f"[{lo[0]:.2f}, {hi[0]:.2f}] x [{lo[1]:.2f}, {hi[1]:.2f}] m",
+        )
     )
     objects = Table(title="Objects", title_justify="left")
     for col in ("name", "label", "center x y z (m)", "size w d h (m)", "facing", "seat", "on"):
         objects.add_column(col, no_wrap=col != "on")
     for o in data["objects"]:
         objects.add_row(
-            o["name"],
-            o["label"],
+            text(o["name"]),
+            text(o["label"]),
             " ".join(f"{v:6.2f}" for v in o["center"]),
             " ".join(f"{v:5.2f}" for v in o["size"]),
             " ".join(f"{v:+.2f}" for v in o["facing"]) if o["has_facing"] else "-",
             "yes" if o["seat"] else "",
-            o["supporter"] or "",
+            text(o["supporter"] or ""),
         )
     console.print(objects)
 
@@ -131,14 +143,14 @@ def _print_tables(data: dict[str, Any]) -> None:
     for col in ("subject", "relation", "anchor"):
         relations.add_column(col)
     for s, r, a in data["relations"]:
-        relations.add_row(s, r, a)
+        relations.add_row(text(s), text(r), text(a))
     console.print(relations)
 
     clusters = Table(title=f"Clusters ({len(data['clusters'])})", title_justify="left")
     clusters.add_column("#", justify="right")
     clusters.add_column("objects")
     for k, names in enumerate(data["clusters"], 1):
-        clusters.add_row(str(k), ", ".join(names))
+        clusters.add_row(str(k), text(", ".join(names)))
     console.print(clusters)
 
     g = data["grid"]
@@ -156,7 +168,10 @@ def _print_tables(data: dict[str, Any]) -> None:
 
 
 def _fail(message: str) -> typer.Exit:
-    typer.echo(f"error: {' '.join(message.split())}", err=True)
+    """One line on stderr (whitespace runs folded, control and bidi characters escaped)."""
+    from orchestrator.safe_text import plain
+
+    typer.echo(f"error: {plain(' '.join(message.split()))}", err=True)
     return typer.Exit(code=EXIT_USAGE)
 
 
@@ -178,6 +193,7 @@ def inspect_scene(
     ] = None,
 ) -> None:
     """Show a scene's objects, relations, clusters and navigation grid."""
+    from orchestrator.safe_text import plain
     from sim.paths.nav_grid import NavGridError
     from sim.scene.bundled import resolve_scene
     from sim.scene.files import SceneFileError
@@ -219,4 +235,4 @@ def inspect_scene(
     else:
         _print_tables(data)
         if png is not None:
-            typer.echo(f"wrote {png}")
+            typer.echo(f"wrote {plain(png)}")
