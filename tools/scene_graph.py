@@ -22,7 +22,6 @@ All distances are metres; surface distances are between 2D footprints (see ``foo
 
 from __future__ import annotations
 
-from collections.abc import Iterable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -30,6 +29,8 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from sim.scene.model import Scene, SceneObject
+from tools.box_pairs import overlapping_pairs
+from tools.footprint_geometry import centre_distances, polygon_distance, polygon_distances
 
 if TYPE_CHECKING:  # networkx (0.1 s to import) is loaded by build_scene_graph, when a graph is built
     import networkx as nx
@@ -99,45 +100,7 @@ class RelationThresholds(BaseModel):
 DEFAULT_THRESHOLDS = RelationThresholds()
 
 
-# ----- footprint geometry ---------------------------------------------------------------------
-def _point_segment_distances(
-    points: NDArray[np.float64], a: NDArray[np.float64], b: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """Distances from points (N, 2) to the segment a-b."""
-    ab = b - a
-    denom = float(ab @ ab)
-    t = np.zeros(len(points)) if denom < 1e-18 else np.clip((points - a) @ ab / denom, 0.0, 1.0)
-    proj = a + t[:, None] * ab
-    distances: NDArray[np.float64] = np.linalg.norm(points - proj, axis=1)
-    return distances
-
-
-def _separated(p: NDArray[np.float64], q: NDArray[np.float64]) -> bool:
-    """Separating-axis test for two convex polygons (corners in order)."""
-    for poly in (p, q):
-        edges = np.roll(poly, -1, axis=0) - poly
-        for e in edges:
-            axis = np.array([-e[1], e[0]])
-            if axis @ axis < 1e-18:
-                continue
-            pp, qq = p @ axis, q @ axis
-            if pp.max() < qq.min() or qq.max() < pp.min():
-                return True
-    return False
-
-
-def polygon_distance(p: NDArray[np.float64], q: NDArray[np.float64]) -> float:
-    """Distance between two convex polygons (corners (N, 2) in order); 0 when they overlap."""
-    if not _separated(p, q):
-        return 0.0
-    best = np.inf
-    for poly_a, poly_b in ((p, q), (q, p)):
-        for i in range(len(poly_b)):
-            d = _point_segment_distances(poly_a, poly_b[i], poly_b[(i + 1) % len(poly_b)])
-            best = min(best, float(d.min()))
-    return best
-
-
+# ----- footprint geometry (tools.footprint_geometry: the same floats one pair or many at once) ----
 def footprint_distance(a: SceneObject, b: SceneObject) -> float:
     """Distance between the 2D footprints (oriented rectangles) of two objects, metres."""
     return polygon_distance(a.footprint(), b.footprint())
@@ -242,54 +205,96 @@ class SceneGraph:
 
 
 def _levels(scene: Scene, on_floor: set[str], supporter: dict[str, str]) -> dict[str, int | None]:
+    """Support level of every object: follow the supporter chain (iteratively: a stack of
+    thousands of boxes is no recursion) to the floor (level 0), to an object held by nothing or
+    to a cycle (both None)."""
     levels: dict[str, int | None] = {}
-
-    def level_of(name: str, visiting: frozenset[str]) -> int | None:
-        if name in levels:
-            return levels[name]
-        if name in on_floor:
-            result: int | None = 0
-        elif name not in supporter or name in visiting:  # held by nothing, or a support cycle
-            result = None
-        else:
-            below = level_of(supporter[name], visiting | {name})
-            result = None if below is None else below + 1
-        levels[name] = result
-        return result
-
     for obj in scene.objects:
-        level_of(obj.name, frozenset())
+        path: list[str] = []
+        on_path: set[str] = set()
+        name = obj.name
+        while name not in levels:
+            if name in on_floor:
+                levels[name] = 0
+                break
+            if name not in supporter or name in on_path:  # held by nothing, or a support cycle
+                levels[name] = None
+                break
+            path.append(name)
+            on_path.add(name)
+            name = supporter[name]
+        base = levels[name]
+        for below, above in enumerate(reversed(path), start=1):
+            if above != name:  # a cycle's entry point keeps its None
+                levels[above] = None if base is None else base + below
     return levels
+
+
+_INDEX_SLACK = 1e-6
+"""Metres the index grows every box by beyond a relation's reach, so that rounding never makes
+it skip a pair the exact test would accept (the index is only a filter)."""
+
+
+def _footprint_boxes(
+    objects: tuple[SceneObject, ...] | list[SceneObject], grow: float, margin: float = 0.0
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Axis-aligned (lo, hi) corners (N, 2) of the footprints grown by ``margin``, then by ``grow``."""
+    if not objects:
+        empty = np.zeros((0, 2))
+        return empty, empty
+    corners = np.stack([o.footprint(margin) for o in objects])
+    pad = grow + _INDEX_SLACK
+    return corners.min(axis=1) - pad, corners.max(axis=1) + pad
+
+
+def _centre_boxes(
+    objects: tuple[SceneObject, ...] | list[SceneObject],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    centres = np.array([o.center[:2] for o in objects], dtype=np.float64).reshape(-1, 2)
+    return centres, centres
 
 
 def build_scene_graph(
     scene: Scene, thresholds: RelationThresholds = DEFAULT_THRESHOLDS
 ) -> SceneGraph:
-    """Compute every relation of ``scene`` (see the module docstring for the semantics)."""
+    """Compute every relation of ``scene`` (see the module docstring for the semantics).
+
+    Only pairs of objects that the index (``tools.box_pairs``) finds within a relation's reach
+    are tested; the relations, node attributes and edge order are those of testing every pair
+    (``tests/support/scene_graph_reference.py``).
+    """
     import networkx as nx
 
     t = thresholds
     objects = scene.objects
+    index = {o.name: i for i, o in enumerate(objects)}
     graph: nx.MultiDiGraph[str] = nx.MultiDiGraph()
     on_floor = {o.name for o in objects if abs(o.z_min - scene.floor_z) < t.floor_support}
+    # (subject index, phase, anchor index, order within the pair, relation): sorted, this is the
+    # order in which testing every pair adds the edges (a MultiDiGraph keeps insertion order).
+    edges: list[tuple[int, int, int, int, str]] = []
 
     # support: the closest anchor top under the subject's bottom wins
     supporter: dict[str, str] = {}
     contact: dict[str, tuple[str, str]] = {}
-    for subject in objects:
-        if subject.name in on_floor:
-            continue
-        candidates = []
-        for anchor in objects:
+    lifted = [o for o in objects if o.name not in on_floor]
+    if lifted:
+        ia, ib = overlapping_pairs(*_centre_boxes(lifted), *_footprint_boxes(objects, 0.0, t.support_xy))
+        candidates: dict[str, list[tuple[float, str, str]]] = {}
+        for i, j in zip(ia.tolist(), ib.tolist(), strict=True):
+            subject, anchor = lifted[i], objects[j]
             if anchor.name == subject.name:
                 continue
             relation = _vertical_contact(subject, anchor, t)
             if relation is not None:
-                candidates.append((abs(subject.z_min - anchor.z_max), anchor.name, relation))
-        if candidates:
-            _, anchor_name, relation = min(candidates)
-            supporter[subject.name] = anchor_name
-            contact[subject.name] = (relation, anchor_name)
+                candidates.setdefault(subject.name, []).append(
+                    (abs(subject.z_min - anchor.z_max), anchor.name, relation)
+                )
+        for subject in lifted:
+            if subject.name in candidates:
+                _, anchor_name, relation = min(candidates[subject.name])
+                supporter[subject.name] = anchor_name
+                contact[subject.name] = (relation, anchor_name)
 
     levels = _levels(scene, on_floor, supporter)
     for obj in objects:
@@ -297,20 +302,23 @@ def build_scene_graph(
             obj.name, label=obj.label, level=levels[obj.name], supporter=supporter.get(obj.name)
         )
     for subject_name, (relation, anchor_name) in contact.items():
-        graph.add_edge(subject_name, anchor_name, relation=relation)
+        edges.append((index[subject_name], 0, index[anchor_name], 0, relation))
 
     # above / below: objects held by nothing against floor-standing objects
     hanging = [o for o in objects if o.name not in on_floor and o.name not in supporter]
     grounded = [o for o in objects if o.name in on_floor]
-    for h in hanging:
-        for g in grounded:
-            for subject, anchor in ((h, g), (g, h)):
+    if hanging and grounded:
+        pairs = overlapping_pairs(
+            *_footprint_boxes(hanging, 0.0, t.hanging_xy), *_footprint_boxes(grounded, 0.0, t.hanging_xy)
+        )
+        for i, j in zip(*(p.tolist() for p in pairs), strict=True):
+            for subject, anchor in ((hanging[i], grounded[j]), (grounded[j], hanging[i])):
                 if not bool(anchor.contains_xy(subject.center_xy, margin=t.hanging_xy)):
                     continue
                 if subject.z_min > anchor.z_max:
-                    graph.add_edge(subject.name, anchor.name, relation="above")
+                    edges.append((index[subject.name], 1, index[anchor.name], 0, "above"))
                 elif subject.z_max < anchor.z_min:
-                    graph.add_edge(subject.name, anchor.name, relation="below")
+                    edges.append((index[subject.name], 1, index[anchor.name], 0, "below"))
 
     # horizontal relations within each group sharing a supporter (None = the floor)
     groups: dict[str | None, list[SceneObject]] = {}
@@ -320,33 +328,50 @@ def build_scene_graph(
         elif obj.name in supporter:
             groups.setdefault(supporter[obj.name], []).append(obj)
     for members in groups.values():
-        _horizontal_edges(graph, members, t)
+        edges.extend(_horizontal_edges(members, index, t))
+
+    for subject_index, _, anchor_index, _, relation in sorted(edges):
+        graph.add_edge(objects[subject_index].name, objects[anchor_index].name, relation=relation)
     return SceneGraph(scene, t, graph)
 
 
 def _circle_gap(a: SceneObject, b: SceneObject) -> float:
     """Lower bound of the footprint distance from the footprints' circumscribed circles."""
-    centre = float(np.linalg.norm(a.center_xy - b.center_xy))
+    centre = float(centre_distances(a.center_xy, b.center_xy))
     return centre - float(np.hypot(a.width, a.depth) + np.hypot(b.width, b.depth)) / 2.0
 
 
 def _horizontal_edges(
-    graph: nx.MultiDiGraph[str], members: Iterable[SceneObject], t: RelationThresholds
-) -> None:
-    members = list(members)
-    for subject in members:
-        for anchor in members:
-            if subject.name == anchor.name or abs(subject.z_min - anchor.z_min) > t.same_level_z:
-                continue
-            if _circle_gap(subject, anchor) > t.horizontal_range:  # cheap rejection
-                continue
-            distance = footprint_distance(subject, anchor)
-            if distance > t.horizontal_range:
-                continue
+    members: list[SceneObject], index: dict[str, int], t: RelationThresholds
+) -> list[tuple[int, int, int, int, str]]:
+    """The horizontal relations among ``members`` (one supporter), as sortable edge entries.
+
+    The near pairs are measured together, each once: the level difference, the footprint
+    distance and its cheap bound (``_circle_gap``, the same floats) are symmetric; only the
+    directional relation depends on which object is the anchor."""
+    out: list[tuple[int, int, int, int, str]] = []
+    boxes = _footprint_boxes(members, t.horizontal_range / 2.0)
+    ia, ib = overlapping_pairs(*boxes, *boxes)
+    upper = ia < ib
+    ia, ib = ia[upper], ib[upper]
+    z_min = np.array([o.z_min for o in members])
+    centres = np.array([o.center[:2] for o in members], dtype=np.float64).reshape(-1, 2)
+    radius = np.array([np.hypot(o.width, o.depth) for o in members])
+    near = np.abs(z_min[ia] - z_min[ib]) <= t.same_level_z
+    gap = centre_distances(centres[ia], centres[ib]) - (radius[ia] + radius[ib]) / 2.0
+    near &= ~(gap > t.horizontal_range)  # cheap rejection
+    ia, ib = ia[near], ib[near]
+    footprints = np.stack([o.footprint() for o in members]) if members else np.zeros((0, 4, 2))
+    distances = polygon_distances(footprints[ia], footprints[ib])
+    within = ~(distances > t.horizontal_range)
+    for i, j, distance in zip(ia[within].tolist(), ib[within].tolist(), distances[within].tolist(), strict=True):
+        first, second = members[i], members[j]
+        nearness = "adjacent to" if distance < t.adjacent else "close to" if distance < t.close else None
+        for subject, anchor in ((first, second), (second, first)):
+            s, a = index[subject.name], index[anchor.name]
             direction = directional_relation(subject, anchor, t.directional_offset)
             if direction is not None:
-                graph.add_edge(subject.name, anchor.name, relation=direction)
-            if distance < t.adjacent:
-                graph.add_edge(subject.name, anchor.name, relation="adjacent to")
-            elif distance < t.close:
-                graph.add_edge(subject.name, anchor.name, relation="close to")
+                out.append((s, 2, a, 0, direction))
+            if nearness is not None:
+                out.append((s, 2, a, 1, nearness))
+    return out
