@@ -271,7 +271,7 @@ def test_run_with_an_ablation_records_and_replays_the_same_story(
     args = ["run", "home", "-n", "2", "-d", "2", "--max-events", "1", "--planner", planner, "--description", description]
     live = CliRunner().invoke(app, [*args, "--config", str(cfg), "--out", str(tmp_path / "live")], catch_exceptions=False)
     assert live.exit_code == 0, live.stderr
-    assert "event-0000 starts: Ava: " in live.stdout
+    assert "event-0000 starts: Ava makes coffee at the coffee maker." in live.stdout
     assert [r["model"] for r in fake.requests] == [f"fake-{n}" for n in nodes]  # no describer call
     story = json.loads((tmp_path / "live" / "story.json").read_text(encoding="utf-8"))
     assert story["steps"][0]["kind"] == "event" and story["steps"][0]["plans"][0]["action"] == "use_coffee_maker"

@@ -189,7 +189,7 @@ def test_a_session_feeds_the_status_characters_events_and_places(home: Scene, mo
     states = by_state(lambda state: sum(e.state == state for e in result.events))
     assert by_state(end.count) == states and sum(states) == len(result.events) > 0 and states[1] > 0
     assert {"walking", "acting"} <= {r.state for r in rows}
-    activities = {e.event_id: e.activity for e in result.events}
+    activities = {e.event_id: e.text for e in result.events}  # the plan sentence, not the narrator's words
     busy = [r for r in rows if r.event_id]
     assert busy and all(r.activity == activities[r.event_id] and r.action in ("use_smartphone", "drink")
                         and r.place == "near a free spot" for r in busy)

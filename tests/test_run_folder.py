@@ -92,22 +92,23 @@ def test_md_text_strips_controls_and_escapes_markup() -> None:
     assert md_text("\u202eevil") == "evil"
 
 
-def test_story_markdown_keeps_an_llm_activity_on_its_line() -> None:
+def test_story_markdown_tells_the_plan_and_keeps_model_text_on_its_line() -> None:
     story = {
         "scene": "home", "characters": ["Ava"], "instruction": "# heading?", "fps": 30, "frames": 3600,
         "steps": [{"index": 0, "applied_frame": 60, "kind": "event", "characters": ["Ava"], "activity": "x",
-                   "plans": [{"character": "Ava", "action": "use_coffee_maker", "area": "near *coffee*\n# x",
+                   "plans": [{"character": "Ava", "action": "use_coffee_maker", "area": "interact with coffee_maker_1",
                               "position": [1.0, 2.5], "facing": [1.0, 0.0], "seat": None}]},
                   {"index": 1, "applied_frame": 900, "kind": "failed", "node": "planner", "feedback": "bad\nline"}],
         "events": [{"event_id": "event-0000", "index": 0, "characters": ["Ava"], "activity": "make coffee\n# HACK",
                     "requested_frame": 60, "applied_frame": 60, "state": "completed", "finished_frame": 1890,
-                    "failure": None}],
-    }
+                    "failure": None, "text": "Ava makes coffee at the coffee maker.",
+                    "narration": "make coffee at the coffee maker\n# HACK"}],
+    }  # fmt: skip
     text = story_markdown(story)
-    assert "## 00:02.0 event\\-0000: Ava\n\nmake coffee \\# HACK\n" in text
-    assert "- Ava: use\\_coffee\\_maker at near \\*coffee\\* \\# x \\(1.00, 2.50\\)" in text
-    assert "*completed at 01:03.0*" in text
-    assert "- step 1 at 00:30.0 in planner: bad line" in text
+    assert ("\n00:02.0 \u2014 Ava makes coffee at the coffee maker\\. In the narrator's words: "
+            "\u201cmake coffee at the coffee maker \\# HACK\u201d. Done at 01:03.0. *\\(event\\-0000\\)*\n") in text
+    assert "\n00:30.0 \u2014 No new event could be planned\\.\n" in text
+    assert "## What went wrong\n\n- step 1 at 00:30.0 in planner: bad line" in text
     assert "Instruction: \\# heading?" in text
     assert not [line for line in text.splitlines() if line.startswith("# ") and "Story" not in line]
 
@@ -128,8 +129,8 @@ def test_run_writes_run_json_story_md_metrics_and_replays_from_the_folder(env: N
     story = json.loads((run_dir / "story.json").read_text(encoding="utf-8"))
     assert story["characters"] == ["Zoe", "Max"] and len(story["events"]) == 3
     md = (run_dir / "story.md").read_text(encoding="utf-8")
-    assert "Characters: Zoe, Max" in md and "- Zoe: use\\_coffee\\_maker at " in md
-    assert md.count("\n## ") == 3
+    assert "Characters: Zoe, Max" in md and " \u2014 Zoe makes coffee at the coffee maker\\. " in md
+    assert md.count("*\\(event\\-") == 3 and "\n## " not in md  # a paragraph per event, nothing went wrong
     metrics = json.loads((run_dir / "metrics.json").read_text(encoding="utf-8"))
     assert metrics["events"]["applied"] == 3 and metrics["planning_steps"] == {"total": 3, "event": 3}
     planner = metrics["llm"]["roles"]["planner"]

@@ -98,21 +98,23 @@ def test_story_md_escapes_every_model_string() -> None:
                   {"index": 1, "applied_frame": 60, "kind": "failed", "node": "event_parser", "feedback": HOSTILE}],
         "events": [{"event_id": "event-0000", "index": 0, "characters": ["Ava"], "activity": HOSTILE,
                     "requested_frame": 3, "applied_frame": 3, "state": "failed", "finished_frame": 80,
-                    "failure": HOSTILE}],
+                    "failure": HOSTILE, "narration": HOSTILE}],
     }  # fmt: skip
     md = story_markdown(story)
     assert not CONTROL.search(md.replace("\n", ""))
     html = html_of(md)
-    no_markup_from_the_model(html, own_italics=1)  # the event's end: *failed at ...*
-    assert html.count("<h1>") == 1 and html.count("<h2>") == 2  # the title, the event, the failed steps
-    assert html.count("[red]x[/] [/]") == 7  # instruction, activity, action, area, seat, failure, feedback
+    no_markup_from_the_model(html, own_italics=1)  # the event's id: *(event-0000)*
+    assert html.count("<h1>") == 1 and html.count("<h2>") == 1  # the title, what went wrong
+    # instruction, the plan sentence's seat and action (no "text": built from the plans), narration,
+    # failure, feedback; the narrator's unchecked activity is not shown, the area is no place
+    assert html.count("[red]x[/] [/]") == 6
 
 
 # ----- the viewer -------------------------------------------------------------------------------
 def hostile_run_folder(tmp_path: Path) -> Path:
     folder = tmp_path / "run"
     folder.mkdir()
-    event = {"event_id": "event-0000", "index": 0, "characters": ["Ava"], "activity": HOSTILE,
+    event = {"event_id": "event-0000", "index": 0, "characters": ["Ava"], "activity": HOSTILE, "text": HOSTILE,
              "requested_frame": 0, "applied_frame": 0, "state": "ongoing", "finished_frame": None, "failure": None}
     story = {"scene": "home", "characters": ["Ava"], "instruction": HOSTILE, "fps": 30, "frames": 20,
              "steps": [], "events": [event]}  # fmt: skip
@@ -159,7 +161,8 @@ def test_storyteller_run_prints_and_writes_a_hostile_activity_as_data(
     monkeypatch.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
     for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL"):
         monkeypatch.delenv(var, raising=False)
-    narration = json.dumps({"reasoning": "r", "event": {"characters": ["Ava"], "activity": f"coffee_maker_1 {HOSTILE}"}})
+    activity = f"make coffee at coffee_maker_1 {HOSTILE}"  # agrees with the plan: story.md shows it
+    narration = json.dumps({"reasoning": "r", "event": {"characters": ["Ava"], "activity": activity}})
     out = tmp_path / "out"
     with FakeOpenAI() as fake:
         fake.script["fake-narrator"] = [narration]
@@ -174,10 +177,12 @@ def test_storyteller_run_prints_and_writes_a_hostile_activity_as_data(
                                           "--max-events", "1", "--description", "object-list", "--raw-feet",
                                           "--no-interactive", "--config", str(cfg), "--out", str(out)])
     assert result.exit_code == 0, result.stderr
-    assert "starts: Ava: coffee_maker_1 [red]x[/] [/] <img" in result.stdout  # literal text on the terminal
+    # the terminal line says what the plan does; the narrator's words are not printed there
+    assert "starts: Ava makes coffee at the coffee maker." in result.stdout and "<img" not in result.stdout
     for stream in (result.stdout, result.stderr):
         assert not CONTROL.search(stream), repr(stream)
     html = html_of((out / "story.md").read_text(encoding="utf-8"))
-    no_markup_from_the_model(html, own_italics=1)
+    no_markup_from_the_model(html, own_italics=1)  # the narration, literal text
+    assert "make coffee at the coffee maker [red]x[/] [/]" in html
     story = json.loads((out / "story.json").read_text(encoding="utf-8"))
-    assert story["events"][0]["activity"] == f"coffee_maker_1 {HOSTILE}"  # the data itself is kept, as JSON
+    assert story["events"][0]["activity"] == activity  # the data itself is kept, as JSON

@@ -30,7 +30,7 @@ from sim.world.character_track import CharacterTrack
 
 def _event(i: int, start: int, end: int | None, state: str = "completed") -> dict:
     return {
-        "event_id": f"event-{i:04d}", "index": i, "characters": ["Ava"], "activity": f"Ava: act {i}",
+        "event_id": f"event-{i:04d}", "index": i, "characters": ["Ava"], "activity": f"act {i}", "text": f"Ava: act {i}",
         "requested_frame": start, "applied_frame": start, "state": state, "finished_frame": end, "failure": None,
     }  # fmt: skip
 

@@ -60,6 +60,8 @@ class Event:
     state: str = "ongoing"
     finished_frame: int | None = None
     failure: str | None = None
+    text: str = ""
+    narration: str | None = None
 
 
 def _start(frame: int = 0) -> StreamStart:
@@ -142,10 +144,10 @@ def test_a_live_folder_is_ready_at_its_first_chunk_record_and_reads_as_it_grows(
     assert run.live and [t.name for t in run.tracks] == list(NAMES) and run.num_frames == WINDOW
     assert run.scene is not None and run.scene.name == "home" and run.instruction == "make *coffee*"
     assert run.events == ()
-    stream.event(Event(0, "event-0000", ("Ava",), "Ava walks", 0, 2))
+    stream.event(Event(0, "event-0000", ("Ava",), "walk", 0, 2, text="Ava walks"))
     _append(store, WINDOW)
     grown = load_run(folder)
-    assert grown.num_frames == 2 * WINDOW and [e.activity for e in grown.events] == ["Ava walks"]
+    assert grown.num_frames == 2 * WINDOW and [e.text for e in grown.events] == ["Ava walks"]
     np.testing.assert_array_equal(grown.tracks[0].root_positions[:WINDOW], run.tracks[0].root_positions)
     stream.close()
     store.close()
@@ -171,7 +173,7 @@ def test_the_viewer_follows_a_growing_run_then_shows_the_finished_one(tmp_path: 
     viewer.advance(10.0)
     assert viewer.playing and viewer.frame == WINDOW - 1  # a live run holds at its last frame while playing
 
-    stream.event(Event(0, "event-0000", ("Ava",), "Ava walks", 0, 2))
+    stream.event(Event(0, "event-0000", ("Ava",), "walk", 0, 2, text="Ava walks"))
     _append(store, WINDOW)
     assert viewer.reload_if_changed()
     assert viewer.view is view  # the scene grew; it was not rebuilt
@@ -184,7 +186,7 @@ def test_the_viewer_follows_a_growing_run_then_shows_the_finished_one(tmp_path: 
     assert viewer.frame == WINDOW - 1 + 15  # and goes on as frames arrive
 
     assert viewer._event_buttons[0].color == "green"  # on at the frame shown
-    stream.event(Event(0, "event-0000", ("Ava",), "Ava walks", 0, 2, "completed", 40))
+    stream.event(Event(0, "event-0000", ("Ava",), "walk", 0, 2, "completed", 40, text="Ava walks"))
     assert viewer.reload_if_changed()
     assert [b.label for b in viewer._event_buttons] == ["  0.1 s  Ava walks (done)"]
     assert viewer._event_buttons[0].color is None  # over by the frame shown (44)

@@ -27,8 +27,9 @@ the next frame. The trace records each one with its frame, and a replay applies 
 paper's ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``),
 driven by the same step planner.
 
-Output: a line per event as it starts, completes or fails (``[   10.6s] event-0000 starts:
-Ava: ...``) and per instruction, then a summary line. On a terminal (``--live``, the default
+Output: a line per event as it starts, completes or fails, saying what its applied plan has
+the characters do (``[   10.6s] event-0000 starts: Ava makes coffee at the coffee maker.``,
+``agents.story_text``) and per instruction, then a summary line. On a terminal (``--live``, the default
 when stdout is a terminal) a live view (``orchestrator.cli.live_view``) shows below those
 lines: simulated time and speed, each character's state and event, LLM calls in flight,
 tokens so far; with ``--interactive`` on the same terminal its last line is the instruction
@@ -96,7 +97,7 @@ def register(app: typer.Typer) -> None:
 def _event_line(e: StoryEvent, fps: int) -> str:
     t = (e.finished_frame if e.finished_frame is not None else e.applied_frame) / fps
     what = {"ongoing": "starts", "looping": "loops", "completed": "done", "failed": "failed"}[e.state]
-    return f"[{t:7.1f}s] {plain(e.event_id)} {what}: {plain(', '.join(e.characters))}: {plain(e.activity)}"
+    return f"[{t:7.1f}s] {plain(e.event_id)} {what}: {plain(e.text or ', '.join(e.characters))}"
 
 
 def run_command(

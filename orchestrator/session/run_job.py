@@ -61,6 +61,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from agents.messages import ParsedEvent, PlanningFailure
+from agents.story_text import step_text
 from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.session.run_manifest import RunArguments, RunManifest
 from orchestrator.session.run_status import RunStatus
@@ -166,9 +167,9 @@ def story_json(result: SessionResult, scene_name: str, names: list[str], instruc
     for (index, outcome), frame in zip(result.outcomes, result.applied_frames, strict=True):
         entry: dict[str, Any] = {"index": index, "applied_frame": frame}
         if outcome is None:
-            entry["kind"] = "wait"
+            entry.update(kind="wait", text=step_text(None))
         elif isinstance(outcome, PlanningFailure):
-            entry.update(kind="failed", node=outcome.node, feedback=outcome.feedback)
+            entry.update(kind="failed", node=outcome.node, feedback=outcome.feedback, text=step_text(outcome))
         elif isinstance(outcome, ParsedEvent):
             entry.update(
                 kind="event",
@@ -199,6 +200,8 @@ def story_json(result: SessionResult, scene_name: str, names: list[str], instruc
             "finished_frame": e.finished_frame,
             "failure": e.failure,
             "part": e.part,
+            "text": e.text,
+            "narration": e.narration,
         }
         for e in result.events
     ]

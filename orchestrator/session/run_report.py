@@ -1,11 +1,14 @@
 """The files of a run folder a person reads: ``story.md`` and ``metrics.json``.
 
 :func:`story_markdown` renders ``story.json`` (:func:`orchestrator.session.run_job.story_json`)
-as text: per applied event its simulated time, characters, activity and each character's
-action and place, then when it finished. Every string that came from an LLM (activities,
-areas, failure feedback) or from the user (instruction) goes through :func:`md_text`: control
-characters are dropped, line breaks become spaces and every markdown-special character is
-backslash-escaped, so a model's answer can neither inject markup nor break a line.
+as a short story in order: one paragraph per applied event with its simulated time, saying what
+the applied plan has the characters do (the event's ``text``, ``agents.story_text``), the
+narrator's own words only where they were checked to agree with the plan (``narration``), and
+how the event ended; a line for each run of waits and each failed planning step; then the
+failure messages under "What went wrong". Every string (plan sentences carry character names
+from the user; narration, failures and feedback come from a model or the simulation) goes
+through :func:`md_text`: control characters are dropped, line breaks become spaces and every
+markdown-special character is backslash-escaped, so no text can inject markup or break a line.
 
 :func:`run_metrics` counts from the trace (every attempt of every LLM call, also those of an
 earlier, killed process of the same run) and the session's result: events by state, calls,
@@ -21,6 +24,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from agents.story_text import step_text
 
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\u200b-\u200f\u2028-\u202e\u2066-\u2069]")
 _BREAKS = re.compile(r"[\t\r\n]+")
@@ -45,9 +50,11 @@ def clock(frame: int, fps: int) -> str:
 
 
 def story_markdown(story: dict[str, Any]) -> str:
-    """``story.md`` from the ``story.json`` payload."""
+    """``story.md`` from the ``story.json`` payload: the story in order, one paragraph per
+    applied event (its simulated time, its plan sentence, the narrator's words where they agree
+    with the plan, how it ended), a line for each run of waits and each failed planning step, then
+    what went wrong in detail."""
     fps = int(story["fps"])
-    plans_of = {s["index"]: s.get("plans", []) for s in story["steps"] if s["kind"] == "event"}
     lines = [
         f"# Story in {md_text(str(story['scene']))}",
         "",
@@ -56,42 +63,71 @@ def story_markdown(story: dict[str, Any]) -> str:
         f"Length: {clock(int(story['frames']), fps)} ({story['frames']} frames at {fps} fps)",
         "",
     ]
-    events = story["events"]
-    if not events:
-        lines.append("No event was applied.")
-    for e in events:
-        who = ", ".join(md_text(c) for c in e["characters"])
-        lines.append(f"## {clock(int(e['applied_frame']), fps)} {md_text(e['event_id'])}: {who}")
-        lines.append("")
-        lines.append(md_text(e["activity"]))
-        if e.get("part"):
-            lines.append(f"(for the instruction's part: {md_text(e['part'])})")
-        lines.append("")
-        for p in plans_of.get(e["index"], []):
-            x, y = p["position"]
-            seat = f", on {md_text(p['seat'])}" if p.get("seat") else ""
-            lines.append(
-                f"- {md_text(p['character'])}: {md_text(p['action'])} at {md_text(p['area'])} "
-                f"\\({x:.2f}, {y:.2f}\\){seat}"
-            )
-        state = e["state"]
-        if e["finished_frame"] is not None:
-            end = f"{state} at {clock(int(e['finished_frame']), fps)}"
+    plans_of = {s["index"]: s.get("plans", []) for s in story["steps"] if s["kind"] == "event"}
+    happenings: list[tuple[int, int, str, dict[str, Any]]] = [
+        (int(e["applied_frame"]), int(e["index"]), "event", e) for e in story["events"]
+    ]
+    happenings += [(int(s["applied_frame"]), int(s["index"]), s["kind"], s) for s in story["steps"]
+                   if s["kind"] in ("wait", "failed")]  # fmt: skip
+    happenings.sort(key=lambda h: (h[0], h[1]))
+    if not story["events"]:
+        lines += ["No event was applied.", ""]
+    previous = ""
+    for frame, _, kind, item in happenings:
+        if kind == "wait" and previous == "wait":
+            continue  # a run of waits is one line
+        previous = kind
+        if kind == "event":
+            lines += [_event_paragraph(item, plans_of.get(item["index"], []), fps), ""]
         else:
-            end = f"{state} at the end of the story"
-        if e.get("failure"):
-            end += f": {md_text(e['failure'])}"
-        lines += ["", f"*{end}*", ""]
-    failed = [s for s in story["steps"] if s["kind"] == "failed"]
-    if failed:
-        lines += ["## Planning steps that failed", ""]
-        for s in failed:
-            lines.append(
-                f"- step {s['index']} at {clock(int(s['applied_frame']), fps)} in {md_text(s['node'])}: "
-                f"{md_text(s['feedback'])}"
-            )
-        lines.append("")
+            text = item.get("text") or (step_text(None) if kind == "wait" else _FAILED_STEP)
+            lines += [f"{clock(frame, fps)} — {md_text(text)}", ""]
+    wrong = [f"- {md_text(e['event_id'])} failed at {clock(int(e['finished_frame'] or 0), fps)}: "
+             f"{md_text(e.get('failure') or 'no reason given')}"
+             for e in story["events"] if e["state"] == "failed"]  # fmt: skip
+    wrong += [f"- step {s['index']} at {clock(int(s['applied_frame']), fps)} in {md_text(s['node'])}: {md_text(s['feedback'])}"
+              for s in story["steps"] if s["kind"] == "failed"]  # fmt: skip
+    if wrong:
+        lines += ["## What went wrong", "", *wrong, ""]
     return "\n".join(lines).rstrip("\n") + "\n"
+
+
+_FAILED_STEP = "No new event could be planned."
+
+
+def _event_paragraph(e: dict[str, Any], plans: list[Any], fps: int) -> str:
+    """One event: time, what happens (the plan sentence), the narrator's words if they agree,
+    the instruction's part, how it ended and its id."""
+    text = e.get("text") or _plan_sentence(e, plans)
+    parts = [f"{clock(int(e['applied_frame']), fps)} \u2014 {md_text(text)}"]
+    if e.get("narration"):
+        parts.append(f"In the narrator's words: \u201c{md_text(str(e['narration']).rstrip('. '))}\u201d.")
+    if e.get("part"):
+        parts.append(f"This carries out the instruction's part \u201c{md_text(e['part'])}\u201d.")
+    if e["state"] == "failed":
+        at = f" at {clock(int(e['finished_frame']), fps)}" if e["finished_frame"] is not None else ""
+        parts.append(f"It fails{at} \\(see below\\).")
+    elif e["finished_frame"] is not None:
+        parts.append(f"Done at {clock(int(e['finished_frame']), fps)}.")
+    else:
+        parts.append("Still going when the story ends.")
+    parts.append(f"*{md_text('(' + str(e['event_id']) + ')')}*")
+    return " ".join(parts)
+
+
+def _plan_sentence(e: dict[str, Any], plans: list[Any]) -> str:
+    """The plan sentence of an event of an older ``story.json`` (no ``text``), from its step's
+    plans and the object ids alone (no scene: no disambiguation)."""
+    from pydantic import ValidationError
+
+    from agents.messages import PlannedCharacter
+    from agents.story_text import plan_text
+
+    try:
+        planned = [PlannedCharacter.model_validate(p) for p in plans]
+    except ValidationError:
+        planned = []
+    return plan_text([str(c) for c in e["characters"]], planned, None)
 
 
 def _percentiles(values: list[float], qs: tuple[float, ...]) -> dict[str, float | None]:
@@ -129,6 +165,31 @@ def llm_metrics(trace_path: Path | None) -> dict[str, Any]:
     return out
 
 
+def local_threads_metrics(trace_path: Path | None) -> dict[str, Any] | None:
+    """The embedded model's thread choices over the run's attempts (None when no local call
+    ran here): attempts per thread count, the usable cores, the range of the busy cores
+    measured before the calls and where that figure came from (``orchestrator.llm.cpu_threads``).
+    Replayed attempts are left out: they ran no model."""
+    from orchestrator.llm.traces import read_trace
+
+    if trace_path is None or not trace_path.is_file():
+        return None
+    choices = [a.params["local_threads"] for a in read_trace(trace_path).attempts()
+               if isinstance(a.params.get("local_threads"), dict) and "replayed_from_seq" not in a.params]
+    if not choices:
+        return None
+    by_threads: dict[int, int] = defaultdict(int)
+    for c in choices:
+        by_threads[int(c["threads"])] += 1
+    busy = [float(c["busy_cores"]) for c in choices if c.get("busy_cores") is not None]
+    return {
+        "attempts_by_threads": {str(t): n for t, n in sorted(by_threads.items())},
+        "usable_cores": max(int(c["usable_cores"]) for c in choices),
+        "busy_cores": {"min": min(busy), "max": max(busy)} if busy else None,
+        "sources": sorted({str(c["source"]) for c in choices}),
+    }
+
+
 def run_metrics(
     story: dict[str, Any], trace_path: Path | None, *, wall_s: float, frame_intervals_s: list[float]
 ) -> dict[str, Any]:
@@ -153,6 +214,7 @@ def run_metrics(
             "prompt_tokens": sum(r["prompt_tokens"] for r in roles.values()),
             "completion_tokens": sum(r["completion_tokens"] for r in roles.values()),
             "roles": roles,
+            "local_threads": local_threads_metrics(trace_path),
         },
         "simulation": {
             "frames": story["frames"],

@@ -53,7 +53,8 @@ def character_activity(c: CharacterState) -> CharacterActivity:
 @dataclass(frozen=True)
 class CharacterRow:
     """One character now. ``event_id`` / ``activity`` / ``action`` / ``place``: its current
-    event, what the event is, its own action label and where (area, and seat); empty without one."""
+    event, what the event is (its plan sentence), its own action label and where (area, and
+    seat); empty without one."""
 
     name: str
     state: CharacterActivity
@@ -137,7 +138,7 @@ class RunStatus:
         self._t0 = 0.0
         self._frame0 = 0
         self._instruction = ""
-        self._activity: dict[str, str] = {}  # event id -> activity
+        self._activity: dict[str, str] = {}  # event id -> its plan sentence (StoryEvent.text)
         self._places: dict[str, dict[str, str]] = {}  # event id -> character -> place
         self._states: dict[str, EventStatus] = {}  # event id -> its state now
         self._counts: dict[EventStatus, int] = {}
@@ -169,7 +170,7 @@ class RunStatus:
     def event(self, event: StoryEvent) -> None:
         """An event started, loops, completed or failed."""
         eid = event.event_id
-        self._activity[eid] = event.activity
+        self._activity[eid] = event.text
         before = self._states.get(eid)
         if before is not None:
             self._counts[before] -= 1

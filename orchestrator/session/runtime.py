@@ -99,6 +99,7 @@ from agents.messages import (
     ParsedEvent,
     PlanningFailure,
 )
+from agents.story_text import event_text, narration
 from orchestrator.session.frame_profile import FrameProfile
 from orchestrator.session.pace import Pace
 from sim.world.event_book import EventStatus
@@ -211,6 +212,10 @@ class StoryEvent:
     failure: str | None = None
     part: str = ""
     """The instruction part the event carries out (empty: none)."""
+    text: str = ""
+    """What a person reads: the applied plan in plain English (``agents.story_text.event_text``)."""
+    narration: str | None = None
+    """The narrator's activity in human names, when it agrees with the plan (None otherwise)."""
 
 
 @dataclass
@@ -853,6 +858,8 @@ class Session:
             requested_frame=request.frame,
             applied_frame=frame,
             part=outcome.part,
+            text=event_text(outcome, self.world.scene),
+            narration=narration(outcome, self.world.scene),
         )
         self.events[eid] = ev
         if self.on_event is not None:

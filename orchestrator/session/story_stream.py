@@ -47,6 +47,10 @@ class StoryEventRecord(BaseModel):
     finished_frame: int | None
     failure: str | None
     part: str = ""
+    text: str = Field(default="", description="The applied plan in plain English (what a person reads).")
+    narration: str | None = Field(
+        default=None, description="The narrator's activity in human names, when it agrees with the plan.",
+    )
 
 
 class StreamStart(BaseModel):

@@ -147,9 +147,32 @@ def load_run(folder: Path) -> RunData:
         scene_note=note,
         fps=float(fps),
         tracks=tuple(tracks),
-        events=events,
+        events=_with_texts(events, story.get("steps"), scene),
         instruction=str(story.get("instruction", "")),
     )
+
+
+def _with_texts(events: tuple[StoryEventRecord, ...], steps: object, scene: Scene | None) -> tuple[StoryEventRecord, ...]:
+    """The events of an older ``story.json`` (no ``text``) with their plan sentences, built from
+    their steps' plans (``agents.story_text``), never from the narrator's activity."""
+    if all(e.text for e in events):
+        return events
+    from agents.messages import PlannedCharacter
+    from agents.story_text import plan_text
+
+    plans_of = {s.get("index"): s.get("plans") for s in steps if isinstance(s, dict) and s.get("kind") == "event"} \
+        if isinstance(steps, list) else {}
+    out = []
+    for e in events:
+        if not e.text:
+            raw = plans_of.get(e.index)
+            try:
+                planned = [PlannedCharacter.model_validate(p) for p in raw] if isinstance(raw, list) else []
+            except ValidationError:
+                planned = []
+            e = e.model_copy(update={"text": plan_text(e.characters, planned, scene)})
+        out.append(e)
+    return tuple(out)
 
 
 def _live_run(folder: Path) -> RunData:

@@ -3,8 +3,8 @@
 :class:`SceneView` adds the static parts once (floor, one labelled box per object, each
 character's path as a line on the floor) and, per frame, poses the figures (skinned meshes: the stand-in
 figure of :mod:`.figures`, or a character's SMPL-X body from :mod:`orchestrator.bodies` when
-given) and moves the labels ("name: action" above each head, and a caption with the
-events on at that frame). Everything goes through ``server.scene``, so every connected browser
+given) and moves the labels ("name: action" above each head, and a caption with what the
+events on at that frame have the characters do: their plan sentences, ``agents.story_text``). Everything goes through ``server.scene``, so every connected browser
 and a scene recording (:mod:`.export`) see the same thing. World frame: z up, metres. Names,
 actions and activities are data: labels get them with control characters shown as escapes
 (:func:`orchestrator.safe_text.plain`; viser draws label text literally, no markup).
@@ -26,7 +26,7 @@ from orchestrator.bodies.smplx_meshes import SmplxBody
 from orchestrator.safe_text import plain
 from orchestrator.viewer.figures import BonePoses, FigureRig, bone_poses, standin_rig
 from orchestrator.viewer.run_folder import RunData
-from orchestrator.viewer.timeline import action_at, active_events, clock
+from orchestrator.viewer.timeline import action_at, active_events, clock, event_text
 from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS
 from sim.world.character_track import CharacterTrack
 
@@ -192,7 +192,7 @@ class SceneView:
     def caption_text(self, frame: int) -> str:
         """The caption: the clock and the events on at ``frame``."""
         on = active_events(self.run.events, frame, self.last_frame)
-        lines = [f"{clock(frame, self.run.fps)}"] + [plain(self.run.events[i].activity) for i in on]
+        lines = [f"{clock(frame, self.run.fps)}"] + [event_text(self.run.events[i]) for i in on]
         return "\n".join(lines)
 
     def show(self, frame: int) -> None:

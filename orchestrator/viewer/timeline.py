@@ -43,8 +43,14 @@ def clock(frame: int, fps: float) -> str:
     return f"{frame / fps:.1f} s"
 
 
+def event_text(event: StoryEventRecord) -> str:
+    """What the event is, as a person reads it: its plan sentence (``StoryEventRecord.text``;
+    never the narrator's unchecked words), else only who takes part (control characters shown
+    as escapes)."""
+    return plain(event.text or ", ".join(event.characters))
+
+
 def event_line(event: StoryEventRecord, fps: float) -> str:
-    """One line of the event list: start time, activity (control characters shown as escapes)
-    and, when it ended, how."""
+    """One line of the event list: start time, what happens and, when it ended, how."""
     end = {"completed": " (done)", "failed": " (failed)", "looping": " (loops)"}.get(event.state, "")
-    return f"{event.applied_frame / fps:5.1f} s  {plain(event.activity)}{end}"
+    return f"{event.applied_frame / fps:5.1f} s  {event_text(event)}{end}"
