@@ -59,6 +59,12 @@ class ToolArgumentError(ToolError):
     kind = "bad_argument"
 
 
+class ObjectInUseError(ToolError):
+    """A character was given an object another one is using alone (``tools.object_use``)."""
+
+    kind = "object_in_use"
+
+
 class BlockedPositionError(ToolArgumentError):
     """An explicit [x, y] no character can stand on: inside or against furniture, at the edge
     of the scene, or too close to another character."""

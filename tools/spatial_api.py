@@ -26,6 +26,7 @@ from tools.character_states import CharacterPlan, CharacterState, WorldView
 from tools.errors import (
     PROGRAM_LINE,
     BlockedPositionError,
+    ObjectInUseError,
     ToolArgumentError,
     UnknownActionError,
     UnknownCharacterError,
@@ -33,6 +34,7 @@ from tools.errors import (
     UnsatisfiableAreaError,
     did_you_mean,
 )
+from tools.object_use import use_conflicts, users_of_objects
 from tools.position_sampling import Constraints, FloorMap, Placement, sample_position
 from tools.scene_graph import (
     SceneGraph,
@@ -514,6 +516,8 @@ class SpatialAPI:
             and self.world.objects_in_use[obj.name] not in self._records
         ):
             return True
+        if obj.name in users_of_objects(self.world.characters, self.scene, skip=self._records):
+            return True  # a coffee maker, a whiteboard... used by a character this program does not move
         for record in self._records.values():
             if (
                 isinstance(record.position, Area)
@@ -629,7 +633,9 @@ class SpatialAPI:
     # ----- turning the records into plans ---------------------------------------------------
     def resolve(self, seed: int) -> list[CharacterPlan]:
         """Sample a position and facing for every character the program touched, in the order
-        they were first touched. Raises ToolError subclasses (never a partial result)."""
+        they were first touched. Raises ToolError subclasses (never a partial result), among
+        them ObjectInUseError when a plan gives a character an object another one is using
+        alone (``tools.object_use``)."""
         planned = set(self._records)
         floor = self._floor
         # (point, whose) pairs every later placement keeps MIN_SEPARATION from
@@ -712,6 +718,10 @@ class SpatialAPI:
                     seat=placement.seat,
                 )
             )
+        conflicts = use_conflicts(plans, self.world.characters, self.scene)
+        if conflicts:  # one object, one user: refused before anything is applied
+            first = conflicts[0]
+            raise ObjectInUseError(f"{first.character}: {first.message}", line=self._records[first.character].position_line)
         return plans
 
     def _check_separation(
