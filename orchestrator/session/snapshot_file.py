@@ -1,35 +1,153 @@
 """The session's last checkpoint on disk (``session.snapshot`` in the run folder).
 
-:func:`save_checkpoint` writes a :class:`~orchestrator.session.runtime.SessionCheckpoint` with
-pickle, atomically: to a temporary file in the same folder, fsynced, then renamed over the old
-one, so a kill -9 at any moment leaves either the previous checkpoint or the new one, never a
-torn file. The world's read-only parts (scene, navigation grids, path planners, motion layer:
-``World.shared_objects``) are stored by name only; :func:`load_checkpoint` binds those names to
-the objects of a world built from the same run arguments. A streaming world's checkpoint holds
-only its frames not yet in the chunk files (``sim.world.track_chunks``) and how many are there;
-those are fsynced before the checkpoint is written, so the count it gives is always on disk. The file is the run's own state,
-read back only by ``storyteller resume`` of the same run folder (never an untrusted file).
+:func:`save_checkpoint` writes a :class:`~orchestrator.session.runtime.SessionCheckpoint`
+atomically: to a temporary file of a fresh name in the same folder (created with ``O_EXCL``
+and ``O_NOFOLLOW``, so a planted link is never written through), fsynced, then renamed over
+the old one, so a kill -9 at any moment leaves either the previous checkpoint or the new one,
+never a torn file. The world's read-only parts (scene, navigation grids, path planners, motion
+layer: ``World.shared_objects``) are stored by name only; :func:`load_checkpoint` binds those
+names to the objects of a world built from the same run arguments. A streaming world's
+checkpoint holds only its frames not yet in the chunk files (``sim.world.track_chunks``) and
+how many are there; those are fsynced before the checkpoint is written, so the count it gives
+is always on disk.
+
+A run folder may come from someone else, so reading a checkpoint runs no code from it:
+
+- the file is read without following a link, at most :data:`MAX_SNAPSHOT_BYTES` of it;
+- its first line gives the format version and the sha256 of the rest (the payload): a file of
+  another version or whose payload does not match is refused before anything is decoded;
+- the payload is a pickle decoded by a restricted unpickler: it admits only the classes listed
+  in :data:`SNAPSHOT_CLASSES` (the project's own data types), creates their instances without
+  calling a constructor (``cls.__new__(cls)`` and the pickle's state, never ``__init__``), calls
+  no function but this module's two array decoders (which check dtype, shape and byte count),
+  and adds items only to real lists, dicts and sets; every other global, call or extension
+  opcode is a :class:`SnapshotError`;
+- the decoded objects are then checked as a whole (:func:`_check_tree`): only listed
+  instances, plain values and numeric arrays, each listed instance with exactly its declared
+  fields, pydantic models valid against their schema, at most :data:`MAX_DEPTH` levels deep.
+
+Every failure is a :class:`SnapshotError` with one line naming the file.
 """
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import hashlib
+import importlib
 import io
 import os
 import pickle
+import re
+import secrets
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import BaseModel, ValidationError
 
 from orchestrator.session.runtime import SessionCheckpoint
+from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.world.step import World
 from sim.world.track_chunks import ChunkStore
 
 SNAPSHOT_FILE = "session.snapshot"
-_FORMAT = 4  # 2: the checkpoint holds the session's instructions; 3: the world's motion is in the chunk files;
-# 4: planning requests carry the summary of the events before their history (``earlier``)
+_FORMAT = 5  # 2: the checkpoint holds the session's instructions; 3: the world's motion is in the chunk files;
+# 4: planning requests carry the summary of the events before their history (``earlier``);
+# 5: a header line (version, sha256 of the payload); arrays stored by _array / _scalar; read by an allowlist
+_MAGIC = b"storyteller-snapshot"
+_HEADER = re.compile(rb"storyteller-snapshot (\d{1,6}) sha256=([0-9a-f]{64})\n")
+_HEADER_MAX = 128  # bytes: the header line is shorter
+
+MAX_SNAPSHOT_BYTES = 256 << 20
+"""Bytes of the largest checkpoint file read back (a streaming run's checkpoint holds at most
+``STREAM_WINDOW`` frames per character: well under a MiB per character)."""
+MAX_DEPTH = 48
+"""Levels of nesting of the decoded objects at most (the checkpoints of the resume tests have 8)."""
+_MAX_NDIM = 8  # dimensions of an array at most (the checkpoint's arrays have up to 5)
+_MAX_DIM = 1 << 32  # entries along one axis at most (the bytes must fit the shape as well)
+_MAX_KEY_DEPTH = 3  # tuples in tuples in a dict key or set item at most
+
+SNAPSHOT_CLASSES: frozenset[tuple[str, str]] = frozenset({
+    # Every class a session checkpoint holds, as (module, qualified name). Recorded from the
+    # find_class calls made while the resume tests (test_session_runtime, test_run_folder,
+    # test_run_corrupt_files, test_run_faults, test_live_instructions, test_checkpoint_writer,
+    # test_session_concurrency, test_story_log) saved and loaded real checkpoints, completed from
+    # the type hints reachable from SessionCheckpoint. Each is a dataclass, a pydantic model or a
+    # plain state holder whose ``__new__`` is ``object.__new__`` and which defines no
+    # ``__setstate__`` / ``__reduce__`` of its own (pydantic's ``__setstate__`` only sets its
+    # field dicts); none opens a file, starts a process, imports or evaluates anything when its
+    # state is set (tests/test_snapshot_file.py checks this list for it). Never add ChunkStore
+    # (it opens files; a checkpoint stores its frame count) or any class whose state runs code.
+    ("orchestrator.session.runtime", "SessionCheckpoint"),
+    ("orchestrator.session.runtime", "StoryEvent"),
+    ("orchestrator.session.runtime", "PlanningRequest"),
+    ("orchestrator.session.runtime", "TimedInstruction"),
+    ("agents.messages", "CharacterSoFar"),
+    ("agents.messages", "CharacterStatus"),
+    ("agents.messages", "EarlierEvents"),
+    ("agents.messages", "Event"),
+    ("agents.messages", "HistoryEntry"),
+    ("agents.messages", "ParsedEvent"),
+    ("agents.messages", "PlannedCharacter"),
+    ("agents.messages", "PlanningFailure"),
+    ("sim.world.step", "WorldSnapshot"),
+    ("sim.world.phases", "CharacterState"),
+    ("sim.world.phases", "StandTarget"),
+    ("sim.world.event_book", "EventState"),
+    ("sim.world.events", "AssignEvent"),
+    ("sim.world.events", "Assignment"),
+    ("sim.world.events", "EventFailure"),
+    ("sim.world.navigation", "WorldNavigator"),
+    ("sim.world.tracks", "TrackBuffers"),
+    ("sim.paths.following", "CrowdNavigator"),
+    ("sim.paths.following", "_Leg"),
+    ("sim.paths.fallback", "PriorityKeeper"),
+    ("sim.paths.cooperative_astar", "PlanResult"),
+    ("sim.motion.matching", "MatchState"),
+    ("sim.body.foot_ik", "FootState"),
+})  # fmt: skip
+_DECODERS = ("_array", "_scalar")  # the only functions a checkpoint calls: this module's array decoders
+_PLAIN_TYPES = (type(None), bool, int, float, complex, str, bytes)
+_CONTAINERS = (tuple, list, dict, set, frozenset)
 
 
 class SnapshotError(Exception):
     """A checkpoint file that cannot be read against this world (the message says why)."""
+
+
+def _array(data: object, dtype: object, shape: object) -> np.ndarray[Any, Any]:
+    """An array from its bytes (arguments as a checkpoint gives them, unchecked): refuses object
+    dtypes and a shape that does not fit the bytes."""
+    kind = _numeric_dtype(dtype)
+    if not isinstance(data, bytes) or not isinstance(shape, tuple) or len(shape) > _MAX_NDIM:
+        raise SnapshotError("an array with a malformed shape")
+    if not all(type(n) is int and 0 <= n <= _MAX_DIM for n in shape):
+        raise SnapshotError("an array with a malformed shape")
+    if int(np.prod(shape, dtype=object)) * kind.itemsize != len(data):
+        raise SnapshotError(f"an array of shape {shape} and dtype {kind.str} does not fit its {len(data)} bytes")
+    return np.frombuffer(data, dtype=kind).reshape(shape).copy()
+
+
+def _scalar(data: object, dtype: object) -> np.generic:
+    """A numpy scalar from its bytes (one item of ``dtype``)."""
+    kind = _numeric_dtype(dtype)
+    if not isinstance(data, bytes) or len(data) != kind.itemsize:
+        raise SnapshotError(f"a scalar of dtype {kind.str} does not fit its bytes")
+    value: np.generic = np.frombuffer(data, dtype=kind)[0]
+    return value
+
+
+def _numeric_dtype(text: object) -> np.dtype[Any]:
+    if not isinstance(text, str) or len(text) > 16:
+        raise SnapshotError("an array of a malformed dtype")
+    try:
+        kind = np.dtype(text)
+    except (TypeError, ValueError):
+        raise SnapshotError(f"an array of an unknown dtype {text!r}") from None
+    if kind.hasobject or kind.fields is not None or kind.subdtype is not None or kind.itemsize == 0:
+        raise SnapshotError(f"an array of dtype {text!r} (only plain numeric arrays are stored)")
+    return kind
 
 
 class _Pickler(pickle.Pickler):
@@ -40,16 +158,155 @@ class _Pickler(pickle.Pickler):
     def persistent_id(self, obj: Any) -> str | None:
         return self._shared.get(id(obj))
 
+    def reducer_override(self, obj: Any) -> Any:
+        """Arrays and numpy scalars as (bytes, dtype, shape) for :func:`_array` / :func:`_scalar`,
+        not numpy's own reduce functions (which the loader does not admit)."""
+        if isinstance(obj, np.ndarray):
+            if type(obj) is not np.ndarray or obj.dtype.hasobject or obj.dtype.fields is not None:
+                raise TypeError(f"a checkpoint stores plain numeric arrays only, not {type(obj).__name__} of {obj.dtype}")
+            return _array, (obj.tobytes(), obj.dtype.str, tuple(int(n) for n in obj.shape))
+        if isinstance(obj, np.generic):
+            return _scalar, (obj.tobytes(), obj.dtype.str)
+        return NotImplemented
 
-class _Unpickler(pickle.Unpickler):
-    def __init__(self, file: io.BytesIO, shared: dict[str, Any]) -> None:
+
+def _resolve_classes() -> dict[tuple[str, str], type]:
+    out: dict[tuple[str, str], type] = {}
+    for module, name in SNAPSHOT_CLASSES:
+        cls = getattr(importlib.import_module(module), name)
+        assert isinstance(cls, type), (module, name)
+        out[module, name] = cls
+    return out
+
+
+class _Unpickler(pickle._Unpickler):  # the Python unpickler: its opcodes can be checked one by one
+    """Decodes only what :func:`load_checkpoint` admits (the module docstring lists it)."""
+
+    dispatch: ClassVar[dict[int, Any]] = dict(pickle._Unpickler.dispatch)
+    stack: list[Any]  # the Python unpickler's own state (not in typeshed)
+    metastack: list[list[Any]]
+    append: Any
+
+    def __init__(self, file: io.BytesIO, shared: dict[str, Any], classes: dict[tuple[str, str], type]) -> None:
         super().__init__(file)
         self._shared = shared
+        self._classes = classes
+        self._class_set = frozenset(classes.values())
 
     def persistent_load(self, pid: Any) -> Any:
-        if pid not in self._shared:
-            raise SnapshotError(f"the checkpoint refers to an unknown shared object {pid!r}")
+        if not isinstance(pid, str) or pid not in self._shared:
+            raise SnapshotError(f"the checkpoint refers to an unknown shared object {str(pid)[:40]!r}")
         return self._shared[pid]
+
+    def find_class(self, module: str, name: str) -> Any:
+        if module == __name__ and name in _DECODERS:
+            return {"_array": _array, "_scalar": _scalar}[name]
+        cls = self._classes.get((module, name))
+        if cls is None:
+            raise SnapshotError(f"the checkpoint refers to {str(module)[:60]}.{str(name)[:60]}, which a checkpoint may not hold")
+        return cls
+
+    def _refuse(self) -> None:
+        raise SnapshotError("the checkpoint holds a pickle instruction a checkpoint never has")
+
+    def _load_reduce(self) -> None:
+        func = self.stack[-2]
+        if func is not _array and func is not _scalar:
+            raise SnapshotError("the checkpoint calls something other than its array decoders")
+        pickle._Unpickler.load_reduce(self)  # type: ignore[attr-defined]
+
+    def _new_instance(self, cls: Any, args: Any, kwargs: Any) -> None:
+        if cls not in self._class_set or args != () or kwargs:
+            raise SnapshotError("the checkpoint creates an object of a class it may not hold")
+        self.append(cls.__new__(cls))
+
+    def _load_newobj(self) -> None:
+        args = self.stack.pop()
+        cls = self.stack.pop()
+        self._new_instance(cls, args, None)
+
+    def _load_newobj_ex(self) -> None:
+        kwargs = self.stack.pop()
+        args = self.stack.pop()
+        cls = self.stack.pop()
+        self._new_instance(cls, args, kwargs)
+
+    def _load_build(self) -> None:
+        if type(self.stack[-2]) not in self._class_set:
+            raise SnapshotError("the checkpoint sets the state of an object it may not hold")
+        pickle._Unpickler.load_build(self)  # type: ignore[attr-defined]
+
+    def _load_append(self) -> None:
+        if type(self.stack[-2]) is not list:
+            raise SnapshotError("the checkpoint appends to something other than a list")
+        pickle._Unpickler.load_append(self)  # type: ignore[attr-defined]
+
+    def _load_appends(self) -> None:
+        if type(self.metastack[-1][-1] if self.metastack else None) is not list:
+            raise SnapshotError("the checkpoint appends to something other than a list")
+        pickle._Unpickler.load_appends(self)  # type: ignore[attr-defined]
+
+    def _load_setitem(self) -> None:
+        if type(self.stack[-3]) is not dict:
+            raise SnapshotError("the checkpoint sets an item of something other than a dict")
+        _check_keys(self.stack[-2:-1])
+        pickle._Unpickler.load_setitem(self)  # type: ignore[attr-defined]
+
+    def _load_setitems(self) -> None:
+        if type(self.metastack[-1][-1] if self.metastack else None) is not dict:
+            raise SnapshotError("the checkpoint sets items of something other than a dict")
+        _check_keys(self.stack[::2])
+        pickle._Unpickler.load_setitems(self)  # type: ignore[attr-defined]
+
+    def _load_dict(self) -> None:
+        _check_keys(self.stack[::2])
+        pickle._Unpickler.load_dict(self)  # type: ignore[attr-defined]
+
+    def _load_additems(self) -> None:
+        if type(self.metastack[-1][-1] if self.metastack else None) is not set:
+            raise SnapshotError("the checkpoint adds items to something other than a set")
+        _check_keys(self.stack)
+        pickle._Unpickler.load_additems(self)  # type: ignore[attr-defined]
+
+    def _load_frozenset(self) -> None:
+        _check_keys(self.stack)
+        pickle._Unpickler.load_frozenset(self)  # type: ignore[attr-defined]
+
+
+def _check_keys(keys: list[Any]) -> None:
+    """Dict keys and set items are plain values or short tuples of them: hashing anything else
+    (a tuple nested a million deep, a model holding one) could exhaust the C stack."""
+    for key in keys:
+        if not _plain_key(key, _MAX_KEY_DEPTH):
+            raise SnapshotError("the checkpoint holds a dict key or set item that is not a plain value")
+
+
+def _plain_key(key: Any, depth: int) -> bool:
+    if isinstance(key, _PLAIN_TYPES):
+        return True
+    return type(key) is tuple and depth > 0 and len(key) <= 64 and all(_plain_key(k, depth - 1) for k in key)
+
+
+for _op, _handler in (
+    (pickle.REDUCE, _Unpickler._load_reduce),
+    (pickle.NEWOBJ, _Unpickler._load_newobj),
+    (pickle.NEWOBJ_EX, _Unpickler._load_newobj_ex),
+    (pickle.BUILD, _Unpickler._load_build),
+    (pickle.APPEND, _Unpickler._load_append),
+    (pickle.APPENDS, _Unpickler._load_appends),
+    (pickle.SETITEM, _Unpickler._load_setitem),
+    (pickle.SETITEMS, _Unpickler._load_setitems),
+    (pickle.DICT, _Unpickler._load_dict),
+    (pickle.ADDITEMS, _Unpickler._load_additems),
+    (pickle.FROZENSET, _Unpickler._load_frozenset),
+    # protocol 0/1 instance creation (calls the class), extension registry, class-by-name
+    (pickle.INST, _Unpickler._refuse),
+    (pickle.OBJ, _Unpickler._refuse),
+    (pickle.EXT1, _Unpickler._refuse),
+    (pickle.EXT2, _Unpickler._refuse),
+    (pickle.EXT4, _Unpickler._refuse),
+):
+    _Unpickler.dispatch[_op[0]] = _handler
 
 
 def save_checkpoint(path: Path, world: World, checkpoint: SessionCheckpoint) -> None:
@@ -72,22 +329,26 @@ def write_checkpoint(path: Path, checkpoint: SessionCheckpoint, shared: dict[int
     if store is not None:
         store.sync()
     buf = io.BytesIO()
-    _Pickler(buf, shared).dump((_FORMAT, checkpoint))
-    tmp = path.with_name(path.name + ".tmp")
+    _Pickler(buf, shared).dump(checkpoint)
+    payload = buf.getbuffer()
+    header = b"%s %d sha256=%s\n" % (_MAGIC, _FORMAT, hashlib.sha256(payload).hexdigest().encode("ascii"))
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(8)}.tmp")  # a fresh name: nothing planted there
     try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
         try:
-            view = memoryview(buf.getbuffer())
-            while view:
-                view = view[os.write(fd, view):]
+            for part in (memoryview(header), payload):
+                view = part
+                while view:
+                    view = view[os.write(fd, view):]
             os.fsync(fd)
         finally:
             os.close(fd)
+        os.replace(tmp, path)  # replaces a link planted at ``path`` itself, never its target
     except OSError as exc:  # a full disk: the previous checkpoint stays, the partial one goes
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            tmp.unlink()
         raise OSError(exc.errno, exc.strerror, str(path)) from None
-    os.replace(tmp, path)
-    dir_fd = os.open(path.parent, os.O_RDONLY)
+    dir_fd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
     try:
         os.fsync(dir_fd)
     finally:
@@ -95,12 +356,103 @@ def write_checkpoint(path: Path, checkpoint: SessionCheckpoint, shared: dict[int
 
 
 def load_checkpoint(path: Path, world: World) -> SessionCheckpoint:
-    """The checkpoint in ``path``, its shared objects bound to ``world``'s."""
+    """The checkpoint in ``path``, its shared objects bound to ``world``'s; :class:`SnapshotError`
+    (one line naming the file) when it is not a checkpoint this version wrote and can trust."""
     try:
-        data = path.read_bytes()
-        fmt, checkpoint = _Unpickler(io.BytesIO(data), world.shared_objects()).load()
-    except (OSError, pickle.UnpicklingError, EOFError, ValueError, AttributeError) as exc:
-        raise SnapshotError(f"{path}: cannot read the session checkpoint ({type(exc).__name__}: {exc})") from None
-    if fmt != _FORMAT or not isinstance(checkpoint, SessionCheckpoint):
+        data = read_bounded_bytes(path, MAX_SNAPSHOT_BYTES, str(path), follow_symlinks=False)
+    except BoundedFileError as exc:
+        raise SnapshotError(f"cannot read the session checkpoint {exc}") from None
+    payload = _payload(path, data)
+    shared = world.shared_objects()
+    try:
+        checkpoint = _Unpickler(io.BytesIO(payload), shared, _resolve_classes()).load()
+    except SnapshotError as exc:
+        raise SnapshotError(f"{path}: cannot read the session checkpoint: {exc}") from None
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, KeyError, IndexError,
+            MemoryError, RecursionError) as exc:
+        raise SnapshotError(f"{path}: cannot read the session checkpoint ({type(exc).__name__}: {str(exc)[:200]})") from None
+    if not isinstance(checkpoint, SessionCheckpoint):
         raise SnapshotError(f"{path}: not a session checkpoint of this version")
+    try:
+        _check_tree(checkpoint, {id(o) for o in shared.values()})
+    except SnapshotError as exc:
+        raise SnapshotError(f"{path}: cannot read the session checkpoint: {exc}") from None
     return checkpoint
+
+
+def _payload(path: Path, data: bytes) -> bytes:
+    """The pickle after the header line, once the version and the checksum match."""
+    end = data.find(b"\n", 0, _HEADER_MAX)
+    m = _HEADER.fullmatch(data[: end + 1]) if end >= 0 else None
+    if m is None:  # a format before 5 (a bare pickle), a damaged header, or not a checkpoint at all
+        raise SnapshotError(
+            f"{path}: cannot read the session checkpoint (it does not start with a '{_MAGIC.decode()} {_FORMAT}' line: "
+            "written by an older version, damaged, or not a checkpoint)"
+        )
+    if int(m.group(1)) != _FORMAT:
+        raise SnapshotError(f"{path}: not a session checkpoint of this version (format {int(m.group(1))}, expected {_FORMAT})")
+    payload = data[end + 1:]
+    if hashlib.sha256(payload).hexdigest().encode("ascii") != m.group(2):
+        raise SnapshotError(f"{path}: cannot read the session checkpoint (its checksum does not match: the file was changed or damaged)")
+    return payload
+
+
+def _check_tree(root: SessionCheckpoint, shared: set[int]) -> None:
+    """Every object reachable from ``root`` is a plain value, a container, a numeric array, a
+    numpy scalar, a shared object of the world or an instance of a listed class with exactly its
+    declared fields; pydantic models are valid; nesting is at most :data:`MAX_DEPTH` deep and
+    has no cycle. Iterative: a hostile tree cannot exhaust the interpreter's stack here."""
+    listed = frozenset(_resolve_classes().values())
+    done: set[int] = set(shared)
+    on_path: set[int] = set()
+    stack: list[tuple[Any, bool]] = [(root, False)]
+    while stack:
+        obj, leaving = stack.pop()
+        key = id(obj)
+        if leaving:
+            on_path.discard(key)
+            done.add(key)
+            continue
+        if key in done or isinstance(obj, (*_PLAIN_TYPES, np.generic)):
+            continue
+        if key in on_path:
+            raise SnapshotError("the checkpoint's objects refer back to themselves")
+        if len(on_path) >= MAX_DEPTH:
+            raise SnapshotError(f"the checkpoint nests objects more than {MAX_DEPTH} levels deep")
+        if isinstance(obj, np.ndarray):
+            if obj.dtype.hasobject:
+                raise SnapshotError("the checkpoint holds an array of objects")
+            done.add(key)
+            continue
+        on_path.add(key)
+        stack.append((obj, True))
+        stack.extend((child, False) for child in _children(obj, listed))
+
+
+def _children(obj: Any, listed: frozenset[type]) -> list[Any]:
+    kind = type(obj)
+    if kind in _CONTAINERS:
+        if kind is dict:
+            return [*obj.keys(), *obj.values()]
+        return list(obj)
+    if kind not in listed:
+        raise SnapshotError(f"the checkpoint holds a {kind.__name__[:60]}, which a checkpoint may not hold")
+    state = vars(obj)
+    if isinstance(obj, BaseModel):
+        model = type(obj)
+        fields = set(model.model_fields)
+        fields_set = obj.__pydantic_fields_set__
+        if set(state) != fields or type(fields_set) is not set or not fields_set <= fields:
+            raise SnapshotError(f"a {kind.__name__} with other fields than its own")
+        if obj.__pydantic_extra__ or obj.__pydantic_private__:
+            raise SnapshotError(f"a {kind.__name__} with values besides its fields")
+        try:
+            model.model_validate(state)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            where = ".".join(str(p) for p in err["loc"])
+            raise SnapshotError(f"a {kind.__name__} whose field {where} is invalid ({err['msg']})") from None
+        return list(state.values())
+    if dataclasses.is_dataclass(obj) and set(state) != {f.name for f in dataclasses.fields(obj)}:
+        raise SnapshotError(f"a {kind.__name__} with other fields than its own")
+    return [*state.keys(), *state.values()]
