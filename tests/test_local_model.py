@@ -368,16 +368,20 @@ async def test_real_quality_model_answers_schema_json(tmp_path: Path) -> None:
     assert value["animal"] in ("cat", "dog") and resp.model == "local/qwen2.5-coder-1.5b"
 
 
-async def test_default_local_timeout_grows_with_the_prompt_and_an_explicit_one_wins(
+async def test_default_local_hard_cap_grows_with_the_prompt_and_an_explicit_one_wins(
     fake_llama: FakeLlama, tmp_path: Path
 ) -> None:
+    """Unset, a local call's hard cap is what the progress floors allow (prompt allowance plus
+    max_tokens at the decode floor plus one window), never under the configured default."""
     from orchestrator.llm.config import load_config
-    from orchestrator.llm.local_model import (
-        BASE_TIMEOUT_S,
-        LOAD_MARGIN,
-        MEASURED_TOK_S,
-        local_timeout_s,
+    from orchestrator.llm.decode_progress import (
+        CHARS_PER_TOKEN,
+        DECODE_WINDOW_S,
+        MIN_DECODE_TOK_S,
+        MIN_PROMPT_TOK_S,
+        PROMPT_BASE_S,
     )
+    from orchestrator.llm.local_model import local_timeout_s
 
     long_prompt = LLMRequest(node="event_parser", messages=(ChatMessage(role="user", content="x" * 9000),), max_tokens=400)
     client = LiteLLMClient(default_config(), check_local=lambda m: None)
@@ -385,12 +389,9 @@ async def test_default_local_timeout_grows_with_the_prompt_and_an_explicit_one_w
     await client.complete(long_prompt)
     short_s, long_s = fake_llama.calls[0]["timeout_s"], fake_llama.calls[1]["timeout_s"]
     assert short_s == 120.0  # a short prompt keeps the configured default as the floor
-    prompt_rate, gen_rate = MEASURED_TOK_S["qwen2.5-coder-0.5b"]
-    expected = BASE_TIMEOUT_S + LOAD_MARGIN * (9000 / 3 / prompt_rate + 400 / gen_rate)
+    expected = PROMPT_BASE_S + 9000 / CHARS_PER_TOKEN / MIN_PROMPT_TOK_S + 400 / MIN_DECODE_TOK_S + DECODE_WINDOW_S
     assert long_s == pytest.approx(expected, abs=0.1) and long_s > 120.0
     assert long_s == local_timeout_s("local/qwen2.5-coder-0.5b", 9000, 400, floor_s=120.0)
-    # the 1.5B model is slower, so its default is longer
-    assert local_timeout_s("local/qwen2.5-coder-1.5b", 9000, 400, floor_s=120.0) > long_s
     # a timeout set in the config is used as it is
     cfg = tmp_path / "c.toml"
     cfg.write_text("[llm]\ntimeout_s = 45.0\n", encoding="utf-8")

@@ -3,8 +3,10 @@
 For each request the node's models are tried in order (primary, then fallbacks). On each
 model, transient errors are retried up to ``retry.max_attempts`` attempts in total, waiting
 an exponential, jittered, seeded delay between attempts; a permanent error (400, 401, 403,
-404, 422, missing weights or key) moves on to the next model at once, and so does an
-unusable answer (empty, truncated, not JSON) from the deterministic embedded model. litellm's own retries
+404, 422, missing weights or key) moves on to the next model at once. The deterministic
+embedded model is retried only when the machine was short of memory or a file
+(:mod:`orchestrator.llm.local_errors`): an unusable answer or a call stopped for lack of
+progress would only come again, so they move on to the next model at once. litellm's own retries
 are disabled (``max_retries=0``, never ``num_retries``).
 
 Secrets stay secret: every reply, trace record and error this client produces has the known
@@ -31,6 +33,7 @@ import structlog
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, LLMUnavailableError, TokenUsage
 from agents.llm_schemas import schema_instruction
 from orchestrator.llm.config import NodeConfig, StorytellerConfig
+from orchestrator.llm.local_errors import LocalModelStalledError
 from orchestrator.llm.local_model import (
     ensure_local_model_available,
     local_timeout_s,
@@ -175,14 +178,17 @@ class LiteLLMClient:
                     call_seq = seq
 
                 traced_params = {**params, "schema_in_prompt": True} if schema_in_prompt else params
+                local_threads: dict[str, Any] | None = None
 
                 def record(**fields: Any) -> None:
                     for name in ("response_text", "error_message"):
                         if fields.get(name) is not None:
                             fields[name] = redact(fields[name], secrets)
+                    sent_params = traced_params if local_threads is None else {  # noqa: B023
+                        **traced_params, "local_threads": local_threads}  # noqa: B023
                     self.trace.write(AttemptRecord(
                         run_id=self.trace.run_id, seq=seq, time_unix=time.time(), call=call_seq,  # noqa: B023
-                        node=request.node, attempt=attempt_no, model=model, params=traced_params,  # noqa: B023
+                        node=request.node, attempt=attempt_no, model=model, params=sent_params,  # noqa: B023
                         request=request, request_hash=request_hash, **fields,
                     ))
 
@@ -198,16 +204,17 @@ class LiteLLMClient:
                         model=model, messages=sent, max_retries=0, drop_params=True,
                         **({"api_key": api_key} if api_key else {}), **params,
                     )
+                    local_threads = _local_threads(raw)
                     text, finish, usage = _extract(raw)
                     text = redact(text, secrets)
                     parsed = _validate(text, finish, request)
                 except Exception as exc:
                     latency = self._clock() - t0
-                    klass = classify_error(exc)
-                    if isinstance(exc, LLMUnavailableError) or (
-                        isinstance(exc, InvalidResponseError) and provider_of(model) == "local"
-                    ):
-                        klass = "permanent"  # the embedded model is deterministic: same input, same output
+                    if isinstance(exc, LocalModelStalledError):
+                        local_threads = exc.local_threads
+                    klass = classify_error(exc, local=provider_of(model) == "local")
+                    if isinstance(exc, LLMUnavailableError):
+                        klass = "permanent"
                     record(response_text=text, finish_reason=finish, usage=usage, latency_s=latency,
                            error_type=type(exc).__name__, error_message=str(exc)[:2000],
                            error_class=klass, final=False)
@@ -232,6 +239,13 @@ class LiteLLMClient:
         err.trace_seqs = tuple(seqs)
         await self.trace.durable()
         raise err
+
+
+def _local_threads(raw: Any) -> dict[str, Any] | None:
+    """The thread choice the embedded model's provider attached to its answer (None for others)."""
+    hidden = raw._hidden_params if isinstance(raw, litellm.ModelResponse) else None
+    value = hidden.get("local_threads") if isinstance(hidden, dict) else None
+    return value if isinstance(value, dict) else None
 
 
 def _extract(raw: Any) -> tuple[str, str | None, TokenUsage]:

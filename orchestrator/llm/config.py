@@ -6,8 +6,9 @@ Layout of the TOML file (every table and key is optional)::
     model = "local/qwen2.5-coder-0.5b"
     temperature = 0.0
     max_tokens = 1024            # a cap: requests may ask for fewer
-    timeout_s = 120.0           # per attempt; unset, a local model's default grows with the
-                                # prompt and max_tokens (orchestrator.llm.local_model.local_timeout_s)
+    timeout_s = 120.0           # per attempt; for a local model a hard cap only (its calls are
+                                # limited by progress: orchestrator.llm.decode_progress); unset,
+                                # a local call gets what the progress floors allow (local_timeout_s)
     fallbacks = []              # tried in order after ``model`` has used up its retries
     api_base = "http://127.0.0.1:8080/v1"   # optional
     api_key_env = "OPENAI_API_KEY"          # optional: NAME of the variable holding the key
@@ -97,8 +98,9 @@ class NodeConfig(BaseModel):
     )
     timeout_s: float = Field(
         default=120.0, gt=0.0,
-        description="Per-attempt timeout, seconds. When not set, a local model gets at least this, "
-        "more for long prompts (orchestrator.llm.local_model.local_timeout_s).",
+        description="Per-attempt timeout, seconds. For a local model a hard cap: its calls are limited by "
+        "their progress (orchestrator.llm.decode_progress); when not set, a local call may take what the "
+        "progress floors allow, at least this (orchestrator.llm.local_model.local_timeout_s).",
     )
     fallbacks: tuple[str, ...] = ()
     api_base: str | None = None

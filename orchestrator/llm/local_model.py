@@ -8,15 +8,17 @@ stable prefix (rules, examples, scene description) is evaluated once per story, 
 states, each holding n_ctx x vocab logits (GBs with Qwen's 152k vocab).
 
 Calls are serialised per model (a Llama object is not thread-safe) and run in a worker
-thread so the event loop (and the simulation) keeps running. Generation is streamed so a
-deadline derived from the call's timeout, or a cancellation, stops it between two tokens.
-
-Default timeout: a node whose config does not set ``timeout_s`` gets, for a local model,
-:func:`local_timeout_s` of the request: the expected time on an idle machine (prompt
-characters / 3 as tokens at the measured prompt speed, plus ``max_tokens`` at the measured
-generation speed) times :data:`LOAD_MARGIN`, plus :data:`BASE_TIMEOUT_S`, and never less
-than the configured default. A loaded machine (several processes on 2 cores) can be that
-much slower; ``max_tokens`` still bounds a runaway generation.
+thread so the event loop (and the simulation) keeps running. Before each call, with the
+model's lock held, the threads are chosen from the machine
+(:mod:`orchestrator.llm.cpu_threads`: never more than the free cores, so another process
+holding a core does not make llama.cpp's threads wait on each other) and set on the context
+(``llama_set_n_threads``; the answer does not depend on the thread count). The call is limited
+by its progress (:mod:`orchestrator.llm.decode_progress`), not by a fixed time: it stops, with
+:class:`~orchestrator.llm.local_errors.LocalModelStalledError`, only when it decodes under the
+floor, reads its prompt past the allowance or passes its hard cap. The request's ``timeout``
+is that hard cap; a node whose config does not set ``timeout_s`` gets
+:func:`local_timeout_s`, the time the floors themselves allow. The chosen threads go back with
+the answer (``_hidden_params["local_threads"]``) and into the trace.
 """
 
 from __future__ import annotations
@@ -25,9 +27,8 @@ import atexit
 import hashlib
 import os
 import threading
-import time
 from collections import OrderedDict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
@@ -46,6 +47,9 @@ from litellm.exceptions import (
 from litellm.llms.custom_llm import CustomLLM
 
 from agents.llm_port import LLMUnavailableError
+from orchestrator.llm.cpu_threads import ThreadChooser
+from orchestrator.llm.decode_progress import ProgressWatch, default_hard_cap_s
+from orchestrator.llm.local_errors import LocalModelBusyError, LocalModelStalledError
 from orchestrator.llm.model_weights import (
     WeightsSpec,
     ensure_weights,
@@ -54,19 +58,9 @@ from orchestrator.llm.model_weights import (
 )
 
 N_CTX = 4096
-N_THREADS = int(os.environ.get("STORYTELLER_LOCAL_THREADS", "2"))  # llama.cpp threads
 SEED = 1234
 MAX_TOKENS_CAP = 2048
 DEFAULT_ARRAY_MAX_ITEMS = 64
-
-MEASURED_TOK_S: dict[str, tuple[float, float]] = {
-    "qwen2.5-coder-0.5b": (150.0, 37.0),
-    "qwen2.5-coder-1.5b": (70.0, 21.0),
-}
-"""(prompt, generated) tokens per second with 2 threads on an idle machine (DESIGN.md)."""
-LOAD_MARGIN = 10.0
-BASE_TIMEOUT_S = 30.0
-CHARS_PER_TOKEN = 3.0
 
 PREFIX_SLOTS = max(1, int(os.environ.get("STORYTELLER_LOCAL_PREFIX_SLOTS", "3")))
 """Llama instances per model, each keeping the KV cache of the last prompt it saw."""
@@ -85,8 +79,16 @@ _load_lock = threading.Lock()
 _instances: dict[str, _Pool] = {}
 
 
+_chooser = ThreadChooser()
+
+
+def thread_chooser() -> ThreadChooser:
+    """The process's thread chooser (its ``last`` choice is what ``storyteller model info`` shows)."""
+    return _chooser
+
+
 class _Abort(Exception):
-    """Raised between two streamed tokens to stop a generation (deadline or cancellation)."""
+    """Raised between two evaluations to stop a generation whose caller was cancelled."""
 
 
 def ensure_local_model_available(model: str) -> None:
@@ -104,11 +106,12 @@ def ensure_local_model_available(model: str) -> None:
 
 
 def local_timeout_s(model: str, prompt_chars: int, max_tokens: int, floor_s: float) -> float:
-    """Default per-attempt timeout of a local model for a prompt of ``prompt_chars``
-    characters and ``max_tokens`` generated tokens (see the module doc); at least ``floor_s``."""
-    prompt_rate, gen_rate = MEASURED_TOK_S.get(model.removeprefix("local/"), MEASURED_TOK_S["qwen2.5-coder-1.5b"])
-    idle_s = prompt_chars / CHARS_PER_TOKEN / prompt_rate + max_tokens / gen_rate
-    return round(max(floor_s, BASE_TIMEOUT_S + LOAD_MARGIN * idle_s), 1)
+    """Default hard cap of one local call for a prompt of ``prompt_chars`` characters and
+    ``max_tokens`` generated tokens: what the progress floors allow
+    (:func:`~orchestrator.llm.decode_progress.default_hard_cap_s`), at least ``floor_s``. The
+    same for every local model: the floors are rates, not the model's speed."""
+    del model
+    return max(floor_s, default_hard_cap_s(prompt_chars, max_tokens))
 
 
 def bound_arrays(schema: Any, max_items: int = DEFAULT_ARRAY_MAX_ITEMS) -> Any:
@@ -181,9 +184,9 @@ def get_llama(spec: WeightsSpec, key: str = "") -> tuple[Any, threading.Lock]:
 
             path = verified_weights_path(spec)
             with plain_cpu_buffers():
-                llm = Llama(
-                    model_path=str(path), n_ctx=N_CTX, n_threads=N_THREADS,
-                    n_threads_batch=N_THREADS, seed=SEED, n_gpu_layers=0, verbose=False,
+                llm = Llama(  # threads: set per call (set_threads)
+                    model_path=str(path), n_ctx=N_CTX, n_threads=1, n_threads_batch=1,
+                    seed=SEED, n_gpu_layers=0, verbose=False,
                 )
             pool = _instances.setdefault(spec.model, _Pool())
         else:
@@ -216,27 +219,66 @@ def close_models() -> None:
                     llm.close()
 
 
-def _chat_blocking(
-    spec: WeightsSpec, messages: list[dict[str, Any]], params: dict[str, Any], timeout_s: float,
-    cancel: threading.Event,
-) -> dict[str, Any]:
-    """Run one chat completion, token by token, stopping after ``timeout_s`` seconds (counted
-    from when the model is loaded and free, so queueing behind another call or loading the
-    weights does not count) or when ``cancel`` is set (raises :class:`_Abort`). Returns an
-    OpenAI-shaped dict.
+def set_threads(llm: Any, threads: int) -> None:
+    """Run ``llm``'s next evaluations with ``threads`` threads (prompt batches and generation).
 
-    Streaming is what makes the abort possible: exceptions raised in llama.cpp sampler
-    callbacks are swallowed by ctypes. Usage: completion tokens = streamed content pieces,
-    prompt tokens = tokens in the context afterwards minus those."""
-    llm, lock = get_llama(spec, prompt_key(messages))
-    with lock:
-        deadline = time.monotonic() + timeout_s
-        pieces: list[str] = []
-        finish: str | None = None
+    ``llama_set_n_threads`` changes the context's parameters only (no reallocation); the
+    thread pool of each evaluation is built from them."""
+    if llm.n_threads == threads and llm.n_threads_batch == threads:
+        return
+    import llama_cpp
+
+    llama_cpp.llama_set_n_threads(llm.ctx, threads, threads)
+    llm.n_threads = llm.n_threads_batch = threads
+    llm.context_params.n_threads = llm.context_params.n_threads_batch = threads
+
+
+def stream_chat(
+    llm: Any, messages: list[dict[str, Any]], params: dict[str, Any], watch: ProgressWatch,
+    cancel: threading.Event, before_eval: Callable[[], None] = lambda: None,
+) -> dict[str, Any]:
+    """Run one chat completion on ``llm``, token by token, held to ``watch``'s floors (raises
+    :class:`LocalModelStalledError`) and stopped when ``cancel`` is set (raises
+    :class:`_Abort`). Returns an OpenAI-shaped dict.
+
+    llama-cpp-python's ``generate`` evaluates through ``llm.eval``: first the prompt's tokens
+    that are not in the KV cache, then one call per generated token. For this call ``eval`` is
+    wrapped so the checks, then ``before_eval`` (the thread re-check), run before each prompt
+    batch (the same ``n_batch`` batches ``Llama.eval`` makes, so the result is unchanged) and
+    before each generated token; an exception raised there leaves the model consistent
+    (``n_tokens`` counts what was evaluated).
+    Exceptions raised in llama.cpp's own callbacks would be swallowed by ctypes, hence this.
+    Usage: completion tokens = streamed content pieces, prompt tokens = tokens in the context
+    afterwards minus those."""
+    plain_eval = llm.eval
+    n_batch = max(1, int(llm.n_batch))
+
+    def check() -> None:
+        if cancel.is_set():
+            raise _Abort
+        watch.check()
+        before_eval()
+
+    def watched_eval(tokens: Sequence[int]) -> None:
+        if watch.prompt_tokens is None:
+            watch.prompt_started(len(tokens))
+            for i in range(0, len(tokens), n_batch):
+                check()
+                plain_eval(tokens[i:i + n_batch])
+            watch.prompt_done()
+            return
+        check()
+        plain_eval(tokens)
+        watch.decoded(len(tokens))
+
+    pieces: list[str] = []
+    finish: str | None = None
+    llm.eval = watched_eval
+    try:
         stream = llm.create_chat_completion(messages=messages, stream=True, **params)
         try:
             for chunk in stream:
-                if cancel.is_set() or time.monotonic() > deadline:
+                if cancel.is_set():
                     raise _Abort
                 choice = chunk["choices"][0]
                 content = choice["delta"].get("content")
@@ -245,8 +287,10 @@ def _chat_blocking(
                 finish = choice.get("finish_reason") or finish
         finally:
             stream.close()
-        completion_tokens = len(pieces)
-        prompt_tokens = max(0, int(llm.n_tokens) - completion_tokens)
+    finally:
+        del llm.eval
+    completion_tokens = len(pieces)
+    prompt_tokens = max(0, int(llm.n_tokens) - completion_tokens)
     return {
         "id": "local",
         "choices": [{"index": 0, "finish_reason": finish or "stop",
@@ -254,6 +298,34 @@ def _chat_blocking(
         "usage": {"prompt_tokens": prompt_tokens, "completion_tokens": completion_tokens,
                   "total_tokens": prompt_tokens + completion_tokens},
     }
+
+
+def _chat_blocking(
+    spec: WeightsSpec, messages: list[dict[str, Any]], params: dict[str, Any], timeout_s: float,
+    cancel: threading.Event,
+) -> dict[str, Any]:
+    """One chat completion: the instance for the prompt, threads chosen now and re-checked
+    between evaluations, then :func:`stream_chat` with ``timeout_s`` as the hard cap (counted
+    from when the model is loaded and free, so queueing behind another call or loading the
+    weights does not count). The answer carries the thread choice under ``local_threads``
+    (:class:`~orchestrator.llm.cpu_threads.ThreadChoice` fields, and ``rechosen``: the threads
+    after each change during the call)."""
+    llm, lock = get_llama(spec, prompt_key(messages))
+    with lock:
+        choice = _chooser.choose()
+        set_threads(llm, choice.threads)
+        rechosen: list[int] = []
+        threads: dict[str, Any] = {**choice.model_dump(), "rechosen": rechosen}
+
+        def rethread() -> None:
+            new = _chooser.recheck()
+            if new is not None and new.threads != llm.n_threads:
+                set_threads(llm, new.threads)
+                rechosen.append(new.threads)
+
+        watch = ProgressWatch(f"local/{spec.model}", hard_cap_s=timeout_s, local_threads=threads)
+        out = stream_chat(llm, messages, params, watch, cancel, before_eval=rethread)
+    return {**out, "local_threads": threads}
 
 
 def _llama_params(optional_params: dict[str, Any]) -> dict[str, Any]:
@@ -312,7 +384,7 @@ class LocalLlamaProvider(CustomLLM):
     def _to_response(self, model: str, out: dict[str, Any]) -> ModelResponse:
         choice = out["choices"][0]
         usage = out.get("usage") or {}
-        return ModelResponse(
+        response = ModelResponse(
             id=out.get("id"), model=model,
             choices=[{"index": 0, "finish_reason": choice.get("finish_reason") or "stop",
                       "message": {"role": "assistant", "content": choice["message"].get("content") or ""}}],
@@ -320,10 +392,17 @@ class LocalLlamaProvider(CustomLLM):
                    "completion_tokens": usage.get("completion_tokens", 0),
                    "total_tokens": usage.get("total_tokens", 0)},
         )
+        if out.get("local_threads") is not None:
+            response._hidden_params["local_threads"] = out["local_threads"]
+        return response
 
-    def _map_error(self, model: str, exc: BaseException, timeout_s: float) -> Exception:
+    def _map_error(self, model: str, exc: BaseException) -> Exception:
+        if isinstance(exc, LocalModelStalledError):
+            return exc
         if isinstance(exc, _Abort):
-            return Timeout(message=f"local model exceeded {timeout_s:.1f} s", model=model, llm_provider="local")
+            return Timeout(message="local model call cancelled", model=model, llm_provider="local")
+        if isinstance(exc, MemoryError | OSError):
+            return LocalModelBusyError(f"{type(exc).__name__}: {exc}", model=model)
         if isinstance(exc, ValueError) and "context window" in str(exc):
             return ContextWindowExceededError(message=str(exc), model=model, llm_provider="local")
         return InternalServerError(message=f"{type(exc).__name__}: {exc}", llm_provider="local", model=model)
@@ -344,7 +423,7 @@ class LocalLlamaProvider(CustomLLM):
         except BaseException as exc:
             cancel.set()
             if isinstance(exc, Exception):
-                raise self._map_error(model, exc, timeout_s) from exc
+                raise self._map_error(model, exc) from exc
             raise
         return self._to_response(model, out)
 
@@ -357,7 +436,7 @@ class LocalLlamaProvider(CustomLLM):
         try:
             out = self._chat(spec, list(messages), _llama_params(optional_params), timeout_s, threading.Event())
         except Exception as exc:
-            raise self._map_error(model, exc, timeout_s) from exc
+            raise self._map_error(model, exc) from exc
         return self._to_response(model, out)
 
 

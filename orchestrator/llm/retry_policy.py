@@ -5,6 +5,11 @@ makes 2N+1 attempts). Transient: rate limit (429), timeout, connection error, 5x
 response that is empty or whose JSON is truncated or unparsable. Permanent: 400, 401, 403,
 404, 422 and anything else we do not recognise as transient. A permanent error is never
 retried on the same model; the next fallback model is still tried.
+
+The embedded model (``local/...``) is deterministic and runs here: the same request gives the
+same answer at the same speed, so of its errors only a shortage of memory or a file is
+transient (:func:`orchestrator.llm.local_errors.local_error_retryable`); a call stopped for
+lack of progress, an unusable answer or a llama.cpp failure is permanent.
 """
 
 from __future__ import annotations
@@ -56,8 +61,13 @@ def _litellm_permanent_types() -> tuple[type[BaseException], ...]:
     )
 
 
-def classify_error(exc: BaseException) -> ErrorClass:
-    """Decide whether ``exc`` (raised by one attempt) may succeed if the same call is repeated."""
+def classify_error(exc: BaseException, *, local: bool = False) -> ErrorClass:
+    """Decide whether ``exc`` (raised by one attempt) may succeed if the same call is repeated;
+    ``local``: the attempt was on the embedded model (see the module doc)."""
+    if local:
+        from orchestrator.llm.local_errors import local_error_retryable
+
+        return "transient" if local_error_retryable(exc) else "permanent"
     if isinstance(exc, InvalidResponseError | TimeoutError | ConnectionError):
         return "transient"
     if isinstance(exc, _litellm_permanent_types()):

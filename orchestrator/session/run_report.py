@@ -167,9 +167,10 @@ def llm_metrics(trace_path: Path | None) -> dict[str, Any]:
 
 def local_threads_metrics(trace_path: Path | None) -> dict[str, Any] | None:
     """The embedded model's thread choices over the run's attempts (None when no local call
-    ran here): attempts per thread count, the usable cores, the range of the busy cores
-    measured before the calls and where that figure came from (``orchestrator.llm.cpu_threads``).
-    Replayed attempts are left out: they ran no model."""
+    ran here): attempts per thread count at their start, attempts whose threads changed while
+    they ran, the usable cores, the range of the cores other processes kept busy before the
+    calls and where that figure came from (``orchestrator.llm.cpu_threads``). Replayed attempts
+    are left out: they ran no model."""
     from orchestrator.llm.traces import read_trace
 
     if trace_path is None or not trace_path.is_file():
@@ -184,6 +185,7 @@ def local_threads_metrics(trace_path: Path | None) -> dict[str, Any] | None:
     busy = [float(c["busy_cores"]) for c in choices if c.get("busy_cores") is not None]
     return {
         "attempts_by_threads": {str(t): n for t, n in sorted(by_threads.items())},
+        "rethreaded_attempts": sum(1 for c in choices if c.get("rechosen")),
         "usable_cores": max(int(c["usable_cores"]) for c in choices),
         "busy_cores": {"min": min(busy), "max": max(busy)} if busy else None,
         "sources": sorted({str(c["source"]) for c in choices}),
