@@ -309,6 +309,9 @@ class WorkerRunner:
         its own per scene)."""
         if not isinstance(source, str):
             raise EventProgramError("the program must be Python source text")
+        limit = (self.budget or Budget()).source_chars
+        if len(source) > limit:  # the checker's verdict, given here: a huge text never reaches a frame
+            raise BudgetExceededError(f"the program has {len(source)} characters (limit {limit})")
         with self._lock:
             return self._run(scene, source, world, seed=seed, action_labels=action_labels)
 

@@ -22,19 +22,37 @@ def register(app: typer.Typer) -> None:
     app.command("event-program")(event_program)
 
 
+MAX_STATES_FILE_BYTES = 16 * 1024 * 1024
+MAX_STATES_JSON_DEPTH = 64
+
+
 def _read_json(path: Path, what: str) -> Any:
+    """A JSON file read within byte and nesting limits (``sim.bounded_files``)."""
+    from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
+
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise _UsageError(f"{path}: {what} file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise _UsageError(f"{path}: cannot read {what} file ({exc.__class__.__name__})") from None
+        raw = read_bounded_bytes(path, MAX_STATES_FILE_BYTES, f"{path}: {what} file")
+        return load_bounded_json(raw, MAX_STATES_JSON_DEPTH, f"{path}: {what} file")
+    except BoundedFileError as exc:
+        raise _UsageError(str(exc)) from None
+
+
+MAX_PROGRAM_FILE_BYTES = 256 * 1024
+"""Bytes of a program file: the sandbox takes 20,000 characters of program text at most
+(``Budget.source_chars``); a larger file is refused here, before it is read whole or sent."""
+
+
+def read_program(path: Path) -> str:
+    """The program file's text, read within :data:`MAX_PROGRAM_FILE_BYTES`."""
+    from sim.bounded_files import BoundedFileError, read_bounded_bytes
+
     try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise _UsageError(
-            f"{path}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
-        ) from None
+        raw = read_bounded_bytes(path, MAX_PROGRAM_FILE_BYTES, f"{path}: program file")
+        return raw.decode("utf-8")
+    except BoundedFileError as exc:
+        raise _UsageError(str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise _UsageError(f"{path}: program file is not UTF-8 text (bad byte at offset {exc.start})") from None
 
 
 def load_states(path: Path, scene: Any) -> tuple[WorldView, list[str] | None]:
@@ -118,12 +136,7 @@ def event_program(
 
     try:
         loaded = resolve_scene(scene)
-        try:
-            source = program.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise _UsageError(
-                f"{program}: cannot read program file ({exc.__class__.__name__})"
-            ) from None
+        source = read_program(program)
         world, labels = load_states(states, loaded) if states is not None else (WorldView(), None)
     except (SceneFileError, _UsageError) as exc:
         typer.echo(f"error: {plain(exc)}", err=True)

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from sim.scene.model import Scene, SceneObject
+from sim.scene.model import MAX_NAV_CELLS, Scene, SceneObject, nav_cell_bound
 
 # The 8 moves, in a fixed order (index k is used in move masks): 4 straight, then 4 diagonal.
 MOVES: tuple[tuple[int, int], ...] = ((1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1))
@@ -553,6 +553,10 @@ def build_nav_grid(
     if not (math.isfinite(body_radius) and body_radius > 0.0):
         raise NavGridError(f"body_radius must be a positive number of metres, got {body_radius!r}")
     lo, hi = scene.bounds_min, scene.bounds_max
+    if nav_cell_bound(lo, hi, cs) > MAX_NAV_CELLS:  # counted before any array (or int overflow)
+        raise NavGridError(
+            f"cell_size {cs:g} m gives more than {MAX_NAV_CELLS:,} cells over the floor; use a larger cell_size"
+        )
     has_overrides = bool(scene.nav.occupied or scene.nav.unoccupied)
     aligned = use_reference_overrides and has_overrides and abs(cs - scene.nav.cell_size) < 1e-9
     if aligned:
@@ -564,7 +568,7 @@ def build_nav_grid(
         origin = np.asarray(lo, dtype=float)
     nx = max(1, math.ceil((hi[0] - origin[0]) / cs))
     ny = max(1, math.ceil((hi[1] - origin[1]) / cs))
-    if nx * ny > 4_000_000:
+    if nx * ny > MAX_NAV_CELLS:
         raise NavGridError(f"cell_size {cs} m gives {nx} x {ny} cells; use a larger cell_size")
 
     obstacles = blocking_objects(scene, clearance_height)

@@ -16,14 +16,14 @@ class SceneFileError(Exception):
         self, path: Path | str, message: str, *, obj: str | None = None, field: str | None = None
     ):
         self.path = str(path)
-        self.obj = obj
-        self.field = field
+        self.obj = None if obj is None else one_line(obj, 80)
+        self.field = None if field is None else one_line(field, 80)
         self.message = message
         where = self.path
-        if obj is not None:
-            where += f": object '{obj}'"
-        if field is not None:
-            where += f", field '{field}'" if obj is not None else f": field '{field}'"
+        if self.obj is not None:
+            where += f": object '{self.obj}'"
+        if self.field is not None:
+            where += f", field '{self.field}'" if self.obj is not None else f": field '{self.field}'"
         super().__init__(f"{where}: {one_line(message)}")
 
 

@@ -6,6 +6,11 @@ Formats:
 - a reference annotation folder (``objects.json`` + optional ``scene.json`` and
   ``grid_map.json``), as published with the Event-Driven Storytelling paper;
 - instance-segmented meshes (GLB / glTF / OBJ / PLY), see ``sim.scene.meshes``.
+
+Bounded: a JSON file is read only up to ``MAX_SCENE_FILE_BYTES`` (``sim.bounded_files``: a
+regular file, never a device or a FIFO), nested at most ``MAX_SCENE_JSON_DEPTH`` deep, and holds
+at most ``MAX_SCENE_OBJECTS`` objects (``sim.scene.model`` states the other limits); anything
+outside them is a ``SceneFileError``, checked before the work it would cost.
 """
 
 from __future__ import annotations
@@ -19,11 +24,16 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
+from sim.bounded_files import BoundedFileError, json_depth_exceeds, read_bounded_bytes
 from sim.scene.errors import SceneFileError as SceneFileError  # re-exported: callers catch it here
 from sim.scene.meshes import load_mesh_scene
-from sim.scene.model import NavHints, Scene, SceneObject
+from sim.scene.model import MAX_SCENE_OBJECTS, NavHints, Scene, SceneObject
 
 MESH_SUFFIXES = {".glb", ".gltf", ".obj", ".ply"}
+MAX_SCENE_FILE_BYTES = 16 * 1024 * 1024
+"""Bytes of one scene JSON file (a reference ``objects.json`` takes about 1 KB per object)."""
+MAX_SCENE_JSON_DEPTH = 32
+"""Nesting of a scene JSON file (the formats need 4)."""
 
 
 def _short_repr(value: Any, limit: int = 60) -> str:
@@ -34,15 +44,9 @@ def _short_repr(value: Any, limit: int = 60) -> str:
 def _read_text(path: Path) -> str:
     """The file's text; a clear error for missing, unreadable, empty or binary files."""
     try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise SceneFileError(path, "file not found") from None
-    except IsADirectoryError:
-        raise SceneFileError(path, "expected a file, found a folder") from None
-    except OSError as exc:
-        raise SceneFileError(
-            path, f"cannot read file ({exc.__class__.__name__}: {exc.strerror or exc})"
-        ) from None
+        raw = read_bounded_bytes(path, MAX_SCENE_FILE_BYTES, str(path))
+    except BoundedFileError as exc:
+        raise SceneFileError(path, exc.problem) from None
     if not raw.strip():
         raise SceneFileError(path, "file is empty")
     if b"\x00" in raw[:4096]:
@@ -62,6 +66,8 @@ def _parse_json(path: Path, text: str, layout: str | None = None) -> Any:
     objects are found, ``"scene"`` (the project format, objects under ``"objects"``),
     ``"objects"`` (a reference ``objects.json`` list) or None (no objects; field only).
     """
+    if json_depth_exceeds(text.encode("utf-8", "surrogatepass"), MAX_SCENE_JSON_DEPTH):
+        raise SceneFileError(path, f"JSON nested more than {MAX_SCENE_JSON_DEPTH} levels deep")
     try:
         data = json.loads(
             text,
@@ -217,6 +223,7 @@ def load_scene_json(path: Path) -> Scene:
     raw_objects = data.get("objects")
     objects = raw_objects if isinstance(raw_objects, list) else None
     if objects is not None:
+        _check_object_count(path, len(objects))
         seen: set[str] = set()
         for raw in objects:
             name = raw.get("name") if isinstance(raw, dict) else None
@@ -230,6 +237,13 @@ def load_scene_json(path: Path) -> Scene:
         raise _validation_error(path, exc, objects) from None
     _check_within_bounds(path, scene)
     return scene
+
+
+def _check_object_count(path: Path, count: int) -> None:
+    if count > MAX_SCENE_OBJECTS:
+        raise SceneFileError(
+            path, f"{count} objects, at most {MAX_SCENE_OBJECTS} allowed in a scene", field="objects"
+        )
 
 
 FAR_OUTSIDE = 1.0
@@ -399,6 +413,7 @@ def load_reference_folder(folder: Path) -> Scene:
     raw_objects = _read_json(objects_path, "objects")
     if not isinstance(raw_objects, list):
         raise SceneFileError(objects_path, "expected a JSON list of objects at top level")
+    _check_object_count(objects_path, len(raw_objects))
     objects = [_reference_object(objects_path, i, raw) for i, raw in enumerate(raw_objects)]
     seen: set[str] = set()
     for obj in objects:
@@ -421,7 +436,7 @@ def load_reference_folder(folder: Path) -> Scene:
             objects=tuple(objects),
             nav=nav,
         )
-    except ValidationError as exc:  # pragma: no cover - every rule is checked above
+    except ValidationError as exc:  # the scene-wide limits (floor size in cells, coordinates)
         raise _validation_error(objects_path, exc, None) from None
     _check_within_bounds(objects_path, scene)
     return scene
@@ -505,18 +520,21 @@ def _reference_nav(folder: Path) -> NavHints:
     radius = None if radius_raw is None else _number(grid_path, None, "cylinder_radius", radius_raw)
     if radius is not None and radius <= 0:
         raise SceneFileError(grid_path, f"must be > 0, got {radius}", field="cylinder_radius")
-    return NavHints(
-        cell_size=cell,
-        body_radius=radius,
-        occupied=_cells(grid_path, "user_modifications.occupied", mods.get("occupied", [])),
-        unoccupied=_cells(grid_path, "user_modifications.unoccupied", mods.get("unoccupied", [])),
-        # Reference cell (a, b) is centred at (x_margin + a * step, y_margin + b * step): see
-        # sim.paths.nav_grid.reference_grid_origin for how this was inferred from the data.
-        grid_origin=(
-            _number(grid_path, None, "x_margin", data.get("x_margin", 0.0)),
-            _number(grid_path, None, "y_margin", data.get("y_margin", 0.0)),
-        ),
-    )
+    try:
+        return NavHints(
+            cell_size=cell,
+            body_radius=radius,
+            occupied=_cells(grid_path, "user_modifications.occupied", mods.get("occupied", [])),
+            unoccupied=_cells(grid_path, "user_modifications.unoccupied", mods.get("unoccupied", [])),
+            # Reference cell (a, b) is centred at (x_margin + a * step, y_margin + b * step): see
+            # sim.paths.nav_grid.reference_grid_origin for how this was inferred from the data.
+            grid_origin=(
+                _number(grid_path, None, "x_margin", data.get("x_margin", 0.0)),
+                _number(grid_path, None, "y_margin", data.get("y_margin", 0.0)),
+            ),
+        )
+    except ValidationError as exc:
+        raise _validation_error(grid_path, exc, None) from None
 
 
 # ----- dispatch -----------------------------------------------------------------------------

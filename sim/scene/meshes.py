@@ -23,6 +23,9 @@ One scene object per graph node that carries geometry (``trimesh.load_scene`` +
   known to have a front (``FRONTED_LABELS``) and when the direction is not near vertical;
   otherwise False (the facing then is the box axis nearest +y, and means nothing).
 - **Seats.** Chairs, couches, benches and stools get seat offsets (``SEAT_RULES``).
+- **Bounds.** A mesh file of more than ``MAX_MESH_FILE_BYTES``, more than ``MAX_SCENE_OBJECTS``
+  nodes with geometry, or a node name longer than ``MAX_NODE_NAME_CHARS`` is refused before it is
+  read further; names are parsed by a linear scan (no backtracking regular expression).
 """
 
 from __future__ import annotations
@@ -38,8 +41,12 @@ from pydantic import ValidationError
 from scipy.spatial import ConvexHull, QhullError
 
 from sim.scene.errors import SceneFileError
-from sim.scene.model import Scene, SceneObject
+from sim.scene.model import MAX_SCENE_OBJECTS, Scene, SceneObject
 
+MAX_MESH_FILE_BYTES = 64 * 1024 * 1024
+"""Bytes of a mesh scene file (trimesh holds several times the file in memory)."""
+MAX_NODE_NAME_CHARS = 200
+"""Characters of a node or geometry name that names an object."""
 BOUNDS_MARGIN = 1.0  # metres of free floor around the objects when the file has no floor node
 FLOOR_LABELS = frozenset({"floor", "ground"})
 DROPPED_LABELS = frozenset({"ceiling", "room"})
@@ -65,6 +72,9 @@ SEAT_RULES: dict[str, tuple[float | None, float]] = {
 _GENERIC_NAME = re.compile(
     r"^(node|mesh|geometry|object|obj|group|primitive)?[\s._-]*\d*$", re.IGNORECASE
 )
+_CAMEL_LOWER = re.compile(r"(?<=[a-z0-9])(?=[A-Z])")  # "coffeeMaker" -> "coffee Maker"
+_CAMEL_UPPER = re.compile(r"(?<=[A-Z])(?=[A-Z][a-z])")  # "TVStand" -> "TV Stand"
+_SEPARATORS = re.compile(r"[^a-z0-9]+")
 _Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 _Y_UP_SUFFIXES = {".glb", ".gltf"}
 
@@ -76,14 +86,16 @@ def parse_instance_name(raw: str) -> tuple[str, int | None]:
     number (separate, or glued to the last word) is the index. A label that would be empty or
     start with a digit is prefixed with ``object``.
     """
-    text = re.sub(r"(?<=[a-z0-9])(?=[A-Z])", " ", raw.strip())
-    text = re.sub(r"(?<=[A-Z])(?=[A-Z][a-z])", " ", text)
-    tokens = [t for t in re.split(r"[^a-z0-9]+", text.lower()) if t]
+    text = _CAMEL_LOWER.sub(" ", raw.strip())
+    text = _CAMEL_UPPER.sub(" ", text)
+    tokens = [t for t in _SEPARATORS.split(text.lower()) if t]
     idx: int | None = None
     if tokens and tokens[-1].isdigit():
         idx = int(tokens.pop())
-    elif tokens and (m := re.fullmatch(r"([a-z][a-z0-9]*?)(\d+)", tokens[-1])):
-        tokens[-1], idx = m.group(1), int(m.group(2))
+    elif tokens and tokens[-1][0].isalpha() and tokens[-1][-1].isdigit():
+        word = tokens[-1]
+        cut = len(word.rstrip("0123456789"))  # the trailing digits, scanned once
+        tokens[-1], idx = word[:cut], int(word[cut:])
     label = "_".join(tokens)
     if not label or not label[0].isalpha():
         label = "object" + (f"_{label}" if label else "")
@@ -125,11 +137,17 @@ def yaw_box(points_xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArra
 def _load_trimesh_scene(path: Path) -> Any:
     import trimesh
 
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise SceneFileError(path, f"cannot read file ({exc.strerror or exc})") from None
+    if size == 0:
+        raise SceneFileError(path, "file is empty")
+    if size > MAX_MESH_FILE_BYTES:
+        raise SceneFileError(path, f"file is {size} bytes, more than the {MAX_MESH_FILE_BYTES} allowed for a mesh scene")
     if path.suffix.lower() == ".obj":
         _check_obj_names(path)
     try:
-        if path.stat().st_size == 0:
-            raise SceneFileError(path, "file is empty")
         kwargs: dict[str, Any] = (
             {"split_objects": True, "group_material": False}
             if path.suffix.lower() == ".obj"
@@ -176,6 +194,10 @@ def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = Non
         raise SceneFileError(
             path, "mesh file has no nodes with geometry (expected one node per object)"
         )
+    if len(nodes) > MAX_SCENE_OBJECTS:
+        raise SceneFileError(
+            path, f"{len(nodes)} nodes with geometry, at most {MAX_SCENE_OBJECTS} objects allowed in a scene"
+        )
 
     parts: list[
         tuple[str, str, int | None, NDArray[np.float64], NDArray[np.float64]]
@@ -183,8 +205,15 @@ def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = Non
     for node in nodes:
         transform, geom_name = tm_scene.graph[node]
         geom = tm_scene.geometry.get(geom_name)
-        raw_name = node if not _GENERIC_NAME.match(str(node)) else str(geom_name)
-        label, idx = parse_instance_name(str(raw_name))
+        raw_name = str(node) if not _GENERIC_NAME.match(str(node)) else str(geom_name)
+        if len(raw_name) > MAX_NODE_NAME_CHARS:
+            raise SceneFileError(
+                path,
+                f"name of {len(raw_name)} characters (at most {MAX_NODE_NAME_CHARS} allowed)",
+                obj=raw_name[:40] + "...",
+                field="name",
+            )
+        label, idx = parse_instance_name(raw_name)
         verts = np.asarray(getattr(geom, "vertices", np.empty((0, 3))), dtype=np.float64).reshape(-1, 3)
         if len(verts) == 0:
             raise SceneFileError(path, "node has no vertices", obj=str(node), field="geometry")

@@ -8,6 +8,12 @@ Conventions used everywhere in the project:
 - ``size = (width, depth, height)``: width across the facing, depth along it, height along z;
 - ``center`` is the centre of the box (so its bottom is ``center.z - height / 2``);
 - the object's own right is the facing turned clockwise: ``(fy, -fx)``; left is ``(-fy, fx)``.
+
+Bounds (a scene may come from anyone, and every later step is paid per object and per cell):
+at most ``MAX_SCENE_OBJECTS`` objects, labels of at most ``MAX_LABEL_CHARS`` characters and
+indices below ``MAX_OBJECT_INDEX``, finite coordinates within ``MAX_COORDINATE`` metres, and a
+floor that the navigation grid covers with at most ``MAX_NAV_CELLS`` cells of ``nav.cell_size``
+(counted here, before any grid is allocated). A scene outside them is a validation error.
 """
 
 from __future__ import annotations
@@ -15,12 +21,25 @@ from __future__ import annotations
 import math
 import re
 from functools import cached_property
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 NAME_PATTERN = re.compile(r"^(?P<label>[a-z][a-z0-9_]*?)_(?P<idx>\d+)$")
+
+MAX_SCENE_OBJECTS = 2_000
+"""Objects a scene may hold (the bundled and reference scenes hold 23-51)."""
+MAX_LABEL_CHARS = 64
+"""Characters of an object label (``coffee_maker``); a name adds ``_<idx>``."""
+MAX_OBJECT_INDEX = 999_999
+"""Largest instance index within a label."""
+MAX_SCENE_NAME_CHARS = 128
+MAX_COORDINATE = 100_000.0
+"""Metres: every coordinate and size of a scene lies within +-this (100 km)."""
+MAX_NAV_CELLS = 4_000_000
+"""Cells of the navigation grid over the floor (``sim.paths.nav_grid`` refuses more too)."""
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -32,8 +51,10 @@ class SceneObject(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     name: str = Field(description="Unique object name, '<label>_<idx>', e.g. 'chair_3'.")
-    label: str = Field(description="Object category, lower snake case, e.g. 'coffee_maker'.")
-    idx: int = Field(ge=0, description="Instance index within the label.")
+    label: str = Field(
+        max_length=MAX_LABEL_CHARS, description="Object category, lower snake case, e.g. 'coffee_maker'."
+    )
+    idx: int = Field(ge=0, le=MAX_OBJECT_INDEX, description="Instance index within the label.")
     center: Vec3 = Field(description="Box centre [x, y, z] in metres.")
     size: Vec3 = Field(description="[width, depth, height] in metres; width across the facing.")
     facing: Vec2 = Field(default=(0.0, 1.0), description="Unit xy direction of the object's front.")
@@ -53,6 +74,11 @@ class SceneObject(BaseModel):
             raise ValueError(f"every size component must be >= 0, got {list(value)}")
         return value
 
+    @field_validator("center", "size")
+    @classmethod
+    def _within_reach(cls, value: Vec3) -> Vec3:
+        return _within_coordinates(value)
+
     @field_validator("facing")
     @classmethod
     def _facing_unit(cls, value: Vec2) -> Vec2:
@@ -66,7 +92,9 @@ class SceneObject(BaseModel):
     @model_validator(mode="after")
     def _name_matches_label(self) -> SceneObject:
         if self.name != f"{self.label}_{self.idx}":
-            raise ValueError(f"name must be '<label>_<idx>' = '{self.label}_{self.idx}', got '{self.name}'")
+            raise ValueError(
+                f"name must be '<label>_<idx>' = '{self.label}_{self.idx}', got '{self.name[:80]}'"
+            )
         return self
 
     # ----- derived geometry -------------------------------------------------------------
@@ -134,6 +162,15 @@ class SceneObject(BaseModel):
         return self.center_xy + np.array(self.facing) * self.size[1] * self.sit_offset_horizontal
 
 
+_Coords = TypeVar("_Coords", Vec2, Vec3)
+
+
+def _within_coordinates(value: _Coords) -> _Coords:
+    if any(abs(v) > MAX_COORDINATE for v in value):
+        raise ValueError(f"every number must lie within +-{MAX_COORDINATE:g} metres, got {list(value)}")
+    return value
+
+
 class NavHints(BaseModel):
     """Optional navigation-grid settings carried by a scene file (reference ``grid_map.json``)."""
 
@@ -142,9 +179,25 @@ class NavHints(BaseModel):
     cell_size: float = Field(default=0.3, gt=0.0)
     body_radius: float | None = Field(default=None, gt=0.0)
     # Reference-grid cell overrides, as [i, j] integer pairs in the reference grid's indexing.
-    occupied: tuple[tuple[int, int], ...] = ()
-    unoccupied: tuple[tuple[int, int], ...] = ()
+    occupied: tuple[tuple[int, int], ...] = Field(default=(), max_length=MAX_NAV_CELLS)
+    unoccupied: tuple[tuple[int, int], ...] = Field(default=(), max_length=MAX_NAV_CELLS)
     grid_origin: Vec2 = (0.0, 0.0)
+
+    @field_validator("grid_origin")
+    @classmethod
+    def _within_reach(cls, value: Vec2) -> Vec2:
+        return _within_coordinates(value)
+
+
+def nav_cell_bound(bounds_min: Vec2, bounds_max: Vec2, cell_size: float) -> float:
+    """An upper bound of the cells a navigation grid of ``cell_size`` metres needs over the floor
+    rectangle (two more per axis than the rectangle holds: a grid aligned with a reference grid
+    starts up to 1.5 cells before the floor). Infinite when the count overflows a float."""
+    nx = (bounds_max[0] - bounds_min[0]) / cell_size
+    ny = (bounds_max[1] - bounds_min[1]) / cell_size
+    if not (math.isfinite(nx) and math.isfinite(ny)):
+        return math.inf
+    return float(math.ceil(nx) + 2) * float(math.ceil(ny) + 2)
 
 
 class Scene(BaseModel):
@@ -153,12 +206,17 @@ class Scene(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     format: str = Field(default="storyteller-scene/1", pattern=r"^storyteller-scene/1$")
-    name: str = Field(min_length=1)
-    floor_z: float = 0.0
+    name: str = Field(min_length=1, max_length=MAX_SCENE_NAME_CHARS)
+    floor_z: float = Field(default=0.0, ge=-MAX_COORDINATE, le=MAX_COORDINATE)
     bounds_min: Vec2 = Field(description="Floor rectangle lower corner [x, y].")
     bounds_max: Vec2 = Field(description="Floor rectangle upper corner [x, y].")
-    objects: tuple[SceneObject, ...]
+    objects: tuple[SceneObject, ...] = Field(max_length=MAX_SCENE_OBJECTS)
     nav: NavHints = NavHints()
+
+    @field_validator("bounds_min", "bounds_max")
+    @classmethod
+    def _within_reach(cls, value: Vec2) -> Vec2:
+        return _within_coordinates(value)
 
     @model_validator(mode="after")
     def _check(self) -> Scene:
@@ -169,6 +227,12 @@ class Scene(BaseModel):
             seen.add(obj.name)
         if self.bounds_max[0] <= self.bounds_min[0] or self.bounds_max[1] <= self.bounds_min[1]:
             raise ValueError("bounds_max must be greater than bounds_min on x and y")
+        cells = nav_cell_bound(self.bounds_min, self.bounds_max, self.nav.cell_size)
+        if cells > MAX_NAV_CELLS:
+            raise ValueError(
+                f"the floor needs about {cells:.3g} navigation cells of {self.nav.cell_size:g} m "
+                f"(at most {MAX_NAV_CELLS:,} allowed): use a larger nav.cell_size or a smaller floor"
+            )
         return self
 
     @cached_property
