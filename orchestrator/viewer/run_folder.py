@@ -20,18 +20,20 @@ the viewer reads): a viewer polls it to reload a run that is still being written
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from agents.messages import PlannedCharacter
 from orchestrator.session.story_stream import (
     STREAM_FILE,
     StoryEventRecord,
     StoryStreamError,
     read_story_stream,
 )
+from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack, CharacterTrackError
 from sim.world.track_chunks import (
@@ -46,10 +48,53 @@ from sim.world.track_chunks import (
 STORY_FILE = "story.json"
 SCENE_FILE = "scene.json"
 TRACK_SUFFIX = ".track.npz"
+MAX_STORY_BYTES = 64 << 20
+"""Bytes of the largest ``story.json`` read (about a kilobyte per event: tens of thousands of events)."""
+MAX_STORY_DEPTH = 16
+"""JSON nesting of ``story.json`` at most (it has 5: a plan's position in a step in ``steps``)."""
 
 
 class RunFolderError(Exception):
     """A run folder the viewer cannot show (the message names the file and what is wrong)."""
+
+
+class _StoryModel(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+
+class StoryStep(_StoryModel):
+    """One planning step of ``story.json``'s ``steps`` (as ``run_job.story_json`` writes it)."""
+
+    index: int = Field(ge=0)
+    applied_frame: int | None = Field(default=None, ge=0)
+    kind: Literal["wait", "failed", "event"]
+    node: str | None = None
+    feedback: str | None = None
+    characters: tuple[str, ...] = ()
+    activity: str = ""
+    plans: tuple[PlannedCharacter, ...] = ()
+
+
+class StoryInstruction(_StoryModel):
+    """One instruction of ``story.json``'s ``instructions``."""
+
+    frame: int = Field(ge=0)
+    time_s: float = Field(ge=0)
+    source: str
+    text: str
+
+
+class StoryFile(_StoryModel):
+    """``story.json``: what the viewer reads of a finished run (older files lack the later fields)."""
+
+    scene: str | None = None
+    characters: tuple[str, ...] = ()
+    instruction: str = ""
+    instructions: tuple[StoryInstruction, ...] = ()
+    fps: float = Field(default=30.0, gt=0)
+    frames: int | None = Field(default=None, ge=0)
+    steps: tuple[StoryStep, ...] = ()
+    events: tuple[StoryEventRecord, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -113,23 +158,9 @@ def load_run(folder: Path) -> RunData:
     if not folder.is_dir():
         raise RunFolderError(f"{folder}: not a folder (expected the --out folder of `storyteller run`)")
     story_path = folder / STORY_FILE
-    if not story_path.is_file():
+    if not story_path.exists() and not story_path.is_symlink():  # a link or a device there is read, and refused
         return _live_run(folder)
-    try:
-        story = json.loads(story_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise RunFolderError(f"{story_path}: not readable as JSON ({exc})") from None
-    if not isinstance(story, dict):
-        raise RunFolderError(f"{story_path}: expected a JSON object")
-    try:
-        events = tuple(StoryEventRecord.model_validate(e) for e in story.get("events", []))
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"])
-        raise RunFolderError(f"{story_path}: field 'events' ({where}): {err['msg']}") from None
-    fps = story.get("fps", 30)
-    if not isinstance(fps, int | float) or fps <= 0:
-        raise RunFolderError(f"{story_path}: field 'fps': expected a positive number, got {fps!r}")
+    story = read_story_file(story_path)
     tracks = []
     for path in sorted(folder.glob(f"*{TRACK_SUFFIX}")):
         try:
@@ -137,40 +168,53 @@ def load_run(folder: Path) -> RunData:
         except (CharacterTrackError, OSError, ValueError) as exc:
             raise RunFolderError(f"{path}: {exc}") from None
     have = {t.name for t in tracks}
-    tracks += _chunk_tracks(folder, [str(n) for n in story.get("characters", []) if n not in have], float(fps))
-    order = {name: i for i, name in enumerate(story.get("characters", []))}
+    tracks += _chunk_tracks(folder, [n for n in story.characters if n not in have], story.fps)
+    order = {name: i for i, name in enumerate(story.characters)}
     tracks.sort(key=lambda t: (order.get(t.name, len(order)), t.name))
-    scene, note = _scene_of(folder, story.get("scene"))
+    scene, note = _scene_of(folder, story.scene)
     return RunData(
         folder=folder,
         scene=scene,
         scene_note=note,
-        fps=float(fps),
+        fps=story.fps,
         tracks=tuple(tracks),
-        events=_with_texts(events, story.get("steps"), scene),
-        instruction=str(story.get("instruction", "")),
+        events=_with_texts(story.events, story.steps, scene),
+        instruction=story.instruction,
     )
 
 
-def _with_texts(events: tuple[StoryEventRecord, ...], steps: object, scene: Scene | None) -> tuple[StoryEventRecord, ...]:
+def read_story_file(path: Path) -> StoryFile:
+    """``story.json`` read within :data:`MAX_STORY_BYTES` and :data:`MAX_STORY_DEPTH` and
+    validated; :class:`RunFolderError` (one line naming the file and the field) otherwise."""
+    try:
+        raw = load_bounded_json(read_bounded_bytes(path, MAX_STORY_BYTES, str(path)), MAX_STORY_DEPTH, str(path))
+    except BoundedFileError as exc:
+        raise RunFolderError(f"{path}: not readable as JSON ({exc.problem})") from None
+    if not isinstance(raw, dict):
+        raise RunFolderError(f"{path}: expected a JSON object")
+    try:
+        return StoryFile.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        top, *rest = [str(p) for p in err["loc"]] or ["(file)"]
+        where = f"field '{top}' ({'.'.join(rest)})" if rest else f"field '{top}'"
+        raise RunFolderError(f"{path}: {where}: {err['msg']}") from None
+
+
+def _with_texts(
+    events: tuple[StoryEventRecord, ...], steps: tuple[StoryStep, ...], scene: Scene | None
+) -> tuple[StoryEventRecord, ...]:
     """The events of an older ``story.json`` (no ``text``) with their plan sentences, built from
     their steps' plans (``agents.story_text``), never from the narrator's activity."""
     if all(e.text for e in events):
         return events
-    from agents.messages import PlannedCharacter
     from agents.story_text import plan_text
 
-    plans_of = {s.get("index"): s.get("plans") for s in steps if isinstance(s, dict) and s.get("kind") == "event"} \
-        if isinstance(steps, list) else {}
+    plans_of = {s.index: s.plans for s in steps if s.kind == "event"}
     out = []
     for e in events:
         if not e.text:
-            raw = plans_of.get(e.index)
-            try:
-                planned = [PlannedCharacter.model_validate(p) for p in raw] if isinstance(raw, list) else []
-            except ValidationError:
-                planned = []
-            e = e.model_copy(update={"text": plan_text(e.characters, planned, scene)})
+            e = e.model_copy(update={"text": plan_text(e.characters, list(plans_of.get(e.index, ())), scene)})
         out.append(e)
     return tuple(out)
 
@@ -233,5 +277,5 @@ def _scene_of(folder: Path, name: object) -> tuple[Scene | None, str | None]:
 
 __all__ = [
     "SCENE_FILE", "STORY_FILE", "STREAM_FILE", "TRACK_SUFFIX", "RunData", "RunFolderError", "StoryEventRecord",
-    "folder_stamp", "is_ready", "load_run",
+    "StoryFile", "folder_stamp", "is_ready", "load_run", "read_story_file",
 ]  # fmt: skip
