@@ -239,3 +239,38 @@ def test_a_run_whose_narrator_contradicts_its_plans_tells_the_plans(tmp_path: Pa
     run = load_run(out)
     assert [event_line(e, run.fps).split(" s  ", 1)[1] for e in run.events] == [
         "Ava makes coffee at the coffee maker. (done)", "Ava sits on the couch and drinks. (done)"]  # fmt: skip
+
+
+def test_the_fidelity_check_finds_a_text_that_misses_its_plan_and_a_raw_id(tmp_path: Path) -> None:
+    from benchmark.story_text_fidelity import check_run
+
+    steps = [{"index": i, "applied_frame": i, "kind": "event", "characters": ["Ava"], "activity": "a",
+              "plans": [{"character": "Ava", "action": "drink", "area": "sit on couch_1", "position": [1.0, 2.0],
+                         "facing": [1.0, 0.0], "seat": "couch_1"}]} for i in (0, 1)]  # fmt: skip
+    events = [{"event_id": f"event-000{i}", "index": i, "characters": ["Ava"], "activity": "a", "requested_frame": i,
+               "applied_frame": i, "state": "ongoing", "finished_frame": None, "failure": None, "text": text}
+              for i, text in enumerate(["Ava sits on the couch and drinks.", "Ava makes coffee sitting on couch_1."])]  # fmt: skip
+    story = {"scene": "home", "characters": ["Ava"], "instruction": "", "fps": 30, "frames": 9, "steps": steps, "events": events}
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "story.json").write_text(json.dumps(story), encoding="utf-8")
+    (folder / "story.md").write_text(story_markdown(story), encoding="utf-8")
+    check = check_run(folder)
+    assert (check.events, check.faithful) == (2, 1) and check.misses[0].startswith("event-0001")
+    assert check.raw_ids == ["couch_1"]  # written as couch\_1 in the prose
+
+
+def test_story_md_says_waits_once_per_run_and_not_beside_a_starting_event() -> None:
+    plans = [{"character": "Ava", "action": "drink", "area": "sit on couch_1", "position": [1.0, 2.0],
+              "facing": [1.0, 0.0], "seat": "couch_1"}]  # fmt: skip
+    steps = [{"index": 0, "applied_frame": 30, "kind": "event", "characters": ["Ava"], "activity": "a", "plans": plans},
+             {"index": 1, "applied_frame": 30, "kind": "wait", "text": step_text(None)},
+             {"index": 2, "applied_frame": 60, "kind": "wait", "text": step_text(None)},
+             {"index": 3, "applied_frame": 90, "kind": "wait", "text": step_text(None)}]  # fmt: skip
+    event = {"event_id": "event-0000", "index": 0, "characters": ["Ava"], "activity": "a", "requested_frame": 30,
+             "applied_frame": 30, "state": "completed", "finished_frame": 120, "failure": None,
+             "text": "Ava sits on the couch and drinks."}  # fmt: skip
+    md = story_markdown({"scene": "home", "characters": ["Ava"], "instruction": "", "fps": 30, "frames": 150,
+                         "steps": steps, "events": [event]})  # fmt: skip
+    assert md.count("Nothing new starts") == 1 and "\n00:02.0 \u2014 Nothing new starts" in md
+    assert md.index("Ava sits on the couch") < md.index("Nothing new starts")

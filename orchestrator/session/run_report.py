@@ -72,10 +72,11 @@ def story_markdown(story: dict[str, Any]) -> str:
     happenings.sort(key=lambda h: (h[0], h[1]))
     if not story["events"]:
         lines += ["No event was applied.", ""]
+    event_frames = {int(e["applied_frame"]) for e in story["events"]}
     previous = ""
     for frame, _, kind, item in happenings:
-        if kind == "wait" and previous == "wait":
-            continue  # a run of waits is one line
+        if kind == "wait" and (previous == "wait" or frame in event_frames):
+            continue  # a run of waits is one line; beside an event that starts then, none
         previous = kind
         if kind == "event":
             lines += [_event_paragraph(item, plans_of.get(item["index"], []), fps), ""]
@@ -103,7 +104,7 @@ def _event_paragraph(e: dict[str, Any], plans: list[Any], fps: int) -> str:
     if e.get("narration"):
         parts.append(f"In the narrator's words: \u201c{md_text(str(e['narration']).rstrip('. '))}\u201d.")
     if e.get("part"):
-        parts.append(f"This carries out the instruction's part \u201c{md_text(e['part'])}\u201d.")
+        parts.append(f"This carries out the instruction's part \u201c{md_text(str(e['part']).rstrip('. '))}\u201d.")
     if e["state"] == "failed":
         at = f" at {clock(int(e['finished_frame']), fps)}" if e["finished_frame"] is not None else ""
         parts.append(f"It fails{at} \\(see below\\).")
