@@ -29,6 +29,11 @@ Layout of the TOML file (every table and key is optional)::
     [trace]
     fsync = "always"            # always | close | never
 
+Bounded: the file is read within ``MAX_CONFIG_BYTES`` (a regular file, ``sim.bounded_files``),
+nesting that overflows the TOML reader and integers too long to convert are a
+:class:`ConfigError`, and every number is finite and within its field's range: a delay or a
+timeout is at most ``MAX_DELAY_S`` / ``MAX_TIMEOUT_S`` seconds, never infinite.
+
 Secrets never live in the file: a key named like ``api_key``, ``token``, ``secret`` or
 ``password`` is a :class:`ConfigError`; name the environment variable with ``api_key_env``.
 
@@ -73,22 +78,30 @@ class ConfigError(ValueError):
         super().__init__(f"{where}: {message}")
 
 
+MAX_CONFIG_BYTES = 1024 * 1024
+"""Bytes of a config file (a full one takes about 1 KB)."""
+MAX_DELAY_S = 600.0
+"""Seconds of the longest retry delay a config may ask for."""
+MAX_TIMEOUT_S = 86_400.0
+"""Seconds of the longest per-attempt timeout a config may ask for (a day)."""
+
+
 class RetryConfig(BaseModel):
     """Retry policy for transient errors of one model (rate limit, timeout, connection, 5xx)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     max_attempts: int = Field(default=3, ge=1, le=20, description="Attempts per model, >= 1.")
-    backoff_base_s: float = Field(default=0.5, ge=0.0, description="First retry delay, seconds.")
-    backoff_max_s: float = Field(default=8.0, ge=0.0, description="Cap of one delay, seconds.")
+    backoff_base_s: float = Field(default=0.5, ge=0.0, le=MAX_DELAY_S, description="First retry delay, seconds.")
+    backoff_max_s: float = Field(default=8.0, ge=0.0, le=MAX_DELAY_S, description="Cap of one delay, seconds.")
     jitter: float = Field(default=0.25, ge=0.0, le=1.0, description="Relative jitter of a delay.")
-    seed: int = Field(default=0, description="Seed of the jitter RNG.")
+    seed: int = Field(default=0, ge=-(2**63), lt=2**63, description="Seed of the jitter RNG.")
 
 
 class NodeConfig(BaseModel):
     """The resolved LLM settings of one graph node."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     model: str = Field(default=DEFAULT_MODEL, min_length=1)
     temperature: float = Field(default=0.0, ge=0.0, le=2.0)
@@ -97,7 +110,7 @@ class NodeConfig(BaseModel):
         description="Cap on generated tokens; a request's own max_tokens can only lower it.",
     )
     timeout_s: float = Field(
-        default=120.0, gt=0.0,
+        default=120.0, gt=0.0, le=MAX_TIMEOUT_S,
         description="Per-attempt timeout, seconds. For a local model a hard cap: its calls are limited by "
         "their progress (orchestrator.llm.decode_progress); when not set, a local call may take what the "
         "progress floors allow, at least this (orchestrator.llm.local_model.local_timeout_s).",
@@ -217,6 +230,27 @@ def _env_overrides(node: NodeName, env: Mapping[str, str]) -> dict[str, Any]:
     return out
 
 
+def _read_toml(path: Path, source: str) -> dict[str, Any]:
+    """The TOML table of a config file, read within :data:`MAX_CONFIG_BYTES`."""
+    from sim.bounded_files import BoundedFileError, read_bounded_bytes
+
+    try:
+        raw = read_bounded_bytes(path, MAX_CONFIG_BYTES, source)
+    except BoundedFileError as exc:
+        problem = "config file not found" if exc.problem == "file not found" else exc.problem
+        raise ConfigError(source, None, problem) from None
+    try:
+        return tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ConfigError(source, None, f"cannot read config file (not UTF-8: bad byte at offset {exc.start})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(source, None, f"not valid TOML ({exc})") from None
+    except RecursionError:  # tomllib is recursive: arrays or tables nested hundreds deep
+        raise ConfigError(source, None, "not valid TOML (nested too deeply)") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        raise ConfigError(source, None, f"not valid TOML ({' '.join(str(exc).split())[:200]})") from None
+
+
 def load_config(path: Path | str | None = None, env: Mapping[str, str] | None = None) -> StorytellerConfig:
     """Read the config file (``path``, else ``$STORYTELLER_CONFIG``, else defaults) and apply
     environment overrides. Raises :class:`ConfigError` with a one-line message on any problem."""
@@ -228,14 +262,7 @@ def load_config(path: Path | str | None = None, env: Mapping[str, str] | None = 
     if path is not None:
         p = Path(path)
         source = str(p)
-        try:
-            data = tomllib.loads(p.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigError(source, None, "config file not found") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(source, None, f"cannot read config file ({exc})") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(source, None, f"not valid TOML ({exc})") from None
+        data = _read_toml(p, source)
     secret = _find_secret(data, "")
     if secret:
         raise ConfigError(

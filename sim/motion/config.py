@@ -15,6 +15,10 @@ Example::
     loops = false
     mapping = { spine3 = "chest" }    # BVH joint-name overrides (our name = file name)
 
+The file is read within ``MAX_MOTION_CONFIG_BYTES`` (a regular file); TOML nested too deeply for
+the reader, integers too long to convert and non-finite or out-of-range numbers are a
+``MotionConfigError`` naming the file.
+
 Labels the config does not cover keep their procedural clips. Imported clips are cached on
 disk (in the folder the caller passes, if any) keyed by the file's SHA-256 and the clip
 parameters.
@@ -25,11 +29,12 @@ from __future__ import annotations
 import tomllib
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.motion.action_labels import UnknownActionLabelError, database_key
 from sim.motion.cache import cached_arrays, file_sha256
 from sim.motion.clips import MotionClip
@@ -39,6 +44,10 @@ from sim.motion.sources.amass_import import import_amass
 from sim.motion.sources.bvh_import import import_bvh
 
 IMPORTER_VERSION = "mocap-import-1"
+MAX_MOTION_CONFIG_BYTES = 1024 * 1024
+"""Bytes of a motion config file."""
+MAX_SOURCE_FRAME = 10**9
+"""Largest frame number a clip entry may name."""
 
 
 class MotionConfigError(ValueError):
@@ -51,13 +60,13 @@ class MotionConfigError(ValueError):
 
 
 class ClipEntry(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     file: str = Field(description="BVH or AMASS .npz path, relative to the config's root")
     label: str = Field(description="action label the clip animates")
-    start: int = Field(0, ge=0, description="first source frame")
-    end: int | None = Field(None, ge=2, description="end source frame (exclusive)")
-    fps: float | None = Field(None, gt=0, description="source frame rate override (frames/s)")
+    start: int = Field(0, ge=0, le=MAX_SOURCE_FRAME, description="first source frame")
+    end: int | None = Field(None, ge=2, le=MAX_SOURCE_FRAME, description="end source frame (exclusive)")
+    fps: float | None = Field(None, gt=0, le=10_000, description="source frame rate override (frames/s)")
     seated: bool = False
     loops: bool = False
     mapping: dict[str, str] = Field(default_factory=dict, description="our joint name -> file joint name")
@@ -74,12 +83,14 @@ class ClipEntry(BaseModel):
 
 
 class MotionConfig(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     root: str = "."
     replace_procedural: bool = True
     clips: tuple[ClipEntry, ...] = ()
-    weights: dict[str, float] = Field(default_factory=dict, description="feature group weights")
+    weights: dict[str, Annotated[float, Field(ge=-1e6, le=1e6)]] = Field(
+        default_factory=dict, description="feature group weights (finite)"
+    )
     base_dir: str = Field(".", description="directory of the config file (set by the loader)")
 
     def resolve(self, entry: ClipEntry) -> Path:
@@ -94,11 +105,17 @@ def load_motion_config(path: str | Path) -> MotionConfig:
     """Read and validate a motion config TOML file; raises MotionConfigError."""
     path = Path(path)
     try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise MotionConfigError(path, f"cannot read ({exc.strerror})") from None
+        raw = tomllib.loads(read_bounded_bytes(path, MAX_MOTION_CONFIG_BYTES, str(path)).decode("utf-8"))
+    except BoundedFileError as exc:
+        raise MotionConfigError(path, f"cannot read ({exc.problem})") from None
+    except UnicodeDecodeError as exc:
+        raise MotionConfigError(path, f"cannot read (not UTF-8: bad byte at offset {exc.start})") from None
     except tomllib.TOMLDecodeError as exc:
         raise MotionConfigError(path, f"invalid TOML: {exc}") from None
+    except RecursionError:  # tomllib is recursive: arrays or tables nested hundreds deep
+        raise MotionConfigError(path, "invalid TOML: nested too deeply") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        raise MotionConfigError(path, f"invalid TOML: {' '.join(str(exc).split())[:200]}") from None
     try:
         return MotionConfig.model_validate({**raw, "base_dir": str(path.resolve().parent)})
     except ValidationError as exc:
