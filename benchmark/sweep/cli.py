@@ -54,7 +54,8 @@ def _guard(fn: Any) -> Any:
 def run_command(
     out: Annotated[Path, typer.Option("--out", help="Sweep folder (created; reused to resume).")],
     cases: Annotated[list[str] | None, typer.Option(
-        "--cases", help="Case set: reference (default: the authors' 40 cases), ours, or a folder in the reference format. Repeatable.")] = None,
+        "--cases", help="Case set: reference (default: the authors' 40 cases), ours (our whole pool), ours-dev / ours-test "
+        "(one side of its split: develop on dev only), or a folder in the reference format. Repeatable.")] = None,
     level: Annotated[list[int] | None, typer.Option("--level", help="Distraction level 0-2 (default 2). Repeatable.")] = None,
     repeats: Annotated[int, typer.Option("--repeats", min=1, help="Runs per case, seeds seed..seed+repeats-1.")] = 1,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the first repeat.")] = 0,

@@ -71,7 +71,9 @@ class SweepWorkspace:
                     locate_reference().require()  # absent: its reason says how to provide it
                 raise SweepSpecError(f"case set {cs.name!r}: {cs.path} is not a folder on this machine")
         self.cases: dict[str, dict[int, BenchmarkCase]] = {
-            cs.name: {c.id: c for c in load_cases(cs.path, spec.case_ids)} for cs in spec.case_sets
+            cs.name: {c.id: c for c in load_cases(cs.path, spec.case_ids)
+                      if cs.case_ids is None or c.id in cs.case_ids}
+            for cs in spec.case_sets
         }
         self._scenes: dict[tuple[str | None, str], tuple[Scene, Any]] = {}
 

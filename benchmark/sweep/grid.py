@@ -18,8 +18,9 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer
 
 from orchestrator.llm.config import StorytellerConfig
 from orchestrator.planning.ablation_graph import Ablation
@@ -61,6 +62,17 @@ class CaseSetSpec(_Frozen):
     scenes_root: str | None = Field(
         default=None, description="Folder holding configs/scenes/<Scene> for the cases' non-bundled scenes "
         "(None: every case is on a bundled scene, the reference data is not needed).")
+    case_ids: tuple[int, ...] | None = Field(
+        default=None, description="Only these cases of the folder (ours-dev / ours-test: one side of the "
+        "committed split); None: every case.")
+
+    @model_serializer(mode="wrap")
+    def _omit_all_cases(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Without ``case_ids`` when it is None: a sweep.json written before the field existed stays byte for byte."""
+        data: dict[str, Any] = handler(self)
+        if data.get("case_ids") is None:
+            data.pop("case_ids", None)
+        return data
 
 
 class ModelSpec(_Frozen):
@@ -149,9 +161,14 @@ def expand(spec: SweepSpec, case_ids: dict[str, Sequence[int]]) -> list[RunKey]:
     ]
 
 
+OURS_SPLITS: dict[str, str] = {"ours-dev": "dev", "ours-test": "test"}
+"""Case-set names for one side of our pool's committed split (``benchmark/own_cases/split.json``)."""
+
+
 def case_set_for(arg: str, reference: DataFolder, ours: Path) -> CaseSetSpec:
     """The case set named on the command line: ``reference`` (the authors' 40 cases), ``ours``
-    (``benchmark/cases/ours``) or a folder in the reference format.
+    (``benchmark/cases/ours``, the whole pool), ``ours-dev`` / ``ours-test`` (one side of its
+    split: levers are developed on dev only, test is measured) or a folder in the reference format.
 
     ``reference`` (the lookup of :func:`~orchestrator.reference_data.locate_reference`) is
     required only by the case sets that need it: ``reference`` itself, and a folder outside the
@@ -164,9 +181,14 @@ def case_set_for(arg: str, reference: DataFolder, ours: Path) -> CaseSetSpec:
     if arg == "ours":
         path = ours.resolve()
         return CaseSetSpec(name="ours", path=str(path), scenes_root=_scenes_root(path, reference))
+    if arg in OURS_SPLITS:
+        from benchmark.own_cases.split import split_ids
+
+        whole = case_set_for("ours", reference, ours)
+        return whole.model_copy(update={"name": arg, "case_ids": split_ids(OURS_SPLITS[arg])})
     path = Path(arg).expanduser().resolve()
     if not path.is_dir():
-        raise SweepSpecError(f"--cases {arg}: not a folder (expected reference, ours or a case folder)")
+        raise SweepSpecError(f"--cases {arg}: not a folder (expected reference, ours, ours-dev, ours-test or a case folder)")
     if path == ours.resolve():
         return case_set_for("ours", reference, ours)
     root = next((p for p in (path, *path.parents) if (p / "configs" / "scenes").is_dir()), None)
