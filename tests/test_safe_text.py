@@ -19,7 +19,6 @@ import sys
 import unicodedata
 from pathlib import Path
 
-import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from rich.text import Text
@@ -27,10 +26,8 @@ from typer.testing import CliRunner
 
 from orchestrator.cli.app import app
 from orchestrator.safe_text import markdown, markup, plain
-from sim.body.skeleton import NUM_JOINTS, heading_to_root
 from sim.scene.bundled import load_bundled_scene
-from sim.scene.files import save_scene_json
-from sim.world.character_track import CharacterTrack
+from tests.support.tiny_run import write_tiny_run
 
 BANNED = frozenset({"Cc", "Cf", "Zl", "Zp", "Cs"})
 # every kind the issue names: markup, CSI and OSC sequences, BEL, bidi, separators, zero widths
@@ -124,31 +121,8 @@ def test_scene_inspect_error_line_from_a_hostile_file_is_one_clean_line(tmp_path
 
 # ----- view --export ----------------------------------------------------------------------------
 def test_view_export_writes_a_run_whose_activity_holds_a_lone_surrogate(tmp_path: Path) -> None:
-    folder = tmp_path / "run"
-    folder.mkdir()
-    activity = "Ava \udc80 waves \x1b[31m\u202e"
-    event = {
-        "event_id": "event-0000",
-        "index": 0,
-        "characters": ["Ava"],
-        "activity": activity,
-        "requested_frame": 0,
-        "applied_frame": 0,
-        "state": "ongoing",
-        "finished_frame": None,
-        "failure": None,
-    }
-    story = {"scene": "home", "characters": ["Ava"], "instruction": activity, "fps": 30, "frames": 20,
-             "steps": [], "events": [event]}  # fmt: skip
-    (folder / "story.json").write_text(
-        json.dumps(story), encoding="utf-8"
-    )  # \udc80 as a JSON escape
-    rot = np.broadcast_to(np.eye(3), (20, NUM_JOINTS, 3, 3)).copy()
-    rot[:, 0] = heading_to_root(0.0)
-    root = np.column_stack([np.full(20, 1.0), np.full(20, 2.0), np.full(20, 0.92)])
-    CharacterTrack(name="Ava", root_positions=root, local_rotations=rot,
-                   action_labels=(activity,) * 20).save(folder / "Ava.track.npz")  # fmt: skip
-    save_scene_json(load_bundled_scene("home"), folder / "scene.json")
+    activity = "Ava \udc80 waves \x1b[31m\u202e"  # story.json holds \udc80 as a JSON escape
+    folder = write_tiny_run(tmp_path / "run", activity=activity, instruction=activity)
     out = tmp_path / "story.html"
     result = CliRunner().invoke(app, ["view", str(folder), "--export", str(out)])
     assert result.exit_code == 0, result.output

@@ -1,7 +1,10 @@
 """``storyteller view RUN_DIR``: watch a run in the browser (logic in ``orchestrator.viewer``).
 
 Serves an interactive 3D viewer on 127.0.0.1 (``--port``, the next free port when taken) and
-prints its URL; ``--export FILE`` instead writes one self-contained HTML file that plays the
+prints its URL. It answers only the pages it served (no other site's page, no DNS rebinding:
+``orchestrator.viewer.access``). ``--host`` listens on another address (``0.0.0.0``: every
+interface), for other machines: then the printed URL carries a token made for this viewer, which
+every request must bring, and the line says who can reach it; ``--export FILE`` instead writes one self-contained HTML file that plays the
 story. ``--smplx-model DIR`` shows each character's SMPL-X body (computed from its
 ``<name>.smplx.npz`` with the model files in DIR) instead of the stand-in figure. ``viser``,
 ``smplx`` and ``torch`` are imported only when the command runs.
@@ -15,6 +18,7 @@ from typing import Annotated
 import typer
 
 from orchestrator.cli.options import fail
+from orchestrator.safe_text import plain
 
 
 def register(app: typer.Typer) -> None:
@@ -23,7 +27,8 @@ def register(app: typer.Typer) -> None:
 
 def view_command(
     run_dir: Annotated[Path, typer.Argument(help="Output folder of `storyteller run` (may still be running).")],
-    port: Annotated[int, typer.Option("--port", min=0, max=65535, help="Port on 127.0.0.1 (0: any free port).")] = 8080,
+    port: Annotated[int, typer.Option("--port", min=0, max=65535, help="Port to listen on (0: any free port).")] = 8080,
+    host: Annotated[str, typer.Option("--host", help="Address to listen on. 127.0.0.1 (the default): this machine only. Any other (0.0.0.0: every interface) lets other machines connect, with the token in the printed URL.")] = "127.0.0.1",
     export: Annotated[Path | None, typer.Option("--export", help="Write a self-contained HTML file instead of serving.")] = None,
     play: Annotated[bool, typer.Option("--play/--paused", help="Start playing as soon as the run is loaded.")] = False,
     smplx_model: Annotated[Path | None, typer.Option("--smplx-model", help="Folder with the SMPL-X model files (SMPLX_NEUTRAL.npz ...): show body meshes instead of stand-in figures.")] = None,
@@ -46,7 +51,7 @@ def view_command(
             fail(str(exc))
         except OSError as exc:
             fail(f"{export}: cannot write ({exc.strerror})")
-        typer.echo(f"wrote {export}")
+        typer.echo(f"wrote {plain(export)}")
         return
     if run_dir.exists() and not run_dir.is_dir():
         fail(f"{run_dir}: not a folder (expected the --out folder of `storyteller run`)")
@@ -54,9 +59,20 @@ def view_command(
 
     from orchestrator.viewer.server import ViewerApp
 
-    viewer = ViewerApp(run_dir, port=port, autoplay=play, smplx_model=smplx_model)
+    try:
+        viewer = ViewerApp(run_dir, port=port, host=host, autoplay=play, smplx_model=smplx_model)
+    except OSError as exc:  # an address this machine does not have, or cannot resolve
+        fail(f"--host {host}: cannot listen there ({exc.strerror or exc})")
     viewer.start()
-    typer.echo(f"viewing {run_dir} at {viewer.url} (Ctrl-C to stop)", err=False)
+    if viewer.access.token is None:
+        typer.echo(f"viewing {plain(run_dir)} at {viewer.url} (this machine only; Ctrl-C to stop)")
+    else:
+        where = "every address of this machine" if viewer.access.wildcard else plain(host)
+        typer.echo(
+            f"viewing {plain(run_dir)} at {viewer.url} (Ctrl-C to stop)\n"
+            f"  listening on {where}, port {viewer.server.get_port()}: any machine that can reach it there can "
+            "connect, and only with this URL's token sees the run and controls the viewer; keep the URL private"
+        )
     try:
         threading.Event().wait()
     except KeyboardInterrupt:

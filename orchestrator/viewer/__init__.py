@@ -13,12 +13,16 @@ What lives here:
 - :mod:`.scene_view` puts a run into a ``viser`` scene (boxes, paths, figures, labels) and
   shows one frame; with ``--smplx-model`` the figures are the characters' SMPL-X bodies, computed
   by :mod:`orchestrator.bodies` (``smplx`` and ``torch`` load only then); :mod:`.server` adds the timeline and event-list controls and serves it;
-  :mod:`.export` records the whole story into one self-contained HTML file.
+  :mod:`.export` records the whole story into one self-contained HTML file;
+- :mod:`.access` decides which requests the server answers (its own pages; with a token when it
+  listens beyond this machine) and :mod:`.guarded_server` applies that to viser's server.
 
 May import ``sim`` and the rest of ``orchestrator``; ``viser`` only inside :mod:`.scene_view`,
-:mod:`.server` and :mod:`.export`, which the command imports lazily.
+:mod:`.server`, :mod:`.guarded_server` and :mod:`.export`, which the command imports lazily.
 
 Guarantees: the viewer only reads the run folder (it never writes there); every frame it
 shows is a frame of the exported tracks (no resampling); the server listens on 127.0.0.1
-only and needs no network (the browser client is the one built into the ``viser`` wheel).
+unless ``--host`` says otherwise, answers no page of another site and no request naming another
+host (and, beyond 127.0.0.1, none without its token), never opens viser's share tunnel, and
+needs no network (the browser client is the one built into the ``viser`` wheel).
 """

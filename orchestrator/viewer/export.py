@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import viser
-
+from orchestrator.viewer.access import ViewerAccess
+from orchestrator.viewer.guarded_server import guarded_server
 from orchestrator.viewer.run_folder import load_run
 from orchestrator.viewer.scene_view import SceneView
 
@@ -33,7 +33,8 @@ def export_html(folder: Path, out: Path, smplx_model: Path | None = None) -> Pat
 
         bodies = run_bodies(folder, [t.name for t in run.tracks], SmplxModels(smplx_model))
     stride = max(1, round(run.fps / EXPORT_FPS))
-    server = viser.ViserServer(host="127.0.0.1", port=0, label="storyteller", verbose=False)
+    # a server only to record the scene: on loopback, answering only its own pages (none open)
+    server = guarded_server(ViewerAccess.for_host("127.0.0.1"), port=0, label="storyteller", verbose=False)
     try:
         view = SceneView(server, run, bodies=bodies)
         view.show(0)

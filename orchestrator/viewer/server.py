@@ -7,6 +7,10 @@ Text from the run folder (its name, the instruction, activities, error messages)
 panel's markdown gets it through :func:`orchestrator.safe_text.markdown` (viser renders raw HTML
 in markdown), buttons and labels through :func:`orchestrator.safe_text.plain`.
 
+Who may connect: the pages this viewer served, checked on every request
+(:mod:`.access`, applied by :mod:`.guarded_server`); on a host beyond loopback only with the
+token of :attr:`ViewerApp.url`. viser's share button (a public tunnel) is hidden and refused.
+
 Playback runs on a thread of this process: it advances the frame by ``speed * fps`` per wall
 second and stops at the last frame. A second thread polls the run folder
 (:func:`~.run_folder.folder_stamp`) and reloads the run when a file it shows changes.
@@ -23,6 +27,7 @@ run on screen and says why in the panel.
 
 from __future__ import annotations
 
+import socket
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -32,11 +37,13 @@ import viser
 
 from orchestrator.bodies.smplx_meshes import SmplxBody, SmplxModelError, SmplxModels, run_bodies
 from orchestrator.safe_text import markdown
+from orchestrator.viewer.access import TOKEN_PARAM, ViewerAccess, authority
+from orchestrator.viewer.guarded_server import guarded_server
 from orchestrator.viewer.run_folder import RunData, RunFolderError, folder_stamp, is_ready, load_run
 from orchestrator.viewer.scene_view import SceneView
 from orchestrator.viewer.timeline import active_events, clock, event_line
 
-HOST = "127.0.0.1"
+HOST = "127.0.0.1"  # the default: this machine only
 SPEEDS = ("0.25", "0.5", "1", "2", "4")
 TICK_S = 1 / 30  # wall seconds between playback steps
 POLL_S = 1.0  # wall seconds between checks of the run folder
@@ -46,11 +53,18 @@ class ViewerApp:
     """Serve one run folder; :meth:`start` returns once the server listens."""
 
     def __init__(
-        self, folder: Path, *, port: int = 8080, autoplay: bool = False, smplx_model: Path | None = None
+        self,
+        folder: Path,
+        *,
+        port: int = 8080,
+        host: str = HOST,
+        autoplay: bool = False,
+        smplx_model: Path | None = None,
     ) -> None:
         self.folder = folder
         self.models = SmplxModels(smplx_model) if smplx_model is not None else None
-        self.server = viser.ViserServer(host=HOST, port=port, label="storyteller", verbose=False)
+        self.access = ViewerAccess.for_host(host)
+        self.server = guarded_server(self.access, port=port, label="storyteller", verbose=False)
         self.lock = threading.RLock()
         self.view: SceneView | None = None
         self.run: RunData | None = None
@@ -62,7 +76,7 @@ class ViewerApp:
         self._event_buttons: list[viser.GuiButtonHandle] = []
         self._active: list[int] = []
         gui = self.server.gui
-        gui.configure_theme(control_width="large")
+        gui.configure_theme(control_width="large", show_share_button=False)
         self.status = gui.add_markdown(f"**{markdown(folder.name)}**")
         with gui.add_folder("Timeline"):
             self.play = gui.add_button("Pause" if autoplay else "Play", icon=None)
@@ -76,7 +90,11 @@ class ViewerApp:
     # ----- lifecycle -----------------------------------------------------------------
     @property
     def url(self) -> str:
-        return f"http://{HOST}:{self.server.get_port()}"
+        """Where to open the viewer; with the token when it listens beyond this machine (a
+        wildcard bind is shown under this machine's host name)."""
+        host = socket.gethostname() if self.access.wildcard else self.access.host
+        base = f"http://{authority(host, self.server.get_port())}"
+        return base if self.access.token is None else f"{base}/?{TOKEN_PARAM}={self.access.token}"
 
     def start(self) -> None:
         """Load the run (or wait for it) and start the playback and folder-watch threads."""
