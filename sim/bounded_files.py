@@ -46,11 +46,13 @@ _NOT_BRACKETS = bytes(c for c in range(256) if c not in b"[]{}")  # deleted by b
 
 
 class BoundedFileError(ValueError):
-    """A file that cannot be read within its limits; ``str()`` is one line for a user."""
+    """A file that cannot be read within its limits; ``str()`` is one line for a user.
+    ``missing``: there is no file at the path (a caller may treat that case apart)."""
 
-    def __init__(self, what: str, problem: str) -> None:
+    def __init__(self, what: str, problem: str, *, missing: bool = False) -> None:
         self.what = what
         self.problem = problem
+        self.missing = missing
         super().__init__(_one_line(f"{what}: {problem}"))
 
 
@@ -64,7 +66,7 @@ def read_bounded_bytes(path: Path | str, max_bytes: int, what: str, *, follow_sy
     try:
         fd = os.open(path, flags)
     except FileNotFoundError:
-        raise BoundedFileError(what, "file not found") from None
+        raise BoundedFileError(what, "file not found", missing=True) from None
     except IsADirectoryError:
         raise BoundedFileError(what, "expected a file, found a folder") from None
     except OSError as exc:
