@@ -340,6 +340,15 @@ def _distance(place: Place, position: tuple[float, float], scene: Scene | None) 
     return sum(float(point_footprint_distance(o, xy)[0]) for o in known) / max(1, len(known))
 
 
+def place_text(plan: PlannedCharacter, scene: Scene | None) -> str:
+    """Where a plan puts its character, in words: "on the couch", "at the coffee maker"; the
+    area text as it is when it reads as no place (an unknown form, "current position")."""
+    names = ObjectNames(scene)
+    if plan.seat:
+        return f"on {names(plan.seat)}"
+    return parse_place(plan.area, plan.position, scene).text(names) or plan.area
+
+
 def planned_object(plan: PlannedCharacter, scene: Scene | None) -> str | None:
     """The object a character's plan is about: its seat, else the first object of its place."""
     if plan.seat:

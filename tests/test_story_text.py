@@ -22,6 +22,7 @@ from agents.story_text import (
     narration,
     noun,
     plan_text,
+    place_text,
     plural,
     step_text,
     with_names,
@@ -99,6 +100,10 @@ def test_areas_read_as_places() -> None:
     assert plan_text(["Ava"], [between], HOME) == "Ava waves between the TV and the couch."
     assert plan_text(["Ava"], [plan("Ava", "open_fridge", "interact with fridge_1")], HOME) == "Ava opens the fridge."
     assert plan_text(["Ava"], [plan("Ava", "drink", "current position")], HOME) == "Ava drinks."
+    # the live view's place column
+    assert place_text(plan("Ava", "drink", "sit on chair_5", "chair_5"), HOME) == "on the chair by the desk (chair_5)"
+    assert place_text(plan("Ava", "use_coffee_maker", "interact with coffee_maker_1"), HOME) == "at the coffee maker"
+    assert place_text(plan("Ava", "drink", "current position"), HOME) == "current position"
 
 
 # ----- names ------------------------------------------------------------------------------------

@@ -22,6 +22,7 @@ from typing import Literal
 
 from agents.llm_port import NodeName, TokenUsage
 from agents.messages import ParsedEvent
+from agents.story_text import place_text
 from orchestrator.session.runtime import Outcome, StoryEvent, TimedInstruction, event_id_for
 from sim.world.event_book import EventStatus
 from sim.world.phases import CharacterState
@@ -53,8 +54,8 @@ def character_activity(c: CharacterState) -> CharacterActivity:
 @dataclass(frozen=True)
 class CharacterRow:
     """One character now. ``event_id`` / ``activity`` / ``action`` / ``place``: its current
-    event, what the event is (its plan sentence), its own action label and where (area, and
-    seat); empty without one."""
+    event, what the event is (its plan sentence), its own action label and where, in words ("on
+    the couch", ``agents.story_text.place_text``); empty without one."""
 
     name: str
     state: CharacterActivity
@@ -181,8 +182,9 @@ class RunStatus:
         """A planning step's outcome was applied (the places of its event's characters)."""
         self._steps += 1
         if isinstance(outcome, ParsedEvent):
+            scene = self._world.scene if self._world is not None else None
             self._places[event_id_for(index)] = {
-                p.character: f"{p.area} (on {p.seat})" if p.seat else p.area for p in outcome.plans
+                p.character: place_text(p, scene) for p in outcome.plans
             }
 
     def instruction(self, timed: TimedInstruction) -> None:
