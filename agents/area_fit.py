@@ -74,7 +74,8 @@ def kind_scores(labels: Iterable[str], table: RoomTable) -> dict[str, float]:
 
 def fitting_kinds(labels: Iterable[str], table: RoomTable) -> tuple[str, ...]:
     """Kinds whose name would fit, best first; () when no label votes. Ties go to the kind the
-    labels list earlier among their rooms (a lone bookshelf: reading corner), then table order."""
+    labels list earlier among their rooms, relative to the lists' lengths (a lone bookshelf:
+    reading corner; laptops on tables among chairs: work area), then table order."""
     labels = list(dict.fromkeys(labels))
     scores = kind_scores(labels, table)
     if not scores:
@@ -83,8 +84,8 @@ def fitting_kinds(labels: Iterable[str], table: RoomTable) -> tuple[str, ...]:
     order = {k: i for i, k in enumerate(table.kinds)}
     rooms = [e.rooms for lab in labels if (e := table.label(lab)) is not None and not e.anywhere]
 
-    def rank(kind: str) -> tuple[float, int, int]:
-        return (-scores[kind], sum(r.index(kind) if kind in r else len(r) for r in rooms), order[kind])
+    def rank(kind: str) -> tuple[float, float, int]:  # a kind's place in each label's list, relative to its length
+        return (-scores[kind], sum((r.index(kind) if kind in r else len(r)) / len(r) for r in rooms), order[kind])
 
     return tuple(sorted((k for k, s in scores.items() if s >= bar), key=rank))
 
