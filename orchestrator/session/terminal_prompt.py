@@ -25,12 +25,13 @@ from typing import Any, Protocol
 
 import structlog
 
+from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
 from orchestrator.session.runtime import InstructionSource
 from orchestrator.session.stdin_instructions import typed_instruction
 
 _log = structlog.get_logger("storyteller.session")
 
-MAX_LINE = 2000
+MAX_LINE = MAX_INSTRUCTION_CHARS
 """Characters a typed line keeps at most (the rest of a longer paste is dropped)."""
 
 
