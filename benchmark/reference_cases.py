@@ -15,11 +15,16 @@ with the package (``bundled:home``; see :func:`scene_dir`).
 :func:`planning_inputs` turns a case into the planner's inputs: the roster
 (:class:`~agents.messages.CharacterStatus`, positions placed by the project's own sampler,
 deterministic per case), the narrator's history and the spatial API's world view.
+
+A case file is outside text: it is read within ``MAX_CASE_BYTES`` and ``MAX_CASE_JSON_DEPTH``
+(``sim.bounded_files``: a regular file, UTF-8, finite numbers, integers of bounded length), and
+a case set's files must be named ``testcase_<id>.json`` with a numeric id; anything else is one
+:class:`BenchmarkCaseError` naming the file.
 """
 
 from __future__ import annotations
 
-import json
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from importlib import resources
@@ -30,12 +35,20 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agents.messages import CharacterStatus, HistoryEntry
 from agents.prompt_templates import BENCHMARK_TAGS
+from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
 from sim.scene.bundled import bundled_scene_names
 from sim.scene.model import Scene
 from tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
 
 TAGS: tuple[str, ...] = ("OA", "RC", "SS", "PI")
 """Object affordance, relationship comprehension, scene-state awareness, position inference."""
+
+
+MAX_CASE_BYTES = 4 * 1024 * 1024
+"""Bytes of one case file (the reference cases take 2-10 KB)."""
+MAX_CASE_JSON_DEPTH = 32
+"""Nesting of a case file (the format needs 5)."""
+_CASE_NAME = re.compile(r"testcase_([0-9]{1,9})")
 
 
 class BenchmarkCaseError(ValueError):
@@ -117,11 +130,9 @@ def load_case(path: str | Path) -> BenchmarkCase:
     """Read one test case; raises :class:`BenchmarkCaseError` naming file and field."""
     path = Path(path)
     try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise BenchmarkCaseError(f"{path}: cannot read ({exc.strerror})") from None
-    except json.JSONDecodeError as exc:
-        raise BenchmarkCaseError(f"{path}: invalid JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+        raw = load_bounded_json(read_bounded_bytes(path, MAX_CASE_BYTES, str(path)), MAX_CASE_JSON_DEPTH, str(path))
+    except BoundedFileError as exc:
+        raise BenchmarkCaseError(str(exc)) from None
     if not isinstance(raw, dict):
         raise BenchmarkCaseError(f"{path}: expected a JSON object")
     try:
@@ -142,6 +153,11 @@ def case_files(reference: str | Path) -> list[Path]:
     if not root.is_dir():
         root = Path(reference)
     found = list(root.glob("*/testcase_*.json")) or list(root.glob("testcase_*.json"))
+    for p in found:
+        if _CASE_NAME.fullmatch(p.stem) is None:
+            raise BenchmarkCaseError(
+                f"{p}: a case file's name must be testcase_<id>.json with a numeric id of at most 9 digits"
+            )
     files = sorted(found, key=lambda p: int(p.stem.split("_")[-1]))
     if not files:
         raise BenchmarkCaseError(

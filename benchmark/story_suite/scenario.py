@@ -29,9 +29,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from benchmark.plan_scoring import ActionExpressionError, action_matches
 from benchmark.position_check import PositionExpressionError, check_position
+from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.scene.model import Scene
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+MAX_SCENARIO_BYTES = 1024 * 1024
+"""Bytes of one scenario file (read as a regular file, ``sim.bounded_files``)."""
 CHARACTER_NAMES = ("Ava", "Ben", "Cleo", "Dan", "Eve", "Finn")
 """``storyteller run -n N`` names its characters in this order (``orchestrator.cli.plan.NAMES``)."""
 
@@ -139,12 +142,18 @@ def load_scenario(path: Path) -> Scenario:
     from sim.scene.bundled import resolve_scene
 
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(read_bounded_bytes(path, MAX_SCENARIO_BYTES, str(path)).decode("utf-8"))
         scenario = Scenario.model_validate({"name": path.stem, **data})
         scene = resolve_scene(scenario.scene)
         _check_against_scene(scenario, scene, scene_action_labels(scene))
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ScenarioError(f"{path}: cannot read ({exc})") from None
+    except BoundedFileError as exc:
+        raise ScenarioError(str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{path}: cannot read (not UTF-8: bad byte at offset {exc.start})") from None
+    except RecursionError:  # tomllib is recursive: arrays or tables nested hundreds deep
+        raise ScenarioError(f"{path}: cannot read (TOML nested too deeply)") from None
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])
