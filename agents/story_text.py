@@ -410,38 +410,38 @@ def _sentence(who: list[str], does: str, do: str | None = None) -> str:
 
 
 def plan_text(characters: Sequence[str], plans: Sequence[PlannedCharacter], scene: Scene | None) -> str:
-    """The plain-English sentences of one event's plans (see the module docstring)."""
+    """The plain-English sentences of one event's plans (see the module docstring): one per
+    action label, in the order the plans give them; characters with the same clause share it
+    ("Ben and Cy sit on the couch and watch TV."), and those doing one action at different
+    places are told together with each one's place ("Ben and Cy chat, Ben on the armchair and
+    Cy by the TV.")."""
     if not plans:
         return _sentence(list(characters), "carries on") if characters else "Nobody does anything new."
     names = ObjectNames(scene)
     clauses = [_clause(p, names) for p in plans]
-    sentences: list[str] = []
-    done: set[int] = set()
-    for i, c in enumerate(clauses):
-        if i in done:
-            continue
-        if _is_social(c.label):
-            group = [j for j, d in enumerate(clauses) if d.label == c.label and j not in done]
-        else:
-            group = [j for j, d in enumerate(clauses) if d.does == c.does and j not in done]
-        done.update(group)
-        who = [clauses[j].character for j in group]
-        sentences.append(_group_sentence(who, [clauses[j] for j in group], clauses))
-    return " ".join(sentences)
+    by_label: dict[str, dict[str, list[_Clause]]] = {}
+    for c in clauses:
+        by_label.setdefault(c.label, {}).setdefault(c.does, []).append(c)
+    return " ".join(_label_sentences(list(same.values()), clauses) for same in by_label.values())
 
 
-def _group_sentence(who: list[str], group: list[_Clause], everyone: list[_Clause]) -> str:
-    first = group[0]
-    if not _is_social(first.label):
-        return _sentence(who, first.does, first.do)
+def _label_sentences(groups: list[list[_Clause]], everyone: list[_Clause]) -> str:
+    """The sentences of one action label: ``groups`` of characters with the same clause."""
+    first = groups[0][0]
     phrase = phrase_of(first.label)
-    others = [c.character for c in everyone if _is_social(c.label) and c.character not in who]
-    if len(group) == 1:
-        return _sentence(who, _with_partners(first, phrase, others))
-    if all(c.does == first.does for c in group):
-        return _sentence(who, first.does, first.do)
-    spots = join_names([f"{c.character} {c.where}".rstrip() for c in group])
-    return f"{join_names(who)} {plural(phrase.does)}, {spots}."
+    who = [c.character for g in groups for c in g]
+    if len(groups) > 1 and all(c.where for g in groups for c in g):
+        spots = join_names([f"{join_names([c.character for c in g])} {g[0].where}" for g in groups])
+        return f"{join_names(who)} {plural(phrase.does)}, {spots}."
+    out = []
+    for g in groups:
+        members = [c.character for c in g]
+        if len(g) == 1 and _is_social(first.label):
+            others = [c.character for c in everyone if _is_social(c.label) and c.character not in members]
+            out.append(_sentence(members, _with_partners(g[0], phrase, others)))
+        else:
+            out.append(_sentence(members, g[0].does, g[0].do))
+    return " ".join(out)
 
 
 def _with_partners(clause: _Clause, phrase: VerbPhrase, partners: list[str]) -> str:

@@ -88,6 +88,15 @@ def test_characters_doing_the_same_are_grouped_and_partners_are_named() -> None:
     assert event_text(mixed, HOME) == "Ben turns on the TV. Cy sits on the couch."
     hug = parsed("x", plan("Ben", "hug", "close to tv_1"), plan("Cy", "hug", "adjacent to couch_1"))
     assert event_text(hug, HOME) == "Ben and Cy hug, Ben by the TV and Cy next to the couch."
+    meal = parsed("x", plan("Ava", "eat", "sit on chair_1", "chair_1"), plan("Ben", "eat", "sit on chair_2", "chair_2"))
+    assert event_text(meal, HOME) == (
+        "Ava and Ben eat, Ava on the chair by the coffee maker (chair_1) and Ben on the chair by the dishwasher (chair_2)."
+    )
+    three = parsed("x", plan("Ben", "watch_tv", "sit on couch_1", "couch_1"), plan("Cy", "watch_tv", "sit on couch_1", "couch_1"),
+                   plan("Dan", "watch_tv", "sit on armchair_1", "armchair_1"))  # fmt: skip
+    assert event_text(three, HOME) == "Ben, Cy and Dan watch TV, Ben and Cy on the couch and Dan on the armchair."
+    lone = parsed("x", plan("Ben", "chat", "current position"), plan("Cy", "chat", "sit on couch_1", "couch_1"))
+    assert event_text(lone, HOME) == "Ben chats with Cy. Cy sits on the couch and chats with Ben."
 
 
 def test_areas_read_as_places() -> None:
