@@ -199,11 +199,11 @@ def smplx_bodies(model_dir: Path, parameters: Mapping[str, Mapping[str, NDArray[
 
 def run_bodies(folder: Path, names: Sequence[str], models: SmplxModels) -> dict[str, SmplxBody]:
     """The bodies of a run folder's characters, from their ``<slug>.smplx.npz`` files."""
-    from sim.export.bundle import file_slug
+    from sim.run_folder_names import SMPLX_SUFFIX, file_slug
 
     bodies = {}
     for name in names:
-        path = folder / f"{file_slug(name)}.smplx.npz"
+        path = folder / f"{file_slug(name)}{SMPLX_SUFFIX}"
         if not path.is_file():
             raise SmplxModelError(f"{path}: not found (the SMPL-X parameters of {name!r} that `storyteller run` writes)")
         bodies[name] = models.body(load_parameters(path))

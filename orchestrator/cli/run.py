@@ -68,6 +68,7 @@ from orchestrator.cli.options import (
     fail,
 )
 from orchestrator.safe_text import plain
+from sim.run_folder_names import RUNS_DB, TRACE_JSONL
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
     from orchestrator.sandbox_worker import WorkerRunner
@@ -180,7 +181,7 @@ def run_command(
         video=video,
         gif=gif,
     )
-    trace_path = record if record is not None else (None if replay is not None else out / "trace.jsonl")
+    trace_path = record if record is not None else (None if replay is not None else out / TRACE_JSONL)
     if trace_path is not None and replay is not None and trace_path.resolve() == replay.resolve():
         fail("--record must name a different file than --replay")
     shown, typing = live_and_interactive(live, interactive, reads_stdin=replay is None)
@@ -248,7 +249,7 @@ def resume_command(
         fail(str(exc))
     _check_smplx_model(smplx_model)
     shown, typing = live_and_interactive(live, interactive, reads_stdin=True)
-    _execute(manifest.arguments, out=run_dir, trace_path=run_dir / "trace.jsonl", replay=None,
+    _execute(manifest.arguments, out=run_dir, trace_path=run_dir / TRACE_JSONL, replay=None,
              thread_id=manifest.thread_id, resume=True, interactive=typing, live=shown, smplx_model=smplx_model)
 
 
@@ -261,7 +262,7 @@ def replay_command(
     """Replay a recorded run with no model loaded: same arguments (from run.json), same story, same motion."""
     from orchestrator.session.run_manifest import ManifestError, read_manifest
 
-    trace = source / "trace.jsonl" if source.is_dir() else source
+    trace = source / TRACE_JSONL if source.is_dir() else source
     if not trace.is_file():
         fail(f"{trace}: trace file not found")
     try:
@@ -272,7 +273,7 @@ def replay_command(
         fail("--out must be a different folder than the replayed run's")
     _check_smplx_model(smplx_model)
     shown, _ = live_and_interactive(live, None, reads_stdin=False)
-    _execute(manifest.arguments, out=out, trace_path=out / "trace.jsonl", replay=trace, thread_id=None, resume=False,
+    _execute(manifest.arguments, out=out, trace_path=out / TRACE_JSONL, replay=trace, thread_id=None, resume=False,
              live=shown, smplx_model=smplx_model)
 
 
@@ -288,7 +289,12 @@ def _execute(
     scene's navigation grid overlap this process's imports of the job instead of delaying the
     first planning step; the job stops it when the story ends."""
     from orchestrator.cli.collector import imports_paused
+    from orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
 
+    try:  # before the folder is made or a worker started (run_story checks again, for its other callers)
+        refuse_planted_links(out, args.names)
+    except PlantedLinkError as exc:
+        fail(str(exc))
     with imports_paused():
         from orchestrator.sandbox_worker import WorkerRunner
         from sim.scene.bundled import resolve_scene
@@ -485,7 +491,7 @@ def _failed_write(error: BaseException | None, out: Path) -> OSError | None:
     if isinstance(error, sqlite3.OperationalError) and any(
         words in str(error) for words in ("disk I/O error", "disk is full", "readonly database")
     ):
-        return OSError(None, str(error), str(out / "runs.sqlite"))
+        return OSError(None, str(error), str(out / RUNS_DB))
     return None
 
 

@@ -64,6 +64,7 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError,
 from agents.llm_port import LLMRequest, NodeName, TokenUsage, TraceRecorder
 from orchestrator.llm.config import FsyncPolicy
 from orchestrator.llm.retry_policy import ErrorClass
+from sim.no_follow_writes import open_append
 
 _log = structlog.get_logger("storyteller.traces")
 
@@ -341,21 +342,27 @@ class TraceWriter:
         self._closing = False
         self._syncer: threading.Thread | None = None
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._seq = self._recover()
-        self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        # opened first, without following a link (``sim.no_follow_writes``): a symbolic link, a
+        # FIFO or a hard-linked file at the path is refused, never read, cut or appended through
+        self._fd: int | None = open_append(self.path)
+        try:
+            self._seq = self._recover(self._fd)
+        except BaseException:
+            os.close(self._fd)
+            raise
         if fsync == "always":
             self._syncer = threading.Thread(target=self._sync_loop, name="trace-fsync", daemon=True)
             self._syncer.start()
         self.write(RunRecord(run_id=self.run_id, seq=self.next_seq(), time_unix=time.time(), meta=meta or {}))
 
-    def _recover(self) -> int:
-        """Cut a torn tail off an existing file; return the next free seq."""
-        if not self.path.exists() or self.path.stat().st_size == 0:
+    def _recover(self, fd: int) -> int:
+        """Cut a torn tail off the file open as ``fd``; return the next free seq."""
+        if os.fstat(fd).st_size == 0:
             return 0
         contents = read_trace(self.path)
         if contents.torn_tail is not None:
             _log.warning("trace_tail_truncated", path=str(self.path), bytes=contents.torn_tail.size)
-            os.truncate(self.path, contents.torn_tail.byte_offset)
+            os.ftruncate(fd, contents.torn_tail.byte_offset)
         return max((r.seq for r in contents.records), default=-1) + 1
 
     def next_seq(self) -> int:

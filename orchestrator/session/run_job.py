@@ -40,6 +40,11 @@ step, and a replay makes every request where the recorded run did
 failing disk) cancels the session's task group and is raised from :func:`run_story` after the
 trace, the story log and the program worker are closed.
 
+Writes: every file in the run folder is written without following a symbolic link (replaced
+through a fresh temporary name, or opened with ``O_NOFOLLOW``: ``sim.no_follow_writes``), and
+:func:`run_story` first refuses a folder that is a link or holds one where the run writes
+(``orchestrator.session.run_folder_links``), so nothing is written outside the folder.
+
 Problems with the user's inputs (an unreadable trace or motion config, a model that cannot be
 opened, a damaged ``runs.sqlite``, a session that cannot go on) are raised as
 :class:`RunSetupError`, one sentence each, naming the file. A write that fails (a full disk)
@@ -63,6 +68,7 @@ from typing import TYPE_CHECKING, Any
 from agents.messages import ParsedEvent, PlanningFailure
 from agents.story_text import step_text
 from orchestrator.planning.ablation_graph import Ablation
+from orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
 from orchestrator.session.run_manifest import RunArguments, RunManifest
 from orchestrator.session.run_status import RunStatus
 from orchestrator.session.runtime import (
@@ -71,6 +77,16 @@ from orchestrator.session.runtime import (
     SessionResult,
     StoryEvent,
     TimedInstruction,
+)
+from sim.no_follow_writes import replacing, write_file
+from sim.run_folder_names import (
+    ANIMATION_STEM,
+    METRICS_JSON,
+    RUNS_DB,
+    SCENE_JSON,
+    STORY_JSON,
+    STORY_MD,
+    TOPDOWN_PNG,
 )
 from sim.scene.model import Scene
 
@@ -330,10 +346,13 @@ async def _run_story(
     )
     from orchestrator.session.step_planner import GraphStepPlanner
     from orchestrator.session.story_stream import StoryStream, StreamStart
-    from sim.scene.files import save_scene_json
     from sim.world.step import World, WorldConfig
 
     names = list(args.names)
+    try:
+        refuse_planted_links(out, names)  # before anything is read from the folder or written to it
+    except PlantedLinkError as exc:
+        raise RunSetupError(str(exc)) from None
     config = Path(args.config) if args.config is not None else None
     motion_config = Path(args.motion_config) if args.motion_config is not None else None
     try:
@@ -385,9 +404,9 @@ async def _run_story(
         if on_start is not None:
             on_start(manifest)
     # for a live viewer: the scene before the first frame, and no story.json (it marks a finished run)
-    save_scene_json(scene, out / "scene.json")
-    (out / "story.json").unlink(missing_ok=True)
-    runs_db = out / "runs.sqlite"
+    _write_scene_json(scene, out)
+    (out / STORY_JSON).unlink(missing_ok=True)
+    runs_db = out / RUNS_DB
     try:
         check_runs_db(runs_db)
         story = StoryLog(runs_db, thread)
@@ -599,14 +618,13 @@ def write_outputs(
         save_run_animation,
         save_run_png,
     )
-    from sim.scene.files import save_scene_json
 
-    save_scene_json(scene, out / "scene.json")
+    _write_scene_json(scene, out)
     payload = story_json(result, scene.name, names, instruction, fps)
-    (out / "story.json").write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
-    (out / "story.md").write_text(story_markdown(payload), encoding="utf-8")
+    write_file(out / STORY_JSON, (json.dumps(payload, indent=2) + "\n").encode("utf-8"))
+    write_file(out / STORY_MD, story_markdown(payload).encode("utf-8"))
     metrics = run_metrics(payload, trace_path, wall_s=result.wall_s, frame_intervals_s=list(result.frame_intervals_s))
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n", encoding="utf-8")
+    write_file(out / METRICS_JSON, (json.dumps(metrics, indent=2) + "\n").encode("utf-8"))
     tracks = world.tracks()
     bodies = None
     if smplx_model is not None:
@@ -617,8 +635,17 @@ def write_outputs(
         bodies = {name: body.skin for name, body in smplx_bodies(smplx_model, params).items()}
     export_run(out, scene, list(tracks.values()), bodies=bodies)
     recording = RunRecording(scene, tracks, world.event_ids(), world.grid)  # the tracks read above, not again
-    save_run_png(out / "topdown.png", recording)
+    save_run_png(out / TOPDOWN_PNG, recording)
     # --video: story.mp4 (story.gif without imageio-ffmpeg); --gif: story.gif
-    animations = {name for name, wanted in (("story.gif", gif), (f"story{animation_suffix()}", video)) if wanted}
+    animations = {name for name, wanted in ((f"{ANIMATION_STEM}.gif", gif), (f"{ANIMATION_STEM}{animation_suffix()}", video))
+                  if wanted}
     for name in sorted(animations):
         save_run_animation(out / name, recording, stride=10, speed=4.0)
+
+
+def _write_scene_json(scene: Scene, out: Path) -> None:
+    """``scene.json`` (the scene as run, for ``storyteller view``), replaced through a fresh name."""
+    from sim.scene.files import save_scene_json
+
+    with replacing(out / SCENE_JSON) as fresh:
+        save_scene_json(scene, fresh)

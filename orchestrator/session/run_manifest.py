@@ -19,8 +19,10 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from orchestrator.planning.kinds import DescriptionKind, PlannerKind
 from orchestrator.session.instruction_script import ScriptLine
 from orchestrator.session.pace import Pace
+from sim.no_follow_writes import write_file
+from sim.run_folder_names import RUN_JSON
 
-MANIFEST_FILE = "run.json"
+MANIFEST_FILE = RUN_JSON
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]{0,31}$")
 
 
@@ -90,11 +92,9 @@ def absolute(path: Path | None) -> str | None:
 
 
 def write_manifest(out: Path, manifest: RunManifest) -> Path:
-    path = out / MANIFEST_FILE
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(manifest.model_dump_json(indent=2) + "\n", encoding="utf-8")
-    tmp.replace(path)
-    return path
+    """``out/run.json``, written to a fresh temporary name and renamed over it (a symbolic link
+    planted there is replaced, never written through: ``sim.no_follow_writes``)."""
+    return write_file(out / MANIFEST_FILE, (manifest.model_dump_json(indent=2) + "\n").encode("utf-8"))
 
 
 def read_manifest(run_dir: Path) -> RunManifest:

@@ -29,7 +29,10 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
-STREAM_FILE = "story.jsonl"
+from sim.no_follow_writes import open_append
+from sim.run_folder_names import STORY_STREAM
+
+STREAM_FILE = STORY_STREAM
 
 
 class StoryEventRecord(BaseModel):
@@ -84,11 +87,13 @@ class StoryStreamError(ValueError):
 
 
 class StoryStream:
-    """Appends to ``<out>/story.jsonl``; :meth:`close` when the run ends."""
+    """Appends to ``<out>/story.jsonl``; :meth:`close` when the run ends. A symbolic link (or a
+    FIFO, a hard-linked file) at that name is refused with an ``OSError`` naming it
+    (``sim.no_follow_writes``), never appended through."""
 
     def __init__(self, out: Path) -> None:
         self.path = out / STREAM_FILE
-        self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        self._fd: int | None = open_append(self.path)
 
     def start(self, start: StreamStart, events: Iterable[object] = ()) -> None:
         """A new session from ``start.frame``, with the events it starts with (a resume's)."""

@@ -5,6 +5,10 @@ into ``_``): ``<slug>.smplx.npz`` (AMASS-style SMPL-X parameters), ``<slug>.bvh`
 ``<slug>.track.npz`` (the raw track, reloadable with ``CharacterTrack.load``); plus one
 ``scene.glb`` with the scene and every character.
 
+Each file is written to a fresh temporary name and renamed over its own
+(``sim.no_follow_writes``), so a symbolic link planted at one of these names is replaced, never
+written through. The names are ``sim.run_folder_names``.
+
 The files are written by :data:`WRITER_THREADS` threads: each file's bytes depend only on its
 track (and the scene), never on the order, and the npz files spend most of their time in zlib,
 which runs without the interpreter lock, so the text and GLB writers go on meanwhile. The first
@@ -13,7 +17,6 @@ error raised by a writer is raised once every writer has finished.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -23,10 +26,9 @@ from sim.export.bvh import Units, export_bvh
 from sim.export.glb import SkinnedBody, export_glb
 from sim.export.joint_rotations import JointRotations
 from sim.export.smplx_npz import export_smplx_npz
+from sim.run_folder_names import BVH_SUFFIX, SCENE_GLB, SMPLX_SUFFIX, TRACK_SUFFIX, file_slug
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack
-
-_UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
 
 WRITER_THREADS = 2
 """Threads that write a run's files (the machines this runs on have two cores)."""
@@ -43,11 +45,6 @@ class RunExports:
 
     def all_paths(self) -> list[Path]:
         return [self.glb, *self.smplx.values(), *self.bvh.values(), *self.tracks.values()]
-
-
-def file_slug(name: str) -> str:
-    """A file-name-safe form of a character name."""
-    return _UNSAFE.sub("_", name.strip()) or "character"
 
 
 def export_run(
@@ -77,10 +74,10 @@ def export_run(
             return {t.name: pool.submit(write, t, outdir / f"{slug}{suffix}") for t, slug in zip(tracks, slugs, strict=True)}
 
         # the npz writers first: their zlib work overlaps the others' Python work
-        raw = each(lambda t, path: t.save(path), ".track.npz")
-        smplx = each(lambda t, path: export_smplx_npz(t, path, rotations=rotations[t.name]), ".smplx.npz")
-        bvh = each(lambda t, path: export_bvh(t, path, units=bvh_units, rotations=rotations[t.name]), ".bvh")
-        glb = pool.submit(export_glb, outdir / "scene.glb", scene, tracks, bodies, rotations)
+        raw = each(lambda t, path: t.save(path), TRACK_SUFFIX)
+        smplx = each(lambda t, path: export_smplx_npz(t, path, rotations=rotations[t.name]), SMPLX_SUFFIX)
+        bvh = each(lambda t, path: export_bvh(t, path, units=bvh_units, rotations=rotations[t.name]), BVH_SUFFIX)
+        glb = pool.submit(export_glb, outdir / SCENE_GLB, scene, tracks, bodies, rotations)
     written = [glb, *raw.values(), *smplx.values(), *bvh.values()]
     for failed in (f.exception() for f in written):
         if failed is not None:

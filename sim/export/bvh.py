@@ -35,6 +35,7 @@ from sim.body.skeleton import (
     REST_OFFSETS,
 )
 from sim.export.joint_rotations import JointRotations
+from sim.no_follow_writes import write_file
 from sim.world.character_track import CharacterTrack
 
 Units = Literal["m", "cm"]
@@ -135,7 +136,7 @@ def export_bvh(
     if units not in UNIT_SCALE:
         raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
     path = Path(path)
-    path.write_text(bvh_text(track, units, rotations), encoding="ascii", newline="\n")
+    write_file(path, bvh_text(track, units, rotations).encode("ascii"))
     return path
 
 

@@ -51,6 +51,7 @@ from sim.body.skeleton import (
 )
 from sim.export.bvh import END_SITES
 from sim.export.joint_rotations import JointRotations
+from sim.no_follow_writes import write_file
 from sim.scene.model import Scene, SceneObject
 from sim.world.character_track import CharacterTrack
 
@@ -518,5 +519,5 @@ def export_glb(
 ) -> Path:
     """Write the whole run as one GLB (see the module docstring). Returns the path."""
     path = Path(path)
-    path.write_bytes(glb_bytes(scene, tracks, bodies, rotations))
+    write_file(path, glb_bytes(scene, tracks, bodies, rotations))
     return path

@@ -42,6 +42,7 @@ from matplotlib.patches import Circle, Polygon, Rectangle
 from matplotlib.text import Annotation, Text
 from numpy.typing import NDArray
 
+from sim.no_follow_writes import write_file
 from sim.scene.model import Scene
 
 BODY_RADIUS = 0.25  # metres: radius of a character's disc in the picture
@@ -434,5 +435,5 @@ def topdown_png_bytes(scene: Scene, **layers: Unpack[TopdownLayers]) -> bytes:
 def save_topdown_png(path: Path | str, scene: Scene, **layers: Unpack[TopdownLayers]) -> Path:
     """Write the picture to ``path`` as PNG; returns the path."""
     path = Path(path)
-    path.write_bytes(topdown_png_bytes(scene, **layers))
+    write_file(path, topdown_png_bytes(scene, **layers))
     return path

@@ -17,11 +17,14 @@ Animations are MP4 (H.264, through ``imageio-ffmpeg``, a dependency that ships i
 or GIF (Pillow's GIF encoder, written one picture at a time), chosen by the path's extension;
 both stream: the pictures are drawn and written one at a time, never all held in memory; ``animation_suffix()`` is
 ``.mp4`` when the encoder is installed and ``.gif`` otherwise. ``save_run_animation`` raises
-``RunVideoError`` for a ``.mp4`` path when no encoder is installed.
+``RunVideoError`` for a ``.mp4`` path when no encoder is installed. Every file is written under a
+fresh temporary name and renamed over its own (``sim.no_follow_writes``): a symbolic link at the
+path is replaced, never written through.
 """
 from __future__ import annotations
 
 import importlib.util
+import io
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sim.export.topdown import CharacterMarker, TopdownAnimation, render_topdown_rgb
+from sim.no_follow_writes import replacing, write_file
 from sim.paths.nav_grid import NavGrid
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack
@@ -142,8 +146,9 @@ def save_run_png(path: Path | str, rec: RunRecording, frame: int = -1, **kw: Unp
     from PIL import Image
 
     path = Path(path)
-    Image.fromarray(run_frame_rgb(rec, frame, **kw), mode="RGB").save(path, format="PNG")
-    return path
+    buffer = io.BytesIO()
+    Image.fromarray(run_frame_rgb(rec, frame, **kw), mode="RGB").save(buffer, format="PNG")
+    return write_file(path, buffer.getbuffer())
 
 
 def mp4_available() -> bool:
@@ -206,10 +211,11 @@ def save_run_animation(
         raise RunVideoError(f"speed must be > 0, got {speed}")
     frames = iter_animation_frames(rec, stride=stride, start=start, stop=stop, **kw)
     seconds_per_picture = stride / rec.fps / speed
-    if ext == ".gif":
-        _write_gif(path, frames, duration_ms=1000.0 * seconds_per_picture)
-    else:
-        _write_mp4(path, frames, fps=1.0 / seconds_per_picture)
+    with replacing(path) as fresh:  # a link planted at ``path`` is replaced, never written through
+        if ext == ".gif":
+            _write_gif(fresh, frames, duration_ms=1000.0 * seconds_per_picture)
+        else:
+            _write_mp4(fresh, frames, fps=1.0 / seconds_per_picture)
     return path
 
 

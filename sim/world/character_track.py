@@ -25,6 +25,7 @@ from typing import Literal
 import numpy as np
 
 from sim.body.skeleton import NUM_JOINTS, forward_kinematics
+from sim.no_follow_writes import write_file
 
 Gender = Literal["neutral", "male", "female"]
 GENDERS: tuple[Gender, ...] = ("neutral", "male", "female")
@@ -224,7 +225,7 @@ def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray], *, compress: b
             payload = io.BytesIO()
             np.lib.format.write_array(payload, np.array(arr, order="C"), allow_pickle=False)
             zf.writestr(info, payload.getvalue(), compresslevel=NPZ_DEFLATE_LEVEL if compress else None)
-    path.write_bytes(buffer.getvalue())
+    write_file(path, buffer.getbuffer())
     return path
 
 

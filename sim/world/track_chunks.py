@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import struct
 import zlib
 from collections.abc import Sequence
@@ -38,16 +37,20 @@ from pathlib import Path
 import numpy as np
 
 from sim.body.skeleton import NUM_JOINTS
+from sim.no_follow_writes import make_folder, open_append
+from sim.run_folder_names import (  # the two names re-exported: readers import them from here
+    CHUNK_SUFFIX as CHUNK_SUFFIX,
+)
+from sim.run_folder_names import (
+    MOTION_FOLDER as MOTION_FOLDER,
+)
+from sim.run_folder_names import file_slug
 from sim.world.character_track import CharacterTrack
 
 MAGIC = b"STKC"
 VERSION = 1
-CHUNK_SUFFIX = ".chunks"
-MOTION_FOLDER = "motion"
-"""The sub-folder of a run folder that holds the chunk files."""
 _HEADER = struct.Struct("<4sHHQIIQI")
 HEADER_BYTES = _HEADER.size
-_UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
 
 
 class ChunkError(ValueError):
@@ -55,8 +58,8 @@ class ChunkError(ValueError):
 
 
 def chunk_slug(name: str) -> str:
-    """The file-name-safe form of a character name (as ``sim.export.bundle.file_slug``)."""
-    return _UNSAFE.sub("_", name.strip()) or "character"
+    """The file-name-safe form of a character name (``sim.run_folder_names.file_slug``)."""
+    return file_slug(name)
 
 
 def chunk_path(folder: Path, name: str) -> Path:
@@ -227,11 +230,17 @@ class ChunkStore:
     def open(cls, folder: Path, names: Sequence[str], frames: int | None = None) -> ChunkStore:
         """The store in ``folder`` (created if missing). ``frames`` None: a new store, every
         file emptied; otherwise keep the first ``frames`` frames of each file (a resume),
-        raising :class:`ChunkError` when a file holds fewer whole frames."""
-        folder.mkdir(parents=True, exist_ok=True)
+        raising :class:`ChunkError` when a file holds fewer whole frames. A symbolic link in
+        place of the folder or of a file is refused (``sim.no_follow_writes``: an ``OSError``
+        naming it), never written, cut or emptied through."""
+        make_folder(folder)
         store = cls(folder, names, 0)
         for name, path in store._paths.items():
-            store._fds[name] = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+            try:
+                store._fds[name] = open_append(path)
+            except OSError:
+                store.close()
+                raise
             if frames is None:
                 os.ftruncate(store._fds[name], 0)
         store.frames = frames if frames is not None else 0

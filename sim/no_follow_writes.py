@@ -1,0 +1,164 @@
+"""Writing into a folder someone else made: a symbolic link planted there is never written through.
+
+A shared run folder may hold links where the project is about to write (``story.md ->
+~/.bashrc``, ``trace.jsonl -> ~/.profile``). Every file the project writes into a run folder
+goes through one of three functions, which touch only the name in that folder, never what a
+link there points at:
+
+- :func:`write_file` (bytes) and :func:`replacing` (for a writer that must be given a path:
+  ffmpeg, an exporter): the new file is created under a fresh temporary name in the same folder
+  (``O_CREAT | O_EXCL | O_NOFOLLOW``: never an existing file, never through a link), written,
+  and renamed over the final name. A rename replaces whatever has that name (a link itself,
+  never its target), so a reader sees the old file or the whole new one, and a link planted at
+  the name is gone afterwards, its target untouched;
+- :func:`open_append` (a trace, a stream, a chunk file): opened with ``O_NOFOLLOW`` and
+  without blocking; anything but a regular file with no other hard link is refused (a link, a
+  FIFO, a device, a folder, a file that is also somewhere else);
+- :func:`make_folder` (a sub-folder such as ``motion/``): made when missing; a link in its
+  place is refused.
+
+A refusal is an ``OSError`` naming the file (``ELOOP`` for a link), so a caller that reports a
+failed write names it as it names a full disk. Only the last part of a path is guarded: the
+folder itself is the caller's to check (``orchestrator.session.run_folder_links`` refuses a run
+folder that is a link). Limit: :func:`replacing` hands its temporary file on by name, so a
+process writing into the same folder at the same moment could swap it; links planted in a
+folder beforehand are never followed. Plain file I/O: no clock, no logging.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import secrets
+import stat
+from collections.abc import Iterator
+from pathlib import Path
+
+_CREATE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0)
+_APPEND = os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
+_MODE = 0o666  # less the umask, as open() creates files
+_TRIES = 100  # fresh temporary names tried before giving up (each is 48 random bits)
+
+LINK_REFUSED = "is a symbolic link; refusing to write through it"
+
+
+def write_file(path: Path | str, data: bytes | bytearray | memoryview, *, durable: bool = False) -> Path:
+    """Write ``data`` as the file ``path``: to a fresh temporary file in its folder, renamed over
+    ``path`` (see the module docstring). ``durable``: fsync the file before the rename and the
+    folder after it. Raises ``OSError`` naming ``path``; the temporary file is removed then."""
+    path = Path(path)
+    tmp, fd = _fresh(path)
+    try:
+        try:
+            view = memoryview(data).cast("B")
+            while view:
+                view = view[os.write(fd, view):]
+            if durable:
+                os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise _naming(exc, path) from None
+    if durable:
+        _sync_folder(path.parent)
+    return path
+
+
+@contextlib.contextmanager
+def replacing(path: Path | str, *, durable: bool = False) -> Iterator[Path]:
+    """A fresh, empty temporary file in ``path``'s folder (same suffix, so a writer that picks
+    its format from the name picks the same one) for the block to write by name; renamed over
+    ``path`` when the block ends, removed when it raises. An ``OSError`` names ``path``."""
+    path = Path(path)
+    tmp, fd = _fresh(path)
+    os.close(fd)
+    try:
+        yield tmp
+        if durable:
+            fd = os.open(tmp, os.O_RDONLY | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0))
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise _naming(exc, path) from None
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    if durable:
+        _sync_folder(path.parent)
+
+
+def open_append(path: Path | str) -> int:
+    """A descriptor appending to the regular file ``path`` (created if missing). Refused with an
+    ``OSError`` naming ``path``: a symbolic link (``ELOOP``), anything that is not a regular
+    file, and a file with other hard links (appending would change it there too)."""
+    path = Path(path)
+    try:
+        fd = os.open(path, _APPEND, _MODE)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise OSError(errno.ELOOP, LINK_REFUSED, str(path)) from None
+        if exc.errno == errno.ENXIO:  # a FIFO nobody reads (opened without blocking)
+            raise OSError(errno.ENXIO, "is not a regular file; refusing to write to it", str(path)) from None
+        raise _naming(exc, path) from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise OSError(errno.EINVAL, "is not a regular file; refusing to write to it", str(path))
+        if info.st_nlink > 1:
+            raise OSError(errno.EMLINK, f"has {info.st_nlink} hard links; refusing to append to it", str(path))
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def make_folder(path: Path | str) -> Path:
+    """The folder ``path``, made (with its parents) when missing; a symbolic link or a file in its
+    place is refused with an ``OSError`` naming it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with contextlib.suppress(FileExistsError):
+        os.mkdir(path)
+    info = os.lstat(path)
+    if stat.S_ISLNK(info.st_mode):
+        raise OSError(errno.ELOOP, LINK_REFUSED, str(path))
+    if not stat.S_ISDIR(info.st_mode):
+        raise OSError(errno.ENOTDIR, "is not a folder", str(path))
+    return path
+
+
+def _fresh(path: Path) -> tuple[Path, int]:
+    """(a new temporary file next to ``path``, created exclusively, its write descriptor)."""
+    for _ in range(_TRIES):
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp{path.suffix}")
+        try:
+            return tmp, os.open(tmp, _CREATE, _MODE)
+        except FileExistsError:  # taken (a link or a file planted there): another name
+            continue
+        except OSError as exc:
+            raise _naming(exc, path) from None
+    raise OSError(errno.EEXIST, f"no free temporary name after {_TRIES} tries", str(path))
+
+
+def _naming(exc: OSError, path: Path) -> OSError:
+    """``exc`` naming ``path`` (the file the caller asked for, not a temporary one)."""
+    return OSError(exc.errno, exc.strerror or str(exc), str(path))
+
+
+def _sync_folder(folder: Path) -> None:
+    fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
