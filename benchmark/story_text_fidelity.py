@@ -16,7 +16,15 @@ each replay is a full ``storyteller run --replay``), or reads run folders alread
 
 Prints one line per run and the shares over all of them. The judgement reads only the run
 folder's ``story.json``, ``story.md`` and scene (``scene.json``, else the bundled scene named in
-``story.json``). Exit code 2 on a bad option; a replay that fails is reported, not raised.
+``story.json``). Exit code 2 on a bad option; a replay that fails (a replay miss once the
+prompts changed after the recording: re-record the suite, or run this from a checkout of the
+recording's code) is reported as such, not raised and not counted.
+
+What it shows and what it does not: the event text is built from the plans, so a miss here
+means the text lost the plan on its way (a label without its words, an object left unnamed, a
+stale ``text``); it does not judge the English. Run it from the repository root of the code to
+check: the event-program worker is started with ``python -m`` and imports from the current
+folder.
 """
 
 from __future__ import annotations
@@ -124,7 +132,9 @@ def replay_suite(traces: Path, pattern: str, out: Path) -> list[tuple[Path, floa
         proc = subprocess.run(run_args(scenario, options), capture_output=True, text=True, check=False)
         took = time.perf_counter() - t0
         run_dir = out / scenario.name
-        failure = None if (run_dir / "story.json").is_file() else (proc.stderr.strip().splitlines() or ["no story.json"])[-1]
+        said = proc.stderr.strip().splitlines()
+        last = ([line for line in said if line.startswith("error:")] or said or [f"exit code {proc.returncode}"])[-1]
+        failure = None if proc.returncode == 0 and (run_dir / "story.json").is_file() else last[:300]
         print(f"replayed {scenario.name} in {took:.0f} s" + (f": {failure}" if failure else ""), file=sys.stderr, flush=True)
         done.append((run_dir, took, failure))
     return done
