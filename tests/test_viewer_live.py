@@ -255,7 +255,7 @@ def test_view_follows_a_run_in_progress_in_the_browser(tmp_path: Path) -> None:
                     if total and "the run is still going" in text:
                         live_totals.append(float(total.group(1)))
                         _, events = read_story_stream(out / STREAM_FILE)
-                        first_event_live |= bool(events) and events[0].activity in text and run.poll() is None
+                        first_event_live |= bool(events) and bool(events[0].text) and events[0].text in text and run.poll() is None
                     elif total and (out / "story.json").is_file() and "live" not in text:
                         final_total = float(total.group(1))
                     time.sleep(0.3)
