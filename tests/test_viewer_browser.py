@@ -111,7 +111,7 @@ def test_view_shows_the_story_plays_it_and_lists_its_events(recorded_run: Path, 
         url = m.group(1)
         first = _first_event(recorded_run)
         browser.navigate(url)
-        browser.wait_for(f"document.body.innerText.includes({json.dumps(first['activity'])})")
+        browser.wait_for(f"document.body.innerText.includes({json.dumps(first['text'])})")  # the plan sentence
         browser.wait_for("document.body.innerText.includes('Play')")
         time.sleep(2.0)  # let the scene arrive and render
         before = _picture(browser.screenshot(shots / "view-0s.png"))
@@ -126,7 +126,7 @@ def test_view_shows_the_story_plays_it_and_lists_its_events(recorded_run: Path, 
         assert float(clock) >= 1.0, f"the clock shows {clock} s after two seconds of playing"
         # clicking an event jumps to its start frame
         browser.evaluate("[...document.querySelectorAll('button')].find(b => b.innerText.trim() === 'Pause').click()")
-        browser.evaluate(f"[...document.querySelectorAll('button')].find(b => b.innerText.includes({json.dumps(first['activity'])})).click()")
+        browser.evaluate(f"[...document.querySelectorAll('button')].find(b => b.innerText.includes({json.dumps(first['text'])})).click()")
         start = f"{first['applied_frame'] / 30:.1f} s / "
         browser.wait_for(f"document.body.innerText.includes({json.dumps(start)})", timeout_s=20)
     finally:
