@@ -8,10 +8,15 @@ characters, accepted events, the start queue, the navigator). The rules they kee
   target, the whole event fails (one ``EventFailure`` per problem) and nobody moves;
 - a member busy acting (or seated) first leaves its action through its transition out and
   takes the new assignment once standing (``CharacterState.pending``);
+- a standing action that works on an object (``sim.world.facing.needs_reach``) ends its walk
+  within reach of it: a point the planner gave out of reach is replaced by the free point
+  within reach nearest to it (``StandTargets.within_reach``, fallback ``out_of_reach``);
 - an event waits in the start queue (``start_queue``, in ``events`` order; a reused id keeps
   its old place, as a dict does) until all its active members wait on their points at a
-  planning-step boundary; then all start their transition in on the same frame. A seated
-  body registers discs along its sit-down path (``seat_discs``);
+  planning-step boundary; then all start their transition in on the same frame, each turning
+  from where it stands to its partners, else to the object it uses, else to the planner's
+  facing (``act_yaw``; seated: the seat's front). A seated body registers discs along its
+  sit-down path (``seat_discs``);
 - an event completes when every member has finished its action (or, acting a looping action,
   left it); it becomes *looping* when every member is done or acting a looping action;
 - characters without an event, or in a looping one, are free (``free_characters``).
@@ -23,14 +28,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal, Protocol
 
 import numpy as np
 
+from sim.motion.action_labels import action_spec
 from sim.paths.following import close_xy
 from sim.paths.nav_grid import NavGrid
-from sim.scene.model import Scene
+from sim.scene.model import Scene, SceneObject
 from sim.world.errors import WorldError
 from sim.world.events import (
     AssignEvent,
@@ -39,6 +45,7 @@ from sim.world.events import (
     FailureReason,
     ReleaseCharacters,
 )
+from sim.world.facing import heading_to_object, heading_to_points, needs_reach, surface_distance
 from sim.world.navigation import StandTargets, WorldNavigator, seat_place
 from sim.world.phases import (
     CharacterState,
@@ -147,7 +154,8 @@ def _body_points(target: StandTarget, a: Assignment | None, w: EventWorld) -> li
 def stand_target_for(w: EventWorld, c: CharacterState, a: Assignment,
                      avoid: Sequence[tuple[float, float]] = ()) -> tuple[StandTarget | None, str]:
     """Where ``a``'s walk ends (see ``StandTargets``), or (None, why not). A seat's approach
-    point keeps two body radii from the points of ``avoid`` when it can (others' bodies)."""
+    point keeps two body radii from the points of ``avoid`` when it can (others' bodies); so
+    does a point within reach that stands in for one out of reach of the object ``a`` works on."""
     g = w.grid
     here = w.navigator.cell(c.name) if w.navigator.is_walker(c.name) else c.anchor_cell
     comp = int(g.component[here]) if g.is_free(*here) else g.main_component
@@ -163,7 +171,29 @@ def stand_target_for(w: EventWorld, c: CharacterState, a: Assignment,
     if target is None or off > w.config.max_target_offset:
         return None, (f"{c.name} cannot reach ({a.target_xy[0]:.2f}, {a.target_xy[1]:.2f}): the nearest "
                       f"reachable floor is {off:.2f} m away")
+    used = reach_object(w, a)
+    if used is not None and not w.targets.reaches(used, comp, target.xy):
+        near = w.targets.within_reach(used, comp, a.target_xy, [*avoid, *still_bodies(w, (c.name,))])
+        if near is not None:
+            gap = surface_distance(used, target.xy)
+            return replace(near, message=(
+                f"({target.xy[0]:.2f}, {target.xy[1]:.2f}) is {gap:.2f} m from {used.name}, out of reach; "
+                f"{c.name} stands at ({near.xy[0]:.2f}, {near.xy[1]:.2f}) instead")), ""
     return target, ""
+
+
+def reach_object(w: EventWorld, a: Assignment) -> SceneObject | None:
+    """The object a standing assignment works on with its hands (``needs_reach``), else None."""
+    if a.seat is not None or a.focus is None or a.focus not in w.scene.by_name or not needs_reach(a.action):
+        return None
+    return w.scene.by_name[a.focus]
+
+
+def still_bodies(w: EventWorld, skip: Iterable[str]) -> list[tuple[float, float]]:
+    """Where the characters not in ``skip`` that are not walking to a goal stand (metres)."""
+    gone = set(skip)
+    return [(float(o.xy[0]), float(o.xy[1])) for o in w.characters.values()
+            if o.name not in gone and o.phase != "approaching"]
 
 
 def assign(w: EventWorld, cmd: AssignEvent, out: StepReport) -> None:
@@ -175,7 +205,9 @@ def assign(w: EventWorld, cmd: AssignEvent, out: StepReport) -> None:
     goals: dict[str, StandTarget] = {}
     problems: list[tuple[str, FailureReason, str]] = []
     # where other bodies will be, for the seats' approach points (members placed so far included)
-    taken = taken_points(w, cmd.characters) if any(a.seat is not None for a in cmd.assignments) else None
+    taken = taken_points(w, cmd.characters) if any(
+        a.seat is not None or (a.focus is not None and a.focus in w.scene.by_name and needs_reach(a.action))
+        for a in cmd.assignments) else None
     for a in cmd.assignments:
         if a.character not in w.characters:
             problems.append((a.character, "unknown_character", f"no character called {a.character!r}"))
@@ -186,6 +218,9 @@ def assign(w: EventWorld, cmd: AssignEvent, out: StepReport) -> None:
             continue
         if a.seat is not None and a.seat not in w.scene.by_name:
             problems.append((a.character, "unknown_seat", f"no object called {a.seat!r} in the scene"))
+            continue
+        if a.focus is not None and a.focus not in w.scene.by_name:
+            problems.append((a.character, "unknown_object", f"no object called {a.focus!r} in the scene"))
             continue
         if not is_free(w, a.character):
             problems.append((a.character, "busy", f"{a.character} is busy with event "
@@ -254,6 +289,7 @@ def take(c: CharacterState, a: Assignment, goal: StandTarget) -> None:
     c.assignment, c.goal_cell, c.target = a, goal.cell, goal
     c.action_done = False
     c.best_distance, c.stalled_frames = math.inf, 0
+    c.act_yaw, c.replans = None, 0
 
 
 def _stop(w: EventWorld, c: CharacterState) -> None:
@@ -321,12 +357,32 @@ def fail_event(w: EventWorld, eid: str, character: str, reason: FailureReason, m
                 w.navigator.set_goal(n, None)
 
 
-def _begin_transition_in(w: EventWorld, c: CharacterState) -> None:
+def act_yaw(w: EventWorld, c: CharacterState, a: Assignment, stand: dict[str, np.ndarray]) -> float | None:
+    """The yaw ``c`` acts with from its standing point ``c.anchor_xy`` (None: the planner's
+    facing ``a.facing_xy``): a standing partner action faces the mean of its partners' points
+    (``stand``: where members starting now stand; others where they are), else a standing
+    action with an object faces the object's nearest footprint point; seated: the seat's front."""
+    if a.seat is not None:
+        return None
+    if a.partners and action_spec(a.action).family == "partner":
+        pts = [stand[p] if p in stand else w.characters[p].xy for p in a.partners if p in w.characters]
+        yaw = heading_to_points(c.anchor_xy, np.asarray(pts, dtype=float))
+        if yaw is not None:
+            return yaw
+    if a.focus is not None and a.focus in w.scene.by_name:
+        return heading_to_object(w.scene.by_name[a.focus], c.anchor_xy)
+    return None
+
+
+def _begin_transition_in(w: EventWorld, c: CharacterState, yaw: float | None = None) -> None:
+    """``c`` starts turning (from where it stands, about its pelvis) to ``yaw`` (None: the
+    planner's facing), then sits down when its assignment sits."""
     a = c.assignment
     assert a is not None
     c.waiting = False
     c.turn_from = c.heading
-    c.turn_frames, total = transition_in_frames(a, c.heading, w.config.fps)
+    c.act_yaw = yaw
+    c.turn_frames, total = transition_in_frames(a, c.heading, w.config.fps, c.act_heading)
     c.enter("transition_in", total)
     c.xy = c.anchor_xy.copy()
     c.walker = False
@@ -367,8 +423,10 @@ def start_groups(w: EventWorld, out: StepReport) -> None:
             ev.started = True
             del queue[eid]
             out.started.append(eid)
-            for m in members:
-                _begin_transition_in(w, m)
+            stand = {m.name: m.anchor_xy for m in members}
+            yaws = [None if m.assignment is None else act_yaw(w, m, m.assignment, stand) for m in members]
+            for m, yaw in zip(members, yaws, strict=True):
+                _begin_transition_in(w, m, yaw)
 
 
 def free_characters(w: EventWorld) -> tuple[str, ...]:

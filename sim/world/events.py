@@ -6,7 +6,9 @@ Commands (frozen pydantic models, ``kind`` tags the union):
   character to ``target_xy`` (metres, the pelvis ground point), facing ``facing_xy`` (a unit xy
   direction) to do ``action`` (an action label of ``sim.motion.action_labels``), optionally seated on
   the scene object ``seat`` whose seat is ``seat_height`` metres above the floor. ``partners``
-  name the other characters the action is done with (a partner action faces them).
+  name the other characters the action is done with (a partner action faces them); ``focus``
+  names the scene object a standing action uses (faced from wherever the character ends up,
+  and reached: ``sim.world.facing``).
 - ``ReleaseCharacters(characters)``: stop whatever looping action the characters are doing;
   they stand up / step back and become idle.
 
@@ -15,9 +17,9 @@ Reports (``StepOutput`` per frame): events that completed, events that became *l
 typed failures (``EventFailure``: no path, busy, stuck...), and who is available.
 
 ``AssignEvent.from_plans`` converts the planning side's per-character plans (objects with
-``character``, ``action``, ``position``, ``facing`` and ``seat`` attributes, i.e.
+``character``, ``action``, ``position``, ``facing``, ``seat`` and ``area`` attributes, i.e.
 ``tools.character_states.CharacterPlan``) without importing them: ``sim`` never imports
-``tools``.
+``tools``; it names each standing plan's object with ``sim.world.facing.focus_object``.
 """
 
 from __future__ import annotations
@@ -30,10 +32,11 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from sim.motion.action_labels import UnknownActionLabelError, database_key
 from sim.scene.model import Scene
+from sim.world.facing import focus_object
 
 Point = tuple[float, float]
 
-FailureReason = Literal["no_path", "busy", "stuck", "unknown_character", "unknown_seat"]
+FailureReason = Literal["no_path", "busy", "stuck", "unknown_character", "unknown_seat", "unknown_object"]
 
 
 class _Frozen(BaseModel):
@@ -52,6 +55,9 @@ class Assignment(_Frozen):
         default=None, ge=0.0, le=1.5, description="Seat height above the floor (m); None: from the scene."
     )
     partners: tuple[str, ...] = Field(default=(), description="Characters the action is done with.")
+    focus: str | None = Field(
+        default=None, description="Scene object a standing action uses (faced and reached), or None."
+    )
 
     @field_validator("facing_xy")
     @classmethod
@@ -90,6 +96,8 @@ class _PlanLike(Protocol):
     def facing(self) -> Point: ...
     @property
     def seat(self) -> str | None: ...
+    @property
+    def area(self) -> str: ...
 
 
 class AssignEvent(_Frozen):
@@ -116,15 +124,18 @@ class AssignEvent(_Frozen):
         """An event from planner output (``CharacterPlan``-like objects).
 
         Every character's partners are the other characters of the event; a seat's height
-        is read from ``scene`` (bottom of the object + its vertical sit offset) when given.
+        is read from ``scene`` (bottom of the object + its vertical sit offset) and a standing
+        plan's object from ``sim.world.facing.focus_object`` when ``scene`` is given.
         """
         names = [p.character for p in plans]
         out = []
         for p in plans:
-            height = None
+            height = focus = None
             if p.seat is not None and scene is not None and p.seat in scene.by_name:
                 obj = scene.by_name[p.seat]
                 height = obj.z_min - scene.floor_z + obj.sit_offset_vertical
+            elif p.seat is None and scene is not None:
+                focus = focus_object(scene, p.action, p.position, p.area)
             out.append(
                 Assignment(
                     character=p.character,
@@ -134,6 +145,7 @@ class AssignEvent(_Frozen):
                     seat=p.seat,
                     seat_height=height,
                     partners=tuple(n for n in names if n != p.character),
+                    focus=focus,
                 )
             )
         return cls(event_id=event_id, assignments=tuple(out))

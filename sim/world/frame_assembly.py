@@ -144,14 +144,15 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
 
 
 def stationary_root(c: CharacterState) -> None:
-    """Root xy / heading of a character that is not walking, from its phase and timer."""
+    """Root xy / heading of a character that is not walking, from its phase and timer: a
+    transition in turns the root about the pelvis (xy unchanged) to ``c.act_heading``."""
     a = c.assignment
     if c.phase == "transition_in" and a is not None:
         if c.phase_frame < c.turn_frames:
             u = smoothstep((c.phase_frame + 1) / c.turn_frames)
-            c.heading = wrap_angle(c.turn_from + u * wrap_angle(a.facing_angle - c.turn_from))
+            c.heading = wrap_angle(c.turn_from + u * wrap_angle(c.act_heading - c.turn_from))
         else:
-            c.heading = a.facing_angle
+            c.heading = c.act_heading
             if a.seat is not None and c.seat_xy is not None:
                 span = max(1, c.phase_length - c.turn_frames)
                 u = smoothstep((c.phase_frame - c.turn_frames + 1) / span)
@@ -178,8 +179,8 @@ def motion_target(w: MotionWorld, c: CharacterState) -> tuple[np.ndarray | None,
         centre = pts.mean(axis=0)
         d = c.xy - centre
         return centre, math.atan2(d[1], d[0]), None
-    f = np.asarray(a.facing_xy)
-    return c.anchor_xy + OBJECT_REACH * f, a.facing_angle + math.pi, None
+    f = np.asarray(a.facing_xy) if c.act_yaw is None else np.array([math.cos(c.act_yaw), math.sin(c.act_yaw)])
+    return c.anchor_xy + OBJECT_REACH * f, c.act_heading + math.pi, None
 
 
 def _contacts_of(poses: Sequence[Any]) -> np.ndarray:

@@ -13,21 +13,25 @@ A thin wrapper with string agent names. It adds two things the navigator does no
 ``StandTargets`` turns an assignment into the point its walk ends on (``StandTarget``): the
 exact target for a standing action, the seat's approach point (``NavGrid.approach_point``,
 cached per object) for a seated one, the nearest cell centre with a typed ``TargetFallback``
-when the exact point cannot be used.
+when the exact point cannot be used; ``StandTargets.within_reach`` gives a free standing point
+within reach of an object an action uses (``sim.world.facing``) when the planner's point, or
+where a stall left the walker, is out of reach.
 
 Positions are metres (xy).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from sim.paths.cooperative_astar import Cell, PathPlanner
 from sim.paths.following import Agent, CrowdNavigator, close_xy
-from sim.paths.nav_grid import ApproachPoint, NavGrid, NavGridError
+from sim.paths.nav_grid import ApproachPoint, NavGrid, NavGridError, body_clearance
 from sim.scene.model import SceneObject
+from sim.world.facing import REACH_M, REACH_SLACK_M, surface_distance
 from sim.world.phases import StandTarget, TargetFallback
 
 OFF_GRID_EPS = 1e-6  # metres: a point closer than this to its cell centre is on the grid
@@ -154,6 +158,9 @@ class WorldNavigator:
         return self.nav.futures(names, frames)
 
 
+REACH_LATTICE_M = 0.05  # metres between the candidate standing points around an object
+REACH_SEARCH_M = 1.5  # metres off an object's footprint within which standing points are looked for
+
 SEAT_PLACE_WIDTH = 0.6  # metres of a seat's width one sitting body takes (a seat twice as wide seats several)
 
 
@@ -179,6 +186,91 @@ class StandTargets:
     def __init__(self, grid: NavGrid) -> None:
         self.grid = grid
         self._approach: dict[tuple[str, int, tuple[float, float]], ApproachPoint | str] = {}
+        self._room: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._limit: dict[tuple[str, int], float] = {}
+
+    # ----- standing within reach of an object ----------------------------------------------------
+    def _room_near(self, obj: SceneObject) -> tuple[np.ndarray, np.ndarray]:
+        """Points (K, 2) of a lattice around ``obj`` where a body fits (in bounds, clear of every
+        blocking object) within ``REACH_SEARCH_M`` of its footprint, and their distances (K,) to
+        it, nearest first (ties in lattice order). Cached per object."""
+        hit = self._room.get(obj.name)
+        if hit is not None:
+            return hit
+        g, r = self.grid, self.grid.body_radius
+        n = int(math.ceil((math.hypot(obj.width, obj.depth) / 2.0 + REACH_SEARCH_M) / REACH_LATTICE_M))
+        ax = np.arange(-n, n + 1) * REACH_LATTICE_M
+        gx, gy = np.meshgrid(ax, ax, indexing="ij")
+        pts = obj.center_xy + np.stack([gx.ravel(), gy.ravel()], axis=1)
+        local = obj.to_local(pts)
+        dist = np.hypot(np.maximum(np.abs(local[:, 0]) - obj.width / 2.0, 0.0),
+                        np.maximum(np.abs(local[:, 1]) - obj.depth / 2.0, 0.0))
+        lo, hi = np.asarray(g.bounds_min) + r - 1e-9, np.asarray(g.bounds_max) - r + 1e-9
+        keep = (dist <= REACH_SEARCH_M) & np.all((pts >= lo) & (pts <= hi), axis=1)
+        pts, dist = pts[keep], dist[keep]
+        keep = body_clearance(g.obstacles, pts, pts, cutoff=r) >= r - 1e-9
+        pts, dist = pts[keep], dist[keep]
+        order = np.argsort(dist, kind="stable")
+        hit = (pts[order], dist[order])
+        self._room[obj.name] = hit
+        return hit
+
+    def reach_limit(self, obj: SceneObject, component: int) -> float:
+        """Metres from ``obj``'s footprint within which a body standing in ``component`` works on
+        it: ``REACH_M``, or ``REACH_SLACK_M`` beyond the nearest point a walker of ``component``
+        can stand on when furniture keeps every point further (inf when there is none)."""
+        key = (obj.name, int(component))
+        limit = self._limit.get(key)
+        if limit is None:
+            limit = math.inf
+            pts, dist = self._room_near(obj)
+            for p, d in zip(pts, dist, strict=True):
+                if self.grid.entry_cell(p, component=int(component)) is not None:
+                    limit = max(REACH_M, float(d) + REACH_SLACK_M)
+                    break
+            self._limit[key] = limit
+        return limit
+
+    def within_reach(self, obj: SceneObject, component: int, prefer: Sequence[float] | np.ndarray,
+                     avoid: Sequence[tuple[float, float]] = ()) -> StandTarget | None:
+        """The free point within ``reach_limit`` of ``obj`` that a walker of ``component`` walks
+        onto straight from a cell's centre, with the point and that walk two body radii clear of
+        the points of ``avoid`` (other bodies), and the least distance to ``prefer`` plus distance
+        to ``obj`` (near where it was meant to stand, close to the object); None when there is none.
+        The target's ``fallback`` is ``out_of_reach`` (the caller writes the message)."""
+        g, r = self.grid, self.grid.body_radius
+        limit = self.reach_limit(obj, component)
+        if not math.isfinite(limit):
+            return None
+        pts, dist = self._room_near(obj)
+        within = dist <= limit + 1e-9
+        pts, dist = pts[within], dist[within]
+        taken = np.asarray(avoid, dtype=float).reshape(-1, 2)
+        if len(taken) and len(pts):
+            clear = np.min(np.linalg.norm(pts[:, None, :] - taken[None, :, :], axis=2), axis=1) >= 2.0 * r
+            pts, dist = pts[clear], dist[clear]
+        if len(pts) == 0:
+            return None
+        score = np.linalg.norm(pts - np.asarray(prefer, dtype=float), axis=1) + dist
+        for k in np.argsort(score, kind="stable"):
+            p = pts[k]
+            cell = g.entry_cell(p, component=int(component))
+            if cell is None:
+                continue
+            a = g.center_of(*cell)
+            if len(taken):
+                ab = p - a
+                t = np.clip((taken - a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+                if float(np.min(np.linalg.norm(taken - (a + t[:, None] * ab), axis=1))) < 2.0 * r:
+                    continue
+            off = float(np.linalg.norm(p - a)) > OFF_GRID_EPS
+            xy = (float(p[0]), float(p[1])) if off else self._centre(cell)
+            return StandTarget(cell, xy, off, "out_of_reach")
+        return None
+
+    def reaches(self, obj: SceneObject, component: int, xy: Sequence[float] | np.ndarray) -> bool:
+        """Whether a body standing at ``xy`` (in ``component``) works on ``obj`` (``reach_limit``)."""
+        return surface_distance(obj, xy) <= self.reach_limit(obj, component) + 1e-9
 
     def _centre(self, cell: Cell) -> tuple[float, float]:
         c = self.grid.center_of(*cell)

@@ -5,8 +5,10 @@ A character's life in the world (``sim.world.step``) is a loop through five phas
 - ``idle``: nothing to do, or waiting (``waiting=True``) at its target for the other members
   of its event to arrive; a seated character can be idle on its seat;
 - ``approaching``: walking along the cooperative plan to its target cell;
-- ``transition_in``: turning on the spot to the target facing, then (when sitting) sitting
-  down, the pelvis moving from the approach cell to the seat point;
+- ``transition_in``: turning on the spot (the root turns about the pelvis, which stays put)
+  to the facing it acts with (``act_heading``: its partners, the object it uses or the
+  planner's facing, chosen where it stands: ``sim.world.facing``), then (when sitting)
+  sitting down, the pelvis moving from the approach cell to the seat point;
 - ``interacting``: acting; a completing action lasts its ``ActionSpec.duration_s``, a looping
   action lasts until interrupted;
 - ``transition_out``: leaving the action: standing up when seated (the pelvis back to the
@@ -32,7 +34,7 @@ from sim.world.events import Assignment
 FPS = 30
 Phase = Literal["idle", "approaching", "transition_in", "interacting", "transition_out"]
 TargetFallback = Literal["target_blocked", "no_straight_approach", "no_approach_point", "goal_cell_taken",
-                         "target_occupied", "stopped_near"]
+                         "target_occupied", "stopped_near", "out_of_reach"]
 """Why a character stands on a cell centre instead of the exact point it was sent to:
 ``target_blocked``: a body at the target would overlap furniture or leave the floor;
 ``no_straight_approach``: no free cell nearby has a straight, furniture-free walk to the target;
@@ -42,7 +44,10 @@ neighbouring cell the planner chose; ``target_occupied``: another body stayed to
 straight walk onto the point for ``WorldConfig.exact_patience_s``, the walker stopped on its
 goal cell's centre; ``stopped_near``: a standing walker within ``WorldConfig.near_enough_m`` of its
 target got no closer for ``WorldConfig.near_patience_s`` (bodies standing still in the way), and
-does its action where it stands rather than failing the event as stuck."""
+does its action where it stands rather than failing the event as stuck; ``out_of_reach``: the
+point (or where a stall rule would have stopped the walker) is out of reach of the object the
+action uses (``sim.world.facing.REACH_M``): the walker goes to a free point within reach
+instead."""
 PHASES: tuple[Phase, ...] = ("idle", "approaching", "transition_in", "interacting", "transition_out")
 
 TURN_SPEED = math.pi  # rad/s when turning on the spot before acting
@@ -84,7 +89,10 @@ class CharacterState:
     start (event id, assignment, stand target) once the current transition out ends;
     ``best_distance`` / ``stalled_frames``: the walker's closest approach to its goal and the
     frames since (the stuck check), measured around stationary bodies while ``rerouted`` (the
-    navigator's detour; entering it starts the count afresh).
+    navigator's detour; entering it starts the count afresh); ``act_yaw``: the yaw it acts
+    facing, chosen when the transition in starts (None: the assignment's ``facing_xy``);
+    ``replans``: standing points within reach chosen again for the current assignment after a
+    stall (``out_of_reach``).
     """
 
     name: str
@@ -111,6 +119,8 @@ class CharacterState:
     stalled_frames: int = 0
     rerouted: bool = False
     motion_key: str = "idle"
+    act_yaw: float | None = None
+    replans: int = 0
 
     def enter(self, phase: Phase, length: int = INFINITE) -> None:
         """Switch to ``phase`` for ``length`` frames (``INFINITE``: open-ended)."""
@@ -121,6 +131,13 @@ class CharacterState:
     @property
     def phase_over(self) -> bool:
         return self.phase_length != INFINITE and self.phase_frame >= self.phase_length
+
+    @property
+    def act_heading(self) -> float:
+        """Yaw the character acts with: ``act_yaw``, else its assignment's facing (0 without one)."""
+        if self.act_yaw is not None:
+            return self.act_yaw
+        return self.assignment.facing_angle if self.assignment is not None else 0.0
 
     @property
     def loops(self) -> bool:
@@ -148,9 +165,11 @@ def sit_heading(assignment: Assignment) -> float:
     return assignment.facing_angle
 
 
-def transition_in_frames(assignment: Assignment, heading: float, fps: int = FPS) -> tuple[int, int]:
-    """(turn frames, total frames) of the transition into ``assignment``'s action."""
-    turn = turn_frames(heading, assignment.facing_angle, fps)
+def transition_in_frames(assignment: Assignment, heading: float, fps: int = FPS,
+                         act_heading: float | None = None) -> tuple[int, int]:
+    """(turn frames, total frames) of the transition into ``assignment``'s action, turning from
+    ``heading`` to ``act_heading`` (default: the assignment's facing)."""
+    turn = turn_frames(heading, assignment.facing_angle if act_heading is None else act_heading, fps)
     total = turn + (seconds_to_frames(action_spec("sit_down").duration_s, fps) if assignment.seat else 0)
     return turn, total
 

@@ -36,7 +36,12 @@ walks the grid to the point's entry cell, then straight onto the point, and coun
 once it stands there. A point a body cannot stand on or walk straight to falls back to the
 nearest cell centre; ``CharacterState.target.fallback`` keeps the typed reason
 (``TargetFallback``). Whoever arrives first waits; when all stand on their points at a
-planning-step boundary, all start their transition in on the same frame.
+planning-step boundary, all start their transition in on the same frame: each turns in place
+(root about the pelvis) to its partners, the object it uses or the planner's facing
+(``sim.world.facing``) before it acts. A walker that a stall rule would stop out of reach of
+the object its action works on walks to a free point within reach instead (``out_of_reach``,
+at most ``WorldConfig.max_replans`` times), or keeps waiting for room (and fails as stuck if
+none comes): it never acts out of reach or facing away.
 An event completes when every member has finished its action (or, acting a looping action,
 was interrupted or released); it becomes *looping* when every member is done or acting a
 looping action. Characters of looping events are available, and a new assignment interrupts
@@ -51,7 +56,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -70,12 +75,16 @@ from sim.world.event_book import (
     final_of,
     free_characters,
     member_done,
+    reach_object,
     release,
     start_groups,
+    still_bodies,
     take,
+    taken_points,
     unstarted,
 )
 from sim.world.events import AssignEvent, ReleaseCharacters, StepOutput
+from sim.world.facing import surface_distance
 from sim.world.frame_assembly import write_frame
 from sim.world.motion_layer import FUTURE_FRAMES, MotionLayer
 from sim.world.navigation import OFF_GRID_EPS, StandTargets, WorldNavigator
@@ -104,7 +113,8 @@ class WorldConfig:
     waits for room to step onto its exact target before it settles for the cell centre
     (``target_occupied``); near_enough_m, near_patience_s: a standing walker that got no closer
     for ``near_patience_s`` within ``near_enough_m`` of its target acts where it stands
-    (``stopped_near``); initial_capacity: frames pre-allocated per track; foot_ik: run the
+    (``stopped_near``); max_replans: points within reach a stalled walker may be sent to for one
+    assignment (``out_of_reach``); initial_capacity: frames pre-allocated per track; foot_ik: run the
     leg IK (``sim.body.foot_ik.FootSolver``) on every frame's poses: feet kept out of floor-standing
     furniture and pinned while in contact (characters sitting, sitting down or standing up are
     left as animated)."""
@@ -118,6 +128,7 @@ class WorldConfig:
     near_patience_s: float = 6.0
     max_target_offset: float = 0.75
     exact_patience_s: float = 3.0
+    max_replans: int = 3
     initial_capacity: int = 512
     foot_ik: bool = True
 
@@ -339,6 +350,40 @@ class World:
         c.waiting = True
         c.enter("idle")
 
+    def _stop_short(self, c: CharacterState, fallback: TargetFallback) -> bool:
+        """A stall rule would stop the walker ``c`` on its cell's centre (``fallback``): it does,
+        unless its action works on an object it would not reach from there. Then it walks to the
+        free point within reach nearest to it, clear of the others' bodies and targets
+        (``out_of_reach``; at most ``WorldConfig.max_replans`` times), or, with none, keeps
+        waiting for room: False, its stall count goes on (it fails as stuck if nothing frees up)."""
+        a = c.assignment
+        obj = None if a is None else reach_object(self, a)
+        if obj is None:
+            self._arrive(c, fallback)
+            return True
+        nav, g = self.navigator, self.grid
+        cell = nav.cell(c.name)
+        comp = int(g.component[cell])
+        here = g.center_of(*cell)
+        if self.targets.reaches(obj, comp, here):
+            self._arrive(c, fallback)
+            return True
+        if c.replans >= self.config.max_replans:
+            return False
+        avoid = [*taken_points(self, (c.name,)), *still_bodies(self, (c.name,))]
+        near = self.targets.within_reach(obj, comp, nav.position(c.name), avoid)
+        if near is None:
+            return False
+        c.replans += 1
+        gap = surface_distance(obj, here)
+        c.target = replace(near, message=(
+            f"{c.name} would have stopped {gap:.2f} m from {obj.name}, out of reach ({fallback}); "
+            f"it walks to ({near.xy[0]:.2f}, {near.xy[1]:.2f}) instead"))
+        c.goal_cell = near.cell
+        c.best_distance, c.stalled_frames, c.rerouted = math.inf, 0, False
+        nav.set_goal(c.name, near.cell, final_xy=final_of(near))
+        return True
+
     def _on_target(self, c: CharacterState) -> bool:
         """Whether the walker ``c`` stands where its current assignment's walk ends."""
         nav = self.navigator
@@ -362,7 +407,7 @@ class World:
                 if c.seated:
                     assert c.seat_xy is not None
                     c.xy = c.seat_xy.copy()
-                c.heading = a.facing_angle
+                c.heading = c.act_heading
                 c.enter("interacting", interaction_frames(a, fps))
                 if c.loops:
                     member_done(self, c, out)
@@ -428,15 +473,13 @@ class World:
             used = nav.used_goal(c.name)
             if c.phase == "approaching" and used is not None and used != c.goal_cell and cell == used and max(
                 abs(used[0] - c.goal_cell[0]), abs(used[1] - c.goal_cell[1])
-            ) <= 1:
-                self._arrive(c, "goal_cell_taken")  # the neighbour the planner chose will do
-                continue
+            ) <= 1 and self._stop_short(c, "goal_cell_taken"):
+                continue  # the neighbour the planner chose will do
             if (c.phase == "approaching" and cell != c.goal_cell and c.stalled_frames >= patience
                     and max(abs(cell[0] - c.goal_cell[0]), abs(cell[1] - c.goal_cell[1])) <= 1
                     and not nav.is_off_grid(c.name) and nav.crowded_by_still_bodies(c.goal_cell)
-                    and nav.can_freeze(c.name)):
-                self._arrive(c, "goal_cell_taken")  # a still body keeps everyone off that cell: stop beside it
-                continue
+                    and nav.can_freeze(c.name) and self._stop_short(c, "goal_cell_taken")):
+                continue  # a still body keeps everyone off that cell: stop beside it
             around = nav.detour_distance(c.name)  # planned around stationary bodies: progress counts on that route
             if around is not None and not c.rerouted:
                 c.best_distance = math.inf
@@ -447,15 +490,14 @@ class World:
             else:
                 c.stalled_frames += nav.step_frames
             if (c.phase == "approaching" and c.target is not None and c.target.off_grid and cell == c.goal_cell
-                    and not nav.is_off_grid(c.name) and c.stalled_frames >= patience and nav.can_freeze(c.name)):
-                self._arrive(c, "target_occupied")  # the cell centre is clear; the point is not
-                continue
+                    and not nav.is_off_grid(c.name) and c.stalled_frames >= patience and nav.can_freeze(c.name)
+                    and self._stop_short(c, "target_occupied")):
+                continue  # the cell centre is clear; the point is not
             if (c.phase == "approaching" and c.stalled_frames >= near_patience and c.assignment is not None
                     and c.assignment.seat is None and c.target is not None and not nav.is_off_grid(c.name)
                     and float(np.linalg.norm(nav.position(c.name) - np.asarray(c.target.xy))) <= self.config.near_enough_m
-                    and nav.can_freeze(c.name)):
-                self._arrive(c, "stopped_near")  # close enough to stand in: act here rather than fail as stuck
-                continue
+                    and nav.can_freeze(c.name) and self._stop_short(c, "stopped_near")):
+                continue  # close enough to stand in: act here rather than fail as stuck
             if c.stalled_frames > limit and c.event_id is not None:
                 fail_event(self, c.event_id, c.name, "stuck",
                                  f"{c.name} made no progress towards its target for "
