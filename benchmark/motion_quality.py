@@ -1,6 +1,7 @@
-"""Motion quality of the generated clips against real mocap, and of the synthesized motion.
+"""Motion quality of the generated clips against real mocap, of the synthesized motion, and facing.
 
-Two comparisons, each printed as ``procedural / real`` ratios measured in the same run:
+Two comparisons, each printed as ``procedural / real`` ratios measured in the same run, and a
+facing table (3. below):
 
 1. **Clips.** For every action label that ``benchmark/mocap_shared.toml`` covers with real
    clips (walk, wave, dance), the project's procedural clips and the imported real clips (on
@@ -20,6 +21,12 @@ Metrics (all on the 22-joint skeleton, metres and seconds):
 - ``bob``: standard deviation of pelvis height (m);
 - ``floor``: lowest toe height (m; negative means the foot sinks into the floor).
 
+3. **Facing at interaction start** (``benchmark.motion_facing``): facing error when a standing
+   interaction starts and while it lasts (root forward against the direction to the object's
+   nearest footprint point, or to the partners) and the distance to the object, for a scripted
+   story through the world step (and the same without the world's facing, as before it), and
+   for any run folders given with ``--facing-runs``.
+
 Run ``python -m benchmark.motion_quality`` from the project root (``--help`` for options).
 """
 
@@ -34,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmark.motion_facing import report as facing_report
 from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.reference_data import locate_mocap, locate_reference
 from sim.body.skeleton import forward_kinematics
@@ -198,6 +206,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--walkers", type=int, default=4, help="characters in the synthesized comparison (0: skip)")
     parser.add_argument("--seconds", type=float, default=20.0, help="simulated seconds of the synthesized comparison")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--facing-runs", type=Path, nargs="*", default=[], metavar="RUN_DIR",
+                        help="run folders whose interactions' facing is measured besides the scripted story")
+    parser.add_argument("--facing-seconds", type=float, default=150.0, help="simulated seconds of the facing story (0: skip)")
     args = parser.parse_args(argv)
 
     config = shipped_config() if args.config == DEFAULT_CONFIG else load_motion_config(args.config)
@@ -215,6 +226,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"\nsynthesized: {args.walkers} walkers, {args.seconds:g} s in Office, procedural vs real-mocap "
               f"databases ({time.perf_counter() - t0:.1f} s)")
         print(format_table([("walkers", proc, real)]))
+    if args.facing_seconds > 0:
+        dbs = load_databases(cache_dir=motion_cache_dir())
+        print("\n" + facing_report(lambda: MotionMatcher(dbs), args.facing_runs, args.facing_seconds))
     return 0
 
 
