@@ -16,6 +16,15 @@ waits for it: one call (484 prompt tokens, 64 generated) took 23.7-46.6 s with 2
 9.1 s with 1 thread on the same loaded machine. One thread per free core never waits on a
 descheduled partner.
 
+The waiting itself cannot be tuned from here: llama-cpp-python 0.3.36 has no binding for
+``llama_attach_threadpool`` (ggml's own thread pool and its ``poll`` level), and its wheel
+builds ggml with OpenMP (``GGML_OPENMP`` on, ``libggml-cpu.so`` links ``libgomp``), whose
+barriers ignore that pool anyway: they wait as libgomp's ``OMP_WAIT_POLICY`` /
+``GOMP_SPINCOUNT`` say, read once when libgomp loads. ``OMP_WAIT_POLICY=passive`` (sleep at
+once) made 2 threads with a core taken much less bad in one noisy trial (12-16 s instead of
+23-47 s; 1 thread 9-11 s) but costs a futex wake per barrier on an idle machine, unmeasured
+there, so it is left to the user's environment and the thread count does the work.
+
 How busy: the per-core counters of ``/proc/stat`` for the cores we may use (busy = everything
 but idle and iowait; steal counts as busy), less this process's own CPU time (``os.times``)
 over the same interval: what other processes use. Before a call the two reads are
