@@ -138,6 +138,10 @@ def run_command(
 
     if not (math.isfinite(speed) and speed > 0):
         fail(f"--speed must be a positive number, got {speed}")
+    if not math.isfinite(duration):  # run.json holds finite numbers only: resume and replay refuse others
+        fail(f"--duration must be a finite number of seconds, got {duration}")
+    if offline_latency is not None and not math.isfinite(offline_latency):
+        fail(f"--offline-latency must be a finite number of seconds, got {offline_latency}")
     try:
         cast = parse_names(names) if names is not None else tuple(character_names(characters))
     except ValueError as exc:
@@ -263,7 +267,7 @@ def replay_command(
     from orchestrator.session.run_manifest import ManifestError, read_manifest
 
     trace = source / TRACE_JSONL if source.is_dir() else source
-    if not trace.is_file():
+    if not trace.exists() and not trace.is_symlink():  # a link to a device is read, and refused, later
         fail(f"{trace}: trace file not found")
     try:
         manifest = read_manifest(trace.parent)

@@ -64,13 +64,18 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError,
 from agents.llm_port import LLMRequest, NodeName, TokenUsage, TraceRecorder
 from orchestrator.llm.config import FsyncPolicy
 from orchestrator.llm.retry_policy import ErrorClass
+from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.no_follow_writes import open_append
 
 _log = structlog.get_logger("storyteller.traces")
 
 
+MAX_TRACE_BYTES = 256 << 20
+"""Bytes of the largest trace file read (a recorded hour of story is tens of megabytes)."""
+
+
 class _Record(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     run_id: str
     seq: int = Field(ge=0, description="Unique, increasing within one trace file.")
@@ -172,12 +177,16 @@ _RECORD_ADAPTER: TypeAdapter[TraceRecord] = TypeAdapter(TraceRecord)
 
 
 class TraceCorruptError(Exception):
-    """A complete line of a trace file is not a valid record."""
+    """A complete line of a trace file is not a valid record (``line_no`` None: the file cannot be
+    read at all, e.g. it is larger than :data:`MAX_TRACE_BYTES` or not a regular file)."""
 
-    def __init__(self, path: Path, line_no: int, message: str) -> None:
+    def __init__(self, path: Path, line_no: int | None, message: str) -> None:
         self.path = path
         self.line_no = line_no
-        super().__init__(f"{path}: line {line_no}: corrupt trace record ({message})")
+        if line_no is None:
+            super().__init__(f"{path}: cannot read the trace ({message})")
+        else:
+            super().__init__(f"{path}: line {line_no}: corrupt trace record ({message})")
 
 
 @dataclass(frozen=True)
@@ -228,9 +237,16 @@ def _parse_line(path: Path, line_no: int, raw: bytes) -> TraceRecord:
 
 
 def read_trace(path: Path | str) -> TraceContents:
-    """Read every complete record. A torn last line is reported in ``torn_tail`` (and logged)."""
+    """Read every complete record. A torn last line is reported in ``torn_tail`` (and logged).
+    The file is read within :data:`MAX_TRACE_BYTES`; each line is validated by pydantic's JSON
+    parser, which bounds nesting and integer size, and finite numbers only are accepted."""
     p = Path(path)
-    data = p.read_bytes()
+    try:
+        data = read_bounded_bytes(p, MAX_TRACE_BYTES, str(p))
+    except BoundedFileError as exc:
+        if exc.missing:
+            raise FileNotFoundError(2, "No such file or directory", str(p)) from None
+        raise TraceCorruptError(p, None, exc.problem) from None
     records: list[TraceRecord] = []
     start = 0
     line_no = 0

@@ -151,6 +151,35 @@ def replayable_frames(path: Path) -> list[int | None]:
     return applied_frames_from_trace(path)
 
 
+def check_replayable(trace: Path, applied: list[int | None], instructions: list[TimedInstruction], frames: int) -> None:
+    """Refuse (:class:`RunSetupError`) a replay that could not apply every recorded step and
+    instruction: one recorded at or after the run's last frame (``frames``, from ``run.json``)
+    would be dropped without a word."""
+    for step_index, frame in enumerate(applied):
+        if frame is not None and frame >= frames:
+            raise RunSetupError(
+                f"{trace}: step {step_index} was applied at frame {frame}, but the run has {frames} frames "
+                "(run.json's duration): the replay could not apply it"
+            )
+    for instruction in instructions:
+        if instruction.frame >= frames:
+            raise RunSetupError(
+                f"{trace}: an instruction took effect at frame {instruction.frame}, but the run has {frames} frames "
+                "(run.json's duration): the replay could not apply it"
+            )
+
+
+def check_replayed(trace: Path, applied: list[int | None], result: SessionResult) -> None:
+    """Refuse (:class:`RunSetupError`) a finished replay that left a recorded step unapplied."""
+    done = {index for index, _ in result.outcomes}
+    missed = [i for i, frame in enumerate(applied) if frame is not None and i not in done]
+    if missed:
+        raise RunSetupError(
+            f"{trace}: the replay did not apply {len(missed)} recorded step(s) (the first: step {missed[0]} at "
+            f"frame {applied[missed[0]]}): it is not the recorded story"
+        )
+
+
 def instructions_from_trace(path: Path) -> list[TimedInstruction]:
     """The instructions a recorded run applied, with their frames and sources, in order."""
     from orchestrator.llm.traces import read_trace
@@ -332,7 +361,12 @@ async def _run_story(
     from orchestrator.session.checkpoint_writer import CheckpointWriter
     from orchestrator.session.port_setup import describer_mode_for, open_port
     from orchestrator.session.roster import RosterWorld, StartPositionError, start_positions
-    from orchestrator.session.run_manifest import write_manifest
+    from orchestrator.session.run_manifest import (
+        MANIFEST_FILE,
+        ManifestError,
+        manifest_bytes,
+        write_manifest,
+    )
     from orchestrator.session.runtime import (
         SessionCheckpoint,
         SessionError,
@@ -358,7 +392,8 @@ async def _run_story(
     try:
         applied = replayable_frames(replay) if replay is not None else None
         schedule = schedule_from_trace(replay) if replay is not None and args.planners > 1 else None
-        resumed_trace = resume and trace_path is not None and trace_path.is_file()
+        # a trace that is there but not a regular file (a link to a device) is read, and refused
+        resumed_trace = resume and trace_path is not None and (trace_path.exists() or trace_path.is_symlink())
         recorded = recorded_frames(trace_path) if resumed_trace and trace_path is not None else {}
         said = instructions_from_trace(trace_path) if resumed_trace and trace_path is not None else []
     except (TraceCorruptError, OSError) as exc:
@@ -373,7 +408,9 @@ async def _run_story(
     fps = world_config.fps
     try:
         scheduled = scheduled_instructions(args, fps, replay=replay, recorded=said)
-    except (TraceCorruptError, OSError) as exc:
+        if replay is not None and applied is not None:
+            check_replayable(replay, applied, scheduled, round(args.duration * fps))
+    except (TraceCorruptError, OSError, RunSetupError) as exc:
         port.close()
         raise RunSetupError(str(exc)) from None
     try:
@@ -400,6 +437,11 @@ async def _run_story(
         raise RunSetupError(str(exc)) from None
     if not resume:
         manifest = RunManifest(thread_id=thread, scene_name=scene.name, seed=args.seed, config=args.config, arguments=args)
+        try:  # what resume and replay would refuse is refused now, before run.json is written
+            manifest_bytes(manifest, out / MANIFEST_FILE)
+        except ManifestError as exc:
+            port.close()
+            raise RunSetupError(str(exc)) from None
         write_manifest(out, manifest)
         if on_start is not None:
             on_start(manifest)
@@ -523,6 +565,8 @@ async def _run_story(
         end.spill()
         end.store.sync()
         end.store.close()  # read back by path from here on
+    if replay is not None and applied is not None and not stopped and result.planner_error is None:
+        check_replayed(replay, applied, result)
     return StoryRun(result, names, fps, session.world, stopped)
 
 

@@ -8,7 +8,6 @@ original command line.
 
 from __future__ import annotations
 
-import json
 import re
 import shlex
 from pathlib import Path
@@ -19,11 +18,15 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from orchestrator.planning.kinds import DescriptionKind, PlannerKind
 from orchestrator.session.instruction_script import ScriptLine
 from orchestrator.session.pace import Pace
+from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
 from sim.no_follow_writes import write_file
 from sim.run_folder_names import RUN_JSON
 
 MANIFEST_FILE = RUN_JSON
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]{0,31}$")
+MAX_MANIFEST_BYTES = 16 << 20
+"""Bytes of the largest ``run.json`` read back (it holds the arguments and the instruction script)."""
+_MAX_DEPTH = 8  # JSON nesting of run.json at most (it has 3: a script line in ``arguments.instructions``)
 
 
 class ManifestError(Exception):
@@ -31,9 +34,9 @@ class ManifestError(Exception):
 
 
 class RunArguments(BaseModel):
-    """The arguments of ``storyteller run`` that decide the story (paths absolute)."""
+    """The arguments of ``storyteller run`` that decide the story (paths absolute; numbers finite)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     scene: str = Field(description="Bundled scene name or absolute path to a scene file.")
     names: tuple[str, ...] = Field(min_length=1, description="Character names, in order.")
@@ -98,17 +101,52 @@ def write_manifest(out: Path, manifest: RunManifest) -> Path:
 
 
 def read_manifest(run_dir: Path) -> RunManifest:
+    """``run_dir/run.json``, read within :data:`MAX_MANIFEST_BYTES` and validated;
+    :class:`ManifestError` (one line naming the file and the field) otherwise."""
     path = run_dir / MANIFEST_FILE
+    if not path.exists() and not path.is_symlink():  # a link to /dev/zero is read (and refused), not "missing"
+        raise ManifestError(f"{path}: no run.json (is {run_dir} a folder written by `storyteller run`?)")
     try:
-        return RunManifest.model_validate_json(path.read_text(encoding="utf-8"))
-    except OSError:
-        raise ManifestError(f"{path}: no run.json (is {run_dir} a folder written by `storyteller run`?)") from None
-    except (ValidationError, json.JSONDecodeError) as exc:
-        if isinstance(exc, ValidationError):
-            err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"]) or "(file)"
-            raise ManifestError(f"{path}: field {where}: {err['msg']}") from None
-        raise ManifestError(f"{path}: not JSON ({exc})") from None
+        data = read_bounded_bytes(path, MAX_MANIFEST_BYTES, str(path))
+    except BoundedFileError as exc:
+        raise ManifestError(str(exc)) from None
+    return parse_manifest(data, str(path))
+
+
+def parse_manifest(data: bytes, where: str) -> RunManifest:
+    """The manifest in the bytes of a ``run.json`` (``where`` names it in errors)."""
+    try:
+        raw = load_bounded_json(data, _MAX_DEPTH, where)
+    except BoundedFileError as exc:
+        raise ManifestError(str(exc)) from None
+    try:
+        return RunManifest.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = ".".join(str(p) for p in err["loc"]) or "(file)"
+        raise ManifestError(f"{where}: field {field}: {err['msg']}") from None
+
+
+def manifest_bytes(manifest: RunManifest, path: Path) -> bytes:
+    """The bytes of ``run.json`` for ``manifest``, once they read back (:func:`parse_manifest`)
+    as the same manifest: a run never writes a ``run.json`` that ``resume`` or ``replay`` would
+    refuse (too large, a number or a text JSON cannot hold); :class:`ManifestError` otherwise."""
+    try:
+        data = (manifest.model_dump_json(indent=2) + "\n").encode("utf-8")
+    except (ValueError, UnicodeError) as exc:  # a lone surrogate in a text
+        raise ManifestError(f"{path}: the run's arguments cannot be stored ({str(exc)[:200]})") from None
+    if len(data) > MAX_MANIFEST_BYTES:
+        raise ManifestError(
+            f"{path}: the run's arguments take {len(data)} bytes, more than the {MAX_MANIFEST_BYTES} a run.json "
+            "may hold (a shorter instruction or script)"
+        )
+    try:
+        back = parse_manifest(data, str(path))
+    except ManifestError as exc:
+        raise ManifestError(f"the run's arguments would not read back from run.json: {exc}") from None
+    if back != manifest:
+        raise ManifestError(f"{path}: the run's arguments would not read back the same from run.json")
+    return data
 
 
 def resume_command(run_dir: Path) -> str:

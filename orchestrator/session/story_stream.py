@@ -29,6 +29,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
+from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.no_follow_writes import open_append
 from sim.run_folder_names import STORY_STREAM
 
@@ -82,6 +83,10 @@ StreamLine = Annotated[StreamStart | StreamEvent, Field(discriminator="kind")]
 _LINE: TypeAdapter[StreamStart | StreamEvent] = TypeAdapter(StreamLine)
 
 
+MAX_STREAM_BYTES = 64 << 20
+"""Bytes of the largest ``story.jsonl`` read (an event's line is written again at each change)."""
+
+
 class StoryStreamError(ValueError):
     """A ``story.jsonl`` line that is not a stream record (the message names the file and line)."""
 
@@ -123,11 +128,14 @@ class StoryStream:
 def read_story_stream(path: Path) -> tuple[StreamStart | None, tuple[StoryEventRecord, ...]]:
     """The last session's start line and its events (each as last written, in story order);
     ``(None, ())`` for a missing or empty file. A malformed whole line raises
-    :class:`StoryStreamError`; a last line with no newline is not read yet."""
+    :class:`StoryStreamError`, and so is a file over :data:`MAX_STREAM_BYTES` or not a regular
+    file; a last line with no newline is not read yet."""
     try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        return None, ()
+        data = read_bounded_bytes(path, MAX_STREAM_BYTES, str(path))
+    except BoundedFileError as exc:
+        if exc.missing:
+            return None, ()
+        raise StoryStreamError(str(exc)) from None
     start: StreamStart | None = None
     events: dict[str, StoryEventRecord] = {}
     whole = data[: data.rfind(b"\n") + 1]
