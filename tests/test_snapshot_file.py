@@ -289,8 +289,10 @@ def test_the_writer_replaces_a_planted_link_instead_of_writing_through_it(
     run.mkdir()
     (run / "session.snapshot").symlink_to(outside)
     (run / "session.snapshot.tmp").symlink_to(outside)  # the old writer's fixed temporary name
+    (run / ".session.snapshot.0123456789abcdef.tmp").symlink_to(outside)  # as a killed writer leaves a temp
     save_checkpoint(run / "session.snapshot", world, cp)
     assert outside.read_text() == "keep me"
+    assert sorted(p.name for p in run.iterdir()) == ["session.snapshot", "session.snapshot.tmp"]
     assert not (run / "session.snapshot").is_symlink()
     assert (run / "session.snapshot").read_bytes().startswith(b"storyteller-snapshot")
 

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import glob
 import hashlib
 import importlib
 import io
@@ -353,6 +354,9 @@ def write_checkpoint(path: Path, checkpoint: SessionCheckpoint, shared: dict[int
         os.fsync(dir_fd)
     finally:
         os.close(dir_fd)
+    for stale in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):  # left by a writer killed mid-write
+        with contextlib.suppress(OSError):
+            stale.unlink()  # a link planted under such a name goes, never its target
 
 
 def load_checkpoint(path: Path, world: World) -> SessionCheckpoint:
