@@ -37,6 +37,12 @@ LLM) still chooses and writes the event.
   rules say what to do with free characters the instruction no longer needs).
   When the next part has actors, the narrator's reply may name only them (the schema's enum):
   a small model otherwise adds whoever else is free.
+
+The patterns here run on the user's text, so none can backtrack super-linearly
+(``tests/test_regex_linear.py``): a run of names is one possessive repeat of whole-word names,
+a repeat that may start anywhere in a run of spaces is guarded by a lookbehind, and whether a
+clause ends with a name is a plain string check. Names are whole words: "Avaand Ben" opens with
+no name (the old pattern took "Avaand Ben" for one run).
 """
 
 from __future__ import annotations
@@ -56,7 +62,7 @@ PART_ATTEMPTS = 2
 before the part is given up (``failed``) and the story moves on to the next."""
 
 _PARTS = re.compile(r"(?<=[.!?;])\s+|\n+")
-_THEN = re.compile(r"(?:,\s*(?:and\s+)?|\s+and\s+)then,?\s+(?=[A-Za-z])", re.IGNORECASE)
+_THEN = re.compile(r"(?:,\s*(?:and\s+)?|(?<!\s)\s+and\s+)then,?\s+(?=[A-Za-z])", re.IGNORECASE)
 _WORD = re.compile(r"[A-Za-z]+")
 _PRONOUN = re.compile(r"(he|she|they)\b", re.IGNORECASE)
 _STOP = frozenset(str.split(
@@ -96,8 +102,39 @@ def _mentioned(text: str, names: Sequence[str]) -> tuple[str, ...]:
 
 
 def _name_run(names: Sequence[str]) -> str:
+    """A run of whole-word names joined by commas or "and" ("Ava, Ben and Cleo"); "" without names.
+    Possessive: the run never gives names back, so a search over a list of names is linear."""
     known = "|".join(re.escape(n) for n in sorted(names, key=len, reverse=True))
-    return rf"\b(?:{known})(?:\s*(?:,|and)\s*(?:{known}))*\b" if known else ""
+    return rf"\b(?:{known})\b(?:\s*+(?:,|and)\s*+(?:{known})\b)*+" if known else ""
+
+
+def _leading_subject_pattern(run: str) -> str:
+    return rf"\A\s*({run})"
+
+
+def _clause_cut_pattern(run: str) -> str:
+    """Where another character's clause starts alongside (see :func:`_at_the_same_time`)."""
+    return (
+        rf",?(?<!\s)\s+(?:while|whilst|meanwhile|as)\s+(?=(?:{run})\b)|;\s+(?=(?:{run})\b)"
+        rf"|,\s*(?:and\s+)?(?=(?:{run})(?:,[^,.;]{{1,40}},)?\s++[a-z])"  # ", Cleo and Dan talk ...": a new subject
+        # and its verb, maybe with an apposition between them (", and Cleo, their waiter, takes ...")
+    )
+
+
+def _ends_with_name(text: str, names: Sequence[str]) -> bool:
+    """Whether ``text`` ends with a name as a whole word (then non-word characters at most): the
+    end of a run of names. A plain scan, so a clause is read once."""
+    end = len(text)
+    while end and not _is_word(text[end - 1]):
+        end -= 1
+    body = text[:end]
+    return any(
+        body.endswith(n) and (len(body) == len(n) or not _is_word(body[-len(n) - 1])) for n in names if n
+    )
+
+
+def _is_word(ch: str) -> bool:
+    return ch.isalnum() or ch == "_"
 
 
 def _actors(text: str, names: Sequence[str]) -> tuple[str, ...]:
@@ -109,7 +146,7 @@ def _actors(text: str, names: Sequence[str]) -> tuple[str, ...]:
 def _leading_subject(text: str, names: Sequence[str]) -> str:
     """The run of character names that opens ``text`` ("Ava", "Ava and Ben"), or ""."""
     run = _name_run(names)
-    m = re.match(rf"\s*({run})", text) if run else None
+    m = re.match(_leading_subject_pattern(run), text) if run else None
     return m.group(1) if m else ""
 
 
@@ -135,19 +172,14 @@ def _at_the_same_time(sentence: str, names: Sequence[str]) -> list[str]:
     run = _name_run(names)
     if not run:
         return [sentence]
-    cut = re.compile(
-        rf",?\s+(?:while|whilst|meanwhile|as)\s+(?=(?:{run})\b)|;\s+(?=(?:{run})\b)"
-        rf"|,\s*(?:and\s+)?(?=(?:{run})(?:,[^,.;]{{1,40}},)?\s+[a-z])"  # ", Cleo and Dan talk ...": a new subject
-        # and its verb, maybe with an apposition between them (", and Cleo, their waiter, takes ...")
-    )
-    ends_with_name = re.compile(rf"(?:{run})\W*$")
+    cut = re.compile(_clause_cut_pattern(run))
     clauses: list[str] = []
     start = 0
     for m in cut.finditer(sentence):
         before = sentence[start : m.start()].strip()
         # a clause of its own has a subject ("Meanwhile, Ben ..." does not cut) and does not end
         # with a name ("Ava, Ben and Cleo dance" stays one)
-        if _mentioned(before, names) and not ends_with_name.search(before):
+        if _mentioned(before, names) and not _ends_with_name(before, names):
             clauses.append(before)
             start = m.end()
     clauses.append(sentence[start:].strip())

@@ -244,7 +244,7 @@ def event_shortlist(
     ("sits down at Gus's table"), the free seats near them come first."""
     by_name = {o.name: o for o in scene.objects}
     lowered = text.lower()
-    named = [o for o in scene.objects if re.search(rf"\b{re.escape(o.name.lower())}\b", lowered)]
+    named = [o for o in scene.objects if _mentions(o.name.lower(), lowered)]
     labels = mentioned_labels(text, scene.labels)
     groups = [[o for o in scene.objects if o.label == label] for label in labels]
     if DINING.search(_rewrite(text)) and not _after_proximity(text):  # "the dining table nearest X" picks by place
@@ -283,11 +283,20 @@ def event_shortlist(
     return Shortlist(objects=tuple(objects), seats=tuple(seats))
 
 
+def mention_pattern(word: str) -> str:
+    """The pattern of ``word`` as a whole word (its characters taken literally)."""
+    return rf"\b{re.escape(word)}\b"
+
+
+def _mentions(word: str, text: str, flags: int = 0) -> bool:
+    return re.search(mention_pattern(word), text, flags) is not None
+
+
 def _seats_by_named_characters(
     text: str, free: Sequence[SceneObject], others: Mapping[str, tuple[float, float]]
 ) -> list[str]:
     """Free seats within ``CHARACTER_NEAR_M`` of the characters ``text`` names."""
-    named = [pos for name, pos in others.items() if re.search(rf"\b{re.escape(name)}\b", text, re.IGNORECASE)]
+    named = [pos for name, pos in others.items() if _mentions(name, text, re.IGNORECASE)]
     if not named:
         return []
     out = []

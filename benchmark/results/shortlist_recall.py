@@ -18,7 +18,7 @@ from benchmark.reference_cases import load_cases, planning_inputs, scene_dir
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
 
-_NAME = re.compile(r"[A-Za-z]+(?:_[A-Za-z]+)*_\d+")
+_NAME = re.compile(r"(?<![A-Za-z_])[A-Za-z]+(?:_[A-Za-z]+)*_\d+")  # a run of letters starts once: linear
 
 
 def recall(reference: str) -> str:
