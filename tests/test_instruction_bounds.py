@@ -116,3 +116,11 @@ def test_the_stdin_reader_hands_over_only_bounded_instructions() -> None:
     stream = io.StringIO(f"Ava waves\n{'q' * (3 * MAX_INSTRUCTION_CHARS)}\n# note\nBen sits\n")
     start_stdin_reader(Taker(), stream).join(timeout=30)  # type: ignore[arg-type]
     assert got == [("Ava waves", "stdin"), ("Ben sits", "stdin")]
+
+
+@pytest.mark.parametrize("command", ["run", "plan"])
+def test_a_long_instruction_option_is_one_line(tmp_path: Path, command: str) -> None:
+    args = [command, "home", "--instruction", "x" * (MAX_INSTRUCTION_CHARS + 1)]
+    if command == "run":
+        args += ["--out", str(tmp_path / "out")]
+    one_line_exit_2(CliRunner().invoke(app, args), "--instruction", f"at most {MAX_INSTRUCTION_CHARS}")

@@ -126,6 +126,7 @@ def plan_command(
     from agents.retry_feedback import RetriesExhaustedError
     from orchestrator.planning.ablation_graph import Ablation
     from orchestrator.planning.checkpoints import default_runs_db
+    from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
     from orchestrator.session.plan_job import run_plan
     from orchestrator.session.port_setup import open_port
     from orchestrator.session.roster import StartPositionError, character_names
@@ -133,6 +134,8 @@ def plan_command(
     from sim.scene.files import SceneFileError
 
     ablation = Ablation(planner=planner, description=description)
+    if len(instruction) > MAX_INSTRUCTION_CHARS:
+        fail(f"--instruction: {len(instruction)} characters, at most {MAX_INSTRUCTION_CHARS} allowed")
     if record is not None and replay is not None:
         fail("--record and --replay cannot be used together")
     if prompts_dir is not None and not prompts_dir.is_dir():

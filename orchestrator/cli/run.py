@@ -133,11 +133,14 @@ def run_command(
     smplx_model: SmplxModelOption = None,
 ) -> None:
     """Plan and animate a story; write motion, pictures, the story log and the trace."""
+    from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
     from orchestrator.session.roster import character_names
     from orchestrator.session.run_manifest import RunArguments, absolute, parse_names
 
     if not (math.isfinite(speed) and speed > 0):
         fail(f"--speed must be a positive number, got {speed}")
+    if len(instruction) > MAX_INSTRUCTION_CHARS:
+        fail(f"--instruction: {len(instruction)} characters, at most {MAX_INSTRUCTION_CHARS} allowed")
     if not math.isfinite(duration):  # run.json holds finite numbers only: resume and replay refuse others
         fail(f"--duration must be a finite number of seconds, got {duration}")
     if offline_latency is not None and not math.isfinite(offline_latency):
