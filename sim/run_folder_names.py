@@ -32,6 +32,8 @@ SNAPSHOT_TMP = f"{SNAPSHOT}.tmp"
 """The name ``orchestrator.session.snapshot_file`` writes a checkpoint to before renaming it."""
 STORY_STREAM = "story.jsonl"
 """The story as it happens, for a live viewer (append-only)."""
+VIEWER_INSTRUCTIONS = "viewer_instructions.jsonl"
+"""Instructions typed in a viewer's box, appended by the viewer and read by the run (append-only)."""
 TOPDOWN_PNG = "topdown.png"
 ANIMATION_STEM = "story"
 ANIMATIONS = tuple(f"{ANIMATION_STEM}{suffix}" for suffix in (".gif", ".mp4"))
@@ -46,7 +48,7 @@ TRACK_SUFFIX = ".track.npz"
 CHARACTER_SUFFIXES = (SMPLX_SUFFIX, BVH_SUFFIX, TRACK_SUFFIX)
 """``<slug><suffix>``: the exports of each character."""
 
-APPENDED = (TRACE_JSONL, STORY_STREAM, RUNS_DB, *RUNS_DB_SIDECARS)
+APPENDED = (TRACE_JSONL, STORY_STREAM, VIEWER_INSTRUCTIONS, RUNS_DB, *RUNS_DB_SIDECARS)
 """The files written in place (appended to, or SQLite's) rather than replaced whole; with the chunk files."""
 
 _UNSAFE = re.compile(r"[^A-Za-z0-9_-]")

@@ -51,6 +51,21 @@ LiveOption = Annotated[bool | None, typer.Option(
 )]
 
 
+ViewOption = Annotated[bool, typer.Option(
+    "--view/--no-view",
+    help="Also serve the browser viewer of the run folder (as `storyteller view OUT`), with an instruction box; "
+    "its address is printed, and it keeps serving after the story ends until Ctrl-C.",
+)]
+ViewPortOption = Annotated[int, typer.Option(
+    "--port", min=0, max=65535, help="With --view: port to listen on (0: any free port; taken: the next free one).",
+)]
+ViewHostOption = Annotated[str, typer.Option(
+    "--host",
+    help="With --view: address to listen on. 127.0.0.1 (the default): this machine only. Any other (0.0.0.0: every "
+    "interface) lets other machines connect, with the token in the printed URL.",
+)]
+
+
 def fail(message: str, code: int = 2) -> NoReturn:
     """Print ``error: message`` to stderr and exit (2: a user error). The message names files
     and quotes their content, so it goes through :func:`~orchestrator.safe_text.plain` (control,

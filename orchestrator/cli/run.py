@@ -21,7 +21,15 @@ Live instructions: the narrator always sees the latest instruction (a new one re
 old). ``--instructions FILE`` is a timed script (``00:30 Ben leaves the kitchen``, simulated
 time; see ``orchestrator.session.instruction_script``); with ``--interactive`` (the default
 when stdin is a terminal) every line typed while the story runs becomes the instruction at
-the next frame. The trace records each one with its frame, and a replay applies it there.
+the next frame, and so does every line sent from the instruction box of a viewer of the run
+folder (``--view``, or ``storyteller view OUT`` elsewhere: ``orchestrator.session.viewer_instructions``).
+The trace records each one with its frame, and a replay applies it there.
+
+``--view [--port P] [--host H]`` (``run`` and ``resume``): the browser viewer of ``--out`` is
+served by this process from before the first frame (``orchestrator.viewer``; its address is
+printed, with a token when ``--host`` is not this machine), and goes on serving after the
+story ends until Ctrl-C (SIGINT or SIGTERM; the exit code is the run's). A stop signal while
+the story runs stops both, as without ``--view``.
 
 ``--planner unified|direct`` and ``--description object-list|scene-graph`` plan with the
 paper's ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``),
@@ -48,6 +56,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, NoReturn
 
@@ -65,6 +74,9 @@ from orchestrator.cli.options import (
     Planner,
     ProgramGrammar,
     SceneArg,
+    ViewHostOption,
+    ViewOption,
+    ViewPortOption,
     fail,
 )
 from orchestrator.safe_text import plain
@@ -76,6 +88,7 @@ if TYPE_CHECKING:  # the session (simulation, planner) is imported by the comman
     from orchestrator.session.run_manifest import RunArguments, RunManifest
     from orchestrator.session.runtime import StoryEvent
     from orchestrator.session.terminal_prompt import TerminalPrompt
+    from orchestrator.viewer.server import ViewerApp
     from sim.scene.model import Scene
 
 
@@ -131,6 +144,9 @@ def run_command(
     planner: Planner = "event",
     description: Description = "describer",
     smplx_model: SmplxModelOption = None,
+    view: ViewOption = False,
+    port: ViewPortOption = 8080,
+    host: ViewHostOption = "127.0.0.1",
 ) -> None:
     """Plan and animate a story; write motion, pictures, the story log and the trace."""
     from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
@@ -193,7 +209,8 @@ def run_command(
         fail("--record must name a different file than --replay")
     shown, typing = live_and_interactive(live, interactive, reads_stdin=replay is None)
     _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False,
-             interactive=typing, live=shown, smplx_model=smplx_model, in_process_programs=in_process_programs)
+             interactive=typing, live=shown, smplx_model=smplx_model, in_process_programs=in_process_programs,
+             view=ViewAt(port, host) if view else None)
 
 
 def _check_smplx_model(smplx_model: Path | None) -> None:
@@ -246,6 +263,9 @@ def resume_command(
     interactive: Annotated[bool | None, typer.Option("--interactive/--no-interactive", help="Lines typed on stdin become the instruction (default: when stdin is a terminal).")] = None,
     live: LiveOption = None,
     smplx_model: SmplxModelOption = None,
+    view: ViewOption = False,
+    port: ViewPortOption = 8080,
+    host: ViewHostOption = "127.0.0.1",
 ) -> None:
     """Go on with a run that was stopped (even by kill -9) from its last checkpoint."""
     from orchestrator.session.run_manifest import ManifestError, read_manifest
@@ -257,7 +277,8 @@ def resume_command(
     _check_smplx_model(smplx_model)
     shown, typing = live_and_interactive(live, interactive, reads_stdin=True)
     _execute(manifest.arguments, out=run_dir, trace_path=run_dir / TRACE_JSONL, replay=None,
-             thread_id=manifest.thread_id, resume=True, interactive=typing, live=shown, smplx_model=smplx_model)
+             thread_id=manifest.thread_id, resume=True, interactive=typing, live=shown, smplx_model=smplx_model,
+             view=ViewAt(port, host) if view else None)
 
 
 def replay_command(
@@ -290,6 +311,7 @@ def _execute(
     interactive: bool = False,
     live: bool = False,
     in_process_programs: bool = False,
+    view: ViewAt | None = None,
 ) -> None:
     """Run the job and write its outputs. The event-program worker process (unless
     ``in_process_programs``) is started first, with the scene to load, so its imports and the
@@ -317,35 +339,89 @@ def _execute(
     try:
         _run_job(args, scene_obj, programs, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id,
                  resume=resume, smplx_model=smplx_model, interactive=interactive, live=live,
-                 in_process_programs=in_process_programs)
+                 in_process_programs=in_process_programs, view=view)
     finally:
         if programs is not None:
             programs.close()  # stopped by the job already, unless it failed before it started
 
 
+@dataclass(frozen=True)
+class ViewAt:
+    """``--view``: serve the browser viewer of the run folder on ``host``:``port``."""
+
+    port: int
+    host: str
+
+
 def _run_job(
     args: RunArguments, scene_obj: Scene, programs: WorkerRunner | None, *, out: Path, trace_path: Path | None,
     replay: Path | None, thread_id: str | None, resume: bool, smplx_model: Path | None, interactive: bool, live: bool,
-    in_process_programs: bool,
+    in_process_programs: bool, view: ViewAt | None,
 ) -> None:
-    import asyncio
+    """The job in ``out`` (made here), with the viewer of ``view`` serving it from before the first
+    frame until the command ends (after the story, until Ctrl-C)."""
     import importlib
-    import sys
 
     from orchestrator.cli.collector import imports_paused
 
     with imports_paused():
-        from orchestrator.cli.live_view import terminal_view
-        from orchestrator.session.run_job import RunSetupError, StoryRun, run_story, write_outputs
-        from orchestrator.session.run_manifest import resume_command
-
-        for module in OUTPUT_MODULES:
+        for module in (*OUTPUT_MODULES, *JOB_MODULES, *(VIEWER_MODULES if view is not None else ())):
             importlib.import_module(module)
 
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         _cannot_write(exc, out, resumable=False)
+    viewer = _start_viewer(out, view, smplx_model) if view is not None else None
+    try:
+        _run_and_report(args, scene_obj, programs, out=out, trace_path=trace_path, replay=replay,
+                        thread_id=thread_id, resume=resume, smplx_model=smplx_model, interactive=interactive,
+                        live=live, in_process_programs=in_process_programs, viewer=viewer)
+    finally:
+        if viewer is not None:
+            viewer.stop()
+
+
+def _start_viewer(out: Path, view: ViewAt, smplx_model: Path | None) -> ViewerApp:
+    """The viewer of ``out``, listening, its address printed (exit 2 when it cannot listen)."""
+    from orchestrator.viewer.server import ViewerApp
+
+    try:
+        viewer = ViewerApp(out, port=view.port, host=view.host, smplx_model=smplx_model)
+    except OSError as exc:  # an address this machine does not have, or cannot resolve
+        fail(f"--host {view.host}: cannot listen there ({exc.strerror or exc})")
+    viewer.start()
+    typer.echo(viewer.reach(str(out)))
+    return viewer
+
+
+def _serve_until_stopped(viewer: ViewerApp) -> None:
+    """After the story: the viewer goes on serving until SIGINT (Ctrl-C) or SIGTERM."""
+    import signal
+    import threading
+
+    stopped = threading.Event()
+    typer.echo(f"the story has ended; the viewer still serves it at {viewer.url} (Ctrl-C to stop)")
+    previous = {signum: signal.signal(signum, lambda *_: stopped.set()) for signum in STOP_SIGNALS}
+    try:
+        while not stopped.wait(0.5):
+            pass
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _run_and_report(
+    args: RunArguments, scene_obj: Scene, programs: WorkerRunner | None, *, out: Path, trace_path: Path | None,
+    replay: Path | None, thread_id: str | None, resume: bool, smplx_model: Path | None, interactive: bool, live: bool,
+    in_process_programs: bool, viewer: ViewerApp | None,
+) -> None:
+    import asyncio
+    import sys
+
+    from orchestrator.cli.live_view import terminal_view
+    from orchestrator.session.run_job import RunSetupError, StoryRun, run_story, write_outputs
+    from orchestrator.session.run_manifest import resume_command
 
     prompt = _typing_prompt(live, interactive)
     view = terminal_view(sys.stdout, stderr_is_terminal=sys.stderr.isatty(),
@@ -437,6 +513,8 @@ def _run_job(
         f"{result.frames} frames ({result.frames / fps:.1f} s), {result.steps} planning steps, "
         f"{sum(e.state == 'completed' for e in result.events)} events completed -> {out}"
     )
+    if viewer is not None and not signals:
+        _serve_until_stopped(viewer)
     if signals:
         signum = signals[0]
         again = "" if replay is not None else f"; go on with: {resume_command(out)}"
@@ -455,6 +533,10 @@ def _run_job(
 OUTPUT_MODULES = ("sim.export.bundle", "sim.export.video", "orchestrator.bodies.smplx_meshes")
 """Modules the outputs are written with at the end of a run: imported with the job's modules while
 the garbage collector is paused (``orchestrator.cli.collector``), not when the story is over."""
+JOB_MODULES = ("orchestrator.cli.live_view", "orchestrator.session.run_job", "orchestrator.session.run_manifest")
+"""The job's own modules, imported the same way."""
+VIEWER_MODULES = ("orchestrator.viewer.server",)
+"""``--view``: the viewer (``viser``), imported the same way before the first frame."""
 
 STOP_SIGNALS = (2, 15)  # SIGINT, SIGTERM (the same numbers on every POSIX system)
 """The signals that stop a run cleanly; it exits with 128 + the signal's number (130, 143)."""

@@ -64,15 +64,7 @@ def view_command(
     except OSError as exc:  # an address this machine does not have, or cannot resolve
         fail(f"--host {host}: cannot listen there ({exc.strerror or exc})")
     viewer.start()
-    if viewer.access.token is None:
-        typer.echo(f"viewing {plain(run_dir)} at {viewer.url} (this machine only; Ctrl-C to stop)")
-    else:
-        where = "every address of this machine" if viewer.access.wildcard else plain(host)
-        typer.echo(
-            f"viewing {plain(run_dir)} at {viewer.url} (Ctrl-C to stop)\n"
-            f"  listening on {where}, port {viewer.server.get_port()}: any machine that can reach it there can "
-            "connect, and only with this URL's token sees the run and controls the viewer; keep the URL private"
-        )
+    typer.echo(viewer.reach(str(run_dir)))
     try:
         threading.Event().wait()
     except KeyboardInterrupt:

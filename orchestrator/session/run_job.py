@@ -29,7 +29,9 @@ gets a line whenever an event starts, completes or fails, so ``storyteller view`
 run in progress from them and the chunk files; ``story.json`` appears when the run ends.
 
 Instructions: the timed script (``RunArguments.instructions``) is scheduled at its frames,
-lines typed on stdin (``interactive``) take effect at the next frame, and every one is
+lines typed on stdin (``interactive``) and lines a viewer's box appends to
+``viewer_instructions.jsonl`` (``orchestrator.session.viewer_instructions``; read by every run
+that is not a replay) take effect at the next frame, and every one is
 written to the trace as an ``instruction`` record with its frame. A replay schedules the
 trace's instruction records at their frames and ignores the script and stdin; a resume
 applies the recorded ones again (not traced twice) and the script lines not yet applied.
@@ -59,11 +61,12 @@ import asyncio
 import contextlib
 import json
 import sqlite3
+import threading
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, get_args
 
 from agents.messages import ParsedEvent, PlanningFailure
 from agents.story_text import step_text
@@ -72,6 +75,7 @@ from orchestrator.session.run_folder_links import PlantedLinkError, refuse_plant
 from orchestrator.session.run_manifest import RunArguments, RunManifest
 from orchestrator.session.run_status import RunStatus
 from orchestrator.session.runtime import (
+    InstructionSource,
     RecordedRequest,
     Session,
     SessionResult,
@@ -186,7 +190,7 @@ def instructions_from_trace(path: Path) -> list[TimedInstruction]:
 
     out = []
     for r in read_trace(path).instructions():
-        source = r.source if r.source in ("initial", "script", "api", "stdin", "replay") else "replay"
+        source = r.source if r.source in get_args(InstructionSource) else "replay"
         out.append(TimedInstruction.model_validate({"frame": r.sim_frame, "text": r.text, "source": source}))
     return out
 
@@ -380,6 +384,7 @@ async def _run_story(
     )
     from orchestrator.session.step_planner import GraphStepPlanner
     from orchestrator.session.story_stream import StoryStream, StreamStart
+    from orchestrator.session.viewer_instructions import INBOX_FILE, start_inbox_reader
     from sim.world.step import World, WorldConfig
 
     names = list(args.names)
@@ -518,6 +523,7 @@ async def _run_story(
 
     stream = StoryStream(out)
     checkpoints = CheckpointWriter(snapshot_path, write=write_after_trace)
+    inbox_closed = threading.Event()
     finished = False
     try:
         async with open_checkpointer(runs_db) as saver:
@@ -544,6 +550,9 @@ async def _run_story(
                 from orchestrator.session.stdin_instructions import start_stdin_reader
 
                 (stdin_reader or start_stdin_reader)(session)
+            if replay is None:  # a viewer's instruction box, in this process or another
+                start_inbox_reader(session, out / INBOX_FILE, thread, [i.text for i in said if i.source == "viewer"],
+                                   stop=inbox_closed)
             result, stopped = await _run_until_stopped(session, stop)
             if stopped:
                 keep(session.checkpoint())
@@ -552,6 +561,7 @@ async def _run_story(
     except (LLMError, SessionError) as exc:
         raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
     finally:
+        inbox_closed.set()
         try:
             checkpoints.close(raise_errors=finished)  # after an error: the newest checkpoint still lands
         finally:

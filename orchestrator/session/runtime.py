@@ -139,7 +139,7 @@ class PlanningRequest(BaseModel):
     )
 
 
-InstructionSource = Literal["initial", "script", "api", "stdin", "replay"]
+InstructionSource = Literal["initial", "script", "api", "stdin", "viewer", "replay"]
 
 
 class TimedInstruction(BaseModel):

@@ -7,6 +7,15 @@ Text from the run folder (its name, the instruction, activities, error messages)
 panel's markdown gets it through :func:`orchestrator.safe_text.markdown` (viser renders raw HTML
 in markdown), buttons and labels through :func:`orchestrator.safe_text.plain`.
 
+The instruction box ("Direct the story", one per browser: what one person types is not in
+another's box): Send (or Enter) appends the text to the run folder's
+``viewer_instructions.jsonl`` (:mod:`orchestrator.session.viewer_instructions`), on disk before
+the page says "Sent"; the run takes it as its latest instruction at its next frame, as a line
+typed on its stdin (source ``viewer``). Refused, with the reason under the box: an empty text,
+one over ``MAX_INSTRUCTION_CHARS``, a run that has ended (``story.json`` is there) or has not
+started (no ``run.json``). A run that was killed keeps what was sent meanwhile: its ``resume``
+takes it. The text is shown escaped, as everything from the run folder.
+
 Who may connect: the pages this viewer served, checked on every request
 (:mod:`.access`, applied by :mod:`.guarded_server`); on a host beyond loopback only with the
 token of :attr:`ViewerApp.url`. viser's share button (a public tunnel) is hidden and refused.
@@ -36,12 +45,31 @@ from pathlib import Path
 import viser
 
 from orchestrator.bodies.smplx_meshes import SmplxBody, SmplxModelError, SmplxModels, run_bodies
-from orchestrator.safe_text import markdown
+from orchestrator.safe_text import markdown, plain
+from orchestrator.session.run_manifest import ManifestError, read_manifest
+from orchestrator.session.viewer_instructions import (
+    INBOX_FILE,
+    ViewerInstruction,
+    instruction_problem,
+    send_instruction,
+)
 from orchestrator.viewer.access import TOKEN_PARAM, ViewerAccess, authority
 from orchestrator.viewer.guarded_server import guarded_server
-from orchestrator.viewer.run_folder import RunData, RunFolderError, folder_stamp, is_ready, load_run
+from orchestrator.viewer.run_folder import (
+    STORY_FILE,
+    RunData,
+    RunFolderError,
+    folder_stamp,
+    is_ready,
+    load_run,
+)
 from orchestrator.viewer.scene_view import SceneView
 from orchestrator.viewer.timeline import active_events, clock, event_line
+
+
+class InstructionRefused(Exception):
+    """An instruction the box does not send (the message is the reason the page shows)."""
+
 
 HOST = "127.0.0.1"  # the default: this machine only
 SPEEDS = ("0.25", "0.5", "1", "2", "4")
@@ -86,6 +114,8 @@ class ViewerApp:
         self.events_folder = gui.add_folder("Events")
         self.play.on_click(lambda _: self.toggle())
         self.slider.on_update(self._on_slider)
+        self._box_order = self.status.order + 0.5  # each browser's instruction box: under the status line
+        self.server.on_client_connect(self._add_instruction_box)
 
     # ----- lifecycle -----------------------------------------------------------------
     @property
@@ -95,6 +125,18 @@ class ViewerApp:
         host = socket.gethostname() if self.access.wildcard else self.access.host
         base = f"http://{authority(host, self.server.get_port())}"
         return base if self.access.token is None else f"{base}/?{TOKEN_PARAM}={self.access.token}"
+
+    def reach(self, what: str) -> str:
+        """The line(s) to print once the server listens: ``what`` (e.g. the run folder) at
+        :attr:`url`, and beyond this machine who can connect and that the token is the key."""
+        if self.access.token is None:
+            return f"viewing {plain(what)} at {self.url} (this machine only; Ctrl-C to stop)"
+        where = "every address of this machine" if self.access.wildcard else plain(self.access.host)
+        return (
+            f"viewing {plain(what)} at {self.url} (Ctrl-C to stop)\n"
+            f"  listening on {where}, port {self.server.get_port()}: any machine that can reach it there can "
+            "connect, and only with this URL's token sees the run and controls the viewer; keep the URL private"
+        )
 
     def start(self) -> None:
         """Load the run (or wait for it) and start the playback and folder-watch threads."""
@@ -173,6 +215,47 @@ class ViewerApp:
                 button = self.server.gui.add_button(lines[i])
                 button.on_click(self._jumper(i))
                 self._event_buttons.append(button)
+
+    # ----- the instruction box ---------------------------------------------------------
+    def _add_instruction_box(self, client: viser.ClientHandle) -> None:
+        """One box per browser (what one person types is not shown in another's box): a text
+        field and Send (or Enter), and a line saying what became of the last one sent."""
+        with client.gui.add_form("Direct the story", order=self._box_order) as form:
+            text = client.gui.add_text("Instruction", "", hint="What should happen next (the story's latest instruction).")
+            send = client.gui.add_button("Send")
+            note = client.gui.add_markdown("")
+        send.on_click(lambda _: form.submit())
+        form.on_submit(lambda _: self._send(text, note))
+
+    def _send(self, text: viser.GuiTextHandle, note: viser.GuiMarkdownHandle) -> None:
+        typed = text.value
+        try:
+            line = self.send_instruction(typed)
+        except InstructionRefused as exc:
+            note.content = f"**Not sent:** {markdown(exc)}"
+            return
+        text.value = ""  # type: ignore[misc]  # viser declares the setter on a subclass mypy does not see
+        note.content = f"Sent: *{markdown(line.text)}* (the run takes it at its next frame)"
+
+    def send_instruction(self, typed: str) -> ViewerInstruction:
+        """Append ``typed`` to the run folder's instruction file for the running story;
+        :class:`InstructionRefused` says why not (empty, too long, the run has ended or not
+        started, the file cannot be written)."""
+        problem = instruction_problem(typed)
+        if problem is not None:
+            raise InstructionRefused(problem)
+        with self.lock:
+            run = self.run
+        if (self.folder / STORY_FILE).exists() or (run is not None and not run.live):
+            raise InstructionRefused("the run has ended: a finished story takes no more instructions")
+        try:
+            thread = read_manifest(self.folder).thread_id
+        except ManifestError:
+            raise InstructionRefused("the run has not started yet (no run.json in its folder)") from None
+        try:
+            return send_instruction(self.folder, thread, typed, sent_unix=time.time())
+        except OSError as exc:
+            raise InstructionRefused(f"cannot write {exc.filename or INBOX_FILE} ({exc.strerror or exc})") from None
 
     # ----- controls ------------------------------------------------------------------
     def toggle(self) -> None:

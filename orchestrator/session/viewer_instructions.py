@@ -1,0 +1,221 @@
+"""``viewer_instructions.jsonl``: instructions typed in a viewer's box, on their way to the run.
+
+The viewer (``storyteller view RUN_DIR`` or ``run --view``; several at once, in other processes,
+each with several browsers) and the run share one append-only file in the run folder. The
+viewer appends one JSON line per instruction (:func:`send_instruction`):
+``{"id": "<32 hex>", "thread": "<run.json's thread id>", "text": "...", "sent_unix": 1.7e9}``.
+The run (not a replay) reads it from its last offset in a thread of its own
+(:func:`start_inbox_reader`), and each new line goes to ``Session.instruct_nowait(text,
+"viewer")``: the latest instruction from the next frame, exactly as a line typed on stdin (an
+``instruction`` record with its frame and source ``viewer`` in ``trace.jsonl``, listed in
+``story.json``, applied again by a replay and by a resume).
+
+Guarantees:
+
+- nothing typed is lost when either process restarts: a line is written with one ``write`` on a
+  descriptor opened ``O_APPEND`` (``sim.no_follow_writes.open_append``: never through a link)
+  and fsynced before the viewer says it was sent; the run only reads the file;
+- each line is applied once: lines are taken in file order; a line whose ``id`` came before, or
+  for another thread (an earlier run in the same folder), is skipped; a resumed run skips the
+  first lines as many as the trace holds ``viewer`` instructions (applied already: the resume
+  applies them again at their recorded frames), because the run applies lines in file order;
+- bounded: the file is opened ``O_NOFOLLOW`` and read only when it is a regular file, at most
+  :data:`READ_BYTES` a poll; a line longer than :data:`MAX_LINE_BYTES` is skipped to its newline
+  without being held whole; a malformed line is skipped with a warning; a last line with no
+  newline is a write in progress and waits for the next poll.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import stat
+import string
+import threading
+import uuid
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import structlog
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
+from sim.no_follow_writes import open_append
+from sim.run_folder_names import VIEWER_INSTRUCTIONS
+
+if TYPE_CHECKING:  # the viewer imports this module too, without the session
+    from orchestrator.session.runtime import Session
+
+_log = structlog.get_logger("storyteller.session")
+
+INBOX_FILE = VIEWER_INSTRUCTIONS
+MAX_LINE_BYTES = 32 * 1024
+"""Bytes of one line at most (an instruction of ``MAX_INSTRUCTION_CHARS`` characters, each escaped
+as ``\\uXXXX`` pairs at worst, fits)."""
+READ_BYTES = 1 << 20
+"""Bytes read from the file in one poll at most."""
+assert READ_BYTES > MAX_LINE_BYTES  # a poll that finds no newline in a whole read has found a line too long
+POLL_S = 0.1
+"""Wall seconds between two looks at the file."""
+_READ = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
+
+
+class ViewerInstruction(BaseModel):
+    """One line of the file: an instruction typed in a viewer for the run of ``thread``."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    id: str = Field(min_length=32, max_length=32, description="Unique per line: 32 hex digits.")
+    thread: str = Field(min_length=1, max_length=200, description="The run's planning thread (run.json).")
+    text: str = Field(min_length=1, max_length=MAX_INSTRUCTION_CHARS)
+    sent_unix: float = Field(ge=0, description="When the viewer wrote it (wall clock; shown only).")
+
+    @field_validator("id")
+    @classmethod
+    def _hex(cls, value: str) -> str:
+        if not all(c in string.hexdigits for c in value):
+            raise ValueError("expected 32 hex digits")
+        return value
+
+
+def instruction_text(typed: str) -> str:
+    """The instruction a typed text gives, as the session keeps it (runs of spaces, tabs and
+    newlines made one space)."""
+    return " ".join(typed.split())
+
+
+def instruction_problem(typed: str) -> str | None:
+    """Why ``typed`` cannot be sent (None: it can): nothing but spaces, or too long."""
+    text = instruction_text(typed)
+    if not text:
+        return "the instruction is empty"
+    if len(text) > MAX_INSTRUCTION_CHARS:
+        return f"the instruction has {len(text)} characters, at most {MAX_INSTRUCTION_CHARS} are taken"
+    return None
+
+
+def send_instruction(folder: Path, thread: str, typed: str, *, sent_unix: float) -> ViewerInstruction:
+    """Append ``typed`` for the run of ``thread`` to ``folder``'s file, on disk when this returns.
+    ``ValueError`` when :func:`instruction_problem` has one; ``OSError`` naming the file when it
+    cannot be written (a link or anything but a regular file there, a full disk)."""
+    problem = instruction_problem(typed)
+    if problem is not None:
+        raise ValueError(problem)
+    line = ViewerInstruction(id=uuid.uuid4().hex, thread=thread, text=instruction_text(typed), sent_unix=sent_unix)
+    data = (json.dumps(line.model_dump(mode="json"), ensure_ascii=True) + "\n").encode("ascii")
+    fd = open_append(folder / INBOX_FILE)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view) :]
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    return line
+
+
+class InstructionInbox:
+    """The run's side: the new lines for ``thread`` since the last :meth:`poll`.
+
+    ``applied``: the texts of the ``viewer`` instructions the run applied before (a resume: from
+    its trace); that many lines are skipped first (a line that differs is logged: the file was
+    changed by hand)."""
+
+    def __init__(self, path: Path, thread: str, applied: Sequence[str] = ()) -> None:
+        self.path = path
+        self.thread = thread
+        self.offset = 0
+        self._seen: set[str] = set()
+        self._applied = list(applied)
+        self._skipping = False  # inside a line longer than MAX_LINE_BYTES
+
+    def poll(self) -> list[ViewerInstruction]:
+        """The lines appended since the last call that are new, for this thread, not applied before."""
+        data = self._read()
+        out: list[ViewerInstruction] = []
+        start = 0
+        while (end := data.find(b"\n", start)) >= 0:
+            raw, start = data[start:end], end + 1
+            if self._skipping:  # the end of a line too long to take
+                self._skipping = False
+                continue
+            line = self._parse(raw)
+            if line is not None:
+                out.append(line)
+        rest = len(data) - start
+        if self._skipping or rest > MAX_LINE_BYTES:  # no newline yet in a line that is too long already
+            if not self._skipping:
+                _log.warning("viewer_instruction_too_long", file=str(self.path), limit=MAX_LINE_BYTES)
+            self._skipping = True
+            start = len(data)
+        self.offset += start
+        return out
+
+    def _read(self) -> bytes:
+        try:
+            fd = os.open(self.path, _READ)
+        except FileNotFoundError:
+            return b""
+        except OSError as exc:
+            if exc.errno == errno.ELOOP:
+                _log.warning("viewer_instructions_refused", file=str(self.path), reason="a symbolic link")
+            return b""
+        try:
+            info = os.fstat(fd)
+            if not stat.S_ISREG(info.st_mode):
+                _log.warning("viewer_instructions_refused", file=str(self.path), reason="not a regular file")
+                return b""
+            if info.st_size < self.offset:  # replaced by a shorter file: read it from its start (ids stay seen)
+                self.offset, self._skipping = 0, False
+            return os.pread(fd, min(READ_BYTES, info.st_size - self.offset), self.offset)
+        finally:
+            os.close(fd)
+
+    def _parse(self, raw: bytes) -> ViewerInstruction | None:
+        if len(raw) > MAX_LINE_BYTES:
+            _log.warning("viewer_instruction_too_long", file=str(self.path), limit=MAX_LINE_BYTES)
+            return None
+        try:
+            line = ViewerInstruction.model_validate_json(raw)
+        except ValidationError as exc:
+            _log.warning("viewer_instruction_malformed", file=str(self.path), offset=self.offset,
+                         error=str(exc.errors()[0]["msg"]))
+            return None
+        if line.thread != self.thread or line.id in self._seen or not instruction_text(line.text):
+            return None
+        self._seen.add(line.id)
+        if self._applied:
+            before = self._applied.pop(0)
+            if before != instruction_text(line.text):
+                _log.warning("viewer_instruction_mismatch", file=str(self.path), trace=before, line=line.text)
+            return None
+        return line
+
+
+def start_inbox_reader(
+    session: Session,
+    path: Path,
+    thread: str,
+    applied: Sequence[str] = (),
+    *,
+    stop: threading.Event,
+    taken: Callable[[ViewerInstruction], None] | None = None,
+) -> threading.Thread:
+    """Start the daemon thread that hands every new line of ``path`` for ``thread`` to
+    ``session.instruct_nowait(text, "viewer")`` (``taken(line)`` first, in the same order); it
+    ends when ``stop`` is set or the session takes no more instructions."""
+    inbox = InstructionInbox(path, thread, applied)
+
+    def read() -> None:
+        while not stop.wait(POLL_S):
+            for line in inbox.poll():
+                if taken is not None:
+                    taken(line)
+                if not session.instruct_nowait(line.text, "viewer"):
+                    return
+
+    thread_ = threading.Thread(target=read, name="storyteller-viewer-instructions", daemon=True)
+    thread_.start()
+    return thread_
