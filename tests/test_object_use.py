@@ -56,6 +56,9 @@ def test_the_coffee_maker_ava_is_heading_to_is_refused_to_ben_with_typed_feedbac
                '    else:\n        c.set_target_action("use_coffee_maker")\n')
     (ben,) = run_event_program(home, waiting, world, seed=0)  # the program sees it taken, and waits beside it
     assert ben.action == "idle"
+    (ben,) = run_event_program(home, COFFEE.format(who="Ben"), world.model_copy(update={"busy_objects": "wait"}), seed=0)
+    to_maker = np.subtract(home.by_name["coffee_maker_1"].center[:2], ben.position)
+    assert ben.action == "idle" and float(np.dot(to_maker / np.hypot(*to_maker), ben.facing)) > 0.99
 
 
 def test_two_characters_of_one_event_cannot_share_the_coffee_maker(home: Scene) -> None:
@@ -91,9 +94,11 @@ def test_a_wide_whiteboard_has_a_place_per_writer() -> None:
 # ----- a scripted run: the planning graph and the simulation ---------------------------------
 class CoffeeStory:
     """The LLM port's script: Ava makes coffee, then Ben is sent to the same coffee maker; after
-    the feedback he makes toast instead. Every later step is a wait."""
+    the feedback he makes toast instead (``stubborn``: he is sent to the coffee maker again).
+    Every later step is a wait."""
 
-    def __init__(self) -> None:
+    def __init__(self, stubborn: bool = False) -> None:
+        self.stubborn = stubborn
         self.given: list[str] = []
         self.parser_requests: list[LLMRequest] = []
 
@@ -116,12 +121,14 @@ class CoffeeStory:
         named = re.search(r'Event: characters \["(\w+)"', request.messages[1].content)
         assert named is not None
         who = named.group(1)
-        if who == "Ben" and len(request.messages) > 2:  # told the coffee maker is taken
+        if who == "Ben" and len(request.messages) > 2 and not self.stubborn:  # told the coffee maker is taken
             return "```python\n" + _program("Ben", "use_toaster", "get_area_to_interact_with", "toaster_1") + "```"
         return "```python\n" + COFFEE.format(who=who) + "```"
 
 
-def test_a_scripted_run_never_has_two_users_at_the_coffee_maker(home: Scene, tmp_path: Path) -> None:
+def _coffee_run(home: Scene, tmp_path: Path, story: CoffeeStory) -> tuple[dict[str, tuple[str, ...]], dict[str, np.ndarray], list[LLMRequest]]:
+    """The story through the planning graph and the simulation (30 s, lockstep): every
+    character's per-frame action labels and positions, and the parser's requests for Ben."""
     from langgraph.checkpoint.memory import InMemorySaver
 
     from agents.event_parser import scene_action_labels
@@ -136,13 +143,12 @@ def test_a_scripted_run_never_has_two_users_at_the_coffee_maker(home: Scene, tmp
     from sim.motion.matching import MotionMatcher
     from sim.world.step import World
 
-    story = CoffeeStory()
     port = ScriptedLLM({"describer": story.describer, "narrator": story.narrator, "event_parser": story.parser})
     log = StoryLog(tmp_path / "runs.sqlite", "coffee")
     deps = PlanningDeps(port=port, scene=home, world=RosterWorld(), story=log, action_labels=scene_action_labels(home), seed=0)
     planner = GraphStepPlanner(compile_planning_graph(InMemorySaver()), deps, "coffee")
     world = World(home, {"Ava": ((3.5, 2.5), 0.0), "Ben": ((3.5, 4.0), 0.0)}, MotionMatcher(load_databases(cache_dir=motion_cache_dir())))
-    settings = SessionSettings(frames=30 * 30, pace="lockstep", max_steps=2, instruction="Ava makes coffee.")
+    settings = SessionSettings(frames=30 * 30, pace="lockstep", max_steps=2, instruction="Ava makes coffee. Ben makes coffee.")
 
     async def main() -> object:
         try:
@@ -151,11 +157,27 @@ def test_a_scripted_run_never_has_two_users_at_the_coffee_maker(home: Scene, tmp
             log.close()
 
     anyio.run(main)
+    tracks = world.tracks()
     ben_calls = [r for r in story.parser_requests if 'Event: characters ["Ben"]' in r.messages[1].content]
+    return ({n: tuple(t.action_labels or ()) for n, t in tracks.items()},
+            {n: np.asarray(t.root_positions) for n, t in tracks.items()}, ben_calls)
+
+
+def test_a_scripted_run_never_has_two_users_at_the_coffee_maker(home: Scene, tmp_path: Path) -> None:
+    labels, positions, ben_calls = _coffee_run(home, tmp_path, CoffeeStory())
     assert len(ben_calls) == 2, "Ben's first program was refused"
     assert "coffee_maker_1 is being used by Ava; choose another object or wait" in ben_calls[1].messages[-1].content
-    tracks = world.tracks()
-    labels = {n: t.action_labels or () for n, t in tracks.items()}
-    positions = {n: np.asarray(t.root_positions) for n, t in tracks.items()}
-    assert any(lab == "use_coffee_maker" for lab in labels["Ava"]) and any(lab == "use_toaster" for lab in labels["Ben"])
+    assert "use_coffee_maker" in labels["Ava"] and "use_toaster" in labels["Ben"]
+    assert shared_use_frames(labels, positions, home) == []
+
+
+def test_a_parser_that_insists_makes_the_second_character_wait_by_the_object(home: Scene, tmp_path: Path) -> None:
+    """Told once, the parser sends Ben to the coffee maker again: he waits there (idle, facing
+    it) instead of the step failing, and still nobody shares the coffee maker."""
+    labels, positions, ben_calls = _coffee_run(home, tmp_path, CoffeeStory(stubborn=True))
+    assert len(ben_calls) == 2
+    assert "use_coffee_maker" in labels["Ava"] and "use_coffee_maker" not in labels["Ben"]
+    end = positions["Ben"][-1][:2]
+    maker = home.by_name["coffee_maker_1"].center[:2]
+    assert float(np.hypot(*(np.subtract(end, maker)))) < 2.0  # he waits by it
     assert shared_use_frames(labels, positions, home) == []

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import re
 import zlib
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,6 +55,11 @@ class WorldView(BaseModel):
 
     characters: tuple[CharacterState, ...] = ()
     objects_in_use: dict[str, str] = Field(default_factory=dict)
+    busy_objects: Literal["refuse", "wait"] = Field(
+        default="refuse",
+        description="A plan giving a character an object another one uses alone (tools.object_use): "
+        "refused with ObjectInUseError, or the character waits there (idle, facing it).",
+    )
 
     @property
     def names(self) -> list[str]:

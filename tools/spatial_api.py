@@ -719,10 +719,23 @@ class SpatialAPI:
                 )
             )
         conflicts = use_conflicts(plans, self.world.characters, self.scene)
-        if conflicts:  # one object, one user: refused before anything is applied
+        if conflicts and self.world.busy_objects == "refuse":  # one object, one user: refused before anything is applied
             first = conflicts[0]
             raise ObjectInUseError(f"{first.character}: {first.message}", line=self._records[first.character].position_line)
-        return plans
+        waiting = {c.character: c.obj for c in conflicts}
+        return [self._waiting(p, waiting[p.character]) if p.character in waiting else p for p in plans]
+
+    def _waiting(self, plan: CharacterPlan, obj: str) -> CharacterPlan:
+        """``plan`` turned into waiting for ``obj`` where it was placed: idle, facing the object
+        (seated: on its seat, facing as the seat does)."""
+        self._default_action(plan.character)  # "idle" must be an offered label
+        if plan.seat is not None:
+            return plan.model_copy(update={"action": "idle"})
+        c = self.scene.by_name[obj].center
+        v = np.subtract((c[0], c[1]), plan.position)
+        n = float(np.hypot(*v))
+        facing = (float(v[0] / n), float(v[1] / n)) if n > 1e-6 else plan.facing
+        return plan.model_copy(update={"action": "idle", "facing": facing})
 
     def _check_separation(
         self, name: str, record: _Record, occupied: list[tuple[Point, str]]

@@ -78,6 +78,8 @@ from agents.narrator import NarratorInput, narrator_request, parse_narration, wa
 from agents.program_grammar import event_program_grammar
 from agents.retry_feedback import REJECTIONS, feedback_from_error
 from orchestrator.planning.state import RECENT_WINDOW, PlanningDeps, PlanningState, RetryTurn
+from tools.character_states import WorldView
+from tools.errors import ObjectInUseError
 
 NODES = (
     "describe_scene", "check_description", "narrate_event", "check_narration", "parse_event",
@@ -316,7 +318,9 @@ async def parse_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> d
 
 
 async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
-    """Run the reply's parse_event() in the sandbox; a typed error becomes feedback."""
+    """Run the reply's parse_event() in the sandbox; a typed error becomes feedback. A program
+    that gives a character an object another one uses alone is refused once with that feedback
+    (ObjectInUseError); after it, such a character waits by the object instead (idle)."""
     deps = runtime.context
     if state.failure is not None:
         return {}
@@ -324,12 +328,15 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     reply = state.parser_reply or ""
     attempts = len(state.parser_turns) + 1
     event = state.event
+    world = deps.world.world_view(state.roster)
+    if isinstance(world, WorldView) and any(t.error == ObjectInUseError.__name__ for t in state.parser_turns):
+        world = world.model_copy(update={"busy_objects": "wait"})  # told once: now whoever is refused waits
     try:
         result = await off_loop(lambda: run_reply(
             reply,
             scene=deps.scene,
             event=event,
-            world=deps.world.world_view(state.roster),
+            world=world,
             seed=deps.seed + state.step,
             action_labels=deps.action_labels,
             graph=deps.scene_graph,
