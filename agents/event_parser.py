@@ -82,6 +82,9 @@ class ParserInput:
     """The part of the user's instruction the event carries out ("" when none): its own words,
     which the narrator's activity may have lost ("the laptop" in "takes the seat from which
     the laptop can be reached")."""
+    seat: str | None = None
+    """The seat chosen for the event before its program (``agents.place_choice``), named in the
+    request; None: no seat was chosen."""
     max_tokens: int | None = None
     """None: 80 + 110 per event character (capped at DEFAULT_MAX_TOKENS), enough for the
     function; a small model otherwise goes on writing more examples."""
@@ -162,6 +165,7 @@ def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessa
         activity=inp.event.activity.strip(),
         instruction_part="\n" + prompts.render_text("event_parser/instruction_part.md", part=inp.instruction_part.strip())
         if inp.instruction_part.strip() else "",
+        chosen_seat="\n" + prompts.render_text("event_parser/chosen_seat.md", seat=inp.seat) if inp.seat else "",
         likely_action=suggested_action(
             event_text(inp.event.activity, inp.instruction_part), inp.action_labels,
             context=inp.event.activity if inp.instruction_part.strip() else "",

@@ -47,11 +47,19 @@ class LLMRequest(BaseModel):
         description="GBNF grammar the reply must follow; local llama.cpp models decode under it, "
         "other providers ignore it.",
     )
+    choices: tuple[str, ...] | None = Field(
+        default=None,
+        max_length=64,
+        description="A choice among these continuations: a local model scores each one's "
+        "log-likelihood as the whole reply (one prompt, no generation); other providers answer "
+        "under json_schema, which must admit exactly these (agents.scored_choice builds both).",
+    )
 
     def content_hash(self) -> str:
-        """Hash of everything that determines the answer (not the sim frame; no grammar key when
-        there is none, so requests made before grammars existed keep their hash)."""
-        payload = self.model_dump(mode="json", exclude={"sim_frame"} | ({"grammar"} if self.grammar is None else set()))
+        """Hash of everything that determines the answer (not the sim frame; no grammar or
+        choices key when there is none, so requests made before those existed keep their hash)."""
+        unset = {k for k in ("grammar", "choices") if getattr(self, k) is None}
+        payload = self.model_dump(mode="json", exclude={"sim_frame"} | unset)
         blob = json.dumps(payload, sort_keys=True, separators=(",", ":"), ensure_ascii=False)
         return hashlib.sha256(blob.encode("utf-8")).hexdigest()
 

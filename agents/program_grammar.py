@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -169,10 +170,75 @@ def program_grammar(
     return "\n".join(lines) + "\n"
 
 
-def event_program_grammar(
+@dataclass(frozen=True)
+class EventOptions:
+    """What the grammar of one event offers (see :func:`event_options`)."""
+
+    labels: tuple[str, ...]
+    objects: tuple[str, ...]
+    seats: tuple[str, ...]
+    free_seats: tuple[str, ...]
+    posture: str | None
+    relations: tuple[str, ...]
+    others: dict[str, tuple[float, float]]
+    """Where the characters outside the event are (name -> xy)."""
+
+    @property
+    def must_sit(self) -> bool:
+        """Whether the grammar offers seats only (the event's words, or its best label, sit)."""
+        return bool(self.seats) and any(playable_seated(a) for a in self.labels) and self.posture == "sit"
+
+
+def free_seats(
+    scene: Scene, event_characters: Sequence[str], characters: Sequence[Any], seats_in_use: Sequence[str],
+) -> list[str]:
+    """The seats nobody outside the event holds or stands on: the sampler's own rule, a one-place
+    seat nobody holds, or a slot of it (a couch has several) clear of everyone else by the
+    minimum separation."""
+    others = [c for c in characters if c.name not in event_characters]
+    taken = set(seats_in_use) | {c.seat for c in others if getattr(c, "seat", None)}
+    placed = np.array([c.position for c in others if c.position is not None], dtype=float).reshape(-1, 2)
+
+    def free(obj: SceneObject) -> bool:
+        slots = seat_slots(obj)
+        if obj.name in taken and len(slots) <= 1:
+            return False
+        if len(placed) == 0 or not slots:
+            return True
+        return any(float(np.min(np.linalg.norm(placed - np.asarray(s.position), axis=1))) >= MIN_SEPARATION for s in slots)
+
+    return [o.name for o in scene.objects if o.is_seat and free(o)]
+
+
+def event_options(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[Any],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
     context: str = "",
+) -> EventOptions:
+    """The labels, objects, seats, posture and area functions an event's grammar offers (the
+    arguments are :func:`event_program_grammar`'s)."""
+    others = [c for c in characters if c.name not in event_characters]
+    free = free_seats(scene, event_characters, characters, seats_in_use)
+    labels = list(action_shortlist(activity, action_labels, scene.labels, context)) or list(action_labels)
+    relations = () if widen else relation_areas(activity)
+    where = {c.name: (float(c.position[0]), float(c.position[1])) for c in others if c.position is not None}
+    shortlist = event_shortlist(scene, activity, free, labels, others=where)
+    return EventOptions(
+        labels=tuple(labels),
+        objects=tuple(shortlist.objects) or tuple(o.name for o in scene.objects),
+        seats=tuple(shortlist.seats) or tuple(free),
+        free_seats=tuple(free),
+        posture=posture(activity) or ("stand" if set(relations) & DIRECTIONAL else None)
+        or ("sit" if labels[0] in SEATED_ACTIVITIES else None),
+        relations=relations,
+        others=where,
+    )
+
+
+def event_program_grammar(
+    scene: Scene, event_characters: Sequence[str], characters: Sequence[Any],
+    seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
+    context: str = "", seat: str | None = None,
 ) -> str:
     """:func:`program_grammar` for an event in ``scene``: the labels its words point to
     (:func:`agents.action_shortlist.action_shortlist` of ``activity``; every offered label
@@ -183,39 +249,23 @@ def event_program_grammar(
     roster (objects with ``name``, ``seat``, ``position``). ``widen`` (a retry after the named
     place had no room): every area function over the shortlist, not only those the where-words
     name, so the model can pick another place by the same things. ``context``: other words
-    about the event (the narrator's activity), which break ties between labels."""
-    others = [c for c in characters if c.name not in event_characters]
-    taken = set(seats_in_use) | {c.seat for c in others if getattr(c, "seat", None)}
-    placed = np.array([c.position for c in others if c.position is not None], dtype=float).reshape(-1, 2)
-
-    def free(obj: SceneObject) -> bool:
-        """The sampler's own rule: a one-place seat nobody holds, or a slot of it (a couch has
-        several) clear of everyone else by the minimum separation."""
-        slots = seat_slots(obj)
-        if obj.name in taken and len(slots) <= 1:
-            return False
-        if len(placed) == 0 or not slots:
-            return True
-        return any(float(np.min(np.linalg.norm(placed - np.asarray(s.position), axis=1))) >= MIN_SEPARATION for s in slots)
-
-    free_seats = [o.name for o in scene.objects if o.is_seat and free(o)]
-    labels = list(action_shortlist(activity, action_labels, scene.labels, context)) or list(action_labels)
-    relations = () if widen else relation_areas(activity)
-    where = {c.name: (float(c.position[0]), float(c.position[1])) for c in others if c.position is not None}
-    shortlist = event_shortlist(scene, activity, free_seats, labels, others=where)
-    objects = list(shortlist.objects) or [o.name for o in scene.objects]
+    about the event (the narrator's activity), which break ties between labels. ``seat``: the
+    seat already chosen for the event (:mod:`agents.place_choice`): the only seat offered."""
+    options = event_options(scene, event_characters, characters, seats_in_use, action_labels, activity, widen, context)
+    objects = list(options.objects)
     seat_names = {o.name for o in scene.objects if o.is_seat}  # sitting is get_area_to_sit_on's
+    if seat is not None and seat not in objects:
+        objects.append(seat)
     return program_grammar(
         event_characters,
         objects,
-        list(shortlist.seats) or free_seats,
-        labels,
+        [seat] if seat is not None else list(options.seats),
+        list(options.labels),
         [c.name for c in characters if c.name not in event_characters],
-        seated_labels=[a for a in labels if playable_seated(a)],
+        seated_labels=[a for a in options.labels if playable_seated(a)],
         interact_objects=[o for o in objects if o not in seat_names],
-        posture=posture(activity) or ("stand" if set(relations) & DIRECTIONAL else None)
-        or ("sit" if labels[0] in SEATED_ACTIVITIES else None),
-        area_names=relations,
+        posture="sit" if seat is not None else options.posture,
+        area_names=options.relations,
     )
 
 

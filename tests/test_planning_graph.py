@@ -27,7 +27,7 @@ from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
 from orchestrator.planning.graph import compile_planning_graph, recursion_limit, route_step
 from orchestrator.planning.state import PlanningDeps, PlanningState
 from sim.scene.model import Scene, SceneObject
-from tests.support.scripted_llm import ScriptedLLM
+from tests.support.scripted_llm import ScriptedLLM, choosing
 from tools.errors import UnknownObjectError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -399,7 +399,7 @@ async def test_program_grammar_reaches_the_parser_request_only_when_asked() -> N
         return ScriptedLLM({
             "describer": [DESCRIPTION],
             "narrator": [narration(["Ann"], "eat at table_1")],
-            "event_parser": [PROGRAM.format(who="Ann")],
+            "event_parser": choosing([PROGRAM.format(who="Ann")]),
         })
 
     plain = port()
@@ -407,10 +407,14 @@ async def test_program_grammar_reaches_the_parser_request_only_when_asked() -> N
     assert [c.grammar for c in plain.requests if c.node == "event_parser"] == [None]
     constrained = port()
     await run_graph(constrained, 1, ["Ann", "Bob"], program_grammar=True)
-    (grammar,) = [c.grammar for c in constrained.requests if c.node == "event_parser"]
+    (grammar,) = [c.grammar for c in constrained.requests if c.node == "event_parser" and c.choices is None]
     assert grammar is not None and 'get_character(\\"Ann\\")' in grammar and "block2" not in grammar
     assert '\\"table_1\\"' in grammar and '\\"Bob\\"' in grammar  # scene objects; Bob may be looked at
     assert all(c.grammar is None for c in constrained.requests if c.node != "event_parser")
+    # eating is done sitting: the seat was chosen first (one of the two free chairs at the table)
+    (choice,) = [c for c in constrained.requests if c.choices is not None]
+    assert set(choice.choices or ()) == {"chair_1", "chair_2"}
+    assert 'seat ::= "\\"chair_1\\""\n' in grammar
 
 
 async def test_the_w_o_event_planner_decodes_under_the_open_grammar_when_asked() -> None:

@@ -102,9 +102,13 @@ def test_grammar_travels_in_the_request_and_only_to_local_models() -> None:
 
 def test_requests_without_a_grammar_keep_their_old_hash() -> None:
     req = LLMRequest(node="narrator", messages=(ChatMessage(role="user", content="hi"),), seed=3)
-    old = json.dumps(req.model_dump(mode="json", exclude={"sim_frame", "grammar"}), sort_keys=True, separators=(",", ":"))
+    # the fields a request had before grammars and choices existed
+    old = json.dumps(
+        req.model_dump(mode="json", exclude={"sim_frame", "grammar", "choices"}), sort_keys=True, separators=(",", ":")
+    )
     assert req.content_hash() == hashlib.sha256(old.encode()).hexdigest()
     assert req.model_copy(update={"grammar": 'root ::= "a"'}).content_hash() != req.content_hash()
+    assert req.model_copy(update={"choices": ("a", "b")}).content_hash() != req.content_hash()
 
 
 def test_local_provider_builds_a_llama_grammar() -> None:

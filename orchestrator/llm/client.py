@@ -1,5 +1,11 @@
 """The LLM port over litellm: per-node models, our own retries, fallbacks, one trace record per attempt.
 
+A request with ``choices`` (a choice among candidates, :mod:`agents.scored_choice`) goes to the
+embedded model as scored continuations (``response_format`` ``{"type": "choices"}``: the local
+provider reads the log-likelihood of each choice from the model's logits); any other provider
+gets the request's JSON schema, whose enum admits only the choices (constrained generation).
+Either way the reply is the JSON the schema describes, so traces and replays treat it alike.
+
 For each request the node's models are tried in order (primary, then fallbacks). On each
 model, transient errors are retried up to ``retry.max_attempts`` attempts in total, waiting
 an exponential, jittered, seeded delay between attempts; a permanent error (400, 401, 403,
@@ -139,7 +145,10 @@ class LiteLLMClient:
         if node.api_base:
             params["api_base"] = node.api_base
         schema_in_prompt = False
-        if request.json_schema is not None:
+        if request.choices is not None and provider_of(model) == "local":
+            # scored continuations: the provider reads the model's log-likelihood of each choice
+            params["response_format"] = {"type": "choices", "choices": list(request.choices)}
+        elif request.json_schema is not None:  # (a choice elsewhere: the schema's enum constrains it)
             params["response_format"], schema_in_prompt = response_format_for(model, request.json_schema)
         elif request.grammar is not None and provider_of(model) == "local":
             params["response_format"] = {"type": "gbnf", "grammar": request.grammar}

@@ -300,6 +300,98 @@ def stream_chat(
     }
 
 
+def chat_prompt_tokens(llm: Any, messages: list[dict[str, Any]]) -> tuple[list[int], str]:
+    """The tokens of ``messages`` as ``llm``'s chat template lays them out, up to and including
+    the assistant's turn opening (what a chat completion would decode after), and the text that
+    ends an assistant turn (the template's end-of-sequence token). The template is the model
+    file's own (``tokenizer.chat_template``), as llama-cpp-python's chat handler uses it."""
+    from llama_cpp.llama_chat_format import Jinja2ChatFormatter
+
+    eos_id = int(llm.token_eos())
+    eos = llm.detokenize([eos_id], special=True).decode("utf-8", errors="replace")
+    template = str(llm.metadata.get("tokenizer.chat_template", ""))
+    if not template:
+        raise ValueError("the model file has no chat template to lay out a choice prompt")
+    bos_id = int(llm.token_bos())
+    bos = llm.detokenize([bos_id], special=True).decode("utf-8", errors="replace") if bos_id >= 0 else ""
+    formatted = Jinja2ChatFormatter(template=template, eos_token=eos, bos_token=bos)(messages=messages)  # type: ignore[arg-type]  # OpenAI-shaped dicts, as create_chat_completion takes them
+    return list(llm.tokenize(formatted.prompt.encode("utf-8"), add_bos=False, special=True)), eos
+
+
+def _log_softmax_at(logits: Any, token: int) -> float:
+    import numpy as np
+
+    row = np.asarray(logits, dtype=np.float64)
+    top = float(row.max())
+    return float(row[token] - top - np.log(np.exp(row - top).sum()))
+
+
+def score_continuations(
+    llm: Any, messages: list[dict[str, Any]], choices: Sequence[str], watch: ProgressWatch,
+    cancel: threading.Event, before_eval: Callable[[], None] = lambda: None,
+) -> dict[str, Any]:
+    """The log-likelihood of each of ``choices`` as the whole assistant reply to ``messages``
+    (its tokens, then the end of the turn), from one evaluation of the prompt: the prompt's
+    tokens are evaluated once (the part already in the KV cache is kept, as a completion does),
+    then each choice's tokens one by one from the prompt's end, reading the model's logits.
+    Returns an OpenAI-shaped dict whose content is ``{"choice": best, "scores": {choice: ll}}``
+    (JSON; ties go to the earlier choice). Held to ``watch`` and ``cancel`` as :func:`stream_chat`."""
+    import json
+
+    import numpy as np
+
+    if not choices:
+        raise ValueError("no continuations to score")
+    n_vocab = int(llm.n_vocab())
+
+    def logits() -> Any:
+        return np.ctypeslib.as_array(llm._ctx.get_logits(), shape=(n_vocab,)).copy()
+
+    def step(tokens: Sequence[int]) -> None:
+        if cancel.is_set():
+            raise _Abort
+        watch.check()
+        before_eval()
+        llm.eval(tokens)
+
+    prompt, end = chat_prompt_tokens(llm, messages)
+    cached = int(llm.n_tokens)
+    common = min(
+        int(llm.longest_token_prefix(llm.input_ids[:cached].tolist(), prompt)), len(prompt) - 1
+    )
+    llm.n_tokens = common  # what is past the shared prefix is evaluated again (eval drops it from the KV cache)
+    watch.prompt_started(len(prompt) - common)
+    n_batch = max(1, int(llm.n_batch))
+    rest = prompt[common:]
+    for i in range(0, len(rest), n_batch):
+        step(rest[i:i + n_batch])
+    watch.prompt_done()
+    after_prompt = logits()
+    scores: dict[str, float] = {}
+    decoded = 0
+    for choice in choices:
+        tokens = list(llm.tokenize((choice + end).encode("utf-8"), add_bos=False, special=True))
+        llm.n_tokens = len(prompt)
+        row, total = after_prompt, 0.0
+        for k, token in enumerate(tokens):
+            total += _log_softmax_at(row, token)
+            if k + 1 < len(tokens):
+                step([token])
+                watch.decoded(1)
+                decoded += 1
+                row = logits()
+        scores[choice] = total
+    llm.n_tokens = len(prompt)
+    best = max(choices, key=lambda c: (scores[c], -choices.index(c)))
+    content = json.dumps({"choice": best, "scores": {c: round(v, 4) for c, v in scores.items()}})
+    return {
+        "id": "local",
+        "choices": [{"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": content}}],
+        "usage": {"prompt_tokens": len(prompt), "completion_tokens": decoded,
+                  "total_tokens": len(prompt) + decoded},
+    }
+
+
 def _chat_blocking(
     spec: WeightsSpec, messages: list[dict[str, Any]], params: dict[str, Any], timeout_s: float,
     cancel: threading.Event,
@@ -324,7 +416,10 @@ def _chat_blocking(
                 rechosen.append(new.threads)
 
         watch = ProgressWatch(f"local/{spec.model}", hard_cap_s=timeout_s, local_threads=threads)
-        out = stream_chat(llm, messages, params, watch, cancel, before_eval=rethread)
+        if "choices" in params:
+            out = score_continuations(llm, messages, params["choices"], watch, cancel, before_eval=rethread)
+        else:
+            out = stream_chat(llm, messages, params, watch, cancel, before_eval=rethread)
     return {**out, "local_threads": threads}
 
 
@@ -336,7 +431,9 @@ def _llama_params(optional_params: dict[str, Any]) -> dict[str, Any]:
         "seed": int(optional_params.get("seed", SEED)),
     }
     fmt = optional_params.get("response_format")
-    if isinstance(fmt, dict) and fmt.get("type") == "gbnf":
+    if isinstance(fmt, dict) and fmt.get("type") == "choices":
+        params["choices"] = [str(c) for c in fmt.get("choices", [])]
+    elif isinstance(fmt, dict) and fmt.get("type") == "gbnf":
         from llama_cpp.llama_grammar import LlamaGrammar
 
         try:

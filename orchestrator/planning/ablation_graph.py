@@ -66,6 +66,7 @@ from orchestrator.planning.graph import (
     unavailable,
 )
 from orchestrator.planning.kinds import DescriptionKind, PlannerKind
+from orchestrator.planning.seat_node import skip_seat_choice
 from orchestrator.planning.state import PlanningDeps, PlanningState, RetryTurn
 
 
@@ -253,7 +254,9 @@ def build_graph(ablation: Ablation) -> PlanningGraph:
     if ablation.planner == "unified":
         return build_unified_graph(describe)
     if ablation.planner == "direct":
-        return planning_graph.build_planning_graph(describe, parse_event_as_coordinates, check_coordinates)
+        return planning_graph.build_planning_graph(
+            describe, parse_event_as_coordinates, check_coordinates, choose=skip_seat_choice,
+        )
     return planning_graph.build_planning_graph(describe)
 
 

@@ -95,6 +95,10 @@ class PlanningState(BaseModel):
     parser_reply: str | None = None
     parser_seq: int | None = Field(default=None, description="Trace seq of ``parser_reply``.")
     parser_turns: tuple[RetryTurn, ...] = ()
+    seat: str | None = Field(
+        default=None, description="The seat chosen for the step's event before its program "
+        "(``orchestrator.planning.seat_node``); None: the event got no seat choice.",
+    )
     parsed: ParsedEvent | None = None
     failure: PlanningFailure | None = None
     llm_calls: int = Field(default=0, description="LLM calls made by this thread (for tests and reports).")

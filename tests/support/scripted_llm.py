@@ -17,6 +17,7 @@ that rejected it), as with a real client.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -77,3 +78,17 @@ class ScriptedLLM:
     def count(self, node: str) -> int:
         """Requests sent to ``node`` so far."""
         return sum(1 for r in self.requests if r.node == node)
+
+
+def choosing(replies: Sequence[str], pick: Callable[[tuple[str, ...]], str] = lambda c: c[0]) -> Reply:
+    """A node's script that answers a choice request (``agents.scored_choice``: a request with
+    ``choices``) with ``pick`` of its candidates (the first by default) and every other request
+    with the next of ``replies``."""
+    queue = list(replies)
+
+    def reply(request: LLMRequest) -> str:
+        if request.choices is not None:
+            return json.dumps({"choice": pick(request.choices)})
+        return queue.pop(0)
+
+    return reply

@@ -1,0 +1,206 @@
+"""The seat of a sitting event as a choice among the seats the scene allows, checked by geometry.
+
+A 0.5B model writing ``get_area_to_sit_on("chair_1")`` picks a seat of the asked kind, but often
+not the one the instruction's relations single out ("the chair farthest from the couch",
+"opposite Goran"). Here the seat is decided before the program is written, in three steps:
+
+1. **Candidates** (code): the free seats the event's words are about, read with the landmarks
+   taken out (:func:`agents.relation_words.without_relations`, so "the desk farthest from the
+   couch" is about desks, not the couch) by :func:`agents.shortlist.event_shortlist`; every free
+   seat when the words single none out. At most :data:`MAX_CANDIDATES`.
+2. **The model's ranking**: one prompt lists each candidate with its relations to what the
+   words name (gaps in metres to the named things and characters, which of them it faces, the
+   table it is at and who sits there: :func:`candidate_notes`), and the model scores every
+   candidate's name as its reply (:mod:`agents.scored_choice`: log-likelihoods from the logits
+   for the embedded model, an enum-constrained reply elsewhere).
+3. **The check** (code): the relations the words state (nearest / near / farthest / facing /
+   between, :func:`agents.relation_words.stated_relations`) are computed from the scene
+   (:func:`tools.place_relations.keep_satisfying`); the chosen seat is the model's best-ranked
+   candidate that meets them. When they leave one candidate, no model call is made.
+
+The chosen seat then is the only one the event's program grammar offers, and the parser's
+request names it. Events of one character that sit (the grammar would offer seats only) get a
+choice; a group's seats, and standing places, are left to the program as before.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from agents.llm_port import ChatMessage, LLMRequest
+from agents.prompt_templates import PromptLibrary, package_prompts
+from agents.relation_words import (
+    RelationMention,
+    joined_labels,
+    stated_relations,
+    without_relations,
+)
+from agents.scored_choice import ScoredChoice, choice_request
+from agents.shortlist import event_shortlist, mentioned_labels
+from sim.scene.model import Scene, SceneObject
+from tools.place_relations import (
+    FACING_DEG,
+    Reference,
+    StatedRelation,
+    facing_angle,
+    gap,
+    group_gap,
+    keep_satisfying,
+)
+
+MAX_CANDIDATES = 10
+"""Seats offered to the model at most (those meeting the stated relations first)."""
+AT_M = 0.6
+"""A seat within this gap (m) of a non-seat object sits at it ("at table_2")."""
+SURFACE_HEIGHT_M = (0.4, 1.3)
+SURFACE_AREA_M2 = 0.2
+"""What one sits at: a non-seat object this tall (m) with a footprint this large (m²): tables,
+desks, counters; not lamps or loudspeakers."""
+WITH_M = 1.5
+"""Characters within this distance (m) of a seat are with it ("with Hakon")."""
+MAX_NOTES = 4
+"""Named things whose gap each candidate's line gives."""
+
+
+@dataclass(frozen=True)
+class SeatCandidates:
+    """The seats an event may take, what the prompt says of each, and those meeting the
+    relations the words state (``allowed``, a subset of ``candidates``, never empty)."""
+
+    candidates: tuple[str, ...]
+    notes: Mapping[str, str]
+    allowed: tuple[str, ...]
+    relations: tuple[StatedRelation, ...]
+
+
+def _references(
+    scene: Scene, mention: RelationMention, others: Mapping[str, tuple[float, float]]
+) -> tuple[tuple[Reference, ...], ...]:
+    groups: list[tuple[Reference, ...]] = []
+    for thing in mention.references:
+        if thing and thing[0].startswith("@"):
+            name = thing[0][1:]
+            groups.append((Reference(name, point=others[name]),) if name in others else ())
+        else:
+            groups.append(tuple(Reference(o.name, obj=o) for o in scene.objects if o.label in thing))
+    return tuple(groups)
+
+
+def _named_things(
+    scene: Scene, text: str, others: Mapping[str, tuple[float, float]], seats: set[str]
+) -> list[tuple[str, tuple[Reference, ...]]]:
+    """What the words name that a seat can stand in relation to: characters outside the event,
+    then object labels (not the candidates' own kinds), in order of mention."""
+    words = set(re.findall(r"[A-Za-z0-9_]+", text))
+    out: list[tuple[str, tuple[Reference, ...]]] = [
+        (name, (Reference(name, point=xy),)) for name, xy in others.items() if name in words
+    ]
+    for label in mentioned_labels(text, scene.labels):
+        group = tuple(Reference(o.name, obj=o) for o in scene.objects if o.label == label and o.name not in seats)
+        if group:
+            out.append((label.replace("_", " "), group))
+    return out[:MAX_NOTES]
+
+
+def _sits_at(obj: SceneObject) -> bool:
+    """Whether people sit at ``obj``: a surface (not a seat) of table height and table size."""
+    return not obj.is_seat and SURFACE_HEIGHT_M[0] <= obj.z_max - obj.z_min <= SURFACE_HEIGHT_M[1] and (
+        obj.width * obj.depth >= SURFACE_AREA_M2
+    )
+
+
+def candidate_notes(
+    scene: Scene, seat: SceneObject, named: Sequence[tuple[str, tuple[Reference, ...]]],
+    others: Mapping[str, tuple[float, float]], prompts: PromptLibrary,
+) -> str:
+    """One candidate's line: the thing it is at and who is with it, its gap to each named thing
+    and whether it faces it (``prompts/event_parser/choose_seat_*.md``)."""
+    parts: list[str] = []
+    near = [(gap(seat, Reference(o.name, obj=o)), o) for o in scene.objects if _sits_at(o) and o.name != seat.name]
+    at = min((x for x in near if x[0] <= AT_M), key=lambda x: x[0], default=None)
+    if at is not None:
+        parts.append(prompts.render_text("event_parser/choose_seat_at.md", thing=at[1].name))
+    company = [n for n, xy in others.items() if gap(seat, Reference(n, point=xy)) <= WITH_M]
+    if company:
+        parts.append(prompts.render_text("event_parser/choose_seat_with.md", names=", ".join(company)))
+    for _, group in named:
+        best = min(group, key=lambda r: gap(seat, r))
+        parts.append(prompts.render_text(
+            "event_parser/choose_seat_gap.md", metres=f"{group_gap(seat, group):.1f}", thing=best.name,
+        ))
+        if facing_angle(seat, best) <= FACING_DEG:
+            parts.append(prompts.render_text("event_parser/choose_seat_faces.md", thing=best.name))
+    return "; ".join(parts)
+
+
+def _seat_kinds(scene: Scene, text: str) -> set[str]:
+    """The seat labels ``text`` names, the most specific only ("office chair" names office
+    chairs, not every chair)."""
+    seat_labels = {o.label for o in scene.objects if o.is_seat}
+    named = [label for label in mentioned_labels(text, scene.labels) if label in seat_labels]
+    return {a for a in named if not any(b != a and b.endswith("_" + a) for b in named)}
+
+
+def seat_candidates(
+    scene: Scene, text: str, free_seats: Sequence[str], others: Mapping[str, tuple[float, float]],
+    action_labels: Sequence[str] = (), prompts: PromptLibrary | None = None,
+) -> SeatCandidates:
+    """The candidates of an event whose words are ``text`` (see the module docstring);
+    ``others``: where the characters outside the event are."""
+    lib = prompts or package_prompts()
+    by_name = {o.name: o for o in scene.objects}
+    mentions = stated_relations(text, scene.labels, list(others))
+    about = without_relations(text, mentions, scene.labels)
+    free = [by_name[s] for s in free_seats if s in by_name]
+    short = event_shortlist(scene, about, [s.name for s in free], action_labels, others=others).seats
+    pool = [by_name[s] for s in short if s in by_name] or free
+    kinds = _seat_kinds(scene, about)
+    pool = [s for s in pool if s.label in kinds] or pool if kinds else pool
+    relations = tuple(
+        StatedRelation(m.kind, refs) for m in mentions if any(refs := _references(scene, m, others))
+    )
+    allowed = keep_satisfying(relations, pool)
+    ordered = [*allowed, *(s for s in pool if s not in allowed)][:MAX_CANDIDATES]
+    named = _named_things(scene, joined_labels(text, scene.labels), others, {s.name for s in ordered})
+    notes = {s.name: candidate_notes(scene, s, named, others, lib) for s in ordered}
+    return SeatCandidates(
+        candidates=tuple(sorted((s.name for s in ordered), key=lambda n: [o.name for o in scene.objects].index(n))),
+        notes=notes,
+        allowed=tuple(s.name for s in allowed if s.name in notes),
+        relations=relations,
+    )
+
+
+def seat_choice_request(
+    prompts: PromptLibrary, seats: SeatCandidates, character: str, activity: str, instruction_part: str,
+    *, seed: int | None = None, sim_frame: int | None = None,
+) -> LLMRequest:
+    """The one prompt whose reply scores each candidate (``prompts/event_parser/choose_seat*.md``)."""
+    lines = "\n".join(
+        prompts.render_text("event_parser/choose_seat_line.md", seat=s, notes=seats.notes[s] or "-") for s in seats.candidates
+    )
+    system = prompts.render("event_parser/choose_seat_system.md")
+    user = prompts.render(
+        "event_parser/choose_seat.md", character=character, activity=activity.strip(),
+        instruction=(instruction_part or activity).strip(), seats=lines,
+    )
+    return choice_request(
+        "event_parser", (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user)),
+        seats.candidates, seed=seed, sim_frame=sim_frame,
+    )
+
+
+def checked_choice(seats: SeatCandidates, ranked: ScoredChoice | None) -> str:
+    """The model's best-ranked candidate that meets the stated relations (the only allowed one
+    when there is no ranking)."""
+    if ranked is None:
+        return seats.allowed[0]
+    return next((c for c in ranked.ranked if c in seats.allowed), seats.allowed[0])
+
+
+def needs_model(seats: SeatCandidates) -> bool:
+    """Whether the choice is the model's to make: more than one candidate meets the relations."""
+    return len(seats.allowed) > 1
+

@@ -1,0 +1,155 @@
+"""Relations an instruction states in plain English relation words, and what they are about.
+
+"the stool nearest the bar", "the desk farthest from the couch", "sits opposite Goran",
+"halfway between the shelf and the sofa": a relation word (:data:`RELATION_WORDS`, general
+English: superlatives of distance, near / beside / next to, far / away / distant, facing /
+opposite / across / towards, between / halfway / midway) followed, within the same clause, by
+what it is measured against: an object label of the scene (read as ``agents.shortlist`` reads
+labels: synonyms, plurals, a label's head word) or a character's name. ``between`` takes two
+such things ("between the bench and the desk", "halfway from the shelf to the sofa").
+
+:func:`stated_relations` returns them in text order; :func:`without_relations` the text with
+each relation's words and landmark taken out (what is left says what the place *is*: "a chair",
+"a seat at a table"). No word here comes from a benchmark case; the lists are closed classes of
+English (prepositions and distance adjectives), not phrases.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from agents.shortlist import mentioned_labels
+from tools.place_relations import RelationKind
+
+RELATION_WORDS: tuple[tuple[tuple[str, ...], RelationKind], ...] = (
+    (("nearest",), "nearest"), (("closest",), "nearest"), (("least", "distant"), "nearest"),
+    (("shortest", "distance"), "nearest"), (("smallest", "distance"), "nearest"),
+    (("farthest",), "farthest"), (("furthest",), "farthest"), (("most", "distant"), "farthest"),
+    (("greatest", "distance"), "farthest"), (("largest", "distance"), "farthest"),
+    (("longest", "distance"), "farthest"), (("far",), "farthest"), (("farther",), "farthest"),
+    (("distant",), "farthest"), (("away",), "farthest"),
+    (("next", "to"), "near"), (("close", "to"), "near"), (("close", "by"), "near"), (("near",), "near"),
+    (("nearby",), "near"), (("beside",), "near"), (("by",), "near"), (("adjacent",), "near"),
+    (("alongside",), "near"),
+    (("facing",), "facing"), (("faces",), "facing"), (("opposite",), "facing"), (("across",), "facing"),
+    (("towards",), "facing"), (("toward",), "facing"),
+    (("between",), "between"), (("halfway",), "between"), (("midway",), "between"),
+)
+"""Relation words (longest first where they overlap) and the relation each states."""
+
+CLAUSE_ENDS = frozenset({"and", "then", "while", "so", "but", "or", "which", "who", "where", "that", "to", "as"})
+"""Words that end a landmark once a thing has been named ("nearest the bar to have a drink")."""
+SPAN = 7
+"""Words after a relation word that may name its landmark."""
+PAIR_JOINS = frozenset({"and", "to"})
+"""Words joining the two things of ``between`` ("between X and Y", "halfway from X to Y")."""
+
+_TOKEN = re.compile(r"[A-Za-z0-9_']+|[,.;:!?()]")
+
+
+@dataclass(frozen=True)
+class RelationMention:
+    """One stated relation: its kind, the things it is measured against (each an object label
+    list, all labels the words name there, or ``("@Name",)`` for a character), and the token
+    span of its words and landmark."""
+
+    kind: RelationKind
+    references: tuple[tuple[str, ...], ...]
+    start: int
+    end: int
+
+
+def _tokens(text: str) -> list[str]:
+    return _TOKEN.findall(text)
+
+
+def _match_at(lower: Sequence[str], i: int) -> tuple[int, RelationKind] | None:
+    for words, kind in RELATION_WORDS:
+        if tuple(lower[i : i + len(words)]) == words:
+            return len(words), kind
+    return None
+
+
+def _first_thing(tokens: Sequence[str], labels: Sequence[str], names: Sequence[str]) -> tuple[tuple[str, ...], int] | None:
+    """The first thing ``tokens`` name (a character, or the labels of the first object words)
+    and the index just after it; None when they name nothing."""
+    for k in range(len(tokens)):
+        word = tokens[k].removesuffix("'s").removesuffix("'")
+        if word in names:
+            return (f"@{word}",), k + 1
+        found = mentioned_labels(" ".join(tokens[: k + 1]), labels)
+        if found:
+            return tuple(found), k + 1
+    return None
+
+
+LEADS = frozenset({"the", "a", "an", "from", "to", "of", "his", "her", "their", "its", "my", "your", "our", "this", "that"})
+"""Words that open a landmark right after a relation word ("nearest the bar", "far from the
+door"); any other word there is what the relation describes ("the most distant desk", "the
+nearest chair to the door"): its landmark, if any, follows "to" or "from"."""
+LANDMARK_OPENERS = frozenset({"to", "from"})
+
+
+def joined_labels(text: str, labels: Sequence[str]) -> str:
+    """``text`` as tokens (words and punctuation, space-separated), a several-word label written
+    as one word read as its words ("whiteboard" for the label ``white_board``)."""
+    joined = {"".join(parts): " ".join(parts) for parts in (label.split("_") for label in labels) if len(parts) > 1}
+    return " ".join(joined.get(t.lower(), t) for t in _tokens(text))
+
+
+def stated_relations(text: str, labels: Sequence[str], names: Sequence[str] = ()) -> list[RelationMention]:
+    """The relations ``text`` states (see the module docstring), in text order; ``labels``: the
+    scene's object labels, ``names``: the characters'. Several-word labels written as one word
+    are read first (:func:`joined_labels`); token positions refer to the text as read."""
+    tokens = _tokens(joined_labels(text, labels))
+    lower = [t.lower() for t in tokens]
+    out: list[RelationMention] = []
+    i = 0
+    while i < len(tokens):
+        hit = _match_at(lower, i)
+        if hit is None:
+            i += 1
+            continue
+        width, kind = hit
+        start, j = i, i + width
+        if j < len(tokens) and tokens[j][0].isalnum() and lower[j] not in LEADS and tokens[j] not in names:
+            # attributive ("the most distant desk"): the landmark, if any, comes after to / from
+            k = j
+            while k < len(tokens) and k < j + SPAN and tokens[k][0].isalnum() and lower[k] not in LANDMARK_OPENERS:
+                k += 1
+            if k >= len(tokens) or lower[k] not in LANDMARK_OPENERS:
+                i += width
+                continue
+            j = k
+        span: list[str] = []
+        while j < len(tokens) and len(span) < SPAN * (2 if kind == "between" else 1):
+            if not tokens[j][0].isalnum():
+                break
+            if span and lower[j] in CLAUSE_ENDS and not (kind == "between" and lower[j] in PAIR_JOINS):
+                break
+            span.append(tokens[j])
+            j += 1
+        refs: list[tuple[str, ...]] = []
+        rest = span
+        while rest and len(refs) < (2 if kind == "between" else 1):
+            found = _first_thing(rest, labels, names)
+            if found is None:
+                break
+            refs.append(found[0])
+            rest = rest[found[1]:]
+        if refs:
+            out.append(RelationMention(kind, tuple(refs), start, start + width + len(span) - len(rest)))
+            i = out[-1].end
+        else:
+            i += width
+    return out
+
+
+def without_relations(text: str, relations: Sequence[RelationMention], labels: Sequence[str] = ()) -> str:
+    """``text`` with each relation's words and landmark removed (``labels``: as given to
+    :func:`stated_relations`)."""
+    tokens = _tokens(joined_labels(text, labels))
+    cut = {k for r in relations for k in range(r.start, r.end)}
+    return " ".join(t for k, t in enumerate(tokens) if k not in cut)

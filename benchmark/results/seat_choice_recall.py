@@ -1,0 +1,64 @@
+"""Offline check of the seat-choice lever (agents/place_choice.py), no model needed.
+
+For every case of one side of our pool (level 2) whose expected plan sits one character on a
+named seat, with the case's instruction standing in for the event's text: is the expected seat
+among the seats the event grammar offered before the lever (the shortlist), among the lever's
+candidates, and among those meeting the stated relations (``allowed``); and how many are left
+for the model to choose from (1 = decided by the scene)::
+
+    PYTHONPATH=$PWD python benchmark/results/seat_choice_recall.py dev        # develop on this
+    PYTHONPATH=$PWD python benchmark/results/seat_choice_recall.py dev -v     # one line per case
+
+Only ``dev`` prints case lines; ``test`` prints the counts alone (test is measured, not read).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+
+from agents.place_choice import seat_candidates
+from agents.program_grammar import event_options
+from benchmark.reference_cases import load_cases, planning_inputs, scene_dir
+from sim.scene.files import load_scene
+from sim.scene.model import Scene
+
+POOL = Path(__file__).resolve().parents[1] / "cases" / "ours"
+SPLIT = Path(__file__).resolve().parents[1] / "own_cases" / "split.json"
+_SIT = re.compile(r"^sit on ([a-z_]+_\d+)$")
+
+
+def recall(side: str, verbose: bool = False) -> str:
+    ids = set(json.loads(SPLIT.read_text(encoding="utf-8"))[side])
+    scenes: dict[str, Scene] = {}
+    n = before = cand = allowed = decided = 0
+    for case in (c.at_level(2) for c in load_cases(str(POOL)) if c.id in ids):
+        if len(case.expected_plans) != 1:
+            continue
+        m = _SIT.match((case.expected_plans[0].relationships or "").strip())
+        if m is None:
+            continue
+        if case.scene_name not in scenes:
+            scenes[case.scene_name] = load_scene(scene_dir(str(POOL), case))
+        scene = scenes[case.scene_name]
+        inputs = planning_inputs(case, scene)
+        who = case.expected_plans[0].character
+        options = event_options(scene, [who], inputs.roster, inputs.seats_in_use, case.action_labels, case.user_instruction)
+        seats = seat_candidates(scene, case.user_instruction, options.free_seats, options.others, options.labels)
+        want = m.group(1)
+        n += 1
+        before += want in options.seats
+        cand += want in seats.candidates
+        allowed += want in seats.allowed
+        decided += len(seats.allowed) == 1 and seats.allowed[0] == want
+        if verbose and side == "dev":
+            print(f"{case.id}: want {want}; before {list(options.seats)}; allowed {list(seats.allowed)} "
+                  f"of {len(seats.candidates)}; {case.user_instruction}")
+    return (f"{side}: {n} one-seat cases; expected seat offered before {before}/{n}; candidate {cand}/{n}; "
+            f"meets the stated relations {allowed}/{n}; decided by the scene alone {decided}/{n}")
+
+
+if __name__ == "__main__":
+    print(recall(sys.argv[1] if len(sys.argv) > 1 else "dev", verbose="-v" in sys.argv))

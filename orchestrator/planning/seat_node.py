@@ -1,0 +1,101 @@
+"""The planning graph's ``choose_seat`` node: the seat of a sitting event, decided before its program.
+
+Between the narrator's accepted event and the event parser's first call. For an event of one
+character whose grammar would offer seats only (``agents.program_grammar.EventOptions.must_sit``),
+the candidates, their relations and the stated-relation check come from
+:mod:`agents.place_choice`; when more than one candidate meets the stated relations the model
+ranks them in one call (scored continuations through the port, :mod:`agents.scored_choice`),
+and the best-ranked one that meets them is the step's ``seat``. Every other event passes
+through without a call. The event parser then offers only that seat (and names it in its
+request); a retry after "no room" (``UnsatisfiableAreaError``) offers every free seat again.
+
+A model that gives no answer (``LLMError``) or an answer that is no candidate leaves the choice
+to the scene (the first candidate meeting the relations); a replay miss propagates, as
+everywhere in the graph. The call is recorded like the others: its ``parsed`` record holds the
+chosen seat, the model's ranking and the candidates the check allowed.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import anyio.to_thread
+from langgraph.runtime import Runtime
+
+from agents.event_parser import event_text
+from agents.llm_port import LLMError, ReplayMissError
+from agents.place_choice import (
+    SeatCandidates,
+    checked_choice,
+    needs_model,
+    seat_candidates,
+    seat_choice_request,
+)
+from agents.program_grammar import event_options
+from agents.scored_choice import ChoiceError, ScoredChoice, choose
+from orchestrator.planning.state import PlanningDeps, PlanningState
+
+
+def event_seats(state: PlanningState, deps: PlanningDeps) -> SeatCandidates | None:
+    """The seat candidates of the state's event, or None when it gets no seat choice: not one
+    sitting character, or the event's grammar already offers exactly the one seat the scene's
+    check leaves (the request stays as it was without the choice)."""
+    event = state.event
+    if event is None or event.is_wait or len(event.characters) != 1 or not deps.program_grammar:
+        return None
+    text = event_text(event.activity, state.part)
+    seats_in_use = deps.world.seats_in_use(state.roster)
+    options = event_options(
+        deps.scene, event.characters, state.roster, seats_in_use, deps.action_labels, activity=text,
+        context=event.activity if state.part else "",
+    )
+    if not options.must_sit or not options.free_seats:
+        return None
+    seats = seat_candidates(deps.scene, text, options.free_seats, options.others, options.labels, deps.prompts)
+    if not seats.candidates or options.seats == seats.allowed == seats.allowed[:1]:
+        return None
+    return seats
+
+
+async def choose_seat(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """Decide the step's seat (see the module docstring); at most one LLM call."""
+    deps = runtime.context
+    if state.failure is not None or state.seat is not None:
+        return {}
+    seats = await anyio.to_thread.run_sync(lambda: event_seats(state, deps))  # CPU work: off the event loop
+    if seats is None:
+        return {}
+    if not needs_model(seats):
+        return {"seat": checked_choice(seats, None)}
+    assert state.event is not None
+    request = seat_choice_request(
+        deps.prompts, seats, state.event.characters[0], state.event.activity, state.part,
+        seed=deps.seed, sim_frame=state.sim_frame,
+    )
+    started = time.monotonic()
+    ranked: ScoredChoice | None = None
+    update: dict[str, Any] = {"llm_calls": state.llm_calls + 1}
+    try:
+        ranked = await choose(deps.port, request)
+    except ReplayMissError:
+        raise
+    except (LLMError, ChoiceError):
+        ranked = None
+    if deps.progress is not None:
+        deps.progress.llm_call("event_parser", time.monotonic() - started)
+    seat = checked_choice(seats, ranked)
+    sink = deps.trace_sink()
+    if ranked is not None and ranked.trace_seq is not None:
+        if sink is not None:
+            sink.record_parsed(ranked.trace_seq, {
+                "seat": seat, "ranked": list(ranked.ranked), "allowed": list(seats.allowed),
+            }, node="event_parser")
+        update["step_trace_seqs"] = (*state.step_trace_seqs, ranked.trace_seq)
+    return {**update, "seat": seat}
+
+
+async def skip_seat_choice(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """The node for planners whose event parser does not write a program (coordinates)."""
+    del state, runtime
+    return {}

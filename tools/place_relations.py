@@ -1,0 +1,149 @@
+"""How candidate places (seats) stand to the things and people an instruction names, from geometry.
+
+Pure and deterministic: scene objects and character points in, numbers and kept candidates out.
+The words that state a relation are read elsewhere (``agents.relation_words``); here a relation
+is only a kind and its references:
+
+- ``nearest`` / ``near``: the gap from a candidate's footprint to the nearest reference
+  (another object's footprint, or a character's point); ``nearest`` keeps the candidates within
+  :data:`TIE_M` of the least gap, ``near`` those within :data:`NEAR_M` (else the nearest);
+- ``farthest``: within :data:`TIE_M` of the greatest gap;
+- ``facing``: the candidate's front points at the reference (the angle between its facing
+  and the direction to the reference's centre under :data:`FACING_DEG`); of those, the ones
+  facing it most squarely (within :data:`SQUARE_TIE_DEG`), and of those the nearest;
+- ``between`` (two references): the least distance from the candidate's centre to the middle
+  of the segment joining the references (within :data:`TIE_M`).
+
+:func:`keep_satisfying` applies every stated relation in turn and never empties the set: a
+relation that no candidate meets (or whose references are missing) leaves the set as it was,
+so the check only ever narrows towards what the words say.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from sim.scene.model import SceneObject
+from tools.scene_graph import footprint_distance, point_footprint_distance
+
+RelationKind = Literal["nearest", "near", "farthest", "facing", "between"]
+
+TIE_M = 0.3
+"""Gaps (m) within this of the best count as equally near / far (an instruction's "nearest" is
+not a 5 cm decision)."""
+NEAR_M = 1.0
+"""Gap (m) under which a place counts as near a reference (the scene graph's ``close to``)."""
+FACING_DEG = 50.0
+"""Largest angle (degrees) between a seat's front and the direction to what it faces."""
+SQUARE_TIE_DEG = 15.0
+"""Facing candidates within this angle (degrees) of the most squarely facing one count as facing
+it as squarely; of those, the nearest is kept."""
+
+
+@dataclass(frozen=True)
+class Reference:
+    """What a relation is measured against: an object, or a character at a point."""
+
+    name: str
+    obj: SceneObject | None = None
+    point: tuple[float, float] | None = None
+
+    def center(self) -> np.ndarray:
+        if self.obj is not None:
+            return np.asarray(self.obj.center[:2], dtype=float)
+        assert self.point is not None
+        return np.asarray(self.point, dtype=float)
+
+
+@dataclass(frozen=True)
+class StatedRelation:
+    """A relation the words state: its kind and the reference groups (one group per thing named;
+    a group holds every instance of that thing, e.g. both coffee makers)."""
+
+    kind: RelationKind
+    references: tuple[tuple[Reference, ...], ...]
+
+
+def gap(candidate: SceneObject, ref: Reference) -> float:
+    """Horizontal gap (m) from ``candidate``'s footprint to ``ref`` (its footprint, or its point)."""
+    if ref.obj is not None:
+        return 0.0 if ref.obj.name == candidate.name else float(footprint_distance(candidate, ref.obj))
+    assert ref.point is not None
+    return float(point_footprint_distance(candidate, np.asarray(ref.point, dtype=float)))
+
+
+def group_gap(candidate: SceneObject, group: Sequence[Reference]) -> float:
+    """The gap to the nearest member of ``group`` (inf for an empty group)."""
+    return min((gap(candidate, r) for r in group), default=math.inf)
+
+
+def facing_angle(candidate: SceneObject, ref: Reference) -> float:
+    """Degrees between ``candidate``'s front and the direction from its centre to ``ref``."""
+    to = ref.center() - np.asarray(candidate.center[:2], dtype=float)
+    norm = float(np.linalg.norm(to))
+    if norm < 1e-9:
+        return 180.0
+    cos = float(np.dot(np.asarray(candidate.facing, dtype=float), to / norm))
+    return math.degrees(math.acos(max(-1.0, min(1.0, cos))))
+
+
+def faces(candidate: SceneObject, group: Sequence[Reference]) -> bool:
+    return any(facing_angle(candidate, r) <= FACING_DEG for r in group)
+
+
+def midpoint_distance(candidate: SceneObject, first: Sequence[Reference], second: Sequence[Reference]) -> float:
+    """Distance (m) from ``candidate``'s centre to the nearest midpoint of a pair of references."""
+    c = np.asarray(candidate.center[:2], dtype=float)
+    return min(
+        (float(np.linalg.norm(c - (a.center() + b.center()) / 2.0)) for a in first for b in second),
+        default=math.inf,
+    )
+
+
+def satisfying(relation: StatedRelation, candidates: Sequence[SceneObject]) -> list[SceneObject]:
+    """The candidates that meet ``relation`` (see the module docstring); [] when none can."""
+    groups = [g for g in relation.references if g]
+    if not groups or not candidates:
+        return []
+    first = groups[0]
+    if relation.kind in ("nearest", "near", "farthest"):
+        gaps = {c.name: group_gap(c, first) for c in candidates}
+        if relation.kind == "farthest":
+            best = max(gaps.values())
+            return [c for c in candidates if gaps[c.name] >= best - TIE_M]
+        least = min(gaps.values())
+        if relation.kind == "near":
+            within = [c for c in candidates if gaps[c.name] <= NEAR_M]
+            if within:
+                return within
+        return [c for c in candidates if gaps[c.name] <= least + TIE_M]
+    if relation.kind == "facing":
+        angles = {c.name: min(facing_angle(c, r) for r in first) for c in candidates}
+        facing = [c for c in candidates if angles[c.name] <= FACING_DEG]
+        if not facing:
+            return []
+        squarest = min(angles[c.name] for c in facing)
+        facing = [c for c in facing if angles[c.name] <= squarest + SQUARE_TIE_DEG]
+        gaps = {c.name: group_gap(c, first) for c in facing}
+        least = min(gaps.values())
+        return [c for c in facing if gaps[c.name] <= least + TIE_M]
+    if len(groups) < 2:
+        return []
+    mids = {c.name: midpoint_distance(c, groups[0], groups[1]) for c in candidates}
+    least = min(mids.values())
+    return [c for c in candidates if mids[c.name] <= least + TIE_M]
+
+
+def keep_satisfying(relations: Sequence[StatedRelation], candidates: Sequence[SceneObject]) -> list[SceneObject]:
+    """``candidates`` narrowed by each relation in turn; a relation none meets is skipped."""
+    kept = list(candidates)
+    for relation in relations:
+        narrowed = satisfying(relation, kept)
+        if narrowed:
+            kept = narrowed
+    return kept
