@@ -38,7 +38,7 @@ from agents.relation_words import (
     without_relations,
 )
 from agents.scored_choice import ScoredChoice, choice_request
-from agents.shortlist import event_shortlist, mentioned_labels
+from agents.shortlist import CLOSE_M, event_shortlist, mentioned_labels
 from sim.scene.model import Scene, SceneObject
 from tools.place_relations import (
     FACING_DEG,
@@ -49,6 +49,7 @@ from tools.place_relations import (
     group_gap,
     keep_satisfying,
 )
+from tools.scene_graph import footprint_distance
 
 MAX_CANDIDATES = 10
 """Seats offered to the model at most (those meeting the stated relations first)."""
@@ -158,9 +159,22 @@ def seat_candidates(
     pool = [by_name[s] for s in short if s in by_name] or free
     kinds = _seat_kinds(scene, about)
     pool = [s for s in pool if s.label in kinds] or pool if kinds else pool
-    relations = tuple(
-        StatedRelation(m.kind, refs) for m in mentions if any(refs := _references(scene, m, others))
-    )
+    landmarks = {r.name for m in mentions for g in _references(scene, m, others) for r in g}
+    pool = [s for s in pool if s.name not in landmarks] or pool  # "beside the couch" is not the couch
+    relations: list[StatedRelation] = []
+    for m in mentions:
+        refs = _references(scene, m, others)
+        if not any(refs):
+            continue
+        relation = StatedRelation(m.kind, refs)
+        relations.append(relation)  # the seat meets it too: the chair at the table nearest X is near X
+        things = [  # "the table beside the couch": the relation picks among tables with a seat to take
+            o for o in scene.objects if o.label in m.subject and not o.is_seat
+            and any(footprint_distance(s, o) <= CLOSE_M for s in pool)
+        ]
+        if things:
+            kept = keep_satisfying([relation], things)
+            pool = [s for s in pool if any(footprint_distance(s, t) <= CLOSE_M for t in kept)] or pool
     allowed = keep_satisfying(relations, pool)
     ordered = [*allowed, *(s for s in pool if s not in allowed)][:MAX_CANDIDATES]
     named = _named_things(scene, joined_labels(text, scene.labels), others, {s.name for s in ordered})
@@ -169,7 +183,7 @@ def seat_candidates(
         candidates=tuple(sorted((s.name for s in ordered), key=lambda n: [o.name for o in scene.objects].index(n))),
         notes=notes,
         allowed=tuple(s.name for s in allowed if s.name in notes),
-        relations=relations,
+        relations=tuple(relations),
     )
 
 

@@ -43,6 +43,8 @@ CLAUSE_ENDS = frozenset({"and", "then", "while", "so", "but", "or", "which", "wh
 """Words that end a landmark once a thing has been named ("nearest the bar to have a drink")."""
 SPAN = 7
 """Words after a relation word that may name its landmark."""
+SUBJECT_SPAN = 2
+"""Words before a relation word that may name what it describes ("the table beside ...")."""
 PAIR_JOINS = frozenset({"and", "to"})
 """Words joining the two things of ``between`` ("between X and Y", "halfway from X to Y")."""
 
@@ -59,6 +61,9 @@ class RelationMention:
     references: tuple[tuple[str, ...], ...]
     start: int
     end: int
+    subject: tuple[str, ...] = ()
+    """The labels of the thing the relation describes when the words right before it name one
+    ("the table beside the couch": ``("table",)``); () when they do not ("sits beside the couch")."""
 
 
 def _tokens(text: str) -> list[str]:
@@ -140,7 +145,13 @@ def stated_relations(text: str, labels: Sequence[str], names: Sequence[str] = ()
             refs.append(found[0])
             rest = rest[found[1]:]
         if refs:
-            out.append(RelationMention(kind, tuple(refs), start, start + width + len(span) - len(rest)))
+            before = []  # the words of the same clause right before the relation word
+            for k in range(start - 1, max(-1, start - 1 - SUBJECT_SPAN), -1):
+                if not tokens[k][0].isalnum():
+                    break
+                before.insert(0, tokens[k])
+            subject = tuple(mentioned_labels(" ".join(before[-2:]), labels)) if before else ()
+            out.append(RelationMention(kind, tuple(refs), start, start + width + len(span) - len(rest), subject))
             i = out[-1].end
         else:
             i += width

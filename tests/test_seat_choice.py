@@ -73,6 +73,22 @@ def test_a_relation_word_before_what_it_describes_takes_its_landmark_after_to_or
     assert (far.kind, far.references) == ("farthest", (("tv",),))
 
 
+def test_the_thing_a_relation_describes_is_read_from_the_words_before_it() -> None:
+    (m,) = stated_relations("Mo picks the table beside the couch and sits.", LABELS)
+    assert m.subject == ("table",) and m.references == (("couch",),)
+    (m,) = stated_relations("Mo sits beside the couch.", LABELS)
+    assert m.subject == ()
+
+
+def test_a_table_picked_by_a_relation_is_one_with_a_seat_to_take() -> None:
+    scene = Scene(name="two", bounds_min=(-4.0, -4.0), bounds_max=(10.0, 7.0), objects=(
+        *ROOM.objects, obj("table", 2, -1.5, 1.0, size=(1.0, 0.6, 0.45)),  # by the couch, no chair of its own
+    ))
+    free = tuple(o.name for o in scene.objects if o.is_seat)
+    seats = seat_candidates(scene, "Mo picks the table beside the couch and sits down.", free, {})
+    assert "couch_1" not in seats.candidates and seats.allowed == ("chair_1",)
+
+
 def test_words_naming_no_thing_state_no_relation_and_the_rest_says_what_the_place_is() -> None:
     assert stated_relations("Mo sits by himself near nothing in particular.", LABELS) == []
     text = "Mo sits on the chair nearest the couch to read."
