@@ -145,7 +145,7 @@ def stated_relations(text: str, labels: Sequence[str], names: Sequence[str] = ()
             refs.append(found[0])
             rest = rest[found[1]:]
         if refs:
-            before = []  # the words of the same clause right before the relation word
+            before: list[str] = []  # the words of the same clause right before the relation word
             for k in range(start - 1, max(-1, start - 1 - SUBJECT_SPAN), -1):
                 if not tokens[k][0].isalnum():
                     break
