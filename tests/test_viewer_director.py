@@ -119,6 +119,39 @@ def test_empty_and_overlong_instructions_are_refused_before_writing(tmp_path: Pa
         ViewerInstruction.model_validate({"id": "z" * 32, "thread": THREAD, "text": "x", "sent_unix": 1.0})
 
 
+class _Session:
+    """What the reader thread uses of a session: its world's frame and ``instruct_nowait``."""
+
+    def __init__(self) -> None:
+        self.world = type("World", (), {"frame": 0})()
+        self.said: list[tuple[int, str, str]] = []
+
+    def instruct_nowait(self, text: str, source: str) -> bool:
+        self.said.append((self.world.frame, text, source))
+        return True
+
+
+def test_a_resumed_run_holds_new_lines_until_it_is_past_its_last_recorded_instruction(tmp_path: Path) -> None:
+    import threading
+
+    from orchestrator.session.viewer_instructions import start_inbox_reader
+
+    send_instruction(tmp_path, THREAD, "Zoe waves", sent_unix=1.0)  # applied at frame 120 before a kill
+    send_instruction(tmp_path, THREAD, "Max makes toast", sent_unix=2.0)  # sent while the run was down
+    session, stop = _Session(), threading.Event()
+    reader = start_inbox_reader(session, tmp_path / INBOX_FILE, THREAD, ["Zoe waves"], stop=stop,  # type: ignore[arg-type]
+                                after_frame=120)
+    try:
+        time.sleep(0.5)
+        assert session.said == []  # the resume replays frames up to 120, where "Zoe waves" comes again
+        session.world.frame = 121
+        _wait("the held line", lambda: session.said, timeout_s=10)
+        assert session.said == [(121, "Max makes toast", "viewer")]
+    finally:
+        stop.set()
+        reader.join(timeout=5)
+
+
 # ----- the viewer's side ------------------------------------------------------------------
 @pytest.fixture
 def viewer(tmp_path: Path) -> Iterator[ViewerApp]:
@@ -268,6 +301,14 @@ def _type_instruction(browser: Chromium, text: str) -> None:
         raise AssertionError(f"not sent; the page says: {browser.evaluate('document.body.innerText')}") from None
 
 
+def _wait_live(browser: Chromium) -> None:
+    """Until the page shows a run in progress (what it says otherwise in the failure)."""
+    try:
+        browser.wait_for("document.body.innerText.includes('the run is still going')", timeout_s=120)
+    except TimeoutError:
+        raise AssertionError(f"no live run; the page says: {browser.evaluate('document.body.innerText')}") from None
+
+
 FOCUS_BOX = (  # the text field next to the label 'Instruction' (viser's label does not point at it)
     "(() => { const label = [...document.querySelectorAll('label')].find(l => l.innerText.trim() === 'Instruction');"
     " let row = label; while (row && !row.querySelector('input.mantine-TextInput-input')) row = row.parentElement;"
@@ -295,7 +336,7 @@ def test_an_instruction_typed_in_the_box_of_run_view_directs_the_story(tmp_path:
         try:
             with Chromium(tmp_path / "profile") as browser:
                 browser.navigate(_url(log, run))
-                browser.wait_for("document.body.innerText.includes('the run is still going')", timeout_s=120)
+                _wait_live(browser)
                 _type_instruction(browser, TOAST)
                 browser.screenshot(shots / "director-sent.png")
                 _wait("the instruction in the trace", lambda: (out / "trace.jsonl").is_file() and any(
@@ -329,3 +370,59 @@ def _type_instruction_refused(browser: Chromium, text: str) -> None:
     _type_and_send(browser, text)
     browser.wait_for("document.body.innerText.includes('Not sent:') && document.body.innerText.includes('ended')",
                      timeout_s=30)
+
+
+@needs_chromium
+def test_nothing_sent_is_lost_when_the_view_and_the_run_are_killed_and_started_again(tmp_path: Path, shots: Path) -> None:
+    out, log, view_log = tmp_path / "run", tmp_path / "run.log", tmp_path / "view.log"
+    waves = "Zoe waves at Max"
+    procs: list[subprocess.Popen[bytes]] = []
+
+    def start(args: list[str], sink: Path) -> subprocess.Popen[bytes]:
+        with sink.open("a") as f:
+            proc = subprocess.Popen(_cli(*args), env=_env(tmp_path), stdout=f, stderr=subprocess.STDOUT)
+        procs.append(proc)
+        return proc
+
+    def kill(proc: subprocess.Popen[bytes]) -> None:
+        proc.kill()  # SIGKILL: no clean-up of any kind
+        proc.wait()
+
+    with FakeOpenAI(responder=directed) as fake:
+        cfg = write_config(tmp_path, fake.base)
+        run = start([*RUN, "-d", "40", "--pace", "realtime", "--speed", "2", "--config", str(cfg), "--out", str(out)], log)
+        view = start(["view", str(out), "--port", "0"], view_log)
+        (tmp_path / "profile").mkdir()
+        try:
+            with Chromium(tmp_path / "profile") as browser:
+                browser.navigate(_url(view_log, view))
+                _wait_live(browser)
+                _type_instruction(browser, waves)
+                _wait("the first instruction in the trace", lambda: any(
+                    t == waves for _, _, t in _viewer_instructions(out)), timeout_s=30, log=log)
+                kill(view)
+                kill(run)  # both gone: the run resumes from its last checkpoint
+                view_log = tmp_path / "view-again.log"
+                view = start(["view", str(out), "--port", "0"], view_log)
+                browser.navigate(_url(view_log, view))
+                _wait_live(browser)
+                _type_instruction(browser, TOAST)  # the run is not there: the line waits in the file
+                browser.screenshot(shots / "director-restarted.png")
+                kill(view)
+            resumed = start(["resume", str(out), "--no-interactive"], log)
+            assert resumed.wait(timeout=300) == 0, log.read_text()[-3000:]
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    kill(proc)
+    said = _viewer_instructions(out)
+    assert [(s, t) for _, s, t in said] == [("viewer", waves), ("viewer", TOAST)], said  # each once, in order
+    story = json.loads((out / "story.json").read_text(encoding="utf-8"))
+    assert [(i["frame"], i["source"], i["text"]) for i in story["instructions"]] == said
+    assert _toast_events(out, said[1][0]), "no event for the instruction sent while the run was down"
+    again = tmp_path / "again"
+    with log.open("a") as sink:
+        code = subprocess.call(_cli("replay", str(out), "--out", str(again)), env=_env(tmp_path), stdout=sink,
+                               stderr=subprocess.STDOUT)
+    assert code == 0, log.read_text()[-3000:]
+    _same_story(out, again)

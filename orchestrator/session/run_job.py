@@ -429,7 +429,7 @@ async def _run_story(
     thread = thread_id if resume and thread_id is not None else ablation.thread_id(thread_id or f"run-{uuid.uuid4().hex[:12]}")
     snapshot_path = out / SNAPSHOT_FILE
     checkpoint: SessionCheckpoint | None = None
-    if resume and snapshot_path.is_file():
+    if resume and (snapshot_path.exists() or snapshot_path.is_symlink()):  # a folder or a device there is refused
         try:
             checkpoint = load_checkpoint(snapshot_path, world)
         except SnapshotError as exc:
@@ -552,7 +552,7 @@ async def _run_story(
                 (stdin_reader or start_stdin_reader)(session)
             if replay is None:  # a viewer's instruction box, in this process or another
                 start_inbox_reader(session, out / INBOX_FILE, thread, [i.text for i in said if i.source == "viewer"],
-                                   stop=inbox_closed)
+                                   stop=inbox_closed, after_frame=max((i.frame for i in said), default=-1))
             result, stopped = await _run_until_stopped(session, stop)
             if stopped:
                 keep(session.checkpoint())

@@ -18,7 +18,9 @@ Guarantees:
 - each line is applied once: lines are taken in file order; a line whose ``id`` came before, or
   for another thread (an earlier run in the same folder), is skipped; a resumed run skips the
   first lines as many as the trace holds ``viewer`` instructions (applied already: the resume
-  applies them again at their recorded frames), because the run applies lines in file order;
+  applies them again at their recorded frames), because the run applies lines in file order,
+  and holds the new ones until it is past the last recorded instruction's frame (they were sent
+  after it, so they come after it in the story);
 - bounded: the file is opened ``O_NOFOLLOW`` and read only when it is a regular file, at most
   :data:`READ_BYTES` a poll; a line longer than :data:`MAX_LINE_BYTES` is skipped to its newline
   without being held whole; a malformed line is skipped with a warning; a last line with no
@@ -201,20 +203,31 @@ def start_inbox_reader(
     applied: Sequence[str] = (),
     *,
     stop: threading.Event,
+    after_frame: int = -1,
     taken: Callable[[ViewerInstruction], None] | None = None,
 ) -> threading.Thread:
     """Start the daemon thread that hands every new line of ``path`` for ``thread`` to
     ``session.instruct_nowait(text, "viewer")`` (``taken(line)`` first, in the same order); it
-    ends when ``stop`` is set or the session takes no more instructions."""
+    ends when ``stop`` is set or the session takes no more instructions.
+
+    ``after_frame``: lines are handed on only once the session's world is past that frame. A
+    resume passes the frame of the last instruction its trace holds: the killed process applied
+    it (at that frame, which the resume reaches again), so what was sent after it must not take
+    effect before it and be replaced by it."""
     inbox = InstructionInbox(path, thread, applied)
 
     def read() -> None:
+        waiting: list[ViewerInstruction] = []
         while not stop.wait(POLL_S):
-            for line in inbox.poll():
+            waiting += inbox.poll()
+            if not waiting or session.world.frame <= after_frame:
+                continue
+            for line in waiting:
                 if taken is not None:
                     taken(line)
                 if not session.instruct_nowait(line.text, "viewer"):
                     return
+            waiting.clear()
 
     thread_ = threading.Thread(target=read, name="storyteller-viewer-instructions", daemon=True)
     thread_.start()
