@@ -6,6 +6,8 @@ have no ``scene.json``: the scene is then the bundled scene that ``story.json`` 
 run on a scene file that is gone is shown without its objects (:attr:`RunData.scene_note`
 says so). A character without a ``.track.npz`` (a run stopped before its exports, e.g. by a
 kill) is read from the motion the run streamed, ``motion/<slug>.chunks`` (whole records only).
+Every file is read within limits and validated; a character's name is shown with control, bidi
+and surrogate characters as escapes. A file that does not fit is one :class:`RunFolderError`.
 
 A run still in progress has no ``story.json`` yet (a run removes an earlier one when it
 starts): it is read *live* (:attr:`RunData.live`) from what the run writes as it goes,
@@ -20,6 +22,7 @@ the viewer reads): a viewer polls it to reload a run that is still being written
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -27,6 +30,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from agents.messages import PlannedCharacter
+from orchestrator.safe_text import plain
 from orchestrator.session.story_stream import (
     STREAM_FILE,
     StoryEventRecord,
@@ -165,7 +169,9 @@ def load_run(folder: Path) -> RunData:
     for path in sorted(folder.glob(f"*{TRACK_SUFFIX}")):
         try:
             tracks.append(CharacterTrack.load(path))
-        except (CharacterTrackError, OSError, ValueError) as exc:
+        except CharacterTrackError as exc:  # names the file and the field
+            raise RunFolderError(str(exc) if exc.path is not None else f"{path}: {exc}") from None
+        except (OSError, ValueError) as exc:
             raise RunFolderError(f"{path}: {exc}") from None
     have = {t.name for t in tracks}
     tracks += _chunk_tracks(folder, [n for n in story.characters if n not in have], story.fps)
@@ -177,7 +183,7 @@ def load_run(folder: Path) -> RunData:
         scene=scene,
         scene_note=note,
         fps=story.fps,
-        tracks=tuple(tracks),
+        tracks=_shown_names(tracks),
         events=_with_texts(story.events, story.steps, scene),
         instruction=story.instruction,
     )
@@ -236,7 +242,7 @@ def _live_run(folder: Path) -> RunData:
         scene=scene,
         scene_note=note,
         fps=start.fps,
-        tracks=tuple(_chunk_tracks(folder, list(start.characters), start.fps)),
+        tracks=_shown_names(_chunk_tracks(folder, list(start.characters), start.fps)),
         events=events,
         instruction=start.instruction,
         live=True,
@@ -257,6 +263,16 @@ def _chunk_tracks(folder: Path, names: list[str], fps: float) -> list[CharacterT
         if track is not None:
             tracks.append(track)
     return tracks
+
+
+def _shown_names(tracks: list[CharacterTrack]) -> tuple[CharacterTrack, ...]:
+    """``tracks`` with names fit to show and to name viewer nodes: a name from a file may hold
+    control or bidi characters or a lone surrogate (a JSON ``\\ud800``), shown as escapes
+    (:func:`orchestrator.safe_text.plain`); two names that read alike then are refused."""
+    out = tuple(t if plain(t.name) == t.name else dataclasses.replace(t, name=plain(t.name)) for t in tracks)
+    if len({t.name for t in out}) != len(out):
+        raise RunFolderError(f"two characters of the run have the same name: {sorted(t.name for t in out)[:8]}")
+    return out
 
 
 def _scene_of(folder: Path, name: object) -> tuple[Scene | None, str | None]:

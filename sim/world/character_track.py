@@ -11,6 +11,16 @@ A :class:`CharacterTrack` holds, per frame at ``fps`` (30 by default):
 ``forward_kinematics(track.local_rotations, track.root_positions)`` gives world joint positions
 directly. Tracks save to and load from ``.npz``; :func:`write_npz` writes byte-identical files
 for identical arrays (numpy's own ``savez`` stamps the current time into the zip).
+
+A track file may come from someone else's run folder, so :meth:`CharacterTrack.load` reads it
+bounded: a regular file (a FIFO or a device is refused, never waited on) of at most
+:data:`MAX_TRACK_FILE_BYTES`, whose arrays unpack to at most :data:`MAX_TRACK_ARRAY_BYTES`
+(the sizes the zip and each array's header declare are checked before any is inflated or
+allocated: a zip bomb or a header claiming terabytes costs nothing), never
+unpickled, each of the expected shape and kind (text for the name, numbers for the rest). Its
+text is data (a name or label may hold any character: a reader shows it through a sanitiser).
+Every failure is one :class:`CharacterTrackError`
+naming the file and the field.
 """
 
 from __future__ import annotations
@@ -20,11 +30,13 @@ import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import IO, Literal
+from zlib import error as zlib_error
 
 import numpy as np
 
 from sim.body.skeleton import NUM_JOINTS, forward_kinematics
+from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.no_follow_writes import write_file
 
 Gender = Literal["neutral", "male", "female"]
@@ -41,12 +53,19 @@ run: 0.2 s instead of 0.5 s). The bytes are a function of the arrays and this le
 writes the files of its recording; a run recorded with another level replays to the same
 arrays in other bytes."""
 _CHECK_FRAMES = 4096  # frames whose rotations are checked at once
+MAX_TRACK_FILE_BYTES = 256 << 20
+"""Bytes of the largest ``.track.npz`` read back (a compressed hour of frames is about 100 MB)."""
+MAX_TRACK_ARRAY_BYTES = 256 << 20
+"""Bytes its arrays may unpack to (an hour at 30 fps is 173 MB of float64 rotations)."""
+_TEXT_FIELDS = ("format", "name", "gender")
+_NUMBER_FIELDS = ("fps", "root_positions", "local_rotations", "betas")
 
 
 class CharacterTrackError(ValueError):
     """A track (or a track file) that does not hold a valid animation; ``field`` names the part."""
 
     def __init__(self, message: str, *, field: str | None = None, path: Path | None = None) -> None:
+        self.message = message
         self.field = field
         self.path = path
         where = f"{path}: " if path is not None else ""
@@ -155,22 +174,31 @@ class CharacterTrack:
 
     @classmethod
     def load(cls, path: str | Path) -> CharacterTrack:
-        """Read a track written by :meth:`save`; raises CharacterTrackError on a bad file."""
+        """Read a track written by :meth:`save` (bounded: see the module docstring); raises
+        CharacterTrackError, naming the file and the field, on a bad file."""
         path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {k: data[k] for k in data.files}
-        except (OSError, ValueError, zipfile.BadZipFile) as exc:
-            raise CharacterTrackError(f"cannot read as .npz ({exc})", path=path) from None
-        fmt = str(arrays.get("format", ""))
-        if fmt != TRACK_FORMAT:
-            raise CharacterTrackError(
-                f"expected '{TRACK_FORMAT}', got '{fmt}'", field="format", path=path
-            )
-        for key in ("name", "fps", "root_positions", "local_rotations", "betas", "gender"):
+        arrays = _read_npz(path)
+        for key in ("format", "name", "fps", "root_positions", "local_rotations", "betas", "gender"):
             if key not in arrays:
                 raise CharacterTrackError("missing", field=key, path=path)
+        for key in (*_TEXT_FIELDS, "fps"):
+            if arrays[key].ndim != 0:
+                raise CharacterTrackError(f"expected one value, got an array of shape {arrays[key].shape}", field=key, path=path)
+        for key in _TEXT_FIELDS:
+            if arrays[key].dtype.kind != "U":
+                raise CharacterTrackError(f"expected text, got {arrays[key].dtype}", field=key, path=path)
+        for key in _NUMBER_FIELDS:
+            if arrays[key].dtype.kind not in "fiu":
+                raise CharacterTrackError(f"expected real numbers, got {arrays[key].dtype}", field=key, path=path)
+        fmt = str(arrays["format"])
+        if fmt != TRACK_FORMAT:
+            raise CharacterTrackError(
+                f"expected '{TRACK_FORMAT}', got '{fmt[:60]}'", field="format", path=path
+            )
         labels = arrays.get("action_labels")
+        if labels is not None and (labels.ndim != 1 or labels.dtype.kind != "U"):
+            raise CharacterTrackError(f"expected one text per frame, got {labels.dtype} of shape {labels.shape}",
+                                      field="action_labels", path=path)
         try:
             return cls(
                 name=str(arrays["name"]),
@@ -182,7 +210,46 @@ class CharacterTrack:
                 action_labels=None if labels is None else tuple(str(s) for s in labels),
             )
         except CharacterTrackError as exc:
-            raise CharacterTrackError(str(exc), field=exc.field, path=path) from None
+            raise CharacterTrackError(exc.message, field=exc.field, path=path) from None
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of the ``.npz`` at ``path``, read within the module's limits, never unpickled."""
+    try:
+        data = read_bounded_bytes(path, MAX_TRACK_FILE_BYTES, str(path))
+    except BoundedFileError as exc:
+        raise CharacterTrackError(f"cannot read as .npz ({exc.problem})", path=path) from None
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            declared = sum(info.file_size for info in zf.infolist())
+            if declared > MAX_TRACK_ARRAY_BYTES:
+                raise CharacterTrackError(
+                    f"its arrays unpack to {declared} bytes, more than the {MAX_TRACK_ARRAY_BYTES} allowed", path=path
+                )
+            for info in zf.infolist():  # an array's header may claim more than its entry holds
+                with zf.open(info) as member:
+                    if _npy_bytes(member) > info.file_size:
+                        raise CharacterTrackError(
+                            f"array {info.filename[:60]!r} claims more bytes than its entry holds", path=path
+                        )
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+            return {k: npz[k] for k in npz.files}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib_error) as exc:
+        raise CharacterTrackError(f"cannot read as .npz ({str(exc)[:200]})", path=path) from None
+
+
+def _npy_bytes(member: IO[bytes]) -> int:
+    """The bytes of data the ``.npy`` header at the start of ``member`` announces."""
+    version = np.lib.format.read_magic(member)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+    elif version == (2, 0):
+        shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+    else:
+        raise ValueError(f"an array of .npy format {version} (1.0 and 2.0 are read)")
+    if dtype.hasobject:
+        raise ValueError("an array of Python objects (never unpickled)")
+    return int(np.prod(shape, dtype=object)) * dtype.itemsize
 
 
 def _gender(value: str) -> Gender:

@@ -22,12 +22,20 @@ header's length and CRC detect a torn last record (a crash in the middle of a wr
 power loss before :meth:`ChunkStore.sync`), which :func:`scan` reports and
 :meth:`ChunkStore.open` cuts off. ``sync`` fsyncs every file: a checkpoint that says "N frames
 are durable" is written only after it. Plain file I/O: no clock, no logging.
+
+A chunk file may come from someone else's run folder, so reading one is bounded: only a regular
+file is read (a FIFO or a device is refused, never waited on), a record's payload is at most
+:data:`MAX_RECORD_BYTES` (a header claiming more is refused before anything is read), its name
+table is a JSON list of strings read within limits (``sim.bounded_files``), and every label and
+event index points into it. Anything else is one :class:`ChunkError` naming the file.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import os
+import stat
 import struct
 import zlib
 from collections.abc import Sequence
@@ -37,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.body.skeleton import NUM_JOINTS
+from sim.bounded_files import BoundedFileError, load_bounded_json
 from sim.no_follow_writes import make_folder, open_append
 from sim.run_folder_names import (  # the two names re-exported: readers import them from here
     CHUNK_SUFFIX as CHUNK_SUFFIX,
@@ -51,6 +60,9 @@ MAGIC = b"STKC"
 VERSION = 1
 _HEADER = struct.Struct("<4sHHQIIQI")
 HEADER_BYTES = _HEADER.size
+MAX_RECORD_BYTES = 64 << 20
+"""Payload bytes of one record at most (a record holds one window, 300 frames: about 250 KB)."""
+_FRAME_BYTES = 3 * 8 + NUM_JOINTS * 9 * 4 + 2 + 4 + 4  # payload bytes per frame, besides the names
 
 
 class ChunkError(ValueError):
@@ -117,11 +129,16 @@ def _decode_payload(start: int, n: int, names_len: int, payload: bytes, path: Pa
     label_ids = np.frombuffer(payload, "<i4", n, int(offs[3]))
     event_ids = np.frombuffer(payload, "<i4", n, int(offs[4]))
     try:
-        names = json.loads(payload[int(offs[5]):].decode("utf-8"))
-        labels = tuple(names[i] for i in label_ids)
-        events = tuple(names[i] for i in event_ids)
-    except (ValueError, IndexError, TypeError) as exc:
-        raise ChunkError(f"{path}: record at frame {start} has a bad name table ({exc})") from None
+        names = load_bounded_json(payload[int(offs[5]):], 2, f"{path}: record at frame {start}: name table")
+    except BoundedFileError as exc:
+        raise ChunkError(str(exc)) from None
+    if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+        raise ChunkError(f"{path}: record at frame {start} has a bad name table (expected a JSON list of strings)")
+    for ids in (label_ids, event_ids):
+        if n and (int(ids.min()) < 0 or int(ids.max()) >= len(names)):
+            raise ChunkError(f"{path}: record at frame {start} has a label or event index outside its name table")
+    labels = tuple(names[i] for i in label_ids)
+    events = tuple(names[i] for i in event_ids)
     return Frames(start, pelvis, rotations.astype(np.float32), contacts, labels, events)
 
 
@@ -138,24 +155,29 @@ class Scan:
 
 def scan(path: Path) -> Scan:
     """The whole records of ``path`` (a missing file has none); a bad record that is not the
-    last (frames out of order, a bad CRC followed by more data) raises :class:`ChunkError`."""
+    last (frames out of order, a bad CRC followed by more data), a record larger than
+    :data:`MAX_RECORD_BYTES` or a file that is not a regular file raises :class:`ChunkError`."""
     try:
-        data_size = path.stat().st_size
+        fh = _open_regular(path)
     except FileNotFoundError:
         return Scan(0, 0, 0, ())
     records: list[tuple[int, int, int]] = []
     offset = frames = 0
-    with path.open("rb") as fh:
+    with fh:
+        data_size = os.fstat(fh.fileno()).st_size
         while offset < data_size:
             header = fh.read(HEADER_BYTES)
             if len(header) < HEADER_BYTES:
                 break
-            magic, version, _, start, n, _names_len, size, crc = _HEADER.unpack(header)
+            magic, version, _, start, n, names_len, size, crc = _HEADER.unpack(header)
             if magic != MAGIC or version != VERSION:
                 break
             end = offset + HEADER_BYTES + size
             if end > data_size:
                 break
+            if size > MAX_RECORD_BYTES or n * _FRAME_BYTES + names_len != size:
+                raise ChunkError(f"{path}: record at byte {offset} claims {n} frames in {size} bytes (at most "
+                                 f"{MAX_RECORD_BYTES} bytes, {_FRAME_BYTES} a frame and its name table)")
             payload = fh.read(size)
             if zlib.crc32(payload) != crc:
                 if end < data_size:
@@ -169,6 +191,21 @@ def scan(path: Path) -> Scan:
     return Scan(frames, offset, data_size - offset, tuple(records))
 
 
+def _open_regular(path: Path) -> io.BufferedReader:
+    """``path`` opened for reading when it is a regular file (without blocking on a FIFO);
+    ``FileNotFoundError`` when there is none, :class:`ChunkError` when it is something else."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except FileNotFoundError:
+        raise
+    except OSError as exc:
+        raise ChunkError(f"{path}: cannot open ({exc.strerror or exc})") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise ChunkError(f"{path}: is not a regular file (a device, a FIFO, a socket or a folder)")
+    return os.fdopen(fd, "rb")
+
+
 def read_frames(path: Path, frames: int | None = None, *, start: int = 0) -> Frames:
     """Frames ``[start, start + frames)`` of ``path`` (``frames`` None: up to the last whole
     record; a torn tail is ignored). Raises :class:`ChunkError` when fewer are there."""
@@ -179,7 +216,7 @@ def read_frames(path: Path, frames: int | None = None, *, start: int = 0) -> Fra
     parts: list[Frames] = []
     if not found.records:
         return concat_frames(start, parts)
-    with path.open("rb") as fh:
+    with _open_regular(path) as fh:
         for offset, first, n in found.records:
             if first + n <= start or first >= stop:
                 continue
