@@ -405,7 +405,7 @@ async def _run_story(
         raise RunSetupError(str(exc)) from None
     try:
         port, describer_model = open_port(config, trace_path, replay)
-    except (LLMError, ValueError, OSError) as exc:
+    except (LLMError, ValueError, OSError, TraceCorruptError) as exc:  # a replayed trace that does not check
         raise RunSetupError(str(exc)) from None
     if status is not None:
         port = WatchedPort(port, status)

@@ -24,7 +24,15 @@ A run folder may come from someone else, so reading a checkpoint runs no code fr
   opcode is a :class:`SnapshotError`;
 - the decoded objects are then checked as a whole (:func:`_check_tree`): only listed
   instances, plain values and numeric arrays, each listed instance with exactly its declared
-  fields, pydantic models valid against their schema, at most :data:`MAX_DEPTH` levels deep.
+  fields, pydantic models valid against their schema, every dataclass field of the type its
+  annotation gives (:func:`_fits`: ``int``, ``str | None``, ``tuple[int, int]``,
+  ``dict[str, CharacterState]``, an array of the annotated dtype, ``Literal`` values...), at
+  most :data:`MAX_DEPTH` levels deep;
+- and against the world it is bound to (:func:`_check_fits_world`): the same characters, in
+  the same order, everywhere the world keeps them by name.
+
+So a crafted checkpoint with a wrong-typed field is refused at load, with one line, instead of
+stopping the resumed run with an error deep in the simulation.
 
 Every failure is a :class:`SnapshotError` with one line naming the file.
 """
@@ -41,8 +49,11 @@ import os
 import pickle
 import re
 import secrets
+import types
+import typing
+from collections.abc import Hashable
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ValidationError
@@ -378,7 +389,8 @@ def load_checkpoint(path: Path, world: World) -> SessionCheckpoint:
     if not isinstance(checkpoint, SessionCheckpoint):
         raise SnapshotError(f"{path}: not a session checkpoint of this version")
     try:
-        _check_tree(checkpoint, {id(o) for o in shared.values()})
+        _check_tree(checkpoint, {id(o) for o in shared.values()}, _plain_templates(world))
+        _check_fits_world(checkpoint, world)
     except SnapshotError as exc:
         raise SnapshotError(f"{path}: cannot read the session checkpoint: {exc}") from None
     return checkpoint
@@ -401,15 +413,21 @@ def _payload(path: Path, data: bytes) -> bytes:
     return payload
 
 
-def _check_tree(root: SessionCheckpoint, shared: set[int]) -> None:
+def _check_tree(root: SessionCheckpoint, shared: set[int], templates: dict[type, Any] | None = None) -> None:
     """Every object reachable from ``root`` is a plain value, a container, a numeric array, a
     numpy scalar, a shared object of the world or an instance of a listed class with exactly its
     declared fields; pydantic models are valid; nesting is at most :data:`MAX_DEPTH` deep and
-    has no cycle. Iterative: a hostile tree cannot exhaust the interpreter's stack here."""
+    has no cycle; then every dataclass field is of its annotated type, and every instance of a
+    listed plain class (no declared fields: the navigators, the priority keeper) has the
+    attributes of its template in ``templates`` (the world's own instance), each of the
+    template's type where the template's is not None. Iterative: a hostile tree cannot exhaust
+    the interpreter's stack here."""
     listed = frozenset(_resolve_classes().values())
     done: set[int] = set(shared)
     on_path: set[int] = set()
     stack: list[tuple[Any, bool]] = [(root, False)]
+    typed: list[Any] = []  # dataclass instances: their field types are checked once the tree is
+    plain: list[Any] = []  # instances of listed plain classes: checked against ``templates``
     while stack:
         obj, leaving = stack.pop()
         key = id(obj)
@@ -431,6 +449,12 @@ def _check_tree(root: SessionCheckpoint, shared: set[int]) -> None:
         on_path.add(key)
         stack.append((obj, True))
         stack.extend((child, False) for child in _children(obj, listed))
+        if dataclasses.is_dataclass(obj):
+            typed.append(obj)
+        elif type(obj) in listed and not isinstance(obj, BaseModel):
+            plain.append(obj)
+    _check_field_types(typed)
+    _check_plain_objects(plain, templates)
 
 
 def _children(obj: Any, listed: frozenset[type]) -> list[Any]:
@@ -460,3 +484,145 @@ def _children(obj: Any, listed: frozenset[type]) -> list[Any]:
     if dataclasses.is_dataclass(obj) and set(state) != {f.name for f in dataclasses.fields(obj)}:
         raise SnapshotError(f"a {kind.__name__} with other fields than its own")
     return [*state.keys(), *state.values()]
+
+
+def _plain_templates(world: World) -> dict[type, Any]:
+    """The instances of listed plain classes that ``world`` holds (its navigator and the objects
+    under it), one per class: what a checkpoint's instances of those classes are checked against."""
+    listed = frozenset(_resolve_classes().values())
+    out: dict[type, Any] = {}
+    stack: list[Any] = [world.navigator]
+    while stack:
+        obj = stack.pop()
+        kind = type(obj)
+        if kind in out or kind not in listed or dataclasses.is_dataclass(obj) or isinstance(obj, BaseModel):
+            continue
+        out[kind] = obj
+        stack.extend(vars(obj).values())
+    return out
+
+
+def _check_plain_objects(objects: list[Any], templates: dict[type, Any] | None) -> None:
+    """Each instance of a listed plain class has its template's attributes, of its types."""
+    if templates is None:
+        return
+    for obj in objects:
+        kind = type(obj)
+        template = templates.get(kind)
+        if template is None:
+            raise SnapshotError(f"the checkpoint holds a {kind.__name__}, which this run's world has none of")
+        mine, theirs = vars(obj), vars(template)
+        if set(mine) != set(theirs):
+            raise SnapshotError(f"a {kind.__name__} with other attributes than its own")
+        for name, expected in theirs.items():
+            value = mine[name]
+            if expected is None or value is None or type(value) is type(expected):
+                continue
+            if _fits(value, float) and _fits(expected, float):
+                continue
+            raise SnapshotError(
+                f"a {kind.__name__} whose attribute {name} is a {type(value).__name__[:40]}, not {type(expected).__name__}"
+            )
+
+
+def _check_field_types(objects: list[Any]) -> None:
+    """Every field of each dataclass instance in ``objects`` is of its annotated type (after the
+    tree is known to be acyclic and shallow)."""
+    for obj in objects:
+        kind = type(obj)
+        for name, hint in _field_types(kind).items():
+            value = vars(obj)[name]
+            if not _fits(value, hint):
+                raise SnapshotError(
+                    f"a {kind.__name__} whose field {name} is a {type(value).__name__[:40]}, not {_hint_name(hint)}"
+                )
+
+
+_FIELD_TYPES: dict[type, dict[str, Any]] = {}
+
+
+def _field_types(kind: type) -> dict[str, Any]:
+    """The resolved annotation of each dataclass field of ``kind`` (cached)."""
+    if kind not in _FIELD_TYPES:
+        hints = typing.get_type_hints(kind)
+        _FIELD_TYPES[kind] = {f.name: hints[f.name] for f in dataclasses.fields(kind)}
+    return _FIELD_TYPES[kind]
+
+
+_FITS_DEPTH = 8  # levels of a field's annotation checked (``dict[str, list[tuple[int, int]]]`` has 4)
+
+
+def _fits(value: Any, hint: Any, depth: int = _FITS_DEPTH) -> bool:
+    """Whether ``value`` is of the annotated type ``hint``. Containers are checked item by item
+    (keys and values, every item of a list); instances of listed classes by their type (their
+    own fields are checked when :func:`_check_tree` reaches them); an ``int`` passes for a
+    ``float`` and numpy's scalars for Python's. Linear in the items, bounded in the annotation."""
+    if depth <= 0 or hint is Any or hint is object:
+        return True
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin is typing.Union or origin is types.UnionType:
+        return any(_fits(value, arm, depth - 1) for arm in args)
+    if origin is Literal:
+        return any(type(value) is type(arm) and value == arm for arm in args)
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool | np.bool_)
+    if hint is int:
+        return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+    if hint is float:
+        return isinstance(value, float | int | np.floating | np.integer) and not isinstance(value, bool | np.bool_)
+    if hint is Hashable:
+        return _plain_key(value, _MAX_KEY_DEPTH)
+    if hint is np.ndarray or origin is np.ndarray:
+        return isinstance(value, np.ndarray) and _dtype_fits(value, args)
+    if origin in (tuple, list, set, frozenset, dict):
+        if type(value) is not origin:
+            return False
+        if origin is dict:
+            key, item = args or (Any, Any)
+            return all(_fits(k, key, depth - 1) and _fits(v, item, depth - 1) for k, v in value.items())
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            return len(value) == len(args) and all(_fits(v, a, depth - 1) for v, a in zip(value, args, strict=True))
+        item = args[0] if args else Any
+        return all(_fits(v, item, depth - 1) for v in value)
+    if isinstance(hint, type):
+        return isinstance(value, hint)
+    return True  # an annotation this check does not know: left to the pydantic and tree checks
+
+
+def _dtype_fits(value: np.ndarray[Any, Any], args: tuple[Any, ...]) -> bool:
+    """An array annotated ``NDArray[np.float64]`` holds float64 (a bare ``np.ndarray``: any numeric)."""
+    if len(args) != 2:
+        return True
+    scalar = typing.get_args(args[1])
+    return not scalar or not isinstance(scalar[0], type) or value.dtype.type is scalar[0]
+
+
+def _hint_name(hint: Any) -> str:
+    return (getattr(hint, "__name__", None) if isinstance(hint, type) else None) or str(hint).replace("typing.", "")[:80]
+
+
+def _check_fits_world(checkpoint: SessionCheckpoint, world: World) -> None:
+    """The checkpoint is of this run's characters: the world's names, in its order, as the keys
+    of its per-character state, motion states and track buffers, each state named by its key."""
+    names = list(world.characters)
+    snap = checkpoint.world
+    for what, keys in (
+        ("characters", list(snap.characters)),
+        ("motion states", list(snap.motion_states)),
+        ("track buffers", list(snap.buffers.names)),
+    ):
+        if keys != names:
+            raise SnapshotError(f"the checkpoint's {what} are {keys[:8]}, this run's characters are {names[:8]}")
+    for name, state in snap.motion_states.items():
+        if type(state) is not type(world.motion_states[name]):
+            raise SnapshotError(f"the checkpoint's motion state of {name!r} is a {type(state).__name__[:40]}, this "
+                                f"run's motion layer keeps a {type(world.motion_states[name]).__name__}")
+    for name, state in snap.characters.items():
+        if state.name != name:
+            raise SnapshotError(f"the checkpoint's character {name!r} holds the state of {state.name!r}")
+    for event_id, event in checkpoint.events.items():
+        if event.event_id != event_id:
+            raise SnapshotError(f"the checkpoint's event {event_id!r} holds event {event.event_id!r}")
