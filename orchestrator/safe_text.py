@@ -8,12 +8,14 @@ Zp (U+2028, U+2029) and every lone surrogate (Cs) with a visible escape (``\\xNN
 ``\\uNNNN`` or ``\\UNNNNNNNN``), chosen by ``unicodedata.category``, not a hand list. The one
 exception is ``keep_newlines``, for multi-line messages (error feedback): newline and tab stay.
 Used for terminal lines, log lines, the viewer's 3D labels and buttons, which draw text
-literally; ``markup`` additionally escapes rich markup (``[red]``, ``[/]``) for text printed
-through rich; ``markdown`` additionally escapes every markdown and HTML special character,
-for the viewer's panel (viser renders its markdown with raw HTML and no sanitizing).
+literally; ``one_line`` first joins a message's lines with spaces, for the ``error:`` line a
+command ends with (one line, whatever the message quoted); ``markup`` additionally escapes rich
+markup (``[red]``, ``[/]``) for text printed through rich; ``markdown`` additionally escapes
+every markdown and HTML special character, for the viewer's panel (viser renders its markdown
+with raw HTML and no sanitizing).
 
 Guarantee: the result holds no character of those categories (but newline and tab with
-``keep_newlines``), it encodes to UTF-8 (no lone surrogate is left), and through rich, or as
+``keep_newlines``; ``one_line``'s holds no line break at all), it encodes to UTF-8 (no lone surrogate is left), and through rich, or as
 markdown, it renders as the literal text.
 """
 
@@ -50,6 +52,12 @@ def plain(text: object, *, keep_newlines: bool = False) -> str:
         _visible(c) if c not in kept and unicodedata.category(c) in UNSAFE_CATEGORIES else c
         for c in text
     )
+
+
+def one_line(text: object) -> str:
+    """``plain(text)`` on one line: its lines (split at every line break Python knows, U+2028 and
+    U+2029 included) stripped and joined with single spaces, for an ``error:`` line."""
+    return plain(" ".join(part.strip() for part in str(text).splitlines() if part.strip()))
 
 
 def markup(text: object) -> str:

@@ -70,3 +70,16 @@ def test_a_run_that_fails_scores_every_expectation_unmet_with_the_error(fake: Fa
     score, _ = run_scenario(SCENARIO, RunOptions(out=tmp_path / "out", replay=tmp_path / "traces"))
     assert score.met == 0
     assert all(v.reason.startswith("run failed: error: ") for v in score.verdicts), score.verdicts
+
+
+def test_run_log_replaces_a_link_planted_in_the_run_folder(fake: FakeOpenAI, tmp_path: Path) -> None:
+    (tmp_path / "traces").mkdir()
+    (tmp_path / "traces" / "fake_coffee.jsonl").write_text("not a trace\n", encoding="utf-8")
+    outside = tmp_path / "outside.txt"
+    outside.write_text("keep me", encoding="utf-8")
+    (tmp_path / "out" / "fake_coffee").mkdir(parents=True)
+    (tmp_path / "out" / "fake_coffee" / "run.log").symlink_to(outside)
+    run_scenario(SCENARIO, RunOptions(out=tmp_path / "out", replay=tmp_path / "traces"))
+    log = tmp_path / "out" / "fake_coffee" / "run.log"
+    assert outside.read_text(encoding="utf-8") == "keep me"
+    assert not log.is_symlink() and "error: " in log.read_text(encoding="utf-8")

@@ -109,3 +109,15 @@ def test_save_png_of_a_bundled_scene(tmp_path: Path) -> None:
     image = imread(path)
     frame = render_topdown_rgb(scene, title="restaurant", size_px=500)
     assert image.shape[:2] == frame.shape[:2]
+
+
+def test_text_from_outside_is_drawn_as_text_not_mathtext(tmp_path: Path) -> None:
+    """An object, a character, a caption and a title reading ``$\\bar$`` (invalid mathtext, which
+    matplotlib would parse and fail on) are drawn literally."""
+    odd = r"$\bar$"
+    scene = Scene(name="odd", bounds_min=(0.0, 0.0), bounds_max=(4.0, 4.0), objects=(
+        SceneObject(name=f"{odd}_1", label=odd, idx=1, center=(2.0, 2.0, 0.375), size=(1.2, 0.8, 0.75)),
+    ))  # fmt: skip
+    path = save_topdown_png(tmp_path / "odd.png", scene, title=odd, captions=[odd],
+                            characters=[CharacterMarker(odd, (1.0, 1.0), (1.0, 0.0), odd)])
+    assert imread(path).shape[2] in (3, 4)

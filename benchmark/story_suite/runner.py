@@ -21,6 +21,7 @@ from pathlib import Path
 
 from benchmark.story_suite.evaluate import ScenarioScore, StoryLogError, Verdict, score_run
 from benchmark.story_suite.scenario import Scenario
+from sim.no_follow_writes import write_file
 
 
 @dataclass(frozen=True)
@@ -70,8 +71,9 @@ def run_scenario(scenario: Scenario, options: RunOptions) -> tuple[ScenarioScore
     proc = subprocess.run(run_args(scenario, options), env=env, capture_output=True, text=True, check=False)
     seconds = time.perf_counter() - t0
     run_dir = options.out / scenario.name
-    (run_dir / "run.log").parent.mkdir(parents=True, exist_ok=True)
-    (run_dir / "run.log").write_text(proc.stdout + proc.stderr, encoding="utf-8")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    # the run folder may hold a link planted at run.log: replaced, never written through
+    write_file(run_dir / "run.log", (proc.stdout + proc.stderr).encode("utf-8", "surrogateescape"))
     if not (run_dir / "story.json").is_file():
         last = (proc.stderr.strip().splitlines() or [f"exit code {proc.returncode}"])[-1]
         return _failed(scenario, last), seconds

@@ -68,9 +68,10 @@ ViewHostOption = Annotated[str, typer.Option(
 
 def fail(message: str, code: int = 2) -> NoReturn:
     """Print ``error: message`` to stderr and exit (2: a user error). The message names files
-    and quotes their content, so it goes through :func:`~orchestrator.safe_text.plain` (control,
-    format and bidi characters shown as escapes; its own newlines kept)."""
-    from orchestrator.safe_text import plain
+    and quotes their content, so it goes through :func:`~orchestrator.safe_text.one_line` (one
+    line whatever it quoted: its lines joined with spaces; control, format and bidi characters
+    shown as escapes)."""
+    from orchestrator.safe_text import one_line
 
-    typer.echo(f"error: {plain(message, keep_newlines=True)}", err=True)
+    typer.echo(f"error: {one_line(message)}", err=True)
     raise typer.Exit(code)

@@ -23,7 +23,10 @@ time; see ``orchestrator.session.instruction_script``); with ``--interactive`` (
 when stdin is a terminal) every line typed while the story runs becomes the instruction at
 the next frame, and so does every line sent from the instruction box of a viewer of the run
 folder (``--view``, or ``storyteller view OUT`` elsewhere: ``orchestrator.session.viewer_instructions``).
-The trace records each one with its frame, and a replay applies it there.
+The trace records each one with its frame, and a replay applies it there. A script line at or
+after the end of the run (``--duration``) would never take effect: ``run`` says so in one
+``warning:`` line on stderr before the story starts, and goes on (a short preview of a long
+script stays possible).
 
 ``--view [--port P] [--host H]`` (``run`` and ``resume``): the browser viewer of ``--out`` is
 served by this process from before the first frame (``orchestrator.viewer``; its address is
@@ -79,7 +82,7 @@ from orchestrator.cli.options import (
     ViewPortOption,
     fail,
 )
-from orchestrator.safe_text import plain
+from orchestrator.safe_text import one_line, plain
 from sim.run_folder_names import RUNS_DB, TRACE_JSONL
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
@@ -181,6 +184,8 @@ def run_command(
             script = read_instruction_script(instructions)
         except InstructionScriptError as exc:
             fail(str(exc))
+        if replay is None:
+            warn_unreached(script, duration, str(instructions))
     scene_path = Path(scene)
     args = RunArguments(
         scene=absolute(scene_path) or scene if scene_path.is_file() else scene,
@@ -211,6 +216,22 @@ def run_command(
     _execute(args, out=out, trace_path=trace_path, replay=replay, thread_id=thread_id, resume=False,
              interactive=typing, live=shown, smplx_model=smplx_model, in_process_programs=in_process_programs,
              view=ViewAt(port, host) if view else None)
+
+
+def warn_unreached(script: tuple[ScriptLine, ...], duration: float, source: str) -> None:
+    """Say (one ``warning:`` line on stderr) when script lines fall at or after the run's last
+    frame: the run goes on, and those instructions never take effect."""
+    from sim.world.step import WorldConfig
+
+    fps = WorldConfig().fps
+    frames = round(duration * fps)
+    late = [line for line in script if round(line.time_s * fps) >= frames]  # as the session schedules them
+    if late:
+        typer.echo(
+            f"warning: {plain(source)}: {len(late)} instruction(s) at or after {duration:g} s, the end of the run "
+            f"(--duration), never take effect (the first: {late[0].time_s:g} s {plain(late[0].text[:60])!r})",
+            err=True,
+        )
 
 
 def _check_smplx_model(smplx_model: Path | None) -> None:
@@ -440,7 +461,7 @@ def _run_and_report(
 
     def started(manifest: RunManifest) -> None:
         if replay is None:
-            typer.echo(f"thread {manifest.thread_id}; to resume after a stop: {resume_command(out)}", err=True)
+            typer.echo(f"thread {plain(manifest.thread_id)}; to resume after a stop: {plain(resume_command(out))}", err=True)
 
     signals: list[int] = []  # the signals received, in order
 
@@ -526,7 +547,12 @@ def _run_and_report(
         raise typer.Exit(128 + signum)
     if result.planner_error is not None:
         err = result.planner_error
-        typer.echo(f"error: planning stopped: {type(err).__name__}: {plain(err, keep_newlines=True)}", err=True)
+        # one line; a replay miss's diff against the recorded request follows it, as detail
+        detail = getattr(err, "diff", None)
+        message = str(err).split(f"\n{detail}")[0] if isinstance(detail, str) and detail else str(err)
+        typer.echo(f"error: planning stopped: {type(err).__name__}: {one_line(message)}", err=True)
+        if isinstance(detail, str) and detail:
+            typer.echo(plain(detail, keep_newlines=True), err=True)
         raise typer.Exit(1)
 
 

@@ -167,6 +167,7 @@ def _draw_static(
                 name_xy[0],
                 name_xy[1],
                 obj.name,
+                parse_math=False,  # names are data: '$\\bar$' is text, not mathtext
                 fontsize=5.5,
                 ha="center",
                 va="center" if on_floor else "bottom",
@@ -188,7 +189,7 @@ def _draw_static(
     ax.set_ylabel("y (m)", fontsize=7)
     ax.tick_params(labelsize=6)
     if title:
-        fig.suptitle(title, fontsize=9)
+        fig.suptitle(title, fontsize=9, parse_math=False)
 
 
 def _draw_moving(
@@ -237,6 +238,7 @@ def _draw_moving(
             px,
             py - BODY_RADIUS - 0.05,
             text,
+            parse_math=False,
             fontsize=6,
             ha="center",
             va="top",
@@ -249,6 +251,7 @@ def _draw_moving(
             0.01,
             0.99,
             "\n".join(captions),
+            parse_math=False,
             transform=ax.transAxes,
             fontsize=7,
             ha="left",
