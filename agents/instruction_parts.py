@@ -33,8 +33,11 @@ LLM) still chooses and writes the event.
   without asking the model, unless some free characters are *bystanders* (no part still open
   names them: the instruction never did, or their parts are over; and they are not still at
   their last activity, a looping one that is not just idling): they are asked for an event of their own (the reply may name only them),
-  so nobody the user did not mention stands idle while the others carry the instruction out. Once every part has happened the model is asked as before (its
-  rules say what to do with free characters the instruction no longer needs).
+  so nobody the user did not mention stands idle while the others carry the instruction out. Once every part has happened,
+  the free characters the instruction never names (and who are not still at a looping activity) are
+  bystanders too: they go on with lives of their own (``agents.bystanders`` offers them everyday
+  activities); without such characters the model is asked as before (its rules say what to do
+  with free characters the instruction no longer needs).
   When the next part has actors, the narrator's reply may name only them (the schema's enum):
   a small model otherwise adds whoever else is free.
 
@@ -305,9 +308,12 @@ def instruction_progress(
         for h in sorted(history, key=lambda e: e.index):
             last.update(dict.fromkeys(h.characters, h.state))
         resting = set(idle)
+        named = {n for p in parts for n in p.names}
         bystanders = tuple(
-            n for n in free if n not in needed and (last.get(n) != "looping" or n in resting)  # still at it: not idle
-        ) if "" in states else ()
+            n for n in free
+            if n not in needed and (last.get(n) != "looping" or n in resting)  # still at it: not idle
+            and ("" in states or n not in named)  # every part has happened: only the never named
+        )
         if bystanders:
             return InstructionProgress(text, None, bystanders, False, bystanders)
         return InstructionProgress(text, None, (), "" in states)

@@ -7,6 +7,12 @@ feedback naming the offending characters (:mod:`agents.retry_feedback`).
 
 Prompt layout (stable first, for prefix caching): system = role, rules, examples, scene
 description; user = characters and their states, event history, instruction.
+
+Bystanders (free characters no open part of the instruction names, asked for an event of their
+own): with the scene at hand (``NarratorInput.now``) the prompt lists everyday activities for
+them and the schema admits only those (``agents.bystanders``); a reply naming a bystander is
+also checked by code (not the instruction's own activity, not what it did last, not an object
+another character uses alone), and what is wrong goes back as feedback.
 """
 
 from __future__ import annotations
@@ -14,8 +20,10 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
+from agents.bystanders import BystanderRules, SceneNow, bystander_rules, never_named
 from agents.instruction_parts import InstructionProgress, instruction_progress
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
 from agents.llm_schemas import Refine, reply_schema
@@ -57,6 +65,7 @@ class NarratorInput:
     sim_frame: int | None = None
     max_tokens: int = DEFAULT_MAX_TOKENS
     extra: dict[str, Any] = field(default_factory=dict)
+    now: SceneNow | None = None  # the scene and who uses what (None: bystanders get no list)
 
     @property
     def free(self) -> list[str]:
@@ -80,6 +89,23 @@ class NarratorInput:
             idle=[c.name for c in self.characters if not c.busy and c.action in IDLE_ACTIONS],
         )
 
+    @cached_property
+    def bystanders(self) -> BystanderRules:
+        """The rules for this turn's bystanders: the ones asked for an event of their own (with
+        the everyday activities listed for them), or, when every part has happened, the free
+        characters the instruction never names (their events are checked, nothing is listed)."""
+        progress = self.progress
+        if progress.bystanders:
+            names: tuple[str, ...] = progress.bystanders
+        elif progress.next_part is None and not progress.nothing_for_the_free:
+            unnamed = set(never_named(self.instruction, [c.name for c in self.characters]))
+            names = tuple(n for n in self.free if n in unnamed)
+        else:
+            names = ()
+        return bystander_rules(
+            self.now, self.characters, self.instruction, self.history, names, offer=bool(progress.bystanders)
+        )
+
 
 IDLE_ACTIONS = frozenset({"idle", "sit_idle"})
 """Actions of a character who is only there (standing or sitting), doing nothing in particular."""
@@ -96,14 +122,18 @@ def waits_without_a_call(
     return not free or instruction_progress(instruction, names, history, free, since=since, idle=idle).nothing_for_the_free
 
 
-def narrator_schema(free: Sequence[str], at_least_one: bool = False) -> dict[str, Any]:
+def narrator_schema(
+    free: Sequence[str], at_least_one: bool = False, activities: Sequence[str] = ()
+) -> dict[str, Any]:
     """JSON schema of the reply; ``characters`` may only name free characters (enum), and must
-    name one when ``at_least_one`` (bystanders asked for an event of their own)."""
+    name one when ``at_least_one`` (bystanders asked for an event of their own); with
+    ``activities``, the activity must be one of them (the everyday activities listed for
+    bystanders)."""
     names = list(dict.fromkeys(free))
-    return reply_schema(
-        NarratorOutput,
-        {"event.characters": Refine(enum=names, max_items=len(names), min_items=1 if at_least_one and names else None)},
-    )
+    refine = {"event.characters": Refine(enum=names, max_items=len(names), min_items=1 if at_least_one and names else None)}
+    if activities:
+        refine["event.activity"] = Refine(enum=list(dict.fromkeys(activities)))
+    return reply_schema(NarratorOutput, refine)
 
 
 def history_text(
@@ -160,11 +190,17 @@ def characters_text(characters: Sequence[CharacterStatus], prompts: PromptLibrar
     return "\n".join(lines)
 
 
-def _next_part_line(prompts: PromptLibrary, instruction: str, progress: InstructionProgress) -> str:
+def _next_part_line(
+    prompts: PromptLibrary, instruction: str, progress: InstructionProgress, choices: Sequence[str] = ()
+) -> str:
     if progress.next_part is not None:
         return progress.next_part
     if progress.bystanders:
-        return prompts.render_text("narrator/bystanders.md", names=", ".join(progress.bystanders))
+        line = prompts.render_text("narrator/bystanders.md", names=", ".join(progress.bystanders))
+        if not choices:
+            return line
+        listed = "\n".join(prompts.render_text("narrator/choice_line.md", activity=c) for c in choices)
+        return line + "; " + prompts.render_text("narrator/bystander_choices.md", choices=listed)
     if progress.nothing_for_the_free:
         return prompts.render_text("narrator/next_part_wait.md")
     return prompts.render_text("narrator/next_part_all_done.md" if instruction.strip() else "story/no_instruction.md")
@@ -184,7 +220,7 @@ def narrator_messages(prompts: PromptLibrary, inp: NarratorInput) -> tuple[ChatM
         free=", ".join(free) if free else prompts.render_text("story/nobody_free.md"),
         history=history_text(inp.history, prompts, inp.earlier),
         instruction=progress.text,
-        next_part=_next_part_line(prompts, inp.instruction, progress),
+        next_part=_next_part_line(prompts, inp.instruction, progress, inp.bystanders.texts),
     )
     return (ChatMessage(role="system", content=system), ChatMessage(role="user", content=user))
 
@@ -193,7 +229,9 @@ def narrator_request(prompts: PromptLibrary, inp: NarratorInput, turns: tuple[Tu
     return LLMRequest(
         node="narrator",
         messages=with_turns(narrator_messages(prompts, inp), turns),
-        json_schema=narrator_schema(inp.candidates, at_least_one=bool(inp.progress.bystanders)),
+        json_schema=narrator_schema(
+            inp.candidates, at_least_one=bool(inp.progress.bystanders), activities=inp.bystanders.texts
+        ),
         max_tokens=inp.max_tokens,
         seed=inp.seed,
         temperature=retry_temperature(turns),
@@ -202,10 +240,12 @@ def narrator_request(prompts: PromptLibrary, inp: NarratorInput, turns: tuple[Tu
 
 
 def parse_narration(
-    text: str, characters: Sequence[CharacterStatus], prompts: PromptLibrary | None = None
+    text: str, characters: Sequence[CharacterStatus], prompts: PromptLibrary | None = None,
+    bystanders: BystanderRules | None = None,
 ) -> NarratorOutput:
     """Check a reply. Raises JSONDecodeError, ValidationError or AnswerRejectedError, whose
-    problems are ``prompts/feedback/narrator/*.md``."""
+    problems are ``prompts/feedback/narrator/*.md``; with ``bystanders`` (the turn's
+    :attr:`NarratorInput.bystanders`) what it gives them is checked too."""
     lib = prompts or package_prompts()
     data = json.loads(_json_slice(text))
     out = NarratorOutput.model_validate(data)
@@ -232,6 +272,8 @@ def parse_narration(
             lib.render_text("feedback/free_characters.md", free=", ".join(free) if free else lib.render_text("feedback/none.md"))
         )
         raise AnswerRejectedError(problems)
+    if bystanders is not None and (wrong := bystanders.problems(out.event, lib)):
+        raise AnswerRejectedError(wrong)
     return out
 
 
@@ -261,7 +303,7 @@ async def narrate(
     return await ask_until_valid(
         port,
         lambda turns: narrator_request(prompts, inp, turns),
-        lambda text: parse_narration(text, inp.characters, prompts),
+        lambda text: parse_narration(text, inp.characters, prompts, inp.bystanders),
         max_attempts=max_retries + 1,
         node="narrator",
         prompts=prompts,

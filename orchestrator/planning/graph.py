@@ -54,6 +54,7 @@ import anyio.to_thread
 from langgraph.graph import START, StateGraph
 from langgraph.runtime import Runtime
 
+from agents.bystanders import scene_now
 from agents.describer import (
     best_effort,
     describer_request,
@@ -181,8 +182,11 @@ async def check_description(state: PlanningState, runtime: Runtime[PlanningDeps]
 
 
 def narrator_input(state: PlanningState, deps: PlanningDeps) -> NarratorInput:
-    """The narrator's input for the state's step (the one builder: ablation nodes use it too)."""
+    """The narrator's input for the state's step (the one builder: ablation nodes use it too),
+    with the scene now (everyday activities for bystanders, who uses what): CPU work, so nodes
+    build it off the event loop."""
     assert state.description is not None
+    choices, areas = deps.everyday()
     return NarratorInput(
         scene_description=state.description.text,
         characters=state.roster,
@@ -193,6 +197,7 @@ def narrator_input(state: PlanningState, deps: PlanningDeps) -> NarratorInput:
         tags=deps.tags,
         seed=deps.seed,
         sim_frame=state.sim_frame,
+        now=scene_now(deps.scene, deps.action_labels, choices, areas, deps.world.world_view(state.roster), state.roster),
     )
 
 
@@ -215,7 +220,8 @@ async def narrate_event(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     deps = runtime.context
     turns = tuple(t.as_turn() for t in state.narrator_turns)
     try:
-        response = await complete(deps, narrator_request(deps.prompts, narrator_input(state, deps), turns), state)
+        inp = await off_loop(lambda: narrator_input(state, deps))
+        response = await complete(deps, narrator_request(deps.prompts, inp, turns), state)
     except LLMError as exc:
         return unavailable(state, "narrator", exc)
     return reply_update(state, "narrator", response)
@@ -247,8 +253,9 @@ async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) 
         return {}
     reply = state.narrator_reply or ""
     attempts = len(state.narrator_turns) + 1
+    inp = await off_loop(lambda: narrator_input(state, deps))
     try:
-        out = parse_narration(reply, state.roster)
+        out = parse_narration(reply, state.roster, deps.prompts, inp.bystanders)
     except REJECTIONS as exc:
         feedback = feedback_from_error(exc)
         record_parsed(deps, state.narrator_seq, "narrator", error=exc, feedback=feedback)
@@ -261,7 +268,7 @@ async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) 
             update["failure"] = PlanningFailure(index=state.step, node="narrator", attempts=attempts, feedback=feedback)
         return update
     record_parsed(deps, state.narrator_seq, "narrator", out.model_dump(mode="json"))
-    progress = narrator_input(state, deps).progress
+    progress = inp.progress
     event = with_all_part_actors(out.event, progress)
     part = instruction_part(progress, event)
     if deps.progress is not None and not event.is_wait:

@@ -16,6 +16,7 @@ from typing import Any, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from agents.bystanders import Choice, object_areas, scene_choices
 from agents.describer import DescriberInput, describer_input_from_scene
 from agents.event_parser import ProgramRunner
 from agents.llm_port import LLMPort, TraceRecorder
@@ -160,6 +161,7 @@ class PlanningDeps:
     progress: StepProgress | None = None
     """The current step's progress sink (a session sets one per step; None: nobody listens)."""
     _describer_input: DescriberInput | None = field(default=None, init=False, repr=False)
+    _everyday: tuple[tuple[Choice, ...], dict[str, int]] | None = field(default=None, init=False, repr=False)
 
     def trace_sink(self) -> TraceRecorder | None:
         return self.trace if self.trace is not None else self.port.trace
@@ -169,3 +171,11 @@ class PlanningDeps:
         if self._describer_input is None:
             self._describer_input = describer_input_from_scene(self.scene, mode=self.describer_mode)
         return self._describer_input
+
+    def everyday(self) -> tuple[tuple[Choice, ...], dict[str, int]]:
+        """The scene's everyday activities for bystanders and its object areas (the describer's
+        clusters), built once per run (``agents.bystanders``)."""
+        if self._everyday is None:
+            areas = object_areas(self.scene, self.describer_input().clusters)
+            self._everyday = (scene_choices(self.scene, self.action_labels, areas, self.prompts), areas)
+        return self._everyday
