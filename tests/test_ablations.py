@@ -71,18 +71,19 @@ async def test_unified_planner_without_events() -> None:
     assert port.requests[0].node == "planner" and "Instruction: Ava makes coffee." in port.requests[0].messages[1].content
 
 
-async def test_unified_planner_sums_up_three_characters_within_the_event_s_length() -> None:
-    """Three characters' plans summed up run past an event's 160 characters: the activity is cut
-    at a word, not refused (a sweep run once failed on this)."""
-    roster = initial_roster(SCENE, 3, seed=1)
+async def test_unified_planner_sums_up_four_characters_within_the_event_s_length() -> None:
+    """Four characters' plans summed up run past an event's 160 characters: the activity is cut
+    at a word, not refused (a sweep run once failed on this). Their action is a shared one, so
+    no character is refused an object another one uses."""
+    roster = initial_roster(SCENE, 4, seed=1)
     names = [c.name for c in roster]
     blocks = "".join(
-        f'    c = get_character("{n}")\n    c.set_target_action("turn_off_record_player")\n'
-        f'    c.set_position(get_area_close_to("{obj}"))\n    c.set_orientation("{obj}")\n'
-        for n, obj in zip(names, ("record_player_1", "loudspeaker_1", "potted_plant_1"), strict=True)
+        f'    c = get_character("{n}")\n    c.set_target_action("listen_to_music")\n'
+        f'    c.set_position(get_area_adjacent_to("{obj}"))\n    c.set_orientation("{obj}")\n'
+        for n, obj in zip(names, ("record_player_1", "potted_plant_2", "potted_plant_1", "floor_lamp_1"), strict=True)
     )
     port = ScriptedLLM([f"```python\ndef parse_event():\n{blocks}```"])
-    out = await plan_one(port, "unified", roster, instruction="Everyone checks their phone.")
+    out = await plan_one(port, "unified", roster, instruction="Everyone listens to the music.")
     assert isinstance(out, ParsedEvent) and out.event.characters == tuple(names)
     assert len(out.event.activity) <= 160 and out.event.activity.endswith("...")
 
