@@ -19,17 +19,24 @@ checkpoint, settling news and outcomes (trace and story records), asking the pla
 LLM client's trace writes, or the machine). Not a test: timings depend on the machine and its
 load; compare the two modes of the same run.
 
-    python -m benchmark.bench_frame_interval [--duration 40] [--latency 5] [--repeat 1]
+``--viewer`` adds a third mode, ``viewer``: ``product`` with the browser viewer started as
+``storyteller run --view`` starts it (``orchestrator.viewer.child``: a process of its own,
+playing, following the live run) and a headless Chromium (``tests/support/headless_chromium.py``,
+software WebGL, on this machine) connected to it for the whole run.
+
+    python -m benchmark.bench_frame_interval [--duration 40] [--latency 5] [--repeat 1] [--viewer]
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import multiprocessing
 import os
 import re
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -121,16 +128,36 @@ def run_once(mode: str, duration: float, latency: float, tmp: Path) -> Run:
         )
         out = tmp / mode
         out.mkdir()
+        watching = _watch(out, tmp) if mode == "viewer" else contextlib.nullcontext()
         if mode == "baseline":
             checkpoint_writer.CheckpointWriter = InlineCheckpoints  # type: ignore[misc,assignment]  # the baseline swaps in an inline writer for one run
         try:
-            result = asyncio.run(run_story(resolve_scene("home"), args, out=out, trace_path=out / "trace.jsonl",
-                                           replay=None)).result
+            with watching:
+                result = asyncio.run(run_story(resolve_scene("home"), args, out=out, trace_path=out / "trace.jsonl",
+                                               replay=None)).result
         finally:
             checkpoint_writer.CheckpointWriter = original  # type: ignore[misc]  # restores the real writer
     profile = result.frame_profile
     parts = {name: np.asarray(profile.part(name), dtype=float)[1:] * 1000.0 for name in PARTS}
     return Run(np.asarray(result.frame_intervals_s[1:]) * 1000.0, parts, result.steps, result.slipped_s)
+
+
+@contextlib.contextmanager
+def _watch(out: Path, tmp: Path) -> Iterator[None]:
+    """The viewer of ``out`` as ``run --view`` starts it (its own process, playing), with a
+    headless Chromium on it."""
+    from orchestrator.viewer.child import spawn_viewer
+    from tests.support.headless_chromium import Chromium
+
+    viewer = spawn_viewer(out, port=0, host="127.0.0.1")
+    profile = tmp / "chromium-profile"
+    profile.mkdir(exist_ok=True)
+    try:
+        with Chromium(profile) as browser:
+            browser.navigate(viewer.url)
+            yield
+    finally:
+        viewer.stop()
 
 
 def merge(runs: list[Run]) -> Run:
@@ -157,12 +184,15 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=40.0, help="Simulated (= wall) seconds per run.")
     parser.add_argument("--latency", type=float, default=5.0, help="Seconds the fake provider takes per call.")
     parser.add_argument("--repeat", type=int, default=1, help="Runs per mode, alternating baseline and product.")
+    parser.add_argument("--viewer", action="store_true",
+                        help="Also the 'viewer' mode: product with the browser viewer and a headless Chromium on it.")
     ns = parser.parse_args()
-    runs: dict[str, list[Run]] = {mode: [] for mode in MODES}
+    modes = (*MODES, "viewer") if ns.viewer else MODES
+    runs: dict[str, list[Run]] = {mode: [] for mode in modes}
     spawn = multiprocessing.get_context("spawn")  # each run in a fresh interpreter: cold, as `storyteller run`
     with tempfile.TemporaryDirectory() as tmp:
         for k in range(ns.repeat):
-            for mode in MODES:
+            for mode in modes:
                 folder = Path(tmp) / str(k)
                 folder.mkdir(exist_ok=True)
                 with spawn.Pool(1) as pool:
@@ -184,6 +214,10 @@ def main() -> None:
             print(f"  {mode:9} {n:4d} frames: " + ", ".join(f"{CAUSES[k]} {v:.0%}" for k, v in causes.items()))
     base, new = (np.percentile(rows[m].intervals_ms, 99) for m in MODES)
     print(f"p99 product / baseline: {new / base:.2f}; target p99 < 40 ms: {'met' if new < 40.0 else 'not met'}")
+    if ns.viewer:
+        watched = np.percentile(rows["viewer"].intervals_ms, 99)
+        print(f"p99 viewer / product: {watched / new:.2f}; with a browser attached, target p99 < 40 ms: "
+              f"{'met' if watched < 40.0 else 'not met'}")
 
 
 if __name__ == "__main__":

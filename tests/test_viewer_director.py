@@ -426,3 +426,44 @@ def test_nothing_sent_is_lost_when_the_view_and_the_run_are_killed_and_started_a
                                stderr=subprocess.STDOUT)
     assert code == 0, log.read_text()[-3000:]
     _same_story(out, again)
+
+
+# ----- run --view: the viewer's process -------------------------------------------------------
+def test_run_view_on_an_address_it_cannot_listen_on_is_one_error_line(tmp_path: Path) -> None:
+    result = subprocess.run(_cli(*RUN, "-d", "5", "--out", str(tmp_path / "run"), "--view", "--port", "0", "--host",
+                                 "203.0.113.9"), env=_env(tmp_path), capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert result.returncode == 2, result.stderr
+    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "Traceback" not in result.stderr, result.stderr
+    assert "--view" in errors[0] and "203.0.113.9" in errors[0] and "cannot listen" in errors[0]
+    assert not (tmp_path / "run" / "run.json").exists()  # refused before the story started
+
+
+def test_the_viewer_process_ends_when_the_run_that_started_it_is_killed(tmp_path: Path) -> None:
+    script = ("import sys, time; from pathlib import Path; from orchestrator.viewer.child import spawn_viewer; "
+              "v = spawn_viewer(Path(sys.argv[1]), port=0, host='127.0.0.1'); print(v.proc.pid, flush=True); "
+              "time.sleep(600)")  # fmt: skip
+    parent = subprocess.Popen([sys.executable, "-c", script, str(tmp_path / "run")], env=_env(tmp_path),
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert parent.stdout is not None
+        child = int(parent.stdout.readline())
+        os.kill(child, 0)  # serving
+        parent.kill()  # SIGKILL: the parent cleans nothing up
+        parent.wait()
+
+        def gone() -> bool:
+            try:
+                os.kill(child, 0)
+            except ProcessLookupError:
+                return True
+            with open(f"/proc/{child}/stat") as f:  # exited, not yet reaped by init: a zombie is gone too
+                return f.read().split(") ", 1)[1].startswith("Z")
+
+        _wait("the viewer's end", gone, timeout_s=30)
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
+        if parent.stdout is not None:
+            parent.stdout.close()

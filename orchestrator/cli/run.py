@@ -28,11 +28,13 @@ after the end of the run (``--duration``) would never take effect: ``run`` says 
 ``warning:`` line on stderr before the story starts, and goes on (a short preview of a long
 script stays possible).
 
-``--view [--port P] [--host H]`` (``run`` and ``resume``): the browser viewer of ``--out`` is
-served by this process from before the first frame (``orchestrator.viewer``; its address is
-printed, with a token when ``--host`` is not this machine), and goes on serving after the
+``--view [--port P] [--host H]`` (``run`` and ``resume``): the browser viewer of ``--out``
+(``storyteller view OUT --play``) is started in a child process before the first frame
+(``orchestrator.viewer.child``: its Python work stays off the run's frames), its address is
+printed (with a token when ``--host`` is not this machine), and it goes on serving after the
 story ends until Ctrl-C (SIGINT or SIGTERM; the exit code is the run's). A stop signal while
-the story runs stops both, as without ``--view``.
+the story runs stops both, as without ``--view``; a run killed outright takes its viewer along
+within a second.
 
 ``--planner unified|direct`` and ``--description object-list|scene-graph`` plan with the
 paper's ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``),
@@ -91,7 +93,7 @@ if TYPE_CHECKING:  # the session (simulation, planner) is imported by the comman
     from orchestrator.session.run_manifest import RunArguments, RunManifest
     from orchestrator.session.runtime import StoryEvent
     from orchestrator.session.terminal_prompt import TerminalPrompt
-    from orchestrator.viewer.server import ViewerApp
+    from orchestrator.viewer.child import ViewerProcess
     from sim.scene.model import Scene
 
 
@@ -386,7 +388,7 @@ def _run_job(
     from orchestrator.cli.collector import imports_paused
 
     with imports_paused():
-        for module in (*OUTPUT_MODULES, *JOB_MODULES, *(VIEWER_MODULES if view is not None else ())):
+        for module in (*OUTPUT_MODULES, *JOB_MODULES):
             importlib.import_module(module)
 
     try:
@@ -403,21 +405,21 @@ def _run_job(
             viewer.stop()
 
 
-def _start_viewer(out: Path, view: ViewAt, smplx_model: Path | None) -> ViewerApp:
-    """The viewer of ``out``, listening, its address printed (exit 2 when it cannot listen)."""
-    from orchestrator.viewer.server import ViewerApp
+def _start_viewer(out: Path, view: ViewAt, smplx_model: Path | None) -> ViewerProcess:
+    """The viewer of ``out`` in a process of its own (``orchestrator.viewer.child``: the frames of
+    the run keep their rate), listening, its address printed; exit 2 when it cannot start."""
+    from orchestrator.viewer.child import ViewerStartError, spawn_viewer
 
     try:
-        viewer = ViewerApp(out, port=view.port, host=view.host, smplx_model=smplx_model)
-    except OSError as exc:  # an address this machine does not have, or cannot resolve
-        fail(f"--host {view.host}: cannot listen there ({exc.strerror or exc})")
-    viewer.start()
-    typer.echo(viewer.reach(str(out)))
+        viewer = spawn_viewer(out, port=view.port, host=view.host, smplx_model=smplx_model)
+    except ViewerStartError as exc:  # an address this machine does not have, or cannot resolve
+        fail(f"--view: {exc}")
+    typer.echo(viewer.address)
     return viewer
 
 
-def _serve_until_stopped(viewer: ViewerApp) -> None:
-    """After the story: the viewer goes on serving until SIGINT (Ctrl-C) or SIGTERM."""
+def _serve_until_stopped(viewer: ViewerProcess) -> None:
+    """After the story: the viewer goes on serving until SIGINT (Ctrl-C) or SIGTERM (or it ends)."""
     import signal
     import threading
 
@@ -425,7 +427,7 @@ def _serve_until_stopped(viewer: ViewerApp) -> None:
     typer.echo(f"the story has ended; the viewer still serves it at {viewer.url} (Ctrl-C to stop)")
     previous = {signum: signal.signal(signum, lambda *_: stopped.set()) for signum in STOP_SIGNALS}
     try:
-        while not stopped.wait(0.5):
+        while not stopped.wait(0.5) and viewer.alive:
             pass
     finally:
         for signum, handler in previous.items():
@@ -435,7 +437,7 @@ def _serve_until_stopped(viewer: ViewerApp) -> None:
 def _run_and_report(
     args: RunArguments, scene_obj: Scene, programs: WorkerRunner | None, *, out: Path, trace_path: Path | None,
     replay: Path | None, thread_id: str | None, resume: bool, smplx_model: Path | None, interactive: bool, live: bool,
-    in_process_programs: bool, viewer: ViewerApp | None,
+    in_process_programs: bool, viewer: ViewerProcess | None,
 ) -> None:
     import asyncio
     import sys
@@ -561,8 +563,6 @@ OUTPUT_MODULES = ("sim.export.bundle", "sim.export.video", "orchestrator.bodies.
 the garbage collector is paused (``orchestrator.cli.collector``), not when the story is over."""
 JOB_MODULES = ("orchestrator.cli.live_view", "orchestrator.session.run_job", "orchestrator.session.run_manifest")
 """The job's own modules, imported the same way."""
-VIEWER_MODULES = ("orchestrator.viewer.server",)
-"""``--view``: the viewer (``viser``), imported the same way before the first frame."""
 
 STOP_SIGNALS = (2, 15)  # SIGINT, SIGTERM (the same numbers on every POSIX system)
 """The signals that stop a run cleanly; it exits with 128 + the signal's number (130, 143)."""

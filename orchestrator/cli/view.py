@@ -32,6 +32,7 @@ def view_command(
     export: Annotated[Path | None, typer.Option("--export", help="Write a self-contained HTML file instead of serving.")] = None,
     play: Annotated[bool, typer.Option("--play/--paused", help="Start playing as soon as the run is loaded.")] = False,
     smplx_model: Annotated[Path | None, typer.Option("--smplx-model", help="Folder with the SMPL-X model files (SMPLX_NEUTRAL.npz ...): show body meshes instead of stand-in figures.")] = None,
+    parent: Annotated[int | None, typer.Option("--parent", hidden=True, help="Stop when this process is no longer the parent (run --view's child).")] = None,
 ) -> None:
     """Show a run in 3D in the browser: figures, paths, labels, timeline and event list."""
     from orchestrator.bodies.smplx_meshes import SmplxModelError, model_file
@@ -55,6 +56,7 @@ def view_command(
         return
     if run_dir.exists() and not run_dir.is_dir():
         fail(f"{run_dir}: not a folder (expected the --out folder of `storyteller run`)")
+    import os
     import threading
 
     from orchestrator.viewer.server import ViewerApp
@@ -66,7 +68,9 @@ def view_command(
     viewer.start()
     typer.echo(viewer.reach(str(run_dir)))
     try:
-        threading.Event().wait()
+        while not threading.Event().wait(1.0):
+            if parent is not None and os.getppid() != parent:  # `run --view` ended, even by kill -9
+                break
     except KeyboardInterrupt:
         pass
     finally:

@@ -84,7 +84,8 @@ class Chromium:
             if msg.get("id") == self._id:
                 if "error" in msg:
                     raise RuntimeError(f"{method}: {msg['error']}")
-                return msg.get("result", {})
+                result: dict[str, Any] = msg.get("result", {})
+                return result
 
     def navigate(self, url: str) -> None:
         self.call("Page.navigate", url=url)
@@ -101,6 +102,7 @@ class Chromium:
 
         An expression that throws (the page is still loading) counts as false."""
         deadline = time.monotonic() + timeout_s
+        error: RuntimeError | None
         while True:
             try:
                 value = self.evaluate(expression)
