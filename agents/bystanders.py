@@ -22,8 +22,10 @@ allows, a choice, a check):
   bystanders' own area last, a new label in each area first; at most :data:`MAX_CHOICES`.
 - :meth:`BystanderRules.problems`: what is wrong with a reply for a bystander: an activity that
   is not one listed (when a list was offered), one the instruction asks of its own characters,
-  the one the character did last (unless repeats are all the scene has), or an object another
-  character uses alone; each one sentence of ``prompts/feedback/narrator/bystander_*.md`` that
+  the one the character did last (unless repeats are all the scene has), an object another
+  character uses alone (the world's users, and those of ongoing events whose words name it:
+  an event planned beside this one is not in the world yet), or such an object given to several
+  characters at once; each one sentence of ``prompts/feedback/narrator/bystander_*.md`` that
   the narrator reads on its retry.
 
 Pure: no LLM, no clock, no I/O; the same inputs give the same list in the same order.
@@ -34,11 +36,11 @@ from __future__ import annotations
 import re
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from agents.action_shortlist import action_shortlist, rank_action_labels
+from agents.action_shortlist import action_shortlist, posture, rank_action_labels
 from agents.instruction_parts import split_instruction
 from agents.messages import CharacterStatus, Event, HistoryEntry
 from agents.prompt_templates import PromptLibrary, package_prompts
@@ -292,9 +294,14 @@ class BystanderRules:
             elif label is not None and prev is not None and prev[0] == label and not self.repeats_allowed:
                 out.append(lib.render_text("feedback/narrator/bystander_repeat.md", name=name, previous=prev[1]))
         for obj in [choice.obj] if choice is not None else _ID.findall(said):
+            if label is None or obj.rsplit("_", 1)[0] not in used_labels(label):
+                continue
             others = [u for u in self.users.get(obj, ()) if u not in named]
-            if others and label is not None and obj.rsplit("_", 1)[0] in used_labels(label):
+            if others:
                 out.append(lib.render_text("feedback/narrator/bystander_in_use.md", obj=obj, users=" and ".join(others)))
+            elif len(event.characters) > 1:
+                out.append(lib.render_text("feedback/narrator/bystander_one_user.md", obj=obj,
+                                           names=" or ".join(event.characters)))  # fmt: skip
         if not out and self.listed and self.choices and choice is None:
             out.append(lib.render_text("feedback/narrator/bystander_unlisted.md", names=" and ".join(named)))
         if out and self.choices:
@@ -317,11 +324,37 @@ def bystander_rules(
     object_labels = tuple(sorted(set(now.scene.labels)))
     asked = instruction_activities(instruction, everyone, labels, object_labels)
     previous = {n: p for n in names if (p := last_activity(n, characters, history, labels, object_labels)) is not None}
-    rules = BystanderRules(tuple(names), (), False, asked, previous, False, dict(now.users), labels, object_labels)
+    users, seated = pending_uses(now, history, labels, object_labels)
+    now = replace(now, users=users, seated=seated)
+    rules = BystanderRules(tuple(names), (), False, asked, previous, False, users, labels, object_labels)
     choices, repeats = _choose(now, characters, instruction, history, rules)
     if not choices:
         return BystanderRules(tuple(names), users=rules.users, labels=labels, object_labels=object_labels)
     return BystanderRules(tuple(names), choices, offer, asked, previous, repeats, rules.users, labels, object_labels)
+
+
+def pending_uses(
+    now: SceneNow, history: Sequence[HistoryEntry], labels: Sequence[str], object_labels: Sequence[str] = ()
+) -> tuple[dict[str, tuple[str, ...]], dict[str, tuple[str, ...]]]:
+    """``now.users`` and ``now.seated`` plus the characters of ongoing events whose words name
+    an object their action uses alone ("take a book from bookshelf_1") or a seat they sit on
+    ("eat sitting on chair_3"): an event planned beside this one (or not yet reached) takes its
+    object before the world shows it."""
+    users = {o: list(u) for o, u in now.users.items()}
+    seated = {o: list(u) for o, u in now.seated.items()}
+    for h in history:
+        if h.state != "ongoing":
+            continue
+        label = activity_label(h.activity, labels, object_labels)
+        wanted = used_labels(label) if label is not None else ()
+        sits = posture(h.activity) == "sit"
+        for obj in _ID.findall(h.activity):
+            known = now.scene.by_name.get(obj)
+            into = users if known is not None and known.label in wanted else seated if known is not None and known.is_seat and sits else None
+            if into is not None:
+                into.setdefault(obj, [])
+                into[obj] += [c for c in h.characters if c not in into[obj]]
+    return {o: tuple(u) for o, u in users.items()}, {o: tuple(u) for o, u in seated.items()}
 
 
 def _choose(

@@ -230,3 +230,40 @@ def test_once_every_part_has_happened_the_never_named_go_on_with_their_own_lives
     assert any("Ben has just done that" in p for p in rules.problems(Event(characters=("Ben",), activity="read a book sitting on chair_1")))
     assert rules.problems(Event(characters=("Ben",), activity="make toast at toaster_1")) == []
     assert rules.problems(Event(characters=("Ava",), activity="drink sitting on chair_2")) == []  # Ava is not a bystander
+
+
+def test_an_object_of_an_ongoing_event_not_yet_in_the_world_is_in_use(home: Scene) -> None:
+    """Cleo's event beside this one is planned (its words name the bookshelf) but the world does
+    not show her there yet: Ben is neither offered the bookshelf nor let take it."""
+    from agents.messages import Event
+
+    areas = object_areas(home, cluster_objects(home))
+    labels = ("idle", "take_out_book", "read_book")
+    roster = (CharacterStatus(name="Ava", busy=True, event_index=0), CharacterStatus(name="Ben"),
+              CharacterStatus(name="Cleo", busy=True, action="eat", event_index=1))  # fmt: skip
+    now = scene_now(home, labels, scene_choices(home, labels, areas), areas, WorldView(), roster)
+    pending = (HistoryEntry(index=1, characters=("Cleo",), activity="take a book from bookshelf_1", state="ongoing"),)
+    free = bystander_rules(now, roster, "Ava makes coffee.", (), ("Ben",), offer=True)
+    assert "bookshelf_1" in {c.obj for c in free.choices}
+    rules = bystander_rules(now, roster, "Ava makes coffee.", pending, ("Ben",), offer=True)
+    assert rules.users == {"bookshelf_1": ("Cleo",)} and "bookshelf_1" not in {c.obj for c in rules.choices}
+    sitting = (HistoryEntry(index=1, characters=("Cleo",), activity="eat sitting on chair_5", state="ongoing"),)
+    assert "chair_5" in {c.obj for c in free.choices}
+    assert "chair_5" not in {c.obj for c in bystander_rules(now, roster, "Ava makes coffee.", sitting, ("Ben",), offer=True).choices}
+    problems = rules.problems(Event(characters=("Ben",), activity="take a book from bookshelf_1"))
+    assert any("bookshelf_1 is being used by Cleo" in p for p in problems)
+
+
+def test_a_single_user_activity_for_two_bystanders_gets_feedback(home: Scene) -> None:
+    from agents.messages import Event
+
+    areas = object_areas(home, cluster_objects(home))
+    labels = ("idle", "use_toaster", "read_book")
+    roster = (CharacterStatus(name="Ava", busy=True, event_index=0), CharacterStatus(name="Ben"), CharacterStatus(name="Cleo"))
+    now = scene_now(home, labels, scene_choices(home, labels, areas), areas, WorldView(), roster)
+    rules = bystander_rules(now, roster, "Ava makes coffee.", (), ("Ben", "Cleo"), offer=True)
+    assert "make toast at toaster_1" in rules.texts
+    two = rules.problems(Event(characters=("Ben", "Cleo"), activity="make toast at toaster_1"))
+    assert any("toaster_1 is for one character at a time: give it to Ben or Cleo" in p for p in two)
+    assert rules.problems(Event(characters=("Ben",), activity="make toast at toaster_1")) == []
+    assert rules.problems(Event(characters=("Ben", "Cleo"), activity="read a book sitting on couch_1")) == []
