@@ -36,8 +36,9 @@ LLM) still chooses and writes the event.
   so nobody the user did not mention stands idle while the others carry the instruction out. Once every part has happened,
   the free characters the instruction never names (and who are not still at a looping activity) are
   bystanders too: they go on with lives of their own (``agents.bystanders`` offers them everyday
-  activities); without such characters the model is asked as before (its rules say what to do
-  with free characters the instruction no longer needs).
+  activities); those still at a looping activity of their own carry on (the reply may not name
+  them; with nobody else free the step is a wait without a call); otherwise the model is asked
+  as before (its rules say what to do with free characters the instruction no longer needs).
   When the next part has actors, the narrator's reply may name only them (the schema's enum):
   a small model otherwise adds whoever else is free.
 
@@ -316,6 +317,10 @@ def instruction_progress(
         )
         if bystanders:
             return InstructionProgress(text, None, bystanders, False, bystanders)
+        carrying = {n for n in free if n not in named and last.get(n) == "looping" and n not in resting}
+        if carrying and "" not in states:  # the never named still at their own activity carry on
+            others = tuple(n for n in free if n not in carrying)
+            return InstructionProgress(text, None, others, not others)
         return InstructionProgress(text, None, (), "" in states)
     return InstructionProgress(text, nxt.text, nxt.actors, False)
 

@@ -128,9 +128,11 @@ def narrator_schema(
     """JSON schema of the reply; ``characters`` may only name free characters (enum), and must
     name one when ``at_least_one`` (bystanders asked for an event of their own); with
     ``activities``, the activity must be one of them (the everyday activities listed for
-    bystanders)."""
+    bystanders) and the event is one character's (a 0.5B model otherwise names every bystander
+    for one coffee maker and repeats it through every retry)."""
     names = list(dict.fromkeys(free))
-    refine = {"event.characters": Refine(enum=names, max_items=len(names), min_items=1 if at_least_one and names else None)}
+    most = min(1, len(names)) if activities else len(names)  # a listed activity is one character's
+    refine = {"event.characters": Refine(enum=names, max_items=most, min_items=1 if at_least_one and names else None)}
     if activities:
         refine["event.activity"] = Refine(enum=list(dict.fromkeys(activities)))
     return reply_schema(NarratorOutput, refine)

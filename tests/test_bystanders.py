@@ -173,6 +173,18 @@ def test_the_prompt_lists_the_choices_and_the_schema_admits_only_them(
     assert event["characters"]["items"]["enum"] == ["Ben"]
 
 
+def test_a_listed_activity_is_for_one_bystander(home: Scene, home_choices: tuple[tuple[Choice, ...], dict[str, int]]) -> None:
+    roster, view = _ava_making_coffee(home)
+    roster = (*roster, CharacterStatus(name="Cleo", position=(1.0, 4.0)))
+    inp = NarratorInput(scene_description="-", characters=roster, instruction=README, history=(MAKING,),
+                        now=_now(home, home_choices, view))  # fmt: skip
+    assert inp.bystanders.names == ("Ben", "Cleo") and inp.bystanders.texts
+    req = narrator_request(PromptLibrary(), inp)
+    assert req.json_schema is not None
+    chars = req.json_schema["properties"]["event"]["properties"]["characters"]
+    assert chars["items"]["enum"] == ["Ben", "Cleo"] and chars["maxItems"] == 1 and chars["minItems"] == 1
+
+
 async def test_copying_the_instruction_or_repeating_gets_feedback_until_a_listed_choice(
     home: Scene, home_choices: tuple[tuple[Choice, ...], dict[str, int]]
 ) -> None:
@@ -216,7 +228,9 @@ def test_once_every_part_has_happened_the_never_named_go_on_with_their_own_lives
     assert progress.next_part is None and progress.bystanders == ("Ben",)  # not Ava: her parts are over
     # Ben still at a looping activity is not asked; the model may still name him, and is checked
     reading = (*done, HistoryEntry(index=2, characters=("Ben",), activity="read a book sitting on chair_5", state="looping"))
-    assert instruction_progress(README, names, reading, names).bystanders == ()
+    still = instruction_progress(README, names, reading, names)
+    assert still.bystanders == () and still.next_actors == ("Ava",)  # Ben carries on: the reply may name Ava only
+    assert instruction_progress(README, names, reading, ("Ben",)).nothing_for_the_free  # alone: a wait, no call
     roster = (CharacterStatus(name="Ava"), CharacterStatus(name="Ben", action="read_book"))
     _, view = _ava_making_coffee(home)
     inp = NarratorInput(scene_description="-", characters=roster, instruction=README, history=reading,
