@@ -1,0 +1,134 @@
+"""``python -m benchmark.motion_metrics [RUN_DIR ...] --out DIR``: motion quality as papers report it.
+
+Measures every run folder given (a folder of run folders, such as the ``--out`` of
+``python -m benchmark.story_suite run``, stands for each), all of them pooled, a crowd of
+``--crowd`` walkers on random errands in the reference Office (no LLM), and the real clips
+(``STORYTELLER_MOCAP``, else ``../shared/mocap``). Prints four tables (feet, furniture and
+bodies; walking against the real walks at the same speed; cadence by speed; interactions) and
+writes ``report.md``, ``metrics.json``, ``gait_vs_speed.png`` and ``strips/strip_<label>.png``
+into ``--out``. Exit code 2 on a folder it cannot read (one line naming it).
+
+Targets (issue 25): skating ratio <= 0.03; walking within 20% of real on bob, cadence, step
+length and arm swing, jerk 0.5x-2x; facing at start median <= 10, p95 <= 25 degrees; hands
+within 15 cm at 90% of reaches; seat height within 3 cm; furniture p99 <= 2 cm; overlap 0 frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from benchmark.motion_metrics.measure import Measured, measure_run, pooled
+from benchmark.motion_metrics.report import (
+    as_markdown,
+    as_text,
+    cadence_table,
+    contact_table,
+    figures_json,
+    gait_figure,
+    gait_table,
+    interaction_table,
+)
+from benchmark.motion_metrics.sources import (
+    RunMotion,
+    SourceError,
+    crowd_motion,
+    load_run_motion,
+    real_clips,
+    run_folders,
+)
+from benchmark.motion_metrics.strips import draw_strips
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_clean(v) for v in value]
+    return value
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m benchmark.motion_metrics", description=__doc__.splitlines()[0])
+    p.add_argument("runs", nargs="*", type=Path, help="run folders, or folders of run folders")
+    p.add_argument("--out", type=Path, required=True, help="folder for report.md, metrics.json and the PNGs")
+    p.add_argument("--crowd", type=int, default=50, help="walkers in the crowd (0: no crowd)")
+    p.add_argument("--crowd-seconds", type=float, default=20.0, help="simulated seconds of the crowd")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-real", action="store_true", help="leave the real clips out (no ratios to them)")
+    p.add_argument("--no-strips", action="store_true", help="draw no strips")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if args.crowd < 0 or not (args.crowd_seconds > 0 and math.isfinite(args.crowd_seconds)):
+        print("error: --crowd must be >= 0 and --crowd-seconds a positive number", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    try:
+        folders = run_folders(args.runs)
+        runs: list[RunMotion] = [load_run_motion(f) for f in folders]
+    except SourceError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    notes: list[str] = []
+    items: list[Measured] = [measure_run(r) for r in runs]
+    if len(items) > 1:
+        items.append(pooled(f"all {len(items)} runs", items))
+    if args.crowd > 0:
+        try:
+            crowd = crowd_motion(args.crowd, args.crowd_seconds, args.seed)
+            runs.append(crowd)
+            items.append(measure_run(crowd, facing=False))
+        except SourceError as exc:
+            notes.append(f"crowd skipped: {exc}")
+    real: Measured | None = None
+    if not args.no_real:
+        clips, note = real_clips()
+        notes.append(note)
+        if clips.characters:
+            walks = RunMotion("real walks", clips.fps, None, tuple(c for c in clips.characters if c.labels[:1] == ("walk",)))
+            real = measure_run(walks, bodies=False, facing=False)
+    if not items:
+        print("error: nothing to measure: give run folders or --crowd N", file=sys.stderr)
+        return 2
+    tables = [("Feet, furniture and bodies", contact_table(items, real))]
+    if real is not None and real.gait:
+        tables.append(("Walking against the real walks at the same speed", gait_table(items, real)))
+        tables.append(("Cadence and step length by speed", cadence_table(items, real)))
+    tables.append(("Interactions", interaction_table(items)))
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    pictures = []
+    if real is not None and real.gait:
+        pictures.append(gait_figure(items, real, out / "gait_vs_speed.png"))
+    if not args.no_strips:
+        pictures += draw_strips(runs, out / "strips")
+    elapsed = time.perf_counter() - t0
+    text = [f"motion metrics: {len(folders)} run folder(s){', crowd' if args.crowd else ''} ({elapsed:.1f} s)"]
+    text += notes
+    md = ["# Motion metrics", "", f"Sources: {', '.join(str(f) for f in folders) or 'none'}; "
+          f"crowd {args.crowd} walkers x {args.crowd_seconds:g} s (seed {args.seed}).", "",
+          *[f"- {n}" for n in notes], ""]
+    for title, table in tables:
+        text += ["", title, as_text(table)]
+        md += [f"## {title}", "", as_markdown(table), ""]
+    md += ["## Figures", ""] + [f"![{p.stem}]({p.relative_to(out).as_posix()})" for p in pictures]
+    (out / "report.md").write_text("\n".join(md) + "\n", encoding="utf-8")
+    (out / "metrics.json").write_text(json.dumps(_clean(figures_json(items, real)), indent=1) + "\n", encoding="utf-8")
+    print("\n".join(text))
+    print(f"-> {out / 'report.md'}, {out / 'metrics.json'}, {len(pictures)} PNG")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
