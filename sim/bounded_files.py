@@ -22,13 +22,16 @@ is linear in the bytes given. Validation into typed models is the caller's next 
 from __future__ import annotations
 
 import errno
+import io
 import json
 import math
 import os
 import re
 import stat
+import zipfile
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
+from zlib import error as zlib_error
 
 import numpy as np
 
@@ -164,3 +167,43 @@ def _bounded_int(text: str) -> int:
 def _one_line(text: str, limit: int = 400) -> str:
     text = " ".join(text.split())
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def read_bounded_npz(path: Path | str, max_bytes: int, max_array_bytes: int, what: str) -> dict[str, np.ndarray]:
+    """The arrays of the ``.npz`` file at ``path``: the file read by :func:`read_bounded_bytes`
+    (at most ``max_bytes``), the sizes its zip entries and every ``.npy`` header declare checked
+    before anything is inflated or allocated (at most ``max_array_bytes`` in all, no header
+    claiming more than its entry holds), and never unpickled (an array of Python objects is
+    refused). Anything wrong is a :class:`BoundedFileError`."""
+    data = read_bounded_bytes(path, max_bytes, what)
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            declared = sum(info.file_size for info in zf.infolist())
+            if declared > max_array_bytes:
+                raise BoundedFileError(what, f"its arrays unpack to {declared} bytes, more than the "
+                                             f"{max_array_bytes} allowed")
+            for info in zf.infolist():  # an array's header may claim more than its entry holds
+                with zf.open(info) as member:
+                    if _npy_bytes(member) > info.file_size:
+                        raise BoundedFileError(what, f"array {info.filename[:60]!r} claims more bytes than its "
+                                                     "entry holds")
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+            return {k: npz[k] for k in npz.files}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib_error) as exc:
+        if isinstance(exc, BoundedFileError):
+            raise
+        raise BoundedFileError(what, f"cannot read as .npz ({str(exc)[:200]})") from None
+
+
+def _npy_bytes(member: IO[bytes]) -> int:
+    """The bytes of data the ``.npy`` header at the start of ``member`` announces."""
+    version = np.lib.format.read_magic(member)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(member)
+    elif version == (2, 0):
+        shape, _, dtype = np.lib.format.read_array_header_2_0(member)
+    else:
+        raise ValueError(f"an array of .npy format {version} (1.0 and 2.0 are read)")
+    if dtype.hasobject:
+        raise ValueError("an array of Python objects (never unpickled)")
+    return int(np.prod(shape, dtype=object)) * dtype.itemsize

@@ -150,6 +150,12 @@ def test_run_writes_run_json_story_md_metrics_and_replays_from_the_folder(env: N
     third = CliRunner().invoke(app, ["replay", str(run_dir / "trace.jsonl"), "--out", str(tmp_path / "third")])
     assert third.exit_code == 0, third.stderr
     assert (tmp_path / "third" / "story.json").read_bytes() == (run_dir / "story.json").read_bytes()
+    # a second story into a folder that holds one is refused: the trace is appended to, never mixed
+    held = (tmp_path / "again" / "trace.jsonl").read_bytes()
+    twice = CliRunner().invoke(app, ["replay", str(run_dir), "--out", str(tmp_path / "again")])
+    assert twice.exit_code == 2 and "already holds the trace of an earlier run" in twice.stderr
+    assert f"storyteller resume {tmp_path / 'again'}" in twice.stderr and twice.stderr.count("\n") == 1
+    assert (tmp_path / "again" / "trace.jsonl").read_bytes() == held
 
 
 def test_replay_and_resume_of_a_folder_without_run_json_is_a_user_error(tmp_path: Path) -> None:

@@ -5,6 +5,7 @@ parameters, skinned in the GLB export and in the viewer. Uses the stand-in model
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,7 @@ from orchestrator.bodies.smplx_meshes import (
     SmplxBody,
     SmplxModelError,
     SmplxModels,
+    load_parameters,
     model_file,
     posed_vertices,
     run_bodies,
@@ -228,3 +230,18 @@ def test_resume_and_replay_export_smplx_bodies_with_smplx_model(
                        catch_exceptions=False)  # fmt: skip
     assert again.exit_code == 0, again.stderr
     assert _body_vertex_count(replayed / "scene.glb", "Ava") == NUM_VERTICES
+
+
+def test_a_shared_parameter_file_is_read_bounded_and_never_unpickled(tmp_path: Path) -> None:
+    pickled = tmp_path / "Ava.smplx.npz"
+    np.savez(pickled, poses=np.array([{"x": 1}], dtype=object), trans=np.zeros((1, 3)), betas=np.zeros(10))
+    with pytest.raises(SmplxModelError, match="never unpickled"):
+        load_parameters(pickled)
+    text = tmp_path / "Ben.smplx.npz"
+    np.savez(text, poses=np.array([["a"] * 165]), trans=np.zeros((1, 3)), betas=np.zeros(10))
+    with pytest.raises(SmplxModelError, match="expected real numbers"):
+        load_parameters(text)
+    fifo = tmp_path / "Cy.smplx.npz"
+    os.mkfifo(fifo)
+    with pytest.raises(SmplxModelError, match="not a regular file"):
+        load_parameters(fifo)  # refused, never waited on

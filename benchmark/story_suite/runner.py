@@ -64,13 +64,17 @@ def run_scenario(scenario: Scenario, options: RunOptions) -> tuple[ScenarioScore
         return _failed(scenario, f"no trace {options.replay / (scenario.name + '.jsonl')}"), 0.0
     if options.record is not None:
         options.record.mkdir(parents=True, exist_ok=True)
+        # recording anew replaces the scenario's trace (a run refuses to append to one)
+        (options.record / f"{scenario.name}.jsonl").unlink(missing_ok=True)
+    run_dir = options.out / scenario.name
+    if run_dir.is_dir() and not run_dir.is_symlink():
+        shutil.rmtree(run_dir)  # the runner's own folder of an earlier suite run: the story starts over
     env = dict(os.environ)
     if options.model is not None:
         env["STORYTELLER_MODEL"] = options.model
     t0 = time.perf_counter()
     proc = subprocess.run(run_args(scenario, options), env=env, capture_output=True, text=True, check=False)
     seconds = time.perf_counter() - t0
-    run_dir = options.out / scenario.name
     run_dir.mkdir(parents=True, exist_ok=True)
     # the run folder may hold a link planted at run.log: replaced, never written through
     write_file(run_dir / "run.log", (proc.stdout + proc.stderr).encode("utf-8", "surrogateescape"))

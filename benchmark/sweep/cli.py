@@ -30,7 +30,10 @@ def register(app: typer.Typer) -> None:
 
 
 def _fail(message: str, code: int = 2) -> None:
-    typer.echo(f"error: {message}", err=True)
+    """One ``error:`` line (whatever the message quotes: a case file's text, a path) and exit."""
+    from orchestrator.safe_text import one_line
+
+    typer.echo(f"error: {one_line(message)}", err=True)
     raise typer.Exit(code)
 
 

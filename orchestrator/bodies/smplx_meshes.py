@@ -31,10 +31,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sim.body.skeleton import NUM_JOINTS
+from sim.bounded_files import BoundedFileError, read_bounded_npz
 from sim.export.glb import SkinnedBody
 
 INFLUENCES = 4  # skin weights kept per vertex (glTF JOINTS_0 / WEIGHTS_0, viser's skinning)
 GENDERS = ("neutral", "female", "male")
+MAX_PARAMETER_FILE_BYTES = 256 << 20
+"""Largest ``<name>.smplx.npz`` read back, and most bytes its arrays may unpack to."""
 
 
 class SmplxModelError(Exception):
@@ -78,11 +81,13 @@ def model_file(model_dir: Path, gender: str) -> Path:
 
 def load_parameters(path: Path) -> dict[str, NDArray[Any]]:
     """The arrays of an exported ``<name>.smplx.npz`` (checked for the keys used here)."""
-    try:
-        with np.load(path) as data:
-            params = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as exc:
-        raise SmplxModelError(f"{path}: not readable as an .npz ({exc})") from None
+    try:  # a shared run folder's file: bounded, never unpickled
+        params = read_bounded_npz(path, MAX_PARAMETER_FILE_BYTES, MAX_PARAMETER_FILE_BYTES, str(path))
+    except BoundedFileError as exc:
+        raise SmplxModelError(f"{path}: not readable as an .npz ({exc.problem})") from None
+    for key in ("poses", "trans", "betas"):
+        if key in params and params[key].dtype.kind not in "fiu":
+            raise SmplxModelError(f"{path}: field {key!r}: expected real numbers, got {params[key].dtype}")
     for key, ndim in (("poses", 2), ("trans", 2), ("betas", 1)):
         if key not in params or params[key].ndim != ndim:
             raise SmplxModelError(f"{path}: field {key!r}: missing or not a {ndim}-d array")

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from orchestrator.cli.options import fail
 from orchestrator.safe_text import plain
 
 if TYPE_CHECKING:  # the config module is imported when a command runs, not at CLI start-up
@@ -84,8 +85,7 @@ def _echo_local_run_settings() -> None:
     try:
         choice = ThreadChooser().choose()
     except ValueError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        fail(str(exc))
     typer.echo(f"local threads now: {choice.reason()}; chosen again before every call ({THREADS_ENV} fixes them)")
     typer.echo(f"local progress floor: {ProgressFloor().describe()}; timeout_s is a hard cap")
 

@@ -347,6 +347,8 @@ def _execute(
         refuse_planted_links(out, args.names)
     except PlantedLinkError as exc:
         fail(str(exc))
+    if not resume and trace_path is not None:
+        refuse_earlier_trace(trace_path, out)
     with imports_paused():
         from orchestrator.sandbox_worker import WorkerRunner
         from sim.scene.bundled import resolve_scene
@@ -366,6 +368,22 @@ def _execute(
     finally:
         if programs is not None:
             programs.close()  # stopped by the job already, unless it failed before it started
+
+
+def refuse_earlier_trace(trace_path: Path, out: Path) -> None:
+    """A new story (``run``, ``replay``) never writes into a trace that already holds one: the
+    trace writer appends (``resume`` goes on with a file), so a second run into the same folder or
+    ``--record`` file would make one file of two stories that replays as neither. One line, exit 2."""
+    try:
+        held = trace_path.lstat().st_size > 0
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        fail(f"{trace_path}: {exc.strerror or exc}")
+    if held:
+        hint = f"'storyteller resume {out}' goes on with it" if trace_path == out / TRACE_JSONL else "it is kept as it is"
+        fail(f"{trace_path} already holds the trace of an earlier run ({hint}); choose another --out or --record, "
+             "or remove it to start over")
 
 
 @dataclass(frozen=True)

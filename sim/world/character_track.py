@@ -30,13 +30,12 @@ import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Literal
-from zlib import error as zlib_error
+from typing import Literal
 
 import numpy as np
 
 from sim.body.skeleton import NUM_JOINTS, forward_kinematics
-from sim.bounded_files import BoundedFileError, read_bounded_bytes
+from sim.bounded_files import BoundedFileError, read_bounded_npz
 from sim.no_follow_writes import write_file
 
 Gender = Literal["neutral", "male", "female"]
@@ -216,40 +215,11 @@ class CharacterTrack:
 def _read_npz(path: Path) -> dict[str, np.ndarray]:
     """The arrays of the ``.npz`` at ``path``, read within the module's limits, never unpickled."""
     try:
-        data = read_bounded_bytes(path, MAX_TRACK_FILE_BYTES, str(path))
+        return read_bounded_npz(path, MAX_TRACK_FILE_BYTES, MAX_TRACK_ARRAY_BYTES, str(path))
     except BoundedFileError as exc:
-        raise CharacterTrackError(f"cannot read as .npz ({exc.problem})", path=path) from None
-    try:
-        with zipfile.ZipFile(io.BytesIO(data)) as zf:
-            declared = sum(info.file_size for info in zf.infolist())
-            if declared > MAX_TRACK_ARRAY_BYTES:
-                raise CharacterTrackError(
-                    f"its arrays unpack to {declared} bytes, more than the {MAX_TRACK_ARRAY_BYTES} allowed", path=path
-                )
-            for info in zf.infolist():  # an array's header may claim more than its entry holds
-                with zf.open(info) as member:
-                    if _npy_bytes(member) > info.file_size:
-                        raise CharacterTrackError(
-                            f"array {info.filename[:60]!r} claims more bytes than its entry holds", path=path
-                        )
-        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
-            return {k: npz[k] for k in npz.files}
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib_error) as exc:
-        raise CharacterTrackError(f"cannot read as .npz ({str(exc)[:200]})", path=path) from None
-
-
-def _npy_bytes(member: IO[bytes]) -> int:
-    """The bytes of data the ``.npy`` header at the start of ``member`` announces."""
-    version = np.lib.format.read_magic(member)
-    if version == (1, 0):
-        shape, _, dtype = np.lib.format.read_array_header_1_0(member)
-    elif version == (2, 0):
-        shape, _, dtype = np.lib.format.read_array_header_2_0(member)
-    else:
-        raise ValueError(f"an array of .npy format {version} (1.0 and 2.0 are read)")
-    if dtype.hasobject:
-        raise ValueError("an array of Python objects (never unpickled)")
-    return int(np.prod(shape, dtype=object)) * dtype.itemsize
+        problem = exc.problem if exc.problem.startswith(("cannot read as .npz", "its arrays", "array ")) else (
+            f"cannot read as .npz ({exc.problem})")
+        raise CharacterTrackError(problem, path=path) from None
 
 
 def _gender(value: str) -> Gender:
