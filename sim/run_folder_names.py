@@ -34,6 +34,10 @@ STORY_STREAM = "story.jsonl"
 """The story as it happens, for a live viewer (append-only)."""
 VIEWER_INSTRUCTIONS = "viewer_instructions.jsonl"
 """Instructions typed in a viewer's box, appended by the viewer and read by the run (append-only)."""
+VIEWER_CONTROLS = "viewer_controls.jsonl"
+"""Pause, resume and speed pressed in a viewer, appended by the viewer and read by the run (append-only)."""
+LIVE_STATE = "live.json"
+"""The run now (frame, pause, speed, the planner's roles, each character), replaced a few times a second."""
 TOPDOWN_PNG = "topdown.png"
 ANIMATION_STEM = "story"
 ANIMATIONS = tuple(f"{ANIMATION_STEM}{suffix}" for suffix in (".gif", ".mp4"))
@@ -48,7 +52,7 @@ TRACK_SUFFIX = ".track.npz"
 CHARACTER_SUFFIXES = (SMPLX_SUFFIX, BVH_SUFFIX, TRACK_SUFFIX)
 """``<slug><suffix>``: the exports of each character."""
 
-APPENDED = (TRACE_JSONL, STORY_STREAM, VIEWER_INSTRUCTIONS, RUNS_DB, *RUNS_DB_SIDECARS)
+APPENDED = (TRACE_JSONL, STORY_STREAM, VIEWER_INSTRUCTIONS, VIEWER_CONTROLS, RUNS_DB, *RUNS_DB_SIDECARS)
 """The files written in place (appended to, or SQLite's) rather than replaced whole; with the chunk files."""
 
 _UNSAFE = re.compile(r"[^A-Za-z0-9_-]")
@@ -69,6 +73,6 @@ def run_folder_entries(names: Sequence[str]) -> tuple[str, ...]:
     """Every path (relative to the run folder, ``/``-separated) a run of the characters
     ``names`` may write, ``motion`` before the chunk files in it."""
     whole = (STORY_JSON, STORY_MD, METRICS_JSON, RUN_JSON, SCENE_JSON, SCENE_GLB, SNAPSHOT, SNAPSHOT_TMP,
-             TOPDOWN_PNG, *ANIMATIONS)
+             TOPDOWN_PNG, LIVE_STATE, *ANIMATIONS)
     exports = tuple(f"{file_slug(n)}{suffix}" for n in names for suffix in CHARACTER_SUFFIXES)
     return (*APPENDED, *whole, *exports, MOTION_FOLDER, *(chunk_entry(n) for n in names))

@@ -27,6 +27,10 @@ Live viewing: ``scene.json`` is written (and a ``story.json`` of an earlier run 
 removed) before the first frame, and ``story.jsonl`` (``orchestrator.session.story_stream``)
 gets a line whenever an event starts, completes or fails, so ``storyteller view`` can follow a
 run in progress from them and the chunk files; ``story.json`` appears when the run ends.
+``live.json`` (``orchestrator.session.live_state``) is the run now for a viewer's panels (frame,
+pause and speed, the planner's roles and last replies, each character), replaced a few times a
+second; a realtime run takes a director's pause and speed from ``viewer_controls.jsonl``
+(``orchestrator.session.viewer_controls``), applied between two frames, nothing of it traced.
 
 Instructions: the timed script (``RunArguments.instructions``) is scheduled at its frames,
 lines typed on stdin (``interactive``) and lines a viewer's box appends to
@@ -363,6 +367,7 @@ async def _run_story(
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.state import PlanningDeps
     from orchestrator.session.checkpoint_writer import CheckpointWriter
+    from orchestrator.session.live_state import LivePublisher, ReplyTap
     from orchestrator.session.port_setup import describer_mode_for, open_port
     from orchestrator.session.roster import RosterWorld, StartPositionError, start_positions
     from orchestrator.session.run_manifest import (
@@ -384,6 +389,12 @@ async def _run_story(
     )
     from orchestrator.session.step_planner import GraphStepPlanner
     from orchestrator.session.story_stream import StoryStream, StreamStart
+    from orchestrator.session.viewer_controls import (
+        CONTROLS_FILE,
+        DirectorControls,
+        controls_refusal,
+        start_control_reader,
+    )
     from orchestrator.session.viewer_instructions import INBOX_FILE, start_inbox_reader
     from sim.world.step import World, WorldConfig
 
@@ -407,8 +418,10 @@ async def _run_story(
         port, describer_model = open_port(config, trace_path, replay)
     except (LLMError, ValueError, OSError, TraceCorruptError) as exc:  # a replayed trace that does not check
         raise RunSetupError(str(exc)) from None
-    if status is not None:
-        port = WatchedPort(port, status)
+    if status is None:  # the run's state for a viewer (live.json) is read from it too
+        status = RunStatus()
+    replies = ReplyTap(WatchedPort(port, status))
+    port = replies
     world_config = WorldConfig(seed=args.seed, foot_ik=args.foot_ik)
     fps = world_config.fps
     try:
@@ -490,6 +503,9 @@ async def _run_story(
         offline_latency_s=args.offline_latency,
         schedule=schedule,
     )
+    refusal = controls_refusal(args.pace)  # a director's pause and speed: realtime only
+    controls = DirectorControls(args.speed)
+    live = LivePublisher(out, thread, status, replies, controls, speed=args.speed, refusal=refusal)
     session: Session | None = None
     writer = port.trace if isinstance(port.trace, TraceWriter) else None
 
@@ -532,7 +548,8 @@ async def _run_story(
             session = Session(world, planner, settings, trace=port.trace, on_event=streamed, on_checkpoint=keep,
                               on_instruction=said_now, on_request=requested,
                               on_outcome=status.outcome if status is not None else None,
-                              on_frame=status.frame if status is not None else None)
+                              on_frame=status.frame if status is not None else None,
+                              pacer=controls if refusal is None else None)
             if checkpoint is not None:
                 session.resume(checkpoint)
             if status is not None:
@@ -553,7 +570,17 @@ async def _run_story(
             if replay is None:  # a viewer's instruction box, in this process or another
                 start_inbox_reader(session, out / INBOX_FILE, thread, [i.text for i in said if i.source == "viewer"],
                                    stop=inbox_closed, after_frame=max((i.frame for i in said), default=-1))
-            result, stopped = await _run_until_stopped(session, stop)
+            if refusal is None:
+                start_control_reader(controls, out / CONTROLS_FILE, thread, stop=inbox_closed)
+            publishing = asyncio.ensure_future(live.run())
+            try:
+                result, stopped = await _run_until_stopped(session, stop)
+            finally:
+                publishing.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await publishing
+            with contextlib.suppress(OSError):
+                live.write(live.state(running=False))
             if stopped:
                 keep(session.checkpoint())
             checkpoints.flush()  # the last checkpoint on disk before the run returns

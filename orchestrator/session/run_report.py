@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import re
 from collections import defaultdict
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -49,17 +50,18 @@ def clock(frame: int, fps: int) -> str:
     return f"{int(minutes):02d}:{seconds:04.1f}"
 
 
-def story_markdown(story: dict[str, Any]) -> str:
+def story_markdown(story: dict[str, Any], *, text: Callable[[str], str] = md_text) -> str:
     """``story.md`` from the ``story.json`` payload: the story in order, one paragraph per
     applied event (its simulated time, its plan sentence, the narrator's words where they agree
     with the plan, how it ended), a line for each run of waits and each failed planning step, then
-    what went wrong in detail."""
+    what went wrong in detail. ``text`` escapes every string from the story (the viewer's story
+    panel passes ``orchestrator.safe_text.markdown``)."""
     fps = int(story["fps"])
     lines = [
-        f"# Story in {md_text(str(story['scene']))}",
+        f"# Story in {text(str(story['scene']))}",
         "",
-        f"Characters: {', '.join(md_text(n) for n in story['characters'])}  ",
-        f"Instruction: {md_text(story['instruction']) or '(none)'}  ",
+        f"Characters: {', '.join(text(n) for n in story['characters'])}  ",
+        f"Instruction: {text(story['instruction']) or '(none)'}  ",
         f"Length: {clock(int(story['frames']), fps)} ({story['frames']} frames at {fps} fps)",
         "",
     ]
@@ -79,14 +81,14 @@ def story_markdown(story: dict[str, Any]) -> str:
             continue  # a run of waits is one line; beside an event that starts then, none
         previous = kind
         if kind == "event":
-            lines += [_event_paragraph(item, plans_of.get(item["index"], []), fps), ""]
+            lines += [_event_paragraph(item, plans_of.get(item["index"], []), fps, text), ""]
         else:
-            text = item.get("text") or (step_text(None) if kind == "wait" else _FAILED_STEP)
-            lines += [f"{clock(frame, fps)} — {md_text(text)}", ""]
-    wrong = [f"- {md_text(e['event_id'])} failed at {clock(int(e['finished_frame'] or 0), fps)}: "
-             f"{md_text(e.get('failure') or 'no reason given')}"
+            said = item.get("text") or (step_text(None) if kind == "wait" else _FAILED_STEP)
+            lines += [f"{clock(frame, fps)} — {text(said)}", ""]
+    wrong = [f"- {text(e['event_id'])} failed at {clock(int(e['finished_frame'] or 0), fps)}: "
+             f"{text(e.get('failure') or 'no reason given')}"
              for e in story["events"] if e["state"] == "failed"]  # fmt: skip
-    wrong += [f"- step {s['index']} at {clock(int(s['applied_frame']), fps)} in {md_text(s['node'])}: {md_text(s['feedback'])}"
+    wrong += [f"- step {s['index']} at {clock(int(s['applied_frame']), fps)} in {text(s['node'])}: {text(s['feedback'])}"
               for s in story["steps"] if s["kind"] == "failed"]  # fmt: skip
     if wrong:
         lines += ["## What went wrong", "", *wrong, ""]
@@ -96,15 +98,15 @@ def story_markdown(story: dict[str, Any]) -> str:
 _FAILED_STEP = "No new event could be planned."
 
 
-def _event_paragraph(e: dict[str, Any], plans: list[Any], fps: int) -> str:
+def _event_paragraph(e: dict[str, Any], plans: list[Any], fps: int, text: Callable[[str], str]) -> str:
     """One event: time, what happens (the plan sentence), the narrator's words if they agree,
     the instruction's part, how it ended and its id."""
-    text = e.get("text") or _plan_sentence(e, plans)
-    parts = [f"{clock(int(e['applied_frame']), fps)} \u2014 {md_text(text)}"]
+    sentence = e.get("text") or _plan_sentence(e, plans)
+    parts = [f"{clock(int(e['applied_frame']), fps)} \u2014 {text(sentence)}"]
     if e.get("narration"):
-        parts.append(f"In the narrator's words: \u201c{md_text(str(e['narration']).rstrip('. '))}\u201d.")
+        parts.append(f"In the narrator's words: \u201c{text(str(e['narration']).rstrip('. '))}\u201d.")
     if e.get("part"):
-        parts.append(f"This carries out the instruction's part \u201c{md_text(str(e['part']).rstrip('. '))}\u201d.")
+        parts.append(f"This carries out the instruction's part \u201c{text(str(e['part']).rstrip('. '))}\u201d.")
     if e["state"] == "failed":
         at = f" at {clock(int(e['finished_frame']), fps)}" if e["finished_frame"] is not None else ""
         parts.append(f"It fails{at} \\(see below\\).")
@@ -112,7 +114,7 @@ def _event_paragraph(e: dict[str, Any], plans: list[Any], fps: int) -> str:
         parts.append(f"Done at {clock(int(e['finished_frame']), fps)}.")
     else:
         parts.append("Still going when the story ends.")
-    parts.append(f"*{md_text('(' + str(e['event_id']) + ')')}*")
+    parts.append(f"*{text('(' + str(e['event_id']) + ')')}*")
     return " ".join(parts)
 
 

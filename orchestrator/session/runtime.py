@@ -50,6 +50,9 @@ of catch-up frames: the schedule slips by the delay instead (``SessionResult.sli
 the next frame is due one period after it. Where each frame's wall time went is kept in
 ``SessionResult.frame_profile`` (``orchestrator.session.frame_profile``); timing decides
 nothing but when a realtime frame starts, so it never changes a story in the other paces.
+A ``pacer`` (a director's pause and speed, ``orchestrator.session.viewer_controls``) may hold
+a realtime simulation between two frames and change its speed: that too moves only when frames
+start (a pause is left out of the frame intervals).
 
 Failures: an ``LLMError`` from the planner stops planning and the story goes on
 (``SessionResult.planner_error``); any other exception in any task cancels the task group
@@ -191,6 +194,19 @@ class StepPlanner(Protocol):
     of the trace records (LLM attempts) that produced step ``index``'s outcome."""
 
     async def plan(self, request: PlanningRequest, progress: StepProgress | None = None) -> Outcome: ...
+
+
+class Pacer(Protocol):
+    """A director's pause and speed of a ``realtime`` session (``orchestrator.session.viewer_controls``),
+    asked by the simulation at every frame boundary, after the checkpoint and before the sleep."""
+
+    async def hold(self, frame: int) -> float:
+        """Wait while paused before ``frame``; the wall seconds waited."""
+        ...
+
+    def speed(self, current: float) -> float:
+        """Simulated seconds per wall second from now on (``current``: the speed so far)."""
+        ...
 
 
 class SessionError(Exception):
@@ -434,6 +450,7 @@ class Session:
         on_request: Callable[[RecordedRequest], None] | None = None,
         on_frame: Callable[[World], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
+        pacer: Pacer | None = None,
     ) -> None:
         if settings.pace not in ("lockstep", "realtime", "fast", "offline"):
             raise SessionError(f"unknown pace {settings.pace!r}; expected lockstep, realtime, fast or offline")
@@ -455,6 +472,7 @@ class Session:
         self.on_request = on_request
         self.on_frame = on_frame
         self.clock = clock
+        self.pacer = pacer if settings.pace == "realtime" else None
         self.events: dict[str, StoryEvent] = {}
         self.outcomes: list[tuple[int, Outcome]] = []
         self._waits = 0  # outcomes that are waits
@@ -897,6 +915,7 @@ class Session:
             self._send(request, "frame_end", resent=True)
         self._resent = []
         clock = self.clock
+        speed = s.speed  # realtime: a pacer may change it
         while self.world.frame < s.frames:
             self._take_instructions()
             commands: list[AssignEvent] = []
@@ -924,10 +943,16 @@ class Session:
                 self.on_checkpoint(self.checkpoint())
                 last_checkpoint = self.world.frame
             t_sleep = clock()
-            delay = 0.0
+            delay = held = 0.0
             if s.pace == "realtime":
-                period = 1.0 / (self.world.config.fps * s.speed)
-                behind = t_sleep - (start + self.world.frame * period)
+                if self.pacer is not None:  # paused: held here; after a pause or a new speed the next
+                    held = await self.pacer.hold(self.world.frame)  # frame is due one period from now
+                    wanted = self.pacer.speed(speed)
+                    if held > 0 or wanted != speed:
+                        speed = wanted
+                        start = t_sleep + held - (self.world.frame - 1) / (self.world.config.fps * speed)
+                period = 1.0 / (self.world.config.fps * speed)
+                behind = t_sleep + held - (start + self.world.frame * period)
                 if behind > period:  # a stall: no burst of catch-up frames, the schedule slips instead
                     start += behind
                     self.slipped_s += behind
@@ -937,9 +962,9 @@ class Session:
             elif self.world.frame % 8 == 0 or self._flights:
                 await anyio.sleep(0)
             now = clock()
-            self.frame_intervals.append(now - last)
+            self.frame_intervals.append(now - last - held)  # a pause is no late frame
             self.profile.add(t_step - last, t_ask - t_step, t_checkpoint - t_ask, t_sleep - t_checkpoint, delay,
-                             max(0.0, now - t_sleep - delay))
+                             max(0.0, now - t_sleep - held - delay))
             last = now
         self.wall_s = last - begin
         # steps still in flight are abandoned (not applied); run() cancels them

@@ -38,7 +38,7 @@ import threading
 import uuid
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 import structlog
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -61,6 +61,7 @@ READ_BYTES = 1 << 20
 assert READ_BYTES > MAX_LINE_BYTES  # a poll that finds no newline in a whole read has found a line too long
 POLL_S = 0.1
 """Wall seconds between two looks at the file."""
+LineT = TypeVar("LineT")
 _READ = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
 
 
@@ -106,8 +107,15 @@ def send_instruction(folder: Path, thread: str, typed: str, *, sent_unix: float)
     if problem is not None:
         raise ValueError(problem)
     line = ViewerInstruction(id=uuid.uuid4().hex, thread=thread, text=instruction_text(typed), sent_unix=sent_unix)
+    append_line(folder / INBOX_FILE, line)
+    return line
+
+
+def append_line(path: Path, line: BaseModel) -> None:
+    """``line`` as one JSON line (ASCII escapes) at the end of ``path``, in one ``write`` on a
+    descriptor opened ``O_APPEND`` without following a link, fsynced before this returns."""
     data = (json.dumps(line.model_dump(mode="json"), ensure_ascii=True) + "\n").encode("ascii")
-    fd = open_append(folder / INBOX_FILE)
+    fd = open_append(path)
     try:
         view = memoryview(data)
         while view:
@@ -115,41 +123,43 @@ def send_instruction(folder: Path, thread: str, typed: str, *, sent_unix: float)
         os.fsync(fd)
     finally:
         os.close(fd)
-    return line
 
 
-class InstructionInbox:
-    """The run's side: the new lines for ``thread`` since the last :meth:`poll`.
+class AppendedLines(Generic[LineT]):
+    """The reading side of an append-only JSON-lines file in the run folder: the whole new lines
+    since the last :meth:`poll`, each parsed by :meth:`parse` (None: skipped), bounded as the
+    module doc says. ``what`` names the file's lines in warnings (e.g. ``viewer_instruction``)."""
 
-    ``applied``: the texts of the ``viewer`` instructions the run applied before (a resume: from
-    its trace); that many lines are skipped first (a line that differs is logged: the file was
-    changed by hand)."""
+    what = "line"
 
-    def __init__(self, path: Path, thread: str, applied: Sequence[str] = ()) -> None:
+    def __init__(self, path: Path) -> None:
         self.path = path
-        self.thread = thread
         self.offset = 0
-        self._seen: set[str] = set()
-        self._applied = list(applied)
         self._skipping = False  # inside a line longer than MAX_LINE_BYTES
 
-    def poll(self) -> list[ViewerInstruction]:
-        """The lines appended since the last call that are new, for this thread, not applied before."""
+    def parse(self, raw: bytes) -> LineT | None:
+        raise NotImplementedError
+
+    def poll(self) -> list[LineT]:
+        """The lines appended since the last call that :meth:`parse` takes, in file order."""
         data = self._read()
-        out: list[ViewerInstruction] = []
+        out: list[LineT] = []
         start = 0
         while (end := data.find(b"\n", start)) >= 0:
             raw, start = data[start:end], end + 1
             if self._skipping:  # the end of a line too long to take
                 self._skipping = False
                 continue
-            line = self._parse(raw)
+            if len(raw) > MAX_LINE_BYTES:
+                _log.warning(f"{self.what}_too_long", file=str(self.path), limit=MAX_LINE_BYTES)
+                continue
+            line = self.parse(raw)
             if line is not None:
                 out.append(line)
         rest = len(data) - start
         if self._skipping or rest > MAX_LINE_BYTES:  # no newline yet in a line that is too long already
             if not self._skipping:
-                _log.warning("viewer_instruction_too_long", file=str(self.path), limit=MAX_LINE_BYTES)
+                _log.warning(f"{self.what}_too_long", file=str(self.path), limit=MAX_LINE_BYTES)
             self._skipping = True
             start = len(data)
         self.offset += start
@@ -162,12 +172,12 @@ class InstructionInbox:
             return b""
         except OSError as exc:
             if exc.errno == errno.ELOOP:
-                _log.warning("viewer_instructions_refused", file=str(self.path), reason="a symbolic link")
+                _log.warning(f"{self.what}s_refused", file=str(self.path), reason="a symbolic link")
             return b""
         try:
             info = os.fstat(fd)
             if not stat.S_ISREG(info.st_mode):
-                _log.warning("viewer_instructions_refused", file=str(self.path), reason="not a regular file")
+                _log.warning(f"{self.what}s_refused", file=str(self.path), reason="not a regular file")
                 return b""
             if info.st_size < self.offset:  # replaced by a shorter file: read it from its start (ids stay seen)
                 self.offset, self._skipping = 0, False
@@ -175,10 +185,23 @@ class InstructionInbox:
         finally:
             os.close(fd)
 
-    def _parse(self, raw: bytes) -> ViewerInstruction | None:
-        if len(raw) > MAX_LINE_BYTES:
-            _log.warning("viewer_instruction_too_long", file=str(self.path), limit=MAX_LINE_BYTES)
-            return None
+
+class InstructionInbox(AppendedLines[ViewerInstruction]):
+    """The run's side: the new lines for ``thread`` since the last :meth:`poll`.
+
+    ``applied``: the texts of the ``viewer`` instructions the run applied before (a resume: from
+    its trace); that many lines are skipped first (a line that differs is logged: the file was
+    changed by hand)."""
+
+    what = "viewer_instruction"
+
+    def __init__(self, path: Path, thread: str, applied: Sequence[str] = ()) -> None:
+        super().__init__(path)
+        self.thread = thread
+        self._seen: set[str] = set()
+        self._applied = list(applied)
+
+    def parse(self, raw: bytes) -> ViewerInstruction | None:
         try:
             line = ViewerInstruction.model_validate_json(raw)
         except ValidationError as exc:

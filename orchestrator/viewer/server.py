@@ -55,6 +55,7 @@ from orchestrator.session.viewer_instructions import (
 )
 from orchestrator.viewer.access import TOKEN_PARAM, ViewerAccess, authority
 from orchestrator.viewer.guarded_server import guarded_server
+from orchestrator.viewer.panels import DirectorPanels
 from orchestrator.viewer.run_folder import (
     STORY_FILE,
     RunData,
@@ -116,6 +117,8 @@ class ViewerApp:
         self.slider.on_update(self._on_slider)
         self._box_order = self.status.order + 0.5  # each browser's instruction box: under the status line
         self.server.on_client_connect(self._add_instruction_box)
+        self.panels = DirectorPanels(self.server, folder, self.lock, order=self._box_order + 0.1,
+                                     later=self.events_folder.order + 1)
 
     # ----- lifecycle -----------------------------------------------------------------
     @property
@@ -141,11 +144,13 @@ class ViewerApp:
     def start(self) -> None:
         """Load the run (or wait for it) and start the playback and folder-watch threads."""
         self.reload_if_changed()
+        self.panels.start()
         threading.Thread(target=self._play_loop, name="viewer-play", daemon=True).start()
         threading.Thread(target=self._watch_loop, name="viewer-watch", daemon=True).start()
 
     def stop(self) -> None:
         self._stop.set()
+        self.panels.stop()
         self.server.stop()
 
     # ----- loading -------------------------------------------------------------------
@@ -199,6 +204,7 @@ class ViewerApp:
                 button.color = None
             self._active = []
             self.slider.max = max(run.num_frames - 1, 1)
+            self.panels.show_run(run)
             self.goto(min(self.frame, run.num_frames - 1))
 
     def _list_events(self, run: RunData) -> None:
@@ -296,6 +302,7 @@ class ViewerApp:
                 for i, button in enumerate(self._event_buttons):
                     button.color = "green" if i in active else None
                 self._active = active
+            self.panels.show_frame(self.frame)
 
     # ----- threads -------------------------------------------------------------------
     def advance(self, dt: float) -> None:
