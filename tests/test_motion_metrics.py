@@ -10,6 +10,7 @@ import pytest
 from benchmark.motion_metrics.bodies import (
     Box,
     body_overlap,
+    crowd_overlaps,
     furniture_penetration,
     signed_distance,
     sphere_body,
@@ -211,3 +212,16 @@ def test_seat_height_error_and_transition_times():
     labels = ["sit_down"] * 15 + ["sit_idle"] * 10 + ["drink@seated"] * 5 + ["stand_up"] * 10
     assert seat_errors(j, labels, scene) == [pytest.approx(0.02)]
     assert transition_times(labels, 30.0) == {"sit_down": [0.5], "stand_up": [pytest.approx(1 / 3)]}
+
+
+def test_crowd_overlaps_agree_with_the_pairwise_measure() -> None:
+    body = sphere_body()
+    n = 5
+    a = body.centres(rest_joints(n))
+    b = body.centres(rest_joints(n, (0.1, 0.05)))
+    c = body.centres(rest_joints(n, (3.0, 0.0)))
+    depth, pairs = crowd_overlaps([a, b, c], body)
+    np.testing.assert_allclose(depth, body_overlap(a, b, body))
+    assert pairs == 1 and depth[0] > 0
+    hugging = [np.ones(n, dtype=bool), np.ones(n, dtype=bool), np.zeros(n, dtype=bool)]
+    assert crowd_overlaps([a, b, c], body, hugging)[0].max() == 0.0

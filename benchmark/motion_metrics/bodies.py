@@ -183,21 +183,35 @@ def crowd_overlaps(
     """Overlap over every pair of characters (their sphere centres (F, S, 3), one length F):
     the deepest overlap per frame (F,) in metres, and the number of pairs that ever overlap.
     Frames where both of a pair are in a ``CONTACT_ACTIONS`` action (``contact``, (F,) each)
-    are left out."""
+    are left out. Each frame's spheres (arms left out) go into one k-d tree, so a crowd costs
+    about its spheres, not its pairs (the same figures as :func:`body_overlap` on each pair)."""
+    from scipy.spatial import cKDTree
+
     if not centres:
         return np.zeros(0), 0
-    n = len(centres[0])
-    roots = np.stack([c[:, 0, :2] for c in centres])  # (P, F, 2)
-    out = np.zeros(n)
-    pairs = 0
-    for i in range(len(centres)):
-        for k in range(i + 1, len(centres)):
-            if not (np.linalg.norm(roots[i] - roots[k], axis=-1) < 1.5).any():
-                continue
-            depth = body_overlap(centres[i], centres[k], body)
-            if contact is not None:
-                depth[contact[i] & contact[k]] = 0.0
-            if (depth > 0).any():
-                pairs += 1
-            out = np.maximum(out, depth)
-    return out, pairs
+    keep = ~body.arm
+    r = body.radii[keep]
+    per = int(keep.sum())
+    owner = np.repeat(np.arange(len(centres)), per)
+    radii = np.tile(r, len(centres))
+    pts = np.concatenate([np.asarray(c)[:, keep] for c in centres], axis=1)  # (F, P * S', 3)
+    busy = None if contact is None else np.stack([np.asarray(f, dtype=bool) for f in contact])  # (P, F)
+    out = np.zeros(len(pts))
+    seen: set[tuple[int, int]] = set()
+    for f in range(len(pts)):
+        pairs = cKDTree(pts[f]).query_pairs(2.0 * float(r.max()), output_type="ndarray")
+        if len(pairs) == 0:
+            continue
+        a, b = owner[pairs[:, 0]], owner[pairs[:, 1]]
+        other = a != b
+        if busy is not None:
+            other &= ~(busy[a, f] & busy[b, f])
+        pairs, a, b = pairs[other], a[other], b[other]
+        if len(pairs) == 0:
+            continue
+        depth = radii[pairs[:, 0]] + radii[pairs[:, 1]] - np.linalg.norm(pts[f, pairs[:, 0]] - pts[f, pairs[:, 1]], axis=-1)
+        hit = depth > 0
+        if hit.any():
+            out[f] = float(depth[hit].max())
+            seen.update(zip(np.minimum(a[hit], b[hit]).tolist(), np.maximum(a[hit], b[hit]).tolist(), strict=True))
+    return out, len(seen)

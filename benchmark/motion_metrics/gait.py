@@ -54,7 +54,8 @@ WRISTS = (JOINT_INDEX["left_wrist"], JOINT_INDEX["right_wrist"])
 
 def label_runs(labels: Sequence[str], label: str) -> list[tuple[int, int]]:
     """(first, end) frame ranges (end exclusive) of the runs of ``label`` in ``labels``."""
-    out, start = [], None
+    out: list[tuple[int, int]] = []
+    start: int | None = None
     for i, lab in enumerate([*labels, None]):
         if lab == label and start is None:
             start = i
@@ -70,7 +71,7 @@ def walking_windows(labels: Sequence[str], pelvis_xy: NDArray[np.float64], fps: 
     speed = np.linalg.norm(np.gradient(xy, axis=0), axis=-1) * fps if len(xy) > 1 else np.zeros(len(xy))
     fast = [lab == WALK_LABEL and s > MIN_SPEED for lab, s in zip(labels, speed, strict=True)]
     trim, longest, shortest = round(TRIM_S * fps), round(WINDOW_S * fps), round(MIN_WINDOW_S * fps)
-    out = []
+    out: list[tuple[int, int]] = []
     for a, b in label_runs(["w" if f else "" for f in fast], "w"):
         a, b = a + trim, b - trim
         pieces = max(1, int(np.ceil((b - a) / longest)))
@@ -89,8 +90,8 @@ def foot_contacts(joints: NDArray[np.float64], fps: float) -> NDArray[np.bool_]:
     k = max(1, round(CONTACT_MIN_S * fps))
     out = np.zeros_like(raw)
     for side in range(raw.shape[1]):  # fill gaps shorter than k frames, then drop contacts shorter than k
-        filled = binary_closing(raw[:, side], structure=np.ones(k), border_value=0) | raw[:, side]
-        out[:, side] = binary_opening(filled, structure=np.ones(k))
+        filled = binary_closing(raw[:, side], structure=np.ones(k, dtype=bool), border_value=0) | raw[:, side]
+        out[:, side] = binary_opening(filled, structure=np.ones(k, dtype=bool))
     return np.asarray(out)
 
 
@@ -238,7 +239,7 @@ def cadence_by_speed(windows: Sequence[GaitWindow]) -> list[tuple[str, int, floa
     out = []
     for lo, hi in pairwise(SPEED_BINS):
         inside = [w for w in windows if lo <= w.speed < hi]
-        cad = float(np.median([w.cadence for w in inside])) if inside else float("nan")
+        cad = float(np.nanmedian([w.cadence for w in inside])) if inside else float("nan")
         step = float(np.nanmedian([w.step_length for w in inside])) if inside else float("nan")
         out.append((f"{lo:.1f}-{hi:.1f}", len(inside), cad, step))
     return out

@@ -69,7 +69,7 @@ def reaches(joints: NDArray[np.float64], labels: Sequence[str], scene: Scene, fp
     out = []
     for label in sorted({lab for lab in labels if lab.startswith("use_")}):
         for a, b in label_runs(labels, label):
-            obj = object_named_by(scene, label, j[a, 0, :2])
+            obj = object_named_by(scene, label, (float(j[a, 0, 0]), float(j[a, 0, 1])))
             if obj is None:
                 continue
             end = min(b, a + round(REACH_WINDOW_S * fps))

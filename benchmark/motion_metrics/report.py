@@ -27,7 +27,7 @@ Table = tuple[list[str], list[list[str]]]
 
 
 def _f(x: float, digits: int = 2) -> str:
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{digits}f}"
+    return f"{x:.{digits}f}" if math.isfinite(x) else "-"
 
 
 def _ratio(a: float, b: float) -> str:

@@ -2,8 +2,8 @@
 
 For each label, the longest run of it among the characters measured (at most ``STRIP_S``
 seconds of it) is drawn as ``POSES`` stick figures spaced evenly in time: in the side view in
-the vertical plane of the character's heading at the run's start (walking spreads the figures
-along the floor line), in the top view from above with the scene's object footprints near the
+the vertical plane of each pose's own heading (seen from its side), placed along the distance
+the pelvis travelled (figures that stay in place are spread ``SPACING_M`` apart), in the top view from above with the scene's object footprints near the
 character. One PNG per label, ``strip_<label>.png`` (the label made file-safe).
 """
 
@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from benchmark.motion_metrics.gait import label_runs
 from benchmark.motion_metrics.sources import RunMotion
-from sim.body.skeleton import PARENTS
+from sim.body.skeleton import JOINT_INDEX, PARENTS
 
 POSES = 8
 STRIP_S = 4.0
@@ -60,25 +60,22 @@ def draw_strip(run: RunMotion, character: int, first: int, end: int, label: str,
     end = min(end, first + round(STRIP_S * run.fps))
     frames = np.unique(np.linspace(first, end - 1, POSES).round().astype(int))
     j = c.joints
-    origin = j[first, 0].copy()
-    d = j[min(end - 1, first + 5), 0, :2] - j[first, 0, :2]
-    if np.linalg.norm(d) < 0.05:  # standing: the direction from the left hip to the right, turned
-        side = j[first, 2, :2] - j[first, 1, :2]
-        d = np.array([side[1], -side[0]])
-    fwd = d / max(float(np.linalg.norm(d)), 1e-9)
+    path_len = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(j[first:end, 0, :2], axis=0), axis=-1))])
+    moved = float(path_len[-1])
     fig, (side_ax, top_ax) = plt.subplots(2, 1, figsize=(11, 6.5), gridspec_kw={"height_ratios": [1.2, 1]})
     colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.9, len(frames)))
-    moved = float(np.linalg.norm(j[end - 1, 0, :2] - j[first, 0, :2]))
     for k, (f, col) in enumerate(zip(frames, colours, strict=True)):
-        rel = j[f] - origin
-        along = rel[:, :2] @ fwd + (0.0 if moved > 1.0 else k * SPACING_M)
+        hips = j[f, JOINT_INDEX["right_hip"], :2] - j[f, JOINT_INDEX["left_hip"], :2]
+        fwd = np.array([hips[1], -hips[0]]) / max(float(np.linalg.norm(hips)), 1e-9)  # the body's own forward
+        offset = path_len[f - first] if moved > 1.0 else k * SPACING_M
+        along = (j[f, :, :2] - j[f, 0, :2]) @ fwd + offset
         _bones(side_ax, np.stack([along, j[f, :, 2]], axis=-1), col)
         _bones(top_ax, j[f, :, :2], col)
         side_ax.text(float(along[0]), -0.12, f"{(f - first) / run.fps:.1f}s", fontsize=7, ha="center")
     side_ax.axhline(run.scene.floor_z if run.scene is not None else 0.0, color="0.4", lw=0.8)
     side_ax.set_aspect("equal")
     side_ax.set_ylim(-0.2, 2.0)
-    side_ax.set_title(f"{label}: {c.name} in {run.name}, frames {first}-{end - 1} (side view along the heading)",
+    side_ax.set_title(f"{label}: {c.name} in {run.name}, frames {first}-{end - 1} (side view: each pose from its side, along the path)",
                       fontsize=9)
     if run.scene is not None:
         centre = j[frames, 0, :2].mean(axis=0)
@@ -86,7 +83,7 @@ def draw_strip(run: RunMotion, character: int, first: int, end: int, label: str,
             if np.linalg.norm(o.center_xy - centre) < 3.0:
                 fp = o.footprint()
                 top_ax.fill(fp[:, 0], fp[:, 1], color="0.85", ec="0.5", lw=0.6)
-                top_ax.text(o.center[0], o.center[1], o.name, fontsize=6, ha="center", color="0.3")
+                top_ax.text(o.center[0], o.center[1], o.name, fontsize=6, ha="center", color="0.3", clip_on=True)
     top_ax.set_aspect("equal")
     top_ax.set_title("top view (world x, y; metres)", fontsize=9)
     lo, hi = j[frames, :, :2].min(axis=(0, 1)) - 0.8, j[frames, :, :2].max(axis=(0, 1)) + 0.8
