@@ -50,9 +50,9 @@ from agents.ablations.descriptions import object_list_description, scene_graph_d
 from agents.ablations.direct import check_direct_reply, direct_request
 from agents.ablations.unified import check_unified_reply, unified_request
 from agents.llm_port import LLMError
-from agents.messages import Event, ParsedEvent, PlanningFailure, SceneDescription
+from agents.messages import Event, ParsedEvent, SceneDescription
 from agents.program_grammar import open_program_grammar
-from agents.retry_feedback import REJECTIONS, feedback_from_error
+from agents.retry_feedback import REJECTIONS
 from orchestrator.planning import graph as planning_graph
 from orchestrator.planning.graph import (
     NodeFn,
@@ -61,13 +61,13 @@ from orchestrator.planning.graph import (
     narrator_input,
     off_loop,
     parser_input,
-    record_parsed,
     reply_update,
     unavailable,
 )
 from orchestrator.planning.kinds import DescriptionKind, PlannerKind
+from orchestrator.planning.rejection import record_parsed, rejected_reply
 from orchestrator.planning.seat_node import skip_seat_choice
-from orchestrator.planning.state import PlanningDeps, PlanningState, RetryTurn
+from orchestrator.planning.state import PlanningDeps, PlanningState
 
 
 @dataclass(frozen=True)
@@ -112,25 +112,6 @@ def preset_node(kind: DescriptionKind) -> NodeFn:
     return describe_scene
 
 
-def _rejected(
-    state: PlanningState, deps: PlanningDeps, node: Literal["event_parser", "planner"], reply: str, exc: BaseException
-) -> dict[str, Any]:
-    """State update for a rejected placing reply: its feedback as a turn, a failure after the last."""
-    feedback = feedback_from_error(exc)
-    record_parsed(deps, state.parser_seq, node, error=exc, feedback=feedback)
-    attempts = len(state.parser_turns) + 1
-    update: dict[str, Any] = {
-        "parser_turns": (*state.parser_turns, RetryTurn(reply=reply, feedback=feedback)),
-        "parser_reply": None,
-        "parser_seq": None,
-    }
-    if attempts > deps.max_retries:
-        update["failure"] = PlanningFailure(
-            index=state.step, node=node, attempts=attempts, feedback=feedback, event=state.event, part=state.part
-        )
-    return update
-
-
 def _plans_json(parsed: ParsedEvent | None) -> Any:
     if parsed is None:
         return {"wait": True}
@@ -168,7 +149,7 @@ async def check_coordinates(state: PlanningState, runtime: Runtime[PlanningDeps]
             seed=deps.seed + state.step, action_labels=deps.action_labels, graph=deps.scene_graph, runner=deps.runner,
         ))
     except REJECTIONS as exc:
-        return _rejected(state, deps, "event_parser", reply, exc)
+        return rejected_reply(state, deps, "event_parser", reply, exc)
     parsed = ParsedEvent(
         index=state.step, event=state.event, plans=result.plans, program=result.program,
         narrator_attempts=state.narrator_attempts, parser_attempts=len(state.parser_turns) + 1, part=state.part,
@@ -210,7 +191,7 @@ async def check_plan(state: PlanningState, runtime: Runtime[PlanningDeps]) -> di
             action_labels=deps.action_labels, graph=deps.scene_graph, runner=deps.runner,
         ))
     except REJECTIONS as exc:
-        return _rejected(state, deps, "planner", reply, exc)
+        return rejected_reply(state, deps, "planner", reply, exc)
     record_parsed(deps, state.parser_seq, "planner", _plans_json(parsed))
     update: dict[str, Any] = {"parser_reply": None, "parser_seq": None}
     if parsed is None:

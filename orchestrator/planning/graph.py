@@ -39,8 +39,9 @@ the event parser is asked, so the session may plan the next event beside this on
 Traces: every request carries ``state.sim_frame`` (the frame of the world snapshot the step
 plans from; None without a simulation) as metadata outside the request hash. The check
 nodes record, for the attempt they judged, the parsed output (narrator event, event-parser
-plans per character, describer areas) or the typed error that rejected it. The seqs of a
-step's narrator and event-parser attempts are stored with its outcome in the story log
+plans per character, describer areas) or the typed error that rejected it (one update for
+every check node and ablation: :func:`orchestrator.planning.rejection.rejected_reply`). The
+seqs of a step's narrator and event-parser attempts are stored with its outcome in the story log
 (:meth:`~orchestrator.planning.checkpoints.StoryLog.trace_seqs`) for the ``applied`` record.
 """
 
@@ -83,9 +84,10 @@ from agents.messages import (
 )
 from agents.narrator import NarratorInput, narrator_request, parse_narration, waits_without_a_call
 from agents.program_grammar import event_program_grammar
-from agents.retry_feedback import REJECTIONS, feedback_from_error
+from agents.retry_feedback import REJECTIONS
+from orchestrator.planning.rejection import record_parsed, rejected_reply
 from orchestrator.planning.seat_node import choose_seat
-from orchestrator.planning.state import RECENT_WINDOW, PlanningDeps, PlanningState, RetryTurn
+from orchestrator.planning.state import RECENT_WINDOW, PlanningDeps, PlanningState
 from tools.character_states import WorldView
 from tools.errors import ObjectInUseError
 
@@ -118,19 +120,6 @@ async def complete(deps: PlanningDeps, request: LLMRequest, state: PlanningState
     if deps.progress is not None:
         deps.progress.llm_call(request.node, response.latency_s)
     return response
-
-
-def record_parsed(
-    deps: PlanningDeps, seq: int | None, node: Literal["describer", "narrator", "event_parser", "planner"],
-    parsed: Any = None, error: BaseException | None = None, feedback: str | None = None,
-) -> None:
-    sink = deps.trace_sink()
-    if sink is None or seq is None:
-        return
-    if error is None:
-        sink.record_parsed(seq, parsed, node=node)
-    else:
-        sink.record_parsed(seq, None, node=node, error_type=type(error).__name__, error_message=feedback or str(error))
 
 
 # ----- nodes ------------------------------------------------------------------------------
@@ -168,10 +157,9 @@ async def check_description(state: PlanningState, runtime: Runtime[PlanningDeps]
         record_parsed(deps, state.describer_seq, "describer", judged.areas.model_dump(mode="json"))
         description = finish(inp, judged.areas, repaired=False, attempts=attempts)
     else:
-        assert judged.turn is not None
-        record_parsed(deps, state.describer_seq, "describer", error=judged.error, feedback=judged.turn.feedback)
-        turns = (*state.describer_turns, RetryTurn(reply=judged.turn.reply, feedback=judged.turn.feedback))
-        update["describer_turns"] = turns
+        assert judged.turn is not None and judged.error is not None
+        update = rejected_reply(state, deps, "describer", judged.turn.reply, judged.error, feedback=judged.turn.feedback)
+        turns = update["describer_turns"]
         if attempts <= deps.max_retries:
             return update
         description = await off_loop(lambda: best_effort(inp, [t.as_turn() for t in turns]))
@@ -257,16 +245,7 @@ async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) 
     try:
         out = parse_narration(reply, state.roster, deps.prompts, inp.bystanders)
     except REJECTIONS as exc:
-        feedback = feedback_from_error(exc)
-        record_parsed(deps, state.narrator_seq, "narrator", error=exc, feedback=feedback)
-        update: dict[str, Any] = {
-            "narrator_turns": (*state.narrator_turns, RetryTurn(reply=reply, feedback=feedback)),
-            "narrator_reply": None,
-            "narrator_seq": None,
-        }
-        if attempts > deps.max_retries:
-            update["failure"] = PlanningFailure(index=state.step, node="narrator", attempts=attempts, feedback=feedback)
-        return update
+        return rejected_reply(state, deps, "narrator", reply, exc)
     record_parsed(deps, state.narrator_seq, "narrator", out.model_dump(mode="json"))
     progress = inp.progress
     event = with_all_part_actors(out.event, progress)
@@ -361,19 +340,7 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
             runner=deps.runner,
         ))
     except REJECTIONS as exc:
-        feedback = feedback_from_error(exc, instruction=PARSER_RETRY_INSTRUCTION)
-        record_parsed(deps, state.parser_seq, "event_parser", error=exc, feedback=feedback)
-        update: dict[str, Any] = {
-            "parser_turns": (*state.parser_turns, RetryTurn(reply=reply, feedback=feedback, error=type(exc).__name__)),
-            "parser_reply": None,
-            "parser_seq": None,
-        }
-        if attempts > deps.max_retries:
-            update["failure"] = PlanningFailure(
-                index=state.step, node="event_parser", attempts=attempts, feedback=feedback,
-                event=state.event, part=state.part,
-            )
-        return update
+        return rejected_reply(state, deps, "event_parser", reply, exc, instruction=PARSER_RETRY_INSTRUCTION)
     parsed = ParsedEvent(
         index=state.step,
         event=state.event,
