@@ -24,6 +24,7 @@ from functools import cached_property
 from typing import Any
 
 from agents.bystanders import BystanderRules, SceneNow, bystander_rules, never_named
+from agents.history import LISTED_FINISHED
 from agents.instruction_parts import InstructionProgress, instruction_progress
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
 from agents.llm_schemas import Refine, reply_schema
@@ -45,8 +46,6 @@ from agents.retry_feedback import (
 )
 
 NARRATOR_FILES = ("narrator/system.md", "narrator/request.md")
-HISTORY_WINDOW = 8
-"""Completed events older than the last HISTORY_WINDOW are left out of the prompt."""
 DEFAULT_MAX_TOKENS = 160
 
 
@@ -143,14 +142,14 @@ def history_text(
 ) -> str:
     """One line per event, oldest first: ``3. [ongoing] Ann, Bob: chat by sofa_1``
     (``prompts/story/history_*.md``). Completed and failed events before the last
-    ``HISTORY_WINDOW`` of them are left out and counted; with ``earlier`` (the events before
+    ``LISTED_FINISHED`` of them (``agents.history``) are left out and counted; with ``earlier`` (the events before
     ``history``, which a long story leaves out) every event left out is summarised in one line
     instead: how many, and per character how many and the latest one's activity."""
     lib = prompts or package_prompts()
     if not history and earlier is None:
         return lib.render_text("story/history_empty.md")
     shown = [h for h in history if h.state not in ("completed", "failed")]
-    completed = [h for h in history if h.state in ("completed", "failed")][-HISTORY_WINDOW:]
+    completed = [h for h in history if h.state in ("completed", "failed")][-LISTED_FINISHED:]
     entries = sorted({h.index: h for h in (*shown, *completed)}.values(), key=lambda h: h.index)
     lines = []
     if earlier is not None:

@@ -9,13 +9,14 @@ from typing import Any
 
 from langgraph.checkpoint.memory import InMemorySaver
 
+from agents.history import HISTORY_WINDOW
 from agents.messages import CharacterStatus, EarlierEvents, HistoryEntry, PlanningFailure
 from agents.narrator import NarratorInput, history_text, narrator_messages
 from agents.prompt_templates import PromptLibrary
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.graph import compile_planning_graph, recursion_limit
 from orchestrator.planning.state import PlanningState
-from orchestrator.session.runtime import HISTORY_WINDOW, StoryEvent, history_window, story_history
+from orchestrator.session.runtime import StoryEvent, history_window, story_history
 from tests.support.scripted_llm import ScriptedLLM
 from tests.test_planning_graph import DESCRIPTION, PROGRAM, make_deps, narration
 

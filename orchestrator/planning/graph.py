@@ -72,11 +72,11 @@ from agents.event_parser import (
     parser_request,
     run_reply,
 )
+from agents.history import keep_window
 from agents.instruction_parts import InstructionProgress
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
 from agents.messages import (
     CharacterStatus,
-    EarlierEvents,
     Event,
     HistoryEntry,
     ParsedEvent,
@@ -87,7 +87,7 @@ from agents.program_grammar import event_program_grammar
 from agents.retry_feedback import REJECTIONS
 from orchestrator.planning.rejection import record_parsed, rejected_reply
 from orchestrator.planning.seat_node import choose_seat
-from orchestrator.planning.state import RECENT_WINDOW, PlanningDeps, PlanningState
+from orchestrator.planning.state import PlanningDeps, PlanningState
 from tools.character_states import WorldView
 from tools.errors import ObjectInUseError
 
@@ -410,13 +410,12 @@ async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -
         h if h.state != "ongoing" or any(c in still_busy for c in h.characters) else h.model_copy(update={"state": "completed"})
         for h in recent
     ]
-    earlier = EarlierEvents.fold(state.earlier, ((h.characters, h.activity) for h in recent[:-RECENT_WINDOW]))
-    recent = recent[-RECENT_WINDOW:]
+    window, earlier = keep_window(recent, state.earlier)
     return {
         "step": next_step,
         "roster": tuple(roster[c.name] for c in state.roster),
         "busy_until": busy_until,
-        "recent": tuple(recent),
+        "recent": window,
         "earlier": earlier,
         "step_trace_seqs": (),
         "narrator_reply": None,

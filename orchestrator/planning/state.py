@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from agents.bystanders import Choice, object_areas, scene_choices
 from agents.describer import DescriberInput, describer_input_from_scene
 from agents.event_parser import ProgramRunner
+from agents.history import HISTORY_WINDOW
 from agents.llm_port import LLMPort, TraceRecorder
 from agents.messages import (
     CharacterStatus,
@@ -34,9 +35,6 @@ from agents.retry_feedback import Turn
 from orchestrator.llm.traces import TraceSink
 from orchestrator.planning.checkpoints import StoryLog
 from sim.scene.model import Scene
-
-RECENT_WINDOW = 12
-"""Events kept in the state for the narrator's prompt (it shows at most 8 completed ones)."""
 
 
 class RetryTurn(BaseModel):
@@ -66,7 +64,7 @@ class PlanningState(BaseModel):
     step: int = Field(default=0, ge=0, description="Steps finished so far (events, waits or failures).")
     description: SceneDescription | None = None
     roster: tuple[CharacterStatus, ...] = ()
-    recent: tuple[HistoryEntry, ...] = Field(default=(), description=f"The last {RECENT_WINDOW} events.")
+    recent: tuple[HistoryEntry, ...] = Field(default=(), description=f"The last {HISTORY_WINDOW} events (``agents.history``).")
     earlier: EarlierEvents | None = Field(
         default=None, description="The events before ``recent``, summarised for the narrator (None: there are none)."
     )

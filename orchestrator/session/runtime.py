@@ -93,6 +93,7 @@ import structlog
 from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStream
 from pydantic import BaseModel, ConfigDict, Field
 
+from agents.history import HISTORY_WINDOW
 from agents.instruction_parts import PART_ATTEMPTS
 from agents.llm_port import LLMError, TraceRecorder
 from agents.messages import (
@@ -112,10 +113,6 @@ from sim.world.step import World, WorldSnapshot, step
 Outcome = ParsedEvent | PlanningFailure | None
 
 _log = structlog.get_logger("storyteller.session")
-
-HISTORY_WINDOW = 12
-"""Events a planning request lists (the latest, by step); the ones before are summarised in its
-``earlier`` (how many, and per character how many and the latest one's activity)."""
 
 
 class PlanningRequest(BaseModel):
