@@ -74,7 +74,8 @@ def test_the_fold_holds_at_a_frame_boundary_until_resumed() -> None:
     controls = DirectorControls(1.0)
 
     def line(kind: str, speed: float | None = None) -> ViewerControl:
-        return ViewerControl(id=os.urandom(16).hex(), thread=THREAD, kind=kind, speed=speed, sent_unix=1.0)  # type: ignore[arg-type]
+        return ViewerControl.model_validate(
+            {"id": os.urandom(16).hex(), "thread": THREAD, "kind": kind, "speed": speed, "sent_unix": 1.0})
 
     async def main() -> tuple[float, int | None]:
         assert await controls.hold(5) == 0.0  # not paused: no wait
@@ -145,7 +146,8 @@ class _Slow:
         self.fast = threading.Event()
 
     def __call__(self, body: dict[str, Any]) -> str:
-        if not self.fast.is_set():
+        if not self.fast.is_set():  # known limit: a step still in flight when a realtime story ends has
+            # no answer in the trace, and its replay asks for it and stops with a replay miss (exit 1)
             time.sleep(1.0)
         return directed(body)
 
@@ -265,6 +267,11 @@ def _wait_page(browser: Chromium, what: str, js: str, timeout_s: float = 60) -> 
         raise AssertionError(f"{what}; the page says: {_text(browser)}") from None
 
 
+def _tall_page(browser: Chromium) -> None:
+    """A page tall enough for the whole panel (every folder open) in one screenshot."""
+    browser.call("Emulation.setDeviceMetricsOverride", width=1280, height=2000, deviceScaleFactor=1, mobile=False)
+
+
 def _pick_speed(browser: Chromium, value: str) -> None:
     """Open the 'Run speed' dropdown and pick ``value`` as a person does."""
     browser.evaluate(
@@ -314,6 +321,7 @@ def test_a_director_pauses_resumes_speeds_and_follows_from_the_page(tmp_path: Pa
                 _wait_page(browser, "no character panel", "document.body.innerText.includes('events so far')", 30)
                 text = _text(browser)
                 assert "in the run now" in text and "at the frame shown" in text, text
+                _tall_page(browser)
                 browser.screenshot(shots / "director-character.png")
                 _wait("the story panel growing", lambda: _text(browser).count("\u2014") > events_before, timeout_s=120, log=log)
                 assert story_before == browser.evaluate("document.body.innerText.split('Story in').length")

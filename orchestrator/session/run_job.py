@@ -547,8 +547,7 @@ async def _run_story(
             planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
             session = Session(world, planner, settings, trace=port.trace, on_event=streamed, on_checkpoint=keep,
                               on_instruction=said_now, on_request=requested,
-                              on_outcome=status.outcome if status is not None else None,
-                              on_frame=status.frame if status is not None else None,
+                              on_outcome=status.outcome, on_frame=status.frame,
                               pacer=controls if refusal is None else None)
             if checkpoint is not None:
                 session.resume(checkpoint)

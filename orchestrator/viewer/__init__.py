@@ -18,10 +18,12 @@ What lives here:
   listens beyond this machine) and :mod:`.guarded_server` applies that to viser's server.
 
 May import ``sim`` and the rest of ``orchestrator``; ``viser`` only inside :mod:`.scene_view`,
-:mod:`.server`, :mod:`.guarded_server` and :mod:`.export`, which the command imports lazily.
+:mod:`.server`, :mod:`.panels`, :mod:`.guarded_server` and :mod:`.export`, which the command
+imports lazily.
 
-Guarantees: the viewer only reads the run folder, except for the instructions typed in its box,
-which it appends to ``viewer_instructions.jsonl`` there (never through a link:
+Guarantees: the viewer only reads the run folder, except for the instructions typed in its box
+and the presses of its run panel (:mod:`.panels`), which it appends to ``viewer_instructions.jsonl``
+and ``viewer_controls.jsonl`` there (never through a link:
 ``orchestrator.session.viewer_instructions``); every frame it
 shows is a frame of the exported tracks (no resampling); the server listens on 127.0.0.1
 unless ``--host`` says otherwise, answers no page of another site and no request naming another

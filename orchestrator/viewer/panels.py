@@ -28,7 +28,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import viser
@@ -247,9 +247,11 @@ class DirectorPanels:
         if speed not in self.speed.options:
             self.speed.options = tuple(sorted({*self.speed.options, speed}, key=float))
         if self.speed.value != speed:
-            self.speed.value = speed  # type: ignore[misc]  # viser declares the setter on a subclass mypy does not see
+            cast(Any, self.speed).value = speed  # viser declares the setter on a subclass mypy does not see
         if live.controls is not None:
             self.note.content = f"**Pause and speed refused:** {markdown(live.controls)}"
+        elif not live.running:
+            self.note.content = "The run has ended: it takes no more pause or speed."
         text = planner_text(live)
         if self.planner.content != text:
             self.planner.content = text

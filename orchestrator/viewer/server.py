@@ -16,6 +16,11 @@ one over ``MAX_INSTRUCTION_CHARS``, a run that has ended (``story.json`` is ther
 started (no ``run.json``). A run that was killed keeps what was sent meanwhile: its ``resume``
 takes it. The text is shown escaped, as everything from the run folder.
 
+The director's panels (:mod:`.panels`): the run's pause, resume and speed (a realtime run's
+``viewer_controls.jsonl``, :mod:`orchestrator.session.viewer_controls`), its frame and the
+planner's roles from ``live.json`` (:mod:`orchestrator.session.live_state`), a character list
+whose click selects a figure and has that browser's camera follow it, and the story so far.
+
 Who may connect: the pages this viewer served, checked on every request
 (:mod:`.access`, applied by :mod:`.guarded_server`); on a host beyond loopback only with the
 token of :attr:`ViewerApp.url`. viser's share button (a public tunnel) is hidden and refused.
