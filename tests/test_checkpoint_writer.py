@@ -14,6 +14,7 @@ import anyio
 import pytest
 
 from orchestrator.cache_paths import motion_cache_dir
+from orchestrator.planning.state import StepProgress
 from orchestrator.session.checkpoint_writer import CheckpointWriter
 from orchestrator.session.runtime import (
     Outcome,
@@ -21,7 +22,6 @@ from orchestrator.session.runtime import (
     Session,
     SessionCheckpoint,
     SessionSettings,
-    StepProgress,
 )
 from orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
 from sim.motion.database import load_databases

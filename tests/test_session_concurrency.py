@@ -18,6 +18,7 @@ import pytest
 
 from agents.llm_port import LLMError
 from agents.messages import Event, ParsedEvent, PlannedCharacter
+from orchestrator.planning.state import StepProgress
 from orchestrator.session.runtime import (
     Outcome,
     PlanningRequest,
@@ -26,7 +27,6 @@ from orchestrator.session.runtime import (
     SessionError,
     SessionResult,
     SessionSettings,
-    StepProgress,
 )
 from sim.motion.matching import MotionMatcher
 from sim.scene.model import Scene

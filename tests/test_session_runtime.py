@@ -20,6 +20,7 @@ import pytest
 from agents.llm_port import LLMError, LLMPort
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
 from orchestrator.cache_paths import motion_cache_dir
+from orchestrator.planning.state import StepProgress
 from orchestrator.session.frame_profile import PARTS
 from orchestrator.session.runtime import (
     Outcome,
@@ -29,7 +30,6 @@ from orchestrator.session.runtime import (
     SessionResult,
     SessionSettings,
     StepPlanner,
-    StepProgress,
 )
 from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher

@@ -24,13 +24,13 @@ import pytest
 from pydantic import BaseModel
 
 from orchestrator.cache_paths import motion_cache_dir
+from orchestrator.planning.state import StepProgress
 from orchestrator.session import snapshot_file
 from orchestrator.session.runtime import (
     PlanningRequest,
     Session,
     SessionCheckpoint,
     SessionSettings,
-    StepProgress,
 )
 from orchestrator.session.snapshot_file import (
     SNAPSHOT_CLASSES,

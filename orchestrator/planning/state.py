@@ -112,9 +112,12 @@ class StepProgress(Protocol):
     every LLM call's latency, and the narrator's accepted event (its characters) as soon as it
     is known, so a session can plan the next event for the characters still free."""
 
-    def llm_call(self, node: str, latency_s: float) -> None: ...
+    def llm_call(self, node: str, latency_s: float) -> None:
+        """An LLM call of the step returned (or failed) after ``latency_s`` seconds."""
 
-    def claim(self, characters: Sequence[str], activity: str, part: str = "") -> None: ...
+    def claim(self, characters: Sequence[str], activity: str, part: str = "") -> None:
+        """The step's event is decided: these characters take part (before any program runs),
+        for instruction ``part`` (empty: none)."""
 
 
 class WorldProvider(Protocol):

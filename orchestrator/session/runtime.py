@@ -104,6 +104,7 @@ from agents.messages import (
     PlanningFailure,
 )
 from agents.story_text import event_text, narration
+from orchestrator.planning.state import StepProgress
 from orchestrator.session.frame_profile import FrameProfile
 from orchestrator.session.pace import Pace
 from sim.world.event_book import EventStatus
@@ -170,17 +171,6 @@ class RecordedRequest(BaseModel):
     frame: int = Field(ge=0, description="World frame the request was built at.")
     phase: RequestPhase
     after: tuple[int, ...] = Field(default=(), description="Steps in flight then; their characters were left out.")
-
-
-class StepProgress(Protocol):
-    """What a planner tells the session while a step runs (see ``orchestrator.planning.state``)."""
-
-    def llm_call(self, node: str, latency_s: float) -> None:
-        """An LLM call of the step returned (or failed) after ``latency_s`` seconds."""
-
-    def claim(self, characters: Sequence[str], activity: str, part: str = "") -> None:
-        """The step's event is decided: these characters take part (before any program runs),
-        for instruction ``part`` (empty: none)."""
 
 
 class StepPlanner(Protocol):
