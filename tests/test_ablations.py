@@ -10,14 +10,20 @@ import numpy as np
 import pytest
 
 from agents.ablations.descriptions import object_list_description, scene_graph_description
-from agents.ablations.direct import DirectPlans, blocked_positions, direct_program
-from agents.messages import CharacterStatus, ParsedEvent, PlanningFailure, SceneDescription
+from agents.ablations.direct import (
+    DirectPlans,
+    blocked_positions,
+    check_direct_reply,
+    direct_program,
+)
+from agents.messages import CharacterStatus, Event, ParsedEvent, PlanningFailure, SceneDescription
 from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.planning.kinds import PlannerKind
 from orchestrator.session.plan_job import StepOutcome, run_plan
 from orchestrator.session.roster import RosterWorld, initial_roster
 from sim.scene.bundled import resolve_scene
 from tests.support.scripted_llm import ScriptedLLM
+from tools.errors import BlockedPositionError, ToolArgumentError
 
 SCENE = resolve_scene("home")
 DESCRIPTION = SceneDescription(scene="home", text="- kitchen: coffee_maker_1, fridge_1")
@@ -159,3 +165,15 @@ def test_direct_points_near_other_characters_or_off_the_floor_are_blocked() -> N
     assert any("off the free floor" in p or "inside" in p for p in blocked_positions(SCENE, world, edge))
     far = DirectPlans.model_validate({"plans": [{"character": "Ben", "action": "idle", "x": bx, "y": by, "look_at": ""}]})
     assert blocked_positions(SCENE, world, far) == []  # Ben may stay where he is
+
+
+def test_a_blocked_direct_point_raises_the_spatial_apis_error_so_one_except_catches_both() -> None:
+    roster = initial_roster(SCENE, 2, seed=1)
+    world = RosterWorld().world_view(roster)
+    table = SCENE.get("table_1").center
+    reply = json.dumps({"plans": [{"character": "Ava", "action": "idle", "x": table[0], "y": table[1], "look_at": ""}]})
+    with pytest.raises(ToolArgumentError) as info:  # the spatial API's base class catches the ablation's error
+        check_direct_reply(reply, scene=SCENE, event=Event(characters=("Ava",), activity="stand"), world=world,
+                           seed=0, action_labels=("idle",))
+    assert type(info.value) is BlockedPositionError and info.value.kind == "blocked_position"
+    assert "inside table_1" in info.value.feedback

@@ -67,7 +67,8 @@ class ObjectInUseError(ToolError):
 
 class BlockedPositionError(ToolArgumentError):
     """An explicit [x, y] no character can stand on: inside or against furniture, at the edge
-    of the scene, or too close to another character."""
+    of the scene, or too close to another character. The spatial API raises it, and so does
+    the Direct Inference ablation for an answered coordinate (``agents.ablations.direct``)."""
 
     kind = "blocked_position"
 

@@ -6,7 +6,7 @@
   a wait);
 - :mod:`agents.ablations.direct` ("Direct Inference"): the event parser's request for
   coordinates instead of areas, and the check that turns them into an event program
-  (:class:`~agents.ablations.direct.BlockedPositionError` for a point nobody can stand on);
+  (:class:`~tools.errors.BlockedPositionError` for a point nobody can stand on);
 - :mod:`agents.ablations.descriptions` (Object List, Scene Graph): scene descriptions that
   replace the describer's text.
 

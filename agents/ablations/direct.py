@@ -5,8 +5,8 @@ The narrator picks the event as usual; the parser (node ``event_parser``) answer
 sandboxed program path (``set_position([x, y])``, :func:`direct_program`). A point on a seat's
 footprint means "sit on that seat" (the only way coordinates can ask for sitting); a point
 inside other furniture, off the free floor, or closer than ``MIN_SEPARATION`` to another
-character is rejected with :class:`BlockedPositionError` and fed back like any other typed
-error.
+character is rejected with :class:`tools.errors.BlockedPositionError` (the spatial API's own,
+so whoever catches one catches both) and fed back like any other typed error.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from agents.messages import CharacterStatus, Event
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.retry_feedback import Turn, retry_temperature, with_turns
 from sim.scene.model import Scene
-from tools.errors import ToolError
+from tools.errors import BlockedPositionError
 from tools.position_sampling import MIN_SEPARATION, FloorMap
 from tools.scene_text import object_list_text
 
@@ -59,13 +59,6 @@ def direct_schema(characters: Sequence[str], labels: Sequence[str], targets: Seq
             "plans.look_at": Refine(enum=list(targets)),
         },
     )
-
-
-class BlockedPositionError(ToolError):
-    """A direct coordinate that no character can stand on (inside furniture, off the floor,
-    or on top of another character)."""
-
-    kind = "blocked_position"
 
 
 def seat_at(scene: Scene, x: float, y: float) -> str | None:
