@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 
 from agents.action_shortlist import action_shortlist, posture
-from agents.shortlist import RELATIONS, event_shortlist, relation_areas
+from agents.relation_words import stated_relations, without_relations
+from agents.shortlist import RELATIONS, event_shortlist, mentioned_labels, relation_areas
 from sim.motion.action_labels import playable_seated
 from sim.scene.model import Scene, SceneObject
 from tools.areas import seat_slots
@@ -229,10 +230,23 @@ def event_options(
         seats=tuple(shortlist.seats) or tuple(free),
         free_seats=tuple(free),
         posture=posture(activity) or ("stand" if set(relations) & DIRECTIONAL else None)
-        or ("sit" if labels[0] in SEATED_ACTIVITIES else None),
+        or ("sit" if labels[0] in SEATED_ACTIVITIES or about_a_seat(scene, activity, labels[0]) else None),
         relations=relations,
         others=where,
     )
+
+
+def about_a_seat(scene: Scene, activity: str, label: str) -> bool:
+    """Whether the event's words are about a seat, with the places they relate it to taken out
+    ("of all the chairs, Ava takes the one farthest from the lamp, to read": the chairs), and its
+    best label can be played seated: the character then sits on it, though no word says "sit"."""
+    if not activity or not playable_seated(label):
+        return False
+    labels = sorted(scene.labels)
+    subject = without_relations(activity, stated_relations(activity, labels), labels)
+    named = mentioned_labels(subject, labels)
+    seat_labels = {o.label for o in scene.objects if o.is_seat}
+    return bool(named) and all(n in seat_labels for n in named)
 
 
 def event_program_grammar(

@@ -14,7 +14,13 @@ import pytest
 from agents.event_parser import ParserInput, parser_request, run_reply, scene_action_labels
 from agents.llm_port import ChatMessage, LLMRequest
 from agents.messages import CharacterStatus, Event
-from agents.program_grammar import event_program_grammar, open_program_grammar, program_grammar
+from agents.program_grammar import (
+    about_a_seat,
+    event_options,
+    event_program_grammar,
+    open_program_grammar,
+    program_grammar,
+)
 from agents.prompt_templates import PromptLibrary
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import default_config
@@ -245,6 +251,18 @@ def test_a_sitting_word_keeps_the_seat_even_with_a_where_word() -> None:
                               activity="sits on a chair in front of the tv and watches the news")
     rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
     assert "sitarea" in rules["block1"] and "standlabel" not in rules
+
+
+def test_words_about_a_seat_sit_on_it_though_no_word_says_sit() -> None:
+    """"takes the one" of the chairs, to read: the event is about a chair and reading can be done
+    seated, so the character sits; a chair that is only a landmark, or an action that cannot be
+    played seated, does not make anyone sit."""
+    about = event_options(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS,
+                          "Of all the chairs, Ava takes the one farthest from the floor lamp, to read a novel.")
+    assert about.posture == "sit" and about.must_sit
+    landmark = event_options(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, "Ava reads a novel by the chair.")
+    assert landmark.posture is None
+    assert not about_a_seat(SCENE, "Ava takes the chair to the coffee maker", "use_coffee_maker")
 
 
 def test_two_characters_sent_to_one_chair_sit_together_and_never_on_a_held_seat() -> None:
