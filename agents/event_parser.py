@@ -85,6 +85,9 @@ class ParserInput:
     seat: str | None = None
     """The seat chosen for the event before its program (``agents.place_choice``), named in the
     request; None: no seat was chosen."""
+    action: str | None = None
+    """The action chosen for the event before its program when its words name none
+    (``agents.action_choice``): the suggested label; None: the label ranker's suggestion."""
     max_tokens: int | None = None
     """None: 80 + 110 per event character (capped at DEFAULT_MAX_TOKENS), enough for the
     function; a small model otherwise goes on writing more examples."""
@@ -166,7 +169,7 @@ def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessa
         instruction_part="\n" + prompts.render_text("event_parser/instruction_part.md", part=inp.instruction_part.strip())
         if inp.instruction_part.strip() else "",
         chosen_seat="\n" + prompts.render_text("event_parser/chosen_seat.md", seat=inp.seat) if inp.seat else "",
-        likely_action=suggested_action(
+        likely_action=inp.action or suggested_action(
             event_text(inp.event.activity, inp.instruction_part), inp.action_labels,
             context=inp.event.activity if inp.instruction_part.strip() else "",
         ),

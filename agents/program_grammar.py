@@ -214,13 +214,15 @@ def free_seats(
 def event_options(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[Any],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
-    context: str = "",
+    context: str = "", action: str | None = None,
 ) -> EventOptions:
     """The labels, objects, seats, posture and area functions an event's grammar offers (the
     arguments are :func:`event_program_grammar`'s)."""
     others = [c for c in characters if c.name not in event_characters]
     free = free_seats(scene, event_characters, characters, seats_in_use)
     labels = list(action_shortlist(activity, action_labels, scene.labels, context)) or list(action_labels)
+    if action is not None and action in labels:  # the action chosen before the program comes first
+        labels = [action, *(a for a in labels if a != action)]
     relations = () if widen else relation_areas(activity)
     where = {c.name: (float(c.position[0]), float(c.position[1])) for c in others if c.position is not None}
     shortlist = event_shortlist(scene, activity, free, labels, others=where)
@@ -252,7 +254,7 @@ def about_a_seat(scene: Scene, activity: str, label: str) -> bool:
 def event_program_grammar(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[Any],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
-    context: str = "", seat: str | None = None,
+    context: str = "", seat: str | None = None, action: str | None = None,
 ) -> str:
     """:func:`program_grammar` for an event in ``scene``: the labels its words point to
     (:func:`agents.action_shortlist.action_shortlist` of ``activity``; every offered label
@@ -264,8 +266,11 @@ def event_program_grammar(
     place had no room): every area function over the shortlist, not only those the where-words
     name, so the model can pick another place by the same things. ``context``: other words
     about the event (the narrator's activity), which break ties between labels. ``seat``: the
-    seat already chosen for the event (:mod:`agents.place_choice`): the only seat offered."""
-    options = event_options(scene, event_characters, characters, seats_in_use, action_labels, activity, widen, context)
+    seat already chosen for the event (:mod:`agents.place_choice`): the only seat offered. ``action``:
+    the action chosen for it when its words name none (:mod:`agents.action_choice`): offered first."""
+    options = event_options(
+        scene, event_characters, characters, seats_in_use, action_labels, activity, widen, context, action,
+    )
     objects = list(options.objects)
     seat_names = {o.name for o in scene.objects if o.is_seat}  # sitting is get_area_to_sit_on's
     if seat is not None and seat not in objects:

@@ -54,6 +54,7 @@ from agents.messages import Event, ParsedEvent, SceneDescription
 from agents.program_grammar import open_program_grammar
 from agents.retry_feedback import REJECTIONS
 from orchestrator.planning import graph as planning_graph
+from orchestrator.planning.action_node import skip_action_choice
 from orchestrator.planning.graph import (
     NodeFn,
     PlanningGraph,
@@ -236,7 +237,7 @@ def build_graph(ablation: Ablation) -> PlanningGraph:
         return build_unified_graph(describe)
     if ablation.planner == "direct":
         return planning_graph.build_planning_graph(
-            describe, parse_event_as_coordinates, check_coordinates, choose=skip_seat_choice,
+            describe, parse_event_as_coordinates, check_coordinates, choose=skip_seat_choice, act=skip_action_choice,
         )
     return planning_graph.build_planning_graph(describe)
 

@@ -14,7 +14,7 @@ finished description is also cached on disk per scene, model and prompts.
               route_step --> narrate_event -> check_narration --+
                  ^   |  (no free character: wait)               |
                  |   v                                          v
-                 |   |                                     choose_seat
+                 |   |                            choose_action -> choose_seat
                  |   v                                          v
                  +- record_outcome <-- check_program <-- parse_event <+
                           (retries loop back through the routers)
@@ -22,6 +22,9 @@ finished description is also cached on disk per scene, model and prompts.
 ``choose_seat`` (:mod:`orchestrator.planning.seat_node`) decides the seat of a one-character
 sitting event among the seats the scene allows, checked against the relations the words state,
 with at most one call (scored continuations); other events pass through it without a call.
+Before it, ``choose_action`` (:mod:`orchestrator.planning.action_node`) lets the model rank the
+action labels of an event whose words name no action the label ranker knows (one call, scored
+continuations); its choice is the parser's suggestion and the first label its grammar offers.
 
 Off the event loop: running an event program (scene-graph queries, position sampling, or the
 wait on the program's worker process), building the parser's input (its grammar), the
@@ -85,6 +88,7 @@ from agents.messages import (
 from agents.narrator import NarratorInput, narrator_request, parse_narration, waits_without_a_call
 from agents.program_grammar import event_program_grammar
 from agents.retry_feedback import REJECTIONS
+from orchestrator.planning.action_node import choose_action
 from orchestrator.planning.rejection import record_parsed, rejected_reply
 from orchestrator.planning.seat_node import choose_seat
 from orchestrator.planning.state import PlanningDeps, PlanningState
@@ -92,8 +96,8 @@ from tools.character_states import WorldView
 from tools.errors import ObjectInUseError
 
 NODES = (
-    "describe_scene", "check_description", "narrate_event", "check_narration", "choose_seat", "parse_event",
-    "check_program", "record_outcome",
+    "describe_scene", "check_description", "narrate_event", "check_narration", "choose_action", "choose_seat",
+    "parse_event", "check_program", "record_outcome",
 )
 
 
@@ -292,12 +296,14 @@ def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
         sim_frame=state.sim_frame,
         instruction_part=part,
         seat=seat,
+        action=state.action,
         grammar=event_program_grammar(
             deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), deps.action_labels,
             activity=event_text(state.event.activity, part),
             widen=widen,
             context=state.event.activity if part else "",
             seat=seat,
+            action=state.action,
         ) if deps.program_grammar else None,
     )
 
@@ -428,6 +434,7 @@ async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -
         "parser_seq": None,
         "parser_turns": (),
         "seat": None,
+        "action": None,
         "parsed": None,
         "failure": None,
     }
@@ -458,14 +465,14 @@ def route_step(state: PlanningState) -> Literal["narrate_event", "record_outcome
     return "narrate_event"
 
 
-def route_narration(state: PlanningState) -> Literal["narrate_event", "choose_seat", "record_outcome"]:
+def route_narration(state: PlanningState) -> Literal["narrate_event", "choose_action", "record_outcome"]:
     if state.failure is not None:
         return "record_outcome"
     if state.event is None:
         return "narrate_event"  # rejected: retry with the feedback
     if state.event.is_wait:
         return "record_outcome"
-    return "choose_seat"
+    return "choose_action"
 
 
 def route_program(state: PlanningState) -> Literal["parse_event", "record_outcome"]:
@@ -485,18 +492,20 @@ PlanningGraph = StateGraph[PlanningState, PlanningDeps, PlanningState, PlanningS
 
 def build_planning_graph(
     describe: NodeFn = describe_scene, parse: NodeFn = parse_event, check: NodeFn = check_program,
-    choose: NodeFn = choose_seat,
+    choose: NodeFn = choose_seat, act: NodeFn = choose_action,
 ) -> PlanningGraph:
     """The uncompiled graph; compile with a checkpointer (see :func:`compile_planning_graph`).
 
     The ablations swap nodes, never the wiring: ``describe`` (a preset description),
     ``parse`` / ``check`` (the event parser's call and its check, e.g. coordinates), ``choose``
-    (the seat choice; a pass-through for a parser that writes no program)."""
+    (the seat choice; a pass-through for a parser that writes no program), ``act`` (the action
+    choice of an event whose words name none; a pass-through likewise)."""
     graph = StateGraph(PlanningState, context_schema=PlanningDeps)
     graph.add_node("describe_scene", describe)
     graph.add_node("check_description", check_description)
     graph.add_node("narrate_event", narrate_event)
     graph.add_node("check_narration", check_narration)
+    graph.add_node("choose_action", act)
     graph.add_node("choose_seat", choose)
     graph.add_node("parse_event", parse)
     graph.add_node("check_program", check)
@@ -506,6 +515,7 @@ def build_planning_graph(
     graph.add_conditional_edges("check_description", route_checked_description)
     graph.add_edge("narrate_event", "check_narration")
     graph.add_conditional_edges("check_narration", route_narration)
+    graph.add_edge("choose_action", "choose_seat")
     graph.add_edge("choose_seat", "parse_event")
     graph.add_edge("parse_event", "check_program")
     graph.add_conditional_edges("check_program", route_program)
@@ -519,5 +529,6 @@ def compile_planning_graph(checkpointer: Any = None, **kwargs: Any) -> Any:
 
 def recursion_limit(events: int, max_retries: int) -> int:
     """Enough super-steps for K events with every retry used: per step 2 nodes per attempt
-    of each LLM role plus the seat choice and the record node, plus 2 nodes per describer attempt."""
-    return 2 * (max_retries + 1) + 4 + events * (4 * (max_retries + 1) + 3)
+    of each LLM role plus the action and seat choices and the record node, plus 2 nodes per
+    describer attempt."""
+    return 2 * (max_retries + 1) + 4 + events * (4 * (max_retries + 1) + 4)

@@ -48,7 +48,7 @@ def event_seats(state: PlanningState, deps: PlanningDeps) -> SeatCandidates | No
     seats_in_use = deps.world.seats_in_use(state.roster)
     options = event_options(
         deps.scene, event.characters, state.roster, seats_in_use, deps.action_labels, activity=text,
-        context=event.activity if state.part else "",
+        context=event.activity if state.part else "", action=state.action,
     )
     if not options.must_sit or not options.free_seats:
         return None

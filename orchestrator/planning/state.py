@@ -98,6 +98,10 @@ class PlanningState(BaseModel):
         default=None, description="The seat chosen for the step's event before its program "
         "(``orchestrator.planning.seat_node``); None: the event got no seat choice.",
     )
+    action: str | None = Field(
+        default=None, description="The action chosen for the step's event before its program when its words name "
+        "none (``orchestrator.planning.action_node``); None: the label ranker's suggestion stands.",
+    )
     parsed: ParsedEvent | None = None
     failure: PlanningFailure | None = None
     llm_calls: int = Field(default=0, description="LLM calls made by this thread (for tests and reports).")
