@@ -82,7 +82,7 @@ class InstructionPart:
     text: str
     names: tuple[str, ...]  # characters the part mentions, in the order given
     actors: tuple[str, ...]  # who acts: the first run of names ("Ava and Ben"), not the ones
-    # the part only refers to ("Michael joins the table of his friend, Sara")
+    # the part only refers to ("Ava joins the table of her friend, Ben")
     stems: frozenset[str]  # content-word stems, for matching events
 
 
