@@ -38,6 +38,7 @@ from agents.prompt_templates import BENCHMARK_TAGS
 from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
 from sim.scene.bundled import bundled_scene_names
 from sim.scene.model import Scene
+from sim.validation_text import user_error
 from tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
 
 TAGS: tuple[str, ...] = ("OA", "RC", "SS", "PI")
@@ -138,9 +139,7 @@ def load_case(path: str | Path) -> BenchmarkCase:
     try:
         return BenchmarkCase.model_validate({**raw, "source": str(path), "raw": raw})
     except ValidationError as exc:
-        err = exc.errors()[0]
-        field = ".".join(str(p) for p in err["loc"])
-        raise BenchmarkCaseError(f"{path}: field '{field}': {err['msg']}") from None
+        raise BenchmarkCaseError(user_error(path, exc)) from None
 
 
 def case_files(reference: str | Path) -> list[Path]:

@@ -109,7 +109,7 @@ def test_a_story_json_with_a_field_of_the_wrong_type_is_refused(run_dir: Path) -
     assert load_run(run_dir).events  # the untouched folder reads
     data["characters"] = [{"name": "Zoe"}]
     path.write_text(json.dumps(data), encoding="utf-8")
-    with pytest.raises(RunFolderError, match=r"story.json: field 'characters' \(0\): Input should be a valid string"):
+    with pytest.raises(RunFolderError, match=r"story.json: field 'characters.0': Input should be a valid string"):
         load_run(run_dir)
 
 

@@ -77,7 +77,7 @@ def test_an_old_run_folder_falls_back_to_the_bundled_scene_or_to_no_objects(tmp_
     [
         (lambda f: (f / "story.json").unlink(), "story.json: not found"),
         (lambda f: (f / "story.json").write_text("{", encoding="utf-8"), "story.json: not readable as JSON"),
-        (lambda f: (f / "story.json").write_text('{"events": [{"index": 0}]}', encoding="utf-8"), "field 'events'"),
+        (lambda f: (f / "story.json").write_text('{"events": [{"index": 0}]}', encoding="utf-8"), "story.json: field 'events.0.event_id': required field is missing"),
         (lambda f: (f / "Ava.track.npz").write_bytes(b"junk"), "Ava.track.npz"),
     ],
 )

@@ -43,6 +43,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from benchmark.reference_cases import BenchmarkCase, planning_inputs
 from sim.scene.model import Scene
+from sim.validation_text import user_error
 from tools.character_states import WorldView
 from tools.scene_graph import SceneGraph, footprint_distance
 
@@ -101,9 +102,7 @@ def derivation_of(case: BenchmarkCase) -> Derivation:
     try:
         return Derivation.model_validate(raw)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"])
-        raise DerivationError(f"{case.source}: field 'derivation.{where}': {err['msg']}") from None
+        raise DerivationError(user_error(case.source, exc, prefix="derivation")) from None
 
 
 def _names(value: Any, key: str) -> tuple[str, ...]:

@@ -31,6 +31,7 @@ from benchmark.plan_scoring import ActionExpressionError, action_matches
 from benchmark.position_check import PositionExpressionError, check_position
 from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.scene.model import Scene
+from sim.validation_text import user_error
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 MAX_SCENARIO_BYTES = 1024 * 1024
@@ -155,9 +156,7 @@ def load_scenario(path: Path) -> Scenario:
     except RecursionError:  # tomllib is recursive: arrays or tables nested hundreds deep
         raise ScenarioError(f"{path}: cannot read (TOML nested too deeply)") from None
     except ValidationError as exc:
-        first = exc.errors()[0]
-        where = ".".join(str(p) for p in first["loc"])
-        raise ScenarioError(f"{path}: {where}: {first['msg']}") from None
+        raise ScenarioError(user_error(path, exc)) from None
     except ValueError as exc:
         raise ScenarioError(f"{path}: {exc}") from None
     return scenario

@@ -60,6 +60,7 @@ def load_states(path: Path, scene: Any) -> tuple[WorldView, list[str] | None]:
     ``planning_history``, ``action_labels``) or a project ``WorldView`` JSON (``characters``)."""
     from pydantic import ValidationError
 
+    from sim.validation_text import user_error
     from tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
 
     data = _read_json(path, "states")
@@ -80,9 +81,7 @@ def load_states(path: Path, scene: Any) -> tuple[WorldView, list[str] | None]:
     except ReferenceCaseError as exc:
         raise _UsageError(f"{path}: {exc}") from None
     except ValidationError as exc:
-        err = exc.errors()[0]
-        field = ".".join(str(p) for p in err["loc"])
-        raise _UsageError(f"{path}: field '{field}': {err['msg']}") from None
+        raise _UsageError(user_error(path, exc)) from None
     raise _UsageError(
         f"{path}: expected a reference test case ('current_states') or a world view ('characters')"
     )

@@ -56,6 +56,7 @@ from typing import Any, Literal, get_args
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from agents.llm_port import NodeName
+from sim.validation_text import problem_field, problem_message
 
 DEFAULT_MODEL = "local/qwen2.5-coder-0.5b"
 NODE_NAMES: tuple[NodeName, ...] = get_args(NodeName)
@@ -179,12 +180,7 @@ def _find_secret(data: Any, prefix: str) -> str | None:
 
 def _first_error(exc: ValidationError, prefix: str) -> tuple[str, str]:
     err = exc.errors()[0]
-    loc = ".".join(str(p) for p in err["loc"])
-    field = f"{prefix}.{loc}" if prefix and loc else (prefix or loc)
-    msg = err["msg"]
-    if err["type"] == "extra_forbidden":
-        msg = "unknown key"
-    return field, msg
+    return problem_field(err, prefix), problem_message(err)
 
 
 def _build_node(base: Mapping[str, Any], override: Mapping[str, Any], source: str, prefix: str) -> NodeConfig:

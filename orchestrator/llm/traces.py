@@ -66,6 +66,7 @@ from orchestrator.llm.config import FsyncPolicy
 from orchestrator.llm.retry_policy import ErrorClass
 from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.no_follow_writes import open_append
+from sim.validation_text import problem_field, problem_message
 
 _log = structlog.get_logger("storyteller.traces")
 
@@ -232,8 +233,8 @@ def _parse_line(path: Path, line_no: int, raw: bytes) -> TraceRecord:
         return _RECORD_ADAPTER.validate_json(raw)
     except ValidationError as exc:
         err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err["loc"])
-        raise TraceCorruptError(path, line_no, f"{loc}: {err['msg']}" if loc else err["msg"]) from None
+        loc, message = problem_field(err), problem_message(err)
+        raise TraceCorruptError(path, line_no, f"{loc}: {message}" if loc else message) from None
 
 
 def read_trace(path: Path | str) -> TraceContents:

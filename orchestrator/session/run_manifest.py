@@ -21,6 +21,7 @@ from orchestrator.session.pace import Pace
 from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
 from sim.no_follow_writes import write_file
 from sim.run_folder_names import RUN_JSON
+from sim.validation_text import user_error
 
 MANIFEST_FILE = RUN_JSON
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]{0,31}$")
@@ -122,9 +123,7 @@ def parse_manifest(data: bytes, where: str) -> RunManifest:
     try:
         return RunManifest.model_validate(raw)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        field = ".".join(str(p) for p in err["loc"]) or "(file)"
-        raise ManifestError(f"{where}: field {field}: {err['msg']}") from None
+        raise ManifestError(user_error(where, exc)) from None
 
 
 def manifest_bytes(manifest: RunManifest, path: Path) -> bytes:

@@ -60,6 +60,7 @@ from pydantic import BaseModel, ValidationError
 
 from orchestrator.session.runtime import SessionCheckpoint
 from sim.bounded_files import BoundedFileError, read_bounded_bytes
+from sim.validation_text import problem_field, problem_message
 from sim.world.step import World
 from sim.world.track_chunks import ChunkStore
 
@@ -478,8 +479,8 @@ def _children(obj: Any, listed: frozenset[type]) -> list[Any]:
             model.model_validate(state)
         except ValidationError as exc:
             err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"])
-            raise SnapshotError(f"a {kind.__name__} whose field {where} is invalid ({err['msg']})") from None
+            where, message = problem_field(err), problem_message(err)
+            raise SnapshotError(f"a {kind.__name__} whose field {where} is invalid ({message})") from None
         return list(state.values())
     if dataclasses.is_dataclass(obj) and set(state) != {f.name for f in dataclasses.fields(obj)}:
         raise SnapshotError(f"a {kind.__name__} with other fields than its own")

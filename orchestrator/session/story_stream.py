@@ -32,6 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.no_follow_writes import open_append
 from sim.run_folder_names import STORY_STREAM
+from sim.validation_text import user_error
 
 STREAM_FILE = STORY_STREAM
 
@@ -143,9 +144,7 @@ def read_story_stream(path: Path) -> tuple[StreamStart | None, tuple[StoryEventR
         try:
             line = _LINE.validate_json(raw)
         except ValidationError as exc:
-            err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"]) or "(line)"
-            raise StoryStreamError(f"{path}: line {number}: {where}: {err['msg']}") from None
+            raise StoryStreamError(user_error(f"{path}: line {number}", exc)) from None
         if isinstance(line, StreamStart):
             start, events = line, {}
         elif start is not None:

@@ -39,6 +39,7 @@ from orchestrator.session.story_stream import (
 )
 from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
 from sim.scene.model import Scene
+from sim.validation_text import user_error
 from sim.world.character_track import CharacterTrack, CharacterTrackError
 from sim.world.track_chunks import (
     CHUNK_SUFFIX,
@@ -201,10 +202,7 @@ def read_story_file(path: Path) -> StoryFile:
     try:
         return StoryFile.model_validate(raw)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        top, *rest = [str(p) for p in err["loc"]] or ["(file)"]
-        where = f"field '{top}' ({'.'.join(rest)})" if rest else f"field '{top}'"
-        raise RunFolderError(f"{path}: {where}: {err['msg']}") from None
+        raise RunFolderError(user_error(path, exc)) from None
 
 
 def _with_texts(

@@ -42,6 +42,7 @@ from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.features import FeatureConfig
 from sim.motion.sources.amass_import import import_amass
 from sim.motion.sources.bvh_import import import_bvh
+from sim.validation_text import problem_field, problem_message
 
 IMPORTER_VERSION = "mocap-import-1"
 MAX_MOTION_CONFIG_BYTES = 1024 * 1024
@@ -120,8 +121,7 @@ def load_motion_config(path: str | Path) -> MotionConfig:
         return MotionConfig.model_validate({**raw, "base_dir": str(path.resolve().parent)})
     except ValidationError as exc:
         err = exc.errors()[0]
-        field = ".".join(str(p) for p in err["loc"])
-        raise MotionConfigError(path, err["msg"], field) from None
+        raise MotionConfigError(path, problem_message(err), problem_field(err)) from None
     except UnknownActionLabelError as exc:  # pragma: no cover - pydantic wraps validator errors
         raise MotionConfigError(path, str(exc), "clips.label") from None
 

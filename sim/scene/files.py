@@ -28,6 +28,7 @@ from sim.bounded_files import BoundedFileError, json_depth_exceeds, read_bounded
 from sim.scene.errors import SceneFileError as SceneFileError  # re-exported: callers catch it here
 from sim.scene.meshes import load_mesh_scene
 from sim.scene.model import MAX_SCENE_OBJECTS, NavHints, Scene, SceneObject
+from sim.validation_text import problem_field, problem_message
 
 MESH_SUFFIXES = {".glb", ".gltf", ".obj", ".ply"}
 MAX_SCENE_FILE_BYTES = 16 * 1024 * 1024
@@ -173,12 +174,6 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
-_PYDANTIC_MESSAGES = {
-    "extra_forbidden": "unknown key",
-    "missing": "required field is missing",
-}
-
-
 def _validation_error(
     path: Path, exc: ValidationError, objects: list[Any] | None
 ) -> SceneFileError:
@@ -195,9 +190,8 @@ def _validation_error(
         if not field_parts and err["type"] == "value_error":
             field_parts = ["name"]  # the only object-level rule: name == '<label>_<idx>'
     field = ".".join(field_parts) or None
-    msg = _PYDANTIC_MESSAGES.get(err["type"], err["msg"])
-    msg = msg.removeprefix("Value error, ")
-    if err["type"] not in _PYDANTIC_MESSAGES and err["type"] != "value_error":
+    msg = problem_message(err)
+    if err["type"] not in ("extra_forbidden", "missing", "value_error"):
         msg += f", got {_short_repr(err['input'])}"
     if err["type"] == "missing" and field_parts and field_parts[-1].isdigit():
         msg = "too few numbers in the list"
@@ -358,9 +352,8 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
         )
     except ValidationError as exc:
         err = exc.errors()[0]
-        field = ".".join(str(p) for p in err["loc"]) or None
         raise SceneFileError(
-            path, err["msg"].removeprefix("Value error, "), obj=name, field=field
+            path, problem_message(err), obj=name, field=problem_field(err) or None
         ) from None
 
 

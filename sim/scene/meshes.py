@@ -42,6 +42,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from sim.scene.errors import SceneFileError
 from sim.scene.model import MAX_SCENE_OBJECTS, Scene, SceneObject
+from sim.validation_text import problem_field, problem_message
 
 MAX_MESH_FILE_BYTES = 64 * 1024 * 1024
 """Bytes of a mesh scene file (trimesh holds several times the file in memory)."""
@@ -257,7 +258,7 @@ def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = Non
             objects=tuple(objects),
         )
     except ValidationError as exc:
-        raise SceneFileError(path, exc.errors()[0]["msg"].removeprefix("Value error, ")) from None
+        raise SceneFileError(path, problem_message(exc.errors()[0])) from None
 
 
 def _assign_names(
@@ -325,9 +326,8 @@ def _make_object(
         )
     except ValidationError as exc:
         err = exc.errors()[0]
-        field = ".".join(str(p) for p in err["loc"]) or None
         raise SceneFileError(
-            path, err["msg"].removeprefix("Value error, "), obj=name, field=field
+            path, problem_message(err), obj=name, field=problem_field(err) or None
         ) from None
 
 
