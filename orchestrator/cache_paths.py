@@ -1,9 +1,13 @@
 """Where the application keeps its on-disk caches, read from the environment at the edge.
 
-``$STORYTELLER_CACHE_DIR`` if set, else ``~/.cache/storyteller``; motion arrays live in its
-``motion`` folder. ``sim`` never reads the environment or the home folder: the CLI and the
-benchmarks pass ``motion_cache_dir()`` into ``sim.motion.database.load_databases`` and
-``sim.motion.config.build_databases_from_config``.
+:func:`cache_root` is the one place the cache folder is computed: ``$STORYTELLER_CACHE_DIR``
+if set (``~`` expanded), else ``~/.cache/storyteller``. In it: motion arrays in ``motion``
+(:func:`motion_cache_dir`), the assembled embedded-model weights in ``models``
+(``orchestrator.llm.model_weights.cache_dir``), the default runs database ``runs.sqlite``
+(``orchestrator.planning.checkpoints.default_runs_db``) and the describer's cached scene
+descriptions beside it in ``descriptions``. ``sim`` never reads the environment or the home
+folder: the CLI and the benchmarks pass ``motion_cache_dir()`` into
+``sim.motion.database.load_databases`` and ``sim.motion.config.build_databases_from_config``.
 """
 
 from __future__ import annotations
@@ -15,9 +19,10 @@ CACHE_ENV = "STORYTELLER_CACHE_DIR"
 
 
 def cache_root() -> Path:
-    """The cache folder (not created): ``$STORYTELLER_CACHE_DIR``, else ``~/.cache/storyteller``."""
+    """The cache folder (not created): ``$STORYTELLER_CACHE_DIR`` (``~`` expanded), else
+    ``~/.cache/storyteller``."""
     root = os.environ.get(CACHE_ENV)
-    return Path(root) if root else Path.home() / ".cache" / "storyteller"
+    return Path(root).expanduser() if root else Path.home() / ".cache" / "storyteller"
 
 
 def motion_cache_dir() -> Path:

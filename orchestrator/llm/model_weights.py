@@ -28,6 +28,7 @@ from importlib.metadata import Distribution
 from pathlib import Path
 
 from agents.llm_port import LLMUnavailableError
+from orchestrator.cache_paths import cache_root
 
 _CHUNK_BYTES = 8 * 1024 * 1024
 _hashed_lock = threading.Lock()
@@ -87,10 +88,9 @@ class WeightsIntegrityError(LLMUnavailableError):
 
 
 def cache_dir() -> Path:
-    """Directory holding assembled model files."""
-    root = os.environ.get("STORYTELLER_CACHE_DIR")
-    base = Path(root).expanduser() if root else Path.home() / ".cache" / "storyteller"
-    return base / "models"
+    """Directory holding assembled model files: ``models`` in the cache folder
+    (:func:`orchestrator.cache_paths.cache_root`)."""
+    return cache_root() / "models"
 
 
 def spec_for(model: str) -> WeightsSpec:

@@ -25,7 +25,6 @@ index is only in step with the file while this object is the thread's one writer
 from __future__ import annotations
 
 import json
-import os
 import sqlite3
 import threading
 from collections.abc import AsyncIterator, Sequence
@@ -36,6 +35,7 @@ from langgraph.checkpoint.serde.jsonplus import JsonPlusSerializer
 from langgraph.checkpoint.sqlite.aio import AsyncSqliteSaver
 
 from agents.messages import ParsedEvent, PlanningFailure
+from orchestrator.cache_paths import cache_root
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS story_events (
@@ -55,9 +55,8 @@ CREATE TABLE IF NOT EXISTS story_trace_refs (
 
 
 def default_runs_db() -> Path:
-    root = os.environ.get("STORYTELLER_CACHE_DIR")
-    base = Path(root) if root else Path.home() / ".cache" / "storyteller"
-    return base / "runs.sqlite"
+    """``runs.sqlite`` in the cache folder (:func:`orchestrator.cache_paths.cache_root`)."""
+    return cache_root() / "runs.sqlite"
 
 
 Outcome = ParsedEvent | PlanningFailure | None
