@@ -51,7 +51,9 @@ class ExplodingPort:
 def exploding(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
     seen: dict[str, Any] = {"story_closed": 0}
 
-    def open_port(config: Path | None, record: Path | None, replay: Path | None) -> tuple[ExplodingPort, str]:
+    def open_port(
+        config: Path | None, record: Path | None, replay: Path | None, *, unanswered: str = "miss"
+    ) -> tuple[ExplodingPort, str]:
         assert record is not None
         seen["port"] = ExplodingPort(record, explode_at=4)
         return seen["port"], "scripted"

@@ -8,8 +8,17 @@ recorded request of that node. It never falls through to a live call. Failed att
 call that then succeeded are not replayed (only the answer returned matters to the run); a call
 whose every attempt failed (the caller got an :class:`~agents.llm_port.LLMError`: a context
 window exceeded, a provider out of retries) is replayed as that error, with the same type and
-message, so a run that failed a step replays to the same failure. A call cut short by
-cancellation (a killed run) is not replayed: the resumed run asked again.
+message, so a run that failed a step replays to the same failure.
+
+A call cut short by cancellation never got an answer. When the same request was asked again
+later (a stopped run, resumed) the later answer is served. When it was not (the call was still
+in flight when the recorded story ended, or the run was stopped for good), the request is
+*unanswered*: with ``unanswered="wait"`` (a story session, whose end cancels the steps still in
+flight) the replay asks it at the same simulation frame and it waits, as the recorded call did,
+until the session ends and cancels it, so the step stays in flight to the end and the replay
+ends with the recorded story (its own trace gets the cut attempts again, so it replays the
+same); with ``"miss"`` (the default) and for a request at another frame it is a
+:class:`ReplayMissError` saying the recorded call was never answered.
 """
 
 from __future__ import annotations
@@ -19,6 +28,9 @@ import json
 import time
 from collections import defaultdict, deque
 from pathlib import Path
+from typing import Literal
+
+import anyio
 
 from agents.llm_port import (
     LLMError,
@@ -72,14 +84,25 @@ class ReplayClient:
     With ``trace_sink`` set, every served answer is also written there as an attempt record
     (so a replayed run produces a trace of its own)."""
 
-    def __init__(self, trace_path: Path | str, *, trace_sink: TraceSink | None = None) -> None:
+    def __init__(
+        self,
+        trace_path: Path | str,
+        *,
+        trace_sink: TraceSink | None = None,
+        unanswered: Literal["miss", "wait"] = "miss",
+    ) -> None:
         self.path = Path(trace_path)
         self.trace: TraceSink = trace_sink if trace_sink is not None else NullTraceSink()
+        self.unanswered: Literal["miss", "wait"] = unanswered
+        """What a request whose recorded call was cut short, never answered, gets (module doc)."""
         contents = read_trace(self.path)
         self._queues: dict[tuple[str, str], deque[AttemptRecord | tuple[AttemptRecord, ...]]] = defaultdict(deque)
+        # cut short and not asked again after: (node, hash) -> the attempts of each such call
+        self._cut: dict[tuple[str, str], deque[tuple[AttemptRecord, ...]]] = defaultdict(deque)
         self._recorded_counts: dict[tuple[str, str], int] = defaultdict(int)
         self._by_node: dict[NodeName, list[AttemptRecord]] = defaultdict(list)
         calls: dict[int, list[AttemptRecord]] = defaultdict(list)
+        seen: set[tuple[str, str]] = set()
         for line_no, rec in enumerate(contents.records, start=1):
             if not isinstance(rec, AttemptRecord):
                 continue
@@ -89,26 +112,48 @@ class ReplayClient:
         for call in sorted(calls):
             attempts = calls[call]
             last = attempts[-1]
-            outcome: AttemptRecord | tuple[AttemptRecord, ...]
+            outcome: AttemptRecord | tuple[AttemptRecord, ...] | None
             if last.final and last.ok and last.response_text is not None:
                 outcome = last
             elif all(a.error_class is not None and not a.final for a in attempts):
                 outcome = tuple(attempts)  # every attempt failed with an error the caller got
-            else:
-                continue  # cut short by cancellation
+            else:  # cut short by cancellation: unanswered unless asked again later
+                outcome = None
             key = (last.node, last.request_hash)
+            if key not in seen:  # a miss is diffed against the closest of these
+                seen.add(key)
+                self._by_node[last.node].append(last)
+            if outcome is None:
+                self._cut[key].append(tuple(attempts))
+                continue
+            self._cut.pop(key, None)  # asked again after a stop (a resumed run): this answer counts
             self._queues[key].append(outcome)
             self._recorded_counts[key] += 1
-            if self._recorded_counts[key] == 1:
-                self._by_node[last.node].append(last)
 
     def remaining(self) -> int:
         """Recorded answers not served yet."""
         return sum(len(q) for q in self._queues.values())
 
+    def unanswered_calls(self) -> int:
+        """Recorded calls cut short and never answered, not asked for yet."""
+        return sum(len(q) for q in self._cut.values())
+
     def _miss(self, request: LLMRequest, request_hash: str) -> ReplayMissError:
         key = (request.node, request_hash)
         where = f"trace {self.path}"
+        cut = self._cut.get(key)
+        if cut:
+            first = cut[0][-1]
+            why = (
+                f"it was asked at frame {first.request.sim_frame}, this request at frame {request.sim_frame}"
+                if self.unanswered == "wait"
+                else "a replay without a story session does not wait for it"
+            )
+            return ReplayMissError(
+                f"replay miss for node {request.node}: the recorded call of this request (hash "
+                f"{request_hash[:12]}, seq {first.call} in {where}) was cut short and never answered; {why}",
+                node=request.node,
+            )
         if self._recorded_counts.get(key):
             n = self._recorded_counts[key]
             return ReplayMissError(
@@ -139,6 +184,9 @@ class ReplayClient:
         request_hash = request.content_hash()
         queue = self._queues.get((request.node, request_hash))
         if not queue:
+            cut = self._cut.get((request.node, request_hash))
+            if self.unanswered == "wait" and cut and cut[0][-1].request.sim_frame == request.sim_frame:
+                await self._never_answered(request, cut.popleft())
             raise self._miss(request, request_hash)
         outcome = queue.popleft()
         if isinstance(outcome, tuple):
@@ -158,6 +206,20 @@ class ReplayClient:
             text=rec.response_text, model=rec.model, usage=rec.usage or TokenUsage(),
             latency_s=rec.latency_s, attempts=rec.attempt, trace_seq=seq,
         )
+
+    async def _never_answered(self, request: LLMRequest, attempts: tuple[AttemptRecord, ...]) -> None:
+        """Wait as the recorded call did, until cancelled (the session's end); the cut attempts
+        go to this run's trace then, as the live client writes them, so this run replays alike."""
+        try:
+            await anyio.sleep_forever()
+        finally:
+            if not isinstance(self.trace, NullTraceSink):
+                seqs = [self.trace.next_seq() for _ in attempts]
+                for a, seq in zip(attempts, seqs, strict=True):
+                    self.trace.write(a.model_copy(update={
+                        "run_id": self.trace.run_id, "seq": seq, "call": seqs[0], "time_unix": time.time(),
+                        "request": request, "params": {**a.params, "replayed_from_seq": a.seq},
+                    }))
 
     async def _failed_call(self, request: LLMRequest, attempts: tuple[AttemptRecord, ...]) -> LLMError:
         """The error the recorded call raised, rebuilt from its attempts as the live client
@@ -193,8 +255,10 @@ def build_llm_port(
     replay: Path | None = None,
     *,
     run_id: str | None = None,
+    unanswered: Literal["miss", "wait"] = "miss",
 ) -> LLMPort:
-    """The run's LLM port: live (optionally recording to ``record``) or replaying ``replay``.
+    """The run's LLM port: live (optionally recording to ``record``) or replaying ``replay``
+    (``unanswered``: what a recorded call cut short and never answered gets, see the module doc).
 
     Its ``trace`` (where callers record parsed outputs and applied frames) and ``close()`` are
     part of :class:`agents.llm_port.LLMPort`. Raises :class:`ConfigError` when both paths name the same file."""
@@ -202,7 +266,7 @@ def build_llm_port(
         if record is not None and Path(record).resolve() == Path(replay).resolve():
             raise ConfigError("command line", "--record", "must name a different file than --replay")
         sink = TraceWriter(record, run_id=run_id, fsync=config.trace.fsync, meta={"mode": "replay", "replay": str(replay)}) if record else None
-        return ReplayClient(replay, trace_sink=sink)
+        return ReplayClient(replay, trace_sink=sink, unanswered=unanswered)
     from orchestrator.llm.client import LiteLLMClient
 
     live_sink: TraceSink = (

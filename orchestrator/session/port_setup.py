@@ -18,10 +18,13 @@ def describer_mode_for(model: str) -> Literal["objects", "regions"]:
     return "regions" if model.startswith("local/") else "objects"
 
 
-def open_port(config_path: Path | None, record: Path | None, replay: Path | None) -> tuple[LLMPort, str]:
-    """The LLM port from the run config (embedded model by default) and the describer's model."""
+def open_port(
+    config_path: Path | None, record: Path | None, replay: Path | None, *, unanswered: Literal["miss", "wait"] = "miss"
+) -> tuple[LLMPort, str]:
+    """The LLM port from the run config (embedded model by default) and the describer's model
+    (``unanswered``: see :class:`orchestrator.llm.replay.ReplayClient`; ``"wait"`` for a story session)."""
     from orchestrator.llm.config import load_config
     from orchestrator.llm.replay import build_llm_port
 
     config = load_config(config_path)
-    return build_llm_port(config, record=record, replay=replay), config.node("describer").model
+    return build_llm_port(config, record=record, replay=replay, unanswered=unanswered), config.node("describer").model

@@ -42,7 +42,10 @@ applies the recorded ones again (not traced twice) and the script lines not yet 
 
 Overlapping planning (``RunArguments.planners`` > 1): the trace gets a ``requested`` record per
 step, and a replay makes every request where the recorded run did
-(``SessionSettings.schedule``). Any error other than the user's inputs or the LLM's (a bug, a
+(``SessionSettings.schedule``); a step the recorded run still had in flight when its story
+ended is asked again and its unanswered call waits to the end as it did (the replay port's
+``unanswered="wait"``, ``orchestrator.llm.replay``), so the replay ends with the recorded story
+and exit 0. Any error other than the user's inputs or the LLM's (a bug, a
 failing disk) cancels the session's task group and is raised from :func:`run_story` after the
 trace, the story log and the program worker are closed.
 
@@ -415,7 +418,8 @@ async def _run_story(
     except (TraceCorruptError, OSError) as exc:
         raise RunSetupError(str(exc)) from None
     try:
-        port, describer_model = open_port(config, trace_path, replay)
+        # a call the recorded story's end cut short waits again, to the end: that step stays in flight
+        port, describer_model = open_port(config, trace_path, replay, unanswered="wait")
     except (LLMError, ValueError, OSError, TraceCorruptError) as exc:  # a replayed trace that does not check
         raise RunSetupError(str(exc)) from None
     if status is None:  # the run's state for a viewer (live.json) is read from it too
