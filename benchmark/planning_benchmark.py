@@ -215,9 +215,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 async def _main(args: argparse.Namespace) -> int:
+    from orchestrator.cache_paths import description_cache_dir
     from orchestrator.llm.config import load_config
     from orchestrator.llm.replay import build_llm_port
-    from orchestrator.planning.checkpoints import default_runs_db
 
     if args.runs < 1:
         raise BenchmarkCaseError("--runs must be at least 1")
@@ -227,7 +227,7 @@ async def _main(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     port = build_llm_port(config, record=args.record, replay=args.replay)
     # a cached description would make a recorded run depend on this machine's cache
-    cache = None if (args.record or args.replay) else default_runs_db().parent / "descriptions"
+    cache = None if (args.record or args.replay) else description_cache_dir()
     descriptions = Descriptions(args.description, args.reference)
     started = time.perf_counter()
 

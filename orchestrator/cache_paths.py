@@ -5,7 +5,7 @@ if set (``~`` expanded), else ``~/.cache/storyteller``. In it: motion arrays in 
 (:func:`motion_cache_dir`), the assembled embedded-model weights in ``models``
 (``orchestrator.llm.model_weights.cache_dir``), the default runs database ``runs.sqlite``
 (``orchestrator.planning.checkpoints.default_runs_db``) and the describer's cached scene
-descriptions beside it in ``descriptions``. ``sim`` never reads the environment or the home
+descriptions in ``descriptions`` (:func:`description_cache_dir`). ``sim`` never reads the environment or the home
 folder: the CLI and the benchmarks pass ``motion_cache_dir()`` into
 ``sim.motion.database.load_databases`` and ``sim.motion.config.build_databases_from_config``.
 """
@@ -28,3 +28,8 @@ def cache_root() -> Path:
 def motion_cache_dir() -> Path:
     """The motion array cache folder (not created)."""
     return cache_root() / "motion"
+
+
+def description_cache_dir() -> Path:
+    """The describer's cached scene descriptions (not created), per scene, model and prompts."""
+    return cache_root() / "descriptions"

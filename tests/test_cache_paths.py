@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.cache_paths import CACHE_ENV, cache_root, motion_cache_dir
+from orchestrator.cache_paths import CACHE_ENV, cache_root, description_cache_dir, motion_cache_dir
 
 
 def test_the_cache_folder_honours_the_environment(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
@@ -30,3 +30,4 @@ def test_every_cache_location_is_under_the_one_cache_root(monkeypatch: pytest.Mo
     monkeypatch.setenv(CACHE_ENV, "~/cache")  # a home-relative setting means the same folder for all
     assert default_runs_db() == tmp_path / "home" / "cache" / "runs.sqlite"
     assert cache_dir() == tmp_path / "home" / "cache" / "models"
+    assert description_cache_dir() == tmp_path / "home" / "cache" / "descriptions"

@@ -124,6 +124,7 @@ def plan_command(
     from agents.llm_port import LLMError
     from agents.prompt_templates import PromptLibrary, PromptTemplateError
     from agents.retry_feedback import RetriesExhaustedError
+    from orchestrator.cache_paths import description_cache_dir
     from orchestrator.planning.ablation_graph import Ablation
     from orchestrator.planning.checkpoints import default_runs_db
     from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
@@ -155,7 +156,7 @@ def plan_command(
         fail(str(exc))
     cache = None
     if record is None and replay is None:
-        cache = default_runs_db().parent / "descriptions"
+        cache = description_cache_dir()
 
     def show(index: int, outcome: ParsedEvent | PlanningFailure | None) -> None:
         if not as_json:
