@@ -35,6 +35,7 @@ import zlib
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -568,3 +569,105 @@ def test_chunk_name_tables_the_fuzzing_found(finished_run: Path, tmp_path: Path,
     result = export(run)
     clean_outcome(result)
     assert result.exit_code == 2 and needle in result.stderr, result.stderr
+
+
+# ----- a snapshot of values no run could have made: one line at resume, not a run stopping later ----
+class _AnyShared(dict[str, object]):
+    """The world's shared objects as stand-ins, one per name a checkpoint refers to."""
+
+    def __contains__(self, key: object) -> bool:
+        return isinstance(key, str)
+
+    def __missing__(self, key: str) -> object:
+        self[key] = stand_in = type("Shared", (), {})()
+        return stand_in
+
+
+def _rewritten_snapshot(path: Path, change: Callable[[Any], None]) -> None:
+    """``path``'s checkpoint decoded (shared objects as stand-ins), changed, written back with its
+    checksum made to match (so the checksum is not what stops it)."""
+    from orchestrator.session import snapshot_file
+
+    shared = _AnyShared()
+    checkpoint = snapshot_file._Unpickler(io.BytesIO(_payload_without_frames(path.read_bytes())), shared,
+                                          snapshot_file._resolve_classes()).load()
+    change(checkpoint)
+    buffer = io.BytesIO()
+    snapshot_file._Pickler(buffer, {id(obj): name for name, obj in shared.items()}).dump(checkpoint)
+    path.write_bytes(_with_header(buffer.getvalue()))
+
+
+def _negative_frame(cp: Any) -> None:
+    cp.world.frame = -1
+
+
+def _unknown_event(cp: Any) -> None:
+    next(iter(cp.world.characters.values())).event_id = "event-0999"
+
+
+def _nan_position(cp: Any) -> None:
+    next(iter(cp.world.characters.values())).xy = np.array([float("nan"), 0.0])
+
+
+def _unknown_seat(cp: Any) -> None:
+    from sim.world.events import Assignment
+
+    name = next(iter(cp.world.characters))
+    cp.world.characters[name].assignment = Assignment(character=name, action="sit_idle", target_xy=(1.0, 1.0),
+                                                      facing_xy=(1.0, 0.0), seat="throne_9")
+
+
+@pytest.mark.parametrize(
+    ("change", "needle"),
+    [(_negative_frame, "world is at frame -1"), (_unknown_event, "event 'event-0999', which its world does not hold"),
+     (_nan_position, "xy is (nan, 0), not a point of the scene"), (_unknown_seat, "seat is 'throne_9'")],
+    ids=["negative-frame", "event-nowhere", "nan-position", "unknown-seat"],
+)
+def test_a_snapshot_no_run_could_have_made_is_one_line_at_resume(finished_run: Path, tmp_path: Path,
+                                                                 change: Callable[[Any], None], needle: str) -> None:
+    run = Path(shutil.copytree(finished_run, tmp_path / "run", symlinks=True))
+    _rewritten_snapshot(run / "session.snapshot", change)
+    result = resume(run)
+    clean_outcome(result)
+    assert result.exit_code == 2 and "session.snapshot" in result.stderr and needle in result.stderr, result.stderr
+
+
+# ----- motion/*.chunks past the size caps: one line, exit 2 in view --export ------------------------
+def test_a_chunk_file_past_its_cap_is_refused_from_its_size(finished_run: Path, tmp_path: Path) -> None:
+    from sim.world.track_chunks import MAX_CHUNK_FILE_BYTES
+
+    run = Path(shutil.copytree(finished_run, tmp_path / "run", symlinks=True))
+    _without_tracks(run)
+    path = run / "motion" / "Zoe.chunks"
+    with path.open("r+b") as f:  # its whole records, then a hole up to one byte past the cap
+        f.truncate(MAX_CHUNK_FILE_BYTES + 1)
+    result = export(run)
+    clean_outcome(result)
+    assert result.exit_code == 2 and f"{MAX_CHUNK_FILE_BYTES + 1} bytes, more than the {MAX_CHUNK_FILE_BYTES}" \
+        in result.stderr, result.stderr
+
+
+def test_a_chunk_file_of_valid_records_past_a_lowered_cap_is_refused(finished_run: Path, tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every record whole and valid: the size alone refuses it (the cap lowered below this file)."""
+    run = Path(shutil.copytree(finished_run, tmp_path / "run", symlinks=True))
+    _without_tracks(run)
+    size = (run / "motion" / "Zoe.chunks").stat().st_size
+    monkeypatch.setattr("sim.world.track_chunks.MAX_CHUNK_FILE_BYTES", size - 1)
+    result = export(run)
+    clean_outcome(result)
+    assert result.exit_code == 2 and "Zoe.chunks" in result.stderr and "a chunk file may hold" in result.stderr
+
+
+def test_a_run_folders_chunk_files_past_their_total_cap_are_refused(finished_run: Path, tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    run = Path(shutil.copytree(finished_run, tmp_path / "run", symlinks=True))
+    _without_tracks(run)
+    total = sum(p.stat().st_size for p in (run / "motion").glob("*.chunks"))
+    monkeypatch.setattr("sim.world.track_chunks.MAX_RUN_CHUNK_BYTES", total - 1)
+    result = export(run)
+    clean_outcome(result)
+    assert result.exit_code == 2
+    assert f"{run / 'motion'}: the chunk files hold more than the {total - 1} bytes" in result.stderr, result.stderr
+    monkeypatch.setattr("sim.world.track_chunks.MAX_RUN_CHUNK_BYTES", total)
+    assert export(run).exit_code == 0  # at the cap: read

@@ -310,3 +310,57 @@ def test_every_listed_class_is_plain_data() -> None:
         assert setstate is None or setstate is BaseModel.__setstate__, cls
         assert all("__reduce__" not in vars(k) and "__reduce_ex__" not in vars(k) for k in cls.__mro__[:-1]), cls
         assert all("__call__" not in vars(k) for k in cls.__mro__), cls  # an instance is never callable
+
+
+# ----- values of the right types that no run could have made ----------------------------------
+def _impossible(world: World, cp: SessionCheckpoint, case: str) -> SessionCheckpoint:
+    """A deep copy of ``cp`` (sharing ``world``'s read-only parts) with one impossible value of the right type."""
+    import copy
+
+    from sim.world.events import Assignment
+
+    bad = copy.deepcopy(cp, {id(obj): obj for obj in world.shared_objects().values()})
+    ava = bad.world.characters["Ava"]
+    if case == "negative frame":
+        bad.world.frame = -5
+    elif case == "event pointing nowhere":
+        ava.event_id = "event-0042"
+    elif case == "NaN position":
+        ava.xy = np.array([float("nan"), 1.0])
+    elif case == "far outside the scene":
+        ava.anchor_xy = np.array([1e6, 1.0])
+    elif case == "seat not in the scene":
+        ava.assignment = Assignment(character="Ava", action="sit_idle", target_xy=(1.0, 1.0), facing_xy=(1.0, 0.0),
+                                    seat="throne_9")
+    elif case == "cell off the grid":
+        ava.anchor_cell = (10**6, 3)
+    elif case == "applied after the checkpoint":
+        bad.outcomes, bad.applied_frames, bad.steps = [(0, None)], [10**6], 1
+    elif case == "outcome of a step never taken":
+        bad.outcomes, bad.applied_frames, bad.steps = [(7, None)], [3], 1
+    return bad
+
+
+@pytest.mark.parametrize(
+    ("case", "needle"),
+    [
+        ("negative frame", "world is at frame -5"),
+        ("event pointing nowhere", "character 'Ava' takes part in event 'event-0042', which its world does not hold"),
+        ("NaN position", "character 'Ava''s xy is (nan, 1), not a point of the scene"),
+        ("far outside the scene", "character 'Ava''s anchor_xy is (1e+06, 1), not a point of the scene"),
+        ("seat not in the scene", "seat is 'throne_9', which scene 'home' has no object of"),
+        ("cell off the grid", "anchor_cell is (1000000, 3), off the navigation grid"),
+        ("applied after the checkpoint", "the frame step 0 was applied at is frame 1000000, outside the frames so far"),
+        ("outcome of a step never taken", "an outcome's step 7 is not one of the 1 steps taken"),
+    ],
+)
+def test_a_checkpoint_no_run_could_have_made_is_one_line(checkpoint: tuple[World, SessionCheckpoint], home: Scene,
+                                                         motion: MotionMatcher, tmp_path: Path, case: str,
+                                                         needle: str) -> None:
+    world, cp = checkpoint
+    path = write_snapshot(tmp_path / "session.snapshot", real_payload(world, _impossible(world, cp, case)))
+    with pytest.raises(SnapshotError) as exc:
+        load_checkpoint(path, _world(home, motion))
+    text = str(exc.value)
+    assert text.startswith(f"{path}: cannot read the session checkpoint: ") and "\n" not in text, text
+    assert needle in text, text

@@ -46,6 +46,7 @@ from sim.world.track_chunks import (
     HEADER_BYTES,
     MOTION_FOLDER,
     ChunkError,
+    check_chunk_total,
     chunk_path,
     chunked_track,
 )
@@ -248,7 +249,12 @@ def _live_run(folder: Path) -> RunData:
 
 
 def _chunk_tracks(folder: Path, names: list[str], fps: float) -> list[CharacterTrack]:
-    """The tracks of ``names`` in ``motion/`` (whole records; a file with none is left out)."""
+    """The tracks of ``names`` in ``motion/`` (whole records; a file with none is left out),
+    their files within ``MAX_RUN_CHUNK_BYTES`` together."""
+    try:
+        check_chunk_total([chunk_path(folder / MOTION_FOLDER, name) for name in names])
+    except ChunkError as exc:
+        raise RunFolderError(str(exc)) from None
     tracks = []
     for name in names:
         path = chunk_path(folder / MOTION_FOLDER, name)

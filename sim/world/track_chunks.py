@@ -25,9 +25,12 @@ are durable" is written only after it. Plain file I/O: no clock, no logging.
 
 A chunk file may come from someone else's run folder, so reading one is bounded: only a regular
 file is read (a FIFO or a device is refused, never waited on), a record's payload is at most
-:data:`MAX_RECORD_BYTES` (a header claiming more is refused before anything is read), its name
-table is a JSON list of strings read within limits (``sim.bounded_files``), and every label and
-event index points into it. Anything else is one :class:`ChunkError` naming the file.
+:data:`MAX_RECORD_BYTES` (a header claiming more is refused before anything is read), a whole
+file at most :data:`MAX_CHUNK_FILE_BYTES` (refused from its size, before a record is read) and
+the chunk files a reader takes from one run folder at most :data:`MAX_RUN_CHUNK_BYTES` together
+(:func:`check_chunk_total`), its name table is a JSON list of strings read within limits
+(``sim.bounded_files``), and every label and event index points into it. Anything else is one
+:class:`ChunkError` naming the file.
 """
 
 from __future__ import annotations
@@ -63,6 +66,14 @@ HEADER_BYTES = _HEADER.size
 MAX_RECORD_BYTES = 64 << 20
 """Payload bytes of one record at most (a record holds one window, 300 frames: about 250 KB)."""
 _FRAME_BYTES = 3 * 8 + NUM_JOINTS * 9 * 4 + 2 + 4 + 4  # payload bytes per frame, besides the names
+MAX_CHUNK_FILE_BYTES = 256 << 20
+"""Bytes of one chunk file at most: one character's motion of about 325,000 frames (826 bytes a
+frame), 3.0 hours at 30 fps; as large as the ``.track.npz`` a reader takes
+(``sim.world.character_track.MAX_TRACK_FILE_BYTES``). Without it a file of many valid records
+(mostly zeros: a sparse file costs no disk) had a reader check and decode all of them."""
+MAX_RUN_CHUNK_BYTES = 1 << 30
+"""Bytes of the chunk files of one run folder a reader takes together: about 12 character-hours
+at 30 fps (a 50-walker crowd for 10 minutes is 0.74 GB)."""
 
 
 class ChunkError(ValueError):
@@ -165,6 +176,9 @@ def scan(path: Path) -> Scan:
     offset = frames = 0
     with fh:
         data_size = os.fstat(fh.fileno()).st_size
+        if data_size > MAX_CHUNK_FILE_BYTES:
+            raise ChunkError(f"{path}: {data_size} bytes, more than the {MAX_CHUNK_FILE_BYTES} a chunk file may hold "
+                             "(about 3 hours of one character at 30 fps)")
         while offset < data_size:
             header = fh.read(HEADER_BYTES)
             if len(header) < HEADER_BYTES:
@@ -189,6 +203,21 @@ def scan(path: Path) -> Scan:
             frames += n
             offset = end
     return Scan(frames, offset, data_size - offset, tuple(records))
+
+
+def check_chunk_total(paths: Sequence[Path]) -> None:
+    """Raise :class:`ChunkError` when the files at ``paths`` (one run folder's chunk files; a
+    missing one counts nothing) hold more than :data:`MAX_RUN_CHUNK_BYTES` together."""
+    total = 0
+    for path in paths:
+        try:
+            size = os.stat(path).st_size  # a link is counted as what it names, as a reader opens it
+        except OSError:
+            continue  # missing or unreadable: its own read says so
+        total += size
+        if total > MAX_RUN_CHUNK_BYTES:
+            raise ChunkError(f"{path.parent}: the chunk files hold more than the {MAX_RUN_CHUNK_BYTES} bytes a "
+                             "run folder's motion may hold together (about 12 character-hours at 30 fps)")
 
 
 def _open_regular(path: Path) -> io.BufferedReader:
