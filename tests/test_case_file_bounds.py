@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from benchmark.reference_cases import MAX_CASE_BYTES, BenchmarkCaseError, case_files, load_case
 from benchmark.story_suite.scenario import ScenarioError, load_scenario
 from orchestrator.cli.app import app
-from tests.support.one_line_exit import one_line_exit_2
+from tests.support.finished_run import one_error_line
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD_CASE = sorted((ROOT / "benchmark" / "cases" / "ours").rglob("testcase_*.json"))[0]
@@ -33,7 +33,7 @@ def bench_run(folder: Path, tmp_path: Path) -> str:
         app, ["bench", "run", "--cases", str(folder), "--out", str(tmp_path / "sweep"), "--method", "ours",
               "--model", "local/qwen2.5-coder-0.5b"]
     )
-    return one_line_exit_2(result)
+    return one_error_line(result)
 
 
 @pytest.mark.parametrize(

@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from orchestrator.cli.app import app
 from orchestrator.llm.config import MAX_CONFIG_BYTES, ConfigError, load_config
 from sim.motion.config import MotionConfigError, load_motion_config
-from tests.support.one_line_exit import one_line_exit_2
+from tests.support.finished_run import one_error_line
 
 NESTED = "x = " + "[" * 5_000 + "]" * 5_000 + "\n"
 LONG_INT = "seed = " + "9" * 5_000 + "\n"
@@ -59,7 +59,7 @@ def test_files_the_toml_reader_cannot_take(tmp_path: Path, text: str, words: str
     with pytest.raises(ConfigError, match=words) as info:
         load_config(path, env={})
     assert str(path) in str(info.value) and "\n" not in str(info.value)
-    one_line_exit_2(CliRunner().invoke(app, ["model", "info", "--config", str(path)]), words)
+    one_error_line(CliRunner().invoke(app, ["model", "info", "--config", str(path)]), words)
 
 
 def test_a_device_or_a_folder_is_not_a_config(tmp_path: Path) -> None:

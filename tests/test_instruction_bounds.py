@@ -29,12 +29,12 @@ from orchestrator.session.stdin_instructions import (
     start_stdin_reader,
     typed_instruction,
 )
-from tests.support.one_line_exit import one_line_exit_2
+from tests.support.finished_run import one_error_line
 
 
 def run_with_script(path: Path, tmp_path: Path) -> str:
     result = CliRunner().invoke(app, ["run", "home", "--instructions", str(path), "--out", str(tmp_path / "out")])
-    return one_line_exit_2(result, str(path))
+    return one_error_line(result, str(path))
 
 
 @pytest.mark.parametrize(
@@ -123,4 +123,4 @@ def test_a_long_instruction_option_is_one_line(tmp_path: Path, command: str) -> 
     args = [command, "home", "--instruction", "x" * (MAX_INSTRUCTION_CHARS + 1)]
     if command == "run":
         args += ["--out", str(tmp_path / "out")]
-    one_line_exit_2(CliRunner().invoke(app, args), "--instruction", f"at most {MAX_INSTRUCTION_CHARS}")
+    one_error_line(CliRunner().invoke(app, args), "--instruction", f"at most {MAX_INSTRUCTION_CHARS}")

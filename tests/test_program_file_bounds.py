@@ -14,7 +14,7 @@ from orchestrator.cli.app import app
 from orchestrator.cli.event_program import MAX_PROGRAM_FILE_BYTES
 from orchestrator.sandbox_worker import WorkerRunner
 from sim.scene.bundled import load_bundled_scene
-from tests.support.one_line_exit import one_line_exit_2
+from tests.support.finished_run import one_error_line
 from tools.character_states import WorldView
 from tools.sandbox import Budget, BudgetExceededError
 
@@ -24,14 +24,14 @@ def test_a_400_mib_program_file_is_one_line(tmp_path: Path) -> None:
     with program.open("wb") as f:  # sparse: no disk used
         f.truncate(400 * 2**20)
     result = CliRunner().invoke(app, ["event-program", "home", "--program", str(program)])
-    assert f"{MAX_PROGRAM_FILE_BYTES}" in one_line_exit_2(result, "program file")
+    assert f"{MAX_PROGRAM_FILE_BYTES}" in one_error_line(result, "program file")
 
 
 def test_a_program_file_that_is_not_utf8_or_not_a_file(tmp_path: Path) -> None:
     program = tmp_path / "latin1.py"
     program.write_bytes(b"def parse_event():\n    x = '\xff'\n")
-    one_line_exit_2(CliRunner().invoke(app, ["event-program", "home", "--program", str(program)]), "UTF-8")
-    one_line_exit_2(CliRunner().invoke(app, ["event-program", "home", "--program", str(tmp_path)]), "folder")
+    one_error_line(CliRunner().invoke(app, ["event-program", "home", "--program", str(program)]), "UTF-8")
+    one_error_line(CliRunner().invoke(app, ["event-program", "home", "--program", str(tmp_path)]), "folder")
 
 
 def test_states_nested_too_deep_is_one_line(tmp_path: Path) -> None:
@@ -40,7 +40,7 @@ def test_states_nested_too_deep_is_one_line(tmp_path: Path) -> None:
     states = tmp_path / "states.json"
     states.write_text("[" * 100_000 + "]" * 100_000, encoding="utf-8")
     result = CliRunner().invoke(app, ["event-program", "home", "--program", str(program), "--states", str(states)])
-    one_line_exit_2(result, "nested")
+    one_error_line(result, "nested")
 
 
 def test_the_worker_runner_refuses_a_text_above_the_budget_before_starting_a_worker() -> None:

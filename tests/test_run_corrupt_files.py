@@ -19,6 +19,7 @@ from typer.testing import CliRunner, Result
 
 from orchestrator.cli.app import app
 from tests.support.fake_openai_server import FakeOpenAI
+from tests.support.finished_run import one_error_line
 from tests.support.story_planner import RUN, Planner, write_config
 
 
@@ -40,16 +41,6 @@ def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
 @pytest.fixture
 def run_dir(finished_run: Path, tmp_path: Path) -> Path:
     return Path(shutil.copytree(finished_run, tmp_path / "run"))
-
-
-def one_error_line(result: Result, *needles: str) -> None:
-    assert result.exit_code == 2, (result.exit_code, result.stderr)
-    assert isinstance(result.exception, SystemExit), result.exception  # exited, did not crash
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    errors = [line for line in lines if line.startswith("error:")]
-    assert len(errors) == 1 and "Traceback" not in result.stderr, result.stderr
-    for needle in needles:
-        assert needle in errors[0], errors[0]
 
 
 def resume(run_dir: Path) -> Result:

@@ -20,13 +20,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner, Result
+from typer.testing import CliRunner
 
 from orchestrator.cli.app import app
 from orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
 from sim.run_folder_names import run_folder_entries
 from sim.world.character_track import CharacterTrack
 from tests.support.fake_openai_server import FakeOpenAI
+from tests.support.finished_run import one_error_line
 from tests.support.story_planner import RUN, Planner, write_config
 
 NAMES = ("Zoe", "Max")  # the characters of ``RUN``
@@ -78,16 +79,6 @@ def plant(run_dir: Path, entry: str, outside: Path) -> Path:
         target.write_bytes(b"precious: not the run's to write\n")
     here.symlink_to(target, target_is_directory=target.is_dir())
     return target
-
-
-def one_error_line(result: Result, *needles: str) -> str:
-    assert result.exit_code == 2, (result.exit_code, result.stderr)
-    assert isinstance(result.exception, SystemExit), result.exception
-    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and "Traceback" not in result.stderr, result.stderr
-    for needle in needles:
-        assert needle in errors[0], errors[0]
-    return errors[0]
 
 
 def test_every_planted_name_is_one_the_run_writes() -> None:

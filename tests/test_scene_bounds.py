@@ -18,7 +18,7 @@ from sim.scene.errors import SceneFileError
 from sim.scene.files import MAX_SCENE_FILE_BYTES, load_scene, save_scene_json
 from sim.scene.meshes import MAX_NODE_NAME_CHARS, parse_instance_name
 from sim.scene.model import MAX_LABEL_CHARS, MAX_NAV_CELLS, MAX_SCENE_OBJECTS
-from tests.support.one_line_exit import one_line_exit_2
+from tests.support.finished_run import one_error_line
 
 runner = CliRunner()
 
@@ -37,7 +37,7 @@ def write(tmp_path: Path, doc: Any, name: str = "scene.json") -> Path:
 
 
 def inspect(path: Path) -> str:
-    return one_line_exit_2(runner.invoke(app, ["scene", "inspect", str(path)]))
+    return one_error_line(runner.invoke(app, ["scene", "inspect", str(path)]))
 
 
 def box(i: int, label: str = "box") -> dict[str, Any]:
@@ -58,7 +58,7 @@ def test_event_program_on_a_floor_of_8e9_cells_is_one_line_not_a_worker_tracebac
     program = tmp_path / "p.py"
     program.write_text("def parse_event():\n    pass\n", encoding="utf-8")
     result = runner.invoke(app, ["event-program", str(write(tmp_path, doc)), "--program", str(program)])
-    assert "navigation cells" in one_line_exit_2(result)
+    assert "navigation cells" in one_error_line(result)
 
 
 def test_too_many_objects(tmp_path: Path) -> None:
