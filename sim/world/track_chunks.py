@@ -177,8 +177,7 @@ def scan(path: Path) -> Scan:
     with fh:
         data_size = os.fstat(fh.fileno()).st_size
         if data_size > MAX_CHUNK_FILE_BYTES:
-            raise ChunkError(f"{path}: {data_size} bytes, more than the {MAX_CHUNK_FILE_BYTES} a chunk file may hold "
-                             "(about 3 hours of one character at 30 fps)")
+            raise _too_large(path, data_size)
         while offset < data_size:
             header = fh.read(HEADER_BYTES)
             if len(header) < HEADER_BYTES:
@@ -205,15 +204,23 @@ def scan(path: Path) -> Scan:
     return Scan(frames, offset, data_size - offset, tuple(records))
 
 
+def _too_large(path: Path, size: int) -> ChunkError:
+    return ChunkError(f"{path}: {size} bytes, more than the {MAX_CHUNK_FILE_BYTES} a chunk file may hold "
+                      "(about 3 hours of one character at 30 fps)")
+
+
 def check_chunk_total(paths: Sequence[Path]) -> None:
-    """Raise :class:`ChunkError` when the files at ``paths`` (one run folder's chunk files; a
-    missing one counts nothing) hold more than :data:`MAX_RUN_CHUNK_BYTES` together."""
+    """Raise :class:`ChunkError` when one of the files at ``paths`` (one run folder's chunk
+    files; a missing one counts nothing) is over :data:`MAX_CHUNK_FILE_BYTES` (naming it), or
+    they hold more than :data:`MAX_RUN_CHUNK_BYTES` together."""
     total = 0
     for path in paths:
         try:
             size = os.stat(path).st_size  # a link is counted as what it names, as a reader opens it
         except OSError:
             continue  # missing or unreadable: its own read says so
+        if size > MAX_CHUNK_FILE_BYTES:
+            raise _too_large(path, size)
         total += size
         if total > MAX_RUN_CHUNK_BYTES:
             raise ChunkError(f"{path.parent}: the chunk files hold more than the {MAX_RUN_CHUNK_BYTES} bytes a "
