@@ -69,8 +69,11 @@ def test_switches_are_continuous(matcher: MotionMatcher) -> None:
         s, pose = matcher.step(s, q, DT)
         frames.append(pose.joints())
     jumps = np.linalg.norm(np.diff(np.array(frames), axis=0), axis=-1).max(axis=1)
+    walking = np.linalg.norm(np.diff(joints, axis=0), axis=-1).max()  # a swinging foot's speed
     assert s.key == "chat"
-    assert jumps.max() < 0.12  # metres per frame at any joint, including the switch frame
+    # metres per frame at any joint, including the switch frame: the blend carries on the
+    # swinging foot's speed (about 0.12 m a frame at 1 m/s), it does not jump
+    assert jumps.max() < min(1.5 * walking, 0.2)
 
     # Without blending the same switch pops.
     raw = MotionMatcher(matcher.databases, blend_halflife=1e-6)

@@ -2,13 +2,17 @@
 
 ``procedural_clips(key)`` returns deterministic clips for a database key (see
 sim.motion.action_labels.database_key). Bump ``GENERATOR_VERSION`` whenever a generator changes so
-that cached databases are rebuilt.
+that cached databases are rebuilt (a refit of the gait changes it by itself).
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 from sim.motion.action_labels import action_spec, family_of, is_seated_key
+from sim.motion.cache import content_key
 from sim.motion.clips import MotionClip
+from sim.motion.sources.gait_params import FITTED_GAIT
 from sim.motion.sources.procedural_actions import (
     SEAT_HEIGHTS,
     action_clip,
@@ -17,7 +21,8 @@ from sim.motion.sources.procedural_actions import (
 )
 from sim.motion.sources.procedural_locomotion import dance_clip, locomotion_clips
 
-GENERATOR_VERSION = "procedural-motion-1"
+GENERATOR_VERSION = f"procedural-motion-2-{content_key(dataclasses.asdict(FITTED_GAIT))[:12]}"
+"""Names the generators and the fitted gait they read, so a refit rebuilds cached databases too."""
 
 
 def procedural_clips(key: str) -> list[MotionClip]:

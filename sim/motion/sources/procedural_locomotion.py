@@ -5,8 +5,13 @@ A clip is generated from a root trajectory (speed and turn rate over time). A ga
 advances with the step rate the speed asks for; step ``k`` swings one foot during phase
 ``[k - 0.8, k]`` and lands where the root will be half a step later, beside the path. Feet
 on the ground keep their toe joint fixed (the heel lifts about it before toe-off), so the
-toe speed during contact is exactly zero. The pelvis height is the highest the legs can
-reach, smoothed from below; arms swing against the legs.
+toe speed during contact is exactly zero. A swinging foot rises before it travels and comes
+down onto its landing point from above, so a foot near the floor never moves fast along it.
+The pelvis rides a share of the rise and fall of the highest the legs can reach (smoothed from
+below: lowest just after a landing, highest at mid-stance; bob), shifting over the stance foot
+(sway); arms swing against the legs, the chest
+twists against the hips, and the body leans into turns. How much of each, and the step length
+at each speed, is ``sim.motion.sources.gait_params.FITTED_GAIT`` (fitted to real walks).
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sim.motion.clips import FPS, MotionClip
+from sim.motion.sources.gait_params import FITTED_GAIT, GaitParams
 from sim.motion.sources.procedural_rig import (
     SHOULDER_HALF_WIDTH,
     STANDING_PELVIS_HEIGHT,
@@ -28,19 +34,25 @@ from sim.motion.sources.procedural_rig import (
 )
 
 SWING = 0.8  # swing length in step-phase units (40 % of a gait cycle)
+LIFT_S = 0.07  # share of the swing a foot rises before it travels
+LAND_S = 0.07  # share of the swing it comes down onto its landing point
+GRAVITY = 9.81  # m/s^2
+BOB_LEVEL_RADIUS = 9  # frames: about half a step, so the level is the lowest height of each step
 STANCE_HALF_WIDTH = 0.10  # lateral distance of a toe from the path, metres
 TOE_AHEAD = 0.08  # toe joint ahead of the pelvis when standing, metres
 Profile = Callable[[NDArray[np.float64]], NDArray[np.float64]]
 
 
 @overload
-def step_length(speed: float) -> float: ...
+def step_length(speed: float, params: GaitParams = ...) -> float: ...
 @overload
-def step_length(speed: NDArray[np.float64]) -> NDArray[np.float64]: ...
-def step_length(speed: float | NDArray[np.float64]) -> float | NDArray[np.float64]:
-    """Step length (m) for a walking speed (m/s): 0.55 m at 0.8 m/s, 0.67 m at 1.6 m/s."""
-    length: float | NDArray[np.float64] = 0.43 + 0.15 * np.asarray(speed)
-    return length
+def step_length(speed: NDArray[np.float64], params: GaitParams = ...) -> NDArray[np.float64]: ...
+def step_length(speed: float | NDArray[np.float64], params: GaitParams = FITTED_GAIT) -> float | NDArray[np.float64]:
+    """Step length (m) for a walking speed (m/s): ``params``' power law of speed, held above
+    its shortest step."""
+    v = np.maximum(np.asarray(speed, dtype=np.float64), 0.0)
+    length = np.maximum(params.step_length_1ms * v**params.step_length_exponent, params.step_length_min)
+    return float(length) if np.ndim(speed) == 0 else np.asarray(length)
 
 
 def smoothstep(x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -58,7 +70,8 @@ def integrate_root(speed: NDArray[np.float64], turn_rate: NDArray[np.float64], d
 
 
 def gait(
-    root: NDArray[np.float64], heading: NDArray[np.float64], phase: NDArray[np.float64], dt: float
+    root: NDArray[np.float64], heading: NDArray[np.float64], phase: NDArray[np.float64], dt: float,
+    params: GaitParams = FITTED_GAIT,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """Footsteps along a root trajectory for a given gait phase (N,), non-decreasing.
 
@@ -108,9 +121,11 @@ def gait(
         swing = (phase > start) & (phase < end)
         after = phase >= end
         s = (phase[swing] - start) / SWING
-        e = smoothstep(s)[:, None]
+        u = np.clip((s - LIFT_S) / (1.0 - LIFT_S - LAND_S), 0.0, 1.0)  # travel between lift and landing
+        e = (0.5 * u + 0.5 * smoothstep(u))[:, None]  # part linear: a lower top speed than smoothstep's
         toes[swing, side, :2] = p0 + (land - p0) * e
-        toes[swing, side, 2] = TOE_HEIGHT + (0.06 + 0.05 * min(dist, 0.7)) * np.sin(np.pi * s) ** 1.5
+        lift = params.foot_clearance * min(1.0, 0.4 + dist / 0.9)
+        toes[swing, side, 2] = TOE_HEIGHT + lift * np.sin(np.pi * s) ** 0.4
         dyaw = (land_yaw - y0 + np.pi) % (2 * np.pi) - np.pi
         yaw[swing, side] = y0 + dyaw * e[:, 0]
         heel[swing, side] = lift_angle * (1 - smoothstep(s / 0.45))
@@ -131,29 +146,34 @@ def body_from_gait(
     dt: float,
     *,
     arm_raise: NDArray[np.float64] | None = None,
+    params: GaitParams = FITTED_GAIT,
 ) -> tuple[BodyTargets, NDArray[np.bool_]]:
     """Full-body targets for a gait; returns (targets, contacts)."""
     n = len(phase)
-    toes, yaw, heel, contacts = gait(root, heading, phase, dt)
+    p = params
+    toes, yaw, heel, contacts = gait(root, heading, phase, dt, p)
     rate = np.gradient(phase) / dt
     moving = np.clip(rate / 1.2, 0.0, 1.0)
     v = np.minimum(speed, 1.8)
-    osc = np.sin(np.pi * (phase - 0.1))
+    osc = np.sin(np.pi * (phase - 0.1))  # +1 over the left stance foot, -1 over the right
     swing = np.sin(np.pi * (phase - 0.5))
+    turn_rate = np.gradient(np.unwrap(heading)) / dt
+    lean = -p.turn_lean_gain * np.arctan(speed * turn_rate / GRAVITY)  # roll into the turn
     pelvis = np.zeros((n, 3))
-    pelvis[:, 1] = 0.022 * moving * osc
+    pelvis[:, 1] = p.sway_amplitude * moving * osc
     pelvis[:, 2] = STANDING_PELVIS_HEIGHT - 0.01
     tilt = np.zeros((n, 3))
     tilt[:, 0] = 0.03 + 0.04 * v
-    tilt[:, 1] = 0.08 * moving * swing
-    tilt[:, 2] = -0.03 * moving * osc
+    tilt[:, 1] = p.pelvis_yaw * moving * swing
+    tilt[:, 2] = -0.03 * moving * osc + lean
     spine = np.zeros((n, 3))
     spine[:, 0] = 0.02 * v
-    spine[:, 1] = -0.12 * moving * swing
+    spine[:, 1] = -p.trunk_twist * moving * swing
     head = np.zeros((n, 3))
     head[:, 0] = -(tilt[:, 0] + spine[:, 0]) + 0.05
-    head[:, 1] = 0.05 * moving * swing
-    amp = (0.08 + 0.1 * v) * moving
+    head[:, 1] = (p.trunk_twist - p.pelvis_yaw) * moving * swing
+    head[:, 2] = -0.5 * lean  # the head stays nearer upright than the trunk
+    amp = np.maximum(p.arm_swing_1ms + p.arm_swing_speed_slope * (v - 1.0), 0.02) * moving
     hands = np.zeros((n, 2, 3))
     for side, sign in ((0, 1.0), (1, -1.0)):
         fwd = -sign * amp * swing
@@ -167,8 +187,11 @@ def body_from_gait(
     pole[:, 0] = [-0.5, 0.3, -1.0]
     pole[:, 1] = [-0.5, -0.3, -1.0]
     targets = BodyTargets(root, heading, pelvis, tilt, spine, head, toes, yaw, heel, hands, pole)
-    limit = pelvis_height_limit(targets)
-    pelvis[:, 2] = _smooth_below(np.minimum(pelvis[:, 2], limit), radius=4)
+    # the legs reach lowest in double support and highest at mid-stance; the pelvis follows a
+    # share of that rise and fall (bob) above the level it could keep all along
+    base = np.minimum(pelvis[:, 2], pelvis_height_limit(targets, reach=0.96))
+    level = _smooth_below(base, radius=BOB_LEVEL_RADIUS)
+    pelvis[:, 2] = level + p.bob_follow * (_smooth_below(base, radius=4) - level)
     return targets, contacts
 
 
@@ -193,6 +216,7 @@ def locomotion_clip(
     key: str = "walk",
     pad: float = 1.5,
     arm_raise_fn: Profile | None = None,
+    params: GaitParams = FITTED_GAIT,
 ) -> MotionClip:
     """Generate a walking clip from speed (m/s) and turn-rate (rad/s) profiles over time (s).
 
@@ -212,13 +236,13 @@ def locomotion_clip(
         rate = np.full(len(t), 2.0 * loop_cycles / (frames * dt))
     else:
         activity = np.maximum(smoothstep(speed / 0.15), smoothstep(np.abs(turn) / 0.3))
-        rate = np.maximum.reduce([speed / step_length(speed), np.abs(turn) / 0.55, 1.7 * activity])
+        rate = np.maximum.reduce([speed / step_length(speed, params), np.abs(turn) / 0.55, 1.7 * activity])
         rate = np.where((speed < 0.01) & (np.abs(turn) < 0.02), 0.0, rate)
     phase = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * dt)])
     if not loops and speed[-1] < 0.01 and phase[-1] > 0.3:
         phase *= max(round(phase[-1]), 1) / phase[-1]
     raise_ = None if arm_raise_fn is None else np.asarray(arm_raise_fn(t), dtype=np.float64)
-    targets, contacts = body_from_gait(root, heading, phase, speed, dt, arm_raise=raise_)
+    targets, contacts = body_from_gait(root, heading, phase, speed, dt, arm_raise=raise_, params=params)
     local, pelvis = solve_body(targets)
     sl = slice(npad, npad + frames)
     # Re-anchor the clip so that it starts at the origin facing +x.
@@ -252,31 +276,31 @@ def _ramp(t0: float, t1: float, a: float, b: float) -> Profile:
     return lambda t: a + (b - a) * smoothstep((t - t0) / (t1 - t0))
 
 
-def locomotion_clips() -> list[MotionClip]:
+def locomotion_clips(params: GaitParams = FITTED_GAIT) -> list[MotionClip]:
     """The default locomotion set (database ``walk``)."""
     clips: list[MotionClip] = []
     for v in (0.6, 1.0, 1.3, 1.7):
-        period = 2 * 2 * float(step_length(v)) / v
-        clips.append(locomotion_clip(f"walk_{v:.1f}", _const(v), _const(0.0), period, loops=True))
+        period = 2 * 2 * step_length(v, params) / v
+        clips.append(locomotion_clip(f"walk_{v:.1f}", _const(v), _const(0.0), period, loops=True, params=params))
     for radius in (1.0, 2.5):
         for sign, side in ((1.0, "left"), (-1.0, "right")):
             v = 1.0
-            period = 2 * 2 * float(step_length(v)) / v
+            period = 2 * 2 * step_length(v, params) / v
             clips.append(locomotion_clip(f"arc_{side}_r{radius}", _const(v), _const(sign * v / radius),
-                                         period, loops=True))
+                                         period, loops=True, params=params))
     for angle in (90, 180):
         for sign, side in ((1.0, "left"), (-1.0, "right")):
             a = sign * np.radians(angle)
             clips.append(locomotion_clip(
                 f"turn_{side}_{angle}", _const(1.0),
-                _pulse(a / 0.9, 1.7, 0.45), 3.4))
+                _pulse(a / 0.9, 1.7, 0.45), 3.4, params=params))
             clips.append(locomotion_clip(
                 f"spin_{side}_{angle}", _const(0.0),
-                _pulse(a / 1.2, 1.0, 0.6), 2.6))
-    clips.append(locomotion_clip("start", _ramp(0.6, 1.6, 0.0, 1.2), _const(0.0), 3.2))
-    clips.append(locomotion_clip("stop", _ramp(1.0, 2.0, 1.2, 0.0), _const(0.0), 3.0))
-    clips.append(locomotion_clip("start_slow", _ramp(0.5, 1.3, 0.0, 0.7), _const(0.0), 2.8))
-    clips.append(locomotion_clip("stop_slow", _ramp(0.8, 1.6, 0.7, 0.0), _const(0.0), 2.6))
+                _pulse(a / 1.2, 1.0, 0.6), 2.6, params=params))
+    clips.append(locomotion_clip("start", _ramp(0.6, 1.6, 0.0, 1.2), _const(0.0), 3.2, params=params))
+    clips.append(locomotion_clip("stop", _ramp(1.0, 2.0, 1.2, 0.0), _const(0.0), 3.0, params=params))
+    clips.append(locomotion_clip("start_slow", _ramp(0.5, 1.3, 0.0, 0.7), _const(0.0), 2.8, params=params))
+    clips.append(locomotion_clip("stop_slow", _ramp(0.8, 1.6, 0.7, 0.0), _const(0.0), 2.6, params=params))
     return clips
 
 

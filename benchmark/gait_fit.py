@@ -1,0 +1,280 @@
+"""``python -m benchmark.gait_fit [--write]``: fit the procedural walk to the real CMU walks.
+
+Reads the CMU walks (``STORYTELLER_MOCAP``, else ``../shared/mocap``; never copied), imported on
+our skeleton as every real clip is, and measures each walking window with the benchmark's own
+measures (``benchmark.motion_metrics.gait``: step length, bob, sway, arm swing, jerk) plus these:
+bob oscillation (the pelvis height's standard deviation about its one-second moving average:
+the benchmark's bob is the plain standard deviation, which in the real walks is mostly a slow
+drift of 1-3 cm over a window, not the step's rise and fall), trunk twist (half the 5-95 % range
+of the chest's yaw against the hips'), pelvis yaw (half that range of the hips' yaw against the
+walking direction), foot lift (the ball of the foot's 5-95 % height range) and turn lean (the
+trunk's sideways roll against ``atan(lateral acceleration / g)``, a least-squares gain).
+
+The targets: step length as a power law of speed (a straight line in log-log, Theil-Sen, so one
+odd walk does not tilt it), the rest as means over the windows (what the benchmark's
+least-squares line against speed gives at their mean speed; their speeds span too little to fit
+a slope, so the generator's slopes stay as they are). Turn lean is printed per clip but not fitted: the
+CMU walks turn too gently (lateral acceleration under 0.1 g) and their gains scatter on both
+sides of zero, so the generator keeps the balance lean (gain 1: the body tilts so that gravity
+and the turn's acceleration together point through the feet). Then the generator's parameters
+(``sim.motion.sources.gait_params.GaitParams``) are calibrated: walks and arcs are generated at
+the real speeds, measured the same way, and each amplitude scaled by target / measured, a few
+rounds (the step length is set, not calibrated: the generator steps exactly as long as it is
+told, and the measured one moves in whole frames of the step interval). Prints the targets, the fitted parameters and the generated / real ratios before (the
+parameters the module holds now) and after; ``--write`` stores the fitted parameters in
+``sim/motion/sources/gait_params.py`` (between its FITTED markers). Deterministic; exit 2 when
+the real clips are absent.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import re
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import theilslopes
+
+from benchmark.motion_metrics.gait import gait_window, walking_windows
+from sim.body.skeleton import JOINT_INDEX
+from sim.motion.sources.gait_params import FITTED_GAIT, GaitParams
+from sim.motion.sources.procedural_locomotion import GRAVITY, locomotion_clip
+
+CMU_WALKS = (
+    ("cmu/daz/05_01.bvh", 1), ("cmu/daz/07_03.bvh", 1), ("cmu/daz/07_06.bvh", 1), ("cmu/daz/08_08.bvh", 1),
+    ("cmu/daz/16_15.bvh", 1), ("cmu/daz/16_31.bvh", 1), ("cmu/max/131_01.bvh", 0), ("cmu/max/131_02.bvh", 0),
+    ("cmu/mb_motionedit/16_11.bvh", 0),
+)  # fmt: skip
+"""(file under the mocap folder, first frame) of every CMU walk (16_11 veers left 40 degrees)."""
+PARAMS_FILE = Path(__file__).resolve().parents[1] / "sim" / "motion" / "sources" / "gait_params.py"
+FPS = 30.0
+ROUNDS = 4
+J = JOINT_INDEX
+MEASURES = ("step_length", "cadence", "bob", "bob_oscillation", "sway", "arm_swing", "trunk_twist", "pelvis_yaw", "foot_lift", "jerk")
+CALIBRATED = {  # generator parameter -> the measure it is scaled by
+    "bob_follow": "bob_oscillation", "sway_amplitude": "sway", "arm_swing_1ms": "arm_swing",
+    "trunk_twist": "trunk_twist", "pelvis_yaw": "pelvis_yaw", "foot_clearance": "foot_lift",
+}  # fmt: skip
+
+
+def _yaw(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    d = a[:, :2] - b[:, :2]
+    return np.asarray(np.arctan2(d[:, 1], d[:, 0]))
+
+
+def _half_range(x: NDArray[np.float64]) -> float:
+    return float(np.percentile(x, 95) - np.percentile(x, 5)) / 2.0
+
+
+def _wrap(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.asarray((x + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _moving_average(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """One-second moving average (edges padded) of ``x`` (F, ...)."""
+    k = int(FPS) | 1
+    pad = np.pad(x, ((k // 2, k // 2),) + ((0, 0),) * (x.ndim - 1), mode="edge")
+    flat = pad.reshape(len(pad), -1)
+    out = np.stack([np.convolve(flat[:, i], np.ones(k) / k, mode="valid") for i in range(flat.shape[1])], axis=-1)
+    return np.asarray(out.reshape((len(x), *x.shape[1:])))
+
+
+def _travel(j: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Walking direction (F,) rad and speed (F,) m/s of the pelvis's one-second moving average."""
+    d = np.gradient(_moving_average(j[:, 0, :2]), axis=0) * FPS
+    return np.unwrap(np.arctan2(d[:, 1], d[:, 0])), np.linalg.norm(d, axis=-1)
+
+
+def window_measures(j: NDArray[np.float64]) -> dict[str, float]:
+    """Every measure of ``MEASURES`` (and speed) of one walking window of joints (F, 22, 3)."""
+    w = gait_window(j, FPS)
+    hips = _yaw(j[:, J["left_hip"]], j[:, J["right_hip"]])
+    chest = _yaw(j[:, J["left_shoulder"]], j[:, J["right_shoulder"]])
+    direction, _ = _travel(j)
+    feet = j[:, [J["left_foot"], J["right_foot"]], 2]
+    return {
+        "speed": w.speed, "step_length": w.step_length, "cadence": w.cadence, "bob": w.bob,
+        "bob_oscillation": float(np.std(j[:, 0, 2] - _moving_average(j[:, 0, 2]))), "sway": w.sway,
+        "arm_swing": w.arm_swing, "jerk": w.jerk,
+        "trunk_twist": _half_range(_wrap(chest - hips)),
+        "pelvis_yaw": _half_range(_wrap(hips - direction - np.pi / 2)),
+        "foot_lift": float(np.mean(np.percentile(feet, 95, axis=0) - np.percentile(feet, 5, axis=0))),
+    }  # fmt: skip
+
+
+def lean_samples(j: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(atan(lateral acceleration / g), trunk roll into the turn) per frame, both rad."""
+    direction, speed = _travel(j)
+    turn = np.gradient(direction) * FPS
+    trunk = j[:, J["neck"]] - j[:, 0]
+    side = np.stack([-np.sin(direction), np.cos(direction)], axis=-1)  # left of the walking direction
+    roll = np.arctan2(np.sum(trunk[:, :2] * side, axis=-1), trunk[:, 2])
+    return np.arctan(speed * turn / GRAVITY), roll
+
+
+@dataclass(frozen=True)
+class Walks:
+    """The measured windows (one dict each) and the lean samples of a set of walks."""
+
+    windows: tuple[dict[str, float], ...]
+    accel: NDArray[np.float64]
+    roll: NDArray[np.float64]
+
+    def lean_gain(self) -> float:
+        """Least-squares gain of roll on atan(a / g) (0 when nothing turns)."""
+        den = float(np.sum(self.accel**2))
+        return float(np.sum(self.accel * self.roll) / den) if den > 0 else 0.0
+
+
+def measure_walks(motions: Sequence[NDArray[np.float64]]) -> Walks:
+    windows, acc, roll = [], [], []
+    for j in motions:
+        for a, b in walking_windows(("walk",) * len(j), j[:, 0, :2], FPS):
+            windows.append(window_measures(j[a:b]))
+            x, y = lean_samples(j[a:b])
+            acc.append(x)
+            roll.append(y)
+    return Walks(tuple(windows), _joined(acc), _joined(roll))
+
+
+def _joined(parts: list[NDArray[np.float64]]) -> NDArray[np.float64]:
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def real_walks() -> tuple[list[NDArray[np.float64]], list[str]]:
+    """World joints (F, 22, 3) of every CMU walk on our floor, and their names."""
+    from benchmark.motion_metrics.sources import on_floor
+    from benchmark.motion_quality import MOCAP
+    from orchestrator.cache_paths import motion_cache_dir
+    from sim.motion.config import ClipEntry, MotionConfig, import_entry
+
+    if not MOCAP.found:
+        raise FileNotFoundError(f"real clips: {MOCAP.reason}")
+    config = MotionConfig(root=str(MOCAP.path), clips=tuple(ClipEntry(file=f, label="walk", start=s) for f, s in CMU_WALKS))
+    clips = [import_entry(config, e, motion_cache_dir()) for e in config.clips]
+    return [on_floor(c.joint_positions()) for c in clips], [Path(e.file).stem for e in config.clips]
+
+
+@dataclass(frozen=True)
+class Targets:
+    """What the generated walk should measure: step length ``scale * v ** exponent``, the rest
+    one value each, and the turn lean gain (the balance lean, not fitted: see the module doc)."""
+
+    step_scale: float
+    step_exponent: float
+    values: dict[str, float]
+    lean_gain: float
+    speeds: tuple[float, ...]
+
+
+def fit_targets(real: Walks) -> Targets:
+    speeds = np.array([w["speed"] for w in real.windows])
+    steps = np.array([w["step_length"] for w in real.windows])
+    ok = np.isfinite(steps) & (steps > 0)
+    slope, _, _, _ = theilslopes(np.log(steps[ok]), np.log(speeds[ok]))
+    exponent = float(np.clip(slope, 0.2, 0.9))  # a stride that grows with speed, not faster than it
+    scale = float(np.exp(np.median(np.log(steps[ok]) - exponent * np.log(speeds[ok]))))
+    values = {m: float(np.nanmean([w[m] for w in real.windows])) for m in MEASURES}
+    speed_set = tuple(float(s) for s in np.percentile(speeds, [10, 50, 90]))
+    return Targets(scale, exponent, values, 1.0, speed_set)
+
+
+def generated_walks(params: GaitParams, speeds: Sequence[float]) -> Walks:
+    """Straight walks at ``speeds`` and arcs (radius 3 m and 1.5 m at the middle speed),
+    generated with ``params``, world joints measured like the real ones."""
+    from sim.motion.sources.procedural_locomotion import _const
+
+    def joints(v: float, turn: float) -> NDArray[np.float64]:
+        clip = locomotion_clip("fit", _const(v), _const(turn), 6.0, params=params)
+        return np.asarray(clip.joint_positions())
+
+    straight = measure_walks([joints(v, 0.0) for v in speeds])
+    v = float(np.median(speeds))
+    arcs = measure_walks([joints(v, sign * v / r) for r in (3.0, 1.5) for sign in (1.0, -1.0)])
+    return Walks(straight.windows, arcs.accel, arcs.roll)
+
+
+def generated_values(walks: Walks) -> dict[str, float]:
+    return {m: float(np.nanmedian([w[m] for w in walks.windows])) for m in MEASURES}
+
+
+def calibrate(start: GaitParams, targets: Targets) -> GaitParams:
+    """Scale each amplitude by target / measured, ``ROUNDS`` times (lean gain by its own ratio)."""
+    p = dataclasses.replace(start, step_length_exponent=round(targets.step_exponent, 4),
+                            step_length_1ms=round(targets.step_scale, 4))
+    for _ in range(ROUNDS):
+        walks = generated_walks(p, targets.speeds)
+        got = generated_values(walks)
+        update = {name: getattr(p, name) * targets.values[m] / got[m]
+                  for name, m in CALIBRATED.items() if np.isfinite(got[m]) and got[m] > 0}
+        gain = walks.lean_gain()
+        if gain > 0:
+            update["turn_lean_gain"] = p.turn_lean_gain * targets.lean_gain / gain
+        if "bob_follow" in update:
+            update["bob_follow"] = min(update["bob_follow"], 1.0)  # above 1 the legs would not reach
+        p = dataclasses.replace(p, **{k: round(float(v), 4) for k, v in update.items()})
+    return p
+
+
+def ratio_rows(params: GaitParams, targets: Targets) -> dict[str, float]:
+    walks = generated_walks(params, targets.speeds)
+    got = generated_values(walks)
+    out = {m: got[m] / targets.values[m] for m in MEASURES}
+    out["turn_lean"] = walks.lean_gain() / targets.lean_gain if targets.lean_gain > 0 else float("nan")
+    return out
+
+
+def write_params(params: GaitParams, path: Path = PARAMS_FILE) -> None:
+    """Replace the FITTED block of ``gait_params.py`` with ``params``."""
+    text = path.read_text(encoding="utf-8")
+    fields = "".join(f"    {f.name}={getattr(params, f.name)!r},\n" for f in dataclasses.fields(params))
+    block = f"FITTED_GAIT = GaitParams(\n{fields})\n"
+    new, n = re.subn(r"(# BEGIN FITTED[^\n]*\n).*?(# END FITTED)", lambda m: m.group(1) + block + m.group(2),
+                     text, flags=re.S)
+    if n != 1:
+        raise ValueError(f"{path}: no FITTED block to replace")
+    path.write_text(new, encoding="utf-8")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmark.gait_fit", description=__doc__.splitlines()[0])
+    parser.add_argument("--write", action="store_true", help="store the fitted parameters in gait_params.py")
+    args = parser.parse_args(argv)
+    try:
+        motions, names = real_walks()
+    except FileNotFoundError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    real = measure_walks(motions)
+    targets = fit_targets(real)
+    gains = [f"{name} {measure_walks([j]).lean_gain():+.2f}" for j, name in zip(motions, names, strict=True)
+             if measure_walks([j]).windows]
+    print(f"real walks: {len(names)} CMU clips ({', '.join(names)}), {len(real.windows)} walking windows, "
+          f"speeds {min(w['speed'] for w in real.windows):.2f}-{max(w['speed'] for w in real.windows):.2f} m/s")
+    print(f"targets: step length {targets.step_scale:.3f} m * v^{targets.step_exponent:.2f} (cadence "
+          f"{60 / targets.step_scale:.1f} steps/min * v^{1 - targets.step_exponent:.2f}); turn lean gain "
+          f"{targets.lean_gain:.2f} (balance lean; the real walks' own: {', '.join(gains)}); measured at {', '.join(f'{s:.2f}' for s in targets.speeds)} m/s")
+    for m in MEASURES:
+        print(f"  {m:12s} {targets.values[m]:8.4f}")
+    before = FITTED_GAIT
+    after = calibrate(before, targets)
+    print("\nfitted parameters (before -> after)")
+    for f in dataclasses.fields(after):
+        print(f"  {f.name:22s} {getattr(before, f.name):8.4f} -> {getattr(after, f.name):8.4f}")
+    rb, ra = ratio_rows(before, targets), ratio_rows(after, targets)
+    print("\ngenerated / real        before    after")
+    for m in rb:
+        print(f"  {m:20s} {rb[m]:7.2f}x {ra[m]:7.2f}x")
+    if args.write:
+        write_params(after)
+        print(f"\n-> {PARAMS_FILE}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
