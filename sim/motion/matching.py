@@ -509,9 +509,13 @@ class MotionMatcher:
             else:
                 index = db.entry_index if ent else db.index
                 found = index.query_many(db.normalize(raw))[0]
-            clip_of = info.tab.clip
+            clip_of, succ, last_frame = info.tab.clip, info.tab.nxt, info.tab.end
             for i, b in zip(members, found, strict=True):
+                # the query is the pose shown last frame, so the frame found stands for that
+                # pose: its successor is the one to show now (playing the found frame itself
+                # would repeat a frame's pose at every search, and slow a walk's steps)
                 b, frame = int(b), frames[i]
+                b = b if last_frame[b] else int(succ[b])
                 if changed[i] or clip_of[b] != clip_of[frame] or not 0 <= b - frame <= self.continuation_window:
                     switched.append(i)
                     new_frames[i] = b

@@ -221,6 +221,10 @@ class ReferenceMotionMatcher(MotionMatcher):
             else:
                 index = db.entry_index if ent else db.index
                 best[np.array(members)] = _ref_query_many(index, db.normalize(raw))
+        for i in np.flatnonzero(best >= 0).tolist():  # the found frame stands for the last pose: play its successor
+            tab = self._table(dbs[i].key)
+            if not tab.end[int(best[i])]:
+                best[i] = tab.nxt[int(best[i])]
 
         last = self._ref_last
         if last is not None and len(last[0]) == n and all(a is b for a, b in zip(last[0], states, strict=True)):
