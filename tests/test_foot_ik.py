@@ -316,10 +316,13 @@ def test_a_contact_foot_stays_pinned_then_blends_back() -> None:
     assert np.abs(toes[:10, 0] - toes[0, 0]).max() < 1e-9  # pinned while in contact
     assert np.abs(toes[0] - anim[0]).max() < 1e-9  # locked where it was
     assert np.abs(toes[:, 1] - anim[:, 1]).max() < 1e-12  # the free foot follows the animation
-    steps = np.linalg.norm(np.diff(toes[:, 0], axis=0), axis=-1)
+    steps = np.linalg.norm(np.diff(toes[:, 0, :2], axis=0), axis=-1)
     # smooth release: the 0.10 m lag goes in 6 frames of a smoothstep (slope <= 1.5), on top of
     # the animation's own 0.01 m a frame (a snap back would be one 0.11 m step)
     assert steps.max() <= 0.10 * 1.5 / 6 + 0.01 + 1e-9
+    # the foot steps back rather than sliding: lifted by up to half the lag, down again after
+    lift = toes[:, 0, 2] - anim[:, 0, 2]
+    assert 0.03 < lift[10:16].max() <= 0.05 + 1e-9 and np.abs(lift[:10]).max() < 1e-9
     assert np.abs(toes[16:, 0] - anim[16:, 0]).max() < 1e-9  # back on the animation
     assert np.abs(toes[12, 0] - anim[12, 0]).max() > 0.01  # still blending
 

@@ -13,6 +13,7 @@ import numpy as np
 
 from sim.body.foot_clearance import push_out
 from sim.body.foot_ik import FootSolver, FootState
+from sim.body.foot_kernel import REPLANT_LIFT_M
 from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, solve_chain
 
 _REACH_EPS = 1e-9  # m: reach comparisons of a lock start (the kernel's literal 1e-9)
@@ -53,6 +54,11 @@ def apply_numpy(solver: FootSolver, pelvis: np.ndarray, rots: np.ndarray, contac
     weight = _smoothstep(release / solver.release_frames) if solver.release_frames > 0 else np.zeros(release.shape)
     offset = np.where((release > 0)[..., None], offset, 0.0)
     target = np.where(locked[..., None], state.lock, toe + offset * weight[..., None])
+    if solver.release_frames > 0:  # a released foot steps back to the animation, not a slide
+        u = 1.0 - release / solver.release_frames
+        h = np.minimum(REPLANT_LIFT_M, 0.5 * np.sqrt(offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1]))
+        stepping = (release > 0) & act[:, None]
+        target[..., 2] += np.where(stepping, h * np.sqrt(np.maximum(np.sin(np.pi * u), 0.0)), 0.0)
     # a pinned or blending foot stays within max_reach of the leg (or the animation's own
     # reach, if longer), pulled towards the hip: the IK then seldom straightens the knee
     ankle_to = target - foot - chain.hip
