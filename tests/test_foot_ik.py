@@ -320,9 +320,9 @@ def test_a_contact_foot_stays_pinned_then_blends_back() -> None:
     # smooth release: the 0.10 m lag goes in 6 frames of a smoothstep (slope <= 1.5), on top of
     # the animation's own 0.01 m a frame (a snap back would be one 0.11 m step)
     assert steps.max() <= 0.10 * 1.5 / 6 + 0.01 + 1e-9
-    # the foot steps back rather than sliding: lifted by up to half the lag, down again after
+    # the foot steps back rather than sliding: lifted by up to its lag (at most 8 cm), down after
     lift = toes[:, 0, 2] - anim[:, 0, 2]
-    assert 0.03 < lift[10:16].max() <= 0.05 + 1e-9 and np.abs(lift[:10]).max() < 1e-9
+    assert 0.06 < lift[10:16].max() <= 0.08 + 1e-9 and np.abs(lift[:10]).max() < 1e-9
     assert np.abs(toes[16:, 0] - anim[16:, 0]).max() < 1e-9  # back on the animation
     assert np.abs(toes[12, 0] - anim[12, 0]).max() > 0.01  # still blending
 

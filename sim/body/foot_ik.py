@@ -11,8 +11,8 @@ characters that moves only the feet, with the legs' local rotations:
    ``max_drift`` from the animated toe or needs more than ``max_reach`` of the leg's length
    (a planted foot left behind a walking body would drag a straight leg), and the foot then
    blends back to the animation over ``release_frames`` frames (a smoothstep on the offset it
-   had at the release), lifted on the way (up to ``foot_kernel.REPLANT_LIFT_M``, half the
-   offset when that is less) so that it steps rather than slides; a contact starts no lock out
+   had at the release), lifted on the way (up to ``foot_kernel.REPLANT_LIFT_M``, the offset
+   when that is less) so that it steps rather than slides; a contact starts no lock out
    of that reach, and a blending foot is
    held within it (or within the animation's reach, if longer) by pulling it towards the hip;
 2. *clearance*: the foot (ankle and toe joints, as one rigid piece) is moved horizontally out

@@ -41,7 +41,7 @@ __all__ = ["REPLANT_LIFT_M", "apply_frame"]
 REPLANT_LIFT_M = 0.08
 """Highest lift (m) of a released foot on its way back to the animation (its lock left behind
 when the contact ended, or lost while in contact, too far from the hip): it takes a quick step
-there instead of sliding along the floor; half the horizontal distance when that is less."""
+there instead of sliding along the floor; its horizontal distance when that is less."""
 
 _HIP_J = np.array(HIP_JOINTS, dtype=np.int64)  # (left, right)
 _KNEE_J = np.array(KNEE_JOINTS, dtype=np.int64)
@@ -147,7 +147,7 @@ def apply_frame(
                 t0, t1, t2 = tp[0] + o0 * weight, tp[1] + o1 * weight, tp[2] + o2 * weight
             if rel > 0 and act[c]:  # a released foot steps back to the animation, it does not slide
                 u = 1.0 - rel / release_frames
-                t2 += min(REPLANT_LIFT_M, 0.5 * math.sqrt(o0 * o0 + o1 * o1)) * math.sqrt(math.sin(math.pi * u))
+                t2 += min(REPLANT_LIFT_M, math.sqrt(o0 * o0 + o1 * o1)) * math.sqrt(math.sin(math.pi * u))
             # a pinned or blending foot stays within reach of the leg, pulled towards the hip
             a0, a1, a2 = t0 - ft[0] - hp[0], t1 - ft[1] - hp[1], t2 - ft[2] - hp[2]
             dist = _hyp3(a0, a1, a2)

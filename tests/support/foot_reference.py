@@ -56,7 +56,7 @@ def apply_numpy(solver: FootSolver, pelvis: np.ndarray, rots: np.ndarray, contac
     target = np.where(locked[..., None], state.lock, toe + offset * weight[..., None])
     if solver.release_frames > 0:  # a released foot steps back to the animation, not a slide
         u = 1.0 - release / solver.release_frames
-        h = np.minimum(REPLANT_LIFT_M, 0.5 * np.sqrt(offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1]))
+        h = np.minimum(REPLANT_LIFT_M, np.sqrt(offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1]))
         stepping = (release > 0) & act[:, None]
         target[..., 2] += np.where(stepping, h * np.sqrt(np.maximum(np.sin(np.pi * u), 0.0)), 0.0)
     # a pinned or blending foot stays within max_reach of the leg (or the animation's own
