@@ -33,6 +33,7 @@ from agents.llm_port import ChatMessage, LLMRequest
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.relation_words import (
     RelationMention,
+    back_reference,
     joined_labels,
     stated_relations,
     without_relations,
@@ -146,13 +147,18 @@ def _seat_kinds(scene: Scene, text: str) -> set[str]:
 
 def seat_candidates(
     scene: Scene, text: str, free_seats: Sequence[str], others: Mapping[str, tuple[float, float]],
-    action_labels: Sequence[str] = (), prompts: PromptLibrary | None = None,
+    action_labels: Sequence[str] = (), prompts: PromptLibrary | None = None, before: str = "",
 ) -> SeatCandidates:
     """The candidates of an event whose words are ``text`` (see the module docstring);
-    ``others``: where the characters outside the event are."""
+    ``others``: where the characters outside the event are; ``before``: the instruction's words
+    before ``text``, which a place word pointing back ("sits down there too") refers to when the
+    words state no relation of their own (:func:`agents.relation_words.back_reference`)."""
     lib = prompts or package_prompts()
     by_name = {o.name: o for o in scene.objects}
     mentions = stated_relations(text, scene.labels, list(others))
+    if not mentions and before.strip():
+        pointed = back_reference(text, before, scene.labels, list(others))
+        mentions = [pointed] if pointed is not None else []
     about = without_relations(text, mentions, scene.labels)
     free = [by_name[s] for s in free_seats if s in by_name]
     short = event_shortlist(scene, about, [s.name for s in free], action_labels, others=others).seats

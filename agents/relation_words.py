@@ -164,3 +164,48 @@ def without_relations(text: str, relations: Sequence[RelationMention], labels: S
     tokens = _tokens(joined_labels(text, labels))
     cut = {k for r in relations for k in range(r.start, r.end)}
     return " ".join(t for k, t in enumerate(tokens) if k not in cut)
+
+
+BACK_REFERENCES = frozenset({"there"})
+"""Place words that point back to the last thing named before them ("Jalen sits at a table; Aino
+comes over and sits down there too"), a closed class of English deixis."""
+EXISTENTIAL = frozenset({"is", "are", "was", "were", "be", "'s"})
+"""Words after "there" that make it existential ("there is a free chair"), not a place."""
+
+
+def points_back(text: str) -> bool:
+    """Whether ``text`` has a place word that points back (:data:`BACK_REFERENCES`, not existential)."""
+    lower = [t.lower() for t in _tokens(text)]
+    return any(t in BACK_REFERENCES and (i + 1 >= len(lower) or lower[i + 1] not in EXISTENTIAL)
+               for i, t in enumerate(lower))
+
+
+def back_reference(text: str, before: str, labels: Sequence[str], names: Sequence[str] = ()) -> RelationMention | None:
+    """A ``near`` relation for a place word of ``text`` that points back (:data:`BACK_REFERENCES`)
+    to the clause ``before`` ends with (the instruction's words before ``text``): to the last
+    character of ``names`` it names ("Jalen sits at a table; Aino sits down there too": near
+    Jalen, whose table it is), else to the last object label it names. None when ``text`` has no
+    such word or that clause names nothing. The span is the place word's own (``text`` as read by
+    :func:`stated_relations`)."""
+    tokens = _tokens(joined_labels(text, labels))
+    lower = [t.lower() for t in tokens]
+    at = next((i for i, t in enumerate(lower) if t in BACK_REFERENCES
+               and (i + 1 >= len(lower) or lower[i + 1] not in EXISTENTIAL)), None)
+    if at is None:
+        return None
+    words = _tokens(joined_labels(before, labels))
+    while words and not words[-1][0].isalnum():
+        words.pop()
+    cut = max((k for k, w in enumerate(words) if w in CLAUSE_MARKS), default=-1)
+    clause = words[cut + 1:]
+    named = [w.removesuffix("'s") for w in clause if w.removesuffix("'s") in names]
+    if named:
+        return RelationMention("near", ((f"@{named[-1]}",),), at, at + 1)
+    things = mentioned_labels(" ".join(clause), labels)
+    if things:
+        return RelationMention("near", ((things[-1],),), at, at + 1)
+    return None
+
+
+CLAUSE_MARKS = frozenset({".", ";", "!", "?"})
+"""Marks that end the clause a back reference may point to."""

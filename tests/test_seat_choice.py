@@ -15,8 +15,15 @@ from hypothesis import strategies as st
 from agents.llm_port import ChatMessage, LLMRequest, LLMResponse
 from agents.place_choice import checked_choice, needs_model, seat_candidates, seat_choice_request
 from agents.prompt_templates import package_prompts
-from agents.relation_words import stated_relations, without_relations
+from agents.relation_words import (
+    RelationMention,
+    back_reference,
+    points_back,
+    stated_relations,
+    without_relations,
+)
 from agents.scored_choice import ChoiceError, choice_request, choose, read_choice
+from orchestrator.planning.seat_node import words_before, words_so_far
 from sim.scene.model import Scene, SceneObject
 from tools.place_relations import (
     FACING_DEG,
@@ -167,6 +174,32 @@ def test_opposite_a_character_is_the_seat_that_faces_them_squarely() -> None:
     free = tuple(n for n in (o.name for o in scene.objects if o.is_seat) if n != "chair_2")
     seats = seat_candidates(scene, "Mo sits down opposite Kim.", free, {"Kim": kim_at})
     assert seats.allowed == ("chair_5",)
+
+
+def test_there_points_back_to_the_character_or_thing_the_clause_before_names() -> None:
+    assert back_reference("Mo sits down there too.", "Kim is sitting at the table; ", LABELS, ["Kim"]) == (
+        RelationMention("near", (("@Kim",),), 3, 4))
+    assert back_reference("Mo sits there.", "Kim waits. Then the fridge hums.", LABELS, ["Kim"]) == (
+        RelationMention("near", (("fridge",),), 2, 3))
+    assert back_reference("There is a free chair, Mo sits.", "Kim waits by the fridge.", LABELS, ["Kim"]) is None
+    assert back_reference("Mo sits down.", "Kim waits by the fridge.", LABELS, ["Kim"]) is None
+    assert points_back("Mo sits down there too.") and not points_back("There is a chair; Mo sits.")
+    kim_at = (5.5, 0.4)  # beside chair_4
+    free = tuple(n for n in FREE if n != "couch_1")
+    pointed = seat_candidates(ROOM, "Mo comes over and sits down there too.", free, {"Kim": kim_at},
+                              before="Kim is sitting at the table; ")
+    assert pointed.allowed == ("chair_4",)
+    # without the words before, nothing is stated: every chair is the model's to rank
+    assert len(seat_candidates(ROOM, "Mo comes over and sits down there too.", free, {"Kim": kim_at}).allowed) == 4
+
+
+def test_the_seat_prompt_quotes_the_instruction_up_to_the_part() -> None:
+    instruction = "Kim is sitting at a table; Mo comes over and sits down there too. Then Mo reads."
+    part = "Mo comes over and sits down there too."
+    assert words_so_far(instruction, part) == "Kim is sitting at a table; Mo comes over and sits down there too."
+    assert words_before(instruction, part) == "Kim is sitting at a table; "
+    assert words_before(instruction, "Then Mo reads.").endswith("there too. Then ")
+    assert words_so_far(instruction, "not in it") == "not in it" and words_before(instruction, "not in it") == ""
 
 
 def test_without_stated_relations_the_model_chooses_and_the_prompt_describes_each_seat() -> None:

@@ -17,6 +17,7 @@ chosen seat, the model's ranking and the candidates the check allowed.
 
 from __future__ import annotations
 
+import re
 import time
 from typing import Any
 
@@ -33,6 +34,7 @@ from agents.place_choice import (
     seat_choice_request,
 )
 from agents.program_grammar import event_options
+from agents.relation_words import points_back
 from agents.scored_choice import ChoiceError, ScoredChoice, choose
 from orchestrator.planning.state import PlanningDeps, PlanningState
 
@@ -52,10 +54,44 @@ def event_seats(state: PlanningState, deps: PlanningDeps) -> SeatCandidates | No
     )
     if not options.must_sit or not options.free_seats:
         return None
-    seats = seat_candidates(deps.scene, text, options.free_seats, options.others, options.labels, deps.prompts)
+    seats = seat_candidates(
+        deps.scene, text, options.free_seats, options.others, options.labels, deps.prompts,
+        before=words_before(state.instruction, state.part),
+    )
     if not seats.candidates or options.seats == seats.allowed == seats.allowed[:1]:
         return None
     return seats
+
+
+WORDS_SO_FAR_CHARS = 400
+"""At most this many characters of the instruction up to the part are quoted in the prompt."""
+
+
+def part_span(instruction: str, part: str) -> tuple[int, int] | None:
+    """Where ``part`` (its words, without a leading "Then" the part split may have added) is in
+    ``instruction``: (start, end); None when it is not found as written."""
+    core = re.sub(r"^then,?\s+", "", part.strip(), flags=re.IGNORECASE).rstrip(".!?; ")
+    at = instruction.lower().find(core.lower()) if core else -1
+    return None if at < 0 else (at, at + len(core))
+
+
+def words_so_far(instruction: str, part: str) -> str:
+    """The instruction up to the end of ``part`` (its last :data:`WORDS_SO_FAR_CHARS` characters),
+    so words that point back ("Jalen sits at a table; Aino comes over and sits down there too")
+    keep what they point to; ``part`` alone when it is not found in the instruction as written."""
+    span = part_span(instruction, part)
+    if span is None:
+        return part
+    so_far = instruction[: span[1]].strip()
+    if len(so_far) > WORDS_SO_FAR_CHARS:
+        so_far = so_far[-WORDS_SO_FAR_CHARS:].split(" ", 1)[-1]
+    return so_far + instruction[span[1] : span[1] + 1].strip(" ")
+
+
+def words_before(instruction: str, part: str) -> str:
+    """The instruction's words before ``part`` ("" when it is not found as written)."""
+    span = part_span(instruction, part)
+    return "" if span is None else instruction[: span[0]][-WORDS_SO_FAR_CHARS:]
 
 
 async def choose_seat(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
@@ -70,7 +106,8 @@ async def choose_seat(state: PlanningState, runtime: Runtime[PlanningDeps]) -> d
         return {"seat": checked_choice(seats, None)}
     assert state.event is not None
     request = seat_choice_request(
-        deps.prompts, seats, state.event.characters[0], state.event.activity, state.part,
+        deps.prompts, seats, state.event.characters[0], state.event.activity,
+        words_so_far(state.instruction, state.part) if points_back(state.part) else state.part,
         seed=deps.seed, sim_frame=state.sim_frame,
     )
     started = time.monotonic()
