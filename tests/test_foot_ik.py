@@ -21,6 +21,7 @@ from sim.body.foot_ik import (
     push_out,
     solve_legs,
 )
+from sim.body.foot_kernel import TOE_FLOOR_M
 from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, _ik_kernel
 from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, forward_kinematics, heading_to_root
 from sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
@@ -251,6 +252,8 @@ def test_push_out_clears_overlapping_boxes() -> None:
 
 def _foot_in_box_case(margin: float) -> tuple[FootSolver, Footprints, np.ndarray, np.ndarray]:
     pelvis, rots = _poses(1, seed=6, bend=0.15)
+    pos, _ = forward_kinematics(rots, pelvis)
+    pelvis[:, 2] += max(0.0, TOE_FLOOR_M - pos[0, list(FOOT_JOINTS), 2].min())  # both feet on or above the floor
     pos, _ = forward_kinematics(rots, pelvis)
     toe = pos[0, FOOT_JOINTS[0], :2]
     # a box whose edge runs 4 cm past the left toe, on the far side from the pelvis

@@ -15,6 +15,8 @@ characters that moves only the feet, with the legs' local rotations:
    when that is less) so that it steps rather than slides; a contact starts no lock out
    of that reach, and a blending foot is
    held within it (or within the animation's reach, if longer) by pulling it towards the hip;
+   An active character's toe target is never below the floor (``foot_kernel.TOE_FLOOR_M``, the
+   toe's height standing flat): a blend between two clips can swing a leg through it.
 2. *clearance*: the foot (ankle and toe joints, as one rigid piece) is moved horizontally out
    of every floor-standing footprint grown by ``margin``, by the shortest shift that clears
    all of them (``sim.body.foot_clearance.push_out``);
@@ -26,8 +28,8 @@ characters that moves only the feet, with the legs' local rotations:
    bones allow).
 
 Only the local rotations of hips, knees and ankles change; the pelvis position and every other
-joint's local rotation are returned untouched. A foot that is neither locked, blending nor
-pushed keeps its input rotations up to rounding (1e-15), except a knee that the animation
+joint's local rotation are returned untouched. A foot that is neither locked, blending,
+pushed nor below the floor keeps its input rotations up to rounding (1e-15), except a knee that the animation
 bends backwards, which the IK bends forwards; an inactive character's legs come back exactly
 as they were (once any release blend is over). ``apply`` is a pure function of its inputs and the
 state it returns (plain arrays in a frozen dataclass, never modified in place), so world

@@ -34,9 +34,16 @@ from sim.body.leg_ik import (
     KNEE_JOINTS,
     _ik_kernel,
 )
+from sim.body.skeleton import JOINT_INDEX, REST_OFFSETS
 from sim.motion.clips import ANKLE_JOINTS
 
-__all__ = ["REPLANT_LIFT_M", "apply_frame"]
+__all__ = ["REPLANT_LIFT_M", "TOE_FLOOR_M", "apply_frame"]
+
+TOE_FLOOR_M = float(REST_OFFSETS[0, 1] + sum(
+    REST_OFFSETS[JOINT_INDEX[j], 1] for j in ("left_hip", "left_knee", "left_ankle", "left_foot")))
+"""Height (m) of the toe joint (SMPL's ``*_foot``, the ball of the foot) above the floor (z = 0,
+the height the motion is placed on) when the foot stands flat: an active character's toe
+target is never lower (a blend between two clips can swing a leg through the floor)."""
 
 REPLANT_LIFT_M = 0.08
 """Highest lift (m) of a released foot on its way back to the animation (its lock left behind
@@ -148,6 +155,8 @@ def apply_frame(
             if rel > 0 and act[c]:  # a released foot steps back to the animation, it does not slide
                 u = 1.0 - rel / release_frames
                 t2 += min(REPLANT_LIFT_M, math.sqrt(o0 * o0 + o1 * o1)) * math.sqrt(math.sin(math.pi * u))
+            if act[c] and t2 < TOE_FLOOR_M:  # never through the floor
+                t2 = TOE_FLOOR_M
             # a pinned or blending foot stays within reach of the leg, pulled towards the hip
             a0, a1, a2 = t0 - ft[0] - hp[0], t1 - ft[1] - hp[1], t2 - ft[2] - hp[2]
             dist = _hyp3(a0, a1, a2)

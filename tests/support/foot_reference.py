@@ -13,7 +13,7 @@ import numpy as np
 
 from sim.body.foot_clearance import push_out
 from sim.body.foot_ik import FootSolver, FootState
-from sim.body.foot_kernel import REPLANT_LIFT_M
+from sim.body.foot_kernel import REPLANT_LIFT_M, TOE_FLOOR_M
 from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, solve_chain
 
 _REACH_EPS = 1e-9  # m: reach comparisons of a lock start (the kernel's literal 1e-9)
@@ -59,6 +59,7 @@ def apply_numpy(solver: FootSolver, pelvis: np.ndarray, rots: np.ndarray, contac
         h = np.minimum(REPLANT_LIFT_M, np.sqrt(offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1]))
         stepping = (release > 0) & act[:, None]
         target[..., 2] += np.where(stepping, h * np.sqrt(np.maximum(np.sin(np.pi * u), 0.0)), 0.0)
+    target[..., 2] = np.where(act[:, None], np.maximum(target[..., 2], TOE_FLOOR_M), target[..., 2])
     # a pinned or blending foot stays within max_reach of the leg (or the animation's own
     # reach, if longer), pulled towards the hip: the IK then seldom straightens the knee
     ankle_to = target - foot - chain.hip
