@@ -418,8 +418,9 @@ def test_apply_rejects_bad_input() -> None:
 
 @pytest.mark.parametrize("release_frames", [6, 0])
 def test_compiled_apply_equals_the_array_steps(release_frames: int) -> None:
-    # Walking bodies (pelvis moving, random contacts), some inactive on some frames, a box the
-    # feet run into: every lock, release, blend, push and IK step of the kernel must match.
+    # Walking bodies (pelvis moving, random contacts), some inactive on some frames (of those,
+    # some pinned all the same), a box the feet run into: every lock, release, blend, lift, push
+    # and IK step of the kernel must match.
     pelvis, rots = _poses(6, seed=21)
     toe = forward_kinematics(rots, pelvis)[0][0, FOOT_JOINTS[0], :2]
     box = _box(0.6, 0.6, (float(toe[0]) + 0.5, float(toe[1])), margin=0.03)  # character 0 walks into it
@@ -427,13 +428,14 @@ def test_compiled_apply_equals_the_array_steps(release_frames: int) -> None:
     rng = np.random.default_rng(22)
     contacts = rng.random((60, 6, 2)) < 0.7
     active = rng.random((60, 6)) < 0.85
+    pinned = rng.random((60, 6)) < 0.5
     heading = np.array([1.0, 0.5, 0.0])
     fast = slow = solver.initial_state(6)
     locks = pushed = 0
     for f in range(60):
         p = pelvis + 0.02 * f * heading
-        a, fast = solver.apply(p, rots, contacts[f], fast, active=active[f])
-        b, slow = apply_numpy(solver, p, rots, contacts[f], slow, active=active[f])
+        a, fast = solver.apply(p, rots, contacts[f], fast, active=active[f], pinned=pinned[f])
+        b, slow = apply_numpy(solver, p, rots, contacts[f], slow, active=active[f], pinned=pinned[f])
         assert np.allclose(a, b, rtol=0.0, atol=1e-12)
         for name in ("locked", "release", "drifted"):
             assert np.array_equal(getattr(fast, name), getattr(slow, name)), (f, name)
@@ -464,3 +466,17 @@ def test_box_grid_finds_every_box_a_point_is_in(seed: int) -> None:
                          for x, y in pts[m] for b in range(n)) for m in range(len(pts))])
     assert np.array_equal(got, want)
     assert 0 < want.sum() < len(want)
+
+
+def test_a_pinned_inactive_foot_stays_planted_and_is_not_pushed() -> None:
+    # Sitting down by a table: the feet stay where they were planted, even inside a footprint.
+    solver, box, pelvis, rots = _foot_in_box_case(margin=0.02)
+    contacts = np.ones((1, 2), dtype=bool)
+    state = solver.initial_state(1)
+    toes0 = forward_kinematics(rots, pelvis)[0][0, list(FOOT_JOINTS)]
+    for f in range(8):
+        p = pelvis + np.array([[-0.01 * f, 0.0, -0.01 * f]])  # the body moves back and down
+        out, state = solver.apply(p, rots, contacts, state, active=np.array([False]), pinned=np.array([True]))
+        toes = forward_kinematics(out, p)[0][0, list(FOOT_JOINTS)]
+        assert np.abs(toes - toes0).max() < 1e-6  # planted where they started, box or not
+    assert _depth(toes[:, :2], box).max() > 0.0  # the left toe is still inside the footprint

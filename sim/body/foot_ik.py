@@ -133,13 +133,16 @@ class FootSolver:
         return FootState.initial(n)
 
     def apply(self, pelvis: NDArray[np.float64], rots: NDArray[np.float64], contacts: NDArray[np.float64], state: FootState,
-              active: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], FootState]:
+              active: NDArray[np.float64] | None = None,
+              pinned: NDArray[np.bool_] | None = None) -> tuple[NDArray[np.float64], FootState]:
         """One frame for N characters.
 
         pelvis (N, 3) world positions (unchanged), rots (N, 22, 3, 3) local rotations (joint 0
         in world), contacts (N, 2) left/right foot contact flags, state from the previous frame
         (or ``initial_state(N)``); ``active`` (N,) bool, default all: an inactive character's
-        feet are neither pinned nor pushed (a held lock is released smoothly). Returns the new
+        feet are neither pinned nor pushed (a held lock is released smoothly); ``pinned`` (N,)
+        bool, default none: characters whose feet are pinned (and kept above the floor) though
+        inactive, so not pushed (sitting down or standing up by a table: feet may go under it). Returns the new
         local rotations (a copy; only hips, knees and ankles differ) and the new state."""
         pelvis = np.asarray(pelvis, dtype=np.float64)
         rots = np.asarray(rots, dtype=np.float64)
@@ -154,10 +157,11 @@ class FootSolver:
         if not (np.isfinite(pelvis).all() and np.isfinite(rots).all()):
             raise FootIKError("pelvis and rotations must be finite")
         act = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool).reshape(n)
+        pin = act if pinned is None else act | np.asarray(pinned, dtype=bool).reshape(n)
         fp, g = self.footprints, self._grid
         out, locked, lock, offset, release, drifted = apply_frame(
             np.ascontiguousarray(pelvis), np.ascontiguousarray(rots), np.ascontiguousarray(contacts, dtype=bool),
-            np.ascontiguousarray(act), state.locked, state.lock, state.offset, state.release, state.drifted,
+            np.ascontiguousarray(act), np.ascontiguousarray(pin), state.locked, state.lock, state.offset, state.release, state.drifted,
             self.max_reach * (THIGH_LENGTH + SHIN_LENGTH), THIGH_LENGTH, SHIN_LENGTH, self.max_drift,
             self.release_frames, fp.centers, fp.rights, fp.facings, fp.halves, self.passes,
             g.origin, g.cell, g.shape[0], g.shape[1], g.starts, g.items)

@@ -80,6 +80,7 @@ def _matmul3_into(a: NDArray[np.float64], b: NDArray[np.float64], out: NDArray[n
 @njit(cache=True)
 def apply_frame(
     pelvis: NDArray[np.float64], rots: NDArray[np.float64], contacts: NDArray[np.bool_], act: NDArray[np.float64],
+    pin: NDArray[np.bool_],
     locked: NDArray[np.bool_], lock: NDArray[np.float64], offset: NDArray[np.float64], release: NDArray[np.int64],
     drifted: NDArray[np.bool_],
     full: NDArray[np.float64], thigh: NDArray[np.float64], shin: NDArray[np.float64], max_drift: float, release_frames: int,
@@ -121,7 +122,7 @@ def apply_frame(
             _affine_into(ankle[c, leg], ankle_r[c, leg], _TOE_OFF[leg], toe[c, leg])
             for i in range(3):
                 foot[c, leg, i] = toe[c, leg, i] - ankle[c, leg, i]
-            contact = contacts[c, leg] and act[c]
+            contact = contacts[c, leg] and pin[c]
             # pinning: release, blend, lock
             lk, tp, ft, hp = lock[c, leg], toe[c, leg], foot[c, leg], hip[c, leg]
             drift = _hyp3(lk[0] - tp[0], lk[1] - tp[1], lk[2] - tp[2])
@@ -152,10 +153,10 @@ def apply_frame(
                 t0, t1, t2 = lk[0], lk[1], lk[2]
             else:
                 t0, t1, t2 = tp[0] + o0 * weight, tp[1] + o1 * weight, tp[2] + o2 * weight
-            if rel > 0 and act[c]:  # a released foot steps back to the animation, it does not slide
+            if rel > 0 and pin[c]:  # a released foot steps back to the animation, it does not slide
                 u = 1.0 - rel / release_frames
                 t2 += min(REPLANT_LIFT_M, math.sqrt(o0 * o0 + o1 * o1)) * math.sqrt(math.sin(math.pi * u))
-            if act[c] and t2 < TOE_FLOOR_M:  # never through the floor
+            if pin[c] and t2 < TOE_FLOOR_M:  # never through the floor
                 t2 = TOE_FLOOR_M
             # a pinned or blending foot stays within reach of the leg, pulled towards the hip
             a0, a1, a2 = t0 - ft[0] - hp[0], t1 - ft[1] - hp[1], t2 - ft[2] - hp[2]
@@ -204,7 +205,7 @@ def apply_frame(
     solve = np.zeros((n, 2), dtype=np.bool_)
     for c in range(n):
         for leg in range(2):
-            contact = contacts[c, leg] and act[c]
+            contact = contacts[c, leg] and pin[c]
             tg, ft, hp, tp = target[c, leg], foot[c, leg], hip[c, leg], toe[c, leg]
             reach = _hyp3(tg[0] - ft[0] - hp[0], tg[1] - ft[1] - hp[1], tg[2] - ft[2] - hp[2])
             start = contact and not n_locked[c, leg] and not n_drifted[c, leg] and reach <= full[leg] + 1e-9  # m: reach tolerance of a lock start

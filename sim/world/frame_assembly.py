@@ -74,6 +74,7 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
     queries: list[MotionQuery] = []
     labels: list[str] = []
     still_feet: list[bool] = []  # sitting, sitting down, standing up: feet as animated
+    seat_transit: list[bool] = []  # sitting down, standing up: planted feet pinned all the same
     heading_l: list[float] = []
     root_l: list[np.ndarray] = []
     walkers = [c for c in chars if c.walker]
@@ -110,6 +111,7 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
         ))
         labels.append(key)
         still_feet.append(seated or label in ("sit_down", "stand_up"))
+        seat_transit.append(label in ("sit_down", "stand_up"))
         heading_l.append(c.heading)
         root_l.append(c.xy)
     heading = np.array(heading_l, dtype=float)
@@ -137,7 +139,8 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
     w.motion_states.update(zip(names, new_states, strict=True))
     pelvis, rots = compose_poses(rots, pz, root, heading)
     if w.foot_solver is not None and w.feet is not None:
-        rots, w.feet = w.foot_solver.apply(pelvis, rots, contacts, w.feet, active=~np.array(still_feet))
+        rots, w.feet = w.foot_solver.apply(pelvis, rots, contacts, w.feet, active=~np.array(still_feet),
+                                           pinned=np.array(seat_transit))
     w.buffers.append(pelvis, rots, labels, contacts, [c.event_id or "" for c in chars])
     for c in chars:
         c.phase_frame += 1

@@ -26,14 +26,15 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
 
 
 def apply_numpy(solver: FootSolver, pelvis: np.ndarray, rots: np.ndarray, contacts: np.ndarray, state: FootState,
-                active: np.ndarray | None = None) -> tuple[np.ndarray, FootState]:
-    """``solver.apply(pelvis, rots, contacts, state, active)`` as array steps."""
+                active: np.ndarray | None = None, pinned: np.ndarray | None = None) -> tuple[np.ndarray, FootState]:
+    """``solver.apply(pelvis, rots, contacts, state, active, pinned)`` as array steps."""
     pelvis = np.asarray(pelvis, dtype=float)
     rots = np.asarray(rots, dtype=float)
     contacts = np.asarray(contacts)
     n = len(pelvis)
     act = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool).reshape(n)
-    contact = contacts.astype(bool) & act[:, None]
+    pin = act if pinned is None else act | np.asarray(pinned, dtype=bool).reshape(n)
+    contact = contacts.astype(bool) & pin[:, None]
 
     chain = LegChain(pelvis, rots)
     toe = chain.toe  # (N, 2, 3)
@@ -57,9 +58,9 @@ def apply_numpy(solver: FootSolver, pelvis: np.ndarray, rots: np.ndarray, contac
     if solver.release_frames > 0:  # a released foot steps back to the animation, not a slide
         u = 1.0 - release / solver.release_frames
         h = np.minimum(REPLANT_LIFT_M, np.sqrt(offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1]))
-        stepping = (release > 0) & act[:, None]
+        stepping = (release > 0) & pin[:, None]
         target[..., 2] += np.where(stepping, h * np.sqrt(np.maximum(np.sin(np.pi * u), 0.0)), 0.0)
-    target[..., 2] = np.where(act[:, None], np.maximum(target[..., 2], TOE_FLOOR_M), target[..., 2])
+    target[..., 2] = np.where(pin[:, None], np.maximum(target[..., 2], TOE_FLOOR_M), target[..., 2])
     # a pinned or blending foot stays within max_reach of the leg (or the animation's own
     # reach, if longer), pulled towards the hip: the IK then seldom straightens the knee
     ankle_to = target - foot - chain.hip
