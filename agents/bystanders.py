@@ -41,7 +41,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from agents.action_shortlist import action_shortlist, posture, rank_action_labels
-from agents.instruction_parts import split_instruction
+from agents.instruction_parts import named_in, split_instruction
 from agents.messages import CharacterStatus, Event, HistoryEntry
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.shortlist import CLOSE_M, VIEWED_M, mentioned_labels
@@ -205,7 +205,7 @@ def never_named(instruction: str, names: Sequence[str]) -> tuple[str, ...]:
     parts = split_instruction(instruction, names)
     if not parts:
         return ()
-    named = {n for p in parts for n in p.names}
+    named = named_in(parts, names)
     return tuple(n for n in names if n not in named)
 
 

@@ -309,7 +309,7 @@ def instruction_progress(
         for h in sorted(history, key=lambda e: e.index):
             last.update(dict.fromkeys(h.characters, h.state))
         resting = set(idle)
-        named = {n for p in parts for n in p.names}
+        named = named_in(parts, free)
         bystanders = tuple(
             n for n in free
             if n not in needed and (last.get(n) != "looping" or n in resting)  # still at it: not idle
@@ -323,6 +323,13 @@ def instruction_progress(
             return InstructionProgress(text, None, others, not others)
         return InstructionProgress(text, None, (), "" in states)
     return InstructionProgress(text, nxt.text, nxt.actors, False)
+
+
+def named_in(parts: Sequence[InstructionPart], everyone: Iterable[str]) -> set[str]:
+    """The characters the parts name; a part naming nobody ("Everyone reads.") is any character's,
+    so it names ``everyone``."""
+    named = {n for p in parts for n in p.names}
+    return named | set(everyone) if any(not p.names for p in parts) else named
 
 
 def instruction_text(

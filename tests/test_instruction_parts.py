@@ -205,3 +205,14 @@ def test_a_character_whose_parts_are_over_is_given_something_to_do_while_others_
     parts = split_instruction(waiter, names)
     sat = [planned(0, ("Ava",), "sit", parts[0].text)]
     assert instruction_progress(waiter, names, sat, ("Ava",)).bystanders == ()
+
+
+def test_a_part_naming_nobody_is_everyones_so_nobody_is_a_bystander_to_it() -> None:
+    """ "Everyone reads.": once Ava has read, Ben reading too is the instruction, not a bystander
+    copying someone else's activity (the narrator's check refused it four times)."""
+    from agents.bystanders import never_named
+
+    progress = instruction_progress("Everyone reads.", ["Ava", "Ben"], [ev(0, ("Ava",), "reads")], ["Ben"])
+    assert progress.bystanders == ()
+    assert never_named("Everyone reads.", ["Ava", "Ben"]) == ()
+    assert never_named("Ava reads.", ["Ava", "Ben"]) == ("Ben",)
