@@ -120,7 +120,7 @@ def test_cli_errors(tmp_path: Path) -> None:
     broken.write_text('{"current_states": [')
     i = args.index("--states") + 1
     bad_states = runner.invoke(app, [*args[:i], str(broken), *args[i + 1 :]])
-    assert bad_states.exit_code == 2 and "invalid JSON" in bad_states.stderr
+    assert bad_states.exit_code == 2 and "not valid JSON" in bad_states.stderr
     # a failing program: typed error in "error", exit 1, no plans
     program = tmp_path / "bad.py"
     program.write_text(

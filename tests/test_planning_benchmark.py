@@ -87,7 +87,7 @@ def test_all_forty_cases_load_with_their_inputs() -> None:
 def test_bad_case_files_are_typed_errors(tmp_path: Path) -> None:
     bad = tmp_path / "testcase_1.json"
     bad.write_text('{"id": 1, "tags": ["OA"]')
-    with pytest.raises(BenchmarkCaseError, match=r"testcase_1\.json: invalid JSON"):
+    with pytest.raises(BenchmarkCaseError, match=r"testcase_1\.json: not valid JSON"):
         load_case(bad)
     bad.write_text('{"id": "one"}')
     with pytest.raises(BenchmarkCaseError, match="field 'id'"):
@@ -187,7 +187,8 @@ def test_cli_records_then_replays_byte_for_byte(fake: FakeOpenAI, tmp_path: Path
     common = ["--reference", str(REFERENCE), "--cases", "0", "60", "--description", "reference", "--verbose"]
     assert main([*common, "--config", str(config), "--record", str(trace), "--json", str(tmp_path / "r.json")]) == 0
     recorded = capsys.readouterr().out
-    assert len(fake.requests) == 4
+    # per case a narration and a program; the PI case's words name no action: one action choice too
+    assert len(fake.requests) == 5
     assert "case  0 run 0 [OA]: pass" in recorded and "case 60 run 0 [PI]: pass" in recorded
     assert "all" in recorded and "1.00" in recorded and "paper" in recorded
     report = json.loads((tmp_path / "r.json").read_text())
