@@ -12,8 +12,9 @@ trunk's sideways roll against ``atan(lateral acceleration / g)``, a least-square
 
 The targets: step length as a power law of speed (a straight line in log-log, Theil-Sen, so one
 odd walk does not tilt it), the rest as means over the windows (what the benchmark's
-least-squares line against speed gives at their mean speed; their speeds span too little to fit
-a slope, so the generator's slopes stay as they are). Turn lean is printed per clip but not fitted: the
+least-squares line against speed gives at their mean speed), and arm swing's growth with speed
+as the slope of that line (the other measures get no slope: the real ones do not grow with
+speed over 0.9-1.2 m/s beyond their scatter). Turn lean is printed per clip but not fitted: the
 CMU walks turn too gently (lateral acceleration under 0.1 g) and their gains scatter on both
 sides of zero, so the generator keeps the balance lean (gain 1: the body tilts so that gravity
 and the turn's acceleration together point through the feet). Then the generator's parameters
@@ -40,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import theilslopes
 
-from benchmark.motion_metrics.gait import gait_window, walking_windows
+from benchmark.motion_metrics.gait import fit_speed, gait_window, walking_windows
 from sim.body.skeleton import JOINT_INDEX
 from sim.motion.sources.gait_params import FITTED_GAIT, GaitParams
 from sim.motion.sources.procedural_locomotion import GRAVITY, locomotion_clip
@@ -170,6 +171,8 @@ class Targets:
     values: dict[str, float]
     lean_gain: float
     speeds: tuple[float, ...]
+    arm_swing_slope: float
+    """Arm swing's growth with speed (m per m/s): the benchmark's least-squares line."""
 
 
 def fit_targets(real: Walks) -> Targets:
@@ -181,7 +184,13 @@ def fit_targets(real: Walks) -> Targets:
     scale = float(np.exp(np.median(np.log(steps[ok]) - exponent * np.log(speeds[ok]))))
     values = {m: float(np.nanmean([w[m] for w in real.windows])) for m in MEASURES}
     speed_set = tuple(float(s) for s in np.percentile(speeds, [10, 50, 90]))
-    return Targets(scale, exponent, values, 1.0, speed_set)
+    arm = fit_speed(list(speeds), [w["arm_swing"] for w in real.windows])
+    return Targets(scale, exponent, values, 1.0, speed_set, arm.slope)
+
+
+def arm_swing_slope(walks: Walks) -> float:
+    """Least-squares slope (m per m/s) of arm swing against speed over ``walks``' windows."""
+    return fit_speed([w["speed"] for w in walks.windows], [w["arm_swing"] for w in walks.windows]).slope
 
 
 def generated_walks(params: GaitParams, speeds: Sequence[float]) -> Walks:
@@ -215,6 +224,9 @@ def calibrate(start: GaitParams, targets: Targets) -> GaitParams:
         gain = walks.lean_gain()
         if gain > 0:
             update["turn_lean_gain"] = p.turn_lean_gain * targets.lean_gain / gain
+        slope = arm_swing_slope(walks)
+        if slope > 0 and targets.arm_swing_slope > 0:
+            update["arm_swing_speed_slope"] = p.arm_swing_speed_slope * targets.arm_swing_slope / slope
         if "bob_follow" in update:
             update["bob_follow"] = min(update["bob_follow"], 1.0)  # above 1 the legs would not reach
         p = dataclasses.replace(p, **{k: round(float(v), 4) for k, v in update.items()})
@@ -226,6 +238,7 @@ def ratio_rows(params: GaitParams, targets: Targets) -> dict[str, float]:
     got = generated_values(walks)
     out = {m: got[m] / targets.values[m] for m in MEASURES}
     out["turn_lean"] = walks.lean_gain() / targets.lean_gain if targets.lean_gain > 0 else float("nan")
+    out["arm_swing_slope"] = arm_swing_slope(walks) / targets.arm_swing_slope if targets.arm_swing_slope else float("nan")
     return out
 
 
@@ -261,6 +274,7 @@ def main(argv: Sequence[str] | None = None) -> int:
           f"{targets.lean_gain:.2f} (balance lean; the real walks' own: {', '.join(gains)}); measured at {', '.join(f'{s:.2f}' for s in targets.speeds)} m/s")
     for m in MEASURES:
         print(f"  {m:12s} {targets.values[m]:8.4f}")
+    print(f"  {'arm_swing_slope':12s} {targets.arm_swing_slope:8.4f} m per m/s")
     before = FITTED_GAIT
     after = calibrate(before, targets)
     print("\nfitted parameters (before -> after)")

@@ -53,13 +53,13 @@ FITTED_GAIT = GaitParams(
     step_length_1ms=0.586,
     step_length_exponent=0.6121,
     step_length_min=0.3,
-    bob_follow=0.7922,
+    bob_follow=0.7927,
     sway_amplitude=0.0382,
-    arm_swing_1ms=0.1516,
-    arm_swing_speed_slope=0.05,
+    arm_swing_1ms=0.1395,
+    arm_swing_speed_slope=0.2991,
     trunk_twist=0.1564,
-    pelvis_yaw=0.0873,
-    turn_lean_gain=0.9501,
+    pelvis_yaw=0.088,
+    turn_lean_gain=0.9502,
     foot_clearance=0.1207,
 )
 # END FITTED
