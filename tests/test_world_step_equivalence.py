@@ -36,7 +36,7 @@ from sim.world.step import World, WorldConfig, step
 from tests.support.reference import OFFICE, reference_or_skip
 
 FRAMES = 420
-EXPECTED_SHA256 = "7ab999b392ddd3a49e4e2f309653fde4aa9307b9c556f6d6158686ae2463d1dc"
+EXPECTED_SHA256 = "c38fbad18b967f830811a64a53cc29a5d1bb9e402d8c10d3b75be5a6c25bf40a"
 EXPECTED_FINAL_XY: dict[str, tuple[float, float]] = {
     "c0": (5.7989999999999995, 4.252666666666666),
     "c1": (6.099, 5.452666666666666),
