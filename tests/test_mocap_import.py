@@ -167,3 +167,28 @@ def test_config_errors_name_file_and_field(tmp_path: Path) -> None:
     cfg.write_text('[[clips]]\nfile = "nope.bvh"\nlabel = "walk"\n')
     with pytest.raises(MotionConfigError, match="not found"):
         build_databases_from_config(load_motion_config(cfg), ["walk"])
+
+
+@requires_mocap
+@pytest.mark.parametrize(("name", "speed", "turn_deg"), [
+    ("dataset-1_walk_normal_001.bvh", 1.20, 0.0),
+    ("dataset-2_walk-turn-left_normal_001.bvh", None, 100.0),
+    ("dataset-2_walk-turn-right_normal_001.bvh", None, -100.0),
+])
+def test_a_bvh_whose_rest_pose_lies_down_imports_standing(name: str, speed: float | None, turn_deg: float) -> None:
+    # Bandai Namco's files: the rest pose has its bones along +x (not an upright T-pose) and
+    # every joint carries position channels holding its whole translation (not an offset delta).
+    mapping = {"left_hip": "UpperLeg_L", "right_hip": "UpperLeg_R", "left_knee": "LowerLeg_L",
+               "right_knee": "LowerLeg_R", "left_ankle": "Foot_L", "right_ankle": "Foot_R",
+               "left_foot": "Toes_L", "right_foot": "Toes_R", "left_shoulder": "UpperArm_L",
+               "right_shoulder": "UpperArm_R", "left_elbow": "LowerArm_L", "right_elbow": "LowerArm_R",
+               "left_wrist": "Hand_L", "right_wrist": "Hand_R"}
+    clip = import_bvh(MOCAP / "bandai_namco" / name, "walk", mapping=mapping)
+    joints = clip.joint_positions()
+    assert 0.85 < float(np.median(joints[:, 0, 2])) < 1.0  # pelvis at a standing adult's height
+    assert float(np.median(joints[:, HEAD, 2] - joints[:, 0, 2])) > 0.5  # head above it
+    if speed is not None:  # the file's README: a straight walk at about 1.2 m/s
+        v = np.linalg.norm(np.diff(clip.root_xy, axis=0), axis=-1).mean() * clip.fps
+        assert v == pytest.approx(speed, abs=0.1)
+    turned = np.degrees(np.unwrap(clip.heading)[-1] - np.unwrap(clip.heading)[0])
+    assert turned == pytest.approx(turn_deg, abs=25.0)

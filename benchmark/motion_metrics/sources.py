@@ -35,8 +35,11 @@ BANDAI_WALKS = (
 BANDAI_MAPPING = {
     "left_hip": "UpperLeg_L", "right_hip": "UpperLeg_R", "left_knee": "LowerLeg_L", "right_knee": "LowerLeg_R",
     "left_ankle": "Foot_L", "right_ankle": "Foot_R", "left_foot": "Toes_L", "right_foot": "Toes_R",
+    "left_collar": "Shoulder_L", "right_collar": "Shoulder_R", "left_shoulder": "UpperArm_L",
+    "right_shoulder": "UpperArm_R", "left_elbow": "LowerArm_L", "right_elbow": "LowerArm_R",
+    "left_wrist": "Hand_L", "right_wrist": "Hand_R",
 }  # fmt: skip
-"""Our leg joints in the Bandai Namco skeleton (the importer finds the rest by name)."""
+"""Our leg and arm joints in the Bandai Namco skeleton (the importer finds the rest by name)."""
 PELVIS_RANGE_M = (0.6, 1.2)
 """Median pelvis height of a clip imported right (a standing, walking adult), metres."""
 PLANTED_PERCENTILE = 5.0

@@ -44,7 +44,7 @@ from sim.motion.sources.amass_import import import_amass
 from sim.motion.sources.bvh_import import import_bvh
 from sim.validation_text import problem_field, problem_message
 
-IMPORTER_VERSION = "mocap-import-1"
+IMPORTER_VERSION = "mocap-import-2"
 MAX_MOTION_CONFIG_BYTES = 1024 * 1024
 """Bytes of a motion config file."""
 MAX_SOURCE_FRAME = 10**9

@@ -72,9 +72,9 @@ class BvhData:
             local = (Rotation.from_euler("".join(rot_axes), vals[:, rot_cols], degrees=True).as_matrix()
                      if rot_axes else np.broadcast_to(np.eye(3), (n, 3, 3)))
             trans = np.broadcast_to(self.offsets[j], (n, 3)).copy()
-            for i, c in enumerate(chans):
+            for i, c in enumerate(chans):  # a position channel is the joint's translation (in place of its offset)
                 if c.lower().endswith("position"):
-                    trans[:, "xyz".index(c[0].lower())] = vals[:, i] + (self.offsets[j]["xyz".index(c[0].lower())] if j else 0.0)
+                    trans[:, "xyz".index(c[0].lower())] = vals[:, i]
             p = self.parents[j]
             if p < 0:
                 rot[:, j], pos[:, j] = local, trans
@@ -251,6 +251,29 @@ def _min_rotation(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.
     return np.eye(3) + vx + vx @ vx / (1 + c)
 
 
+UPRIGHT_REST_DEG = 30.0
+"""A rest pose whose pelvis-to-head line is within this angle of the file's vertical stands
+upright: the file's world is read in the rest pose's axes (as every upright T-pose file)."""
+
+
+def _world_axes(rest_axes: NDArray[np.float64], head_over_pelvis: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Rows: the file's world -> our y-up frame. The vertical is the file axis (+-x, +-y, +-z)
+    nearest the motion's median pelvis-to-head direction; a rest pose standing upright keeps its
+    own axes (so a tilted T-pose tilts nothing), one that does not (Bandai Namco's rest pose
+    has its bones along +x) takes that axis as up and its hip line, made level, as left."""
+    d = np.median(np.asarray(head_over_pelvis, dtype=np.float64), axis=0)
+    k = int(np.argmax(np.abs(d)))
+    vertical = np.zeros(3)
+    vertical[k] = np.sign(d[k]) if d[k] != 0 else 1.0
+    if float(np.dot(rest_axes[1], vertical)) >= np.cos(np.radians(UPRIGHT_REST_DEG)):
+        return rest_axes
+    left = rest_axes[0] - np.dot(rest_axes[0], vertical) * vertical
+    if np.linalg.norm(left) < 1e-6:  # the rest hip line is vertical: any level direction
+        left = np.roll(vertical, 1)
+    left /= np.linalg.norm(left)
+    return np.stack([left, vertical, np.cross(left, vertical)])
+
+
 def retarget(
     data: BvhData,
     mapping: Mapping[str, str],
@@ -266,9 +289,10 @@ def retarget(
     left /= np.linalg.norm(left)
     up = up - np.dot(up, left) * left
     up /= np.linalg.norm(up)
-    axes = np.stack([left, up, np.cross(left, up)])  # rows: source -> our body frame
+    axes = np.stack([left, up, np.cross(left, up)])  # rows: source rest pose -> our body frame
     g_src, p_src = data.global_transforms()
-    g = axes @ g_src @ axes.T  # source global rotations expressed in our body frame
+    world = _world_axes(axes, p_src[:, src["head"]] - p_src[:, src["pelvis"]])
+    g = world @ g_src @ axes.T  # source global rotations, from our rest body frame to our (y-up) world
     rest_b = rest @ axes.T
     ours_rest = rest_positions()
     n = len(data.frames)
@@ -294,7 +318,7 @@ def retarget(
     our_leg = float(np.linalg.norm(ours_rest[JOINT_INDEX["left_knee"]] - ours_rest[JOINT_INDEX["left_hip"]]) + np.linalg.norm(
         ours_rest[JOINT_INDEX["left_ankle"]] - ours_rest[JOINT_INDEX["left_knee"]]))
     scale = our_leg / max(src_leg, 1e-9)
-    pelvis = (p_src[:, src["pelvis"]] @ axes.T * scale) @ BODY_TO_WORLD.T
+    pelvis = (p_src[:, src["pelvis"]] @ world.T * scale) @ BODY_TO_WORLD.T
     if snap_to_floor:
         toes = forward_kinematics(local, pelvis)[0][:, FOOT_JOINTS, 2]
         pelvis[:, 2] += TOE_HEIGHT - float(np.percentile(toes.min(axis=1), 2))
