@@ -177,7 +177,13 @@ class CharacterTrack:
         CharacterTrackError, naming the file and the field, on a bad file."""
         path = Path(path)
         arrays = _read_npz(path)
-        for key in ("format", "name", "fps", "root_positions", "local_rotations", "betas", "gender"):
+        if "format" not in arrays:
+            raise CharacterTrackError("missing", field="format", path=path)
+        if arrays["format"].ndim == 0 and arrays["format"].dtype.kind == "U" and str(arrays["format"]) != TRACK_FORMAT:
+            raise CharacterTrackError(  # another kind of file: said before what it lacks
+                f"expected '{TRACK_FORMAT}', got '{str(arrays['format'])[:60]}'", field="format", path=path
+            )
+        for key in ("name", "fps", "root_positions", "local_rotations", "betas", "gender"):
             if key not in arrays:
                 raise CharacterTrackError("missing", field=key, path=path)
         for key in (*_TEXT_FIELDS, "fps"):
