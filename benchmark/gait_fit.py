@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import re
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -247,11 +246,12 @@ def write_params(params: GaitParams, path: Path = PARAMS_FILE) -> None:
     text = path.read_text(encoding="utf-8")
     fields = "".join(f"    {f.name}={getattr(params, f.name)!r},\n" for f in dataclasses.fields(params))
     block = f"FITTED_GAIT = GaitParams(\n{fields})\n"
-    new, n = re.subn(r"(# BEGIN FITTED[^\n]*\n).*?(# END FITTED)", lambda m: m.group(1) + block + m.group(2),
-                     text, flags=re.S)
-    if n != 1:
+    begin = text.find("# BEGIN FITTED")
+    line_end = text.find("\n", begin) if begin >= 0 else -1
+    end = text.find("# END FITTED", line_end) if line_end >= 0 else -1
+    if end < 0 or text.count("# BEGIN FITTED") != 1:
         raise ValueError(f"{path}: no FITTED block to replace")
-    path.write_text(new, encoding="utf-8")
+    path.write_text(text[: line_end + 1] + block + text[end:], encoding="utf-8")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
