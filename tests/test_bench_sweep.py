@@ -50,6 +50,8 @@ def answer(request: LLMRequest) -> str:
     who, activity, program = PROGRAMS[case]
     if request.node == "narrator":
         return json.dumps({"reasoning": "asked for", "event": {"characters": [who], "activity": activity}})
+    if request.choices is not None:  # the action choice of an event whose words name no action
+        return json.dumps({"choice": program.rsplit('set_target_action("', 1)[1].split('"')[0]})
     return f"```python\ndef parse_event():\n    {program}\n```"
 
 
@@ -89,7 +91,8 @@ def test_sweep_writes_every_file_with_one_line_per_run(finished: tuple[Path, lis
     assert [(r.case, r.method) for r in results] == [
         (0, "ours"), (0, "object-list"), (20, "ours"), (20, "object-list"), (60, "ours"), (60, "object-list")]
     assert calls.count("describer") == 1  # one description of House for the model, shared by the ours runs
-    assert calls.count("narrator") == calls.count("event_parser") == 6
+    # cases 20 and 60 name no action the label ranker knows: one action choice each, per method
+    assert calls.count("narrator") == 6 and calls.count("event_parser") == 10
     assert all(r.verdict == "pass" and r.executed_first and r.error_class is None for r in results), \
         [r.reason for r in results]
     r = results[0]
@@ -113,7 +116,7 @@ def test_report_has_the_papers_layout(finished: tuple[Path, list[str], dict[str,
     assert "| scripted | Ours | 1.00 (1.00) |" in pi.split("###")[0]
     assert "| Model | Method | level 2 |" in report
     assert re.search(r"\| Model \| Method \| 1 char\. \| 5 char\. \| 6 char\. \|", report)
-    assert "| object-list | narrator | 3 |" in report and "| describer | event_parser | 3 |" in report
+    assert "| object-list | narrator | 3 |" in report and "| describer | event_parser | 5 |" in report
     assert "| scripted | narrator | 6 | 0.25 | 0.25 | 0.25 |" in report
 
 
@@ -171,7 +174,8 @@ def test_a_killed_sweep_redoes_only_its_missing_runs(
     for name in ("results.csv", "report.md"):
         (out / name).unlink()
     calls = sweep(out)
-    assert calls == ["narrator", "event_parser"] * 4  # four runs redone, the description reused
+    assert calls == ["narrator", "event_parser", "event_parser"] * 4  # four runs redone (cases 20 and 60, with
+    # their action choices), the description reused
     assert snapshot(out) == finished[2]
     assert sweep(out) == []  # nothing left to do
 
@@ -179,7 +183,7 @@ def test_a_killed_sweep_redoes_only_its_missing_runs(
 def test_parallel_runs_give_the_same_files(finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path) -> None:
     out = tmp_path / "jobs"
     calls = sweep(out, jobs=3)
-    assert len(calls) == 13
+    assert len(calls) == 17
     assert snapshot(out) == finished[2]
 
 

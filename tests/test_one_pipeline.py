@@ -90,7 +90,10 @@ async def test_benchmark_and_plan_send_byte_identical_requests() -> None:
                                            config={"recursion_limit": recursion_limit(1, RETRIES)})
     story.close()
 
-    assert [r.node for r in bench.requests] == ["describer", "describer", "narrator", "event_parser"]
+    # the narrator, then the event parser: this case's words name no action the label ranker knows,
+    # so its action is chosen first (a choice request), then the program is written
+    assert [r.node for r in bench.requests] == ["describer", "describer", "narrator", "event_parser", "event_parser"]
+    assert bench.requests[3].choices is not None and bench.requests[4].choices is None
     assert serialized(bench.requests) == serialized(plan.requests)
     assert serialized(bench.requests) == serialized(raw.requests)
     # the case, not a default roster, reached the model: its characters, busy ones included
