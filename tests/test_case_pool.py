@@ -199,7 +199,7 @@ def test_bench_run_runs_one_side_by_one_command(tmp_path: Path, monkeypatch: pyt
     real_run_sweep = runner.run_sweep
 
     async def scripted_run_sweep(*args: object, **kw: object) -> object:
-        return await real_run_sweep(*args, **{**kw, "factory": scripted(calls, lambda request: "{}")})  # type: ignore[arg-type]
+        return await real_run_sweep(*args, **{**kw, "factory": scripted(calls, lambda request: "{}")})  # type: ignore[arg-type]  # keywords passed through untyped to run_sweep
 
     monkeypatch.setattr(runner, "run_sweep", scripted_run_sweep)
     committed = split.read_split()

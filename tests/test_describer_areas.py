@@ -125,7 +125,7 @@ def test_the_regions_schema_offers_each_region_only_names_that_fit_it(scene_name
 
 
 def _scene_labels(scenes: list[object]) -> set[str]:
-    return {o.label for s in scenes for o in s.objects}  # type: ignore[attr-defined]
+    return {o.label for s in scenes for o in s.objects}  # type: ignore[attr-defined]  # the scenes are typed as objects by the fixture
 
 
 def test_every_label_of_the_bundled_scenes_is_in_the_table() -> None:

@@ -267,7 +267,7 @@ def test_fuzzed_chunk_file(finished_run: Path, data: st.DataObject, command: str
 # ----- *.track.npz: view --export -------------------------------------------------------------
 def _npz(arrays: dict[str, np.ndarray]) -> bytes:
     buffer = io.BytesIO()
-    np.savez(buffer, **arrays)  # type: ignore[arg-type]
+    np.savez(buffer, **arrays)  # type: ignore[arg-type]  # numpy's savez stub does not take a dict of arrays as keywords
     return buffer.getvalue()
 
 

@@ -87,7 +87,7 @@ class MeasuredStream(io.StringIO):
         super().__init__(text)
         self.asked: list[int] = []
 
-    def readline(self, size: int = -1, /) -> str:  # type: ignore[override]
+    def readline(self, size: int = -1, /) -> str:  # type: ignore[override]  # a stream stand-in with io's positional-only signature
         self.asked.append(size)
         return super().readline(size)
 
@@ -114,7 +114,7 @@ def test_the_stdin_reader_hands_over_only_bounded_instructions() -> None:
             return True
 
     stream = io.StringIO(f"Ava waves\n{'q' * (3 * MAX_INSTRUCTION_CHARS)}\n# note\nBen sits\n")
-    start_stdin_reader(Taker(), stream).join(timeout=30)  # type: ignore[arg-type]
+    start_stdin_reader(Taker(), stream).join(timeout=30)  # type: ignore[arg-type]  # a stand-in session with only what the reader calls
     assert got == [("Ava waves", "stdin"), ("Ben sits", "stdin")]
 
 

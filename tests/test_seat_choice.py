@@ -123,7 +123,7 @@ def test_checks_keep_what_the_relation_says_and_never_empty_the_set(
     seats: list[SceneObject], at: tuple[float, float], kind: str
 ) -> None:
     ref = (Reference("landmark", obj=obj("lamp", 1, *at, size=(0.3, 0.3, 1.5))),)
-    relation = StatedRelation(kind, (ref,))  # type: ignore[arg-type]
+    relation = StatedRelation(kind, (ref,))  # type: ignore[arg-type]  # hypothesis draws the kind as a plain str
     kept = keep_satisfying([relation], seats)
     assert kept and set(o.name for o in kept) <= {o.name for o in seats}
     gaps = {o.name: group_gap(o, ref) for o in seats}

@@ -93,7 +93,7 @@ def ws_receive(url: str, headers: dict[str, str]) -> bytes:
     """Open a websocket as a browser page would and gather what the viewer sends in 2 s of
     quiet: each message's msgpack payload (viser zstd-compresses it after a 16-byte header)."""
     got = b""
-    with connect(url, subprotocols=[PROTOCOL], additional_headers=headers, open_timeout=10, max_size=None) as ws:  # type: ignore[list-item]
+    with connect(url, subprotocols=[PROTOCOL], additional_headers=headers, open_timeout=10, max_size=None) as ws:  # type: ignore[list-item]  # websockets' stub types subprotocols as its own Subprotocol
         try:
             while True:
                 message = ws.recv(timeout=2.0)
@@ -161,7 +161,7 @@ def test_dns_rebinding_is_refused_on_http_and_the_websocket(viewer: tuple[object
 
 def test_the_viewer_never_opens_a_share_tunnel(viewer: tuple[object, int]) -> None:
     app, _ = viewer
-    assert app.server.request_share_url() is None  # type: ignore[attr-defined]
+    assert app.server.request_share_url() is None  # type: ignore[attr-defined]  # a method the viewer adds to viser's server
 
 
 def test_a_viser_that_builds_its_server_otherwise_is_not_served(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -139,7 +139,7 @@ def test_a_resumed_run_holds_new_lines_until_it_is_past_its_last_recorded_instru
     send_instruction(tmp_path, THREAD, "Zoe waves", sent_unix=1.0)  # applied at frame 120 before a kill
     send_instruction(tmp_path, THREAD, "Max makes toast", sent_unix=2.0)  # sent while the run was down
     session, stop = _Session(), threading.Event()
-    reader = start_inbox_reader(session, tmp_path / INBOX_FILE, THREAD, ["Zoe waves"], stop=stop,  # type: ignore[arg-type]
+    reader = start_inbox_reader(session, tmp_path / INBOX_FILE, THREAD, ["Zoe waves"], stop=stop,  # type: ignore[arg-type]  # a stand-in session with only what the reader calls
                                 after_frame=120)
     try:
         time.sleep(0.5)
@@ -213,7 +213,7 @@ def _env(tmp_path: Path) -> dict[str, str]:
 def _wait(what: str, ok: object, *, timeout_s: float, log: Path | None = None) -> None:
     """Poll ``ok()`` every 0.2 s until it is true (a failure names ``what`` and the log's tail)."""
     deadline = time.monotonic() + timeout_s
-    while not ok():  # type: ignore[operator]
+    while not ok():  # type: ignore[operator]  # ok is a callable the test built, typed as object
         tail = log.read_text(errors="replace")[-3000:] if log is not None and log.exists() else ""
         assert time.monotonic() < deadline, f"{what}: not within {timeout_s} s\n{tail}"
         time.sleep(0.2)

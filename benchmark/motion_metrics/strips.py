@@ -46,7 +46,7 @@ def longest_runs(runs: Sequence[RunMotion]) -> dict[str, tuple[RunMotion, int, i
 def _bones(ax: object, pts: NDArray[np.float64], colour: str) -> None:
     for j, p in enumerate(PARENTS):
         if p >= 0:
-            ax.plot([pts[p, 0], pts[j, 0]], [pts[p, 1], pts[j, 1]], color=colour, lw=1.4)  # type: ignore[attr-defined]
+            ax.plot([pts[p, 0], pts[j, 0]], [pts[p, 1], pts[j, 1]], color=colour, lw=1.4)  # type: ignore[attr-defined]  # matplotlib's Axes stub lacks the 3-d plot overload used here
 
 
 def draw_strip(run: RunMotion, character: int, first: int, end: int, label: str, path: Path) -> Path:

@@ -121,7 +121,7 @@ def guarded_server(access: ViewerAccess, *, port: int, **kwargs: Any) -> viser.V
             with contextlib.redirect_stdout(io.StringIO()):
                 server = _ViewerServer(host=access.host, port=port, **kwargs)
         finally:
-            ws_server.serve = original  # type: ignore[misc]
+            ws_server.serve = original  # type: ignore[misc]  # restoring the server method patched above
             _pending.access = None
         applied = _pending.applied
     if applied == 0:
