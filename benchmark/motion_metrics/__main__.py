@@ -8,6 +8,12 @@ bodies; walking against the real walks at the same speed; cadence by speed; inte
 writes ``report.md``, ``metrics.json``, ``gait_vs_speed.png`` and ``strips/strip_<label>.png``
 into ``--out``. Exit code 2 on a folder it cannot read (one line naming it).
 
+``--scripted-story RUN_DIR`` first builds the scripted home story the published figures are
+measured on (``benchmark.motion_metrics.scripted_story``: Zoe, Max and Ava, 90 simulated s, a
+scripted planner, no LLM, no network) into ``RUN_DIR`` (new or empty) and measures it with the
+rest: ``python -m benchmark.motion_metrics --scripted-story RUN_DIR --out OUT --crowd 50
+--crowd-seconds 20`` reproduces ``benchmark/results/2026-12-06-motion-metrics.md``'s set-up.
+
 Targets (issue 25): skating ratio <= 0.03; walking within 20% of real on bob, cadence, step
 length and arm swing, jerk 0.5x-2x; facing at start median <= 10, p95 <= 25 degrees; hands
 within 15 cm at 90% of reaches; seat height within 3 cm; furniture p99 <= 2 cm; overlap 0 frames.
@@ -35,6 +41,7 @@ from benchmark.motion_metrics.report import (
     gait_table,
     interaction_table,
 )
+from benchmark.motion_metrics.scripted_story import NAMES, SECONDS, StoryBuildError, build_story
 from benchmark.motion_metrics.sources import (
     RunMotion,
     SourceError,
@@ -65,6 +72,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-real", action="store_true", help="leave the real clips out (no ratios to them)")
     p.add_argument("--no-strips", action="store_true", help="draw no strips")
+    p.add_argument("--scripted-story", type=Path, metavar="RUN_DIR",
+                   help="build the scripted home story into RUN_DIR (new or empty) first, and measure it too")
+    p.add_argument("--story-seconds", type=float, default=SECONDS, help="simulated seconds of the scripted story")
+    p.add_argument("--story-names", default=",".join(NAMES), help="its characters, among Zoe,Max,Ava")
     return p
 
 
@@ -74,6 +85,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("error: --crowd must be >= 0 and --crowd-seconds a positive number", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
+    if args.scripted_story is not None:
+        try:
+            names = [n.strip() for n in args.story_names.split(",")]
+            code = build_story(args.scripted_story, seconds=args.story_seconds, names=names, seed=args.seed)
+        except StoryBuildError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        if code != 0:
+            print(f"error: the scripted story failed (storyteller run exit code {code})", file=sys.stderr)
+            return code
+        args.runs.append(args.scripted_story)
     try:
         folders = run_folders(args.runs)
         runs: list[RunMotion] = [load_run_motion(f) for f in folders]
