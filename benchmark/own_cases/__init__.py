@@ -17,3 +17,6 @@ position for every non-seat answer.
 
 OURS = "ours"
 """Folder of our case set under ``benchmark/cases``."""
+OURS_REF = "ours_ref"
+"""Folder of our generated cases on the authors' reference scenes under ``benchmark/cases``
+(they run only where the reference data is found)."""

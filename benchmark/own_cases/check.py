@@ -1,7 +1,9 @@
 """Re-derive every expected answer of a case set and report each disagreement.
 
-``python -m benchmark.own_cases.check [FOLDER]`` (default: our set, ``benchmark/cases/ours``)
-prints one line per case and exits 1 when any case has a problem. A case has a problem when:
+``python -m benchmark.own_cases.check [FOLDER]`` (default: our set, ``benchmark/cases/ours``;
+``benchmark/cases/ours_ref`` for the cases on the authors' scenes, which load from the reference
+data: its absence is one line and exit 2) prints one line per case and exits 1 when any case has
+a problem. A case has a problem when:
 
 - its ``derivation`` block is missing or cannot be evaluated (see :mod:`.derivation`);
 - the atoms its query derives differ from the expected expression's atoms, or a ``count: one``
@@ -27,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.own_cases import OURS
+from benchmark.own_cases import OURS, OURS_REF
 from benchmark.own_cases.derivation import (
     CaseWorld,
     DerivationError,
@@ -37,7 +39,14 @@ from benchmark.own_cases.derivation import (
     expression_atoms,
 )
 from benchmark.position_check import check_position
-from benchmark.reference_cases import BenchmarkCase, BenchmarkCaseError, load_cases, scene_dir
+from benchmark.reference_cases import (
+    BUNDLED_PREFIX,
+    BenchmarkCase,
+    BenchmarkCaseError,
+    load_cases,
+    scene_dir,
+)
+from orchestrator.reference_data import ReferenceDataNotFound, locate_reference
 from sim.motion.action_labels import ACTION_LABELS
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
@@ -56,6 +65,11 @@ SAMPLE_SEEDS = 8
 def ours_folder() -> Path:
     """Our case set as shipped with the package."""
     return Path(str(resources.files("benchmark") / "cases" / OURS))
+
+
+def ours_ref_folder() -> Path:
+    """Our case set on the authors' reference scenes (``benchmark/cases/ours_ref``)."""
+    return Path(str(resources.files("benchmark") / "cases" / OURS_REF))
 
 
 @dataclass(frozen=True)
@@ -220,9 +234,16 @@ def _show(derived: Derived) -> str:
 
 
 def check_folder(folder: str | Path) -> list[CaseReport]:
-    """Check every case of a case set."""
-    scenes = _Scenes(Path(folder))
-    return [check_case(case, scenes) for case in load_cases(folder)]
+    """Check every case of a case set. Cases on scenes that are not bundled load them from the
+    reference data (:func:`locate_reference`; absent: :class:`ReferenceDataNotFound`), unless the
+    folder is inside a checkout of it."""
+    cases = load_cases(folder)
+    root = Path(folder)
+    if any(not c.scene_name.startswith(BUNDLED_PREFIX) for c in cases):
+        inside = next((p for p in (root, *root.resolve().parents) if (p / "configs" / "scenes").is_dir()), None)
+        root = inside or locate_reference().require()
+    scenes = _Scenes(root)
+    return [check_case(case, scenes) for case in cases]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -232,7 +253,7 @@ def main(argv: list[str] | None = None) -> int:
     folder = args.folder or ours_folder()
     try:
         reports = check_folder(folder)
-    except BenchmarkCaseError as exc:
+    except (BenchmarkCaseError, ReferenceDataNotFound) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     for r in reports:

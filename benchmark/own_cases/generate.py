@@ -36,7 +36,7 @@ from itertools import combinations
 from pathlib import Path
 from typing import Any
 
-from benchmark.own_cases.check import _Scenes, check_case, ours_folder
+from benchmark.own_cases.check import _Scenes, check_case, ours_folder, ours_ref_folder
 from benchmark.own_cases.derivation import CaseWorld, atoms_of, evaluate
 from benchmark.own_cases.phrasing import (
     DEVICE_USES,
@@ -51,8 +51,10 @@ from benchmark.own_cases.phrasing import (
     third_person,
 )
 from benchmark.own_cases.split import SIDES, Side, first_side, on_side
-from benchmark.reference_cases import BUNDLED_PREFIX, BenchmarkCase
+from benchmark.reference_cases import BUNDLED_PREFIX, BenchmarkCase, scene_dir
+from orchestrator.reference_data import ReferenceDataNotFound
 from sim.scene.bundled import load_bundled_scene
+from sim.scene.files import load_scene
 from sim.scene.model import Scene
 from tools.clusters import cluster_objects
 from tools.scene_graph import SceneGraph, build_scene_graph, footprint_distance
@@ -60,6 +62,10 @@ from tools.scene_graph import SceneGraph, build_scene_graph, footprint_distance
 SCENES: tuple[str, ...] = ("home", "office", "restaurant")
 FIRST_ID = 200
 """Generated cases are numbered from here (the hand-written ones are 100-169)."""
+REF_SCENES: tuple[str, ...] = ("House", "Office", "Restaurant")
+"""The authors' reference scenes (``configs/scenes/<name>`` of the reference data)."""
+REF_FIRST_ID = 500
+"""The reference-scene pool's cases are numbered from here (no id shared with ``ours``)."""
 GENERATOR_SEED = 24
 MARGIN_M = 0.3
 """A nearest / farthest answer must beat the runner-up by this much (metres of footprint distance)."""
@@ -88,6 +94,44 @@ ACTION_LABELS: dict[str, tuple[str, ...]] = {
                    "open_cabinet", "close_cabinet"),
 }
 """The action labels each scene's cases offer (as the hand-written cases of that scene)."""
+
+REF_ACTIONS: dict[str, str] = {"House": "home", "Office": "office", "Restaurant": "restaurant"}
+"""A reference scene's cases offer the labels of the bundled scene of the same kind."""
+
+
+@dataclass(frozen=True)
+class Pool:
+    """One generated case pool: its scenes, where they load from, its folder and its ids."""
+
+    name: str
+    """``ours`` (bundled scenes, next to the hand-written cases) or ``ours_ref`` (the authors' scenes)."""
+    scenes: tuple[str, ...]
+    first_id: int
+    reference: bool
+    """Whether the scenes are the reference data's (found by :func:`locate_reference`), not bundled."""
+
+    def folder(self) -> Path:
+        return ours_ref_folder() if self.reference else ours_folder()
+
+    def scenes_root(self) -> Path:
+        """Where :class:`_Scenes` finds the pool's scenes (raises ``ReferenceDataNotFound``
+        with the lookup's one-line reason when a reference pool's data is absent)."""
+        if not self.reference:
+            return ours_folder()
+        from orchestrator.reference_data import locate_reference
+
+        return locate_reference().require()
+
+    def scene_name(self, scene: str) -> str:
+        return scene if self.reference else BUNDLED_PREFIX + scene
+
+    def actions(self, scene: str) -> tuple[str, ...]:
+        return ACTION_LABELS[REF_ACTIONS[scene] if self.reference else scene]
+
+
+OURS_POOL = Pool("ours", SCENES, FIRST_ID, reference=False)
+REF_POOL = Pool("ours_ref", REF_SCENES, REF_FIRST_ID, reference=True)
+POOLS: dict[str, Pool] = {p.name: p for p in (OURS_POOL, REF_POOL)}
 
 Query = dict[str, Any]
 SEATS: Query = {"seats": True}
@@ -142,11 +186,15 @@ class SceneFacts:
     graph: SceneGraph
     clusters: list[list[str]]
     actions: tuple[str, ...]
+    scene_name: str = ""
+    """The cases' ``scene_name`` (default ``bundled:<name>``)."""
     world: CaseWorld = field(init=False)
 
     def __post_init__(self) -> None:
         from tools.character_states import WorldView
 
+        if not self.scene_name:
+            self.scene_name = BUNDLED_PREFIX + self.name
         self.world = CaseWorld(self.scene, self.graph, tuple(tuple(c) for c in self.clusters), WorldView(),
                                frozenset(), "")
 
@@ -599,6 +647,10 @@ def _answer_objects(draft: Draft, facts: SceneFacts, names: list[str]) -> frozen
     return frozenset(found)
 
 
+class NoDistractorError(ValueError):
+    """The scene has no object left that a distractor could use without touching the question."""
+
+
 def write_case(draft: Draft, facts: SceneFacts, case_id: int, shape_id: str, side: Side, attempt: int) -> dict[str, Any]:
     """The case of ``draft`` on ``side`` as JSON data (names, distractors and words drawn from
     ``attempt``'s stream; the activity from the phrases dealt to ``side``)."""
@@ -635,7 +687,9 @@ def write_case(draft: Draft, facts: SceneFacts, case_id: int, shape_id: str, sid
     picked: list[tuple[str, int, Chore, bool]] = []
     for i, name in enumerate(distractors):
         level = 1 if i == 0 else 2
-        chore = next(c for c in chores if c.obj not in used)
+        chore = next((c for c in chores if c.obj not in used), None)
+        if chore is None:
+            raise NoDistractorError(f"{draft.scene}: no object left for distractor {name} of {draft.recipe} {draft.key}")
         used.add(chore.obj)
         done = level == 2 and i == len(distractors) - 1 and chore.position.startswith("adjacent")
         picked.append((name, level, chore, done))
@@ -660,7 +714,7 @@ def write_case(draft: Draft, facts: SceneFacts, case_id: int, shape_id: str, sid
     return {
         "id": case_id,
         "tags": draft.group.split("+"),
-        "scene_name": BUNDLED_PREFIX + draft.scene,
+        "scene_name": facts.scene_name,
         "action_labels": list(facts.actions),
         "user_instruction": text,
         "planning_history": history,
@@ -674,7 +728,7 @@ def write_case(draft: Draft, facts: SceneFacts, case_id: int, shape_id: str, sid
 
 def _world_eval(facts: SceneFacts, query: Query, states: list[dict[str, Any]], history: list[dict[str, Any]]) -> frozenset[str]:
     """``query`` evaluated in the world of the case being written (who sits where)."""
-    case = _as_case({"id": 0, "tags": ["OA"], "scene_name": BUNDLED_PREFIX + facts.name, "action_labels": [],
+    case = _as_case({"id": 0, "tags": ["OA"], "scene_name": facts.scene_name, "action_labels": [],
                      "user_instruction": "", "planning_history": history, "current_states": states,
                      "expected_plans": []}, "x")
     world = CaseWorld.of(case, facts.scene, facts.graph, facts.clusters)
@@ -703,21 +757,31 @@ def _as_case(data: dict[str, Any], folder: str) -> BenchmarkCase:
 
 
 # ----- the pool ---------------------------------------------------------------------------------
-def _facts() -> dict[str, SceneFacts]:
+def _facts(pool: Pool = OURS_POOL) -> dict[str, SceneFacts]:
     out = {}
-    for name in SCENES:
-        scene = load_bundled_scene(name)
-        out[name] = SceneFacts(name, scene, build_scene_graph(scene), cluster_objects(scene), ACTION_LABELS[name])
+    for name in pool.scenes:
+        scene = load_scene(scene_dir(pool.scenes_root(), _Named(pool.scene_name(name)))) if pool.reference \
+            else load_bundled_scene(name)
+        out[name] = SceneFacts(name, scene, build_scene_graph(scene), cluster_objects(scene), pool.actions(name),
+                               pool.scene_name(name))
     return out
 
 
-def _order(drafts: list[Draft], rng: random.Random) -> list[Draft]:
+@dataclass(frozen=True)
+class _Named:
+    """Just enough of a case for :func:`scene_dir`."""
+
+    scene_name: str
+    source: str = "generator"
+
+
+def _order(drafts: list[Draft], rng: random.Random, scenes: tuple[str, ...] = SCENES) -> list[Draft]:
     """Round-robin over scenes, and within a scene over recipes, each list shuffled."""
     by_scene: dict[str, dict[str, list[Draft]]] = {}
     for d in drafts:
         by_scene.setdefault(d.scene, {}).setdefault(d.recipe, []).append(d)
     streams = []
-    for scene in SCENES:
+    for scene in scenes:
         recipes = by_scene.get(scene, {})
         for lst in recipes.values():
             rng.shuffle(lst)
@@ -736,19 +800,19 @@ def _order(drafts: list[Draft], rng: random.Random) -> list[Draft]:
     return out
 
 
-def generate() -> list[dict[str, Any]]:
-    """Every generated case, in id order (see the module docstring)."""
-    facts = _facts()
-    scenes = _Scenes(ours_folder())
+def generate(pool: Pool = OURS_POOL) -> list[dict[str, Any]]:
+    """Every generated case of ``pool``, in id order (see the module docstring)."""
+    facts = _facts(pool)
+    scenes = _Scenes(pool.scenes_root())
     cases: list[dict[str, Any]] = []
-    next_id = FIRST_ID
+    next_id = pool.first_id
     for group in GROUPS:
         rng = random.Random(f"{GENERATOR_SEED}:{group}")
         drafts = [d for f in facts.values() for recipe in RECIPES[group] for d in recipe(f)]
         made: dict[str, int] = {}
         turn: dict[tuple[str, str], int] = {}
         kept = 0
-        for draft in _order(drafts, rng):
+        for draft in _order(drafts, rng, pool.scenes):
             if kept == TARGETS[group]:
                 break
             stream = f"{draft.recipe}:{draft.scene}"
@@ -756,7 +820,10 @@ def generate() -> list[dict[str, Any]]:
             shapes = on_side(sorted(SHAPES[draft.recipe]), f"shape:{draft.recipe}", side)
             shape_id = f"{draft.recipe}.{shapes[turn.get((draft.recipe, side), 0) % len(shapes)]}"
             for attempt in range(ATTEMPTS):
-                data = write_case(draft, facts[draft.scene], next_id, shape_id, side, attempt)
+                try:
+                    data = write_case(draft, facts[draft.scene], next_id, shape_id, side, attempt)
+                except NoDistractorError:
+                    continue  # another attempt may draw fewer distractors
                 if not check_case(_as_case(data, FOLDERS[group]), scenes).problems:
                     cases.append(data)
                     made[stream] = made.get(stream, 0) + 1
@@ -771,11 +838,11 @@ def render(data: dict[str, Any]) -> str:
     return json.dumps(data, indent=2, ensure_ascii=False) + "\n"
 
 
-def write_pool(folder: Path, cases: list[dict[str, Any]]) -> list[Path]:
+def write_pool(folder: Path, cases: list[dict[str, Any]], first_id: int = FIRST_ID) -> list[Path]:
     """Write ``cases`` under ``folder`` (removing generated files not among them); the paths written."""
     wanted = {folder / FOLDERS["+".join(c["tags"])] / f"testcase_{c['id']}.json": render(c) for c in cases}
     for old in folder.glob("*/testcase_*.json"):
-        if int(old.stem.split("_")[-1]) >= FIRST_ID and old not in wanted:
+        if int(old.stem.split("_")[-1]) >= first_id and old not in wanted:
             old.unlink()
     for path, text in wanted.items():
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -784,30 +851,38 @@ def write_pool(folder: Path, cases: list[dict[str, Any]]) -> list[Path]:
     return sorted(wanted)
 
 
-def differences(folder: Path, cases: list[dict[str, Any]]) -> list[str]:
+def differences(folder: Path, cases: list[dict[str, Any]], first_id: int = FIRST_ID) -> list[str]:
     """Files of ``folder`` that differ from ``cases`` (missing, changed or extra generated files)."""
     wanted = {folder / FOLDERS["+".join(c["tags"])] / f"testcase_{c['id']}.json": render(c) for c in cases}
     out = [f"{p}: missing" for p in wanted if not p.exists()]
     out += [f"{p}: differs" for p, t in wanted.items() if p.exists() and p.read_text(encoding="utf-8") != t]
     out += [f"{p}: not generated" for p in folder.glob("*/testcase_*.json")
-            if int(p.stem.split("_")[-1]) >= FIRST_ID and p not in wanted]
+            if int(p.stem.split("_")[-1]) >= first_id and p not in wanted]
     return sorted(out)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmark.own_cases.generate", description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="only compare the folder with what the code generates")
-    parser.add_argument("folder", nargs="?", type=Path, default=None, help="case folder (default: benchmark/cases/ours)")
+    parser.add_argument("--pool", choices=sorted(POOLS), default=OURS_POOL.name,
+                        help="ours: the bundled scenes (default); ours_ref: the authors' scenes (needs the reference data)")
+    parser.add_argument("folder", nargs="?", type=Path, default=None,
+                        help="case folder (default: the pool's, benchmark/cases/ours or benchmark/cases/ours_ref)")
     args = parser.parse_args(argv)
-    folder = args.folder or ours_folder()
-    cases = generate()
+    pool = POOLS[args.pool]
+    folder = args.folder or pool.folder()
+    try:
+        cases = generate(pool)
+    except ReferenceDataNotFound as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     if args.check:
-        diffs = differences(folder, cases)
+        diffs = differences(folder, cases, pool.first_id)
         for d in diffs:
             print(d)
         print(f"{len(cases)} generated cases; {len(diffs)} file(s) differ")
         return 1 if diffs else 0
-    write_pool(folder, cases)
+    write_pool(folder, cases, pool.first_id)
     counts: dict[str, int] = {}
     for c in cases:
         counts["+".join(c["tags"])] = counts.get("+".join(c["tags"]), 0) + 1

@@ -18,7 +18,9 @@ How the split is made (:data:`SPLIT_SEED`):
 ``benchmark/own_cases/split.json`` records the result as data (case ids per side, and the
 seed); ``python -m benchmark.own_cases.split`` rewrites it from the case folder and
 ``--check`` compares. :func:`split_ids` is what ``storyteller bench run --cases ours-dev`` /
-``--cases ours-test`` read.
+``--cases ours-test`` read. The pool on the authors' scenes (``benchmark/cases/ours_ref``, all
+generated, by the same deal) has its own file, ``split_ref.json`` (``--pool ours_ref``; read by
+``--cases ours-ref-dev`` / ``--cases ours-ref-test``).
 
 Guarantee: the two sides are disjoint and cover the pool; the same seed gives the same sides.
 """
@@ -38,11 +40,15 @@ SPLIT_SEED = 24
 Side = Literal["dev", "test"]
 SIDES: tuple[Side, Side] = ("dev", "test")
 SPLIT_FILE = "split.json"
+SPLIT_FILES: dict[str, str] = {"ours": SPLIT_FILE, "ours_ref": "split_ref.json"}
+"""The committed split of each pool (``ours``: bundled scenes; ``ours_ref``: the authors' scenes)."""
 
 
-def split_file() -> Path:
-    """The committed split (``benchmark/own_cases/split.json``)."""
-    return Path(str(resources.files("benchmark.own_cases") / SPLIT_FILE))
+def split_file(pool: str = "ours") -> Path:
+    """The committed split of ``pool`` (``benchmark/own_cases/split.json`` / ``split_ref.json``)."""
+    if pool not in SPLIT_FILES:
+        raise ValueError(f"unknown case pool {pool!r}; expected {' or '.join(SPLIT_FILES)}")
+    return Path(str(resources.files("benchmark.own_cases") / SPLIT_FILES[pool]))
 
 
 def deal(items: Sequence[str], key: str, seed: int = SPLIT_SEED) -> dict[str, Side]:
@@ -85,11 +91,11 @@ def read_split(path: Path | None = None) -> dict[str, list[int]]:
     return {side: [int(i) for i in data[side]] for side in SIDES}
 
 
-def split_ids(side: str) -> tuple[int, ...]:
-    """The case ids of one side of the committed split (``dev`` or ``test``)."""
+def split_ids(side: str, pool: str = "ours") -> tuple[int, ...]:
+    """The case ids of one side of ``pool``'s committed split (``dev`` or ``test``)."""
     if side not in SIDES:
         raise ValueError(f"unknown split side {side!r}; expected dev or test")
-    return tuple(read_split()[side])
+    return tuple(read_split(split_file(pool))[side])
 
 
 def render(split: dict[str, list[int]], seed: int = SPLIT_SEED) -> str:
@@ -107,13 +113,16 @@ def _folder_cases(folder: Path) -> list[dict[str, object]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmark.own_cases.check import ours_folder
+    from benchmark.own_cases.check import ours_folder, ours_ref_folder
 
     parser = argparse.ArgumentParser(prog="python -m benchmark.own_cases.split", description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="only compare split.json with the case folder")
+    parser.add_argument("--check", action="store_true", help="only compare the split file with the case folder")
+    parser.add_argument("--pool", choices=sorted(SPLIT_FILES), default="ours",
+                        help="ours (split.json, default) or ours_ref (split_ref.json, the authors' scenes)")
     args = parser.parse_args(argv)
-    text = render(split_of(_folder_cases(ours_folder())))
-    path = split_file()
+    folder = ours_ref_folder() if args.pool == "ours_ref" else ours_folder()
+    text = render(split_of(_folder_cases(folder)))
+    path = split_file(args.pool)
     if args.check:
         same = path.exists() and path.read_text(encoding="utf-8") == text
         print(f"{path}: {'matches' if same else 'differs from'} the case folder")

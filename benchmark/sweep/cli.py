@@ -58,7 +58,8 @@ def run_command(
     out: Annotated[Path, typer.Option("--out", help="Sweep folder (created; reused to resume).")],
     cases: Annotated[list[str] | None, typer.Option(
         "--cases", help="Case set: reference (default: the authors' 40 cases), ours (our whole pool), ours-dev / ours-test "
-        "(one side of its split: develop on dev only), or a folder in the reference format. Repeatable.")] = None,
+        "(one side of its split: develop on dev only), ours-ref / ours-ref-dev / ours-ref-test (our cases on the "
+        "authors' scenes; need the reference data), or a folder in the reference format. Repeatable.")] = None,
     level: Annotated[list[int] | None, typer.Option("--level", help="Distraction level 0-2 (default 2). Repeatable.")] = None,
     repeats: Annotated[int, typer.Option("--repeats", min=1, help="Runs per case, seeds seed..seed+repeats-1.")] = 1,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the first repeat.")] = 0,

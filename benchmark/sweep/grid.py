@@ -163,12 +163,17 @@ def expand(spec: SweepSpec, case_ids: dict[str, Sequence[int]]) -> list[RunKey]:
 
 OURS_SPLITS: dict[str, str] = {"ours-dev": "dev", "ours-test": "test"}
 """Case-set names for one side of our pool's committed split (``benchmark/own_cases/split.json``)."""
+OURS_REF_SPLITS: dict[str, str] = {"ours-ref-dev": "dev", "ours-ref-test": "test"}
+"""The same for our pool on the authors' scenes (``benchmark/cases/ours_ref``,
+``benchmark/own_cases/split_ref.json``); they need the reference data."""
 
 
 def case_set_for(arg: str, reference: DataFolder, ours: Path) -> CaseSetSpec:
     """The case set named on the command line: ``reference`` (the authors' 40 cases), ``ours``
     (``benchmark/cases/ours``, the whole pool), ``ours-dev`` / ``ours-test`` (one side of its
-    split: levers are developed on dev only, test is measured) or a folder in the reference format.
+    split: levers are developed on dev only, test is measured), ``ours-ref`` / ``ours-ref-dev`` /
+    ``ours-ref-test`` (our generated cases on the authors' scenes, ``ours_ref`` beside ``ours``,
+    and their split; they need the reference data) or a folder in the reference format.
 
     ``reference`` (the lookup of :func:`~orchestrator.reference_data.locate_reference`) is
     required only by the case sets that need it: ``reference`` itself, and a folder outside the
@@ -186,9 +191,20 @@ def case_set_for(arg: str, reference: DataFolder, ours: Path) -> CaseSetSpec:
 
         whole = case_set_for("ours", reference, ours)
         return whole.model_copy(update={"name": arg, "case_ids": split_ids(OURS_SPLITS[arg])})
+    if (arg == "ours-ref" or arg in OURS_REF_SPLITS) and not reference.found:
+        raise ReferenceDataNotFound(f"--cases {arg}: these cases are on the authors' scenes; {reference.reason}")
+    if arg == "ours-ref":
+        path = (ours.parent / "ours_ref").resolve()
+        return CaseSetSpec(name="ours-ref", path=str(path), scenes_root=str(reference.path))
+    if arg in OURS_REF_SPLITS:
+        from benchmark.own_cases.split import split_ids
+
+        whole = case_set_for("ours-ref", reference, ours)
+        return whole.model_copy(update={"name": arg, "case_ids": split_ids(OURS_REF_SPLITS[arg], "ours_ref")})
     path = Path(arg).expanduser().resolve()
     if not path.is_dir():
-        raise SweepSpecError(f"--cases {arg}: not a folder (expected reference, ours, ours-dev, ours-test or a case folder)")
+        raise SweepSpecError(f"--cases {arg}: not a folder (expected reference, ours, ours-dev, ours-test, "
+                             "ours-ref, ours-ref-dev, ours-ref-test or a case folder)")
     if path == ours.resolve():
         return case_set_for("ours", reference, ours)
     root = next((p for p in (path, *path.parents) if (p / "configs" / "scenes").is_dir()), None)

@@ -37,6 +37,7 @@ from benchmark.sweep.execute import (
     replay_port,
 )
 from benchmark.sweep.grid import (
+    OURS_REF_SPLITS,
     OURS_SPLITS,
     CaseSetSpec,
     RunKey,
@@ -128,7 +129,7 @@ def relocated(spec: SweepSpec) -> SweepSpec:
     ours = Path(__file__).resolve().parents[1] / "cases" / "ours"
 
     def here_now(c: CaseSetSpec) -> CaseSetSpec:
-        if c.name not in ("reference", "ours", *OURS_SPLITS) or _here(c):
+        if c.name not in ("reference", "ours", *OURS_SPLITS, "ours-ref", *OURS_REF_SPLITS) or _here(c):
             return c
         try:
             return case_set_for(c.name, reference, ours)
