@@ -3,7 +3,10 @@
 ``python -m benchmark.own_cases.generate`` writes the generated cases (ids from
 :data:`FIRST_ID`) into ``benchmark/cases/ours/<k>_<TAGS>/`` next to the 40 hand-written ones,
 removing generated files of an earlier run; ``--check`` only compares and exits 1 when the
-folder differs from what the code generates.
+folder differs from what the code generates. ``--pool ours_ref`` does the same on the authors'
+three reference scenes (:data:`REF_SCENES`, loaded through the reference-data lookup; absent:
+one line, exit 2) into ``benchmark/cases/ours_ref/`` (ids from :data:`REF_FIRST_ID`, all
+generated).
 
 How a case is made: a *recipe* (one per kind of question, e.g. "the seat of a kind nearest a
 landmark", "join a friend's table", "wait for a device in use") looks at a scene (objects,
@@ -51,7 +54,7 @@ from benchmark.own_cases.phrasing import (
     third_person,
 )
 from benchmark.own_cases.split import SIDES, Side, first_side, on_side
-from benchmark.reference_cases import BUNDLED_PREFIX, BenchmarkCase, scene_dir
+from benchmark.reference_cases import BUNDLED_PREFIX, BenchmarkCase
 from orchestrator.reference_data import ReferenceDataNotFound
 from sim.scene.bundled import load_bundled_scene
 from sim.scene.files import load_scene
@@ -760,19 +763,11 @@ def _as_case(data: dict[str, Any], folder: str) -> BenchmarkCase:
 def _facts(pool: Pool = OURS_POOL) -> dict[str, SceneFacts]:
     out = {}
     for name in pool.scenes:
-        scene = load_scene(scene_dir(pool.scenes_root(), _Named(pool.scene_name(name)))) if pool.reference \
+        scene = load_scene(pool.scenes_root() / "configs" / "scenes" / name) if pool.reference \
             else load_bundled_scene(name)
         out[name] = SceneFacts(name, scene, build_scene_graph(scene), cluster_objects(scene), pool.actions(name),
                                pool.scene_name(name))
     return out
-
-
-@dataclass(frozen=True)
-class _Named:
-    """Just enough of a case for :func:`scene_dir`."""
-
-    scene_name: str
-    source: str = "generator"
 
 
 def _order(drafts: list[Draft], rng: random.Random, scenes: tuple[str, ...] = SCENES) -> list[Draft]:
