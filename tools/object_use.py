@@ -192,3 +192,25 @@ def shared_use_frames(
                 at.setdefault(obj.name, []).append(name)
         out += [(f, o, tuple(who)) for o, who in at.items() if len(who) > places(scene.by_name[o])]
     return out
+
+
+def single_user_labels() -> frozenset[str]:
+    """Every object label some action uses alone (:data:`SINGLE_USER_ACTIONS`)."""
+    return frozenset(label for labels in SINGLE_USER_ACTIONS.values() for label in labels)
+
+
+def busy_named_objects(
+    named_labels: Iterable[str], characters: Iterable[CharacterLike], scene: Scene, skip: Iterable[str] = (),
+) -> dict[str, list[str]]:
+    """The objects of each single-user label in ``named_labels`` (the labels an event's words
+    name) when *every* object of that label is in use by characters outside ``skip``: object
+    name -> its users. Empty when a free one of the label is left (the event can use that one)."""
+    users = users_of_objects(characters, scene, skip)
+    out: dict[str, list[str]] = {}
+    for label in dict.fromkeys(named_labels):
+        if label not in single_user_labels():
+            continue
+        objects = [o for o in scene.objects if o.label == label]
+        if objects and all(len(users.get(o.name, [])) >= places(o) for o in objects):
+            out.update({o.name: users[o.name] for o in objects})
+    return out

@@ -68,6 +68,7 @@ from agents.describer import (
     read_cached,
     write_cached,
 )
+from agents.device_in_use import waiting_for_busy_device
 from agents.event_parser import (
     PARSER_RETRY_INSTRUCTION,
     ParserInput,
@@ -323,7 +324,10 @@ async def parse_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> d
 async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
     """Run the reply's parse_event() in the sandbox; a typed error becomes feedback. A program
     that gives a character an object another one uses alone is refused once with that feedback
-    (ObjectInUseError); after it, such a character waits by the object instead (idle)."""
+    (ObjectInUseError) while a retry is left; after it, or on the last attempt, such a character
+    waits by the object instead (idle). Words
+    about a device every one of which is in use, with a program that avoids it, make the
+    event's characters wait for it (:mod:`agents.device_in_use`)."""
     deps = runtime.context
     if state.failure is not None:
         return {}
@@ -332,8 +336,9 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     attempts = len(state.parser_turns) + 1
     event = state.event
     world = deps.world.world_view(state.roster)
-    if isinstance(world, WorldView) and any(t.error == ObjectInUseError.__name__ for t in state.parser_turns):
-        world = world.model_copy(update={"busy_objects": "wait"})  # told once: now whoever is refused waits
+    told = any(t.error == ObjectInUseError.__name__ for t in state.parser_turns)
+    if isinstance(world, WorldView) and (told or attempts > deps.max_retries):
+        world = world.model_copy(update={"busy_objects": "wait"})  # told once, or no retry left: whoever is refused waits
     try:
         result = await off_loop(lambda: run_reply(
             reply,
@@ -347,17 +352,21 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
         ))
     except REJECTIONS as exc:
         return rejected_reply(state, deps, "event_parser", reply, exc, instruction=PARSER_RETRY_INSTRUCTION)
+    plans = result.plans
+    if isinstance(world, WorldView):  # words about a device nobody leaves free: its characters wait for it
+        plans = waiting_for_busy_device(event_text(event.activity, state.part), plans, world, deps.scene,
+                                        event.characters)
     parsed = ParsedEvent(
         index=state.step,
         event=state.event,
-        plans=result.plans,
+        plans=plans,
         program=result.program,
         narrator_attempts=state.narrator_attempts,
         parser_attempts=attempts,
         part=state.part,
     )
     record_parsed(deps, state.parser_seq, "event_parser", {
-        "plans": [p.model_dump(mode="json") for p in result.plans], "program": result.program,
+        "plans": [p.model_dump(mode="json") for p in plans], "program": result.program,
     })
     return {"parsed": parsed, "parser_reply": None, "parser_seq": None}
 
