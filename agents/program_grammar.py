@@ -232,7 +232,8 @@ def event_options(
         seats=tuple(shortlist.seats) or tuple(free),
         free_seats=tuple(free),
         posture=posture(activity) or ("stand" if set(relations) & DIRECTIONAL else None)
-        or ("sit" if labels[0] in SEATED_ACTIVITIES or about_a_seat(scene, activity, labels[0]) else None),
+        or ("sit" if labels[0] in SEATED_ACTIVITIES or about_a_seat(scene, activity, labels[0]) else None)
+        or ("stand" if idle_beside_a_thing(scene, activity, labels[0]) else None),
         relations=relations,
         others=where,
     )
@@ -249,6 +250,23 @@ def about_a_seat(scene: Scene, activity: str, label: str) -> bool:
     named = mentioned_labels(subject, labels)
     seat_labels = {o.label for o in scene.objects if o.is_seat}
     return bool(named) and all(n in seat_labels for n in named)
+
+
+def idle_beside_a_thing(scene: Scene, activity: str, label: str) -> bool:
+    """Whether the event's words put a character doing nothing in particular (best label
+    ``idle``: "waits right next to the refrigerator") near a thing that is not a seat, and name no
+    seat: the character stands beside it (a 0.5B model otherwise sat them on the nearest couch)."""
+    if label != "idle" or not activity:
+        return False
+    labels = sorted(scene.labels)
+    seat_labels = {o.label for o in scene.objects if o.is_seat}
+    mentions = stated_relations(activity, labels)
+    near_things = [r for m in mentions if m.kind in ("near", "nearest") for r in m.references
+                   if r and not r[0].startswith("@")]
+    if not near_things or any(set(r) & seat_labels for r in near_things):
+        return False
+    subject = without_relations(activity, mentions, labels)
+    return not set(mentioned_labels(subject, labels)) & seat_labels
 
 
 def event_program_grammar(
