@@ -16,15 +16,13 @@ record holds the chosen label and the model's five best.
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 from langgraph.runtime import Runtime
 
 from agents.action_choice import action_candidates, action_choice_request
 from agents.event_parser import event_text
-from agents.llm_port import LLMError, ReplayMissError
-from agents.scored_choice import ChoiceError, ScoredChoice, choose
+from orchestrator.planning.choice_call import ask_choice, choice_update
 from orchestrator.planning.state import PlanningDeps, PlanningState
 
 
@@ -47,25 +45,10 @@ async def choose_action(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
         candidates, event.characters, event.activity, state.part, deps.prompts, seed=deps.seed,
         sim_frame=state.sim_frame,
     )
-    started = time.monotonic()
-    ranked: ScoredChoice | None = None
-    try:
-        ranked = await choose(deps.port, request)
-    except ReplayMissError:
-        raise
-    except (LLMError, ChoiceError):
-        ranked = None
-    if deps.progress is not None:
-        deps.progress.llm_call("event_parser", time.monotonic() - started)
-    update: dict[str, Any] = {"llm_calls": state.llm_calls + 1}
+    ranked = await ask_choice(deps, request)
     if ranked is None:
-        return update
-    sink = deps.trace_sink()
-    if ranked.trace_seq is not None:
-        if sink is not None:
-            sink.record_parsed(ranked.trace_seq, {"action": ranked.choice, "ranked": list(ranked.ranked[:5])},
-                               node="event_parser")
-        update["step_trace_seqs"] = (*state.step_trace_seqs, ranked.trace_seq)
+        return choice_update(state, deps, None, {})
+    update = choice_update(state, deps, ranked, {"action": ranked.choice, "ranked": list(ranked.ranked[:5])})
     return {**update, "action": ranked.choice}
 
 

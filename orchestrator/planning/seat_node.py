@@ -18,14 +18,12 @@ chosen seat, the model's ranking and the candidates the check allowed.
 from __future__ import annotations
 
 import re
-import time
 from typing import Any
 
 import anyio.to_thread
 from langgraph.runtime import Runtime
 
 from agents.event_parser import event_text
-from agents.llm_port import LLMError, ReplayMissError
 from agents.place_choice import (
     SeatCandidates,
     checked_choice,
@@ -35,7 +33,7 @@ from agents.place_choice import (
 )
 from agents.program_grammar import event_options
 from agents.relation_words import points_back
-from agents.scored_choice import ChoiceError, ScoredChoice, choose
+from orchestrator.planning.choice_call import ask_choice, choice_update
 from orchestrator.planning.state import PlanningDeps, PlanningState
 
 
@@ -110,26 +108,10 @@ async def choose_seat(state: PlanningState, runtime: Runtime[PlanningDeps]) -> d
         words_so_far(state.instruction, state.part) if points_back(state.part) else state.part,
         seed=deps.seed, sim_frame=state.sim_frame,
     )
-    started = time.monotonic()
-    ranked: ScoredChoice | None = None
-    update: dict[str, Any] = {"llm_calls": state.llm_calls + 1}
-    try:
-        ranked = await choose(deps.port, request)
-    except ReplayMissError:
-        raise
-    except (LLMError, ChoiceError):
-        ranked = None
-    if deps.progress is not None:
-        deps.progress.llm_call("event_parser", time.monotonic() - started)
+    ranked = await ask_choice(deps, request)
     seat = checked_choice(seats, ranked)
-    sink = deps.trace_sink()
-    if ranked is not None and ranked.trace_seq is not None:
-        if sink is not None:
-            sink.record_parsed(ranked.trace_seq, {
-                "seat": seat, "ranked": list(ranked.ranked), "allowed": list(seats.allowed),
-            }, node="event_parser")
-        update["step_trace_seqs"] = (*state.step_trace_seqs, ranked.trace_seq)
-    return {**update, "seat": seat}
+    parsed = {} if ranked is None else {"seat": seat, "ranked": list(ranked.ranked), "allowed": list(seats.allowed)}
+    return {**choice_update(state, deps, ranked, parsed), "seat": seat}
 
 
 async def skip_seat_choice(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:

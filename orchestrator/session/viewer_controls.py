@@ -31,7 +31,6 @@ left: paused when the last press was Pause. Nothing else in the run depends on i
 from __future__ import annotations
 
 import math
-import string
 import threading
 import time
 import uuid
@@ -40,9 +39,9 @@ from typing import Literal
 
 import anyio
 import structlog
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, model_validator
 
-from orchestrator.session.viewer_instructions import POLL_S, AppendedLines, append_line
+from orchestrator.session.viewer_instructions import POLL_S, AppendedLines, ViewerLine, append_line
 from sim.run_folder_names import VIEWER_CONTROLS
 
 _log = structlog.get_logger("storyteller.session")
@@ -56,24 +55,13 @@ HOLD_POLL_S = 0.02
 ControlKind = Literal["pause", "resume", "speed"]
 
 
-class ViewerControl(BaseModel):
+class ViewerControl(ViewerLine):
     """One line of the file: a press in a viewer's run panel for the run of ``thread``."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
-
-    id: str = Field(min_length=32, max_length=32, description="Unique per line: 32 hex digits.")
-    thread: str = Field(min_length=1, max_length=200, description="The run's planning thread (run.json).")
     kind: ControlKind
     speed: float | None = Field(default=None, ge=MIN_SPEED, le=MAX_SPEED,
                                 description="kind 'speed': simulated seconds per wall second.")
     sent_unix: float = Field(ge=0, description="When the viewer wrote it (wall clock; shown only).")
-
-    @field_validator("id")
-    @classmethod
-    def _hex(cls, value: str) -> str:
-        if not all(c in string.hexdigits for c in value):
-            raise ValueError("expected 32 hex digits")
-        return value
 
     @model_validator(mode="after")
     def _speed_with_its_kind(self) -> ViewerControl:

@@ -65,15 +65,14 @@ LineT = TypeVar("LineT")
 _READ = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
 
 
-class ViewerInstruction(BaseModel):
-    """One line of the file: an instruction typed in a viewer for the run of ``thread``."""
+class ViewerLine(BaseModel):
+    """What every line a viewer appends for a run starts with: its id and the run's thread (the
+    instruction and control channels' lines add their own fields)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     id: str = Field(min_length=32, max_length=32, description="Unique per line: 32 hex digits.")
     thread: str = Field(min_length=1, max_length=200, description="The run's planning thread (run.json).")
-    text: str = Field(min_length=1, max_length=MAX_INSTRUCTION_CHARS)
-    sent_unix: float = Field(ge=0, description="When the viewer wrote it (wall clock; shown only).")
 
     @field_validator("id")
     @classmethod
@@ -81,6 +80,13 @@ class ViewerInstruction(BaseModel):
         if not all(c in string.hexdigits for c in value):
             raise ValueError("expected 32 hex digits")
         return value
+
+
+class ViewerInstruction(ViewerLine):
+    """One line of the file: an instruction typed in a viewer for the run of ``thread``."""
+
+    text: str = Field(min_length=1, max_length=MAX_INSTRUCTION_CHARS)
+    sent_unix: float = Field(ge=0, description="When the viewer wrote it (wall clock; shown only).")
 
 
 def instruction_text(typed: str) -> str:
