@@ -17,8 +17,7 @@ import math
 from collections.abc import Sequence
 
 from agents.messages import PlannedCharacter
-from agents.relation_words import stated_relations, without_relations
-from agents.shortlist import mentioned_labels
+from agents.relation_words import labels_about
 from sim.scene.model import Scene
 from tools.character_states import WorldView
 from tools.object_use import busy_named_objects, used_object
@@ -29,10 +28,8 @@ def busy_device(
 ) -> str | None:
     """The device an event with words ``text`` is about that nobody outside the event leaves
     free, when no plan of ``plans`` uses one (see the module docstring); else None."""
-    labels = scene.labels
-    names = [c.name for c in world.characters]
-    subject = without_relations(text, stated_relations(text, labels, names), labels)
-    busy = busy_named_objects(mentioned_labels(subject, labels), world.characters, scene, skip=event_characters)
+    named = labels_about(text, scene.labels, [c.name for c in world.characters])
+    busy = busy_named_objects(named, world.characters, scene, skip=event_characters)
     if not busy:
         return None
     for plan in plans:

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from agents.action_shortlist import action_shortlist, posture
-from agents.relation_words import stated_relations, without_relations
+from agents.relation_words import labels_about, stated_relations, without_relations
 from agents.shortlist import RELATIONS, event_shortlist, mentioned_labels, relation_areas
 from sim.motion.action_labels import playable_seated
 from sim.scene.model import Scene, SceneObject
@@ -245,9 +245,7 @@ def about_a_seat(scene: Scene, activity: str, label: str) -> bool:
     best label can be played seated: the character then sits on it, though no word says "sit"."""
     if not activity or not playable_seated(label):
         return False
-    labels = sorted(scene.labels)
-    subject = without_relations(activity, stated_relations(activity, labels), labels)
-    named = mentioned_labels(subject, labels)
+    named = labels_about(activity, sorted(scene.labels))
     seat_labels = {o.label for o in scene.objects if o.is_seat}
     return bool(named) and all(n in seat_labels for n in named)
 
@@ -265,8 +263,7 @@ def idle_beside_a_thing(scene: Scene, activity: str, label: str) -> bool:
                    if r and not r[0].startswith("@")]
     if not near_things or any(set(r) & seat_labels for r in near_things):
         return False
-    subject = without_relations(activity, mentions, labels)
-    return not set(mentioned_labels(subject, labels)) & seat_labels
+    return not set(mentioned_labels(without_relations(activity, mentions, labels), labels)) & seat_labels
 
 
 def event_program_grammar(

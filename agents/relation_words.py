@@ -209,3 +209,10 @@ def back_reference(text: str, before: str, labels: Sequence[str], names: Sequenc
 
 CLAUSE_MARKS = frozenset({".", ";", "!", "?"})
 """Marks that end the clause a back reference may point to."""
+
+
+def labels_about(text: str, labels: Sequence[str], names: Sequence[str] = ()) -> list[str]:
+    """The object labels ``text`` is about: those it names once each stated relation's words and
+    landmark are taken out ("the chair farthest from the lamp": the chair, not the lamp), in order
+    of mention."""
+    return mentioned_labels(without_relations(text, stated_relations(text, labels, names), labels), labels)

@@ -12,6 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from agents.instruction_parts import words_before, words_so_far
 from agents.llm_port import ChatMessage, LLMRequest, LLMResponse
 from agents.place_choice import checked_choice, needs_model, seat_candidates, seat_choice_request
 from agents.prompt_templates import package_prompts
@@ -23,7 +24,6 @@ from agents.relation_words import (
     without_relations,
 )
 from agents.scored_choice import ChoiceError, choice_request, choose, read_choice
-from orchestrator.planning.seat_node import words_before, words_so_far
 from sim.scene.model import Scene, SceneObject
 from tools.place_relations import (
     FACING_DEG,

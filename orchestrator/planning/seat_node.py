@@ -17,13 +17,13 @@ chosen seat, the model's ranking and the candidates the check allowed.
 
 from __future__ import annotations
 
-import re
 from typing import Any
 
 import anyio.to_thread
 from langgraph.runtime import Runtime
 
 from agents.event_parser import event_text
+from agents.instruction_parts import words_before, words_so_far
 from agents.place_choice import (
     SeatCandidates,
     checked_choice,
@@ -59,37 +59,6 @@ def event_seats(state: PlanningState, deps: PlanningDeps) -> SeatCandidates | No
     if not seats.candidates or options.seats == seats.allowed == seats.allowed[:1]:
         return None
     return seats
-
-
-WORDS_SO_FAR_CHARS = 400
-"""At most this many characters of the instruction up to the part are quoted in the prompt."""
-
-
-def part_span(instruction: str, part: str) -> tuple[int, int] | None:
-    """Where ``part`` (its words, without a leading "Then" the part split may have added) is in
-    ``instruction``: (start, end); None when it is not found as written."""
-    core = re.sub(r"^then,?\s+", "", part.strip(), flags=re.IGNORECASE).rstrip(".!?; ")
-    at = instruction.lower().find(core.lower()) if core else -1
-    return None if at < 0 else (at, at + len(core))
-
-
-def words_so_far(instruction: str, part: str) -> str:
-    """The instruction up to the end of ``part`` (its last :data:`WORDS_SO_FAR_CHARS` characters),
-    so words that point back ("Jalen sits at a table; Aino comes over and sits down there too")
-    keep what they point to; ``part`` alone when it is not found in the instruction as written."""
-    span = part_span(instruction, part)
-    if span is None:
-        return part
-    so_far = instruction[: span[1]].strip()
-    if len(so_far) > WORDS_SO_FAR_CHARS:
-        so_far = so_far[-WORDS_SO_FAR_CHARS:].split(" ", 1)[-1]
-    return so_far + instruction[span[1] : span[1] + 1].strip(" ")
-
-
-def words_before(instruction: str, part: str) -> str:
-    """The instruction's words before ``part`` ("" when it is not found as written)."""
-    span = part_span(instruction, part)
-    return "" if span is None else instruction[: span[0]][-WORDS_SO_FAR_CHARS:]
 
 
 async def choose_seat(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
