@@ -127,3 +127,39 @@ def test_an_area_blocked_up_to_its_widest_relaxation_still_fails() -> None:
     with pytest.raises(UnsatisfiableAreaError, match=r"behind tv_1.*relaxed up to"):
         run_event_program(HOME, DANCE.replace("get_area_in_front_of", "get_area_behind"), WorldView(),
                           seed=0)
+
+
+OFFICE = load_bundled_scene("office")
+OFFICE_FLOOR = FloorMap(OFFICE)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_adjacent_to_a_monitor_deep_on_a_desk_relaxes_to_the_nearest_ring_with_floor(seed: int) -> None:
+    from tools.areas import ADJACENT_DISTANCE, RELAXED_ADJACENT, adjacent_to
+    from tools.scene_graph import point_footprint_distance
+
+    monitor = OFFICE.by_name["monitor_3"]  # deep on a desk: no free floor within 0.5 m of it
+    area = adjacent_to(monitor)
+    with pytest.raises(UnsatisfiableAreaError, match="no free floor in 'adjacent to monitor_3'"):
+        sample_position(replace(area, relaxations=()), OFFICE_FLOOR, Constraints(), np.random.default_rng(seed))
+    placed = sample_position(area, OFFICE_FLOOR, Constraints(), np.random.default_rng(seed))
+    point = np.array([placed.position])
+    gap = float(point_footprint_distance(monitor, point)[0])
+    assert ADJACENT_DISTANCE < gap <= RELAXED_ADJACENT[-1]
+    assert OFFICE_FLOOR.free(point).all() and OFFICE_FLOOR.reachable(point).all()
+    # the nearest free reachable floor of the ring: no admissible point of it is much closer
+    xs, ys = np.meshgrid(np.arange(-1.0, 8.0, 0.05), np.arange(-1.0, 8.0, 0.05))
+    grid = np.stack([xs.ravel(), ys.ravel()], axis=1)
+    grid = grid[area.relaxations[-1].area.contains(grid)]
+    grid = grid[OFFICE_FLOOR.free(grid) & OFFICE_FLOOR.reachable(grid)]
+    assert gap <= float(point_footprint_distance(monitor, grid).min()) + RELAXED_BAND + 0.1
+
+
+def test_a_ring_with_no_floor_up_to_its_widest_relaxation_says_how_far_it_looked() -> None:
+    from tools.areas import within_distance
+
+    walled = SceneObject(  # a box far outside the floor: no ring around it has floor
+        name="crate_9", label="crate", idx=9, center=(50.0, 50.0, 0.5), size=(1.0, 1.0, 1.0),
+    )
+    with pytest.raises(UnsatisfiableAreaError, match="'near crate_9'"):
+        sample_position(within_distance(walled, 0.5, "near", (1.0,)), FLOOR, Constraints(), np.random.default_rng(0))

@@ -14,8 +14,10 @@ to the right of one object) carries ``relaxations``, wider versions of the same 
 measure of how far a point lies outside the strict strip. The sampler tries them, smallest
 first, only when the strict area has no free reachable floor, so a character still ends up on
 that side of the object in a cramped room; an area with room is sampled exactly as without
-them. Combined areas (``intersect``, ``union``) have no relaxations: they keep their strict
-meaning.
+them. "adjacent to" (0.5 m) and "close to" (1.0 m) relax the same way to wider rings
+(``RELAXED_ADJACENT``, ``RELAXED_CLOSE``): a thing on a stand against a wall has no floor right
+beside it, and a person stands by the stand. Combined areas (``intersect``, ``union``) have no
+relaxations: they keep their strict meaning.
 """
 
 from __future__ import annotations
@@ -161,6 +163,12 @@ class Relaxation:
     excess: Callable[[NDArray[np.float64]], NDArray[np.float64]] = field(repr=False)
     """How far points (N, 2) lie outside the strict area (m; past the sides counted
     ``RELAXED_SIDE_WEIGHT`` times); 0 inside it."""
+    extent: str = ""
+    """How far this relaxation reaches, in words for feedback ("0.8 m past its sides and 2.5 m
+    out"); built from ``side`` and ``reach`` when empty."""
+
+    def describe(self) -> str:
+        return self.extent or f"{self.side:g} m past its sides and {self.reach:g} m out"
 
 
 def _combinable(a: Area, b: object, method: str) -> Area:
@@ -199,29 +207,43 @@ def _focus(obj: SceneObject) -> tuple[float, float]:
 
 
 # ----- single-object areas ---------------------------------------------------------------------
-def within_distance(obj: SceneObject, distance: float, relation: str) -> Area:
-    """Points whose distance to the object's footprint is at most ``distance`` metres."""
+def within_distance(
+    obj: SceneObject, distance: float, relation: str, relaxed: tuple[float, ...] = ()
+) -> Area:
+    """Points whose distance to the object's footprint is at most ``distance`` metres; with
+    ``relaxed`` distances (m, increasing), the wider rings the sampler tries, nearest points
+    first, when this one has no free reachable floor (a TV on its stand against a wall has no
+    floor within 0.5 m: a person stands by the stand)."""
 
-    def predicate(p: NDArray[np.float64]) -> NDArray[np.bool_]:
-        return point_footprint_distance(obj, p) <= distance
+    def area(within: float) -> Area:
+        def predicate(p: NDArray[np.float64]) -> NDArray[np.bool_]:
+            return point_footprint_distance(obj, p) <= within
 
-    return Area(
-        f"{relation} {obj.name}",
-        predicate,
-        _grown_box(obj, distance),
-        _focus(obj),
-        anchors=(obj.name,),
+        return Area(f"{relation} {obj.name}", predicate, _grown_box(obj, within), _focus(obj), anchors=(obj.name,))
+
+    def excess(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.asarray(np.maximum(point_footprint_distance(obj, p) - distance, 0.0), dtype=float)
+
+    relaxations = tuple(
+        Relaxation(area(d), 0.0, d, excess, extent=f"to {d:g} m from it") for d in relaxed if d > distance
     )
+    return replace(area(distance), relaxations=relaxations)
+
+
+RELAXED_ADJACENT = (0.75, 1.0)
+"""Wider rings (m) tried for "adjacent to" when the 0.5 m ring has no free reachable floor."""
+RELAXED_CLOSE = (1.5,)
+"""The wider ring (m) tried for "close to" when the 1.0 m ring has none."""
 
 
 def adjacent_to(obj: SceneObject) -> Area:
-    """Within 0.5 m of the object's footprint."""
-    return within_distance(obj, ADJACENT_DISTANCE, "adjacent to")
+    """Within 0.5 m of the object's footprint (relaxed to :data:`RELAXED_ADJACENT` in a cramped spot)."""
+    return within_distance(obj, ADJACENT_DISTANCE, "adjacent to", RELAXED_ADJACENT)
 
 
 def close_to(obj: SceneObject) -> Area:
-    """Within 1.0 m of the object's footprint."""
-    return within_distance(obj, CLOSE_DISTANCE, "close to")
+    """Within 1.0 m of the object's footprint (relaxed to :data:`RELAXED_CLOSE` in a cramped spot)."""
+    return within_distance(obj, CLOSE_DISTANCE, "close to", RELAXED_CLOSE)
 
 
 _DIRECTIONS = {

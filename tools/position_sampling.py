@@ -361,7 +361,7 @@ def _sample_relaxed(
         except UnsatisfiableAreaError:
             crowded = True
     widest = area.relaxations[-1]
-    where = f"{widest.side:g} m past its sides and {widest.reach:g} m out"
+    where = widest.describe()
     if crowded:
         raise UnsatisfiableAreaError(
             f"{strict.feedback}; relaxed up to {where}, every free spot is within "
