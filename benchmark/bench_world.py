@@ -120,6 +120,8 @@ from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MotionMatcher, MotionQuery, Pose, PoseBatch
 from sim.paths.astar_kernel import goal_distances
 from sim.paths.cooperative_astar import Agent, Cell, PathPlanner, PlanResult
+from sim.paths.heuristics import DetourGraph, GoalDistances
+from sim.paths.move_tables import MoveTables
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
@@ -241,9 +243,14 @@ class TimedMotion:
 
 
 class TimedPlanner(PathPlanner):
-    """WHCA* that times and records every planning call."""
+    """WHCA* that times and records every planning call (and its goal distances)."""
 
-    counters: Counters
+    def __init__(self, grid: NavGrid, counters: Counters, **kw: Any) -> None:
+        self.counters = counters
+        super().__init__(grid, **kw)
+
+    def _goal_distances(self, tables: MoveTables) -> GoalDistances:
+        return TimedGoalDistances(tables, self.counters)
 
     def plan(
         self,
@@ -270,24 +277,32 @@ class TimedPlanner(PathPlanner):
             c.problems.append((dict(starts), dict(goals), list(static_obstacles), t0, list(order or ()), kw))
         return out
 
-    def _heuristic_row(self, gid: int) -> int:
-        """The planner's goal-distance cache, with the fields it computes counted and timed."""
-        if gid in self._h_rows:
-            return super()._heuristic_row(gid)
+
+
+class TimedGoalDistances(GoalDistances):
+    """The planner's goal-distance cache, with the fields it computes counted and timed."""
+
+    def __init__(self, tables: MoveTables, counters: Counters) -> None:
+        super().__init__(tables)
+        self.counters = counters
+
+    def row(self, gid: int) -> int:
+        if gid in self.rows:
+            return super().row(gid)
         c = self.counters
         t = c.clock()
-        row = super()._heuristic_row(gid)
+        row = super().row(gid)
         c.field_s += c.clock() - t
         c.fields += 1
         return row
 
-    def _detour_field(self, gid: int, graph: tuple[bytes, NDArray[np.float64]]) -> NDArray[np.float64]:
+    def detour_field(self, gid: int, graph: DetourGraph) -> NDArray[np.float64]:
         """The detour walkers' fields, counted and timed when computed (not memoised)."""
         if (gid, graph[0]) in self._detour_memo:
-            return super()._detour_field(gid, graph)
+            return super().detour_field(gid, graph)
         c = self.counters
         t = c.clock()
-        out = super()._detour_field(gid, graph)
+        out = super().detour_field(gid, graph)
         c.detour_s += c.clock() - t
         c.detour_fields += 1
         return out
@@ -417,8 +432,7 @@ def crowd_world(scene: Scene, grid: NavGrid, n: int, frames: int, seed: int, dbs
                 brute: bool, counters: Counters) -> tuple[World, IdleErrands]:
     """A world of ``n`` walkers on random errands whose motion search and planner report to ``counters``."""
     matcher = MotionMatcher({k: TimedDatabase(db, counters, brute) for k, db in dbs.items()})  # type: ignore[misc]  # TimedDatabase stands in for a MotionDatabase by delegation (__getattr__), not by subclassing
-    planner = TimedPlanner(grid, seed=seed)
-    planner.counters = counters
+    planner = TimedPlanner(grid, counters, seed=seed)
     errands = IdleErrands(grid, n, seed)
     world = World(scene, errands.starts, TimedMotion(matcher, counters), grid=grid, planner=planner,
                   config=WorldConfig(seed=seed, initial_capacity=frames))
@@ -555,15 +569,15 @@ def field_costs(office: Scene, seed: int, repeats: int, goals: int = 40) -> None
         planner = PathPlanner(grid, seed=seed)
         cells = np.argwhere(grid.component == grid.main_component)
         gids = [planner.cell_id((int(i), int(j))) for i, j in cells[rng.choice(len(cells), goals, replace=False)]]
-        ring = np.zeros((3, planner._nb_id.size + 1), dtype=np.int64)
-        goal_distances(gids[0], planner._nb_id, planner._nb_cost, ring)  # compiled / loaded before timing
+        ring = np.zeros((3, planner.tables.nb_id.size + 1), dtype=np.int64)
+        goal_distances(gids[0], planner.tables.nb_id, planner.tables.nb_cost, ring)  # compiled / loaded before timing
         best = math.inf
         for _ in range(max(1, repeats)):
             c0 = time.process_time()
             for g in gids:
-                goal_distances(g, planner._nb_id, planner._nb_cost, ring)
+                goal_distances(g, planner.tables.nb_id, planner.tables.nb_cost, ring)
             best = min(best, (time.process_time() - c0) / goals)
-        print(f"{scene.name:<11} {f'{grid.shape[0]}x{grid.shape[1]}':>9} {len(cells):>8} {planner._nb_id.shape[0]:>7} | "
+        print(f"{scene.name:<11} {f'{grid.shape[0]}x{grid.shape[1]}':>9} {len(cells):>8} {planner.tables.nb_id.shape[0]:>7} | "
               f"{1e6 * best:>8.0f} {1e9 * best / len(cells):>7.1f}")
 
 

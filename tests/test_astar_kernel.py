@@ -14,16 +14,12 @@ import numpy as np
 import pytest
 
 from benchmark.bench_paths import _spaced
-from sim.paths.cooperative_astar import (
-    PathPlanner,
-    PlanningError,
-    PlanResult,
-    _DenseReservations,
-    _Reservations,
-)
+from sim.paths.cooperative_astar import PathPlanner, PlanningError, PlanResult
 from sim.paths.following import CrowdNavigator
 from sim.paths.nav_grid import NavGrid, build_nav_grid
+from sim.paths.reservations import Reservations
 from sim.scene.files import load_scene
+from tests.support.dense_reservations import DenseReservations
 from tests.support.goal_distance_reference import scipy_goal_distances
 from tests.support.reference import OFFICE, reference_or_skip
 
@@ -88,11 +84,11 @@ def test_released_reservation_equals_never_reserved(grid: NavGrid) -> None:
     for k, c in enumerate(agents):  # short random walks of 4 steps from each start
         ids = [planner.cell_id(c)]
         for _ in range(4):
-            moves = [nb[0] for nb in planner._nbrs[ids[-1]]]
+            moves = [nb[0] for nb in planner.tables.nbrs[ids[-1]]]
             ids.append(moves[int(rng.integers(len(moves)))])
         paths[k] = ids
-    dense, plain = _DenseReservations(4, planner), _Reservations(4, planner)
-    grown = _DenseReservations(4, planner, agents=1)  # its agent columns grow as agents come
+    dense, plain = DenseReservations(4, planner.tables), Reservations(4, planner.tables)
+    grown = DenseReservations(4, planner.tables, agents=1)  # its agent columns grow as agents come
     for k, ids in paths.items():
         dense.add(k, ids, 4)
         plain.add(k, ids, 4)
@@ -102,17 +98,17 @@ def test_released_reservation_equals_never_reserved(grid: NavGrid) -> None:
         plain.remove(k, paths[k], 4)
         grown.remove(k, paths[k], 4)
     assert np.array_equal(grown.near, dense.near)
-    fresh = _DenseReservations(4, planner)
+    fresh = DenseReservations(4, planner.tables)
     for k, ids in paths.items():
         if k not in (3, 7, 0):
             fresh.add(k, ids, 4)
     assert np.array_equal(dense.near, fresh.near)
     for t in range(4):
-        row = np.full(dense.near.shape[1], planner._full_mask, dtype=np.int64)
+        row = np.full(dense.near.shape[1], planner.tables.full_mask, dtype=np.int64)
         for cid, mask in plain.near[t].items():
             row[cid] = mask
         assert np.array_equal(dense.near[t], row)
-    assert (dense.near != planner._full_mask).any()
+    assert (dense.near != planner.tables.full_mask).any()
 
 
 def test_compiled_crowd_walks_the_same_trajectories(grid: NavGrid) -> None:
@@ -155,7 +151,7 @@ def test_repair_pass_reuses_unchanged_searches_exactly(grid: NavGrid) -> None:
     planner = PathPlanner(grid, seed=0, max_expansions=60)  # a tight budget: a few searches fail
     goals = planner.plan(starts, dict(enumerate(_spaced(cells, len(starts), rng)))).goals  # usable goals
     order = list(starts)
-    allow = planner._all_allowed
+    allow = planner.tables.all_allowed
     first, record = planner._dense_pass(order, starts, goals, frozenset(), frozenset(), {}, allow)
     assert first.failed
     again, outcomes = planner._dense_pass(order, starts, goals, frozenset(), first.failed, {}, allow,
@@ -171,11 +167,11 @@ def test_goal_distances_equal_scipy_dijkstra_bit_for_bit(grid: NavGrid) -> None:
     planner = PathPlanner(grid)
     goals = [(int(i), int(j)) for i, j in np.argwhere(grid.free)] + [tuple(int(v) for v in np.argwhere(~grid.free)[0])]
     for goal in goals:
-        got = planner._heuristic_array(goal)
+        got = planner.heuristic_array(goal)
         want = scipy_goal_distances(planner, goal)
         assert np.array_equal(got, want), goal
     # some cells are unreachable from some goals (blocked goal: only itself is at 0)
-    assert np.isinf(planner._heuristic_array(goals[-1])).sum() == got.size - 1
+    assert np.isinf(planner.heuristic_array(goals[-1])).sum() == got.size - 1
 
 
 def test_a_small_goal_distance_cache_plans_the_same(grid: NavGrid) -> None:
@@ -184,10 +180,10 @@ def test_a_small_goal_distance_cache_plans_the_same(grid: NavGrid) -> None:
     rng = np.random.default_rng(5)
     cells = _free_cells(grid)
     small, large = PathPlanner(grid, seed=0), PathPlanner(grid, seed=0)
-    small._h_capacity = 4
+    small.distances.capacity = 4
     for t0 in range(3):
         starts = dict(enumerate(_spaced(cells, 12, rng)))
         goals = {a: cells[int(rng.integers(len(cells)))] for a in starts}
         _same(small.plan(starts, goals, t0=t0), large.plan(starts, goals, t0=t0))
-        assert len(small._h_rows) >= 12 > small._h_capacity
-    assert small._h_table is not None and len(small._h_table) < 3 * 12  # evicted rows were reused
+        assert len(small.distances.rows) >= 12 > small.distances.capacity
+    assert small.distances.table is not None and len(small.distances.table) < 3 * 12  # evicted rows were reused

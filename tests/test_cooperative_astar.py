@@ -204,7 +204,7 @@ def _overrides_reference(planner: PathPlanner, segs: list[tuple[np.ndarray, np.n
     ps = np.array([p for p, _ in segs])
     qs = np.array([q for _, q in segs])
     out = {}
-    for cid, nbs in planner._nbrs.items():
+    for cid, nbs in planner.tables.nbrs.items():
         a = g.center_of(*planner.id_cell(cid))
         aa = np.broadcast_to(a, ps.shape)
         limit = np.minimum(planner.min_distance, segment_distance(aa, aa, ps, qs)) - 1e-7
@@ -223,7 +223,7 @@ def test_memoised_static_overrides_match_a_direct_computation() -> None:
     leg = (GRID.center_of(*cells[3]), GRID.center_of(*cells[3]) + np.array([0.12, 0.2]))
     want = _overrides_reference(planner, [leg] + [(p, p) for p in discs])
     for _ in range(2):  # second call: from the memo
-        got = planner._static_overrides(discs, [leg])
+        got = planner.statics.static_overrides(discs, [leg])
         assert got == want
     assert want  # the discs do remove moves
 

@@ -36,9 +36,9 @@ def test_detour_distances_go_around_stationary_bodies_and_equal_the_static_ones_
     grid = build_nav_grid(RING)
     planner = PathPlanner(grid)
     start, goal = grid.cell_of((0.45, 1.95)), grid.cell_of((6.6, 1.95))
-    no_bodies = planner._static_allow_of([], [])
-    assert np.array_equal(planner.detour_distances(goal, no_bodies), planner._heuristic_array(goal))
-    blocked = planner._static_allow_of([np.array([4.23, 1.97])], [])
+    no_bodies = planner.statics.static_allow_of([], [])
+    assert np.array_equal(planner.detour_distances(goal, no_bodies), planner.heuristic_array(goal))
+    blocked = planner.statics.static_allow_of([np.array([4.23, 1.97])], [])
     around = planner.detour_distances(goal, blocked)[planner.cell_id(start)]
     assert round(planner.distance(start, goal) / grid.cell_size) == 21  # straight along the corridor
     assert planner.window < around < np.inf  # round the table: longer than one window

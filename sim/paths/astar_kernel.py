@@ -9,7 +9,7 @@ tables); these numba kernels run its hot loops on dense arrays:
   ``release_path`` all its moves (from the per-step table of reserved moves, one column per
   agent, that ``reserve_path`` fills);
 - ``space_time_search``: the space-time A* of one agent over ``window`` steps;
-- ``kept_path``: the check and greedy extension of a previous plan (``PathPlanner._kept_path``);
+- ``kept_path``: the check and greedy extension of a previous plan (``PythonPasses.kept_path`` in ``sim.paths.python_backend``);
 - ``dense_pass``: one prioritized planning pass over all agents with the kernels above (the
   numba backend's ``PathPlanner._dense_pass``: waits reserved up front, kept hints, searches,
   the repair pass's reuse of unchanged outcomes), so a pass costs one call, not several per agent.
@@ -117,7 +117,7 @@ def kept_path(hint: NDArray[np.int64], goal: int, window: int, h: NDArray[np.flo
     ``near`` and ``static_allow``, then extended to ``window`` steps, each extra step the
     allowed move with the least (cost + h, h, cell id), waiting on ``goal`` free. Returns
     ``(path, s, ok)``: ``ok`` when every step passed (then ``path`` holds the window + 1 ids,
-    the result of ``PathPlanner._kept_path``; else that is None), and the number of steps
+    the result of ``PythonPasses.kept_path``; else that is None), and the number of steps
     ``s`` read: ``near`` is read at ``(t, path[t])`` for t < s only."""
     n_steps = near.shape[0]
     path = np.empty(window + 1, dtype=np.int64)

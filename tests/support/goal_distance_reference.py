@@ -27,6 +27,7 @@ def scipy_goal_distances(planner: PathPlanner, goal: Cell) -> np.ndarray:
         w.append(np.full(len(src), math.hypot(dx, dy)))
     graph = coo_matrix((np.concatenate(w), (np.concatenate(rows), np.concatenate(cols))), shape=(nx * ny, nx * ny)).tocsr()
     d = dijkstra(graph, directed=True, indices=[goal[0] * ny + goal[1]])[0]
-    full = np.full((planner._nx_p, planner._ny_p), np.inf)
-    full[planner._pad: planner._pad + nx, planner._pad: planner._pad + ny] = d.reshape(nx, ny)
+    tables = planner.tables
+    full = np.full((tables.nx_p, tables.ny_p), np.inf)
+    full[tables.pad: tables.pad + nx, tables.pad: tables.pad + ny] = d.reshape(nx, ny)
     return full.ravel()
