@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.bench_world import OFFICE, REFERENCE, IdleErrands
+from benchmark.crowd_scenario import OFFICE, REFERENCE, IdleErrands
 from orchestrator.cache_paths import motion_cache_dir
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose

@@ -1,5 +1,5 @@
-"""benchmark/bench_world.py's ``tiled``: the larger layouts ("Office x4", "Office x16") its big
-crowds walk in are copies of one scene side by side, and the navigation grid builds on them."""
+"""benchmark/crowd_scenario.py's ``tiled``: the larger layouts ("Office x4", "Office x16") the world
+benchmark's big crowds walk in are copies of one scene side by side, and the navigation grid builds on them."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from benchmark.bench_world import tiled
+from benchmark.crowd_scenario import tiled
 from sim.paths.cooperative_astar import PathPlanner
 from sim.paths.nav_grid import build_nav_grid
 from sim.scene.files import load_scene

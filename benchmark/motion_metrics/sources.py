@@ -5,7 +5,7 @@
   (``orchestrator.viewer.run_folder.load_run``: bounded, validated). A folder that is not a run
   but holds run folders (the ``--out`` of ``python -m benchmark.story_suite run``) stands for
   each of them.
-- The **crowd** is ``benchmark.bench_world``'s scenario (``IdleErrands``: walkers on random
+- The **crowd** is ``benchmark.crowd_scenario``'s scenario (``IdleErrands``: walkers on random
   errands in the reference Office, cooperative paths, motion matching), run through the world
   step with the project's motion databases.
 - The **real clips**: the walks of ``benchmark/mocap_shared.toml`` (CMU) and the walks of
@@ -108,7 +108,7 @@ def load_run_motion(folder: Path) -> RunMotion:
 
 def crowd_motion(n: int, seconds: float, seed: int) -> RunMotion:
     """``n`` walkers on random errands in the reference Office for ``seconds`` (30 fps)."""
-    from benchmark.bench_world import OFFICE, REFERENCE, IdleErrands
+    from benchmark.crowd_scenario import OFFICE, REFERENCE, IdleErrands
     from orchestrator.cache_paths import motion_cache_dir
     from sim.motion.database import load_databases
     from sim.motion.matching import MotionMatcher
