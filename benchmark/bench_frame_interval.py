@@ -1,7 +1,7 @@
 """Frame intervals of a real-time story while the planner works, and where the slow frames went.
 
 A ``realtime`` run (speed 1) of 20 characters in the home scene, planned by a fake
-OpenAI-compatible provider on 127.0.0.1 (``tests/support/fake_openai_server.py``) that takes
+OpenAI-compatible provider on 127.0.0.1 (``benchmark/support/fake_openai_server.py``) that takes
 ``--latency`` seconds (default 5) per call and answers every call with an event program for the
 first free character. Event programs run in the worker process, as in ``storyteller run``.
 
@@ -21,7 +21,7 @@ load; compare the two modes of the same run.
 
 ``--viewer`` adds a third mode, ``viewer``: ``product`` with the browser viewer started as
 ``storyteller run --view`` starts it (``orchestrator.viewer.child``: a process of its own,
-playing, following the live run) and a headless Chromium (``tests/support/headless_chromium.py``,
+playing, following the live run) and a headless Chromium (``benchmark/support/headless_chromium.py``,
 software WebGL, on this machine) connected to it for the whole run.
 
     python -m benchmark.bench_frame_interval [--duration 40] [--latency 5] [--repeat 1] [--viewer]
@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from tests.support.fake_openai_server import FakeOpenAI
+from benchmark.support.fake_openai_server import FakeOpenAI
 
 SPOTS = ("bookshelf_1", "couch_1", "tv_1", "coffee_maker_1", "toaster_1", "fridge_1")
 MODES = ("baseline", "product")
@@ -146,8 +146,8 @@ def run_once(mode: str, duration: float, latency: float, tmp: Path) -> Run:
 def _watch(out: Path, tmp: Path) -> Iterator[None]:
     """The viewer of ``out`` as ``run --view`` starts it (its own process, playing), with a
     headless Chromium on it."""
+    from benchmark.support.headless_chromium import Chromium
     from orchestrator.viewer.child import spawn_viewer
-    from tests.support.headless_chromium import Chromium
 
     viewer = spawn_viewer(out, port=0, host="127.0.0.1")
     profile = tmp / "chromium-profile"

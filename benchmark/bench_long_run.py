@@ -2,7 +2,7 @@
 
 Runs ``storyteller run``'s job in this process (``run_story``, then optionally
 ``write_outputs``) on the bundled home scene with four characters, the unified planner and an
-OpenAI-compatible fake provider on 127.0.0.1 (``tests/support/fake_openai_server.py``) that
+OpenAI-compatible fake provider on 127.0.0.1 (``benchmark/support/fake_openai_server.py``) that
 answers every request at once, forever: each free character in turn walks to an appliance
 and uses it, so events keep coming for as long as the story runs. Every simulated
 ``--every`` minutes (at the first story event after the mark) it prints the simulated time,
@@ -89,11 +89,11 @@ def main(argv: list[str] | None = None) -> int:
     if opts.minutes <= 0 or opts.every <= 0:
         parser.error("--minutes and --every must be > 0")
 
+    from benchmark.support.fake_openai_server import FakeOpenAI
     from orchestrator.session.run_job import run_story, write_outputs
     from orchestrator.session.run_manifest import RunArguments
     from orchestrator.session.runtime import StoryEvent
     from sim.scene.bundled import load_bundled_scene
-    from tests.support.fake_openai_server import FakeOpenAI
 
     with tempfile.TemporaryDirectory(prefix="bench_long_run_") as tmp:
         out = opts.out if opts.out is not None else Path(tmp) / "run"

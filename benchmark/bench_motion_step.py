@@ -2,7 +2,7 @@
 
 Records the motion queries a bench_world-like run feeds the motion layer (10 characters
 walking between random targets in the Office, ``--seconds`` simulated seconds), then replays
-them through ``tests.support.motion_reference.ReferenceMotionMatcher`` (the step as it was before the
+them through ``benchmark.support.motion_reference.ReferenceMotionMatcher`` (the step as it was before the
 motion kernels) and through ``sim.motion.matching.MotionMatcher``, each starting from the
 recorded initial states and feeding its own returned states back, as the world does. Prints
 microseconds per frame (all characters) for both, best of ``--reps`` alternating replays,
@@ -25,13 +25,13 @@ from typing import Any
 import numpy as np
 
 from benchmark.crowd_scenario import OFFICE, REFERENCE, IdleErrands
+from benchmark.support.motion_reference import ReferenceMotionMatcher
 from orchestrator.cache_paths import motion_cache_dir
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
 from sim.paths.nav_grid import build_nav_grid
 from sim.scene.files import load_scene
 from sim.world.step import World, WorldConfig, step
-from tests.support.motion_reference import ReferenceMotionMatcher
 
 
 @dataclass

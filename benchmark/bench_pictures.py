@@ -1,7 +1,7 @@
 """Animation time of a story: the animation (static scene drawn once, moving layers per
 picture) against the frozen renderer that drew every picture from scratch, in the same run.
 
-The story is ``tests.support.random_tracks.wandering_story``: ``--characters`` people walking
+The story is ``benchmark.support.random_tracks.wandering_story``: ``--characters`` people walking
 between random free cells of the bundled Office for ``--seconds`` seconds at 30 fps, pausing
 with actions and events, drawn as ``storyteller run --video/--gif`` does (every 10th frame,
 900 px wide). Printed, wall clock (a busy machine slows both sides alike): the pictures alone
@@ -34,11 +34,11 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
+from benchmark.support.picture_reference import reference_frame_rgb
+from benchmark.support.random_tracks import wandering_story
 from sim.export.video import animation_frames, mp4_available, save_run_animation
 from sim.paths.nav_grid import build_nav_grid
 from sim.scene.bundled import load_bundled_scene
-from tests.support.picture_reference import reference_frame_rgb
-from tests.support.random_tracks import wandering_story
 
 STRIDE = 10  # as orchestrator.session.run_job.write_outputs
 SPEED = 4.0

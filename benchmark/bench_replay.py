@@ -5,7 +5,7 @@ fresh ``storyteller`` process (so imports count), timed from this process with t
 
 Recording: ``storyteller run home --names Zoe,Max -d 60 --planner unified --description
 object-list`` (``--pace lockstep``, the default: the simulation waits for the planner) against a
-scripted OpenAI-compatible server on 127.0.0.1 (``tests.support.fake_openai_server``) that
+scripted OpenAI-compatible server on 127.0.0.1 (``benchmark.support.fake_openai_server``) that
 answers every planner call with a valid program (the first free character uses an appliance)
 after a delay. The delay per call defaults to the mean latency of the LLM calls recorded in the
 story-suite traces (``traces/story_suite/*.jsonl``, a real model on this kind of machine), so the
@@ -98,7 +98,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from tests.support.fake_openai_server import FakeOpenAI
+from benchmark.support.fake_openai_server import FakeOpenAI
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI = "from orchestrator.cli.app import main; main()"

@@ -1,6 +1,6 @@
 """Scene building benchmark: the scene graph and the region clusters through the spatial index
 (``tools.box_pairs``) against the brute-force builds that test every pair
-(``tests/support/scene_graph_reference.py``), on dense random scenes.
+(``benchmark/support/scene_graph_reference.py``), on dense random scenes.
 
 A scene of ``--objects`` boxes (0.3-1.0 m, random yaw, 30% lifted onto or above others)
 scattered over a square floor with ``--density`` boxes per square metre (the default, 4 per
@@ -23,8 +23,8 @@ from typing import TypeVar
 
 import numpy as np
 
+from benchmark.support.scene_graph_reference import brute_force_clusters, brute_force_scene_graph
 from sim.scene.model import Scene, SceneObject
-from tests.support.scene_graph_reference import brute_force_clusters, brute_force_scene_graph
 from tools.clusters import cluster_objects
 from tools.scene_graph import build_scene_graph
 

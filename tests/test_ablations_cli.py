@@ -1,7 +1,7 @@
 """``storyteller plan/run --planner ... --description ...``: the paper's ablations from the CLI.
 
 Each node's model is an ``openai/fake-<node>`` model served by a scripted OpenAI-compatible
-server on 127.0.0.1 (``tests/support/fake_openai_server.py``; the real litellm client, config, trace
+server on 127.0.0.1 (``benchmark/support/fake_openai_server.py``; the real litellm client, config, trace
 recording and replay are used); a recorded ablation trace is then replayed through the CLI with
 the server stopped.
 """
@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.llm.traces import read_trace
 from orchestrator.session.roster import initial_roster
 from sim.scene.bundled import resolve_scene
-from tests.support.fake_openai_server import FakeOpenAI
 from tools.position_sampling import FloorMap
 
 SCENE = resolve_scene("home")

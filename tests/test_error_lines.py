@@ -16,10 +16,10 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.cli.options import fail
 from orchestrator.safe_text import one_line
-from tests.support.fake_openai_server import FakeOpenAI
 from tests.support.finished_run import make_finished_run, one_error_line, resume
 from tests.support.hostile_files import unsafe_characters
 from tests.support.story_planner import RUN, Planner, write_config

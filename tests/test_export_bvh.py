@@ -11,10 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from benchmark.support.random_tracks import random_track
 from sim.body.skeleton import BODY_TO_WORLD, JOINT_NAMES, PARENTS, REST_OFFSETS
 from sim.export.bvh import END_SITES, Units, bvh_text, depth_first_order, export_bvh
 from sim.world.character_track import CharacterTrack
-from tests.support.random_tracks import random_track
 
 _AXES = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
 

@@ -11,6 +11,7 @@ import pytest
 import trimesh
 from pygltflib.validator import validate
 
+from benchmark.support.random_tracks import random_track
 from sim.body.skeleton import (
     BODY_TO_WORLD,
     JOINT_NAMES,
@@ -26,7 +27,6 @@ from tests.support.gltf_eval import COMPONENTS as _WIDTH
 from tests.support.gltf_eval import NUMPY_DTYPES as _NUMPY
 from tests.support.gltf_eval import read_accessor as _read
 from tests.support.gltf_eval import world_matrices as _world_matrices
-from tests.support.random_tracks import random_track
 
 
 def _scene() -> Scene:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from benchmark.support.random_tracks import random_track
 from sim.export.bundle import export_run, file_slug
 from sim.export.bvh import (
     EULER_ORDER,
@@ -28,7 +29,6 @@ from sim.export.joint_rotations import JointRotations
 from sim.export.smplx_npz import export_smplx_npz, smplx_parameters
 from sim.scene.bundled import load_bundled_scene
 from sim.world.character_track import CharacterTrack
-from tests.support.random_tracks import random_track
 
 
 def _noisy(name: str, frames: int, seed: int) -> CharacterTrack:

@@ -3,7 +3,7 @@ each took effect at, and a replay applies it there again.
 
 The session tests use a scripted planner on the real world (home scene); the CLI test runs
 ``storyteller run --instructions FILE`` against the fake OpenAI-compatible server
-(``tests/support/fake_openai_server.py``) and replays the run folder with no model.
+(``benchmark/support/fake_openai_server.py``) and replays the run folder with no model.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 
 from agents.instruction_parts import instruction_progress, part_states, split_instruction
 from agents.messages import HistoryEntry
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.llm.traces import (
     AttemptRecord,
@@ -36,7 +37,6 @@ from orchestrator.session.runtime import Session, SessionResult, SessionSettings
 from orchestrator.session.stdin_instructions import start_stdin_reader
 from sim.motion.matching import MotionMatcher
 from sim.scene.model import Scene
-from tests.support.fake_openai_server import FakeOpenAI
 from tests.test_run_folder import RUN, Planner, env, write_config  # noqa: F401  (env: a fixture)
 from tests.test_session_runtime import FPS, ScriptedPlanner, _world, home, motion  # noqa: F401  (fixtures)
 

@@ -20,6 +20,7 @@ from rich.text import Text
 from typer.testing import CliRunner
 
 from agents.llm_port import LLMError, LLMRequest, LLMResponse, NodeName, TokenUsage
+from benchmark.support.fake_openai_server import PROMPT_TOKENS, FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.cli.live_view import live_view
 from orchestrator.cli.run import live_and_interactive
@@ -30,7 +31,6 @@ from sim.motion.matching import MotionMatcher
 from sim.scene.model import Scene
 from sim.world.event_book import EventStatus
 from sim.world.step import World
-from tests.support.fake_openai_server import PROMPT_TOKENS, FakeOpenAI
 from tests.test_run_folder import RUN, Planner, env, write_config  # noqa: F401  (env: a fixture)
 from tests.test_session_runtime import FPS, ScriptedPlanner, _world, home, motion  # noqa: F401  (fixtures)
 

@@ -1,7 +1,7 @@
 """Fault handling of LiteLLMClient against a fake OpenAI-compatible server on 127.0.0.1.
 
 The real litellm -> openai SDK -> httpx path is exercised; the server
-(``tests/support/fake_openai_server.py``) plays a script of failures per model. Sleeping is injected,
+(``benchmark/support/fake_openai_server.py``) plays a script of failures per model. Sleeping is injected,
 so backoff never waits.
 """
 
@@ -15,11 +15,11 @@ from typing import Any
 import pytest
 
 from agents.llm_port import ChatMessage, LLMError, LLMRequest, LLMUnavailableError
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import NodeConfig, RetryConfig, StorytellerConfig, default_config
 from orchestrator.llm.retry_policy import RetryPolicy
 from orchestrator.llm.traces import AttemptRecord, TraceWriter, read_trace
-from tests.support.fake_openai_server import FakeOpenAI
 
 SCHEMA = {"type": "object", "properties": {"ok": {"type": "boolean"}}, "required": ["ok"]}
 

@@ -164,9 +164,9 @@ def test_a_torn_last_record_is_dropped_and_a_bad_middle_one_refused(
 def test_the_gif_is_written_picture_by_picture_and_shows_the_same_pictures(tmp_path: Path) -> None:
     import imageio.v3 as iio
 
+    from benchmark.support.random_tracks import wandering_story
     from sim.export.video import _write_gif, iter_animation_frames
     from sim.paths.nav_grid import build_nav_grid
-    from tests.support.random_tracks import wandering_story
 
     scene = load_bundled_scene("office")
     rec = wandering_story(scene, build_nav_grid(scene), characters=3, seconds=4.0, seed=3)

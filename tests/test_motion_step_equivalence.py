@@ -1,4 +1,4 @@
-"""The compiled motion step equals the numpy one it replaced (tests.support.motion_reference).
+"""The compiled motion step equals the numpy one it replaced (benchmark.support.motion_reference).
 
 A scripted multi-character scenario (walkers in one group and alone, idle with a target, a
 completing action entered from its clip start, sitting down on root motion with a seat height,
@@ -18,6 +18,7 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
+from benchmark.support.motion_reference import ReferenceMotionMatcher
 from orchestrator.cache_paths import motion_cache_dir
 from sim.body.skeleton import forward_kinematics
 from sim.motion.database import MotionDatabase, NearestFrameIndex, load_databases, squared_distances
@@ -30,7 +31,6 @@ from sim.motion.kernels import (
     rotvec_to_matrix,
 )
 from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose, future_from_path
-from tests.support.motion_reference import ReferenceMotionMatcher
 
 DT = 1.0 / 30.0
 KEYS = ["walk", "idle", "chat", "turn_on_tv", "sit_down", "sit_idle", "drink@seated"]

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from benchmark.support.random_tracks import random_track
 from orchestrator.llm.traces import TraceWriter
 from orchestrator.session.run_manifest import RunArguments, RunManifest, write_manifest
 from orchestrator.session.story_stream import StoryStream
@@ -23,7 +24,6 @@ from sim.export.video import RunRecording, save_run_animation, save_run_png
 from sim.no_follow_writes import make_folder, open_append, replacing, write_file
 from sim.scene.bundled import resolve_scene
 from sim.world.track_chunks import ChunkStore
-from tests.support.random_tracks import random_track
 
 PRECIOUS = b"precious: not ours to write\n"
 

@@ -1,7 +1,7 @@
 """The planning benchmark on the reference test cases: case loading, scoring, the runner with
 scripted planners, and the command line (record, then replay byte for byte) through the real
 litellm client against a fake OpenAI-compatible server on 127.0.0.1
-(``tests/support/fake_openai_server.py``)."""
+(``benchmark/support/fake_openai_server.py``)."""
 
 from __future__ import annotations
 
@@ -24,9 +24,9 @@ from benchmark.reference_cases import (
     planning_inputs,
     scene_dir,
 )
+from benchmark.support.fake_openai_server import FakeOpenAI
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
-from tests.support.fake_openai_server import FakeOpenAI
 from tests.support.reference import REFERENCE, requires_reference
 from tests.support.scripted_llm import ScriptedLLM
 

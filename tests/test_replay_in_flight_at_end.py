@@ -28,11 +28,11 @@ import anyio
 import pytest
 
 from agents.llm_port import ChatMessage, LLMRequest, ReplayMissError
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import default_config
 from orchestrator.llm.replay import ReplayClient
 from orchestrator.llm.traces import TraceWriter, read_trace
-from tests.support.fake_openai_server import FakeOpenAI
 from tests.support.story_planner import RUN, first_free, write_config
 
 

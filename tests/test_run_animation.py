@@ -1,6 +1,6 @@
 """The animation (static scene drawn once, moving layers per picture) shows the same pictures
 as the renderer that drew every picture from scratch (frozen in
-``tests.support.picture_reference``), and writes MP4 when imageio-ffmpeg is installed."""
+``benchmark.support.picture_reference``), and writes MP4 when imageio-ffmpeg is installed."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmark.support.picture_reference import reference_frame_rgb
+from benchmark.support.random_tracks import wandering_story
 from sim.export.topdown import CharacterMarker, TopdownAnimation, render_topdown_rgb
 from sim.export.video import (
     RunRecording,
@@ -21,8 +23,6 @@ from sim.export.video import (
 )
 from sim.paths.nav_grid import build_nav_grid
 from sim.scene.bundled import load_bundled_scene
-from tests.support.picture_reference import reference_frame_rgb
-from tests.support.random_tracks import wandering_story
 
 # Per channel, out of 255: anti-aliased edges may differ a little, nothing a person would see.
 PIXEL_TOLERANCE = 24

@@ -14,7 +14,7 @@
   limit makes ``write`` fail with EFBIG once ``SIGXFSZ`` is ignored): one ``error:`` line naming
   the file, exit code 1, no traceback, and every line written before still parses.
 
-The LLM is the fake OpenAI server on 127.0.0.1 (``tests/support/fake_openai_server.py``),
+The LLM is the fake OpenAI server on 127.0.0.1 (``benchmark/support/fake_openai_server.py``),
 answering the unified planner by request content (the first free character uses its
 appliance), so a stopped and resumed run gets the same answers as an uninterrupted one.
 """
@@ -37,10 +37,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.llm import traces
 from orchestrator.llm.traces import AppliedRecord, read_trace
-from tests.support.fake_openai_server import FakeOpenAI
 from tests.support.story_planner import RUN, Planner, write_config
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,7 +1,7 @@
 """The run folder a person reads and uses: ``story.md``, ``metrics.json``, ``run.json``,
 ``storyteller replay RUN_DIR`` and ``storyteller resume RUN_DIR`` after a kill -9.
 
-The LLM is a scripted OpenAI-compatible server on 127.0.0.1 (``tests/support/fake_openai_server.py``)
+The LLM is a scripted OpenAI-compatible server on 127.0.0.1 (``benchmark/support/fake_openai_server.py``)
 answering by request content, so a run that is killed and resumed gets the same answers as
 one that is not; the CLI runs in a child process so it can be killed with SIGKILL.
 """
@@ -23,11 +23,11 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.llm.traces import AppliedRecord, read_trace
 from orchestrator.session.run_report import md_text, story_markdown
 from sim.world.track_chunks import scan
-from tests.support.fake_openai_server import FakeOpenAI
 from tests.support.story_planner import interact_program
 
 ROOT = Path(__file__).resolve().parents[1]

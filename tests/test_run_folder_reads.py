@@ -233,7 +233,7 @@ def test_a_run_with_an_infinite_duration_is_refused_before_it_writes_anything(tm
 
 
 def test_a_run_whose_arguments_run_json_could_not_hold_is_refused_before_run_json(tmp_path: Path) -> None:
-    from tests.support.fake_openai_server import FakeOpenAI
+    from benchmark.support.fake_openai_server import FakeOpenAI
     from tests.support.story_planner import RUN, Planner, write_config
 
     out = tmp_path / "run"

@@ -1,5 +1,5 @@
 """The scene graph and the region clusters built through the spatial index (``tools.box_pairs``)
-equal the brute-force builds that test every pair (``tests/support/scene_graph_reference.py``):
+equal the brute-force builds that test every pair (``benchmark/support/scene_graph_reference.py``):
 the same relations in the same order, the same node attributes, the same clusters, on the
 bundled scenes, the reference scenes and random ones (hypothesis, derandomised). The index
 itself returns exactly the overlapping pairs, and the batched footprint distances are the
@@ -15,11 +15,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from benchmark.support.scene_graph_reference import brute_force_clusters, brute_force_scene_graph
 from sim.scene.bundled import bundled_scene_names, load_bundled_scene
 from sim.scene.files import load_scene
 from sim.scene.model import Scene, SceneObject
 from tests.support.reference import SCENES, reference_or_skip
-from tests.support.scene_graph_reference import brute_force_clusters, brute_force_scene_graph
 from tools.box_pairs import overlapping_pairs
 from tools.clusters import cluster_objects
 from tools.footprint_geometry import polygon_distance, polygon_distances

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.llm.secrets import REDACTED, redact, secret_values
-from tests.support.fake_openai_server import FakeOpenAI
 
 ROOT = Path(__file__).resolve().parents[1]
 CANARY = "sk-canary-5f3a9c1e7d2b4a60b8e1"

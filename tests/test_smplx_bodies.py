@@ -16,6 +16,7 @@ import torch
 import viser
 from typer.testing import CliRunner
 
+from benchmark.support.random_tracks import random_track
 from orchestrator.bodies.smplx_meshes import (
     SmplxBody,
     SmplxModelError,
@@ -34,7 +35,6 @@ from sim.export.bundle import export_run
 from sim.export.smplx_npz import smplx_parameters
 from sim.world.character_track import CharacterTrack
 from tests.support.gltf_eval import read_accessor, world_matrices
-from tests.support.random_tracks import random_track
 from tests.support.smplx_standin import NUM_FACES, NUM_VERTICES, write_standin_model
 
 
@@ -197,7 +197,7 @@ def _body_vertex_count(glb: Path, name: str) -> int:
 def test_resume_and_replay_export_smplx_bodies_with_smplx_model(
     model_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from tests.support.fake_openai_server import FakeOpenAI
+    from benchmark.support.fake_openai_server import FakeOpenAI
 
     monkeypatch.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
     monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))

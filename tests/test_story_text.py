@@ -27,6 +27,7 @@ from agents.story_text import (
     step_text,
     with_names,
 )
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.session.run_report import story_markdown
 from orchestrator.viewer.run_folder import load_run
@@ -34,7 +35,6 @@ from orchestrator.viewer.timeline import event_line
 from sim.motion.action_labels import ACTION_LABELS, ACTION_SPECS
 from sim.scene.bundled import load_bundled_scene
 from sim.scene.model import Scene, SceneObject
-from tests.support.fake_openai_server import FakeOpenAI
 
 HOME = load_bundled_scene("home")
 OFFICE = load_bundled_scene("office")

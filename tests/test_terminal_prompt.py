@@ -20,12 +20,12 @@ import pytest
 from rich.console import Console
 from rich.text import Text
 
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.live_view import live_view
 from orchestrator.llm.traces import read_trace
 from orchestrator.session.run_status import RunSnapshot
 from orchestrator.session.runtime import InstructionSource
 from orchestrator.session.terminal_prompt import MAX_LINE, LineEditor, TerminalPrompt
-from tests.support.fake_openai_server import FakeOpenAI
 from tests.test_run_folder import ROOT, RUN, Planner, cli, env, write_config  # noqa: F401  (env: a fixture)
 
 

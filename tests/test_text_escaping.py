@@ -25,6 +25,7 @@ import structlog
 from markdown_it import MarkdownIt
 from typer.testing import CliRunner
 
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.logging_setup import configure_logging, force_logging_reset
 from orchestrator.safe_text import markdown, plain
@@ -33,7 +34,6 @@ from sim.body.skeleton import NUM_JOINTS, heading_to_root
 from sim.scene.bundled import load_bundled_scene
 from sim.scene.files import save_scene_json
 from sim.world.character_track import CharacterTrack
-from tests.support.fake_openai_server import FakeOpenAI
 
 CONTROL = re.compile("[\x00-\x09\x0b-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
 HOSTILE = "[red]x[/] [/] <img src=x onerror=alert(1)> **bold** [a](javascript:alert(1)) \x1b[31mred\x1b[0m\x07\u202e\r\n# H"

@@ -27,9 +27,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from benchmark.support.fake_openai_server import FakeOpenAI
+from benchmark.support.headless_chromium import Chromium, chromium_binary
 from orchestrator.cli.app import app
-from tests.support.fake_openai_server import FakeOpenAI
-from tests.support.headless_chromium import Chromium, chromium_binary
 from tests.support.story_planner import interact_program
 
 pytestmark = pytest.mark.skipif(chromium_binary() is None, reason="chromium not installed (apt-get install chromium)")

@@ -28,6 +28,8 @@ from typing import Any
 import anyio
 import pytest
 
+from benchmark.support.fake_openai_server import FakeOpenAI
+from benchmark.support.headless_chromium import Chromium, chromium_binary
 from orchestrator.llm.traces import read_trace
 from orchestrator.safe_text import markdown
 from orchestrator.session.live_state import LiveState, RoleNow, read_live_state
@@ -42,8 +44,6 @@ from orchestrator.session.viewer_controls import (
 from orchestrator.session.viewer_instructions import send_instruction
 from orchestrator.viewer.panels import planner_text, run_line
 from tests.support.directed_planner import TOAST, directed
-from tests.support.fake_openai_server import FakeOpenAI
-from tests.support.headless_chromium import Chromium, chromium_binary
 from tests.support.story_planner import RUN, write_config
 
 THREAD = "run-0123456789ab@unified+object-list"

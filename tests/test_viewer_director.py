@@ -25,6 +25,8 @@ from pathlib import Path
 
 import pytest
 
+from benchmark.support.fake_openai_server import FakeOpenAI
+from benchmark.support.headless_chromium import Chromium, chromium_binary
 from orchestrator.llm.traces import read_trace
 from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
 from orchestrator.session.run_manifest import RunArguments, RunManifest, write_manifest
@@ -37,8 +39,6 @@ from orchestrator.session.viewer_instructions import (
 )
 from orchestrator.viewer.server import InstructionRefused, ViewerApp
 from tests.support.directed_planner import TOAST, TOASTER, directed
-from tests.support.fake_openai_server import FakeOpenAI
-from tests.support.headless_chromium import Chromium, chromium_binary
 from tests.support.story_planner import RUN, write_config
 
 THREAD = "run-0123456789ab@unified+object-list"

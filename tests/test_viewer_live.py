@@ -25,6 +25,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmark.support.fake_openai_server import FakeOpenAI
+from benchmark.support.headless_chromium import Chromium, chromium_binary
 from orchestrator.session.story_stream import (
     STREAM_FILE,
     StoryStream,
@@ -39,8 +41,6 @@ from sim.body.skeleton import NUM_JOINTS, heading_to_root
 from sim.scene.bundled import load_bundled_scene
 from sim.scene.files import save_scene_json
 from sim.world.track_chunks import MOTION_FOLDER, ChunkStore
-from tests.support.fake_openai_server import FakeOpenAI
-from tests.support.headless_chromium import Chromium, chromium_binary
 from tests.support.story_planner import interact_program
 
 NAMES = ("Ava", "Ben")

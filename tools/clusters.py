@@ -7,7 +7,7 @@ at distance 0 from it; two chairs 0.4 m apart are at 0.4.
 
 Only pairs within ``eps`` can be neighbours, so the distances go to DBSCAN as a sparse matrix
 of the pairs the index (``tools.box_pairs``) finds within reach: the clusters are those of the
-full matrix (``tests/support/scene_graph_reference.py``), for work that grows with the objects
+full matrix (``benchmark/support/scene_graph_reference.py``), for work that grows with the objects
 and their near pairs instead of with every pair.
 
 scikit-learn (about 2 s to import) is imported by ``cluster_objects`` when it first runs, not

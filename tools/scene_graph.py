@@ -261,7 +261,7 @@ def build_scene_graph(
 
     Only pairs of objects that the index (``tools.box_pairs``) finds within a relation's reach
     are tested; the relations, node attributes and edge order are those of testing every pair
-    (``tests/support/scene_graph_reference.py``).
+    (``benchmark/support/scene_graph_reference.py``).
     """
     import networkx as nx
 

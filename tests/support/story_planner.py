@@ -1,5 +1,5 @@
 """A scripted planner for whole ``storyteller run`` tests against the fake OpenAI server
-(``tests/support/fake_openai_server.py``): the unified planner (``--planner unified
+(``benchmark/support/fake_openai_server.py``): the unified planner (``--planner unified
 --description object-list``, one LLM role) is answered by request content, so a stopped and
 resumed run gets the same answers as an uninterrupted one, and faults are injected by request
 number. Used by ``tests/test_run_faults.py`` and ``tests/test_run_corrupt_files.py``.
