@@ -233,11 +233,7 @@ class PathPlanner:
         # place, the others may still be pushed), up to ``repair_passes`` times. A pass is safe
         # when every failed agent had its wait reserved. Last resort: everyone's wait reserved,
         # failed agents first with a doubled window (always safe).
-        usable = self._hint_ids({
-            a: path for a, (path, goal) in (hints or {}).items()
-            if (a in starts and a not in heuristics and path and tuple(path[0]) == tuple(starts[a])
-                and tuple(goal) == tuple(used_goals[a]))
-        })
+        usable = self._usable_hints(hints or {}, starts, used_goals, heuristics)
         reserved: frozenset[Agent] = frozenset()
         result, record = self._run_pass(order, starts, used_goals, overrides, frozenset(), reserved, usable, static_allow,
                                         heuristics)
@@ -308,6 +304,17 @@ class PathPlanner:
                 if h[self.cell_id(starts[a])] < math.inf:
                     heuristics[a] = h
         return heuristics
+
+    def _usable_hints(self, hints: Mapping[Agent, tuple[Sequence[Cell], Cell]], starts: Mapping[Agent, Cell],
+                      used_goals: Mapping[Agent, Cell], heuristics: Mapping[Agent, NDArray[np.float64]],
+                      ) -> dict[Agent, NDArray[np.int64]]:
+        """The hints ``plan`` may keep (see there) as padded ids: planned agents without a
+        detour, on their start cell, made for the goal used now."""
+        return self._hint_ids({
+            a: path for a, (path, goal) in hints.items()
+            if (a in starts and a not in heuristics and path and tuple(path[0]) == tuple(starts[a])
+                and tuple(goal) == tuple(used_goals[a]))
+        })
 
     def _hint_ids(self, paths: Mapping[Agent, Sequence[Cell]]) -> dict[Agent, NDArray[np.int64]]:
         """The padded ids of each path's first window + 1 cells (all paths converted at once)."""
