@@ -3,7 +3,8 @@
 Read from a track's per-frame action labels (database keys: ``use_coffee_maker``, ``sit_idle``,
 ``drink@seated``...) and the scene, so any run folder measures without its plans:
 
-- **hand to object** at the reach frame of a ``use_*`` action: for the first ``REACH_WINDOW_S``
+- **hand to object** at the reach frame of a ``use_*`` action, and of every action whose hands
+  work on an object (``hands_on_object``: ``open_fridge``, ``turn_on_tv``, ...): for the first ``REACH_WINDOW_S``
   seconds of each run of the label, the frame where the nearer wrist is closest to the box of
   the object the action names (``sim.world.facing.object_named_by`` at the run's first root
   position); that distance (metres, 0 inside the box). Target: within ``HAND_TARGET_M`` for
@@ -31,7 +32,7 @@ from benchmark.motion_metrics.gait import label_runs
 from sim.body.skeleton import JOINT_INDEX
 from sim.motion.action_labels import SEATED_SUFFIX
 from sim.scene.model import Scene, SceneObject
-from sim.world.facing import object_named_by
+from sim.world.facing import needs_reach, object_named_by
 
 REACH_WINDOW_S = 4.0
 HAND_TARGET_M = 0.15
@@ -46,6 +47,19 @@ TRANSITIONS = ("sit_down", "stand_up")
 
 def is_seated_label(label: str) -> bool:
     return label == "sit_idle" or label.endswith(SEATED_SUFFIX)
+
+
+def hands_on_object(label: str) -> bool:
+    """Whether ``label`` (a database key) is an action whose hands work on an object
+    (``sim.world.facing.needs_reach``: reach, wipe, write, type, carry); False for unknown labels."""
+    try:
+        return needs_reach(label.split("@", 1)[0])
+    except ValueError:
+        return False
+
+
+def is_use_action(action: str) -> bool:
+    return action.startswith("use_")
 
 
 def hand_distance(wrists: NDArray[np.float64], obj: SceneObject) -> tuple[int, float]:
@@ -64,10 +78,11 @@ class Reach:
 
 
 def reaches(joints: NDArray[np.float64], labels: Sequence[str], scene: Scene, fps: float) -> list[Reach]:
-    """Hand-to-object distance at the reach frame of every run of a ``use_*`` label."""
+    """Hand-to-object distance at the reach frame of every run of a ``use_*`` label or of a
+    label whose hands work on an object (runs whose label names no object nearby are left out)."""
     j = np.asarray(joints, dtype=np.float64)
     out = []
-    for label in sorted({lab for lab in labels if lab.startswith("use_")}):
+    for label in sorted({lab for lab in labels if lab.startswith("use_") or hands_on_object(lab)}):
         for a, b in label_runs(labels, label):
             obj = object_named_by(scene, label, (float(j[a, 0, 0]), float(j[a, 0, 1])))
             if obj is None:

@@ -20,7 +20,7 @@ from benchmark.motion_metrics.gait import (
     compare_gait,
     fit_speed,
 )
-from benchmark.motion_metrics.interactions import HAND_TARGET_M, SEAT_TARGET_M
+from benchmark.motion_metrics.interactions import HAND_TARGET_M, SEAT_TARGET_M, is_use_action
 from benchmark.motion_metrics.measure import Measured, furniture_summary
 
 Table = tuple[list[str], list[list[str]]]
@@ -76,19 +76,23 @@ def cadence_table(items: Sequence[Measured], real: Measured) -> Table:
 
 def interaction_table(items: Sequence[Measured]) -> Table:
     head = ["source", "facing n", "start med/p95 deg", "during med/p95 deg", "use_* reaches", "hand med cm",
-            f"<= {HAND_TARGET_M * 100:g} cm", "sittings", "seat err med/max cm", f"<= {SEAT_TARGET_M * 100:g} cm",
+            f"<= {HAND_TARGET_M * 100:g} cm", f"all reaches n / med cm / <= {HAND_TARGET_M * 100:g} cm",
+            "sittings", "seat err med/max cm", f"<= {SEAT_TARGET_M * 100:g} cm",
             "sit down n / med s", "stand up n / med s"]
     rows = []
     for m in items:
         fs = summarize(m.facing)
-        hands = np.array([r.distance for r in m.reaches])
+        hands = np.array([r.distance for r in m.reaches if is_use_action(r.action)])
+        every = np.array([r.distance for r in m.reaches])
         seats = np.array(m.seat_errors)
         sd, su = m.transitions["sit_down"], m.transitions["stand_up"]
         rows.append([
             m.name, str(fs.count), f"{_f(fs.start_median, 1)}/{_f(fs.start_p95, 1)}",
             f"{_f(fs.during_median, 1)}/{_f(fs.during_p95, 1)}", str(len(hands)),
             _f(float(np.median(hands)) * 100, 1) if len(hands) else "-",
-            _f(float(np.mean(hands <= HAND_TARGET_M)), 2) if len(hands) else "-", str(len(seats)),
+            _f(float(np.mean(hands <= HAND_TARGET_M)), 2) if len(hands) else "-",
+            f"{len(every)} / {_f(float(np.median(every)) * 100, 1)} / {_f(float(np.mean(every <= HAND_TARGET_M)), 2)}"
+            if len(every) else "0 / - / -", str(len(seats)),
             f"{_f(float(np.median(seats)) * 100, 1)}/{_f(float(seats.max()) * 100, 1)}" if len(seats) else "-",
             _f(float(np.mean(seats <= SEAT_TARGET_M)), 2) if len(seats) else "-",
             f"{len(sd)} / {_f(float(np.median(sd)), 2) if sd else '-'}",

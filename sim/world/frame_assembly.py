@@ -27,6 +27,7 @@ from sim.body.skeleton import NUM_JOINTS
 from sim.motion.action_labels import action_spec, database_key
 from sim.paths.tracks import walker_headings
 from sim.scene.model import Scene
+from sim.world.contacts import hand_targets, seat_pelvis
 from sim.world.motion_layer import BatchedMotionLayer, MotionLayer, MotionQuery, compose_poses
 from sim.world.navigation import WorldNavigator
 from sim.world.phases import CharacterState, phase_motion, smoothstep, wrap_angle
@@ -75,6 +76,8 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
     labels: list[str] = []
     still_feet: list[bool] = []  # sitting, sitting down, standing up: feet as animated
     seat_transit: list[bool] = []  # sitting down, standing up: planted feet pinned all the same
+    seated_l: list[bool] = []
+    seat_h: list[float | None] = []  # the seat's height of a character with a seat target
     heading_l: list[float] = []
     root_l: list[np.ndarray] = []
     walkers = [c for c in chars if c.walker]
@@ -112,6 +115,8 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
         labels.append(key)
         still_feet.append(seated or label in ("sit_down", "stand_up"))
         seat_transit.append(label in ("sit_down", "stand_up"))
+        seated_l.append(seated)
+        seat_h.append(th)
         heading_l.append(c.heading)
         root_l.append(c.xy)
     heading = np.array(heading_l, dtype=float)
@@ -138,9 +143,11 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
             contacts = _contacts_of(poses)
     w.motion_states.update(zip(names, new_states, strict=True))
     pelvis, rots = compose_poses(rots, pz, root, heading)
+    pelvis, rots = seat_pelvis(chars, labels, seated_l, seat_h, pelvis, rots, w.scene.floor_z)
     if w.foot_solver is not None and w.feet is not None:
         rots, w.feet = w.foot_solver.apply(pelvis, rots, contacts, w.feet, active=~np.array(still_feet),
                                            pinned=np.array(seat_transit))
+    rots = hand_targets(w.scene.by_name, chars, pelvis, rots, 1.0 / dt)
     w.buffers.append(pelvis, rots, labels, contacts, [c.event_id or "" for c in chars])
     for c in chars:
         c.phase_frame += 1

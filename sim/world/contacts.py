@@ -1,0 +1,242 @@
+"""Body contacts the world puts on the poses after the motion layer: the pelvis on the seat, the
+hands on the object.
+
+The motion layer animates from clips made for a few seat heights and an object at a nominal
+distance and height; the world knows the real seat and object. Two corrections, both smooth
+in time and both exact at the contact:
+
+- **seat height** (``seat_pelvis``): while a character sits on a seat its pelvis is
+  ``SEAT_PELVIS_ABOVE_SEAT`` above the seat's surface (the scene's seat height); sitting down,
+  the pelvis goes from the animated height to it (``smoothstep`` of the sit-down's progress,
+  the same as the root's path onto the seat); standing up, from it back to the animated height.
+  The legs are re-solved (``sim.body.leg_ik``) so the feet stay where they were animated, flat
+  on the floor (ankle at ``ANKLE_HEIGHT``) where they were near it, so the knees take up the
+  difference;
+- **hands on the object** (``hand_targets``): a standing character whose action's hands work
+  on an object (gestures ``HAND_GESTURES``; the object is the assignment's ``focus``) moves
+  its working hand (both for typing and carrying) towards the point of the object's box
+  nearest the animated hand, ``HAND_STANDOFF_M`` off its surface, with the weight of the
+  gesture's reach (``reach_weight``: up over the first ``REACH_IN`` of the action, held, down
+  over the last part, as the procedural clips move the hand), by the arm IK
+  (``sim.body.arm_ik``); an object out of the arm's reach (a record player on a low side table)
+  bends the trunk forward first, as little as will do (``LEAN_STEPS``). A wipe's circles and a pen's strokes stay: the point follows the
+  animated hand across the surface;
+- **a handshake's hands meet** (``hand_targets``): two partners shaking hands move their right
+  hands to the midpoint of their animated right hands (raised to about elbow height), with the
+  weight of the handshake's reach. They meet when the partners stand close enough for two arms
+  (about 0.6 m between pelvises or less on this skeleton, whose arm is 0.51 m); further apart both hands stretch
+  towards the same point and stop short of it.
+
+Pure functions of the frame's poses and the characters' states; deterministic.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sim.body.arm_ik import ARM_LENGTH, SHOULDER_JOINTS, WRIST_JOINTS, solve_arms
+from sim.body.leg_ik import leg_chain, solve_chain
+from sim.body.skeleton import JOINT_INDEX, forward_kinematics
+from sim.motion.action_labels import action_spec
+from sim.motion.sources.procedural_actions import SEAT_PELVIS_ABOVE_SEAT
+from sim.motion.sources.procedural_rig import ANKLE_HEIGHT
+from sim.scene.model import SceneObject
+from sim.world.phases import CharacterState, smoothstep
+
+HAND_GESTURES = frozenset({"reach", "reach_low", "wipe", "write", "carry", "type"})
+"""Gestures whose hands work on the object used (``sim.world.facing.REACH_GESTURES``)."""
+BOTH_HANDS = frozenset({"carry", "type"})
+REACH_IN = {"carry": (0.35, 0.6), "handshake": (0.3, 0.75)}
+"""Fractions of the action's duration at which the hand arrives and leaves (default 0.3, 0.7:
+the procedural clips' keyframes, ``sim.motion.sources.procedural_actions._gesture``)."""
+LOOP_REACH_S = 0.5  # seconds a looping action's hands take to settle on the object
+HAND_STANDOFF_M = 0.02  # wrist joint off the object's surface (the palm and fingers beyond it)
+SHAKE_BELOW_SHOULDER_M = 0.35  # shaking hands meet at least this high: about elbow height, forearms forward
+FOOT_NEAR_FLOOR_M = 0.25
+LEAN_STEPS = tuple(float(a) for a in np.linspace(0.0, 0.9, 19))
+"""Forward bends (radians at ``spine1``) tried, least first, when a hand cannot reach its object."""
+LEAN_MARGIN_M = 0.03  # the hand's target this much inside the straight arm's reach
+SPINE1 = JOINT_INDEX["spine1"]  # an animated ankle lower than this above the floor is put on it
+
+
+def reach_weight(gesture: str, loops: bool, frame: int, length: int, fps: float) -> float:
+    """How far (0..1) the hand is on the object ``frame`` frames into an action of ``length``
+    frames (looping: ramps up over ``LOOP_REACH_S`` and stays)."""
+    if loops or length <= 0:
+        return smoothstep((frame + 1) / max(1.0, LOOP_REACH_S * fps))
+    a, b = REACH_IN.get(gesture, (0.3, 0.7))
+    t = (frame + 1) / length
+    if t <= b:
+        return smoothstep(t / a)
+    return 1.0 - smoothstep((t - b) / (1.0 - b))
+
+
+def box_contact_point(obj: SceneObject, p: NDArray[np.float64], standoff: float = HAND_STANDOFF_M) -> NDArray[np.float64]:
+    """The point of ``obj``'s box surface nearest to ``p`` (3,), moved ``standoff`` out along the
+    surface's outward direction (a point inside the box goes to its nearest face)."""
+    centre = np.array([obj.center[0], obj.center[1], (obj.z_min + obj.z_max) / 2.0])
+    axes = np.array([[*obj.right, 0.0], [*obj.facing, 0.0], [0.0, 0.0, 1.0]], dtype=np.float64)
+    half = np.array([obj.size[0] / 2.0, obj.size[1] / 2.0, (obj.z_max - obj.z_min) / 2.0])
+    local = axes @ (np.asarray(p, dtype=np.float64) - centre)
+    q = np.clip(local, -half, half)
+    out = local - q
+    if float(np.linalg.norm(out)) > 1e-9:
+        normal = out / float(np.linalg.norm(out))
+    else:  # inside: the face with the least margin
+        k = int(np.argmin(half - np.abs(local)))
+        sign = 1.0 if local[k] >= 0.0 else -1.0
+        q[k] = sign * half[k]
+        normal = np.zeros(3)
+        normal[k] = sign
+    return np.asarray(centre + axes.T @ (q + standoff * normal))
+
+
+def seat_pelvis(chars: Sequence[CharacterState], labels: Sequence[str], seated: Sequence[bool],
+                seat_heights: Sequence[float | None], pelvis: NDArray[np.float64], rots: NDArray[np.float64],
+                floor_z: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(pelvis (N, 3), local rotations (N, 22, 3, 3)) with the pelvis of every character sitting,
+    sitting down or standing up put on its seat's height (``seat_heights``: the seat's height
+    above the floor per character, None when it has no seat); see the module docstring."""
+    rows, goals = [], []
+    for i, c in enumerate(chars):
+        h = seat_heights[i]
+        if h is None:
+            continue
+        want = floor_z + h + SEAT_PELVIS_ABOVE_SEAT
+        if seated[i]:
+            k = 1.0
+        elif labels[i] == "sit_down" and c.phase == "transition_in":
+            span = max(1, c.phase_length - c.turn_frames)
+            k = smoothstep((c.phase_frame - c.turn_frames + 1) / span)
+        elif labels[i] == "stand_up" and c.phase == "transition_out":
+            k = 1.0 - smoothstep((c.phase_frame + 1) / max(1, c.phase_length))
+        else:
+            continue
+        z = float(pelvis[i, 2])
+        rows.append(i)
+        goals.append(z + k * (want - z))
+    if not rows:
+        return pelvis, rots
+    idx = np.array(rows)
+    old = leg_chain(pelvis[idx], rots[idx])
+    ankles = old.ankle.copy()
+    low = ankles[..., 2] - floor_z < FOOT_NEAR_FLOOR_M
+    ankles[..., 2] = np.where(low, floor_z + ANKLE_HEIGHT, ankles[..., 2])
+    new_pelvis = pelvis.copy()
+    new_pelvis[idx, 2] = goals
+    sub = solve_chain(leg_chain(new_pelvis[idx], rots[idx]), rots[idx], ankles, np.ones((len(idx), 2), dtype=bool))
+    new_rots = rots.copy()
+    new_rots[idx] = sub
+    return new_pelvis, new_rots
+
+
+def _shake_point(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Where two right hands (joint positions (22, 3) of each body) meet: the midpoint of the
+    animated hands, no lower than ``SHAKE_BELOW_SHOULDER_M`` under the shoulders' mean height."""
+    right, shoulder = WRIST_JOINTS[1], SHOULDER_JOINTS[1]
+    p = (a[right] + b[right]) / 2.0
+    p[2] = max(float(p[2]), (float(a[shoulder, 2]) + float(b[shoulder, 2])) / 2.0 - SHAKE_BELOW_SHOULDER_M)
+    return np.asarray(p)
+
+
+def _lean(rots: NDArray[np.float64], pelvis: NDArray[np.float64], idx: NDArray[np.int64], side: NDArray[np.int64],
+          targets: NDArray[np.float64], weights: NDArray[np.float64], lean: Sequence[bool],
+          headings: Sequence[float]) -> NDArray[np.float64]:
+    """``rots`` with the trunk of each character whose hand rows (``idx``, ``side``, ``targets``;
+    rows with ``lean`` False are left out) cannot reach their target bent forward at ``spine1``
+    (about the body's left-right axis) by the least of ``LEAN_STEPS`` that brings every such
+    shoulder within ``ARM_LENGTH - LEAN_MARGIN_M`` of its target, times the row's weight."""
+    out = rots.copy()
+    rows = [k for k in range(len(idx)) if lean[k]]
+    if not rows:
+        return out
+    chars = sorted({int(idx[k]) for k in rows})
+    pos, glob = forward_kinematics(rots[chars], pelvis[chars])
+    at = {c: n for n, c in enumerate(chars)}
+    up = np.array([0.0, 0.0, 1.0])
+    for c in chars:
+        mine = [k for k in rows if int(idx[k]) == c]
+        h = headings[mine[0]]
+        axis = np.cross(up, [np.cos(h), np.sin(h), 0.0])
+        pivot = pos[at[c], SPINE1]
+        best = LEAN_STEPS[-1]
+        for theta in LEAN_STEPS:
+            bend = _axis_rotation(axis, theta)
+            if all(np.linalg.norm(targets[k] - (pivot + bend @ (pos[at[c], SHOULDER_JOINTS[side[k]]] - pivot)))
+                   <= ARM_LENGTH[side[k]] - LEAN_MARGIN_M for k in mine):
+                best = theta
+                break
+        angle = best * max(float(weights[k]) for k in mine)
+        if angle <= 0.0:
+            continue
+        bent = _axis_rotation(axis, angle) @ glob[at[c], SPINE1]
+        out[c, SPINE1] = glob[at[c], 0].T @ bent
+    return out
+
+
+def _axis_rotation(axis: NDArray[np.float64], angle: float) -> NDArray[np.float64]:
+    """The rotation (3, 3) by ``angle`` about the unit ``axis`` (Rodrigues)."""
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.asarray(np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k))
+
+
+def hand_targets(objects: Mapping[str, SceneObject], chars: Sequence[CharacterState], pelvis: NDArray[np.float64], rots: NDArray[np.float64],
+                 fps: float) -> NDArray[np.float64]:
+    """Local rotations (N, 22, 3, 3) with the working hands of characters acting on an object
+    moved onto it (``objects``: the scene's objects by name), and shaking hands meeting (see the
+    module docstring); the input where no character is."""
+    rows: list[int] = []
+    sides: list[int] = []
+    weights: list[float] = []
+    aims: list[SceneObject | int] = []  # the object, or the row of the partner shaking hands
+    index = {c.name: i for i, c in enumerate(chars)}
+    for i, c in enumerate(chars):
+        if c.phase != "interacting":
+            continue
+        a = c.assignment
+        if a is None or a.seat is not None:
+            continue
+        spec = action_spec(a.action)
+        aim: SceneObject | int | None = None
+        if spec.gesture == "handshake":
+            other = next((index[p] for p in a.partners if p in index), None)
+            oa = None if other is None else chars[other].assignment
+            if other is not None and oa is not None and chars[other].phase == "interacting" \
+                    and action_spec(oa.action).gesture == "handshake":
+                aim = other
+        elif spec.gesture in HAND_GESTURES and a.focus is not None:
+            aim = objects.get(a.focus)
+        if aim is None:
+            continue
+        w = reach_weight(spec.gesture, spec.loops, c.phase_frame, c.phase_length, fps)
+        if w <= 0.0:
+            continue
+        for hand in ((0, 1) if spec.gesture in BOTH_HANDS else (1,)):
+            rows.append(i)
+            sides.append(hand)
+            weights.append(w)
+            aims.append(aim)
+    if not rows:
+        return rots
+    idx = np.array(rows)
+    side = np.array(sides)
+    need = sorted({*rows, *(a for a in aims if isinstance(a, int))})  # the acting and their handshake partners
+    at = {r: k for k, r in enumerate(need)}
+    pos, _ = forward_kinematics(rots[need], pelvis[need])
+    wrists = pos[[at[r] for r in rows], np.array(WRIST_JOINTS)[side]]
+    targets = np.array([box_contact_point(aim, p) if isinstance(aim, SceneObject) else _shake_point(pos[at[r]], pos[at[aim]])
+                        for r, aim, p in zip(rows, aims, wrists, strict=True)])
+    out = _lean(rots, pelvis, idx, side, targets, np.array(weights), [isinstance(a, SceneObject) for a in aims],
+                [chars[r].heading for r in rows])
+    # one row per hand: a character with both hands goes through twice, the second on the first's result
+    first = np.ones(len(idx), dtype=bool)
+    first[1:] = idx[1:] != idx[:-1]
+    for pick in (first, ~first):
+        if not pick.any():
+            continue
+        k = idx[pick]
+        out[k] = solve_arms(pelvis[k], out[k], side[pick], targets[pick], np.array(weights)[pick])
+    return out
