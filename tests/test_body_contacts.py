@@ -3,6 +3,8 @@ on the object, a handshake's hands meeting, the pelvis on the seat's height."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -17,12 +19,23 @@ from sim.body.arm_ik import (
 )
 from sim.body.leg_ik import leg_chain
 from sim.body.skeleton import NUM_JOINTS, forward_kinematics, heading_to_root
+from sim.motion.matching import MotionQuery, Pose
 from sim.motion.sources.procedural_actions import SEAT_PELVIS_ABOVE_SEAT
 from sim.motion.sources.procedural_rig import ANKLE_HEIGHT
+from sim.paths.nav_grid import build_nav_grid
+from sim.scene.files import load_scene
 from sim.scene.model import SceneObject
-from sim.world.contacts import box_contact_point, hand_targets, reach_weight, seat_pelvis
-from sim.world.events import Assignment
+from sim.world.contacts import (
+    FEET_CLEAR_M,
+    box_contact_point,
+    hand_targets,
+    reach_weight,
+    seat_pelvis,
+)
+from sim.world.events import AssignEvent, Assignment
 from sim.world.phases import CharacterState
+from sim.world.step import World, WorldConfig, step
+from tests.support.reference import OFFICE, reference_or_skip
 
 
 def _poses(m: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -182,3 +195,85 @@ def test_an_object_out_of_the_arms_reach_bends_the_trunk_forward_just_enough() -
     before, _ = forward_kinematics(r0[None], p0[None])
     head = 15  # the head went forward and down: the trunk bent
     assert pos[0, head, 0] > before[0, head, 0] + 0.1 and pos[0, head, 2] < before[0, head, 2]
+
+
+def test_seated_feet_stay_in_front_of_the_seats_base() -> None:
+    pelvis, rots = _poses(1, seed=4)
+    rots[:, 1:] = np.eye(3)
+    rots[:, 0] = heading_to_root(np.array([np.pi / 2]))  # facing +y
+    for hip, knee in ((1, 4), (2, 5)):
+        rots[:, hip] = Rotation.from_euler("x", -np.pi / 2).as_matrix()
+        rots[:, knee] = Rotation.from_euler("x", np.pi / 2).as_matrix()
+    pelvis[0] = (0.0, 0.0, 0.54)
+    ankle_y = float(leg_chain(pelvis, rots).ankle[0, 0, 1])  # the animated ankles, about 0.39 m ahead
+    # a deep couch facing +y whose front face is 0.45 m ahead of the seated pelvis
+    couch = SceneObject(name="couch_1", label="couch", idx=1, center=(0.0, 0.0, 0.425), size=(2.0, 0.9, 0.85),
+                        facing=(0.0, 1.0), has_facing=True, sit_offset_vertical=0.45)
+    assert ankle_y < 0.45
+    a = Assignment(character="ann", action="idle", target_xy=(0.0, 0.0), facing_xy=(0.0, 1.0), seat="couch_1")
+    sit = CharacterState(name="ann", xy=np.zeros(2), heading=np.pi / 2, assignment=a, phase="interacting")
+    new_p, new_r = seat_pelvis([sit], ["sit_idle"], [True], [0.45], pelvis, rots, 0.0, [couch])
+    after = leg_chain(new_p, new_r).ankle[0]
+    assert np.allclose(after[:, 1], 0.45 + FEET_CLEAR_M, atol=1e-6)
+    assert np.allclose(after[:, 2], ANKLE_HEIGHT, atol=1e-6)
+
+
+class _RestMotion:
+    """Rest pose on the world's root (pelvis lowered when seated)."""
+
+    def initial_state(self, label: str, root_xy: object, heading: float, seated: bool = False) -> int:
+        return 0
+
+    def step(self, state: int, query: MotionQuery, dt: float) -> tuple[int, Pose]:
+        rot = np.tile(np.eye(3), (NUM_JOINTS, 1, 1))
+        rot[0] = heading_to_root(float(query.heading or 0.0))
+        sitting = query.seated or query.label in ("sit_down", "stand_up")
+        root = np.asarray(query.root_xy, dtype=float)
+        return state + 1, Pose(np.array([*root, 0.55 if sitting else 0.93]), rot, root, float(query.heading or 0.0),
+                               np.ones(2, dtype=bool))
+
+
+@pytest.mark.parametrize(("action", "apart", "lo", "hi"), [("chat", 2.4, 0.9, 1.5), ("handshake", 1.5, 0.65, 0.65),
+                                                           ("chat", 1.2, 1.2, 1.2)])
+def test_partners_stand_at_the_actions_distance_face_each_other_and_shake_hands(
+        action: str, apart: float, lo: float, hi: float) -> None:
+    reference_or_skip()
+    scene = load_scene(OFFICE)
+    grid = build_nav_grid(scene)
+    cells = np.argwhere(grid.component == grid.main_component)
+    free = {(int(i), int(j)) for i, j in cells}
+    k = round(apart / grid.cell_size)
+    i, j = next((int(i), int(j)) for i, j in cells
+                if all((i + d, j + m) in free for d in range(-1, k + 2) for m in (-1, 0, 1)))
+    pa, pb = grid.center_of(i, j), grid.center_of(i + k, j)
+    w = World(scene, {"ann": ((float(pa[0]), float(pa[1])), 0.0), "bob": ((float(pb[0]), float(pb[1])), 0.0)},
+              _RestMotion(), grid=grid, config=WorldConfig(foot_ik=False))
+    cmd = AssignEvent(event_id="meet", assignments=(
+        Assignment(character="ann", action=action, target_xy=(float(pa[0]), float(pa[1])), facing_xy=(0.0, 1.0),
+                   partners=("bob",)),
+        Assignment(character="bob", action=action, target_xy=(float(pb[0]), float(pb[1])), facing_xy=(0.0, 1.0),
+                   partners=("ann",))))
+    first: list[AssignEvent] = [cmd]
+    for _ in range(1500):
+        _, out = step(w, first, w.dt)
+        first = []
+        if out.failures:
+            raise AssertionError(out.failures)
+        if all(w.characters[n].phase == "interacting" for n in ("ann", "bob")):
+            break
+    else:
+        raise AssertionError("the pair never started")
+    ann, bob = w.characters["ann"], w.characters["bob"]
+    gap = float(np.linalg.norm(ann.xy - bob.xy))
+    assert lo - 1e-6 <= gap <= hi + 1e-6
+    to_bob = math.atan2(*(bob.xy - ann.xy)[::-1])
+    assert abs(math.remainder(ann.heading - to_bob, 2 * math.pi)) < 1e-6
+    assert abs(math.remainder(bob.heading - to_bob - math.pi, 2 * math.pi)) < 1e-6
+    if action == "handshake":
+        for _ in range(round(0.5 * 3.0 * 30) - 1):  # to the middle of the shake
+            step(w, [], w.dt)
+        tracks = w.tracks()
+        right = WRIST_JOINTS[1]
+        ha = forward_kinematics(tracks["ann"].local_rotations[-1], tracks["ann"].root_positions[-1])[0][right]
+        hb = forward_kinematics(tracks["bob"].local_rotations[-1], tracks["bob"].root_positions[-1])[0][right]
+        assert np.linalg.norm(ha - hb) < 0.01

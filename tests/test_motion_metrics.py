@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from benchmark.motion_metrics.bodies import (
+    SEAT_SINK_M,
+    TABLE_TOP_M,
     Box,
     body_overlap,
     crowd_overlaps,
@@ -128,10 +130,27 @@ def test_a_far_box_gives_nothing_and_a_seat_counts_up_to_its_surface():
     # a couch 0.9 m high (backrest) whose seat surface is 0.45 m high, the body standing in it
     couch = box("couch_1", center=(0.0, 0.0, 0.45), size=(1.0, 1.0, 0.9), sit_offset_vertical=0.45)
     pen = furniture_penetration(centres, body, [couch], seated=np.array([False, True]))
-    cushion = box("couch_1", center=(0.0, 0.0, 0.225), size=(1.0, 1.0, 0.45))
+    top = 0.45 - SEAT_SINK_M  # a seated body may sink that far into what it sits on
+    cushion = box("couch_1", center=(0.0, 0.0, top / 2.0), size=(1.0, 1.0, top))
     assert pen[0] > 0.3  # the pelvis deep in the backrest's box
     assert pen[1] == pytest.approx(furniture_penetration(centres[1:], body, [cushion])[0])
     assert pen[1] < pen[0]
+
+
+def test_a_table_counts_as_its_top_the_space_under_it_is_legroom():
+    body = sphere_body()
+    centres = body.centres(rest_joints(1))
+    legs = float((centres[0, :, 2] + body.radii).max())  # the highest sphere's top
+    assert legs > 0.9
+    # a 0.75 m table and a 0.75 m cabinet around the standing body: the cabinet's box holds the
+    # legs and hips; the table's holds them under its top, which the trunk is above
+    table = box("table_1", center=(0.0, 0.0, 0.375), size=(1.0, 1.0, 0.75))
+    cabinet = box("cabinet_1", center=(0.0, 0.0, 0.375), size=(1.0, 1.0, 0.75))
+    assert furniture_penetration(centres, body, [cabinet])[0] > 0.3
+    slab = box("cabinet_1", center=(0.0, 0.0, 0.75 - TABLE_TOP_M / 2.0), size=(1.0, 1.0, TABLE_TOP_M))
+    assert furniture_penetration(centres, body, [table])[0] == pytest.approx(furniture_penetration(centres, body, [slab])[0])
+    low = box("desk_1", center=(0.0, 0.0, 0.25), size=(1.0, 1.0, 0.5))  # a top at 0.5 m cuts the thighs
+    assert furniture_penetration(centres, body, [low])[0] > 0.05
 
 
 def test_hands_working_on_an_object_do_not_count():

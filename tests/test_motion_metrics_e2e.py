@@ -12,9 +12,11 @@ from tests.support.finished_run import make_finished_run
 def test_the_command_measures_a_scripted_run(tmp_path: Path, capsys) -> None:
     run = make_finished_run(tmp_path, seconds=6, max_events=2)
     out = tmp_path / "report"
-    assert main([str(run), "--out", str(out), "--crowd", "0", "--no-real"]) == 0
+    assert main([str(run), "--out", str(out), "--crowd", "0", "--no-real", "--partners", "2"]) == 0
     printed = capsys.readouterr().out
     assert "Feet, furniture and bodies" in printed and "Interactions" in printed
+    partners = printed.split("Partners (2 pairs", 1)[1].splitlines()
+    assert partners[2].split()[:3] == ["chat", "1", "1"] and partners[3].split()[:3] == ["handshake", "1", "1"]
     figures = json.loads((out / "metrics.json").read_text(encoding="utf-8"))
     row = figures[run.name]
     assert row["characters"] == 2 and row["frames"] == 2 * 180
@@ -27,6 +29,6 @@ def test_the_command_measures_a_scripted_run(tmp_path: Path, capsys) -> None:
 
 def test_a_folder_that_is_not_a_run_is_one_error_line(tmp_path: Path, capsys) -> None:
     (tmp_path / "empty").mkdir()
-    assert main([str(tmp_path / "empty"), "--out", str(tmp_path / "o"), "--crowd", "0", "--no-real"]) == 2
+    assert main([str(tmp_path / "empty"), "--out", str(tmp_path / "o"), "--crowd", "0", "--no-real", "--partners", "0"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1

@@ -160,3 +160,22 @@ def test_body_clearance_cutoff_is_exact_below_the_cutoff_and_a_bound_above() -> 
         assert np.all(cut[~below] >= cutoff)
         assert np.all(cut >= full)
     assert below.any() and (~below).any()
+
+
+def test_a_seat_whose_front_is_closed_off_is_sat_on_from_a_near_side_not_from_far_in_front() -> None:
+    """The bundled home's armchair faces a pocket between the couch and the TV stand that a body
+    does not fit into: its approach point used to be 2 m away in front (a sit-down sliding past
+    the couch); a point within ``MAX_SIT_SLIDE_M`` beside it comes first."""
+    from sim.paths.nav_grid import MAX_SIT_SLIDE_M
+    from sim.scene.bundled import load_bundled_scene
+
+    scene = load_bundled_scene("home")
+    grid = build_nav_grid(scene)
+    armchair = scene.by_name["armchair_1"]
+    ap = grid.approach_point(armchair, component=grid.main_component)
+    assert ap.gap <= MAX_SIT_SLIDE_M
+    assert grid.component[ap.cell] == grid.main_component
+    # a seat with room in front is still approached from the front
+    couch = scene.by_name["couch_1"]
+    front = grid.approach_point(couch, component=grid.main_component)
+    assert (np.asarray(front.xy) - couch.center_xy) @ np.asarray(couch.facing) > couch.depth / 2.0

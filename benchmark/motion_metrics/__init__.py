@@ -13,6 +13,8 @@ family of measure, each measure a pure function on arrays (metres, seconds, z up
   against the real walks at the same speed;
 - :mod:`.interactions`: hand-to-object distance at the reach frame, seat-height error, sit
   down / stand up times (facing comes from :mod:`benchmark.motion_facing`);
+- :mod:`.partners`: pairs sent to chat, shake hands and hug: their distance, facing and a
+  handshake's hands;
 - :mod:`.sources`: what is measured (run folders, a crowd of walkers without an LLM, the real
   clips), :mod:`.strips`: side and top views per action label, :mod:`.report`: tables.
 

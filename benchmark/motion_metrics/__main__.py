@@ -3,9 +3,10 @@
 Measures every run folder given (a folder of run folders, such as the ``--out`` of
 ``python -m benchmark.story_suite run``, stands for each), all of them pooled, a crowd of
 ``--crowd`` walkers on random errands in the reference Office (no LLM), and the real clips
-(``STORYTELLER_MOCAP``, else ``../shared/mocap``). Prints four tables (feet, furniture and
-bodies; walking against the real walks at the same speed; cadence by speed; interactions) and
-writes ``report.md``, ``metrics.json``, ``gait_vs_speed.png`` and ``strips/strip_<label>.png``
+(``STORYTELLER_MOCAP``, else ``../shared/mocap``), and ``--partners`` pairs sent to chat, shake
+hands and hug in the home scene (:mod:`.partners`). Prints five tables (feet, furniture and
+bodies; walking against the real walks at the same speed; cadence by speed; interactions;
+partners) and writes ``report.md``, ``metrics.json``, ``gait_vs_speed.png`` and ``strips/strip_<label>.png``
 into ``--out``. Exit code 2 on a folder it cannot read (one line naming it).
 
 ``--scripted-story RUN_DIR`` first builds the scripted home story the published figures are
@@ -16,7 +17,8 @@ rest: ``python -m benchmark.motion_metrics --scripted-story RUN_DIR --out OUT --
 
 Targets (issue 25): skating ratio <= 0.03; walking within 20% of real on bob, cadence, step
 length and arm swing, jerk 0.5x-2x; facing at start median <= 10, p95 <= 25 degrees; hands
-within 15 cm at 90% of reaches; seat height within 3 cm; furniture p99 <= 2 cm; overlap 0 frames.
+within 15 cm at 90% of reaches; seat height within 3 cm; furniture p99 <= 2 cm; overlap 0 frames;
+partners face each other at a social distance, a handshake's hands meet.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmark.motion_metrics.measure import Measured, measure_run, pooled
+from benchmark.motion_metrics.partners import PLANNED_GAP_M, partner_pairs, partner_table
 from benchmark.motion_metrics.report import (
     as_markdown,
     as_text,
@@ -72,6 +75,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-real", action="store_true", help="leave the real clips out (no ratios to them)")
     p.add_argument("--no-strips", action="store_true", help="draw no strips")
+    p.add_argument("--partners", type=int, default=12,
+                   help="pairs sent to chat / shake hands / hug in the home scene (0: none; .partners)")
     p.add_argument("--scripted-story", type=Path, metavar="RUN_DIR",
                    help="build the scripted home story into RUN_DIR (new or empty) first, and measure it too")
     p.add_argument("--story-seconds", type=float, default=SECONDS, help="simulated seconds of the scripted story")
@@ -81,6 +86,9 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.partners < 0:
+        print("error: --partners must be >= 0", file=sys.stderr)
+        return 2
     if args.crowd < 0 or not (args.crowd_seconds > 0 and math.isfinite(args.crowd_seconds)):
         print("error: --crowd must be >= 0 and --crowd-seconds a positive number", file=sys.stderr)
         return 2
@@ -128,6 +136,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         tables.append(("Walking against the real walks at the same speed", gait_table(items, real)))
         tables.append(("Cadence and step length by speed", cadence_table(items, real)))
     tables.append(("Interactions", interaction_table(items)))
+    if args.partners > 0:
+        tables.append((f"Partners ({args.partners} pairs in the home scene, planned {PLANNED_GAP_M[0]:g}-"
+                       f"{PLANNED_GAP_M[1]:g} m apart)", partner_table(partner_pairs(args.partners, args.seed))))
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     pictures = []

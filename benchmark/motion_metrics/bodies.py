@@ -8,7 +8,10 @@ scene object is its oriented box (``sim.scene.model.SceneObject``: centre, size,
 - Penetration of a sphere into a box is ``radius - signed distance`` of its centre to the box
   (positive inside); a body's penetration in a frame is the deepest of its spheres (metres).
   A seat a character sits on (the frame's action label is a sitting one) counts only up to its
-  seat surface (the cushion; the body belongs above it and against the backrest), and the arms
+  seat surface (the cushion; the body belongs above it and against the backrest), less
+  ``SEAT_SINK_M`` (the soft contact the seat-height target implies); a table or desk counts as
+  its top only (``TABLE_TOP_M``: the box under it is legroom, where a seated person's legs are,
+  as a chair tucked under a table puts them); and the arms
   of an action whose hands work on an object (``sim.world.facing.needs_reach``) do not count:
   touching is the point.
 - Overlap of two bodies is the deepest ``r_a + r_b - |c_a - c_b|`` over their trunk, leg and
@@ -53,6 +56,13 @@ CAPSULES: tuple[tuple[str, str, float, str], ...] = (
 """(joint, joint, radius in metres, part) of each capsule: our own round figures for an adult
 of about 1.72 m (the skeleton's rest proportions); a joint twice is a sphere (head, hand)."""
 BLOCK_FRAMES = 256
+SEAT_SINK_M = 0.08
+"""How far under its seat surface a seated body's capsules may reach into the seat it sits on:
+the seat-height target (the pelvis joint 9 cm above the surface, ``interactions.PELVIS_ABOVE_SEAT_M``)
+puts the hip joints 1 cm above it, so the rigid hip capsule (8 cm radius) reaches 7 cm under
+it and the thighs sloping to the knees about 8 cm: buttocks, thighs and cushion are soft."""
+TABLE_TOP_M = 0.05
+"""Thickness of a table's or desk's top (``has_legroom``): the box below it is legroom."""
 CONTACT_ACTIONS = frozenset({"hug"})
 """Partner actions whose bodies touch by design: overlap between two characters both doing
 one of these is not counted."""
@@ -99,9 +109,10 @@ class Box:
     facing: NDArray[np.float64]
 
     @classmethod
-    def of(cls, obj: SceneObject, top: float | None = None) -> Box:
-        """``obj``'s box, cut at height ``top`` (world z) when given."""
-        lo, hi = obj.z_min, obj.z_max if top is None else min(obj.z_max, top)
+    def of(cls, obj: SceneObject, top: float | None = None, bottom: float | None = None) -> Box:
+        """``obj``'s box, cut at height ``top`` (world z) and from height ``bottom`` when given."""
+        lo, hi = obj.z_min if bottom is None else max(obj.z_min, bottom), obj.z_max if top is None else min(obj.z_max, top)
+        hi = max(hi, lo)
         centre = np.array([obj.center[0], obj.center[1], (lo + hi) / 2.0])
         half = np.array([obj.size[0] / 2.0, obj.size[1] / 2.0, max(hi - lo, 0.0) / 2.0])
         return cls(centre, half, obj.right, np.asarray(obj.facing, dtype=np.float64))
@@ -115,6 +126,17 @@ def signed_distance(points: NDArray[np.float64], box: Box) -> NDArray[np.float64
     outside = np.linalg.norm(np.maximum(q, 0.0), axis=-1)
     inside = np.minimum(q.max(axis=-1), 0.0)
     return np.asarray(outside + inside)
+
+
+def has_legroom(obj: SceneObject) -> bool:
+    """Whether ``obj`` is a top on legs (a table or a desk, by its label): the space under its top
+    (below ``TABLE_TOP_M``) is legroom, where seated legs and feet belong."""
+    return any(w in ("table", "desk") for w in obj.label.split("_"))
+
+
+def solid_box(obj: SceneObject) -> Box:
+    """The part of ``obj``'s box a body must stay out of: the whole box, or a table's top."""
+    return Box.of(obj, bottom=obj.z_max - TABLE_TOP_M) if has_legroom(obj) else Box.of(obj)
 
 
 def seat_surface(obj: SceneObject) -> float:
@@ -138,8 +160,8 @@ def furniture_penetration(
         return out
     reach = float(body.radii.max())
     for obj in objects:
-        whole = Box.of(obj)
-        cushion = Box.of(obj, seat_surface(obj)) if obj.is_seat else whole
+        whole = solid_box(obj)
+        cushion = Box.of(obj, seat_surface(obj) - SEAT_SINK_M) if obj.is_seat else whole
         bound = float(np.linalg.norm(whole.half)) + reach
         for lo in range(0, n, BLOCK_FRAMES):
             blk = c[lo: lo + BLOCK_FRAMES]

@@ -50,6 +50,10 @@ MOVE_LENGTHS: tuple[float, ...] = tuple(math.hypot(dx, dy) for dx, dy in MOVES)
 
 DEFAULT_BODY_RADIUS = 0.25
 DEFAULT_CLEARANCE_HEIGHT = 1.9
+MAX_SIT_SLIDE_M = 1.0
+"""Metres from an approach point to the seat point beyond which the point ranks after every
+nearer one (``NavGrid.approach_point``): the sit-down moves the body that far in a straight
+line, and further than this it passes through what stands around the seat."""
 
 
 class NavGridError(ValueError):
@@ -219,7 +223,10 @@ class NavGrid:
         walker's own to know whether it can get there) has a clear straight segment to the point (``ApproachPoint.cell``; walk
         there on the grid, then ``CrowdNavigator.set_goal(agent, cell, final_xy=xy)``). Preferred:
         points with a clear line to the seat point (or centre) past every other object, then those
-        in front, then the closest to the ideal point; ties broken by lattice order (deterministic).
+        in front, then the closest to the ideal point; ties broken by lattice order (deterministic);
+        for a seat, every point within ``MAX_SIT_SLIDE_M`` of the seat point ranks before the
+        points further away (an armchair whose front only a narrow gap leads to is sat on from
+        its side, not slid onto from 2 m away past a couch).
 
         ``ApproachPoint.gap`` is the distance (metres) left between the standing point and the seat
         point (seats) or the footprint edge (other objects). The sit-down / use transition covers
@@ -273,6 +280,10 @@ class NavGrid:
             score = np.abs(edge - (r + standoff))
             in_front = np.ones(len(pts), dtype=bool)
         tier = np.where(visible & in_front, 0, np.where(visible, 1, np.where(in_front, 2, 3)))
+        if obj.is_seat:  # a sit-down slides the body from the point onto the seat: a long slide goes
+            # through the furniture around it, so a near point comes before a far one in front
+            far = np.linalg.norm(pts - target, axis=1) > MAX_SIT_SLIDE_M
+            tier = tier + np.where(far, 4, 0)
         for k in np.lexsort((score, tier)):
             p = pts[k]
             cell = self._entry_cell(p, component)

@@ -7,11 +7,12 @@ in time and both exact at the contact:
 
 - **seat height** (``seat_pelvis``): while a character sits on a seat its pelvis is
   ``SEAT_PELVIS_ABOVE_SEAT`` above the seat's surface (the scene's seat height); sitting down,
-  the pelvis goes from the animated height to it (``smoothstep`` of the sit-down's progress,
-  the same as the root's path onto the seat); standing up, from it back to the animated height.
-  The legs are re-solved (``sim.body.leg_ik``) so the feet stay where they were animated, flat
-  on the floor (ankle at ``ANKLE_HEIGHT``) where they were near it, so the knees take up the
-  difference;
+  the pelvis goes from standing height (``STAND_Z``) to it as the root goes onto the seat (the
+  ``smoothstep`` of the sit-down's progress, ``sim.world.frame_assembly.stationary_root``),
+  standing up back (the clips' own heights would end the sit-down 0.3 s early). The legs are
+  re-solved (``sim.body.leg_ik``) so the feet stay where they were animated, flat
+  on the floor (ankle at ``ANKLE_HEIGHT``) where they were near it, and in front of the seat's
+  base (``FEET_CLEAR_M``), so the knees take up the difference;
 - **hands on the object** (``hand_targets``): a standing character whose action's hands work
   on an object (gestures ``HAND_GESTURES``; the object is the assignment's ``focus``) moves
   its working hand (both for typing and carrying) towards the point of the object's box
@@ -19,13 +20,13 @@ in time and both exact at the contact:
   gesture's reach (``reach_weight``: up over the first ``REACH_IN`` of the action, held, down
   over the last part, as the procedural clips move the hand), by the arm IK
   (``sim.body.arm_ik``); an object out of the arm's reach (a record player on a low side table)
-  bends the trunk forward first, as little as will do (``LEAN_STEPS``). A wipe's circles and a pen's strokes stay: the point follows the
-  animated hand across the surface;
+  bends the trunk forward first, as little as will do (``LEAN_STEPS``). A wipe's circles and a
+  pen's strokes stay: the point follows the animated hand across the surface;
 - **a handshake's hands meet** (``hand_targets``): two partners shaking hands move their right
   hands to the midpoint of their animated right hands (raised to about elbow height), with the
-  weight of the handshake's reach. They meet when the partners stand close enough for two arms
-  (about 0.6 m between pelvises or less on this skeleton, whose arm is 0.51 m); further apart both hands stretch
-  towards the same point and stop short of it.
+  weight of the handshake's reach. They meet when the partners stand close enough for two
+  arms (about 0.6 m between pelvises or less on this skeleton, whose arm is 0.51 m); further
+  apart both hands stretch towards the same point and stop short of it.
 
 Pure functions of the frame's poses and the characters' states; deterministic.
 """
@@ -41,7 +42,7 @@ from sim.body.arm_ik import ARM_LENGTH, SHOULDER_JOINTS, WRIST_JOINTS, solve_arm
 from sim.body.leg_ik import leg_chain, solve_chain
 from sim.body.skeleton import JOINT_INDEX, forward_kinematics
 from sim.motion.action_labels import action_spec
-from sim.motion.sources.procedural_actions import SEAT_PELVIS_ABOVE_SEAT
+from sim.motion.sources.procedural_actions import SEAT_PELVIS_ABOVE_SEAT, STAND_Z
 from sim.motion.sources.procedural_rig import ANKLE_HEIGHT
 from sim.scene.model import SceneObject
 from sim.world.phases import CharacterState, smoothstep
@@ -56,6 +57,7 @@ LOOP_REACH_S = 0.5  # seconds a looping action's hands take to settle on the obj
 HAND_STANDOFF_M = 0.02  # wrist joint off the object's surface (the palm and fingers beyond it)
 SHAKE_BELOW_SHOULDER_M = 0.35  # shaking hands meet at least this high: about elbow height, forearms forward
 FOOT_NEAR_FLOOR_M = 0.25
+FEET_CLEAR_M = 0.07  # a seated ankle joint's distance in front of its seat's front face (the ankle's capsule and 2 cm)
 LEAN_STEPS = tuple(float(a) for a in np.linspace(0.0, 0.9, 19))
 """Forward bends (radians at ``spine1``) tried, least first, when a hand cannot reach its object."""
 LEAN_MARGIN_M = 0.03  # the hand's target this much inside the straight arm's reach
@@ -72,6 +74,16 @@ def reach_weight(gesture: str, loops: bool, frame: int, length: int, fps: float)
     if t <= b:
         return smoothstep(t / a)
     return 1.0 - smoothstep((t - b) / (1.0 - b))
+
+
+def sit_progress(c: CharacterState) -> float:
+    """How far (0..1) the sit-down part of ``c``'s transition in is (after its turn)."""
+    return (c.phase_frame - c.turn_frames + 1) / max(1, c.phase_length - c.turn_frames)
+
+
+def stand_progress(c: CharacterState) -> float:
+    """How far (0..1) ``c``'s stand-up (its transition out from a seat) is."""
+    return (c.phase_frame + 1) / max(1, c.phase_length)
 
 
 def box_contact_point(obj: SceneObject, p: NDArray[np.float64], standoff: float = HAND_STANDOFF_M) -> NDArray[np.float64]:
@@ -96,10 +108,14 @@ def box_contact_point(obj: SceneObject, p: NDArray[np.float64], standoff: float 
 
 def seat_pelvis(chars: Sequence[CharacterState], labels: Sequence[str], seated: Sequence[bool],
                 seat_heights: Sequence[float | None], pelvis: NDArray[np.float64], rots: NDArray[np.float64],
-                floor_z: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+                floor_z: float, seats: Sequence[SceneObject | None] | None = None,
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(pelvis (N, 3), local rotations (N, 22, 3, 3)) with the pelvis of every character sitting,
     sitting down or standing up put on its seat's height (``seat_heights``: the seat's height
-    above the floor per character, None when it has no seat); see the module docstring."""
+    above the floor per character, None when it has no seat); see the module docstring.
+    ``seats``: the seat objects (per character, or None): feet on the floor are kept
+    ``FEET_CLEAR_M`` in front of the seat's front face (a couch whose seat point is near its
+    front would otherwise have the ankles inside its base)."""
     rows, goals = [], []
     for i, c in enumerate(chars):
         h = seat_heights[i]
@@ -109,15 +125,14 @@ def seat_pelvis(chars: Sequence[CharacterState], labels: Sequence[str], seated: 
         if seated[i]:
             k = 1.0
         elif labels[i] == "sit_down" and c.phase == "transition_in":
-            span = max(1, c.phase_length - c.turn_frames)
-            k = smoothstep((c.phase_frame - c.turn_frames + 1) / span)
+            k = smoothstep(sit_progress(c))
         elif labels[i] == "stand_up" and c.phase == "transition_out":
-            k = 1.0 - smoothstep((c.phase_frame + 1) / max(1, c.phase_length))
+            k = 1.0 - smoothstep(stand_progress(c))
         else:
             continue
-        z = float(pelvis[i, 2])
+        top = floor_z + STAND_Z
         rows.append(i)
-        goals.append(z + k * (want - z))
+        goals.append(top + k * (want - top))
     if not rows:
         return pelvis, rots
     idx = np.array(rows)
@@ -125,6 +140,16 @@ def seat_pelvis(chars: Sequence[CharacterState], labels: Sequence[str], seated: 
     ankles = old.ankle.copy()
     low = ankles[..., 2] - floor_z < FOOT_NEAR_FLOOR_M
     ankles[..., 2] = np.where(low, floor_z + ANKLE_HEIGHT, ankles[..., 2])
+    for n, i in enumerate(rows):
+        seat = None if seats is None else seats[i]
+        if seat is None:
+            continue
+        facing = np.array([*seat.facing, 0.0])
+        front = float(np.dot(seat.center_xy, seat.facing)) + seat.size[1] / 2.0 + FEET_CLEAR_M
+        for leg in (0, 1):
+            short = front - float(ankles[n, leg] @ facing)
+            if low[n, leg] and short > 0.0:
+                ankles[n, leg] += short * facing
     new_pelvis = pelvis.copy()
     new_pelvis[idx, 2] = goals
     sub = solve_chain(leg_chain(new_pelvis[idx], rots[idx]), rots[idx], ankles, np.ones((len(idx), 2), dtype=bool))

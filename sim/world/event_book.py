@@ -47,6 +47,7 @@ from sim.world.events import (
 )
 from sim.world.facing import heading_to_object, heading_to_points, needs_reach, surface_distance
 from sim.world.navigation import StandTargets, WorldNavigator, seat_place
+from sim.world.partners import spaced
 from sim.world.phases import (
     CharacterState,
     StandTarget,
@@ -197,11 +198,13 @@ def still_bodies(w: EventWorld, skip: Iterable[str]) -> list[tuple[float, float]
 
 
 def assign(w: EventWorld, cmd: AssignEvent, out: StepReport) -> None:
-    """Accept ``cmd`` (its members start walking or leave what they do) or fail it as a whole.
-    Raises ``WorldError`` when an event with its id is still running."""
+    """Accept ``cmd`` (its members start walking or leave what they do) or fail it as a whole;
+    a pair doing a partner action is first sent to points at the action's distance
+    (``sim.world.partners.spaced``). Raises ``WorldError`` when an event with its id is still running."""
     eid = cmd.event_id
     if eid in w.events and w.events[eid].status in ("ongoing", "looping"):
         raise WorldError(f"event {eid!r} is already running")
+    cmd = spaced(w.grid, cmd)  # a pair doing a partner action stands at the action's distance
     goals: dict[str, StandTarget] = {}
     problems: list[tuple[str, FailureReason, str]] = []
     # where other bodies will be, for the seats' approach points (members placed so far included)

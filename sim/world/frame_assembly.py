@@ -27,7 +27,12 @@ from sim.body.skeleton import NUM_JOINTS
 from sim.motion.action_labels import action_spec, database_key
 from sim.paths.tracks import walker_headings
 from sim.scene.model import Scene
-from sim.world.contacts import hand_targets, seat_pelvis
+from sim.world.contacts import (
+    hand_targets,
+    seat_pelvis,
+    sit_progress,
+    stand_progress,
+)
 from sim.world.motion_layer import BatchedMotionLayer, MotionLayer, MotionQuery, compose_poses
 from sim.world.navigation import WorldNavigator
 from sim.world.phases import CharacterState, phase_motion, smoothstep, wrap_angle
@@ -143,7 +148,9 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
             contacts = _contacts_of(poses)
     w.motion_states.update(zip(names, new_states, strict=True))
     pelvis, rots = compose_poses(rots, pz, root, heading)
-    pelvis, rots = seat_pelvis(chars, labels, seated_l, seat_h, pelvis, rots, w.scene.floor_z)
+    seats = [w.scene.by_name.get(c.assignment.seat) if h is not None and c.assignment is not None
+             and c.assignment.seat is not None else None for c, h in zip(chars, seat_h, strict=True)]
+    pelvis, rots = seat_pelvis(chars, labels, seated_l, seat_h, pelvis, rots, w.scene.floor_z, seats)
     if w.foot_solver is not None and w.feet is not None:
         rots, w.feet = w.foot_solver.apply(pelvis, rots, contacts, w.feet, active=~np.array(still_feet),
                                            pinned=np.array(seat_transit))
@@ -164,11 +171,10 @@ def stationary_root(c: CharacterState) -> None:
         else:
             c.heading = c.act_heading
             if a.seat is not None and c.seat_xy is not None:
-                span = max(1, c.phase_length - c.turn_frames)
-                u = smoothstep((c.phase_frame - c.turn_frames + 1) / span)
+                u = smoothstep(sit_progress(c))
                 c.xy = c.anchor_xy + u * (c.seat_xy - c.anchor_xy)
     elif c.phase == "transition_out" and c.seated and c.seat_xy is not None:
-        u = smoothstep((c.phase_frame + 1) / max(1, c.phase_length))
+        u = smoothstep(stand_progress(c))
         c.xy = c.seat_xy + u * (c.anchor_xy - c.seat_xy)
 
 
