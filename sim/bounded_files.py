@@ -10,8 +10,9 @@ scene, a trace) goes through two functions:
   no more than the cap;
 - :func:`load_bounded_json` parses JSON text into plain Python values with a nesting depth of at
   most ``max_depth`` (deeper text is refused before a value is built from it, so no
-  ``RecursionError`` reaches the caller), integers of at most :data:`MAX_INT_DIGITS` digits and
-  finite numbers only (``NaN``, ``Infinity`` and ``1e999`` are refused).
+  ``RecursionError`` reaches the caller), integers of at most :data:`MAX_INT_DIGITS` digits,
+  finite numbers only (``NaN``, ``Infinity`` and ``1e999`` are refused) and no key given twice
+  in one object (readers disagree on which value wins).
 
 Both raise :class:`BoundedFileError` whose ``str()`` is one line naming the file (``what``)
 and what was wrong; nothing else escapes them (``OSError``, ``UnicodeDecodeError``,
@@ -133,7 +134,8 @@ def load_bounded_json(data: bytes | str, max_depth: int, what: str) -> Any:
         except UnicodeDecodeError as exc:
             raise BoundedFileError(what, f"not UTF-8 text (bad byte at offset {exc.start})") from None
     try:
-        return json.loads(text, parse_constant=_refuse_constant, parse_float=_finite_float, parse_int=_bounded_int)
+        return json.loads(text, parse_constant=_refuse_constant, parse_float=_finite_float, parse_int=_bounded_int,
+                          object_pairs_hook=_unique_keys)
     except json.JSONDecodeError as exc:
         raise BoundedFileError(what, f"not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})") from None
     except _NumberError as exc:
@@ -157,6 +159,23 @@ def _finite_float(text: str) -> float:
     return value
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """An object whose keys are all different: a key given twice would let two readers of the
+    same file see two different values (the last one wins in Python, the first in others)."""
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        seen: set[str] = set()
+        twice = ""
+        for key, _ in pairs:
+            if key in seen:
+                twice = key
+                break
+            seen.add(key)
+        shown = "".join(c if c.isprintable() else "?" for c in twice[:40])
+        raise _NumberError(f"key '{shown}' given twice in one object")
+    return out
+
+
 def _bounded_int(text: str) -> int:
     digits = len(text.lstrip("-"))
     if digits > MAX_INT_DIGITS:
@@ -169,13 +188,17 @@ def _one_line(text: str, limit: int = 400) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def read_bounded_npz(path: Path | str, max_bytes: int, max_array_bytes: int, what: str) -> dict[str, np.ndarray]:
+def read_bounded_npz(
+    path: Path | str, max_bytes: int, max_array_bytes: int, what: str, *, skip_objects: bool = False
+) -> dict[str, np.ndarray]:
     """The arrays of the ``.npz`` file at ``path``: the file read by :func:`read_bounded_bytes`
     (at most ``max_bytes``), the sizes its zip entries and every ``.npy`` header declare checked
     before anything is inflated or allocated (at most ``max_array_bytes`` in all, no header
-    claiming more than its entry holds), and never unpickled (an array of Python objects is
-    refused). Anything wrong is a :class:`BoundedFileError`."""
+    claiming more than its entry holds), and never unpickled: an array of Python objects is
+    refused, or with ``skip_objects`` left out of the result. Anything wrong is a
+    :class:`BoundedFileError`."""
     data = read_bounded_bytes(path, max_bytes, what)
+    objects: set[str] = set()
     try:
         with zipfile.ZipFile(io.BytesIO(data)) as zf:
             declared = sum(info.file_size for info in zf.infolist())
@@ -184,15 +207,26 @@ def read_bounded_npz(path: Path | str, max_bytes: int, max_array_bytes: int, wha
                                              f"{max_array_bytes} allowed")
             for info in zf.infolist():  # an array's header may claim more than its entry holds
                 with zf.open(info) as member:
-                    if _npy_bytes(member) > info.file_size:
+                    try:
+                        size = _npy_bytes(member)
+                    except _ObjectArray:
+                        if not skip_objects:
+                            raise ValueError("an array of Python objects (never unpickled)") from None
+                        objects.add(info.filename.removesuffix(".npy"))
+                        continue
+                    if size > info.file_size:
                         raise BoundedFileError(what, f"array {info.filename[:60]!r} claims more bytes than its "
                                                      "entry holds")
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
-            return {k: npz[k] for k in npz.files}
+            return {k: npz[k] for k in npz.files if k not in objects}
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib_error) as exc:
         if isinstance(exc, BoundedFileError):
             raise
         raise BoundedFileError(what, f"cannot read as .npz ({str(exc)[:200]})") from None
+
+
+class _ObjectArray(ValueError):
+    """An ``.npy`` member holding Python objects (a pickle)."""
 
 
 def _npy_bytes(member: IO[bytes]) -> int:
@@ -205,5 +239,5 @@ def _npy_bytes(member: IO[bytes]) -> int:
     else:
         raise ValueError(f"an array of .npy format {version} (1.0 and 2.0 are read)")
     if dtype.hasobject:
-        raise ValueError("an array of Python objects (never unpickled)")
+        raise _ObjectArray
     return int(np.prod(shape, dtype=object)) * dtype.itemsize

@@ -22,6 +22,8 @@ which is the model's own output except for its pose-corrective shapes (``posedir
 
 from __future__ import annotations
 
+import tempfile
+import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +40,10 @@ INFLUENCES = 4  # skin weights kept per vertex (glTF JOINTS_0 / WEIGHTS_0, viser
 GENDERS = ("neutral", "female", "male")
 MAX_PARAMETER_FILE_BYTES = 256 << 20
 """Largest ``<name>.smplx.npz`` read back, and most bytes its arrays may unpack to."""
+MAX_MODEL_FILE_BYTES = 512 << 20
+"""Largest SMPL-X model file read (SMPLX_NEUTRAL.npz of the 1.1 release: about 110 MB)."""
+MAX_MODEL_ARRAY_BYTES = 512 << 20
+"""Most bytes a model file's arrays may unpack to (the 1.1 release: about 260 MB)."""
 
 
 class SmplxModelError(Exception):
@@ -115,6 +121,28 @@ def _top_weights(weights: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArr
     return ids.astype(np.int64), top
 
 
+def _numeric_copy(path: Path, folder: Path) -> Path:
+    """A copy of the model file ``path`` in ``folder`` holding only its numeric arrays, for
+    ``smplx`` to load: ``smplx`` loads a model with ``pickle`` (``.pkl``) or ``allow_pickle=True``
+    (``.npz``), so a crafted model file would run code. The arrays are read as any other file
+    from outside (``sim.bounded_files.read_bounded_npz``: bounded, never unpickled); the model's
+    arrays of Python objects (``joint2num``, ``part2num``: names, unused here) are left out, and
+    a ``.pkl`` model (a pickle through and through) is refused."""
+    if path.suffix != ".npz":
+        raise SmplxModelError(f"{path}: a .pkl model is a pickle, which could run code when loaded; "
+                              "use the .npz model files")
+    try:
+        arrays = read_bounded_npz(path, MAX_MODEL_FILE_BYTES, MAX_MODEL_ARRAY_BYTES, str(path), skip_objects=True)
+    except BoundedFileError as exc:
+        raise SmplxModelError(f"{path}: not a usable SMPL-X model file ({exc.problem})") from None
+    clean = folder / path.name
+    with zipfile.ZipFile(clean, "w") as npz:  # np.savez's layout, written array by array
+        for name, array in arrays.items():
+            with npz.open(f"{name}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, array, allow_pickle=False)
+    return clean
+
+
 class SmplxModels:
     """Loaded SMPL-X models of one folder, one per gender, reused across characters."""
 
@@ -128,13 +156,15 @@ class SmplxModels:
         path = model_file(self.model_dir, gender)
         key = (path, num_betas)
         if key not in self._models:
-            try:
-                self._models[key] = smplx.create(
-                    str(path), model_type="smplx", gender=gender, ext=path.suffix[1:], use_pca=False,
-                    flat_hand_mean=True, num_betas=num_betas, batch_size=1,
-                )  # fmt: skip
-            except (OSError, KeyError, ValueError, AssertionError) as exc:
-                raise SmplxModelError(f"{path}: not a usable SMPL-X model file ({exc})") from None
+            with tempfile.TemporaryDirectory(prefix="smplx-") as private:
+                clean = _numeric_copy(path, Path(private))
+                try:
+                    self._models[key] = smplx.create(
+                        str(clean), model_type="smplx", gender=gender, ext="npz", use_pca=False,
+                        flat_hand_mean=True, num_betas=num_betas, batch_size=1,
+                    )  # fmt: skip
+                except (OSError, KeyError, ValueError, AssertionError, AttributeError, IndexError, RuntimeError) as exc:
+                    raise SmplxModelError(f"{path}: not a usable SMPL-X model file ({str(exc)[:200]})") from None
         return self._models[key]
 
     def body(self, params: Mapping[str, NDArray[Any]]) -> SmplxBody:
