@@ -15,7 +15,9 @@ link there points at:
   without blocking; anything but a regular file with no other hard link is refused (a link, a
   FIFO, a device, a folder, a file that is also somewhere else);
 - :func:`make_folder` (a sub-folder such as ``motion/``): made when missing; a link in its
-  place is refused.
+  place is refused;
+- :func:`remove_stale_temporaries`: the temporary files a writer killed by ``kill -9`` left
+  behind, removed before a run (or a sweep) writes into the folder again.
 
 A refusal is an ``OSError`` naming the file (``ELOOP`` for a link), so a caller that reports a
 failed write names it as it names a full disk. Only the last part of a path is guarded: the
@@ -136,6 +138,40 @@ def make_folder(path: Path | str) -> Path:
     if not stat.S_ISDIR(info.st_mode):
         raise OSError(errno.ENOTDIR, "is not a folder", str(path))
     return path
+
+
+_HEX = frozenset("0123456789abcdef")
+
+
+def _is_temporary(name: str) -> bool:
+    """Whether ``name`` is one :func:`_fresh` gives: ``.<name>.<12 hex digits>.tmp<suffix>``."""
+    parts = name.split(".")
+    if parts[-1] != "tmp":  # the suffix of the final name, kept for writers that read it
+        if not (1 <= len(parts[-1]) <= 8 and parts[-1].isascii() and parts[-1].isalnum()):
+            return False
+        parts = parts[:-1]
+    return (len(parts) >= 4 and parts[0] == "" and parts[-1] == "tmp" and len(parts[-2]) == 12
+            and set(parts[-2]) <= _HEX and any(parts[1:-2]))
+
+
+def remove_stale_temporaries(folder: Path | str) -> list[str]:
+    """Remove the temporary files a writer killed mid-write left in ``folder`` (the names
+    :func:`write_file` and :func:`replacing` use, nothing else); the names removed. Call it
+    before the folder's writers start: a write in flight would lose its file. A link of such a
+    name goes, never its target; a folder of such a name stays."""
+    removed: list[str] = []
+    try:
+        names = os.listdir(folder)
+    except (FileNotFoundError, NotADirectoryError):
+        return removed
+    for name in names:
+        if _is_temporary(name):
+            path = Path(folder) / name
+            with contextlib.suppress(OSError):
+                if not stat.S_ISDIR(os.lstat(path).st_mode):
+                    os.unlink(path)
+                    removed.append(name)
+    return removed
 
 
 def _fresh(path: Path) -> tuple[Path, int]:

@@ -182,3 +182,22 @@ def test_the_exports_and_pictures_replace_links(folder: Path, victim: Path) -> N
     for name in names:
         assert not (folder / name).is_symlink() and (folder / name).stat().st_size > 0, name
     assert leftovers(folder) == []
+
+
+def test_stale_temporaries_are_removed_and_nothing_else(tmp_path: Path) -> None:
+    from sim.no_follow_writes import remove_stale_temporaries
+
+    victim = tmp_path / "victim"
+    victim.write_text("v", encoding="utf-8")
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / ".story.md.0123456789ab.tmp.md").write_text("x", encoding="utf-8")
+    (folder / ".scene.glb.00000000000f.tmp.glb").symlink_to(victim)
+    (folder / ".x.0123456789ab.tmp").mkdir()  # a folder of such a name stays
+    keep = [".story.md.0123.tmp.md", "story.md.tmp", ".story.md.0123456789ab.tmp.md.bak", "a.tmp"]
+    for name in keep:
+        (folder / name).write_text("k", encoding="utf-8")
+    assert sorted(remove_stale_temporaries(folder)) == [".scene.glb.00000000000f.tmp.glb", ".story.md.0123456789ab.tmp.md"]
+    assert sorted(p.name for p in folder.iterdir()) == sorted([*keep, ".x.0123456789ab.tmp"])
+    assert victim.read_text(encoding="utf-8") == "v"
+    assert remove_stale_temporaries(tmp_path / "missing") == []

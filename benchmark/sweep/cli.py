@@ -15,6 +15,7 @@ imported here at module level; each command imports the sweep machinery when it 
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -37,18 +38,28 @@ def _fail(message: str, code: int = 2) -> None:
     raise typer.Exit(code)
 
 
+_REFUSED = (errno.ELOOP, errno.EMLINK, errno.ENOTDIR, errno.EINVAL, errno.ENXIO, errno.EISDIR)
+"""Errors of a write ``sim.no_follow_writes`` refused in the sweep folder (a user error: exit 2)."""
+
+
 def _guard(fn: Any) -> Any:
     """Run ``fn()``, turning user errors into one line and exit code 2 (1 for LLM errors)."""
     from agents.llm_port import LLMError
     from benchmark.reference_cases import BenchmarkCaseError
     from benchmark.sweep.grid import SweepSpecError
+    from benchmark.sweep.sweep_files import SweepFileError
     from orchestrator.llm.config import ConfigError
+    from orchestrator.llm.traces import TraceCorruptError
     from orchestrator.reference_data import ReferenceDataNotFound
 
     try:
         return fn()
-    except (SweepSpecError, BenchmarkCaseError, ConfigError, ReferenceDataNotFound) as exc:
+    except (SweepSpecError, SweepFileError, TraceCorruptError, BenchmarkCaseError, ConfigError,
+            ReferenceDataNotFound) as exc:
         _fail(str(exc))
+    except OSError as exc:  # a write refused (a link, a FIFO, a hard-linked file in the folder) or failed
+        where = f"{exc.filename}: " if exc.filename else ""
+        _fail(f"{where}{exc.strerror or exc}", code=2 if exc.errno in _REFUSED else 1)
     except LLMError as exc:
         _fail(f"{type(exc).__name__}: {exc}", code=1)
 

@@ -32,6 +32,7 @@ from benchmark.reference_cases import (
 )
 from benchmark.sweep.grid import METHODS, ModelSpec, RunKey, SweepSpec, SweepSpecError, slug
 from benchmark.sweep.results import CallStat, RunResult
+from benchmark.sweep.sweep_files import sweep_folder
 from orchestrator.llm.traces import AttemptRecord, ParsedRecord, TraceContents, read_trace
 from sim.scene.model import Scene
 
@@ -231,7 +232,7 @@ async def execute(
     trace first (a run in flight when a sweep was killed is redone from scratch)."""
     trace = ws.run_trace(key)
     if fresh:
-        trace.parent.mkdir(parents=True, exist_ok=True)
+        sweep_folder(ws.out, "traces", "runs")
         trace.unlink(missing_ok=True)
     port = factory(ws.spec.model(key.model), trace)
     try:

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 from benchmark.sweep.grid import METHOD_TITLES
 from benchmark.sweep.results import RunResult, write_atomic
+from benchmark.sweep.sweep_files import sweep_folder
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -79,6 +80,6 @@ def tokens_plot(results: Sequence[RunResult]) -> bytes:
 
 
 def write_plots(folder: Path, results: Sequence[RunResult]) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
+    sweep_folder(folder.parent, folder.name)
     write_atomic(folder / "success_by_characters.png", success_plot(results))
     write_atomic(folder / "tokens_by_description.png", tokens_plot(results))

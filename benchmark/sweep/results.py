@@ -12,12 +12,18 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+
+from benchmark.sweep.sweep_files import (
+    append_line,
+    cut_torn_line,
+    read_json_lines,
+    write_sweep_file,
+)
 
 Verdict = Literal["pass", "fail", "error"]
 
@@ -65,46 +71,24 @@ class RunResult(BaseModel):
 
 
 def append_result(path: Path, result: RunResult) -> None:
-    """Append one line and fsync it (a single ``os.write`` of the whole line)."""
-    line = result.model_dump_json().encode("utf-8") + b"\n"
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-    try:
-        view = memoryview(line)
-        while view:
-            view = view[os.write(fd, view):]
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    """Append one line and fsync it (a single ``os.write`` of the whole line; never through a link)."""
+    append_line(path, result.model_dump_json().encode("utf-8") + b"\n")
 
 
 def read_results(path: Path) -> list[RunResult]:
-    """Every complete line (a torn last line, from a kill mid-write, is ignored)."""
-    if not path.exists():
-        return []
-    data = path.read_bytes()
-    lines = data.split(b"\n")
-    if lines and lines[-1] == b"":
-        lines.pop()
-    elif lines:
-        lines.pop()  # no newline at the end: torn
-    return [RunResult.model_validate_json(line) for line in lines if line.strip()]
+    """Every complete line (a torn last line, from a kill mid-write, is ignored); a line that is
+    not a result is a :class:`~benchmark.sweep.sweep_files.SweepFileError` naming it."""
+    return read_json_lines(path, RunResult)
 
 
 def repair_results(path: Path) -> None:
     """Cut a torn last line off ``path`` before appending to it."""
-    if not path.exists():
-        return
-    data = path.read_bytes()
-    if data and not data.endswith(b"\n"):
-        os.truncate(path, data.rfind(b"\n") + 1)
+    cut_torn_line(path)
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(data)
-    with open(tmp, "rb+") as f:
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    """Replace ``path`` with ``data`` (fresh temporary name, fsync, rename: never through a link)."""
+    write_sweep_file(path, data)
 
 
 def write_results(path: Path, results: Iterable[RunResult]) -> None:

@@ -54,6 +54,13 @@ from benchmark.sweep.results import (
     write_atomic,
     write_results,
 )
+from benchmark.sweep.sweep_files import (
+    parse_json_model,
+    read_json_model,
+    read_sweep_bytes,
+    sweep_folder,
+)
+from sim.no_follow_writes import remove_stale_temporaries
 
 
 class Progress(Protocol):
@@ -92,14 +99,14 @@ def save_or_check_spec(spec: SweepSpec, out: Path) -> None:
     path = sweep_file(out)
     text = spec.model_dump_json(indent=1) + "\n"
     if path.exists():
-        raw = path.read_text(encoding="utf-8")
-        old = SweepSpec.model_validate_json(raw)
+        raw = read_sweep_bytes(path)
+        old = parse_json_model(raw, SweepSpec, str(path))
         mine, theirs = spec.decisive(), old.decisive()
         if mine != theirs:
             field = next((k for k in mine if mine[k] != theirs.get(k)), "?")
             raise SweepSpecError(f"{path}: this folder holds a sweep with other arguments (field '{field}' differs); "
                                  "rerun with the same arguments to resume, or choose another --out")
-        if raw == text:
+        if raw == text.encode("utf-8"):
             return
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(path, text.encode("utf-8"))
@@ -112,7 +119,7 @@ def load_spec(out: Path) -> SweepSpec:
     path = sweep_file(out)
     if not path.exists():
         raise SweepSpecError(f"{out}: not a sweep folder (no sweep.json)")
-    return relocated(SweepSpec.model_validate_json(path.read_text(encoding="utf-8")))
+    return relocated(read_json_model(path, SweepSpec))
 
 
 def relocated(spec: SweepSpec) -> SweepSpec:
@@ -157,12 +164,12 @@ async def descriptions_for(
     for dkey, (run, _) in sorted(ws.description_needs(keys).items()):
         file, trace = ws.description_file(dkey), ws.description_trace(dkey)
         if file.exists() and not replay:
-            out[dkey] = SceneDescription.model_validate_json(file.read_text(encoding="utf-8"))
+            out[dkey] = read_json_model(file, SceneDescription)
             continue
         if replay and not trace.exists():
             raise SweepSpecError(f"{trace}: missing (the sweep never described this scene for this model)")
         if not replay:
-            trace.parent.mkdir(parents=True, exist_ok=True)
+            sweep_folder(ws.out, "traces", "descriptions")
             trace.unlink(missing_ok=True)
         port = factory(ws.spec.model(run.model), trace)
         try:
@@ -170,7 +177,7 @@ async def descriptions_for(
         finally:
             port.close()
         if not replay:
-            file.parent.mkdir(parents=True, exist_ok=True)
+            sweep_folder(ws.out, "descriptions")
             write_atomic(file, out[dkey].model_dump_json(indent=1).encode("utf-8") + b"\n")
     return out
 
@@ -213,6 +220,9 @@ async def run_sweep(
     spec.check()
     save_or_check_spec(spec, out)
     ws = SweepWorkspace(spec, out)
+    sweep_folder(out, "plots")  # a link there is refused before a run is made
+    for folder in (out, out / "plots", out / "descriptions"):  # what a sweep killed mid-write left
+        remove_stale_temporaries(folder)
     keys = grid(ws)
     path = out / "results.jsonl"
     repair_results(path)
@@ -242,6 +252,9 @@ async def score_sweep(out: Path, *, factory: PortFactory = replay_port) -> list[
     loaded) and rewrite ``results.jsonl`` and the reports from the new verdicts."""
     spec = load_spec(out)
     ws = SweepWorkspace(spec, out)
+    sweep_folder(out, "plots")  # a link there is refused before any file is rewritten
+    for folder in (out, out / "plots", out / "descriptions"):  # what a sweep killed mid-write left
+        remove_stale_temporaries(folder)
     listed = {r.run_id for r in read_results(out / "results.jsonl")}
     keys = [k for k in grid(ws) if k.run_id in listed]
     for k in keys:
