@@ -189,28 +189,35 @@ def run_command(
         if replay is None:
             warn_unreached(script, duration, str(instructions))
     scene_path = Path(scene)
-    args = RunArguments(
-        scene=absolute(scene_path) or scene if scene_path.is_file() else scene,
-        names=cast,
-        instruction=instruction,
-        instructions=script,
-        duration=duration,
-        pace=pace,
-        speed=speed,
-        planners=planners if planners is not None else default_planners(pace),
-        offline_latency=offline_latency,
-        max_events=max_events,
-        config=absolute(config),
-        motion_config=absolute(motion_config),
-        seed=seed,
-        max_retries=max_retries,
-        program_grammar=program_grammar,
-        foot_ik=foot_ik,
-        planner=planner,
-        description=description,
-        video=video,
-        gif=gif,
-    )
+    from pydantic import ValidationError
+
+    from sim.validation_text import problem_message
+
+    try:
+        args = RunArguments(
+            scene=absolute(scene_path) or scene if scene_path.is_file() else scene,
+            names=cast,
+            instruction=instruction,
+            instructions=script,
+            duration=duration,
+            pace=pace,
+            speed=speed,
+            planners=planners if planners is not None else default_planners(pace),
+            offline_latency=offline_latency,
+            max_events=max_events,
+            config=absolute(config),
+            motion_config=absolute(motion_config),
+            seed=seed,
+            max_retries=max_retries,
+            program_grammar=program_grammar,
+            foot_ik=foot_ik,
+            planner=planner,
+            description=description,
+            video=video,
+            gif=gif,
+        )
+    except ValidationError as exc:  # what run.json could not hold, or resume and view could not read back
+        fail(f"the run's arguments: {problem_message(exc.errors()[0])}")
     trace_path = record if record is not None else (None if replay is not None else out / TRACE_JSONL)
     if trace_path is not None and replay is not None and trace_path.resolve() == replay.resolve():
         fail("--record must name a different file than --replay")
@@ -566,13 +573,21 @@ def _run_and_report(
         )
         raise typer.Exit(128 + signum)
     if result.planner_error is not None:
+        import structlog
+
+        from agents.llm_port import ReplayMissError
+
         err = result.planner_error
-        # one line; a replay miss's diff against the recorded request follows it, as detail
-        detail = getattr(err, "diff", None)
-        message = str(err).split(f"\n{detail}")[0] if isinstance(detail, str) and detail else str(err)
+        detail = err.diff if isinstance(err, ReplayMissError) else None
+        message = str(err).split(f"\n{detail}")[0] if detail else str(err)
+        if isinstance(err, ReplayMissError):
+            # the trace cannot be applied: a bad file, one line and exit 2; the diff against the
+            # recorded request is a log record (shown with --log-level INFO)
+            structlog.get_logger("storyteller.replay").info("replay_miss_diff", diff=plain(detail or "", keep_newlines=True))
+            typer.echo(f"error: cannot replay {plain(replay or trace_path)}: the recorded step does not apply: "
+                       f"{one_line(message)} (--log-level INFO shows the diff)", err=True)
+            raise typer.Exit(2)
         typer.echo(f"error: planning stopped: {type(err).__name__}: {one_line(message)}", err=True)
-        if isinstance(detail, str) and detail:
-            typer.echo(plain(detail, keep_newlines=True), err=True)
         raise typer.Exit(1)
 
 

@@ -257,7 +257,7 @@ def read_trace(path: Path | str) -> TraceContents:
         end = data.find(b"\n", start)
         if end < 0:
             torn = TornTail(line_no=line_no, byte_offset=start, size=len(data) - start)
-            _log.warning("trace_torn_tail", path=str(p), line=line_no, bytes=torn.size)
+            _log.info("trace_torn_tail", path=str(p), line=line_no, bytes=torn.size)  # the caller says what it does with it
             break
         records.append(_parse_line(p, line_no, data[start:end]))
         start = end + 1

@@ -89,10 +89,11 @@ from orchestrator.session.runtime import (
     StoryEvent,
     TimedInstruction,
 )
-from sim.no_follow_writes import replacing, write_file
+from sim.no_follow_writes import remove_stale_temporaries, replacing, write_file
 from sim.run_folder_names import (
     ANIMATION_STEM,
     METRICS_JSON,
+    MOTION_FOLDER,
     RUNS_DB,
     SCENE_JSON,
     STORY_JSON,
@@ -417,15 +418,6 @@ async def _run_story(
         said = instructions_from_trace(trace_path) if resumed_trace and trace_path is not None else []
     except (TraceCorruptError, OSError) as exc:
         raise RunSetupError(str(exc)) from None
-    try:
-        # a call the recorded story's end cut short waits again, to the end: that step stays in flight
-        port, describer_model = open_port(config, trace_path, replay, unanswered="wait")
-    except (LLMError, ValueError, OSError, TraceCorruptError) as exc:  # a replayed trace that does not check
-        raise RunSetupError(str(exc)) from None
-    if status is None:  # the run's state for a viewer (live.json) is read from it too
-        status = RunStatus()
-    replies = ReplyTap(WatchedPort(port, status))
-    port = replies
     world_config = WorldConfig(seed=args.seed, foot_ik=args.foot_ik)
     fps = world_config.fps
     try:
@@ -433,12 +425,10 @@ async def _run_story(
         if replay is not None and applied is not None:
             check_replayable(replay, applied, scheduled, round(args.duration * fps))
     except (TraceCorruptError, OSError, RunSetupError) as exc:
-        port.close()
         raise RunSetupError(str(exc)) from None
     try:
         positions = start_positions(scene, len(names), args.seed)
     except StartPositionError as exc:
-        port.close()
         raise RunSetupError(str(exc)) from None
     motion = _motion_layer(motion_config)
     world = World(scene, {n: (p, 0.0) for n, p in zip(names, positions, strict=True)}, motion, config=world_config)
@@ -450,8 +440,20 @@ async def _run_story(
         try:
             checkpoint = load_checkpoint(snapshot_path, world)
         except SnapshotError as exc:
-            port.close()
             raise RunSetupError(str(exc)) from None
+    # the trace is opened (a resumed run appends to it) once what the folder holds has been read and checked,
+    # and the temporary files of a run killed mid-write (kill -9) are gone
+    for folder in (out, out / MOTION_FOLDER):
+        remove_stale_temporaries(folder)
+    try:
+        # a call the recorded story's end cut short waits again, to the end: that step stays in flight
+        port, describer_model = open_port(config, trace_path, replay, unanswered="wait")
+    except (LLMError, ValueError, OSError, TraceCorruptError) as exc:  # a replayed trace that does not check
+        raise RunSetupError(str(exc)) from None
+    if status is None:  # the run's state for a viewer (live.json) is read from it too
+        status = RunStatus()
+    replies = ReplyTap(WatchedPort(port, status))
+    port = replies
     try:
         world = _stream_motion(world, out, names, checkpoint)
     except ValueError as exc:  # ChunkError, WorldError: chunk files that do not fit the checkpoint

@@ -13,7 +13,7 @@ import shlex
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from orchestrator.planning.kinds import DescriptionKind, PlannerKind
 from orchestrator.session.instruction_script import ScriptLine
@@ -28,6 +28,15 @@ _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]{0,31}$")
 MAX_MANIFEST_BYTES = 16 << 20
 """Bytes of the largest ``run.json`` read back (it holds the arguments and the instruction script)."""
 _MAX_DEPTH = 8  # JSON nesting of run.json at most (it has 3: a script line in ``arguments.instructions``)
+
+
+MAX_DURATION_S = 9_000.0
+"""Simulated seconds of a run at most (2.5 h): one character's chunk file, about 826 bytes a frame
+at 30 fps, then stays under what a reader takes (``sim.world.track_chunks.MAX_CHUNK_FILE_BYTES``,
+256 MiB: 223 MB), so ``resume`` and ``view`` never refuse the motion a run wrote."""
+MAX_CHARACTER_SECONDS = 36_000.0
+"""Simulated seconds times characters at most (10 character-hours): the run's chunk files together
+stay under ``sim.world.track_chunks.MAX_RUN_CHUNK_BYTES`` (1 GiB: 0.89 GB)."""
 
 
 class ManifestError(Exception):
@@ -63,6 +72,18 @@ class RunArguments(BaseModel):
     description: DescriptionKind = "describer"
     video: bool = False
     gif: bool = False
+
+    @model_validator(mode="after")
+    def _motion_fits_the_readers(self) -> RunArguments:
+        """A run never writes more motion than ``resume`` and ``view`` read back (see the caps)."""
+        if self.duration > MAX_DURATION_S:
+            raise ValueError(f"duration {self.duration:g} s is longer than the {MAX_DURATION_S:g} s a run may last")
+        if self.duration * len(self.names) > MAX_CHARACTER_SECONDS:
+            raise ValueError(f"{len(self.names)} characters for {self.duration:g} s is more than the "
+                             f"{MAX_CHARACTER_SECONDS:g} character-seconds a run may hold")
+        if self.offline_latency is not None and self.offline_latency > MAX_DURATION_S:
+            raise ValueError(f"offline latency {self.offline_latency:g} s is longer than a run may last")
+        return self
 
 
 class RunManifest(BaseModel):

@@ -95,7 +95,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from agents.history import HISTORY_WINDOW
 from agents.instruction_parts import PART_ATTEMPTS
-from agents.llm_port import LLMError, TraceRecorder
+from agents.llm_port import LLMError, ReplayMissError, TraceRecorder
 from agents.messages import (
     CharacterStatus,
     EarlierEvents,
@@ -636,7 +636,9 @@ class Session:
                 fl.due = fl.request.frame + round(fl.latency_s * fps)
         else:  # stopped: the story goes on without a planner; the caller reports it
             self.planner_error = news.error
-            _log.error("planner_stopped", step=news.index, error=f"{type(news.error).__name__}: {news.error}")
+            # a replay miss is the replayed command's one error line (its diff a record at info level)
+            log = _log.info if isinstance(news.error, ReplayMissError) else _log.error
+            log("planner_stopped", step=news.index, error=f"{type(news.error).__name__}: {news.error}")
             del self._flights[news.index]
 
     def _drain(self, news: MemoryObjectReceiveStream[_News]) -> None:
