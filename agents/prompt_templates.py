@@ -28,11 +28,17 @@ from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
+from sim.bounded_files import BoundedFileError, read_bounded_bytes
+
 PLACEHOLDER = re.compile(r"\{\{\s*([A-Za-z_][A-Za-z0-9_]*)\s*\}\}")
 
 BENCHMARK_TAGS: tuple[str, ...] = ("OA", "RC", "SS", "PI")
 """Benchmark tags with in-context examples: object affordance, region context, scene/character
 state, position inference."""
+
+
+MAX_PROMPT_BYTES = 1 << 20
+"""Bytes of a prompt file read from a user's folder at most (ours are under 10 KB)."""
 
 
 class PromptTemplateError(Exception):
@@ -82,7 +88,15 @@ class PromptLibrary:
             node = node / part
         if not node.is_file():
             raise PromptTemplateError(f"prompt file '{relpath}' not found under {self._root}")
-        text = node.read_text(encoding="utf-8")
+        if isinstance(node, Path):  # a user's folder: bounded, never a FIFO or a device (sim.bounded_files)
+            try:
+                text = read_bounded_bytes(node, MAX_PROMPT_BYTES, str(node)).decode("utf-8")
+            except BoundedFileError as exc:
+                raise PromptTemplateError(f"prompt file {exc}") from None
+            except UnicodeDecodeError as exc:
+                raise PromptTemplateError(f"prompt file {node}: not UTF-8 text (bad byte at offset {exc.start})") from None
+        else:
+            text = node.read_text(encoding="utf-8")
         self._read[relpath] = text
         return text
 

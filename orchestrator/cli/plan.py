@@ -23,6 +23,7 @@ started with (other options start their own thread).
 from __future__ import annotations
 
 import json
+import sqlite3
 import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -141,6 +142,13 @@ def plan_command(
         fail("--record and --replay cannot be used together")
     if prompts_dir is not None and not prompts_dir.is_dir():
         fail(f"--prompts {prompts_dir}: not a folder")
+    if prompts_dir is not None:
+        try:  # every file read now (bounded, UTF-8): a bad one is one line before anything runs
+            _read_prompt_folder(PromptLibrary(prompts_dir))
+        except PromptTemplateError as exc:
+            fail(f"--prompts {prompts_dir}: {exc}")
+    if runs_db is not None and (runs_db.exists() or runs_db.is_symlink()) and not runs_db.is_file():
+        fail(f"--runs-db {runs_db}: not a regular file (an SQLite database file is expected)")
     try:
         scene_obj = resolve_scene(scene)
     except SceneFileError as exc:
@@ -192,6 +200,8 @@ def plan_command(
         fail(str(exc))
     except (LLMError, RetriesExhaustedError, PromptTemplateError) as exc:
         fail(f"{type(exc).__name__}: {exc}", code=1)
+    except sqlite3.DatabaseError as exc:  # --runs-db is not a database this can open
+        fail(f"--runs-db {runs_db or default_runs_db()}: cannot use the checkpoint database ({exc})")
     if as_json:
         payload: dict[str, Any] = {
             "scene": scene_obj.name,
@@ -202,6 +212,21 @@ def plan_command(
         if not ablation.is_default:
             payload["ablation"] = {"planner": ablation.planner, "description": ablation.description}
         typer.echo(json.dumps(payload, indent=2))
+
+
+def _read_prompt_folder(library: Any) -> None:
+    """Read, through ``library`` (a user's ``--prompts`` folder), every prompt file the project
+    ships, so a missing, oversized or unreadable one is refused before planning starts."""
+    from importlib import resources
+
+    def walk(node: Any, prefix: str) -> None:
+        for child in sorted(node.iterdir(), key=lambda c: c.name):
+            if child.is_dir() and child.name != "__pycache__":
+                walk(child, f"{prefix}{child.name}/")
+            elif child.is_file() and not child.name.endswith((".py", ".pyc")):
+                library.text(f"{prefix}{child.name}")
+
+    walk(resources.files("prompts"), "")
 
 
 if __name__ == "__main__":  # pragma: no cover
