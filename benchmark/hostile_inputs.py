@@ -971,6 +971,80 @@ def _mesh_objects(box: Box) -> Spec:
     return inspect(box.file("objects.obj", "\n".join(lines) + "\n"), "either")
 
 
+REFERENCE_HOUSE = Path(os.environ.get("STORYTELLER_REFERENCE", "/nonexistent")) / "configs" / "scenes" / "House"
+
+
+def _reference_copy(box: Box) -> Path:
+    folder = box.root / "House"
+    if REFERENCE_HOUSE.is_dir():
+        shutil.copytree(REFERENCE_HOUSE, folder)
+    else:  # without the reference data: a folder of the same files, empty
+        folder.mkdir()
+        for name in ("objects.json", "scene.json", "scene_cfg.json", "grid_map.json"):
+            (folder / name).write_text("{}", encoding="utf-8")
+    return folder
+
+
+@attack("scene", "reference folder: objects.json a FIFO, grid_map.json -> /dev/zero")
+def _reference_special(box: Box) -> Spec:
+    folder = _reference_copy(box)
+    box.fifo(folder / "objects.json")
+    box.link(folder / "grid_map.json", "/dev/zero")
+    return inspect(folder)
+
+
+@attack("scene", "reference folder: scene.json deep, scene_cfg.json with bidi and 5,000 digits")
+def _reference_text(box: Box) -> Spec:
+    folder = _reference_copy(box)
+    (folder / "scene.json").write_text(deep_json(100_000), encoding="utf-8")
+    (folder / "scene_cfg.json").write_text('{"name": "' + BIDI + '", "cell": ' + "9" * 5000 + "}", encoding="utf-8")
+    return inspect(folder)
+
+
+@attack("trace", "500,000 records (75 MB) of run lines")
+def _trace_many(box: Box) -> Spec:
+    path, records = _trace_records(box)
+    line = (json.dumps(records[0]) + "\n").encode()
+    with open(path, "ab") as f:
+        f.write(line * 500_000)
+    return replay(box, "either")
+
+
+@attack("run.json", "a script of 100,000 instruction lines (replay)")
+def _runjson_script(box: Box) -> Spec:
+    run = box.copy_run()
+    script = [{"time_s": i * 0.001, "text": f"line {i}" + BIDI} for i in range(100_000)]
+    box.edit_json(run / "run.json", lambda v: {**v, "arguments": {**v["arguments"], "instructions": script}})
+    return replay(box, "either")
+
+
+@attack("story.jsonl", "1,000,000 event lines (export)")
+def _stream_many(box: Box) -> Spec:
+    run = box.copy_run()
+    (run / "story.json").unlink()
+    lines = (run / "story.jsonl").read_bytes().splitlines(keepends=True)
+    with open(run / "story.jsonl", "ab") as f:
+        f.write(lines[-1] * 1_000_000)
+    return export(box, "either")
+
+
+@attack("program", "--states with 10,000 characters named with bidi and 100 KB names")
+def _program_states_names(box: Box) -> Spec:
+    states = {"current_states": {f"Zoe{i}" + BIDI + "n" * 10: {"position": [1.0, 1.0], "action": "idle"}
+                                 for i in range(10_000)}}
+    states["current_states"]["x" * 100_000] = {"position": [1.0, 1.0]}
+    spec = program_run(box.file("prog.py", CLEAN_PROGRAM), "program")
+    spec.argv += ["--states", str(box.file("states.json", json.dumps(states)))]
+    return spec
+
+
+@attack("run.json", "run -d 1e308 and 24 characters for 2,000 s (a run.json resume refuses)")
+def _run_duration(box: Box) -> Spec:
+    out = box.root / "o"
+    return Spec(["run", "home", "-n", "24", "-d", "2000", "--out", str(out), "--no-interactive", "--no-live"],
+                "run", "bad", writable=(out,))
+
+
 # ---------------------------------------------------------------- viewer (a live server)
 
 

@@ -177,3 +177,21 @@ def test_parsed_record_holds_output_or_typed_error(tmp_path: Path) -> None:
     first, second = contents.parsed_by_seq()[rec.seq]
     assert not first.ok and first.error_type == "NoCodeError" and first.parsed_output is None
     assert second.ok and second.parsed_output == {"plans": []}
+
+
+def test_a_trace_of_more_records_than_the_cap_is_refused_before_parsing(tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """500,000 tiny records (75 MB, under the byte cap) took 1.6 GB to validate
+    (benchmark/hostile_inputs.py): the record count is checked first."""
+    import orchestrator.llm.traces as traces
+
+    path = tmp_path / "t.jsonl"
+    with TraceWriter(path) as w:
+        attempt(w)
+    line = path.read_bytes().splitlines(keepends=True)[0]
+    monkeypatch.setattr(traces, "MAX_TRACE_RECORDS", 10)
+    path.write_bytes(line * 10)
+    assert len(read_trace(path).records) == 10
+    path.write_bytes(line * 11 + b"{not json")  # refused from the count: the bad line is never parsed
+    with pytest.raises(TraceCorruptError, match="11 records, more than the 10"):
+        read_trace(path)

@@ -73,6 +73,11 @@ _log = structlog.get_logger("storyteller.traces")
 
 MAX_TRACE_BYTES = 256 << 20
 """Bytes of the largest trace file read (a recorded hour of story is tens of megabytes)."""
+MAX_TRACE_RECORDS = 150_000
+"""Records of the largest trace file read: each costs a validated model in memory (a 150-byte
+record about 3 KB), so 500,000 tiny lines (75 MB) took 1.6 GB. A run of the longest allowed
+duration (``orchestrator.session.run_manifest.MAX_DURATION_S``, 2.5 h) records about four per
+planning step: 150,000 is 37,500 steps, one every 0.24 s."""
 
 
 class _Record(BaseModel):
@@ -248,6 +253,9 @@ def read_trace(path: Path | str) -> TraceContents:
         if exc.missing:
             raise FileNotFoundError(2, "No such file or directory", str(p)) from None
         raise TraceCorruptError(p, None, exc.problem) from None
+    lines = data.count(b"\n")
+    if lines > MAX_TRACE_RECORDS:  # refused before a record is built
+        raise TraceCorruptError(p, None, f"{lines} records, more than the {MAX_TRACE_RECORDS} a trace may hold")
     records: list[TraceRecord] = []
     start = 0
     line_no = 0
