@@ -1,0 +1,118 @@
+"""``python -m benchmark.hostile_inputs``: an outside attacker's corpus against every file the
+CLI reads back, built at run time in a temporary folder, each attack run as a subprocess.
+
+The base is real: a short scripted run (``benchmark.motion_metrics.scripted_story``, 3
+simulated seconds, no LLM) and a one-run bench sweep of our own case 100 (the same kind of
+scripted OpenAI-compatible server on 127.0.0.1). Each attack copies what it needs, breaks one
+thing (a planted link or hard link, a FIFO, a link to ``/dev/zero``, deep nesting, huge numbers,
+NaN, bytes that are not UTF-8, lone surrogates, control and bidi characters, duplicate keys,
+compressed files, zip bombs, pickles, huge scenes and meshes, forged viewer requests) and runs
+the command that reads it under an address-space limit (:data:`AS_LIMIT`) and a wall-clock
+limit (the clean command's time + :data:`SLACK_S`).
+
+The verdict holds the issue's targets (issue 22): within the time, max RSS under 1 GiB; a bad
+file is exit 2 with exactly one ``error:`` line on stderr (``expect="bad"``), an attack the
+product may also accept is exit 0 or that (``"either"``); never a traceback; no Unicode control
+or format character (Cc, Cf, Zl, Zp, but newline and tab) on stdout or stderr; no file written
+or changed outside the run folder and the command's own outputs; the canary file that a
+successful code execution would create is absent; and a refused command leaves the run folder
+as it was (nothing lost).
+
+Prints one table row per attack (kind, attack, exit, seconds, max RSS, verdict) and a summary;
+exit code 1 when an attack failed. ``--only SUBSTRING`` runs the attacks whose name holds it;
+``--keep`` keeps the temporary folder. Several minutes on two cores (a clean ``resume`` takes
+about 10 s): a benchmark, not a test. Regression tests for what it found are in ``tests/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from benchmark.hostile import inputs, models, outputs, run_folders, scenes, sweeps
+from benchmark.hostile.bases import BASE_COMMANDS, build_sweep, workspace
+from benchmark.hostile.harness import CANARY, CLEAN_PROGRAM, SLACK_S, Attack, Box, Spec
+from benchmark.hostile.judging import Outcome, digest, judge, run_command, tree_state
+from benchmark.hostile.viewer import VIEWER_KIND, run_viewer
+from benchmark.motion_metrics.scripted_story import build_story
+
+ATTACKS: list[Attack] = [*run_folders.ATTACKS, *outputs.ATTACKS, *scenes.ATTACKS, *inputs.ATTACKS,
+                         *sweeps.ATTACKS, *models.ATTACKS]
+"""Every attack but the viewer's (:func:`run_viewer`), by target."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmark.hostile_inputs", description=__doc__.splitlines()[0])
+    p.add_argument("--only", default="", help="run only the attacks whose kind or name holds this text")
+    p.add_argument("--keep", action="store_true", help="keep the temporary folder")
+    args = p.parse_args(argv)
+    chosen = [a for a in ATTACKS if args.only.lower() in f"{a[0]} {a[1]}".lower()]
+    env = {k: v for k, v in os.environ.items() if k not in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL")}
+    env["STORYTELLER_SCRIPTED_STORY_KEY"] = "scripted"  # not a secret: the local scripted servers ignore it
+    env["PYTHONDONTWRITEBYTECODE"] = "1"
+    with workspace(args.keep) as root:
+        base = root / "base"
+        if build_story(base, seconds=3, names=("Zoe", "Max"), quiet=True) != 0:
+            print("error: the base run failed", file=sys.stderr)
+            return 2
+        sweep = build_sweep(root, env) if any(kind == "bench" for kind, _, _ in chosen) else root
+        shutil.copytree(base, root / "clean-resume")
+        if sweep != root:
+            shutil.copytree(sweep, root / "clean-sweep")
+        (root / "clean.py").write_text(CLEAN_PROGRAM, encoding="utf-8")
+        clean: dict[str, float] = {}  # the clean command's seconds, measured before its first attack
+        outcomes = []
+        print(f"{'kind':<11} {'attack':<66} {'exit':>4} {'s':>6} {'MiB':>5}  verdict", flush=True)
+        for i, (kind, name, build) in enumerate(chosen):
+            box = Box(root / "attacks" / f"{i:02d}", base, sweep, root / "attacks" / f"{i:02d}" / CANARY)
+            outcome = attempt(kind, name, build, box, root, sweep, env, clean)
+            outcomes.append(outcome)
+            print(row(outcome), flush=True)
+        if args.only.lower() in f"{VIEWER_KIND[0]} {VIEWER_KIND[1]}".lower():
+            box = Box(root / "attacks" / "viewer", base, sweep, root / "attacks" / "viewer" / CANARY)
+            outcome = run_viewer(box, env)
+            outcomes.append(outcome)
+            print(row(outcome), flush=True)
+        failed = [o for o in outcomes if o.problems]
+        kinds: dict[str, int] = {}
+        for o in outcomes:
+            kinds[o.kind] = kinds.get(o.kind, 0) + 1
+        print(f"{len(outcomes)} attacks ({', '.join(f'{k} {n}' for k, n in kinds.items())}): "
+              f"{len(outcomes) - len(failed)} held, {len(failed)} failed")
+        return 1 if failed else 0
+
+
+def attempt(kind: str, name: str, build: Callable[[Box], Spec], box: Box, root: Path, sweep: Path,
+            env: dict[str, str], clean: dict[str, float]) -> Outcome:
+    spec = build(box)
+    if spec.command not in clean:
+        code, seconds, rss, _, _ = run_command(BASE_COMMANDS[spec.command](root, box.base, sweep), 600, env, root)
+        clean[spec.command] = seconds
+        print(f"{'(clean)':<11} {spec.command:<66} {code!s:>4} {seconds:6.1f} {rss >> 20:5d}", flush=True)
+    limit = clean[spec.command] + SLACK_S
+    skip = (box.run, *spec.writable, Path(env.get("HOME", "/nonexistent")))
+    before_tree = tree_state(root, (*skip, root / "attacks" / "scratch"))
+    before_run = digest(box.run)
+    code, seconds, rss, stdout, stderr = run_command(spec.argv, limit, env, box.root, spec.stdin)
+    problems = judge(spec, code, seconds, rss, stdout, stderr, limit)
+    after_tree = tree_state(root, (*skip, root / "attacks" / "scratch"))
+    changed = sorted(k for k in set(before_tree) | set(after_tree) if before_tree.get(k) != after_tree.get(k))
+    if changed:
+        problems.append("wrote outside the run folder: " + ", ".join(str(Path(c).relative_to(root)) for c in changed[:3]))
+    if box.canary.exists():
+        problems.append("CODE RAN (canary file created)")
+    if code == 2 and before_run and digest(box.run) != before_run:
+        problems.append("refused, yet the run folder changed")
+    if spec.check is not None and code == 0:
+        found = spec.check()
+        if found:
+            problems.append(found)
+    return Outcome(kind, name, code, seconds, rss, problems)
+
+
+def row(o: Outcome) -> str:
+    return f"{o.kind:<11} {o.name[:66]:<66} {o.code!s:>4} {o.seconds:6.1f} {o.rss >> 20:5d}  {o.verdict}"

@@ -1,0 +1,171 @@
+"""Attacks on scene files (JSON scenes, the reference scene folders) and meshes (``.obj``,
+``.ply``, ``.glb``), read by ``scene inspect``, ``run`` and ``view --export``.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import shutil
+import struct
+from pathlib import Path
+
+from benchmark.hostile.harness import (
+    BIDI,
+    Attack,
+    Box,
+    Spec,
+    box_object,
+    deep_json,
+    export,
+    inspect,
+    registrar,
+    scene_json,
+)
+
+ATTACKS: list[Attack] = []
+attack = registrar(ATTACKS)
+
+
+@attack("scene", "scene.json in the run folder: 30,000 boxes (export)")
+def _run_scene_big(box: Box) -> Spec:
+    run = box.copy_run()
+    (run / "scene.json").write_text(scene_json([box_object(i % 170, y=i // 170 * 0.1) for i in range(30_000)]),
+                                    encoding="utf-8")
+    return export(box, "either")
+
+
+@attack("scene", "JSON scene of 20,000 boxes")
+def _scene_many(box: Box) -> Spec:
+    objects = [box_object(i % 140, size=0.6, y=(i // 140) * 0.5) for i in range(20_000)]
+    return inspect(box.file("many.json", scene_json(objects)))
+
+
+@attack("scene", "400 dense boxes")
+def _scene_dense(box: Box) -> Spec:
+    objects = [box_object(i, size=0.9, x=(i % 20) * 0.5, y=(i // 20) * 0.5) for i in range(400)]
+    return inspect(box.file("dense.json", scene_json(objects)), "either")
+
+
+@attack("scene", "names and labels with markup, ANSI, bidi, line separators")
+def _scene_text(box: Box) -> Spec:
+    objects = [box_object(0, label="[/]" + BIDI + "chair"), box_object(2, label="table[bold red]x")]
+    return inspect(box.file("text.json", scene_json(objects, name="[/]hostile" + BIDI)), "either")
+
+
+@attack("scene", "cell size asking for 1e10 cells")
+def _scene_cells(box: Box) -> Spec:
+    objects = [box_object(0), box_object(1), {**box_object(2), "center": [90000.0, 90000.0, 0.25]}]
+    return inspect(box.file("cells.json", scene_json(objects, cell_size=0.001)))
+
+
+@attack("scene", "NaN and 1e999 in a box")
+def _scene_nan(box: Box) -> Spec:
+    text = scene_json([box_object(0), box_object(2)]).replace("[0.0, 0.0, 0.25]", "[NaN, 1e999, 0.25]", 1)
+    return inspect(box.file("nan.json", text))
+
+
+@attack("scene", "gzip-compressed .json scene")
+def _scene_gzip(box: Box) -> Spec:
+    return inspect(box.file("gz.json", gzip.compress(scene_json([box_object(0)]).encode())))
+
+
+@attack("scene", "UTF-16 scene with BOM")
+def _scene_utf16(box: Box) -> Spec:
+    return inspect(box.file("u16.json", scene_json([box_object(0)]).encode("utf-16")), "either")
+
+
+@attack("scene", "nested 100,000 deep")
+def _scene_deep(box: Box) -> Spec:
+    return inspect(box.file("deep.json", '{"name": "x", "objects": ' + deep_json(100_000) + "}"))
+
+
+@attack("scene", "FIFO scene (run SCENE_FILE)")
+def _scene_fifo(box: Box) -> Spec:
+    fifo = box.fifo(box.root / "fifo.json")
+    out = box.root / "o"
+    return Spec(["run", str(fifo), "--out", str(out), "--no-interactive", "--no-live"], "run", "bad", writable=(out,))
+
+
+@attack("scene", "/dev/zero named scene.json (scene inspect)")
+def _scene_zero(box: Box) -> Spec:
+    return inspect(box.link(box.root / "zero.json", "/dev/zero"))
+
+
+@attack("scene", "box sizes -1 and 1e300, heading 1e300")
+def _scene_sizes(box: Box) -> Spec:
+    objects = [box_object(0), {**box_object(1), "size": [-1.0, 0.5, 0.5]},
+               {**box_object(2), "size": [1e300, 1e300, 1.0], "heading": 1e300}]
+    return inspect(box.file("sizes.json", scene_json(objects)))
+
+
+REFERENCE_HOUSE = Path(os.environ.get("STORYTELLER_REFERENCE", "/nonexistent")) / "configs" / "scenes" / "House"
+
+
+def _reference_copy(box: Box) -> Path:
+    folder = box.root / "House"
+    if REFERENCE_HOUSE.is_dir():
+        shutil.copytree(REFERENCE_HOUSE, folder)
+    else:  # without the reference data: a folder of the same files, empty
+        folder.mkdir()
+        for name in ("objects.json", "scene.json", "scene_cfg.json", "grid_map.json"):
+            (folder / name).write_text("{}", encoding="utf-8")
+    return folder
+
+
+@attack("scene", "reference folder: objects.json a FIFO, grid_map.json -> /dev/zero")
+def _reference_special(box: Box) -> Spec:
+    folder = _reference_copy(box)
+    box.fifo(folder / "objects.json")
+    box.link(folder / "grid_map.json", "/dev/zero")
+    return inspect(folder)
+
+
+@attack("scene", "reference folder: scene.json deep, scene_cfg.json with bidi and 5,000 digits")
+def _reference_text(box: Box) -> Spec:
+    folder = _reference_copy(box)
+    (folder / "scene.json").write_text(deep_json(100_000), encoding="utf-8")
+    (folder / "scene_cfg.json").write_text('{"name": "' + BIDI + '", "cell": ' + "9" * 5000 + "}", encoding="utf-8")
+    return inspect(folder)
+
+
+@attack("mesh", ".obj with a 60,000-digit object name and 300,000 vertices")
+def _mesh_obj(box: Box) -> Spec:
+    lines = ["o " + "7" * 60_000 + BIDI]
+    lines += [f"v {i % 97 * 0.01} {i % 89 * 0.01} {i % 83 * 0.01}" for i in range(300_000)]
+    lines += [f"f {i + 1} {i + 2} {i + 3}" for i in range(0, 299_997, 3)]
+    return inspect(box.file("big.obj", "\n".join(lines) + "\n"), "either")
+
+
+@attack("mesh", ".ply claiming 10**15 vertices")
+def _mesh_ply(box: Box) -> Spec:
+    text = "ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000000\nproperty float x\n" \
+           "property float y\nproperty float z\nend_header\n"
+    return inspect(box.file("huge.ply", text.encode() + b"\0" * 1200))
+
+
+@attack("mesh", ".glb JSON chunk claiming 4 GB, node names with control characters")
+def _mesh_glb(box: Box) -> Spec:
+    doc = json.dumps({"asset": {"version": "2.0"}, "nodes": [{"name": "\x1b[2J" + BIDI}], "scenes": [{"nodes": [0]}]})
+    body = doc.encode() + b" " * (-len(doc.encode()) % 4)
+    glb = b"glTF" + struct.pack("<II", 2, 12 + 8 + len(body)) + struct.pack("<I", 0xFFFFFFF0) + b"JSON" + body
+    return inspect(box.file("huge.glb", glb))
+
+
+@attack("mesh", ".glb with a 5,000-digit accessor index")
+def _mesh_glb_index(box: Box) -> Spec:
+    doc = '{"asset": {"version": "2.0"}, "meshes": [{"primitives": [{"attributes": {"POSITION": ' + "9" * 5000 + \
+          '}}]}], "nodes": [{"mesh": 0, "name": "chair_1"}], "scenes": [{"nodes": [0]}]}'
+    body = doc.encode() + b" " * (-len(doc.encode()) % 4)
+    glb = b"glTF" + struct.pack("<II", 2, 12 + 8 + len(body)) + struct.pack("<I", len(body)) + b"JSON" + body
+    return inspect(box.file("index.glb", glb))
+
+
+@attack("mesh", ".obj with 200,000 named objects and 5,000-digit face indices")
+def _mesh_objects(box: Box) -> Spec:
+    lines = ["v 0 0 0", "v 1 0 0", "v 0 1 0", "v 0 0 1"]
+    for i in range(200_000):
+        lines += [f"o chair_{i}", "f 1 2 3"]
+    lines += ["o table_1", "f " + "9" * 5000 + " 2 3"]
+    return inspect(box.file("objects.obj", "\n".join(lines) + "\n"), "either")
