@@ -22,11 +22,11 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
 from sim.run_folder_names import run_folder_entries
 from sim.world.character_track import CharacterTrack
-from tests.support.fake_openai_server import FakeOpenAI
 from tests.support.finished_run import one_error_line
 from tests.support.story_planner import RUN, Planner, write_config
 

@@ -32,8 +32,8 @@ import zstandard
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
+from benchmark.support.headless_chromium import Chromium, chromium_binary
 from orchestrator.viewer.access import ViewerAccess, is_loopback
-from tests.support.headless_chromium import Chromium, chromium_binary
 from tests.support.tiny_run import write_tiny_run
 
 SECRET = "secretinstruction"  # the run's instruction: in the panel markdown sent to a client

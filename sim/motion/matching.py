@@ -420,7 +420,7 @@ class MotionMatcher:
         grouped per database; the clip bookkeeping, inertialization, the output poses and the
         query features run in compiled kernels over all characters (``sim.motion.kernels``).
         Same result as ``step`` on each character, and as the numpy version
-        (``tests.support.motion_reference``)."""
+        (``benchmark.support.motion_reference``)."""
         out_states, batch = self.step_batch(states, queries, dt)
         return out_states, batch.poses()
 
