@@ -46,7 +46,8 @@ from sim.paths.cooperative_astar import (
     segment_distance,
 )
 from sim.paths.fallback import PriorityKeeper
-from sim.paths.nav_grid import NavGrid, body_clearance
+from sim.paths.footprint_distance import body_clearance
+from sim.paths.nav_grid import NavGrid
 from sim.paths.tracks import gather_rows, path_tracks
 
 Agent = Hashable

@@ -19,7 +19,8 @@ import math
 import numpy as np
 
 from sim.paths.clearance import segment_min_norm
-from sim.paths.nav_grid import MOVES, NavGrid
+from sim.paths.grid_moves import MOVES
+from sim.paths.nav_grid import NavGrid
 from sim.paths.plan_types import Cell
 
 WAIT_BIT = 1 << 6  # the move bit of waiting (move code 0)

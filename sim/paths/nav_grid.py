@@ -37,16 +37,19 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
-from numba import njit
-from numpy.typing import NDArray
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
+from sim.paths.footprint_distance import (
+    Obstacles,
+    inside_bounds,
+    point_rect_distance,
+    segment_point_distance,
+)
+from sim.paths.footprint_distance import (
+    body_clearance as body_clearance,  # also this module's: callers import it here
+)
+from sim.paths.grid_moves import MOVES as MOVES  # also this module's: callers import it here
+from sim.paths.grid_moves import allowed_moves, components
 from sim.scene.model import MAX_NAV_CELLS, Scene, SceneObject, nav_cell_bound
-
-# The 8 moves, in a fixed order (index k is used in move masks): 4 straight, then 4 diagonal.
-MOVES: tuple[tuple[int, int], ...] = ((1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1))
-MOVE_LENGTHS: tuple[float, ...] = tuple(math.hypot(dx, dy) for dx, dy in MOVES)
 
 DEFAULT_BODY_RADIUS = 0.25
 DEFAULT_CLEARANCE_HEIGHT = 1.9
@@ -139,7 +142,7 @@ class NavGrid:
     def is_free_xy(self, xy: np.ndarray | tuple[float, float]) -> bool:
         """Whether a body centred exactly at ``xy`` touches no blocking object and stays in bounds."""
         p = np.asarray(xy, dtype=float)
-        if not _inside_bounds(p[None], self.bounds_min, self.bounds_max, self.body_radius)[0]:
+        if not inside_bounds(p[None], self.bounds_min, self.bounds_max, self.body_radius)[0]:
             return False
         return bool(body_clearance(self.obstacles, p[None], p[None], cutoff=self.body_radius)[0] >= self.body_radius - 1e-9)
 
@@ -196,7 +199,7 @@ class NavGrid:
                     break
             d2 = np.sum((centers - ideal) ** 2, axis=1)
         else:
-            d2 = _point_rect_distance(local, obj.width / 2.0, obj.depth / 2.0) ** 2
+            d2 = point_rect_distance(local, obj.width / 2.0, obj.depth / 2.0) ** 2
         if keep.any():
             cells, d2 = cells[keep], d2[keep]
         k = int(np.argmin(d2))
@@ -246,6 +249,36 @@ class NavGrid:
         r = self.body_radius
         if self.main_component < 0:
             raise NavGridError("the navigation grid has no free cell")
+        taken = np.asarray(avoid, dtype=float).reshape(-1, 2)
+        pts, local, edge = self._room_points(obj, resolution, search_radius, taken)
+        target = np.asarray(seat_xy, dtype=float) if seat_xy is not None else (
+            obj.seat_point() if obj.is_seat else obj.center_xy)
+        score, tier = self._approach_ranks(obj, pts, local, edge, target, standoff, seat_xy is not None)
+        for k in np.lexsort((score, tier)):
+            p = pts[k]
+            cell = self._entry_cell(p, component)
+            if cell is None:
+                continue
+            if len(taken) and segment_point_distance(self.center_of(*cell), p, taken) < 2.0 * r:
+                continue
+            gap = float(np.linalg.norm(p - target)) if obj.is_seat else float(edge[k])
+            return ApproachPoint(
+                obj=obj.name,
+                xy=(float(p[0]), float(p[1])),
+                cell=cell,
+                gap=gap,
+                offset=float(score[k]) if obj.has_facing or obj.is_seat else 0.0,
+            )
+        raise NavGridError(f"no reachable point near {obj.name} has room for a body of radius {r} m")
+
+    def _room_points(
+        self, obj: SceneObject, resolution: float, search_radius: float, taken: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``approach_point``'s candidates: the points (N, 2) of the ``resolution`` lattice around
+        ``obj`` within ``search_radius`` of its footprint where a body fits (inside the bounds, clear
+        of every blocking object, two body radii from every ``taken`` point), their coordinates in
+        the object's frame (N, 2) and their distances to the footprint (N,)."""
+        r = self.body_radius
         hw, hd = obj.width / 2.0, obj.depth / 2.0
         reach = math.hypot(hw, hd) + search_radius
         c = obj.center_xy
@@ -254,29 +287,37 @@ class NavGrid:
         gx, gy = np.meshgrid(ax, ax, indexing="ij")
         pts = c + np.stack([gx.ravel(), gy.ravel()], axis=1)
         local = obj.to_local(pts)
-        edge = _point_rect_distance(local, hw, hd)
-        keep = (edge <= search_radius) & _inside_bounds(pts, self.bounds_min, self.bounds_max, r)
+        edge = point_rect_distance(local, hw, hd)
+        keep = (edge <= search_radius) & inside_bounds(pts, self.bounds_min, self.bounds_max, r)
         pts, local, edge = pts[keep], local[keep], edge[keep]
         keep = body_clearance(self.obstacles, pts, pts) >= r
-        taken = np.asarray(avoid, dtype=float).reshape(-1, 2)
         if len(taken):
             keep &= np.min(np.linalg.norm(pts[:, None, :] - taken[None, :, :], axis=2), axis=1) >= 2.0 * r
         pts, local, edge = pts[keep], local[keep], edge[keep]
         if len(pts) == 0:
             raise NavGridError(f"no point near {obj.name} has room for a body of radius {r} m")
-        target = np.asarray(seat_xy, dtype=float) if seat_xy is not None else (
-            obj.seat_point() if obj.is_seat else obj.center_xy)
+        return pts, local, edge
+
+    def _approach_ranks(self, obj: SceneObject, pts: np.ndarray, local: np.ndarray, edge: np.ndarray,
+                        target: np.ndarray, standoff: float, at_place: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(score, tier) of ``approach_point``'s candidates, best first by tier then score: the
+        tier counts against a point no clear line to ``target`` past the other objects (1), not
+        being in front (2) and, for a seat, a slide onto it over ``MAX_SIT_SLIDE_M`` (4); the score
+        is the distance to the ideal point (``at_place``: in front of ``target``, a place of a
+        wide seat) or, for an object without a facing, how far the point's gap to the footprint is
+        from ``body_radius + standoff``."""
+        r = self.body_radius
+        c = obj.center_xy
+        hd = obj.depth / 2.0
         others = [o for o in self.obstacles if o.name != obj.name]
         visible = body_clearance(others, pts, np.broadcast_to(target, pts.shape)) > 0.0
-        facing = obj.has_facing or obj.is_seat
-        if facing:
+        if obj.has_facing or obj.is_seat:
             ideal = c + np.asarray(obj.facing, dtype=float) * (hd + r + standoff)
-            if seat_xy is not None:  # in front of that place
+            if at_place:  # in front of that place
                 ideal = ideal + obj.right * float((target - c) @ obj.right)
             score = np.linalg.norm(pts - ideal, axis=1)
             in_front = local[:, 1] > hd
         else:
-            ideal = None
             score = np.abs(edge - (r + standoff))
             in_front = np.ones(len(pts), dtype=bool)
         tier = np.where(visible & in_front, 0, np.where(visible, 1, np.where(in_front, 2, 3)))
@@ -284,22 +325,7 @@ class NavGrid:
             # through the furniture around it, so a near point comes before a far one in front
             far = np.linalg.norm(pts - target, axis=1) > MAX_SIT_SLIDE_M
             tier = tier + np.where(far, 4, 0)
-        for k in np.lexsort((score, tier)):
-            p = pts[k]
-            cell = self._entry_cell(p, component)
-            if cell is None:
-                continue
-            if len(taken) and _segment_point_distance(self.center_of(*cell), p, taken) < 2.0 * r:
-                continue
-            gap = float(np.linalg.norm(p - target)) if obj.is_seat else float(edge[k])
-            return ApproachPoint(
-                obj=obj.name,
-                xy=(float(p[0]), float(p[1])),
-                cell=cell,
-                gap=gap,
-                offset=float(score[k]) if ideal is not None else 0.0,
-            )
-        raise NavGridError(f"no reachable point near {obj.name} has room for a body of radius {r} m")
+        return score, tier
 
     def entry_cell(self, xy: np.ndarray | tuple[float, float], component: int | None = None) -> tuple[int, int] | None:
         """The free cell (of ``component``, default any) with the shortest clear straight
@@ -339,178 +365,6 @@ class NavGrid:
     def move_allowed(self, cell: tuple[int, int], k: int) -> bool:
         i, j = cell
         return self.in_grid(i, j) and bool(self.moves[i, j, k])
-
-
-# ----- geometry ---------------------------------------------------------------------------------
-def _segment_point_distance(a: NDArray[np.float64], b: NDArray[np.float64], q: NDArray[np.float64]) -> float:
-    """Smallest distance (metres) from the points ``q`` (N, 2) to the segment a-b."""
-    ab = b - a
-    denom = float(ab @ ab)
-    t = np.zeros(len(q)) if denom <= 0.0 else np.clip((q - a) @ ab / denom, 0.0, 1.0)
-    return float(np.min(np.linalg.norm(q - (a + t[:, None] * ab), axis=1)))
-
-
-def _point_rect_distance(local: NDArray[np.float64], hw: float, hd: float) -> NDArray[np.float64]:
-    """Distance of local points (N, 2) to the axis-aligned rectangle [-hw, hw] x [-hd, hd]."""
-    dx = np.maximum(np.abs(local[:, 0]) - hw, 0.0)
-    dy = np.maximum(np.abs(local[:, 1]) - hd, 0.0)
-    return np.asarray(np.hypot(dx, dy), dtype=np.float64)
-
-
-def body_clearance(
-    obstacles: tuple[SceneObject, ...] | list[SceneObject], a: np.ndarray, b: np.ndarray, cutoff: float | None = None
-) -> np.ndarray:
-    """Smallest distance (N,) from segments a->b (N, 2) to any obstacle footprint (inf if none).
-
-    ``cutoff`` (metres): only distances below it are needed. Obstacles whose bounding circle
-    is at least ``cutoff`` from every segment are skipped, so a returned value below
-    ``cutoff`` is exact (the same floats as without it) and a value >= ``cutoff`` only says
-    "at least ``cutoff``" (comparisons against thresholds <= ``cutoff`` are unchanged).
-
-    The per-element arithmetic runs compiled (``_near_circles``, ``_min_segment_rect_distance``)
-    with the float operations of the numpy oracle in ``tests/support/clearance_reference.py`` (the
-    same floats; ``tests/test_body_clearance_kernels.py`` compares them); the rotation into each object's frame
-    stays ``SceneObject.to_local``.
-    """
-    a = np.ascontiguousarray(np.asarray(a, dtype=float).reshape(-1, 2))
-    b = np.ascontiguousarray(np.asarray(b, dtype=float).reshape(-1, 2))
-    out = np.full(len(a), np.inf)
-    objs = list(obstacles)
-    known = obstacles if isinstance(obstacles, Obstacles) else None  # geometry computed once
-    which: Sequence[int] = range(len(objs))
-    if cutoff is not None and objs and len(a):
-        centres, radii = known.circles if known is not None else bounding_circles(objs)
-        which = np.flatnonzero(_near_circles(a, b, centres, radii, float(cutoff) + 1e-6)).tolist()
-    same = a is b or np.array_equal(a, b)
-    for k in which:  # SceneObject.to_local's arithmetic, with the object's frame looked up once
-        obj = objs[k]
-        centre, right, facing = known.frames[k] if known is not None else object_frame(obj)
-        da = a - centre
-        ax, ay = da @ right, da @ facing
-        if same:
-            bx, by = ax, ay
-        else:
-            db = b - centre
-            bx, by = db @ right, db @ facing
-        _min_segment_rect_distance(ax, ay, bx, by, obj.width / 2.0, obj.depth / 2.0, out)
-    return out
-
-
-def object_frame(obj: SceneObject) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(``center_xy``, ``right``, facing) arrays of an object: its footprint's frame."""
-    return obj.center_xy, obj.right, np.array(obj.facing, dtype=float)
-
-
-def bounding_circles(obstacles: Sequence[SceneObject]) -> tuple[np.ndarray, np.ndarray]:
-    """Centres (M, 2) and radii (M,) of circles containing each footprint."""
-    centres = np.array([o.center[:2] for o in obstacles], dtype=float).reshape(-1, 2)
-    radii = np.array([math.hypot(o.width / 2.0, o.depth / 2.0) for o in obstacles], dtype=float) * (1 + 1e-9) + 1e-9
-    return centres, radii
-
-
-class Obstacles(tuple[SceneObject, ...]):
-    """The blocking objects of a grid: a tuple that keeps the geometry ``body_clearance`` reads
-    for each of them (bounding circles, footprint frames), computed once on first use (objects
-    are immutable, so it never goes stale)."""
-
-    @cached_property
-    def circles(self) -> tuple[np.ndarray, np.ndarray]:
-        """``bounding_circles`` of the objects."""
-        return bounding_circles(self)
-
-    @cached_property
-    def frames(self) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
-        """``object_frame`` of every object, in order."""
-        return tuple(object_frame(o) for o in self)
-
-
-@njit(cache=True, nogil=True)
-def _near_circles(a: np.ndarray, b: np.ndarray, centres: np.ndarray, radii: np.ndarray,
-                  limit: float) -> np.ndarray:  # pragma: no cover - compiled
-    """Which circles (M,) come closer than ``limit`` to some segment a->b (N, 2) (a NaN gap:
-    not near, like numpy's NaN-propagating min)."""
-    m = centres.shape[0]
-    near = np.zeros(m, dtype=np.bool_)
-    for j in range(m):
-        lowest = np.inf
-        nan = False
-        for i in range(a.shape[0]):
-            d0 = b[i, 0] - a[i, 0]
-            d1 = b[i, 1] - a[i, 1]
-            dd = _fmax(d0 * d0 + d1 * d1, 1e-18)
-            r0 = centres[j, 0] - a[i, 0]
-            r1 = centres[j, 1] - a[i, 1]
-            t = _fmin(_fmax((r0 * d0 + r1 * d1) / dd, 0.0), 1.0)
-            gap = math.hypot(r0 - t * d0, r1 - t * d1) - radii[j]
-            if gap != gap:
-                nan = True
-            elif gap < lowest:
-                lowest = gap
-        near[j] = not nan and lowest < limit
-    return near
-
-
-@njit(cache=True, nogil=True)
-def _min_segment_rect_distance(ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray, hw: float, hd: float,
-                               out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """``out = np.minimum(out, segment_rect_distance(a, b, hw, hd))`` (the numpy oracle in
-    ``tests/support/clearance_reference.py``) element by element, for
-    local segments a -> b given by their coordinates (ax, ay) -> (bx, by)."""
-    for i in range(ax.shape[0]):
-        a0, a1 = ax[i], ay[i]
-        b0, b1 = bx[i], by[i]
-        d0, d1 = b0 - a0, b1 - a1
-        t_lo, t_hi, inside = 0.0, 1.0, True
-        for axis in range(2):
-            da = d0 if axis == 0 else d1
-            pa = a0 if axis == 0 else a1
-            h = hw if axis == 0 else hd
-            if abs(da) < 1e-12:
-                inside = inside and abs(pa) <= h
-            else:
-                t1 = (-h - pa) / da
-                t2 = (h - pa) / da
-                t_lo = _fmax(t_lo, _fmin(t1, t2))
-                t_hi = _fmin(t_hi, _fmax(t1, t2))
-        if inside and t_lo <= t_hi:
-            dist = 0.0
-        else:
-            dist = _fmin(math.hypot(_fmax(abs(a0) - hw, 0.0), _fmax(abs(a1) - hd, 0.0)),
-                         math.hypot(_fmax(abs(b0) - hw, 0.0), _fmax(abs(b1) - hd, 0.0)))
-            dd = _fmax(d0 * d0 + d1 * d1, 1e-18)
-            for corner in range(4):
-                cx = -hw if corner == 0 or corner == 3 else hw
-                cy = -hd if corner < 2 else hd
-                t = _fmin(_fmax(((cx - a0) * d0 + (cy - a1) * d1) / dd, 0.0), 1.0)
-                e0 = (a0 + t * d0) - cx
-                e1 = (a1 + t * d1) - cy
-                dist = _fmin(dist, math.sqrt(e0 * e0 + e1 * e1))
-        out[i] = _fmin(out[i], dist)
-
-
-@njit(cache=True, inline="always")
-def _fmin(x: float, y: float) -> float:  # pragma: no cover - compiled
-    """``np.minimum`` of two floats (NaN propagates)."""
-    if x != x or y != y:
-        return math.nan
-    return x if x <= y else y
-
-
-@njit(cache=True, inline="always")
-def _fmax(x: float, y: float) -> float:  # pragma: no cover - compiled
-    """``np.maximum`` of two floats (NaN propagates)."""
-    if x != x or y != y:
-        return math.nan
-    return x if x >= y else y
-
-
-def _inside_bounds(p: np.ndarray, lo: tuple[float, float], hi: tuple[float, float], r: float) -> np.ndarray:
-    return (
-        (p[:, 0] >= lo[0] + r - 1e-9)
-        & (p[:, 0] <= hi[0] - r + 1e-9)
-        & (p[:, 1] >= lo[1] + r - 1e-9)
-        & (p[:, 1] <= hi[1] - r + 1e-9)
-    )
 
 
 def blocking_objects(scene: Scene, clearance_height: float = DEFAULT_CLEARANCE_HEIGHT) -> Obstacles:
@@ -586,7 +440,7 @@ def build_nav_grid(
     ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
     cells = np.stack([ii.ravel(), jj.ravel()], axis=1)
     centers = origin + (cells + 0.5) * cs
-    free = _inside_bounds(centers, lo, hi, body_radius) & (body_clearance(obstacles, centers, centers) >= body_radius)
+    free = inside_bounds(centers, lo, hi, body_radius) & (body_clearance(obstacles, centers, centers) >= body_radius)
     free = free.reshape(nx, ny)
 
     if aligned:
@@ -600,8 +454,8 @@ def build_nav_grid(
                 override[i, j] = True
         free &= ~override
 
-    moves = _allowed_moves(free, origin, cs, body_radius, obstacles)
-    component = _components(free, moves)
+    moves = allowed_moves(free, origin, cs, body_radius, obstacles)
+    component = components(free, moves)
     for arr in (free, moves, component):
         arr.flags.writeable = False
     return NavGrid(
@@ -617,51 +471,3 @@ def build_nav_grid(
         clearance_height=float(clearance_height),
         _reference_offset=(int(k_lo[0]), int(k_lo[1])) if aligned else None,
     )
-
-
-def _allowed_moves(
-    free: np.ndarray, origin: np.ndarray, cs: float, r: float, obstacles: tuple[SceneObject, ...]
-) -> np.ndarray:
-    nx, ny = free.shape
-    padded = np.zeros((nx + 2, ny + 2), dtype=bool)
-    padded[1:-1, 1:-1] = free
-    moves = np.zeros((nx, ny, len(MOVES)), dtype=bool)
-    for k, (dx, dy) in enumerate(MOVES):
-        ok = free & padded[1 + dx : nx + 1 + dx, 1 + dy : ny + 1 + dy]
-        if dx and dy:  # no corner cutting: both orthogonal neighbours must be free
-            ok &= padded[1 + dx : nx + 1 + dx, 1 : ny + 1] & padded[1 : nx + 1, 1 + dy : ny + 1 + dy]
-        src = np.argwhere(ok)
-        if len(src) and obstacles:
-            a = origin + (src + 0.5) * cs
-            b = a + np.array([dx, dy], dtype=float) * cs
-            clear = body_clearance(obstacles, a, b) >= r
-            ok[src[~clear, 0], src[~clear, 1]] = False
-        moves[:, :, k] = ok
-    return moves
-
-
-def _components(free: np.ndarray, moves: np.ndarray) -> np.ndarray:
-    nx, ny = free.shape
-    rows: list[np.ndarray] = []
-    cols: list[np.ndarray] = []
-    for k, (dx, dy) in enumerate(MOVES):
-        src = np.argwhere(moves[:, :, k])
-        rows.append(src[:, 0] * ny + src[:, 1])
-        cols.append((src[:, 0] + dx) * ny + src[:, 1] + dy)
-    r = np.concatenate(rows) if rows else np.zeros(0, dtype=int)
-    c = np.concatenate(cols) if cols else np.zeros(0, dtype=int)
-    graph = coo_matrix((np.ones(len(r)), (r, c)), shape=(nx * ny, nx * ny)).tocsr()
-    _, labels = connected_components(graph, directed=True, connection="strong")
-    comp = labels.reshape(nx, ny).astype(np.int64)
-    comp[~free] = -1
-    # Renumber so ids are dense and ordered by first cell (deterministic).
-    out = np.full_like(comp, -1)
-    mapping: dict[int, int] = {}
-    for idx in np.flatnonzero(free.ravel()):
-        lab = int(comp.ravel()[idx])
-        if lab not in mapping:
-            mapping[lab] = len(mapping)
-    flat = out.ravel()
-    for idx in np.flatnonzero(free.ravel()):
-        flat[idx] = mapping[int(comp.ravel()[idx])]
-    return flat.reshape(nx, ny)

@@ -1,6 +1,6 @@
-"""``body_clearance`` in plain numpy: the oracle of the compiled loops in ``sim.paths.nav_grid``.
+"""``body_clearance`` in plain numpy: the oracle of the compiled loops in ``sim.paths.footprint_distance``.
 
-``body_clearance_reference`` takes the same arguments as ``sim.paths.nav_grid.body_clearance``
+``body_clearance_reference`` takes the same arguments as ``sim.paths.footprint_distance.body_clearance``
 and must give the very same floats (``tests/test_body_clearance_kernels.py`` compares them);
 the rotation into each object's frame is ``SceneObject.to_local``. Not used by the simulation.
 """
@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sim.paths.nav_grid import bounding_circles
+from sim.paths.footprint_distance import bounding_circles
 from sim.scene.model import SceneObject
 
 
