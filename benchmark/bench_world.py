@@ -63,8 +63,8 @@ from benchmark.crowd_scenario import OFFICE, REFERENCE, tiled
 from benchmark.world_timing import Counters, crowd_world
 from orchestrator.cache_paths import motion_cache_dir
 from sim.motion.database import MotionDatabase, load_databases
-from sim.paths.astar_kernel import goal_distances
 from sim.paths.cooperative_astar import PathPlanner
+from sim.paths.heuristics import goal_distances
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
@@ -198,10 +198,10 @@ def scaling(office: Scene, dbs: dict[str, MotionDatabase], sizes: Sequence[int],
 
 
 def field_costs(office: Scene, seed: int, repeats: int, goals: int = 40) -> None:
-    """CPU per goal-distance field (``astar_kernel.goal_distances``, the planner's static distance
+    """CPU per goal-distance field (``heuristics.goal_distances``, the planner's static distance
     to one goal) on "Office", "Office x4" and "Office x16"."""
     print()
-    print(f"One goal-distance field (astar_kernel.goal_distances), {goals} random goals per layout, CPU, best of "
+    print(f"One goal-distance field (heuristics.goal_distances), {goals} random goals per layout, CPU, best of "
           f"{max(1, repeats)}:")
     print(f"{'layout':<11} {'grid':>9} {'walkable':>8} {'padded':>7} | {'us/field':>8} {'ns/cell':>7}")
     rng = np.random.default_rng(seed)

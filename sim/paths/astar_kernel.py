@@ -201,6 +201,21 @@ def _heap_pop_into(hf: NDArray[np.float64], hh: NDArray[np.float64], hk: NDArray
     hf[i], hh[i], hk[i] = f, h, k
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _window_path(parent: NDArray[np.int64], key: int, cid: int, window: int,
+                 stride: int) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """The padded ids of the window + 1 cells of the path that ends at node ``key`` (cell ``cid``
+    at step ``window``), read back through ``parent``."""
+    path = np.empty(window + 1, dtype=np.int64)
+    path[window] = cid
+    k = key
+    for tt in range(window, 0, -1):
+        prev = parent[k]
+        path[tt - 1] = prev
+        k = (tt - 1) * stride + prev
+    return path
+
+
 @njit(cache=True, nogil=True)
 def space_time_search(
     start: int, goal: int, window: int, h: NDArray[np.float64], nb_id: NDArray[np.int64],
@@ -248,14 +263,7 @@ def space_time_search(
         if g > best + 1e-9:
             continue
         if t == window:
-            path = np.empty(window + 1, dtype=np.int64)
-            path[window] = cid
-            k = key
-            for tt in range(window, 0, -1):
-                prev = parent[k]
-                path[tt - 1] = prev
-                k = (tt - 1) * stride + prev
-            return path, expansions
+            return _window_path(parent, key, cid, window, stride), expansions
         expansions += 1
         if expansions > max_expansions:
             return np.empty(0, dtype=np.int64), expansions
@@ -283,51 +291,6 @@ def space_time_search(
                 parent[nkey] = cid
                 size = _heap_push(heap_f, heap_h, heap_k, size, ng + hn, hn, nkey)
     return np.empty(0, dtype=np.int64), expansions
-
-
-@njit(cache=True, nogil=True)
-def goal_distances(goal: int, nb_id: NDArray[np.int64], nb_cost: NDArray[np.float64],
-                   ring: NDArray[np.int64]) -> NDArray[np.float64]:  # pragma: no cover - compiled
-    """Shortest distances (cells) from padded cell ``goal`` along the moves of ``nb_id`` /
-    ``nb_cost`` (the first column, the wait, is skipped), one per padded cell; inf where no
-    path reaches. Every move costs 1 or sqrt(2).
-
-    Dijkstra with a bucket queue of width 1: a cell enters bucket ``floor(d)`` (again when its
-    distance improves; stale entries are skipped). A move adds 1 or sqrt(2), so a cell of
-    bucket b lands in bucket b + 1 or b + 2: no cell of a bucket improves another of the same
-    bucket, so all of them are final when it is reached and are scanned in any order (a
-    label-setting Dijkstra: the same floats as any other, see the module docstring). Three
-    buckets are live at a time: ``ring`` (3, >= 8 * cells + 1) holds them, scratch."""
-    n = nb_id.shape[0]
-    cols = nb_id.shape[1]
-    dist = np.full(n, _INF)
-    done = np.zeros(n, dtype=np.bool_)
-    size = np.zeros(3, dtype=np.int64)
-    dist[goal] = 0.0
-    ring[0, 0] = goal
-    size[0] = 1
-    b = 0
-    while size[0] + size[1] + size[2] > 0:
-        slot = b % 3
-        for e in range(size[slot]):  # entries come from buckets b - 1, b - 2 only: fixed now
-            u = ring[slot, e]
-            if done[u]:
-                continue
-            done[u] = True
-            d = dist[u]
-            for m in range(1, cols):
-                v = nb_id[u, m]
-                if v < 0:
-                    break
-                nd = d + nb_cost[u, m]
-                if nd < dist[v]:
-                    dist[v] = nd
-                    k = int(nd) % 3
-                    ring[k, size[k]] = v
-                    size[k] += 1
-        size[slot] = 0
-        b += 1
-    return dist
 
 
 @njit(cache=True, nogil=True)

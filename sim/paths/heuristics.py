@@ -1,5 +1,5 @@
 """The planner's heuristics: exact distances (cells) to a goal on the move tables, per padded
-cell id (inf: unreachable), computed by the compiled Dijkstra ``astar_kernel.goal_distances``.
+cell id (inf: unreachable), computed by the compiled Dijkstra :func:`goal_distances`.
 
 Two kinds: the static distance to a goal (the moves of the grid), cached one row per goal in a
 table the compiled passes read by row; and the *detour* distance (the moves some stationary
@@ -16,12 +16,14 @@ from __future__ import annotations
 import hashlib
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
-from sim.paths.astar_kernel import goal_distances
 from sim.paths.move_tables import MoveTables
 
 DetourGraph = tuple[bytes, NDArray[np.float64]]
+
+_INF = np.inf
 
 
 class GoalDistances:
@@ -135,3 +137,48 @@ class GoalDistances:
             hit.flags.writeable = False  # shared by the memo, the pass stacks and callers
             self._detour_memo[key] = hit
         return hit
+
+
+@njit(cache=True, nogil=True)
+def goal_distances(goal: int, nb_id: NDArray[np.int64], nb_cost: NDArray[np.float64],
+                   ring: NDArray[np.int64]) -> NDArray[np.float64]:  # pragma: no cover - compiled
+    """Shortest distances (cells) from padded cell ``goal`` along the moves of ``nb_id`` /
+    ``nb_cost`` (the first column, the wait, is skipped), one per padded cell; inf where no
+    path reaches. Every move costs 1 or sqrt(2).
+
+    Dijkstra with a bucket queue of width 1: a cell enters bucket ``floor(d)`` (again when its
+    distance improves; stale entries are skipped). A move adds 1 or sqrt(2), so a cell of
+    bucket b lands in bucket b + 1 or b + 2: no cell of a bucket improves another of the same
+    bucket, so all of them are final when it is reached and are scanned in any order (a
+    label-setting Dijkstra: the same floats as any other). Three
+    buckets are live at a time: ``ring`` (3, >= 8 * cells + 1) holds them, scratch."""
+    n = nb_id.shape[0]
+    cols = nb_id.shape[1]
+    dist = np.full(n, _INF)
+    done = np.zeros(n, dtype=np.bool_)
+    size = np.zeros(3, dtype=np.int64)
+    dist[goal] = 0.0
+    ring[0, 0] = goal
+    size[0] = 1
+    b = 0
+    while size[0] + size[1] + size[2] > 0:
+        slot = b % 3
+        for e in range(size[slot]):  # entries come from buckets b - 1, b - 2 only: fixed now
+            u = ring[slot, e]
+            if done[u]:
+                continue
+            done[u] = True
+            d = dist[u]
+            for m in range(1, cols):
+                v = nb_id[u, m]
+                if v < 0:
+                    break
+                nd = d + nb_cost[u, m]
+                if nd < dist[v]:
+                    dist[v] = nd
+                    k = int(nd) % 3
+                    ring[k, size[k]] = v
+                    size[k] += 1
+        size[slot] = 0
+        b += 1
+    return dist

@@ -1,5 +1,5 @@
 """The planner's heuristic as it was first computed: ``scipy.sparse.csgraph.dijkstra`` on a
-sparse graph of the grid's moves. The oracle of the compiled ``sim.paths.astar_kernel.goal_distances``
+sparse graph of the grid's moves. The oracle of the compiled ``sim.paths.heuristics.goal_distances``
 (``tests/test_astar_kernel.py`` checks the very same floats). Not used by the simulation.
 """
 
