@@ -12,9 +12,9 @@ import math
 import numpy as np
 
 from sim.paths.cooperative_astar import PathPlanner
-from sim.paths.following import CrowdNavigator, _moved, close_xy
+from sim.paths.following import CrowdNavigator, close_xy
 from sim.paths.nav_grid import build_nav_grid
-from sim.paths.tracks import path_tracks, walker_headings
+from sim.paths.tracks import is_movement, path_tracks, walker_headings
 from sim.scene.model import Scene, SceneObject
 from sim.world.phases import wrap_angle
 from tests.support.path_reference import track_reference
@@ -92,7 +92,7 @@ def test_float_helpers_match_numpy() -> None:
         assert close_xy(a, b) == bool(np.allclose(a, b, atol=1e-9))
         assert close_xy(a, b, atol=1e-8) == bool(np.allclose(a, b))
         d = b - a
-        assert _moved(float(d[0]), float(d[1])) == (float(d @ d) > 1e-12)
+        assert is_movement(float(d[0]), float(d[1])) == (float(d @ d) > 1e-12)
     assert not close_xy(np.array([np.nan, 0.0]), np.array([np.nan, 0.0]))
     assert close_xy(np.array([np.inf, 0.0]), np.array([np.inf, 0.0]))
 

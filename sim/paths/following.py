@@ -7,16 +7,9 @@ root position (xy, metres); ``headings`` holds the direction of travel (radians,
 ``PriorityKeeper``. Stationary characters (idle, sitting, interacting) are registered with
 ``set_stationary`` and are obstacles, never moved.
 
-Exact off-grid points. A goal may carry ``final_xy`` (``set_goal(agent, cell, final_xy=...)``):
-after reaching ``cell`` the walker takes a straight *leg* from the cell centre to that exact
-point, and a walker parked off the grid (arrived at such a point, or added with ``start_xy``)
-first takes a leg back to its cell before walking on. A leg starts only at a step boundary and
-only when every other body (walker cells, parked points, other legs, stationary discs) is at
-least ``2 * body_radius`` from the whole segment; during the leg (and while parked) the body is
-a static segment / disc for the planner, which then keeps every move from getting closer than
-``min(2r, distance at the move's start)``. The segment itself is checked against furniture
-when the goal is set (``PlanningError`` if a body cannot stand at, or walk straight to, the
-point; ``target_problem`` gives the reason without raising).
+Exact off-grid points (``sim.paths.off_grid``). A goal may carry ``final_xy`` (``set_goal(agent,
+cell, final_xy=...)``): the walker ends with a straight *leg* from the cell centre to that point,
+started only when every other body is ``2 * body_radius`` from the whole segment.
 
 Detours. A walker that made no progress towards its goal for ``detour_after`` steps (default
 ``2 * stall_steps``, 3.6 s) is planned around the stationary bodies from then on (``PathPlanner.plan(detour=...)``)
@@ -33,7 +26,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Hashable, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,26 +38,11 @@ from sim.paths.cooperative_astar import (
     segment_distance,
 )
 from sim.paths.fallback import PriorityKeeper
-from sim.paths.footprint_distance import body_clearance
 from sim.paths.nav_grid import NavGrid
-from sim.paths.tracks import gather_rows, path_tracks
+from sim.paths.off_grid import Leg, target_problem
+from sim.paths.tracks import PlanTracks, gather_rows, is_movement
 
 Agent = Hashable
-
-
-@dataclass(frozen=True)
-class _Leg:
-    """A straight off-grid walk from ``a`` to ``b`` (metres) starting at ``frame``."""
-
-    a: NDArray[np.float64]
-    b: NDArray[np.float64]
-    frame: int
-    frames: int  # frames to cover the segment at walking speed (>= 1)
-    inbound: bool  # True: cell centre -> exact target; False: parked point -> cell centre
-
-    def at(self, frame: int) -> NDArray[np.float64]:
-        s = min(1.0, max(0.0, (frame - self.frame) / self.frames))
-        return (1.0 - s) * self.a + s * self.b
 
 
 class CrowdNavigator:
@@ -108,12 +85,8 @@ class CrowdNavigator:
         self._cells: dict[Agent, Cell] = {}
         self._goals: dict[Agent, Cell | None] = {}
         self._paths: dict[Agent, list[Cell]] = {}
-        # Per-frame positions on every walker's path (see _stacked): one (A, D, 2) array, a row
-        # per agent of _paths (padded with its last position), rebuilt after each replan.
-        self._stack: NDArray[np.float64] | None = None
-        self._stack_row: dict[Agent, int] = {}
-        self._stack_len: list[int] = []
-        self._rows_cache: dict[tuple[Agent, ...], tuple[NDArray[np.float64], NDArray[np.float64]]] = {}  # see _rows_of
+        # per-frame positions on every walker's path of _paths, rebuilt after each replan
+        self._tracks = PlanTracks(grid.origin, grid.cell_size, self.step_frames, self.fps, self.planner.step_time)
         # (frame, offsets, agents, samples) of the last tick's look ahead (see tick, futures)
         self._ahead: tuple[int, tuple[int, ...], tuple[Agent, ...], NDArray[np.float64]] | None = None
         self._reorder: tuple[tuple[Agent, ...], tuple[Agent, ...], NDArray[np.int64] | None] | None = None  # see futures
@@ -121,7 +94,7 @@ class CrowdNavigator:
         self._static: dict[Agent, NDArray[np.float64]] = {}
         self._final: dict[Agent, NDArray[np.float64]] = {}  # exact target of the current goal
         self._parked: dict[Agent, NDArray[np.float64]] = {}  # walkers standing off the grid, at this point
-        self._legs: dict[Agent, _Leg] = {}
+        self._legs: dict[Agent, Leg] = {}
         self.arrivals: list[tuple[int, Agent]] = []
         self.headings: dict[Agent, float] = {}
         self._last_xy: dict[Agent, NDArray[np.float64]] = {}
@@ -169,7 +142,7 @@ class CrowdNavigator:
         self._cells[agent] = cell
         self._goals[agent] = None
         self._paths[agent] = [cell]
-        self._stack = None
+        self._tracks.clear()
         self._ahead = None
         if start is not None and float(np.linalg.norm(start - self.grid.center_of(*cell))) > 1e-9:
             self._parked[agent] = start
@@ -199,28 +172,9 @@ class CrowdNavigator:
         self._needs_plan = True
 
     def target_problem(self, goal: Cell, xy: NDArray[np.float64] | tuple[float, float]) -> str | None:
-        """Why a body cannot end at ``xy`` coming straight from ``goal``'s centre (None: it can).
-
-        Checks that ``xy`` is finite, that a body there touches no blocking object and stays in
-        bounds, that ``goal`` is free, and that the straight segment between them keeps the body
-        off every blocking footprint. Other characters are handled at run time (the leg waits).
-        """
-        p = np.asarray(xy, dtype=np.float64)
-        if p.shape != (2,) or not np.all(np.isfinite(p)):
-            return f"target {xy!r} is not a finite (x, y) point"
-        g = self.grid
-        if not g.is_free(int(goal[0]), int(goal[1])):
-            return f"goal cell {tuple(goal)} is blocked or outside the grid"
-        if not g.is_free_xy(p):
-            near = _nearest_obstacle(g, p)
-            return (f"a body of radius {g.body_radius} m at ({p[0]:.2f}, {p[1]:.2f}) would leave the floor"
-                    if near is None else
-                    f"a body of radius {g.body_radius} m at ({p[0]:.2f}, {p[1]:.2f}) would overlap {near}")
-        c = g.center_of(int(goal[0]), int(goal[1]))
-        if float(body_clearance(g.obstacles, c[None], p[None], cutoff=g.body_radius)[0]) < g.body_radius - 1e-9:
-            near = _nearest_obstacle(g, p, c)
-            return f"the straight walk from cell {tuple(goal)} to ({p[0]:.2f}, {p[1]:.2f}) would touch {near}"
-        return None
+        """Why a body cannot end at ``xy`` coming straight from ``goal``'s centre (None: it can;
+        ``sim.paths.off_grid.target_problem``)."""
+        return target_problem(self.grid, goal, xy)
 
     def _check_target(self, agent: Agent, goal: Cell, xy: NDArray[np.float64] | tuple[float, float]) -> NDArray[np.float64]:
         why = self.target_problem(goal, xy)
@@ -241,7 +195,7 @@ class CrowdNavigator:
         self._cells.pop(agent, None)
         self._goals.pop(agent, None)
         self._paths.pop(agent, None)
-        self._stack_row.pop(agent, None)  # the other rows stay valid
+        self._tracks.forget(agent)  # the other rows stay valid
         self._ahead = None
         self._final.pop(agent, None)
         self._parked.pop(agent, None)
@@ -292,54 +246,10 @@ class CrowdNavigator:
         parked = self._parked.get(agent)
         if parked is not None:
             return parked.copy()
-        track = self._track(agent)
+        track = self._tracks.track(self._paths, agent)
         d = min(max(frame - self._plan_frame, 0), len(track) - 1)
         here: NDArray[np.float64] = track[d]
         return here.copy()
-
-    def _track(self, agent: Agent) -> NDArray[np.float64]:
-        """Positions (D, 2) on the agent's current path for the frames ``_plan_frame + d``
-        (d = 0 .. D - 1; later frames: the last row), computed once per plan with the very
-        arithmetic of ``position_at`` (a view of the agent's row of ``_stacked``)."""
-        stack = self._stacked()
-        i = self._stack_row.get(agent)
-        if i is None:  # a walker added since the stack was built
-            self._stack = None
-            stack = self._stacked()
-            i = self._stack_row[agent]
-        return stack[i, : self._stack_len[i]]
-
-    def _stacked(self) -> NDArray[np.float64]:
-        """Every agent's track (see ``_track``) in one array (A, D, 2), rows padded with the
-        agent's last position (later frames stay there). Built once per plan, for all agents
-        at once (``sim.paths.tracks``: the same floats as one agent at a time)."""
-        stack = self._stack
-        if stack is None:
-            agents = list(self._paths)
-            stack, self._stack_len = path_tracks([self._paths[a] for a in agents], self.grid.origin,
-                                                 self.grid.cell_size, self.step_frames, self.fps,
-                                                 self.planner.step_time)
-            self._stack = stack
-            self._stack_row = {a: i for i, a in enumerate(agents)}
-        return stack
-
-    def _rows_of(self, agents: Sequence[Agent]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(``_stacked()``, each agent's row in it)."""
-        key = tuple(agents)
-        hit = self._rows_cache.get(key)
-        if hit is not None and hit[0] is self._stack:
-            return hit
-        stack = self._stacked()
-        row = self._stack_row
-        if any(a not in row for a in key):  # a walker added since the stack was built
-            self._stack = None
-            stack = self._stacked()
-            row = self._stack_row
-        hit = (stack, np.array([row[a] for a in key], dtype=np.int64))
-        if len(self._rows_cache) > 8:
-            self._rows_cache.clear()
-        self._rows_cache[key] = hit
-        return hit
 
     def position(self, agent: Agent) -> NDArray[np.float64]:
         """Where the walker is at the last produced frame (before the first tick: now), metres."""
@@ -355,7 +265,7 @@ class CrowdNavigator:
         Follows the current plan (and leg); beyond it the walker stays where the plan ends."""
         base = self.frame - 1
         if agent not in self._legs and agent not in self._parked:
-            track = self._track(agent)
+            track = self._tracks.track(self._paths, agent)
             off, last = base - self._plan_frame, len(track) - 1
             return track[[min(max(int(k) + off, 0), last) for k in frames]]
         return np.stack([self._xy_at(agent, base + int(k)) for k in frames])
@@ -395,15 +305,15 @@ class CrowdNavigator:
         headings = self.headings
         if agents == self._last_agents:  # the usual case: the same walkers as last frame
             for a, (d0, d1) in zip(agents, (xy - self._last_arr).tolist(), strict=True):
-                dd = d0 * d0 + d1 * d1  # _moved inlined for the clear cases
-                if dd > 2e-12 or (dd >= 0.5e-12 and _moved(d0, d1)):
+                dd = d0 * d0 + d1 * d1  # is_movement inlined for the clear cases
+                if dd > 2e-12 or (dd >= 0.5e-12 and is_movement(d0, d1)):
                     headings[a] = math.atan2(d1, d0)
         else:
             for a, p in out.items():
                 prev = self._last_xy.get(a)
                 if prev is not None:
                     d = p - prev
-                    if _moved(float(d[0]), float(d[1])):
+                    if is_movement(float(d[0]), float(d[1])):
                         headings[a] = math.atan2(float(d[1]), float(d[0]))
                 elif a not in headings:
                     headings[a] = 0.0
@@ -417,7 +327,7 @@ class CrowdNavigator:
         (len(agents), len(offsets), 2)."""
         if not agents or not offsets:
             return np.zeros((len(agents), len(offsets), 2))
-        stack, starts = self._rows_of(agents)
+        stack, starts = self._tracks.rows_of(self._paths, agents)
         out = gather_rows(stack, starts, frame - self._plan_frame, tuple(int(k) for k in offsets))
         if self._legs or self._parked:
             for i, a in enumerate(agents):
@@ -483,7 +393,7 @@ class CrowdNavigator:
                 if goal is None or (goal == self._cells[a] and final is not None and close_xy(final, parked, atol=1e-8)):
                     if goal is not None:  # already standing on the new exact target
                         del self._parked[a]
-                        self._legs[a] = _Leg(parked, parked, self.frame, 1, True)
+                        self._legs[a] = Leg(parked, parked, self.frame, 1, True)
                     continue
                 seg = (parked, cell_xy)
                 inbound = False
@@ -498,7 +408,7 @@ class CrowdNavigator:
             length = float(np.linalg.norm(seg[1] - seg[0]))
             frames = max(1, math.ceil(length / self.speed * self.fps - 1e-9))
             self._parked.pop(a, None)
-            self._legs[a] = _Leg(seg[0].copy(), seg[1].copy(), self.frame, frames, inbound)
+            self._legs[a] = Leg(seg[0].copy(), seg[1].copy(), self.frame, frames, inbound)
             self._needs_plan = True
 
     def _leg_clear(self, agent: Agent, p: NDArray[np.float64], q: NDArray[np.float64]) -> bool:
@@ -564,7 +474,7 @@ class CrowdNavigator:
             detour=sorted(self._detour & set(planned), key=planned.index),
         )
         self._paths = {a: list(p) for a, p in result.paths.items()}
-        self._stack = None
+        self._tracks.clear()
         self._ahead = None
         for a in off:
             self._paths[a] = [self._cells[a]]
@@ -582,26 +492,3 @@ def close_xy(a: NDArray[np.float64], b: NDArray[np.float64], atol: float = 1e-9)
     if not (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(b0) and math.isfinite(b1)):
         return bool(np.allclose(a, b, atol=atol))
     return abs(a0 - b0) <= atol + 1e-5 * abs(b0) and abs(a1 - b1) <= atol + 1e-5 * abs(b1)
-
-
-def _moved(d0: float, d1: float) -> bool:
-    """Whether a displacement (d0, d1) counts as movement: ``d @ d > 1e-12`` exactly as numpy's
-    dot computes it (its rounding may differ by an ulp from ``d0 * d0 + d1 * d1``, so numpy
-    decides the rare values near the threshold)."""
-    dd = d0 * d0 + d1 * d1
-    if dd > 2e-12:
-        return True
-    if dd < 0.5e-12:
-        return False
-    d = np.array([d0, d1])
-    return float(d @ d) > 1e-12
-
-
-def _nearest_obstacle(grid: NavGrid, p: NDArray[np.float64], a: NDArray[np.float64] | None = None) -> str | None:
-    """Name of the blocking object closest to the point p (or the segment a-p)."""
-    if not grid.obstacles:
-        return None
-    a = p if a is None else a
-    d = [float(body_clearance([o], a[None], p[None])[0]) for o in grid.obstacles]
-    k = int(np.argmin(d))
-    return grid.obstacles[k].name if d[k] < grid.body_radius else None

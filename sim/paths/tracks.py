@@ -8,19 +8,20 @@ done (the arithmetic of ``sim.paths.cooperative_astar.position_at``). ``path_tra
 it for every path of a plan in one compiled loop, with the very same float operations as its
 numpy oracle (``tests/support/path_reference.py``) element by element (so the same floats;
 ``tests/test_path_tracks.py`` compares them), into one array whose rows are padded with each
-path's last centre (later frames stay there).
+path's last centre (later frames stay there). :class:`PlanTracks` keeps that array for the
+current plan of a crowd.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Hashable, Mapping, Sequence
 
 import numpy as np
 from numba import njit
 
-__all__ = ["gather_rows", "path_tracks", "track_frames", "walker_headings"]
+__all__ = ["PlanTracks", "gather_rows", "is_movement", "path_tracks", "track_frames", "walker_headings"]
 
 Cell = tuple[int, int]
 
@@ -137,3 +138,81 @@ def _walker_headings(last: np.ndarray, path: np.ndarray, heading: np.ndarray, st
             size = math.hypot(path[i, j + 1, 0] - path[i, j, 0], path[i, j + 1, 1] - path[i, j, 1])
             fut[i, j] = step_dir[i, j] if size > 1e-6 else h
     return wrapped, fut, moved
+
+
+def is_movement(d0: float, d1: float) -> bool:
+    """Whether a displacement (d0, d1) counts as movement: ``d @ d > 1e-12`` exactly as numpy's
+    dot computes it (its rounding may differ by an ulp from ``d0 * d0 + d1 * d1``, so numpy
+    decides the rare values near the threshold)."""
+    dd = d0 * d0 + d1 * d1
+    if dd > 2e-12:
+        return True
+    if dd < 0.5e-12:
+        return False
+    d = np.array([d0, d1])
+    return float(d @ d) > 1e-12
+
+
+class PlanTracks:
+    """Per-frame positions on every walker's path of the current plan (``path_tracks``): one
+    (A, D, 2) array, a row per agent of ``paths`` (padded with its last position), built on first
+    use after ``clear`` (the navigator clears it at each replan and when a walker is added), for
+    all agents at once (the same floats as one agent at a time)."""
+
+    def __init__(self, origin: tuple[float, float], cell_size: float, step_frames: int, fps: int,
+                 step_time: float) -> None:
+        self._layout = (origin, cell_size, step_frames, fps, step_time)
+        self._stack: np.ndarray | None = None
+        self._row: dict[Hashable, int] = {}
+        self._len: list[int] = []
+        self._rows_cache: dict[tuple[Hashable, ...], tuple[np.ndarray, np.ndarray]] = {}  # see rows_of
+
+    def clear(self) -> None:
+        """Drop the array: the next use builds it from the paths it is given."""
+        self._stack = None
+
+    def forget(self, agent: Hashable) -> None:
+        """Drop ``agent``'s row (it stopped walking); the other rows stay valid."""
+        self._row.pop(agent, None)
+
+    def stacked(self, paths: Mapping[Hashable, Sequence[Cell]]) -> np.ndarray:
+        """Every agent's track (see ``track``) in one array (A, D, 2), rows padded with the
+        agent's last position (later frames stay there)."""
+        stack = self._stack
+        if stack is None:
+            agents = list(paths)
+            stack, self._len = path_tracks([paths[a] for a in agents], *self._layout)
+            self._stack = stack
+            self._row = {a: i for i, a in enumerate(agents)}
+        return stack
+
+    def track(self, paths: Mapping[Hashable, Sequence[Cell]], agent: Hashable) -> np.ndarray:
+        """Positions (D, 2) on the agent's current path for the frames ``d`` after the plan
+        (d = 0 .. D - 1; later frames: the last row), with the very arithmetic of
+        ``position_at`` (a view of the agent's row of ``stacked``)."""
+        stack = self.stacked(paths)
+        i = self._row.get(agent)
+        if i is None:  # a walker added since the stack was built
+            self._stack = None
+            stack = self.stacked(paths)
+            i = self._row[agent]
+        return stack[i, : self._len[i]]
+
+    def rows_of(self, paths: Mapping[Hashable, Sequence[Cell]],
+                agents: Sequence[Hashable]) -> tuple[np.ndarray, np.ndarray]:
+        """(``stacked(paths)``, each agent's row in it)."""
+        key = tuple(agents)
+        hit = self._rows_cache.get(key)
+        if hit is not None and hit[0] is self._stack:
+            return hit
+        stack = self.stacked(paths)
+        row = self._row
+        if any(a not in row for a in key):  # a walker added since the stack was built
+            self._stack = None
+            stack = self.stacked(paths)
+            row = self._row
+        hit = (stack, np.array([row[a] for a in key], dtype=np.int64))
+        if len(self._rows_cache) > 8:
+            self._rows_cache.clear()
+        self._rows_cache[key] = hit
+        return hit
