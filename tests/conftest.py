@@ -1,21 +1,34 @@
-"""Session-wide test setup: no test reaches the network unless it says so.
+"""Session-wide test setup: no test reaches the network or the embedded model unless it says so.
 
 Any ``connect`` (or name lookup) to a non-loopback address raises :class:`NetworkBlockedError`.
 Loopback (127.0.0.0/8, ::1, localhost) and Unix sockets stay allowed, for local fake
 providers. A test that truly needs the network is marked ``@pytest.mark.allow_network``.
+
+Constructing ``llama_cpp.Llama`` (how :mod:`orchestrator.llm.local_model` loads the embedded
+model) raises :class:`EmbeddedModelRefusedError` in a test not marked
+``@pytest.mark.embedded_model``, and such a test fails even if the code under test catches the
+error (a provider error falling back to another model, say). The guard holds in this process
+only: a CLI run in a child process is not covered.
 """
 
 from __future__ import annotations
 
+import importlib.abc
+import importlib.machinery
 import ipaddress
 import os
 import socket
-from collections.abc import Iterator
+import sys
+from collections.abc import Generator, Iterator
+from dataclasses import dataclass, field
+from types import ModuleType
 from typing import Any
 
 os.environ["LITELLM_LOCAL_MODEL_COST_MAP"] = "True"  # before anything imports litellm
 
 import pytest
+
+pytest_plugins = ["pytester"]  # tests/test_model_guard.py runs this conftest in a child session
 
 
 class NetworkBlockedError(OSError):
@@ -75,9 +88,106 @@ def _remove_guard() -> None:
     _guard.undo()
 
 
+class EmbeddedModelRefusedError(RuntimeError):
+    """A test not marked ``embedded_model`` tried to load the embedded llama.cpp model."""
+
+
+@dataclass
+class _ModelGate:
+    """Whether the running test may load the embedded model, and what it tried if not."""
+
+    allowed: bool = False
+    refused: list[str] = field(default_factory=list)
+
+
+_gate = _ModelGate()
+
+
+_model_guard = pytest.MonkeyPatch()  # session-wide; the gate, not undo, lets marked tests through
+
+
+def _refusing_new(cls: type, *args: Any, **kwargs: Any) -> Any:
+    if not _gate.allowed:
+        path = kwargs.get("model_path", args[0] if args else "?")
+        message = (
+            f"llama_cpp.Llama(model_path={str(path)!r}) refused: only a test marked "
+            "@pytest.mark.embedded_model may load the embedded model (use a fake chat function, "
+            "as LocalLlamaProvider(chat=...), or mark the test)"
+        )
+        _gate.refused.append(message)
+        raise EmbeddedModelRefusedError(message)
+    return object.__new__(cls)  # refused before an instance exists, so no half-built __del__
+
+
+class _GuardingLoader(importlib.abc.Loader):
+    """Runs ``llama_cpp.llama`` with its own loader, then guards its ``Llama``."""
+
+    def __init__(self, loader: importlib.abc.Loader) -> None:
+        self.loader = loader
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType | None:
+        return self.loader.create_module(spec)
+
+    def exec_module(self, module: ModuleType) -> None:
+        self.loader.exec_module(module)
+        _model_guard.setattr(module.Llama, "__new__", _refusing_new)
+
+
+class _GuardOnImport(importlib.abc.MetaPathFinder):
+    """Puts the guard on ``llama_cpp.Llama`` as soon as llama-cpp-python is imported. Importing
+    it up front would cost every test session its import (and llama_cpp leaves two /dev/null
+    files open that warn at exit)."""
+
+    def find_spec(self, fullname: str, path: Any, target: Any = None) -> importlib.machinery.ModuleSpec | None:
+        if fullname != "llama_cpp.llama":
+            return None
+        spec = importlib.machinery.PathFinder.find_spec(fullname, path)
+        if spec is not None and spec.loader is not None:
+            spec.loader = _GuardingLoader(spec.loader)
+        return spec
+
+
+_guard_on_import = _GuardOnImport()
+
+
+def _install_model_guard() -> None:
+    loaded = sys.modules.get("llama_cpp.llama")
+    if loaded is not None:
+        _model_guard.setattr(loaded.Llama, "__new__", _refusing_new)
+    else:
+        sys.meta_path.insert(0, _guard_on_import)
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "allow_network: the test may open non-loopback connections")
     _install_guard()
+    _install_model_guard()
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _guard_on_import in sys.meta_path:
+        sys.meta_path.remove(_guard_on_import)
+    _model_guard.undo()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    _gate.allowed = item.get_closest_marker("embedded_model") is not None
+    _gate.refused = []
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_call(item: pytest.Item) -> Generator[None, None, None]:
+    yield  # an error from the test itself propagates as it is
+    if _gate.refused:
+        raise EmbeddedModelRefusedError(
+            f"the test passed only because it caught the refusal: {_gate.refused[0]}"
+        )
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_runtest_teardown(item: pytest.Item) -> None:
+    _gate.allowed = False
 
 
 @pytest.fixture(autouse=True)
