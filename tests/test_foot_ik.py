@@ -21,7 +21,7 @@ from sim.body.foot_ik import (
     push_out,
     solve_legs,
 )
-from sim.body.foot_kernel import TOE_FLOOR_M
+from sim.body.foot_kernel import LAND_M, TOE_FLOOR_M
 from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, _ik_kernel
 from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, forward_kinematics, heading_to_root
 from sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
@@ -328,6 +328,23 @@ def test_a_contact_foot_stays_pinned_then_blends_back() -> None:
     assert 0.06 < lift[10:16].max() <= 0.08 + 1e-9 and np.abs(lift[:10]).max() < 1e-9
     assert np.abs(toes[16:, 0] - anim[16:, 0]).max() < 1e-9  # back on the animation
     assert np.abs(toes[12, 0] - anim[12, 0]).max() > 0.01  # still blending
+
+
+def test_a_toe_on_the_floor_is_pinned_without_a_contact_flag() -> None:
+    """A blend can put a foot down before (or after) its clip's contact flag: a toe within
+    ``LAND_M`` of its standing-flat height is pinned all the same; a higher one is not."""
+    solver = FootSolver(_NO_BOXES, max_drift=0.15, release_frames=6)
+    pelvis, rots = _poses(1, seed=7, bend=0.1)
+    toe0 = forward_kinematics(rots, pelvis)[0][0, list(FOOT_JOINTS)]
+    no_flags = np.zeros((8, 2), dtype=bool)
+    step = np.array([0.01, 0.0, 0.0])
+    for above, pinned in ((0.5 * LAND_M, True), (LAND_M + 0.01, False)):
+        low = pelvis.copy()
+        low[0, 2] += TOE_FLOOR_M + above - toe0[:, 2].min()  # the lower toe that far above the floor
+        anim, toes = _walk(solver, low, rots, no_flags, step=step)
+        k = int(np.argmin(anim[0, :, 2]))
+        moved = np.abs(toes[:, k] - toes[0, k]).max()
+        assert (moved < 1e-9) if pinned else (np.abs(toes[:, k] - anim[:, k]).max() < 1e-12), (above, moved)
 
 
 def test_a_drifting_lock_is_released() -> None:

@@ -16,7 +16,9 @@ re-recorded once on purpose, when walkers began keeping still-valid plans by def
 when the world began putting a seated pelvis on its seat's height (``sim.world.contacts``:
 poses of seated characters only; every root, query and output else the same), and when a pair
 doing a partner action began standing at the action's distance (``sim.world.partners``: the
-chatting pair's points, so the final points of c0, c1 and c6 moved). If the
+chatting pair's points, so the final points of c0, c1 and c6 moved), and when a foot whose
+animated toe is within ``sim.body.foot_kernel.LAND_M`` of the floor began to be pinned with or
+without the clip's contact flag (leg rotations only; roots the same). If the
 world's behaviour is changed on purpose, re-record it with
 ``python -m tests.test_world_step_equivalence`` and say so in the commit message.
 """
@@ -40,7 +42,7 @@ from sim.world.step import World, WorldConfig, step
 from tests.support.reference import OFFICE, reference_or_skip
 
 FRAMES = 420
-EXPECTED_SHA256 = "50d4619dbef82d81f6a09864786b57ed957aca201feb39fd99e55c62c43927db"
+EXPECTED_SHA256 = "e4d8d57d8b770e9d18f7988d1739f50dcfaee763c7e7dfb5a691559c86c95878"
 EXPECTED_FINAL_XY: dict[str, tuple[float, float]] = {
     "c0": (5.7989999999999995, 4.552666666666666),
     "c1": (6.099, 5.752666666666666),

@@ -5,7 +5,8 @@ matching picks the body pose, so a stride can reach into the footprint of a chai
 and a planted foot slides with the root. ``FootSolver.apply`` is a per-frame filter over all
 characters that moves only the feet, with the legs' local rotations:
 
-1. *pinning*: a foot flagged in contact is locked where its toe is when the contact starts
+1. *pinning*: a foot in contact (flagged so by the motion, or with its animated toe within
+   ``foot_kernel.LAND_M`` of its standing-flat height) is locked where its toe is when the contact starts
    (the foot keeps the animation's world orientation, so it rolls about the pinned toe); the
    lock is released when the contact ends, or while in contact when the lock drifts more than
    ``max_drift`` from the animated toe or needs more than ``max_reach`` of the leg's length

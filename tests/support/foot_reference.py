@@ -13,7 +13,7 @@ import numpy as np
 
 from sim.body.foot_clearance import push_out
 from sim.body.foot_ik import FootSolver, FootState
-from sim.body.foot_kernel import REPLANT_LIFT_M, TOE_FLOOR_M
+from sim.body.foot_kernel import LAND_M, REPLANT_LIFT_M, TOE_FLOOR_M
 from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, solve_chain
 
 _REACH_EPS = 1e-9  # m: reach comparisons of a lock start (the kernel's literal 1e-9)
@@ -34,10 +34,9 @@ def apply_numpy(solver: FootSolver, pelvis: np.ndarray, rots: np.ndarray, contac
     n = len(pelvis)
     act = np.ones(n, dtype=bool) if active is None else np.asarray(active, dtype=bool).reshape(n)
     pin = act if pinned is None else act | np.asarray(pinned, dtype=bool).reshape(n)
-    contact = contacts.astype(bool) & pin[:, None]
-
     chain = LegChain(pelvis, rots)
     toe = chain.toe  # (N, 2, 3)
+    contact = (contacts.astype(bool) | (toe[..., 2] < TOE_FLOOR_M + LAND_M)) & pin[:, None]
     foot = toe - chain.ankle  # the foot keeps its animated world orientation
 
     # pinning: release, blend, lock
