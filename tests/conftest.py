@@ -22,11 +22,15 @@ import sys
 from collections.abc import Generator, Iterator
 from dataclasses import dataclass, field
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 os.environ["LITELLM_LOCAL_MODEL_COST_MAP"] = "True"  # before anything imports litellm
 
 import pytest
+
+if TYPE_CHECKING:
+    from sim.motion.matching import MotionMatcher
+    from sim.scene.model import Scene
 
 pytest_plugins = ["pytester"]  # tests/test_model_guard.py runs this conftest in a child session
 
@@ -200,3 +204,31 @@ def _network_guard(request: pytest.FixtureRequest) -> Iterator[None]:
         yield
     finally:
         _install_guard()
+
+
+# ----- shared fixtures --------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def motion() -> MotionMatcher:
+    """The motion matcher on the cached motion databases (one per test module)."""
+    from orchestrator.cache_paths import motion_cache_dir
+    from sim.motion.database import load_databases
+    from sim.motion.matching import MotionMatcher
+
+    return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
+
+
+@pytest.fixture(scope="module")
+def home() -> Scene:
+    """The bundled home scene."""
+    from sim.scene.bundled import resolve_scene
+
+    return resolve_scene("home")
+
+
+@pytest.fixture
+def env(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """A CLI run's environment: the fake provider's key set, no config or model from the caller's."""
+    monkeypatch.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
+    for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL"):
+        monkeypatch.delenv(var, raising=False)
+    yield

@@ -11,8 +11,8 @@ from agents.program_grammar import event_options
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.graph import compile_planning_graph, recursion_limit
 from sim.scene.bundled import resolve_scene
+from tests.support.planning_script import DESCRIPTION, PROGRAM, initial_state, make_deps, narration
 from tests.support.scripted_llm import ScriptedLLM, choosing
-from tests.test_planning_graph import DESCRIPTION, PROGRAM, initial_state, make_deps, narration
 
 HOME = resolve_scene("home")
 LABELS = scene_action_labels(HOME)

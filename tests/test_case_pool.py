@@ -10,7 +10,6 @@ which checks the whole folder.)"""
 from __future__ import annotations
 
 import json
-import re
 import string
 from collections import Counter
 from pathlib import Path
@@ -22,9 +21,9 @@ from benchmark.own_cases import generate, phrasing, split
 from benchmark.own_cases.check import ours_folder
 from benchmark.reference_cases import TAGS, load_cases
 from tests.support.reference import TEST_CASES, requires_reference
+from tests.support.word_windows import windows
 
 OURS = ours_folder()
-WINDOW = 6  # the longest run of words shared with an authors' case must stay below this
 
 
 @pytest.fixture(scope="module")
@@ -127,15 +126,6 @@ def test_the_wording_varies(generated: list[dict[str, Any]]) -> None:
     assert max(openings.values()) <= 0.1 * len(texts), openings.most_common(3)
 
 
-def _words(text: str) -> list[str]:
-    return re.findall(r"[a-z0-9_']+", text.lower())
-
-
-def _windows(text: str) -> set[tuple[str, ...]]:
-    words = _words(text)
-    return {tuple(words[i : i + WINDOW]) for i in range(len(words) - WINDOW + 1)}
-
-
 def _template_texts() -> list[str]:
     """Every literal stretch of every shape (between slots) and every phrase of the banks."""
     texts = []
@@ -150,8 +140,8 @@ def _template_texts() -> list[str]:
 
 
 def test_the_overlap_rule_catches_a_six_word_run() -> None:
-    assert _windows("she sits on the couch by the window") & _windows("Then sits on the couch by the door")
-    assert not _windows("she sits on the couch by the window") & _windows("sits on the sofa by the window")
+    assert windows("she sits on the couch by the window") & windows("Then sits on the couch by the door")
+    assert not windows("she sits on the couch by the window") & windows("sits on the sofa by the window")
 
 
 @requires_reference
@@ -159,13 +149,13 @@ def test_no_template_or_generated_text_shares_six_words_with_the_authors_cases(g
     reference: set[tuple[str, ...]] = set()
     for path in sorted(TEST_CASES.glob("*/testcase_*.json")):
         data = json.loads(path.read_text(encoding="utf-8"))
-        reference |= _windows(data["user_instruction"])
+        reference |= windows(data["user_instruction"])
         for event in data.get("planning_history", []):
-            reference |= _windows(event["activity"])
+            reference |= windows(event["activity"])
     assert reference
     texts = _template_texts()
     texts += [t for c in generated for t in (c["user_instruction"], *(e["activity"] for e in c["planning_history"]))]
-    shared = sorted({" ".join(w) for t in texts for w in _windows(t) & reference})
+    shared = sorted({" ".join(w) for t in texts for w in windows(t) & reference})
     assert not shared
 
 

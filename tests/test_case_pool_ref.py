@@ -18,9 +18,9 @@ from benchmark.own_cases.check import check_folder, ours_folder, ours_ref_folder
 from benchmark.reference_cases import BUNDLED_PREFIX
 from orchestrator.reference_data import DataFolder, ReferenceDataNotFound, locate_reference
 from tests.support.reference import TEST_CASES, requires_reference
+from tests.support.word_windows import windows
 
 OURS_REF = ours_ref_folder()
-WINDOW = 6
 
 
 @pytest.fixture(scope="module")
@@ -91,17 +91,15 @@ def test_the_bundled_pool_keeps_its_own_split_file() -> None:
 
 @requires_reference
 def test_no_generated_text_shares_six_words_with_the_authors_cases(raw: list[dict[str, Any]]) -> None:
-    from tests.test_case_pool import _windows
-
     reference: set[tuple[str, ...]] = set()
     for path in sorted(TEST_CASES.glob("*/testcase_*.json")):
         data = json.loads(path.read_text(encoding="utf-8"))
-        reference |= _windows(data["user_instruction"])
+        reference |= windows(data["user_instruction"])
         for event in data.get("planning_history", []):
-            reference |= _windows(event["activity"])
+            reference |= windows(event["activity"])
     assert reference
     texts = [t for c in raw for t in (c["user_instruction"], *(e["activity"] for e in c["planning_history"]))]
-    assert not sorted({" ".join(w) for t in texts for w in _windows(t) & reference})
+    assert not sorted({" ".join(w) for t in texts for w in windows(t) & reference})
 
 
 # ----- one command per side ----------------------------------------------------------------------

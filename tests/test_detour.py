@@ -15,7 +15,7 @@ from sim.scene.bundled import resolve_scene
 from sim.scene.model import Scene, SceneObject
 from sim.world.events import AssignEvent, Assignment, StepOutput
 from sim.world.step import World, WorldConfig, step
-from tests.test_world_step import StandInMotion
+from tests.support.stand_in_motion import RestPoseMotion
 
 RING = Scene(
     name="ring", bounds_min=(0.0, 0.0), bounds_max=(8.4, 2.4),
@@ -52,7 +52,7 @@ def test_detour_distances_go_around_stationary_bodies_and_equal_the_static_ones_
 
 def test_a_walker_goes_round_a_member_waiting_in_a_one_cell_corridor() -> None:
     # ann arrives first and waits on her exact target in the top corridor; bob's target is past her
-    world = World(RING, {"ann": ((4.35, 1.95), 0.0), "bob": ((0.45, 1.95), 0.0)}, StandInMotion())
+    world = World(RING, {"ann": ((4.35, 1.95), 0.0), "bob": ((0.45, 1.95), 0.0)}, RestPoseMotion(record=True))
     meet = AssignEvent(event_id="meet", assignments=(
         Assignment(character="ann", action="chat", target_xy=(4.23, 1.97), facing_xy=(1.0, 0.0), partners=("bob",)),
         Assignment(character="bob", action="chat", target_xy=(6.6, 1.95), facing_xy=(-1.0, 0.0), partners=("ann",)),
@@ -68,7 +68,7 @@ def test_a_walker_with_no_way_round_still_fails_as_stuck() -> None:
         *RING.objects,
         SceneObject(name="box_1", label="box", idx=1, center=(6.0, 0.6, 0.4), size=(0.3, 1.2, 0.8)),
     ))
-    world = World(closed, {"ann": ((4.35, 1.95), 0.0), "bob": ((0.45, 1.95), 0.0)}, StandInMotion(),
+    world = World(closed, {"ann": ((4.35, 1.95), 0.0), "bob": ((0.45, 1.95), 0.0)}, RestPoseMotion(record=True),
                   config=WorldConfig(stuck_after_s=6.0))
     meet = AssignEvent(event_id="meet", assignments=(
         Assignment(character="ann", action="chat", target_xy=(4.23, 1.97), facing_xy=(1.0, 0.0), partners=("bob",)),
@@ -83,7 +83,7 @@ def test_office_meeting_members_reach_targets_behind_a_waiting_member() -> None:
     # conference table and the whiteboard; Ava's target lies past them
     scene = resolve_scene("office")
     starts = {"Ava": (6.552, 5.836), "Ben": (9.26, 0.269), "Cleo": (9.322, 4.332), "Dan": (7.404, 5.204)}
-    world = World(scene, {n: (p, 0.0) for n, p in starts.items()}, StandInMotion(), config=WorldConfig(foot_ik=False))
+    world = World(scene, {n: (p, 0.0) for n, p in starts.items()}, RestPoseMotion(record=True), config=WorldConfig(foot_ik=False))
     targets = {"Ava": ((9.582, 1.763), (-0.954, 0.301)), "Ben": ((9.644, 2.528), (-0.975, -0.221)),
                "Cleo": ((9.404, 2.97), (-0.842, -0.539)), "Dan": ((6.845, 2.843), (0.903, -0.429))}
     meeting = AssignEvent(event_id="meeting", assignments=tuple(

@@ -17,8 +17,8 @@ from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.graph import compile_planning_graph, recursion_limit
 from orchestrator.planning.state import PlanningState
 from orchestrator.session.runtime import StoryEvent, history_window, story_history
+from tests.support.planning_script import DESCRIPTION, PROGRAM, make_deps, narration
 from tests.support.scripted_llm import ScriptedLLM
-from tests.test_planning_graph import DESCRIPTION, PROGRAM, make_deps, narration
 
 NAMES = ("Ava", "Ben", "Cleo")
 

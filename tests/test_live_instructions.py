@@ -37,8 +37,8 @@ from orchestrator.session.runtime import Session, SessionResult, SessionSettings
 from orchestrator.session.stdin_instructions import start_stdin_reader
 from sim.motion.matching import MotionMatcher
 from sim.scene.model import Scene
-from tests.test_run_folder import RUN, Planner, env, write_config  # noqa: F401  (env: a fixture)
-from tests.test_session_runtime import FPS, ScriptedPlanner, _world, home, motion  # noqa: F401  (fixtures)
+from tests.support.cli_run import RUN, Planner, write_config
+from tests.support.session_world import FPS, ScriptedPlanner, make_world
 
 OLD = "Ben walks to the kitchen."
 NEW = "Ben leaves the kitchen and waves at Ava."
@@ -46,14 +46,14 @@ NEW = "Ben leaves the kitchen and waves at Ava."
 
 # ----- the session ------------------------------------------------------------------------
 def test_requests_after_the_instruction_frame_carry_it_and_earlier_ones_do_not(
-    home: Scene, motion: MotionMatcher  # noqa: F811
+    home: Scene, motion: MotionMatcher
 ) -> None:
     at = 12 * FPS
     planner = ScriptedPlanner(home)
     said: list[TimedInstruction] = []
     settings = SessionSettings(frames=30 * FPS, pace="lockstep", instruction=OLD,
                                instructions=[TimedInstruction(frame=at, text=NEW)])
-    session = Session(_world(home, motion, ["Ava", "Ben"]), planner, settings, on_instruction=said.append)
+    session = Session(make_world(home, motion, ["Ava", "Ben"]), planner, settings, on_instruction=said.append)
     result = anyio.run(session.run)
     before = [r for r in planner.requests if r.frame <= at]
     after = [r for r in planner.requests if r.frame > at]
@@ -65,11 +65,11 @@ def test_requests_after_the_instruction_frame_carry_it_and_earlier_ones_do_not(
 
 
 def test_instruct_from_the_api_takes_effect_at_the_next_frame_and_a_replay_ignores_it(
-    home: Scene, motion: MotionMatcher  # noqa: F811
+    home: Scene, motion: MotionMatcher
 ) -> None:
     planner = ScriptedPlanner(home)
     settings = SessionSettings(frames=20 * FPS, pace="fast", instruction=OLD)
-    session = Session(_world(home, motion, ["Ava", "Ben"]), planner, settings)
+    session = Session(make_world(home, motion, ["Ava", "Ben"]), planner, settings)
     took: list[int | None] = []
 
     async def main() -> SessionResult:
@@ -99,16 +99,16 @@ def test_instruct_from_the_api_takes_effect_at_the_next_frame_and_a_replay_ignor
     replayed = ScriptedPlanner(home)
     settings = SessionSettings(frames=20 * FPS, pace="lockstep", instruction=OLD, live_instructions=False,
                                instructions=result.instructions)
-    again = Session(_world(home, motion, ["Ava", "Ben"]), replayed, settings)
+    again = Session(make_world(home, motion, ["Ava", "Ben"]), replayed, settings)
     assert not again.instruct_nowait("typed during a replay")
     assert anyio.run(again.run).instructions == result.instructions
 
 
-def test_stdin_lines_become_instructions(home: Scene, motion: MotionMatcher, tmp_path: Path) -> None:  # noqa: F811
+def test_stdin_lines_become_instructions(home: Scene, motion: MotionMatcher, tmp_path: Path) -> None:
     typed = tmp_path / "typed.txt"
     typed.write_text("# a comment\n\nBen sits down\n", encoding="utf-8")
     planner = ScriptedPlanner(home)
-    session = Session(_world(home, motion, ["Ava", "Ben"]), planner, SessionSettings(frames=5 * FPS, pace="fast"))
+    session = Session(make_world(home, motion, ["Ava", "Ben"]), planner, SessionSettings(frames=5 * FPS, pace="fast"))
     with typed.open(encoding="utf-8") as stream:
         start_stdin_reader(session, stream).join(timeout=10)
         result = anyio.run(session.run)
@@ -116,7 +116,7 @@ def test_stdin_lines_become_instructions(home: Scene, motion: MotionMatcher, tmp
 
 
 def test_a_resumed_session_keeps_the_instructions_already_applied(
-    home: Scene, motion: MotionMatcher, tmp_path: Path  # noqa: F811
+    home: Scene, motion: MotionMatcher, tmp_path: Path
 ) -> None:
     from orchestrator.session.runtime import SessionCheckpoint
     from orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
@@ -125,14 +125,14 @@ def test_a_resumed_session_keeps_the_instructions_already_applied(
     settings = SessionSettings(frames=30 * FPS, pace="lockstep", checkpoint_every_s=4.0, instruction="Ava reads.",
                                instructions=[first, second])
     kept: list[SessionCheckpoint] = []
-    whole_world = _world(home, motion, ["Ava", "Ben"])
+    whole_world = make_world(home, motion, ["Ava", "Ben"])
     whole = anyio.run(Session(whole_world, ScriptedPlanner(home), settings, on_checkpoint=kept.append).run)
     assert whole.instructions == [first, second]
     middle = next(cp for cp in kept if 10 * FPS < cp.world.frame < 20 * FPS)
     path = tmp_path / "session.snapshot"
     save_checkpoint(path, whole_world, middle)
 
-    fresh = _world(home, motion, ["Ava", "Ben"])
+    fresh = make_world(home, motion, ["Ava", "Ben"])
     planner = ScriptedPlanner(home)
     said: list[TimedInstruction] = []
     # as the run job does on resume: the trace already holds both (the second applied before a kill)

@@ -31,8 +31,8 @@ from sim.motion.matching import MotionMatcher
 from sim.scene.model import Scene
 from sim.world.event_book import EventStatus
 from sim.world.step import World
-from tests.test_run_folder import RUN, Planner, env, write_config  # noqa: F401  (env: a fixture)
-from tests.test_session_runtime import FPS, ScriptedPlanner, _world, home, motion  # noqa: F401  (fixtures)
+from tests.support.cli_run import RUN, Planner, write_config
+from tests.support.session_world import FPS, ScriptedPlanner, make_world
 
 HOSTILE = "[bold red]x[/] [link=https://evil.example]click[/link] \x1b[2J\x1b]8;;https://evil.example\x07"
 
@@ -161,10 +161,10 @@ def test_a_watched_port_reports_calls_in_flight_answers_failures_and_cancellatio
     assert (after.calls, after.prompt_tokens, after.completion_tokens, after.started) == (2, 11, 5, False)
 
 
-def test_a_session_feeds_the_status_characters_events_and_places(home: Scene, motion: MotionMatcher) -> None:  # noqa: F811
+def test_a_session_feeds_the_status_characters_events_and_places(home: Scene, motion: MotionMatcher) -> None:
     clock = Clock()
     status = RunStatus(clock=clock)
-    world = _world(home, motion, ["Ava", "Ben"])
+    world = make_world(home, motion, ["Ava", "Ben"])
     rows: list[CharacterRow] = []
 
     def frame(w: World) -> None:
@@ -230,7 +230,7 @@ def test_live_and_interactive_defaults(monkeypatch: pytest.MonkeyPatch, stdin_tt
 EVENT_LINE = re.compile(r"^\[ *\d+\.\ds\] event-\d{4} (starts|loops|done|failed): ")
 
 
-def test_run_with_the_live_view_forced_and_without_it(env: None, tmp_path: Path) -> None:  # noqa: F811
+def test_run_with_the_live_view_forced_and_without_it(env: None, tmp_path: Path) -> None:
     run = [*RUN, "-d", "20", "--max-events", "2"]
     with FakeOpenAI(responder=Planner()) as fake:
         cfg = write_config(tmp_path, fake.base)

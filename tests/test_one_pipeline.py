@@ -9,7 +9,6 @@ request; the three lists of serialized requests must be equal.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 
 from agents.llm_port import LLMRequest
@@ -20,43 +19,20 @@ from benchmark.planning_benchmark import (
     case_tags,
     run_cases,
 )
-from benchmark.reference_cases import BenchmarkCase, load_cases, planning_inputs, scene_dir
+from benchmark.reference_cases import planning_inputs
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.graph import compile_planning_graph, recursion_limit
 from orchestrator.planning.state import PlanningDeps, PlanningState
 from orchestrator.session.plan_job import run_plan
 from orchestrator.session.port_setup import describer_mode_for
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
 from tests.support.reference import REFERENCE, requires_reference
+from tests.support.reference_pipeline import MODEL, RETRIES, SEED, answer, the_case
 from tests.support.scripted_llm import ScriptedLLM
 
 pytestmark = requires_reference
 
-CASE = 20  # SS: Taylor reads a book sitting on chair_3 (a describer call, a narrator call, a parser call)
-WHO, ACTIVITY = "Taylor", "read a book sitting on chair_3"
-PROGRAM = (
-    '```python\ndef parse_event():\n    a = get_character("Taylor")\n'
-    '    a.set_position(get_area_to_sit_on("chair_3"))\n    a.set_target_action("read_book")\n```'
-)
-SEED, RETRIES, MODEL = 3, 1, "openai/scripted"
-
-
-def answer(request: LLMRequest) -> str:
-    if request.node == "describer":
-        return "{}"  # rejected: the describer retries, then repairs from the clusters
-    if request.node == "narrator":
-        return json.dumps({"reasoning": "asked for", "event": {"characters": [WHO], "activity": ACTIVITY}})
-    return PROGRAM
-
-
 def serialized(requests: Sequence[LLMRequest]) -> list[str]:
     return [r.model_dump_json() for r in requests]
-
-
-def the_case() -> tuple[BenchmarkCase, Scene]:
-    case = load_cases(REFERENCE, [CASE])[0].at_level(2)
-    return case, load_scene(scene_dir(REFERENCE, case))
 
 
 async def test_benchmark_and_plan_send_byte_identical_requests() -> None:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -16,28 +15,14 @@ from typer.testing import CliRunner
 
 from benchmark.position_check import check_position
 from orchestrator.cli.app import app
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
 from tests.support.reference import REFERENCE as REF
 from tests.support.reference import requires_reference
+from tests.support.reference_pipeline import CASE_IDS, PROGRAMS, case_path, scene_and_graph
 from tools.character_states import world_view_from_reference_case
 from tools.event_program import run_event_program
-from tools.scene_graph import SceneGraph, build_scene_graph
 
 pytestmark = requires_reference
-PROGRAMS = Path(__file__).resolve().parent / "pi_programs"
-CASE_IDS = list(range(60, 70))
 SEEDS = range(20)
-
-
-def case_path(case_id: int) -> Path:
-    return REF / "benchmark" / "test_cases" / "6_PI" / f"testcase_{case_id}.json"
-
-
-@cache
-def scene_and_graph(name: str) -> tuple[Scene, SceneGraph]:
-    scene = load_scene(REF / "configs" / "scenes" / name)
-    return scene, build_scene_graph(scene)
 
 
 def cli_args(case_id: int, seed: int) -> list[str]:

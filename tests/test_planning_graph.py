@@ -7,14 +7,11 @@ narrator again.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import subprocess
 import sys
 import textwrap
-from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,92 +22,11 @@ from agents.llm_port import LLMRequest, LLMResponse
 from agents.messages import CharacterStatus, ParsedEvent, PlanningFailure
 from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
 from orchestrator.planning.graph import compile_planning_graph, recursion_limit, route_step
-from orchestrator.planning.state import PlanningDeps, PlanningState
-from sim.scene.model import Scene, SceneObject
+from orchestrator.planning.state import PlanningState
+from tests.support.planning_script import DESCRIPTION, PROGRAM, initial_state, make_deps, narration
 from tests.support.scripted_llm import ScriptedLLM, choosing
-from tools.errors import UnknownObjectError
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def tiny_scene() -> Scene:
-    def obj(
-        name: str, x: float, y: float, size: tuple[float, float, float] = (0.5, 0.5, 0.9), seat: float = 0.0
-    ) -> SceneObject:
-        label, idx = name.rsplit("_", 1)
-        return SceneObject(
-            name=name, label=label, idx=int(idx), center=(x, y, size[2] / 2), size=size,
-            has_facing=True, sit_offset_vertical=seat,
-        )
-
-    return Scene(
-        name="tiny",
-        bounds_min=(0.0, 0.0),
-        bounds_max=(6.0, 6.0),
-        objects=(
-            obj("table_1", 2.0, 2.0, (1.2, 0.8, 0.75)),
-            obj("chair_1", 2.0, 1.2, seat=0.45),
-            obj("chair_2", 2.0, 2.8, seat=0.45),
-            obj("fridge_1", 5.0, 5.0, (0.8, 0.7, 1.8)),
-        ),
-    )
-
-
-@dataclass
-class Plan:
-    character: str
-    action: str
-    area: str
-    position: tuple[float, float]
-    facing: tuple[float, float]
-
-
-def fake_runner(
-    scene: Scene, source: str, world: Any, *, seed: int, action_labels: object = None, graph: object = None
-) -> list[Plan]:
-    """Understands just enough: get_character("X") calls, unknown object names, actions."""
-    for name in re.findall(r'"([a-z_]+_\d+)"', source):
-        if name not in scene.by_name:
-            raise UnknownObjectError(f"unknown object '{name}'")
-    actions = re.findall(r'set_target_action\("([a-z_]+)"\)', source) or ["idle"]
-    plans = []
-    for i, who in enumerate(re.findall(r'get_character\("(\w+)"\)', source)):
-        plans.append(Plan(who, actions[min(i, len(actions) - 1)], "close to table_1", (1.0 + i + seed % 3, 1.0), (0.0, 1.0)))
-    return plans
-
-
-class FakeWorld:
-    def world_view(self, roster: Sequence[CharacterStatus]) -> Any:
-        return list(roster)
-
-    def seats_in_use(self, roster: Sequence[CharacterStatus]) -> list[str]:
-        return []
-
-
-DESCRIPTION = json.dumps(
-    {"areas": [{"name": "dining", "purpose": "eat", "objects": ["table_1", "chair_1", "chair_2"]},
-               {"name": "kitchen", "purpose": "food", "objects": ["fridge_1"]}]}
-)
-
-
-def narration(chars: list[str], activity: str) -> str:
-    return json.dumps({"reasoning": "next", "event": {"characters": chars, "activity": activity}})
-
-
-PROGRAM = '```python\ndef parse_event():\n    c = get_character("{who}")\n    c.set_position(get_area_close_to("table_1"))\n    c.set_target_action("eat")\n```'
-
-
-def make_deps(port: ScriptedLLM, story: StoryLog, **kw: Any) -> PlanningDeps:
-    return PlanningDeps(
-        port=port, scene=tiny_scene(), world=FakeWorld(), story=story,
-        action_labels=("idle", "eat", "chat"), runner=fake_runner, scene_graph=None, **kw,
-    )
-
-
-def initial_state(names: list[str], k: int) -> dict[str, Any]:
-    return PlanningState(
-        instruction="Ann eats.", events_target=k, roster=tuple(CharacterStatus(name=n) for n in names)
-    ).model_dump()
 
 
 async def run_graph(port: ScriptedLLM, k: int, names: list[str], **kw: Any) -> tuple[dict[str, Any], StoryLog]:
@@ -240,7 +156,7 @@ CHILD = textwrap.dedent(
     sys.path.insert(0, {tests!r})
     sys.path.insert(0, {repo!r})
     from tests.support.scripted_llm import ScriptedLLM
-    from test_planning_graph import DESCRIPTION, narration, make_deps, initial_state
+    from tests.support.planning_script import DESCRIPTION, narration, make_deps, initial_state
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.graph import compile_planning_graph
 
@@ -288,7 +204,7 @@ CHILD_DESCRIBER = textwrap.dedent(
     sys.path.insert(0, {tests!r})
     sys.path.insert(0, {repo!r})
     from tests.support.scripted_llm import ScriptedLLM
-    from test_planning_graph import make_deps, initial_state
+    from tests.support.planning_script import make_deps, initial_state
     from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
     from orchestrator.planning.graph import compile_planning_graph
 

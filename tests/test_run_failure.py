@@ -15,7 +15,7 @@ from agents.llm_port import LLMRequest, LLMResponse
 from orchestrator.cli.app import app
 from orchestrator.llm.traces import TraceWriter, read_trace
 from orchestrator.planning.checkpoints import StoryLog
-from tests.test_session_runtime import ScriptedCompletion
+from tests.support.session_world import ScriptedCompletion
 
 
 class ExplodingPort:

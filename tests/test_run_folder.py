@@ -13,14 +13,8 @@ import os
 import re
 import signal
 import subprocess
-import sys
-import threading
-import time
-from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
-import pytest
 from typer.testing import CliRunner
 
 from benchmark.support.fake_openai_server import FakeOpenAI
@@ -28,60 +22,7 @@ from orchestrator.cli.app import app
 from orchestrator.llm.traces import AppliedRecord, read_trace
 from orchestrator.session.run_report import md_text, story_markdown
 from sim.world.track_chunks import scan
-from tests.support.story_planner import interact_program
-
-ROOT = Path(__file__).resolve().parents[1]
-TASKS = {"Zoe": ("coffee_maker_1", "use_coffee_maker"), "Max": ("toaster_1", "use_toaster")}
-
-
-def program(name: str) -> str:
-    obj, action = TASKS[name]
-    return interact_program(name, obj, action)
-
-
-class Planner:
-    """Answers the unified planner by content: the first free character uses its appliance.
-    ``delay_s`` slows every answer; ``arrived`` is set when request ``kill_at`` (1-based) comes in."""
-
-    def __init__(self, delay_s: float = 0.0, kill_at: int | None = None) -> None:
-        self.delay_s = delay_s
-        self.kill_at = kill_at
-        self.count = 0
-        self.arrived = threading.Event()
-
-    def __call__(self, body: dict[str, Any]) -> str:
-        self.count += 1
-        if self.kill_at is not None and self.count >= self.kill_at:
-            self.arrived.set()
-            time.sleep(5.0)  # the client is killed meanwhile; nobody reads this answer
-        elif self.delay_s:
-            time.sleep(self.delay_s)
-        text = body["messages"][-1]["content"]
-        free = re.search(r"Free characters: (.*)", text)
-        assert free is not None, text
-        first = free.group(1).split(",")[0].strip()
-        return program(first)
-
-
-@pytest.fixture
-def env(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    monkeypatch.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
-    for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL"):
-        monkeypatch.delenv(var, raising=False)
-    yield
-
-
-def write_config(tmp_path: Path, api_base: str) -> Path:
-    path = tmp_path / "fake.toml"
-    path.write_text(
-        f'[llm]\nmodel = "openai/fake"\napi_base = "{api_base}"\napi_key_env = "FAKE_PROVIDER_KEY"\ntimeout_s = 20.0\n'
-        "[llm.retry]\nmax_attempts = 1\n",
-        encoding="utf-8",
-    )
-    return path
-
-
-RUN = ["run", "home", "--names", "Zoe,Max", "-d", "30", "--planner", "unified", "--description", "object-list"]
+from tests.support.cli_run import ROOT, RUN, Planner, cli, write_config
 
 
 # ----- story.md ---------------------------------------------------------------------------
@@ -174,10 +115,6 @@ def test_bad_names_are_a_user_error(tmp_path: Path) -> None:
 
 
 # ----- kill -9, then resume -----------------------------------------------------------------
-def cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from orchestrator.cli.app import main; main()", *args]
-
-
 def test_resume_after_kill_9_continues_the_story_without_gaps_duplicates_or_repeated_calls(
     env: None, tmp_path: Path
 ) -> None:

@@ -30,7 +30,7 @@ from orchestrator.session.runtime import (
 )
 from sim.motion.matching import MotionMatcher
 from sim.scene.model import Scene
-from tests.test_session_runtime import FPS, _free_points, _world, home, motion  # noqa: F401  (fixtures)
+from tests.support.session_world import FPS, free_points, make_world
 
 NAMES = ["Ava", "Ben", "Cleo", "Dan"]
 
@@ -42,7 +42,7 @@ class ClaimingPlanner:
 
     def __init__(self, scene: Scene, *, jitter: int | None = None, narrate_s: float = 1.0, parse_s: float = 2.0,
                  explode_at: int | None = None) -> None:
-        self.spots = _free_points(scene, 12, seed=7)
+        self.spots = free_points(scene, 12, seed=7)
         self.rng = random.Random(jitter) if jitter is not None else None
         self.narrate_s = narrate_s
         self.parse_s = parse_s
@@ -120,12 +120,12 @@ def _no_character_in_two_events(requests: Sequence[PlanningRequest], result: Ses
                 assert not names & other, (i, j, names, other)
 
 
-def test_lockstep_with_two_planners_overlaps_steps_and_stays_deterministic(home: Scene, motion: MotionMatcher) -> None:  # noqa: F811
+def test_lockstep_with_two_planners_overlaps_steps_and_stays_deterministic(home: Scene, motion: MotionMatcher) -> None:
     settings = SessionSettings(frames=40 * FPS, pace="lockstep", max_steps=14, planners=2)
     runs = []
     for jitter in (1, 2):
         planner = ClaimingPlanner(home, jitter=jitter)
-        result = _run(_world(home, motion, NAMES), planner, settings)
+        result = _run(make_world(home, motion, NAMES), planner, settings)
         _no_character_in_two_events(planner.requests, result)
         runs.append((planner, result))
     (p1, r1), (p2, r2) = runs
@@ -141,20 +141,20 @@ def test_lockstep_with_two_planners_overlaps_steps_and_stays_deterministic(home:
     assert all(frames[i] == f for i, _, f in _story(r1))
 
 
-def test_one_planner_never_has_two_steps_in_flight(home: Scene, motion: MotionMatcher) -> None:  # noqa: F811
+def test_one_planner_never_has_two_steps_in_flight(home: Scene, motion: MotionMatcher) -> None:
     planner = ClaimingPlanner(home, jitter=3)
     requested: list[RecordedRequest] = []
-    result = _run(_world(home, motion, NAMES), planner,
+    result = _run(make_world(home, motion, NAMES), planner,
                   SessionSettings(frames=20 * FPS, pace="fast", max_steps=8), requested)
     assert planner.most_running == 1 and result.steps >= 4
     assert requested == []  # the trace of a one-at-a-time run is what it always was
 
 
-def test_a_concurrent_fast_run_replays_from_its_recorded_requests(home: Scene, motion: MotionMatcher) -> None:  # noqa: F811
+def test_a_concurrent_fast_run_replays_from_its_recorded_requests(home: Scene, motion: MotionMatcher) -> None:
     settings = SessionSettings(frames=30 * FPS, pace="fast", max_steps=12, planners=3)
     requested: list[RecordedRequest] = []
     live_planner = ClaimingPlanner(home, jitter=4)
-    live = _run(_world(home, motion, NAMES), live_planner, settings, requested)
+    live = _run(make_world(home, motion, NAMES), live_planner, settings, requested)
     _no_character_in_two_events(live_planner.requests, live)
     assert live_planner.most_running >= 2
     assert [r.step for r in requested] == sorted(r.index for r in live_planner.requests)
@@ -165,25 +165,25 @@ def test_a_concurrent_fast_run_replays_from_its_recorded_requests(home: Scene, m
         frames = [by_step.get(i) for i in range(max(by_step) + 1)]  # overlapping steps land out of order
         replay = SessionSettings(frames=30 * FPS, pace="fast", planners=3, applied_frames=frames,
                                  schedule=requested, live_instructions=False)
-        replayed = _run(_world(home, motion, NAMES), planner, replay)
+        replayed = _run(make_world(home, motion, NAMES), planner, replay)
         assert _story(replayed) == _story(live)
         assert sorted(planner.requests, key=lambda r: r.index) == sorted(live_planner.requests, key=lambda r: r.index)
 
 
-def test_a_replay_whose_requests_do_not_fit_is_an_error(home: Scene, motion: MotionMatcher) -> None:  # noqa: F811
+def test_a_replay_whose_requests_do_not_fit_is_an_error(home: Scene, motion: MotionMatcher) -> None:
     bad = [RecordedRequest(step=0, frame=1, phase="frame_end"), RecordedRequest(step=1, frame=1, phase="frame_start", after=(7,))]
     settings = SessionSettings(frames=5 * FPS, pace="fast", planners=2, applied_frames=[40, 40], schedule=bad)
     with pytest.raises(SessionError, match="replay"):
-        _run(_world(home, motion, NAMES), ClaimingPlanner(home), settings)
+        _run(make_world(home, motion, NAMES), ClaimingPlanner(home), settings)
 
 
-def test_offline_pace_lands_each_outcome_after_its_calls_latency(home: Scene, motion: MotionMatcher) -> None:  # noqa: F811
+def test_offline_pace_lands_each_outcome_after_its_calls_latency(home: Scene, motion: MotionMatcher) -> None:
     for planners in (1, 2):
         runs = []
         for jitter in (7, 8):
             planner = ClaimingPlanner(home, jitter=jitter, narrate_s=1.0, parse_s=2.0)
             settings = SessionSettings(frames=40 * FPS, pace="offline", max_steps=10, planners=planners)
-            result = _run(_world(home, motion, NAMES), planner, settings)
+            result = _run(make_world(home, motion, NAMES), planner, settings)
             _no_character_in_two_events(planner.requests, result)
             runs.append((planner, result))
         (p1, r1), (_, r2) = runs
@@ -200,23 +200,23 @@ def test_offline_pace_lands_each_outcome_after_its_calls_latency(home: Scene, mo
             assert any(b - a == 1.0 * FPS for a, b in itertools.pairwise(starts))
 
 
-def test_offline_latency_setting_replaces_each_calls_own(home: Scene, motion: MotionMatcher) -> None:  # noqa: F811
+def test_offline_latency_setting_replaces_each_calls_own(home: Scene, motion: MotionMatcher) -> None:
     planner = ClaimingPlanner(home, jitter=9)
     settings = SessionSettings(frames=20 * FPS, pace="offline", max_steps=5, offline_latency_s=0.5)
-    result = _run(_world(home, motion, NAMES), planner, settings)
+    result = _run(make_world(home, motion, NAMES), planner, settings)
     frames = {r.index: r.frame for r in planner.requests}
     for i, outcome, applied in _story(result):
         calls = 1 if outcome is None else 2
         assert applied == frames[i] + round(calls * 0.5 * FPS)
 
 
-def test_an_unexpected_error_in_a_step_cancels_the_session(home: Scene, motion: MotionMatcher) -> None:  # noqa: F811
+def test_an_unexpected_error_in_a_step_cancels_the_session(home: Scene, motion: MotionMatcher) -> None:
     planner = ClaimingPlanner(home, jitter=10, explode_at=3)
 
     async def main() -> None:
         settings = SessionSettings(frames=60 * FPS, pace="fast", max_steps=20, planners=3)
         with pytest.raises(RuntimeError, match="the port broke"):
-            await Session(_world(home, motion, NAMES), planner, settings).run()
+            await Session(make_world(home, motion, NAMES), planner, settings).run()
         import asyncio
 
         assert asyncio.all_tasks() == {asyncio.current_task()}  # nothing left pending
@@ -225,7 +225,7 @@ def test_an_unexpected_error_in_a_step_cancels_the_session(home: Scene, motion: 
     assert planner.running == 0  # every other step in flight was cancelled, none orphaned
 
 
-def test_an_llm_error_stops_planning_but_the_story_goes_on(home: Scene, motion: MotionMatcher) -> None:  # noqa: F811
+def test_an_llm_error_stops_planning_but_the_story_goes_on(home: Scene, motion: MotionMatcher) -> None:
     class Unavailable(ClaimingPlanner):
         async def _plan(self, request: PlanningRequest, progress: StepProgress | None) -> Outcome:
             if request.index == 2:
@@ -233,20 +233,20 @@ def test_an_llm_error_stops_planning_but_the_story_goes_on(home: Scene, motion: 
             return await super()._plan(request, progress)
 
     planner = Unavailable(home, jitter=11)
-    result = _run(_world(home, motion, NAMES), planner, SessionSettings(frames=15 * FPS, pace="fast", planners=2))
+    result = _run(make_world(home, motion, NAMES), planner, SessionSettings(frames=15 * FPS, pace="fast", planners=2))
     assert result.frames == 15 * FPS and isinstance(result.planner_error, LLMError)
     assert 2 not in [i for i, _ in result.outcomes]
 
 
-def test_settings_for_planners_and_offline_latency_are_checked(home: Scene, motion: MotionMatcher) -> None:  # noqa: F811
-    world = _world(home, motion, ["Ava"])
+def test_settings_for_planners_and_offline_latency_are_checked(home: Scene, motion: MotionMatcher) -> None:
+    world = make_world(home, motion, ["Ava"])
     with pytest.raises(SessionError, match="planners"):
         Session(world, ClaimingPlanner(home), SessionSettings(frames=10, planners=0))
     with pytest.raises(SessionError, match="offline latency"):
         Session(world, ClaimingPlanner(home), SessionSettings(frames=10, pace="offline", offline_latency_s=-1.0))
 
 
-def test_the_planning_graph_runs_two_steps_at_once_on_two_lanes(home: Scene, motion: MotionMatcher, tmp_path: Path) -> None:  # noqa: F811
+def test_the_planning_graph_runs_two_steps_at_once_on_two_lanes(home: Scene, motion: MotionMatcher, tmp_path: Path) -> None:
     from langgraph.checkpoint.memory import InMemorySaver
 
     from agents.event_parser import scene_action_labels
@@ -258,7 +258,7 @@ def test_the_planning_graph_runs_two_steps_at_once_on_two_lanes(home: Scene, mot
     from orchestrator.planning.state import PlanningDeps
     from orchestrator.session.roster import RosterWorld
     from orchestrator.session.step_planner import GraphStepPlanner
-    from tests.test_session_runtime import ScriptedCompletion
+    from tests.support.session_world import ScriptedCompletion
 
     path = tmp_path / "trace.jsonl"
     client = LiteLLMClient(default_config(), TraceWriter(path, fsync="never"), acompletion=ScriptedCompletion(),
@@ -271,7 +271,7 @@ def test_the_planning_graph_runs_two_steps_at_once_on_two_lanes(home: Scene, mot
 
     async def main() -> SessionResult:
         try:
-            return await Session(_world(home, motion, ["Ava", "Ben", "Cleo"]), planner, settings,
+            return await Session(make_world(home, motion, ["Ava", "Ben", "Cleo"]), planner, settings,
                                  trace=client.trace).run()
         finally:
             story.close()

@@ -7,7 +7,6 @@ paths and motion matching are the real ones on the bundled home scene.
 from __future__ import annotations
 
 import itertools
-import random
 from collections.abc import Awaitable, Callable
 from dataclasses import replace
 from pathlib import Path
@@ -19,7 +18,6 @@ import pytest
 
 from agents.llm_port import LLMError, LLMPort
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.planning.state import StepProgress
 from orchestrator.session.frame_profile import PARTS
 from orchestrator.session.runtime import (
@@ -31,80 +29,20 @@ from orchestrator.session.runtime import (
     SessionSettings,
     StepPlanner,
 )
-from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.bundled import resolve_scene
 from sim.scene.model import Scene
 from sim.world.step import World
+from tests.support.session_world import (
+    FPS,
+    ScriptedCompletion,
+    ScriptedPlanner,
+    free_points,
+    make_world,
+)
 
 if TYPE_CHECKING:
-    import litellm
 
     from orchestrator.llm.traces import AppliedRecord, TraceSink
-
-FPS = 30
-
-
-@pytest.fixture(scope="module")
-def motion() -> MotionMatcher:
-    return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
-
-
-@pytest.fixture(scope="module")
-def home() -> Scene:
-    return resolve_scene("home")
-
-
-def _free_points(scene: Scene, n: int, seed: int) -> list[tuple[float, float]]:
-    grid = build_nav_grid(scene)
-    cells = np.argwhere(grid.free)
-    rng = np.random.default_rng(seed)
-    out: list[tuple[float, float]] = []
-    for k in rng.permutation(len(cells)):
-        p = grid.center_of(*cells[k])
-        if all(np.hypot(*(p - q)) > 1.2 for q in out):
-            out.append((float(p[0]), float(p[1])))
-        if len(out) == n:
-            return out
-    raise AssertionError("not enough free points")
-
-
-def _world(scene: Scene, motion: MotionMatcher, names: list[str]) -> World:
-    starts = _free_points(scene, len(names), seed=1)
-    return World(scene, {n: (p, 0.0) for n, p in zip(names, starts, strict=True)}, motion)
-
-
-class ScriptedPlanner:
-    """Gives every free character a short standing action at a free spot, deterministically
-    from the request; optionally takes a random (wall-clock) time to answer."""
-
-    def __init__(self, scene: Scene, delays: bool = False, fail_at: int | None = None) -> None:
-        self.spots = _free_points(scene, 12, seed=7)
-        self.delays = random.Random(5) if delays else None
-        self.fail_at = fail_at
-        self.requests: list[PlanningRequest] = []
-
-    async def plan(self, request: PlanningRequest, progress: StepProgress | None = None) -> Outcome:
-        self.requests.append(request)
-        if self.delays is not None:
-            await anyio.sleep(self.delays.uniform(0.0, 0.02))
-        if self.fail_at is not None and request.index == self.fail_at:
-            raise LLMError("provider unreachable")
-        free = [c.name for c in request.roster if not c.busy]
-        if request.index % 4 == 3:
-            return None  # the narrator waits
-        if request.index % 5 == 4:
-            return PlanningFailure(index=request.index, node="event_parser", attempts=4, feedback="gave up")
-        who = free[: 2 if len(free) > 1 and request.index % 2 else 1]
-        plans = []
-        for k, name in enumerate(who):
-            x, y = self.spots[(request.index * 3 + k) % len(self.spots)]
-            plans.append(PlannedCharacter(character=name, action="use_smartphone" if k == 0 else "drink",
-                                          area="near a free spot", position=(x, y), facing=(1.0, 0.0)))
-        return ParsedEvent(index=request.index, event=Event(characters=tuple(who), activity="take a break"),
-                           plans=tuple(plans))
-
 
 def _run(world: World, planner: StepPlanner, settings: SessionSettings) -> SessionResult:
     async def main() -> SessionResult:
@@ -114,7 +52,7 @@ def _run(world: World, planner: StepPlanner, settings: SessionSettings) -> Sessi
 
 
 def test_lockstep_session_plans_and_completes_events(home: Scene, motion: MotionMatcher) -> None:
-    world = _world(home, motion, ["Ava", "Ben"])
+    world = make_world(home, motion, ["Ava", "Ben"])
     planner = ScriptedPlanner(home)
     result = _run(world, planner, SessionSettings(frames=40 * FPS, pace="lockstep", max_steps=6))
     assert result.frames == 40 * FPS
@@ -134,10 +72,10 @@ def test_lockstep_session_plans_and_completes_events(home: Scene, motion: Motion
 
 
 def test_live_run_replays_to_identical_events_and_motion(home: Scene, motion: MotionMatcher) -> None:
-    live_world = _world(home, motion, ["Ava", "Ben", "Cleo"])
+    live_world = make_world(home, motion, ["Ava", "Ben", "Cleo"])
     live = _run(live_world, ScriptedPlanner(home, delays=True), SessionSettings(frames=30 * FPS, pace="fast", max_steps=8))
     assert live.steps >= 3
-    replay_world = _world(home, motion, ["Ava", "Ben", "Cleo"])
+    replay_world = make_world(home, motion, ["Ava", "Ben", "Cleo"])
     replayed = _run(
         replay_world,
         ScriptedPlanner(home),
@@ -162,7 +100,7 @@ def test_a_session_resumed_from_a_saved_checkpoint_ends_as_the_uninterrupted_one
     names = ["Ava", "Ben", "Cleo"]
     settings = SessionSettings(frames=30 * FPS, pace="lockstep", max_steps=8, checkpoint_every_s=4.0)
     kept: list[SessionCheckpoint] = []
-    whole_world = _world(home, motion, names)
+    whole_world = make_world(home, motion, names)
 
     async def whole_run() -> tuple[SessionResult, World]:
         session = Session(whole_world, ScriptedPlanner(home), settings, on_checkpoint=kept.append)
@@ -177,7 +115,7 @@ def test_a_session_resumed_from_a_saved_checkpoint_ends_as_the_uninterrupted_one
     save_checkpoint(path, whole_world, middle)
     assert path.stat().st_size < 20_000_000  # the motion layer and the grids are stored by name only
 
-    fresh = _world(home, motion, names)
+    fresh = make_world(home, motion, names)
     planner = ScriptedPlanner(home)
 
     async def resumed_run() -> tuple[SessionResult, World]:
@@ -201,13 +139,13 @@ def test_a_session_resumed_from_a_saved_checkpoint_ends_as_the_uninterrupted_one
 
 
 def test_replay_with_frames_that_cannot_fit_is_an_error(home: Scene, motion: MotionMatcher) -> None:
-    world = _world(home, motion, ["Ava"])
+    world = make_world(home, motion, ["Ava"])
     with pytest.raises(SessionError, match="replay"):
         _run(world, ScriptedPlanner(home), SessionSettings(frames=5 * FPS, applied_frames=[10, 0]))
 
 
 def test_planner_crash_stops_planning_but_not_the_simulation(home: Scene, motion: MotionMatcher) -> None:
-    world = _world(home, motion, ["Ava", "Ben"])
+    world = make_world(home, motion, ["Ava", "Ben"])
     result = _run(world, ScriptedPlanner(home, fail_at=1), SessionSettings(frames=10 * FPS, pace="lockstep"))
     assert result.frames == 10 * FPS
     assert isinstance(result.planner_error, LLMError)
@@ -215,49 +153,11 @@ def test_planner_crash_stops_planning_but_not_the_simulation(home: Scene, motion
 
 
 def test_settings_are_checked(home: Scene, motion: MotionMatcher) -> None:
-    world = _world(home, motion, ["Ava"])
+    world = make_world(home, motion, ["Ava"])
     with pytest.raises(SessionError):
         Session(world, ScriptedPlanner(home), SessionSettings(frames=10, pace="sometimes"))  # type: ignore[arg-type]  # the run-time check is under test
     with pytest.raises(SessionError):
         Session(world, ScriptedPlanner(home), SessionSettings(frames=10, speed=0.0))
-
-
-# ----- the real planning graph behind a session: frames and parsed outputs in the trace ----
-class ScriptedCompletion:
-    """A fake ``litellm.acompletion`` for the whole graph on the home scene: the node is told
-    by the request (describer / narrator schema, no schema for the parser). The first parser
-    reply has no code, so step 0 needs a parser retry."""
-
-    def __init__(self) -> None:
-        self.parser_calls = 0
-
-    async def __call__(self, *, model: str, messages: list[dict[str, str]], **kw: object) -> litellm.ModelResponse:
-        import json
-        import re
-
-        import litellm
-
-        fmt = kw.get("response_format")
-        schema = fmt.get("schema") if isinstance(fmt, dict) else None
-        if schema is not None and "areas" in schema["properties"]:
-            names = schema["properties"]["areas"]["items"]["properties"]["objects"]["items"]["enum"]
-            text = json.dumps({"areas": [{"name": "home", "purpose": "live", "objects": names}]})
-        elif schema is not None:
-            free = schema["properties"]["event"]["properties"]["characters"]["items"]["enum"]
-            text = json.dumps({"reasoning": "next", "event": {"characters": free[:1], "activity": "read near bookshelf_1"}})
-        else:
-            self.parser_calls += 1
-            named = re.search(r'Event: characters \["(\w+)"', messages[1]["content"])
-            assert named is not None, "the parser's prompt names the event's characters"
-            who = named.group(1)
-            text = "I would let them read." if self.parser_calls == 1 else (
-                f'```python\ndef parse_event():\n    c = get_character("{who}")\n'
-                '    c.set_position(get_area_close_to("bookshelf_1"))\n    c.set_target_action("read_book")\n```'
-            )
-        return litellm.ModelResponse(
-            choices=[{"index": 0, "finish_reason": "stop", "message": {"role": "assistant", "content": text}}],
-            usage={"prompt_tokens": 10, "completion_tokens": 5, "total_tokens": 15},
-        )
 
 
 async def _graph_session(
@@ -277,7 +177,7 @@ async def _graph_session(
     deps = PlanningDeps(port=port, scene=scene, world=RosterWorld(), story=story,
                         action_labels=scene_action_labels(scene), seed=0)
     planner = GraphStepPlanner(compile_planning_graph(InMemorySaver()), deps, thread)
-    world = _world(scene, motion, ["Ava", "Ben"])
+    world = make_world(scene, motion, ["Ava", "Ben"])
     try:
         return await Session(world, planner, replace(settings, instruction="Everyone reads."), trace=trace).run()
     finally:
@@ -365,7 +265,7 @@ def test_an_event_the_motion_library_cannot_play_is_skipped_and_logged(home: Sce
                                     seat=seat.name)
             return ParsedEvent(index=0, event=Event(characters=("Ava",), activity="coffee"), plans=(plan,))
 
-    world = _world(home, motion, ["Ava"])
+    world = make_world(home, motion, ["Ava"])
     with capture_logs() as logs:
         result = _run(world, SeatedCoffee(home), SessionSettings(frames=3 * FPS, pace="lockstep", max_steps=2))
     assert result.frames == 3 * FPS and result.planner_error is None
@@ -377,7 +277,7 @@ class WaitingPlanner:
     """Ava reads (a looping action, so she is free again at once); every later step waits."""
 
     def __init__(self, scene: Scene) -> None:
-        self.spot = _free_points(scene, 1, seed=7)[0]
+        self.spot = free_points(scene, 1, seed=7)[0]
         self.requests: list[PlanningRequest] = []
 
     async def plan(self, request: PlanningRequest, progress: StepProgress | None = None) -> Outcome:
@@ -390,7 +290,7 @@ class WaitingPlanner:
 
 
 def test_after_a_wait_the_planner_is_asked_again_only_when_something_changed(home: Scene, motion: MotionMatcher) -> None:
-    world = _world(home, motion, ["Ava", "Ben"])
+    world = make_world(home, motion, ["Ava", "Ben"])
     planner = WaitingPlanner(home)
     settings = SessionSettings(frames=40 * FPS, pace="lockstep", retry_after_s=1.0, recheck_after_s=15.0)
     result = _run(world, planner, settings)
@@ -438,7 +338,7 @@ def test_realtime_pace_slips_after_a_stall_instead_of_bursting_catch_up_frames(
         await real_sleep(0)
 
     monkeypatch.setattr(anyio, "sleep", virtual_sleep)
-    world = _world(home, motion, ["Ava", "Ben"])
+    world = make_world(home, motion, ["Ava", "Ben"])
 
     async def main() -> SessionResult:
         session = Session(world, ScriptedPlanner(home), SessionSettings(frames=40, pace="realtime", max_steps=2),

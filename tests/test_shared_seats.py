@@ -14,13 +14,13 @@ from sim.scene.bundled import resolve_scene
 from sim.world.events import AssignEvent, Assignment
 from sim.world.navigation import seat_place
 from sim.world.step import World, WorldConfig, step
-from tests.test_world_step import StandInMotion
+from tests.support.stand_in_motion import RestPoseMotion
 
 
 def _sit_together(scene_name: str, starts: dict[str, tuple[float, float]],
                   seats: dict[str, tuple[str, tuple[float, float], tuple[float, float]]]) -> World:
     scene = resolve_scene(scene_name)
-    world = World(scene, {n: (p, 0.0) for n, p in starts.items()}, StandInMotion(), config=WorldConfig(foot_ik=False))
+    world = World(scene, {n: (p, 0.0) for n, p in starts.items()}, RestPoseMotion(record=True), config=WorldConfig(foot_ik=False))
     event = AssignEvent(event_id="sit", assignments=tuple(
         Assignment(character=n, action="chat", target_xy=xy, facing_xy=f, seat=seat, partners=tuple(set(seats) - {n}))
         for n, (seat, xy, f) in seats.items()))

@@ -26,7 +26,7 @@ from orchestrator.llm.traces import read_trace
 from orchestrator.session.run_status import RunSnapshot
 from orchestrator.session.runtime import InstructionSource
 from orchestrator.session.terminal_prompt import MAX_LINE, LineEditor, TerminalPrompt
-from tests.test_run_folder import ROOT, RUN, Planner, cli, env, write_config  # noqa: F401  (env: a fixture)
+from tests.support.cli_run import ROOT, RUN, Planner, cli, write_config
 
 
 def test_the_editor_gives_out_lines_and_keeps_the_one_being_typed() -> None:
@@ -150,7 +150,7 @@ class TerminalOutput:
 
 
 def test_run_on_a_terminal_shows_the_live_view_and_takes_typed_instructions(
-    env: None, tmp_path: Path, terminal: tuple[int, int]  # noqa: F811
+    env: None, tmp_path: Path, terminal: tuple[int, int]
 ) -> None:
     master, slave = terminal
     before = termios.tcgetattr(slave)

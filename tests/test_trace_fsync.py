@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from orchestrator.llm.traces import TraceWriter, read_trace
-from tests.test_traces import attempt
+from tests.support.trace_records import attempt
 
 Fsyncs = list[tuple[int, int, int]]
 """(thread ident, fd, file size at the fsync) of every fsync."""
@@ -154,8 +154,8 @@ def test_a_steps_outcome_is_logged_off_the_loop_after_its_records_are_on_disk(
     from orchestrator.planning.checkpoints import Outcome, StoryLog
     from orchestrator.planning.graph import compile_planning_graph, recursion_limit
     from orchestrator.planning.state import PlanningState
+    from tests.support.planning_script import DESCRIPTION, PROGRAM, make_deps, narration
     from tests.support.scripted_llm import ScriptedLLM
-    from tests.test_planning_graph import DESCRIPTION, PROGRAM, make_deps, narration
 
     path = tmp_path / "t.jsonl"
     trace = TraceWriter(path, fsync="always")

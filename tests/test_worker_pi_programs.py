@@ -14,9 +14,17 @@ from benchmark.reference_cases import planning_inputs
 from orchestrator.sandbox_worker import WorkerRunner
 from orchestrator.session.plan_job import run_plan
 from tests.support.reference import requires_reference
+from tests.support.reference_pipeline import (
+    CASE_IDS,
+    MODEL,
+    PROGRAMS,
+    SEED,
+    answer,
+    case_path,
+    scene_and_graph,
+    the_case,
+)
 from tests.support.scripted_llm import ScriptedLLM
-from tests.test_one_pipeline import MODEL, SEED, answer, the_case
-from tests.test_pi_cases import CASE_IDS, PROGRAMS, case_path, scene_and_graph
 from tools.character_states import world_view_from_reference_case
 from tools.event_program import run_event_program
 
