@@ -27,8 +27,11 @@ from sim.scene.files import load_scene
 from sim.scene.model import SceneObject
 from sim.world.contacts import (
     FEET_CLEAR_M,
+    HOLD_BELOW_MOUTH_M,
     box_contact_point,
     hand_targets,
+    mouth_point,
+    mouth_weight,
     reach_weight,
     seat_pelvis,
 )
@@ -158,6 +161,32 @@ def test_a_hand_goes_onto_the_object_at_the_reach_and_a_handshake_meets() -> Non
     chars[0].phase_frame = 179
     chars[1].phase_frame = chars[2].phase_frame = 89
     assert np.allclose(hand_targets(objects, chars, pelvis, rots, 30.0), rots, atol=1e-9)
+
+
+def test_drinking_and_eating_bring_a_hand_under_the_mouth_on_the_clips_schedule() -> None:
+    """drink: the right hand under the mouth while the sip is held, as animated before and after;
+    eat (looping): the hands take turns, standing or seated (a seat does not stop it)."""
+    assert mouth_weight("to_mouth", 0, 30.0, 4.0)[1] < 0.05
+    assert mouth_weight("to_mouth", 40, 30.0, 4.0) == (1, 1.0)  # 1.37 s of 4: held
+    assert mouth_weight("to_mouth", 100, 30.0, 4.0)[1] == 0.0  # put down
+    assert mouth_weight("to_mouth_both", 20, 30.0, 4.0) == (1, 1.0)
+    assert mouth_weight("to_mouth_both", 80, 30.0, 4.0) == (0, 1.0)  # the left hand's turn
+    assert mouth_weight("to_mouth_both", 140, 30.0, 4.0) == (1, 1.0)  # and round again
+    p0, r0 = _standing((0.0, 0.0), 0.3)
+    p1, r1 = _standing((2.0, 0.0), -1.0)
+    chars = [_acting("ann", "drink", 40, 120), _acting("bob", "eat", 80, 120, seat="chair_1")]
+    chars[0].heading, chars[1].heading = 0.3, -1.0
+    pelvis, rots = np.stack([p0, p1]), np.stack([r0, r1])
+    out = hand_targets({}, chars, pelvis, rots, 30.0)
+    pos, _ = forward_kinematics(out, pelvis)
+    before, _ = forward_kinematics(rots, pelvis)
+    for k, hand in ((0, 1), (1, 0)):
+        goal = mouth_point(pos[k], chars[k].heading) - np.array([0.0, 0.0, HOLD_BELOW_MOUTH_M])
+        assert np.linalg.norm(pos[k, WRIST_JOINTS[hand]] - goal) < 1e-6
+        assert np.linalg.norm(before[k, WRIST_JOINTS[hand]] - goal) > 0.3
+        assert np.allclose(pos[k, WRIST_JOINTS[1 - hand]], before[k, WRIST_JOINTS[1 - hand]])
+    chars[0].phase_frame = 100  # the cup is down again
+    assert np.allclose(hand_targets({}, chars[:1], pelvis[:1], rots[:1], 30.0), rots[:1], atol=1e-9)
 
 
 def test_a_seated_pelvis_goes_to_the_seat_height_with_the_feet_kept_on_the_floor() -> None:

@@ -244,3 +244,22 @@ def test_crowd_overlaps_agree_with_the_pairwise_measure() -> None:
     assert pairs == 1 and depth[0] > 0
     hugging = [np.ones(n, dtype=bool), np.ones(n, dtype=bool), np.zeros(n, dtype=bool)]
     assert crowd_overlaps([a, b, c], body, hugging)[0].max() == 0.0
+
+
+def test_mouth_reaches_measure_the_wrist_under_the_mouth_of_drinking_and_eating() -> None:
+    from benchmark.motion_metrics.interactions import brings_to_mouth, mouth_points, mouth_reaches
+    from sim.world.contacts import HOLD_BELOW_MOUTH_M
+
+    assert brings_to_mouth("drink@seated") and brings_to_mouth("eat") and not brings_to_mouth("walk")
+    assert not brings_to_mouth("no_such_action")
+    rot = np.broadcast_to(np.eye(3), (4, NUM_JOINTS, 3, 3)).copy()
+    rot[:, 0] = heading_to_root(0.7)
+    joints = forward_kinematics(rot, np.tile([[1.0, 2.0, REST_OFFSETS[0, 1]]], (4, 1)))[0]
+    mouth = mouth_points(joints)
+    ahead = mouth[0, :2] - joints[0, JOINT_INDEX["head"], :2]
+    assert np.allclose(ahead / np.linalg.norm(ahead), [math.cos(0.7), math.sin(0.7)])  # in front of the face
+    joints[2, JOINT_INDEX["right_wrist"]] = mouth[2] - [0.0, 0.0, HOLD_BELOW_MOUTH_M + 0.05]
+    got = mouth_reaches(joints, ["walk", "drink", "drink", "drink"], 30.0)
+    assert [(r.action, r.frame) for r in got] == [("drink", 2)] and got[0].distance == pytest.approx(0.05)
+    far = mouth_reaches(joints, ["eat", "eat", "walk", "walk"], 30.0)  # the T pose's hands: far away
+    assert len(far) == 1 and far[0].distance > 0.3

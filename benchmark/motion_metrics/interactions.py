@@ -9,6 +9,12 @@ Read from a track's per-frame action labels (database keys: ``use_coffee_maker``
   the object the action names (``sim.world.facing.object_named_by`` at the run's first root
   position); that distance (metres, 0 inside the box). Target: within ``HAND_TARGET_M`` for
   90% of reaches;
+- **hand to mouth** of ``drink`` and ``eat`` (gestures ``MOUTH_GESTURES``, standing or
+  seated): for the first ``REACH_WINDOW_S`` seconds of each run of the label, the least distance
+  from the nearer wrist to the mouth (``mouth_points``: ``MOUTH_FORWARD_M`` in front of and
+  ``MOUTH_BELOW_HEAD_M`` under the head joint, forward taken from the shoulders); the cup or
+  the food is in the hand, so the wrist stands ``HOLD_BELOW_MOUTH_M`` under the lips at best.
+  Target: within ``HAND_TARGET_M``, as for objects;
 - **seat height** while seated (``sit_idle`` and ``...@seated`` frames): the pelvis height
   against the seat surface of the seat under it plus ``PELVIS_ABOVE_SEAT_M``; the median
   absolute error of each sitting (metres; target 3 cm);
@@ -30,8 +36,14 @@ from numpy.typing import NDArray
 from benchmark.motion_metrics.bodies import Box, seat_surface, signed_distance
 from benchmark.motion_metrics.gait import label_runs
 from sim.body.skeleton import JOINT_INDEX
-from sim.motion.action_labels import SEATED_SUFFIX
+from sim.motion.action_labels import SEATED_SUFFIX, action_spec
 from sim.scene.model import Scene, SceneObject
+from sim.world.contacts import (
+    HOLD_BELOW_MOUTH_M,
+    MOUTH_BELOW_HEAD_M,
+    MOUTH_FORWARD_M,
+    MOUTH_GESTURES,
+)
 from sim.world.facing import needs_reach, object_named_by
 
 REACH_WINDOW_S = 4.0
@@ -90,6 +102,39 @@ def reaches(joints: NDArray[np.float64], labels: Sequence[str], scene: Scene, fp
             end = min(b, a + round(REACH_WINDOW_S * fps))
             k, dist = hand_distance(j[a:end][:, list(WRISTS)], obj)
             out.append(Reach(label, obj.name, a + k, dist))
+    return out
+
+
+def brings_to_mouth(label: str) -> bool:
+    """Whether ``label`` (a database key) is an action that brings a hand to the mouth (drink, eat)."""
+    try:
+        return action_spec(label.split("@", 1)[0]).gesture in MOUTH_GESTURES
+    except ValueError:
+        return False
+
+
+def mouth_points(joints: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The mouth (F, 3) of joint positions (F, 22, 3): in front of and under the head joint,
+    forward being square to the shoulders, horizontal."""
+    j = np.asarray(joints, dtype=np.float64)
+    across = j[:, JOINT_INDEX["left_shoulder"]] - j[:, JOINT_INDEX["right_shoulder"]]
+    fwd = np.stack([across[:, 1], -across[:, 0], np.zeros(len(j))], axis=1)  # (left - right) x up
+    fwd /= np.maximum(np.linalg.norm(fwd, axis=1, keepdims=True), 1e-9)
+    return np.asarray(j[:, JOINT_INDEX["head"]] + MOUTH_FORWARD_M * fwd - np.array([0.0, 0.0, MOUTH_BELOW_HEAD_M]))
+
+
+def mouth_reaches(joints: NDArray[np.float64], labels: Sequence[str], fps: float) -> list[Reach]:
+    """Wrist-to-mouth distance (metres, less ``HOLD_BELOW_MOUTH_M``, not below 0) at the frame it
+    is least, in the first ``REACH_WINDOW_S`` of every run of a drink / eat label."""
+    j = np.asarray(joints, dtype=np.float64)
+    out = []
+    for label in sorted({lab for lab in labels if brings_to_mouth(lab)}):
+        for a, b in label_runs(labels, label):
+            end = min(b, a + round(REACH_WINDOW_S * fps))
+            mouth = mouth_points(j[a:end])
+            d = np.linalg.norm(j[a:end][:, list(WRISTS)] - mouth[:, None], axis=-1).min(axis=1)
+            k = int(np.argmin(d))
+            out.append(Reach(label, "mouth", a + k, max(float(d[k]) - HOLD_BELOW_MOUTH_M, 0.0)))
     return out
 
 

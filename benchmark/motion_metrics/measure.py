@@ -26,6 +26,7 @@ from benchmark.motion_metrics.gait import GaitWindow, track_windows
 from benchmark.motion_metrics.interactions import (
     Reach,
     is_seated_label,
+    mouth_reaches,
     reaches,
     seat_errors,
     transition_times,
@@ -54,6 +55,7 @@ class Measured:
     overlap_pairs: int = 0
     gait: list[GaitWindow] = field(default_factory=list)
     reaches: list[Reach] = field(default_factory=list)
+    mouths: list[Reach] = field(default_factory=list)  # drink / eat: wrist to mouth
     seat_errors: list[float] = field(default_factory=list)
     transitions: dict[str, list[float]] = field(default_factory=lambda: {"sit_down": [], "stand_up": []})
     facing: list[Interaction] = field(default_factory=list)
@@ -97,6 +99,7 @@ def measure_run(run: RunMotion, *, bodies: bool = True, facing: bool = True) -> 
         if run.scene is None:
             continue
         out.reaches.extend(reaches(c.joints, c.labels, run.scene, run.fps))
+        out.mouths.extend(mouth_reaches(c.joints, c.labels, run.fps))
         out.seat_errors.extend(seat_errors(c.joints, c.labels, run.scene))
         if bodies:
             seated, hands, contact = _flags(c.labels)
@@ -133,6 +136,7 @@ def pooled(name: str, items: Sequence[Measured]) -> Measured:
         out.overlap_pairs += m.overlap_pairs
         out.gait += m.gait
         out.reaches += m.reaches
+        out.mouths += m.mouths
         out.seat_errors += m.seat_errors
         for k in out.transitions:
             out.transitions[k] += m.transitions.get(k, [])

@@ -20,7 +20,7 @@ from benchmark.motion_metrics.gait import (
     compare_gait,
     fit_speed,
 )
-from benchmark.motion_metrics.interactions import HAND_TARGET_M, SEAT_TARGET_M, is_use_action
+from benchmark.motion_metrics.interactions import HAND_TARGET_M, SEAT_TARGET_M, Reach, is_use_action
 from benchmark.motion_metrics.measure import Measured, furniture_summary
 
 Table = tuple[list[str], list[list[str]]]
@@ -77,6 +77,7 @@ def cadence_table(items: Sequence[Measured], real: Measured) -> Table:
 def interaction_table(items: Sequence[Measured]) -> Table:
     head = ["source", "facing n", "start med/p95 deg", "during med/p95 deg", "use_* reaches", "hand med cm",
             f"<= {HAND_TARGET_M * 100:g} cm", f"all reaches n / med cm / <= {HAND_TARGET_M * 100:g} cm",
+            f"to mouth n / med cm / <= {HAND_TARGET_M * 100:g} cm",
             "sittings", "seat err med/max cm", f"<= {SEAT_TARGET_M * 100:g} cm",
             "sit down n / med s", "stand up n / med s"]
     rows = []
@@ -92,13 +93,21 @@ def interaction_table(items: Sequence[Measured]) -> Table:
             _f(float(np.median(hands)) * 100, 1) if len(hands) else "-",
             _f(float(np.mean(hands <= HAND_TARGET_M)), 2) if len(hands) else "-",
             f"{len(every)} / {_f(float(np.median(every)) * 100, 1)} / {_f(float(np.mean(every <= HAND_TARGET_M)), 2)}"
-            if len(every) else "0 / - / -", str(len(seats)),
+            if len(every) else "0 / - / -", _reach_cell(m.mouths), str(len(seats)),
             f"{_f(float(np.median(seats)) * 100, 1)}/{_f(float(seats.max()) * 100, 1)}" if len(seats) else "-",
             _f(float(np.mean(seats <= SEAT_TARGET_M)), 2) if len(seats) else "-",
             f"{len(sd)} / {_f(float(np.median(sd)), 2) if sd else '-'}",
             f"{len(su)} / {_f(float(np.median(su)), 2) if su else '-'}",
         ])
     return head, rows
+
+
+def _reach_cell(items: Sequence[Reach]) -> str:
+    """'n / median cm / share within the hand target' of reaches."""
+    d = np.array([r.distance for r in items])
+    if not len(d):
+        return "0 / - / -"
+    return f"{len(d)} / {_f(float(np.median(d)) * 100, 1)} / {_f(float(np.mean(d <= HAND_TARGET_M)), 2)}"
 
 
 def as_text(table: Table) -> str:
@@ -166,6 +175,7 @@ def figures_json(items: Sequence[Measured], real: Measured | None) -> dict[str, 
             "facing_count": fs.count, "facing_start_median_deg": fs.start_median, "facing_start_p95_deg": fs.start_p95,
             "facing_during_median_deg": fs.during_median, "facing_during_p95_deg": fs.during_p95,
             "reaches": [[r.action, r.obj, r.frame, r.distance] for r in m.reaches],
+            "mouths": [[r.action, r.obj, r.frame, r.distance] for r in m.mouths],
             "seat_errors_m": m.seat_errors, "transitions_s": m.transitions, "notes": m.notes,
         }
         if real is not None and m is not real:

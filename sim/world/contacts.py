@@ -22,6 +22,11 @@ in time and both exact at the contact:
   (``sim.body.arm_ik``); an object out of the arm's reach (a record player on a low side table)
   bends the trunk forward first, as little as will do (``LEAN_STEPS``). A wipe's circles and a
   pen's strokes stay: the point follows the animated hand across the surface;
+- **the cup or the food to the mouth** (``hand_targets``): a character drinking or eating
+  (gestures ``MOUTH_GESTURES``, standing or seated) moves the hand holding it to just under its
+  mouth (``mouth_point``: in front of and below the head joint; the wrist ``HOLD_BELOW_MOUTH_M``
+  under it) on the procedural clip's schedule (``mouth_weight``: up over the first quarter of
+  each sip or bite, held, down by 65%; eating alternates the hands), by the arm IK;
 - **a handshake's hands meet** (``hand_targets``): two partners shaking hands move their right
   hands to the midpoint of their animated right hands (raised to about elbow height), with the
   weight of the handshake's reach. They meet when the partners stand close enough for two
@@ -53,6 +58,11 @@ BOTH_HANDS = frozenset({"carry", "type"})
 REACH_IN = {"carry": (0.35, 0.6), "handshake": (0.3, 0.75)}
 """Fractions of the action's duration at which the hand arrives and leaves (default 0.3, 0.7:
 the procedural clips' keyframes, ``sim.motion.sources.procedural_actions._gesture``)."""
+MOUTH_GESTURES = frozenset({"to_mouth", "to_mouth_both"})
+"""Gestures that bring a hand (a cup, food) to the mouth: drink, eat."""
+MOUTH_FORWARD_M = 0.10  # the mouth in front of the head joint (horizontally, along the body's forward)
+MOUTH_BELOW_HEAD_M = 0.06  # and under it
+HOLD_BELOW_MOUTH_M = 0.07  # the wrist under the lips: the cup or the food is in the hand above it
 LOOP_REACH_S = 0.5  # seconds a looping action's hands take to settle on the object
 HAND_STANDOFF_M = 0.02  # wrist joint off the object's surface (the palm and fingers beyond it)
 SHAKE_BELOW_SHOULDER_M = 0.35  # shaking hands meet at least this high: about elbow height, forearms forward
@@ -74,6 +84,27 @@ def reach_weight(gesture: str, loops: bool, frame: int, length: int, fps: float)
     if t <= b:
         return smoothstep(t / a)
     return 1.0 - smoothstep((t - b) / (1.0 - b))
+
+
+def mouth_weight(gesture: str, frame: int, fps: float, duration: float) -> tuple[int, float]:
+    """(hand, weight 0..1) of a ``to_mouth`` / ``to_mouth_both`` gesture ``frame`` frames into
+    the action, on the procedural clip's keys (``procedural_actions``: each hand's span of a
+    ``duration``-second cycle, up by 25%, held to 45%, down by 65%); right hand first, eating
+    alternates. Looping actions repeat the cycle."""
+    sides = (1,) if gesture == "to_mouth" else (1, 0)
+    span = max(duration, 1e-6) / len(sides)
+    t = ((frame + 1) / fps) % (span * len(sides))
+    k = min(int(t // span), len(sides) - 1)
+    u = (t - k * span) / span
+    w = smoothstep(u / 0.25) if u <= 0.45 else 1.0 - smoothstep((u - 0.45) / 0.2)
+    return sides[k], float(w)
+
+
+def mouth_point(joints: NDArray[np.float64], heading: float) -> NDArray[np.float64]:
+    """The mouth (3,) of a body's joint positions (22, 3) facing ``heading`` (radians)."""
+    head = joints[JOINT_INDEX["head"]]
+    return np.asarray(head + np.array([MOUTH_FORWARD_M * np.cos(heading), MOUTH_FORWARD_M * np.sin(heading),
+                                       -MOUTH_BELOW_HEAD_M]))
 
 
 def sit_progress(c: CharacterState) -> float:
@@ -167,6 +198,16 @@ def _shake_point(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.f
     return np.asarray(p)
 
 
+def _target(aim: SceneObject | int | str, wrist: NDArray[np.float64], body: NDArray[np.float64],
+            partner: NDArray[np.float64] | None, heading: float) -> NDArray[np.float64]:
+    """A working hand's target: on the object, at the handshake's point, or under the mouth."""
+    if isinstance(aim, SceneObject):
+        return box_contact_point(aim, wrist)
+    if partner is not None:
+        return _shake_point(body, partner)
+    return np.asarray(mouth_point(body, heading) - np.array([0.0, 0.0, HOLD_BELOW_MOUTH_M]))
+
+
 def _lean(rots: NDArray[np.float64], pelvis: NDArray[np.float64], idx: NDArray[np.int64], side: NDArray[np.int64],
           targets: NDArray[np.float64], weights: NDArray[np.float64], lean: Sequence[bool],
           headings: Sequence[float]) -> NDArray[np.float64]:
@@ -216,15 +257,25 @@ def hand_targets(objects: Mapping[str, SceneObject], chars: Sequence[CharacterSt
     rows: list[int] = []
     sides: list[int] = []
     weights: list[float] = []
-    aims: list[SceneObject | int] = []  # the object, or the row of the partner shaking hands
+    aims: list[SceneObject | int | str] = []  # the object, the row of the partner shaking hands, or "mouth"
     index = {c.name: i for i, c in enumerate(chars)}
     for i, c in enumerate(chars):
         if c.phase != "interacting":
             continue
         a = c.assignment
-        if a is None or a.seat is not None:
+        if a is None:
             continue
         spec = action_spec(a.action)
+        if spec.gesture in MOUTH_GESTURES:  # standing or seated
+            hand, w = mouth_weight(spec.gesture, c.phase_frame, fps, spec.duration_s)
+            if w > 0.0:
+                rows.append(i)
+                sides.append(hand)
+                weights.append(w)
+                aims.append("mouth")
+            continue
+        if a.seat is not None:
+            continue
         aim: SceneObject | int | None = None
         if spec.gesture == "handshake":
             other = next((index[p] for p in a.partners if p in index), None)
@@ -252,7 +303,7 @@ def hand_targets(objects: Mapping[str, SceneObject], chars: Sequence[CharacterSt
     at = {r: k for k, r in enumerate(need)}
     pos, _ = forward_kinematics(rots[need], pelvis[need])
     wrists = pos[[at[r] for r in rows], np.array(WRIST_JOINTS)[side]]
-    targets = np.array([box_contact_point(aim, p) if isinstance(aim, SceneObject) else _shake_point(pos[at[r]], pos[at[aim]])
+    targets = np.array([_target(aim, p, pos[at[r]], None if not isinstance(aim, int) else pos[at[aim]], chars[r].heading)
                         for r, aim, p in zip(rows, aims, wrists, strict=True)])
     out = _lean(rots, pelvis, idx, side, targets, np.array(weights), [isinstance(a, SceneObject) for a in aims],
                 [chars[r].heading for r in rows])
