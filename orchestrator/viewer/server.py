@@ -12,7 +12,8 @@ another's box): Send (or Enter) appends the text to the run folder's
 ``viewer_instructions.jsonl`` (:mod:`orchestrator.session.viewer_instructions`), on disk before
 the page says "Sent"; the run takes it as its latest instruction at its next frame, as a line
 typed on its stdin (source ``viewer``). Refused, with the reason under the box: an empty text,
-one over ``MAX_INSTRUCTION_CHARS``, a run that has ended (``story.json`` is there) or has not
+one over ``MAX_INSTRUCTION_CHARS``, one holding a lone surrogate (not text: a client that is not a
+browser can send one), a run that has ended (``story.json`` is there) or has not
 started (no ``run.json``). A run that was killed keeps what was sent meanwhile: its ``resume``
 takes it. The text is shown escaped, as everything from the run folder.
 
@@ -255,6 +256,8 @@ class ViewerApp:
         problem = instruction_problem(typed)
         if problem is not None:
             raise InstructionRefused(problem)
+        if not typed.isprintable() and any(0xD800 <= ord(c) <= 0xDFFF for c in typed):  # a client, not a browser
+            raise InstructionRefused("the instruction holds a lone surrogate: not text (send it as UTF-8)")
         with self.lock:
             run = self.run
         if (self.folder / STORY_FILE).exists() or (run is not None and not run.live):
