@@ -22,7 +22,8 @@ load; compare the two modes of the same run.
 ``--viewer`` adds a third mode, ``viewer``: ``product`` with the browser viewer started as
 ``storyteller run --view`` starts it (``orchestrator.viewer.child``: a process of its own,
 playing, following the live run) and a headless Chromium (``benchmark/support/headless_chromium.py``,
-software WebGL, on this machine) connected to it for the whole run.
+software WebGL, on this machine) connected to it for the whole run (the run starts once the page
+shows the instruction box: its websocket is open).
 
     python -m benchmark.bench_frame_interval [--duration 40] [--latency 5] [--repeat 1] [--viewer]
 """
@@ -155,6 +156,8 @@ def _watch(out: Path, tmp: Path) -> Iterator[None]:
     try:
         with Chromium(profile) as browser:
             browser.navigate(viewer.url)
+            # connected: the instruction box is added per browser when its websocket opens
+            browser.wait_for("document.body.innerText.includes('Direct the story')", timeout_s=120)
             yield
     finally:
         viewer.stop()

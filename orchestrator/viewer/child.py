@@ -11,7 +11,8 @@ process made many more frames late than in a process of its own
 process as its parent (the child stops by itself within a second when its parent is gone, even
 after a kill -9), reads the address it prints and returns a :class:`ViewerProcess`; a child
 that ends before (an address it cannot listen on) is a :class:`ViewerStartError` with its
-error line. The child is in this process's group, so Ctrl-C on the terminal reaches both.
+error line. The child is in this process's group, so Ctrl-C on the terminal reaches both. It
+runs at a lower CPU priority (:data:`NICE`) than the run.
 """
 
 from __future__ import annotations
@@ -28,7 +29,10 @@ from orchestrator.viewer.access import is_loopback
 
 START_TIMEOUT_S = 120.0
 """Wall seconds the viewer may take to print its address (its imports on a busy machine)."""
-ENTRY = "from orchestrator.cli.app import app; app()"
+NICE = 10
+"""How much lower the viewer's CPU priority is than the run's: on a busy machine the run's frames
+come first (os.nice; the viewer only shows them)."""
+ENTRY = f"import os; os.nice({NICE}); from orchestrator.cli.app import app; app()"
 
 
 class ViewerStartError(Exception):
@@ -74,8 +78,9 @@ def spawn_viewer(
     lines: queue.Queue[str | None] = queue.Queue()
 
     def read(stream: IO[str]) -> None:
-        for line in stream:
-            lines.put(line.rstrip("\n"))
+        with stream:  # closed at the child's end (its last line read)
+            for line in stream:
+                lines.put(line.rstrip("\n"))
         lines.put(None)
 
     threading.Thread(target=read, args=(proc.stdout,), name="viewer-output", daemon=True).start()
