@@ -83,6 +83,7 @@ def direct_reply(x: float, y: float, action: str = "use_coffee_maker", look_at: 
 
 
 # ----- w/o Event ------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_unified_planner_plans_from_one_call_and_replays_byte_for_byte(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     fake.script["fake-planner"] = [COFFEE]
@@ -263,6 +264,7 @@ def test_bad_choices_exit_2_with_a_clear_message(
         ("event", "scene-graph", {"fake-narrator": [NARRATION], "fake-event_parser": [COFFEE]}, ["narrator", "event_parser"]),
     ],
 )
+@pytest.mark.slow
 def test_run_with_an_ablation_records_and_replays_the_same_story(
     planner: str, description: str, script: dict[str, list[str]], nodes: list[str], fake: FakeOpenAI, tmp_path: Path
 ) -> None:

@@ -15,6 +15,7 @@ from benchmark.bench_long_run import main
 from sim.world.track_chunks import scan
 
 
+@pytest.mark.slow
 def test_a_short_long_run_completes_streams_its_motion_and_reports_peak_rss(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

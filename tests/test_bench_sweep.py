@@ -120,6 +120,7 @@ def test_report_has_the_papers_layout(finished: tuple[Path, list[str], dict[str,
     assert "| scripted | narrator | 6 | 0.25 | 0.25 | 0.25 |" in report
 
 
+@pytest.mark.slow
 def test_score_replays_the_traces_into_the_same_bytes(
     finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path
 ) -> None:
@@ -162,6 +163,7 @@ def test_score_fails_with_a_diff_when_a_trace_does_not_match(
         asyncio.run(score_sweep(out))
 
 
+@pytest.mark.slow
 def test_a_killed_sweep_redoes_only_its_missing_runs(
     finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path
 ) -> None:
@@ -180,6 +182,7 @@ def test_a_killed_sweep_redoes_only_its_missing_runs(
     assert sweep(out) == []  # nothing left to do
 
 
+@pytest.mark.slow
 def test_parallel_runs_give_the_same_files(finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path) -> None:
     out = tmp_path / "jobs"
     calls = sweep(out, jobs=3)
@@ -222,6 +225,7 @@ def test_a_sweep_moved_to_another_machine_resumes_where_its_cases_and_config_now
         asyncio.run(run_sweep(renamed, out, factory=scripted([])))
 
 
+@pytest.mark.slow
 def test_a_published_sweep_scores_on_a_machine_where_its_case_folder_is_elsewhere(
     finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path,
 ) -> None:
@@ -272,6 +276,7 @@ def _app() -> typer.Typer:
     return app
 
 
+@pytest.mark.slow
 def test_bench_is_a_command_plugin_whose_commands_run(finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path) -> None:
     import shutil
 
@@ -304,6 +309,7 @@ def test_the_plugin_module_imports_only_typer() -> None:
     assert done.stdout.strip() == "[]"
 
 
+@pytest.mark.slow
 def test_ray_executor_gives_the_same_files(finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path) -> None:
     ray = pytest.importorskip("ray", reason="the optional [ray] extra is not installed")
     from benchmark.sweep.ray_executor import ray_executor

@@ -75,6 +75,7 @@ def spec(**changes: object) -> SweepSpec:
 
 
 @pytest.mark.parametrize("where", ["absent", "empty"])
+@pytest.mark.slow
 def test_a_sweep_of_our_cases_needs_no_reference_data(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, where: str,
 ) -> None:
@@ -130,6 +131,7 @@ def test_a_sweep_of_our_cases_needs_no_reference_data(
     assert f"case {CASE} is on the reference scene 'House'; reference data not found" in res.output
 
 
+@pytest.mark.slow
 def test_execution_on_the_first_attempt_and_after_feedback(tmp_path: Path) -> None:
     """Three repeats of one case: the first reply of the event parser (repeat 0) or of the
     narrator (repeat 1) is rejected, repeat 2 is right at once. With one feedback retry all

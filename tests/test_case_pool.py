@@ -49,6 +49,7 @@ def test_the_pool_has_150_cases_every_tag_group_and_level(raw: list[dict[str, An
     assert set(scenes) == {f"bundled:{s}" for s in generate.SCENES} and min(scenes.values()) >= 40
 
 
+@pytest.mark.slow
 def test_the_generator_reproduces_the_committed_cases() -> None:
     """The templated cases are what the code derives from the scenes today (run
     ``python -m benchmark.own_cases.generate`` after changing a recipe, a phrase or the scenes)."""

@@ -39,6 +39,7 @@ def test_the_folder_holds_generated_cases_on_the_three_reference_scenes_only(raw
 
 
 @requires_reference
+@pytest.mark.slow
 def test_the_generator_check_says_the_folder_is_what_the_code_produces(capsys: pytest.CaptureFixture[str]) -> None:
     assert generate.main(["--pool", "ours_ref", "--check"]) == 0
     assert "0 file(s) differ" in capsys.readouterr().out
@@ -46,6 +47,7 @@ def test_the_generator_check_says_the_folder_is_what_the_code_produces(capsys: p
 
 
 @requires_reference
+@pytest.mark.slow
 def test_every_answer_re_derives_unambiguously() -> None:
     reports = check_folder(OURS_REF)
     assert reports and not [(r.case, r.problems) for r in reports if r.problems]

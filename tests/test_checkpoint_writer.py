@@ -83,6 +83,7 @@ class _SlowDisk:
         self.frames.append(cp.world.frame)
 
 
+@pytest.mark.slow
 def test_the_file_is_the_newest_checkpoint_as_a_synchronous_save_writes_it(
     home: Scene, motion: MotionMatcher, tmp_path: Path
 ) -> None:

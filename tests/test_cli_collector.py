@@ -45,6 +45,7 @@ def test_garbage_before_the_imports_is_collected_and_what_lives_is_frozen() -> N
     del alive
 
 
+@pytest.mark.slow
 def test_a_paused_collector_stays_paused() -> None:
     gc.disable()
     with imports_paused():

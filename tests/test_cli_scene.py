@@ -76,6 +76,7 @@ def test_inspect_json_home_relations() -> None:
 
 
 @requires_reference
+@pytest.mark.slow
 def test_inspect_reference_folder_with_png(tmp_path: Path) -> None:
     png = tmp_path / "house.png"
     result = runner.invoke(

@@ -51,11 +51,13 @@ def _imported_by(args: list[str], tmp_path: Path) -> set[str]:
     [["--help"], ["scene", "list"], ["model", "info"], ["run", "--help"], ["replay", "--help"], ["resume", "--help"]],
     ids=" ".join,
 )
+@pytest.mark.slow
 def test_quick_commands_import_no_heavy_module(args: list[str], tmp_path: Path) -> None:
     heavy = sorted(set(HEAVY) & _imported_by(args, tmp_path))
     assert heavy == [], f"storyteller {' '.join(args)} imported {heavy}"
 
 
+@pytest.mark.slow
 def test_the_probe_sees_modules_a_command_imports(tmp_path: Path) -> None:
     """``scene inspect`` clusters the objects, so scikit-learn must show up in the probe."""
     assert "sklearn" in _imported_by(["scene", "inspect", "home", "--json"], tmp_path)

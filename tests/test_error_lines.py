@@ -63,6 +63,7 @@ def _with_steps(snapshot: bytes, value: bytes) -> bytes:
 
 @pytest.mark.parametrize(("value", "named"), [(b"\x8c\x04many", "str"), (b"N", "NoneType"), (b"]", "list")],
                          ids=["str", "None", "list"])
+@pytest.mark.slow
 def test_resume_refuses_a_checkpoint_with_a_wrong_typed_dataclass_field(finished_run: Path, tmp_path: Path,
                                                                        value: bytes, named: str) -> None:
     run = Path(shutil.copytree(finished_run, tmp_path / "run", symlinks=True))
@@ -81,6 +82,7 @@ def test_resume_of_the_checkpoint_with_the_right_type_goes_on(finished_run: Path
     assert result.exit_code == 0, result.stderr
 
 
+@pytest.mark.slow
 def test_a_run_warns_of_script_lines_past_its_end_and_prints_its_thread_id_escaped(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

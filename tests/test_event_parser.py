@@ -59,6 +59,7 @@ def test_extract_program_without_code_is_typed() -> None:
 
 @settings(max_examples=60, deadline=None)
 @given(st.text(max_size=300))
+@pytest.mark.slow
 def test_extract_program_never_crashes(text: str) -> None:
     with contextlib.suppress(NoCodeError):
         assert "parse_event" in extract_program(text)

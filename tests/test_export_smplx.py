@@ -229,6 +229,7 @@ def _smplx_joints(root: Path, params: dict[str, np.ndarray], chunk: int = 100) -
     return out
 
 
+@pytest.mark.slow
 def test_real_smplx_reproduces_our_joints(standin_root: Path, tmp_path: Path) -> None:
     """The issue's measure: exported parameters through smplx give our FK joints (< 1 mm)."""
     tracks = [random_track(f"c{i}", 100, seed=100 + i, max_joint_angle=1.2) for i in range(3)]

@@ -99,6 +99,7 @@ def _manifest_loads(run: Path) -> bool:
 
 @FUZZ
 @given(data=st.data(), command=st.sampled_from([resume, replay]))
+@pytest.mark.slow
 def test_fuzzed_run_json(finished_run: Path, data: st.DataObject, command: Callable[[Path], Result]) -> None:
     valid = (finished_run / "run.json").read_bytes()
     with copied(finished_run) as run:
@@ -112,6 +113,7 @@ def test_fuzzed_run_json(finished_run: Path, data: st.DataObject, command: Calla
 
 @FUZZ
 @given(data=st.data(), command=st.sampled_from([replay, replay, resume]))
+@pytest.mark.slow
 def test_fuzzed_trace(finished_run: Path, data: st.DataObject, command: Callable[[Path], Result]) -> None:
     valid = (finished_run / "trace.jsonl").read_bytes()
     with copied(finished_run) as run:
@@ -165,6 +167,7 @@ def snapshot_versions(draw: st.DrawFn, valid: bytes) -> bytes:
 
 @FUZZ
 @given(data=st.data())
+@pytest.mark.slow
 def test_fuzzed_snapshot(finished_run: Path, data: st.DataObject) -> None:
     valid = (finished_run / "session.snapshot").read_bytes()
     with copied(finished_run) as run:
@@ -252,6 +255,7 @@ def chunk_versions(draw: st.DrawFn, valid: bytes) -> bytes:
 
 @FUZZ
 @given(data=st.data(), command=st.sampled_from(["export", "export", "resume"]))
+@pytest.mark.slow
 def test_fuzzed_chunk_file(finished_run: Path, data: st.DataObject, command: str) -> None:
     valid = (finished_run / "motion" / "Zoe.chunks").read_bytes()
     with copied(finished_run) as run:
@@ -466,6 +470,7 @@ def _under_limit(*args: str) -> subprocess.CompletedProcess[str]:
                           cwd=ROOT, timeout=300, check=False)
 
 
+@pytest.mark.slow
 def test_a_track_array_claiming_2_gb_is_refused_within_1_gib(finished_run: Path, tmp_path: Path) -> None:
     """An .npz of a few KB whose rotations' .npy header claims 2 GB (numpy would allocate the
     whole array before reading a byte of it)."""
@@ -505,6 +510,7 @@ def test_a_track_file_whose_zip_declares_more_than_the_limit_is_refused_before_i
         CharacterTrack.load(path)
 
 
+@pytest.mark.slow
 def test_a_chunk_record_claiming_2_gb_of_a_sparse_file_is_refused_within_1_gib(finished_run: Path,
                                                                                tmp_path: Path) -> None:
     run = Path(shutil.copytree(finished_run, tmp_path / "run", symlinks=True))

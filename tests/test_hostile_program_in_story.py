@@ -67,6 +67,7 @@ def motion() -> MotionMatcher:
     return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
 
 
+@pytest.mark.slow
 async def test_hostile_programs_are_rejected_with_their_type_and_the_story_goes_on(
     motion: MotionMatcher, tmp_path: Path
 ) -> None:

@@ -38,6 +38,7 @@ def _folder(run: Path) -> dict[str, str]:
             if p.is_file()}
 
 
+@pytest.mark.slow
 def test_a_replay_that_cannot_apply_a_recorded_reply_is_one_line_exit_2(run_dir: Path, tmp_path: Path) -> None:
     trace = run_dir / "trace.jsonl"
     records = [json.loads(line) for line in trace.read_text(encoding="utf-8").splitlines()]
@@ -49,6 +50,7 @@ def test_a_replay_that_cannot_apply_a_recorded_reply_is_one_line_exit_2(run_dir:
     assert "---" not in line and len(line) < 1000
 
 
+@pytest.mark.slow
 def test_a_refused_resume_leaves_the_folder_as_it_was(run_dir: Path) -> None:
     snapshot = run_dir / "session.snapshot"
     payload = b"\x80\x04\x95\x00cos\nsystem\n(S'true'\ntR."

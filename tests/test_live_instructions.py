@@ -64,6 +64,7 @@ def test_requests_after_the_instruction_frame_carry_it_and_earlier_ones_do_not(
     assert said == [TimedInstruction(frame=at, text=NEW)] == result.instructions
 
 
+@pytest.mark.slow
 def test_instruct_from_the_api_takes_effect_at_the_next_frame_and_a_replay_ignores_it(
     home: Scene, motion: MotionMatcher
 ) -> None:
@@ -115,6 +116,7 @@ def test_stdin_lines_become_instructions(home: Scene, motion: MotionMatcher, tmp
     assert [(i.frame, i.text, i.source) for i in result.instructions] == [(0, "Ben sits down", "stdin")]
 
 
+@pytest.mark.slow
 def test_a_resumed_session_keeps_the_instructions_already_applied(
     home: Scene, motion: MotionMatcher, tmp_path: Path
 ) -> None:
@@ -228,6 +230,7 @@ def test_trace_instruction_records_round_trip(tmp_path: Path) -> None:
 
 # ----- the command line: script, trace, replay --------------------------------------------
 @pytest.mark.usefixtures("env")
+@pytest.mark.slow
 def test_run_with_an_instruction_script_records_it_and_the_replay_reproduces_the_story(tmp_path: Path) -> None:
     script = tmp_path / "script.txt"
     script.write_text("# the plot\n00:08 Max makes toast for Zoe\n", encoding="utf-8")

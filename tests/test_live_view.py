@@ -230,6 +230,7 @@ def test_live_and_interactive_defaults(monkeypatch: pytest.MonkeyPatch, stdin_tt
 EVENT_LINE = re.compile(r"^\[ *\d+\.\ds\] event-\d{4} (starts|loops|done|failed): ")
 
 
+@pytest.mark.slow
 def test_run_with_the_live_view_forced_and_without_it(env: None, tmp_path: Path) -> None:
     run = [*RUN, "-d", "20", "--max-events", "2"]
     with FakeOpenAI(responder=Planner()) as fake:

@@ -94,6 +94,7 @@ def test_a_run_folder_with_a_character_acting_facing_away_is_measured_so(home: S
     assert item.start_error == pytest.approx(180.0) and item.start_distance == pytest.approx(0.403)
 
 
+@pytest.mark.slow
 def test_the_scripted_story_meets_the_targets_only_with_the_worlds_facing() -> None:
     """The same story, planned the same way: acting on the planner's facing where the character
     stopped misses the targets by far; facing from where it stands meets them."""

@@ -5,10 +5,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from benchmark.motion_metrics.__main__ import main
 from tests.support.finished_run import make_finished_run
 
 
+@pytest.mark.slow
 def test_the_command_measures_a_scripted_run(tmp_path: Path, capsys) -> None:
     run = make_finished_run(tmp_path, seconds=6, max_events=2)
     out = tmp_path / "report"

@@ -29,6 +29,7 @@ def test_the_planner_cycles_each_free_characters_tasks() -> None:
         planner({"messages": [{"role": "user", "content": "no roster here"}]})
 
 
+@pytest.mark.slow
 def test_the_command_builds_the_story_and_measures_it(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     run, out = tmp_path / "scripted_home", tmp_path / "report"
     argv = ["--scripted-story", str(run), "--story-seconds", "10", "--story-names", "Zoe,Max", "--out", str(out),

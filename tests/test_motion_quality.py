@@ -118,6 +118,7 @@ def test_synthesized_walkers_are_measured() -> None:
 
 
 @requires_mocap
+@pytest.mark.slow
 def test_cli_prints_the_clip_table(capsys: pytest.CaptureFixture[str], tmp_path: Path,
                                    monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))

@@ -95,6 +95,7 @@ def test_mocap_has_its_own_variable_and_default(tmp_path: Path) -> None:
     assert not missing.found and MOCAP_ENV in missing.reason
 
 
+@pytest.mark.slow
 def test_tests_needing_the_data_skip_with_the_reason_when_the_variable_is_wrong(tmp_path: Path) -> None:
     test = tmp_path / "test_needs_data.py"
     test.write_text(

@@ -133,6 +133,7 @@ def test_every_action_expression_passes_and_fails() -> None:
 
 
 @pytest.mark.parametrize("field", ["relationships", "sampled_position"])
+@pytest.mark.slow
 def test_every_position_expression_passes_and_fails(field: str) -> None:
     checked = 0
     for text, (case, expected) in _distinct(field).items():

@@ -30,6 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -204,6 +205,7 @@ _BACKSTOP = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_every_pattern_takes_adversarial_inputs_within_a_cpu_limit() -> None:
     lines = [
         json.dumps({"where": s.where, "flags": s.flags, "bytes": isinstance(s.pattern, bytes),

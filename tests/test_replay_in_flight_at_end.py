@@ -169,6 +169,7 @@ def in_flight_at_end(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_a_step_in_flight_at_the_end_replays_byte_identically(in_flight_at_end: Path, tmp_path: Path) -> None:
     again = tmp_path / "again"
     done = _replay(tmp_path, in_flight_at_end, again)  # the server is gone: the trace serves every call
@@ -181,6 +182,7 @@ def test_a_step_in_flight_at_the_end_replays_byte_identically(in_flight_at_end: 
     assert (third / "story.json").read_bytes() == (in_flight_at_end / "story.json").read_bytes()
 
 
+@pytest.mark.slow
 def test_a_genuine_miss_of_that_step_is_still_exit_1_with_its_diff(in_flight_at_end: Path, tmp_path: Path) -> None:
     """The cut call's recorded prompt edited (hash kept consistent): the replay's request for
     step 1 is not the recorded one, so it is a miss, not the end of the recorded story."""

@@ -42,6 +42,7 @@ def _assert_looks_the_same(new: np.ndarray, old: np.ndarray) -> None:
     assert far.mean() <= AREA_TOLERANCE, f"{int(far.sum())} pixels differ by more than {PIXEL_TOLERANCE}"
 
 
+@pytest.mark.slow
 def test_animation_frames_match_the_frozen_renderer(story: RunRecording) -> None:
     stride = 45
     frames = animation_frames(story, stride=stride, size_px=600)

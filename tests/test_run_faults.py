@@ -79,6 +79,7 @@ def assert_one_error_line(stderr: str, *needles: str) -> str:
 
 
 # ----- the provider fails for a while ---------------------------------------------------------
+@pytest.mark.slow
 def test_errors_and_timeouts_for_a_stretch_of_calls_delay_the_story_but_it_completes(
     env: dict[str, str], tmp_path: Path
 ) -> None:
@@ -108,6 +109,7 @@ def test_errors_and_timeouts_for_a_stretch_of_calls_delay_the_story_but_it_compl
     assert metrics["llm"]["retries"] == 3 and metrics["llm"]["roles"]["planner"]["failed_calls"] == 0
 
 
+@pytest.mark.slow
 def test_a_call_that_fails_outright_is_a_failed_step_and_the_story_goes_on(env: dict[str, str], tmp_path: Path) -> None:
     planner = Planner(faults={2: ("status", 500), 3: ("sleep", 4.0)})  # both attempts of step 1
     out = tmp_path / "out"
@@ -126,6 +128,7 @@ def test_a_call_that_fails_outright_is_a_failed_step_and_the_story_goes_on(env: 
 
 # ----- SIGTERM / SIGINT, then resume ----------------------------------------------------------
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+@pytest.mark.slow
 def test_a_signal_stops_the_run_cleanly_and_resume_goes_on_from_there(
     env: dict[str, str], tmp_path: Path, signum: signal.Signals
 ) -> None:
@@ -233,6 +236,7 @@ def _limit_file_size(limit: int) -> Callable[[], None]:
     return preexec
 
 
+@pytest.mark.slow
 def test_a_full_story_folder_is_one_error_line_and_what_was_written_stays_readable(
     env: dict[str, str], tmp_path: Path
 ) -> None:

@@ -15,6 +15,7 @@ import signal
 import subprocess
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from benchmark.support.fake_openai_server import FakeOpenAI
@@ -55,6 +56,7 @@ def test_story_markdown_tells_the_plan_and_keeps_model_text_on_its_line() -> Non
 
 
 # ----- run, then replay the folder ----------------------------------------------------------
+@pytest.mark.slow
 def test_run_writes_run_json_story_md_metrics_and_replays_from_the_folder(env: None, tmp_path: Path) -> None:
     with FakeOpenAI(responder=Planner()) as fake:
         cfg = write_config(tmp_path, fake.base)
@@ -115,6 +117,7 @@ def test_bad_names_are_a_user_error(tmp_path: Path) -> None:
 
 
 # ----- kill -9, then resume -----------------------------------------------------------------
+@pytest.mark.slow
 def test_resume_after_kill_9_continues_the_story_without_gaps_duplicates_or_repeated_calls(
     env: None, tmp_path: Path
 ) -> None:

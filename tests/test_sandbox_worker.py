@@ -54,6 +54,7 @@ def test_typed_errors_cross_the_boundary(scene: Scene) -> None:
     assert info.value.line == 2
 
 
+@pytest.mark.slow
 def test_wall_clock_kill_then_the_next_program_runs(scene: Scene) -> None:
     with WorkerRunner(budget=UNLIMITED, wall_seconds=1.0, cpu_seconds=1000) as run:
         with pytest.raises(BudgetExceededError, match="was stopped"):

@@ -24,6 +24,8 @@ from functools import cache, partial
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
 from benchmark.plan_scoring import CaseScore, score_outcome
 from benchmark.reference_cases import BenchmarkCase, load_cases, planning_inputs, scene_dir
@@ -366,6 +368,7 @@ def test_agreement_on_reference_cases() -> None:
     assert not found, _report(found, tally)
 
 
+@pytest.mark.slow
 def test_agreement_on_our_cases() -> None:
     found, tally = _run(OURS, load_cases(OURS))
     print(_report(found, tally))

@@ -71,6 +71,7 @@ def leaks(tmp_path: Path, result: subprocess.CompletedProcess[str]) -> list[str]
     return found
 
 
+@pytest.mark.slow
 def test_the_fake_provider_really_saw_and_echoed_the_key(fake: FakeOpenAI, tmp_path: Path) -> None:
     """The premise: without redaction the key would reach the client (else the tests below prove nothing)."""
     fake.script["fake-planner"] = [("echo", 200), COFFEE]
@@ -83,6 +84,7 @@ def test_the_fake_provider_really_saw_and_echoed_the_key(fake: FakeOpenAI, tmp_p
     assert leaks(tmp_path, result) == []
 
 
+@pytest.mark.slow
 def test_storyteller_run_keeps_the_key_out_of_every_output(fake: FakeOpenAI, tmp_path: Path) -> None:
     fake.script["fake-planner"] = [("echo", 200), COFFEE]
     out = tmp_path / "out"
@@ -94,6 +96,7 @@ def test_storyteller_run_keeps_the_key_out_of_every_output(fake: FakeOpenAI, tmp
     assert leaks(tmp_path, result) == []
 
 
+@pytest.mark.slow
 def test_a_401_quoting_the_key_is_reported_without_it(fake: FakeOpenAI, tmp_path: Path) -> None:
     fake.script["fake-planner"] = [("echo", 401)]
     trace = tmp_path / "trace.jsonl"

@@ -42,6 +42,7 @@ def test_trace_files_stay_small() -> None:
 
 
 @pytest.mark.parametrize("name", REPLAYED_IN_CI)
+@pytest.mark.slow
 def test_replaying_a_recorded_run_gives_the_recorded_score(name: str, tmp_path: Path) -> None:
     assert main(["run", "--scenarios", name, "--replay", str(TRACES), "--out", str(tmp_path)]) == 0
     (replayed,) = json.loads((tmp_path / "results.json").read_text(encoding="utf-8"))["scenarios"]

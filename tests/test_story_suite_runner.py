@@ -49,6 +49,7 @@ def fake(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[FakeOpenAI
         yield server
 
 
+@pytest.mark.slow
 def test_a_recorded_run_is_scored_and_its_replay_scores_the_same(fake: FakeOpenAI, tmp_path: Path) -> None:
     traces = tmp_path / "traces"
     live, _ = run_scenario(SCENARIO, RunOptions(out=tmp_path / "live", record=traces))

@@ -149,6 +149,7 @@ class TerminalOutput:
             assert self.grew.wait_for(lambda: text in self.data, timeout), bytes(self.data[-2000:])
 
 
+@pytest.mark.slow
 def test_run_on_a_terminal_shows_the_live_view_and_takes_typed_instructions(
     env: None, tmp_path: Path, terminal: tuple[int, int]
 ) -> None:

@@ -138,6 +138,7 @@ def viewer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[object, i
         app.stop()
 
 
+@pytest.mark.slow
 def test_a_websocket_from_another_site_gets_nothing_and_the_viewers_own_page_gets_the_run(viewer: tuple[object, int]) -> None:
     _, port = viewer
     url = f"ws://127.0.0.1:{port}"
@@ -205,6 +206,7 @@ def test_an_exposed_viewer_prints_a_url_with_its_token_and_says_who_can_reach_it
     assert "╭" not in output and "viser" not in output  # viser's own banner (URLs without the token) is not shown
 
 
+@pytest.mark.slow
 def test_an_exposed_viewer_answers_only_requests_with_its_token(exposed: tuple[str, str]) -> None:
     _, url = exposed
     parts = urlsplit(url)

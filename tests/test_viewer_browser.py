@@ -96,6 +96,7 @@ def _first_event(run: Path) -> dict:
     return events[0]
 
 
+@pytest.mark.slow
 def test_view_shows_the_story_plays_it_and_lists_its_events(recorded_run: Path, browser: Chromium, tmp_path: Path, shots: Path) -> None:
     log = tmp_path / "view.log"
     with log.open("w") as sink:
@@ -134,6 +135,7 @@ def test_view_shows_the_story_plays_it_and_lists_its_events(recorded_run: Path, 
         proc.wait(timeout=20)
 
 
+@pytest.mark.slow
 def test_export_plays_from_disk_with_no_server(recorded_run: Path, browser: Chromium, tmp_path: Path, shots: Path) -> None:
     out = tmp_path / "story.html"
     result = CliRunner().invoke(app, ["view", str(recorded_run), "--export", str(out)], catch_exceptions=False)

@@ -161,6 +161,7 @@ def _same_story(run: Path, again: Path) -> None:
         assert (again / name).read_bytes() == (run / name).read_bytes(), name
 
 
+@pytest.mark.slow
 def test_a_paused_resumed_and_sped_up_run_replays_byte_identically(tmp_path: Path) -> None:
     out, log = tmp_path / "run", tmp_path / "run.log"
     slow = _Slow()
@@ -203,6 +204,7 @@ def test_a_paused_resumed_and_sped_up_run_replays_byte_identically(tmp_path: Pat
     print(f"paused at frame {paused.frame}; events applied at frames {applied}")
 
 
+@pytest.mark.slow
 def test_a_lockstep_run_refuses_pause_with_its_reason(tmp_path: Path) -> None:
     out, log = tmp_path / "run", tmp_path / "run.log"
     with FakeOpenAI(responder=directed) as fake:
@@ -284,6 +286,7 @@ def _pick_speed(browser: Chromium, value: str) -> None:
 
 
 @needs_chromium
+@pytest.mark.slow
 def test_a_director_pauses_resumes_speeds_and_follows_from_the_page(tmp_path: Path, shots: Path) -> None:
     out, log = tmp_path / "run", tmp_path / "run.log"
     slow = _Slow()

@@ -236,6 +236,7 @@ def _same_story(run: Path, again: Path) -> None:
         assert (again / name).read_bytes() == (run / name).read_bytes(), name
 
 
+@pytest.mark.slow
 def test_lines_in_the_file_become_viewer_instructions_and_a_replay_repeats_them(tmp_path: Path) -> None:
     out = tmp_path / "run"
     out.mkdir()
@@ -324,6 +325,7 @@ def _type_and_send(browser: Chromium, text: str) -> None:
 
 
 @needs_chromium
+@pytest.mark.slow
 def test_an_instruction_typed_in_the_box_of_run_view_directs_the_story(tmp_path: Path, shots: Path) -> None:
     out, log = tmp_path / "run", tmp_path / "run.log"
     with FakeOpenAI(responder=directed) as fake:
@@ -373,6 +375,7 @@ def _type_instruction_refused(browser: Chromium, text: str) -> None:
 
 
 @needs_chromium
+@pytest.mark.slow
 def test_nothing_sent_is_lost_when_the_view_and_the_run_are_killed_and_started_again(tmp_path: Path, shots: Path) -> None:
     out, log, view_log = tmp_path / "run", tmp_path / "run.log", tmp_path / "view.log"
     waves = "Zoe waves at Max"
@@ -429,6 +432,7 @@ def test_nothing_sent_is_lost_when_the_view_and_the_run_are_killed_and_started_a
 
 
 # ----- run --view: the viewer's process -------------------------------------------------------
+@pytest.mark.slow
 def test_run_view_on_an_address_it_cannot_listen_on_is_one_error_line(tmp_path: Path) -> None:
     result = subprocess.run(_cli(*RUN, "-d", "5", "--out", str(tmp_path / "run"), "--view", "--port", "0", "--host",
                                  "203.0.113.9"), env=_env(tmp_path), capture_output=True, text=True, timeout=300)  # fmt: skip
@@ -439,6 +443,7 @@ def test_run_view_on_an_address_it_cannot_listen_on_is_one_error_line(tmp_path: 
     assert not (tmp_path / "run" / "run.json").exists()  # refused before the story started
 
 
+@pytest.mark.slow
 def test_the_viewer_process_ends_when_the_run_that_started_it_is_killed(tmp_path: Path) -> None:
     script = ("import sys, time; from pathlib import Path; from orchestrator.viewer.child import spawn_viewer; "
               "v = spawn_viewer(Path(sys.argv[1]), port=0, host='127.0.0.1'); print(v.proc.pid, flush=True); "

@@ -159,6 +159,7 @@ def _nothing_ran(browser: Chromium) -> None:
 
 
 @needs_chromium
+@pytest.mark.slow
 def test_hostile_text_typed_in_the_box_is_shown_as_text_and_nothing_runs(viewer: ViewerApp, tmp_path: Path) -> None:
     viewer.start()
     (tmp_path / "profile").mkdir()
@@ -221,6 +222,7 @@ def _poison(run: Path, folder: Path) -> None:
 
 
 @needs_chromium
+@pytest.mark.slow
 def test_hostile_text_in_the_run_files_is_shown_as_text_and_nothing_runs(recorded_run: Path, tmp_path: Path) -> None:
     folder = tmp_path / "poisoned"
     _poison(recorded_run, folder)

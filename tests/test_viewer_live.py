@@ -215,6 +215,7 @@ def _cli(*args: str) -> list[str]:
 
 
 @pytest.mark.skipif(chromium_binary() is None, reason="chromium not installed (apt-get install chromium)")
+@pytest.mark.slow
 def test_view_follows_a_run_in_progress_in_the_browser(tmp_path: Path) -> None:
     out = tmp_path / "run"
     run_log, view_log = tmp_path / "run.log", tmp_path / "view.log"
