@@ -166,6 +166,8 @@ class Relaxation:
     extent: str = ""
     """How far this relaxation reaches, in words for feedback ("0.8 m past its sides and 2.5 m
     out"); built from ``side`` and ``reach`` when empty."""
+    ring: bool = False
+    """A wider distance ring ("adjacent to" / "close to" in a cramped spot), not a strip."""
 
     def describe(self) -> str:
         return self.extent or f"{self.side:g} m past its sides and {self.reach:g} m out"
@@ -225,7 +227,7 @@ def within_distance(
         return np.asarray(np.maximum(point_footprint_distance(obj, p) - distance, 0.0), dtype=float)
 
     relaxations = tuple(
-        Relaxation(area(d), 0.0, d, excess, extent=f"to {d:g} m from it") for d in relaxed if d > distance
+        Relaxation(area(d), 0.0, d, excess, extent=f"to {d:g} m from it", ring=True) for d in relaxed if d > distance
     )
     return replace(area(distance), relaxations=relaxations)
 
