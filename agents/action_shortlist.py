@@ -33,6 +33,34 @@ _SYNONYMS = {
 }
 _IGNORED_LABEL_WORDS = frozenset({"on", "off", "to", "out", "the", "use", "take", "turn", "open", "close"})
 
+BEVERAGES = (
+    "water", "lemonade", "juice", "soda", "cola", "coke", "pop", "milk", "milkshake", "smoothie", "tea", "coffee",
+    "espresso", "latte", "cappuccino", "mocha", "cocoa", "hot chocolate", "beer", "lager", "ale", "cider", "wine",
+    "champagne", "prosecco", "cocktail", "mocktail", "whisky", "whiskey", "vodka", "gin", "rum", "brandy", "spritz",
+    "iced tea", "kombucha", "soft drink", "beverage", "refreshment", "pint", "glass of", "cup of", "mug of",
+    "bottle of", "can of",
+)
+"""Things people drink (general English): a text that has one and no verb of its own reads as
+drinking ("to have a cold lemonade")."""
+FOODS = (
+    "food", "meal", "snack", "sandwich", "salad", "soup", "pizza", "pasta", "noodle", "rice", "burger", "fries",
+    "chips", "steak", "chicken", "fish", "sushi", "curry", "stew", "omelette", "egg", "bread", "toast", "bagel",
+    "croissant", "muffin", "cake", "cookie", "biscuit", "pie", "pastry", "donut", "doughnut", "cereal", "porridge",
+    "oatmeal", "yogurt", "yoghurt", "fruit", "apple", "banana", "orange", "grapes", "pear", "cheese", "crackers",
+    "nuts", "popcorn", "chocolate bar", "ice cream", "dessert", "pudding", "leftovers", "taco", "burrito", "wrap",
+    "dumpling", "breakfast", "lunch", "dinner", "supper", "brunch", "bite to eat",
+)
+"""Things people eat (general English), read as eating in the same way."""
+
+
+def _with_things(cues: tuple[tuple[str, int], ...], things: tuple[str, ...], weight: int) -> tuple[tuple[str, int], ...]:
+    """``cues`` plus each of ``things`` at ``weight`` (a cue the label already has at a lower
+    weight is raised to it)."""
+    raised = tuple((c, max(w, weight) if c in things else w) for c, w in cues)
+    have = {c for c, _ in cues}
+    return raised + tuple((t, weight) for t in things if t not in have)
+
+
 CUES: dict[str, tuple[tuple[str, int], ...]] = {
     "idle": (("wait", 2), ("rest", 2), ("relax", 2), ("pause", 2), ("nothing", 1), ("stand still", 3), ("sit still", 3),
              ("idle", 3), ("stay", 1), ("linger", 2), ("daydream", 2), ("think", 1)),
@@ -110,6 +138,12 @@ CUES: dict[str, tuple[tuple[str, int], ...]] = {
 }
 """Cue phrases per label with a weight. A cue word matches a text word that starts with it
 (``drink`` matches "drinks", "drinking"), so cues are stems; phrases match consecutive words."""
+CUES["drink"] = _with_things(CUES["drink"], BEVERAGES, 2)
+CUES["eat"] = _with_things(CUES["eat"], FOODS, 2)
+CUES["order_drink"] = _with_things(CUES["order_drink"], BEVERAGES, 1)
+CUES["order_food"] = _with_things(CUES["order_food"], FOODS, 1)
+CUES["serve_drink"] = _with_things(CUES["serve_drink"], BEVERAGES, 1)
+CUES["serve_food"] = _with_things(CUES["serve_food"], FOODS, 1)
 
 SWITCHES = {
     "turn_on_": ("on", "start", "power"),
@@ -142,10 +176,18 @@ def _tokens(text: str) -> list[str]:
     return out
 
 
+PERSON_NOUNS = frozenset({
+    "waiter", "waiters", "waitress", "waitresses", "server", "servers", "reader", "readers", "drinker", "eater",
+    "dancer", "dancers", "worker", "workers", "writer", "cleaner", "cleaners", "caller", "player", "players",
+    "viewer", "viewers", "watcher", "listener", "speaker", "speakers", "talker", "chatter", "cook", "cooks",
+})
+"""Nouns for people made from verbs: "the waiter" is no one waiting, "the cleaner" no cleaning."""
+
+
 def _word_matches(cue: str, word: str) -> bool:
     if word == cue:
         return True
-    if not word[0].isalnum():
+    if not word[0].isalnum() or word in PERSON_NOUNS:
         return False
     if len(cue) <= 3:  # short stems only inflect: "sip" -> "sipping", not "tab" -> "table"
         return word in {cue + "s", cue + "es", cue + "ed", cue + "ing", cue + cue[-1] + "ing", cue + cue[-1] + "ed"}

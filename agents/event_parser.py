@@ -22,6 +22,7 @@ from typing import Any, Protocol
 from agents.action_shortlist import suggested_action
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
 from agents.messages import CharacterStatus, Event, PlannedCharacter
+from agents.place_phrases import plain_places
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, package_prompts
 from agents.retry_feedback import (
     Accepted,
@@ -148,8 +149,10 @@ def spatial_api_listing(prompts: PromptLibrary | None = None) -> dict[str, str]:
 def event_text(activity: str, instruction_part: str = "") -> str:
     """What the event is about, for the label and object shortlists: the instruction part it
     carries out when there is one (the user's own words; a small narrator adds places of its
-    own, "... sitting on chair_1"), else the narrator's activity."""
-    return instruction_part.strip() or activity.strip()
+    own, "... sitting on chair_1"), else the narrator's activity; the sides of things written
+    the one way the readers know (:func:`agents.place_phrases.plain_places`: "on the bench's
+    right-hand side" is "to the right of the bench")."""
+    return plain_places(instruction_part.strip() or activity.strip())
 
 
 def parser_messages(prompts: PromptLibrary, inp: ParserInput) -> tuple[ChatMessage, ...]:

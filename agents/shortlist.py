@@ -27,6 +27,7 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from agents.object_names import read_as_labels
 from sim.scene.model import Scene, SceneObject
 from tools.areas import seat_slots
 from tools.scene_graph import footprint_distance
@@ -51,7 +52,7 @@ VIEWED_M = 4.0
 """Seats within this gap of a thing watched from afar (``VIEWED``) count as seats for it."""
 VIEWED = frozenset({"tv", "screen", "whiteboard", "projector", "window", "fireplace", "stage"})
 NEAR_WORDS = ("near", "nearest", "closest", "next to", "beside", "by the", "close to", "at the end", "facing", "with the")
-FAR_WORDS = ("farthest", "furthest", "away from")
+FAR_WORDS = ("farthest", "furthest", "away from", "most distant", "far from", "avoiding", "clear of")
 
 _WORD = re.compile(r"[a-z0-9]+")
 
@@ -115,8 +116,9 @@ def _contains(words: Sequence[str], phrase: Sequence[str]) -> int:
 
 
 def mentioned_labels(text: str, labels: Sequence[str]) -> list[str]:
-    """Object labels the text names, in order of first mention (see the module docstring)."""
-    words = _words(text)
+    """Object labels the text names, in order of first mention (see the module docstring); the
+    everyday names of :mod:`agents.object_names` are read as the labels they name."""
+    words = _words(read_as_labels(text.lower(), labels))
     found: dict[str, int] = {}
     by_head: dict[str, list[str]] = {}
     for label in dict.fromkeys(labels):
@@ -243,7 +245,8 @@ def event_shortlist(
     ``others``: where the characters outside the event are; when the text names one of them
     ("sits down at Gus's table"), the free seats near them come first."""
     by_name = {o.name: o for o in scene.objects}
-    lowered = text.lower()
+    text = read_as_labels(text.lower(), scene.labels)  # "the water cooler": the water dispenser
+    lowered = text
     named = [o for o in scene.objects if _mentions(o.name.lower(), lowered)]
     labels = mentioned_labels(text, scene.labels)
     groups = [[o for o in scene.objects if o.label == label] for label in labels]

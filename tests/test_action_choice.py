@@ -21,7 +21,7 @@ LABELS = scene_action_labels(HOME)
 def test_words_that_rank_a_label_get_no_choice_and_words_that_rank_none_offer_every_action() -> None:
     assert action_candidates("Ava makes coffee at the coffee maker", LABELS, HOME.labels) == ()
     assert action_candidates("Ava waits by the door", LABELS, HOME.labels) == ()  # idle is ranked
-    offered = action_candidates("Ava sits down to have an apple and some crackers", LABELS, HOME.labels)
+    offered = action_candidates("Ava sits down to have a little treat", LABELS, HOME.labels)
     assert "eat" in offered and "drink" in offered and not MOTION_LABELS & set(offered)
     assert action_candidates("something", ("idle", "walk"), ()) == ()  # one label: nothing to choose
 
@@ -52,7 +52,7 @@ async def test_an_event_naming_no_action_gets_the_models_choice_as_the_parsers_s
 
     port = ScriptedLLM({
         "describer": [DESCRIPTION],
-        "narrator": [narration(["Ann"], "has an apple and some crackers"), narration(["Ann"], "eat at table_1")],
+        "narrator": [narration(["Ann"], "has a little treat"), narration(["Ann"], "eat at table_1")],
         "event_parser": choosing([PROGRAM.format(who="Ann"), PROGRAM.format(who="Ann")], pick),
     })
     story = StoryLog(":memory:", "t1")

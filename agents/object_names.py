@@ -1,0 +1,107 @@
+"""Everyday English names of the kinds of object scenes hold, read as the scene's labels.
+
+A person writing an instruction says "the water cooler", "the bookcase", "the sofa" or "the
+swivel chair"; the scene's labels are ``water_dispenser``, ``bookshelf``, ``couch`` and
+``office_chair``. :data:`EVERYDAY_NAMES` lists, per object label, the names people commonly
+use for that kind of thing (written per label from general English usage, the way a
+thesaurus lists them, for the labels of the bundled scenes and other common furniture and
+appliances; no entry comes from a benchmark case's wording). :func:`read_as_labels` rewrites
+a text's everyday names into the label's own words before the shortlists
+(:mod:`agents.shortlist`) and the relation reader (:mod:`agents.relation_words`) read it.
+
+A name is only rewritten when no label of the scene is that name itself: in a scene that has
+a ``bar`` label, "the bar" stays the bar. Pure: no LLM, no I/O.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+from collections.abc import Iterable
+
+EVERYDAY_NAMES: dict[str, tuple[str, ...]] = {
+    "armchair": ("easy chair", "recliner", "lounge chair", "wing chair", "wingback chair", "club chair", "arm chair"),
+    "bar_counter": ("bar", "bar top", "bartop", "counter of the bar", "drinks counter", "serving counter"),
+    "bed": ("bunk", "cot", "mattress"),
+    "bench": ("wooden seat", "park bench", "long seat"),
+    "bookshelf": ("bookcase", "book case", "book shelf", "book shelves", "bookshelves", "shelf of books",
+                  "shelves of books", "shelf full of books", "shelves full of books", "book rack", "shelving",
+                  "shelf", "shelves"),
+    "cabinet": ("cupboard", "sideboard", "dresser", "chest of drawers", "filing cabinet", "storage cabinet",
+                "credenza", "locker"),
+    "cash_register": ("cash till", "checkout counter", "checkout desk", "cash desk", "cash box", "point of sale",
+                      "cashier desk", "cashier"),
+    "chair": ("side chair",),
+    "coffee_maker": ("coffee machine", "espresso machine", "coffeemaker", "coffee pot", "coffee brewer",
+                     "percolator", "coffee station"),
+    "couch": ("sofa", "settee", "loveseat", "love seat", "divan", "chesterfield", "sectional"),
+    "desk": ("workstation", "work station", "writing desk", "work desk", "computer desk", "bureau", "workspace"),
+    "dishwasher": ("dish washer", "dishwashing machine", "dish machine"),
+    "dvd_player": ("disc player", "blu ray player", "bluray player", "video player", "dvd machine"),
+    "floor_lamp": ("standing lamp", "standard lamp", "lamp stand", "reading lamp", "tall lamp"),
+    "fridge": ("refrigerator", "icebox", "ice box", "fridge freezer", "cooler"),
+    "laptop": ("laptop computer", "notebook computer", "notebook pc", "portable computer"),
+    "loudspeaker": ("speaker", "speakers", "loud speaker", "sound system", "stereo", "hifi", "hi fi", "speaker box"),
+    "microwave": ("microwave oven", "micro wave"),
+    "monitor": ("computer screen", "computer monitor", "display", "desktop screen", "pc screen"),
+    "office_chair": ("desk chair", "swivel chair", "computer chair", "task chair", "rolling chair"),
+    "potted_plant": ("houseplant", "house plant", "pot plant", "flowerpot", "flower pot", "plant pot", "planter",
+                     "fern", "ficus", "greenery"),
+    "reception_desk": ("front desk", "reception", "reception counter", "check in desk", "welcome desk",
+                       "information desk", "front counter"),
+    "record_player": ("turntable", "gramophone", "phonograph", "vinyl player", "record deck", "record machine"),
+    "sink": ("basin", "washbasin", "wash basin", "washbowl"),
+    "stool": ("bar stool", "barstool", "high stool", "tall stool"),
+    "stove": ("cooker", "hob", "cooktop", "cooking range"),
+    "toaster": ("bread toaster", "toaster oven"),
+    "tv": ("television", "telly", "tv set", "television set", "flat screen", "flatscreen", "telescreen"),
+    "tv_stand": ("tv cabinet", "tv unit", "tv table", "media console", "media unit", "entertainment center",
+                 "entertainment centre", "television stand", "television cabinet"),
+    "water_dispenser": ("water cooler", "water fountain", "drinking fountain", "water machine", "water station",
+                        "water tank", "water jug", "water point"),
+    "white_board": ("whiteboard", "dry erase board", "dry wipe board", "marker board", "wipe board"),
+    "wine_rack": ("wine shelf", "wine shelves", "wine rack shelf", "bottle rack", "wine display", "wine stand",
+                  "rack of wine", "rack of bottles"),
+}
+"""Per object label, everyday names of that kind of thing (lower case, words separated by one
+space; a plural "s" is read too)."""
+
+
+def _words_of(label: str) -> str:
+    return label.replace("_", " ")
+
+
+@functools.lru_cache(maxsize=64)
+def _rewrites(labels: tuple[str, ...]) -> tuple[tuple[re.Pattern[str], str | None], ...]:
+    """The (name pattern, label words) rewrites for a scene with ``labels``: longest names first,
+    a name that is itself one of the scene's labels left out, only names of labels the scene
+    has, and each label's own words first among names as long ("bar counter" stays, though
+    "bar" is a name of it)."""
+    own = {_words_of(label) for label in labels}
+    pairs: list[tuple[str, str | None]] = [(words, None) for words in own]  # a label's own words: kept as written
+    pairs += [
+        (name, _words_of(label))
+        for label, names in EVERYDAY_NAMES.items() if label in labels
+        for name in names if name not in own
+    ]
+    pairs.sort(key=lambda p: -len(p[0]))
+    out = []
+    for name, words in pairs:
+        body = r"\s+".join(re.escape(w) for w in name.split())
+        out.append((re.compile(rf"\b{body}(?:e?s)?\b"), words))
+    return tuple(out)
+
+
+def read_as_labels(text: str, labels: Iterable[str]) -> str:
+    """``text`` (lower case, ``_`` read as a space) with every everyday name of a label the scene
+    has written as that label's words ("the water cooler" -> "the water dispenser"). Names are
+    replaced longest first; a replaced stretch is not read again."""
+    out = text
+    placeholders: list[str] = []
+    for pattern, words in _rewrites(tuple(sorted(set(labels)))):
+        def hold(match: re.Match[str], words: str | None = words) -> str:
+            placeholders.append(match[0] if words is None else words)
+            return f"\x00{len(placeholders) - 1}\x00"
+
+        out = pattern.sub(hold, out)
+    return re.sub(r"\x00(\d+)\x00", lambda m: placeholders[int(m.group(1))], out)
