@@ -314,7 +314,9 @@ def _scores(text: str, labels: Sequence[str], object_labels: Sequence[str]) -> l
     tokens = _without_proximity(_tokens(text))
     landmark = _landmark_mask(tokens)
     acted_on = " ".join(t for t, skip in zip(tokens, landmark, strict=True) if not skip)
-    named = mentioned_labels(acted_on, list(dict.fromkeys([*object_labels, *(_label_objects(labels))])))
+    known = list(dict.fromkeys([*object_labels, *(_label_objects(labels))]))
+    # both readings: "a shelf of books" names the bookshelf and books
+    named = list(dict.fromkeys([*mentioned_labels(acted_on, known), *mentioned_labels(acted_on, known, everyday=False)]))
     return [label_score(label, tokens, named, landmark) for label in labels]
 
 

@@ -115,10 +115,11 @@ def _contains(words: Sequence[str], phrase: Sequence[str]) -> int:
     return -1
 
 
-def mentioned_labels(text: str, labels: Sequence[str]) -> list[str]:
+def mentioned_labels(text: str, labels: Sequence[str], everyday: bool = True) -> list[str]:
     """Object labels the text names, in order of first mention (see the module docstring); the
-    everyday names of :mod:`agents.object_names` are read as the labels they name."""
-    words = _words(read_as_labels(text.lower(), labels))
+    everyday names of :mod:`agents.object_names` are read as the labels they name (unless
+    ``everyday`` is False: the words as written)."""
+    words = _words(read_as_labels(text.lower(), labels) if everyday else text)
     found: dict[str, int] = {}
     by_head: dict[str, list[str]] = {}
     for label in dict.fromkeys(labels):
