@@ -71,37 +71,48 @@ def _words_of(label: str) -> str:
     return label.replace("_", " ")
 
 
+_WORD = re.compile(r"[a-z0-9]+")
+
+
 @functools.lru_cache(maxsize=64)
-def _rewrites(labels: tuple[str, ...]) -> tuple[tuple[re.Pattern[str], str | None], ...]:
-    """The (name pattern, label words) rewrites for a scene with ``labels``: longest names first,
-    a name that is itself one of the scene's labels left out, only names of labels the scene
-    has, and each label's own words first among names as long ("bar counter" stays, though
-    "bar" is a name of it)."""
+def _names(labels: tuple[str, ...]) -> tuple[tuple[tuple[str, ...], str | None], ...]:
+    """The (name words, label words) of a scene with ``labels``: longest names first, a name
+    that is itself one of the scene's labels left out, only names of labels the scene has, and
+    each label's own words first among names as long (None: kept as written; "bar counter"
+    stays, though "bar" is a name of it)."""
     own = {_words_of(label) for label in labels}
-    pairs: list[tuple[str, str | None]] = [(words, None) for words in own]  # a label's own words: kept as written
+    pairs: list[tuple[str, str | None]] = [(words, None) for words in own]
     pairs += [
         (name, _words_of(label))
         for label, names in EVERYDAY_NAMES.items() if label in labels
         for name in names if name not in own
     ]
-    pairs.sort(key=lambda p: -len(p[0]))
-    out = []
-    for name, words in pairs:
-        body = r"\s+".join(re.escape(w) for w in name.split())
-        out.append((re.compile(rf"\b{body}(?:e?s)?\b"), words))
-    return tuple(out)
+    pairs.sort(key=lambda p: -len(p[0].split()))
+    return tuple((tuple(name.split()), words) for name, words in pairs)
+
+
+def _is(word: str, wanted: str, last: bool) -> bool:
+    return word == wanted or (last and word in (wanted + "s", wanted + "es"))
 
 
 def read_as_labels(text: str, labels: Iterable[str]) -> str:
-    """``text`` (lower case, ``_`` read as a space) with every everyday name of a label the scene
-    has written as that label's words ("the water cooler" -> "the water dispenser"). Names are
-    replaced longest first; a replaced stretch is not read again."""
-    out = text
-    placeholders: list[str] = []
-    for pattern, words in _rewrites(tuple(sorted(set(labels)))):
-        def hold(match: re.Match[str], words: str | None = words) -> str:
-            placeholders.append(match[0] if words is None else words)
-            return f"\x00{len(placeholders) - 1}\x00"
-
-        out = pattern.sub(hold, out)
-    return re.sub(r"\x00(\d+)\x00", lambda m: placeholders[int(m.group(1))], out)
+    """``text`` (lower case) with every everyday name of a label the scene has written as that
+    label's words ("the water cooler" -> "the water dispenser"). Names are matched longest
+    first (a plural "s" on the last word read too); a matched stretch is not read again."""
+    words = list(_WORD.finditer(text))
+    names = _names(tuple(sorted(set(labels))))
+    out, at, i = [], 0, 0
+    while i < len(words):
+        for name, label_words in names:
+            n = len(name)
+            if i + n <= len(words) and all(
+                _is(words[i + k].group(), name[k], k == n - 1) for k in range(n)
+            ):
+                if label_words is not None:
+                    out += [text[at : words[i].start()], label_words]
+                    at = words[i + n - 1].end()
+                i += n
+                break
+        else:
+            i += 1
+    return "".join([*out, text[at:]])

@@ -24,56 +24,123 @@ Pure: no LLM, no I/O.
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 
 _SIDE_FORMS = {
     "left": "to the left of", "right": "to the right of", "front": "in front of",
     "back": "behind", "rear": "behind", "side": "beside",
 }
-_SIDE = r"(?P<side>left|right|front|back|rear|side)(?:\s*-?\s*hand)?(?:\s+side)?(?:\s+of\s+it)?"
-_NOUN = r"(?P<thing>(?:[a-z0-9]+\s+){0,2}?[a-z0-9]+)"
-POSSESSIVE_SIDE = re.compile(rf"\b(?P<det>the|a|an|this|that)\s+{_NOUN}'s\s+(?:own\s+|very\s+)?{_SIDE}\b", re.IGNORECASE)
-"""``the wine rack's own right-hand side``: a side of a thing named by a possessive."""
-PRONOUN_SIDE = re.compile(rf"\bits\s+(?:own\s+|very\s+)?{_SIDE}\b", re.IGNORECASE)
-"""``its left``: a side of the thing the sentence is about."""
-PARENTHESES = re.compile(r"\s*\([^()]*\)")
-INTENSIFIER = re.compile(
-    r"(?P<before>\b[a-z']+\s+)?\bright\s+"
-    r"(?=(?:next|beside|behind|by|in|across|outside|inside|under|over|above|below|beneath|against|at|on|"
-    r"there|here|near|alongside|opposite|between|where|up|beneath)\b)",
-    re.IGNORECASE,
-)
-"""``right next to``: "right" meaning "just", not the side (unless a word before makes it a
-side: ``the right``, ``his right``)."""
+_DETERMINERS = frozenset({"the", "a", "an", "this", "that"})
+_EMPHASIS = frozenset({"own", "very"})
+THING_WORDS = 3
+"""Words a possessive's thing may have after its determiner ("the wine rack's")."""
+INTENSIFIED = frozenset({
+    "next", "beside", "behind", "by", "in", "across", "outside", "inside", "under", "over", "above", "below",
+    "beneath", "against", "at", "on", "there", "here", "near", "alongside", "opposite", "between", "where", "up",
+})
+"""Words after which "right" means "just" ("right next to")."""
 SIDE_OWNERS = frozenset({"the", "its", "his", "her", "their", "own", "far", "my", "your", "our"})
-VIEWER_FRAME = re.compile(
-    r"\b(?:for|to|by)\s+(?:someone|somebody|anyone|a\s+person|one|you|people|a\s+viewer|an\s+onlooker)\s+"
-    r"(?:who\s+is\s+|who's\s+)?(?:facing|looking\s+at|standing\s+in\s+front\s+of)\b"
-    r"|\b(?:seen|viewed|looking|judged)\s+from\s+(?:the\s+|its\s+)?front\b"
-    r"|\bas\s+(?:you|one)\s+face\b|\bfrom\s+the\s+viewer'?s\b",
-    re.IGNORECASE,
+"""Words before "right" that make it a side ("the right", "his right")."""
+VIEWER_FRAME = (
+    "for someone facing", "for somebody facing", "for anyone facing", "for a person facing", "for one facing",
+    "for someone looking at", "for anyone looking at", "for a viewer", "to someone facing", "to anyone facing",
+    "seen from the front", "seen from in front", "viewed from the front", "judged from the front",
+    "looking from the front", "as you face", "as one faces", "from the viewer",
 )
 """Words that say left and right are judged by someone facing the thing."""
+_TOKEN = re.compile(r"[A-Za-z0-9_]+|[^\sA-Za-z0-9_]")
 
 
-def _possessive(match: re.Match[str]) -> str:
-    return f"{_SIDE_FORMS[match['side'].lower()]} {match['det']} {match['thing']}"
+@dataclass(frozen=True)
+class _Token:
+    text: str
+    start: int
+    end: int
+
+    @property
+    def low(self) -> str:
+        return self.text.lower()
 
 
-def _without_intensifier(match: re.Match[str]) -> str:
-    before = match["before"] or ""
-    return match[0] if before.strip().lower() in SIDE_OWNERS else before
+def _tokens(text: str) -> list[_Token]:
+    return [_Token(m.group(), m.start(), m.end()) for m in _TOKEN.finditer(text)]
+
+
+def _side_end(tokens: list[_Token], k: int) -> tuple[str, int] | None:
+    """The side named from token ``k`` on ([own] left|right|front|back|rear|side [hand] [side]
+    [of it]) and the index after it; None when there is none."""
+    while k < len(tokens) and tokens[k].low in _EMPHASIS:
+        k += 1
+    if k >= len(tokens) or tokens[k].low not in _SIDE_FORMS:
+        return None
+    side, k = tokens[k].low, k + 1
+    if k + 1 < len(tokens) and tokens[k].text == "-" and tokens[k + 1].low == "hand":
+        k += 2
+    elif k < len(tokens) and tokens[k].low == "hand":
+        k += 1
+    if k < len(tokens) and tokens[k].low == "side" and side != "side":
+        k += 1
+    if k + 1 < len(tokens) and tokens[k].low == "of" and tokens[k + 1].low == "it":
+        k += 2
+    return side, k
+
+
+def _rewrite_sides(text: str) -> str:
+    tokens = _tokens(text)
+    edits: list[tuple[int, int, str]] = []  # (start, end, replacement) in text
+    for j in range(len(tokens) - 1):
+        if tokens[j].text == "'" and tokens[j + 1].low == "s" and j > 0:  # a possessive: "the bench's"
+            found = _side_end(tokens, j + 2)
+            det = next((d for d in range(j - 1, max(-1, j - 2 - THING_WORDS), -1) if tokens[d].low in _DETERMINERS), None)
+            if found is None or det is None or det == j - 1:
+                continue
+            thing = text[tokens[det + 1].start : tokens[j - 1].end]
+            edits.append((tokens[det].start, tokens[found[1] - 1].end,
+                          f"{_SIDE_FORMS[found[0]]} {tokens[det].text} {thing}"))
+        elif tokens[j].low == "its" and (found := _side_end(tokens, j + 1)) is not None:
+            edits.append((tokens[j].start, tokens[found[1] - 1].end, f"{_SIDE_FORMS[found[0]]} it"))
+    return _apply(text, edits)
+
+
+def _apply(text: str, edits: list[tuple[int, int, str]]) -> str:
+    out, at = [], 0
+    for start, end, new in sorted(edits):
+        if start < at:
+            continue
+        out += [text[at:start], new]
+        at = end
+    return "".join([*out, text[at:]])
+
+
+def _without_parentheses(text: str) -> str:
+    out, depth = [], 0
+    for ch in text:
+        depth += ch == "("
+        if depth == 0:
+            out.append(ch)
+        depth -= ch == ")" and depth > 0
+    return " ".join("".join(out).split()).replace(" .", ".").replace(" ,", ",")
+
+
+def _without_intensifier(text: str) -> str:
+    tokens = _tokens(text)
+    edits = [
+        (t.start, tokens[i + 1].start, "")
+        for i, t in enumerate(tokens[:-1])
+        if t.low == "right" and tokens[i + 1].low in INTENSIFIED and (i == 0 or tokens[i - 1].low not in SIDE_OWNERS)
+    ]
+    return _apply(text, edits)
 
 
 def _swap_sides(text: str) -> str:
-    return re.sub(r"\b(left|right)\b", lambda m: "right" if m.group(1).lower() == "left" else "left", text,
-                  flags=re.IGNORECASE)
+    tokens = _tokens(text)
+    return _apply(text, [(t.start, t.end, "right" if t.low == "left" else "left")
+                         for t in tokens if t.low in ("left", "right")])
 
 
 def plain_places(text: str) -> str:
     """``text`` with the side phrases of the module docstring rewritten (names keep their case)."""
-    out = PARENTHESES.sub("", text.replace("\u2019", "'"))
-    out = INTENSIFIER.sub(_without_intensifier, out)
-    if VIEWER_FRAME.search(out):
+    out = _without_intensifier(_without_parentheses(text.replace("\u2019", "'")))
+    if any(phrase in " ".join(t.low for t in _tokens(out)) for phrase in VIEWER_FRAME):
         out = _swap_sides(out)
-    out = POSSESSIVE_SIDE.sub(_possessive, out)
-    return PRONOUN_SIDE.sub(lambda m: f"{_SIDE_FORMS[m['side'].lower()]} it", out)
+    return _rewrite_sides(out)
