@@ -6,7 +6,7 @@ cancellation) and no answer. Its replay makes the same request at the same frame
 port (``unanswered="wait"`` in a story session, ``orchestrator.llm.replay``) lets it wait, as
 the recorded call did, until the session ends, so the replay writes the recorded story and
 exits 0. A request that is not the recorded one (an edited prompt, another frame, the default
-``"miss"`` port of ``plan``) is still a replay miss, exit 1, with its diff.
+``"miss"`` port of ``plan``) is still a replay miss: one error line, exit 2.
 
 Unit tests on :class:`ReplayClient` with a trace recorded by the live client; command-line tests
 run ``storyteller run`` in realtime pace against the fake OpenAI server, whose second answer
@@ -183,7 +183,7 @@ def test_a_step_in_flight_at_the_end_replays_byte_identically(in_flight_at_end: 
 
 
 @pytest.mark.slow
-def test_a_genuine_miss_of_that_step_is_still_exit_1_with_its_diff(in_flight_at_end: Path, tmp_path: Path) -> None:
+def test_a_genuine_miss_of_that_step_is_still_a_replay_miss(in_flight_at_end: Path, tmp_path: Path) -> None:
     """The cut call's recorded prompt edited (hash kept consistent): the replay's request for
     step 1 is not the recorded one, so it is a miss, not the end of the recorded story."""
     run = tmp_path / "edited"
@@ -197,5 +197,6 @@ def test_a_genuine_miss_of_that_step_is_still_exit_1_with_its_diff(in_flight_at_
             lines[i] = json.dumps(rec)
     (run / "trace.jsonl").write_text("\n".join(lines) + "\n", encoding="utf-8")
     done = _replay(tmp_path, run, tmp_path / "again")
-    assert done.returncode == 1, done.stderr[-3000:]
-    assert "planning stopped: ReplayMissError" in done.stderr and "-Seats in use: sofa_1" in done.stderr
+    # a replay miss is a bad file since 530cc6a: one error line, exit 2 (the diff at --log-level INFO)
+    assert done.returncode == 2, done.stderr[-3000:]
+    assert "the recorded step does not apply" in done.stderr and "replay miss for node planner" in done.stderr
