@@ -13,7 +13,6 @@ from pathlib import Path
 import anyio
 import pytest
 
-from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.planning.state import StepProgress
 from orchestrator.session.checkpoint_writer import CheckpointWriter
 from orchestrator.session.runtime import (
@@ -24,24 +23,12 @@ from orchestrator.session.runtime import (
     SessionSettings,
 )
 from orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
-from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher
-from sim.scene.bundled import resolve_scene
 from sim.scene.model import Scene
 from sim.world.step import World, step
 from sim.world.track_chunks import ChunkStore
 
 NAMES = ["Ava", "Ben"]
-
-
-@pytest.fixture(scope="module")
-def motion() -> MotionMatcher:
-    return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
-
-
-@pytest.fixture(scope="module")
-def home() -> Scene:
-    return resolve_scene("home")
 
 
 def _world(home: Scene, motion: MotionMatcher) -> World:

@@ -23,7 +23,6 @@ import numpy as np
 import pytest
 from pydantic import BaseModel
 
-from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.planning.state import StepProgress
 from orchestrator.session import snapshot_file
 from orchestrator.session.runtime import (
@@ -39,21 +38,9 @@ from orchestrator.session.snapshot_file import (
     save_checkpoint,
     shared_names,
 )
-from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher
-from sim.scene.bundled import resolve_scene
 from sim.scene.model import Scene
 from sim.world.step import World, step
-
-
-@pytest.fixture(scope="module")
-def motion() -> MotionMatcher:
-    return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
-
-
-@pytest.fixture(scope="module")
-def home() -> Scene:
-    return resolve_scene("home")
 
 
 def _world(home: Scene, motion: MotionMatcher) -> World:
