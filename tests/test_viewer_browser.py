@@ -27,10 +27,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import FakeOpenAI
 from benchmark.support.headless_chromium import Chromium, chromium_binary
 from orchestrator.cli.app import app
-from tests.support.story_planner import interact_program
+from tests.support.story_planner import interact_program, recorded_home_run
 
 pytestmark = pytest.mark.skipif(chromium_binary() is None, reason="chromium not installed (apt-get install chromium)")
 
@@ -45,23 +44,7 @@ MIN_SHIFT_PX = 8.0  # how far Ava's pixels must move in two seconds of walking
 def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """An 8-second run of two characters in ``home`` with two planned events."""
     tmp = tmp_path_factory.mktemp("viewer")
-    with pytest.MonkeyPatch.context() as mp, FakeOpenAI(default='{"error": "no script"}') as fake:
-        mp.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
-        mp.setenv("STORYTELLER_CACHE_DIR", str(tmp / "cache"))
-        for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL", "STORYTELLER_PLANNER_MODEL"):
-            mp.delenv(var, raising=False)
-        cfg = tmp / "fake.toml"
-        cfg.write_text(
-            f'[llm]\napi_base = "{fake.base}"\napi_key_env = "FAKE_PROVIDER_KEY"\ntimeout_s = 10.0\n'
-            '[llm.retry]\nmax_attempts = 1\n[nodes.planner]\nmodel = "openai/fake-planner"\n',
-            encoding="utf-8",
-        )
-        fake.script["fake-planner"] = [COFFEE, MICROWAVE]
-        args = ["run", "home", "-n", "2", "-d", "8", "--max-events", "2", "--planner", "unified",
-                "--description", "object-list", "--config", str(cfg), "--out", str(tmp / "run")]  # fmt: skip
-        result = CliRunner().invoke(app, args, catch_exceptions=False)
-    assert result.exit_code == 0, result.stderr
-    return tmp / "run"
+    return recorded_home_run(tmp, [COFFEE, MICROWAVE], seconds=8, max_events=2)
 
 
 @pytest.fixture

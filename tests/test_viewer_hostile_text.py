@@ -28,17 +28,14 @@ from pathlib import Path
 from typing import Any, cast
 
 import pytest
-from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import FakeOpenAI
 from benchmark.support.headless_chromium import Chromium, chromium_binary
-from orchestrator.cli.app import app
 from orchestrator.safe_text import markdown
 from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
 from orchestrator.session.run_manifest import RunArguments, RunManifest, write_manifest
 from orchestrator.session.viewer_instructions import INBOX_FILE, InstructionInbox, ViewerInstruction
 from orchestrator.viewer.server import InstructionRefused, ViewerApp
-from tests.support.story_planner import interact_program
+from tests.support.story_planner import interact_program, recorded_home_run
 
 THREAD = "run-0123456789ab@unified+object-list"
 SCRIPT = "</script><img src=x onerror=alert(1)><script>alert(2)</script>"
@@ -186,23 +183,7 @@ HOSTILE = f"{SCRIPT} *bold* [link](javascript:alert(3)) {CONTROLS} &lt;b&gt;"
 def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 6-second run of two characters in ``home`` with one planned event."""
     tmp = tmp_path_factory.mktemp("hostile-view")
-    with pytest.MonkeyPatch.context() as mp, FakeOpenAI(default='{"error": "no script"}') as fake:
-        mp.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
-        mp.setenv("STORYTELLER_CACHE_DIR", str(tmp / "cache"))
-        for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL", "STORYTELLER_PLANNER_MODEL"):
-            mp.delenv(var, raising=False)
-        cfg = tmp / "fake.toml"
-        cfg.write_text(
-            f'[llm]\napi_base = "{fake.base}"\napi_key_env = "FAKE_PROVIDER_KEY"\ntimeout_s = 10.0\n'
-            '[llm.retry]\nmax_attempts = 1\n[nodes.planner]\nmodel = "openai/fake-planner"\n',
-            encoding="utf-8",
-        )
-        fake.script["fake-planner"] = [interact_program("Ava", "coffee_maker_1", "use_coffee_maker")]
-        args = ["run", "home", "-n", "2", "-d", "6", "--max-events", "1", "--planner", "unified",
-                "--description", "object-list", "--config", str(cfg), "--out", str(tmp / "run")]  # fmt: skip
-        result = CliRunner().invoke(app, args, catch_exceptions=False)
-    assert result.exit_code == 0, result.stderr
-    return tmp / "run"
+    return recorded_home_run(tmp, [interact_program("Ava", "coffee_maker_1", "use_coffee_maker")], seconds=6, max_events=1)
 
 
 def _poison(run: Path, folder: Path) -> None:

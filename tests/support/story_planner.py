@@ -12,6 +12,12 @@ import threading
 from pathlib import Path
 from typing import Any
 
+import pytest
+from typer.testing import CliRunner
+
+from benchmark.support.fake_openai_server import FakeOpenAI
+from orchestrator.cli.app import app
+
 RUN = ["run", "home", "--names", "Zoe,Max", "--planner", "unified", "--description", "object-list", "--raw-feet",
        "--no-interactive"]
 """``storyteller run`` arguments of the scripted story (add ``-d``, ``--max-events``, ``--config``, ``--out``)."""
@@ -71,3 +77,25 @@ def write_config(tmp_path: Path, api_base: str, *, attempts: int = 1, timeout_s:
         encoding="utf-8",
     )
     return path
+
+
+def recorded_home_run(tmp: Path, programs: list[str], *, seconds: int, max_events: int) -> Path:
+    """A ``run`` of two characters in ``home`` (unified planner, object-list description) whose
+    planner replies are ``programs`` from a scripted provider on 127.0.0.1; its run folder."""
+    with pytest.MonkeyPatch.context() as mp, FakeOpenAI(default='{"error": "no script"}') as fake:
+        mp.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
+        mp.setenv("STORYTELLER_CACHE_DIR", str(tmp / "cache"))
+        for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL", "STORYTELLER_PLANNER_MODEL"):
+            mp.delenv(var, raising=False)
+        cfg = tmp / "fake.toml"
+        cfg.write_text(
+            f'[llm]\napi_base = "{fake.base}"\napi_key_env = "FAKE_PROVIDER_KEY"\ntimeout_s = 10.0\n'
+            '[llm.retry]\nmax_attempts = 1\n[nodes.planner]\nmodel = "openai/fake-planner"\n',
+            encoding="utf-8",
+        )
+        fake.script["fake-planner"] = list(programs)
+        args = ["run", "home", "-n", "2", "-d", str(seconds), "--max-events", str(max_events), "--planner", "unified",
+                "--description", "object-list", "--config", str(cfg), "--out", str(tmp / "run")]  # fmt: skip
+        result = CliRunner().invoke(app, args, catch_exceptions=False)
+    assert result.exit_code == 0, result.stderr
+    return tmp / "run"
