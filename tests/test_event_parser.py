@@ -7,7 +7,7 @@ test runs the real ``run_event_program`` on a small scene.
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import pytest
 from hypothesis import given, settings
@@ -26,6 +26,7 @@ from agents.messages import CharacterStatus, Event
 from agents.prompt_templates import PromptLibrary
 from agents.retry_feedback import AnswerRejectedError, NoCodeError, RetriesExhaustedError
 from sim.scene.model import Scene, SceneObject
+from tests.support.planning_script import Plan
 from tests.support.scripted_llm import ScriptedLLM
 from tools.errors import UnknownObjectError
 
@@ -63,16 +64,6 @@ def test_extract_program_without_code_is_typed() -> None:
 def test_extract_program_never_crashes(text: str) -> None:
     with contextlib.suppress(NoCodeError):
         assert "parse_event" in extract_program(text)
-
-
-@dataclass
-class Plan:
-    character: str
-    action: str
-    area: str
-    position: tuple[float, float]
-    facing: tuple[float, float]
-    seat: str | None = None
 
 
 def test_check_plans_requires_exactly_the_event_characters() -> None:

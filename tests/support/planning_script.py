@@ -44,11 +44,14 @@ def tiny_scene() -> Scene:
 
 @dataclass
 class Plan:
+    """A planned character as a runner returns it (the fields the planning code reads)."""
+
     character: str
     action: str
     area: str
     position: tuple[float, float]
     facing: tuple[float, float]
+    seat: str | None = None
 
 
 def fake_runner(
