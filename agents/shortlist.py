@@ -36,13 +36,8 @@ CLOSE_M = 1.0
 """Horizontal gap (m) under which an object counts as close to another (the scene graph's
 ``close to``)."""
 SYNONYMS = {"sofa": "couch", "television": "tv", "refrigerator": "fridge", "telly": "tv", "turntable": "record player"}
-"""Common words for the same kind of object (general English, not any case's wording)."""
-PHRASES = (
-    (re.compile(r"\b(?:coffee|espresso) machines?\b"), "coffee maker"),
-    (re.compile(r"\bbar\b(?!\s+(?:stool|counter|chair))"), "bar counter"),
-    (re.compile(r"\bwork ?stations?\b"), "desk"),
-)
-"""Common several-word names of the same kind of object, rewritten before matching."""
+"""One-word names the action reader (:mod:`agents.action_shortlist`) reads as object words;
+object names in general are :mod:`agents.object_names`' (read before any matching here)."""
 DINING = re.compile(r"\b(?:dining|dinner|kitchen|breakfast|conference|meeting|boardroom) tables?\b")
 """A table people eat or meet at: of the tables named, those with the most chairs around them."""
 CHARACTER_NEAR_M = 1.5
@@ -91,10 +86,7 @@ class Shortlist:
 
 
 def _rewrite(text: str) -> str:
-    text = text.lower().replace("_", " ")
-    for pattern, name in PHRASES:
-        text = pattern.sub(name, text)
-    return text
+    return text.lower().replace("_", " ")
 
 
 def _words(text: str) -> list[str]:
