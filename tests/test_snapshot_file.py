@@ -218,6 +218,24 @@ def test_a_model_with_a_wrong_field_type_is_refused(checkpoint: tuple[World, Ses
         load_checkpoint(path, _world(home, motion))
 
 
+@pytest.mark.parametrize("slot", ["__pydantic_private__", "__pydantic_extra__"])
+@pytest.mark.parametrize("forged", [False, {}, 0])
+def test_a_model_with_a_forged_pydantic_slot_is_refused(checkpoint: tuple[World, SessionCheckpoint], home: Scene,
+                                                       motion: MotionMatcher, tmp_path: Path, slot: str,
+                                                       forged: object) -> None:
+    """A falsy non-None value in a model's private or extra slot (found by the run-folder fuzzer:
+    False there passed the check and stopped the resumed run deep in ``copy.deepcopy``)."""
+    from orchestrator.session.runtime import TimedInstruction
+
+    world, cp = checkpoint
+    bad = TimedInstruction(frame=3, text="x", source="script")
+    object.__setattr__(bad, slot, forged)
+    path = write_snapshot(tmp_path / "session.snapshot",
+                          real_payload(world, dataclasses.replace(cp, instructions=[bad])))
+    with pytest.raises(SnapshotError, match="TimedInstruction with values besides its fields"):
+        load_checkpoint(path, _world(home, motion))
+
+
 def test_a_checksum_mismatch_is_one_line(checkpoint: tuple[World, SessionCheckpoint], home: Scene,
                                          motion: MotionMatcher, tmp_path: Path) -> None:
     world, cp = checkpoint

@@ -484,7 +484,9 @@ def _children(obj: Any, listed: frozenset[type]) -> list[Any]:
         fields_set = obj.__pydantic_fields_set__
         if set(state) != fields or type(fields_set) is not set or not fields_set <= fields:
             raise SnapshotError(f"a {kind.__name__} with other fields than its own")
-        if obj.__pydantic_extra__ or obj.__pydantic_private__:
+        # None is what pydantic stores for a model without extra or private values (ours have
+        # neither); anything else, even a falsy False or {}, is a forged slot
+        if obj.__pydantic_extra__ is not None or obj.__pydantic_private__ is not None:
             raise SnapshotError(f"a {kind.__name__} with values besides its fields")
         try:
             model.model_validate(state)
