@@ -12,8 +12,8 @@ Layout of the file:
   slab over the scene bounds;
 - per character a group node named as the character, holding its joint hierarchy
   (``<name>:pelvis`` ... ``<name>:right_wrist``, translations = rest offsets), and a root
-  skinned mesh node ``<name>:body``: one flat-shaded box per bone, each bound rigidly to one of
-  the 22 joints (``skin.joints`` in our joint order, inverse bind matrices of the rest pose);
+  skinned mesh node ``<name>:body``: the box figure of :mod:`sim.export.box_figure` (one
+  flat-shaded box per bone), each box bound rigidly to one of the 22 joints (``skin.joints`` in our joint order, inverse bind matrices of the rest pose);
 - one animation ``run``: per character, root translation + 22 joint rotations (unit
   quaternions, xyzw, sign-continuous), one key per frame at the track's rate, LINEAR.
 
@@ -42,14 +42,13 @@ from scipy.spatial.transform import Rotation
 
 from sim.body.skeleton import (
     BODY_TO_WORLD,
-    JOINT_INDEX,
     JOINT_NAMES,
     NUM_JOINTS,
     PARENTS,
     REST_OFFSETS,
     rest_positions,
 )
-from sim.export.bvh import END_SITES
+from sim.export.box_figure import box_mesh, character_mesh
 from sim.export.joint_rotations import JointRotations
 from sim.no_follow_writes import write_file
 from sim.scene.model import Scene, SceneObject
@@ -68,98 +67,6 @@ CHARACTER_COLORS: tuple[tuple[float, float, float], ...] = (
     (0.85, 0.45, 0.65),
     (0.55, 0.55, 0.55),
 )
-# Bone boxes: (from joint, to joint or end site, owner joint, width, depth) in metres.
-_BONE_SIZES: dict[str, tuple[float, float]] = {
-    "left_hip": (0.14, 0.14),
-    "right_hip": (0.14, 0.14),
-    "spine1": (0.30, 0.18),
-    "left_knee": (0.13, 0.13),
-    "right_knee": (0.13, 0.13),
-    "spine2": (0.30, 0.18),
-    "left_ankle": (0.10, 0.10),
-    "right_ankle": (0.10, 0.10),
-    "spine3": (0.32, 0.19),
-    "left_foot": (0.09, 0.06),
-    "right_foot": (0.09, 0.06),
-    "neck": (0.09, 0.09),
-    "left_collar": (0.10, 0.10),
-    "right_collar": (0.10, 0.10),
-    "head": (0.09, 0.09),
-    "left_shoulder": (0.10, 0.10),
-    "right_shoulder": (0.10, 0.10),
-    "left_elbow": (0.10, 0.10),
-    "right_elbow": (0.10, 0.10),
-    "left_wrist": (0.08, 0.08),
-    "right_wrist": (0.08, 0.08),
-}
-_END_SIZES: dict[str, tuple[float, float]] = {
-    "head": (0.17, 0.19),
-    "left_wrist": (0.09, 0.04),
-    "right_wrist": (0.09, 0.04),
-    "left_foot": (0.09, 0.05),
-    "right_foot": (0.09, 0.05),
-}
-# Unit cube corners (bit 0: +x, bit 1: +y, bit 2: +z) and its 6 outward quads.
-_CORNERS = np.array([[(i >> k) & 1 for k in range(3)] for i in range(8)], dtype=np.float64) - 0.5
-_QUADS = np.array(
-    [[1, 3, 7, 5], [0, 4, 6, 2], [2, 6, 7, 3], [0, 1, 5, 4], [4, 5, 7, 6], [0, 2, 3, 1]]
-)
-_QUAD_NORMALS = np.array(
-    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=np.float64
-)
-_QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
-
-
-def box_mesh(
-    centers: NDArray[np.float64], axes: NDArray[np.float64], half_sizes: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Flat-shaded boxes, vectorised over B boxes.
-
-    centers (B, 3); axes (B, 3, 3) with the box's unit axes as columns (right-handed);
-    half_sizes (B, 3). Returns positions (B*24, 3), normals (B*24, 3), triangles (B*12, 3).
-    """
-    b = centers.shape[0]
-    corners = centers[:, None, :] + np.einsum(
-        "bij,bcj->bci", axes, _CORNERS[None] * 2.0 * half_sizes[:, None, :]
-    )
-    positions = corners[:, _QUADS.reshape(-1)]  # (B, 24, 3)
-    normals = np.repeat(np.einsum("bij,fj->bfi", axes, _QUAD_NORMALS), 4, axis=1)
-    local_tris = (np.arange(6)[:, None, None] * 4 + _QUAD_TRIANGLES[None]).reshape(12, 3)
-    triangles = (np.arange(b)[:, None, None] * 24 + local_tris[None]).reshape(-1, 3)
-    return positions.reshape(-1, 3), normals.reshape(-1, 3), triangles
-
-
-def character_mesh() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """The figure in the rest pose (glTF frame = body frame): positions, normals, triangles, joint ids.
-
-    Each vertex is bound to one joint (weight 1), the joint whose bone the box belongs to.
-    """
-    rest = rest_positions()
-    starts, ends, owners, sizes = [], [], [], []
-    for j in range(1, NUM_JOINTS):
-        starts.append(rest[PARENTS[j]])
-        ends.append(rest[j])
-        owners.append(PARENTS[j])
-        sizes.append(_BONE_SIZES[JOINT_NAMES[j]])
-    for name, offset in END_SITES.items():
-        j = JOINT_INDEX[name]
-        starts.append(rest[j])
-        ends.append(rest[j] + np.array(offset))
-        owners.append(j)
-        sizes.append(_END_SIZES[name])
-    a, e = np.array(starts), np.array(ends)
-    length = np.linalg.norm(e - a, axis=1)
-    along = (e - a) / length[:, None]
-    ref = np.where(np.abs(along[:, 2:3]) > 0.9, [[1.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]])
-    side = np.cross(along, ref)
-    side /= np.linalg.norm(side, axis=1, keepdims=True)
-    front = np.cross(side, along)
-    axes = np.stack([side, along, front], axis=2)  # columns: width, length, depth
-    wd = np.array(sizes)
-    half = np.column_stack([wd[:, 0] / 2, length / 2 + 0.02, wd[:, 1] / 2])
-    positions, normals, triangles = box_mesh((a + e) / 2, axes, half)
-    joints = np.repeat(np.array(owners), 24)
-    return positions, normals, triangles, joints
 
 
 @dataclass(frozen=True)
@@ -298,14 +205,36 @@ def _object_trs(obj: SceneObject) -> tuple[list[float], list[float], list[float]
     return [float(x) for x in t], [float(x) for x in _quat(rot)], [width, height, depth]
 
 
-def _body_accessors(w: _Writer, body: SkinnedBody, name: str) -> tuple[gl.Attributes, int, int]:
-    """Accessors of a :class:`SkinnedBody`: attributes, indices, inverse bind matrices."""
-    attributes = gl.Attributes(
-        POSITION=w.accessor(body.vertices.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER, bounds=True, name=name),
-        NORMAL=w.accessor(vertex_normals(body.vertices, body.faces).astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER),
-        JOINTS_0=w.accessor(body.joints.astype(np.uint8), gl.VEC4, gl.UNSIGNED_BYTE, target=gl.ARRAY_BUFFER),
-        WEIGHTS_0=w.accessor(body.weights.astype(np.float32), gl.VEC4, gl.FLOAT, target=gl.ARRAY_BUFFER),
-    )  # fmt: skip
+@dataclass(frozen=True)
+class _SkinAccessors:
+    """The accessor ids of one skinned mesh: vertex attributes, indices, inverse bind matrices."""
+
+    position: int
+    normal: int
+    joints: int
+    weights: int
+    indices: int
+    inverse_bind: int
+
+    def attributes(self) -> gl.Attributes:
+        return gl.Attributes(
+            POSITION=self.position, NORMAL=self.normal, JOINTS_0=self.joints, WEIGHTS_0=self.weights
+        )
+
+
+def _inverse_bind(w: _Writer, bind_joints: NDArray[np.float64], name: str) -> int:
+    """The accessor of the 22 inverse bind matrices of a mesh bound at ``bind_joints`` (no rotation)."""
+    ibm = np.tile(np.eye(4, dtype=np.float32), (NUM_JOINTS, 1, 1))
+    ibm[:, :3, 3] = -bind_joints
+    return w.accessor(np.swapaxes(ibm, 1, 2).reshape(NUM_JOINTS, 16), gl.MAT4, gl.FLOAT, name=name)
+
+
+def _body_accessors(w: _Writer, body: SkinnedBody, name: str) -> _SkinAccessors:
+    """Accessors of a :class:`SkinnedBody`."""
+    position = w.accessor(body.vertices.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER, bounds=True, name=name)
+    normal = w.accessor(vertex_normals(body.vertices, body.faces).astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER)
+    joints = w.accessor(body.joints.astype(np.uint8), gl.VEC4, gl.UNSIGNED_BYTE, target=gl.ARRAY_BUFFER)
+    weights = w.accessor(body.weights.astype(np.float32), gl.VEC4, gl.FLOAT, target=gl.ARRAY_BUFFER)
     wide = body.vertices.shape[0] > 65535
     indices = w.accessor(
         body.faces.reshape(-1).astype(np.uint32 if wide else np.uint16),
@@ -313,10 +242,148 @@ def _body_accessors(w: _Writer, body: SkinnedBody, name: str) -> tuple[gl.Attrib
         gl.UNSIGNED_INT if wide else gl.UNSIGNED_SHORT,
         target=gl.ELEMENT_ARRAY_BUFFER,
     )
-    ibm = np.tile(np.eye(4, dtype=np.float32), (NUM_JOINTS, 1, 1))
-    ibm[:, :3, 3] = -body.bind_joints
-    ibm_acc = w.accessor(np.swapaxes(ibm, 1, 2).reshape(NUM_JOINTS, 16), gl.MAT4, gl.FLOAT, name=f"{name}:inverse_bind")
-    return attributes, indices, ibm_acc
+    inverse_bind = _inverse_bind(w, body.bind_joints, f"{name}:inverse_bind")
+    return _SkinAccessors(position, normal, joints, weights, indices, inverse_bind)
+
+
+def _box_figure_accessors(w: _Writer) -> _SkinAccessors:
+    """Accessors of the box figure (:func:`character_mesh`), shared by every character without a body."""
+    positions, normals, triangles, joint_ids = character_mesh()
+    position = w.accessor(
+        positions.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER, bounds=True, name="body"
+    )
+    normal = w.accessor(normals.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER)
+    joints4 = np.zeros((joint_ids.size, 4), dtype=np.uint8)
+    joints4[:, 0] = joint_ids
+    weights4 = np.zeros((joint_ids.size, 4), dtype=np.float32)
+    weights4[:, 0] = 1.0
+    joints = w.accessor(joints4, gl.VEC4, gl.UNSIGNED_BYTE, target=gl.ARRAY_BUFFER)
+    weights = w.accessor(weights4, gl.VEC4, gl.FLOAT, target=gl.ARRAY_BUFFER)
+    indices = w.accessor(
+        triangles.reshape(-1).astype(np.uint16), gl.SCALAR, gl.UNSIGNED_SHORT, target=gl.ELEMENT_ARRAY_BUFFER
+    )
+    inverse_bind = _inverse_bind(w, rest_positions(), "inverse_bind")
+    return _SkinAccessors(position, normal, joints, weights, indices, inverse_bind)
+
+
+def _floor_node(scene: Scene, mesh: int) -> gl.Node:
+    """The floor slab over the scene bounds, its top face at ``floor_z``."""
+    lo, hi = np.array(scene.bounds_min), np.array(scene.bounds_max)
+    center = WORLD_TO_GLTF @ np.array([*(lo + hi) / 2, scene.floor_z - FLOOR_THICKNESS / 2])
+    size = [float(hi[0] - lo[0]), FLOOR_THICKNESS, float(hi[1] - lo[1])]
+    return gl.Node(name="floor", mesh=mesh, translation=[float(x) for x in center], scale=size)
+
+
+def _scene_node(w: _Writer, scene: Scene) -> int:
+    """The ``objects`` node: a scaled unit cube per object (one mesh per label) and the floor."""
+    pos, nrm, tri = box_mesh(np.zeros((1, 3)), np.eye(3)[None], np.full((1, 3), 0.5))
+    cube_pos = w.accessor(
+        pos.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER, bounds=True, name="cube"
+    )
+    cube_nrm = w.accessor(nrm.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER)
+    cube_idx = w.accessor(
+        tri.reshape(-1).astype(np.uint16), gl.SCALAR, gl.UNSIGNED_SHORT, target=gl.ELEMENT_ARRAY_BUFFER
+    )
+    label_mesh: dict[str, int] = {}
+    children: list[int] = []
+    for obj in [*scene.objects, None]:
+        label = "floor" if obj is None else obj.label
+        if label not in label_mesh:
+            mat = w.material(label, (0.8, 0.8, 0.78) if obj is None else _label_color(label))
+            label_mesh[label] = w.mesh(label, gl.Attributes(POSITION=cube_pos, NORMAL=cube_nrm), cube_idx, mat)
+        if obj is None:
+            node = _floor_node(scene, label_mesh[label])
+        else:
+            t, r, s = _object_trs(obj)
+            node = gl.Node(name=obj.name, mesh=label_mesh[label], translation=t, rotation=r, scale=s)
+        children.append(w.node(node))
+    return w.node(gl.Node(name="objects", children=children))
+
+
+def _track_pose(
+    track: CharacterTrack, body: SkinnedBody | None, joints: JointRotations | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """A track in the glTF frame: root translations (N, 3), sign-continuous quaternions
+    (N, 22, 4) and the joints' rest offsets (22, 3) of its figure or body."""
+    if body is None:
+        offsets, root_world = REST_OFFSETS, track.root_positions
+    else:  # the body's rest joints, and its pelvis at trans + J0 (see the module docstring)
+        rest = body.bind_joints
+        offsets = np.vstack([rest[:1], rest[1:] - rest[list(PARENTS[1:])]])
+        root_world = track.root_positions + (rest[0] - REST_OFFSETS[0])
+    root_t = root_world @ WORLD_TO_GLTF.T
+    if joints is None:
+        joints = JointRotations.of(track)
+    quats = _continuous(joints.with_root(WORLD_TO_GLTF).as_quat().reshape(track.num_frames, NUM_JOINTS, 4))
+    return root_t, quats, offsets
+
+
+def _joint_nodes(
+    w: _Writer, name: str, root_t: NDArray[np.float64], quats: NDArray[np.float64], offsets: NDArray[np.float64]
+) -> list[int]:
+    """The joint hierarchy of character ``name`` at its first frame's pose (node ids in joint order)."""
+    node_ids: list[int] = []
+    for j in range(NUM_JOINTS):
+        offset = root_t[0] if j == 0 else offsets[j]
+        node = gl.Node(
+            name=f"{name}:{JOINT_NAMES[j]}",
+            translation=[float(x) for x in offset],
+            rotation=[float(x) for x in quats[0, j]],
+        )
+        node_ids.append(w.node(node))
+    for j in range(1, NUM_JOINTS):
+        w.gltf.nodes[node_ids[PARENTS[j]]].children.append(node_ids[j])
+    return node_ids
+
+
+def _skinned_body_node(w: _Writer, name: str, color: Sequence[float], skin: _SkinAccessors, node_ids: list[int]) -> int:
+    """The skinned mesh node ``<name>:body`` bound to the joint nodes ``node_ids``."""
+    material = w.material(f"{name}:skin", color)
+    mesh = w.mesh(f"{name}:body", skin.attributes(), skin.indices, material)
+    w.gltf.skins.append(
+        gl.Skin(name=name, inverseBindMatrices=skin.inverse_bind, skeleton=node_ids[0], joints=node_ids)
+    )
+    return w.node(gl.Node(name=f"{name}:body", mesh=mesh, skin=len(w.gltf.skins) - 1))
+
+
+def _animate(
+    w: _Writer,
+    animation: gl.Animation,
+    times_acc: int,
+    node_ids: list[int],
+    root_t: NDArray[np.float64],
+    quats: NDArray[np.float64],
+) -> None:
+    """One LINEAR channel for the root translation and one per joint rotation, keyed at ``times_acc``."""
+    outputs = [
+        (node_ids[0], gl.TRANSLATION, w.accessor(root_t.astype(np.float32), gl.VEC3, gl.FLOAT, bounds=True))
+    ]
+    for j in range(NUM_JOINTS):
+        acc = w.accessor(np.ascontiguousarray(quats[:, j]).astype(np.float32), gl.VEC4, gl.FLOAT, bounds=True)
+        outputs.append((node_ids[j], gl.ROTATION, acc))
+    for node_id, path, acc in outputs:
+        animation.samplers.append(gl.AnimationSampler(input=times_acc, output=acc, interpolation=gl.ANIM_LINEAR))
+        target = gl.AnimationChannelTarget(node=node_id, path=path)
+        animation.channels.append(gl.AnimationChannel(sampler=len(animation.samplers) - 1, target=target))
+
+
+def _time_accessor(w: _Writer, cache: dict[tuple[int, float], int], track: CharacterTrack) -> int:
+    """The key times of ``track``, one accessor per (frame count, rate)."""
+    n = track.num_frames
+    key = (n, track.fps)
+    if key not in cache:
+        cache[key] = w.accessor(
+            track.times.astype(np.float32), gl.SCALAR, gl.FLOAT, bounds=True, name=f"time_{n}@{track.fps:g}"
+        )
+    return cache[key]
+
+
+def _check_names(tracks: Sequence[CharacterTrack], bodies: Mapping[str, SkinnedBody]) -> None:
+    names = [t.name for t in tracks]
+    if len(set(names)) != len(names):
+        raise ValueError(f"character names must be unique, got {names}")
+    if unknown := sorted(set(bodies) - set(names)):
+        raise ValueError(f"bodies for characters not in the run: {unknown}")
 
 
 def build_glb(
@@ -329,170 +396,34 @@ def build_glb(
 
     ``bodies`` (by character name) replaces a character's box figure with its body mesh.
     ``rotations`` (by character name): a track's joint rotations converted once for every
-    exporter (default: converted here).
+    exporter (default: converted here). The writer's calls run in a fixed order (scene, box
+    figure, then per character), which fixes the output bytes.
     """
-    names = [t.name for t in tracks]
-    if len(set(names)) != len(names):
-        raise ValueError(f"character names must be unique, got {names}")
     bodies = dict(bodies or {})
-    if unknown := sorted(set(bodies) - set(names)):
-        raise ValueError(f"bodies for characters not in the run: {unknown}")
+    _check_names(tracks, bodies)
     w = _Writer()
     top: list[int] = []
-
     if scene is not None:
-        pos, nrm, tri = box_mesh(np.zeros((1, 3)), np.eye(3)[None], np.full((1, 3), 0.5))
-        cube_pos = w.accessor(
-            pos.astype(np.float32),
-            gl.VEC3,
-            gl.FLOAT,
-            target=gl.ARRAY_BUFFER,
-            bounds=True,
-            name="cube",
-        )
-        cube_nrm = w.accessor(nrm.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER)
-        cube_idx = w.accessor(
-            tri.reshape(-1).astype(np.uint16),
-            gl.SCALAR,
-            gl.UNSIGNED_SHORT,
-            target=gl.ELEMENT_ARRAY_BUFFER,
-        )
-        label_mesh: dict[str, int] = {}
-        children: list[int] = []
-        for obj in [*scene.objects, None]:
-            label = "floor" if obj is None else obj.label
-            if label not in label_mesh:
-                mat = w.material(label, (0.8, 0.8, 0.78) if obj is None else _label_color(label))
-                label_mesh[label] = w.mesh(
-                    label, gl.Attributes(POSITION=cube_pos, NORMAL=cube_nrm), cube_idx, mat
-                )
-            if obj is None:
-                lo, hi = np.array(scene.bounds_min), np.array(scene.bounds_max)
-                center = WORLD_TO_GLTF @ np.array(
-                    [*(lo + hi) / 2, scene.floor_z - FLOOR_THICKNESS / 2]
-                )
-                size = [float(hi[0] - lo[0]), FLOOR_THICKNESS, float(hi[1] - lo[1])]
-                node = gl.Node(
-                    name="floor",
-                    mesh=label_mesh[label],
-                    translation=[float(x) for x in center],
-                    scale=size,
-                )
-            else:
-                t, r, s = _object_trs(obj)
-                node = gl.Node(
-                    name=obj.name, mesh=label_mesh[label], translation=t, rotation=r, scale=s
-                )
-            children.append(w.node(node))
-        top.append(w.node(gl.Node(name="objects", children=children)))
-
-    if any(t.name not in bodies for t in tracks):
-        positions, normals, triangles, joint_ids = character_mesh()
-        body_pos = w.accessor(
-            positions.astype(np.float32),
-            gl.VEC3,
-            gl.FLOAT,
-            target=gl.ARRAY_BUFFER,
-            bounds=True,
-            name="body",
-        )
-        body_nrm = w.accessor(normals.astype(np.float32), gl.VEC3, gl.FLOAT, target=gl.ARRAY_BUFFER)
-        joints4 = np.zeros((joint_ids.size, 4), dtype=np.uint8)
-        joints4[:, 0] = joint_ids
-        weights4 = np.zeros((joint_ids.size, 4), dtype=np.float32)
-        weights4[:, 0] = 1.0
-        body_joints = w.accessor(joints4, gl.VEC4, gl.UNSIGNED_BYTE, target=gl.ARRAY_BUFFER)
-        body_weights = w.accessor(weights4, gl.VEC4, gl.FLOAT, target=gl.ARRAY_BUFFER)
-        body_idx = w.accessor(
-            triangles.reshape(-1).astype(np.uint16),
-            gl.SCALAR,
-            gl.UNSIGNED_SHORT,
-            target=gl.ELEMENT_ARRAY_BUFFER,
-        )
-        ibm = np.tile(np.eye(4, dtype=np.float32), (NUM_JOINTS, 1, 1))
-        ibm[:, :3, 3] = -rest_positions()
-        ibm_acc = w.accessor(
-            np.swapaxes(ibm, 1, 2).reshape(NUM_JOINTS, 16), gl.MAT4, gl.FLOAT, name="inverse_bind"
-        )
-
+        top.append(_scene_node(w, scene))
+    figure = _box_figure_accessors(w) if any(t.name not in bodies for t in tracks) else None
     animation = gl.Animation(name=ANIMATION_NAME)
     time_accessors: dict[tuple[int, float], int] = {}
     for index, track in enumerate(tracks):
-        n = track.num_frames
         body_of = bodies.get(track.name)
+        root_t, quats, offsets = _track_pose(track, body_of, (rotations or {}).get(track.name))
+        node_ids = _joint_nodes(w, track.name, root_t, quats, offsets)
+        color = CHARACTER_COLORS[index % len(CHARACTER_COLORS)]
         if body_of is None:
-            offsets, root_world = REST_OFFSETS, track.root_positions
-        else:  # the body's rest joints, and its pelvis at trans + J0 (see the module docstring)
-            rest = body_of.bind_joints
-            offsets = np.vstack([rest[:1], rest[1:] - rest[list(PARENTS[1:])]])
-            root_world = track.root_positions + (rest[0] - REST_OFFSETS[0])
-        root_t = root_world @ WORLD_TO_GLTF.T
-        joints = (rotations or {}).get(track.name)
-        if joints is None:
-            joints = JointRotations.of(track)
-        quats = _continuous(joints.with_root(WORLD_TO_GLTF).as_quat().reshape(n, NUM_JOINTS, 4))
-        node_ids: list[int] = []
-        for j in range(NUM_JOINTS):
-            offset = root_t[0] if j == 0 else offsets[j]
-            node_ids.append(
-                w.node(
-                    gl.Node(
-                        name=f"{track.name}:{JOINT_NAMES[j]}",
-                        translation=[float(x) for x in offset],
-                        rotation=[float(x) for x in quats[0, j]],
-                    )
-                )
-            )
-        for j in range(1, NUM_JOINTS):
-            w.gltf.nodes[node_ids[PARENTS[j]]].children.append(node_ids[j])
-        material = w.material(f"{track.name}:skin", CHARACTER_COLORS[index % len(CHARACTER_COLORS)])
-        if body_of is None:
-            attributes = gl.Attributes(
-                POSITION=body_pos, NORMAL=body_nrm, JOINTS_0=body_joints, WEIGHTS_0=body_weights
-            )
-            indices, inverse_bind = body_idx, ibm_acc
+            assert figure is not None  # built above for every character without a body
+            skin = figure
         else:
-            attributes, indices, inverse_bind = _body_accessors(w, body_of, f"{track.name}:body")
-        mesh = w.mesh(f"{track.name}:body", attributes, indices, material)
-        w.gltf.skins.append(
-            gl.Skin(
-                name=track.name, inverseBindMatrices=inverse_bind, skeleton=node_ids[0], joints=node_ids
-            )
-        )
-        body = w.node(gl.Node(name=f"{track.name}:body", mesh=mesh, skin=len(w.gltf.skins) - 1))
+            skin = _body_accessors(w, body_of, f"{track.name}:body")
+        body = _skinned_body_node(w, track.name, color, skin, node_ids)
         # The skinned mesh node sits at the scene root (parent transforms never move a skin).
         top.extend([w.node(gl.Node(name=track.name, children=[node_ids[0]])), body])
-
-        key = (n, track.fps)
-        if key not in time_accessors:
-            times = track.times.astype(np.float32)
-            time_accessors[key] = w.accessor(
-                times, gl.SCALAR, gl.FLOAT, bounds=True, name=f"time_{n}@{track.fps:g}"
-            )
-        times_acc = time_accessors[key]
-        outputs = [
-            (
-                node_ids[0],
-                gl.TRANSLATION,
-                w.accessor(root_t.astype(np.float32), gl.VEC3, gl.FLOAT, bounds=True),
-            )
-        ]
-        for j in range(NUM_JOINTS):
-            acc = w.accessor(
-                np.ascontiguousarray(quats[:, j]).astype(np.float32), gl.VEC4, gl.FLOAT, bounds=True
-            )
-            outputs.append((node_ids[j], gl.ROTATION, acc))
-        for node_id, path, acc in outputs:
-            animation.samplers.append(
-                gl.AnimationSampler(input=times_acc, output=acc, interpolation=gl.ANIM_LINEAR)
-            )
-            target = gl.AnimationChannelTarget(node=node_id, path=path)
-            animation.channels.append(
-                gl.AnimationChannel(sampler=len(animation.samplers) - 1, target=target)
-            )
+        _animate(w, animation, _time_accessor(w, time_accessors, track), node_ids, root_t, quats)
     if animation.channels:
         w.gltf.animations.append(animation)
-
     w.gltf.scenes.append(gl.Scene(name="storyteller", nodes=top))
     w.gltf.scene = 0
     w.gltf.buffers.append(gl.Buffer(byteLength=len(w.blob)))
