@@ -175,6 +175,20 @@ def test_fuzzed_snapshot(finished_run: Path, data: st.DataObject) -> None:
         clean_outcome(resume(run))
 
 
+@pytest.mark.slow
+def test_a_snapshot_whose_nested_model_lost_a_field_is_one_line(finished_run: Path) -> None:
+    """Found by the fuzzer: an assignment whose ``partners`` key became None. The event holding it
+    is validated first, and its validator read the missing field (AttributeError, exit 1)."""
+    payload = _payload_without_frames((finished_run / "session.snapshot").read_bytes())
+    needle = b"\x8c\x08partners\x94"
+    assert needle in payload
+    with copied(finished_run) as run:
+        (run / "session.snapshot").write_bytes(_with_header(payload.replace(needle, b"N\x94", 1)))
+        result = resume(run)
+        clean_outcome(result, codes=(2,))
+        assert "cannot read the session checkpoint" in result.stderr
+
+
 # ----- story.json, story.jsonl: view --export ------------------------------------------------------
 @FUZZ
 @given(data=st.data())

@@ -405,7 +405,14 @@ def load_checkpoint(path: Path, world: World) -> SessionCheckpoint:
         _check_sense(checkpoint, world)
     except SnapshotError as exc:
         raise SnapshotError(f"{path}: cannot read the session checkpoint: {exc}") from None
+    except _CHECK_SLIPS as exc:  # a forged object the checks' own code trips on (a validator reading a field the forgery lacks)
+        raise SnapshotError(f"{path}: cannot read the session checkpoint ({type(exc).__name__}: {str(exc)[:200]})") from None
     return checkpoint
+
+
+# What checking a forged object of the right class can raise before a check refuses it: the
+# checks read fields, hash keys and run the models' validators on state the forgery shaped.
+_CHECK_SLIPS = (AttributeError, TypeError, ValueError, KeyError, IndexError, ArithmeticError, RecursionError)
 
 
 def _payload(path: Path, data: bytes) -> bytes:
