@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     from benchmark.support.fake_openai_server import FakeOpenAI
     from orchestrator.session.run_job import run_story, write_outputs
     from orchestrator.session.run_manifest import RunArguments
-    from orchestrator.session.runtime import StoryEvent
+    from orchestrator.session.session_types import StoryEvent
     from sim.scene.bundled import load_bundled_scene
 
     with tempfile.TemporaryDirectory(prefix="bench_long_run_") as tmp:

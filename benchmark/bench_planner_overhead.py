@@ -8,7 +8,7 @@ Two costs that ran on the event loop at every step of a story session:
   two characters with its ~600-character event program) in the story log, so what is timed is
   the planner itself; the story log is an in-memory SQLite database, so no fsync is timed either;
 - the narrator's history the session builds for the request (``history_window`` in
-  ``orchestrator.session.runtime``: the latest events, the ones before summarised) from the events so far.
+  ``orchestrator.session.story_history``: the latest events, the ones before summarised) from the events so far.
 
 For each story length it prints the wall milliseconds of one step at step 10 and at step
 ``--steps`` (median over ``--repeat`` steps), their ratio (1.0: flat), and, as the baseline
@@ -41,8 +41,9 @@ from orchestrator.llm.traces import AttemptRecord, TraceWriter
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.state import PlanningDeps
 from orchestrator.session.roster import RosterWorld
-from orchestrator.session.runtime import PlanningRequest, StoryEvent, history_window
+from orchestrator.session.session_types import PlanningRequest, StoryEvent
 from orchestrator.session.step_planner import GraphStepPlanner
+from orchestrator.session.story_history import history_window
 
 NAMES = ("Ava", "Ben", "Cleo", "Dan")
 PROGRAM = (

@@ -15,10 +15,10 @@ import pytest
 
 from orchestrator.planning.state import StepProgress
 from orchestrator.session.checkpoint_writer import CheckpointWriter
-from orchestrator.session.runtime import (
+from orchestrator.session.runtime import Session
+from orchestrator.session.session_types import (
     Outcome,
     PlanningRequest,
-    Session,
     SessionCheckpoint,
     SessionSettings,
 )

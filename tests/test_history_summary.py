@@ -16,7 +16,8 @@ from agents.prompt_templates import PromptLibrary
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.graph import compile_planning_graph, recursion_limit
 from orchestrator.planning.state import PlanningState
-from orchestrator.session.runtime import StoryEvent, history_window, story_history
+from orchestrator.session.session_types import StoryEvent
+from orchestrator.session.story_history import history_window, story_history
 from tests.support.planning_script import DESCRIPTION, PROGRAM, make_deps, narration
 from tests.support.scripted_llm import ScriptedLLM
 

@@ -27,7 +27,8 @@ from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.state import PlanningDeps
 from orchestrator.sandbox_worker import WorkerRunner
 from orchestrator.session.roster import RosterWorld, start_positions
-from orchestrator.session.runtime import Session, SessionSettings
+from orchestrator.session.runtime import Session
+from orchestrator.session.session_types import SessionSettings
 from orchestrator.session.step_planner import GraphStepPlanner
 from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher

@@ -33,7 +33,8 @@ from orchestrator.session.instruction_script import (
     parse_instruction_script,
     read_instruction_script,
 )
-from orchestrator.session.runtime import Session, SessionResult, SessionSettings, TimedInstruction
+from orchestrator.session.runtime import Session
+from orchestrator.session.session_types import SessionResult, SessionSettings, TimedInstruction
 from orchestrator.session.stdin_instructions import start_stdin_reader
 from sim.motion.matching import MotionMatcher
 from sim.scene.model import Scene
@@ -120,7 +121,7 @@ def test_stdin_lines_become_instructions(home: Scene, motion: MotionMatcher, tmp
 def test_a_resumed_session_keeps_the_instructions_already_applied(
     home: Scene, motion: MotionMatcher, tmp_path: Path
 ) -> None:
-    from orchestrator.session.runtime import SessionCheckpoint
+    from orchestrator.session.session_types import SessionCheckpoint
     from orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
 
     first, second = TimedInstruction(frame=6 * FPS, text=OLD), TimedInstruction(frame=20 * FPS, text=NEW)

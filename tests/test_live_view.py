@@ -26,7 +26,8 @@ from orchestrator.cli.live_view import live_view
 from orchestrator.cli.run import live_and_interactive
 from orchestrator.llm.watched_port import WatchedPort
 from orchestrator.session.run_status import CharacterRow, RoleCalls, RunSnapshot, RunStatus
-from orchestrator.session.runtime import Session, SessionSettings
+from orchestrator.session.runtime import Session
+from orchestrator.session.session_types import SessionSettings
 from sim.motion.matching import MotionMatcher
 from sim.scene.model import Scene
 from sim.world.event_book import EventStatus

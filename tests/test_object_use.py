@@ -137,7 +137,8 @@ def _coffee_run(home: Scene, tmp_path: Path, story: CoffeeStory) -> tuple[dict[s
     from orchestrator.planning.graph import compile_planning_graph
     from orchestrator.planning.state import PlanningDeps
     from orchestrator.session.roster import RosterWorld
-    from orchestrator.session.runtime import Session, SessionSettings
+    from orchestrator.session.runtime import Session
+    from orchestrator.session.session_types import SessionSettings
     from orchestrator.session.step_planner import GraphStepPlanner
     from sim.motion.database import load_databases
     from sim.motion.matching import MotionMatcher

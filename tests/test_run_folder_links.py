@@ -169,7 +169,7 @@ def test_without_the_check_the_outputs_replace_planted_links(run_dir: Path, tmp_
     """``write_outputs`` (what a run ends with; the API, no folder check): every file it writes
     replaces a link planted at its name, and the link's target is untouched."""
     from orchestrator.session.run_job import write_outputs
-    from orchestrator.session.runtime import SessionResult
+    from orchestrator.session.session_types import SessionResult
     from sim.scene.bundled import resolve_scene
     from sim.world.track_chunks import chunked_track
 

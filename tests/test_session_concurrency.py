@@ -19,11 +19,11 @@ import pytest
 from agents.llm_port import LLMError
 from agents.messages import Event, ParsedEvent, PlannedCharacter
 from orchestrator.planning.state import StepProgress
-from orchestrator.session.runtime import (
+from orchestrator.session.runtime import Session
+from orchestrator.session.session_types import (
     Outcome,
     PlanningRequest,
     RecordedRequest,
-    Session,
     SessionError,
     SessionResult,
     SessionSettings,

@@ -20,10 +20,10 @@ from agents.llm_port import LLMError, LLMPort
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
 from orchestrator.planning.state import StepProgress
 from orchestrator.session.frame_profile import PARTS
-from orchestrator.session.runtime import (
+from orchestrator.session.runtime import Session
+from orchestrator.session.session_types import (
     Outcome,
     PlanningRequest,
-    Session,
     SessionError,
     SessionResult,
     SessionSettings,
@@ -94,7 +94,7 @@ def test_live_run_replays_to_identical_events_and_motion(home: Scene, motion: Mo
 def test_a_session_resumed_from_a_saved_checkpoint_ends_as_the_uninterrupted_one(
     home: Scene, motion: MotionMatcher, tmp_path: Path
 ) -> None:
-    from orchestrator.session.runtime import SessionCheckpoint
+    from orchestrator.session.session_types import SessionCheckpoint
     from orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
 
     names = ["Ava", "Ben", "Cleo"]
@@ -370,7 +370,8 @@ def _run_async(main: Callable[[], Awaitable[SessionResult]]) -> SessionResult:
 
 def test_the_history_shows_unplaced_events_as_failed_with_their_part() -> None:
     from agents.messages import HistoryEntry
-    from orchestrator.session.runtime import StoryEvent, story_history
+    from orchestrator.session.session_types import StoryEvent
+    from orchestrator.session.story_history import story_history
 
     done = StoryEvent(index=0, event_id="event-0000", characters=("Ava",), activity="make coffee",
                       requested_frame=1, applied_frame=1, state="completed", part="Ava makes coffee.")

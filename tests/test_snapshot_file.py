@@ -25,12 +25,8 @@ from pydantic import BaseModel
 
 from orchestrator.planning.state import StepProgress
 from orchestrator.session import snapshot_file
-from orchestrator.session.runtime import (
-    PlanningRequest,
-    Session,
-    SessionCheckpoint,
-    SessionSettings,
-)
+from orchestrator.session.runtime import Session
+from orchestrator.session.session_types import PlanningRequest, SessionCheckpoint, SessionSettings
 from orchestrator.session.snapshot_file import (
     SNAPSHOT_CLASSES,
     SnapshotError,
@@ -208,7 +204,7 @@ def test_hostile_opcodes_inside_a_checkpoint(checkpoint: tuple[World, SessionChe
 
 def test_a_model_with_a_wrong_field_type_is_refused(checkpoint: tuple[World, SessionCheckpoint], home: Scene,
                                                     motion: MotionMatcher, tmp_path: Path) -> None:
-    from orchestrator.session.runtime import TimedInstruction
+    from orchestrator.session.session_types import TimedInstruction
 
     world, cp = checkpoint
     bad = TimedInstruction.model_construct(frame="soon", text="x", source="script")  # type: ignore[arg-type]  # a deliberately wrong-typed field, for the check to refuse
@@ -225,7 +221,7 @@ def test_a_model_with_a_forged_pydantic_slot_is_refused(checkpoint: tuple[World,
                                                        forged: object) -> None:
     """A falsy non-None value in a model's private or extra slot (found by the run-folder fuzzer:
     False there passed the check and stopped the resumed run deep in ``copy.deepcopy``)."""
-    from orchestrator.session.runtime import TimedInstruction
+    from orchestrator.session.session_types import TimedInstruction
 
     world, cp = checkpoint
     bad = TimedInstruction(frame=3, text="x", source="script")

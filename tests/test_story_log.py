@@ -14,7 +14,7 @@ from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailur
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.state import PlanningDeps
 from orchestrator.session.roster import RosterWorld
-from orchestrator.session.runtime import PlanningRequest
+from orchestrator.session.session_types import PlanningRequest
 from orchestrator.session.step_planner import GraphStepPlanner
 
 

@@ -24,7 +24,7 @@ from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.live_view import live_view
 from orchestrator.llm.traces import read_trace
 from orchestrator.session.run_status import RunSnapshot
-from orchestrator.session.runtime import InstructionSource
+from orchestrator.session.session_types import InstructionSource
 from orchestrator.session.terminal_prompt import MAX_LINE, LineEditor, TerminalPrompt
 from tests.support.cli_run import ROOT, RUN, Planner, cli, write_config
 

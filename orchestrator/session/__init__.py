@@ -3,7 +3,11 @@ K graph steps without a simulation; the planning benchmark runs it too), the ``r
 (:mod:`~orchestrator.session.run_job`), the roster and its world view
 (:mod:`~orchestrator.session.roster`), opening the LLM port
 (:mod:`~orchestrator.session.port_setup`), the session runtime (simulation and planning in one
-anyio task group) and the step planner that drives the planning graph from a running
+anyio task group: :mod:`~orchestrator.session.runtime`; its data types in
+:mod:`~orchestrator.session.session_types`, the planner's view of the story in
+:mod:`~orchestrator.session.story_history`, the steps in flight in
+:mod:`~orchestrator.session.steps_in_flight`, the instructions waiting to take effect in
+:mod:`~orchestrator.session.instruction_queue`) and the step planner that drives the planning graph from a running
 simulation; the run folder's ``run.json`` (:mod:`~orchestrator.session.run_manifest`),
 ``story.md`` / ``metrics.json`` (:mod:`~orchestrator.session.run_report`) and the session's
 checkpoint file (:mod:`~orchestrator.session.snapshot_file`); live instructions: the timed

@@ -26,7 +26,7 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
-from orchestrator.session.runtime import SessionCheckpoint
+from orchestrator.session.session_types import SessionCheckpoint
 from orchestrator.session.snapshot_file import shared_names, write_checkpoint
 from sim.world.step import World
 from sim.world.track_chunks import ChunkStore

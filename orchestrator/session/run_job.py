@@ -81,10 +81,10 @@ from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
 from orchestrator.session.run_manifest import RunArguments, RunManifest
 from orchestrator.session.run_status import RunStatus
-from orchestrator.session.runtime import (
+from orchestrator.session.runtime import Session
+from orchestrator.session.session_types import (
     InstructionSource,
     RecordedRequest,
-    Session,
     SessionResult,
     StoryEvent,
     TimedInstruction,
@@ -380,11 +380,7 @@ async def _run_story(
         manifest_bytes,
         write_manifest,
     )
-    from orchestrator.session.runtime import (
-        SessionCheckpoint,
-        SessionError,
-        SessionSettings,
-    )
+    from orchestrator.session.session_types import SessionCheckpoint, SessionError, SessionSettings
     from orchestrator.session.snapshot_file import (
         SNAPSHOT_FILE,
         SnapshotError,

@@ -23,7 +23,7 @@ from typing import Literal
 from agents.llm_port import NodeName, TokenUsage
 from agents.messages import ParsedEvent
 from agents.story_text import place_text
-from orchestrator.session.runtime import Outcome, StoryEvent, TimedInstruction, event_id_for
+from orchestrator.session.session_types import Outcome, StoryEvent, TimedInstruction, event_id_for
 from sim.world.event_book import EventStatus
 from sim.world.phases import CharacterState
 from sim.world.step import World

@@ -1,6 +1,6 @@
 """The session's last checkpoint on disk (``session.snapshot`` in the run folder).
 
-:func:`save_checkpoint` writes a :class:`~orchestrator.session.runtime.SessionCheckpoint`
+:func:`save_checkpoint` writes a :class:`~orchestrator.session.session_types.SessionCheckpoint`
 atomically: to a temporary file of a fresh name in the same folder (created with ``O_EXCL``
 and ``O_NOFOLLOW``, so a planted link is never written through), fsynced, then renamed over
 the old one, so a kill -9 at any moment leaves either the previous checkpoint or the new one,
@@ -64,7 +64,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import BaseModel, ValidationError
 
-from orchestrator.session.runtime import SessionCheckpoint
+from orchestrator.session.session_types import SessionCheckpoint
 from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.validation_text import problem_field, problem_message
 from sim.world.step import World
@@ -101,10 +101,10 @@ SNAPSHOT_CLASSES: frozenset[tuple[str, str]] = frozenset({
     # field dicts); none opens a file, starts a process, imports or evaluates anything when its
     # state is set (tests/test_snapshot_file.py checks this list for it). Never add ChunkStore
     # (it opens files; a checkpoint stores its frame count) or any class whose state runs code.
-    ("orchestrator.session.runtime", "SessionCheckpoint"),
-    ("orchestrator.session.runtime", "StoryEvent"),
-    ("orchestrator.session.runtime", "PlanningRequest"),
-    ("orchestrator.session.runtime", "TimedInstruction"),
+    ("orchestrator.session.session_types", "SessionCheckpoint"),
+    ("orchestrator.session.session_types", "StoryEvent"),
+    ("orchestrator.session.session_types", "PlanningRequest"),
+    ("orchestrator.session.session_types", "TimedInstruction"),
     ("agents.messages", "CharacterSoFar"),
     ("agents.messages", "CharacterStatus"),
     ("agents.messages", "EarlierEvents"),

@@ -26,7 +26,7 @@ from typing import Any, Protocol
 import structlog
 
 from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
-from orchestrator.session.runtime import InstructionSource
+from orchestrator.session.session_types import InstructionSource
 from orchestrator.session.stdin_instructions import typed_instruction
 
 _log = structlog.get_logger("storyteller.session")

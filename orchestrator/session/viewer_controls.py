@@ -9,7 +9,7 @@ before the page says it was sent (the same channel as the instruction box:
 thread of its own (:func:`start_control_reader`, lines bounded and parsed as instructions are:
 :class:`~orchestrator.session.viewer_instructions.AppendedLines`), each line once (by id, for
 this run's thread only), and the simulation applies what they say at a frame boundary
-(:class:`DirectorControls` is the session's ``runtime.Pacer``): paused, it waits between two
+(:class:`DirectorControls` is the session's ``session_types.Pacer``): paused, it waits between two
 frames until a ``resume``; a new speed sets the wall time of the next frames.
 
 Only a ``realtime`` run takes them (:func:`controls_refusal` says why another does not): in

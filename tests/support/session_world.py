@@ -13,7 +13,7 @@ import numpy as np
 from agents.llm_port import LLMError
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
 from orchestrator.planning.state import StepProgress
-from orchestrator.session.runtime import Outcome, PlanningRequest
+from orchestrator.session.session_types import Outcome, PlanningRequest
 from sim.motion.matching import MotionMatcher
 from sim.paths.nav_grid import build_nav_grid
 from sim.scene.model import Scene
