@@ -45,7 +45,7 @@ from benchmark.motion_facing import report as facing_report
 from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.reference_data import locate_mocap, locate_reference
 from sim.body.skeleton import forward_kinematics
-from sim.motion.clips import FOOT_JOINTS, MotionClip
+from sim.motion.clips import FOOT_JOINTS, MotionClip, foot_sliding
 from sim.motion.config import (
     MotionConfig,
     build_databases_from_config,
@@ -53,7 +53,7 @@ from sim.motion.config import (
     load_motion_config,
 )
 from sim.motion.database import load_databases
-from sim.motion.matching import MotionMatcher, foot_sliding
+from sim.motion.matching import MotionMatcher
 from sim.motion.sources.procedural_library import procedural_clips
 
 HERE = Path(__file__).resolve().parent

@@ -17,7 +17,7 @@ the exporters would write):
   foot that would enter a footprint out of it (the deepest graze without it was 8 cm here,
   12 cm with off-grid targets);
 - foot sliding: mean horizontal toe speed (m/s) over frames where the motion layer
-  marks that foot in contact in two consecutive frames (``sim.motion.matching.foot_sliding``'s
+  marks that foot in contact in two consecutive frames (``sim.motion.clips.foot_sliding``'s
   rule, pooled over characters): about 0.30 m/s with the leg IK pinning planted feet, 0.60
   without; targets reached (reported).
 

@@ -11,9 +11,8 @@ import pytest
 from numpy.typing import NDArray
 
 from sim.body.skeleton import JOINT_INDEX, REST_OFFSETS, matrix_to_axis_angle
-from sim.motion.clips import MotionClip
+from sim.motion.clips import MotionClip, foot_sliding
 from sim.motion.config import MotionConfigError, build_databases_from_config, load_motion_config
-from sim.motion.matching import foot_sliding
 from sim.motion.sources.amass_import import import_amass
 from sim.motion.sources.bvh_import import (
     MocapImportError,

@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sim.motion.clips import foot_sliding
 from sim.motion.database import build_database
+from sim.motion.features import future_from_path
 from sim.motion.inertialization import decay_spring, rotation_exp, transition_offsets
 from sim.motion.matching import (
     MatchState,
     MotionMatcher,
     MotionMatchingError,
     MotionQuery,
-    foot_sliding,
-    future_from_path,
 )
 from sim.motion.sources.procedural_library import procedural_clips
 

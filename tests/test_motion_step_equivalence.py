@@ -22,6 +22,7 @@ from benchmark.support.motion_reference import ReferenceMotionMatcher
 from orchestrator.cache_paths import motion_cache_dir
 from sim.body.skeleton import forward_kinematics
 from sim.motion.database import MotionDatabase, NearestFrameIndex, load_databases, squared_distances
+from sim.motion.features import future_from_path
 from sim.motion.inertialization import rotation_exp, rotation_log
 from sim.motion.kernels import (
     fk_positions,
@@ -30,7 +31,7 @@ from sim.motion.kernels import (
     nearest_rows,
     rotvec_to_matrix,
 )
-from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose, future_from_path
+from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
 
 DT = 1.0 / 30.0
 KEYS = ["walk", "idle", "chat", "turn_on_tv", "sit_down", "sit_idle", "drink@seated"]

@@ -454,8 +454,9 @@ def test_a_walker_kept_a_little_short_of_its_target_acts_where_it_stands(office:
 def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office: Office) -> None:
     from sim.body.foot_ik import LEG_JOINTS
     from sim.body.skeleton import forward_kinematics
+    from sim.motion.clips import foot_sliding
     from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher, foot_sliding
+    from sim.motion.matching import MotionMatcher
 
     scene, grid, planner = office
     cells = _free_cells(office)

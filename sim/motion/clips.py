@@ -7,7 +7,8 @@ databases are built from. Positions are metres in the z-up world; frames are sam
 The *root* is the character's ground trajectory: a smoothed projection of the pelvis on the
 floor (``root_xy``) and the direction the character faces (``heading``, radians, world yaw
 measured from +x toward +y). The pelvis itself may sway around the root; the body pose is
-``local_rotations`` with joint 0 the pelvis rotation in the world.
+``local_rotations`` with joint 0 the pelvis rotation in the world. ``foot_sliding`` measures
+how far the toes slide while their foot is in contact.
 """
 
 from __future__ import annotations
@@ -159,3 +160,13 @@ def clip_from_pose_frames(
     contacts = detect_contacts(positions, FPS)
     tgt = np.full(4, np.nan) if target is None else np.asarray(target, dtype=np.float64)
     return MotionClip(name, key, local_rotations, pelvis, root, heading, contacts, loops, tgt, FPS, source)
+
+
+def foot_sliding(joint_positions: NDArray[np.float64], contacts: NDArray[np.float64], fps: float = FPS) -> float:
+    """Mean horizontal speed (m/s) of the toe joints over frames where that foot is in
+    contact in both the frame and the next; 0.0 when there is no such frame."""
+    toes = np.asarray(joint_positions)[:, FOOT_JOINTS, :2]
+    speed = np.linalg.norm(np.diff(toes, axis=0), axis=-1) * fps
+    c = np.asarray(contacts, dtype=bool)
+    both = c[1:] & c[:-1]
+    return float(speed[both].mean()) if both.any() else 0.0

@@ -14,6 +14,7 @@ character frame (x forward, y left, z up, origin at the root's ground point), an
 
 Units: metres, metres per second, unit direction vectors. The layout of each family is a
 tuple of (group name, size); its sum is asserted where vectors are assembled.
+``future_from_path`` samples a planned path at the control part's future frames.
 """
 
 from __future__ import annotations
@@ -161,3 +162,23 @@ def relative_target(
     pos = np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
     rel = target_facing - heading
     return pos, np.stack([np.cos(rel), np.sin(rel)], axis=-1)
+
+
+def future_from_path(path_xy: NDArray[np.float64], frame_speed: float, heading: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Planned future root points (3,2) and headings (3,) from a polyline path (K,2) starting
+    at the character, walked at ``frame_speed`` metres per frame (e.g. 1.0 / 30)."""
+    path = np.asarray(path_xy, dtype=np.float64).reshape(-1, 2)
+    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    pts, hds = [], []
+    for k in FUTURE_FRAMES:
+        s = min(k * frame_speed, float(cum[-1]))
+        x, y = np.interp(s, cum, path[:, 0]), np.interp(s, cum, path[:, 1])
+        i = int(np.clip(np.searchsorted(cum, s, side="right") - 1, 0, max(len(seg) - 1, 0)))
+        if len(seg) and seg[i] > 1e-9 and s < cum[-1] - 1e-9:
+            d = path[i + 1] - path[i]
+            hds.append(float(np.arctan2(d[1], d[0])))
+        else:
+            hds.append(hds[-1] if hds else float(heading))
+        pts.append((x, y))
+    return np.array(pts), np.array(hds)

@@ -314,7 +314,7 @@ def query_features(
     parents: NDArray[np.int64], offsets: NDArray[np.float64],
 ) -> NDArray[np.float64]:
     """Raw query features (M,D) of M characters with an output pose, as
-    ``MotionMatcher._query_features_many`` computes them: joints of the last pose (``cur_*``)
+    ``sim.motion.query_vectors.query_features_many`` computes them: joints of the last pose (``cur_*``)
     in the character frame of the new root / heading, joint velocities (last pose minus the one
     before (``prev_*``), over ``pose_dt``, in the frame of the old heading; zeros without a
     previous pose), and the control inputs of the query (``relative_target`` of the future
