@@ -15,10 +15,12 @@ What lives here:
   by :mod:`orchestrator.bodies` (``smplx`` and ``torch`` load only then); :mod:`.server` adds the timeline and event-list controls and serves it;
   :mod:`.export` records the whole story into one self-contained HTML file;
 - :mod:`.access` decides which requests the server answers (its own pages; with a token when it
-  listens beyond this machine) and :mod:`.guarded_server` applies that to viser's server.
+  listens beyond this machine), :mod:`.inbound` which websocket messages reach viser (binary
+  viser messages that decode, GUI updates viser can apply), and :mod:`.guarded_server` applies
+  both to viser's server.
 
 May import ``sim`` and the rest of ``orchestrator``; ``viser`` only inside :mod:`.scene_view`,
-:mod:`.server`, :mod:`.panels`, :mod:`.guarded_server` and :mod:`.export`, which the command
+:mod:`.server`, :mod:`.panels`, :mod:`.guarded_server`, :mod:`.inbound` and :mod:`.export`, which the command
 imports lazily.
 
 Guarantees: the viewer only reads the run folder, except for the instructions typed in its box
@@ -28,5 +30,7 @@ and ``viewer_controls.jsonl`` there (never through a link:
 shows is a frame of the exported tracks (no resampling); the server listens on 127.0.0.1
 unless ``--host`` says otherwise, answers no page of another site and no request naming another
 host (and, beyond 127.0.0.1, none without its token), never opens viser's share tunnel, and
-needs no network (the browser client is the one built into the ``viser`` wheel).
+needs no network (the browser client is the one built into the ``viser`` wheel); a websocket
+message that is not what the page sends closes that connection, never the server, and leaves
+no traceback in the log.
 """

@@ -7,7 +7,9 @@ its browser client); it offers no hook for another. :func:`guarded_server` const
 server while ``websockets.asyncio.server.serve`` is a subclass that puts the access check in
 front of viser's ``process_request`` (websockets' documented handshake hook, which sees plain
 HTTP requests and websocket handshakes alike) and adds the token cookie to the answer of a
-request that brought the token in its URL. Only the ``serve`` call made by viser's own handler
+request that brought the token in its URL; it also hands viser's handler each connection through
+:func:`~.inbound.checked_handler` (only messages that decode reach viser) and lowers the message
+size limit to :data:`~.inbound.MAX_MESSAGE_BYTES`. Only the ``serve`` call made by viser's own handler
 during that construction is changed: constructions are serialised by a lock, and the original
 ``serve`` is back before :func:`guarded_server` returns. If viser did not call ``serve`` that
 way (it changed), :class:`ViserHookError` is raised instead of serving unguarded; the tests in
@@ -37,6 +39,7 @@ from websockets.asyncio.server import ServerConnection
 from websockets.http11 import Request, Response
 
 from orchestrator.viewer.access import ViewerAccess
+from orchestrator.viewer.inbound import MAX_MESSAGE_BYTES, checked_handler
 
 ProcessRequest = Callable[[ServerConnection, Request], Awaitable[Response | None] | Response | None]
 
@@ -71,14 +74,35 @@ def guard_requests(access: ViewerAccess, inner: ProcessRequest | None) -> Proces
 
 
 class _GuardedServe(ws_server.serve):
-    """``websockets.asyncio.server.serve`` with the pending guard in front of viser's hook."""
+    """``websockets.asyncio.server.serve`` with the pending guard in front of viser's hook, and
+    viser's handler given only messages that decode."""
 
     def __init__(self, handler: Any, *args: Any, process_request: ProcessRequest | None = None, **kwargs: Any) -> None:
         access = _pending.access
         if access is not None and getattr(handler, "__module__", None) == viser_infra.__name__:
             process_request = guard_requests(access, process_request)
+            handler = checked_handler(handler, _pending.gui_values)
+            kwargs["max_size"] = MAX_MESSAGE_BYTES
             _pending.applied += 1
         super().__init__(handler, *args, process_request=process_request, **kwargs)
+
+
+class GuiValues:
+    """The current value of an input of ``server``'s panel or of one page's own panel, by uuid
+    (None: no such input, or the server is still being built), for :func:`~.inbound.update_problem`."""
+
+    def __init__(self) -> None:
+        self.server: viser.ViserServer | None = None
+
+    def __call__(self, uuid: str) -> object:
+        server = self.server
+        if server is None:
+            return None
+        for gui in (server.gui, *(client.gui for client in server.get_clients().values())):
+            handle = gui._gui_input_handle_from_uuid.get(uuid)  # viser 1.1.1's table of inputs
+            if handle is not None:
+                return handle._impl.value
+        return None
 
 
 class _Pending:
@@ -88,6 +112,7 @@ class _Pending:
         self.lock = threading.Lock()
         self.access: ViewerAccess | None = None
         self.applied = 0
+        self.gui_values = GuiValues()
 
 
 _pending = _Pending()
@@ -115,7 +140,8 @@ def guarded_server(access: ViewerAccess, *, port: int, **kwargs: Any) -> viser.V
     check_listenable(access.host)
     with _pending.lock:
         original = ws_server.serve
-        _pending.access, _pending.applied = access, 0
+        _pending.access, _pending.applied, _pending.gui_values = access, 0, GuiValues()
+        gui_values = _pending.gui_values
         ws_server.serve = _GuardedServe  # type: ignore[misc]  # a subclass, for this construction only
         try:  # viser prints a banner with its own URLs (no token), whatever ``verbose`` says
             with contextlib.redirect_stdout(io.StringIO()):
@@ -124,6 +150,7 @@ def guarded_server(access: ViewerAccess, *, port: int, **kwargs: Any) -> viser.V
             ws_server.serve = original  # type: ignore[misc]  # restoring the server method patched above
             _pending.access = None
         applied = _pending.applied
+    gui_values.server = server
     if applied == 0:
         server.stop()
         raise ViserHookError(
