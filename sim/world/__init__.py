@@ -2,7 +2,7 @@
 one frame at a time, and the per-frame tracks the exporters read.
 
 ``step`` (World, WorldConfig, the frame) drives ``event_book`` (events, start queue, who is
-free) and ``frame_assembly`` (motion queries in, poses and track rows out); ``events`` holds
+free), ``arrivals`` (walkers arriving, stopping short or stuck) and ``frame_assembly`` (motion queries in, poses and track rows out); ``events`` holds
 the planner's commands and the step's reports, ``phases`` a character's state, ``navigation``
 the world's view of the cooperative planner; ``tracks`` the per-frame output in memory and
 ``track_chunks`` the same output streamed to append-only chunk files (one per character, a torn

@@ -10,10 +10,10 @@ makes the track buffers stream to chunk files (``sim.world.track_chunks``): memo
 one window of frames, a snapshot holds only the frames not yet in the store (and how many are),
 and restoring it cuts the store back to that count.
 
-The step is three parts: event bookkeeping (``sim.world.event_book``: assigning and releasing,
-the start queue and group starts, completion and failure, who is free), the phases and
-arrivals of this module (``World.advance``), and motion assembly (``sim.world.frame_assembly``:
-motion queries in, poses and track rows out).
+The step is four parts: event bookkeeping (``sim.world.event_book``: assigning and releasing,
+the start queue and group starts, completion and failure, who is free), the phases of this
+module (``World.advance``), the walkers' arrivals and stalls (``sim.world.arrivals``), and
+motion assembly (``sim.world.frame_assembly``: motion queries in, poses and track rows out).
 
 Who moves a character's root (pelvis ground point, metres):
 
@@ -56,7 +56,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -65,34 +65,28 @@ from sim.body.foot_ik import FootSolver, FootState
 from sim.paths.cooperative_astar import Cell, PathPlanner
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.model import Scene
+from sim.world.arrivals import walker_checks
 from sim.world.character_track import CharacterTrack
 from sim.world.errors import WorldError
 from sim.world.event_book import (
     EventState,
     StepReport,
     assign,
-    fail_event,
     final_of,
     free_characters,
     member_done,
-    reach_object,
     release,
     start_groups,
-    still_bodies,
     take,
-    taken_points,
     unstarted,
 )
 from sim.world.events import AssignEvent, ReleaseCharacters, StepOutput
-from sim.world.facing import surface_distance
 from sim.world.frame_assembly import write_frame
 from sim.world.motion_layer import FUTURE_FRAMES, MotionLayer
 from sim.world.navigation import OFF_GRID_EPS, StandTargets, WorldNavigator
 from sim.world.phases import (
     INFINITE,
     CharacterState,
-    StandTarget,
-    TargetFallback,
     interaction_frames,
 )
 from sim.world.track_chunks import ChunkStore
@@ -313,86 +307,9 @@ class World:
         horizon = (0, *FUTURE_FRAMES, self.config.heading_lookahead)
         nav.tick(horizon)  # walkers' positions this frame and their planned futures (read below)
         if boundary:
-            self._walker_checks(out)
+            walker_checks(self, out)
             start_groups(self, out)
         write_frame(self, horizon)
-
-    # ----- arrivals -------------------------------------------------------------------------------
-    def _arrive(self, c: CharacterState, fallback: TargetFallback | None = None) -> None:
-        """``c`` reached its goal (the exact target when it has one): wait there for the
-        event's other members. ``fallback``: it stopped on a cell centre instead
-        (``goal_cell_taken``: the neighbour of a taken goal cell; ``target_occupied``: its goal
-        cell, the walk onto the exact point being blocked by others).
-
-        A waiting character stays a walker without a goal: on a cell centre it steps aside for
-        passers-by (its partners included) and walks back afterwards; on an exact point it is
-        an obstacle the others walk around.
-        """
-        nav = self.navigator
-        cell = nav.cell(c.name)
-        c.goal_cell = cell
-        c.anchor_cell = cell
-        c.anchor_xy = nav.position(c.name).copy() if nav.is_off_grid(c.name) else self.grid.center_of(*cell)
-        if fallback is not None and c.target is not None:
-            if fallback == "goal_cell_taken":
-                msg = f"cell {c.target.cell} was taken; {c.name} stopped on the neighbouring cell {cell}"
-            elif fallback == "stopped_near":
-                gap = float(np.linalg.norm(c.anchor_xy - np.asarray(c.target.xy)))
-                msg = (f"{c.name} got no closer than {gap:.2f} m to ({c.target.xy[0]:.2f}, {c.target.xy[1]:.2f}) "
-                       f"for {self.config.near_patience_s:g} s; it stopped on the centre of cell {cell}")
-            else:
-                msg = (f"others stayed too close to ({c.target.xy[0]:.2f}, {c.target.xy[1]:.2f}) for "
-                       f"{self.config.exact_patience_s:g} s; {c.name} stopped on the centre of cell {cell}")
-            c.target = StandTarget(cell, (float(c.anchor_xy[0]), float(c.anchor_xy[1])), False, fallback, msg)
-        c.best_distance, c.stalled_frames = 0.0, 0
-        if nav.goal_of(c.name) is not None:
-            nav.set_goal(c.name, None)
-        c.waiting = True
-        c.enter("idle")
-
-    def _stop_short(self, c: CharacterState, fallback: TargetFallback) -> bool:
-        """A stall rule would stop the walker ``c`` on its cell's centre (``fallback``): it does,
-        unless its action works on an object it would not reach from there. Then it walks to the
-        free point within reach nearest to it, clear of the others' bodies and targets
-        (``out_of_reach``; at most ``WorldConfig.max_replans`` times), or, with none, keeps
-        waiting for room: False, its stall count goes on (it fails as stuck if nothing frees up)."""
-        a = c.assignment
-        obj = None if a is None else reach_object(self, a)
-        if obj is None:
-            self._arrive(c, fallback)
-            return True
-        nav, g = self.navigator, self.grid
-        cell = nav.cell(c.name)
-        comp = int(g.component[cell])
-        here = g.center_of(*cell)
-        if self.targets.reaches(obj, comp, here):
-            self._arrive(c, fallback)
-            return True
-        if c.replans >= self.config.max_replans:
-            return False
-        avoid = [*taken_points(self, (c.name,)), *still_bodies(self, (c.name,))]
-        near = self.targets.within_reach(obj, comp, nav.position(c.name), avoid)
-        if near is None:
-            return False
-        c.replans += 1
-        gap = surface_distance(obj, here)
-        c.target = replace(near, message=(
-            f"{c.name} would have stopped {gap:.2f} m from {obj.name}, out of reach ({fallback}); "
-            f"it walks to ({near.xy[0]:.2f}, {near.xy[1]:.2f}) instead"))
-        c.goal_cell = near.cell
-        c.best_distance, c.stalled_frames, c.rerouted = math.inf, 0, False
-        nav.set_goal(c.name, near.cell, final_xy=final_of(near))
-        return True
-
-    def _on_target(self, c: CharacterState) -> bool:
-        """Whether the walker ``c`` stands where its current assignment's walk ends."""
-        nav = self.navigator
-        if c.goal_cell is None or nav.cell(c.name) != c.goal_cell:
-            return False
-        final = final_of(c.target)
-        if final is None:
-            return not nav.is_off_grid(c.name)
-        return bool(np.linalg.norm(nav.position(c.name) - final) <= OFF_GRID_EPS)
 
     # ----- phases ---------------------------------------------------------------------------------
     def _phase_ends(self, out: StepReport) -> None:
@@ -444,64 +361,6 @@ class World:
                 final_xy=final_of(c.target) if approaching else None,
             )
             c.walker = True
-
-    def _walker_checks(self, out: StepReport) -> None:
-        """Arrivals, near-arrivals at a substitute goal or at the centre of a goal cell whose exact
-        point stays crowded, and stuck walkers (at step boundaries)."""
-        nav = self.navigator
-        for name in nav.new_arrivals():
-            c = self.characters[name]
-            if c.phase != "approaching":
-                continue
-            if self._on_target(c):
-                self._arrive(c)
-            else:  # the arrival belongs to an older goal: head for the current one
-                nav.set_goal(name, c.goal_cell, final_xy=final_of(c.target))
-        limit = int(self.config.stuck_after_s * self.config.fps)
-        patience = int(self.config.exact_patience_s * self.config.fps)
-        near_patience = int(self.config.near_patience_s * self.config.fps)
-        for c in self.characters.values():
-            if not c.walker or c.goal_cell is None or not (c.phase == "approaching" or c.waiting):
-                continue
-            cell = nav.cell(c.name)
-            if c.waiting:
-                if cell == c.goal_cell:
-                    c.best_distance, c.stalled_frames = 0.0, 0
-                    continue
-                if nav.goal_of(c.name) is None:  # made way for someone: walk back
-                    nav.set_goal(c.name, c.goal_cell)  # (only walkers waiting on a cell centre step aside)
-            used = nav.used_goal(c.name)
-            if c.phase == "approaching" and used is not None and used != c.goal_cell and cell == used and max(
-                abs(used[0] - c.goal_cell[0]), abs(used[1] - c.goal_cell[1])
-            ) <= 1 and self._stop_short(c, "goal_cell_taken"):
-                continue  # the neighbour the planner chose will do
-            if (c.phase == "approaching" and cell != c.goal_cell and c.stalled_frames >= patience
-                    and max(abs(cell[0] - c.goal_cell[0]), abs(cell[1] - c.goal_cell[1])) <= 1
-                    and not nav.is_off_grid(c.name) and nav.crowded_by_still_bodies(c.goal_cell)
-                    and nav.can_freeze(c.name) and self._stop_short(c, "goal_cell_taken")):
-                continue  # a still body keeps everyone off that cell: stop beside it
-            around = nav.detour_distance(c.name)  # planned around stationary bodies: progress counts on that route
-            if around is not None and not c.rerouted:
-                c.best_distance = math.inf
-            c.rerouted = around is not None
-            d = self.planner.distance(cell, c.goal_cell) if around is None else around
-            if d < c.best_distance - 1e-9:
-                c.best_distance, c.stalled_frames = d, 0
-            else:
-                c.stalled_frames += nav.step_frames
-            if (c.phase == "approaching" and c.target is not None and c.target.off_grid and cell == c.goal_cell
-                    and not nav.is_off_grid(c.name) and c.stalled_frames >= patience and nav.can_freeze(c.name)
-                    and self._stop_short(c, "target_occupied")):
-                continue  # the cell centre is clear; the point is not
-            if (c.phase == "approaching" and c.stalled_frames >= near_patience and c.assignment is not None
-                    and c.assignment.seat is None and c.target is not None and not nav.is_off_grid(c.name)
-                    and float(np.linalg.norm(nav.position(c.name) - np.asarray(c.target.xy))) <= self.config.near_enough_m
-                    and nav.can_freeze(c.name) and self._stop_short(c, "stopped_near")):
-                continue  # close enough to stand in: act here rather than fail as stuck
-            if c.stalled_frames > limit and c.event_id is not None:
-                fail_event(self, c.event_id, c.name, "stuck",
-                                 f"{c.name} made no progress towards its target for "
-                                 f"{self.config.stuck_after_s:.0f} s", out)
 
 
 def step(world: World, commands: Iterable[AssignEvent | ReleaseCharacters], dt: float) -> tuple[World, StepOutput]:
