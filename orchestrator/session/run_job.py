@@ -85,7 +85,10 @@ from orchestrator.session.runtime import Session
 from orchestrator.session.session_types import (
     InstructionSource,
     RecordedRequest,
+    SessionCheckpoint,
+    SessionError,
     SessionResult,
+    SessionSettings,
     StoryEvent,
     TimedInstruction,
 )
@@ -103,7 +106,11 @@ from sim.run_folder_names import (
 from sim.scene.model import Scene
 
 if TYPE_CHECKING:
+    from orchestrator.planning.checkpoints import StoryLog
+    from orchestrator.planning.state import PlanningDeps
     from orchestrator.sandbox_worker import WorkerRunner
+    from orchestrator.session.live_state import ReplyTap
+    from sim.world.step import World, WorldConfig
 
 CHECKPOINT_EVERY_S = 10.0
 """Simulated seconds between two session checkpoints at most (also one after every applied step)."""
@@ -341,6 +348,40 @@ async def run_story(
             programs.close()
 
 
+@dataclass(frozen=True)
+class _Recorded:
+    """What a run reads from the traces before it starts (see :func:`_read_recorded`)."""
+
+    applied: list[int | None] | None
+    """Replay: the frame each recorded step was applied at."""
+    schedule: list[RecordedRequest] | None
+    """Replay with overlapping steps: when each step was requested."""
+    recorded: dict[int, int]
+    """Resume: step -> frame of the steps the trace shows applied."""
+    said: list[TimedInstruction]
+    """Resume: the instructions the trace shows applied."""
+    scheduled: list[TimedInstruction]
+    """What the session schedules (:func:`scheduled_instructions`)."""
+
+
+@dataclass(frozen=True)
+class _Run:
+    """The arguments of one :func:`_run_story` that its parts share."""
+
+    scene: Scene
+    args: RunArguments
+    names: list[str]
+    fps: int
+    out: Path
+    thread: str
+    replay: Path | None
+    resume: bool
+    interactive: bool
+    stop: asyncio.Event | None
+    stdin_reader: Callable[[Session], object] | None
+    on_resume: Callable[[int, int], None] | None
+
+
 async def _run_story(
     scene: Scene,
     args: RunArguments,
@@ -361,50 +402,72 @@ async def _run_story(
     programs: WorkerRunner | None,
 ) -> StoryRun:
     """:func:`run_story` once its program worker (``programs``; None: programs run in this
-    process) is started; the caller stops it."""
-    from agents.event_parser import scene_action_labels
+    process) is started; the caller stops it too. What the run opens (the LLM port and its
+    trace, the story log, the story stream, the checkpoint writer, the readers of a viewer's
+    instructions and controls, the program worker) is closed once, by one exit stack, whether
+    the set-up fails, the story ends or it stops with an error."""
     from agents.llm_port import LLMError
-    from agents.prompt_templates import PromptLibrary
-    from orchestrator.llm.traces import TraceCorruptError, TraceWriter
-    from orchestrator.llm.watched_port import WatchedPort
-    from orchestrator.planning.ablation_graph import compile_graph
-    from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
-    from orchestrator.planning.state import PlanningDeps
-    from orchestrator.session.checkpoint_writer import CheckpointWriter
-    from orchestrator.session.live_state import LivePublisher, ReplyTap
-    from orchestrator.session.port_setup import describer_mode_for, open_port
-    from orchestrator.session.roster import RosterWorld, StartPositionError, start_positions
-    from orchestrator.session.run_manifest import (
-        MANIFEST_FILE,
-        ManifestError,
-        manifest_bytes,
-        write_manifest,
-    )
-    from orchestrator.session.session_types import SessionCheckpoint, SessionError, SessionSettings
-    from orchestrator.session.snapshot_file import (
-        SNAPSHOT_FILE,
-        SnapshotError,
-        load_checkpoint,
-        write_checkpoint,
-    )
-    from orchestrator.session.step_planner import GraphStepPlanner
-    from orchestrator.session.story_stream import StoryStream, StreamStart
-    from orchestrator.session.viewer_controls import (
-        CONTROLS_FILE,
-        DirectorControls,
-        controls_refusal,
-        start_control_reader,
-    )
-    from orchestrator.session.viewer_instructions import INBOX_FILE, start_inbox_reader
-    from sim.world.step import World, WorldConfig
+    from orchestrator.session.snapshot_file import SNAPSHOT_FILE
+    from sim.world.step import WorldConfig
 
     names = list(args.names)
     try:
         refuse_planted_links(out, names)  # before anything is read from the folder or written to it
     except PlantedLinkError as exc:
         raise RunSetupError(str(exc)) from None
-    config = Path(args.config) if args.config is not None else None
-    motion_config = Path(args.motion_config) if args.motion_config is not None else None
+    world_config = WorldConfig(seed=args.seed, foot_ik=args.foot_ik)
+    fps = world_config.fps
+    recorded = _read_recorded(args, fps, trace_path=trace_path, replay=replay, resume=resume)
+    world = _start_world(scene, args, names, world_config)
+    ablation = Ablation(planner=args.planner, description=args.description)
+    thread = thread_id if resume and thread_id is not None else ablation.thread_id(thread_id or f"run-{uuid.uuid4().hex[:12]}")
+    snapshot_path = out / SNAPSHOT_FILE
+    checkpoint = _saved_checkpoint(snapshot_path, world) if resume else None
+    # the trace is opened (a resumed run appends to it) once what the folder holds has been read and checked,
+    # and the temporary files of a run killed mid-write (kill -9) are gone
+    for folder in (out, out / MOTION_FOLDER):
+        remove_stale_temporaries(folder)
+    if status is None:  # the run's state for a viewer (live.json) is read from it too
+        status = RunStatus()
+    run = _Run(scene, args, names, fps, out, thread, replay, resume, interactive, stop, stdin_reader, on_resume)
+    with contextlib.ExitStack() as stack:  # closes, in this order: readers, checkpoints, stream, story, port, programs
+        if programs is not None:  # stopped before the chunk files are closed and the outputs written
+            stack.callback(programs.close)
+        replies, describer_model = _open_run_port(args, trace_path, replay, status, stack)
+        world = _streaming_world(world, out, names, checkpoint)
+        if not resume:
+            _start_manifest(run, on_start)
+        # for a live viewer: the scene before the first frame, and no story.json (it marks a finished run)
+        _write_scene_json(scene, out)
+        (out / STORY_JSON).unlink(missing_ok=True)
+        story = _open_story_log(out / RUNS_DB, thread, stack)
+        deps = _planning_deps(run, replies, story, describer_model, programs)
+        settings = _session_settings(args, fps, recorded, live=replay is None)
+        hooks = _RunHooks(run, snapshot_path, replies, status, on_event=on_event, on_instruction=on_instruction)
+        stack.callback(hooks.stream.close)
+        stack.callback(hooks.close_checkpoints)  # after an error: the newest checkpoint still lands
+        stack.callback(hooks.inbox_closed.set)
+        try:
+            session, result, stopped = await _play(run, ablation, deps, settings, world, hooks, checkpoint, recorded)
+        except (LLMError, SessionError) as exc:
+            raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
+    end = session.world.buffers
+    if end.store is not None:  # the whole story in the chunk files (the viewer reads them)
+        end.spill()
+        end.store.sync()
+        end.store.close()  # read back by path from here on
+    applied = recorded.applied
+    if replay is not None and applied is not None and not stopped and result.planner_error is None:
+        check_replayed(replay, applied, result)
+    return StoryRun(result, names, fps, session.world, stopped)
+
+
+def _read_recorded(args: RunArguments, fps: int, *, trace_path: Path | None, replay: Path | None,
+                   resume: bool) -> _Recorded:
+    """The recorded frames, requests and instructions of the trace to replay, or of the run's
+    own trace on resume; an unreadable or unreplayable trace is a :class:`RunSetupError`."""
+    from orchestrator.llm.traces import TraceCorruptError
+
     try:
         applied = replayable_frames(replay) if replay is not None else None
         schedule = schedule_from_trace(replay) if replay is not None and args.planners > 1 else None
@@ -414,198 +477,270 @@ async def _run_story(
         said = instructions_from_trace(trace_path) if resumed_trace and trace_path is not None else []
     except (TraceCorruptError, OSError) as exc:
         raise RunSetupError(str(exc)) from None
-    world_config = WorldConfig(seed=args.seed, foot_ik=args.foot_ik)
-    fps = world_config.fps
     try:
         scheduled = scheduled_instructions(args, fps, replay=replay, recorded=said)
         if replay is not None and applied is not None:
             check_replayable(replay, applied, scheduled, round(args.duration * fps))
     except (TraceCorruptError, OSError, RunSetupError) as exc:
         raise RunSetupError(str(exc)) from None
+    return _Recorded(applied, schedule, recorded, said, scheduled)
+
+
+def _start_world(scene: Scene, args: RunArguments, names: list[str], world_config: WorldConfig) -> World:
+    """The world at frame 0: the characters at the start positions of the seed."""
+    from orchestrator.session.roster import StartPositionError, start_positions
+    from sim.world.step import World
+
     try:
         positions = start_positions(scene, len(names), args.seed)
     except StartPositionError as exc:
         raise RunSetupError(str(exc)) from None
-    motion = _motion_layer(motion_config)
-    world = World(scene, {n: (p, 0.0) for n, p in zip(names, positions, strict=True)}, motion, config=world_config)
-    ablation = Ablation(planner=args.planner, description=args.description)
-    thread = thread_id if resume and thread_id is not None else ablation.thread_id(thread_id or f"run-{uuid.uuid4().hex[:12]}")
-    snapshot_path = out / SNAPSHOT_FILE
-    checkpoint: SessionCheckpoint | None = None
-    if resume and (snapshot_path.exists() or snapshot_path.is_symlink()):  # a folder or a device there is refused
-        try:
-            checkpoint = load_checkpoint(snapshot_path, world)
-        except SnapshotError as exc:
-            raise RunSetupError(str(exc)) from None
-    # the trace is opened (a resumed run appends to it) once what the folder holds has been read and checked,
-    # and the temporary files of a run killed mid-write (kill -9) are gone
-    for folder in (out, out / MOTION_FOLDER):
-        remove_stale_temporaries(folder)
+    motion = _motion_layer(Path(args.motion_config) if args.motion_config is not None else None)
+    return World(scene, {n: (p, 0.0) for n, p in zip(names, positions, strict=True)}, motion, config=world_config)
+
+
+def _saved_checkpoint(path: Path, world: World) -> SessionCheckpoint | None:
+    """The checkpoint a resumed run goes on from (None: none was kept)."""
+    from orchestrator.session.snapshot_file import SnapshotError, load_checkpoint
+
+    if not (path.exists() or path.is_symlink()):  # a folder or a device there is refused
+        return None
+    try:
+        return load_checkpoint(path, world)
+    except SnapshotError as exc:
+        raise RunSetupError(str(exc)) from None
+
+
+def _open_run_port(args: RunArguments, trace_path: Path | None, replay: Path | None, status: RunStatus,
+                   stack: contextlib.ExitStack) -> tuple[ReplyTap, str]:
+    """The run's LLM port (recording to ``trace_path`` or replaying ``replay``), watched by
+    ``status`` and tapped for the live view's replies, closed by ``stack``; and the describer's model."""
+    from agents.llm_port import LLMError
+    from orchestrator.llm.traces import TraceCorruptError
+    from orchestrator.llm.watched_port import WatchedPort
+    from orchestrator.session.live_state import ReplyTap
+    from orchestrator.session.port_setup import open_port
+
+    config = Path(args.config) if args.config is not None else None
     try:
         # a call the recorded story's end cut short waits again, to the end: that step stays in flight
         port, describer_model = open_port(config, trace_path, replay, unanswered="wait")
     except (LLMError, ValueError, OSError, TraceCorruptError) as exc:  # a replayed trace that does not check
         raise RunSetupError(str(exc)) from None
-    if status is None:  # the run's state for a viewer (live.json) is read from it too
-        status = RunStatus()
-    replies = ReplyTap(WatchedPort(port, status))
-    port = replies
+    stack.callback(port.close)
+    return ReplyTap(WatchedPort(port, status)), describer_model
+
+
+def _streaming_world(world: World, out: Path, names: list[str], checkpoint: SessionCheckpoint | None) -> World:
+    """:func:`_stream_motion`, its chunk files that do not fit the checkpoint a :class:`RunSetupError`."""
     try:
-        world = _stream_motion(world, out, names, checkpoint)
+        streaming: World = _stream_motion(world, out, names, checkpoint)
     except ValueError as exc:  # ChunkError, WorldError: chunk files that do not fit the checkpoint
-        port.close()
         raise RunSetupError(str(exc)) from None
-    if not resume:
-        manifest = RunManifest(thread_id=thread, scene_name=scene.name, seed=args.seed, config=args.config, arguments=args)
-        try:  # what resume and replay would refuse is refused now, before run.json is written
-            manifest_bytes(manifest, out / MANIFEST_FILE)
-        except ManifestError as exc:
-            port.close()
-            raise RunSetupError(str(exc)) from None
-        write_manifest(out, manifest)
-        if on_start is not None:
-            on_start(manifest)
-    # for a live viewer: the scene before the first frame, and no story.json (it marks a finished run)
-    _write_scene_json(scene, out)
-    (out / STORY_JSON).unlink(missing_ok=True)
-    runs_db = out / RUNS_DB
+    return streaming
+
+
+def _start_manifest(run: _Run, on_start: Callable[[RunManifest], None] | None) -> None:
+    """Write a new run's ``run.json`` (refused first if resume or replay would refuse it)."""
+    from orchestrator.session.run_manifest import (
+        MANIFEST_FILE,
+        ManifestError,
+        manifest_bytes,
+        write_manifest,
+    )
+
+    args = run.args
+    manifest = RunManifest(thread_id=run.thread, scene_name=run.scene.name, seed=args.seed, config=args.config,
+                           arguments=args)
+    try:  # what resume and replay would refuse is refused now, before run.json is written
+        manifest_bytes(manifest, run.out / MANIFEST_FILE)
+    except ManifestError as exc:
+        raise RunSetupError(str(exc)) from None
+    write_manifest(run.out, manifest)
+    if on_start is not None:
+        on_start(manifest)
+
+
+def _open_story_log(runs_db: Path, thread: str, stack: contextlib.ExitStack) -> StoryLog:
+    """The story log of ``thread`` in ``runs_db`` (checked first), closed by ``stack``."""
+    from orchestrator.planning.checkpoints import StoryLog
+
     try:
         check_runs_db(runs_db)
         story = StoryLog(runs_db, thread)
     except (RunSetupError, sqlite3.DatabaseError) as exc:
-        port.close()
         raise RunSetupError(str(exc) if isinstance(exc, RunSetupError) else f"{runs_db}: {exc}") from None
-    deps = PlanningDeps(
+    stack.callback(story.close)
+    return story
+
+
+def _planning_deps(run: _Run, port: ReplyTap, story: StoryLog, describer_model: str,
+                   programs: WorkerRunner | None) -> PlanningDeps:
+    from agents.event_parser import scene_action_labels
+    from agents.prompt_templates import PromptLibrary
+    from orchestrator.planning.state import PlanningDeps
+    from orchestrator.session.port_setup import describer_mode_for
+    from orchestrator.session.roster import RosterWorld
+
+    return PlanningDeps(
         port=port,
-        scene=scene,
+        scene=run.scene,
         world=RosterWorld(),
         story=story,
-        action_labels=scene_action_labels(scene),
+        action_labels=scene_action_labels(run.scene),
         prompts=PromptLibrary(),
-        seed=args.seed,
-        max_retries=args.max_retries,
+        seed=run.args.seed,
+        max_retries=run.args.max_retries,
         describer_model=describer_model,
         describer_mode=describer_mode_for(describer_model),
         description_cache=None,
-        program_grammar=args.program_grammar,
+        program_grammar=run.args.program_grammar,
         runner=programs,
     )
-    settings = SessionSettings(
+
+
+def _session_settings(args: RunArguments, fps: int, recorded: _Recorded, *, live: bool) -> SessionSettings:
+    return SessionSettings(
         frames=round(args.duration * fps),
         pace=args.pace,
         speed=args.speed,
         max_steps=args.max_events,
-        applied_frames=applied,
-        recorded_frames=recorded,
+        applied_frames=recorded.applied,
+        recorded_frames=recorded.recorded,
         checkpoint_every_s=CHECKPOINT_EVERY_S,
         instruction=args.instruction,
-        instructions=scheduled,
-        live_instructions=replay is None,
+        instructions=recorded.scheduled,
+        live_instructions=live,
         planners=args.planners,
         offline_latency_s=args.offline_latency,
-        schedule=schedule,
+        schedule=recorded.schedule,
     )
-    refusal = controls_refusal(args.pace)  # a director's pause and speed: realtime only
-    controls = DirectorControls(args.speed)
-    live = LivePublisher(out, thread, status, replies, controls, speed=args.speed, refusal=refusal)
-    session: Session | None = None
-    writer = port.trace if isinstance(port.trace, TraceWriter) else None
 
-    def said_now(timed: TimedInstruction) -> None:
-        if writer is not None:
-            writer.record_instruction(timed.text, timed.frame, source=timed.source)
-        if status is not None:
-            status.instruction(timed)
-        if on_instruction is not None:
-            on_instruction(timed, fps)
 
-    def requested(r: RecordedRequest) -> None:
-        if writer is not None:
-            writer.record_requested(r.step, r.frame, phase=r.phase, after_steps=r.after)
+class _RunHooks:
+    """The session's callbacks in a run and what they write to: the trace's instruction and
+    request records, the run's status, ``story.jsonl``, ``session.snapshot`` (by a
+    :class:`CheckpointWriter`), ``live.json`` and a director's controls, and the caller's own."""
 
-    def keep(cp: SessionCheckpoint) -> None:  # written in the writer's thread: the frames go on
-        assert session is not None
-        checkpoints.submit(session.world, cp)
+    def __init__(self, run: _Run, snapshot_path: Path, replies: ReplyTap, status: RunStatus, *,
+                 on_event: Callable[[StoryEvent, int], None] | None,
+                 on_instruction: Callable[[TimedInstruction, int], None] | None) -> None:
+        from orchestrator.llm.traces import TraceWriter
+        from orchestrator.session.checkpoint_writer import CheckpointWriter
+        from orchestrator.session.live_state import LivePublisher
+        from orchestrator.session.story_stream import StoryStream
+        from orchestrator.session.viewer_controls import DirectorControls, controls_refusal
 
-    def streamed(event: StoryEvent) -> None:
-        stream.event(event)
-        if status is not None:
-            status.event(event)
-        if on_event is not None:
-            on_event(event, fps)
+        self.fps = run.fps
+        self.status = status
+        self.on_event = on_event
+        self.on_instruction = on_instruction
+        self.refusal = controls_refusal(run.args.pace)  # a director's pause and speed: realtime only
+        self.controls = DirectorControls(run.args.speed)
+        self.live = LivePublisher(run.out, run.thread, status, replies, self.controls, speed=run.args.speed,
+                                  refusal=self.refusal)
+        self.trace = replies.trace
+        self.writer = replies.trace if isinstance(replies.trace, TraceWriter) else None
+        self.session: Session | None = None
+        self.stream = StoryStream(run.out)
+        self.checkpoints = CheckpointWriter(snapshot_path, write=self._write_after_trace)
+        self.inbox_closed = threading.Event()
+        self.finished = False
+        """The run ended without an error (a failed checkpoint write is then raised on close)."""
 
-    def write_after_trace(path: Path, cp: SessionCheckpoint, shared: dict[int, str], store: Any) -> None:
-        if writer is not None:  # the checkpoint counts on the trace's applied records: on disk first
-            writer.sync()
+    def said(self, timed: TimedInstruction) -> None:
+        if self.writer is not None:
+            self.writer.record_instruction(timed.text, timed.frame, source=timed.source)
+        self.status.instruction(timed)
+        if self.on_instruction is not None:
+            self.on_instruction(timed, self.fps)
+
+    def requested(self, r: RecordedRequest) -> None:
+        if self.writer is not None:
+            self.writer.record_requested(r.step, r.frame, phase=r.phase, after_steps=r.after)
+
+    def keep(self, cp: SessionCheckpoint) -> None:  # written in the writer's thread: the frames go on
+        assert self.session is not None
+        self.checkpoints.submit(self.session.world, cp)
+
+    def streamed(self, event: StoryEvent) -> None:
+        self.stream.event(event)
+        self.status.event(event)
+        if self.on_event is not None:
+            self.on_event(event, self.fps)
+
+    def _write_after_trace(self, path: Path, cp: SessionCheckpoint, shared: dict[int, str], store: Any) -> None:
+        from orchestrator.session.snapshot_file import write_checkpoint
+
+        if self.writer is not None:  # the checkpoint counts on the trace's applied records: on disk first
+            self.writer.sync()
         write_checkpoint(path, cp, shared, store)
 
-    stream = StoryStream(out)
-    checkpoints = CheckpointWriter(snapshot_path, write=write_after_trace)
-    inbox_closed = threading.Event()
-    finished = False
-    try:
-        async with open_checkpointer(runs_db) as saver:
-            graph = compile_graph(ablation, saver)
-            planner = GraphStepPlanner(graph, deps, thread, lanes=args.planners)
-            session = Session(world, planner, settings, trace=port.trace, on_event=streamed, on_checkpoint=keep,
-                              on_instruction=said_now, on_request=requested,
-                              on_outcome=status.outcome, on_frame=status.frame,
-                              pacer=controls if refusal is None else None)
-            if checkpoint is not None:
-                session.resume(checkpoint)
-            if status is not None:
-                status.started(session.world, frames=settings.frames, pace=settings.pace,
-                               instruction=session.instruction, events=session.events.values(),
-                               outcomes=session.outcomes)
-            stream.start(
-                StreamStart(scene=scene.name, characters=tuple(names), instruction=args.instruction, fps=fps,
-                            frame=session.world.frame),
-                checkpoint.events.values() if checkpoint is not None else (),
-            )
-            if resume and on_resume is not None:
-                on_resume(session.world.frame, fps)
-            if interactive and replay is None:
-                from orchestrator.session.stdin_instructions import start_stdin_reader
+    def close_checkpoints(self) -> None:
+        self.checkpoints.close(raise_errors=self.finished)
 
-                (stdin_reader or start_stdin_reader)(session)
-            if replay is None:  # a viewer's instruction box, in this process or another
-                start_inbox_reader(session, out / INBOX_FILE, thread, [i.text for i in said if i.source == "viewer"],
-                                   stop=inbox_closed, after_frame=max((i.frame for i in said), default=-1))
-            if refusal is None:
-                start_control_reader(controls, out / CONTROLS_FILE, thread, stop=inbox_closed)
-            publishing = asyncio.ensure_future(live.run())
-            try:
-                result, stopped = await _run_until_stopped(session, stop)
-            finally:
-                publishing.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await publishing
-            with contextlib.suppress(OSError):
-                live.write(live.state(running=False))
-            if stopped:
-                keep(session.checkpoint())
-            checkpoints.flush()  # the last checkpoint on disk before the run returns
-            finished = True
-    except (LLMError, SessionError) as exc:
-        raise RunSetupError(f"{type(exc).__name__}: {exc}") from None
-    finally:
-        inbox_closed.set()
+
+async def _play(run: _Run, ablation: Ablation, deps: PlanningDeps, settings: SessionSettings, world: World,
+                hooks: _RunHooks, checkpoint: SessionCheckpoint | None,
+                recorded: _Recorded) -> tuple[Session, SessionResult, bool]:
+    """Build the session on the planning graph and run it (until ``run.stop``, if set first),
+    publishing ``live.json`` meanwhile; its last checkpoint is on disk when this returns."""
+    from orchestrator.planning.ablation_graph import compile_graph
+    from orchestrator.planning.checkpoints import open_checkpointer
+    from orchestrator.session.step_planner import GraphStepPlanner
+
+    async with open_checkpointer(run.out / RUNS_DB) as saver:
+        planner = GraphStepPlanner(compile_graph(ablation, saver), deps, run.thread, lanes=run.args.planners)
+        session = Session(world, planner, settings, trace=hooks.trace, on_event=hooks.streamed,
+                          on_checkpoint=hooks.keep, on_instruction=hooks.said, on_request=hooks.requested,
+                          on_outcome=hooks.status.outcome, on_frame=hooks.status.frame,
+                          pacer=hooks.controls if hooks.refusal is None else None)
+        hooks.session = session
+        _start_session(run, session, hooks, checkpoint, recorded.said)
+        publishing = asyncio.ensure_future(hooks.live.run())
         try:
-            checkpoints.close(raise_errors=finished)  # after an error: the newest checkpoint still lands
+            result, stopped = await _run_until_stopped(session, run.stop)
         finally:
-            stream.close()
-            story.close()
-            port.close()
-            if programs is not None:
-                programs.close()  # before the chunk files are closed and the outputs written
-    end = session.world.buffers
-    if end.store is not None:  # the whole story in the chunk files (the viewer reads them)
-        end.spill()
-        end.store.sync()
-        end.store.close()  # read back by path from here on
-    if replay is not None and applied is not None and not stopped and result.planner_error is None:
-        check_replayed(replay, applied, result)
-    return StoryRun(result, names, fps, session.world, stopped)
+            publishing.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await publishing
+        with contextlib.suppress(OSError):
+            hooks.live.write(hooks.live.state(running=False))
+        if stopped:
+            hooks.keep(session.checkpoint())
+        hooks.checkpoints.flush()  # the last checkpoint on disk before the run returns
+        hooks.finished = True
+    return session, result, stopped
+
+
+def _start_session(run: _Run, session: Session, hooks: _RunHooks, checkpoint: SessionCheckpoint | None,
+                   said: list[TimedInstruction]) -> None:
+    """Resume ``session`` from ``checkpoint``, tell the status and ``story.jsonl`` where the
+    story starts, and start the readers of stdin, a viewer's instructions and its controls."""
+    from orchestrator.session.story_stream import StreamStart
+    from orchestrator.session.viewer_controls import CONTROLS_FILE, start_control_reader
+    from orchestrator.session.viewer_instructions import INBOX_FILE, start_inbox_reader
+
+    if checkpoint is not None:
+        session.resume(checkpoint)
+    hooks.status.started(session.world, frames=session.settings.frames, pace=session.settings.pace,
+                         instruction=session.instruction, events=session.events.values(), outcomes=session.outcomes)
+    hooks.stream.start(
+        StreamStart(scene=run.scene.name, characters=tuple(run.names), instruction=run.args.instruction, fps=run.fps,
+                    frame=session.world.frame),
+        checkpoint.events.values() if checkpoint is not None else (),
+    )
+    if run.resume and run.on_resume is not None:
+        run.on_resume(session.world.frame, run.fps)
+    if run.interactive and run.replay is None:
+        from orchestrator.session.stdin_instructions import start_stdin_reader
+
+        (run.stdin_reader or start_stdin_reader)(session)
+    if run.replay is None:  # a viewer's instruction box, in this process or another
+        start_inbox_reader(session, run.out / INBOX_FILE, run.thread, [i.text for i in said if i.source == "viewer"],
+                           stop=hooks.inbox_closed, after_frame=max((i.frame for i in said), default=-1))
+    if hooks.refusal is None:
+        start_control_reader(hooks.controls, run.out / CONTROLS_FILE, run.thread, stop=hooks.inbox_closed)
 
 
 async def _run_until_stopped(session: Any, stop: asyncio.Event | None) -> tuple[SessionResult, bool]:
