@@ -15,9 +15,10 @@ from typer.testing import CliRunner
 from orchestrator.cli.app import app
 from sim.scene.bundled import load_bundled_scene
 from sim.scene.errors import SceneFileError
-from sim.scene.files import MAX_SCENE_FILE_BYTES, load_scene, save_scene_json
+from sim.scene.files import load_scene, save_scene_json
 from sim.scene.meshes import MAX_NODE_NAME_CHARS, parse_instance_name
 from sim.scene.model import MAX_LABEL_CHARS, MAX_NAV_CELLS, MAX_SCENE_OBJECTS
+from sim.scene.strict_json import MAX_SCENE_FILE_BYTES
 from tests.support.finished_run import one_error_line
 
 runner = CliRunner()

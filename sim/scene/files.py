@@ -8,14 +8,14 @@ Formats:
 - instance-segmented meshes (GLB / glTF / OBJ / PLY), see ``sim.scene.meshes``.
 
 Bounded: a JSON file is read only up to ``MAX_SCENE_FILE_BYTES`` (``sim.bounded_files``: a
-regular file, never a device or a FIFO), nested at most ``MAX_SCENE_JSON_DEPTH`` deep, and holds
-at most ``MAX_SCENE_OBJECTS`` objects (``sim.scene.model`` states the other limits); anything
-outside them is a ``SceneFileError``, checked before the work it would cost.
+regular file, never a device or a FIFO) and nested at most ``MAX_SCENE_JSON_DEPTH`` deep (both
+checked by ``sim.scene.strict_json``), and holds at most ``MAX_SCENE_OBJECTS`` objects
+(``sim.scene.model`` states the other limits); anything outside them is a ``SceneFileError``,
+checked before the work it would cost.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from pathlib import Path
@@ -24,154 +24,13 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
-from sim.bounded_files import BoundedFileError, json_depth_exceeds, read_bounded_bytes
 from sim.scene.errors import SceneFileError as SceneFileError  # re-exported: callers catch it here
 from sim.scene.meshes import load_mesh_scene
 from sim.scene.model import MAX_SCENE_OBJECTS, NavHints, Scene, SceneObject
+from sim.scene.strict_json import parse_json, read_json, read_text, reference_name, short_repr
 from sim.validation_text import problem_field, problem_message
 
 MESH_SUFFIXES = {".glb", ".gltf", ".obj", ".ply"}
-MAX_SCENE_FILE_BYTES = 16 * 1024 * 1024
-"""Bytes of one scene JSON file (a reference ``objects.json`` takes about 1 KB per object)."""
-MAX_SCENE_JSON_DEPTH = 32
-"""Nesting of a scene JSON file (the formats need 4)."""
-
-
-def _short_repr(value: Any, limit: int = 60) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def _read_text(path: Path) -> str:
-    """The file's text; a clear error for missing, unreadable, empty or binary files."""
-    try:
-        raw = read_bounded_bytes(path, MAX_SCENE_FILE_BYTES, str(path))
-    except BoundedFileError as exc:
-        raise SceneFileError(path, exc.problem) from None
-    if not raw.strip():
-        raise SceneFileError(path, "file is empty")
-    if b"\x00" in raw[:4096]:
-        raise SceneFileError(path, "file holds binary data, expected UTF-8 JSON text")
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise SceneFileError(
-            path, f"file is not UTF-8 text (bad byte at offset {exc.start})"
-        ) from None
-
-
-def _parse_json(path: Path, text: str, layout: str | None = None) -> Any:
-    """Strict JSON: no NaN / Infinity (nor numbers that overflow to infinity), no duplicate keys.
-
-    A non-finite number is reported with the object and field holding it: ``layout`` says how
-    objects are found, ``"scene"`` (the project format, objects under ``"objects"``),
-    ``"objects"`` (a reference ``objects.json`` list) or None (no objects; field only).
-    """
-    if json_depth_exceeds(text.encode("utf-8", "surrogatepass"), MAX_SCENE_JSON_DEPTH):
-        raise SceneFileError(path, f"JSON nested more than {MAX_SCENE_JSON_DEPTH} levels deep")
-    try:
-        data = json.loads(
-            text,
-            parse_constant=_NonFinite,
-            parse_float=_finite_float,
-            parse_int=_bounded_int,
-            object_pairs_hook=_unique_keys,
-        )
-    except json.JSONDecodeError as exc:
-        what = (
-            "JSON ends early (truncated file?)" if exc.pos >= len(text.rstrip()) else "invalid JSON"
-        )
-        raise SceneFileError(
-            path, f"{what} at line {exc.lineno}, column {exc.colno}: {exc.msg}"
-        ) from None
-    except _JsonValueError as exc:
-        raise SceneFileError(path, str(exc)) from None
-    except RecursionError:
-        raise SceneFileError(path, "JSON nested too deeply") from None
-    found = _first_non_finite(data)
-    if found is not None:
-        loc, bad = found
-        obj, field = _locate(data, loc, layout)
-        raise SceneFileError(path, bad.message, obj=obj, field=field)
-    return data
-
-
-def _read_json(path: Path, layout: str | None = None) -> Any:
-    return _parse_json(path, _read_text(path), layout)
-
-
-class _JsonValueError(ValueError):
-    pass
-
-
-class _NonFinite:
-    """Stands for a number JSON may not hold (NaN, Infinity, 1e999) until it is located."""
-
-    __slots__ = ("message",)
-
-    def __init__(self, text: str, message: str | None = None) -> None:
-        self.message = message or (
-            f"non-finite number '{text[:40]}' is not allowed (numbers must be finite)"
-        )
-
-
-def _finite_float(text: str) -> float | _NonFinite:
-    value = float(text)
-    if not math.isfinite(value):
-        return _NonFinite(text, f"number {text[:40]} is too large (numbers must be finite)")
-    return value
-
-
-_MAX_INT_DIGITS = 300
-
-
-def _bounded_int(text: str) -> int | _NonFinite:
-    if len(text) > _MAX_INT_DIGITS:
-        return _NonFinite(
-            text, f"number {text[:40]}... has {len(text)} digits (too large for a scene)"
-        )
-    return int(text)
-
-
-def _first_non_finite(data: Any) -> tuple[list[str | int], _NonFinite] | None:
-    """Where the first (in file order) non-finite number is, as a key / index path."""
-    stack: list[tuple[list[str | int], Any]] = [([], data)]
-    while stack:
-        loc, value = stack.pop()
-        if isinstance(value, _NonFinite):
-            return loc, value
-        if isinstance(value, dict):
-            stack.extend(([*loc, k], v) for k, v in reversed(value.items()))
-        elif isinstance(value, list):
-            stack.extend(([*loc, i], v) for i, v in reversed(list(enumerate(value))))
-    return None
-
-
-def _locate(data: Any, loc: list[str | int], layout: str | None) -> tuple[str | None, str | None]:
-    """(object name, dotted field) of a key / index path, as other errors name them."""
-    obj: str | None = None
-    rest = loc
-    if layout == "scene" and len(loc) >= 2 and loc[0] == "objects" and isinstance(loc[1], int):
-        raw = data["objects"][loc[1]]
-        name = raw.get("name") if isinstance(raw, dict) else None
-        obj = name if isinstance(name, str) and name else f"#{loc[1]}"
-        rest = loc[2:]
-    elif layout == "objects" and loc and isinstance(loc[0], int):
-        raw = data[loc[0]]
-        obj = _reference_name(raw, loc[0])
-        rest = loc[1:]
-    while rest and isinstance(rest[-1], int):  # "center", not "center.0"
-        rest = rest[:-1]
-    return obj, ".".join(map(str, rest)) or None
-
-
-def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in pairs:
-        if key in out:
-            raise _JsonValueError(f"key '{key}' appears twice in one JSON object")
-        out[key] = value
-    return out
 
 
 def _validation_error(
@@ -192,7 +51,7 @@ def _validation_error(
     field = ".".join(field_parts) or None
     msg = problem_message(err)
     if err["type"] not in ("extra_forbidden", "missing", "value_error"):
-        msg += f", got {_short_repr(err['input'])}"
+        msg += f", got {short_repr(err['input'])}"
     if err["type"] == "missing" and field_parts and field_parts[-1].isdigit():
         msg = "too few numbers in the list"
         field = ".".join(field_parts[:-1])
@@ -205,8 +64,8 @@ def load_scene_json(path: Path) -> Scene:
     Strict means: numbers must be JSON numbers (no ``"1.0"`` strings), integers must be integers,
     booleans must be booleans, and every key must be known.
     """
-    text = _read_text(path)
-    data = _parse_json(path, text, "scene")
+    text = read_text(path)
+    data = parse_json(path, text, "scene")
     if not isinstance(data, dict):
         hint = (
             " (a list of objects? pass the folder of a reference objects.json)"
@@ -277,11 +136,11 @@ _REFERENCE_REQUIRED = {"label", "idx", "center", "width", "depth", "height", "or
 def _number(path: Path, name: str | None, field: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise SceneFileError(
-            path, f"expected a number, got {_short_repr(value)}", obj=name, field=field
+            path, f"expected a number, got {short_repr(value)}", obj=name, field=field
         )
     if not math.isfinite(value):
         raise SceneFileError(
-            path, f"expected a finite number, got {_short_repr(value)}", obj=name, field=field
+            path, f"expected a finite number, got {short_repr(value)}", obj=name, field=field
         )
     return float(value)
 
@@ -294,7 +153,7 @@ def _vector(
         count = f"{n}" if not extra else f"{n} to {n + extra}"
         raise SceneFileError(
             path,
-            f"expected a list of {count} numbers, got {_short_repr(value)}",
+            f"expected a list of {count} numbers, got {short_repr(value)}",
             obj=name,
             field=field,
         )
@@ -305,10 +164,10 @@ def _vector(
 
 def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
     if not isinstance(raw, dict):
-        raise SceneFileError(path, f"expected a JSON object, got {_short_repr(raw)}", obj=f"#{i}")
+        raise SceneFileError(path, f"expected a JSON object, got {short_repr(raw)}", obj=f"#{i}")
     label = raw.get("label")
     idx = raw.get("idx")
-    name = _reference_name(raw, i)
+    name = reference_name(raw, i)
     for key in sorted(_REFERENCE_REQUIRED - raw.keys()):
         raise SceneFileError(path, "required field is missing", obj=name, field=key)
     for key in sorted(raw.keys() - _REFERENCE_KEYS):
@@ -316,13 +175,13 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
     if not isinstance(label, str) or not _LABEL_PATTERN.match(label):
         raise SceneFileError(
             path,
-            f"expected a lower snake case label like 'coffee_maker', got {_short_repr(label)}",
+            f"expected a lower snake case label like 'coffee_maker', got {short_repr(label)}",
             obj=name,
             field="label",
         )
     if not isinstance(idx, int) or isinstance(idx, bool) or idx < 0:
         raise SceneFileError(
-            path, f"expected an integer >= 0, got {_short_repr(idx)}", obj=name, field="idx"
+            path, f"expected an integer >= 0, got {short_repr(idx)}", obj=name, field="idx"
         )
     center = _vector(path, name, "center", raw["center"], 3)
     size = tuple(_number(path, name, k, raw[k]) for k in ("width", "depth", "height"))
@@ -357,14 +216,6 @@ def _reference_object(path: Path, i: int, raw: Any) -> SceneObject:
         ) from None
 
 
-def _reference_name(raw: Any, i: int) -> str:
-    """``<label>_<idx>`` of a reference entry, ``#i`` when it has no usable label and idx."""
-    label = raw.get("label") if isinstance(raw, dict) else None
-    idx = raw.get("idx") if isinstance(raw, dict) else None
-    ok_idx = isinstance(idx, int) and not isinstance(idx, bool)
-    return f"{label}_{idx}" if isinstance(label, str) and label and ok_idx else f"#{i}"
-
-
 def reference_seat_height(sit_offset_vertical: float, height: float) -> float:
     """Seat height (m above the object's bottom) for a reference object.
 
@@ -386,7 +237,7 @@ _LABEL_PATTERN = re.compile(r"^[a-z][a-z0-9_]*$")
 def _flag(path: Path, name: str, field: str, value: Any) -> bool:
     if not isinstance(value, bool):
         raise SceneFileError(
-            path, f"expected true or false, got {_short_repr(value)}", obj=name, field=field
+            path, f"expected true or false, got {short_repr(value)}", obj=name, field=field
         )
     return value
 
@@ -403,7 +254,7 @@ def load_reference_folder(folder: Path) -> Scene:
         raise SceneFileError(
             folder, "folder has no objects.json (expected a reference annotation folder)"
         )
-    raw_objects = _read_json(objects_path, "objects")
+    raw_objects = read_json(objects_path, "objects")
     if not isinstance(raw_objects, list):
         raise SceneFileError(objects_path, "expected a JSON list of objects at top level")
     _check_object_count(objects_path, len(raw_objects))
@@ -440,7 +291,7 @@ def _reference_bounds(
 ) -> tuple[tuple[float, float], tuple[float, float]]:
     scene_path = folder / "scene.json"
     if scene_path.exists():
-        data = _read_json(scene_path)
+        data = read_json(scene_path)
         if not isinstance(data, dict):
             raise SceneFileError(scene_path, "expected a JSON object at top level")
         if "bbox" not in data:
@@ -449,7 +300,7 @@ def _reference_bounds(
         if not (isinstance(bbox, list) and len(bbox) == 2):
             raise SceneFileError(
                 scene_path,
-                f"expected [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {_short_repr(bbox)}",
+                f"expected [[xmin, ymin, zmin], [xmax, ymax, zmax]], got {short_repr(bbox)}",
                 field="bbox",
             )
         lo = _vector(scene_path, None, "bbox", bbox[0], 2, extra=1)
@@ -478,7 +329,7 @@ def _reference_bounds(
 def _cells(path: Path, field: str, value: Any) -> tuple[tuple[int, int], ...]:
     if not isinstance(value, list):
         raise SceneFileError(
-            path, f"expected a list of [i, j] cells, got {_short_repr(value)}", field=field
+            path, f"expected a list of [i, j] cells, got {short_repr(value)}", field=field
         )
     cells = []
     for cell in value:
@@ -488,7 +339,7 @@ def _cells(path: Path, field: str, value: Any) -> tuple[tuple[int, int], ...]:
             and all(isinstance(c, int) and not isinstance(c, bool) for c in cell)
         ):
             raise SceneFileError(
-                path, f"expected [i, j] integer cells, got {_short_repr(cell)}", field=field
+                path, f"expected [i, j] integer cells, got {short_repr(cell)}", field=field
             )
         cells.append((cell[0], cell[1]))
     return tuple(cells)
@@ -498,13 +349,13 @@ def _reference_nav(folder: Path) -> NavHints:
     grid_path = folder / "grid_map.json"
     if not grid_path.exists():
         return NavHints()
-    data = _read_json(grid_path)
+    data = read_json(grid_path)
     if not isinstance(data, dict):
         raise SceneFileError(grid_path, "expected a JSON object at top level")
     mods = data.get("user_modifications", {})
     if not isinstance(mods, dict):
         raise SceneFileError(
-            grid_path, f"expected an object, got {_short_repr(mods)}", field="user_modifications"
+            grid_path, f"expected an object, got {short_repr(mods)}", field="user_modifications"
         )
     cell = _number(grid_path, None, "grid_step", data.get("grid_step", 0.3))
     if cell <= 0:
