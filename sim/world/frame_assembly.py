@@ -127,25 +127,7 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
     heading = np.array(heading_l, dtype=float)
     root = np.array(root_l, dtype=float).reshape(n, 2)
     states = [w.motion_states[name] for name in names]
-    motion = w.motion
-    if isinstance(motion, BatchedMotionLayer):  # the poses come as arrays (same result as one by one)
-        new_states, batch = motion.step_batch(states, queries, dt)
-        rots = np.asarray(batch.local_rotations, dtype=float).reshape(n, NUM_JOINTS, 3, 3)
-        pz = np.asarray(batch.pelvis, dtype=float).reshape(n, 3)[:, 2]
-        contacts = np.asarray(batch.contacts, dtype=bool).reshape(n, 2)
-    else:
-        step_many = getattr(motion, "step_many", None)
-        if step_many is not None:  # a layer may batch characters (same result as one by one)
-            new_states, poses = step_many(states, queries, dt)
-        else:
-            pairs = [motion.step(s, q, dt) for s, q in zip(states, queries, strict=True)]
-            new_states, poses = [p[0] for p in pairs], [p[1] for p in pairs]
-        rots = np.array([p.local_rotations for p in poses], dtype=float).reshape(n, NUM_JOINTS, 3, 3)
-        pz = np.array([p.pelvis[2] for p in poses], dtype=float)
-        try:  # the usual case: every pose has its (2,) contact flags
-            contacts = np.array([p.contacts for p in poses], dtype=bool).reshape(n, 2)
-        except (AttributeError, TypeError, ValueError):
-            contacts = _contacts_of(poses)
+    new_states, rots, pz, contacts = _step_motion(w.motion, states, queries, dt)
     w.motion_states.update(zip(names, new_states, strict=True))
     pelvis, rots = compose_poses(rots, pz, root, heading)
     seats = [w.scene.by_name.get(c.assignment.seat) if h is not None and c.assignment is not None
@@ -158,6 +140,33 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
     w.buffers.append(pelvis, rots, labels, contacts, [c.event_id or "" for c in chars])
     for c in chars:
         c.phase_frame += 1
+
+
+def _step_motion(motion: MotionLayer, states: list[Any], queries: list[MotionQuery],
+                 dt: float) -> tuple[list[Any], np.ndarray, np.ndarray, np.ndarray]:
+    """One step of the motion layer for every character: new states, local rotations (N,22,3,3),
+    animated pelvis heights (N,) and foot contacts (N,2) bool. Batched when the layer has
+    ``step_batch`` (poses as arrays) or ``step_many``, with the same result as one by one."""
+    n = len(queries)
+    if isinstance(motion, BatchedMotionLayer):  # the poses come as arrays (same result as one by one)
+        new_states, batch = motion.step_batch(states, queries, dt)
+        rots = np.asarray(batch.local_rotations, dtype=float).reshape(n, NUM_JOINTS, 3, 3)
+        pz = np.asarray(batch.pelvis, dtype=float).reshape(n, 3)[:, 2]
+        contacts = np.asarray(batch.contacts, dtype=bool).reshape(n, 2)
+        return new_states, rots, pz, contacts
+    step_many = getattr(motion, "step_many", None)
+    if step_many is not None:  # a layer may batch characters (same result as one by one)
+        new_states, poses = step_many(states, queries, dt)
+    else:
+        pairs = [motion.step(s, q, dt) for s, q in zip(states, queries, strict=True)]
+        new_states, poses = [p[0] for p in pairs], [p[1] for p in pairs]
+    rots = np.array([p.local_rotations for p in poses], dtype=float).reshape(n, NUM_JOINTS, 3, 3)
+    pz = np.array([p.pelvis[2] for p in poses], dtype=float)
+    try:  # the usual case: every pose has its (2,) contact flags
+        contacts = np.array([p.contacts for p in poses], dtype=bool).reshape(n, 2)
+    except (AttributeError, TypeError, ValueError):
+        contacts = _contacts_of(poses)
+    return new_states, rots, pz, contacts
 
 
 def stationary_root(c: CharacterState) -> None:
