@@ -43,7 +43,7 @@ from matplotlib.text import Annotation, Text
 from numpy.typing import NDArray
 
 from sim.no_follow_writes import write_file
-from sim.scene.model import Scene
+from sim.scene.model import Scene, SceneObject
 
 BODY_RADIUS = 0.25  # metres: radius of a character's disc in the picture
 _FLOOR_COLOUR = "#4a6fa5"
@@ -96,31 +96,57 @@ def _draw_static(
         )
     )
     if nav_free is not None:
-        free = np.asarray(nav_free, dtype=bool)
-        if free.ndim != 2:
-            raise ValueError(f"nav_free must be a 2-D bool array (nx, ny), got shape {free.shape}")
-        nx, ny = free.shape
-        ox, oy = nav_origin
-        blocked = np.ma.masked_where(free.T, np.ones((ny, nx)))
-        ax.imshow(
-            blocked,
-            origin="lower",
-            extent=(ox, ox + nx * nav_cell_size, oy, oy + ny * nav_cell_size),
-            cmap="Reds",
-            vmin=0.0,
-            vmax=2.5,
-            alpha=0.45,
-            interpolation="nearest",
-            zorder=1,
-        )
+        _draw_blocked(ax, nav_free, nav_origin, nav_cell_size)
+    _draw_objects(ax, scene, _cluster_colours(clusters), show_names)
+    margin = 0.3
+    ax.set_xlim(x0 - margin, x1 + margin)
+    ax.set_ylim(y0 - margin, y1 + margin)
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel("x (m)", fontsize=7)
+    ax.set_ylabel("y (m)", fontsize=7)
+    ax.tick_params(labelsize=6)
+    if title:
+        fig.suptitle(title, fontsize=9, parse_math=False)
 
+
+def _draw_blocked(
+    ax: Axes, nav_free: NDArray[np.float64], nav_origin: tuple[float, float], nav_cell_size: float
+) -> None:
+    """The navigation grid's blocked cells, shaded (``nav_free``: (nx, ny) bool, True = free)."""
+    free = np.asarray(nav_free, dtype=bool)
+    if free.ndim != 2:
+        raise ValueError(f"nav_free must be a 2-D bool array (nx, ny), got shape {free.shape}")
+    nx, ny = free.shape
+    ox, oy = nav_origin
+    blocked = np.ma.masked_where(free.T, np.ones((ny, nx)))
+    ax.imshow(
+        blocked,
+        origin="lower",
+        extent=(ox, ox + nx * nav_cell_size, oy, oy + ny * nav_cell_size),
+        cmap="Reds",
+        vmin=0.0,
+        vmax=2.5,
+        alpha=0.45,
+        interpolation="nearest",
+        zorder=1,
+    )
+
+
+def _cluster_colours(clusters: Sequence[Sequence[str]] | None) -> dict[str, tuple[float, float, float, float]]:
+    """Object name -> the colour of its cluster (tab20, cycling); no entry outside every cluster."""
     colour_of: dict[str, tuple[float, float, float, float]] = {}
     if clusters:
         cmap = colormaps["tab20"]
         for k, names in enumerate(clusters):
             for name in names:
                 colour_of[name] = cmap(k % 20)
+    return colour_of
 
+
+def _draw_objects(
+    ax: Axes, scene: Scene, colour_of: Mapping[str, tuple[float, float, float, float]], show_names: bool
+) -> None:
+    """Every object's footprint (lowest first), its facing arrow, its seat point and its name."""
     floor_z = scene.floor_z
     carried = [o for o in scene.objects if o.z_min - floor_z >= 0.1]
     arrows_xy, arrows_uv = [], []
@@ -158,22 +184,7 @@ def _draw_static(
                 zorder=4,
             )
         if show_names:
-            name_xy = obj.center_xy
-            if on_floor and any(
-                o.z_min >= obj.z_max - 0.05 and bool(obj.contains_xy(o.center_xy)) for o in carried
-            ):  # something stands on it: move its name towards its back, out of the way
-                name_xy = name_xy - np.asarray(obj.facing) * obj.depth * 0.3
-            ax.text(
-                name_xy[0],
-                name_xy[1],
-                obj.name,
-                parse_math=False,  # names are data: '$\\bar$' is text, not mathtext
-                fontsize=5.5,
-                ha="center",
-                va="center" if on_floor else "bottom",
-                zorder=6,
-                bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.6},
-            )
+            _draw_name(ax, obj, on_floor, carried)
     if arrows_xy:
         xy, uv = np.array(arrows_xy), np.array(arrows_uv)
         ax.quiver(
@@ -181,15 +192,26 @@ def _draw_static(
             angles="xy", scale_units="xy", scale=1.0, width=0.003, color="#c0392b", zorder=5,
         )  # fmt: skip
 
-    margin = 0.3
-    ax.set_xlim(x0 - margin, x1 + margin)
-    ax.set_ylim(y0 - margin, y1 + margin)
-    ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("x (m)", fontsize=7)
-    ax.set_ylabel("y (m)", fontsize=7)
-    ax.tick_params(labelsize=6)
-    if title:
-        fig.suptitle(title, fontsize=9, parse_math=False)
+
+def _draw_name(ax: Axes, obj: SceneObject, on_floor: bool, carried: Sequence[SceneObject]) -> None:
+    """``obj``'s name on its footprint: centred, set above the centre for an object standing on
+    another, moved towards the back of one that something stands on."""
+    name_xy = obj.center_xy
+    if on_floor and any(
+        o.z_min >= obj.z_max - 0.05 and bool(obj.contains_xy(o.center_xy)) for o in carried
+    ):  # something stands on it: move its name towards its back, out of the way
+        name_xy = name_xy - np.asarray(obj.facing) * obj.depth * 0.3
+    ax.text(
+        name_xy[0],
+        name_xy[1],
+        obj.name,
+        parse_math=False,  # names are data: '$\\bar$' is text, not mathtext
+        fontsize=5.5,
+        ha="center",
+        va="center" if on_floor else "bottom",
+        zorder=6,
+        bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.6},
+    )
 
 
 def _draw_moving(
