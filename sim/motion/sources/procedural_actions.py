@@ -10,7 +10,7 @@ pose of their posture (standing or seated).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -140,123 +140,173 @@ def _loop_period(duration: float, cycles: int) -> float:
     return duration / cycles
 
 
+def _to_mouth(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
+    """``to_mouth``: the right hand to the mouth and back; ``to_mouth_both``: both hands held
+    at the chest, each in turn to the mouth."""
+    t, g, hands = body.t, spec.gesture, body.hands
+    sides = (1,) if g == "to_mouth" else (1, 0)
+    span = duration / len(sides)
+    if g == "to_mouth_both":
+        for side in (0, 1):
+            hands[:, side] = body.anchor("chest", side) * [1, 0.5, 1]
+    for i, side in enumerate(sides):
+        t0 = i * span
+        hold = body.anchor("chest", side) * [1, 0.5, 1] if g == "to_mouth_both" else rest[side]
+        k = _keys(t, [t0, t0 + 0.25 * span, t0 + 0.45 * span, t0 + 0.65 * span, t0 + span],
+                  [hold, body.anchor("mouth", side), body.anchor("mouth", side), hold, hold])
+        active = (t >= t0) & (t <= t0 + span)
+        hands[active, side] = k[active]
+        body.head[active, 0] += -0.15 * np.sin(np.pi * (t[active] - t0) / span)
+    if g == "to_mouth_both":
+        hands[:, :, 2] = np.maximum(hands[:, :, 2], body.anchor("chest", 0)[2] - 0.1)
+
+
+def _hold_chest(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
+    """Both hands at the chest, the right one moving a little (scrolling, turning pages); head
+    and spine bent."""
+    t, hands = body.t, body.hands
+    for side in (0, 1):
+        hands[:, side] = body.anchor("chest", side) + np.array([0, 0, 0.02]) * np.sin(2 * np.pi * t / duration)[:, None]
+    hands[:, 1, 0] += 0.015 * np.sin(8 * np.pi * t / duration)  # thumb scrolling / page turning
+    body.head[:, 0] += 0.45
+    body.spine[:, 0] += 0.05
+
+
+def _typing(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
+    """Both hands at the keyboard anchor at the spec's reach height, tapping and shifting."""
+    t, hands = body.t, body.hands
+    for side in (0, 1):
+        hands[:, side] = body.anchor("type", side, spec.reach_height)
+        hands[:, side, 2] += 0.012 * np.abs(np.sin(2 * np.pi * 6 * t / duration + side * 1.3))
+        hands[:, side, 1] += 0.02 * np.sin(2 * np.pi * 2 * t / duration + side)
+    body.head[:, 0] += 0.25
+    body.spine[:, 0] += 0.12
+
+
+def _reach(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
+    """The right hand from rest (``carry``: both hands from the tray) to the reach anchor at the
+    spec's reach height, held, and back; ``wipe``, ``write`` and ``reach`` add their strokes
+    while held, ``reach_low`` lowers the pelvis."""
+    t, g, hands = body.t, spec.gesture, body.hands
+    h = spec.reach_height
+    side = 1
+    if g == "reach_low":
+        body.pelvis[:, 2] -= 0.12 * np.sin(np.pi * t / duration) ** 2
+        body.spine[:, 0] += 0.6 * np.sin(np.pi * t / duration) ** 2
+    target = body.anchor("tray" if g == "carry" else "reach", side, h)
+    start = body.anchor("tray", side) if g == "carry" else rest[side]
+    k = _keys(t, [0, 0.3 * duration, 0.7 * duration, duration], [start, target, target, rest[side]])
+    hands[:, side] = k
+    if g == "carry":
+        for s2 in (0, 1):
+            hands[:, s2] = _keys(t, [0, 0.35 * duration, 0.6 * duration, duration],
+                                 [body.anchor("tray", s2), body.anchor("reach", s2, h),
+                                  body.anchor("reach", s2, h), rest[s2]])
+    mid = (t > 0.3 * duration) & (t < 0.7 * duration)
+    u = (t[mid] - 0.3 * duration) / (0.4 * duration)
+    if g == "wipe":
+        hands[mid, side, 0] += 0.08 * np.sin(6 * np.pi * u)
+        hands[mid, side, 1] += 0.12 * np.sin(3 * np.pi * u)
+    elif g == "write":
+        hands[mid, side, 1] += (0.15 * u - 0.07) * np.sin(np.pi * u)
+        hands[mid, side, 2] += 0.03 * np.sin(10 * np.pi * u)
+    elif g == "reach":
+        hands[mid, side, 0] += 0.03 * np.sin(4 * np.pi * u)
+    body.head[:, 0] += 0.25 * np.sin(np.pi * t / duration) * (1.0 if h < 1.2 else -0.5)
+    body.spine[:, 0] += (0.25 if h < 0.95 else 0.05) * np.sin(np.pi * t / duration) ** 2
+
+
+def _wave(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
+    """The right hand raised to the wave anchor and waved; the elbow pole follows as it rises."""
+    t, hands = body.t, body.hands
+    side = 1
+    k = _keys(t, [0, 0.3 * duration, 0.7 * duration, duration],
+              [rest[side], body.anchor("wave", side), body.anchor("wave", side), rest[side]])
+    mid = (t > 0.3 * duration) & (t < 0.7 * duration)
+    env = np.sin(np.pi * (t[mid] - 0.3 * duration) / (0.4 * duration))
+    k[mid, 1] += 0.09 * env * np.sin(2 * np.pi * 1.8 * (t[mid] - 0.3 * duration))
+    hands[:, side] = k
+    raised = np.clip((k[:, 2] - rest[side][2]) / 0.5, 0, 1)[:, None]
+    body.pole[:, side] = (1 - raised) * body.pole[:, side] + raised * np.array([0.0, -1.0, -0.6])
+
+
+def _talk_or_listen(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
+    """``talk``: both hands gesturing in two loops, the head nodding and turning; ``listen``:
+    hands clasped when standing, small nods."""
+    t, g, hands = body.t, spec.gesture, body.hands
+    p = _loop_period(duration, 2)
+    if g == "talk":
+        for side in (0, 1):
+            base = _keys(t % p, [0, 0.3 * p, 0.7 * p, p],
+                         [rest[side], body.anchor("talk", side), body.anchor("talk", side), rest[side]])
+            base[:, 0] += 0.05 * np.sin(2 * np.pi * 3 * t / p + side * 2)
+            base[:, 2] += 0.04 * np.sin(2 * np.pi * 2 * t / p + side)
+            weight = 0.5 + 0.5 * np.sin(2 * np.pi * t / duration + side * np.pi)
+            hands[:, side] = rest[side] + (base - rest[side]) * weight[:, None]
+        body.head[:, 0] += 0.06 * np.sin(2 * np.pi * 3 * t / duration)
+        body.head[:, 1] += 0.12 * np.sin(2 * np.pi * t / duration)
+    else:
+        if not body.seated:
+            for side in (0, 1):
+                hands[:, side] = body.anchor("clasp", side)
+        body.head[:, 0] += 0.05 + 0.06 * np.maximum(np.sin(2 * np.pi * 2 * t / duration), 0) ** 4
+
+
+def _handshake(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
+    """The right hand to the shake anchor, pumped, and back."""
+    t, hands = body.t, body.hands
+    side = 1
+    k = _keys(t, [0, 0.3 * duration, 0.75 * duration, duration],
+              [rest[side], body.anchor("shake", side), body.anchor("shake", side), rest[side]])
+    mid = (t > 0.3 * duration) & (t < 0.75 * duration)
+    env = np.sin(np.pi * (t[mid] - 0.3 * duration) / (0.45 * duration))
+    k[mid, 2] += 0.04 * env * np.sin(2 * np.pi * 2.5 * (t[mid] - 0.3 * duration))
+    hands[:, side] = k
+    body.spine[:, 0] += 0.08 * np.sin(np.pi * t / duration)
+
+
+def _hug(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
+    """Both hands to the hug anchors and back, elbows out; the head turned."""
+    t, hands = body.t, body.hands
+    for side in (0, 1):
+        hands[:, side] = _keys(t, [0, 0.3 * duration, 0.75 * duration, duration],
+                               [rest[side], body.anchor("hug", side), body.anchor("hug", side), rest[side]])
+        body.pole[:, side] = [-0.2, 1.0 if side == 0 else -1.0, -0.3]
+    body.spine[:, 0] += 0.12 * np.sin(np.pi * t / duration)
+    body.head[:, 1] += 0.35 * np.sin(np.pi * t / duration)
+
+
+_GESTURES: dict[str, Callable[[_Body, ActionSpec, float, list[NDArray[np.float64]]], None]] = {
+    "to_mouth": _to_mouth,
+    "to_mouth_both": _to_mouth,
+    "hold_chest": _hold_chest,
+    "type": _typing,
+    "reach": _reach,
+    "reach_low": _reach,
+    "wipe": _reach,
+    "write": _reach,
+    "carry": _reach,
+    "wave": _wave,
+    "talk": _talk_or_listen,
+    "listen": _talk_or_listen,
+    "handshake": _handshake,
+    "hug": _hug,
+}
+"""The hand / head motion of each gesture (``ActionSpec.gesture``; ``none``: head turns only)."""
+
+
 def _gesture(body: _Body, spec: ActionSpec, duration: float) -> None:
     """Write the spec's hand / head motion into ``body`` (time t in [0, duration))."""
-    t, g = body.t, spec.gesture
-    hands = body.hands
+    g = spec.gesture
     rest = [body.rest_hand(0), body.rest_hand(1)]
     if g == "none":
-        w = 2 * np.pi * t / duration
+        w = 2 * np.pi * body.t / duration
         body.head[:, 1] += 0.25 * np.sin(w)
         return
-    if g in ("to_mouth", "to_mouth_both"):
-        sides = (1,) if g == "to_mouth" else (1, 0)
-        span = duration / len(sides)
-        if g == "to_mouth_both":
-            for side in (0, 1):
-                hands[:, side] = body.anchor("chest", side) * [1, 0.5, 1]
-        for i, side in enumerate(sides):
-            t0 = i * span
-            hold = body.anchor("chest", side) * [1, 0.5, 1] if g == "to_mouth_both" else rest[side]
-            k = _keys(t, [t0, t0 + 0.25 * span, t0 + 0.45 * span, t0 + 0.65 * span, t0 + span],
-                      [hold, body.anchor("mouth", side), body.anchor("mouth", side), hold, hold])
-            active = (t >= t0) & (t <= t0 + span)
-            hands[active, side] = k[active]
-            body.head[active, 0] += -0.15 * np.sin(np.pi * (t[active] - t0) / span)
-        if g == "to_mouth_both":
-            hands[:, :, 2] = np.maximum(hands[:, :, 2], body.anchor("chest", 0)[2] - 0.1)
-        return
-    if g == "hold_chest":
-        for side in (0, 1):
-            hands[:, side] = body.anchor("chest", side) + np.array([0, 0, 0.02]) * np.sin(2 * np.pi * t / duration)[:, None]
-        hands[:, 1, 0] += 0.015 * np.sin(8 * np.pi * t / duration)  # thumb scrolling / page turning
-        body.head[:, 0] += 0.45
-        body.spine[:, 0] += 0.05
-        return
-    if g == "type":
-        for side in (0, 1):
-            hands[:, side] = body.anchor("type", side, spec.reach_height)
-            hands[:, side, 2] += 0.012 * np.abs(np.sin(2 * np.pi * 6 * t / duration + side * 1.3))
-            hands[:, side, 1] += 0.02 * np.sin(2 * np.pi * 2 * t / duration + side)
-        body.head[:, 0] += 0.25
-        body.spine[:, 0] += 0.12
-        return
-    if g in ("reach", "reach_low", "wipe", "write", "carry"):
-        h = spec.reach_height
-        side = 1
-        if g == "reach_low":
-            body.pelvis[:, 2] -= 0.12 * np.sin(np.pi * t / duration) ** 2
-            body.spine[:, 0] += 0.6 * np.sin(np.pi * t / duration) ** 2
-        target = body.anchor("tray" if g == "carry" else "reach", side, h)
-        start = body.anchor("tray", side) if g == "carry" else rest[side]
-        k = _keys(t, [0, 0.3 * duration, 0.7 * duration, duration], [start, target, target, rest[side]])
-        hands[:, side] = k
-        if g == "carry":
-            for s2 in (0, 1):
-                hands[:, s2] = _keys(t, [0, 0.35 * duration, 0.6 * duration, duration],
-                                     [body.anchor("tray", s2), body.anchor("reach", s2, h),
-                                      body.anchor("reach", s2, h), rest[s2]])
-        mid = (t > 0.3 * duration) & (t < 0.7 * duration)
-        u = (t[mid] - 0.3 * duration) / (0.4 * duration)
-        if g == "wipe":
-            hands[mid, side, 0] += 0.08 * np.sin(6 * np.pi * u)
-            hands[mid, side, 1] += 0.12 * np.sin(3 * np.pi * u)
-        elif g == "write":
-            hands[mid, side, 1] += (0.15 * u - 0.07) * np.sin(np.pi * u)
-            hands[mid, side, 2] += 0.03 * np.sin(10 * np.pi * u)
-        elif g == "reach":
-            hands[mid, side, 0] += 0.03 * np.sin(4 * np.pi * u)
-        body.head[:, 0] += 0.25 * np.sin(np.pi * t / duration) * (1.0 if h < 1.2 else -0.5)
-        body.spine[:, 0] += (0.25 if h < 0.95 else 0.05) * np.sin(np.pi * t / duration) ** 2
-        return
-    if g == "wave":
-        side = 1
-        k = _keys(t, [0, 0.3 * duration, 0.7 * duration, duration],
-                  [rest[side], body.anchor("wave", side), body.anchor("wave", side), rest[side]])
-        mid = (t > 0.3 * duration) & (t < 0.7 * duration)
-        env = np.sin(np.pi * (t[mid] - 0.3 * duration) / (0.4 * duration))
-        k[mid, 1] += 0.09 * env * np.sin(2 * np.pi * 1.8 * (t[mid] - 0.3 * duration))
-        hands[:, side] = k
-        raised = np.clip((k[:, 2] - rest[side][2]) / 0.5, 0, 1)[:, None]
-        body.pole[:, side] = (1 - raised) * body.pole[:, side] + raised * np.array([0.0, -1.0, -0.6])
-        return
-    if g in ("talk", "listen"):
-        p = _loop_period(duration, 2)
-        if g == "talk":
-            for side in (0, 1):
-                base = _keys(t % p, [0, 0.3 * p, 0.7 * p, p],
-                             [rest[side], body.anchor("talk", side), body.anchor("talk", side), rest[side]])
-                base[:, 0] += 0.05 * np.sin(2 * np.pi * 3 * t / p + side * 2)
-                base[:, 2] += 0.04 * np.sin(2 * np.pi * 2 * t / p + side)
-                weight = 0.5 + 0.5 * np.sin(2 * np.pi * t / duration + side * np.pi)
-                hands[:, side] = rest[side] + (base - rest[side]) * weight[:, None]
-            body.head[:, 0] += 0.06 * np.sin(2 * np.pi * 3 * t / duration)
-            body.head[:, 1] += 0.12 * np.sin(2 * np.pi * t / duration)
-        else:
-            if not body.seated:
-                for side in (0, 1):
-                    hands[:, side] = body.anchor("clasp", side)
-            body.head[:, 0] += 0.05 + 0.06 * np.maximum(np.sin(2 * np.pi * 2 * t / duration), 0) ** 4
-        return
-    if g == "handshake":
-        side = 1
-        k = _keys(t, [0, 0.3 * duration, 0.75 * duration, duration],
-                  [rest[side], body.anchor("shake", side), body.anchor("shake", side), rest[side]])
-        mid = (t > 0.3 * duration) & (t < 0.75 * duration)
-        env = np.sin(np.pi * (t[mid] - 0.3 * duration) / (0.45 * duration))
-        k[mid, 2] += 0.04 * env * np.sin(2 * np.pi * 2.5 * (t[mid] - 0.3 * duration))
-        hands[:, side] = k
-        body.spine[:, 0] += 0.08 * np.sin(np.pi * t / duration)
-        return
-    if g == "hug":
-        for side in (0, 1):
-            hands[:, side] = _keys(t, [0, 0.3 * duration, 0.75 * duration, duration],
-                                   [rest[side], body.anchor("hug", side), body.anchor("hug", side), rest[side]])
-            body.pole[:, side] = [-0.2, 1.0 if side == 0 else -1.0, -0.3]
-        body.spine[:, 0] += 0.12 * np.sin(np.pi * t / duration)
-        body.head[:, 1] += 0.35 * np.sin(np.pi * t / duration)
-        return
-    raise ValueError(f"no procedural gesture {g!r}")
+    write = _GESTURES.get(g)
+    if write is None:
+        raise ValueError(f"no procedural gesture {g!r}")
+    write(body, spec, duration, rest)
 
 
 def action_clip(label: str, *, seated: bool = False, seat_height: float = 0.46,
