@@ -90,8 +90,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--minutes and --every must be > 0")
 
     from benchmark.support.fake_openai_server import FakeOpenAI
-    from orchestrator.session.run_job import run_story, write_outputs
+    from orchestrator.session.run_job import run_story
     from orchestrator.session.run_manifest import RunArguments
+    from orchestrator.session.run_outputs import write_outputs
     from orchestrator.session.session_types import StoryEvent
     from sim.scene.bundled import load_bundled_scene
 

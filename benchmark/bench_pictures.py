@@ -40,7 +40,7 @@ from sim.export.video import animation_frames, mp4_available, save_run_animation
 from sim.paths.nav_grid import build_nav_grid
 from sim.scene.bundled import load_bundled_scene
 
-STRIDE = 10  # as orchestrator.session.run_job.write_outputs
+STRIDE = 10  # as orchestrator.session.run_outputs.write_outputs
 SPEED = 4.0
 
 

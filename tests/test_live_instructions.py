@@ -152,8 +152,8 @@ def test_a_resumed_session_keeps_the_instructions_already_applied(
 
 
 def test_resume_schedules_the_recorded_instructions_and_the_script_lines_not_yet_applied(tmp_path: Path) -> None:
-    from orchestrator.session.run_job import instructions_from_trace, scheduled_instructions
     from orchestrator.session.run_manifest import RunArguments
+    from orchestrator.session.run_setup import instructions_from_trace, scheduled_instructions
 
     args = RunArguments(scene="home", names=("Ava", "Ben"), duration=60.0, instructions=(
         ScriptLine(time_s=5.0, text="Ava sits"), ScriptLine(time_s=40.0, text="Ben waves")))

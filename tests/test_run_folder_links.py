@@ -168,7 +168,7 @@ def test_the_check_passes_a_folder_that_does_not_exist_yet_and_a_clean_one(finis
 def test_without_the_check_the_outputs_replace_planted_links(run_dir: Path, tmp_path: Path) -> None:
     """``write_outputs`` (what a run ends with; the API, no folder check): every file it writes
     replaces a link planted at its name, and the link's target is untouched."""
-    from orchestrator.session.run_job import write_outputs
+    from orchestrator.session.run_outputs import write_outputs
     from orchestrator.session.session_types import SessionResult
     from sim.scene.bundled import resolve_scene
     from sim.world.track_chunks import chunked_track

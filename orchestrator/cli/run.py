@@ -91,7 +91,7 @@ if TYPE_CHECKING:  # the session (simulation, planner) is imported by the comman
     from orchestrator.sandbox_worker import WorkerRunner
     from orchestrator.session.instruction_script import ScriptLine
     from orchestrator.session.run_manifest import RunArguments, RunManifest
-    from orchestrator.session.runtime import StoryEvent
+    from orchestrator.session.session_types import StoryEvent
     from orchestrator.session.terminal_prompt import TerminalPrompt
     from orchestrator.viewer.child import ViewerProcess
     from sim.scene.model import Scene
@@ -468,8 +468,10 @@ def _run_and_report(
     import sys
 
     from orchestrator.cli.live_view import terminal_view
-    from orchestrator.session.run_job import RunSetupError, StoryRun, run_story, write_outputs
+    from orchestrator.session.run_job import StoryRun, run_story
     from orchestrator.session.run_manifest import resume_command
+    from orchestrator.session.run_outputs import write_outputs
+    from orchestrator.session.run_setup import RunSetupError
 
     prompt = _typing_prompt(live, interactive)
     view = terminal_view(sys.stdout, stderr_is_terminal=sys.stderr.isatty(),
@@ -594,7 +596,10 @@ def _run_and_report(
 OUTPUT_MODULES = ("sim.export.bundle", "sim.export.video", "orchestrator.bodies.smplx_meshes")
 """Modules the outputs are written with at the end of a run: imported with the job's modules while
 the garbage collector is paused (``orchestrator.cli.collector``), not when the story is over."""
-JOB_MODULES = ("orchestrator.cli.live_view", "orchestrator.session.run_job", "orchestrator.session.run_manifest")
+JOB_MODULES = (
+    "orchestrator.cli.live_view", "orchestrator.session.run_job", "orchestrator.session.run_outputs",
+    "orchestrator.session.run_manifest",
+)
 """The job's own modules, imported the same way."""
 
 STOP_SIGNALS = (2, 15)  # SIGINT, SIGTERM (the same numbers on every POSIX system)

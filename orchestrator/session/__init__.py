@@ -1,6 +1,8 @@
 """The application logic of a story: the ``plan`` job (:mod:`~orchestrator.session.plan_job`,
 K graph steps without a simulation; the planning benchmark runs it too), the ``run`` job
-(:mod:`~orchestrator.session.run_job`), the roster and its world view
+(:mod:`~orchestrator.session.run_job`; what it reads and opens before the first frame in
+:mod:`~orchestrator.session.run_setup`, what it writes at the end in
+:mod:`~orchestrator.session.run_outputs`), the roster and its world view
 (:mod:`~orchestrator.session.roster`), opening the LLM port
 (:mod:`~orchestrator.session.port_setup`), the session runtime (simulation and planning in one
 anyio task group: :mod:`~orchestrator.session.runtime`; its data types in

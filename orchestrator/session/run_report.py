@@ -1,6 +1,6 @@
 """The files of a run folder a person reads: ``story.md`` and ``metrics.json``.
 
-:func:`story_markdown` renders ``story.json`` (:func:`orchestrator.session.run_job.story_json`)
+:func:`story_markdown` renders ``story.json`` (:func:`orchestrator.session.run_outputs.story_json`)
 as a short story in order: one paragraph per applied event with its simulated time, saying what
 the applied plan has the characters do (the event's ``text``, ``agents.story_text``), the
 narrator's own words only where they were checked to agree with the plan (``narration``), and

@@ -38,7 +38,7 @@ STREAM_FILE = STORY_STREAM
 
 
 class StoryEventRecord(BaseModel):
-    """One event of ``story.json``'s ``events`` (as :func:`~.run_job.story_json` writes it)."""
+    """One event of ``story.json``'s ``events`` (as :func:`~.run_outputs.story_json` writes it)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 

@@ -69,7 +69,7 @@ class _StoryModel(BaseModel):
 
 
 class StoryStep(_StoryModel):
-    """One planning step of ``story.json``'s ``steps`` (as ``run_job.story_json`` writes it)."""
+    """One planning step of ``story.json``'s ``steps`` (as ``run_outputs.story_json`` writes it)."""
 
     index: int = Field(ge=0)
     applied_frame: int | None = Field(default=None, ge=0)
