@@ -171,6 +171,31 @@ def matmul3(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float6
     return out
 
 
+@njit(cache=True, inline="always")
+def _place_on_root(real: NDArray[np.float64], aux: NDArray[np.float64], pos: NDArray[np.float64], r0: NDArray[np.float64],
+                   pelvis: NDArray[np.float64], contacts: NDArray[np.bool_], a: NDArray[np.float64]) -> None:
+    """One character of ``step_poses``: joint 0's rotation ``r0`` (3,3) turned in place by
+    rot_z(heading), the pelvis (frame ``aux[:3]`` + offset ``pos`` + seat correction) placed on
+    the root, and the frame's foot contacts; ``real``: heading, root x, root y, seat correction;
+    ``a``: a (3,3) scratch array."""
+    ch, sh = math.cos(real[0]), math.sin(real[0])
+    for c in range(3):
+        a[0, c] = _fma(0.0, r0[2, c], _fma(-sh, r0[1, c], ch * r0[0, c]))
+        a[1, c] = _fma(0.0, r0[2, c], _fma(ch, r0[1, c], sh * r0[0, c]))
+        a[2, c] = _fma(1.0, r0[2, c], _fma(0.0, r0[1, c], 0.0 * r0[0, c]))
+    for r in range(3):
+        for c in range(3):
+            r0[r, c] = a[r, c]
+    px = aux[0] + pos[0]
+    py = aux[1] + pos[1]
+    pz = aux[2] + pos[2] + real[3]
+    pelvis[0] = real[1] + (ch * px - sh * py)
+    pelvis[1] = real[2] + (sh * px + ch * py)
+    pelvis[2] = pz
+    contacts[0] = aux[3] != 0.0
+    contacts[1] = aux[4] != 0.0
+
+
 @njit(cache=True)
 def step_poses(
     off_rot: NDArray[np.float64], off_av: NDArray[np.float64], off_pos: NDArray[np.float64], off_vel: NDArray[np.float64],
@@ -238,23 +263,7 @@ def step_poses(
         for j in range(nj):
             _rotvec_to_matrix(out_rot[i, j, 0], out_rot[i, j, 1], out_rot[i, j, 2], e)
             _matmul3(e, store_rot[g, j], out_local[i, j])
-        ch, sh = math.cos(reals[i, 0]), math.sin(reals[i, 0])
-        r0 = out_local[i, 0]
-        for c in range(3):
-            a[0, c] = _fma(0.0, r0[2, c], _fma(-sh, r0[1, c], ch * r0[0, c]))
-            a[1, c] = _fma(0.0, r0[2, c], _fma(ch, r0[1, c], sh * r0[0, c]))
-            a[2, c] = _fma(1.0, r0[2, c], _fma(0.0, r0[1, c], 0.0 * r0[0, c]))
-        for r in range(3):
-            for c in range(3):
-                r0[r, c] = a[r, c]
-        px = store_aux[g, 0] + out_pos[i, 0]
-        py = store_aux[g, 1] + out_pos[i, 1]
-        pz = store_aux[g, 2] + out_pos[i, 2] + reals[i, 3]
-        out_pelvis[i, 0] = reals[i, 1] + (ch * px - sh * py)
-        out_pelvis[i, 1] = reals[i, 2] + (sh * px + ch * py)
-        out_pelvis[i, 2] = pz
-        out_contacts[i, 0] = store_aux[g, 3] != 0.0
-        out_contacts[i, 1] = store_aux[g, 4] != 0.0
+        _place_on_root(reals[i], store_aux[g], out_pos[i], out_local[i, 0], out_pelvis[i], out_contacts[i], a)
 
 
 @njit(cache=True, inline="always")
