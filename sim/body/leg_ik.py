@@ -193,6 +193,23 @@ def _hinge(kh: Vec3, ka: Vec3, e1: Vec3, n: Vec3, b_len: float, cos_knee: float,
     _rotation(n[0], n[1], n[2], phi1 - phi0, out)
 
 
+@njit(cache=True, inline="always")
+def _swing(a: Vec3, d: Vec3, n: Vec3, out: NDArray[np.float64]) -> None:  # pragma: no cover - compiled
+    """out = the swing of the leg about the hip from its direction ``a`` onto the target
+    direction ``d`` (unit vectors): the smallest rotation, or, when they are opposite, a half
+    turn about the hinge ``n`` (made normal to ``a``)."""
+    axis = _cross(a, d)
+    s = _norm3(axis)
+    c = min(max(_dot3(a, d), -1.0), 1.0)
+    if s < 1e-9 and c < 0.0:  # opposite: a half turn about the hinge
+        f = _sub(n, _scale(a, _dot3(n, a)))
+        fn = _norm3(f)
+        axis = _div(f, fn) if fn > 1e-9 else _perpendicular(a)
+    else:
+        axis = _div(axis, max(s, 1e-12))
+    _rotation(axis[0], axis[1], axis[2], math.atan2(s, c), out)
+
+
 @njit(cache=True)
 def _ik_kernel(hip: NDArray[np.float64], knee: NDArray[np.float64], ankle: NDArray[np.float64], pelvis_rot: NDArray[np.float64],
                hip_rot: NDArray[np.float64], knee_rot: NDArray[np.float64], ankle_rot: NDArray[np.float64], target: NDArray[np.float64],
@@ -260,17 +277,7 @@ def _ik_kernel(hip: NDArray[np.float64], knee: NDArray[np.float64], ankle: NDArr
         ankle1 = (kn[0] + bk[0], kn[1] + bk[1], kn[2] + bk[2])
         av = _sub(ankle1, hp)
         a = _div(av, max(_norm3(av), 1e-12))
-        # swing the leg about the hip onto the target direction (smallest rotation)
-        axis = _cross(a, d)
-        s = _norm3(axis)
-        c = min(max(_dot3(a, d), -1.0), 1.0)
-        if s < 1e-9 and c < 0.0:  # opposite: a half turn about the hinge
-            f = _sub(n, _scale(a, _dot3(n, a)))
-            fn = _norm3(f)
-            axis = _div(f, fn) if fn > 1e-9 else _perpendicular(a)
-        else:
-            axis = _div(axis, max(s, 1e-12))
-        _rotation(axis[0], axis[1], axis[2], math.atan2(s, c), swing)
+        _swing(a, d, n, swing)
         _matmul3(swing, hip_rot[m], new_hip)
         _matmul3(bend, knee_rot[m], tmp)
         _matmul3(swing, tmp, new_knee)
