@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, JsonValue
 
 from agents.area_fit import area_problems_by_table, fitting_kinds, region_choices, rule_areas
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
@@ -295,9 +295,10 @@ def regions_to_areas(naming: RegionNaming, inp: DescriberInput) -> AreaList:
     return AreaList(areas=tuple(Area(name=n, purpose=p, objects=tuple(o)) for n, p, o in grouped.values()))
 
 
-def _json_blob(text: str) -> Any:
+def _json_blob(text: str) -> JsonValue:
     start, end = text.find("{"), text.rfind("}")
-    return json.loads(text[start : end + 1] if 0 <= start < end else text)
+    value: JsonValue = json.loads(text[start : end + 1] if 0 <= start < end else text)
+    return value
 
 
 def load_areas(text: str, inp: DescriberInput | None = None) -> AreaList:

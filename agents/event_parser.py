@@ -17,11 +17,11 @@ import re
 import textwrap
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Protocol
 
 from agents.action_shortlist import suggested_action
 from agents.llm_port import ChatMessage, LLMPort, LLMRequest
-from agents.messages import CharacterStatus, Event, PlannedCharacter
+from agents.messages import CharacterStatus, Event, PlannedCharacter, ToolPlan
 from agents.place_phrases import plain_places
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, package_prompts
 from agents.retry_feedback import (
@@ -35,6 +35,8 @@ from agents.retry_feedback import (
 )
 from sim.motion.action_labels import ACTION_LABELS, ACTION_SPECS, playable_seated
 from sim.scene.model import Scene
+from tools.character_states import WorldView
+from tools.scene_graph import SceneGraph
 from tools.spatial_api import SpatialAPI, handle_methods
 
 PARSER_RETRY_INSTRUCTION = "feedback/code_again.md"
@@ -51,12 +53,12 @@ class ProgramRunner(Protocol):
         self,
         scene: Scene,
         source: str,
-        world: Any,
+        world: WorldView,
         *,
         seed: int,
         action_labels: Sequence[str] | None = None,
-        graph: Any = None,
-    ) -> Sequence[Any]: ...
+        graph: SceneGraph | None = None,
+    ) -> Sequence[ToolPlan]: ...
 
 
 def default_runner() -> ProgramRunner:
@@ -264,7 +266,7 @@ def extract_program(reply: str, prompts: PromptLibrary | None = None) -> str:
 
 
 def check_plans(
-    event: Event, plans: Sequence[Any], prompts: PromptLibrary | None = None
+    event: Event, plans: Sequence[ToolPlan], prompts: PromptLibrary | None = None
 ) -> tuple[PlannedCharacter, ...]:
     """Copy the program's plans; every event character, and no other, must have one (the
     problems are ``prompts/feedback/event_parser/*.md``)."""
@@ -304,10 +306,10 @@ def run_reply(
     *,
     scene: Scene,
     event: Event,
-    world: Any,
+    world: WorldView,
     seed: int,
     action_labels: Sequence[str],
-    graph: Any = None,
+    graph: SceneGraph | None = None,
     runner: ProgramRunner | None = None,
 ) -> ProgramResult:
     """Extract, run and check one reply. Raises the errors that become feedback."""
@@ -323,9 +325,9 @@ async def parse_event(
     inp: ParserInput,
     *,
     scene: Scene,
-    world: Any,
+    world: WorldView,
     seed: int,
-    graph: Any = None,
+    graph: SceneGraph | None = None,
     runner: ProgramRunner | None = None,
     max_retries: int = 3,
 ) -> Accepted[ProgramResult]:

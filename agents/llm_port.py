@@ -14,7 +14,7 @@ import json
 from collections.abc import Sequence
 from typing import Any, ClassVar, Literal, Protocol, runtime_checkable
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, JsonValue
 
 NodeName = Literal["describer", "narrator", "event_parser", "planner"]
 LLMErrorKind = Literal["llm_error", "llm_unavailable", "replay_miss"]
@@ -91,7 +91,7 @@ class TraceRecorder(Protocol):
     The orchestrator's trace sinks implement it (and more: attempt records, seq numbering)."""
 
     def record_parsed(
-        self, ref_seq: int, parsed_output: Any, *, node: NodeName | None = None,
+        self, ref_seq: int, parsed_output: JsonValue, *, node: NodeName | None = None,
         error_type: str | None = None, error_message: str | None = None,
     ) -> None:
         """The output accepted from attempt ``ref_seq``, or the error that rejected it

@@ -30,7 +30,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from pydantic import BaseModel
+from pydantic import BaseModel, JsonValue
 
 from agents.prompt_templates import PromptLibrary, package_prompts
 
@@ -64,36 +64,45 @@ def reply_schema(model: type[BaseModel], refine: Mapping[str, Refine] | None = N
     """The JSON schema of ``model`` for a request, with ``refine``'s per-call facts injected."""
     raw = model.model_json_schema(mode="validation")
     defs = raw.pop("$defs", {})
-    schema: dict[str, Any] = _strict(_inline(raw, defs), top=True)
+    schema: dict[str, Any] = _strict_object(_inline_object(raw, defs), top=True)
     for path, rule in (refine or {}).items():
         _apply(schema, path, rule)
     _check_bounded(schema, model.__name__)
     return schema
 
 
-def _inline(node: Any, defs: Mapping[str, Any]) -> Any:
+def _inline(node: JsonValue, defs: Mapping[str, dict[str, JsonValue]]) -> JsonValue:
     """``node`` with every ``$ref`` replaced by its definition (a class docstring, the
     definition's description, gives way to the referring field's own description)."""
     if isinstance(node, list):
         return [_inline(v, defs) for v in node]
     if not isinstance(node, dict):
         return node
+    return _inline_object(node, defs)
+
+
+def _inline_object(node: dict[str, JsonValue], defs: Mapping[str, dict[str, JsonValue]]) -> dict[str, JsonValue]:
     if "$ref" in node:
-        target = dict(defs[node["$ref"].rsplit("/", 1)[-1]])
+        target = dict(defs[str(node["$ref"]).rsplit("/", 1)[-1]])
         target.pop("description", None)
         rest = {k: v for k, v in node.items() if k != "$ref"}
-        return _inline({**target, **rest}, defs)
+        return _inline_object({**target, **rest}, defs)
     return {k: _inline(v, defs) for k, v in node.items()}
 
 
-def _strict(node: Any, *, top: bool = False) -> Any:
+def _strict(node: JsonValue) -> JsonValue:
     if isinstance(node, list):
         return [_strict(v) for v in node]
     if not isinstance(node, dict):
         return node
+    return _strict_object(node)
+
+
+def _strict_object(node: dict[str, JsonValue], *, top: bool = False) -> dict[str, JsonValue]:
     out = {k: _strict(v) for k, v in node.items() if k not in _DROPPED}
-    if out.get("type") == "object" and "properties" in out:
-        out["required"] = list(out["properties"])
+    properties = out.get("properties")
+    if out.get("type") == "object" and isinstance(properties, dict):
+        out["required"] = list(properties)
         out["additionalProperties"] = False
         if top:  # the reply model's own docstring is for developers
             out.pop("description", None)
@@ -150,7 +159,7 @@ def _pin(node: dict[str, Any], path: str, field: str, values: Sequence[str | int
     node["minItems"] = node["maxItems"] = len(values)
 
 
-def _check_bounded(node: Any, where: str) -> None:
+def _check_bounded(node: JsonValue, where: str) -> None:
     if isinstance(node, list):
         for v in node:
             _check_bounded(v, where)

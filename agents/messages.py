@@ -7,7 +7,7 @@ what an LLM sees in a JSON schema, so they are written for it.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from typing import Any, Literal
+from typing import Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -26,6 +26,7 @@ __all__ = [
     "PlannedCharacter",
     "PlanningFailure",
     "SceneDescription",
+    "ToolPlan",
 ]
 
 EventState = Literal["ongoing", "looping", "completed", "failed"]
@@ -130,6 +131,25 @@ class CharacterStatus(_Frozen):
     seat: str | None = Field(default=None, description="Seat object the character sits on.")
 
 
+class ToolPlan(Protocol):
+    """What an event-program runner returns per character: the fields of
+    :class:`~tools.character_states.CharacterPlan` that :meth:`PlannedCharacter.from_tool_plan`
+    reads (a runner may return its own objects with the same fields)."""
+
+    @property
+    def character(self) -> str: ...
+    @property
+    def action(self) -> str | None: ...
+    @property
+    def area(self) -> str | None: ...
+    @property
+    def position(self) -> Sequence[float]: ...
+    @property
+    def facing(self) -> Sequence[float]: ...
+    @property
+    def seat(self) -> str | None: ...
+
+
 class PlannedCharacter(_Frozen):
     """The event parser's result for one character: a copy of the tool's
     :class:`~tools.character_states.CharacterPlan` (kept as our own type so checkpoints and
@@ -143,17 +163,17 @@ class PlannedCharacter(_Frozen):
     seat: str | None = Field(default=None, description="Seat object, when sitting.")
 
     @classmethod
-    def from_tool_plan(cls, plan: Any) -> PlannedCharacter:
+    def from_tool_plan(cls, plan: ToolPlan) -> PlannedCharacter:
         """Copy a ``tools.event_program.CharacterPlan`` (or any object with the same fields)."""
         position = tuple(float(v) for v in plan.position)
         facing = tuple(float(v) for v in plan.facing)
         return cls(
             character=str(plan.character),
             action=str(plan.action) if plan.action is not None else "idle",
-            area=str(getattr(plan, "area", "") or ""),
+            area=str(plan.area or ""),
             position=(position[0], position[1]),
             facing=(facing[0], facing[1]),
-            seat=getattr(plan, "seat", None),
+            seat=plan.seat,
         )
 
 

@@ -27,11 +27,11 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from agents.action_shortlist import action_shortlist, posture
+from agents.messages import CharacterStatus
 from agents.relation_words import labels_about, stated_relations, without_relations
 from agents.shortlist import RELATIONS, event_shortlist, mentioned_labels, relation_areas
 from sim.motion.action_labels import playable_seated
@@ -191,13 +191,13 @@ class EventOptions:
 
 
 def free_seats(
-    scene: Scene, event_characters: Sequence[str], characters: Sequence[Any], seats_in_use: Sequence[str],
+    scene: Scene, event_characters: Sequence[str], characters: Sequence[CharacterStatus], seats_in_use: Sequence[str],
 ) -> list[str]:
     """The seats nobody outside the event holds or stands on: the sampler's own rule, a one-place
     seat nobody holds, or a slot of it (a couch has several) clear of everyone else by the
     minimum separation."""
     others = [c for c in characters if c.name not in event_characters]
-    taken = set(seats_in_use) | {c.seat for c in others if getattr(c, "seat", None)}
+    taken = set(seats_in_use) | {c.seat for c in others if c.seat}
     placed = np.array([c.position for c in others if c.position is not None], dtype=float).reshape(-1, 2)
 
     def free(obj: SceneObject) -> bool:
@@ -212,7 +212,7 @@ def free_seats(
 
 
 def event_options(
-    scene: Scene, event_characters: Sequence[str], characters: Sequence[Any],
+    scene: Scene, event_characters: Sequence[str], characters: Sequence[CharacterStatus],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
     context: str = "", action: str | None = None,
 ) -> EventOptions:
@@ -267,7 +267,7 @@ def idle_beside_a_thing(scene: Scene, activity: str, label: str) -> bool:
 
 
 def event_program_grammar(
-    scene: Scene, event_characters: Sequence[str], characters: Sequence[Any],
+    scene: Scene, event_characters: Sequence[str], characters: Sequence[CharacterStatus],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
     context: str = "", seat: str | None = None, action: str | None = None,
 ) -> str:
@@ -305,18 +305,18 @@ def event_program_grammar(
 
 
 def open_program_grammar(
-    scene: Scene, characters: Sequence[Any], seats_in_use: Sequence[str], action_labels: Sequence[str],
+    scene: Scene, characters: Sequence[CharacterStatus], seats_in_use: Sequence[str], action_labels: Sequence[str],
 ) -> str:
     """The grammar of the "w/o Event" planner's program: the same well-formed programs as an
     event's (:func:`program_grammar`) but with nothing an event would narrow: the model picks
     which free characters act (or ``pass``), any offered label, any object of the scene and any
     seat nobody holds, for one to three characters (an event's size in the narrator's rules).
     The ablation then measures what the event adds, not what the grammar does.
-    ``characters``: the roster (objects with ``name``, ``busy``, ``seat``)."""
-    free = [c.name for c in characters if not getattr(c, "busy", False)]
+    ``characters``: the roster."""
+    free = [c.name for c in characters if not c.busy]
     if not free:
         raise ValueError("nobody is free: there is no program to write")
-    taken = set(seats_in_use) | {c.seat for c in characters if getattr(c, "seat", None)}
+    taken = set(seats_in_use) | {c.seat for c in characters if c.seat}
     seat_names = {o.name for o in scene.objects if o.is_seat}
     objects = [o.name for o in scene.objects]
     return program_grammar(

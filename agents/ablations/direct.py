@@ -25,8 +25,10 @@ from agents.messages import CharacterStatus, Event
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.retry_feedback import Turn, retry_temperature, with_turns
 from sim.scene.model import Scene
+from tools.character_states import WorldView
 from tools.errors import BlockedPositionError
 from tools.position_sampling import MIN_SEPARATION, FloorMap
+from tools.scene_graph import SceneGraph
 from tools.scene_text import object_list_text
 
 
@@ -86,7 +88,7 @@ def direct_program(plans: DirectPlans, scene: Scene | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def blocked_positions(scene: Scene, world: Any, plans: DirectPlans, prompts: PromptLibrary | None = None) -> list[str]:
+def blocked_positions(scene: Scene, world: WorldView, plans: DirectPlans, prompts: PromptLibrary | None = None) -> list[str]:
     """Problems of the standing points of ``plans`` (checked before the program runs, so the
     feedback speaks of coordinates): inside furniture or too near the scene's edge, or closer
     than MIN_SEPARATION to another character (planned earlier in the same event, or anyone
@@ -96,7 +98,7 @@ def blocked_positions(scene: Scene, world: Any, plans: DirectPlans, prompts: Pro
     floor = FloorMap(scene)
     moving = {p.character for p in plans.plans}
     others: list[tuple[str, tuple[float, float]]] = []
-    for c in getattr(world, "characters", ()):
+    for c in world.characters:
         if c.name not in moving:
             others += [(c.name, pt) for pt in (c.position, c.target_position) if pt is not None]
     problems: list[str] = []
@@ -183,10 +185,10 @@ def check_direct_reply(
     *,
     scene: Scene,
     event: Event,
-    world: Any,
+    world: WorldView,
     seed: int,
     action_labels: Sequence[str],
-    graph: Any = None,
+    graph: SceneGraph | None = None,
     runner: ProgramRunner | None = None,
 ) -> ProgramResult:
     """Validate the coordinates, then run them as an event program. Raises the typed errors

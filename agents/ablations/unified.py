@@ -10,7 +10,6 @@ is a wait; naming a busy character is rejected with feedback.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 from agents.event_parser import ProgramRunner, check_plans, default_runner, extract_program
 from agents.llm_port import ChatMessage, LLMRequest
@@ -19,6 +18,8 @@ from agents.narrator import NarratorInput, characters_text, history_text
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.retry_feedback import AnswerRejectedError, Turn, retry_temperature, with_turns
 from sim.scene.model import Scene
+from tools.character_states import WorldView
+from tools.scene_graph import SceneGraph
 
 
 def unified_max_tokens(free: int) -> int:
@@ -70,10 +71,10 @@ def check_unified_reply(
     index: int,
     scene: Scene,
     characters: Sequence[CharacterStatus],
-    world: Any,
+    world: WorldView,
     seed: int,
     action_labels: Sequence[str],
-    graph: Any = None,
+    graph: SceneGraph | None = None,
     runner: ProgramRunner | None = None,
     prompts: PromptLibrary | None = None,
 ) -> ParsedEvent | None:

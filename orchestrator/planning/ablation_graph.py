@@ -45,6 +45,7 @@ from typing import Any, Literal
 
 from langgraph.graph import END, START, StateGraph
 from langgraph.runtime import Runtime
+from pydantic import JsonValue
 
 from agents.ablations.descriptions import object_list_description, scene_graph_description
 from agents.ablations.direct import check_direct_reply, direct_request
@@ -113,7 +114,7 @@ def preset_node(kind: DescriptionKind) -> NodeFn:
     return describe_scene
 
 
-def _plans_json(parsed: ParsedEvent | None) -> Any:
+def _plans_json(parsed: ParsedEvent | None) -> JsonValue:
     if parsed is None:
         return {"wait": True}
     return {"plans": [p.model_dump(mode="json") for p in parsed.plans], "program": parsed.program}

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 from typing import Any, Literal, Protocol, TypeVar
 
 import anyio.to_thread
@@ -93,7 +94,6 @@ from orchestrator.planning.action_node import choose_action
 from orchestrator.planning.rejection import record_parsed, rejected_reply
 from orchestrator.planning.seat_node import choose_seat
 from orchestrator.planning.state import PlanningDeps, PlanningState
-from tools.character_states import WorldView
 from tools.errors import ObjectInUseError
 
 NODES = (
@@ -128,7 +128,7 @@ async def complete(deps: PlanningDeps, request: LLMRequest, state: PlanningState
 
 
 # ----- nodes ------------------------------------------------------------------------------
-def _description_cache(deps: PlanningDeps) -> Any:
+def _description_cache(deps: PlanningDeps) -> Path | None:
     if deps.description_cache is None:
         return None
     return description_cache_file(deps.description_cache, deps.scene, deps.describer_model, deps.describer_mode, deps.prompts)
@@ -337,7 +337,7 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     event = state.event
     world = deps.world.world_view(state.roster)
     told = any(t.error == ObjectInUseError.__name__ for t in state.parser_turns)
-    if isinstance(world, WorldView) and (told or attempts > deps.max_retries):
+    if told or attempts > deps.max_retries:
         world = world.model_copy(update={"busy_objects": "wait"})  # told once, or no retry left: whoever is refused waits
     try:
         result = await off_loop(lambda: run_reply(
@@ -352,10 +352,9 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
         ))
     except REJECTIONS as exc:
         return rejected_reply(state, deps, "event_parser", reply, exc, instruction=PARSER_RETRY_INSTRUCTION)
-    plans = result.plans
-    if isinstance(world, WorldView):  # words about a device nobody leaves free: its characters wait for it
-        plans = waiting_for_busy_device(event_text(event.activity, state.part), plans, world, deps.scene,
-                                        event.characters)
+    # words about a device nobody leaves free: its characters wait for it
+    plans = waiting_for_busy_device(event_text(event.activity, state.part), result.plans, world, deps.scene,
+                                    event.characters)
     parsed = ParsedEvent(
         index=state.step,
         event=state.event,

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
+from pydantic import JsonValue
+
 from agents.messages import PlanningFailure
 from agents.retry_feedback import ANSWER_AGAIN, feedback_from_error
 from orchestrator.planning.state import PlanningDeps, PlanningState, RetryTurn
@@ -37,7 +39,7 @@ _ROLE: dict[TraceNode, Literal["describer", "narrator", "parser"]] = {
 
 def record_parsed(
     deps: PlanningDeps, seq: int | None, node: TraceNode,
-    parsed: Any = None, error: BaseException | None = None, feedback: str | None = None,
+    parsed: JsonValue = None, error: BaseException | None = None, feedback: str | None = None,
 ) -> None:
     """Record at trace seq ``seq`` what its reply parsed to, or the error that rejected it
     (its type and ``feedback``, else the error's text). No trace or no seq: nothing."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -35,6 +35,8 @@ from agents.retry_feedback import Turn
 from orchestrator.llm.traces import TraceSink
 from orchestrator.planning.checkpoints import StoryLog
 from sim.scene.model import Scene
+from tools.character_states import WorldView
+from tools.scene_graph import SceneGraph
 
 
 class RetryTurn(BaseModel):
@@ -127,11 +129,11 @@ class StepProgress(Protocol):
 class WorldProvider(Protocol):
     """Supplies the spatial API's view of the characters for the event program.
 
-    ``world_view`` returns the object ``tools.event_program.run_event_program`` takes as
+    ``world_view`` returns what ``tools.event_program.run_event_program`` takes as
     ``world``; ``seats_in_use`` names the seats taken (for the parser's prompt).
     """
 
-    def world_view(self, roster: Sequence[CharacterStatus]) -> Any: ...
+    def world_view(self, roster: Sequence[CharacterStatus]) -> WorldView: ...
 
     def seats_in_use(self, roster: Sequence[CharacterStatus]) -> list[str]: ...
 
@@ -155,7 +157,7 @@ class PlanningDeps:
     describer_mode: Literal["objects", "regions"] = "objects"
     """regions: the describer names numbered clusters instead of listing every object (small models)."""
     description_cache: Path | None = None
-    scene_graph: Any = None
+    scene_graph: SceneGraph | None = None
     """The scene graph handed to event programs (None: the tools build it)."""
     runner: ProgramRunner | None = None
     """Runs event programs (None: ``tools.event_program.run_event_program``)."""

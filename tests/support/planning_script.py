@@ -16,6 +16,7 @@ from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.state import PlanningDeps, PlanningState
 from sim.scene.model import Scene, SceneObject
 from tests.support.scripted_llm import ScriptedLLM
+from tools.character_states import WorldView
 from tools.errors import UnknownObjectError
 
 
@@ -55,7 +56,7 @@ class Plan:
 
 
 def fake_runner(
-    scene: Scene, source: str, world: Any, *, seed: int, action_labels: object = None, graph: object = None
+    scene: Scene, source: str, world: WorldView, *, seed: int, action_labels: object = None, graph: object = None
 ) -> list[Plan]:
     """Understands just enough: get_character("X") calls, unknown object names, actions."""
     for name in re.findall(r'"([a-z_]+_\d+)"', source):
@@ -69,8 +70,9 @@ def fake_runner(
 
 
 class FakeWorld:
-    def world_view(self, roster: Sequence[CharacterStatus]) -> Any:
-        return list(roster)
+    def world_view(self, roster: Sequence[CharacterStatus]) -> WorldView:
+        """Nobody: the fake runner reads no world, and no device is busy."""
+        return WorldView()
 
     def seats_in_use(self, roster: Sequence[CharacterStatus]) -> list[str]:
         return []
