@@ -299,11 +299,11 @@ class WorkerRunner:
         self,
         scene: Scene,
         source: str,
-        world: Any,
+        world: WorldView,
         *,
         seed: int,
         action_labels: Sequence[str] | None = None,
-        graph: Any = None,
+        graph: SceneGraph | None = None,
     ) -> list[CharacterPlan]:
         """Run ``source`` like ``run_event_program`` (``graph`` is unused: the worker keeps
         its own per scene)."""
@@ -316,7 +316,7 @@ class WorkerRunner:
             return self._run(scene, source, world, seed=seed, action_labels=action_labels)
 
     def _run(
-        self, scene: Scene, source: str, world: Any, *, seed: int, action_labels: Sequence[str] | None
+        self, scene: Scene, source: str, world: WorldView, *, seed: int, action_labels: Sequence[str] | None
     ) -> list[CharacterPlan]:
         key, scene_text = self._scene_key(scene)
         request: dict[str, Any] = {
