@@ -59,7 +59,15 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Protocol
 
 import structlog
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    JsonValue,
+    TypeAdapter,
+    ValidationError,
+    model_validator,
+)
 
 from agents.llm_port import LLMRequest, NodeName, TokenUsage, TraceRecorder
 from orchestrator.llm.config import FsyncPolicy
@@ -317,7 +325,7 @@ class NullTraceSink:
         return None
 
     def record_parsed(
-        self, ref_seq: int, parsed_output: Any, *, node: NodeName | None = None,
+        self, ref_seq: int, parsed_output: JsonValue, *, node: NodeName | None = None,
         error_type: str | None = None, error_message: str | None = None,
     ) -> None:
         return None
@@ -468,7 +476,7 @@ class TraceWriter:
                 self._synced_cv.notify_all()
 
     def record_parsed(
-        self, ref_seq: int, parsed_output: Any, *, node: NodeName | None = None,
+        self, ref_seq: int, parsed_output: JsonValue, *, node: NodeName | None = None,
         error_type: str | None = None, error_message: str | None = None,
     ) -> None:
         self.write(ParsedRecord(run_id=self.run_id, seq=self.next_seq(), time_unix=time.time(),
