@@ -58,7 +58,7 @@ def _with_steps(snapshot: bytes, value: bytes) -> bytes:
     at = payload.index(key) + len(key)
     assert payload[at:at + 1] == b"K"  # BININT1: the step count
     payload = payload[:at] + value + payload[at + 2:]
-    return b"storyteller-snapshot 5 sha256=%s\n" % hashlib.sha256(payload).hexdigest().encode() + payload
+    return b"storyteller-snapshot 6 sha256=%s\n" % hashlib.sha256(payload).hexdigest().encode() + payload
 
 
 @pytest.mark.parametrize(("value", "named"), [(b"\x8c\x04many", "str"), (b"N", "NoneType"), (b"]", "list")],

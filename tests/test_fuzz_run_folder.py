@@ -136,7 +136,7 @@ def _payload_without_frames(snapshot: bytes) -> bytes:
 def _with_header(payload: bytes) -> bytes:
     import hashlib
 
-    return b"storyteller-snapshot 5 sha256=%s\n" % hashlib.sha256(payload).hexdigest().encode() + payload
+    return b"storyteller-snapshot 6 sha256=%s\n" % hashlib.sha256(payload).hexdigest().encode() + payload
 
 
 _VALUE_OPS = frozenset({"BININT", "BININT1", "BININT2", "LONG1", "BINFLOAT", "SHORT_BINUNICODE", "BINUNICODE",

@@ -54,7 +54,7 @@ def test_a_replay_that_cannot_apply_a_recorded_reply_is_one_line_exit_2(run_dir:
 def test_a_refused_resume_leaves_the_folder_as_it_was(run_dir: Path) -> None:
     snapshot = run_dir / "session.snapshot"
     payload = b"\x80\x04\x95\x00cos\nsystem\n(S'true'\ntR."
-    snapshot.write_bytes(b"storyteller-snapshot 5 sha256=" + hashlib.sha256(payload).hexdigest().encode() + b"\n"
+    snapshot.write_bytes(b"storyteller-snapshot 6 sha256=" + hashlib.sha256(payload).hexdigest().encode() + b"\n"
                          + payload)
     before = _folder(run_dir)
     one_error_line(resume(run_dir), "session.snapshot")

@@ -188,7 +188,7 @@ def test_a_crafted_snapshot_is_one_line_on_resume_and_its_code_never_runs(run_di
 
     payload = pickle.dumps(Evil())
     digest = hashlib.sha256(payload).hexdigest().encode()
-    (run_dir / "session.snapshot").write_bytes(b"storyteller-snapshot 5 sha256=" + digest + b"\n" + payload)
+    (run_dir / "session.snapshot").write_bytes(b"storyteller-snapshot 6 sha256=" + digest + b"\n" + payload)
     one_error_line(resume(run_dir), str(run_dir / "session.snapshot"), "posix.system, which a checkpoint may not hold")
     assert not marker.exists()
 

@@ -93,7 +93,7 @@ def test_a_real_checkpoint_round_trips(checkpoint: tuple[World, SessionCheckpoin
     world, cp = checkpoint
     path = tmp_path / "session.snapshot"
     save_checkpoint(path, world, cp)
-    assert path.read_bytes().startswith(b"storyteller-snapshot 5 sha256=")
+    assert path.read_bytes().startswith(b"storyteller-snapshot %d sha256=" % snapshot_file._FORMAT)
     loaded = load_checkpoint(path, _world(home, motion))
     assert loaded.world.frame == cp.world.frame == 12
     assert np.array_equal(loaded.world.buffers.pelvis, cp.world.buffers.pelvis)
@@ -232,6 +232,24 @@ def test_a_model_with_a_forged_pydantic_slot_is_refused(checkpoint: tuple[World,
         load_checkpoint(path, _world(home, motion))
 
 
+@pytest.mark.parametrize(("attribute", "forged"), [("_rank", None), ("_since", 1.5), ("boost", "many")])
+def test_a_navigator_part_with_a_wrong_item_is_refused(checkpoint: tuple[World, SessionCheckpoint], home: Scene,
+                                                       motion: MotionMatcher, tmp_path: Path, attribute: str,
+                                                       forged: object) -> None:
+    """A plain class's attributes are checked item by item against the annotations of its own
+    ``__init__`` (found by the run-folder fuzzer: a None among the priority keeper's ranks passed
+    and stopped the resumed run in ``sorted`` with exit 1)."""
+    import copy
+
+    world, cp = checkpoint
+    snap = copy.deepcopy(cp.world, memo={id(o): o for o in world.shared_objects().values()})
+    keeper = snap.navigator.nav.keeper
+    getattr(keeper, attribute)["Ava"] = forged
+    path = write_snapshot(tmp_path / "session.snapshot", real_payload(world, dataclasses.replace(cp, world=snap)))
+    with pytest.raises(SnapshotError, match=f"PriorityKeeper whose attribute {attribute} is not"):
+        load_checkpoint(path, _world(home, motion))
+
+
 def test_a_checksum_mismatch_is_one_line(checkpoint: tuple[World, SessionCheckpoint], home: Scene,
                                          motion: MotionMatcher, tmp_path: Path) -> None:
     world, cp = checkpoint
@@ -255,9 +273,11 @@ def test_an_old_format_or_another_version_is_refused(checkpoint: tuple[World, Se
     with pytest.raises(SnapshotError, match="written by an older version, damaged, or not a checkpoint"):
         load_checkpoint(path, _world(home, motion))
     payload = real_payload(world, cp)
-    path.write_bytes(header(payload, fmt=6) + payload)
-    with pytest.raises(SnapshotError, match=r"not a session checkpoint of this version \(format 6, expected 5\)"):
-        load_checkpoint(path, _world(home, motion))
+    now = snapshot_file._FORMAT
+    for other in (now - 1, now + 1):  # the version before (its classes lived elsewhere) and a later one
+        path.write_bytes(header(payload, fmt=other) + payload)
+        with pytest.raises(SnapshotError, match=rf"not a session checkpoint of this version \(format {other}, expected {now}\)"):
+            load_checkpoint(path, _world(home, motion))
 
 
 def test_a_linked_fifo_or_oversized_snapshot_is_refused(checkpoint: tuple[World, SessionCheckpoint], home: Scene,

@@ -137,7 +137,7 @@ def deep_json(depth: int) -> str:
 
 def snapshot_with(payload: bytes) -> bytes:
     """A ``session.snapshot`` of the current format holding ``payload`` with its right checksum."""
-    return b"storyteller-snapshot 5 sha256=" + hashlib.sha256(payload).hexdigest().encode() + b"\n" + payload
+    return b"storyteller-snapshot 6 sha256=" + hashlib.sha256(payload).hexdigest().encode() + b"\n" + payload
 
 
 def zip_bomb_npz(name: str, gigabytes: float) -> bytes:

@@ -45,16 +45,19 @@ Every failure is a :class:`SnapshotError` with one line naming the file.
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import dataclasses
 import glob
 import hashlib
 import importlib
+import inspect
 import io
 import os
 import pickle
 import re
 import secrets
+import textwrap
 import types
 import typing
 from collections.abc import Hashable, Sequence
@@ -71,9 +74,10 @@ from sim.world.step import World
 from sim.world.track_chunks import ChunkStore
 
 SNAPSHOT_FILE = "session.snapshot"
-_FORMAT = 5  # 2: the checkpoint holds the session's instructions; 3: the world's motion is in the chunk files;
+_FORMAT = 6  # 2: the checkpoint holds the session's instructions; 3: the world's motion is in the chunk files;
 # 4: planning requests carry the summary of the events before their history (``earlier``);
-# 5: a header line (version, sha256 of the payload); arrays stored by _array / _scalar; read by an allowlist
+# 5: a header line (version, sha256 of the payload); arrays stored by _array / _scalar; read by an allowlist;
+# 6: the session's checkpoint types live in orchestrator.session.session_types (a 5 names them in .runtime)
 _MAGIC = b"storyteller-snapshot"
 _HEADER = re.compile(rb"storyteller-snapshot (\d{1,6}) sha256=([0-9a-f]{64})\n")
 _HEADER_MAX = 128  # bytes: the header line is shorter
@@ -535,8 +539,13 @@ def _check_plain_objects(objects: list[Any], templates: dict[type, Any] | None) 
         mine, theirs = vars(obj), vars(template)
         if set(mine) != set(theirs):
             raise SnapshotError(f"a {kind.__name__} with other attributes than its own")
+        hints = _init_hints(kind)
         for name, expected in theirs.items():
             value = mine[name]
+            if name in hints and not _fits(value, hints[name]):
+                raise SnapshotError(
+                    f"a {kind.__name__} whose attribute {name} is not {_hint_name(hints[name])}"
+                )
             if expected is None or value is None or type(value) is type(expected):
                 continue
             if _fits(value, float) and _fits(expected, float):
@@ -544,6 +553,41 @@ def _check_plain_objects(objects: list[Any], templates: dict[type, Any] | None) 
             raise SnapshotError(
                 f"a {kind.__name__} whose attribute {name} is a {type(value).__name__[:40]}, not {type(expected).__name__}"
             )
+
+
+_INIT_HINTS: dict[type, dict[str, Any]] = {}
+
+
+def _init_hints(kind: type) -> dict[str, Any]:
+    """The annotations a plain class gives its attributes in its own ``__init__``
+    (``self._rank: dict[Agent, float] = {}``), resolved in the class's module: so a checkpoint's
+    navigator or priority keeper is checked item by item, as a dataclass's fields are, and a
+    forged None among a dict's floats is refused at load instead of stopping the resumed run.
+    Read from the project's own source (never from the file); an annotation that does not
+    resolve at run time (a name imported for type checking only) is left to the template check.
+    Cached per class."""
+    if kind in _INIT_HINTS:
+        return _INIT_HINTS[kind]
+    found: dict[str, str] = {}
+    try:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(vars(kind)["__init__"])))
+    except (OSError, TypeError, SyntaxError, KeyError):  # no source (a frozen build) or no __init__ of its own: the template check only
+        tree = None
+    for node in ast.walk(tree) if tree is not None else ():
+        if not isinstance(node, ast.AnnAssign):
+            continue
+        target = node.target
+        if isinstance(target, ast.Attribute) and isinstance(target.value, ast.Name) and target.value.id == "self":
+            found[target.attr] = ast.unparse(node.annotation)
+    hints: dict[str, Any] = {}
+    for name, text in found.items():
+        holder = type("_Hint", (), {"__annotations__": {name: text}, "__module__": kind.__module__})
+        try:
+            hints[name] = typing.get_type_hints(holder)[name]
+        except (NameError, TypeError, AttributeError, SyntaxError):
+            continue
+    _INIT_HINTS[kind] = hints
+    return hints
 
 
 def _check_field_types(objects: list[Any]) -> None:
