@@ -10,10 +10,18 @@ Clearance rule (the guarantee): for every pair of agents and every step, the cen
 over the whole step never drops below ``min(2 * body_radius, distance at the step start)``.
 Hence agents that start apart (>= 2r) stay apart at every instant, including mid-move and
 during diagonal moves, and agents that start too close (e.g. placed by hand) never get closer.
-The rule is tabulated once over relative start offsets and relative velocities (cell units),
-which covers vertex, swap and following conflicts; an agent farther than ``2 + 2r / cell`` cells
-(Chebyshev) cannot conflict within one step. Stationary characters are discs at arbitrary
-positions; a move is forbidden for them by the same rule.
+When both agents move in the step their legs keep apart too: a walking body is its disc and a
+segment through its centre along its direction of travel, its feet reaching ``LEG_REACH_M``
+ahead and ``LEG_TRAIL_M`` behind, of radius ``LEG_RADIUS_M`` (``sim.paths.move_tables.
+striding_safe``: legs apart, legs clear of the other's hips, at instants of the step; a pair
+that starts closer gets no closer). With discs only, two walkers crossing at right angles 0.6 m
+apart touched thigh to thigh (the body-body overlap of ``benchmark.motion_metrics``); side by
+side they still pass at ``2 * body_radius``.
+The rule is tabulated once over relative start offsets and relative velocities (cell units;
+the legs' over offsets and both moves), which covers vertex, swap and following conflicts; an
+agent farther than ``2 + walking_distance / cell`` cells (Chebyshev) cannot conflict within
+one step. Stationary characters are discs at arbitrary positions; a move is forbidden for them
+by the disc rule.
 
 Planning pass (prioritized): agents plan one after another in a space-time A* over
 ``window`` steps against a reservation table of the agents planned before them (plain WHCA*).
@@ -56,7 +64,7 @@ from sim.paths.clearance import plan_conflicts, position_at, segment_distance
 from sim.paths.compiled_backend import CompiledPasses, PassRecord
 from sim.paths.fallback import failed_first
 from sim.paths.heuristics import GoalDistances
-from sim.paths.move_tables import Move, MoveTables
+from sim.paths.move_tables import LEG_RADIUS_M, LEG_REACH_M, Move, MoveTables
 from sim.paths.nav_grid import NavGrid
 from sim.paths.plan_types import BACKENDS, Agent, Backend, Cell, PlanningError
 from sim.paths.python_backend import PythonPasses
@@ -145,8 +153,10 @@ class PathPlanner:
         self.seed = int(seed)
         self.backend = backend
         self.min_distance = 2.0 * grid.body_radius  # metres between centres
+        # farthest centres whose bodies can touch: two discs, or two walkers' legs end to end
+        self.walking_distance = max(self.min_distance, 2.0 * (LEG_REACH_M + LEG_RADIUS_M))
         d_cells = self.min_distance / grid.cell_size
-        self.reach = int(math.ceil(d_cells + 2.0 - _EPS))  # Chebyshev distance that can conflict
+        self.reach = int(math.ceil(self.walking_distance / grid.cell_size + 2.0 - _EPS))  # can conflict
         self.tables = MoveTables(grid, self.reach, d_cells)
         self.statics = StaticBodies(self.tables, self.min_distance)
         self.distances = self._goal_distances(self.tables)

@@ -19,7 +19,8 @@ behind it would wait for good. ``detour_distance`` gives its remaining distance 
 
 Because positions are exactly the planner's piecewise-linear paths plus these legs, the
 clearance rule holds for these positions at every frame: walkers stay ``2 * body_radius``
-apart and bodies never touch a blocking footprint. Pure: the clock is the frame counter.
+apart (and their legs, while both move) and bodies never touch a blocking footprint. Pure:
+the clock is the frame counter.
 """
 
 from __future__ import annotations

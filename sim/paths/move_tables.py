@@ -15,15 +15,26 @@ memos of ``near_cells`` and ``near_masks`` (the latter shared by the planners of
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 
-from sim.paths.clearance import segment_min_norm
+from sim.paths.clearance import segment_distance, segment_min_norm
 from sim.paths.grid_moves import MOVES
 from sim.paths.nav_grid import NavGrid
 from sim.paths.plan_types import Cell
 
 WAIT_BIT = 1 << 6  # the move bit of waiting (move code 0)
+WAIT_CODE = 12  # the velocity code (dx + 2) * 5 + (dy + 2) of waiting
+STRIDE_SAMPLES = 17  # instants of a step at which two striding walkers are checked
+LEG_REACH_M = 0.38
+"""Metres a walking body's foot reaches ahead of (and behind) its pelvis along its direction of
+travel (the stride; crossing walkers touched feet and thighs with their pelvises 0.61-0.65 m
+apart)."""
+LEG_TRAIL_M = 0.3
+LEG_RADIUS_M = 0.07  # a leg's radius (the thigh's) in metres
+HIP_RADIUS_M = 0.17  # metres from the pelvis to the outside of a hip
+Move2 = tuple[int, int]
 # a move out of a cell: (next padded id, cost in cells, dx, dy, move code 5 * dx + dy)
 Neighbour = tuple[int, float, int, int, int]
 # the same move as the search sees it: (next padded id, cost in cells, move bit)
@@ -32,7 +43,9 @@ Move = tuple[int, float, int]
 
 class MoveTables:
     """The moves of ``grid`` and the clearance masks for agents within ``reach`` cells
-    (Chebyshev) of each other; ``d_cells``: the clearance distance (2 body radii) in cells."""
+    (Chebyshev) of each other; ``d_cells``: the clearance distance (2 body radii) in cells. Two
+    agents that both move in a step also keep their legs apart (``striding_safe``; see
+    ``sim.paths.cooperative_astar``); ``reach`` must cover their legs end to end."""
 
     def __init__(self, grid: NavGrid, reach: int, d_cells: float) -> None:
         self.grid = grid
@@ -42,7 +55,7 @@ class MoveTables:
         self.nx_p, self.ny_p = nx + 2 * self.pad, ny + 2 * self.pad
         self._build_neighbours()
         self._build_clearance_table(d_cells)
-        self._build_move_masks()
+        self._build_move_masks(striding_safe(reach - 1, d_cells, grid.cell_size))
         self._build_dense_tables()
 
     # ----- ids -----------------------------------------------------------------------------
@@ -94,21 +107,31 @@ class MoveTables:
                         closest = segment_min_norm(di, dj, wx, wy)
                         self.safe.append(closest >= min(d_cells, start) - 1e-7)
 
-    def _build_move_masks(self) -> None:
+    def _build_move_masks(self, striding: dict[tuple[int, int, Move2, Move2], bool]) -> None:
         """Search tables: per cell the moves as (next id, cost, move bit); per clearance-table
-        base (offset and the other's velocity) the bit mask of our moves it allows."""
+        base (offset and the other's velocity code ``base % 25``, ``WAIT_CODE`` when it waits)
+        the bit mask of our moves it allows: ``safe`` when one of the two waits, else
+        ``striding_safe`` (the walkers' strides)."""
         self.full_mask = sum(1 << (5 * dx + dy + 6) for dx in (-1, 0, 1) for dy in (-1, 0, 1))
         self.snbrs: dict[int, list[Move]] = {
             cid: [(nb[0], nb[1], 1 << (nb[4] + 6)) for nb in lst] for cid, lst in self.nbrs.items()
         }
+        rr = self.reach - 1
+        side = 2 * rr + 1
         safe = self.safe
         self.mask_of: list[int] = []
         for base in range(len(safe)):
+            block, code = divmod(base, 25)
             mask = 0
             for dx in (-1, 0, 1):
                 for dy in (-1, 0, 1):
                     k = base - (5 * dx + dy)
-                    if 0 <= k < len(safe) and k // 25 == base // 25 and safe[k]:
+                    if not (0 <= k < len(safe) and k // 25 == block):
+                        continue
+                    other = (code // 5 - 2, code % 5 - 2)  # a reserved agent's move is in -1..1
+                    key = (block // side - rr, block % side - rr, other, (dx, dy))
+                    ok = striding[key] if key in striding else safe[k]  # else: one of the two waits
+                    if ok:
                         mask |= 1 << (5 * dx + dy + 6)
             self.mask_of.append(mask)
         # shared by the planners of one grid (the masks depend only on the grid's cells and radius)
@@ -144,3 +167,47 @@ class MoveTables:
             out = [(cell, m) for cell, base in self.near_cells[a] if (m := mask_of[base + vel]) != full]
             self._near_mask_memo[key] = out
         return out
+
+
+@lru_cache(maxsize=8)
+def striding_safe(rr: int, d_cells: float, cell_size: float) -> dict[tuple[int, int, Move2, Move2], bool]:
+    """Whether two agents that both move in a step keep clear, per (di, dj, other's move, our
+    move) with the other at offset (di, dj) cells (Chebyshev <= ``rr``).
+
+    A walking body is its disc (``d_cells`` between centres, the rule of ``safe``) and its legs:
+    a segment through its centre along its own direction of travel, ``LEG_REACH_M`` ahead and
+    ``LEG_TRAIL_M`` behind (the swinging feet), of radius ``LEG_RADIUS_M``. The legs must keep ``2 *
+    LEG_RADIUS_M`` from the other's legs and ``LEG_RADIUS_M + HIP_RADIUS_M`` from the other's
+    centre (its hips), at ``STRIDE_SAMPLES`` instants of the step and at the closest approach of
+    the centres; a pair that starts closer than that gets no closer. Walkers side by side keep
+    the discs' distance; crossing walkers keep their feet apart."""
+    reach, leg, hip = LEG_REACH_M / cell_size, LEG_RADIUS_M / cell_size, HIP_RADIUS_M / cell_size
+    samples = np.linspace(0.0, 1.0, STRIDE_SAMPLES)
+    steps = [(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if (dx, dy) != (0, 0)]
+    offsets = [(di, dj) for di in range(-rr, rr + 1) for dj in range(-rr, rr + 1)]
+    p0 = np.asarray(offsets, dtype=np.float64)  # (K, 2)
+    n = len(samples) + 1
+    out: dict[tuple[int, int, Move2, Move2], bool] = {}
+    for other in steps:
+        a = np.asarray(other, dtype=np.float64)
+        for ours in steps:
+            b = np.asarray(ours, dtype=np.float64)
+            w = a - b
+            ww = float(w @ w)
+            closest = np.zeros(len(p0)) if ww == 0 else np.clip(-(p0 @ w) / ww, 0.0, 1.0)
+            s = np.concatenate([np.broadcast_to(samples, (len(p0), n - 1)), closest[:, None]], axis=1)  # (K, n)
+            p = (p0[:, None, :] + s[..., None] * w).reshape(-1, 2)  # the other's centre, ours at 0
+            ua, ub = reach * a / np.linalg.norm(a), reach * b / np.linalg.norm(b)
+            zero = np.zeros_like(p)
+            centres = np.linalg.norm(p, axis=1)
+            ta, tb = ua * (LEG_TRAIL_M / LEG_REACH_M), ub * (LEG_TRAIL_M / LEG_REACH_M)
+            legs = segment_distance(p - ta, p + ua, zero - tb, zero + ub)
+            our_legs = segment_distance(zero - tb, zero + ub, p, p)
+            their_legs = segment_distance(p - ta, p + ua, zero, zero)
+            ok = np.ones(len(p0), dtype=bool)
+            for value, need in ((centres, d_cells), (legs, 2.0 * leg), (our_legs, leg + hip), (their_legs, leg + hip)):
+                v = value.reshape(len(p0), n)
+                ok &= np.all(v >= np.minimum(need, v[:, :1]) - 1e-7, axis=1)
+            for (di, dj), good in zip(offsets, ok.tolist(), strict=True):
+                out[(di, dj, other, ours)] = good
+    return out
