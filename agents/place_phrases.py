@@ -15,7 +15,10 @@ The readers of an event's words (:mod:`agents.shortlist`, :mod:`agents.action_sh
 - "right" as an intensifier ("right next to", "right behind") is left out;
 - left and right are the thing's own (the spatial API's areas are); when the words say they are
   judged by someone facing the thing ("seen from the front", "for someone facing it"), they
-  are swapped.
+  are swapped;
+- a point partway along a way, ``from X to Y`` with a midpoint word in the sentence
+  ("halfway", "midway", "in the middle", "the midpoint"), becomes ``between X and Y`` (a
+  place between two things, to stand: not a trip to Y, nor a seat on it).
 
 Closed classes of English (possessives, side nouns, prepositions); no phrase from a case.
 Pure: no LLM, no I/O.
@@ -138,9 +141,39 @@ def _swap_sides(text: str) -> str:
                          for t in tokens if t.low in ("left", "right")])
 
 
+MIDPOINT_WORDS = frozenset({"halfway", "midway", "middle", "midpoint", "centre", "center", "mid"})
+"""Words that put a place partway along a way ("halfway from the door to the window")."""
+WAY_END_WORDS = 4
+"""Words the far end of a way may have ("the big green sofa")."""
+_CLAUSE_WORDS = frozenset({"and", "then", "where", "while", "before", "after", "so", "until", "when", "for", "to"})
+
+
+def _midpoints(text: str) -> str:
+    tokens = _tokens(text)
+    if not any(t.low in MIDPOINT_WORDS or (t.low == "half" and i + 1 < len(tokens) and tokens[i + 1].low == "way")
+               for i, t in enumerate(tokens)):
+        return text
+    edits: list[tuple[int, int, str]] = []
+    for i, t in enumerate(tokens):
+        if t.low != "from":
+            continue
+        to = next((k for k in range(i + 2, min(len(tokens), i + 2 + WAY_END_WORDS)) if tokens[k].low == "to"), None)
+        if to is None or any(not tokens[k].text.isalnum() and tokens[k].text != "_" for k in range(i + 1, to)):
+            continue
+        end = to + 1
+        while end < len(tokens) and end - to <= WAY_END_WORDS and (tokens[end].text.replace("_", "").isalnum()) \
+                and tokens[end].low not in _CLAUSE_WORDS:
+            end += 1
+        if end == to + 1:
+            continue
+        near, far = text[tokens[i + 1].start : tokens[to - 1].end], text[tokens[to + 1].start : tokens[end - 1].end]
+        edits.append((t.start, tokens[end - 1].end, f"between {near} and {far}"))
+    return _apply(text, edits)
+
+
 def plain_places(text: str) -> str:
-    """``text`` with the side phrases of the module docstring rewritten (names keep their case)."""
+    """``text`` with the place phrases of the module docstring rewritten (names keep their case)."""
     out = _without_intensifier(_without_parentheses(text.replace("\u2019", "'")))
     if any(phrase in " ".join(t.low for t in _tokens(out)) for phrase in VIEWER_FRAME):
         out = _swap_sides(out)
-    return _rewrite_sides(out)
+    return _midpoints(_rewrite_sides(out))

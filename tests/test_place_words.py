@@ -39,6 +39,9 @@ def test_a_label_s_own_words_stay_and_a_name_that_is_a_label_is_not_rewritten() 
     ("Seen from the front, Kim stands on the lamp's left.", ("get_area_right_of",)),  # the lamp's own right
     ("Kim waits on the lamp's right side (the left, as you look at it).", ("get_area_right_of",)),
     ("Kim waits right next to the lamp.", ("get_area_adjacent_to", "get_area_close_to")),
+    ("Midway from the lamp to the window, Kim pauses.", ("get_area_between",)),
+    ("Kim goes half way from the fridge to the big sink and waits.", ("get_area_between",)),
+    ("Kim rests at the midpoint of the path from the door to the stove.", ("get_area_between",)),
 ])
 def test_sides_of_things_name_one_area_function(text: str, areas: tuple[str, ...]) -> None:
     assert relation_areas(plain_places(text)) == areas
@@ -58,3 +61,10 @@ def test_waiting_on_a_bench_s_side_is_not_sitting_on_it_and_names_keep_their_cas
 def test_things_people_drink_and_eat_rank_the_action(text: str, label: str) -> None:
     ranked = rank_action_labels(text, ("idle", "chat", "eat", "drink", "use_laptop"))
     assert ranked and ranked[0].label == label
+
+
+def test_a_trip_from_one_thing_to_another_stays_a_trip_and_a_midpoint_is_a_place_to_stand() -> None:
+    assert plain_places("Kim walks from the door to the window and waits.") == "Kim walks from the door to the window and waits."
+    assert plain_places("Kim stands in the middle of the room.") == "Kim stands in the middle of the room."
+    assert plain_places("Halfway from the rug to the sofa, Kim listens.") == "Halfway between the rug and the sofa, Kim listens."
+    assert posture(plain_places("Kim waits halfway from the rug to the sofa.")) != "sit"
