@@ -393,7 +393,9 @@ def test_nothing_sent_is_lost_when_the_view_and_the_run_are_killed_and_started_a
 
     with FakeOpenAI(responder=directed) as fake:
         cfg = write_config(tmp_path, fake.base)
-        run = start([*RUN, "-d", "40", "--pace", "realtime", "--speed", "2", "--config", str(cfg), "--out", str(out)], log)
+        # 120 s of story at twice real time: a minute of wall time, so a busy machine's slow browser start
+        # cannot let the run end before the kill (it did with 40 s at load 5: the second line was refused)
+        run = start([*RUN, "-d", "120", "--pace", "realtime", "--speed", "2", "--config", str(cfg), "--out", str(out)], log)
         view = start(["view", str(out), "--port", "0"], view_log)
         (tmp_path / "profile").mkdir()
         try:
