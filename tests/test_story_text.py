@@ -200,6 +200,20 @@ def test_an_older_story_json_without_text_is_told_from_its_plans(tmp_path: Path)
     assert event_line(run.events[0], run.fps) == "  0.1 s  Ava sits on the couch and drinks."
 
 
+def test_a_story_json_with_a_wait_and_a_failed_step_opens_in_the_viewer(tmp_path: Path) -> None:
+    """The writer gives every step a ``text`` (a wait's too); the viewer's reader refused it as
+    an unknown key, so ``view`` and the motion benchmark stopped on any run that had waited."""
+    failure = PlanningFailure(index=1, node="event_parser", attempts=1, feedback="f", event=Event(characters=("Ava",)))
+    steps = [{"index": 0, "applied_frame": 3, "kind": "wait", "text": step_text(None)},
+             {"index": 1, "applied_frame": 9, "kind": "failed", "node": "event_parser", "feedback": "f",
+              "text": step_text(failure)}]  # fmt: skip
+    story = {"scene": "home", "characters": ["Ava"], "instruction": "", "fps": 30, "frames": 90, "steps": steps, "events": []}
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "story.json").write_text(json.dumps(story), encoding="utf-8")
+    assert load_run(folder).events == ()
+
+
 # ----- a recorded run whose narrator contradicts its plans ----------------------------------------
 COFFEE = (
     '```python\ndef parse_event():\n    a = get_character("Ava")\n'

@@ -79,6 +79,8 @@ class StoryStep(_StoryModel):
     characters: tuple[str, ...] = ()
     activity: str = ""
     plans: tuple[PlannedCharacter, ...] = ()
+    text: str = ""
+    """What the step tells a person (every kind has one since the story text is built from plans)."""
 
 
 class StoryInstruction(_StoryModel):
