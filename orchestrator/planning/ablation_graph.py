@@ -45,6 +45,7 @@ from typing import Any, Literal
 
 from langgraph.graph import END, START, StateGraph
 from langgraph.runtime import Runtime
+from langgraph.types import Checkpointer
 from pydantic import JsonValue
 
 from agents.ablations.descriptions import object_list_description, scene_graph_description
@@ -57,6 +58,7 @@ from agents.retry_feedback import REJECTIONS
 from orchestrator.planning import graph as planning_graph
 from orchestrator.planning.action_node import skip_action_choice
 from orchestrator.planning.graph import (
+    CompiledPlanningGraph,
     NodeFn,
     PlanningGraph,
     complete,
@@ -243,6 +245,6 @@ def build_graph(ablation: Ablation) -> PlanningGraph:
     return planning_graph.build_planning_graph(describe)
 
 
-def compile_graph(ablation: Ablation, checkpointer: Any = None, **kwargs: Any) -> Any:
+def compile_graph(ablation: Ablation, checkpointer: Checkpointer = None) -> CompiledPlanningGraph:
     """The compiled graph of ``ablation``."""
-    return build_graph(ablation).compile(checkpointer=checkpointer, **kwargs)
+    return build_graph(ablation).compile(checkpointer=checkpointer)

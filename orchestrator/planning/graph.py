@@ -57,7 +57,9 @@ from typing import Any, Literal, Protocol, TypeVar
 
 import anyio.to_thread
 from langgraph.graph import START, StateGraph
+from langgraph.graph.state import CompiledStateGraph
 from langgraph.runtime import Runtime
+from langgraph.types import Checkpointer
 
 from agents.bystanders import scene_now
 from agents.describer import (
@@ -496,6 +498,10 @@ class NodeFn(Protocol):
 
 
 PlanningGraph = StateGraph[PlanningState, PlanningDeps, PlanningState, PlanningState]
+CompiledPlanningGraph = CompiledStateGraph[PlanningState, PlanningDeps, Any, Any]
+"""The compiled planning graph. Its input and output are typed ``Any``: langgraph types them as
+the state model, but our callers pass a dict of state fields (``PlanningState.model_dump()``,
+or some of its fields to resume a thread) and the graph returns the state's values as a dict."""
 
 
 def build_planning_graph(
@@ -531,8 +537,8 @@ def build_planning_graph(
     return graph
 
 
-def compile_planning_graph(checkpointer: Any = None, **kwargs: Any) -> Any:
-    return build_planning_graph().compile(checkpointer=checkpointer, **kwargs)
+def compile_planning_graph(checkpointer: Checkpointer = None) -> CompiledPlanningGraph:
+    return build_planning_graph().compile(checkpointer=checkpointer)
 
 
 def recursion_limit(events: int, max_retries: int) -> int:

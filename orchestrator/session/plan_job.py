@@ -27,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from langchain_core.runnables import RunnableConfig
+
 from agents.event_parser import ProgramRunner, scene_action_labels
 from agents.llm_port import LLMPort
 from agents.messages import (
@@ -131,7 +133,7 @@ async def run_plan(
         program_grammar=program_grammar,
         runner=runner if runner is not None else own_runner,
     )
-    config = {"configurable": {"thread_id": thread_id}, "recursion_limit": recursion_limit(events, max_retries)}
+    config: RunnableConfig = {"configurable": {"thread_id": thread_id}, "recursion_limit": recursion_limit(events, max_retries)}
     try:
         async with open_checkpointer(runs_db) as saver:
             graph = compile_graph(ablation, saver)
