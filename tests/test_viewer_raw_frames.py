@@ -141,6 +141,8 @@ def viewer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Viewer]:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGINT)
         proc.wait(WAIT_S)
+        if proc.stdout is not None:  # the pipe's reader, or pytest reports it unclosed at exit (CI fails)
+            proc.stdout.close()
 
 
 def raw_frame(ws: Connection, opcode: Opcode, payload: bytes) -> None:
