@@ -228,6 +228,34 @@ def _companion_seats(area: Area, scene: Scene, c: Constraints) -> list[SeatSlot]
     return [best[0][3]] if best else []
 
 
+SEAT_EDGE_MARGIN = 0.05
+"""m: a seat point moved off other furniture stays this far inside the seat's own edges."""
+
+
+def _clear_seat_point(slot: SeatSlot, floor: FloorMap) -> tuple[float, float]:
+    """The slot's point, or, when it lies inside the footprint of other floor-standing furniture
+    (a stool pushed into a plant's leaves), the point of the seat's own footprint nearest to it
+    that is clear of all of them: nobody sits inside a plant. Kept when the whole seat is covered."""
+    seat = floor.scene.by_name.get(slot.seat)
+    p = np.array([slot.position], dtype=float)
+    others = [o for o in floor.obstacles if o.name != slot.seat]
+    if seat is None or all(float(point_footprint_distance(o, p)[0]) > 0.0 for o in others):
+        return slot.position
+    half_w, half_d = seat.width / 2.0 - SEAT_EDGE_MARGIN, seat.depth / 2.0 - SEAT_EDGE_MARGIN
+    if half_w <= 0.0 or half_d <= 0.0:
+        return slot.position
+    u, v = np.meshgrid(np.linspace(-half_w, half_w, 25), np.linspace(-half_d, half_d, 25))
+    grid = (seat.center_xy + u.reshape(-1, 1) * seat.right + v.reshape(-1, 1) * np.asarray(seat.facing))
+    clear = np.ones(len(grid), dtype=bool)
+    for o in others:
+        clear &= point_footprint_distance(o, grid) > 0.0
+    if not clear.any():
+        return slot.position
+    candidates = grid[clear]
+    best = candidates[int(np.argmin(np.linalg.norm(candidates - p, axis=1)))]
+    return (float(best[0]), float(best[1]))
+
+
 def _lattice(area: Area, scene: Scene, rng: np.random.Generator) -> NDArray[np.float64]:
     x0 = max(area.hint[0], scene.bounds_min[0])
     y0 = max(area.hint[1], scene.bounds_min[1])
@@ -274,7 +302,7 @@ def sample_position(
                 if near.any():
                     seats = [s for s, ok in zip(seats, near, strict=True) if ok]
             slot = seats[int(rng.integers(len(seats)))]
-            return Placement(slot.position, slot.seat, slot.facing)
+            return Placement(_clear_seat_point(slot, floor), slot.seat, slot.facing)
         if not area.free_region:
             names = sorted({s.seat for s in area.seats})
             raise UnsatisfiableAreaError(

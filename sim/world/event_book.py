@@ -147,7 +147,7 @@ def _body_points(target: StandTarget, a: Assignment | None, w: EventWorld) -> li
     cell = w.grid.center_of(*target.cell)
     out = [(float(cell[0]), float(cell[1])), (float(target.xy[0]), float(target.xy[1]))]
     if a is not None and a.seat is not None and a.seat in w.scene.by_name:
-        seat = np.asarray(seat_place(w.scene.by_name[a.seat], a.target_xy))
+        seat = np.asarray(seat_place(w.scene.by_name[a.seat], a.target_xy, w.scene))
         out += [(float(p[0]), float(p[1])) for p in seat_discs(np.asarray(target.xy, dtype=float), seat)[1:]]
     return out
 
@@ -162,7 +162,7 @@ def stand_target_for(w: EventWorld, c: CharacterState, a: Assignment,
     comp = int(g.component[here]) if g.is_free(*here) else g.main_component
     if a.seat is not None:
         obj = w.scene.by_name[a.seat]
-        target = w.targets.seated(w.navigator, obj, comp, seat_place(obj, a.target_xy), avoid)
+        target = w.targets.seated(w.navigator, obj, comp, seat_place(obj, a.target_xy, w.scene), avoid)
         if target is None:
             return None, f"{c.name} cannot reach a free cell in front of {a.seat}"
         return target, ""
@@ -391,7 +391,7 @@ def _begin_transition_in(w: EventWorld, c: CharacterState, yaw: float | None = N
     c.walker = False
     if a.seat is not None:
         seat = w.scene.by_name[a.seat]
-        c.seat_xy = np.asarray(seat_place(seat, a.target_xy), dtype=float)
+        c.seat_xy = np.asarray(seat_place(seat, a.target_xy, w.scene), dtype=float)
         w.navigator.make_stationary(c.name, seat_discs(c.anchor_xy, c.seat_xy))
     else:
         w.navigator.make_stationary(c.name, [c.anchor_xy])

@@ -30,7 +30,7 @@ import numpy as np
 from sim.paths.cooperative_astar import Cell, PathPlanner
 from sim.paths.following import Agent, CrowdNavigator, close_xy
 from sim.paths.nav_grid import ApproachPoint, NavGrid, NavGridError, body_clearance
-from sim.scene.model import SceneObject
+from sim.scene.model import Scene, SceneObject
 from sim.world.facing import REACH_M, REACH_SLACK_M, surface_distance
 from sim.world.phases import StandTarget, TargetFallback
 
@@ -164,12 +164,26 @@ REACH_SEARCH_M = 1.5  # metres off an object's footprint within which standing p
 SEAT_PLACE_WIDTH = 0.6  # metres of a seat's width one sitting body takes (a seat twice as wide seats several)
 
 
-def seat_place(obj: SceneObject, target_xy: Sequence[float]) -> tuple[float, float]:
-    """Where on ``obj`` a body sent to ``target_xy`` sits: the seat point of a one-place seat;
+def _covered(scene: Scene, obj: SceneObject, xy: np.ndarray) -> bool:
+    """Whether ``xy`` lies inside the footprint of floor-standing furniture other than ``obj``."""
+    return any(o.name != obj.name and abs(o.z_min - scene.floor_z) < FLOOR_STANDING_M and bool(o.contains_xy(xy))
+               for o in scene.objects)
+
+
+FLOOR_STANDING_M = 0.10  # metres: furniture whose bottom is this close to the floor stands on it
+
+
+def seat_place(obj: SceneObject, target_xy: Sequence[float], scene: Scene | None = None) -> tuple[float, float]:
+    """Where on ``obj`` a body sent to ``target_xy`` sits: on a one-place seat, its seat point, or
+    ``target_xy`` when that lies on the seat and other furniture of ``scene`` covers the seat point
+    (a stool pushed into a plant's leaves: the planner moves the point off it);
     on a seat wide enough for several (a couch), the point of its seat line nearest to
     ``target_xy`` (kept half a place inside the ends), so that two people share it side by side."""
     base = obj.seat_point()
     if obj.width < 2 * SEAT_PLACE_WIDTH:
+        target = np.asarray(target_xy, dtype=float)
+        if scene is not None and bool(obj.contains_xy(target)) and _covered(scene, obj, base):
+            return (float(target[0]), float(target[1]))
         return (float(base[0]), float(base[1]))
     half = obj.width / 2.0 - SEAT_PLACE_WIDTH / 2.0
     lateral = float(np.clip((np.asarray(target_xy, dtype=float) - base) @ obj.right, -half, half))
