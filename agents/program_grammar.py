@@ -77,6 +77,23 @@ def _choice(rule: str, names: Sequence[str]) -> str:
     return f"{rule} ::= " + " | ".join(_quoted(n) for n in dict.fromkeys(names))
 
 
+PAIR_RULE_MAX_OBJECTS = 24
+"""Up to this many objects, the two-object areas (``get_area_between``) take two different
+objects by grammar (one rule per first object, listing the others: quadratic in the objects);
+with more, any two, and the sandbox refuses the same object twice."""
+
+
+def _pair_rules(objects: Sequence[str]) -> list[str]:
+    """The rules ``objectpair ::= ...``, ``other1 ::= ...``...: two different objects, written
+    ``"a", "b"``; none (any two objects, rule ``object``) past :data:`PAIR_RULE_MAX_OBJECTS`."""
+    if len(objects) > PAIR_RULE_MAX_OBJECTS:
+        return []
+    firsts = [f"{_quoted(name)} {_literal(', ')} other{i}" for i, name in enumerate(objects, start=1)]
+    rules = ["objectpair ::= " + " | ".join(firsts)]
+    rules += [_choice(f"other{i}", [o for o in objects if o != name]) for i, name in enumerate(objects, start=1)]
+    return rules
+
+
 def program_grammar(
     event_characters: Sequence[str],
     objects: Sequence[str],
@@ -144,14 +161,17 @@ def program_grammar(
     one_object, two_objects, seat_area = area_functions()
     interact = "get_area_to_interact_with"
     use_interact_rule = interact_objects is not None and interact in one_object and list(interact_objects) != list(objects)
-    named = set(area_names) & {*one_object, *two_objects}
+    distinct = list(dict.fromkeys(objects))
+    named = set(area_names) & {*one_object, *(two_objects if len(distinct) >= 2 else ())}
     areas = [
         f"{_literal(fn + '(')} {'interactobject' if use_interact_rule and fn == interact else 'object'} {_literal(')')}"
         for fn in one_object
         if not (use_interact_rule and fn == interact and not interact_objects) and (not named or fn in named)
     ]
-    areas += [f"{_literal(fn + '(')} object {_literal(', ')} object {_literal(')')}" for fn in two_objects
-              if not named or fn in named]
+    pairs = _pair_rules(distinct) if len(distinct) >= 2 else []
+    pair = "objectpair" if pairs else f"object {_literal(', ')} object"
+    areas += [f"{_literal(fn + '(')} {pair} {_literal(')')}" for fn in two_objects
+              if len(distinct) >= 2 and (not named or fn in named)]
     if can_sit:
         lines.append(f"sitarea ::= {_literal(seat_area + '(')} seat {_literal(')')}")
         lines.append(_choice("seat", seats))
@@ -162,6 +182,7 @@ def program_grammar(
         lines.append(_choice("label", action_labels))
     lines.append("area ::= " + " | ".join(areas))
     lines.append(_choice("object", objects))
+    lines.extend(pairs)
     if use_interact_rule and interact_objects:
         lines.append(_choice("interactobject", interact_objects))
     if choose_characters:

@@ -349,3 +349,28 @@ def test_the_open_grammar_parses_in_llama_cpp() -> None:
     from llama_cpp import LlamaGrammar
 
     assert LlamaGrammar.from_string(open_program_grammar(SCENE, ROSTER, SEATS_IN_USE, LABELS), verbose=False) is not None
+
+
+def test_a_place_between_two_things_takes_two_different_things() -> None:
+    """``get_area_between`` over one thing twice is refused by the sandbox: the grammar does not
+    let the model write it (the 0.5B model had named one shelf twice), while any two different
+    things stay open, in either order; with one thing only, no two-thing area is offered."""
+    start, end = "```python\ndef parse_event():\n", "```"
+    g = program_grammar(("Ava",), ("bookshelf_1", "couch_1", "tv_1"), (), ("idle",))
+
+    def program(area: str) -> str:
+        return (start + f'    c1 = get_character("Ava")\n    c1.set_target_action("idle")\n'
+                f'    c1.set_position({area})\n    c1.set_orientation("tv_1")\n' + end)
+
+    def wait_between(a: str, b: str) -> str:
+        return program(f'get_area_between("{a}", "{b}")')
+
+    assert _admits(g, wait_between("bookshelf_1", "couch_1")) and _admits(g, wait_between("tv_1", "bookshelf_1"))
+    assert not _admits(g, wait_between("bookshelf_1", "bookshelf_1"))
+    assert not _admits(g, wait_between("tv_1", "tv_1"))
+    lone = program_grammar(("Ava",), ("tv_1",), (), ("idle",))
+    assert "get_area_between" not in lone and _admits(lone, program('get_area_close_to("tv_1")'))
+    pytest.importorskip("llama_cpp")
+    from llama_cpp import LlamaGrammar
+
+    assert LlamaGrammar.from_string(g, verbose=False) is not None
