@@ -36,7 +36,7 @@ async def choose_action(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     if not deps.program_grammar:
         return {}
     candidates = action_candidates(
-        event_text(event.activity, state.part), deps.action_labels, deps.scene.labels,
+        event_text(event.activity, state.part), deps.labels_now(state.recent), deps.scene.labels,
         context=event.activity if state.part else "",
     )
     if not candidates:

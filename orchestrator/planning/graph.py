@@ -288,11 +288,12 @@ def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
     part = state.part
     widen = any(t.error == "UnsatisfiableAreaError" for t in state.parser_turns)
     seat = None if widen else state.seat  # the chosen seat had no room: every free seat again
+    labels = deps.labels_now(state.recent)
     return ParserInput(
         scene_description=state.description.text,
         event=state.event,
         characters=state.roster,
-        action_labels=deps.action_labels,
+        action_labels=labels,
         tags=deps.tags,
         seats_in_use=deps.world.seats_in_use(state.roster),
         seed=deps.seed,
@@ -301,7 +302,7 @@ def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
         seat=seat,
         action=state.action,
         grammar=event_program_grammar(
-            deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), deps.action_labels,
+            deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), labels,
             activity=event_text(state.event.activity, part),
             widen=widen,
             context=state.event.activity if part else "",

@@ -30,6 +30,7 @@ from agents.messages import (
     PlanningFailure,
     SceneDescription,
 )
+from agents.object_states import unsettled_labels
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
 from agents.retry_feedback import Turn
 from orchestrator.llm.traces import TraceSink
@@ -172,6 +173,11 @@ class PlanningDeps:
 
     def trace_sink(self) -> TraceRecorder | None:
         return self.trace if self.trace is not None else self.port.trace
+
+    def labels_now(self, recent: Sequence[HistoryEntry]) -> tuple[str, ...]:
+        """The action labels an event may take after ``recent``: without the switch or door
+        label that would set a state the story already holds (:mod:`agents.object_states`)."""
+        return unsettled_labels(self.action_labels, recent, [o.label for o in self.scene.objects])
 
     def describer_input(self) -> DescriberInput:
         """The describer's input for the scene (built once per run)."""
