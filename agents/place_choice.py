@@ -33,7 +33,7 @@ from agents.llm_port import ChatMessage, LLMRequest
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.relation_words import (
     RelationMention,
-    back_reference,
+    back_references,
     joined_labels,
     stated_relations,
     without_relations,
@@ -152,13 +152,12 @@ def seat_candidates(
     """The candidates of an event whose words are ``text`` (see the module docstring);
     ``others``: where the characters outside the event are; ``before``: the instruction's words
     before ``text``, which a place word pointing back ("sits down there too") refers to when the
-    words state no relation of their own (:func:`agents.relation_words.back_reference`)."""
+    words state no relation of their own (:func:`agents.relation_words.back_references`)."""
     lib = prompts or package_prompts()
     by_name = {o.name: o for o in scene.objects}
     mentions = stated_relations(text, scene.labels, list(others))
-    if not mentions and before.strip():
-        pointed = back_reference(text, before, scene.labels, list(others))
-        mentions = [pointed] if pointed is not None else []
+    if not mentions:
+        mentions = back_references(text, before, scene.labels, list(others))
     about = without_relations(text, mentions, scene.labels)
     free = [by_name[s] for s in free_seats if s in by_name]
     short = event_shortlist(scene, about, [s.name for s in free], action_labels, others=others).seats
@@ -167,6 +166,8 @@ def seat_candidates(
     pool = [s for s in pool if s.label in kinds] or pool if kinds else pool
     landmarks = {r.name for m in mentions for g in _references(scene, m, others) for r in g}
     pool = [s for s in pool if s.name not in landmarks] or pool  # "beside the couch" is not the couch
+    at_things = tuple(label for label in mentioned_labels(about, scene.labels)
+                      if any(o.label == label and not o.is_seat and _sits_at(o) for o in scene.objects))
     relations: list[StatedRelation] = []
     for m in mentions:
         refs = _references(scene, m, others)
@@ -174,8 +175,10 @@ def seat_candidates(
             continue
         relation = StatedRelation(m.kind, refs)
         relations.append(relation)  # the seat meets it too: the chair at the table nearest X is near X
-        things = [  # "the table beside the couch": the relation picks among tables with a seat to take
-            o for o in scene.objects if o.label in m.subject and not o.is_seat
+        # "the table beside the couch", or a relation of its own about "a seat at the table" ("away
+        # from the bar, a seat at the most distant table"): the relation picks among the tables
+        things = [
+            o for o in scene.objects if o.label in (m.subject or at_things) and not o.is_seat
             and any(footprint_distance(s, o) <= CLOSE_M for s in pool)
         ]
         if things:

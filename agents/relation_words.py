@@ -87,7 +87,11 @@ def _first_thing(tokens: Sequence[str], labels: Sequence[str], names: Sequence[s
             return (f"@{word}",), k + 1
         found = mentioned_labels(" ".join(tokens[: k + 1]), labels)
         if found:
-            return tuple(found), k + 1
+            parts = {part for label in found for part in label.split("_")}
+            end = k + 1
+            while end < len(tokens) and tokens[end].lower() in parts:  # the rest of "bar counter"
+                end += 1
+            return tuple(found), end
     return None
 
 
@@ -172,40 +176,55 @@ BACK_REFERENCES = frozenset({"there"})
 comes over and sits down there too"), a closed class of English deixis."""
 EXISTENTIAL = frozenset({"is", "are", "was", "were", "be", "'s"})
 """Words after "there" that make it existential ("there is a free chair"), not a place."""
+SAME_OPENERS = frozenset({"the", "that", "this"})
+"""Words before "same" that make it point back ("at that same table", "the same sofa")."""
+POINTING_DETERMINERS = frozenset({"that", "this", "their"})
+"""Determiners that point back when a thing of the scene follows ("at that table", "their table")."""
 
 
-def points_back(text: str) -> bool:
-    """Whether ``text`` has a place word that points back (:data:`BACK_REFERENCES`, not existential)."""
-    lower = [t.lower() for t in _tokens(text)]
-    return any(t in BACK_REFERENCES and (i + 1 >= len(lower) or lower[i + 1] not in EXISTENTIAL)
-               for i, t in enumerate(lower))
+def _pointer(lower: Sequence[str], labels: Sequence[str]) -> int | None:
+    """Where the first word that points back is (see :func:`back_references`), or None."""
+    for i, t in enumerate(lower):
+        if t in BACK_REFERENCES and (i + 1 >= len(lower) or lower[i + 1] not in EXISTENTIAL):
+            return i
+        if t == "same" and i > 0 and lower[i - 1] in SAME_OPENERS:
+            return i
+        if t in POINTING_DETERMINERS and i + 1 < len(lower) and mentioned_labels(lower[i + 1], labels):
+            return i
+    return None
 
 
-def back_reference(text: str, before: str, labels: Sequence[str], names: Sequence[str] = ()) -> RelationMention | None:
-    """A ``near`` relation for a place word of ``text`` that points back (:data:`BACK_REFERENCES`)
-    to the clause ``before`` ends with (the instruction's words before ``text``): to the last
-    character of ``names`` it names ("Jalen sits at a table; Aino sits down there too": near
-    Jalen, whose table it is), else to the last object label it names. None when ``text`` has no
-    such word or that clause names nothing. The span is the place word's own (``text`` as read by
-    :func:`stated_relations`)."""
-    tokens = _tokens(joined_labels(text, labels))
-    lower = [t.lower() for t in tokens]
-    at = next((i for i, t in enumerate(lower) if t in BACK_REFERENCES
-               and (i + 1 >= len(lower) or lower[i + 1] not in EXISTENTIAL)), None)
-    if at is None:
-        return None
-    words = _tokens(joined_labels(before, labels))
+def points_back(text: str, labels: Sequence[str] = ()) -> bool:
+    """Whether ``text`` has a word that points back (see :func:`back_references`)."""
+    return _pointer([t.lower() for t in _tokens(joined_labels(text, labels))], labels) is not None
+
+
+def _last_clause(words: list[str]) -> list[str]:
     while words and not words[-1][0].isalnum():
         words.pop()
     cut = max((k for k, w in enumerate(words) if w in CLAUSE_MARKS), default=-1)
-    clause = words[cut + 1:]
-    named = [w.removesuffix("'s") for w in clause if w.removesuffix("'s") in names]
-    if named:
-        return RelationMention("near", ((f"@{named[-1]}",),), at, at + 1)
-    things = mentioned_labels(" ".join(clause), labels)
-    if things:
-        return RelationMention("near", ((things[-1],),), at, at + 1)
-    return None
+    return words[cut + 1:]
+
+
+def back_references(text: str, before: str, labels: Sequence[str], names: Sequence[str] = ()) -> list[RelationMention]:
+    """``near`` relations for a word of ``text`` that points back: the place word "there" (not
+    existential), "the / that / this same ...", or "that / this / their" before a thing of the
+    scene ("at that same table", "at their table"). What it points to: the characters of ``names``
+    that ``text`` names before it ("Seeing Kim and Lu at a table, Mo sits at that same table":
+    near Kim and near Lu, whose table it is), else those the clause ``before`` ends with (the
+    instruction's words before ``text``: "Kim is sitting at a table; Mo sits down there too"),
+    else the last object label that clause names. [] when ``text`` has no such word or nothing is
+    named. The span is the pointing word's own (``text`` as read by :func:`stated_relations`)."""
+    tokens = _tokens(joined_labels(text, labels))
+    at = _pointer([t.lower() for t in tokens], labels)
+    if at is None:
+        return []
+    for clause in (tokens[:at], _last_clause(_tokens(joined_labels(before, labels)))):
+        named = list(dict.fromkeys(w.removesuffix("'s") for w in clause if w.removesuffix("'s") in names))
+        if named:
+            return [RelationMention("near", ((f"@{name}",),), at, at + 1) for name in named]
+    things = mentioned_labels(" ".join(_last_clause(_tokens(joined_labels(before, labels)))), labels)
+    return [RelationMention("near", ((things[-1],),), at, at + 1)] if things else []
 
 
 CLAUSE_MARKS = frozenset({".", ";", "!", "?"})

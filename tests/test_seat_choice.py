@@ -18,7 +18,7 @@ from agents.place_choice import checked_choice, needs_model, seat_candidates, se
 from agents.prompt_templates import package_prompts
 from agents.relation_words import (
     RelationMention,
-    back_reference,
+    back_references,
     points_back,
     stated_relations,
     without_relations,
@@ -177,12 +177,12 @@ def test_opposite_a_character_is_the_seat_that_faces_them_squarely() -> None:
 
 
 def test_there_points_back_to_the_character_or_thing_the_clause_before_names() -> None:
-    assert back_reference("Mo sits down there too.", "Kim is sitting at the table; ", LABELS, ["Kim"]) == (
-        RelationMention("near", (("@Kim",),), 3, 4))
-    assert back_reference("Mo sits there.", "Kim waits. Then the fridge hums.", LABELS, ["Kim"]) == (
-        RelationMention("near", (("fridge",),), 2, 3))
-    assert back_reference("There is a free chair, Mo sits.", "Kim waits by the fridge.", LABELS, ["Kim"]) is None
-    assert back_reference("Mo sits down.", "Kim waits by the fridge.", LABELS, ["Kim"]) is None
+    assert back_references("Mo sits down there too.", "Kim is sitting at the table; ", LABELS, ["Kim"]) == [
+        RelationMention("near", (("@Kim",),), 3, 4)]
+    assert back_references("Mo sits there.", "Kim waits. Then the fridge hums.", LABELS, ["Kim"]) == [
+        RelationMention("near", (("fridge",),), 2, 3)]
+    assert back_references("There is a free chair, Mo sits.", "Kim waits by the fridge.", LABELS, ["Kim"]) == []
+    assert back_references("Mo sits down.", "Kim waits by the fridge.", LABELS, ["Kim"]) == []
     assert points_back("Mo sits down there too.") and not points_back("There is a chair; Mo sits.")
     kim_at = (5.5, 0.4)  # beside chair_4
     free = tuple(n for n in FREE if n != "couch_1")
@@ -191,6 +191,33 @@ def test_there_points_back_to_the_character_or_thing_the_clause_before_names() -
     assert pointed.allowed == ("chair_4",)
     # without the words before, nothing is stated: every chair is the model's to rank
     assert len(seat_candidates(ROOM, "Mo comes over and sits down there too.", free, {"Kim": kim_at}).allowed) == 4
+
+
+def test_the_same_thing_or_their_thing_points_back_to_the_characters_named_before_it() -> None:
+    """"Seeing Kim and Lu at a table, Mo sits at that same table": near both of them, so a seat
+    at their table (not one beside Lu at the next table); "their table" and "that table" alike;
+    a "that" before a word that is no thing of the scene points nowhere."""
+    names = ["Kim", "Lu"]
+    assert back_references("Seeing Kim and Lu at a table, Mo takes a free seat at that same table.", "", LABELS, names) == [
+        RelationMention("near", (("@Kim",),), 15, 16), RelationMention("near", (("@Lu",),), 15, 16)]
+    for text in ("Mo joins Kim and Lu at their table.", "Kim and Lu eat; Mo sits at that table too.",
+                 "Kim and Lu talk, and Mo takes the same sofa."):
+        assert [m.references for m in back_references(text, "", LABELS, names)] == [(("@Kim",),), (("@Lu",),)], text
+    assert points_back("Mo sits at their table.", LABELS) and points_back("the same chair")
+    assert not points_back("Mo sits on the chair that faces the TV.", LABELS) and not points_back("Mo sits at the table.", LABELS)
+    assert back_references("Mo takes the chair that faces Kim.", "", LABELS, names) == []
+    # Kim (chair_1) and Lu (chair_2) at table_1, chairs 3 and 4 free across it; chair_5 at table_2
+    two_tables = Scene(name="cafe", bounds_min=(-4.0, -4.0), bounds_max=(8.0, 4.0), objects=(
+        obj("table", 1, 0.0, 0.0, size=(2.0, 1.0, 0.75)), obj("table", 2, 4.0, 0.0, size=(1.0, 1.0, 0.75)),
+        obj("chair", 1, -0.5, -0.8, seat=True), obj("chair", 2, 0.5, -0.8, seat=True),
+        obj("chair", 3, -0.5, 0.8, seat=True, facing=(0.0, -1.0)), obj("chair", 4, 0.5, 0.8, seat=True, facing=(0.0, -1.0)),
+        obj("chair", 5, 4.0, -0.8, seat=True),
+    ))
+    at = {"Kim": (-0.5, -0.8), "Lu": (0.5, -0.8)}
+    free = ("chair_3", "chair_4", "chair_5")
+    pointed = seat_candidates(two_tables, "Seeing Kim and Lu at a table, Mo takes a free seat at that same table.", free, at)
+    assert pointed.allowed and set(pointed.allowed) <= {"chair_3", "chair_4"}
+    assert "chair_5" in seat_candidates(two_tables, "Mo takes a free seat at a table.", free, at).allowed
 
 
 def test_the_seat_prompt_quotes_the_instruction_up_to_the_part() -> None:

@@ -8,8 +8,9 @@ for the model to choose from (1 = decided by the scene)::
 
     PYTHONPATH=$PWD python benchmark/results/seat_choice_recall.py dev        # develop on this
     PYTHONPATH=$PWD python benchmark/results/seat_choice_recall.py dev -v     # one line per case
+    PYTHONPATH=$PWD python benchmark/results/seat_choice_recall.py ref-dev    # our cases on the authors' scenes
 
-Only ``dev`` prints case lines; ``test`` prints the counts alone (test is measured, not read).
+Only ``dev`` and ``ref-dev`` print case lines; ``test`` prints the counts alone (test is measured, not read).
 """
 
 from __future__ import annotations
@@ -22,26 +23,29 @@ from pathlib import Path
 from agents.place_choice import seat_candidates
 from agents.program_grammar import event_options
 from benchmark.reference_cases import load_cases, planning_inputs, scene_dir
+from orchestrator.reference_data import locate_reference
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
 
-POOL = Path(__file__).resolve().parents[1] / "cases" / "ours"
-SPLIT = Path(__file__).resolve().parents[1] / "own_cases" / "split.json"
+ROOT = Path(__file__).resolve().parents[1]
+POOLS = {"": (ROOT / "cases" / "ours", ROOT / "own_cases" / "split.json"),
+         "ref-": (ROOT / "cases" / "ours_ref", ROOT / "own_cases" / "split_ref.json")}
 _SIT = re.compile(r"^sit on ([a-z_]+_\d+)$")
 
 
 def recall(side: str, verbose: bool = False) -> str:
-    ids = set(json.loads(SPLIT.read_text(encoding="utf-8"))[side])
+    pool, split = POOLS["ref-" if side.startswith("ref-") else ""]
+    ids = set(json.loads(split.read_text(encoding="utf-8"))[side.removeprefix("ref-")])
     scenes: dict[str, Scene] = {}
     n = before = cand = allowed = decided = 0
-    for case in (c.at_level(2) for c in load_cases(str(POOL)) if c.id in ids):
+    for case in (c.at_level(2) for c in load_cases(str(pool)) if c.id in ids):
         if len(case.expected_plans) != 1:
             continue
         m = _SIT.match((case.expected_plans[0].relationships or "").strip())
         if m is None:
             continue
         if case.scene_name not in scenes:
-            scenes[case.scene_name] = load_scene(scene_dir(str(POOL), case))
+            scenes[case.scene_name] = load_scene(scene_dir(str(locate_reference().require()), case))
         scene = scenes[case.scene_name]
         inputs = planning_inputs(case, scene)
         who = case.expected_plans[0].character
@@ -53,7 +57,7 @@ def recall(side: str, verbose: bool = False) -> str:
         cand += want in seats.candidates
         allowed += want in seats.allowed
         decided += len(seats.allowed) == 1 and seats.allowed[0] == want
-        if verbose and side == "dev":
+        if verbose and side.endswith("dev"):
             print(f"{case.id}: want {want}; before {list(options.seats)}; allowed {list(seats.allowed)} "
                   f"of {len(seats.candidates)}; {case.user_instruction}")
     return (f"{side}: {n} one-seat cases; expected seat offered before {before}/{n}; candidate {cand}/{n}; "

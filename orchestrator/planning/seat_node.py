@@ -47,7 +47,7 @@ def event_seats(state: PlanningState, deps: PlanningDeps) -> SeatCandidates | No
     text = event_text(event.activity, state.part)
     seats_in_use = deps.world.seats_in_use(state.roster)
     options = event_options(
-        deps.scene, event.characters, state.roster, seats_in_use, deps.action_labels, activity=text,
+        deps.scene, event.characters, state.roster, seats_in_use, deps.labels_now(state.recent), activity=text,
         context=event.activity if state.part else "", action=state.action,
     )
     if not options.must_sit or not options.free_seats:
@@ -74,7 +74,7 @@ async def choose_seat(state: PlanningState, runtime: Runtime[PlanningDeps]) -> d
     assert state.event is not None
     request = seat_choice_request(
         deps.prompts, seats, state.event.characters[0], state.event.activity,
-        words_so_far(state.instruction, state.part) if points_back(state.part) else state.part,
+        words_so_far(state.instruction, state.part) if points_back(state.part, deps.scene.labels) else state.part,
         seed=deps.seed, sim_frame=state.sim_frame,
     )
     ranked = await ask_choice(deps, request)
