@@ -25,13 +25,18 @@ One scene object per graph node that carries geometry (``trimesh.load_scene`` +
 - **Seats.** Chairs, couches, benches and stools get seat offsets (``SEAT_RULES``).
 - **Bounds.** A mesh file of more than ``MAX_MESH_FILE_BYTES``, more than ``MAX_SCENE_OBJECTS``
   nodes with geometry, or a node name longer than ``MAX_NODE_NAME_CHARS`` is refused before it is
-  read further; names are parsed by a linear scan (no backtracking regular expression).
+  read further; names are parsed by a linear scan (no backtracking regular expression). What
+  the file declares (glTF nodes and accessors), the files it names (read within the folder and
+  the same byte limit; materials and textures never), the hierarchy's depth and the vertices of
+  all instances are bounded too (``sim.scene.mesh_limits``).
 """
 
 from __future__ import annotations
 
+import io
 import math
 import re
+import warnings
 from pathlib import Path
 from typing import Any, Literal
 
@@ -40,6 +45,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 from scipy.spatial import ConvexHull, QhullError
 
+from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.scene.errors import SceneFileError
 from sim.scene.model import MAX_SCENE_OBJECTS, Scene, SceneObject
 from sim.validation_text import problem_field, problem_message
@@ -138,37 +144,36 @@ def yaw_box(points_xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArra
 def _load_trimesh_scene(path: Path) -> Any:
     import trimesh
 
+    from sim.scene.mesh_limits import BoundedResolver, check_gltf_declarations, check_mesh_graph
+
     try:
-        size = path.stat().st_size
-    except OSError as exc:
-        raise SceneFileError(path, f"cannot read file ({exc.strerror or exc})") from None
-    if size == 0:
+        data = read_bounded_bytes(path, MAX_MESH_FILE_BYTES, str(path))
+    except BoundedFileError as exc:
+        raise SceneFileError(path, exc.problem) from None
+    if not data:
         raise SceneFileError(path, "file is empty")
-    if size > MAX_MESH_FILE_BYTES:
-        raise SceneFileError(path, f"file is {size} bytes, more than the {MAX_MESH_FILE_BYTES} allowed for a mesh scene")
-    if path.suffix.lower() == ".obj":
-        _check_obj_names(path)
+    suffix = path.suffix.lower()
+    if suffix == ".obj":
+        _check_obj_names(path, data)
+    if suffix in (".glb", ".gltf"):
+        check_gltf_declarations(path, data)
+    kwargs: dict[str, Any] = {"split_objects": True, "group_material": False} if suffix == ".obj" else {}
     try:
-        kwargs: dict[str, Any] = (
-            {"split_objects": True, "group_material": False}
-            if path.suffix.lower() == ".obj"
-            else {}
-        )
-        return trimesh.load_scene(str(path), **kwargs)
+        scene = trimesh.load_scene(io.BytesIO(data), file_type=suffix[1:], skip_materials=True,
+                                   resolver=BoundedResolver(path, MAX_MESH_FILE_BYTES), **kwargs)
     except SceneFileError:
         raise
     except Exception as exc:  # trimesh raises many types for malformed files
         raise SceneFileError(
             path, f"cannot read mesh file ({exc.__class__.__name__}: {exc})"
         ) from None
+    check_mesh_graph(path, scene.graph, scene.geometry)
+    return scene
 
 
-def _check_obj_names(path: Path) -> None:
+def _check_obj_names(path: Path, data: bytes) -> None:
     """OBJ objects with one name are merged by the reader: refuse them instead."""
-    try:
-        text = path.read_bytes().decode("utf-8", errors="replace")
-    except OSError as exc:
-        raise SceneFileError(path, f"cannot read file ({exc.strerror or exc})") from None
+    text = data.decode("utf-8", errors="replace")
     seen: set[str] = set()
     for line in text.splitlines():
         if line.startswith("o "):
@@ -181,8 +186,15 @@ def _check_obj_names(path: Path) -> None:
 
 
 def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = None) -> Scene:
-    """Load an instance-segmented mesh file as a ``Scene`` (rules in the module docstring)."""
-    path = Path(path)
+    """Load an instance-segmented mesh file as a ``Scene`` (rules in the module docstring).
+    numpy's and trimesh's warnings (overflow on a huge transform) are not printed: the
+    coordinates are checked and refused with one line instead."""
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")
+        return _mesh_scene(Path(path), up_axis)
+
+
+def _mesh_scene(path: Path, up_axis: Literal["y", "z"] | None) -> Scene:
     if not path.is_file():
         raise SceneFileError(path, "file not found")
     tm_scene = _load_trimesh_scene(path)

@@ -1,0 +1,144 @@
+"""What a mesh file may make trimesh do, checked before and while it is read (``sim.scene.meshes``).
+
+A mesh file is small on disk but can ask for much more: a glTF accessor declares how many items
+it holds and trimesh allocates that many (a bufferless accessor is zeros of any ``count``, a
+``byteStride`` of 1 reads a MAT4 per byte), a ``.gltf`` names other files for its buffers (a
+FIFO there hangs the reader, a sparse file of gigabytes fills memory), an OBJ names material
+libraries and textures, a node hierarchy thousands deep costs trimesh time quadratic in the
+depth for every transform, and one geometry instanced by 2,000 nodes is transformed 2,000 times.
+So:
+
+- :func:`check_gltf_declarations` reads the JSON part of a ``.glb`` / ``.gltf`` (the bytes
+  already read within ``MAX_MESH_FILE_BYTES``) with :func:`sim.bounded_files.load_bounded_json`
+  (nesting, number and key limits) and refuses more than :data:`MAX_MESH_NODES` nodes or
+  accessors declaring more than :data:`MAX_MESH_ARRAY_BYTES` in all, before trimesh builds
+  anything;
+- :class:`BoundedResolver` is the only way trimesh reaches another file: inside the mesh file's
+  folder (trimesh's own rule), a regular file (never a FIFO or a device), and all of them
+  together within ``MAX_MESH_FILE_BYTES`` (``sim.bounded_files.read_bounded_bytes``); materials
+  and textures are not read at all (the loader passes ``skip_materials``);
+- :func:`check_mesh_graph`, on the loaded scene graph, refuses a hierarchy deeper than
+  :data:`MAX_NODE_DEPTH` and geometry nodes holding more than :data:`MAX_MESH_VERTICES`
+  vertices in all (instances counted each time), in time linear in the nodes.
+
+Every refusal is a :class:`~sim.scene.errors.SceneFileError` naming the file.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+from trimesh.resolvers import Resolver
+
+from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
+from sim.scene.errors import SceneFileError
+
+MAX_MESH_NODES = 20_000
+"""Nodes a glTF file may declare (geometry or not; 10 per object allowed in a scene)."""
+MAX_MESH_ARRAY_BYTES = 256 * 1024 * 1024
+"""Bytes all accessors of a glTF file may declare together (4 x the largest mesh file)."""
+MAX_NODE_DEPTH = 64
+"""Levels of a mesh file's node hierarchy."""
+MAX_MESH_VERTICES = 4_000_000
+"""Vertices of all geometry nodes together, an instanced geometry counted once per node."""
+MAX_GLTF_JSON_DEPTH = 32
+"""Nesting of a glTF file's JSON (the format needs about 8)."""
+
+_COMPONENT_BYTES: dict[Any, int] = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+_TYPE_ITEMS: dict[Any, int] = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+
+
+def _gltf_json_bytes(path: Path, data: bytes) -> bytes:
+    if path.suffix.lower() != ".glb":
+        return data
+    if len(data) < 20 or data[:4] != b"glTF":
+        raise SceneFileError(path, "cannot read mesh file (not a GLB file: no 'glTF' header)")
+    (length,) = struct.unpack_from("<I", data, 12)
+    if data[16:20] != b"JSON" or length > len(data) - 20:
+        raise SceneFileError(path, "cannot read mesh file (its first chunk is not a JSON chunk within the file)")
+    return data[20 : 20 + length]
+
+
+def check_gltf_declarations(path: Path, data: bytes) -> None:
+    """Refuse a ``.glb`` / ``.gltf`` (its bytes ``data``) whose JSON declares more nodes or
+    accessor bytes than allowed, or cannot be read as bounded JSON."""
+    try:
+        doc = load_bounded_json(_gltf_json_bytes(path, data), MAX_GLTF_JSON_DEPTH, "JSON part")
+    except BoundedFileError as exc:
+        raise SceneFileError(path, str(exc)) from None
+    if not isinstance(doc, dict):
+        raise SceneFileError(path, "glTF JSON is not an object")
+    nodes = doc.get("nodes", [])
+    if isinstance(nodes, list) and len(nodes) > MAX_MESH_NODES:
+        raise SceneFileError(path, f"{len(nodes)} nodes, at most {MAX_MESH_NODES} allowed in a mesh file", field="nodes")
+    accessors = doc.get("accessors", [])
+    total = 0
+    for i, acc in enumerate(accessors if isinstance(accessors, list) else []):
+        if not isinstance(acc, dict):
+            continue
+        count = acc.get("count", 0)
+        if not isinstance(count, int) or isinstance(count, bool) or count < 0:
+            raise SceneFileError(path, f"count must be a whole number >= 0, got {count!r:.40}", field=f"accessors.{i}.count")
+        total += count * _COMPONENT_BYTES.get(acc.get("componentType"), 4) * _TYPE_ITEMS.get(acc.get("type"), 16)
+    if total > MAX_MESH_ARRAY_BYTES:
+        raise SceneFileError(path, f"accessors declare {total} bytes of data, more than the {MAX_MESH_ARRAY_BYTES} allowed",
+                             field="accessors")
+
+
+class BoundedResolver(Resolver):
+    """What trimesh reads the files a mesh file names (glTF buffers) through: names inside the
+    mesh file's folder only (trimesh's own rule), regular files only, ``budget`` bytes in all;
+    nothing is listed or written."""
+
+    def __init__(self, source: Path, budget: int) -> None:
+        self.folder = source.parent.resolve()
+        self.left = budget
+
+    def get(self, key: str) -> bytes:
+        path = (self.folder / str(key).strip()).resolve()
+        if not path.is_relative_to(self.folder):
+            raise ValueError(f"{str(key)[:80]!r} named by the mesh file is outside its folder")
+        data = read_bounded_bytes(path, max(self.left, 0), f"{str(key)[:80]!r} named by the mesh file")
+        self.left -= len(data)
+        return data
+
+    def write(self, name: str, data: Any) -> None:
+        raise ValueError("a mesh file is read, never written beside")
+
+    def namespaced(self, namespace: str) -> BoundedResolver:
+        raise ValueError("a mesh file may name files in its own folder only")
+
+    def keys(self) -> Iterator[str]:
+        return iter(())
+
+
+def check_mesh_graph(path: Path, graph: Any, geometry: Mapping[str, Any]) -> None:
+    """Refuse a loaded trimesh scene ``graph`` deeper than :data:`MAX_NODE_DEPTH` or whose
+    geometry nodes hold more than :data:`MAX_MESH_VERTICES` vertices in all."""
+    parents: Mapping[Any, Any] = graph.transforms.parents
+    depth: dict[Any, int] = {}
+    for node in parents:
+        chain: list[Any] = []
+        current = node
+        while current in parents and current not in depth:
+            if chain and current == node:
+                raise SceneFileError(path, "node hierarchy has a cycle", obj=str(node)[:40])
+            chain.append(current)
+            if len(chain) > MAX_NODE_DEPTH:
+                raise SceneFileError(path, f"node hierarchy deeper than {MAX_NODE_DEPTH} levels", obj=str(node)[:40])
+            current = parents[current]
+        base = depth.get(current, 0)
+        for k, n in enumerate(reversed(chain), start=1):
+            depth[n] = base + k
+        if depth.get(node, 0) > MAX_NODE_DEPTH:
+            raise SceneFileError(path, f"node hierarchy deeper than {MAX_NODE_DEPTH} levels", obj=str(node)[:40])
+    total = 0
+    for node in graph.nodes_geometry:
+        geom = geometry.get(str(graph.transforms.node_data[node].get("geometry")))
+        total += len(getattr(geom, "vertices", ()))
+        if total > MAX_MESH_VERTICES:
+            raise SceneFileError(path, f"geometry nodes hold more than {MAX_MESH_VERTICES} vertices in all "
+                                       "(an instanced geometry counts once per node)")
