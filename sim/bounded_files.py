@@ -11,8 +11,12 @@ scene, a trace) goes through two functions:
 - :func:`load_bounded_json` parses JSON text into plain Python values with a nesting depth of at
   most ``max_depth`` (deeper text is refused before a value is built from it, so no
   ``RecursionError`` reaches the caller), integers of at most :data:`MAX_INT_DIGITS` digits,
-  finite numbers only (``NaN``, ``Infinity`` and ``1e999`` are refused) and no key given twice
-  in one object (readers disagree on which value wins).
+  finite numbers only (``NaN``, ``Infinity`` and ``1e999`` are refused), no key given twice
+  in one object (readers disagree on which value wins) and at most :data:`MAX_OBJECT_KEYS` keys
+  in one object;
+- :func:`json_keys_exceed` tells, without parsing, whether a JSON text holds more keys than
+  allowed, for the readers that hand bytes straight to pydantic (a model that forbids unknown
+  keys builds one error per key: 1.2 million of them took 1.7 GB).
 
 Both raise :class:`BoundedFileError` whose ``str()`` is one line naming the file (``what``)
 and what was wrong; nothing else escapes them (``OSError``, ``UnicodeDecodeError``,
@@ -38,6 +42,9 @@ import numpy as np
 
 MAX_INT_DIGITS = 64
 """Digits of the longest integer :func:`load_bounded_json` accepts (a 64-bit seed has 20)."""
+
+MAX_OBJECT_KEYS = 10_000
+"""Keys of one JSON object at most (the project's files have tens; an LLM reply a few hundred)."""
 
 _READ_CHUNK = 1 << 20  # bytes per read() call
 _DEPTH_CHUNK = 1 << 22  # brackets per step of the depth scan (32 MiB of running depths)
@@ -119,6 +126,12 @@ def json_depth_exceeds(data: bytes, max_depth: int) -> bool:
     return False
 
 
+def json_keys_exceed(data: bytes, max_keys: int) -> bool:
+    """Whether the JSON text ``data`` holds more than ``max_keys`` keys in all (colons outside
+    strings). Linear in ``len(data)``; a text with no more colons than that is not scanned."""
+    return data.count(b":") > max_keys and _STRING.sub(b"", data).count(b":") > max_keys
+
+
 def load_bounded_json(data: bytes | str, max_depth: int, what: str) -> Any:
     """The JSON value in ``data`` (UTF-8 bytes, a BOM allowed, or text), nested at most
     ``max_depth`` deep, its integers at most :data:`MAX_INT_DIGITS` digits and its numbers
@@ -160,8 +173,11 @@ def _finite_float(text: str) -> float:
 
 
 def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    """An object whose keys are all different: a key given twice would let two readers of the
-    same file see two different values (the last one wins in Python, the first in others)."""
+    """An object whose keys are all different (a key given twice would let two readers of the
+    same file see two different values: the last one wins in Python, the first in others) and
+    at most :data:`MAX_OBJECT_KEYS` of them."""
+    if len(pairs) > MAX_OBJECT_KEYS:
+        raise _NumberError(f"an object of {len(pairs)} keys (at most {MAX_OBJECT_KEYS} allowed)")
     out = dict(pairs)
     if len(out) != len(pairs):
         seen: set[str] = set()

@@ -14,8 +14,10 @@ import pytest
 
 from sim.bounded_files import (
     MAX_INT_DIGITS,
+    MAX_OBJECT_KEYS,
     BoundedFileError,
     json_depth_exceeds,
+    json_keys_exceed,
     load_bounded_json,
     read_bounded_bytes,
 )
@@ -117,3 +119,22 @@ def test_depth_counts_brackets_outside_strings_only() -> None:
 def test_integers_up_to_the_limit_are_kept() -> None:
     big = "9" * MAX_INT_DIGITS
     assert load_bounded_json(f"[{big}, -{big}]", 2, "f") == [int(big), -int(big)]
+
+
+def test_an_object_of_too_many_keys_is_refused() -> None:
+    """Found by the hostile corpus: a story.json step of 1.2 million unknown keys took 1.2 GB and
+    ran past 8 s in the model's validation (one error built per key)."""
+
+    def keys(n: int) -> bytes:
+        return ("{" + ",".join(f'"k{i}":0' for i in range(n)) + "}").encode()
+
+    assert len(load_bounded_json(keys(MAX_OBJECT_KEYS), 4, "x")) == MAX_OBJECT_KEYS
+    with pytest.raises(BoundedFileError) as info:
+        load_bounded_json(keys(MAX_OBJECT_KEYS + 1), 4, "story.json")
+    one_line(info, "story.json", "keys")
+
+
+def test_keys_are_counted_outside_strings_only() -> None:
+    text = b'{"a": "' + b":" * 50 + b'", "b": {"c": 1}}'
+    assert not json_keys_exceed(text, 3)
+    assert json_keys_exceed(text, 2)

@@ -20,6 +20,7 @@ from orchestrator.llm.traces import (
     TraceWriter,
     read_trace,
 )
+from sim.bounded_files import MAX_OBJECT_KEYS
 from tests.support.trace_records import attempt
 
 REPO = Path(__file__).resolve().parents[1]
@@ -78,6 +79,16 @@ def test_invalid_record_shape_is_corruption(tmp_path: Path) -> None:
         read_trace(path)
     path.write_text('{"kind": "mystery", "run_id": "r", "seq": 0, "time_unix": 0}\n', encoding="utf-8")
     with pytest.raises(TraceCorruptError, match="line 1"):
+        read_trace(path)
+
+
+def test_a_record_of_too_many_keys_is_refused_before_validation(tmp_path: Path) -> None:
+    """Found by the hostile corpus: a record with 1.2 million unknown keys took 1.7 GB (one
+    validation error per key) before the one-line refusal."""
+    path = tmp_path / "t.jsonl"
+    extra = ",".join(f'"k{i}": 0' for i in range(MAX_OBJECT_KEYS + 1))
+    path.write_text('{"kind": "run", "run_id": "r", "seq": 0, "time_unix": 0, ' + extra + "}\n", encoding="utf-8")
+    with pytest.raises(TraceCorruptError, match=r"more than .* keys"):
         read_trace(path)
 
 

@@ -72,7 +72,12 @@ from pydantic import (
 from agents.llm_port import LLMRequest, NodeName, TokenUsage, TraceRecorder
 from orchestrator.llm.config import FsyncPolicy
 from orchestrator.llm.retry_policy import ErrorClass
-from sim.bounded_files import BoundedFileError, read_bounded_bytes
+from sim.bounded_files import (
+    MAX_OBJECT_KEYS,
+    BoundedFileError,
+    json_keys_exceed,
+    read_bounded_bytes,
+)
 from sim.no_follow_writes import open_append
 from sim.validation_text import problem_field, problem_message
 
@@ -242,6 +247,8 @@ class TraceContents:
 
 
 def _parse_line(path: Path, line_no: int, raw: bytes) -> TraceRecord:
+    if json_keys_exceed(raw, MAX_OBJECT_KEYS):  # before pydantic builds an error per unknown key
+        raise TraceCorruptError(path, line_no, f"more than {MAX_OBJECT_KEYS} keys in one record")
     try:
         return _RECORD_ADAPTER.validate_json(raw)
     except ValidationError as exc:

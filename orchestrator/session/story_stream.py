@@ -29,7 +29,12 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
-from sim.bounded_files import BoundedFileError, read_bounded_bytes
+from sim.bounded_files import (
+    MAX_OBJECT_KEYS,
+    BoundedFileError,
+    json_keys_exceed,
+    read_bounded_bytes,
+)
 from sim.no_follow_writes import open_append
 from sim.run_folder_names import STORY_STREAM
 from sim.validation_text import user_error
@@ -141,6 +146,8 @@ def read_story_stream(path: Path) -> tuple[StreamStart | None, tuple[StoryEventR
     events: dict[str, StoryEventRecord] = {}
     whole = data[: data.rfind(b"\n") + 1]
     for number, raw in enumerate(whole.splitlines(), start=1):
+        if json_keys_exceed(raw, MAX_OBJECT_KEYS):  # before pydantic builds an error per unknown key
+            raise StoryStreamError(f"{path}: line {number}: more than {MAX_OBJECT_KEYS} keys in one line")
         try:
             line = _LINE.validate_json(raw)
         except ValidationError as exc:

@@ -3,7 +3,7 @@
 ``read_json(path, layout)``: the file read only up to ``MAX_SCENE_FILE_BYTES``
 (``sim.bounded_files``: a regular file, never a device or a FIFO), UTF-8 text, nested at most ``MAX_SCENE_JSON_DEPTH``
 deep, no NaN / Infinity (nor numbers that overflow to infinity, nor integers over 300 digits),
-no duplicate keys. Every problem is a ``SceneFileError``; a non-finite number is reported with
+no duplicate keys, at most ``sim.bounded_files.MAX_OBJECT_KEYS`` keys in one object. Every problem is a ``SceneFileError``; a non-finite number is reported with
 the object holding it, named as the scene loaders (``sim.scene.files``) name objects.
 """
 
@@ -14,7 +14,12 @@ import math
 from pathlib import Path
 from typing import Any
 
-from sim.bounded_files import BoundedFileError, json_depth_exceeds, read_bounded_bytes
+from sim.bounded_files import (
+    MAX_OBJECT_KEYS,
+    BoundedFileError,
+    json_depth_exceeds,
+    read_bounded_bytes,
+)
 from sim.scene.errors import SceneFileError
 
 MAX_SCENE_FILE_BYTES = 16 * 1024 * 1024
@@ -153,6 +158,8 @@ def _locate(data: Any, loc: list[str | int], layout: str | None) -> tuple[str | 
 
 
 def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    if len(pairs) > MAX_OBJECT_KEYS:
+        raise _JsonValueError(f"an object of {len(pairs)} keys (at most {MAX_OBJECT_KEYS} allowed)")
     out: dict[str, Any] = {}
     for key, value in pairs:
         if key in out:
