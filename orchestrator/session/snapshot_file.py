@@ -206,6 +206,11 @@ def _resolve_classes() -> dict[tuple[str, str], type]:
     return out
 
 
+_PY_UNPICKLER: Any = pickle._Unpickler
+"""The pure-Python unpickler whose opcode methods (``load_reduce``...) the checks below call
+after their own: they are private and not in typeshed, so they are reached through ``Any``."""
+
+
 class _Unpickler(pickle._Unpickler):  # the Python unpickler: its opcodes can be checked one by one
     """Decodes only what :func:`load_checkpoint` admits (the module docstring lists it)."""
 
@@ -240,7 +245,7 @@ class _Unpickler(pickle._Unpickler):  # the Python unpickler: its opcodes can be
         func = self.stack[-2]
         if func is not _array and func is not _scalar:
             raise SnapshotError("the checkpoint calls something other than its array decoders")
-        pickle._Unpickler.load_reduce(self)  # type: ignore[attr-defined]  # pickle's pure-Python unpickler methods are private and unstubbed
+        _PY_UNPICKLER.load_reduce(self)
 
     def _new_instance(self, cls: Any, args: Any, kwargs: Any) -> None:
         if cls not in self._class_set or args != () or kwargs:
@@ -261,43 +266,43 @@ class _Unpickler(pickle._Unpickler):  # the Python unpickler: its opcodes can be
     def _load_build(self) -> None:
         if type(self.stack[-2]) not in self._class_set:
             raise SnapshotError("the checkpoint sets the state of an object it may not hold")
-        pickle._Unpickler.load_build(self)  # type: ignore[attr-defined]  # pickle's pure-Python unpickler methods are private and unstubbed
+        _PY_UNPICKLER.load_build(self)
 
     def _load_append(self) -> None:
         if type(self.stack[-2]) is not list:
             raise SnapshotError("the checkpoint appends to something other than a list")
-        pickle._Unpickler.load_append(self)  # type: ignore[attr-defined]  # pickle's pure-Python unpickler methods are private and unstubbed
+        _PY_UNPICKLER.load_append(self)
 
     def _load_appends(self) -> None:
         if type(self.metastack[-1][-1] if self.metastack else None) is not list:
             raise SnapshotError("the checkpoint appends to something other than a list")
-        pickle._Unpickler.load_appends(self)  # type: ignore[attr-defined]  # pickle's pure-Python unpickler methods are private and unstubbed
+        _PY_UNPICKLER.load_appends(self)
 
     def _load_setitem(self) -> None:
         if type(self.stack[-3]) is not dict:
             raise SnapshotError("the checkpoint sets an item of something other than a dict")
         _check_keys(self.stack[-2:-1])
-        pickle._Unpickler.load_setitem(self)  # type: ignore[attr-defined]  # pickle's pure-Python unpickler methods are private and unstubbed
+        _PY_UNPICKLER.load_setitem(self)
 
     def _load_setitems(self) -> None:
         if type(self.metastack[-1][-1] if self.metastack else None) is not dict:
             raise SnapshotError("the checkpoint sets items of something other than a dict")
         _check_keys(self.stack[::2])
-        pickle._Unpickler.load_setitems(self)  # type: ignore[attr-defined]  # pickle's pure-Python unpickler methods are private and unstubbed
+        _PY_UNPICKLER.load_setitems(self)
 
     def _load_dict(self) -> None:
         _check_keys(self.stack[::2])
-        pickle._Unpickler.load_dict(self)  # type: ignore[attr-defined]  # pickle's pure-Python unpickler methods are private and unstubbed
+        _PY_UNPICKLER.load_dict(self)
 
     def _load_additems(self) -> None:
         if type(self.metastack[-1][-1] if self.metastack else None) is not set:
             raise SnapshotError("the checkpoint adds items to something other than a set")
         _check_keys(self.stack)
-        pickle._Unpickler.load_additems(self)  # type: ignore[attr-defined]  # pickle's pure-Python unpickler methods are private and unstubbed
+        _PY_UNPICKLER.load_additems(self)
 
     def _load_frozenset(self) -> None:
         _check_keys(self.stack)
-        pickle._Unpickler.load_frozenset(self)  # type: ignore[attr-defined]  # pickle's pure-Python unpickler methods are private and unstubbed
+        _PY_UNPICKLER.load_frozenset(self)
 
 
 def _check_keys(keys: list[Any]) -> None:
