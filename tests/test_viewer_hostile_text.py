@@ -243,3 +243,23 @@ def test_a_hostile_live_json_is_one_note_and_the_panels_stay(tmp_path: Path) -> 
         assert app.panels.live is None and app.panels.run_status.content.startswith("**Run**")
     finally:
         app.stop()
+
+
+def test_a_huge_live_json_is_refused_unread(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Found by the hostile corpus: a sparse 3 GB live.json was read whole (``Path.read_bytes``)
+    by every poll of ``storyteller view`` (4.2 GB RSS); now its size is refused and said in the note."""
+    _manifest(tmp_path / "run")
+    with open(tmp_path / "run" / "live.json", "wb") as f:
+        f.truncate(3 << 30)  # sparse: nothing on disk
+    app = ViewerApp(tmp_path / "run", port=0)
+    try:
+
+        def read_whole(self: Path) -> bytes:
+            raise AssertionError(f"{self} read whole")
+
+        monkeypatch.setattr(Path, "read_bytes", read_whole)
+        app.panels.poll_live()
+        monkeypatch.undo()
+        assert "more than" in app.panels.note.content and app.panels.live is None, app.panels.note.content
+    finally:
+        app.stop()

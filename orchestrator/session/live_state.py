@@ -179,16 +179,26 @@ class LivePublisher:
             await anyio.sleep(every_s)
 
 
-def read_live_state(folder: Path) -> LiveState | None:
-    """``folder``'s ``live.json`` (None when there is none yet); ``ValueError`` with one line
-    naming the file when it is not one (too big, not a regular file, not the model)."""
+def read_live_bytes(folder: Path) -> bytes | None:
+    """The bytes of ``folder``'s ``live.json`` (None when there is none yet), read within
+    :data:`MAX_LIVE_BYTES`; ``ValueError`` with one line naming the file when it is too big or
+    not a regular file."""
     path = folder / LIVE_FILE
     try:
-        raw = read_bounded_bytes(path, MAX_LIVE_BYTES, str(path))
+        return read_bounded_bytes(path, MAX_LIVE_BYTES, str(path))
     except BoundedFileError as exc:
         if exc.missing:
             return None
         raise ValueError(str(exc)) from None
+
+
+def read_live_state(folder: Path) -> LiveState | None:
+    """``folder``'s ``live.json`` (None when there is none yet); ``ValueError`` with one line
+    naming the file when it is not one (too big, not a regular file, not the model)."""
+    path = folder / LIVE_FILE
+    raw = read_live_bytes(folder)
+    if raw is None:
+        return None
     try:
         return LiveState.model_validate_json(raw)
     except ValidationError as exc:

@@ -34,7 +34,7 @@ import numpy as np
 import viser
 
 from orchestrator.safe_text import markdown
-from orchestrator.session.live_state import LIVE_FILE, LiveState, read_live_state
+from orchestrator.session.live_state import LiveState, read_live_bytes, read_live_state
 from orchestrator.session.run_manifest import ManifestError, read_manifest
 from orchestrator.session.run_report import story_markdown
 from orchestrator.session.viewer_controls import CONTROLS_FILE, ControlKind, send_control
@@ -213,11 +213,10 @@ class DirectorPanels:
 
     def poll_live(self) -> None:
         """Read ``live.json`` when it changed and show it."""
-        path = self.folder / LIVE_FILE
-        try:
-            raw = path.read_bytes() if path.is_file() else None
-        except OSError:
-            raw = None
+        try:  # within live.json's cap: a planted 3 GB file was read whole on every poll
+            raw = read_live_bytes(self.folder)
+        except ValueError as exc:
+            raw = str(exc).encode()  # changed: read_live_state below says what is wrong
         ended = (self.folder / STORY_FILE).exists()
         with self.lock:
             if raw is not None and raw != self._live_raw:
