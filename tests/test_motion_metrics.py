@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -45,7 +46,7 @@ from sim.body.skeleton import (
     forward_kinematics,
     heading_to_root,
 )
-from sim.scene.model import Scene, SceneObject
+from sim.scene.model import Scene, SceneObject, Vec2, Vec3
 
 
 def rest_joints(frames: int = 1, xy: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
@@ -66,13 +67,19 @@ def sliding_feet(frames: int, step_m: float, height_m: float) -> np.ndarray:
     return j
 
 
-def box(name: str = "table_1", center=(0.0, 0.0, 0.5), size=(1.0, 1.0, 1.0), facing=(0.0, 1.0), **kw) -> SceneObject:
+def box(
+    name: str = "table_1",
+    center: Vec3 = (0.0, 0.0, 0.5),
+    size: Vec3 = (1.0, 1.0, 1.0),
+    facing: Vec2 = (0.0, 1.0),
+    **kw: Any,
+) -> SceneObject:
     label, idx = name.rsplit("_", 1)
     return SceneObject(name=name, label=label, idx=int(idx), center=center, size=size, facing=facing, **kw)
 
 
 # ----- feet -------------------------------------------------------------------------------------
-def test_resample_keeps_a_linear_ramp_and_the_span():
+def test_resample_keeps_a_linear_ramp_and_the_span() -> None:
     a = np.arange(31, dtype=float)[:, None] * 0.1  # 1 s at 30 fps
     r = resample(a, 30.0, 20.0)
     assert len(r) == 21
@@ -80,21 +87,21 @@ def test_resample_keeps_a_linear_ramp_and_the_span():
 
 
 @pytest.mark.parametrize(("step", "height", "ratio"), [(0.03, 0.02, 1.0), (0.03, 0.10, 0.0), (0.02, 0.02, 0.0)])
-def test_skating_counts_a_low_foot_moving_more_than_2_5_cm(step, height, ratio):
+def test_skating_counts_a_low_foot_moving_more_than_2_5_cm(step: float, height: float, ratio: float) -> None:
     assert foot_skating(sliding_feet(41, step, height), fps=20.0).ratio == ratio
 
 
-def test_skating_is_evaluated_at_20_fps():
+def test_skating_is_evaluated_at_20_fps() -> None:
     # 2 cm per frame at 30 fps is 3 cm per frame at 20 fps: skating
     s = foot_skating(sliding_feet(61, 0.02, 0.02), fps=30.0)
     assert s.frames == 40 and s.skating == 40
 
 
-def test_planted_feet_do_not_skate():
+def test_planted_feet_do_not_skate() -> None:
     assert foot_skating(rest_joints(30), fps=30.0).ratio == 0.0
 
 
-def test_floor_penetration_and_float_in_mm():
+def test_floor_penetration_and_float_in_mm() -> None:
     j = rest_joints(10)
     h = lowest_foot_height(j)
     assert h[0] == pytest.approx(0.01)
@@ -105,13 +112,13 @@ def test_floor_penetration_and_float_in_mm():
 
 
 # ----- bodies -----------------------------------------------------------------------------------
-def test_signed_distance_of_an_oriented_box():
+def test_signed_distance_of_an_oriented_box() -> None:
     b = Box.of(box(facing=(1.0, 0.0), size=(2.0, 1.0, 1.0)))  # width 2 along y now, depth 1 along x
     d = signed_distance(np.array([[0.0, 0.0, 1.05], [0.0, 0.0, 0.95], [0.6, 0.0, 0.5], [0.0, 1.2, 0.5]]), b)
     np.testing.assert_allclose(d, [0.05, -0.05, 0.1, 0.2], atol=1e-12)
 
 
-def test_a_box_penetrated_by_5_cm_gives_5_cm():
+def test_a_box_penetrated_by_5_cm_gives_5_cm() -> None:
     body = sphere_body()
     pts = rest_joints(1)
     centres = body.centres(pts)
@@ -122,7 +129,7 @@ def test_a_box_penetrated_by_5_cm_gives_5_cm():
     assert pen[0] == pytest.approx(0.05, abs=1e-9)
 
 
-def test_a_far_box_gives_nothing_and_a_seat_counts_up_to_its_surface():
+def test_a_far_box_gives_nothing_and_a_seat_counts_up_to_its_surface() -> None:
     body = sphere_body()
     centres = body.centres(rest_joints(2))
     far = box(center=(5.0, 5.0, 0.5))
@@ -137,7 +144,7 @@ def test_a_far_box_gives_nothing_and_a_seat_counts_up_to_its_surface():
     assert pen[1] < pen[0]
 
 
-def test_a_table_counts_as_its_top_the_space_under_it_is_legroom():
+def test_a_table_counts_as_its_top_the_space_under_it_is_legroom() -> None:
     body = sphere_body()
     centres = body.centres(rest_joints(1))
     legs = float((centres[0, :, 2] + body.radii).max())  # the highest sphere's top
@@ -153,7 +160,7 @@ def test_a_table_counts_as_its_top_the_space_under_it_is_legroom():
     assert furniture_penetration(centres, body, [low])[0] > 0.05
 
 
-def test_hands_working_on_an_object_do_not_count():
+def test_hands_working_on_an_object_do_not_count() -> None:
     body = sphere_body()
     j = rest_joints(2)
     wrist = j[0, JOINT_INDEX["left_wrist"]]
@@ -163,7 +170,7 @@ def test_hands_working_on_an_object_do_not_count():
     assert pen[0] > 0.04 and pen[1] == 0.0
 
 
-def test_two_bodies_overlap_only_when_close():
+def test_two_bodies_overlap_only_when_close() -> None:
     body = sphere_body()
     a = body.centres(rest_joints(1))
     assert body_overlap(a, body.centres(rest_joints(1, (0.1, 0.0))), body)[0] > 0.1
@@ -173,7 +180,7 @@ def test_two_bodies_overlap_only_when_close():
 
 
 # ----- gait -------------------------------------------------------------------------------------
-def test_sway_and_arm_swing_of_a_synthetic_walk():
+def test_sway_and_arm_swing_of_a_synthetic_walk() -> None:
     fps, n = 30.0, 300
     t = np.arange(n) / fps
     xy = np.stack([t * 1.0, 0.03 * np.sin(2 * np.pi * 1.0 * t)], axis=-1)
@@ -186,14 +193,14 @@ def test_sway_and_arm_swing_of_a_synthetic_walk():
     assert arm_swing(j, fps) == pytest.approx(0.4 * math.sin(math.radians(90 * 0.9)), rel=0.05)
 
 
-def test_cadence_from_alternating_foot_strikes():
+def test_cadence_from_alternating_foot_strikes() -> None:
     c = np.zeros((120, 2), dtype=bool)
     for k, start in enumerate(range(0, 120, 15)):  # a strike every 15 frames, feet alternating
         c[start: start + 10, k % 2] = True
     assert step_cadence(c, 30.0) == pytest.approx(120.0)
 
 
-def test_walking_windows_trim_starts_and_split_long_walks():
+def test_walking_windows_trim_starts_and_split_long_walks() -> None:
     fps = 30.0
     n = 300
     xy = np.stack([np.arange(n) / fps, np.zeros(n)], axis=-1)
@@ -204,7 +211,7 @@ def test_walking_windows_trim_starts_and_split_long_walks():
     assert walking_windows(["idle"] * n, xy, fps) == []
 
 
-def test_gait_compares_at_the_same_speed():
+def test_gait_compares_at_the_same_speed() -> None:
     def w(speed: float, cadence: float) -> GaitWindow:
         return GaitWindow(90, speed, cadence, speed / (cadence / 60), 0.02, 0.02, 0.3, 100.0)
 
@@ -216,14 +223,15 @@ def test_gait_compares_at_the_same_speed():
 
 
 # ----- interactions -----------------------------------------------------------------------------
-def test_hand_distance_to_a_box():
+def test_hand_distance_to_a_box() -> None:
     obj = box("coffee_maker_1", center=(1.0, 0.0, 1.0), size=(0.2, 0.2, 0.2))
     wrists = np.array([[[0.5, 0.0, 1.0], [0.85, 0.0, 1.0]], [[0.5, 0.0, 1.0], [0.95, 0.0, 1.0]]])
-    assert hand_distance(wrists, obj) == (1, pytest.approx(0.0))
+    frame, metres = hand_distance(wrists, obj)
+    assert frame == 1 and metres == pytest.approx(0.0)
     assert hand_distance(wrists[:1], obj)[1] == pytest.approx(0.05)
 
 
-def test_seat_height_error_and_transition_times():
+def test_seat_height_error_and_transition_times() -> None:
     chair = box("chair_1", center=(0.0, 0.0, 0.45), size=(0.5, 0.5, 0.9), sit_offset_vertical=0.45)
     scene = Scene(name="t", bounds_min=(-3.0, -3.0), bounds_max=(3.0, 3.0), objects=(chair,))
     j = rest_joints(40)
