@@ -10,6 +10,9 @@ gives the floats the scipy Dijkstra it replaced gave, for every goal.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import cast
+
 import numpy as np
 import pytest
 
@@ -17,6 +20,7 @@ from benchmark.bench_paths import _spaced
 from sim.paths.cooperative_astar import PathPlanner, PlanningError, PlanResult
 from sim.paths.following import CrowdNavigator
 from sim.paths.nav_grid import NavGrid, build_nav_grid
+from sim.paths.plan_types import Agent, Backend, Cell
 from sim.paths.reservations import Reservations
 from sim.scene.files import load_scene
 from tests.support.dense_reservations import DenseReservations
@@ -46,20 +50,22 @@ def test_compiled_plans_equal_python_plans(grid: NavGrid, seed: int, budget: int
     cells = _free_cells(grid)
     placed = _spaced(cells, 34, rng)
     agents, statics = placed[:30], placed[30:]
-    starts = {f"a{k}": c for k, c in enumerate(agents)}
-    goals = {a: cells[int(rng.integers(len(cells)))] if k % 5 else None for k, a in enumerate(starts)}
+    starts: dict[Agent, Cell] = {f"a{k}": c for k, c in enumerate(agents)}
+    goals: dict[Agent, Cell | None] = {
+        a: cells[int(rng.integers(len(cells)))] if k % 5 else None for k, a in enumerate(starts)
+    }
     static_xy = [grid.center_of(*c) + rng.uniform(-0.1, 0.1, 2) for c in statics]
     p, q = grid.center_of(*statics[-1]), grid.center_of(*statics[-1]) + np.array([0.3, 0.0])
-    kw = dict(window=20, seed=seed, max_expansions=budget)
-    fast, slow = PathPlanner(grid, backend="numba", **kw), PathPlanner(grid, backend="python", **kw)
+    fast = PathPlanner(grid, window=20, seed=seed, max_expansions=budget, backend="numba")
+    slow = PathPlanner(grid, window=20, seed=seed, max_expansions=budget, backend="python")
     first = fast.plan(starts, goals, static_obstacles=static_xy, t0=3, static_segments=[(p, q)])
     _same(first, slow.plan(starts, goals, static_obstacles=static_xy, t0=3, static_segments=[(p, q)]))
     assert first.expansions > 0
     if budget < 100:
         assert first.failed or first.fallback  # the tight budget really exercises the failure passes
     # the rest of each plan as hints for the next call (the kept-path check and extension)
-    nxt = {a: path[1] for a, path in first.paths.items()}
-    hints = {a: (first.paths[a][1:], first.goals[a]) for a in starts}
+    nxt: dict[Agent, Cell] = {a: path[1] for a, path in first.paths.items()}
+    hints: dict[Agent, tuple[Sequence[Cell], Cell]] = {a: (first.paths[a][1:], first.goals[a]) for a in starts}
     _same(fast.plan(nxt, goals, t0=4, hints=hints), slow.plan(nxt, goals, t0=4, hints=hints))
 
 
@@ -68,8 +74,8 @@ def test_packed_crowd_with_cornered_agents_plans_the_same(grid: NavGrid) -> None
     # and release waits (the compiled release of one agent's reservation is exercised).
     rng = np.random.default_rng(11)
     cells = _free_cells(grid)
-    starts = dict(enumerate(_spaced(cells, 200, rng)))
-    goals = dict(enumerate(_spaced(cells, len(starts), rng)))
+    starts: dict[Agent, Cell] = dict(enumerate(_spaced(cells, 200, rng)))
+    goals: dict[Agent, Cell | None] = dict(enumerate(_spaced(cells, len(starts), rng)))
     fast = PathPlanner(grid, seed=0).plan(starts, goals)
     assert len(fast.failed) > 5 and len(starts) > 100
     _same(fast, PathPlanner(grid, seed=0, backend="python").plan(starts, goals))
@@ -127,6 +133,7 @@ def test_compiled_crowd_walks_the_same_trajectories(grid: NavGrid) -> None:
             pos = nav.tick()
             out.append(np.array([pos[f"w{k}"] for k in range(len(starts))]))
             for _, agent in nav.arrivals:
+                assert isinstance(agent, str)  # the walkers are named w0, w1, ...
                 k = int(agent[1:])
                 if legs[k] + 1 < len(goal_seq[k]):
                     legs[k] += 1
@@ -139,7 +146,7 @@ def test_compiled_crowd_walks_the_same_trajectories(grid: NavGrid) -> None:
 
 def test_unknown_backend_is_a_typed_error(grid: NavGrid) -> None:
     with pytest.raises(PlanningError, match="backend"):
-        PathPlanner(grid, backend="cuda")
+        PathPlanner(grid, backend=cast(Backend, "cuda"))  # not a Backend on purpose: the refusal is checked
 
 
 def test_repair_pass_reuses_unchanged_searches_exactly(grid: NavGrid) -> None:
@@ -147,7 +154,7 @@ def test_repair_pass_reuses_unchanged_searches_exactly(grid: NavGrid) -> None:
     # unchanged; its result equals a repair pass that searches every agent again.
     rng = np.random.default_rng(11)
     cells = _free_cells(grid)
-    starts = dict(enumerate(_spaced(cells, 40, rng)))
+    starts: dict[Agent, Cell] = dict(enumerate(_spaced(cells, 40, rng)))
     planner = PathPlanner(grid, seed=0, max_expansions=60)  # a tight budget: a few searches fail
     goals = planner.plan(starts, dict(enumerate(_spaced(cells, len(starts), rng)))).goals  # usable goals
     order = list(starts)
@@ -165,7 +172,8 @@ def test_repair_pass_reuses_unchanged_searches_exactly(grid: NavGrid) -> None:
 def test_goal_distances_equal_scipy_dijkstra_bit_for_bit(grid: NavGrid) -> None:
     """Every free cell of the Office as a goal (and a blocked one): the same floats, inf alike."""
     planner = PathPlanner(grid)
-    goals = [(int(i), int(j)) for i, j in np.argwhere(grid.free)] + [tuple(int(v) for v in np.argwhere(~grid.free)[0])]
+    blocked = np.argwhere(~grid.free)[0]
+    goals = [(int(i), int(j)) for i, j in np.argwhere(grid.free)] + [(int(blocked[0]), int(blocked[1]))]
     for goal in goals:
         got = planner.heuristic_array(goal)
         want = scipy_goal_distances(planner, goal)
@@ -182,8 +190,8 @@ def test_a_small_goal_distance_cache_plans_the_same(grid: NavGrid) -> None:
     small, large = PathPlanner(grid, seed=0), PathPlanner(grid, seed=0)
     small.distances.capacity = 4
     for t0 in range(3):
-        starts = dict(enumerate(_spaced(cells, 12, rng)))
-        goals = {a: cells[int(rng.integers(len(cells)))] for a in starts}
+        starts: dict[Agent, Cell] = dict(enumerate(_spaced(cells, 12, rng)))
+        goals: dict[Agent, Cell | None] = {a: cells[int(rng.integers(len(cells)))] for a in starts}
         _same(small.plan(starts, goals, t0=t0), large.plan(starts, goals, t0=t0))
         assert len(small.distances.rows) >= 12 > small.distances.capacity
     assert small.distances.table is not None and len(small.distances.table) < 3 * 12  # evicted rows were reused
