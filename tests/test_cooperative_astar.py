@@ -12,7 +12,9 @@ from hypothesis import strategies as st
 
 from sim.paths.cooperative_astar import PathPlanner, PlanningError, plan_conflicts, position_at
 from sim.paths.following import CrowdNavigator
+from sim.paths.move_tables import Neighbour
 from sim.paths.nav_grid import MOVES, NavGrid, body_clearance, build_nav_grid
+from sim.paths.plan_types import Agent, Cell
 from sim.scene.model import Scene, SceneObject
 
 
@@ -28,7 +30,7 @@ def _cluttered() -> NavGrid:
 
 GRID = _cluttered()
 PLANNER = PathPlanner(GRID, window=40)
-FREE = [tuple(map(int, c)) for c in np.argwhere(GRID.component == GRID.main_component)]
+FREE: list[Cell] = [(int(i), int(j)) for i, j in np.argwhere(GRID.component == GRID.main_component)]
 
 
 def _dijkstra_len(grid: NavGrid, a: tuple[int, int], b: tuple[int, int]) -> float:
@@ -81,8 +83,8 @@ def test_group_plans_have_no_conflicts_inside_the_window(n: int, seed: int) -> N
             chosen.append(c)
     if len(chosen) < 2 * n:
         n = len(chosen) // 2
-    starts = {a: chosen[a] for a in range(n)}
-    goals = {a: chosen[n + a] for a in range(n)}
+    starts: dict[Agent, Cell] = {a: chosen[a] for a in range(n)}
+    goals: dict[Agent, Cell | None] = {a: chosen[n + a] for a in range(n)}
     planner = PathPlanner(GRID, window=20, seed=seed)
     result = planner.plan(starts, goals)
     ok = {a: p for a, p in result.paths.items() if a not in result.failed}
@@ -119,7 +121,7 @@ def test_corridor_swap_is_solved_with_fallback_and_stays_clear() -> None:
     # default); searching every replan, prioritized planning ping-pongs here (the pushed agent
     # must enter the pocket before the other arrives): see the test below.
     grid = _corridor()
-    row = [c for c in map(tuple, np.argwhere(grid.free)) if c[1] == 2]
+    row = [(int(i), int(j)) for i, j in np.argwhere(grid.free) if j == 2]
     left, right = (int(min(row)[0]), 2), (int(max(row)[0]), 2)
     nav = CrowdNavigator(grid, PathPlanner(grid, window=8), seed=0)
     nav.add_walker("a", left, right)
@@ -130,7 +132,7 @@ def test_corridor_swap_is_solved_with_fallback_and_stays_clear() -> None:
         trace.append(np.linalg.norm(pos["a"] - pos["b"]))
         if len(nav.arrivals) == 2:
             break
-    assert sorted(a for _, a in nav.arrivals) == ["a", "b"]
+    assert sorted((a for _, a in nav.arrivals), key=str) == ["a", "b"]
     assert nav.fallbacks > 0  # plain WHCA* got cornered; the fallback pass planned it
     assert min(trace) >= 2 * grid.body_radius - 1e-9
 
@@ -142,7 +144,7 @@ def test_corridor_swap_is_solved_with_fallback_and_stays_clear() -> None:
 )
 def test_corridor_swap_without_plan_reuse_ping_pongs() -> None:
     grid = _corridor()
-    row = [c for c in map(tuple, np.argwhere(grid.free)) if c[1] == 2]
+    row = [(int(i), int(j)) for i, j in np.argwhere(grid.free) if j == 2]
     left, right = (int(min(row)[0]), 2), (int(max(row)[0]), 2)
     nav = CrowdNavigator(grid, PathPlanner(grid, window=8), seed=0, reuse_plans=False)
     nav.add_walker("a", left, right)
@@ -151,7 +153,7 @@ def test_corridor_swap_without_plan_reuse_ping_pongs() -> None:
         nav.tick()
         if len(nav.arrivals) == 2:
             break
-    assert sorted(a for _, a in nav.arrivals) == ["a", "b"]
+    assert sorted((a for _, a in nav.arrivals), key=str) == ["a", "b"]
 
 
 def test_position_at_interpolates_at_walking_speed() -> None:
@@ -196,7 +198,7 @@ def test_a_target_inside_furniture_is_reported_not_walked_into() -> None:
         nav.set_goal("a", GRID.nearest_free_cell((1.5, 0.9)), final_xy=(1.5, 1.5))
 
 
-def _overrides_reference(planner: PathPlanner, segs: list[tuple[np.ndarray, np.ndarray]]) -> dict[int, list]:
+def _overrides_reference(planner: PathPlanner, segs: list[tuple[np.ndarray, np.ndarray]]) -> dict[int, list[Neighbour]]:
     """Direct per-cell computation of the moves kept next to static discs / segments."""
     from sim.paths.cooperative_astar import segment_distance
 
@@ -235,7 +237,7 @@ def test_kept_plans_alternate_with_searches_and_stay_conflict_free() -> None:
     starts, goals = [FREE[k] for k in picks[:6]], [FREE[k] for k in picks[6:]]
     for i, (s, g) in enumerate(zip(starts, goals, strict=True)):
         nav.add_walker(i, s, g)
-    kept_before: frozenset = frozenset()
+    kept_before: frozenset[Agent] = frozenset()
     kept_total = 0
     for _ in range(30 * 12):
         nav.tick()
