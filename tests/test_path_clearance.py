@@ -7,6 +7,7 @@ import pytest
 
 from sim.paths.following import CrowdNavigator
 from sim.paths.nav_grid import body_clearance, build_nav_grid, with_reference_grid_origin
+from sim.paths.plan_types import Cell
 from sim.scene.files import load_scene
 from tests.support.reference import OFFICE, requires_reference
 
@@ -15,22 +16,22 @@ from tests.support.reference import OFFICE, requires_reference
 @requires_reference
 def test_fifty_walkers_never_overlap_or_enter_furniture() -> None:
     grid = build_nav_grid(with_reference_grid_origin(load_scene(OFFICE), OFFICE))
-    cells = [tuple(map(int, c)) for c in np.argwhere(grid.component == grid.main_component)]
+    cells: list[Cell] = [(int(i), int(j)) for i, j in np.argwhere(grid.component == grid.main_component)]
     rng = np.random.default_rng(0)
 
-    def pick(taken: list) -> tuple[int, int]:
+    def pick(taken: list[Cell]) -> Cell:
         for k in rng.permutation(len(cells)):
-            c = cells[k]
+            c = cells[int(k)]
             if all(max(abs(c[0] - o[0]), abs(c[1] - o[1])) >= 2 for o in taken):
                 return c
         raise AssertionError("no room for another target")
 
     n, frames = 50, 60 * 30
     nav = CrowdNavigator(grid, seed=0)
-    starts: list = []
+    starts: list[Cell] = []
     for _ in range(n):
         starts.append(pick(starts))
-    goals: list = []
+    goals: list[Cell] = []
     for a in range(n):
         goals.append(pick(goals))
         nav.add_walker(a, starts[a], goals[a])
@@ -40,9 +41,9 @@ def test_fifty_walkers_never_overlap_or_enter_furniture() -> None:
         p = nav.tick()
         pos[f] = [p[a] for a in range(n)]
         while seen < len(nav.arrivals):
-            a = nav.arrivals[seen][1]
+            agent = nav.arrivals[seen][1]
             seen += 1
-            nav.set_goal(a, pick([nav.goal_of(b) for b in range(n) if nav.goal_of(b) is not None]))
+            nav.set_goal(agent, pick([g for b in range(n) if (g := nav.goal_of(b)) is not None]))
     iu = np.triu_indices(n, 1)
     pair = np.linalg.norm(pos[:, iu[0]] - pos[:, iu[1]], axis=-1)
     flat = pos.reshape(-1, 2)

@@ -14,6 +14,7 @@ import numpy as np
 from sim.paths.cooperative_astar import PathPlanner
 from sim.paths.following import CrowdNavigator, close_xy
 from sim.paths.nav_grid import build_nav_grid
+from sim.paths.plan_types import Cell
 from sim.paths.tracks import is_movement, path_tracks, walker_headings
 from sim.scene.model import Scene, SceneObject
 from sim.world.phases import wrap_angle
@@ -48,10 +49,10 @@ def _room() -> Scene:
 def test_batched_navigator_reads_equal_the_per_agent_ones() -> None:
     grid = build_nav_grid(_room())
     nav = CrowdNavigator(grid, PathPlanner(grid, seed=1), fps=30, seed=1)
-    free = [tuple(int(v) for v in c) for c in np.argwhere(grid.free)]
+    free: list[Cell] = [(int(i), int(j)) for i, j in np.argwhere(grid.free)]
     rng = np.random.default_rng(0)
     picks = [free[int(k)] for k in rng.permutation(len(free))]
-    starts = []
+    starts: list[Cell] = []
     for c in picks:
         if all(max(abs(c[0] - s[0]), abs(c[1] - s[1])) >= 2 for s in starts):
             starts.append(c)
@@ -97,7 +98,7 @@ def test_float_helpers_match_numpy() -> None:
     assert close_xy(np.array([np.inf, 0.0]), np.array([np.inf, 0.0]))
 
 
-def _headings_reference(path: np.ndarray, heading: list[float], max_turn: float) -> tuple[list, np.ndarray, list]:
+def _headings_reference(path: np.ndarray, heading: list[float], max_turn: float) -> tuple[list[float], np.ndarray, list[bool]]:
     """The world's walker loop before it was compiled (numpy arrays, Python floats)."""
     w_xy, w_prev, w_fut = path[:, 1], path[:, 0], path[:, 2:]
     ahead_all = w_fut[:, 3] - w_xy
