@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import struct
+import zipfile
 from pathlib import Path
 from typing import TypedDict
 
@@ -166,6 +168,25 @@ def test_config_errors_name_file_and_field(tmp_path: Path) -> None:
     cfg.write_text('[[clips]]\nfile = "nope.bvh"\nlabel = "walk"\n')
     with pytest.raises(MotionConfigError, match="not found"):
         build_databases_from_config(load_motion_config(cfg), ["walk"])
+
+
+def test_huge_clip_files_are_refused_unread(tmp_path: Path) -> None:
+    """Found by the hostile corpus: a motion config naming a sparse 3 GB .bvh was hashed and read
+    whole (killed at 10 s), a zip-bomb .npz inflated to 1.7 GB; now sizes are checked first."""
+    with open(tmp_path / "big.bvh", "wb") as f:
+        f.truncate(3 << 30)  # sparse: nothing on disk
+    cfg = tmp_path / "m.toml"
+    cfg.write_text('[[clips]]\nfile = "big.bvh"\nlabel = "walk"\n')
+    with pytest.raises(MotionConfigError, match="bytes a clip file may have"):
+        build_databases_from_config(load_motion_config(cfg), ["walk"], cache_dir=tmp_path / "cache")
+    with pytest.raises(MocapImportError, match="more than"):
+        parse_bvh(tmp_path / "big.bvh")  # the parser's own bound
+    header = b"{'descr': '<f8', 'fortran_order': False, 'shape': (100000000, 165), }"
+    header += b" " * (63 - (len(header) + 10) % 64) + b"\n"
+    with zipfile.ZipFile(tmp_path / "bomb.npz", "w") as z:  # 132 GB declared, 8 bytes held
+        z.writestr("poses.npy", b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header + bytes(8))
+    with pytest.raises(MocapImportError, match="claims more bytes than its entry holds"):
+        import_amass(tmp_path / "bomb.npz", "walk")
 
 
 @requires_mocap

@@ -41,7 +41,7 @@ from sim.motion.clips import MotionClip
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.features import FeatureConfig
 from sim.motion.sources.amass_import import import_amass
-from sim.motion.sources.bvh_import import import_bvh
+from sim.motion.sources.bvh_import import MAX_MOCAP_FILE_BYTES, import_bvh
 from sim.validation_text import problem_field, problem_message
 
 IMPORTER_VERSION = "mocap-import-2"
@@ -132,6 +132,8 @@ def import_entry(config: MotionConfig, entry: ClipEntry, cache_dir: Path | None 
     path = config.resolve(entry)
     if not path.is_file():
         raise MotionConfigError(path, "clip file not found", "clips.file")
+    if path.stat().st_size > MAX_MOCAP_FILE_BYTES:  # before it is hashed for the cache, let alone read
+        raise MotionConfigError(path, f"more than the {MAX_MOCAP_FILE_BYTES} bytes a clip file may have", "clips.file")
 
     def build() -> MotionClip:
         if path.suffix.lower() == ".bvh":

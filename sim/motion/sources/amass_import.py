@@ -10,24 +10,27 @@ is SMPL-X's, so rotations transfer unchanged. The pelvis is ``trans + pelvis_res
 
 from __future__ import annotations
 
-import zipfile
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, axis_angle_to_matrix, forward_kinematics
+from sim.bounded_files import BoundedFileError, read_bounded_npz
 from sim.motion.clips import FOOT_JOINTS, MotionClip, clip_from_pose_frames
-from sim.motion.sources.bvh_import import MocapImportError
+from sim.motion.sources.bvh_import import (
+    MAX_MOCAP_ARRAY_BYTES,
+    MAX_MOCAP_FILE_BYTES,
+    MocapImportError,
+)
 from sim.motion.sources.procedural_rig import TOE_HEIGHT
 
 
 def load_amass_arrays(path: str | Path) -> dict[str, NDArray[np.float64]]:
     try:
-        with np.load(path, allow_pickle=False) as data:
-            return {k: np.asarray(data[k]) for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise MocapImportError(path, f"cannot read npz ({exc})") from None
+        return read_bounded_npz(path, MAX_MOCAP_FILE_BYTES, MAX_MOCAP_ARRAY_BYTES, str(path))
+    except BoundedFileError as exc:
+        raise MocapImportError(path, f"cannot read npz ({exc.problem})") from None
 
 
 def amass_pose_frames(

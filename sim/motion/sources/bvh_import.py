@@ -29,8 +29,14 @@ from sim.body.skeleton import (
     forward_kinematics,
     rest_positions,
 )
+from sim.bounded_files import BoundedFileError, read_bounded_bytes
 from sim.motion.clips import FOOT_JOINTS, MotionClip, clip_from_pose_frames
 from sim.motion.sources.procedural_rig import TOE_HEIGHT
+
+MAX_MOCAP_FILE_BYTES = 64 * 1024 * 1024
+"""Bytes of one mocap clip file (BVH or AMASS ``.npz``; the CMU BVH files are under 4 MB, a long AMASS sequence tens of MB)."""
+MAX_MOCAP_ARRAY_BYTES = 256 * 1024 * 1024
+"""Bytes the arrays of one AMASS ``.npz`` may unpack to (declared sizes, checked before inflating)."""
 
 
 class MocapImportError(ValueError):
@@ -93,9 +99,9 @@ class BvhData:
 def parse_bvh(path: str | Path) -> BvhData:
     """Parse a BVH file (LF or CRLF). Raises MocapImportError on malformed input."""
     try:
-        text = Path(path).read_text(encoding="utf-8", errors="replace")
-    except OSError as exc:
-        raise MocapImportError(path, f"cannot read file ({exc.strerror})") from None
+        text = read_bounded_bytes(path, MAX_MOCAP_FILE_BYTES, str(path)).decode("utf-8", errors="replace")
+    except BoundedFileError as exc:
+        raise MocapImportError(path, f"cannot read file ({exc.problem})") from None
     head, sep, motion = text.partition("MOTION")
     if not sep or "HIERARCHY" not in head:
         raise MocapImportError(path, "not a BVH file (HIERARCHY / MOTION sections missing)")
