@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from langchain_core.runnables import RunnableConfig
 from langgraph.checkpoint.memory import InMemorySaver
 
 from agents.llm_port import LLMRequest, LLMResponse
@@ -186,7 +187,7 @@ async def test_killed_run_resumes_without_repeating_the_narrator(tmp_path: Path)
     story = StoryLog(db, "k")
     async with open_checkpointer(db) as saver:
         graph = compile_planning_graph(saver)
-        config = {"configurable": {"thread_id": "k"}}
+        config: RunnableConfig = {"configurable": {"thread_id": "k"}}
         snapshot = await graph.aget_state(config)
         assert snapshot.next == ("parse_event",)
         final = await graph.ainvoke(None, config=config, context=make_deps(port, story), durability="sync")
@@ -239,7 +240,7 @@ async def test_killed_describer_retry_resumes_without_repeating_the_first_attemp
     story = StoryLog(db, "d")
     async with open_checkpointer(db) as saver:
         graph = compile_planning_graph(saver)
-        config = {"configurable": {"thread_id": "d"}}
+        config: RunnableConfig = {"configurable": {"thread_id": "d"}}
         snapshot = await graph.aget_state(config)
         assert snapshot.next == ("describe_scene",)
         assert len(snapshot.values["describer_turns"]) == 1  # the first attempt and its feedback survived
@@ -367,7 +368,7 @@ async def test_sqlite_checkpoints_rebuild_our_types_without_warnings(tmp_path: P
                          "event_parser": [PROGRAM.format(who="Ann")]})
     db = tmp_path / "runs.sqlite"
     story = StoryLog(db, "t1")
-    config = {"configurable": {"thread_id": "t1"}, "recursion_limit": recursion_limit(1, 3)}
+    config: RunnableConfig = {"configurable": {"thread_id": "t1"}, "recursion_limit": recursion_limit(1, 3)}
     async with open_checkpointer(db) as saver:
         graph = compile_planning_graph(saver)
         await graph.ainvoke(initial_state(["Ann"], 1), config=config, context=make_deps(port, story), durability="sync")
