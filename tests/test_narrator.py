@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import pytest
 from pydantic import ValidationError
@@ -32,8 +33,8 @@ def reply(chars: list[str], activity: str = "eat at table_1") -> str:
     return json.dumps({"reasoning": "r", "event": {"characters": chars, "activity": activity}})
 
 
-def make_input(**kw) -> NarratorInput:
-    base = dict(scene_description=DESCRIPTION, characters=ROSTER, instruction="Ann eats.", seed=3)
+def make_input(**kw: Any) -> NarratorInput:
+    base: dict[str, Any] = dict(scene_description=DESCRIPTION, characters=ROSTER, instruction="Ann eats.", seed=3)
     base.update(kw)
     return NarratorInput(**base)
 
