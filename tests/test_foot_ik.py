@@ -60,7 +60,8 @@ def _depth(points: np.ndarray, fp: Footprints) -> np.ndarray:
     d = points[..., None, :] - fp.centers
     lx = np.abs(np.einsum("...bi,bi->...b", d, fp.rights))
     ly = np.abs(np.einsum("...bi,bi->...b", d, fp.facings))
-    return np.minimum(fp.halves[:, 0] - lx, fp.halves[:, 1] - ly).max(axis=-1)
+    depth: np.ndarray = np.minimum(fp.halves[:, 0] - lx, fp.halves[:, 1] - ly).max(axis=-1)
+    return depth
 
 
 # ----- two-bone IK ---------------------------------------------------------------------------
@@ -111,10 +112,10 @@ def test_leg_chain_and_compiled_ik_match_their_references() -> None:
     targets = chain.hip[ci, leg] + rng.normal(0, 0.5, (m, 3))
     targets[0] = chain.hip[0, 0]  # on the hip
     targets[1] = chain.hip[0, 1] + np.array([0.0, 0.0, 3.0])  # far above
-    args = (chain.hip[ci, leg], chain.knee[ci, leg], chain.ankle[ci, leg], chain.pelvis_rot[ci],
-            chain.hip_rot[ci, leg], chain.knee_rot[ci, leg], chain.ankle_rot[ci, leg], targets,
-            THIGH_LENGTH[leg], SHIN_LENGTH[leg])
-    args = tuple(np.ascontiguousarray(a) for a in args)
+    inputs = (chain.hip[ci, leg], chain.knee[ci, leg], chain.ankle[ci, leg], chain.pelvis_rot[ci],
+              chain.hip_rot[ci, leg], chain.knee_rot[ci, leg], chain.ankle_rot[ci, leg], targets,
+              THIGH_LENGTH[leg], SHIN_LENGTH[leg])
+    args = tuple(np.ascontiguousarray(a) for a in inputs)
     # the branches random legs rarely take: a knee bent backwards against the thigh's flexion
     # axis (that axis flipped), and a flexion axis along the thigh (the axis then is any
     # perpendicular)
@@ -153,7 +154,7 @@ def test_ik_knee_is_steady_when_the_animated_leg_is_nearly_straight() -> None:
     # same way every frame, forward, not wherever that noise points
     rng = np.random.default_rng(14)
     pelvis, rots = _poses(1, seed=15, bend=0.0)
-    knees = []
+    knee_list = []
     for _ in range(20):
         r = rots.copy()
         r[:, list(LEG_JOINTS)] = np.eye(3)
@@ -165,8 +166,8 @@ def test_ik_knee_is_steady_when_the_animated_leg_is_nearly_straight() -> None:
             r[:, knee] = (wobble * straight).as_matrix()
         chain = LegChain(pelvis, r)
         out = solve_legs(pelvis, r, chain.ankle + np.array([0.0, 0.0, 0.12]))
-        knees.append(LegChain(pelvis, out).knee[0])
-    knees = np.array(knees)
+        knee_list.append(LegChain(pelvis, out).knee[0])
+    knees = np.array(knee_list)
     # the 0.02 rad wobble tilts the hinge by <= 0.02 / HINGE_BLEND rad: <= 2 cm at the knee;
     # following the animated plane alone would swing the knee ~20 cm
     assert np.linalg.norm(knees - knees.mean(axis=0), axis=-1).max() < 0.03
@@ -178,7 +179,7 @@ def test_a_knee_bent_backwards_is_bent_forwards_continuously() -> None:
     # the feet but bends every knee forwards, and the knee moves smoothly through straight
     pelvis, rots = _poses(1, seed=16, bend=0.0)
     rots[:, list(LEG_JOINTS)] = np.eye(3)
-    knees, aheads = [], []
+    knees, ahead_list = [], []
     for flex in np.linspace(-0.4, 0.4, 41):
         r = rots.copy()
         r[:, list(KNEE_JOINTS)] = Rotation.from_rotvec([flex, 0.0, 0.0]).as_matrix()
@@ -189,11 +190,11 @@ def test_a_knee_bent_backwards_is_bent_forwards_continuously() -> None:
         assert np.abs(after.ankle_rot - chain.ankle_rot).max() < 1e-9
         forward = r[0, 0][:, 2]
         mid = (after.hip + after.ankle) / 2
-        aheads.append((after.knee - mid)[0] @ forward)
+        ahead_list.append((after.knee - mid)[0] @ forward)
         knees.append(after.knee[0])
         if flex > 0:  # a forward knee is the input
             assert np.abs(out - r).max() < 1e-9
-    aheads = np.array(aheads)
+    aheads = np.array(ahead_list)
     assert (aheads > -1e-4).all(), aheads.min()  # never behind the hip-ankle line (0.1 mm)
     assert aheads[0].min() > 0.03  # the backward knee came forward
     steps = np.linalg.norm(np.diff(np.array(knees), axis=0), axis=-1)
@@ -375,13 +376,13 @@ def test_a_lock_out_of_reach_is_released_before_the_leg_is_straight() -> None:
     for max_reach, straight in ((0.97, False), (1.0, True)):
         solver = FootSolver(_NO_BOXES, max_drift=10.0, max_reach=max_reach, release_frames=4)
         state = solver.initial_state(1)
-        spans = []
+        span_list = []
         for f in range(len(contacts)):
             p = pelvis + np.array([0.0, 0.0, 0.004 * f])  # the body rises: the planted feet fall behind
             out, state = solver.apply(p, rots, contacts[f][None], state)
             chain = LegChain(p, out)
-            spans.append(np.linalg.norm(chain.ankle - chain.hip, axis=-1)[0] / full)
-        spans = np.array(spans)
+            span_list.append(np.linalg.norm(chain.ankle - chain.hip, axis=-1)[0] / full)
+        spans = np.array(span_list)
         anim = LegChain(pelvis, rots)
         anim_span = np.linalg.norm(anim.ankle - anim.hip, axis=-1)[0] / full
         assert (anim_span < 0.96).all()  # the case: the animation's own legs are bent
