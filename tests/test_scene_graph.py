@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import numpy as np
 import pytest
@@ -11,11 +12,12 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from sim.scene.files import load_scene
-from sim.scene.model import Scene, SceneObject
+from sim.scene.model import Scene, SceneObject, Vec2, Vec3
 from tests.support.reference import SCENES, reference_or_skip, requires_reference
 from tools.scene_graph import (
     RELATIONS,
     RelationThresholds,
+    SceneGraph,
     box_distance,
     build_scene_graph,
     footprint_distance,
@@ -25,18 +27,20 @@ from tools.scene_text import clusters_text, object_list_text, scene_graph_json
 
 
 @pytest.fixture(scope="module", params=["House", "Office", "Restaurant"])
-def ref_graph(request: pytest.FixtureRequest):
+def ref_graph(request: pytest.FixtureRequest) -> SceneGraph:
     reference_or_skip()
     return build_scene_graph(load_scene(SCENES / request.param))
 
 
 @pytest.fixture(scope="module")
-def house():
+def house() -> SceneGraph:
     reference_or_skip()
     return build_scene_graph(load_scene(SCENES / "House"))
 
 
-def obj(name: str, center, size, facing=(0.0, 1.0), has_facing=True, **kw) -> SceneObject:
+def obj(
+    name: str, center: Vec3, size: Vec3, facing: Vec2 = (0.0, 1.0), has_facing: bool = True, **kw: Any
+) -> SceneObject:
     label, idx = name.rsplit("_", 1)
     return SceneObject(
         name=name,
@@ -55,7 +59,7 @@ def scene_of(*objects: SceneObject) -> Scene:
 
 
 # ----- reference scenes: what their descriptions state ---------------------------------------
-def test_house_support_relations(house) -> None:
+def test_house_support_relations(house: SceneGraph) -> None:
     triples = set(house.triples())
     for t in [
         ("coffee_maker_1", "on", "cabinet_1"),
@@ -72,7 +76,7 @@ def test_house_support_relations(house) -> None:
     assert sorted(house.supported_by("table_1")) == ["dvd_player_1", "loudspeaker_1", "tv_1"]
 
 
-def test_house_horizontal_relations_from_description(house) -> None:
+def test_house_horizontal_relations_from_description(house: SceneGraph) -> None:
     triples = set(house.triples())
     for t in [
         ("dishwasher_1", "to the left of", "cabinet_1"),
@@ -112,7 +116,7 @@ def test_office_and_restaurant_support_from_description() -> None:
     assert ("laptop_1", "inside", "reception_desk_1") in restaurant
 
 
-def test_reference_graph_invariants(ref_graph) -> None:
+def test_reference_graph_invariants(ref_graph: SceneGraph) -> None:
     g = ref_graph
     horizontal = {
         "in front of",
@@ -129,7 +133,8 @@ def test_reference_graph_invariants(ref_graph) -> None:
             assert g.level(s) == g.level(a)
         if rel in ("on", "inside"):
             assert g.supporter(s) == a
-            assert g.level(s) == g.level(a) + 1
+            below = g.level(a)
+            assert below is not None and g.level(s) == below + 1
         if rel in ("in front of", "behind", "to the left of", "to the right of"):
             assert g.scene.by_name[a].has_facing
     for o in g.scene.objects:
@@ -218,7 +223,9 @@ def _boundary(o: SceneObject, n: int = 200) -> np.ndarray:
 
 @settings(max_examples=60, deadline=None)
 @given(boxes, boxes)
-def test_footprint_distance_matches_brute_force(a_spec, b_spec) -> None:
+def test_footprint_distance_matches_brute_force(
+    a_spec: tuple[float, float, float, float, float], b_spec: tuple[float, float, float, float, float]
+) -> None:
     a, b = _box(1, a_spec), _box(2, b_spec)
     d = footprint_distance(a, b)
     assert d == pytest.approx(footprint_distance(b, a), abs=1e-9)
@@ -246,7 +253,7 @@ def test_box_distance_adds_the_vertical_gap() -> None:
 
 
 # ----- text forms ---------------------------------------------------------------------------
-def test_text_forms(house) -> None:
+def test_text_forms(house: SceneGraph) -> None:
     data = json.loads(scene_graph_json(house))
     assert set(data) == set(house.scene.object_names)
     assert "on cabinet_1" in data["coffee_maker_1"]["relations"]
