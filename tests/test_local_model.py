@@ -409,3 +409,14 @@ def test_models_load_without_repacked_weight_buffers() -> None:
     with plain_cpu_buffers():
         assert bindings.llama_model_default_params().use_extra_bufts is False
     assert bindings.llama_model_default_params().use_extra_bufts is True
+
+
+def test_prefix_slots_variable_is_checked_by_name() -> None:
+    """Found by the hostile corpus: STORYTELLER_LOCAL_PREFIX_SLOTS=abc ended `run` with int()'s
+    own 'invalid literal' line, which does not say which setting was wrong."""
+    from orchestrator.llm.local_model import _prefix_slots
+
+    assert _prefix_slots("3") == 3 and _prefix_slots("0") == 1
+    for hostile in ("abc", "\u00b2", "9" * 5000, "-1"):
+        with pytest.raises(ValueError, match="STORYTELLER_LOCAL_PREFIX_SLOTS must be a whole number"):
+            _prefix_slots(hostile)

@@ -165,6 +165,10 @@ def test_the_environment_variable_overrides_without_measuring() -> None:
         ThreadChooser(FakeProbe(), env={THREADS_ENV: "two"}).choose()
     with pytest.raises(ValueError, match="got '0'"):
         ThreadChooser(FakeProbe(), env={THREADS_ENV: "0"}).choose()
+    # found by the hostile corpus: int()'s own errors, without the variable's name
+    for hostile in ("\u00b2", "9" * 5000):
+        with pytest.raises(ValueError, match="STORYTELLER_LOCAL_THREADS must be a whole number"):
+            ThreadChooser(FakeProbe(), env={THREADS_ENV: hostile}).choose()
 
 
 def test_without_proc_stat_the_load_average_stands_in_less_our_own_threads() -> None:

@@ -209,8 +209,10 @@ def override_threads(env: Mapping[str, str]) -> int | None:
     raw = env.get(THREADS_ENV, "").strip()
     if not raw:
         return None
-    if not raw.isdigit() or int(raw) < 1:
-        raise ValueError(f"environment variable {THREADS_ENV} must be a whole number >= 1, got {raw!r}")
+    # ASCII digits only ('²' and other Unicode digits pass isdigit() but not int()), and few of
+    # them (5,000 digits are past int()'s limit); either way the error names the variable
+    if not (raw.isascii() and raw.isdigit()) or len(raw) > 6 or int(raw) < 1:
+        raise ValueError(f"environment variable {THREADS_ENV} must be a whole number >= 1, got {raw[:20]!r}")
     return int(raw)
 
 

@@ -62,7 +62,16 @@ SEED = 1234
 MAX_TOKENS_CAP = 2048
 DEFAULT_ARRAY_MAX_ITEMS = 64
 
-PREFIX_SLOTS = max(1, int(os.environ.get("STORYTELLER_LOCAL_PREFIX_SLOTS", "3")))
+
+
+def _prefix_slots(raw: str) -> int:
+    """``STORYTELLER_LOCAL_PREFIX_SLOTS``: a few ASCII digits, or an error that names it."""
+    if not (raw.isascii() and raw.isdigit()) or len(raw) > 3:
+        raise ValueError(f"environment variable STORYTELLER_LOCAL_PREFIX_SLOTS must be a whole number >= 1, got {raw[:20]!r}")
+    return max(1, int(raw))
+
+
+PREFIX_SLOTS = _prefix_slots(os.environ.get("STORYTELLER_LOCAL_PREFIX_SLOTS", "3").strip())
 """Llama instances per model, each keeping the KV cache of the last prompt it saw."""
 
 
