@@ -112,6 +112,10 @@ def test_replay_and_resume_of_a_folder_without_run_json_is_a_user_error(tmp_path
 def test_bad_names_are_a_user_error(tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["run", "home", "--names", "Ava,Ava", "--out", str(tmp_path / "o")])
     assert result.exit_code == 2 and "--names: every name must be different" in result.stderr
+    # found by the hostile corpus: names that differ in case only ran the setup (15 s) before the
+    # chunk store refused them as one file name; now refused with the other name errors
+    result = CliRunner().invoke(app, ["run", "home", "--names", "Zoe,zoe", "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2 and "letter case aside" in result.stderr and not (tmp_path / "o").exists()
     result = CliRunner().invoke(app, ["run", "home", "--names", "Ava,**", "--out", str(tmp_path / "o")])
     assert result.exit_code == 2 and "'**' is not a name" in result.stderr
 

@@ -107,8 +107,8 @@ def parse_names(text: str) -> tuple[str, ...]:
         raise ValueError(
             f"--names: {bad[0]!r} is not a name (expected a letter, then up to 31 letters, digits, _ or -)"
         )
-    if len(set(names)) != len(names):
-        raise ValueError("--names: every name must be different")
+    if len({n.lower() for n in names}) != len(names):  # they name files: Zoe.bvh and zoe.bvh are one on some disks
+        raise ValueError("--names: every name must be different (letter case aside: each names the character's files)")
     return names
 
 
