@@ -26,6 +26,7 @@ from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import default_config
 from orchestrator.llm.traces import NullTraceSink
 from sim.scene.bundled import resolve_scene
+from tests.support.embedded_weights import embedded_weights_or_skip
 from tools.character_states import CharacterState, WorldView
 
 SCENE = resolve_scene("home")
@@ -119,7 +120,7 @@ def test_requests_without_a_grammar_keep_their_old_hash() -> None:
 
 def test_local_provider_builds_a_llama_grammar() -> None:
     pytest.importorskip("llama_cpp")
-    from llama_cpp import LlamaGrammar
+    from llama_cpp.llama_grammar import LlamaGrammar
 
     from orchestrator.llm.local_model import _llama_params
 
@@ -129,12 +130,10 @@ def test_local_provider_builds_a_llama_grammar() -> None:
 
 @pytest.mark.embedded_model
 async def test_real_embedded_model_writes_a_runnable_program_under_the_grammar(tmp_path: Path) -> None:
-    from test_local_model import _embedded_weights_or_skip
-
     from orchestrator.llm.local_model import LocalLlamaProvider, register_local_provider
     from orchestrator.llm.traces import TraceWriter, read_trace
 
-    _embedded_weights_or_skip()
+    embedded_weights_or_skip()
     register_local_provider(LocalLlamaProvider())
     client = LiteLLMClient(default_config(), TraceWriter(tmp_path / "t.jsonl"))
     inp = ParserInput(scene_description="- kitchen: coffee_maker_1, fridge_1, cabinet_1", event=EVENT, characters=ROSTER,
@@ -157,7 +156,10 @@ def test_a_seat_someone_stands_at_is_not_offered() -> None:
     roster = (CharacterStatus(name="Ava"), CharacterStatus(name="Cy", position=(float(slot[0]) + 0.1, float(slot[1]))))
     blocked = event_program_grammar(SCENE, ("Ava",), roster, (), ("idle",))
     free = event_program_grammar(SCENE, ("Ava",), roster[:1], (), ("idle",))
-    seat_rule = lambda g: next(line for line in g.splitlines() if line.startswith("seat ::="))  # noqa: E731
+
+    def seat_rule(g: str) -> str:
+        return next(line for line in g.splitlines() if line.startswith("seat ::="))
+
     assert f'\\"{seat.name}\\"' in seat_rule(free) and f'\\"{seat.name}\\"' not in seat_rule(blocked)
 
 
@@ -346,7 +348,7 @@ def test_the_open_grammar_of_w_o_event_lets_the_model_pick_who_acts_and_nothing_
 
 def test_the_open_grammar_parses_in_llama_cpp() -> None:
     pytest.importorskip("llama_cpp")
-    from llama_cpp import LlamaGrammar
+    from llama_cpp.llama_grammar import LlamaGrammar
 
     assert LlamaGrammar.from_string(open_program_grammar(SCENE, ROSTER, SEATS_IN_USE, LABELS), verbose=False) is not None
 
@@ -371,6 +373,6 @@ def test_a_place_between_two_things_takes_two_different_things() -> None:
     lone = program_grammar(("Ava",), ("tv_1",), (), ("idle",))
     assert "get_area_between" not in lone and _admits(lone, program('get_area_close_to("tv_1")'))
     pytest.importorskip("llama_cpp")
-    from llama_cpp import LlamaGrammar
+    from llama_cpp.llama_grammar import LlamaGrammar
 
     assert LlamaGrammar.from_string(g, verbose=False) is not None
