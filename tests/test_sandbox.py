@@ -35,8 +35,12 @@ class FakeCharacter:
         self._plans = plans
 
     def set_position(self, area: object) -> None:
-        is_xy = isinstance(area, list | tuple) and len(area) == 2 and not isinstance(area[0], str)
-        if is_xy and not all(isinstance(v, int | float) and math.isfinite(v) for v in area):
+        if (
+            isinstance(area, list | tuple)  # an xy pair, not an area name
+            and len(area) == 2
+            and not isinstance(area[0], str)
+            and not all(isinstance(v, int | float) and math.isfinite(v) for v in area)
+        ):
             raise ToolArgumentError(f"position {area!r} must be two finite numbers")
         self._plans.setdefault(self.name, {})["position"] = area
 
@@ -232,6 +236,7 @@ def parse_event():
     return found
 """
     result = execute(source, FakeWorld().namespace())
+    assert isinstance(result, list)
     assert result[0:2] == [False, "checked"]
     assert isinstance(result[2], str) and "unknown object 'chiar_9'" in result[2]
     assert result[3:] == ["checked", False, "checked"]
