@@ -27,11 +27,16 @@ which a pattern flagged above would show its cost.
 from __future__ import annotations
 
 import re
-import re._constants as C
-import re._parser as P
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # typeshed describes the regex parser under its old names only (deprecated at run time)
+    import sre_constants as C
+    import sre_parse as P
+else:
+    import re._constants as C
+    import re._parser as P
 
 _UNIVERSE = [chr(c) for c in range(256)] + list("\u00e9\u0416\u0663\u00a0\u2028\u3000\u1680\ufeff\u200b")
 _CATEGORY_PATTERN = {
@@ -41,7 +46,7 @@ _CATEGORY_PATTERN = {
 _REPEATS = (C.MAX_REPEAT, C.MIN_REPEAT)
 _WORD = frozenset(c for c in _UNIVERSE if re.fullmatch(r"\w", c))
 _MAX_PATHS = 20_000
-_MORE_PASSES = (C.ASSERT, (1, []))
+_MORE_PASSES: tuple[Any, Any] = (C.ASSERT, (1, []))
 """Stands for the optional further passes of a repeat after its first (matches empty)."""
 
 
@@ -257,7 +262,7 @@ def backtracking_risks(pattern: str | bytes, flags: int = 0) -> list[Risk]:
     text = pattern.decode("latin-1") if isinstance(pattern, bytes) else pattern
     parsed = P.parse(text, flags)
     flags |= parsed.state.flags
-    items = list(parsed)
+    items = list(parsed.data)
     risks: list[Risk] = []
     for sub in _walk(items):
         for op, av in sub:
@@ -314,7 +319,7 @@ def pump_inputs(pattern: str | bytes, flags: int = 0, length: int = 100_000) -> 
     text = pattern.decode("latin-1") if isinstance(pattern, bytes) else pattern
     parsed = P.parse(text, flags)
     flags |= parsed.state.flags
-    items = list(parsed)
+    items = list(parsed.data)
     prefix = _literal_prefix(items)
     sets = [s for s in _repeat_sets(items, flags) if s]
     taken = frozenset().union(*sets) if sets else frozenset()
