@@ -18,6 +18,7 @@ from agents.retry_feedback import (
     FEEDBACK_FILES,
     AnswerRejectedError,
     NoCodeError,
+    Turn,
     ask_until_valid,
     feedback_from_error,
 )
@@ -79,7 +80,7 @@ async def test_ask_until_valid_sends_the_feedback_of_its_prompt_folder(tmp_path:
             seen.append(request)
             return LLMResponse(text=next(replies), model="fake")
 
-    def build(turns: tuple) -> LLMRequest:
+    def build(turns: tuple[Turn, ...]) -> LLMRequest:
         from agents.retry_feedback import with_turns
 
         return LLMRequest(node="narrator", messages=with_turns((ChatMessage(role="user", content="n?"),), turns))

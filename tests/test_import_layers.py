@@ -81,7 +81,7 @@ def test_imports_flow_one_way() -> None:
 
 
 def test_no_import_cycles_between_modules() -> None:
-    graph = nx.DiGraph()
+    graph: nx.DiGraph[str] = nx.DiGraph()
     for module, path in MODULES.items():
         graph.add_node(module)
         for _, target in _imports(path):

@@ -141,7 +141,9 @@ def test_the_reply_may_name_only_the_next_parts_actors() -> None:
     roster = tuple(CharacterStatus(name=n) for n in ("Ava", "Ben", "Cy"))
     inp = NarratorInput(scene_description="- kitchen: coffee_maker_1", characters=roster, instruction=COFFEE)
     assert inp.candidates == ["Ava"]
-    enum = narrator_request(PromptLibrary(), inp).json_schema["properties"]["event"]["properties"]["characters"]
+    schema = narrator_request(PromptLibrary(), inp).json_schema
+    assert schema is not None
+    enum = schema["properties"]["event"]["properties"]["characters"]
     assert enum["items"]["enum"] == ["Ava"] and enum["maxItems"] == 1
     anyone = NarratorInput(scene_description="-", characters=roster, instruction="Everyone dances.")
     assert anyone.candidates == ["Ava", "Ben", "Cy"]

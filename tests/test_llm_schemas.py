@@ -40,7 +40,7 @@ class Outer(BaseModel):
     items: tuple[Inner, ...] = Field(max_length=5)
 
 
-def _walk(node: object) -> list[dict]:
+def _walk(node: object) -> list[dict[str, object]]:
     if isinstance(node, dict):
         return [node, *(d for v in node.values() for d in _walk(v))]
     if isinstance(node, list):

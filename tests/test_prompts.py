@@ -74,6 +74,9 @@ def test_library_on_a_copy_and_fingerprint_changes_with_one_character(tmp_path: 
 def test_prompts_are_short_for_a_small_model() -> None:
     """Stable parts stay small: the 0.5B model reads ~150 tokens/s."""
     lib = PromptLibrary()
-    words = lambda s: len(re.findall(r"\S+", s))  # noqa: E731
+
+    def words(s: str) -> int:
+        return len(re.findall(r"\S+", s))
+
     assert words(lib.text("narrator/system.md")) + words(lib.examples("narrator", BENCHMARK_TAGS)) < 450
     assert words(lib.text("event_parser/system.md")) + words(lib.examples("event_parser", BENCHMARK_TAGS)) < 500
