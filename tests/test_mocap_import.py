@@ -128,9 +128,8 @@ def test_amass_npz_round_trip(tmp_path: Path) -> None:
     assert np.allclose(back.joint_positions(), clip.joint_positions(), atol=1e-9)
     # root_orient / pose_body layout at 60 fps resamples to 30 fps
     a = _amass_arrays(clip)
-    split = {"root_orient": a["poses"][:, :3], "pose_body": a["poses"][:, 3:66], "trans": a["trans"],
-             "mocap_framerate": np.array(60.0)}
-    np.savez(tmp_path / "split.npz", **split)
+    np.savez(tmp_path / "split.npz", root_orient=a["poses"][:, :3], pose_body=a["poses"][:, 3:66], trans=a["trans"],
+             mocap_framerate=np.array(60.0))
     half = import_amass(tmp_path / "split.npz", "drink", snap_to_floor=False)
     assert half.num_frames == (clip.num_frames - 1) // 2 + 1
     np.savez(tmp_path / "broken.npz", poses=a["poses"])

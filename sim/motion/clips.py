@@ -162,7 +162,7 @@ def clip_from_pose_frames(
     return MotionClip(name, key, local_rotations, pelvis, root, heading, contacts, loops, tgt, FPS, source)
 
 
-def foot_sliding(joint_positions: NDArray[np.float64], contacts: NDArray[np.float64], fps: float = FPS) -> float:
+def foot_sliding(joint_positions: NDArray[np.float64], contacts: NDArray[np.bool_], fps: float = FPS) -> float:
     """Mean horizontal speed (m/s) of the toe joints over frames where that foot is in
     contact in both the frame and the next; 0.0 when there is no such frame."""
     toes = np.asarray(joint_positions)[:, FOOT_JOINTS, :2]
