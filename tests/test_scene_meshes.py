@@ -79,20 +79,20 @@ def test_yaw_box_degenerate_inputs() -> None:
 
 def _box_z_up(size: tuple[float, float, float]) -> trimesh.Trimesh:
     """A box standing on z = 0 (z-up file frame)."""
-    box = trimesh.creation.box(size)
+    box: trimesh.Trimesh = trimesh.creation.box(size)
     box.apply_translation([0.0, 0.0, size[2] / 2])
     return box
 
 
 def _box_y_up(size_xyz: tuple[float, float, float]) -> trimesh.Trimesh:
     """A box standing on y = 0 in a glTF (Y-up) frame; ``size_xyz`` in glTF axes."""
-    box = trimesh.creation.box(size_xyz)
+    box: trimesh.Trimesh = trimesh.creation.box(size_xyz)
     box.apply_translation([0.0, size_xyz[1] / 2, 0.0])
     return box
 
 
 def _gltf_pose(yaw_about_up: float, position_xyz: tuple[float, float, float]) -> np.ndarray:
-    transform = trimesh.transformations.rotation_matrix(yaw_about_up, [0.0, 1.0, 0.0])
+    transform: np.ndarray = trimesh.transformations.rotation_matrix(yaw_about_up, [0.0, 1.0, 0.0])
     transform[:3, 3] = position_xyz
     return transform
 
