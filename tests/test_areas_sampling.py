@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sim.scene.files import load_scene
-from sim.scene.model import Scene, SceneObject
+from sim.scene.model import Scene, SceneObject, Vec2, Vec3
 from tests.support.reference import REFERENCE as REF
 from tests.support.reference import reference_or_skip
 from tools import areas
@@ -33,7 +34,7 @@ def scenes() -> dict[str, Scene]:
     }
 
 
-def obj(name: str, center, size, facing=(0.0, 1.0), **kw) -> SceneObject:
+def obj(name: str, center: Vec3, size: Vec3, facing: Vec2 = (0.0, 1.0), **kw: Any) -> SceneObject:
     label, idx = name.rsplit("_", 1)
     return SceneObject(
         name=name,
@@ -270,11 +271,12 @@ def test_world_view_reads_all_reference_cases(scenes: dict[str, Scene]) -> None:
             assert state.position is not None and state.facing is not None
             text = raw["position"][0]
             if text.startswith(("sit on", "lie on")):
-                assert state.seat == text.split()[-1]
-                assert world.objects_in_use[state.seat] in {
-                    c.name for c in world.characters if c.seat == state.seat
+                seat_name = text.split()[-1]
+                assert state.seat == seat_name
+                assert world.objects_in_use[seat_name] in {
+                    c.name for c in world.characters if c.seat == seat_name
                 }
-                seat = scene.by_name[state.seat]
+                seat = scene.by_name[seat_name]
                 assert float(point_footprint_distance(seat, np.array(state.position))) == 0.0
             else:
                 assert state.seat is None

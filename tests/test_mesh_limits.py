@@ -86,7 +86,7 @@ def test_accessors_declaring_gigabytes_are_refused(tmp_path: Path) -> None:
 
 
 def test_too_many_nodes_are_refused_before_loading(tmp_path: Path) -> None:
-    nodes = [{}] * mesh_limits.MAX_MESH_NODES + [{"mesh": 0, "name": "chair_1"}]
+    nodes: list[dict[str, Any]] = [{}] * mesh_limits.MAX_MESH_NODES + [{"mesh": 0, "name": "chair_1"}]
     _refused(_glb(tmp_path / "nodes.glb", _doc(nodes)), "nodes, at most")
 
 
@@ -94,7 +94,7 @@ def test_deep_and_cyclic_hierarchies_are_refused(tmp_path: Path) -> None:
     depth = mesh_limits.MAX_NODE_DEPTH + 5
     chain = [{"name": f"n{i}", "children": [i + 1]} for i in range(depth)] + [{"mesh": 0, "name": "chair_1"}]
     _refused(_glb(tmp_path / "deep.glb", _doc(chain)), "deeper than")
-    cycle = [{"mesh": 0, "name": "chair_1", "children": [1]}, {"name": "x", "children": [0]}]
+    cycle: list[dict[str, Any]] = [{"mesh": 0, "name": "chair_1", "children": [1]}, {"name": "x", "children": [0]}]
     _refused(_glb(tmp_path / "cycle.glb", _doc(cycle)), "node hierarchy")
 
 
