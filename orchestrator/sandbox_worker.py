@@ -43,7 +43,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import asdict
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any, Self
 
 from sim.scene.model import Scene
 from tools import errors as tool_errors
@@ -253,7 +253,7 @@ class WorkerRunner:
                 with contextlib.suppress(OSError):
                     stream.close()
 
-    def __enter__(self) -> WorkerRunner:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
