@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from matplotlib.image import imread
+from matplotlib.quiver import Quiver
 
 from sim.export.topdown import CharacterMarker, draw_topdown, render_topdown_rgb, save_topdown_png
 from sim.scene.bundled import load_bundled_scene
@@ -84,7 +86,7 @@ def test_frames_of_one_scene_share_a_shape(small: Scene) -> None:
         "no-names",
     ],
 )
-def test_each_layer_draws(small: Scene, layers: dict) -> None:
+def test_each_layer_draws(small: Scene, layers: dict[str, Any]) -> None:
     base = render_topdown_rgb(small, size_px=400)
     drawn = render_topdown_rgb(small, size_px=400, **layers)
     assert _changed(base, drawn) > 30
@@ -93,7 +95,8 @@ def test_each_layer_draws(small: Scene, layers: dict) -> None:
 def test_facing_arrows_only_for_objects_with_a_front(small: Scene) -> None:
     fig = draw_topdown(small)
     quivers = [c for c in fig.axes[0].collections if type(c).__name__ == "Quiver"]
-    assert len(quivers) == 1 and quivers[0].N == 1  # the chair; not the table or the cup
+    assert len(quivers) == 1 and isinstance(quivers[0], Quiver)
+    assert quivers[0].N == 1  # the chair; not the table or the cup
     texts = {t.get_text() for t in fig.axes[0].texts}
     assert {"table_1", "chair_1", "cup_1"} <= texts
 
