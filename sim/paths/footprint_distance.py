@@ -57,6 +57,8 @@ def body_clearance(
     out = np.full(len(a), np.inf)
     objs = list(obstacles)
     known = obstacles if isinstance(obstacles, Obstacles) else None  # geometry computed once
+    if cutoff is not None and len(objs) * len(a) > PRUNE_PAIRS:
+        return _pruned_clearance(objs, known, a, b, float(cutoff), out)
     which: Sequence[int] = range(len(objs))
     if cutoff is not None and objs and len(a):
         centres, radii = known.circles if known is not None else bounding_circles(objs)
@@ -73,6 +75,40 @@ def body_clearance(
             db = b - centre
             bx, by = db @ right, db @ facing
         _min_segment_rect_distance(ax, ay, bx, by, obj.width / 2.0, obj.depth / 2.0, out)
+    return out
+
+
+PRUNE_PAIRS = 1_000_000
+"""Segment-object pairs above which :func:`body_clearance` with a ``cutoff`` looks at each
+object's nearby segments only (found through segments sorted by x) instead of all of them: a
+scene's whole grid against each of its objects grows with cells x objects, and a 2,000-object
+scene cost 40 s. The bundled and reference scenes stay below it (the office: 3,300 cells x 41 objects)."""
+
+
+def _pruned_clearance(objs: list[SceneObject], known: Obstacles | None, a: np.ndarray, b: np.ndarray, cutoff: float,
+                      out: np.ndarray) -> np.ndarray:
+    """``body_clearance`` with a ``cutoff`` in time near-linear in segments + objects: each object
+    against the segments whose bounding box meets the square around its bounding circle grown by
+    ``cutoff`` (the others are at least ``cutoff`` away). Values below ``cutoff`` are exact."""
+    centres, radii = known.circles if known is not None else bounding_circles(objs)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    order = np.argsort(lo[:, 0], kind="stable")
+    lo_x = lo[order, 0]
+    widest = float((hi[:, 0] - lo[:, 0]).max()) if len(a) else 0.0
+    for k, obj in enumerate(objs):
+        reach = float(radii[k]) + cutoff + 1e-6
+        cx, cy = float(centres[k, 0]), float(centres[k, 1])
+        start, stop = np.searchsorted(lo_x, [cx - reach - widest, cx + reach], side="right")
+        near = order[start:stop]
+        near = near[(hi[near, 0] >= cx - reach) & (lo[near, 1] <= cy + reach) & (hi[near, 1] >= cy - reach)]
+        if not len(near):
+            continue
+        centre, right, facing = known.frames[k] if known is not None else object_frame(obj)
+        da, db = a[near] - centre, b[near] - centre
+        part = out[near]
+        _min_segment_rect_distance(da @ right, da @ facing, db @ right, db @ facing, obj.width / 2.0, obj.depth / 2.0,
+                                   part)
+        out[near] = part
     return out
 
 

@@ -37,7 +37,7 @@ def allowed_moves(
         if len(src) and obstacles:
             a = origin + (src + 0.5) * cs
             b = a + np.array([dx, dy], dtype=float) * cs
-            clear = body_clearance(obstacles, a, b) >= r
+            clear = body_clearance(obstacles, a, b, cutoff=r) >= r
             ok[src[~clear, 0], src[~clear, 1]] = False
         moves[:, :, k] = ok
     return moves

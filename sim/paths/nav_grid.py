@@ -440,7 +440,7 @@ def build_nav_grid(
     ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
     cells = np.stack([ii.ravel(), jj.ravel()], axis=1)
     centers = origin + (cells + 0.5) * cs
-    free = inside_bounds(centers, lo, hi, body_radius) & (body_clearance(obstacles, centers, centers) >= body_radius)
+    free = inside_bounds(centers, lo, hi, body_radius) & (body_clearance(obstacles, centers, centers, cutoff=body_radius) >= body_radius)
     free = free.reshape(nx, ny)
 
     if aligned:

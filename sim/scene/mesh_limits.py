@@ -37,7 +37,7 @@ from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_
 from sim.scene.errors import SceneFileError
 
 MAX_MESH_NODES = 20_000
-"""Nodes a glTF file may declare (geometry or not; 10 per object allowed in a scene)."""
+"""Nodes a glTF file may declare (geometry or not: 40 per object a scene may hold)."""
 MAX_MESH_ARRAY_BYTES = 256 * 1024 * 1024
 """Bytes all accessors of a glTF file may declare together (4 x the largest mesh file)."""
 MAX_NODE_DEPTH = 64
