@@ -102,7 +102,8 @@ def test_office_reference_overrides_draw_the_walls() -> None:
     assert not any(grid.free[grid.reference_cell(a, 10)] for a in (24, 25, 26))
     # ...and without overrides it is open floor.
     plain = build_nav_grid(scene, use_reference_overrides=False)
-    assert plain.is_free_xy(grid.center_of(*grid.reference_cell(25, 10)))
+    wall = grid.reference_cell(25, 10)
+    assert wall is not None and plain.is_free_xy(grid.center_of(*wall))
 
 
 @pytest.mark.parametrize("name", ["House", "Office", "Restaurant"])
@@ -116,7 +117,7 @@ def test_seats_have_reachable_approach_cells(name: str) -> None:
     for obj in seats:
         cell = grid.approach_cell(obj)
         assert grid.component[cell] == main
-        near += np.linalg.norm(grid.center_of(*cell) - obj.seat_point()) < 1.2
+        near += bool(np.linalg.norm(grid.center_of(*cell) - obj.seat_point()) < 1.2)
     if name != "Office":  # Office chairs are tucked 0.37-0.46 m from their tables: no room for a body
         assert near >= 0.8 * len(seats)
 

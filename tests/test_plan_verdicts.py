@@ -118,7 +118,8 @@ def test_case_1_standing_inside_an_alternative_seat_collides_with_it() -> None:
     by tests/test_scorer_agreement.py; before the fix the collision went unreported, and
     "sit on chair_13 || adjacent to table_6" passed a point standing inside the chair."""
     case, scene = _reference_case(1)
-    seat_point = tuple(float(v) for v in scene.by_name["chair_13"].seat_point())
+    seat_xy = scene.by_name["chair_13"].seat_point()
+    seat_point = (float(seat_xy[0]), float(seat_xy[1]))
     standing = PlannedCharacter(character="Chad", action="work_on_computer", position=seat_point,
                                 facing=(1.0, 0.0), seat=None)
     outcome = ParsedEvent(index=0, event=Event(characters=("Chad",), activity="stands"), plans=(standing,))

@@ -53,7 +53,8 @@ def test_an_area_whose_free_floor_is_enclosed_fails_at_sampling_time() -> None:
     floor = FloorMap(scene)
 
     def inside(p: np.ndarray) -> np.ndarray:
-        return np.all(np.abs(p - 3.0) <= 0.45, axis=1)
+        within: np.ndarray = np.all(np.abs(p - 3.0) <= 0.45, axis=1)
+        return within
 
     pen = Area("inside the pen", inside, (2.55, 2.55, 3.45, 3.45))
     assert floor.free(np.array([[3.0, 3.0]])).all()

@@ -92,7 +92,8 @@ MESSAGES = [{"role": "system", "content": "pick"}, {"role": "user", "content": "
 def score(llm: StandInLlama, choices: Sequence[str]) -> dict[str, Any]:
     watch = ProgressWatch("local/stand-in", hard_cap_s=600.0)
     out = score_continuations(llm, MESSAGES, choices, watch, threading.Event())
-    return json.loads(out["choices"][0]["message"]["content"])
+    chosen: dict[str, Any] = json.loads(out["choices"][0]["message"]["content"])
+    return chosen
 
 
 def test_each_choice_is_scored_as_the_whole_reply_and_the_best_is_chosen() -> None:
