@@ -150,7 +150,10 @@ def test_the_regions_schema_admits_only_complete_answers_in_order() -> None:
     missing, repeated or reordered region (checked with a JSON-schema validator)."""
     jsonschema = pytest.importorskip("jsonschema")
     schema = describer_regions_schema(3)
-    entry = lambda r: {"region": r, "area": "kitchen", "purpose": ""}  # noqa: E731
+
+    def entry(r: int) -> dict[str, object]:
+        return {"region": r, "area": "kitchen", "purpose": ""}
+
     jsonschema.validate({"regions": [entry(1), entry(2), entry(3)]}, schema)
     for wrong in ([1, 2], [1, 2, 2], [2, 1, 3], [1, 2, 3, 4]):
         with pytest.raises(jsonschema.ValidationError):

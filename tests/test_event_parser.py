@@ -7,6 +7,7 @@ test runs the real ``run_event_program`` on a small scene.
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Sequence
 from dataclasses import replace
 
 import pytest
@@ -28,7 +29,9 @@ from agents.retry_feedback import AnswerRejectedError, NoCodeError, RetriesExhau
 from sim.scene.model import Scene, SceneObject
 from tests.support.planning_script import Plan
 from tests.support.scripted_llm import ScriptedLLM
+from tools.character_states import WorldView
 from tools.errors import UnknownObjectError
+from tools.scene_graph import SceneGraph
 
 BODY = '    a = get_character("Ann")\n    a.set_position(get_area_close_to("table_1"))\n'
 FUNC = "def parse_event():\n" + BODY
@@ -107,7 +110,15 @@ def test_request_layout() -> None:
     assert "Suggested action label: eat" in user
 
 
-def fake_runner(scene, source, world, *, seed, action_labels=None, graph=None):
+def fake_runner(
+    scene: Scene,
+    source: str,
+    world: WorldView,
+    *,
+    seed: int,
+    action_labels: Sequence[str] | None = None,
+    graph: SceneGraph | None = None,
+) -> list[Plan]:
     if "tabel_1" in source:
         raise UnknownObjectError("unknown object 'tabel_1'; did you mean 'table_1'?")
     return [Plan("Ann", "eat", "close to table_1", (1.0 + seed, 1.0), (0.0, 1.0))]
@@ -115,7 +126,7 @@ def fake_runner(scene, source, world, *, seed, action_labels=None, graph=None):
 
 async def test_typed_error_becomes_feedback_and_retry_succeeds() -> None:
     port = ScriptedLLM(["no code here", "```python\n" + FUNC.replace("table_1", "tabel_1") + "```", "```python\n" + FUNC + "```"])
-    accepted = await parse_event(port, PromptLibrary(), make_input(), scene=scene(), world=None, seed=5, runner=fake_runner)
+    accepted = await parse_event(port, PromptLibrary(), make_input(), scene=scene(), world=WorldView(), seed=5, runner=fake_runner)
     assert accepted.attempts == 3
     assert accepted.value.plans[0].position == (6.0, 1.0)
     feedback = port.requests[2].messages[-1].content
@@ -125,7 +136,7 @@ async def test_typed_error_becomes_feedback_and_retry_succeeds() -> None:
 async def test_parser_retries_bounded() -> None:
     port = ScriptedLLM(["nothing"] * 5)
     with pytest.raises(RetriesExhaustedError):
-        await parse_event(port, PromptLibrary(), make_input(), scene=scene(), world=None, seed=0, runner=fake_runner, max_retries=1)
+        await parse_event(port, PromptLibrary(), make_input(), scene=scene(), world=WorldView(), seed=0, runner=fake_runner, max_retries=1)
     assert len(port.requests) == 2
 
 
@@ -167,5 +178,5 @@ def test_the_suggested_label_and_the_instruction_part_reach_the_request() -> Non
 
 async def test_parser_retry_asks_for_the_code_block_only() -> None:
     port = ScriptedLLM(["no code", "```python\n" + FUNC + "```"])
-    await parse_event(port, PromptLibrary(), make_input(), scene=scene(), world=None, seed=0, runner=fake_runner)
+    await parse_event(port, PromptLibrary(), make_input(), scene=scene(), world=WorldView(), seed=0, runner=fake_runner)
     assert port.requests[1].messages[-1].content.endswith("reply with the whole corrected ```python block only.")
