@@ -20,8 +20,9 @@ from sim.body.skeleton import (
     rest_positions,
 )
 from sim.export.box_figure import box_mesh, character_mesh
-from sim.export.bundle import export_run, file_slug
+from sim.export.bundle import export_run
 from sim.export.glb import export_glb, glb_bytes
+from sim.run_folder_names import file_slug
 from sim.scene.model import Scene, SceneObject
 from sim.world.character_track import CharacterTrack
 from tests.support.gltf_eval import COMPONENTS as _WIDTH

@@ -16,7 +16,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from benchmark.support.random_tracks import random_track
-from sim.export.bundle import export_run, file_slug
+from sim.export.bundle import export_run
 from sim.export.bvh import (
     EULER_ORDER,
     WORLD_TO_BVH,
@@ -27,6 +27,7 @@ from sim.export.bvh import (
 from sim.export.glb import WORLD_TO_GLTF, export_glb
 from sim.export.joint_rotations import JointRotations
 from sim.export.smplx_npz import export_smplx_npz, smplx_parameters
+from sim.run_folder_names import file_slug
 from sim.scene.bundled import load_bundled_scene
 from sim.world.character_track import CharacterTrack
 

@@ -64,7 +64,7 @@ def test_a_short_storys_prompt_is_unchanged() -> None:
 def test_steps_in_flight_and_failed_steps_take_their_place_in_the_window() -> None:
     events = story(20)
     failed = PlanningFailure(index=20, node="event_parser", attempts=4, feedback="no room",
-                             event={"characters": ("Ben",), "activity": "dance"})  # type: ignore[arg-type]  # pydantic validates the dict into an Event
+                             event={"characters": ("Ben",), "activity": "dance"})
     pending = [HistoryEntry(index=21, characters=("Cleo",), activity="sing", state="ongoing")]
     history, earlier = history_window(events, [(20, failed)], pending)
     assert [h.index for h in history] == list(range(10, 22)) and history[-2].state == "failed"
@@ -117,7 +117,7 @@ def test_a_part_done_long_ago_stays_done_and_a_given_up_part_stays_given_up() ->
     events["event-0003"] = done
     fails = [
         (i, PlanningFailure(index=i, node="event_parser", attempts=1, feedback="no room", part=second,
-                            event={"characters": ("Ben",), "activity": "dance"}))  # type: ignore[arg-type]  # pydantic validates the dict into an Event
+                            event={"characters": ("Ben",), "activity": "dance"}))
         for i in (60, 61, 62)
     ]
     history, earlier = history_window(events, fails[:1], since=2)

@@ -69,10 +69,8 @@ def test_write_file_over_a_folder_fails_naming_the_file_and_leaves_nothing(folde
 
 
 def test_a_link_planted_at_a_temporary_name_is_never_written(folder: Path, victim: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import sim.no_follow_writes as writes
-
     tokens = iter(["aaaaaaaaaaaa", "bbbbbbbbbbbb"])
-    monkeypatch.setattr(writes.secrets, "token_hex", lambda _n: next(tokens))
+    monkeypatch.setattr("sim.no_follow_writes.secrets.token_hex", lambda _n: next(tokens))
     link(folder / ".run.json.aaaaaaaaaaaa.tmp.json", victim)  # the first name tried is taken by a link
     write_file(folder / "run.json", b"{}\n")
     assert victim.read_bytes() == PRECIOUS and (folder / "run.json").read_bytes() == b"{}\n"

@@ -91,9 +91,12 @@ def test_a_reopened_log_knows_every_step(tmp_path: Path) -> None:
 
 def test_records_from_worker_threads_do_not_interleave(tmp_path: Path) -> None:
     story = StoryLog(tmp_path / "runs.sqlite", "t")
-    threads = [
-        threading.Thread(target=lambda k=k: [story.record(i, event(i), (i,)) for i in range(k, 60, 3)]) for k in range(3)
-    ]
+
+    def record_every_third(k: int) -> None:
+        for i in range(k, 60, 3):
+            story.record(i, event(i), (i,))
+
+    threads = [threading.Thread(target=record_every_third, args=(k,)) for k in range(3)]
     for t in threads:
         t.start()
     for t in threads:

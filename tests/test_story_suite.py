@@ -220,7 +220,8 @@ def test_scenario_names_come_from_the_file(tmp_path: Path) -> None:
     path = tmp_path / "mine.toml"
     path.write_text(HEAD + '[[expect]]\nkind = "not_idle"\ncharacter = "Ben"\n', encoding="utf-8")
     scenario = load_scenario(path)
-    assert isinstance(scenario, Scenario) and scenario.name == "mine" and scenario.names == ("Ava", "Ben")
+    assert isinstance(scenario, Scenario)
+    assert scenario.name == "mine" and scenario.names == ("Ava", "Ben")
 
 
 def test_recorded_scores_merge_per_scenario(tmp_path: Path) -> None:
