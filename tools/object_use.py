@@ -21,7 +21,7 @@ applied. Pure: no clock, no I/O.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -176,7 +176,7 @@ def use_conflicts(plans: Sequence[PlanLike], characters: Iterable[CharacterLike]
 
 
 def shared_use_frames(
-    labels: dict[str, Sequence[str]], positions: dict[str, np.ndarray], scene: Scene
+    labels: Mapping[str, Sequence[str]], positions: Mapping[str, np.ndarray], scene: Scene
 ) -> list[tuple[int, str, tuple[str, ...]]]:
     """Frames where more characters act on one object alone than it has places: (frame, object,
     characters). ``labels``: per character the action label of every frame; ``positions``: per
