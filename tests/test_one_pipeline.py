@@ -13,13 +13,8 @@ from collections.abc import Sequence
 
 from agents.llm_port import LLMRequest
 from agents.messages import CharacterStatus
-from benchmark.planning_benchmark import (
-    CaseWorld,
-    Descriptions,
-    case_tags,
-    run_cases,
-)
-from benchmark.reference_cases import planning_inputs
+from benchmark.planning_benchmark import Descriptions, run_cases
+from benchmark.reference_cases import CaseWorld, case_tags, planning_inputs
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.graph import compile_planning_graph, recursion_limit
 from orchestrator.planning.state import PlanningDeps, PlanningState

@@ -9,8 +9,7 @@ import json
 import pytest
 
 import orchestrator.sandbox_worker
-from benchmark.planning_benchmark import CaseWorld, case_tags
-from benchmark.reference_cases import planning_inputs
+from benchmark.reference_cases import CaseWorld, case_tags, planning_inputs
 from orchestrator.sandbox_worker import WorkerRunner
 from orchestrator.session.plan_job import run_plan
 from tests.support.reference import requires_reference
