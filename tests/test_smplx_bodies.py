@@ -112,7 +112,8 @@ def _glb_body_vertices(doc: gl.GLTF2, name: str, frame: int) -> np.ndarray:
     skinning = np.array([world[j] for j in skin.joints]) @ ibm  # (22, 4, 4)
     homogeneous = np.column_stack([pos, np.ones(len(pos))])
     moved = np.einsum("vkij,vj->vki", skinning[joints], homogeneous)[..., :3]
-    return np.einsum("vk,vki->vi", weights, moved) @ BODY_TO_WORLD.T
+    vertices: np.ndarray = np.einsum("vk,vki->vi", weights, moved) @ BODY_TO_WORLD.T
+    return vertices
 
 
 def test_glb_carries_the_smplx_mesh_skinned_and_animated(model_dir: Path, tmp_path: Path) -> None:

@@ -144,7 +144,7 @@ def test_landmarks_on_a_bundled_scene_tell_objects_apart() -> None:
     names = ObjectNames(HOME)
     assert names("chair_5") == "the chair by the desk (chair_5)"
     assert names("cabinet_1") == "the cabinet with the coffee maker (cabinet_1)"
-    labelled = {}
+    labelled: dict[str, list[str]] = {}
     for o in HOME.objects:
         shown = names(o.name)
         if names.unique(o.name):

@@ -42,7 +42,8 @@ TAGS = re.compile(r"<(?!/?p>)(?!/?h1>)[a-z/][^>]*>")  # any tag but the paragrap
 
 def html_of(md: str) -> str:
     """What a markdown renderer that passes raw HTML through (as viser's does) makes of ``md``."""
-    return MarkdownIt("commonmark", {"html": True}).render(md)
+    html: str = MarkdownIt("commonmark", {"html": True}).render(md)
+    return html
 
 
 def no_markup_from_the_model(html: str, *, own_bold: int = 0, own_italics: int = 0) -> None:

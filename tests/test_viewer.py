@@ -28,7 +28,7 @@ from sim.scene.files import save_scene_json
 from sim.world.character_track import CharacterTrack
 
 
-def _event(i: int, start: int, end: int | None, state: str = "completed") -> dict:
+def _event(i: int, start: int, end: int | None, state: str = "completed") -> dict[str, object]:
     return {
         "event_id": f"event-{i:04d}", "index": i, "characters": ["Ava"], "activity": f"act {i}", "text": f"Ava: act {i}",
         "requested_frame": start, "applied_frame": start, "state": state, "finished_frame": end, "failure": None,
