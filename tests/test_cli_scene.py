@@ -7,6 +7,7 @@ import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pygltflib
@@ -104,7 +105,7 @@ def _glb_without_nodes(path: Path) -> Path:
 
 
 def _scene_json(
-    tmp: Path, edit: Callable[[dict], None] | None = None, text: Callable[[str], str] | None = None
+    tmp: Path, edit: Callable[[dict[str, Any]], None] | None = None, text: Callable[[str], str] | None = None
 ) -> Path:
     data = json.loads(load_bundled_scene("home").model_dump_json())
     if edit is not None:
@@ -122,7 +123,12 @@ def _file(path: Path, content: bytes) -> Path:
     return path
 
 
-def _dup(data: dict) -> None:
+def _folder(path: Path) -> Path:
+    path.mkdir()
+    return path
+
+
+def _dup(data: dict[str, Any]) -> None:
     data["objects"].append(dict(data["objects"][0]))
 
 
@@ -136,7 +142,7 @@ BAD: list[tuple[str, Callable[[Path], Path], str]] = [
     ("wrong-type", lambda t: _scene_json(t, lambda d: d["objects"][0].update(has_facing="yes")), "field 'has_facing'"),
     ("empty", lambda t: _file(t / "e.json", b""), "file is empty"),
     ("binary", lambda t: _file(t / "b.json", bytes(range(256))), "binary data"),
-    ("no-objects-json", lambda t: (t / "folder").mkdir() or t / "folder", "no objects.json"),
+    ("no-objects-json", lambda t: _folder(t / "folder"), "no objects.json"),
     ("glb-no-nodes", lambda t: _glb_without_nodes(t / "x.glb"), "no nodes with geometry"),
     ("not-found", lambda t: t / "nothing.json", "not a bundled scene"),
 ]  # fmt: skip

@@ -6,7 +6,7 @@ import json
 import shutil
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import pytest
 
@@ -84,7 +84,7 @@ def test_resolve_scene_by_name_and_path(tmp_path: Path) -> None:
 # ----- bad files -------------------------------------------------------------------------------
 def _project(**changes: Any) -> dict[str, Any]:
     """A small valid project scene, as JSON data, with top-level changes."""
-    data = json.loads(load_bundled_scene("home").model_dump_json())
+    data: dict[str, Any] = json.loads(load_bundled_scene("home").model_dump_json())
     data["objects"] = data["objects"][:3]
     data.update(changes)
     return data
@@ -157,6 +157,11 @@ def _ref_objects() -> list[dict[str, Any]]:
     ]
 
 
+def _folder(path: Path) -> Path:
+    path.mkdir()
+    return path
+
+
 def _ref_file(tmp: Path, filename: str, content: str | dict[str, Any]) -> Path:
     """A reference folder with ``filename`` replaced by ``content``; returns the folder."""
     folder = _reference_folder(tmp)
@@ -211,7 +216,7 @@ BAD_CASES: list[BadCase] = [
     ("latin1-text", lambda t: _write(t / "s.json", '{"name": "caf\xe9"}'.encode("latin-1")), "s.json", None, None, "not UTF-8"),
     ("missing-file", lambda t: t / "absent.json", "absent.json", None, None, "file not found"),
     ("unknown-suffix", lambda t: _write(t / "scene.yaml", "name: x"), "scene.yaml", None, None, "unsupported scene file type"),
-    ("folder-without-objects", lambda t: (t / "empty_dir").mkdir() or t / "empty_dir", "empty_dir", None, None, "no objects.json"),
+    ("folder-without-objects", lambda t: _folder(t / "empty_dir"), "empty_dir", None, None, "no objects.json"),
     ("ref-missing-field", lambda t: _reference_folder(t, _drop(1, "width")), "objects.json", "chair_2", "width", "required field is missing"),
     ("ref-nan", lambda t: _ref_file(t, "objects.json", json.dumps(_ref_objects()).replace('"depth": 0.5', '"depth": NaN', 1)), "objects.json", "chair_1", "depth", "non-finite number 'NaN'"),
     ("ref-infinity-center", lambda t: _ref_file(t, "objects.json", json.dumps(_ref_objects()).replace('"center": [3.0', '"center": [Infinity', 1)), "objects.json", "table_1", "center", "non-finite number 'Infinity'"),
@@ -229,7 +234,7 @@ BAD_CASES: list[BadCase] = [
     ("ref-zero-facing", lambda t: _reference_folder(t, _set(0, "orientation", [0.0, 0.0, 0.0])), "objects.json", "chair_1", "orientation", "non-zero"),
     ("ref-bad-label", lambda t: _reference_folder(t, _set(0, "label", "Big Chair")), "objects.json", "Big Chair_1", "label", "snake case"),
     ("ref-negative-idx", lambda t: _reference_folder(t, _set(0, "idx", -1)), "objects.json", "chair_-1", "idx", "integer >= 0"),
-    ("ref-entry-not-object", lambda t: _reference_folder(t, lambda o: o.append(7)), "objects.json", "#3", None, "expected a JSON object"),
+    ("ref-entry-not-object", lambda t: _reference_folder(t, lambda o: cast("list[object]", o).append(7)), "objects.json", "#3", None, "expected a JSON object"),  # 7: no object, on purpose
     ("ref-not-list", lambda t: _ref_file(t, "objects.json", {"objects": []}), "objects.json", None, None, "JSON list"),
     ("ref-truncated", lambda t: _ref_file(t, "objects.json", json.dumps(_ref_objects())[:150]), "objects.json", None, None, "truncated"),
     ("json-object-far-outside", lambda t: _write(t / "s.json", _with_object(1, center=[1.95, 10.5, 0.45])), "s.json", "cabinet_1", "center", "2.50 m outside the scene bounds"),
