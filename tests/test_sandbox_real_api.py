@@ -1,9 +1,9 @@
 """The whole hostile corpus, run against the real spatial API on a bundled scene.
 
-``tests/test_sandbox_hostile.py`` runs its programs against a stand-in world; here every one of
-them (plus the huge-range membership cases) goes through ``run_event_program`` exactly as
-``storyteller event-program home --states ...`` runs it: a real ``SpatialAPI`` over the
-bundled home scene with two characters already placed.
+``tests/test_sandbox_hostile.py`` runs the corpus of ``tests/support/hostile_programs.py``
+against a stand-in world; here every one of them (plus the huge-range membership cases) goes
+through ``run_event_program`` exactly as ``storyteller event-program home --states ...`` runs
+it: a real ``SpatialAPI`` over the bundled home scene with two characters already placed.
 
 A program that hangs in C (as ``0.5 in range(10**15)`` did) holds the interpreter lock, so no
 thread can time it out: the cases run in a worker subprocess that reports one JSON line per
@@ -45,16 +45,13 @@ SCENE = "home"
 
 def _cases() -> list[tuple[str, object, str, object]]:
     """(name, source, expected error class name or "value", expected value)."""
-    sys.path.insert(0, str(HERE))
-    import test_sandbox_hostile as hostile
+    sys.path.insert(0, str(HERE.parent))  # the worker runs this file as a script
+    from tests.support.hostile_programs import HOSTILE, RANGE_MEMBERSHIP, body
 
     out: list[tuple[str, object, str, object]] = [
-        (name, source, expected.__name__, None) for name, source, expected in hostile.HOSTILE
+        (name, source, expected.__name__, None) for name, source, expected in HOSTILE
     ]
-    out += [
-        (name, hostile.body(f"return {expr}"), "value", value)
-        for name, expr, value in hostile.RANGE_MEMBERSHIP
-    ]
+    out += [(name, body(f"return {expr}"), "value", value) for name, expr, value in RANGE_MEMBERSHIP]
     return out
 
 
@@ -217,6 +214,7 @@ def test_hostile_program_against_the_real_api(
         steps = report["steps"]
         if steps is not None:  # stopped while running: within one charge of the step budget
             budget = Budget()
+            assert isinstance(steps, int)  # EventProgramError.steps, through JSON
             assert steps <= budget.steps + budget.container_len * 10 // 8 + 64, steps
 
 
