@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import FakeOpenAI
+from benchmark.support.fake_openai_server import Action, FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.llm.traces import read_trace
 from orchestrator.session.roster import initial_roster
@@ -64,7 +64,7 @@ def free_point_near(name: str, *, away_from: list[tuple[float, float]]) -> tuple
     for r in (0.5, 0.6, 0.7, 0.8, 0.9, 1.0):
         for a in np.linspace(0, 2 * np.pi, 24, endpoint=False):
             p = c + r * np.array([np.cos(a), np.sin(a)])
-            if floor.free([p])[0] and all(np.hypot(*(p - np.array(q))) >= 1.0 for q in away_from):
+            if floor.free(p[None])[0] and all(np.hypot(*(p - np.array(q))) >= 1.0 for q in away_from):
                 return round(float(p[0]), 2), round(float(p[1]), 2)
     raise AssertionError(f"no free point near {name}")
 
@@ -151,7 +151,9 @@ def test_direct_inference_rejects_a_point_inside_furniture_then_accepts_a_free_o
 ) -> None:
     cfg = write_config(tmp_path, fake.base)
     table = SCENE.get("table_1").center
-    x, y = free_point_near("coffee_maker_1", away_from=[ROSTER[1].position])
+    other = ROSTER[1].position
+    assert other is not None  # the initial roster places everyone
+    x, y = free_point_near("coffee_maker_1", away_from=[other])
     fake.script["fake-narrator"] = [NARRATION]
     fake.script["fake-event_parser"] = [direct_reply(table[0], table[1]), direct_reply(x, y)]
     trace = tmp_path / "direct.jsonl"
@@ -266,7 +268,7 @@ def test_bad_choices_exit_2_with_a_clear_message(
 )
 @pytest.mark.slow
 def test_run_with_an_ablation_records_and_replays_the_same_story(
-    planner: str, description: str, script: dict[str, list[str]], nodes: list[str], fake: FakeOpenAI, tmp_path: Path
+    planner: str, description: str, script: dict[str, list[Action]], nodes: list[str], fake: FakeOpenAI, tmp_path: Path
 ) -> None:
     cfg = write_config(tmp_path, fake.base)
     fake.script.update(script)
