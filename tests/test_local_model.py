@@ -413,10 +413,11 @@ def test_models_load_without_repacked_weight_buffers() -> None:
 
 def test_prefix_slots_variable_is_checked_by_name() -> None:
     """Found by the hostile corpus: STORYTELLER_LOCAL_PREFIX_SLOTS=abc ended `run` with int()'s
-    own 'invalid literal' line, which does not say which setting was wrong."""
-    from orchestrator.llm.local_model import _prefix_slots
+    own 'invalid literal' line (at the import of this module, after the run's setup), which does
+    not say which setting was wrong; load_config now checks it by name, before the setup."""
+    from orchestrator.llm.config import ConfigError, load_config, prefix_slots
 
-    assert _prefix_slots("3") == 3 and _prefix_slots("0") == 1
+    assert prefix_slots({}) == 3 and prefix_slots({"STORYTELLER_LOCAL_PREFIX_SLOTS": "0"}) == 1
     for hostile in ("abc", "\u00b2", "9" * 5000, "-1"):
-        with pytest.raises(ValueError, match="STORYTELLER_LOCAL_PREFIX_SLOTS must be a whole number"):
-            _prefix_slots(hostile)
+        with pytest.raises(ConfigError, match="STORYTELLER_LOCAL_PREFIX_SLOTS: must be a whole number"):
+            load_config(None, {"STORYTELLER_LOCAL_PREFIX_SLOTS": hostile})

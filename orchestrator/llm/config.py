@@ -211,6 +211,19 @@ _ENV_FIELDS: dict[str, str] = {
 }
 
 
+PREFIX_SLOTS_ENV = "STORYTELLER_LOCAL_PREFIX_SLOTS"
+
+
+def prefix_slots(env: Mapping[str, str]) -> int:
+    """``STORYTELLER_LOCAL_PREFIX_SLOTS`` (default 3): Llama instances per embedded model, each
+    keeping the KV cache of the last prompt it saw. A few ASCII digits, or a :class:`ConfigError`
+    that names the variable; :func:`load_config` checks it, so a run stops before its setup."""
+    raw = env.get(PREFIX_SLOTS_ENV, "3").strip()
+    if not (raw.isascii() and raw.isdigit()) or len(raw) > 3:
+        raise ConfigError("environment", PREFIX_SLOTS_ENV, f"must be a whole number >= 1, got {raw[:20]!r}")
+    return max(1, int(raw))
+
+
 def _env_overrides(node: NodeName, env: Mapping[str, str]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if env.get("STORYTELLER_MODEL"):
@@ -251,6 +264,7 @@ def load_config(path: Path | str | None = None, env: Mapping[str, str] | None = 
     """Read the config file (``path``, else ``$STORYTELLER_CONFIG``, else defaults) and apply
     environment overrides. Raises :class:`ConfigError` with a one-line message on any problem."""
     env = os.environ if env is None else env
+    prefix_slots(env)
     if path is None and env.get("STORYTELLER_CONFIG"):
         path = env["STORYTELLER_CONFIG"]
     data: dict[str, Any] = {}

@@ -47,6 +47,7 @@ from litellm.exceptions import (
 from litellm.llms.custom_llm import CustomLLM
 
 from agents.llm_port import LLMUnavailableError
+from orchestrator.llm.config import prefix_slots
 from orchestrator.llm.cpu_threads import ThreadChooser
 from orchestrator.llm.decode_progress import ProgressWatch, default_hard_cap_s
 from orchestrator.llm.local_errors import LocalModelBusyError, LocalModelStalledError
@@ -62,17 +63,9 @@ SEED = 1234
 MAX_TOKENS_CAP = 2048
 DEFAULT_ARRAY_MAX_ITEMS = 64
 
-
-
-def _prefix_slots(raw: str) -> int:
-    """``STORYTELLER_LOCAL_PREFIX_SLOTS``: a few ASCII digits, or an error that names it."""
-    if not (raw.isascii() and raw.isdigit()) or len(raw) > 3:
-        raise ValueError(f"environment variable STORYTELLER_LOCAL_PREFIX_SLOTS must be a whole number >= 1, got {raw[:20]!r}")
-    return max(1, int(raw))
-
-
-PREFIX_SLOTS = _prefix_slots(os.environ.get("STORYTELLER_LOCAL_PREFIX_SLOTS", "3").strip())
-"""Llama instances per model, each keeping the KV cache of the last prompt it saw."""
+PREFIX_SLOTS = prefix_slots(os.environ)
+"""Llama instances per model, each keeping the KV cache of the last prompt it saw
+(``orchestrator.llm.config.prefix_slots``)."""
 
 
 @dataclass
