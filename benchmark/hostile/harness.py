@@ -50,6 +50,8 @@ class Spec:
     writable: tuple[Path, ...] = ()
     check: Callable[[], str | None] | None = None
     stdin: bytes | None = None
+    env: dict[str, str] = field(default_factory=dict)
+    """Environment variables set (over the harness's) for the attacked command."""
 
 
 @dataclass
@@ -129,6 +131,38 @@ def inspect(path: Path, expect: Expect = "bad") -> Spec:
 
 def score(box: Box, sweep: Path, expect: Expect = "bad") -> Spec:
     return Spec(["bench", "score", str(sweep)], "bench score", expect)
+
+
+def glb_file(doc: dict[str, Any], binary: bytes = b"") -> bytes:
+    """A ``.glb``: the glTF JSON ``doc`` and, if any, a binary chunk."""
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    chunks = struct.pack("<I", len(text)) + b"JSON" + text
+    if binary:
+        chunks += struct.pack("<I", len(binary)) + b"BIN\0" + binary
+    return b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks
+
+
+def gltf_doc(nodes: list[dict[str, Any]], count: int = 3, uri: str | None = None) -> dict[str, Any]:
+    """A glTF document of one point geometry of ``count`` VEC3 floats (in a buffer named ``uri``,
+    or the GLB's own) and ``nodes``, all in the scene."""
+    buffer: dict[str, Any] = {"byteLength": count * 12, **({"uri": uri} if uri else {})}
+    return {"asset": {"version": "2.0"}, "buffers": [buffer],
+            "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": count * 12}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": count, "type": "VEC3",
+                           "min": [0, 0, 0], "max": [1, 1, 1]}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+            "nodes": nodes, "scenes": [{"nodes": list(range(len(nodes)))}], "scene": 0}
+
+
+def sparse_file(path: Path, size: int) -> Path:
+    """A regular file of ``size`` bytes that takes no room on disk (a hole)."""
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+    with open(path, "wb") as f:
+        f.truncate(size)
+    return path
 
 
 def deep_json(depth: int) -> str:

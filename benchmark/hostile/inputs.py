@@ -141,3 +141,31 @@ def _program_states_names(box: Box) -> Spec:
     spec = program_run(box.file("prog.py", CLEAN_PROGRAM), "program")
     spec.argv += ["--states", str(box.file("states.json", json.dumps(states)))]
     return spec
+
+
+@attack("environment", "STORYTELLER_LOCAL_THREADS=\u00b2 (a digit int() refuses)")
+def _env_threads(box: Box) -> Spec:
+    return Spec(["model", "info"], "model info", "bad", env={"STORYTELLER_LOCAL_THREADS": "\u00b2"})
+
+
+@attack("environment", "STORYTELLER_LOCAL_PREFIX_SLOTS=abc (run)")
+def _env_slots(box: Box) -> Spec:
+    out = box.root / "o"
+    return Spec(["run", "home", "-d", "2", "--out", str(out), "--no-interactive", "--no-live"], "run", "bad",
+                writable=(out,), env={"STORYTELLER_LOCAL_PREFIX_SLOTS": "abc"})
+
+
+@attack("environment", "STORYTELLER_CONFIG a FIFO, STORYTELLER_MODEL with escapes and bidi")
+def _env_config(box: Box) -> Spec:
+    fifo = box.fifo(box.root / "cfg.toml")
+    return Spec(["model", "info"], "model info", "bad", env={"STORYTELLER_CONFIG": str(fifo),
+                                                            "STORYTELLER_MODEL": "openai/x" + BIDI})
+
+
+@attack("environment", "STORYTELLER_CACHE_DIR a file, STORYTELLER_REFERENCE a FIFO (replay)")
+def _env_cache(box: Box) -> Spec:
+    box.copy_run()
+    out = box.root / "replayed"
+    return Spec(["replay", str(box.run), "--out", str(out), "--no-live"], "replay", "either", writable=(out,),
+                env={"STORYTELLER_CACHE_DIR": str(box.file("cache", "not a folder")),
+                     "STORYTELLER_REFERENCE": str(box.fifo(box.root / "ref"))})

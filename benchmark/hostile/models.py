@@ -17,6 +17,7 @@ from benchmark.hostile.harness import (
     Spec,
     export,
     registrar,
+    sparse_file,
     zip_bomb_npz,
 )
 
@@ -78,3 +79,22 @@ def _plan_db(box: Box) -> Spec:
     trace = box.file("t.jsonl", gzip.compress(b'{"kind": "run"}\n'))
     return Spec(["plan", "home", "--runs-db", str(box.fifo(box.root / "db.sqlite")), "--replay", str(trace)],
                 "plan", "bad")
+
+
+def _clip_run(box: Box, clip: str) -> Spec:
+    config = box.file("motion.toml", f'root = "{box.root}"\n[[clips]]\nfile = "{clip}"\nlabel = "walk"\n')
+    out = box.root / "o"
+    return Spec(["run", "home", "--motion-config", str(config), "--out", str(out), "-d", "2", "--no-interactive",
+                 "--no-live"], "run", "bad", writable=(out,))
+
+
+@attack("motion config", "--motion-config clip: a sparse 3 GB .bvh")
+def _clip_sparse(box: Box) -> Spec:
+    sparse_file(box.root / "big.bvh", 3 << 30)
+    return _clip_run(box, "big.bvh")
+
+
+@attack("motion config", "--motion-config clip: an AMASS .npz zip bomb (3 GB)")
+def _clip_bomb(box: Box) -> Spec:
+    box.file("bomb.npz", zip_bomb_npz("poses", 3))
+    return _clip_run(box, "bomb.npz")

@@ -9,6 +9,7 @@ import io
 import json
 import os
 import pickle
+import re
 import shutil
 import struct
 import zipfile
@@ -239,3 +240,44 @@ def _chunk_hardlink(box: Box) -> Spec:
     (run / "motion" / "Zoe.chunks").unlink()
     os.link(box.outside / "Zoe.chunks", run / "motion" / "Zoe.chunks")
     return resume(box)
+
+
+@attack("trace", "a record with 1.2 million unknown keys (14 MB line)")
+def _trace_keys(box: Box) -> Spec:
+    path, records = _trace_records(box)
+    records[1].update({f"k{i}": 0 for i in range(1_200_000)})
+    path.write_text("".join(json.dumps(r, separators=(",", ":")) + "\n" for r in records), encoding="utf-8")
+    return replay(box)
+
+
+@attack("trace", "CRLF line ends and a UTF-8 BOM")
+def _trace_crlf(box: Box) -> Spec:
+    path = box.copy_run() / "trace.jsonl"
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes().replace(b"\n", b"\r\n"))
+    return replay(box, "either")
+
+
+@attack("story.json", "a step with 1.2 million unknown keys (export)")
+def _story_keys(box: Box) -> Spec:
+    path = box.copy_run() / "story.json"
+    value = json.loads(path.read_text(encoding="utf-8"))
+    value["steps"][0].update({f"k{i}": 0 for i in range(1_200_000)})
+    path.write_text(json.dumps(value, separators=(",", ":")), encoding="utf-8")
+    return export(box)
+
+
+@attack("story.json", "UTF-16 with BOM, then CRLF and -0.0 times (export)")
+def _story_encodings(box: Box) -> Spec:
+    path = box.copy_run() / "story.json"
+    text = re.sub(r'("time_s": )[0-9.]+', r"\1-0.0", path.read_text(encoding="utf-8"))
+    path.write_bytes(text.replace("\n", "\r\n").encode("utf-16"))
+    return export(box, "either")
+
+
+@attack("story.jsonl", "a line with 1.2 million unknown keys (export of a live run)")
+def _stream_keys(box: Box) -> Spec:
+    run = box.copy_run()
+    (run / "story.json").unlink()
+    with open(run / "story.jsonl", "ab") as f:
+        f.write(b'{"kind": "event", ' + b",".join(b'"k%d":0' % i for i in range(1_200_000)) + b"}\n")
+    return export(box, "either")

@@ -231,3 +231,36 @@ def _replay_out_links(box: Box) -> Spec:
     os.link(box.victim(), out / "trace.jsonl")
     spec = replay(box)
     return Spec(**{**spec.__dict__, "check": victim_intact(box)})
+
+
+@attack("run.json", "UTF-16 with BOM (replay)")
+def _runjson_utf16(box: Box) -> Spec:
+    path = box.copy_run() / "run.json"
+    path.write_bytes(path.read_text(encoding="utf-8").encode("utf-16"))
+    return replay(box)
+
+
+@attack("run.json", "names Zoe and zoe, one file name on a case-blind disk (replay)")
+def _runjson_case(box: Box) -> Spec:
+    run = box.copy_run()
+    box.edit_json(run / "run.json", lambda v: {**v, "arguments": {**v["arguments"], "names": ["Zoe", "zoe"]}})
+    return replay(box)
+
+
+@attack("run folder", "run --names Zoe,zoe (two characters, one chunk file name)")
+def _run_names_case(box: Box) -> Spec:
+    out = box.root / "o"
+    return Spec(["run", "home", "--names", "Zoe,zoe", "--out", str(out), "--no-interactive", "--no-live"], "run", "bad",
+                writable=(out,))
+
+
+@attack("run folder", "trace.jsonl and story.jsonl hard-linked outside, a parent folder a symlink")
+def _hardlink_appended(box: Box) -> Spec:
+    run = box.copy_run()
+    for name in ("trace.jsonl", "story.jsonl"):
+        shutil.copy(run / name, box.outside / name)
+        (run / name).unlink()
+        os.link(box.outside / name, run / name)
+    via = box.root / "via"
+    via.symlink_to(box.root)
+    return Spec(["resume", str(via / "run"), "--no-interactive", "--no-live"], "resume", "bad")

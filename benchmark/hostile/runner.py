@@ -6,7 +6,9 @@ simulated seconds, no LLM) and a one-run bench sweep of our own case 100 (the sa
 scripted OpenAI-compatible server on 127.0.0.1). Each attack copies what it needs, breaks one
 thing (a planted link or hard link, a FIFO, a link to ``/dev/zero``, deep nesting, huge numbers,
 NaN, bytes that are not UTF-8, lone surrogates, control and bidi characters, duplicate keys,
-compressed files, zip bombs, pickles, huge scenes and meshes, forged viewer requests) and runs
+objects of a million keys, compressed files, zip bombs, pickles, huge scenes and meshes, mesh
+files naming FIFOs and sparse gigabyte files, instanced and deeply nested glTF nodes, hostile
+``STORYTELLER_*`` variables (:attr:`Spec.env`), forged viewer requests) and runs
 the command that reads it under an address-space limit (:data:`AS_LIMIT`) and a wall-clock
 limit (the clean command's time + :data:`SLACK_S`).
 
@@ -97,7 +99,7 @@ def attempt(kind: str, name: str, build: Callable[[Box], Spec], box: Box, root: 
     skip = (box.run, *spec.writable, Path(env.get("HOME", "/nonexistent")))
     before_tree = tree_state(root, (*skip, root / "attacks" / "scratch"))
     before_run = digest(box.run)
-    code, seconds, rss, stdout, stderr = run_command(spec.argv, limit, env, box.root, spec.stdin)
+    code, seconds, rss, stdout, stderr = run_command(spec.argv, limit, {**env, **spec.env}, box.root, spec.stdin)
     problems = judge(spec, code, seconds, rss, stdout, stderr, limit)
     after_tree = tree_state(root, (*skip, root / "attacks" / "scratch"))
     changed = sorted(k for k in set(before_tree) | set(after_tree) if before_tree.get(k) != after_tree.get(k))

@@ -11,6 +11,8 @@ import shutil
 import struct
 from pathlib import Path
 
+import numpy as np
+
 from benchmark.hostile.harness import (
     BIDI,
     Attack,
@@ -19,9 +21,12 @@ from benchmark.hostile.harness import (
     box_object,
     deep_json,
     export,
+    glb_file,
+    gltf_doc,
     inspect,
     registrar,
     scene_json,
+    sparse_file,
 )
 
 ATTACKS: list[Attack] = []
@@ -169,3 +174,117 @@ def _mesh_objects(box: Box) -> Spec:
         lines += [f"o chair_{i}", "f 1 2 3"]
     lines += ["o table_1", "f " + "9" * 5000 + " 2 3"]
     return inspect(box.file("objects.obj", "\n".join(lines) + "\n"), "either")
+
+
+TRIANGLE = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4").tobytes()
+
+
+@attack("mesh", ".gltf whose buffer is a FIFO")
+def _gltf_fifo(box: Box) -> Spec:
+    box.fifo(box.root / "buf.bin")
+    return inspect(box.file("s.gltf", json.dumps(gltf_doc([{"mesh": 0, "name": "chair_1"}], uri="buf.bin"))))
+
+
+@attack("mesh", ".gltf whose buffer is a sparse 3 GB file")
+def _gltf_sparse(box: Box) -> Spec:
+    sparse_file(box.root / "buf.bin", 3 << 30)
+    return inspect(box.file("s.gltf", json.dumps(gltf_doc([{"mesh": 0, "name": "chair_1"}], uri="buf.bin"))))
+
+
+@attack("mesh", ".gltf buffer ../outside/secret.txt and a symlink to it")
+def _gltf_outside(box: Box) -> Spec:
+    (box.root / "link.bin").symlink_to(box.outside / "secret.txt")
+    doc = gltf_doc([{"mesh": 0, "name": "chair_1"}, {"mesh": 1, "name": "table_1"}], uri="../outside/secret.txt")
+    doc["buffers"].append({"byteLength": 36, "uri": "link.bin"})
+    return inspect(box.file("s.gltf", json.dumps(doc)), "either")
+
+
+@attack("mesh", ".obj naming a FIFO material library and a sparse 3 GB one")
+def _obj_mtllib(box: Box) -> Spec:
+    box.fifo(box.root / "m.mtl")
+    sparse_file(box.root / "n.mtl", 3 << 30)
+    text = "mtllib m.mtl\nmtllib n.mtl\no chair_1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nusemtl x\nf 1 2 3\nf 1 2 4\n"
+    return inspect(box.file("s.obj", text), "either")
+
+
+@attack("mesh", ".glb: 2,000 nodes instancing one 1M-vertex geometry (12 MB)")
+def _glb_instances(box: Box) -> Spec:
+    n = 1_000_000
+    points = np.random.default_rng(0).random((n, 3)).astype("<f4").tobytes()
+    nodes = [{"mesh": 0, "name": f"chair_{i + 1}", "translation": [i % 45 * 1.5, 0, i // 45 * 1.5]} for i in range(2000)]
+    return inspect(box.file("instances.glb", glb_file(gltf_doc(nodes, n), points)))
+
+
+def _chain(box: Box, depth: int) -> Spec:
+    nodes = [{"name": f"n{i}", "children": [i + 1]} for i in range(depth)] + [{"mesh": 0, "name": "chair_1"}]
+    doc = gltf_doc(nodes)
+    doc["scenes"] = [{"nodes": [0]}]
+    return inspect(box.file("chain.glb", glb_file(doc, TRIANGLE)))
+
+
+@attack("mesh", ".glb: a chain of 100,000 nested nodes")
+def _glb_chain(box: Box) -> Spec:
+    return _chain(box, 100_000)
+
+
+@attack("mesh", ".glb: a chain of 19,000 nested nodes (quadratic transforms)")
+def _glb_chain_short(box: Box) -> Spec:
+    return _chain(box, 19_000)
+
+
+@attack("mesh", ".glb: a bufferless accessor of 2e8 items, a count of 1e9, a node cycle")
+def _glb_counts(box: Box) -> Spec:
+    doc = gltf_doc([{"mesh": 0, "name": "chair_1", "children": [1]}, {"name": "x", "children": [0]}])
+    del doc["accessors"][0]["bufferView"]
+    doc["accessors"][0]["count"] = 200_000_000
+    doc["accessors"].append({"bufferView": 0, "componentType": 5126, "count": 10**9, "type": "MAT4"})
+    return inspect(box.file("counts.glb", glb_file(doc, TRIANGLE)))
+
+
+@attack("mesh", ".glb: a node scaled by 1e308 (numpy overflow warnings)")
+def _glb_scale(box: Box) -> Spec:
+    doc = gltf_doc([{"mesh": 0, "name": "chair_1", "scale": [1e308, 1e308, 1e308]}])
+    return inspect(box.file("scale.glb", glb_file(doc, TRIANGLE)))
+
+
+@attack("scene", "an object with 1.2 million unknown keys (14 MB)")
+def _scene_keys(box: Box) -> Spec:
+    obj = {"name": "chair_1", "label": "chair", "idx": 1, "center": [1.0, 1.0, 0.25], "size": [0.5, 0.5, 0.5],
+           "facing": [0.0, 1.0], "has_facing": True, "sit_offset_horizontal": 0.0, "sit_offset_vertical": 0.0,
+           "interactive": True, **{f"k{i}": 0 for i in range(1_200_000)}}
+    text = json.dumps({"format": "storyteller-scene/1", "name": "keys", "floor_z": 0.0, "bounds_min": [0, 0],
+                       "bounds_max": [4, 4], "objects": [obj]}, separators=(",", ":"))
+    return inspect(box.file("keys.json", text))
+
+
+@attack("scene", "reference folder: grid_map.json margins of text, lists, 1e308")
+def _reference_grid(box: Box) -> Spec:
+    folder = _reference_copy(box)
+    (folder / "grid_map.json").write_text('{"x_margin": "abc' + BIDI + '", "y_margin": [1e308]}', encoding="utf-8")
+    return inspect(folder)
+
+
+def _chairs(count: int, floor: float, columns: int) -> str:
+    """A valid scene of ``count`` chairs on a ``floor`` metres square, ``columns`` to a row."""
+    step = (floor - 2) / columns
+    objects = [{"name": f"chair_{i + 1}", "label": "chair", "idx": i + 1,
+                "center": [1 + (i % columns) * step, 1 + (i // columns) * step, 0.25], "size": [0.5, 0.5, 0.5],
+                "facing": [0.0, 1.0], "has_facing": True, "sit_offset_horizontal": 0.0, "sit_offset_vertical": 0.0,
+                "interactive": True} for i in range(count)]
+    return json.dumps({"format": "storyteller-scene/1", "name": "chairs", "floor_z": 0.0, "bounds_min": [0, 0],
+                       "bounds_max": [floor, floor], "objects": objects})
+
+
+@attack("scene", "a valid scene of 2,000 chairs 1.5 m apart (900 KB)")
+def _scene_chairs(box: Box) -> Spec:
+    return inspect(box.file("chairs.json", _chairs(2000, 69.5, 45)), "either")
+
+
+@attack("scene", "a valid scene of 500 chairs on a 94 m floor")
+def _scene_chairs_wide(box: Box) -> Spec:
+    return inspect(box.file("chairs.json", _chairs(500, 94.0, 23)), "either")
+
+
+@attack("scene", "50 chairs on a 590 m floor (3.9 million cells)")
+def _scene_floor(box: Box) -> Spec:
+    return inspect(box.file("floor.json", _chairs(50, 590.0, 10)), "either")

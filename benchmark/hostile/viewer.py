@@ -1,5 +1,7 @@
 """The viewer attack: a live ``view`` server sent forged Origin and Host headers, websocket
-upgrades from another or a null origin, path traversals and a websocket frame claiming 2**40 bytes.
+upgrades from another or a null origin, path traversals (encoded, backslashed, NUL, 100 KB long),
+Host names that only look like the viewer's, a websocket frame claiming 2**40 bytes, and a run
+folder whose ``live.json`` is a sparse 3 GB file (the viewer polls it).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import subprocess
 import tempfile
 import time
 
-from benchmark.hostile.harness import CLI, RSS_LIMIT, Box
+from benchmark.hostile.harness import CLI, RSS_LIMIT, Box, sparse_file
 from benchmark.hostile.judging import Outcome, limit_child
 
 
@@ -49,6 +51,18 @@ def _viewer_requests(box: Box, url: str) -> str | None:
             _status, body = get(path, {})
             if b"root:" in body:
                 problems.append(f"served /etc/passwd for {path[:30]}")
+    for path in ("/%00", "/..\\..\\..\\..\\etc\\passwd", "/..%5c..%5c..%5c..%5cetc%5cpasswd",
+                 "/%252e%252e/%252e%252e/etc/passwd", "/" + "a" * 100_000):
+        with contextlib.suppress(OSError, http.client.HTTPException):
+            _status, body = get(path, {})
+            if b"root:" in body:
+                problems.append(f"served /etc/passwd for {path[:30]}")
+    for forged in (f"127.0.0.1.evil.com:{port}", f"localhost.:{port}", f"evil.com@{host}:{port}", host, ""):
+        with contextlib.suppress(OSError, http.client.HTTPException):
+            if get("/", {"Host": forged})[0] == 200:
+                problems.append(f"page answered to Host {forged!r}")
+    if get("/", {**ws, "Origin": f"http://{host}:{port}.evil.com"})[0] == 101:
+        problems.append("websocket opened for an origin that only starts like the viewer's")
     # A websocket of the right origin sends a frame claiming 2**40 bytes: the server must live on.
     with contextlib.suppress(OSError), socket.create_connection((host, int(port)), timeout=5) as s:
         lines = ["GET / HTTP/1.1", f"Host: {host}:{port}", f"Origin: http://{host}:{port}",
@@ -61,11 +75,12 @@ def _viewer_requests(box: Box, url: str) -> str | None:
     return "; ".join(problems) or None
 
 
-VIEWER_KIND = ("viewer", "forged Origin / Host, websocket, traversal, a 2**40-byte frame")
+VIEWER_KIND = ("viewer", "forged Origin / Host, websocket, traversals, a 2**40-byte frame, 3 GB live.json")
 
 
 def run_viewer(box: Box, env: dict[str, str]) -> Outcome:
     box.copy_run()
+    sparse_file(box.run / "live.json", 3 << 30)  # polled while the viewer runs: must not be read whole
     start = time.monotonic()
     with tempfile.TemporaryFile() as err:
         proc = subprocess.Popen([*CLI, "view", str(box.run), "--port", "0"], stdout=subprocess.PIPE, stderr=err, env=env,
