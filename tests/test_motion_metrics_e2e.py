@@ -12,7 +12,7 @@ from tests.support.finished_run import make_finished_run
 
 
 @pytest.mark.slow
-def test_the_command_measures_a_scripted_run(tmp_path: Path, capsys) -> None:
+def test_the_command_measures_a_scripted_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     run = make_finished_run(tmp_path, seconds=6, max_events=2)
     out = tmp_path / "report"
     assert main([str(run), "--out", str(out), "--crowd", "0", "--no-real", "--partners", "2"]) == 0
@@ -30,7 +30,7 @@ def test_the_command_measures_a_scripted_run(tmp_path: Path, capsys) -> None:
     assert "strip_walk.png" in strips
 
 
-def test_a_folder_that_is_not_a_run_is_one_error_line(tmp_path: Path, capsys) -> None:
+def test_a_folder_that_is_not_a_run_is_one_error_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "empty").mkdir()
     assert main([str(tmp_path / "empty"), "--out", str(tmp_path / "o"), "--crowd", "0", "--no-real", "--partners", "0"]) == 2
     err = capsys.readouterr().err

@@ -39,7 +39,6 @@ from typer.testing import CliRunner
 
 from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
-from orchestrator.llm import traces
 from orchestrator.llm.traces import AppliedRecord, read_trace
 from tests.support.story_planner import RUN, Planner, write_config
 
@@ -213,7 +212,7 @@ def test_a_full_disk_under_the_trace_is_one_error_line_and_the_trace_stays_whole
             return real_write(fd, bytes(data[: len(data) // 2]))  # the disk fills up mid-line
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(traces.os, "write", full_disk_write)  # only the trace file's writes fail
+    monkeypatch.setattr("orchestrator.llm.traces.os.write", full_disk_write)  # only the trace file's writes fail
     out = tmp_path / "out"
     with FakeOpenAI(responder=Planner()) as fake:
         cfg = write_config(tmp_path, fake.base)

@@ -22,6 +22,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -223,7 +224,7 @@ def _viewer_instructions(run: Path) -> list[tuple[int, str, str]]:
     return [(r.sim_frame, r.source, r.text) for r in read_trace(run / "trace.jsonl").instructions()]
 
 
-def _toast_events(run: Path, after: int) -> list[dict]:
+def _toast_events(run: Path, after: int) -> list[dict[str, Any]]:
     """The events of ``story.json`` in which Max uses the toaster, applied after frame ``after``."""
     story = json.loads((run / "story.json").read_text(encoding="utf-8"))
     toasting = {s["index"] for s in story["steps"] if s["kind"] == "event"
