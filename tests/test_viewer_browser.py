@@ -21,6 +21,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import imageio.v3 as iio
 import numpy as np
@@ -70,11 +71,12 @@ def _ava_centroid(rgb: np.ndarray) -> np.ndarray:
     """Centre (row, col) of the pixels close to Ava's colour (her figure, shaded, and her path)."""
     mask = np.abs(rgb - AVA_RGB).max(axis=-1) < 60
     assert mask.sum() > 50, "Ava is not in the picture"
-    return np.argwhere(mask).mean(axis=0)
+    centre: np.ndarray = np.argwhere(mask).mean(axis=0)
+    return centre
 
 
-def _first_event(run: Path) -> dict:
-    events = json.loads((run / "story.json").read_text(encoding="utf-8"))["events"]
+def _first_event(run: Path) -> dict[str, Any]:
+    events: list[dict[str, Any]] = json.loads((run / "story.json").read_text(encoding="utf-8"))["events"]
     assert events, "the recorded run has no event"
     return events[0]
 
