@@ -111,3 +111,20 @@ def test_huge_scale_is_one_error_and_no_warning(tmp_path: Path) -> None:
     # pytest runs with warnings as errors: numpy's overflow warning would fail this test
     doc = _doc([{"mesh": 0, "name": "chair_1", "scale": [1e308, 1e308, 1e308]}])
     _refused(_glb(tmp_path / "scale.glb", doc), "within")
+
+
+def test_declared_triangles_are_counted_before_loading(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Found by the hostile corpus: a 64 MB OBJ of 8 million faces ran past 12 s and 1.4 GB in
+    trimesh's reader; a face of k corners makes k - 2 triangles, a glTF primitive a third of its
+    index (or position) count."""
+    assert mesh_limits.obj_triangles(b"f 1 2 3\nf 1 2 3 4\nv 0 0 0\nf\t1 2 3 4 5\r\n") == 6
+    monkeypatch.setattr(mesh_limits, "MAX_MESH_FACES", 4)
+    head = "o chair_1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+    (tmp_path / "lines.obj").write_text(head + "f 1 2 3\n" * 5)
+    _refused(tmp_path / "lines.obj", "5 triangles")
+    (tmp_path / "polygon.obj").write_text(head + "f " + " ".join(["1", "2", "3", "4"] * 2) + "\n")
+    _refused(tmp_path / "polygon.obj", "6 triangles")
+    (tmp_path / "four.obj").write_text(head + "f 1 2 3\n" * 4)
+    assert len(load_scene(tmp_path / "four.obj").objects) == 1
+    doc = _doc([{"mesh": 0, "name": "chair_1"}], count=15)  # 5 triangles of positions
+    _refused(_glb(tmp_path / "five.glb", doc, np.zeros((15, 3), dtype="<f4").tobytes()), "5 triangles")

@@ -82,6 +82,7 @@ _GENERIC_NAME = re.compile(
 _CAMEL_LOWER = re.compile(r"(?<=[a-z0-9])(?=[A-Z])")  # "coffeeMaker" -> "coffee Maker"
 _CAMEL_UPPER = re.compile(r"(?<=[A-Z])(?=[A-Z][a-z])")  # "TVStand" -> "TV Stand"
 _SEPARATORS = re.compile(r"[^a-z0-9]+")
+_OBJECT_LINE = re.compile(rb"^o ([^\r\n]*)", re.MULTILINE)  # an OBJ object's name line
 _Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 _Y_UP_SUFFIXES = {".glb", ".gltf"}
 
@@ -172,17 +173,19 @@ def _load_trimesh_scene(path: Path) -> Any:
 
 
 def _check_obj_names(path: Path, data: bytes) -> None:
-    """OBJ objects with one name are merged by the reader: refuse them instead."""
-    text = data.decode("utf-8", errors="replace")
+    """OBJ objects with one name are merged by the reader: refuse them instead; and a file whose
+    face lines make more than ``MAX_MESH_FACES`` triangles (``sim.scene.mesh_limits``)."""
+    from sim.scene.mesh_limits import check_declared_faces, obj_triangles
+
+    check_declared_faces(path, obj_triangles(data))
     seen: set[str] = set()
-    for line in text.splitlines():
-        if line.startswith("o "):
-            name = line[2:].strip()
-            if name in seen:
-                raise SceneFileError(
-                    path, "two OBJ objects ('o' lines) have this name", obj=name, field="name"
-                )
-            seen.add(name)
+    for match in _OBJECT_LINE.finditer(data):
+        name = match.group(1).decode("utf-8", errors="replace").strip()
+        if name in seen:
+            raise SceneFileError(
+                path, "two OBJ objects ('o' lines) have this name", obj=name, field="name"
+            )
+        seen.add(name)
 
 
 def load_mesh_scene(path: Path | str, *, up_axis: Literal["y", "z"] | None = None) -> Scene:
