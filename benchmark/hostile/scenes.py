@@ -288,3 +288,15 @@ def _scene_chairs_wide(box: Box) -> Spec:
 @attack("scene", "50 chairs on a 590 m floor (3.9 million cells)")
 def _scene_floor(box: Box) -> Spec:
     return inspect(box.file("floor.json", _chairs(50, 590.0, 10)), "either")
+
+
+@attack("mesh", ".obj of 8 million faces (64 MB)")
+def _obj_faces(box: Box) -> Spec:
+    head = "o chair_1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+    return inspect(box.file("faces.obj", head + "f 1 2 3\nf 1 2 4\n" * 4_000_000))
+
+
+@attack("mesh", ".obj of 2,500 faces of 12,000 corners (30 million triangles)")
+def _obj_polygons(box: Box) -> Spec:
+    head = "o chair_1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+    return inspect(box.file("polygons.obj", head + ("f " + " ".join(str(1 + i % 4) for i in range(12_000)) + "\n") * 2500))
