@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import inspect
 import json
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -180,7 +182,7 @@ def test_object_queries_on_house(api: SpatialAPI) -> None:
     ],
 )
 def test_bad_calls_raise_typed_errors_with_feedback(
-    api: SpatialAPI, call, error, message: str
+    api: SpatialAPI, call: Callable[[dict[str, Callable[..., Any]]], object], error: type[Exception], message: str
 ) -> None:
     with pytest.raises(error, match=message):
         call(api.namespace())
