@@ -51,8 +51,9 @@ _DEPTH_CHUNK = 1 << 22  # brackets per step of the depth scan (32 MiB of running
 
 # A JSON string, closed or running to the end of the text; it never fails to match at a quote,
 # so a scan over the text is linear (a pattern that must find the closing quote is quadratic on
-# a quote followed by many escaped quotes).
-_STRING = re.compile(rb'"(?:[^"\\]|\\.)*+"?', re.DOTALL)
+# a quote followed by many escaped quotes). Runs of plain characters are taken whole (the loop
+# "unrolled"): 2.6 times faster than one alternation per character on a 50 MB story.json.
+_STRING = re.compile(rb'"[^"\\]*+(?:\\.[^"\\]*+)*+"?', re.DOTALL)
 _NOT_BRACKETS = bytes(c for c in range(256) if c not in b"[]{}")  # deleted by bytes.translate
 
 
