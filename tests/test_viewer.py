@@ -145,3 +145,24 @@ def test_export_writes_one_self_contained_html_file(tmp_path: Path) -> None:
     assert "window.__VISER_EMBED_DATA__=" in html  # the recording, inlined
     assert not re.search(r"<script[^>]*\ssrc=|<link[^>]*stylesheet", html)  # no file fetched
     assert sorted(p.name for p in folder.iterdir()) == before  # the viewer never writes the run folder
+
+
+def test_a_story_of_too_many_events_is_refused_and_a_caption_lists_a_runs_worth(tmp_path: Path) -> None:
+    """Found by the hostile corpus: 120,000 steps took view --export past 20 s, and 9,000
+    overlapping events of 2,000 characters to 1.3 GB in its captions."""
+    from types import SimpleNamespace
+    from typing import cast
+
+    from orchestrator.viewer.run_folder import MAX_STORY_ITEMS
+    from orchestrator.viewer.scene_view import MAX_CAPTION_EVENTS, SceneView
+
+    folder = _run_folder(tmp_path)
+    story = json.loads((folder / "story.json").read_text(encoding="utf-8"))
+    story["events"] = [_event(i, 1, None, "ongoing") for i in range(MAX_STORY_ITEMS + 1)]
+    (folder / "story.json").write_text(json.dumps(story), encoding="utf-8")
+    with pytest.raises(RunFolderError, match=f"'events': {MAX_STORY_ITEMS + 1} items, at most"):
+        load_run(folder)
+    events = tuple(StoryEventRecord.model_validate(_event(i, 1, None, "ongoing")) for i in range(MAX_CAPTION_EVENTS + 6))
+    view = SimpleNamespace(run=SimpleNamespace(events=events, fps=30.0), last_frame=39)
+    lines = SceneView.caption_text(cast(SceneView, view), 5).split("\n")  # only .run and .last_frame are read
+    assert len(lines) == 1 + MAX_CAPTION_EVENTS + 1 and lines[-1] == "(and 6 more)"

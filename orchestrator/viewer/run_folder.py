@@ -54,8 +54,14 @@ from sim.world.track_chunks import (
 STORY_FILE = "story.json"
 SCENE_FILE = "scene.json"
 TRACK_SUFFIX = ".track.npz"
-MAX_STORY_BYTES = 64 << 20
-"""Bytes of the largest ``story.json`` read (about a kilobyte per event: tens of thousands of events)."""
+MAX_STORY_BYTES = 24 << 20
+"""Bytes of the largest ``story.json`` read (about a kilobyte per step and per event: room for
+:data:`MAX_STORY_ITEMS` of each)."""
+MAX_STORY_ITEMS = 10_000
+"""Steps, and events, of the largest ``story.json`` shown: the longest run allowed (2.5 h, 24
+characters; ``orchestrator.session.run_manifest``) makes about 7,000 events, and each costs the
+export's captions and the page a line (120,000 steps and 60,000 events took ``view --export``
+past 20 s; 10,000 of each about 2 s more than a small story)."""
 MAX_STORY_DEPTH = 16
 """JSON nesting of ``story.json`` at most (it has 5: a plan's position in a step in ``steps``)."""
 
@@ -101,8 +107,8 @@ class StoryFile(_StoryModel):
     instructions: tuple[StoryInstruction, ...] = ()
     fps: float = Field(default=30.0, gt=0)
     frames: int | None = Field(default=None, ge=0)
-    steps: tuple[StoryStep, ...] = ()
-    events: tuple[StoryEventRecord, ...] = ()
+    steps: tuple[StoryStep, ...] = Field(default=(), max_length=MAX_STORY_ITEMS)
+    events: tuple[StoryEventRecord, ...] = Field(default=(), max_length=MAX_STORY_ITEMS)
 
 
 @dataclass(frozen=True)
@@ -202,6 +208,10 @@ def read_story_file(path: Path) -> StoryFile:
         raise RunFolderError(f"{path}: not readable as JSON ({exc.problem})") from None
     if not isinstance(raw, dict):
         raise RunFolderError(f"{path}: expected a JSON object")
+    for key in ("steps", "events"):  # counted before each item is validated
+        items = raw.get(key)
+        if isinstance(items, list) and len(items) > MAX_STORY_ITEMS:
+            raise RunFolderError(f"{path}: field '{key}': {len(items)} items, at most {MAX_STORY_ITEMS} shown")
     try:
         return StoryFile.model_validate(raw)
     except ValidationError as exc:
