@@ -281,3 +281,22 @@ def _stream_keys(box: Box) -> Spec:
     with open(run / "story.jsonl", "ab") as f:
         f.write(b'{"kind": "event", ' + b",".join(b'"k%d":0' % i for i in range(1_200_000)) + b"}\n")
     return export(box, "either")
+
+
+@attack("story.json", "120,000 steps and 60,000 events (50 MB, export)")
+def _story_many(box: Box) -> Spec:
+    path = box.copy_run() / "story.json"
+    value = json.loads(path.read_text(encoding="utf-8"))
+    value["steps"] = value["steps"] * (120_000 // len(value["steps"]))
+    value["events"] = value["events"] * (60_000 // len(value["events"]))
+    path.write_text(json.dumps(value, separators=(",", ":")), encoding="utf-8")
+    return export(box)
+
+
+@attack("story.json", "9,000 overlapping events of 2,000-character texts (export)")
+def _story_texts(box: Box) -> Spec:
+    path = box.copy_run() / "story.json"
+    value = json.loads(path.read_text(encoding="utf-8"))
+    value["events"] = [{**value["events"][0], "text": "x" * 2000 + BIDI, "finished_frame": None}] * 9000
+    path.write_text(json.dumps(value, separators=(",", ":")), encoding="utf-8")
+    return export(box, "either", html_clean(box))

@@ -300,3 +300,15 @@ def _obj_faces(box: Box) -> Spec:
 def _obj_polygons(box: Box) -> Spec:
     head = "o chair_1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
     return inspect(box.file("polygons.obj", head + ("f " + " ".join(str(1 + i % 4) for i in range(12_000)) + "\n") * 2500))
+
+
+@attack("mesh", "binary .ply of 4.5 million faces (58 MB)")
+def _ply_faces(box: Box) -> Spec:
+    faces = 4_500_000
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+            f"property float z\nelement face {faces}\nproperty list uchar int vertex_indices\nend_header\n").encode()
+    table = np.zeros(faces, dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    table["n"] = 3
+    table["i"] = [0, 1, 2]
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype="<f4").tobytes()
+    return inspect(box.file("faces.ply", head + corners + table.tobytes()), "either")
