@@ -8,7 +8,8 @@ K graph steps without a simulation; the planning benchmark runs it too), the ``r
 anyio task group: :mod:`~orchestrator.session.runtime`; its data types in
 :mod:`~orchestrator.session.session_types`, the planner's view of the story in
 :mod:`~orchestrator.session.story_history`, the steps in flight in
-:mod:`~orchestrator.session.steps_in_flight`, the instructions waiting to take effect in
+:mod:`~orchestrator.session.steps_in_flight`, the recorded requests a replay or a resume makes
+again in :mod:`~orchestrator.session.request_schedule`, the instructions waiting to take effect in
 :mod:`~orchestrator.session.instruction_queue`) and the step planner that drives the planning graph from a running
 simulation; the run folder's ``run.json`` (:mod:`~orchestrator.session.run_manifest`),
 ``story.md`` / ``metrics.json`` (:mod:`~orchestrator.session.run_report`) and the session's

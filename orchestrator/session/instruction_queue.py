@@ -4,7 +4,8 @@ The narrator always sees the latest instruction (a new one replaces the old). A 
 takes effect at the start of a frame, before the world steps: scheduled ones
 (``SessionSettings.instructions``: a timed script, or a replay's recorded ones) at their frame,
 live ones (:meth:`InstructionQueue.instruct`, :meth:`InstructionQueue.instruct_nowait`, e.g.
-from stdin) at the first frame the simulation starts after they arrive. Every request made
+from stdin) at the first frame the simulation starts after they arrive (a resumed session: after
+the last frame its trace shows, ``SessionSettings.recorded_until``). Every request made
 after that frame carries it, with ``instruction_since`` = its own step index, so events planned
 under an earlier instruction never count as parts of this one done
 (``agents.instruction_parts``). Each one is reported to ``on_instruction`` (the run job records
@@ -66,13 +67,14 @@ class InstructionQueue:
         self._live.append((text, source, event))
         return True
 
-    def due(self, frame: int) -> list[tuple[TimedInstruction, anyio.Event | None]]:
+    def due(self, frame: int, *, live: bool = True) -> list[tuple[TimedInstruction, anyio.Event | None]]:
         """The instructions that take effect at ``frame``, in order (scheduled ones first), each
-        with the event its :meth:`instruct` waits on (None: nobody waits)."""
+        with the event its :meth:`instruct` waits on (None: nobody waits). ``live`` False: the
+        live ones wait for a later frame."""
         out: list[tuple[TimedInstruction, anyio.Event | None]] = []
         while self._scheduled and self._scheduled[0].frame <= frame:
             out.append((self._scheduled.pop(0), None))
-        while self._live:
+        while live and self._live:
             text, source, event = self._live.popleft()
             out.append((TimedInstruction(frame=frame, text=text, source=source), event))
         return out

@@ -1,7 +1,8 @@
 """What a ``run`` reads and opens before its first frame (``orchestrator.session.run_job``).
 
 From the traces: the frames a recorded run applied its steps at, its requests and instructions
-(a replay makes them again; a resume applies the ones already traced again, not traced twice),
+(a replay makes them again; a resume makes the requests and applies the steps already traced
+again at their frames, not traced twice),
 and the checks that a replay can apply them all (:func:`read_recorded`). From the run folder:
 the session checkpoint to resume from, the chunk files to stream the motion to, the story log
 (``runs.sqlite``, checked first). And the world at frame 0, the LLM port, ``run.json`` and the
@@ -151,6 +152,10 @@ class RecordedInputs:
     """Replay with overlapping steps: when each step was requested."""
     recorded: dict[int, int]
     """Resume: step -> frame of the steps the trace shows applied."""
+    requested: list[RecordedRequest]
+    """Resume with overlapping steps: the requests the trace holds (made again, not traced twice)."""
+    reached: int
+    """Resume: the last frame the trace shows (-1: none); live instructions take effect after it."""
     said: list[TimedInstruction]
     """Resume: the instructions the trace shows applied."""
     scheduled: list[TimedInstruction]
@@ -187,6 +192,8 @@ def read_recorded(args: RunArguments, fps: int, *, trace_path: Path | None, repl
         # a trace that is there but not a regular file (a link to a device) is read, and refused
         resumed_trace = resume and trace_path is not None and (trace_path.exists() or trace_path.is_symlink())
         recorded = recorded_frames(trace_path) if resumed_trace and trace_path is not None else {}
+        requested = schedule_from_trace(trace_path) if resumed_trace and trace_path is not None else []
+        reached = last_traced_frame(trace_path) if resumed_trace and trace_path is not None else -1
         said = instructions_from_trace(trace_path) if resumed_trace and trace_path is not None else []
     except (TraceCorruptError, OSError) as exc:
         raise RunSetupError(str(exc)) from None
@@ -196,7 +203,7 @@ def read_recorded(args: RunArguments, fps: int, *, trace_path: Path | None, repl
             check_replayable(replay, applied, scheduled, round(args.duration * fps))
     except (TraceCorruptError, OSError, RunSetupError) as exc:
         raise RunSetupError(str(exc)) from None
-    return RecordedInputs(applied, schedule, recorded, said, scheduled)
+    return RecordedInputs(applied, schedule, recorded, requested, reached, said, scheduled)
 
 
 def start_world(scene: Scene, args: RunArguments, names: list[str], world_config: WorldConfig) -> World:
@@ -319,6 +326,8 @@ def session_settings(args: RunArguments, fps: int, recorded: RecordedInputs, *, 
         max_steps=args.max_events,
         applied_frames=recorded.applied,
         recorded_frames=recorded.recorded,
+        recorded_requests=recorded.requested,
+        recorded_until=recorded.reached,
         checkpoint_every_s=CHECKPOINT_EVERY_S,
         instruction=args.instruction,
         instructions=recorded.scheduled,
@@ -357,6 +366,26 @@ def _stream_motion(world: World, out: Path, names: list[str], checkpoint: Sessio
         return world
     store = ChunkStore.open(folder, names, frames=checkpoint.world.buffers.base)
     return world.restore(checkpoint.world, store=store)
+
+
+def last_traced_frame(trace_path: Path) -> int:
+    """The last frame a trace shows its run at: of a step's request or its LLM calls, an applied
+    step, an instruction (-1: none)."""
+    from orchestrator.llm.traces import (
+        AppliedRecord,
+        AttemptRecord,
+        InstructionRecord,
+        RequestedRecord,
+        read_trace,
+    )
+
+    frames = [-1]
+    for r in read_trace(trace_path).records:
+        if isinstance(r, AttemptRecord) and r.request.sim_frame is not None:
+            frames.append(r.request.sim_frame)
+        elif isinstance(r, AppliedRecord | RequestedRecord | InstructionRecord):
+            frames.append(r.sim_frame)
+    return max(frames)
 
 
 def recorded_frames(trace_path: Path) -> dict[int, int]:

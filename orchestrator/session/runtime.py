@@ -51,13 +51,13 @@ Failures: an ``LLMError`` from the planner stops planning and the story goes on
 Checkpoints: with ``checkpoint_every_s`` set, ``on_checkpoint`` gets a
 :class:`SessionCheckpoint` (between two frames) after every applied outcome and at least that
 often; ``Session.resume(checkpoint)`` on a world built from the same inputs goes on from it
-(the step in flight then is asked again), and ends as the uninterrupted session would in
-``lockstep`` pace or with ``recorded_frames`` for the steps applied after the checkpoint.
+(the steps in flight then are asked again), and ends as the uninterrupted session would in ``lockstep`` pace
+or with ``recorded_frames`` / ``recorded_requests`` for what the trace shows after it (``request_schedule``).
 
 Instructions take effect at the start of a frame, before the world steps
 (``orchestrator.session.instruction_queue``: scheduled ones at their frame, live ones from
-:meth:`Session.instruct` / :meth:`Session.instruct_nowait` at the next frame); each is reported
-to ``on_instruction``.
+:meth:`Session.instruct` / :meth:`Session.instruct_nowait` at the next frame, on resume after
+``recorded_until``); each is reported to ``on_instruction``.
 
 The session's data types are in ``orchestrator.session.session_types``, the planner's view of
 the story (roster, history window, request) in ``orchestrator.session.story_history``.
@@ -80,6 +80,7 @@ from agents.llm_port import LLMError, TraceRecorder
 from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.session.frame_profile import FrameProfile
 from orchestrator.session.instruction_queue import InstructionQueue
+from orchestrator.session.request_schedule import RequestSchedule
 from orchestrator.session.session_types import (
     InstructionSource,
     Outcome,
@@ -151,7 +152,8 @@ class Session:
         self._next_plan_frame = 0
         self._inflight = StepsInFlight(settings, world.config.fps)
         self._flights = self._inflight.by_index  # steps in flight, by index (the same dict)
-        self._schedule = list(settings.schedule) if settings.schedule is not None else None
+        self._schedule: RequestSchedule | None = None  # recorded requests to make again (request_schedule)
+        self._follow(RequestSchedule.of(settings))
         self._news_send: MemoryObjectSendStream[News] | None = None
         self._tg: anyio.abc.TaskGroup | None = None
         self.planner_error: BaseException | None = None
@@ -212,6 +214,12 @@ class Session:
         self._instruction_since = cp.instruction_since
         self.instructions = list(cp.instructions)
         self._queue.skip_before(self.world.frame)
+        if self.settings.schedule is None:  # the trace's requests of the steps after the checkpoint, first
+            self._follow(RequestSchedule.of(self.settings, after_step=cp.steps))
+
+    def _follow(self, schedule: RequestSchedule | None) -> None:
+        self._schedule = schedule
+        self._inflight.holding = schedule is not None and schedule.then_live
 
     # ----- instructions ------------------------------------------------------------------
     async def instruct(self, text: str, source: InstructionSource = "api") -> int | None:
@@ -229,7 +237,7 @@ class Session:
     def _take_instructions(self) -> None:
         """Apply the instructions due at the current frame (before it steps), in order."""
         frame = self.world.frame
-        for timed, event in self._queue.due(frame):
+        for timed, event in self._queue.due(frame, live=frame > self.settings.recorded_until):
             if timed.frame != frame:
                 raise SessionError(f"instruction for frame {timed.frame} reached at frame {frame}")
             self.instruction = timed.text
@@ -305,31 +313,27 @@ class Session:
             index=self._steps, instruction=self.instruction, since=self._instruction_since,
         )
 
-    def _ask(self, free: Sequence[str], frame: int, phase: RequestPhase) -> None:
+    def _ask(self, free: Sequence[str], frame: int, phase: RequestPhase, *, resent: bool = False) -> None:
         request = self._request(frame)
         self._steps += 1
         self._asked = (tuple(free), self._changes)
-        self._send(request, phase)
+        self._send(request, phase, resent=resent)
 
-    async def _ask_scheduled(self, news: MemoryObjectReceiveStream[News], phase: RequestPhase) -> None:
-        """Replay of a concurrent run: make the requests recorded at this frame and phase."""
-        assert self._schedule is not None
-        frame = self.world.frame
-        while self._schedule and (self._schedule[0].frame, self._schedule[0].phase) == (frame, phase):
-            rec = self._schedule.pop(0)
-            while self._inflight.claimed(frame) is None:
+    async def _ask_scheduled(self, news: MemoryObjectReceiveStream[News], phase: RequestPhase) -> int:
+        """Make the requests recorded at this frame and phase (``request_schedule``); how many."""
+        schedule = self._schedule
+        assert schedule is not None
+        at = self.world.frame - 1 if phase == "frame_end" else self.world.frame  # as a live request sees claims
+        first = self._steps
+        while (rec := schedule.take(self.world.frame, phase)) is not None:
+            while (claimed := self._inflight.claimed(at)) is None:
                 await self._next_news(news)
-            if rec.step != self._steps or tuple(sorted(self._flights)) != rec.after:
-                raise SessionError(
-                    f"replay: step {rec.step} was requested at frame {rec.frame} beside steps {list(rec.after)}, "
-                    f"but the replay is at step {self._steps} beside {sorted(self._flights)}"
-                )
-            request = self._request(frame)
-            self._steps += 1
-            self._send(request, phase)
-        if self._schedule and self._schedule[0].frame < frame:
-            raise SessionError(f"replay: step {self._schedule[0].step} was requested at frame {self._schedule[0].frame}, "
-                               f"which the replay passed")
+            schedule.check(rec, self._steps, list(self._flights))
+            self._unchanged_until = None  # as after a live request; a resume's are in the trace already:
+            self._ask([a for a in self.world.available() if a not in claimed], at, phase, resent=schedule.then_live)
+        if schedule.done:
+            self._follow(None)
+        return self._steps - first
 
     async def _settle(self, news: MemoryObjectReceiveStream[News]) -> list[Flight]:
         """Take the news the current frame needs (waiting for it in ``lockstep`` and
@@ -343,7 +347,7 @@ class Session:
                 continue
             if self._schedule is not None:
                 await self._ask_scheduled(news, "frame_start")
-            elif self._flights and self.settings.planners > 1:
+            if self._schedule is None and self._flights and self.settings.planners > 1:
                 free = self._wants_plan(self.world.available(), frame)
                 if free is not None:
                     self._ask(free, frame, "frame_start")
@@ -414,9 +418,8 @@ class Session:
             if self.on_frame is not None:
                 self.on_frame(self.world)
             t_ask = clock()
-            if self._schedule is not None:
-                await self._ask_scheduled(news, "frame_end")
-            else:
+            made = await self._ask_scheduled(news, "frame_end") if self._schedule is not None else 0
+            if self._schedule is None and not made:  # a frame makes one request at its end at most
                 free = self._wants_plan(out.available, self.world.frame - 1)
                 if free is not None:
                     self._ask(free, self.world.frame - 1, "frame_end")

@@ -205,6 +205,17 @@ class SessionSettings:
     """Replay of a run with ``planners`` > 1: when each step was requested (the trace's
     ``requested`` records); the replay makes each request at its frame and phase, after the
     steps it saw in flight named their characters."""
+    recorded_requests: Sequence[RecordedRequest] = ()
+    """Resume only (``planners`` > 1): the ``requested`` records the trace already holds. Those
+    of steps after the checkpoint (an earlier process made them before it was killed) are made
+    again at their frames and phases as a replay makes them, and not traced twice; until the
+    last of them is made, no other step is requested and no outcome the trace does not show
+    applied is applied (the earlier process still had it in flight). Then the session goes on
+    live."""
+    recorded_until: int = -1
+    """Resume only: the last frame the trace shows the earlier process at (any record made at
+    it). Live instructions take effect after it, so none changes what a request the trace holds
+    (and its LLM calls) saw."""
 
 
 def check_settings(settings: SessionSettings) -> None:

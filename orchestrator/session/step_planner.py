@@ -128,8 +128,8 @@ class GraphStepPlanner:
             event = snapshot.values.get("event")
             if isinstance(event, dict):
                 event = Event.model_validate(event)
-            if progress is not None and isinstance(event, Event) and not event.is_wait:
-                progress.claim(event.characters, event.activity)
+            if progress is not None and isinstance(event, Event) and not event.is_wait:  # as the narrator's check did
+                progress.claim(event.characters, event.activity, str(snapshot.values.get("part") or ""))
         else:
             start = {
                 "instruction": request.instruction,

@@ -12,10 +12,15 @@ Overlapping steps (``SessionSettings.planners`` = N > 1): a step names its chara
 as the narrator's event is accepted (``StepProgress.claim``), before its program is written
 and run. Once every step in flight has done so, and fewer than N are in flight, the next step
 is requested for the free characters left: their roster shows the claimed ones busy, and the
-history shows the claimed events ongoing, so no character is in two events. ``lockstep`` stays
+history shows the claimed events ongoing, so no character is in two events. A step answered
+without being run (on resume, from the story log) sends only its outcome; the claim its
+narrator made is read from it (:func:`narrated_claim`), so a step asked beside it is asked as
+when it ran. ``lockstep`` stays
 deterministic with N > 1: it waits for every step in flight to claim or finish before deciding,
 and applies every outcome at its request frame. A replay applies each outcome at its recorded
-frame (``SessionSettings.applied_frames``, ``recorded_frames``).
+frame (``SessionSettings.applied_frames``, ``recorded_frames``); a resume makes the requests its
+trace holds again first, and holds back the outcomes the trace does not show applied meanwhile
+(:attr:`StepsInFlight.holding`).
 
 ``offline`` pace: the planner reports each LLM call's latency (``StepProgress.llm_call``);
 a step's claim is known at its request frame plus the latency of the calls before it, its
@@ -37,7 +42,7 @@ import structlog
 from anyio.streams.memory import MemoryObjectSendStream
 
 from agents.llm_port import ReplayMissError
-from agents.messages import ParsedEvent
+from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.session.session_types import (
     Outcome,
     PlanningRequest,
@@ -93,6 +98,17 @@ class StepNews:
         post_news(self.news, News(self.index, "claim", characters=tuple(characters), activity=activity, part=part))
 
 
+def narrated_claim(outcome: Outcome) -> tuple[tuple[str, ...], str, str] | None:
+    """The claim (characters, activity, part) a step made before it ended with ``outcome``: the
+    narrator's event it was accepted with (None: a wait, no event, or a planner without a
+    narrator, which claims nothing)."""
+    if isinstance(outcome, ParsedEvent) and outcome.narrator_attempts == 0:
+        return None  # the one-call planner (no narrator) claims nothing
+    if not isinstance(outcome, ParsedEvent | PlanningFailure) or outcome.event is None or outcome.event.is_wait:
+        return None
+    return tuple(outcome.event.characters), outcome.event.activity, outcome.part
+
+
 def post_news(news: MemoryObjectSendStream[News], item: News) -> None:
     """Send without waiting; after the simulation ended nobody reads news, and it is dropped."""
     with contextlib.suppress(anyio.ClosedResourceError, anyio.BrokenResourceError):
@@ -107,6 +123,10 @@ class StepsInFlight:
         self.settings = settings
         self.fps = fps
         self.by_index: dict[int, Flight] = {}
+        self.holding = False
+        """Resumed, and still making the requests the trace holds (``SessionSettings.recorded_requests``):
+        an outcome the trace does not show applied is held (the killed process had it in flight
+        at each of them). Not in ``offline`` pace, whose outcomes land at a computed frame."""
 
     def note(self, news: News) -> BaseException | None:
         """Take one piece of news; returns the planner's error when the step stopped on one
@@ -128,6 +148,10 @@ class StepsInFlight:
             fl.outcome = news.outcome
             if self.settings.pace == "offline":
                 fl.due = fl.request.frame + round(fl.latency_s * fps)
+            said = narrated_claim(news.outcome) if fl.claim is None else None
+            if said is not None:  # answered without being run (the story log's answer on resume)
+                fl.claim, fl.activity, fl.part = said  # the claim it made when it ran
+                fl.claim_frame = fl.due
         else:  # stopped
             # a replay miss is the replayed command's one error line (its diff a record at info level)
             log = _log.info if isinstance(news.error, ReplayMissError) else _log.error
@@ -188,7 +212,7 @@ class StepsInFlight:
         due = self.recorded_due(fl.request.index)
         if due is not None:
             return due == frame
-        if self.replaying():
+        if self.replaying() or (self.holding and self.settings.pace != "offline"):
             return False
         if self.settings.pace == "offline":
             if fl.due is not None and fl.due < frame:
