@@ -26,6 +26,7 @@ from agents.prompt_templates import PromptLibrary
 from agents.retry_feedback import Turn
 from agents.room_table import parse_room_table, room_table
 from sim.scene.bundled import bundled_scene_names, load_bundled_scene
+from sim.scene.model import Scene
 from tests.support.reference import SCENES, requires_reference
 from tests.support.scripted_llm import ScriptedLLM
 
@@ -124,8 +125,8 @@ def test_the_regions_schema_offers_each_region_only_names_that_fit_it(scene_name
         assert "dining area" not in couch_region["properties"]["area"]["enum"]
 
 
-def _scene_labels(scenes: list[object]) -> set[str]:
-    return {o.label for s in scenes for o in s.objects}  # type: ignore[attr-defined]  # the scenes are typed as objects by the fixture
+def _scene_labels(scenes: list[Scene]) -> set[str]:
+    return {o.label for s in scenes for o in s.objects}
 
 
 def test_every_label_of_the_bundled_scenes_is_in_the_table() -> None:

@@ -28,6 +28,7 @@ from sim.scene.model import Scene, SceneObject
 from tools.place_relations import (
     FACING_DEG,
     Reference,
+    RelationKind,
     StatedRelation,
     facing_angle,
     group_gap,
@@ -120,10 +121,10 @@ def random_seats(draw: st.DrawFn) -> list[SceneObject]:
 @settings(max_examples=60, deadline=None, derandomize=True)
 @given(random_seats(), points, st.sampled_from(["nearest", "farthest", "near", "facing"]))
 def test_checks_keep_what_the_relation_says_and_never_empty_the_set(
-    seats: list[SceneObject], at: tuple[float, float], kind: str
+    seats: list[SceneObject], at: tuple[float, float], kind: RelationKind
 ) -> None:
     ref = (Reference("landmark", obj=obj("lamp", 1, *at, size=(0.3, 0.3, 1.5))),)
-    relation = StatedRelation(kind, (ref,))  # type: ignore[arg-type]  # hypothesis draws the kind as a plain str
+    relation = StatedRelation(kind, (ref,))
     kept = keep_satisfying([relation], seats)
     assert kept and set(o.name for o in kept) <= {o.name for o in seats}
     gaps = {o.name: group_gap(o, ref) for o in seats}

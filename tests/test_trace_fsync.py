@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from orchestrator.llm.config import FsyncPolicy
 from orchestrator.llm.traces import TraceWriter, read_trace
 from tests.support.trace_records import attempt
 
@@ -89,8 +90,9 @@ def test_fsync_policies_close_and_never_leave_writes_alone(tmp_path: Path, monke
 
     monkeypatch.setattr(anyio.to_thread, "run_sync", no_thread)
     seen = watch_fsyncs(monkeypatch)
-    for policy, fsyncs in (("close", 1), ("never", 0)):
-        w = TraceWriter(tmp_path / f"{policy}.jsonl", fsync=policy)  # type: ignore[arg-type]  # every policy name, typed as a plain str by parametrize
+    policies: tuple[tuple[FsyncPolicy, int], ...] = (("close", 1), ("never", 0))
+    for policy, fsyncs in policies:
+        w = TraceWriter(tmp_path / f"{policy}.jsonl", fsync=policy)
         attempt(w)
         w.sync()
         asyncio.run(w.durable())
