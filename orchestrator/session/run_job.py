@@ -42,10 +42,12 @@ applies the recorded ones again (not traced twice) and the script lines not yet 
 
 Overlapping planning (``RunArguments.planners`` > 1): the trace gets a ``requested`` record per
 step, and a replay makes every request where the recorded run did
-(``SessionSettings.schedule``); a step the recorded run still had in flight when its story
-ended is asked again and its unanswered call waits to the end as it did (the replay port's
-``unanswered="wait"``, ``orchestrator.llm.replay``), so the replay ends with the recorded story
-and exit 0. Any error other than the user's inputs or the LLM's (a bug, a
+(``SessionSettings.schedule``), and a resume makes the ones its trace holds after the checkpoint
+again, not traced twice, before it asks live (``orchestrator.session.request_schedule``), and
+takes a viewer's or stdin's line after the last frame its trace shows; a step the recorded run
+still had in flight when its story ended is asked again and its unanswered call waits to the end
+as it did (the replay port's ``unanswered="wait"``, ``orchestrator.llm.replay``), so the replay
+ends with the recorded story and exit 0. Any error other than the user's inputs or the LLM's (a bug, a
 failing disk) cancels the session's task group and is raised from :func:`run_story` after the
 trace, the story log and the program worker are closed.
 
