@@ -20,7 +20,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -211,10 +211,10 @@ def _env(tmp_path: Path) -> dict[str, str]:
     return env
 
 
-def _wait(what: str, ok: object, *, timeout_s: float, log: Path | None = None) -> None:
+def _wait(what: str, ok: Callable[[], object], *, timeout_s: float, log: Path | None = None) -> None:
     """Poll ``ok()`` every 0.2 s until it is true (a failure names ``what`` and the log's tail)."""
     deadline = time.monotonic() + timeout_s
-    while not ok():  # type: ignore[operator]  # ok is a callable the test built, typed as object
+    while not ok():
         tail = log.read_text(errors="replace")[-3000:] if log is not None and log.exists() else ""
         assert time.monotonic() < deadline, f"{what}: not within {timeout_s} s\n{tail}"
         time.sleep(0.2)
