@@ -68,9 +68,10 @@ def spec(**changes: object) -> SweepSpec:
     return base.model_copy(update=changes)
 
 
-def sweep(out: Path, calls: list[str] | None = None, **kw: object) -> list[str]:
+def sweep(out: Path, calls: list[str] | None = None, **kw: Any) -> list[str]:
+    """``run_sweep`` on ``spec()`` with the scripted port; ``kw``: run_sweep's own keywords."""
     calls = [] if calls is None else calls
-    asyncio.run(run_sweep(spec(), out, factory=scripted(calls), **kw))  # type: ignore[arg-type]  # the tests pass run_sweep's keywords through untyped
+    asyncio.run(run_sweep(spec(), out, factory=scripted(calls), **kw))
     return calls
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 from typer.testing import CliRunner
@@ -92,8 +93,8 @@ def test_a_sweep_of_our_cases_needs_no_reference_data(
     calls: list[str] = []
     real_run_sweep = runner.run_sweep
 
-    async def scripted_run_sweep(*args: object, **kw: object) -> object:  # the CLI's live port -> the script
-        return await real_run_sweep(*args, **{**kw, "factory": scripted(calls, answer)})  # type: ignore[arg-type]  # run_sweep's own arguments, passed through
+    async def scripted_run_sweep(*args: Any, **kw: Any) -> object:  # the CLI's live port -> the script
+        return await real_run_sweep(*args, **{**kw, "factory": scripted(calls, answer)})
 
     monkeypatch.setattr(runner, "run_sweep", scripted_run_sweep)
     out = tmp_path / "sweep"

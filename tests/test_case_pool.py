@@ -189,8 +189,8 @@ def test_bench_run_runs_one_side_by_one_command(tmp_path: Path, monkeypatch: pyt
     calls: list[str] = []
     real_run_sweep = runner.run_sweep
 
-    async def scripted_run_sweep(*args: object, **kw: object) -> object:
-        return await real_run_sweep(*args, **{**kw, "factory": scripted(calls, lambda request: "{}")})  # type: ignore[arg-type]  # keywords passed through untyped to run_sweep
+    async def scripted_run_sweep(*args: Any, **kw: Any) -> object:  # run_sweep's own arguments, passed through
+        return await real_run_sweep(*args, **{**kw, "factory": scripted(calls, lambda request: "{}")})
 
     monkeypatch.setattr(runner, "run_sweep", scripted_run_sweep)
     committed = split.read_split()
