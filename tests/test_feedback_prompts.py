@@ -76,9 +76,14 @@ async def test_ask_until_valid_sends_the_feedback_of_its_prompt_folder(tmp_path:
     seen: list[LLMRequest] = []
 
     class Port:
+        trace = None  # records nothing
+
         async def complete(self, request: LLMRequest) -> LLMResponse:
             seen.append(request)
             return LLMResponse(text=next(replies), model="fake")
+
+        def close(self) -> None:
+            pass
 
     def build(turns: tuple[Turn, ...]) -> LLMRequest:
         from agents.retry_feedback import with_turns
@@ -86,7 +91,7 @@ async def test_ask_until_valid_sends_the_feedback_of_its_prompt_folder(tmp_path:
         return LLMRequest(node="narrator", messages=with_turns((ChatMessage(role="user", content="n?"),), turns))
 
     accepted = await ask_until_valid(
-        Port(),  # type: ignore[arg-type]  # a minimal port: complete() is all ask_until_valid calls
+        Port(),
         build,
         _Reply.model_validate_json,
         max_attempts=2,

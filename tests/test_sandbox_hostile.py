@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 
 import pytest
 
@@ -158,13 +159,14 @@ def test_tool_argument_errors_show_a_bounded_value() -> None:
     big = ["x" * 20000] * 20000
     api = SpatialAPI(load_bundled_scene("home"), None, WorldView(), None)
     ns = api.namespace()
-    for call in (
+    calls: list[Callable[[], object]] = [
         lambda: ns["get_area_to_sit_on"](big),
         lambda: ns["get_character"](big),
         lambda: ns["get_character"]("Mia").set_position([big]),
-    ):
+    ]
+    for call in calls:
         with pytest.raises(ToolArgumentError) as info:
-            call()  # type: ignore[no-untyped-call]  # namespace() hands out the API's functions untyped, as a program sees them
+            call()
         assert len(info.value.feedback) < 300
 
 

@@ -30,6 +30,7 @@ from orchestrator.session.session_types import (
 )
 from sim.motion.matching import MotionMatcher
 from sim.scene.model import Scene
+from sim.world.step import World
 from tests.support.session_world import FPS, free_points, make_world
 
 NAMES = ["Ava", "Ben", "Cleo", "Dan"]
@@ -93,10 +94,10 @@ class ClaimingPlanner:
                            plans=tuple(plans))
 
 
-def _run(world: object, planner: ClaimingPlanner, settings: SessionSettings,
+def _run(world: World, planner: ClaimingPlanner, settings: SessionSettings,
          requested: list[RecordedRequest] | None = None) -> SessionResult:
     async def main() -> SessionResult:
-        session = Session(world, planner, settings,  # type: ignore[arg-type]  # a World
+        session = Session(world, planner, settings,
                           on_request=None if requested is None else requested.append)
         return await session.run()
 
