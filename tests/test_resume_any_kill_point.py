@@ -28,7 +28,13 @@ import numpy as np
 import pytest
 
 from agents.messages import Event, ParsedEvent, PlannedCharacter
-from orchestrator.llm.traces import AppliedRecord, RequestedRecord, TraceWriter, read_trace
+from orchestrator.llm.traces import (
+    AppliedRecord,
+    InstructionRecord,
+    RequestedRecord,
+    TraceWriter,
+    read_trace,
+)
 from orchestrator.planning.state import StepProgress
 from orchestrator.session.instruction_script import ScriptLine
 from orchestrator.session.run_manifest import RunArguments
@@ -150,6 +156,8 @@ def test_a_session_killed_at_any_line_of_its_trace_resumes_and_replays_the_same(
         folder.mkdir()
         trace = folder / "trace.jsonl"
         trace.write_bytes(whole[:end])
+        reached = max((r.sim_frame for r in read_trace(trace).records
+                       if isinstance(r, AppliedRecord | RequestedRecord | InstructionRecord)), default=-1)
         on_disk = [cp for size, cp in kept if size <= end]
         checkpoint = None
         fresh = make_world(home, motion, list(NAMES))
@@ -162,13 +170,15 @@ def test_a_session_killed_at_any_line_of_its_trace_resumes_and_replays_the_same(
                                  live=True)
         result, world = _play(fresh, resumed, again, trace, checkpoint, typed=TYPED)
         assert result.frames == round(ARGS.duration * FPS)
-        (frame,) = [i.frame for i in result.instructions if i.text == TYPED]
-        assert frame > max(again.recorded_until, (checkpoint.world.frame if checkpoint else 0) - 1), f"kill {n}"
         contents = read_trace(trace)
         requested = [r.step for r in contents.requests()]
         assert len(requested) == len(set(requested)), f"kill {n}: a step requested twice: {requested}"
         applied = [r.step for r in contents.records if isinstance(r, AppliedRecord)]
         assert len(applied) == len(set(applied)), f"kill {n}: a step applied twice: {applied}"
+        # the typed line takes effect at the first frame after all the trace shows (none left: never)
+        due = max(reached + 1, checkpoint.world.frame if checkpoint is not None else 0)
+        typed = [i.frame for i in result.instructions if i.text == TYPED]
+        assert typed == ([due] if due < result.frames else []), f"kill {n}"
 
         replayer = LoggedPlanner(home, folder / "replay.jsonl", seed=200 + n)
         replay = session_settings(ARGS, FPS, read_recorded(ARGS, FPS, trace_path=None, replay=trace, resume=False),
