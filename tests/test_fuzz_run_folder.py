@@ -283,9 +283,10 @@ def test_fuzzed_chunk_file(finished_run: Path, data: st.DataObject, command: str
 
 
 # ----- *.track.npz: view --export -------------------------------------------------------------
-def _npz(arrays: dict[str, np.ndarray]) -> bytes:
+def _npz(arrays: dict[str, Any]) -> bytes:
+    """``arrays`` (name -> array) as the bytes of an .npz file."""
     buffer = io.BytesIO()
-    np.savez(buffer, **arrays)  # type: ignore[arg-type]  # numpy's savez stub does not take a dict of arrays as keywords
+    np.savez(buffer, **arrays)
     return buffer.getvalue()
 
 

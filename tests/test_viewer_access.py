@@ -31,13 +31,14 @@ import viser
 import zstandard
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
+from websockets.typing import Subprotocol
 
 from benchmark.support.headless_chromium import Chromium, chromium_binary
 from orchestrator.viewer.access import ViewerAccess, is_loopback
 from tests.support.tiny_run import write_tiny_run
 
 SECRET = "secretinstruction"  # the run's instruction: in the panel markdown sent to a client
-PROTOCOL = f"viser-v{viser.__version__}"
+PROTOCOL = Subprotocol(f"viser-v{viser.__version__}")
 
 
 # ----- the rule ---------------------------------------------------------------------------------
@@ -93,7 +94,7 @@ def ws_receive(url: str, headers: dict[str, str]) -> bytes:
     """Open a websocket as a browser page would and gather what the viewer sends in 2 s of
     quiet: each message's msgpack payload (viser zstd-compresses it after a 16-byte header)."""
     got = b""
-    with connect(url, subprotocols=[PROTOCOL], additional_headers=headers, open_timeout=10, max_size=None) as ws:  # type: ignore[list-item]  # websockets' stub types subprotocols as its own Subprotocol
+    with connect(url, subprotocols=[PROTOCOL], additional_headers=headers, open_timeout=10, max_size=None) as ws:
         try:
             while True:
                 message = ws.recv(timeout=2.0)
