@@ -9,7 +9,7 @@ import asyncio
 import errno
 import os
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import pytest
@@ -165,10 +165,10 @@ def test_a_steps_outcome_is_logged_off_the_loop_after_its_records_are_on_disk(
     logged: list[tuple[int, bool]] = []  # (step, its records on disk then)
 
     class WatchedLog(StoryLog):
-        def record(self, index: int, outcome: Outcome, trace_seqs: object = ()) -> None:
+        def record(self, index: int, outcome: Outcome, trace_seqs: Sequence[int] = ()) -> None:
             assert threading.get_ident() != loop_thread, "the story log was written on the event loop"
             logged.append((index, bool(seen) and seen[-1][2] == path.stat().st_size))
-            super().record(index, outcome, trace_seqs)  # type: ignore[arg-type]  # the wrapped outcome is passed through as given
+            super().record(index, outcome, trace_seqs)
 
     class TracedPort(ScriptedLLM):  # answers numbered in the trace, so their parsed records are written
         async def complete(self, request: LLMRequest) -> LLMResponse:
