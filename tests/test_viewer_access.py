@@ -24,6 +24,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 import pytest
@@ -36,6 +37,9 @@ from websockets.typing import Subprotocol
 from benchmark.support.headless_chromium import Chromium, chromium_binary
 from orchestrator.viewer.access import ViewerAccess, is_loopback
 from tests.support.tiny_run import write_tiny_run
+
+if TYPE_CHECKING:  # imported by the fixture, when a test needs the viewer
+    from orchestrator.viewer.server import ViewerApp
 
 SECRET = "secretinstruction"  # the run's instruction: in the panel markdown sent to a client
 PROTOCOL = Subprotocol(f"viser-v{viser.__version__}")
@@ -127,7 +131,7 @@ def http_get(port: int, path: str = "/", host: str | None = None, headers: dict[
 
 
 @pytest.fixture(scope="module")
-def viewer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[object, int]]:
+def viewer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ViewerApp, int]]:
     from orchestrator.viewer.server import ViewerApp
 
     folder = write_tiny_run(tmp_path_factory.mktemp("access") / "run", instruction=SECRET)
@@ -140,7 +144,7 @@ def viewer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[object, i
 
 
 @pytest.mark.slow
-def test_a_websocket_from_another_site_gets_nothing_and_the_viewers_own_page_gets_the_run(viewer: tuple[object, int]) -> None:
+def test_a_websocket_from_another_site_gets_nothing_and_the_viewers_own_page_gets_the_run(viewer: tuple[ViewerApp, int]) -> None:
     _, port = viewer
     url = f"ws://127.0.0.1:{port}"
     assert ws_refused(url, {"Origin": "https://evil.example"}) == 403
@@ -150,7 +154,7 @@ def test_a_websocket_from_another_site_gets_nothing_and_the_viewers_own_page_get
     assert SECRET.encode() in ws_receive(url, {})  # a program, not a page (no Origin)
 
 
-def test_dns_rebinding_is_refused_on_http_and_the_websocket(viewer: tuple[object, int]) -> None:
+def test_dns_rebinding_is_refused_on_http_and_the_websocket(viewer: tuple[ViewerApp, int]) -> None:
     _, port = viewer
     assert http_get(port).status == 200
     assert http_get(port, host=f"localhost:{port}").status == 200
@@ -161,9 +165,9 @@ def test_dns_rebinding_is_refused_on_http_and_the_websocket(viewer: tuple[object
     assert ws_refused(f"ws://127.0.0.1:{port}", {"Host": f"evil.example:{port}", "Origin": f"http://evil.example:{port}"}) == 403
 
 
-def test_the_viewer_never_opens_a_share_tunnel(viewer: tuple[object, int]) -> None:
+def test_the_viewer_never_opens_a_share_tunnel(viewer: tuple[ViewerApp, int]) -> None:
     app, _ = viewer
-    assert app.server.request_share_url() is None  # type: ignore[attr-defined]  # a method the viewer adds to viser's server
+    assert app.server.request_share_url() is None
 
 
 def test_a_viser_that_builds_its_server_otherwise_is_not_served(monkeypatch: pytest.MonkeyPatch) -> None:
