@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -327,7 +327,7 @@ def test_bad_reference_cases_raise_typed_errors(
     scenes: dict[str, Scene], data: object, match: str
 ) -> None:
     with pytest.raises(ReferenceCaseError, match=match):
-        world_view_from_reference_case(data, scenes["House"])  # type: ignore[arg-type]  # ill-typed JSON on purpose: the runtime checks must reject it
+        world_view_from_reference_case(cast(dict[str, Any], data), scenes["House"])  # ill-typed JSON on purpose
 
 
 def test_area_from_text(scenes: dict[str, Scene]) -> None:
@@ -349,4 +349,4 @@ def test_combining_is_bounded_and_typed() -> None:
     with pytest.raises(ToolArgumentError, match="at most"):
         combined.intersect(a)
     with pytest.raises(ToolArgumentError, match="expects an Area"):
-        a.union("table_1")  # type: ignore[arg-type]  # a name instead of an Area on purpose, as a program might pass
+        a.union(cast(areas.Area, "table_1"))  # a name instead of an Area on purpose, as a program might pass

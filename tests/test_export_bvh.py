@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import pytest
@@ -104,7 +105,7 @@ def test_bvh_is_deterministic_and_depth_first(tmp_path: Path) -> None:
 
 def test_bvh_rejects_unknown_units(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="units"):
-        export_bvh(random_track("d", 2, seed=1), tmp_path / "x.bvh", units="in")  # type: ignore[arg-type]  # an unknown unit on purpose: the runtime check must reject it
+        export_bvh(random_track("d", 2, seed=1), tmp_path / "x.bvh", units=cast(Units, "in"))  # not a Units on purpose
 
 
 def test_bvh_angles_have_no_wraps(tmp_path: Path) -> None:

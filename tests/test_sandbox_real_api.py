@@ -24,7 +24,7 @@ import select
 import subprocess
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import pytest
 
@@ -118,7 +118,7 @@ def worker(start: int) -> None:
                 report["value"] = execute(source, api.namespace())
                 report["plans"] = len(api.resolve(0))
             else:
-                plans = run_event_program(scene, source, world, seed=0, graph=graph)  # type: ignore[arg-type]  # the corpus holds non-str sources on purpose
+                plans = run_event_program(scene, cast(str, source), world, seed=0, graph=graph)  # may be bytes, on purpose
                 report["plans"] = len(plans)
         except EventProgramError as err:
             report["error"] = type(err).__name__

@@ -10,7 +10,7 @@ import itertools
 from collections.abc import Awaitable, Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import anyio
 import numpy as np
@@ -20,6 +20,7 @@ from agents.llm_port import LLMError, LLMPort
 from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
 from orchestrator.planning.state import StepProgress
 from orchestrator.session.frame_profile import PARTS
+from orchestrator.session.pace import Pace
 from orchestrator.session.runtime import Session
 from orchestrator.session.session_types import (
     Outcome,
@@ -155,7 +156,7 @@ def test_planner_crash_stops_planning_but_not_the_simulation(home: Scene, motion
 def test_settings_are_checked(home: Scene, motion: MotionMatcher) -> None:
     world = make_world(home, motion, ["Ava"])
     with pytest.raises(SessionError):
-        Session(world, ScriptedPlanner(home), SessionSettings(frames=10, pace="sometimes"))  # type: ignore[arg-type]  # the run-time check is under test
+        Session(world, ScriptedPlanner(home), SessionSettings(frames=10, pace=cast(Pace, "sometimes")))  # not a Pace on purpose
     with pytest.raises(SessionError):
         Session(world, ScriptedPlanner(home), SessionSettings(frames=10, speed=0.0))
 

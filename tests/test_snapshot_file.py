@@ -17,7 +17,7 @@ import pickle
 import pickletools
 import subprocess
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -143,7 +143,7 @@ def test_a_crafted_call_is_refused_and_never_runs(checkpoint: tuple[World, Sessi
     if where == "whole file":
         payload = pickle.dumps(evil, protocol=2)
     else:
-        payload = real_payload(world, dataclasses.replace(cp, instruction=evil))  # type: ignore[arg-type]  # a deliberately wrong-typed field, for the check to refuse
+        payload = real_payload(world, dataclasses.replace(cp, instruction=cast(str, evil)))  # not a str on purpose: the check refuses it
     path = write_snapshot(tmp_path / "session.snapshot", payload)
     with pytest.raises(SnapshotError) as exc:
         load_checkpoint(path, _world(home, motion))
@@ -158,7 +158,7 @@ def test_a_class_that_is_not_listed_is_refused(checkpoint: tuple[World, SessionC
 
     world, cp = checkpoint
     assert ("sim.world.events", "ReleaseCharacters") not in SNAPSHOT_CLASSES
-    payload = real_payload(world, dataclasses.replace(cp, instruction=ReleaseCharacters(characters=("Ava",))))  # type: ignore[arg-type]  # a deliberately wrong-typed field, for the check to refuse
+    payload = real_payload(world, dataclasses.replace(cp, instruction=cast(str, ReleaseCharacters(characters=("Ava",)))))  # not a str on purpose
     path = write_snapshot(tmp_path / "session.snapshot", payload)
     with pytest.raises(SnapshotError, match=r"sim\.world\.events\.ReleaseCharacters, which a checkpoint may not hold"):
         load_checkpoint(path, _world(home, motion))
@@ -207,7 +207,7 @@ def test_a_model_with_a_wrong_field_type_is_refused(checkpoint: tuple[World, Ses
     from orchestrator.session.session_types import TimedInstruction
 
     world, cp = checkpoint
-    bad = TimedInstruction.model_construct(frame="soon", text="x", source="script")  # type: ignore[arg-type]  # a deliberately wrong-typed field, for the check to refuse
+    bad = TimedInstruction.model_construct(frame=cast(int, "soon"), text="x", source="script")  # not an int on purpose
     path = write_snapshot(tmp_path / "session.snapshot",
                           real_payload(world, dataclasses.replace(cp, instructions=[bad])))
     with pytest.raises(SnapshotError, match="TimedInstruction whose field frame is invalid"):
