@@ -114,7 +114,7 @@ def test_the_stdin_reader_hands_over_only_bounded_instructions() -> None:
             return True
 
     stream = io.StringIO(f"Ava waves\n{'q' * (3 * MAX_INSTRUCTION_CHARS)}\n# note\nBen sits\n")
-    start_stdin_reader(Taker(), stream).join(timeout=30)  # type: ignore[arg-type]  # a stand-in session with only what the reader calls
+    start_stdin_reader(Taker(), stream).join(timeout=30)
     assert got == [("Ava waves", "stdin"), ("Ben sits", "stdin")]
 
 

@@ -15,14 +15,20 @@ from __future__ import annotations
 import sys
 import threading
 from collections.abc import Iterator
-from typing import TextIO
+from typing import Protocol, TextIO
 
 import structlog
 
 from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
-from orchestrator.session.runtime import Session
+from orchestrator.session.session_types import InstructionSource
 
 _log = structlog.get_logger("storyteller.session")
+
+
+class TakesInstructions(Protocol):
+    """What the reader needs of the session (:meth:`Session.instruct_nowait`)."""
+
+    def instruct_nowait(self, text: str, source: InstructionSource = "stdin") -> bool: ...
 
 
 def typed_instruction(line: str) -> str | None:
@@ -56,7 +62,7 @@ def bounded_lines(stream: TextIO, limit: int = MAX_INSTRUCTION_CHARS) -> Iterato
         yield None
 
 
-def start_stdin_reader(session: Session, stream: TextIO | None = None) -> threading.Thread:
+def start_stdin_reader(session: TakesInstructions, stream: TextIO | None = None) -> threading.Thread:
     """Start the reader thread on ``stream`` (default: ``sys.stdin``); it ends at end of file
     or once the session no longer takes instructions."""
     source = stream if stream is not None else sys.stdin
