@@ -120,14 +120,18 @@ def test_empty_and_overlong_instructions_are_refused_before_writing(tmp_path: Pa
         ViewerInstruction.model_validate({"id": "z" * 32, "thread": THREAD, "text": "x", "sent_unix": 1.0})
 
 
+class _World:
+    frame = 0
+
+
 class _Session:
     """What the reader thread uses of a session: its world's frame and ``instruct_nowait``."""
 
     def __init__(self) -> None:
-        self.world = type("World", (), {"frame": 0})()
+        self.world = _World()
         self.said: list[tuple[int, str, str]] = []
 
-    def instruct_nowait(self, text: str, source: str) -> bool:
+    def instruct_nowait(self, text: str, source: str = "stdin") -> bool:
         self.said.append((self.world.frame, text, source))
         return True
 
@@ -140,7 +144,7 @@ def test_a_resumed_run_holds_new_lines_until_it_is_past_its_last_recorded_instru
     send_instruction(tmp_path, THREAD, "Zoe waves", sent_unix=1.0)  # applied at frame 120 before a kill
     send_instruction(tmp_path, THREAD, "Max makes toast", sent_unix=2.0)  # sent while the run was down
     session, stop = _Session(), threading.Event()
-    reader = start_inbox_reader(session, tmp_path / INBOX_FILE, THREAD, ["Zoe waves"], stop=stop,  # type: ignore[arg-type]  # a stand-in session with only what the reader calls
+    reader = start_inbox_reader(session, tmp_path / INBOX_FILE, THREAD, ["Zoe waves"], stop=stop,
                                 after_frame=120)
     try:
         time.sleep(0.5)

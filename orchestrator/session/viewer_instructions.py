@@ -38,7 +38,7 @@ import threading
 import uuid
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Generic, TypeVar
+from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 
 import structlog
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -48,7 +48,18 @@ from sim.no_follow_writes import open_append
 from sim.run_folder_names import VIEWER_INSTRUCTIONS
 
 if TYPE_CHECKING:  # the viewer imports this module too, without the session
-    from orchestrator.session.runtime import Session
+    from orchestrator.session.stdin_instructions import TakesInstructions
+
+    class _AtFrame(Protocol):
+        @property
+        def frame(self) -> int: ...
+
+    class InboxSession(TakesInstructions, Protocol):
+        """What the inbox reader needs of the session: its world's frame, ``instruct_nowait``."""
+
+        @property
+        def world(self) -> _AtFrame: ...
+
 
 _log = structlog.get_logger("storyteller.session")
 
@@ -226,7 +237,7 @@ class InstructionInbox(AppendedLines[ViewerInstruction]):
 
 
 def start_inbox_reader(
-    session: Session,
+    session: InboxSession,
     path: Path,
     thread: str,
     applied: Sequence[str] = (),
