@@ -30,9 +30,12 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 NAME_PATTERN = re.compile(r"^(?P<label>[a-z][a-z0-9_]*?)_(?P<idx>\d+)$")
 
 MAX_SCENE_OBJECTS = 500
-"""Objects a scene may hold (the bundled and reference scenes hold 23-51). Every object is
-checked against the navigation grid and described to the planner: 2,000 objects spread over
-their floor cost ``scene inspect`` 43 s (500: about 5 s)."""
+"""Objects a scene *file* may hold (the bundled and reference scenes hold 23-51; checked by the
+scene and mesh readers). Every object is checked against the navigation grid and described to
+the planner: 2,000 objects spread over their floor cost ``scene inspect`` 43 s (500: about 5 s)."""
+MAX_BUILT_SCENE_OBJECTS = 2_000
+"""Objects a scene the program builds itself may hold (``benchmark.crowd_scenario.tiled``: the
+"Office x16" of the crowd benchmark has 816); the model's own bound."""
 MAX_LABEL_CHARS = 64
 """Characters of an object label (``coffee_maker``); a name adds ``_<idx>``."""
 MAX_OBJECT_INDEX = 999_999
@@ -214,7 +217,7 @@ class Scene(BaseModel):
     floor_z: float = Field(default=0.0, ge=-MAX_COORDINATE, le=MAX_COORDINATE)
     bounds_min: Vec2 = Field(description="Floor rectangle lower corner [x, y].")
     bounds_max: Vec2 = Field(description="Floor rectangle upper corner [x, y].")
-    objects: tuple[SceneObject, ...] = Field(max_length=MAX_SCENE_OBJECTS)
+    objects: tuple[SceneObject, ...] = Field(max_length=MAX_BUILT_SCENE_OBJECTS)
     nav: NavHints = NavHints()
 
     @field_validator("bounds_min", "bounds_max")
