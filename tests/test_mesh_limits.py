@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benchmark.hostile.harness import gltf_doc
 from sim.scene import mesh_limits
 from sim.scene.files import SceneFileError, load_scene
 
@@ -22,13 +23,9 @@ TRIANGLE = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4")
 
 
 def _doc(nodes: list[dict[str, Any]], count: int = 3, uri: str | None = None) -> dict[str, Any]:
-    buffer: dict[str, Any] = {"byteLength": count * 12, **({"uri": uri} if uri else {})}
-    return {"asset": {"version": "2.0"}, "buffers": [buffer],
-            "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": count * 12}],
-            "accessors": [{"bufferView": 0, "componentType": 5126, "count": count, "type": "VEC3",
-                           "min": [0, 0, 0], "max": [1, 1, 1]}],
-            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
-            "nodes": nodes, "scenes": [{"nodes": [0]}], "scene": 0}
+    """The hostile harness's glTF document (``benchmark.hostile.harness.gltf_doc``) with only the
+    first node at the scene's root (a chain or a cycle hangs from it)."""
+    return {**gltf_doc(nodes, count, uri), "scenes": [{"nodes": [0]}]}
 
 
 def _glb(path: Path, doc: dict[str, Any], binary: bytes = TRIANGLE.tobytes()) -> Path:

@@ -46,13 +46,8 @@ def _viewer_requests(box: Box, url: str) -> str | None:
     if get("/", {**ws, "Origin": "null"})[0] == 101:
         problems.append("websocket opened for a null origin")
     for path in ("/../../../../../../etc/passwd", "/%2e%2e/%2e%2e/%2e%2e/%2e%2e/etc/passwd", "//etc/passwd",
-                 "/..%2f..%2f..%2f..%2fetc%2fpasswd", "/" + "a/" * 20_000):
-        with contextlib.suppress(OSError, http.client.HTTPException):
-            _status, body = get(path, {})
-            if b"root:" in body:
-                problems.append(f"served /etc/passwd for {path[:30]}")
-    for path in ("/%00", "/..\\..\\..\\..\\etc\\passwd", "/..%5c..%5c..%5c..%5cetc%5cpasswd",
-                 "/%252e%252e/%252e%252e/etc/passwd", "/" + "a" * 100_000):
+                 "/..%2f..%2f..%2f..%2fetc%2fpasswd", "/" + "a/" * 20_000, "/%00", "/..\\..\\..\\..\\etc\\passwd",
+                 "/..%5c..%5c..%5c..%5cetc%5cpasswd", "/%252e%252e/%252e%252e/etc/passwd", "/" + "a" * 100_000):
         with contextlib.suppress(OSError, http.client.HTTPException):
             _status, body = get(path, {})
             if b"root:" in body:
