@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.scene.model import Scene
+from sim.scene.model import FLOOR_STANDING_M, Scene
 from tools.areas import Area, SeatSlot, seat_slots
 from tools.errors import UnsatisfiableAreaError
 from tools.scene_graph import footprint_distance, point_footprint_distance
@@ -57,7 +57,7 @@ GROUP_RADIUS = 1.5
 LATTICE_STEP = 0.05
 INTERIOR_MARGIN = 0.1
 MAX_CANDIDATES = 250_000
-FLOOR_SUPPORT = 0.10
+FLOOR_SUPPORT = FLOOR_STANDING_M
 RELAXED_BAND = 0.1
 """m: in a relaxed area, only points within this much of the smallest excess over the strict
 area are drawn from (``tools.areas.Relaxation.excess``)."""

@@ -43,6 +43,9 @@ MAX_OBJECT_INDEX = 999_999
 MAX_SCENE_NAME_CHARS = 128
 MAX_COORDINATE = 100_000.0
 """Metres: every coordinate and size of a scene lies within +-this (100 km)."""
+FLOOR_STANDING_M = 0.10
+"""Metres: furniture whose bottom is this close to the floor stands on it (an obstacle to a body's
+feet, and to a body sitting beside it)."""
 MAX_NAV_CELLS = 100_000
 """Cells of the navigation grid over the floor (``sim.paths.nav_grid`` refuses more too): a
 95 m square at the default 0.3 m (the bundled scenes need about 700-3,300). Building a grid costs

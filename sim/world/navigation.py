@@ -30,7 +30,7 @@ import numpy as np
 from sim.paths.cooperative_astar import Cell, PathPlanner
 from sim.paths.following import Agent, CrowdNavigator, close_xy
 from sim.paths.nav_grid import ApproachPoint, NavGrid, NavGridError, body_clearance
-from sim.scene.model import Scene, SceneObject
+from sim.scene.model import FLOOR_STANDING_M, Scene, SceneObject
 from sim.world.facing import REACH_M, REACH_SLACK_M, surface_distance
 from sim.world.phases import StandTarget, TargetFallback
 
@@ -168,9 +168,6 @@ def _covered(scene: Scene, obj: SceneObject, xy: np.ndarray) -> bool:
     """Whether ``xy`` lies inside the footprint of floor-standing furniture other than ``obj``."""
     return any(o.name != obj.name and abs(o.z_min - scene.floor_z) < FLOOR_STANDING_M and bool(o.contains_xy(xy))
                for o in scene.objects)
-
-
-FLOOR_STANDING_M = 0.10  # metres: furniture whose bottom is this close to the floor stands on it
 
 
 def seat_place(obj: SceneObject, target_xy: Sequence[float], scene: Scene | None = None) -> tuple[float, float]:
