@@ -219,11 +219,12 @@ def back_references(text: str, before: str, labels: Sequence[str], names: Sequen
     at = _pointer([t.lower() for t in tokens], labels)
     if at is None:
         return []
-    for clause in (tokens[:at], _last_clause(_tokens(joined_labels(before, labels)))):
+    before_clause = _last_clause(_tokens(joined_labels(before, labels)))
+    for clause in (tokens[:at], before_clause):
         named = list(dict.fromkeys(w.removesuffix("'s") for w in clause if w.removesuffix("'s") in names))
         if named:
             return [RelationMention("near", ((f"@{name}",),), at, at + 1) for name in named]
-    things = mentioned_labels(" ".join(_last_clause(_tokens(joined_labels(before, labels)))), labels)
+    things = mentioned_labels(" ".join(before_clause), labels)
     return [RelationMention("near", ((things[-1],),), at, at + 1)] if things else []
 
 
