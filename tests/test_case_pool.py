@@ -17,8 +17,10 @@ from typing import Any
 
 import pytest
 
-from benchmark.own_cases import generate, phrasing, split
+from benchmark.own_cases import generate, phrasing, recipes, split
+from benchmark.own_cases.case_writer import as_case, write_case
 from benchmark.own_cases.check import ours_folder
+from benchmark.own_cases.drafts import Draft
 from benchmark.reference_cases import TAGS, load_cases
 from tests.support.reference import TEST_CASES, requires_reference
 from tests.support.word_windows import windows
@@ -60,14 +62,14 @@ def test_a_generated_case_that_does_not_hold_is_not_written(monkeypatch: pytest.
     """A recipe whose answer the check refutes (here: every seat said to be the one nearest the
     fridge) yields no case: drafts go through the same check as the folder."""
     facts = generate._facts()["home"]
-    bad = generate.Draft("RC", "home", "rc.seat_near", "all-chairs", {"seat": ["chair"], "seats": ["chairs"],
-                         "lm": ["fridge"], "act": ["read a book"]}, "read_book", objects={"label": "chair"}, count="one")
-    data = generate.write_case(bad, facts, 999, "rc.seat_near.a", "dev", 0)
+    bad = Draft("RC", "home", "rc.seat_near", "all-chairs", {"seat": ["chair"], "seats": ["chairs"],
+                "lm": ["fridge"], "act": ["read a book"]}, "read_book", objects={"label": "chair"}, count="one")
+    data = write_case(bad, facts, 999, "rc.seat_near.a", "dev", 0)
     from benchmark.own_cases.check import _Scenes, check_case
 
-    problems = check_case(generate._as_case(data, "1_RC"), _Scenes(OURS)).problems
+    problems = check_case(as_case(data, "1_RC"), _Scenes(OURS)).problems
     assert any("ambiguous" in p for p in problems)
-    monkeypatch.setattr(generate, "RECIPES", {**generate.RECIPES, "RC": (lambda f: iter([bad]) if f.name == "home" else iter([]),)})
+    monkeypatch.setattr(recipes, "RECIPES", {**recipes.RECIPES, "RC": (lambda f: iter([bad]) if f.name == "home" else iter([]),)})
     monkeypatch.setattr(generate, "TARGETS", {g: (5 if g == "RC" else 0) for g in generate.GROUPS})
     assert generate.generate() == []
 
