@@ -27,9 +27,9 @@ from orchestrator.planning.state import StepProgress
 from orchestrator.session import snapshot_file
 from orchestrator.session.runtime import Session
 from orchestrator.session.session_types import PlanningRequest, SessionCheckpoint, SessionSettings
+from orchestrator.session.snapshot_errors import SnapshotError
 from orchestrator.session.snapshot_file import (
     SNAPSHOT_CLASSES,
-    SnapshotError,
     load_checkpoint,
     save_checkpoint,
     shared_names,

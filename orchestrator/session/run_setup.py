@@ -221,7 +221,8 @@ def start_world(scene: Scene, args: RunArguments, names: list[str], world_config
 
 def saved_checkpoint(path: Path, world: World) -> SessionCheckpoint | None:
     """The checkpoint a resumed run goes on from (None: none was kept)."""
-    from orchestrator.session.snapshot_file import SnapshotError, load_checkpoint
+    from orchestrator.session.snapshot_errors import SnapshotError
+    from orchestrator.session.snapshot_file import load_checkpoint
 
     if not (path.exists() or path.is_symlink()):  # a folder or a device there is refused
         return None

@@ -22,54 +22,49 @@ A run folder may come from someone else, so reading a checkpoint runs no code fr
   no function but this module's two array decoders (which check dtype, shape and byte count),
   and adds items only to real lists, dicts and sets; every other global, call or extension
   opcode is a :class:`SnapshotError`;
-- the decoded objects are then checked as a whole (:func:`_check_tree`): only listed
+- the decoded objects are then checked as a whole (:func:`~orchestrator.session.snapshot_tree.check_tree`): only listed
   instances, plain values and numeric arrays, each listed instance with exactly its declared
   fields, pydantic models valid against their schema, every dataclass field of the type its
-  annotation gives (:func:`_fits`: ``int``, ``str | None``, ``tuple[int, int]``,
+  annotation gives (:func:`~orchestrator.session.snapshot_tree.fits`: ``int``, ``str | None``, ``tuple[int, int]``,
   ``dict[str, CharacterState]``, an array of the annotated dtype, ``Literal`` values...), at
-  most :data:`MAX_DEPTH` levels deep;
-- and against the world it is bound to (:func:`_check_fits_world`): the same characters, in
+  most :data:`~orchestrator.session.snapshot_tree.MAX_DEPTH` levels deep;
+- and against the world it is bound to (:func:`~orchestrator.session.snapshot_sense.check_fits_world`): the same characters, in
   the same order, everywhere the world keeps them by name;
-- and for sense (:func:`_check_sense`): values of the right types that no run could have made
+- and for sense (:func:`~orchestrator.session.snapshot_sense.check_sense`): values of the right types that no run could have made
   are refused too: a frame below 0 or after the checkpoint's own, a step index outside the
   steps taken, an event id a character, a pending assignment or the world's event book names
   that the checkpoint does not hold, a character or event member that is not this run's, a
-  position or angle that is not finite or lies more than :data:`_OUTSIDE_M` outside the scene's
+  position or angle that is not finite or lies more than :data:`~orchestrator.session.snapshot_sense.OUTSIDE_M` outside the scene's
   floor, a grid cell off the navigation grid, a seat or used object the scene has no object of.
 
 So a crafted checkpoint with a wrong-typed or impossible field is refused at load, with one
 line, instead of stopping the resumed run with an error deep in the simulation.
 
-Every failure is a :class:`SnapshotError` with one line naming the file.
+Every failure is a :class:`~orchestrator.session.snapshot_errors.SnapshotError` with one line
+naming the file.
 """
 
 from __future__ import annotations
 
-import ast
 import contextlib
-import dataclasses
 import glob
 import hashlib
 import importlib
-import inspect
 import io
 import os
 import pickle
 import re
 import secrets
-import textwrap
-import types
-import typing
-from collections.abc import Hashable, Sequence
 from pathlib import Path
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar
 
 import numpy as np
-from pydantic import BaseModel, ValidationError
 
 from orchestrator.session.session_types import SessionCheckpoint
+from orchestrator.session.snapshot_errors import SnapshotError
+from orchestrator.session.snapshot_sense import check_fits_world, check_sense
+from orchestrator.session.snapshot_tree import MAX_KEY_DEPTH, check_tree, plain_key, plain_templates
 from sim.bounded_files import BoundedFileError, read_bounded_bytes
-from sim.validation_text import problem_field, problem_message
 from sim.world.step import World
 from sim.world.track_chunks import ChunkStore
 
@@ -85,14 +80,8 @@ _HEADER_MAX = 128  # bytes: the header line is shorter
 MAX_SNAPSHOT_BYTES = 256 << 20
 """Bytes of the largest checkpoint file read back (a streaming run's checkpoint holds at most
 ``STREAM_WINDOW`` frames per character: well under a MiB per character)."""
-MAX_DEPTH = 48
-"""Levels of nesting of the decoded objects at most (the checkpoints of the resume tests have 8)."""
 _MAX_NDIM = 8  # dimensions of an array at most (the checkpoint's arrays have up to 5)
 _MAX_DIM = 1 << 32  # entries along one axis at most (the bytes must fit the shape as well)
-_MAX_KEY_DEPTH = 3  # tuples in tuples in a dict key or set item at most
-_OUTSIDE_M = 1.0
-"""Metres a stored position may lie outside the scene's floor rectangle (a character stands,
-walks and sits on the floor; a seat's approach point is within reach of it)."""
 
 SNAPSHOT_CLASSES: frozenset[tuple[str, str]] = frozenset({
     # Every class a session checkpoint holds, as (module, qualified name). Recorded from the
@@ -135,12 +124,6 @@ SNAPSHOT_CLASSES: frozenset[tuple[str, str]] = frozenset({
     ("sim.body.foot_ik", "FootState"),
 })  # fmt: skip
 _DECODERS = ("_array", "_scalar")  # the only functions a checkpoint calls: this module's array decoders
-_PLAIN_TYPES = (type(None), bool, int, float, complex, str, bytes)
-_CONTAINERS = (tuple, list, dict, set, frozenset)
-
-
-class SnapshotError(Exception):
-    """A checkpoint file that cannot be read against this world (the message says why)."""
 
 
 def _array(data: object, dtype: object, shape: object) -> np.ndarray[Any, Any]:
@@ -309,14 +292,8 @@ def _check_keys(keys: list[Any]) -> None:
     """Dict keys and set items are plain values or short tuples of them: hashing anything else
     (a tuple nested a million deep, a model holding one) could exhaust the C stack."""
     for key in keys:
-        if not _plain_key(key, _MAX_KEY_DEPTH):
+        if not plain_key(key, MAX_KEY_DEPTH):
             raise SnapshotError("the checkpoint holds a dict key or set item that is not a plain value")
-
-
-def _plain_key(key: Any, depth: int) -> bool:
-    if isinstance(key, _PLAIN_TYPES):
-        return True
-    return type(key) is tuple and depth > 0 and len(key) <= 64 and all(_plain_key(k, depth - 1) for k in key)
 
 
 for _op, _handler in (
@@ -400,7 +377,8 @@ def load_checkpoint(path: Path, world: World) -> SessionCheckpoint:
     payload = _payload(path, data)
     shared = world.shared_objects()
     try:
-        checkpoint = _Unpickler(io.BytesIO(payload), shared, _resolve_classes()).load()
+        classes = _resolve_classes()
+        checkpoint = _Unpickler(io.BytesIO(payload), shared, classes).load()
     except SnapshotError as exc:
         raise SnapshotError(f"{path}: cannot read the session checkpoint: {exc}") from None
     except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, KeyError, IndexError,
@@ -409,9 +387,10 @@ def load_checkpoint(path: Path, world: World) -> SessionCheckpoint:
     if not isinstance(checkpoint, SessionCheckpoint):
         raise SnapshotError(f"{path}: not a session checkpoint of this version")
     try:
-        _check_tree(checkpoint, {id(o) for o in shared.values()}, _plain_templates(world))
-        _check_fits_world(checkpoint, world)
-        _check_sense(checkpoint, world)
+        listed = frozenset(classes.values())
+        check_tree(checkpoint, {id(o) for o in shared.values()}, listed, plain_templates(world, listed))
+        check_fits_world(checkpoint, world)
+        check_sense(checkpoint, world)
     except SnapshotError as exc:
         raise SnapshotError(f"{path}: cannot read the session checkpoint: {exc}") from None
     except _CHECK_SLIPS as exc:  # a forged object the checks' own code trips on (a validator reading a field the forgery lacks)
@@ -441,376 +420,3 @@ def _payload(path: Path, data: bytes) -> bytes:
     return payload
 
 
-def _check_tree(root: SessionCheckpoint, shared: set[int], templates: dict[type, Any] | None = None) -> None:
-    """Every object reachable from ``root`` is a plain value, a container, a numeric array, a
-    numpy scalar, a shared object of the world or an instance of a listed class with exactly its
-    declared fields; pydantic models are valid; nesting is at most :data:`MAX_DEPTH` deep and
-    has no cycle; then every dataclass field is of its annotated type, and every instance of a
-    listed plain class (no declared fields: the navigators, the priority keeper) has the
-    attributes of its template in ``templates`` (the world's own instance), each of the
-    template's type where the template's is not None. Iterative: a hostile tree cannot exhaust
-    the interpreter's stack here."""
-    listed = frozenset(_resolve_classes().values())
-    done: set[int] = set(shared)
-    on_path: set[int] = set()
-    stack: list[tuple[Any, bool]] = [(root, False)]
-    typed: list[Any] = []  # dataclass instances: their field types are checked once the tree is
-    plain: list[Any] = []  # instances of listed plain classes: checked against ``templates``
-    while stack:
-        obj, leaving = stack.pop()
-        key = id(obj)
-        if leaving:
-            on_path.discard(key)
-            done.add(key)
-            continue
-        if key in done or isinstance(obj, (*_PLAIN_TYPES, np.generic)):
-            continue
-        if key in on_path:
-            raise SnapshotError("the checkpoint's objects refer back to themselves")
-        if len(on_path) >= MAX_DEPTH:
-            raise SnapshotError(f"the checkpoint nests objects more than {MAX_DEPTH} levels deep")
-        if isinstance(obj, np.ndarray):
-            if obj.dtype.hasobject:
-                raise SnapshotError("the checkpoint holds an array of objects")
-            done.add(key)
-            continue
-        on_path.add(key)
-        stack.append((obj, True))
-        stack.extend((child, False) for child in _children(obj, listed))
-        if dataclasses.is_dataclass(obj):
-            typed.append(obj)
-        elif type(obj) in listed and not isinstance(obj, BaseModel):
-            plain.append(obj)
-    _check_field_types(typed)
-    _check_plain_objects(plain, templates)
-
-
-def _children(obj: Any, listed: frozenset[type]) -> list[Any]:
-    kind = type(obj)
-    if kind in _CONTAINERS:
-        if kind is dict:
-            return [*obj.keys(), *obj.values()]
-        return list(obj)
-    if kind not in listed:
-        raise SnapshotError(f"the checkpoint holds a {kind.__name__[:60]}, which a checkpoint may not hold")
-    state = vars(obj)
-    if isinstance(obj, BaseModel):
-        model = type(obj)
-        fields = set(model.model_fields)
-        fields_set = obj.__pydantic_fields_set__
-        if set(state) != fields or type(fields_set) is not set or not fields_set <= fields:
-            raise SnapshotError(f"a {kind.__name__} with other fields than its own")
-        # None is what pydantic stores for a model without extra or private values (ours have
-        # neither); anything else, even a falsy False or {}, is a forged slot
-        if obj.__pydantic_extra__ is not None or obj.__pydantic_private__ is not None:
-            raise SnapshotError(f"a {kind.__name__} with values besides its fields")
-        try:
-            model.model_validate(state)
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            where, message = problem_field(err), problem_message(err)
-            raise SnapshotError(f"a {kind.__name__} whose field {where} is invalid ({message})") from None
-        return list(state.values())
-    if dataclasses.is_dataclass(obj) and set(state) != {f.name for f in dataclasses.fields(obj)}:
-        raise SnapshotError(f"a {kind.__name__} with other fields than its own")
-    return [*state.keys(), *state.values()]
-
-
-def _plain_templates(world: World) -> dict[type, Any]:
-    """The instances of listed plain classes that ``world`` holds (its navigator and the objects
-    under it), one per class: what a checkpoint's instances of those classes are checked against."""
-    listed = frozenset(_resolve_classes().values())
-    out: dict[type, Any] = {}
-    stack: list[Any] = [world.navigator]
-    while stack:
-        obj = stack.pop()
-        kind = type(obj)
-        if kind in out or kind not in listed or dataclasses.is_dataclass(obj) or isinstance(obj, BaseModel):
-            continue
-        out[kind] = obj
-        stack.extend(vars(obj).values())
-    return out
-
-
-def _check_plain_objects(objects: list[Any], templates: dict[type, Any] | None) -> None:
-    """Each instance of a listed plain class has its template's attributes, of its types."""
-    if templates is None:
-        return
-    for obj in objects:
-        kind = type(obj)
-        template = templates.get(kind)
-        if template is None:
-            raise SnapshotError(f"the checkpoint holds a {kind.__name__}, which this run's world has none of")
-        mine, theirs = vars(obj), vars(template)
-        if set(mine) != set(theirs):
-            raise SnapshotError(f"a {kind.__name__} with other attributes than its own")
-        hints = _init_hints(kind)
-        for name, expected in theirs.items():
-            value = mine[name]
-            if name in hints and not _fits(value, hints[name]):
-                raise SnapshotError(
-                    f"a {kind.__name__} whose attribute {name} is not {_hint_name(hints[name])}"
-                )
-            if expected is None or value is None or type(value) is type(expected):
-                continue
-            if _fits(value, float) and _fits(expected, float):
-                continue
-            raise SnapshotError(
-                f"a {kind.__name__} whose attribute {name} is a {type(value).__name__[:40]}, not {type(expected).__name__}"
-            )
-
-
-_INIT_HINTS: dict[type, dict[str, Any]] = {}
-
-
-def _init_hints(kind: type) -> dict[str, Any]:
-    """The annotations a plain class gives its attributes in its own ``__init__``
-    (``self._rank: dict[Agent, float] = {}``), resolved in the class's module: so a checkpoint's
-    navigator or priority keeper is checked item by item, as a dataclass's fields are, and a
-    forged None among a dict's floats is refused at load instead of stopping the resumed run.
-    Read from the project's own source (never from the file); an annotation that does not
-    resolve at run time (a name imported for type checking only) is left to the template check.
-    Cached per class."""
-    if kind in _INIT_HINTS:
-        return _INIT_HINTS[kind]
-    found: dict[str, str] = {}
-    try:
-        tree = ast.parse(textwrap.dedent(inspect.getsource(vars(kind)["__init__"])))
-    except (OSError, TypeError, SyntaxError, KeyError):  # no source (a frozen build) or no __init__ of its own: the template check only
-        tree = None
-    for node in ast.walk(tree) if tree is not None else ():
-        if not isinstance(node, ast.AnnAssign):
-            continue
-        target = node.target
-        if isinstance(target, ast.Attribute) and isinstance(target.value, ast.Name) and target.value.id == "self":
-            found[target.attr] = ast.unparse(node.annotation)
-    hints: dict[str, Any] = {}
-    for name, text in found.items():
-        holder = type("_Hint", (), {"__annotations__": {name: text}, "__module__": kind.__module__})
-        try:
-            hints[name] = typing.get_type_hints(holder)[name]
-        except (NameError, TypeError, AttributeError, SyntaxError):
-            continue
-    _INIT_HINTS[kind] = hints
-    return hints
-
-
-def _check_field_types(objects: list[Any]) -> None:
-    """Every field of each dataclass instance in ``objects`` is of its annotated type (after the
-    tree is known to be acyclic and shallow)."""
-    for obj in objects:
-        kind = type(obj)
-        for name, hint in _field_types(kind).items():
-            value = vars(obj)[name]
-            if not _fits(value, hint):
-                raise SnapshotError(
-                    f"a {kind.__name__} whose field {name} is a {type(value).__name__[:40]}, not {_hint_name(hint)}"
-                )
-
-
-_FIELD_TYPES: dict[type, dict[str, Any]] = {}
-
-
-def _field_types(kind: type) -> dict[str, Any]:
-    """The resolved annotation of each dataclass field of ``kind`` (cached)."""
-    if kind not in _FIELD_TYPES:
-        hints = typing.get_type_hints(kind)
-        _FIELD_TYPES[kind] = {f.name: hints[f.name] for f in dataclasses.fields(kind)}
-    return _FIELD_TYPES[kind]
-
-
-_FITS_DEPTH = 8  # levels of a field's annotation checked (``dict[str, list[tuple[int, int]]]`` has 4)
-
-
-def _fits(value: Any, hint: Any, depth: int = _FITS_DEPTH) -> bool:
-    """Whether ``value`` is of the annotated type ``hint``. Containers are checked item by item
-    (keys and values, every item of a list); instances of listed classes by their type (their
-    own fields are checked when :func:`_check_tree` reaches them); an ``int`` passes for a
-    ``float`` and numpy's scalars for Python's. Linear in the items, bounded in the annotation."""
-    if depth <= 0 or hint is Any or hint is object:
-        return True
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if origin is typing.Union or origin is types.UnionType:
-        return any(_fits(value, arm, depth - 1) for arm in args)
-    if origin is Literal:
-        return any(type(value) is type(arm) and value == arm for arm in args)
-    if hint is type(None):
-        return value is None
-    if hint is bool:
-        return isinstance(value, bool | np.bool_)
-    if hint is int:
-        return isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
-    if hint is float:
-        return isinstance(value, float | int | np.floating | np.integer) and not isinstance(value, bool | np.bool_)
-    if hint is Hashable:
-        return _plain_key(value, _MAX_KEY_DEPTH)
-    if hint is np.ndarray or origin is np.ndarray:
-        return isinstance(value, np.ndarray) and _dtype_fits(value, args)
-    if origin in (tuple, list, set, frozenset, dict):
-        if type(value) is not origin:
-            return False
-        if origin is dict:
-            key, item = args or (Any, Any)
-            return all(_fits(k, key, depth - 1) and _fits(v, item, depth - 1) for k, v in value.items())
-        if origin is tuple and args and args[-1] is not Ellipsis:
-            return len(value) == len(args) and all(_fits(v, a, depth - 1) for v, a in zip(value, args, strict=True))
-        item = args[0] if args else Any
-        return all(_fits(v, item, depth - 1) for v in value)
-    if isinstance(hint, type):
-        return isinstance(value, hint)
-    return True  # an annotation this check does not know: left to the pydantic and tree checks
-
-
-def _dtype_fits(value: np.ndarray[Any, Any], args: tuple[Any, ...]) -> bool:
-    """An array annotated ``NDArray[np.float64]`` holds float64 (a bare ``np.ndarray``: any numeric)."""
-    if len(args) != 2:
-        return True
-    scalar = typing.get_args(args[1])
-    return not scalar or not isinstance(scalar[0], type) or value.dtype.type is scalar[0]
-
-
-def _hint_name(hint: Any) -> str:
-    return (getattr(hint, "__name__", None) if isinstance(hint, type) else None) or str(hint).replace("typing.", "")[:80]
-
-
-def _check_fits_world(checkpoint: SessionCheckpoint, world: World) -> None:
-    """The checkpoint is of this run's characters: the world's names, in its order, as the keys
-    of its per-character state, motion states and track buffers, each state named by its key."""
-    names = list(world.characters)
-    snap = checkpoint.world
-    for what, keys in (
-        ("characters", list(snap.characters)),
-        ("motion states", list(snap.motion_states)),
-        ("track buffers", list(snap.buffers.names)),
-    ):
-        if keys != names:
-            raise SnapshotError(f"the checkpoint's {what} are {keys[:8]}, this run's characters are {names[:8]}")
-    for name, state in snap.motion_states.items():
-        if type(state) is not type(world.motion_states[name]):
-            raise SnapshotError(f"the checkpoint's motion state of {name!r} is a {type(state).__name__[:40]}, this "
-                                f"run's motion layer keeps a {type(world.motion_states[name]).__name__}")
-    for name, state in snap.characters.items():
-        if state.name != name:
-            raise SnapshotError(f"the checkpoint's character {name!r} holds the state of {state.name!r}")
-    for event_id, event in checkpoint.events.items():
-        if event.event_id != event_id:
-            raise SnapshotError(f"the checkpoint's event {event_id!r} holds event {event.event_id!r}")
-
-
-def _check_sense(checkpoint: SessionCheckpoint, world: World) -> None:
-    """Values of the right types that no run could have made (module doc): frames, step indices,
-    event ids, characters, positions, grid cells and object names."""
-    snap = checkpoint.world
-    frame = snap.frame
-    if frame < 0:
-        raise SnapshotError(f"the checkpoint's world is at frame {frame} (frames count from 0)")
-
-    def at(what: str, value: int | None, low: int = 0) -> None:
-        if value is not None and not low <= value <= frame:
-            raise SnapshotError(f"{what} is frame {value}, outside the frames so far [{low}, {frame}]")
-
-    def count(what: str, value: int) -> None:
-        if value < 0:
-            raise SnapshotError(f"{what} is {value} (a count is 0 or more)")
-
-    for what, value in (("the checkpoint's step count", checkpoint.steps),
-                        ("its planning failures in a row", checkpoint.failures_in_a_row),
-                        ("its count of event changes", checkpoint.changes),
-                        ("its next planning frame", checkpoint.next_plan_frame),
-                        ("its track buffers' base frame", snap.buffers.base),
-                        ("its track buffers' length", snap.buffers.length)):
-        count(what, value)
-    if len(checkpoint.outcomes) != len(checkpoint.applied_frames):
-        raise SnapshotError(f"the checkpoint has {len(checkpoint.outcomes)} planning outcomes and "
-                            f"{len(checkpoint.applied_frames)} frames they were applied at")
-    for (index, _), applied in zip(checkpoint.outcomes, checkpoint.applied_frames, strict=True):
-        _step_index(f"an outcome's step {index}", index, checkpoint.steps)
-        at(f"the frame step {index} was applied at", applied)
-    for request in (checkpoint.in_flight, *checkpoint.more_in_flight):
-        if request is not None:
-            _step_index(f"the step in flight {request.index}", request.index, checkpoint.steps)
-            at(f"the request frame of step {request.index}", request.frame)
-    names = set(world.characters)
-    for event_id, event in checkpoint.events.items():
-        _step_index(f"event {event_id!r}'s step {event.index}", event.index, checkpoint.steps)
-        at(f"the request frame of event {event_id!r}", event.requested_frame)
-        at(f"the frame event {event_id!r} was applied at", event.applied_frame, event.requested_frame)
-        at(f"the frame event {event_id!r} finished at", event.finished_frame, event.applied_frame)
-        _members(f"event {event_id!r}", event.characters, names)
-    for event_id, state in snap.events.items():
-        if event_id not in checkpoint.events or state.event.event_id != event_id:
-            raise SnapshotError(f"the checkpoint's world holds event {event_id!r}, which its story does not")
-        _members(f"event {event_id!r}", (*state.members, *(a.character for a in state.event.assignments)), names)
-        for assignment in state.event.assignments:
-            _assignment(f"event {event_id!r}", assignment, world)
-    for name, character in snap.characters.items():
-        _character(name, character, snap.events, world)
-
-
-def _step_index(what: str, index: int, steps: int) -> None:
-    if not 0 <= index < steps:
-        raise SnapshotError(f"{what} is not one of the {steps} steps taken")
-
-
-def _members(what: str, members: Sequence[str], names: set[str]) -> None:
-    strangers = sorted(set(members) - names)
-    if strangers:
-        raise SnapshotError(f"{what} names {strangers[:4]}, not characters of this run ({sorted(names)[:8]})")
-
-
-def _character(name: str, character: Any, events: dict[str, Any], world: World) -> None:
-    """One character's state: its event and pending event held, counts, angles, positions, cells."""
-    for event_id in (character.event_id, character.pending[0] if character.pending is not None else None):
-        if event_id is not None and event_id not in events:
-            raise SnapshotError(f"the checkpoint's character {name!r} takes part in event {event_id!r}, "
-                                "which its world does not hold")
-    for field_name in ("phase_frame", "turn_frames", "stalled_frames", "replans"):
-        if getattr(character, field_name) < 0:
-            raise SnapshotError(f"the checkpoint's character {name!r} has {field_name} {getattr(character, field_name)}")
-    for field_name in ("heading", "turn_from", "act_yaw"):
-        value = getattr(character, field_name)
-        if value is not None and not np.isfinite(value):
-            raise SnapshotError(f"the checkpoint's character {name!r} has {field_name} {value}, not a finite angle")
-    where = f"the checkpoint's character {name!r}"
-    for field_name in ("xy", "anchor_xy", "seat_xy"):
-        _point(f"{where}'s {field_name}", getattr(character, field_name), world)
-    for field_name in ("anchor_cell", "goal_cell"):
-        _cell(f"{where}'s {field_name}", getattr(character, field_name), world)
-    for target in (character.target, character.pending[2] if character.pending is not None else None):
-        if target is not None:
-            _point(f"{where}'s stand target", target.xy, world)
-            _cell(f"{where}'s stand target cell", target.cell, world)
-    for assignment in (character.assignment, character.pending[1] if character.pending is not None else None):
-        if assignment is not None:
-            _assignment(where, assignment, world)
-
-
-def _assignment(where: str, assignment: Any, world: World) -> None:
-    _point(f"{where}: {assignment.character!r}'s target", assignment.target_xy, world)
-    for field_name in ("seat", "focus"):
-        obj = getattr(assignment, field_name)
-        if obj is not None and obj not in world.scene.by_name:
-            raise SnapshotError(f"{where}: {assignment.character!r}'s {field_name} is {str(obj)[:60]!r}, "
-                                f"which scene {world.scene.name!r} has no object of")
-
-
-def _point(what: str, value: Any, world: World) -> None:
-    """``value`` (None, or an (x, y) point) is finite and within :data:`_OUTSIDE_M` of the floor."""
-    if value is None:
-        return
-    xy = np.asarray(value, dtype=float)
-    low = np.asarray(world.scene.bounds_min, dtype=float) - _OUTSIDE_M
-    high = np.asarray(world.scene.bounds_max, dtype=float) + _OUTSIDE_M
-    if xy.shape != (2,) or not np.isfinite(xy).all() or (xy < low).any() or (xy > high).any():
-        shown = ", ".join(f"{v:.6g}" for v in xy.ravel()[:2])
-        raise SnapshotError(f"{what} is ({shown}), not a point of the scene (x {low[0]:.6g}..{high[0]:.6g}, "
-                            f"y {low[1]:.6g}..{high[1]:.6g})")
-
-
-def _cell(what: str, cell: tuple[int, int] | None, world: World) -> None:
-    if cell is None:
-        return
-    rows, cols = world.grid.free.shape[:2]
-    if not (0 <= cell[0] < rows and 0 <= cell[1] < cols):
-        raise SnapshotError(f"{what} is {cell}, off the navigation grid ({rows} x {cols} cells)")
