@@ -37,7 +37,8 @@ from typing import Any
 
 from agents.llm_port import ChatMessage, LLMRequest
 from agents.messages import Event, ParsedEvent, PlannedCharacter
-from orchestrator.llm.traces import AttemptRecord, TraceWriter
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import AttemptRecord
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.state import PlanningDeps
 from orchestrator.session.roster import RosterWorld

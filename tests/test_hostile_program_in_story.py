@@ -21,7 +21,8 @@ from langgraph.checkpoint.memory import InMemorySaver
 from agents.event_parser import scene_action_labels
 from agents.messages import ParsedEvent
 from orchestrator.cache_paths import motion_cache_dir
-from orchestrator.llm.traces import ParsedRecord, TraceWriter, read_trace
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import ParsedRecord, read_trace
 from orchestrator.planning.ablation_graph import Ablation, compile_graph
 from orchestrator.planning.checkpoints import StoryLog
 from orchestrator.planning.state import PlanningDeps

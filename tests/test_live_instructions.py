@@ -20,13 +20,8 @@ from agents.instruction_parts import instruction_progress, part_states, split_in
 from agents.messages import HistoryEntry
 from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
-from orchestrator.llm.traces import (
-    AttemptRecord,
-    InstructionRecord,
-    RunRecord,
-    TraceWriter,
-    read_trace,
-)
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import AttemptRecord, InstructionRecord, RunRecord, read_trace
 from orchestrator.session.instruction_script import (
     InstructionScriptError,
     ScriptLine,

@@ -19,7 +19,8 @@ from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import NodeConfig, RetryConfig, StorytellerConfig, default_config
 from orchestrator.llm.retry_policy import RetryPolicy
-from orchestrator.llm.traces import AttemptRecord, TraceWriter, read_trace
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import AttemptRecord, read_trace
 
 SCHEMA = {"type": "object", "properties": {"ok": {"type": "boolean"}}, "required": ["ok"]}
 

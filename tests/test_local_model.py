@@ -34,7 +34,8 @@ from orchestrator.llm.model_weights import (
     forget_hashes,
     locate_chunks,
 )
-from orchestrator.llm.traces import TraceWriter, read_trace
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import read_trace
 from tests.support.embedded_weights import embedded_weights_or_skip
 
 SCHEMA = {

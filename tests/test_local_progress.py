@@ -29,7 +29,8 @@ from orchestrator.llm.local_model import (
     register_local_provider,
     stream_chat,
 )
-from orchestrator.llm.traces import TraceWriter, read_trace
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import read_trace
 from orchestrator.session.run_report import local_threads_metrics
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from benchmark.support.random_tracks import random_track
-from orchestrator.llm.traces import TraceWriter
+from orchestrator.llm.trace_writer import TraceWriter
 from orchestrator.session.run_manifest import RunArguments, RunManifest, write_manifest
 from orchestrator.session.story_stream import StoryStream
 from sim.export.bundle import export_run

@@ -267,7 +267,8 @@ async def test_describer_retries_exhausted_repairs_from_clusters() -> None:
 
 
 async def test_requests_carry_the_step_frame_and_parsed_outputs_are_traced(tmp_path: Path) -> None:
-    from orchestrator.llm.traces import TraceWriter, read_trace
+    from orchestrator.llm.trace_writer import TraceWriter
+    from orchestrator.llm.traces import read_trace
 
     class TracedPort(ScriptedLLM):
         """Numbers its answers like a trace-writing client (seqs of its own sink)."""

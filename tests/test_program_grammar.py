@@ -24,7 +24,7 @@ from agents.program_grammar import (
 from agents.prompt_templates import PromptLibrary
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import default_config
-from orchestrator.llm.traces import NullTraceSink
+from orchestrator.llm.trace_writer import NullTraceSink
 from sim.scene.bundled import resolve_scene
 from tests.support.embedded_weights import embedded_weights_or_skip
 from tools.character_states import CharacterState, WorldView
@@ -131,7 +131,8 @@ def test_local_provider_builds_a_llama_grammar() -> None:
 @pytest.mark.embedded_model
 async def test_real_embedded_model_writes_a_runnable_program_under_the_grammar(tmp_path: Path) -> None:
     from orchestrator.llm.local_model import LocalLlamaProvider, register_local_provider
-    from orchestrator.llm.traces import TraceWriter, read_trace
+    from orchestrator.llm.trace_writer import TraceWriter
+    from orchestrator.llm.traces import read_trace
 
     embedded_weights_or_skip()
     register_local_provider(LocalLlamaProvider())

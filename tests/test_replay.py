@@ -15,7 +15,8 @@ from agents.llm_port import ChatMessage, LLMRequest, NodeName, ReplayMissError
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import ConfigError, default_config
 from orchestrator.llm.replay import ReplayClient, build_llm_port
-from orchestrator.llm.traces import AttemptRecord, TraceCorruptError, TraceWriter, read_trace
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import AttemptRecord, TraceCorruptError, read_trace
 
 PROMPT = "You are the narrator.\nCharacters: Ann, Bob.\nRules: one event at a time."
 

@@ -32,7 +32,8 @@ from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import default_config
 from orchestrator.llm.replay import ReplayClient
-from orchestrator.llm.traces import TraceWriter, read_trace
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import read_trace
 from tests.support.story_planner import RUN, first_free, write_config
 
 

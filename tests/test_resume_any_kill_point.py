@@ -28,13 +28,8 @@ import numpy as np
 import pytest
 
 from agents.messages import Event, ParsedEvent, PlannedCharacter
-from orchestrator.llm.traces import (
-    AppliedRecord,
-    InstructionRecord,
-    RequestedRecord,
-    TraceWriter,
-    read_trace,
-)
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import AppliedRecord, InstructionRecord, RequestedRecord, read_trace
 from orchestrator.planning.state import StepProgress
 from orchestrator.session.instruction_script import ScriptLine
 from orchestrator.session.run_manifest import RunArguments

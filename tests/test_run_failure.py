@@ -13,7 +13,8 @@ from typer.testing import CliRunner
 
 from agents.llm_port import LLMRequest, LLMResponse
 from orchestrator.cli.app import app
-from orchestrator.llm.traces import TraceWriter, read_trace
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import read_trace
 from orchestrator.planning.checkpoints import StoryLog
 from tests.support.session_world import ScriptedCompletion
 

@@ -212,7 +212,7 @@ def test_a_full_disk_under_the_trace_is_one_error_line_and_the_trace_stays_whole
             return real_write(fd, bytes(data[: len(data) // 2]))  # the disk fills up mid-line
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr("orchestrator.llm.traces.os.write", full_disk_write)  # only the trace file's writes fail
+    monkeypatch.setattr("orchestrator.llm.trace_writer.os.write", full_disk_write)  # only the trace file's writes fail
     out = tmp_path / "out"
     with FakeOpenAI(responder=Planner()) as fake:
         cfg = write_config(tmp_path, fake.base)

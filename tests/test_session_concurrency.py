@@ -253,7 +253,8 @@ def test_the_planning_graph_runs_two_steps_at_once_on_two_lanes(home: Scene, mot
     from agents.event_parser import scene_action_labels
     from orchestrator.llm.client import LiteLLMClient
     from orchestrator.llm.config import default_config
-    from orchestrator.llm.traces import AttemptRecord, TraceWriter, read_trace
+    from orchestrator.llm.trace_writer import TraceWriter
+    from orchestrator.llm.traces import AttemptRecord, read_trace
     from orchestrator.planning.checkpoints import StoryLog
     from orchestrator.planning.graph import compile_planning_graph
     from orchestrator.planning.state import PlanningDeps

@@ -43,7 +43,8 @@ from tests.support.session_world import (
 
 if TYPE_CHECKING:
 
-    from orchestrator.llm.traces import AppliedRecord, TraceSink
+    from orchestrator.llm.trace_writer import TraceSink
+    from orchestrator.llm.traces import AppliedRecord
 
 def _run(world: World, planner: StepPlanner, settings: SessionSettings) -> SessionResult:
     async def main() -> SessionResult:
@@ -219,7 +220,8 @@ def test_graph_session_traces_request_and_applied_frames_and_replays(home: Scene
     from orchestrator.llm.client import LiteLLMClient
     from orchestrator.llm.config import default_config
     from orchestrator.llm.replay import ReplayClient
-    from orchestrator.llm.traces import TraceWriter, read_trace
+    from orchestrator.llm.trace_writer import TraceWriter
+    from orchestrator.llm.traces import read_trace
 
     live_path = tmp_path / "live.jsonl"
     client = LiteLLMClient(default_config(), TraceWriter(live_path, fsync="never"),

@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 
 from orchestrator.llm.config import FsyncPolicy
-from orchestrator.llm.traces import TraceWriter, read_trace
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import read_trace
 from tests.support.trace_records import attempt
 
 Fsyncs = list[tuple[int, int, int]]

@@ -11,13 +11,13 @@ from pathlib import Path
 
 import pytest
 
+from orchestrator.llm.trace_writer import TraceWriter
 from orchestrator.llm.traces import (
     AppliedRecord,
     AttemptRecord,
     ParsedRecord,
     RunRecord,
     TraceCorruptError,
-    TraceWriter,
     read_trace,
 )
 from sim.bounded_files import MAX_OBJECT_KEYS
@@ -117,7 +117,8 @@ _WRITER = r"""
 import sys, time
 sys.path.insert(0, sys.argv[2])
 from agents.llm_port import ChatMessage, LLMRequest
-from orchestrator.llm.traces import AttemptRecord, TraceWriter
+from orchestrator.llm.traces import AttemptRecord
+from orchestrator.llm.trace_writer import TraceWriter
 w = TraceWriter(sys.argv[1], run_id="victim", fsync=sys.argv[3])
 big = "x" * 200_000
 i = 0

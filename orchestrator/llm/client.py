@@ -52,7 +52,8 @@ from orchestrator.llm.retry_policy import (
     failed_call_error,
 )
 from orchestrator.llm.secrets import redact, secret_values
-from orchestrator.llm.traces import AttemptRecord, NullTraceSink, TraceSink
+from orchestrator.llm.trace_writer import NullTraceSink, TraceSink
+from orchestrator.llm.traces import AttemptRecord
 
 litellm.suppress_debug_info = True
 

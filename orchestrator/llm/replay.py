@@ -43,14 +43,8 @@ from agents.llm_port import (
 )
 from orchestrator.llm.config import ConfigError, StorytellerConfig
 from orchestrator.llm.retry_policy import failed_call_error, unavailable_error_names
-from orchestrator.llm.traces import (
-    AttemptRecord,
-    NullTraceSink,
-    TraceCorruptError,
-    TraceSink,
-    TraceWriter,
-    read_trace,
-)
+from orchestrator.llm.trace_writer import NullTraceSink, TraceSink, TraceWriter
+from orchestrator.llm.traces import AttemptRecord, TraceCorruptError, read_trace
 
 _MAX_DIFF_LINES = 60
 

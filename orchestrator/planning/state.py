@@ -33,7 +33,7 @@ from agents.messages import (
 from agents.object_states import unsettled_labels
 from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
 from agents.retry_feedback import Turn
-from orchestrator.llm.traces import TraceSink
+from orchestrator.llm.trace_writer import TraceSink
 from orchestrator.planning.checkpoints import StoryLog
 from sim.scene.model import Scene
 from tools.character_states import WorldView

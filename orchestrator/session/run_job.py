@@ -284,7 +284,7 @@ class _RunHooks:
     def __init__(self, run: RunContext, snapshot_path: Path, replies: ReplyTap, status: RunStatus, *,
                  on_event: Callable[[StoryEvent, int], None] | None,
                  on_instruction: Callable[[TimedInstruction, int], None] | None) -> None:
-        from orchestrator.llm.traces import TraceWriter
+        from orchestrator.llm.trace_writer import TraceWriter
         from orchestrator.session.checkpoint_writer import CheckpointWriter
         from orchestrator.session.live_state import LivePublisher
         from orchestrator.session.story_stream import StoryStream

@@ -9,7 +9,7 @@
 A script that runs out raises ``IndexError`` (a test asked for more calls than it planned),
 an unscripted node raises ``KeyError``: neither is ever turned into a reply.
 
-With ``trace=`` a trace sink (``orchestrator.llm.traces.TraceWriter``), every call is written
+With ``trace=`` a trace sink (``orchestrator.llm.trace_writer.TraceWriter``), every call is written
 as one successful ``attempt`` record and its response carries that record's ``trace_seq``, so
 the planning graph records what it made of each reply (``parsed`` records with the error type
 that rejected it), as with a real client.

@@ -16,7 +16,8 @@ from pathlib import Path
 
 from agents.llm_port import LLMRequest, LLMResponse, TokenUsage
 from benchmark.sweep.execute import PortFactory
-from orchestrator.llm.traces import AttemptRecord, TraceWriter
+from orchestrator.llm.trace_writer import TraceWriter
+from orchestrator.llm.traces import AttemptRecord
 
 Answer = Callable[[LLMRequest], str]
 
