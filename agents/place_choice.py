@@ -29,6 +29,7 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from agents.area_words import DescribedArea, named_areas
 from agents.llm_port import ChatMessage, LLMRequest
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.relation_words import (
@@ -148,11 +149,14 @@ def _seat_kinds(scene: Scene, text: str) -> set[str]:
 def seat_candidates(
     scene: Scene, text: str, free_seats: Sequence[str], others: Mapping[str, tuple[float, float]],
     action_labels: Sequence[str] = (), prompts: PromptLibrary | None = None, before: str = "",
+    areas: Sequence[DescribedArea] = (),
 ) -> SeatCandidates:
     """The candidates of an event whose words are ``text`` (see the module docstring);
     ``others``: where the characters outside the event are; ``before``: the instruction's words
     before ``text``, which a place word pointing back ("sits down there too") refers to when the
-    words state no relation of their own (:func:`agents.relation_words.back_references`)."""
+    words state no relation of their own (:func:`agents.relation_words.back_references`);
+    ``areas``: the scene description's areas (:func:`agents.area_words.described_areas`): when
+    the words name one ("sits in the kitchen"), the candidates are its seats."""
     lib = prompts or package_prompts()
     by_name = {o.name: o for o in scene.objects}
     mentions = stated_relations(text, scene.labels, list(others))
@@ -162,6 +166,9 @@ def seat_candidates(
     free = [by_name[s] for s in free_seats if s in by_name]
     short = event_shortlist(scene, about, [s.name for s in free], action_labels, others=others).seats
     pool = [by_name[s] for s in short if s in by_name] or free
+    in_area = {n for a in named_areas(about, areas, lib) for n in a.objects}
+    if area_seats := [s for s in free if s.name in in_area]:
+        pool = [s for s in pool if s.name in in_area] or area_seats
     kinds = _seat_kinds(scene, about)
     pool = [s for s in pool if s.label in kinds] or pool if kinds else pool
     landmarks = {r.name for m in mentions for g in _references(scene, m, others) for r in g}

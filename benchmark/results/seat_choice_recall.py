@@ -9,6 +9,10 @@ for the model to choose from (1 = decided by the scene)::
     PYTHONPATH=$PWD python benchmark/results/seat_choice_recall.py dev        # develop on this
     PYTHONPATH=$PWD python benchmark/results/seat_choice_recall.py dev -v     # one line per case
     PYTHONPATH=$PWD python benchmark/results/seat_choice_recall.py ref-dev    # our cases on the authors' scenes
+    PYTHONPATH=$PWD python benchmark/results/seat_choice_recall.py ref-dev --descriptions RUN/descriptions
+
+``--descriptions``: a bench run's folder of cached scene descriptions (``storyteller bench run
+--out RUN``); with it the candidates are limited by the areas the words name, as in a run.
 
 Only ``dev`` and ``ref-dev`` print case lines; ``test`` prints the counts alone (test is measured, not read).
 """
@@ -20,6 +24,7 @@ import re
 import sys
 from pathlib import Path
 
+from agents.area_words import DescribedArea, described_areas
 from agents.place_choice import seat_candidates
 from agents.program_grammar import event_options
 from benchmark.reference_cases import load_cases, planning_inputs, scene_dir
@@ -33,7 +38,17 @@ POOLS = {"": (ROOT / "cases" / "ours", ROOT / "own_cases" / "split.json"),
 _SIT = re.compile(r"^sit on ([a-z_]+_\d+)$")
 
 
-def recall(side: str, verbose: bool = False) -> str:
+def _areas(folder: Path | None, scene: Scene, scene_name: str) -> tuple[DescribedArea, ...]:
+    if folder is None:
+        return ()
+    stem = scene_name.replace(":", "-")
+    found = sorted(folder.glob(f"{stem}-*.json"))
+    if not found:
+        return ()
+    return described_areas(json.loads(found[0].read_text(encoding="utf-8"))["text"], scene.object_names)
+
+
+def recall(side: str, verbose: bool = False, descriptions: Path | None = None) -> str:
     pool, split = POOLS["ref-" if side.startswith("ref-") else ""]
     ids = set(json.loads(split.read_text(encoding="utf-8"))[side.removeprefix("ref-")])
     scenes: dict[str, Scene] = {}
@@ -50,7 +65,8 @@ def recall(side: str, verbose: bool = False) -> str:
         inputs = planning_inputs(case, scene)
         who = case.expected_plans[0].character
         options = event_options(scene, [who], inputs.roster, inputs.seats_in_use, case.action_labels, case.user_instruction)
-        seats = seat_candidates(scene, case.user_instruction, options.free_seats, options.others, options.labels)
+        seats = seat_candidates(scene, case.user_instruction, options.free_seats, options.others, options.labels,
+                                areas=_areas(descriptions, scene, case.scene_name))
         want = m.group(1)
         n += 1
         before += want in options.seats
@@ -65,4 +81,7 @@ def recall(side: str, verbose: bool = False) -> str:
 
 
 if __name__ == "__main__":
-    print(recall(sys.argv[1] if len(sys.argv) > 1 else "dev", verbose="-v" in sys.argv))
+    args = [a for a in sys.argv[1:] if a != "-v"]
+    folder = Path(args[args.index("--descriptions") + 1]) if "--descriptions" in args else None
+    side = next((a for a in args if not a.startswith("--") and Path(a) != folder), "dev")
+    print(recall(side, verbose="-v" in sys.argv, descriptions=folder))

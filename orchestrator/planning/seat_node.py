@@ -22,6 +22,7 @@ from typing import Any
 import anyio.to_thread
 from langgraph.runtime import Runtime
 
+from agents.area_words import described_areas
 from agents.event_parser import event_text
 from agents.instruction_parts import words_before, words_so_far
 from agents.place_choice import (
@@ -55,6 +56,7 @@ def event_seats(state: PlanningState, deps: PlanningDeps) -> SeatCandidates | No
     seats = seat_candidates(
         deps.scene, text, options.free_seats, options.others, options.labels, deps.prompts,
         before=words_before(state.instruction, state.part),
+        areas=described_areas(state.description.text, deps.scene.object_names) if state.description else (),
     )
     if not seats.candidates or options.seats == seats.allowed == seats.allowed[:1]:
         return None

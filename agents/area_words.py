@@ -1,0 +1,99 @@
+"""Which of the scene description's areas an event's words name ("sits in the kitchen").
+
+The scene description the narrator and the parser read is one line per functional area
+(``- kitchen (make coffee): fridge_1, chair_2, ...``, :func:`agents.describer.render_description`).
+When an instruction places someone "in the kitchen", "in the conference room" or "at the bar",
+the seats that fit are the ones the description puts in that area; a 0.5B model asked to pick a
+seat does not read that off the description (it picks ``chair_1``).
+
+- :func:`described_areas` reads the areas back from the description's text (name, purpose and the
+  scene objects listed on the line). A description of another form (an object list) has no
+  area lines and gives none.
+- :func:`named_areas` gives the areas the words name: by the area's own name, or by the name of
+  its kind of room or a synonym of it in the room table (``prompts/describer/rooms.toml``: "the
+  conference room" names an area the describer called "meeting room"). A name counts only as a
+  noun phrase of its own (after an article or possessive: "in the kitchen", "at their bar"), and
+  not when the words lead away from it ("far from the kitchen", "out of the kitchen").
+
+Pure: no LLM, no I/O.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+from agents.prompt_templates import PromptLibrary
+from agents.room_table import RoomTable, room_table
+
+_LINE = re.compile(r"^- (?P<name>[^:(]+?)\s*(?:\((?P<purpose>[^)]*)\))?\s*:\s*(?P<objects>.*)$")
+_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*_\d+")
+_WORD = re.compile(r"[a-z0-9']+")
+
+DETERMINERS = frozenset({"the", "a", "an", "this", "that", "his", "her", "their", "our", "its", "my", "your"})
+"""Words before a noun phrase of its own (general English determiners and possessives)."""
+AWAY_WORDS = frozenset({"from", "outside", "leaves", "leave", "leaving", "left", "exits", "exit", "beyond", "past"})
+"""Words that lead away from the place after them ("away from the kitchen", "leaves the bar")."""
+AWAY_SPAN = 3
+"""How many words before a place name an away word may stand ("far away from the kitchen")."""
+
+
+@dataclass(frozen=True)
+class DescribedArea:
+    """One area line of a scene description."""
+
+    name: str
+    purpose: str
+    objects: frozenset[str]
+
+
+def described_areas(text: str, object_names: Iterable[str]) -> tuple[DescribedArea, ...]:
+    """The areas of a description ``text``, each with the scene objects (``object_names``) its
+    line lists; lines that are not area lines are skipped."""
+    known = set(object_names)
+    areas: list[DescribedArea] = []
+    for line in text.splitlines():
+        m = _LINE.match(line.strip())
+        if m is None:
+            continue
+        objects = frozenset(n for n in _NAME.findall(m.group("objects")) if n in known)
+        if objects:
+            areas.append(DescribedArea(m.group("name").strip(), (m.group("purpose") or "").strip(), objects))
+    return tuple(areas)
+
+
+def _phrases(name: str) -> list[tuple[str, ...]]:
+    return [tuple(_WORD.findall(name.lower().replace("_", " ")))]
+
+
+def _place_names(area: DescribedArea, table: RoomTable) -> list[tuple[str, ...]]:
+    """The phrases that name ``area``: its own name, its kind's name and the kind's synonyms."""
+    names = _phrases(area.name)
+    kind = table.kind_of(area.name)
+    if kind is not None and kind != "other":
+        names += _phrases(kind)
+        names += [p for s in table.kinds[kind].synonyms for p in _phrases(s)]
+    return [n for n in names if n]
+
+
+def _named_at(words: Sequence[str], name: tuple[str, ...]) -> bool:
+    """Whether ``name`` occurs in ``words`` as a noun phrase of its own, not led away from."""
+    n = len(name)
+    for i in range(1, len(words) - n + 1):
+        if tuple(words[i : i + n]) != name or words[i - 1] not in DETERMINERS:
+            continue
+        if i + n < len(words) and words[i + n] in ("of", "'s"):
+            continue  # "the kitchen's door", "the bar of ..." name something else
+        if not any(w in AWAY_WORDS for w in words[max(0, i - 1 - AWAY_SPAN) : i - 1]):
+            return True
+    return False
+
+
+def named_areas(
+    text: str, areas: Sequence[DescribedArea], prompts: PromptLibrary | None = None
+) -> tuple[DescribedArea, ...]:
+    """The areas of ``areas`` that ``text`` names (see the module docstring), in their order."""
+    words = _WORD.findall(text.lower().replace("_", " "))
+    table = room_table(prompts)
+    return tuple(a for a in areas if any(_named_at(words, name) for name in _place_names(a, table)))

@@ -1,0 +1,82 @@
+"""Which of the scene description's areas an event's words name, and the seat candidates it
+leaves: reading area lines back from a description, naming an area by its name or its kind's
+synonyms, leading away from it, and the seat choice limited to the named area's seats."""
+
+from __future__ import annotations
+
+from agents.area_words import DescribedArea, described_areas, named_areas
+from agents.place_choice import seat_candidates
+from sim.scene.model import Scene, SceneObject
+
+
+def obj(label: str, idx: int, x: float, y: float, *, seat: bool = False,
+        size: tuple[float, float, float] = (0.5, 0.5, 0.9)) -> SceneObject:  # fmt: skip
+    return SceneObject(
+        name=f"{label}_{idx}", label=label, idx=idx, center=(x, y, size[2] / 2), size=size, facing=(0.0, 1.0),
+        has_facing=seat, sit_offset_vertical=0.45 if seat else 0.0,
+    )
+
+
+def flat() -> Scene:
+    """Two rooms side by side: a galley with a table and two stools (west), a den with a sofa, a
+    table and three chairs (east); the chairs are the first seats by name."""
+    return Scene(name="flat", bounds_min=(-6.0, -4.0), bounds_max=(8.0, 4.0), objects=(
+        obj("chair", 1, 4.0, 0.0, seat=True), obj("chair", 2, 5.0, 0.0, seat=True), obj("chair", 3, 6.0, 0.0, seat=True),
+        obj("table", 1, 5.0, 1.0, size=(3.0, 0.9, 0.75)),
+        obj("couch", 1, 5.0, -2.5, seat=True, size=(1.8, 0.8, 0.8)),
+        obj("stool", 1, -4.0, 0.0, seat=True), obj("stool", 2, -3.0, 0.0, seat=True),
+        obj("table", 2, -3.5, 1.0, size=(2.0, 0.9, 0.75)),
+        obj("fridge", 1, -5.5, 2.0, size=(0.7, 0.7, 1.8)),
+    ))  # fmt: skip
+
+
+FLAT = flat()
+DESCRIPTION = (
+    "- kitchen (store food, eat): fridge_1, table_2 (with nothing on it), stool_1, stool_2\n"
+    "- living room (sit and relax): chair_1, chair_2, chair_3, couch_1, table_1\n"
+    "Some line that is no area line: chair_9"
+)
+
+
+def test_area_lines_are_read_back_with_the_scene_objects_they_list() -> None:
+    kitchen, living = described_areas(DESCRIPTION, FLAT.object_names)
+    assert (kitchen.name, kitchen.purpose) == ("kitchen", "store food, eat")
+    assert kitchen.objects == {"fridge_1", "table_2", "stool_1", "stool_2"}
+    assert living.objects == {"chair_1", "chair_2", "chair_3", "couch_1", "table_1"}
+    assert described_areas("- object list: none of these exist", FLAT.object_names) == ()
+    assert described_areas("- lounge: chair_1, ghost_7", ["chair_1"])[0].objects == {"chair_1"}  # unknown names dropped
+
+
+def test_an_area_is_named_by_its_own_name_or_by_a_synonym_of_its_kind() -> None:
+    areas = described_areas(DESCRIPTION, FLAT.object_names)
+    assert [a.name for a in named_areas("Ina eats sitting in the kitchen.", areas)] == ["kitchen"]
+    assert [a.name for a in named_areas("Ina reads in the sitting room.", areas)] == ["living room"]  # a synonym
+    assert [a.name for a in named_areas("Ina reads in the family room", areas)] == ["living room"]
+    meeting = (DescribedArea("meeting room", "", frozenset({"chair_1"})),)
+    assert named_areas("Ina joins the meeting in the conference room.", meeting) == meeting
+
+
+def test_a_place_word_without_an_article_or_led_away_from_names_no_area() -> None:
+    areas = described_areas(DESCRIPTION, FLAT.object_names)
+    assert named_areas("Ina sits far away from the kitchen.", areas) == ()
+    assert named_areas("Ina leaves the kitchen and sits down.", areas) == ()
+    assert named_areas("Ina sits by the kitchen's door.", areas) == ()
+    assert named_areas("Ina likes kitchen gadgets.", areas) == ()  # no determiner: not a place
+
+
+def test_the_seat_choice_keeps_the_named_areas_seats() -> None:
+    areas = described_areas(DESCRIPTION, FLAT.object_names)
+    free = [o.name for o in FLAT.objects if o.is_seat]
+    seats = seat_candidates(FLAT, "Ina eats a sandwich sitting in the kitchen.", free, {}, areas=areas)
+    assert set(seats.candidates) == {"stool_1", "stool_2"}
+    anywhere = seat_candidates(FLAT, "Ina eats a sandwich sitting down.", free, {}, areas=areas)
+    assert {"chair_1", "stool_1"} <= set(anywhere.candidates)  # no area named: every seat stays
+    unlimited = seat_candidates(FLAT, "Ina eats a sandwich sitting in the kitchen.", free, {})
+    assert "chair_1" in unlimited.candidates  # without a description's areas nothing is limited
+
+
+def test_an_area_whose_seats_are_all_taken_limits_nothing() -> None:
+    areas = described_areas(DESCRIPTION, FLAT.object_names)
+    free = ["chair_1", "chair_2", "chair_3", "couch_1"]  # both stools taken
+    seats = seat_candidates(FLAT, "Ina sits in the kitchen.", free, {}, areas=areas)
+    assert set(seats.candidates) == set(free)
