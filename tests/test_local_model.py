@@ -17,11 +17,11 @@ from litellm import exceptions as litellm_errors
 from agents.llm_port import ChatMessage, LLMError, LLMRequest
 from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import RetryConfig, default_config
+from orchestrator.llm.llama_decoding import _Abort
 from orchestrator.llm.local_model import (
     DEFAULT_ARRAY_MAX_ITEMS,
     MAX_TOKENS_CAP,
     LocalLlamaProvider,
-    _Abort,
     bound_arrays,
     register_local_provider,
 )

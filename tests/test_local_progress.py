@@ -22,13 +22,9 @@ from orchestrator.llm.client import LiteLLMClient
 from orchestrator.llm.config import RetryConfig, default_config
 from orchestrator.llm.cpu_threads import ThreadChoice, ThreadChooser
 from orchestrator.llm.decode_progress import ProgressFloor, ProgressWatch
+from orchestrator.llm.llama_decoding import _Abort, stream_chat
 from orchestrator.llm.local_errors import LocalModelStalledError
-from orchestrator.llm.local_model import (
-    LocalLlamaProvider,
-    _Abort,
-    register_local_provider,
-    stream_chat,
-)
+from orchestrator.llm.local_model import LocalLlamaProvider, register_local_provider
 from orchestrator.llm.trace_writer import TraceWriter
 from orchestrator.llm.traces import read_trace
 from orchestrator.session.run_report import local_threads_metrics
