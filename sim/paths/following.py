@@ -355,10 +355,11 @@ class CrowdNavigator:
                 for a, g in self._goals.items()
                 if g is not None and a not in self._legs and a not in self._parked
             }
-            # Cornered agents (their plain WHCA* search failed) get a boost at once.
+            # Cornered agents (their plain WHCA* search failed) get a boost at once (PriorityKeeper).
             res = self.last_result
-            failed = res.failed | res.fallback if res is not None else frozenset()
-            self.keeper.observe(dist, failed, steps=k)
+            failed = res.failed if res is not None else frozenset()
+            repaired = res.fallback - res.failed if res is not None else frozenset()
+            self.keeper.observe(dist, failed, steps=k, repaired=repaired)
             self._detour.update(a for a in dist if self.keeper.stalled_steps(a) >= self.detour_after)
         if k >= self.planner.commit_steps or k == 0 or self._needs_plan:
             self._replan()
