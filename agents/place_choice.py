@@ -26,7 +26,7 @@ choice; a group's seats, and standing places, are left to the program as before.
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 
 from agents.area_words import DescribedArea, named_areas
@@ -114,6 +114,12 @@ def _sits_at(obj: SceneObject) -> bool:
     )
 
 
+def _table_of(scene: Scene, seat: SceneObject) -> SceneObject | None:
+    """The thing ``seat`` sits at (a table, desk or counter within ``AT_M``; the nearest), or None."""
+    near = [(gap(seat, Reference(o.name, obj=o)), o) for o in scene.objects if _sits_at(o) and o.name != seat.name]
+    return min((x for x in near if x[0] <= AT_M), key=lambda x: x[0], default=(0.0, None))[1]
+
+
 def candidate_notes(
     scene: Scene, seat: SceneObject, named: Sequence[tuple[str, tuple[Reference, ...]]],
     others: Mapping[str, tuple[float, float]], prompts: PromptLibrary,
@@ -121,10 +127,8 @@ def candidate_notes(
     """One candidate's line: the thing it is at and who is with it, its gap to each named thing
     and whether it faces it (``prompts/event_parser/choose_seat_*.md``)."""
     parts: list[str] = []
-    near = [(gap(seat, Reference(o.name, obj=o)), o) for o in scene.objects if _sits_at(o) and o.name != seat.name]
-    at = min((x for x in near if x[0] <= AT_M), key=lambda x: x[0], default=None)
-    if at is not None:
-        parts.append(prompts.render_text("event_parser/choose_seat_at.md", thing=at[1].name))
+    if (at := _table_of(scene, seat)) is not None:
+        parts.append(prompts.render_text("event_parser/choose_seat_at.md", thing=at.name))
     company = [n for n, xy in others.items() if gap(seat, Reference(n, point=xy)) <= WITH_M]
     if company:
         parts.append(prompts.render_text("event_parser/choose_seat_with.md", names=", ".join(company)))
@@ -149,14 +153,16 @@ def _seat_kinds(scene: Scene, text: str) -> set[str]:
 def seat_candidates(
     scene: Scene, text: str, free_seats: Sequence[str], others: Mapping[str, tuple[float, float]],
     action_labels: Sequence[str] = (), prompts: PromptLibrary | None = None, before: str = "",
-    areas: Sequence[DescribedArea] = (),
+    areas: Sequence[DescribedArea] = (), unusable: Collection[str] = (),
 ) -> SeatCandidates:
     """The candidates of an event whose words are ``text`` (see the module docstring);
     ``others``: where the characters outside the event are; ``before``: the instruction's words
     before ``text``, which a place word pointing back ("sits down there too") refers to when the
     words state no relation of their own (:func:`agents.relation_words.back_references`);
     ``areas``: the scene description's areas (:func:`agents.area_words.described_areas`): when
-    the words name one ("sits in the kitchen"), the candidates are its seats."""
+    the words name one ("sits in the kitchen"), the candidates are its seats; ``unusable``: seats
+    the instruction rules out ("chair_3 is broken", :func:`agents.out_of_use.out_of_use`), left
+    out unless no other seat is free."""
     lib = prompts or package_prompts()
     by_name = {o.name: o for o in scene.objects}
     mentions = stated_relations(text, scene.labels, list(others))
@@ -164,6 +170,7 @@ def seat_candidates(
         mentions = back_references(text, before, scene.labels, list(others))
     about = without_relations(text, mentions, scene.labels)
     free = [by_name[s] for s in free_seats if s in by_name]
+    free = [s for s in free if s.name not in unusable] or free
     short = event_shortlist(scene, about, [s.name for s in free], action_labels, others=others).seats
     pool = [by_name[s] for s in short if s in by_name] or free
     in_area = {n for a in named_areas(about, areas, lib) for n in a.objects}
@@ -175,6 +182,10 @@ def seat_candidates(
     pool = [s for s in pool if s.name not in landmarks] or pool  # "beside the couch" is not the couch
     at_things = tuple(label for label in mentioned_labels(about, scene.labels)
                       if any(o.label == label and not o.is_seat and _sits_at(o) for o in scene.objects))
+    if at_things and (ruled_out := [by_name[n] for n in unusable if n in by_name]):
+        # "another chair at the table of chair_3, which is broken": the table of the seat ruled out
+        tables = {t.name for seat in ruled_out if (t := _table_of(scene, seat)) is not None}
+        pool = [s for s in pool if (t := _table_of(scene, s)) is not None and t.name in tables] or pool
     relations: list[StatedRelation] = []
     for m in mentions:
         refs = _references(scene, m, others)

@@ -1,0 +1,95 @@
+"""Things the words say cannot be used: "chair_3 is broken", "the couch is taken", "the wet bench".
+
+An instruction may name a seat only to rule it out ("David sits at the table of chair_3; chair_3
+is broken, so he takes another chair"). A small model that is asked for a seat then picks the one
+named. :func:`out_of_use` finds the scene objects the words declare unusable, so the seat choice
+(:mod:`agents.place_choice`) leaves them out:
+
+- a thing followed by a form of "be" (and adverbs such as "currently") and a word of unusability
+  ("chair_3 is currently unavailable", "the sofa is occupied", "chair_2 and chair_4 are wet");
+- a word of unusability right before the thing ("the broken chair_3", "the wobbly stool").
+
+A thing is an object's name (``chair_3``) or a label the scene has exactly one of ("the couch").
+The words are general English, a closed list of adjectives of state; no phrase of any case.
+Pure: no LLM, no I/O.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+
+from sim.scene.model import Scene
+
+UNUSABLE = frozenset({
+    "broken", "unavailable", "occupied", "taken", "reserved", "wet", "dirty", "damaged", "cluttered",
+    "blocked", "unusable", "wobbly", "missing", "cracked", "soaked", "stained", "filthy", "unsafe",
+})  # fmt: skip
+"""Adjectives saying a thing cannot be used now."""
+UNUSABLE_PHRASES: tuple[tuple[str, ...], ...] = (
+    ("out", "of", "order"), ("in", "use"), ("not", "available"), ("not", "free"), ("under", "repair"),
+    ("being", "repaired"), ("covered", "in"), ("covered", "with"), ("full", "of"), ("occupied", "by"),
+)  # fmt: skip
+"""Phrases saying the same."""
+BE = frozenset({"is", "are", "was", "were", "seems", "seem", "looks", "look", "remains", "remain", "'s"})
+FILLERS = frozenset({"currently", "still", "already", "now", "sadly", "unfortunately", "completely", "fully", "all",
+                     "both", "also", "totally", "temporarily", "a", "bit", "too"})  # fmt: skip
+"""Words that may stand between the form of "be" and the adjective."""
+_TOKEN = re.compile(r"[a-z]+(?:_[a-z]+)*_\d+|[a-z0-9']+")
+MAX_LIST = 4
+"""Things joined by "and" / "," before one verb ("chair_2 and chair_4 are wet")."""
+
+
+def _things(scene: Scene) -> dict[tuple[str, ...], str]:
+    """Token sequences that name one object: its name, or its label's words when unique."""
+    out: dict[tuple[str, ...], str] = {(o.name,): o.name for o in scene.objects}
+    counts: dict[str, int] = {}
+    for o in scene.objects:
+        counts[o.label] = counts.get(o.label, 0) + 1
+    for o in scene.objects:
+        if counts[o.label] == 1:
+            out[tuple(o.label.split("_"))] = o.name
+    return out
+
+
+def _unusable_at(tokens: Sequence[str], i: int) -> bool:
+    """Whether the words from ``i`` are a form of "be", fillers and a word of unusability."""
+    if i >= len(tokens) or tokens[i] not in BE:
+        return False
+    j = i + 1
+    while j < len(tokens) and tokens[j] in FILLERS:
+        j += 1
+    if j < len(tokens) and tokens[j] in UNUSABLE:
+        return True
+    return any(tuple(tokens[j : j + len(p)]) == p for p in UNUSABLE_PHRASES)
+
+
+def out_of_use(text: str, scene: Scene) -> frozenset[str]:
+    """The names of the objects ``text`` says cannot be used (see the module docstring)."""
+    tokens = _TOKEN.findall(text.lower())
+    things = sorted(_things(scene).items(), key=lambda kv: -len(kv[0]))
+    found: list[tuple[int, int, str]] = []  # (start, end, name) of each thing named
+    i = 0
+    while i < len(tokens):
+        for words, name in things:
+            if tuple(tokens[i : i + len(words)]) == words:
+                found.append((i, i + len(words), name))
+                i += len(words)
+                break
+        else:
+            i += 1
+    out: set[str] = set()
+    for k, (start, end, name) in enumerate(found):
+        if start > 0 and tokens[start - 1] in UNUSABLE:
+            out.add(name)
+            continue
+        group, last = [name], end  # "chair_2, chair_4 and chair_5 are wet"
+        for s, e, n in found[k + 1 : k + MAX_LIST]:
+            if s == last or (s - last == 1 and tokens[last] in ("and", "or", "nor")):  # commas are not tokens
+                group.append(n)
+                last = e
+            else:
+                break
+        if _unusable_at(tokens, last):
+            out.update(group)
+    return frozenset(out)

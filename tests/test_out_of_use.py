@@ -1,0 +1,56 @@
+"""Things the words say cannot be used, and the seat choice that leaves them out: a named seat
+that is broken or taken, a unique label ("the couch is wet"), lists, adjectives before the thing,
+and another seat at the table of the one ruled out."""
+
+from __future__ import annotations
+
+from agents.out_of_use import out_of_use
+from agents.place_choice import seat_candidates
+from sim.scene.model import Scene, SceneObject
+
+
+def obj(label: str, idx: int, x: float, y: float, *, seat: bool = False,
+        size: tuple[float, float, float] = (0.5, 0.5, 0.9)) -> SceneObject:  # fmt: skip
+    return SceneObject(
+        name=f"{label}_{idx}", label=label, idx=idx, center=(x, y, size[2] / 2), size=size, facing=(0.0, 1.0),
+        has_facing=seat, sit_offset_vertical=0.45 if seat else 0.0,
+    )
+
+
+def cafe() -> Scene:
+    """Two tables 4 m apart with two chairs each (chair_1, chair_2 at table_1; chair_3, chair_4 at
+    table_2) and one couch away from both."""
+    return Scene(name="cafe", bounds_min=(-4.0, -4.0), bounds_max=(10.0, 6.0), objects=(
+        obj("table", 1, 0.0, 0.0, size=(1.2, 0.8, 0.75)), obj("table", 2, 4.0, 0.0, size=(1.2, 0.8, 0.75)),
+        obj("chair", 1, -0.3, -0.7, seat=True), obj("chair", 2, 0.3, -0.7, seat=True),
+        obj("chair", 3, 3.7, -0.7, seat=True), obj("chair", 4, 4.3, -0.7, seat=True),
+        obj("couch", 1, 8.0, 4.0, seat=True, size=(1.8, 0.8, 0.8)),
+    ))  # fmt: skip
+
+
+CAFE = cafe()
+
+
+def test_a_thing_followed_by_be_and_a_word_of_unusability_is_out_of_use() -> None:
+    assert out_of_use("Chair_3 is currently unavailable as it is broken.", CAFE) == {"chair_3"}
+    assert out_of_use("Ida sits down; the couch is wet.", CAFE) == {"couch_1"}  # the only couch
+    assert out_of_use("chair_1, chair_2 and chair_4 are all taken", CAFE) == {"chair_1", "chair_2", "chair_4"}
+    assert out_of_use("Ida avoids the broken chair_2.", CAFE) == {"chair_2"}
+    assert out_of_use("The couch is out of order.", CAFE) == {"couch_1"}
+
+
+def test_a_thing_merely_named_or_a_label_of_several_is_not_out_of_use() -> None:
+    assert out_of_use("Ida sits on chair_3 and reads.", CAFE) == frozenset()
+    assert out_of_use("The chair is broken.", CAFE) == frozenset()  # four chairs: which one is not said
+    assert out_of_use("Chair_3 is where Ida sits; the wet floor is mopped.", CAFE) == frozenset()
+
+
+def test_the_seat_choice_leaves_out_a_ruled_out_seat_and_keeps_its_table() -> None:
+    free = ["chair_1", "chair_2", "chair_3", "chair_4", "couch_1"]
+    text = "Ida eats at the table of chair_3. Chair_3 is broken, so she sits on another chair at the table."
+    seats = seat_candidates(CAFE, text, free, {}, unusable=out_of_use(text, CAFE))
+    assert seats.candidates == ("chair_4",)
+    plain = seat_candidates(CAFE, text, free, {})
+    assert "chair_3" in plain.candidates  # without the rule the broken chair is a candidate
+    only = seat_candidates(CAFE, "Ida sits; chair_3 is taken.", ["chair_3"], {}, unusable={"chair_3"})
+    assert only.candidates == ("chair_3",)  # nothing else is free: the rule gives way
