@@ -173,10 +173,10 @@ def seat_candidates(
     free = [s for s in free if s.name not in unusable] or free
     short = event_shortlist(scene, about, [s.name for s in free], action_labels, others=others).seats
     pool = [by_name[s] for s in short if s in by_name] or free
-    in_area = {n for a in named_areas(about, areas, lib) for n in a.objects}
-    if area_seats := [s for s in free if s.name in in_area]:
-        pool = [s for s in pool if s.name in in_area] or area_seats
     kinds = _seat_kinds(scene, about)
+    in_area = {n for a in named_areas(about, areas, lib) for n in a.objects}
+    if area_seats := [s for s in free if s.name in in_area and (not kinds or s.label in kinds)]:
+        pool = [s for s in pool if s.name in in_area] or area_seats  # a named seat kind outweighs the area
     pool = [s for s in pool if s.label in kinds] or pool if kinds else pool
     landmarks = {r.name for m in mentions for g in _references(scene, m, others) for r in g}
     pool = [s for s in pool if s.name not in landmarks] or pool  # "beside the couch" is not the couch

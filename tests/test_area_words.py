@@ -80,3 +80,10 @@ def test_an_area_whose_seats_are_all_taken_limits_nothing() -> None:
     free = ["chair_1", "chair_2", "chair_3", "couch_1"]  # both stools taken
     seats = seat_candidates(FLAT, "Ina sits in the kitchen.", free, {}, areas=areas)
     assert set(seats.candidates) == set(free)
+
+
+def test_a_named_kind_of_seat_outweighs_an_area_without_one() -> None:
+    areas = described_areas(DESCRIPTION, FLAT.object_names)
+    free = [o.name for o in FLAT.objects if o.is_seat]
+    seats = seat_candidates(FLAT, "Ina sits on the couch in the kitchen.", free, {}, areas=areas)
+    assert seats.candidates == ("couch_1",)  # the kitchen has no couch: the couch it is
