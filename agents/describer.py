@@ -49,6 +49,7 @@ from agents.retry_feedback import (
     with_turns,
 )
 from agents.room_table import ROOMS_FILE, room_table
+from sim.bounded_files import load_bounded_json, read_bounded_bytes
 from sim.scene.model import Scene
 from tools.clusters import cluster_objects
 from tools.scene_graph import SceneGraph, build_scene_graph
@@ -425,10 +426,18 @@ def description_cache_file(
     return cache_path(cache_dir, scene, f"{model}|{mode}", prompts)
 
 
+MAX_CACHE_BYTES = 1 << 20
+"""A cached description larger than this (bytes) is not read: it is a miss, described again
+(a 500-object scene's description is about 20 KB)."""
+
+
 def read_cached(path: Path) -> SceneDescription | None:
+    """The description cached at ``path``, or None: no file, not a regular file, larger than
+    :data:`MAX_CACHE_BYTES`, or not a description."""
     try:
-        return SceneDescription.model_validate_json(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        data = read_bounded_bytes(path, MAX_CACHE_BYTES, str(path))
+        return SceneDescription.model_validate(load_bounded_json(data, 8, str(path)))
+    except (OSError, ValueError):  # BoundedFileError and ValidationError are ValueErrors
         return None
 
 
