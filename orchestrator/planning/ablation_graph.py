@@ -57,18 +57,13 @@ from agents.program_grammar import open_program_grammar
 from agents.retry_feedback import REJECTIONS
 from orchestrator.planning import graph as planning_graph
 from orchestrator.planning.action_node import skip_action_choice
-from orchestrator.planning.graph import (
-    CompiledPlanningGraph,
-    NodeFn,
-    PlanningGraph,
-    complete,
-    narrator_input,
-    off_loop,
-    parser_input,
-    reply_update,
-    unavailable,
-)
+from orchestrator.planning.describer_nodes import check_description, describe_scene
+from orchestrator.planning.graph import CompiledPlanningGraph, NodeFn, PlanningGraph
 from orchestrator.planning.kinds import DescriptionKind, PlannerKind
+from orchestrator.planning.narrator_nodes import narrator_input
+from orchestrator.planning.node_calls import complete, off_loop, reply_update, unavailable
+from orchestrator.planning.parser_nodes import parser_input
+from orchestrator.planning.record_node import record_outcome
 from orchestrator.planning.rejection import record_parsed, rejected_reply
 from orchestrator.planning.seat_node import skip_seat_choice
 from orchestrator.planning.state import PlanningDeps, PlanningState
@@ -211,15 +206,15 @@ def route_plan(state: PlanningState) -> Literal["plan_event", "record_outcome"]:
 
 
 # ----- graphs -----------------------------------------------------------------------------
-def build_unified_graph(describe: NodeFn = planning_graph.describe_scene) -> PlanningGraph:
+def build_unified_graph(describe: NodeFn = describe_scene) -> PlanningGraph:
     """The uncompiled "w/o Event" graph (see the module docstring)."""
     step_map: dict[Any, str] = {"narrate_event": "plan_event", "record_outcome": "record_outcome", END: END}
     graph: PlanningGraph = StateGraph(PlanningState, context_schema=PlanningDeps)
     graph.add_node("describe_scene", describe)
-    graph.add_node("check_description", planning_graph.check_description)
+    graph.add_node("check_description", check_description)
     graph.add_node("plan_event", plan_event)
     graph.add_node("check_plan", check_plan)
-    graph.add_node("record_outcome", planning_graph.record_outcome)
+    graph.add_node("record_outcome", record_outcome)
     graph.add_edge(START, "describe_scene")
     graph.add_conditional_edges(
         "describe_scene", planning_graph.route_description, {**step_map, "check_description": "check_description"}
@@ -235,7 +230,7 @@ def build_unified_graph(describe: NodeFn = planning_graph.describe_scene) -> Pla
 
 def build_graph(ablation: Ablation) -> PlanningGraph:
     """The uncompiled graph of ``ablation`` (the planning graph itself for the default)."""
-    describe = planning_graph.describe_scene if ablation.description == "describer" else preset_node(ablation.description)
+    describe = describe_scene if ablation.description == "describer" else preset_node(ablation.description)
     if ablation.planner == "unified":
         return build_unified_graph(describe)
     if ablation.planner == "direct":

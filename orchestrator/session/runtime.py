@@ -30,7 +30,7 @@ trace) and a replay makes each at its recorded frame and phase (``SessionSetting
 after the steps it saw in flight claimed.
 
 Off the event loop: nothing here blocks; the planning graph runs event programs and other CPU
-work in worker threads (``orchestrator.planning.graph.off_loop``), so in ``realtime`` pace the
+work in worker threads (``orchestrator.planning.node_calls.off_loop``), so in ``realtime`` pace the
 simulation task keeps its frame rate while steps are planned.
 
 ``realtime`` pace: frame k is due ``k / (fps * speed)`` wall seconds after the start, and the

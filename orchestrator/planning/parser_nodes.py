@@ -1,0 +1,118 @@
+"""The event parser's nodes: ``parse_event`` (one event-parser call) and ``check_program`` (run
+the reply's program in the sandbox; a typed error becomes feedback), and :func:`parser_input`,
+the one builder of the parser's input (the ablation nodes use it too).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from langgraph.runtime import Runtime
+
+from agents.device_in_use import waiting_for_busy_device
+from agents.event_parser import (
+    PARSER_RETRY_INSTRUCTION,
+    ParserInput,
+    event_text,
+    parser_request,
+    run_reply,
+)
+from agents.llm_port import LLMError
+from agents.messages import ParsedEvent
+from agents.program_grammar import event_program_grammar
+from agents.retry_feedback import REJECTIONS
+from orchestrator.planning.node_calls import complete, off_loop, reply_update, unavailable
+from orchestrator.planning.rejection import record_parsed, rejected_reply
+from orchestrator.planning.state import PlanningDeps, PlanningState
+from tools.errors import ObjectInUseError
+
+
+def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
+    """The event parser's input for the state's event (the one builder: ablation nodes use it too)."""
+    assert state.description is not None and state.event is not None
+    part = state.part
+    widen = any(t.error == "UnsatisfiableAreaError" for t in state.parser_turns)
+    seat = None if widen else state.seat  # the chosen seat had no room: every free seat again
+    labels = deps.labels_now(state.recent)
+    return ParserInput(
+        scene_description=state.description.text,
+        event=state.event,
+        characters=state.roster,
+        action_labels=labels,
+        tags=deps.tags,
+        seats_in_use=deps.world.seats_in_use(state.roster),
+        seed=deps.seed,
+        sim_frame=state.sim_frame,
+        instruction_part=part,
+        seat=seat,
+        action=state.action,
+        grammar=event_program_grammar(
+            deps.scene, state.event.characters, state.roster, deps.world.seats_in_use(state.roster), labels,
+            activity=event_text(state.event.activity, part),
+            widen=widen,
+            context=state.event.activity if part else "",
+            seat=seat,
+            action=state.action,
+        ) if deps.program_grammar else None,
+    )
+
+
+async def parse_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """One event-parser call; the program in its reply is run by the next node."""
+    deps = runtime.context
+    turns = tuple(t.as_turn() for t in state.parser_turns)
+    request = await off_loop(lambda: parser_request(deps.prompts, parser_input(state, deps), turns))
+    try:
+        response = await complete(deps, request, state)
+    except LLMError as exc:
+        return unavailable(state, "event_parser", exc)
+    return reply_update(state, "parser", response)
+
+
+async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
+    """Run the reply's parse_event() in the sandbox; a typed error becomes feedback. A program
+    that gives a character an object another one uses alone is refused once with that feedback
+    (ObjectInUseError) while a retry is left; after it, or on the last attempt, such a character
+    waits by the object instead (idle). Words
+    about a device every one of which is in use, with a program that avoids it, make the
+    event's characters wait for it (:mod:`agents.device_in_use`)."""
+    deps = runtime.context
+    if state.failure is not None:
+        return {}
+    assert state.event is not None
+    reply = state.parser_reply or ""
+    attempts = len(state.parser_turns) + 1
+    event = state.event
+    world = deps.world.world_view(state.roster)
+    told = any(t.error == ObjectInUseError.__name__ for t in state.parser_turns)
+    if told or attempts > deps.max_retries:
+        world = world.model_copy(update={"busy_objects": "wait"})  # told once, or no retry left: whoever is refused waits
+    try:
+        result = await off_loop(lambda: run_reply(
+            reply,
+            scene=deps.scene,
+            event=event,
+            world=world,
+            seed=deps.seed + state.step,
+            action_labels=deps.action_labels,
+            graph=deps.scene_graph,
+            runner=deps.runner,
+        ))
+    except REJECTIONS as exc:
+        return rejected_reply(state, deps, "event_parser", reply, exc, instruction=PARSER_RETRY_INSTRUCTION)
+    # words about a device nobody leaves free: its characters wait for it
+    plans = waiting_for_busy_device(event_text(event.activity, state.part), result.plans, world, deps.scene,
+                                    event.characters)
+    parsed = ParsedEvent(
+        index=state.step,
+        event=state.event,
+        plans=plans,
+        program=result.program,
+        narrator_attempts=state.narrator_attempts,
+        parser_attempts=attempts,
+        part=state.part,
+    )
+    record_parsed(deps, state.parser_seq, "event_parser", {
+        "plans": [p.model_dump(mode="json") for p in plans], "program": result.program,
+    })
+    return {"parsed": parsed, "parser_reply": None, "parser_seq": None}
