@@ -46,7 +46,9 @@ from orchestrator.safe_text import plain
 
 if TYPE_CHECKING:
     from agents.messages import ParsedEvent, PlanningFailure
+    from orchestrator.planning.ablation_graph import Ablation
     from orchestrator.session.plan_job import PlanResult
+    from sim.scene.model import Scene
 
 def format_event_text(index: int, outcome: ParsedEvent | PlanningFailure | None) -> str:
     """Plain-text lines for one step (deterministic: fixed decimals, no timings)."""
@@ -128,47 +130,19 @@ def plan_command(
     from orchestrator.cache_paths import description_cache_dir
     from orchestrator.planning.ablation_graph import Ablation
     from orchestrator.planning.checkpoints import default_runs_db
-    from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
     from orchestrator.session.plan_job import run_plan
     from orchestrator.session.port_setup import open_port
-    from orchestrator.session.roster import StartPositionError, character_names
-    from sim.scene.bundled import resolve_scene
-    from sim.scene.files import SceneFileError
+    from orchestrator.session.roster import StartPositionError
 
     ablation = Ablation(planner=planner, description=description)
-    if len(instruction) > MAX_INSTRUCTION_CHARS:
-        fail(f"--instruction: {len(instruction)} characters, at most {MAX_INSTRUCTION_CHARS} allowed")
-    if record is not None and replay is not None:
-        fail("--record and --replay cannot be used together")
-    if prompts_dir is not None and not prompts_dir.is_dir():
-        fail(f"--prompts {prompts_dir}: not a folder")
-    if prompts_dir is not None:
-        try:  # every file read now (bounded, UTF-8): a bad one is one line before anything runs
-            _read_prompt_folder(PromptLibrary(prompts_dir))
-        except PromptTemplateError as exc:
-            fail(f"--prompts {prompts_dir}: {exc}")
-    if runs_db is not None and (runs_db.exists() or runs_db.is_symlink()) and not runs_db.is_file():
-        fail(f"--runs-db {runs_db}: not a regular file (an SQLite database file is expected)")
-    try:
-        scene_obj = resolve_scene(scene)
-    except SceneFileError as exc:
-        fail(str(exc))
+    scene_obj = _checked_inputs(scene, instruction, record, replay, prompts_dir, runs_db)
     thread = thread_id or uuid.uuid4().hex[:12]
-    resume = f"--thread-id {thread}" if ablation.is_default else (
-        f"--thread-id {thread} --planner {ablation.planner} --description {ablation.description}"
-    )
-    typer.echo(f"thread {thread} (resume with {resume})", err=True)
+    typer.echo(f"thread {thread} (resume with {_resume_options(thread, ablation)})", err=True)
     try:
         port, describer_model = open_port(config, record, replay)
     except (LLMError, ValueError, OSError) as exc:
         fail(str(exc))
-    cache = None
-    if record is None and replay is None:
-        cache = description_cache_dir()
-
-    def show(index: int, outcome: ParsedEvent | PlanningFailure | None) -> None:
-        if not as_json:
-            typer.echo(format_event_text(index, outcome))
+    cache = description_cache_dir() if record is None and replay is None else None
 
     async def main() -> PlanResult:
         try:
@@ -186,7 +160,7 @@ def plan_command(
                 busy_events=busy_events,
                 max_retries=max_retries,
                 prompts=PromptLibrary(prompts_dir) if prompts_dir is not None else None,
-                on_outcome=show,
+                on_outcome=None if as_json else _print_outcome,
                 ablation=ablation,
                 program_grammar=program_grammar,
                 in_process_programs=in_process_programs,
@@ -203,15 +177,64 @@ def plan_command(
     except sqlite3.DatabaseError as exc:  # --runs-db is not a database this can open
         fail(f"--runs-db {runs_db or default_runs_db()}: cannot use the checkpoint database ({exc})")
     if as_json:
-        payload: dict[str, Any] = {
-            "scene": scene_obj.name,
-            "characters": character_names(characters),
-            "instruction": instruction,
-            "events": [outcome_json(i, o) for i, o in result.outcomes],
-        }
-        if not ablation.is_default:
-            payload["ablation"] = {"planner": ablation.planner, "description": ablation.description}
-        typer.echo(json.dumps(payload, indent=2))
+        typer.echo(json.dumps(_json_report(scene_obj.name, characters, instruction, result, ablation), indent=2))
+
+
+def _print_outcome(index: int, outcome: ParsedEvent | PlanningFailure | None) -> None:
+    typer.echo(format_event_text(index, outcome))
+
+
+def _checked_inputs(
+    scene: str, instruction: str, record: Path | None, replay: Path | None, prompts_dir: Path | None,
+    runs_db: Path | None,
+) -> Scene:
+    """The scene ``plan`` runs in, once its options are known good: a bad one (too long an
+    instruction, ``--record`` with ``--replay``, an unreadable prompt folder, a ``--runs-db``
+    that is not a file, an unknown scene) is one line and exit code 2, before anything runs."""
+    from agents.prompt_templates import PromptLibrary, PromptTemplateError
+    from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
+    from sim.scene.bundled import resolve_scene
+    from sim.scene.files import SceneFileError
+
+    if len(instruction) > MAX_INSTRUCTION_CHARS:
+        fail(f"--instruction: {len(instruction)} characters, at most {MAX_INSTRUCTION_CHARS} allowed")
+    if record is not None and replay is not None:
+        fail("--record and --replay cannot be used together")
+    if prompts_dir is not None and not prompts_dir.is_dir():
+        fail(f"--prompts {prompts_dir}: not a folder")
+    if prompts_dir is not None:
+        try:  # every file read now (bounded, UTF-8): a bad one is one line before anything runs
+            _read_prompt_folder(PromptLibrary(prompts_dir))
+        except PromptTemplateError as exc:
+            fail(f"--prompts {prompts_dir}: {exc}")
+    if runs_db is not None and (runs_db.exists() or runs_db.is_symlink()) and not runs_db.is_file():
+        fail(f"--runs-db {runs_db}: not a regular file (an SQLite database file is expected)")
+    try:
+        return resolve_scene(scene)
+    except SceneFileError as exc:
+        fail(str(exc))
+
+
+def _resume_options(thread: str, ablation: Ablation) -> str:
+    """The options that resume ``thread`` (an ablation's thread is resumed with its options)."""
+    if ablation.is_default:
+        return f"--thread-id {thread}"
+    return f"--thread-id {thread} --planner {ablation.planner} --description {ablation.description}"
+
+
+def _json_report(scene: str, characters: int, instruction: str, result: PlanResult, ablation: Ablation) -> dict[str, Any]:
+    """What ``plan --json`` prints: the scene, the characters, the instruction, every step's outcome."""
+    from orchestrator.session.roster import character_names
+
+    payload: dict[str, Any] = {
+        "scene": scene,
+        "characters": character_names(characters),
+        "instruction": instruction,
+        "events": [outcome_json(i, o) for i, o in result.outcomes],
+    }
+    if not ablation.is_default:
+        payload["ablation"] = {"planner": ablation.planner, "description": ablation.description}
+    return payload
 
 
 def _read_prompt_folder(library: Any) -> None:

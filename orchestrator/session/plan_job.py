@@ -105,16 +105,6 @@ async def run_plan(
     ablation = ablation or Ablation()
     thread_id = ablation.thread_id(thread_id)
     story = StoryLog(runs_db, thread_id)
-    printed = 0
-
-    def flush() -> None:
-        nonlocal printed
-        outcomes = story.outcomes()
-        for idx, outcome in outcomes[printed:]:
-            if on_outcome is not None:
-                on_outcome(idx, outcome)
-        printed = len(outcomes)
-
     deps = PlanningDeps(
         port=port,
         scene=scene,
@@ -135,29 +125,64 @@ async def run_plan(
     )
     config: RunnableConfig = {"configurable": {"thread_id": thread_id}, "recursion_limit": recursion_limit(events, max_retries)}
     try:
-        async with open_checkpointer(runs_db) as saver:
-            graph = compile_graph(ablation, saver)
-            snapshot = await graph.aget_state(config)
-            start: dict[str, Any] | None
-            if snapshot.values:
-                start = None  # resume the interrupted thread
-            else:
-                start = PlanningState(
-                    instruction=instruction,
-                    events_target=events,
-                    roster=tuple(roster) if roster is not None else initial_roster(scene, characters, seed),
-                    recent=tuple(history),
-                    description=description,
-                ).model_dump()
-            async for _ in graph.astream(start, config=config, context=deps, durability="sync", stream_mode="updates"):
-                flush()
-            final = await graph.aget_state(config)
-        flush()
-        described = final.values.get("description")
-        if isinstance(described, dict):
-            described = SceneDescription.model_validate(described)
+        described = await _run_thread(
+            runs_db, ablation, config, deps, _outcome_feed(story, on_outcome),
+            fresh=lambda: _fresh_state(scene, instruction, events, roster, characters, seed, history, description),
+        )
         return PlanResult(outcomes=story.outcomes(), description=described)
     finally:
         story.close()
         if own_runner is not None:
             own_runner.close()
+
+
+def _fresh_state(
+    scene: Scene, instruction: str, events: int, roster: Sequence[CharacterStatus] | None, characters: int,
+    seed: int, history: Sequence[HistoryEntry], description: SceneDescription | None,
+) -> dict[str, Any]:
+    """The first state of a new thread (``roster`` None: ``characters`` idle characters placed
+    with ``seed``; raises :class:`~orchestrator.session.roster.StartPositionError` when they do
+    not fit on the floor)."""
+    return PlanningState(
+        instruction=instruction,
+        events_target=events,
+        roster=tuple(roster) if roster is not None else initial_roster(scene, characters, seed),
+        recent=tuple(history),
+        description=description,
+    ).model_dump()
+
+
+def _outcome_feed(story: StoryLog, on_outcome: Callable[[int, StepOutcome], None] | None) -> Callable[[], None]:
+    """A function that hands ``on_outcome`` the outcomes ``story`` recorded since its last call, in order."""
+    printed = 0
+
+    def flush() -> None:
+        nonlocal printed
+        outcomes = story.outcomes()
+        for idx, outcome in outcomes[printed:]:
+            if on_outcome is not None:
+                on_outcome(idx, outcome)
+        printed = len(outcomes)
+
+    return flush
+
+
+async def _run_thread(
+    runs_db: Path | str, ablation: Ablation, config: RunnableConfig, deps: PlanningDeps, flush: Callable[[], None],
+    *, fresh: Callable[[], dict[str, Any]],
+) -> SceneDescription | None:
+    """Run the thread of ``config`` to its end, checkpointed in ``runs_db``: resumed where it
+    stopped, or started from ``fresh()``; ``flush()`` after every node and once at the end.
+    Returns the scene description the thread planned with."""
+    async with open_checkpointer(runs_db) as saver:
+        graph = compile_graph(ablation, saver)
+        snapshot = await graph.aget_state(config)
+        start = None if snapshot.values else fresh()  # None: resume the interrupted thread
+        async for _ in graph.astream(start, config=config, context=deps, durability="sync", stream_mode="updates"):
+            flush()
+        final = await graph.aget_state(config)
+    flush()
+    described = final.values.get("description")
+    if isinstance(described, dict):
+        described = SceneDescription.model_validate(described)
+    return described
