@@ -13,7 +13,11 @@ seat does not read that off the description (it picks ``chair_1``).
   its kind of room or a synonym of it in the room table (``prompts/describer/rooms.toml``: "the
   conference room" names an area the describer called "meeting room"). A name counts only as a
   noun phrase of its own (after an article or possessive: "in the kitchen", "at their bar"), and
-  not when the words lead away from it ("far from the kitchen", "out of the kitchen").
+  not when the words lead away from it ("far from the kitchen", "out of the kitchen"). Words are
+  compared without an "-ing" or plural "-s" ending, so "the resting area" names a "rest area".
+- :func:`keep_in_areas` narrows a list of objects to the named areas, kind by kind: of a label
+  with instances there, only those ("the cabinet in the lounge", "between the chairs in the
+  living room"); a label with none there keeps all its instances.
 
 Pure: no LLM, no I/O.
 """
@@ -21,7 +25,7 @@ Pure: no LLM, no I/O.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from agents.prompt_templates import PromptLibrary
@@ -63,8 +67,17 @@ def described_areas(text: str, object_names: Iterable[str]) -> tuple[DescribedAr
     return tuple(areas)
 
 
+def _stem(word: str) -> str:
+    """``word`` without an "-ing" or plural "-s" ending (both sides of a comparison alike)."""
+    if word.endswith("ing") and len(word) > 5:
+        return word[:-3]
+    if word.endswith("s") and not word.endswith("ss") and len(word) > 3:
+        return word[:-1]
+    return word
+
+
 def _phrases(name: str) -> list[tuple[str, ...]]:
-    return [tuple(_WORD.findall(name.lower().replace("_", " ")))]
+    return [tuple(_stem(w) for w in _WORD.findall(name.lower().replace("_", " ")))]
 
 
 def _place_names(area: DescribedArea, table: RoomTable) -> list[tuple[str, ...]]:
@@ -77,14 +90,15 @@ def _place_names(area: DescribedArea, table: RoomTable) -> list[tuple[str, ...]]
     return [n for n in names if n]
 
 
-def _named_at(words: Sequence[str], name: tuple[str, ...]) -> bool:
-    """Whether ``name`` occurs in ``words`` as a noun phrase of its own, not led away from."""
+def _named_at(words: Sequence[str], stems: Sequence[str], name: tuple[str, ...]) -> bool:
+    """Whether ``name`` (stemmed) occurs in ``words`` (``stems``: theirs) as a noun phrase of its
+    own, not led away from."""
     n = len(name)
     for i in range(1, len(words) - n + 1):
-        if tuple(words[i : i + n]) != name or words[i - 1] not in DETERMINERS:
+        if tuple(stems[i : i + n]) != name or words[i - 1] not in DETERMINERS:
             continue
         if i + n < len(words) and words[i + n] in ("of", "'s"):
-            continue  # "the kitchen's door", "the bar of ..." name something else
+            continue  # "the bar of the hotel" names something else
         if not any(w in AWAY_WORDS for w in words[max(0, i - 1 - AWAY_SPAN) : i - 1]):
             return True
     return False
@@ -95,5 +109,13 @@ def named_areas(
 ) -> tuple[DescribedArea, ...]:
     """The areas of ``areas`` that ``text`` names (see the module docstring), in their order."""
     words = _WORD.findall(text.lower().replace("_", " "))
+    stems = [_stem(w) for w in words]
     table = room_table(prompts)
-    return tuple(a for a in areas if any(_named_at(words, name) for name in _place_names(a, table)))
+    return tuple(a for a in areas if any(_named_at(words, stems, name) for name in _place_names(a, table)))
+
+
+def keep_in_areas(names: Sequence[str], labels: Mapping[str, str], in_area: Collection[str]) -> list[str]:
+    """``names`` (objects; ``labels``: name -> label) narrowed, label by label, to those in
+    ``in_area`` where the label has any there (see the module docstring); order kept."""
+    inside = {labels[n] for n in names if n in in_area and n in labels}
+    return [n for n in names if labels.get(n) not in inside or n in in_area]

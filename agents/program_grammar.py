@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.action_shortlist import action_shortlist, posture
+from agents.area_words import DescribedArea, keep_in_areas, named_areas
 from agents.messages import CharacterStatus
 from agents.relation_words import labels_about, stated_relations, without_relations
 from agents.shortlist import RELATIONS, event_shortlist, mentioned_labels, relation_areas
@@ -235,10 +236,12 @@ def free_seats(
 def event_options(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[CharacterStatus],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
-    context: str = "", action: str | None = None,
+    context: str = "", action: str | None = None, areas: Sequence[DescribedArea] = (),
 ) -> EventOptions:
     """The labels, objects, seats, posture and area functions an event's grammar offers (the
-    arguments are :func:`event_program_grammar`'s)."""
+    arguments are :func:`event_program_grammar`'s). ``areas``: the scene description's areas; of
+    a kind of thing with instances in an area the words name ("the cabinet in the lounge"), only
+    those are offered (:func:`agents.area_words.keep_in_areas`)."""
     others = [c for c in characters if c.name not in event_characters]
     free = free_seats(scene, event_characters, characters, seats_in_use)
     labels = list(action_shortlist(activity, action_labels, scene.labels, context)) or list(action_labels)
@@ -247,10 +250,15 @@ def event_options(
     relations = () if widen else relation_areas(activity)
     where = {c.name: (float(c.position[0]), float(c.position[1])) for c in others if c.position is not None}
     shortlist = event_shortlist(scene, activity, free, labels, others=where)
+    objects = list(shortlist.objects) or [o.name for o in scene.objects]
+    seats = list(shortlist.seats) or list(free)
+    if not widen and (in_area := {n for a in named_areas(activity, areas) for n in a.objects}):
+        label_of = {o.name: o.label for o in scene.objects}
+        objects, seats = keep_in_areas(objects, label_of, in_area), keep_in_areas(seats, label_of, in_area)
     return EventOptions(
         labels=tuple(labels),
-        objects=tuple(shortlist.objects) or tuple(o.name for o in scene.objects),
-        seats=tuple(shortlist.seats) or tuple(free),
+        objects=tuple(objects),
+        seats=tuple(seats),
         free_seats=tuple(free),
         posture=posture(activity) or ("stand" if set(relations) & DIRECTIONAL else None)
         or ("sit" if labels[0] in SEATED_ACTIVITIES or about_a_seat(scene, activity, labels[0]) else None)
@@ -290,7 +298,7 @@ def idle_beside_a_thing(scene: Scene, activity: str, label: str) -> bool:
 def event_program_grammar(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[CharacterStatus],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
-    context: str = "", seat: str | None = None, action: str | None = None,
+    context: str = "", seat: str | None = None, action: str | None = None, areas: Sequence[DescribedArea] = (),
 ) -> str:
     """:func:`program_grammar` for an event in ``scene``: the labels its words point to
     (:func:`agents.action_shortlist.action_shortlist` of ``activity``; every offered label
@@ -303,9 +311,10 @@ def event_program_grammar(
     name, so the model can pick another place by the same things. ``context``: other words
     about the event (the narrator's activity), which break ties between labels. ``seat``: the
     seat already chosen for the event (:mod:`agents.place_choice`): the only seat offered. ``action``:
-    the action chosen for it when its words name none (:mod:`agents.action_choice`): offered first."""
+    the action chosen for it when its words name none (:mod:`agents.action_choice`): offered first.
+    ``areas``: the scene description's areas (see :func:`event_options`)."""
     options = event_options(
-        scene, event_characters, characters, seats_in_use, action_labels, activity, widen, context, action,
+        scene, event_characters, characters, seats_in_use, action_labels, activity, widen, context, action, areas,
     )
     objects = list(options.objects)
     seat_names = {o.name for o in scene.objects if o.is_seat}  # sitting is get_area_to_sit_on's

@@ -4,8 +4,9 @@ synonyms, leading away from it, and the seat choice limited to the named area's 
 
 from __future__ import annotations
 
-from agents.area_words import DescribedArea, described_areas, named_areas
+from agents.area_words import DescribedArea, described_areas, keep_in_areas, named_areas
 from agents.place_choice import seat_candidates
+from agents.program_grammar import event_options
 from sim.scene.model import Scene, SceneObject
 
 
@@ -87,3 +88,27 @@ def test_a_named_kind_of_seat_outweighs_an_area_without_one() -> None:
     free = [o.name for o in FLAT.objects if o.is_seat]
     seats = seat_candidates(FLAT, "Ina sits on the couch in the kitchen.", free, {}, areas=areas)
     assert seats.candidates == ("couch_1",)  # the kitchen has no couch: the couch it is
+
+
+def test_keep_in_areas_narrows_each_kind_with_instances_in_the_area() -> None:
+    labels = {o.name: o.label for o in FLAT.objects}
+    kitchen = {"fridge_1", "table_2", "stool_1", "stool_2"}
+    assert keep_in_areas(["table_1", "table_2", "chair_1", "fridge_1"], labels, kitchen) == ["table_2", "chair_1", "fridge_1"]
+    assert keep_in_areas(["chair_1", "chair_2"], labels, kitchen) == ["chair_1", "chair_2"]  # no chair in the kitchen
+
+
+def test_the_event_grammar_offers_the_named_areas_things_of_each_kind() -> None:
+    areas = described_areas(DESCRIPTION, FLAT.object_names)
+    text = "Ina waits between the tables in the sitting room"
+    options = event_options(FLAT, ["Ina"], [], [], ["idle", "eat"], activity=text, areas=areas)
+    assert "table_1" in options.objects and "table_2" not in options.objects
+    plain = event_options(FLAT, ["Ina"], [], [], ["idle", "eat"], activity=text)
+    assert {"table_1", "table_2"} <= set(plain.objects)
+    retry = event_options(FLAT, ["Ina"], [], [], ["idle", "eat"], activity=text, areas=areas, widen=True)
+    assert {"table_1", "table_2"} <= set(retry.objects)  # a retry after "no room" is not narrowed
+
+
+def test_inflected_area_words_name_the_area() -> None:
+    rest = (DescribedArea("rest area", "", frozenset({"chair_1"})),)
+    assert named_areas("Ina opens the cabinet in the resting area.", rest) == rest
+    assert named_areas("Ina leaves this rest area.", rest) == ()  # 'leaves' leads away

@@ -48,16 +48,17 @@ def event_seats(state: PlanningState, deps: PlanningDeps) -> SeatCandidates | No
         return None
     text = event_text(event.activity, state.part)
     seats_in_use = deps.world.seats_in_use(state.roster)
+    areas = described_areas(state.description.text, deps.scene.object_names) if state.description else ()
     options = event_options(
         deps.scene, event.characters, state.roster, seats_in_use, deps.labels_now(state.recent), activity=text,
-        context=event.activity if state.part else "", action=state.action,
+        context=event.activity if state.part else "", action=state.action, areas=areas,
     )
     if not options.must_sit or not options.free_seats:
         return None
     seats = seat_candidates(
         deps.scene, text, options.free_seats, options.others, options.labels, deps.prompts,
         before=words_before(state.instruction, state.part),
-        areas=described_areas(state.description.text, deps.scene.object_names) if state.description else (),
+        areas=areas,
         unusable=out_of_use(f"{state.instruction}\n{text}", deps.scene),
     )
     if not seats.candidates or options.seats == seats.allowed == seats.allowed[:1]:
