@@ -46,6 +46,7 @@ from orchestrator.llm.local_model import (
     register_local_provider,
 )
 from orchestrator.llm.retry_policy import (
+    ErrorClass,
     InvalidResponseError,
     RetryPolicy,
     classify_error,
@@ -165,6 +166,16 @@ class LiteLLMClient:
             )
         return key
 
+    async def _ask(self, node: NodeConfig, model: str, messages: list[dict[str, Any]], params: dict[str, Any]) -> Any:
+        """One provider call for ``node`` on ``model`` (litellm's own retries off): its raw response."""
+        api_key = self._api_key(node)
+        if provider_of(model) == "local":
+            self._check_local(model)
+        return await self._acompletion(
+            model=model, messages=messages, max_retries=0, drop_params=True,
+            **({"api_key": api_key} if api_key else {}), **params,
+        )
+
     async def complete(self, request: LLMRequest) -> LLMResponse:
         node = self.config.node(request.node)
         secrets = secret_values(n.api_key_env for n in self.config.nodes.values() if n.api_key_env)
@@ -207,13 +218,7 @@ class LiteLLMClient:
                 finish: str | None = None
                 usage: TokenUsage | None = None
                 try:
-                    api_key = self._api_key(node)
-                    if provider_of(model) == "local":
-                        self._check_local(model)
-                    raw = await self._acompletion(
-                        model=model, messages=sent, max_retries=0, drop_params=True,
-                        **({"api_key": api_key} if api_key else {}), **params,
-                    )
+                    raw = await self._ask(node, model, sent, params)
                     local_threads = _local_threads(raw)
                     text, finish, usage = _extract(raw)
                     text = redact(text, secrets)
@@ -222,9 +227,7 @@ class LiteLLMClient:
                     latency = self._clock() - t0
                     if isinstance(exc, LocalModelStalledError):
                         local_threads = exc.local_threads
-                    klass = classify_error(exc, local=provider_of(model) == "local")
-                    if isinstance(exc, LLMUnavailableError):
-                        klass = "permanent"
+                    klass = _error_class(exc, model)
                     record(response_text=text, finish_reason=finish, usage=usage, latency_s=latency,
                            error_type=type(exc).__name__, error_message=str(exc)[:2000],
                            error_class=klass, final=False)
@@ -249,6 +252,14 @@ class LiteLLMClient:
         err.trace_seqs = tuple(seqs)
         await self.trace.durable()
         raise err
+
+
+def _error_class(exc: Exception, model: str) -> ErrorClass:
+    """How a failed attempt on ``model`` is retried (:func:`classify_error`; a model that cannot
+    be used at all, :class:`LLMUnavailableError`, is permanent)."""
+    if isinstance(exc, LLMUnavailableError):
+        return "permanent"
+    return classify_error(exc, local=provider_of(model) == "local")
 
 
 def _local_threads(raw: Any) -> dict[str, Any] | None:
