@@ -223,7 +223,7 @@ def field_costs(office: Scene, seed: int, repeats: int, goals: int = 40) -> None
               f"{1e6 * best:>8.0f} {1e9 * best / len(cells):>7.1f}")
 
 
-def main() -> None:
+def _arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[1, 10, 50, 200, 1000])
     ap.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per run (200: half)")
@@ -238,7 +238,11 @@ def main() -> None:
                     help="instead of the table: crowds of these sizes (default 125 250 500 1000) in one layout "
                          "(Office x16), CPU per character-frame, and the cost of one goal-distance field per layout")
     ap.add_argument("--scaling-seconds", type=float, default=10.0, help="simulated seconds per --scaling crowd")
-    args = ap.parse_args()
+    return ap.parse_args()
+
+
+def main() -> None:
+    args = _arguments()
     if not REFERENCE.found:
         raise SystemExit(REFERENCE.reason)
 
@@ -271,42 +275,56 @@ def main() -> None:
                 run_crowd(scene, grids[scene.name][1], 10, max(1, round(args.warmup * 30)), args.seed + 1, dbs, brute=False)
         scene, grid = grids[scene.name]
         seconds = args.seconds if n <= 120 else args.seconds / 2 if n <= 500 else args.seconds / 5
-        brute = n <= args.brute_max
-        frames = round(seconds * 30)
-        kds, bfs = [], []
-        for _ in range(max(1, args.repeats)):  # interleaved, so both methods see the same machine
-            kds.append(run_crowd(scene, grid, n, frames, args.seed, dbs, brute=False))
-            if brute:
-                bfs.append(run_crowd(scene, grid, n, frames, args.seed, dbs, brute=True))
-        kd = min(kds, key=lambda r: r.wall_s)
-        bf = min(bfs, key=lambda r: r.wall_s) if bfs else None
-        same = all(np.array_equal(r.positions, kd.positions) and r.counters.results == kd.counters.results
-                   for r in kds + bfs)
-        w_s, nw_s, py_s, same_plans = replan_baseline(grid, kd.counters.problems, args.seed, limit=60 if brute else 8, full=brute)
-        same = same and same_plans
-        c = kd.counters
-        ckd = n * frames / kd.wall_s
-        sim_s = frames / 30.0
-        s_kd = 1e6 * c.search_s / max(1, c.searches)
-        motion, plan = c.motion_s / kd.wall_s, c.plan_s / kd.wall_s
-        if bf is not None:
-            cb = bf.counters
-            cbf = n * frames / bf.wall_s
-            s_bf = 1e6 * cb.search_s / max(1, cb.searches)
-            bf_cols = (f"{cbf:>8.0f} {ckd / cbf:>6.2f}", f"{sim_s / bf.wall_s:>6.2f}",
-                       f"{s_bf:>8.1f} {s_bf / max(s_kd, 1e-9):>6.2f}")
-        else:
-            bf_cols = (f"{'-':>8} {'-':>6}", f"{'-':>6}", f"{'-':>8} {'-':>6}")
-        full_col = f"{1e3 * nw_s:>8.2f} {nw_s / max(w_s, 1e-12):>6.2f}" if nw_s is not None else f"{'-':>8} {'-':>6}"
-        print(f"{n:>4} {scene.name:<10} {frames:>6} | {ckd:>9.0f} {bf_cols[0]} | "
-              f"{sim_s / kd.wall_s:>6.2f} {bf_cols[1]} {sim_s / kd.cpu_s:>6.2f} | "
-              f"{s_kd:>9.1f} {bf_cols[2]} | "
-              f"{1e3 * w_s:>9.2f} {full_col} "
-              f"{1e3 * py_s:>7.2f} {py_s / max(w_s, 1e-12):>6.2f} | "
-              f"{motion:>6.0%} {plan:>5.0%} {1 - motion - plan:>5.0%} | {'yes' if same else 'NO'}", flush=True)
-        rtfs[n] = (sim_s / kd.wall_s, sim_s / kd.cpu_s, sim_s / float(np.median([r.wall_s for r in kds])), ckd)
+        row, rtfs[n] = _size_row(scene, grid, n, round(seconds * 30), n <= args.brute_max, args.seed, args.repeats, dbs)
+        print(row, flush=True)
+    _print_legend(args.repeats)
+    _print_targets(rtfs)
+
+
+def _size_row(
+    scene: Scene, grid: NavGrid, n: int, frames: int, brute: bool, seed: int, repeats: int,
+    dbs: dict[str, MotionDatabase],
+) -> tuple[str, tuple[float, float, float, float]]:
+    """One row of the table: ``n`` characters for ``frames`` frames, ``repeats`` times per search
+    method (interleaved; the fastest counts), and the replan baseline on the problems they met;
+    with the row, the size's RTF (wall, cpu, median of the runs) and character-frames per second."""
+    kds, bfs = [], []
+    for _ in range(max(1, repeats)):  # interleaved, so both methods see the same machine
+        kds.append(run_crowd(scene, grid, n, frames, seed, dbs, brute=False))
+        if brute:
+            bfs.append(run_crowd(scene, grid, n, frames, seed, dbs, brute=True))
+    kd = min(kds, key=lambda r: r.wall_s)
+    bf = min(bfs, key=lambda r: r.wall_s) if bfs else None
+    same = all(np.array_equal(r.positions, kd.positions) and r.counters.results == kd.counters.results
+               for r in kds + bfs)
+    w_s, nw_s, py_s, same_plans = replan_baseline(grid, kd.counters.problems, seed, limit=60 if brute else 8, full=brute)
+    same = same and same_plans
+    c = kd.counters
+    ckd = n * frames / kd.wall_s
+    sim_s = frames / 30.0
+    s_kd = 1e6 * c.search_s / max(1, c.searches)
+    motion, plan = c.motion_s / kd.wall_s, c.plan_s / kd.wall_s
+    if bf is not None:
+        cb = bf.counters
+        cbf = n * frames / bf.wall_s
+        s_bf = 1e6 * cb.search_s / max(1, cb.searches)
+        bf_cols = (f"{cbf:>8.0f} {ckd / cbf:>6.2f}", f"{sim_s / bf.wall_s:>6.2f}",
+                   f"{s_bf:>8.1f} {s_bf / max(s_kd, 1e-9):>6.2f}")
+    else:
+        bf_cols = (f"{'-':>8} {'-':>6}", f"{'-':>6}", f"{'-':>8} {'-':>6}")
+    full_col = f"{1e3 * nw_s:>8.2f} {nw_s / max(w_s, 1e-12):>6.2f}" if nw_s is not None else f"{'-':>8} {'-':>6}"
+    row = (f"{n:>4} {scene.name:<10} {frames:>6} | {ckd:>9.0f} {bf_cols[0]} | "
+           f"{sim_s / kd.wall_s:>6.2f} {bf_cols[1]} {sim_s / kd.cpu_s:>6.2f} | "
+           f"{s_kd:>9.1f} {bf_cols[2]} | "
+           f"{1e3 * w_s:>9.2f} {full_col} "
+           f"{1e3 * py_s:>7.2f} {py_s / max(w_s, 1e-12):>6.2f} | "
+           f"{motion:>6.0%} {plan:>5.0%} {1 - motion - plan:>5.0%} | {'yes' if same else 'NO'}")
+    return row, (sim_s / kd.wall_s, sim_s / kd.cpu_s, sim_s / float(np.median([r.wall_s for r in kds])), ckd)
+
+
+def _print_legend(repeats: int) -> None:
     print()
-    print(f"Each size runs {max(1, args.repeats)}x per search method (identical, interleaved); the fastest run of each")
+    print(f"Each size runs {max(1, repeats)}x per search method (identical, interleaved); the fastest run of each")
     print("     is shown (the least disturbed on a shared machine).")
     print("char-fr/s: character-frames per wall second (KD-tree search); brute: same run, brute-force search.")
     print("RTF: simulated seconds per wall second (cpu: per second of this process's CPU time, which a")
@@ -315,6 +333,10 @@ def main() -> None:
     print("     same problems; python: the same windowed planner with the pure-Python backend (ratio: its speed-up).")
     print("motion / plan / world: share of the KD run's wall time. same: both runs took identical decisions")
     print("     (and both planner backends returned identical plans).")
+
+
+def _print_targets(rtfs: dict[int, tuple[float, float, float, float]]) -> None:
+    """Each issue's real-time target against the size it names, where that size was run."""
     for n, goal, what in ((10, 30.0, "issue 8"), (50, 20.0, "issue 14"), (200, 5.0, "issue 14"), (1000, 0.0, "issue 14")):
         if n not in rtfs:
             continue
@@ -324,7 +346,6 @@ def main() -> None:
         ask = f">= {goal:.0f}x real time" if goal else "measured and reported"
         print(f"{what} target ({n} characters {ask}): {wall_rtf:.2f}x wall, {cpu_rtf:.2f}x cpu "
               f"(median of the runs {median_rtf:.2f}x), {cfs:.0f} character-frames/s -> {verdict}")
-
 
 if __name__ == "__main__":
     main()
