@@ -206,7 +206,7 @@ RECORDING = "recording.json"
 """In a ``--keep`` folder: the recorded run's wall time, latency and calls, for ``--reuse``."""
 
 
-def main() -> None:
+def _arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--latency", type=float, default=None,
                     help="seconds per LLM call while recording (default: the story-suite traces' mean)")
@@ -222,7 +222,41 @@ def main() -> None:
                          "instead of replaying with .pyc files, as an installed product does")
     ap.add_argument("--reuse", type=Path, default=None,
                     help="a --keep folder of an earlier run: replay its recording (and its recorded wall time) again")
-    args = ap.parse_args()
+    return ap.parse_args()
+
+
+def _replay_env(no_bytecode: bool) -> dict[str, str]:
+    """The environment of every recording and replay: the scripted provider's key, no user config
+    or model, this checkout first on ``PYTHONPATH``, and .pyc files allowed unless ``no_bytecode``."""
+    env = {**os.environ, "FAKE_PROVIDER_KEY": "sk-bench"}
+    for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL"):
+        env.pop(var, None)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+    if not no_bytecode:  # pip installs write .pyc files; a sandbox that forbids them is not a user's machine
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
+
+
+def _time_replays(
+    codes: dict[str, tuple[dict[str, str], Path]], run_dir: Path, base: Path, repeats: int
+) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Wall and CPU seconds of ``repeats`` replays of ``run_dir`` per checkout in ``codes``
+    (interleaved: the same load), each checked to give the recording's story byte for byte."""
+    walls: dict[str, list[float]] = {name: [] for name in codes}
+    cpus: dict[str, list[float]] = {name: [] for name in codes}
+    for k in range(max(1, repeats)):
+        for j, (name, (code_env, code_root)) in enumerate(codes.items()):  # interleaved: the same load
+            out = base / f"replay{k}-{j}"
+            wall, cpu = timed(["-c", CLI, "replay", str(run_dir), "--out", str(out)], code_env, code_root)
+            walls[name].append(wall)
+            cpus[name].append(cpu)
+            if (out / "story.json").read_bytes() != (run_dir / "story.json").read_bytes():
+                raise SystemExit(f"{out / 'story.json'} ({name}) differs from the recording's")
+    return walls, cpus
+
+
+def main() -> None:
+    args = _arguments()
     if args.reuse is not None and not (args.reuse / RECORDING).is_file():
         raise SystemExit(f"--reuse {args.reuse}: no {RECORDING} (write one with --keep)")
     if args.baseline is not None and not (args.baseline / "orchestrator" / "cli" / "app.py").is_file():
@@ -232,12 +266,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         base = args.keep or Path(tmp)
         base.mkdir(parents=True, exist_ok=True)
-        env = {**os.environ, "FAKE_PROVIDER_KEY": "sk-bench"}
-        for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL"):
-            env.pop(var, None)
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
-        if not args.no_bytecode:  # pip installs write .pyc files; a sandbox that forbids them is not a user's machine
-            env.pop("PYTHONDONTWRITEBYTECODE", None)
+        env = _replay_env(args.no_bytecode)
         run_dir = base / "recorded"
         planner = Planner(latency)
         if args.reuse is not None:
@@ -253,19 +282,10 @@ def main() -> None:
         codes = {"this checkout": (env, ROOT)}
         if args.baseline is not None:
             codes["baseline"] = (with_code(env, args.baseline.resolve()), args.baseline.resolve())
-        walls: dict[str, list[float]] = {name: [] for name in codes}
-        cpus: dict[str, list[float]] = {name: [] for name in codes}
         if "PYTHONDONTWRITEBYTECODE" not in env:  # one untimed replay per checkout writes its .pyc files
             for j, (code_env, code_root) in enumerate(codes.values()):
                 timed(["-c", CLI, "replay", str(run_dir), "--out", str(base / f"warm-up-{j}")], code_env, code_root)
-        for k in range(max(1, args.repeats)):
-            for j, (name, (code_env, code_root)) in enumerate(codes.items()):  # interleaved: the same load
-                out = base / f"replay{k}-{j}"
-                wall, cpu = timed(["-c", CLI, "replay", str(run_dir), "--out", str(out)], code_env, code_root)
-                walls[name].append(wall)
-                cpus[name].append(cpu)
-                if (out / "story.json").read_bytes() != (run_dir / "story.json").read_bytes():
-                    raise SystemExit(f"{out / 'story.json'} ({name}) differs from the recording's")
+        walls, cpus = _time_replays(codes, run_dir, base, args.repeats)
         imports = {name: replay_imports(run_dir, base / f"importtime-{j}", code_env, code_root)
                    for j, (name, (code_env, code_root)) in enumerate(codes.items())}
         print()
