@@ -47,6 +47,22 @@ def _crowd_module() -> ModuleType:
     return mod
 
 
+def _stretched(pelvis: np.ndarray, rotations: np.ndarray, length: int) -> int:
+    """Leg-frames (of the first ``length`` frames) with the ankle at the bones' full reach (the IK clamps there)."""
+    chain = leg_chain(pelvis[:length].reshape(-1, 3), rotations[:length].reshape(-1, *rotations.shape[2:]))
+    span = np.linalg.norm(chain.ankle - chain.hip, axis=-1)
+    return int(np.sum(span > THIGH_LENGTH + SHIN_LENGTH - 1e-4))
+
+
+def _joint_speed(rotations: NDArray[np.floating[Any]], length: int) -> NDArray[np.float64]:
+    """Angular speeds (rad/s) of the hips', knees' and ankles' local rotations, frame to frame
+    (the first ``length`` frames)."""
+    legs = rotations[:length, :, list(LEG_JOINTS)].astype(float)
+    rel = np.einsum("fnjba,fnjbc->fnjac", legs[:-1], legs[1:])
+    speeds: NDArray[np.float64] = np.linalg.norm(Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec(), axis=-1) * 30.0
+    return speeds
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--walkers", type=int, default=20)
@@ -91,20 +107,7 @@ def main() -> None:
     after_world.buffers = after_buffers
     after = crowd.measure(after_world, scene, before.targets_given, before.targets_reached, before.failures)
 
-    def stretched(rotations: np.ndarray) -> int:
-        """Leg-frames with the ankle at the bones' full reach (the IK clamps there)."""
-        chain = leg_chain(b.pelvis[: b.length].reshape(-1, 3), rotations[: b.length].reshape(-1, *rotations.shape[2:]))
-        span = np.linalg.norm(chain.ankle - chain.hip, axis=-1)
-        return int(np.sum(span > THIGH_LENGTH + SHIN_LENGTH - 1e-4))
-
-    def joint_speed(rotations: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
-        """Angular speeds (rad/s) of the hips', knees' and ankles' local rotations, frame to frame."""
-        legs = rotations[: b.length, :, list(LEG_JOINTS)].astype(float)
-        rel = np.einsum("fnjba,fnjbc->fnjac", legs[:-1], legs[1:])
-        speeds: NDArray[np.float64] = np.linalg.norm(Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_rotvec(), axis=-1) * 30.0
-        return speeds
-
-    speed_before, speed_after = joint_speed(b.rotations), joint_speed(filtered)
+    speed_before, speed_after = _joint_speed(b.rotations, b.length), _joint_speed(filtered, b.length)
     others = [j for j in range(filtered.shape[2]) if j not in LEG_JOINTS]
     pelvis_change = float(np.abs(after_buffers.pelvis[: b.length] - b.pelvis[: b.length]).max())
     upper_change = float(np.abs(filtered[: b.length, :, others] - b.rotations[: b.length, :, others]).max())
@@ -120,7 +123,8 @@ def main() -> None:
         ("deepest foot graze (m)", before.feet_max_depth, after.feet_max_depth, ".4f"),
         ("foot sliding (m/s)", before.foot_sliding, after.foot_sliding, ".3f"),
         ("pelvis penetrations", before.pelvis_penetrations, after.pelvis_penetrations, "d"),
-        ("legs at full stretch (leg-frames)", stretched(b.rotations), stretched(filtered), "d"),
+        ("legs at full stretch (leg-frames)", _stretched(b.pelvis, b.rotations, b.length),
+         _stretched(b.pelvis, filtered, b.length), "d"),
         ("leg joint speed p99 (rad/s)", np.percentile(speed_before, 99), np.percentile(speed_after, 99), ".2f"),
         ("leg joint speed max (rad/s)", speed_before.max(), speed_after.max(), ".2f"),
         ("contact fraction", before.contact_fraction, after.contact_fraction, ".3f"),
