@@ -28,6 +28,7 @@ import re
 from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
+from agents.object_names import EVERYDAY_NAMES
 from agents.prompt_templates import PromptLibrary
 from agents.room_table import RoomTable, room_table
 
@@ -105,11 +106,21 @@ def _named_at(words: Sequence[str], stems: Sequence[str], name: tuple[str, ...])
 
 
 def named_areas(
-    text: str, areas: Sequence[DescribedArea], prompts: PromptLibrary | None = None
+    text: str, areas: Sequence[DescribedArea], prompts: PromptLibrary | None = None, labels: Iterable[str] = (),
 ) -> tuple[DescribedArea, ...]:
-    """The areas of ``areas`` that ``text`` names (see the module docstring), in their order."""
+    """The areas of ``areas`` that ``text`` names (see the module docstring), in their order. A
+    phrase of several words that names a kind of object of the scene (``labels``, or an everyday
+    name of one: "the reception desk", "the front desk") names that object, not an area ("the
+    reception", "the bar", "the tv corner" still name areas)."""
     words = _WORD.findall(text.lower().replace("_", " "))
     stems = [_stem(w) for w in words]
+    names = [n for label in labels for n in (label, *EVERYDAY_NAMES.get(label, ()))]
+    things = {p for n in names for p in _phrases(n) if len(p) > 1}  # "the tv corner", "the bar" still name areas
+    for thing in sorted(things, key=len, reverse=True):  # words naming a thing name no area: masked
+        n = len(thing)
+        for i in range(len(stems) - n + 1):
+            if tuple(stems[i : i + n]) == thing:
+                stems[i : i + n] = [""] * n
     table = room_table(prompts)
     return tuple(a for a in areas if any(_named_at(words, stems, name) for name in _place_names(a, table)))
 

@@ -174,7 +174,7 @@ def seat_candidates(
     short = event_shortlist(scene, about, [s.name for s in free], action_labels, others=others).seats
     pool = [by_name[s] for s in short if s in by_name] or free
     kinds = _seat_kinds(scene, about)
-    in_area = {n for a in named_areas(about, areas, lib) for n in a.objects}
+    in_area = {n for a in named_areas(about, areas, lib, scene.labels) for n in a.objects}
     if area_seats := [s for s in free if s.name in in_area and (not kinds or s.label in kinds)]:
         pool = [s for s in pool if s.name in in_area] or area_seats  # a named seat kind outweighs the area
     pool = [s for s in pool if s.label in kinds] or pool if kinds else pool

@@ -252,7 +252,7 @@ def event_options(
     shortlist = event_shortlist(scene, activity, free, labels, others=where)
     objects = list(shortlist.objects) or [o.name for o in scene.objects]
     seats = list(shortlist.seats) or list(free)
-    if not widen and (in_area := {n for a in named_areas(activity, areas) for n in a.objects}):
+    if not widen and (in_area := {n for a in named_areas(activity, areas, labels=scene.labels) for n in a.objects}):
         label_of = {o.name: o.label for o in scene.objects}
         objects, seats = keep_in_areas(objects, label_of, in_area), keep_in_areas(seats, label_of, in_area)
     return EventOptions(

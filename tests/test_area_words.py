@@ -112,3 +112,12 @@ def test_inflected_area_words_name_the_area() -> None:
     rest = (DescribedArea("rest area", "", frozenset({"chair_1"})),)
     assert named_areas("Ina opens the cabinet in the resting area.", rest) == rest
     assert named_areas("Ina leaves this rest area.", rest) == ()  # 'leaves' leads away
+
+
+def test_a_phrase_naming_a_kind_of_object_names_no_area() -> None:
+    reception = (DescribedArea("reception", "", frozenset({"chair_1"})),)
+    text = "Ina orders in front of the reception desk."
+    assert named_areas(text, reception) == reception  # "reception desk" is a synonym of the reception kind
+    assert named_areas(text, reception, labels=["reception_desk", "chair"]) == ()  # but here it is a thing
+    assert named_areas("Ina waits at the front desk.", reception, labels=["reception_desk"]) == ()  # an everyday name
+    assert named_areas("Ina waits in the reception.", reception, labels=["reception_desk"]) == reception

@@ -9,6 +9,7 @@ from typing import Any
 
 from langgraph.runtime import Runtime
 
+from agents.area_words import described_areas
 from agents.device_in_use import waiting_for_busy_device
 from agents.event_parser import (
     PARSER_RETRY_INSTRUCTION,
@@ -53,6 +54,7 @@ def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
             context=state.event.activity if part else "",
             seat=seat,
             action=state.action,
+            areas=described_areas(state.description.text, deps.scene.object_names),
         ) if deps.program_grammar else None,
     )
 
