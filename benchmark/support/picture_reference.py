@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 from matplotlib import colormaps
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Polygon, Rectangle
@@ -65,25 +66,61 @@ def reference_draw_topdown(
         )
     )
 
-    if nav_free is not None:
-        free = np.asarray(nav_free, dtype=bool)
-        if free.ndim != 2:
-            raise ValueError(f"nav_free must be a 2-D bool array (nx, ny), got shape {free.shape}")
-        nx, ny = free.shape
-        ox, oy = nav_origin
-        blocked = np.ma.masked_where(free.T, np.ones((ny, nx)))
-        ax.imshow(
-            blocked,
-            origin="lower",
-            extent=(ox, ox + nx * nav_cell_size, oy, oy + ny * nav_cell_size),
-            cmap="Reds",
-            vmin=0.0,
-            vmax=2.5,
-            alpha=0.45,
-            interpolation="nearest",
-            zorder=1,
-        )
+    _draw_nav_grid(ax, nav_free, nav_origin, nav_cell_size)
+    _draw_objects(ax, scene, clusters, show_names)
+    _draw_characters(ax, characters, paths)
 
+    margin = 0.3
+    ax.set_xlim(x0 - margin, x1 + margin)
+    ax.set_ylim(y0 - margin, y1 + margin)
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel("x (m)", fontsize=7)
+    ax.set_ylabel("y (m)", fontsize=7)
+    ax.tick_params(labelsize=6)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    if captions:
+        ax.text(
+            0.01,
+            0.99,
+            "\n".join(captions),
+            transform=ax.transAxes,
+            fontsize=7,
+            ha="left",
+            va="top",
+            zorder=10,
+            bbox={"boxstyle": "round,pad=0.3", "fc": "white", "ec": "#888888", "alpha": 0.85},
+        )
+    return fig
+
+
+def _draw_nav_grid(
+    ax: Axes, nav_free: NDArray[np.float64] | None, nav_origin: tuple[float, float], nav_cell_size: float
+) -> None:
+    """The navigation grid's blocked cells, shaded (nothing without ``nav_free``)."""
+    if nav_free is None:
+        return
+    free = np.asarray(nav_free, dtype=bool)
+    if free.ndim != 2:
+        raise ValueError(f"nav_free must be a 2-D bool array (nx, ny), got shape {free.shape}")
+    nx, ny = free.shape
+    ox, oy = nav_origin
+    blocked = np.ma.masked_where(free.T, np.ones((ny, nx)))
+    ax.imshow(
+        blocked,
+        origin="lower",
+        extent=(ox, ox + nx * nav_cell_size, oy, oy + ny * nav_cell_size),
+        cmap="Reds",
+        vmin=0.0,
+        vmax=2.5,
+        alpha=0.45,
+        interpolation="nearest",
+        zorder=1,
+    )
+
+
+def _draw_objects(ax: Axes, scene: Scene, clusters: Sequence[Sequence[str]] | None, show_names: bool) -> None:
+    """Every object's footprint (coloured by cluster), facing arrows, seat points and names."""
     colour_of: dict[str, tuple[float, float, float, float]] = {}
     if clusters:
         cmap = colormaps["tab20"]
@@ -150,6 +187,12 @@ def reference_draw_topdown(
             angles="xy", scale_units="xy", scale=1.0, width=0.003, color="#c0392b", zorder=5,
         )  # fmt: skip
 
+
+def _draw_characters(
+    ax: Axes, characters: Sequence[CharacterMarker] | None,
+    paths: Sequence[NDArray[np.float64]] | Mapping[str, NDArray[np.float64]] | None,
+) -> None:
+    """The paths, then each character's disc, heading arrow and name."""
     char_colour: dict[str, tuple[float, float, float, float]] = {}
     for k, marker in enumerate(characters or ()):
         char_colour[marker.name] = colormaps["tab10"](k % 10)
@@ -192,29 +235,6 @@ def reference_draw_topdown(
             zorder=9,
             fontweight="bold",
         )
-
-    margin = 0.3
-    ax.set_xlim(x0 - margin, x1 + margin)
-    ax.set_ylim(y0 - margin, y1 + margin)
-    ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("x (m)", fontsize=7)
-    ax.set_ylabel("y (m)", fontsize=7)
-    ax.tick_params(labelsize=6)
-    if title:
-        fig.suptitle(title, fontsize=9)
-    if captions:
-        ax.text(
-            0.01,
-            0.99,
-            "\n".join(captions),
-            transform=ax.transAxes,
-            fontsize=7,
-            ha="left",
-            va="top",
-            zorder=10,
-            bbox={"boxstyle": "round,pad=0.3", "fc": "white", "ec": "#888888", "alpha": 0.85},
-        )
-    return fig
 
 
 def reference_topdown_rgb(scene: Scene, **layers: object) -> NDArray[np.uint8]:
