@@ -6,11 +6,10 @@ this frame). When characters are available and no planning step is in flight, it
 snapshot of the world (roster and event history, at a known frame) and starts a planning task
 for it in the session's task group; the task runs one step of the planning graph (narrator,
 event parser, their retries) and sends its news (calls, claim, outcome) back through a memory
-channel. The simulation applies the outcome at the
-frame it arrives and records that frame (story log and trace ``applied`` record). The
-``applied`` record names the step, the frame its request was made at and the seqs of the
-trace records that produced the outcome, as the planner reports them
-(``planner.trace_seqs(index)``, optional; without it the record names none).
+channel. The simulation applies the outcome at the frame it arrives and records that frame (story
+log and trace ``applied`` record). The ``applied`` record names the step, the frame its request
+was made at and the seqs of the trace records that produced the outcome, as the planner reports
+them (``planner.trace_seqs(index)``, optional; without it the record names none).
 
 Determinism: a planning request is built from the world at a frame the simulation chose, so
 its content depends only on earlier frames. What can differ between two live runs is the
@@ -19,30 +18,30 @@ back and applies each result at exactly its frame, so the same events and the sa
 come out. ``lockstep`` pace applies every result at the frame it was requested (the
 simulation pauses while the planner thinks), which is deterministic without a trace.
 
-Overlapping steps (``SessionSettings.planners`` = N > 1): once every step in flight has named
-its characters and fewer than N are in flight, the next step is requested for the free
-characters left (``orchestrator.session.steps_in_flight`` says when a step's news counts, in
-each pace). Such a request is made at the start of a frame (``frame_start``, before the frame's
-outcomes are applied) or, like every request with N = 1, after the world stepped
-(``frame_end``). With N = 1 nothing is requested while a step is in flight. In ``realtime`` /
-``fast`` pace the requests are reported to ``on_request`` (the run job writes them to the
-trace) and a replay makes each at its recorded frame and phase (``SessionSettings.schedule``),
-after the steps it saw in flight claimed.
+Overlapping steps (``SessionSettings.planners`` = N > 1): once every step in flight has named its
+characters and fewer than N are in flight, the next step is requested for the free characters left
+(``orchestrator.session.steps_in_flight`` says when a step's news counts, in each pace). Such a
+request is made at the start of a frame (``frame_start``, before the frame's outcomes are applied)
+or, like every request with N = 1, after the world stepped (``frame_end``). With N = 1 nothing is
+requested while a step is in flight. In ``realtime`` / ``fast`` pace the requests are reported to
+``on_request`` (the run job writes them to the trace) and a replay makes each at its recorded frame
+and phase (``SessionSettings.schedule``), after the steps it saw in flight claimed.
 
 Off the event loop: nothing here blocks; the planning graph runs event programs and other CPU
 work in worker threads (``orchestrator.planning.node_calls.off_loop``), so in ``realtime`` pace the
 simulation task keeps its frame rate while steps are planned.
 
 ``realtime`` pace: frame k is due ``k / (fps * speed)`` wall seconds after the start, and the
-simulation task sleeps until then. A checkpoint is taken before that sleep, which absorbs its
-cost. A frame that ends more than one frame period late (a stall) is not followed by a burst
-of catch-up frames: the schedule slips by the delay instead (``SessionResult.slipped_s``), and
-the next frame is due one period after it. Where each frame's wall time went is kept in
-``SessionResult.frame_profile`` (``orchestrator.session.frame_profile``); timing decides
-nothing but when a realtime frame starts, so it never changes a story in the other paces.
-A ``pacer`` (a director's pause and speed, ``orchestrator.session.viewer_controls``) may hold
-a realtime simulation between two frames and change its speed: that too moves only when frames
-start (a pause is left out of the frame intervals).
+simulation task sleeps until then. A checkpoint is taken before that sleep, which absorbs its cost.
+A frame that ends more than one frame period late (a stall) is not followed by a burst of catch-up
+frames: the schedule slips by the delay instead (``SessionResult.slipped_s``), and the next frame is
+due one period after it. Where each frame's wall time went is kept in
+``SessionResult.frame_profile`` (``orchestrator.session.frame_profile``); timing decides nothing but
+when a realtime frame starts, so it never changes a story in the other paces. A ``pacer`` (a
+director's pause and speed, ``orchestrator.session.viewer_controls``) may hold a realtime simulation
+between two frames and change its speed: that too moves only when frames start (a pause is left out
+of the frame intervals). While a realtime session runs, its thread asks Linux for a short CPU slice,
+so a frame's wait ends sooner on a busy machine (``orchestrator.session.scheduler_slice``).
 
 Failures: an ``LLMError`` from the planner stops planning and the story goes on
 (``SessionResult.planner_error``); any other exception in any task cancels the task group
@@ -81,6 +80,7 @@ from agents.messages import ParsedEvent, PlanningFailure
 from orchestrator.session.frame_profile import FrameProfile
 from orchestrator.session.instruction_queue import InstructionQueue
 from orchestrator.session.request_schedule import RequestSchedule
+from orchestrator.session.scheduler_slice import short_slice
 from orchestrator.session.session_types import (
     InstructionSource,
     Outcome,
@@ -466,7 +466,7 @@ class Session:
                 self._tg = tg
                 self._news_send = news_send
                 try:
-                    with news_recv:
+                    with news_recv, short_slice(enabled=self.settings.pace == "realtime"):
                         await self._simulation_task(news_recv)
                 finally:
                     self._queue.close()
