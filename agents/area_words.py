@@ -32,8 +32,7 @@ from agents.object_names import EVERYDAY_NAMES
 from agents.prompt_templates import PromptLibrary
 from agents.room_table import RoomTable, room_table
 
-_LINE = re.compile(r"^- (?P<name>[^:(]+?)\s*(?:\((?P<purpose>[^)]*)\))?\s*:\s*(?P<objects>.*)$")
-_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*_\d+")
+_TOKEN = re.compile(r"[A-Za-z0-9_]+")
 _WORD = re.compile(r"[a-z0-9']+")
 
 DETERMINERS = frozenset({"the", "a", "an", "this", "that", "his", "her", "their", "our", "its", "my", "your"})
@@ -59,12 +58,14 @@ def described_areas(text: str, object_names: Iterable[str]) -> tuple[DescribedAr
     known = set(object_names)
     areas: list[DescribedArea] = []
     for line in text.splitlines():
-        m = _LINE.match(line.strip())
-        if m is None:
+        line = line.strip()
+        head, colon, listed = line.removeprefix("- ").partition(":")
+        if not line.startswith("- ") or not colon:
             continue
-        objects = frozenset(n for n in _NAME.findall(m.group("objects")) if n in known)
-        if objects:
-            areas.append(DescribedArea(m.group("name").strip(), (m.group("purpose") or "").strip(), objects))
+        name, _, purpose = head.partition("(")
+        objects = frozenset(n for n in _TOKEN.findall(listed) if n in known)
+        if name.strip() and objects:
+            areas.append(DescribedArea(name.strip(), purpose.rpartition(")")[0].strip(), objects))
     return tuple(areas)
 
 

@@ -35,7 +35,7 @@ BE = frozenset({"is", "are", "was", "were", "seems", "seem", "looks", "look", "r
 FILLERS = frozenset({"currently", "still", "already", "now", "sadly", "unfortunately", "completely", "fully", "all",
                      "both", "also", "totally", "temporarily", "a", "bit", "too"})  # fmt: skip
 """Words that may stand between the form of "be" and the adjective."""
-_TOKEN = re.compile(r"[a-z]+(?:_[a-z]+)*_\d+|[a-z0-9']+")
+_TOKEN = re.compile(r"[a-z0-9_']+")
 MAX_LIST = 4
 """Things joined by "and" / "," before one verb ("chair_2 and chair_4 are wet")."""
 
@@ -66,7 +66,8 @@ def _unusable_at(tokens: Sequence[str], i: int) -> bool:
 
 def out_of_use(text: str, scene: Scene) -> frozenset[str]:
     """The names of the objects ``text`` says cannot be used (see the module docstring)."""
-    tokens = _TOKEN.findall(text.lower())
+    names = {o.name for o in scene.objects}
+    tokens = [w for t in _TOKEN.findall(text.lower()) for w in ((t,) if t in names else t.split("_")) if w]
     things = sorted(_things(scene).items(), key=lambda kv: -len(kv[0]))
     found: list[tuple[int, int, str]] = []  # (start, end, name) of each thing named
     i = 0
