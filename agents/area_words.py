@@ -110,13 +110,13 @@ def named_areas(
     text: str, areas: Sequence[DescribedArea], prompts: PromptLibrary | None = None, labels: Iterable[str] = (),
 ) -> tuple[DescribedArea, ...]:
     """The areas of ``areas`` that ``text`` names (see the module docstring), in their order. A
-    phrase of several words that names a kind of object of the scene (``labels``, or an everyday
-    name of one: "the reception desk", "the front desk") names that object, not an area ("the
-    reception", "the bar", "the tv corner" still name areas)."""
+    phrase that names a kind of object of the scene (its label's words, or an everyday name of
+    several words: "the desk", "the reception desk", "the front desk") names that object, not an
+    area; an everyday name of one word ("the reception", "the bar") still names the area."""
     words = _WORD.findall(text.lower().replace("_", " "))
     stems = [_stem(w) for w in words]
-    names = [n for label in labels for n in (label, *EVERYDAY_NAMES.get(label, ()))]
-    things = {p for n in names for p in _phrases(n) if len(p) > 1}  # "the tv corner", "the bar" still name areas
+    things = {p for label in labels for p in _phrases(label)}  # "the desk" is the desk, not a work area
+    things |= {p for label in labels for n in EVERYDAY_NAMES.get(label, ()) for p in _phrases(n) if len(p) > 1}
     for thing in sorted(things, key=len, reverse=True):  # words naming a thing name no area: masked
         n = len(thing)
         for i in range(len(stems) - n + 1):

@@ -121,3 +121,9 @@ def test_a_phrase_naming_a_kind_of_object_names_no_area() -> None:
     assert named_areas(text, reception, labels=["reception_desk", "chair"]) == ()  # but here it is a thing
     assert named_areas("Ina waits at the front desk.", reception, labels=["reception_desk"]) == ()  # an everyday name
     assert named_areas("Ina waits in the reception.", reception, labels=["reception_desk"]) == reception
+
+
+def test_a_label_of_the_scene_is_that_thing_not_an_area_of_its_kind() -> None:
+    work = (DescribedArea("work area", "", frozenset({"chair_1"})),)
+    assert named_areas("Ina sits at the desks.", work) == work  # "desks": a synonym of a work area
+    assert named_areas("Ina sits at the desk.", work, labels=["desk", "chair"]) == ()  # the scene's desk
