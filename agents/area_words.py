@@ -12,8 +12,9 @@ seat does not read that off the description (it picks ``chair_1``).
 - :func:`named_areas` gives the areas the words name: by the area's own name, or by the name of
   its kind of room or a synonym of it in the room table (``prompts/describer/rooms.toml``: "the
   conference room" names an area the describer called "meeting room"). A name counts only as a
-  noun phrase of its own (after an article or possessive: "in the kitchen", "at their bar"), and
-  not when the words lead away from it ("far from the kitchen", "out of the kitchen"). Words are
+  noun phrase of its own after a preposition of being inside ("in the kitchen", "at their bar",
+  not "the desk nearest the meeting room"), and not when the words lead away from it ("leaves
+  the kitchen at once, in the ..."). Words are
   compared without an "-ing" or plural "-s" ending, so "the resting area" names a "rest area".
 - :func:`keep_in_areas` narrows a list of objects to the named areas, kind by kind: of a label
   with instances there, only those ("the cabinet in the lounge", "between the chairs in the
@@ -37,6 +38,9 @@ _WORD = re.compile(r"[a-z0-9']+")
 
 DETERMINERS = frozenset({"the", "a", "an", "this", "that", "his", "her", "their", "our", "its", "my", "your"})
 """Words before a noun phrase of its own (general English determiners and possessives)."""
+INSIDE_WORDS = frozenset({"in", "inside", "within", "into", "at"})
+"""Prepositions that put someone in a place ("in the kitchen", "at the bar"); "the desk nearest
+the meeting room" or "close to the kitchen" relate to the place instead, and name no area."""
 AWAY_WORDS = frozenset({"from", "outside", "leaves", "leave", "leaving", "left", "exits", "exit", "beyond", "past"})
 """Words that lead away from the place after them ("away from the kitchen", "leaves the bar")."""
 AWAY_SPAN = 3
@@ -94,10 +98,10 @@ def _place_names(area: DescribedArea, table: RoomTable) -> list[tuple[str, ...]]
 
 def _named_at(words: Sequence[str], stems: Sequence[str], name: tuple[str, ...]) -> bool:
     """Whether ``name`` (stemmed) occurs in ``words`` (``stems``: theirs) as a noun phrase of its
-    own, not led away from."""
+    own after a word of being inside ("in the kitchen"), not led away from."""
     n = len(name)
-    for i in range(1, len(words) - n + 1):
-        if tuple(stems[i : i + n]) != name or words[i - 1] not in DETERMINERS:
+    for i in range(2, len(words) - n + 1):
+        if tuple(stems[i : i + n]) != name or words[i - 1] not in DETERMINERS or words[i - 2] not in INSIDE_WORDS:
             continue
         if i + n < len(words) and words[i + n] in ("of", "'s"):
             continue  # "the bar of the hotel" names something else

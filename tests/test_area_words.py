@@ -111,12 +111,12 @@ def test_the_event_grammar_offers_the_named_areas_things_of_each_kind() -> None:
 def test_inflected_area_words_name_the_area() -> None:
     rest = (DescribedArea("rest area", "", frozenset({"chair_1"})),)
     assert named_areas("Ina opens the cabinet in the resting area.", rest) == rest
-    assert named_areas("Ina leaves this rest area.", rest) == ()  # 'leaves' leads away
+    assert named_areas("Ina steps out of the rest area.", rest) == ()  # out of it, not in it
 
 
 def test_a_phrase_naming_a_kind_of_object_names_no_area() -> None:
     reception = (DescribedArea("reception", "", frozenset({"chair_1"})),)
-    text = "Ina orders in front of the reception desk."
+    text = "Ina orders at the reception desk."
     assert named_areas(text, reception) == reception  # "reception desk" is a synonym of the reception kind
     assert named_areas(text, reception, labels=["reception_desk", "chair"]) == ()  # but here it is a thing
     assert named_areas("Ina waits at the front desk.", reception, labels=["reception_desk"]) == ()  # an everyday name
@@ -127,3 +127,10 @@ def test_a_label_of_the_scene_is_that_thing_not_an_area_of_its_kind() -> None:
     work = (DescribedArea("work area", "", frozenset({"chair_1"})),)
     assert named_areas("Ina sits at the desks.", work) == work  # "desks": a synonym of a work area
     assert named_areas("Ina sits at the desk.", work, labels=["desk", "chair"]) == ()  # the scene's desk
+
+
+def test_a_relation_to_an_area_names_no_area_to_be_in() -> None:
+    meeting = (DescribedArea("meeting room", "", frozenset({"chair_1"})),)
+    assert named_areas("Ava works at the desk nearest the meeting room.", meeting) == ()
+    assert named_areas("Ava waits close to the meeting room.", meeting) == ()
+    assert named_areas("Ava works within the meeting room.", meeting) == meeting
