@@ -100,8 +100,11 @@ def _named_at(words: Sequence[str], stems: Sequence[str], name: tuple[str, ...])
     """Whether ``name`` (stemmed) occurs in ``words`` (``stems``: theirs) as a noun phrase of its
     own after a word of being inside ("in the kitchen"), not led away from."""
     n = len(name)
-    for i in range(2, len(words) - n + 1):
-        if tuple(stems[i : i + n]) != name or words[i - 1] not in DETERMINERS or words[i - 2] not in INSIDE_WORDS:
+    for i in range(1, len(words) - n + 1):
+        if tuple(stems[i : i + n]) != name:
+            continue
+        inside = words[i - 1] in INSIDE_WORDS  # "in kitchen": a model's short text drops the article
+        if not inside and not (i >= 2 and words[i - 1] in DETERMINERS and words[i - 2] in INSIDE_WORDS):
             continue
         if i + n < len(words) and words[i + n] in ("of", "'s"):
             continue  # "the bar of the hotel" names something else

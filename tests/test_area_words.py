@@ -134,3 +134,9 @@ def test_a_relation_to_an_area_names_no_area_to_be_in() -> None:
     assert named_areas("Ava works at the desk nearest the meeting room.", meeting) == ()
     assert named_areas("Ava waits close to the meeting room.", meeting) == ()
     assert named_areas("Ava works within the meeting room.", meeting) == meeting
+
+
+def test_a_short_text_without_an_article_still_names_the_area() -> None:
+    meeting = (DescribedArea("meeting room", "", frozenset({"chair_1"})),)
+    assert named_areas("attend meeting sitting in conference room chair", meeting) == meeting
+    assert named_areas("attend meeting near conference room", meeting) == ()
