@@ -29,6 +29,8 @@ import re
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from agents.area_words import DescribedArea, named_areas
 from agents.llm_port import ChatMessage, LLMRequest
 from agents.prompt_templates import PromptLibrary, package_prompts
@@ -78,6 +80,18 @@ class SeatCandidates:
     relations: tuple[StatedRelation, ...]
 
 
+SEATED_MARGIN_M = 0.15
+"""A character whose point lies within this of a seat's footprint sits on it (and faces its way)."""
+
+
+def _character(scene: Scene, name: str, xy: tuple[float, float]) -> Reference:
+    """A character as a reference: their point, and the facing of the seat they sit on, if any
+    (what "to the right of Kim" is measured in)."""
+    point = np.asarray(xy, dtype=float)
+    seat = next((o for o in scene.objects if o.is_seat and bool(o.contains_xy(point, SEATED_MARGIN_M))), None)
+    return Reference(name, point=xy, facing=None if seat is None else (float(seat.facing[0]), float(seat.facing[1])))
+
+
 def _references(
     scene: Scene, mention: RelationMention, others: Mapping[str, tuple[float, float]]
 ) -> tuple[tuple[Reference, ...], ...]:
@@ -85,7 +99,7 @@ def _references(
     for thing in mention.references:
         if thing and thing[0].startswith("@"):
             name = thing[0][1:]
-            groups.append((Reference(name, point=others[name]),) if name in others else ())
+            groups.append((_character(scene, name, others[name]),) if name in others else ())
         else:
             groups.append(tuple(Reference(o.name, obj=o) for o in scene.objects if o.label in thing))
     return tuple(groups)

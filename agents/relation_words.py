@@ -37,6 +37,8 @@ RELATION_WORDS: tuple[tuple[tuple[str, ...], RelationKind], ...] = (
     (("facing",), "facing"), (("faces",), "facing"), (("opposite",), "facing"), (("across",), "facing"),
     (("towards",), "facing"), (("toward",), "facing"),
     (("between",), "between"), (("halfway",), "between"), (("midway",), "between"),
+    (("to", "the", "left", "of"), "left"), (("on", "the", "left", "of"), "left"), (("left", "of"), "left"),
+    (("to", "the", "right", "of"), "right"), (("on", "the", "right", "of"), "right"), (("right", "of"), "right"),
 )
 """Relation words (longest first where they overlap) and the relation each states."""
 

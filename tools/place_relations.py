@@ -12,7 +12,12 @@ is only a kind and its references:
   and the direction to the reference's centre under :data:`FACING_DEG`); of those, the ones
   facing it most squarely (within :data:`SQUARE_TIE_DEG`), and of those the nearest;
 - ``between`` (two references): the least distance from the candidate's centre to the middle
-  of the segment joining the references (within :data:`TIE_M`).
+  of the segment joining the references (within :data:`TIE_M`);
+- ``left`` / ``right``: on that side of a reference that has a front (an object with a facing, or
+  a character with the facing of the seat they sit on): the candidate's centre lies more to that
+  side, in the reference's own frame, than in front of or behind it, past the reference's half
+  width (right = the facing turned clockwise, as the spatial API's ``get_area_right_of``). A
+  reference without a front states no side.
 
 :func:`keep_satisfying` applies every stated relation in turn and never empties the set: a
 relation that no candidate meets (or whose references are missing) leaves the set as it was,
@@ -31,7 +36,7 @@ import numpy as np
 from sim.scene.model import SceneObject
 from tools.scene_graph import footprint_distance, point_footprint_distance
 
-RelationKind = Literal["nearest", "near", "farthest", "facing", "between"]
+RelationKind = Literal["nearest", "near", "farthest", "facing", "between", "left", "right"]
 
 TIE_M = 0.3
 """Gaps (m) within this of the best count as equally near / far (an instruction's "nearest" is
@@ -52,6 +57,8 @@ class Reference:
     name: str
     obj: SceneObject | None = None
     point: tuple[float, float] | None = None
+    facing: tuple[float, float] | None = None
+    """A character's front (the facing of the seat they sit on); objects use their own."""
 
     def center(self) -> np.ndarray:
         if self.obj is not None:
@@ -105,12 +112,36 @@ def midpoint_distance(candidate: SceneObject, first: Sequence[Reference], second
     )
 
 
+def side_offset(candidate: SceneObject, ref: Reference) -> float | None:
+    """How far (m) ``candidate``'s centre lies to ``ref``'s right (negative: its left), beyond
+    ``ref``'s half width, when it lies more to the side than in front or behind; 0 when it does
+    not; None when ``ref`` has no front."""
+    if ref.obj is not None:
+        if not ref.obj.has_facing:
+            return None
+        front, half = np.asarray(ref.obj.facing, dtype=float), ref.obj.size[0] / 2.0
+    elif ref.facing is not None:
+        front, half = np.asarray(ref.facing, dtype=float), 0.0
+    else:
+        return None
+    right = np.array([front[1], -front[0]])
+    d = np.asarray(candidate.center[:2], dtype=float) - ref.center()
+    across, along = float(d @ right), float(d @ front)
+    if abs(across) <= half or abs(across) - half < abs(along):
+        return 0.0
+    return across - half if across > 0 else across + half
+
+
 def satisfying(relation: StatedRelation, candidates: Sequence[SceneObject]) -> list[SceneObject]:
     """The candidates that meet ``relation`` (see the module docstring); [] when none can."""
     groups = [g for g in relation.references if g]
     if not groups or not candidates:
         return []
     first = groups[0]
+    if relation.kind in ("left", "right"):
+        sign = 1.0 if relation.kind == "right" else -1.0
+        return [c for c in candidates
+                if any((o := side_offset(c, r)) is not None and sign * o > 0 for r in first)]  # fmt: skip
     if relation.kind in ("nearest", "near", "farthest"):
         gaps = {c.name: group_gap(c, first) for c in candidates}
         if relation.kind == "farthest":
