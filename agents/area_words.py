@@ -16,6 +16,9 @@ seat does not read that off the description (it picks ``chair_1``).
   not "the desk nearest the meeting room"), and not when the words lead away from it ("leaves
   the kitchen at once, in the ..."). Words are
   compared without an "-ing" or plural "-s" ending, so "the resting area" names a "rest area".
+- Failing a name, an area is named by what a phrase of use says the place is for ("the area
+  designated for attending a conference", "a spot where people relax"): the area whose purpose
+  or kind's functions in the room table share the most words with it.
 - :func:`keep_in_areas` narrows a list of objects to the named areas, kind by kind: of a label
   with instances there, only those ("the cabinet in the lounge", "between the chairs in the
   living room"); a label with none there keeps all its instances.
@@ -130,7 +133,52 @@ def named_areas(
             if tuple(stems[i : i + n]) == thing:
                 stems[i : i + n] = [""] * n
     table = room_table(prompts)
-    return tuple(a for a in areas if any(_named_at(words, stems, name) for name in _place_names(a, table)))
+    by_name = tuple(a for a in areas if any(_named_at(words, stems, name) for name in _place_names(a, table)))
+    return by_name or _named_by_use(words, areas, table)
+
+
+PLACE_NOUNS = frozenset({"area", "place", "space", "spot", "zone", "corner", "section", "part"})
+"""Nouns of a place that a phrase of use can describe ("the area designated for ...")."""
+USE_LINKS = frozenset({"designated", "meant", "used", "reserved", "intended", "set", "aside", "kept", "made"})
+"""Words that may stand between such a noun and "for" ("the area set aside for meetings")."""
+STOP_WORDS = frozenset({"a", "an", "the", "to", "of", "and", "or", "with", "for", "in", "on", "at", "their", "his",
+                        "her", "people", "someone", "things", "thing", "something", "some", "it", "them"})  # fmt: skip
+"""Words that say nothing about what a place is for."""
+USE_SPAN = 5
+"""Words after "for" / "where" that say what the place is for."""
+
+
+def _uses(words: Sequence[str]) -> set[str]:
+    """The stems of what a phrase of use says a place is for: "the area designated for attending
+    a conference" -> {"attend", "conference"}; "a spot where people relax" -> {"relax"}."""
+    out: set[str] = set()
+    for i, w in enumerate(words):
+        if w not in PLACE_NOUNS:
+            continue
+        j = i + 1
+        while j < len(words) and words[j] in USE_LINKS:
+            j += 1
+        if j < len(words) and words[j] in ("for", "where"):
+            out |= {_stem(t) for t in words[j + 1 : j + 1 + USE_SPAN] if t not in STOP_WORDS}
+    return out
+
+
+def _named_by_use(words: Sequence[str], areas: Sequence[DescribedArea], table: RoomTable) -> tuple[DescribedArea, ...]:
+    """The areas whose purpose, or whose kind's functions in the room table, share the most words
+    with what a phrase of use says the place is for (none: no such phrase, or no word shared)."""
+    uses = _uses(words)
+    if not uses:
+        return ()
+
+    def shared(area: DescribedArea) -> int:
+        kind = table.kind_of(area.name)
+        texts = [area.purpose, *(table.kinds[kind].functions if kind is not None and kind in table.kinds else ())]
+        said = {_stem(t) for text in texts for t in _WORD.findall(text.lower())} - {_stem(w) for w in STOP_WORDS}
+        return len(uses & said)
+
+    scores = {a.name: shared(a) for a in areas}
+    best = max(scores.values(), default=0)
+    return tuple(a for a in areas if best > 0 and scores[a.name] == best)
 
 
 def keep_in_areas(names: Sequence[str], labels: Mapping[str, str], in_area: Collection[str]) -> list[str]:

@@ -140,3 +140,14 @@ def test_a_short_text_without_an_article_still_names_the_area() -> None:
     meeting = (DescribedArea("meeting room", "", frozenset({"chair_1"})),)
     assert named_areas("attend meeting sitting in conference room chair", meeting) == meeting
     assert named_areas("attend meeting near conference room", meeting) == ()
+
+
+def test_an_area_is_named_by_what_a_phrase_of_use_says_it_is_for() -> None:
+    areas = (DescribedArea("meeting room", "write on the whiteboard", frozenset({"chair_1"})),
+             DescribedArea("lounge", "sit and relax", frozenset({"couch_1"})),
+             DescribedArea("work area", "use a laptop", frozenset({"chair_2"})))  # fmt: skip
+    assert [a.name for a in named_areas("Bo sits in the area designated for attending a conference.", areas)] == [
+        "meeting room"]  # fmt: skip
+    assert [a.name for a in named_areas("Bo finds a spot where people relax.", areas)] == ["lounge"]
+    assert named_areas("Bo sits down for a while.", areas) == ()  # no place noun: no phrase of use
+    assert named_areas("Bo saves a spot for his friend.", areas) == ()  # for a person: nothing shared
