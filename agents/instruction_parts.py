@@ -17,7 +17,8 @@ LLM) still chooses and writes the event.
   the simulation) leaves the part open, and after ``PART_ATTEMPTS`` such failures the part is
   ``failed`` and the story moves on to the next. Any other history event (older traces, the
   benchmark's cases) is matched by its words: to the not yet matched part that shares the
-  most content words with its activity (word stems, object names split at ``_``) and whose
+  most content words with its activity (word stems, object names split at ``_``; the same kind
+  of activity, :func:`activity_kind`, counts as :data:`SAME_KIND_SCORE` words) and whose
   actors (the first run of names in it) include one of its characters, earliest first on
   ties; an event sharing no word, or repeating an earlier event's activity, matches nothing.
   A matched part is ``ongoing`` while its event is, ``done`` once the event
@@ -51,11 +52,13 @@ no name (the old pattern took "Avaand Ben" for one run).
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
+from agents.action_shortlist import CUES, rank_action_labels
 from agents.messages import HistoryEntry
 from agents.prompt_templates import PromptLibrary, package_prompts
 
@@ -75,6 +78,20 @@ _STOP = frozenset(str.split(
     "be being been one some each other another same there here who whom so as if up down out "
     "back over under left right should starts start"
 ))
+
+
+SAME_KIND_SCORE = 2
+"""What an event and a part of the same kind of activity (:func:`activity_kind`) add to the
+words they share when an event is matched to a part."""
+
+
+@functools.lru_cache(maxsize=1024)
+def activity_kind(text: str) -> str | None:
+    """The action label the words of ``text`` point to most among every label the action
+    vocabulary knows (:data:`agents.action_shortlist.CUES`: "have a meal at table_4" and "starts
+    eating" are both ``eat``), or None when they point to none."""
+    ranked = rank_action_labels(text, tuple(CUES))
+    return ranked[0].label if ranked else None
 
 
 @dataclass(frozen=True)
@@ -241,11 +258,12 @@ def part_states(
             continue
         seen.add(said)
         stems = content_stems(h.activity, h.characters)
+        kind = activity_kind(h.activity)
         best, best_score = -1, 0
         for i, p in enumerate(parts):
             if states[i] or (p.actors and not set(p.actors) & set(h.characters)):
                 continue
-            score = len(stems & p.stems)
+            score = len(stems & p.stems) + (SAME_KIND_SCORE if kind is not None and kind == activity_kind(p.text) else 0)
             if score > best_score:
                 best, best_score = i, score
         if best >= 0:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from agents.instruction_parts import instruction_progress, part_states, split_instruction
+from agents.instruction_parts import activity_kind, instruction_progress, part_states, split_instruction
 from agents.llm_port import LLMRequest, LLMResponse
 from agents.messages import CharacterStatus, EventState, HistoryEntry
 from agents.narrator import NarratorInput, narrate, narrator_request
@@ -65,6 +65,17 @@ def test_an_event_sharing_no_word_or_no_character_matches_nothing() -> None:
     # the same event twice covers one part, not two, even when it shares words with the next
     twice = [ev(0, ("Ava",), "make coffee sitting on couch_1"), ev(1, ("Ava",), "Make coffee  sitting on couch_1")]
     assert part_states(parts, twice, NAMES) == ["done", "next"]
+
+
+def test_an_event_of_the_same_kind_of_activity_matches_a_part_in_other_words() -> None:
+    meal = "Mia orders food at the counter. After that, Mia starts eating in the dining area. Then, Leo joins her."
+    parts = split_instruction(meal, ("Mia", "Leo"))
+    ordered = ev(0, ("Mia",), "order food at the counter")
+    eating = ev(1, ("Mia",), "have a meal sitting at table_4", "looping")  # no word shared with part 2
+    assert activity_kind(eating.activity) == activity_kind(parts[1].text) == "eat"
+    assert part_states(parts, [ordered, eating], ("Leo",)) == ["done", "done", "next"]
+    chat = ev(1, ("Mia",), "chat with a friend", "looping")  # another kind, no word shared: no match
+    assert part_states(parts, [ordered, chat], ("Leo",))[1] == ""
 
 
 def test_progress_text_and_when_nothing_is_for_the_free() -> None:
