@@ -3,7 +3,7 @@
 :func:`choice_request` builds an :class:`~agents.llm_port.LLMRequest` with ``choices`` (the
 candidates) and a JSON schema whose ``choice`` is an enum of exactly those candidates. The
 embedded model answers it by scored continuations (the log-likelihood of each candidate as the
-whole reply, from one evaluation of the prompt: ``orchestrator.llm.local_model``); any other
+whole reply, from one evaluation of the prompt: ``orchestrator.llm.llama_decoding``); any other
 provider by generation constrained to the schema. :func:`choose` sends it and returns a
 :class:`ScoredChoice`: the candidate, and the ranking of all of them (by score when the
 provider gave scores). A reply naming anything but a candidate raises :class:`ChoiceError`
