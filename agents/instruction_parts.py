@@ -18,7 +18,8 @@ LLM) still chooses and writes the event.
   ``failed`` and the story moves on to the next. Any other history event (older traces, the
   benchmark's cases) is matched by its words: to the not yet matched part that shares the
   most content words with its activity (word stems, object names split at ``_``; the same kind
-  of activity, :func:`activity_kind`, counts as :data:`SAME_KIND_SCORE` words) and whose
+  of activity, :func:`activity_kind`, counts as :data:`SAME_KIND_SCORE` words when the event has
+  every character the part names) and whose
   actors (the first run of names in it) include one of its characters, earliest first on
   ties; an event sharing no word, or repeating an earlier event's activity, matches nothing.
   A matched part is ``ongoing`` while its event is, ``done`` once the event
@@ -263,7 +264,8 @@ def part_states(
         for i, p in enumerate(parts):
             if states[i] or (p.actors and not set(p.actors) & set(h.characters)):
                 continue
-            score = len(stems & p.stems) + (SAME_KIND_SCORE if kind is not None and kind == activity_kind(p.text) else 0)
+            same_kind = kind is not None and kind == activity_kind(p.text) and set(p.names) <= set(h.characters)
+            score = len(stems & p.stems) + (SAME_KIND_SCORE if same_kind else 0)  # "with Ben": Ben must be in it
             if score > best_score:
                 best, best_score = i, score
         if best >= 0:

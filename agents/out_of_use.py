@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from sim.scene.model import Scene
 
 UNUSABLE = frozenset({
-    "broken", "unavailable", "occupied", "taken", "reserved", "wet", "dirty", "damaged", "cluttered",
+    "broken", "unavailable", "occupied", "taken", "wet", "dirty", "damaged", "cluttered",
     "blocked", "unusable", "wobbly", "missing", "cracked", "soaked", "stained", "filthy", "unsafe",
 })  # fmt: skip
 """Adjectives saying a thing cannot be used now."""
@@ -64,9 +64,26 @@ def _unusable_at(tokens: Sequence[str], i: int) -> bool:
     return any(tuple(tokens[j : j + len(p)]) == p for p in UNUSABLE_PHRASES)
 
 
+PREPOSITIONS = frozenset({"at", "to", "near", "by", "of", "beside", "with", "behind", "from", "in", "on", "under",
+                          "above", "opposite", "next", "across", "around", "past", "toward", "towards", "for"})  # fmt: skip
+"""Words before a thing that make it the landmark of a phrase, not what is out of use ("the
+chair next to the couch is broken": the chair, not the couch)."""
+SKIPPED = frozenset({"the", "a", "an", "this", "that", "his", "her", "their", "its", "my", "your", "our"})
+
+
+def _in_a_phrase(tokens: Sequence[str], start: int) -> bool:
+    """Whether the thing at ``start`` follows a preposition (determiners skipped)."""
+    k = start - 1
+    while k >= 0 and tokens[k] in SKIPPED:
+        k -= 1
+    return k >= 0 and tokens[k] in PREPOSITIONS
+
+
 def out_of_use(text: str, scene: Scene) -> frozenset[str]:
-    """The names of the objects ``text`` says cannot be used (see the module docstring)."""
+    """The names of the seats ``text`` says cannot be used (see the module docstring); a thing
+    named as the landmark of a phrase ("next to the couch") is not what the words rule out."""
     names = {o.name for o in scene.objects}
+    seats = {o.name for o in scene.objects if o.is_seat}
     tokens = [w for t in _TOKEN.findall(text.lower()) for w in ((t,) if t in names else t.split("_")) if w]
     things = sorted(_things(scene).items(), key=lambda kv: -len(kv[0]))
     found: list[tuple[int, int, str]] = []  # (start, end, name) of each thing named
@@ -84,6 +101,8 @@ def out_of_use(text: str, scene: Scene) -> frozenset[str]:
         if start > 0 and tokens[start - 1] in UNUSABLE:
             out.add(name)
             continue
+        if _in_a_phrase(tokens, start):
+            continue
         group, last = [name], end  # "chair_2, chair_4 and chair_5 are wet"
         for s, e, n in found[k + 1 : k + MAX_LIST]:
             if s == last or (s - last == 1 and tokens[last] in ("and", "or", "nor")):  # commas are not tokens
@@ -93,4 +112,29 @@ def out_of_use(text: str, scene: Scene) -> frozenset[str]:
                 break
         if _unusable_at(tokens, last):
             out.update(group)
+    return frozenset(out & seats)
+
+
+SIT_WORDS = frozenset({"on", "onto", "in", "into", "takes", "take", "taking", "grabs", "grab", "uses", "use"})
+"""Words before a seat that make it the place an event sits ("sits on chair_1", "takes the couch")."""
+
+
+def seats_taken_by(text: str, scene: Scene) -> frozenset[str]:
+    """The seats ``text`` (an event's own words) sits on: named right after "on", "in", "takes"...
+    (determiners skipped). A seat the event itself sits on is never ruled out by other words of
+    the instruction ("chair_1 is taken" said of a later moment, "the couch is reserved")."""
+    names = {o.name for o in scene.objects}
+    seats = {o.name: o for o in scene.objects if o.is_seat}
+    tokens = [w for t in _TOKEN.findall(text.lower()) for w in ((t,) if t in names else t.split("_")) if w]
+    things = sorted(((w, n) for w, n in _things(scene).items() if n in seats), key=lambda kv: -len(kv[0]))
+    out: set[str] = set()
+    for i in range(len(tokens)):
+        for words, name in things:
+            if tuple(tokens[i : i + len(words)]) == words:
+                k = i - 1
+                while k >= 0 and tokens[k] in SKIPPED:
+                    k -= 1
+                if k >= 0 and tokens[k] in SIT_WORDS:
+                    out.add(name)
+                break
     return frozenset(out)

@@ -128,6 +128,17 @@ def _sits_at(obj: SceneObject) -> bool:
     )
 
 
+OTHER_WORDS = frozenset({"other", "another", "different", "second", "next", "new", "separate"})
+"""Words before a table that mean not the one already named ("sits at the other table")."""
+
+
+def _another(text: str, things: Sequence[str]) -> bool:
+    """Whether ``text`` asks for another of ``things`` ("at a different table")."""
+    words = re.findall(r"[a-z]+", text.lower())
+    heads = {label.split("_")[-1] for label in things}
+    return any(w in heads and i > 0 and words[i - 1] in OTHER_WORDS for i, w in enumerate(words))
+
+
 def _table_of(scene: Scene, seat: SceneObject) -> SceneObject | None:
     """The thing ``seat`` sits at (a table, desk or counter within ``AT_M``; the nearest), or None."""
     near = [(gap(seat, Reference(o.name, obj=o)), o) for o in scene.objects if _sits_at(o) and o.name != seat.name]
@@ -196,7 +207,7 @@ def seat_candidates(
     pool = [s for s in pool if s.name not in landmarks] or pool  # "beside the couch" is not the couch
     at_things = tuple(label for label in mentioned_labels(about, scene.labels)
                       if any(o.label == label and not o.is_seat and _sits_at(o) for o in scene.objects))
-    if at_things and (ruled_out := [by_name[n] for n in unusable if n in by_name]):
+    if at_things and not _another(about, at_things) and (ruled_out := [by_name[n] for n in unusable if n in by_name]):
         # "another chair at the table of chair_3, which is broken": the table of the seat ruled out
         tables = {t.name for seat in ruled_out if (t := _table_of(scene, seat)) is not None}
         pool = [s for s in pool if (t := _table_of(scene, s)) is not None and t.name in tables] or pool

@@ -37,8 +37,8 @@ RELATION_WORDS: tuple[tuple[tuple[str, ...], RelationKind], ...] = (
     (("facing",), "facing"), (("faces",), "facing"), (("opposite",), "facing"), (("across",), "facing"),
     (("towards",), "facing"), (("toward",), "facing"),
     (("between",), "between"), (("halfway",), "between"), (("midway",), "between"),
-    (("to", "the", "left", "of"), "left"), (("on", "the", "left", "of"), "left"), (("left", "of"), "left"),
-    (("to", "the", "right", "of"), "right"), (("on", "the", "right", "of"), "right"), (("right", "of"), "right"),
+    (("to", "the", "left", "of"), "left"), (("to", "the", "right", "of"), "right"),  # "on the left of the couch"
+    # is a place on the couch, and "what is left of" no side: only "to the ... of" states one
 )
 """Relation words (longest first where they overlap) and the relation each states."""
 

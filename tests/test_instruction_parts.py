@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import pytest
 
-from agents.instruction_parts import activity_kind, instruction_progress, part_states, split_instruction
+from agents.instruction_parts import (
+    activity_kind,
+    instruction_progress,
+    part_states,
+    split_instruction,
+)
 from agents.llm_port import LLMRequest, LLMResponse
 from agents.messages import CharacterStatus, EventState, HistoryEntry
 from agents.narrator import NarratorInput, narrate, narrator_request
@@ -76,6 +81,9 @@ def test_an_event_of_the_same_kind_of_activity_matches_a_part_in_other_words() -
     assert part_states(parts, [ordered, eating], ("Leo",)) == ["done", "done", "next"]
     chat = ev(1, ("Mia",), "chat with a friend", "looping")  # another kind, no word shared: no match
     assert part_states(parts, [ordered, chat], ("Leo",))[1] == ""
+    talks = split_instruction("Ava reads a novel. Then Ava chats with Ben.", ("Ava", "Ben"))
+    phone = ev(0, ("Ava",), "Ava talks on the phone")  # the kind of part 2, but without Ben
+    assert part_states(talks, [phone], ("Ava", "Ben")) == ["next", ""]
 
 
 def test_progress_text_and_when_nothing_is_for_the_free() -> None:

@@ -4,7 +4,7 @@ and another seat at the table of the one ruled out."""
 
 from __future__ import annotations
 
-from agents.out_of_use import out_of_use
+from agents.out_of_use import out_of_use, seats_taken_by
 from agents.place_choice import seat_candidates
 from sim.scene.model import Scene, SceneObject
 
@@ -54,3 +54,19 @@ def test_the_seat_choice_leaves_out_a_ruled_out_seat_and_keeps_its_table() -> No
     assert "chair_3" in plain.candidates  # without the rule the broken chair is a candidate
     only = seat_candidates(CAFE, "Ida sits; chair_3 is taken.", ["chair_3"], {}, unusable={"chair_3"})
     assert only.candidates == ("chair_3",)  # nothing else is free: the rule gives way
+
+
+def test_a_landmark_or_a_seat_the_event_sits_on_is_not_ruled_out() -> None:
+    assert out_of_use("The chair next to the couch is broken, so Ida sits on the couch.", CAFE) == frozenset()
+    assert out_of_use("Ida leans on table_1, which is wet.", CAFE) == frozenset()  # not a seat
+    assert out_of_use("The couch is reserved for Mia.", CAFE) == frozenset()  # reserved for someone: usable
+    assert seats_taken_by("Ben sits on chair_1.", CAFE) == {"chair_1"}
+    assert seats_taken_by("Ida takes the couch.", CAFE) == {"couch_1"}
+    assert seats_taken_by("eat at the table associated with the chair_3", CAFE) == frozenset()
+
+
+def test_another_table_is_not_the_table_of_the_seat_ruled_out() -> None:
+    free = ["chair_1", "chair_3", "chair_4", "couch_1"]
+    text = "Chair_2 is taken, so Mo sits at the other table."
+    seats = seat_candidates(CAFE, text, free, {}, unusable=out_of_use(text, CAFE))
+    assert "chair_3" in seats.candidates and "chair_4" in seats.candidates

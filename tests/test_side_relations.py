@@ -30,8 +30,10 @@ def row(facing: tuple[float, float]) -> Scene:
 def test_the_words_state_a_side_and_its_landmark() -> None:
     (right,) = stated_relations("Jo sits in one of the seats to the right of Kim.", ["chair"], ["Kim", "Jo"])
     assert (right.kind, right.references) == ("right", (("@Kim",),))
-    (left,) = stated_relations("Jo takes the chair on the left of the tv.", ["chair", "tv"])
+    (left,) = stated_relations("Jo takes the chair to the left of the tv.", ["chair", "tv"])
     assert (left.kind, left.references) == ("left", (("tv",),))
+    assert stated_relations("Jo sits on the left of the couch.", ["couch"]) == []  # a place on the couch
+    assert stated_relations("Jo eats what is left of the cake.", ["cake"]) == []
 
 
 def test_the_side_is_the_references_own_facing_turned() -> None:

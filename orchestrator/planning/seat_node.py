@@ -25,7 +25,7 @@ from langgraph.runtime import Runtime
 from agents.area_words import described_areas
 from agents.event_parser import event_text
 from agents.instruction_parts import words_before, words_so_far
-from agents.out_of_use import out_of_use
+from agents.out_of_use import out_of_use, seats_taken_by
 from agents.place_choice import (
     SeatCandidates,
     checked_choice,
@@ -59,7 +59,7 @@ def event_seats(state: PlanningState, deps: PlanningDeps) -> SeatCandidates | No
         deps.scene, text, options.free_seats, options.others, options.labels, deps.prompts,
         before=words_before(state.instruction, state.part),
         areas=areas,
-        unusable=out_of_use(f"{state.instruction}\n{text}", deps.scene),
+        unusable=out_of_use(f"{state.instruction}\n{text}", deps.scene) - seats_taken_by(text, deps.scene),
     )
     if not seats.candidates or options.seats == seats.allowed == seats.allowed[:1]:
         return None
