@@ -1,8 +1,8 @@
-"""Which of the scene description's areas an event's words name ("sits in the kitchen").
+"""Which of the scene description's areas an event's words name ("naps in the den").
 
 The scene description the narrator and the parser read is one line per functional area
 (``- kitchen (make coffee): fridge_1, chair_2, ...``, :func:`agents.describer.render_description`).
-When an instruction places someone "in the kitchen", "in the conference room" or "at the bar",
+When an instruction places someone "in the galley", "in the boardroom" or "at the bar",
 the seats that fit are the ones the description puts in that area; a 0.5B model asked to pick a
 seat does not read that off the description (it picks ``chair_1``).
 
@@ -11,17 +11,16 @@ seat does not read that off the description (it picks ``chair_1``).
   area lines and gives none.
 - :func:`named_areas` gives the areas the words name: by the area's own name, or by the name of
   its kind of room or a synonym of it in the room table (``prompts/describer/rooms.toml``: "the
-  conference room" names an area the describer called "meeting room"). A name counts only as a
-  noun phrase of its own after a preposition of being inside ("in the kitchen", "at their bar",
-  not "the desk nearest the meeting room"), and not when the words lead away from it ("leaves
-  the kitchen at once, in the ..."). Words are
-  compared without an "-ing" or plural "-s" ending, so "the resting area" names a "rest area".
-- Failing a name, an area is named by what a phrase of use says the place is for ("the area
-  designated for attending a conference", "a spot where people relax"): the area whose purpose
+  boardroom" names an area the describer called "meeting room"). A name counts only as a noun
+  phrase of its own after a preposition of being inside ("in the den", "at their bar", not "the
+  lamp closest to the den"), and not when the words lead away from it. Words are compared
+  without an "-ing" or plural "-s" ending, so "the reading areas" name a "reading area".
+- Failing a name, an area is named by what a phrase of use says the place is for ("the space
+  reserved for presenting slides", "a spot where people relax"): the area whose purpose
   or kind's functions in the room table share the most words with it.
 - :func:`keep_in_areas` narrows a list of objects to the named areas, kind by kind: of a label
-  with instances there, only those ("the cabinet in the lounge", "between the chairs in the
-  living room"); a label with none there keeps all its instances.
+  with instances there, only those ("the shelf in the reading nook", "between the stools at
+  the bar"); a label with none there keeps all its instances.
 
 Pure: no LLM, no I/O.
 """
@@ -42,12 +41,12 @@ _WORD = re.compile(r"[a-z0-9']+")
 DETERMINERS = frozenset({"the", "a", "an", "this", "that", "his", "her", "their", "our", "its", "my", "your"})
 """Words before a noun phrase of its own (general English determiners and possessives)."""
 INSIDE_WORDS = frozenset({"in", "inside", "within", "into", "at"})
-"""Prepositions that put someone in a place ("in the kitchen", "at the bar"); "the desk nearest
-the meeting room" or "close to the kitchen" relate to the place instead, and name no area."""
+"""Prepositions that put someone in a place ("in the den", "at the bar"); "the lamp closest to
+the den" or "beside the galley" relate to the place instead, and name no area."""
 AWAY_WORDS = frozenset({"from", "outside", "leaves", "leave", "leaving", "left", "exits", "exit", "beyond", "past"})
-"""Words that lead away from the place after them ("away from the kitchen", "leaves the bar")."""
+"""Words that lead away from the place after them ("away from the den", "leaves the bar")."""
 AWAY_SPAN = 3
-"""How many words before a place name an away word may stand ("far away from the kitchen")."""
+"""How many words before a place name an away word may stand ("well away from the den")."""
 
 
 @dataclass(frozen=True)
@@ -101,12 +100,12 @@ def _place_names(area: DescribedArea, table: RoomTable) -> list[tuple[str, ...]]
 
 def _named_at(words: Sequence[str], stems: Sequence[str], name: tuple[str, ...]) -> bool:
     """Whether ``name`` (stemmed) occurs in ``words`` (``stems``: theirs) as a noun phrase of its
-    own after a word of being inside ("in the kitchen"), not led away from."""
+    own after a word of being inside ("in the den"), not led away from."""
     n = len(name)
     for i in range(1, len(words) - n + 1):
         if tuple(stems[i : i + n]) != name:
             continue
-        inside = words[i - 1] in INSIDE_WORDS  # "in kitchen": a model's short text drops the article
+        inside = words[i - 1] in INSIDE_WORDS  # "in den": a model's short text drops the article
         if not inside and not (i >= 2 and words[i - 1] in DETERMINERS and words[i - 2] in INSIDE_WORDS):
             continue
         if i + n < len(words) and words[i + n] in ("of", "'s"):
@@ -138,7 +137,7 @@ def named_areas(
 
 
 PLACE_NOUNS = frozenset({"area", "place", "space", "spot", "zone", "corner", "section", "part"})
-"""Nouns of a place that a phrase of use can describe ("the area designated for ...")."""
+"""Nouns of a place that a phrase of use can describe ("the space reserved for ...")."""
 USE_LINKS = frozenset({"designated", "meant", "used", "reserved", "intended", "set", "aside", "kept", "made"})
 """Words that may stand between such a noun and "for" ("the area set aside for meetings")."""
 STOP_WORDS = frozenset({"a", "an", "the", "to", "of", "and", "or", "with", "for", "in", "on", "at", "their", "his",
@@ -149,8 +148,8 @@ USE_SPAN = 5
 
 
 def _uses(words: Sequence[str]) -> set[str]:
-    """The stems of what a phrase of use says a place is for: "the area designated for attending
-    a conference" -> {"attend", "conference"}; "a spot where people relax" -> {"relax"}."""
+    """The stems of what a phrase of use says a place is for: "the space reserved for presenting
+    slides" -> {"present", "slide"}; "a spot where people relax" -> {"relax"}."""
     out: set[str] = set()
     for i, w in enumerate(words):
         if w not in PLACE_NOUNS:

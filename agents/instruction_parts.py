@@ -89,8 +89,8 @@ words they share when an event is matched to a part."""
 @functools.lru_cache(maxsize=1024)
 def activity_kind(text: str) -> str | None:
     """The action label the words of ``text`` point to most among every label the action
-    vocabulary knows (:data:`agents.action_shortlist.CUES`: "have a meal at table_4" and "starts
-    eating" are both ``eat``), or None when they point to none."""
+    vocabulary knows (:data:`agents.action_shortlist.CUES`: "munch a sandwich by table_2" and
+    "tucks into her lunch" are both ``eat``), or None when they point to none."""
     ranked = rank_action_labels(text, tuple(CUES))
     return ranked[0].label if ranked else None
 

@@ -1,13 +1,13 @@
-"""Things the words say cannot be used: "chair_3 is broken", "the couch is taken", "the wet bench".
+"""Things the words say cannot be used: "stool_2 is wobbly", "the couch is taken", "the wet bench".
 
-An instruction may name a seat only to rule it out ("David sits at the table of chair_3; chair_3
-is broken, so he takes another chair"). A small model that is asked for a seat then picks the one
-named. :func:`out_of_use` finds the scene objects the words declare unusable, so the seat choice
+An instruction may name a seat only to rule it out ("Noor lunches by table_1, but stool_2 there
+has a cracked seat and is unsafe, so she picks a free one"). A small model that is asked for a
+seat then picks the one named. :func:`out_of_use` finds the scene objects the words declare unusable, so the seat choice
 (:mod:`agents.place_choice`) leaves them out:
 
 - a thing followed by a form of "be" (and adverbs such as "currently") and a word of unusability
-  ("chair_3 is currently unavailable", "the sofa is occupied", "chair_2 and chair_4 are wet");
-- a word of unusability right before the thing ("the broken chair_3", "the wobbly stool").
+  ("stool_2 is still wobbly", "the sofa is occupied", "bench_1 and bench_2 are wet");
+- a word of unusability right before the thing ("the damaged stool_4", "the wobbly stool").
 
 A thing is an object's name (``chair_3``) or a label the scene has exactly one of ("the couch").
 The words are general English, a closed list of adjectives of state; no phrase of any case.

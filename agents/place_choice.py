@@ -185,8 +185,8 @@ def seat_candidates(
     before ``text``, which a place word pointing back ("sits down there too") refers to when the
     words state no relation of their own (:func:`agents.relation_words.back_references`);
     ``areas``: the scene description's areas (:func:`agents.area_words.described_areas`): when
-    the words name one ("sits in the kitchen"), the candidates are its seats; ``unusable``: seats
-    the instruction rules out ("chair_3 is broken", :func:`agents.out_of_use.out_of_use`), left
+    the words name one ("naps in the den"), the candidates are its seats; ``unusable``: seats
+    the instruction rules out ("stool_2 is wobbly", :func:`agents.out_of_use.out_of_use`), left
     out unless no other seat is free."""
     lib = prompts or package_prompts()
     by_name = {o.name: o for o in scene.objects}
@@ -208,7 +208,7 @@ def seat_candidates(
     at_things = tuple(label for label in mentioned_labels(about, scene.labels)
                       if any(o.label == label and not o.is_seat and _sits_at(o) for o in scene.objects))
     if at_things and not _another(about, at_things) and (ruled_out := [by_name[n] for n in unusable if n in by_name]):
-        # "another chair at the table of chair_3, which is broken": the table of the seat ruled out
+        # "stool_2 is wobbly, so she takes a free seat by that table": the table of the seat ruled out
         tables = {t.name for seat in ruled_out if (t := _table_of(scene, seat)) is not None}
         pool = [s for s in pool if (t := _table_of(scene, s)) is not None and t.name in tables] or pool
     relations: list[StatedRelation] = []
