@@ -7,27 +7,20 @@ from __future__ import annotations
 from agents.area_words import DescribedArea, described_areas, keep_in_areas, named_areas
 from agents.place_choice import seat_candidates
 from agents.program_grammar import event_options
-from sim.scene.model import Scene, SceneObject
-
-
-def obj(label: str, idx: int, x: float, y: float, *, seat: bool = False,
-        size: tuple[float, float, float] = (0.5, 0.5, 0.9)) -> SceneObject:  # fmt: skip
-    return SceneObject(
-        name=f"{label}_{idx}", label=label, idx=idx, center=(x, y, size[2] / 2), size=size, facing=(0.0, 1.0),
-        has_facing=seat, sit_offset_vertical=0.45 if seat else 0.0,
-    )
+from sim.scene.model import Scene
+from tests.support.scene_objects import box
 
 
 def flat() -> Scene:
     """Two rooms side by side: a galley with a table and two stools (west), a den with a sofa, a
     table and three chairs (east); the chairs are the first seats by name."""
     return Scene(name="flat", bounds_min=(-6.0, -4.0), bounds_max=(8.0, 4.0), objects=(
-        obj("chair", 1, 4.0, 0.0, seat=True), obj("chair", 2, 5.0, 0.0, seat=True), obj("chair", 3, 6.0, 0.0, seat=True),
-        obj("table", 1, 5.0, 1.0, size=(3.0, 0.9, 0.75)),
-        obj("couch", 1, 5.0, -2.5, seat=True, size=(1.8, 0.8, 0.8)),
-        obj("stool", 1, -4.0, 0.0, seat=True), obj("stool", 2, -3.0, 0.0, seat=True),
-        obj("table", 2, -3.5, 1.0, size=(2.0, 0.9, 0.75)),
-        obj("fridge", 1, -5.5, 2.0, size=(0.7, 0.7, 1.8)),
+        box("chair", 1, 4.0, 0.0, seat=True), box("chair", 2, 5.0, 0.0, seat=True), box("chair", 3, 6.0, 0.0, seat=True),
+        box("table", 1, 5.0, 1.0, size=(3.0, 0.9, 0.75)),
+        box("couch", 1, 5.0, -2.5, seat=True, size=(1.8, 0.8, 0.8)),
+        box("stool", 1, -4.0, 0.0, seat=True), box("stool", 2, -3.0, 0.0, seat=True),
+        box("table", 2, -3.5, 1.0, size=(2.0, 0.9, 0.75)),
+        box("fridge", 1, -5.5, 2.0, size=(0.7, 0.7, 1.8)),
     ))  # fmt: skip
 
 

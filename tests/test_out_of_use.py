@@ -6,25 +6,18 @@ from __future__ import annotations
 
 from agents.out_of_use import out_of_use, seats_taken_by
 from agents.place_choice import seat_candidates
-from sim.scene.model import Scene, SceneObject
-
-
-def obj(label: str, idx: int, x: float, y: float, *, seat: bool = False,
-        size: tuple[float, float, float] = (0.5, 0.5, 0.9)) -> SceneObject:  # fmt: skip
-    return SceneObject(
-        name=f"{label}_{idx}", label=label, idx=idx, center=(x, y, size[2] / 2), size=size, facing=(0.0, 1.0),
-        has_facing=seat, sit_offset_vertical=0.45 if seat else 0.0,
-    )
+from sim.scene.model import Scene
+from tests.support.scene_objects import box
 
 
 def cafe() -> Scene:
     """Two tables 4 m apart with two chairs each (chair_1, chair_2 at table_1; chair_3, chair_4 at
     table_2) and one couch away from both."""
     return Scene(name="cafe", bounds_min=(-4.0, -4.0), bounds_max=(10.0, 6.0), objects=(
-        obj("table", 1, 0.0, 0.0, size=(1.2, 0.8, 0.75)), obj("table", 2, 4.0, 0.0, size=(1.2, 0.8, 0.75)),
-        obj("chair", 1, -0.3, -0.7, seat=True), obj("chair", 2, 0.3, -0.7, seat=True),
-        obj("chair", 3, 3.7, -0.7, seat=True), obj("chair", 4, 4.3, -0.7, seat=True),
-        obj("couch", 1, 8.0, 4.0, seat=True, size=(1.8, 0.8, 0.8)),
+        box("table", 1, 0.0, 0.0, size=(1.2, 0.8, 0.75)), box("table", 2, 4.0, 0.0, size=(1.2, 0.8, 0.75)),
+        box("chair", 1, -0.3, -0.7, seat=True), box("chair", 2, 0.3, -0.7, seat=True),
+        box("chair", 3, 3.7, -0.7, seat=True), box("chair", 4, 4.3, -0.7, seat=True),
+        box("couch", 1, 8.0, 4.0, seat=True, size=(1.8, 0.8, 0.8)),
     ))  # fmt: skip
 
 

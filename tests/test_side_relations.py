@@ -6,24 +6,17 @@ from __future__ import annotations
 
 from agents.place_choice import seat_candidates
 from agents.relation_words import stated_relations
-from sim.scene.model import Scene, SceneObject
+from sim.scene.model import Scene
+from tests.support.scene_objects import box
 from tools.place_relations import Reference, StatedRelation, satisfying, side_offset
-
-
-def obj(label: str, idx: int, x: float, y: float, *, seat: bool = False, facing: tuple[float, float] = (0.0, 1.0),
-        size: tuple[float, float, float] = (0.5, 0.5, 0.9)) -> SceneObject:  # fmt: skip
-    return SceneObject(
-        name=f"{label}_{idx}", label=label, idx=idx, center=(x, y, size[2] / 2), size=size, facing=facing,
-        has_facing=seat or label == "tv", sit_offset_vertical=0.45 if seat else 0.0,
-    )
 
 
 def row(facing: tuple[float, float]) -> Scene:
     """Five chairs in a row along x (x = 0, 1, 2, 3, 4), all facing ``facing``; a lamp (no front)
     and a TV facing north at (2, -3)."""
-    chairs = [obj("chair", i + 1, float(i), 0.0, seat=True, facing=facing) for i in range(5)]
+    chairs = [box("chair", i + 1, float(i), 0.0, seat=True, facing=facing) for i in range(5)]
     return Scene(name="row", bounds_min=(-3.0, -5.0), bounds_max=(7.0, 4.0), objects=(
-        *chairs, obj("lamp", 1, 2.0, 2.0), obj("tv", 1, 2.0, -3.0, size=(1.2, 0.2, 0.7)),
+        *chairs, box("lamp", 1, 2.0, 2.0), box("tv", 1, 2.0, -3.0, size=(1.2, 0.2, 0.7), front=True),
     ))  # fmt: skip
 
 
