@@ -19,6 +19,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 
+from agents.area_words import DETERMINERS
 from sim.scene.model import Scene
 
 UNUSABLE = frozenset({
@@ -68,13 +69,12 @@ PREPOSITIONS = frozenset({"at", "to", "near", "by", "of", "beside", "with", "beh
                           "above", "opposite", "next", "across", "around", "past", "toward", "towards", "for"})  # fmt: skip
 """Words before a thing that make it the landmark of a phrase, not what is out of use ("the
 chair next to the couch is broken": the chair, not the couch)."""
-SKIPPED = frozenset({"the", "a", "an", "this", "that", "his", "her", "their", "its", "my", "your", "our"})
 
 
 def _in_a_phrase(tokens: Sequence[str], start: int) -> bool:
     """Whether the thing at ``start`` follows a preposition (determiners skipped)."""
     k = start - 1
-    while k >= 0 and tokens[k] in SKIPPED:
+    while k >= 0 and tokens[k] in DETERMINERS:
         k -= 1
     return k >= 0 and tokens[k] in PREPOSITIONS
 
@@ -132,7 +132,7 @@ def seats_taken_by(text: str, scene: Scene) -> frozenset[str]:
         for words, name in things:
             if tuple(tokens[i : i + len(words)]) == words:
                 k = i - 1
-                while k >= 0 and tokens[k] in SKIPPED:
+                while k >= 0 and tokens[k] in DETERMINERS:
                     k -= 1
                 if k >= 0 and tokens[k] in SIT_WORDS:
                     out.add(name)
