@@ -110,9 +110,14 @@ def test_unified_planner_plans_from_one_call_and_replays_byte_for_byte(fake: Fak
     assert payload["ablation"] == {"planner": "unified", "description": "object-list"}
     (event,) = payload["events"]
     assert event["kind"] == "event" and event["narrator_attempts"] == 0 and event["parser_attempts"] == 1
-    # the same trace under the full method asks for a narrator call that was never recorded
+    # the same trace under the full method: refused before anything runs, one line, by plan and by run
     full = plan(tmp_path, *args[:-4], "--description", "object-list", "--replay", str(trace))
-    assert full.exit_code == 1 and "replay miss for node narrator" in full.stderr
+    assert full.exit_code == 2 and full.stderr.count("\n") == 1
+    assert "recorded with another planner (nodes planner); --planner event asks event_parser, narrator" in full.stderr
+    run = CliRunner().invoke(app, ["run", "home", "-n", "2", "-d", "2", "--replay", str(trace), "--out",
+                                   str(tmp_path / "run")], catch_exceptions=False)
+    assert run.exit_code == 2 and "recorded with another planner" in run.stderr
+    assert not any((tmp_path / "run").iterdir())  # nothing written
 
 
 def test_unified_planner_busy_character_feedback_and_wait(fake: FakeOpenAI, tmp_path: Path) -> None:

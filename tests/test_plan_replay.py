@@ -106,6 +106,15 @@ def test_replay_with_a_different_instruction_fails(tmp_path: Path) -> None:
     assert result.exit_code == 1 and "replay miss for node narrator" in result.stderr
 
 
+def test_replay_of_another_planners_trace_is_one_line_exit_2(tmp_path: Path) -> None:
+    name = "plan_home_2events"  # recorded with the narrator and the event parser
+    result = run_cli([*GOLDEN[name], "--planner", "unified", "--replay", str(TRACES / f"{name}.jsonl")], tmp_path)
+    assert result.exit_code == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "recorded with another planner" in lines[0] and "--planner unified" in lines[0]
+    assert result.stdout == ""
+
+
 def test_bad_arguments_exit_2(tmp_path: Path) -> None:
     result = run_cli(["plan", "no_such_scene", "-i", "x"], tmp_path)
     assert result.exit_code == 2 and "not a bundled scene" in result.stderr

@@ -137,11 +137,11 @@ def plan_command(
     ablation = Ablation(planner=planner, description=description)
     scene_obj = _checked_inputs(scene, instruction, record, replay, prompts_dir, runs_db)
     thread = thread_id or uuid.uuid4().hex[:12]
-    typer.echo(f"thread {thread} (resume with {_resume_options(thread, ablation)})", err=True)
     try:
-        port, describer_model = open_port(config, record, replay)
+        port, describer_model = open_port(config, record, replay, planner=planner)
     except (LLMError, ValueError, OSError) as exc:
         fail(str(exc))
+    typer.echo(f"thread {thread} (resume with {_resume_options(thread, ablation)})", err=True)
     cache = description_cache_dir() if record is None and replay is None else None
 
     async def main() -> PlanResult:

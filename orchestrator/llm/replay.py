@@ -124,6 +124,10 @@ class ReplayClient:
             self._queues[key].append(outcome)
             self._recorded_counts[key] += 1
 
+    def recorded_nodes(self) -> frozenset[NodeName]:
+        """The nodes whose requests the trace holds."""
+        return frozenset(self._by_node)
+
     def remaining(self) -> int:
         """Recorded answers not served yet."""
         return sum(len(q) for q in self._queues.values())

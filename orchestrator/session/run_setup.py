@@ -245,7 +245,7 @@ def open_run_port(args: RunArguments, trace_path: Path | None, replay: Path | No
     config = Path(args.config) if args.config is not None else None
     try:
         # a call the recorded story's end cut short waits again, to the end: that step stays in flight
-        port, describer_model = open_port(config, trace_path, replay, unanswered="wait")
+        port, describer_model = open_port(config, trace_path, replay, unanswered="wait", planner=args.planner)
     except (LLMError, ValueError, OSError, TraceCorruptError) as exc:  # a replayed trace that does not check
         raise RunSetupError(str(exc)) from None
     stack.callback(port.close)
