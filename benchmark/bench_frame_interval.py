@@ -41,6 +41,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import numpy as np
 
@@ -115,7 +116,6 @@ def run_once(mode: str, duration: float, latency: float, tmp: Path) -> Run:
 
     os.environ["FAKE_PROVIDER_KEY"] = "sk-bench"
     responder = Responder(latency)
-    original = checkpoint_writer.CheckpointWriter
     with FakeOpenAI(responder=responder) as fake:
         cfg = tmp / f"{mode}.toml"
         cfg.write_text(
@@ -130,14 +130,12 @@ def run_once(mode: str, duration: float, latency: float, tmp: Path) -> Run:
         out = tmp / mode
         out.mkdir()
         watching = _watch(out, tmp) if mode == "viewer" else contextlib.nullcontext()
-        if mode == "baseline":
-            checkpoint_writer.CheckpointWriter = InlineCheckpoints  # type: ignore[misc,assignment]  # the baseline swaps in an inline writer for one run
-        try:
-            with watching:
-                result = asyncio.run(run_story(resolve_scene("home"), args, out=out, trace_path=out / "trace.jsonl",
-                                               replay=None)).result
-        finally:
-            checkpoint_writer.CheckpointWriter = original  # type: ignore[misc]  # restores the real writer
+        # the baseline swaps in an inline checkpoint writer for its run only
+        inline = (mock.patch.object(checkpoint_writer, "CheckpointWriter", InlineCheckpoints) if mode == "baseline"
+                  else contextlib.nullcontext())
+        with inline, watching:
+            result = asyncio.run(run_story(resolve_scene("home"), args, out=out, trace_path=out / "trace.jsonl",
+                                           replay=None)).result
     profile = result.frame_profile
     parts = {name: np.asarray(profile.part(name), dtype=float)[1:] * 1000.0 for name in PARTS}
     return Run(np.asarray(result.frame_intervals_s[1:]) * 1000.0, parts, result.steps, result.slipped_s)
