@@ -133,7 +133,7 @@ CUES: dict[str, tuple[tuple[str, int], ...]] = {
                    ("pizza", 1), ("salad", 1), ("soup", 1), ("burger", 1), ("pasta", 1)),
     "order_drink": (("order a drink", 5), ("order", 2), ("ask for", 2), ("drink", 1), ("coffee", 1), ("beer", 1), ("wine", 1),
                     ("juice", 1), ("tea", 1)),
-    "pay_bill": (("pay", 4), ("bill", 4), ("check please", 4), ("cheque", 3), ("settle", 3), ("the tab", 3),
+    "pay_bill": (("pay", 4), ("bill", 4), ("check please", 4), ("cheque", 3), ("settle up", 3), ("the tab", 3),
                  ("receipt", 2)),
 }
 """Cue phrases per label with a weight. A cue word matches a text word that starts with it

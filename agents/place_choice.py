@@ -121,7 +121,7 @@ def _named_things(
     return out[:MAX_NOTES]
 
 
-def _sits_at(obj: SceneObject) -> bool:
+def sits_at(obj: SceneObject) -> bool:
     """Whether people sit at ``obj``: a surface (not a seat) of table height and table size."""
     return not obj.is_seat and SURFACE_HEIGHT_M[0] <= obj.z_max - obj.z_min <= SURFACE_HEIGHT_M[1] and (
         obj.width * obj.depth >= SURFACE_AREA_M2
@@ -139,9 +139,9 @@ def _another(text: str, things: Sequence[str]) -> bool:
     return any(w in heads and i > 0 and words[i - 1] in OTHER_WORDS for i, w in enumerate(words))
 
 
-def _table_of(scene: Scene, seat: SceneObject) -> SceneObject | None:
+def table_of(scene: Scene, seat: SceneObject) -> SceneObject | None:
     """The thing ``seat`` sits at (a table, desk or counter within ``AT_M``; the nearest), or None."""
-    near = [(gap(seat, Reference(o.name, obj=o)), o) for o in scene.objects if _sits_at(o) and o.name != seat.name]
+    near = [(gap(seat, Reference(o.name, obj=o)), o) for o in scene.objects if sits_at(o) and o.name != seat.name]
     return min((x for x in near if x[0] <= AT_M), key=lambda x: x[0], default=(0.0, None))[1]
 
 
@@ -152,7 +152,7 @@ def candidate_notes(
     """One candidate's line: the thing it is at and who is with it, its gap to each named thing
     and whether it faces it (``prompts/event_parser/choose_seat_*.md``)."""
     parts: list[str] = []
-    if (at := _table_of(scene, seat)) is not None:
+    if (at := table_of(scene, seat)) is not None:
         parts.append(prompts.render_text("event_parser/choose_seat_at.md", thing=at.name))
     company = [n for n, xy in others.items() if gap(seat, Reference(n, point=xy)) <= WITH_M]
     if company:
@@ -206,11 +206,11 @@ def seat_candidates(
     landmarks = {r.name for m in mentions for g in _references(scene, m, others) for r in g}
     pool = [s for s in pool if s.name not in landmarks] or pool  # "beside the couch" is not the couch
     at_things = tuple(label for label in mentioned_labels(about, scene.labels)
-                      if any(o.label == label and not o.is_seat and _sits_at(o) for o in scene.objects))
+                      if any(o.label == label and not o.is_seat and sits_at(o) for o in scene.objects))
     if at_things and not _another(about, at_things) and (ruled_out := [by_name[n] for n in unusable if n in by_name]):
         # "stool_2 is wobbly, so she takes a free seat by that table": the table of the seat ruled out
-        tables = {t.name for seat in ruled_out if (t := _table_of(scene, seat)) is not None}
-        pool = [s for s in pool if (t := _table_of(scene, s)) is not None and t.name in tables] or pool
+        tables = {t.name for seat in ruled_out if (t := table_of(scene, seat)) is not None}
+        pool = [s for s in pool if (t := table_of(scene, s)) is not None and t.name in tables] or pool
     relations: list[StatedRelation] = []
     for m in mentions:
         refs = _references(scene, m, others)

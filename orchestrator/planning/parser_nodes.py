@@ -20,7 +20,7 @@ from agents.event_parser import (
 )
 from agents.llm_port import LLMError
 from agents.messages import ParsedEvent
-from agents.program_grammar import event_program_grammar
+from agents.program_grammar import event_program_grammar, free_seats
 from agents.retry_feedback import REJECTIONS
 from orchestrator.planning.node_calls import complete, off_loop, reply_update, unavailable
 from orchestrator.planning.rejection import record_parsed, rejected_reply
@@ -102,9 +102,10 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
         ))
     except REJECTIONS as exc:
         return rejected_reply(state, deps, "event_parser", reply, exc, instruction=PARSER_RETRY_INSTRUCTION)
-    # words about a device nobody leaves free: its characters wait for it
+    # words about a device nobody leaves free, or about sitting at a place with no free seat: they wait for it
+    free = free_seats(deps.scene, event.characters, state.roster, deps.world.seats_in_use(state.roster))
     plans = waiting_for_busy_device(event_text(event.activity, state.part), result.plans, world, deps.scene,
-                                    event.characters)
+                                    event.characters, free)
     parsed = ParsedEvent(
         index=state.step,
         event=state.event,
