@@ -46,6 +46,7 @@ from orchestrator.planning.state import PlanningDeps, PlanningState, WorldProvid
 from orchestrator.session.port_setup import describer_mode_for
 from orchestrator.session.roster import RosterWorld, initial_roster
 from sim.scene.model import Scene
+from tools.scene_graph import SceneGraph
 
 StepOutcome = ParsedEvent | PlanningFailure | None
 
@@ -73,7 +74,7 @@ async def run_plan(
     world: WorldProvider | None = None,
     description: SceneDescription | None = None,
     action_labels: Sequence[str] | None = None,
-    scene_graph: Any = None,
+    scene_graph: SceneGraph | None = None,
     describer_model: str = "unknown",
     description_cache: Path | None = None,
     busy_events: int = 0,

@@ -128,7 +128,7 @@ class StoryRun:
     result: SessionResult
     names: list[str]
     fps: int
-    world: Any
+    world: World
     stopped: bool = False
 
 

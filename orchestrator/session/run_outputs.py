@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from agents.messages import ParsedEvent, PlanningFailure
 from agents.story_text import step_text
@@ -23,6 +23,9 @@ from sim.run_folder_names import (
     TOPDOWN_PNG,
 )
 from sim.scene.model import Scene
+
+if TYPE_CHECKING:
+    from sim.world.step import World
 
 
 def story_json(result: SessionResult, scene_name: str, names: list[str], instruction: str, fps: int) -> dict[str, Any]:
@@ -85,7 +88,7 @@ def story_json(result: SessionResult, scene_name: str, names: list[str], instruc
 
 
 def write_outputs(
-    out: Path, scene: Scene, world: Any, result: SessionResult, names: list[str], instruction: str, fps: int, gif: bool,
+    out: Path, scene: Scene, world: World, result: SessionResult, names: list[str], instruction: str, fps: int, gif: bool,
     video: bool = False,
     trace_path: Path | None = None,
     smplx_model: Path | None = None,

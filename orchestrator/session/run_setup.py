@@ -19,7 +19,7 @@ import sqlite3
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, get_args
+from typing import TYPE_CHECKING, get_args
 
 from orchestrator.session.run_manifest import RunArguments, RunManifest
 from orchestrator.session.run_status import RunStatus
@@ -40,6 +40,7 @@ if TYPE_CHECKING:
     from orchestrator.planning.state import PlanningDeps
     from orchestrator.sandbox_worker import WorkerRunner
     from orchestrator.session.live_state import ReplyTap
+    from sim.motion.matching import MotionMatcher
 
 CHECKPOINT_EVERY_S = 10.0
 """Simulated seconds between two session checkpoints at most (also one after every applied step)."""
@@ -396,7 +397,7 @@ def recorded_frames(trace_path: Path) -> dict[int, int]:
     return {r.step: r.sim_frame for r in read_trace(trace_path).records if isinstance(r, AppliedRecord) and r.step is not None}
 
 
-def _motion_layer(motion_config: Path | None) -> Any:
+def _motion_layer(motion_config: Path | None) -> MotionMatcher:
     from orchestrator.cache_paths import motion_cache_dir
     from sim.motion.database import load_databases
     from sim.motion.matching import MotionMatcher
