@@ -235,7 +235,7 @@ _SWITCH_VERBS = ("switch", "turn", "put", "power", "flip", "click", "shut")
 
 _LANDMARK_HEADS = (
     "near", "nearest", "closest", "beside", "facing", "opposite", "behind", "by", "next", "across", "where", "between",
-    "left", "right",
+    "left", "right", "toward", "towards", "overlooking",
 )
 _LANDMARK_ENDS = frozenset({"and", "then", "to", "while", "so", "but", "or", "after", "before", "where", "which", "who"})
 LANDMARK_SPAN = 4

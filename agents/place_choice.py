@@ -35,6 +35,7 @@ from agents.area_words import DescribedArea, named_areas
 from agents.llm_port import ChatMessage, LLMRequest
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.relation_words import (
+    CLAUSE_ENDS,
     RelationMention,
     back_references,
     joined_labels,
@@ -175,6 +176,29 @@ def _seat_kinds(scene: Scene, text: str) -> set[str]:
     return {a for a in named if not any(b != a and b.endswith("_" + a) for b in named)}
 
 
+AT_SPAN = 5
+"""Words after "at" that may name the place one sits at ("at the long oak table")."""
+
+
+def places_sat_at(text: str, scene: Scene) -> tuple[str, ...]:
+    """The labels of things people sit at (:func:`sits_at`) that ``text`` names right after
+    "at" ("finds a free chair at the conference table", "settles at the bar"), in order."""
+    words = re.findall(r"[a-z0-9_]+|[,.;:!?]", text.lower())
+    out: list[str] = []
+    for i, w in enumerate(words):
+        if w != "at":
+            continue
+        span: list[str] = []
+        for t in words[i + 1 : i + 1 + AT_SPAN]:
+            if not t[0].isalnum() or (span and t in CLAUSE_ENDS):
+                break
+            span.append(t)
+        for label in mentioned_labels(" ".join(span), scene.labels):
+            if label not in out and any(o.label == label and sits_at(o) for o in scene.objects):
+                out.append(label)
+    return tuple(out)
+
+
 def seat_candidates(
     scene: Scene, text: str, free_seats: Sequence[str], others: Mapping[str, tuple[float, float]],
     action_labels: Sequence[str] = (), prompts: PromptLibrary | None = None, before: str = "",
@@ -202,6 +226,10 @@ def seat_candidates(
     in_area = {n for a in named_areas(about, areas, lib, scene.labels) for n in a.objects}
     if area_seats := [s for s in free if s.name in in_area and (not kinds or s.label in kinds)]:
         pool = [s for s in pool if s.name in in_area] or area_seats  # a named seat kind outweighs the area
+    at_places = places_sat_at(about, scene)
+    if at_places and not _another(about, at_places):  # "a free chair at the long table": the seats at one
+        pool = [s for s in pool if (t := table_of(scene, s)) is not None and t.label in at_places
+                and (not kinds or s.label in kinds)] or pool
     pool = [s for s in pool if s.label in kinds] or pool if kinds else pool
     landmarks = {r.name for m in mentions for g in _references(scene, m, others) for r in g}
     pool = [s for s in pool if s.name not in landmarks] or pool  # "beside the couch" is not the couch

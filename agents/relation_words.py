@@ -26,6 +26,8 @@ from tools.place_relations import RelationKind
 RELATION_WORDS: tuple[tuple[tuple[str, ...], RelationKind], ...] = (
     (("nearest",), "nearest"), (("closest",), "nearest"), (("least", "distant"), "nearest"),
     (("shortest", "distance"), "nearest"), (("smallest", "distance"), "nearest"),
+    (("farthest", "away"), "farthest"), (("furthest", "away"), "farthest"), (("far", "away"), "farthest"),
+    (("farther", "away"), "farthest"), (("further", "away"), "farthest"),
     (("farthest",), "farthest"), (("furthest",), "farthest"), (("most", "distant"), "farthest"),
     (("greatest", "distance"), "farthest"), (("largest", "distance"), "farthest"),
     (("longest", "distance"), "farthest"), (("far",), "farthest"), (("farther",), "farthest"),
@@ -66,7 +68,12 @@ class RelationMention:
     end: int
     subject: tuple[str, ...] = ()
     """The labels of the thing the relation describes when the words right before it name one
-    ("the table beside the couch": ``("table",)``); () when they do not ("sits beside the couch")."""
+    ("the table beside the couch": ``("table",)``), or the words between an attributive relation
+    word and its landmark ("the most distant desk from the couch": ``("desk",)``); () when they
+    do not ("sits beside the couch")."""
+    kept: tuple[int, int] = (0, 0)
+    """The token span inside ``start:end`` that is not the relation's: the words an attributive
+    relation word describes ("desk" in "the most distant desk from the couch")."""
 
 
 def _tokens(text: str) -> list[str]:
@@ -126,6 +133,7 @@ def stated_relations(text: str, labels: Sequence[str], names: Sequence[str] = ()
             continue
         width, kind = hit
         start, j = i, i + width
+        described = (j, j)
         if j < len(tokens) and tokens[j][0].isalnum() and lower[j] not in LEADS and tokens[j] not in names:
             # attributive ("the most distant desk"): the landmark, if any, comes after to / from
             k = j
@@ -134,7 +142,9 @@ def stated_relations(text: str, labels: Sequence[str], names: Sequence[str] = ()
             if k >= len(tokens) or lower[k] not in LANDMARK_OPENERS:
                 i += width
                 continue
+            described = (j, k)
             j = k
+        span_start = j
         span: list[str] = []
         while j < len(tokens) and len(span) < SPAN * (2 if kind == "between" else 1):
             if not tokens[j][0].isalnum():
@@ -151,6 +161,11 @@ def stated_relations(text: str, labels: Sequence[str], names: Sequence[str] = ()
                 break
             refs.append(found[0])
             rest = rest[found[1]:]
+            if kind == "facing" and len(rest) > 1 and rest[0].lower() == "from" and (
+                beyond := _first_thing(rest[1:], labels, names)
+            ):  # "across the table from Mia": the table lies between, Mia is what is faced
+                refs[-1] = beyond[0]
+                rest = rest[1 + beyond[1]:]
         if refs:
             before: list[str] = []  # the words of the same clause right before the relation word
             for k in range(start - 1, max(-1, start - 1 - SUBJECT_SPAN), -1):
@@ -158,7 +173,10 @@ def stated_relations(text: str, labels: Sequence[str], names: Sequence[str] = ()
                     break
                 before.insert(0, tokens[k])
             subject = tuple(mentioned_labels(" ".join(before[-2:]), labels)) if before else ()
-            out.append(RelationMention(kind, tuple(refs), start, start + width + len(span) - len(rest), subject))
+            if not subject and described[1] > described[0]:
+                subject = tuple(mentioned_labels(" ".join(tokens[described[0]:described[1]]), labels))
+            out.append(RelationMention(kind, tuple(refs), start, span_start + len(span) - len(rest), subject,
+                                       kept=described))
             i = out[-1].end
         else:
             i += width
@@ -169,7 +187,7 @@ def without_relations(text: str, relations: Sequence[RelationMention], labels: S
     """``text`` with each relation's words and landmark removed (``labels``: as given to
     :func:`stated_relations`)."""
     tokens = _tokens(joined_labels(text, labels))
-    cut = {k for r in relations for k in range(r.start, r.end)}
+    cut = {k for r in relations for k in range(r.start, r.end) if not r.kept[0] <= k < r.kept[1]}
     return " ".join(t for k, t in enumerate(tokens) if k not in cut)
 
 
