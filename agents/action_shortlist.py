@@ -147,12 +147,16 @@ CUES["serve_food"] = _with_things(CUES["serve_food"], FOODS, 1)
 
 SWITCHES = {
     "turn_on_": ("on", "start", "power"),
-    "turn_off_": ("off", "stop", "shut"),
+    "turn_off_": ("off", "stop", "shut", "silence", "mute"),
     "open_": ("open",),
     "close_": ("close", "shut"),
     "take_out_": ("take", "grab", "fetch", "get", "pick", "pull", "remove"),
 }
 """Label prefixes whose direction the text must give, and the words that give it."""
+OPPOSITES = {"turn_on_": "turn_off_", "turn_off_": "turn_on_", "open_": "close_", "close_": "open_"}
+"""Switch prefixes with an opposite: when a label's opposite is not offered (the story holds the
+state it would set, :mod:`agents.object_states`), only one direction is left and the text need
+not give it ("wanting some peace, Jo sees to the TV" with the TV on)."""
 
 KEEP_RATIO = 0.5
 """A label stays on the shortlist when its score is at least this share of the best score."""
@@ -288,11 +292,13 @@ def _cue_tokens(phrase: str) -> tuple[str, ...]:
 
 
 def label_score(
-    label: str, tokens: Sequence[str], named_objects: Iterable[str], landmark: Sequence[bool] | None = None
+    label: str, tokens: Sequence[str], named_objects: Iterable[str], landmark: Sequence[bool] | None = None,
+    one_way: bool = False,
 ) -> int:
     """Score of one label for the event's tokens; ``named_objects`` are the object labels the
     text names (``coffee_maker``); ``landmark``: :func:`_landmark_mask` of the tokens (computed
-    when not given)."""
+    when not given); ``one_way``: the label's opposite switch is not offered (:data:`OPPOSITES`),
+    so a text without a direction is not marked down."""
     score = 0
     landmark = _landmark_mask(tokens) if landmark is None else landmark
     for phrase, weight in CUES.get(label, ()):
@@ -305,8 +311,10 @@ def label_score(
     target = label.removeprefix(prefix) if prefix else label.removeprefix("use_")
     if any(obj == target or obj.endswith("_" + target) for obj in named_objects):
         score += 3
-    if prefix is not None:
-        score = score + 2 if score and _direction(tokens, prefix) else score // 2
+    if prefix is not None and score and _direction(tokens, prefix):
+        score += 2
+    elif prefix is not None and not one_way:
+        score //= 2
     return score
 
 
@@ -317,7 +325,13 @@ def _scores(text: str, labels: Sequence[str], object_labels: Sequence[str]) -> l
     known = list(dict.fromkeys([*object_labels, *(_label_objects(labels))]))
     # both readings: "a shelf of books" names the bookshelf and books
     named = list(dict.fromkeys([*mentioned_labels(acted_on, known), *mentioned_labels(acted_on, known, everyday=False)]))
-    return [label_score(label, tokens, named, landmark) for label in labels]
+    offered = set(labels)
+
+    def one_way(label: str) -> bool:
+        prefix = next((p for p in OPPOSITES if label.startswith(p)), None)
+        return prefix is not None and OPPOSITES[prefix] + label.removeprefix(prefix) not in offered
+
+    return [label_score(label, tokens, named, landmark, one_way(label)) for label in labels]
 
 
 def rank_action_labels(

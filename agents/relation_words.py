@@ -87,11 +87,16 @@ def _match_at(lower: Sequence[str], i: int) -> tuple[int, RelationKind] | None:
     return None
 
 
+def _name(token: str) -> str:
+    """A token without its possessive ending ("Mia's" -> "Mia")."""
+    return token.removesuffix("'s").removesuffix("'")
+
+
 def _first_thing(tokens: Sequence[str], labels: Sequence[str], names: Sequence[str]) -> tuple[tuple[str, ...], int] | None:
     """The first thing ``tokens`` name (a character, or the labels of the first object words)
     and the index just after it; None when they name nothing."""
     for k in range(len(tokens)):
-        word = tokens[k].removesuffix("'s").removesuffix("'")
+        word = _name(tokens[k])
         if word in names:
             return (f"@{word}",), k + 1
         found = mentioned_labels(" ".join(tokens[: k + 1]), labels)
@@ -134,7 +139,7 @@ def stated_relations(text: str, labels: Sequence[str], names: Sequence[str] = ()
         width, kind = hit
         start, j = i, i + width
         described = (j, j)
-        if j < len(tokens) and tokens[j][0].isalnum() and lower[j] not in LEADS and tokens[j] not in names:
+        if j < len(tokens) and tokens[j][0].isalnum() and lower[j] not in LEADS and _name(tokens[j]) not in names:
             # attributive ("the most distant desk"): the landmark, if any, comes after to / from
             k = j
             while k < len(tokens) and k < j + SPAN and tokens[k][0].isalnum() and lower[k] not in LANDMARK_OPENERS:

@@ -63,3 +63,19 @@ def test_at_the_table_keeps_the_seats_at_tables() -> None:
     assert set(seats.candidates) == {"chair_1", "chair_2"}
     seats = seat_candidates(STUDIO, "Rui sits at the desk furthest away from the sofa", free, {})
     assert seats.allowed == ("office_chair_1",)
+
+
+def test_a_relation_to_someones_seat_is_a_relation_to_them() -> None:
+    (mention,) = stated_relations("Ada takes the chair next to Bo's and reads.", LABELS, ["Ada", "Bo"])
+    assert mention.kind == "near" and mention.references == (("@Bo",),)
+    (mention,) = stated_relations("Ada settles beside Bo's, to read.", LABELS, ["Ada", "Bo"])
+    assert mention.references == (("@Bo",),)
+
+
+def test_a_switch_with_one_direction_left_needs_no_direction_word() -> None:
+    labels = ["listen_to_music", "turn_off_record_player", "idle"]  # the record player is on: no turn_on
+    assert rank_action_labels("Jo sees to the record player.", labels)[0].label == "turn_off_record_player"
+    assert rank_action_labels("Jo listens to the record player.", labels)[0].label == "listen_to_music"
+    both = ["listen_to_music", "turn_on_record_player", "turn_off_record_player"]
+    assert rank_action_labels("Jo wants silence and sees to the record player.", both)[0].label == "turn_off_record_player"
+    assert rank_action_labels("Jo switches the record player on.", both)[0].label == "turn_on_record_player"
