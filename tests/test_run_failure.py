@@ -53,7 +53,8 @@ def exploding(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
     seen: dict[str, Any] = {"story_closed": 0}
 
     def open_port(
-        config: Path | None, record: Path | None, replay: Path | None, *, unanswered: str = "miss"
+        config: Path | None, record: Path | None, replay: Path | None, *, unanswered: str = "miss",
+        planner: str = "event",
     ) -> tuple[ExplodingPort, str]:
         assert record is not None
         seen["port"] = ExplodingPort(record, explode_at=4)
