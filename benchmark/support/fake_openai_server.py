@@ -1,6 +1,6 @@
 """A scripted OpenAI-compatible chat-completions server on 127.0.0.1, shared by the tests that
-drive the real litellm -> openai SDK -> httpx path (``tests/test_llm_faults.py``,
-``tests/test_ablations_cli.py``, ``tests/test_planning_benchmark.py``).
+drive the real litellm -> openai SDK -> httpx path (``tests/orchestrator/llm/test_llm_faults.py``,
+``tests/orchestrator/cli/test_ablations_cli.py``, ``tests/benchmark/test_planning_benchmark.py``).
 
 Tests and the speed scripts (``benchmark/bench_replay.py``, ``bench_long_run.py``,
 ``bench_frame_interval.py``) import it as ``from benchmark.support.fake_openai_server import
