@@ -34,10 +34,6 @@ from tools.clusters import cluster_objects
 README = "Ava makes coffee, then sits on the couch and drinks it."
 
 
-@pytest.fixture(scope="module")
-def home() -> Scene:
-    return load_bundled_scene("home")
-
 
 @pytest.fixture(scope="module")
 def home_choices(home: Scene) -> tuple[tuple[Choice, ...], dict[str, int]]:

@@ -20,7 +20,6 @@ from benchmark.motion_facing import (
     used_object,
 )
 from sim.body.skeleton import NUM_JOINTS, heading_to_root
-from sim.scene.bundled import load_bundled_scene
 from sim.scene.files import save_scene_json
 from sim.scene.model import Scene
 from sim.world.character_track import CharacterTrack
@@ -28,10 +27,6 @@ from tests.support.stand_in_motion import RestPoseMotion
 
 SPOT = (1.407, 0.913)  # in front of the home coffee maker, whose front face is straight -y of it
 
-
-@pytest.fixture(scope="module")
-def home() -> Scene:
-    return load_bundled_scene("home")
 
 
 def test_first_run_finds_the_first_stretch_of_a_label_inside_the_window() -> None:

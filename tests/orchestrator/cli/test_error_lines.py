@@ -20,7 +20,7 @@ from benchmark.support.fake_openai_server import FakeOpenAI
 from orchestrator.cli.app import app
 from orchestrator.cli.options import fail
 from orchestrator.safe_text import one_line
-from tests.support.finished_run import make_finished_run, one_error_line, resume
+from tests.support.finished_run import one_error_line, resume
 from tests.support.hostile_files import unsafe_characters
 from tests.support.story_planner import RUN, Planner, write_config
 
@@ -41,10 +41,6 @@ def test_fail_prints_one_line_whatever_the_message_holds() -> None:
     assert result.exit_code == 2
     assert result.stderr == "error: file.json: line 3: expected a number, got '\\x1b[2J'\n"
 
-
-@pytest.fixture(scope="module")
-def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return make_finished_run(tmp_path_factory.mktemp("lines"))
 
 
 def _with_steps(snapshot: bytes, value: bytes) -> bytes:

@@ -20,7 +20,6 @@ from langgraph.checkpoint.memory import InMemorySaver
 
 from agents.event_parser import scene_action_labels
 from agents.messages import ParsedEvent
-from orchestrator.cache_paths import motion_cache_dir
 from orchestrator.llm.trace_writer import TraceWriter
 from orchestrator.llm.traces import ParsedRecord, read_trace
 from orchestrator.planning.ablation_graph import Ablation, compile_graph
@@ -31,7 +30,6 @@ from orchestrator.session.roster import RosterWorld, start_positions
 from orchestrator.session.runtime import Session
 from orchestrator.session.session_types import SessionSettings
 from orchestrator.session.step_planner import GraphStepPlanner
-from sim.motion.database import load_databases
 from sim.motion.matching import MotionMatcher
 from sim.scene.bundled import resolve_scene
 from sim.world.step import World
@@ -63,10 +61,6 @@ COFFEE = fenced(
     '    a.set_orientation("coffee_maker_1")\n    a.set_target_action("use_coffee_maker")'
 )
 
-
-@pytest.fixture(scope="module")
-def motion() -> MotionMatcher:
-    return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
 
 
 @pytest.mark.slow

@@ -44,7 +44,6 @@ from hypothesis import strategies as st
 from typer.testing import CliRunner, Result
 
 from orchestrator.cli.app import app
-from tests.support.finished_run import make_finished_run
 from tests.support.hostile_files import (
     bit_flipped,
     clean_outcome,
@@ -57,10 +56,6 @@ FUZZ = settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", "8")), deadline
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 FEW = settings(FUZZ, max_examples=5)
 
-
-@pytest.fixture(scope="module")
-def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return make_finished_run(tmp_path_factory.mktemp("fuzz-run"))
 
 
 @contextmanager

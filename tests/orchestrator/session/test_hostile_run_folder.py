@@ -14,23 +14,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import shutil
 from pathlib import Path
 
 import pytest
 
 from sim.bounded_files import MAX_OBJECT_KEYS, BoundedFileError, load_bounded_json
-from tests.support.finished_run import make_finished_run, one_error_line, replay, resume
-
-
-@pytest.fixture(scope="module")
-def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return make_finished_run(tmp_path_factory.mktemp("hostile-run"))
-
-
-@pytest.fixture
-def run_dir(finished_run: Path, tmp_path: Path) -> Path:
-    return Path(shutil.copytree(finished_run, tmp_path / "run"))
+from tests.support.finished_run import one_error_line, replay, resume
 
 
 def _folder(run: Path) -> dict[str, str]:

@@ -33,10 +33,6 @@ def _program(who: str, action: str, area: str, target: str) -> str:
 COFFEE = _program("{who}", "use_coffee_maker", "get_area_to_interact_with", "coffee_maker_1")
 
 
-@pytest.fixture(scope="module")
-def home() -> Scene:
-    return load_bundled_scene("home")
-
 
 def _ava_at(home: Scene, action: str, target: str, *, busy: bool = True, area: str = "get_area_to_interact_with") -> WorldView:
     program = _program("Ava", action, area, target)

@@ -10,7 +10,6 @@ line (a replay would tell a shorter story, so it refuses).
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -37,10 +36,6 @@ def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
             assert result.exit_code == 0, result.stderr
         yield tmp / "run"
 
-
-@pytest.fixture
-def run_dir(finished_run: Path, tmp_path: Path) -> Path:
-    return Path(shutil.copytree(finished_run, tmp_path / "run"))
 
 
 def resume(run_dir: Path) -> Result:

@@ -55,10 +55,6 @@ def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
         yield tmp / "run"
 
 
-@pytest.fixture
-def run_dir(finished_run: Path, tmp_path: Path) -> Path:
-    return Path(shutil.copytree(finished_run, tmp_path / "run"))
-
 
 def fingerprint(path: Path) -> dict[str, str]:
     """Relative path -> sha256 of every file at or under ``path`` (a folder's listing counts)."""

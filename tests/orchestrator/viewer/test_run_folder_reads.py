@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 
 from orchestrator.cli.app import app
 from orchestrator.session.instruction_script import InstructionScriptError, parse_instruction_script
-from tests.support.finished_run import make_finished_run, one_error_line, replay, resume
+from tests.support.finished_run import one_error_line, replay, resume
 
 
 @pytest.mark.parametrize(
@@ -45,10 +45,6 @@ def test_a_run_with_an_infinite_instruction_time_is_refused_before_it_writes_any
     one_error_line(result, str(script), "line 2")
     assert not (out / "run.json").exists()
 
-
-@pytest.fixture(scope="module")
-def finished_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return make_finished_run(tmp_path_factory.mktemp("finished"))
 
 
 @pytest.fixture

@@ -224,12 +224,6 @@ def test_a_lockstep_run_refuses_pause_with_its_reason(tmp_path: Path) -> None:
 needs_chromium = pytest.mark.skipif(chromium_binary() is None, reason="chromium not installed (apt-get install chromium)")
 
 
-@pytest.fixture
-def shots(tmp_path: Path) -> Path:
-    folder = Path(os.environ.get("STORYTELLER_TEST_OUTPUT", tmp_path)) / "viewer"
-    folder.mkdir(parents=True, exist_ok=True)
-    return folder
-
 
 def _url(log: Path, proc: subprocess.Popen[bytes]) -> str:
     import re

@@ -20,7 +20,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -158,12 +158,6 @@ def test_a_resumed_run_holds_new_lines_until_it_is_past_its_last_recorded_instru
 
 
 # ----- the viewer's side ------------------------------------------------------------------
-@pytest.fixture
-def viewer(tmp_path: Path) -> Iterator[ViewerApp]:
-    app = ViewerApp(tmp_path / "run", port=0)
-    yield app
-    app.stop()
-
 
 def _manifest(folder: Path) -> None:
     folder.mkdir(exist_ok=True)
@@ -274,12 +268,6 @@ def test_lines_in_the_file_become_viewer_instructions_and_a_replay_repeats_them(
 # ----- in the browser -----------------------------------------------------------------------
 needs_chromium = pytest.mark.skipif(chromium_binary() is None, reason="chromium not installed (apt-get install chromium)")
 
-
-@pytest.fixture
-def shots(tmp_path: Path) -> Path:
-    folder = Path(os.environ.get("STORYTELLER_TEST_OUTPUT", tmp_path)) / "viewer"
-    folder.mkdir(parents=True, exist_ok=True)
-    return folder
 
 
 def _url(log: Path, proc: subprocess.Popen[bytes]) -> str:

@@ -18,7 +18,6 @@ import re
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -152,12 +151,6 @@ def test_a_live_folder_is_ready_at_its_first_chunk_record_and_reads_as_it_grows(
     stream.close()
     store.close()
 
-
-@pytest.fixture
-def viewer(tmp_path: Path) -> Iterator[ViewerApp]:
-    app = ViewerApp(tmp_path / "run", port=0)
-    yield app
-    app.stop()
 
 
 def test_the_viewer_follows_a_growing_run_then_shows_the_finished_one(tmp_path: Path, viewer: ViewerApp) -> None:

@@ -9,10 +9,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
 
 from sim.scene.authoring import Item, Layout, N, build_scene
-from sim.scene.bundled import load_bundled_scene
 from sim.scene.model import Scene
 from sim.world.events import AssignEvent, Assignment, StepOutput
 from sim.world.facing import REACH_M, focus_object, heading_to_object, surface_distance
@@ -24,10 +22,6 @@ from tools.character_states import CharacterPlan
 
 AVA_SPOT = (1.407, 0.913)  # the README story's spot in front of the home coffee maker
 
-
-@pytest.fixture(scope="module")
-def home() -> Scene:
-    return load_bundled_scene("home")
 
 
 def _angle(a: float, b: float) -> float:
