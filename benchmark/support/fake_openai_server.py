@@ -89,6 +89,11 @@ class _Server(ThreadingHTTPServer):
     block_on_close = True
 
 
+SHUTDOWN_POLL_S = 0.05
+"""How often the serving thread checks for :meth:`FakeOpenAI.stop`, in seconds: ``stop`` waits up
+to this long (socketserver's default, 0.5 s, cost every test that starts a server half a second)."""
+
+
 class FakeOpenAI:
     """Scripted OpenAI chat-completions server on an ephemeral port of 127.0.0.1.
 
@@ -125,7 +130,7 @@ class FakeOpenAI:
             raise RuntimeError("FakeOpenAI was stopped; build a new one")
         if self._thread is None:
             self._thread = threading.Thread(target=self._server.serve_forever, name="fake-openai",
-                                            daemon=True)
+                                            kwargs={"poll_interval": SHUTDOWN_POLL_S}, daemon=True)
             self._thread.start()
         return self
 
