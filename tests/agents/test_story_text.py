@@ -232,6 +232,7 @@ def prose(md: str) -> str:
     return md.split("\n## ", 1)[0]
 
 
+@pytest.mark.slow
 def test_a_run_whose_narrator_contradicts_its_plans_tells_the_plans(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
     for var in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL"):

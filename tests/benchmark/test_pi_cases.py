@@ -76,6 +76,7 @@ def test_cli_json_matches_the_function(case_id: int) -> None:
     ).passed
 
 
+@pytest.mark.slow
 def test_real_cli_invocation() -> None:
     cmd = [sys.executable, "-c", "from orchestrator.cli.app import app; app()", *cli_args(63, seed=11)]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)

@@ -64,6 +64,7 @@ def test_wall_clock_kill_then_the_next_program_runs(scene: Scene) -> None:
         assert run.starts == 2
 
 
+@pytest.mark.slow
 def test_cpu_limit_stops_what_the_budget_lets_through(scene: Scene) -> None:
     with WorkerRunner(budget=UNLIMITED, wall_seconds=120.0, cpu_seconds=1) as run:
         with pytest.raises(BudgetExceededError, match="operating-system limit"):

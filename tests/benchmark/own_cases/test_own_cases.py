@@ -119,6 +119,7 @@ def test_no_seven_word_overlap_with_the_reference(cases: list[Any]) -> None:
         assert not shared, f"{case.source}: {shared}"
 
 
+@pytest.mark.slow
 def test_the_check_command(capsys: pytest.CaptureFixture[str]) -> None:
     n = len(load_cases(OURS))
     assert main([]) == 0

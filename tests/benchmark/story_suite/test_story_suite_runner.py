@@ -65,6 +65,7 @@ def test_a_recorded_run_is_scored_and_its_replay_scores_the_same(fake: FakeOpenA
     assert story == (tmp_path / "live" / "fake_coffee" / "story.json").read_bytes()
 
 
+@pytest.mark.slow
 def test_a_run_that_fails_scores_every_expectation_unmet_with_the_error(fake: FakeOpenAI, tmp_path: Path) -> None:
     (tmp_path / "traces").mkdir()
     (tmp_path / "traces" / "fake_coffee.jsonl").write_text("not a trace\n", encoding="utf-8")
@@ -73,6 +74,7 @@ def test_a_run_that_fails_scores_every_expectation_unmet_with_the_error(fake: Fa
     assert all(v.reason.startswith("run failed: error: ") for v in score.verdicts), score.verdicts
 
 
+@pytest.mark.slow
 def test_run_log_replaces_a_link_planted_in_the_run_folder(fake: FakeOpenAI, tmp_path: Path) -> None:
     (tmp_path / "traces").mkdir()
     (tmp_path / "traces" / "fake_coffee.jsonl").write_text("not a trace\n", encoding="utf-8")

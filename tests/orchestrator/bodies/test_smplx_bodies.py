@@ -195,6 +195,7 @@ def _body_vertex_count(glb: Path, name: str) -> int:
     return int(doc.accessors[mesh.primitives[0].attributes.POSITION].count)
 
 
+@pytest.mark.slow
 def test_resume_and_replay_export_smplx_bodies_with_smplx_model(
     model_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -136,6 +136,7 @@ def test_unified_planner_busy_character_feedback_and_wait(fake: FakeOpenAI, tmp_
     assert retry[-1]["role"] == "user" and "Ava is busy and cannot be planned" in retry[-1]["content"]
 
 
+@pytest.mark.slow
 def test_unified_planner_gives_up_with_a_typed_failure(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     bad = COFFEE.replace("coffee_maker_1", "espresso_machine_9")
@@ -151,6 +152,7 @@ def test_unified_planner_gives_up_with_a_typed_failure(fake: FakeOpenAI, tmp_pat
 
 
 # ----- Direct Inference -----------------------------------------------------------------------
+@pytest.mark.slow
 def test_direct_inference_rejects_a_point_inside_furniture_then_accepts_a_free_one(
     fake: FakeOpenAI, tmp_path: Path
 ) -> None:
@@ -204,6 +206,7 @@ def test_direct_inference_out_of_retries_is_a_failed_step(fake: FakeOpenAI, tmp_
     assert "inside fridge_1" in out.stdout
 
 
+@pytest.mark.slow
 def test_direct_inference_point_on_a_seat_sits_on_it(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     chair = SCENE.get("chair_1").center
@@ -223,6 +226,7 @@ def test_direct_inference_point_on_a_seat_sits_on_it(fake: FakeOpenAI, tmp_path:
 
 
 # ----- description ablations with the full method --------------------------------------------
+@pytest.mark.slow
 def test_event_planner_with_the_object_list_skips_the_describer(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     fake.script["fake-narrator"] = [NARRATION]
@@ -292,6 +296,7 @@ def test_run_with_an_ablation_records_and_replays_the_same_story(
     assert (tmp_path / "again" / "story.json").read_bytes() == (tmp_path / "live" / "story.json").read_bytes()
 
 
+@pytest.mark.slow
 def test_run_raw_feet_replays_the_same_story_with_the_animated_legs(fake: FakeOpenAI, tmp_path: Path) -> None:
     cfg = write_config(tmp_path, fake.base)
     fake.script.update({"fake-planner": [COFFEE]})

@@ -176,6 +176,7 @@ CHILD = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 async def test_killed_run_resumes_without_repeating_the_narrator(tmp_path: Path) -> None:
     db = tmp_path / "runs.sqlite"
     script = tmp_path / "child.py"
@@ -228,6 +229,7 @@ CHILD_DESCRIBER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 async def test_killed_describer_retry_resumes_without_repeating_the_first_attempt(tmp_path: Path) -> None:
     db = tmp_path / "runs.sqlite"
     script = tmp_path / "child.py"
