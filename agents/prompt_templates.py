@@ -14,7 +14,7 @@ Every text an LLM reads is such a file, down to one-line phrases (rendered with
 :meth:`PromptLibrary.render_text`): a folder per role (``narrator/``, ``event_parser/``,
 ``describer/``, ``planner/``, ``direct/``), ``story/`` for the character, history and
 instruction lines several roles share, ``feedback/`` for retry sentences (rule problems in a
-sub-folder per role). ``tests/test_prompt_sources.py`` fails when code names a missing file or
+sub-folder per role). ``tests/agents/test_prompt_sources.py`` fails when code names a missing file or
 writes a prompt file's sentence as a string literal.
 """
 

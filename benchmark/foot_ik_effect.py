@@ -1,6 +1,6 @@
 """Effect of the foot IK filter (``sim.body.foot_ik``) on the crowd measure of issue 4.
 
-Runs the crowd scenario of ``tests/test_crowd_motion.py`` (its ``simulate_crowd`` and
+Runs the crowd scenario of ``tests/sim/motion/test_crowd_motion.py`` (its ``simulate_crowd`` and
 ``measure``, imported from the file) with a smaller crowd and the world's own leg IK turned
 off (``WorldConfig(foot_ik=False)``), then applies ``FootSolver`` frame by frame to the
 recorded buffers (pelvis, local rotations, contact flags: what the world step hands the

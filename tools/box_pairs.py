@@ -3,7 +3,7 @@ clusters test only the pairs of objects that can be within a relation's reach.
 
 Guarantee: :func:`overlapping_pairs` returns exactly the pairs ``(i, j)`` whose closed boxes
 ``a[i]`` and ``b[j]`` overlap on both axes (touching counts), each pair once, sorted by ``i`` then
-``j``; the same pairs as the brute-force test of every pair (``tests/test_scene_graph_index.py``).
+``j``; the same pairs as the brute-force test of every pair (``tests/tools/test_scene_graph_index.py``).
 Callers grow their boxes by the reach they need (a relation's maximum distance, DBSCAN's ``eps``)
 and then decide each returned pair with their exact test, so the index only skips pairs that
 the exact test would refuse.

@@ -1,6 +1,6 @@
 """A scripted OpenAI-compatible chat-completions server on 127.0.0.1, shared by the tests that
-drive the real litellm -> openai SDK -> httpx path (``tests/test_llm_faults.py``,
-``tests/test_ablations_cli.py``, ``tests/test_planning_benchmark.py``).
+drive the real litellm -> openai SDK -> httpx path (``tests/orchestrator/llm/test_llm_faults.py``,
+``tests/orchestrator/cli/test_ablations_cli.py``, ``tests/benchmark/test_planning_benchmark.py``).
 
 Tests and the speed scripts (``benchmark/bench_replay.py``, ``bench_long_run.py``,
 ``bench_frame_interval.py``) import it as ``from benchmark.support.fake_openai_server import
@@ -89,6 +89,11 @@ class _Server(ThreadingHTTPServer):
     block_on_close = True
 
 
+SHUTDOWN_POLL_S = 0.05
+"""How often the serving thread checks for :meth:`FakeOpenAI.stop`, in seconds: ``stop`` waits up
+to this long (socketserver's default, 0.5 s, cost every test that starts a server half a second)."""
+
+
 class FakeOpenAI:
     """Scripted OpenAI chat-completions server on an ephemeral port of 127.0.0.1.
 
@@ -125,7 +130,7 @@ class FakeOpenAI:
             raise RuntimeError("FakeOpenAI was stopped; build a new one")
         if self._thread is None:
             self._thread = threading.Thread(target=self._server.serve_forever, name="fake-openai",
-                                            daemon=True)
+                                            kwargs={"poll_interval": SHUTDOWN_POLL_S}, daemon=True)
             self._thread.start()
         return self
 

@@ -1,7 +1,7 @@
 """A frozen copy of ``MotionMatcher.step_many`` as it was before the motion kernels.
 
 ``ReferenceMotionMatcher`` is the baseline that ``benchmark/bench_motion_step.py`` times the
-matcher against and that ``tests/test_motion_step_equivalence.py`` checks it against: the same
+matcher against and that ``tests/sim/motion/test_motion_step_equivalence.py`` checks it against: the same
 decisions, states and poses, bit for bit. It uses the numpy versions of forward kinematics
 (``sim.body.skeleton``) and inertialization (``sim.motion.inertialization``), which the kernels replace
 in the simulation, and keeps its own copy of the old nearest-frame scan. Not used by the

@@ -1,7 +1,7 @@
 """A frozen copy of the top-down renderer as it was before the animation drew its static
 layers once (``sim/export/topdown.py`` and the frame loop of ``sim/export/video.py``).
 
-Every frame is a new matplotlib figure drawn from scratch. ``tests/test_run_animation.py``
+Every frame is a new matplotlib figure drawn from scratch. ``tests/sim/export/test_run_animation.py``
 checks the new animation's frames against these within a tolerance, and
 ``benchmark/bench_pictures.py`` times the new animation against ``reference_animation_frames``
 in the same run. Not used by the product.

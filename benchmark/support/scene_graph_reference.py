@@ -1,7 +1,7 @@
 """Frozen brute-force oracles of the scene graph and the region clusters: every pair of objects
 tested, as ``tools.scene_graph.build_scene_graph`` and ``tools.clusters.cluster_objects`` did
 before their spatial index (``tools.box_pairs``). The fast builds must give the same relations,
-node attributes, edge order and clusters (``tests/test_scene_graph_index.py``); the scene
+node attributes, edge order and clusters (``tests/tools/test_scene_graph_index.py``); the scene
 building benchmark (``benchmark/bench_scene_build.py``) times both.
 
 The footprint distances are frozen here too, as they were written then (matrix products: they

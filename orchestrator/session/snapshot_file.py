@@ -92,7 +92,7 @@ SNAPSHOT_CLASSES: frozenset[tuple[str, str]] = frozenset({
     # plain state holder whose ``__new__`` is ``object.__new__`` and which defines no
     # ``__setstate__`` / ``__reduce__`` of its own (pydantic's ``__setstate__`` only sets its
     # field dicts); none opens a file, starts a process, imports or evaluates anything when its
-    # state is set (tests/test_snapshot_file.py checks this list for it). Never add ChunkStore
+    # state is set (tests/orchestrator/session/test_snapshot_file.py checks this list for it). Never add ChunkStore
     # (it opens files; a checkpoint stores its frame count) or any class whose state runs code.
     ("orchestrator.session.session_types", "SessionCheckpoint"),
     ("orchestrator.session.session_types", "StoryEvent"),

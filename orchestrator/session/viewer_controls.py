@@ -21,7 +21,7 @@ already recorded with its frame: the frame a planning result is applied at (``ap
 frame an instruction takes effect at (``instruction``), the frame and phase a step is requested
 at (``requested``, with overlapping steps). A step that finishes while the run is paused is
 applied at the first frame after it resumes, and that frame is in the trace, so ``storyteller
-replay`` gives the same events and motion, byte for byte (``tests/test_viewer_controls.py``).
+replay`` gives the same events and motion, byte for byte (``tests/orchestrator/viewer/test_viewer_controls.py``).
 
 Restarts: the state is the file's, folded in order (the last ``pause`` / ``resume``, the last
 speed), so a resumed run (which reads the file from its start) takes the state the director

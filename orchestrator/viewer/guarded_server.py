@@ -13,7 +13,7 @@ size limit to :data:`~.inbound.MAX_MESSAGE_BYTES`. Only the ``serve`` call made 
 during that construction is changed: constructions are serialised by a lock, and the original
 ``serve`` is back before :func:`guarded_server` returns. If viser did not call ``serve`` that
 way (it changed), :class:`ViserHookError` is raised instead of serving unguarded; the tests in
-``tests/test_viewer_access.py`` check the guard against the real server.
+``tests/orchestrator/viewer/test_viewer_access.py`` check the guard against the real server.
 
 viser also lets any connected page ask for a public share URL (a tunnel through
 share.viser.studio): :class:`_ViewerServer` refuses that (no network at run time, nothing

@@ -6,7 +6,7 @@ and toe) out of every footprint at once: each pass tries, for every box the grou
 exits through its four sides and keeps the one that leaves the least summed depth inside all
 boxes, then the shortest (a chair's box under a table's is left through a side that clears
 both). The loop is a numba kernel; ``_push_out_kernel.py_func`` is the same code in Python
-(``tests/test_foot_ik.py`` checks they agree bit for bit). A group that starts inside no box
+(``tests/sim/body/test_foot_ik.py`` checks they agree bit for bit). A group that starts inside no box
 is not moved; ``BoxGrid`` finds, per point, the few boxes it may be inside, so a crowd's feet
 are not each tested against every box of a large scene (``_may_be_inside``).
 """

@@ -8,7 +8,7 @@ push-out and IK kernels (``sim.body.foot_clearance``, ``sim.body.leg_ik``). Its 
 arithmetic works on scalars and writes into preallocated rows (no temporary 3-vectors, which
 cost a heap allocation each), with the float operations in the same order, so the result is
 bit for bit the one of the vector form. The array version is
-kept as a test oracle (``tests/support/foot_reference.py``); ``tests/test_foot_ik.py`` checks
+kept as a test oracle (``tests/support/foot_reference.py``); ``tests/sim/body/test_foot_ik.py`` checks
 both give the same rotations and states (to 1e-12) on a recorded crowd.
 
 numba's on-disk cache of ``apply_frame`` is checked against this file only: the kernels it

@@ -17,7 +17,7 @@ as possible); a target on the hip keeps the animated direction. Pelvis, spine, a
 are never touched.
 
 The per-leg math is one numba kernel (``_ik_kernel``) on scalars: no temporary arrays per leg
-(it runs for every leg of a crowd every frame). ``tests/test_foot_ik.py`` checks it bit for bit
+(it runs for every leg of a crowd every frame). ``tests/sim/body/test_foot_ik.py`` checks it bit for bit
 against ``_ik_kernel.py_func`` (the same code in Python) and against the same math written with
 small arrays (``tests/support/leg_ik_reference.py``).
 """

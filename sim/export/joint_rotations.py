@@ -9,7 +9,7 @@ each export indexes them.
 
 Guarantee: every value is bit for bit the one a conversion of the same matrices inside each
 exporter gives, because scipy converts each matrix on its own (its result does not depend on
-the other matrices of the batch or their order); ``tests/test_export_joint_rotations.py`` checks
+the other matrices of the batch or their order); ``tests/sim/export/test_export_joint_rotations.py`` checks
 it against the per-exporter conversion.
 """
 

@@ -16,7 +16,7 @@ tables); these numba kernels run its hot loops on dense arrays:
 
 They take the same decisions as the pure-Python code (same float operations, the same pop
 order as its heap of ``(f, h, t, cell)`` tuples, the same tie-breaking), which
-``tests/test_astar_kernel.py`` checks plan for plan. Indices are the planner's padded cell ids;
+``tests/sim/paths/test_astar_kernel.py`` checks plan for plan. Indices are the planner's padded cell ids;
 ``stride`` is the number of padded cells. The kernels are compiled on first use and cached
 on disk (``cache=True``), so only the first process on a machine pays the compile time.
 """

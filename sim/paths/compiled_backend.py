@@ -1,7 +1,7 @@
 """The planner's compiled backend (the default, ``PathPlanner(grid, backend="numba")``): one
 prioritized pass over all agents is one call of ``astar_kernel.dense_pass`` on the move tables,
 the goal-distance table and memory kept from call to call. It takes the same decisions as the
-pure-Python pass (``sim.paths.python_backend``; ``tests/test_astar_kernel.py`` compares them
+pure-Python pass (``sim.paths.python_backend``; ``tests/sim/paths/test_astar_kernel.py`` compares them
 plan for plan), and records what each agent's search read, so that a repair pass takes over
 the outcome of every agent whose reads did not change.
 """

@@ -49,7 +49,7 @@ def body_clearance(
 
     The per-element arithmetic runs compiled (``_near_circles``, ``_min_segment_rect_distance``)
     with the float operations of the numpy oracle in ``tests/support/clearance_reference.py`` (the
-    same floats; ``tests/test_body_clearance_kernels.py`` compares them); the rotation into each object's frame
+    same floats; ``tests/sim/paths/test_body_clearance_kernels.py`` compares them); the rotation into each object's frame
     stays ``SceneObject.to_local``.
     """
     a = np.ascontiguousarray(np.asarray(a, dtype=float).reshape(-1, 2))

@@ -7,7 +7,7 @@ bodies leave, ``sim.paths.static_bodies``), memoised per goal and set of bodies,
 walkers around a blockage the static distance leads into (``PathPlanner.plan(detour=...)``).
 
 Deterministic: a cached row holds the same floats as a new computation; the cache only decides
-how often a Dijkstra runs, never what a plan is (``tests/test_astar_kernel.py`` plans with a
+how often a Dijkstra runs, never what a plan is (``tests/sim/paths/test_astar_kernel.py`` plans with a
 tiny cache and a large one and compares).
 """
 
@@ -73,7 +73,7 @@ class GoalDistances:
     def row(self, gid: int) -> int:
         """The row of ``table`` holding the distances to goal id ``gid``: ``goal_distances`` on
         the move table, the floats ``scipy.sparse.csgraph.dijkstra`` gives on the same graph
-        (``tests/test_astar_kernel.py``), computed on first use and cached."""
+        (``tests/sim/paths/test_astar_kernel.py``), computed on first use and cached."""
         row = self.rows.get(gid)
         if row is None:
             row = self._free_row()

@@ -2,7 +2,7 @@
 pass, the kept-path check and the space-time A* in plain Python over the list views of the move
 tables. It takes the same decisions as the compiled pass ``astar_kernel.dense_pass`` (the
 default backend), so it is the readable statement of the algorithm and the oracle the compiled
-one is checked against (``tests/test_astar_kernel.py``); ``benchmark/bench_paths.py`` and
+one is checked against (``tests/sim/paths/test_astar_kernel.py``); ``benchmark/bench_paths.py`` and
 ``benchmark/bench_world.py`` time the compiled search against it, which is why it is product
 code and not test support.
 """

@@ -5,7 +5,7 @@ rule tabulated in ``sim.paths.move_tables``), so that a search looks up one int 
 ``Reservations`` is the table as dicts (the pure-Python backend, ``sim.paths.python_backend``);
 the compiled pass (``astar_kernel.dense_pass``) folds the same table as a dense (steps, cells)
 array with ``reserve_path`` / ``release_path``, equal entry for entry
-(``tests/test_astar_kernel.py`` with ``tests/support/dense_reservations.py``). Removing an
+(``tests/sim/paths/test_astar_kernel.py`` with ``tests/support/dense_reservations.py``). Removing an
 agent gives exactly the table that never had it.
 """
 

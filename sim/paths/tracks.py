@@ -7,7 +7,7 @@ centres: on the straight segment from cell ``floor(u)`` to the next one, at frac
 done (the arithmetic of ``sim.paths.cooperative_astar.position_at``). ``path_tracks`` computes
 it for every path of a plan in one compiled loop, with the very same float operations as its
 numpy oracle (``tests/support/path_reference.py``) element by element (so the same floats;
-``tests/test_path_tracks.py`` compares them), into one array whose rows are padded with each
+``tests/sim/paths/test_path_tracks.py`` compares them), into one array whose rows are padded with each
 path's last centre (later frames stay there). :class:`PlanTracks` keeps that array for the
 current plan of a crowd.
 """

@@ -1,7 +1,7 @@
 """``body_clearance`` in plain numpy: the oracle of the compiled loops in ``sim.paths.footprint_distance``.
 
 ``body_clearance_reference`` takes the same arguments as ``sim.paths.footprint_distance.body_clearance``
-and must give the very same floats (``tests/test_body_clearance_kernels.py`` compares them);
+and must give the very same floats (``tests/sim/paths/test_body_clearance_kernels.py`` compares them);
 the rotation into each object's frame is ``SceneObject.to_local``. Not used by the simulation.
 """
 

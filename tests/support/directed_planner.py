@@ -1,5 +1,5 @@
 """A scripted unified planner that follows the latest instruction, for the instruction-box tests
-(``tests/test_viewer_director.py``) against the fake OpenAI server: while the request's
+(``tests/orchestrator/viewer/test_viewer_director.py``) against the fake OpenAI server: while the request's
 instruction asks for toast, a free Max makes it at the toaster; otherwise the first free
 character does its everyday task (``tests.support.story_planner.first_free``). Answers by
 request content only, so a replay or a resume gets the same answers.

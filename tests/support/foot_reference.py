@@ -2,7 +2,7 @@
 ``sim.body.foot_kernel.apply_frame``.
 
 ``apply_numpy(solver, ...)`` takes what ``FootSolver.apply`` takes and gives the same rotations
-and states to rounding (1e-12); ``tests/test_foot_ik.py`` compares them on a walking crowd. The
+and states to rounding (1e-12); ``tests/sim/body/test_foot_ik.py`` compares them on a walking crowd. The
 steps, in order: pinning (release, blend, lock), the reach clamp, the footprint push, lock
 starts, the IK. Inputs are not checked here. Not used by the simulation.
 """

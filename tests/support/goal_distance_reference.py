@@ -1,6 +1,6 @@
 """The planner's heuristic as it was first computed: ``scipy.sparse.csgraph.dijkstra`` on a
 sparse graph of the grid's moves. The oracle of the compiled ``sim.paths.heuristics.goal_distances``
-(``tests/test_astar_kernel.py`` checks the very same floats). Not used by the simulation.
+(``tests/sim/paths/test_astar_kernel.py`` checks the very same floats). Not used by the simulation.
 """
 
 from __future__ import annotations

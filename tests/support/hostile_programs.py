@@ -2,8 +2,8 @@
 or in a plain value computed without a hang (``RANGE_MEMBERSHIP``), and the stand-in world they
 run against (``World``, whose ``Handle`` keeps private state out of reach).
 
-Run in-process by ``tests/test_sandbox_hostile.py`` and against the real spatial API, in a
-subprocess with a hang detector, by ``tests/test_sandbox_real_api.py``.
+Run in-process by ``tests/tools/sandbox/test_sandbox_hostile.py`` and against the real spatial API, in a
+subprocess with a hang detector, by ``tests/tools/sandbox/test_sandbox_real_api.py``.
 """
 
 from __future__ import annotations

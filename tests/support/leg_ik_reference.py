@@ -1,6 +1,6 @@
 """The leg IK kernel as it was written with small numpy arrays: the oracle of the compiled
 ``sim.body.leg_ik._ik_kernel``, which does the same float operations on scalars (no temporary
-arrays). ``tests/test_foot_ik.py`` checks both give the same bits, including the degenerate
+arrays). ``tests/sim/body/test_foot_ik.py`` checks both give the same bits, including the degenerate
 branches (a target on the hip, a straight leg, a knee bent backwards). Not used by the simulation.
 """
 

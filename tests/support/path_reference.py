@@ -2,7 +2,7 @@
 ``sim.paths.tracks.path_tracks``.
 
 ``track_reference`` is the arithmetic of ``sim.paths.cooperative_astar.position_at`` for every
-frame of one path; ``tests/test_path_tracks.py`` checks that the compiled loop gives the very
+frame of one path; ``tests/sim/paths/test_path_tracks.py`` checks that the compiled loop gives the very
 same floats. Not used by the simulation.
 """
 

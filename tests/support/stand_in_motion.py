@@ -1,6 +1,6 @@
 """A stand-in motion layer for world tests: the rest pose on the world's root, pelvis lowered
 when seated, no foot contacts. Tests of the world's own rules (where roots go, which way they
-face, which phase plays) use it to run fast; the real matcher runs in tests/test_crowd_motion.py."""
+face, which phase plays) use it to run fast; the real matcher runs in tests/sim/motion/test_crowd_motion.py."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 (``benchmark/support/fake_openai_server.py``): the unified planner (``--planner unified
 --description object-list``, one LLM role) is answered by request content, so a stopped and
 resumed run gets the same answers as an uninterrupted one, and faults are injected by request
-number. Used by ``tests/test_run_faults.py`` and ``tests/test_run_corrupt_files.py``.
+number. Used by ``tests/orchestrator/session/test_run_faults.py`` and ``tests/orchestrator/session/test_run_corrupt_files.py``.
 """
 
 from __future__ import annotations
