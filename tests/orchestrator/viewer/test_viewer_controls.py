@@ -308,12 +308,15 @@ def test_a_director_pauses_resumes_speeds_and_follows_from_the_page(tmp_path: Pa
                 assert _page_frame(browser) == frame
                 live = read_live_state(out)
                 assert live is not None and live.paused and live.frame == frame
-                _click(browser, "Resume the run")
-                slow.fast.set()
-                _wait_page(browser, "not resumed", f"(() => {{ const m = document.body.innerText.match(/Run: sim frame (\\d+)/); return m && +m[1] > {frame}; }})()", 30)
+                # the speed is picked while paused: a paused run cannot end before the control is read
+                # (picked after resuming, a loaded machine could finish the story first)
                 _pick_speed(browser, "4")
                 _wait("the run at speed 4", lambda: (s := read_live_state(out)) is not None and s.speed == 4.0, timeout_s=30, log=log)
                 _wait_page(browser, "speed not shown", "document.body.innerText.includes('speed 4\u00d7')", 30)
+                assert _page_frame(browser) == frame  # still paused
+                _click(browser, "Resume the run")
+                slow.fast.set()
+                _wait_page(browser, "not resumed", f"(() => {{ const m = document.body.innerText.match(/Run: sim frame (\\d+)/); return m && +m[1] > {frame}; }})()", 30)
                 _click(browser, "Max")
                 _wait_page(browser, "no character panel", "document.body.innerText.includes('events so far')", 30)
                 text = _text(browser)
