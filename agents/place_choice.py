@@ -93,7 +93,7 @@ def _character(scene: Scene, name: str, xy: tuple[float, float]) -> Reference:
     return Reference(name, point=xy, facing=None if seat is None else (float(seat.facing[0]), float(seat.facing[1])))
 
 
-def _references(
+def references_of(
     scene: Scene, mention: RelationMention, others: Mapping[str, tuple[float, float]]
 ) -> tuple[tuple[Reference, ...], ...]:
     groups: list[tuple[Reference, ...]] = []
@@ -231,7 +231,7 @@ def seat_candidates(
         pool = [s for s in pool if (t := table_of(scene, s)) is not None and t.label in at_places
                 and (not kinds or s.label in kinds)] or pool
     pool = [s for s in pool if s.label in kinds] or pool if kinds else pool
-    landmarks = {r.name for m in mentions for g in _references(scene, m, others) for r in g}
+    landmarks = {r.name for m in mentions for g in references_of(scene, m, others) for r in g}
     pool = [s for s in pool if s.name not in landmarks] or pool  # "beside the couch" is not the couch
     at_things = tuple(label for label in mentioned_labels(about, scene.labels)
                       if any(o.label == label and not o.is_seat and sits_at(o) for o in scene.objects))
@@ -241,7 +241,7 @@ def seat_candidates(
         pool = [s for s in pool if (t := table_of(scene, s)) is not None and t.name in tables] or pool
     relations: list[StatedRelation] = []
     for m in mentions:
-        refs = _references(scene, m, others)
+        refs = references_of(scene, m, others)
         if not any(refs):
             continue
         relation = StatedRelation(m.kind, refs)

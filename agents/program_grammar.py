@@ -33,6 +33,7 @@ import numpy as np
 from agents.action_shortlist import action_shortlist, posture
 from agents.area_words import DescribedArea, keep_in_areas, named_areas
 from agents.messages import CharacterStatus
+from agents.related_objects import RelatedObjects, related_objects
 from agents.relation_words import labels_about, stated_relations, without_relations
 from agents.shortlist import RELATIONS, event_shortlist, mentioned_labels, relation_areas
 from sim.motion.action_labels import playable_seated
@@ -205,6 +206,9 @@ class EventOptions:
     relations: tuple[str, ...]
     others: dict[str, tuple[float, float]]
     """Where the characters outside the event are (name -> xy)."""
+    landmarks: tuple[str, ...] = ()
+    """Objects the words place the used thing by ("the table nearest the window": the window):
+    offered to look at, not to use (:mod:`agents.related_objects`)."""
 
     @property
     def must_sit(self) -> bool:
@@ -255,9 +259,10 @@ def event_options(
     if not widen and (in_area := {n for a in named_areas(activity, areas, labels=scene.labels) for n in a.objects}):
         label_of = {o.name: o.label for o in scene.objects}
         objects, seats = keep_in_areas(objects, label_of, in_area), keep_in_areas(seats, label_of, in_area)
+    related = RelatedObjects(tuple(objects), ()) if widen else related_objects(scene, activity, objects, where)
     return EventOptions(
         labels=tuple(labels),
-        objects=tuple(objects),
+        objects=related.objects,
         seats=tuple(seats),
         free_seats=tuple(free),
         posture=posture(activity) or ("stand" if set(relations) & DIRECTIONAL else None)
@@ -265,6 +270,7 @@ def event_options(
         or ("stand" if idle_beside_a_thing(scene, activity, labels[0]) else None),
         relations=relations,
         others=where,
+        landmarks=related.landmarks,
     )
 
 
@@ -327,7 +333,7 @@ def event_program_grammar(
         list(options.labels),
         [c.name for c in characters if c.name not in event_characters],
         seated_labels=[a for a in options.labels if playable_seated(a)],
-        interact_objects=[o for o in objects if o not in seat_names],
+        interact_objects=[o for o in objects if o not in seat_names and o not in options.landmarks],
         posture="sit" if seat is not None else options.posture,
         area_names=options.relations,
     )

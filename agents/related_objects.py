@@ -1,0 +1,61 @@
+"""The object an event acts on, narrowed by the relations its words state about it.
+
+"Ben wipes down the table nearest the window": of the tables, the one nearest the window; the
+window is where the table is, not what Ben wipes. A 0.5B model writing
+``get_area_to_interact_with(...)`` picks one of the offered objects, and with every table and the
+window offered it often picks the landmark or the first table by name. Seats already go through
+a choice checked by geometry (:mod:`agents.place_choice`); this is the same check for the things
+a character stands at and uses.
+
+For each relation the words state about a kind of thing (:func:`agents.relation_words.stated_relations`
+with a ``subject``: the words right before the relation word, or an attributive one's described
+words), the offered instances of that kind that do not meet it (computed from the scene by
+:func:`tools.place_relations.keep_satisfying`) are no longer offered, and what the relation is
+measured against (its landmarks) is offered to look at but not to use. A relation that no
+offered instance meets, or whose subject is a seat (seats have their own choice), changes
+nothing. No word list here: the relation words and their subjects come from
+:mod:`agents.relation_words`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from agents.place_choice import references_of
+from agents.relation_words import stated_relations
+from sim.scene.model import Scene
+from tools.place_relations import StatedRelation, keep_satisfying
+
+
+@dataclass(frozen=True)
+class RelatedObjects:
+    """What the relations leave: the objects still offered (in the order given) and the
+    landmarks (offered to look at, not to use)."""
+
+    objects: tuple[str, ...]
+    landmarks: tuple[str, ...]
+
+
+def related_objects(
+    scene: Scene, text: str, objects: Sequence[str], others: Mapping[str, tuple[float, float]],
+) -> RelatedObjects:
+    """``objects`` (an event's offered object names) narrowed by the relations ``text`` states
+    about one of their kinds (see the module docstring); ``others``: where the characters outside
+    the event are (a relation may be measured against one of them)."""
+    by_name = {o.name: o for o in scene.objects}
+    kept = [n for n in objects if n in by_name]
+    landmarks: list[str] = []
+    for mention in stated_relations(text, scene.labels, list(others)):
+        if not mention.subject:
+            continue
+        things = [by_name[n] for n in kept if by_name[n].label in mention.subject and not by_name[n].is_seat]
+        refs = references_of(scene, mention, others)
+        if not things or not all(refs):
+            continue
+        meeting = {o.name for o in keep_satisfying([StatedRelation(mention.kind, refs)], things)}
+        marks = {r.name for group in refs for r in group if r.obj is not None and r.obj.label not in mention.subject}
+        thing_names = {o.name for o in things}
+        kept = [n for n in kept if n in meeting or n not in thing_names]
+        landmarks.extend(m for m in sorted(marks) if m not in landmarks and m not in meeting)
+    return RelatedObjects(objects=tuple(kept), landmarks=tuple(landmarks))

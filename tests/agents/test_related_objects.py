@@ -1,0 +1,59 @@
+"""The thing an event uses, narrowed by the relations its words state about it: "the sink
+nearest the window" is one sink, and the window is where it is, not what is used."""
+
+from __future__ import annotations
+
+import re
+
+from agents.messages import CharacterStatus
+from agents.program_grammar import event_program_grammar
+from agents.related_objects import related_objects
+from sim.scene.model import Scene
+from tests.support.scene_objects import box
+
+
+def galley() -> Scene:
+    """Two sinks 4 m apart, a window by the first, a shelf by the second; a stool."""
+    return Scene(name="galley", bounds_min=(-2.0, -2.0), bounds_max=(8.0, 4.0), objects=(
+        box("sink", 1, 0.0, 0.0, size=(0.8, 0.6, 0.9)), box("sink", 2, 4.0, 0.0, size=(0.8, 0.6, 0.9)),
+        box("window", 1, 0.0, 1.2, size=(1.0, 0.1, 1.0)), box("shelf", 1, 4.0, 1.2, size=(1.0, 0.4, 1.8)),
+        box("stool", 1, 2.0, -1.0, seat=True),
+    ))  # fmt: skip
+
+
+GALLEY = galley()
+ALL = [o.name for o in GALLEY.objects if not o.is_seat]
+
+
+def test_the_relation_keeps_the_instance_it_singles_out_and_marks_its_landmark() -> None:
+    near = related_objects(GALLEY, "Kai scrubs out the sink nearest the window", ALL, {})
+    assert near.objects == ("sink_1", "window_1", "shelf_1") and near.landmarks == ("window_1",)
+    far = related_objects(GALLEY, "Kai rinses the cups in the sink farthest from the window", ALL, {})
+    assert "sink_1" not in far.objects and "sink_2" in far.objects and far.landmarks == ("window_1",)
+    by_someone = related_objects(GALLEY, "Kai uses the sink closest to Uma", ALL, {"Uma": (4.2, -0.8)})
+    assert "sink_1" not in by_someone.objects and by_someone.landmarks == ()
+
+
+def test_words_without_a_described_thing_change_nothing() -> None:
+    for text in ("Kai stands by the window", "Kai washes up at a sink", "Kai waits near the shelf and hums"):
+        assert related_objects(GALLEY, text, ALL, {}).objects == tuple(ALL), text
+        assert related_objects(GALLEY, text, ALL, {}).landmarks == (), text
+    # a seat has its own choice; a relation about it leaves the objects alone
+    assert related_objects(GALLEY, "Kai takes the stool nearest the shelf", ALL, {}).objects == tuple(ALL)
+
+
+def _alternatives(grammar: str, rule: str) -> set[str]:
+    rules = dict(line.split(" ::= ", 1) for line in grammar.strip().splitlines())
+    return set(re.findall(r'\\"([^"\\]+)\\"', rules[rule]))
+
+
+def test_the_program_may_use_only_the_singled_out_thing_and_may_look_at_the_landmark() -> None:
+    roster = (CharacterStatus(name="Kai", position=(2.0, 2.0)),)
+    labels = ("wash_dishes", "idle")
+    # the shelf is named first, so the sinks are not the words' first thing: only the relation says which
+    text = "Kai leaves the shelf and scrubs the sink farthest from the window"
+    grammar = event_program_grammar(GALLEY, ("Kai",), roster, (), labels, activity=text)
+    assert _alternatives(grammar, "interactobject") == {"sink_2", "shelf_1"}
+    assert {"window_1", "sink_2"} <= _alternatives(grammar, "look") and "sink_1" not in _alternatives(grammar, "look")
+    plain = event_program_grammar(GALLEY, ("Kai",), roster, (), labels, activity="Kai leaves the shelf and scrubs a sink")
+    assert {"sink_1", "sink_2"} <= _alternatives(plain, "object")
