@@ -59,9 +59,10 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from agents.action_shortlist import CUES, rank_action_labels
+from agents.action_shortlist import CUES, posture, rank_action_labels
 from agents.messages import HistoryEntry
 from agents.prompt_templates import PromptLibrary, package_prompts
+from agents.relation_words import before_relations
 
 PartState = Literal["done", "ongoing", "failed", "next", ""]
 
@@ -209,10 +210,46 @@ def _at_the_same_time(sentence: str, names: Sequence[str]) -> list[str]:
     return [c if c[-1:] in ".!?" or i == len(clauses) - 1 else c + "." for i, c in enumerate(clauses)]
 
 
+_AND = re.compile(r",?(?<!\s)\s+and\s+(?=([a-z]+)\b)")
+NOT_A_VERB = frozenset(str.split(
+    "a an the this that these those some any all both each every no his her their its my your our "
+    "one two three four five then also so later afterwards after before with without in on at by to "
+    "from into onto near it them him me us"
+))
+"""Closed-class words that, right after "and", show it joins things, not a second verb ("a soda
+and some chips", "and then" is "then"'s)."""
+
+
+def _and_steps(piece: str, names: Sequence[str]) -> list[str]:
+    """``piece`` cut where "and" starts a second action of the same subject ("Ava takes a soda
+    out of the fridge and drinks it on the sofa": two steps, one after the other). Cut only when
+    one character (or an unnamed subject) acts, the words on each side point to an action label
+    (:func:`activity_kind`, read before any relation word: "picks the seat farthest from the
+    coffee maker" points to none), the two differ, neither is ``idle`` (waiting while waving is
+    one action), and the side before names no posture ("sits on the couch and drinks" is drinking
+    seated: one step). Two characters "chat and watch TV together" at once: not cut."""
+    if len(_mentioned(_leading_subject(piece, names), names)) > 1:
+        return [piece]
+    steps: list[str] = []
+    start = 0
+    for m in _AND.finditer(piece):
+        if m.group(1) in NOT_A_VERB:
+            continue
+        left, right = piece[start : m.start()].strip(), piece[m.end() :].strip()
+        before, after = activity_kind(before_relations(left)), activity_kind(before_relations(right))
+        if before is None or after is None or before == after or "idle" in (before, after) or posture(left):
+            continue
+        steps.append(left)
+        start = m.end()
+    steps.append(piece[start:].strip())
+    return [s for s in steps if s]
+
+
 def _then_parts(sentence: str, names: Sequence[str], lib: PromptLibrary) -> list[InstructionPart]:
-    """The parts of one clause: "then" starts a new one (see :func:`split_instruction`)."""
+    """The parts of one clause: "then" starts a new one, and so does "and" before a second action
+    of the same subject (:func:`_and_steps`; see :func:`split_instruction`)."""
     parts: list[InstructionPart] = []
-    pieces = [p.strip() for p in _THEN.split(sentence) if p.strip()]
+    pieces = [step for p in _THEN.split(sentence) if p.strip() for step in _and_steps(p.strip(), names)]
     subject = ""
     for k, piece in enumerate(pieces):
         pronoun = _PRONOUN.match(piece)

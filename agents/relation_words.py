@@ -87,6 +87,15 @@ def _match_at(lower: Sequence[str], i: int) -> tuple[int, RelationKind] | None:
     return None
 
 
+def before_relations(text: str) -> str:
+    """The words of ``text`` before its first relation word ("picks the place furthest from the
+    coffee machine" -> "picks the place"): what is done, without where it is measured from."""
+    tokens = _tokens(text)
+    lower = [t.lower() for t in tokens]
+    cut = next((i for i in range(len(tokens)) if _match_at(lower, i) is not None), len(tokens))
+    return " ".join(tokens[:cut])
+
+
 def _name(token: str) -> str:
     """A token without its possessive ending ("Mia's" -> "Mia")."""
     return token.removesuffix("'s").removesuffix("'")

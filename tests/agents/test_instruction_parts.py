@@ -45,6 +45,25 @@ def test_split_by_sentence_and_then_with_the_subject_carried_over(instruction: s
     assert [p.text for p in split_instruction(instruction, (*NAMES, "Cy", "Di", "Ed"))] == parts
 
 
+@pytest.mark.parametrize(("instruction", "parts"), [
+    ("Ben grabs a book from the shelf and reads it.", ["Ben grabs a book from the shelf.", "Then Ben reads it."]),
+    ("Ava opens the fridge and takes out the milk, then drinks it.",
+     ["Ava opens the fridge.", "Then Ava takes out the milk.", "Then Ava drinks it."]),
+    # one action: a posture and what is done in it, waiting while doing, one kind twice, things joined
+    (COFFEE, ["Ava makes coffee.", "Then Ava sits on the couch and drinks it."]),
+    ("Ava waits by the door and waves at Ben.", ["Ava waits by the door and waves at Ben."]),
+    ("Ben walks to the coffee maker and brews a pot.", ["Ben walks to the coffee maker and brews a pot."]),
+    ("Ava takes a soda and some chips from the fridge.", ["Ava takes a soda and some chips from the fridge."]),
+    # a relation's landmark is no action: "farthest from the coffee maker" is where, not what
+    ("Ben opens his laptop and picks the seat farthest from the coffee maker.",
+     ["Ben opens his laptop and picks the seat farthest from the coffee maker."]),
+    # two characters doing two things at once
+    ("Ava and Ben chat and watch TV together.", ["Ava and Ben chat and watch TV together."]),
+])
+def test_and_before_a_second_action_of_one_character_is_the_next_step(instruction: str, parts: list[str]) -> None:
+    assert [p.text for p in split_instruction(instruction, (*NAMES, "Cy"))] == parts
+
+
 def test_parts_know_their_characters_and_words() -> None:
     first, second = split_instruction(COFFEE, NAMES)
     assert first.names == second.names == ("Ava",)
