@@ -293,12 +293,14 @@ def _cue_tokens(phrase: str) -> tuple[str, ...]:
 
 def label_score(
     label: str, tokens: Sequence[str], named_objects: Iterable[str], landmark: Sequence[bool] | None = None,
-    one_way: bool = False,
+    one_way: bool = False, fetch_opens: bool = False,
 ) -> int:
     """Score of one label for the event's tokens; ``named_objects`` are the object labels the
     text names (``coffee_maker``); ``landmark``: :func:`_landmark_mask` of the tokens (computed
     when not given); ``one_way``: the label's opposite switch is not offered (:data:`OPPOSITES`),
-    so a text without a direction is not marked down."""
+    so a text without a direction is not marked down; ``fetch_opens``: no ``take_out_`` label is
+    offered, so taking something out of a thing the text names ("gets the milk from the fridge")
+    is opening it: a fetching verb gives an ``open_`` label its direction."""
     score = 0
     landmark = _landmark_mask(tokens) if landmark is None else landmark
     for phrase, weight in CUES.get(label, ()):
@@ -311,7 +313,9 @@ def label_score(
     target = label.removeprefix(prefix) if prefix else label.removeprefix("use_")
     if any(obj == target or obj.endswith("_" + target) for obj in named_objects):
         score += 3
-    if prefix is not None and score and _direction(tokens, prefix):
+    if prefix is not None and score and (
+        _direction(tokens, prefix) or (prefix == "open_" and fetch_opens and _direction(tokens, "take_out_"))
+    ):
         score += 2
     elif prefix is not None and not one_way:
         score //= 2
@@ -331,7 +335,8 @@ def _scores(text: str, labels: Sequence[str], object_labels: Sequence[str]) -> l
         prefix = next((p for p in OPPOSITES if label.startswith(p)), None)
         return prefix is not None and OPPOSITES[prefix] + label.removeprefix(prefix) not in offered
 
-    return [label_score(label, tokens, named, landmark, one_way(label)) for label in labels]
+    fetch_opens = not any(label.startswith("take_out_") for label in labels)
+    return [label_score(label, tokens, named, landmark, one_way(label), fetch_opens) for label in labels]
 
 
 def rank_action_labels(

@@ -76,3 +76,13 @@ def test_the_shortlist_is_bounded_and_close_to_the_best() -> None:
 def test_every_cue_names_a_known_label_and_labels_without_cues_still_rank() -> None:
     assert set(CUES) <= set(ACTION_LABELS)
     assert suggested_action("use the photocopier", ("idle", "use_photocopier")) == "use_photocopier"
+
+
+def test_taking_something_out_of_a_thing_opens_it_when_no_take_out_label_is_offered() -> None:
+    labels = ["idle", "drink", "open_fridge", "close_fridge", "open_cabinet"]
+    for text in ("Ava takes a soda out of the fridge", "Ava gets the milk from the fridge", "grab a juice from fridge_1"):
+        assert rank_action_labels(text, labels, ["fridge", "cabinet"])[0].label == "open_fridge", text
+    # a fridge that is only where something happens is not opened; drinking stays drinking
+    assert rank_action_labels("Ava takes a seat near the fridge and sips a soda", labels, ["fridge"])[0].label == "drink"
+    # with a label for taking out, that label says it
+    assert rank_action_labels("Ava takes a soda out of the fridge", [*labels, "take_out_drink"], ["fridge"])[0].label == "take_out_drink"
