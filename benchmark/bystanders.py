@@ -44,6 +44,7 @@ from agents.bystanders import instruction_activities, never_named
 from agents.event_parser import scene_action_labels
 from agents.messages import PlannedCharacter
 from agents.story_text import planned_object
+from benchmark.story_text_fidelity import replay_suite, report_run_folders, scene_of, share
 from sim.scene.model import Scene
 from tools.clusters import cluster_objects
 from tools.object_use import shared_use_frames
@@ -69,14 +70,6 @@ class RunCheck:
     error: str | None = None
 
 
-def _scene_of(run_dir: Path, story: dict[str, Any]) -> Scene:
-    from sim.scene.bundled import load_bundled_scene
-    from sim.scene.files import load_scene_json
-
-    path = run_dir / "scene.json"
-    return load_scene_json(path) if path.is_file() else load_bundled_scene(str(story["scene"]))
-
-
 def _instruction_at(story: dict[str, Any], frame: int) -> str:
     said = [i for i in story.get("instructions", []) if int(i.get("frame", 0)) <= frame]
     return str(said[-1]["text"]) if said else str(story.get("instruction", ""))
@@ -87,7 +80,7 @@ def check_run(run_dir: Path) -> RunCheck:
     check = RunCheck(run_dir.name)
     try:
         story = json.loads((run_dir / "story.json").read_text(encoding="utf-8"))
-        scene = _scene_of(run_dir, story)
+        scene = scene_of(run_dir, story)
     except (OSError, ValueError, KeyError) as exc:
         check.error = f"{run_dir}: {exc}"
         return check
@@ -146,18 +139,14 @@ def _shared_frames(run_dir: Path, names: list[str], scene: Scene) -> tuple[int, 
     return len({f for f, _, _ in shared_use_frames(labels, positions, scene)}), frames
 
 
-def _share(part: int, whole: int) -> str:
-    return f"{part}/{whole} ({100.0 * part / whole:.1f}%)" if whole else "0/0"
-
-
 def report(checks: list[RunCheck]) -> str:
     lines = []
     for c in checks:
         if c.error:
             lines.append(f"{c.name}: {c.error}")
             continue
-        lines.append(f"{c.name}: bystander events of their own {_share(c.own, c.events)} over {len(c.areas)} areas; "
-                     f"done characters {_share(c.done_own, c.done_events)}; shared single-user frames "
+        lines.append(f"{c.name}: bystander events of their own {share(c.own, c.events)} over {len(c.areas)} areas; "
+                     f"done characters {share(c.done_own, c.done_events)}; shared single-user frames "
                      f"{c.shared_frames} of {c.frames}")  # fmt: skip
         lines += [f"    miss {m}" for m in c.misses]
     ok = [c for c in checks if not c.error]
@@ -167,9 +156,9 @@ def report(checks: list[RunCheck]) -> str:
     lines.append(f"runs: {len(ok)} checked, {len(checks) - len(ok)} unreadable")
     verdict = "" if not events else (" (target met)" if own >= TARGET_OWN * events else f" (target {TARGET_OWN:.0%} not met)")
     lines.append(f"bystander events (never named) neither repeating nor taking the instruction's activity: "
-                 f"{_share(own, events)}{verdict}")  # fmt: skip
+                 f"{share(own, events)}{verdict}")  # fmt: skip
     lines.append(f"  the same for characters whose parts are over: "
-                 f"{_share(sum(c.done_own for c in ok), sum(c.done_events for c in ok))}")  # fmt: skip
+                 f"{share(sum(c.done_own for c in ok), sum(c.done_events for c in ok))}")  # fmt: skip
     lines.append(f"  areas per run with bystander events: {[len(c.areas) for c in ok if c.events]}")
     lines.append(f"frames where two characters use one single-user object: {sum(c.shared_frames for c in ok)} "
                  f"of {sum(c.frames for c in ok)} (target 0)")  # fmt: skip
@@ -237,12 +226,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     if args.runs is not None:
-        if not args.runs.is_dir():
-            print(f"error: --runs {args.runs}: not a folder", file=sys.stderr)
-            return 2
-        folders = sorted(d for d in args.runs.iterdir() if (d / "story.json").is_file())
-        print(report([check_run(d) for d in folders]))
-        return 0
+        return report_run_folders(args.runs, check_run, report)
     if args.fresh is not None:
         if args.extra < 0:
             print("error: --extra must be 0 or more", file=sys.stderr)
@@ -254,8 +238,6 @@ def _run(args: argparse.Namespace) -> int:
                       for d, _, failure in ran]))  # fmt: skip
         print(f"ran {len(ran)} scenarios in {time.perf_counter() - t0:.0f} s wall")
         return 0
-    from benchmark.story_text_fidelity import replay_suite
-
     traces = args.traces if args.traces is not None else DEFAULT_TRACES
     if not traces.is_dir():
         print(f"error: --traces {traces}: not a folder of recorded runs", file=sys.stderr)

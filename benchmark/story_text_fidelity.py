@@ -36,9 +36,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from agents.messages import PlannedCharacter
 from agents.story_text import ObjectNames, agrees
@@ -47,6 +48,7 @@ from sim.scene.model import Scene
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TRACES = ROOT / "traces" / "story_suite"
 PROSE_END = "\n## What went wrong"
+C = TypeVar("C")
 
 
 @dataclass
@@ -63,7 +65,9 @@ class RunCheck:
     error: str | None = None
 
 
-def _scene_of(run_dir: Path, story: dict[str, Any]) -> Scene:
+def scene_of(run_dir: Path, story: dict[str, Any]) -> Scene:
+    """A run folder's scene: its ``scene.json``, else the bundled scene ``story.json`` names
+    (``benchmark.bystanders`` reads runs the same way)."""
     from sim.scene.bundled import load_bundled_scene
     from sim.scene.files import load_scene_json
 
@@ -96,7 +100,7 @@ def check_run(run_dir: Path) -> RunCheck:
     try:
         story = json.loads((run_dir / "story.json").read_text(encoding="utf-8"))
         markdown = (run_dir / "story.md").read_text(encoding="utf-8")
-        scene = _scene_of(run_dir, story)
+        scene = scene_of(run_dir, story)
     except (OSError, ValueError, KeyError) as exc:
         check.error = f"{run_dir}: {exc}"
         return check
@@ -140,7 +144,8 @@ def replay_suite(traces: Path, pattern: str, out: Path) -> list[tuple[Path, floa
     return done
 
 
-def _share(part: int, whole: int) -> str:
+def share(part: int, whole: int) -> str:
+    """``part/whole (pct%)``, as every line of the run-folder reports shows a share."""
     return f"{part}/{whole} ({100.0 * part / whole:.1f}%)" if whole else "0/0"
 
 
@@ -151,7 +156,7 @@ def report(checks: list[RunCheck]) -> str:
             lines.append(f"{c.name}: {c.error}")
             continue
         ids = f", raw ids in story.md: {', '.join(c.raw_ids)}" if c.raw_ids else ""
-        lines.append(f"{c.name}: text names the plan in {_share(c.faithful, c.events)} events; "
+        lines.append(f"{c.name}: text names the plan in {share(c.faithful, c.events)} events; "
                      f"narrator's words shown {c.narrations}{ids}")  # fmt: skip
         lines += [f"    miss {m}" for m in c.misses]
     ok = [c for c in checks if not c.error]
@@ -159,11 +164,22 @@ def report(checks: list[RunCheck]) -> str:
     lines.append("")
     lines.append(f"runs: {len(ok)} checked, {len(checks) - len(ok)} unreadable")
     lines.append(f"event text names the planned object and an action word of the planned label: "
-                 f"{_share(sum(c.faithful for c in ok), events)}")  # fmt: skip
+                 f"{share(sum(c.faithful for c in ok), events)}")  # fmt: skip
     lines.append(f"narrator's words shown: {sum(c.narrations for c in ok)} of {events} events, agreeing "
-                 f"{_share(sum(c.narrations_faithful for c in ok), sum(c.narrations for c in ok))}")  # fmt: skip
-    lines.append(f"story.md with no raw id of a uniquely named object: {_share(sum(not c.raw_ids for c in ok), len(ok))}")
+                 f"{share(sum(c.narrations_faithful for c in ok), sum(c.narrations for c in ok))}")  # fmt: skip
+    lines.append(f"story.md with no raw id of a uniquely named object: {share(sum(not c.raw_ids for c in ok), len(ok))}")
     return "\n".join(lines)
+
+
+def report_run_folders(runs: Path, check: Callable[[Path], C], report_of: Callable[[list[C]], str]) -> int:
+    """``--runs``: ``check`` every sub-folder of ``runs`` with a ``story.json`` and print their
+    report; the exit code (2: ``runs`` is not a folder)."""
+    if not runs.is_dir():
+        print(f"error: --runs {runs}: not a folder", file=sys.stderr)
+        return 2
+    folders = sorted(d for d in runs.iterdir() if (d / "story.json").is_file())
+    print(report_of([check(d) for d in folders]))
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -176,12 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=None, help="Folder for the replayed runs (default: a temporary one).")
     args = p.parse_args(argv)
     if args.runs is not None:
-        if not args.runs.is_dir():
-            print(f"error: --runs {args.runs}: not a folder", file=sys.stderr)
-            return 2
-        folders = sorted(d for d in args.runs.iterdir() if (d / "story.json").is_file())
-        print(report([check_run(d) for d in folders]))
-        return 0
+        return report_run_folders(args.runs, check_run, report)
     traces = args.traces if args.traces is not None else DEFAULT_TRACES
     if not traces.is_dir():
         print(f"error: --traces {traces}: not a folder of recorded runs", file=sys.stderr)
