@@ -31,7 +31,6 @@ import argparse
 import json
 import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -44,7 +43,14 @@ from agents.bystanders import instruction_activities, never_named
 from agents.event_parser import scene_action_labels
 from agents.messages import PlannedCharacter
 from agents.story_text import planned_object
-from benchmark.story_text_fidelity import replay_suite, report_run_folders, scene_of, share
+from benchmark.story_text_fidelity import (
+    replay_suite,
+    report_replays,
+    report_run_folders,
+    run_lines,
+    scene_of,
+    share,
+)
 from sim.scene.model import Scene
 from tools.clusters import cluster_objects
 from tools.object_use import shared_use_frames
@@ -140,15 +146,10 @@ def _shared_frames(run_dir: Path, names: list[str], scene: Scene) -> tuple[int, 
 
 
 def report(checks: list[RunCheck]) -> str:
-    lines = []
-    for c in checks:
-        if c.error:
-            lines.append(f"{c.name}: {c.error}")
-            continue
-        lines.append(f"{c.name}: bystander events of their own {share(c.own, c.events)} over {len(c.areas)} areas; "
-                     f"done characters {share(c.done_own, c.done_events)}; shared single-user frames "
-                     f"{c.shared_frames} of {c.frames}")  # fmt: skip
-        lines += [f"    miss {m}" for m in c.misses]
+    lines = run_lines(checks, lambda c: (
+        f"bystander events of their own {share(c.own, c.events)} over {len(c.areas)} areas; "
+        f"done characters {share(c.done_own, c.done_events)}; shared single-user frames {c.shared_frames} of {c.frames}"
+    ))
     ok = [c for c in checks if not c.error]
     events = sum(c.events for c in ok)
     own = sum(c.own for c in ok)
@@ -238,19 +239,11 @@ def _run(args: argparse.Namespace) -> int:
                       for d, _, failure in ran]))  # fmt: skip
         print(f"ran {len(ran)} scenarios in {time.perf_counter() - t0:.0f} s wall")
         return 0
-    traces = args.traces if args.traces is not None else DEFAULT_TRACES
-    if not traces.is_dir():
-        print(f"error: --traces {traces}: not a folder of recorded runs", file=sys.stderr)
-        return 2
-    with tempfile.TemporaryDirectory(prefix="bystanders-") as tmp:
-        out = args.out if args.out is not None else Path(tmp)
-        t0 = time.perf_counter()
-        replayed = [r for name in (s.name for s in _scenarios(args.scenarios)) for r in replay_suite(traces, name, out)]
-        print(report([check_run(d) if failure is None else RunCheck(d.name, error=f"replay failed: {failure}")
-                      for d, _, failure in replayed]))  # fmt: skip
-        print(f"replayed {len(replayed)} recorded runs from {traces} in {time.perf_counter() - t0:.0f} s wall")
-    return 0
-
+    return report_replays(
+        args.traces, args.out, "bystanders-",
+        lambda traces, out: [r for s in _scenarios(args.scenarios) for r in replay_suite(traces, s.name, out)],
+        check_run, lambda name, error: RunCheck(name, error=error), report,
+    )
 
 if __name__ == "__main__":
     raise SystemExit(main())

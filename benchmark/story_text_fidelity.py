@@ -39,7 +39,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from agents.messages import PlannedCharacter
 from agents.story_text import ObjectNames, agrees
@@ -149,16 +149,33 @@ def share(part: int, whole: int) -> str:
     return f"{part}/{whole} ({100.0 * part / whole:.1f}%)" if whole else "0/0"
 
 
-def report(checks: list[RunCheck]) -> str:
+class _Checked(Protocol):
+    name: str
+    misses: list[str]
+    error: str | None
+
+
+K = TypeVar("K", bound=_Checked)
+
+
+def run_lines(checks: list[K], verdict: Callable[[K], str]) -> list[str]:
+    """A report's line per run (``name: error``, else ``name: verdict`` and a line per miss)."""
     lines = []
     for c in checks:
         if c.error:
             lines.append(f"{c.name}: {c.error}")
             continue
-        ids = f", raw ids in story.md: {', '.join(c.raw_ids)}" if c.raw_ids else ""
-        lines.append(f"{c.name}: text names the plan in {share(c.faithful, c.events)} events; "
-                     f"narrator's words shown {c.narrations}{ids}")  # fmt: skip
+        lines.append(f"{c.name}: {verdict(c)}")
         lines += [f"    miss {m}" for m in c.misses]
+    return lines
+
+
+def report(checks: list[RunCheck]) -> str:
+    def verdict(c: RunCheck) -> str:
+        ids = f", raw ids in story.md: {', '.join(c.raw_ids)}" if c.raw_ids else ""
+        return f"text names the plan in {share(c.faithful, c.events)} events; narrator's words shown {c.narrations}{ids}"
+
+    lines = run_lines(checks, verdict)
     ok = [c for c in checks if not c.error]
     events = sum(c.events for c in ok)
     lines.append("")
@@ -182,6 +199,33 @@ def report_run_folders(runs: Path, check: Callable[[Path], C], report_of: Callab
     return 0
 
 
+def report_replays(
+    traces: Path | None,
+    out: Path | None,
+    prefix: str,
+    replay: Callable[[Path, Path], list[tuple[Path, float, str | None]]],
+    check: Callable[[Path], C],
+    failed: Callable[[str, str], C],
+    report_of: Callable[[list[C]], str],
+) -> int:
+    """``--traces``: ``replay`` the recorded runs of ``traces`` (default: the story suite's) into
+    ``out`` (default: a temporary folder named with ``prefix``), ``check`` each run that wrote a
+    story (``failed(name, error)`` for one that did not) and print their report; the exit code
+    (2: ``traces`` is not a folder)."""
+    traces = traces if traces is not None else DEFAULT_TRACES
+    if not traces.is_dir():
+        print(f"error: --traces {traces}: not a folder of recorded runs", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        folder = out if out is not None else Path(tmp)
+        t0 = time.perf_counter()
+        replayed = replay(traces, folder)
+        print(report_of([check(d) if failure is None else failed(d.name, f"replay failed: {failure}")
+                         for d, _, failure in replayed]))  # fmt: skip
+        print(f"replayed {len(replayed)} recorded runs from {traces} in {time.perf_counter() - t0:.0f} s wall")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmark.story_text_fidelity", description=__doc__.splitlines()[0])
     source = p.add_mutually_exclusive_group()
@@ -193,20 +237,10 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.runs is not None:
         return report_run_folders(args.runs, check_run, report)
-    traces = args.traces if args.traces is not None else DEFAULT_TRACES
-    if not traces.is_dir():
-        print(f"error: --traces {traces}: not a folder of recorded runs", file=sys.stderr)
-        return 2
-    with tempfile.TemporaryDirectory(prefix="story-text-") as tmp:
-        out = args.out if args.out is not None else Path(tmp)
-        t0 = time.perf_counter()
-        replayed = replay_suite(traces, args.scenarios, out)
-        checks = [check_run(d) if failure is None else RunCheck(d.name, error=f"replay failed: {failure}")
-                  for d, _, failure in replayed]  # fmt: skip
-        print(report(checks))
-        print(f"replayed {len(replayed)} recorded runs from {traces} in {time.perf_counter() - t0:.0f} s wall")
-    return 0
-
+    return report_replays(
+        args.traces, args.out, "story-text-", lambda traces, out: replay_suite(traces, args.scenarios, out),
+        check_run, lambda name, error: RunCheck(name, error=error), report,
+    )
 
 if __name__ == "__main__":
     raise SystemExit(main())
