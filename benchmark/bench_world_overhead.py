@@ -19,76 +19,37 @@ import argparse
 import hashlib
 import time
 from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
 from benchmark.crowd_scenario import OFFICE, REFERENCE, IdleErrands
+from benchmark.world_timing import Counters, TimedMotion, TimedPlanner
 from orchestrator.cache_paths import motion_cache_dir
 from sim.motion.database import MotionDatabase, load_databases
 from sim.motion.matching import MotionMatcher
-from sim.paths.cooperative_astar import PathPlanner, PlanResult
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.files import load_scene
 from sim.scene.model import Scene
-from sim.world.motion_layer import MotionQuery, Pose
 from sim.world.step import World, WorldConfig, step
 
 CLOCK = time.process_time
 
 
-class Counters:
-    plan_s = 0.0
-    motion_s = 0.0
-    step_s = 0.0  # inside ``step`` (the rest of the loop is this script making commands)
+@dataclass
+class OverheadCounters(Counters):
+    """``world_timing``'s counters (read with this script's clock, no planning problems kept),
+    and the time inside ``step``."""
 
-
-class TimedPlanner(PathPlanner):
-    """The planner with its ``plan`` calls timed."""
-
-    counters: Counters
-
-    def plan(self, *args: Any, **kw: Any) -> PlanResult:
-        t = CLOCK()
-        out = super().plan(*args, **kw)
-        self.counters.plan_s += CLOCK() - t
-        return out
-
-
-class TimedMotion:
-    """The motion layer with its batched step timed."""
-
-    def __init__(self, matcher: MotionMatcher, counters: Counters) -> None:
-        self._m, self._c = matcher, counters
-
-    def initial_state(self, label: str, root_xy: Any, heading: float, seated: bool = False) -> Any:
-        return self._m.initial_state(label, root_xy, heading, seated)
-
-    def step(self, state: Any, query: MotionQuery, dt: float) -> tuple[Any, Pose]:
-        t = CLOCK()
-        out = self._m.step(state, query, dt)
-        self._c.motion_s += CLOCK() - t
-        return out
-
-    def step_many(self, states: Any, queries: Any, dt: float) -> Any:
-        t = CLOCK()
-        out = self._m.step_many(states, queries, dt)
-        self._c.motion_s += CLOCK() - t
-        return out
-
-    def step_batch(self, states: Any, queries: Any, dt: float) -> Any:
-        t = CLOCK()
-        out = self._m.step_batch(states, queries, dt)
-        self._c.motion_s += CLOCK() - t
-        return out
+    record: bool = False
+    step_s: float = 0.0  # inside ``step`` (the rest of the loop is this script making commands)
 
 
 def run(scene: Scene, grid: NavGrid, dbs: Mapping[str, MotionDatabase], n: int, frames: int,
-        seed: int) -> tuple[float, Counters, str]:
+        seed: int) -> tuple[float, OverheadCounters, str]:
     """(seconds, counters, output fingerprint) of one crowd run (bench_world's scenario)."""
-    counters = Counters()
-    planner = TimedPlanner(grid, seed=seed)
-    planner.counters = counters
+    counters = OverheadCounters(clock=CLOCK)
+    planner = TimedPlanner(grid, counters, seed=seed)
     errands = IdleErrands(grid, n, seed)
     world = World(scene, errands.starts, TimedMotion(MotionMatcher(dbs), counters), grid=grid, planner=planner,
                   config=WorldConfig(seed=seed, initial_capacity=frames))

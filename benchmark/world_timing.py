@@ -3,7 +3,7 @@
 goal-distance fields), with an option to answer every motion search by brute force (the KD-tree's
 baseline). The wrappers delegate; the world takes the same decisions with and without them.
 
-Used by ``benchmark/bench_world.py`` (``bench_world_overhead.py`` has its own lighter counters).
+Used by ``benchmark/bench_world.py`` and ``benchmark/bench_world_overhead.py`` (which reads them with its own clock).
 """
 
 from __future__ import annotations
