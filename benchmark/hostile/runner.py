@@ -35,7 +35,16 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from benchmark.hostile import inputs, models, outputs, run_folders, scenes, sweeps
+from benchmark.hostile import (
+    folder_files,
+    inputs,
+    models,
+    outputs,
+    record_values,
+    run_folders,
+    scenes,
+    sweeps,
+)
 from benchmark.hostile.bases import BASE_COMMANDS, build_sweep, workspace
 from benchmark.hostile.harness import CANARY, CLEAN_PROGRAM, SLACK_S, Attack, Box, Spec
 from benchmark.hostile.judging import Outcome, digest, judge, run_command, tree_state
@@ -43,7 +52,7 @@ from benchmark.hostile.viewer import VIEWER_KIND, run_viewer
 from benchmark.motion_metrics.scripted_story import build_story
 
 ATTACKS: list[Attack] = [*run_folders.ATTACKS, *outputs.ATTACKS, *scenes.ATTACKS, *inputs.ATTACKS,
-                         *sweeps.ATTACKS, *models.ATTACKS]
+                         *sweeps.ATTACKS, *models.ATTACKS, *folder_files.ATTACKS, *record_values.ATTACKS]
 """Every attack but the viewer's (:func:`run_viewer`), by target."""
 
 
