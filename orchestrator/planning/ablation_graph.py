@@ -51,7 +51,6 @@ from pydantic import JsonValue
 from agents.ablations.descriptions import object_list_description, scene_graph_description
 from agents.ablations.direct import check_direct_reply, direct_request
 from agents.ablations.unified import check_unified_reply, unified_request
-from agents.llm_port import LLMError
 from agents.messages import Event, ParsedEvent, SceneDescription
 from agents.program_grammar import open_program_grammar
 from agents.retry_feedback import REJECTIONS
@@ -61,7 +60,7 @@ from orchestrator.planning.describer_nodes import check_description, describe_sc
 from orchestrator.planning.graph import CompiledPlanningGraph, NodeFn, PlanningGraph
 from orchestrator.planning.kinds import DescriptionKind, PlannerKind
 from orchestrator.planning.narrator_nodes import narrator_input
-from orchestrator.planning.node_calls import complete, off_loop, reply_update, unavailable
+from orchestrator.planning.node_calls import ask, off_loop
 from orchestrator.planning.parser_nodes import parser_input
 from orchestrator.planning.record_node import record_outcome
 from orchestrator.planning.rejection import record_parsed, rejected_reply
@@ -127,11 +126,7 @@ async def parse_event_as_coordinates(state: PlanningState, runtime: Runtime[Plan
     request = await off_loop(lambda: direct_request(
         deps.prompts, parser_input(state, deps), deps.scene, lists_objects=lists_objects, turns=turns,
     ))
-    try:
-        response = await complete(deps, request, state)
-    except LLMError as exc:
-        return unavailable(state, "event_parser", exc)
-    return reply_update(state, "parser", response)
+    return await ask(deps, state, request, "event_parser")
 
 
 async def check_coordinates(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
@@ -170,11 +165,7 @@ async def plan_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> di
         deps.prompts, narrator_input(state, deps), action_labels=deps.action_labels,
         seats_in_use=seats_in_use, turns=turns, grammar=grammar,
     )
-    try:
-        response = await complete(deps, request, state)
-    except LLMError as exc:
-        return unavailable(state, "planner", exc)
-    return reply_update(state, "parser", response)
+    return await ask(deps, state, request, "planner")
 
 
 async def check_plan(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:

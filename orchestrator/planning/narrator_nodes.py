@@ -11,11 +11,10 @@ from langgraph.runtime import Runtime
 
 from agents.bystanders import scene_now
 from agents.instruction_parts import InstructionProgress
-from agents.llm_port import LLMError
 from agents.messages import Event
 from agents.narrator import NarratorInput, narrator_request, parse_narration
 from agents.retry_feedback import REJECTIONS
-from orchestrator.planning.node_calls import complete, off_loop, reply_update, unavailable
+from orchestrator.planning.node_calls import ask, off_loop
 from orchestrator.planning.rejection import record_parsed, rejected_reply
 from orchestrator.planning.state import PlanningDeps, PlanningState
 
@@ -44,12 +43,8 @@ async def narrate_event(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     """One narrator call; its reply is checked by the next node."""
     deps = runtime.context
     turns = tuple(t.as_turn() for t in state.narrator_turns)
-    try:
-        inp = await off_loop(lambda: narrator_input(state, deps))
-        response = await complete(deps, narrator_request(deps.prompts, inp, turns), state)
-    except LLMError as exc:
-        return unavailable(state, "narrator", exc)
-    return reply_update(state, "narrator", response)
+    inp = await off_loop(lambda: narrator_input(state, deps))
+    return await ask(deps, state, narrator_request(deps.prompts, inp, turns), "narrator")
 
 
 async def check_narration(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:

@@ -1,7 +1,8 @@
 """What every node of the planning graphs shares about its LLM call: :func:`off_loop` (CPU work
 and blocking waits in a worker thread), :func:`complete` (one call with the step's simulation
 frame attached, its latency reported), and the state updates for an answered call
-(:func:`reply_update`) and for a model that gave no answer (:func:`unavailable`).
+(:func:`reply_update`) and for a model that gave no answer (:func:`unavailable`), and
+:func:`ask`, the call node's body built from them (every node that asks the model once uses it).
 """
 
 from __future__ import annotations
@@ -72,3 +73,16 @@ def unavailable(
         "step_trace_seqs": (*state.step_trace_seqs, *exc.trace_seqs),
         "llm_calls": state.llm_calls + 1,
     }
+
+
+async def ask(
+    deps: PlanningDeps, state: PlanningState, request: LLMRequest, node: Literal["narrator", "event_parser", "planner"]
+) -> dict[str, Any]:
+    """One ``node`` call: the update for its reply (:func:`reply_update`; the narrator's reply, or
+    the parser's for the event parser and the planner), or the step's failure when the model gave
+    no answer (:func:`unavailable`)."""
+    try:
+        response = await complete(deps, request, state)
+    except LLMError as exc:
+        return unavailable(state, node, exc)
+    return reply_update(state, "narrator" if node == "narrator" else "parser", response)

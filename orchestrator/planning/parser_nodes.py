@@ -18,11 +18,10 @@ from agents.event_parser import (
     parser_request,
     run_reply,
 )
-from agents.llm_port import LLMError
 from agents.messages import ParsedEvent
 from agents.program_grammar import event_program_grammar, free_seats
 from agents.retry_feedback import REJECTIONS
-from orchestrator.planning.node_calls import complete, off_loop, reply_update, unavailable
+from orchestrator.planning.node_calls import ask, off_loop
 from orchestrator.planning.rejection import record_parsed, rejected_reply
 from orchestrator.planning.state import PlanningDeps, PlanningState
 from tools.errors import ObjectInUseError
@@ -64,11 +63,7 @@ async def parse_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> d
     deps = runtime.context
     turns = tuple(t.as_turn() for t in state.parser_turns)
     request = await off_loop(lambda: parser_request(deps.prompts, parser_input(state, deps), turns))
-    try:
-        response = await complete(deps, request, state)
-    except LLMError as exc:
-        return unavailable(state, "event_parser", exc)
-    return reply_update(state, "parser", response)
+    return await ask(deps, state, request, "event_parser")
 
 
 async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:
