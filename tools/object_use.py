@@ -29,6 +29,7 @@ import numpy as np
 
 from sim.motion.action_labels import ACTION_SPECS
 from sim.scene.model import Scene, SceneObject
+from sim.world.events import PlanLike
 from tools.scene_graph import point_footprint_distance
 
 Point = tuple[float, float]
@@ -83,17 +84,6 @@ class CharacterLike(Protocol):
     def position(self) -> Point | None: ...
     @property
     def target_position(self) -> Point | None: ...
-
-
-class PlanLike(Protocol):
-    """What is read of a plan (``tools.character_states.CharacterPlan``)."""
-
-    @property
-    def character(self) -> str: ...
-    @property
-    def action(self) -> str: ...
-    @property
-    def position(self) -> Point: ...
 
 
 def used_labels(action: str) -> tuple[str, ...]:

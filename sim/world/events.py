@@ -83,8 +83,9 @@ class Assignment(_Frozen):
         return math.atan2(self.facing_xy[1], self.facing_xy[0])
 
 
-class _PlanLike(Protocol):
-    """What :meth:`AssignEvent.from_plans` reads of a plan (read-only, so frozen models fit)."""
+class PlanLike(Protocol):
+    """Who does what where, read of a planner's plan (``tools.character_states.CharacterPlan``;
+    read-only, so frozen models fit). ``tools.object_use`` reads no more of it."""
 
     @property
     def character(self) -> str: ...
@@ -92,6 +93,11 @@ class _PlanLike(Protocol):
     def action(self) -> str: ...
     @property
     def position(self) -> Point: ...
+
+
+class _AssignedPlan(PlanLike, Protocol):
+    """What :meth:`AssignEvent.from_plans` reads of a plan."""
+
     @property
     def facing(self) -> Point: ...
     @property
@@ -120,7 +126,7 @@ class AssignEvent(_Frozen):
         return tuple(a.character for a in self.assignments)
 
     @classmethod
-    def from_plans(cls, event_id: str, plans: Sequence[_PlanLike], scene: Scene | None = None) -> AssignEvent:
+    def from_plans(cls, event_id: str, plans: Sequence[_AssignedPlan], scene: Scene | None = None) -> AssignEvent:
         """An event from planner output (``CharacterPlan``-like objects).
 
         Every character's partners are the other characters of the event; a seat's height
