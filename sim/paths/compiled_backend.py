@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from sim.paths.astar_kernel import dense_pass
 from sim.paths.heuristics import GoalDistances
 from sim.paths.move_tables import MoveTables
+from sim.paths.passes import Passes
 from sim.paths.plan_types import Agent, Cell
 
 
@@ -77,17 +78,12 @@ class _DenseScratch:
         return self.near, self.dirty
 
 
-class CompiledPasses:
-    """Planning passes by the compiled kernel on ``tables`` with the static distances of
-    ``distances``; ``window``, ``commit_steps`` and ``max_expansions`` as in ``PathPlanner``."""
+class CompiledPasses(Passes):
+    """Planning passes by the compiled kernel (the settings: :class:`sim.paths.passes.Passes`)."""
 
     def __init__(self, tables: MoveTables, distances: GoalDistances, window: int, commit_steps: int,
                  max_expansions: int) -> None:
-        self.tables = tables
-        self.distances = distances
-        self.window = window
-        self.commit_steps = commit_steps
-        self.max_expansions = max_expansions
+        super().__init__(tables, distances, window, commit_steps, max_expansions)
         self.reach = tables.reach
         self._scratch = _DenseScratch(tables, max_expansions)
         # the last stack of the agents' own distances a dense pass read, and the arrays stacked

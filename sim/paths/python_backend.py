@@ -16,23 +16,14 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.heuristics import GoalDistances
-from sim.paths.move_tables import Move, MoveTables
+from sim.paths.move_tables import Move
+from sim.paths.passes import Passes
 from sim.paths.plan_types import Agent, Cell
 from sim.paths.reservations import Reservations
 
 
-class PythonPasses:
-    """Planning passes in pure Python on ``tables`` with the static distances of ``distances``;
-    ``window``, ``commit_steps`` and ``max_expansions`` as in ``PathPlanner``."""
-
-    def __init__(self, tables: MoveTables, distances: GoalDistances, window: int, commit_steps: int,
-                 max_expansions: int) -> None:
-        self.tables = tables
-        self.distances = distances
-        self.window = window
-        self.commit_steps = commit_steps
-        self.max_expansions = max_expansions
+class PythonPasses(Passes):
+    """Planning passes in pure Python (the settings: :class:`sim.paths.passes.Passes`)."""
 
     def run_pass(
         self,
