@@ -14,6 +14,10 @@ scene, a trace) goes through two functions:
   finite numbers only (``NaN``, ``Infinity`` and ``1e999`` are refused), no key given twice
   in one object (readers disagree on which value wins) and at most :data:`MAX_OBJECT_KEYS` keys
   in one object;
+- :func:`load_bounded_toml` parses TOML text (UTF-8) with keys of at most
+  :data:`MAX_TOML_KEY_PARTS` dotted parts, counted before the parser sees them (``tomllib``
+  spends time quadratic in a dotted key's parts, and in a table header's parts times its keys:
+  a key of 50,000 parts took 1.5 GB, a header of 30,000 parts over 60,000 keys minutes);
 - :func:`json_keys_exceed` tells, without parsing, whether a JSON text holds more keys than
   allowed, for the readers that hand bytes straight to pydantic (a model that forbids unknown
   keys builds one error per key: 1.2 million of them took 1.7 GB).
@@ -45,6 +49,9 @@ MAX_INT_DIGITS = 64
 
 MAX_OBJECT_KEYS = 10_000
 """Keys of one JSON object at most (the project's files have tens; an LLM reply a few hundred)."""
+
+MAX_TOML_KEY_PARTS = 16
+"""Dotted parts of one TOML key or table header at most (the project's configs use 3)."""
 
 _READ_CHUNK = 1 << 20  # bytes per read() call
 _DEPTH_CHUNK = 1 << 22  # brackets per step of the depth scan (32 MiB of running depths)
@@ -156,6 +163,76 @@ def load_bounded_json(data: bytes | str, max_depth: int, what: str) -> Any:
         raise BoundedFileError(what, str(exc)) from None
     except (RecursionError, MemoryError):  # unreachable after the depth check; kept as a floor
         raise BoundedFileError(what, "JSON too large or too deeply nested to read") from None
+
+
+def load_bounded_toml(data: bytes, what: str) -> dict[str, Any]:
+    """The TOML table in ``data`` (UTF-8), its keys and table headers of at most
+    :data:`MAX_TOML_KEY_PARTS` parts; :class:`BoundedFileError` (one line, naming ``what``) otherwise."""
+    import tomllib
+
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise BoundedFileError(what, f"not UTF-8 text (bad byte at offset {exc.start})") from None
+    parts = toml_key_parts(text)
+    if parts > MAX_TOML_KEY_PARTS:
+        raise BoundedFileError(what, f"a TOML key of {parts} dotted parts (at most {MAX_TOML_KEY_PARTS} allowed)")
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise BoundedFileError(what, f"not valid TOML ({exc})") from None
+    except RecursionError:  # tomllib is recursive: arrays or inline tables nested hundreds deep
+        raise BoundedFileError(what, "not valid TOML (nested too deeply)") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        raise BoundedFileError(what, f"not valid TOML ({' '.join(str(exc).split())[:200]})") from None
+
+
+_TOML_KEY_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-. \t\"'")
+_TOML_NOT_KEY = {c: "\n" for c in range(128) if chr(c) not in _TOML_KEY_CHARS}
+
+
+def toml_key_parts(text: str) -> int:
+    """The most dotted parts of a key or table header in the TOML ``text``: the most dots in a run
+    of key characters (letters, digits, ``_ - .``, blanks, quoted parts) outside string values
+    and comments, plus one. Linear in ``len(text)``; the text need not be valid."""
+    skeleton: list[str] = []  # the text with each string as "s" and each comment as a line end
+    ahead = {opener: text.find(opener) for opener in ('"', "'", "#", "\n")}  # the next of each at or after ``at``
+    at = 0
+    while at < len(text):
+        for opener, found in ahead.items():
+            if found != -1 and found < at:
+                ahead[opener] = text.find(opener, at)
+        stop = min((ahead[o] for o in ('"', "'", "#") if ahead[o] != -1), default=len(text))
+        skeleton.append(text[at:stop])
+        if stop == len(text):
+            break
+        skeleton.append("\n" if text[stop] == "#" else "s")
+        if ahead["\n"] != -1 and ahead["\n"] < stop:
+            ahead["\n"] = text.find("\n", stop)
+        at = _toml_skip(text, stop, len(text) if ahead["\n"] == -1 else ahead["\n"])
+    runs = "".join(skeleton).translate(_TOML_NOT_KEY).split("\n")
+    return max(run.count(".") for run in runs) + 1
+
+
+def _toml_skip(text: str, at: int, line: int) -> int:
+    """Past the string or comment starting at ``at``, on the line ending at ``line``."""
+    if text[at] == "#":
+        return line
+    quote = text[at]
+    if text.startswith(quote * 3, at):
+        end = text.find(quote * 3, at + 3)
+        return len(text) if end == -1 else end + 3
+    at += 1
+    while True:
+        end = text.find(quote, at, line)
+        if end == -1:  # a string ends on its line
+            return line
+        slash = end
+        while quote == '"' and slash > at and text[slash - 1] == "\\":
+            slash -= 1
+        if (end - slash) % 2 == 0:
+            return end + 1
+        at = end + 1  # an escaped quote
 
 
 class _NumberError(ValueError):

@@ -48,7 +48,6 @@ PLANNER.
 from __future__ import annotations
 
 import os
-import tomllib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal, get_args
@@ -240,24 +239,14 @@ def _env_overrides(node: NodeName, env: Mapping[str, str]) -> dict[str, Any]:
 
 
 def _read_toml(path: Path, source: str) -> dict[str, Any]:
-    """The TOML table of a config file, read within :data:`MAX_CONFIG_BYTES`."""
-    from sim.bounded_files import BoundedFileError, read_bounded_bytes
+    """The TOML table of a config file, read within :data:`MAX_CONFIG_BYTES` (``sim.bounded_files``)."""
+    from sim.bounded_files import BoundedFileError, load_bounded_toml, read_bounded_bytes
 
     try:
-        raw = read_bounded_bytes(path, MAX_CONFIG_BYTES, source)
+        return load_bounded_toml(read_bounded_bytes(path, MAX_CONFIG_BYTES, source), source)
     except BoundedFileError as exc:
         problem = "config file not found" if exc.problem == "file not found" else exc.problem
         raise ConfigError(source, None, problem) from None
-    try:
-        return tomllib.loads(raw.decode("utf-8"))
-    except UnicodeDecodeError as exc:
-        raise ConfigError(source, None, f"cannot read config file (not UTF-8: bad byte at offset {exc.start})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(source, None, f"not valid TOML ({exc})") from None
-    except RecursionError:  # tomllib is recursive: arrays or tables nested hundreds deep
-        raise ConfigError(source, None, "not valid TOML (nested too deeply)") from None
-    except ValueError as exc:  # e.g. an integer of more digits than Python converts
-        raise ConfigError(source, None, f"not valid TOML ({' '.join(str(exc).split())[:200]})") from None
 
 
 def load_config(path: Path | str | None = None, env: Mapping[str, str] | None = None) -> StorytellerConfig:

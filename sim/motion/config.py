@@ -26,7 +26,6 @@ parameters.
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Annotated, Any
@@ -34,7 +33,7 @@ from typing import Annotated, Any
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from sim.bounded_files import BoundedFileError, read_bounded_bytes
+from sim.bounded_files import BoundedFileError, load_bounded_toml, read_bounded_bytes
 from sim.motion.action_labels import UnknownActionLabelError, database_key
 from sim.motion.cache import cached_arrays, file_sha256
 from sim.motion.clips import MotionClip
@@ -106,17 +105,9 @@ def load_motion_config(path: str | Path) -> MotionConfig:
     """Read and validate a motion config TOML file; raises MotionConfigError."""
     path = Path(path)
     try:
-        raw = tomllib.loads(read_bounded_bytes(path, MAX_MOTION_CONFIG_BYTES, str(path)).decode("utf-8"))
+        raw = load_bounded_toml(read_bounded_bytes(path, MAX_MOTION_CONFIG_BYTES, str(path)), str(path))
     except BoundedFileError as exc:
         raise MotionConfigError(path, f"cannot read ({exc.problem})") from None
-    except UnicodeDecodeError as exc:
-        raise MotionConfigError(path, f"cannot read (not UTF-8: bad byte at offset {exc.start})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise MotionConfigError(path, f"invalid TOML: {exc}") from None
-    except RecursionError:  # tomllib is recursive: arrays or tables nested hundreds deep
-        raise MotionConfigError(path, "invalid TOML: nested too deeply") from None
-    except ValueError as exc:  # e.g. an integer of more digits than Python converts
-        raise MotionConfigError(path, f"invalid TOML: {' '.join(str(exc).split())[:200]}") from None
     try:
         return MotionConfig.model_validate({**raw, "base_dir": str(path.resolve().parent)})
     except ValidationError as exc:

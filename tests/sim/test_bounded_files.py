@@ -15,11 +15,14 @@ import pytest
 from sim.bounded_files import (
     MAX_INT_DIGITS,
     MAX_OBJECT_KEYS,
+    MAX_TOML_KEY_PARTS,
     BoundedFileError,
     json_depth_exceeds,
     json_keys_exceed,
     load_bounded_json,
+    load_bounded_toml,
     read_bounded_bytes,
+    toml_key_parts,
 )
 
 
@@ -138,3 +141,17 @@ def test_keys_are_counted_outside_strings_only() -> None:
     text = b'{"a": "' + b":" * 50 + b'", "b": {"c": 1}}'
     assert not json_keys_exceed(text, 3)
     assert json_keys_exceed(text, 2)
+
+
+def test_toml_key_parts_are_counted_outside_strings_and_comments() -> None:
+    """Found by the second hostile corpus: tomllib's time is quadratic in a dotted key's parts
+    (a key of 50,000 parts: 1.5 GB, killed), so keys are counted before it parses."""
+    assert toml_key_parts('[llm.retry]\nmodel = "a.b.c.d.e.f" # x.y.z.w\nbase = \'1.2.3.4\'\n') == 2
+    assert toml_key_parts('a.b."c.d".e = 1\n') == 4  # a quoted part is one part
+    assert toml_key_parts('x = "q\\"a.b.c.d"\ny = 1.5\n') == 2  # an escaped quote stays in its string
+    assert toml_key_parts("x = \'\'\'\na.b.c.d.e\n\'\'\'\n") == 1
+    assert toml_key_parts('"' * 100_000 + "'" * 100_000 + "#" * 10) == 1  # strings that never close: linear
+    assert load_bounded_toml(b"[a.b.c]\nd.e = 1\n", "f.toml") == {"a": {"b": {"c": {"d": {"e": 1}}}}}
+    with pytest.raises(BoundedFileError) as info:
+        load_bounded_toml(("x." * MAX_TOML_KEY_PARTS + "y = 1\n").encode(), "deep.toml")
+    one_line(info, "deep.toml", f"{MAX_TOML_KEY_PARTS + 1} dotted parts")

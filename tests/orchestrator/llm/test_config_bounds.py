@@ -18,6 +18,8 @@ from tests.support.finished_run import one_error_line
 
 NESTED = "x = " + "[" * 5_000 + "]" * 5_000 + "\n"
 LONG_INT = "seed = " + "9" * 5_000 + "\n"
+DOTTED = "[llm]\n" + ".".join(["a"] * 50_000) + " = 1\n"  # tomllib: 1.5 GB and minutes (second hostile corpus)
+HEADER = "[" + ".".join(["t"] * 30_000) + "]\n" + "".join(f"k{i} = 1\n" for i in range(60_000))
 
 
 def write(tmp_path: Path, text: str, name: str = "storyteller.toml") -> Path:
@@ -52,7 +54,8 @@ def test_an_infinite_timeout_from_the_environment_names_the_variable() -> None:
 
 @pytest.mark.parametrize(
     ("text", "words"),
-    [(NESTED, "nested too deeply"), (LONG_INT, "not valid TOML"), ("a = 1\n" + "#" * MAX_CONFIG_BYTES, "allowed")],
+    [(NESTED, "nested too deeply"), (LONG_INT, "not valid TOML"), ("a = 1\n" + "#" * MAX_CONFIG_BYTES, "allowed"),
+     (DOTTED, "50000 dotted parts"), (HEADER, "30000 dotted parts")],
 )
 def test_files_the_toml_reader_cannot_take(tmp_path: Path, text: str, words: str) -> None:
     path = write(tmp_path, text)
@@ -81,7 +84,8 @@ def test_a_device_or_a_folder_is_not_a_config(tmp_path: Path) -> None:
         ('[[clips]]\nfile = "a.bvh"\nlabel = "walk"\nstart = 99999999999999\n', "less than"),
         ("[weights]\nfeet = nan\n", "finite"),
         (NESTED, "nested too deeply"),
-        (LONG_INT, "invalid TOML"),
+        (LONG_INT, "not valid TOML"),
+        (DOTTED, "dotted parts"),
     ],
 )
 def test_motion_configs_are_bounded(tmp_path: Path, text: str, words: str) -> None:

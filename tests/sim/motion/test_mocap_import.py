@@ -162,7 +162,7 @@ def test_config_errors_name_file_and_field(tmp_path: Path) -> None:
     with pytest.raises(MotionConfigError, match="did you mean 'walk'"):
         load_motion_config(cfg)
     cfg.write_text("clips = [")
-    with pytest.raises(MotionConfigError, match="invalid TOML"):
+    with pytest.raises(MotionConfigError, match="not valid TOML"):
         load_motion_config(cfg)
     cfg.write_text('[[clips]]\nfile = "nope.bvh"\nlabel = "walk"\n')
     with pytest.raises(MotionConfigError, match="not found"):
