@@ -158,8 +158,6 @@ def run_command(
     from orchestrator.session.roster import character_names
     from orchestrator.session.run_manifest import RunArguments, absolute, parse_names
 
-    if not (math.isfinite(speed) and speed > 0):
-        fail(f"--speed must be a positive number, got {speed}")
     if len(instruction) > MAX_INSTRUCTION_CHARS:
         fail(f"--instruction: {len(instruction)} characters, at most {MAX_INSTRUCTION_CHARS} allowed")
     if not math.isfinite(duration):  # run.json holds finite numbers only: resume and replay refuse others
@@ -191,7 +189,7 @@ def run_command(
     scene_path = Path(scene)
     from pydantic import ValidationError
 
-    from sim.validation_text import problem_message
+    from sim.validation_text import user_error
 
     try:
         args = RunArguments(
@@ -217,7 +215,7 @@ def run_command(
             gif=gif,
         )
     except ValidationError as exc:  # what run.json could not hold, or resume and view could not read back
-        fail(f"the run's arguments: {problem_message(exc.errors()[0])}")
+        fail(user_error("the run's arguments", exc))
     trace_path = record if record is not None else (None if replay is not None else out / TRACE_JSONL)
     if trace_path is not None and replay is not None and trace_path.resolve() == replay.resolve():
         fail("--record must name a different file than --replay")
@@ -561,16 +559,16 @@ def _run_and_report(
         _cannot_write(failed_write, out, resumable=replay is None)
     typer.echo(
         f"{result.frames} frames ({result.frames / fps:.1f} s), {result.steps} planning steps, "
-        f"{sum(e.state == 'completed' for e in result.events)} events completed -> {out}"
+        f"{sum(e.state == 'completed' for e in result.events)} events completed -> {plain(out)}"
     )
     if viewer is not None and not signals:
         _serve_until_stopped(viewer)
     if signals:
         signum = signals[0]
-        again = "" if replay is not None else f"; go on with: {resume_command(out)}"
+        again = "" if replay is not None else f"; go on with: {plain(resume_command(out))}"
         typer.echo(
             f"stopped by {signal_name(signum)} at frame {result.frames} ({result.frames / fps:.1f} s); "
-            f"the story so far, its motion, trace and checkpoint are in {out}{again}",
+            f"the story so far, its motion, trace and checkpoint are in {plain(out)}{again}",
             err=True,
         )
         raise typer.Exit(128 + signum)
@@ -653,7 +651,7 @@ def _cannot_write(exc: OSError, out: Path, *, resumable: bool) -> NoReturn:
     from orchestrator.session.run_manifest import resume_command
 
     where = exc.filename if exc.filename is not None else out
-    then = f"; once it can be written, go on with: {resume_command(out)}" if resumable else ""
+    then = f"; once it can be written, go on with: {plain(resume_command(out))}" if resumable else ""
     typer.echo(
         f"error: cannot write {plain(where)}: {plain(exc.strerror or exc)}; what was written before is kept{then}",
         err=True,

@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from orchestrator.planning.kinds import DescriptionKind, PlannerKind
 from orchestrator.session.instruction_script import ScriptLine
-from orchestrator.session.pace import Pace
+from orchestrator.session.pace import MAX_RUN_SPEED, MIN_SPEED, Pace
 from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
 from sim.no_follow_writes import write_file
 from sim.run_folder_names import RUN_JSON
@@ -30,6 +30,10 @@ MAX_MANIFEST_BYTES = 16 << 20
 _MAX_DEPTH = 8  # JSON nesting of run.json at most (it has 3: a script line in ``arguments.instructions``)
 
 
+MAX_CHARACTERS = 24
+"""Characters of one run at most (``--characters``, ``--names``, ``run.json``, ``story.json``)."""
+MAX_SEED = 2**64
+"""Seeds are 64-bit unsigned integers (numpy's generators refuse a negative one)."""
 MAX_DURATION_S = 9_000.0
 """Simulated seconds of a run at most (2.5 h): one character's chunk file, about 826 bytes a frame
 at 30 fps, then stays under what a reader takes (``sim.world.track_chunks.MAX_CHUNK_FILE_BYTES``,
@@ -49,23 +53,24 @@ class RunArguments(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     scene: str = Field(description="Bundled scene name or absolute path to a scene file.")
-    names: tuple[str, ...] = Field(min_length=1, description="Character names, in order.")
+    names: tuple[str, ...] = Field(min_length=1, max_length=MAX_CHARACTERS, description="Character names, in order.")
     instruction: str = ""
     instructions: tuple[ScriptLine, ...] = Field(
         default=(), description="The timed script of ``--instructions FILE``, as read when the run started."
     )
     duration: float = Field(gt=0, description="Simulated seconds.")
     pace: Pace = "lockstep"
-    speed: float = Field(default=1.0, gt=0, description="Simulated seconds per wall second (realtime).")
+    speed: float = Field(default=1.0, ge=MIN_SPEED, le=MAX_RUN_SPEED,
+                         description="Simulated seconds per wall second (realtime).")
     planners: int = Field(default=1, ge=1, le=8, description="Planning steps in flight at most (1: one at a time).")
     offline_latency: float | None = Field(
         default=None, ge=0, description="offline pace: simulated seconds per LLM call (None: each call's own latency)."
     )
-    max_events: int | None = None
+    max_events: int | None = Field(default=None, ge=1)
     config: str | None = None
     motion_config: str | None = None
-    seed: int = 0
-    max_retries: int = 3
+    seed: int = Field(default=0, ge=0, lt=MAX_SEED)
+    max_retries: int = Field(default=3, ge=0, le=10)
     program_grammar: bool = True
     foot_ik: bool = True
     planner: PlannerKind = "event"
@@ -94,7 +99,7 @@ class RunManifest(BaseModel):
     version: Literal[1] = 1
     thread_id: str = Field(description="Planning thread in runs.sqlite (checkpoints and story log).")
     scene_name: str
-    seed: int
+    seed: int = Field(ge=0, lt=MAX_SEED)
     config: str | None
     arguments: RunArguments
 

@@ -29,6 +29,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
+from orchestrator.session.run_manifest import MAX_CHARACTERS, MAX_DURATION_S
 from sim.bounded_files import (
     MAX_OBJECT_KEYS,
     BoundedFileError,
@@ -40,6 +41,17 @@ from sim.run_folder_names import STORY_STREAM
 from sim.validation_text import user_error
 
 STREAM_FILE = STORY_STREAM
+MAX_FPS = 240
+"""Frames per simulated second of a story at most (runs use 30)."""
+MAX_FRAME = int(MAX_DURATION_S * MAX_FPS)
+"""The latest frame a story names (the longest run at the highest frame rate): a file naming a
+later one was not written by a run, and a viewer would size its timeline after it."""
+Frame = Annotated[int, Field(ge=0, le=MAX_FRAME)]
+"""A frame of a story file."""
+Fps = Annotated[float, Field(ge=1, le=MAX_FPS)]
+"""The frame rate of a story file."""
+Characters = Annotated[tuple[str, ...], Field(max_length=MAX_CHARACTERS)]
+"""The characters of a story file, or of one of its events."""
 
 
 class StoryEventRecord(BaseModel):
@@ -49,12 +61,12 @@ class StoryEventRecord(BaseModel):
 
     event_id: str
     index: int
-    characters: tuple[str, ...]
+    characters: Characters
     activity: str
-    requested_frame: int
-    applied_frame: int
+    requested_frame: Frame
+    applied_frame: Frame
     state: Literal["ongoing", "looping", "completed", "failed"]
-    finished_frame: int | None
+    finished_frame: Frame | None
     failure: str | None
     part: str = ""
     text: str = Field(default="", description="The applied plan in plain English (what a person reads).")
@@ -70,10 +82,10 @@ class StreamStart(BaseModel):
 
     kind: Literal["start"] = "start"
     scene: str = Field(description="The scene's name (the scene itself is in scene.json).")
-    characters: tuple[str, ...]
+    characters: Characters
     instruction: str
-    fps: float = Field(gt=0)
-    frame: int = Field(ge=0, description="The frame the session starts from (a resume: its checkpoint's).")
+    fps: Fps
+    frame: Frame = Field(description="The frame the session starts from (a resume: its checkpoint's).")
 
 
 class StreamEvent(BaseModel):

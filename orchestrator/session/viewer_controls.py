@@ -41,15 +41,13 @@ import anyio
 import structlog
 from pydantic import Field, ValidationError, model_validator
 
+from orchestrator.session.pace import MAX_SPEED, MIN_SPEED
 from orchestrator.session.viewer_instructions import POLL_S, AppendedLines, ViewerLine, append_line
 from sim.run_folder_names import VIEWER_CONTROLS
 
 _log = structlog.get_logger("storyteller.session")
 
 CONTROLS_FILE = VIEWER_CONTROLS
-MIN_SPEED = 0.05
-MAX_SPEED = 16.0
-"""Simulated seconds per wall second a control may set (the run's ``--speed`` is not bounded so)."""
 HOLD_POLL_S = 0.02
 """Wall seconds between two looks at the pause flag while the simulation is held."""
 ControlKind = Literal["pause", "resume", "speed"]

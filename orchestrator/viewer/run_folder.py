@@ -33,6 +33,9 @@ from agents.messages import PlannedCharacter
 from orchestrator.safe_text import plain
 from orchestrator.session.story_stream import (
     STREAM_FILE,
+    Characters,
+    Fps,
+    Frame,
     StoryEventRecord,
     StoryStreamError,
     read_story_stream,
@@ -78,11 +81,11 @@ class StoryStep(_StoryModel):
     """One planning step of ``story.json``'s ``steps`` (as ``run_outputs.story_json`` writes it)."""
 
     index: int = Field(ge=0)
-    applied_frame: int | None = Field(default=None, ge=0)
+    applied_frame: Frame | None = None
     kind: Literal["wait", "failed", "event"]
     node: str | None = None
     feedback: str | None = None
-    characters: tuple[str, ...] = ()
+    characters: Characters = ()
     activity: str = ""
     plans: tuple[PlannedCharacter, ...] = ()
     text: str = ""
@@ -92,7 +95,7 @@ class StoryStep(_StoryModel):
 class StoryInstruction(_StoryModel):
     """One instruction of ``story.json``'s ``instructions``."""
 
-    frame: int = Field(ge=0)
+    frame: Frame
     time_s: float = Field(ge=0)
     source: str
     text: str
@@ -102,11 +105,11 @@ class StoryFile(_StoryModel):
     """``story.json``: what the viewer reads of a finished run (older files lack the later fields)."""
 
     scene: str | None = None
-    characters: tuple[str, ...] = ()
+    characters: Characters = ()
     instruction: str = ""
-    instructions: tuple[StoryInstruction, ...] = ()
-    fps: float = Field(default=30.0, gt=0)
-    frames: int | None = Field(default=None, ge=0)
+    instructions: tuple[StoryInstruction, ...] = Field(default=(), max_length=MAX_STORY_ITEMS)
+    fps: Fps = 30.0
+    frames: Frame | None = None
     steps: tuple[StoryStep, ...] = Field(default=(), max_length=MAX_STORY_ITEMS)
     events: tuple[StoryEventRecord, ...] = Field(default=(), max_length=MAX_STORY_ITEMS)
 

@@ -101,3 +101,44 @@ def test_a_run_never_writes_more_motion_than_resume_reads_back(tmp_path: Path) -
     text = ok.model_dump_json().replace('"duration":9000.0', '"duration":9000.5')
     with pytest.raises(ManifestError, match="longer than the 9000 s"):
         parse_manifest(text.encode(), "run.json")
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [({"seed": -1}, "seed"), ({"speed": 5e-324, "pace": "realtime"}, "speed"), ({"speed": 1e6}, "speed"),
+     ({"names": [f"C{i}" for i in range(25)]}, "names"), ({"max_retries": 10**18}, "max_retries"),
+     ({"max_events": 0}, "max_events")],
+)
+def test_run_json_numbers_no_run_could_hold_are_refused(change: dict[str, object], field: str) -> None:
+    """Found by the second hostile corpus: a run.json seed of -1 stopped a replay with
+    ``ValueError: expected non-negative integer`` (exit 1), and a realtime speed of 5e-324 made a
+    3 s replay run forever. The run's arguments now hold what ``run`` itself accepts."""
+    from orchestrator.session.run_manifest import (
+        ManifestError,
+        RunArguments,
+        RunManifest,
+        parse_manifest,
+    )
+
+    ok = RunManifest(thread_id="t", scene_name="home", seed=0, config=None,
+                     arguments=RunArguments(scene="home", names=("Zoe",), duration=3.0))
+    value = json.loads(ok.model_dump_json())
+    value["arguments"].update(change)
+    with pytest.raises(ManifestError) as info:
+        parse_manifest(json.dumps(value).encode(), "run.json")
+    assert f"'arguments.{field}'" in str(info.value) and "\n" not in str(info.value)
+    value = json.loads(ok.model_dump_json())
+    value["seed"] = -1
+    with pytest.raises(ManifestError, match="'seed'"):
+        parse_manifest(json.dumps(value).encode(), "run.json")
+
+
+@pytest.mark.slow
+def test_a_run_folder_named_with_escapes_is_printed_escaped(run_dir: Path) -> None:
+    """Found by the second hostile corpus: ``resume`` printed its folder's name raw in the last
+    line (a newline, an OSC title escape, BEL and RLO reached the terminal)."""
+    named = run_dir.rename(run_dir.with_name("run\n\x1b]0;owned\x07\u202e"))
+    result = resume(named)
+    assert result.exit_code == 0, result.stderr
+    assert "\x1b" not in result.output and "\x07" not in result.output and "\u202e" not in result.output
+    assert "\\x1b]0;owned\\x07\\u202e" in result.stdout

@@ -241,5 +241,32 @@ def test_a_run_whose_arguments_run_json_could_not_hold_is_refused_before_run_jso
             cfg = write_config(tmp_path, fake.base)
             result = CliRunner().invoke(app, [*RUN, "-d", "2", "--seed", "9" * 70, "--config", str(cfg),
                                               "--out", str(out)])
-    one_error_line(result, "would not read back from run.json", "70 digits")
+    one_error_line(result, "the run's arguments: field 'seed'", "less than 18446744073709551616")
     assert not (out / "run.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [({"fps": 5e-324}, "fps"), ({"frames": 10**60}, "frames"),
+     ({"characters": [f"C{i}" for i in range(30_000)]}, "characters"),
+     ({"steps": [{"index": 0, "applied_frame": 10**60, "kind": "wait"}]}, "steps.0.applied_frame")],
+)
+def test_a_story_no_run_could_write_is_refused(tmp_path: Path, change: dict[str, object], field: str) -> None:
+    """Found by the second hostile corpus: a story.json of fps 5e-324 and 10**60 frames, or of
+    steps at frame 10**60 and 30,000 characters, was exported (exit 0) as a page of a timeline no
+    run has. Frames, frame rates and casts are now held to what a run can write, in story.json
+    and in story.jsonl alike."""
+    from orchestrator.session.story_stream import StoryStreamError, read_story_stream
+    from orchestrator.viewer.run_folder import RunFolderError, read_story_file
+
+    path = tmp_path / "story.json"
+    path.write_text(json.dumps({"scene": "home", "characters": ["Zoe"], "fps": 30, "frames": 90, **change}),
+                    encoding="utf-8")
+    with pytest.raises(RunFolderError) as info:
+        read_story_file(path)
+    assert f"field '{field}'" in str(info.value) and "\n" not in str(info.value)
+    stream = tmp_path / "story.jsonl"
+    start = {"kind": "start", "scene": "home", "characters": ["Zoe"], "instruction": "", "fps": 5e-324, "frame": 0}
+    stream.write_text(json.dumps(start) + "\n", encoding="utf-8")
+    with pytest.raises(StoryStreamError, match="fps"):
+        read_story_stream(stream)
