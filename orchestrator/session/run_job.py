@@ -83,6 +83,7 @@ from orchestrator.session.run_setup import (
     RecordedInputs,
     RunContext,
     RunSetupError,
+    check_motion,
     check_replayed,
     open_run_port,
     open_story_log,
@@ -237,6 +238,7 @@ async def _run_story(
     thread = thread_id if resume and thread_id is not None else ablation.thread_id(thread_id or f"run-{uuid.uuid4().hex[:12]}")
     snapshot_path = out / SNAPSHOT_FILE
     checkpoint = saved_checkpoint(snapshot_path, world) if resume else None
+    check_motion(out, names, checkpoint)
     # the trace is opened (a resumed run appends to it) once what the folder holds has been read and checked,
     # and the temporary files of a run killed mid-write (kill -9) are gone
     for folder in (out, out / MOTION_FOLDER):

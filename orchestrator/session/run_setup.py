@@ -253,6 +253,18 @@ def open_run_port(args: RunArguments, trace_path: Path | None, replay: Path | No
     return ReplyTap(WatchedPort(port, status)), describer_model
 
 
+def check_motion(out: Path, names: list[str], checkpoint: SessionCheckpoint | None) -> None:
+    """On resume, the chunk files :func:`streaming_world` will cut back to the checkpoint, checked
+    without writing (a :class:`RunSetupError`): a refused resume leaves the folder as it was."""
+    from sim.world.track_chunks import MOTION_FOLDER, ChunkError, check_resumable
+
+    if checkpoint is not None:
+        try:
+            check_resumable(out / MOTION_FOLDER, names, checkpoint.world.buffers.base)
+        except ChunkError as exc:
+            raise RunSetupError(str(exc)) from None
+
+
 def streaming_world(world: World, out: Path, names: list[str], checkpoint: SessionCheckpoint | None) -> World:
     """:func:`_stream_motion`, its chunk files that do not fit the checkpoint a :class:`RunSetupError`."""
     try:

@@ -209,6 +209,29 @@ def _too_large(path: Path, size: int) -> ChunkError:
                       "(about 3 hours of one character at 30 fps)")
 
 
+def bytes_to_keep(path: Path, frames: int) -> int:
+    """The bytes of the chunk file at ``path`` that hold its first ``frames`` frames, read only
+    (a resume cuts the file there); :class:`ChunkError` when it holds fewer whole frames, no
+    record ends at ``frames`` or it is not a chunk file within its limits."""
+    found = scan(path)
+    if found.frames < frames:
+        raise ChunkError(f"{path}: holds {found.frames} whole frames, {frames} are needed")
+    kept = [r for r in found.records if r[1] + r[2] <= frames]
+    if sum(r[2] for r in kept) != frames:
+        raise ChunkError(f"{path}: no record ends at frame {frames}")
+    return found.records[len(kept)][0] if len(kept) < len(found.records) else found.good_bytes
+
+
+def check_resumable(folder: Path, names: Sequence[str], frames: int) -> None:
+    """Raise :class:`ChunkError` unless the chunk files of ``names`` in ``folder`` can be cut back to
+    ``frames`` (what :meth:`ChunkStore.open` does on resume), without writing anything: a resume
+    that would refuse them refuses before it touches the run folder."""
+    paths = [chunk_path(folder, name) for name in names]
+    check_chunk_total(paths)
+    for path in paths:
+        bytes_to_keep(path, frames)
+
+
 def check_chunk_total(paths: Sequence[Path]) -> None:
     """Raise :class:`ChunkError` when one of the files at ``paths`` (one run folder's chunk
     files; a missing one counts nothing) is over :data:`MAX_CHUNK_FILE_BYTES` (naming it), or
@@ -329,14 +352,8 @@ class ChunkStore:
         process)."""
         if not check and frames == self.frames:
             return
-        for name, path in self._paths.items():
-            found = scan(path)
-            if found.frames < frames:
-                raise ChunkError(f"{path}: holds {found.frames} whole frames, {frames} are needed")
-            kept = [r for r in found.records if r[1] + r[2] <= frames]
-            if sum(r[2] for r in kept) != frames:
-                raise ChunkError(f"{path}: no record ends at frame {frames}")
-            keep_bytes = found.records[len(kept)][0] if len(kept) < len(found.records) else found.good_bytes
+        keep = {name: bytes_to_keep(path, frames) for name, path in self._paths.items()}  # every file checked first
+        for name, keep_bytes in keep.items():
             os.ftruncate(self._fds[name], keep_bytes)
         self.frames = frames
 

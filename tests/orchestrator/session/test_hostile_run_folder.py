@@ -142,3 +142,17 @@ def test_a_run_folder_named_with_escapes_is_printed_escaped(run_dir: Path) -> No
     assert result.exit_code == 0, result.stderr
     assert "\x1b" not in result.output and "\x07" not in result.output and "\u202e" not in result.output
     assert "\\x1b]0;owned\\x07\\u202e" in result.stdout
+
+
+@pytest.mark.slow
+def test_a_resume_refused_for_its_chunk_files_leaves_the_folder_as_it_was(run_dir: Path) -> None:
+    """Found by the second hostile corpus: a sparse 3 GB ``motion/Zoe.chunks`` was refused, but
+    only after the resume had appended its ``run`` record to the trace. The chunk files are now
+    checked, read only, with the other files before anything is written."""
+    with open(run_dir / "motion" / "Zoe.chunks", "r+b") as f:
+        f.truncate(3 << 30)
+    trace = (run_dir / "trace.jsonl").read_bytes()
+    max_chunks = (run_dir / "motion" / "Max.chunks").read_bytes()
+    one_error_line(resume(run_dir), "Zoe.chunks", "a chunk file may hold")
+    assert (run_dir / "trace.jsonl").read_bytes() == trace
+    assert (run_dir / "motion" / "Max.chunks").read_bytes() == max_chunks

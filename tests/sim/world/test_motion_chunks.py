@@ -25,7 +25,14 @@ from sim.scene.bundled import load_bundled_scene
 from sim.scene.model import Scene
 from sim.world.events import AssignEvent, Assignment
 from sim.world.step import World, WorldConfig, WorldError, step
-from sim.world.track_chunks import HEADER_BYTES, ChunkError, ChunkStore, read_frames, scan
+from sim.world.track_chunks import (
+    HEADER_BYTES,
+    ChunkError,
+    ChunkStore,
+    check_resumable,
+    read_frames,
+    scan,
+)
 
 NAMES = ("Ava", "Ben")
 WINDOW = 64
@@ -206,3 +213,25 @@ def test_the_viewer_shows_a_run_stopped_before_its_exports_from_its_chunks(
         assert np.array_equal(t.local_rotations, world.track(t.name).local_rotations[: 2 * WINDOW])
     _run(world, 2 * WINDOW + 3, 3 * WINDOW + 1)
     assert folder_stamp(tmp_path) != before  # a watching viewer reloads as the chunks grow
+
+
+def test_a_resume_cuts_no_chunk_file_when_one_of_them_is_refused(
+    home: tuple[Scene, MotionMatcher], tmp_path: Path
+) -> None:
+    """Every file is checked before any is cut (the second hostile corpus: a refused resume had
+    changed the run folder); :func:`check_resumable` is that check, writing nothing."""
+    world = _world(home)
+    store = ChunkStore.open(tmp_path / "motion", NAMES)
+    world.stream_tracks(store, WINDOW)
+    _run(world, 0, 3 * WINDOW + 1)
+    store.close()
+    ava, ben = store.path("Ava"), store.path("Ben")
+    whole = ava.read_bytes()
+    broken = bytearray(ben.read_bytes())
+    broken[scan(ben).records[1][0] + HEADER_BYTES + 7] ^= 0xFF  # Ben's middle record fails its CRC
+    ben.write_bytes(bytes(broken))
+    with pytest.raises(ChunkError, match="fails its CRC"):
+        check_resumable(tmp_path / "motion", NAMES, 2 * WINDOW)
+    with pytest.raises(ChunkError, match="fails its CRC"):
+        ChunkStore.open(tmp_path / "motion", NAMES, frames=2 * WINDOW)
+    assert ava.read_bytes() == whole  # Ava's third record was not cut for a resume that was refused
