@@ -13,7 +13,8 @@ link there points at:
   the name is gone afterwards, its target untouched;
 - :func:`open_append` (a trace, a stream, a chunk file): opened with ``O_NOFOLLOW`` and
   without blocking; anything but a regular file with no other hard link is refused (a link, a
-  FIFO, a device, a folder, a file that is also somewhere else);
+  FIFO, a device, a folder, a file that is also somewhere else); :func:`append_durably`
+  appends one record through it and fsyncs it;
 - :func:`make_folder` (a sub-folder such as ``motion/``): made when missing; a link in its
   place is refused;
 - :func:`remove_stale_temporaries`: the temporary files a writer killed by ``kill -9`` left
@@ -53,9 +54,7 @@ def write_file(path: Path | str, data: bytes | bytearray | memoryview, *, durabl
     tmp, fd = _fresh(path)
     try:
         try:
-            view = memoryview(data).cast("B")
-            while view:
-                view = view[os.write(fd, view):]
+            write_all(fd, data)
             if durable:
                 os.fsync(fd)
         finally:
@@ -123,6 +122,24 @@ def open_append(path: Path | str) -> int:
         os.close(fd)
         raise
     return fd
+
+
+def append_durably(path: Path | str, data: bytes | bytearray | memoryview) -> None:
+    """Append ``data`` to ``path`` (:func:`open_append`) in one ``os.write`` where the system
+    takes it whole, and fsync it before this returns."""
+    fd = open_append(path)
+    try:
+        write_all(fd, data)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_all(fd: int, data: bytes | bytearray | memoryview) -> None:
+    """Every byte of ``data`` written to ``fd`` (``os.write`` may take fewer than it is given)."""
+    view = memoryview(data).cast("B")
+    while view:
+        view = view[os.write(fd, view):]
 
 
 def make_folder(path: Path | str) -> Path:

@@ -26,7 +26,7 @@ from typing import TypeVar
 from pydantic import BaseModel, ValidationError
 
 from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
-from sim.no_follow_writes import make_folder, open_append, write_file
+from sim.no_follow_writes import append_durably, make_folder, open_append, write_file
 from sim.validation_text import user_error
 
 M = TypeVar("M", bound=BaseModel)
@@ -89,14 +89,7 @@ def sweep_folder(out: Path, *parts: str) -> Path:
 
 def append_line(path: Path, line: bytes) -> None:
     """Append ``line`` with one ``os.write`` and fsync it (a regular file with one link only)."""
-    fd = open_append(path)
-    try:
-        view = memoryview(line)
-        while view:
-            view = view[os.write(fd, view):]
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    append_durably(path, line)
 
 
 def cut_torn_line(path: Path) -> None:

@@ -44,7 +44,7 @@ import structlog
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
-from sim.no_follow_writes import open_append
+from sim.no_follow_writes import append_durably
 from sim.run_folder_names import VIEWER_INSTRUCTIONS
 
 if TYPE_CHECKING:  # the viewer imports this module too, without the session
@@ -132,14 +132,7 @@ def append_line(path: Path, line: BaseModel) -> None:
     """``line`` as one JSON line (ASCII escapes) at the end of ``path``, in one ``write`` on a
     descriptor opened ``O_APPEND`` without following a link, fsynced before this returns."""
     data = (json.dumps(line.model_dump(mode="json"), ensure_ascii=True) + "\n").encode("ascii")
-    fd = open_append(path)
-    try:
-        view = memoryview(data)
-        while view:
-            view = view[os.write(fd, view) :]
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    append_durably(path, data)
 
 
 class AppendedLines(Generic[LineT]):
