@@ -15,6 +15,10 @@ live ones, so they take effect at the same frames again.
 The session takes the ones due at each frame (:meth:`InstructionQueue.due`) and tells the queue
 the frame each live one took effect at (:meth:`InstructionQueue.took_effect`), which wakes its
 waiting :meth:`~InstructionQueue.instruct`. Live instructions may be added from any thread.
+
+Bounded: a session takes at most :data:`MAX_LIVE_INSTRUCTIONS` live instructions (as many as a
+script may hold); later ones are refused with a warning, and a reader that is refused stops (a
+viewer's inbox of a million lines took a resume past 40 s and wrote each line into the trace).
 """
 
 from __future__ import annotations
@@ -25,7 +29,11 @@ from collections.abc import Sequence
 import anyio
 import structlog
 
+from orchestrator.session.instruction_script import MAX_SCRIPT_INSTRUCTIONS
 from orchestrator.session.session_types import InstructionSource, TimedInstruction
+
+MAX_LIVE_INSTRUCTIONS = MAX_SCRIPT_INSTRUCTIONS
+"""Live instructions (stdin, a viewer's box) one session takes at most."""
 
 _log = structlog.get_logger("storyteller.session")
 
@@ -40,6 +48,7 @@ class InstructionQueue:
         self._live: deque[tuple[str, InstructionSource, anyio.Event | None]] = deque()  # thread-safe appends
         self._taken: dict[int, int] = {}  # id(event) of a waiting instruct() -> frame it took effect at
         self._ended = False
+        self._live_taken = 0  # live instructions taken so far (a count: nothing else reads it across threads)
 
     async def instruct(self, text: str, source: InstructionSource = "api") -> int | None:
         """Make ``text`` the instruction from the next frame the simulation starts; returns
@@ -64,6 +73,12 @@ class InstructionQueue:
         if not self._live_allowed or self._ended:
             _log.warning("instruction_ignored", text=text, reason="replay" if not self._ended else "story ended")
             return False
+        if self._live_taken >= MAX_LIVE_INSTRUCTIONS:
+            if self._live_taken == MAX_LIVE_INSTRUCTIONS:  # said once
+                _log.warning("instruction_ignored", text=text, reason=f"more than {MAX_LIVE_INSTRUCTIONS} live instructions")
+                self._live_taken += 1
+            return False
+        self._live_taken += 1
         self._live.append((text, source, event))
         return True
 

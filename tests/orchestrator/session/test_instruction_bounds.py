@@ -124,3 +124,17 @@ def test_a_long_instruction_option_is_one_line(tmp_path: Path, command: str) -> 
     if command == "run":
         args += ["--out", str(tmp_path / "out")]
     one_error_line(CliRunner().invoke(app, args), "--instruction", f"at most {MAX_INSTRUCTION_CHARS}")
+
+
+def test_a_session_takes_a_bounded_number_of_live_instructions() -> None:
+    """Found by the second hostile corpus: a viewer's inbox of a million valid lines made a resume
+    take each one (100,000 lines: 12 s and 100,000 trace records; a million: killed). A session
+    takes at most ``MAX_LIVE_INSTRUCTIONS``; then ``instruct_nowait`` says no, and the reader stops."""
+    from orchestrator.session.instruction_queue import MAX_LIVE_INSTRUCTIONS, InstructionQueue
+
+    queue = InstructionQueue([], live=True)
+    assert all(queue.instruct_nowait(f"go {i}", "viewer") for i in range(MAX_LIVE_INSTRUCTIONS))
+    assert not queue.instruct_nowait("one too many", "viewer")
+    assert not queue.instruct_nowait("and another", "stdin")
+    due = queue.due(5)
+    assert len(due) == MAX_LIVE_INSTRUCTIONS and due[-1][0].text == f"go {MAX_LIVE_INSTRUCTIONS - 1}"
