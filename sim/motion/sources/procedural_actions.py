@@ -216,16 +216,26 @@ def _reach(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np
     body.spine[:, 0] += (0.25 if h < 0.95 else 0.05) * np.sin(np.pi * t / duration) ** 2
 
 
+def _held_hand(body: _Body, duration: float, rest: list[NDArray[np.float64]], anchor: str, side: int,
+               until: tuple[float, float], *, axis: int, amplitude: float, hz: float) -> NDArray[np.float64]:
+    """One hand (``side``) raised to ``anchor`` by 0.3 of ``duration``, held there until
+    ``until[0]`` of it (``until[1]``: that end less 0.3, so the hold's span is written as it
+    always was) with an oscillation of ``amplitude`` metres at ``hz`` along ``axis`` (faded in
+    and out over the hold), and back to rest; set in ``body.hands`` and returned."""
+    t = body.t
+    k = _keys(t, [0, 0.3 * duration, until[0] * duration, duration],
+              [rest[side], body.anchor(anchor, side), body.anchor(anchor, side), rest[side]])
+    mid = (t > 0.3 * duration) & (t < until[0] * duration)
+    env = np.sin(np.pi * (t[mid] - 0.3 * duration) / (until[1] * duration))
+    k[mid, axis] += amplitude * env * np.sin(2 * np.pi * hz * (t[mid] - 0.3 * duration))
+    body.hands[:, side] = k
+    return k
+
+
 def _wave(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
     """The right hand raised to the wave anchor and waved; the elbow pole follows as it rises."""
-    t, hands = body.t, body.hands
     side = 1
-    k = _keys(t, [0, 0.3 * duration, 0.7 * duration, duration],
-              [rest[side], body.anchor("wave", side), body.anchor("wave", side), rest[side]])
-    mid = (t > 0.3 * duration) & (t < 0.7 * duration)
-    env = np.sin(np.pi * (t[mid] - 0.3 * duration) / (0.4 * duration))
-    k[mid, 1] += 0.09 * env * np.sin(2 * np.pi * 1.8 * (t[mid] - 0.3 * duration))
-    hands[:, side] = k
+    k = _held_hand(body, duration, rest, "wave", side, (0.7, 0.4), axis=1, amplitude=0.09, hz=1.8)
     raised = np.clip((k[:, 2] - rest[side][2]) / 0.5, 0, 1)[:, None]
     body.pole[:, side] = (1 - raised) * body.pole[:, side] + raised * np.array([0.0, -1.0, -0.6])
 
@@ -254,15 +264,8 @@ def _talk_or_listen(body: _Body, spec: ActionSpec, duration: float, rest: list[N
 
 def _handshake(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
     """The right hand to the shake anchor, pumped, and back."""
-    t, hands = body.t, body.hands
-    side = 1
-    k = _keys(t, [0, 0.3 * duration, 0.75 * duration, duration],
-              [rest[side], body.anchor("shake", side), body.anchor("shake", side), rest[side]])
-    mid = (t > 0.3 * duration) & (t < 0.75 * duration)
-    env = np.sin(np.pi * (t[mid] - 0.3 * duration) / (0.45 * duration))
-    k[mid, 2] += 0.04 * env * np.sin(2 * np.pi * 2.5 * (t[mid] - 0.3 * duration))
-    hands[:, side] = k
-    body.spine[:, 0] += 0.08 * np.sin(np.pi * t / duration)
+    _held_hand(body, duration, rest, "shake", 1, (0.75, 0.45), axis=2, amplitude=0.04, hz=2.5)
+    body.spine[:, 0] += 0.08 * np.sin(np.pi * body.t / duration)
 
 
 def _hug(body: _Body, spec: ActionSpec, duration: float, rest: list[NDArray[np.float64]]) -> None:
