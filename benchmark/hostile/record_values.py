@@ -192,7 +192,9 @@ def _gltf_uris(box: Box) -> Spec:
 def _gltf_data_uri(box: Box) -> Spec:
     data = base64.b64encode(b"\0" * 30_000_000).decode()
     doc = gltf_doc([{"mesh": 0, "name": "chair_1"}], uri="data:application/octet-stream;base64," + data)
-    return inspect(box.file("data.gltf", json.dumps(doc)))
+    # glTF 2.0 (3.6.1.1): a buffer's resource may be longer than its byteLength; the file is valid,
+    # the attack is its cost (the mesh file's cap bounds it)
+    return inspect(box.file("data.gltf", json.dumps(doc)), "either")
 
 
 def _objects(count: int, name: str | None = None, label: str = "chair") -> list[dict[str, Any]]:
@@ -264,10 +266,10 @@ def _toml_edges(box: Box) -> Spec:
     return model_info(box.file("edges.toml", text))
 
 
-@attack("script", "10,000 instructions at one time (the cap)")
-def _script_same_time(box: Box) -> Spec:
-    spec = script_run(box, box.file("same.txt", "00:01 Zoe sits\n" * 10_000))
-    return Spec(**{**spec.__dict__, "argv": [*spec.argv, "-d", "2"], "expect": "either"})
+@attack("script", "an instruction of 2,001 combining marks after one letter")
+def _script_marks(box: Box) -> Spec:
+    # (a valid script is not an attack the harness can time: the run would then plan with a model)
+    return script_run(box, box.file("marks.txt", "00:01 a" + "\u0301" * 2_001 + "\n"))
 
 
 @attack("script", "UTF-16 script, CR-only line ends")
