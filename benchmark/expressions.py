@@ -105,21 +105,20 @@ def parse_expression(expression: str, *, error: type[ExpressionError] = Expressi
             return error(f"{message}, found '{tokens[pos].text}'", expression, tokens[pos].column)
         return error(f"{message}, found the end", expression, len(expression) + 1)
 
-    def parse_or() -> Expr:
+    def parse_chain(op: str, operand: Callable[[], Expr], node: type[And | Or]) -> Expr:
+        """Operands joined by ``op`` (one operand alone is itself, not a ``node``)."""
         nonlocal pos
-        operands = [parse_and()]
-        while pos < len(tokens) and tokens[pos].kind == "||":
+        operands = [operand()]
+        while pos < len(tokens) and tokens[pos].kind == op:
             pos += 1
-            operands.append(parse_and())
-        return operands[0] if len(operands) == 1 else Or(tuple(operands))
+            operands.append(operand())
+        return operands[0] if len(operands) == 1 else node(tuple(operands))
+
+    def parse_or() -> Expr:
+        return parse_chain("||", parse_and, Or)
 
     def parse_and() -> Expr:
-        nonlocal pos
-        operands = [parse_unary()]
-        while pos < len(tokens) and tokens[pos].kind == "&&":
-            pos += 1
-            operands.append(parse_unary())
-        return operands[0] if len(operands) == 1 else And(tuple(operands))
+        return parse_chain("&&", parse_unary, And)
 
     def parse_unary() -> Expr:
         nonlocal pos
