@@ -35,7 +35,6 @@ import asyncio
 import contextlib
 import multiprocessing
 import os
-import re
 import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -45,6 +44,7 @@ from unittest import mock
 
 import numpy as np
 
+from benchmark.scripted_planner import ScriptedPlanner
 from benchmark.support.fake_openai_server import FakeOpenAI
 
 SPOTS = ("bookshelf_1", "couch_1", "tv_1", "coffee_maker_1", "toaster_1", "fridge_1")
@@ -60,24 +60,6 @@ def program(name: str, k: int) -> str:
         f'    c.set_position(get_area_close_to("{SPOTS[k % len(SPOTS)]}"))\n'
         '    c.set_target_action("use_smartphone")\n```'
     )
-
-
-class Responder:
-    """Unified planner: the first free character uses a smartphone near one of a few objects."""
-
-    def __init__(self, latency_s: float) -> None:
-        self.latency_s = latency_s
-        self.count = 0
-
-    def __call__(self, body: dict[str, Any]) -> str:
-        import time
-
-        self.count += 1
-        time.sleep(self.latency_s)
-        text = body["messages"][-1]["content"]
-        free = re.search(r"Free characters: (.*)", text)
-        first = free.group(1).split(",")[0].strip() if free else "Ava"
-        return program(first, self.count)
 
 
 class InlineCheckpoints:
@@ -115,7 +97,7 @@ def run_once(mode: str, duration: float, latency: float, tmp: Path) -> Run:
     from sim.scene.bundled import resolve_scene
 
     os.environ["FAKE_PROVIDER_KEY"] = "sk-bench"
-    responder = Responder(latency)
+    responder = ScriptedPlanner(latency, program, "Ava")  # a smartphone near one of a few objects
     with FakeOpenAI(responder=responder) as fake:
         cfg = tmp / f"{mode}.toml"
         cfg.write_text(

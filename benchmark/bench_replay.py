@@ -96,8 +96,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
+from benchmark.scripted_planner import ScriptedPlanner
 from benchmark.support.fake_openai_server import FakeOpenAI
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -119,23 +119,12 @@ def recorded_latency(folder: Path = TRACES) -> float:
     return statistics.fmean(lat)
 
 
-class Planner:
-    """The unified planner, scripted: the first free character uses its appliance, after
-    ``delay_s`` seconds (the model's latency)."""
-
-    def __init__(self, delay_s: float) -> None:
-        self.delay_s = delay_s
-        self.calls = 0
-
-    def __call__(self, body: dict[str, Any]) -> str:
-        self.calls += 1
-        time.sleep(self.delay_s)
-        free = re.search(r"Free characters: (.*)", body["messages"][-1]["content"])
-        name = free.group(1).split(",")[0].strip() if free else "Zoe"
-        obj, action = TASKS.get(name, TASKS["Zoe"])
-        return (f'```python\ndef parse_event():\n    a = get_character("{name}")\n'
-                f'    a.set_position(get_area_to_interact_with("{obj}"))\n'
-                f'    a.set_orientation("{obj}")\n    a.set_target_action("{action}")\n```')
+def task_program(name: str, calls: int) -> str:
+    """The unified planner's reply, scripted: ``name`` uses its appliance (``TASKS``)."""
+    obj, action = TASKS.get(name, TASKS["Zoe"])
+    return (f'```python\ndef parse_event():\n    a = get_character("{name}")\n'
+            f'    a.set_position(get_area_to_interact_with("{obj}"))\n'
+            f'    a.set_orientation("{obj}")\n    a.set_target_action("{action}")\n```')
 
 
 def timed(args: list[str], env: dict[str, str], cwd: Path = ROOT) -> tuple[float, float]:
@@ -188,9 +177,9 @@ def code_folder(env: dict[str, str], cwd: Path) -> str:
     return done.stdout.strip()
 
 
-def record(args: argparse.Namespace, base: Path, run_dir: Path, planner: Planner, env: dict[str, str]) -> float:
+def record(args: argparse.Namespace, base: Path, run_dir: Path, planner: ScriptedPlanner, env: dict[str, str]) -> float:
     """Record the story into ``run_dir`` against the scripted server; its wall seconds."""
-    latency = planner.delay_s
+    latency = planner.latency_s
     with FakeOpenAI(responder=planner) as fake:
         cfg = base / "fake.toml"
         cfg.write_text(f'[llm]\nmodel = "openai/fake"\napi_base = "{fake.base}"\napi_key_env = "FAKE_PROVIDER_KEY"\n'
@@ -268,7 +257,7 @@ def main() -> None:
         base.mkdir(parents=True, exist_ok=True)
         env = _replay_env(args.no_bytecode)
         run_dir = base / "recorded"
-        planner = Planner(latency)
+        planner = ScriptedPlanner(latency, task_program, "Zoe")  # the first free character uses its appliance
         if args.reuse is not None:
             kept = json.loads((args.reuse / RECORDING).read_text(encoding="utf-8"))
             run_dir, recorded, latency, planner.calls = args.reuse / "recorded", kept["wall_s"], kept["latency_s"], kept["calls"]
