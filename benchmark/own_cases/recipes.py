@@ -52,20 +52,30 @@ def oa_seated_use(facts: SceneFacts) -> Iterator[Draft]:
                         use.action, objects=use.seats(use.units), count="one" if len(seats) == 1 else "any", avoid=seats)
 
 
+def _clear_extremes(facts: SceneFacts, candidates: frozenset[str], *, landmarks_among: bool = True
+                    ) -> Iterator[tuple[str, str, str]]:
+    """(landmark label, landmark object, "nearest" or "farthest") for every landmark and
+    direction in which one of ``candidates`` is clearly the extreme (:func:`clear_extreme`);
+    ``landmarks_among=False`` passes over a landmark that is itself a candidate."""
+    for lm in facts.landmarks():
+        landmark = facts.single(lm)
+        if not landmarks_among and landmark in candidates:
+            continue
+        for op in ("nearest", "farthest"):
+            if clear_extreme(facts, candidates, landmark, op) is not None:
+                yield lm, landmark, op
+
+
 def rc_seat_extreme(facts: SceneFacts) -> Iterator[Draft]:
     for kind in facts.seat_kinds():
         seats = facts.eval(of_label(kind))
-        for lm in facts.landmarks():
-            landmark = facts.single(lm)
-            for op in ("nearest", "farthest"):
-                if clear_extreme(facts, seats, landmark, op) is None:
-                    continue
-                for action, acts in seated_activities(facts):
-                    recipe = "rc.seat_near" if op == "nearest" else "rc.seat_far"
-                    yield Draft("RC", facts.name, recipe, f"{kind}:{lm}:{op}:{action}",
-                                {"seat": list(NOUNS[kind]), "seats": list(PLURALS[kind]), "lm": nouns_of(lm), "act": acts},
-                                action, objects={op: of_label(kind), "to": of_label(lm)}, count="one",
-                                avoid=seats | {landmark})
+        for lm, landmark, op in _clear_extremes(facts, seats):
+            for action, acts in seated_activities(facts):
+                recipe = "rc.seat_near" if op == "nearest" else "rc.seat_far"
+                yield Draft("RC", facts.name, recipe, f"{kind}:{lm}:{op}:{action}",
+                            {"seat": list(NOUNS[kind]), "seats": list(PLURALS[kind]), "lm": nouns_of(lm), "act": acts},
+                            action, objects={op: of_label(kind), "to": of_label(lm)}, count="one",
+                            avoid=seats | {landmark})
 
 
 def rc_table_extreme(facts: SceneFacts) -> Iterator[Draft]:
@@ -76,19 +86,15 @@ def rc_table_extreme(facts: SceneFacts) -> Iterator[Draft]:
             continue
         with_seats: Query = {"and": [of_label(unit_label), {"anchors_of": "adjacent to", "from": SEATS}]}
         all_seats = facts.eval(seats_by(with_seats))
-        for lm in facts.landmarks():
-            landmark = facts.single(lm)
-            for op in ("nearest", "farthest"):
-                if clear_extreme(facts, units, landmark, op) is None:
-                    continue
-                query = seats_by({op: with_seats, "to": of_label(lm)})
-                answer = facts.eval(query)
-                for action, acts in seated_activities(facts):
-                    recipe = "rc.table_near" if op == "nearest" else "rc.table_far"
-                    yield Draft("RC", facts.name, recipe, f"{unit_label}:{lm}:{op}:{action}",
-                                {"table": list(NOUNS[unit_label]), "lm": nouns_of(lm), "act": acts}, action,
-                                objects=query, count="one" if len(answer) == 1 else "any",
-                                avoid=all_seats | {landmark})
+        for lm, landmark, op in _clear_extremes(facts, units):
+            query = seats_by({op: with_seats, "to": of_label(lm)})
+            answer = facts.eval(query)
+            for action, acts in seated_activities(facts):
+                recipe = "rc.table_near" if op == "nearest" else "rc.table_far"
+                yield Draft("RC", facts.name, recipe, f"{unit_label}:{lm}:{op}:{action}",
+                            {"table": list(NOUNS[unit_label]), "lm": nouns_of(lm), "act": acts}, action,
+                            objects=query, count="one" if len(answer) == 1 else "any",
+                            avoid=all_seats | {landmark})
 
 
 def _pairs(facts: SceneFacts) -> Iterator[tuple[str, str]]:
@@ -140,20 +146,14 @@ def rc_region(facts: SceneFacts) -> Iterator[Draft]:
 def oarc_use_extreme(facts: SceneFacts) -> Iterator[Draft]:
     for use in seated_uses(facts):
         units = facts.eval(use.units)
-        for lm in facts.landmarks():
-            landmark = facts.single(lm)
-            if landmark in units:
-                continue
-            for op in ("nearest", "farthest"):
-                if clear_extreme(facts, units, landmark, op) is None:
-                    continue
-                query = use.seats({op: use.units, "to": of_label(lm)})
-                answer = facts.eval(query)
-                recipe = "oarc.use_near" if op == "nearest" else "oarc.use_far"
-                yield Draft("OA+RC", facts.name, recipe, f"{use.action}:{lm}:{op}",
-                            {"lm": nouns_of(lm), "act": list(SEATED_USES[use.action])}, use.action, objects=query,
-                            count="one" if len(answer) == 1 else "any",
-                            avoid=facts.eval(use.seats(use.units)) | {landmark})
+        for lm, landmark, op in _clear_extremes(facts, units, landmarks_among=False):
+            query = use.seats({op: use.units, "to": of_label(lm)})
+            answer = facts.eval(query)
+            recipe = "oarc.use_near" if op == "nearest" else "oarc.use_far"
+            yield Draft("OA+RC", facts.name, recipe, f"{use.action}:{lm}:{op}",
+                        {"lm": nouns_of(lm), "act": list(SEATED_USES[use.action])}, use.action, objects=query,
+                        count="one" if len(answer) == 1 else "any",
+                        avoid=facts.eval(use.seats(use.units)) | {landmark})
 
 
 def _sitting(action: str, seat: str, facts: SceneFacts) -> Occupant:
