@@ -160,9 +160,22 @@ def _is_word(ch: str) -> bool:
     return ch.isalnum() or ch == "_"
 
 
+def _consequence_pattern(run: str) -> str:
+    """The names after ", so" ("Ana has taken the chair, so Ben sits on the bench"): what the
+    clause before says has happened, and the one after it is what the instruction asks."""
+    return rf",\s*+(?:and\s++)?so\s++({run})"
+
+
 def _actors(text: str, names: Sequence[str]) -> tuple[str, ...]:
+    """Who acts in ``text``: the run of names after ", so" when there is one (the clause before
+    it is background), else the first run of names."""
     run = _name_run(names)
-    m = re.search(run, text) if run else None
+    if not run:
+        return ()
+    m = re.search(_consequence_pattern(run), text)
+    if m:
+        return _mentioned(m.group(1), names)
+    m = re.search(run, text)
     return _mentioned(m.group(0), names) if m else ()
 
 

@@ -55,7 +55,8 @@ def _instruction_patterns() -> list[tuple[str, int]]:
     from agents import instruction_parts as ip
 
     run = ip._name_run(_names())
-    return [(run, 0), (ip._leading_subject_pattern(run), 0), (ip._clause_cut_pattern(run), 0)]
+    return [(run, 0), (ip._leading_subject_pattern(run), 0), (ip._clause_cut_pattern(run), 0),
+            (ip._consequence_pattern(run), 0)]
 
 
 def _shortlist_patterns() -> list[tuple[str, int]]:

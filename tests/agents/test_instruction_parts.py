@@ -71,6 +71,13 @@ def test_parts_know_their_characters_and_words() -> None:
     assert {"sit", "cou", "dri"} <= second.stems
 
 
+def test_after_so_the_names_that_follow_act_and_the_clause_before_is_background() -> None:
+    (part,) = split_instruction("Cy and Di have already sat down, so Ben takes the last chair by the window.", (*NAMES, "Cy", "Di"))
+    assert part.actors == ("Ben",) and set(part.names) == {"Cy", "Di", "Ben"}
+    (plain,) = split_instruction("Cy sits by Ben, so they can talk.", (*NAMES, "Cy"))
+    assert plain.actors == ("Cy",)  # no name after "so": the first run of names acts
+
+
 def test_events_mark_parts_done_ongoing_and_the_next_one() -> None:
     parts = split_instruction(COFFEE, NAMES)
     assert part_states(parts, (), NAMES) == ["next", ""]
