@@ -7,5 +7,8 @@ builds what the attacks start from; the attacks are grouped by target in
 :mod:`~benchmark.hostile.run_folders`, :mod:`~benchmark.hostile.outputs`,
 :mod:`~benchmark.hostile.scenes`, :mod:`~benchmark.hostile.inputs`,
 :mod:`~benchmark.hostile.sweeps`, :mod:`~benchmark.hostile.models` and
-:mod:`~benchmark.hostile.viewer`.
+:mod:`~benchmark.hostile.viewer`; a second corpus, written from outside the first, in
+:mod:`~benchmark.hostile.folder_files` (how run folder files are opened and written: sparse,
+special and linked files, floods, races), :mod:`~benchmark.hostile.record_values` (values inside
+files that parse) and :mod:`~benchmark.hostile.costs` (small valid files that ask for work).
 """

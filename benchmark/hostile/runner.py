@@ -36,6 +36,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from benchmark.hostile import (
+    costs,
     folder_files,
     inputs,
     models,
@@ -52,7 +53,8 @@ from benchmark.hostile.viewer import VIEWER_KIND, run_viewer
 from benchmark.motion_metrics.scripted_story import build_story
 
 ATTACKS: list[Attack] = [*run_folders.ATTACKS, *outputs.ATTACKS, *scenes.ATTACKS, *inputs.ATTACKS,
-                         *sweeps.ATTACKS, *models.ATTACKS, *folder_files.ATTACKS, *record_values.ATTACKS]
+                         *sweeps.ATTACKS, *models.ATTACKS, *folder_files.ATTACKS, *record_values.ATTACKS,
+                         *costs.ATTACKS]
 """Every attack but the viewer's (:func:`run_viewer`), by target."""
 
 

@@ -1,0 +1,94 @@
+"""Attacks whose files parse and are small but ask for work or hold values no run writes (a
+second corpus, written from outside the first): a sweep of a billion repeats or a million case
+ids, a character track of 150,000 frames deflated to a few hundred kilobytes, a track at 1e-300
+fps with NaN positions, PLY headers of a hundred thousand elements, OBJ vertices at 1e308 and NaN.
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+
+import numpy as np
+
+from benchmark.hostile.harness import (
+    BIDI,
+    Attack,
+    Box,
+    Spec,
+    export,
+    inspect,
+    registrar,
+    score,
+)
+
+ATTACKS: list[Attack] = []
+attack = registrar(ATTACKS)
+
+
+@attack("bench", "sweep.json: repeats 10**9")
+def _bench_repeats(box: Box) -> Spec:
+    sweep = box.copy_sweep()
+    box.edit_json(sweep / "sweep.json", lambda v: {**v, "repeats": 10**9})
+    return score(box, sweep)
+
+
+@attack("bench", "sweep.json: 1,000,000 case ids and 100,000 levels")
+def _bench_ids(box: Box) -> Spec:
+    sweep = box.copy_sweep()
+    box.edit_json(sweep / "sweep.json", lambda v: {**v, "case_ids": list(range(1_000_000)),
+                                                   "levels": list(range(100_000))})
+    return score(box, sweep)
+
+
+def _track(box: Box, **arrays: np.ndarray) -> Spec:
+    run = box.copy_run()
+    path = run / "Zoe.track.npz"
+    with np.load(path) as npz:
+        values = {k: npz[k] for k in npz.files}
+    values.update(arrays)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **values)
+    path.write_bytes(buf.getvalue())
+    return export(box, "either")
+
+
+@attack("track", "Zoe.track.npz of 150,000 frames of zeros, deflated (export)")
+def _track_long(box: Box) -> Spec:
+    frames = 150_000
+    return _track(box, root_positions=np.zeros((frames, 3)), local_rotations=np.zeros((frames, 22, 3, 3)),
+                  action_labels=np.array(["idle"] * frames))
+
+
+@attack("track", "Zoe.track.npz at fps 1e-300, NaN positions, a name with bidi (export)")
+def _track_values(box: Box) -> Spec:
+    spec = _track(box, fps=np.array(1e-300), name=np.array("Zoe" + BIDI),
+                  root_positions=np.full((90, 3), np.nan))
+    return Spec(**{**spec.__dict__, "expect": "bad"})
+
+
+@attack("mesh", "ASCII .ply header of 100,000 empty elements of 10 properties")
+def _ply_header(box: Box) -> Spec:
+    head = ["ply", "format ascii 1.0"]
+    for i in range(100_000):
+        head += [f"element e{i} 0"] + [f"property float p{j}" for j in range(10)]
+    head += ["element vertex 3", "property float x", "property float y", "property float z", "end_header",
+             "0 0 0", "1 0 0", "0 1 0"]
+    return inspect(box.file("header.ply", "\n".join(head) + "\n"), "either")  # empty elements are valid PLY
+
+
+@attack("mesh", ".obj vertices at 1e308, -1e308 and nan")
+def _obj_values(box: Box) -> Spec:
+    text = "o chair_1\nv 1e308 0 0\nv -1e308 1 0\nv nan 0 1\nv 0 0 0\nf 1 2 3\nf 2 3 4\n"
+    return inspect(box.file("values.obj", text))
+
+
+@attack("track", "a .track.npz whose zip holds 100,000 empty members (export)")
+def _track_members(box: Box) -> Spec:
+    run = box.copy_run()
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        for i in range(100_000):
+            z.writestr(f"m{i}.npy", b"")
+    (run / "Zoe.track.npz").write_bytes(buf.getvalue())
+    return export(box)
