@@ -38,6 +38,9 @@ METHOD_TITLES: dict[str, str] = {
     "scene-graph": "Scene Graph", "direct": "Direct Inference",
 }
 LEVELS: tuple[int, ...] = (0, 1, 2)
+MAX_RUNS = 100_000
+"""Runs of one sweep at most (the paper's grid is a few thousand): a ``sweep.json`` asking for
+more (a billion repeats took ``bench score`` past 11 s and 1.9 GB) is refused before it is expanded."""
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
@@ -93,7 +96,7 @@ class SweepSpec(_Frozen):
     case_sets: tuple[CaseSetSpec, ...]
     case_ids: tuple[int, ...] | None = Field(default=None, description="Only these case ids (None: all).")
     levels: tuple[int, ...] = (2,)
-    repeats: int = Field(default=1, ge=1)
+    repeats: int = Field(default=1, ge=1, le=MAX_RUNS)
     seed: int = 0
     methods: tuple[str, ...] = ("ours",)
     models: tuple[ModelSpec, ...]
@@ -149,7 +152,12 @@ class RunKey(_Frozen):
 
 
 def expand(spec: SweepSpec, case_ids: dict[str, Sequence[int]]) -> list[RunKey]:
-    """Every run of ``spec`` in grid order; ``case_ids``: the ids of each case set (loaded)."""
+    """Every run of ``spec`` in grid order; ``case_ids``: the ids of each case set (loaded).
+    :class:`SweepSpecError` when they are more than :data:`MAX_RUNS` (counted first)."""
+    count = (sum(len(case_ids[cs.name]) for cs in spec.case_sets) * len(spec.levels) * spec.repeats
+             * len(spec.methods) * len(spec.models))
+    if count > MAX_RUNS:
+        raise SweepSpecError(f"the sweep has {count} runs, more than the {MAX_RUNS} allowed")
     return [
         RunKey(case_set=cs.name, case=cid, level=level, repeat=r, method=method, model=m.label)
         for cs in spec.case_sets

@@ -94,3 +94,17 @@ def test_writes_replace_planted_links_and_refuse_a_linked_folder(sweep: Path, tm
     before = {p.name: p.read_bytes() for p in sweep.iterdir() if p.is_file() and not p.is_symlink()}
     assert "plots" in _score(sweep) and "symbolic link" in _score(sweep)  # refused before anything is rewritten
     assert {p.name: p.read_bytes() for p in sweep.iterdir() if p.is_file() and not p.is_symlink()} == before
+
+
+def test_a_sweep_of_more_runs_than_allowed_is_one_line(sweep: Path) -> None:
+    """Found by the second hostile corpus: a sweep.json of 10**9 repeats made ``bench score``
+    expand a billion runs (killed after 11 s at 1.9 GB). The grid is counted before it is built."""
+    from benchmark.sweep.grid import MAX_RUNS, SweepSpecError, expand
+
+    path = sweep / "sweep.json"
+    path.write_text(path.read_text(encoding="utf-8").replace('"repeats": 1', f'"repeats": {10**9}'), encoding="utf-8")
+    assert "repeats" in _score(sweep)
+    wide = _spec().model_copy(update={"repeats": MAX_RUNS})
+    with pytest.raises(SweepSpecError, match=f"{2 * MAX_RUNS} runs"):
+        expand(wide, {"ours": [100, 101]})
+    assert len(expand(wide, {"ours": [100]})) == MAX_RUNS
