@@ -7,7 +7,9 @@ fps with NaN positions, PLY headers of a hundred thousand elements, OBJ vertices
 from __future__ import annotations
 
 import io
+import json
 import zipfile
+from typing import Any
 
 import numpy as np
 
@@ -19,6 +21,7 @@ from benchmark.hostile.harness import (
     export,
     inspect,
     registrar,
+    replay,
     score,
 )
 
@@ -92,3 +95,41 @@ def _track_members(box: Box) -> Spec:
             z.writestr(f"m{i}.npy", b"")
     (run / "Zoe.track.npz").write_bytes(buf.getvalue())
     return export(box)
+
+
+@attack("track", "Zoe.track.npz at fps 1e-300 (export)")
+def _track_fps(box: Box) -> Spec:
+    return Spec(**{**_track(box, fps=np.array(1e-300)).__dict__, "expect": "bad"})
+
+
+@attack("story.json", "an event finished 50 frames before it was applied (export)")
+def _story_backwards(box: Box) -> Spec:
+    def change(v: Any) -> Any:
+        for e in v["events"]:
+            e["applied_frame"], e["finished_frame"] = 80, 30
+        return v
+
+    box.edit_json(box.copy_run() / "story.json", change)
+    return export(box)
+
+
+@attack("scene", "a seat facing [0, 0] and one facing [1e-320, 0]")
+def _scene_facing(box: Box) -> Spec:
+    objects = [{"name": f"chair_{i + 1}", "label": "chair", "idx": i + 1, "center": [1.0 + 2 * i, 1.0, 0.25],
+                "size": [0.5, 0.5, 0.5], "facing": facing, "has_facing": True, "sit_offset_horizontal": 0.0,
+                "sit_offset_vertical": 0.0, "interactive": True} for i, facing in enumerate(([0.0, 0.0], [1e-320, 0.0]))]
+    text = json.dumps({"format": "storyteller-scene/1", "name": "facing", "floor_z": 0.0, "bounds_min": [0, 0],
+                       "bounds_max": [6, 4], "objects": objects})
+    return inspect(box.file("facing.json", text))
+
+
+@attack("trace", "usage of 10**60 tokens and a latency of 1e308 s in every attempt (replay)")
+def _trace_usage(box: Box) -> Spec:
+    path = box.copy_run() / "trace.jsonl"
+    records = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines()]
+    for r in records:
+        if r["kind"] == "attempt":
+            r["usage"] = {"prompt_tokens": 10**60, "completion_tokens": 10**60}
+            r["latency_s"] = 1e308
+    path.write_text("".join(json.dumps(r) + "\n" for r in records), encoding="utf-8")
+    return replay(box, "either")

@@ -27,7 +27,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 from orchestrator.session.run_manifest import MAX_CHARACTERS, MAX_DURATION_S
 from sim.bounded_files import (
@@ -39,16 +39,15 @@ from sim.bounded_files import (
 from sim.no_follow_writes import open_append
 from sim.run_folder_names import STORY_STREAM
 from sim.validation_text import user_error
+from sim.world.character_track import MAX_FPS, MIN_FPS
 
 STREAM_FILE = STORY_STREAM
-MAX_FPS = 240
-"""Frames per simulated second of a story at most (runs use 30)."""
 MAX_FRAME = int(MAX_DURATION_S * MAX_FPS)
 """The latest frame a story names (the longest run at the highest frame rate): a file naming a
 later one was not written by a run, and a viewer would size its timeline after it."""
 Frame = Annotated[int, Field(ge=0, le=MAX_FRAME)]
 """A frame of a story file."""
-Fps = Annotated[float, Field(ge=1, le=MAX_FPS)]
+Fps = Annotated[float, Field(ge=MIN_FPS, le=MAX_FPS)]
 """The frame rate of a story file."""
 Characters = Annotated[tuple[str, ...], Field(max_length=MAX_CHARACTERS)]
 """The characters of a story file, or of one of its events."""
@@ -73,6 +72,12 @@ class StoryEventRecord(BaseModel):
     narration: str | None = Field(
         default=None, description="The narrator's activity in human names, when it agrees with the plan.",
     )
+
+    @model_validator(mode="after")
+    def _finished_after_applied(self) -> StoryEventRecord:
+        if self.finished_frame is not None and self.finished_frame < self.applied_frame:
+            raise ValueError(f"finished at frame {self.finished_frame}, before it was applied at {self.applied_frame}")
+        return self
 
 
 class StreamStart(BaseModel):

@@ -52,6 +52,10 @@ run: 0.2 s instead of 0.5 s). The bytes are a function of the arrays and this le
 writes the files of its recording; a run recorded with another level replays to the same
 arrays in other bytes."""
 _CHECK_FRAMES = 4096  # frames whose rotations are checked at once
+MIN_FPS = 1.0
+MAX_FPS = 240.0
+"""Frames per second of a track (and of a story's timeline, ``orchestrator.session.story_stream``):
+runs use 30; a file at 1e-300 fps stretched 90 frames over 1e301 seconds."""
 MAX_TRACK_FILE_BYTES = 256 << 20
 """Bytes of the largest ``.track.npz`` read back (a compressed hour of frames is about 100 MB)."""
 MAX_TRACK_ARRAY_BYTES = 256 << 20
@@ -89,9 +93,9 @@ class CharacterTrack:
         if not isinstance(name, str) or not name.strip():
             raise CharacterTrackError("must be a non-empty string", field="name")
         fps = float(self.fps)
-        if not np.isfinite(fps) or fps <= 0.0:
+        if not np.isfinite(fps) or not MIN_FPS <= fps <= MAX_FPS:
             raise CharacterTrackError(
-                f"must be a positive number of frames per second, got {self.fps!r}", field="fps"
+                f"must be between {MIN_FPS:g} and {MAX_FPS:g} frames per second, got {self.fps!r}", field="fps"
             )
         object.__setattr__(self, "fps", fps)
 

@@ -249,11 +249,14 @@ def test_a_run_whose_arguments_run_json_could_not_hold_is_refused_before_run_jso
     ("change", "field"),
     [({"fps": 5e-324}, "fps"), ({"frames": 10**60}, "frames"),
      ({"characters": [f"C{i}" for i in range(30_000)]}, "characters"),
-     ({"steps": [{"index": 0, "applied_frame": 10**60, "kind": "wait"}]}, "steps.0.applied_frame")],
+     ({"steps": [{"index": 0, "applied_frame": 10**60, "kind": "wait"}]}, "steps.0.applied_frame"),
+     ({"events": [{"event_id": "event-0000", "index": 0, "characters": ["Zoe"], "activity": "sits",
+                   "requested_frame": 1, "applied_frame": 80, "state": "completed", "finished_frame": 30,
+                   "failure": None}]}, "events.0")],
 )
 def test_a_story_no_run_could_write_is_refused(tmp_path: Path, change: dict[str, object], field: str) -> None:
-    """Found by the second hostile corpus: a story.json of fps 5e-324 and 10**60 frames, or of
-    steps at frame 10**60 and 30,000 characters, was exported (exit 0) as a page of a timeline no
+    """Found by the second hostile corpus: a story.json of fps 5e-324 and 10**60 frames, of
+    steps at frame 10**60 and 30,000 characters, or of an event finished before it was applied, was exported (exit 0) as a page of a timeline no
     run has. Frames, frame rates and casts are now held to what a run can write, in story.json
     and in story.jsonl alike."""
     from orchestrator.session.story_stream import StoryStreamError, read_story_stream

@@ -54,6 +54,8 @@ def test_track_defaults_and_readonly() -> None:
         ({"local_rotations": np.broadcast_to(np.eye(3), (3, 22, 3, 3))}, "local_rotations"),
         ({"local_rotations": np.broadcast_to(-np.eye(3), (4, 22, 3, 3))}, "local_rotations"),
         ({"fps": 0.0}, "fps"),
+        ({"fps": 1e-300}, "fps"),  # second hostile corpus: a track of 90 frames over 1e301 s was exported
+        ({"fps": 1e6}, "fps"),
         ({"betas": np.zeros(16)}, "betas"),
         ({"gender": "robot"}, "gender"),
         ({"action_labels": ("walk",)}, "action_labels"),
