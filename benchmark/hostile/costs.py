@@ -133,3 +133,26 @@ def _trace_usage(box: Box) -> Spec:
             r["latency_s"] = 1e308
     path.write_text("".join(json.dumps(r) + "\n" for r in records), encoding="utf-8")
     return replay(box, "either")
+
+
+@attack("trace", "applied steps naming reply seqs that do not exist (replay)")
+def _trace_refs(box: Box) -> Spec:
+    path = box.copy_run() / "trace.jsonl"
+    records = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines()]
+    for r in records:
+        if r["kind"] == "applied":
+            r["ref_seqs"] = [10**18, -3]
+    path.write_text("".join(json.dumps(r) + "\n" for r in records), encoding="utf-8")
+    # either: a replay matches replies by request hash and applies steps at their frames; ref_seqs
+    # are provenance only (legacy traces hold references to attempts they do not include)
+    return replay(box, "either")
+
+
+@attack("trace", "records of a second run id interleaved with the first (replay)")
+def _trace_two_runs(box: Box) -> Spec:
+    path = box.copy_run() / "trace.jsonl"
+    records = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines()]
+    twins = [{**r, "run_id": "f" * 12, "seq": r["seq"] + 1000} for r in records]
+    mixed = [r for pair in zip(records, twins, strict=True) for r in pair]
+    path.write_text("".join(json.dumps(r) + "\n" for r in mixed), encoding="utf-8")
+    return replay(box, "either")
