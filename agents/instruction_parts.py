@@ -281,6 +281,29 @@ def _then_parts(sentence: str, names: Sequence[str], lib: PromptLibrary) -> list
     return parts
 
 
+_OBJECT_PRONOUNS = frozenset({"them", "their", "theirs", "him", "his", "her", "hers"})
+"""Pronouns that point at people the part acts for ("brings them menus", "takes their order")."""
+
+
+def served_characters(instruction: str, part: str, names: Sequence[str]) -> tuple[str, ...]:
+    """The characters ``part`` (a part of ``instruction``) acts for: the names it mentions other
+    than its actors ("brings the menu to Ava"), else, when it points at people with a pronoun
+    ("brings them menus", "takes their order"), the actors of the nearest part before it whose
+    actors are others (the guests of the sentence before). () when it names or points at nobody."""
+    if not part:
+        return ()
+    parts = split_instruction(instruction, names)
+    index = next((i for i, p in enumerate(parts) if p.text == part), None)
+    actors = parts[index].actors if index is not None else _actors(part, names)
+    named = tuple(n for n in _mentioned(part, names) if n not in actors)
+    if named or index is None:
+        return named
+    if not {w.lower() for w in _WORD.findall(part)} & _OBJECT_PRONOUNS:
+        return ()
+    before = next((p for p in reversed(parts[:index]) if p.actors and not set(p.actors) & set(actors)), None)
+    return before.actors if before is not None else ()
+
+
 def part_states(
     parts: Sequence[InstructionPart], history: Sequence[HistoryEntry], free: Iterable[str], since: int = 0
 ) -> list[PartState]:

@@ -241,11 +241,14 @@ def event_options(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[CharacterStatus],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
     context: str = "", action: str | None = None, areas: Sequence[DescribedArea] = (),
+    served: Sequence[str] = (),
 ) -> EventOptions:
     """The labels, objects, seats, posture and area functions an event's grammar offers (the
     arguments are :func:`event_program_grammar`'s). ``areas``: the scene description's areas; of
     a kind of thing with instances in an area the words name ("the cabinet in the lounge"), only
-    those are offered (:func:`agents.area_words.keep_in_areas`)."""
+    those are offered (:func:`agents.area_words.keep_in_areas`); ``served``: the characters the
+    event acts for (:func:`agents.instruction_parts.served_characters`): a serving action's table
+    is theirs (:func:`agents.related_objects.related_objects`)."""
     others = [c for c in characters if c.name not in event_characters]
     free = free_seats(scene, event_characters, characters, seats_in_use)
     labels = list(action_shortlist(activity, action_labels, scene.labels, context)) or list(action_labels)
@@ -259,7 +262,9 @@ def event_options(
     if not widen and (in_area := {n for a in named_areas(activity, areas, labels=scene.labels) for n in a.objects}):
         label_of = {o.name: o.label for o in scene.objects}
         objects, seats = keep_in_areas(objects, label_of, in_area), keep_in_areas(seats, label_of, in_area)
-    related = RelatedObjects(tuple(objects), ()) if widen else related_objects(scene, activity, objects, where)
+    related = RelatedObjects(tuple(objects), ()) if widen else related_objects(
+        scene, activity, objects, where, action=labels[0], served_at=served_places(scene, characters, served),
+    )
     return EventOptions(
         labels=tuple(labels),
         objects=related.objects,
@@ -272,6 +277,20 @@ def event_options(
         others=where,
         landmarks=related.landmarks,
     )
+
+
+def served_places(scene: Scene, characters: Sequence[CharacterStatus], served: Sequence[str]) -> list[tuple[float, float]]:
+    """Where the ``served`` characters are: the seat each holds, else their position."""
+    seat_at = {o.name: (float(o.center[0]), float(o.center[1])) for o in scene.objects if o.is_seat}
+    out = []
+    for c in characters:
+        if c.name not in served:
+            continue
+        if c.seat in seat_at:
+            out.append(seat_at[c.seat])
+        elif c.position is not None:
+            out.append((float(c.position[0]), float(c.position[1])))
+    return out
 
 
 def about_a_seat(scene: Scene, activity: str, label: str) -> bool:
@@ -305,6 +324,7 @@ def event_program_grammar(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[CharacterStatus],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
     context: str = "", seat: str | None = None, action: str | None = None, areas: Sequence[DescribedArea] = (),
+    served: Sequence[str] = (),
 ) -> str:
     """:func:`program_grammar` for an event in ``scene``: the labels its words point to
     (:func:`agents.action_shortlist.action_shortlist` of ``activity``; every offered label
@@ -318,9 +338,10 @@ def event_program_grammar(
     about the event (the narrator's activity), which break ties between labels. ``seat``: the
     seat already chosen for the event (:mod:`agents.place_choice`): the only seat offered. ``action``:
     the action chosen for it when its words name none (:mod:`agents.action_choice`): offered first.
-    ``areas``: the scene description's areas (see :func:`event_options`)."""
+    ``areas``, ``served``: see :func:`event_options`."""
     options = event_options(
         scene, event_characters, characters, seats_in_use, action_labels, activity, widen, context, action, areas,
+        served,
     )
     objects = list(options.objects)
     seat_names = {o.name for o in scene.objects if o.is_seat}  # sitting is get_area_to_sit_on's

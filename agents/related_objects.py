@@ -22,10 +22,13 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from agents.place_choice import references_of
+from agents.place_choice import references_of, sits_at
 from agents.relation_words import stated_relations
 from sim.scene.model import Scene
-from tools.place_relations import StatedRelation, keep_satisfying
+from tools.place_relations import TIE_M, Reference, StatedRelation, group_gap, keep_satisfying
+
+SERVING_LABELS = ("serve_", "deliver_", "take_order")
+"""Labels (prefixes) of actions done for other people at their place: a waiter serves a table."""
 
 
 @dataclass(frozen=True)
@@ -39,12 +42,23 @@ class RelatedObjects:
 
 def related_objects(
     scene: Scene, text: str, objects: Sequence[str], others: Mapping[str, tuple[float, float]],
+    *, action: str = "", served_at: Sequence[tuple[float, float]] = (),
 ) -> RelatedObjects:
     """``objects`` (an event's offered object names) narrowed by the relations ``text`` states
     about one of their kinds (see the module docstring); ``others``: where the characters outside
-    the event are (a relation may be measured against one of them)."""
+    the event are (a relation may be measured against one of them). ``action``: the event's best
+    label; when it serves people (:data:`SERVING_LABELS`) and ``served_at`` gives where they are
+    (their seats), of the things one sits at (tables, counters) only the nearest to them stays:
+    "Cleo brings them menus" is at the guests' table, not the bar."""
     by_name = {o.name: o for o in scene.objects}
     kept = [n for n in objects if n in by_name]
+    if served_at and action.startswith(SERVING_LABELS):
+        guests = tuple(Reference(f"guest {i}", point=xy) for i, xy in enumerate(served_at))
+        tables = [by_name[n] for n in kept if sits_at(by_name[n]) and not by_name[n].is_seat]
+        if len(tables) > 1:
+            gaps = {o.name: group_gap(o, guests) for o in tables}
+            least = min(gaps.values())
+            kept = [n for n in kept if n not in gaps or gaps[n] <= least + TIE_M]
     landmarks: list[str] = []
     for mention in stated_relations(text, scene.labels, list(others)):
         if not mention.subject:

@@ -18,6 +18,7 @@ from agents.event_parser import (
     parser_request,
     run_reply,
 )
+from agents.instruction_parts import served_characters
 from agents.messages import ParsedEvent
 from agents.program_grammar import event_program_grammar, free_seats
 from agents.retry_feedback import REJECTIONS
@@ -54,6 +55,7 @@ def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
             seat=seat,
             action=state.action,
             areas=described_areas(state.description.text, deps.scene.object_names),
+            served=served_characters(state.instruction, part, [c.name for c in state.roster]),
         ) if deps.program_grammar else None,
     )
 

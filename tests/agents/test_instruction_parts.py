@@ -8,6 +8,7 @@ from agents.instruction_parts import (
     activity_kind,
     instruction_progress,
     part_states,
+    served_characters,
     split_instruction,
 )
 from agents.llm_port import LLMRequest, LLMResponse
@@ -76,6 +77,16 @@ def test_after_so_the_names_that_follow_act_and_the_clause_before_is_background(
     assert part.actors == ("Ben",) and set(part.names) == {"Cy", "Di", "Ben"}
     (plain,) = split_instruction("Cy sits by Ben, so they can talk.", (*NAMES, "Cy"))
     assert plain.actors == ("Cy",)  # no name after "so": the first run of names acts
+
+
+def test_the_people_a_part_acts_for_are_named_or_pointed_at() -> None:
+    names = (*NAMES, "Cy")
+    guests = "Ava and Ben take seats at a table. Cy brings them menus, then takes their order."
+    assert [served_characters(guests, p.text, names) for p in split_instruction(guests, names)] == [
+        (), ("Ava", "Ben"), ("Ava", "Ben")]
+    assert served_characters("Cy hands the bill to Ben.", "Cy hands the bill to Ben.", names) == ("Ben",)
+    alone = "Ava makes tea, then drinks it."
+    assert [served_characters(alone, p.text, names) for p in split_instruction(alone, names)] == [(), ()]
 
 
 def test_events_mark_parts_done_ongoing_and_the_next_one() -> None:

@@ -57,3 +57,28 @@ def test_the_program_may_use_only_the_singled_out_thing_and_may_look_at_the_land
     assert {"window_1", "sink_2"} <= _alternatives(grammar, "look") and "sink_1" not in _alternatives(grammar, "look")
     plain = event_program_grammar(GALLEY, ("Kai",), roster, (), labels, activity="Kai leaves the shelf and scrubs a sink")
     assert {"sink_1", "sink_2"} <= _alternatives(plain, "object")
+
+
+def diner() -> Scene:
+    """Two tables 5 m apart with a chair each, a bar counter between them."""
+    return Scene(name="diner", bounds_min=(-2.0, -2.0), bounds_max=(8.0, 4.0), objects=(
+        box("table", 1, 0.0, 0.0, size=(1.0, 1.0, 0.75)), box("chair", 1, 0.0, -0.8, seat=True),
+        box("table", 2, 5.0, 0.0, size=(1.0, 1.0, 0.75)), box("chair", 2, 5.0, -0.8, seat=True),
+        box("bar_counter", 1, 2.5, 2.5, size=(2.0, 0.6, 1.05)),
+    ))  # fmt: skip
+
+
+def test_a_serving_action_is_at_the_table_of_the_people_served() -> None:
+    scene = diner()
+    roster = (CharacterStatus(name="Cleo", position=(2.5, 1.5)),
+              CharacterStatus(name="Ava", position=(5.0, -0.8), seat="chair_2", busy=True))
+    labels = ("deliver_menu", "take_order", "idle")
+    text = "Cleo brings them menus at the table"
+    served = event_program_grammar(scene, ("Cleo",), roster, ("chair_2",), labels, activity=text, served=("Ava",))
+    assert _alternatives(served, "object") == {"table_2"}  # the only thing offered: no separate interact rule
+    unknown = event_program_grammar(scene, ("Cleo",), roster, ("chair_2",), labels, activity=text)
+    assert _alternatives(unknown, "object") == {"table_1", "table_2"}
+    # not a serving action: where the guests sit says nothing about which table one wipes
+    wipe = related_objects(scene, "Cleo wipes a table", ["table_1", "table_2"], {}, action="clean_table",
+                           served_at=[(5.0, -0.8)])
+    assert wipe.objects == ("table_1", "table_2")
