@@ -67,6 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     env = {k: v for k, v in os.environ.items() if k not in ("STORYTELLER_CONFIG", "STORYTELLER_MODEL")}
     env["STORYTELLER_SCRIPTED_STORY_KEY"] = "scripted"  # not a secret: the local scripted servers ignore it
     env["PYTHONDONTWRITEBYTECODE"] = "1"
+    # the attacked CLI is this checkout's code (the installed package may be another checkout's)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(Path(__file__).resolve().parents[2]), env.get("PYTHONPATH")) if p)
     with workspace(args.keep) as root:
         base = root / "base"
         if build_story(base, seconds=3, names=("Zoe", "Max"), quiet=True) != 0:
