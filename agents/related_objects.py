@@ -54,11 +54,11 @@ def related_objects(
     kept = [n for n in objects if n in by_name]
     if served_at and action.startswith(SERVING_LABELS):
         guests = tuple(Reference(f"guest {i}", point=xy) for i, xy in enumerate(served_at))
-        tables = [by_name[n] for n in kept if sits_at(by_name[n]) and not by_name[n].is_seat]
-        if len(tables) > 1:
-            gaps = {o.name: group_gap(o, guests) for o in tables}
+        gaps = {o.name: group_gap(o, guests) for o in scene.objects if sits_at(o) and not o.is_seat}
+        if gaps:  # the guests' table is offered even when the words did not name it ("takes their order")
             least = min(gaps.values())
-            kept = [n for n in kept if n not in gaps or gaps[n] <= least + TIE_M]
+            theirs = [n for n, g in gaps.items() if g <= least + TIE_M]
+            kept = [*(n for n in kept if n not in gaps), *theirs]
     landmarks: list[str] = []
     for mention in stated_relations(text, scene.labels, list(others)):
         if not mention.subject:
