@@ -25,7 +25,7 @@ that cannot decode under a grammar ignore it and get the same prompt.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -241,14 +241,15 @@ def event_options(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[CharacterStatus],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
     context: str = "", action: str | None = None, areas: Sequence[DescribedArea] = (),
-    served: Sequence[str] = (),
+    served: Sequence[str] = (), heading: Mapping[str, tuple[float, float]] | None = None,
 ) -> EventOptions:
     """The labels, objects, seats, posture and area functions an event's grammar offers (the
     arguments are :func:`event_program_grammar`'s). ``areas``: the scene description's areas; of
     a kind of thing with instances in an area the words name ("the cabinet in the lounge"), only
     those are offered (:func:`agents.area_words.keep_in_areas`); ``served``: the characters the
     event acts for (:func:`agents.instruction_parts.served_characters`): a serving action's table
-    is theirs (:func:`agents.related_objects.related_objects`)."""
+    is theirs (:func:`agents.related_objects.related_objects`); ``heading``: where busy characters'
+    events take them (name -> xy)."""
     others = [c for c in characters if c.name not in event_characters]
     free = free_seats(scene, event_characters, characters, seats_in_use)
     labels = list(action_shortlist(activity, action_labels, scene.labels, context)) or list(action_labels)
@@ -263,7 +264,8 @@ def event_options(
         label_of = {o.name: o.label for o in scene.objects}
         objects, seats = keep_in_areas(objects, label_of, in_area), keep_in_areas(seats, label_of, in_area)
     related = RelatedObjects(tuple(objects), ()) if widen else related_objects(
-        scene, activity, objects, where, action=labels[0], served_at=served_places(scene, characters, served),
+        scene, activity, objects, where, action=labels[0],
+        served_at=served_places(scene, characters, served, heading or {}),
     )
     return EventOptions(
         labels=tuple(labels),
@@ -279,8 +281,12 @@ def event_options(
     )
 
 
-def served_places(scene: Scene, characters: Sequence[CharacterStatus], served: Sequence[str]) -> list[tuple[float, float]]:
-    """Where the ``served`` characters are: the seat each holds, else their position."""
+def served_places(
+    scene: Scene, characters: Sequence[CharacterStatus], served: Sequence[str],
+    heading: Mapping[str, tuple[float, float]],
+) -> list[tuple[float, float]]:
+    """Where the ``served`` characters are: the seat each holds, else where their event takes
+    them (``heading``: a guest still walking to a table is served there), else their position."""
     seat_at = {o.name: (float(o.center[0]), float(o.center[1])) for o in scene.objects if o.is_seat}
     out = []
     for c in characters:
@@ -288,6 +294,8 @@ def served_places(scene: Scene, characters: Sequence[CharacterStatus], served: S
             continue
         if c.seat in seat_at:
             out.append(seat_at[c.seat])
+        elif c.name in heading:
+            out.append(heading[c.name])
         elif c.position is not None:
             out.append((float(c.position[0]), float(c.position[1])))
     return out
@@ -324,7 +332,7 @@ def event_program_grammar(
     scene: Scene, event_characters: Sequence[str], characters: Sequence[CharacterStatus],
     seats_in_use: Sequence[str], action_labels: Sequence[str], activity: str = "", widen: bool = False,
     context: str = "", seat: str | None = None, action: str | None = None, areas: Sequence[DescribedArea] = (),
-    served: Sequence[str] = (),
+    served: Sequence[str] = (), heading: Mapping[str, tuple[float, float]] | None = None,
 ) -> str:
     """:func:`program_grammar` for an event in ``scene``: the labels its words point to
     (:func:`agents.action_shortlist.action_shortlist` of ``activity``; every offered label
@@ -341,7 +349,7 @@ def event_program_grammar(
     ``areas``, ``served``: see :func:`event_options`."""
     options = event_options(
         scene, event_characters, characters, seats_in_use, action_labels, activity, widen, context, action, areas,
-        served,
+        served, heading,
     )
     objects = list(options.objects)
     seat_names = {o.name for o in scene.objects if o.is_seat}  # sitting is get_area_to_sit_on's

@@ -25,6 +25,7 @@ from agents.retry_feedback import REJECTIONS
 from orchestrator.planning.node_calls import ask, off_loop
 from orchestrator.planning.rejection import record_parsed, rejected_reply
 from orchestrator.planning.state import PlanningDeps, PlanningState
+from tools.character_states import WorldView
 from tools.errors import ObjectInUseError
 
 
@@ -56,8 +57,15 @@ def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
             action=state.action,
             areas=described_areas(state.description.text, deps.scene.object_names),
             served=served_characters(state.instruction, part, [c.name for c in state.roster]),
+            heading=heading_of(deps.world.world_view(state.roster)),
         ) if deps.program_grammar else None,
     )
+
+
+def heading_of(view: WorldView) -> dict[str, tuple[float, float]]:
+    """Where each busy character's event takes them (their plan's target), by name."""
+    return {c.name: (float(c.target_position[0]), float(c.target_position[1]))
+            for c in view.characters if c.target_position is not None}
 
 
 async def parse_event(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:

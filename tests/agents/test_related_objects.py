@@ -78,6 +78,11 @@ def test_a_serving_action_is_at_the_table_of_the_people_served() -> None:
     assert _alternatives(served, "object") == {"table_2"}  # the only thing offered: no separate interact rule
     unknown = event_program_grammar(scene, ("Cleo",), roster, ("chair_2",), labels, activity=text)
     assert _alternatives(unknown, "object") == {"table_1", "table_2"}
+    # a guest still walking to her seat is served where she is heading, not where she is now
+    walking = (roster[0], CharacterStatus(name="Ava", position=(0.3, 0.9), busy=True))
+    heading = event_program_grammar(scene, ("Cleo",), walking, ("chair_2",), labels, activity=text, served=("Ava",),
+                                    heading={"Ava": (5.0, -0.8)})
+    assert _alternatives(heading, "object") == {"table_2"}
     # words that name no table ("takes their order"): the guests' table is offered all the same
     order = related_objects(scene, "Cleo takes their order", ["bar_counter_1"], {}, action="take_order",
                             served_at=[(5.0, -0.8)])
