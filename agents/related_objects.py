@@ -48,17 +48,18 @@ def related_objects(
     about one of their kinds (see the module docstring); ``others``: where the characters outside
     the event are (a relation may be measured against one of them). ``action``: the event's best
     label; when it serves people (:data:`SERVING_LABELS`) and ``served_at`` gives where they are
-    (their seats), of the things one sits at (tables, counters) only the nearest to them stays:
+    (their seats), the nearest thing one sits at (a table, a counter) is the only object offered:
     "Cleo brings them menus" is at the guests' table, not the bar."""
     by_name = {o.name: o for o in scene.objects}
     kept = [n for n in objects if n in by_name]
     if served_at and action.startswith(SERVING_LABELS):
         guests = tuple(Reference(f"guest {i}", point=xy) for i, xy in enumerate(served_at))
         gaps = {o.name: group_gap(o, guests) for o in scene.objects if sits_at(o) and not o.is_seat}
-        if gaps:  # the guests' table is offered even when the words did not name it ("takes their order")
+        if gaps:  # the guests' table, even when the words did not name it ("takes their order"), and
+            # nothing else: a serving action is done where the guests are (a small model otherwise
+            # picks the coffee maker or a bottle from a long list)
             least = min(gaps.values())
-            theirs = [n for n, g in gaps.items() if g <= least + TIE_M]
-            kept = [*(n for n in kept if n not in gaps), *theirs]
+            return RelatedObjects(objects=tuple(n for n, g in gaps.items() if g <= least + TIE_M), landmarks=())
     landmarks: list[str] = []
     for mention in stated_relations(text, scene.labels, list(others)):
         if not mention.subject:

@@ -84,9 +84,9 @@ def test_a_serving_action_is_at_the_table_of_the_people_served() -> None:
                                     heading={"Ava": (5.0, -0.8)})
     assert _alternatives(heading, "object") == {"table_2"}
     # words that name no table ("takes their order"): the guests' table is offered all the same
-    order = related_objects(scene, "Cleo takes their order", ["bar_counter_1"], {}, action="take_order",
+    order = related_objects(scene, "Cleo takes their order", ["bar_counter_1", "chair_1"], {}, action="take_order",
                             served_at=[(5.0, -0.8)])
-    assert order.objects == ("table_2",)
+    assert order.objects == ("table_2",)  # and nothing else: the order is taken at the guests' table
     # not a serving action: where the guests sit says nothing about which table one wipes
     wipe = related_objects(scene, "Cleo wipes a table", ["table_1", "table_2"], {}, action="clean_table",
                            served_at=[(5.0, -0.8)])
