@@ -46,7 +46,7 @@ def _with_seq(state: PlanningState, seq: int | None) -> tuple[int, ...]:
     return state.step_trace_seqs if seq is None else (*state.step_trace_seqs, seq)
 
 
-def reply_update(state: PlanningState, role: Literal["narrator", "parser"], response: Any) -> dict[str, Any]:
+def reply_update(state: PlanningState, role: Literal["narrator", "parser"], response: LLMResponse) -> dict[str, Any]:
     """State update for one answered call: the reply, its trace seq, the step's seqs, the count."""
     return {
         f"{role}_reply": response.text,
