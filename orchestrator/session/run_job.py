@@ -73,7 +73,7 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from orchestrator.planning.ablation_graph import Ablation
 from orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
@@ -119,6 +119,7 @@ if TYPE_CHECKING:
     from orchestrator.sandbox_worker import WorkerRunner
     from orchestrator.session.live_state import ReplyTap
     from sim.world.step import World
+    from sim.world.track_chunks import ChunkStore
 
 
 @dataclass(frozen=True)
@@ -330,7 +331,7 @@ class _RunHooks:
         if self.on_event is not None:
             self.on_event(event, self.fps)
 
-    def _write_after_trace(self, path: Path, cp: SessionCheckpoint, shared: dict[int, str], store: Any) -> None:
+    def _write_after_trace(self, path: Path, cp: SessionCheckpoint, shared: dict[int, str], store: ChunkStore | None) -> None:
         from orchestrator.session.snapshot_file import write_checkpoint
 
         if self.writer is not None:  # the checkpoint counts on the trace's applied records: on disk first
