@@ -33,8 +33,9 @@ def register(app: typer.Typer) -> None:
 def _fail(message: str, code: int = 2) -> None:
     """One ``error:`` line (whatever the message quotes: a case file's text, a path) and exit."""
     from orchestrator.safe_text import one_line
+    from orchestrator.terminal import say
 
-    typer.echo(f"error: {one_line(message)}", err=True)
+    say(f"error: {one_line(message)}", err=True)
     raise typer.Exit(code)
 
 
@@ -101,6 +102,7 @@ def run_command(
         from benchmark.sweep.progress import progress_for
         from benchmark.sweep.runner import run_sweep
         from orchestrator.reference_data import locate_reference
+        from orchestrator.terminal import say
 
         if executor not in ("local", "ray"):
             raise SweepSpecError(f"--executor {executor!r}: expected local or ray")
@@ -120,7 +122,7 @@ def run_command(
             run_all = ray_executor(jobs, address=ray_address)
         results = asyncio.run(run_sweep(spec, out, jobs=jobs, progress=progress_for(), executor=run_all))
         passed = sum(r.verdict == "pass" for r in results)
-        typer.echo(f"{len(results)} runs, {passed} passed; report: {out / 'report.md'}")
+        say(f"{len(results)} runs, {passed} passed; report: {out / 'report.md'}")
 
     _guard(go)
 
@@ -133,9 +135,10 @@ def score_command(out: Annotated[Path, typer.Argument(help="A sweep folder.")]) 
         import asyncio
 
         from benchmark.sweep.runner import score_sweep
+        from orchestrator.terminal import say
 
         results = asyncio.run(score_sweep(out))
-        typer.echo(f"{len(results)} runs re-scored, {sum(r.verdict == 'pass' for r in results)} passed")
+        say(f"{len(results)} runs re-scored, {sum(r.verdict == 'pass' for r in results)} passed")
 
     _guard(go)
 
@@ -146,8 +149,9 @@ def report_command(out: Annotated[Path, typer.Argument(help="A sweep folder.")])
 
     def go() -> None:
         from benchmark.sweep.runner import report_sweep
+        from orchestrator.terminal import say
 
         results = report_sweep(out)
-        typer.echo(f"report of {len(results)} runs: {out / 'report.md'}")
+        say(f"report of {len(results)} runs: {out / 'report.md'}")
 
     _guard(go)

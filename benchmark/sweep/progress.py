@@ -13,6 +13,8 @@ from collections.abc import Callable, Sequence
 from typing import IO, Any
 
 from benchmark.sweep.results import RunResult
+from orchestrator.safe_text import plain
+from orchestrator.terminal import say
 
 
 class _Tally:
@@ -58,13 +60,13 @@ class LineProgress:
 
     def start(self, total: int, done: Sequence[RunResult]) -> None:
         self.tally.start(total, done)
-        print(f"sweep: {total} runs, {len(done)} already done", file=self.stream, flush=True)
+        say(f"sweep: {total} runs, {len(done)} already done", file=self.stream)
 
     def advance(self, result: RunResult) -> None:
         t = self.tally
         t.advance(result)
-        print(f"[{t.done}/{t.total}] {result.run_id}: {result.verdict} "
-              f"(pass rate {t.pass_rate:.2f}, ETA {_eta(t.eta_s())})", file=self.stream, flush=True)
+        say(f"[{t.done}/{t.total}] {plain(result.run_id)}: {plain(result.verdict)} "
+            f"(pass rate {t.pass_rate:.2f}, ETA {_eta(t.eta_s())})", file=self.stream)
 
     def close(self) -> None:
         return None

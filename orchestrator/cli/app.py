@@ -10,7 +10,6 @@ skipped, never fatal to the other commands.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Iterable
 from importlib.metadata import EntryPoint, entry_points
 
@@ -22,6 +21,8 @@ from orchestrator.cli import plan as cli_plan
 from orchestrator.cli import run as cli_run
 from orchestrator.cli import scene as cli_scene
 from orchestrator.cli import view as cli_view
+from orchestrator.safe_text import plain
+from orchestrator.terminal import say
 
 app = typer.Typer(
     name="storyteller",
@@ -41,9 +42,7 @@ def _setup(
     try:
         configure_logging(log_level)
     except ValueError as exc:
-        from orchestrator.safe_text import plain
-
-        typer.echo(f"error: {plain(exc)}", err=True)
+        say(f"error: {plain(exc)}", err=True)
         raise typer.Exit(2) from None
 
 
@@ -65,7 +64,8 @@ def register_plugins(target: typer.Typer, plugins: Iterable[EntryPoint] | None =
         try:
             register = ep.load()
         except (ImportError, AttributeError) as exc:
-            print(f"warning: storyteller command plugin {ep.name!r} ({ep.value}) cannot be loaded: {exc}", file=sys.stderr)
+            say(f"warning: storyteller command plugin {ep.name!r} ({plain(ep.value)}) cannot be loaded: {plain(exc)}",
+                err=True)
             continue
         register(target)
         names.append(ep.name)

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from orchestrator.safe_text import markup, plain
+from orchestrator.terminal import say
 
 if TYPE_CHECKING:  # imported by the command, so that other commands start without it
     from tools.character_states import CharacterPlan, WorldView
@@ -138,7 +139,7 @@ def event_program(
         source = read_program(program)
         world, labels = load_states(states, loaded) if states is not None else (WorldView(), None)
     except (SceneFileError, _UsageError) as exc:
-        typer.echo(f"error: {plain(exc)}", err=True)
+        say(f"error: {plain(exc)}", err=True)
         raise typer.Exit(2) from None
 
     try:
@@ -157,13 +158,13 @@ def event_program(
             "line": exc.line,
         }
         if as_json:
-            typer.echo(plans_json([], error))
+            say(plans_json([], error))
         else:
-            typer.echo(f"error ({exc.kind}): {plain(exc.feedback)}", err=True)
+            say(f"error ({exc.kind}): {plain(exc.feedback)}", err=True)
         raise typer.Exit(1) from None
 
     if as_json:
-        typer.echo(plans_json(plans, None))
+        say(plans_json(plans, None))
         return
     from rich.console import Console
     from rich.table import Table
@@ -179,4 +180,4 @@ def event_program(
             f"[{p.position[0]:.2f}, {p.position[1]:.2f}]",
             f"[{p.facing[0]:.2f}, {p.facing[1]:.2f}]",
         )
-    Console(emoji=False).print(table)  # markup() escapes markup; a ':smile:' stays text too
+    say(table, console=Console(emoji=False))  # markup() escapes markup; a ':smile:' stays text too

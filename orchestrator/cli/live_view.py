@@ -35,6 +35,7 @@ from rich.text import Text
 from orchestrator.safe_text import plain
 from orchestrator.session.run_report import clock
 from orchestrator.session.run_status import CharacterActivity, RunSnapshot, RunStatus
+from orchestrator.terminal import escaped, say
 
 REFRESH_PERIOD_S = 0.25
 """Wall seconds between two refreshes of the display (4 a second)."""
@@ -211,7 +212,7 @@ class LiveView:
 
     def refresh(self) -> None:
         typed = self.typed() if self.typed is not None else None
-        self.live.update(live_view(self.status.snapshot(), self.console.width, typed), refresh=True)
+        self.live.update(escaped(live_view(self.status.snapshot(), self.console.width, typed)), refresh=True)
 
     def refresh_soon(self) -> None:
         """Refresh on the event loop as soon as it can (safe from any thread: a key typed)."""
@@ -226,7 +227,7 @@ class LiveView:
 
     def line(self, text: str) -> None:
         """A line of the story (``plain`` text) above the display, as the plain output prints it."""
-        self.live.console.print(Text(plain(text)), soft_wrap=True)
+        say(Text(plain(text)), console=self.live.console, soft_wrap=True)
 
     async def _refreshing(self) -> None:
         while True:

@@ -11,6 +11,7 @@ import typer
 
 from orchestrator.cli.options import fail
 from orchestrator.safe_text import plain
+from orchestrator.terminal import say
 
 if TYPE_CHECKING:  # the config module is imported when a command runs, not at CLI start-up
     from orchestrator.llm.config import StorytellerConfig
@@ -30,7 +31,7 @@ def _load(config: Path | None) -> StorytellerConfig:
     try:
         return load_config(config)
     except ConfigError as exc:
-        typer.echo(f"error: {plain(exc, keep_newlines=True)}", err=True)
+        say(f"error: {plain(exc, keep_newlines=True)}", err=True)
         raise typer.Exit(2) from None
 
 
@@ -44,10 +45,10 @@ def info(config: ConfigOption = None) -> None:
     from orchestrator.llm.model_weights import KNOWN_WEIGHTS, install_command, weights_status
 
     cfg = _load(config)
-    typer.echo(f"config: {plain(cfg.source)}   trace fsync: {cfg.trace.fsync}")
+    say(f"config: {plain(cfg.source)}   trace fsync: {cfg.trace.fsync}")
     for node_name, node in cfg.nodes.items():
         r = node.retry
-        typer.echo(plain(
+        say(plain(
             f"{node_name:13s} model={node.model} fallbacks=[{', '.join(node.fallbacks)}] "
             f"temperature={node.temperature} max_tokens={node.max_tokens} timeout_s={node.timeout_s} "
             f"retry(max_attempts={r.max_attempts}, backoff={r.backoff_base_s}..{r.backoff_max_s}s, "
@@ -58,22 +59,22 @@ def info(config: ConfigOption = None) -> None:
     used = _local_models(cfg)
     for model in used:
         if model.removeprefix("local/") not in KNOWN_WEIGHTS:
-            typer.echo(f"{plain(model)}: unknown local model")
-    typer.echo("embedded models:")
+            say(f"{plain(model)}: unknown local model")
+    say("embedded models:")
     for spec in KNOWN_WEIGHTS.values():
         name = f"local/{spec.model}"
         st = weights_status(spec)
         state = "verified" if st.verified else ("installed, not assembled yet" if st.packages_installed else "MISSING")
         size = f"{spec.size / 1e9:.2f} GB" if spec.size else "size unknown"
         where = "used by this config" if name in used else "not used by this config"
-        typer.echo(f"  {name}: {spec.description}; {size}, sha256 {spec.sha256[:12]}...; weights {state} "
+        say(f"  {name}: {spec.description}; {size}, sha256 {spec.sha256[:12]}...; weights {state} "
                    f"({st.assembled_path}); {where}")
         if not st.packages_installed:
-            typer.echo(f"    install: {install_command(spec)}")
+            say(f"    install: {install_command(spec)}")
         if name not in used:
-            typer.echo(f"    use: STORYTELLER_MODEL={name}, or model = \"{name}\" under [llm] in the config")
+            say(f"    use: STORYTELLER_MODEL={name}, or model = \"{name}\" under [llm] in the config")
         if st.problem and name in used:
-            typer.echo(f"    {st.problem}")
+            say(f"    {st.problem}")
     _echo_local_run_settings()
 
 
@@ -86,8 +87,8 @@ def _echo_local_run_settings() -> None:
         choice = ThreadChooser().choose()
     except ValueError as exc:
         fail(str(exc))
-    typer.echo(f"local threads now: {choice.reason()}; chosen again before every call ({THREADS_ENV} fixes them)")
-    typer.echo(f"local progress floor: {ProgressFloor().describe()}; timeout_s is a hard cap")
+    say(f"local threads now: {choice.reason()}; chosen again before every call ({THREADS_ENV} fixes them)")
+    say(f"local progress floor: {ProgressFloor().describe()}; timeout_s is a hard cap")
 
 
 @model_app.command("check")
@@ -108,10 +109,10 @@ def check(
         try:
             path = ensure_weights(spec_for(model))
         except LLMError as exc:
-            typer.echo(f"{plain(model)}: FAILED: {plain(exc, keep_newlines=True)}", err=True)
+            say(f"{plain(model)}: FAILED: {plain(exc, keep_newlines=True)}", err=True)
             failed = True
             continue
-        typer.echo(f"{model}: weights verified ({path}, {time.perf_counter() - t0:.1f} s)")
+        say(f"{plain(model)}: weights verified ({plain(path)}, {time.perf_counter() - t0:.1f} s)")
         if not run:
             continue
         from orchestrator.llm.client import LiteLLMClient
@@ -126,12 +127,12 @@ def check(
         try:
             resp = anyio.run(LiteLLMClient(probe_cfg).complete, request)
         except LLMError as exc:
-            typer.echo(f"{plain(model)}: call FAILED: {plain(exc, keep_newlines=True)}", err=True)
+            say(f"{plain(model)}: call FAILED: {plain(exc, keep_newlines=True)}", err=True)
             failed = True
             continue
         rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         rate = resp.usage.completion_tokens / resp.latency_s if resp.latency_s > 0 else 0.0
-        typer.echo(f"{plain(model)}: {plain(resp.text)}  ({resp.usage.prompt_tokens}+{resp.usage.completion_tokens} tokens, "
+        say(f"{plain(model)}: {plain(resp.text)}  ({resp.usage.prompt_tokens}+{resp.usage.completion_tokens} tokens, "
                    f"{resp.latency_s:.1f} s incl. load, {rate:.1f} tok/s, peak RSS {rss_mb:.0f} MB)")
     if failed:
         raise typer.Exit(1)

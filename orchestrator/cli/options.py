@@ -9,6 +9,7 @@ import typer
 
 from orchestrator.planning.kinds import DescriptionKind, PlannerKind
 from orchestrator.session.pace import Pace
+from orchestrator.terminal import say
 
 SceneArg = Annotated[str, typer.Argument(help="Bundled scene name or path to a scene.")]
 Characters = Annotated[int, typer.Option("--characters", "-n", min=1, max=24, help="Number of characters.")]
@@ -73,5 +74,5 @@ def fail(message: str, code: int = 2) -> NoReturn:
     shown as escapes)."""
     from orchestrator.safe_text import one_line
 
-    typer.echo(f"error: {one_line(message)}", err=True)
+    say(f"error: {one_line(message)}", err=True)
     raise typer.Exit(code)

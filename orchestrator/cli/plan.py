@@ -43,6 +43,7 @@ from orchestrator.cli.options import (
     fail,
 )
 from orchestrator.safe_text import plain
+from orchestrator.terminal import say
 
 if TYPE_CHECKING:
     from agents.messages import ParsedEvent, PlanningFailure
@@ -141,7 +142,7 @@ def plan_command(
         port, describer_model = open_port(config, record, replay, planner=planner)
     except (LLMError, ValueError, OSError) as exc:
         fail(str(exc))
-    typer.echo(f"thread {thread} (resume with {_resume_options(thread, ablation)})", err=True)
+    say(f"thread {thread} (resume with {_resume_options(thread, ablation)})", err=True)
     cache = description_cache_dir() if record is None and replay is None else None
 
     async def main() -> PlanResult:
@@ -177,11 +178,11 @@ def plan_command(
     except sqlite3.DatabaseError as exc:  # --runs-db is not a database this can open
         fail(f"--runs-db {runs_db or default_runs_db()}: cannot use the checkpoint database ({exc})")
     if as_json:
-        typer.echo(json.dumps(_json_report(scene_obj.name, characters, instruction, result, ablation), indent=2))
+        say(json.dumps(_json_report(scene_obj.name, characters, instruction, result, ablation), indent=2))
 
 
 def _print_outcome(index: int, outcome: ParsedEvent | PlanningFailure | None) -> None:
-    typer.echo(format_event_text(index, outcome))
+    say(format_event_text(index, outcome))
 
 
 def _checked_inputs(

@@ -85,6 +85,7 @@ from orchestrator.cli.options import (
     fail,
 )
 from orchestrator.safe_text import one_line, plain
+from orchestrator.terminal import say
 from sim.run_folder_names import RUNS_DB, TRACE_JSONL
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
@@ -234,7 +235,7 @@ def warn_unreached(script: tuple[ScriptLine, ...], duration: float, source: str)
     frames = round(duration * fps)
     late = [line for line in script if round(line.time_s * fps) >= frames]  # as the session schedules them
     if late:
-        typer.echo(
+        say(
             f"warning: {plain(source)}: {len(late)} instruction(s) at or after {duration:g} s, the end of the run "
             f"(--duration), never take effect (the first: {late[0].time_s:g} s {plain(late[0].text[:60])!r})",
             err=True,
@@ -437,7 +438,7 @@ def _start_viewer(out: Path, view: ViewAt, smplx_model: Path | None) -> ViewerPr
         viewer = spawn_viewer(out, port=view.port, host=view.host, smplx_model=smplx_model)
     except ViewerStartError as exc:  # an address this machine does not have, or cannot resolve
         fail(f"--view: {exc}")
-    typer.echo(viewer.address)
+    say(viewer.address)
     return viewer
 
 
@@ -447,7 +448,7 @@ def _serve_until_stopped(viewer: ViewerProcess) -> None:
     import threading
 
     stopped = threading.Event()
-    typer.echo(f"the story has ended; the viewer still serves it at {viewer.url} (Ctrl-C to stop)")
+    say(f"the story has ended; the viewer still serves it at {viewer.url} (Ctrl-C to stop)")
     previous = {signum: signal.signal(signum, lambda *_: stopped.set()) for signum in STOP_SIGNALS}
     try:
         while not stopped.wait(0.5) and viewer.alive:
@@ -477,18 +478,18 @@ def _run_and_report(
     if prompt is not None and view is not None:
         prompt.on_change = view.refresh_soon
 
-    def say(line: str) -> None:  # a story line: above the live view, or plain
+    def story_line(line: str) -> None:  # above the live view, or plain
         if view is not None:
             view.line(line)
         else:
-            typer.echo(line)
+            say(line)
 
     def show(e: StoryEvent, fps: int) -> None:
-        say(_event_line(e, fps))
+        story_line(_event_line(e, fps))
 
     def started(manifest: RunManifest) -> None:
         if replay is None:
-            typer.echo(f"thread {plain(manifest.thread_id)}; to resume after a stop: {plain(resume_command(out))}", err=True)
+            say(f"thread {plain(manifest.thread_id)}; to resume after a stop: {plain(resume_command(out))}", err=True)
 
     signals: list[int] = []  # the signals received, in order
 
@@ -514,9 +515,9 @@ def _run_and_report(
                     resume=resume,
                     interactive=interactive,
                     on_event=show,
-                    on_instruction=lambda i, fps: say(f"[{i.frame / fps:7.1f}s] instruction ({i.source}): {plain(i.text)}"),
+                    on_instruction=lambda i, fps: story_line(f"[{i.frame / fps:7.1f}s] instruction ({i.source}): {plain(i.text)}"),
                     on_start=started,
-                    on_resume=lambda frame, fps: typer.echo(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
+                    on_resume=lambda frame, fps: say(f"resuming at frame {frame} ({frame / fps:.1f} s)", err=True),
                     in_process_programs=in_process_programs,
                     programs=programs,
                     stop=stop,
@@ -557,7 +558,7 @@ def _run_and_report(
         signals.append(exc.signum)
     if failed_write is not None:
         _cannot_write(failed_write, out, resumable=replay is None)
-    typer.echo(
+    say(
         f"{result.frames} frames ({result.frames / fps:.1f} s), {result.steps} planning steps, "
         f"{sum(e.state == 'completed' for e in result.events)} events completed -> {plain(out)}"
     )
@@ -566,7 +567,7 @@ def _run_and_report(
     if signals:
         signum = signals[0]
         again = "" if replay is not None else f"; go on with: {plain(resume_command(out))}"
-        typer.echo(
+        say(
             f"stopped by {signal_name(signum)} at frame {result.frames} ({result.frames / fps:.1f} s); "
             f"the story so far, its motion, trace and checkpoint are in {plain(out)}{again}",
             err=True,
@@ -584,10 +585,10 @@ def _run_and_report(
             # the trace cannot be applied: a bad file, one line and exit 2; the diff against the
             # recorded request is a log record (shown with --log-level INFO)
             structlog.get_logger("storyteller.replay").info("replay_miss_diff", diff=plain(detail or "", keep_newlines=True))
-            typer.echo(f"error: cannot replay {plain(replay or trace_path)}: the recorded step does not apply: "
+            say(f"error: cannot replay {plain(replay or trace_path)}: the recorded step does not apply: "
                        f"{one_line(message)} (--log-level INFO shows the diff)", err=True)
             raise typer.Exit(2)
-        typer.echo(f"error: planning stopped: {type(err).__name__}: {one_line(message)}", err=True)
+        say(f"error: planning stopped: {type(err).__name__}: {one_line(message)}", err=True)
         raise typer.Exit(1)
 
 
@@ -652,7 +653,7 @@ def _cannot_write(exc: OSError, out: Path, *, resumable: bool) -> NoReturn:
 
     where = exc.filename if exc.filename is not None else out
     then = f"; once it can be written, go on with: {plain(resume_command(out))}" if resumable else ""
-    typer.echo(
+    say(
         f"error: cannot write {plain(where)}: {plain(exc.strerror or exc)}; what was written before is kept{then}",
         err=True,
     )

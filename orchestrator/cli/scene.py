@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from orchestrator.terminal import say
+
 if TYPE_CHECKING:  # commands import what they need, so that ``scene list`` starts at once
     from sim.scene.model import Scene
 
@@ -36,7 +38,7 @@ def list_scenes() -> None:
     from sim.scene.bundled import bundled_scene_names
 
     for name in bundled_scene_names():
-        typer.echo(name)
+        say(name)
 
 
 def _r(value: float, digits: int = 4) -> float:
@@ -117,12 +119,13 @@ def _print_tables(data: dict[str, Any]) -> None:
     if not console.is_terminal:  # piped: do not squeeze the tables into 80 columns
         console = Console(width=max(console.width, 120))
     lo, hi = data["bounds"]["min"], data["bounds"]["max"]
-    console.print(
+    say(
         Text.assemble(
             (plain(data["scene"]), "bold"),
             f": {len(data['objects'])} objects, floor "
             f"[{lo[0]:.2f}, {hi[0]:.2f}] x [{lo[1]:.2f}, {hi[1]:.2f}] m",
-        )
+        ),
+        console=console,
     )
     objects = Table(title="Objects", title_justify="left")
     for col in ("name", "label", "center x y z (m)", "size w d h (m)", "facing", "seat", "on"):
@@ -137,21 +140,21 @@ def _print_tables(data: dict[str, Any]) -> None:
             "yes" if o["seat"] else "",
             text(o["supporter"] or ""),
         )
-    console.print(objects)
+    say(objects, console=console)
 
     relations = Table(title=f"Relations ({len(data['relations'])})", title_justify="left")
     for col in ("subject", "relation", "anchor"):
         relations.add_column(col)
     for s, r, a in data["relations"]:
         relations.add_row(text(s), text(r), text(a))
-    console.print(relations)
+    say(relations, console=console)
 
     clusters = Table(title=f"Clusters ({len(data['clusters'])})", title_justify="left")
     clusters.add_column("#", justify="right")
     clusters.add_column("objects")
     for k, names in enumerate(data["clusters"], 1):
         clusters.add_row(str(k), text(", ".join(names)))
-    console.print(clusters)
+    say(clusters, console=console)
 
     g = data["grid"]
     grid = Table(title="Navigation grid", title_justify="left", show_header=False)
@@ -164,14 +167,14 @@ def _print_tables(data: dict[str, Any]) -> None:
     grid.add_row("free / blocked", f"{g['free_cells']} / {g['blocked_cells']}")
     grid.add_row("connected areas", str(g["components"]))
     grid.add_row("largest area (cells)", str(g["main_component_cells"]))
-    console.print(grid)
+    say(grid, console=console)
 
 
 def _fail(message: str) -> typer.Exit:
     """One line on stderr (whitespace runs folded, control and bidi characters escaped)."""
     from orchestrator.safe_text import plain
 
-    typer.echo(f"error: {plain(' '.join(message.split()))}", err=True)
+    say(f"error: {plain(' '.join(message.split()))}", err=True)
     return typer.Exit(code=EXIT_USAGE)
 
 
@@ -223,7 +226,7 @@ def inspect_scene(
                 nav_free=grid.free,
                 nav_origin=grid.origin,
                 nav_cell_size=grid.cell_size,
-                title=f"{scene.name}: {len(scene.objects)} objects, {len(data['clusters'])} clusters",
+                title=f"{plain(scene.name)}: {len(scene.objects)} objects, {len(data['clusters'])} clusters",
             )
         except OSError as exc:
             raise _fail(f"{png}: cannot write the picture ({exc.strerror or exc})") from None
@@ -231,8 +234,8 @@ def inspect_scene(
     if as_json:
         if png is not None:
             data["png"] = str(png)
-        typer.echo(json.dumps(data))
+        say(json.dumps(data))
     else:
         _print_tables(data)
         if png is not None:
-            typer.echo(f"wrote {plain(png)}")
+            say(f"wrote {plain(png)}")

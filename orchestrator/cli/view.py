@@ -19,6 +19,7 @@ import typer
 
 from orchestrator.cli.options import fail
 from orchestrator.safe_text import plain
+from orchestrator.terminal import say
 
 
 def register(app: typer.Typer) -> None:
@@ -52,7 +53,7 @@ def view_command(
             fail(str(exc))
         except OSError as exc:
             fail(f"{export}: cannot write ({exc.strerror})")
-        typer.echo(f"wrote {plain(export)}")
+        say(f"wrote {plain(export)}")
         return
     if run_dir.exists() and not run_dir.is_dir():
         fail(f"{run_dir}: not a folder (expected the --out folder of `storyteller run`)")
@@ -66,7 +67,7 @@ def view_command(
     except OSError as exc:  # an address this machine does not have, or cannot resolve
         fail(f"--host {host}: cannot listen there ({exc.strerror or exc})")
     viewer.start()
-    typer.echo(viewer.reach(str(run_dir)))
+    say(viewer.reach(str(run_dir)))
     try:
         while not threading.Event().wait(1.0):
             if parent is not None and os.getppid() != parent:  # `run --view` ended, even by kill -9

@@ -25,6 +25,7 @@ import threading
 from pathlib import Path
 from typing import IO
 
+from orchestrator.terminal import say
 from orchestrator.viewer.access import is_loopback
 
 START_TIMEOUT_S = 120.0
@@ -109,7 +110,7 @@ def spawn_viewer(
     def relay() -> None:
         while (line := lines.get()) is not None:
             if not line.startswith("(viser)"):
-                print(line, file=sink, flush=True)
+                say(line, file=sink)
 
     threading.Thread(target=relay, name="viewer-relay", daemon=True).start()
     return ViewerProcess(proc, "\n".join(address), url)
