@@ -23,9 +23,12 @@ step costs the planner the same at step 500 as at step 10. On resume, a step cut
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from collections.abc import AsyncIterator
+from typing import Any, Literal, Protocol
 
 import anyio
+from langchain_core.runnables import RunnableConfig
+from langgraph.types import Durability, StateSnapshot
 
 from agents.messages import Event, SceneDescription
 from orchestrator.planning.checkpoints import StoryLog
@@ -35,11 +38,24 @@ from orchestrator.session.roster import RosterWorld
 from orchestrator.session.session_types import Outcome, PlanningRequest
 
 
+class StepGraph(Protocol):
+    """What :class:`GraphStepPlanner` uses of a compiled planning graph
+    (:data:`~orchestrator.planning.graph.CompiledPlanningGraph`): a thread's state, and a run
+    streamed to its end. Tests and the planner benchmark pass stand-ins that record outcomes."""
+
+    async def aget_state(self, config: RunnableConfig) -> StateSnapshot: ...
+
+    def astream(
+        self, start: dict[str, Any] | None, /, *, config: RunnableConfig, context: PlanningDeps,
+        durability: Durability, stream_mode: Literal["updates"],
+    ) -> AsyncIterator[object]: ...
+
+
 class GraphStepPlanner:
     """``StepPlanner`` over a compiled planning graph and its story log; ``lanes``: steps it
     may run at once (the session's ``planners``)."""
 
-    def __init__(self, graph: Any, deps: PlanningDeps, thread_id: str, *, lanes: int = 1) -> None:
+    def __init__(self, graph: StepGraph, deps: PlanningDeps, thread_id: str, *, lanes: int = 1) -> None:
         if not isinstance(deps.world, RosterWorld):
             raise TypeError("GraphStepPlanner needs deps.world to be a RosterWorld")
         if lanes < 1:
@@ -60,7 +76,7 @@ class GraphStepPlanner:
     def lane_thread(self, lane: int) -> str:
         return self.thread_id if lane == 0 else f"{self.thread_id}/lane{lane}"
 
-    def _config(self, lane: int = 0) -> dict[str, Any]:
+    def _config(self, lane: int = 0) -> RunnableConfig:
         return {
             "configurable": {"thread_id": self.lane_thread(lane)},
             "recursion_limit": recursion_limit(1, self.deps.max_retries),
@@ -70,10 +86,10 @@ class GraphStepPlanner:
         """Trace seqs of the narrator and event-parser attempts behind step ``index``."""
         return self.story.trace_seqs(index)
 
-    async def _lane_for(self, index: int) -> tuple[int, Any]:
+    async def _lane_for(self, index: int) -> tuple[int, StateSnapshot]:
         """The lane to run step ``index`` on and its state: the one holding it cut mid-way, else
         the first free lane."""
-        free: list[tuple[int, Any]] = []
+        free: list[tuple[int, StateSnapshot]] = []
         for lane in range(self.lanes):
             if lane in self._busy:
                 continue
@@ -105,7 +121,7 @@ class GraphStepPlanner:
         finally:
             self._busy.discard(lane)
 
-    async def _run(self, lane: int, snapshot: Any, request: PlanningRequest, progress: StepProgress | None) -> Outcome:
+    async def _run(self, lane: int, snapshot: StateSnapshot, request: PlanningRequest, progress: StepProgress | None) -> Outcome:
         world = self.world if self.lanes == 1 else RosterWorld()  # one step at a time: the run's own view
         world.targets = dict(request.targets)
         world.seats = dict(request.objects_in_use)
