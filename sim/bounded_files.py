@@ -8,6 +8,9 @@ scene, a trace) goes through two functions:
   (``/dev/zero``, a FIFO, a folder), optionally refuses a symbolic link (``O_NOFOLLOW``), and
   reads ``max_bytes + 1`` bytes at most, so a file that grows or lies about its size still costs
   no more than the cap;
+- :func:`read_bounded_tail` reads, under the same checks, only what a file gained since a read
+  that ended at a given byte (a reader polling a growing file), or the whole file again when it
+  is another file or shorter, saying which;
 - :func:`load_bounded_json` parses JSON text into plain Python values with a nesting depth of at
   most ``max_depth`` (deeper text is refused before a value is built from it, so no
   ``RecursionError`` reaches the caller), integers of at most :data:`MAX_INT_DIGITS` digits,
@@ -38,6 +41,7 @@ import os
 import re
 import stat
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 from zlib import error as zlib_error
@@ -79,6 +83,73 @@ def read_bounded_bytes(path: Path | str, max_bytes: int, what: str, *, follow_sy
     """The bytes of the regular file ``path``, at most ``max_bytes`` of them (a larger file is a
     :class:`BoundedFileError`). ``what`` names the file in errors (e.g. its path). With
     ``follow_symlinks=False`` a symbolic link is refused instead of followed."""
+    fd, _ = _open_bounded(path, max_bytes, what, follow_symlinks)
+    try:
+        chunks: list[bytes] = []
+        left = max_bytes + 1
+        while left > 0:
+            chunk = os.read(fd, min(left, _READ_CHUNK))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+    except OSError as exc:
+        raise BoundedFileError(what, f"cannot read ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+    if left <= 0:
+        raise BoundedFileError(what, f"is more than the {max_bytes} bytes allowed")
+    return b"".join(chunks)
+
+
+@dataclass(frozen=True)
+class FileTail:
+    """What :func:`read_bounded_tail` read: the bytes of a file from ``start`` to ``size``."""
+
+    identity: tuple[int, int]
+    """``(st_dev, st_ino)``: which file it was."""
+    size: int
+    """Its size when it was opened."""
+    start: int
+    """The byte ``data`` starts at: the offset asked for, or 0 when :attr:`reread` says why not."""
+    data: bytes
+    reread: str | None
+
+
+def read_bounded_tail(path: Path | str, max_bytes: int, what: str, offset: int = 0,
+                      identity: tuple[int, int] | None = None) -> FileTail:
+    """The bytes of the regular file ``path`` appended since a read that ended at byte ``offset``
+    of the file ``identity``: from ``offset`` to its size, or from 0 when it is another file or
+    shorter than ``offset`` (:attr:`FileTail.reread` says which). The limits of
+    :func:`read_bounded_bytes`: a file over ``max_bytes`` (counted whole) is refused from its size
+    before a byte is read, and no more than its size at opening is read."""
+    fd, info = _open_bounded(path, max_bytes, what, True)
+    found = (info.st_dev, info.st_ino)
+    reread = None
+    if identity is not None and found != identity:
+        reread = "another file in its place (replaced)"
+    elif info.st_size < offset:
+        reread = f"{info.st_size} bytes, shorter than the {offset} already read (cut)"
+    start = 0 if reread is not None else offset
+    try:
+        chunks: list[bytes] = []
+        at = start
+        while at < info.st_size:
+            chunk = os.pread(fd, min(info.st_size - at, _READ_CHUNK), at)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            at += len(chunk)
+    except OSError as exc:
+        raise BoundedFileError(what, f"cannot read ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+    return FileTail(found, info.st_size, start, b"".join(chunks), reread)
+
+
+def _open_bounded(path: Path | str, max_bytes: int, what: str, follow_symlinks: bool) -> tuple[int, os.stat_result]:
+    """``path`` opened for reading without blocking, with its ``fstat``, when it is a regular file
+    of at most ``max_bytes`` (its size at opening); :class:`BoundedFileError` otherwise."""
     flags = os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
     if not follow_symlinks:
         flags |= os.O_NOFOLLOW
@@ -100,21 +171,13 @@ def read_bounded_bytes(path: Path | str, max_bytes: int, what: str, *, follow_sy
             raise BoundedFileError(what, "is not a regular file (a device, a FIFO or a socket)")
         if info.st_size > max_bytes:
             raise BoundedFileError(what, f"is {info.st_size} bytes, more than the {max_bytes} allowed")
-        chunks: list[bytes] = []
-        left = max_bytes + 1
-        while left > 0:
-            chunk = os.read(fd, min(left, _READ_CHUNK))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            left -= len(chunk)
     except OSError as exc:
-        raise BoundedFileError(what, f"cannot read ({exc.strerror or exc})") from None
-    finally:
         os.close(fd)
-    if left <= 0:
-        raise BoundedFileError(what, f"is more than the {max_bytes} bytes allowed")
-    return b"".join(chunks)
+        raise BoundedFileError(what, f"cannot read ({exc.strerror or exc})") from None
+    except BoundedFileError:
+        os.close(fd)
+        raise
+    return fd, info
 
 
 def json_depth_exceeds(data: bytes, max_depth: int) -> bool:

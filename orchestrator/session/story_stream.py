@@ -34,7 +34,7 @@ from sim.bounded_files import (
     MAX_OBJECT_KEYS,
     BoundedFileError,
     json_keys_exceed,
-    read_bounded_bytes,
+    read_bounded_tail,
 )
 from sim.no_follow_writes import open_append
 from sim.run_folder_names import STORY_STREAM
@@ -153,24 +153,60 @@ def read_story_stream(path: Path) -> tuple[StreamStart | None, tuple[StoryEventR
     ``(None, ())`` for a missing or empty file. A malformed whole line raises
     :class:`StoryStreamError`, and so is a file over :data:`MAX_STREAM_BYTES` or not a regular
     file; a last line with no newline is not read yet."""
-    try:
-        data = read_bounded_bytes(path, MAX_STREAM_BYTES, str(path))
-    except BoundedFileError as exc:
-        if exc.missing:
-            return None, ()
-        raise StoryStreamError(str(exc)) from None
-    start: StreamStart | None = None
-    events: dict[str, StoryEventRecord] = {}
-    whole = data[: data.rfind(b"\n") + 1]
-    for number, raw in enumerate(whole.splitlines(), start=1):
-        if json_keys_exceed(raw, MAX_OBJECT_KEYS):  # before pydantic builds an error per unknown key
-            raise StoryStreamError(f"{path}: line {number}: more than {MAX_OBJECT_KEYS} keys in one line")
+    return StoryStreamReader(path).read()
+
+
+class StoryStreamReader:
+    """``story.jsonl`` read as it grows: each :meth:`read` parses only the whole lines appended
+    since the last one and returns the story so far, as :func:`read_story_stream` of the file
+    would. The file is read from its start again when it is another file (another inode) or
+    shorter than what was read (:attr:`reread` says why, None after a read of appended lines
+    only). A malformed line is refused at each read until the file changes; nothing of a read
+    that raised is kept. :attr:`bytes_read` counts the bytes read."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.bytes_read = 0
+        self.reread: str | None = None
+        self._identity: tuple[int, int] | None = None
+        self._offset = 0  # the byte after the last whole line taken
+        self._lines = 0  # whole lines taken
+        self._start: StreamStart | None = None
+        self._events: dict[str, StoryEventRecord] = {}
+        self.start_line = 0
+        """Line number of the last start line read (0: none): a new one is a new session."""
+
+    def read(self) -> tuple[StreamStart | None, tuple[StoryEventRecord, ...]]:
         try:
-            line = _LINE.validate_json(raw)
+            tail = read_bounded_tail(self.path, MAX_STREAM_BYTES, str(self.path), self._offset, self._identity)
+        except BoundedFileError as exc:
+            if not exc.missing:
+                raise StoryStreamError(str(exc)) from None
+            self.reread = None if self._identity is None else "the file is gone"
+            self._identity, self._offset, self._lines, self._start, self._events = None, 0, 0, None, {}
+            self.start_line = 0
+            return None, ()
+        self.bytes_read += len(tail.data)
+        self.reread = tail.reread
+        offset, lines, start, events, start_line = self._offset, self._lines, self._start, self._events, self.start_line
+        if tail.reread is not None:
+            offset, lines, start, events, start_line = 0, 0, None, {}, 0
+        whole = tail.data[: tail.data.rfind(b"\n") + 1]
+        parsed = [self._line(lines + i, raw) for i, raw in enumerate(whole.splitlines(), start=1)]
+        events = dict(events)  # nothing is kept of a read that raised above
+        for number, line in enumerate(parsed, start=lines + 1):
+            if isinstance(line, StreamStart):
+                start, events, start_line = line, {}, number
+            elif start is not None:
+                events[line.event.event_id] = line.event
+        self._identity, self._offset, self._lines = tail.identity, offset + len(whole), lines + len(parsed)
+        self._start, self._events, self.start_line = start, events, start_line
+        return start, tuple(sorted(events.values(), key=lambda e: (e.index, e.event_id)))
+
+    def _line(self, number: int, raw: bytes) -> StreamStart | StreamEvent:
+        if json_keys_exceed(raw, MAX_OBJECT_KEYS):  # before pydantic builds an error per unknown key
+            raise StoryStreamError(f"{self.path}: line {number}: more than {MAX_OBJECT_KEYS} keys in one line")
+        try:
+            return _LINE.validate_json(raw)
         except ValidationError as exc:
-            raise StoryStreamError(user_error(f"{path}: line {number}", exc)) from None
-        if isinstance(line, StreamStart):
-            start, events = line, {}
-        elif start is not None:
-            events[line.event.event_id] = line.event
-    return start, tuple(sorted(events.values(), key=lambda e: (e.index, e.event_id)))
+            raise StoryStreamError(user_error(f"{self.path}: line {number}", exc)) from None

@@ -5,7 +5,8 @@ What lives here:
 - :mod:`.run_folder` reads a run folder (``story.json``, ``scene.json`` or the bundled scene
   it names, ``<name>.track.npz``; for a run still in progress ``story.jsonl`` and the motion
   chunk files) into a :class:`~.run_folder.RunData`, and stamps the folder so a viewer can
-  notice a run that is still being written;
+  notice a run that is still being written; :mod:`.live_run` reads such a run again at each
+  change from what its files gained (a full read when one was cut or replaced);
 - :mod:`.timeline` answers, per frame, which story events are on and what each character does
   (pure functions of the run data);
 - :mod:`.figures` poses the stand-in figure (the GLB export's box body) as the 22 bones of a

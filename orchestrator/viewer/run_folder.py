@@ -190,13 +190,13 @@ def load_run(folder: Path) -> RunData:
     tracks += _chunk_tracks(folder, [n for n in story.characters if n not in have], story.fps)
     order = {name: i for i, name in enumerate(story.characters)}
     tracks.sort(key=lambda t: (order.get(t.name, len(order)), t.name))
-    scene, note = _scene_of(folder, story.scene)
+    scene, note = scene_of(folder, story.scene)
     return RunData(
         folder=folder,
         scene=scene,
         scene_note=note,
         fps=story.fps,
-        tracks=_shown_names(tracks),
+        tracks=shown_names(tracks),
         events=_with_texts(story.events, story.steps, scene),
         instruction=story.instruction,
     )
@@ -247,20 +247,23 @@ def _live_run(folder: Path) -> RunData:
     except (StoryStreamError, OSError) as exc:
         raise RunFolderError(str(exc)) from None
     if start is None:
-        raise RunFolderError(
-            f"{folder / STORY_FILE}: not found, and {stream} has no start line yet (the run has not started)"
-        )
-    scene, note = _scene_of(folder, start.scene)
+        raise RunFolderError(stream_not_started(folder))
+    scene, note = scene_of(folder, start.scene)
     return RunData(
         folder=folder,
         scene=scene,
         scene_note=note,
         fps=start.fps,
-        tracks=_shown_names(_chunk_tracks(folder, list(start.characters), start.fps)),
+        tracks=shown_names(_chunk_tracks(folder, list(start.characters), start.fps)),
         events=events,
         instruction=start.instruction,
         live=True,
     )
+
+
+def stream_not_started(folder: Path) -> str:
+    """The error of a live folder whose ``story.jsonl`` has no start line yet."""
+    return f"{folder / STORY_FILE}: not found, and {folder / STREAM_FILE} has no start line yet (the run has not started)"
 
 
 def _chunk_tracks(folder: Path, names: list[str], fps: float) -> list[CharacterTrack]:
@@ -284,7 +287,7 @@ def _chunk_tracks(folder: Path, names: list[str], fps: float) -> list[CharacterT
     return tracks
 
 
-def _shown_names(tracks: list[CharacterTrack]) -> tuple[CharacterTrack, ...]:
+def shown_names(tracks: list[CharacterTrack]) -> tuple[CharacterTrack, ...]:
     """``tracks`` with names fit to show and to name viewer nodes: a name from a file may hold
     control or bidi characters or a lone surrogate (a JSON ``\\ud800``), shown as escapes
     (:func:`orchestrator.safe_text.plain`); two names that read alike then are refused."""
@@ -294,7 +297,9 @@ def _shown_names(tracks: list[CharacterTrack]) -> tuple[CharacterTrack, ...]:
     return out
 
 
-def _scene_of(folder: Path, name: object) -> tuple[Scene | None, str | None]:
+def scene_of(folder: Path, name: object) -> tuple[Scene | None, str | None]:
+    """The scene of the run in ``folder``: its ``scene.json``, else the bundled scene ``name``,
+    else None and why (:class:`RunFolderError` when ``scene.json`` is there and bad)."""
     from sim.scene.bundled import bundled_scene_names, load_bundled_scene
     from sim.scene.errors import SceneFileError
     from sim.scene.files import load_scene_json
@@ -312,5 +317,6 @@ def _scene_of(folder: Path, name: object) -> tuple[Scene | None, str | None]:
 
 __all__ = [
     "SCENE_FILE", "STORY_FILE", "STREAM_FILE", "TRACK_SUFFIX", "RunData", "RunFolderError", "StoryEventRecord",
-    "StoryFile", "folder_stamp", "is_ready", "load_run", "read_story_file",
+    "StoryFile", "folder_stamp", "is_ready", "load_run", "read_story_file", "scene_of", "shown_names",
+    "stream_not_started",
 ]  # fmt: skip

@@ -32,7 +32,8 @@ second and stops at the last frame. A second thread polls the run folder
 
 Live: a run still in progress is shown as soon as it has written its story stream and first
 chunk records (:func:`~.run_folder.is_ready`; until then the panel says it is waiting). Each
-time the chunk files or the story stream grow, the new frames are added to the scene
+time the chunk files or the story stream grow, what they gained is read (:mod:`.live_run`: the
+appended records only, the whole file again when one was cut or replaced), the new frames are added to the scene
 (:meth:`~.scene_view.SceneView.extend`), the slider and clock reach further and the event list
 gets the new events and states; playing at the last frame of a live run waits there and goes
 on as frames arrive (it follows the run). When the run ends it writes ``story.json`` and its
@@ -48,6 +49,7 @@ import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+import structlog
 import viser
 
 from orchestrator.bodies.smplx_meshes import SmplxBody, SmplxModelError, SmplxModels, run_bodies
@@ -61,6 +63,7 @@ from orchestrator.session.viewer_instructions import (
 )
 from orchestrator.viewer.access import TOKEN_PARAM, ViewerAccess, authority
 from orchestrator.viewer.guarded_server import guarded_server
+from orchestrator.viewer.live_run import RunReader
 from orchestrator.viewer.panels import DirectorPanels
 from orchestrator.viewer.run_folder import (
     STORY_FILE,
@@ -68,10 +71,11 @@ from orchestrator.viewer.run_folder import (
     RunFolderError,
     folder_stamp,
     is_ready,
-    load_run,
 )
 from orchestrator.viewer.scene_view import SceneView
 from orchestrator.viewer.timeline import active_events, clock, event_line
+
+_log = structlog.get_logger("storyteller.viewer")
 
 
 class InstructionRefused(Exception):
@@ -107,6 +111,8 @@ class ViewerApp:
         self.position = 0.0  # fractional frame while playing
         self.playing = autoplay
         self._stamp: tuple[tuple[str, int, int], ...] | None = None
+        self.reader = RunReader(folder)
+        """Reads the run at each change: a live run's appended records only (:mod:`.live_run`)."""
         self._stop = threading.Event()
         self._event_buttons: list[viser.GuiButtonHandle] = []
         self._active: list[int] = []
@@ -170,7 +176,9 @@ class ViewerApp:
             self.status.content = f"**{markdown(self.folder.name)}**: waiting for the run to write its outputs..."
             return False
         try:
-            run = load_run(self.folder)
+            run = self.reader.load()
+            if self.reader.reread is not None:
+                _log.info("viewer.reread", folder=str(self.folder), reason=self.reader.reread)
             bodies = self._bodies(run) if self.models is not None else None
         except (RunFolderError, SmplxModelError) as exc:
             self.status.content = f"**{markdown(self.folder.name)}**: {markdown(exc)}"

@@ -140,6 +140,28 @@ class CharacterTrack:
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "action_labels", labels)
 
+    def then(self, more: CharacterTrack) -> CharacterTrack:
+        """This track followed by ``more`` (the same character, fps and body; both with action
+        labels or both without). Each was checked when it was built, so no frame is checked again:
+        a reader that gets a track a chunk at a time checks each chunk once."""
+        same = (more.name == self.name and more.fps == self.fps and more.gender == self.gender
+                and np.array_equal(more.betas, self.betas) and (more.action_labels is None) == (self.action_labels is None))
+        if not same:
+            raise CharacterTrackError(f"{more.name!r} cannot follow {self.name!r}: another character, fps, body or labelling")
+        joined = object.__new__(CharacterTrack)  # the fields set as __post_init__ leaves them, without its checks
+        arrays = {
+            "root_positions": np.concatenate([self.root_positions, more.root_positions]),
+            "local_rotations": np.concatenate([self.local_rotations, more.local_rotations]),
+        }
+        for name, arr in arrays.items():
+            arr.setflags(write=False)
+            object.__setattr__(joined, name, arr)
+        labels = None if self.action_labels is None or more.action_labels is None else self.action_labels + more.action_labels
+        for name, value in (("name", self.name), ("fps", self.fps), ("betas", self.betas), ("gender", self.gender),
+                            ("action_labels", labels)):
+            object.__setattr__(joined, name, value)
+        return joined
+
     # ----- derived ------------------------------------------------------------------
     @property
     def num_frames(self) -> int:

@@ -41,7 +41,7 @@ import os
 import stat
 import struct
 import zlib
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -128,7 +128,7 @@ def encode_record(start: int, pelvis: np.ndarray, rotations: np.ndarray, contact
     return header + payload
 
 
-def _decode_payload(start: int, n: int, names_len: int, payload: bytes, path: Path) -> Frames:
+def decode_payload(start: int, n: int, names_len: int, payload: bytes, path: Path) -> Frames:
     sizes = (n * 3 * 8, n * NUM_JOINTS * 9 * 4, n * 2, n * 4, n * 4)
     if sum(sizes) + names_len != len(payload):
         raise ChunkError(f"{path}: record at frame {start} has {len(payload)} payload bytes, expected "
@@ -169,39 +169,73 @@ def scan(path: Path) -> Scan:
     last (frames out of order, a bad CRC followed by more data), a record larger than
     :data:`MAX_RECORD_BYTES` or a file that is not a regular file raises :class:`ChunkError`."""
     try:
-        fh = _open_regular(path)
+        fh = open_chunk_file(path)
     except FileNotFoundError:
         return Scan(0, 0, 0, ())
     records: list[tuple[int, int, int]] = []
     offset = frames = 0
     with fh:
         data_size = os.fstat(fh.fileno()).st_size
-        if data_size > MAX_CHUNK_FILE_BYTES:
-            raise _too_large(path, data_size)
-        while offset < data_size:
-            header = fh.read(HEADER_BYTES)
-            if len(header) < HEADER_BYTES:
-                break
-            magic, version, _, start, n, names_len, size, crc = _HEADER.unpack(header)
-            if magic != MAGIC or version != VERSION:
-                break
-            end = offset + HEADER_BYTES + size
-            if end > data_size:
-                break
-            if size > MAX_RECORD_BYTES or n * _FRAME_BYTES + names_len != size:
-                raise ChunkError(f"{path}: record at byte {offset} claims {n} frames in {size} bytes (at most "
-                                 f"{MAX_RECORD_BYTES} bytes, {_FRAME_BYTES} a frame and its name table)")
-            payload = fh.read(size)
-            if zlib.crc32(payload) != crc:
-                if end < data_size:
-                    raise ChunkError(f"{path}: record at byte {offset} fails its CRC and is not the last one")
-                break
-            if start != frames:
-                raise ChunkError(f"{path}: record at byte {offset} starts at frame {start}, expected {frames}")
-            records.append((offset, start, n))
-            frames += n
-            offset = end
+        check_chunk_size(path, data_size)
+        for record in whole_records(fh.read, path, 0, 0, data_size):
+            records.append((record.offset, record.start, record.frames))
+            frames, offset = record.start + record.frames, record.end
     return Scan(frames, offset, data_size - offset, tuple(records))
+
+
+@dataclass(frozen=True)
+class Record:
+    """One whole, valid record of a chunk file as :func:`whole_records` read it."""
+
+    offset: int
+    """Byte of the file where its header starts."""
+    end: int
+    """Byte after its payload (where the next record starts)."""
+    start: int
+    frames: int
+    names_len: int
+    payload: bytes
+
+
+def whole_records(read: Callable[[int], bytes], path: Path, offset: int, frames: int,
+                  data_size: int) -> Iterator[Record]:
+    """The whole records of a chunk file from byte ``offset`` (where ``read``, the file's
+    ``read``, is positioned; the first record must start at frame ``frames``) to ``data_size``,
+    its size when it was opened. Stops before a torn last record (too short, a bad magic, a bad
+    CRC on the last one); raises :class:`ChunkError` on a record larger than
+    :data:`MAX_RECORD_BYTES` (before its payload is read), a bad CRC followed by more data, or
+    frames out of order. Every check of :func:`scan`, which reads a file with it from byte 0."""
+    while offset < data_size:
+        header = read(HEADER_BYTES)
+        if len(header) < HEADER_BYTES:
+            return
+        magic, version, _, start, n, names_len, size, crc = _HEADER.unpack(header)
+        if magic != MAGIC or version != VERSION:
+            return
+        end = offset + HEADER_BYTES + size
+        if end > data_size:
+            return
+        if size > MAX_RECORD_BYTES or n * _FRAME_BYTES + names_len != size:
+            raise ChunkError(f"{path}: record at byte {offset} claims {n} frames in {size} bytes (at most "
+                             f"{MAX_RECORD_BYTES} bytes, {_FRAME_BYTES} a frame and its name table)")
+        payload = read(size)
+        if len(payload) < size:  # the file shrank since it was opened: read it again later
+            return
+        if zlib.crc32(payload) != crc:
+            if end < data_size:
+                raise ChunkError(f"{path}: record at byte {offset} fails its CRC and is not the last one")
+            return
+        if start != frames:
+            raise ChunkError(f"{path}: record at byte {offset} starts at frame {start}, expected {frames}")
+        yield Record(offset, end, start, n, names_len, payload)
+        frames += n
+        offset = end
+
+
+def check_chunk_size(path: Path, size: int) -> None:
+    """Raise :class:`ChunkError` when a chunk file of ``size`` bytes is over :data:`MAX_CHUNK_FILE_BYTES`."""
+    if size > MAX_CHUNK_FILE_BYTES:
+        raise _too_large(path, size)
 
 
 def _too_large(path: Path, size: int) -> ChunkError:
@@ -250,7 +284,7 @@ def check_chunk_total(paths: Sequence[Path]) -> None:
                              "run folder's motion may hold together (about 12 character-hours at 30 fps)")
 
 
-def _open_regular(path: Path) -> io.BufferedReader:
+def open_chunk_file(path: Path) -> io.BufferedReader:
     """``path`` opened for reading when it is a regular file (without blocking on a FIFO);
     ``FileNotFoundError`` when there is none, :class:`ChunkError` when it is something else."""
     try:
@@ -275,13 +309,13 @@ def read_frames(path: Path, frames: int | None = None, *, start: int = 0) -> Fra
     parts: list[Frames] = []
     if not found.records:
         return concat_frames(start, parts)
-    with _open_regular(path) as fh:
+    with open_chunk_file(path) as fh:
         for offset, first, n in found.records:
             if first + n <= start or first >= stop:
                 continue
             fh.seek(offset)
             _, _, _, _, _, names_len, size, _ = _HEADER.unpack(fh.read(HEADER_BYTES))
-            part = _decode_payload(first, n, names_len, fh.read(size), path)
+            part = decode_payload(first, n, names_len, fh.read(size), path)
             lo, hi = max(start, first) - first, min(stop, first + n) - first
             parts.append(Frames(first + lo, part.pelvis[lo:hi], part.rotations[lo:hi], part.contacts[lo:hi],
                                 part.labels[lo:hi], part.events[lo:hi]))
