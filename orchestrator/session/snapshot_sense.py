@@ -16,12 +16,15 @@ one line.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from orchestrator.session.session_types import SessionCheckpoint
 from orchestrator.session.snapshot_errors import SnapshotError
+from sim.world.event_book import EventState
+from sim.world.events import Assignment
+from sim.world.phases import CharacterState
 from sim.world.step import World
 
 OUTSIDE_M = 1.0
@@ -114,24 +117,25 @@ def _members(what: str, members: Sequence[str], names: set[str]) -> None:
         raise SnapshotError(f"{what} names {strangers[:4]}, not characters of this run ({sorted(names)[:8]})")
 
 
-def _character(name: str, character: Any, events: dict[str, Any], world: World) -> None:
+def _character(name: str, character: CharacterState, events: dict[str, EventState], world: World) -> None:
     """One character's state: its event and pending event held, counts, angles, positions, cells."""
     for event_id in (character.event_id, character.pending[0] if character.pending is not None else None):
         if event_id is not None and event_id not in events:
             raise SnapshotError(f"the checkpoint's character {name!r} takes part in event {event_id!r}, "
                                 "which its world does not hold")
-    for field_name in ("phase_frame", "turn_frames", "stalled_frames", "replans"):
-        if getattr(character, field_name) < 0:
-            raise SnapshotError(f"the checkpoint's character {name!r} has {field_name} {getattr(character, field_name)}")
-    for field_name in ("heading", "turn_from", "act_yaw"):
-        value = getattr(character, field_name)
-        if value is not None and not np.isfinite(value):
-            raise SnapshotError(f"the checkpoint's character {name!r} has {field_name} {value}, not a finite angle")
+    for field_name, count in (("phase_frame", character.phase_frame), ("turn_frames", character.turn_frames),
+                              ("stalled_frames", character.stalled_frames), ("replans", character.replans)):
+        if count < 0:
+            raise SnapshotError(f"the checkpoint's character {name!r} has {field_name} {count}")
+    for field_name, angle in (("heading", character.heading), ("turn_from", character.turn_from),
+                              ("act_yaw", character.act_yaw)):
+        if angle is not None and not np.isfinite(angle):
+            raise SnapshotError(f"the checkpoint's character {name!r} has {field_name} {angle}, not a finite angle")
     where = f"the checkpoint's character {name!r}"
-    for field_name in ("xy", "anchor_xy", "seat_xy"):
-        _point(f"{where}'s {field_name}", getattr(character, field_name), world)
-    for field_name in ("anchor_cell", "goal_cell"):
-        _cell(f"{where}'s {field_name}", getattr(character, field_name), world)
+    for field_name, point in (("xy", character.xy), ("anchor_xy", character.anchor_xy), ("seat_xy", character.seat_xy)):
+        _point(f"{where}'s {field_name}", point, world)
+    for field_name, cell in (("anchor_cell", character.anchor_cell), ("goal_cell", character.goal_cell)):
+        _cell(f"{where}'s {field_name}", cell, world)
     for target in (character.target, character.pending[2] if character.pending is not None else None):
         if target is not None:
             _point(f"{where}'s stand target", target.xy, world)
@@ -141,16 +145,15 @@ def _character(name: str, character: Any, events: dict[str, Any], world: World) 
             _assignment(where, assignment, world)
 
 
-def _assignment(where: str, assignment: Any, world: World) -> None:
+def _assignment(where: str, assignment: Assignment, world: World) -> None:
     _point(f"{where}: {assignment.character!r}'s target", assignment.target_xy, world)
-    for field_name in ("seat", "focus"):
-        obj = getattr(assignment, field_name)
+    for field_name, obj in (("seat", assignment.seat), ("focus", assignment.focus)):
         if obj is not None and obj not in world.scene.by_name:
             raise SnapshotError(f"{where}: {assignment.character!r}'s {field_name} is {str(obj)[:60]!r}, "
                                 f"which scene {world.scene.name!r} has no object of")
 
 
-def _point(what: str, value: Any, world: World) -> None:
+def _point(what: str, value: npt.ArrayLike | None, world: World) -> None:
     """``value`` (None, or an (x, y) point) is finite and within :data:`OUTSIDE_M` of the floor."""
     if value is None:
         return
