@@ -1,4 +1,4 @@
-"""``python -m benchmark.gait_fit [--write]``: fit the procedural walk to the real CMU walks.
+"""``python -m benchmark.gait_fit [--write | --with-bandai]``: fit the procedural walk to the real CMU walks.
 
 Reads the CMU walks (``STORYTELLER_MOCAP``, else ``../shared/mocap``; never copied), imported on
 our skeleton as every real clip is, and measures each walking window with the benchmark's own
@@ -10,21 +10,28 @@ of the chest's yaw against the hips'), pelvis yaw (half that range of the hips' 
 walking direction), foot lift (the ball of the foot's 5-95 % height range) and turn lean (the
 trunk's sideways roll against ``atan(lateral acceleration / g)``, a least-squares gain).
 
+The fit leaves out the walks of ``HELD_OUT`` and prints the generated walk against them (each
+window against a walk generated at its speed), and against the Bandai Namco walks, which are a
+check only: they are CC BY-NC 4.0, and nothing fitted on them may ship (issue 25);
+``--with-bandai`` shows what a fit on them too would give and refuses ``--write``.
+
 The targets: step length as a power law of speed (a straight line in log-log, Theil-Sen, so one
-odd walk does not tilt it), the rest as means over the windows (what the benchmark's
-least-squares line against speed gives at their mean speed), and arm swing's growth with speed
-as the slope of that line (the other measures get no slope: the real ones do not grow with
-speed over 0.9-1.2 m/s beyond their scatter). Turn lean is printed per clip but not fitted: the
+odd walk does not tilt it); arm swing, bob oscillation and trunk twist as straight lines against
+speed (``SPEED_LINES``: the benchmark's least-squares line, so a walker at any speed the planner
+asks for swings, bobs and twists as the real walkers do at that speed); the rest as means over
+the windows (what that line gives at their mean speed: they do not grow with speed over
+0.9-1.2 m/s beyond their scatter). Turn lean is printed per clip but not fitted: the
 CMU walks turn too gently (lateral acceleration under 0.1 g) and their gains scatter on both
 sides of zero, so the generator keeps the balance lean (gain 1: the body tilts so that gravity
 and the turn's acceleration together point through the feet). Then the generator's parameters
 (``sim.motion.sources.gait_params.GaitParams``) are calibrated: walks and arcs are generated at
-the real speeds, measured the same way, and each amplitude scaled by target / measured, a few
-rounds (the step length is set, not calibrated: the generator steps exactly as long as it is
-told, and the measured one moves in whole frames of the step interval). Prints the targets, the fitted parameters and the generated / real ratios before (the
-parameters the module holds now) and after; ``--write`` stores the fitted parameters in
-``sim/motion/sources/gait_params.py`` (between its FITTED markers). Deterministic; exit 2 when
-the real clips are absent.
+the real speeds, measured the same way, each amplitude scaled by target / measured and each
+line's amplitude and slope moved by what the generated line misses, a few rounds (the step
+length is set, not calibrated: the generator steps exactly as long as it is told, and the
+measured one moves in whole frames of the step interval). Prints the targets, the fitted
+parameters and the generated / real ratios before (the parameters the module holds now) and
+after; ``--write`` stores the fitted parameters in ``sim/motion/sources/gait_params.py``
+(between its FITTED markers). Deterministic; exit 2 when the real clips are absent.
 """
 
 from __future__ import annotations
@@ -40,7 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import theilslopes
 
-from benchmark.motion_metrics.gait import fit_speed, gait_window, walking_windows
+from benchmark.motion_metrics.gait import SpeedFit, fit_speed, gait_window, walking_windows
 from sim.body.skeleton import JOINT_INDEX
 from sim.motion.sources.gait_params import FITTED_GAIT, GaitParams
 from sim.motion.sources.procedural_locomotion import GRAVITY, locomotion_clip
@@ -51,14 +58,22 @@ CMU_WALKS = (
     ("cmu/mb_motionedit/16_11.bvh", 0),
 )  # fmt: skip
 """(file under the mocap folder, first frame) of every CMU walk (16_11 veers left 40 degrees)."""
+HELD_OUT = ("cmu/mb_motionedit/16_11.bvh",)
+"""CMU walks left out of the fit, to check that it carries over: 16_11 is the one walk of another
+conversion (the MotionBuilder skeleton) and the one that curves. Chosen before any fit was run."""
+SPEED_LINES = {"arm_swing": "arm_swing", "bob_oscillation": "bob_dip", "trunk_twist": "trunk_twist"}
+"""Measures fitted as a straight line against speed (least squares over the fitting windows), by
+the generator parameter (``<name>_1ms`` or ``trunk_twist``, and ``<name>_speed_slope``) they set."""
+DIP_STD = 0.36
+"""Standard deviation of the pelvis height per metre of ``bob_dip`` (the squared raised cosine's
+0.364, in phase with the legs' own rise and fall): the additive step of the dip's calibration."""
 PARAMS_FILE = Path(__file__).resolve().parents[1] / "sim" / "motion" / "sources" / "gait_params.py"
 FPS = 30.0
-ROUNDS = 4
+ROUNDS = 6
 J = JOINT_INDEX
 MEASURES = ("step_length", "cadence", "bob", "bob_oscillation", "sway", "arm_swing", "trunk_twist", "pelvis_yaw", "foot_lift", "jerk")
-CALIBRATED = {  # generator parameter -> the measure it is scaled by
-    "bob_follow": "bob_oscillation", "sway_amplitude": "sway", "arm_swing_1ms": "arm_swing",
-    "trunk_twist": "trunk_twist", "pelvis_yaw": "pelvis_yaw", "foot_clearance": "foot_lift",
+CALIBRATED = {  # generator parameter -> the measure it is scaled by (the SPEED_LINES are apart)
+    "sway_amplitude": "sway", "pelvis_yaw": "pelvis_yaw", "foot_clearance": "foot_lift",
 }  # fmt: skip
 
 
@@ -147,7 +162,7 @@ def _joined(parts: list[NDArray[np.float64]]) -> NDArray[np.float64]:
 
 
 def real_walks() -> tuple[list[NDArray[np.float64]], list[str]]:
-    """World joints (F, 22, 3) of every CMU walk on our floor, and their names."""
+    """World joints (F, 22, 3) of every CMU walk on our floor, and their names (held-out ones too)."""
     from benchmark.motion_metrics.sources import on_floor
     from benchmark.motion_quality import MOCAP
     from orchestrator.cache_paths import motion_cache_dir
@@ -160,6 +175,14 @@ def real_walks() -> tuple[list[NDArray[np.float64]], list[str]]:
     return [on_floor(c.joint_positions()) for c in clips], [Path(e.file).stem for e in config.clips]
 
 
+def bandai_walks() -> Walks:
+    """The Bandai Namco walks (``benchmark.motion_metrics.sources``; empty when absent), measured."""
+    from benchmark.motion_metrics.sources import real_clips as benchmark_clips
+
+    run, _ = benchmark_clips()
+    return measure_walks([c.joints for c in run.characters if c.name.startswith("dataset-")])
+
+
 @dataclass(frozen=True)
 class Targets:
     """What the generated walk should measure: step length ``scale * v ** exponent``, the rest
@@ -170,8 +193,8 @@ class Targets:
     values: dict[str, float]
     lean_gain: float
     speeds: tuple[float, ...]
-    arm_swing_slope: float
-    """Arm swing's growth with speed (m per m/s): the benchmark's least-squares line."""
+    lines: dict[str, SpeedFit]
+    """The ``SPEED_LINES`` measures against speed (the benchmark's least-squares line)."""
 
 
 def fit_targets(real: Walks) -> Targets:
@@ -183,13 +206,33 @@ def fit_targets(real: Walks) -> Targets:
     scale = float(np.exp(np.median(np.log(steps[ok]) - exponent * np.log(speeds[ok]))))
     values = {m: float(np.nanmean([w[m] for w in real.windows])) for m in MEASURES}
     speed_set = tuple(float(s) for s in np.percentile(speeds, [10, 50, 90]))
-    arm = fit_speed(list(speeds), [w["arm_swing"] for w in real.windows])
-    return Targets(scale, exponent, values, 1.0, speed_set, arm.slope)
+    return Targets(scale, exponent, values, 1.0, speed_set, speed_lines(real))
 
 
-def arm_swing_slope(walks: Walks) -> float:
-    """Least-squares slope (m per m/s) of arm swing against speed over ``walks``' windows."""
-    return fit_speed([w["speed"] for w in walks.windows], [w["arm_swing"] for w in walks.windows]).slope
+def speed_lines(walks: Walks) -> dict[str, SpeedFit]:
+    """The least-squares line against speed of each ``SPEED_LINES`` measure over ``walks``' windows."""
+    speeds = [w["speed"] for w in walks.windows]
+    return {m: fit_speed(speeds, [w[m] for w in walks.windows]) for m in SPEED_LINES}
+
+
+def _line_update(p: GaitParams, got: dict[str, SpeedFit], want: dict[str, SpeedFit]) -> dict[str, float]:
+    """New values of the ``SPEED_LINES`` parameters: amplitude (the line at 1 m/s) and slope each
+    moved by what the measured line misses, through the measured gain of the amplitude (the dip of
+    the bob through ``DIP_STD``)."""
+    out: dict[str, float] = {}
+    for m, name in SPEED_LINES.items():
+        g, t = got[m], want[m]
+        at, slope = (name + "_1ms", name + "_speed_slope") if name != "trunk_twist" else (name, name + "_speed_slope")
+        g1, t1 = g.intercept + g.slope, t.intercept + t.slope
+        if name == "bob_dip":
+            out[at] = getattr(p, at) + (t1 - g1) / DIP_STD
+            out[slope] = getattr(p, slope) + (t.slope - g.slope) / DIP_STD
+            continue
+        if g1 > 0 and getattr(p, at) > 0:  # moved by what is missing, through the gain g1 / amplitude
+            gain = g1 / getattr(p, at)
+            out[at] = getattr(p, at) + (t1 - g1) / gain
+            out[slope] = getattr(p, slope) + (t.slope - g.slope) / gain
+    return out
 
 
 def generated_walks(params: GaitParams, speeds: Sequence[float]) -> Walks:
@@ -223,11 +266,7 @@ def calibrate(start: GaitParams, targets: Targets) -> GaitParams:
         gain = walks.lean_gain()
         if gain > 0:
             update["turn_lean_gain"] = p.turn_lean_gain * targets.lean_gain / gain
-        slope = arm_swing_slope(walks)
-        if slope > 0 and targets.arm_swing_slope > 0:
-            update["arm_swing_speed_slope"] = p.arm_swing_speed_slope * targets.arm_swing_slope / slope
-        if "bob_follow" in update:
-            update["bob_follow"] = min(update["bob_follow"], 1.0)  # above 1 the legs would not reach
+        update.update(_line_update(p, speed_lines(walks), targets.lines))
         p = dataclasses.replace(p, **{k: round(float(v), 4) for k, v in update.items()})
     return p
 
@@ -237,8 +276,23 @@ def ratio_rows(params: GaitParams, targets: Targets) -> dict[str, float]:
     got = generated_values(walks)
     out = {m: got[m] / targets.values[m] for m in MEASURES}
     out["turn_lean"] = walks.lean_gain() / targets.lean_gain if targets.lean_gain > 0 else float("nan")
-    out["arm_swing_slope"] = arm_swing_slope(walks) / targets.arm_swing_slope if targets.arm_swing_slope else float("nan")
+    lines = speed_lines(walks)
+    for m, line in targets.lines.items():
+        out[f"{m}_slope"] = lines[m].slope / line.slope if line.slope else float("nan")
     return out
+
+
+def held_out_rows(params: GaitParams, held: Walks) -> dict[str, float]:
+    """Per measure, the median over ``held``'s windows of generated / real, each window against a
+    straight walk generated at its own speed."""
+    from sim.motion.sources.procedural_locomotion import _const
+
+    gen = []
+    for w in held.windows:
+        j = np.asarray(locomotion_clip("held", _const(w["speed"]), _const(0.0), 6.0, params=params).joint_positions())
+        gen.append(measure_walks([j]).windows[0])
+    return {m: float(np.nanmedian([g[m] / r[m] for g, r in zip(gen, held.windows, strict=True) if r[m] > 0]))
+            for m in ("cadence", "step_length", "bob", "bob_oscillation", "arm_swing", "trunk_twist", "jerk")}
 
 
 def write_params(params: GaitParams, path: Path = PARAMS_FILE) -> None:
@@ -257,24 +311,38 @@ def write_params(params: GaitParams, path: Path = PARAMS_FILE) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmark.gait_fit", description=__doc__.splitlines()[0])
     parser.add_argument("--write", action="store_true", help="store the fitted parameters in gait_params.py")
+    parser.add_argument("--with-bandai", action="store_true",
+                        help="fit on the Bandai Namco walks too, to see what that would give (CC BY-NC 4.0: nothing"
+                             " fitted on them may ship, so --write is refused with it)")
     args = parser.parse_args(argv)
+    if args.write and args.with_bandai:
+        print("error: --with-bandai fits on CC BY-NC clips, whose fitted parameters may not ship; drop --write",
+              file=sys.stderr)
+        return 2
     try:
         motions, names = real_walks()
     except FileNotFoundError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    real = measure_walks(motions)
+    held_names = {Path(f).stem for f in HELD_OUT}
+    fit_set = [(j, n) for j, n in zip(motions, names, strict=True) if n not in held_names]
+    bandai = bandai_walks()
+    real = measure_walks([j for j, _ in fit_set])
+    if args.with_bandai:
+        real = Walks(real.windows + bandai.windows, real.accel, real.roll)
+    held = measure_walks([j for j, n in zip(motions, names, strict=True) if n in held_names])
     targets = fit_targets(real)
-    gains = [f"{name} {measure_walks([j]).lean_gain():+.2f}" for j, name in zip(motions, names, strict=True)
-             if measure_walks([j]).windows]
-    print(f"real walks: {len(names)} CMU clips ({', '.join(names)}), {len(real.windows)} walking windows, "
+    gains = [f"{name} {measure_walks([j]).lean_gain():+.2f}" for j, name in fit_set if measure_walks([j]).windows]
+    print(f"real walks: {len(fit_set)} CMU clips ({', '.join(n for _, n in fit_set)})"
+          f"{' and the Bandai Namco walks' if args.with_bandai else ''}, {len(real.windows)} walking windows, "
           f"speeds {min(w['speed'] for w in real.windows):.2f}-{max(w['speed'] for w in real.windows):.2f} m/s")
     print(f"targets: step length {targets.step_scale:.3f} m * v^{targets.step_exponent:.2f} (cadence "
           f"{60 / targets.step_scale:.1f} steps/min * v^{1 - targets.step_exponent:.2f}); turn lean gain "
           f"{targets.lean_gain:.2f} (balance lean; the real walks' own: {', '.join(gains)}); measured at {', '.join(f'{s:.2f}' for s in targets.speeds)} m/s")
     for m in MEASURES:
         print(f"  {m:12s} {targets.values[m]:8.4f}")
-    print(f"  {'arm_swing_slope':12s} {targets.arm_swing_slope:8.4f} m per m/s")
+    for m, line in targets.lines.items():
+        print(f"  {m + ' line':12s} {line.intercept + line.slope:8.4f} at 1 m/s, {line.slope:+.4f} per m/s")
     before = FITTED_GAIT
     after = calibrate(before, targets)
     print("\nfitted parameters (before -> after)")
@@ -284,6 +352,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     print("\ngenerated / real        before    after")
     for m in rb:
         print(f"  {m:20s} {rb[m]:7.2f}x {ra[m]:7.2f}x")
+    checks = [(f"held out ({', '.join(sorted(held_names))}, {len(held.windows)} windows)", held)]
+    if not args.with_bandai:
+        checks.append((f"Bandai Namco walks (CC BY-NC: a check only, never fitted; {len(bandai.windows)} windows)", bandai))
+    for title, walks in checks:
+        if not walks.windows:
+            continue
+        hb, ha = held_out_rows(before, walks), held_out_rows(after, walks)
+        print(f"\ngenerated / {title}, at each window's speed   before    after")
+        for m in hb:
+            print(f"  {m:20s} {hb[m]:7.2f}x {ha[m]:7.2f}x")
     if args.write:
         write_params(after)
         print(f"\n-> {PARAMS_FILE}")

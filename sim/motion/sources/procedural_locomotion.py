@@ -8,10 +8,11 @@ on the ground keep their toe joint fixed (the heel lifts about it before toe-off
 toe speed during contact is exactly zero. A swinging foot rises before it travels and comes
 down onto its landing point from above, so a foot near the floor never moves fast along it.
 The pelvis rides a share of the rise and fall of the highest the legs can reach (smoothed from
-below: lowest just after a landing, highest at mid-stance; bob), shifting over the stance foot
-(sway); arms swing against the legs, the chest
-twists against the hips, and the body leans into turns. How much of each, and the step length
-at each speed, is ``sim.motion.sources.gait_params.FITTED_GAIT`` (fitted to real walks).
+below: lowest just after a landing, highest at mid-stance) and dips further at each double
+support (bob), shifting over the stance foot (sway); arms swing against the legs, the chest
+twists against the hips, and the body leans into turns. How much of each, as a function of
+speed, and the step length at each speed, is ``sim.motion.sources.gait_params.FITTED_GAIT``
+(fitted to real walks).
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ GRAVITY = 9.81  # m/s^2
 BOB_LEVEL_RADIUS = 9  # frames: about half a step, so the level is the lowest height of each step
 STANCE_HALF_WIDTH = 0.10  # lateral distance of a toe from the path, metres
 TOE_AHEAD = 0.08  # toe joint ahead of the pelvis when standing, metres
+DIP_PHASE = 0.1  # step phase after a landing at which the pelvis is lowest (mid double support)
 Profile = Callable[[NDArray[np.float64]], NDArray[np.float64]]
 
 
@@ -166,12 +168,13 @@ def body_from_gait(
     tilt[:, 0] = 0.03 + 0.04 * v
     tilt[:, 1] = p.pelvis_yaw * moving * swing
     tilt[:, 2] = -0.03 * moving * osc + lean
+    twist = np.maximum(p.trunk_twist + p.trunk_twist_speed_slope * (v - 1.0), 0.02) * moving
     spine = np.zeros((n, 3))
     spine[:, 0] = 0.02 * v
-    spine[:, 1] = -p.trunk_twist * moving * swing
+    spine[:, 1] = -twist * swing
     head = np.zeros((n, 3))
     head[:, 0] = -(tilt[:, 0] + spine[:, 0]) + 0.05
-    head[:, 1] = (p.trunk_twist - p.pelvis_yaw) * moving * swing
+    head[:, 1] = (twist - p.pelvis_yaw * moving) * swing
     head[:, 2] = -0.5 * lean  # the head stays nearer upright than the trunk
     amp = np.maximum(p.arm_swing_1ms + p.arm_swing_speed_slope * (v - 1.0), 0.02) * moving
     hands = np.zeros((n, 2, 3))
@@ -191,8 +194,18 @@ def body_from_gait(
     # share of that rise and fall (bob) above the level it could keep all along
     base = np.minimum(pelvis[:, 2], pelvis_height_limit(targets, reach=0.96))
     level = _smooth_below(base, radius=BOB_LEVEL_RADIUS)
-    pelvis[:, 2] = level + p.bob_follow * (_smooth_below(base, radius=4) - level)
+    dip = np.maximum(p.bob_dip_1ms + p.bob_dip_speed_slope * (v - 1.0), 0.0) * moving
+    pelvis[:, 2] = level + p.bob_follow * (_smooth_below(base, radius=4) - level) - dip * _dip_shape(phase)
     return targets, contacts
+
+
+def _dip_shape(phase: NDArray[np.float64]) -> NDArray[np.float64]:
+    """1 at the lowest point of each double support (``DIP_PHASE`` after a landing), falling to 0
+    at mid-stance: a squared raised cosine, so the valley is narrow and the top of the arc wide
+    (the pelvis vaults over the stance leg and drops onto the next one)."""
+    c = 0.5 * (1.0 + np.cos(2.0 * np.pi * (phase - DIP_PHASE)))
+    out: NDArray[np.float64] = c * c
+    return out
 
 
 def _smooth_below(z: NDArray[np.float64], radius: int) -> NDArray[np.float64]:
