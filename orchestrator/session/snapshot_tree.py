@@ -39,7 +39,7 @@ _PLAIN_TYPES = (type(None), bool, int, float, complex, str, bytes)
 _CONTAINERS = (tuple, list, dict, set, frozenset)
 
 
-def plain_key(key: Any, depth: int) -> bool:
+def plain_key(key: object, depth: int) -> bool:
     """Whether ``key`` is a plain value or a tuple of at most 64 of them, nested at most ``depth`` deep."""
     if isinstance(key, _PLAIN_TYPES):
         return True
@@ -47,7 +47,7 @@ def plain_key(key: Any, depth: int) -> bool:
 
 
 def check_tree(root: SessionCheckpoint, shared: set[int], listed: frozenset[type],
-                templates: dict[type, Any] | None = None) -> None:
+                templates: dict[type, object] | None = None) -> None:
     """Every object reachable from ``root`` is a plain value, a container, a numeric array, a
     numpy scalar, a shared object of the world or an instance of a ``listed`` class (:data:`~orchestrator.session.snapshot_file.SNAPSHOT_CLASSES`) with exactly its
     declared fields; pydantic models are valid; nesting is at most :data:`MAX_DEPTH` deep and
@@ -58,9 +58,9 @@ def check_tree(root: SessionCheckpoint, shared: set[int], listed: frozenset[type
     the interpreter's stack here."""
     done: set[int] = set(shared)
     on_path: set[int] = set()
-    stack: list[tuple[Any, bool]] = [(root, False)]
-    typed: list[Any] = []  # dataclass instances: their field types are checked once the tree is
-    plain: list[Any] = []  # instances of listed plain classes: checked against ``templates``
+    stack: list[tuple[object, bool]] = [(root, False)]
+    typed: list[object] = []  # dataclass instances: their field types are checked once the tree is
+    plain: list[object] = []  # instances of listed plain classes: checked against ``templates``
     while stack:
         obj, leaving = stack.pop()
         key = id(obj)
@@ -90,10 +90,10 @@ def check_tree(root: SessionCheckpoint, shared: set[int], listed: frozenset[type
     _check_plain_objects(plain, templates)
 
 
-def _children(obj: Any, listed: frozenset[type]) -> list[Any]:
+def _children(obj: object, listed: frozenset[type]) -> list[object]:
     kind = type(obj)
-    if kind in _CONTAINERS:
-        if kind is dict:
+    if kind in _CONTAINERS and isinstance(obj, _CONTAINERS):  # exact types only; the isinstance narrows
+        if isinstance(obj, dict):
             return [*obj.keys(), *obj.values()]
         return list(obj)
     if kind not in listed:
@@ -121,11 +121,11 @@ def _children(obj: Any, listed: frozenset[type]) -> list[Any]:
     return [*state.keys(), *state.values()]
 
 
-def plain_templates(world: World, listed: frozenset[type]) -> dict[type, Any]:
+def plain_templates(world: World, listed: frozenset[type]) -> dict[type, object]:
     """The instances of listed plain classes that ``world`` holds (its navigator and the objects
     under it), one per class: what a checkpoint's instances of those classes are checked against."""
-    out: dict[type, Any] = {}
-    stack: list[Any] = [world.navigator]
+    out: dict[type, object] = {}
+    stack: list[object] = [world.navigator]
     while stack:
         obj = stack.pop()
         kind = type(obj)
@@ -136,7 +136,7 @@ def plain_templates(world: World, listed: frozenset[type]) -> dict[type, Any]:
     return out
 
 
-def _check_plain_objects(objects: list[Any], templates: dict[type, Any] | None) -> None:
+def _check_plain_objects(objects: list[object], templates: dict[type, object] | None) -> None:
     """Each instance of a listed plain class has its template's attributes, of its types."""
     if templates is None:
         return
@@ -164,10 +164,10 @@ def _check_plain_objects(objects: list[Any], templates: dict[type, Any] | None) 
             )
 
 
-_INIT_HINTS: dict[type, dict[str, Any]] = {}
+_INIT_HINTS: dict[type, dict[str, object]] = {}
 
 
-def _init_hints(kind: type) -> dict[str, Any]:
+def _init_hints(kind: type) -> dict[str, object]:
     """The annotations a plain class gives its attributes in its own ``__init__``
     (``self._rank: dict[Agent, float] = {}``), resolved in the class's module: so a checkpoint's
     navigator or priority keeper is checked item by item, as a dataclass's fields are, and a
@@ -188,7 +188,7 @@ def _init_hints(kind: type) -> dict[str, Any]:
         target = node.target
         if isinstance(target, ast.Attribute) and isinstance(target.value, ast.Name) and target.value.id == "self":
             found[target.attr] = ast.unparse(node.annotation)
-    hints: dict[str, Any] = {}
+    hints: dict[str, object] = {}
     for name, text in found.items():
         holder = type("_Hint", (), {"__annotations__": {name: text}, "__module__": kind.__module__})
         try:
@@ -199,7 +199,7 @@ def _init_hints(kind: type) -> dict[str, Any]:
     return hints
 
 
-def _check_field_types(objects: list[Any]) -> None:
+def _check_field_types(objects: list[object]) -> None:
     """Every field of each dataclass instance in ``objects`` is of its annotated type (after the
     tree is known to be acyclic and shallow)."""
     for obj in objects:
@@ -212,10 +212,10 @@ def _check_field_types(objects: list[Any]) -> None:
                 )
 
 
-_FIELD_TYPES: dict[type, dict[str, Any]] = {}
+_FIELD_TYPES: dict[type, dict[str, object]] = {}
 
 
-def _field_types(kind: type) -> dict[str, Any]:
+def _field_types(kind: type) -> dict[str, object]:
     """The resolved annotation of each dataclass field of ``kind`` (cached)."""
     if kind not in _FIELD_TYPES:
         hints = typing.get_type_hints(kind)
@@ -226,7 +226,7 @@ def _field_types(kind: type) -> dict[str, Any]:
 _FITS_DEPTH = 8  # levels of a field's annotation checked (``dict[str, list[tuple[int, int]]]`` has 4)
 
 
-def fits(value: Any, hint: Any, depth: int = _FITS_DEPTH) -> bool:
+def fits(value: object, hint: object, depth: int = _FITS_DEPTH) -> bool:
     """Whether ``value`` is of the annotated type ``hint``. Containers are checked item by item
     (keys and values, every item of a list); instances of listed classes by their type (their
     own fields are checked when :func:`check_tree` reaches them); an ``int`` passes for a
@@ -252,9 +252,9 @@ def fits(value: Any, hint: Any, depth: int = _FITS_DEPTH) -> bool:
     if hint is np.ndarray or origin is np.ndarray:
         return isinstance(value, np.ndarray) and _dtype_fits(value, args)
     if origin in (tuple, list, set, frozenset, dict):
-        if type(value) is not origin:
+        if type(value) is not origin or not isinstance(value, _CONTAINERS):  # the isinstance narrows
             return False
-        if origin is dict:
+        if isinstance(value, dict):  # origin is dict
             key, item = args or (Any, Any)
             return all(fits(k, key, depth - 1) and fits(v, item, depth - 1) for k, v in value.items())
         if origin is tuple and args and args[-1] is not Ellipsis:
@@ -274,5 +274,5 @@ def _dtype_fits(value: np.ndarray[Any, Any], args: tuple[Any, ...]) -> bool:
     return not scalar or not isinstance(scalar[0], type) or value.dtype.type is scalar[0]
 
 
-def _hint_name(hint: Any) -> str:
+def _hint_name(hint: object) -> str:
     return (getattr(hint, "__name__", None) if isinstance(hint, type) else None) or str(hint).replace("typing.", "")[:80]
