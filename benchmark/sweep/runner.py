@@ -16,7 +16,9 @@ written. :func:`score_sweep` replays every trace instead (no model) and writes t
 
 Runs execute ``jobs`` at a time in one event loop (API models answer concurrently; the
 embedded model serialises its calls behind its own lock, ``orchestrator.llm.local_model``),
-or as Ray tasks (:mod:`benchmark.sweep.ray_executor`).
+or as Ray tasks (:mod:`benchmark.sweep.ray_executor`). Pending runs go in
+:func:`shared_prompt_order` (runs of one scene and tags together, so the embedded model's
+prompt cache is warm for all but the first of them).
 """
 
 from __future__ import annotations
@@ -155,6 +157,26 @@ def grid(ws: SweepWorkspace) -> list[RunKey]:
     return expand(ws.spec, {name: sorted(cases) for name, cases in ws.cases.items()})
 
 
+def shared_prompt_order(ws: SweepWorkspace, keys: Sequence[RunKey]) -> list[RunKey]:
+    """``keys`` in the order they run: the runs whose prompts open alike one after another.
+
+    A run's system prompts are fixed by its model, method, scene (description and action labels)
+    and tags (in-context examples); the embedded model keeps the KV cache of each role's last
+    prompt (``orchestrator.llm.local_model``), so a run after one of the same group reads only
+    its own request, not the whole prompt again. Groups keep the grid order of their first run,
+    runs within a group their grid order; results are written in grid order whatever the order
+    they ran in (:func:`finish`)."""
+
+    def group(key: RunKey) -> tuple[str, str, str, tuple[str, ...]]:
+        case = ws.cases[key.case_set][key.case]
+        return key.model, key.method, case.scene_name, case.tags
+
+    first: dict[tuple[str, str, str, tuple[str, ...]], int] = {}
+    for i, key in enumerate(keys):
+        first.setdefault(group(key), i)
+    return sorted(keys, key=lambda k: first[group(k)])
+
+
 async def descriptions_for(
     ws: SweepWorkspace, keys: list[RunKey], factory: PortFactory, *, replay: bool
 ) -> dict[str, SceneDescription]:
@@ -227,7 +249,7 @@ async def run_sweep(
     path = out / "results.jsonl"
     repair_results(path)
     finished = {r.run_id: r for r in read_results(path) if r.run_id in {k.run_id for k in keys}}
-    pending = [k for k in keys if k.run_id not in finished]
+    pending = shared_prompt_order(ws, [k for k in keys if k.run_id not in finished])
     progress = progress or NoProgress()
     descriptions = await descriptions_for(ws, pending, factory, replay=False)
     progress.start(len(keys), list(finished.values()))  # after the descriptions: the ETA is the runs' pace

@@ -18,7 +18,14 @@ from typer.testing import CliRunner
 
 from agents.llm_port import LLMRequest
 from benchmark.sweep.execute import PortFactory
-from benchmark.sweep.grid import CaseSetSpec, ModelSpec, SweepSpec, SweepSpecError, model_specs
+from benchmark.sweep.grid import (
+    CaseSetSpec,
+    ModelSpec,
+    RunKey,
+    SweepSpec,
+    SweepSpecError,
+    model_specs,
+)
 from benchmark.sweep.progress import LineProgress
 from benchmark.sweep.results import read_results
 from benchmark.sweep.runner import report_sweep, run_sweep, score_sweep
@@ -344,3 +351,34 @@ def test_case_sets_by_name_or_folder(tmp_path: Path) -> None:
     assert case_set_for("ours", reference, ours).scenes_root is None  # bundled scenes only
     with pytest.raises(SweepSpecError, match="not a folder"):
         case_set_for(str(tmp_path / "none"), reference, ours)
+
+
+def test_runs_of_one_scene_and_tags_run_together_and_results_stay_in_grid_order(tmp_path: Path) -> None:
+    """Cases 0 and 4 are House OA, 1 is Office OA: 4 runs right after 0 (its prompts open as 0's
+    did, so the embedded model's cache is warm), yet ``results.jsonl`` lists them in grid order."""
+    from benchmark.sweep.execute import SweepWorkspace
+    from benchmark.sweep.runner import local_executor, shared_prompt_order
+
+    s = spec(case_ids=(0, 1, 4), methods=("ours", "object-list"))
+    ws = SweepWorkspace(s, tmp_path / "ws")
+    grid_keys = [RunKey(case_set="reference", case=c, level=2, repeat=0, method=m, model="scripted")
+                 for c in (0, 1, 4) for m in ("ours", "object-list")]
+    assert [(k.case, k.method) for k in shared_prompt_order(ws, grid_keys)] == [
+        (0, "ours"), (4, "ours"), (0, "object-list"), (4, "object-list"), (1, "ours"), (1, "object-list")]
+
+    def waits(request: LLMRequest) -> str:  # every run waits: the order is what is checked here
+        return "{}" if request.node == "describer" else json.dumps(
+            {"reasoning": "nothing yet", "event": {"characters": [], "activity": ""}})
+
+    ran: list[tuple[int, str]] = []
+    inner = local_executor(1, scripted_port([], waits), fresh=True)
+
+    async def recording(ws: Any, keys: list[RunKey], descriptions: Any, done: Any) -> None:
+        ran.extend((k.case, k.method) for k in keys)
+        await inner(ws, keys, descriptions, done)
+
+    out = tmp_path / "sweep"
+    asyncio.run(run_sweep(s, out, factory=scripted_port([], waits), executor=recording))
+    assert ran[:2] == [(0, "ours"), (4, "ours")] and ran[-2:] == [(1, "ours"), (1, "object-list")]
+    assert [(r.case, r.method) for r in read_results(out / "results.jsonl")] == [
+        (c, m) for c in (0, 1, 4) for m in ("ours", "object-list")]
