@@ -6,14 +6,23 @@ its commands; :func:`register_plugins` calls each one. That is how ``storyteller
 without ``orchestrator`` importing ``benchmark``. A plugin module should import only typer at
 module level (it is loaded at start-up); one that cannot be loaded is reported on stderr and
 skipped, never fatal to the other commands.
+
+What the command prints goes through :func:`orchestrator.terminal.say` (every command module
+does); click's and typer's own usage errors quote the command line (an unknown option, a value
+that is not a number), so :class:`_EscapedUsageErrors` escapes their message before typer
+prints it, and :func:`main` says Python warnings the same way (matplotlib's about a glyph its
+font lacks quotes the glyph of a scene's name).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import contextlib
+from collections.abc import Iterable, Iterator
 from importlib.metadata import EntryPoint, entry_points
+from typing import Any
 
 import typer
+from typer.core import TyperGroup
 
 from orchestrator.cli import event_program as cli_event
 from orchestrator.cli import model as cli_model
@@ -22,9 +31,33 @@ from orchestrator.cli import run as cli_run
 from orchestrator.cli import scene as cli_scene
 from orchestrator.cli import view as cli_view
 from orchestrator.safe_text import plain
-from orchestrator.terminal import say
+from orchestrator.terminal import say, show_warning
+
+
+@contextlib.contextmanager
+def _escaped_usage_errors() -> Iterator[None]:
+    try:
+        yield
+    except typer.TyperException as exc:  # click's usage errors (typer vendors click) and typer's own
+        exc.message = plain(exc.message, keep_newlines=True)
+        raise
+
+
+class _EscapedUsageErrors(TyperGroup):
+    """The root command: a usage error raised while parsing or dispatching any command has its
+    message (which quotes what was typed) escaped; typer prints it as before."""
+
+    def make_context(self, info_name: str | None, args: list[str], parent: Any = None, **extra: Any) -> Any:
+        with _escaped_usage_errors():
+            return super().make_context(info_name, args, parent, **extra)
+
+    def invoke(self, ctx: Any) -> Any:
+        with _escaped_usage_errors():
+            return super().invoke(ctx)
+
 
 app = typer.Typer(
+    cls=_EscapedUsageErrors,
     name="storyteller",
     help="Event-driven multi-character storytelling in 3D scenes.",
     no_args_is_help=True,
@@ -76,8 +109,11 @@ register_plugins(app)
 
 
 def main() -> None:  # pragma: no cover - console entry point
+    import warnings
+
     from orchestrator.cli.collector import skip_final_collection
 
+    warnings.showwarning = show_warning  # a warning that quotes data is said escaped
     try:
         app()
     finally:  # typer ends with SystemExit: the command is done, its files closed
