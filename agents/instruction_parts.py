@@ -233,14 +233,37 @@ NOT_A_VERB = frozenset(str.split(
 and some chips", "and then" is "then"'s)."""
 
 
+MOTION_VERBS = frozenset(str.split(
+    "go goes walk walks head heads come comes wander wanders stroll strolls move moves hurry hurries "
+    "rush rushes step steps return returns cross crosses pop pops nip nips amble ambles saunter saunters "
+    "drift drifts stride strides dash dashes"
+))
+"""Verbs of going somewhere (general English)."""
+_TOWARDS = frozenset(str.split("to into towards toward over across up down back along around round off out in"))
+_SKIPPED_BEFORE_VERB = frozenset(str.split("then first just now quickly slowly soon also he she they"))
+
+
+def moves_only(text: str, names: Sequence[str] = ()) -> bool:
+    """Whether ``text`` only takes its subject somewhere ("Rosa goes over to the corner", "he
+    makes his way to the bar"): its verb is a verb of going and a word of direction follows. "X
+    goes to the corner and sits down there to read" is one step: the going is the way to the
+    reading, not an action of its own."""
+    words = [w.lower() for w in _WORD.findall(text[len(_leading_subject(text, names)):])]
+    while words and (words[0] in _SKIPPED_BEFORE_VERB or words[0].endswith("ly")):
+        words = words[1:]
+    if len(words) >= 3 and words[0] in ("make", "makes") and words[2] == "way":
+        return True
+    return len(words) >= 2 and words[0] in MOTION_VERBS and words[1] in _TOWARDS
+
+
 def _and_steps(piece: str, names: Sequence[str]) -> list[str]:
     """``piece`` cut where "and" starts a second action of the same subject ("Ava takes a soda
     out of the fridge and drinks it on the sofa": two steps, one after the other). Cut only when
     one character (or an unnamed subject) acts, the words on each side point to an action label
     (:func:`activity_kind`, read before any relation word: "picks the seat farthest from the
     coffee maker" points to none), the two differ, neither is ``idle`` (waiting while waving is
-    one action), and the side before names no posture ("sits on the couch and drinks" is drinking
-    seated: one step). Two characters "chat and watch TV together" at once: not cut."""
+    one action), the side before names no posture ("sits on the couch and drinks" is drinking
+    seated: one step) and does more than go somewhere (:func:`moves_only`). Two characters "chat and watch TV together" at once: not cut."""
     if len(_mentioned(_leading_subject(piece, names), names)) > 1:
         return [piece]
     steps: list[str] = []
@@ -250,7 +273,8 @@ def _and_steps(piece: str, names: Sequence[str]) -> list[str]:
             continue
         left, right = piece[start : m.start()].strip(), piece[m.end() :].strip()
         before, after = activity_kind(before_relations(left)), activity_kind(before_relations(right))
-        if before is None or after is None or before == after or "idle" in (before, after) or posture(left):
+        if (before is None or after is None or before == after or "idle" in (before, after) or posture(left)
+                or moves_only(left, names)):
             continue
         steps.append(left)
         start = m.end()

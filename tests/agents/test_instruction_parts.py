@@ -55,6 +55,15 @@ def test_split_by_sentence_and_then_with_the_subject_carried_over(instruction: s
     ("Ava waits by the door and waves at Ben.", ["Ava waits by the door and waves at Ben."]),
     ("Ben walks to the coffee maker and brews a pot.", ["Ben walks to the coffee maker and brews a pot."]),
     ("Ava takes a soda and some chips from the fridge.", ["Ava takes a soda and some chips from the fridge."]),
+    # going somewhere is the way to what is done there, not a step of its own
+    ("Cy goes over to the corner with the plant and sits down there to read the news on a phone.",
+     ["Cy goes over to the corner with the plant and sits down there to read the news on a phone."]),
+    ("Ava slowly makes her way to the fridge and takes out a lemonade.",
+     ["Ava slowly makes her way to the fridge and takes out a lemonade."]),
+    ("Ben heads into the kitchen and toasts some bread.", ["Ben heads into the kitchen and toasts some bread."]),
+    # "goes through" is no going: two steps
+    ("Ben goes through his emails on the laptop and drinks a coffee.",
+     ["Ben goes through his emails on the laptop.", "Then Ben drinks a coffee."]),
     # a relation's landmark is no action: "farthest from the coffee maker" is where, not what
     ("Ben opens his laptop and picks the seat farthest from the coffee maker.",
      ["Ben opens his laptop and picks the seat farthest from the coffee maker."]),
