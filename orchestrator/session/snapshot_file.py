@@ -55,8 +55,9 @@ import os
 import pickle
 import re
 import secrets
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
@@ -165,10 +166,13 @@ class _Pickler(pickle.Pickler):
         super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
         self._shared = shared
 
-    def persistent_id(self, obj: Any) -> str | None:
+    def persistent_id(self, obj: object) -> str | None:
         return self._shared.get(id(obj))
 
-    def reducer_override(self, obj: Any) -> Any:
+    # -> Any: NotImplemented (the fallback to pickle's own reduction) is typed as Any by mypy, so
+    # any narrower return type fails warn_return_any (python/mypy#18914), and typeshed's
+    # Pickler.reducer_override return type leaves NotImplemented out
+    def reducer_override(self, obj: object) -> Any:
         """Arrays and numpy scalars as (bytes, dtype, shape) for :func:`_array` / :func:`_scalar`,
         not numpy's own reduce functions (which the loader does not admit)."""
         if isinstance(obj, np.ndarray):
@@ -189,33 +193,49 @@ def _resolve_classes() -> dict[tuple[str, str], type]:
     return out
 
 
-_PY_UNPICKLER: Any = pickle._Unpickler
-"""The pure-Python unpickler whose opcode methods (``load_reduce``...) the checks below call
-after their own: they are private and not in typeshed, so they are reached through ``Any``."""
+class _PyOpcodes(Protocol):
+    """The opcode methods of the pure-Python unpickler class that the checks below call after
+    their own, each with the unpickler as its argument (private, and not in typeshed)."""
+
+    def load_reduce(self, unpickler: pickle._Unpickler, /) -> None: ...
+    def load_build(self, unpickler: pickle._Unpickler, /) -> None: ...
+    def load_append(self, unpickler: pickle._Unpickler, /) -> None: ...
+    def load_appends(self, unpickler: pickle._Unpickler, /) -> None: ...
+    def load_setitem(self, unpickler: pickle._Unpickler, /) -> None: ...
+    def load_setitems(self, unpickler: pickle._Unpickler, /) -> None: ...
+    def load_dict(self, unpickler: pickle._Unpickler, /) -> None: ...
+    def load_additems(self, unpickler: pickle._Unpickler, /) -> None: ...
+    def load_frozenset(self, unpickler: pickle._Unpickler, /) -> None: ...
+
+
+_PY_UNPICKLER: _PyOpcodes = vars(pickle)["_Unpickler"]
+"""The pure-Python unpickler (``pickle._Unpickler``), whose opcode methods the checks below call
+after their own; read from the module's namespace, as typeshed's stub of the class lacks them."""
 
 
 class _Unpickler(pickle._Unpickler):  # the Python unpickler: its opcodes can be checked one by one
     """Decodes only what :func:`load_checkpoint` admits (the module docstring lists it)."""
 
     dispatch: ClassVar[dict[int, Any]] = dict(pickle._Unpickler.dispatch)
-    stack: list[Any]  # the Python unpickler's own state (not in typeshed)
-    metastack: list[list[Any]]
-    append: Any
+    stack: list[object]  # the Python unpickler's own state (not in typeshed)
+    metastack: list[list[object]]
+    append: Callable[[object], None]  # ``stack.append``, bound by ``load``
 
-    def __init__(self, file: io.BytesIO, shared: dict[str, Any], classes: dict[tuple[str, str], type]) -> None:
+    def __init__(self, file: io.BytesIO, shared: dict[str, object], classes: dict[tuple[str, str], type]) -> None:
         super().__init__(file)
         self._shared = shared
         self._classes = classes
         self._class_set = frozenset(classes.values())
 
-    def persistent_load(self, pid: Any) -> Any:
+    def persistent_load(self, pid: object) -> object:
         if not isinstance(pid, str) or pid not in self._shared:
             raise SnapshotError(f"the checkpoint refers to an unknown shared object {str(pid)[:40]!r}")
         return self._shared[pid]
 
-    def find_class(self, module: str, name: str) -> Any:
+    def find_class(self, module: str, name: str) -> Callable[..., object]:
         if module == __name__ and name in _DECODERS:
-            return {"_array": _array, "_scalar": _scalar}[name]
+            decoders: dict[str, Callable[..., object]] = {"_array": _array, "_scalar": _scalar}
+            return decoders[name]
         cls = self._classes.get((module, name))
         if cls is None:
             raise SnapshotError(f"the checkpoint refers to {str(module)[:60]}.{str(name)[:60]}, which a checkpoint may not hold")
@@ -230,10 +250,12 @@ class _Unpickler(pickle._Unpickler):  # the Python unpickler: its opcodes can be
             raise SnapshotError("the checkpoint calls something other than its array decoders")
         _PY_UNPICKLER.load_reduce(self)
 
-    def _new_instance(self, cls: Any, args: Any, kwargs: Any) -> None:
-        if cls not in self._class_set or args != () or kwargs:
+    def _new_instance(self, cls: object, args: object, kwargs: object) -> None:
+        # not a type (a value, or something unhashable that the set lookup would trip on): refused first
+        if not isinstance(cls, type) or cls not in self._class_set or args != () or kwargs:
             raise SnapshotError("the checkpoint creates an object of a class it may not hold")
-        self.append(cls.__new__(cls))
+        kind: type[object] = cls  # a listed class: its ``__new__`` is ``object.__new__`` (SNAPSHOT_CLASSES)
+        self.append(kind.__new__(kind))
 
     def _load_newobj(self) -> None:
         args = self.stack.pop()
@@ -288,7 +310,7 @@ class _Unpickler(pickle._Unpickler):  # the Python unpickler: its opcodes can be
         _PY_UNPICKLER.load_frozenset(self)
 
 
-def _check_keys(keys: list[Any]) -> None:
+def _check_keys(keys: list[object]) -> None:
     """Dict keys and set items are plain values or short tuples of them: hashing anything else
     (a tuple nested a million deep, a model holding one) could exhaust the C stack."""
     for key in keys:

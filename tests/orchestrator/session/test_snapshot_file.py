@@ -188,8 +188,12 @@ def test_a_class_that_is_not_listed_is_refused(checkpoint: tuple[World, SessionC
          "holds a type, which a checkpoint may not hold"),
         # an extension-registry global
         (b"\x82\x01", "instruction a checkpoint never has"),
+        # NEWOBJ of something that is not a class: a number, and an unhashable list
+        (b"K\x05)\x81", "creates an object of a class it may not hold"),
+        (b"])\x81", "creates an object of a class it may not hold"),
     ],
-    ids=["inst", "class-call", "array-bomb", "array-misfit", "object-array", "deep", "cycle", "deep-key", "class-attr", "ext"],
+    ids=["inst", "class-call", "array-bomb", "array-misfit", "object-array", "deep", "cycle", "deep-key", "class-attr", "ext",
+         "newobj-value", "newobj-unhashable"],
 )
 def test_hostile_opcodes_inside_a_checkpoint(checkpoint: tuple[World, SessionCheckpoint], home: Scene,
                                              motion: MotionMatcher, tmp_path: Path, opcodes: bytes,
