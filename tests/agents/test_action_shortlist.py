@@ -42,6 +42,9 @@ RESTAURANT = ("idle", "chat", "eat", "drink", "deliver_menu", "serve_food", "ser
     ("the waiter hands the couple a menu", RESTAURANT, "deliver_menu"),
     ("the waiter takes the order of the family", RESTAURANT, "take_order"),
     ("Omar waits by the window for his friend", RESTAURANT, "idle"),
+    ("Pia fancies hearing some old vinyl", HOME, "turn_on_record_player"),
+    ("Pia puts an LP on", HOME, "turn_on_record_player"),
+    ("Pia lifts the needle off the record", HOME, "turn_off_record_player"),
 ])
 def test_the_best_label_follows_everyday_wording(text: str, labels: tuple[str, ...], best: str) -> None:
     assert suggested_action(text, labels) == best
