@@ -55,6 +55,7 @@ import os
 import pickle
 import re
 import secrets
+import types
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
@@ -161,6 +162,9 @@ def _numeric_dtype(text: object) -> np.dtype[Any]:
     return kind
 
 
+_Reduction = tuple[Callable[..., object], tuple[object, ...]]  # a function and its arguments, as ``__reduce__`` gives
+
+
 class _Pickler(pickle.Pickler):
     def __init__(self, file: io.BytesIO, shared: dict[int, str]) -> None:
         super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
@@ -169,19 +173,24 @@ class _Pickler(pickle.Pickler):
     def persistent_id(self, obj: object) -> str | None:
         return self._shared.get(id(obj))
 
-    # -> Any: NotImplemented (the fallback to pickle's own reduction) is typed as Any by mypy, so
-    # any narrower return type fails warn_return_any (python/mypy#18914), and typeshed's
-    # Pickler.reducer_override return type leaves NotImplemented out
-    def reducer_override(self, obj: object) -> Any:
-        """Arrays and numpy scalars as (bytes, dtype, shape) for :func:`_array` / :func:`_scalar`,
-        not numpy's own reduce functions (which the loader does not admit)."""
-        if isinstance(obj, np.ndarray):
-            if type(obj) is not np.ndarray or obj.dtype.hasobject or obj.dtype.fields is not None:
-                raise TypeError(f"a checkpoint stores plain numeric arrays only, not {type(obj).__name__} of {obj.dtype}")
-            return _array, (obj.tobytes(), obj.dtype.str, tuple(int(n) for n in obj.shape))
-        if isinstance(obj, np.generic):
-            return _scalar, (obj.tobytes(), obj.dtype.str)
-        return NotImplemented
+    def reducer_override(self, obj: object) -> _Reduction | types.NotImplementedType:
+        """:func:`_numpy_reduction` for arrays and numpy scalars; anything else (NotImplemented)
+        is pickled as usual."""
+        reduced = _numpy_reduction(obj)
+        # one expression: mypy reads a bare ``return NotImplemented`` as returning Any (python/mypy#18914)
+        return NotImplemented if reduced is None else reduced
+
+
+def _numpy_reduction(obj: object) -> _Reduction | None:
+    """Arrays and numpy scalars as (bytes, dtype, shape) for :func:`_array` / :func:`_scalar`,
+    not numpy's own reduce functions (which the loader does not admit); None for anything else."""
+    if isinstance(obj, np.ndarray):
+        if type(obj) is not np.ndarray or obj.dtype.hasobject or obj.dtype.fields is not None:
+            raise TypeError(f"a checkpoint stores plain numeric arrays only, not {type(obj).__name__} of {obj.dtype}")
+        return _array, (obj.tobytes(), obj.dtype.str, tuple(int(n) for n in obj.shape))
+    if isinstance(obj, np.generic):
+        return _scalar, (obj.tobytes(), obj.dtype.str)
+    return None
 
 
 def _resolve_classes() -> dict[tuple[str, str], type]:
