@@ -6,10 +6,11 @@ The readers of an event's words (:mod:`agents.shortlist`, :mod:`agents.action_sh
 :mod:`agents.relation_words`) know "to the left of X", "in front of X", "behind X" and
 "beside X". :func:`plain_places` rewrites the other forms into those:
 
-- a possessive side, ``X's [own] left|right[-hand] [side]`` / ``front`` / ``back`` /
-  ``rear`` / ``side``, becomes ``to the left of X`` / ``in front of X`` / ``behind X`` /
-  ``beside X`` (so X reads as a landmark, not as the place itself: waiting "on the bench's
-  right-hand side" is not sitting on the bench);
+- a possessive side, ``[at|on|by...] X's [own] left|right[-hand] [side]`` / ``front`` /
+  ``back`` / ``rear`` / ``side``, becomes ``to the left of X`` / ``in front of X`` / ``behind
+  X`` / ``beside X`` (so X reads as a landmark, not as the place itself: waiting "on the bench's
+  right-hand side" is not sitting on the bench); X is a thing ("the wine rack") or a person's
+  name ("takes the seat at Agnes's side" is the seat beside Agnes);
 - ``its [own] left|right[-hand] [side]`` becomes ``to the left of it``;
 - a remark in parentheses is left out (a gloss restating the place another way);
 - "right" as an intensifier ("right next to", "right behind") is left out;
@@ -34,6 +35,9 @@ _SIDE_FORMS = {
     "back": "behind", "rear": "behind", "side": "beside",
 }
 _DETERMINERS = frozenset({"the", "a", "an", "this", "that"})
+SIDE_PREPOSITIONS = frozenset({"at", "on", "by", "to", "in", "of", "with", "from", "for", "near"})
+"""Prepositions: never inside a thing's words, and the one right before a possessive side ("at
+Agnes's side", "on the bench's left") is part of the side phrase the rewrite replaces."""
 _EMPHASIS = frozenset({"own", "very"})
 THING_WORDS = 3
 """Words a possessive's thing may have after its determiner ("the wine rack's")."""
@@ -88,18 +92,31 @@ def _side_end(tokens: list[_Token], k: int) -> tuple[str, int] | None:
     return side, k
 
 
+def _owner(tokens: list[_Token], j: int) -> tuple[int, str] | None:
+    """The owner of the possessive whose apostrophe is token ``j``: the index its words start at
+    and its words as the side form names it ("the wine rack", or a name: "Agnes"). A thing's words
+    run from a determiner and hold no preposition ("the seat at Agnes's" is no thing: Agnes is
+    the owner); a name is one capitalised word. None when there is neither."""
+    det = next((d for d in range(j - 1, max(-1, j - 2 - THING_WORDS), -1) if tokens[d].low in _DETERMINERS), None)
+    if det is not None and det < j - 1 and not any(tokens[k].low in SIDE_PREPOSITIONS for k in range(det + 1, j)):
+        return det, " ".join(t.text for t in tokens[det:j])
+    name = tokens[j - 1]
+    if name.text[:1].isupper() and name.text.isalpha() and name.low not in _DETERMINERS:
+        return j - 1, name.text
+    return None
+
+
 def _rewrite_sides(text: str) -> str:
     tokens = _tokens(text)
     edits: list[tuple[int, int, str]] = []  # (start, end, replacement) in text
     for j in range(len(tokens) - 1):
         if tokens[j].text == "'" and tokens[j + 1].low == "s" and j > 0:  # a possessive: "the bench's"
             found = _side_end(tokens, j + 2)
-            det = next((d for d in range(j - 1, max(-1, j - 2 - THING_WORDS), -1) if tokens[d].low in _DETERMINERS), None)
-            if found is None or det is None or det == j - 1:
+            owner = _owner(tokens, j) if found is not None else None
+            if found is None or owner is None:
                 continue
-            thing = text[tokens[det + 1].start : tokens[j - 1].end]
-            edits.append((tokens[det].start, tokens[found[1] - 1].end,
-                          f"{_SIDE_FORMS[found[0]]} {tokens[det].text} {thing}"))
+            start = owner[0] - 1 if owner[0] > 0 and tokens[owner[0] - 1].low in SIDE_PREPOSITIONS else owner[0]
+            edits.append((tokens[start].start, tokens[found[1] - 1].end, f"{_SIDE_FORMS[found[0]]} {owner[1]}"))
         elif tokens[j].low == "its" and (found := _side_end(tokens, j + 1)) is not None:
             edits.append((tokens[j].start, tokens[found[1] - 1].end, f"{_SIDE_FORMS[found[0]]} it"))
     return _apply(text, edits)

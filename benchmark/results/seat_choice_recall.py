@@ -26,6 +26,7 @@ from pathlib import Path
 
 from agents.area_words import DescribedArea, described_areas
 from agents.place_choice import seat_candidates
+from agents.place_phrases import plain_places
 from agents.program_grammar import event_options
 from benchmark.reference_cases import load_cases, planning_inputs, scene_dir
 from orchestrator.reference_data import locate_reference
@@ -65,7 +66,7 @@ def recall(side: str, verbose: bool = False, descriptions: Path | None = None) -
         inputs = planning_inputs(case, scene)
         who = case.expected_plans[0].character
         options = event_options(scene, [who], inputs.roster, inputs.seats_in_use, case.action_labels, case.user_instruction)
-        seats = seat_candidates(scene, case.user_instruction, options.free_seats, options.others, options.labels,
+        seats = seat_candidates(scene, plain_places(case.user_instruction), options.free_seats, options.others, options.labels,
                                 areas=_areas(descriptions, scene, case.scene_name))
         want = m.group(1)
         n += 1

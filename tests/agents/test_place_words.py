@@ -68,3 +68,20 @@ def test_a_trip_from_one_thing_to_another_stays_a_trip_and_a_midpoint_is_a_place
     assert plain_places("Kim stands in the middle of the room.") == "Kim stands in the middle of the room."
     assert plain_places("Halfway from the rug to the sofa, Kim listens.") == "Halfway between the rug and the sofa, Kim listens."
     assert posture(plain_places("Kim waits halfway from the rug to the sofa.")) != "sit"
+
+
+@pytest.mark.parametrize(("text", "plain"), [
+    ("Kim takes the chair at Bo's side to read.", "Kim takes the chair beside Bo to read."),
+    ("Kim waits by Bo's side.", "Kim waits beside Bo."),
+    ("Kim sits on Bo's left.", "Kim sits to the left of Bo."),
+    ("Kim stands at the lamp's back.", "Kim stands behind the lamp."),
+    ("Kim reads Bo's book on the sofa.", "Kim reads Bo's book on the sofa."),  # no side: unchanged
+])
+def test_a_person_s_side_is_beside_the_person(text: str, plain: str) -> None:
+    """A thing's words never run over a preposition ("the chair at Bo's" is no thing): the owner
+    is the name, and the preposition before the side goes with it."""
+    assert plain_places(text) == plain
+
+
+def test_taking_the_seat_at_someone_s_side_is_sitting() -> None:
+    assert posture(plain_places("Kim takes the seat at Bo's side to have a tea.")) == "sit"
