@@ -241,7 +241,8 @@ _SWITCH_VERBS = ("switch", "turn", "put", "power", "flip", "click", "shut")
 
 _LANDMARK_HEADS = (
     "near", "nearest", "closest", "beside", "facing", "opposite", "behind", "by", "next", "across", "where", "between",
-    "left", "right", "toward", "towards", "overlooking",
+    "left", "right", "toward", "towards", "overlooking", "farthest", "furthest", "farther", "further", "far",
+    "distant", "away", "avoiding", "avoids", "avoid", "nearby", "adjacent", "alongside", "halfway", "midway", "faces",
 )
 _LANDMARK_ENDS = frozenset({"and", "then", "to", "while", "so", "but", "or", "after", "before", "where", "which", "who"})
 LANDMARK_SPAN = 4

@@ -57,6 +57,16 @@ def test_a_landmark_is_not_the_action() -> None:
     assert ranked[0] == "eat" and "use_coffee_maker" not in ranked
 
 
+@pytest.mark.parametrize("text", [
+    "Raj reads a thriller in the chair farthest from the water cooler",
+    "Raj reads a thriller on a seat far away from the water cooler",
+    "Raj reads a thriller, avoiding the water cooler",
+])
+def test_a_landmark_of_distance_is_not_the_action(text: str) -> None:
+    ranked = [r.label for r in rank_action_labels(text, (*OFFICE, "read_book"))]
+    assert ranked[0] == "read_book" and "use_water_dispenser" not in ranked
+
+
 def test_close_to_is_a_place_and_on_the_couch_is_no_switch() -> None:
     assert "close_fridge" not in action_shortlist("chat close to the fridge", HOME)
     assert action_shortlist("watch the news sitting on the couch", HOME) == ("watch_tv",)
