@@ -24,6 +24,7 @@ import viser
 
 from orchestrator.bodies.smplx_meshes import SmplxBody
 from orchestrator.safe_text import plain
+from orchestrator.viewer.bone_updates import pose_bones
 from orchestrator.viewer.figures import BonePoses, FigureRig, bone_poses, standin_rig
 from orchestrator.viewer.run_folder import RunData
 from orchestrator.viewer.timeline import action_at, active_events, clock, event_text
@@ -206,9 +207,7 @@ class SceneView:
         with self.server.atomic():
             for track in self.run.tracks:
                 wxyz, pos = self.poses[track.name].at(frame)
-                for j, bone in enumerate(self.figures[track.name].bones):
-                    bone.wxyz = wxyz[j]
-                    bone.position = pos[j]
+                pose_bones(self.figures[track.name].bones, wxyz, pos)  # each bone's setter, cheaper
                 label = self.labels[track.name]
                 label.position = pos[head] + np.array([0.0, 0.0, LABEL_ABOVE_HEAD])
                 action = action_at(track, frame)
