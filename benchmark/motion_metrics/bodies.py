@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from sim.body.skeleton import JOINT_INDEX
 from sim.scene.model import SceneObject
+from sim.world.legroom import TABLE_TOP_M, has_legroom, seat_surface
 
 J = JOINT_INDEX
 CAPSULES: tuple[tuple[str, str, float, str], ...] = (
@@ -61,8 +62,6 @@ SEAT_SINK_M = 0.08
 the seat-height target (the pelvis joint 9 cm above the surface, ``interactions.PELVIS_ABOVE_SEAT_M``)
 puts the hip joints 1 cm above it, so the rigid hip capsule (8 cm radius) reaches 7 cm under
 it and the thighs sloping to the knees about 8 cm: buttocks, thighs and cushion are soft."""
-TABLE_TOP_M = 0.05
-"""Thickness of a table's or desk's top (``has_legroom``): the box below it is legroom."""
 CONTACT_ACTIONS = frozenset({"hug"})
 """Partner actions whose bodies touch by design: overlap between two characters both doing
 one of these is not counted."""
@@ -128,20 +127,9 @@ def signed_distance(points: NDArray[np.float64], box: Box) -> NDArray[np.float64
     return np.asarray(outside + inside)
 
 
-def has_legroom(obj: SceneObject) -> bool:
-    """Whether ``obj`` is a top on legs (a table or a desk, by its label): the space under its top
-    (below ``TABLE_TOP_M``) is legroom, where seated legs and feet belong."""
-    return any(w in ("table", "desk") for w in obj.label.split("_"))
-
-
 def solid_box(obj: SceneObject) -> Box:
     """The part of ``obj``'s box a body must stay out of: the whole box, or a table's top."""
     return Box.of(obj, bottom=obj.z_max - TABLE_TOP_M) if has_legroom(obj) else Box.of(obj)
-
-
-def seat_surface(obj: SceneObject) -> float:
-    """World height of ``obj``'s seat surface (its bottom plus its seat offset)."""
-    return obj.z_min + obj.sit_offset_vertical
 
 
 def furniture_penetration(

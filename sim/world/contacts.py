@@ -50,6 +50,7 @@ from sim.motion.action_labels import action_spec
 from sim.motion.sources.procedural_actions import SEAT_PELVIS_ABOVE_SEAT, STAND_Z
 from sim.motion.sources.procedural_rig import ANKLE_HEIGHT
 from sim.scene.model import SceneObject
+from sim.world.legroom import feet_clear_of
 from sim.world.phases import CharacterState, smoothstep
 
 HAND_GESTURES = frozenset({"reach", "reach_low", "wipe", "write", "carry", "type"})
@@ -140,13 +141,16 @@ def box_contact_point(obj: SceneObject, p: NDArray[np.float64], standoff: float 
 def seat_pelvis(chars: Sequence[CharacterState], labels: Sequence[str], seated: Sequence[bool],
                 seat_heights: Sequence[float | None], pelvis: NDArray[np.float64], rots: NDArray[np.float64],
                 floor_z: float, seats: Sequence[SceneObject | None] | None = None,
+                objects: Sequence[SceneObject] = (),
                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(pelvis (N, 3), local rotations (N, 22, 3, 3)) with the pelvis of every character sitting,
     sitting down or standing up put on its seat's height (``seat_heights``: the seat's height
     above the floor per character, None when it has no seat); see the module docstring.
     ``seats``: the seat objects (per character, or None): feet on the floor are kept
     ``FEET_CLEAR_M`` in front of the seat's front face (a couch whose seat point is near its
-    front would otherwise have the ankles inside its base)."""
+    front would otherwise have the ankles inside its base; a body sitting turned on a seat with
+    no back, ``sim.world.legroom.sitting_yaw``: the face it sits towards), and out of the other
+    ``objects``' footprints (``sim.world.legroom.feet_clear_of``)."""
     rows, goals = [], []
     for i, c in enumerate(chars):
         h = seat_heights[i]
@@ -169,18 +173,28 @@ def seat_pelvis(chars: Sequence[CharacterState], labels: Sequence[str], seated: 
     idx = np.array(rows)
     old = leg_chain(pelvis[idx], rots[idx])
     ankles = old.ankle.copy()
+    toes = old.toe - old.ankle
     low = ankles[..., 2] - floor_z < FOOT_NEAR_FLOOR_M
     ankles[..., 2] = np.where(low, floor_z + ANKLE_HEIGHT, ankles[..., 2])
     for n, i in enumerate(rows):
         seat = None if seats is None else seats[i]
         if seat is None:
             continue
-        facing = np.array([*seat.facing, 0.0])
-        front = float(np.dot(seat.center_xy, seat.facing)) + seat.size[1] / 2.0 + FEET_CLEAR_M
+        c = chars[i]
+        if c.act_yaw is None:
+            facing = np.array([*seat.facing, 0.0])
+            front = float(np.dot(seat.center_xy, seat.facing)) + seat.size[1] / 2.0 + FEET_CLEAR_M
+        else:  # sitting turned: the seat's extent along the way it sits
+            facing = np.array([np.cos(c.act_yaw), np.sin(c.act_yaw), 0.0])
+            half = abs(seat.size[0] / 2.0 * float(np.dot(seat.right, facing[:2]))) + abs(
+                seat.size[1] / 2.0 * float(np.dot(seat.facing, facing[:2])))
+            front = float(np.dot(seat.center_xy, facing[:2])) + half + FEET_CLEAR_M
         for leg in (0, 1):
             short = front - float(ankles[n, leg] @ facing)
             if low[n, leg] and short > 0.0:
                 ankles[n, leg] += short * facing
+        if objects:
+            ankles[n] = feet_clear_of(ankles[n], low[n], seat, objects, toes[n])
     new_pelvis = pelvis.copy()
     new_pelvis[idx, 2] = goals
     sub = solve_chain(leg_chain(new_pelvis[idx], rots[idx]), rots[idx], ankles, np.ones((len(idx), 2), dtype=bool))

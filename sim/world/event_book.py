@@ -15,7 +15,8 @@ characters, accepted events, the start queue, the navigator). The rules they kee
   its old place, as a dict does) until all its active members wait on their points at a
   planning-step boundary; then all start their transition in on the same frame, each turning
   from where it stands to its partners, else to the object it uses, else to the planner's
-  facing (``act_yaw``; seated: the seat's front). A seated body registers discs along its
+  facing (``act_yaw``; seated: the planner's facing, turned on a seat with no back whose
+  legroom other furniture takes, ``sim.world.legroom``). A seated body registers discs along its
   sit-down path (``seat_discs``);
 - an event completes when every member has finished its action (or, acting a looping action,
   left it); it becomes *looping* when every member is done or acting a looping action;
@@ -46,6 +47,7 @@ from sim.world.events import (
     ReleaseCharacters,
 )
 from sim.world.facing import heading_to_object, heading_to_points, needs_reach, surface_distance
+from sim.world.legroom import along_way, sit_via, sitting_yaw
 from sim.world.navigation import StandTargets, WorldNavigator, seat_place
 from sim.world.partners import spaced
 from sim.world.phases import (
@@ -116,12 +118,17 @@ def unstarted(events: dict[str, EventState]) -> dict[str, None]:
 SEAT_DISC_SPACING = 0.4  # metres between the discs a seated body registers along its sit-down path
 
 
-def seat_discs(anchor: np.ndarray, seat: np.ndarray) -> list[np.ndarray]:
-    """Disc centres covering the sit-down path from ``anchor`` (standing point) to ``seat``:
-    at least three, at most ``SEAT_DISC_SPACING`` apart, so walkers kept 2 body radii from
-    every disc stay >= ~0.46 m (at 0.25 m radii) from the whole segment."""
-    n = max(3, math.ceil(float(np.linalg.norm(seat - anchor)) / SEAT_DISC_SPACING) + 1)
-    return [anchor + u * (seat - anchor) for u in np.linspace(0.0, 1.0, n)]
+def seat_discs(anchor: np.ndarray, seat: np.ndarray, via: np.ndarray | None = None) -> list[np.ndarray]:
+    """Disc centres covering the sit-down path from ``anchor`` (standing point) to ``seat`` (by
+    the corner ``via`` when given: ``sim.world.legroom.sit_via``): at least three, at most
+    ``SEAT_DISC_SPACING`` apart, so walkers kept 2 body radii from every disc stay >= ~0.46 m (at
+    0.25 m radii) from the whole path."""
+    if via is None:
+        n = max(3, math.ceil(float(np.linalg.norm(seat - anchor)) / SEAT_DISC_SPACING) + 1)
+        return [anchor + u * (seat - anchor) for u in np.linspace(0.0, 1.0, n)]
+    length = float(np.linalg.norm(via - anchor) + np.linalg.norm(seat - via))
+    n = max(3, math.ceil(length / SEAT_DISC_SPACING) + 1)
+    return [along_way(anchor, via, seat, float(u)) for u in np.linspace(0.0, 1.0, n)]
 
 
 def _fail(out: StepReport, event_id: str, character: str, reason: FailureReason, message: str) -> None:
@@ -147,8 +154,11 @@ def _body_points(target: StandTarget, a: Assignment | None, w: EventWorld) -> li
     cell = w.grid.center_of(*target.cell)
     out = [(float(cell[0]), float(cell[1])), (float(target.xy[0]), float(target.xy[1]))]
     if a is not None and a.seat is not None and a.seat in w.scene.by_name:
-        seat = np.asarray(seat_place(w.scene.by_name[a.seat], a.target_xy, w.scene))
-        out += [(float(p[0]), float(p[1])) for p in seat_discs(np.asarray(target.xy, dtype=float), seat)[1:]]
+        obj = w.scene.by_name[a.seat]
+        seat = np.asarray(seat_place(obj, a.target_xy, w.scene))
+        anchor = np.asarray(target.xy, dtype=float)
+        via = sit_via(obj, w.scene.objects, anchor, seat)
+        out += [(float(p[0]), float(p[1])) for p in seat_discs(anchor, seat, via)[1:]]
     return out
 
 
@@ -364,9 +374,14 @@ def act_yaw(w: EventWorld, c: CharacterState, a: Assignment, stand: dict[str, np
     """The yaw ``c`` acts with from its standing point ``c.anchor_xy`` (None: the planner's
     facing ``a.facing_xy``): a standing partner action faces the mean of its partners' points
     (``stand``: where members starting now stand; others where they are), else a standing
-    action with an object faces the object's nearest footprint point; seated: the seat's front."""
+    action with an object faces the object's nearest footprint point; seated: the planner's
+    facing, or turned from it on a seat with no back whose legroom other furniture takes
+    (``sim.world.legroom.sitting_yaw``)."""
     if a.seat is not None:
-        return None
+        seat = w.scene.by_name.get(a.seat)
+        if seat is None:
+            return None
+        return sitting_yaw(seat, w.scene.objects, seat_place(seat, a.target_xy, w.scene), a.facing_angle)
     if a.partners and action_spec(a.action).family == "partner":
         pts = [stand[p] if p in stand else w.characters[p].xy for p in a.partners if p in w.characters]
         yaw = heading_to_points(c.anchor_xy, np.asarray(pts, dtype=float))
@@ -392,7 +407,8 @@ def _begin_transition_in(w: EventWorld, c: CharacterState, yaw: float | None = N
     if a.seat is not None:
         seat = w.scene.by_name[a.seat]
         c.seat_xy = np.asarray(seat_place(seat, a.target_xy, w.scene), dtype=float)
-        w.navigator.make_stationary(c.name, seat_discs(c.anchor_xy, c.seat_xy))
+        via = sit_via(seat, w.scene.objects, c.anchor_xy, c.seat_xy)
+        w.navigator.make_stationary(c.name, seat_discs(c.anchor_xy, c.seat_xy, via))
     else:
         w.navigator.make_stationary(c.name, [c.anchor_xy])
 

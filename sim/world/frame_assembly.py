@@ -33,6 +33,7 @@ from sim.world.contacts import (
     sit_progress,
     stand_progress,
 )
+from sim.world.legroom import along_way, sit_via
 from sim.world.motion_layer import BatchedMotionLayer, MotionLayer, MotionQuery, compose_poses
 from sim.world.navigation import WorldNavigator
 from sim.world.phases import CharacterState, phase_motion, smoothstep, wrap_angle
@@ -106,7 +107,7 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
         else:
             fut_xy = fut_heading = None
             moving = False
-            stationary_root(c)
+            stationary_root(c, w.scene)
         label, seated = phase_motion(c, moving)
         key = _database_key(label, seated)
         restart = key != c.motion_key or c.phase_frame == 0
@@ -132,7 +133,7 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
     pelvis, rots = compose_poses(rots, pz, root, heading)
     seats = [w.scene.by_name.get(c.assignment.seat) if h is not None and c.assignment is not None
              and c.assignment.seat is not None else None for c, h in zip(chars, seat_h, strict=True)]
-    pelvis, rots = seat_pelvis(chars, labels, seated_l, seat_h, pelvis, rots, w.scene.floor_z, seats)
+    pelvis, rots = seat_pelvis(chars, labels, seated_l, seat_h, pelvis, rots, w.scene.floor_z, seats, w.scene.objects)
     if w.foot_solver is not None and w.feet is not None:
         rots, w.feet = w.foot_solver.apply(pelvis, rots, contacts, w.feet, active=~np.array(still_feet),
                                            pinned=np.array(seat_transit))
@@ -169,9 +170,11 @@ def _step_motion(motion: MotionLayer, states: list[Any], queries: list[MotionQue
     return new_states, rots, pz, contacts
 
 
-def stationary_root(c: CharacterState) -> None:
+def stationary_root(c: CharacterState, scene: Scene) -> None:
     """Root xy / heading of a character that is not walking, from its phase and timer: a
-    transition in turns the root about the pelvis (xy unchanged) to ``c.act_heading``."""
+    transition in turns the root about the pelvis (xy unchanged) to ``c.act_heading``, then a
+    sit-down moves it onto the seat (round ``scene``'s furniture: ``sim.world.legroom.sit_via``),
+    and a stand-up back the same way."""
     a = c.assignment
     if c.phase == "transition_in" and a is not None:
         if c.phase_frame < c.turn_frames:
@@ -181,10 +184,20 @@ def stationary_root(c: CharacterState) -> None:
             c.heading = c.act_heading
             if a.seat is not None and c.seat_xy is not None:
                 u = smoothstep(sit_progress(c))
-                c.xy = c.anchor_xy + u * (c.seat_xy - c.anchor_xy)
+                c.xy = along_way(c.anchor_xy, _via(c, scene), c.seat_xy, u)
     elif c.phase == "transition_out" and c.seated and c.seat_xy is not None:
         u = smoothstep(stand_progress(c))
-        c.xy = c.seat_xy + u * (c.anchor_xy - c.seat_xy)
+        via = _via(c, scene)
+        c.xy = c.seat_xy + u * (c.anchor_xy - c.seat_xy) if via is None else along_way(c.anchor_xy, via, c.seat_xy, 1.0 - u)
+
+
+def _via(c: CharacterState, scene: Scene) -> np.ndarray | None:
+    """The corner of ``c``'s way onto its seat (None: straight)."""
+    a = c.assignment
+    seat = None if a is None or a.seat is None else scene.by_name.get(a.seat)
+    if seat is None or c.seat_xy is None:
+        return None
+    return sit_via(seat, scene.objects, c.anchor_xy, c.seat_xy)
 
 
 def motion_target(w: MotionWorld, c: CharacterState) -> tuple[np.ndarray | None, float | None, float | None]:
@@ -197,7 +210,7 @@ def motion_target(w: MotionWorld, c: CharacterState) -> tuple[np.ndarray | None,
         if height is None:
             obj = w.scene.by_name[a.seat]
             height = obj.z_min - w.scene.floor_z + obj.sit_offset_vertical
-        return c.seat_xy, a.facing_angle, height
+        return c.seat_xy, c.act_heading, height
     spec = action_spec(a.action)
     if spec.family == "partner" and a.partners:
         pts = np.array([w.characters[p].xy for p in a.partners if p in w.characters])
