@@ -53,16 +53,16 @@ no name (the old pattern took "Avaand Ben" for one run).
 
 from __future__ import annotations
 
-import functools
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from agents.action_shortlist import CUES, posture, rank_action_labels
+from agents.action_shortlist import posture
 from agents.messages import HistoryEntry
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.relation_words import before_relations
+from agents.step_words import activity_kind, moves_only, no_action, states_only
 
 PartState = Literal["done", "ongoing", "failed", "next", ""]
 
@@ -85,15 +85,6 @@ _STOP = frozenset(str.split(
 SAME_KIND_SCORE = 2
 """What an event and a part of the same kind of activity (:func:`activity_kind`) add to the
 words they share when an event is matched to a part."""
-
-
-@functools.lru_cache(maxsize=1024)
-def activity_kind(text: str) -> str | None:
-    """The action label the words of ``text`` point to most among every label the action
-    vocabulary knows (:data:`agents.action_shortlist.CUES`: "munch a sandwich by table_2" and
-    "tucks into her lunch" are both ``eat``), or None when they point to none."""
-    ranked = rank_action_labels(text, tuple(CUES))
-    return ranked[0].label if ranked else None
 
 
 @dataclass(frozen=True)
@@ -199,7 +190,33 @@ def split_instruction(
             continue
         for clause in _at_the_same_time(sentence, names):
             parts.extend(_then_parts(clause, names, lib))
-    return parts
+    return _with_reasons_joined(parts, names, lib)
+
+
+def _lower(names: Sequence[str]) -> frozenset[str]:
+    return frozenset(n.lower() for n in names)
+
+
+def _with_reasons_joined(parts: list[InstructionPart], names: Sequence[str], lib: PromptLibrary) -> list[InstructionPart]:
+    """``parts`` with each part that states no step of its own (:func:`agents.step_words.no_action`: "Quinn, free
+    for a moment.", "Femi's bottle is empty.") joined to the part after it, when that one's
+    actors are its own or it names none ("Quinn, free for a moment. Switches the telly on." is
+    one step: switching the TV on)."""
+    then = lib.render_text("story/instruction_then.md", part="\0").split("\0")[0]
+    out: list[InstructionPart] = []
+    carried = ""
+    for k, part in enumerate(parts):
+        own = part.text.removeprefix(then)
+        text = f"{carried} {own[:1].upper()}{own[1:]}" if carried else part.text
+        nxt = parts[k + 1] if k + 1 < len(parts) else None
+        if nxt is not None and no_action(text, _leading_subject(text, names), _lower(names)) and (
+                not part.actors or not nxt.actors or set(nxt.actors) <= set(part.actors)):
+            carried = text
+            continue
+        carried = ""
+        out.append(part if text == part.text else
+                   InstructionPart(text, _mentioned(text, names), _actors(text, names), content_stems(text, names)))
+    return out
 
 
 def _at_the_same_time(sentence: str, names: Sequence[str]) -> list[str]:
@@ -233,29 +250,6 @@ NOT_A_VERB = frozenset(str.split(
 and some chips", "and then" is "then"'s)."""
 
 
-MOTION_VERBS = frozenset(str.split(
-    "go goes walk walks head heads come comes wander wanders stroll strolls move moves hurry hurries "
-    "rush rushes step steps return returns cross crosses pop pops nip nips amble ambles saunter saunters "
-    "drift drifts stride strides dash dashes"
-))
-"""Verbs of going somewhere (general English)."""
-_TOWARDS = frozenset(str.split("to into towards toward over across up down back along around round off out in"))
-_SKIPPED_BEFORE_VERB = frozenset(str.split("then first just now quickly slowly soon also he she they"))
-
-
-def moves_only(text: str, names: Sequence[str] = ()) -> bool:
-    """Whether ``text`` only takes its subject somewhere ("Rosa goes over to the corner", "he
-    makes his way to the bar"): its verb is a verb of going and a word of direction follows. "X
-    goes to the corner and sits down there to read" is one step: the going is the way to the
-    reading, not an action of its own."""
-    words = [w.lower() for w in _WORD.findall(text[len(_leading_subject(text, names)):])]
-    while words and (words[0] in _SKIPPED_BEFORE_VERB or words[0].endswith("ly")):
-        words = words[1:]
-    if len(words) >= 3 and words[0] in ("make", "makes") and words[2] == "way":
-        return True
-    return len(words) >= 2 and words[0] in MOTION_VERBS and words[1] in _TOWARDS
-
-
 def _and_steps(piece: str, names: Sequence[str]) -> list[str]:
     """``piece`` cut where "and" starts a second action of the same subject ("Ava takes a soda
     out of the fridge and drinks it on the sofa": two steps, one after the other). Cut only when
@@ -263,7 +257,8 @@ def _and_steps(piece: str, names: Sequence[str]) -> list[str]:
     (:func:`activity_kind`, read before any relation word: "picks the seat farthest from the
     coffee maker" points to none), the two differ, neither is ``idle`` (waiting while waving is
     one action), the side before names no posture ("sits on the couch and drinks" is drinking
-    seated: one step) and does more than go somewhere (:func:`moves_only`). Two characters "chat and watch TV together" at once: not cut."""
+    seated: one step) and does more than go somewhere or say how something is
+    (:mod:`agents.step_words`). Two characters "chat and watch TV together" at once: not cut."""
     if len(_mentioned(_leading_subject(piece, names), names)) > 1:
         return [piece]
     steps: list[str] = []
@@ -274,7 +269,8 @@ def _and_steps(piece: str, names: Sequence[str]) -> list[str]:
         left, right = piece[start : m.start()].strip(), piece[m.end() :].strip()
         before, after = activity_kind(before_relations(left)), activity_kind(before_relations(right))
         if (before is None or after is None or before == after or "idle" in (before, after) or posture(left)
-                or moves_only(left, names)):
+                or moves_only(left, subject := _leading_subject(left, names))
+                or states_only(left, subject, _lower(names))):
             continue
         steps.append(left)
         start = m.end()

@@ -64,6 +64,15 @@ def test_split_by_sentence_and_then_with_the_subject_carried_over(instruction: s
     # "goes through" is no going: two steps
     ("Ben goes through his emails on the laptop and drinks a coffee.",
      ["Ben goes through his emails on the laptop.", "Then Ben drinks a coffee."]),
+    # a clause that only says how something is, or has no verb, is the reason for the next step
+    ("Ava's glass is empty, and after a while it gets refilled at the fridge by Ava.",
+     ["Ava's glass is empty, and after a while it gets refilled at the fridge by Ava."]),
+    ("Cy, with a minute to spare. Turns the radio on.", ["Cy, with a minute to spare. Turns the radio on."]),
+    ("The TV is still on. Ben switches it off.", ["The TV is still on. Ben switches it off."]),
+    ("Ava is hungry and eats a sandwich.", ["Ava is hungry and eats a sandwich."]),
+    ("Ava joins Ben at his table. Then they chat.", ["Ava joins Ben at his table.", "Then they chat."]),
+    ("Ava makes a tea wherever tea is made. Then she drinks it on the couch.",
+     ["Ava makes a tea wherever tea is made.", "Then she drinks it on the couch."]),
     # a relation's landmark is no action: "farthest from the coffee maker" is where, not what
     ("Ben opens his laptop and picks the seat farthest from the coffee maker.",
      ["Ben opens his laptop and picks the seat farthest from the coffee maker."]),

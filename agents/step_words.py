@@ -1,0 +1,107 @@
+"""Which clauses of an instruction are steps of their own, from their words.
+
+An instruction is cut into parts (:mod:`agents.instruction_parts`): one part per step a
+character takes. Some clauses are no step: going somewhere is the way to what is done there
+("Rosa goes over to the corner and sits down there to read"), a clause that says how something
+is gives the reason for the next step ("Femi's bottle is empty, and it gets refilled"), and a
+phrase with no verb sets the scene ("Quinn, free for a moment. Switches the TV on."). The
+readers here say so; the splitter keeps such a clause with the step it belongs to.
+
+Every function takes the clause's text and its leading subject (the run of character names
+that opens it, "" when none: the caller knows the names). Word lists are closed classes of
+general English (verbs of going, forms of *be*, degree adverbs), no phrase of a case. Pure:
+no LLM, no I/O, no regular expression that backtracks.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+
+from agents.action_shortlist import CUES, posture, rank_action_labels
+from agents.relation_words import before_relations
+
+_WORD = re.compile(r"[A-Za-z]+")
+
+MOTION_VERBS = frozenset(str.split(
+    "go goes walk walks head heads come comes wander wanders stroll strolls move moves hurry hurries "
+    "rush rushes step steps return returns cross crosses pop pops nip nips amble ambles saunter saunters "
+    "drift drifts stride strides dash dashes"
+))
+"""Verbs of going somewhere."""
+_TOWARDS = frozenset(str.split("to into towards toward over across up down back along around round off out in"))
+_SKIPPED_BEFORE_VERB = frozenset(str.split("then first just now quickly slowly soon also he she they"))
+STATE_VERBS = frozenset(str.split("is are was were seem seems feel feels look looks remain remains stay stays"))
+"""Verbs that say how something is."""
+_DEGREE = frozenset(str.split("still now already quite very rather too not so a bit little"))
+_NOT_VERBS_IN_S = frozenset(str.split(
+    "is was has his hers its this as us yes less unless plus always perhaps afterwards towards upstairs downstairs "
+    "sometimes besides news series glass class dress chess bus"
+))
+"""Words ending in -s that are no verb of an action (closed-class words and a few nouns)."""
+
+
+@functools.lru_cache(maxsize=1024)
+def activity_kind(text: str) -> str | None:
+    """The action label the words of ``text`` point to most among every label the action
+    vocabulary knows (:data:`agents.action_shortlist.CUES`: "munch a sandwich by table_2" and
+    "tucks into her lunch" are both ``eat``), or None when they point to none."""
+    ranked = rank_action_labels(text, tuple(CUES))
+    return ranked[0].label if ranked else None
+
+
+def _words(text: str) -> list[str]:
+    return [w.lower() for w in _WORD.findall(text)]
+
+
+def moves_only(text: str, subject: str = "") -> bool:
+    """Whether ``text`` only takes its subject somewhere ("Rosa goes over to the corner", "he
+    makes his way to the bar"): its verb is a verb of going and a word of direction follows
+    ("goes through his emails" is no going)."""
+    words = _words(text[len(subject):])
+    while words and (words[0] in _SKIPPED_BEFORE_VERB or words[0].endswith("ly")):
+        words = words[1:]
+    if len(words) >= 3 and words[0] in ("make", "makes") and words[2] == "way":
+        return True
+    return len(words) >= 2 and words[0] in MOTION_VERBS and words[1] in _TOWARDS
+
+
+def has_verb(text: str, subject: str = "", names: frozenset[str] = frozenset()) -> bool:
+    """Whether ``text`` after its subject has a word that may be a verb: the word right after a
+    named subject ("Ava and Ben cook"; "Quinn, free ..." has none), or one ending in -s or -ed
+    (a plural noun counts too, which only keeps a clause as it is). ``names``: lower-case
+    character names, never verbs."""
+    rest = text[len(subject):]
+    if subject and rest[:1].isspace() and rest.lstrip()[:1].islower():
+        return True
+    return any(w not in names and w not in _NOT_VERBS_IN_S and len(w) > 2 and w.endswith(("s", "ed"))
+               for w in _words(rest))
+
+
+def states_only(text: str, subject: str = "", names: frozenset[str] = frozenset()) -> bool:
+    """Whether ``text`` only says how something is ("Femi's bottle is empty", "Ava is hungry",
+    "the TV is still on"): a form of *be* (or *seem*, *feel*, *look*, *remain*, *stay*), then a
+    word that is no *-ing* form, no verb before it ("Chidi waits on the side that is ..." acts)
+    and no action the words after it point to."""
+    tokens = [(m.group().lower(), m.start(), m.end()) for m in _WORD.finditer(text)]
+    for i, (word, start, _) in enumerate(tokens):
+        if word not in STATE_VERBS:
+            continue
+        k = i + 1
+        while k < len(tokens) and tokens[k][0] in _DEGREE:
+            k += 1
+        if k >= len(tokens) or tokens[k][0].endswith("ing"):
+            return False
+        before = text[:start]
+        return (not has_verb(before, subject if before.startswith(subject) else "", names)
+                and activity_kind(before_relations(text[tokens[k][2]:])) is None)
+    return False
+
+
+def no_action(text: str, subject: str = "", names: frozenset[str] = frozenset()) -> bool:
+    """Whether a clause states no step of its own: it only says how something is
+    (:func:`states_only`), or it has no verb and its words point to no action, no posture and
+    no going somewhere ("Quinn, free for a moment.")."""
+    return states_only(text, subject, names) or (
+        activity_kind(before_relations(text)) is None and posture(text) is None
+        and not moves_only(text, subject) and not has_verb(text, subject, names))
