@@ -24,6 +24,7 @@ from agents.shortlist import mentioned_labels
 from tools.place_relations import RelationKind
 
 RELATION_WORDS: tuple[tuple[tuple[str, ...], RelationKind], ...] = (
+    (("nowhere", "near"), "farthest"), (("not", "near"), "farthest"), (("well", "away"), "farthest"),
     (("nearest",), "nearest"), (("closest",), "nearest"), (("least", "distant"), "nearest"),
     (("shortest", "distance"), "nearest"), (("smallest", "distance"), "nearest"),
     (("farthest", "away"), "farthest"), (("furthest", "away"), "farthest"), (("far", "away"), "farthest"),
@@ -50,6 +51,8 @@ SPAN = 7
 """Words after a relation word that may name its landmark."""
 SUBJECT_SPAN = 2
 """Words before a relation word that may name what it describes ("the table beside ...")."""
+POINTING_BACK = frozenset({"it"})
+"""A landmark word that points back to the thing named before ("furthest from it")."""
 PAIR_JOINS = frozenset({"and", "to"})
 """Words joining the two things of ``between`` ("between X and Y", "halfway from X to Y")."""
 
@@ -148,7 +151,8 @@ def stated_relations(text: str, labels: Sequence[str], names: Sequence[str] = ()
         width, kind = hit
         start, j = i, i + width
         described = (j, j)
-        if j < len(tokens) and tokens[j][0].isalnum() and lower[j] not in LEADS and _name(tokens[j]) not in names:
+        if (j < len(tokens) and tokens[j][0].isalnum() and lower[j] not in LEADS and lower[j] not in POINTING_BACK
+                and _name(tokens[j]) not in names):
             # attributive ("the most distant desk"): the landmark, if any, comes after to / from
             k = j
             while k < len(tokens) and k < j + SPAN and tokens[k][0].isalnum() and lower[k] not in LANDMARK_OPENERS:
@@ -169,6 +173,14 @@ def stated_relations(text: str, labels: Sequence[str], names: Sequence[str] = ()
             j += 1
         refs: list[tuple[str, ...]] = []
         rest = span
+        lead = next((k for k, t in enumerate(span) if t.lower() not in LEADS), len(span))
+        if lead < len(span) and span[lead].lower() in POINTING_BACK and kind != "between":
+            # "the table furthest from it": the thing named last before the relation word
+            described_here = set(mentioned_labels(" ".join(tokens[max(0, start - SUBJECT_SPAN):start]), labels))
+            named = [n for n in mentioned_labels(" ".join(tokens[:start]), labels) if n not in described_here]
+            if named:
+                refs.append((named[-1],))
+                rest = span[lead + 1:]
         while rest and len(refs) < (2 if kind == "between" else 1):
             found = _first_thing(rest, labels, names)
             if found is None:

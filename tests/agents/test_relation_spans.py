@@ -79,3 +79,15 @@ def test_a_switch_with_one_direction_left_needs_no_direction_word() -> None:
     both = ["listen_to_music", "turn_on_record_player", "turn_off_record_player"]
     assert rank_action_labels("Jo wants silence and sees to the record player.", both)[0].label == "turn_off_record_player"
     assert rank_action_labels("Jo switches the record player on.", both)[0].label == "turn_on_record_player"
+
+
+def test_nowhere_near_is_far_and_it_is_the_thing_named_before() -> None:
+    """"nowhere near the lamp" keeps away from it; "the desk furthest from it" measures from the
+    thing named before (not from the desk the relation describes)."""
+    labels = ("lamp", "desk", "stool")
+    found = stated_relations("Ivo wants to be nowhere near the lamp, so he works at the desk furthest from it.",
+                             labels, ["Ivo"])
+    assert [(m.kind, m.references) for m in found] == [("farthest", (("lamp",),)), ("farthest", (("lamp",),))]
+    assert [(m.kind, m.references) for m in stated_relations("Ivo takes a stool and sits next to it.", labels)] == [
+        ("near", (("stool",),))]
+    assert stated_relations("Ivo waits near it.", labels) == []  # nothing named before: no relation
