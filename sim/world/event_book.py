@@ -56,6 +56,7 @@ from sim.world.phases import (
     available,
     transition_in_frames,
     transition_out_frames,
+    turn_heading,
 )
 
 EventStatus = Literal["ongoing", "looping", "completed", "failed"]
@@ -302,7 +303,7 @@ def take(c: CharacterState, a: Assignment, goal: StandTarget) -> None:
     c.assignment, c.goal_cell, c.target = a, goal.cell, goal
     c.action_done = False
     c.best_distance, c.stalled_frames = math.inf, 0
-    c.act_yaw, c.replans = None, 0
+    c.act_yaw, c.replans, c.seat_via = None, 0, None
 
 
 def _stop(w: EventWorld, c: CharacterState) -> None:
@@ -381,7 +382,7 @@ def act_yaw(w: EventWorld, c: CharacterState, a: Assignment, stand: dict[str, np
         seat = w.scene.by_name.get(a.seat)
         if seat is None:
             return None
-        return sitting_yaw(seat, w.scene.objects, seat_place(seat, a.target_xy, w.scene), a.facing_angle)
+        return sitting_yaw(seat, w.scene.objects, seat_place(seat, a.target_xy, w.scene), a.facing_angle, c.anchor_xy)
     if a.partners and action_spec(a.action).family == "partner":
         pts = [stand[p] if p in stand else w.characters[p].xy for p in a.partners if p in w.characters]
         yaw = heading_to_points(c.anchor_xy, np.asarray(pts, dtype=float))
@@ -400,15 +401,16 @@ def _begin_transition_in(w: EventWorld, c: CharacterState, yaw: float | None = N
     c.waiting = False
     c.turn_from = c.heading
     c.act_yaw = yaw
-    c.turn_frames, total = transition_in_frames(a, c.heading, w.config.fps, c.act_heading)
+    c.turn_frames, total = transition_in_frames(a, c.heading, w.config.fps, turn_heading(c))
     c.enter("transition_in", total)
     c.xy = c.anchor_xy.copy()
     c.walker = False
     if a.seat is not None:
         seat = w.scene.by_name[a.seat]
         c.seat_xy = np.asarray(seat_place(seat, a.target_xy, w.scene), dtype=float)
-        via = sit_via(seat, w.scene.objects, c.anchor_xy, c.seat_xy)
-        w.navigator.make_stationary(c.name, seat_discs(c.anchor_xy, c.seat_xy, via))
+        others = np.array([o.xy for o in w.characters.values() if o.name != c.name], dtype=float).reshape(-1, 2)
+        c.seat_via = sit_via(seat, w.scene.objects, c.anchor_xy, c.seat_xy, others)
+        w.navigator.make_stationary(c.name, seat_discs(c.anchor_xy, c.seat_xy, c.seat_via))
     else:
         w.navigator.make_stationary(c.name, [c.anchor_xy])
 

@@ -33,10 +33,10 @@ from sim.world.contacts import (
     sit_progress,
     stand_progress,
 )
-from sim.world.legroom import along_way, sit_via
+from sim.world.legroom import along_way
 from sim.world.motion_layer import BatchedMotionLayer, MotionLayer, MotionQuery, compose_poses
 from sim.world.navigation import WorldNavigator
-from sim.world.phases import CharacterState, phase_motion, smoothstep, wrap_angle
+from sim.world.phases import CharacterState, phase_motion, smoothstep, turn_heading, wrap_angle
 from sim.world.tracks import TrackBuffers
 
 OBJECT_REACH = 0.55  # metres from the standing root to the object acted on (motion target)
@@ -107,7 +107,7 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
         else:
             fut_xy = fut_heading = None
             moving = False
-            stationary_root(c, w.scene)
+            stationary_root(c)
         label, seated = phase_motion(c, moving)
         key = _database_key(label, seated)
         restart = key != c.motion_key or c.phase_frame == 0
@@ -170,34 +170,28 @@ def _step_motion(motion: MotionLayer, states: list[Any], queries: list[MotionQue
     return new_states, rots, pz, contacts
 
 
-def stationary_root(c: CharacterState, scene: Scene) -> None:
+def stationary_root(c: CharacterState) -> None:
     """Root xy / heading of a character that is not walking, from its phase and timer: a
     transition in turns the root about the pelvis (xy unchanged) to ``c.act_heading``, then a
-    sit-down moves it onto the seat (round ``scene``'s furniture: ``sim.world.legroom.sit_via``),
+    sit-down moves it onto the seat (by ``c.seat_via`` round furniture: ``sim.world.legroom``),
     and a stand-up back the same way."""
     a = c.assignment
     if c.phase == "transition_in" and a is not None:
+        turn_to = turn_heading(c)
         if c.phase_frame < c.turn_frames:
             u = smoothstep((c.phase_frame + 1) / c.turn_frames)
-            c.heading = wrap_angle(c.turn_from + u * wrap_angle(c.act_heading - c.turn_from))
+            c.heading = wrap_angle(c.turn_from + u * wrap_angle(turn_to - c.turn_from))
         else:
             c.heading = c.act_heading
             if a.seat is not None and c.seat_xy is not None:
                 u = smoothstep(sit_progress(c))
-                c.xy = along_way(c.anchor_xy, _via(c, scene), c.seat_xy, u)
+                c.xy = along_way(c.anchor_xy, c.seat_via, c.seat_xy, u)
+                if turn_to != c.act_heading:  # swivelling onto a seat with no back as it sits down
+                    c.heading = wrap_angle(turn_to + u * wrap_angle(c.act_heading - turn_to))
     elif c.phase == "transition_out" and c.seated and c.seat_xy is not None:
         u = smoothstep(stand_progress(c))
-        via = _via(c, scene)
+        via = c.seat_via
         c.xy = c.seat_xy + u * (c.anchor_xy - c.seat_xy) if via is None else along_way(c.anchor_xy, via, c.seat_xy, 1.0 - u)
-
-
-def _via(c: CharacterState, scene: Scene) -> np.ndarray | None:
-    """The corner of ``c``'s way onto its seat (None: straight)."""
-    a = c.assignment
-    seat = None if a is None or a.seat is None else scene.by_name.get(a.seat)
-    if seat is None or c.seat_xy is None:
-        return None
-    return sit_via(seat, scene.objects, c.anchor_xy, c.seat_xy)
 
 
 def motion_target(w: MotionWorld, c: CharacterState) -> tuple[np.ndarray | None, float | None, float | None]:

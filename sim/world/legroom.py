@@ -9,8 +9,9 @@ benchmark's furniture measure reads scene boxes: ``has_legroom``):
 - **which way** (``sitting_yaw``): a seat with no back (its box ends within ``BACKLESS_M`` of its
   seat surface: a stool, a bench) is sat on facing the planner's way when the room in front of it
   is clear; when another object's solid box takes that room (a stool 5 cm from a bar counter's
-  solid face), the body turns by the smallest of ``TURNS`` whose room is clear (left before right),
-  else the one whose room is least taken. A seat with a back is always sat on facing its front;
+  solid face), the body turns by one of ``TURNS`` whose room is clear: the one that backs it onto
+  the seat from where it stood (else the smallest, left before right), else the one whose room
+  is least taken. A seat with a back is always sat on facing its front;
 - **feet out of other boxes** (``feet_clear_of``): an ankle on the floor inside, or closer than
   ``FOOT_CLEAR_M`` to, the footprint of floor-standing furniture other than the seat (a foot
   under the couch beside an armchair) moves straight out of it, by the least distance;
@@ -19,7 +20,9 @@ benchmark's furniture measure reads scene boxes: ``has_legroom``):
   within ``PASS_CLEAR_M`` of a box solid at the lowering body's height (a chair tucked under a
   table sat on from beside the table's end: the hips cross the table's top), it goes by a corner
   instead: first across or along the seat's facing, then the other way (the first of the two
-  corners whose legs are both clear), so the body goes round the box's corner.
+  corners whose legs are both clear and pass no nearer to another body than the straight way),
+  so the body goes round the box's corner. The corner is chosen once, when the body starts to
+  sit down (``CharacterState.seat_via``), and kept until it has stood up.
 
 Pure geometry of the scene's boxes; deterministic. Distances metres, angles radians.
 """
@@ -57,6 +60,8 @@ CLEAR_M = 0.01
 PASS_CLEAR_M = 0.15
 """Least distance from the way onto a seat to a box solid at the lowering body's height (hips and
 thighs), metres."""
+BODY_NEAR_M = 1.0
+"""A corner of the way onto a seat that stays this far from every other body is never too near one."""
 PASS_HEIGHT_M = 0.45
 """How far above the seat surface the lowering body's hips and thighs reach, metres."""
 FOOT_CLEAR_M = 0.08
@@ -118,19 +123,28 @@ def legroom_taken(seat: SceneObject, objects: Sequence[SceneObject], place: Sequ
 
 
 def sitting_yaw(seat: SceneObject, objects: Sequence[SceneObject], place: Sequence[float] | NDArray[np.float64],
-                planned: float) -> float | None:
+                planned: float, stood: Sequence[float] | NDArray[np.float64] | None = None) -> float | None:
     """The yaw to sit on ``seat`` at ``place`` with, when it differs from the ``planned`` one (see
-    the module docstring); None: sit as planned."""
+    the module docstring); None: sit as planned. Given where the body ``stood`` before sitting
+    down, of the turns whose room is clear the one nearest to facing away from the seat towards
+    that point is taken: the body backs onto the seat, its legs ending where it stood."""
     if not is_backless(seat) or legroom_taken(seat, objects, place, planned) < CLEAR_M:
         return None
     best, best_taken = planned, math.inf
+    clear: list[float] = []
     for turn in TURNS[1:]:
         yaw = math.atan2(math.sin(planned + turn), math.cos(planned + turn))
         taken = legroom_taken(seat, objects, place, yaw)
         if taken < CLEAR_M:
-            return yaw
-        if taken < best_taken - 1e-9:
+            clear.append(yaw)
+        elif taken < best_taken - 1e-9:
             best, best_taken = yaw, taken
+    if clear:
+        away = np.asarray(stood, dtype=np.float64) - np.asarray(place, dtype=np.float64) if stood is not None else None
+        if away is None or float(np.linalg.norm(away)) < 1e-6:
+            return clear[0]
+        back = math.atan2(float(away[1]), float(away[0]))
+        return min(clear, key=lambda y: abs(math.remainder(y - back, 2.0 * math.pi)))  # first of equals: TURNS order
     return best if best_taken < legroom_taken(seat, objects, place, planned) else None
 
 
@@ -180,17 +194,33 @@ def _blocked(seat: SceneObject, objects: Sequence[SceneObject], a: NDArray[np.fl
     return deepest
 
 
+def _nearest_body(bodies: NDArray[np.float64], a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """Least distance (m) from segment ``a``-``b`` to the points ``bodies`` (K, 2) (inf: none)."""
+    if len(bodies) == 0:
+        return math.inf
+    ab = b - a
+    t = np.clip((bodies - a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+    return float(np.min(np.linalg.norm(bodies - (a + t[:, None] * ab), axis=1)))
+
+
 def sit_via(seat: SceneObject, objects: Sequence[SceneObject], anchor: Sequence[float] | NDArray[np.float64],
-            place: Sequence[float] | NDArray[np.float64]) -> NDArray[np.float64] | None:
+            place: Sequence[float] | NDArray[np.float64],
+            bodies: Sequence[Sequence[float]] | NDArray[np.float64] = ()) -> NDArray[np.float64] | None:
     """The corner (xy) the way from ``anchor`` (where the body stood) onto ``place`` on ``seat``
-    goes by, or None: straight (see the module docstring)."""
+    goes by, or None: straight (see the module docstring). A corner that passes nearer to one of
+    the other ``bodies`` (xy points) than the straight way does is not taken."""
     a, b = np.asarray(anchor, dtype=np.float64), np.asarray(place, dtype=np.float64)
     if _blocked(seat, objects, a, b) <= 0.0:
         return None
+    others = np.asarray(bodies, dtype=np.float64).reshape(-1, 2)
+    straight = _nearest_body(others, a, b)
     f = np.asarray(seat.facing, dtype=np.float64)
     for via in (a + f * float((b - a) @ f), b + f * float((a - b) @ f)):
-        if _blocked(seat, objects, a, via) <= 0.0 and _blocked(seat, objects, via, b) <= 0.0:
-            return np.asarray(via)
+        if _blocked(seat, objects, a, via) > 0.0 or _blocked(seat, objects, via, b) > 0.0:
+            continue
+        if min(_nearest_body(others, a, via), _nearest_body(others, via, b)) < min(straight, BODY_NEAR_M):
+            continue
+        return np.asarray(via)
     return None
 
 

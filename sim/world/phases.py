@@ -121,6 +121,8 @@ class CharacterState:
     motion_key: str = "idle"
     act_yaw: float | None = None
     replans: int = 0
+    seat_via: np.ndarray | None = None
+    """The corner of the way onto the seat and back (``sim.world.legroom.sit_via``; None: straight)."""
 
     def enter(self, phase: Phase, length: int = INFINITE) -> None:
         """Switch to ``phase`` for ``length`` frames (``INFINITE``: open-ended)."""
@@ -163,6 +165,16 @@ def turn_frames(from_heading: float, to_heading: float, fps: int = FPS) -> int:
 def sit_heading(assignment: Assignment) -> float:
     """Heading while sitting: the assignment's facing (the seat's front)."""
     return assignment.facing_angle
+
+
+def turn_heading(c: CharacterState) -> float:
+    """The heading ``c`` turns to on the spot before it acts: ``act_heading``, but the planner's
+    facing for a seat (a body sitting turned on a seat with no back, ``sim.world.legroom``,
+    swivels the rest of the way while it sits down, so the transition takes as long as planned)."""
+    a = c.assignment
+    if a is not None and a.seat is not None:
+        return a.facing_angle
+    return c.act_heading
 
 
 def transition_in_frames(assignment: Assignment, heading: float, fps: int = FPS,

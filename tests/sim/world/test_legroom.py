@@ -57,6 +57,8 @@ def test_a_stool_against_a_counter_is_sat_on_turned_and_a_chair_or_open_stool_as
     yaw = sitting_yaw(STOOL, (COUNTER, STOOL), place, planned)
     assert yaw is not None and legroom_taken(STOOL, (COUNTER, STOOL), place, yaw) == 0.0
     assert abs(math.remainder(yaw - planned, 2 * math.pi)) == pytest.approx(math.pi / 2)  # the least turn that clears
+    for stood, away in (((1.9, 2.4), math.pi), ((3.1, 2.4), 0.0), ((2.5, 1.8), -math.pi / 2)):  # backs onto it
+        assert sitting_yaw(STOOL, (COUNTER, STOOL), place, planned, stood) == pytest.approx(away)
     assert sitting_yaw(STOOL, (STOOL,), place, planned) is None  # nothing in front: as planned
     chair = _box("chair_1", "chair", (2.5, 2.4, 0.45), (0.45, 0.45, 0.9), seat=0.45)  # a back: never turned
     assert not is_backless(chair) and sitting_yaw(chair, (COUNTER, chair), chair.seat_point(), planned) is None
@@ -109,3 +111,4 @@ def test_the_way_onto_a_chair_tucked_under_a_table_goes_round_the_table_s_corner
         p = along_way(anchor, via, place, float(u))
         assert np.max(np.abs(table.to_local(p[None])[0]) - np.array([0.8, 0.45])) > 0.1
     assert sit_via(chair, (table, chair), np.array([1.8, 1.2]), place) is None  # from in front: straight
+    assert sit_via(chair, (table, chair), anchor, place, [(1.4, 1.75)]) is None  # not past someone in the way
