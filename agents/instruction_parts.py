@@ -62,7 +62,7 @@ from agents.action_shortlist import posture
 from agents.messages import HistoryEntry
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.relation_words import before_relations
-from agents.step_words import activity_kind, moves_only, no_action, states_only
+from agents.step_words import activity_kind, intends_only, moves_only, no_action, states_only
 
 PartState = Literal["done", "ongoing", "failed", "next", ""]
 
@@ -198,19 +198,24 @@ def _lower(names: Sequence[str]) -> frozenset[str]:
 
 
 def _with_reasons_joined(parts: list[InstructionPart], names: Sequence[str], lib: PromptLibrary) -> list[InstructionPart]:
-    """``parts`` with each part that states no step of its own (:func:`agents.step_words.no_action`: "Quinn, free
-    for a moment.", "Femi's bottle is empty.") joined to the part after it, when that one's
-    actors are its own or it names none ("Quinn, free for a moment. Switches the telly on." is
-    one step: switching the TV on)."""
+    """``parts`` with each part that states no step of its own (:func:`agents.step_words.no_action`:
+    "Quinn, free for a moment.", "Femi's bottle is empty.") or, when the next part is no "then"
+    step, only what its subject wants (:func:`agents.step_words.intends_only`: "Noor wants to
+    read. She takes the chair furthest from the fridge.") joined to the part after it, when that
+    one's actors are its own or either names none ("Quinn, free for a moment. Switches the telly
+    on." is one step: switching the TV on)."""
     then = lib.render_text("story/instruction_then.md", part="\0").split("\0")[0]
     out: list[InstructionPart] = []
     carried = ""
     for k, part in enumerate(parts):
         own = part.text.removeprefix(then)
-        text = f"{carried} {own[:1].upper()}{own[1:]}" if carried else part.text
+        own = own[:1].upper() + own[1:] if carried.endswith((".", "!", "?")) else own
+        text = f"{carried} {own}" if carried else part.text
         nxt = parts[k + 1] if k + 1 < len(parts) else None
-        if nxt is not None and no_action(text, _leading_subject(text, names), _lower(names)) and (
-                not part.actors or not nxt.actors or set(nxt.actors) <= set(part.actors)):
+        subject = _leading_subject(text, names)
+        joins = no_action(text, subject, _lower(names)) or (
+            nxt is not None and intends_only(text, subject) and not nxt.text.startswith(then))
+        if nxt is not None and joins and (not part.actors or not nxt.actors or set(nxt.actors) <= set(part.actors)):
             carried = text
             continue
         carried = ""

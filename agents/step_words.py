@@ -98,6 +98,22 @@ def states_only(text: str, subject: str = "", names: frozenset[str] = frozenset(
     return False
 
 
+INTENT_VERBS = frozenset(str.split(
+    "want wants wanted wish wishes fancy fancies need needs hope hopes plan plans decide decides intend intends"
+))
+"""Verbs of wanting or meaning to do something."""
+
+
+def intends_only(text: str, subject: str = "") -> bool:
+    """Whether ``text`` says what its subject wants or means to do ("Noor wants to read a
+    book", "he decides he needs a coffee"): its verb is one of wanting. The sentence after it
+    ("She takes the chair furthest from the fridge.") is where and how it is done."""
+    words = _words(text[len(subject):])
+    while words and (words[0] in _SKIPPED_BEFORE_VERB or words[0].endswith("ly")):
+        words = words[1:]
+    return bool(words) and (words[0] in INTENT_VERBS or words[:2] == ["would", "like"])
+
+
 def no_action(text: str, subject: str = "", names: frozenset[str] = frozenset()) -> bool:
     """Whether a clause states no step of its own: it only says how something is
     (:func:`states_only`), or it has no verb and its words point to no action, no posture and

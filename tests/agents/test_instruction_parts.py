@@ -71,6 +71,11 @@ def test_split_by_sentence_and_then_with_the_subject_carried_over(instruction: s
     ("The TV is still on. Ben switches it off.", ["The TV is still on. Ben switches it off."]),
     ("Ava is hungry and eats a sandwich.", ["Ava is hungry and eats a sandwich."]),
     ("Ava joins Ben at his table. Then they chat.", ["Ava joins Ben at his table.", "Then they chat."]),
+    # what someone wants, then how they go about it: one step (not when "then" makes it a sequence)
+    ("Cy wants to read a comic. He takes the armchair farthest from the TV.",
+     ["Cy wants to read a comic. He takes the armchair farthest from the TV."]),
+    ("Cy wants a coffee. Then he sits on the couch.", ["Cy wants a coffee.", "Then he sits on the couch."]),
+    ("Cy wants a coffee. Ben makes one for him.", ["Cy wants a coffee.", "Ben makes one for him."]),
     ("Ava makes a tea wherever tea is made. Then she drinks it on the couch.",
      ["Ava makes a tea wherever tea is made.", "Then she drinks it on the couch."]),
     # a relation's landmark is no action: "farthest from the coffee maker" is where, not what
