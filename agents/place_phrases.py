@@ -11,7 +11,8 @@ The readers of an event's words (:mod:`agents.shortlist`, :mod:`agents.action_sh
   X`` / ``beside X`` (so X reads as a landmark, not as the place itself: waiting "on the bench's
   right-hand side" is not sitting on the bench); X is a thing ("the wine rack") or a person's
   name ("takes the seat at Agnes's side" is the seat beside Agnes);
-- ``its [own] left|right[-hand] [side]`` becomes ``to the left of it``;
+- ``its [own] left|right[-hand] [side]`` becomes ``to the left of it``; ``at the back of X``
+  (``rear``) becomes ``behind X``, ``at the front of X`` ``in front of X``;
 - a remark in parentheses is left out (a gloss restating the place another way);
 - "right" as an intensifier ("right next to", "right behind") is left out;
 - left and right are the thing's own (the spatial API's areas are); when the words say they are
@@ -188,9 +189,22 @@ def _midpoints(text: str) -> str:
     return _apply(text, edits)
 
 
+_SIDE_OF = re.compile(
+    r"\b(?:at|to|round|around|by) the (back|rear|front) of\b"
+    r"(?! (?:the |this |that )?(?:room|kitchen|office|restaurant|house|hall|lounge|cafe|building|area|space|corner|queue|line)\b)",
+    re.IGNORECASE,
+)
+"""A side of a thing ("at the back of the settee"), not the back of a room or a queue."""
+
+
+def _sides_of(text: str) -> str:
+    """"at the back of the settee" is behind it, "at the front of the stage" in front of it."""
+    return _SIDE_OF.sub(lambda m: "in front of" if m.group(1).lower() == "front" else "behind", text)
+
+
 def plain_places(text: str) -> str:
     """``text`` with the place phrases of the module docstring rewritten (names keep their case)."""
-    out = _without_intensifier(_without_parentheses(text.replace("\u2019", "'")))
+    out = _sides_of(_without_intensifier(_without_parentheses(text.replace("\u2019", "'"))))
     if any(phrase in " ".join(t.low for t in _tokens(out)) for phrase in VIEWER_FRAME):
         out = _swap_sides(out)
     return _midpoints(_rewrite_sides(out))

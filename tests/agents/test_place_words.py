@@ -85,3 +85,12 @@ def test_a_person_s_side_is_beside_the_person(text: str, plain: str) -> None:
 
 def test_taking_the_seat_at_someone_s_side_is_sitting() -> None:
     assert posture(plain_places("Kim takes the seat at Bo's side to have a tea.")) == "sit"
+
+
+@pytest.mark.parametrize(("text", "plain"), [
+    ("Kim waits at the back of the sofa.", "Kim waits behind the sofa."),
+    ("Kim stands at the front of the desk.", "Kim stands in front of the desk."),
+    ("Kim sits at the back of the room.", "Kim sits at the back of the room."),  # a room has no back side to stand at
+])
+def test_the_back_of_a_thing_is_behind_it(text: str, plain: str) -> None:
+    assert plain_places(text) == plain
