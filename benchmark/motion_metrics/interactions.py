@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from benchmark.motion_metrics.bodies import Box, seat_surface, signed_distance
+from benchmark.motion_metrics.bodies import Box, signed_distance
 from benchmark.motion_metrics.gait import label_runs
 from sim.body.skeleton import JOINT_INDEX
 from sim.motion.action_labels import SEATED_SUFFIX, action_spec
@@ -45,6 +45,7 @@ from sim.world.contacts import (
     MOUTH_GESTURES,
 )
 from sim.world.facing import needs_reach, object_named_by
+from sim.world.legroom import seat_surface
 
 REACH_WINDOW_S = 4.0
 HAND_TARGET_M = 0.15

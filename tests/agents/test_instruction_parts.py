@@ -5,7 +5,6 @@ from __future__ import annotations
 import pytest
 
 from agents.instruction_parts import (
-    activity_kind,
     instruction_progress,
     part_states,
     served_characters,
@@ -15,6 +14,7 @@ from agents.llm_port import LLMRequest, LLMResponse
 from agents.messages import CharacterStatus, EventState, HistoryEntry
 from agents.narrator import NarratorInput, narrate, narrator_request
 from agents.prompt_templates import PromptLibrary
+from agents.step_words import activity_kind
 
 COFFEE = "Ava makes coffee, then sits on the couch and drinks it."
 WITH_BEN = "Ava makes coffee, then sits on the couch next to Ben and drinks it."

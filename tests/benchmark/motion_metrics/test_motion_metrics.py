@@ -10,7 +10,6 @@ import pytest
 
 from benchmark.motion_metrics.bodies import (
     SEAT_SINK_M,
-    TABLE_TOP_M,
     Box,
     body_overlap,
     crowd_overlaps,
@@ -47,6 +46,7 @@ from sim.body.skeleton import (
     heading_to_root,
 )
 from sim.scene.model import Scene, SceneObject, Vec2, Vec3
+from sim.world.legroom import TABLE_TOP_M
 
 
 def rest_joints(frames: int = 1, xy: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
