@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,26 +23,12 @@ from sim.body.skeleton import NUM_JOINTS, heading_to_root
 from sim.scene.bundled import load_bundled_scene
 from sim.scene.files import save_scene_json
 from sim.world.track_chunks import MAX_RECORD_BYTES, MOTION_FOLDER, chunk_path, encode_record
+from tests.support.story_event_stub import Event
 
 NAMES = ("Ava", "Ben")
 WINDOW = 30
 
 
-@dataclass
-class Event:
-    """What ``StoryStream.event`` reads."""
-
-    index: int
-    event_id: str
-    characters: tuple[str, ...]
-    activity: str
-    requested_frame: int
-    applied_frame: int
-    state: str = "ongoing"
-    finished_frame: int | None = None
-    failure: str | None = None
-    text: str = ""
-    narration: str | None = None
 
 
 def _record(k: int, start: int, frames: int) -> bytes:

@@ -18,7 +18,6 @@ import re
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -40,27 +39,13 @@ from sim.body.skeleton import NUM_JOINTS, heading_to_root
 from sim.scene.bundled import load_bundled_scene
 from sim.scene.files import save_scene_json
 from sim.world.track_chunks import MOTION_FOLDER, ChunkStore
+from tests.support.story_event_stub import Event
 from tests.support.story_planner import interact_program
 
 NAMES = ("Ava", "Ben")
 WINDOW = 30  # frames per chunk record in the unit tests
 
 
-@dataclass
-class Event:
-    """What ``StoryStream.event`` reads (the runtime's ``StoryEvent`` has these attributes)."""
-
-    index: int
-    event_id: str
-    characters: tuple[str, ...]
-    activity: str
-    requested_frame: int
-    applied_frame: int
-    state: str = "ongoing"
-    finished_frame: int | None = None
-    failure: str | None = None
-    text: str = ""
-    narration: str | None = None
 
 
 def _start(frame: int = 0) -> StreamStart:
