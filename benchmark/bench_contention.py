@@ -37,6 +37,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from orchestrator.child_process import stop_child
+
 ROOT = Path(__file__).resolve().parents[1]
 CLI = "import sys; from orchestrator.cli.app import app; app(sys.argv[1:])"
 INSTRUCTION = "Ava makes coffee, then sits on the couch and drinks it."
@@ -74,15 +76,6 @@ def start_busy_core() -> tuple[subprocess.Popen[bytes], int]:
     proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
     os.sched_setaffinity(proc.pid, {core})
     return proc, core
-
-
-def stop(proc: subprocess.Popen[bytes]) -> None:
-    proc.terminate()
-    try:
-        proc.wait(timeout=5)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
 
 
 def judge(out: Path) -> dict[str, tuple[str, bool, str]]:
@@ -147,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             busy = run_story(f"one core busy (core {core}, pid {busy_proc.pid})", Path(tmp) / "busy", env)
         finally:
-            stop(busy_proc)
+            stop_child(busy_proc, grace_s=5)
         print("\n".join(describe(busy)), flush=True)
         if args.keep is not None:
             for name in ("quiet", "busy"):

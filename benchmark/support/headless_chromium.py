@@ -20,6 +20,8 @@ from typing import Any
 
 from websockets.sync.client import ClientConnection, connect
 
+from orchestrator.child_process import stop_child
+
 FLAGS = (
     "--headless=new", "--use-gl=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox",
     "--disable-gpu", "--disable-background-networking", "--disable-component-update",
@@ -68,12 +70,7 @@ class Chromium:
     def close(self) -> None:
         if getattr(self, "ws", None) is not None:
             self.ws.close()
-        self.proc.terminate()
-        try:
-            self.proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+        stop_child(self.proc, grace_s=10)
 
     def call(self, method: str, **params: Any) -> dict[str, Any]:
         """One DevTools command; returns its result (events in between are dropped)."""

@@ -25,6 +25,7 @@ import threading
 from pathlib import Path
 from typing import IO
 
+from orchestrator.child_process import stop_child
 from orchestrator.terminal import say
 from orchestrator.viewer.access import is_loopback
 
@@ -55,12 +56,7 @@ class ViewerProcess:
 
     def stop(self) -> None:
         if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+            stop_child(self.proc, grace_s=10)
 
 
 def spawn_viewer(
