@@ -1,63 +1,26 @@
 """Text from outside, made safe to show: one helper per kind of printer.
 
-Names, labels, activities and error messages come from a model, an event program or a file
-someone shared, so they are data, never formatting: ``plain`` replaces every character of the
-Unicode categories Cc (controls: C0, DEL, C1, the terminal escape sequences), Cf (format:
-bidirectional overrides and isolates, U+061C, zero-width characters, U+2060, the BOM), Zl and
-Zp (U+2028, U+2029) and every lone surrogate (Cs) with a visible escape (``\\xNN``,
-``\\uNNNN`` or ``\\UNNNNNNNN``), chosen by ``unicodedata.category``, not a hand list. The one
-exception is ``keep_newlines``, for multi-line messages (error feedback): newline and tab stay.
-Used for terminal lines, log lines, the viewer's 3D labels and buttons, which draw text
-literally; ``one_line`` first joins a message's lines with spaces, for the ``error:`` line a
-command ends with (one line, whatever the message quoted); ``markup`` additionally escapes rich
-markup (``[red]``, ``[/]``) for text printed through rich; ``markdown`` additionally escapes
-every markdown and HTML special character, for the viewer's panel (viser renders its markdown
-with raw HTML and no sanitizing).
+``plain`` and ``one_line`` live in :mod:`sim.visible_text` (the one home of the escaping, low
+enough that ``sim.export`` draws names with it) and are re-exported here; see that module for
+what they escape. Used for terminal lines, log lines, the viewer's 3D labels and buttons, which
+draw text literally. This module adds the escaping of two renderers: ``markup`` additionally
+escapes rich markup (``[red]``, ``[/]``) for text printed through rich; ``markdown``
+additionally escapes every markdown and HTML special character, for the viewer's panel (viser
+renders its markdown with raw HTML and no sanitizing).
 
-Guarantee: the result holds no character of those categories (but newline and tab with
-``keep_newlines``; ``one_line``'s holds no line break at all), it encodes to UTF-8 (no lone surrogate is left), and through rich, or as
-markdown, it renders as the literal text.
+Guarantee: the result holds no control, format, separator or surrogate character (as
+``plain``'s), and through rich, or as markdown, it renders as the literal text.
 """
 
 from __future__ import annotations
 
 import re
-import unicodedata
 
 from rich.markup import escape
 
-UNSAFE_CATEGORIES = frozenset({"Cc", "Cf", "Zl", "Zp", "Cs"})
-"""Unicode categories never shown raw: controls, format characters, line and paragraph
-separators, surrogates."""
+from sim.visible_text import one_line, plain
 
-_LINE_BREAKS = frozenset("\n\t")
-
-
-def _visible(char: str) -> str:
-    code = ord(char)
-    if code < 0x100:
-        return f"\\x{code:02x}"
-    return f"\\u{code:04x}" if code < 0x10000 else f"\\U{code:08x}"
-
-
-def plain(text: object, *, keep_newlines: bool = False) -> str:
-    """``str(text)`` with every control, format, separator and surrogate character shown as an
-    escape (newlines and tabs too, unless ``keep_newlines``: for multi-line messages such as
-    error feedback)."""
-    text = str(text)
-    if text.isprintable():  # fast path: no Cc, Cf, Cs, Zl, Zp (nor Co, Cn, Zs but the space)
-        return text
-    kept = _LINE_BREAKS if keep_newlines else frozenset()
-    return "".join(
-        _visible(c) if c not in kept and unicodedata.category(c) in UNSAFE_CATEGORIES else c
-        for c in text
-    )
-
-
-def one_line(text: object) -> str:
-    """``plain(text)`` on one line: its lines (split at every line break Python knows, U+2028 and
-    U+2029 included) stripped and joined with single spaces, for an ``error:`` line."""
-    return plain(" ".join(part.strip() for part in str(text).splitlines() if part.strip()))
+__all__ = ["markdown", "markup", "one_line", "plain"]
 
 
 def markup(text: object) -> str:

@@ -20,6 +20,12 @@ True when cell (i, j) is walkable, ``i`` along +x, ``origin`` the corner of cell
 list or a mapping from character name to polyline so the colours match), ``title``,
 ``captions`` (lines of text in the top-left corner, e.g. the events under way), ``show_names``.
 Coordinates in metres, x to the right, y up.
+
+Every text drawn (object and character names, labels, captions, the title) comes from a scene
+file, a model or an event program, so it is data: it is drawn through
+``sim.visible_text.plain`` (control, format, separator and surrogate characters shown as
+escapes; a character's name and label, and the caption lines, keep the line breaks this module
+puts between them) and with ``parse_math=False`` (``$`` is text, not mathtext).
 """
 
 from __future__ import annotations
@@ -44,6 +50,7 @@ from numpy.typing import NDArray
 
 from sim.no_follow_writes import write_file
 from sim.scene.model import Scene, SceneObject
+from sim.visible_text import plain
 
 BODY_RADIUS = 0.25  # metres: radius of a character's disc in the picture
 _FLOOR_COLOUR = "#4a6fa5"
@@ -106,7 +113,7 @@ def _draw_static(
     ax.set_ylabel("y (m)", fontsize=7)
     ax.tick_params(labelsize=6)
     if title:
-        fig.suptitle(title, fontsize=9, parse_math=False)
+        fig.suptitle(plain(title), fontsize=9, parse_math=False)
 
 
 def _draw_blocked(
@@ -204,7 +211,7 @@ def _draw_name(ax: Axes, obj: SceneObject, on_floor: bool, carried: Sequence[Sce
     ax.text(
         name_xy[0],
         name_xy[1],
-        obj.name,
+        plain(obj.name),
         parse_math=False,  # names are data: '$\\bar$' is text, not mathtext
         fontsize=5.5,
         ha="center",
@@ -212,6 +219,16 @@ def _draw_name(ax: Axes, obj: SceneObject, on_floor: bool, carried: Sequence[Sce
         zorder=6,
         bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.6},
     )
+
+
+def _marker_text(marker: CharacterMarker) -> str:
+    """A character's name, and its label on a second line: each escaped (one line each)."""
+    return plain(marker.name) if not marker.label else f"{plain(marker.name)}\n{plain(marker.label)}"
+
+
+def _caption_text(captions: Sequence[str]) -> str:
+    """The caption lines, each escaped (one line each), one under the other."""
+    return "\n".join(plain(line) for line in captions)
 
 
 def _draw_moving(
@@ -255,11 +272,10 @@ def _draw_moving(
                     arrowprops={"arrowstyle": "-|>", "color": "black", "lw": 1.0},
                     zorder=9,
                 )
-        text = marker.name if not marker.label else f"{marker.name}\n{marker.label}"
         ax.text(
             px,
             py - BODY_RADIUS - 0.05,
-            text,
+            _marker_text(marker),
             parse_math=False,
             fontsize=6,
             ha="center",
@@ -272,7 +288,7 @@ def _draw_moving(
         ax.text(
             0.01,
             0.99,
-            "\n".join(captions),
+            _caption_text(captions),
             parse_math=False,
             transform=ax.transAxes,
             fontsize=7,
@@ -427,9 +443,9 @@ class TopdownAnimation:
             arrow.set_position((px, py))
             label = next(texts)
             label.set_position((px, py - BODY_RADIUS - 0.05))
-            label.set_text(marker.name if not marker.label else f"{marker.name}\n{marker.label}")
+            label.set_text(_marker_text(marker))
         if captions:
-            next(texts).set_text("\n".join(captions))
+            next(texts).set_text(_caption_text(captions))
         return True
 
 
