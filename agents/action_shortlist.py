@@ -24,9 +24,11 @@ import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+from agents.english_words import verb_lemmas
 from agents.shortlist import SYNONYMS, mentioned_labels
 
 _TOKEN = re.compile(r"[a-z0-9]+|[,.;:!?]")
+_WORD = re.compile(r"[A-Za-z]+")
 _SYNONYMS = {
     **SYNONYMS,  # the object synonyms the object shortlist reads too
     "whiteboard": "white board", "cellphone": "phone", "mobile": "phone", "pc": "computer", "cupboard": "cabinet",
@@ -73,9 +75,10 @@ CUES: dict[str, tuple[tuple[str, int], ...]] = {
     "handshake": (("shake hand", 4), ("handshake", 4), ("shakes hand", 4), ("introduce", 1), ("deal", 1)),
     "hug": (("hug", 4), ("embrace", 4), ("cuddle", 3)),
     "dance": (("danc", 4), ("waltz", 3), ("groove", 2), ("boogie", 3), ("tango", 3)),
-    "drink": (("drink", 3), ("sip", 3), ("thirst", 1), ("coffee", 1), ("tea", 1), ("juice", 1), ("beer", 1), ("wine", 1),
+    "drink": (("drink", 3), ("sip", 3), ("gulp", 3), ("slurp", 3), ("swig", 3), ("quaff", 3), ("thirst", 1), ("coffee", 1), ("tea", 1), ("juice", 1), ("beer", 1), ("wine", 1),
               ("mug", 1), ("glass of", 1), ("cup of", 1), ("cocktail", 1), ("soda", 1)),
-    "eat": (("eat", 3), ("meal", 2), ("breakfast", 2), ("lunch", 2), ("dinner", 2), ("snack", 2), ("dine", 2),
+    "eat": (("eat", 3), ("nibble", 3), ("munch", 3), ("chew", 2), ("devour", 3), ("gobble", 3), ("feast", 2),
+            ("tuck in", 3), ("meal", 2), ("breakfast", 2), ("lunch", 2), ("dinner", 2), ("snack", 2), ("dine", 2),
             ("supper", 2), ("bite", 1), ("sandwich", 1), ("toast", 1), ("food", 1), ("dessert", 2),
             ("bowl", 1), ("cereal", 2), ("fork", 1), ("spoon", 1)),
     "use_smartphone": (("phone", 3), ("text", 2), ("scroll", 2), ("message", 2), ("call", 1), ("selfie", 3),
@@ -130,7 +133,8 @@ CUES: dict[str, tuple[tuple[str, int], ...]] = {
                    ("carry", 1), ("deliver", 1)),
     "serve_drink": (("serve", 2), ("bring", 1), ("drink", 1), ("carry", 1), ("deliver", 1), ("tray", 1)),
     "take_order": (("take the order", 5), ("take order", 5), ("takes the order", 5), ("taking the order", 5),
-                   ("note down", 3), ("write down", 3), ("what they want", 3), ("order", 1)),
+                   ("note down", 3), ("write down", 3), ("jot down", 3), ("what they want", 3),
+                   ("what they would like", 3), ("ask what", 2), ("order", 1)),
     "order_food": (("order food", 5), ("order a meal", 5), ("order", 2), ("ask for", 2), ("food", 1), ("meal", 1), ("dish", 1),
                    ("pizza", 1), ("salad", 1), ("soup", 1), ("burger", 1), ("pasta", 1)),
     "order_drink": (("order a drink", 5), ("order", 2), ("ask for", 2), ("drink", 1), ("coffee", 1), ("beer", 1), ("wine", 1),
@@ -195,6 +199,8 @@ def _word_matches(cue: str, word: str) -> bool:
         return True
     if not word[0].isalnum() or word in PERSON_NOUNS:
         return False
+    if cue in verb_lemmas(word):  # a form the endings below miss: "carries" is carry, "ate" is eat
+        return True
     if len(cue) <= 3:  # short stems only inflect: "sip" -> "sipping", not "tab" -> "table"
         return word in {cue + "s", cue + "es", cue + "ed", cue + "ing", cue + cue[-1] + "ing", cue + cue[-1] + "ed"}
     return word.startswith(cue) and len(word) - len(cue) <= 3
@@ -325,8 +331,47 @@ def label_score(
     return score
 
 
+CONSUMING = frozenset({"eat", "drink"})
+"""Labels of taking food or drink oneself: not what a character does who carries it to others."""
+_HANDING_VERBS = ("bring", "carry", "deliver", "hand", "pass", "fetch", "serve")
+_OTHERS = frozenset({"them", "their", "theirs", "guest", "guests", "customer", "customers", "diner", "diners"})
+
+
+def _handed_to_others(text: str) -> bool:
+    """Whether ``text`` has its subject hand something on to other people ("carries their dinner
+    over", "brings them drinks"): a verb of bringing and a word for the others. "Her" and "his"
+    do not count: they may be the subject's own ("brings her coffee to the couch")."""
+    words = [w.lower() for w in _WORD.findall(text)]
+    return bool(_OTHERS & set(words)) and any(_word_matches(v, w) for v in _HANDING_VERBS for w in words)
+
+
+_ASIDE_OPENERS = frozenset({"who", "whose", "which"})
+_TIME_OPENERS = frozenset({"once", "when", "whenever", "until", "till"})
+_CLAUSE_ENDS = frozenset({",", ".", ";", "!", "?"})
+
+
+def main_clause(tokens: Sequence[str]) -> list[str]:
+    """``tokens`` without the clauses that say who someone is or when something happens, not
+    what is done: an aside between commas that opens with *who* / *which* ("Cleo, who waits
+    tables here, jots down ...") and a clause of time ("... once the film is over", "When the
+    film ends, ..."), up to the next punctuation."""
+    out: list[str] = []
+    i = 0
+    while i < len(tokens):
+        t = tokens[i]
+        aside = t == "," and i + 1 < len(tokens) and tokens[i + 1] in _ASIDE_OPENERS and "," in tokens[i + 2 :]
+        timing = t in _TIME_OPENERS or (t == "as" and tokens[i + 1 : i + 3] == ["soon", "as"])
+        if aside or timing:
+            end = next((k for k in range(i + 1, len(tokens)) if tokens[k] in _CLAUSE_ENDS), len(tokens))
+            i = end + 1 if (aside or not out) and end < len(tokens) else end
+            continue
+        out.append(t)
+        i += 1
+    return out
+
+
 def _scores(text: str, labels: Sequence[str], object_labels: Sequence[str]) -> list[int]:
-    tokens = _without_proximity(_tokens(text))
+    tokens = main_clause(_without_proximity(_tokens(text)))
     landmark = _landmark_mask(tokens)
     acted_on = " ".join(t for t, skip in zip(tokens, landmark, strict=True) if not skip)
     known = list(dict.fromkeys([*object_labels, *(_label_objects(labels))]))
@@ -338,8 +383,13 @@ def _scores(text: str, labels: Sequence[str], object_labels: Sequence[str]) -> l
         prefix = next((p for p in OPPOSITES if label.startswith(p)), None)
         return prefix is not None and OPPOSITES[prefix] + label.removeprefix(prefix) not in offered
 
-    fetch_opens = not any(label.startswith("take_out_") for label in labels)
-    return [label_score(label, tokens, named, landmark, one_way(label), fetch_opens) for label in labels]
+    # taking something out of a thing is opening it unless an offered take_out_ label is about
+    # that something ("gets the milk from the fridge" with only take_out_book offered opens it)
+    fetch_opens = not any(
+        label.startswith("take_out_") and label_score(label, tokens, named, landmark) > 0 for label in labels)
+    handed_on = _handed_to_others(text)
+    return [0 if handed_on and label in CONSUMING else label_score(label, tokens, named, landmark, one_way(label), fetch_opens)
+            for label in labels]
 
 
 def rank_action_labels(

@@ -59,10 +59,20 @@ from dataclasses import dataclass
 from typing import Literal
 
 from agents.action_shortlist import posture
+from agents.english_words import may_be_verb
 from agents.messages import HistoryEntry
 from agents.prompt_templates import PromptLibrary, package_prompts
 from agents.relation_words import before_relations
-from agents.step_words import activity_kind, intends_only, moves_only, no_action, states_only
+from agents.step_words import (
+    AND_WORD,
+    NOT_A_VERB,
+    activity_kind,
+    intends_only,
+    list_steps,
+    moves_only,
+    no_action,
+    states_only,
+)
 
 PartState = Literal["done", "ongoing", "failed", "next", ""]
 
@@ -71,7 +81,10 @@ PART_ATTEMPTS = 2
 before the part is given up (``failed``) and the story moves on to the next."""
 
 _PARTS = re.compile(r"(?<=[.!?;])\s+|\n+")
-_THEN = re.compile(r"(?:,\s*(?:and\s+)?|(?<!\s)\s+and\s+)then,?\s+(?=[A-Za-z])", re.IGNORECASE)
+_THEN = re.compile(
+    r"(?:,\s*(?:and\s+)?|(?<!\s)\s+and\s+)(?:then|later|afterwards|after\s+that|eventually|finally),?\s+(?=[A-Za-z])",
+    re.IGNORECASE,
+)
 _WORD = re.compile(r"[A-Za-z]+")
 _PRONOUN = re.compile(r"(he|she|they)\b", re.IGNORECASE)
 _STOP = frozenset(str.split(
@@ -245,14 +258,6 @@ def _at_the_same_time(sentence: str, names: Sequence[str]) -> list[str]:
     return [c if c[-1:] in ".!?" or i == len(clauses) - 1 else c + "." for i, c in enumerate(clauses)]
 
 
-_AND = re.compile(r",?(?<!\s)\s+and\s+(?=([a-z]+)\b)")
-NOT_A_VERB = frozenset(str.split(
-    "a an the this that these those some any all both each every no his her their its my your our "
-    "one two three four five then also so later afterwards after before with without in on at by to "
-    "from into onto near it them him me us"
-))
-"""Closed-class words that, right after "and", show it joins things, not a second verb ("a soda
-and some chips", "and then" is "then"'s)."""
 
 
 def _and_steps(piece: str, names: Sequence[str]) -> list[str]:
@@ -268,8 +273,8 @@ def _and_steps(piece: str, names: Sequence[str]) -> list[str]:
         return [piece]
     steps: list[str] = []
     start = 0
-    for m in _AND.finditer(piece):
-        if m.group(1) in NOT_A_VERB:
+    for m in AND_WORD.finditer(piece):
+        if m.group(1) in NOT_A_VERB or not may_be_verb(m.group(1)):  # "toast and cereal": no second verb
             continue
         left, right = piece[start : m.start()].strip(), piece[m.end() :].strip()
         before, after = activity_kind(before_relations(left)), activity_kind(before_relations(right))
@@ -287,7 +292,8 @@ def _then_parts(sentence: str, names: Sequence[str], lib: PromptLibrary) -> list
     """The parts of one clause: "then" starts a new one, and so does "and" before a second action
     of the same subject (:func:`_and_steps`; see :func:`split_instruction`)."""
     parts: list[InstructionPart] = []
-    pieces = [step for p in _THEN.split(sentence) if p.strip() for step in _and_steps(p.strip(), names)]
+    pieces = [step for p in _THEN.split(sentence) if p.strip()
+              for item in list_steps(p.strip()) for step in _and_steps(item, names)]
     subject = ""
     for k, piece in enumerate(pieces):
         pronoun = _PRONOUN.match(piece)

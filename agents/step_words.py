@@ -19,6 +19,7 @@ import functools
 import re
 
 from agents.action_shortlist import CUES, posture, rank_action_labels
+from agents.english_words import may_be_verb
 from agents.relation_words import before_relations
 
 _WORD = re.compile(r"[A-Za-z]+")
@@ -121,3 +122,54 @@ def no_action(text: str, subject: str = "", names: frozenset[str] = frozenset())
     return states_only(text, subject, names) or (
         activity_kind(before_relations(text)) is None and posture(text) is None
         and not moves_only(text, subject) and not has_verb(text, subject, names))
+
+
+AND_WORD = re.compile(r",?(?<!\s)\s+and\s+(?=([a-z]+)\b)")
+"""An "and" between words, with the word after it (a second verb or not)."""
+NOT_A_VERB = frozenset(str.split(
+    "a an the this that these those some any all both each every no his her their its my your our "
+    "one two three four five then also so later afterwards after before with without in on at by to "
+    "from into onto near it them him me us"
+))
+"""Closed-class words that, right after "and", show it joins things, not a second verb ("a soda
+and some chips", "and then" is "then"'s)."""
+
+
+_COMMA_WORD = re.compile(r",\s*(?=([a-z]+)\b)")
+
+
+def _verb_like(word: str) -> bool:
+    """Whether ``word`` may be a verb of the third person opening an item of a list of steps
+    ("curls", "turns"; not "bananas"): it ends in -s, is no closed-class word, and the lexicon
+    knows it as a verb (:func:`agents.english_words.may_be_verb`)."""
+    return (len(word) > 2 and word.endswith("s") and word not in NOT_A_VERB and word not in _NOT_VERBS_IN_S
+            and may_be_verb(word))
+
+
+def list_steps(piece: str) -> list[str]:
+    """``piece`` cut into its items when it lists steps ("Ben switches the TV on, curls up in
+    the armchair to watch a film, and turns it off again": three): at least three items, each
+    after the first opening with a verb (:func:`_verb_like`), the last after "and", and the
+    items not all of one kind of activity (a list of things eaten is one step). An item whose
+    words point to no action (:func:`activity_kind`: it goes somewhere, sits down, says how
+    something is) or to the same one as the next item stays with the item after it."""
+    cuts = [(m.start(), m.end()) for m in _COMMA_WORD.finditer(piece) if _verb_like(m.group(1))]
+    last = [(m.start(), m.end()) for m in AND_WORD.finditer(piece) if _verb_like(m.group(1))]
+    if not cuts or not last or last[-1][0] <= cuts[-1][0]:
+        return [piece]
+    bounds = [*(c for c in cuts if c[0] < last[-1][0]), last[-1]]
+    spans = list(zip([0, *(end for _, end in bounds)], [*(start for start, _ in bounds), len(piece)], strict=True))
+    items = [piece[start:end].strip() for start, end in spans]
+    if len(items) < 3 or any(len(item.split()) < 2 for item in items):
+        return [piece]
+    kinds = [activity_kind(item) for item in items]  # the ranker passes over landmarks itself
+    if len(set(kinds)) < 2:
+        return [piece]
+    steps: list[str] = []
+    first = 0  # the item the step being built starts with; joined items keep their own words between
+    for k in range(len(items)):
+        if k + 1 < len(items) and (kinds[k] is None or kinds[k] == kinds[k + 1]):
+            continue
+        steps.append(piece[spans[first][0] : spans[k][1]].strip())
+        first = k + 1
+    return steps

@@ -99,3 +99,35 @@ def test_taking_something_out_of_a_thing_opens_it_when_no_take_out_label_is_offe
     assert rank_action_labels("Ava takes a seat near the fridge and sips a soda", labels, ["fridge"])[0].label == "drink"
     # with a label for taking out, that label says it
     assert rank_action_labels("Ava takes a soda out of the fridge", [*labels, "take_out_drink"], ["fridge"])[0].label == "take_out_drink"
+
+
+def test_fetching_from_a_thing_opens_it_unless_a_take_out_label_is_about_what_is_fetched() -> None:
+    labels = [*HOME, "take_out_book"]
+    assert rank_action_labels("Mo pulls the butter out of the fridge", labels, ["fridge"])[0].label == "open_fridge"
+    assert rank_action_labels("Mo takes a book off the shelf", labels, ["bookshelf"])[0].label == "take_out_book"
+
+
+@pytest.mark.parametrize(("text", "best"), [
+    ("Pia carries their soup over", "serve_food"),
+    ("Pia brings them two lemonades", "serve_drink"),
+    ("Pia fetches the guests a plate of pasta", "serve_food"),
+    ("Pia eats her soup", "eat"),
+    ("Pia brings her tea to the sofa", "drink"),  # her own: "her" may be the subject's
+])
+def test_food_handed_on_to_others_is_served_not_eaten(text: str, best: str) -> None:
+    assert suggested_action(text, RESTAURANT) == best
+
+
+@pytest.mark.parametrize(("text", "labels", "best"), [
+    ("Pia, who loves dancing, wipes the table", RESTAURANT, "clean_table"),
+    ("Noor switches the telly off when the news ends", HOME, "turn_off_tv"),
+    ("When the match is over, Noor turns the TV off", HOME, "turn_off_tv"),
+    ("Noor sips a cola until the film ends", HOME, "drink"),
+    ("Lena jots down their choices", RESTAURANT, "take_order"),
+])
+def test_who_someone_is_and_when_something_happens_are_not_what_is_done(text: str, labels: tuple[str, ...], best: str) -> None:
+    assert suggested_action(text, labels) == best
+
+
+def test_a_time_clause_alone_gives_no_evidence() -> None:
+    assert rank_action_labels("Noor turns it off once the film is over", HOME) == []

@@ -88,6 +88,27 @@ def test_and_before_a_second_action_of_one_character_is_the_next_step(instructio
     assert [p.text for p in split_instruction(instruction, (*NAMES, "Cy"))] == parts
 
 
+@pytest.mark.parametrize(("instruction", "parts"), [
+    # a list of three steps, each opening with its verb: one part each
+    ("Cy switches the TV on, reads a magazine on the couch, and turns the TV off again.",
+     ["Cy switches the TV on.", "Then Cy reads a magazine on the couch.", "Then Cy turns the TV off again."]),
+    ("Ava brews a coffee, drinks it at the table and loads the dishwasher.",
+     ["Ava brews a coffee.", "Then Ava drinks it at the table.", "Then Ava loads the dishwasher."]),
+    # an item with no action of its own goes with the next, in the user's words; one kind is one step
+    ("Ben walks to the desk, sits down, and types an email on the laptop.",
+     ["Ben walks to the desk, sits down, and types an email on the laptop."]),
+    ("Ava eats toast, bananas with jam, and cereal with milk.", ["Ava eats toast, bananas with jam, and cereal with milk."]),
+    ("Ava nibbles some toast, munches an apple, and eats a yoghurt.",
+     ["Ava nibbles some toast, munches an apple, and eats a yoghurt."]),
+    # words of sequence other than "then"
+    ("Cy notes down what they want and afterwards brings their food.",
+     ["Cy notes down what they want.", "Then Cy brings their food."]),
+    ("Ava reads a book, and later Ben dances.", ["Ava reads a book.", "Then Ben dances."]),
+])
+def test_a_list_of_steps_and_words_of_sequence_make_parts(instruction: str, parts: list[str]) -> None:
+    assert [p.text for p in split_instruction(instruction, (*NAMES, "Cy"))] == parts
+
+
 def test_parts_know_their_characters_and_words() -> None:
     first, second = split_instruction(COFFEE, NAMES)
     assert first.names == second.names == ("Ava",)
