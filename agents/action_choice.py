@@ -18,9 +18,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from agents.action_shortlist import rank_action_labels
+from agents.action_shortlist import posture, rank_action_labels
 from agents.llm_port import ChatMessage, LLMRequest
 from agents.prompt_templates import PromptLibrary, package_prompts
+from agents.relation_words import names_a_relation
 from agents.scored_choice import choice_request
 
 MOTION_LABELS = frozenset({"walk", "sit_down", "sit_idle", "stand_up"})
@@ -31,10 +32,13 @@ def action_candidates(
     text: str, labels: Sequence[str], object_labels: Sequence[str] = (), context: str = "",
 ) -> tuple[str, ...]:
     """The labels the model chooses among for an event with words ``text`` (and ``context``: the
-    narrator's own words), or ``()`` when the words rank a label (the ranker decides) or fewer
-    than two labels are offered."""
+    narrator's own words), or ``()`` when the words rank a label (the ranker decides), when they
+    only say where someone stands (a relation word and no sitting: the suggestion is ``idle``),
+    or fewer than two labels are offered."""
     if rank_action_labels(text, labels, object_labels, context):
         return ()
+    if posture(text) != "sit" and names_a_relation(text):
+        return ()  # only where someone is ("hangs about beside the till"): they stand there, idle
     offered = tuple(dict.fromkeys(a for a in labels if a not in MOTION_LABELS))
     return offered if len(offered) > 1 else ()
 

@@ -90,6 +90,12 @@ def _match_at(lower: Sequence[str], i: int) -> tuple[int, RelationKind] | None:
     return None
 
 
+def names_a_relation(text: str) -> bool:
+    """Whether ``text`` has a relation word ("beside", "in front of", "farthest from" ...)."""
+    lower = [t.lower() for t in _tokens(text)]
+    return any(_match_at(lower, i) is not None for i in range(len(lower)))
+
+
 def before_relations(text: str) -> str:
     """The words of ``text`` before its first relation word ("picks the place furthest from the
     coffee machine" -> "picks the place"): what is done, without where it is measured from."""

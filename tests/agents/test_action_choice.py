@@ -26,6 +26,14 @@ def test_words_that_rank_a_label_get_no_choice_and_words_that_rank_none_offer_ev
     assert action_candidates("something", ("idle", "walk"), ()) == ()  # one label: nothing to choose
 
 
+def test_words_that_only_say_where_someone_stands_get_no_choice() -> None:
+    for text in ("Mo hangs about beside the record player", "Mo plants himself right in front of the TV",
+                 "Mo loiters to the left of the fridge"):
+        assert action_candidates(text, LABELS, HOME.labels) == (), text
+    # sitting somewhere with no action named is still the model's choice
+    assert "eat" in action_candidates("Mo takes a seat beside the fridge", LABELS, HOME.labels)
+
+
 def test_the_request_is_a_choice_among_the_labels_in_plain_words() -> None:
     request = action_choice_request(("eat", "drink"), ("Ava",), "has an apple", "Ava sits down to have an apple.")
     assert request.choices == ("eat", "drink") and request.node == "event_parser"
