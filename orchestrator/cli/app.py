@@ -39,7 +39,7 @@ def _escaped_usage_errors() -> Iterator[None]:
     try:
         yield
     except typer.TyperException as exc:  # click's usage errors (typer vendors click) and typer's own
-        exc.message = plain(exc.message, keep_newlines=True)
+        exc.message = plain(exc.message)  # a typed newline or tab too: the message is one line
         raise
 
 

@@ -20,10 +20,11 @@ import sys
 from pathlib import Path
 
 import pytest
+import typer
 from typer.testing import CliRunner, Result
 
 from benchmark.sweep.grid import CaseSetSpec, ModelSpec, SweepSpec, model_specs
-from orchestrator.cli.app import app
+from orchestrator.cli.app import _EscapedUsageErrors, app
 from sim.scene.bundled import load_bundled_scene
 from tests.support.hostile_files import unsafe_characters
 
@@ -136,6 +137,31 @@ def test_a_usage_error_quoting_what_was_typed() -> None:
         assert result.exit_code == 2
         assert unsafe_characters(result.stdout + result.stderr) == [], result.stderr
     assert "--x\\x1b[31my" in _invoke(["scene", "inspect", "home", f"--{HOSTILE}"]).stderr
+
+
+def test_a_usage_error_shows_a_typed_newline_and_tab_as_escapes() -> None:
+    """What was typed is one line in the error: its newline and tab are shown, not obeyed. typer
+    escapes C0 controls in the messages it writes; a parameter's own ``BadParameter`` quoting
+    the value is escaped by the root group (:class:`_EscapedUsageErrors`, here on a small app)."""
+    result = _invoke(["scene", "inspect", "home", "--one\ntwo\tthree"])
+    assert result.exit_code == 2
+    assert "--one\\x0atwo\\x09three" in result.stderr, result.stderr
+
+    def refuse(value: str) -> str:
+        raise typer.BadParameter(f"{value} is not a scene of this version")
+
+    small = typer.Typer(cls=_EscapedUsageErrors)
+
+    @small.command()
+    def one(name: str = typer.Option("", callback=refuse)) -> None: ...
+
+    @small.command()
+    def two() -> None: ...
+
+    result = CliRunner().invoke(small, ["one", "--name", f"one\ntwo\tthree{HOSTILE}"], color=True)
+    assert result.exit_code == 2
+    assert unsafe_characters(result.stderr) == [], result.stderr
+    assert f"one\\x0atwo\\x09three{SHOWN}" in result.stderr, result.stderr
 
 
 @pytest.mark.slow
