@@ -339,10 +339,14 @@ _OTHERS = frozenset({"them", "their", "theirs", "guest", "guests", "customer", "
 
 def _handed_to_others(text: str) -> bool:
     """Whether ``text`` has its subject hand something on to other people ("carries their dinner
-    over", "brings them drinks"): a verb of bringing and a word for the others. "Her" and "his"
+    over", "brings them drinks", "brings it to Ben"): a verb of bringing and a word for the
+    others or a name after "to" / "for". "Her" and "his"
     do not count: they may be the subject's own ("brings her coffee to the couch")."""
-    words = [w.lower() for w in _WORD.findall(text)]
-    return bool(_OTHERS & set(words)) and any(_word_matches(v, w) for v in _HANDING_VERBS for w in words)
+    found = _WORD.findall(text)
+    words = [w.lower() for w in found]
+    # "to Ben", "for Ava": a capitalised word after "to" / "for" past the first word is a person
+    named = any(words[k - 1] in ("to", "for") and found[k][:1].isupper() for k in range(2, len(found)))
+    return (named or bool(_OTHERS & set(words))) and any(_word_matches(v, w) for v in _HANDING_VERBS for w in words)
 
 
 _ASIDE_OPENERS = frozenset({"who", "whose", "which"})
@@ -350,16 +354,17 @@ _TIME_OPENERS = frozenset({"once", "when", "whenever", "until", "till"})
 _CLAUSE_ENDS = frozenset({",", ".", ";", "!", "?"})
 
 
-def main_clause(tokens: Sequence[str]) -> list[str]:
+def main_clause(tokens: Sequence[str], asides: bool = True) -> list[str]:
     """``tokens`` without the clauses that say who someone is or when something happens, not
-    what is done: an aside between commas that opens with *who* / *which* ("Cleo, who waits
-    tables here, jots down ...") and a clause of time ("... once the film is over", "When the
-    film ends, ..."), up to the next punctuation."""
+    what is done: an aside after a comma that opens with *who* / *which*, up to the next comma
+    or the end ("Cleo, who waits tables here, jots down ...", "brings it to Ben, who waits on
+    the bench with his phone") and a clause of time ("... once the film is over", "When the
+    film ends, ..."), up to the next punctuation. ``asides=False`` keeps the asides."""
     out: list[str] = []
     i = 0
     while i < len(tokens):
         t = tokens[i]
-        aside = t == "," and i + 1 < len(tokens) and tokens[i + 1] in _ASIDE_OPENERS and "," in tokens[i + 2 :]
+        aside = asides and t == "," and i + 1 < len(tokens) and tokens[i + 1] in _ASIDE_OPENERS
         timing = t in _TIME_OPENERS or (t == "as" and tokens[i + 1 : i + 3] == ["soon", "as"])
         if aside or timing:
             end = next((k for k in range(i + 1, len(tokens)) if tokens[k] in _CLAUSE_ENDS), len(tokens))
@@ -371,7 +376,16 @@ def main_clause(tokens: Sequence[str]) -> list[str]:
 
 
 def _scores(text: str, labels: Sequence[str], object_labels: Sequence[str]) -> list[int]:
-    tokens = main_clause(_without_proximity(_tokens(text)))
+    all_tokens = _without_proximity(_tokens(text))
+    scores = _clause_scores(text, main_clause(all_tokens), labels, object_labels)
+    if any(scores):
+        return scores
+    # the aside says what is done when the rest names no action ("a chair will do for Zainab,
+    # who wants to sip a lemonade")
+    return _clause_scores(text, main_clause(all_tokens, asides=False), labels, object_labels)
+
+
+def _clause_scores(text: str, tokens: list[str], labels: Sequence[str], object_labels: Sequence[str]) -> list[int]:
     landmark = _landmark_mask(tokens)
     acted_on = " ".join(t for t, skip in zip(tokens, landmark, strict=True) if not skip)
     known = list(dict.fromkeys([*object_labels, *(_label_objects(labels))]))

@@ -113,6 +113,7 @@ def test_fetching_from_a_thing_opens_it_unless_a_take_out_label_is_about_what_is
     ("Pia fetches the guests a plate of pasta", "serve_food"),
     ("Pia eats her soup", "eat"),
     ("Pia brings her tea to the sofa", "drink"),  # her own: "her" may be the subject's
+    ("Pia brings a lemonade to Ola, who sits by the door with her phone", "serve_drink"),
 ])
 def test_food_handed_on_to_others_is_served_not_eaten(text: str, best: str) -> None:
     assert suggested_action(text, RESTAURANT) == best
@@ -124,6 +125,8 @@ def test_food_handed_on_to_others_is_served_not_eaten(text: str, best: str) -> N
     ("When the match is over, Noor turns the TV off", HOME, "turn_off_tv"),
     ("Noor sips a cola until the film ends", HOME, "drink"),
     ("Lena jots down their choices", RESTAURANT, "take_order"),
+    # an aside is what is done when the rest names no action
+    ("The corner stool suits Noor, who wants to sip an iced tea", RESTAURANT, "drink"),
 ])
 def test_who_someone_is_and_when_something_happens_are_not_what_is_done(text: str, labels: tuple[str, ...], best: str) -> None:
     assert suggested_action(text, labels) == best
