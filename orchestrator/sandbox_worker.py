@@ -25,7 +25,9 @@ hot path) and restarted when it dies or is killed; it starts with the first prog
 of it with ``prestart()`` (its imports then overlap the caller's set-up); ``prestart(scene)``
 also sends it that scene as its first message (``--scene-first``), loaded before it says it
 is ready, so a run's first planning step does not wait for the scene either. It
-inherits only :data:`WORKER_ENV` from the parent's environment, never an API key.
+inherits only :data:`WORKER_ENV` from the parent's environment, never an API key. Its stderr is
+a pipe, never the terminal's: drained and bounded (``orchestrator.stderr_tail``), and what it
+wrote (a traceback from a crash) is logged escaped when the worker stops.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from typing import IO, TYPE_CHECKING, Any, Self
 
+from orchestrator.stderr_tail import StderrTail
 from sim.scene.model import Scene
 from tools import errors as tool_errors
 from tools.character_states import CharacterPlan, WorldView
@@ -163,6 +166,8 @@ class WorkerRunner:
         self._starting = False
         """``process`` was started by :meth:`prestart` and has not said it is ready yet."""
         self._preload: threading.Thread | None = None
+        self._stderr: StderrTail | None = None
+        """What the current worker process writes to stderr (logged when it stops)."""
         """Writes a prestarted worker the scene to load (:meth:`prestart`); done once the
         worker said it is ready (it reads and loads the scene first) or died."""
 
@@ -207,19 +212,32 @@ class WorkerRunner:
             ],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,  # never the terminal's: a traceback quotes the input
             env=env,
         )
+        assert process.stderr is not None
+        self._stderr = StderrTail(process.stderr)
         self.starts += 1
         return process
 
-    @staticmethod
-    def _await_ready(process: subprocess.Popen[bytes]) -> None:
+    def _await_ready(self, process: subprocess.Popen[bytes]) -> None:
         assert process.stdout is not None
         ready, _, _ = select.select([process.stdout], [], [], START_SECONDS)
         if not ready or _read_frame(process.stdout) != {"ready": True}:
-            process.kill()
-            process.wait()
+            self._stop(process)
             raise EventProgramError("the event-program worker process did not start")
+
+    def _log_stderr(self, process: subprocess.Popen[bytes]) -> None:
+        """Log what the stopped worker wrote to stderr (escaped, its last bytes), if anything."""
+        tail, self._stderr = self._stderr, None
+        shown = tail.finish() if tail is not None else None
+        if shown is not None:
+            import structlog  # here, not at the top: the worker process imports this module too
+
+            structlog.get_logger("storyteller.sandbox").warning(
+                "the event-program worker wrote to stderr", pid=process.pid, exit_code=process.returncode,
+                bytes_written=shown.written, bytes_shown=shown.shown, text=shown.text,
+            )
 
     def _worker(self) -> subprocess.Popen[bytes]:
         if self._starting and self.process is not None:  # prestarted: wait for its ready frame
@@ -241,12 +259,17 @@ class WorkerRunner:
         process, self.process = self.process, None
         self._starting = False
         preload, self._preload = self._preload, None
-        if process is None:
-            return
+        if process is not None:
+            self._stop(process, preload)
+
+    def _stop(self, process: subprocess.Popen[bytes], preload: threading.Thread | None = None) -> None:
+        """Kill ``process``, log what it wrote to stderr and close its pipes (after ``preload``,
+        a thread writing to it, ended: its write ends with the process, a broken pipe)."""
         with contextlib.suppress(OSError):
             process.kill()
         process.wait()
-        if preload is not None:  # its write ends with the process (a broken pipe)
+        self._log_stderr(process)
+        if preload is not None:
             preload.join()
         for stream in (process.stdin, process.stdout):
             if stream is not None:
