@@ -7,7 +7,7 @@ of browsers) appends one JSON line per press (:func:`send_control`):
 before the page says it was sent (the same channel as the instruction box:
 ``orchestrator.session.viewer_instructions``). The run reads the file from its last offset in a
 thread of its own (:func:`start_control_reader`, lines bounded and parsed as instructions are:
-:class:`~orchestrator.session.viewer_instructions.AppendedLines`), each line once (by id, for
+:class:`~orchestrator.session.viewer_instructions.ThreadLines`), each line once (by id, for
 this run's thread only), and the simulation applies what they say at a frame boundary
 (:class:`DirectorControls` is the session's ``session_types.Pacer``): paused, it waits between two
 frames until a ``resume``; a new speed sets the wall time of the next frames.
@@ -39,10 +39,10 @@ from typing import Literal
 
 import anyio
 import structlog
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, model_validator
 
 from orchestrator.session.pace import MAX_SPEED, MIN_SPEED
-from orchestrator.session.viewer_instructions import POLL_S, AppendedLines, ViewerLine, append_line
+from orchestrator.session.viewer_instructions import POLL_S, ThreadLines, ViewerLine, append_line
 from sim.run_folder_names import VIEWER_CONTROLS
 
 _log = structlog.get_logger("storyteller.session")
@@ -99,27 +99,13 @@ def controls_refusal(pace: str) -> str | None:
     return f"pause and speed apply to a realtime run; this run's pace is {pace} ({why})"
 
 
-class ControlInbox(AppendedLines[ViewerControl]):
+class ControlInbox(ThreadLines[ViewerControl]):
     """The run's side: the new lines for ``thread`` since the last :meth:`poll`."""
 
     what = "viewer_control"
 
     def __init__(self, path: Path, thread: str) -> None:
-        super().__init__(path)
-        self.thread = thread
-        self._seen: set[str] = set()
-
-    def parse(self, raw: bytes) -> ViewerControl | None:
-        try:
-            line = ViewerControl.model_validate_json(raw)
-        except ValidationError as exc:
-            _log.warning("viewer_control_malformed", file=str(self.path), offset=self.offset,
-                         error=str(exc.errors()[0]["msg"]))
-            return None
-        if line.thread != self.thread or line.id in self._seen:
-            return None
-        self._seen.add(line.id)
-        return line
+        super().__init__(path, thread, ViewerControl)
 
 
 class DirectorControls:

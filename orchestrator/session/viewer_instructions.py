@@ -73,6 +73,7 @@ assert READ_BYTES > MAX_LINE_BYTES  # a poll that finds no newline in a whole re
 POLL_S = 0.1
 """Wall seconds between two looks at the file."""
 LineT = TypeVar("LineT")
+ViewerLineT = TypeVar("ViewerLineT", bound="ViewerLine")
 _READ = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
 
 
@@ -196,8 +197,38 @@ class AppendedLines(Generic[LineT]):
             os.close(fd)
 
 
-class InstructionInbox(AppendedLines[ViewerInstruction]):
-    """The run's side: the new lines for ``thread`` since the last :meth:`poll`.
+class ThreadLines(AppendedLines[ViewerLineT]):
+    """The lines a viewer appends for the run of ``thread``, each once: a line is validated as
+    ``model`` (a malformed one is skipped with a ``<what>_malformed`` warning); a line for
+    another thread, one whose id came before, or one :meth:`takes` refuses is skipped; the id
+    of a line taken is remembered."""
+
+    def __init__(self, path: Path, thread: str, model: type[ViewerLineT]) -> None:
+        super().__init__(path)
+        self.thread = thread
+        self.model = model
+        self._seen: set[str] = set()
+
+    def takes(self, line: ViewerLineT) -> bool:
+        """Whether a valid line of this thread not seen before is taken (its id is then seen)."""
+        return True
+
+    def parse(self, raw: bytes) -> ViewerLineT | None:
+        try:
+            line = self.model.model_validate_json(raw)
+        except ValidationError as exc:
+            _log.warning(f"{self.what}_malformed", file=str(self.path), offset=self.offset,
+                         error=str(exc.errors()[0]["msg"]))
+            return None
+        if line.thread != self.thread or line.id in self._seen or not self.takes(line):
+            return None
+        self._seen.add(line.id)
+        return line
+
+
+class InstructionInbox(ThreadLines[ViewerInstruction]):
+    """The run's side: the new lines for ``thread`` since the last :meth:`poll` (a text of
+    nothing but spaces is skipped).
 
     ``applied``: the texts of the ``viewer`` instructions the run applied before (a resume: from
     its trace); that many lines are skipped first (a line that differs is logged: the file was
@@ -206,21 +237,16 @@ class InstructionInbox(AppendedLines[ViewerInstruction]):
     what = "viewer_instruction"
 
     def __init__(self, path: Path, thread: str, applied: Sequence[str] = ()) -> None:
-        super().__init__(path)
-        self.thread = thread
-        self._seen: set[str] = set()
+        super().__init__(path, thread, ViewerInstruction)
         self._applied = list(applied)
 
+    def takes(self, line: ViewerInstruction) -> bool:
+        return bool(instruction_text(line.text))
+
     def parse(self, raw: bytes) -> ViewerInstruction | None:
-        try:
-            line = ViewerInstruction.model_validate_json(raw)
-        except ValidationError as exc:
-            _log.warning("viewer_instruction_malformed", file=str(self.path), offset=self.offset,
-                         error=str(exc.errors()[0]["msg"]))
+        line = super().parse(raw)
+        if line is None:
             return None
-        if line.thread != self.thread or line.id in self._seen or not instruction_text(line.text):
-            return None
-        self._seen.add(line.id)
         if self._applied:
             before = self._applied.pop(0)
             if before != instruction_text(line.text):
