@@ -388,7 +388,7 @@ def _scores(text: str, labels: Sequence[str], object_labels: Sequence[str]) -> l
 def _clause_scores(text: str, tokens: list[str], labels: Sequence[str], object_labels: Sequence[str]) -> list[int]:
     landmark = _landmark_mask(tokens)
     acted_on = " ".join(t for t, skip in zip(tokens, landmark, strict=True) if not skip)
-    known = list(dict.fromkeys([*object_labels, *(_label_objects(labels))]))
+    known = list(dict.fromkeys([*object_labels, *(label_objects(labels))]))
     # both readings: "a shelf of books" names the bookshelf and books
     named = list(dict.fromkeys([*mentioned_labels(acted_on, known), *mentioned_labels(acted_on, known, everyday=False)]))
     offered = set(labels)
@@ -418,7 +418,7 @@ def rank_action_labels(
     return [RankedLabel(labels[i], scores[i]) for i in order if scores[i] > 0]
 
 
-def _label_objects(labels: Sequence[str]) -> list[str]:
+def label_objects(labels: Sequence[str]) -> list[str]:
     """The objects labels name (``use_toaster`` -> ``toaster``), so the text's mention of one
     counts even when the scene's object labels were not given."""
     out = []

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.action_shortlist import action_shortlist, posture
+from agents.action_shortlist import action_shortlist, label_objects, posture
 from agents.area_words import DescribedArea, keep_in_areas, named_areas
 from agents.messages import CharacterStatus
 from agents.related_objects import RelatedObjects, related_objects
@@ -252,13 +252,17 @@ def event_options(
     events take them (name -> xy)."""
     others = [c for c in characters if c.name not in event_characters]
     free = free_seats(scene, event_characters, characters, seats_in_use)
-    labels = list(action_shortlist(activity, action_labels, scene.labels, context)) or list(action_labels)
+    ranked = list(action_shortlist(activity, action_labels, scene.labels, context))
+    labels = ranked or list(action_labels)
     if action is not None and action in labels:  # the action chosen before the program comes first
         labels = [action, *(a for a in labels if a != action)]
     relations = () if widen else relation_areas(activity)
     where = {c.name: (float(c.position[0]), float(c.position[1])) for c in others if c.position is not None}
     shortlist = event_shortlist(scene, activity, free, labels, others=where)
-    objects = list(shortlist.objects) or [o.name for o in scene.objects]
+    # words that name no thing use the thing their action works ("starts a vinyl spinning": the
+    # record player), else anything
+    operated = _operated_things(scene, labels[0]) if ranked or action is not None else []
+    objects = list(shortlist.objects) or operated or [o.name for o in scene.objects]
     seats = list(shortlist.seats) or list(free)
     if not widen and (in_area := {n for a in named_areas(activity, areas, labels=scene.labels) for n in a.objects}):
         label_of = {o.name: o.label for o in scene.objects}
@@ -279,6 +283,13 @@ def event_options(
         others=where,
         landmarks=related.landmarks,
     )
+
+
+def _operated_things(scene: Scene, label: str) -> list[str]:
+    """The scene's objects of the kind ``label`` works (``turn_on_record_player``: every
+    ``record_player``); [] when it names no kind the scene has."""
+    kinds = set(label_objects([label]))
+    return [o.name for o in scene.objects if o.label in kinds]
 
 
 def served_places(

@@ -217,6 +217,14 @@ def test_the_events_words_narrow_the_labels_and_the_action_comes_first() -> None
     assert _alternatives(seated, "sitlabel") == {"read_book"} and "standlabel" not in seated
 
 
+def test_words_naming_no_thing_use_the_thing_their_action_works() -> None:
+    """"spin a vinyl" names no object but ranks turn_on_record_player: the record player is the
+    one thing offered (a 0.5B model went to a cabinet); words naming nothing ranked offer all."""
+    spun = event_options(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity="Ava fancies spinning some vinyl")
+    assert spun.labels[0] == "turn_on_record_player" and spun.objects == ("record_player_1",)
+    assert len(event_options(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity="Ava hums").objects) > 10
+
+
 def test_seats_are_sat_on_not_interacted_with() -> None:
     """"interact with armchair_1" means sitting on it (and Ben holds it): seats are offered to
     the seat function only (when free), and stay landmarks for the other areas."""
