@@ -9,8 +9,10 @@ NaN, bytes that are not UTF-8, lone surrogates, control and bidi characters, dup
 objects of a million keys, compressed files, zip bombs, pickles, huge scenes and meshes, mesh
 files naming FIFOs and sparse gigabyte files, instanced and deeply nested glTF nodes, hostile
 ``STORYTELLER_*`` variables (:attr:`Spec.env`), forged viewer requests) and runs
-the command that reads it under an address-space limit (:data:`AS_LIMIT`) and a wall-clock
-limit (the clean command's time + :data:`SLACK_S`).
+the command that reads it under an address-space limit (:data:`AS_LIMIT`) and a time limit
+(the clean command's time + :data:`SLACK_S`). Both times are wall-clock less the time the
+command's main thread waited for a CPU (:mod:`benchmark.hostile.judging`): a busy machine does
+not fail an attack, a command that works, sleeps or blocks longer does.
 
 The verdict holds the issue's targets (issue 22): within the time, max RSS under 1 GiB; a bad
 file is exit 2 with exactly one ``error:`` line on stderr (``expect="bad"``), an attack the
@@ -20,7 +22,8 @@ or changed outside the run folder and the command's own outputs; the canary file
 successful code execution would create is absent; and a refused command leaves the run folder
 as it was (nothing lost).
 
-Prints one table row per attack (kind, attack, exit, seconds, max RSS, verdict) and a summary;
+Prints one table row per attack (kind, attack, exit, judged seconds, seconds waited for a CPU
+besides, CPU seconds, max RSS, verdict) and a summary;
 exit code 1 when an attack failed. ``--only SUBSTRING`` runs the attacks whose name holds it;
 ``--keep`` keeps the temporary folder. Several minutes on two cores (a clean ``resume`` takes
 about 10 s): a benchmark, not a test. Regression tests for what it found are in ``tests/``.
@@ -81,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
         (root / "clean.py").write_text(CLEAN_PROGRAM, encoding="utf-8")
         clean: dict[str, float] = {}  # the clean command's seconds, measured before its first attack
         outcomes = []
-        print(f"{'kind':<11} {'attack':<66} {'exit':>4} {'s':>6} {'MiB':>5}  verdict", flush=True)
+        print(f"{'kind':<11} {'attack':<66} {'exit':>4} {'s':>6} {'queued':>6} {'cpu':>6} {'MiB':>5}  verdict",
+              flush=True)
         for i, (kind, name, build) in enumerate(chosen):
             box = Box(root / "attacks" / f"{i:02d}", base, sweep, root / "attacks" / f"{i:02d}" / CANARY)
             outcome = attempt(kind, name, build, box, root, sweep, env, clean)
@@ -105,15 +109,17 @@ def attempt(kind: str, name: str, build: Callable[[Box], Spec], box: Box, root: 
             env: dict[str, str], clean: dict[str, float]) -> Outcome:
     spec = build(box)
     if spec.command not in clean:
-        code, seconds, rss, _, _ = run_command(BASE_COMMANDS[spec.command](root, box.base, sweep), 600, env, root)
-        clean[spec.command] = seconds
-        print(f"{'(clean)':<11} {spec.command:<66} {code!s:>4} {seconds:6.1f} {rss >> 20:5d}", flush=True)
+        base_run = run_command(BASE_COMMANDS[spec.command](root, box.base, sweep), 600, env, root)
+        clean[spec.command] = base_run.judged
+        print(f"{'(clean)':<11} {spec.command:<66} {base_run.code!s:>4} {base_run.judged:6.1f} {base_run.queued:6.1f} "
+              f"{base_run.cpu:6.1f} {base_run.rss >> 20:5d}", flush=True)
     limit = clean[spec.command] + SLACK_S
     skip = (box.run, *spec.writable, Path(env.get("HOME", "/nonexistent")))
     before_tree = tree_state(root, (*skip, root / "attacks" / "scratch"))
     before_run = digest(box.run)
-    code, seconds, rss, stdout, stderr = run_command(spec.argv, limit, {**env, **spec.env}, box.root, spec.stdin)
-    problems = judge(spec, code, seconds, rss, stdout, stderr, limit)
+    run = run_command(spec.argv, limit, {**env, **spec.env}, box.root, spec.stdin)
+    code = run.code
+    problems = judge(spec, run, limit)
     after_tree = tree_state(root, (*skip, root / "attacks" / "scratch"))
     changed = sorted(k for k in set(before_tree) | set(after_tree) if before_tree.get(k) != after_tree.get(k))
     if changed:
@@ -122,12 +128,15 @@ def attempt(kind: str, name: str, build: Callable[[Box], Spec], box: Box, root: 
         problems.append("CODE RAN (canary file created)")
     if code == 2 and before_run and digest(box.run) != before_run:
         problems.append("refused, yet the run folder changed")
+    if spec.check_output is not None and (found := spec.check_output(run.stdout + run.stderr)):
+        problems.append(found)
     if spec.check is not None and code == 0:
         found = spec.check()
         if found:
             problems.append(found)
-    return Outcome(kind, name, code, seconds, rss, problems)
+    return Outcome(kind, name, code, run.judged, run.rss, problems, run.queued, run.cpu)
 
 
 def row(o: Outcome) -> str:
-    return f"{o.kind:<11} {o.name[:66]:<66} {o.code!s:>4} {o.seconds:6.1f} {o.rss >> 20:5d}  {o.verdict}"
+    return (f"{o.kind:<11} {o.name[:66]:<66} {o.code!s:>4} {o.seconds:6.1f} {o.queued:6.1f} {o.cpu:6.1f} "
+            f"{o.rss >> 20:5d}  {o.verdict}")
