@@ -49,6 +49,8 @@ class Spec:
     expect: Expect = "bad"
     writable: tuple[Path, ...] = ()
     check: Callable[[], str | None] | None = None
+    check_output: Callable[[str], str | None] | None = None
+    """A check of what the command printed (stdout, then stderr): a problem, or None."""
     stdin: bytes | None = None
     env: dict[str, str] = field(default_factory=dict)
     """Environment variables set (over the harness's) for the attacked command."""

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 from benchmark.hostile.harness import (
@@ -140,6 +141,27 @@ def _program_states_names(box: Box) -> Spec:
     states["current_states"]["x" * 100_000] = {"position": [1.0, 1.0]}
     spec = program_run(box.file("prog.py", CLEAN_PROGRAM), "program")
     spec.argv += ["--states", str(box.file("states.json", json.dumps(states)))]
+    return spec
+
+
+@attack("program", "the program's worker writes 1 MB of escapes, bidi and bytes that are not UTF-8 to stderr")
+def _program_worker_stderr(box: Box) -> Spec:
+    """Stands in for a crash of the worker (a bug) whose traceback quotes hostile input: a
+    ``sitecustomize`` on the ``PYTHONPATH`` writes in the worker only (which inherits no
+    ``STORYTELLER_*`` variable), and the worker then runs the program as usual."""
+    noise = (BIDI + "\x1b]0;title\x07").encode() + b"\xff\xfe File \"x.py\", line 1\n"
+    (box.root / "site").mkdir()
+    (box.root / "site" / "sitecustomize.py").write_text(
+        "import os\n"
+        "if 'STORYTELLER_SCRIPTED_STORY_KEY' not in os.environ:\n"
+        f"    os.write(2, {noise!r} * {(1 << 20) // len(noise)})\n",
+        encoding="utf-8",
+    )
+    checkout = str(Path(__file__).resolve().parents[2])
+    path = os.pathsep.join(p for p in (str(box.root / "site"), checkout, os.environ.get("PYTHONPATH")) if p)
+    spec = program_run(box.file("ok.py", CLEAN_PROGRAM), "program")
+    spec.env = {"PYTHONPATH": path}
+    spec.writable = (box.root / "site" / "__pycache__",)  # the worker compiles sitecustomize
     return spec
 
 

@@ -7,8 +7,10 @@ from __future__ import annotations
 import gzip
 import json
 import os
+import re
 import shutil
 import struct
+import unicodedata
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +59,27 @@ def _scene_dense(box: Box) -> Spec:
 def _scene_text(box: Box) -> Spec:
     objects = [box_object(0, label="[/]" + BIDI + "chair"), box_object(2, label="table[bold red]x")]
     return inspect(box.file("text.json", scene_json(objects, name="[/]hostile" + BIDI)), "either")
+
+
+def _no_control_glyph(printed: str) -> str | None:
+    """matplotlib warns of each glyph its font lacks, quoting its code: a control or format
+    character among them was drawn raw."""
+    drawn = sorted({int(code) for code in re.findall(r"Glyph (\d+) ", printed) if int(code) < 0x110000})
+    raw = [f"U+{code:04X}" for code in drawn if unicodedata.category(chr(code)) in ("Cc", "Cf", "Zl", "Zp", "Cs")]
+    return "drawn raw in the picture: " + ",".join(raw[:4]) if raw else None
+
+
+@attack("scene", "names, labels and scene name with ANSI, BEL, bidi, line separators drawn (scene inspect --png)")
+def _scene_text_png(box: Box) -> Spec:
+    objects = [{"name": f"{label}_1", "label": label, "idx": 1, "center": [x, 0.0, 0.25], "size": [0.5, 0.5, 0.5]}
+               for x, label in ((0.0, "chair" + BIDI), (2.0, "table\x1b]0;title\x07" + BIDI))]
+    png = box.root / "top.png"
+    scene = scene_json(objects, name="hostile" + BIDI, bounds_min=[-1.0, -1.0], bounds_max=[3.0, 1.0])
+    spec = inspect(box.file("text.json", scene), "either")
+    spec.argv += ["--png", str(png)]
+    spec.writable = (png,)
+    spec.check_output = lambda printed: "no picture drawn" if not png.is_file() else _no_control_glyph(printed)
+    return spec
 
 
 @attack("scene", "cell size asking for 1e10 cells")
