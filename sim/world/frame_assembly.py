@@ -4,7 +4,8 @@
 from its phase, root and heading, the planned future of a walker, the target of its action),
 steps the motion layer (batched when it has ``step_batch`` (poses as arrays) or ``step_many``,
 with the same result as one by one), puts each pose on its character's root (``compose_poses``: the pelvis stays where the
-world put the root), runs the leg IK when the world has a foot solver, and appends one row per
+world put the root), runs the leg IK when the world has a foot solver, places the working hands and swings the other
+arms out of the furniture (``sim.world.arm_room``), and appends one row per
 character to the track buffers. A character's root is never moved by the motion layer:
 walkers take the navigator's position, everyone else the point its phase puts it on
 (``stationary_root``).
@@ -27,6 +28,7 @@ from sim.body.skeleton import NUM_JOINTS
 from sim.motion.action_labels import action_spec, database_key
 from sim.paths.tracks import walker_headings
 from sim.scene.model import Scene
+from sim.world.arm_room import ArmBoxes, arm_rules, arms_clear
 from sim.world.contacts import (
     hand_targets,
     seat_pelvis,
@@ -65,6 +67,7 @@ class MotionWorld(Protocol):
     buffers: TrackBuffers
     foot_solver: FootSolver | None
     feet: FootState | None
+    arm_boxes: ArmBoxes
 
 
 def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
@@ -138,6 +141,8 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
         rots, w.feet = w.foot_solver.apply(pelvis, rots, contacts, w.feet, active=~np.array(still_feet),
                                            pinned=np.array(seat_transit))
     rots = hand_targets(w.scene.by_name, chars, pelvis, rots, 1.0 / dt)
+    rules = [arm_rules(c) for c in chars]
+    rots = arms_clear(w.arm_boxes, pelvis, rots, [r[0] for r in rules], [r[1] for r in rules])
     w.buffers.append(pelvis, rots, labels, contacts, [c.event_id or "" for c in chars])
     for c in chars:
         c.phase_frame += 1

@@ -65,6 +65,7 @@ from sim.body.foot_ik import FootSolver, FootState
 from sim.paths.cooperative_astar import Cell, PathPlanner
 from sim.paths.nav_grid import NavGrid, build_nav_grid
 from sim.scene.model import Scene
+from sim.world.arm_room import ArmBoxes
 from sim.world.arrivals import walker_checks
 from sim.world.character_track import CharacterTrack
 from sim.world.errors import WorldError
@@ -196,6 +197,7 @@ class World:
         self.buffers = TrackBuffers(self.names, max(1, self.config.initial_capacity))
         self.foot_solver = FootSolver.from_scene(scene) if self.config.foot_ik else None
         self.feet: FootState | None = FootSolver.initial_state(len(self.names)) if self.foot_solver else None
+        self.arm_boxes = ArmBoxes.from_scene(scene)
 
     # ----- snapshots ---------------------------------------------------------------------------
     def shared_objects(self) -> dict[str, Any]:
