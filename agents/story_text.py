@@ -9,12 +9,8 @@ when they stand at different places. An object is named by its id too only where
 object of the scene has the same label, after a landmark that tells it apart when there is
 one: "the chair by the desk (chair_3)" (:class:`ObjectNames`).
 
-:func:`narration` is the narrator's own activity, shown to a person only when
-:func:`agrees` has checked it against the plan: for every character it names the planned
-object (its id, its label or its human name) and an action word of the planned label
-(:attr:`VerbPhrase.words`); its object ids are replaced by human names. Otherwise it is None
-and a reader sees the plan sentence alone: the narrator's words stay data (``story.json``'s
-``activity``).
+The narrator's own words are shown beside this text only where ``agents.narrator_words`` has
+checked that they say the plan; otherwise they stay data (``story.json``'s ``activity``).
 
 :func:`step_text` says what a planning step that started no event means (a wait, a failure).
 
@@ -45,7 +41,6 @@ apart from others of its label ("the chair by the desk")."""
 _NOUNS = {"white_board": "whiteboard"}
 _CAPITALS = {"tv": "TV", "dvd": "DVD", "cd": "CD", "pc": "PC"}
 _ID = re.compile(r"^(?P<label>[a-z][a-z0-9]*(?:_[a-z0-9]+)*?)_(?P<idx>\d+)$")
-_ID_IN_TEXT = re.compile(r"\b[a-z][a-z0-9]*(?:_[a-z0-9]+)*_\d+\b")
 
 
 # ----- objects ----------------------------------------------------------------------------------
@@ -461,55 +456,6 @@ def event_text(event: ParsedEvent, scene: Scene | None) -> str:
     """The text a person reads for an applied event (built from its plans, never the narrator's
     words)."""
     return plan_text(event.event.characters, event.plans, scene)
-
-
-# ----- the narrator's words ---------------------------------------------------------------------
-def _mentions_object(text: str, name: str, scene: Scene | None) -> bool:
-    label = label_of(name, scene)
-    patterns = [re.escape(name), re.escape(label).replace("_", "[ _]") + "s?", re.escape(noun(label)) + "s?"]
-    return any(re.search(rf"(?<![a-z0-9_]){p}(?![a-z0-9_])", text, re.IGNORECASE) for p in patterns)
-
-
-def _mentions_action(text: str, label: str) -> bool:
-    words = _ID_IN_TEXT.sub(" ", text.lower()).replace("_", " ")
-    return any(re.search(rf"(?<![a-z]){re.escape(w)}", words) for w in phrase_of(label).words)
-
-
-def agrees(text: str, plans: Sequence[PlannedCharacter], scene: Scene | None) -> bool:
-    """Whether ``text`` says what the plans do: for every plan it names the planned object (id,
-    label or human name; not checked for a plan without one) and an action word of its label."""
-    if not plans:
-        return False
-    for p in plans:
-        obj = planned_object(p, scene)
-        if obj is not None and not _mentions_object(text, obj, scene):
-            return False
-        if not _mentions_action(text, p.action):
-            return False
-    return True
-
-
-def with_names(text: str, scene: Scene | None) -> str:
-    """``text`` with every object id of the scene (any ``<label>_<idx>`` without a scene)
-    replaced by its human name, a "the" before it absorbed."""
-    names = ObjectNames(scene)
-
-    def swap(m: re.Match[str]) -> str:
-        name = m.group("id")
-        if scene is not None and name not in scene.by_name:
-            return m.group(0)
-        return names(name)
-
-    return re.sub(r"(?:\bthe\s+)?(?P<id>" + _ID_IN_TEXT.pattern + ")", swap, text, flags=re.IGNORECASE)
-
-
-def narration(event: ParsedEvent, scene: Scene | None) -> str | None:
-    """The narrator's activity in human names when :func:`agrees` says it fits the plans; None
-    otherwise (a reader then sees the plan sentence alone)."""
-    activity = " ".join(event.event.activity.split())
-    if not activity or not agrees(activity, event.plans, scene):
-        return None
-    return with_names(activity, scene)
 
 
 # ----- steps without an event -------------------------------------------------------------------

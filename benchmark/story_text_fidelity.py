@@ -8,8 +8,10 @@ each replay is a full ``storyteller run --replay``), or reads run folders alread
 - every applied event's ``text`` against its planning step's plans (``story.json``'s ``steps``):
   for every character it names the planned object (the seat, else the first object of the
   area; its id, label or human name) and an action word of the planned label
-  (``agents.story_text.agrees``, the same judgement that gates the narrator's words);
-- every ``narration`` shown (the narrator's words) by the same judgement;
+  (``agents.narrator_words.agrees``);
+- every ``narration`` shown: the narrator's words it shows (the event's ``activity``) by
+  ``agents.narrator_words.says_the_plan``, the judgement that gates them (the above, and no
+  other action said, no object id the plans are not about);
 - ``story.md``'s prose (the paragraphs before "What went wrong", which lists the simulation's
   and the planner's own messages) holds no raw id of an object whose label is unique in the
   scene.
@@ -42,7 +44,8 @@ from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
 from agents.messages import PlannedCharacter
-from agents.story_text import ObjectNames, agrees
+from agents.narrator_words import agrees, says_the_plan
+from agents.story_text import ObjectNames
 from sim.scene.model import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -116,7 +119,11 @@ def check_run(run_dir: Path) -> RunCheck:
             check.misses.append(f"{e['event_id']}: {text!r} for {[(p.action, p.seat or p.area) for p in plans]}")
         if e.get("narration"):
             check.narrations += 1
-            check.narrations_faithful += agrees(str(e["narration"]), plans, scene)
+            said = " ".join(str(e.get("activity") or e["narration"]).split())
+            if says_the_plan(said, plans, scene):
+                check.narrations_faithful += 1
+            else:
+                check.misses.append(f"{e['event_id']}: narrator's words shown {said!r} for {[p.action for p in plans]}")
     check.raw_ids = raw_ids(markdown, scene)
     return check
 

@@ -22,7 +22,8 @@ from agents.messages import (
     ParsedEvent,
     PlanningFailure,
 )
-from agents.story_text import event_text, narration
+from agents.narrator_words import narration
+from agents.story_text import event_text
 from orchestrator.session.session_types import Outcome, PlanningRequest, StoryEvent
 from orchestrator.session.steps_in_flight import Flight
 from sim.scene.model import Scene
