@@ -11,6 +11,10 @@ character in it whom the instruction in force never names, ``agents.bystanders.n
   bystanders' planned objects (the seat, else the first object of the planned area).
 - **shared frames**: frames in which more characters act on one single-user object than it has
   places (``tools.object_use.shared_use_frames`` over the ``<name>.track.npz`` tracks). Target 0.
+- **shared seat frames**: frames in which two seated characters (an ``@seated`` action label)
+  sit in one place of a seat (``tools.areas.seat_slots``, the nearest within
+  :data:`SLOT_REACH_M`): a chair is a single-user object too, though no action label says so.
+  Counted apart (the issue's figure is the one above); target 0 as well.
 
 The same counts for characters whose parts of the instruction are over ("done") are printed
 apart: the issue's target is about the never named.
@@ -32,7 +36,7 @@ import json
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -52,12 +56,15 @@ from benchmark.story_text_fidelity import (
     share,
 )
 from sim.scene.model import Scene
+from tools.areas import seat_slots
 from tools.clusters import cluster_objects
 from tools.object_use import shared_use_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TRACES = ROOT / "traces" / "story_suite"
 TARGET_OWN = 0.95
+SLOT_REACH_M = 0.35
+"""Metres from a seat place within which a seated character's root is taken to sit in it."""
 
 
 @dataclass
@@ -71,6 +78,7 @@ class RunCheck:
     done_own: int = 0
     areas: set[int] = field(default_factory=set)
     shared_frames: int = 0
+    shared_seat_frames: int = 0
     frames: int = 0
     misses: list[str] = field(default_factory=list)
     error: str | None = None
@@ -124,12 +132,28 @@ def check_run(run_dir: Path) -> RunCheck:
                 check.done_events += 1
                 check.done_own += own
             previous[who] = plan.action
-    check.shared_frames, check.frames = _shared_frames(run_dir, names, scene)
+    check.shared_frames, check.shared_seat_frames, check.frames = _shared_frames(run_dir, names, scene)
     return check
 
 
-def _shared_frames(run_dir: Path, names: list[str], scene: Scene) -> tuple[int, int]:
-    """(frames where a single-user object has more users than places, frames read)."""
+def shared_seat_frames(labels: Mapping[str, Sequence[str]], positions: Mapping[str, np.ndarray], scene: Scene) -> int:
+    """Frames where two seated characters sit in one seat place (module docstring)."""
+    slots = np.array([s.position for o in scene.objects if o.is_seat for s in seat_slots(o)], dtype=float).reshape(-1, 2)
+    n = min((len(v) for v in labels.values()), default=0)
+    if not len(slots) or n == 0:
+        return 0
+    taken = []  # per character, per frame: the seat place it sits in, or -1
+    for name, seq in labels.items():
+        d = np.linalg.norm(positions[name][:n, None, :2] - slots[None, :, :], axis=2)
+        seated = np.array([str(x).endswith("@seated") for x in seq[:n]])
+        taken.append(np.where(seated & (d.min(axis=1) <= SLOT_REACH_M), d.argmin(axis=1), -1))
+    places = np.stack(taken)  # (characters, frames)
+    return sum(1 for f in range(n) if len(v := places[:, f][places[:, f] >= 0]) != len(set(v.tolist())))
+
+
+def _shared_frames(run_dir: Path, names: list[str], scene: Scene) -> tuple[int, int, int]:
+    """(frames where a single-user object has more users than places, frames where two sit in one
+    seat place, frames read)."""
     labels: dict[str, Sequence[str]] = {}
     positions: dict[str, np.ndarray] = {}
     for name in names:
@@ -140,15 +164,17 @@ def _shared_frames(run_dir: Path, names: list[str], scene: Scene) -> tuple[int, 
             labels[name] = [str(x) for x in t["action_labels"]]
             positions[name] = np.asarray(t["root_positions"], dtype=float)[:, :2]
     if not labels:
-        return 0, 0
+        return 0, 0, 0
     frames = min(len(v) for v in labels.values())
-    return len({f for f, _, _ in shared_use_frames(labels, positions, scene)}), frames
+    shared = len({f for f, _, _ in shared_use_frames(labels, positions, scene)})
+    return shared, shared_seat_frames(labels, positions, scene), frames
 
 
 def report(checks: list[RunCheck]) -> str:
     lines = run_lines(checks, lambda c: (
         f"bystander events of their own {share(c.own, c.events)} over {len(c.areas)} areas; "
         f"done characters {share(c.done_own, c.done_events)}; shared single-user frames {c.shared_frames} of {c.frames}"
+        f"; shared seat frames {c.shared_seat_frames}"
     ))
     ok = [c for c in checks if not c.error]
     events = sum(c.events for c in ok)
@@ -163,6 +189,9 @@ def report(checks: list[RunCheck]) -> str:
     lines.append(f"  areas per run with bystander events: {[len(c.areas) for c in ok if c.events]}")
     lines.append(f"frames where two characters use one single-user object: {sum(c.shared_frames for c in ok)} "
                  f"of {sum(c.frames for c in ok)} (target 0)")  # fmt: skip
+    seats = [f"{c.name} {c.shared_seat_frames}" for c in ok if c.shared_seat_frames]
+    lines.append(f"frames where two characters sit in one seat place: {sum(c.shared_seat_frames for c in ok)} "
+                 f"of {sum(c.frames for c in ok)} (target 0){': ' + ', '.join(seats) if seats else ''}")  # fmt: skip
     return "\n".join(lines)
 
 

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.bystanders import check_run, main, report
+from benchmark.bystanders import check_run, main, report, shared_seat_frames
 from sim.scene.bundled import load_bundled_scene
+from tools.areas import seat_slots
 
 README = "Ava makes coffee, then sits on the couch and drinks it."
 
@@ -65,3 +66,19 @@ def test_the_command_reads_run_folders_and_refuses_a_missing_one(tmp_path: Path)
     _write_run(tmp_path / "run")
     assert main(["--runs", str(tmp_path)]) == 0
     assert main(["--runs", str(tmp_path / "nowhere")]) == 2
+
+
+def test_two_characters_seated_in_one_seat_place_are_counted() -> None:
+    """From the story suite replayed at c842af8: Ava and Cleo both sat on office chair_5 for 474
+    frames (two planning steps gave it to each); a chair is a single-user object too."""
+    office = load_bundled_scene("office")
+    (one,) = seat_slots(office.by_name["chair_5"])
+    (other,) = seat_slots(office.by_name["chair_4"])
+    ava = np.array([one.position] * 10)
+    cleo = np.array([one.position] * 6 + [other.position] * 4)
+    labels = {"Ava": ["attend_meeting@seated"] * 10, "Cleo": ["walk"] * 2 + ["attend_meeting@seated"] * 8}
+    assert shared_seat_frames(labels, {"Ava": ava, "Cleo": cleo}, office) == 4  # frames 2-5; then chair_4
+    couch = load_bundled_scene("home")
+    a, b, *_ = seat_slots(couch.by_name["couch_1"])
+    two = {"Ava": np.array([a.position] * 3), "Ben": np.array([b.position] * 3)}
+    assert shared_seat_frames({"Ava": ["drink@seated"] * 3, "Ben": ["drink@seated"] * 3}, two, couch) == 0  # two places
