@@ -24,11 +24,11 @@ import math
 from collections.abc import Collection, Sequence
 
 from agents.messages import PlannedCharacter
-from agents.place_choice import sits_at, table_of
 from agents.relation_words import labels_about
 from sim.scene.model import Scene
 from tools.character_states import WorldView
 from tools.object_use import busy_named_objects, used_object
+from tools.place_relations import sits_at, table_of
 
 
 def busy_device(

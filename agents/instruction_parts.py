@@ -319,8 +319,9 @@ _OBJECT_PRONOUNS = frozenset({"them", "their", "theirs", "him", "his", "her", "h
 def served_characters(instruction: str, part: str, names: Sequence[str]) -> tuple[str, ...]:
     """The characters ``part`` (a part of ``instruction``) acts for: the names it mentions other
     than its actors ("brings the menu to Ava"), else, when it points at people with a pronoun
-    ("brings them menus", "takes their order"), the actors of the nearest part before it whose
-    actors are others (the guests of the sentence before). () when it names or points at nobody."""
+    ("brings them menus", "takes their order"; "they" too in a part whose actors are named:
+    "Cleo notes down what they want"), the actors of the nearest part before it whose actors are
+    others (the guests of the sentence before). () when it names or points at nobody."""
     if not part:
         return ()
     parts = split_instruction(instruction, names)
@@ -329,7 +330,9 @@ def served_characters(instruction: str, part: str, names: Sequence[str]) -> tupl
     named = tuple(n for n in _mentioned(part, names) if n not in actors)
     if named or index is None:
         return named
-    if not {w.lower() for w in _WORD.findall(part)} & _OBJECT_PRONOUNS:
+    words = {w.lower() for w in _WORD.findall(part)}
+    # "they" points at others in a part whose own actors are named ("Cleo notes what they want")
+    if not words & _OBJECT_PRONOUNS and not (actors and "they" in words):
         return ()
     before = next((p for p in reversed(parts[:index]) if p.actors and not set(p.actors) & set(actors)), None)
     return before.actors if before is not None else ()

@@ -53,15 +53,13 @@ from tools.place_relations import (
     gap,
     group_gap,
     keep_satisfying,
+    sits_at,
+    table_of,
 )
 from tools.scene_graph import footprint_distance
 
 MAX_CANDIDATES = 10
 """Seats offered to the model at most (those meeting the stated relations first)."""
-AT_M = 0.6
-"""A seat within this gap (m) of a non-seat object sits at it ("at table_2")."""
-SURFACE_HEIGHT_M = (0.4, 1.3)
-SURFACE_AREA_M2 = 0.2
 """What one sits at: a non-seat object this tall (m) with a footprint this large (m²): tables,
 desks, counters; not lamps or loudspeakers."""
 WITH_M = 1.5
@@ -122,13 +120,6 @@ def _named_things(
     return out[:MAX_NOTES]
 
 
-def sits_at(obj: SceneObject) -> bool:
-    """Whether people sit at ``obj``: a surface (not a seat) of table height and table size."""
-    return not obj.is_seat and SURFACE_HEIGHT_M[0] <= obj.z_max - obj.z_min <= SURFACE_HEIGHT_M[1] and (
-        obj.width * obj.depth >= SURFACE_AREA_M2
-    )
-
-
 OTHER_WORDS = frozenset({"other", "another", "different", "second", "next", "new", "separate"})
 """Words before a table that mean not the one already named ("sits at the other table")."""
 
@@ -138,12 +129,6 @@ def _another(text: str, things: Sequence[str]) -> bool:
     words = re.findall(r"[a-z]+", text.lower())
     heads = {label.split("_")[-1] for label in things}
     return any(w in heads and i > 0 and words[i - 1] in OTHER_WORDS for i, w in enumerate(words))
-
-
-def table_of(scene: Scene, seat: SceneObject) -> SceneObject | None:
-    """The thing ``seat`` sits at (a table, desk or counter within ``AT_M``; the nearest), or None."""
-    near = [(gap(seat, Reference(o.name, obj=o)), o) for o in scene.objects if sits_at(o) and o.name != seat.name]
-    return min((x for x in near if x[0] <= AT_M), key=lambda x: x[0], default=(0.0, None))[1]
 
 
 def candidate_notes(

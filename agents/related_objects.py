@@ -22,10 +22,17 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from agents.place_choice import references_of, sits_at
+from agents.place_choice import references_of
 from agents.relation_words import stated_relations
 from sim.scene.model import Scene
-from tools.place_relations import TIE_M, Reference, StatedRelation, group_gap, keep_satisfying
+from tools.place_relations import (
+    TIE_M,
+    Reference,
+    StatedRelation,
+    group_gap,
+    keep_satisfying,
+    sits_at,
+)
 
 SERVING_LABELS = ("serve_", "deliver_", "take_order")
 """Labels (prefixes) of actions done for other people at their place: a waiter serves a table."""

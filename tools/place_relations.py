@@ -33,7 +33,7 @@ from typing import Literal
 
 import numpy as np
 
-from sim.scene.model import SceneObject
+from sim.scene.model import Scene, SceneObject
 from tools.scene_graph import footprint_distance, point_footprint_distance
 
 RelationKind = Literal["nearest", "near", "farthest", "facing", "between", "left", "right"]
@@ -178,3 +178,22 @@ def keep_satisfying(relations: Sequence[StatedRelation], candidates: Sequence[Sc
         if narrowed:
             kept = narrowed
     return kept
+
+
+AT_M = 0.6
+"""A seat within this gap (m) of a non-seat object sits at it ("at table_2")."""
+SURFACE_HEIGHT_M = (0.4, 1.3)
+SURFACE_AREA_M2 = 0.2
+
+
+def sits_at(obj: SceneObject) -> bool:
+    """Whether people sit at ``obj``: a surface (not a seat) of table height and table size."""
+    return not obj.is_seat and SURFACE_HEIGHT_M[0] <= obj.z_max - obj.z_min <= SURFACE_HEIGHT_M[1] and (
+        obj.width * obj.depth >= SURFACE_AREA_M2
+    )
+
+
+def table_of(scene: Scene, seat: SceneObject) -> SceneObject | None:
+    """The thing ``seat`` sits at (a table, desk or counter within ``AT_M``; the nearest), or None."""
+    near = [(gap(seat, Reference(o.name, obj=o)), o) for o in scene.objects if sits_at(o) and o.name != seat.name]
+    return min((x for x in near if x[0] <= AT_M), key=lambda x: x[0], default=(0.0, None))[1]

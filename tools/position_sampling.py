@@ -46,6 +46,7 @@ from numpy.typing import NDArray
 from sim.scene.model import FLOOR_STANDING_M, Scene
 from tools.areas import Area, SeatSlot, seat_slots
 from tools.errors import UnsatisfiableAreaError
+from tools.place_relations import table_of
 from tools.scene_graph import footprint_distance, point_footprint_distance
 
 if TYPE_CHECKING:
@@ -203,15 +204,16 @@ companion already took."""
 def _companion_seats(area: Area, scene: Scene, c: Constraints) -> list[SeatSlot]:
     """When every seat ``area`` offers was taken by members of the same event ("Cy and Di sit on
     chair_5" for a one-place chair, or four on a three-place couch), the free seat nearest to
-    it (within ``NEIGHBOUR_SEAT_M``), one of the same kind first: the group sits together.
-    Empty otherwise."""
+    it (within ``NEIGHBOUR_SEAT_M``), one of the same kind first, then one at the same table
+    (:func:`tools.place_relations.table_of`): the group sits together. Empty otherwise."""
     wanted = {s.seat for s in area.seats}
     if not wanted or not wanted <= c.taken_by_group:
         return []
     by_name = {o.name: o for o in scene.objects}
     chosen = [by_name[n] for n in sorted(wanted) if n in by_name]
     labels = {o.label for o in chosen}
-    best: list[tuple[bool, float, str, SeatSlot]] = []
+    tables = {t.name for o in chosen if (t := table_of(scene, o)) is not None}
+    best: list[tuple[bool, bool, float, str, SeatSlot]] = []
     for o in scene.objects:
         if not o.is_seat or o.name in wanted:
             continue
@@ -223,9 +225,10 @@ def _companion_seats(area: Area, scene: Scene, c: Constraints) -> list[SeatSlot]
             if len(slots) == 1 and o.name in c.taken_objects:
                 continue
             if bool(_far_from(np.array([slot.position]), c.avoid, c.min_separation)[0]):
-                best.append((o.label not in labels, gap, o.name, slot))
-    best.sort(key=lambda t: (t[0], t[1], t[2]))
-    return [best[0][3]] if best else []
+                at = table_of(scene, o)
+                best.append((o.label not in labels, bool(tables) and (at is None or at.name not in tables), gap, o.name, slot))
+    best.sort(key=lambda t: (t[0], t[1], t[2], t[3]))
+    return [best[0][4]] if best else []
 
 
 SEAT_EDGE_MARGIN = 0.05

@@ -131,6 +131,10 @@ def test_the_people_a_part_acts_for_are_named_or_pointed_at() -> None:
     assert served_characters("Cy hands the bill to Ben.", "Cy hands the bill to Ben.", names) == ("Ben",)
     alone = "Ava makes tea, then drinks it."
     assert [served_characters(alone, p.text, names) for p in split_instruction(alone, names)] == [(), ()]
+    # "they" in a part with a named actor points at others; a part that opens with "they" acts itself
+    asked = "Ava and Ben sit at the bar. Cy asks what they fancy. Then they chat."
+    assert [served_characters(asked, p.text, names) for p in split_instruction(asked, names)] == [
+        (), ("Ava", "Ben"), ()]
 
 
 def test_events_mark_parts_done_ongoing_and_the_next_one() -> None:

@@ -297,6 +297,24 @@ def test_two_characters_sent_to_one_chair_sit_together_and_never_on_a_held_seat(
         run_reply(program, scene=SCENE, event=event, world=held, seed=0, action_labels=LABELS)
 
 
+def test_the_companion_of_a_two_seat_table_sits_at_that_table_not_the_nearer_next_one() -> None:
+    """The restaurant's small table_4 has chair_11 and chair_12; chair_10, at table_3, is a few
+    centimetres nearer chair_11: "Ava and Cy sit on chair_11" seats Cy on chair_12."""
+    from sim.scene.bundled import resolve_scene as scene_named
+
+    restaurant = scene_named("restaurant")
+    event = Event(characters=("Ava", "Cy"), activity="eat at the small table")
+    program = ('```python\ndef parse_event():\n'
+               + "".join(f'    c{i} = get_character("{n}")\n    c{i}.set_target_action("eat")\n'
+                         f'    c{i}.set_position(get_area_to_sit_on("chair_11"))\n    c{i}.set_orientation("table_4")\n'
+                         for i, n in enumerate(("Ava", "Cy"), start=1))
+               + '```')
+    world = WorldView(characters=(CharacterState(name="Ava", position=(3.0, 3.0)), CharacterState(name="Cy", position=(3.5, 3.0))))
+    result = run_reply(program, scene=restaurant, event=event, world=world, seed=0,
+                       action_labels=scene_action_labels(restaurant))
+    assert [p.seat for p in result.plans] == ["chair_11", "chair_12"]
+
+
 def test_a_retry_after_a_place_without_room_offers_every_area_function_by_the_same_things() -> None:
     strict = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity="waits behind the couch")
     wide = event_program_grammar(SCENE, ("Ava",), ROSTER, SEATS_IN_USE, LABELS, activity="waits behind the couch",
