@@ -24,7 +24,11 @@ sit at the body's rest joints, and its pelvis follows the SMPL ``transl`` conven
 ``.smplx.npz`` export (``pelvis = trans + J0`` of the body), so the GLB shows what the model
 shows for the exported parameters. The animated local rotations are the same.
 
-The static node transforms are the first frame's pose. Output bytes are deterministic.
+The static node transforms are the first frame's pose. Output bytes are deterministic. Every
+name in the document (objects, characters, their joints, meshes, materials, skins) comes from a
+scene file or a model and a glTF viewer shows it as text, so it is written through
+``sim.visible_text.plain`` (control, format, separator and surrogate characters as escapes; an
+ordinary name is unchanged).
 """
 
 from __future__ import annotations
@@ -52,6 +56,7 @@ from sim.export.box_figure import box_mesh, character_mesh
 from sim.export.joint_rotations import JointRotations
 from sim.no_follow_writes import write_file
 from sim.scene.model import Scene, SceneObject
+from sim.visible_text import plain
 from sim.world.character_track import CharacterTrack
 
 WORLD_TO_GLTF = BODY_TO_WORLD.T
@@ -427,8 +432,17 @@ def build_glb(
     w.gltf.scenes.append(gl.Scene(name="storyteller", nodes=top))
     w.gltf.scene = 0
     w.gltf.buffers.append(gl.Buffer(byteLength=len(w.blob)))
+    _escape_names(w.gltf)
     w.gltf.set_binary_blob(bytes(w.blob))
     return w.gltf
+
+
+def _escape_names(gltf: gl.GLTF2) -> None:
+    """Every name of ``gltf`` through ``plain``, in place."""
+    for group in (gltf.scenes, gltf.nodes, gltf.meshes, gltf.materials, gltf.skins, gltf.accessors, gltf.animations):
+        for item in group:
+            if item.name is not None:
+                item.name = plain(item.name)
 
 
 def glb_bytes(
