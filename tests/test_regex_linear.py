@@ -69,11 +69,11 @@ def _story_text_patterns() -> list[tuple[str, int]]:
     """The shapes ``agents/story_text.py`` builds inline (mirrored here with sample words)."""
     import re as _re
 
-    from agents import story_text
+    from agents import narrator_words
 
     words = [_re.escape("coffee_maker_1"), _re.escape("coffee_maker").replace("_", "[ _]") + "s?", _re.escape("cup") + "s?"]
     return (
-        [(r"(?:\bthe\s+)?(?P<id>" + story_text._ID_IN_TEXT.pattern + ")", _re.IGNORECASE)]
+        [(r"(?:\bthe\s+)?(?P<id>" + narrator_words._ID_IN_TEXT.pattern + ")", _re.IGNORECASE)]
         + [(rf"(?<![a-z0-9_]){p}(?![a-z0-9_])", _re.IGNORECASE) for p in words]
         + [(rf"(?<![a-z]){_re.escape(w)}", 0) for w in ("sit", "coffee", "a.b")]
     )
