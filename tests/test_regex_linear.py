@@ -66,7 +66,7 @@ def _shortlist_patterns() -> list[tuple[str, int]]:
 
 
 def _story_text_patterns() -> list[tuple[str, int]]:
-    """The shapes ``agents/story_text.py`` builds inline (mirrored here with sample words)."""
+    """The shapes ``agents/narrator_words.py`` builds inline (mirrored here with sample words)."""
     import re as _re
 
     from agents import narrator_words
@@ -92,9 +92,10 @@ BUILT_AT_RUN_TIME: dict[tuple[str, str], Callable[[], list[tuple[str, int]]]] = 
     ("agents/instruction_parts.py", "_leading_subject"): _instruction_patterns,
     ("agents/instruction_parts.py", "_at_the_same_time"): _instruction_patterns,
     ("agents/shortlist.py", "_mentions"): _shortlist_patterns,
-    ("agents/story_text.py", "with_names"): _story_text_patterns,
-    ("agents/story_text.py", "_mentions_object"): _story_text_patterns,
-    ("agents/story_text.py", "_mentions_action"): _story_text_patterns,
+    ("agents/narrator_words.py", "with_names"): _story_text_patterns,
+    ("agents/narrator_words.py", "_mentions_object"): _story_text_patterns,
+    ("agents/narrator_words.py", "_says_word"): _story_text_patterns,
+    ("agents/narrator_words.py", "unplanned_ids"): _story_text_patterns,
     ("benchmark/story_text_fidelity.py", "raw_ids"): _fidelity_patterns,
 }
 """(file, enclosing function) of each call whose pattern is built at run time -> the patterns it
