@@ -1,7 +1,7 @@
 """The three LLM roles (describer, narrator, event parser) and the paper's ablations, behind
-one LLM port (``agents.llm_port.LLMPort``).
+one LLM port (``storyteller.agents.llm_port.LLMPort``).
 
 Imports ``sim`` and ``tools`` only: no langgraph, no litellm, no clock. Each role builds typed
-requests and judges typed replies; the planning graph in ``orchestrator.planning`` decides
+requests and judges typed replies; the planning graph in ``storyteller.orchestrator.planning`` decides
 when to call, retry and record.
 """

@@ -1,12 +1,12 @@
 """The action of an event whose words give the label ranker no evidence, as the model's choice.
 
-The event parser's prompt names a suggested label (:func:`agents.action_shortlist.suggested_action`),
+The event parser's prompt names a suggested label (:func:`storyteller.agents.action_shortlist.suggested_action`),
 ranked from the event's words; a small model mostly follows it. When the words name no action
 the ranker knows ("sits down to have an apple and some crackers", "takes a free seat at that
 table"), the suggestion was ``idle`` and the program sat the character down doing nothing. Here
 such an event's action is a choice among the labels offered, ranked by the model's own
 likelihood of each label as its reply (one prompt, scored continuations for the embedded model:
-:mod:`agents.scored_choice`; an enum-constrained reply elsewhere). An event whose words do rank a
+:mod:`storyteller.agents.scored_choice`; an enum-constrained reply elsewhere). An event whose words do rank a
 label keeps the ranker's answer and gets no call.
 
 The chosen label is the parser's suggestion and the first label its grammar offers (so a seated
@@ -18,11 +18,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from agents.action_shortlist import posture, rank_action_labels
-from agents.llm_port import ChatMessage, LLMRequest
-from agents.prompt_templates import PromptLibrary, package_prompts
-from agents.relation_words import names_a_relation
-from agents.scored_choice import choice_request
+from storyteller.agents.action_shortlist import posture, rank_action_labels
+from storyteller.agents.llm_port import ChatMessage, LLMRequest
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.agents.relation_words import names_a_relation
+from storyteller.agents.scored_choice import choice_request
 
 MOTION_LABELS = frozenset({"walk", "sit_down", "sit_idle", "stand_up"})
 """Labels the simulation plays by itself, never the action of an event."""

@@ -9,10 +9,10 @@ scores every offered label against the text with a small lexicon of general Engl
 phrases per label (:data:`CUES`), plus the object the label names when the text names that
 object (``use_toaster`` and "the toaster"), with the direction of switch-like labels taken
 from the text (``on`` / ``off``, ``open`` / ``close``); :func:`action_shortlist` keeps the labels
-close to the best. The event parser's grammar then offers only those (``agents.program_grammar``)
+close to the best. The event parser's grammar then offers only those (``storyteller.agents.program_grammar``)
 and the prompt names the best as the suggestion.
 
-The lexicon is written for the product's action labels (``sim.motion.action_labels``) from
+The lexicon is written for the product's action labels (``storyteller.sim.motion.action_labels``) from
 everyday wording, not from any benchmark case. A label absent from :data:`CUES` is still ranked
 by the words of its own name. Pure: no LLM, no I/O.
 """
@@ -24,8 +24,8 @@ import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
-from agents.english_words import verb_lemmas
-from agents.shortlist import SYNONYMS, mentioned_labels
+from storyteller.agents.english_words import verb_lemmas
+from storyteller.agents.shortlist import SYNONYMS, mentioned_labels
 
 _TOKEN = re.compile(r"[a-z0-9]+|[,.;:!?]")
 _WORD = re.compile(r"[A-Za-z]+")
@@ -161,7 +161,7 @@ SWITCHES = {
 """Label prefixes whose direction the text must give, and the words that give it."""
 OPPOSITES = {"turn_on_": "turn_off_", "turn_off_": "turn_on_", "open_": "close_", "close_": "open_"}
 """Switch prefixes with an opposite: when a label's opposite is not offered (the story holds the
-state it would set, :mod:`agents.object_states`), only one direction is left and the text need
+state it would set, :mod:`storyteller.agents.object_states`), only one direction is left and the text need
 not give it ("wanting some peace, Jo sees to the TV" with the TV on)."""
 
 KEEP_RATIO = 0.5

@@ -24,8 +24,8 @@ import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-from agents.prompt_templates import PromptLibrary, package_prompts
-from agents.room_table import RoomTable, room_table
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.agents.room_table import RoomTable, room_table
 
 FIT_SCORE = 0.75
 """Weighted share of an area's voting labels that must admit its kind (see the module docstring);

@@ -1,7 +1,7 @@
 """Which of the scene description's areas an event's words name ("naps in the den").
 
 The scene description the narrator and the parser read is one line per functional area
-(``- kitchen (make coffee): fridge_1, chair_2, ...``, :func:`agents.describer.render_description`).
+(``- kitchen (make coffee): fridge_1, chair_2, ...``, :func:`storyteller.agents.describer.render_description`).
 When an instruction places someone "in the galley", "in the boardroom" or "at the bar",
 the seats that fit are the ones the description puts in that area; a 0.5B model asked to pick a
 seat does not read that off the description (it picks ``chair_1``).
@@ -31,9 +31,9 @@ import re
 from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-from agents.object_names import EVERYDAY_NAMES
-from agents.prompt_templates import PromptLibrary
-from agents.room_table import RoomTable, room_table
+from storyteller.agents.object_names import EVERYDAY_NAMES
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.agents.room_table import RoomTable, room_table
 
 _TOKEN = re.compile(r"[A-Za-z0-9_]+")
 _WORD = re.compile(r"[a-z0-9']+")

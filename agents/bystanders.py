@@ -10,10 +10,10 @@ allows, a choice, a check):
   allows (standing at an object of some labels, on a seat, or on a seat near an object of some
   labels), for the action labels the scene offers, each said as one activity ("make toast at
   toaster_1", "read a book sitting on armchair_1", ``prompts/story/choice_*.md`` with the verb
-  phrases of ``agents.story_text``). A text is kept only when it ranks its own label first
-  (``agents.action_shortlist``), so the event parser reads the same action back.
+  phrases of ``storyteller.agents.story_text``). A text is kept only when it ranks its own label first
+  (``storyteller.agents.action_shortlist``), so the event parser reads the same action back.
 - :func:`bystander_rules` picks the choices for one narrator turn: not an object another
-  character uses alone now (``tools.object_use``), not a seat without a free place, not the
+  character uses alone now (``storyteller.tools.object_use``), not a seat without a free place, not the
   instruction's own activities (the labels its parts rank first), not an object the instruction
   names, not what a bystander did last. When that leaves nothing, the named objects come back,
   then a repeat (the scene offers nothing else); with still nothing, no list is offered and the
@@ -40,17 +40,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from agents.action_shortlist import action_shortlist, posture, rank_action_labels
-from agents.instruction_parts import named_in, split_instruction
-from agents.messages import CharacterStatus, Event, HistoryEntry
-from agents.prompt_templates import PromptLibrary, package_prompts
-from agents.shortlist import CLOSE_M, VIEWED_M, mentioned_labels
-from agents.story_text import phrase_of, plural
-from sim.scene.model import Scene, SceneObject
-from tools.areas import seat_slots
-from tools.character_states import CharacterState, WorldView
-from tools.object_use import SINGLE_USER_ACTIONS, used_labels, users_of_objects
-from tools.scene_graph import footprint_distance, point_footprint_distance
+from storyteller.agents.action_shortlist import action_shortlist, posture, rank_action_labels
+from storyteller.agents.instruction_parts import named_in, split_instruction
+from storyteller.agents.messages import CharacterStatus, Event, HistoryEntry
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.agents.shortlist import CLOSE_M, VIEWED_M, mentioned_labels
+from storyteller.agents.story_text import phrase_of, plural
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.areas import seat_slots
+from storyteller.tools.character_states import CharacterState, WorldView
+from storyteller.tools.object_use import SINGLE_USER_ACTIONS, used_labels, users_of_objects
+from storyteller.tools.scene_graph import footprint_distance, point_footprint_distance
 
 MAX_CHOICES = 6
 """Activities listed for one turn (a short list keeps a small model's prompt short)."""
@@ -170,7 +170,7 @@ class SceneNow:
     choices: tuple[Choice, ...]
     areas: Mapping[str, int]
     users: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
-    """Object -> the characters using it alone (``tools.object_use.users_of_objects``)."""
+    """Object -> the characters using it alone (``storyteller.tools.object_use.users_of_objects``)."""
     seated: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     """Seat -> the characters sitting on it or heading there."""
 
@@ -213,7 +213,7 @@ def instruction_activities(
     instruction: str, names: Sequence[str], labels: Sequence[str], object_labels: Sequence[str] = ()
 ) -> dict[str, tuple[str, ...]]:
     """Action label -> the actors of the instruction's parts that ask for it (the labels each
-    part's words rank close to the best, ``agents.action_shortlist``)."""
+    part's words rank close to the best, ``storyteller.agents.action_shortlist``)."""
     out: dict[str, list[str]] = {}
     for part in split_instruction(instruction, names):
         for label in action_shortlist(part.text, labels, object_labels):

@@ -12,11 +12,11 @@ In regions mode (small local models) the model instead answers one entry per reg
 ``{"regions": [{"region": 1, "area", "purpose"}, ...]}``; the schema pins the entries' region
 numbers (1..n, in order), so under grammar decoding every region appears exactly once and the
 answer needs no rejected attempt; regions named alike form one area. Each entry's area name and
-purpose are chosen from the ones the room table (``agents.area_fit.region_choices``) gives its
+purpose are chosen from the ones the room table (``storyteller.agents.area_fit.region_choices``) gives its
 region, so a grammar-decoded answer names a couch and a TV a living room, never a dining area.
 
 Both modes: an answer whose area names or purposes do not fit their objects by the room table
-(``agents.area_fit``) is rejected with feedback naming the kinds that would fit; if the last
+(``storyteller.agents.area_fit``) is rejected with feedback naming the kinds that would fit; if the last
 try still disagrees, the misfits are renamed from the table (:func:`best_effort`).
 
 Descriptions are cached on disk per (scene content, model, prompt files) hash.
@@ -35,12 +35,12 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, JsonValue
 
-from agents.area_fit import area_problems_by_table, fitting_kinds, region_choices, rule_areas
-from agents.llm_port import ChatMessage, LLMPort, LLMRequest
-from agents.llm_schemas import Refine, reply_schema
-from agents.messages import SceneDescription
-from agents.prompt_templates import PromptLibrary, package_prompts
-from agents.retry_feedback import (
+from storyteller.agents.area_fit import area_problems_by_table, fitting_kinds, region_choices, rule_areas
+from storyteller.agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from storyteller.agents.llm_schemas import Refine, reply_schema
+from storyteller.agents.messages import SceneDescription
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.agents.retry_feedback import (
     AnswerRejectedError,
     RetriesExhaustedError,
     Turn,
@@ -48,12 +48,12 @@ from agents.retry_feedback import (
     retry_temperature,
     with_turns,
 )
-from agents.room_table import ROOMS_FILE, room_table
-from sim.bounded_files import load_bounded_json, read_bounded_bytes
-from sim.scene.model import Scene
-from tools.clusters import cluster_objects
-from tools.scene_graph import SceneGraph, build_scene_graph
-from tools.scene_text import clusters_text, scene_graph_json
+from storyteller.agents.room_table import ROOMS_FILE, room_table
+from storyteller.sim.bounded_files import load_bounded_json, read_bounded_bytes
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.clusters import cluster_objects
+from storyteller.tools.scene_graph import SceneGraph, build_scene_graph
+from storyteller.tools.scene_text import clusters_text, scene_graph_json
 
 DESCRIBER_FILES = (
     "describer/system.md",
@@ -187,7 +187,7 @@ def describer_schema(names: Sequence[str]) -> dict[str, Any]:
 
 
 RegionChoices = tuple[tuple[str, ...], tuple[str, ...]]
-"""A region's area names and purposes (best first), from :func:`agents.area_fit.region_choices`."""
+"""A region's area names and purposes (best first), from :func:`storyteller.agents.area_fit.region_choices`."""
 
 
 def describer_regions_schema(
@@ -460,7 +460,7 @@ class DescriberAttempt:
 
 
 def fit_problems(areas: AreaList, inp: DescriberInput, prompts: PromptLibrary | None = None) -> list[str]:
-    """Areas whose name or purpose does not fit their objects by the room table (``agents.area_fit``)."""
+    """Areas whose name or purpose does not fit their objects by the room table (``storyteller.agents.area_fit``)."""
     return area_problems_by_table([(a.name, a.purpose, a.objects) for a in areas.areas], inp.all_labels, prompts=prompts)
 
 

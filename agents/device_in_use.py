@@ -2,7 +2,7 @@
 are all taken: its characters wait for it.
 
 "Luca also has to fetch a carton of juice from the fridge" while Dalia stands at the open fridge:
-the fridge is used by one person at a time (``tools.object_use``), so Luca cannot do it now and
+the fridge is used by one person at a time (``storyteller.tools.object_use``), so Luca cannot do it now and
 waits. The spatial API refuses a plan that *uses* a device in use (``ObjectInUseError``: told
 once, then the character waits by it), but a small model often writes one that avoids the device
 instead: Luca drinking on a chair. Here the event's own words decide: when they name a
@@ -23,12 +23,12 @@ from __future__ import annotations
 import math
 from collections.abc import Collection, Sequence
 
-from agents.messages import PlannedCharacter
-from agents.relation_words import labels_about
-from sim.scene.model import Scene
-from tools.character_states import WorldView
-from tools.object_use import busy_named_objects, used_object
-from tools.place_relations import sits_at, table_of
+from storyteller.agents.messages import PlannedCharacter
+from storyteller.agents.relation_words import labels_about
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.object_use import busy_named_objects, used_object
+from storyteller.tools.place_relations import sits_at, table_of
 
 
 def busy_device(

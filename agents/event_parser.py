@@ -2,7 +2,7 @@
 
 One call = one request from :func:`parser_request`. The reply's code is found by
 :func:`extract_program` (a fenced block, or bare code, or even a bare function body), run
-in the sandbox through ``tools.event_program.run_event_program``, and the result is checked:
+in the sandbox through ``storyteller.tools.event_program.run_event_program``, and the result is checked:
 every character of the event, and no other, gets a plan. Any failure (no code, a typed
 ``EventProgramError`` from the sandbox or the spatial API, a missing character) becomes
 feedback for the next attempt.
@@ -19,12 +19,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
-from agents.action_shortlist import suggested_action
-from agents.llm_port import ChatMessage, LLMPort, LLMRequest
-from agents.messages import CharacterStatus, Event, PlannedCharacter, ToolPlan
-from agents.place_phrases import plain_places
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, package_prompts
-from agents.retry_feedback import (
+from storyteller.agents.action_shortlist import suggested_action
+from storyteller.agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from storyteller.agents.messages import CharacterStatus, Event, PlannedCharacter, ToolPlan
+from storyteller.agents.place_phrases import plain_places
+from storyteller.agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, package_prompts
+from storyteller.agents.retry_feedback import (
     Accepted,
     AnswerRejectedError,
     NoCodeError,
@@ -33,11 +33,11 @@ from agents.retry_feedback import (
     retry_temperature,
     with_turns,
 )
-from sim.motion.action_labels import ACTION_LABELS, ACTION_SPECS, playable_seated
-from sim.scene.model import Scene
-from tools.character_states import WorldView
-from tools.scene_graph import SceneGraph
-from tools.spatial_api import SpatialAPI, handle_methods
+from storyteller.sim.motion.action_labels import ACTION_LABELS, ACTION_SPECS, playable_seated
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.scene_graph import SceneGraph
+from storyteller.tools.spatial_api import SpatialAPI, handle_methods
 
 PARSER_RETRY_INSTRUCTION = "feedback/code_again.md"
 """Prompt file of the instruction after a rejected program."""
@@ -62,7 +62,7 @@ class ProgramRunner(Protocol):
 
 
 def default_runner() -> ProgramRunner:
-    from tools.event_program import run_event_program
+    from storyteller.tools.event_program import run_event_program
 
     return run_event_program
 
@@ -80,17 +80,17 @@ class ParserInput:
     seed: int | None = None
     sim_frame: int | None = None
     grammar: str | None = None
-    """GBNF grammar of the reply (see agents.program_grammar); None: free text."""
+    """GBNF grammar of the reply (see storyteller.agents.program_grammar); None: free text."""
     instruction_part: str = ""
     """The part of the user's instruction the event carries out ("" when none): its own words,
     which the narrator's activity may have lost ("the laptop" in "takes the seat from which
     the laptop can be reached")."""
     seat: str | None = None
-    """The seat chosen for the event before its program (``agents.place_choice``), named in the
+    """The seat chosen for the event before its program (``storyteller.agents.place_choice``), named in the
     request; None: no seat was chosen."""
     action: str | None = None
     """The action chosen for the event before its program when its words name none
-    (``agents.action_choice``): the suggested label; None: the label ranker's suggestion."""
+    (``storyteller.agents.action_choice``): the suggested label; None: the label ranker's suggestion."""
     max_tokens: int | None = None
     """None: 80 + 110 per event character (capped at DEFAULT_MAX_TOKENS), enough for the
     function; a small model otherwise goes on writing more examples."""
@@ -133,7 +133,7 @@ AREA_KINDS = ("area", "seat_area", "area_operation")
 
 
 def spatial_api_listing(prompts: PromptLibrary | None = None) -> dict[str, str]:
-    """The system prompt's function list, rendered from ``tools.spatial_api`` (the listed
+    """The system prompt's function list, rendered from ``storyteller.tools.spatial_api`` (the listed
     functions and the character handle's methods), so the prompt names only what exists."""
     lib = prompts or package_prompts()
     listed = [f for f in SpatialAPI.functions() if f.listed]
@@ -152,7 +152,7 @@ def event_text(activity: str, instruction_part: str = "") -> str:
     """What the event is about, for the label and object shortlists: the instruction part it
     carries out when there is one (the user's own words; a small narrator adds places of its
     own, "... sitting on chair_1"), else the narrator's activity; the sides of things written
-    the one way the readers know (:func:`agents.place_phrases.plain_places`: "on the bench's
+    the one way the readers know (:func:`storyteller.agents.place_phrases.plain_places`: "on the bench's
     right-hand side" is "to the right of the bench")."""
     return plain_places(instruction_part.strip() or activity.strip())
 

@@ -5,10 +5,10 @@ Two windows with two purposes, both in force in the narrator's prompt:
 - :data:`HISTORY_WINDOW` (12) is how many of the latest events a planning step carries as its
   ``history`` (``PlanningState.recent`` in ``storyteller plan``, the session's
   ``history_window`` in ``storyteller run``); the events before are folded into one
-  :class:`~agents.messages.EarlierEvents` summary. The instruction's progress and the
+  :class:`~storyteller.agents.messages.EarlierEvents` summary. The instruction's progress and the
   ongoing events the prompt shows are read from this history.
 - :data:`LISTED_FINISHED` (8) is how many of the completed or failed events of that history
-  the narrator's prompt lists one per line (``agents.narrator.history_text``); ongoing events
+  the narrator's prompt lists one per line (``storyteller.agents.narrator.history_text``); ongoing events
   are always listed. The finished events before them are counted in one line, or folded with
   ``earlier`` into its summary line.
 
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from agents.messages import EarlierEvents, HistoryEntry
+from storyteller.agents.messages import EarlierEvents, HistoryEntry
 
 HISTORY_WINDOW = 12
 """Latest events (by step) a planning step carries as its history; older ones are summarised."""

@@ -37,7 +37,7 @@ LLM) still chooses and writes the event.
   their last activity, a looping one that is not just idling): they are asked for an event of their own (the reply may name only them),
   so nobody the user did not mention stands idle while the others carry the instruction out. Once every part has happened,
   the free characters the instruction never names (and who are not still at a looping activity) are
-  bystanders too: they go on with lives of their own (``agents.bystanders`` offers them everyday
+  bystanders too: they go on with lives of their own (``storyteller.agents.bystanders`` offers them everyday
   activities); those still at a looping activity of their own carry on (the reply may not name
   them; with nobody else free the step is a wait without a call); otherwise the model is asked
   as before (its rules say what to do with free characters the instruction no longer needs).
@@ -58,12 +58,12 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from agents.action_shortlist import posture
-from agents.english_words import may_be_verb
-from agents.messages import HistoryEntry
-from agents.prompt_templates import PromptLibrary, package_prompts
-from agents.relation_words import before_relations
-from agents.step_words import (
+from storyteller.agents.action_shortlist import posture
+from storyteller.agents.english_words import may_be_verb
+from storyteller.agents.messages import HistoryEntry
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.agents.relation_words import before_relations
+from storyteller.agents.step_words import (
     AND_WORD,
     NOT_A_VERB,
     activity_kind,
@@ -211,9 +211,9 @@ def _lower(names: Sequence[str]) -> frozenset[str]:
 
 
 def _with_reasons_joined(parts: list[InstructionPart], names: Sequence[str], lib: PromptLibrary) -> list[InstructionPart]:
-    """``parts`` with each part that states no step of its own (:func:`agents.step_words.no_action`:
+    """``parts`` with each part that states no step of its own (:func:`storyteller.agents.step_words.no_action`:
     "Quinn, free for a moment.", "Femi's bottle is empty.") or, when the next part is no "then"
-    step, only what its subject wants (:func:`agents.step_words.intends_only`: "Noor wants to
+    step, only what its subject wants (:func:`storyteller.agents.step_words.intends_only`: "Noor wants to
     read. She takes the chair furthest from the fridge.") joined to the part after it, when that
     one's actors are its own or either names none ("Quinn, free for a moment. Switches the telly
     on." is one step: switching the TV on)."""
@@ -268,7 +268,7 @@ def _and_steps(piece: str, names: Sequence[str]) -> list[str]:
     coffee maker" points to none), the two differ, neither is ``idle`` (waiting while waving is
     one action), the side before names no posture ("sits on the couch and drinks" is drinking
     seated: one step) and does more than go somewhere or say how something is
-    (:mod:`agents.step_words`). Two characters "chat and watch TV together" at once: not cut."""
+    (:mod:`storyteller.agents.step_words`). Two characters "chat and watch TV together" at once: not cut."""
     if len(_mentioned(_leading_subject(piece, names), names)) > 1:
         return [piece]
     steps: list[str] = []

@@ -32,7 +32,7 @@ from typing import Any
 
 from pydantic import BaseModel, JsonValue
 
-from agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
 
 __all__ = ["Refine", "SchemaContractError", "reply_schema", "schema_instruction"]
 

@@ -11,7 +11,7 @@ from typing import Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from tools.character_states import CharacterPlan
+from storyteller.tools.character_states import CharacterPlan
 
 __all__ = [
     "CharacterPlan",
@@ -164,7 +164,7 @@ class PlannedCharacter(_Frozen):
 
     @classmethod
     def from_tool_plan(cls, plan: ToolPlan) -> PlannedCharacter:
-        """Copy a ``tools.event_program.CharacterPlan`` (or any object with the same fields)."""
+        """Copy a ``storyteller.tools.event_program.CharacterPlan`` (or any object with the same fields)."""
         position = tuple(float(v) for v in plan.position)
         facing = tuple(float(v) for v in plan.facing)
         return cls(

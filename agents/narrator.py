@@ -1,16 +1,16 @@
 """The narrator: picks the next event (which free characters do what) from the story so far.
 
-One call = one :class:`~agents.llm_port.LLMRequest` built by :func:`narrator_request`; the
+One call = one :class:`~storyteller.agents.llm_port.LLMRequest` built by :func:`narrator_request`; the
 reply is checked by :func:`parse_narration` (JSON, schema, then the rules: only free
 characters, no duplicates, an activity when someone takes part). A rejected reply becomes
-feedback naming the offending characters (:mod:`agents.retry_feedback`).
+feedback naming the offending characters (:mod:`storyteller.agents.retry_feedback`).
 
 Prompt layout (stable first, for prefix caching): system = role, rules, examples, scene
 description; user = characters and their states, event history, instruction.
 
 Bystanders (free characters no open part of the instruction names, asked for an event of their
 own): with the scene at hand (``NarratorInput.now``) the prompt lists everyday activities for
-them and the schema admits only those (``agents.bystanders``); a reply naming a bystander is
+them and the schema admits only those (``storyteller.agents.bystanders``); a reply naming a bystander is
 also checked by code (not the instruction's own activity, not what it did last, not an object
 another character uses alone), and what is wrong goes back as feedback.
 """
@@ -23,20 +23,20 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
-from agents.bystanders import BystanderRules, SceneNow, bystander_rules, never_named
-from agents.history import LISTED_FINISHED
-from agents.instruction_parts import InstructionProgress, instruction_progress
-from agents.llm_port import ChatMessage, LLMPort, LLMRequest
-from agents.llm_schemas import Refine, reply_schema
-from agents.messages import (
+from storyteller.agents.bystanders import BystanderRules, SceneNow, bystander_rules, never_named
+from storyteller.agents.history import LISTED_FINISHED
+from storyteller.agents.instruction_parts import InstructionProgress, instruction_progress
+from storyteller.agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from storyteller.agents.llm_schemas import Refine, reply_schema
+from storyteller.agents.messages import (
     CharacterStatus,
     EarlierEvents,
     Event,
     HistoryEntry,
     NarratorOutput,
 )
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, package_prompts
-from agents.retry_feedback import (
+from storyteller.agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary, package_prompts
+from storyteller.agents.retry_feedback import (
     Accepted,
     AnswerRejectedError,
     Turn,
@@ -114,7 +114,7 @@ def waits_without_a_call(
     characters: Sequence[CharacterStatus], instruction: str, history: Sequence[HistoryEntry], since: int = 0
 ) -> bool:
     """The narrator's step is a wait the model need not be asked about: nobody is free, or
-    what is left of the instruction is for busy characters only (``agents.instruction_parts``)."""
+    what is left of the instruction is for busy characters only (``storyteller.agents.instruction_parts``)."""
     free = [c.name for c in characters if not c.busy]
     names = [c.name for c in characters]
     idle = [c.name for c in characters if not c.busy and c.action in IDLE_ACTIONS]
@@ -142,7 +142,7 @@ def history_text(
 ) -> str:
     """One line per event, oldest first: ``3. [ongoing] Ann, Bob: chat by sofa_1``
     (``prompts/story/history_*.md``). Completed and failed events before the last
-    ``LISTED_FINISHED`` of them (``agents.history``) are left out and counted; with ``earlier`` (the events before
+    ``LISTED_FINISHED`` of them (``storyteller.agents.history``) are left out and counted; with ``earlier`` (the events before
     ``history``, which a long story leaves out) every event left out is summarised in one line
     instead: how many, and per character how many and the latest one's activity."""
     lib = prompts or package_prompts()
@@ -296,8 +296,8 @@ async def narrate(
     """Ask for the next event: a first try plus at most ``max_retries`` retries.
 
     With no free character, or an instruction with nothing for the free characters now (see
-    ``agents.instruction_parts``), the answer is a wait, without an LLM call (attempts = 0).
-    Raises :class:`~agents.retry_feedback.RetriesExhaustedError` when every reply is rejected.
+    ``storyteller.agents.instruction_parts``), the answer is a wait, without an LLM call (attempts = 0).
+    Raises :class:`~storyteller.agents.retry_feedback.RetriesExhaustedError` when every reply is rejected.
     """
     if waits_without_a_call(inp.characters, inp.instruction, inp.history, inp.instruction_since):
         return Accepted(value=WAIT if not inp.free else WAIT_FOR_BUSY, attempts=0, reply="")

@@ -1,13 +1,13 @@
 """The narrator's own words, shown to a person only where code has checked that they say the plan.
 
-The text a person reads is built from the applied plan (``agents.story_text``); the narrator's
+The text a person reads is built from the applied plan (``storyteller.agents.story_text``); the narrator's
 activity stays data (``story.json``'s ``activity``) and is shown beside it (``narration``) only
 when :func:`says_the_plan` holds:
 
 - :func:`agrees`: for every character it names the planned object (the seat, else the first
   object of the area; its id, its label or its human name) and an action word of the planned
-  label (``agents.story_text.VerbPhrase.words``);
-- its words rank every planned label close to their best (``agents.action_shortlist``, the
+  label (``storyteller.agents.story_text.VerbPhrase.words``);
+- its words rank every planned label close to their best (``storyteller.agents.action_shortlist``, the
   planner's own reading of words), and say no other such label by an action word of its own
   ("switch TV on, ... and turn off TV, then watch a movie" for a plan that only watches TV;
   "bring coffee to Ben, who waits on the bench ... looking at his phone" for Ava on her phone);
@@ -25,12 +25,12 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 
-from agents.action_shortlist import action_shortlist
-from agents.event_parser import scene_action_labels
-from agents.messages import ParsedEvent, PlannedCharacter
-from agents.story_text import ObjectNames, label_of, noun, parse_place, phrase_of, planned_object
-from sim.motion.action_labels import ACTION_LABELS
-from sim.scene.model import Scene
+from storyteller.agents.action_shortlist import action_shortlist
+from storyteller.agents.event_parser import scene_action_labels
+from storyteller.agents.messages import ParsedEvent, PlannedCharacter
+from storyteller.agents.story_text import ObjectNames, label_of, noun, parse_place, phrase_of, planned_object
+from storyteller.sim.motion.action_labels import ACTION_LABELS
+from storyteller.sim.scene.model import Scene
 
 _ID_IN_TEXT = re.compile(r"\b[a-z][a-z0-9]*(?:_[a-z0-9]+)*_\d+\b")
 
@@ -71,7 +71,7 @@ def agrees(text: str, plans: Sequence[PlannedCharacter], scene: Scene | None) ->
 
 def actions_off_plan(text: str, plans: Sequence[PlannedCharacter], scene: Scene | None) -> list[str]:
     """The labels on which ``text`` and the plans part: a planned label the words do not rank
-    close to their best (``agents.action_shortlist``, over the scene's labels), and a label no
+    close to their best (``storyteller.agents.action_shortlist``, over the scene's labels), and a label no
     plan carries that the words rank so and say by an action word of its own (a word no planned
     label has). Empty when the words say the planned actions and no other."""
     planned = dict.fromkeys(p.action for p in plans)

@@ -7,7 +7,7 @@ use for that kind of thing (written per label from general English usage, the wa
 thesaurus lists them, for the labels of the bundled scenes and other common furniture and
 appliances; no entry comes from a benchmark case's wording). :func:`read_as_labels` rewrites
 a text's everyday names into the label's own words before the shortlists
-(:mod:`agents.shortlist`) and the relation reader (:mod:`agents.relation_words`) read it.
+(:mod:`storyteller.agents.shortlist`) and the relation reader (:mod:`storyteller.agents.relation_words`) read it.
 
 A name is only rewritten when no label of the scene is that name itself: in a scene that has
 a ``bar`` label, "the bar" stays the bar. Pure: no LLM, no I/O.

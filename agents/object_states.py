@@ -18,8 +18,8 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Sequence
 
-from agents.action_shortlist import rank_action_labels
-from agents.messages import HistoryEntry
+from storyteller.agents.action_shortlist import rank_action_labels
+from storyteller.agents.messages import HistoryEntry
 
 TOGGLES = (("turn_on_", "turn_off_"), ("open_", "close_"))
 """(sets the state, undoes it): the prefixes of the label pairs this module settles."""

@@ -3,7 +3,7 @@
 An instruction may name a seat only to rule it out ("Noor lunches by table_1, but stool_2 there
 has a cracked seat and is unsafe, so she picks a free one"). A small model that is asked for a
 seat then picks the one named. :func:`out_of_use` finds the scene objects the words declare unusable, so the seat choice
-(:mod:`agents.place_choice`) leaves them out:
+(:mod:`storyteller.agents.place_choice`) leaves them out:
 
 - a thing followed by a form of "be" (and adverbs such as "currently") and a word of unusability
   ("stool_2 is still wobbly", "the sofa is occupied", "bench_1 and bench_2 are wet");
@@ -19,8 +19,8 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 
-from agents.area_words import DETERMINERS
-from sim.scene.model import Scene
+from storyteller.agents.area_words import DETERMINERS
+from storyteller.sim.scene.model import Scene
 
 UNUSABLE = frozenset({
     "broken", "unavailable", "occupied", "taken", "wet", "dirty", "damaged", "cluttered",

@@ -5,17 +5,17 @@ not the one the instruction's relations single out ("the chair farthest from the
 "opposite Goran"). Here the seat is decided before the program is written, in three steps:
 
 1. **Candidates** (code): the free seats the event's words are about, read with the landmarks
-   taken out (:func:`agents.relation_words.without_relations`, so "the desk farthest from the
-   couch" is about desks, not the couch) by :func:`agents.shortlist.event_shortlist`; every free
+   taken out (:func:`storyteller.agents.relation_words.without_relations`, so "the desk farthest from the
+   couch" is about desks, not the couch) by :func:`storyteller.agents.shortlist.event_shortlist`; every free
    seat when the words single none out. At most :data:`MAX_CANDIDATES`.
 2. **The model's ranking**: one prompt lists each candidate with its relations to what the
    words name (gaps in metres to the named things and characters, which of them it faces, the
    table it is at and who sits there: :func:`candidate_notes`), and the model scores every
-   candidate's name as its reply (:mod:`agents.scored_choice`: log-likelihoods from the logits
+   candidate's name as its reply (:mod:`storyteller.agents.scored_choice`: log-likelihoods from the logits
    for the embedded model, an enum-constrained reply elsewhere).
 3. **The check** (code): the relations the words state (nearest / near / farthest / facing /
-   between, :func:`agents.relation_words.stated_relations`) are computed from the scene
-   (:func:`tools.place_relations.keep_satisfying`); the chosen seat is the model's best-ranked
+   between, :func:`storyteller.agents.relation_words.stated_relations`) are computed from the scene
+   (:func:`storyteller.tools.place_relations.keep_satisfying`); the chosen seat is the model's best-ranked
    candidate that meets them. When they leave one candidate, no model call is made.
 
 The chosen seat then is the only one the event's program grammar offers, and the parser's
@@ -31,10 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.area_words import DescribedArea, named_areas
-from agents.llm_port import ChatMessage, LLMRequest
-from agents.prompt_templates import PromptLibrary, package_prompts
-from agents.relation_words import (
+from storyteller.agents.area_words import DescribedArea, named_areas
+from storyteller.agents.llm_port import ChatMessage, LLMRequest
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.agents.relation_words import (
     CLAUSE_ENDS,
     RelationMention,
     back_references,
@@ -42,10 +42,10 @@ from agents.relation_words import (
     stated_relations,
     without_relations,
 )
-from agents.scored_choice import ScoredChoice, choice_request
-from agents.shortlist import CLOSE_M, event_shortlist, mentioned_labels
-from sim.scene.model import Scene, SceneObject
-from tools.place_relations import (
+from storyteller.agents.scored_choice import ScoredChoice, choice_request
+from storyteller.agents.shortlist import CLOSE_M, event_shortlist, mentioned_labels
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.place_relations import (
     FACING_DEG,
     Reference,
     StatedRelation,
@@ -56,7 +56,7 @@ from tools.place_relations import (
     sits_at,
     table_of,
 )
-from tools.scene_graph import footprint_distance
+from storyteller.tools.scene_graph import footprint_distance
 
 MAX_CANDIDATES = 10
 """Seats offered to the model at most (those meeting the stated relations first)."""
@@ -192,10 +192,10 @@ def seat_candidates(
     """The candidates of an event whose words are ``text`` (see the module docstring);
     ``others``: where the characters outside the event are; ``before``: the instruction's words
     before ``text``, which a place word pointing back ("sits down there too") refers to when the
-    words state no relation of their own (:func:`agents.relation_words.back_references`);
-    ``areas``: the scene description's areas (:func:`agents.area_words.described_areas`): when
+    words state no relation of their own (:func:`storyteller.agents.relation_words.back_references`);
+    ``areas``: the scene description's areas (:func:`storyteller.agents.area_words.described_areas`): when
     the words name one ("naps in the den"), the candidates are its seats; ``unusable``: seats
-    the instruction rules out ("stool_2 is wobbly", :func:`agents.out_of_use.out_of_use`), left
+    the instruction rules out ("stool_2 is wobbly", :func:`storyteller.agents.out_of_use.out_of_use`), left
     out unless no other seat is free."""
     lib = prompts or package_prompts()
     by_name = {o.name: o for o in scene.objects}

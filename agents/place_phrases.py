@@ -2,8 +2,8 @@
 
 People say where someone stands in many ways: "on the bench's right-hand side", "on its left",
 "at the cabinet's back", "right next to the fridge" ("right" there means "just", not a side).
-The readers of an event's words (:mod:`agents.shortlist`, :mod:`agents.action_shortlist`,
-:mod:`agents.relation_words`) know "to the left of X", "in front of X", "behind X" and
+The readers of an event's words (:mod:`storyteller.agents.shortlist`, :mod:`storyteller.agents.action_shortlist`,
+:mod:`storyteller.agents.relation_words`) know "to the left of X", "in front of X", "behind X" and
 "beside X". :func:`plain_places` rewrites the other forms into those:
 
 - a possessive side, ``[at|on|by...] X's [own] left|right[-hand] [side]`` / ``front`` /

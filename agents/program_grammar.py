@@ -14,9 +14,9 @@ has exactly one block per event character, in event order::
 where the action comes first (a label without a seated motion admits standing areas only), the area is one of the spatial API's listed area functions (``SpatialAPI.functions()``) over the scene's object names (a
 seat function only over seats not in use), the orientation target an object or another
 character, and the action one of the offered labels (those the event's words point to,
-:mod:`agents.action_shortlist`). For an event, :func:`event_program_grammar`
+:mod:`storyteller.agents.action_shortlist`). For an event, :func:`event_program_grammar`
 narrows the objects and seats further to the shortlist its words single out
-(:mod:`agents.shortlist`: "sits on the couch" offers the free couches, "the chair by the
+(:mod:`storyteller.agents.shortlist`: "sits on the couch" offers the free couches, "the chair by the
 window" the chairs close to a window), or keeps them all when the words name nothing. The program still runs in the sandbox and
 through the spatial API like any other; only what the model can write is narrowed. Providers
 that cannot decode under a grammar ignore it and get the same prompt.
@@ -30,17 +30,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.action_shortlist import action_shortlist, label_objects, posture
-from agents.area_words import DescribedArea, keep_in_areas, named_areas
-from agents.messages import CharacterStatus
-from agents.related_objects import RelatedObjects, related_objects
-from agents.relation_words import labels_about, stated_relations, without_relations
-from agents.shortlist import RELATIONS, event_shortlist, mentioned_labels, relation_areas
-from sim.motion.action_labels import playable_seated
-from sim.scene.model import Scene, SceneObject
-from tools.areas import seat_slots
-from tools.position_sampling import MIN_SEPARATION
-from tools.spatial_api import SpatialAPI
+from storyteller.agents.action_shortlist import action_shortlist, label_objects, posture
+from storyteller.agents.area_words import DescribedArea, keep_in_areas, named_areas
+from storyteller.agents.messages import CharacterStatus
+from storyteller.agents.related_objects import RelatedObjects, related_objects
+from storyteller.agents.relation_words import labels_about, stated_relations, without_relations
+from storyteller.agents.shortlist import RELATIONS, event_shortlist, mentioned_labels, relation_areas
+from storyteller.sim.motion.action_labels import playable_seated
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.areas import seat_slots
+from storyteller.tools.position_sampling import MIN_SEPARATION
+from storyteller.tools.spatial_api import SpatialAPI
 
 DIRECTIONAL = frozenset(fn for fn, _ in RELATIONS)
 """Area functions of a place beside a thing (behind it, left of it...): places to stand."""
@@ -52,7 +52,7 @@ seats only."""
 
 
 def area_functions() -> tuple[tuple[str, ...], tuple[str, ...], str]:
-    """The listed area functions of ``tools.spatial_api.SpatialAPI``: those on one object, those
+    """The listed area functions of ``storyteller.tools.spatial_api.SpatialAPI``: those on one object, those
     on two objects, and the seat function (the grammar offers exactly what the prompt lists)."""
     listed = [f for f in SpatialAPI.functions() if f.listed]
     one = tuple(f.name for f in listed if f.kind == "area" and len(f.parameters) == 1)
@@ -208,7 +208,7 @@ class EventOptions:
     """Where the characters outside the event are (name -> xy)."""
     landmarks: tuple[str, ...] = ()
     """Objects the words place the used thing by ("the table nearest the window": the window):
-    offered to look at, not to use (:mod:`agents.related_objects`)."""
+    offered to look at, not to use (:mod:`storyteller.agents.related_objects`)."""
 
     @property
     def must_sit(self) -> bool:
@@ -246,9 +246,9 @@ def event_options(
     """The labels, objects, seats, posture and area functions an event's grammar offers (the
     arguments are :func:`event_program_grammar`'s). ``areas``: the scene description's areas; of
     a kind of thing with instances in an area the words name ("the cabinet in the lounge"), only
-    those are offered (:func:`agents.area_words.keep_in_areas`); ``served``: the characters the
-    event acts for (:func:`agents.instruction_parts.served_characters`): a serving action's table
-    is theirs (:func:`agents.related_objects.related_objects`); ``heading``: where busy characters'
+    those are offered (:func:`storyteller.agents.area_words.keep_in_areas`); ``served``: the characters the
+    event acts for (:func:`storyteller.agents.instruction_parts.served_characters`): a serving action's table
+    is theirs (:func:`storyteller.agents.related_objects.related_objects`); ``heading``: where busy characters'
     events take them (name -> xy)."""
     others = [c for c in characters if c.name not in event_characters]
     free = free_seats(scene, event_characters, characters, seats_in_use)
@@ -346,17 +346,17 @@ def event_program_grammar(
     served: Sequence[str] = (), heading: Mapping[str, tuple[float, float]] | None = None,
 ) -> str:
     """:func:`program_grammar` for an event in ``scene``: the labels its words point to
-    (:func:`agents.action_shortlist.action_shortlist` of ``activity``; every offered label
+    (:func:`storyteller.agents.action_shortlist.action_shortlist` of ``activity``; every offered label
     when they point to none), the objects and the seats nobody else holds or stands on,
-    narrowed to the event's shortlist (:func:`agents.shortlist.event_shortlist`; all of them
+    narrowed to the event's shortlist (:func:`storyteller.agents.shortlist.event_shortlist`; all of them
     when it has none), and no seat to interact with (sitting goes through the seat function). ``activity`` is the event's text
     (the narrator's activity and the instruction part it comes from); ``characters`` are the
     roster (objects with ``name``, ``seat``, ``position``). ``widen`` (a retry after the named
     place had no room): every area function over the shortlist, not only those the where-words
     name, so the model can pick another place by the same things. ``context``: other words
     about the event (the narrator's activity), which break ties between labels. ``seat``: the
-    seat already chosen for the event (:mod:`agents.place_choice`): the only seat offered. ``action``:
-    the action chosen for it when its words name none (:mod:`agents.action_choice`): offered first.
+    seat already chosen for the event (:mod:`storyteller.agents.place_choice`): the only seat offered. ``action``:
+    the action chosen for it when its words name none (:mod:`storyteller.agents.action_choice`): offered first.
     ``areas``, ``served``: see :func:`event_options`."""
     options = event_options(
         scene, event_characters, characters, seats_in_use, action_labels, activity, widen, context, action, areas,

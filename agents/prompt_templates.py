@@ -28,7 +28,7 @@ from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
 
-from sim.bounded_files import BoundedFileError, read_bounded_bytes
+from storyteller.sim.bounded_files import BoundedFileError, read_bounded_bytes
 
 PLACEHOLDER = re.compile(r"\{\{\s*([A-Za-z_][A-Za-z0-9_]*)\s*\}\}")
 
@@ -72,7 +72,7 @@ class PromptLibrary:
     """
 
     def __init__(self, root: Path | None = None) -> None:
-        self._root: Traversable = resources.files("prompts") if root is None else Path(root)
+        self._root: Traversable = resources.files("storyteller.prompts") if root is None else Path(root)
         self._read: dict[str, str] = {}
 
     @property

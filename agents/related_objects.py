@@ -4,17 +4,17 @@
 window is where the table is, not what Ben wipes. A 0.5B model writing
 ``get_area_to_interact_with(...)`` picks one of the offered objects, and with every table and the
 window offered it often picks the landmark or the first table by name. Seats already go through
-a choice checked by geometry (:mod:`agents.place_choice`); this is the same check for the things
+a choice checked by geometry (:mod:`storyteller.agents.place_choice`); this is the same check for the things
 a character stands at and uses.
 
-For each relation the words state about a kind of thing (:func:`agents.relation_words.stated_relations`
+For each relation the words state about a kind of thing (:func:`storyteller.agents.relation_words.stated_relations`
 with a ``subject``: the words right before the relation word, or an attributive one's described
 words), the offered instances of that kind that do not meet it (computed from the scene by
-:func:`tools.place_relations.keep_satisfying`) are no longer offered, and what the relation is
+:func:`storyteller.tools.place_relations.keep_satisfying`) are no longer offered, and what the relation is
 measured against (its landmarks) is offered to look at but not to use. A relation that no
 offered instance meets, or whose subject is a seat (seats have their own choice), changes
 nothing. No word list here: the relation words and their subjects come from
-:mod:`agents.relation_words`.
+:mod:`storyteller.agents.relation_words`.
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from agents.place_choice import references_of
-from agents.relation_words import stated_relations
-from sim.scene.model import Scene
-from tools.place_relations import (
+from storyteller.agents.place_choice import references_of
+from storyteller.agents.relation_words import stated_relations
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.place_relations import (
     TIE_M,
     Reference,
     StatedRelation,

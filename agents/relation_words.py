@@ -4,7 +4,7 @@
 "halfway between the shelf and the sofa": a relation word (:data:`RELATION_WORDS`, general
 English: superlatives of distance, near / beside / next to, far / away / distant, facing /
 opposite / across / towards, between / halfway / midway) followed, within the same clause, by
-what it is measured against: an object label of the scene (read as ``agents.shortlist`` reads
+what it is measured against: an object label of the scene (read as ``storyteller.agents.shortlist`` reads
 labels: synonyms, plurals, a label's head word) or a character's name. ``between`` takes two
 such things ("between the bench and the desk", "halfway from the shelf to the sofa").
 
@@ -20,8 +20,8 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from agents.shortlist import mentioned_labels
-from tools.place_relations import RelationKind
+from storyteller.agents.shortlist import mentioned_labels
+from storyteller.tools.place_relations import RelationKind
 
 RELATION_WORDS: tuple[tuple[tuple[str, ...], RelationKind], ...] = (
     (("nowhere", "near"), "farthest"), (("not", "near"), "farthest"), (("well", "away"), "farthest"),

@@ -15,9 +15,9 @@ from typing import Generic, TypeVar
 
 from pydantic import ValidationError
 
-from agents.llm_port import ChatMessage, LLMPort, LLMRequest
-from agents.prompt_templates import PromptLibrary, package_prompts
-from tools.errors import EventProgramError
+from storyteller.agents.llm_port import ChatMessage, LLMPort, LLMRequest
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.tools.errors import EventProgramError
 
 T = TypeVar("T")
 

@@ -24,7 +24,7 @@ import tomllib
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
 
 ROOMS_FILE = "describer/rooms.toml"
 ANYWHERE = "*"

@@ -1,9 +1,9 @@
 """A decision as a choice among candidates, through the LLM port: one request, one typed answer.
 
-:func:`choice_request` builds an :class:`~agents.llm_port.LLMRequest` with ``choices`` (the
+:func:`choice_request` builds an :class:`~storyteller.agents.llm_port.LLMRequest` with ``choices`` (the
 candidates) and a JSON schema whose ``choice`` is an enum of exactly those candidates. The
 embedded model answers it by scored continuations (the log-likelihood of each candidate as the
-whole reply, from one evaluation of the prompt: ``orchestrator.llm.llama_decoding``); any other
+whole reply, from one evaluation of the prompt: ``storyteller.orchestrator.llm.llama_decoding``); any other
 provider by generation constrained to the schema. :func:`choose` sends it and returns a
 :class:`ScoredChoice`: the candidate, and the ranking of all of them (by score when the
 provider gave scores). A reply naming anything but a candidate raises :class:`ChoiceError`
@@ -19,7 +19,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from agents.llm_port import ChatMessage, LLMPort, LLMRequest, NodeName
+from storyteller.agents.llm_port import ChatMessage, LLMPort, LLMRequest, NodeName
 
 
 class ChoiceError(Exception):

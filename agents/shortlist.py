@@ -5,7 +5,7 @@ often as the right one. Most events name what they are about: an object (``couch
 object label (``the couch``, ``the coffee maker``), an action whose label names an object
 label (``makes coffee`` -> ``use_coffee_maker`` -> ``coffee_maker``), or a place relative to
 another object (``the chair by the window``). :func:`event_shortlist` turns those words into
-candidates, and :mod:`agents.program_grammar` offers only those to the model:
+candidates, and :mod:`storyteller.agents.program_grammar` offers only those to the model:
 
 - objects: every object named, or of a label named (a label's last word, ``table``, matches
   every label ending in it unless a longer label matches in full, ``coffee table``), or of a
@@ -27,17 +27,17 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from agents.object_names import read_as_labels
-from sim.scene.model import Scene, SceneObject
-from tools.areas import seat_slots
-from tools.scene_graph import footprint_distance
+from storyteller.agents.object_names import read_as_labels
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.areas import seat_slots
+from storyteller.tools.scene_graph import footprint_distance
 
 CLOSE_M = 1.0
 """Horizontal gap (m) under which an object counts as close to another (the scene graph's
 ``close to``)."""
 SYNONYMS = {"sofa": "couch", "television": "tv", "refrigerator": "fridge", "telly": "tv", "turntable": "record player"}
-"""One-word names the action reader (:mod:`agents.action_shortlist`) reads as object words;
-object names in general are :mod:`agents.object_names`' (read before any matching here)."""
+"""One-word names the action reader (:mod:`storyteller.agents.action_shortlist`) reads as object words;
+object names in general are :mod:`storyteller.agents.object_names`' (read before any matching here)."""
 DINING = re.compile(r"\b(?:dining|dinner|kitchen|breakfast|conference|meeting|boardroom) tables?\b")
 """A table people eat or meet at: of the tables named, those with the most chairs around them."""
 CHARACTER_NEAR_M = 1.5
@@ -109,7 +109,7 @@ def _contains(words: Sequence[str], phrase: Sequence[str]) -> int:
 
 def mentioned_labels(text: str, labels: Sequence[str], everyday: bool = True) -> list[str]:
     """Object labels the text names, in order of first mention (see the module docstring); the
-    everyday names of :mod:`agents.object_names` are read as the labels they name (unless
+    everyday names of :mod:`storyteller.agents.object_names` are read as the labels they name (unless
     ``everyday`` is False: the words as written)."""
     words = _words(read_as_labels(text.lower(), labels) if everyday else text)
     found: dict[str, int] = {}

@@ -1,6 +1,6 @@
 """Which clauses of an instruction are steps of their own, from their words.
 
-An instruction is cut into parts (:mod:`agents.instruction_parts`): one part per step a
+An instruction is cut into parts (:mod:`storyteller.agents.instruction_parts`): one part per step a
 character takes. Some clauses are no step: going somewhere is the way to what is done there
 ("Rosa goes over to the corner and sits down there to read"), a clause that says how something
 is gives the reason for the next step ("Femi's bottle is empty, and it gets refilled"), and a
@@ -18,9 +18,9 @@ from __future__ import annotations
 import functools
 import re
 
-from agents.action_shortlist import CUES, posture, rank_action_labels
-from agents.english_words import may_be_verb
-from agents.relation_words import before_relations
+from storyteller.agents.action_shortlist import CUES, posture, rank_action_labels
+from storyteller.agents.english_words import may_be_verb
+from storyteller.agents.relation_words import before_relations
 
 _WORD = re.compile(r"[A-Za-z]+")
 
@@ -45,7 +45,7 @@ _NOT_VERBS_IN_S = frozenset(str.split(
 @functools.lru_cache(maxsize=1024)
 def activity_kind(text: str) -> str | None:
     """The action label the words of ``text`` point to most among every label the action
-    vocabulary knows (:data:`agents.action_shortlist.CUES`: "munch a sandwich by table_2" and
+    vocabulary knows (:data:`storyteller.agents.action_shortlist.CUES`: "munch a sandwich by table_2" and
     "tucks into her lunch" are both ``eat``), or None when they point to none."""
     ranked = rank_action_labels(text, tuple(CUES))
     return ranked[0].label if ranked else None
@@ -141,7 +141,7 @@ _COMMA_WORD = re.compile(r",\s*(?=([a-z]+)\b)")
 def _verb_like(word: str) -> bool:
     """Whether ``word`` may be a verb of the third person opening an item of a list of steps
     ("curls", "turns"; not "bananas"): it ends in -s, is no closed-class word, and the lexicon
-    knows it as a verb (:func:`agents.english_words.may_be_verb`)."""
+    knows it as a verb (:func:`storyteller.agents.english_words.may_be_verb`)."""
     return (len(word) > 2 and word.endswith("s") and word not in NOT_A_VERB and word not in _NOT_VERBS_IN_S
             and may_be_verb(word))
 

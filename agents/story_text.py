@@ -9,14 +9,14 @@ when they stand at different places. An object is named by its id too only where
 object of the scene has the same label, after a landmark that tells it apart when there is
 one: "the chair by the desk (chair_3)" (:class:`ObjectNames`).
 
-The narrator's own words are shown beside this text only where ``agents.narrator_words`` has
+The narrator's own words are shown beside this text only where ``storyteller.agents.narrator_words`` has
 checked that they say the plan; otherwise they stay data (``story.json``'s ``activity``).
 
 :func:`step_text` says what a planning step that started no event means (a wait, a failure).
 
 Guarantee: the text depends only on the plans, the event's characters and the scene (no
 clock, no model, no randomness), so a replayed run tells the same story; every action label
-of ``sim.motion.action_labels`` has a phrase whose words include one of its action words
+of ``storyteller.sim.motion.action_labels`` has a phrase whose words include one of its action words
 (a test enumerates them). The scene may be None (an old ``story.json`` read without its
 scene): names then come from the ids alone, without disambiguation.
 """
@@ -29,10 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.messages import ParsedEvent, PlannedCharacter, PlanningFailure
-from sim.motion.action_labels import ACTION_SPECS
-from sim.scene.model import Scene, SceneObject
-from tools.scene_graph import footprint_distance, point_footprint_distance
+from storyteller.agents.messages import ParsedEvent, PlannedCharacter, PlanningFailure
+from storyteller.sim.motion.action_labels import ACTION_SPECS
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.scene_graph import footprint_distance, point_footprint_distance
 
 LANDMARK_REACH = 2.5
 """Metres (footprint to footprint) within which a uniquely named object can tell an object
@@ -304,7 +304,7 @@ def _balanced(text: str) -> bool:
 
 
 def parse_place(area: str, position: tuple[float, float], scene: Scene | None) -> Place:
-    """The :class:`Place` of an area text (``tools.areas`` descriptions: "interact with X",
+    """The :class:`Place` of an area text (``storyteller.tools.areas`` descriptions: "interact with X",
     "close to X", "A && B", "A || B", "[x, y]"); of an "or", the alternative whose objects are
     nearest the sampled ``position``. An explicit point is "by" its nearest object; text that
     is none of these ("current position", "") gives no place."""

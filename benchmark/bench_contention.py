@@ -19,7 +19,7 @@ The 1-minute load average is printed before and after each run: other work on th
 (other engineers share its cores) makes both times longer and the "quiet" run not quiet.
 Figures belong in ``benchmark/results/``, not here.
 
-Usage: ``python -m benchmark.bench_contention [--keep DIR] [--threads N]`` (``--threads`` sets
+Usage: ``python -m storyteller.benchmark.bench_contention [--keep DIR] [--threads N]`` (``--threads`` sets
 ``STORYTELLER_LOCAL_THREADS`` for both runs, to compare with a fixed choice).
 """
 
@@ -37,10 +37,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from orchestrator.child_process import stop_child
+from storyteller.orchestrator.child_process import stop_child
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI = "import sys; from orchestrator.cli.app import app; app(sys.argv[1:])"
+CLI = "import sys; from storyteller.orchestrator.cli.app import app; app(sys.argv[1:])"
 INSTRUCTION = "Ava makes coffee, then sits on the couch and drinks it."
 STORY_ARGS = ["run", "home", "-n", "2", "-i", INSTRUCTION, "--duration", "60", "--max-events", "4"]
 SCENARIO = "home_coffee_then_couch"
@@ -80,8 +80,8 @@ def start_busy_core() -> tuple[subprocess.Popen[bytes], int]:
 
 def judge(out: Path) -> dict[str, tuple[str, bool, str]]:
     """Verdict per expectation of the scenario on the run's story.json (empty when unreadable)."""
-    from benchmark.story_suite.evaluate import StoryLogError, score_run
-    from benchmark.story_suite.scenario import SCENARIO_DIR, load_scenario
+    from storyteller.benchmark.story_suite.evaluate import StoryLogError, score_run
+    from storyteller.benchmark.story_suite.scenario import SCENARIO_DIR, load_scenario
 
     try:
         score = score_run(load_scenario(SCENARIO_DIR / f"{SCENARIO}.toml"), out)

@@ -8,24 +8,24 @@ first free character. Event programs run in the worker process, as in ``storytel
 Two runs per repeat, same arguments, alternating so both see the same machine state, each in
 a fresh interpreter (cold imports and compiled kernels, as a ``storyteller run``):
 ``baseline`` writes each session checkpoint on the event loop (``save_checkpoint`` inline in
-the frame, as before ``orchestrator.session.checkpoint_writer``: fsyncs of every motion chunk
+the frame, as before ``storyteller.orchestrator.session.checkpoint_writer``: fsyncs of every motion chunk
 file and the snapshot), ``product`` is ``storyteller run`` as it is (the checkpoint writer
 thread). For each mode it prints the p50 / p95 / p99 / max wall-clock interval between frames
 (target at 30 fps: 33.3 ms; the goal is p99 < 40 ms), the share of frames over 33.3 ms and over
 40 ms, how far the realtime schedule slipped after stalls, and, of the frames over 40 ms, which
-part of the frame took longest (``orchestrator.session.frame_profile``): the world step, the
+part of the frame took longest (``storyteller.orchestrator.session.frame_profile``): the world step, the
 checkpoint, settling news and outcomes (trace and story records), asking the planner, or
 ``late`` (the sleep ended late: other work on the event loop, such as a planning step or the
 LLM client's trace writes, or the machine). Not a test: timings depend on the machine and its
 load; compare the two modes of the same run.
 
 ``--viewer`` adds a third mode, ``viewer``: ``product`` with the browser viewer started as
-``storyteller run --view`` starts it (``orchestrator.viewer.child``: a process of its own,
+``storyteller run --view`` starts it (``storyteller.orchestrator.viewer.child``: a process of its own,
 playing, following the live run) and a headless Chromium (``benchmark/support/headless_chromium.py``,
 software WebGL, on this machine) connected to it for the whole run (the run starts once the page
 shows the instruction box: its websocket is open).
 
-    python -m benchmark.bench_frame_interval [--duration 40] [--latency 5] [--repeat 1] [--viewer]
+    python -m storyteller.benchmark.bench_frame_interval [--duration 40] [--latency 5] [--repeat 1] [--viewer]
 """
 
 from __future__ import annotations
@@ -44,8 +44,8 @@ from unittest import mock
 
 import numpy as np
 
-from benchmark.scripted_planner import ScriptedPlanner
-from benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.benchmark.scripted_planner import ScriptedPlanner
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
 
 SPOTS = ("bookshelf_1", "couch_1", "tv_1", "coffee_maker_1", "toaster_1", "fridge_1")
 MODES = ("baseline", "product")
@@ -69,7 +69,7 @@ class InlineCheckpoints:
         self.path = path  # ``write`` (the run's trace barrier, then the write) is the threaded writer's
 
     def submit(self, world: Any, checkpoint: Any) -> None:
-        from orchestrator.session.snapshot_file import save_checkpoint
+        from storyteller.orchestrator.session.snapshot_file import save_checkpoint
 
         save_checkpoint(self.path, world, checkpoint)
 
@@ -89,12 +89,12 @@ class Run:
 
 
 def run_once(mode: str, duration: float, latency: float, tmp: Path) -> Run:
-    from orchestrator.session import checkpoint_writer
-    from orchestrator.session.frame_profile import PARTS
-    from orchestrator.session.roster import character_names
-    from orchestrator.session.run_job import run_story
-    from orchestrator.session.run_manifest import RunArguments
-    from sim.scene.bundled import resolve_scene
+    from storyteller.orchestrator.session import checkpoint_writer
+    from storyteller.orchestrator.session.frame_profile import PARTS
+    from storyteller.orchestrator.session.roster import character_names
+    from storyteller.orchestrator.session.run_job import run_story
+    from storyteller.orchestrator.session.run_manifest import RunArguments
+    from storyteller.sim.scene.bundled import resolve_scene
 
     os.environ["FAKE_PROVIDER_KEY"] = "sk-bench"
     responder = ScriptedPlanner(latency, program, "Ava")  # a smartphone near one of a few objects
@@ -127,8 +127,8 @@ def run_once(mode: str, duration: float, latency: float, tmp: Path) -> Run:
 def _watch(out: Path, tmp: Path) -> Iterator[None]:
     """The viewer of ``out`` as ``run --view`` starts it (its own process, playing), with a
     headless Chromium on it."""
-    from benchmark.support.headless_chromium import Chromium
-    from orchestrator.viewer.child import spawn_viewer
+    from storyteller.benchmark.support.headless_chromium import Chromium
+    from storyteller.orchestrator.viewer.child import spawn_viewer
 
     viewer = spawn_viewer(out, port=0, host="127.0.0.1")
     profile = tmp / "chromium-profile"

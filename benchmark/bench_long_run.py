@@ -11,8 +11,8 @@ the end of the story. The motion streams to ``motion/*.chunks`` in the output fo
 is what keeps the world's memory flat; a story that kept every frame in memory would grow by
 about 0.85 KB per character-frame (4 characters: ~6 MB per simulated minute).
 
-    nice -n 19 python -m benchmark.bench_long_run --minutes 120          # the 2-hour story
-    nice -n 19 python -m benchmark.bench_long_run --minutes 20 --export  # and write the exports
+    nice -n 19 python -m storyteller.benchmark.bench_long_run --minutes 120          # the 2-hour story
+    nice -n 19 python -m storyteller.benchmark.bench_long_run --minutes 20 --export  # and write the exports
 
 Target (issue 11): peak RSS < 1 GiB over a 2-hour story, and flat after the first minutes.
 ``--export`` also writes the run's files (``story.json`` ... npz, BVH, GLB, top-down PNG) and
@@ -89,12 +89,12 @@ def main(argv: list[str] | None = None) -> int:
     if opts.minutes <= 0 or opts.every <= 0:
         parser.error("--minutes and --every must be > 0")
 
-    from benchmark.support.fake_openai_server import FakeOpenAI
-    from orchestrator.session.run_job import run_story
-    from orchestrator.session.run_manifest import RunArguments
-    from orchestrator.session.run_outputs import write_outputs
-    from orchestrator.session.session_types import StoryEvent
-    from sim.scene.bundled import load_bundled_scene
+    from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+    from storyteller.orchestrator.session.run_job import run_story
+    from storyteller.orchestrator.session.run_manifest import RunArguments
+    from storyteller.orchestrator.session.run_outputs import write_outputs
+    from storyteller.orchestrator.session.session_types import StoryEvent
+    from storyteller.sim.scene.bundled import load_bundled_scene
 
     with tempfile.TemporaryDirectory(prefix="bench_long_run_") as tmp:
         out = opts.out if opts.out is not None else Path(tmp) / "run"

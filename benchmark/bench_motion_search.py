@@ -8,7 +8,7 @@ times per-query latency of the reference brute force, the exact scan and the KD-
 queries and a batch, as a frame of many characters would issue) over a range of sizes, to
 place ``SCAN_THRESHOLD``. Every answer is checked against brute force.
 
-Run: python -m benchmark.bench_motion_search [--queries 300] [--seed 0]
+Run: python -m storyteller.benchmark.bench_motion_search [--queries 300] [--seed 0]
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.motion.database import SCAN_THRESHOLD, NearestFrameIndex, clip_raw_features
-from sim.motion.sources.procedural_locomotion import Profile, locomotion_clip, step_length
+from storyteller.sim.motion.database import SCAN_THRESHOLD, NearestFrameIndex, clip_raw_features
+from storyteller.sim.motion.sources.procedural_locomotion import Profile, locomotion_clip, step_length
 
 
 def _constant(value: float) -> Profile:

@@ -2,14 +2,14 @@
 
 Records the motion queries a bench_world-like run feeds the motion layer (10 characters
 walking between random targets in the Office, ``--seconds`` simulated seconds), then replays
-them through ``benchmark.support.motion_reference.ReferenceMotionMatcher`` (the step as it was before the
-motion kernels) and through ``sim.motion.matching.MotionMatcher``, each starting from the
+them through ``storyteller.benchmark.support.motion_reference.ReferenceMotionMatcher`` (the step as it was before the
+motion kernels) and through ``storyteller.sim.motion.matching.MotionMatcher``, each starting from the
 recorded initial states and feeding its own returned states back, as the world does. Prints
 microseconds per frame (all characters) for both, best of ``--reps`` alternating replays,
 their ratio, whether every search decision and state counter is the same, and whether the
 poses and states are bit-identical (else the largest difference).
 
-Usage: ``python -m benchmark.bench_motion_step [--characters 10] [--seconds 10] [--reps 10] [--seed 0]``.
+Usage: ``python -m storyteller.benchmark.bench_motion_step [--characters 10] [--seconds 10] [--reps 10] [--seed 0]``.
 """
 
 from __future__ import annotations
@@ -24,14 +24,14 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.crowd_scenario import OFFICE, REFERENCE, IdleErrands
-from benchmark.support.motion_reference import ReferenceMotionMatcher
-from orchestrator.cache_paths import motion_cache_dir
-from sim.motion.database import MotionDatabase, load_databases
-from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.files import load_scene
-from sim.world.step import World, WorldConfig, step
+from storyteller.benchmark.crowd_scenario import OFFICE, REFERENCE, IdleErrands
+from storyteller.benchmark.support.motion_reference import ReferenceMotionMatcher
+from storyteller.orchestrator.cache_paths import motion_cache_dir
+from storyteller.sim.motion.database import MotionDatabase, load_databases
+from storyteller.sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.world.step import World, WorldConfig, step
 
 
 @dataclass

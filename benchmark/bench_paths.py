@@ -1,6 +1,6 @@
 """Path planning time per replan: WHCA* vs a full-horizon prioritized space-time A* baseline.
 
-Run: ``python -m benchmark.bench_paths [--repeats 3]``. Reference Office scene (0.3 m cells,
+Run: ``python -m storyteller.benchmark.bench_paths [--repeats 3]``. Reference Office scene (0.3 m cells,
 r = 0.25 m). For N characters on random, well-separated starts and goals, one replan of all
 of them with the windowed planner (window 20) next to the same planner without a window
 (window = 150 steps, i.e. full horizon for this scene), measured in the same run; prints
@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 
-from orchestrator.reference_data import locate_reference
-from sim.paths.cooperative_astar import Agent, Cell, PathPlanner
-from sim.paths.nav_grid import build_nav_grid, with_reference_grid_origin
-from sim.scene.files import load_scene
+from storyteller.orchestrator.reference_data import locate_reference
+from storyteller.sim.paths.cooperative_astar import Agent, Cell, PathPlanner
+from storyteller.sim.paths.nav_grid import build_nav_grid, with_reference_grid_origin
+from storyteller.sim.scene.files import load_scene
 
 REFERENCE = locate_reference()  # absent: main() exits with REFERENCE.reason
 OFFICE = REFERENCE.path / "configs" / "scenes" / "Office"

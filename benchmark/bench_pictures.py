@@ -1,7 +1,7 @@
 """Animation time of a story: the animation (static scene drawn once, moving layers per
 picture) against the frozen renderer that drew every picture from scratch, in the same run.
 
-The story is ``benchmark.support.random_tracks.wandering_story``: ``--characters`` people walking
+The story is ``storyteller.benchmark.support.random_tracks.wandering_story``: ``--characters`` people walking
 between random free cells of the bundled Office for ``--seconds`` seconds at 30 fps, pausing
 with actions and events, drawn as ``storyteller run --video/--gif`` does (every 10th frame,
 900 px wide). Printed, wall clock (a busy machine slows both sides alike): the pictures alone
@@ -21,7 +21,7 @@ the target), so the writer now uses the ``veryfast`` preset: ``story.mp4`` 5.36 
 old GIF's 76.4 s in that run, 14.3x (target met); the new ``story.gif`` 13.7-13.8 s (5.0-5.5x);
 largest pixel difference new vs old: 0.
 
-Usage: ``python -m benchmark.bench_pictures [--seconds 60] [--characters 4] [--old-every 1]``.
+Usage: ``python -m storyteller.benchmark.bench_pictures [--seconds 60] [--characters 4] [--old-every 1]``.
 """
 
 from __future__ import annotations
@@ -34,11 +34,11 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-from benchmark.support.picture_reference import reference_frame_rgb
-from benchmark.support.random_tracks import wandering_story
-from sim.export.video import animation_frames, mp4_available, save_run_animation
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.bundled import load_bundled_scene
+from storyteller.benchmark.support.picture_reference import reference_frame_rgb
+from storyteller.benchmark.support.random_tracks import wandering_story
+from storyteller.sim.export.video import animation_frames, mp4_available, save_run_animation
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.scene.bundled import load_bundled_scene
 
 STRIDE = 10  # as orchestrator.session.run_outputs.write_outputs
 SPEED = 4.0

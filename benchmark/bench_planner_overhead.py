@@ -2,13 +2,13 @@
 
 Two costs that ran on the event loop at every step of a story session:
 
-- the planner's bookkeeping (``orchestrator.session.step_planner.GraphStepPlanner.plan``): is
+- the planner's bookkeeping (``storyteller.orchestrator.session.step_planner.GraphStepPlanner.plan``): is
   the step already in the story log (a resumed run), and after the graph ran, its outcome. The
   planning graph is replaced by a stand-in that only records a realistic outcome (an event of
   two characters with its ~600-character event program) in the story log, so what is timed is
   the planner itself; the story log is an in-memory SQLite database, so no fsync is timed either;
 - the narrator's history the session builds for the request (``history_window`` in
-  ``orchestrator.session.story_history``: the latest events, the ones before summarised) from the events so far.
+  ``storyteller.orchestrator.session.story_history``: the latest events, the ones before summarised) from the events so far.
 
 For each story length it prints the wall milliseconds of one step at step 10 and at step
 ``--steps`` (median over ``--repeat`` steps), their ratio (1.0: flat), and, as the baseline
@@ -20,7 +20,7 @@ record keeps its caller (the event loop) busy with ``fsync="always"``, against a
 by an inline fsync (how every record was written before the writer fsynced in its own thread).
 Not a test: timings depend on the machine and its load; compare the columns of one run.
 
-    nice -n 19 python -m benchmark.bench_planner_overhead [--steps 500] [--repeat 9]
+    nice -n 19 python -m storyteller.benchmark.bench_planner_overhead [--steps 500] [--repeat 9]
 """
 
 from __future__ import annotations
@@ -35,16 +35,16 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from agents.llm_port import ChatMessage, LLMRequest
-from agents.messages import Event, ParsedEvent, PlannedCharacter
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import AttemptRecord
-from orchestrator.planning.checkpoints import StoryLog
-from orchestrator.planning.state import PlanningDeps
-from orchestrator.session.roster import RosterWorld
-from orchestrator.session.session_types import PlanningRequest, StoryEvent
-from orchestrator.session.step_planner import GraphStepPlanner
-from orchestrator.session.story_history import history_window
+from storyteller.agents.llm_port import ChatMessage, LLMRequest
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import AttemptRecord
+from storyteller.orchestrator.planning.checkpoints import StoryLog
+from storyteller.orchestrator.planning.state import PlanningDeps
+from storyteller.orchestrator.session.roster import RosterWorld
+from storyteller.orchestrator.session.session_types import PlanningRequest, StoryEvent
+from storyteller.orchestrator.session.step_planner import GraphStepPlanner
+from storyteller.orchestrator.session.story_history import history_window
 
 NAMES = ("Ava", "Ben", "Cleo", "Dan")
 PROGRAM = (

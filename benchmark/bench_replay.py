@@ -5,7 +5,7 @@ fresh ``storyteller`` process (so imports count), timed from this process with t
 
 Recording: ``storyteller run home --names Zoe,Max -d 60 --planner unified --description
 object-list`` (``--pace lockstep``, the default: the simulation waits for the planner) against a
-scripted OpenAI-compatible server on 127.0.0.1 (``benchmark.support.fake_openai_server``) that
+scripted OpenAI-compatible server on 127.0.0.1 (``storyteller.benchmark.support.fake_openai_server``) that
 answers every planner call with a valid program (the first free character uses an appliance)
 after a delay. The delay per call defaults to the mean latency of the LLM calls recorded in the
 story-suite traces (``traces/story_suite/*.jsonl``, a real model on this kind of machine), so the
@@ -15,7 +15,7 @@ Replay: ``storyteller replay RUN_DIR --out DIR`` (no model, no pictures), ``--re
 the fastest run counts and the median is printed too (the machines are shared), with the
 replay's CPU time (which a loaded machine disturbs less than the wall time). The script
 checks the replay wrote the same ``story.json`` as the recording. It prints the recorded wall
-time, the replay's, their ratio, and the start-up floor (``import orchestrator.cli.app`` in a
+time, the replay's, their ratio, and the start-up floor (``import storyteller.orchestrator.cli.app`` in a
 fresh process) next to them.
 
 Import-time breakdown: one more replay under ``python -X importtime``, its import time summed by
@@ -75,7 +75,7 @@ replay compiles the modules only the command imports from source; interleaved re
 with compiled .pyc files: CPU 5.87 s against 6.45 s, fastest of four, 6.35 s against 6.65 s by
 median), a ``gc.freeze()`` after the run's set-up (the one full collection of the story, ~40 ms).
 
-Usage: ``python -m benchmark.bench_replay [--latency S] [--seconds 60] [--max-events 8] [--repeats 3]
+Usage: ``python -m storyteller.benchmark.bench_replay [--latency S] [--seconds 60] [--max-events 8] [--repeats 3]
 [--keep DIR] [--baseline DIR] [--reuse DIR] [--no-bytecode]``; ``--reuse`` replays the recording a
 ``--keep`` run left (with its recorded wall time) instead of recording again. Replays run with .pyc
 files, as an installed product has them (one untimed replay per checkout writes them, with
@@ -97,11 +97,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmark.scripted_planner import ScriptedPlanner
-from benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.benchmark.scripted_planner import ScriptedPlanner
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI = "from orchestrator.cli.app import main; main()"
+CLI = "from storyteller.orchestrator.cli.app import main; main()"
 TRACES = ROOT / "traces" / "story_suite"
 TASKS = {"Zoe": ("coffee_maker_1", "use_coffee_maker"), "Max": ("toaster_1", "use_toaster")}
 
@@ -267,7 +267,7 @@ def main() -> None:
             (base / RECORDING).write_text(json.dumps({"wall_s": recorded, "latency_s": latency, "calls": planner.calls}),
                                           encoding="utf-8")
         metrics = json.loads((run_dir / "metrics.json").read_text(encoding="utf-8"))
-        floor = min(timed(["-c", "import orchestrator.cli.app"], env)[0] for _ in range(3))
+        floor = min(timed(["-c", "import storyteller.orchestrator.cli.app"], env)[0] for _ in range(3))
         codes = {"this checkout": (env, ROOT)}
         if args.baseline is not None:
             codes["baseline"] = (with_code(env, args.baseline.resolve()), args.baseline.resolve())
@@ -294,7 +294,7 @@ def main() -> None:
                   f"{min(cpus[then]) / min(cpus[here]):.2f}x CPU")
         for name, (code_env, code_root) in codes.items():
             print(f"code of {name}: {code_folder(code_env, code_root)}")
-        print(f"start-up floor (import orchestrator.cli.app):      {floor:8.2f} s wall")
+        print(f"start-up floor (import storyteller.orchestrator.cli.app):      {floor:8.2f} s wall")
         if "PYTHONDONTWRITEBYTECODE" in env:
             print("note: PYTHONDONTWRITEBYTECODE is set (--no-bytecode): modules are compiled from source in every replay")
         else:

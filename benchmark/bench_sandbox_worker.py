@@ -2,11 +2,11 @@
 
 Runs the same small ``parse_event()`` program on a bundled scene ``--runs`` times in-process
 (``run_event_program`` with a prebuilt scene graph, as the planning graph calls it) and
-through ``orchestrator.sandbox_worker.WorkerRunner`` (one reused worker, started and given the
+through ``storyteller.orchestrator.sandbox_worker.WorkerRunner`` (one reused worker, started and given the
 scene before timing), and prints the median time of each and their difference: the cost of
 the process boundary per program (target: under 20 ms). Plans are checked to be equal.
 
-Run: python -m benchmark.bench_sandbox_worker [--runs 50] [--scene home]
+Run: python -m storyteller.benchmark.bench_sandbox_worker [--runs 50] [--scene home]
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ import argparse
 import statistics
 import time
 
-from orchestrator.sandbox_worker import WorkerRunner
-from sim.scene.bundled import load_bundled_scene
-from tools.character_states import WorldView
-from tools.event_program import run_event_program
-from tools.scene_graph import build_scene_graph
+from storyteller.orchestrator.sandbox_worker import WorkerRunner
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.event_program import run_event_program
+from storyteller.tools.scene_graph import build_scene_graph
 
 PROGRAM = (
     "def parse_event():\n"

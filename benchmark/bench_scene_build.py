@@ -1,5 +1,5 @@
 """Scene building benchmark: the scene graph and the region clusters through the spatial index
-(``tools.box_pairs``) against the brute-force builds that test every pair
+(``storyteller.tools.box_pairs``) against the brute-force builds that test every pair
 (``benchmark/support/scene_graph_reference.py``), on dense random scenes.
 
 A scene of ``--objects`` boxes (0.3-1.0 m, random yaw, 30% lifted onto or above others)
@@ -9,7 +9,7 @@ process, one after the other (CPU time, ``time.process_time``; scikit-learn is i
 timing), their outputs are checked equal, and the ratio is printed. ``--scaling`` also times the
 indexed build at 4x and 8x the objects at the same density (it should grow about linearly).
 
-Run: python -m benchmark.bench_scene_build [--objects 400] [--density 4] [--seed 0] [--scaling]
+Run: python -m storyteller.benchmark.bench_scene_build [--objects 400] [--density 4] [--seed 0] [--scaling]
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from typing import TypeVar
 
 import numpy as np
 
-from benchmark.support.scene_graph_reference import brute_force_clusters, brute_force_scene_graph
-from sim.scene.model import Scene, SceneObject
-from tools.clusters import cluster_objects
-from tools.scene_graph import build_scene_graph
+from storyteller.benchmark.support.scene_graph_reference import brute_force_clusters, brute_force_scene_graph
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.clusters import cluster_objects
+from storyteller.tools.scene_graph import build_scene_graph
 
 T = TypeVar("T")
 

@@ -16,7 +16,7 @@ Figures (2026-12-03, ``--repeats 7``, quiet 2-core machine, fastest): ``python -
 0.329 s, ``model info`` 0.379 s, ``run --help`` 0.422 s, ``plan --help`` 0.457 s; importing the
 planning graph (what ``run`` needs before its first step) 1.518 s.
 
-Usage: ``python -m benchmark.bench_startup [--repeats 7] [--importtime] [--top 8]``.
+Usage: ``python -m storyteller.benchmark.bench_startup [--repeats 7] [--importtime] [--top 8]``.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI = "import sys; from orchestrator.cli.app import app; app(sys.argv[1:])"
+CLI = "import sys; from storyteller.orchestrator.cli.app import app; app(sys.argv[1:])"
 
 # (label, python arguments): the baselines first, then the commands.
 CASES: list[tuple[str, list[str]]] = [
@@ -42,7 +42,7 @@ CASES: list[tuple[str, list[str]]] = [
     ("storyteller model info", ["-c", CLI, "model", "info"]),
     ("storyteller plan --help", ["-c", CLI, "plan", "--help"]),
     ("storyteller run --help", ["-c", CLI, "run", "--help"]),
-    ("import planning graph", ["-c", "import orchestrator.planning.graph"]),
+    ("import planning graph", ["-c", "import storyteller.orchestrator.planning.graph"]),
 ]
 
 

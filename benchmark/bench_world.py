@@ -29,8 +29,8 @@ Each scene first gets an untimed warm-up run (``--warmup`` simulated seconds, an
 that one-off first-use costs of the process (per-database motion tables, the planner's move
 masks for the grid) do not land in whichever run comes first.
 
-Usage: ``python -m benchmark.bench_world [--sizes 1 10 50 200 1000] [--seconds 10] [--seed 0] [--repeats 3] [--warmup 2]``,
-or ``python -m benchmark.bench_world --scaling [N ...] [--scaling-seconds 10] [--repeats 2]`` (below).
+Usage: ``python -m storyteller.benchmark.bench_world [--sizes 1 10 50 200 1000] [--seconds 10] [--seed 0] [--repeats 3] [--warmup 2]``,
+or ``python -m storyteller.benchmark.bench_world --scaling [N ...] [--scaling-seconds 10] [--repeats 2]`` (below).
 The 200-character case runs half of ``--seconds``, the 1,000-character case a fifth.
 Targets: 10 characters >= 30x real time on one core (issue 8); 50 characters >= 20x, 200
 characters >= 5x (30,000 character-frames per second), 1,000 characters measured (issue 14).
@@ -59,16 +59,16 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.crowd_scenario import OFFICE, REFERENCE, tiled
-from benchmark.world_timing import Counters, crowd_world
-from orchestrator.cache_paths import motion_cache_dir
-from sim.motion.database import MotionDatabase, load_databases
-from sim.paths.cooperative_astar import PathPlanner
-from sim.paths.heuristics import goal_distances
-from sim.paths.nav_grid import NavGrid, build_nav_grid
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
-from sim.world.step import step
+from storyteller.benchmark.crowd_scenario import OFFICE, REFERENCE, tiled
+from storyteller.benchmark.world_timing import Counters, crowd_world
+from storyteller.orchestrator.cache_paths import motion_cache_dir
+from storyteller.sim.motion.database import MotionDatabase, load_databases
+from storyteller.sim.paths.cooperative_astar import PathPlanner
+from storyteller.sim.paths.heuristics import goal_distances
+from storyteller.sim.paths.nav_grid import NavGrid, build_nav_grid
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import step
 
 
 @dataclass

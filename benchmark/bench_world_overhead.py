@@ -10,7 +10,7 @@ positions, track buffers) so that two versions of the code can be checked to pro
 frames. ``--clock cpu`` (default) times with this process's CPU time, which other processes on
 a loaded machine disturb much less than the wall clock (``--clock wall``).
 
-Usage: ``python -m benchmark.bench_world_overhead [--characters 10] [--seconds 10] [--repeats 5] [--clock cpu]``.
+Usage: ``python -m storyteller.benchmark.bench_world_overhead [--characters 10] [--seconds 10] [--repeats 5] [--clock cpu]``.
 """
 
 from __future__ import annotations
@@ -23,15 +23,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from benchmark.crowd_scenario import OFFICE, REFERENCE, IdleErrands
-from benchmark.world_timing import Counters, TimedMotion, TimedPlanner
-from orchestrator.cache_paths import motion_cache_dir
-from sim.motion.database import MotionDatabase, load_databases
-from sim.motion.matching import MotionMatcher
-from sim.paths.nav_grid import NavGrid, build_nav_grid
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
-from sim.world.step import World, WorldConfig, step
+from storyteller.benchmark.crowd_scenario import OFFICE, REFERENCE, IdleErrands
+from storyteller.benchmark.world_timing import Counters, TimedMotion, TimedPlanner
+from storyteller.orchestrator.cache_paths import motion_cache_dir
+from storyteller.sim.motion.database import MotionDatabase, load_databases
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.paths.nav_grid import NavGrid, build_nav_grid
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import World, WorldConfig, step
 
 CLOCK = time.process_time
 

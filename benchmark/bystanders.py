@@ -1,18 +1,18 @@
-"""``python -m benchmark.bystanders``: do characters the instruction never names live their own lives?
+"""``python -m storyteller.benchmark.bystanders``: do characters the instruction never names live their own lives?
 
 Over finished runs (issue 23 item 3), per *bystander event* (an applied event, once per
-character in it whom the instruction in force never names, ``agents.bystanders.never_named``):
+character in it whom the instruction in force never names, ``storyteller.agents.bystanders.never_named``):
 
 - **own**: the character's planned action label is neither the instruction's own activity (the
   labels of the plans of the run's events that carried out a part of the instruction, and the
-  labels its parts' words rank first, ``agents.bystanders.instruction_activities``) nor the
+  labels its parts' words rank first, ``storyteller.agents.bystanders.instruction_activities``) nor the
   label of that character's previous applied event. Target: >= 95% of bystander events.
-- **areas**: the distinct scene areas (the describer's clusters, ``tools.clusters``) of the
+- **areas**: the distinct scene areas (the describer's clusters, ``storyteller.tools.clusters``) of the
   bystanders' planned objects (the seat, else the first object of the planned area).
 - **shared frames**: frames in which more characters act on one single-user object than it has
-  places (``tools.object_use.shared_use_frames`` over the ``<name>.track.npz`` tracks). Target 0.
+  places (``storyteller.tools.object_use.shared_use_frames`` over the ``<name>.track.npz`` tracks). Target 0.
 - **shared seat frames**: frames in which two seated characters (an ``@seated`` action label)
-  sit in one place of a seat (``tools.areas.seat_slots``, the nearest within
+  sit in one place of a seat (``storyteller.tools.areas.seat_slots``, the nearest within
   :data:`SLOT_REACH_M`): a chair is a single-user object too, though no action label says so.
   Counted apart (the issue's figure is the one above); target 0 as well.
 
@@ -43,11 +43,11 @@ from typing import Any
 
 import numpy as np
 
-from agents.bystanders import instruction_activities, never_named
-from agents.event_parser import scene_action_labels
-from agents.messages import PlannedCharacter
-from agents.story_text import planned_object
-from benchmark.story_text_fidelity import (
+from storyteller.agents.bystanders import instruction_activities, never_named
+from storyteller.agents.event_parser import scene_action_labels
+from storyteller.agents.messages import PlannedCharacter
+from storyteller.agents.story_text import planned_object
+from storyteller.benchmark.story_text_fidelity import (
     replay_suite,
     report_replays,
     report_run_folders,
@@ -55,10 +55,10 @@ from benchmark.story_text_fidelity import (
     scene_of,
     share,
 )
-from sim.scene.model import Scene
-from tools.areas import seat_slots
-from tools.clusters import cluster_objects
-from tools.object_use import shared_use_frames
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.areas import seat_slots
+from storyteller.tools.clusters import cluster_objects
+from storyteller.tools.object_use import shared_use_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TRACES = ROOT / "traces" / "story_suite"
@@ -197,7 +197,7 @@ def report(checks: list[RunCheck]) -> str:
 
 def _scenarios(patterns: str) -> list[Any]:
     """The scenarios matching any of the comma-separated globs (each once, in order)."""
-    from benchmark.story_suite.scenario import load_scenarios
+    from storyteller.benchmark.story_suite.scenario import load_scenarios
 
     found = {s.name: s for p in patterns.split(",") if p.strip() for s in load_scenarios(p.strip())}
     return [found[n] for n in sorted(found)]
@@ -207,7 +207,7 @@ def fresh_runs(out: Path, pattern: str, extra: int, events: int = 0) -> list[tup
     """Run the scenarios matching ``pattern`` with ``extra`` more characters (at most 6), at least
     ``events`` planning steps (and 12 simulated seconds per step, at most 120) and the configured
     model, recording each trace in ``out/traces``."""
-    from benchmark.story_suite.runner import RunOptions, run_args
+    from storyteller.benchmark.story_suite.runner import RunOptions, run_args
 
     done = []
     options = RunOptions(out=out, record=out / "traces")
@@ -233,7 +233,7 @@ def fresh_runs(out: Path, pattern: str, extra: int, events: int = 0) -> list[tup
 
 def main(argv: list[str] | None = None) -> int:
     doc = __doc__ or ""
-    p = argparse.ArgumentParser(prog="python -m benchmark.bystanders", description=doc.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m storyteller.benchmark.bystanders", description=doc.splitlines()[0])
     source = p.add_mutually_exclusive_group()
     source.add_argument("--traces", type=Path, default=None,
                         help=f"Replay the recorded scenarios in this folder (default: {DEFAULT_TRACES.relative_to(ROOT)}).")  # fmt: skip
@@ -245,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--events", type=int, default=0, help="Fresh runs: planning steps at least (at most 8; default: the scenario's).")
     p.add_argument("--out", type=Path, default=None, help="Folder for the replayed runs (default: a temporary one).")
     args = p.parse_args(argv)
-    from benchmark.story_suite.scenario import ScenarioError
+    from storyteller.benchmark.story_suite.scenario import ScenarioError
 
     try:
         return _run(args)

@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from orchestrator.reference_data import locate_reference
-from sim.paths.nav_grid import NavGrid
-from sim.scene.model import Scene
-from sim.world.events import AssignEvent, Assignment
+from storyteller.orchestrator.reference_data import locate_reference
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.events import AssignEvent, Assignment
 
 REFERENCE = locate_reference()  # absent: the scripts exit with REFERENCE.reason
 OFFICE = REFERENCE.path / "configs" / "scenes" / "Office"

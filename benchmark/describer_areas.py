@@ -4,17 +4,17 @@ after the check (issue 23, item 4; target: >= 90% on the first reply).
 Runs the describer with the run config's model (the embedded model by default; ``--config``
 for another) once per scene: the bundled scenes, then the authors' reference scenes (House,
 Office, Restaurant; left out with the resolver's one-line reason when the data is absent). Each
-call goes through the describer's own checks (``agents.describer.judge_reply``): a reply whose
+call goes through the describer's own checks (``storyteller.agents.describer.judge_reply``): a reply whose
 areas do not fit their objects gets the feedback and another try, at most ``--max-retries``
 times, then the misfits are renamed from the table (``best_effort_areas``). No description
 cache is read or written.
 
-An area *agrees* when its name and purpose fit its objects (``agents.area_fit.judge_area``);
+An area *agrees* when its name and purpose fit its objects (``storyteller.agents.area_fit.judge_area``);
 areas the table cannot judge (a name it cannot read, or only plants and lamps) are counted
 apart and left out of the share. A first reply that does not parse counts as one disagreeing
 area per region.
 
-Usage: ``python -m benchmark.describer_areas [--config FILE] [--max-retries 3] [--scenes home,House]``.
+Usage: ``python -m storyteller.benchmark.describer_areas [--config FILE] [--max-retries 3] [--scenes home,House]``.
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from agents.area_fit import area_labels, judge_area
-from agents.describer import (
+from storyteller.agents.area_fit import area_labels, judge_area
+from storyteller.agents.describer import (
     AreaList,
     DescriberInput,
     best_effort_areas,
@@ -39,13 +39,13 @@ from agents.describer import (
     load_areas,
     repair_areas,
 )
-from agents.llm_port import LLMPort
-from agents.prompt_templates import PromptLibrary
-from agents.retry_feedback import Turn
-from agents.room_table import room_table
-from orchestrator.reference_data import locate_reference
-from sim.scene.bundled import bundled_scene_names, load_bundled_scene
-from sim.scene.model import Scene
+from storyteller.agents.llm_port import LLMPort
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.agents.retry_feedback import Turn
+from storyteller.agents.room_table import room_table
+from storyteller.orchestrator.reference_data import locate_reference
+from storyteller.sim.scene.bundled import bundled_scene_names, load_bundled_scene
+from storyteller.sim.scene.model import Scene
 
 
 @dataclass(frozen=True)
@@ -109,7 +109,7 @@ async def describe(port: LLMPort, prompts: PromptLibrary, inp: DescriberInput, m
 
 
 def scenes(selected: Sequence[str] | None) -> list[Scene]:
-    from sim.scene.files import load_scene
+    from storyteller.sim.scene.files import load_scene
 
     out = [load_bundled_scene(n) for n in bundled_scene_names()]
     reference = locate_reference()
@@ -122,7 +122,7 @@ def scenes(selected: Sequence[str] | None) -> list[Scene]:
 
 
 async def run(args: argparse.Namespace) -> int:
-    from orchestrator.session.port_setup import describer_mode_for, open_port
+    from storyteller.orchestrator.session.port_setup import describer_mode_for, open_port
 
     port, model = open_port(args.config, None, None)
     mode = describer_mode_for(model)
@@ -145,7 +145,7 @@ async def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmark.describer_areas", description=__doc__.splitlines()[0] if __doc__ else None)
+    p = argparse.ArgumentParser(prog="python -m storyteller.benchmark.describer_areas", description=__doc__.splitlines()[0] if __doc__ else None)
     p.add_argument("--config", type=Path, help="TOML run config (the describer's model)")
     p.add_argument("--max-retries", type=int, default=3)
     p.add_argument("--scenes", help="comma-separated scene names (default: all)")

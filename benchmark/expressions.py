@@ -16,8 +16,8 @@ atom or a parenthesised group (``!(eat || drink)``, ``!close to table_3``).
 Guarantee: :func:`parse_expression` either returns a tree whose atoms are exactly the
 non-blank texts between operators, or raises :class:`ExpressionError` (or the subclass the
 caller names) whose message names the expression and the 1-based column of the offending
-token. What an atom means is left to the caller (:mod:`benchmark.plan_scoring` for actions,
-:mod:`benchmark.position_check` for positions); this module only reads the structure.
+token. What an atom means is left to the caller (:mod:`storyteller.benchmark.plan_scoring` for actions,
+:mod:`storyteller.benchmark.position_check` for positions); this module only reads the structure.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Effect of the foot IK filter (``sim.body.foot_ik``) on the crowd measure of issue 4.
+"""Effect of the foot IK filter (``storyteller.sim.body.foot_ik``) on the crowd measure of issue 4.
 
 Runs the crowd scenario of ``tests/sim/motion/test_crowd_motion.py`` (its ``simulate_crowd`` and
 ``measure``, imported from the file) with a smaller crowd and the world's own leg IK turned
@@ -11,7 +11,7 @@ m/s), the largest change of any pelvis position (must be 0) and of the upper bod
 rotations (must be 0), legs at full stretch (the IK's clamp),
 the legs' joint speeds (p99, max: pops would show there), and the filter's cost per character-frame next to the world step's.
 
-Usage: ``python -m benchmark.foot_ik_effect [--walkers 20] [--seconds 20] [--seed 7]
+Usage: ``python -m storyteller.benchmark.foot_ik_effect [--walkers 20] [--seconds 20] [--seed 7]
 [--off-grid 0.0] [--margin 0.03] [--max-drift 0.25] [--max-reach 0.99] [--release-frames 6]``.
 """
 
@@ -30,9 +30,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from sim.body.foot_ik import LEG_JOINTS, FootSolver
-from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, leg_chain
-from sim.scene.files import load_scene
+from storyteller.sim.body.foot_ik import LEG_JOINTS, FootSolver
+from storyteller.sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, leg_chain
+from storyteller.sim.scene.files import load_scene
 
 CROWD_TEST = Path(__file__).resolve().parents[1] / "tests" / "test_crowd_motion.py"
 
@@ -76,9 +76,9 @@ def main() -> None:
     args = ap.parse_args()
 
     crowd = _crowd_module()
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
 
     if not crowd.OFFICE.exists():
         raise SystemExit(f"reference scene not found at {crowd.OFFICE}")

@@ -1,8 +1,8 @@
-"""``python -m benchmark.gait_fit [--write | --with-bandai]``: fit the procedural walk to the real CMU walks.
+"""``python -m storyteller.benchmark.gait_fit [--write | --with-bandai]``: fit the procedural walk to the real CMU walks.
 
 Reads the CMU walks (``STORYTELLER_MOCAP``, else ``../shared/mocap``; never copied), imported on
 our skeleton as every real clip is, and measures each walking window with the benchmark's own
-measures (``benchmark.motion_metrics.gait``: step length, bob, sway, arm swing, jerk) plus these:
+measures (``storyteller.benchmark.motion_metrics.gait``: step length, bob, sway, arm swing, jerk) plus these:
 bob oscillation (the pelvis height's standard deviation about its one-second moving average:
 the benchmark's bob is the plain standard deviation, which in the real walks is mostly a slow
 drift of 1-3 cm over a window, not the step's rise and fall), trunk twist (half the 5-95 % range
@@ -24,7 +24,7 @@ the windows (what that line gives at their mean speed: they do not grow with spe
 CMU walks turn too gently (lateral acceleration under 0.1 g) and their gains scatter on both
 sides of zero, so the generator keeps the balance lean (gain 1: the body tilts so that gravity
 and the turn's acceleration together point through the feet). Then the generator's parameters
-(``sim.motion.sources.gait_params.GaitParams``) are calibrated: walks and arcs are generated at
+(``storyteller.sim.motion.sources.gait_params.GaitParams``) are calibrated: walks and arcs are generated at
 the real speeds, measured the same way, each amplitude scaled by target / measured and each
 line's amplitude and slope moved by what the generated line misses, a few rounds (the step
 length is set, not calibrated: the generator steps exactly as long as it is told, and the
@@ -47,10 +47,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import theilslopes
 
-from benchmark.motion_metrics.gait import SpeedFit, fit_speed, gait_window, walking_windows
-from sim.body.skeleton import JOINT_INDEX
-from sim.motion.sources.gait_params import FITTED_GAIT, GaitParams
-from sim.motion.sources.procedural_locomotion import GRAVITY, locomotion_clip
+from storyteller.benchmark.motion_metrics.gait import SpeedFit, fit_speed, gait_window, walking_windows
+from storyteller.sim.body.skeleton import JOINT_INDEX
+from storyteller.sim.motion.sources.gait_params import FITTED_GAIT, GaitParams
+from storyteller.sim.motion.sources.procedural_locomotion import GRAVITY, locomotion_clip
 
 CMU_WALKS = (
     ("cmu/daz/05_01.bvh", 1), ("cmu/daz/07_03.bvh", 1), ("cmu/daz/07_06.bvh", 1), ("cmu/daz/08_08.bvh", 1),
@@ -163,10 +163,10 @@ def _joined(parts: list[NDArray[np.float64]]) -> NDArray[np.float64]:
 
 def real_walks() -> tuple[list[NDArray[np.float64]], list[str]]:
     """World joints (F, 22, 3) of every CMU walk on our floor, and their names (held-out ones too)."""
-    from benchmark.motion_metrics.sources import on_floor
-    from benchmark.motion_quality import MOCAP
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.motion.config import ClipEntry, MotionConfig, import_entry
+    from storyteller.benchmark.motion_metrics.sources import on_floor
+    from storyteller.benchmark.motion_quality import MOCAP
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.motion.config import ClipEntry, MotionConfig, import_entry
 
     if not MOCAP.found:
         raise FileNotFoundError(f"real clips: {MOCAP.reason}")
@@ -176,8 +176,8 @@ def real_walks() -> tuple[list[NDArray[np.float64]], list[str]]:
 
 
 def bandai_walks() -> Walks:
-    """The Bandai Namco walks (``benchmark.motion_metrics.sources``; empty when absent), measured."""
-    from benchmark.motion_metrics.sources import real_clips as benchmark_clips
+    """The Bandai Namco walks (``storyteller.benchmark.motion_metrics.sources``; empty when absent), measured."""
+    from storyteller.benchmark.motion_metrics.sources import real_clips as benchmark_clips
 
     run, _ = benchmark_clips()
     return measure_walks([c.joints for c in run.characters if c.name.startswith("dataset-")])
@@ -238,7 +238,7 @@ def _line_update(p: GaitParams, got: dict[str, SpeedFit], want: dict[str, SpeedF
 def generated_walks(params: GaitParams, speeds: Sequence[float]) -> Walks:
     """Straight walks at ``speeds`` and arcs (radius 3 m and 1.5 m at the middle speed),
     generated with ``params``, world joints measured like the real ones."""
-    from sim.motion.sources.procedural_locomotion import _const
+    from storyteller.sim.motion.sources.procedural_locomotion import _const
 
     def joints(v: float, turn: float) -> NDArray[np.float64]:
         clip = locomotion_clip("fit", _const(v), _const(turn), 6.0, params=params)
@@ -285,7 +285,7 @@ def ratio_rows(params: GaitParams, targets: Targets) -> dict[str, float]:
 def held_out_rows(params: GaitParams, held: Walks) -> dict[str, float]:
     """Per measure, the median over ``held``'s windows of generated / real, each window against a
     straight walk generated at its own speed."""
-    from sim.motion.sources.procedural_locomotion import _const
+    from storyteller.sim.motion.sources.procedural_locomotion import _const
 
     gen = []
     for w in held.windows:
@@ -309,7 +309,7 @@ def write_params(params: GaitParams, path: Path = PARAMS_FILE) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmark.gait_fit", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m storyteller.benchmark.gait_fit", description=__doc__.splitlines()[0])
     parser.add_argument("--write", action="store_true", help="store the fitted parameters in gait_params.py")
     parser.add_argument("--with-bandai", action="store_true",
                         help="fit on the Bandai Namco walks too, to see what that would give (CC BY-NC 4.0: nothing"

@@ -5,13 +5,13 @@ ones face their seat's front and are left out) the measure reads the character's
 
 - the interaction is the first run of frames, within its event, whose action label is the
   action's; it starts at the run's first frame;
-- facing error (degrees): the root's forward yaw (``sim.world.motion_layer.root_yaw``) against
+- facing error (degrees): the root's forward yaw (``storyteller.sim.world.motion_layer.root_yaw``) against
   the direction from the root to the nearest point of the object's footprint (to its centre
   from inside it), or to the mean position of the partners at that frame; at the start and at
   every frame of the run ("during");
 - distance at start (metres): root to the object's footprint (object interactions only).
 
-The object of an interaction is ``sim.world.facing.focus_object``'s: the one its action names
+The object of an interaction is ``storyteller.sim.world.facing.focus_object``'s: the one its action names
 (``use_coffee_maker`` -> the nearest ``coffee_maker`` within 1.5 m of the planned point), else,
 for an action whose hands work on an object, the first object the plan's area names ("adjacent
 to bookshelf_1"), else none: drinking, waving and the like are not counted. It is never where
@@ -27,7 +27,7 @@ the planner's facing where the character stopped); and any run folders given (``
 plans, ``<name>.track.npz``, ``scene.json``). Targets: median <= 10 and p95 <= 25 degrees at
 the start.
 
-``python -m benchmark.motion_facing [RUN_DIR ...]``; ``python -m benchmark.motion_quality``
+``python -m storyteller.benchmark.motion_facing [RUN_DIR ...]``; ``python -m storyteller.benchmark.motion_quality``
 prints the same table after its own.
 """
 
@@ -44,10 +44,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.motion.action_labels import action_spec, database_key
-from sim.scene.model import Scene, SceneObject
-from sim.world.facing import focus_object, heading_to_object, surface_distance
-from sim.world.motion_layer import MotionLayer, root_yaw
+from storyteller.sim.motion.action_labels import action_spec, database_key
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.facing import focus_object, heading_to_object, surface_distance
+from storyteller.sim.world.motion_layer import MotionLayer, root_yaw
 
 START_MEDIAN_TARGET = 10.0  # degrees
 START_P95_TARGET = 25.0  # degrees
@@ -158,7 +158,7 @@ def summarize(items: Sequence[Interaction]) -> FacingSummary:
 def run_folder_interactions(folder: Path) -> list[Interaction]:
     """The standing interactions of a finished run folder (``story.json``, ``scene.json`` and
     ``<name>.track.npz``)."""
-    from sim.scene.files import load_scene
+    from storyteller.sim.scene.files import load_scene
 
     story = json.loads((folder / "story.json").read_text(encoding="utf-8"))
     scene = load_scene(folder / "scene.json")
@@ -229,15 +229,15 @@ LOOP_S = 4.0  # seconds a looping action (chat) goes on before the character's n
 def scripted_story(motion: MotionLayer, *, keep_focus: bool = True, seconds: float = 150.0,
                    seed: int = 0) -> list[Interaction]:
     """Run ``SCRIPT`` in the bundled home scene and measure its interactions. Each event is
-    planned through ``tools.spatial_api.SpatialAPI`` (seeded) when all its characters are free
+    planned through ``storyteller.tools.spatial_api.SpatialAPI`` (seeded) when all its characters are free
     (a looping one after ``LOOP_S``) and applied with ``AssignEvent.from_plans``;
     ``keep_focus=False`` drops the object from every assignment (the world before facing was
     checked). Deterministic."""
-    from sim.scene.bundled import load_bundled_scene
-    from sim.world.events import AssignEvent
-    from sim.world.step import World, WorldConfig, step
-    from tools.character_states import CharacterState, WorldView
-    from tools.spatial_api import SpatialAPI
+    from storyteller.sim.scene.bundled import load_bundled_scene
+    from storyteller.sim.world.events import AssignEvent
+    from storyteller.sim.world.step import World, WorldConfig, step
+    from storyteller.tools.character_states import CharacterState, WorldView
+    from storyteller.tools.spatial_api import SpatialAPI
 
     scene = load_bundled_scene("home")
     fps = 30
@@ -286,7 +286,7 @@ def scripted_story(motion: MotionLayer, *, keep_focus: bool = True, seconds: flo
 
 def _world_interactions(world: object, scene: Scene,
                         planned: dict[str, tuple[tuple[Part, ...], dict[str, tuple[float, float]]]]) -> list[Interaction]:
-    from sim.world.step import World
+    from storyteller.sim.world.step import World
 
     assert isinstance(world, World)
     tracks = world.tracks()
@@ -357,9 +357,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("runs", nargs="*", type=Path, help="run folders to measure too")
     parser.add_argument("--seconds", type=float, default=150.0, help="simulated seconds of the scripted story")
     args = parser.parse_args(argv)
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
 
     dbs = load_databases(cache_dir=motion_cache_dir())
     print(report(lambda: MotionMatcher(dbs), args.runs, args.seconds))

@@ -21,13 +21,13 @@ Metrics (all on the 22-joint skeleton, metres and seconds):
 - ``bob``: standard deviation of pelvis height (m);
 - ``floor``: lowest toe height (m; negative means the foot sinks into the floor).
 
-3. **Facing at interaction start** (``benchmark.motion_facing``): facing error when a standing
+3. **Facing at interaction start** (``storyteller.benchmark.motion_facing``): facing error when a standing
    interaction starts and while it lasts (root forward against the direction to the object's
    nearest footprint point, or to the partners) and the distance to the object, for a scripted
    story through the world step (and the same without the world's facing, as before it), and
    for any run folders given with ``--facing-runs``.
 
-Run ``python -m benchmark.motion_quality`` from the project root (``--help`` for options).
+Run ``python -m storyteller.benchmark.motion_quality`` from the project root (``--help`` for options).
 """
 
 from __future__ import annotations
@@ -41,20 +41,20 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.motion_facing import report as facing_report
-from orchestrator.cache_paths import motion_cache_dir
-from orchestrator.reference_data import locate_mocap, locate_reference
-from sim.body.skeleton import forward_kinematics
-from sim.motion.clips import FOOT_JOINTS, MotionClip, foot_sliding
-from sim.motion.config import (
+from storyteller.benchmark.motion_facing import report as facing_report
+from storyteller.orchestrator.cache_paths import motion_cache_dir
+from storyteller.orchestrator.reference_data import locate_mocap, locate_reference
+from storyteller.sim.body.skeleton import forward_kinematics
+from storyteller.sim.motion.clips import FOOT_JOINTS, MotionClip, foot_sliding
+from storyteller.sim.motion.config import (
     MotionConfig,
     build_databases_from_config,
     import_entry,
     load_motion_config,
 )
-from sim.motion.database import load_databases
-from sim.motion.matching import MotionMatcher
-from sim.motion.sources.procedural_library import procedural_clips
+from storyteller.sim.motion.database import load_databases
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.motion.sources.procedural_library import procedural_clips
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_CONFIG = HERE / "mocap_shared.toml"
@@ -143,10 +143,10 @@ def compare_clips(config: MotionConfig, labels: Iterable[str] | None = None) -> 
 
 def simulate_walkers(motion: MotionMatcher, n: int, seconds: float, seed: int, scene_dir: Path = OFFICE) -> MotionStats:
     """``n`` characters walk between random free cells of a scene; figures of their tracks."""
-    from sim.paths.nav_grid import build_nav_grid
-    from sim.scene.files import load_scene
-    from sim.world.events import AssignEvent, Assignment
-    from sim.world.step import World, WorldConfig, step
+    from storyteller.sim.paths.nav_grid import build_nav_grid
+    from storyteller.sim.scene.files import load_scene
+    from storyteller.sim.world.events import AssignEvent, Assignment
+    from storyteller.sim.world.step import World, WorldConfig, step
 
     scene = load_scene(scene_dir)
     grid = build_nav_grid(scene)

@@ -1,16 +1,16 @@
 """Score one planning outcome against a reference test case's expected plans.
 
 A run **executes** when the planner returned a plan or a wait (no
-:class:`~agents.messages.PlanningFailure`: every retry of every role used up, or a model
+:class:`~storyteller.agents.messages.PlanningFailure`: every retry of every role used up, or a model
 outage). A run **passes** when it executes and:
 
 - it is a wait (no event, or an event with no plans) and the case allows a null plan
   (``allow_null_plan``); a wait where a plan was expected fails; or
 - for every expected character there is a plan for that character whose action matches the
   ``target_action`` expression (labels under ``||``, ``&&``, ``!`` and parentheses; grammar in
-  :mod:`benchmark.expressions`), and whose sampled position satisfies the ``relationships``
+  :mod:`storyteller.benchmark.expressions`), and whose sampled position satisfies the ``relationships``
   expression (or, in PI cases, the ``sampled_position`` expression) by
-  :func:`benchmark.position_check.check_position`, with the reference thresholds (directional
+  :func:`storyteller.benchmark.position_check.check_position`, with the reference thresholds (directional
   0.1 m, adjacent 0.7 m, close 1.4 m, inside 0.1 m; "close to X" accepts "adjacent to X",
   "inside X" accepts sitting or lying on X) and without collision: not inside floor-standing
   furniture and not within 0.5 m of another character (where the characters outside the event
@@ -31,18 +31,18 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from agents.messages import ParsedEvent, PlannedCharacter, PlanningFailure
-from benchmark.expressions import Expr, ExpressionError, atoms, evaluate, parse_expression
-from benchmark.position_check import (
+from storyteller.agents.messages import ParsedEvent, PlannedCharacter, PlanningFailure
+from storyteller.benchmark.expressions import Expr, ExpressionError, atoms, evaluate, parse_expression
+from storyteller.benchmark.position_check import (
     CHARACTER_CLEARANCE,
     CheckResult,
     check_collision,
     check_position,
     parse_position_expression,
 )
-from benchmark.reference_cases import BenchmarkCase, planning_inputs
-from sim.scene.model import Scene
-from tools.character_states import WorldView
+from storyteller.benchmark.reference_cases import BenchmarkCase, planning_inputs
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import WorldView
 
 Outcome = ParsedEvent | PlanningFailure | None
 _LABEL = re.compile(r"[A-Za-z0-9_]+")
@@ -170,7 +170,7 @@ def score_outcome(
     case: BenchmarkCase, scene: Scene, outcome: Outcome, *, world: WorldView | None = None
 ) -> CaseScore:
     """Judge one planning outcome (see the module docstring). ``world``: the characters as the
-    planner saw them (default: :func:`benchmark.reference_cases.planning_inputs` of the case,
+    planner saw them (default: :func:`storyteller.benchmark.reference_cases.planning_inputs` of the case,
     which is what the benchmark gives the planner)."""
     if isinstance(outcome, PlanningFailure):
         return CaseScore(case.id, False, False, "failure",

@@ -2,8 +2,8 @@
 
 For every case (and every run of it) one planning step of the planning graph is run (the full
 event-driven method or one of the paper's ablations, which are variants of that graph), driven
-exactly as ``storyteller plan`` drives it (:func:`orchestrator.session.plan_job.run_plan`), with
-the case's instruction, history and character states; the outcome is scored by :mod:`benchmark.plan_scoring`. It prints the
+exactly as ``storyteller plan`` drives it (:func:`storyteller.orchestrator.session.plan_job.run_plan`), with
+the case's instruction, history and character states; the outcome is scored by :mod:`storyteller.benchmark.plan_scoring`. It prints the
 success rate (passed runs / runs) and the execution rate (runs without a planning failure /
 runs) per tag group, per tag and overall, next to the paper's own figures.
 
@@ -11,13 +11,13 @@ Every LLM call goes through the project's LLM port, so ``--config`` picks models
 ``--record`` writes a trace and ``--replay`` re-scores a recorded run with no model loaded
 (stdout is identical; timings go to stderr)::
 
-    python -m benchmark.planning_benchmark --cases 0 10 60 --record bench.jsonl
-    python -m benchmark.planning_benchmark --cases 0 10 60 --replay bench.jsonl
+    python -m storyteller.benchmark.planning_benchmark --cases 0 10 60 --record bench.jsonl
+    python -m storyteller.benchmark.planning_benchmark --cases 0 10 60 --replay bench.jsonl
 
 ``--help`` lists the options (planner, description, distraction level, runs, seed).
 
 For sweeps over case sets, levels, methods and models that resume, scale out and write
-reports, use ``storyteller bench run`` (:mod:`benchmark.sweep`); it drives the same graph.
+reports, use ``storyteller bench run`` (:mod:`storyteller.benchmark.sweep`); it drives the same graph.
 """
 
 from __future__ import annotations
@@ -35,11 +35,11 @@ from typing import Any, Literal, get_args
 
 os.environ.setdefault("LITELLM_LOCAL_MODEL_COST_MAP", "True")  # before litellm is imported
 
-from agents.llm_port import LLMPort
-from agents.messages import ParsedEvent, SceneDescription
-from agents.prompt_templates import PromptLibrary
-from benchmark.plan_scoring import CaseScore, score_outcome
-from benchmark.reference_cases import (
+from storyteller.agents.llm_port import LLMPort
+from storyteller.agents.messages import ParsedEvent, SceneDescription
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.benchmark.plan_scoring import CaseScore, score_outcome
+from storyteller.benchmark.reference_cases import (
     TAGS,
     BenchmarkCase,
     BenchmarkCaseError,
@@ -49,12 +49,12 @@ from benchmark.reference_cases import (
     planning_inputs,
     scene_dir,
 )
-from orchestrator.planning.ablation_graph import Ablation
-from orchestrator.planning.kinds import DescriptionKind, PlannerKind
-from orchestrator.reference_data import locate_reference
-from orchestrator.session.plan_job import run_plan
-from sim.scene.model import Scene
-from tools.scene_graph import SceneGraph, build_scene_graph
+from storyteller.orchestrator.planning.ablation_graph import Ablation
+from storyteller.orchestrator.planning.kinds import DescriptionKind, PlannerKind
+from storyteller.orchestrator.reference_data import locate_reference
+from storyteller.orchestrator.session.plan_job import run_plan
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.scene_graph import SceneGraph, build_scene_graph
 
 DEFAULT_REFERENCE = locate_reference().path  # $STORYTELLER_REFERENCE, else ../shared/reference/event-driven-storytelling
 REFERENCE_DESCRIPTIONS = "openai-gpt-4o-2024-08-06-0.1"
@@ -127,10 +127,10 @@ async def run_cases(
     """Plan and score every case ``runs`` times (seed + run index per run).
 
     Each run is one planning step of the planning graph (or its ``planner`` variant), driven
-    by :func:`orchestrator.session.plan_job.run_plan` as ``storyteller plan`` drives it, from
+    by :func:`storyteller.orchestrator.session.plan_job.run_plan` as ``storyteller plan`` drives it, from
     the case's roster, story so far, world view and action labels, on a throwaway thread."""
-    from orchestrator.sandbox_worker import WorkerRunner
-    from sim.scene.files import load_scene
+    from storyteller.orchestrator.sandbox_worker import WorkerRunner
+    from storyteller.sim.scene.files import load_scene
 
     prompts = prompts or PromptLibrary()
     ablation = Ablation(planner=planner, description=descriptions.graph_description)
@@ -192,7 +192,7 @@ def format_summary(results: Sequence[RunResult], header: str) -> str:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m benchmark.planning_benchmark", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="python -m storyteller.benchmark.planning_benchmark", description=__doc__.split("\n\n")[0])
     p.add_argument("--reference", type=Path, default=DEFAULT_REFERENCE, help="the reference data folder")
     p.add_argument("--cases", type=int, nargs="*", help="case ids (default: all 40)")
     p.add_argument("--tags", nargs="*", choices=TAGS, help="only cases carrying one of these tags")
@@ -215,9 +215,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 async def _main(args: argparse.Namespace) -> int:
-    from orchestrator.cache_paths import description_cache_dir
-    from orchestrator.llm.config import load_config
-    from orchestrator.llm.replay import build_llm_port
+    from storyteller.orchestrator.cache_paths import description_cache_dir
+    from storyteller.orchestrator.llm.config import load_config
+    from storyteller.orchestrator.llm.replay import build_llm_port
 
     if args.runs < 1:
         raise BenchmarkCaseError("--runs must be at least 1")
@@ -246,7 +246,7 @@ async def _main(args: argparse.Namespace) -> int:
     finally:
         port.close()
     if args.replay:  # the models that answered when the trace was recorded
-        from orchestrator.llm.traces import read_trace
+        from storyteller.orchestrator.llm.traces import read_trace
 
         models = sorted({a.model for a in read_trace(args.replay).attempts() if a.final})
     else:
@@ -264,9 +264,9 @@ async def _main(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    from agents.llm_port import LLMError
-    from orchestrator.llm.config import ConfigError
-    from orchestrator.logging_setup import configure_logging
+    from storyteller.agents.llm_port import LLMError
+    from storyteller.orchestrator.llm.config import ConfigError
+    from storyteller.orchestrator.logging_setup import configure_logging
 
     configure_logging("WARNING")  # logs go to stderr; stdout holds only the verdicts and the table
 

@@ -3,7 +3,7 @@
 Expressions are written as in the reference test cases: atoms such as "in front of fridge_1",
 "adjacent to coffee_maker_1", "close to table_3", "sit on chair_6", "between chair_1 and
 chair_3", combined with ``||``, ``&&``, ``!`` and parentheses (grammar and precedence in
-:mod:`benchmark.expressions`: ``!`` over ``&&`` over ``||``).
+:mod:`storyteller.benchmark.expressions`: ``!`` over ``&&`` over ``||``).
 
 Each atom has a distance (metres, 0 when fully satisfied) and a tolerance (the reference
 thresholds); the atom holds when distance <= tolerance:
@@ -44,13 +44,13 @@ from typing import TYPE_CHECKING, Literal, TypedDict
 
 import numpy as np
 
-from benchmark.expressions import And, Atom, Expr, ExpressionError, Not, Or, atoms, parse_expression
-from sim.scene.model import Scene, SceneObject
-from tools.position_sampling import BODY_RADIUS
-from tools.scene_graph import point_footprint_distance
+from storyteller.benchmark.expressions import And, Atom, Expr, ExpressionError, Not, Or, atoms, parse_expression
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.position_sampling import BODY_RADIUS
+from storyteller.tools.scene_graph import point_footprint_distance
 
 if TYPE_CHECKING:
-    from tools.scene_graph import SceneGraph
+    from storyteller.tools.scene_graph import SceneGraph
 
 TOLERANCES: dict[str, float] = {
     "in front of": 0.1,
@@ -302,11 +302,11 @@ def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[PiC
     import time
     from pathlib import Path
 
-    from sim.scene.files import load_scene
-    from tools.character_states import world_view_from_reference_case
-    from tools.sandbox import execute
-    from tools.scene_graph import build_scene_graph
-    from tools.spatial_api import SpatialAPI
+    from storyteller.sim.scene.files import load_scene
+    from storyteller.tools.character_states import world_view_from_reference_case
+    from storyteller.tools.sandbox import execute
+    from storyteller.tools.scene_graph import build_scene_graph
+    from storyteller.tools.spatial_api import SpatialAPI
 
     ref = Path(reference)
     rows: list[PiCaseTiming] = []
@@ -339,7 +339,7 @@ def measure_pi_cases(reference: str, programs: str, seeds: int = 20) -> list[PiC
 
 if (
     __name__ == "__main__"
-):  # python -m benchmark.position_check ../shared/reference/event-driven-storytelling tests/pi_programs
+):  # python -m storyteller.benchmark.position_check ../shared/reference/event-driven-storytelling tests/pi_programs
     import sys
 
     results = measure_pi_cases(

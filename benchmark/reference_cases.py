@@ -13,11 +13,11 @@ reference data's ``configs/scenes`` (``House``), or ``bundled:<name>`` for a sce
 with the package (``bundled:home``; see :func:`scene_dir`).
 
 :func:`planning_inputs` turns a case into the planner's inputs: the roster
-(:class:`~agents.messages.CharacterStatus`, positions placed by the project's own sampler,
+(:class:`~storyteller.agents.messages.CharacterStatus`, positions placed by the project's own sampler,
 deterministic per case), the narrator's history and the spatial API's world view.
 
 A case file is outside text: it is read within ``MAX_CASE_BYTES`` and ``MAX_CASE_JSON_DEPTH``
-(``sim.bounded_files``: a regular file, UTF-8, finite numbers, integers of bounded length), and
+(``storyteller.sim.bounded_files``: a regular file, UTF-8, finite numbers, integers of bounded length), and
 a case set's files must be named ``testcase_<id>.json`` with a numeric id; anything else is one
 :class:`BenchmarkCaseError` naming the file.
 """
@@ -33,13 +33,13 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from agents.messages import CharacterStatus, HistoryEntry
-from agents.prompt_templates import BENCHMARK_TAGS
-from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
-from sim.scene.bundled import bundled_scene_names
-from sim.scene.model import Scene
-from sim.validation_text import user_error
-from tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
+from storyteller.agents.messages import CharacterStatus, HistoryEntry
+from storyteller.agents.prompt_templates import BENCHMARK_TAGS
+from storyteller.sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
+from storyteller.sim.scene.bundled import bundled_scene_names
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.validation_text import user_error
+from storyteller.tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
 
 TAGS: tuple[str, ...] = ("OA", "RC", "SS", "PI")
 """Object affordance, relationship comprehension, scene-state awareness, position inference."""
@@ -189,7 +189,7 @@ BUNDLED_PREFIX = "bundled:"
 
 
 def scene_dir(reference: str | Path | None, case: BenchmarkCase) -> Path:
-    """Where the case's scene is, for :func:`sim.scene.files.load_scene`.
+    """Where the case's scene is, for :func:`storyteller.sim.scene.files.load_scene`.
 
     A reference ``scene_name`` (``House``) is the folder ``configs/scenes/<name>`` of the
     reference data (``reference``; None: not given, which such a case refuses);
@@ -202,7 +202,7 @@ def scene_dir(reference: str | Path | None, case: BenchmarkCase) -> Path:
                 f"{case.source}: field 'scene_name': {name!r} is not a bundled scene "
                 f"(bundled: {', '.join(bundled_scene_names())})"
             )
-        return Path(str(resources.files("sim.scene") / "scenes" / f"{name}.json"))
+        return Path(str(resources.files("storyteller.sim.scene") / "scenes" / f"{name}.json"))
     if reference is None:
         raise BenchmarkCaseError(
             f"{case.source}: field 'scene_name': {case.scene_name!r} is a scene of the reference data, "

@@ -1,4 +1,4 @@
-"""``python -m benchmark.story_text_fidelity``: does the story a person reads say what the plans do?
+"""``python -m storyteller.benchmark.story_text_fidelity``: does the story a person reads say what the plans do?
 
 Replays the story suite's recorded runs (``traces/story_suite/<scenario>.jsonl`` by default,
 ``--traces DIR`` for another recording such as ``traces/story_suite_1.5b``; no model is loaded,
@@ -8,9 +8,9 @@ each replay is a full ``storyteller run --replay``), or reads run folders alread
 - every applied event's ``text`` against its planning step's plans (``story.json``'s ``steps``):
   for every character it names the planned object (the seat, else the first object of the
   area; its id, label or human name) and an action word of the planned label
-  (``agents.narrator_words.agrees``);
+  (``storyteller.agents.narrator_words.agrees``);
 - every ``narration`` shown: the narrator's words it shows (the event's ``activity``) by
-  ``agents.narrator_words.says_the_plan``, the judgement that gates them (the above, and no
+  ``storyteller.agents.narrator_words.says_the_plan``, the judgement that gates them (the above, and no
   other action said, no object id the plans are not about);
 - ``story.md``'s prose (the paragraphs before "What went wrong", which lists the simulation's
   and the planner's own messages) holds no raw id of an object whose label is unique in the
@@ -43,10 +43,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
-from agents.messages import PlannedCharacter
-from agents.narrator_words import agrees, says_the_plan
-from agents.story_text import ObjectNames
-from sim.scene.model import Scene
+from storyteller.agents.messages import PlannedCharacter
+from storyteller.agents.narrator_words import agrees, says_the_plan
+from storyteller.agents.story_text import ObjectNames
+from storyteller.sim.scene.model import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TRACES = ROOT / "traces" / "story_suite"
@@ -70,9 +70,9 @@ class RunCheck:
 
 def scene_of(run_dir: Path, story: dict[str, Any]) -> Scene:
     """A run folder's scene: its ``scene.json``, else the bundled scene ``story.json`` names
-    (``benchmark.bystanders`` reads runs the same way)."""
-    from sim.scene.bundled import load_bundled_scene
-    from sim.scene.files import load_scene_json
+    (``storyteller.benchmark.bystanders`` reads runs the same way)."""
+    from storyteller.sim.scene.bundled import load_bundled_scene
+    from storyteller.sim.scene.files import load_scene_json
 
     path = run_dir / "scene.json"
     return load_scene_json(path) if path.is_file() else load_bundled_scene(str(story["scene"]))
@@ -131,8 +131,8 @@ def check_run(run_dir: Path) -> RunCheck:
 def replay_suite(traces: Path, pattern: str, out: Path) -> list[tuple[Path, float, str | None]]:
     """Replay every recorded scenario in ``traces`` matching ``pattern`` into ``out``: (run
     folder, wall seconds, the failure when the run wrote no story)."""
-    from benchmark.story_suite.runner import RunOptions, run_args
-    from benchmark.story_suite.scenario import load_scenarios
+    from storyteller.benchmark.story_suite.runner import RunOptions, run_args
+    from storyteller.benchmark.story_suite.scenario import load_scenarios
 
     done = []
     options = RunOptions(out=out, replay=traces)
@@ -234,7 +234,7 @@ def report_replays(
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmark.story_text_fidelity", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m storyteller.benchmark.story_text_fidelity", description=__doc__.splitlines()[0])
     source = p.add_mutually_exclusive_group()
     source.add_argument("--traces", type=Path, default=None,
                         help=f"Replay the recorded scenarios in this folder (default: {DEFAULT_TRACES.relative_to(ROOT)}).")  # fmt: skip

@@ -17,15 +17,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from benchmark.crowd_scenario import IdleErrands
-from sim.motion.database import MotionDatabase
-from sim.motion.matching import MotionMatcher, MotionQuery, Pose, PoseBatch
-from sim.paths.cooperative_astar import Agent, Cell, PathPlanner, PlanResult
-from sim.paths.heuristics import DetourGraph, GoalDistances
-from sim.paths.move_tables import MoveTables
-from sim.paths.nav_grid import NavGrid
-from sim.scene.model import Scene
-from sim.world.step import World, WorldConfig
+from storyteller.benchmark.crowd_scenario import IdleErrands
+from storyteller.sim.motion.database import MotionDatabase
+from storyteller.sim.motion.matching import MotionMatcher, MotionQuery, Pose, PoseBatch
+from storyteller.sim.paths.cooperative_astar import Agent, Cell, PathPlanner, PlanResult
+from storyteller.sim.paths.heuristics import DetourGraph, GoalDistances
+from storyteller.sim.paths.move_tables import MoveTables
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import World, WorldConfig
 
 
 @dataclass

@@ -3,11 +3,11 @@
 :func:`cache_root` is the one place the cache folder is computed: ``$STORYTELLER_CACHE_DIR``
 if set (``~`` expanded), else ``~/.cache/storyteller``. In it: motion arrays in ``motion``
 (:func:`motion_cache_dir`), the assembled embedded-model weights in ``models``
-(``orchestrator.llm.model_weights.cache_dir``), the default runs database ``runs.sqlite``
-(``orchestrator.planning.checkpoints.default_runs_db``) and the describer's cached scene
+(``storyteller.orchestrator.llm.model_weights.cache_dir``), the default runs database ``runs.sqlite``
+(``storyteller.orchestrator.planning.checkpoints.default_runs_db``) and the describer's cached scene
 descriptions in ``descriptions`` (:func:`description_cache_dir`). ``sim`` never reads the environment or the home
 folder: the CLI and the benchmarks pass ``motion_cache_dir()`` into
-``sim.motion.database.load_databases`` and ``sim.motion.config.build_databases_from_config``.
+``storyteller.sim.motion.database.load_databases`` and ``storyteller.sim.motion.config.build_databases_from_config``.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Console rendering when stderr is a terminal, one JSON object per line otherwise.
 and ``tools/`` never log; they return diagnostics that the orchestrator logs.
 
 Log values often carry text from a model or an event program (an activity, an error message),
-so every string value and key goes through :func:`orchestrator.safe_text.plain` before it is
+so every string value and key goes through :func:`storyteller.orchestrator.safe_text.plain` before it is
 rendered (:func:`escape_controls`): a log record is one line with no control character (no
 terminal escape sequence reaches a console), whichever renderer; a formatted traceback keeps
 its line breaks.
@@ -18,7 +18,7 @@ from typing import TextIO
 
 import structlog
 
-from orchestrator.safe_text import plain
+from storyteller.orchestrator.safe_text import plain
 
 _configured = False
 _MULTILINE_KEYS = frozenset({"exception", "stack"})  # formatted tracebacks keep their line breaks

@@ -1,7 +1,7 @@
 """Text from outside, made safe to show: one helper per kind of printer.
 
-``plain`` and ``one_line`` live in :mod:`sim.visible_text` (the one home of the escaping, low
-enough that ``sim.export`` draws names with it) and are re-exported here; see that module for
+``plain`` and ``one_line`` live in :mod:`storyteller.sim.visible_text` (the one home of the escaping, low
+enough that ``storyteller.sim.export`` draws names with it) and are re-exported here; see that module for
 what they escape. Used for terminal lines, log lines, the viewer's 3D labels and buttons, which
 draw text literally. This module adds the escaping of two renderers: ``markup`` additionally
 escapes rich markup (``[red]``, ``[/]``) for text printed through rich; ``markdown``
@@ -18,7 +18,7 @@ import re
 
 from rich.markup import escape
 
-from sim.visible_text import one_line, plain
+from storyteller.sim.visible_text import one_line, plain
 
 __all__ = ["markdown", "markup", "one_line", "plain"]
 

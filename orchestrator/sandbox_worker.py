@@ -1,7 +1,7 @@
 """Event programs in a worker process with OS limits: defence in depth around the sandbox.
 
 ``WorkerRunner`` is a ``ProgramRunner`` (``run_event_program``'s signature) that runs each
-program in one long-lived child process (``python -m orchestrator.sandbox_worker``) instead
+program in one long-lived child process (``python -m storyteller.orchestrator.sandbox_worker``) instead
 of in-process. The child keeps the interpreter's own ``Budget`` and adds what only the OS can
 enforce: an address-space limit (``RLIMIT_AS``), a CPU-time limit per program
 (``RLIMIT_CPU``, re-armed before each program) and, from the parent, a hard wall-clock kill.
@@ -26,7 +26,7 @@ of it with ``prestart()`` (its imports then overlap the caller's set-up); ``pres
 also sends it that scene as its first message (``--scene-first``), loaded before it says it
 is ready, so a run's first planning step does not wait for the scene either. It
 inherits only :data:`WORKER_ENV` from the parent's environment, never an API key. Its stderr is
-a pipe, never the terminal's: drained and bounded (``orchestrator.stderr_tail``), and what it
+a pipe, never the terminal's: drained and bounded (``storyteller.orchestrator.stderr_tail``), and what it
 wrote (a traceback from a crash) is logged escaped when the worker stops.
 """
 
@@ -47,16 +47,16 @@ from collections.abc import Sequence
 from dataclasses import asdict
 from typing import IO, TYPE_CHECKING, Any, Self
 
-from orchestrator.stderr_tail import StderrTail
-from sim.scene.model import Scene
-from tools import errors as tool_errors
-from tools.character_states import CharacterPlan, WorldView
-from tools.errors import EventProgramError
-from tools.sandbox import Budget, BudgetExceededError
-from tools.sandbox import errors as sandbox_errors
+from storyteller.orchestrator.stderr_tail import StderrTail
+from storyteller.sim.scene.model import Scene
+from storyteller.tools import errors as tool_errors
+from storyteller.tools.character_states import CharacterPlan, WorldView
+from storyteller.tools.errors import EventProgramError
+from storyteller.tools.sandbox import Budget, BudgetExceededError
+from storyteller.tools.sandbox import errors as sandbox_errors
 
 if TYPE_CHECKING:
-    from tools.scene_graph import SceneGraph
+    from storyteller.tools.scene_graph import SceneGraph
 
 ADDRESS_SPACE_BYTES = 2**30
 """``RLIMIT_AS`` of the worker (the runtime with numpy and a scene uses about 200 MiB of it)."""
@@ -205,7 +205,7 @@ class WorkerRunner:
             [
                 sys.executable,
                 "-m",
-                "orchestrator.sandbox_worker",
+                "storyteller.orchestrator.sandbox_worker",
                 str(self.address_space_bytes),
                 str(self.cpu_seconds),
                 *(["--scene-first"] if scene_first else []),
@@ -391,13 +391,13 @@ def _arm_cpu(cpu_seconds: int) -> None:
 def load_scene(text: str) -> tuple[Scene, SceneGraph]:
     """A scene sent by the parent, with its scene graph, and everything the first program on
     it would otherwise pay inside its budget: the navigation grid the position sampler tests
-    reachability on (``tools.position_sampling.scene_nav_grid``, cached per scene) and the
+    reachability on (``storyteller.tools.position_sampling.scene_nav_grid``, cached per scene) and the
     compiled clearance test it runs (importing numba and loading its kernels). Called when the
     worker loads the scene, before any program's CPU limit is armed or budget starts."""
     import numpy as np
 
-    from tools.position_sampling import FloorMap
-    from tools.scene_graph import build_scene_graph
+    from storyteller.tools.position_sampling import FloorMap
+    from storyteller.tools.scene_graph import build_scene_graph
 
     scene = Scene.model_validate_json(text)
     graph = build_scene_graph(scene)
@@ -415,7 +415,7 @@ def serve(address_space_bytes: int, cpu_seconds: int, *, scene_first: bool = Fal
     # Ctrl-C on a terminal reaches the whole process group: the run that owns this worker stops
     # cleanly and closes it; the worker itself must not die with a traceback meanwhile.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    from tools.event_program import run_event_program
+    from storyteller.tools.event_program import run_event_program
 
     out = os.fdopen(os.dup(1), "wb")  # answers go to a private copy of stdout ...
     os.dup2(2, 1)  # ... and anything printed by accident goes to stderr

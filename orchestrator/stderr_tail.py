@@ -6,7 +6,7 @@ escape sequences. :class:`StderrTail` takes the read end of the child's stderr p
 on a daemon thread (so the child never blocks on a full pipe, however much it writes) and keeps
 only its last :data:`KEPT_BYTES` bytes; :meth:`StderrTail.finish` waits for the end of the
 stream (the child has exited) and returns that tail as text through
-``sim.visible_text.plain`` (bytes that are not UTF-8 shown as ``\\xNN``, every control, format,
+``storyteller.sim.visible_text.plain`` (bytes that are not UTF-8 shown as ``\\xNN``, every control, format,
 separator and surrogate character as its escape; line breaks kept), for a log record.
 
 Guarantee: the memory held is at most ``kept`` bytes plus one read, and nothing the child
@@ -21,7 +21,7 @@ import threading
 from dataclasses import dataclass
 from typing import IO
 
-from sim.visible_text import plain
+from storyteller.sim.visible_text import plain
 
 KEPT_BYTES = 8 * 1024
 """Bytes of a child's stderr kept (its last ones: a traceback ends with the error)."""

@@ -3,10 +3,10 @@
 A line of text (echoed by typer to stdout, stderr or a given stream) or a rich renderable (a
 table, a line above a live display, printed on a given console): whatever the caller built,
 what reaches the terminal holds no character of
-:data:`~orchestrator.safe_text.UNSAFE_CATEGORIES` but newline and tab. No terminal escape
+:data:`~storyteller.orchestrator.safe_text.UNSAFE_CATEGORIES` but newline and tab. No terminal escape
 sequence, BEL, bidi control, U+061C, U+2028 / U+2029, zero-width character, word joiner or BOM
 from a path, a scene name, a label, a model's text or an error message that quotes a file is
-written raw; each is shown as its escape (``\\x1b``, ``\\u202e``; :func:`orchestrator.safe_text.plain`).
+written raw; each is shown as its escape (``\\x1b``, ``\\u202e``; :func:`storyteller.orchestrator.safe_text.plain`).
 
 Deliberate formatting stays: the newlines and tabs of a message, rich's own styles (a style is
 not text: rich writes its colour sequences after :func:`escaped` has escaped the text of every
@@ -15,10 +15,10 @@ parsed as markup. The escaping is idempotent (an escape is printable text), so a
 already escaped what it interpolated (``plain``, ``one_line``, ``markup``: there a newline
 from data must not start a line of its own) prints the same as before.
 
-:func:`show_warning` is the ``warnings.showwarning`` of a command (``orchestrator.cli.app``):
+:func:`show_warning` is the ``warnings.showwarning`` of a command (``storyteller.orchestrator.cli.app``):
 a Python warning that quotes data (matplotlib's about a missing glyph quotes the glyph) is said
 the same way. The structlog renderer writes its lines itself: every key and value has been
-through ``plain`` (``orchestrator.logging_setup.escape_controls``) before it adds its colours.
+through ``plain`` (``storyteller.orchestrator.logging_setup.escape_controls``) before it adds its colours.
 
 ``tests/orchestrator/cli/test_one_output_function.py`` fails if a module the command runs
 prints any other way.
@@ -34,7 +34,7 @@ from typing import IO, TYPE_CHECKING
 
 import typer
 
-from orchestrator.safe_text import plain
+from storyteller.orchestrator.safe_text import plain
 
 if TYPE_CHECKING:  # rich is imported by the commands that print tables, not at start-up
     from rich.console import Console, ConsoleOptions, RenderableType

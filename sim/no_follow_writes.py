@@ -22,7 +22,7 @@ link there points at:
 
 A refusal is an ``OSError`` naming the file (``ELOOP`` for a link), so a caller that reports a
 failed write names it as it names a full disk. Only the last part of a path is guarded: the
-folder itself is the caller's to check (``orchestrator.session.run_folder_links`` refuses a run
+folder itself is the caller's to check (``storyteller.orchestrator.session.run_folder_links`` refuses a run
 folder that is a link). Limit: :func:`replacing` hands its temporary file on by name, so a
 process writing into the same folder at the same moment could swap it; links planted in a
 folder beforehand are never followed. Plain file I/O: no clock, no logging.

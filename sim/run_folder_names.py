@@ -3,7 +3,7 @@
 ``storyteller run`` (and ``resume``, ``replay --out``) writes these into its folder; the
 simulation's writers (the chunk files, the exports) and the orchestrator's (story, trace,
 manifest, checkpoint) take their names from here, and :func:`run_folder_entries` lists them
-all for a run's characters (what ``orchestrator.session.run_folder_links`` checks before a run
+all for a run's characters (what ``storyteller.orchestrator.session.run_folder_links`` checks before a run
 writes anything). Constants only, no I/O.
 """
 
@@ -29,7 +29,7 @@ RUNS_DB_SIDECARS = tuple(f"{RUNS_DB}{suffix}" for suffix in ("-journal", "-wal",
 SNAPSHOT = "session.snapshot"
 """The session's last checkpoint, replaced atomically."""
 SNAPSHOT_TMP = f"{SNAPSHOT}.tmp"
-"""The name ``orchestrator.session.snapshot_file`` writes a checkpoint to before renaming it."""
+"""The name ``storyteller.orchestrator.session.snapshot_file`` writes a checkpoint to before renaming it."""
 STORY_STREAM = "story.jsonl"
 """The story as it happens, for a live viewer (append-only)."""
 VIEWER_INSTRUCTIONS = "viewer_instructions.jsonl"

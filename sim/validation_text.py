@@ -13,7 +13,7 @@ two parts, for errors that keep them apart (``SceneFileError``, ``ConfigError``.
 
 The result is plain text and may quote a file's own keys (an unknown key is named as the file
 spells it), so it is data: whoever shows it escapes it (the CLI's ``error:`` line goes through
-``orchestrator.safe_text.one_line``, the viewer's panel through ``safe_text.markdown``). Lives
+``storyteller.orchestrator.safe_text.one_line``, the viewer's panel through ``safe_text.markdown``). Lives
 in ``sim`` (no I/O, no environment) so every layer above may import it.
 """
 

@@ -11,7 +11,7 @@ exception is ``keep_newlines``, for multi-line messages (error feedback): newlin
 ends with (one line, whatever the message quoted).
 
 This is the one home of the escaping: it lives in ``sim`` (pure, no I/O) so every layer may use
-it: ``sim.export`` for the names drawn in pictures, ``orchestrator.safe_text`` for the terminal,
+it: ``storyteller.sim.export`` for the names drawn in pictures, ``storyteller.orchestrator.safe_text`` for the terminal,
 the logs and the viewer (which adds rich-markup and markdown escaping on top of it).
 
 Guarantee: the result holds no character of those categories (but newline and tab with

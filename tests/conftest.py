@@ -4,7 +4,7 @@ Any ``connect`` (or name lookup) to a non-loopback address raises :class:`Networ
 Loopback (127.0.0.0/8, ::1, localhost) and Unix sockets stay allowed, for local fake
 providers. A test that truly needs the network is marked ``@pytest.mark.allow_network``.
 
-Constructing ``llama_cpp.Llama`` (how :mod:`orchestrator.llm.local_model` loads the embedded
+Constructing ``llama_cpp.Llama`` (how :mod:`storyteller.orchestrator.llm.local_model` loads the embedded
 model) raises :class:`EmbeddedModelRefusedError` in a test not marked
 ``@pytest.mark.embedded_model``, and such a test fails even if the code under test catches the
 error (a provider error falling back to another model, say). The guard holds in this process
@@ -29,8 +29,8 @@ os.environ["LITELLM_LOCAL_MODEL_COST_MAP"] = "True"  # before anything imports l
 import pytest
 
 if TYPE_CHECKING:
-    from sim.motion.matching import MotionMatcher
-    from sim.scene.model import Scene
+    from storyteller.sim.motion.matching import MotionMatcher
+    from storyteller.sim.scene.model import Scene
 
 pytest_plugins = ["pytester"]  # tests/test_model_guard.py runs this conftest in a child session
 
@@ -210,9 +210,9 @@ def _network_guard(request: pytest.FixtureRequest) -> Iterator[None]:
 @pytest.fixture(scope="module")
 def motion() -> MotionMatcher:
     """The motion matcher on the cached motion databases (one per test module)."""
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
 
     return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
 
@@ -220,7 +220,7 @@ def motion() -> MotionMatcher:
 @pytest.fixture(scope="module")
 def home() -> Scene:
     """The bundled home scene."""
-    from sim.scene.bundled import resolve_scene
+    from storyteller.sim.scene.bundled import resolve_scene
 
     return resolve_scene("home")
 

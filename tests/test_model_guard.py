@@ -1,5 +1,5 @@
 """The guard at the LLM port (tests/conftest.py): a test not marked ``embedded_model`` that
-constructs the embedded model (``llama_cpp.Llama``, as ``orchestrator.llm.local_model.get_llama``
+constructs the embedded model (``llama_cpp.Llama``, as ``storyteller.orchestrator.llm.local_model.get_llama``
 does) fails with :class:`EmbeddedModelRefusedError`, even when it catches the error; a marked
 test reaches llama.cpp. Checked in a child pytest session that uses this repository's conftest."""
 
@@ -19,8 +19,8 @@ CHILD = '''
 import llama_cpp
 import pytest
 
-from orchestrator.llm import local_model
-from orchestrator.llm.model_weights import QWEN_05B
+from storyteller.orchestrator.llm import local_model
+from storyteller.orchestrator.llm.model_weights import QWEN_05B
 
 
 def test_unmarked_constructs_llama(tmp_path):

@@ -34,7 +34,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agents.event_parser import fenced_blocks
+from storyteller.agents.event_parser import fenced_blocks
 from tests.support.regex_audit import backtracking_risks
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,7 +52,7 @@ def _names() -> tuple[str, ...]:
 
 
 def _instruction_patterns() -> list[tuple[str, int]]:
-    from agents import instruction_parts as ip
+    from storyteller.agents import instruction_parts as ip
 
     run = ip._name_run(_names())
     return [(run, 0), (ip._leading_subject_pattern(run), 0), (ip._clause_cut_pattern(run), 0),
@@ -60,7 +60,7 @@ def _instruction_patterns() -> list[tuple[str, int]]:
 
 
 def _shortlist_patterns() -> list[tuple[str, int]]:
-    from agents import shortlist
+    from storyteller.agents import shortlist
 
     return [(shortlist.mention_pattern(word), 0) for word in ("coffee_maker_1", "ava", "a.b+c")]
 
@@ -69,7 +69,7 @@ def _story_text_patterns() -> list[tuple[str, int]]:
     """The shapes ``agents/narrator_words.py`` builds inline (mirrored here with sample words)."""
     import re as _re
 
-    from agents import narrator_words
+    from storyteller.agents import narrator_words
 
     words = [_re.escape("coffee_maker_1"), _re.escape("coffee_maker").replace("_", "[ _]") + "s?", _re.escape("cup") + "s?"]
     return (

@@ -4,7 +4,7 @@ An ``Area`` is a predicate over xy points (metres) plus a hint box that bounds w
 can be, an optional list of seat slots (exact places to sit, with the seat's facing), a focus
 point (what a character there looks at by default) and a short description written in the
 reference expression syntax ("in front of fridge_1", "A && B", "A || B"). Areas combine with
-``intersect`` and ``union``; ``tools.position_sampling`` turns them into exact positions.
+``intersect`` and ``union``; ``storyteller.tools.position_sampling`` turns them into exact positions.
 
 Reference distances: adjacent 0.5 m, close 1.0 m, between <= 0.5 m off the centre line.
 
@@ -29,10 +29,10 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sim.scene.model import SceneObject
-from tools.errors import ToolArgumentError
-from tools.scene_graph import point_footprint_distance
-from tools.value_text import show
+from storyteller.sim.scene.model import SceneObject
+from storyteller.tools.errors import ToolArgumentError
+from storyteller.tools.scene_graph import point_footprint_distance
+from storyteller.tools.value_text import show
 
 ADJACENT_DISTANCE = 0.5  # m from the footprint
 CLOSE_DISTANCE = 1.0  # m from the footprint

@@ -19,10 +19,10 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from sim.scene.model import Scene, SceneObject
-from tools import areas
-from tools.errors import UnsatisfiableAreaError
-from tools.position_sampling import Constraints, FloorMap, Placement, sample_position
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools import areas
+from storyteller.tools.errors import UnsatisfiableAreaError
+from storyteller.tools.position_sampling import Constraints, FloorMap, Placement, sample_position
 
 Point = tuple[float, float]
 

@@ -1,12 +1,12 @@
 """Region clusters: groups of nearby objects found by DBSCAN on box-to-box surface distances.
 
-The distance between two objects is ``tools.scene_graph.box_distance``: the distance between
+The distance between two objects is ``storyteller.tools.scene_graph.box_distance``: the distance between
 their 2D footprints (oriented rectangles) combined with the gap between their height ranges,
 ``hypot(footprint distance, vertical gap)``, in metres. A coffee maker standing on a cabinet is
 at distance 0 from it; two chairs 0.4 m apart are at 0.4.
 
 Only pairs within ``eps`` can be neighbours, so the distances go to DBSCAN as a sparse matrix
-of the pairs the index (``tools.box_pairs``) finds within reach: the clusters are those of the
+of the pairs the index (``storyteller.tools.box_pairs``) finds within reach: the clusters are those of the
 full matrix (``benchmark/support/scene_graph_reference.py``), for work that grows with the objects
 and their near pairs instead of with every pair.
 
@@ -21,10 +21,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.scene.model import Scene
-from tools.box_pairs import overlapping_pairs
-from tools.footprint_geometry import polygon_distances
-from tools.scene_graph import box_distance
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.box_pairs import overlapping_pairs
+from storyteller.tools.footprint_geometry import polygon_distances
+from storyteller.tools.scene_graph import box_distance
 
 if TYPE_CHECKING:  # scipy.sparse is imported when a matrix is built
     from scipy.sparse import csr_matrix

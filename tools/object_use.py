@@ -27,10 +27,10 @@ from typing import Protocol
 
 import numpy as np
 
-from sim.motion.action_labels import ACTION_SPECS
-from sim.scene.model import Scene, SceneObject
-from sim.world.events import PlanLike
-from tools.scene_graph import point_footprint_distance
+from storyteller.sim.motion.action_labels import ACTION_SPECS
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.events import PlanLike
+from storyteller.tools.scene_graph import point_footprint_distance
 
 Point = tuple[float, float]
 

@@ -1,7 +1,7 @@
 """How candidate places (seats) stand to the things and people an instruction names, from geometry.
 
 Pure and deterministic: scene objects and character points in, numbers and kept candidates out.
-The words that state a relation are read elsewhere (``agents.relation_words``); here a relation
+The words that state a relation are read elsewhere (``storyteller.agents.relation_words``); here a relation
 is only a kind and its references:
 
 - ``nearest`` / ``near``: the gap from a candidate's footprint to the nearest reference
@@ -33,8 +33,8 @@ from typing import Literal
 
 import numpy as np
 
-from sim.scene.model import Scene, SceneObject
-from tools.scene_graph import footprint_distance, point_footprint_distance
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.scene_graph import footprint_distance, point_footprint_distance
 
 RelationKind = Literal["nearest", "near", "farthest", "facing", "between", "left", "right"]
 

@@ -5,7 +5,7 @@ Rules (all distances in metres):
 - free floor: the body centre stays ``body_radius`` (0.25) inside the scene bounds and at least
   ``body_radius`` from the footprint of every floor-standing object;
 - reachable: a character can walk there: some cell of the scene's main walkable component of
-  the navigation grid (``sim.paths.nav_grid``, the path planner's own clearance and cells)
+  the navigation grid (``storyteller.sim.paths.nav_grid``, the path planner's own clearance and cells)
   within two cells has a straight furniture-free walk to the point (``NavGrid.entry_cell``);
   free floor in a pocket enclosed by furniture is not admissible. The grid is built once per
   scene (cached);
@@ -22,7 +22,7 @@ Rules (all distances in metres):
   (so that a tolerance-free check of the same relation still holds);
 - the candidates are a lattice of step 0.05 with a seeded offset; one is drawn uniformly with a
   seeded ``numpy.random.Generator``: the same seed and inputs give the same position;
-- relaxation: a single directional area (``tools.areas.directional``) whose lattice has no
+- relaxation: a single directional area (``storyteller.tools.areas.directional``) whose lattice has no
   free reachable point (whoever else is there) is replaced by its smallest relaxation that has
   an admissible point (``Area.relaxations``: the same side of the object, wider and further
   out), and within it the points nearest the strict area are drawn from (``RELAXED_BAND``).
@@ -43,14 +43,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.scene.model import FLOOR_STANDING_M, Scene
-from tools.areas import Area, SeatSlot, seat_slots
-from tools.errors import UnsatisfiableAreaError
-from tools.place_relations import table_of
-from tools.scene_graph import footprint_distance, point_footprint_distance
+from storyteller.sim.scene.model import FLOOR_STANDING_M, Scene
+from storyteller.tools.areas import Area, SeatSlot, seat_slots
+from storyteller.tools.errors import UnsatisfiableAreaError
+from storyteller.tools.place_relations import table_of
+from storyteller.tools.scene_graph import footprint_distance, point_footprint_distance
 
 if TYPE_CHECKING:
-    from sim.paths.nav_grid import NavGrid
+    from storyteller.sim.paths.nav_grid import NavGrid
 
 BODY_RADIUS = 0.25
 MIN_SEPARATION = 0.5
@@ -61,7 +61,7 @@ MAX_CANDIDATES = 250_000
 FLOOR_SUPPORT = FLOOR_STANDING_M
 RELAXED_BAND = 0.1
 """m: in a relaxed area, only points within this much of the smallest excess over the strict
-area are drawn from (``tools.areas.Relaxation.excess``)."""
+area are drawn from (``storyteller.tools.areas.Relaxation.excess``)."""
 
 
 class FloorMap:
@@ -96,7 +96,7 @@ class FloorMap:
         the main walkable component with a straight clear walk to the point)."""
         p = np.asarray(xy, dtype=float).reshape(-1, 2)
         grid = self.grid
-        from sim.paths.nav_grid import body_clearance  # numba: only when sampling
+        from storyteller.sim.paths.nav_grid import body_clearance  # numba: only when sampling
 
         main = grid.main_component
         base = np.floor((p - np.asarray(grid.origin)) / grid.cell_size).astype(np.int64)
@@ -138,7 +138,7 @@ class FloorMap:
 @lru_cache(maxsize=4)
 def scene_nav_grid(scene: Scene) -> NavGrid:
     """The path planner's navigation grid of ``scene`` (built once per scene content)."""
-    from sim.paths.nav_grid import build_nav_grid  # numba: only when sampling
+    from storyteller.sim.paths.nav_grid import build_nav_grid  # numba: only when sampling
 
     return build_nav_grid(scene)
 
@@ -205,7 +205,7 @@ def _companion_seats(area: Area, scene: Scene, c: Constraints) -> list[SeatSlot]
     """When every seat ``area`` offers was taken by members of the same event ("Cy and Di sit on
     chair_5" for a one-place chair, or four on a three-place couch), the free seat nearest to
     it (within ``NEIGHBOUR_SEAT_M``), one of the same kind first, then one at the same table
-    (:func:`tools.place_relations.table_of`): the group sits together. Empty otherwise."""
+    (:func:`storyteller.tools.place_relations.table_of`): the group sits together. Empty otherwise."""
     wanted = {s.seat for s in area.seats}
     if not wanted or not wanted <= c.taken_by_group:
         return []

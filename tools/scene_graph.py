@@ -28,9 +28,9 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from sim.scene.model import Scene, SceneObject
-from tools.box_pairs import overlapping_pairs
-from tools.footprint_geometry import centre_distances, polygon_distance, polygon_distances
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.box_pairs import overlapping_pairs
+from storyteller.tools.footprint_geometry import centre_distances, polygon_distance, polygon_distances
 
 if TYPE_CHECKING:  # networkx (0.1 s to import) is loaded by build_scene_graph, when a graph is built
     import networkx as nx
@@ -259,7 +259,7 @@ def build_scene_graph(
 ) -> SceneGraph:
     """Compute every relation of ``scene`` (see the module docstring for the semantics).
 
-    Only pairs of objects that the index (``tools.box_pairs``) finds within a relation's reach
+    Only pairs of objects that the index (``storyteller.tools.box_pairs``) finds within a relation's reach
     are tested; the relations, node attributes and edge order are those of testing every pair
     (``benchmark/support/scene_graph_reference.py``).
     """

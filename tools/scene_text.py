@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import json
 
-from sim.scene.model import Scene, SceneObject
-from tools.scene_graph import SceneGraph
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.scene_graph import SceneGraph
 
 
 def _r(values: tuple[float, ...] | list[float]) -> list[float]:

@@ -1,11 +1,11 @@
 """The spatial API that event programs (``parse_event()``) call.
 
-Objects are passed and returned as name strings (``"chair_3"``); areas are ``tools.areas.Area``
+Objects are passed and returned as name strings (``"chair_3"``); areas are ``storyteller.tools.areas.Area``
 values; characters are handles from ``get_character(name)``. Distances are metres. The handles
 only record what the program asks for; ``SpatialAPI.resolve(seed)`` turns the records into
 ``CharacterPlan``s after the program has finished, so a failing program changes nothing.
 
-Every mistake raises a ``tools.errors.ToolError`` whose message is written for the LLM that
+Every mistake raises a ``storyteller.tools.errors.ToolError`` whose message is written for the LLM that
 wrote the program (unknown names come with "did you mean" suggestions).
 """
 
@@ -19,11 +19,11 @@ from typing import Any, ClassVar, Literal, TypeVar
 
 import numpy as np
 
-from sim.scene.model import Scene, SceneObject
-from tools import areas
-from tools.areas import Area
-from tools.character_states import CharacterPlan, CharacterState, WorldView
-from tools.errors import (
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools import areas
+from storyteller.tools.areas import Area
+from storyteller.tools.character_states import CharacterPlan, CharacterState, WorldView
+from storyteller.tools.errors import (
     PROGRAM_LINE,
     BlockedPositionError,
     ObjectInUseError,
@@ -34,15 +34,15 @@ from tools.errors import (
     UnsatisfiableAreaError,
     did_you_mean,
 )
-from tools.object_use import use_conflicts, users_of_objects
-from tools.position_sampling import Constraints, FloorMap, Placement, sample_position
-from tools.scene_graph import (
+from storyteller.tools.object_use import use_conflicts, users_of_objects
+from storyteller.tools.position_sampling import Constraints, FloorMap, Placement, sample_position
+from storyteller.tools.scene_graph import (
     SceneGraph,
     box_distance,
     build_scene_graph,
     point_footprint_distance,
 )
-from tools.value_text import show
+from storyteller.tools.value_text import show
 
 Point = tuple[float, float]
 ASSOCIATED_DISTANCE = 0.3  # m: objects this close (box to box) are associated
@@ -635,7 +635,7 @@ class SpatialAPI:
         """Sample a position and facing for every character the program touched, in the order
         they were first touched. Raises ToolError subclasses (never a partial result), among
         them ObjectInUseError when a plan gives a character an object another one is using
-        alone (``tools.object_use``)."""
+        alone (``storyteller.tools.object_use``)."""
         planned = set(self._records)
         floor = self._floor
         # (point, whose) pairs every later placement keeps MIN_SEPARATION from

@@ -5,10 +5,10 @@ Both are pure functions of the scene, so a run that uses them makes no describer
 
 from __future__ import annotations
 
-from agents.messages import SceneDescription
-from sim.scene.model import Scene
-from tools.scene_graph import SceneGraph, build_scene_graph
-from tools.scene_text import object_list_text, scene_graph_json
+from storyteller.agents.messages import SceneDescription
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.scene_graph import SceneGraph, build_scene_graph
+from storyteller.tools.scene_text import object_list_text, scene_graph_json
 
 
 def object_list_description(scene: Scene) -> SceneDescription:

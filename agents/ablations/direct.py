@@ -5,7 +5,7 @@ The narrator picks the event as usual; the parser (node ``event_parser``) answer
 sandboxed program path (``set_position([x, y])``, :func:`direct_program`). A point on a seat's
 footprint means "sit on that seat" (the only way coordinates can ask for sitting); a point
 inside other furniture, off the free floor, or closer than ``MIN_SEPARATION`` to another
-character is rejected with :class:`tools.errors.BlockedPositionError` (the spatial API's own,
+character is rejected with :class:`storyteller.tools.errors.BlockedPositionError` (the spatial API's own,
 so whoever catches one catches both) and fed back like any other typed error.
 """
 
@@ -18,18 +18,18 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from agents.event_parser import ParserInput, ProgramResult, ProgramRunner, run_reply
-from agents.llm_port import ChatMessage, LLMRequest
-from agents.llm_schemas import Refine, reply_schema
-from agents.messages import CharacterStatus, Event
-from agents.prompt_templates import PromptLibrary, package_prompts
-from agents.retry_feedback import Turn, retry_temperature, with_turns
-from sim.scene.model import Scene
-from tools.character_states import WorldView
-from tools.errors import BlockedPositionError
-from tools.position_sampling import MIN_SEPARATION, FloorMap
-from tools.scene_graph import SceneGraph
-from tools.scene_text import object_list_text
+from storyteller.agents.event_parser import ParserInput, ProgramResult, ProgramRunner, run_reply
+from storyteller.agents.llm_port import ChatMessage, LLMRequest
+from storyteller.agents.llm_schemas import Refine, reply_schema
+from storyteller.agents.messages import CharacterStatus, Event
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.agents.retry_feedback import Turn, retry_temperature, with_turns
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.errors import BlockedPositionError
+from storyteller.tools.position_sampling import MIN_SEPARATION, FloorMap
+from storyteller.tools.scene_graph import SceneGraph
+from storyteller.tools.scene_text import object_list_text
 
 
 class DirectPlan(BaseModel):

@@ -1,6 +1,6 @@
 """Ablation "w/o Event": one call (node ``planner``) plans the free characters directly.
 
-The model sees what the narrator sees (a :class:`~agents.narrator.NarratorInput`: scene
+The model sees what the narrator sees (a :class:`~storyteller.agents.narrator.NarratorInput`: scene
 description, characters, story so far, instruction) plus the action labels and the seats in
 use, and answers a ``parse_event()``; there is no explicit event, so the event is read back
 from the program's plans. A program that plans nobody (``pass``, or no character touched)
@@ -11,15 +11,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from agents.event_parser import ProgramRunner, check_plans, default_runner, extract_program
-from agents.llm_port import ChatMessage, LLMRequest
-from agents.messages import MAX_ACTIVITY_CHARS, CharacterStatus, Event, ParsedEvent
-from agents.narrator import NarratorInput, characters_text, history_text
-from agents.prompt_templates import PromptLibrary, package_prompts
-from agents.retry_feedback import AnswerRejectedError, Turn, retry_temperature, with_turns
-from sim.scene.model import Scene
-from tools.character_states import WorldView
-from tools.scene_graph import SceneGraph
+from storyteller.agents.event_parser import ProgramRunner, check_plans, default_runner, extract_program
+from storyteller.agents.llm_port import ChatMessage, LLMRequest
+from storyteller.agents.messages import MAX_ACTIVITY_CHARS, CharacterStatus, Event, ParsedEvent
+from storyteller.agents.narrator import NarratorInput, characters_text, history_text
+from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
+from storyteller.agents.retry_feedback import AnswerRejectedError, Turn, retry_temperature, with_turns
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.scene_graph import SceneGraph
 
 
 def unified_max_tokens(free: int) -> int:
@@ -39,7 +39,7 @@ def unified_request(
     grammar: str | None = None,
 ) -> LLMRequest:
     """The planner's request (``max_tokens`` None: :func:`unified_max_tokens`; ``grammar``:
-    :func:`agents.program_grammar.open_program_grammar`, or None for free text)."""
+    :func:`storyteller.agents.program_grammar.open_program_grammar`, or None for free text)."""
     free = inp.free
     system = prompts.render(
         "planner/system.md",

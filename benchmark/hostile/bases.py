@@ -17,7 +17,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
-from benchmark.hostile.harness import CLI
+from storyteller.benchmark.hostile.harness import CLI
 
 
 class _ScriptedBench(BaseHTTPRequestHandler):

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.hostile.harness import (
+from storyteller.benchmark.hostile.harness import (
     BIDI,
     Attack,
     Box,

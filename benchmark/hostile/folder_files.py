@@ -16,7 +16,7 @@ import threading
 import time
 from pathlib import Path
 
-from benchmark.hostile.harness import (
+from storyteller.benchmark.hostile.harness import (
     Attack,
     Box,
     Spec,

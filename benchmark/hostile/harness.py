@@ -1,4 +1,4 @@
-"""The harness of ``python -m benchmark.hostile_inputs``: the limits and the hostile text, an
+"""The harness of ``python -m storyteller.benchmark.hostile_inputs``: the limits and the hostile text, an
 attack's folder (:class:`Box`) and what it runs (:class:`Spec`), the commands an attack runs
 (``resume``, ``replay``, ``view --export``, ``scene inspect``, ``bench score``), the builders of
 hostile data and the registry the attack modules fill (:func:`registrar`).
@@ -26,7 +26,7 @@ RSS_LIMIT = 1 << 30
 """Max resident set size of an attacked command (bytes), as the issue asks."""
 SLACK_S = 6.0
 """Seconds an attack may take beyond the clean run of the same command."""
-CLI = [sys.executable, "-c", "from orchestrator.cli.app import main; main()"]
+CLI = [sys.executable, "-c", "from storyteller.orchestrator.cli.app import main; main()"]
 CANARY = "CANARY"
 BIDI = "\u202e\u2066\x1b[31m\x07\u200b\u2028"
 """Characters that must never reach the terminal raw (RLO, isolate, an escape sequence, BEL,

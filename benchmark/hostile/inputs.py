@@ -8,7 +8,7 @@ import json
 import os
 from pathlib import Path
 
-from benchmark.hostile.harness import (
+from storyteller.benchmark.hostile.harness import (
     BIDI,
     CLEAN_PROGRAM,
     Attack,

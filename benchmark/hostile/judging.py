@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
-from benchmark.hostile.harness import AS_LIMIT, CLI, RSS_LIMIT, Spec
+from storyteller.benchmark.hostile.harness import AS_LIMIT, CLI, RSS_LIMIT, Spec
 
 
 @dataclass

@@ -10,7 +10,7 @@ import pickle
 import struct
 import zipfile
 
-from benchmark.hostile.harness import (
+from storyteller.benchmark.hostile.harness import (
     Attack,
     Box,
     Reduce,

@@ -16,7 +16,7 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
-from benchmark.hostile.harness import (
+from storyteller.benchmark.hostile.harness import (
     BIDI,
     MARKER,
     Attack,

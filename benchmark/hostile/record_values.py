@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.hostile.harness import (
+from storyteller.benchmark.hostile.harness import (
     BIDI,
     Attack,
     Box,
@@ -30,7 +30,7 @@ from benchmark.hostile.harness import (
     replay,
     score,
 )
-from benchmark.hostile.inputs import model_info, program_run, script_run
+from storyteller.benchmark.hostile.inputs import model_info, program_run, script_run
 
 ATTACKS: list[Attack] = []
 attack = registrar(ATTACKS)

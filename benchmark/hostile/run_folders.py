@@ -11,7 +11,7 @@ import pickle
 import re
 import shutil
 
-from benchmark.hostile.harness import (
+from storyteller.benchmark.hostile.harness import (
     BIDI,
     Attack,
     Box,

@@ -1,7 +1,7 @@
-"""``python -m benchmark.hostile_inputs``: an outside attacker's corpus against every file the
+"""``python -m storyteller.benchmark.hostile_inputs``: an outside attacker's corpus against every file the
 CLI reads back, built at run time in a temporary folder, each attack run as a subprocess.
 
-The base is real: a short scripted run (``benchmark.motion_metrics.scripted_story``, 3
+The base is real: a short scripted run (``storyteller.benchmark.motion_metrics.scripted_story``, 3
 simulated seconds, no LLM) and a one-run bench sweep of our own case 100 (the same kind of
 scripted OpenAI-compatible server on 127.0.0.1). Each attack copies what it needs, breaks one
 thing (a planted link or hard link, a FIFO, a link to ``/dev/zero``, deep nesting, huge numbers,
@@ -11,7 +11,7 @@ files naming FIFOs and sparse gigabyte files, instanced and deeply nested glTF n
 ``STORYTELLER_*`` variables (:attr:`Spec.env`), forged viewer requests) and runs
 the command that reads it under an address-space limit (:data:`AS_LIMIT`) and a time limit
 (the clean command's time + :data:`SLACK_S`). Both times are wall-clock less the time the
-command's main thread waited for a CPU (:mod:`benchmark.hostile.judging`): a busy machine does
+command's main thread waited for a CPU (:mod:`storyteller.benchmark.hostile.judging`): a busy machine does
 not fail an attack, a command that works, sleeps or blocks longer does.
 
 The verdict holds the issue's targets (issue 22): within the time, max RSS under 1 GiB; a bad
@@ -38,7 +38,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from benchmark.hostile import (
+from storyteller.benchmark.hostile import (
     costs,
     folder_files,
     inputs,
@@ -49,11 +49,11 @@ from benchmark.hostile import (
     scenes,
     sweeps,
 )
-from benchmark.hostile.bases import BASE_COMMANDS, build_sweep, workspace
-from benchmark.hostile.harness import CANARY, CLEAN_PROGRAM, SLACK_S, Attack, Box, Spec
-from benchmark.hostile.judging import Outcome, digest, judge, run_command, tree_state
-from benchmark.hostile.viewer import VIEWER_KIND, run_viewer
-from benchmark.motion_metrics.scripted_story import build_story
+from storyteller.benchmark.hostile.bases import BASE_COMMANDS, build_sweep, workspace
+from storyteller.benchmark.hostile.harness import CANARY, CLEAN_PROGRAM, SLACK_S, Attack, Box, Spec
+from storyteller.benchmark.hostile.judging import Outcome, digest, judge, run_command, tree_state
+from storyteller.benchmark.hostile.viewer import VIEWER_KIND, run_viewer
+from storyteller.benchmark.motion_metrics.scripted_story import build_story
 
 ATTACKS: list[Attack] = [*run_folders.ATTACKS, *outputs.ATTACKS, *scenes.ATTACKS, *inputs.ATTACKS,
                          *sweeps.ATTACKS, *models.ATTACKS, *folder_files.ATTACKS, *record_values.ATTACKS,
@@ -62,7 +62,7 @@ ATTACKS: list[Attack] = [*run_folders.ATTACKS, *outputs.ATTACKS, *scenes.ATTACKS
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmark.hostile_inputs", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m storyteller.benchmark.hostile_inputs", description=__doc__.splitlines()[0])
     p.add_argument("--only", default="", help="run only the attacks whose kind or name holds this text")
     p.add_argument("--keep", action="store_true", help="keep the temporary folder")
     args = p.parse_args(argv)

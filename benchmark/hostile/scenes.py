@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.hostile.harness import (
+from storyteller.benchmark.hostile.harness import (
     BIDI,
     Attack,
     Box,

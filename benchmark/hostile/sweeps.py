@@ -7,7 +7,7 @@ import json
 import os
 from pathlib import Path
 
-from benchmark.hostile.harness import (
+from storyteller.benchmark.hostile.harness import (
     BIDI,
     Attack,
     Box,

@@ -16,8 +16,8 @@ import subprocess
 import tempfile
 import time
 
-from benchmark.hostile.harness import CLI, RSS_LIMIT, Box, sparse_file
-from benchmark.hostile.judging import Outcome, limit_child
+from storyteller.benchmark.hostile.harness import CLI, RSS_LIMIT, Box, sparse_file
+from storyteller.benchmark.hostile.judging import Outcome, limit_child
 
 
 def _viewer_requests(box: Box, url: str) -> str | None:

@@ -1,7 +1,7 @@
-"""``python -m benchmark.motion_metrics [RUN_DIR ...] --out DIR``: motion quality as papers report it.
+"""``python -m storyteller.benchmark.motion_metrics [RUN_DIR ...] --out DIR``: motion quality as papers report it.
 
 Measures every run folder given (a folder of run folders, such as the ``--out`` of
-``python -m benchmark.story_suite run``, stands for each), all of them pooled, a crowd of
+``python -m storyteller.benchmark.story_suite run``, stands for each), all of them pooled, a crowd of
 ``--crowd`` walkers on random errands in the reference Office (no LLM), and the real clips
 (``STORYTELLER_MOCAP``, else ``../shared/mocap``), and ``--partners`` pairs sent to chat, shake
 hands and hug in the home scene (:mod:`.partners`). Prints five tables (feet, furniture and
@@ -10,9 +10,9 @@ partners) and writes ``report.md``, ``metrics.json``, ``gait_vs_speed.png`` and 
 into ``--out``. Exit code 2 on a folder it cannot read (one line naming it).
 
 ``--scripted-story RUN_DIR`` first builds the scripted home story the published figures are
-measured on (``benchmark.motion_metrics.scripted_story``: Zoe, Max and Ava, 90 simulated s, a
+measured on (``storyteller.benchmark.motion_metrics.scripted_story``: Zoe, Max and Ava, 90 simulated s, a
 scripted planner, no LLM, no network) into ``RUN_DIR`` (new or empty) and measures it with the
-rest: ``python -m benchmark.motion_metrics --scripted-story RUN_DIR --out OUT --crowd 50
+rest: ``python -m storyteller.benchmark.motion_metrics --scripted-story RUN_DIR --out OUT --crowd 50
 --crowd-seconds 20`` reproduces ``benchmark/results/2026-12-06-motion-metrics.md``'s set-up.
 
 Targets (issue 25): skating ratio <= 0.03; walking within 20% of real on bob, cadence, step
@@ -32,9 +32,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmark.motion_metrics.measure import Measured, measure_run, pooled
-from benchmark.motion_metrics.partners import PLANNED_GAP_M, partner_pairs, partner_table
-from benchmark.motion_metrics.report import (
+from storyteller.benchmark.motion_metrics.measure import Measured, measure_run, pooled
+from storyteller.benchmark.motion_metrics.partners import PLANNED_GAP_M, partner_pairs, partner_table
+from storyteller.benchmark.motion_metrics.report import (
     as_markdown,
     as_text,
     cadence_table,
@@ -44,8 +44,8 @@ from benchmark.motion_metrics.report import (
     gait_table,
     interaction_table,
 )
-from benchmark.motion_metrics.scripted_story import NAMES, SECONDS, StoryBuildError, build_story
-from benchmark.motion_metrics.sources import (
+from storyteller.benchmark.motion_metrics.scripted_story import NAMES, SECONDS, StoryBuildError, build_story
+from storyteller.benchmark.motion_metrics.sources import (
     RunMotion,
     SourceError,
     crowd_motion,
@@ -53,7 +53,7 @@ from benchmark.motion_metrics.sources import (
     real_clips,
     run_folders,
 )
-from benchmark.motion_metrics.strips import draw_strips
+from storyteller.benchmark.motion_metrics.strips import draw_strips
 
 
 def _clean(value: Any) -> Any:
@@ -67,7 +67,7 @@ def _clean(value: Any) -> Any:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m benchmark.motion_metrics", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m storyteller.benchmark.motion_metrics", description=__doc__.splitlines()[0])
     p.add_argument("runs", nargs="*", type=Path, help="run folders, or folders of run folders")
     p.add_argument("--out", type=Path, required=True, help="folder for report.md, metrics.json and the PNGs")
     p.add_argument("--crowd", type=int, default=50, help="walkers in the crowd (0: no crowd)")

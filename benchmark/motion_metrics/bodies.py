@@ -3,7 +3,7 @@
 A body is a set of capsules between joints of the 22-joint skeleton (``CAPSULES``: the trunk,
 the legs, the arms, the head), each sampled as spheres of the capsule's radius at most half a
 radius apart, so a sphere set's surface lies within a few millimetres of the capsule's. A
-scene object is its oriented box (``sim.scene.model.SceneObject``: centre, size, facing).
+scene object is its oriented box (``storyteller.sim.scene.model.SceneObject``: centre, size, facing).
 
 - Penetration of a sphere into a box is ``radius - signed distance`` of its centre to the box
   (positive inside); a body's penetration in a frame is the deepest of its spheres (metres).
@@ -12,7 +12,7 @@ scene object is its oriented box (``sim.scene.model.SceneObject``: centre, size,
   ``SEAT_SINK_M`` (the soft contact the seat-height target implies); a table or desk counts as
   its top only (``TABLE_TOP_M``: the box under it is legroom, where a seated person's legs are,
   as a chair tucked under a table puts them); and the arms
-  of an action whose hands work on an object (``sim.world.facing.needs_reach``) do not count:
+  of an action whose hands work on an object (``storyteller.sim.world.facing.needs_reach``) do not count:
   touching is the point.
 - Overlap of two bodies is the deepest ``r_a + r_b - |c_a - c_b|`` over their trunk, leg and
   head spheres (arms left out: hands meet in a handshake); a hug is contact by design.
@@ -28,9 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import JOINT_INDEX
-from sim.scene.model import SceneObject
-from sim.world.legroom import TABLE_TOP_M, has_legroom, seat_surface
+from storyteller.sim.body.skeleton import JOINT_INDEX
+from storyteller.sim.scene.model import SceneObject
+from storyteller.sim.world.legroom import TABLE_TOP_M, has_legroom, seat_surface
 
 J = JOINT_INDEX
 CAPSULES: tuple[tuple[str, str, float, str], ...] = (

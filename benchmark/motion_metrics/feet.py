@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import JOINT_INDEX
+from storyteller.sim.body.skeleton import JOINT_INDEX
 
 GMD_FPS = 20.0
 """Frames per second at which the skating ratio is evaluated (HumanML3D's rate)."""

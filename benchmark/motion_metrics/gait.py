@@ -5,7 +5,7 @@ whose pelvis moves faster than ``MIN_SPEED`` m/s, with ``TRIM_S`` seconds cut at
 (starts and stops are not the gait) and cut into pieces of at most ``WINDOW_S`` seconds (the
 speed stays about constant within one). Each window gets:
 
-- from :func:`benchmark.motion_quality.motion_stats` (the project's measures, not re-made
+- from :func:`storyteller.benchmark.motion_quality.motion_stats` (the project's measures, not re-made
   here): jerk (median |d^3 x / dt^3| over joints, m/s^3), speed (m/s) and bob (standard
   deviation of the pelvis height, m);
 - cadence (steps/min) from the median interval between foot-strikes (:func:`step_cadence`),
@@ -34,8 +34,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import binary_closing, binary_opening
 
-from benchmark.motion_quality import motion_stats
-from sim.body.skeleton import JOINT_INDEX
+from storyteller.benchmark.motion_quality import motion_stats
+from storyteller.sim.body.skeleton import JOINT_INDEX
 
 WALK_LABEL = "walk"
 MIN_SPEED = 0.3  # m/s

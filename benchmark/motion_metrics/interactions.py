@@ -6,7 +6,7 @@ Read from a track's per-frame action labels (database keys: ``use_coffee_maker``
 - **hand to object** at the reach frame of a ``use_*`` action, and of every action whose hands
   work on an object (``hands_on_object``: ``open_fridge``, ``turn_on_tv``, ...): for the first ``REACH_WINDOW_S``
   seconds of each run of the label, the frame where the nearer wrist is closest to the box of
-  the object the action names (``sim.world.facing.object_named_by`` at the run's first root
+  the object the action names (``storyteller.sim.world.facing.object_named_by`` at the run's first root
   position); that distance (metres, 0 inside the box). Target: within ``HAND_TARGET_M`` for
   90% of reaches;
 - **hand to mouth** of ``drink`` and ``eat`` (gestures ``MOUTH_GESTURES``, standing or
@@ -22,7 +22,7 @@ Read from a track's per-frame action labels (database keys: ``use_coffee_maker``
   (seconds).
 
 Facing at the start of an interaction and while it lasts is
-:mod:`benchmark.motion_facing`'s (it needs the run's plans).
+:mod:`storyteller.benchmark.motion_facing`'s (it needs the run's plans).
 """
 
 from __future__ import annotations
@@ -33,19 +33,19 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from benchmark.motion_metrics.bodies import Box, signed_distance
-from benchmark.motion_metrics.gait import label_runs
-from sim.body.skeleton import JOINT_INDEX
-from sim.motion.action_labels import SEATED_SUFFIX, action_spec
-from sim.scene.model import Scene, SceneObject
-from sim.world.contacts import (
+from storyteller.benchmark.motion_metrics.bodies import Box, signed_distance
+from storyteller.benchmark.motion_metrics.gait import label_runs
+from storyteller.sim.body.skeleton import JOINT_INDEX
+from storyteller.sim.motion.action_labels import SEATED_SUFFIX, action_spec
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.contacts import (
     HOLD_BELOW_MOUTH_M,
     MOUTH_BELOW_HEAD_M,
     MOUTH_FORWARD_M,
     MOUTH_GESTURES,
 )
-from sim.world.facing import needs_reach, object_named_by
-from sim.world.legroom import seat_surface
+from storyteller.sim.world.facing import needs_reach, object_named_by
+from storyteller.sim.world.legroom import seat_surface
 
 REACH_WINDOW_S = 4.0
 HAND_TARGET_M = 0.15
@@ -64,7 +64,7 @@ def is_seated_label(label: str) -> bool:
 
 def hands_on_object(label: str) -> bool:
     """Whether ``label`` (a database key) is an action whose hands work on an object
-    (``sim.world.facing.needs_reach``: reach, wipe, write, type, carry); False for unknown labels."""
+    (``storyteller.sim.world.facing.needs_reach``: reach, wipe, write, type, carry); False for unknown labels."""
     try:
         return needs_reach(label.split("@", 1)[0])
     except ValueError:

@@ -14,16 +14,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from benchmark.motion_facing import Interaction, run_folder_interactions
-from benchmark.motion_metrics.bodies import (
+from storyteller.benchmark.motion_facing import Interaction, run_folder_interactions
+from storyteller.benchmark.motion_metrics.bodies import (
     CONTACT_ACTIONS,
     crowd_overlaps,
     furniture_penetration,
     sphere_body,
 )
-from benchmark.motion_metrics.feet import Skating, foot_skating, lowest_foot_height
-from benchmark.motion_metrics.gait import GaitWindow, track_windows
-from benchmark.motion_metrics.interactions import (
+from storyteller.benchmark.motion_metrics.feet import Skating, foot_skating, lowest_foot_height
+from storyteller.benchmark.motion_metrics.gait import GaitWindow, track_windows
+from storyteller.benchmark.motion_metrics.interactions import (
     Reach,
     is_seated_label,
     mouth_reaches,
@@ -31,9 +31,9 @@ from benchmark.motion_metrics.interactions import (
     seat_errors,
     transition_times,
 )
-from benchmark.motion_metrics.sources import RunMotion
-from sim.motion.action_labels import family_of
-from sim.world.facing import needs_reach
+from storyteller.benchmark.motion_metrics.sources import RunMotion
+from storyteller.sim.motion.action_labels import family_of
+from storyteller.sim.world.facing import needs_reach
 
 FURNITURE_TARGET_M = 0.02  # p99 of frames
 

@@ -9,7 +9,7 @@ between their pelvises, each one's facing error (root forward against the direct
 other, degrees), and for a handshake the gap between their right wrists at the middle of the
 shake (metres). A pair that does not start within ``LIMIT_S`` counts as not started.
 
-``python -m benchmark.motion_metrics.partners [--pairs N] [--seed S]`` prints the table.
+``python -m storyteller.benchmark.motion_metrics.partners [--pairs N] [--seed S]`` prints the table.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ class PairResult:
 
 
 def _facing_error(root_rot: np.ndarray, own: np.ndarray, other: np.ndarray) -> float:
-    from sim.world.motion_layer import root_yaw
+    from storyteller.sim.world.motion_layer import root_yaw
 
     want = math.atan2(float(other[1] - own[1]), float(other[0] - own[0]))
     return abs(math.degrees(math.remainder(float(root_yaw(root_rot)) - want, 2 * math.pi)))
@@ -45,15 +45,15 @@ def _facing_error(root_rot: np.ndarray, own: np.ndarray, other: np.ndarray) -> f
 
 def partner_pairs(count: int, seed: int = 0) -> list[PairResult]:
     """Run ``count`` pairs (see the module docstring)."""
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.body.skeleton import JOINT_INDEX, forward_kinematics
-    from sim.motion.action_labels import action_spec
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
-    from sim.paths.nav_grid import build_nav_grid
-    from sim.scene.bundled import load_bundled_scene
-    from sim.world.events import AssignEvent, Assignment
-    from sim.world.step import World, WorldConfig, step
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.body.skeleton import JOINT_INDEX, forward_kinematics
+    from storyteller.sim.motion.action_labels import action_spec
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
+    from storyteller.sim.paths.nav_grid import build_nav_grid
+    from storyteller.sim.scene.bundled import load_bundled_scene
+    from storyteller.sim.world.events import AssignEvent, Assignment
+    from storyteller.sim.world.step import World, WorldConfig, step
 
     scene = load_bundled_scene("home")
     grid = build_nav_grid(scene)
@@ -136,9 +136,9 @@ def partner_table(results: Sequence[PairResult]) -> tuple[list[str], list[list[s
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from benchmark.motion_metrics.report import as_text
+    from storyteller.benchmark.motion_metrics.report import as_text
 
-    p = argparse.ArgumentParser(prog="python -m benchmark.motion_metrics.partners", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m storyteller.benchmark.motion_metrics.partners", description=__doc__.splitlines()[0])
     p.add_argument("--pairs", type=int, default=12)
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)

@@ -1,4 +1,4 @@
-"""Tables of :class:`~benchmark.motion_metrics.measure.Measured` sources, as text and Markdown,
+"""Tables of :class:`~storyteller.benchmark.motion_metrics.measure.Measured` sources, as text and Markdown,
 the gait-against-speed figure and ``metrics.json``."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from benchmark.motion_facing import summarize
-from benchmark.motion_metrics.feet import floor_contact
-from benchmark.motion_metrics.gait import (
+from storyteller.benchmark.motion_facing import summarize
+from storyteller.benchmark.motion_metrics.feet import floor_contact
+from storyteller.benchmark.motion_metrics.gait import (
     GAIT_METRICS,
     UNITS,
     GaitWindow,
@@ -20,8 +20,8 @@ from benchmark.motion_metrics.gait import (
     compare_gait,
     fit_speed,
 )
-from benchmark.motion_metrics.interactions import HAND_TARGET_M, SEAT_TARGET_M, Reach, is_use_action
-from benchmark.motion_metrics.measure import Measured, furniture_summary
+from storyteller.benchmark.motion_metrics.interactions import HAND_TARGET_M, SEAT_TARGET_M, Reach, is_use_action
+from storyteller.benchmark.motion_metrics.measure import Measured, furniture_summary
 
 Table = tuple[list[str], list[list[str]]]
 

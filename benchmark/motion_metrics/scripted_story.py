@@ -1,4 +1,4 @@
-"""``python -m benchmark.motion_metrics.scripted_story RUN_DIR``: the scripted home story the
+"""``python -m storyteller.benchmark.motion_metrics.scripted_story RUN_DIR``: the scripted home story the
 motion metrics are published on, built by the product itself (no LLM, no network).
 
 The story: ``storyteller run home --names Zoe,Max,Ava --planner unified --description
@@ -11,7 +11,7 @@ character cycling through its list of :data:`TASKS` (``use_*``, ``open_fridge``,
 waits for each one, so the run folder is the same on every build (its ``trace.jsonl`` replays it
 with ``storyteller replay RUN_DIR --out DIR``).
 
-``python -m benchmark.motion_metrics --scripted-story RUN_DIR --out OUT`` builds it and measures
+``python -m storyteller.benchmark.motion_metrics --scripted-story RUN_DIR --out OUT`` builds it and measures
 it in one command. Exit code 2 on a user error (one line), else the run's own exit code.
 """
 
@@ -179,7 +179,7 @@ def build_story(
     with ScriptedServer(planner) as server:
         config = write_config(out.parent / f"{out.name}.scripted.toml", server.base)
         command = [
-            sys.executable, "-c", "from orchestrator.cli.app import main; main()", "run", SCENE, "--names", ",".join(names),
+            sys.executable, "-c", "from storyteller.orchestrator.cli.app import main; main()", "run", SCENE, "--names", ",".join(names),
             "--planner", "unified", "--description", "object-list", "--seed", str(seed),
             "--no-interactive", "--no-live", "-d", f"{seconds:g}", "--config", str(config), "--out", str(out),
         ]  # fmt: skip
@@ -188,7 +188,7 @@ def build_story(
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m benchmark.motion_metrics.scripted_story", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m storyteller.benchmark.motion_metrics.scripted_story", description=__doc__.splitlines()[0])
     p.add_argument("out", type=Path, help="run folder to build (new or empty)")
     p.add_argument("-d", "--duration", type=float, default=SECONDS, help="simulated seconds (default 90)")
     p.add_argument("--names", default=",".join(NAMES), help="characters, among Zoe,Max,Ava (default all three)")

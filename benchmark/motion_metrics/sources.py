@@ -2,10 +2,10 @@
 
 - A **run folder** of ``storyteller run`` (``story.json``, ``scene.json``, one
   ``<name>.track.npz`` per character) is read with the viewer's reader
-  (``orchestrator.viewer.run_folder.load_run``: bounded, validated). A folder that is not a run
-  but holds run folders (the ``--out`` of ``python -m benchmark.story_suite run``) stands for
+  (``storyteller.orchestrator.viewer.run_folder.load_run``: bounded, validated). A folder that is not a run
+  but holds run folders (the ``--out`` of ``python -m storyteller.benchmark.story_suite run``) stands for
   each of them.
-- The **crowd** is ``benchmark.crowd_scenario``'s scenario (``IdleErrands``: walkers on random
+- The **crowd** is ``storyteller.benchmark.crowd_scenario``'s scenario (``IdleErrands``: walkers on random
   errands in the reference Office, cooperative paths, motion matching), run through the world
   step with the project's motion databases.
 - The **real clips**: the walks of ``benchmark/mocap_shared.toml`` (CMU) and the walks of
@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import forward_kinematics
-from sim.scene.model import Scene
+from storyteller.sim.body.skeleton import forward_kinematics
+from storyteller.sim.scene.model import Scene
 
 BANDAI_WALKS = (
     "dataset-1_walk_normal_001.bvh", "dataset-1_walk_tired_001.bvh", "dataset-1_walk_active_001.bvh",
@@ -92,7 +92,7 @@ def run_folders(paths: Sequence[Path]) -> list[Path]:
 
 def load_run_motion(folder: Path) -> RunMotion:
     """The characters of a finished run folder."""
-    from orchestrator.viewer.run_folder import RunFolderError, load_run
+    from storyteller.orchestrator.viewer.run_folder import RunFolderError, load_run
 
     try:
         run = load_run(folder)
@@ -108,13 +108,13 @@ def load_run_motion(folder: Path) -> RunMotion:
 
 def crowd_motion(n: int, seconds: float, seed: int) -> RunMotion:
     """``n`` walkers on random errands in the reference Office for ``seconds`` (30 fps)."""
-    from benchmark.crowd_scenario import OFFICE, REFERENCE, IdleErrands
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
-    from sim.paths.nav_grid import build_nav_grid
-    from sim.scene.files import load_scene
-    from sim.world.step import World, WorldConfig, step
+    from storyteller.benchmark.crowd_scenario import OFFICE, REFERENCE, IdleErrands
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
+    from storyteller.sim.paths.nav_grid import build_nav_grid
+    from storyteller.sim.scene.files import load_scene
+    from storyteller.sim.world.step import World, WorldConfig, step
 
     if not REFERENCE.found:
         raise SourceError(f"crowd: {REFERENCE.reason}")
@@ -137,8 +137,8 @@ def crowd_motion(n: int, seconds: float, seed: int) -> RunMotion:
 
 def rest_foot_height() -> float:
     """Height of our skeleton's lowest foot joint standing in the rest pose (metres)."""
-    from benchmark.motion_metrics.feet import lowest_foot_height
-    from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
+    from storyteller.benchmark.motion_metrics.feet import lowest_foot_height
+    from storyteller.sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
 
     rot = np.broadcast_to(np.eye(3), (1, NUM_JOINTS, 3, 3)).copy()
     rot[0, 0] = heading_to_root(0.0)
@@ -148,7 +148,7 @@ def rest_foot_height() -> float:
 
 def on_floor(joints: NDArray[np.float64]) -> NDArray[np.float64]:
     """A real clip's joints moved up or down onto our floor (``PLANTED_PERCENTILE``)."""
-    from benchmark.motion_metrics.feet import lowest_foot_height
+    from storyteller.benchmark.motion_metrics.feet import lowest_foot_height
 
     low = float(np.percentile(lowest_foot_height(joints), PLANTED_PERCENTILE))
     out = np.array(joints, dtype=np.float64)
@@ -159,11 +159,11 @@ def on_floor(joints: NDArray[np.float64]) -> NDArray[np.float64]:
 def real_clips() -> tuple[RunMotion, str]:
     """The real clips (each a character, labelled with its database key on every frame), and a
     note of what was found; empty when the mocap folder is absent."""
-    from benchmark.motion_quality import MOCAP, shipped_config
-    from benchmark.motion_quality import real_clips as config_clips
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.motion.config import ClipEntry, MotionConfig, MotionConfigError, import_entry
-    from sim.motion.sources.bvh_import import MocapImportError
+    from storyteller.benchmark.motion_quality import MOCAP, shipped_config
+    from storyteller.benchmark.motion_quality import real_clips as config_clips
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.motion.config import ClipEntry, MotionConfig, MotionConfigError, import_entry
+    from storyteller.sim.motion.sources.bvh_import import MocapImportError
 
     if not MOCAP.found:
         return RunMotion("real clips", 30.0, None, ()), f"real clips: {MOCAP.reason}"

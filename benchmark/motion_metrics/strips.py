@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from benchmark.motion_metrics.gait import label_runs
-from benchmark.motion_metrics.sources import RunMotion
-from sim.body.skeleton import JOINT_INDEX, PARENTS
+from storyteller.benchmark.motion_metrics.gait import label_runs
+from storyteller.benchmark.motion_metrics.sources import RunMotion
+from storyteller.sim.body.skeleton import JOINT_INDEX, PARENTS
 
 POSES = 8
 STRIP_S = 4.0

@@ -1,10 +1,10 @@
 """Our own benchmark cases (``benchmark/cases/ours``) and the check that re-derives their answers.
 
 What lives here: :mod:`.derivation` evaluates the small query a case carries in its
-``derivation`` block against the scene (objects, :mod:`tools.scene_graph` relations, region
+``derivation`` block against the scene (objects, :mod:`storyteller.tools.scene_graph` relations, region
 clusters) and the case's world (who sits where, which objects are in use, from the history and
 the current states), and :mod:`.check` compares what it derives with the case's expected plans
-at every distraction level (``python -m benchmark.own_cases.check``).
+at every distraction level (``python -m storyteller.benchmark.own_cases.check``).
 
 May import ``sim``, ``tools`` and the rest of ``benchmark`` (the case loader and the position
 check); nothing imports it but its tests.

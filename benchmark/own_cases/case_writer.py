@@ -15,12 +15,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from benchmark.own_cases.derivation import CaseWorld, atoms_of, evaluate
-from benchmark.own_cases.drafts import Draft, Query
-from benchmark.own_cases.phrasing import DEVICE_USES, NAMES, SEATED, SHAPES, third_person
-from benchmark.own_cases.scene_facts import SEATS, SceneFacts, activities
-from benchmark.own_cases.split import Side, on_side
-from benchmark.reference_cases import BenchmarkCase
+from storyteller.benchmark.own_cases.derivation import CaseWorld, atoms_of, evaluate
+from storyteller.benchmark.own_cases.drafts import Draft, Query
+from storyteller.benchmark.own_cases.phrasing import DEVICE_USES, NAMES, SEATED, SHAPES, third_person
+from storyteller.benchmark.own_cases.scene_facts import SEATS, SceneFacts, activities
+from storyteller.benchmark.own_cases.split import Side, on_side
+from storyteller.benchmark.reference_cases import BenchmarkCase
 
 GENERATOR_SEED = 24
 """Seed of every random stream of the generator (with the draft, the attempt or the group)."""

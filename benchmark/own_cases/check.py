@@ -1,6 +1,6 @@
 """Re-derive every expected answer of a case set and report each disagreement.
 
-``python -m benchmark.own_cases.check [FOLDER]`` (default: our set, ``benchmark/cases/ours``;
+``python -m storyteller.benchmark.own_cases.check [FOLDER]`` (default: our set, ``benchmark/cases/ours``;
 ``benchmark/cases/ours_ref`` for the cases on the authors' scenes, which load from the reference
 data: its absence is one line and exit 2) prints one line per case and exits 1 when any case has
 a problem. A case has a problem when:
@@ -11,7 +11,7 @@ a problem. A case has a problem when:
 - the derived answer (or whether waiting is allowed) differs between distraction levels 0, 1
   and 2: a distractor changed it;
 - an answer seat is taken by somebody, or no position the project's sampler finds for a
-  non-seat answer passes :func:`benchmark.position_check.check_position`;
+  non-seat answer passes :func:`storyteller.benchmark.position_check.check_position`;
 - its shape is off: not 3-8 characters, no level-1 or no level-2 distractor event, a history
   event less distracting than its characters, an expected character that is a distractor or
   busy, an action outside the case's labels or the simulation's, or a folder not named after
@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.own_cases import OURS, OURS_REF
-from benchmark.own_cases.derivation import (
+from storyteller.benchmark.own_cases import OURS, OURS_REF
+from storyteller.benchmark.own_cases.derivation import (
     CaseWorld,
     DerivationError,
     atoms_of,
@@ -38,23 +38,23 @@ from benchmark.own_cases.derivation import (
     evaluate,
     expression_atoms,
 )
-from benchmark.position_check import check_position
-from benchmark.reference_cases import (
+from storyteller.benchmark.position_check import check_position
+from storyteller.benchmark.reference_cases import (
     BUNDLED_PREFIX,
     BenchmarkCase,
     BenchmarkCaseError,
     load_cases,
     scene_dir,
 )
-from orchestrator.reference_data import ReferenceDataNotFound, locate_reference
-from sim.motion.action_labels import ACTION_LABELS
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
-from tools.character_states import area_from_text
-from tools.clusters import cluster_objects
-from tools.errors import UnsatisfiableAreaError
-from tools.position_sampling import Constraints, FloorMap, sample_position
-from tools.scene_graph import SceneGraph, build_scene_graph
+from storyteller.orchestrator.reference_data import ReferenceDataNotFound, locate_reference
+from storyteller.sim.motion.action_labels import ACTION_LABELS
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import area_from_text
+from storyteller.tools.clusters import cluster_objects
+from storyteller.tools.errors import UnsatisfiableAreaError
+from storyteller.tools.position_sampling import Constraints, FloorMap, sample_position
+from storyteller.tools.scene_graph import SceneGraph, build_scene_graph
 
 LEVELS = (0, 1, 2)
 MIN_CHARACTERS, MAX_CHARACTERS = 3, 8
@@ -64,12 +64,12 @@ SAMPLE_SEEDS = 8
 
 def ours_folder() -> Path:
     """Our case set as shipped with the package."""
-    return Path(str(resources.files("benchmark") / "cases" / OURS))
+    return Path(str(resources.files("storyteller.benchmark") / "cases" / OURS))
 
 
 def ours_ref_folder() -> Path:
     """Our case set on the authors' reference scenes (``benchmark/cases/ours_ref``)."""
-    return Path(str(resources.files("benchmark") / "cases" / OURS_REF))
+    return Path(str(resources.files("storyteller.benchmark") / "cases" / OURS_REF))
 
 
 @dataclass(frozen=True)
@@ -251,7 +251,7 @@ def check_folder(folder: str | Path) -> list[CaseReport]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmark.own_cases.check", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m storyteller.benchmark.own_cases.check", description=__doc__.splitlines()[0])
     parser.add_argument("folder", nargs="?", type=Path, default=None, help="case set (default: benchmark/cases/ours)")
     args = parser.parse_args(argv)
     folder = args.folder or ours_folder()

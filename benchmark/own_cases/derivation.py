@@ -21,7 +21,7 @@ from the case. The atoms the case must expect are then every ``<relation> <objec
 - ``{"related": "adjacent to", "to": Q}``: subjects of a scene-graph edge ``s --relation--> a``
   with ``a`` in Q (``related`` may be a list of relations); ``{"anchors_of": "on", "from": Q}``:
   the other end of such edges;
-- ``{"region_of": Q}``: every object in a region cluster (``tools.clusters``) holding a member of Q;
+- ``{"region_of": Q}``: every object in a region cluster (``storyteller.tools.clusters``) holding a member of Q;
 - ``{"nearest": Q, "to": R}`` / ``{"farthest": Q, "to": R}``: the members of Q whose footprint is
   nearest to (farthest from) R's; ties within 1 cm are all kept, so a tie shows up as ambiguity;
 - ``{"and": [Q, ...]}``, ``{"or": [Q, ...]}``, ``{"minus": [Q, R]}``;
@@ -41,11 +41,11 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from benchmark.reference_cases import BenchmarkCase, planning_inputs
-from sim.scene.model import Scene
-from sim.validation_text import user_error
-from tools.character_states import WorldView
-from tools.scene_graph import SceneGraph, footprint_distance
+from storyteller.benchmark.reference_cases import BenchmarkCase, planning_inputs
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.validation_text import user_error
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.scene_graph import SceneGraph, footprint_distance
 
 Query = Mapping[str, Any]
 TIE_M = 0.01

@@ -1,6 +1,6 @@
 """Generate our case pool's templated cases from the bundled scenes' geometry.
 
-``python -m benchmark.own_cases.generate`` writes the generated cases (ids from
+``python -m storyteller.benchmark.own_cases.generate`` writes the generated cases (ids from
 :data:`FIRST_ID`) into ``benchmark/cases/ours/<k>_<TAGS>/`` next to the 40 hand-written ones,
 removing generated files of an earlier run; ``--check`` only compares and exits 1 when the
 folder differs from what the code generates. ``--pool ours_ref`` does the same on the authors'
@@ -10,14 +10,14 @@ generated).
 
 How a case is made: a *recipe* (:mod:`.recipes`, one per kind of question, e.g. "the seat of a kind nearest a
 landmark", "join a friend's table", "wait for a device in use") looks at a scene (objects,
-:mod:`tools.scene_graph` relations, region clusters) and proposes *drafts* (:mod:`.drafts`): the tags, the
+:mod:`storyteller.tools.scene_graph` relations, region clusters) and proposes *drafts* (:mod:`.drafts`): the tags, the
 answer as a derivation query (:mod:`.derivation`), the action, the characters already in
 place, and the slot values of its sentence shapes (:mod:`.phrasing`). A draft is kept only
 when the answer is clear to a reader as well as to the code: for nearest / farthest the runner-up
 is at least :data:`.scene_facts.MARGIN_M` farther (nearer); a ``count: one`` query selects exactly one
 object. Each kept draft is then written (:mod:`.case_writer`) as a case with named characters and level-1 / level-2
 distractors (characters and history events that touch none of the objects the question is
-about) and checked by :func:`benchmark.own_cases.check.check_case`; a draft whose case fails
+about) and checked by :func:`storyteller.benchmark.own_cases.check.check_case`; a draft whose case fails
 the check with every distractor choice tried is dropped.
 
 Guarantee: deterministic (the same code gives the same files, byte for byte); every case
@@ -37,19 +37,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from benchmark.own_cases import recipes
-from benchmark.own_cases.case_writer import GENERATOR_SEED, NoDistractorError, as_case, write_case
-from benchmark.own_cases.check import _Scenes, check_case, ours_folder, ours_ref_folder
-from benchmark.own_cases.drafts import Draft
-from benchmark.own_cases.phrasing import SHAPES
-from benchmark.own_cases.scene_facts import SceneFacts
-from benchmark.own_cases.split import SIDES, first_side, on_side
-from benchmark.reference_cases import BUNDLED_PREFIX
-from orchestrator.reference_data import ReferenceDataNotFound
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.files import load_scene
-from tools.clusters import cluster_objects
-from tools.scene_graph import build_scene_graph
+from storyteller.benchmark.own_cases import recipes
+from storyteller.benchmark.own_cases.case_writer import GENERATOR_SEED, NoDistractorError, as_case, write_case
+from storyteller.benchmark.own_cases.check import _Scenes, check_case, ours_folder, ours_ref_folder
+from storyteller.benchmark.own_cases.drafts import Draft
+from storyteller.benchmark.own_cases.phrasing import SHAPES
+from storyteller.benchmark.own_cases.scene_facts import SceneFacts
+from storyteller.benchmark.own_cases.split import SIDES, first_side, on_side
+from storyteller.benchmark.reference_cases import BUNDLED_PREFIX
+from storyteller.orchestrator.reference_data import ReferenceDataNotFound
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.files import load_scene
+from storyteller.tools.clusters import cluster_objects
+from storyteller.tools.scene_graph import build_scene_graph
 
 SCENES: tuple[str, ...] = ("home", "office", "restaurant")
 FIRST_ID = 200
@@ -105,7 +105,7 @@ class Pool:
         with the lookup's one-line reason when a reference pool's data is absent)."""
         if not self.reference:
             return ours_folder()
-        from orchestrator.reference_data import locate_reference
+        from storyteller.orchestrator.reference_data import locate_reference
 
         return locate_reference().require()
 
@@ -218,7 +218,7 @@ def differences(folder: Path, cases: list[dict[str, Any]], first_id: int = FIRST
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m benchmark.own_cases.generate", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m storyteller.benchmark.own_cases.generate", description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="only compare the folder with what the code generates")
     parser.add_argument("--pool", choices=sorted(POOLS), default=OURS_POOL.name,
                         help="ours: the bundled scenes (default); ours_ref: the authors' scenes (needs the reference data)")

@@ -11,9 +11,9 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator
 from itertools import combinations
 
-from benchmark.own_cases.drafts import Draft, Occupant, Query
-from benchmark.own_cases.phrasing import DEVICE_USES, NOUNS, PLURALS, SEATED, SEATED_USES, STANDING
-from benchmark.own_cases.scene_facts import (
+from storyteller.benchmark.own_cases.drafts import Draft, Occupant, Query
+from storyteller.benchmark.own_cases.phrasing import DEVICE_USES, NOUNS, PLURALS, SEATED, SEATED_USES, STANDING
+from storyteller.benchmark.own_cases.scene_facts import (
     SEATS,
     SceneFacts,
     activities,

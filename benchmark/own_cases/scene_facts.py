@@ -10,12 +10,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from benchmark.own_cases.derivation import CaseWorld, evaluate
-from benchmark.own_cases.drafts import Query
-from benchmark.own_cases.phrasing import LANDMARK_EXCLUDED, NOUNS, PLURALS, SEATED, SEATED_USES
-from benchmark.reference_cases import BUNDLED_PREFIX
-from sim.scene.model import Scene
-from tools.scene_graph import SceneGraph, footprint_distance
+from storyteller.benchmark.own_cases.derivation import CaseWorld, evaluate
+from storyteller.benchmark.own_cases.drafts import Query
+from storyteller.benchmark.own_cases.phrasing import LANDMARK_EXCLUDED, NOUNS, PLURALS, SEATED, SEATED_USES
+from storyteller.benchmark.reference_cases import BUNDLED_PREFIX
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.scene_graph import SceneGraph, footprint_distance
 
 MARGIN_M = 0.3
 """A nearest / farthest answer must beat the runner-up by this much (metres of footprint distance)."""
@@ -43,7 +43,7 @@ class SceneFacts:
     world: CaseWorld = field(init=False)
 
     def __post_init__(self) -> None:
-        from tools.character_states import WorldView
+        from storyteller.tools.character_states import WorldView
 
         if not self.scene_name:
             self.scene_name = BUNDLED_PREFIX + self.name

@@ -16,7 +16,7 @@ How the split is made (:data:`SPLIT_SEED`):
   half, to within one case.
 
 ``benchmark/own_cases/split.json`` records the result as data (case ids per side, and the
-seed); ``python -m benchmark.own_cases.split`` rewrites it from the case folder and
+seed); ``python -m storyteller.benchmark.own_cases.split`` rewrites it from the case folder and
 ``--check`` compares. :func:`split_ids` is what ``storyteller bench run --cases ours-dev`` /
 ``--cases ours-test`` read. The pool on the authors' scenes (``benchmark/cases/ours_ref``, all
 generated, by the same deal) has its own file, ``split_ref.json`` (``--pool ours_ref``; read by
@@ -48,7 +48,7 @@ def split_file(pool: str = "ours") -> Path:
     """The committed split of ``pool`` (``benchmark/own_cases/split.json`` / ``split_ref.json``)."""
     if pool not in SPLIT_FILES:
         raise ValueError(f"unknown case pool {pool!r}; expected {' or '.join(SPLIT_FILES)}")
-    return Path(str(resources.files("benchmark.own_cases") / SPLIT_FILES[pool]))
+    return Path(str(resources.files("storyteller.benchmark.own_cases") / SPLIT_FILES[pool]))
 
 
 def deal(items: Sequence[str], key: str, seed: int = SPLIT_SEED) -> dict[str, Side]:
@@ -113,9 +113,9 @@ def _folder_cases(folder: Path) -> list[dict[str, object]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmark.own_cases.check import ours_folder, ours_ref_folder
+    from storyteller.benchmark.own_cases.check import ours_folder, ours_ref_folder
 
-    parser = argparse.ArgumentParser(prog="python -m benchmark.own_cases.split", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m storyteller.benchmark.own_cases.split", description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="only compare the split file with the case folder")
     parser.add_argument("--pool", choices=sorted(SPLIT_FILES), default="ours",
                         help="ours (split.json, default) or ours_ref (split_ref.json, the authors' scenes)")

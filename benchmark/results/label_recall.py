@@ -4,7 +4,7 @@ For every case of a case set (level 2), with the case's instruction standing in 
 text: is an expected action of each character the suggested label (the one the prompt names),
 and is it on the label shortlist the event grammar offers (every label when the shortlist is
 empty)? Also the shortlist's mean size, and whether the posture the words give (sit / stand,
-``agents.action_shortlist.posture``) agrees with the expected relationship ("sit on ...")::
+``storyteller.agents.action_shortlist.posture``) agrees with the expected relationship ("sit on ...")::
 
     PYTHONPATH=$PWD python benchmark/results/label_recall.py benchmark/cases/ours [-v]
 """
@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import sys
 
-from agents.action_shortlist import action_shortlist, posture, suggested_action
-from benchmark.plan_scoring import action_matches
-from benchmark.reference_cases import load_cases
+from storyteller.agents.action_shortlist import action_shortlist, posture, suggested_action
+from storyteller.benchmark.plan_scoring import action_matches
+from storyteller.benchmark.reference_cases import load_cases
 
 
 def recall(reference: str, verbose: bool = False) -> str:

@@ -24,14 +24,14 @@ import re
 import sys
 from pathlib import Path
 
-from agents.area_words import DescribedArea, described_areas
-from agents.place_choice import seat_candidates
-from agents.place_phrases import plain_places
-from agents.program_grammar import event_options
-from benchmark.reference_cases import load_cases, planning_inputs, scene_dir
-from orchestrator.reference_data import locate_reference
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
+from storyteller.agents.area_words import DescribedArea, described_areas
+from storyteller.agents.place_choice import seat_candidates
+from storyteller.agents.place_phrases import plain_places
+from storyteller.agents.program_grammar import event_options
+from storyteller.benchmark.reference_cases import load_cases, planning_inputs, scene_dir
+from storyteller.orchestrator.reference_data import locate_reference
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 POOLS = {"": (ROOT / "cases" / "ours", ROOT / "own_cases" / "split.json"),

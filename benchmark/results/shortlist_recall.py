@@ -13,10 +13,10 @@ from __future__ import annotations
 import re
 import sys
 
-from agents.shortlist import event_shortlist
-from benchmark.reference_cases import load_cases, planning_inputs, scene_dir
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
+from storyteller.agents.shortlist import event_shortlist
+from storyteller.benchmark.reference_cases import load_cases, planning_inputs, scene_dir
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
 
 _NAME = re.compile(r"(?<![A-Za-z_])[A-Za-z]+(?:_[A-Za-z]+)*_\d+")  # a run of letters starts once: linear
 

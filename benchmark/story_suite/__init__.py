@@ -4,9 +4,9 @@ What lives here: the scenario files (``scenarios/*.toml``) and their typed model
 (``scenario``), the evaluator (``evaluate``: a run folder's ``story.json`` against a scenario,
 as the share of expectations met, each with a verdict and a reason), the runner (``runner``:
 ``storyteller run --pace lockstep`` as a subprocess, recording or replaying a trace), the table
-(``report``) and the command (``python -m benchmark.story_suite run|score``).
+(``report``) and the command (``python -m storyteller.benchmark.story_suite run|score``).
 
-What it may import: ``benchmark.plan_scoring`` and ``benchmark.position_check`` (the
+What it may import: ``storyteller.benchmark.plan_scoring`` and ``storyteller.benchmark.position_check`` (the
 benchmark's action and relationship expressions, reused as they are), ``sim`` (the scenes) and
 ``agents`` (the scene's action labels). Runs go through the ``storyteller`` command, never
 through ``orchestrator`` internals.

@@ -1,11 +1,11 @@
-"""``python -m benchmark.story_suite run|score``: run the story suite, or re-score its runs.
+"""``python -m storyteller.benchmark.story_suite run|score``: run the story suite, or re-score its runs.
 
 ::
 
-    python -m benchmark.story_suite run --out out/suite                      # live, default model
-    python -m benchmark.story_suite run --record traces/story_suite --out out/suite
-    python -m benchmark.story_suite run --replay traces/story_suite --out out/suite
-    python -m benchmark.story_suite score out/suite
+    python -m storyteller.benchmark.story_suite run --out out/suite                      # live, default model
+    python -m storyteller.benchmark.story_suite run --record traces/story_suite --out out/suite
+    python -m storyteller.benchmark.story_suite run --replay traces/story_suite --out out/suite
+    python -m storyteller.benchmark.story_suite score out/suite
 
 Both print the table (expectations met / total and share, per scenario and in total) and
 write ``results.json`` and ``report.md`` into the out folder. Exit code 2 on a bad scenario
@@ -19,14 +19,14 @@ import json
 import sys
 from pathlib import Path
 
-from benchmark.story_suite.evaluate import StoryLogError, score_run
-from benchmark.story_suite.report import table, totals
-from benchmark.story_suite.runner import RunOptions, record_scores, run_scenario, write_results
-from benchmark.story_suite.scenario import ScenarioError, load_scenarios
+from storyteller.benchmark.story_suite.evaluate import StoryLogError, score_run
+from storyteller.benchmark.story_suite.report import table, totals
+from storyteller.benchmark.story_suite.runner import RunOptions, record_scores, run_scenario, write_results
+from storyteller.benchmark.story_suite.scenario import ScenarioError, load_scenarios
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m benchmark.story_suite", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m storyteller.benchmark.story_suite", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="Run every scenario with storyteller run --pace lockstep and score it.")
     run.add_argument("--scenarios", default="*", help="Glob over scenario names (default: all).")
@@ -47,7 +47,7 @@ def model_name(model: str | None) -> str:
     ``STORYTELLER_CONFIG`` as ``storyteller run`` reads them)."""
     if model is not None:
         return model
-    from orchestrator.llm.config import ConfigError, load_config
+    from storyteller.orchestrator.llm.config import ConfigError, load_config
 
     try:
         return ", ".join(sorted({node.model for node in load_config().nodes.values()}))

@@ -5,8 +5,8 @@ and a reason that says what the log showed, so a failed one can be read without 
 
 What counts as "a character did X" (a ``does`` expectation): some applied event's plan for
 that character has an action matching the action expression
-(:func:`benchmark.plan_scoring.action_matches`) and a sampled position (and seat) satisfying
-the ``where`` expression without collision (:func:`benchmark.position_check.check_position`,
+(:func:`storyteller.benchmark.plan_scoring.action_matches`) and a sampled position (and seat) satisfying
+the ``where`` expression without collision (:func:`storyteller.benchmark.position_check.check_position`,
 the reference thresholds), and the simulation did not report that event as failed. Waits and
 planning failures contribute no plans. ``order``: some plan meeting ``first`` belongs to an
 event applied at a strictly earlier frame than some plan meeting ``then``. ``not_idle``: some
@@ -24,10 +24,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from benchmark.plan_scoring import action_matches
-from benchmark.position_check import check_position
-from benchmark.story_suite.scenario import Does, NotIdle, Order, Scenario
-from sim.scene.model import Scene
+from storyteller.benchmark.plan_scoring import action_matches
+from storyteller.benchmark.position_check import check_position
+from storyteller.benchmark.story_suite.scenario import Does, NotIdle, Order, Scenario
+from storyteller.sim.scene.model import Scene
 
 
 class StoryLogError(ValueError):
@@ -177,7 +177,7 @@ def score_story(scenario: Scenario, scene: Scene, story: dict[str, Any], source:
 
 def score_run(scenario: Scenario, run_dir: Path) -> ScenarioScore:
     """Score the ``story.json`` in ``run_dir`` against ``scenario``."""
-    from sim.scene.bundled import resolve_scene
+    from storyteller.sim.scene.bundled import resolve_scene
 
     path = run_dir / "story.json"
     try:

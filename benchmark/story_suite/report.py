@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import TypedDict
 
-from benchmark.story_suite.evaluate import ScenarioScore
+from storyteller.benchmark.story_suite.evaluate import ScenarioScore
 
 
 class Totals(TypedDict):

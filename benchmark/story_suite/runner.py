@@ -19,9 +19,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmark.story_suite.evaluate import ScenarioScore, StoryLogError, Verdict, score_run
-from benchmark.story_suite.scenario import Scenario
-from sim.no_follow_writes import write_file
+from storyteller.benchmark.story_suite.evaluate import ScenarioScore, StoryLogError, Verdict, score_run
+from storyteller.benchmark.story_suite.scenario import Scenario
+from storyteller.sim.no_follow_writes import write_file
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,7 @@ def storyteller_command() -> list[str]:
     found = str(beside) if beside.is_file() else shutil.which("storyteller")
     if found is not None:
         return [found]
-    return [sys.executable, "-c", "from orchestrator.cli.app import app; app(prog_name='storyteller')"]
+    return [sys.executable, "-c", "from storyteller.orchestrator.cli.app import app; app(prog_name='storyteller')"]
 
 
 def run_args(scenario: Scenario, options: RunOptions) -> list[str]:
@@ -100,7 +100,7 @@ def record_scores(record: Path, scores: list[ScenarioScore], model: str) -> Path
 
 def write_results(out: Path, scores: list[ScenarioScore], meta: dict[str, object]) -> None:
     """``results.json`` (every verdict) and ``report.md`` (the table and the unmet reasons)."""
-    from benchmark.story_suite.report import markdown_report, totals
+    from storyteller.benchmark.story_suite.report import markdown_report, totals
 
     payload = {**meta, **totals(scores), "scenarios": [s.to_json() for s in scores]}
     out.mkdir(parents=True, exist_ok=True)

@@ -7,12 +7,12 @@ the scene allows, every position expression parses against the scene, and every 
 expectation names ``does`` expectations of the same file. A bad file raises
 :class:`ScenarioError` naming the file and the field.
 
-Expectations (``[[expect]]`` tables, judged by :mod:`benchmark.story_suite.evaluate`):
+Expectations (``[[expect]]`` tables, judged by :mod:`storyteller.benchmark.story_suite.evaluate`):
 
 - ``kind = "does"``: ``character`` has a plan whose ``action`` matches the action expression
-  (``||`` / ``&&`` / parentheses, as in :func:`benchmark.plan_scoring.action_matches`) and
+  (``||`` / ``&&`` / parentheses, as in :func:`storyteller.benchmark.plan_scoring.action_matches`) and
   whose sampled position (and seat) satisfies ``where`` (a relationship expression, as in
-  :func:`benchmark.position_check.check_position`). Either may be left out, not both.
+  :func:`storyteller.benchmark.position_check.check_position`). Either may be left out, not both.
 - ``kind = "order"``: the ``does`` expectation ``first`` is met by an event applied strictly
   before an event that meets ``then``.
 - ``kind = "not_idle"``: ``character`` is given a non-idle action at least once.
@@ -27,17 +27,17 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from benchmark.plan_scoring import ActionExpressionError, action_matches
-from benchmark.position_check import PositionExpressionError, check_position
-from sim.bounded_files import BoundedFileError, read_bounded_bytes
-from sim.scene.model import Scene
-from sim.validation_text import user_error
+from storyteller.benchmark.plan_scoring import ActionExpressionError, action_matches
+from storyteller.benchmark.position_check import PositionExpressionError, check_position
+from storyteller.sim.bounded_files import BoundedFileError, read_bounded_bytes
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.validation_text import user_error
 
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 MAX_SCENARIO_BYTES = 1024 * 1024
-"""Bytes of one scenario file (read as a regular file, ``sim.bounded_files``)."""
+"""Bytes of one scenario file (read as a regular file, ``storyteller.sim.bounded_files``)."""
 CHARACTER_NAMES = ("Ava", "Ben", "Cleo", "Dan", "Eve", "Finn")
-"""``storyteller run -n N`` names its characters in this order (``orchestrator.cli.plan.NAMES``)."""
+"""``storyteller run -n N`` names its characters in this order (``storyteller.orchestrator.cli.plan.NAMES``)."""
 
 
 class ScenarioError(ValueError):
@@ -139,8 +139,8 @@ def _check_against_scene(scenario: Scenario, scene: Scene, labels: Iterable[str]
 
 
 def load_scenario(path: Path) -> Scenario:
-    from agents.event_parser import scene_action_labels
-    from sim.scene.bundled import resolve_scene
+    from storyteller.agents.event_parser import scene_action_labels
+    from storyteller.sim.scene.bundled import resolve_scene
 
     try:
         data = tomllib.loads(read_bounded_bytes(path, MAX_SCENARIO_BYTES, str(path)).decode("utf-8"))

@@ -3,7 +3,7 @@ drive the real litellm -> openai SDK -> httpx path (``tests/orchestrator/llm/tes
 ``tests/orchestrator/cli/test_ablations_cli.py``, ``tests/benchmark/test_planning_benchmark.py``).
 
 Tests and the speed scripts (``benchmark/bench_replay.py``, ``bench_long_run.py``,
-``bench_frame_interval.py``) import it as ``from benchmark.support.fake_openai_server import
+``bench_frame_interval.py``) import it as ``from storyteller.benchmark.support.fake_openai_server import
 FakeOpenAI``. The file name does not match ``test_*.py``, so pytest does not collect it.
 
 Every ``POST`` (whatever the path; litellm posts to ``<base>/chat/completions``) is recorded

@@ -20,7 +20,7 @@ from typing import Any
 
 from websockets.sync.client import ClientConnection, connect
 
-from orchestrator.child_process import stop_child
+from storyteller.orchestrator.child_process import stop_child
 
 FLAGS = (
     "--headless=new", "--use-gl=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox",

@@ -3,7 +3,7 @@
 ``ReferenceMotionMatcher`` is the baseline that ``benchmark/bench_motion_step.py`` times the
 matcher against and that ``tests/sim/motion/test_motion_step_equivalence.py`` checks it against: the same
 decisions, states and poses, bit for bit. It uses the numpy versions of forward kinematics
-(``sim.body.skeleton``) and inertialization (``sim.motion.inertialization``), which the kernels replace
+(``storyteller.sim.body.skeleton``) and inertialization (``storyteller.sim.motion.inertialization``), which the kernels replace
 in the simulation, and keeps its own copy of the old nearest-frame scan. Not used by the
 simulation itself.
 """
@@ -16,25 +16,25 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sim.body.skeleton import NUM_JOINTS, forward_kinematics
-from sim.motion.clips import FPS
-from sim.motion.database import MotionDatabase, NearestFrameIndex, squared_distances
-from sim.motion.features import (
+from storyteller.sim.body.skeleton import NUM_JOINTS, forward_kinematics
+from storyteller.sim.motion.clips import FPS
+from storyteller.sim.motion.database import MotionDatabase, NearestFrameIndex, squared_distances
+from storyteller.sim.motion.features import (
     Control,
     assemble,
     relative_target,
     to_character_frame,
     vectors_to_character_frame,
 )
-from sim.motion.frames import DatabaseFrames
-from sim.motion.inertialization import (
+from storyteller.sim.motion.frames import DatabaseFrames
+from storyteller.sim.motion.inertialization import (
     apply_rotation_offsets,
     decay_spring,
     transition_offsets,
     transition_offsets_linear,
 )
-from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
-from sim.motion.sources.procedural_rig import rot_z
+from storyteller.sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
+from storyteller.sim.motion.sources.procedural_rig import rot_z
 
 _SCAN_CACHE: weakref.WeakKeyDictionary[NearestFrameIndex, tuple[np.ndarray, np.ndarray, float]] = (
     weakref.WeakKeyDictionary())

@@ -20,10 +20,10 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Polygon, Rectangle
 from numpy.typing import NDArray
 
-from sim.export.topdown import CharacterMarker
-from sim.export.video import RunRecording, RunVideoError
-from sim.scene.model import Scene
-from sim.world.motion_layer import root_yaw
+from storyteller.sim.export.topdown import CharacterMarker
+from storyteller.sim.export.video import RunRecording, RunVideoError
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.motion_layer import root_yaw
 
 BODY_RADIUS = 0.25  # metres: radius of a character's disc in the picture
 _FLOOR_COLOUR = "#4a6fa5"

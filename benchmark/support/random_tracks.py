@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.body.skeleton import NUM_JOINTS, axis_angle_to_matrix, heading_to_root
-from sim.export.video import RunRecording
-from sim.paths.nav_grid import NavGrid
-from sim.scene.model import Scene
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.body.skeleton import NUM_JOINTS, axis_angle_to_matrix, heading_to_root
+from storyteller.sim.export.video import RunRecording
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.character_track import CharacterTrack
 
 
 def random_track(

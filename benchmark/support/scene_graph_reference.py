@@ -1,11 +1,11 @@
 """Frozen brute-force oracles of the scene graph and the region clusters: every pair of objects
-tested, as ``tools.scene_graph.build_scene_graph`` and ``tools.clusters.cluster_objects`` did
-before their spatial index (``tools.box_pairs``). The fast builds must give the same relations,
+tested, as ``storyteller.tools.scene_graph.build_scene_graph`` and ``storyteller.tools.clusters.cluster_objects`` did
+before their spatial index (``storyteller.tools.box_pairs``). The fast builds must give the same relations,
 node attributes, edge order and clusters (``tests/tools/test_scene_graph_index.py``); the scene
 building benchmark (``benchmark/bench_scene_build.py``) times both.
 
 The footprint distances are frozen here too, as they were written then (matrix products: they
-may round differently from ``tools.footprint_geometry`` in the last bit, which no relation
+may round differently from ``storyteller.tools.footprint_geometry`` in the last bit, which no relation
 threshold meets on the scenes compared); the rules of one pair (``_vertical_contact``,
 ``directional_relation``) are the product's own.
 """
@@ -18,8 +18,8 @@ import networkx as nx
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.scene.model import Scene, SceneObject
-from tools.scene_graph import (
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.scene_graph import (
     DEFAULT_THRESHOLDS,
     RelationThresholds,
     SceneGraph,

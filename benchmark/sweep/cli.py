@@ -1,7 +1,7 @@
 """``storyteller bench``: run, re-score and report planning-benchmark sweeps.
 
-A command plugin: ``pyproject.toml`` declares ``bench = "benchmark.sweep.cli:register"`` in
-the ``storyteller.commands`` entry-point group and ``orchestrator.cli.app`` calls
+A command plugin: ``pyproject.toml`` declares ``bench = "storyteller.benchmark.sweep.cli:register"`` in
+the ``storyteller.commands`` entry-point group and ``storyteller.orchestrator.cli.app`` calls
 :func:`register` with its app (``orchestrator`` never imports ``benchmark``). Only typer is
 imported here at module level; each command imports the sweep machinery when it runs.
 
@@ -32,26 +32,26 @@ def register(app: typer.Typer) -> None:
 
 def _fail(message: str, code: int = 2) -> None:
     """One ``error:`` line (whatever the message quotes: a case file's text, a path) and exit."""
-    from orchestrator.safe_text import one_line
-    from orchestrator.terminal import say
+    from storyteller.orchestrator.safe_text import one_line
+    from storyteller.orchestrator.terminal import say
 
     say(f"error: {one_line(message)}", err=True)
     raise typer.Exit(code)
 
 
 _REFUSED = (errno.ELOOP, errno.EMLINK, errno.ENOTDIR, errno.EINVAL, errno.ENXIO, errno.EISDIR)
-"""Errors of a write ``sim.no_follow_writes`` refused in the sweep folder (a user error: exit 2)."""
+"""Errors of a write ``storyteller.sim.no_follow_writes`` refused in the sweep folder (a user error: exit 2)."""
 
 
 def _guard(fn: Any) -> Any:
     """Run ``fn()``, turning user errors into one line and exit code 2 (1 for LLM errors)."""
-    from agents.llm_port import LLMError
-    from benchmark.reference_cases import BenchmarkCaseError
-    from benchmark.sweep.grid import SweepSpecError
-    from benchmark.sweep.sweep_files import SweepFileError
-    from orchestrator.llm.config import ConfigError
-    from orchestrator.llm.traces import TraceCorruptError
-    from orchestrator.reference_data import ReferenceDataNotFound
+    from storyteller.agents.llm_port import LLMError
+    from storyteller.benchmark.reference_cases import BenchmarkCaseError
+    from storyteller.benchmark.sweep.grid import SweepSpecError
+    from storyteller.benchmark.sweep.sweep_files import SweepFileError
+    from storyteller.orchestrator.llm.config import ConfigError
+    from storyteller.orchestrator.llm.traces import TraceCorruptError
+    from storyteller.orchestrator.reference_data import ReferenceDataNotFound
 
     try:
         return fn()
@@ -92,17 +92,17 @@ def run_command(
     def go() -> None:
         import asyncio
 
-        from benchmark.sweep.grid import (
+        from storyteller.benchmark.sweep.grid import (
             METHODS,
             SweepSpec,
             SweepSpecError,
             case_set_for,
             model_specs,
         )
-        from benchmark.sweep.progress import progress_for
-        from benchmark.sweep.runner import run_sweep
-        from orchestrator.reference_data import locate_reference
-        from orchestrator.terminal import say
+        from storyteller.benchmark.sweep.progress import progress_for
+        from storyteller.benchmark.sweep.runner import run_sweep
+        from storyteller.orchestrator.reference_data import locate_reference
+        from storyteller.orchestrator.terminal import say
 
         if executor not in ("local", "ray"):
             raise SweepSpecError(f"--executor {executor!r}: expected local or ray")
@@ -117,7 +117,7 @@ def run_command(
         ).check()
         run_all = None
         if executor == "ray":
-            from benchmark.sweep.ray_executor import ray_executor
+            from storyteller.benchmark.sweep.ray_executor import ray_executor
 
             run_all = ray_executor(jobs, address=ray_address)
         results = asyncio.run(run_sweep(spec, out, jobs=jobs, progress=progress_for(), executor=run_all))
@@ -134,8 +134,8 @@ def score_command(out: Annotated[Path, typer.Argument(help="A sweep folder.")]) 
     def go() -> None:
         import asyncio
 
-        from benchmark.sweep.runner import score_sweep
-        from orchestrator.terminal import say
+        from storyteller.benchmark.sweep.runner import score_sweep
+        from storyteller.orchestrator.terminal import say
 
         results = asyncio.run(score_sweep(out))
         say(f"{len(results)} runs re-scored, {sum(r.verdict == 'pass' for r in results)} passed")
@@ -148,8 +148,8 @@ def report_command(out: Annotated[Path, typer.Argument(help="A sweep folder.")])
     """Rebuild results.csv, report.md and the plots from results.jsonl."""
 
     def go() -> None:
-        from benchmark.sweep.runner import report_sweep
-        from orchestrator.terminal import say
+        from storyteller.benchmark.sweep.runner import report_sweep
+        from storyteller.orchestrator.terminal import say
 
         results = report_sweep(out)
         say(f"report of {len(results)} runs: {out / 'report.md'}")

@@ -1,7 +1,7 @@
 """One run of a sweep: one planning step of the planning graph on one case, scored.
 
-A run is driven by :func:`orchestrator.session.plan_job.run_plan` exactly as
-``storyteller plan`` and ``python -m benchmark.planning_benchmark`` drive it (throwaway
+A run is driven by :func:`storyteller.orchestrator.session.plan_job.run_plan` exactly as
+``storyteller plan`` and ``python -m storyteller.benchmark.planning_benchmark`` drive it (throwaway
 in-memory checkpoints, the case's roster, history, world view and action labels), with the
 method's graph variant and ``max_retries`` = the sweep's feedback budget. The scene
 description of the describer methods is made once per scene and model by a separate
@@ -10,7 +10,7 @@ every run of that scene and model: as in the paper, one description serves every
 
 The port is the caller's: live and recording to the run's trace, or replaying it. Either way
 :func:`run_result` reads tokens, latencies and first-attempt acceptance from the recorded
-trace, so a replay yields the same :class:`~benchmark.sweep.results.RunResult`.
+trace, so a replay yields the same :class:`~storyteller.benchmark.sweep.results.RunResult`.
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from agents.llm_port import LLMPort
-from agents.messages import ParsedEvent, PlanningFailure, SceneDescription
-from benchmark.plan_scoring import CaseScore, score_outcome
-from benchmark.reference_cases import (
+from storyteller.agents.llm_port import LLMPort
+from storyteller.agents.messages import ParsedEvent, PlanningFailure, SceneDescription
+from storyteller.benchmark.plan_scoring import CaseScore, score_outcome
+from storyteller.benchmark.reference_cases import (
     BenchmarkCase,
     CaseWorld,
     case_tags,
@@ -30,11 +30,11 @@ from benchmark.reference_cases import (
     planning_inputs,
     scene_dir,
 )
-from benchmark.sweep.grid import METHODS, ModelSpec, RunKey, SweepSpec, SweepSpecError, slug
-from benchmark.sweep.results import CallStat, RunResult
-from benchmark.sweep.sweep_files import sweep_folder
-from orchestrator.llm.traces import AttemptRecord, ParsedRecord, TraceContents, read_trace
-from sim.scene.model import Scene
+from storyteller.benchmark.sweep.grid import METHODS, ModelSpec, RunKey, SweepSpec, SweepSpecError, slug
+from storyteller.benchmark.sweep.results import CallStat, RunResult
+from storyteller.benchmark.sweep.sweep_files import sweep_folder
+from storyteller.orchestrator.llm.traces import AttemptRecord, ParsedRecord, TraceContents, read_trace
+from storyteller.sim.scene.model import Scene
 
 PortFactory = Callable[[ModelSpec, Path], LLMPort]
 """Builds the LLM port of one run (or one description) for a model, given the run's trace file."""
@@ -43,14 +43,14 @@ PLANNING_NODES = ("narrator", "event_parser", "planner")
 
 def record_port(model: ModelSpec, trace: Path) -> LLMPort:
     """A live port on the model's config that records every call to ``trace``."""
-    from orchestrator.llm.replay import build_llm_port
+    from storyteller.orchestrator.llm.replay import build_llm_port
 
     return build_llm_port(model.config, record=trace)
 
 
 def replay_port(model: ModelSpec, trace: Path) -> LLMPort:
     """A port that answers only from ``trace`` (no model is loaded)."""
-    from orchestrator.llm.replay import ReplayClient
+    from storyteller.orchestrator.llm.replay import ReplayClient
 
     return ReplayClient(trace)
 
@@ -67,7 +67,7 @@ class SweepWorkspace:
         for cs in spec.case_sets:
             if not Path(cs.path).is_dir():
                 if cs.name == "reference":
-                    from orchestrator.reference_data import locate_reference
+                    from storyteller.orchestrator.reference_data import locate_reference
 
                     locate_reference().require()  # absent: its reason says how to provide it
                 raise SweepSpecError(f"case set {cs.name!r}: {cs.path} is not a folder on this machine")
@@ -83,8 +83,8 @@ class SweepWorkspace:
 
     def scene(self, case_set: str, case: BenchmarkCase) -> tuple[Scene, Any]:
         """The case's scene and its scene graph (loaded once per scene)."""
-        from sim.scene.files import load_scene
-        from tools.scene_graph import build_scene_graph
+        from storyteller.sim.scene.files import load_scene
+        from storyteller.tools.scene_graph import build_scene_graph
 
         root = self.spec.case_set(case_set).scenes_root
         if (root, case.scene_name) not in self._scenes:
@@ -113,7 +113,7 @@ class SweepWorkspace:
 
 async def describe(ws: SweepWorkspace, key: RunKey, port: LLMPort) -> SceneDescription:
     """The describer's description of ``key``'s scene for ``key``'s model (a zero-step run)."""
-    from orchestrator.session.plan_job import run_plan
+    from storyteller.orchestrator.session.plan_job import run_plan
 
     case = ws.case(key)
     scene, graph = ws.scene(key.case_set, case)
@@ -132,7 +132,7 @@ async def plan_run(
     ws: SweepWorkspace, key: RunKey, port: LLMPort, description: SceneDescription | None
 ) -> tuple[ParsedEvent | PlanningFailure | None, CaseScore]:
     """Run one planning step of ``key`` through ``port`` and score it."""
-    from orchestrator.session.plan_job import run_plan
+    from storyteller.orchestrator.session.plan_job import run_plan
 
     case = ws.case(key)
     scene, graph = ws.scene(key.case_set, case)

@@ -10,7 +10,7 @@ Methods are the paper's (Table 2): ``ours`` (event narrator + event parser, our 
 ``wo-event`` (one planner call, "w/o Event"), ``object-list`` and ``scene-graph`` (the full
 method on a preset scene description) and ``direct`` ("Direct Inference": coordinates instead
 of an event program). Each is a variant of the planning graph
-(:class:`~orchestrator.planning.ablation_graph.Ablation`).
+(:class:`~storyteller.orchestrator.planning.ablation_graph.Ablation`).
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer
 
-from orchestrator.llm.config import StorytellerConfig
-from orchestrator.planning.ablation_graph import Ablation
-from orchestrator.reference_data import DataFolder, ReferenceDataNotFound
+from storyteller.orchestrator.llm.config import StorytellerConfig
+from storyteller.orchestrator.planning.ablation_graph import Ablation
+from storyteller.orchestrator.reference_data import DataFolder, ReferenceDataNotFound
 
 METHODS: dict[str, Ablation] = {
     "ours": Ablation(planner="event", description="describer"),
@@ -183,7 +183,7 @@ def case_set_for(arg: str, reference: DataFolder, ours: Path) -> CaseSetSpec:
     ``ours-ref-test`` (our generated cases on the authors' scenes, ``ours_ref`` beside ``ours``,
     and their split; they need the reference data) or a folder in the reference format.
 
-    ``reference`` (the lookup of :func:`~orchestrator.reference_data.locate_reference`) is
+    ``reference`` (the lookup of :func:`~storyteller.orchestrator.reference_data.locate_reference`) is
     required only by the case sets that need it: ``reference`` itself, and a folder outside the
     reference data with a case on a scene that is not bundled (``scene_name`` without
     ``bundled:``); then its absence raises :class:`ReferenceDataNotFound` with the lookup's reason.
@@ -195,7 +195,7 @@ def case_set_for(arg: str, reference: DataFolder, ours: Path) -> CaseSetSpec:
         path = ours.resolve()
         return CaseSetSpec(name="ours", path=str(path), scenes_root=_scenes_root(path, reference))
     if arg in OURS_SPLITS:
-        from benchmark.own_cases.split import split_ids
+        from storyteller.benchmark.own_cases.split import split_ids
 
         whole = case_set_for("ours", reference, ours)
         return whole.model_copy(update={"name": arg, "case_ids": split_ids(OURS_SPLITS[arg])})
@@ -205,7 +205,7 @@ def case_set_for(arg: str, reference: DataFolder, ours: Path) -> CaseSetSpec:
         path = (ours.parent / "ours_ref").resolve()
         return CaseSetSpec(name="ours-ref", path=str(path), scenes_root=str(reference.path))
     if arg in OURS_REF_SPLITS:
-        from benchmark.own_cases.split import split_ids
+        from storyteller.benchmark.own_cases.split import split_ids
 
         whole = case_set_for("ours-ref", reference, ours)
         return whole.model_copy(update={"name": arg, "case_ids": split_ids(OURS_REF_SPLITS[arg], "ours_ref")})
@@ -224,7 +224,7 @@ def case_set_for(arg: str, reference: DataFolder, ours: Path) -> CaseSetSpec:
 def _scenes_root(folder: Path, reference: DataFolder) -> str | None:
     """None when every case in ``folder`` is on a bundled scene; else the reference data
     (:class:`ReferenceDataNotFound` naming the first such case when it is absent)."""
-    from benchmark.reference_cases import BUNDLED_PREFIX, load_cases
+    from storyteller.benchmark.reference_cases import BUNDLED_PREFIX, load_cases
 
     needs = next((c for c in load_cases(folder) if not c.scene_name.startswith(BUNDLED_PREFIX)), None)
     if needs is None:
@@ -238,7 +238,7 @@ def _scenes_root(folder: Path, reference: DataFolder) -> str | None:
 def model_specs(models: Sequence[str], configs: Sequence[Path]) -> tuple[ModelSpec, ...]:
     """One :class:`ModelSpec` per ``--model`` (every role on that model) and per ``--config``
     (its model per role, labelled by the file's stem); the default config when neither is given."""
-    from orchestrator.llm.config import load_config
+    from storyteller.orchestrator.llm.config import load_config
 
     out = [ModelSpec(label=slug(Path(c).stem), config=load_config(c)) for c in configs]
     for name in models:

@@ -13,9 +13,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from benchmark.sweep.grid import METHOD_TITLES
-from benchmark.sweep.results import RunResult, write_atomic
-from benchmark.sweep.sweep_files import sweep_folder
+from storyteller.benchmark.sweep.grid import METHOD_TITLES
+from storyteller.benchmark.sweep.results import RunResult, write_atomic
+from storyteller.benchmark.sweep.sweep_files import sweep_folder
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -12,9 +12,9 @@ import time
 from collections.abc import Callable, Sequence
 from typing import IO, Any
 
-from benchmark.sweep.results import RunResult
-from orchestrator.safe_text import plain
-from orchestrator.terminal import say
+from storyteller.benchmark.sweep.results import RunResult
+from storyteller.orchestrator.safe_text import plain
+from storyteller.orchestrator.terminal import say
 
 
 class _Tally:

@@ -1,7 +1,7 @@
 """``--executor ray``: the sweep's pending runs as Ray tasks, on this machine or a cluster.
 
 Each run is one task (:func:`run_task`) that does exactly what the local executor does for it
-(:func:`benchmark.sweep.execute.execute`: delete a partial trace, run the planning step with a
+(:func:`storyteller.benchmark.sweep.execute.execute`: delete a partial trace, run the planning step with a
 port recording to the run's trace file, score it) and returns the result line; the driver
 appends each line to ``results.jsonl`` as its task finishes, so resume, ``bench score`` and the
 reports are the same as with the local executor. The sweep folder must be on storage every
@@ -19,17 +19,17 @@ import asyncio
 from collections.abc import Callable
 from typing import Any
 
-from agents.messages import SceneDescription
-from benchmark.sweep.execute import (
+from storyteller.agents.messages import SceneDescription
+from storyteller.benchmark.sweep.execute import (
     PortFactory,
     SweepWorkspace,
     description_key,
     execute,
     record_port,
 )
-from benchmark.sweep.grid import RunKey, SweepSpec
-from benchmark.sweep.results import RunResult
-from benchmark.sweep.runner import RunAll
+from storyteller.benchmark.sweep.grid import RunKey, SweepSpec
+from storyteller.benchmark.sweep.results import RunResult
+from storyteller.benchmark.sweep.runner import RunAll
 
 
 def run_task(spec_json: str, out: str, key_json: str, description_json: str | None, factory: PortFactory) -> str:
@@ -47,7 +47,7 @@ def ray_executor(jobs: int, *, address: str | None = None, factory: PortFactory 
     try:
         import ray
     except ImportError:
-        from benchmark.sweep.grid import SweepSpecError
+        from storyteller.benchmark.sweep.grid import SweepSpecError
 
         raise SweepSpecError("--executor ray needs Ray: pip install 'storyteller[ray]'") from None
 

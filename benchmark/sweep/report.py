@@ -16,9 +16,9 @@ import statistics
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from benchmark.sweep.grid import METHOD_TITLES, SweepSpec
-from benchmark.sweep.results import RunResult, results_csv, write_atomic
-from orchestrator.reference_data import PROJECT_ROOT, REFERENCE_ENV, locate_reference
+from storyteller.benchmark.sweep.grid import METHOD_TITLES, SweepSpec
+from storyteller.benchmark.sweep.results import RunResult, results_csv, write_atomic
+from storyteller.orchestrator.reference_data import PROJECT_ROOT, REFERENCE_ENV, locate_reference
 
 PLOTS = ("success_by_characters.png", "tokens_by_description.png")
 
@@ -169,7 +169,7 @@ def report_markdown(spec: SweepSpec, results: Sequence[RunResult]) -> str:
 
 def write_reports(out: Path, spec: SweepSpec, results: Sequence[RunResult]) -> None:
     """Write ``results.csv``, ``report.md`` and ``plots/`` (atomically, file by file)."""
-    from benchmark.sweep.plots import write_plots
+    from storyteller.benchmark.sweep.plots import write_plots
 
     write_atomic(out / "results.csv", results_csv(results))
     write_atomic(out / "report.md", report_markdown(spec, results).encode("utf-8"))

@@ -18,7 +18,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from benchmark.sweep.sweep_files import (
+from storyteller.benchmark.sweep.sweep_files import (
     append_line,
     cut_torn_line,
     read_json_lines,
@@ -77,7 +77,7 @@ def append_result(path: Path, result: RunResult) -> None:
 
 def read_results(path: Path) -> list[RunResult]:
     """Every complete line (a torn last line, from a kill mid-write, is ignored); a line that is
-    not a result is a :class:`~benchmark.sweep.sweep_files.SweepFileError` naming it."""
+    not a result is a :class:`~storyteller.benchmark.sweep.sweep_files.SweepFileError` naming it."""
     return read_json_lines(path, RunResult)
 
 

@@ -15,8 +15,8 @@ When every run has a line, ``results.jsonl`` is rewritten in grid order and the 
 written. :func:`score_sweep` replays every trace instead (no model) and writes the same files.
 
 Runs execute ``jobs`` at a time in one event loop (API models answer concurrently; the
-embedded model serialises its calls behind its own lock, ``orchestrator.llm.local_model``),
-or as Ray tasks (:mod:`benchmark.sweep.ray_executor`). Pending runs go in
+embedded model serialises its calls behind its own lock, ``storyteller.orchestrator.llm.local_model``),
+or as Ray tasks (:mod:`storyteller.benchmark.sweep.ray_executor`). Pending runs go in
 :func:`shared_prompt_order` (runs of one scene and tags together, so the embedded model's
 prompt cache is warm for all but the first of them).
 """
@@ -29,8 +29,8 @@ from collections.abc import Awaitable, Callable, Sequence
 from pathlib import Path
 from typing import Protocol
 
-from agents.messages import SceneDescription
-from benchmark.sweep.execute import (
+from storyteller.agents.messages import SceneDescription
+from storyteller.benchmark.sweep.execute import (
     PortFactory,
     SweepWorkspace,
     describe,
@@ -38,7 +38,7 @@ from benchmark.sweep.execute import (
     record_port,
     replay_port,
 )
-from benchmark.sweep.grid import (
+from storyteller.benchmark.sweep.grid import (
     OURS_REF_SPLITS,
     OURS_SPLITS,
     CaseSetSpec,
@@ -48,7 +48,7 @@ from benchmark.sweep.grid import (
     case_set_for,
     expand,
 )
-from benchmark.sweep.results import (
+from storyteller.benchmark.sweep.results import (
     RunResult,
     append_result,
     read_results,
@@ -56,13 +56,13 @@ from benchmark.sweep.results import (
     write_atomic,
     write_results,
 )
-from benchmark.sweep.sweep_files import (
+from storyteller.benchmark.sweep.sweep_files import (
     parse_json_model,
     read_json_model,
     read_sweep_bytes,
     sweep_folder,
 )
-from sim.no_follow_writes import remove_stale_temporaries
+from storyteller.sim.no_follow_writes import remove_stale_temporaries
 
 
 class Progress(Protocol):
@@ -128,11 +128,11 @@ def relocated(spec: SweepSpec) -> SweepSpec:
     """``spec`` with each missing ``reference`` / ``ours`` case folder (or scene folder) replaced
     by this machine's (``$STORYTELLER_REFERENCE``, ``benchmark/cases/ours``); others stay as
     recorded. The reference data is looked for only by the case sets that need it
-    (:func:`~benchmark.sweep.grid.case_set_for`): ``ours`` relocates without it; a case set
+    (:func:`~storyteller.benchmark.sweep.grid.case_set_for`): ``ours`` relocates without it; a case set
     that needs it while it is absent stays as recorded (``bench report`` needs no case)."""
     if all(_here(c) for c in spec.case_sets):
         return spec
-    from orchestrator.reference_data import ReferenceDataNotFound, locate_reference
+    from storyteller.orchestrator.reference_data import ReferenceDataNotFound, locate_reference
 
     reference = locate_reference()
     ours = Path(__file__).resolve().parents[1] / "cases" / "ours"
@@ -162,7 +162,7 @@ def shared_prompt_order(ws: SweepWorkspace, keys: Sequence[RunKey]) -> list[RunK
 
     A run's system prompts are fixed by its model, method, scene (description and action labels)
     and tags (in-context examples); the embedded model keeps the KV cache of each role's last
-    prompt (``orchestrator.llm.local_model``), so a run after one of the same group reads only
+    prompt (``storyteller.orchestrator.llm.local_model``), so a run after one of the same group reads only
     its own request, not the whole prompt again. Groups keep the grid order of their first run,
     runs within a group their grid order; results are written in grid order whatever the order
     they ran in (:func:`finish`)."""
@@ -209,7 +209,7 @@ def local_executor(jobs: int, factory: PortFactory, *, fresh: bool) -> RunAll:
 
     async def run_all(ws: SweepWorkspace, keys: list[RunKey], descriptions: dict[str, SceneDescription],
                       done: Callable[[RunResult], None]) -> None:
-        from benchmark.sweep.execute import description_key
+        from storyteller.benchmark.sweep.execute import description_key
 
         gate = asyncio.Semaphore(max(1, jobs))
 
@@ -226,7 +226,7 @@ def local_executor(jobs: int, factory: PortFactory, *, fresh: bool) -> RunAll:
 
 def finish(ws: SweepWorkspace, results: list[RunResult]) -> None:
     """Rewrite ``results.jsonl`` in grid order and write the reports from it."""
-    from benchmark.sweep.report import write_reports
+    from storyteller.benchmark.sweep.report import write_reports
 
     order = {k.run_id: i for i, k in enumerate(grid(ws))}
     ordered = sorted(results, key=lambda r: order[r.run_id])
@@ -291,7 +291,7 @@ async def score_sweep(out: Path, *, factory: PortFactory = replay_port) -> list[
 
 def report_sweep(out: Path) -> list[RunResult]:
     """Rebuild ``results.csv``, ``report.md`` and the plots from ``results.jsonl``."""
-    from benchmark.sweep.report import write_reports
+    from storyteller.benchmark.sweep.report import write_reports
 
     spec = load_spec(out)
     results = read_results(out / "results.jsonl")

@@ -4,11 +4,11 @@
 and written as a run folder's are (issue 22):
 
 - :func:`read_json_model` and :func:`read_json_lines` read a file within a byte cap, refuse a
-  symbolic link, a FIFO or a device (``sim.bounded_files``: nothing blocks, nothing is read
+  symbolic link, a FIFO or a device (``storyteller.sim.bounded_files``: nothing blocks, nothing is read
   through a link), parse JSON with bounded nesting, integer size and finite numbers, and
   validate into the given pydantic model;
 - :func:`write_sweep_file` replaces a file through a fresh temporary name
-  (``sim.no_follow_writes.write_file``): a link planted at the name is replaced, its target
+  (``storyteller.sim.no_follow_writes.write_file``): a link planted at the name is replaced, its target
   untouched; :func:`sweep_folder` makes a sub-folder and refuses a link in its place;
   :func:`append_line` appends without following a link or writing into a hard-linked file.
 
@@ -25,9 +25,9 @@ from typing import TypeVar
 
 from pydantic import BaseModel, ValidationError
 
-from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
-from sim.no_follow_writes import append_durably, make_folder, open_append, write_file
-from sim.validation_text import user_error
+from storyteller.sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
+from storyteller.sim.no_follow_writes import append_durably, make_folder, open_append, write_file
+from storyteller.sim.validation_text import user_error
 
 M = TypeVar("M", bound=BaseModel)
 

@@ -1,9 +1,9 @@
 """Body meshes from licensed body-model files, computed at the edge (``smplx`` + ``torch``, CPU).
 
 What lives here: :mod:`.smplx_meshes` turns a character's exported SMPL-X parameters
-(``<name>.smplx.npz``, see :mod:`sim.export.smplx_npz`) and the user's SMPL-X model folder
+(``<name>.smplx.npz``, see :mod:`storyteller.sim.export.smplx_npz`) and the user's SMPL-X model folder
 into a skinned body (rest mesh, faces, skin weights on our 22 joints, as plain numpy arrays for
-:class:`sim.export.glb.SkinnedBody`) and per-frame world bone transforms (for the viewer).
+:class:`storyteller.sim.export.glb.SkinnedBody`) and per-frame world bone transforms (for the viewer).
 
 May import ``sim``, ``numpy``; ``smplx`` and ``torch`` only inside functions, so importing
 this package (or a CLI that names it) never loads them.

@@ -2,7 +2,7 @@
 
 From the model files a user downloads (``SMPLX_NEUTRAL.npz`` etc.) and a character's exported
 parameters (``poses`` (N, 165), ``trans`` (N, 3), ``betas``, ``gender``; AMASS-style, see
-:mod:`sim.export.smplx_npz`), :func:`smplx_body` computes:
+:mod:`storyteller.sim.export.smplx_npz`), :func:`smplx_body` computes:
 
 - the rest mesh for the character's betas (``smplx`` forward pass at zero pose): vertices
   (V, 3) in the body frame (y up), faces, and the 22 body joints it regresses;
@@ -32,9 +32,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import NUM_JOINTS
-from sim.bounded_files import BoundedFileError, read_bounded_npz
-from sim.export.glb import SkinnedBody
+from storyteller.sim.body.skeleton import NUM_JOINTS
+from storyteller.sim.bounded_files import BoundedFileError, read_bounded_npz
+from storyteller.sim.export.glb import SkinnedBody
 
 INFLUENCES = 4  # skin weights kept per vertex (glTF JOINTS_0 / WEIGHTS_0, viser's skinning)
 GENDERS = ("neutral", "female", "male")
@@ -125,7 +125,7 @@ def _numeric_copy(path: Path, folder: Path) -> Path:
     """A copy of the model file ``path`` in ``folder`` holding only its numeric arrays, for
     ``smplx`` to load: ``smplx`` loads a model with ``pickle`` (``.pkl``) or ``allow_pickle=True``
     (``.npz``), so a crafted model file would run code. The arrays are read as any other file
-    from outside (``sim.bounded_files.read_bounded_npz``: bounded, never unpickled); the model's
+    from outside (``storyteller.sim.bounded_files.read_bounded_npz``: bounded, never unpickled); the model's
     arrays of Python objects (``joint2num``, ``part2num``: names, unused here) are left out, and
     a ``.pkl`` model (a pickle through and through) is refused."""
     if path.suffix != ".npz":
@@ -234,7 +234,7 @@ def smplx_bodies(model_dir: Path, parameters: Mapping[str, Mapping[str, NDArray[
 
 def run_bodies(folder: Path, names: Sequence[str], models: SmplxModels) -> dict[str, SmplxBody]:
     """The bodies of a run folder's characters, from their ``<slug>.smplx.npz`` files."""
-    from sim.run_folder_names import SMPLX_SUFFIX, file_slug
+    from storyteller.sim.run_folder_names import SMPLX_SUFFIX, file_slug
 
     bodies = {}
     for name in names:

@@ -1,13 +1,13 @@
-"""The ``storyteller`` command. Each command group lives in its own module of ``orchestrator.cli``.
+"""The ``storyteller`` command. Each command group lives in its own module of ``storyteller.orchestrator.cli``.
 
 Command plugins: every entry point of the ``storyteller.commands`` group (``pyproject.toml``;
-e.g. ``bench = "benchmark.sweep.cli:register"``) names a ``register(app)`` function that adds
+e.g. ``bench = "storyteller.benchmark.sweep.cli:register"``) names a ``register(app)`` function that adds
 its commands; :func:`register_plugins` calls each one. That is how ``storyteller bench`` joins
 without ``orchestrator`` importing ``benchmark``. A plugin module should import only typer at
 module level (it is loaded at start-up); one that cannot be loaded is reported on stderr and
 skipped, never fatal to the other commands.
 
-What the command prints goes through :func:`orchestrator.terminal.say` (every command module
+What the command prints goes through :func:`storyteller.orchestrator.terminal.say` (every command module
 does); click's and typer's own usage errors quote the command line (an unknown option, a value
 that is not a number), so :class:`_EscapedUsageErrors` escapes their message before typer
 prints it, and :func:`main` says Python warnings the same way (matplotlib's about a glyph its
@@ -24,14 +24,14 @@ from typing import Any
 import typer
 from typer.core import TyperGroup
 
-from orchestrator.cli import event_program as cli_event
-from orchestrator.cli import model as cli_model
-from orchestrator.cli import plan as cli_plan
-from orchestrator.cli import run as cli_run
-from orchestrator.cli import scene as cli_scene
-from orchestrator.cli import view as cli_view
-from orchestrator.safe_text import plain
-from orchestrator.terminal import say, show_warning
+from storyteller.orchestrator.cli import event_program as cli_event
+from storyteller.orchestrator.cli import model as cli_model
+from storyteller.orchestrator.cli import plan as cli_plan
+from storyteller.orchestrator.cli import run as cli_run
+from storyteller.orchestrator.cli import scene as cli_scene
+from storyteller.orchestrator.cli import view as cli_view
+from storyteller.orchestrator.safe_text import plain
+from storyteller.orchestrator.terminal import say, show_warning
 
 
 @contextlib.contextmanager
@@ -70,7 +70,7 @@ def _setup(
     log_level: str = typer.Option("WARNING", "--log-level", help="Log level (logs go to stderr)."),
 ) -> None:
     """Configure logging once for every command (structlog to stderr)."""
-    from orchestrator.logging_setup import configure_logging
+    from storyteller.orchestrator.logging_setup import configure_logging
 
     try:
         configure_logging(log_level)
@@ -111,7 +111,7 @@ register_plugins(app)
 def main() -> None:  # pragma: no cover - console entry point
     import warnings
 
-    from orchestrator.cli.collector import skip_final_collection
+    from storyteller.orchestrator.cli.collector import skip_final_collection
 
     warnings.showwarning = show_warning  # a warning that quotes data is said escaped
     try:

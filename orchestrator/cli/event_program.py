@@ -8,11 +8,11 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from orchestrator.safe_text import markup, plain
-from orchestrator.terminal import say
+from storyteller.orchestrator.safe_text import markup, plain
+from storyteller.orchestrator.terminal import say
 
 if TYPE_CHECKING:  # imported by the command, so that other commands start without it
-    from tools.character_states import CharacterPlan, WorldView
+    from storyteller.tools.character_states import CharacterPlan, WorldView
 
 
 class _UsageError(Exception):
@@ -28,8 +28,8 @@ MAX_STATES_JSON_DEPTH = 64
 
 
 def _read_json(path: Path, what: str) -> Any:
-    """A JSON file read within byte and nesting limits (``sim.bounded_files``)."""
-    from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
+    """A JSON file read within byte and nesting limits (``storyteller.sim.bounded_files``)."""
+    from storyteller.sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
 
     try:
         raw = read_bounded_bytes(path, MAX_STATES_FILE_BYTES, f"{path}: {what} file")
@@ -45,7 +45,7 @@ MAX_PROGRAM_FILE_BYTES = 256 * 1024
 
 def read_program(path: Path) -> str:
     """The program file's text, read within :data:`MAX_PROGRAM_FILE_BYTES`."""
-    from sim.bounded_files import BoundedFileError, read_bounded_bytes
+    from storyteller.sim.bounded_files import BoundedFileError, read_bounded_bytes
 
     try:
         raw = read_bounded_bytes(path, MAX_PROGRAM_FILE_BYTES, f"{path}: program file")
@@ -61,8 +61,8 @@ def load_states(path: Path, scene: Any) -> tuple[WorldView, list[str] | None]:
     ``planning_history``, ``action_labels``) or a project ``WorldView`` JSON (``characters``)."""
     from pydantic import ValidationError
 
-    from sim.validation_text import user_error
-    from tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
+    from storyteller.sim.validation_text import user_error
+    from storyteller.tools.character_states import ReferenceCaseError, WorldView, world_view_from_reference_case
 
     data = _read_json(path, "states")
     if not isinstance(data, dict):
@@ -128,11 +128,11 @@ def event_program(
     ] = False,
 ) -> None:
     """Dry-run a parse_event() program: print each character's action, area, position and facing."""
-    from sim.scene.bundled import resolve_scene
-    from sim.scene.files import SceneFileError
-    from tools.character_states import WorldView
-    from tools.errors import EventProgramError
-    from tools.event_program import run_event_program
+    from storyteller.sim.scene.bundled import resolve_scene
+    from storyteller.sim.scene.files import SceneFileError
+    from storyteller.tools.character_states import WorldView
+    from storyteller.tools.errors import EventProgramError
+    from storyteller.tools.event_program import run_event_program
 
     try:
         loaded = resolve_scene(scene)
@@ -146,7 +146,7 @@ def event_program(
         if in_process:
             plans = run_event_program(loaded, source, world, seed=seed, action_labels=labels)
         else:
-            from orchestrator.sandbox_worker import WorkerRunner
+            from storyteller.orchestrator.sandbox_worker import WorkerRunner
 
             with WorkerRunner() as run:
                 plans = run(loaded, source, world, seed=seed, action_labels=labels)

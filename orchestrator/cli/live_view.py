@@ -1,18 +1,18 @@
 """The live view of ``storyteller run`` on a terminal: a ``rich.live.Live`` display of a run's
-:class:`~orchestrator.session.run_status.RunStatus`.
+:class:`~storyteller.orchestrator.session.run_status.RunStatus`.
 
 What it shows (:func:`live_view`): the simulated clock against the story's length, the speed
 (simulated seconds per wall second) and the pace; one row per character (state, current event
 and what it is, action label, place); per LLM role the calls in flight and for how long the
 oldest has run, the calls so far, the failed ones and the tokens of the answers; the events
 by state, the planning steps and the latest instruction; with ``--interactive`` on the same
-terminal, the instruction being typed on its last line (``orchestrator.session.terminal_prompt``
+terminal, the instruction being typed on its last line (``storyteller.orchestrator.session.terminal_prompt``
 takes the echo from the terminal, which would otherwise be drawn over). The story's lines
 (``[  10.6s] event-0000 starts: ...``) are printed above the display (:meth:`LiveView.line`),
 once each, so they stay in the terminal's scroll-back as the plain output would.
 
 Text is data: every name, activity, place and instruction goes into a ``rich.text.Text``
-(never parsed as markup) after :func:`orchestrator.safe_text.plain` (no control character
+(never parsed as markup) after :func:`storyteller.orchestrator.safe_text.plain` (no control character
 reaches the terminal), so ``[bold red]x[/]`` or ``[link=...]`` show literally.
 
 Cheap on the event loop: the display refreshes only from :meth:`LiveView.running`'s task
@@ -32,10 +32,10 @@ from rich.console import Console, Group, RenderableType
 from rich.live import Live
 from rich.text import Text
 
-from orchestrator.safe_text import plain
-from orchestrator.session.run_report import clock
-from orchestrator.session.run_status import CharacterActivity, RunSnapshot, RunStatus
-from orchestrator.terminal import escaped, say
+from storyteller.orchestrator.safe_text import plain
+from storyteller.orchestrator.session.run_report import clock
+from storyteller.orchestrator.session.run_status import CharacterActivity, RunSnapshot, RunStatus
+from storyteller.orchestrator.terminal import escaped, say
 
 REFRESH_PERIOD_S = 0.25
 """Wall seconds between two refreshes of the display (4 a second)."""

@@ -9,12 +9,12 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from orchestrator.cli.options import fail
-from orchestrator.safe_text import plain
-from orchestrator.terminal import say
+from storyteller.orchestrator.cli.options import fail
+from storyteller.orchestrator.safe_text import plain
+from storyteller.orchestrator.terminal import say
 
 if TYPE_CHECKING:  # the config module is imported when a command runs, not at CLI start-up
-    from orchestrator.llm.config import StorytellerConfig
+    from storyteller.orchestrator.llm.config import StorytellerConfig
 
 model_app = typer.Typer(help="Inspect and check the LLM configuration and embedded model.", no_args_is_help=True)
 
@@ -26,7 +26,7 @@ def register(app: typer.Typer) -> None:
 
 
 def _load(config: Path | None) -> StorytellerConfig:
-    from orchestrator.llm.config import ConfigError, load_config
+    from storyteller.orchestrator.llm.config import ConfigError, load_config
 
     try:
         return load_config(config)
@@ -42,7 +42,7 @@ def _local_models(cfg: StorytellerConfig) -> list[str]:
 @model_app.command("info")
 def info(config: ConfigOption = None) -> None:
     """Print each node's model, fallbacks, sampling, timeout and retry settings."""
-    from orchestrator.llm.model_weights import KNOWN_WEIGHTS, install_command, weights_status
+    from storyteller.orchestrator.llm.model_weights import KNOWN_WEIGHTS, install_command, weights_status
 
     cfg = _load(config)
     say(f"config: {plain(cfg.source)}   trace fsync: {cfg.trace.fsync}")
@@ -80,8 +80,8 @@ def info(config: ConfigOption = None) -> None:
 
 def _echo_local_run_settings() -> None:
     """The threads a local call would use now (and why) and the progress floors it is held to."""
-    from orchestrator.llm.cpu_threads import THREADS_ENV, ThreadChooser
-    from orchestrator.llm.decode_progress import ProgressFloor
+    from storyteller.orchestrator.llm.cpu_threads import THREADS_ENV, ThreadChooser
+    from storyteller.orchestrator.llm.decode_progress import ProgressFloor
 
     try:
         choice = ThreadChooser().choose()
@@ -99,8 +99,8 @@ def check(
     """Assemble and sha256-verify the weights of every local model the config uses (exit 1 on failure)."""
     import anyio
 
-    from agents.llm_port import ChatMessage, LLMError, LLMRequest
-    from orchestrator.llm.model_weights import ensure_weights, spec_for
+    from storyteller.agents.llm_port import ChatMessage, LLMError, LLMRequest
+    from storyteller.orchestrator.llm.model_weights import ensure_weights, spec_for
 
     cfg = _load(config)
     failed = False
@@ -115,8 +115,8 @@ def check(
         say(f"{plain(model)}: weights verified ({plain(path)}, {time.perf_counter() - t0:.1f} s)")
         if not run:
             continue
-        from orchestrator.llm.client import LiteLLMClient
-        from orchestrator.llm.config import StorytellerConfig
+        from storyteller.orchestrator.llm.client import LiteLLMClient
+        from storyteller.orchestrator.llm.config import StorytellerConfig
 
         node = cfg.node("narrator").model_copy(update={"model": model, "fallbacks": ()})
         probe_cfg = StorytellerConfig(nodes={**cfg.nodes, "narrator": node}, source=cfg.source)

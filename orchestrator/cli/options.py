@@ -7,9 +7,9 @@ from typing import Annotated, NoReturn
 
 import typer
 
-from orchestrator.planning.kinds import DescriptionKind, PlannerKind
-from orchestrator.session.pace import Pace
-from orchestrator.terminal import say
+from storyteller.orchestrator.planning.kinds import DescriptionKind, PlannerKind
+from storyteller.orchestrator.session.pace import Pace
+from storyteller.orchestrator.terminal import say
 
 SceneArg = Annotated[str, typer.Argument(help="Bundled scene name or path to a scene.")]
 Characters = Annotated[int, typer.Option("--characters", "-n", min=1, max=24, help="Number of characters.")]
@@ -69,10 +69,10 @@ ViewHostOption = Annotated[str, typer.Option(
 
 def fail(message: str, code: int = 2) -> NoReturn:
     """Print ``error: message`` to stderr and exit (2: a user error). The message names files
-    and quotes their content, so it goes through :func:`~orchestrator.safe_text.one_line` (one
+    and quotes their content, so it goes through :func:`~storyteller.orchestrator.safe_text.one_line` (one
     line whatever it quoted: its lines joined with spaces; control, format and bidi characters
     shown as escapes)."""
-    from orchestrator.safe_text import one_line
+    from storyteller.orchestrator.safe_text import one_line
 
     say(f"error: {one_line(message)}", err=True)
     raise typer.Exit(code)

@@ -1,6 +1,6 @@
 """``storyteller plan``: plan K events in a scene with the planning graph, without a simulation.
 
-The job itself is :func:`orchestrator.session.plan_job.run_plan` (see there how the story
+The job itself is :func:`storyteller.orchestrator.session.plan_job.run_plan` (see there how the story
 advances by steps; ``--busy-events`` keeps an event's characters busy for that many further
 steps). A step whose narrator waits, or whose retries run out, still counts as one of the K
 steps (printed as ``wait`` / ``failed``).
@@ -15,7 +15,7 @@ Runs are checkpointed in SQLite (``--runs-db``); ``--thread-id ID`` of an interr
 resumes it without repeating its finished LLM calls.
 
 ``--planner unified|direct`` and ``--description object-list|scene-graph`` run the paper's
-ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``) through
+ablations (variants of the planning graph, ``storyteller.orchestrator.planning.ablation_graph``) through
 the same LLM port, trace, replay and output. A thread is resumed with the options it was
 started with (other options start their own thread).
 """
@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from orchestrator.cli.options import (
+from storyteller.orchestrator.cli.options import (
     Characters,
     Config,
     Description,
@@ -42,18 +42,18 @@ from orchestrator.cli.options import (
     SceneArg,
     fail,
 )
-from orchestrator.safe_text import plain
-from orchestrator.terminal import say
+from storyteller.orchestrator.safe_text import plain
+from storyteller.orchestrator.terminal import say
 
 if TYPE_CHECKING:
-    from agents.messages import ParsedEvent, PlanningFailure
-    from orchestrator.planning.ablation_graph import Ablation
-    from orchestrator.session.plan_job import PlanResult
-    from sim.scene.model import Scene
+    from storyteller.agents.messages import ParsedEvent, PlanningFailure
+    from storyteller.orchestrator.planning.ablation_graph import Ablation
+    from storyteller.orchestrator.session.plan_job import PlanResult
+    from storyteller.sim.scene.model import Scene
 
 def format_event_text(index: int, outcome: ParsedEvent | PlanningFailure | None) -> str:
     """Plain-text lines for one step (deterministic: fixed decimals, no timings)."""
-    from agents.messages import PlanningFailure
+    from storyteller.agents.messages import PlanningFailure
 
     head = f"event {index + 1}:"
     if outcome is None:
@@ -70,7 +70,7 @@ def format_event_text(index: int, outcome: ParsedEvent | PlanningFailure | None)
 
 
 def outcome_json(index: int, outcome: ParsedEvent | PlanningFailure | None) -> dict[str, Any]:
-    from agents.messages import PlanningFailure
+    from storyteller.agents.messages import PlanningFailure
 
     if outcome is None:
         return {"index": index, "kind": "wait"}
@@ -125,15 +125,15 @@ def plan_command(
 
     # The planning stack (langgraph, litellm, clustering) is imported here, not at module
     # level, so that ``storyteller --help`` and the other commands start at once.
-    from agents.llm_port import LLMError
-    from agents.prompt_templates import PromptLibrary, PromptTemplateError
-    from agents.retry_feedback import RetriesExhaustedError
-    from orchestrator.cache_paths import description_cache_dir
-    from orchestrator.planning.ablation_graph import Ablation
-    from orchestrator.planning.checkpoints import default_runs_db
-    from orchestrator.session.plan_job import run_plan
-    from orchestrator.session.port_setup import open_port
-    from orchestrator.session.roster import StartPositionError
+    from storyteller.agents.llm_port import LLMError
+    from storyteller.agents.prompt_templates import PromptLibrary, PromptTemplateError
+    from storyteller.agents.retry_feedback import RetriesExhaustedError
+    from storyteller.orchestrator.cache_paths import description_cache_dir
+    from storyteller.orchestrator.planning.ablation_graph import Ablation
+    from storyteller.orchestrator.planning.checkpoints import default_runs_db
+    from storyteller.orchestrator.session.plan_job import run_plan
+    from storyteller.orchestrator.session.port_setup import open_port
+    from storyteller.orchestrator.session.roster import StartPositionError
 
     ablation = Ablation(planner=planner, description=description)
     scene_obj = _checked_inputs(scene, instruction, record, replay, prompts_dir, runs_db)
@@ -192,10 +192,10 @@ def _checked_inputs(
     """The scene ``plan`` runs in, once its options are known good: a bad one (too long an
     instruction, ``--record`` with ``--replay``, an unreadable prompt folder, a ``--runs-db``
     that is not a file, an unknown scene) is one line and exit code 2, before anything runs."""
-    from agents.prompt_templates import PromptLibrary, PromptTemplateError
-    from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
-    from sim.scene.bundled import resolve_scene
-    from sim.scene.files import SceneFileError
+    from storyteller.agents.prompt_templates import PromptLibrary, PromptTemplateError
+    from storyteller.orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
+    from storyteller.sim.scene.bundled import resolve_scene
+    from storyteller.sim.scene.files import SceneFileError
 
     if len(instruction) > MAX_INSTRUCTION_CHARS:
         fail(f"--instruction: {len(instruction)} characters, at most {MAX_INSTRUCTION_CHARS} allowed")
@@ -225,7 +225,7 @@ def _resume_options(thread: str, ablation: Ablation) -> str:
 
 def _json_report(scene: str, characters: int, instruction: str, result: PlanResult, ablation: Ablation) -> dict[str, Any]:
     """What ``plan --json`` prints: the scene, the characters, the instruction, every step's outcome."""
-    from orchestrator.session.roster import character_names
+    from storyteller.orchestrator.session.roster import character_names
 
     payload: dict[str, Any] = {
         "scene": scene,
@@ -250,7 +250,7 @@ def _read_prompt_folder(library: Any) -> None:
             elif child.is_file() and not child.name.endswith((".py", ".pyc")):
                 library.text(f"{prefix}{child.name}")
 
-    walk(resources.files("prompts"), "")
+    walk(resources.files("storyteller.prompts"), "")
 
 
 if __name__ == "__main__":  # pragma: no cover

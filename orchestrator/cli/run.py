@@ -3,8 +3,8 @@ resume RUN_DIR`` (go on after a stop, from ``run.json`` and ``session.snapshot``
 ``storyteller replay RUN_DIR|TRACE --out DIR`` (the same run with no model loaded). All three
 take ``--smplx-model DIR`` (the GLB export with SMPL-X body meshes).
 
-The job is :mod:`orchestrator.session.run_job`: the simulation and the planner run
-concurrently (``orchestrator.session.runtime``). Outputs, all in ``--out``: ``story.json``
+The job is :mod:`storyteller.orchestrator.session.run_job`: the simulation and the planner run
+concurrently (``storyteller.orchestrator.session.runtime``). Outputs, all in ``--out``: ``story.json``
 (events with their frames and per-character plans), ``story.md`` (the same as text),
 ``metrics.json`` (LLM use per role, simulation speed, frame intervals), ``run.json`` (thread
 id and arguments), ``session.snapshot`` (last checkpoint), ``trace.jsonl`` (every LLM call,
@@ -19,10 +19,10 @@ motion, with no model loaded.
 
 Live instructions: the narrator always sees the latest instruction (a new one replaces the
 old). ``--instructions FILE`` is a timed script (``00:30 Ben leaves the kitchen``, simulated
-time; see ``orchestrator.session.instruction_script``); with ``--interactive`` (the default
+time; see ``storyteller.orchestrator.session.instruction_script``); with ``--interactive`` (the default
 when stdin is a terminal) every line typed while the story runs becomes the instruction at
 the next frame, and so does every line sent from the instruction box of a viewer of the run
-folder (``--view``, or ``storyteller view OUT`` elsewhere: ``orchestrator.session.viewer_instructions``).
+folder (``--view``, or ``storyteller view OUT`` elsewhere: ``storyteller.orchestrator.session.viewer_instructions``).
 The trace records each one with its frame, and a replay applies it there. A script line at or
 after the end of the run (``--duration``) would never take effect: ``run`` says so in one
 ``warning:`` line on stderr before the story starts, and goes on (a short preview of a long
@@ -30,23 +30,23 @@ script stays possible).
 
 ``--view [--port P] [--host H]`` (``run`` and ``resume``): the browser viewer of ``--out``
 (``storyteller view OUT --play``) is started in a child process before the first frame
-(``orchestrator.viewer.child``: its Python work stays off the run's frames), its address is
+(``storyteller.orchestrator.viewer.child``: its Python work stays off the run's frames), its address is
 printed (with a token when ``--host`` is not this machine), and it goes on serving after the
 story ends until Ctrl-C (SIGINT or SIGTERM; the exit code is the run's). A stop signal while
 the story runs stops both, as without ``--view``; a run killed outright takes its viewer along
 within a second.
 
 ``--planner unified|direct`` and ``--description object-list|scene-graph`` plan with the
-paper's ablations (variants of the planning graph, ``orchestrator.planning.ablation_graph``),
+paper's ablations (variants of the planning graph, ``storyteller.orchestrator.planning.ablation_graph``),
 driven by the same step planner.
 
 Output: a line per event as it starts, completes or fails, saying what its applied plan has
 the characters do (``[   10.6s] event-0000 starts: Ava makes coffee at the coffee maker.``,
-``agents.story_text``) and per instruction, then a summary line. On a terminal (``--live``, the default
-when stdout is a terminal) a live view (``orchestrator.cli.live_view``) shows below those
+``storyteller.agents.story_text``) and per instruction, then a summary line. On a terminal (``--live``, the default
+when stdout is a terminal) a live view (``storyteller.orchestrator.cli.live_view``) shows below those
 lines: simulated time and speed, each character's state and event, LLM calls in flight,
 tokens so far; with ``--interactive`` on the same terminal its last line is the instruction
-being typed (``orchestrator.session.terminal_prompt``).
+being typed (``storyteller.orchestrator.session.terminal_prompt``).
 
 Exit codes: 0 the story ran to its end; 1 planning stopped (the error is printed) or a write
 failed (``error: cannot write FILE: ...``, a full disk: what was written before stays readable
@@ -67,7 +67,7 @@ from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import typer
 
-from orchestrator.cli.options import (
+from storyteller.orchestrator.cli.options import (
     Characters,
     Config,
     Description,
@@ -84,18 +84,18 @@ from orchestrator.cli.options import (
     ViewPortOption,
     fail,
 )
-from orchestrator.safe_text import one_line, plain
-from orchestrator.terminal import say
-from sim.run_folder_names import RUNS_DB, TRACE_JSONL
+from storyteller.orchestrator.safe_text import one_line, plain
+from storyteller.orchestrator.terminal import say
+from storyteller.sim.run_folder_names import RUNS_DB, TRACE_JSONL
 
 if TYPE_CHECKING:  # the session (simulation, planner) is imported by the command itself
-    from orchestrator.sandbox_worker import WorkerRunner
-    from orchestrator.session.instruction_script import ScriptLine
-    from orchestrator.session.run_manifest import RunArguments, RunManifest
-    from orchestrator.session.session_types import StoryEvent
-    from orchestrator.session.terminal_prompt import TerminalPrompt
-    from orchestrator.viewer.child import ViewerProcess
-    from sim.scene.model import Scene
+    from storyteller.orchestrator.sandbox_worker import WorkerRunner
+    from storyteller.orchestrator.session.instruction_script import ScriptLine
+    from storyteller.orchestrator.session.run_manifest import RunArguments, RunManifest
+    from storyteller.orchestrator.session.session_types import StoryEvent
+    from storyteller.orchestrator.session.terminal_prompt import TerminalPrompt
+    from storyteller.orchestrator.viewer.child import ViewerProcess
+    from storyteller.sim.scene.model import Scene
 
 
 SmplxModelOption = Annotated[
@@ -155,9 +155,9 @@ def run_command(
     host: ViewHostOption = "127.0.0.1",
 ) -> None:
     """Plan and animate a story; write motion, pictures, the story log and the trace."""
-    from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
-    from orchestrator.session.roster import character_names
-    from orchestrator.session.run_manifest import RunArguments, absolute, parse_names
+    from storyteller.orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
+    from storyteller.orchestrator.session.roster import character_names
+    from storyteller.orchestrator.session.run_manifest import RunArguments, absolute, parse_names
 
     if len(instruction) > MAX_INSTRUCTION_CHARS:
         fail(f"--instruction: {len(instruction)} characters, at most {MAX_INSTRUCTION_CHARS} allowed")
@@ -176,7 +176,7 @@ def run_command(
     _check_smplx_model(smplx_model)
     script: tuple[ScriptLine, ...] = ()
     if instructions is not None:
-        from orchestrator.session.instruction_script import (
+        from storyteller.orchestrator.session.instruction_script import (
             InstructionScriptError,
             read_instruction_script,
         )
@@ -190,7 +190,7 @@ def run_command(
     scene_path = Path(scene)
     from pydantic import ValidationError
 
-    from sim.validation_text import user_error
+    from storyteller.sim.validation_text import user_error
 
     try:
         args = RunArguments(
@@ -229,7 +229,7 @@ def run_command(
 def warn_unreached(script: tuple[ScriptLine, ...], duration: float, source: str) -> None:
     """Say (one ``warning:`` line on stderr) when script lines fall at or after the run's last
     frame: the run goes on, and those instructions never take effect."""
-    from sim.world.step import WorldConfig
+    from storyteller.sim.world.step import WorldConfig
 
     fps = WorldConfig().fps
     frames = round(duration * fps)
@@ -246,7 +246,7 @@ def _check_smplx_model(smplx_model: Path | None) -> None:
     """Refuse a ``--smplx-model`` folder without the neutral model file before anything runs."""
     if smplx_model is None:
         return
-    from orchestrator.bodies.smplx_meshes import SmplxModelError, model_file
+    from storyteller.orchestrator.bodies.smplx_meshes import SmplxModelError, model_file
 
     try:
         model_file(smplx_model, "neutral")
@@ -282,7 +282,7 @@ def _typing_prompt(live: bool, interactive: bool) -> TerminalPrompt | None:
 
     if not (live and interactive and sys.stdin.isatty()):
         return None
-    from orchestrator.session.terminal_prompt import TerminalPrompt
+    from storyteller.orchestrator.session.terminal_prompt import TerminalPrompt
 
     return TerminalPrompt(sys.stdin.fileno())
 
@@ -297,7 +297,7 @@ def resume_command(
     host: ViewHostOption = "127.0.0.1",
 ) -> None:
     """Go on with a run that was stopped (even by kill -9) from its last checkpoint."""
-    from orchestrator.session.run_manifest import ManifestError, read_manifest
+    from storyteller.orchestrator.session.run_manifest import ManifestError, read_manifest
 
     try:
         manifest = read_manifest(run_dir)
@@ -317,7 +317,7 @@ def replay_command(
     smplx_model: SmplxModelOption = None,
 ) -> None:
     """Replay a recorded run with no model loaded: same arguments (from run.json), same story, same motion."""
-    from orchestrator.session.run_manifest import ManifestError, read_manifest
+    from storyteller.orchestrator.session.run_manifest import ManifestError, read_manifest
 
     trace = source / TRACE_JSONL if source.is_dir() else source
     if not trace.exists() and not trace.is_symlink():  # a link to a device is read, and refused, later
@@ -346,8 +346,8 @@ def _execute(
     ``in_process_programs``) is started first, with the scene to load, so its imports and the
     scene's navigation grid overlap this process's imports of the job instead of delaying the
     first planning step; the job stops it when the story ends."""
-    from orchestrator.cli.collector import imports_paused
-    from orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
+    from storyteller.orchestrator.cli.collector import imports_paused
+    from storyteller.orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
 
     try:  # before the folder is made or a worker started (run_story checks again, for its other callers)
         refuse_planted_links(out, args.names)
@@ -356,9 +356,9 @@ def _execute(
     if not resume and trace_path is not None:
         refuse_earlier_trace(trace_path, out)
     with imports_paused():
-        from orchestrator.sandbox_worker import WorkerRunner
-        from sim.scene.bundled import resolve_scene
-        from sim.scene.files import SceneFileError
+        from storyteller.orchestrator.sandbox_worker import WorkerRunner
+        from storyteller.sim.scene.bundled import resolve_scene
+        from storyteller.sim.scene.files import SceneFileError
 
     try:
         scene_obj = resolve_scene(args.scene)
@@ -409,7 +409,7 @@ def _run_job(
     frame until the command ends (after the story, until Ctrl-C)."""
     import importlib
 
-    from orchestrator.cli.collector import imports_paused
+    from storyteller.orchestrator.cli.collector import imports_paused
 
     with imports_paused():
         for module in (*OUTPUT_MODULES, *JOB_MODULES):
@@ -430,9 +430,9 @@ def _run_job(
 
 
 def _start_viewer(out: Path, view: ViewAt, smplx_model: Path | None) -> ViewerProcess:
-    """The viewer of ``out`` in a process of its own (``orchestrator.viewer.child``: the frames of
+    """The viewer of ``out`` in a process of its own (``storyteller.orchestrator.viewer.child``: the frames of
     the run keep their rate), listening, its address printed; exit 2 when it cannot start."""
-    from orchestrator.viewer.child import ViewerStartError, spawn_viewer
+    from storyteller.orchestrator.viewer.child import ViewerStartError, spawn_viewer
 
     try:
         viewer = spawn_viewer(out, port=view.port, host=view.host, smplx_model=smplx_model)
@@ -466,11 +466,11 @@ def _run_and_report(
     import asyncio
     import sys
 
-    from orchestrator.cli.live_view import terminal_view
-    from orchestrator.session.run_job import StoryRun, run_story
-    from orchestrator.session.run_manifest import resume_command
-    from orchestrator.session.run_outputs import write_outputs
-    from orchestrator.session.run_setup import RunSetupError
+    from storyteller.orchestrator.cli.live_view import terminal_view
+    from storyteller.orchestrator.session.run_job import StoryRun, run_story
+    from storyteller.orchestrator.session.run_manifest import resume_command
+    from storyteller.orchestrator.session.run_outputs import write_outputs
+    from storyteller.orchestrator.session.run_setup import RunSetupError
 
     prompt = _typing_prompt(live, interactive)
     view = terminal_view(sys.stdout, stderr_is_terminal=sys.stderr.isatty(),
@@ -542,7 +542,7 @@ def _run_and_report(
             _cannot_write(failed, out, resumable=replay is None)
         fail(f"the run stopped: {type(exc).__name__}: {plain(exc)}", code=1)
     result, fps = run.result, run.fps
-    from orchestrator.bodies.smplx_meshes import SmplxModelError
+    from storyteller.orchestrator.bodies.smplx_meshes import SmplxModelError
 
     failed_write = _failed_write(result.planner_error, out)  # the first write that failed is reported
     try:
@@ -576,7 +576,7 @@ def _run_and_report(
     if result.planner_error is not None:
         import structlog
 
-        from agents.llm_port import ReplayMissError
+        from storyteller.agents.llm_port import ReplayMissError
 
         err = result.planner_error
         detail = err.diff if isinstance(err, ReplayMissError) else None
@@ -592,12 +592,12 @@ def _run_and_report(
         raise typer.Exit(1)
 
 
-OUTPUT_MODULES = ("sim.export.bundle", "sim.export.video", "orchestrator.bodies.smplx_meshes")
+OUTPUT_MODULES = ("storyteller.sim.export.bundle", "storyteller.sim.export.video", "storyteller.orchestrator.bodies.smplx_meshes")
 """Modules the outputs are written with at the end of a run: imported with the job's modules while
-the garbage collector is paused (``orchestrator.cli.collector``), not when the story is over."""
+the garbage collector is paused (``storyteller.orchestrator.cli.collector``), not when the story is over."""
 JOB_MODULES = (
-    "orchestrator.cli.live_view", "orchestrator.session.run_job", "orchestrator.session.run_outputs",
-    "orchestrator.session.run_manifest",
+    "storyteller.orchestrator.cli.live_view", "storyteller.orchestrator.session.run_job", "storyteller.orchestrator.session.run_outputs",
+    "storyteller.orchestrator.session.run_manifest",
 )
 """The job's own modules, imported the same way."""
 
@@ -649,7 +649,7 @@ def _failed_write(error: BaseException | None, out: Path) -> OSError | None:
 
 def _cannot_write(exc: OSError, out: Path, *, resumable: bool) -> NoReturn:
     """A write that failed (a full disk, a file-size limit, no permission): one line, exit 1."""
-    from orchestrator.session.run_manifest import resume_command
+    from storyteller.orchestrator.session.run_manifest import resume_command
 
     where = exc.filename if exc.filename is not None else out
     then = f"; once it can be written, go on with: {plain(resume_command(out))}" if resumable else ""

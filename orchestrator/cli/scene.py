@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from orchestrator.terminal import say
+from storyteller.orchestrator.terminal import say
 
 if TYPE_CHECKING:  # commands import what they need, so that ``scene list`` starts at once
-    from sim.scene.model import Scene
+    from storyteller.sim.scene.model import Scene
 
 scene_app = typer.Typer(help="Inspect scenes.", no_args_is_help=True)
 
@@ -35,7 +35,7 @@ def register(app: typer.Typer) -> None:
 @scene_app.command("list")
 def list_scenes() -> None:
     """List the bundled scenes."""
-    from sim.scene.bundled import bundled_scene_names
+    from storyteller.sim.scene.bundled import bundled_scene_names
 
     for name in bundled_scene_names():
         say(name)
@@ -54,9 +54,9 @@ def inspect_data(scene: Scene) -> dict[str, Any]:
     (cell_size, body_radius, origin, shape [nx, ny], free_cells, blocked_cells,
     main_component_cells, components).
     """
-    from sim.paths.nav_grid import build_nav_grid
-    from tools.clusters import cluster_objects
-    from tools.scene_graph import build_scene_graph
+    from storyteller.sim.paths.nav_grid import build_nav_grid
+    from storyteller.tools.clusters import cluster_objects
+    from storyteller.tools.scene_graph import build_scene_graph
 
     graph = build_scene_graph(scene)
     triples = [list(t) for t in graph.triples()]
@@ -104,13 +104,13 @@ def inspect_data(scene: Scene) -> dict[str, Any]:
 
 def _print_tables(data: dict[str, Any]) -> None:
     """The tables. Every name and label from the scene file is a rich ``Text`` of
-    :func:`~orchestrator.safe_text.plain` (control, format and bidi characters shown as
+    :func:`~storyteller.orchestrator.safe_text.plain` (control, format and bidi characters shown as
     escapes), never a markup string: rich parses neither markup nor emoji codes in it."""
     from rich.console import Console
     from rich.table import Table
     from rich.text import Text
 
-    from orchestrator.safe_text import plain
+    from storyteller.orchestrator.safe_text import plain
 
     def text(value: object) -> Text:
         return Text(plain(value))
@@ -172,7 +172,7 @@ def _print_tables(data: dict[str, Any]) -> None:
 
 def _fail(message: str) -> typer.Exit:
     """One line on stderr (whitespace runs folded, control and bidi characters escaped)."""
-    from orchestrator.safe_text import plain
+    from storyteller.orchestrator.safe_text import plain
 
     say(f"error: {plain(' '.join(message.split()))}", err=True)
     return typer.Exit(code=EXIT_USAGE)
@@ -196,10 +196,10 @@ def inspect_scene(
     ] = None,
 ) -> None:
     """Show a scene's objects, relations, clusters and navigation grid."""
-    from orchestrator.safe_text import plain
-    from sim.paths.nav_grid import NavGridError
-    from sim.scene.bundled import resolve_scene
-    from sim.scene.files import SceneFileError
+    from storyteller.orchestrator.safe_text import plain
+    from storyteller.sim.paths.nav_grid import NavGridError
+    from storyteller.sim.scene.bundled import resolve_scene
+    from storyteller.sim.scene.files import SceneFileError
 
     if png is not None:  # fail before the work, not after it
         if png.is_dir():
@@ -216,7 +216,7 @@ def inspect_scene(
     grid = data.pop("_grid")
 
     if png is not None:
-        from sim.export.topdown import save_topdown_png
+        from storyteller.sim.export.topdown import save_topdown_png
 
         try:
             save_topdown_png(

@@ -1,8 +1,8 @@
-"""``storyteller view RUN_DIR``: watch a run in the browser (logic in ``orchestrator.viewer``).
+"""``storyteller view RUN_DIR``: watch a run in the browser (logic in ``storyteller.orchestrator.viewer``).
 
 Serves an interactive 3D viewer on 127.0.0.1 (``--port``, the next free port when taken) and
 prints its URL. It answers only the pages it served (no other site's page, no DNS rebinding:
-``orchestrator.viewer.access``). ``--host`` listens on another address (``0.0.0.0``: every
+``storyteller.orchestrator.viewer.access``). ``--host`` listens on another address (``0.0.0.0``: every
 interface), for other machines: then the printed URL carries a token made for this viewer, which
 every request must bring, and the line says who can reach it; ``--export FILE`` instead writes one self-contained HTML file that plays the
 story. ``--smplx-model DIR`` shows each character's SMPL-X body (computed from its
@@ -17,9 +17,9 @@ from typing import Annotated
 
 import typer
 
-from orchestrator.cli.options import fail
-from orchestrator.safe_text import plain
-from orchestrator.terminal import say
+from storyteller.orchestrator.cli.options import fail
+from storyteller.orchestrator.safe_text import plain
+from storyteller.orchestrator.terminal import say
 
 
 def register(app: typer.Typer) -> None:
@@ -36,8 +36,8 @@ def view_command(
     parent: Annotated[int | None, typer.Option("--parent", hidden=True, help="Stop when this process is no longer the parent (run --view's child).")] = None,
 ) -> None:
     """Show a run in 3D in the browser: figures, paths, labels, timeline and event list."""
-    from orchestrator.bodies.smplx_meshes import SmplxModelError, model_file
-    from orchestrator.viewer.run_folder import RunFolderError
+    from storyteller.orchestrator.bodies.smplx_meshes import SmplxModelError, model_file
+    from storyteller.orchestrator.viewer.run_folder import RunFolderError
 
     if smplx_model is not None:
         try:
@@ -45,7 +45,7 @@ def view_command(
         except SmplxModelError as exc:
             fail(str(exc))
     if export is not None:
-        from orchestrator.viewer.export import export_html
+        from storyteller.orchestrator.viewer.export import export_html
 
         try:
             export_html(run_dir, export, smplx_model=smplx_model)
@@ -60,7 +60,7 @@ def view_command(
     import os
     import threading
 
-    from orchestrator.viewer.server import ViewerApp
+    from storyteller.orchestrator.viewer.server import ViewerApp
 
     try:
         viewer = ViewerApp(run_dir, port=port, host=host, autoplay=play, smplx_model=smplx_model)

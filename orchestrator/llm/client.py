@@ -1,6 +1,6 @@
 """The LLM port over litellm: per-node models, our own retries, fallbacks, one trace record per attempt.
 
-A request with ``choices`` (a choice among candidates, :mod:`agents.scored_choice`) goes to the
+A request with ``choices`` (a choice among candidates, :mod:`storyteller.agents.scored_choice`) goes to the
 embedded model as scored continuations (``response_format`` ``{"type": "choices"}``: the local
 provider reads the log-likelihood of each choice from the model's logits); any other provider
 gets the request's JSON schema, whose enum admits only the choices (constrained generation).
@@ -11,12 +11,12 @@ model, transient errors are retried up to ``retry.max_attempts`` attempts in tot
 an exponential, jittered, seeded delay between attempts; a permanent error (400, 401, 403,
 404, 422, missing weights or key) moves on to the next model at once. The deterministic
 embedded model is retried only when the machine was short of memory or a file
-(:mod:`orchestrator.llm.local_errors`): an unusable answer or a call stopped for lack of
+(:mod:`storyteller.orchestrator.llm.local_errors`): an unusable answer or a call stopped for lack of
 progress would only come again, so they move on to the next model at once. litellm's own retries
 are disabled (``max_retries=0``, never ``num_retries``).
 
 Secrets stay secret: every reply, trace record and error this client produces has the known
-secret values (``orchestrator.llm.secrets``: the ``api_key_env`` variables and every secret-named
+secret values (``storyteller.orchestrator.llm.secrets``: the ``api_key_env`` variables and every secret-named
 environment variable) replaced by ``[redacted]``, so a provider echoing the key it was sent puts
 it in no trace, story or message.
 """
@@ -36,25 +36,25 @@ import anyio
 import litellm
 import structlog
 
-from agents.llm_port import LLMError, LLMRequest, LLMResponse, LLMUnavailableError, TokenUsage
-from agents.llm_schemas import schema_instruction
-from orchestrator.llm.config import NodeConfig, StorytellerConfig
-from orchestrator.llm.local_errors import LocalModelStalledError
-from orchestrator.llm.local_model import (
+from storyteller.agents.llm_port import LLMError, LLMRequest, LLMResponse, LLMUnavailableError, TokenUsage
+from storyteller.agents.llm_schemas import schema_instruction
+from storyteller.orchestrator.llm.config import NodeConfig, StorytellerConfig
+from storyteller.orchestrator.llm.local_errors import LocalModelStalledError
+from storyteller.orchestrator.llm.local_model import (
     ensure_local_model_available,
     local_timeout_s,
     register_local_provider,
 )
-from orchestrator.llm.retry_policy import (
+from storyteller.orchestrator.llm.retry_policy import (
     ErrorClass,
     InvalidResponseError,
     RetryPolicy,
     classify_error,
     failed_call_error,
 )
-from orchestrator.llm.secrets import redact, secret_values
-from orchestrator.llm.trace_writer import NullTraceSink, TraceSink
-from orchestrator.llm.traces import AttemptRecord
+from storyteller.orchestrator.llm.secrets import redact, secret_values
+from storyteller.orchestrator.llm.trace_writer import NullTraceSink, TraceSink
+from storyteller.orchestrator.llm.traces import AttemptRecord
 
 litellm.suppress_debug_info = True
 

@@ -7,7 +7,7 @@ Layout of the TOML file (every table and key is optional)::
     temperature = 0.0
     max_tokens = 1024            # a cap: requests may ask for fewer
     timeout_s = 120.0           # per attempt; for a local model a hard cap only (its calls are
-                                # limited by progress: orchestrator.llm.decode_progress); unset,
+                                # limited by progress: storyteller.orchestrator.llm.decode_progress); unset,
                                 # a local call gets what the progress floors allow (local_timeout_s)
     fallbacks = []              # tried in order after ``model`` has used up its retries
     api_base = "http://127.0.0.1:8080/v1"   # optional
@@ -29,7 +29,7 @@ Layout of the TOML file (every table and key is optional)::
     [trace]
     fsync = "always"            # always | close | never
 
-Bounded: the file is read within ``MAX_CONFIG_BYTES`` (a regular file, ``sim.bounded_files``),
+Bounded: the file is read within ``MAX_CONFIG_BYTES`` (a regular file, ``storyteller.sim.bounded_files``),
 nesting that overflows the TOML reader and integers too long to convert are a
 :class:`ConfigError`, and every number is finite and within its field's range: a delay or a
 timeout is at most ``MAX_DELAY_S`` / ``MAX_TIMEOUT_S`` seconds, never infinite.
@@ -54,8 +54,8 @@ from typing import Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from agents.llm_port import NodeName
-from sim.validation_text import problem_field, problem_message
+from storyteller.agents.llm_port import NodeName
+from storyteller.sim.validation_text import problem_field, problem_message
 
 DEFAULT_MODEL = "local/qwen2.5-coder-0.5b"
 NODE_NAMES: tuple[NodeName, ...] = get_args(NodeName)
@@ -239,8 +239,8 @@ def _env_overrides(node: NodeName, env: Mapping[str, str]) -> dict[str, Any]:
 
 
 def _read_toml(path: Path, source: str) -> dict[str, Any]:
-    """The TOML table of a config file, read within :data:`MAX_CONFIG_BYTES` (``sim.bounded_files``)."""
-    from sim.bounded_files import BoundedFileError, load_bounded_toml, read_bounded_bytes
+    """The TOML table of a config file, read within :data:`MAX_CONFIG_BYTES` (``storyteller.sim.bounded_files``)."""
+    from storyteller.sim.bounded_files import BoundedFileError, load_bounded_toml, read_bounded_bytes
 
     try:
         return load_bounded_toml(read_bounded_bytes(path, MAX_CONFIG_BYTES, source), source)

@@ -1,6 +1,6 @@
 """Limit a local model call by its progress, not by a fixed wall-clock timeout.
 
-Guarantee: a call is stopped (:class:`~orchestrator.llm.local_errors.LocalModelStalledError`,
+Guarantee: a call is stopped (:class:`~storyteller.orchestrator.llm.local_errors.LocalModelStalledError`,
 naming the measured rate and the floor) only when
 
 - reading the prompt takes longer than its allowance, :meth:`ProgressFloor.prompt_allowance_s`
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from orchestrator.llm.local_errors import StallPhase
+    from storyteller.orchestrator.llm.local_errors import StallPhase
 
 MIN_DECODE_TOK_S = 0.5
 """Floor of the decode rate after the prompt, tokens per second, over :data:`DECODE_WINDOW_S`."""
@@ -134,7 +134,7 @@ class ProgressWatch:
 
     def _stall(self, phase: StallPhase, rate: float | None, floor: float, message: str) -> None:
         # imported here: it brings litellm, which `storyteller model info` (the floors) does not need
-        from orchestrator.llm.local_errors import LocalModelStalledError
+        from storyteller.orchestrator.llm.local_errors import LocalModelStalledError
 
         if self._threads is not None:
             later = "".join(f", then {n}" for n in self._threads.get("rechosen", ()))

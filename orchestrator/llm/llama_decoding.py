@@ -2,10 +2,10 @@
 
 :func:`stream_chat` runs a chat completion; :func:`score_continuations` scores a fixed list of
 replies from one evaluation of the prompt. Both check, before every prompt batch and every
-generated token, the call's :class:`~orchestrator.llm.decode_progress.ProgressWatch` (raising
-:class:`~orchestrator.llm.local_errors.LocalModelStalledError` under its floors) and its cancel
+generated token, the call's :class:`~storyteller.orchestrator.llm.decode_progress.ProgressWatch` (raising
+:class:`~storyteller.orchestrator.llm.local_errors.LocalModelStalledError` under its floors) and its cancel
 event (raising :class:`_Abort`), then run the caller's ``before_eval`` (the thread re-check of
-:mod:`orchestrator.llm.local_model`); an exception raised there leaves the model consistent.
+:mod:`storyteller.orchestrator.llm.local_model`); an exception raised there leaves the model consistent.
 Both return an OpenAI-shaped dict. The instance, its lock and its threads are the caller's.
 """
 
@@ -15,7 +15,7 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from orchestrator.llm.decode_progress import ProgressWatch
+from storyteller.orchestrator.llm.decode_progress import ProgressWatch
 
 
 class _Abort(Exception):

@@ -10,11 +10,11 @@ states, each holding n_ctx x vocab logits (GBs with Qwen's 152k vocab).
 Calls are serialised per model (a Llama object is not thread-safe) and run in a worker
 thread so the event loop (and the simulation) keeps running. Before each call, with the
 model's lock held, the threads are chosen from the machine
-(:mod:`orchestrator.llm.cpu_threads`: never more than the free cores, so another process
+(:mod:`storyteller.orchestrator.llm.cpu_threads`: never more than the free cores, so another process
 holding a core does not make llama.cpp's threads wait on each other) and set on the context
 (``llama_set_n_threads``; the answer does not depend on the thread count). The call is limited
-by its progress (:mod:`orchestrator.llm.decode_progress`), not by a fixed time: it stops, with
-:class:`~orchestrator.llm.local_errors.LocalModelStalledError`, only when it decodes under the
+by its progress (:mod:`storyteller.orchestrator.llm.decode_progress`), not by a fixed time: it stops, with
+:class:`~storyteller.orchestrator.llm.local_errors.LocalModelStalledError`, only when it decodes under the
 floor, reads its prompt past the allowance or passes its hard cap. The request's ``timeout``
 is that hard cap; a node whose config does not set ``timeout_s`` gets
 :func:`local_timeout_s`, the time the floors themselves allow. The chosen threads go back with
@@ -46,13 +46,13 @@ from litellm.exceptions import (
 )
 from litellm.llms.custom_llm import CustomLLM
 
-from agents.llm_port import LLMUnavailableError
-from orchestrator.llm.config import prefix_slots
-from orchestrator.llm.cpu_threads import ThreadChooser
-from orchestrator.llm.decode_progress import ProgressWatch, default_hard_cap_s
-from orchestrator.llm.llama_decoding import _Abort, score_continuations, stream_chat
-from orchestrator.llm.local_errors import LocalModelBusyError, LocalModelStalledError
-from orchestrator.llm.model_weights import (
+from storyteller.agents.llm_port import LLMUnavailableError
+from storyteller.orchestrator.llm.config import prefix_slots
+from storyteller.orchestrator.llm.cpu_threads import ThreadChooser
+from storyteller.orchestrator.llm.decode_progress import ProgressWatch, default_hard_cap_s
+from storyteller.orchestrator.llm.llama_decoding import _Abort, score_continuations, stream_chat
+from storyteller.orchestrator.llm.local_errors import LocalModelBusyError, LocalModelStalledError
+from storyteller.orchestrator.llm.model_weights import (
     WeightsSpec,
     ensure_weights,
     spec_for,
@@ -66,7 +66,7 @@ DEFAULT_ARRAY_MAX_ITEMS = 64
 
 PREFIX_SLOTS = prefix_slots(os.environ)
 """Llama instances per model, each keeping the KV cache of the last prompt it saw
-(``orchestrator.llm.config.prefix_slots``)."""
+(``storyteller.orchestrator.llm.config.prefix_slots``)."""
 
 
 @dataclass
@@ -107,7 +107,7 @@ def ensure_local_model_available(model: str) -> None:
 def local_timeout_s(model: str, prompt_chars: int, max_tokens: int, floor_s: float) -> float:
     """Default hard cap of one local call for a prompt of ``prompt_chars`` characters and
     ``max_tokens`` generated tokens: what the progress floors allow
-    (:func:`~orchestrator.llm.decode_progress.default_hard_cap_s`), at least ``floor_s``. The
+    (:func:`~storyteller.orchestrator.llm.decode_progress.default_hard_cap_s`), at least ``floor_s``. The
     same for every local model: the floors are rates, not the model's speed."""
     del model
     return max(floor_s, default_hard_cap_s(prompt_chars, max_tokens))
@@ -240,7 +240,7 @@ def _chat_blocking(
     between evaluations, then :func:`stream_chat` with ``timeout_s`` as the hard cap (counted
     from when the model is loaded and free, so queueing behind another call or loading the
     weights does not count). The answer carries the thread choice under ``local_threads``
-    (:class:`~orchestrator.llm.cpu_threads.ThreadChoice` fields, and ``rechosen``: the threads
+    (:class:`~storyteller.orchestrator.llm.cpu_threads.ThreadChoice` fields, and ``rechosen``: the threads
     after each change during the call)."""
     llm, lock = get_llama(spec, prompt_key(messages))
     with lock:

@@ -27,8 +27,8 @@ from dataclasses import dataclass
 from importlib.metadata import Distribution
 from pathlib import Path
 
-from agents.llm_port import LLMUnavailableError
-from orchestrator.cache_paths import cache_root
+from storyteller.agents.llm_port import LLMUnavailableError
+from storyteller.orchestrator.cache_paths import cache_root
 
 _CHUNK_BYTES = 8 * 1024 * 1024
 _hashed_lock = threading.Lock()
@@ -89,7 +89,7 @@ class WeightsIntegrityError(LLMUnavailableError):
 
 def cache_dir() -> Path:
     """Directory holding assembled model files: ``models`` in the cache folder
-    (:func:`orchestrator.cache_paths.cache_root`)."""
+    (:func:`storyteller.orchestrator.cache_paths.cache_root`)."""
     return cache_root() / "models"
 
 

@@ -6,7 +6,7 @@ A request that is not in the trace (or asked more often than recorded) raises
 :class:`ReplayMissError` naming the node and showing a unified diff against the closest
 recorded request of that node. It never falls through to a live call. Failed attempts of a
 call that then succeeded are not replayed (only the answer returned matters to the run); a call
-whose every attempt failed (the caller got an :class:`~agents.llm_port.LLMError`: a context
+whose every attempt failed (the caller got an :class:`~storyteller.agents.llm_port.LLMError`: a context
 window exceeded, a provider out of retries) is replayed as that error, with the same type and
 message, so a run that failed a step replays to the same failure.
 
@@ -32,7 +32,7 @@ from typing import Literal
 
 import anyio
 
-from agents.llm_port import (
+from storyteller.agents.llm_port import (
     LLMError,
     LLMPort,
     LLMRequest,
@@ -41,10 +41,10 @@ from agents.llm_port import (
     ReplayMissError,
     TokenUsage,
 )
-from orchestrator.llm.config import ConfigError, StorytellerConfig
-from orchestrator.llm.retry_policy import failed_call_error, unavailable_error_names
-from orchestrator.llm.trace_writer import NullTraceSink, TraceSink, TraceWriter
-from orchestrator.llm.traces import AttemptRecord, TraceCorruptError, read_trace
+from storyteller.orchestrator.llm.config import ConfigError, StorytellerConfig
+from storyteller.orchestrator.llm.retry_policy import failed_call_error, unavailable_error_names
+from storyteller.orchestrator.llm.trace_writer import NullTraceSink, TraceSink, TraceWriter
+from storyteller.orchestrator.llm.traces import AttemptRecord, TraceCorruptError, read_trace
 
 _MAX_DIFF_LINES = 60
 
@@ -259,13 +259,13 @@ def build_llm_port(
     (``unanswered``: what a recorded call cut short and never answered gets, see the module doc).
 
     Its ``trace`` (where callers record parsed outputs and applied frames) and ``close()`` are
-    part of :class:`agents.llm_port.LLMPort`. Raises :class:`ConfigError` when both paths name the same file."""
+    part of :class:`storyteller.agents.llm_port.LLMPort`. Raises :class:`ConfigError` when both paths name the same file."""
     if replay is not None:
         if record is not None and Path(record).resolve() == Path(replay).resolve():
             raise ConfigError("command line", "--record", "must name a different file than --replay")
         sink = TraceWriter(record, run_id=run_id, fsync=config.trace.fsync, meta={"mode": "replay", "replay": str(replay)}) if record else None
         return ReplayClient(replay, trace_sink=sink, unanswered=unanswered)
-    from orchestrator.llm.client import LiteLLMClient
+    from storyteller.orchestrator.llm.client import LiteLLMClient
 
     live_sink: TraceSink = (
         TraceWriter(record, run_id=run_id, fsync=config.trace.fsync, meta={"mode": "record", "config": config.source})

@@ -8,7 +8,7 @@ retried on the same model; the next fallback model is still tried.
 
 The embedded model (``local/...``) is deterministic and runs here: the same request gives the
 same answer at the same speed, so of its errors only a shortage of memory or a file is
-transient (:func:`orchestrator.llm.local_errors.local_error_retryable`); a call stopped for
+transient (:func:`storyteller.orchestrator.llm.local_errors.local_error_retryable`); a call stopped for
 lack of progress, an unusable answer or a llama.cpp failure is permanent.
 """
 
@@ -18,8 +18,8 @@ import random
 from collections.abc import Iterator, Sequence
 from typing import Literal
 
-from agents.llm_port import LLMError, LLMUnavailableError
-from orchestrator.llm.config import RetryConfig
+from storyteller.agents.llm_port import LLMError, LLMUnavailableError
+from storyteller.orchestrator.llm.config import RetryConfig
 
 ErrorClass = Literal["transient", "permanent"]
 
@@ -65,7 +65,7 @@ def classify_error(exc: BaseException, *, local: bool = False) -> ErrorClass:
     """Decide whether ``exc`` (raised by one attempt) may succeed if the same call is repeated;
     ``local``: the attempt was on the embedded model (see the module doc)."""
     if local:
-        from orchestrator.llm.local_errors import local_error_retryable
+        from storyteller.orchestrator.llm.local_errors import local_error_retryable
 
         return "transient" if local_error_retryable(exc) else "permanent"
     if isinstance(exc, InvalidResponseError | TimeoutError | ConnectionError):
@@ -124,7 +124,7 @@ def failed_call_error(node: str, failures: Sequence[tuple[str, str, str]], *, un
 
 def unavailable_error_names() -> frozenset[str]:
     """Names of :class:`LLMUnavailableError` and its subclasses (as a trace records them)."""
-    import orchestrator.llm.model_weights  # noqa: F401  # defines subclasses (weights missing or corrupt)
+    import storyteller.orchestrator.llm.model_weights  # noqa: F401  # defines subclasses (weights missing or corrupt)
 
     names, todo = set(), [LLMUnavailableError]
     while todo:

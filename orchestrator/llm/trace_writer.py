@@ -1,4 +1,4 @@
-"""Writing a trace (:mod:`orchestrator.llm.traces`): the :class:`TraceSink` the LLM clients
+"""Writing a trace (:mod:`storyteller.orchestrator.llm.traces`): the :class:`TraceSink` the LLM clients
 record to, the :class:`TraceWriter` that appends to a JSONL file, and a :class:`NullTraceSink`.
 
 ``seq`` is unique within a file (a writer that reopens a file continues after the last seq).
@@ -36,9 +36,9 @@ from typing import Any, Protocol
 import structlog
 from pydantic import JsonValue
 
-from agents.llm_port import NodeName, TraceRecorder
-from orchestrator.llm.config import FsyncPolicy
-from orchestrator.llm.traces import (
+from storyteller.agents.llm_port import NodeName, TraceRecorder
+from storyteller.orchestrator.llm.config import FsyncPolicy
+from storyteller.orchestrator.llm.traces import (
     AppliedRecord,
     InstructionRecord,
     ParsedRecord,
@@ -47,7 +47,7 @@ from orchestrator.llm.traces import (
     TraceRecord,
     read_trace,
 )
-from sim.no_follow_writes import open_append
+from storyteller.sim.no_follow_writes import open_append
 
 _log = structlog.get_logger("storyteller.traces")
 
@@ -72,7 +72,7 @@ class TraceSink(TraceRecorder, Protocol):
 
     async def durable(self) -> None:
         """Wait, off the event loop, until every record written so far is on disk (as
-        :meth:`~agents.llm_port.TraceRecorder.sync`)."""
+        :meth:`~storyteller.agents.llm_port.TraceRecorder.sync`)."""
         ...
 
     def close(self) -> None:

@@ -26,7 +26,7 @@ it writes no ``applied`` records (consistently; there is no nominal frame).
 
 Reading (:func:`read_trace`) tolerates and reports a torn last line (a writer killed
 mid-record); a bad line anywhere else raises :class:`TraceCorruptError`. Writing, and when a
-record is on disk: :mod:`orchestrator.llm.trace_writer`.
+record is on disk: :mod:`storyteller.orchestrator.llm.trace_writer`.
 """
 
 from __future__ import annotations
@@ -46,15 +46,15 @@ from pydantic import (
     model_validator,
 )
 
-from agents.llm_port import LLMRequest, NodeName, TokenUsage
-from orchestrator.llm.retry_policy import ErrorClass
-from sim.bounded_files import (
+from storyteller.agents.llm_port import LLMRequest, NodeName, TokenUsage
+from storyteller.orchestrator.llm.retry_policy import ErrorClass
+from storyteller.sim.bounded_files import (
     MAX_OBJECT_KEYS,
     BoundedFileError,
     json_keys_exceed,
     read_bounded_bytes,
 )
-from sim.validation_text import problem_field, problem_message
+from storyteller.sim.validation_text import problem_field, problem_message
 
 _log = structlog.get_logger("storyteller.traces")
 
@@ -64,7 +64,7 @@ MAX_TRACE_BYTES = 256 << 20
 MAX_TRACE_RECORDS = 150_000
 """Records of the largest trace file read: each costs a validated model in memory (a 150-byte
 record about 3 KB), so 500,000 tiny lines (75 MB) took 1.6 GB. A run of the longest allowed
-duration (``orchestrator.session.run_manifest.MAX_DURATION_S``, 2.5 h) records about four per
+duration (``storyteller.orchestrator.session.run_manifest.MAX_DURATION_S``, 2.5 h) records about four per
 planning step: 150,000 is 37,500 steps, one every 0.24 s."""
 
 

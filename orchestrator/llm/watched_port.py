@@ -1,6 +1,6 @@
 """An LLM port that tells a watcher when each call starts and ends (for a live view).
 
-:class:`WatchedPort` wraps any :class:`agents.llm_port.LLMPort`: before a call goes to the
+:class:`WatchedPort` wraps any :class:`storyteller.agents.llm_port.LLMPort`: before a call goes to the
 wrapped port the watcher hears ``call_started(node)`` (which returns an id for the call), and
 after it, exactly once, ``call_finished(id, usage)``: the answer's token usage, or ``None``
 when the call failed (it raised an exception: an ``LLMError``, a bug), or ``call_cancelled(id)``
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from agents.llm_port import LLMPort, LLMRequest, LLMResponse, NodeName, TokenUsage, TraceRecorder
+from storyteller.agents.llm_port import LLMPort, LLMRequest, LLMResponse, NodeName, TokenUsage, TraceRecorder
 
 
 class CallWatcher(Protocol):

@@ -7,14 +7,14 @@ compiled graph for the pair. Every variant takes :class:`PlanningState` and
 so a resumed run never repeats a finished call) and records its outcome with the planning
 graph's own ``record_outcome``:
 
-- planner ``event`` (the full method) is :func:`orchestrator.planning.graph.build_planning_graph`
+- planner ``event`` (the full method) is :func:`storyteller.orchestrator.planning.graph.build_planning_graph`
   as it is: narrator, event parser and their feedback loops;
 - planner ``direct`` ("Direct Inference") is the same graph with the event parser's two nodes
-  swapped: ``parse_event`` asks for coordinates (:func:`agents.ablations.direct.direct_request`)
+  swapped: ``parse_event`` asks for coordinates (:func:`storyteller.agents.ablations.direct.direct_request`)
   and ``check_program`` checks and runs them
-  (:func:`agents.ablations.direct.check_direct_reply`);
+  (:func:`storyteller.agents.ablations.direct.check_direct_reply`);
 - planner ``unified`` ("w/o Event") replaces the narrator and the parser by one call
-  (node ``planner``, :func:`agents.ablations.unified.unified_request`) and its check, with
+  (node ``planner``, :func:`storyteller.agents.ablations.unified.unified_request`) and its check, with
   the planning graph's describer nodes, routers and ``record_outcome`` around them::
 
       START -> describe_scene <-> check_description
@@ -29,12 +29,12 @@ graph's own ``record_outcome``:
   places the characters); a program that plans nobody sets a wait event;
 - description ``describer`` asks the describer; ``object-list`` and ``scene-graph`` swap the
   ``describe_scene`` node for one that sets
-  :func:`~agents.ablations.descriptions.object_list_description` or
-  :func:`~agents.ablations.descriptions.scene_graph_description` (no LLM call). A state that
+  :func:`~storyteller.agents.ablations.descriptions.object_list_description` or
+  :func:`~storyteller.agents.ablations.descriptions.scene_graph_description` (no LLM call). A state that
   already holds a description (e.g. the benchmark's reference text) skips it either way.
 
 A model that is unavailable after the client's retries and fallbacks
-(:class:`~agents.llm_port.LLMError`) makes the step fail, as in the main graph; a replay
+(:class:`~storyteller.agents.llm_port.LLMError`) makes the step fail, as in the main graph; a replay
 miss propagates.
 """
 
@@ -48,24 +48,24 @@ from langgraph.runtime import Runtime
 from langgraph.types import Checkpointer
 from pydantic import JsonValue
 
-from agents.ablations.descriptions import object_list_description, scene_graph_description
-from agents.ablations.direct import check_direct_reply, direct_request
-from agents.ablations.unified import check_unified_reply, unified_request
-from agents.messages import Event, ParsedEvent, SceneDescription
-from agents.program_grammar import open_program_grammar
-from agents.retry_feedback import REJECTIONS
-from orchestrator.planning import graph as planning_graph
-from orchestrator.planning.action_node import skip_action_choice
-from orchestrator.planning.describer_nodes import check_description, describe_scene
-from orchestrator.planning.graph import CompiledPlanningGraph, NodeFn, PlanningGraph
-from orchestrator.planning.kinds import DescriptionKind, PlannerKind
-from orchestrator.planning.narrator_nodes import narrator_input
-from orchestrator.planning.node_calls import ask, off_loop
-from orchestrator.planning.parser_nodes import parser_input
-from orchestrator.planning.record_node import record_outcome
-from orchestrator.planning.rejection import record_parsed, rejected_reply
-from orchestrator.planning.seat_node import skip_seat_choice
-from orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.agents.ablations.descriptions import object_list_description, scene_graph_description
+from storyteller.agents.ablations.direct import check_direct_reply, direct_request
+from storyteller.agents.ablations.unified import check_unified_reply, unified_request
+from storyteller.agents.messages import Event, ParsedEvent, SceneDescription
+from storyteller.agents.program_grammar import open_program_grammar
+from storyteller.agents.retry_feedback import REJECTIONS
+from storyteller.orchestrator.planning import graph as planning_graph
+from storyteller.orchestrator.planning.action_node import skip_action_choice
+from storyteller.orchestrator.planning.describer_nodes import check_description, describe_scene
+from storyteller.orchestrator.planning.graph import CompiledPlanningGraph, NodeFn, PlanningGraph
+from storyteller.orchestrator.planning.kinds import DescriptionKind, PlannerKind
+from storyteller.orchestrator.planning.narrator_nodes import narrator_input
+from storyteller.orchestrator.planning.node_calls import ask, off_loop
+from storyteller.orchestrator.planning.parser_nodes import parser_input
+from storyteller.orchestrator.planning.record_node import record_outcome
+from storyteller.orchestrator.planning.rejection import record_parsed, rejected_reply
+from storyteller.orchestrator.planning.seat_node import skip_seat_choice
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
 
 
 @dataclass(frozen=True)

@@ -2,8 +2,8 @@
 
 Between the narrator's accepted event and the seat choice. When the event's words (its
 instruction part, else the narrator's activity, with the activity as context) give the label
-ranker no evidence (:func:`agents.action_choice.action_candidates`), the model ranks the offered
-labels in one call (scored continuations through the port, :mod:`agents.scored_choice`) and its
+ranker no evidence (:func:`storyteller.agents.action_choice.action_candidates`), the model ranks the offered
+labels in one call (scored continuations through the port, :mod:`storyteller.agents.scored_choice`) and its
 best is the step's ``action``: the event parser's suggested label and the first its grammar
 offers (so a seated activity gives the event its posture, and then its seat choice). Every other
 event passes through without a call.
@@ -20,10 +20,10 @@ from typing import Any
 
 from langgraph.runtime import Runtime
 
-from agents.action_choice import action_candidates, action_choice_request
-from agents.event_parser import event_text
-from orchestrator.planning.choice_call import ask_choice, choice_update
-from orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.agents.action_choice import action_candidates, action_choice_request
+from storyteller.agents.event_parser import event_text
+from storyteller.orchestrator.planning.choice_call import ask_choice, choice_update
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
 
 
 async def choose_action(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:

@@ -34,8 +34,8 @@ from pathlib import Path
 from langgraph.checkpoint.serde.jsonplus import JsonPlusSerializer
 from langgraph.checkpoint.sqlite.aio import AsyncSqliteSaver
 
-from agents.messages import ParsedEvent, PlanningFailure
-from orchestrator.cache_paths import cache_root
+from storyteller.agents.messages import ParsedEvent, PlanningFailure
+from storyteller.orchestrator.cache_paths import cache_root
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS story_events (
@@ -55,7 +55,7 @@ CREATE TABLE IF NOT EXISTS story_trace_refs (
 
 
 def default_runs_db() -> Path:
-    """``runs.sqlite`` in the cache folder (:func:`orchestrator.cache_paths.cache_root`)."""
+    """``runs.sqlite`` in the cache folder (:func:`storyteller.orchestrator.cache_paths.cache_root`)."""
     return cache_root() / "runs.sqlite"
 
 
@@ -152,7 +152,7 @@ class StoryLog:
         return [o for _, o in self.outcomes() if isinstance(o, ParsedEvent)]
 
 
-CHECKPOINT_TYPE_MODULES = ("agents.messages", "orchestrator.planning.state", "tools.character_states")
+CHECKPOINT_TYPE_MODULES = ("storyteller.agents.messages", "storyteller.orchestrator.planning.state", "storyteller.tools.character_states")
 
 
 def checkpoint_types() -> tuple[tuple[str, str], ...]:

@@ -1,6 +1,6 @@
 """One choice call of a planning node (the action or the seat decided before the program).
 
-:func:`ask_choice` sends a :func:`agents.scored_choice.choice_request` through the port and
+:func:`ask_choice` sends a :func:`storyteller.agents.scored_choice.choice_request` through the port and
 reports its latency; a model that gives no answer (``LLMError``) or names no candidate
 (``ChoiceError``) gives None, so the node decides without it, while a replay miss propagates as
 everywhere in the graph. :func:`choice_update` is the node's state update for the call: one more
@@ -14,9 +14,9 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
-from agents.llm_port import LLMError, LLMRequest, ReplayMissError
-from agents.scored_choice import ChoiceError, ScoredChoice, choose
-from orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.agents.llm_port import LLMError, LLMRequest, ReplayMissError
+from storyteller.agents.scored_choice import ChoiceError, ScoredChoice, choose
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
 
 
 async def ask_choice(deps: PlanningDeps, request: LLMRequest) -> ScoredChoice | None:

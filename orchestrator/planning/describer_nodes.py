@@ -11,7 +11,7 @@ from typing import Any
 
 from langgraph.runtime import Runtime
 
-from agents.describer import (
+from storyteller.agents.describer import (
     best_effort,
     describer_request,
     description_cache_file,
@@ -20,9 +20,9 @@ from agents.describer import (
     read_cached,
     write_cached,
 )
-from orchestrator.planning.node_calls import complete, off_loop
-from orchestrator.planning.rejection import record_parsed, rejected_reply
-from orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.orchestrator.planning.node_calls import complete, off_loop
+from storyteller.orchestrator.planning.rejection import record_parsed, rejected_reply
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
 
 
 def _description_cache(deps: PlanningDeps) -> Path | None:

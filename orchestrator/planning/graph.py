@@ -19,17 +19,17 @@ finished description is also cached on disk per scene, model and prompts.
                  +- record_outcome <-- check_program <-- parse_event <+
                           (retries loop back through the routers)
 
-``choose_seat`` (:mod:`orchestrator.planning.seat_node`) decides the seat of a one-character
+``choose_seat`` (:mod:`storyteller.orchestrator.planning.seat_node`) decides the seat of a one-character
 sitting event among the seats the scene allows, checked against the relations the words state,
 with at most one call (scored continuations); other events pass through it without a call.
-Before it, ``choose_action`` (:mod:`orchestrator.planning.action_node`) lets the model rank the
+Before it, ``choose_action`` (:mod:`storyteller.orchestrator.planning.action_node`) lets the model rank the
 action labels of an event whose words name no action the label ranker knows (one call, scored
 continuations); its choice is the parser's suggestion and the first label its grammar offers.
 
 Off the event loop: running an event program (scene-graph queries, position sampling, or the
 wait on the program's worker process), building the parser's input (its grammar), the
 describer's clusters, and logging a step's outcome (the trace's fsync, then the story log's
-SQLite commit) happen in a worker thread (:func:`~orchestrator.planning.node_calls.off_loop`),
+SQLite commit) happen in a worker thread (:func:`~storyteller.orchestrator.planning.node_calls.off_loop`),
 so a session's simulation task keeps its frame rate while a step is checked.
 
 The nodes live by role: :mod:`.describer_nodes`, :mod:`.narrator_nodes`, :mod:`.parser_nodes`,
@@ -39,7 +39,7 @@ The nodes live by role: :mod:`.describer_nodes`, :mod:`.narrator_nodes`, :mod:`.
 trace sink) come from ``Runtime[PlanningDeps]``.
 
 Progress: with ``deps.progress`` set (a story session does, per step),
-:func:`~orchestrator.planning.node_calls.complete` reports every call's latency and
+:func:`~storyteller.orchestrator.planning.node_calls.complete` reports every call's latency and
 ``check_narration`` reports the accepted event's characters before
 the event parser is asked, so the session may plan the next event beside this one.
 
@@ -47,9 +47,9 @@ Traces: every request carries ``state.sim_frame`` (the frame of the world snapsh
 plans from; None without a simulation) as metadata outside the request hash. The check
 nodes record, for the attempt they judged, the parsed output (narrator event, event-parser
 plans per character, describer areas) or the typed error that rejected it (one update for
-every check node and ablation: :func:`orchestrator.planning.rejection.rejected_reply`). The
+every check node and ablation: :func:`storyteller.orchestrator.planning.rejection.rejected_reply`). The
 seqs of a step's narrator and event-parser attempts are stored with its outcome in the story log
-(:meth:`~orchestrator.planning.checkpoints.StoryLog.trace_seqs`) for the ``applied`` record.
+(:meth:`~storyteller.orchestrator.planning.checkpoints.StoryLog.trace_seqs`) for the ``applied`` record.
 """
 
 from __future__ import annotations
@@ -62,14 +62,14 @@ from langgraph.graph.state import CompiledStateGraph
 from langgraph.runtime import Runtime
 from langgraph.types import Checkpointer
 
-from agents.narrator import waits_without_a_call
-from orchestrator.planning.action_node import choose_action
-from orchestrator.planning.describer_nodes import check_description, describe_scene
-from orchestrator.planning.narrator_nodes import check_narration, narrate_event
-from orchestrator.planning.parser_nodes import check_program, parse_event
-from orchestrator.planning.record_node import record_outcome
-from orchestrator.planning.seat_node import choose_seat
-from orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.agents.narrator import waits_without_a_call
+from storyteller.orchestrator.planning.action_node import choose_action
+from storyteller.orchestrator.planning.describer_nodes import check_description, describe_scene
+from storyteller.orchestrator.planning.narrator_nodes import check_narration, narrate_event
+from storyteller.orchestrator.planning.parser_nodes import check_program, parse_event
+from storyteller.orchestrator.planning.record_node import record_outcome
+from storyteller.orchestrator.planning.seat_node import choose_seat
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
 
 NODES = (
     "describe_scene", "check_description", "narrate_event", "check_narration", "choose_action", "choose_seat",
@@ -94,7 +94,7 @@ def route_checked_description(state: PlanningState) -> Literal["describe_scene",
 
 def route_step(state: PlanningState) -> Literal["narrate_event", "record_outcome", "__end__"]:
     """Next step: done after K steps; with no free character, or nothing of the instruction
-    for the free ones now (``agents.instruction_parts``), the step is a wait, without a call."""
+    for the free ones now (``storyteller.agents.instruction_parts``), the step is a wait, without a call."""
     if state.step >= state.events_target:
         return "__end__"  # langgraph's END, spelled as the literal the router's type names
     if waits_without_a_call(state.roster, state.instruction, state.recent, state.instruction_since):

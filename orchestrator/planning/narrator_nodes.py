@@ -9,14 +9,14 @@ from typing import Any
 
 from langgraph.runtime import Runtime
 
-from agents.bystanders import scene_now
-from agents.instruction_parts import InstructionProgress
-from agents.messages import Event
-from agents.narrator import NarratorInput, narrator_request, parse_narration
-from agents.retry_feedback import REJECTIONS
-from orchestrator.planning.node_calls import ask, off_loop
-from orchestrator.planning.rejection import record_parsed, rejected_reply
-from orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.agents.bystanders import scene_now
+from storyteller.agents.instruction_parts import InstructionProgress
+from storyteller.agents.messages import Event
+from storyteller.agents.narrator import NarratorInput, narrator_request, parse_narration
+from storyteller.agents.retry_feedback import REJECTIONS
+from storyteller.orchestrator.planning.node_calls import ask, off_loop
+from storyteller.orchestrator.planning.rejection import record_parsed, rejected_reply
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
 
 
 def narrator_input(state: PlanningState, deps: PlanningDeps) -> NarratorInput:

@@ -13,9 +13,9 @@ from typing import Any, Literal, TypeVar
 
 import anyio.to_thread
 
-from agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
-from agents.messages import PlanningFailure
-from orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.agents.llm_port import LLMError, LLMRequest, LLMResponse, ReplayMissError
+from storyteller.agents.messages import PlanningFailure
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
 
 _T = TypeVar("_T")
 

@@ -9,24 +9,24 @@ from typing import Any
 
 from langgraph.runtime import Runtime
 
-from agents.area_words import described_areas
-from agents.device_in_use import waiting_for_busy_device
-from agents.event_parser import (
+from storyteller.agents.area_words import described_areas
+from storyteller.agents.device_in_use import waiting_for_busy_device
+from storyteller.agents.event_parser import (
     PARSER_RETRY_INSTRUCTION,
     ParserInput,
     event_text,
     parser_request,
     run_reply,
 )
-from agents.instruction_parts import served_characters
-from agents.messages import ParsedEvent
-from agents.program_grammar import event_program_grammar, free_seats
-from agents.retry_feedback import REJECTIONS
-from orchestrator.planning.node_calls import ask, off_loop
-from orchestrator.planning.rejection import record_parsed, rejected_reply
-from orchestrator.planning.state import PlanningDeps, PlanningState
-from tools.character_states import WorldView
-from tools.errors import ObjectInUseError
+from storyteller.agents.instruction_parts import served_characters
+from storyteller.agents.messages import ParsedEvent
+from storyteller.agents.program_grammar import event_program_grammar, free_seats
+from storyteller.agents.retry_feedback import REJECTIONS
+from storyteller.orchestrator.planning.node_calls import ask, off_loop
+from storyteller.orchestrator.planning.rejection import record_parsed, rejected_reply
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.errors import ObjectInUseError
 
 
 def parser_input(state: PlanningState, deps: PlanningDeps) -> ParserInput:
@@ -82,7 +82,7 @@ async def check_program(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     (ObjectInUseError) while a retry is left; after it, or on the last attempt, such a character
     waits by the object instead (idle). Words
     about a device every one of which is in use, with a program that avoids it, make the
-    event's characters wait for it (:mod:`agents.device_in_use`)."""
+    event's characters wait for it (:mod:`storyteller.agents.device_in_use`)."""
     deps = runtime.context
     if state.failure is not None:
         return {}

@@ -9,10 +9,10 @@ from typing import Any
 
 from langgraph.runtime import Runtime
 
-from agents.history import keep_window
-from agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
-from orchestrator.planning.node_calls import off_loop
-from orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.agents.history import keep_window
+from storyteller.agents.messages import CharacterStatus, HistoryEntry, ParsedEvent, PlanningFailure
+from storyteller.orchestrator.planning.node_calls import off_loop
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
 
 
 async def record_outcome(state: PlanningState, runtime: Runtime[PlanningDeps]) -> dict[str, Any]:

@@ -8,11 +8,11 @@ turns, clears the role's pending reply and, for the narrator and the placing cal
 last allowed attempt into the step's :class:`PlanningFailure`. The describer has no failure:
 after its last attempt ``check_description`` repairs the best answer instead.
 
-The feedback text itself is built by :func:`agents.retry_feedback.feedback_from_error`, so
+The feedback text itself is built by :func:`storyteller.agents.retry_feedback.feedback_from_error`, so
 every retry prompt reads alike. The error type kept on the turn is state only: requests are
 built from :meth:`RetryTurn.as_turn` (reply and feedback), never from it.
 
-Imports: ``agents`` and ``orchestrator.planning.state`` only (the graph modules import this one).
+Imports: ``agents`` and ``storyteller.orchestrator.planning.state`` only (the graph modules import this one).
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from typing import Any, Literal
 
 from pydantic import JsonValue
 
-from agents.messages import PlanningFailure
-from agents.retry_feedback import ANSWER_AGAIN, feedback_from_error
-from orchestrator.planning.state import PlanningDeps, PlanningState, RetryTurn
+from storyteller.agents.messages import PlanningFailure
+from storyteller.agents.retry_feedback import ANSWER_AGAIN, feedback_from_error
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState, RetryTurn
 
 TraceNode = Literal["describer", "narrator", "event_parser", "planner"]
 """The trace node of a call: the describer, the narrator, the event parser (or Direct

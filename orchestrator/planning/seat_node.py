@@ -1,10 +1,10 @@
 """The planning graph's ``choose_seat`` node: the seat of a sitting event, decided before its program.
 
 Between the narrator's accepted event and the event parser's first call. For an event of one
-character whose grammar would offer seats only (``agents.program_grammar.EventOptions.must_sit``),
+character whose grammar would offer seats only (``storyteller.agents.program_grammar.EventOptions.must_sit``),
 the candidates, their relations and the stated-relation check come from
-:mod:`agents.place_choice`; when more than one candidate meets the stated relations the model
-ranks them in one call (scored continuations through the port, :mod:`agents.scored_choice`),
+:mod:`storyteller.agents.place_choice`; when more than one candidate meets the stated relations the model
+ranks them in one call (scored continuations through the port, :mod:`storyteller.agents.scored_choice`),
 and the best-ranked one that meets them is the step's ``seat``. Every other event passes
 through without a call. The event parser then offers only that seat (and names it in its
 request); a retry after "no room" (``UnsatisfiableAreaError``) offers every free seat again.
@@ -22,21 +22,21 @@ from typing import Any
 import anyio.to_thread
 from langgraph.runtime import Runtime
 
-from agents.area_words import described_areas
-from agents.event_parser import event_text
-from agents.instruction_parts import words_before, words_so_far
-from agents.out_of_use import out_of_use, seats_taken_by
-from agents.place_choice import (
+from storyteller.agents.area_words import described_areas
+from storyteller.agents.event_parser import event_text
+from storyteller.agents.instruction_parts import words_before, words_so_far
+from storyteller.agents.out_of_use import out_of_use, seats_taken_by
+from storyteller.agents.place_choice import (
     SeatCandidates,
     checked_choice,
     needs_model,
     seat_candidates,
     seat_choice_request,
 )
-from agents.program_grammar import event_options
-from agents.relation_words import points_back
-from orchestrator.planning.choice_call import ask_choice, choice_update
-from orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.agents.program_grammar import event_options
+from storyteller.agents.relation_words import points_back
+from storyteller.orchestrator.planning.choice_call import ask_choice, choice_update
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
 
 
 def event_seats(state: PlanningState, deps: PlanningDeps) -> SeatCandidates | None:

@@ -3,7 +3,7 @@
 :class:`PlanningState` is what the checkpointer stores after every node: small and bounded
 (the roster, a window of recent events, the current step's pending replies and retry turns).
 The full story (every planned event) grows without bound, so it lives outside the state in a
-:class:`~orchestrator.planning.checkpoints.StoryLog`, reached through :class:`PlanningDeps` (the
+:class:`~storyteller.orchestrator.planning.checkpoints.StoryLog`, reached through :class:`PlanningDeps` (the
 graph's runtime context) together with the LLM port, the scene and the world view provider.
 """
 
@@ -16,12 +16,12 @@ from typing import Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from agents.bystanders import Choice, object_areas, scene_choices
-from agents.describer import DescriberInput, describer_input_from_scene
-from agents.event_parser import ProgramRunner
-from agents.history import HISTORY_WINDOW
-from agents.llm_port import LLMPort, TraceRecorder
-from agents.messages import (
+from storyteller.agents.bystanders import Choice, object_areas, scene_choices
+from storyteller.agents.describer import DescriberInput, describer_input_from_scene
+from storyteller.agents.event_parser import ProgramRunner
+from storyteller.agents.history import HISTORY_WINDOW
+from storyteller.agents.llm_port import LLMPort, TraceRecorder
+from storyteller.agents.messages import (
     CharacterStatus,
     EarlierEvents,
     Event,
@@ -30,14 +30,14 @@ from agents.messages import (
     PlanningFailure,
     SceneDescription,
 )
-from agents.object_states import unsettled_labels
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
-from agents.retry_feedback import Turn
-from orchestrator.llm.trace_writer import TraceSink
-from orchestrator.planning.checkpoints import StoryLog
-from sim.scene.model import Scene
-from tools.character_states import WorldView
-from tools.scene_graph import SceneGraph
+from storyteller.agents.object_states import unsettled_labels
+from storyteller.agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from storyteller.agents.retry_feedback import Turn
+from storyteller.orchestrator.llm.trace_writer import TraceSink
+from storyteller.orchestrator.planning.checkpoints import StoryLog
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.scene_graph import SceneGraph
 
 
 class RetryTurn(BaseModel):
@@ -161,9 +161,9 @@ class PlanningDeps:
     scene_graph: SceneGraph | None = None
     """The scene graph handed to event programs (None: the tools build it)."""
     runner: ProgramRunner | None = None
-    """Runs event programs (None: ``tools.event_program.run_event_program``)."""
+    """Runs event programs (None: ``storyteller.tools.event_program.run_event_program``)."""
     program_grammar: bool = False
-    """Decode event programs under agents.program_grammar (local llama.cpp models)."""
+    """Decode event programs under storyteller.agents.program_grammar (local llama.cpp models)."""
     trace: TraceSink | None = None
     """Where parsed outputs are recorded (None: the port's ``.trace``, if it has one)."""
     progress: StepProgress | None = None
@@ -176,7 +176,7 @@ class PlanningDeps:
 
     def labels_now(self, recent: Sequence[HistoryEntry]) -> tuple[str, ...]:
         """The action labels an event may take after ``recent``: without the switch or door
-        label that would set a state the story already holds (:mod:`agents.object_states`)."""
+        label that would set a state the story already holds (:mod:`storyteller.agents.object_states`)."""
         return unsettled_labels(self.action_labels, recent, [o.label for o in self.scene.objects])
 
     def describer_input(self) -> DescriberInput:
@@ -187,7 +187,7 @@ class PlanningDeps:
 
     def everyday(self) -> tuple[tuple[Choice, ...], dict[str, int]]:
         """The scene's everyday activities for bystanders and its object areas (the describer's
-        clusters), built once per run (``agents.bystanders``)."""
+        clusters), built once per run (``storyteller.agents.bystanders``)."""
         if self._everyday is None:
             areas = object_areas(self.scene, self.describer_input().clusters)
             self._everyday = (scene_choices(self.scene, self.action_labels, areas, self.prompts), areas)

@@ -1,6 +1,6 @@
 """Session checkpoints written by one worker thread, so the frame loop never waits on a disk.
 
-Writing a checkpoint (``orchestrator.session.snapshot_file.write_checkpoint``) fsyncs every
+Writing a checkpoint (``storyteller.orchestrator.session.snapshot_file.write_checkpoint``) fsyncs every
 motion chunk file, the pickled checkpoint and the run folder: tens of milliseconds on an
 ordinary disk, a hundred under load, which on the event loop is a frame or three missed in
 ``realtime`` pace. :class:`CheckpointWriter` takes the checkpoint (a copy the session no longer
@@ -17,7 +17,7 @@ on disk. A failed write (a full disk) is raised, naming the file, by the next :m
 A kill -9 may now find on disk the checkpoint before the one being written (a few frames or
 one applied step older). ``storyteller resume`` handles it as any earlier checkpoint: steps the
 trace shows applied after it are applied again at their recorded frames, answered from the
-planner's story log (``orchestrator.session.run_job``).
+planner's story log (``storyteller.orchestrator.session.run_job``).
 """
 
 from __future__ import annotations
@@ -26,10 +26,10 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
-from orchestrator.session.session_types import SessionCheckpoint
-from orchestrator.session.snapshot_file import shared_names, write_checkpoint
-from sim.world.step import World
-from sim.world.track_chunks import ChunkStore
+from storyteller.orchestrator.session.session_types import SessionCheckpoint
+from storyteller.orchestrator.session.snapshot_file import shared_names, write_checkpoint
+from storyteller.sim.world.step import World
+from storyteller.sim.world.track_chunks import ChunkStore
 
 WriteFn = Callable[[Path, SessionCheckpoint, dict[int, str], ChunkStore | None], None]
 

@@ -1,11 +1,11 @@
 """Where each frame's wall time went, in the simulation task of a session (this process).
 
-The simulation task (``orchestrator.session.runtime``) times the parts of every frame it runs
+The simulation task (``storyteller.orchestrator.session.runtime``) times the parts of every frame it runs
 and appends them here; the interval between two frames is their sum. Parts (wall seconds):
 
 - ``settle``: instructions, news from the planner, outcomes applied (trace and story-stream
   records handed to the writer), waiting for news in ``lockstep`` / ``offline`` pace;
-- ``step``: the world step (``sim.world.step.step``) and the event bookkeeping after it;
+- ``step``: the world step (``storyteller.sim.world.step.step``) and the event bookkeeping after it;
 - ``ask``: building and starting planning requests;
 - ``checkpoint``: taking the session's checkpoint and handing it to ``on_checkpoint`` (the run
   job's writer thread writes it);

@@ -8,7 +8,7 @@ from stdin) at the first frame the simulation starts after they arrive (a resume
 the last frame its trace shows, ``SessionSettings.recorded_until``). Every request made
 after that frame carries it, with ``instruction_since`` = its own step index, so events planned
 under an earlier instruction never count as parts of this one done
-(``agents.instruction_parts``). Each one is reported to ``on_instruction`` (the run job records
+(``storyteller.agents.instruction_parts``). Each one is reported to ``on_instruction`` (the run job records
 it in the trace with its frame); a replay passes the recorded ones as scheduled and ignores
 live ones, so they take effect at the same frames again.
 
@@ -29,8 +29,8 @@ from collections.abc import Sequence
 import anyio
 import structlog
 
-from orchestrator.session.instruction_script import MAX_SCRIPT_INSTRUCTIONS
-from orchestrator.session.session_types import InstructionSource, TimedInstruction
+from storyteller.orchestrator.session.instruction_script import MAX_SCRIPT_INSTRUCTIONS
+from storyteller.orchestrator.session.session_types import InstructionSource, TimedInstruction
 
 MAX_LIVE_INSTRUCTIONS = MAX_SCRIPT_INSTRUCTIONS
 """Live instructions (stdin, a viewer's box) one session takes at most."""

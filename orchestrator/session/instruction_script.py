@@ -99,7 +99,7 @@ def parse_instruction_script(text: str, source: str = "<script>") -> tuple[Scrip
 def read_instruction_script(path: Path) -> tuple[ScriptLine, ...]:
     """:func:`parse_instruction_script` of a file read within :data:`MAX_SCRIPT_BYTES` (an
     unreadable, oversized or non-UTF-8 file is an error too)."""
-    from sim.bounded_files import BoundedFileError, read_bounded_bytes
+    from storyteller.sim.bounded_files import BoundedFileError, read_bounded_bytes
 
     try:
         text = read_bounded_bytes(path, MAX_SCRIPT_BYTES, str(path)).decode("utf-8")

@@ -4,15 +4,15 @@ A viewer reads the motion from the chunk files, which grow by a record per 10 si
 seconds; what a director needs sooner comes from this small file, which the run replaces a few
 times a second (:class:`LivePublisher`, a task on the run's event loop: the snapshot is taken
 between two frames, the file is written in a worker thread, renamed over the old one without
-following a link: ``sim.no_follow_writes.write_file``):
+following a link: ``storyteller.sim.no_follow_writes.write_file``):
 
 - the simulated frame, the speed it is set to, whether it is paused (held at a frame boundary)
-  and why it takes no pause or speed when it does not (``orchestrator.session.viewer_controls``);
+  and why it takes no pause or speed when it does not (``storyteller.orchestrator.session.viewer_controls``);
 - per planner role (describer, narrator, event parser, the unified planner): the calls in flight
   and for how long the oldest has been thinking, calls so far, and the last reply with its
   latency (:class:`ReplyTap`, an LLM port that passes everything through unchanged);
 - per character: its state, current event, what the event is, its action and place
-  (``orchestrator.session.run_status``).
+  (``storyteller.orchestrator.session.run_status``).
 
 Text in it (replies, activities, places) is a model's or a user's: data, escaped where shown,
 and cut to :data:`MAX_TEXT_CHARS` / :data:`MAX_REPLY_CHARS`. :func:`read_live_state` reads it
@@ -31,12 +31,12 @@ from pathlib import Path
 import anyio
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from agents.llm_port import LLMPort, LLMRequest, LLMResponse, TraceRecorder
-from orchestrator.session.run_status import RunStatus
-from orchestrator.session.viewer_controls import DirectorControls
-from sim.bounded_files import BoundedFileError, read_bounded_bytes
-from sim.no_follow_writes import write_file
-from sim.run_folder_names import LIVE_STATE
+from storyteller.agents.llm_port import LLMPort, LLMRequest, LLMResponse, TraceRecorder
+from storyteller.orchestrator.session.run_status import RunStatus
+from storyteller.orchestrator.session.viewer_controls import DirectorControls
+from storyteller.sim.bounded_files import BoundedFileError, read_bounded_bytes
+from storyteller.sim.no_follow_writes import write_file
+from storyteller.sim.run_folder_names import LIVE_STATE
 
 LIVE_FILE = LIVE_STATE
 MAX_LIVE_BYTES = 1 << 20

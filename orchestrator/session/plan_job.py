@@ -4,19 +4,19 @@ Without a simulation nothing "finishes" by itself, so the story advances by step
 planned event moves its characters to their sampled positions and keeps them busy for
 ``busy_events`` further steps (0: the event counts as completed as soon as it is planned).
 Characters start idle at free floor points sampled with the seed
-(:func:`~orchestrator.session.roster.initial_roster`), unless the caller hands over a roster,
+(:func:`~storyteller.orchestrator.session.roster.initial_roster`), unless the caller hands over a roster,
 a story so far, a world view and a description (the planning benchmark does, per test case).
 
 :func:`run_plan` is the one way the planning graph is driven for K steps:
-``storyteller plan`` and ``python -m benchmark.planning_benchmark`` both call it, so the
+``storyteller plan`` and ``python -m storyteller.benchmark.planning_benchmark`` both call it, so the
 benchmark measures the graph the product runs, request for request. The thread is
 checkpointed in SQLite (``runs_db``; ``":memory:"`` for a throwaway run); resuming a thread
 never repeats its finished LLM calls.
 
 Event programs run in an OS-limited worker process
-(:class:`~orchestrator.sandbox_worker.WorkerRunner`) started for the run and stopped when it
+(:class:`~storyteller.orchestrator.sandbox_worker.WorkerRunner`) started for the run and stopped when it
 ends, unless the caller hands over a ``runner`` (it then owns it) or asks for
-``in_process_programs`` (``tools.event_program.run_event_program`` in this process). Both give
+``in_process_programs`` (``storyteller.tools.event_program.run_event_program`` in this process). Both give
 the same plans for the same program, seed and world.
 """
 
@@ -29,24 +29,24 @@ from typing import Any
 
 from langchain_core.runnables import RunnableConfig
 
-from agents.event_parser import ProgramRunner, scene_action_labels
-from agents.llm_port import LLMPort
-from agents.messages import (
+from storyteller.agents.event_parser import ProgramRunner, scene_action_labels
+from storyteller.agents.llm_port import LLMPort
+from storyteller.agents.messages import (
     CharacterStatus,
     HistoryEntry,
     ParsedEvent,
     PlanningFailure,
     SceneDescription,
 )
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
-from orchestrator.planning.ablation_graph import Ablation, compile_graph
-from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
-from orchestrator.planning.graph import recursion_limit
-from orchestrator.planning.state import PlanningDeps, PlanningState, WorldProvider
-from orchestrator.session.port_setup import describer_mode_for
-from orchestrator.session.roster import RosterWorld, initial_roster
-from sim.scene.model import Scene
-from tools.scene_graph import SceneGraph
+from storyteller.agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from storyteller.orchestrator.planning.ablation_graph import Ablation, compile_graph
+from storyteller.orchestrator.planning.checkpoints import StoryLog, open_checkpointer
+from storyteller.orchestrator.planning.graph import recursion_limit
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState, WorldProvider
+from storyteller.orchestrator.session.port_setup import describer_mode_for
+from storyteller.orchestrator.session.roster import RosterWorld, initial_roster
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.scene_graph import SceneGraph
 
 StepOutcome = ParsedEvent | PlanningFailure | None
 
@@ -97,10 +97,10 @@ async def run_plan(
     planner and the scene description (default: the full method with the describer).
     ``runner`` runs the event programs (the caller closes it; None: a worker process for this
     run, or in this process with ``in_process_programs``).
-    Raises :class:`~orchestrator.session.roster.StartPositionError` when the characters do
+    Raises :class:`~storyteller.orchestrator.session.roster.StartPositionError` when the characters do
     not fit on the floor.
     """
-    from orchestrator.sandbox_worker import WorkerRunner
+    from storyteller.orchestrator.sandbox_worker import WorkerRunner
 
     own_runner = WorkerRunner() if runner is None and not in_process_programs else None
     ablation = ablation or Ablation()
@@ -142,7 +142,7 @@ def _fresh_state(
     seed: int, history: Sequence[HistoryEntry], description: SceneDescription | None,
 ) -> dict[str, Any]:
     """The first state of a new thread (``roster`` None: ``characters`` idle characters placed
-    with ``seed``; raises :class:`~orchestrator.session.roster.StartPositionError` when they do
+    with ``seed``; raises :class:`~storyteller.orchestrator.session.roster.StartPositionError` when they do
     not fit on the floor)."""
     return PlanningState(
         instruction=instruction,

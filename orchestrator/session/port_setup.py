@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from agents.llm_port import LLMPort, NodeName
+from storyteller.agents.llm_port import LLMPort, NodeName
 
 
 def describer_mode_for(model: str) -> Literal["objects", "regions"]:
@@ -35,12 +35,12 @@ def open_port(
     planner: str = "event",
 ) -> tuple[LLMPort, str]:
     """The LLM port from the run config (embedded model by default) and the describer's model
-    (``unanswered``: see :class:`orchestrator.llm.replay.ReplayClient`; ``"wait"`` for a story session).
+    (``unanswered``: see :class:`storyteller.orchestrator.llm.replay.ReplayClient`; ``"wait"`` for a story session).
 
     A ``replay`` trace that holds requests, none of them of a node ``planner`` asks, is a
     :class:`ReplayPlannerError` before anything runs (the run would stop at its first miss)."""
-    from orchestrator.llm.config import load_config
-    from orchestrator.llm.replay import ReplayClient, build_llm_port
+    from storyteller.orchestrator.llm.config import load_config
+    from storyteller.orchestrator.llm.replay import ReplayClient, build_llm_port
 
     config = load_config(config_path)
     port = build_llm_port(config, record=record, replay=replay, unanswered=unanswered)

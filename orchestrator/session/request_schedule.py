@@ -5,7 +5,7 @@ A replay of a run with overlapping steps makes every request its trace holds
 the steps after its checkpoint (``SessionSettings.recorded_requests``: the killed process traced
 them before its last checkpoint reached the disk), without tracing them again, and then asks
 live; until then, outcomes the trace does not show applied are held
-(``orchestrator.session.steps_in_flight.StepsInFlight.holding``), as the killed process still
+(``storyteller.orchestrator.session.steps_in_flight.StepsInFlight.holding``), as the killed process still
 had them in flight. So a step's request is in the trace once, and the resumed story is the one
 the trace tells. Each request comes at the step and beside the steps in flight it was recorded
 with, or the session stops with a :class:`SessionError` naming both.
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from orchestrator.session.session_types import (
+from storyteller.orchestrator.session.session_types import (
     RecordedRequest,
     RequestPhase,
     SessionError,

@@ -3,7 +3,7 @@
 :func:`initial_roster` names the characters (:data:`NAMES`, then ``Extra<i>``) and places
 them idle on free floor points at least :data:`START_SEPARATION` apart, deterministically for
 a seed. :class:`RosterWorld` is the one conversion from a roster
-(:class:`~agents.messages.CharacterStatus`) to the world view event programs run against:
+(:class:`~storyteller.agents.messages.CharacterStatus`) to the world view event programs run against:
 ``storyteller plan`` uses it as it is, a simulation session fills in where busy characters
 are heading and which seats are taken (:attr:`RosterWorld.targets`, :attr:`RosterWorld.seats`).
 """
@@ -14,10 +14,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from agents.messages import CharacterStatus
-from sim.scene.model import Scene
-from tools.character_states import CharacterState, WorldView
-from tools.position_sampling import FloorMap
+from storyteller.agents.messages import CharacterStatus
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import CharacterState, WorldView
+from storyteller.tools.position_sampling import FloorMap
 
 NAMES = ("Ava", "Ben", "Cleo", "Dan", "Eve", "Finn", "Gia", "Hugo", "Iris", "Jon", "Kai", "Lena")
 START_SEPARATION = 1.0

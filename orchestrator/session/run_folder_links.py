@@ -6,7 +6,7 @@ first, which raises :class:`PlantedLinkError` (one sentence naming the folder an
 command's ``error:`` line, exit code 2) when
 
 - the folder itself is a symbolic link;
-- a symbolic link has the name of a file the run writes (``sim.run_folder_names``:
+- a symbolic link has the name of a file the run writes (``storyteller.sim.run_folder_names``:
   the story files, the trace, ``run.json``, the checkpoint, ``runs.sqlite`` and SQLite's files
   beside it, the exports of each character, the pictures), or of ``motion/`` or a chunk file in it;
 - a file the run writes in place (the trace, ``story.jsonl``, ``runs.sqlite`` and its journals,
@@ -14,7 +14,7 @@ command's ``error:`` line, exit code 2) when
   where it is linked from too).
 
 The check is the clear refusal; the guarantee is in the writes themselves
-(``sim.no_follow_writes``): every file is replaced through a fresh temporary name or opened with
+(``storyteller.sim.no_follow_writes``): every file is replaced through a fresh temporary name or opened with
 ``O_NOFOLLOW``, so a link planted after this check is still never written through (that write
 fails, or replaces the link). SQLite opens ``runs.sqlite`` by name and follows links, so for its
 files this check is the guard.
@@ -27,7 +27,7 @@ import stat
 from collections.abc import Sequence
 from pathlib import Path
 
-from sim.run_folder_names import APPENDED, CHUNK_SUFFIX, run_folder_entries
+from storyteller.sim.run_folder_names import APPENDED, CHUNK_SUFFIX, run_folder_entries
 
 
 class PlantedLinkError(Exception):

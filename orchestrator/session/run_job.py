@@ -2,16 +2,16 @@
 
 :func:`run_story` builds the world (characters at the start positions of the seed), the LLM
 port (recording to a trace, or replaying one), the planning graph of the chosen ablation and
-the story session, and runs them to the end; :func:`~orchestrator.session.run_outputs.write_outputs` writes ``story.json``
-(:func:`~orchestrator.session.run_outputs.story_json`), ``story.md`` and ``metrics.json`` (``orchestrator.session.run_report``),
+the story session, and runs them to the end; :func:`~storyteller.orchestrator.session.run_outputs.write_outputs` writes ``story.json``
+(:func:`~storyteller.orchestrator.session.run_outputs.story_json`), ``story.md`` and ``metrics.json`` (``storyteller.orchestrator.session.run_report``),
 the motion exports and the pictures. With a replayed trace the session applies each planning
 result at the frame recorded there, so the same arguments give the same story and the same
 motion.
 
-Resume: a run writes ``run.json`` (``orchestrator.session.run_manifest``) before its first
+Resume: a run writes ``run.json`` (``storyteller.orchestrator.session.run_manifest``) before its first
 frame and keeps its session's last checkpoint in ``session.snapshot``
-(``orchestrator.session.snapshot_file``), written by a worker thread
-(``orchestrator.session.checkpoint_writer``: the frames never wait on its fsyncs; the newest
+(``storyteller.orchestrator.session.snapshot_file``), written by a worker thread
+(``storyteller.orchestrator.session.checkpoint_writer``: the frames never wait on its fsyncs; the newest
 checkpoint is on disk before :func:`run_story` returns or raises). ``run_story(..., resume=True)`` restores the world
 and the story from it; steps the trace shows applied are applied again at their recorded
 frames (and not traced twice), and the planner answers finished steps from the story log and
@@ -19,22 +19,22 @@ finishes a cut step from its langgraph checkpoint, so no event is lost or duplic
 call whose node was checkpointed is repeated.
 
 Motion: the world streams its frames to ``motion/<name>.chunks`` in the run folder
-(``sim.world.track_chunks``) and keeps one window of them in memory; the checkpoint holds only
+(``storyteller.sim.world.track_chunks``) and keeps one window of them in memory; the checkpoint holds only
 the frames not yet in the chunk files and how many are. A resume keeps the streamed frames up
 to that count and goes on from the checkpoint; the exports read the chunk files.
 
 Live viewing: ``scene.json`` is written (and a ``story.json`` of an earlier run in the folder
-removed) before the first frame, and ``story.jsonl`` (``orchestrator.session.story_stream``)
+removed) before the first frame, and ``story.jsonl`` (``storyteller.orchestrator.session.story_stream``)
 gets a line whenever an event starts, completes or fails, so ``storyteller view`` can follow a
 run in progress from them and the chunk files; ``story.json`` appears when the run ends.
-``live.json`` (``orchestrator.session.live_state``) is the run now for a viewer's panels (frame,
+``live.json`` (``storyteller.orchestrator.session.live_state``) is the run now for a viewer's panels (frame,
 pause and speed, the planner's roles and last replies, each character), replaced a few times a
 second; a realtime run takes a director's pause and speed from ``viewer_controls.jsonl``
-(``orchestrator.session.viewer_controls``), applied between two frames, nothing of it traced.
+(``storyteller.orchestrator.session.viewer_controls``), applied between two frames, nothing of it traced.
 
 Instructions: the timed script (``RunArguments.instructions``) is scheduled at its frames,
 lines typed on stdin (``interactive``) and lines a viewer's box appends to
-``viewer_instructions.jsonl`` (``orchestrator.session.viewer_instructions``; read by every run
+``viewer_instructions.jsonl`` (``storyteller.orchestrator.session.viewer_instructions``; read by every run
 that is not a replay) take effect at the next frame, and every one is
 written to the trace as an ``instruction`` record with its frame. A replay schedules the
 trace's instruction records at their frames and ignores the script and stdin; a resume
@@ -43,22 +43,22 @@ applies the recorded ones again (not traced twice) and the script lines not yet 
 Overlapping planning (``RunArguments.planners`` > 1): the trace gets a ``requested`` record per
 step, and a replay makes every request where the recorded run did
 (``SessionSettings.schedule``), and a resume makes the ones its trace holds after the checkpoint
-again, not traced twice, before it asks live (``orchestrator.session.request_schedule``), and
+again, not traced twice, before it asks live (``storyteller.orchestrator.session.request_schedule``), and
 takes a viewer's or stdin's line after the last frame its trace shows; a step the recorded run
 still had in flight when its story ended is asked again and its unanswered call waits to the end
-as it did (the replay port's ``unanswered="wait"``, ``orchestrator.llm.replay``), so the replay
+as it did (the replay port's ``unanswered="wait"``, ``storyteller.orchestrator.llm.replay``), so the replay
 ends with the recorded story and exit 0. Any error other than the user's inputs or the LLM's (a bug, a
 failing disk) cancels the session's task group and is raised from :func:`run_story` after the
 trace, the story log and the program worker are closed.
 
 Writes: every file in the run folder is written without following a symbolic link (replaced
-through a fresh temporary name, or opened with ``O_NOFOLLOW``: ``sim.no_follow_writes``), and
+through a fresh temporary name, or opened with ``O_NOFOLLOW``: ``storyteller.sim.no_follow_writes``), and
 :func:`run_story` first refuses a folder that is a link or holds one where the run writes
-(``orchestrator.session.run_folder_links``), so nothing is written outside the folder.
+(``storyteller.orchestrator.session.run_folder_links``), so nothing is written outside the folder.
 
 Problems with the user's inputs (an unreadable trace or motion config, a model that cannot be
 opened, a damaged ``runs.sqlite``, a session that cannot go on) are raised as
-:class:`~orchestrator.session.run_setup.RunSetupError`, one sentence each, naming the file. A write that fails (a full disk)
+:class:`~storyteller.orchestrator.session.run_setup.RunSetupError`, one sentence each, naming the file. A write that fails (a full disk)
 raises ``OSError`` naming the file; what was written before stays readable (the trace keeps
 whole lines, ``session.snapshot`` the previous checkpoint). A run stopped through ``stop``
 (SIGINT, SIGTERM) saves its checkpoint at the frame it stopped at and returns the story so far.
@@ -75,11 +75,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from orchestrator.planning.ablation_graph import Ablation
-from orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
-from orchestrator.session.run_manifest import RunArguments, RunManifest
-from orchestrator.session.run_outputs import write_scene_json
-from orchestrator.session.run_setup import (
+from storyteller.orchestrator.planning.ablation_graph import Ablation
+from storyteller.orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
+from storyteller.orchestrator.session.run_manifest import RunArguments, RunManifest
+from storyteller.orchestrator.session.run_outputs import write_scene_json
+from storyteller.orchestrator.session.run_setup import (
     RecordedInputs,
     RunContext,
     RunSetupError,
@@ -95,9 +95,9 @@ from orchestrator.session.run_setup import (
     start_world,
     streaming_world,
 )
-from orchestrator.session.run_status import RunStatus
-from orchestrator.session.runtime import Session
-from orchestrator.session.session_types import (
+from storyteller.orchestrator.session.run_status import RunStatus
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.session_types import (
     RecordedRequest,
     SessionCheckpoint,
     SessionError,
@@ -106,20 +106,20 @@ from orchestrator.session.session_types import (
     StoryEvent,
     TimedInstruction,
 )
-from sim.no_follow_writes import remove_stale_temporaries
-from sim.run_folder_names import (
+from storyteller.sim.no_follow_writes import remove_stale_temporaries
+from storyteller.sim.run_folder_names import (
     MOTION_FOLDER,
     RUNS_DB,
     STORY_JSON,
 )
-from sim.scene.model import Scene
+from storyteller.sim.scene.model import Scene
 
 if TYPE_CHECKING:
-    from orchestrator.planning.state import PlanningDeps
-    from orchestrator.sandbox_worker import WorkerRunner
-    from orchestrator.session.live_state import ReplyTap
-    from sim.world.step import World
-    from sim.world.track_chunks import ChunkStore
+    from storyteller.orchestrator.planning.state import PlanningDeps
+    from storyteller.orchestrator.sandbox_worker import WorkerRunner
+    from storyteller.orchestrator.session.live_state import ReplyTap
+    from storyteller.sim.world.step import World
+    from storyteller.sim.world.track_chunks import ChunkStore
 
 
 @dataclass(frozen=True)
@@ -158,7 +158,7 @@ async def run_story(
 
     A live or replayed run writes ``run.json`` before the first frame (``on_start(manifest)``
     is called then) and keeps the session's last checkpoint in ``session.snapshot`` (after
-    every applied planning step and every :data:`~orchestrator.session.run_setup.CHECKPOINT_EVERY_S` simulated seconds).
+    every applied planning step and every :data:`~storyteller.orchestrator.session.run_setup.CHECKPOINT_EVERY_S` simulated seconds).
     ``resume=True`` goes on from that checkpoint on the thread ``thread_id``: the world is
     restored from it, steps whose result the trace already shows applied are applied at their
     recorded frames again, and the planner answers finished steps from its story log.
@@ -166,8 +166,8 @@ async def run_story(
     ``on_resume(frame, fps)`` tells the frame a resumed session goes on from (0: no checkpoint was
     kept). ``on_event(event, fps)`` is called whenever a story event starts, loops, completes or fails.
     ``on_instruction(instruction, fps)`` when a new instruction takes effect. ``interactive``: lines typed on stdin become the instruction while the story runs (not in a replay),
-    read by ``stdin_reader(session)`` when given (e.g. ``orchestrator.session.terminal_prompt``
-    under a live view), else by ``orchestrator.session.stdin_instructions``.
+    read by ``stdin_reader(session)`` when given (e.g. ``storyteller.orchestrator.session.terminal_prompt``
+    under a live view), else by ``storyteller.orchestrator.session.stdin_instructions``.
     Event programs run in an OS-limited worker process started for the run and stopped when
     it ends (``in_process_programs``: in this process instead; the plans are the same). It is
     started first, with the scene to load, so its imports and the scene's navigation grid
@@ -180,8 +180,8 @@ async def run_story(
     again unless its node was checkpointed.
 
     ``status``: told every happening of the run (its frames, events, outcomes, instructions and
-    LLM calls; ``orchestrator.session.run_status``), for a live view."""
-    from orchestrator.sandbox_worker import WorkerRunner
+    LLM calls; ``storyteller.orchestrator.session.run_status``), for a live view."""
+    from storyteller.orchestrator.sandbox_worker import WorkerRunner
 
     if programs is None and not in_process_programs:
         programs = WorkerRunner()
@@ -222,9 +222,9 @@ async def _run_story(
     trace, the story log, the story stream, the checkpoint writer, the readers of a viewer's
     instructions and controls, the program worker) is closed once, by one exit stack, whether
     the set-up fails, the story ends or it stops with an error."""
-    from agents.llm_port import LLMError
-    from orchestrator.session.snapshot_file import SNAPSHOT_FILE
-    from sim.world.step import WorldConfig
+    from storyteller.agents.llm_port import LLMError
+    from storyteller.orchestrator.session.snapshot_file import SNAPSHOT_FILE
+    from storyteller.sim.world.step import WorldConfig
 
     names = list(args.names)
     try:
@@ -287,11 +287,11 @@ class _RunHooks:
     def __init__(self, run: RunContext, snapshot_path: Path, replies: ReplyTap, status: RunStatus, *,
                  on_event: Callable[[StoryEvent, int], None] | None,
                  on_instruction: Callable[[TimedInstruction, int], None] | None) -> None:
-        from orchestrator.llm.trace_writer import TraceWriter
-        from orchestrator.session.checkpoint_writer import CheckpointWriter
-        from orchestrator.session.live_state import LivePublisher
-        from orchestrator.session.story_stream import StoryStream
-        from orchestrator.session.viewer_controls import DirectorControls, controls_refusal
+        from storyteller.orchestrator.llm.trace_writer import TraceWriter
+        from storyteller.orchestrator.session.checkpoint_writer import CheckpointWriter
+        from storyteller.orchestrator.session.live_state import LivePublisher
+        from storyteller.orchestrator.session.story_stream import StoryStream
+        from storyteller.orchestrator.session.viewer_controls import DirectorControls, controls_refusal
 
         self.fps = run.fps
         self.status = status
@@ -332,7 +332,7 @@ class _RunHooks:
             self.on_event(event, self.fps)
 
     def _write_after_trace(self, path: Path, cp: SessionCheckpoint, shared: dict[int, str], store: ChunkStore | None) -> None:
-        from orchestrator.session.snapshot_file import write_checkpoint
+        from storyteller.orchestrator.session.snapshot_file import write_checkpoint
 
         if self.writer is not None:  # the checkpoint counts on the trace's applied records: on disk first
             self.writer.sync()
@@ -347,9 +347,9 @@ async def _play(run: RunContext, ablation: Ablation, deps: PlanningDeps, setting
                 recorded: RecordedInputs) -> tuple[Session, SessionResult, bool]:
     """Build the session on the planning graph and run it (until ``run.stop``, if set first),
     publishing ``live.json`` meanwhile; its last checkpoint is on disk when this returns."""
-    from orchestrator.planning.ablation_graph import compile_graph
-    from orchestrator.planning.checkpoints import open_checkpointer
-    from orchestrator.session.step_planner import GraphStepPlanner
+    from storyteller.orchestrator.planning.ablation_graph import compile_graph
+    from storyteller.orchestrator.planning.checkpoints import open_checkpointer
+    from storyteller.orchestrator.session.step_planner import GraphStepPlanner
 
     async with open_checkpointer(run.out / RUNS_DB) as saver:
         planner = GraphStepPlanner(compile_graph(ablation, saver), deps, run.thread, lanes=run.args.planners)
@@ -379,9 +379,9 @@ def _start_session(run: RunContext, session: Session, hooks: _RunHooks, checkpoi
                    said: list[TimedInstruction]) -> None:
     """Resume ``session`` from ``checkpoint``, tell the status and ``story.jsonl`` where the
     story starts, and start the readers of stdin, a viewer's instructions and its controls."""
-    from orchestrator.session.story_stream import StreamStart
-    from orchestrator.session.viewer_controls import CONTROLS_FILE, start_control_reader
-    from orchestrator.session.viewer_instructions import INBOX_FILE, start_inbox_reader
+    from storyteller.orchestrator.session.story_stream import StreamStart
+    from storyteller.orchestrator.session.viewer_controls import CONTROLS_FILE, start_control_reader
+    from storyteller.orchestrator.session.viewer_instructions import INBOX_FILE, start_inbox_reader
 
     if checkpoint is not None:
         session.resume(checkpoint)
@@ -395,7 +395,7 @@ def _start_session(run: RunContext, session: Session, hooks: _RunHooks, checkpoi
     if run.resume and run.on_resume is not None:
         run.on_resume(session.world.frame, run.fps)
     if run.interactive and run.replay is None:
-        from orchestrator.session.stdin_instructions import start_stdin_reader
+        from storyteller.orchestrator.session.stdin_instructions import start_stdin_reader
 
         (run.stdin_reader or start_stdin_reader)(session)
     if run.replay is None:  # a viewer's instruction box, in this process or another

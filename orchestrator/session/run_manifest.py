@@ -15,13 +15,13 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from orchestrator.planning.kinds import DescriptionKind, PlannerKind
-from orchestrator.session.instruction_script import ScriptLine
-from orchestrator.session.pace import MAX_RUN_SPEED, MIN_SPEED, Pace
-from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
-from sim.no_follow_writes import write_file
-from sim.run_folder_names import RUN_JSON
-from sim.validation_text import user_error
+from storyteller.orchestrator.planning.kinds import DescriptionKind, PlannerKind
+from storyteller.orchestrator.session.instruction_script import ScriptLine
+from storyteller.orchestrator.session.pace import MAX_RUN_SPEED, MIN_SPEED, Pace
+from storyteller.sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
+from storyteller.sim.no_follow_writes import write_file
+from storyteller.sim.run_folder_names import RUN_JSON
+from storyteller.sim.validation_text import user_error
 
 MANIFEST_FILE = RUN_JSON
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_\-]{0,31}$")
@@ -36,11 +36,11 @@ MAX_SEED = 2**64
 """Seeds are 64-bit unsigned integers (numpy's generators refuse a negative one)."""
 MAX_DURATION_S = 9_000.0
 """Simulated seconds of a run at most (2.5 h): one character's chunk file, about 826 bytes a frame
-at 30 fps, then stays under what a reader takes (``sim.world.track_chunks.MAX_CHUNK_FILE_BYTES``,
+at 30 fps, then stays under what a reader takes (``storyteller.sim.world.track_chunks.MAX_CHUNK_FILE_BYTES``,
 256 MiB: 223 MB), so ``resume`` and ``view`` never refuse the motion a run wrote."""
 MAX_CHARACTER_SECONDS = 36_000.0
 """Simulated seconds times characters at most (10 character-hours): the run's chunk files together
-stay under ``sim.world.track_chunks.MAX_RUN_CHUNK_BYTES`` (1 GiB: 0.89 GB)."""
+stay under ``storyteller.sim.world.track_chunks.MAX_RUN_CHUNK_BYTES`` (1 GiB: 0.89 GB)."""
 
 
 class ManifestError(Exception):
@@ -123,7 +123,7 @@ def absolute(path: Path | None) -> str | None:
 
 def write_manifest(out: Path, manifest: RunManifest) -> Path:
     """``out/run.json``, written to a fresh temporary name and renamed over it (a symbolic link
-    planted there is replaced, never written through: ``sim.no_follow_writes``)."""
+    planted there is replaced, never written through: ``storyteller.sim.no_follow_writes``)."""
     return write_file(out / MANIFEST_FILE, (manifest.model_dump_json(indent=2) + "\n").encode("utf-8"))
 
 

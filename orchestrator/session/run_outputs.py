@@ -1,7 +1,7 @@
 """What a finished ``run`` writes to its folder: ``story.json`` (:func:`story_json`), ``story.md``
-and ``metrics.json`` (``orchestrator.session.run_report``), ``scene.json``, the motion exports
+and ``metrics.json`` (``storyteller.orchestrator.session.run_report``), ``scene.json``, the motion exports
 and the pictures (:func:`write_outputs`). Every file is written without following a link
-(``sim.no_follow_writes``).
+(``storyteller.sim.no_follow_writes``).
 """
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from agents.messages import ParsedEvent, PlanningFailure
-from agents.story_text import step_text
-from orchestrator.session.session_types import SessionResult
-from sim.no_follow_writes import replacing, write_file
-from sim.run_folder_names import (
+from storyteller.agents.messages import ParsedEvent, PlanningFailure
+from storyteller.agents.story_text import step_text
+from storyteller.orchestrator.session.session_types import SessionResult
+from storyteller.sim.no_follow_writes import replacing, write_file
+from storyteller.sim.run_folder_names import (
     ANIMATION_STEM,
     METRICS_JSON,
     SCENE_JSON,
@@ -22,10 +22,10 @@ from sim.run_folder_names import (
     STORY_MD,
     TOPDOWN_PNG,
 )
-from sim.scene.model import Scene
+from storyteller.sim.scene.model import Scene
 
 if TYPE_CHECKING:
-    from sim.world.step import World
+    from storyteller.sim.world.step import World
 
 
 def story_json(result: SessionResult, scene_name: str, names: list[str], instruction: str, fps: int) -> dict[str, Any]:
@@ -97,9 +97,9 @@ def write_outputs(
     wrote a trace), ``scene.json`` (the scene as run, for ``storyteller view``), the motion
     exports (npz, BVH, GLB; with ``smplx_model`` the GLB carries SMPL-X body meshes) and the
     top-down pictures in ``out``."""
-    from orchestrator.session.run_report import run_metrics, story_markdown
-    from sim.export.bundle import export_run
-    from sim.export.video import (
+    from storyteller.orchestrator.session.run_report import run_metrics, story_markdown
+    from storyteller.sim.export.bundle import export_run
+    from storyteller.sim.export.video import (
         RunRecording,
         animation_suffix,
         save_run_animation,
@@ -115,8 +115,8 @@ def write_outputs(
     tracks = world.tracks()
     bodies = None
     if smplx_model is not None:
-        from orchestrator.bodies.smplx_meshes import smplx_bodies
-        from sim.export.smplx_npz import smplx_parameters
+        from storyteller.orchestrator.bodies.smplx_meshes import smplx_bodies
+        from storyteller.sim.export.smplx_npz import smplx_parameters
 
         params = {t.name: smplx_parameters(t) for t in tracks.values()}
         bodies = {name: body.skin for name, body in smplx_bodies(smplx_model, params).items()}
@@ -132,7 +132,7 @@ def write_outputs(
 
 def write_scene_json(scene: Scene, out: Path) -> None:
     """``scene.json`` (the scene as run, for ``storyteller view``), replaced through a fresh name."""
-    from sim.scene.files import save_scene_json
+    from storyteller.sim.scene.files import save_scene_json
 
     with replacing(out / SCENE_JSON) as fresh:
         save_scene_json(scene, fresh)

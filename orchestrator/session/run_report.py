@@ -1,8 +1,8 @@
 """The files of a run folder a person reads: ``story.md`` and ``metrics.json``.
 
-:func:`story_markdown` renders ``story.json`` (:func:`orchestrator.session.run_outputs.story_json`)
+:func:`story_markdown` renders ``story.json`` (:func:`storyteller.orchestrator.session.run_outputs.story_json`)
 as a short story in order: one paragraph per applied event with its simulated time, saying what
-the applied plan has the characters do (the event's ``text``, ``agents.story_text``), the
+the applied plan has the characters do (the event's ``text``, ``storyteller.agents.story_text``), the
 narrator's own words only where they were checked to agree with the plan (``narration``), and
 how the event ended; a line for each run of waits and each failed planning step; then the
 failure messages under "What went wrong". Every string (plan sentences carry character names
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.story_text import step_text
+from storyteller.agents.story_text import step_text
 
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\u200b-\u200f\u2028-\u202e\u2066-\u2069]")
 _BREAKS = re.compile(r"[\t\r\n]+")
@@ -55,7 +55,7 @@ def story_markdown(story: dict[str, Any], *, text: Callable[[str], str] = md_tex
     applied event (its simulated time, its plan sentence, the narrator's words where they agree
     with the plan, how it ended), a line for each run of waits and each failed planning step, then
     what went wrong in detail. ``text`` escapes every string from the story (the viewer's story
-    panel passes ``orchestrator.safe_text.markdown``)."""
+    panel passes ``storyteller.orchestrator.safe_text.markdown``)."""
     fps = int(story["fps"])
     lines = [
         f"# Story in {text(str(story['scene']))}",
@@ -123,8 +123,8 @@ def _plan_sentence(e: dict[str, Any], plans: list[Any]) -> str:
     plans and the object ids alone (no scene: no disambiguation)."""
     from pydantic import ValidationError
 
-    from agents.messages import PlannedCharacter
-    from agents.story_text import plan_text
+    from storyteller.agents.messages import PlannedCharacter
+    from storyteller.agents.story_text import plan_text
 
     try:
         planned = [PlannedCharacter.model_validate(p) for p in plans]
@@ -142,7 +142,7 @@ def _percentiles(values: list[float], qs: tuple[float, ...]) -> dict[str, float 
 
 def llm_metrics(trace_path: Path | None) -> dict[str, Any]:
     """Per role (node): calls, attempts, retries, failed calls, tokens, latency p50/p95 (s)."""
-    from orchestrator.llm.traces import read_trace
+    from storyteller.orchestrator.llm.traces import read_trace
 
     if trace_path is None or not trace_path.is_file():
         return {}
@@ -172,9 +172,9 @@ def local_threads_metrics(trace_path: Path | None) -> dict[str, Any] | None:
     """The embedded model's thread choices over the run's attempts (None when no local call
     ran here): attempts per thread count at their start, attempts whose threads changed while
     they ran, the usable cores, the range of the cores other processes kept busy before the
-    calls and where that figure came from (``orchestrator.llm.cpu_threads``). Replayed attempts
+    calls and where that figure came from (``storyteller.orchestrator.llm.cpu_threads``). Replayed attempts
     are left out: they ran no model."""
-    from orchestrator.llm.traces import read_trace
+    from storyteller.orchestrator.llm.traces import read_trace
 
     if trace_path is None or not trace_path.is_file():
         return None

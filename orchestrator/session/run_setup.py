@@ -1,4 +1,4 @@
-"""What a ``run`` reads and opens before its first frame (``orchestrator.session.run_job``).
+"""What a ``run`` reads and opens before its first frame (``storyteller.orchestrator.session.run_job``).
 
 From the traces: the frames a recorded run applied its steps at, its requests and instructions
 (a replay makes them again; a resume makes the requests and applies the steps already traced
@@ -21,10 +21,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, get_args
 
-from orchestrator.session.run_manifest import RunArguments, RunManifest
-from orchestrator.session.run_status import RunStatus
-from orchestrator.session.runtime import Session
-from orchestrator.session.session_types import (
+from storyteller.orchestrator.session.run_manifest import RunArguments, RunManifest
+from storyteller.orchestrator.session.run_status import RunStatus
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.session_types import (
     InstructionSource,
     RecordedRequest,
     SessionCheckpoint,
@@ -32,15 +32,15 @@ from orchestrator.session.session_types import (
     SessionSettings,
     TimedInstruction,
 )
-from sim.scene.model import Scene
-from sim.world.step import World, WorldConfig
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import World, WorldConfig
 
 if TYPE_CHECKING:
-    from orchestrator.planning.checkpoints import StoryLog
-    from orchestrator.planning.state import PlanningDeps
-    from orchestrator.sandbox_worker import WorkerRunner
-    from orchestrator.session.live_state import ReplyTap
-    from sim.motion.matching import MotionMatcher
+    from storyteller.orchestrator.planning.checkpoints import StoryLog
+    from storyteller.orchestrator.planning.state import PlanningDeps
+    from storyteller.orchestrator.sandbox_worker import WorkerRunner
+    from storyteller.orchestrator.session.live_state import ReplyTap
+    from storyteller.sim.motion.matching import MotionMatcher
 
 CHECKPOINT_EVERY_S = 10.0
 """Simulated seconds between two session checkpoints at most (also one after every applied step)."""
@@ -54,7 +54,7 @@ def applied_frames_from_trace(path: Path) -> list[int | None]:
     """Frame at which a recorded run applied each planning step's result, by step (overlapping
     steps may be applied out of order; None: a step it never applied). Records without a step
     (older traces) count in the order written."""
-    from orchestrator.llm.traces import AppliedRecord, read_trace
+    from storyteller.orchestrator.llm.traces import AppliedRecord, read_trace
 
     records = [r for r in read_trace(path).records if isinstance(r, AppliedRecord)]
     if any(r.step is None for r in records):
@@ -68,7 +68,7 @@ def applied_frames_from_trace(path: Path) -> list[int | None]:
 
 def schedule_from_trace(path: Path) -> list[RecordedRequest]:
     """When a recorded run with overlapping planning steps requested each step."""
-    from orchestrator.llm.traces import read_trace
+    from storyteller.orchestrator.llm.traces import read_trace
 
     return [RecordedRequest(step=r.step, frame=r.sim_frame, phase=r.phase, after=r.after_steps)
             for r in read_trace(path).requests()]
@@ -77,7 +77,7 @@ def schedule_from_trace(path: Path) -> list[RecordedRequest]:
 def replayable_frames(path: Path) -> list[int | None]:
     """:func:`applied_frames_from_trace` of a trace to replay, which must end with a whole line:
     a cut last record (a run killed mid-write) is a :class:`RunSetupError`, not a shorter story."""
-    from orchestrator.llm.traces import read_trace
+    from storyteller.orchestrator.llm.traces import read_trace
 
     contents = read_trace(path)
     if contents.torn_tail is not None:
@@ -119,7 +119,7 @@ def check_replayed(trace: Path, applied: list[int | None], result: SessionResult
 
 def instructions_from_trace(path: Path) -> list[TimedInstruction]:
     """The instructions a recorded run applied, with their frames and sources, in order."""
-    from orchestrator.llm.traces import read_trace
+    from storyteller.orchestrator.llm.traces import read_trace
 
     out = []
     for r in read_trace(path).instructions():
@@ -185,7 +185,7 @@ def read_recorded(args: RunArguments, fps: int, *, trace_path: Path | None, repl
                    resume: bool) -> RecordedInputs:
     """The recorded frames, requests and instructions of the trace to replay, or of the run's
     own trace on resume; an unreadable or unreplayable trace is a :class:`RunSetupError`."""
-    from orchestrator.llm.traces import TraceCorruptError
+    from storyteller.orchestrator.llm.traces import TraceCorruptError
 
     try:
         applied = replayable_frames(replay) if replay is not None else None
@@ -209,8 +209,8 @@ def read_recorded(args: RunArguments, fps: int, *, trace_path: Path | None, repl
 
 def start_world(scene: Scene, args: RunArguments, names: list[str], world_config: WorldConfig) -> World:
     """The world at frame 0: the characters at the start positions of the seed."""
-    from orchestrator.session.roster import StartPositionError, start_positions
-    from sim.world.step import World
+    from storyteller.orchestrator.session.roster import StartPositionError, start_positions
+    from storyteller.sim.world.step import World
 
     try:
         positions = start_positions(scene, len(names), args.seed)
@@ -222,8 +222,8 @@ def start_world(scene: Scene, args: RunArguments, names: list[str], world_config
 
 def saved_checkpoint(path: Path, world: World) -> SessionCheckpoint | None:
     """The checkpoint a resumed run goes on from (None: none was kept)."""
-    from orchestrator.session.snapshot_errors import SnapshotError
-    from orchestrator.session.snapshot_file import load_checkpoint
+    from storyteller.orchestrator.session.snapshot_errors import SnapshotError
+    from storyteller.orchestrator.session.snapshot_file import load_checkpoint
 
     if not (path.exists() or path.is_symlink()):  # a folder or a device there is refused
         return None
@@ -237,11 +237,11 @@ def open_run_port(args: RunArguments, trace_path: Path | None, replay: Path | No
                    stack: contextlib.ExitStack) -> tuple[ReplyTap, str]:
     """The run's LLM port (recording to ``trace_path`` or replaying ``replay``), watched by
     ``status`` and tapped for the live view's replies, closed by ``stack``; and the describer's model."""
-    from agents.llm_port import LLMError
-    from orchestrator.llm.traces import TraceCorruptError
-    from orchestrator.llm.watched_port import WatchedPort
-    from orchestrator.session.live_state import ReplyTap
-    from orchestrator.session.port_setup import open_port
+    from storyteller.agents.llm_port import LLMError
+    from storyteller.orchestrator.llm.traces import TraceCorruptError
+    from storyteller.orchestrator.llm.watched_port import WatchedPort
+    from storyteller.orchestrator.session.live_state import ReplyTap
+    from storyteller.orchestrator.session.port_setup import open_port
 
     config = Path(args.config) if args.config is not None else None
     try:
@@ -256,7 +256,7 @@ def open_run_port(args: RunArguments, trace_path: Path | None, replay: Path | No
 def check_motion(out: Path, names: list[str], checkpoint: SessionCheckpoint | None) -> None:
     """On resume, the chunk files :func:`streaming_world` will cut back to the checkpoint, checked
     without writing (a :class:`RunSetupError`): a refused resume leaves the folder as it was."""
-    from sim.world.track_chunks import MOTION_FOLDER, ChunkError, check_resumable
+    from storyteller.sim.world.track_chunks import MOTION_FOLDER, ChunkError, check_resumable
 
     if checkpoint is not None:
         try:
@@ -275,7 +275,7 @@ def streaming_world(world: World, out: Path, names: list[str], checkpoint: Sessi
 
 def start_manifest(run: RunContext, on_start: Callable[[RunManifest], None] | None) -> None:
     """Write a new run's ``run.json`` (refused first if resume or replay would refuse it)."""
-    from orchestrator.session.run_manifest import (
+    from storyteller.orchestrator.session.run_manifest import (
         MANIFEST_FILE,
         ManifestError,
         manifest_bytes,
@@ -296,7 +296,7 @@ def start_manifest(run: RunContext, on_start: Callable[[RunManifest], None] | No
 
 def open_story_log(runs_db: Path, thread: str, stack: contextlib.ExitStack) -> StoryLog:
     """The story log of ``thread`` in ``runs_db`` (checked first), closed by ``stack``."""
-    from orchestrator.planning.checkpoints import StoryLog
+    from storyteller.orchestrator.planning.checkpoints import StoryLog
 
     try:
         check_runs_db(runs_db)
@@ -309,11 +309,11 @@ def open_story_log(runs_db: Path, thread: str, stack: contextlib.ExitStack) -> S
 
 def planning_deps(run: RunContext, port: ReplyTap, story: StoryLog, describer_model: str,
                    programs: WorkerRunner | None) -> PlanningDeps:
-    from agents.event_parser import scene_action_labels
-    from agents.prompt_templates import PromptLibrary
-    from orchestrator.planning.state import PlanningDeps
-    from orchestrator.session.port_setup import describer_mode_for
-    from orchestrator.session.roster import RosterWorld
+    from storyteller.agents.event_parser import scene_action_labels
+    from storyteller.agents.prompt_templates import PromptLibrary
+    from storyteller.orchestrator.planning.state import PlanningDeps
+    from storyteller.orchestrator.session.port_setup import describer_mode_for
+    from storyteller.orchestrator.session.roster import RosterWorld
 
     return PlanningDeps(
         port=port,
@@ -371,7 +371,7 @@ def _stream_motion(world: World, out: Path, names: list[str], checkpoint: Sessio
     on resume the files of the killed process, cut back to the frames the checkpoint says are
     there (a torn last record and frames after the checkpoint are dropped), with the world
     restored from the checkpoint."""
-    from sim.world.track_chunks import MOTION_FOLDER, ChunkStore
+    from storyteller.sim.world.track_chunks import MOTION_FOLDER, ChunkStore
 
     folder = out / MOTION_FOLDER
     if checkpoint is None:
@@ -385,7 +385,7 @@ def _stream_motion(world: World, out: Path, names: list[str], checkpoint: Sessio
 def last_traced_frame(trace_path: Path) -> int:
     """The last frame a trace shows its run at: of a step's request or its LLM calls, an applied
     step, an instruction (-1: none)."""
-    from orchestrator.llm.traces import (
+    from storyteller.orchestrator.llm.traces import (
         AppliedRecord,
         AttemptRecord,
         InstructionRecord,
@@ -404,19 +404,19 @@ def last_traced_frame(trace_path: Path) -> int:
 
 def recorded_frames(trace_path: Path) -> dict[int, int]:
     """Step -> frame of every ``applied`` record with a step index in a trace."""
-    from orchestrator.llm.traces import AppliedRecord, read_trace
+    from storyteller.orchestrator.llm.traces import AppliedRecord, read_trace
 
     return {r.step: r.sim_frame for r in read_trace(trace_path).records if isinstance(r, AppliedRecord) and r.step is not None}
 
 
 def _motion_layer(motion_config: Path | None) -> MotionMatcher:
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
 
     if motion_config is None:
         return MotionMatcher(load_databases(cache_dir=motion_cache_dir()))
-    from sim.motion.config import build_databases_from_config, load_motion_config
+    from storyteller.sim.motion.config import build_databases_from_config, load_motion_config
 
     try:
         cfg = load_motion_config(motion_config)

@@ -2,7 +2,7 @@
 
 :class:`RunStatus` hears what the run already reports (the session's ``on_event``,
 ``on_outcome``, ``on_instruction`` and ``on_frame``; the LLM port's calls, through
-``orchestrator.llm.watched_port``) and answers :meth:`RunStatus.snapshot`: the simulated
+``storyteller.orchestrator.llm.watched_port``) and answers :meth:`RunStatus.snapshot`: the simulated
 clock and speed, one row per character (its state, event, action and place), the LLM calls in
 flight per role and for how long, calls and tokens so far, and the events by state.
 
@@ -20,13 +20,13 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Literal
 
-from agents.llm_port import NodeName, TokenUsage
-from agents.messages import ParsedEvent
-from agents.story_text import place_text
-from orchestrator.session.session_types import Outcome, StoryEvent, TimedInstruction, event_id_for
-from sim.world.event_book import EventStatus
-from sim.world.phases import CharacterState
-from sim.world.step import World
+from storyteller.agents.llm_port import NodeName, TokenUsage
+from storyteller.agents.messages import ParsedEvent
+from storyteller.agents.story_text import place_text
+from storyteller.orchestrator.session.session_types import Outcome, StoryEvent, TimedInstruction, event_id_for
+from storyteller.sim.world.event_book import EventStatus
+from storyteller.sim.world.phases import CharacterState
+from storyteller.sim.world.step import World
 
 CharacterActivity = Literal["idle", "seated", "waiting", "walking", "starting", "acting", "finishing"]
 """What a character is doing: ``idle`` (no event, standing), ``seated`` (no event, on a seat),

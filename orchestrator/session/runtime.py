@@ -20,7 +20,7 @@ simulation pauses while the planner thinks), which is deterministic without a tr
 
 Overlapping steps (``SessionSettings.planners`` = N > 1): once every step in flight has named its
 characters and fewer than N are in flight, the next step is requested for the free characters left
-(``orchestrator.session.steps_in_flight`` says when a step's news counts, in each pace). Such a
+(``storyteller.orchestrator.session.steps_in_flight`` says when a step's news counts, in each pace). Such a
 request is made at the start of a frame (``frame_start``, before the frame's outcomes are applied)
 or, like every request with N = 1, after the world stepped (``frame_end``). With N = 1 nothing is
 requested while a step is in flight. In ``realtime`` / ``fast`` pace the requests are reported to
@@ -28,7 +28,7 @@ requested while a step is in flight. In ``realtime`` / ``fast`` pace the request
 and phase (``SessionSettings.schedule``), after the steps it saw in flight claimed.
 
 Off the event loop: nothing here blocks; the planning graph runs event programs and other CPU
-work in worker threads (``orchestrator.planning.node_calls.off_loop``), so in ``realtime`` pace the
+work in worker threads (``storyteller.orchestrator.planning.node_calls.off_loop``), so in ``realtime`` pace the
 simulation task keeps its frame rate while steps are planned.
 
 ``realtime`` pace: frame k is due ``k / (fps * speed)`` wall seconds after the start, and the
@@ -36,12 +36,12 @@ simulation task sleeps until then. A checkpoint is taken before that sleep, whic
 A frame that ends more than one frame period late (a stall) is not followed by a burst of catch-up
 frames: the schedule slips by the delay instead (``SessionResult.slipped_s``), and the next frame is
 due one period after it. Where each frame's wall time went is kept in
-``SessionResult.frame_profile`` (``orchestrator.session.frame_profile``); timing decides nothing but
+``SessionResult.frame_profile`` (``storyteller.orchestrator.session.frame_profile``); timing decides nothing but
 when a realtime frame starts, so it never changes a story in the other paces. A ``pacer`` (a
-director's pause and speed, ``orchestrator.session.viewer_controls``) may hold a realtime simulation
+director's pause and speed, ``storyteller.orchestrator.session.viewer_controls``) may hold a realtime simulation
 between two frames and change its speed: that too moves only when frames start (a pause is left out
 of the frame intervals). While a realtime session runs, its thread asks Linux for a short CPU slice,
-so a frame's wait ends sooner on a busy machine (``orchestrator.session.scheduler_slice``).
+so a frame's wait ends sooner on a busy machine (``storyteller.orchestrator.session.scheduler_slice``).
 
 Failures: an ``LLMError`` from the planner stops planning and the story goes on
 (``SessionResult.planner_error``); any other exception in any task cancels the task group
@@ -54,12 +54,12 @@ often; ``Session.resume(checkpoint)`` on a world built from the same inputs goes
 or with ``recorded_frames`` / ``recorded_requests`` for what the trace shows after it (``request_schedule``).
 
 Instructions take effect at the start of a frame, before the world steps
-(``orchestrator.session.instruction_queue``: scheduled ones at their frame, live ones from
+(``storyteller.orchestrator.session.instruction_queue``: scheduled ones at their frame, live ones from
 :meth:`Session.instruct` / :meth:`Session.instruct_nowait` at the next frame, on resume after
 ``recorded_until``); each is reported to ``on_instruction``.
 
-The session's data types are in ``orchestrator.session.session_types``, the planner's view of
-the story (roster, history window, request) in ``orchestrator.session.story_history``.
+The session's data types are in ``storyteller.orchestrator.session.session_types``, the planner's view of
+the story (roster, history window, request) in ``storyteller.orchestrator.session.story_history``.
 """
 
 from __future__ import annotations
@@ -75,13 +75,13 @@ import anyio.abc
 import structlog
 from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStream
 
-from agents.llm_port import LLMError, TraceRecorder
-from agents.messages import ParsedEvent, PlanningFailure
-from orchestrator.session.frame_profile import FrameProfile
-from orchestrator.session.instruction_queue import InstructionQueue
-from orchestrator.session.request_schedule import RequestSchedule
-from orchestrator.session.scheduler_slice import short_slice
-from orchestrator.session.session_types import (
+from storyteller.agents.llm_port import LLMError, TraceRecorder
+from storyteller.agents.messages import ParsedEvent, PlanningFailure
+from storyteller.orchestrator.session.frame_profile import FrameProfile
+from storyteller.orchestrator.session.instruction_queue import InstructionQueue
+from storyteller.orchestrator.session.request_schedule import RequestSchedule
+from storyteller.orchestrator.session.scheduler_slice import short_slice
+from storyteller.orchestrator.session.session_types import (
     InstructionSource,
     Outcome,
     Pacer,
@@ -98,10 +98,10 @@ from orchestrator.session.session_types import (
     check_settings,
     event_id_for,
 )
-from orchestrator.session.steps_in_flight import Flight, News, StepNews, StepsInFlight, post_news
-from orchestrator.session.story_history import applied_event, apply_step_output, planning_request
-from sim.world.events import AssignEvent, EventFailure
-from sim.world.step import World, step
+from storyteller.orchestrator.session.steps_in_flight import Flight, News, StepNews, StepsInFlight, post_news
+from storyteller.orchestrator.session.story_history import applied_event, apply_step_output, planning_request
+from storyteller.sim.world.events import AssignEvent, EventFailure
+from storyteller.sim.world.step import World, step
 
 _log = structlog.get_logger("storyteller.session")
 

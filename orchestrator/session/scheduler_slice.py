@@ -14,7 +14,7 @@ workers, keep the default) and gives the thread back its slice before on exit. W
 cannot (not Linux, an architecture whose system-call numbers it does not know, a kernel that
 keeps no custom slice, a policy other than ``SCHED_OTHER``, a refusal) it changes nothing and
 :attr:`SliceRequest.problem` says why: nothing of a story depends on it, only how late its
-frames start. Measured with ``python -m benchmark.bench_frame_interval --viewer``
+frames start. Measured with ``python -m storyteller.benchmark.bench_frame_interval --viewer``
 (``benchmark/results/2026-12-07-viewer-frame-interval.md``).
 """
 

@@ -4,9 +4,9 @@ A planning step is asked with a :class:`PlanningRequest` (the world as of one fr
 with an :data:`Outcome`; instructions take effect as :class:`TimedInstruction`, overlapping
 steps are requested as :class:`RecordedRequest` (what a replay reads back). The story keeps one
 :class:`StoryEvent` per applied event; :class:`SessionSettings` configures a
-:class:`~orchestrator.session.runtime.Session`, :class:`SessionResult` is what it returns and
+:class:`~storyteller.orchestrator.session.runtime.Session`, :class:`SessionResult` is what it returns and
 :class:`SessionCheckpoint` is what it goes on from. Plain data, no behaviour: the checkpoint
-file (``orchestrator.session.snapshot_file``) stores these classes by their import path here.
+file (``storyteller.orchestrator.session.snapshot_file``) stores these classes by their import path here.
 """
 
 from __future__ import annotations
@@ -18,19 +18,19 @@ from typing import Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from agents.messages import (
+from storyteller.agents.messages import (
     CharacterStatus,
     EarlierEvents,
     HistoryEntry,
     ParsedEvent,
     PlanningFailure,
 )
-from orchestrator.planning.state import StepProgress
-from orchestrator.session.frame_profile import FrameProfile
-from orchestrator.session.pace import Pace
-from sim.world.event_book import EventStatus
-from sim.world.events import EventFailure
-from sim.world.step import WorldSnapshot
+from storyteller.orchestrator.planning.state import StepProgress
+from storyteller.orchestrator.session.frame_profile import FrameProfile
+from storyteller.orchestrator.session.pace import Pace
+from storyteller.sim.world.event_book import EventStatus
+from storyteller.sim.world.events import EventFailure
+from storyteller.sim.world.step import WorldSnapshot
 
 Outcome = ParsedEvent | PlanningFailure | None
 
@@ -135,7 +135,7 @@ class StoryEvent:
     part: str = ""
     """The instruction part the event carries out (empty: none)."""
     text: str = ""
-    """What a person reads: the applied plan in plain English (``agents.story_text.event_text``)."""
+    """What a person reads: the applied plan in plain English (``storyteller.agents.story_text.event_text``)."""
     narration: str | None = None
     """The narrator's activity in human names, when it agrees with the plan (None otherwise)."""
 
@@ -157,7 +157,7 @@ class SessionResult:
     frame_intervals_s: Sequence[float] = ()
     """Wall-clock seconds between consecutive frames (this process)."""
     frame_profile: FrameProfile = field(default_factory=FrameProfile)
-    """Where each of those frames' wall time went (``orchestrator.session.frame_profile``)."""
+    """Where each of those frames' wall time went (``storyteller.orchestrator.session.frame_profile``)."""
     slipped_s: float = 0.0
     """``realtime``: wall seconds the frame schedule slipped after frames that ran more than a
     frame late (simulated time is behind the wall clock by this much times ``speed``)."""

@@ -1,4 +1,4 @@
-"""The one error of reading a session checkpoint back (:mod:`orchestrator.session.snapshot_file`
+"""The one error of reading a session checkpoint back (:mod:`storyteller.orchestrator.session.snapshot_file`
 and the checks it runs, :mod:`.snapshot_tree` and :mod:`.snapshot_sense`)."""
 
 from __future__ import annotations

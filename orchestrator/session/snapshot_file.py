@@ -1,13 +1,13 @@
 """The session's last checkpoint on disk (``session.snapshot`` in the run folder).
 
-:func:`save_checkpoint` writes a :class:`~orchestrator.session.session_types.SessionCheckpoint`
+:func:`save_checkpoint` writes a :class:`~storyteller.orchestrator.session.session_types.SessionCheckpoint`
 atomically: to a temporary file of a fresh name in the same folder (created with ``O_EXCL``
 and ``O_NOFOLLOW``, so a planted link is never written through), fsynced, then renamed over
 the old one, so a kill -9 at any moment leaves either the previous checkpoint or the new one,
 never a torn file. The world's read-only parts (scene, navigation grids, path planners, motion
 layer: ``World.shared_objects``) are stored by name only; :func:`load_checkpoint` binds those
 names to the objects of a world built from the same run arguments. A streaming world's
-checkpoint holds only its frames not yet in the chunk files (``sim.world.track_chunks``) and
+checkpoint holds only its frames not yet in the chunk files (``storyteller.sim.world.track_chunks``) and
 how many are there; those are fsynced before the checkpoint is written, so the count it gives
 is always on disk.
 
@@ -22,25 +22,25 @@ A run folder may come from someone else, so reading a checkpoint runs no code fr
   no function but this module's two array decoders (which check dtype, shape and byte count),
   and adds items only to real lists, dicts and sets; every other global, call or extension
   opcode is a :class:`SnapshotError`;
-- the decoded objects are then checked as a whole (:func:`~orchestrator.session.snapshot_tree.check_tree`): only listed
+- the decoded objects are then checked as a whole (:func:`~storyteller.orchestrator.session.snapshot_tree.check_tree`): only listed
   instances, plain values and numeric arrays, each listed instance with exactly its declared
   fields, pydantic models valid against their schema, every dataclass field of the type its
-  annotation gives (:func:`~orchestrator.session.snapshot_tree.fits`: ``int``, ``str | None``, ``tuple[int, int]``,
+  annotation gives (:func:`~storyteller.orchestrator.session.snapshot_tree.fits`: ``int``, ``str | None``, ``tuple[int, int]``,
   ``dict[str, CharacterState]``, an array of the annotated dtype, ``Literal`` values...), at
-  most :data:`~orchestrator.session.snapshot_tree.MAX_DEPTH` levels deep;
-- and against the world it is bound to (:func:`~orchestrator.session.snapshot_sense.check_fits_world`): the same characters, in
+  most :data:`~storyteller.orchestrator.session.snapshot_tree.MAX_DEPTH` levels deep;
+- and against the world it is bound to (:func:`~storyteller.orchestrator.session.snapshot_sense.check_fits_world`): the same characters, in
   the same order, everywhere the world keeps them by name;
-- and for sense (:func:`~orchestrator.session.snapshot_sense.check_sense`): values of the right types that no run could have made
+- and for sense (:func:`~storyteller.orchestrator.session.snapshot_sense.check_sense`): values of the right types that no run could have made
   are refused too: a frame below 0 or after the checkpoint's own, a step index outside the
   steps taken, an event id a character, a pending assignment or the world's event book names
   that the checkpoint does not hold, a character or event member that is not this run's, a
-  position or angle that is not finite or lies more than :data:`~orchestrator.session.snapshot_sense.OUTSIDE_M` outside the scene's
+  position or angle that is not finite or lies more than :data:`~storyteller.orchestrator.session.snapshot_sense.OUTSIDE_M` outside the scene's
   floor, a grid cell off the navigation grid, a seat or used object the scene has no object of.
 
 So a crafted checkpoint with a wrong-typed or impossible field is refused at load, with one
 line, instead of stopping the resumed run with an error deep in the simulation.
 
-Every failure is a :class:`~orchestrator.session.snapshot_errors.SnapshotError` with one line
+Every failure is a :class:`~storyteller.orchestrator.session.snapshot_errors.SnapshotError` with one line
 naming the file.
 """
 
@@ -62,13 +62,13 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from orchestrator.session.session_types import SessionCheckpoint
-from orchestrator.session.snapshot_errors import SnapshotError
-from orchestrator.session.snapshot_sense import check_fits_world, check_sense
-from orchestrator.session.snapshot_tree import MAX_KEY_DEPTH, check_tree, plain_key, plain_templates
-from sim.bounded_files import BoundedFileError, read_bounded_bytes
-from sim.world.step import World
-from sim.world.track_chunks import ChunkStore
+from storyteller.orchestrator.session.session_types import SessionCheckpoint
+from storyteller.orchestrator.session.snapshot_errors import SnapshotError
+from storyteller.orchestrator.session.snapshot_sense import check_fits_world, check_sense
+from storyteller.orchestrator.session.snapshot_tree import MAX_KEY_DEPTH, check_tree, plain_key, plain_templates
+from storyteller.sim.bounded_files import BoundedFileError, read_bounded_bytes
+from storyteller.sim.world.step import World
+from storyteller.sim.world.track_chunks import ChunkStore
 
 SNAPSHOT_FILE = "session.snapshot"
 _FORMAT = 6  # 2: the checkpoint holds the session's instructions; 3: the world's motion is in the chunk files;
@@ -96,34 +96,34 @@ SNAPSHOT_CLASSES: frozenset[tuple[str, str]] = frozenset({
     # field dicts); none opens a file, starts a process, imports or evaluates anything when its
     # state is set (tests/orchestrator/session/test_snapshot_file.py checks this list for it). Never add ChunkStore
     # (it opens files; a checkpoint stores its frame count) or any class whose state runs code.
-    ("orchestrator.session.session_types", "SessionCheckpoint"),
-    ("orchestrator.session.session_types", "StoryEvent"),
-    ("orchestrator.session.session_types", "PlanningRequest"),
-    ("orchestrator.session.session_types", "TimedInstruction"),
-    ("agents.messages", "CharacterSoFar"),
-    ("agents.messages", "CharacterStatus"),
-    ("agents.messages", "EarlierEvents"),
-    ("agents.messages", "Event"),
-    ("agents.messages", "HistoryEntry"),
-    ("agents.messages", "ParsedEvent"),
-    ("agents.messages", "PlannedCharacter"),
-    ("agents.messages", "PlanningFailure"),
-    ("sim.world.step", "WorldSnapshot"),
-    ("sim.world.phases", "CharacterState"),
-    ("sim.world.phases", "StandTarget"),
-    ("sim.world.event_book", "EventState"),
-    ("sim.world.events", "AssignEvent"),
-    ("sim.world.events", "Assignment"),
-    ("sim.world.events", "EventFailure"),
-    ("sim.world.navigation", "WorldNavigator"),
-    ("sim.world.tracks", "TrackBuffers"),
-    ("sim.paths.following", "CrowdNavigator"),
-    ("sim.paths.off_grid", "Leg"),
-    ("sim.paths.tracks", "PlanTracks"),
-    ("sim.paths.fallback", "PriorityKeeper"),
-    ("sim.paths.cooperative_astar", "PlanResult"),
-    ("sim.motion.matching", "MatchState"),
-    ("sim.body.foot_ik", "FootState"),
+    ("storyteller.orchestrator.session.session_types", "SessionCheckpoint"),
+    ("storyteller.orchestrator.session.session_types", "StoryEvent"),
+    ("storyteller.orchestrator.session.session_types", "PlanningRequest"),
+    ("storyteller.orchestrator.session.session_types", "TimedInstruction"),
+    ("storyteller.agents.messages", "CharacterSoFar"),
+    ("storyteller.agents.messages", "CharacterStatus"),
+    ("storyteller.agents.messages", "EarlierEvents"),
+    ("storyteller.agents.messages", "Event"),
+    ("storyteller.agents.messages", "HistoryEntry"),
+    ("storyteller.agents.messages", "ParsedEvent"),
+    ("storyteller.agents.messages", "PlannedCharacter"),
+    ("storyteller.agents.messages", "PlanningFailure"),
+    ("storyteller.sim.world.step", "WorldSnapshot"),
+    ("storyteller.sim.world.phases", "CharacterState"),
+    ("storyteller.sim.world.phases", "StandTarget"),
+    ("storyteller.sim.world.event_book", "EventState"),
+    ("storyteller.sim.world.events", "AssignEvent"),
+    ("storyteller.sim.world.events", "Assignment"),
+    ("storyteller.sim.world.events", "EventFailure"),
+    ("storyteller.sim.world.navigation", "WorldNavigator"),
+    ("storyteller.sim.world.tracks", "TrackBuffers"),
+    ("storyteller.sim.paths.following", "CrowdNavigator"),
+    ("storyteller.sim.paths.off_grid", "Leg"),
+    ("storyteller.sim.paths.tracks", "PlanTracks"),
+    ("storyteller.sim.paths.fallback", "PriorityKeeper"),
+    ("storyteller.sim.paths.cooperative_astar", "PlanResult"),
+    ("storyteller.sim.motion.matching", "MatchState"),
+    ("storyteller.sim.body.foot_ik", "FootState"),
 })  # fmt: skip
 _DECODERS = ("_array", "_scalar")  # the only functions a checkpoint calls: this module's array decoders
 

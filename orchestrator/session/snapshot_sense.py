@@ -8,8 +8,8 @@ checkpoint does not hold, a character or event member that is not this run's, a 
 angle that is not finite or lies more than :data:`OUTSIDE_M` outside the scene's floor, a grid
 cell off the navigation grid, a seat or used object the scene has no object of.
 
-Runs after :func:`~orchestrator.session.snapshot_tree.check_tree` (the fields are of their
-types); every refusal is a :class:`~orchestrator.session.snapshot_errors.SnapshotError` with
+Runs after :func:`~storyteller.orchestrator.session.snapshot_tree.check_tree` (the fields are of their
+types); every refusal is a :class:`~storyteller.orchestrator.session.snapshot_errors.SnapshotError` with
 one line.
 """
 
@@ -20,12 +20,12 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from orchestrator.session.session_types import SessionCheckpoint
-from orchestrator.session.snapshot_errors import SnapshotError
-from sim.world.event_book import EventState
-from sim.world.events import Assignment
-from sim.world.phases import CharacterState
-from sim.world.step import World
+from storyteller.orchestrator.session.session_types import SessionCheckpoint
+from storyteller.orchestrator.session.snapshot_errors import SnapshotError
+from storyteller.sim.world.event_book import EventState
+from storyteller.sim.world.events import Assignment
+from storyteller.sim.world.phases import CharacterState
+from storyteller.sim.world.step import World
 
 OUTSIDE_M = 1.0
 """Metres a stored position may lie outside the scene's floor rectangle (a character stands,

@@ -10,7 +10,7 @@ its template's attributes, at most :data:`MAX_DEPTH` levels deep and without a c
 :func:`plain_key` is the rule for dict keys and set items (the unpickler applies it too).
 
 Reads the project's own classes and source only, never the file; every refusal is a
-:class:`~orchestrator.session.snapshot_errors.SnapshotError` with one line.
+:class:`~storyteller.orchestrator.session.snapshot_errors.SnapshotError` with one line.
 """
 
 from __future__ import annotations
@@ -27,10 +27,10 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ValidationError
 
-from orchestrator.session.session_types import SessionCheckpoint
-from orchestrator.session.snapshot_errors import SnapshotError
-from sim.validation_text import problem_field, problem_message
-from sim.world.step import World
+from storyteller.orchestrator.session.session_types import SessionCheckpoint
+from storyteller.orchestrator.session.snapshot_errors import SnapshotError
+from storyteller.sim.validation_text import problem_field, problem_message
+from storyteller.sim.world.step import World
 
 MAX_DEPTH = 48
 """Levels of nesting of the decoded objects at most (the checkpoints of the resume tests have 8)."""
@@ -49,7 +49,7 @@ def plain_key(key: object, depth: int) -> bool:
 def check_tree(root: SessionCheckpoint, shared: set[int], listed: frozenset[type],
                 templates: dict[type, object] | None = None) -> None:
     """Every object reachable from ``root`` is a plain value, a container, a numeric array, a
-    numpy scalar, a shared object of the world or an instance of a ``listed`` class (:data:`~orchestrator.session.snapshot_file.SNAPSHOT_CLASSES`) with exactly its
+    numpy scalar, a shared object of the world or an instance of a ``listed`` class (:data:`~storyteller.orchestrator.session.snapshot_file.SNAPSHOT_CLASSES`) with exactly its
     declared fields; pydantic models are valid; nesting is at most :data:`MAX_DEPTH` deep and
     has no cycle; then every dataclass field is of its annotated type, and every instance of a
     listed plain class (no declared fields: the navigators, the priority keeper) has the

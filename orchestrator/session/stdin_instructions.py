@@ -19,8 +19,8 @@ from typing import Protocol, TextIO
 
 import structlog
 
-from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
-from orchestrator.session.session_types import InstructionSource
+from storyteller.orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
+from storyteller.orchestrator.session.session_types import InstructionSource
 
 _log = structlog.get_logger("storyteller.session")
 

@@ -6,7 +6,7 @@ thread with the simulation's roster and event history as input (the checkpointed
 the scene description and the step counter), so a killed session resumes on the same thread
 without repeating finished LLM calls. The request's frame goes into the state
 (``sim_frame``), and so does the request's instruction (the latest one, see
-``orchestrator.session.instruction_queue``) with the first step planned under it, so every LLM request
+``storyteller.orchestrator.session.instruction_queue``) with the first step planned under it, so every LLM request
 of the step carries it as trace metadata, and :meth:`GraphStepPlanner.trace_seqs` tells the
 session which trace records produced a step.
 
@@ -30,12 +30,12 @@ import anyio
 from langchain_core.runnables import RunnableConfig
 from langgraph.types import Durability, StateSnapshot
 
-from agents.messages import Event, SceneDescription
-from orchestrator.planning.checkpoints import StoryLog
-from orchestrator.planning.graph import recursion_limit
-from orchestrator.planning.state import PlanningDeps, PlanningState, StepProgress
-from orchestrator.session.roster import RosterWorld
-from orchestrator.session.session_types import Outcome, PlanningRequest
+from storyteller.agents.messages import Event, SceneDescription
+from storyteller.orchestrator.planning.checkpoints import StoryLog
+from storyteller.orchestrator.planning.graph import recursion_limit
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState, StepProgress
+from storyteller.orchestrator.session.roster import RosterWorld
+from storyteller.orchestrator.session.session_types import Outcome, PlanningRequest
 
 
 class StepGraph(Protocol):

@@ -41,9 +41,9 @@ import anyio
 import structlog
 from anyio.streams.memory import MemoryObjectSendStream
 
-from agents.llm_port import ReplayMissError
-from agents.messages import ParsedEvent, PlanningFailure
-from orchestrator.session.session_types import (
+from storyteller.agents.llm_port import ReplayMissError
+from storyteller.agents.messages import ParsedEvent, PlanningFailure
+from storyteller.orchestrator.session.session_types import (
     Outcome,
     PlanningRequest,
     SessionError,

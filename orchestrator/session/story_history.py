@@ -2,8 +2,8 @@
 window a planning request carries, built from the world and the story's events.
 
 :func:`history_window` is the one place the session cuts the story to
-:data:`~agents.history.HISTORY_WINDOW` events (the ones before folded into an
-:class:`~agents.messages.EarlierEvents` summary); :func:`planning_request` puts a step's request
+:data:`~storyteller.agents.history.HISTORY_WINDOW` events (the ones before folded into an
+:class:`~storyteller.agents.messages.EarlierEvents` summary); :func:`planning_request` puts a step's request
 together from it; :func:`apply_step_output` moves the story's events on with what a simulated
 frame reports. Pure functions of their inputs: no clock, no I/O.
 """
@@ -13,22 +13,22 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 
-from agents.history import HISTORY_WINDOW
-from agents.instruction_parts import PART_ATTEMPTS
-from agents.messages import (
+from storyteller.agents.history import HISTORY_WINDOW
+from storyteller.agents.instruction_parts import PART_ATTEMPTS
+from storyteller.agents.messages import (
     CharacterStatus,
     EarlierEvents,
     HistoryEntry,
     ParsedEvent,
     PlanningFailure,
 )
-from agents.narrator_words import narration
-from agents.story_text import event_text
-from orchestrator.session.session_types import Outcome, PlanningRequest, StoryEvent
-from orchestrator.session.steps_in_flight import Flight
-from sim.scene.model import Scene
-from sim.world.events import EventFailure, StepOutput
-from sim.world.step import World
+from storyteller.agents.narrator_words import narration
+from storyteller.agents.story_text import event_text
+from storyteller.orchestrator.session.session_types import Outcome, PlanningRequest, StoryEvent
+from storyteller.orchestrator.session.steps_in_flight import Flight
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.events import EventFailure, StepOutput
+from storyteller.sim.world.step import World
 
 
 def world_roster(world: World, events: dict[str, StoryEvent]) -> tuple[CharacterStatus, ...]:

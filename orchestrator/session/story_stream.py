@@ -29,17 +29,17 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
-from orchestrator.session.run_manifest import MAX_CHARACTERS, MAX_DURATION_S
-from sim.bounded_files import (
+from storyteller.orchestrator.session.run_manifest import MAX_CHARACTERS, MAX_DURATION_S
+from storyteller.sim.bounded_files import (
     MAX_OBJECT_KEYS,
     BoundedFileError,
     json_keys_exceed,
     read_bounded_tail,
 )
-from sim.no_follow_writes import open_append
-from sim.run_folder_names import STORY_STREAM
-from sim.validation_text import user_error
-from sim.world.character_track import MAX_FPS, MIN_FPS
+from storyteller.sim.no_follow_writes import open_append
+from storyteller.sim.run_folder_names import STORY_STREAM
+from storyteller.sim.validation_text import user_error
+from storyteller.sim.world.character_track import MAX_FPS, MIN_FPS
 
 STREAM_FILE = STORY_STREAM
 MAX_FRAME = int(MAX_DURATION_S * MAX_FPS)

@@ -25,9 +25,9 @@ from typing import Any, Protocol
 
 import structlog
 
-from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
-from orchestrator.session.session_types import InstructionSource
-from orchestrator.session.stdin_instructions import typed_instruction
+from storyteller.orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
+from storyteller.orchestrator.session.session_types import InstructionSource
+from storyteller.orchestrator.session.stdin_instructions import typed_instruction
 
 _log = structlog.get_logger("storyteller.session")
 

@@ -5,9 +5,9 @@ of browsers) appends one JSON line per press (:func:`send_control`):
 ``{"id": "<32 hex>", "thread": "<run.json's thread id>", "kind": "pause" | "resume" | "speed",
 "speed": 2.0 | null, "sent_unix": 1.7e9}``, in one ``write`` without following a link, fsynced
 before the page says it was sent (the same channel as the instruction box:
-``orchestrator.session.viewer_instructions``). The run reads the file from its last offset in a
+``storyteller.orchestrator.session.viewer_instructions``). The run reads the file from its last offset in a
 thread of its own (:func:`start_control_reader`, lines bounded and parsed as instructions are:
-:class:`~orchestrator.session.viewer_instructions.ThreadLines`), each line once (by id, for
+:class:`~storyteller.orchestrator.session.viewer_instructions.ThreadLines`), each line once (by id, for
 this run's thread only), and the simulation applies what they say at a frame boundary
 (:class:`DirectorControls` is the session's ``session_types.Pacer``): paused, it waits between two
 frames until a ``resume``; a new speed sets the wall time of the next frames.
@@ -41,9 +41,9 @@ import anyio
 import structlog
 from pydantic import Field, model_validator
 
-from orchestrator.session.pace import MAX_SPEED, MIN_SPEED
-from orchestrator.session.viewer_instructions import POLL_S, ThreadLines, ViewerLine, append_line
-from sim.run_folder_names import VIEWER_CONTROLS
+from storyteller.orchestrator.session.pace import MAX_SPEED, MIN_SPEED
+from storyteller.orchestrator.session.viewer_instructions import POLL_S, ThreadLines, ViewerLine, append_line
+from storyteller.sim.run_folder_names import VIEWER_CONTROLS
 
 _log = structlog.get_logger("storyteller.session")
 
@@ -163,7 +163,7 @@ class DirectorControls:
 def start_control_reader(controls: DirectorControls, path: Path, thread: str, *,
                          stop: threading.Event) -> threading.Thread:
     """Start the daemon thread that feeds every new line of ``path`` for ``thread`` to
-    ``controls`` (every :data:`~orchestrator.session.viewer_instructions.POLL_S`); it ends when
+    ``controls`` (every :data:`~storyteller.orchestrator.session.viewer_instructions.POLL_S`); it ends when
     ``stop`` is set. The file's lines from before are read at once (a resumed run starts in the
     state they leave)."""
     inbox = ControlInbox(path, thread)

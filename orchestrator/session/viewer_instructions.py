@@ -13,7 +13,7 @@ The run (not a replay) reads it from its last offset in a thread of its own
 Guarantees:
 
 - nothing typed is lost when either process restarts: a line is written with one ``write`` on a
-  descriptor opened ``O_APPEND`` (``sim.no_follow_writes.open_append``: never through a link)
+  descriptor opened ``O_APPEND`` (``storyteller.sim.no_follow_writes.open_append``: never through a link)
   and fsynced before the viewer says it was sent; the run only reads the file;
 - each line is applied once: lines are taken in file order; a line whose ``id`` came before, or
   for another thread (an earlier run in the same folder), is skipped; a resumed run skips the
@@ -43,12 +43,12 @@ from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 import structlog
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
-from sim.no_follow_writes import append_durably
-from sim.run_folder_names import VIEWER_INSTRUCTIONS
+from storyteller.orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
+from storyteller.sim.no_follow_writes import append_durably
+from storyteller.sim.run_folder_names import VIEWER_INSTRUCTIONS
 
 if TYPE_CHECKING:  # the viewer imports this module too, without the session
-    from orchestrator.session.stdin_instructions import TakesInstructions
+    from storyteller.orchestrator.session.stdin_instructions import TakesInstructions
 
     class _AtFrame(Protocol):
         @property

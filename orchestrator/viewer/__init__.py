@@ -13,7 +13,7 @@ What lives here:
   skinned mesh, frame by frame (pure numpy);
 - :mod:`.scene_view` puts a run into a ``viser`` scene (boxes, paths, figures, labels) and
   shows one frame; with ``--smplx-model`` the figures are the characters' SMPL-X bodies, computed
-  by :mod:`orchestrator.bodies` (``smplx`` and ``torch`` load only then); :mod:`.server` adds the timeline and event-list controls and serves it;
+  by :mod:`storyteller.orchestrator.bodies` (``smplx`` and ``torch`` load only then); :mod:`.server` adds the timeline and event-list controls and serves it;
   :mod:`.export` records the whole story into one self-contained HTML file;
 - :mod:`.access` decides which requests the server answers (its own pages; with a token when it
   listens beyond this machine), :mod:`.inbound` which websocket messages reach viser (binary
@@ -27,7 +27,7 @@ imports lazily.
 Guarantees: the viewer only reads the run folder, except for the instructions typed in its box
 and the presses of its run panel (:mod:`.panels`), which it appends to ``viewer_instructions.jsonl``
 and ``viewer_controls.jsonl`` there (never through a link:
-``orchestrator.session.viewer_instructions``); every frame it
+``storyteller.orchestrator.session.viewer_instructions``); every frame it
 shows is a frame of the exported tracks (no resampling); the server listens on 127.0.0.1
 unless ``--host`` says otherwise, answers no page of another site and no request naming another
 host (and, beyond 127.0.0.1, none without its token), never opens viser's share tunnel, and

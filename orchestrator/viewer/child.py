@@ -3,7 +3,7 @@
 Why not a thread of the run: the viewer's work is Python (reading the growing chunk files,
 posing every figure 30 times a second, serving the page), and in the run's process it takes the
 interpreter lock the simulation needs every 33 ms. Measured with ``python -m
-benchmark.bench_frame_interval --viewer`` (20 characters, realtime), the viewer in the run's
+storyteller.benchmark.bench_frame_interval --viewer`` (20 characters, realtime), the viewer in the run's
 process made many more frames late than in a process of its own
 (``benchmark/results/2026-12-03-viewer-frame-interval.md``).
 
@@ -25,16 +25,16 @@ import threading
 from pathlib import Path
 from typing import IO
 
-from orchestrator.child_process import stop_child
-from orchestrator.terminal import say
-from orchestrator.viewer.access import is_loopback
+from storyteller.orchestrator.child_process import stop_child
+from storyteller.orchestrator.terminal import say
+from storyteller.orchestrator.viewer.access import is_loopback
 
 START_TIMEOUT_S = 120.0
 """Wall seconds the viewer may take to print its address (its imports on a busy machine)."""
 NICE = 10
 """How much lower the viewer's CPU priority is than the run's: on a busy machine the run's frames
 come first (os.nice; the viewer only shows them)."""
-ENTRY = f"import os; os.nice({NICE}); from orchestrator.cli.app import app; app()"
+ENTRY = f"import os; os.nice({NICE}); from storyteller.orchestrator.cli.app import app; app()"
 
 
 class ViewerStartError(Exception):

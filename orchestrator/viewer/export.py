@@ -13,10 +13,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from orchestrator.viewer.access import ViewerAccess
-from orchestrator.viewer.guarded_server import guarded_server
-from orchestrator.viewer.run_folder import load_run
-from orchestrator.viewer.scene_view import SceneView
+from storyteller.orchestrator.viewer.access import ViewerAccess
+from storyteller.orchestrator.viewer.guarded_server import guarded_server
+from storyteller.orchestrator.viewer.run_folder import load_run
+from storyteller.orchestrator.viewer.scene_view import SceneView
 
 EXPORT_FPS = 15.0  # recorded poses per second of story (the browser interpolates nothing)
 
@@ -24,12 +24,12 @@ EXPORT_FPS = 15.0  # recorded poses per second of story (the browser interpolate
 def export_html(folder: Path, out: Path, smplx_model: Path | None = None) -> Path:
     """Record the run in ``folder`` into the HTML file ``out``; returns ``out``.
 
-    With ``smplx_model`` the characters are their SMPL-X bodies (:mod:`orchestrator.bodies`).
+    With ``smplx_model`` the characters are their SMPL-X bodies (:mod:`storyteller.orchestrator.bodies`).
     """
     run = load_run(folder)
     bodies = None
     if smplx_model is not None:
-        from orchestrator.bodies.smplx_meshes import SmplxModels, run_bodies
+        from storyteller.orchestrator.bodies.smplx_meshes import SmplxModels, run_bodies
 
         bodies = run_bodies(folder, [t.name for t in run.tracks], SmplxModels(smplx_model))
     stride = max(1, round(run.fps / EXPORT_FPS))

@@ -1,11 +1,11 @@
 """The stand-in figure as a skinned mesh: the GLB export's box body, posed per frame (pure).
 
-The mesh is :func:`sim.export.box_figure.character_mesh` (one flat-shaded box per bone, in the
+The mesh is :func:`storyteller.sim.export.box_figure.character_mesh` (one flat-shaded box per bone, in the
 rest pose, body frame), each vertex bound with weight 1 to one of the 22 joints. Bones are
 given as world transforms: in the bind pose bone ``j`` has no rotation and sits at the rest
 joint position, so a vertex ``v`` of bone ``j`` lands at ``G_j (v - r_j) + p_j`` with ``G_j``,
 ``p_j`` the joint's world rotation and position from
-:func:`sim.body.skeleton.forward_kinematics` -- the same pose the GLB and BVH exports carry.
+:func:`storyteller.sim.body.skeleton.forward_kinematics` -- the same pose the GLB and BVH exports carry.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from sim.body.skeleton import NUM_JOINTS, forward_kinematics, rest_positions
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.body.skeleton import NUM_JOINTS, forward_kinematics, rest_positions
+from storyteller.sim.world.character_track import CharacterTrack
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,7 @@ class BonePoses:
 
 def standin_rig() -> FigureRig:
     """The box figure of the GLB export, bound rigidly to the skeleton."""
-    from sim.export.box_figure import character_mesh
+    from storyteller.sim.export.box_figure import character_mesh
 
     positions, _normals, triangles, joints = character_mesh()
     weights = np.zeros((positions.shape[0], NUM_JOINTS))

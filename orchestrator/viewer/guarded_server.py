@@ -38,8 +38,8 @@ import websockets.asyncio.server as ws_server
 from websockets.asyncio.server import ServerConnection
 from websockets.http11 import Request, Response
 
-from orchestrator.viewer.access import ViewerAccess
-from orchestrator.viewer.inbound import MAX_MESSAGE_BYTES, checked_handler
+from storyteller.orchestrator.viewer.access import ViewerAccess
+from storyteller.orchestrator.viewer.inbound import MAX_MESSAGE_BYTES, checked_handler
 
 ProcessRequest = Callable[[ServerConnection, Request], Awaitable[Response | None] | Response | None]
 

@@ -3,8 +3,8 @@
 :class:`RunReader.load` gives what :func:`~.run_folder.load_run` gives for the same folder (the
 same tracks, bit for bit, and the same events), at the cost of what was appended since the last
 call while the run is in progress: ``story.jsonl`` through
-:class:`~orchestrator.session.story_stream.StoryStreamReader` (whole lines appended since the last
-read) and each character's ``motion/<slug>.chunks`` through :class:`~sim.world.chunk_tail.ChunkTail`
+:class:`~storyteller.orchestrator.session.story_stream.StoryStreamReader` (whole lines appended since the last
+read) and each character's ``motion/<slug>.chunks`` through :class:`~storyteller.sim.world.chunk_tail.ChunkTail`
 (whole records appended since the last read; a torn last record waits for the next call). A
 finished run (``story.json`` there, or anything in its place) is read whole by ``load_run``.
 
@@ -23,8 +23,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from orchestrator.session.story_stream import STREAM_FILE, StoryStreamError, StoryStreamReader
-from orchestrator.viewer.run_folder import (
+from storyteller.orchestrator.session.story_stream import STREAM_FILE, StoryStreamError, StoryStreamReader
+from storyteller.orchestrator.viewer.run_folder import (
     SCENE_FILE,
     STORY_FILE,
     RunData,
@@ -34,10 +34,10 @@ from orchestrator.viewer.run_folder import (
     shown_names,
     stream_not_started,
 )
-from sim.scene.model import Scene
-from sim.world.character_track import CharacterTrack, CharacterTrackError
-from sim.world.chunk_tail import ChunkTail
-from sim.world.track_chunks import MOTION_FOLDER, ChunkError, check_chunk_total, chunk_path
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.character_track import CharacterTrack, CharacterTrackError
+from storyteller.sim.world.chunk_tail import ChunkTail
+from storyteller.sim.world.track_chunks import MOTION_FOLDER, ChunkError, check_chunk_total, chunk_path
 
 
 class RunReader:

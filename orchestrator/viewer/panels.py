@@ -1,9 +1,9 @@
 """The director's panels of the viewer: the run's pause and speed, the planner, the characters, the story.
 
-- **Run**: the simulation now, from the run's ``live.json`` (``orchestrator.session.live_state``,
+- **Run**: the simulation now, from the run's ``live.json`` (``storyteller.orchestrator.session.live_state``,
   polled every :data:`LIVE_POLL_S`): its frame, pace and speed, paused or not; *Pause the run* /
   *Resume the run* and *Run speed* append a line to ``viewer_controls.jsonl``
-  (``orchestrator.session.viewer_controls``), which the run applies at a frame boundary. Refused,
+  (``storyteller.orchestrator.session.viewer_controls``), which the run applies at a frame boundary. Refused,
   with the reason under them: a run that is not realtime (``live.json`` says why), has ended, has
   not started, or cannot be written to. The viewer's own Play / Pause and speed (the timeline) only
   move what this page shows.
@@ -14,12 +14,12 @@
   lets go. Under the buttons, that browser's selected character: its event, action and place in
   the run now (``live.json``), its action and events at the frame shown, and its events so far.
 - **Story**: the story so far as ``story.md`` tells it
-  (``orchestrator.session.run_report.story_markdown`` of the events the page has), growing as
+  (``storyteller.orchestrator.session.run_report.story_markdown`` of the events the page has), growing as
   events start and end.
 
 All text from the run folder (replies, activities, places, names) is data: it reaches the
-markdown through :func:`orchestrator.safe_text.markdown` (every markdown and HTML character
-escaped) and labels through :func:`orchestrator.safe_text.plain`.
+markdown through :func:`storyteller.orchestrator.safe_text.markdown` (every markdown and HTML character
+escaped) and labels through :func:`storyteller.orchestrator.safe_text.plain`.
 """
 
 from __future__ import annotations
@@ -33,13 +33,13 @@ from typing import Any, cast
 import numpy as np
 import viser
 
-from orchestrator.safe_text import markdown
-from orchestrator.session.live_state import LiveState, read_live_bytes, read_live_state
-from orchestrator.session.run_manifest import ManifestError, read_manifest
-from orchestrator.session.run_report import story_markdown
-from orchestrator.session.viewer_controls import CONTROLS_FILE, ControlKind, send_control
-from orchestrator.viewer.run_folder import STORY_FILE, RunData
-from orchestrator.viewer.timeline import action_at, active_events, clock, event_line
+from storyteller.orchestrator.safe_text import markdown
+from storyteller.orchestrator.session.live_state import LiveState, read_live_bytes, read_live_state
+from storyteller.orchestrator.session.run_manifest import ManifestError, read_manifest
+from storyteller.orchestrator.session.run_report import story_markdown
+from storyteller.orchestrator.session.viewer_controls import CONTROLS_FILE, ControlKind, send_control
+from storyteller.orchestrator.viewer.run_folder import STORY_FILE, RunData
+from storyteller.orchestrator.viewer.timeline import action_at, active_events, clock, event_line
 
 LIVE_POLL_S = 0.25
 """Wall seconds between two looks at ``live.json``."""

@@ -11,7 +11,7 @@ and surrogate characters as escapes. A file that does not fit is one :class:`Run
 
 A run still in progress has no ``story.json`` yet (a run removes an earlier one when it
 starts): it is read *live* (:attr:`RunData.live`) from what the run writes as it goes,
-``story.jsonl`` (the characters, fps and the events so far, ``orchestrator.session.story_stream``),
+``story.jsonl`` (the characters, fps and the events so far, ``storyteller.orchestrator.session.story_stream``),
 ``scene.json`` and the chunk files, which grow by one record per 10 simulated seconds.
 :func:`is_ready` says when there is something to show: ``story.json``, or ``story.jsonl``
 and a first chunk record.
@@ -29,9 +29,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from agents.messages import PlannedCharacter
-from orchestrator.safe_text import plain
-from orchestrator.session.story_stream import (
+from storyteller.agents.messages import PlannedCharacter
+from storyteller.orchestrator.safe_text import plain
+from storyteller.orchestrator.session.story_stream import (
     STREAM_FILE,
     Characters,
     Fps,
@@ -40,11 +40,11 @@ from orchestrator.session.story_stream import (
     StoryStreamError,
     read_story_stream,
 )
-from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
-from sim.scene.model import Scene
-from sim.validation_text import user_error
-from sim.world.character_track import CharacterTrack, CharacterTrackError
-from sim.world.track_chunks import (
+from storyteller.sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.validation_text import user_error
+from storyteller.sim.world.character_track import CharacterTrack, CharacterTrackError
+from storyteller.sim.world.track_chunks import (
     CHUNK_SUFFIX,
     HEADER_BYTES,
     MOTION_FOLDER,
@@ -62,7 +62,7 @@ MAX_STORY_BYTES = 24 << 20
 :data:`MAX_STORY_ITEMS` of each)."""
 MAX_STORY_ITEMS = 10_000
 """Steps, and events, of the largest ``story.json`` shown: the longest run allowed (2.5 h, 24
-characters; ``orchestrator.session.run_manifest``) makes about 7,000 events, and each costs the
+characters; ``storyteller.orchestrator.session.run_manifest``) makes about 7,000 events, and each costs the
 export's captions and the page a line (120,000 steps and 60,000 events took ``view --export``
 past 20 s; 10,000 of each about 2 s more than a small story)."""
 MAX_STORY_DEPTH = 16
@@ -225,10 +225,10 @@ def _with_texts(
     events: tuple[StoryEventRecord, ...], steps: tuple[StoryStep, ...], scene: Scene | None
 ) -> tuple[StoryEventRecord, ...]:
     """The events of an older ``story.json`` (no ``text``) with their plan sentences, built from
-    their steps' plans (``agents.story_text``), never from the narrator's activity."""
+    their steps' plans (``storyteller.agents.story_text``), never from the narrator's activity."""
     if all(e.text for e in events):
         return events
-    from agents.story_text import plan_text
+    from storyteller.agents.story_text import plan_text
 
     plans_of = {s.index: s.plans for s in steps if s.kind == "event"}
     out = []
@@ -290,7 +290,7 @@ def _chunk_tracks(folder: Path, names: list[str], fps: float) -> list[CharacterT
 def shown_names(tracks: list[CharacterTrack]) -> tuple[CharacterTrack, ...]:
     """``tracks`` with names fit to show and to name viewer nodes: a name from a file may hold
     control or bidi characters or a lone surrogate (a JSON ``\\ud800``), shown as escapes
-    (:func:`orchestrator.safe_text.plain`); two names that read alike then are refused."""
+    (:func:`storyteller.orchestrator.safe_text.plain`); two names that read alike then are refused."""
     out = tuple(t if plain(t.name) == t.name else dataclasses.replace(t, name=plain(t.name)) for t in tracks)
     if len({t.name for t in out}) != len(out):
         raise RunFolderError(f"two characters of the run have the same name: {sorted(t.name for t in out)[:8]}")
@@ -300,9 +300,9 @@ def shown_names(tracks: list[CharacterTrack]) -> tuple[CharacterTrack, ...]:
 def scene_of(folder: Path, name: object) -> tuple[Scene | None, str | None]:
     """The scene of the run in ``folder``: its ``scene.json``, else the bundled scene ``name``,
     else None and why (:class:`RunFolderError` when ``scene.json`` is there and bad)."""
-    from sim.scene.bundled import bundled_scene_names, load_bundled_scene
-    from sim.scene.errors import SceneFileError
-    from sim.scene.files import load_scene_json
+    from storyteller.sim.scene.bundled import bundled_scene_names, load_bundled_scene
+    from storyteller.sim.scene.errors import SceneFileError
+    from storyteller.sim.scene.files import load_scene_json
 
     path = folder / SCENE_FILE
     if path.is_file():

@@ -2,12 +2,12 @@
 
 :class:`SceneView` adds the static parts once (floor, one labelled box per object, each
 character's path as a line on the floor) and, per frame, poses the figures (skinned meshes: the stand-in
-figure of :mod:`.figures`, or a character's SMPL-X body from :mod:`orchestrator.bodies` when
+figure of :mod:`.figures`, or a character's SMPL-X body from :mod:`storyteller.orchestrator.bodies` when
 given) and moves the labels ("name: action" above each head, and a caption with what the
-events on at that frame have the characters do: their plan sentences, ``agents.story_text``). Everything goes through ``server.scene``, so every connected browser
+events on at that frame have the characters do: their plan sentences, ``storyteller.agents.story_text``). Everything goes through ``server.scene``, so every connected browser
 and a scene recording (:mod:`.export`) see the same thing. World frame: z up, metres. Names,
 actions and activities are data: labels get them with control characters shown as escapes
-(:func:`orchestrator.safe_text.plain`; viser draws label text literally, no markup).
+(:func:`storyteller.orchestrator.safe_text.plain`; viser draws label text literally, no markup).
 
 A run in progress grows: :meth:`SceneView.extend` poses only the frames that arrived and redraws
 the paths, so a live viewer neither rebuilds the scene nor re-poses the whole story per chunk.
@@ -22,14 +22,14 @@ from collections.abc import Mapping
 import numpy as np
 import viser
 
-from orchestrator.bodies.smplx_meshes import SmplxBody
-from orchestrator.safe_text import plain
-from orchestrator.viewer.bone_updates import pose_bones
-from orchestrator.viewer.figures import BonePoses, FigureRig, bone_poses, standin_rig
-from orchestrator.viewer.run_folder import RunData
-from orchestrator.viewer.timeline import action_at, active_events, clock, event_text
-from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS
-from sim.world.character_track import CharacterTrack
+from storyteller.orchestrator.bodies.smplx_meshes import SmplxBody
+from storyteller.orchestrator.safe_text import plain
+from storyteller.orchestrator.viewer.bone_updates import pose_bones
+from storyteller.orchestrator.viewer.figures import BonePoses, FigureRig, bone_poses, standin_rig
+from storyteller.orchestrator.viewer.run_folder import RunData
+from storyteller.orchestrator.viewer.timeline import action_at, active_events, clock, event_text
+from storyteller.sim.body.skeleton import JOINT_INDEX, NUM_JOINTS
+from storyteller.sim.world.character_track import CharacterTrack
 
 CHARACTER_RGB: tuple[tuple[int, int, int], ...] = (
     (217, 84, 64), (64, 140, 217), (89, 179, 89), (230, 179, 51),

@@ -4,12 +4,12 @@ Controls (the panel of the ``viser`` client): Play / Pause, a speed choice, a fr
 (scrub), the clock, and the story's events as buttons, one per event, in story order; the
 events on at the current frame are coloured, and clicking one jumps to its start frame.
 Text from the run folder (its name, the instruction, activities, error messages) is data: the
-panel's markdown gets it through :func:`orchestrator.safe_text.markdown` (viser renders raw HTML
-in markdown), buttons and labels through :func:`orchestrator.safe_text.plain`.
+panel's markdown gets it through :func:`storyteller.orchestrator.safe_text.markdown` (viser renders raw HTML
+in markdown), buttons and labels through :func:`storyteller.orchestrator.safe_text.plain`.
 
 The instruction box ("Direct the story", one per browser: what one person types is not in
 another's box): Send (or Enter) appends the text to the run folder's
-``viewer_instructions.jsonl`` (:mod:`orchestrator.session.viewer_instructions`), on disk before
+``viewer_instructions.jsonl`` (:mod:`storyteller.orchestrator.session.viewer_instructions`), on disk before
 the page says "Sent"; the run takes it as its latest instruction at its next frame, as a line
 typed on its stdin (source ``viewer``). Refused, with the reason under the box: an empty text,
 one over ``MAX_INSTRUCTION_CHARS``, one holding a lone surrogate (not text: a client that is not a
@@ -18,8 +18,8 @@ started (no ``run.json``). A run that was killed keeps what was sent meanwhile: 
 takes it. The text is shown escaped, as everything from the run folder.
 
 The director's panels (:mod:`.panels`): the run's pause, resume and speed (a realtime run's
-``viewer_controls.jsonl``, :mod:`orchestrator.session.viewer_controls`), its frame and the
-planner's roles from ``live.json`` (:mod:`orchestrator.session.live_state`), a character list
+``viewer_controls.jsonl``, :mod:`storyteller.orchestrator.session.viewer_controls`), its frame and the
+planner's roles from ``live.json`` (:mod:`storyteller.orchestrator.session.live_state`), a character list
 whose click selects a figure and has that browser's camera follow it, and the story so far.
 
 Who may connect: the pages this viewer served, checked on every request
@@ -52,28 +52,28 @@ from pathlib import Path
 import structlog
 import viser
 
-from orchestrator.bodies.smplx_meshes import SmplxBody, SmplxModelError, SmplxModels, run_bodies
-from orchestrator.safe_text import markdown, plain
-from orchestrator.session.run_manifest import ManifestError, read_manifest
-from orchestrator.session.viewer_instructions import (
+from storyteller.orchestrator.bodies.smplx_meshes import SmplxBody, SmplxModelError, SmplxModels, run_bodies
+from storyteller.orchestrator.safe_text import markdown, plain
+from storyteller.orchestrator.session.run_manifest import ManifestError, read_manifest
+from storyteller.orchestrator.session.viewer_instructions import (
     INBOX_FILE,
     ViewerInstruction,
     instruction_problem,
     send_instruction,
 )
-from orchestrator.viewer.access import TOKEN_PARAM, ViewerAccess, authority
-from orchestrator.viewer.guarded_server import guarded_server
-from orchestrator.viewer.live_run import RunReader
-from orchestrator.viewer.panels import DirectorPanels
-from orchestrator.viewer.run_folder import (
+from storyteller.orchestrator.viewer.access import TOKEN_PARAM, ViewerAccess, authority
+from storyteller.orchestrator.viewer.guarded_server import guarded_server
+from storyteller.orchestrator.viewer.live_run import RunReader
+from storyteller.orchestrator.viewer.panels import DirectorPanels
+from storyteller.orchestrator.viewer.run_folder import (
     STORY_FILE,
     RunData,
     RunFolderError,
     folder_stamp,
     is_ready,
 )
-from orchestrator.viewer.scene_view import SceneView
-from orchestrator.viewer.timeline import active_events, clock, event_line
+from storyteller.orchestrator.viewer.scene_view import SceneView
+from storyteller.orchestrator.viewer.timeline import active_events, clock, event_line
 
 _log = structlog.get_logger("storyteller.viewer")
 
@@ -195,7 +195,7 @@ class ViewerApp:
         assert self.models is not None
         if not run.live:
             return run_bodies(self.folder, [t.name for t in run.tracks], self.models)
-        from sim.export.smplx_npz import smplx_parameters
+        from storyteller.sim.export.smplx_npz import smplx_parameters
 
         return {t.name: self.models.body(smplx_parameters(t)) for t in run.tracks}
 

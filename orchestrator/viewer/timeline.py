@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from orchestrator.safe_text import plain
-from orchestrator.session.story_stream import StoryEventRecord
-from sim.world.character_track import CharacterTrack
+from storyteller.orchestrator.safe_text import plain
+from storyteller.orchestrator.session.story_stream import StoryEventRecord
+from storyteller.sim.world.character_track import CharacterTrack
 
 
 def event_span(event: StoryEventRecord, last_frame: int) -> tuple[int, int]:

@@ -10,7 +10,7 @@ rotation onto their new directions; the hand keeps its local rotation (it follow
 A target out of reach is clamped to the arm's length along the shoulder-target line (the arm
 stretched towards it). Collars, spine, pelvis and legs are never touched.
 
-The legs' counterpart is ``sim.body.leg_ik`` (a compiled kernel: it runs for every leg of a
+The legs' counterpart is ``storyteller.sim.body.leg_ik`` (a compiled kernel: it runs for every leg of a
 crowd every frame); the arms are solved only for the few characters whose hands work on an
 object in a frame, so this is plain numpy, batched over them.
 """
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, REST_OFFSETS, forward_kinematics
+from storyteller.sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, REST_OFFSETS, forward_kinematics
 
 __all__ = ["ARM_LENGTH", "COLLAR_JOINTS", "ELBOW_JOINTS", "SHOULDER_JOINTS", "WRIST_JOINTS", "ArmIKError",
            "solve_arms"]

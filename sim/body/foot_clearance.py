@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from sim.scene.model import Scene
+from storyteller.sim.scene.model import Scene
 
 __all__ = ["BoxGrid", "Footprints", "push_out"]
 

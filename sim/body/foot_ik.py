@@ -20,8 +20,8 @@ characters that moves only the feet, with the legs' local rotations:
    toe's height standing flat): a blend between two clips can swing a leg through it.
 2. *clearance*: the foot (ankle and toe joints, as one rigid piece) is moved horizontally out
    of every floor-standing footprint grown by ``margin``, by the shortest shift that clears
-   all of them (``sim.body.foot_clearance.push_out``);
-3. *two-bone IK* on hip-knee-ankle (``sim.body.leg_ik``) reaches the ankle target: the knee
+   all of them (``storyteller.sim.body.foot_clearance.push_out``);
+3. *two-bone IK* on hip-knee-ankle (``storyteller.sim.body.leg_ik``) reaches the ankle target: the knee
    bends in the animated leg's plane (blended towards the thigh's own flexion axis as the
    animated leg straightens), then the leg swings to the target with the
    smallest rotation; the ankle's local rotation is recomputed so the foot keeps its world
@@ -45,9 +45,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.foot_clearance import BoxGrid, Footprints, push_out
-from sim.body.foot_kernel import apply_frame
-from sim.body.leg_ik import (
+from storyteller.sim.body.foot_clearance import BoxGrid, Footprints, push_out
+from storyteller.sim.body.foot_kernel import apply_frame
+from storyteller.sim.body.leg_ik import (
     HIP_JOINTS,
     KNEE_JOINTS,
     LEG_JOINTS,
@@ -56,8 +56,8 @@ from sim.body.leg_ik import (
     FootIKError,
     solve_legs,
 )
-from sim.body.skeleton import NUM_JOINTS
-from sim.scene.model import Scene
+from storyteller.sim.body.skeleton import NUM_JOINTS
+from storyteller.sim.scene.model import Scene
 
 __all__ = [
     "HIP_JOINTS",

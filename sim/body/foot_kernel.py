@@ -1,10 +1,10 @@
-"""One compiled pass of ``FootSolver.apply`` (``sim.body.foot_ik``) over all characters and legs.
+"""One compiled pass of ``FootSolver.apply`` (``storyteller.sim.body.foot_ik``) over all characters and legs.
 
 ``FootSolver.apply`` is a chain of small array steps (leg forward kinematics, the pinning
 state machine, the reach clamp, the footprint push, lock starts, the IK); on a crowd of ten
 characters each step costs more in numpy call overhead than in arithmetic. ``apply_frame``
 does the same steps per character and leg in one numba kernel, calling the same compiled
-push-out and IK kernels (``sim.body.foot_clearance``, ``sim.body.leg_ik``). Its per-leg
+push-out and IK kernels (``storyteller.sim.body.foot_clearance``, ``storyteller.sim.body.leg_ik``). Its per-leg
 arithmetic works on scalars and writes into preallocated rows (no temporary 3-vectors, which
 cost a heap allocation each), with the float operations in the same order, so the result is
 bit for bit the one of the vector form. The array version is
@@ -24,8 +24,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from sim.body.foot_clearance import _may_be_inside, _push_out_kernel
-from sim.body.leg_ik import (
+from storyteller.sim.body.foot_clearance import _may_be_inside, _push_out_kernel
+from storyteller.sim.body.leg_ik import (
     _ANKLE_OFF,
     _HIP_OFF,
     _KNEE_OFF,
@@ -34,8 +34,8 @@ from sim.body.leg_ik import (
     KNEE_JOINTS,
     _ik_kernel,
 )
-from sim.body.skeleton import JOINT_INDEX, REST_OFFSETS
-from sim.motion.clips import ANKLE_JOINTS
+from storyteller.sim.body.skeleton import JOINT_INDEX, REST_OFFSETS
+from storyteller.sim.motion.clips import ANKLE_JOINTS
 
 __all__ = ["LAND_M", "REPLANT_LIFT_M", "TOE_FLOOR_M", "apply_frame"]
 

@@ -30,8 +30,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, REST_OFFSETS
-from sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
+from storyteller.sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, REST_OFFSETS
+from storyteller.sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
 
 __all__ = [
     "HIP_JOINTS",

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, rest_positions
-from sim.export.bvh import END_SITES
+from storyteller.sim.body.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, rest_positions
+from storyteller.sim.export.bvh import END_SITES
 
 # Bone boxes: (from joint, to joint or end site, owner joint, width, depth) in metres.
 _BONE_SIZES: dict[str, tuple[float, float]] = {

@@ -6,8 +6,8 @@ into ``_``): ``<slug>.smplx.npz`` (AMASS-style SMPL-X parameters), ``<slug>.bvh`
 ``scene.glb`` with the scene and every character.
 
 Each file is written to a fresh temporary name and renamed over its own
-(``sim.no_follow_writes``), so a symbolic link planted at one of these names is replaced, never
-written through. The names are ``sim.run_folder_names``.
+(``storyteller.sim.no_follow_writes``), so a symbolic link planted at one of these names is replaced, never
+written through. The names are ``storyteller.sim.run_folder_names``.
 
 The files are written by :data:`WRITER_THREADS` threads: each file's bytes depend only on its
 track (and the scene), never on the order, and the npz files spend most of their time in zlib,
@@ -22,13 +22,13 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from sim.export.bvh import Units, export_bvh
-from sim.export.glb import SkinnedBody, export_glb
-from sim.export.joint_rotations import JointRotations
-from sim.export.smplx_npz import export_smplx_npz
-from sim.run_folder_names import BVH_SUFFIX, SCENE_GLB, SMPLX_SUFFIX, TRACK_SUFFIX, file_slug
-from sim.scene.model import Scene
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.export.bvh import Units, export_bvh
+from storyteller.sim.export.glb import SkinnedBody, export_glb
+from storyteller.sim.export.joint_rotations import JointRotations
+from storyteller.sim.export.smplx_npz import export_smplx_npz
+from storyteller.sim.run_folder_names import BVH_SUFFIX, SCENE_GLB, SMPLX_SUFFIX, TRACK_SUFFIX, file_slug
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.character_track import CharacterTrack
 
 WRITER_THREADS = 2
 """Threads that write a run's files (the machines this runs on have two cores)."""

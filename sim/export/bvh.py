@@ -26,7 +26,7 @@ from typing import Final, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import (
+from storyteller.sim.body.skeleton import (
     BODY_TO_WORLD,
     JOINT_INDEX,
     JOINT_NAMES,
@@ -34,9 +34,9 @@ from sim.body.skeleton import (
     PARENTS,
     REST_OFFSETS,
 )
-from sim.export.joint_rotations import JointRotations
-from sim.no_follow_writes import write_file
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.export.joint_rotations import JointRotations
+from storyteller.sim.no_follow_writes import write_file
+from storyteller.sim.world.character_track import CharacterTrack
 
 Units = Literal["m", "cm"]
 UNIT_SCALE: dict[str, float] = {"m": 1.0, "cm": 100.0}

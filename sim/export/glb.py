@@ -12,7 +12,7 @@ Layout of the file:
   slab over the scene bounds;
 - per character a group node named as the character, holding its joint hierarchy
   (``<name>:pelvis`` ... ``<name>:right_wrist``, translations = rest offsets), and a root
-  skinned mesh node ``<name>:body``: the box figure of :mod:`sim.export.box_figure` (one
+  skinned mesh node ``<name>:body``: the box figure of :mod:`storyteller.sim.export.box_figure` (one
   flat-shaded box per bone), each box bound rigidly to one of the 22 joints (``skin.joints`` in our joint order, inverse bind matrices of the rest pose);
 - one animation ``run``: per character, root translation + 22 joint rotations (unit
   quaternions, xyzw, sign-continuous), one key per frame at the track's rate, LINEAR.
@@ -27,7 +27,7 @@ shows for the exported parameters. The animated local rotations are the same.
 The static node transforms are the first frame's pose. Output bytes are deterministic. Every
 name in the document (objects, characters, their joints, meshes, materials, skins) comes from a
 scene file or a model and a glTF viewer shows it as text, so it is written through
-``sim.visible_text.plain`` (control, format, separator and surrogate characters as escapes; an
+``storyteller.sim.visible_text.plain`` (control, format, separator and surrogate characters as escapes; an
 ordinary name is unchanged).
 """
 
@@ -44,7 +44,7 @@ import pygltflib as gl
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from sim.body.skeleton import (
+from storyteller.sim.body.skeleton import (
     BODY_TO_WORLD,
     JOINT_NAMES,
     NUM_JOINTS,
@@ -52,12 +52,12 @@ from sim.body.skeleton import (
     REST_OFFSETS,
     rest_positions,
 )
-from sim.export.box_figure import box_mesh, character_mesh
-from sim.export.joint_rotations import JointRotations
-from sim.no_follow_writes import write_file
-from sim.scene.model import Scene, SceneObject
-from sim.visible_text import plain
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.export.box_figure import box_mesh, character_mesh
+from storyteller.sim.export.joint_rotations import JointRotations
+from storyteller.sim.no_follow_writes import write_file
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.visible_text import plain
+from storyteller.sim.world.character_track import CharacterTrack
 
 WORLD_TO_GLTF = BODY_TO_WORLD.T
 FLOOR_THICKNESS = 0.02  # metres, below floor_z

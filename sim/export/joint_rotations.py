@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.world.character_track import CharacterTrack
 
 
 @dataclass(frozen=True)

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS
-from sim.export.joint_rotations import JointRotations
-from sim.world.character_track import CharacterTrack, write_npz
+from storyteller.sim.body.skeleton import NUM_JOINTS, REST_OFFSETS
+from storyteller.sim.export.joint_rotations import JointRotations
+from storyteller.sim.world.character_track import CharacterTrack, write_npz
 
 NUM_POSE_PARAMS = 165
 BODY_POSE_SLICE = slice(3, 66)

@@ -23,7 +23,7 @@ Coordinates in metres, x to the right, y up.
 
 Every text drawn (object and character names, labels, captions, the title) comes from a scene
 file, a model or an event program, so it is data: it is drawn through
-``sim.visible_text.plain`` (control, format, separator and surrogate characters shown as
+``storyteller.sim.visible_text.plain`` (control, format, separator and surrogate characters shown as
 escapes; a character's name and label, and the caption lines, keep the line breaks this module
 puts between them) and with ``parse_math=False`` (``$`` is text, not mathtext).
 """
@@ -48,9 +48,9 @@ from matplotlib.patches import Circle, Polygon, Rectangle
 from matplotlib.text import Annotation, Text
 from numpy.typing import NDArray
 
-from sim.no_follow_writes import write_file
-from sim.scene.model import Scene, SceneObject
-from sim.visible_text import plain
+from storyteller.sim.no_follow_writes import write_file
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.visible_text import plain
 
 BODY_RADIUS = 0.25  # metres: radius of a character's disc in the picture
 _FLOOR_COLOUR = "#4a6fa5"

@@ -3,9 +3,9 @@
 A ``RunRecording`` is what a picture needs from a run: the scene, one ``CharacterTrack`` per
 character (pelvis positions and root rotations at ``fps``), and optionally the event id each
 character belonged to at every frame (``World.event_ids()``). ``recording_from_world`` builds
-one from a ``sim.world.step.World``.
+one from a ``storyteller.sim.world.step.World``.
 
-Every picture shows the layers of ``sim.export.topdown``: furniture, characters as discs with
+Every picture shows the layers of ``storyteller.sim.export.topdown``: furniture, characters as discs with
 heading arrows and their current action / event under their names, the cells a body cannot
 stand on (shaded, when the recording has the grid), the last ``trail_s`` seconds of each
 character's path as a trail, and the events under way as captions. A single frame is drawn
@@ -18,7 +18,7 @@ or GIF (Pillow's GIF encoder, written one picture at a time), chosen by the path
 both stream: the pictures are drawn and written one at a time, never all held in memory; ``animation_suffix()`` is
 ``.mp4`` when the encoder is installed and ``.gif`` otherwise. ``save_run_animation`` raises
 ``RunVideoError`` for a ``.mp4`` path when no encoder is installed. Every file is written under a
-fresh temporary name and renamed over its own (``sim.no_follow_writes``): a symbolic link at the
+fresh temporary name and renamed over its own (``storyteller.sim.no_follow_writes``): a symbolic link at the
 path is replaced, never written through.
 """
 from __future__ import annotations
@@ -33,13 +33,13 @@ from typing import Any, TypedDict, Unpack
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.export.topdown import CharacterMarker, TopdownAnimation, render_topdown_rgb
-from sim.no_follow_writes import replacing, write_file
-from sim.paths.nav_grid import NavGrid
-from sim.scene.model import Scene
-from sim.world.character_track import CharacterTrack
-from sim.world.motion_layer import root_yaw
-from sim.world.step import World
+from storyteller.sim.export.topdown import CharacterMarker, TopdownAnimation, render_topdown_rgb
+from storyteller.sim.no_follow_writes import replacing, write_file
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.character_track import CharacterTrack
+from storyteller.sim.world.motion_layer import root_yaw
+from storyteller.sim.world.step import World
 
 
 class RunVideoError(ValueError):

@@ -2,7 +2,7 @@
 
 Entries live in the folder the caller passes in (the application's default,
 ``$STORYTELLER_CACHE_DIR/motion`` or ``~/.cache/storyteller/motion``, is chosen at the edge:
-``orchestrator.cache_paths``; ``None`` means no disk cache) and are named by the SHA-256 of a
+``storyteller.orchestrator.cache_paths``; ``None`` means no disk cache) and are named by the SHA-256 of a
 JSON description of what produced them (generator version, parameters, input file hashes). A missing or unreadable entry is rebuilt; writes are atomic
 (temporary file + rename), so concurrent builders never see half-written files.
 """

@@ -2,7 +2,7 @@
 database's own root motion, and the seat-height correction of a seated pelvis.
 
 Pure functions of the databases (``StepDatabase``, ``MotionDatabase``) and explicit inputs;
-the matcher (``sim.motion.matching``) calls them every step.
+the matcher (``storyteller.sim.motion.matching``) calls them every step.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.motion.database import MotionDatabase
-from sim.motion.frames import DatabaseFrames, StepDatabase
+from storyteller.sim.motion.database import MotionDatabase
+from storyteller.sim.motion.frames import DatabaseFrames, StepDatabase
 
 ClipTables = tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_],
                    NDArray[np.bool_]]

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
-from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, forward_kinematics
+from storyteller.sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, forward_kinematics
 
 FPS = 30.0
 FOOT_JOINTS = (JOINT_INDEX["left_foot"], JOINT_INDEX["right_foot"])

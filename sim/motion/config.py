@@ -33,15 +33,15 @@ from typing import Annotated, Any
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from sim.bounded_files import BoundedFileError, load_bounded_toml, read_bounded_bytes
-from sim.motion.action_labels import UnknownActionLabelError, database_key
-from sim.motion.cache import cached_arrays, file_sha256
-from sim.motion.clips import MotionClip
-from sim.motion.database import MotionDatabase, load_databases
-from sim.motion.features import FeatureConfig
-from sim.motion.sources.amass_import import import_amass
-from sim.motion.sources.bvh_import import MAX_MOCAP_FILE_BYTES, import_bvh
-from sim.validation_text import problem_field, problem_message
+from storyteller.sim.bounded_files import BoundedFileError, load_bounded_toml, read_bounded_bytes
+from storyteller.sim.motion.action_labels import UnknownActionLabelError, database_key
+from storyteller.sim.motion.cache import cached_arrays, file_sha256
+from storyteller.sim.motion.clips import MotionClip
+from storyteller.sim.motion.database import MotionDatabase, load_databases
+from storyteller.sim.motion.features import FeatureConfig
+from storyteller.sim.motion.sources.amass_import import import_amass
+from storyteller.sim.motion.sources.bvh_import import MAX_MOCAP_FILE_BYTES, import_bvh
+from storyteller.sim.validation_text import problem_field, problem_message
 
 IMPORTER_VERSION = "mocap-import-2"
 MAX_MOTION_CONFIG_BYTES = 1024 * 1024

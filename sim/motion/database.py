@@ -24,11 +24,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from sim.body.skeleton import NUM_JOINTS, forward_kinematics
-from sim.motion.action_labels import ActionFamily, all_database_keys, family_of
-from sim.motion.cache import cached_arrays
-from sim.motion.clips import MotionClip
-from sim.motion.features import (
+from storyteller.sim.body.skeleton import NUM_JOINTS, forward_kinematics
+from storyteller.sim.motion.action_labels import ActionFamily, all_database_keys, family_of
+from storyteller.sim.motion.cache import cached_arrays
+from storyteller.sim.motion.clips import MotionClip
+from storyteller.sim.motion.features import (
     FEATURE_LAYOUTS,
     FUTURE_FRAMES,
     Control,
@@ -42,8 +42,8 @@ from sim.motion.features import (
     to_character_frame,
     vectors_to_character_frame,
 )
-from sim.motion.kernels import nearest_rows
-from sim.motion.sources.procedural_library import GENERATOR_VERSION, procedural_clips
+from storyteller.sim.motion.kernels import nearest_rows
+from storyteller.sim.motion.sources.procedural_library import GENERATOR_VERSION, procedural_clips
 
 END_MARGIN = 5  # frames at the end of a non-looping clip that a search never jumps to
 ENTRY_FRAMES = 8  # frames at the start of each clip where a completing action is entered
@@ -133,7 +133,7 @@ class NearestFrameIndex:
         return int(self.candidates[i]), float(squared_distances(self.rows[i : i + 1], query)[0])
 
     def scan_many(self, queries: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-        """Exact brute force for (M,D) queries, compiled (``sim.motion.kernels.nearest_rows``):
+        """Exact brute force for (M,D) queries, compiled (``storyteller.sim.motion.kernels.nearest_rows``):
         every row's squared distance summed dimension by dimension as ``squared_distances``
         does, the first minimum taken. Same answer as ``brute_force`` (lowest index among
         exact ties). Raises ValueError for a query with non-finite features."""
@@ -197,7 +197,7 @@ class MotionDatabase:
     _index: list[NearestFrameIndex] = field(default_factory=list, repr=False, compare=False)
     derived: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
     """Data other modules compute once from this database's arrays and keep here, keyed by
-    what it is (``sim.motion.frames``: frames, frame tables, frame stores); it lives and dies
+    what it is (``storyteller.sim.motion.frames``: frames, frame tables, frame stores); it lives and dies
     with the database."""
 
     @property
@@ -388,7 +388,7 @@ def load_databases(
     ``extra_clips`` (e.g. imported mocap) are used for their keys; with ``replace_procedural``
     they replace the procedural clips of those keys, otherwise they are added. Databases made
     only of procedural clips are cached by content hash in the folder ``cache_dir`` (None: no
-    disk cache; the application's folder is ``orchestrator.cache_paths.motion_cache_dir()``).
+    disk cache; the application's folder is ``storyteller.orchestrator.cache_paths.motion_cache_dir()``).
     """
     config = config or FeatureConfig()
     extra = dict(extra_clips or {})

@@ -25,8 +25,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import JOINT_INDEX
-from sim.motion.action_labels import family_of, is_seated_key
+from storyteller.sim.body.skeleton import JOINT_INDEX
+from storyteller.sim.motion.action_labels import family_of, is_seated_key
 
 J = JOINT_INDEX
 FUTURE_FRAMES = (10, 20, 30)

@@ -15,8 +15,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.motion.frames import DatabaseFrames, StepDatabase
-from sim.motion.query_vectors import (
+from storyteller.sim.motion.frames import DatabaseFrames, StepDatabase
+from storyteller.sim.motion.query_vectors import (
     PoseHistory,
     Steering,
     compiled_query_features,

@@ -4,7 +4,7 @@
 frame pairs and inertialization velocities; ``FrameTable``: next-frame / clip facts as Python
 lists; ``StepDatabase``: both plus the feature-layout gather and the database's place in a
 ``FrameStore``, the frames of a set of databases in one array per quantity for the compiled
-step (``sim.motion.kernels``). Frames, tables and stores are computed once and kept by the
+step (``storyteller.sim.motion.kernels``). Frames, tables and stores are computed once and kept by the
 database they come from (``MotionDatabase.derived``), so matchers over the same database objects
 share them and they go away with the databases.
 """
@@ -16,13 +16,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim.body.skeleton import NUM_JOINTS
-from sim.motion.action_labels import family_of
-from sim.motion.clips import FPS
-from sim.motion.database import MotionDatabase
-from sim.motion.features import Control, LayoutName, assemble, to_character_frame
-from sim.motion.inertialization import angular_velocity
-from sim.motion.kernels import (
+from storyteller.sim.body.skeleton import NUM_JOINTS
+from storyteller.sim.motion.action_labels import family_of
+from storyteller.sim.motion.clips import FPS
+from storyteller.sim.motion.database import MotionDatabase
+from storyteller.sim.motion.features import Control, LayoutName, assemble, to_character_frame
+from storyteller.sim.motion.inertialization import angular_velocity
+from storyteller.sim.motion.kernels import (
     SRC_FUT_DIR,
     SRC_FUT_POS,
     SRC_POS,
@@ -32,7 +32,7 @@ from sim.motion.kernels import (
     SRC_T_POS,
     SRC_VEL,
 )
-from sim.motion.sources.procedural_rig import rot_z
+from storyteller.sim.motion.sources.procedural_rig import rot_z
 
 
 @dataclass(frozen=True)

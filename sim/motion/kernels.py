@@ -30,7 +30,7 @@ from numba import njit, types
 from numba.extending import intrinsic
 from numpy.typing import NDArray
 
-from sim.body.skeleton import NUM_JOINTS, PARENTS, REST_OFFSETS
+from storyteller.sim.body.skeleton import NUM_JOINTS, PARENTS, REST_OFFSETS
 
 # skeleton data, passed to the kernels as arguments (a global would be frozen into numba's
 # on-disk cache, which only notices changes to this file)
@@ -146,7 +146,7 @@ def _matrix_to_rotvec(m: NDArray[np.float64], out: NDArray[np.float64]) -> None:
 
 @njit(cache=True)
 def rotvec_to_matrix(v: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Rotation vectors (K,3) -> matrices (K,3,3), as ``sim.motion.inertialization.rotation_exp``."""
+    """Rotation vectors (K,3) -> matrices (K,3,3), as ``storyteller.sim.motion.inertialization.rotation_exp``."""
     out = np.empty((v.shape[0], 3, 3))
     for r in range(v.shape[0]):
         _rotvec_to_matrix(v[r, 0], v[r, 1], v[r, 2], out[r])
@@ -155,7 +155,7 @@ def rotvec_to_matrix(v: NDArray[np.float64]) -> NDArray[np.float64]:
 
 @njit(cache=True)
 def matrix_to_rotvec(m: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Matrices (K,3,3) -> rotation vectors (K,3), as ``sim.motion.inertialization.rotation_log``."""
+    """Matrices (K,3,3) -> rotation vectors (K,3), as ``storyteller.sim.motion.inertialization.rotation_log``."""
     out = np.empty((m.shape[0], 3))
     for r in range(m.shape[0]):
         _matrix_to_rotvec(m[r], out[r])
@@ -269,7 +269,7 @@ def step_poses(
 @njit(cache=True, inline="always")
 def _fk_positions(local: NDArray[np.float64], pelvis: NDArray[np.float64], parents: NDArray[np.int64], offsets: NDArray[np.float64], t: NDArray[np.float64],
                   out: NDArray[np.float64]) -> None:
-    """Joint positions (22,3) of one pose, as ``sim.body.skeleton.forward_kinematics`` (its chain of
+    """Joint positions (22,3) of one pose, as ``storyteller.sim.body.skeleton.forward_kinematics`` (its chain of
     4x4 products, each element an fma chain over k = 0..3). ``t`` (22,3,4) is scratch."""
     nj = local.shape[0]
     for r in range(3):
@@ -323,7 +323,7 @@ def query_features(
     parents: NDArray[np.int64], offsets: NDArray[np.float64],
 ) -> NDArray[np.float64]:
     """Raw query features (M,D) of M characters with an output pose, as
-    ``sim.motion.query_vectors.query_features_many`` computes them: joints of the last pose (``cur_*``)
+    ``storyteller.sim.motion.query_vectors.query_features_many`` computes them: joints of the last pose (``cur_*``)
     in the character frame of the new root / heading, joint velocities (last pose minus the one
     before (``prev_*``), over ``pose_dt``, in the frame of the old heading; zeros without a
     previous pose), and the control inputs of the query (``relative_target`` of the future
@@ -391,7 +391,7 @@ def query_features(
 def nearest_rows(rows_t: NDArray[np.float64], queries: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """Exact nearest row for each query: rows_t (D,N) (the rows, transposed), queries (M,D) ->
     (row index (M,), squared distance (M,)). Distances are summed dimension by dimension in
-    order (as ``sim.motion.database.squared_distances``); ties go to the lowest row."""
+    order (as ``storyteller.sim.motion.database.squared_distances``); ties go to the lowest row."""
     d, n = rows_t.shape
     m = queries.shape[0]
     idx = np.empty(m, dtype=np.int64)

@@ -13,9 +13,9 @@ The database supplies the body: pelvis offset from the root and joint rotations.
 
 Frames: world z up; the character frame has x forward, y left, origin at the root.
 
-The batched step's parts live beside it: the query vectors (``sim.motion.query_vectors``),
-the grouped searches (``sim.motion.frame_search``), the clip tables, root motion and seat
-correction (``sim.motion.clip_playback``) and the compiled kernels (``sim.motion.kernels``).
+The batched step's parts live beside it: the query vectors (``storyteller.sim.motion.query_vectors``),
+the grouped searches (``storyteller.sim.motion.frame_search``), the clip tables, root motion and seat
+correction (``storyteller.sim.motion.clip_playback``) and the compiled kernels (``storyteller.sim.motion.kernels``).
 """
 
 from __future__ import annotations
@@ -26,13 +26,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import NUM_JOINTS, forward_kinematics
-from sim.motion.action_labels import database_key
-from sim.motion.clip_playback import ClipTables, clip_tables, root_motion, seat_correction
-from sim.motion.clips import FPS
-from sim.motion.database import MotionDatabase
-from sim.motion.frame_search import search_frames
-from sim.motion.frames import (
+from storyteller.sim.body.skeleton import NUM_JOINTS, forward_kinematics
+from storyteller.sim.motion.action_labels import database_key
+from storyteller.sim.motion.clip_playback import ClipTables, clip_tables, root_motion, seat_correction
+from storyteller.sim.motion.clips import FPS
+from storyteller.sim.motion.database import MotionDatabase
+from storyteller.sim.motion.frame_search import search_frames
+from storyteller.sim.motion.frames import (
     DatabaseFrames,
     FrameTable,
     StepDatabase,
@@ -41,9 +41,9 @@ from sim.motion.frames import (
     shared_store,
     shared_table,
 )
-from sim.motion.inertialization import LN2
-from sim.motion.kernels import advance_clips, step_poses
-from sim.motion.query_vectors import pose_joints, query_features_many
+from storyteller.sim.motion.inertialization import LN2
+from storyteller.sim.motion.kernels import advance_clips, step_poses
+from storyteller.sim.motion.query_vectors import pose_joints, query_features_many
 
 
 class MotionMatchingError(ValueError):
@@ -300,9 +300,9 @@ class MotionMatcher:
                   dt: float) -> tuple[list[MatchState], list[Pose]]:
         """Advance several independent characters by ``dt`` seconds, batched: searches are
         grouped per database; the clip bookkeeping, inertialization, the output poses and the
-        query features run in compiled kernels over all characters (``sim.motion.kernels``).
+        query features run in compiled kernels over all characters (``storyteller.sim.motion.kernels``).
         Same result as ``step`` on each character, and as the numpy version
-        (``benchmark.support.motion_reference``)."""
+        (``storyteller.benchmark.support.motion_reference``)."""
         out_states, batch = self.step_batch(states, queries, dt)
         return out_states, batch.poses()
 

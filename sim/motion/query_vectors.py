@@ -4,10 +4,10 @@ The pose part comes from each character's last output pose (joints and joint vel
 its character frame, one batched forward-kinematics call), the control part from its query
 (future root points and headings, target, seat height). Two paths give the same vectors:
 ``query_features_many`` (numpy, any state, also a state with no output pose yet) and
-``compiled_query_features`` (``sim.motion.kernels.query_features``, every state posed).
+``compiled_query_features`` (``storyteller.sim.motion.kernels.query_features``, every state posed).
 
-It reads states and queries through the protocols below (``sim.motion.matching.MatchState``
-and ``MotionQuery`` satisfy them) and imports nothing from ``sim.motion.matching``.
+It reads states and queries through the protocols below (``storyteller.sim.motion.matching.MatchState``
+and ``MotionQuery`` satisfy them) and imports nothing from ``storyteller.sim.motion.matching``.
 """
 
 from __future__ import annotations
@@ -18,17 +18,17 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sim.body.skeleton import NUM_JOINTS, forward_kinematics
-from sim.motion.database import MotionDatabase
-from sim.motion.features import (
+from storyteller.sim.body.skeleton import NUM_JOINTS, forward_kinematics
+from storyteller.sim.motion.database import MotionDatabase
+from storyteller.sim.motion.features import (
     Control,
     assemble,
     relative_target,
     to_character_frame,
     vectors_to_character_frame,
 )
-from sim.motion.frames import DatabaseFrames
-from sim.motion.kernels import OFFSETS, PARENT_INDEX, query_features
+from storyteller.sim.motion.frames import DatabaseFrames
+from storyteller.sim.motion.kernels import OFFSETS, PARENT_INDEX, query_features
 
 
 class PoseHistory(Protocol):

@@ -1,4 +1,4 @@
-"""Compiled inner loops of the windowed cooperative A* (``sim.paths.cooperative_astar``).
+"""Compiled inner loops of the windowed cooperative A* (``storyteller.sim.paths.cooperative_astar``).
 
 The planner keeps its rules in Python (priorities, repair passes, fallbacks, clearance
 tables); these numba kernels run its hot loops on dense arrays:
@@ -9,7 +9,7 @@ tables); these numba kernels run its hot loops on dense arrays:
   ``release_path`` all its moves (from the per-step table of reserved moves, one column per
   agent, that ``reserve_path`` fills);
 - ``space_time_search``: the space-time A* of one agent over ``window`` steps;
-- ``kept_path``: the check and greedy extension of a previous plan (``PythonPasses.kept_path`` in ``sim.paths.python_backend``);
+- ``kept_path``: the check and greedy extension of a previous plan (``PythonPasses.kept_path`` in ``storyteller.sim.paths.python_backend``);
 - ``dense_pass``: one prioritized planning pass over all agents with the kernels above (the
   numba backend's ``PathPlanner._dense_pass``: waits reserved up front, kept hints, searches,
   the repair pass's reuse of unchanged outcomes), so a pass costs one call, not several per agent.

@@ -1,9 +1,9 @@
-"""The clearance rule in continuous space (``sim.paths.cooperative_astar`` states it): the
+"""The clearance rule in continuous space (``storyteller.sim.paths.cooperative_astar`` states it): the
 closest approach of two linear motions over one step, the exact distance between segments,
 positions on a planned path, and the check that finds every pair of plans breaking the rule.
 
-Pure functions of their inputs; the planner's move tables (``sim.paths.move_tables``) and its
-stationary-body moves (``sim.paths.static_bodies``) are tabulated from them.
+Pure functions of their inputs; the planner's move tables (``storyteller.sim.paths.move_tables``) and its
+stationary-body moves (``storyteller.sim.paths.static_bodies``) are tabulated from them.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.nav_grid import NavGrid
-from sim.paths.plan_types import Agent, Cell, PlanningError
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.paths.plan_types import Agent, Cell, PlanningError
 
 
 def segment_min_norm(px: float, py: float, wx: float, wy: float) -> float:

@@ -1,7 +1,7 @@
 """The planner's compiled backend (the default, ``PathPlanner(grid, backend="numba")``): one
 prioritized pass over all agents is one call of ``astar_kernel.dense_pass`` on the move tables,
 the goal-distance table and memory kept from call to call. It takes the same decisions as the
-pure-Python pass (``sim.paths.python_backend``; ``tests/sim/paths/test_astar_kernel.py`` compares them
+pure-Python pass (``storyteller.sim.paths.python_backend``; ``tests/sim/paths/test_astar_kernel.py`` compares them
 plan for plan), and records what each agent's search read, so that a repair pass takes over
 the outcome of every agent whose reads did not change.
 """
@@ -15,11 +15,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.astar_kernel import dense_pass
-from sim.paths.heuristics import GoalDistances
-from sim.paths.move_tables import MoveTables
-from sim.paths.passes import Passes
-from sim.paths.plan_types import Agent, Cell
+from storyteller.sim.paths.astar_kernel import dense_pass
+from storyteller.sim.paths.heuristics import GoalDistances
+from storyteller.sim.paths.move_tables import MoveTables
+from storyteller.sim.paths.passes import Passes
+from storyteller.sim.paths.plan_types import Agent, Cell
 
 
 @dataclass(frozen=True)

@@ -12,10 +12,10 @@ Hence agents that start apart (>= 2r) stay apart at every instant, including mid
 during diagonal moves, and agents that start too close (e.g. placed by hand) never get closer.
 When both agents move in the step their legs keep apart too: a walking body is its disc and a
 segment through its centre along its direction of travel, its feet reaching ``LEG_REACH_M``
-ahead and ``LEG_TRAIL_M`` behind, of radius ``LEG_RADIUS_M`` (``sim.paths.move_tables.
+ahead and ``LEG_TRAIL_M`` behind, of radius ``LEG_RADIUS_M`` (``storyteller.sim.paths.move_tables.
 striding_safe``: legs apart, legs clear of the other's hips, at instants of the step; a pair
 that starts closer gets no closer). With discs only, two walkers crossing at right angles 0.6 m
-apart touched thigh to thigh (the body-body overlap of ``benchmark.motion_metrics``); side by
+apart touched thigh to thigh (the body-body overlap of ``storyteller.benchmark.motion_metrics``); side by
 side they still pass at ``2 * body_radius``.
 The rule is tabulated once over relative start offsets and relative velocities (cell units;
 the legs' over offsets and both moves), which covers vertex, swap and following conflicts; an
@@ -43,12 +43,12 @@ Plans are deterministic: fixed move order, tie-breaking on (f, h, cell), explici
 
 This module is the planner itself (``PathPlanner``: the passes of one call and their order) and
 the one import path for its public names. Its parts: the clearance rule's geometry and plan
-checks (``sim.paths.clearance``), the move tables and clearance masks (``sim.paths.move_tables``),
-the moves stationary bodies leave (``sim.paths.static_bodies``), the goal and detour distances
-(``sim.paths.heuristics``), the goals a walker can use (``sim.paths.usable_goals``), the
-reservation table (``sim.paths.reservations``), the compiled backend
-(``sim.paths.compiled_backend``, on the kernels of ``sim.paths.astar_kernel``) and the
-pure-Python one (``sim.paths.python_backend``).
+checks (``storyteller.sim.paths.clearance``), the move tables and clearance masks (``storyteller.sim.paths.move_tables``),
+the moves stationary bodies leave (``storyteller.sim.paths.static_bodies``), the goal and detour distances
+(``storyteller.sim.paths.heuristics``), the goals a walker can use (``storyteller.sim.paths.usable_goals``), the
+reservation table (``storyteller.sim.paths.reservations``), the compiled backend
+(``storyteller.sim.paths.compiled_backend``, on the kernels of ``storyteller.sim.paths.astar_kernel``) and the
+pure-Python one (``storyteller.sim.paths.python_backend``).
 """
 
 from __future__ import annotations
@@ -60,16 +60,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.clearance import plan_conflicts, position_at, segment_distance
-from sim.paths.compiled_backend import CompiledPasses, PassRecord
-from sim.paths.fallback import failed_first
-from sim.paths.heuristics import GoalDistances
-from sim.paths.move_tables import LEG_RADIUS_M, LEG_REACH_M, Move, MoveTables
-from sim.paths.nav_grid import NavGrid
-from sim.paths.plan_types import BACKENDS, Agent, Backend, Cell, PlanningError
-from sim.paths.python_backend import PythonPasses
-from sim.paths.static_bodies import Segment, StaticBodies
-from sim.paths.usable_goals import UsableGoals
+from storyteller.sim.paths.clearance import plan_conflicts, position_at, segment_distance
+from storyteller.sim.paths.compiled_backend import CompiledPasses, PassRecord
+from storyteller.sim.paths.fallback import failed_first
+from storyteller.sim.paths.heuristics import GoalDistances
+from storyteller.sim.paths.move_tables import LEG_RADIUS_M, LEG_REACH_M, Move, MoveTables
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.paths.plan_types import BACKENDS, Agent, Backend, Cell, PlanningError
+from storyteller.sim.paths.python_backend import PythonPasses
+from storyteller.sim.paths.static_bodies import Segment, StaticBodies
+from storyteller.sim.paths.usable_goals import UsableGoals
 
 # the planner's public names, wherever they are defined (one import path for callers)
 __all__ = [

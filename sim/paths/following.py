@@ -7,7 +7,7 @@ root position (xy, metres); ``headings`` holds the direction of travel (radians,
 ``PriorityKeeper``. Stationary characters (idle, sitting, interacting) are registered with
 ``set_stationary`` and are obstacles, never moved.
 
-Exact off-grid points (``sim.paths.off_grid``). A goal may carry ``final_xy`` (``set_goal(agent,
+Exact off-grid points (``storyteller.sim.paths.off_grid``). A goal may carry ``final_xy`` (``set_goal(agent,
 cell, final_xy=...)``): the walker ends with a straight *leg* from the cell centre to that point,
 started only when every other body is ``2 * body_radius`` from the whole segment.
 
@@ -31,17 +31,17 @@ from collections.abc import Hashable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.cooperative_astar import (
+from storyteller.sim.paths.cooperative_astar import (
     Cell,
     PathPlanner,
     PlanningError,
     PlanResult,
     segment_distance,
 )
-from sim.paths.fallback import PriorityKeeper
-from sim.paths.nav_grid import NavGrid
-from sim.paths.off_grid import Leg, target_problem
-from sim.paths.tracks import PlanTracks, gather_rows, is_movement
+from storyteller.sim.paths.fallback import PriorityKeeper
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.paths.off_grid import Leg, target_problem
+from storyteller.sim.paths.tracks import PlanTracks, gather_rows, is_movement
 
 Agent = Hashable
 
@@ -174,7 +174,7 @@ class CrowdNavigator:
 
     def target_problem(self, goal: Cell, xy: NDArray[np.float64] | tuple[float, float]) -> str | None:
         """Why a body cannot end at ``xy`` coming straight from ``goal``'s centre (None: it can;
-        ``sim.paths.off_grid.target_problem``)."""
+        ``storyteller.sim.paths.off_grid.target_problem``)."""
         return target_problem(self.grid, goal, xy)
 
     def _check_target(self, agent: Agent, goal: Cell, xy: NDArray[np.float64] | tuple[float, float]) -> NDArray[np.float64]:

@@ -1,6 +1,6 @@
 """How far a body walking a straight segment stays from the objects' footprints (metres): the
-clearance every navigation rule is built on (``sim.paths.nav_grid`` tests cells and moves with it,
-``sim.paths.following`` off-grid legs, ``sim.world.navigation`` targets).
+clearance every navigation rule is built on (``storyteller.sim.paths.nav_grid`` tests cells and moves with it,
+``storyteller.sim.paths.following`` off-grid legs, ``storyteller.sim.world.navigation`` targets).
 
 :func:`body_clearance` gives the smallest distance from segments to any footprint (a footprint is
 an object's rectangle in its own frame, ``SceneObject.to_local``); its per-element arithmetic runs
@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from sim.scene.model import SceneObject
+from storyteller.sim.scene.model import SceneObject
 
 
 def segment_point_distance(a: NDArray[np.float64], b: NDArray[np.float64], q: NDArray[np.float64]) -> float:

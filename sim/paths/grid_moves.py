@@ -1,4 +1,4 @@
-"""The 8-neighbour move graph of a navigation grid (``sim.paths.nav_grid``): the moves in their
+"""The 8-neighbour move graph of a navigation grid (``storyteller.sim.paths.nav_grid``): the moves in their
 fixed order, which moves a body of radius ``r`` may take between free cells (no corner cutting,
 the whole segment clear of every blocking footprint) and the strongly connected components of
 the free cells under those moves.
@@ -12,8 +12,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from sim.paths.footprint_distance import body_clearance
-from sim.scene.model import SceneObject
+from storyteller.sim.paths.footprint_distance import body_clearance
+from storyteller.sim.scene.model import SceneObject
 
 # The 8 moves, in a fixed order (index k is used in move masks): 4 straight, then 4 diagonal.
 MOVES: tuple[tuple[int, int], ...] = ((1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (-1, 1), (-1, -1), (1, -1))

@@ -3,7 +3,7 @@ cell id (inf: unreachable), computed by the compiled Dijkstra :func:`goal_distan
 
 Two kinds: the static distance to a goal (the moves of the grid), cached one row per goal in a
 table the compiled passes read by row; and the *detour* distance (the moves some stationary
-bodies leave, ``sim.paths.static_bodies``), memoised per goal and set of bodies, which guides
+bodies leave, ``storyteller.sim.paths.static_bodies``), memoised per goal and set of bodies, which guides
 walkers around a blockage the static distance leads into (``PathPlanner.plan(detour=...)``).
 
 Deterministic: a cached row holds the same floats as a new computation; the cache only decides
@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from sim.paths.move_tables import MoveTables
+from storyteller.sim.paths.move_tables import MoveTables
 
 DetourGraph = tuple[bytes, NDArray[np.float64]]
 

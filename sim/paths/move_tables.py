@@ -3,10 +3,10 @@
 Cells are addressed by *padded ids*: the grid with ``pad`` blocked cells on every side, row-major,
 so that a neighbourhood of an id never leaves the table. Per free cell the moves out of it (wait
 first, then the grid's allowed ``MOVES``); per relative offset and velocity of another agent (a
-*clearance-table base*, ``sim.paths.clearance``), the bit mask of our moves that keep the
+*clearance-table base*, ``storyteller.sim.paths.clearance``), the bit mask of our moves that keep the
 clearance rule against it. Move bits: bit ``m + 6`` for the move with code ``m = 5 * dx + dy``
 (waiting is bit 6, ``WAIT_BIT``). The same tables as arrays feed the compiled kernels
-(``sim.paths.astar_kernel``); the lists feed the pure-Python backend (``sim.paths.python_backend``).
+(``storyteller.sim.paths.astar_kernel``); the lists feed the pure-Python backend (``storyteller.sim.paths.python_backend``).
 
 Pure: a function of the grid and the reach; nothing here changes after construction except the
 memos of ``near_cells`` and ``near_masks`` (the latter shared by the planners of one grid).
@@ -19,10 +19,10 @@ from functools import lru_cache
 
 import numpy as np
 
-from sim.paths.clearance import segment_distance, segment_min_norm
-from sim.paths.grid_moves import MOVES
-from sim.paths.nav_grid import NavGrid
-from sim.paths.plan_types import Cell
+from storyteller.sim.paths.clearance import segment_distance, segment_min_norm
+from storyteller.sim.paths.grid_moves import MOVES
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.paths.plan_types import Cell
 
 WAIT_BIT = 1 << 6  # the move bit of waiting (move code 0)
 WAIT_CODE = 12  # the velocity code (dx + 2) * 5 + (dy + 2) of waiting
@@ -138,7 +138,7 @@ class MoveTables:
         self._near_mask_memo: dict[int, list[tuple[int, int]]] = self.grid.near_mask_memo
 
     def _build_dense_tables(self) -> None:
-        """The search tables as arrays for the compiled kernels (``sim.paths.astar_kernel``)."""
+        """The search tables as arrays for the compiled kernels (``storyteller.sim.paths.astar_kernel``)."""
         n = self.nx_p * self.ny_p
         self.nb_id = np.full((n, 9), -1, dtype=np.int64)
         self.nb_cost = np.zeros((n, 9), dtype=np.float64)

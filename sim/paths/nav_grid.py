@@ -38,18 +38,18 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.paths.footprint_distance import (
+from storyteller.sim.paths.footprint_distance import (
     Obstacles,
     inside_bounds,
     point_rect_distance,
     segment_point_distance,
 )
-from sim.paths.footprint_distance import (
+from storyteller.sim.paths.footprint_distance import (
     body_clearance as body_clearance,  # also this module's: callers import it here
 )
-from sim.paths.grid_moves import MOVES as MOVES  # also this module's: callers import it here
-from sim.paths.grid_moves import allowed_moves, components
-from sim.scene.model import MAX_NAV_CELLS, Scene, SceneObject, nav_cell_bound
+from storyteller.sim.paths.grid_moves import MOVES as MOVES  # also this module's: callers import it here
+from storyteller.sim.paths.grid_moves import allowed_moves, components
+from storyteller.sim.scene.model import MAX_NAV_CELLS, Scene, SceneObject, nav_cell_bound
 
 DEFAULT_BODY_RADIUS = 0.25
 DEFAULT_CLEARANCE_HEIGHT = 1.9
@@ -105,7 +105,7 @@ class NavGrid:
 
     @cached_property
     def near_mask_memo(self) -> dict[int, list[tuple[int, int]]]:
-        """A memo the path planners of this grid share (``sim.paths.cooperative_astar``: the
+        """A memo the path planners of this grid share (``storyteller.sim.paths.cooperative_astar``: the
         cells a clearance mask covers); it depends only on the grid's cells and radius."""
         return {}
 

@@ -1,4 +1,4 @@
-"""Exact off-grid points of walkers (``sim.paths.following.CrowdNavigator``).
+"""Exact off-grid points of walkers (``storyteller.sim.paths.following.CrowdNavigator``).
 
 A goal may carry ``final_xy`` (``set_goal(agent, cell, final_xy=...)``): after reaching ``cell``
 the walker takes a straight *leg* (:class:`Leg`) from the cell centre to that exact point, and
@@ -19,9 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.footprint_distance import body_clearance
-from sim.paths.nav_grid import NavGrid
-from sim.paths.plan_types import Cell
+from storyteller.sim.paths.footprint_distance import body_clearance
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.paths.plan_types import Cell
 
 
 @dataclass(frozen=True)

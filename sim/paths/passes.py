@@ -1,12 +1,12 @@
-"""What both backends of the planner's passes hold (``sim.paths.python_backend.PythonPasses``
-and ``sim.paths.compiled_backend.CompiledPasses``): the move tables, the static goal distances,
+"""What both backends of the planner's passes hold (``storyteller.sim.paths.python_backend.PythonPasses``
+and ``storyteller.sim.paths.compiled_backend.CompiledPasses``): the move tables, the static goal distances,
 and the window, commit steps and expansion cap of ``PathPlanner``. The two take the same
 decisions from the same settings; this is the one place those settings are kept."""
 
 from __future__ import annotations
 
-from sim.paths.heuristics import GoalDistances
-from sim.paths.move_tables import MoveTables
+from storyteller.sim.paths.heuristics import GoalDistances
+from storyteller.sim.paths.move_tables import MoveTables
 
 
 class Passes:

@@ -1,4 +1,4 @@
-"""The path planner's vocabulary, shared by its parts (``sim.paths.cooperative_astar`` and the
+"""The path planner's vocabulary, shared by its parts (``storyteller.sim.paths.cooperative_astar`` and the
 modules it is built from): grid cells, agents, the backends and the planner's input error."""
 
 from __future__ import annotations

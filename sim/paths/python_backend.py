@@ -16,10 +16,10 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.move_tables import Move
-from sim.paths.passes import Passes
-from sim.paths.plan_types import Agent, Cell
-from sim.paths.reservations import Reservations
+from storyteller.sim.paths.move_tables import Move
+from storyteller.sim.paths.passes import Passes
+from storyteller.sim.paths.plan_types import Agent, Cell
+from storyteller.sim.paths.reservations import Reservations
 
 
 class PythonPasses(Passes):

@@ -1,8 +1,8 @@
 """The reservation table of a planning pass: per step t (relative to the plan start), for every
 cell near an agent planned before, the moves those agents still allow there (the clearance
-rule tabulated in ``sim.paths.move_tables``), so that a search looks up one int per expansion.
+rule tabulated in ``storyteller.sim.paths.move_tables``), so that a search looks up one int per expansion.
 
-``Reservations`` is the table as dicts (the pure-Python backend, ``sim.paths.python_backend``);
+``Reservations`` is the table as dicts (the pure-Python backend, ``storyteller.sim.paths.python_backend``);
 the compiled pass (``astar_kernel.dense_pass``) folds the same table as a dense (steps, cells)
 array with ``reserve_path`` / ``release_path``, equal entry for entry
 (``tests/sim/paths/test_astar_kernel.py`` with ``tests/support/dense_reservations.py``). Removing an
@@ -16,8 +16,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.move_tables import MoveTables
-from sim.paths.plan_types import Agent
+from storyteller.sim.paths.move_tables import MoveTables
+from storyteller.sim.paths.plan_types import Agent
 
 
 class Reservations:

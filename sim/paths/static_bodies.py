@@ -1,7 +1,7 @@
 """The moves stationary bodies leave: a planning call's discs (characters standing still) and
 segments (bodies sweeping an off-grid leg during the step) remove, per cell, every move whose
 closest approach to them is below ``min(2r, distance at the move's start)`` (the clearance rule
-of ``sim.paths.cooperative_astar``).
+of ``storyteller.sim.paths.cooperative_astar``).
 
 Two views of the same removal: per padded cell the bit mask of the moves left (what the compiled
 passes and the goal / detour distances read, ``static_allow_of``), and neighbour lists with the
@@ -17,8 +17,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.clearance import segment_distance
-from sim.paths.move_tables import Move, MoveTables, Neighbour
+from storyteller.sim.paths.clearance import segment_distance
+from storyteller.sim.paths.move_tables import Move, MoveTables, Neighbour
 
 Segment = tuple[NDArray[np.float64], NDArray[np.float64]]
 

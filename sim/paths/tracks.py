@@ -1,10 +1,10 @@
 """Per-frame positions along planned grid paths, for many walkers at once (compiled).
 
-A walker following a cooperative plan (``sim.paths.following.CrowdNavigator``) is, ``d``
+A walker following a cooperative plan (``storyteller.sim.paths.following.CrowdNavigator``) is, ``d``
 frames after the plan was made, at ``u = (d / fps) / step_time`` steps along its path of cell
 centres: on the straight segment from cell ``floor(u)`` to the next one, at fraction
 ``u - floor(u)``; at the first centre before it starts and at the last one once the path is
-done (the arithmetic of ``sim.paths.cooperative_astar.position_at``). ``path_tracks`` computes
+done (the arithmetic of ``storyteller.sim.paths.cooperative_astar.position_at``). ``path_tracks`` computes
 it for every path of a plan in one compiled loop, with the very same float operations as its
 numpy oracle (``tests/support/path_reference.py``) element by element (so the same floats;
 ``tests/sim/paths/test_path_tracks.py`` compares them), into one array whose rows are padded with each

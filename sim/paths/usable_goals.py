@@ -12,10 +12,10 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.heuristics import GoalDistances
-from sim.paths.move_tables import WAIT_BIT, MoveTables
-from sim.paths.nav_grid import NavGrid
-from sim.paths.plan_types import Agent, Cell
+from storyteller.sim.paths.heuristics import GoalDistances
+from storyteller.sim.paths.move_tables import WAIT_BIT, MoveTables
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.paths.plan_types import Agent, Cell
 
 
 class UsableGoals:

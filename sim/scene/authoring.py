@@ -6,7 +6,7 @@ optionally the object it stands on. Indices are given per label in row order (``
 ``chair_2``...). Objects on a supporter start at the supporter's top; the rest stand on the
 floor (z = 0). Seats get their seat offsets from ``SEATS``.
 
-The JSON files are generated from these layouts (``python -m sim.scene.authoring``); a test
+The JSON files are generated from these layouts (``python -m storyteller.sim.scene.authoring``); a test
 checks that the shipped JSON equals what the layouts build, that nothing overlaps, that
 supported objects lie on their supporter and that every seat and appliance is reachable.
 
@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from sim.scene.model import NavHints, Scene, SceneObject
+from storyteller.sim.scene.model import NavHints, Scene, SceneObject
 
 # label -> (seat height above the object's bottom in metres (None: the top of the object),
 # seat point offset along the facing as a fraction of the depth)

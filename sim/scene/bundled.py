@@ -1,6 +1,6 @@
 """Scenes shipped with the package (``sim/scene/scenes/*.json``) and name-or-path resolution.
 
-The bundled scenes are generated from the layouts in ``sim.scene.authoring``.
+The bundled scenes are generated from the layouts in ``storyteller.sim.scene.authoring``.
 """
 
 from __future__ import annotations
@@ -9,15 +9,15 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sim.scene.errors import SceneFileError
+from storyteller.sim.scene.errors import SceneFileError
 
 if TYPE_CHECKING:  # loading is imported when a scene is loaded: ``scene list`` needs no numpy
-    from sim.scene.model import Scene
+    from storyteller.sim.scene.model import Scene
 
 
 def bundled_scene_names() -> list[str]:
     """Names of the bundled scenes, sorted (e.g. ``['home', 'office', 'restaurant']``)."""
-    folder = resources.files("sim.scene") / "scenes"
+    folder = resources.files("storyteller.sim.scene") / "scenes"
     return sorted(p.name[: -len(".json")] for p in folder.iterdir() if p.name.endswith(".json"))
 
 
@@ -26,9 +26,9 @@ def load_bundled_scene(name: str) -> Scene:
     if name not in bundled_scene_names():
         names = ", ".join(bundled_scene_names()) or "none"
         raise SceneFileError(name, f"not a bundled scene (bundled: {names})")
-    from sim.scene.files import load_scene_json
+    from storyteller.sim.scene.files import load_scene_json
 
-    with resources.as_file(resources.files("sim.scene") / "scenes" / f"{name}.json") as path:
+    with resources.as_file(resources.files("storyteller.sim.scene") / "scenes" / f"{name}.json") as path:
         return load_scene_json(Path(path))
 
 
@@ -46,6 +46,6 @@ def resolve_scene(spec: str | Path) -> Scene:
         raise SceneFileError(
             path, f"no such file or folder, and not a bundled scene (bundled: {names})"
         )
-    from sim.scene.files import load_scene
+    from storyteller.sim.scene.files import load_scene
 
     return load_scene(path)

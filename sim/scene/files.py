@@ -5,12 +5,12 @@ Formats:
 - the project's own JSON (``Scene.model_dump_json``), ``format: "storyteller-scene/1"``;
 - a reference annotation folder (``objects.json`` + optional ``scene.json`` and
   ``grid_map.json``), as published with the Event-Driven Storytelling paper;
-- instance-segmented meshes (GLB / glTF / OBJ / PLY), see ``sim.scene.meshes``.
+- instance-segmented meshes (GLB / glTF / OBJ / PLY), see ``storyteller.sim.scene.meshes``.
 
-Bounded: a JSON file is read only up to ``MAX_SCENE_FILE_BYTES`` (``sim.bounded_files``: a
+Bounded: a JSON file is read only up to ``MAX_SCENE_FILE_BYTES`` (``storyteller.sim.bounded_files``: a
 regular file, never a device or a FIFO) and nested at most ``MAX_SCENE_JSON_DEPTH`` deep (both
-checked by ``sim.scene.strict_json``), and holds at most ``MAX_SCENE_OBJECTS`` objects
-(``sim.scene.model`` states the other limits); anything outside them is a ``SceneFileError``,
+checked by ``storyteller.sim.scene.strict_json``), and holds at most ``MAX_SCENE_OBJECTS`` objects
+(``storyteller.sim.scene.model`` states the other limits); anything outside them is a ``SceneFileError``,
 checked before the work it would cost.
 """
 
@@ -24,11 +24,11 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
-from sim.scene.errors import SceneFileError as SceneFileError  # re-exported: callers catch it here
-from sim.scene.meshes import load_mesh_scene
-from sim.scene.model import MAX_SCENE_OBJECTS, NavHints, Scene, SceneObject
-from sim.scene.strict_json import parse_json, read_json, read_text, reference_name, short_repr
-from sim.validation_text import problem_field, problem_message
+from storyteller.sim.scene.errors import SceneFileError as SceneFileError  # re-exported: callers catch it here
+from storyteller.sim.scene.meshes import load_mesh_scene
+from storyteller.sim.scene.model import MAX_SCENE_OBJECTS, NavHints, Scene, SceneObject
+from storyteller.sim.scene.strict_json import parse_json, read_json, read_text, reference_name, short_repr
+from storyteller.sim.validation_text import problem_field, problem_message
 
 MESH_SUFFIXES = {".glb", ".gltf", ".obj", ".ply"}
 

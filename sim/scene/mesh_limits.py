@@ -1,4 +1,4 @@
-"""What a mesh file may make trimesh do, checked before and while it is read (``sim.scene.meshes``).
+"""What a mesh file may make trimesh do, checked before and while it is read (``storyteller.sim.scene.meshes``).
 
 A mesh file is small on disk but can ask for much more: a glTF accessor declares how many items
 it holds and trimesh allocates that many (a bufferless accessor is zeros of any ``count``, a
@@ -9,19 +9,19 @@ depth for every transform, and one geometry instanced by 2,000 nodes is transfor
 So:
 
 - :func:`check_gltf_declarations` reads the JSON part of a ``.glb`` / ``.gltf`` (the bytes
-  already read within ``MAX_MESH_FILE_BYTES``) with :func:`sim.bounded_files.load_bounded_json`
+  already read within ``MAX_MESH_FILE_BYTES``) with :func:`storyteller.sim.bounded_files.load_bounded_json`
   (nesting, number and key limits) and refuses more than :data:`MAX_MESH_NODES` nodes or
   accessors declaring more than :data:`MAX_MESH_ARRAY_BYTES` in all, before trimesh builds
   anything;
 - :class:`BoundedResolver` is the only way trimesh reaches another file: inside the mesh file's
   folder (trimesh's own rule), a regular file (never a FIFO or a device), and all of them
-  together within ``MAX_MESH_FILE_BYTES`` (``sim.bounded_files.read_bounded_bytes``); materials
+  together within ``MAX_MESH_FILE_BYTES`` (``storyteller.sim.bounded_files.read_bounded_bytes``); materials
   and textures are not read at all (the loader passes ``skip_materials``);
 - :func:`check_mesh_graph`, on the loaded scene graph, refuses a hierarchy deeper than
   :data:`MAX_NODE_DEPTH` and geometry nodes holding more than :data:`MAX_MESH_VERTICES`
   vertices in all (instances counted each time), in time linear in the nodes.
 
-Every refusal is a :class:`~sim.scene.errors.SceneFileError` naming the file.
+Every refusal is a :class:`~storyteller.sim.scene.errors.SceneFileError` naming the file.
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 from trimesh.resolvers import Resolver
 
-from sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
-from sim.scene.errors import SceneFileError
+from storyteller.sim.bounded_files import BoundedFileError, load_bounded_json, read_bounded_bytes
+from storyteller.sim.scene.errors import SceneFileError
 
 MAX_MESH_NODES = 20_000
 """Nodes a glTF file may declare (geometry or not: 40 per object a scene may hold)."""

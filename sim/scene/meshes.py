@@ -28,7 +28,7 @@ One scene object per graph node that carries geometry (``trimesh.load_scene`` +
   read further; names are parsed by a linear scan (no backtracking regular expression). What
   the file declares (glTF nodes and accessors), the files it names (read within the folder and
   the same byte limit; materials and textures never), the hierarchy's depth and the vertices of
-  all instances are bounded too (``sim.scene.mesh_limits``).
+  all instances are bounded too (``storyteller.sim.scene.mesh_limits``).
 """
 
 from __future__ import annotations
@@ -45,10 +45,10 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 from scipy.spatial import ConvexHull, QhullError
 
-from sim.bounded_files import BoundedFileError, read_bounded_bytes
-from sim.scene.errors import SceneFileError
-from sim.scene.model import MAX_SCENE_OBJECTS, Scene, SceneObject
-from sim.validation_text import problem_field, problem_message
+from storyteller.sim.bounded_files import BoundedFileError, read_bounded_bytes
+from storyteller.sim.scene.errors import SceneFileError
+from storyteller.sim.scene.model import MAX_SCENE_OBJECTS, Scene, SceneObject
+from storyteller.sim.validation_text import problem_field, problem_message
 
 MAX_MESH_FILE_BYTES = 64 * 1024 * 1024
 """Bytes of a mesh scene file (trimesh holds several times the file in memory)."""
@@ -145,7 +145,7 @@ def yaw_box(points_xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArra
 def _load_trimesh_scene(path: Path) -> Any:
     import trimesh
 
-    from sim.scene.mesh_limits import BoundedResolver, check_gltf_declarations, check_mesh_graph
+    from storyteller.sim.scene.mesh_limits import BoundedResolver, check_gltf_declarations, check_mesh_graph
 
     try:
         data = read_bounded_bytes(path, MAX_MESH_FILE_BYTES, str(path))
@@ -174,8 +174,8 @@ def _load_trimesh_scene(path: Path) -> Any:
 
 def _check_obj_names(path: Path, data: bytes) -> None:
     """OBJ objects with one name are merged by the reader: refuse them instead; and a file whose
-    face lines make more than ``MAX_MESH_FACES`` triangles (``sim.scene.mesh_limits``)."""
-    from sim.scene.mesh_limits import check_declared_faces, obj_triangles
+    face lines make more than ``MAX_MESH_FACES`` triangles (``storyteller.sim.scene.mesh_limits``)."""
+    from storyteller.sim.scene.mesh_limits import check_declared_faces, obj_triangles
 
     check_declared_faces(path, obj_triangles(data))
     seen: set[str] = set()

@@ -34,7 +34,7 @@ MAX_SCENE_OBJECTS = 500
 scene and mesh readers). Every object is checked against the navigation grid and described to
 the planner: 2,000 objects spread over their floor cost ``scene inspect`` 43 s (500: about 5 s)."""
 MAX_BUILT_SCENE_OBJECTS = 2_000
-"""Objects a scene the program builds itself may hold (``benchmark.crowd_scenario.tiled``: the
+"""Objects a scene the program builds itself may hold (``storyteller.benchmark.crowd_scenario.tiled``: the
 "Office x16" of the crowd benchmark has 816); the model's own bound."""
 MAX_LABEL_CHARS = 64
 """Characters of an object label (``coffee_maker``); a name adds ``_<idx>``."""
@@ -47,7 +47,7 @@ FLOOR_STANDING_M = 0.10
 """Metres: furniture whose bottom is this close to the floor stands on it (an obstacle to a body's
 feet, and to a body sitting beside it)."""
 MAX_NAV_CELLS = 100_000
-"""Cells of the navigation grid over the floor (``sim.paths.nav_grid`` refuses more too): a
+"""Cells of the navigation grid over the floor (``storyteller.sim.paths.nav_grid`` refuses more too): a
 95 m square at the default 0.3 m (the bundled scenes need about 700-3,300). Building a grid costs
 tens of microseconds per cell: a 590 m floor's 3.9 million took 24 s and 2.3 GB."""
 

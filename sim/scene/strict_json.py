@@ -1,10 +1,10 @@
 """Strict, bounded JSON for scene files, with errors that name the file, the object and the field.
 
 ``read_json(path, layout)``: the file read only up to ``MAX_SCENE_FILE_BYTES``
-(``sim.bounded_files``: a regular file, never a device or a FIFO), UTF-8 text, nested at most ``MAX_SCENE_JSON_DEPTH``
+(``storyteller.sim.bounded_files``: a regular file, never a device or a FIFO), UTF-8 text, nested at most ``MAX_SCENE_JSON_DEPTH``
 deep, no NaN / Infinity (nor numbers that overflow to infinity, nor integers over 300 digits),
-no duplicate keys, at most ``sim.bounded_files.MAX_OBJECT_KEYS`` keys in one object. Every problem is a ``SceneFileError``; a non-finite number is reported with
-the object holding it, named as the scene loaders (``sim.scene.files``) name objects.
+no duplicate keys, at most ``storyteller.sim.bounded_files.MAX_OBJECT_KEYS`` keys in one object. Every problem is a ``SceneFileError``; a non-finite number is reported with
+the object holding it, named as the scene loaders (``storyteller.sim.scene.files``) name objects.
 """
 
 from __future__ import annotations
@@ -14,13 +14,13 @@ import math
 from pathlib import Path
 from typing import Any
 
-from sim.bounded_files import (
+from storyteller.sim.bounded_files import (
     MAX_OBJECT_KEYS,
     BoundedFileError,
     json_depth_exceeds,
     read_bounded_bytes,
 )
-from sim.scene.errors import SceneFileError
+from storyteller.sim.scene.errors import SceneFileError
 
 MAX_SCENE_FILE_BYTES = 16 * 1024 * 1024
 """Bytes of one scene JSON file (a reference ``objects.json`` takes about 1 KB per object)."""

@@ -3,10 +3,10 @@ swung out of it at the shoulder.
 
 The motion layer swings the arms as in its clips, where there is no furniture: walking past a
 plant, standing beside a couch or sitting down at a table, a hand goes into the box. After the
-working hands are placed (``sim.world.contacts.hand_targets``), each arm of a character whose
-hands are not working on an object (``sim.world.facing.needs_reach``) is tested against the solid
+working hands are placed (``storyteller.sim.world.contacts.hand_targets``), each arm of a character whose
+hands are not working on an object (``storyteller.sim.world.facing.needs_reach``) is tested against the solid
 boxes of the scene (a table's or desk's top only, as the legroom rule reads them:
-``sim.world.legroom.solid_bottom``; the seat it is sitting on, sitting onto or standing up from
+``storyteller.sim.world.legroom.solid_bottom``; the seat it is sitting on, sitting onto or standing up from
 is left out: arms rest on it). Where the elbow, the middle of the forearm or the wrist comes
 within its flesh (``ARM_FLESH_M``) plus ``ARM_CLEAR_M`` of a box, the arm turns about its shoulder
 by the least rotation that takes that point out along the box's outward normal (the deepest
@@ -28,12 +28,12 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from sim.body.arm_ik import COLLAR_JOINTS, ELBOW_JOINTS, SHOULDER_JOINTS, WRIST_JOINTS
-from sim.body.skeleton import PARENTS, REST_OFFSETS
-from sim.scene.model import Scene
-from sim.world.facing import needs_reach
-from sim.world.legroom import solid_bottom
-from sim.world.phases import CharacterState
+from storyteller.sim.body.arm_ik import COLLAR_JOINTS, ELBOW_JOINTS, SHOULDER_JOINTS, WRIST_JOINTS
+from storyteller.sim.body.skeleton import PARENTS, REST_OFFSETS
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.facing import needs_reach
+from storyteller.sim.world.legroom import solid_bottom
+from storyteller.sim.world.phases import CharacterState
 
 __all__ = ["ARM_CLEAR_M", "ARM_FLESH_M", "ArmBoxes", "arm_rules", "arms_clear"]
 
@@ -194,7 +194,7 @@ def _screen(rots: NDArray[np.float64], pelvis: NDArray[np.float64], skip: NDArra
     footprint, the box's height within ``ARM_BELOW_M`` / ``ARM_ABOVE_M`` of it; not its ``own``
     box index, -1: none) and, for the bodies with one: the arms' forward kinematics (positions
     (N, 22, 3) and global rotations (N, 22, 3, 3) of the pelvis and ``_CHAIN``, as
-    ``sim.body.skeleton.forward_kinematics`` gives them; zero elsewhere), how far (N, 2) the
+    ``storyteller.sim.body.skeleton.forward_kinematics`` gives them; zero elsewhere), how far (N, 2) the
     flesh of each arm's elbow, mid-forearm or wrist (``flesh``) reaches into a near box at most
     (-inf: no box near), and whether (N, 2) its shoulder is inside one."""
     n, nb = rots.shape[0], centres.shape[0]

@@ -1,6 +1,6 @@
 """Arrivals and stalls of the world's walkers, checked at planning-step boundaries.
 
-Functions of a ``WalkingWorld`` (the parts of ``sim.world.step.World`` they read and change).
+Functions of a ``WalkingWorld`` (the parts of ``storyteller.sim.world.step.World`` they read and change).
 The rules they keep:
 
 - a walker counts as arrived once it stands where its walk ends (``on_target``: its goal cell's
@@ -25,8 +25,8 @@ from typing import Protocol
 
 import numpy as np
 
-from sim.paths.cooperative_astar import PathPlanner
-from sim.world.event_book import (
+from storyteller.sim.paths.cooperative_astar import PathPlanner
+from storyteller.sim.world.event_book import (
     EventRules,
     EventWorld,
     StepReport,
@@ -36,9 +36,9 @@ from sim.world.event_book import (
     still_bodies,
     taken_points,
 )
-from sim.world.facing import surface_distance
-from sim.world.navigation import OFF_GRID_EPS
-from sim.world.phases import CharacterState, StandTarget, TargetFallback
+from storyteller.sim.world.facing import surface_distance
+from storyteller.sim.world.navigation import OFF_GRID_EPS
+from storyteller.sim.world.phases import CharacterState, StandTarget, TargetFallback
 
 
 class WalkRules(EventRules, Protocol):

@@ -4,7 +4,7 @@ A :class:`CharacterTrack` holds, per frame at ``fps`` (30 by default):
 
 - ``root_positions`` (N, 3): the pelvis position in the world (metres, z up);
 - ``local_rotations`` (N, 22, 3, 3): each joint's rotation relative to its parent in the
-  SMPL-X joint order of :mod:`sim.body.skeleton`; joint 0's is the root's world rotation (body frame
+  SMPL-X joint order of :mod:`storyteller.sim.body.skeleton`; joint 0's is the root's world rotation (body frame
   -> world, so a standing character's root is ``heading_to_root(theta)``);
 - ``betas`` (10,), ``gender`` and optional per-frame ``action_labels``.
 
@@ -34,9 +34,9 @@ from typing import Literal
 
 import numpy as np
 
-from sim.body.skeleton import NUM_JOINTS, forward_kinematics
-from sim.bounded_files import BoundedFileError, read_bounded_npz
-from sim.no_follow_writes import write_file
+from storyteller.sim.body.skeleton import NUM_JOINTS, forward_kinematics
+from storyteller.sim.bounded_files import BoundedFileError, read_bounded_npz
+from storyteller.sim.no_follow_writes import write_file
 
 Gender = Literal["neutral", "male", "female"]
 GENDERS: tuple[Gender, ...] = ("neutral", "male", "female")
@@ -54,7 +54,7 @@ arrays in other bytes."""
 _CHECK_FRAMES = 4096  # frames whose rotations are checked at once
 MIN_FPS = 1.0
 MAX_FPS = 240.0
-"""Frames per second of a track (and of a story's timeline, ``orchestrator.session.story_stream``):
+"""Frames per second of a track (and of a story's timeline, ``storyteller.orchestrator.session.story_stream``):
 runs use 30; a file at 1e-300 fps stretched 90 frames over 1e301 seconds."""
 MAX_TRACK_FILE_BYTES = 256 << 20
 """Bytes of the largest ``.track.npz`` read back (a compressed hour of frames is about 100 MB)."""

@@ -12,10 +12,10 @@ resume), or the bytes at its offset are not the next record (no record header th
 start frame, a bad CRC followed by more data: rewritten in place). Bytes before the offset that
 were rewritten in place without any of these signs are not noticed: the tail holds what it read.
 
-The limits are :func:`~sim.world.track_chunks.scan`'s, checked at every read: a regular file only
+The limits are :func:`~storyteller.sim.world.track_chunks.scan`'s, checked at every read: a regular file only
 (a FIFO or a device is refused, never waited on), at most
-:data:`~sim.world.track_chunks.MAX_CHUNK_FILE_BYTES` (from its size, before a byte is read), each
-record's payload at most :data:`~sim.world.track_chunks.MAX_RECORD_BYTES`, every record's CRC,
+:data:`~storyteller.sim.world.track_chunks.MAX_CHUNK_FILE_BYTES` (from its size, before a byte is read), each
+record's payload at most :data:`~storyteller.sim.world.track_chunks.MAX_RECORD_BYTES`, every record's CRC,
 frame order and name table. A file a full read refuses raises the same :class:`ChunkError`.
 Plain file I/O: no clock, no logging.
 """
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
-from sim.world.track_chunks import (
+from storyteller.sim.world.track_chunks import (
     HEADER_BYTES,
     MAGIC,
     ChunkError,

@@ -8,9 +8,9 @@ in time and both exact at the contact:
 - **seat height** (``seat_pelvis``): while a character sits on a seat its pelvis is
   ``SEAT_PELVIS_ABOVE_SEAT`` above the seat's surface (the scene's seat height); sitting down,
   the pelvis goes from standing height (``STAND_Z``) to it as the root goes onto the seat (the
-  ``smoothstep`` of the sit-down's progress, ``sim.world.frame_assembly.stationary_root``),
+  ``smoothstep`` of the sit-down's progress, ``storyteller.sim.world.frame_assembly.stationary_root``),
   standing up back (the clips' own heights would end the sit-down 0.3 s early). The legs are
-  re-solved (``sim.body.leg_ik``) so the feet stay where they were animated, flat
+  re-solved (``storyteller.sim.body.leg_ik``) so the feet stay where they were animated, flat
   on the floor (ankle at ``ANKLE_HEIGHT``) where they were near it, and in front of the seat's
   base (``FEET_CLEAR_M``), so the knees take up the difference;
 - **hands on the object** (``hand_targets``): a standing character whose action's hands work
@@ -19,7 +19,7 @@ in time and both exact at the contact:
   nearest the animated hand, ``HAND_STANDOFF_M`` off its surface, with the weight of the
   gesture's reach (``reach_weight``: up over the first ``REACH_IN`` of the action, held, down
   over the last part, as the procedural clips move the hand), by the arm IK
-  (``sim.body.arm_ik``); an object out of the arm's reach (a record player on a low side table)
+  (``storyteller.sim.body.arm_ik``); an object out of the arm's reach (a record player on a low side table)
   bends the trunk forward first, as little as will do (``LEAN_STEPS``). A wipe's circles and a
   pen's strokes stay: the point follows the animated hand across the surface;
 - **the cup or the food to the mouth** (``hand_targets``): a character drinking or eating
@@ -43,22 +43,22 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.arm_ik import ARM_LENGTH, SHOULDER_JOINTS, WRIST_JOINTS, solve_arms
-from sim.body.leg_ik import leg_chain, solve_chain
-from sim.body.skeleton import JOINT_INDEX, forward_kinematics
-from sim.motion.action_labels import action_spec
-from sim.motion.sources.procedural_actions import SEAT_PELVIS_ABOVE_SEAT, STAND_Z
-from sim.motion.sources.procedural_rig import ANKLE_HEIGHT
-from sim.scene.model import SceneObject
-from sim.world.legroom import feet_clear_of
-from sim.world.phases import CharacterState, smoothstep
+from storyteller.sim.body.arm_ik import ARM_LENGTH, SHOULDER_JOINTS, WRIST_JOINTS, solve_arms
+from storyteller.sim.body.leg_ik import leg_chain, solve_chain
+from storyteller.sim.body.skeleton import JOINT_INDEX, forward_kinematics
+from storyteller.sim.motion.action_labels import action_spec
+from storyteller.sim.motion.sources.procedural_actions import SEAT_PELVIS_ABOVE_SEAT, STAND_Z
+from storyteller.sim.motion.sources.procedural_rig import ANKLE_HEIGHT
+from storyteller.sim.scene.model import SceneObject
+from storyteller.sim.world.legroom import feet_clear_of
+from storyteller.sim.world.phases import CharacterState, smoothstep
 
 HAND_GESTURES = frozenset({"reach", "reach_low", "wipe", "write", "carry", "type"})
-"""Gestures whose hands work on the object used (``sim.world.facing.REACH_GESTURES``)."""
+"""Gestures whose hands work on the object used (``storyteller.sim.world.facing.REACH_GESTURES``)."""
 BOTH_HANDS = frozenset({"carry", "type"})
 REACH_IN = {"carry": (0.35, 0.6), "handshake": (0.3, 0.75)}
 """Fractions of the action's duration at which the hand arrives and leaves (default 0.3, 0.7:
-the procedural clips' keyframes, ``sim.motion.sources.procedural_actions._gesture``)."""
+the procedural clips' keyframes, ``storyteller.sim.motion.sources.procedural_actions._gesture``)."""
 MOUTH_GESTURES = frozenset({"to_mouth", "to_mouth_both"})
 """Gestures that bring a hand (a cup, food) to the mouth: drink, eat."""
 MOUTH_FORWARD_M = 0.10  # the mouth in front of the head joint (horizontally, along the body's forward)
@@ -149,8 +149,8 @@ def seat_pelvis(chars: Sequence[CharacterState], labels: Sequence[str], seated: 
     ``seats``: the seat objects (per character, or None): feet on the floor are kept
     ``FEET_CLEAR_M`` in front of the seat's front face (a couch whose seat point is near its
     front would otherwise have the ankles inside its base; a body sitting turned on a seat with
-    no back, ``sim.world.legroom.sitting_yaw``: the face it sits towards), and out of the other
-    ``objects``' footprints (``sim.world.legroom.feet_clear_of``)."""
+    no back, ``storyteller.sim.world.legroom.sitting_yaw``: the face it sits towards), and out of the other
+    ``objects``' footprints (``storyteller.sim.world.legroom.feet_clear_of``)."""
     rows, goals = [], []
     for i, c in enumerate(chars):
         h = seat_heights[i]

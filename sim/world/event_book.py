@@ -1,14 +1,14 @@
 """Event bookkeeping of the world step: assigning events, the start queue, group starts,
 completion and failure, and who is free.
 
-Functions of an ``EventWorld`` (the parts of ``sim.world.step.World`` they read and change:
+Functions of an ``EventWorld`` (the parts of ``storyteller.sim.world.step.World`` they read and change:
 characters, accepted events, the start queue, the navigator). The rules they keep:
 
 - an assignment is all or nothing: when any member is unknown, busy or cannot reach its
   target, the whole event fails (one ``EventFailure`` per problem) and nobody moves;
 - a member busy acting (or seated) first leaves its action through its transition out and
   takes the new assignment once standing (``CharacterState.pending``);
-- a standing action that works on an object (``sim.world.facing.needs_reach``) ends its walk
+- a standing action that works on an object (``storyteller.sim.world.facing.needs_reach``) ends its walk
   within reach of it: a point the planner gave out of reach is replaced by the free point
   within reach nearest to it (``StandTargets.within_reach``, fallback ``out_of_reach``);
 - an event waits in the start queue (``start_queue``, in ``events`` order; a reused id keeps
@@ -16,7 +16,7 @@ characters, accepted events, the start queue, the navigator). The rules they kee
   planning-step boundary; then all start their transition in on the same frame, each turning
   from where it stands to its partners, else to the object it uses, else to the planner's
   facing (``act_yaw``; seated: the planner's facing, turned on a seat with no back whose
-  legroom other furniture takes, ``sim.world.legroom``). A seated body registers discs along its
+  legroom other furniture takes, ``storyteller.sim.world.legroom``). A seated body registers discs along its
   sit-down path (``seat_discs``);
 - an event completes when every member has finished its action (or, acting a looping action,
   left it); it becomes *looping* when every member is done or acting a looping action;
@@ -34,23 +34,23 @@ from typing import Literal, Protocol
 
 import numpy as np
 
-from sim.motion.action_labels import action_spec
-from sim.paths.following import close_xy
-from sim.paths.nav_grid import NavGrid
-from sim.scene.model import Scene, SceneObject
-from sim.world.errors import WorldError
-from sim.world.events import (
+from storyteller.sim.motion.action_labels import action_spec
+from storyteller.sim.paths.following import close_xy
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.errors import WorldError
+from storyteller.sim.world.events import (
     AssignEvent,
     Assignment,
     EventFailure,
     FailureReason,
     ReleaseCharacters,
 )
-from sim.world.facing import heading_to_object, heading_to_points, needs_reach, surface_distance
-from sim.world.legroom import along_way, sit_via, sitting_yaw
-from sim.world.navigation import StandTargets, WorldNavigator, seat_place
-from sim.world.partners import spaced
-from sim.world.phases import (
+from storyteller.sim.world.facing import heading_to_object, heading_to_points, needs_reach, surface_distance
+from storyteller.sim.world.legroom import along_way, sit_via, sitting_yaw
+from storyteller.sim.world.navigation import StandTargets, WorldNavigator, seat_place
+from storyteller.sim.world.partners import spaced
+from storyteller.sim.world.phases import (
     CharacterState,
     StandTarget,
     available,
@@ -121,7 +121,7 @@ SEAT_DISC_SPACING = 0.4  # metres between the discs a seated body registers alon
 
 def seat_discs(anchor: np.ndarray, seat: np.ndarray, via: np.ndarray | None = None) -> list[np.ndarray]:
     """Disc centres covering the sit-down path from ``anchor`` (standing point) to ``seat`` (by
-    the corner ``via`` when given: ``sim.world.legroom.sit_via``): at least three, at most
+    the corner ``via`` when given: ``storyteller.sim.world.legroom.sit_via``): at least three, at most
     ``SEAT_DISC_SPACING`` apart, so walkers kept 2 body radii from every disc stay >= ~0.46 m (at
     0.25 m radii) from the whole path."""
     if via is None:
@@ -211,7 +211,7 @@ def still_bodies(w: EventWorld, skip: Iterable[str]) -> list[tuple[float, float]
 def assign(w: EventWorld, cmd: AssignEvent, out: StepReport) -> None:
     """Accept ``cmd`` (its members start walking or leave what they do) or fail it as a whole;
     a pair doing a partner action is first sent to points at the action's distance
-    (``sim.world.partners.spaced``). Raises ``WorldError`` when an event with its id is still running."""
+    (``storyteller.sim.world.partners.spaced``). Raises ``WorldError`` when an event with its id is still running."""
     eid = cmd.event_id
     if eid in w.events and w.events[eid].status in ("ongoing", "looping"):
         raise WorldError(f"event {eid!r} is already running")
@@ -377,7 +377,7 @@ def act_yaw(w: EventWorld, c: CharacterState, a: Assignment, stand: dict[str, np
     (``stand``: where members starting now stand; others where they are), else a standing
     action with an object faces the object's nearest footprint point; seated: the planner's
     facing, or turned from it on a seat with no back whose legroom other furniture takes
-    (``sim.world.legroom.sitting_yaw``)."""
+    (``storyteller.sim.world.legroom.sitting_yaw``)."""
     if a.seat is not None:
         seat = w.scene.by_name.get(a.seat)
         if seat is None:
@@ -451,7 +451,7 @@ def start_groups(w: EventWorld, out: StepReport) -> None:
 
 
 def free_characters(w: EventWorld) -> tuple[str, ...]:
-    """Characters the narrator may give a new event (see ``sim.world.phases.available``)."""
+    """Characters the narrator may give a new event (see ``storyteller.sim.world.phases.available``)."""
     return tuple(name for name in w.names if is_free(w, name))
 
 

@@ -4,11 +4,11 @@ Commands (frozen pydantic models, ``kind`` tags the union):
 
 - ``AssignEvent(event_id, assignments)``: one story event; every ``Assignment`` sends one
   character to ``target_xy`` (metres, the pelvis ground point), facing ``facing_xy`` (a unit xy
-  direction) to do ``action`` (an action label of ``sim.motion.action_labels``), optionally seated on
+  direction) to do ``action`` (an action label of ``storyteller.sim.motion.action_labels``), optionally seated on
   the scene object ``seat`` whose seat is ``seat_height`` metres above the floor. ``partners``
   name the other characters the action is done with (a partner action faces them); ``focus``
   names the scene object a standing action uses (faced from wherever the character ends up,
-  and reached: ``sim.world.facing``).
+  and reached: ``storyteller.sim.world.facing``).
 - ``ReleaseCharacters(characters)``: stop whatever looping action the characters are doing;
   they stand up / step back and become idle.
 
@@ -18,8 +18,8 @@ typed failures (``EventFailure``: no path, busy, stuck...), and who is available
 
 ``AssignEvent.from_plans`` converts the planning side's per-character plans (objects with
 ``character``, ``action``, ``position``, ``facing``, ``seat`` and ``area`` attributes, i.e.
-``tools.character_states.CharacterPlan``) without importing them: ``sim`` never imports
-``tools``; it names each standing plan's object with ``sim.world.facing.focus_object``.
+``storyteller.tools.character_states.CharacterPlan``) without importing them: ``sim`` never imports
+``tools``; it names each standing plan's object with ``storyteller.sim.world.facing.focus_object``.
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ from typing import Annotated, Literal, Protocol
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from sim.motion.action_labels import UnknownActionLabelError, database_key
-from sim.scene.model import Scene
-from sim.world.facing import focus_object
+from storyteller.sim.motion.action_labels import UnknownActionLabelError, database_key
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.facing import focus_object
 
 Point = tuple[float, float]
 
@@ -131,7 +131,7 @@ class AssignEvent(_Frozen):
 
         Every character's partners are the other characters of the event; a seat's height
         is read from ``scene`` (bottom of the object + its vertical sit offset) and a standing
-        plan's object from ``sim.world.facing.focus_object`` when ``scene`` is given.
+        plan's object from ``storyteller.sim.world.facing.focus_object`` when ``scene`` is given.
         """
         names = [p.character for p in plans]
         out = []

@@ -2,7 +2,7 @@
 
 The planner sends a facing with every assignment (``Assignment.facing_xy``), computed from the
 point it sampled. A character does not always act on that point: it may stop short of it, on a
-neighbouring cell, or beside a body that stands on it (the stall rules of ``sim.world.step``),
+neighbouring cell, or beside a body that stands on it (the stall rules of ``storyteller.sim.world.step``),
 and a small planning model may point the facing anywhere. So the world turns a standing
 character, right before it acts, from where it actually stands:
 
@@ -36,8 +36,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.motion.action_labels import action_spec
-from sim.scene.model import Scene, SceneObject
+from storyteller.sim.motion.action_labels import action_spec
+from storyteller.sim.scene.model import Scene, SceneObject
 
 REACH_M = 0.6
 """Metres from a standing root to the nearest point of an object's footprint within which its

@@ -5,12 +5,12 @@ from its phase, root and heading, the planned future of a walker, the target of 
 steps the motion layer (batched when it has ``step_batch`` (poses as arrays) or ``step_many``,
 with the same result as one by one), puts each pose on its character's root (``compose_poses``: the pelvis stays where the
 world put the root), runs the leg IK when the world has a foot solver, places the working hands and swings the other
-arms out of the furniture (``sim.world.arm_room``), and appends one row per
+arms out of the furniture (``storyteller.sim.world.arm_room``), and appends one row per
 character to the track buffers. A character's root is never moved by the motion layer:
 walkers take the navigator's position, everyone else the point its phase puts it on
 (``stationary_root``).
 
-Functions of a ``MotionWorld`` (the parts of ``sim.world.step.World`` they read and change).
+Functions of a ``MotionWorld`` (the parts of ``storyteller.sim.world.step.World`` they read and change).
 Deterministic: characters are visited in ``names`` order.
 """
 
@@ -23,23 +23,23 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from sim.body.foot_ik import FootSolver, FootState
-from sim.body.skeleton import NUM_JOINTS
-from sim.motion.action_labels import action_spec, database_key
-from sim.paths.tracks import walker_headings
-from sim.scene.model import Scene
-from sim.world.arm_room import ArmBoxes, arm_rules, arms_clear
-from sim.world.contacts import (
+from storyteller.sim.body.foot_ik import FootSolver, FootState
+from storyteller.sim.body.skeleton import NUM_JOINTS
+from storyteller.sim.motion.action_labels import action_spec, database_key
+from storyteller.sim.paths.tracks import walker_headings
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.arm_room import ArmBoxes, arm_rules, arms_clear
+from storyteller.sim.world.contacts import (
     hand_targets,
     seat_pelvis,
     sit_progress,
     stand_progress,
 )
-from sim.world.legroom import along_way
-from sim.world.motion_layer import BatchedMotionLayer, MotionLayer, MotionQuery, compose_poses
-from sim.world.navigation import WorldNavigator
-from sim.world.phases import CharacterState, phase_motion, smoothstep, turn_heading, wrap_angle
-from sim.world.tracks import TrackBuffers
+from storyteller.sim.world.legroom import along_way
+from storyteller.sim.world.motion_layer import BatchedMotionLayer, MotionLayer, MotionQuery, compose_poses
+from storyteller.sim.world.navigation import WorldNavigator
+from storyteller.sim.world.phases import CharacterState, phase_motion, smoothstep, turn_heading, wrap_angle
+from storyteller.sim.world.tracks import TrackBuffers
 
 OBJECT_REACH = 0.55  # metres from the standing root to the object acted on (motion target)
 
@@ -178,7 +178,7 @@ def _step_motion(motion: MotionLayer, states: list[Any], queries: list[MotionQue
 def stationary_root(c: CharacterState) -> None:
     """Root xy / heading of a character that is not walking, from its phase and timer: a
     transition in turns the root about the pelvis (xy unchanged) to ``c.act_heading``, then a
-    sit-down moves it onto the seat (by ``c.seat_via`` round furniture: ``sim.world.legroom``),
+    sit-down moves it onto the seat (by ``c.seat_via`` round furniture: ``storyteller.sim.world.legroom``),
     and a stand-up back the same way."""
     a = c.assignment
     if c.phase == "transition_in" and a is not None:

@@ -35,7 +35,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.scene.model import SceneObject
+from storyteller.sim.scene.model import SceneObject
 
 BACKLESS_M = 0.1
 """A seat whose box ends at most this far above its seat surface has no back to sit against."""
@@ -153,7 +153,7 @@ def feet_clear_of(ankles: NDArray[np.float64], low: NDArray[np.bool_], seat: Sce
     """``ankles`` (2, 3) with each one on the floor (``low``) moved out of the footprints, grown by
     ``FOOT_CLEAR_M``, of the objects other than ``seat`` solid down to its height (see the module
     docstring), its toe (``toes``: offsets (2, 3) from the ankle) with it. The seat's own box is
-    ``sim.world.contacts.seat_pelvis``'s business."""
+    ``storyteller.sim.world.contacts.seat_pelvis``'s business."""
     out = np.array(ankles, dtype=np.float64)
     offsets = np.zeros_like(out) if toes is None else np.asarray(toes, dtype=np.float64)
     for leg in range(len(out)):

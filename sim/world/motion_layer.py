@@ -20,8 +20,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import NUM_JOINTS
-from sim.motion.matching import MotionQuery, Pose, PoseBatch
+from storyteller.sim.body.skeleton import NUM_JOINTS
+from storyteller.sim.motion.matching import MotionQuery, Pose, PoseBatch
 
 __all__ = ["FUTURE_FRAMES", "BatchedMotionLayer", "MotionLayer", "MotionQuery", "Pose", "PoseBatch", "compose_poses",
            "root_yaw"]

@@ -14,7 +14,7 @@ A thin wrapper with string agent names. It adds two things the navigator does no
 exact target for a standing action, the seat's approach point (``NavGrid.approach_point``,
 cached per object) for a seated one, the nearest cell centre with a typed ``TargetFallback``
 when the exact point cannot be used; ``StandTargets.within_reach`` gives a free standing point
-within reach of an object an action uses (``sim.world.facing``) when the planner's point, or
+within reach of an object an action uses (``storyteller.sim.world.facing``) when the planner's point, or
 where a stall left the walker, is out of reach.
 
 Positions are metres (xy).
@@ -27,12 +27,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sim.paths.cooperative_astar import Cell, PathPlanner
-from sim.paths.following import Agent, CrowdNavigator, close_xy
-from sim.paths.nav_grid import ApproachPoint, NavGrid, NavGridError, body_clearance
-from sim.scene.model import FLOOR_STANDING_M, Scene, SceneObject
-from sim.world.facing import REACH_M, REACH_SLACK_M, surface_distance
-from sim.world.phases import StandTarget, TargetFallback
+from storyteller.sim.paths.cooperative_astar import Cell, PathPlanner
+from storyteller.sim.paths.following import Agent, CrowdNavigator, close_xy
+from storyteller.sim.paths.nav_grid import ApproachPoint, NavGrid, NavGridError, body_clearance
+from storyteller.sim.scene.model import FLOOR_STANDING_M, Scene, SceneObject
+from storyteller.sim.world.facing import REACH_M, REACH_SLACK_M, surface_distance
+from storyteller.sim.world.phases import StandTarget, TargetFallback
 
 OFF_GRID_EPS = 1e-6  # metres: a point closer than this to its cell centre is on the grid
 

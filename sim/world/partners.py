@@ -7,7 +7,7 @@ action along the line between them, about their midpoint, to the action's distan
 (``PARTNER_DISTANCE_M``: exactly for a handshake or a hug, whose hands or bodies must meet;
 into a conversational range for the others), when both new points have room for a body and
 are walked onto from a free cell of the grid; otherwise the points stay as planned. The facing
-is the world's business (``sim.world.facing``: partners turn to each other before they act).
+is the world's business (``storyteller.sim.world.facing``: partners turn to each other before they act).
 
 Pure geometry on the navigation grid; deterministic.
 """
@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.motion.action_labels import action_spec
-from sim.paths.nav_grid import NavGrid
-from sim.world.events import AssignEvent, Assignment
+from storyteller.sim.motion.action_labels import action_spec
+from storyteller.sim.paths.nav_grid import NavGrid
+from storyteller.sim.world.events import AssignEvent, Assignment
 
 PARTNER_DISTANCE_M: dict[str, tuple[float, float]] = {
     "handshake": (0.65, 0.65),  # right hands meet with the elbows a little bent (arm 0.51 m)

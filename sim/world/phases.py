@@ -1,13 +1,13 @@
 """Per-character phases and their timing: idle, approaching, transition_in, interacting, transition_out.
 
-A character's life in the world (``sim.world.step``) is a loop through five phases:
+A character's life in the world (``storyteller.sim.world.step``) is a loop through five phases:
 
 - ``idle``: nothing to do, or waiting (``waiting=True``) at its target for the other members
   of its event to arrive; a seated character can be idle on its seat;
 - ``approaching``: walking along the cooperative plan to its target cell;
 - ``transition_in``: turning on the spot (the root turns about the pelvis, which stays put)
   to the facing it acts with (``act_heading``: its partners, the object it uses or the
-  planner's facing, chosen where it stands: ``sim.world.facing``), then (when sitting)
+  planner's facing, chosen where it stands: ``storyteller.sim.world.facing``), then (when sitting)
   sitting down, the pelvis moving from the approach cell to the seat point;
 - ``interacting``: acting; a completing action lasts its ``ActionSpec.duration_s``, a looping
   action lasts until interrupted;
@@ -28,8 +28,8 @@ from typing import Literal
 
 import numpy as np
 
-from sim.motion.action_labels import action_spec
-from sim.world.events import Assignment
+from storyteller.sim.motion.action_labels import action_spec
+from storyteller.sim.world.events import Assignment
 
 FPS = 30
 Phase = Literal["idle", "approaching", "transition_in", "interacting", "transition_out"]
@@ -46,7 +46,7 @@ goal cell's centre; ``stopped_near``: a standing walker within ``WorldConfig.nea
 target got no closer for ``WorldConfig.near_patience_s`` (bodies standing still in the way), and
 does its action where it stands rather than failing the event as stuck; ``out_of_reach``: the
 point (or where a stall rule would have stopped the walker) is out of reach of the object the
-action uses (``sim.world.facing.REACH_M``): the walker goes to a free point within reach
+action uses (``storyteller.sim.world.facing.REACH_M``): the walker goes to a free point within reach
 instead."""
 PHASES: tuple[Phase, ...] = ("idle", "approaching", "transition_in", "interacting", "transition_out")
 
@@ -122,7 +122,7 @@ class CharacterState:
     act_yaw: float | None = None
     replans: int = 0
     seat_via: np.ndarray | None = None
-    """The corner of the way onto the seat and back (``sim.world.legroom.sit_via``; None: straight)."""
+    """The corner of the way onto the seat and back (``storyteller.sim.world.legroom.sit_via``; None: straight)."""
 
     def enter(self, phase: Phase, length: int = INFINITE) -> None:
         """Switch to ``phase`` for ``length`` frames (``INFINITE``: open-ended)."""
@@ -169,7 +169,7 @@ def sit_heading(assignment: Assignment) -> float:
 
 def turn_heading(c: CharacterState) -> float:
     """The heading ``c`` turns to on the spot before it acts: ``act_heading``, but the planner's
-    facing for a seat (a body sitting turned on a seat with no back, ``sim.world.legroom``,
+    facing for a seat (a body sitting turned on a seat with no back, ``storyteller.sim.world.legroom``,
     swivels the rest of the way while it sits down, so the transition takes as long as planned)."""
     a = c.assignment
     if a is not None and a.seat is not None:

@@ -1,19 +1,19 @@
 """The world step: characters, events, cooperative walking and motion, one frame at a time.
 
 ``step(world, commands, dt) -> (world, StepOutput)`` applies the planner's commands
-(``sim.world.events``), advances every character by one frame (``dt`` = 1 / fps, 30 fps),
+(``storyteller.sim.world.events``), advances every character by one frame (``dt`` = 1 / fps, 30 fps),
 appends a pose per character to the world's track buffers and reports completed / looping /
 failed events and the characters available to the narrator. The world is advanced in place
 and returned; ``World.snapshot()`` / ``World.restore(snapshot)`` copy its state (plain data:
 dataclasses, dicts and numpy arrays) for replays and tests. ``World.stream_tracks(store)``
-makes the track buffers stream to chunk files (``sim.world.track_chunks``): memory then holds
+makes the track buffers stream to chunk files (``storyteller.sim.world.track_chunks``): memory then holds
 one window of frames, a snapshot holds only the frames not yet in the store (and how many are),
 and restoring it cuts the store back to that count.
 
-The step is four parts: event bookkeeping (``sim.world.event_book``: assigning and releasing,
+The step is four parts: event bookkeeping (``storyteller.sim.world.event_book``: assigning and releasing,
 the start queue and group starts, completion and failure, who is free), the phases of this
-module (``World.advance``), the walkers' arrivals and stalls (``sim.world.arrivals``), and
-motion assembly (``sim.world.frame_assembly``: motion queries in, poses and track rows out).
+module (``World.advance``), the walkers' arrivals and stalls (``storyteller.sim.world.arrivals``), and
+motion assembly (``storyteller.sim.world.frame_assembly``: motion queries in, poses and track rows out).
 
 Who moves a character's root (pelvis ground point, metres):
 
@@ -38,7 +38,7 @@ nearest cell centre; ``CharacterState.target.fallback`` keeps the typed reason
 (``TargetFallback``). Whoever arrives first waits; when all stand on their points at a
 planning-step boundary, all start their transition in on the same frame: each turns in place
 (root about the pelvis) to its partners, the object it uses or the planner's facing
-(``sim.world.facing``) before it acts. A walker that a stall rule would stop out of reach of
+(``storyteller.sim.world.facing``) before it acts. A walker that a stall rule would stop out of reach of
 the object its action works on walks to a free point within reach instead (``out_of_reach``,
 at most ``WorldConfig.max_replans`` times), or keeps waiting for room (and fails as stuck if
 none comes): it never acts out of reach or facing away.
@@ -61,15 +61,15 @@ from typing import Any
 
 import numpy as np
 
-from sim.body.foot_ik import FootSolver, FootState
-from sim.paths.cooperative_astar import Cell, PathPlanner
-from sim.paths.nav_grid import NavGrid, build_nav_grid
-from sim.scene.model import Scene
-from sim.world.arm_room import ArmBoxes
-from sim.world.arrivals import walker_checks
-from sim.world.character_track import CharacterTrack
-from sim.world.errors import WorldError
-from sim.world.event_book import (
+from storyteller.sim.body.foot_ik import FootSolver, FootState
+from storyteller.sim.paths.cooperative_astar import Cell, PathPlanner
+from storyteller.sim.paths.nav_grid import NavGrid, build_nav_grid
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.arm_room import ArmBoxes
+from storyteller.sim.world.arrivals import walker_checks
+from storyteller.sim.world.character_track import CharacterTrack
+from storyteller.sim.world.errors import WorldError
+from storyteller.sim.world.event_book import (
     EventState,
     StepReport,
     assign,
@@ -81,17 +81,17 @@ from sim.world.event_book import (
     take,
     unstarted,
 )
-from sim.world.events import AssignEvent, ReleaseCharacters, StepOutput
-from sim.world.frame_assembly import write_frame
-from sim.world.motion_layer import FUTURE_FRAMES, MotionLayer
-from sim.world.navigation import OFF_GRID_EPS, StandTargets, WorldNavigator
-from sim.world.phases import (
+from storyteller.sim.world.events import AssignEvent, ReleaseCharacters, StepOutput
+from storyteller.sim.world.frame_assembly import write_frame
+from storyteller.sim.world.motion_layer import FUTURE_FRAMES, MotionLayer
+from storyteller.sim.world.navigation import OFF_GRID_EPS, StandTargets, WorldNavigator
+from storyteller.sim.world.phases import (
     INFINITE,
     CharacterState,
     interaction_frames,
 )
-from sim.world.track_chunks import ChunkStore
-from sim.world.tracks import TrackBuffers
+from storyteller.sim.world.track_chunks import ChunkStore
+from storyteller.sim.world.tracks import TrackBuffers
 
 STREAM_WINDOW = 300
 """Frames (10 s at 30 fps) a streaming world keeps in memory per character at most."""
@@ -261,7 +261,7 @@ class World:
 
     # ----- read-outs ------------------------------------------------------------------------------
     def available(self) -> tuple[str, ...]:
-        """Characters the narrator may give a new event (``sim.world.event_book.free_characters``)."""
+        """Characters the narrator may give a new event (``storyteller.sim.world.event_book.free_characters``)."""
         return free_characters(self)
 
     def tracks(self) -> dict[str, CharacterTrack]:
@@ -299,7 +299,7 @@ class World:
     def advance(self, out: StepReport) -> None:
         """One frame after the commands: phases that end, walkers that join the navigator and
         its tick, arrivals and group starts (at step boundaries), then the motion of every
-        character (``sim.world.frame_assembly.write_frame``). Events found completed, looping,
+        character (``storyteller.sim.world.frame_assembly.write_frame``). Events found completed, looping,
         started or failed go to ``out``."""
         nav = self.navigator
         boundary = nav.at_boundary()

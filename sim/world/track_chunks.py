@@ -29,7 +29,7 @@ file is read (a FIFO or a device is refused, never waited on), a record's payloa
 file at most :data:`MAX_CHUNK_FILE_BYTES` (refused from its size, before a record is read) and
 the chunk files a reader takes from one run folder at most :data:`MAX_RUN_CHUNK_BYTES` together
 (:func:`check_chunk_total`), its name table is a JSON list of strings read within limits
-(``sim.bounded_files``), and every label and event index points into it. Anything else is one
+(``storyteller.sim.bounded_files``), and every label and event index points into it. Anything else is one
 :class:`ChunkError` naming the file.
 """
 
@@ -47,17 +47,17 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.body.skeleton import NUM_JOINTS
-from sim.bounded_files import BoundedFileError, load_bounded_json
-from sim.no_follow_writes import make_folder, open_append
-from sim.run_folder_names import (  # the two names re-exported: readers import them from here
+from storyteller.sim.body.skeleton import NUM_JOINTS
+from storyteller.sim.bounded_files import BoundedFileError, load_bounded_json
+from storyteller.sim.no_follow_writes import make_folder, open_append
+from storyteller.sim.run_folder_names import (  # the two names re-exported: readers import them from here
     CHUNK_SUFFIX as CHUNK_SUFFIX,
 )
-from sim.run_folder_names import (
+from storyteller.sim.run_folder_names import (
     MOTION_FOLDER as MOTION_FOLDER,
 )
-from sim.run_folder_names import file_slug
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.run_folder_names import file_slug
+from storyteller.sim.world.character_track import CharacterTrack
 
 MAGIC = b"STKC"
 VERSION = 1
@@ -69,7 +69,7 @@ _FRAME_BYTES = 3 * 8 + NUM_JOINTS * 9 * 4 + 2 + 4 + 4  # payload bytes per frame
 MAX_CHUNK_FILE_BYTES = 256 << 20
 """Bytes of one chunk file at most: one character's motion of about 325,000 frames (826 bytes a
 frame), 3.0 hours at 30 fps; as large as the ``.track.npz`` a reader takes
-(``sim.world.character_track.MAX_TRACK_FILE_BYTES``). Without it a file of many valid records
+(``storyteller.sim.world.character_track.MAX_TRACK_FILE_BYTES``). Without it a file of many valid records
 (mostly zeros: a sparse file costs no disk) had a reader check and decode all of them."""
 MAX_RUN_CHUNK_BYTES = 1 << 30
 """Bytes of the chunk files of one run folder a reader takes together: about 12 character-hours
@@ -81,7 +81,7 @@ class ChunkError(ValueError):
 
 
 def chunk_slug(name: str) -> str:
-    """The file-name-safe form of a character name (``sim.run_folder_names.file_slug``)."""
+    """The file-name-safe form of a character name (``storyteller.sim.run_folder_names.file_slug``)."""
     return file_slug(name)
 
 
@@ -361,7 +361,7 @@ class ChunkStore:
         """The store in ``folder`` (created if missing). ``frames`` None: a new store, every
         file emptied; otherwise keep the first ``frames`` frames of each file (a resume),
         raising :class:`ChunkError` when a file holds fewer whole frames. A symbolic link in
-        place of the folder or of a file is refused (``sim.no_follow_writes``: an ``OSError``
+        place of the folder or of a file is refused (``storyteller.sim.no_follow_writes``: an ``OSError``
         naming it), never written, cut or emptied through."""
         make_folder(folder)
         store = cls(folder, names, 0)

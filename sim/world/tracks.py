@@ -5,7 +5,7 @@ into pre-allocated memory instead of copying per-frame lists. Rotations are stor
 (orthonormal to ~1e-7, well inside ``CharacterTrack``'s tolerance); strings (motion labels and
 event ids) are stored as indices into ``label_names``.
 
-Streaming (``stream_to``): with a :class:`~sim.world.track_chunks.ChunkStore`, the buffers hold
+Streaming (``stream_to``): with a :class:`~storyteller.sim.world.track_chunks.ChunkStore`, the buffers hold
 only the frames since ``base`` (at most ``window`` of them); when the window is full, its frames
 are appended to the store's chunk files and dropped, so memory stays bounded however long the
 story runs. Without a store, ``base`` stays 0 and every frame stays in memory (rows are frames).
@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim.body.skeleton import NUM_JOINTS
-from sim.world.track_chunks import ChunkError, ChunkStore, Frames, concat_frames
+from storyteller.sim.body.skeleton import NUM_JOINTS
+from storyteller.sim.world.track_chunks import ChunkError, ChunkStore, Frames, concat_frames
 
 
 @dataclass

@@ -1,16 +1,16 @@
 """The action of an event whose words name none: the model's choice among the offered labels
-(agents.action_choice, the planning graph's choose_action node)."""
+(storyteller.agents.action_choice, the planning graph's choose_action node)."""
 
 from __future__ import annotations
 
 from langgraph.checkpoint.memory import InMemorySaver
 
-from agents.action_choice import MOTION_LABELS, action_candidates, action_choice_request
-from agents.event_parser import scene_action_labels
-from agents.program_grammar import event_options
-from orchestrator.planning.checkpoints import StoryLog
-from orchestrator.planning.graph import compile_planning_graph, recursion_limit
-from sim.scene.bundled import resolve_scene
+from storyteller.agents.action_choice import MOTION_LABELS, action_candidates, action_choice_request
+from storyteller.agents.event_parser import scene_action_labels
+from storyteller.agents.program_grammar import event_options
+from storyteller.orchestrator.planning.checkpoints import StoryLog
+from storyteller.orchestrator.planning.graph import compile_planning_graph, recursion_limit
+from storyteller.sim.scene.bundled import resolve_scene
 from tests.support.planning_script import DESCRIPTION, PROGRAM, initial_state, make_deps, narration
 from tests.support.scripted_llm import ScriptedLLM, choosing
 

@@ -1,12 +1,12 @@
-"""Action labels ranked from an event's words (agents.action_shortlist): the right label first
+"""Action labels ranked from an event's words (storyteller.agents.action_shortlist): the right label first
 for everyday wording, landmarks and places not read as actions, switch directions from the text."""
 
 from __future__ import annotations
 
 import pytest
 
-from agents.action_shortlist import CUES, action_shortlist, rank_action_labels, suggested_action
-from sim.motion.action_labels import ACTION_LABELS
+from storyteller.agents.action_shortlist import CUES, action_shortlist, rank_action_labels, suggested_action
+from storyteller.sim.motion.action_labels import ACTION_LABELS
 
 HOME = (
     "idle", "drink", "eat", "watch_tv", "dance", "chat", "handshake", "listen_to_music", "turn_on_record_player",

@@ -4,10 +4,10 @@ synonyms, leading away from it, and the seat choice limited to the named area's 
 
 from __future__ import annotations
 
-from agents.area_words import DescribedArea, described_areas, keep_in_areas, named_areas
-from agents.place_choice import seat_candidates
-from agents.program_grammar import event_options
-from sim.scene.model import Scene
+from storyteller.agents.area_words import DescribedArea, described_areas, keep_in_areas, named_areas
+from storyteller.agents.place_choice import seat_candidates
+from storyteller.agents.program_grammar import event_options
+from storyteller.sim.scene.model import Scene
 from tests.support.scene_objects import box
 
 

@@ -9,8 +9,8 @@ from collections.abc import Sequence
 
 import pytest
 
-from agents.action_shortlist import action_shortlist
-from agents.bystanders import (
+from storyteller.agents.action_shortlist import action_shortlist
+from storyteller.agents.bystanders import (
     MAX_CHOICES,
     Choice,
     SceneNow,
@@ -19,17 +19,17 @@ from agents.bystanders import (
     scene_choices,
     scene_now,
 )
-from agents.event_parser import scene_action_labels
-from agents.instruction_parts import instruction_progress
-from agents.messages import CharacterStatus, HistoryEntry
-from agents.narrator import NarratorInput, narrate, narrator_request
-from agents.prompt_templates import PromptLibrary
-from agents.retry_feedback import RetriesExhaustedError
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.model import Scene
+from storyteller.agents.event_parser import scene_action_labels
+from storyteller.agents.instruction_parts import instruction_progress
+from storyteller.agents.messages import CharacterStatus, HistoryEntry
+from storyteller.agents.narrator import NarratorInput, narrate, narrator_request
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.agents.retry_feedback import RetriesExhaustedError
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import CharacterState, WorldView
+from storyteller.tools.clusters import cluster_objects
 from tests.support.scripted_llm import ScriptedLLM
-from tools.character_states import CharacterState, WorldView
-from tools.clusters import cluster_objects
 
 README = "Ava makes coffee, then sits on the couch and drinks it."
 
@@ -234,7 +234,7 @@ def test_once_every_part_has_happened_the_never_named_go_on_with_their_own_lives
     rules = inp.bystanders
     assert rules.names == ("Ben",) and not rules.listed and rules.texts == ()
     event = json.loads(reply(["Ben"], "drink sitting on chair_2"))["event"]
-    from agents.messages import Event
+    from storyteller.agents.messages import Event
 
     assert any("Ben has no part in the instruction" in p for p in rules.problems(Event(**event)))
     assert any("Ben has just done that" in p for p in rules.problems(Event(characters=("Ben",), activity="read a book sitting on chair_1")))
@@ -245,7 +245,7 @@ def test_once_every_part_has_happened_the_never_named_go_on_with_their_own_lives
 def test_an_object_of_an_ongoing_event_not_yet_in_the_world_is_in_use(home: Scene) -> None:
     """Cleo's event beside this one is planned (its words name the bookshelf) but the world does
     not show her there yet: Ben is neither offered the bookshelf nor let take it."""
-    from agents.messages import Event
+    from storyteller.agents.messages import Event
 
     areas = object_areas(home, cluster_objects(home))
     labels = ("idle", "take_out_book", "read_book")
@@ -265,7 +265,7 @@ def test_an_object_of_an_ongoing_event_not_yet_in_the_world_is_in_use(home: Scen
 
 
 def test_a_single_user_activity_for_two_bystanders_gets_feedback(home: Scene) -> None:
-    from agents.messages import Event
+    from storyteller.agents.messages import Event
 
     areas = object_areas(home, cluster_objects(home))
     labels = ("idle", "use_toaster", "read_book")

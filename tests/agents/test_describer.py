@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from agents.describer import (
+from storyteller.agents.describer import (
     AreaList,
     DescriberInput,
     cache_path,
@@ -20,9 +20,9 @@ from agents.describer import (
     render_description,
     repair_areas,
 )
-from agents.prompt_templates import PromptLibrary
-from agents.retry_feedback import AnswerRejectedError, RetriesExhaustedError
-from sim.scene.bundled import resolve_scene
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.agents.retry_feedback import AnswerRejectedError, RetriesExhaustedError
+from storyteller.sim.scene.bundled import resolve_scene
 from tests.support.scripted_llm import ScriptedLLM
 
 NAMES = ("fridge_1", "cabinet_1", "coffee_maker_1", "couch_1", "tv_1")

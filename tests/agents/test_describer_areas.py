@@ -13,8 +13,8 @@ import json
 
 import pytest
 
-from agents.area_fit import fitting_kinds, judge_area
-from agents.describer import (
+from storyteller.agents.area_fit import fitting_kinds, judge_area
+from storyteller.agents.describer import (
     DescriberInput,
     best_effort,
     describe_scene,
@@ -22,11 +22,11 @@ from agents.describer import (
     describer_request,
     judge_reply,
 )
-from agents.prompt_templates import PromptLibrary
-from agents.retry_feedback import Turn
-from agents.room_table import parse_room_table, room_table
-from sim.scene.bundled import bundled_scene_names, load_bundled_scene
-from sim.scene.model import Scene
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.agents.retry_feedback import Turn
+from storyteller.agents.room_table import parse_room_table, room_table
+from storyteller.sim.scene.bundled import bundled_scene_names, load_bundled_scene
+from storyteller.sim.scene.model import Scene
 from tests.support.reference import SCENES, requires_reference
 from tests.support.scripted_llm import ScriptedLLM
 
@@ -137,7 +137,7 @@ def test_every_label_of_the_bundled_scenes_is_in_the_table() -> None:
 
 @requires_reference
 def test_every_label_of_the_reference_scenes_is_in_the_table() -> None:
-    from sim.scene.files import load_scene
+    from storyteller.sim.scene.files import load_scene
 
     table = room_table()
     labels = _scene_labels([load_scene(p) for p in sorted(SCENES.iterdir()) if p.is_dir()])

@@ -6,8 +6,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from agents.describer import MAX_CACHE_BYTES, read_cached, write_cached
-from agents.messages import SceneDescription
+from storyteller.agents.describer import MAX_CACHE_BYTES, read_cached, write_cached
+from storyteller.agents.messages import SceneDescription
 
 GOOD = SceneDescription(scene="flat", text="- kitchen (eat): chair_1, table_1", source="describer", attempts=1)
 

@@ -1,17 +1,17 @@
 """An event about a device someone else is using alone, or about sitting at a place whose seats
-are all taken: its characters wait for it (agents.device_in_use, applied by the planning graph's
+are all taken: its characters wait for it (storyteller.agents.device_in_use, applied by the planning graph's
 check_program)."""
 
 from __future__ import annotations
 
 import math
 
-from agents.device_in_use import busy_device, full_place, waiting_for_busy_device
-from agents.messages import PlannedCharacter
-from sim.scene.bundled import resolve_scene
-from sim.scene.model import Scene
+from storyteller.agents.device_in_use import busy_device, full_place, waiting_for_busy_device
+from storyteller.agents.messages import PlannedCharacter
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import CharacterState, WorldView
 from tests.support.scene_objects import box
-from tools.character_states import CharacterState, WorldView
 
 HOME = resolve_scene("home")
 DALIA_AT_FRIDGE = CharacterState(name="Dalia", position=(0.9, 0.9), action="open_fridge", busy=True)

@@ -1,8 +1,8 @@
-"""Word forms from the packaged lexicon (agents.english_words): verbs known, nouns not taken for verbs."""
+"""Word forms from the packaged lexicon (storyteller.agents.english_words): verbs known, nouns not taken for verbs."""
 
 from __future__ import annotations
 
-from agents.english_words import may_be_verb, verb_lemmas
+from storyteller.agents.english_words import may_be_verb, verb_lemmas
 
 
 def test_verbs_and_nouns_of_an_instruction() -> None:

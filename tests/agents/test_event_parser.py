@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agents.event_parser import (
+from storyteller.agents.event_parser import (
     ParserInput,
     check_plans,
     extract_program,
@@ -23,15 +23,15 @@ from agents.event_parser import (
     run_reply,
     scene_action_labels,
 )
-from agents.messages import CharacterStatus, Event
-from agents.prompt_templates import PromptLibrary
-from agents.retry_feedback import AnswerRejectedError, NoCodeError, RetriesExhaustedError
-from sim.scene.model import Scene, SceneObject
+from storyteller.agents.messages import CharacterStatus, Event
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.agents.retry_feedback import AnswerRejectedError, NoCodeError, RetriesExhaustedError
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.errors import UnknownObjectError
+from storyteller.tools.scene_graph import SceneGraph
 from tests.support.planning_script import Plan
 from tests.support.scripted_llm import ScriptedLLM
-from tools.character_states import WorldView
-from tools.errors import UnknownObjectError
-from tools.scene_graph import SceneGraph
 
 BODY = '    a = get_character("Ann")\n    a.set_position(get_area_close_to("table_1"))\n'
 FUNC = "def parse_event():\n" + BODY
@@ -147,7 +147,7 @@ def test_scene_action_labels_drop_absent_appliances() -> None:
 
 def test_real_event_program_runner() -> None:
     """The real sandbox + spatial API path (tools/)."""
-    from orchestrator.session.roster import RosterWorld
+    from storyteller.orchestrator.session.roster import RosterWorld
 
     roster = (CharacterStatus(name="Ann", position=(4.0, 1.0)),)
     world = RosterWorld().world_view(roster)
@@ -162,7 +162,7 @@ def test_real_event_program_runner() -> None:
 
 
 def test_the_suggested_label_and_the_instruction_part_reach_the_request() -> None:
-    from agents.event_parser import parser_messages
+    from storyteller.agents.event_parser import parser_messages
 
     inp = make_input()
     labels = ("idle", "watch_tv", "use_laptop", "read_book")

@@ -11,10 +11,10 @@ from pathlib import Path
 import pytest
 from pydantic import BaseModel, ValidationError
 
-from agents.event_parser import PARSER_RETRY_INSTRUCTION, extract_program
-from agents.llm_schemas import schema_instruction
-from agents.prompt_templates import PromptLibrary, PromptTemplateError
-from agents.retry_feedback import (
+from storyteller.agents.event_parser import PARSER_RETRY_INSTRUCTION, extract_program
+from storyteller.agents.llm_schemas import schema_instruction
+from storyteller.agents.prompt_templates import PromptLibrary, PromptTemplateError
+from storyteller.agents.retry_feedback import (
     FEEDBACK_FILES,
     AnswerRejectedError,
     NoCodeError,
@@ -30,7 +30,7 @@ class _Reply(BaseModel):
 
 def _edited_copy(tmp_path: Path, relpath: str, text: str) -> PromptLibrary:
     copy = tmp_path / "prompts"
-    shutil.copytree(Path(str(resources.files("prompts"))), copy)
+    shutil.copytree(Path(str(resources.files("storyteller.prompts"))), copy)
     (copy / relpath).write_text(text, encoding="utf-8")
     return PromptLibrary(copy)
 
@@ -69,7 +69,7 @@ def test_feedback_follows_an_edited_prompt_folder(tmp_path: Path) -> None:
 
 
 async def test_ask_until_valid_sends_the_feedback_of_its_prompt_folder(tmp_path: Path) -> None:
-    from agents.llm_port import ChatMessage, LLMRequest, LLMResponse
+    from storyteller.agents.llm_port import ChatMessage, LLMRequest, LLMResponse
 
     lib = _edited_copy(tmp_path, "feedback/answer_again.md", "Once more.\n")
     replies = iter(["nope", '{"n": 3}'])
@@ -86,7 +86,7 @@ async def test_ask_until_valid_sends_the_feedback_of_its_prompt_folder(tmp_path:
             pass
 
     def build(turns: tuple[Turn, ...]) -> LLMRequest:
-        from agents.retry_feedback import with_turns
+        from storyteller.agents.retry_feedback import with_turns
 
         return LLMRequest(node="narrator", messages=with_turns((ChatMessage(role="user", content="n?"),), turns))
 

@@ -9,15 +9,15 @@ from typing import Any
 
 from langgraph.checkpoint.memory import InMemorySaver
 
-from agents.history import HISTORY_WINDOW
-from agents.messages import CharacterStatus, EarlierEvents, HistoryEntry, PlanningFailure
-from agents.narrator import NarratorInput, history_text, narrator_messages
-from agents.prompt_templates import PromptLibrary
-from orchestrator.planning.checkpoints import StoryLog
-from orchestrator.planning.graph import compile_planning_graph, recursion_limit
-from orchestrator.planning.state import PlanningState
-from orchestrator.session.session_types import StoryEvent
-from orchestrator.session.story_history import history_window, story_history
+from storyteller.agents.history import HISTORY_WINDOW
+from storyteller.agents.messages import CharacterStatus, EarlierEvents, HistoryEntry, PlanningFailure
+from storyteller.agents.narrator import NarratorInput, history_text, narrator_messages
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.orchestrator.planning.checkpoints import StoryLog
+from storyteller.orchestrator.planning.graph import compile_planning_graph, recursion_limit
+from storyteller.orchestrator.planning.state import PlanningState
+from storyteller.orchestrator.session.session_types import StoryEvent
+from storyteller.orchestrator.session.story_history import history_window, story_history
 from tests.support.planning_script import DESCRIPTION, PROGRAM, make_deps, narration
 from tests.support.scripted_llm import ScriptedLLM
 
@@ -108,7 +108,7 @@ async def test_the_planning_graph_summarises_the_events_its_window_drops() -> No
 def test_a_part_done_long_ago_stays_done_and_a_given_up_part_stays_given_up() -> None:
     """Hours into a story the instruction's first part is far behind the window: its event is
     kept for the instruction's progress (and only counted in the narrator's summary)."""
-    from agents.instruction_parts import PART_ATTEMPTS, instruction_progress, split_instruction
+    from storyteller.agents.instruction_parts import PART_ATTEMPTS, instruction_progress, split_instruction
 
     instruction = "Ava makes coffee, then Ben dances."
     first, second = (p.text for p in split_instruction(instruction, NAMES, PromptLibrary()))

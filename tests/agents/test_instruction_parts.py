@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import pytest
 
-from agents.instruction_parts import (
+from storyteller.agents.instruction_parts import (
     instruction_progress,
     part_states,
     served_characters,
     split_instruction,
 )
-from agents.llm_port import LLMRequest, LLMResponse
-from agents.messages import CharacterStatus, EventState, HistoryEntry
-from agents.narrator import NarratorInput, narrate, narrator_request
-from agents.prompt_templates import PromptLibrary
-from agents.step_words import activity_kind
+from storyteller.agents.llm_port import LLMRequest, LLMResponse
+from storyteller.agents.messages import CharacterStatus, EventState, HistoryEntry
+from storyteller.agents.narrator import NarratorInput, narrate, narrator_request
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.agents.step_words import activity_kind
 
 COFFEE = "Ava makes coffee, then sits on the couch and drinks it."
 WITH_BEN = "Ava makes coffee, then sits on the couch next to Ben and drinks it."
@@ -316,7 +316,7 @@ def test_a_character_whose_parts_are_over_is_given_something_to_do_while_others_
 def test_a_part_naming_nobody_is_everyones_so_nobody_is_a_bystander_to_it() -> None:
     """ "Everyone reads.": once Ava has read, Ben reading too is the instruction, not a bystander
     copying someone else's activity (the narrator's check refused it four times)."""
-    from agents.bystanders import never_named
+    from storyteller.agents.bystanders import never_named
 
     progress = instruction_progress("Everyone reads.", ["Ava", "Ben"], [ev(0, ("Ava",), "reads")], ["Ben"])
     assert progress.bystanders == ()

@@ -7,7 +7,7 @@ import json
 import pytest
 from pydantic import BaseModel, ConfigDict, Field
 
-from agents.describer import (
+from storyteller.agents.describer import (
     MAX_AREA_NAME_CHARS,
     MAX_AREAS,
     AreaList,
@@ -15,13 +15,13 @@ from agents.describer import (
     describer_regions_schema,
     describer_schema,
 )
-from agents.llm_schemas import Refine, SchemaContractError, reply_schema
-from agents.messages import (
+from storyteller.agents.llm_schemas import Refine, SchemaContractError, reply_schema
+from storyteller.agents.messages import (
     MAX_ACTIVITY_CHARS,
     MAX_EVENT_CHARACTERS,
     MAX_REASONING_CHARS,
 )
-from agents.narrator import narrator_schema
+from storyteller.agents.narrator import narrator_schema
 
 
 class Inner(BaseModel):
@@ -142,7 +142,7 @@ def test_describer_schemas_agree_with_the_models_string_limits() -> None:
 def test_the_direct_planners_schema_is_generated_from_its_model() -> None:
     """The Direct Inference schema keeps the constraints it had when it was written by hand
     (one plan per character, closed sets of names, labels and targets), plus descriptions."""
-    from agents.ablations.direct import direct_schema
+    from storyteller.agents.ablations.direct import direct_schema
 
     characters, labels, targets = ["Ann", "Bob"], ["idle", "chat"], ["Ann", "Bob", "sofa_1", ""]
     generated = direct_schema(characters, labels, targets)

@@ -8,8 +8,8 @@ from typing import Any
 import pytest
 from pydantic import ValidationError
 
-from agents.messages import CharacterStatus, HistoryEntry
-from agents.narrator import (
+from storyteller.agents.messages import CharacterStatus, HistoryEntry
+from storyteller.agents.narrator import (
     NarratorInput,
     history_text,
     narrate,
@@ -17,8 +17,8 @@ from agents.narrator import (
     narrator_schema,
     parse_narration,
 )
-from agents.prompt_templates import PromptLibrary
-from agents.retry_feedback import AnswerRejectedError, RetriesExhaustedError, feedback_from_error
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.agents.retry_feedback import AnswerRejectedError, RetriesExhaustedError, feedback_from_error
 from tests.support.scripted_llm import ScriptedLLM
 
 ROSTER = (
@@ -121,7 +121,7 @@ def test_history_window_keeps_ongoing_events() -> None:
 
 
 def test_instruction_is_numbered_by_sentence() -> None:
-    from agents.instruction_parts import instruction_text
+    from storyteller.agents.instruction_parts import instruction_text
 
     assert instruction_text("Ann cooks. Bob eats!") == "\n1) Ann cooks.\n2) Bob eats!"
     assert instruction_text("Ann cooks") == "Ann cooks"

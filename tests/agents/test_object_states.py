@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from agents.messages import EventState, HistoryEntry
-from agents.object_states import held_states, unsettled_labels
+from storyteller.agents.messages import EventState, HistoryEntry
+from storyteller.agents.object_states import held_states, unsettled_labels
 
 LABELS = ("idle", "turn_on_tv", "turn_off_tv", "open_fridge", "close_fridge", "open_cabinet", "close_cabinet", "eat")
 THINGS = ("tv", "fridge", "cabinet", "cabinet", "chair")  # one TV, one fridge, two cabinets

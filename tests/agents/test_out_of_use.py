@@ -4,9 +4,9 @@ and another seat at the table of the one ruled out."""
 
 from __future__ import annotations
 
-from agents.out_of_use import out_of_use, seats_taken_by
-from agents.place_choice import seat_candidates
-from sim.scene.model import Scene
+from storyteller.agents.out_of_use import out_of_use, seats_taken_by
+from storyteller.agents.place_choice import seat_candidates
+from storyteller.sim.scene.model import Scene
 from tests.support.scene_objects import box
 
 

@@ -1,14 +1,14 @@
-"""Everyday object names and side phrases read the way the word readers know (agents.object_names,
-agents.place_phrases). Wording here is general English, not any benchmark case's."""
+"""Everyday object names and side phrases read the way the word readers know (storyteller.agents.object_names,
+storyteller.agents.place_phrases). Wording here is general English, not any benchmark case's."""
 
 from __future__ import annotations
 
 import pytest
 
-from agents.action_shortlist import posture, rank_action_labels
-from agents.object_names import read_as_labels
-from agents.place_phrases import plain_places
-from agents.shortlist import mentioned_labels, relation_areas
+from storyteller.agents.action_shortlist import posture, rank_action_labels
+from storyteller.agents.object_names import read_as_labels
+from storyteller.agents.place_phrases import plain_places
+from storyteller.agents.shortlist import mentioned_labels, relation_areas
 
 LABELS = ("couch", "bookshelf", "water_dispenser", "bar_counter", "stool", "fridge", "chair", "table", "tv")
 

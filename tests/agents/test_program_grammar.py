@@ -11,23 +11,23 @@ from typing import Any
 
 import pytest
 
-from agents.event_parser import ParserInput, parser_request, run_reply, scene_action_labels
-from agents.llm_port import ChatMessage, LLMRequest
-from agents.messages import CharacterStatus, Event
-from agents.program_grammar import (
+from storyteller.agents.event_parser import ParserInput, parser_request, run_reply, scene_action_labels
+from storyteller.agents.llm_port import ChatMessage, LLMRequest
+from storyteller.agents.messages import CharacterStatus, Event
+from storyteller.agents.program_grammar import (
     about_a_seat,
     event_options,
     event_program_grammar,
     open_program_grammar,
     program_grammar,
 )
-from agents.prompt_templates import PromptLibrary
-from orchestrator.llm.client import LiteLLMClient
-from orchestrator.llm.config import default_config
-from orchestrator.llm.trace_writer import NullTraceSink
-from sim.scene.bundled import resolve_scene
+from storyteller.agents.prompt_templates import PromptLibrary
+from storyteller.orchestrator.llm.client import LiteLLMClient
+from storyteller.orchestrator.llm.config import default_config
+from storyteller.orchestrator.llm.trace_writer import NullTraceSink
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.tools.character_states import CharacterState, WorldView
 from tests.support.embedded_weights import embedded_weights_or_skip
-from tools.character_states import CharacterState, WorldView
 
 SCENE = resolve_scene("home")
 ROSTER = (CharacterStatus(name="Ava", position=(1.0, 1.0)), CharacterStatus(name="Ben", busy=True, seat="couch_1"))
@@ -122,7 +122,7 @@ def test_local_provider_builds_a_llama_grammar() -> None:
     pytest.importorskip("llama_cpp")
     from llama_cpp.llama_grammar import LlamaGrammar
 
-    from orchestrator.llm.local_model import _llama_params
+    from storyteller.orchestrator.llm.local_model import _llama_params
 
     params = _llama_params({"max_tokens": 50, "response_format": {"type": "gbnf", "grammar": event_grammar(EVENT)}})
     assert isinstance(params["grammar"], LlamaGrammar) and "response_format" not in params
@@ -130,9 +130,9 @@ def test_local_provider_builds_a_llama_grammar() -> None:
 
 @pytest.mark.embedded_model
 async def test_real_embedded_model_writes_a_runnable_program_under_the_grammar(tmp_path: Path) -> None:
-    from orchestrator.llm.local_model import LocalLlamaProvider, register_local_provider
-    from orchestrator.llm.trace_writer import TraceWriter
-    from orchestrator.llm.traces import read_trace
+    from storyteller.orchestrator.llm.local_model import LocalLlamaProvider, register_local_provider
+    from storyteller.orchestrator.llm.trace_writer import TraceWriter
+    from storyteller.orchestrator.llm.traces import read_trace
 
     embedded_weights_or_skip()
     register_local_provider(LocalLlamaProvider())
@@ -149,8 +149,8 @@ async def test_real_embedded_model_writes_a_runnable_program_under_the_grammar(t
 
 
 def test_a_seat_someone_stands_at_is_not_offered() -> None:
-    from agents.program_grammar import event_program_grammar
-    from tools.areas import seat_slots
+    from storyteller.agents.program_grammar import event_program_grammar
+    from storyteller.tools.areas import seat_slots
 
     seat = next(o for o in SCENE.objects if o.is_seat and len(seat_slots(o)) == 1)
     slot = seat_slots(seat)[0].position
@@ -165,9 +165,9 @@ def test_a_seat_someone_stands_at_is_not_offered() -> None:
 
 
 def test_after_a_sit_area_only_seated_actions_are_offered_and_the_check_agrees() -> None:
-    from agents.event_parser import check_plans
-    from agents.retry_feedback import AnswerRejectedError
-    from tools.character_states import CharacterPlan
+    from storyteller.agents.event_parser import check_plans
+    from storyteller.agents.retry_feedback import AnswerRejectedError
+    from storyteller.tools.character_states import CharacterPlan
 
     g = event_grammar(VAGUE)
     rules = dict(line.split(" ::= ", 1) for line in g.strip().splitlines())
@@ -279,7 +279,7 @@ def test_words_about_a_seat_sit_on_it_though_no_word_says_sit() -> None:
 def test_two_characters_sent_to_one_chair_sit_together_and_never_on_a_held_seat() -> None:
     """"Ava and Cy sit on chair_1": Cy takes the nearest free chair instead of failing; but a
     chair held by someone outside the event is still refused."""
-    from tools.errors import UnsatisfiableAreaError
+    from storyteller.tools.errors import UnsatisfiableAreaError
 
     event = Event(characters=("Ava", "Cy"), activity="chat at the table")
     program = ('```python\ndef parse_event():\n'
@@ -300,7 +300,7 @@ def test_two_characters_sent_to_one_chair_sit_together_and_never_on_a_held_seat(
 def test_the_companion_of_a_two_seat_table_sits_at_that_table_not_the_nearer_next_one() -> None:
     """The restaurant's small table_4 has chair_11 and chair_12; chair_10, at table_3, is a few
     centimetres nearer chair_11: "Ava and Cy sit on chair_11" seats Cy on chair_12."""
-    from sim.scene.bundled import resolve_scene as scene_named
+    from storyteller.sim.scene.bundled import resolve_scene as scene_named
 
     restaurant = scene_named("restaurant")
     event = Event(characters=("Ava", "Cy"), activity="eat at the small table")

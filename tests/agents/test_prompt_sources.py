@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from importlib import resources
 from pathlib import Path
 
-from agents.prompt_templates import PLACEHOLDER, PromptLibrary
+from storyteller.agents.prompt_templates import PLACEHOLDER, PromptLibrary
 
 ROOT = Path(__file__).resolve().parents[2]
 SCANNED = [*sorted((ROOT / "agents").rglob("*.py")), *sorted((ROOT / "orchestrator" / "planning").glob("*.py"))]
@@ -53,7 +53,7 @@ def prompt_sentences(text: str) -> set[str]:
 
 
 def _prompt_files() -> dict[str, str]:
-    root = Path(str(resources.files("prompts")))
+    root = Path(str(resources.files("storyteller.prompts")))
     return {p.relative_to(root).as_posix(): p.read_text(encoding="utf-8") for p in sorted(root.rglob("*.md"))}
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from agents.prompt_templates import (
+from storyteller.agents.prompt_templates import (
     BENCHMARK_TAGS,
     PromptLibrary,
     PromptTemplateError,
@@ -49,7 +49,7 @@ def test_every_role_has_its_files_and_examples_per_tag() -> None:
 
 
 def test_examples_never_use_reference_scenes_or_their_characters() -> None:
-    root = Path(str(resources.files("prompts")))
+    root = Path(str(resources.files("storyteller.prompts")))
     for path in root.rglob("*.md"):
         text = path.read_text()
         for word in REFERENCE_SCENE_WORDS:
@@ -60,7 +60,7 @@ def test_examples_never_use_reference_scenes_or_their_characters() -> None:
 
 
 def test_library_on_a_copy_and_fingerprint_changes_with_one_character(tmp_path: Path) -> None:
-    root = Path(str(resources.files("prompts")))
+    root = Path(str(resources.files("storyteller.prompts")))
     copy = tmp_path / "prompts"
     shutil.copytree(root, copy)
     a = PromptLibrary(copy)

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import re
 
-from agents.messages import CharacterStatus
-from agents.program_grammar import event_program_grammar
-from agents.related_objects import related_objects
-from sim.scene.model import Scene
+from storyteller.agents.messages import CharacterStatus
+from storyteller.agents.program_grammar import event_program_grammar
+from storyteller.agents.related_objects import related_objects
+from storyteller.sim.scene.model import Scene
 from tests.support.scene_objects import box
 
 

@@ -5,10 +5,10 @@ landmark for the action's words, and "at the table" keeps the seats at tables.""
 
 from __future__ import annotations
 
-from agents.action_shortlist import rank_action_labels
-from agents.place_choice import places_sat_at, seat_candidates
-from agents.relation_words import stated_relations, without_relations
-from sim.scene.model import Scene
+from storyteller.agents.action_shortlist import rank_action_labels
+from storyteller.agents.place_choice import places_sat_at, seat_candidates
+from storyteller.agents.relation_words import stated_relations, without_relations
+from storyteller.sim.scene.model import Scene
 from tests.support.scene_objects import box
 
 LABELS = ("desk", "couch", "table", "chair", "office_chair", "tv")

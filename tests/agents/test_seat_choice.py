@@ -12,20 +12,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agents.instruction_parts import words_before, words_so_far
-from agents.llm_port import ChatMessage, LLMRequest, LLMResponse
-from agents.place_choice import checked_choice, needs_model, seat_candidates, seat_choice_request
-from agents.prompt_templates import package_prompts
-from agents.relation_words import (
+from storyteller.agents.instruction_parts import words_before, words_so_far
+from storyteller.agents.llm_port import ChatMessage, LLMRequest, LLMResponse
+from storyteller.agents.place_choice import checked_choice, needs_model, seat_candidates, seat_choice_request
+from storyteller.agents.prompt_templates import package_prompts
+from storyteller.agents.relation_words import (
     RelationMention,
     back_references,
     points_back,
     stated_relations,
     without_relations,
 )
-from agents.scored_choice import ChoiceError, choice_request, choose, read_choice
-from sim.scene.model import Scene, SceneObject
-from tools.place_relations import (
+from storyteller.agents.scored_choice import ChoiceError, choice_request, choose, read_choice
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.place_relations import (
     FACING_DEG,
     Reference,
     RelationKind,
@@ -35,7 +35,7 @@ from tools.place_relations import (
     keep_satisfying,
     satisfying,
 )
-from tools.scene_graph import footprint_distance
+from storyteller.tools.scene_graph import footprint_distance
 
 
 def obj(label: str, idx: int, x: float, y: float, *, seat: bool = False, facing: tuple[float, float] = (0.0, 1.0),
@@ -284,8 +284,8 @@ def test_a_reply_naming_no_candidate_is_an_error(reply: str) -> None:
 
 
 def test_the_client_sends_local_models_the_choices_and_others_the_schema() -> None:
-    from orchestrator.llm.client import LiteLLMClient
-    from orchestrator.llm.config import NodeConfig, StorytellerConfig
+    from storyteller.orchestrator.llm.client import LiteLLMClient
+    from storyteller.orchestrator.llm.config import NodeConfig, StorytellerConfig
 
     sent: list[dict[str, object]] = []
 

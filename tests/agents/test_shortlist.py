@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import pytest
 
-from agents.event_parser import scene_action_labels
-from agents.shortlist import event_shortlist, mentioned_labels
-from sim.scene.bundled import resolve_scene
-from sim.scene.model import Scene
-from tools.scene_graph import footprint_distance
+from storyteller.agents.event_parser import scene_action_labels
+from storyteller.agents.shortlist import event_shortlist, mentioned_labels
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.scene_graph import footprint_distance
 
 HOME = resolve_scene("home")
 RESTAURANT = resolve_scene("restaurant")
@@ -99,7 +99,7 @@ def test_a_dining_table_is_one_with_chairs_around_it() -> None:
     ("Three guests take the table for three", {"table_1", "table_2"}),  # none seats exactly three: the next size up
 ])
 def test_a_table_named_by_how_many_it_seats(text: str, tables: set[str]) -> None:
-    from agents.shortlist import seats_around
+    from storyteller.agents.shortlist import seats_around
 
     assert {t: seats_around(o, RESTAURANT) for t, o in ((o.name, o) for o in RESTAURANT.objects if o.label == "table")} \
         == {"table_1": 4, "table_2": 4, "table_3": 2, "table_4": 2}

@@ -4,11 +4,11 @@ and a reference with no front states no side."""
 
 from __future__ import annotations
 
-from agents.place_choice import seat_candidates
-from agents.relation_words import stated_relations
-from sim.scene.model import Scene
+from storyteller.agents.place_choice import seat_candidates
+from storyteller.agents.relation_words import stated_relations
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.place_relations import Reference, StatedRelation, satisfying, side_offset
 from tests.support.scene_objects import box
-from tools.place_relations import Reference, StatedRelation, satisfying, side_offset
 
 
 def row(facing: tuple[float, float]) -> Scene:

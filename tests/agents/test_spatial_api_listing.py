@@ -1,4 +1,4 @@
-"""The spatial API's function list exists once, in ``tools.spatial_api``: the event parser's
+"""The spatial API's function list exists once, in ``storyteller.tools.spatial_api``: the event parser's
 prompt and the program grammar are rendered from it, and this test checks that the class, the
 prompt (with its examples) and the grammar agree."""
 
@@ -7,12 +7,12 @@ from __future__ import annotations
 import inspect
 import re
 
-from agents.event_parser import ParserInput, parser_messages, spatial_api_listing
-from agents.messages import Event
-from agents.program_grammar import area_functions, program_grammar
-from agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
-from sim.scene.bundled import resolve_scene
-from tools.spatial_api import CharacterHandle, SpatialAPI, handle_methods
+from storyteller.agents.event_parser import ParserInput, parser_messages, spatial_api_listing
+from storyteller.agents.messages import Event
+from storyteller.agents.program_grammar import area_functions, program_grammar
+from storyteller.agents.prompt_templates import BENCHMARK_TAGS, PromptLibrary
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.tools.spatial_api import CharacterHandle, SpatialAPI, handle_methods
 
 NOT_PROGRAM_FUNCTIONS = {"namespace", "functions", "resolve"}
 """Public SpatialAPI methods for the host (the sandbox's namespace, plan resolution)."""

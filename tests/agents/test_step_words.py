@@ -1,10 +1,10 @@
-"""Which clauses are steps of their own (agents.step_words). General English, no case's words."""
+"""Which clauses are steps of their own (storyteller.agents.step_words). General English, no case's words."""
 
 from __future__ import annotations
 
 import pytest
 
-from agents.step_words import has_verb, moves_only, no_action, states_only
+from storyteller.agents.step_words import has_verb, moves_only, no_action, states_only
 
 NAMES = frozenset({"ava", "ben"})
 

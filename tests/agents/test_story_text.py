@@ -1,4 +1,4 @@
-"""The story a person reads is built from the applied plan (``agents.story_text``): a phrase per
+"""The story a person reads is built from the applied plan (``storyteller.agents.story_text``): a phrase per
 action label, objects by their human names (the id only where two objects share a label), the
 narrator's words only where they agree with the plan, and a recorded run whose narrator says
 something else than its plans tells the plans (live lines, ``story.md``, ``story.json``, viewer).
@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from agents.narrator_words import agrees, narration, with_names
-from agents.story_text import (
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
+from storyteller.agents.narrator_words import agrees, narration, with_names
+from storyteller.agents.story_text import (
     PHRASES,
     ObjectNames,
     event_text,
@@ -25,14 +25,14 @@ from agents.story_text import (
     plural,
     step_text,
 )
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.app import app
-from orchestrator.session.run_report import story_markdown
-from orchestrator.viewer.run_folder import load_run
-from orchestrator.viewer.timeline import event_line
-from sim.motion.action_labels import ACTION_LABELS, ACTION_SPECS
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.model import Scene, SceneObject
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.session.run_report import story_markdown
+from storyteller.orchestrator.viewer.run_folder import load_run
+from storyteller.orchestrator.viewer.timeline import event_line
+from storyteller.sim.motion.action_labels import ACTION_LABELS, ACTION_SPECS
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.model import Scene, SceneObject
 
 HOME = load_bundled_scene("home")
 OFFICE = load_bundled_scene("office")
@@ -49,7 +49,7 @@ def parsed(activity: str, *plans: PlannedCharacter) -> ParsedEvent:
 # ----- phrases ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("label", ACTION_LABELS)
 def test_every_action_label_has_a_phrase_that_says_it(label: str) -> None:
-    assert label in PHRASES, f"no phrase for the action label {label!r}: add one to agents.story_text.PHRASES"
+    assert label in PHRASES, f"no phrase for the action label {label!r}: add one to storyteller.agents.story_text.PHRASES"
     phrase = PHRASES[label]
     obj = "tv_1" if "tv" in label else "coffee_maker_1"
     sentence = plan_text(["Ava"], [plan("Ava", label, f"close to {obj}")], HOME)
@@ -292,7 +292,7 @@ def test_a_run_whose_narrator_contradicts_its_plans_tells_the_plans(tmp_path: Pa
 
 
 def test_the_fidelity_check_finds_a_text_that_misses_its_plan_and_a_raw_id(tmp_path: Path) -> None:
-    from benchmark.story_text_fidelity import check_run
+    from storyteller.benchmark.story_text_fidelity import check_run
 
     steps = [{"index": i, "applied_frame": i, "kind": "event", "characters": ["Ava"], "activity": "a",
               "plans": [{"character": "Ava", "action": "drink", "area": "sit on couch_1", "position": [1.0, 2.0],

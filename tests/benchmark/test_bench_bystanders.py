@@ -1,4 +1,4 @@
-"""``python -m benchmark.bystanders`` on a hand-made run folder: which bystander events count as
+"""``python -m storyteller.benchmark.bystanders`` on a hand-made run folder: which bystander events count as
 their own, and the frames where two characters use one single-user object."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.bystanders import check_run, main, report, shared_seat_frames
-from sim.scene.bundled import load_bundled_scene
-from tools.areas import seat_slots
+from storyteller.benchmark.bystanders import check_run, main, report, shared_seat_frames
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.tools.areas import seat_slots
 
 README = "Ava makes coffee, then sits on the couch and drinks it."
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.bench_long_run import main
-from sim.world.track_chunks import scan
+from storyteller.benchmark.bench_long_run import main
+from storyteller.sim.world.track_chunks import scan
 
 
 @pytest.mark.slow

@@ -9,11 +9,11 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from benchmark.crowd_scenario import tiled
-from sim.paths.cooperative_astar import PathPlanner
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.files import load_scene
-from sim.scene.model import NavHints, Scene, SceneObject
+from storyteller.benchmark.crowd_scenario import tiled
+from storyteller.sim.paths.cooperative_astar import PathPlanner
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import NavHints, Scene, SceneObject
 from tests.support.reference import OFFICE, requires_reference
 
 # a 4.2 m x 3 m room (14 x 10 cells of 0.3 m) with a table and a chair well inside its walls, and

@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.reference_cases import MAX_CASE_BYTES, BenchmarkCaseError, case_files, load_case
-from benchmark.story_suite.scenario import ScenarioError, load_scenario
-from orchestrator.cli.app import app
+from storyteller.benchmark.reference_cases import MAX_CASE_BYTES, BenchmarkCaseError, case_files, load_case
+from storyteller.benchmark.story_suite.scenario import ScenarioError, load_scenario
+from storyteller.orchestrator.cli.app import app
 from tests.support.finished_run import one_error_line
 
 ROOT = Path(__file__).resolve().parents[2]

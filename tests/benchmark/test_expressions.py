@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from benchmark.expressions import (
+from storyteller.benchmark.expressions import (
     And,
     Atom,
     Expr,
@@ -18,8 +18,8 @@ from benchmark.expressions import (
     evaluate,
     parse_expression,
 )
-from benchmark.plan_scoring import ActionExpressionError, action_matches, parse_action_expression
-from benchmark.position_check import PositionExpressionError
+from storyteller.benchmark.plan_scoring import ActionExpressionError, action_matches, parse_action_expression
+from storyteller.benchmark.position_check import PositionExpressionError
 
 
 def test_precedence_and_grouping() -> None:
@@ -65,11 +65,11 @@ def test_each_kind_raises_its_own_type() -> None:
         parse_action_expression("eat; drink")
     with pytest.raises(ActionExpressionError, match="at column 8"):
         action_matches("eat || (drink", "eat")
-    from sim.scene.model import Scene, SceneObject
+    from storyteller.sim.scene.model import Scene, SceneObject
 
     scene = Scene(name="s", bounds_min=(0.0, 0.0), bounds_max=(4.0, 4.0), objects=(
         SceneObject(name="table_1", label="table", idx=1, center=(2.0, 2.0, 0.4), size=(1.0, 1.0, 0.8)),))
-    from benchmark.position_check import check_position
+    from storyteller.benchmark.position_check import check_position
 
     with pytest.raises(PositionExpressionError, match=r"unknown object 'table_2' at column 21 in"):
         check_position(scene, "close to table_1 || close to table_2", (0.5, 0.5))

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmark.motion_facing import (
+from storyteller.benchmark.motion_facing import (
     first_run,
     format_summary_table,
     measure_interaction,
@@ -19,10 +19,10 @@ from benchmark.motion_facing import (
     summarize,
     used_object,
 )
-from sim.body.skeleton import NUM_JOINTS, heading_to_root
-from sim.scene.files import save_scene_json
-from sim.scene.model import Scene
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.body.skeleton import NUM_JOINTS, heading_to_root
+from storyteller.sim.scene.files import save_scene_json
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.character_track import CharacterTrack
 from tests.support.stand_in_motion import RestPoseMotion
 
 SPOT = (1.407, 0.913)  # in front of the home coffee maker, whose front face is straight -y of it

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmark.motion_quality import (
+from storyteller.benchmark.motion_quality import (
     DEFAULT_CONFIG,
     compare_clips,
     format_table,
@@ -17,11 +17,11 @@ from benchmark.motion_quality import (
     shipped_config,
     simulate_walkers,
 )
-from orchestrator.cache_paths import motion_cache_dir
-from orchestrator.reference_data import DEFAULT_MOCAP, PROJECT_ROOT
-from sim.motion.config import load_motion_config
-from sim.motion.database import load_databases
-from sim.motion.matching import MotionMatcher
+from storyteller.orchestrator.cache_paths import motion_cache_dir
+from storyteller.orchestrator.reference_data import DEFAULT_MOCAP, PROJECT_ROOT
+from storyteller.sim.motion.config import load_motion_config
+from storyteller.sim.motion.database import load_databases
+from storyteller.sim.motion.matching import MotionMatcher
 from tests.support.reference import MOCAP, requires_mocap, requires_reference
 
 

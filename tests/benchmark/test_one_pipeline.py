@@ -11,15 +11,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from agents.llm_port import LLMRequest
-from agents.messages import CharacterStatus
-from benchmark.planning_benchmark import Descriptions, run_cases
-from benchmark.reference_cases import CaseWorld, case_tags, planning_inputs
-from orchestrator.planning.checkpoints import StoryLog
-from orchestrator.planning.graph import compile_planning_graph, recursion_limit
-from orchestrator.planning.state import PlanningDeps, PlanningState
-from orchestrator.session.plan_job import run_plan
-from orchestrator.session.port_setup import describer_mode_for
+from storyteller.agents.llm_port import LLMRequest
+from storyteller.agents.messages import CharacterStatus
+from storyteller.benchmark.planning_benchmark import Descriptions, run_cases
+from storyteller.benchmark.reference_cases import CaseWorld, case_tags, planning_inputs
+from storyteller.orchestrator.planning.checkpoints import StoryLog
+from storyteller.orchestrator.planning.graph import compile_planning_graph, recursion_limit
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.orchestrator.session.plan_job import run_plan
+from storyteller.orchestrator.session.port_setup import describer_mode_for
 from tests.support.reference import REFERENCE, requires_reference
 from tests.support.reference_pipeline import MODEL, RETRIES, SEED, answer, the_case
 from tests.support.scripted_llm import ScriptedLLM

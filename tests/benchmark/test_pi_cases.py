@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.position_check import check_position
-from orchestrator.cli.app import app
+from storyteller.benchmark.position_check import check_position
+from storyteller.orchestrator.cli.app import app
+from storyteller.tools.character_states import world_view_from_reference_case
+from storyteller.tools.event_program import run_event_program
 from tests.support.reference import REFERENCE as REF
 from tests.support.reference import requires_reference
 from tests.support.reference_pipeline import CASE_IDS, PROGRAMS, case_path, scene_and_graph
-from tools.character_states import world_view_from_reference_case
-from tools.event_program import run_event_program
 
 pytestmark = requires_reference
 SEEDS = range(20)
@@ -78,7 +78,7 @@ def test_cli_json_matches_the_function(case_id: int) -> None:
 
 @pytest.mark.slow
 def test_real_cli_invocation() -> None:
-    cmd = [sys.executable, "-c", "from orchestrator.cli.app import app; app()", *cli_args(63, seed=11)]
+    cmd = [sys.executable, "-c", "from storyteller.orchestrator.cli.app import app; app()", *cli_args(63, seed=11)]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
     assert proc.returncode == 0, proc.stderr
     plan = json.loads(proc.stdout)["plans"][0]
@@ -129,7 +129,7 @@ def test_cli_errors(tmp_path: Path) -> None:
 
 # ----- the position check itself ---------------------------------------------------------------
 def test_position_check_semantics() -> None:
-    from benchmark.position_check import PositionExpressionError, directional_distance
+    from storyteller.benchmark.position_check import PositionExpressionError, directional_distance
 
     office, _ = scene_and_graph("Office")
     house, _ = scene_and_graph("House")

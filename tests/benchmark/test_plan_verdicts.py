@@ -17,11 +17,11 @@ from typing import Any
 
 import pytest
 
-from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from benchmark.plan_scoring import CaseScore, check_expected_plans, score_outcome
-from benchmark.reference_cases import BenchmarkCase, load_cases, scene_dir
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
+from storyteller.benchmark.plan_scoring import CaseScore, check_expected_plans, score_outcome
+from storyteller.benchmark.reference_cases import BenchmarkCase, load_cases, scene_dir
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
 from tests.support.reference import reference_or_skip
 
 VERDICTS = Path(__file__).resolve().parents[1] / "data" / "verdicts"
@@ -102,7 +102,7 @@ def test_hand_checked_verdicts_on_reference_cases(verdict: dict[str, Any]) -> No
 
 def test_the_room_world_places_bo_on_chair_2() -> None:
     """The character collisions above assume Bo sits at chair_2's seat point (3.0, 2.8)."""
-    from benchmark.reference_cases import planning_inputs
+    from storyteller.benchmark.reference_cases import planning_inputs
 
     scene = Scene.model_validate(ROOM["scene"])
     world = planning_inputs(_room_case({}), scene).world
@@ -126,7 +126,7 @@ def test_case_1_standing_inside_an_alternative_seat_collides_with_it() -> None:
     score = score_outcome(case, scene, outcome)
     assert not score.passed and score.characters[0].collision == "chair_13"
 
-    from benchmark.position_check import check_position
+    from storyteller.benchmark.position_check import check_position
 
     mixed = "sit on chair_13 || adjacent to table_6"
     standing_result = check_position(scene, mixed, seat_point, seat=None)

@@ -12,11 +12,11 @@ from typing import Any
 
 import pytest
 
-from agents.llm_port import LLMRequest
-from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from benchmark.plan_scoring import ActionExpressionError, action_matches, score_outcome
-from benchmark.planning_benchmark import Descriptions, main, run_cases, summary_rows
-from benchmark.reference_cases import (
+from storyteller.agents.llm_port import LLMRequest
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
+from storyteller.benchmark.plan_scoring import ActionExpressionError, action_matches, score_outcome
+from storyteller.benchmark.planning_benchmark import Descriptions, main, run_cases, summary_rows
+from storyteller.benchmark.reference_cases import (
     BenchmarkCase,
     BenchmarkCaseError,
     load_case,
@@ -24,9 +24,9 @@ from benchmark.reference_cases import (
     planning_inputs,
     scene_dir,
 )
-from benchmark.support.fake_openai_server import FakeOpenAI
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
 from tests.support.reference import REFERENCE, requires_reference
 from tests.support.scripted_llm import ScriptedLLM
 

@@ -19,15 +19,15 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from agents.messages import Event, ParsedEvent, PlannedCharacter
-from benchmark.expressions import atoms, parse_expression
-from benchmark.plan_scoring import CaseScore, action_matches, check_expected_plans, score_outcome
-from benchmark.position_check import PositionAtom, read_atom
-from benchmark.reference_cases import BenchmarkCase, ExpectedPlan, load_cases, scene_dir
-from sim.scene.files import load_scene
-from sim.scene.model import Scene, SceneObject
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter
+from storyteller.benchmark.expressions import atoms, parse_expression
+from storyteller.benchmark.plan_scoring import CaseScore, action_matches, check_expected_plans, score_outcome
+from storyteller.benchmark.position_check import PositionAtom, read_atom
+from storyteller.benchmark.reference_cases import BenchmarkCase, ExpectedPlan, load_cases, scene_dir
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.scene_graph import point_footprint_distance
 from tests.support.reference import reference_or_skip
-from tools.scene_graph import point_footprint_distance
 
 OFFSETS = (0.3, 0.4, 0.5, 0.6, 0.2)  # metres out from a face, tried in this order
 ACROSS = (0.0, 0.5, -0.5, 0.9, -0.9)  # where along the face, as a fraction of its half length

@@ -1,4 +1,4 @@
-"""The evaluator (``benchmark.plan_scoring.score_outcome``) agrees with an independent scorer
+"""The evaluator (``storyteller.benchmark.plan_scoring.score_outcome``) agrees with an independent scorer
 (``tests/support/independent_scorer.py``, written from the benchmark rules alone) on plans
 neither was written against.
 
@@ -26,14 +26,14 @@ from typing import Any
 
 import pytest
 
-from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from benchmark.plan_scoring import CaseScore, score_outcome
-from benchmark.reference_cases import BenchmarkCase, load_cases, planning_inputs, scene_dir
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
+from storyteller.benchmark.plan_scoring import CaseScore, score_outcome
+from storyteller.benchmark.reference_cases import BenchmarkCase, load_cases, planning_inputs, scene_dir
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import WorldView
 from tests.support import independent_scorer as ind
 from tests.support.reference import reference_or_skip
-from tools.character_states import WorldView
 
 OURS = Path(__file__).resolve().parents[2] / "benchmark" / "cases" / "ours"
 EPS = 0.005

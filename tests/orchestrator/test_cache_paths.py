@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.cache_paths import CACHE_ENV, cache_root, description_cache_dir, motion_cache_dir
+from storyteller.orchestrator.cache_paths import CACHE_ENV, cache_root, description_cache_dir, motion_cache_dir
 
 
 def test_the_cache_folder_honours_the_environment(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
@@ -19,8 +19,8 @@ def test_the_cache_folder_honours_the_environment(monkeypatch: pytest.MonkeyPatc
 
 
 def test_every_cache_location_is_under_the_one_cache_root(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
-    from orchestrator.llm.model_weights import cache_dir
-    from orchestrator.planning.checkpoints import default_runs_db
+    from storyteller.orchestrator.llm.model_weights import cache_dir
+    from storyteller.orchestrator.planning.checkpoints import default_runs_db
 
     monkeypatch.setenv(CACHE_ENV, str(tmp_path))
     assert (motion_cache_dir(), cache_dir(), default_runs_db()) == (

@@ -1,4 +1,4 @@
-"""``orchestrator.child_process.stop_child``: a child that ends on SIGTERM ends by it; one that
+"""``storyteller.orchestrator.child_process.stop_child``: a child that ends on SIGTERM ends by it; one that
 ignores SIGTERM is killed after the grace period; either way it is reaped."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import signal
 import subprocess
 import sys
 
-from orchestrator.child_process import stop_child
+from storyteller.orchestrator.child_process import stop_child
 
 IGNORES_TERM = (
     "import signal, sys, time; signal.signal(signal.SIGTERM, signal.SIG_IGN); "

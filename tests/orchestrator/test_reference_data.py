@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.reference_data import (
+from storyteller.orchestrator.reference_data import (
     DEFAULT_MOCAP,
     DEFAULT_REFERENCE,
     MOCAP_ENV,

@@ -1,8 +1,8 @@
 """Outside text reaches the terminal as data: the sanitiser, ``scene inspect`` and ``view --export``.
 
-- :func:`orchestrator.safe_text.plain` leaves no character of the categories Cc, Cf, Zl, Zp or
+- :func:`storyteller.orchestrator.safe_text.plain` leaves no character of the categories Cc, Cf, Zl, Zp or
   Cs in its output (newline and tab only where the call site keeps lines), for any string
-  (hypothesis), and through rich (:func:`~orchestrator.safe_text.markup`) the text renders as
+  (hypothesis), and through rich (:func:`~storyteller.orchestrator.safe_text.markup`) the text renders as
   itself;
 - ``storyteller scene inspect`` on a scene whose name, object names and labels carry rich
   markup, terminal escape sequences, BEL, a bidi override and U+2028 prints its tables, exit 0,
@@ -24,9 +24,9 @@ from hypothesis import strategies as st
 from rich.text import Text
 from typer.testing import CliRunner
 
-from orchestrator.cli.app import app
-from orchestrator.safe_text import markdown, markup, plain
-from sim.scene.bundled import load_bundled_scene
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.safe_text import markdown, markup, plain
+from storyteller.sim.scene.bundled import load_bundled_scene
 from tests.support.tiny_run import write_tiny_run
 
 BANNED = frozenset({"Cc", "Cf", "Zl", "Zp", "Cs"})
@@ -90,7 +90,7 @@ def hostile_scene(tmp_path: Path) -> Path:
 
 def test_scene_inspect_prints_hostile_names_and_labels_as_data(tmp_path: Path) -> None:
     result = subprocess.run(
-        [sys.executable, "-c", "from orchestrator.cli.app import app; app()", "scene", "inspect",
+        [sys.executable, "-c", "from storyteller.orchestrator.cli.app import app; app()", "scene", "inspect",
          str(hostile_scene(tmp_path))],
         capture_output=True, text=True, encoding="utf-8", timeout=120,
     )  # fmt: skip

@@ -16,13 +16,13 @@ from typing import Any
 
 import pytest
 
-from orchestrator.sandbox_worker import WorkerRunner
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.model import Scene
-from tools.character_states import WorldView
-from tools.errors import UnknownObjectError
-from tools.event_program import run_event_program
-from tools.sandbox import Budget, BudgetExceededError
+from storyteller.orchestrator.sandbox_worker import WorkerRunner
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.errors import UnknownObjectError
+from storyteller.tools.event_program import run_event_program
+from storyteller.tools.sandbox import Budget, BudgetExceededError
 
 PLACE = (
     "def parse_event():\n    get_character('Mia').set_position(get_area_adjacent_to('fridge_1'))\n"
@@ -92,11 +92,11 @@ def test_a_worker_killed_between_programs_is_restarted(scene: Scene) -> None:
 
 FIRST_PROGRAM_PROBE = """
 import json, sys
-from orchestrator.sandbox_worker import load_scene
-from sim.scene.bundled import load_bundled_scene
-from tools.character_states import WorldView
-from tools.event_program import run_event_program
-from tools.position_sampling import scene_nav_grid
+from storyteller.orchestrator.sandbox_worker import load_scene
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.event_program import run_event_program
+from storyteller.tools.position_sampling import scene_nav_grid
 
 scene, graph = load_scene(load_bundled_scene("home").model_dump_json())
 modules, built = set(sys.modules), scene_nav_grid.cache_info().misses
@@ -121,7 +121,7 @@ def test_the_first_program_on_a_new_worker_imports_and_builds_nothing() -> None:
 
 WORKER_IMPORTS_PROBE = """
 import json, sys
-from orchestrator.sandbox_worker import load_scene
+from storyteller.orchestrator.sandbox_worker import load_scene
 
 load_scene(sys.stdin.read())  # the scene's JSON, as the parent sends it
 print("MODULES " + json.dumps(sorted(m for m in sys.modules if m.split(".")[0] in

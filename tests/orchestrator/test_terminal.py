@@ -1,4 +1,4 @@
-"""``orchestrator.terminal.say``: every control, format and separator character but newline and
+"""``storyteller.orchestrator.terminal.say``: every control, format and separator character but newline and
 tab is shown as an escape, in a line of text and in the text of a rich renderable, while rich's
 own styles, the newlines and tabs of a message and a table's layout stay; Python warnings said
 through :func:`show_warning` likewise."""
@@ -13,8 +13,8 @@ from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
-from orchestrator.safe_text import plain
-from orchestrator.terminal import escaped, say, show_warning
+from storyteller.orchestrator.safe_text import plain
+from storyteller.orchestrator.terminal import escaped, say, show_warning
 from tests.support.hostile_files import unsafe_characters
 
 HOSTILE = "\x1b[31m red \x07 \u202e \u2066 \u061c \u2028 \u2029 \u200b \u2060 \ufeff \x85 \x9b \r \x00"

@@ -25,15 +25,15 @@ import structlog
 from markdown_it import MarkdownIt
 from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.app import app
-from orchestrator.logging_setup import configure_logging, force_logging_reset
-from orchestrator.safe_text import markdown, plain
-from orchestrator.session.run_report import story_markdown
-from sim.body.skeleton import NUM_JOINTS, heading_to_root
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.files import save_scene_json
-from sim.world.character_track import CharacterTrack
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.logging_setup import configure_logging, force_logging_reset
+from storyteller.orchestrator.safe_text import markdown, plain
+from storyteller.orchestrator.session.run_report import story_markdown
+from storyteller.sim.body.skeleton import NUM_JOINTS, heading_to_root
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.files import save_scene_json
+from storyteller.sim.world.character_track import CharacterTrack
 
 CONTROL = re.compile("[\x00-\x09\x0b-\x1f\x7f-\x9f\u200e\u200f\u202a-\u202e\u2066-\u2069]")
 HOSTILE = "[red]x[/] [/] <img src=x onerror=alert(1)> **bold** [a](javascript:alert(1)) \x1b[31mred\x1b[0m\x07\u202e\r\n# H"
@@ -130,7 +130,7 @@ def hostile_run_folder(tmp_path: Path) -> Path:
 
 
 def test_the_viewer_shows_model_text_as_data(tmp_path: Path) -> None:
-    from orchestrator.viewer.server import ViewerApp
+    from storyteller.orchestrator.viewer.server import ViewerApp
 
     viewer = ViewerApp(hostile_run_folder(tmp_path), port=0)
     try:

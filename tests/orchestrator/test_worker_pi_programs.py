@@ -8,10 +8,12 @@ import json
 
 import pytest
 
-import orchestrator.sandbox_worker
-from benchmark.reference_cases import CaseWorld, case_tags, planning_inputs
-from orchestrator.sandbox_worker import WorkerRunner
-from orchestrator.session.plan_job import run_plan
+import storyteller.orchestrator.sandbox_worker
+from storyteller.benchmark.reference_cases import CaseWorld, case_tags, planning_inputs
+from storyteller.orchestrator.sandbox_worker import WorkerRunner
+from storyteller.orchestrator.session.plan_job import run_plan
+from storyteller.tools.character_states import world_view_from_reference_case
+from storyteller.tools.event_program import run_event_program
 from tests.support.reference import requires_reference
 from tests.support.reference_pipeline import (
     CASE_IDS,
@@ -24,8 +26,6 @@ from tests.support.reference_pipeline import (
     the_case,
 )
 from tests.support.scripted_llm import ScriptedLLM
-from tools.character_states import world_view_from_reference_case
-from tools.event_program import run_event_program
 
 pytestmark = requires_reference
 
@@ -55,7 +55,7 @@ async def test_run_plan_runs_programs_in_a_worker_it_closes(monkeypatch: pytest.
             super().__init__()
             started.append(self)
 
-    monkeypatch.setattr(orchestrator.sandbox_worker, "WorkerRunner", Recorded)
+    monkeypatch.setattr(storyteller.orchestrator.sandbox_worker, "WorkerRunner", Recorded)
     case, scene = the_case()
     inputs = planning_inputs(case, scene)
     outcomes = []

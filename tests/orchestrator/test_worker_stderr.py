@@ -18,12 +18,12 @@ from typing import Any
 import pytest
 from structlog.testing import capture_logs
 
-from orchestrator.sandbox_worker import WorkerRunner
-from orchestrator.stderr_tail import KEPT_BYTES
-from sim.scene.bundled import load_bundled_scene
+from storyteller.orchestrator.sandbox_worker import WorkerRunner
+from storyteller.orchestrator.stderr_tail import KEPT_BYTES
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.errors import EventProgramError
 from tests.support.hostile_files import unsafe_characters
-from tools.character_states import WorldView
-from tools.errors import EventProgramError
 
 HOSTILE = "x\x1b[31my\x07z\u202ew\u2028v".encode() + b"\xff\xfe"
 SHOWN = "x\\x1b[31my\\x07z\\u202ew\\u2028v\\xff\\xfe"

@@ -1,4 +1,4 @@
-"""``sim.bounded_files``: a file read back costs at most its cap, and bad JSON is one line.
+"""``storyteller.sim.bounded_files``: a file read back costs at most its cap, and bad JSON is one line.
 
 Each case is an input the plain ``Path.read_bytes`` / ``json.loads`` pair mishandles: reading
 ``/dev/zero`` never ends, a FIFO blocks, deep nesting is a ``RecursionError``, 5,000 digits a
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from sim.bounded_files import (
+from storyteller.sim.bounded_files import (
     MAX_INT_DIGITS,
     MAX_OBJECT_KEYS,
     MAX_TOML_KEY_PARTS,

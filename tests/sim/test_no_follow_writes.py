@@ -1,4 +1,4 @@
-"""The writers of a run folder never write through a symbolic link (``sim.no_follow_writes``).
+"""The writers of a run folder never write through a symbolic link (``storyteller.sim.no_follow_writes``).
 
 A file written whole replaces a link at its name (the link's target untouched) and leaves no
 temporary file; an append-only file (trace, story stream, chunk file) that is a link, a FIFO or
@@ -15,15 +15,15 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.support.random_tracks import random_track
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.session.run_manifest import RunArguments, RunManifest, write_manifest
-from orchestrator.session.story_stream import StoryStream
-from sim.export.bundle import export_run
-from sim.export.video import RunRecording, save_run_animation, save_run_png
-from sim.no_follow_writes import make_folder, open_append, replacing, write_file
-from sim.scene.bundled import resolve_scene
-from sim.world.track_chunks import ChunkStore
+from storyteller.benchmark.support.random_tracks import random_track
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.session.run_manifest import RunArguments, RunManifest, write_manifest
+from storyteller.orchestrator.session.story_stream import StoryStream
+from storyteller.sim.export.bundle import export_run
+from storyteller.sim.export.video import RunRecording, save_run_animation, save_run_png
+from storyteller.sim.no_follow_writes import make_folder, open_append, replacing, write_file
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.sim.world.track_chunks import ChunkStore
 
 PRECIOUS = b"precious: not ours to write\n"
 
@@ -70,7 +70,7 @@ def test_write_file_over_a_folder_fails_naming_the_file_and_leaves_nothing(folde
 
 def test_a_link_planted_at_a_temporary_name_is_never_written(folder: Path, victim: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     tokens = iter(["aaaaaaaaaaaa", "bbbbbbbbbbbb"])
-    monkeypatch.setattr("sim.no_follow_writes.secrets.token_hex", lambda _n: next(tokens))
+    monkeypatch.setattr("storyteller.sim.no_follow_writes.secrets.token_hex", lambda _n: next(tokens))
     link(folder / ".run.json.aaaaaaaaaaaa.tmp.json", victim)  # the first name tried is taken by a link
     write_file(folder / "run.json", b"{}\n")
     assert victim.read_bytes() == PRECIOUS and (folder / "run.json").read_bytes() == b"{}\n"
@@ -183,7 +183,7 @@ def test_the_exports_and_pictures_replace_links(folder: Path, victim: Path) -> N
 
 
 def test_stale_temporaries_are_removed_and_nothing_else(tmp_path: Path) -> None:
-    from sim.no_follow_writes import remove_stale_temporaries
+    from storyteller.sim.no_follow_writes import remove_stale_temporaries
 
     victim = tmp_path / "victim"
     victim.write_text("v", encoding="utf-8")

@@ -1,4 +1,4 @@
-"""A pydantic ValidationError said as one user sentence (``sim.validation_text``), the one
+"""A pydantic ValidationError said as one user sentence (``storyteller.sim.validation_text``), the one
 function every layer's file reader uses."""
 
 from __future__ import annotations
@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
-from orchestrator.safe_text import one_line
-from sim.validation_text import problem_field, problem_message, user_error
+from storyteller.orchestrator.safe_text import one_line
+from storyteller.sim.validation_text import problem_field, problem_message, user_error
 
 
 class _Inner(BaseModel):

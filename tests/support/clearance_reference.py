@@ -1,6 +1,6 @@
-"""``body_clearance`` in plain numpy: the oracle of the compiled loops in ``sim.paths.footprint_distance``.
+"""``body_clearance`` in plain numpy: the oracle of the compiled loops in ``storyteller.sim.paths.footprint_distance``.
 
-``body_clearance_reference`` takes the same arguments as ``sim.paths.footprint_distance.body_clearance``
+``body_clearance_reference`` takes the same arguments as ``storyteller.sim.paths.footprint_distance.body_clearance``
 and must give the very same floats (``tests/sim/paths/test_body_clearance_kernels.py`` compares them);
 the rotation into each object's frame is ``SceneObject.to_local``. Not used by the simulation.
 """
@@ -11,8 +11,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sim.paths.footprint_distance import bounding_circles
-from sim.scene.model import SceneObject
+from storyteller.sim.paths.footprint_distance import bounding_circles
+from storyteller.sim.scene.model import SceneObject
 
 
 def _point_rect_distance(local: np.ndarray, hw: float, hd: float) -> np.ndarray:

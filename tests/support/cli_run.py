@@ -59,4 +59,4 @@ RUN = ["run", "home", "--names", "Zoe,Max", "-d", "30", "--planner", "unified", 
 
 
 def cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from orchestrator.cli.app import main; main()", *args]
+    return [sys.executable, "-c", "from storyteller.orchestrator.cli.app import main; main()", *args]

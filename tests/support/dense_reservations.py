@@ -1,6 +1,6 @@
 """The compiled reservation folding (``astar_kernel.reserve_path`` / ``release_path``) wrapped
 as a table with ``add`` / ``remove`` / ``allow``, to compare it entry for entry with the
-pure-Python ``sim.paths.reservations.Reservations`` (only the tests use it: the compiled pass
+pure-Python ``storyteller.sim.paths.reservations.Reservations`` (only the tests use it: the compiled pass
 ``astar_kernel.dense_pass`` folds its table itself)."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.paths.astar_kernel import release_path, reserve_path
-from sim.paths.move_tables import MoveTables
-from sim.paths.plan_types import Agent
+from storyteller.sim.paths.astar_kernel import release_path, reserve_path
+from storyteller.sim.paths.move_tables import MoveTables
+from storyteller.sim.paths.plan_types import Agent
 
 
 class DenseReservations:

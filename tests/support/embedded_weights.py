@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from orchestrator.llm.model_weights import QWEN_05B, WeightsMissingError, locate_chunks
+from storyteller.orchestrator.llm.model_weights import QWEN_05B, WeightsMissingError, locate_chunks
 
 
 def embedded_weights_or_skip() -> None:

@@ -1,5 +1,5 @@
 """``FootSolver.apply`` as numpy array steps: the oracle of the compiled
-``sim.body.foot_kernel.apply_frame``.
+``storyteller.sim.body.foot_kernel.apply_frame``.
 
 ``apply_numpy(solver, ...)`` takes what ``FootSolver.apply`` takes and gives the same rotations
 and states to rounding (1e-12); ``tests/sim/body/test_foot_ik.py`` compares them on a walking crowd. The
@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.body.foot_clearance import push_out
-from sim.body.foot_ik import FootSolver, FootState
-from sim.body.foot_kernel import LAND_M, REPLANT_LIFT_M, TOE_FLOOR_M
-from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, solve_chain
+from storyteller.sim.body.foot_clearance import push_out
+from storyteller.sim.body.foot_ik import FootSolver, FootState
+from storyteller.sim.body.foot_kernel import LAND_M, REPLANT_LIFT_M, TOE_FLOOR_M
+from storyteller.sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, solve_chain
 
 _REACH_EPS = 1e-9  # m: reach comparisons of a lock start (the kernel's literal 1e-9)
 

@@ -1,5 +1,5 @@
 """The planner's heuristic as it was first computed: ``scipy.sparse.csgraph.dijkstra`` on a
-sparse graph of the grid's moves. The oracle of the compiled ``sim.paths.heuristics.goal_distances``
+sparse graph of the grid's moves. The oracle of the compiled ``storyteller.sim.paths.heuristics.goal_distances``
 (``tests/sim/paths/test_astar_kernel.py`` checks the very same floats). Not used by the simulation.
 """
 
@@ -11,8 +11,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from sim.paths.cooperative_astar import Cell, PathPlanner
-from sim.paths.nav_grid import MOVES
+from storyteller.sim.paths.cooperative_astar import Cell, PathPlanner
+from storyteller.sim.paths.nav_grid import MOVES
 
 
 def scipy_goal_distances(planner: PathPlanner, goal: Cell) -> np.ndarray:

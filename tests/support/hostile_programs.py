@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from tools.errors import EventProgramError, ToolArgumentError, UnknownObjectError
-from tools.sandbox import (
+from storyteller.tools.errors import EventProgramError, ToolArgumentError, UnknownObjectError
+from storyteller.tools.sandbox import (
     BudgetExceededError,
     ForbiddenConstructError,
     ProgramRuntimeError,

@@ -1,5 +1,5 @@
 """A second, deliberately simple scorer of one planning step: the oracle that
-``tests/benchmark/test_scorer_agreement.py`` holds ``benchmark.plan_scoring`` against.
+``tests/benchmark/test_scorer_agreement.py`` holds ``storyteller.benchmark.plan_scoring`` against.
 
 Written from the benchmark rules only (issue 9, item 3, and the reference data's README), never
 from the evaluator's code: it imports nothing from ``benchmark/``, ``sim/`` or ``tools/``. It reads

@@ -1,5 +1,5 @@
 """The leg IK kernel as it was written with small numpy arrays: the oracle of the compiled
-``sim.body.leg_ik._ik_kernel``, which does the same float operations on scalars (no temporary
+``storyteller.sim.body.leg_ik._ik_kernel``, which does the same float operations on scalars (no temporary
 arrays). ``tests/sim/body/test_foot_ik.py`` checks both give the same bits, including the degenerate
 branches (a target on the hip, a straight leg, a knee bent backwards). Not used by the simulation.
 """
@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from sim.body.leg_ik import HINGE_BLEND
+from storyteller.sim.body.leg_ik import HINGE_BLEND
 
 
 @njit(cache=True)

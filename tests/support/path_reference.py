@@ -1,7 +1,7 @@
 """The path-following rule for one path in plain numpy: the oracle of the compiled
-``sim.paths.tracks.path_tracks``.
+``storyteller.sim.paths.tracks.path_tracks``.
 
-``track_reference`` is the arithmetic of ``sim.paths.cooperative_astar.position_at`` for every
+``track_reference`` is the arithmetic of ``storyteller.sim.paths.cooperative_astar.position_at`` for every
 frame of one path; ``tests/sim/paths/test_path_tracks.py`` checks that the compiled loop gives the very
 same floats. Not used by the simulation.
 """
@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sim.paths.tracks import Cell, track_frames
+from storyteller.sim.paths.tracks import Cell, track_frames
 
 
 def track_reference(path: Sequence[Cell], origin: tuple[float, float], cell_size: float, step_frames: int,

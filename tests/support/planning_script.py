@@ -11,13 +11,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from agents.messages import CharacterStatus
-from orchestrator.planning.checkpoints import StoryLog
-from orchestrator.planning.state import PlanningDeps, PlanningState
-from sim.scene.model import Scene, SceneObject
+from storyteller.agents.messages import CharacterStatus
+from storyteller.orchestrator.planning.checkpoints import StoryLog
+from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.errors import UnknownObjectError
 from tests.support.scripted_llm import ScriptedLLM
-from tools.character_states import WorldView
-from tools.errors import UnknownObjectError
 
 
 def tiny_scene() -> Scene:

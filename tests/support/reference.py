@@ -1,6 +1,6 @@
 """The authors' reference data and the shared mocap clips as the tests see them.
 
-Both are looked up once, at import, by ``orchestrator.reference_data`` (``STORYTELLER_REFERENCE``
+Both are looked up once, at import, by ``storyteller.orchestrator.reference_data`` (``STORYTELLER_REFERENCE``
 / ``STORYTELLER_MOCAP``, else ``../shared/...``). The paths below always exist as values (the
 folder, or where it was expected), so a test module may build paths from them at import time;
 every test that reads them carries ``requires_reference`` / ``requires_mocap`` (or calls
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.reference_data import locate_mocap, locate_reference
+from storyteller.orchestrator.reference_data import locate_mocap, locate_reference
 
 _REFERENCE = locate_reference()
 _MOCAP = locate_mocap()

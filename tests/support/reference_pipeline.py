@@ -8,12 +8,12 @@ import json
 from functools import cache
 from pathlib import Path
 
-from agents.llm_port import LLMRequest
-from benchmark.reference_cases import BenchmarkCase, load_cases, scene_dir
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
+from storyteller.agents.llm_port import LLMRequest
+from storyteller.benchmark.reference_cases import BenchmarkCase, load_cases, scene_dir
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.scene_graph import SceneGraph, build_scene_graph
 from tests.support.reference import REFERENCE
-from tools.scene_graph import SceneGraph, build_scene_graph
 
 CASE = 20  # SS: Taylor reads a book sitting on chair_3 (a describer call, a narrator call, a parser call)
 WHO, ACTIVITY = "Taylor", "read a book sitting on chair_3"

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from sim.scene.model import SceneObject
+from storyteller.sim.scene.model import SceneObject
 
 
 def box(label: str, idx: int, x: float, y: float, *, seat: bool = False, facing: tuple[float, float] = (0.0, 1.0),

@@ -1,4 +1,4 @@
-"""The one scripted fake of the LLM port (``agents.llm_port.LLMPort``) the unit tests share.
+"""The one scripted fake of the LLM port (``storyteller.agents.llm_port.LLMPort``) the unit tests share.
 
 :class:`ScriptedLLM` answers from a script and keeps every request it was sent:
 
@@ -9,7 +9,7 @@
 A script that runs out raises ``IndexError`` (a test asked for more calls than it planned),
 an unscripted node raises ``KeyError``: neither is ever turned into a reply.
 
-With ``trace=`` a trace sink (``orchestrator.llm.trace_writer.TraceWriter``), every call is written
+With ``trace=`` a trace sink (``storyteller.orchestrator.llm.trace_writer.TraceWriter``), every call is written
 as one successful ``attempt`` record and its response carries that record's ``trace_seq``, so
 the planning graph records what it made of each reply (``parsed`` records with the error type
 that rejected it), as with a real client.
@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from agents.llm_port import LLMRequest, LLMResponse
+from storyteller.agents.llm_port import LLMRequest, LLMResponse
 
 Reply = Callable[[LLMRequest], str]
 Script = Sequence[str] | Mapping[str, Sequence[str] | Reply] | Reply
@@ -65,7 +65,7 @@ class ScriptedLLM:
         text = self.answer(request)
         if not self._writes_attempts:
             return LLMResponse(text=text, model=self.model)
-        from orchestrator.llm.traces import AttemptRecord
+        from storyteller.orchestrator.llm.traces import AttemptRecord
 
         seq = self.trace.next_seq()
         self.trace.write(AttemptRecord(
@@ -81,7 +81,7 @@ class ScriptedLLM:
 
 
 def choosing(replies: Sequence[str], pick: Callable[[tuple[str, ...]], str] = lambda c: c[0]) -> Reply:
-    """A node's script that answers a choice request (``agents.scored_choice``: a request with
+    """A node's script that answers a choice request (``storyteller.agents.scored_choice``: a request with
     ``choices``) with ``pick`` of its candidates (the first by default) and every other request
     with the next of ``replies``."""
     queue = list(replies)

@@ -14,10 +14,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from agents.llm_port import LLMRequest, LLMResponse, TokenUsage
-from benchmark.sweep.execute import PortFactory
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import AttemptRecord
+from storyteller.agents.llm_port import LLMRequest, LLMResponse, TokenUsage
+from storyteller.benchmark.sweep.execute import PortFactory
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import AttemptRecord
 
 Answer = Callable[[LLMRequest], str]
 

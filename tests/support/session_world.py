@@ -10,14 +10,14 @@ from typing import TYPE_CHECKING
 import anyio
 import numpy as np
 
-from agents.llm_port import LLMError
-from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from orchestrator.planning.state import StepProgress
-from orchestrator.session.session_types import Outcome, PlanningRequest
-from sim.motion.matching import MotionMatcher
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.model import Scene
-from sim.world.step import World
+from storyteller.agents.llm_port import LLMError
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
+from storyteller.orchestrator.planning.state import StepProgress
+from storyteller.orchestrator.session.session_types import Outcome, PlanningRequest
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import World
 
 if TYPE_CHECKING:
     import litellm

@@ -24,7 +24,7 @@ dynamic_lmk_bary_coords  (79, 17, 3)         barycentric thirds
 ======================== =================== ===========================================
 
 With zero betas the first 22 regressed joints are exactly our rest joints
-(``sim.body.skeleton.rest_positions()``), so posing the stand-in with our exported parameters
+(``storyteller.sim.body.skeleton.rest_positions()``), so posing the stand-in with our exported parameters
 must reproduce our own forward kinematics. Not a body model anyone should render.
 """
 
@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.body.skeleton import NUM_JOINTS, PARENTS, rest_positions
-from sim.world.character_track import write_npz
+from storyteller.sim.body.skeleton import NUM_JOINTS, PARENTS, rest_positions
+from storyteller.sim.world.character_track import write_npz
 
 NUM_VERTICES = 10475
 NUM_FACES = 20908

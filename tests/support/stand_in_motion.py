@@ -8,8 +8,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
-from sim.motion.matching import MotionQuery, Pose
+from storyteller.sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
+from storyteller.sim.motion.matching import MotionQuery, Pose
 
 
 class RestPoseMotion:

@@ -15,8 +15,8 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.app import app
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.app import app
 
 RUN = ["run", "home", "--names", "Zoe,Max", "--planner", "unified", "--description", "object-list", "--raw-feet",
        "--no-interactive"]

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.body.skeleton import NUM_JOINTS, heading_to_root
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.files import save_scene_json
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.body.skeleton import NUM_JOINTS, heading_to_root
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.files import save_scene_json
+from storyteller.sim.world.character_track import CharacterTrack
 
 
 def write_tiny_run(

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import time
 
-from agents.llm_port import ChatMessage, LLMRequest, TokenUsage
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import AttemptRecord
+from storyteller.agents.llm_port import ChatMessage, LLMRequest, TokenUsage
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import AttemptRecord
 
 
 def attempt(writer: TraceWriter, text: str = '{"a": 1}', frame: int = 10) -> AttemptRecord:

@@ -10,19 +10,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.scene.files import load_scene
-from sim.scene.model import Scene, SceneObject, Vec2, Vec3
-from tests.support.reference import REFERENCE as REF
-from tests.support.reference import reference_or_skip
-from tools import areas
-from tools.character_states import (
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene, SceneObject, Vec2, Vec3
+from storyteller.tools import areas
+from storyteller.tools.character_states import (
     ReferenceCaseError,
     area_from_text,
     world_view_from_reference_case,
 )
-from tools.errors import UnsatisfiableAreaError
-from tools.position_sampling import Constraints, FloorMap, sample_position
-from tools.scene_graph import point_footprint_distance
+from storyteller.tools.errors import UnsatisfiableAreaError
+from storyteller.tools.position_sampling import Constraints, FloorMap, sample_position
+from storyteller.tools.scene_graph import point_footprint_distance
+from tests.support.reference import REFERENCE as REF
+from tests.support.reference import reference_or_skip
 
 CASES = sorted((REF / "benchmark" / "test_cases").glob("*/*.json"))
 
@@ -338,8 +338,8 @@ def test_area_from_text(scenes: dict[str, Scene]) -> None:
 
 
 def test_combining_is_bounded_and_typed() -> None:
-    from tools.areas import MAX_PARTS
-    from tools.errors import ToolArgumentError
+    from storyteller.tools.areas import MAX_PARTS
+    from storyteller.tools.errors import ToolArgumentError
 
     a = areas.close_to(ROOM.by_name["table_1"])
     combined = a

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.scene.files import load_scene
-from sim.scene.model import Scene, SceneObject
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.clusters import cluster_objects, distance_matrix
 from tests.support.reference import SCENES, requires_reference
-from tools.clusters import cluster_objects, distance_matrix
 
 
 def box(name: str, x: float, y: float, z: float = 0.4, size: float = 0.5) -> SceneObject:

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.scene.bundled import resolve_scene
-from sim.scene.model import Scene, SceneObject
-from tools.areas import Area, close_to
-from tools.errors import UnsatisfiableAreaError
-from tools.position_sampling import Constraints, FloorMap, sample_position, scene_nav_grid
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.areas import Area, close_to
+from storyteller.tools.errors import UnsatisfiableAreaError
+from storyteller.tools.position_sampling import Constraints, FloorMap, sample_position, scene_nav_grid
 
 
 def test_the_pocket_point_of_home_tv_evening_is_free_but_not_reachable() -> None:

@@ -11,13 +11,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.model import Scene, SceneObject
-from tools.areas import RELAXED_STEPS, close_to, directional
-from tools.character_states import WorldView
-from tools.errors import UnsatisfiableAreaError
-from tools.event_program import run_event_program
-from tools.position_sampling import RELAXED_BAND, Constraints, FloorMap, sample_position
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.areas import RELAXED_STEPS, close_to, directional
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.errors import UnsatisfiableAreaError
+from storyteller.tools.event_program import run_event_program
+from storyteller.tools.position_sampling import RELAXED_BAND, Constraints, FloorMap, sample_position
 
 HOME = load_bundled_scene("home")
 FLOOR = FloorMap(HOME)
@@ -135,8 +135,8 @@ OFFICE_FLOOR = FloorMap(OFFICE)
 
 @pytest.mark.parametrize("seed", range(4))
 def test_adjacent_to_a_monitor_deep_on_a_desk_relaxes_to_the_nearest_ring_with_floor(seed: int) -> None:
-    from tools.areas import ADJACENT_DISTANCE, RELAXED_ADJACENT, adjacent_to
-    from tools.scene_graph import point_footprint_distance
+    from storyteller.tools.areas import ADJACENT_DISTANCE, RELAXED_ADJACENT, adjacent_to
+    from storyteller.tools.scene_graph import point_footprint_distance
 
     monitor = OFFICE.by_name["monitor_3"]  # deep on a desk: no free floor within 0.5 m of it
     area = adjacent_to(monitor)
@@ -156,7 +156,7 @@ def test_adjacent_to_a_monitor_deep_on_a_desk_relaxes_to_the_nearest_ring_with_f
 
 
 def test_a_ring_with_no_floor_up_to_its_widest_relaxation_says_how_far_it_looked() -> None:
-    from tools.areas import within_distance
+    from storyteller.tools.areas import within_distance
 
     walled = SceneObject(  # a box far outside the floor: no ring around it has floor
         name="crate_9", label="crate", idx=9, center=(50.0, 50.0, 0.5), size=(1.0, 1.0, 1.0),

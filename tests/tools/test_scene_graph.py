@@ -11,10 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from sim.scene.files import load_scene
-from sim.scene.model import Scene, SceneObject, Vec2, Vec3
-from tests.support.reference import SCENES, reference_or_skip, requires_reference
-from tools.scene_graph import (
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene, SceneObject, Vec2, Vec3
+from storyteller.tools.scene_graph import (
     RELATIONS,
     RelationThresholds,
     SceneGraph,
@@ -23,7 +22,8 @@ from tools.scene_graph import (
     footprint_distance,
     point_footprint_distance,
 )
-from tools.scene_text import clusters_text, object_list_text, scene_graph_json
+from storyteller.tools.scene_text import clusters_text, object_list_text, scene_graph_json
+from tests.support.reference import SCENES, reference_or_skip, requires_reference
 
 
 @pytest.fixture(scope="module", params=["House", "Office", "Restaurant"])

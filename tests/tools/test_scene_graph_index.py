@@ -1,4 +1,4 @@
-"""The scene graph and the region clusters built through the spatial index (``tools.box_pairs``)
+"""The scene graph and the region clusters built through the spatial index (``storyteller.tools.box_pairs``)
 equal the brute-force builds that test every pair (``benchmark/support/scene_graph_reference.py``):
 the same relations in the same order, the same node attributes, the same clusters, on the
 bundled scenes, the reference scenes and random ones (hypothesis, derandomised). The index
@@ -15,15 +15,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from benchmark.support.scene_graph_reference import brute_force_clusters, brute_force_scene_graph
-from sim.scene.bundled import bundled_scene_names, load_bundled_scene
-from sim.scene.files import load_scene
-from sim.scene.model import Scene, SceneObject
+from storyteller.benchmark.support.scene_graph_reference import brute_force_clusters, brute_force_scene_graph
+from storyteller.sim.scene.bundled import bundled_scene_names, load_bundled_scene
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.box_pairs import overlapping_pairs
+from storyteller.tools.clusters import cluster_objects
+from storyteller.tools.footprint_geometry import polygon_distance, polygon_distances
+from storyteller.tools.scene_graph import SceneGraph, build_scene_graph
 from tests.support.reference import SCENES, reference_or_skip
-from tools.box_pairs import overlapping_pairs
-from tools.clusters import cluster_objects
-from tools.footprint_geometry import polygon_distance, polygon_distances
-from tools.scene_graph import SceneGraph, build_scene_graph
 
 SETTINGS = settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.position_check import object_collision
-from sim.scene.model import Scene, SceneObject
-from sim.world.navigation import seat_place
-from tools.areas import seat_slots
-from tools.character_states import WorldView
-from tools.event_program import run_event_program
+from storyteller.benchmark.position_check import object_collision
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.navigation import seat_place
+from storyteller.tools.areas import seat_slots
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.event_program import run_event_program
 
 
 def _obj(name: str, center: tuple[float, float, float], size: tuple[float, float, float],

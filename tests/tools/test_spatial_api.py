@@ -10,13 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
-from tests.support.reference import REFERENCE as REF
-from tests.support.reference import reference_or_skip
-from tools.areas import Area
-from tools.character_states import WorldView, world_view_from_reference_case
-from tools.errors import (
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.areas import Area
+from storyteller.tools.character_states import WorldView, world_view_from_reference_case
+from storyteller.tools.errors import (
     BlockedPositionError,
     EventProgramError,
     ToolArgumentError,
@@ -25,10 +23,12 @@ from tools.errors import (
     UnknownObjectError,
     UnsatisfiableAreaError,
 )
-from tools.event_program import run_event_program
-from tools.position_sampling import FloorMap
-from tools.scene_graph import build_scene_graph
-from tools.spatial_api import MAX_NEW_CHARACTERS, CharacterHandle, SpatialAPI
+from storyteller.tools.event_program import run_event_program
+from storyteller.tools.position_sampling import FloorMap
+from storyteller.tools.scene_graph import build_scene_graph
+from storyteller.tools.spatial_api import MAX_NEW_CHARACTERS, CharacterHandle, SpatialAPI
+from tests.support.reference import REFERENCE as REF
+from tests.support.reference import reference_or_skip
 
 
 @pytest.fixture(scope="module")
@@ -217,7 +217,7 @@ def test_effects_are_collected_and_resolved_after_the_program(
 def test_second_character_cannot_take_the_same_seat(api: SpatialAPI) -> None:
     """Sent to one chair, the second member of the event gets the nearest free chair (the group
     sits together), never the same one; with no such chair near, the area is refused."""
-    from tools import position_sampling
+    from storyteller.tools import position_sampling
 
     ns = api.namespace()
     ns["get_character"]("Ryan").set_position(ns["get_area_to_sit_on"]("chair_4"))
@@ -332,7 +332,7 @@ def test_programs_reach_only_declared_attributes(
 def test_interacting_with_a_seat_sits_and_objects_on_furniture_are_reached_from_its_edge(
     api: SpatialAPI,
 ) -> None:
-    from tools.areas import inset_depth
+    from storyteller.tools.areas import inset_depth
 
     ns = api.namespace()
     assert ns["get_area_to_interact_with"]("chair_5").seats

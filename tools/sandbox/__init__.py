@@ -25,14 +25,14 @@ the meter), ``boundary`` (values entering and leaving the program), ``operators`
 (scopes and program functions), ``access`` (attributes, items, tool calls), ``statements``
 and ``interpreter`` (the tree walk), ``runner`` (the public entry).
 
-Imports: the standard library (``ast``, no ``exec``), ``tools.errors`` and this package; no
+Imports: the standard library (``ast``, no ``exec``), ``storyteller.tools.errors`` and this package; no
 other ``tools`` module, nothing of ``sim``, and no clock except ``runner``'s default for the
 injected ``clock`` parameter.
 """
 
-from tools.sandbox.budget import Budget
-from tools.sandbox.checker import check_program
-from tools.sandbox.errors import (
+from storyteller.tools.sandbox.budget import Budget
+from storyteller.tools.sandbox.checker import check_program
+from storyteller.tools.sandbox.errors import (
     BudgetExceededError,
     ForbiddenConstructError,
     MissingEntryError,
@@ -40,7 +40,7 @@ from tools.sandbox.errors import (
     ProgramSyntaxError,
     UnknownNameError,
 )
-from tools.sandbox.runner import ProgramRun, execute, run_program
+from storyteller.tools.sandbox.runner import ProgramRun, execute, run_program
 
 __all__ = [
     "Budget",

@@ -16,11 +16,11 @@ import inspect
 from collections.abc import Callable
 from typing import Protocol, cast
 
-from tools import errors
-from tools.errors import EventProgramError, did_you_mean
-from tools.sandbox.boundary import check_key, detach, is_int, materialize, type_name
-from tools.sandbox.budget import DICT_ITEM_BYTES, Meter, container_bytes, str_bytes
-from tools.sandbox.errors import (
+from storyteller.tools import errors
+from storyteller.tools.errors import EventProgramError, did_you_mean
+from storyteller.tools.sandbox.boundary import check_key, detach, is_int, materialize, type_name
+from storyteller.tools.sandbox.budget import DICT_ITEM_BYTES, Meter, container_bytes, str_bytes
+from storyteller.tools.sandbox.errors import (
     BudgetExceededError,
     ForbiddenConstructError,
     Line,
@@ -28,9 +28,9 @@ from tools.sandbox.errors import (
     add_line,
     describe,
 )
-from tools.sandbox.methods import METHODS, MethodImpl
-from tools.sandbox.values import INTERNAL_TYPES, BoundMethod
-from tools.value_text import show
+from storyteller.tools.sandbox.methods import METHODS, MethodImpl
+from storyteller.tools.sandbox.values import INTERNAL_TYPES, BoundMethod
+from storyteller.tools.value_text import show
 
 
 class _Indexable(Protocol):

@@ -13,9 +13,9 @@ import numbers
 import re
 from typing import TypeAlias, TypeGuard
 
-from tools.sandbox.budget import Meter, int_bytes
-from tools.sandbox.errors import BudgetExceededError, Line, ProgramRuntimeError
-from tools.value_text import bounded_repr
+from storyteller.tools.sandbox.budget import Meter, int_bytes
+from storyteller.tools.sandbox.errors import BudgetExceededError, Line, ProgramRuntimeError
+from storyteller.tools.value_text import bounded_repr
 
 ITERABLE_TYPES = frozenset({list, tuple, str, dict, set, frozenset, range})
 INT_TYPES = frozenset({int, bool})

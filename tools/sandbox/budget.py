@@ -22,8 +22,8 @@ from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
 from typing import cast
 
-from tools.errors import SUGGESTION_CHARS, did_you_mean
-from tools.sandbox.errors import BudgetExceededError, Line
+from storyteller.tools.errors import SUGGESTION_CHARS, did_you_mean
+from storyteller.tools.sandbox.errors import BudgetExceededError, Line
 
 
 @dataclass(frozen=True)
@@ -47,7 +47,7 @@ class Budget:
     """Nested calls of program-defined functions."""
     wall_time: float = 1.0
     """Seconds of the injected clock for the whole run, tool calls included (by default the
-    thread's CPU time: see ``tools.sandbox.runner``; the name is kept for the budgets already
+    thread's CPU time: see ``storyteller.tools.sandbox.runner``; the name is kept for the budgets already
     written)."""
     output_lines: int = 200
     """Lines the program may print."""

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sized
 from typing import Any, Protocol, TypeAlias, cast
 
-from tools.sandbox.boundary import (
+from storyteller.tools.sandbox.boundary import (
     ITERABLE_TYPES,
     check_key,
     is_int,
@@ -21,7 +21,7 @@ from tools.sandbox.boundary import (
     to_text,
     type_name,
 )
-from tools.sandbox.budget import (
+from storyteller.tools.sandbox.budget import (
     DICT_ITEM_BYTES,
     REF_BYTES,
     SET_ITEM_BYTES,
@@ -29,8 +29,8 @@ from tools.sandbox.budget import (
     container_bytes,
     int_bytes,
 )
-from tools.sandbox.errors import BudgetExceededError, Line, ProgramRuntimeError
-from tools.sandbox.operators import check_hash_spread, check_result, comparison_work
+from storyteller.tools.sandbox.errors import BudgetExceededError, Line, ProgramRuntimeError
+from storyteller.tools.sandbox.operators import check_hash_spread, check_result, comparison_work
 
 
 class Host(Protocol):

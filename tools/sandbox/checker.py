@@ -23,11 +23,11 @@ from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from typing import Final, TypeAlias
 
-from tools import errors
-from tools.errors import EventProgramError, ToolError, did_you_mean
-from tools.sandbox.budget import Budget
-from tools.sandbox.builtin_functions import BUILTINS, PYTHON_ONLY_BUILTINS
-from tools.sandbox.errors import (
+from storyteller.tools import errors
+from storyteller.tools.errors import EventProgramError, ToolError, did_you_mean
+from storyteller.tools.sandbox.budget import Budget
+from storyteller.tools.sandbox.builtin_functions import BUILTINS, PYTHON_ONLY_BUILTINS
+from storyteller.tools.sandbox.errors import (
     BudgetExceededError,
     ForbiddenConstructError,
     ProgramSyntaxError,

@@ -1,8 +1,8 @@
 """Every way an event program can fail inside the sandbox, in one place.
 
-These are ``tools.errors.EventProgramError`` subclasses, so a caller catches sandbox and
+These are ``storyteller.tools.errors.EventProgramError`` subclasses, so a caller catches sandbox and
 spatial-API failures alike with one ``except EventProgramError``. The base class and the
-spatial API's ``ToolError`` family stay in ``tools.errors``: the spatial API raises them
+spatial API's ``ToolError`` family stay in ``storyteller.tools.errors``: the spatial API raises them
 without knowing about the sandbox, and the sandbox lets programs catch them. Each
 ``feedback`` is one sentence fit to show the LLM, prefixed with the program line.
 """
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from typing import TypeAlias
 
-from tools.errors import EventProgramError
-from tools.value_text import show
+from storyteller.tools.errors import EventProgramError
+from storyteller.tools.value_text import show
 
 Line: TypeAlias = int | None
 """A program line (1-based); None when the failure has no line (e.g. the text is too long)."""

@@ -17,8 +17,8 @@ import ast
 from collections.abc import Callable, Mapping
 from typing import TypeAlias, TypeVar, cast
 
-from tools.sandbox.access import call_external, get_attribute, get_item
-from tools.sandbox.boundary import (
+from storyteller.tools.sandbox.access import call_external, get_attribute, get_item
+from storyteller.tools.sandbox.boundary import (
     OPERAND_TYPES,
     check_key,
     detach,
@@ -29,9 +29,9 @@ from tools.sandbox.boundary import (
     to_text,
     type_name,
 )
-from tools.sandbox.budget import DICT_ITEM_BYTES, SET_ITEM_BYTES, Budget, Meter
-from tools.sandbox.builtin_functions import BUILTINS
-from tools.sandbox.errors import (
+from storyteller.tools.sandbox.budget import DICT_ITEM_BYTES, SET_ITEM_BYTES, Budget, Meter
+from storyteller.tools.sandbox.builtin_functions import BUILTINS
+from storyteller.tools.sandbox.errors import (
     BudgetExceededError,
     ForbiddenConstructError,
     Line,
@@ -40,9 +40,9 @@ from tools.sandbox.errors import (
     UnknownNameError,
     describe,
 )
-from tools.sandbox.operators import binary, check_hash_spread, compare, unary
-from tools.sandbox.statements import Statements
-from tools.sandbox.values import (
+from storyteller.tools.sandbox.operators import binary, check_hash_spread, compare, unary
+from storyteller.tools.sandbox.statements import Statements
+from storyteller.tools.sandbox.values import (
     BUILTIN_FUNCTIONS,
     MISSING,
     BoundMethod,

@@ -11,12 +11,12 @@ from __future__ import annotations
 from collections.abc import Callable, Container, Sequence, Sized
 from typing import TypeAlias, TypeVar, cast
 
-from tools.sandbox.boundary import CONTAINER_TYPES, check_key, is_int, materialize, type_name
-from tools.sandbox.budget import SET_ITEM_BYTES, str_bytes
-from tools.sandbox.builtin_functions import Host, arity, dict_from, sort_items, words
-from tools.sandbox.errors import Line, ProgramRuntimeError
-from tools.sandbox.operators import check_hash_spread, comparison_work
-from tools.value_text import show
+from storyteller.tools.sandbox.boundary import CONTAINER_TYPES, check_key, is_int, materialize, type_name
+from storyteller.tools.sandbox.budget import SET_ITEM_BYTES, str_bytes
+from storyteller.tools.sandbox.builtin_functions import Host, arity, dict_from, sort_items, words
+from storyteller.tools.sandbox.errors import Line, ProgramRuntimeError
+from storyteller.tools.sandbox.operators import check_hash_spread, comparison_work
+from storyteller.tools.value_text import show
 
 _R = TypeVar("_R")
 

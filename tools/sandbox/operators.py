@@ -15,7 +15,7 @@ import operator
 from collections.abc import Callable, Container, Sized
 from typing import Any, TypeAlias, TypeVar, cast
 
-from tools.sandbox.boundary import (
+from storyteller.tools.sandbox.boundary import (
     CONTAINER_TYPES,
     OPERAND_TYPES,
     SEQ_TYPES,
@@ -25,8 +25,8 @@ from tools.sandbox.boundary import (
     is_number,
     type_name,
 )
-from tools.sandbox.budget import SET_ITEM_BYTES, Meter, nested_size
-from tools.sandbox.errors import (
+from storyteller.tools.sandbox.budget import SET_ITEM_BYTES, Meter, nested_size
+from storyteller.tools.sandbox.errors import (
     BudgetExceededError,
     ForbiddenConstructError,
     Line,

@@ -2,7 +2,7 @@
 
 ``run_program`` (and ``execute``, which returns only the result) raises only
 ``EventProgramError`` subclasses: ``ToolError`` from a tool unchanged (with its line), the
-sandbox's own errors from ``tools.sandbox.errors``, and anything else that escapes (even
+sandbox's own errors from ``storyteller.tools.sandbox.errors``, and anything else that escapes (even
 ``SystemExit``) as ``ProgramRuntimeError``; running out of Python stack or memory is
 ``BudgetExceededError``. The clock that bounds a run's time is a parameter; its default is the
 running thread's CPU time (``time.thread_time``), so whether a program runs out of time depends
@@ -11,7 +11,7 @@ recording's verdict). A program cannot wait (no I/O, no sleep), so its CPU time 
 time on an idle machine. Limits: CPU time still grows a little when cores are shared (caches);
 it counts this thread only (no tool runs work in other threads today); and a wall-clock bound,
 where one is needed, belongs to the caller (the worker's parent kills a program after
-``orchestrator.sandbox_worker.WALL_SECONDS``, 5 s, so only a slow-down beyond 5x turns a
+``storyteller.orchestrator.sandbox_worker.WALL_SECONDS``, 5 s, so only a slow-down beyond 5x turns a
 program that passed into a time-out).
 """
 
@@ -21,11 +21,11 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
-from tools.errors import EventProgramError
-from tools.sandbox.budget import Budget
-from tools.sandbox.checker import check_program
-from tools.sandbox.errors import BudgetExceededError, ProgramRuntimeError, describe
-from tools.sandbox.interpreter import Interpreter
+from storyteller.tools.errors import EventProgramError
+from storyteller.tools.sandbox.budget import Budget
+from storyteller.tools.sandbox.checker import check_program
+from storyteller.tools.sandbox.errors import BudgetExceededError, ProgramRuntimeError, describe
+from storyteller.tools.sandbox.interpreter import Interpreter
 
 DEFAULT_CLOCK: Callable[[], float] = time.thread_time
 """The clock a run uses when its caller injects none (the only clock the sandbox names)."""

@@ -15,9 +15,9 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Protocol, TypeAlias, TypeVar, cast
 
-from tools.errors import EventProgramError, ToolError
-from tools.sandbox.access import get_item, set_item, short_repr
-from tools.sandbox.boundary import (
+from storyteller.tools.errors import EventProgramError, ToolError
+from storyteller.tools.sandbox.access import get_item, set_item, short_repr
+from storyteller.tools.sandbox.boundary import (
     check_key,
     iter_source,
     materialize,
@@ -25,16 +25,16 @@ from tools.sandbox.boundary import (
     to_text,
     type_name,
 )
-from tools.sandbox.budget import Meter
-from tools.sandbox.checker import CATCHABLE
-from tools.sandbox.errors import (
+from storyteller.tools.sandbox.budget import Meter
+from storyteller.tools.sandbox.checker import CATCHABLE
+from storyteller.tools.sandbox.errors import (
     BudgetExceededError,
     ForbiddenConstructError,
     ProgramRuntimeError,
     describe,
 )
-from tools.sandbox.operators import binary
-from tools.sandbox.values import BREAK, CONTINUE, MISSING, Return, SandboxFunction, Scope
+from storyteller.tools.sandbox.operators import binary
+from storyteller.tools.sandbox.values import BREAK, CONTINUE, MISSING, Return, SandboxFunction, Scope
 
 
 class _Deletable(Protocol):

@@ -11,8 +11,8 @@ from __future__ import annotations
 import ast
 from typing import Final
 
-from tools.sandbox.builtin_functions import BUILTINS, BuiltinImpl
-from tools.sandbox.methods import MethodImpl
+from storyteller.tools.sandbox.builtin_functions import BUILTINS, BuiltinImpl
+from storyteller.tools.sandbox.methods import MethodImpl
 
 MISSING: Final = object()
 """Marks a name not found in a scope (``None`` is a value)."""

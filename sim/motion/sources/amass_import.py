@@ -15,15 +15,15 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, axis_angle_to_matrix, forward_kinematics
-from sim.bounded_files import BoundedFileError, read_bounded_npz
-from sim.motion.clips import FOOT_JOINTS, MotionClip, clip_from_pose_frames
-from sim.motion.sources.bvh_import import (
+from storyteller.sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, axis_angle_to_matrix, forward_kinematics
+from storyteller.sim.bounded_files import BoundedFileError, read_bounded_npz
+from storyteller.sim.motion.clips import FOOT_JOINTS, MotionClip, clip_from_pose_frames
+from storyteller.sim.motion.sources.bvh_import import (
     MAX_MOCAP_ARRAY_BYTES,
     MAX_MOCAP_FILE_BYTES,
     MocapImportError,
 )
-from sim.motion.sources.procedural_rig import TOE_HEIGHT
+from storyteller.sim.motion.sources.procedural_rig import TOE_HEIGHT
 
 
 def load_amass_arrays(path: str | Path) -> dict[str, NDArray[np.float64]]:

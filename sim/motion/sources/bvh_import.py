@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from sim.body.skeleton import (
+from storyteller.sim.body.skeleton import (
     BODY_TO_WORLD,
     JOINT_INDEX,
     JOINT_NAMES,
@@ -29,9 +29,9 @@ from sim.body.skeleton import (
     forward_kinematics,
     rest_positions,
 )
-from sim.bounded_files import BoundedFileError, read_bounded_bytes
-from sim.motion.clips import FOOT_JOINTS, MotionClip, clip_from_pose_frames
-from sim.motion.sources.procedural_rig import TOE_HEIGHT
+from storyteller.sim.bounded_files import BoundedFileError, read_bounded_bytes
+from storyteller.sim.motion.clips import FOOT_JOINTS, MotionClip, clip_from_pose_frames
+from storyteller.sim.motion.sources.procedural_rig import TOE_HEIGHT
 
 MAX_MOCAP_FILE_BYTES = 64 * 1024 * 1024
 """Bytes of one mocap clip file (BVH or AMASS ``.npz``; the CMU BVH files are under 4 MB, a long AMASS sequence tens of MB)."""

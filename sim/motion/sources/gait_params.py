@@ -1,7 +1,7 @@
 """The walk's shape as numbers: step length against speed, pelvis bob and sway, arm swing,
 trunk twist and turn lean, read by the procedural locomotion (``procedural_locomotion``).
 
-``FITTED_GAIT`` holds the values that ``python -m benchmark.gait_fit --write`` fitted to real
+``FITTED_GAIT`` holds the values that ``python -m storyteller.benchmark.gait_fit --write`` fitted to real
 walks: CMU Graphics Lab Motion Capture Database clips (walks 05_01, 07_03, 07_06, 08_08, 16_15,
 16_31 and 131_01 / 131_02, imported on our skeleton; 16_11 is held out to check the fit). Only these few numbers ship, no
 frame of the clips. Attribution, as the CMU terms ask: "The data used in this project was
@@ -10,7 +10,7 @@ Nothing here is fitted on a non-commercial data set.
 
 Each amplitude is a *generator* parameter (what the generator is told), calibrated so that the
 generated clips *measure* like the real ones with the benchmark's measures
-(``benchmark.motion_metrics.gait``); the fitting script prints both. Lengths are metres,
+(``storyteller.benchmark.motion_metrics.gait``); the fitting script prints both. Lengths are metres,
 angles radians, speeds m/s.
 """
 
@@ -56,7 +56,7 @@ class GaitParams:
     """Highest lift of the ball of a swinging foot above its planted height, m."""
 
 
-# BEGIN FITTED (written by `python -m benchmark.gait_fit --write`; edit there, not here)
+# BEGIN FITTED (written by `python -m storyteller.benchmark.gait_fit --write`; edit there, not here)
 FITTED_GAIT = GaitParams(
     step_length_1ms=0.5939,
     step_length_exponent=0.479,

@@ -15,10 +15,10 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.motion.action_labels import ActionSpec, action_spec, database_key
-from sim.motion.clips import FPS, MotionClip
-from sim.motion.sources.procedural_locomotion import TOE_AHEAD, smoothstep
-from sim.motion.sources.procedural_rig import (
+from storyteller.sim.motion.action_labels import ActionSpec, action_spec, database_key
+from storyteller.sim.motion.clips import FPS, MotionClip
+from storyteller.sim.motion.sources.procedural_locomotion import TOE_AHEAD, smoothstep
+from storyteller.sim.motion.sources.procedural_rig import (
     SHOULDER_ABOVE_PELVIS,
     SHOULDER_HALF_WIDTH,
     STANDING_PELVIS_HEIGHT,

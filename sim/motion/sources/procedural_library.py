@@ -1,7 +1,7 @@
 """The default, generated clip set of every motion database key (no downloaded data).
 
 ``procedural_clips(key)`` returns deterministic clips for a database key (see
-sim.motion.action_labels.database_key). Bump ``GENERATOR_VERSION`` whenever a generator changes so
+storyteller.sim.motion.action_labels.database_key). Bump ``GENERATOR_VERSION`` whenever a generator changes so
 that cached databases are rebuilt (a refit of the gait changes it by itself).
 """
 
@@ -9,17 +9,17 @@ from __future__ import annotations
 
 import dataclasses
 
-from sim.motion.action_labels import action_spec, family_of, is_seated_key
-from sim.motion.cache import content_key
-from sim.motion.clips import MotionClip
-from sim.motion.sources.gait_params import FITTED_GAIT
-from sim.motion.sources.procedural_actions import (
+from storyteller.sim.motion.action_labels import action_spec, family_of, is_seated_key
+from storyteller.sim.motion.cache import content_key
+from storyteller.sim.motion.clips import MotionClip
+from storyteller.sim.motion.sources.gait_params import FITTED_GAIT
+from storyteller.sim.motion.sources.procedural_actions import (
     SEAT_HEIGHTS,
     action_clip,
     sit_idle_clip,
     sitting_clip,
 )
-from sim.motion.sources.procedural_locomotion import dance_clip, locomotion_clips
+from storyteller.sim.motion.sources.procedural_locomotion import dance_clip, locomotion_clips
 
 GENERATOR_VERSION = f"procedural-motion-2-{content_key(dataclasses.asdict(FITTED_GAIT))[:12]}"
 """Names the generators and the fitted gait they read, so a refit rebuilds cached databases too."""

@@ -11,7 +11,7 @@ The pelvis rides a share of the rise and fall of the highest the legs can reach 
 below: lowest just after a landing, highest at mid-stance) and dips further at each double
 support (bob), shifting over the stance foot (sway); arms swing against the legs, the chest
 twists against the hips, and the body leans into turns. How much of each, as a function of
-speed, and the step length at each speed, is ``sim.motion.sources.gait_params.FITTED_GAIT``
+speed, and the step length at each speed, is ``storyteller.sim.motion.sources.gait_params.FITTED_GAIT``
 (fitted to real walks).
 """
 
@@ -23,9 +23,9 @@ from typing import overload
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.motion.clips import FPS, MotionClip
-from sim.motion.sources.gait_params import FITTED_GAIT, GaitParams
-from sim.motion.sources.procedural_rig import (
+from storyteller.sim.motion.clips import FPS, MotionClip
+from storyteller.sim.motion.sources.gait_params import FITTED_GAIT, GaitParams
+from storyteller.sim.motion.sources.procedural_rig import (
     SHOULDER_HALF_WIDTH,
     STANDING_PELVIS_HEIGHT,
     TOE_HEIGHT,

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, PARENTS, REST_OFFSETS, heading_to_root
+from storyteller.sim.body.skeleton import JOINT_INDEX, NUM_JOINTS, PARENTS, REST_OFFSETS, heading_to_root
 
 J = JOINT_INDEX
 LEG_CHAINS = ((J["left_hip"], J["left_knee"], J["left_ankle"], J["left_foot"]),

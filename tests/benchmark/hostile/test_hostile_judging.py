@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import os
 
-from benchmark.hostile.harness import Spec
-from benchmark.hostile.judging import Run, judge, run_queue_delay
+from storyteller.benchmark.hostile.harness import Spec
+from storyteller.benchmark.hostile.judging import Run, judge, run_queue_delay
 
 LIMIT = 8.0  # a clean command of 2 s + the harness's 6 s
 

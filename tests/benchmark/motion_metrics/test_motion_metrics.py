@@ -1,4 +1,4 @@
-"""benchmark.motion_metrics: each measure on synthetic tracks whose answers are known."""
+"""storyteller.benchmark.motion_metrics: each measure on synthetic tracks whose answers are known."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from benchmark.motion_metrics.bodies import (
+from storyteller.benchmark.motion_metrics.bodies import (
     SEAT_SINK_M,
     Box,
     body_overlap,
@@ -17,14 +17,14 @@ from benchmark.motion_metrics.bodies import (
     signed_distance,
     sphere_body,
 )
-from benchmark.motion_metrics.feet import (
+from storyteller.benchmark.motion_metrics.feet import (
     FOOT_JOINTS,
     floor_contact,
     foot_skating,
     lowest_foot_height,
     resample,
 )
-from benchmark.motion_metrics.gait import (
+from storyteller.benchmark.motion_metrics.gait import (
     GaitWindow,
     arm_swing,
     compare_gait,
@@ -32,21 +32,21 @@ from benchmark.motion_metrics.gait import (
     sway,
     walking_windows,
 )
-from benchmark.motion_metrics.interactions import (
+from storyteller.benchmark.motion_metrics.interactions import (
     PELVIS_ABOVE_SEAT_M,
     hand_distance,
     seat_errors,
     transition_times,
 )
-from sim.body.skeleton import (
+from storyteller.sim.body.skeleton import (
     JOINT_INDEX,
     NUM_JOINTS,
     REST_OFFSETS,
     forward_kinematics,
     heading_to_root,
 )
-from sim.scene.model import Scene, SceneObject, Vec2, Vec3
-from sim.world.legroom import TABLE_TOP_M
+from storyteller.sim.scene.model import Scene, SceneObject, Vec2, Vec3
+from storyteller.sim.world.legroom import TABLE_TOP_M
 
 
 def rest_joints(frames: int = 1, xy: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
@@ -255,8 +255,8 @@ def test_crowd_overlaps_agree_with_the_pairwise_measure() -> None:
 
 
 def test_mouth_reaches_measure_the_wrist_under_the_mouth_of_drinking_and_eating() -> None:
-    from benchmark.motion_metrics.interactions import brings_to_mouth, mouth_points, mouth_reaches
-    from sim.world.contacts import HOLD_BELOW_MOUTH_M
+    from storyteller.benchmark.motion_metrics.interactions import brings_to_mouth, mouth_points, mouth_reaches
+    from storyteller.sim.world.contacts import HOLD_BELOW_MOUTH_M
 
     assert brings_to_mouth("drink@seated") and brings_to_mouth("eat") and not brings_to_mouth("walk")
     assert not brings_to_mouth("no_such_action")

@@ -1,4 +1,4 @@
-"""``python -m benchmark.motion_metrics`` end to end on a tiny scripted run folder (no LLM)."""
+"""``python -m storyteller.benchmark.motion_metrics`` end to end on a tiny scripted run folder (no LLM)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.motion_metrics.__main__ import main
+from storyteller.benchmark.motion_metrics.__main__ import main
 from tests.support.finished_run import make_finished_run
 
 

@@ -1,4 +1,4 @@
-"""``python -m benchmark.motion_metrics --scripted-story RUN_DIR``: the scripted home story is
+"""``python -m storyteller.benchmark.motion_metrics --scripted-story RUN_DIR``: the scripted home story is
 built by the benchmark itself (a local scripted server, no LLM) and measured in one command."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.motion_metrics.__main__ import main
-from benchmark.motion_metrics.scripted_story import ScriptedPlanner, StoryBuildError, build_story
+from storyteller.benchmark.motion_metrics.__main__ import main
+from storyteller.benchmark.motion_metrics.scripted_story import ScriptedPlanner, StoryBuildError, build_story
 
 
 def _request(free: str) -> dict[str, object]:

@@ -17,11 +17,11 @@ from typing import Any
 
 import pytest
 
-from benchmark.own_cases import generate, phrasing, recipes, split
-from benchmark.own_cases.case_writer import as_case, write_case
-from benchmark.own_cases.check import ours_folder
-from benchmark.own_cases.drafts import Draft
-from benchmark.reference_cases import TAGS, load_cases
+from storyteller.benchmark.own_cases import generate, phrasing, recipes, split
+from storyteller.benchmark.own_cases.case_writer import as_case, write_case
+from storyteller.benchmark.own_cases.check import ours_folder
+from storyteller.benchmark.own_cases.drafts import Draft
+from storyteller.benchmark.reference_cases import TAGS, load_cases
 from tests.support.reference import TEST_CASES, requires_reference
 from tests.support.word_windows import windows
 
@@ -54,7 +54,7 @@ def test_the_pool_has_150_cases_every_tag_group_and_level(raw: list[dict[str, An
 @pytest.mark.slow
 def test_the_generator_reproduces_the_committed_cases() -> None:
     """The templated cases are what the code derives from the scenes today (run
-    ``python -m benchmark.own_cases.generate`` after changing a recipe, a phrase or the scenes)."""
+    ``python -m storyteller.benchmark.own_cases.generate`` after changing a recipe, a phrase or the scenes)."""
     assert generate.differences(OURS, generate.generate()) == []
 
 
@@ -65,7 +65,7 @@ def test_a_generated_case_that_does_not_hold_is_not_written(monkeypatch: pytest.
     bad = Draft("RC", "home", "rc.seat_near", "all-chairs", {"seat": ["chair"], "seats": ["chairs"],
                 "lm": ["fridge"], "act": ["read a book"]}, "read_book", objects={"label": "chair"}, count="one")
     data = write_case(bad, facts, 999, "rc.seat_near.a", "dev", 0)
-    from benchmark.own_cases.check import _Scenes, check_case
+    from storyteller.benchmark.own_cases.check import _Scenes, check_case
 
     problems = check_case(as_case(data, "1_RC"), _Scenes(OURS)).problems
     assert any("ambiguous" in p for p in problems)
@@ -164,10 +164,10 @@ def test_no_template_or_generated_text_shares_six_words_with_the_authors_cases(g
 
 # ----- one command per side ----------------------------------------------------------------------
 def test_ours_dev_and_ours_test_select_one_side_each(tmp_path: Path) -> None:
-    from benchmark.sweep.execute import SweepWorkspace
-    from benchmark.sweep.grid import SweepSpec, case_set_for, model_specs
-    from benchmark.sweep.runner import relocated
-    from orchestrator.reference_data import locate_reference
+    from storyteller.benchmark.sweep.execute import SweepWorkspace
+    from storyteller.benchmark.sweep.grid import SweepSpec, case_set_for, model_specs
+    from storyteller.benchmark.sweep.runner import relocated
+    from storyteller.orchestrator.reference_data import locate_reference
 
     sets = tuple(case_set_for(name, locate_reference(), OURS) for name in ("ours-dev", "ours-test", "ours"))
     spec = SweepSpec(case_sets=sets, models=model_specs(["openai/scripted"], []))
@@ -184,8 +184,8 @@ def test_ours_dev_and_ours_test_select_one_side_each(tmp_path: Path) -> None:
 def test_bench_run_runs_one_side_by_one_command(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from typer.testing import CliRunner
 
-    import benchmark.sweep.runner as runner
-    from orchestrator.cli.app import app
+    import storyteller.benchmark.sweep.runner as runner
+    from storyteller.orchestrator.cli.app import app
     from tests.support.scripted_sweep import scripted
 
     calls: list[str] = []

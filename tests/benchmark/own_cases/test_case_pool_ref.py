@@ -13,10 +13,10 @@ from typing import Any
 
 import pytest
 
-from benchmark.own_cases import generate, split
-from benchmark.own_cases.check import check_folder, ours_folder, ours_ref_folder
-from benchmark.reference_cases import BUNDLED_PREFIX
-from orchestrator.reference_data import DataFolder, ReferenceDataNotFound, locate_reference
+from storyteller.benchmark.own_cases import generate, split
+from storyteller.benchmark.own_cases.check import check_folder, ours_folder, ours_ref_folder
+from storyteller.benchmark.reference_cases import BUNDLED_PREFIX
+from storyteller.orchestrator.reference_data import DataFolder, ReferenceDataNotFound, locate_reference
 from tests.support.reference import TEST_CASES, requires_reference
 from tests.support.word_windows import windows
 
@@ -56,7 +56,7 @@ def test_every_answer_re_derives_unambiguously() -> None:
 def test_the_generator_and_the_check_say_one_line_without_the_reference_data(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from benchmark.own_cases import check
+    from storyteller.benchmark.own_cases import check
 
     monkeypatch.setenv("STORYTELLER_REFERENCE", str(tmp_path / "absent"))
     assert generate.main(["--pool", "ours_ref", "--check"]) == 2
@@ -107,9 +107,9 @@ def test_no_generated_text_shares_six_words_with_the_authors_cases(raw: list[dic
 # ----- one command per side ----------------------------------------------------------------------
 @requires_reference
 def test_ours_ref_dev_and_ours_ref_test_select_one_side_each(tmp_path: Path) -> None:
-    from benchmark.sweep.execute import SweepWorkspace
-    from benchmark.sweep.grid import SweepSpec, case_set_for, model_specs
-    from benchmark.sweep.runner import relocated
+    from storyteller.benchmark.sweep.execute import SweepWorkspace
+    from storyteller.benchmark.sweep.grid import SweepSpec, case_set_for, model_specs
+    from storyteller.benchmark.sweep.runner import relocated
 
     reference = locate_reference()
     sets = tuple(case_set_for(n, reference, ours_folder()) for n in ("ours-ref-dev", "ours-ref-test", "ours-ref"))
@@ -127,8 +127,8 @@ def test_ours_ref_dev_and_ours_ref_test_select_one_side_each(tmp_path: Path) -> 
 def test_ours_ref_without_the_reference_data_is_one_line_and_exit_2(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from typer.testing import CliRunner
 
-    from benchmark.sweep.grid import case_set_for
-    from orchestrator.cli.app import app
+    from storyteller.benchmark.sweep.grid import case_set_for
+    from storyteller.orchestrator.cli.app import app
 
     absent = DataFolder(tmp_path / "absent", False, "reference data not found: (how to provide it)")
     for name in ("ours-ref", "ours-ref-dev", "ours-ref-test"):

@@ -15,10 +15,10 @@ from typing import Any
 
 import pytest
 
-from benchmark.own_cases.check import LEVELS, check_folder, derive, main, ours_folder
-from benchmark.own_cases.derivation import DerivationError, expression_atoms
-from benchmark.reference_cases import BenchmarkCaseError, load_case, load_cases, scene_dir
-from sim.scene.files import load_scene
+from storyteller.benchmark.own_cases.check import LEVELS, check_folder, derive, main, ours_folder
+from storyteller.benchmark.own_cases.derivation import DerivationError, expression_atoms
+from storyteller.benchmark.reference_cases import BenchmarkCaseError, load_case, load_cases, scene_dir
+from storyteller.sim.scene.files import load_scene
 from tests.support.reference import REFERENCE, TEST_CASES, requires_reference
 
 OURS = ours_folder()
@@ -77,8 +77,8 @@ def test_every_expected_answer_is_derived_and_unambiguous(reports: list[Any]) ->
 
 def test_distractors_never_change_the_derived_answer(cases: list[Any]) -> None:
     scenes: dict[str, Any] = {}
-    from tools.clusters import cluster_objects
-    from tools.scene_graph import build_scene_graph
+    from storyteller.tools.clusters import cluster_objects
+    from storyteller.tools.scene_graph import build_scene_graph
 
     for case in cases:
         if case.scene_name not in scenes:

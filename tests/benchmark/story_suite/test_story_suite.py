@@ -1,7 +1,7 @@
 """The story suite's scenarios load, and its evaluator judges hand-written story logs right.
 
 Every story log here is written by hand in the shape ``storyteller run`` writes
-(``orchestrator.cli.run.story_json``), so each test says which expectation must pass or fail
+(``storyteller.orchestrator.cli.run.story_json``), so each test says which expectation must pass or fail
 and why; none needs a model.
 """
 
@@ -14,17 +14,17 @@ from typing import Any
 
 import pytest
 
-from benchmark.story_suite.__main__ import main
-from benchmark.story_suite.evaluate import ScenarioScore, StoryLogError, score_run, score_story
-from benchmark.story_suite.runner import RunOptions, record_scores, run_args, run_scenario
-from benchmark.story_suite.scenario import (
+from storyteller.benchmark.story_suite.__main__ import main
+from storyteller.benchmark.story_suite.evaluate import ScenarioScore, StoryLogError, score_run, score_story
+from storyteller.benchmark.story_suite.runner import RunOptions, record_scores, run_args, run_scenario
+from storyteller.benchmark.story_suite.scenario import (
     SCENARIO_DIR,
     Scenario,
     ScenarioError,
     load_scenario,
     load_scenarios,
 )
-from sim.scene.bundled import resolve_scene
+from storyteller.sim.scene.bundled import resolve_scene
 
 HOME = resolve_scene("home")
 COFFEE = load_scenario(SCENARIO_DIR / "home_coffee_then_couch.toml")

@@ -1,7 +1,7 @@
 """The story suite's recorded runs replay to their recorded scores, through the command.
 
 ``traces/story_suite/<scenario>.jsonl`` is one full ``storyteller run --pace lockstep`` of the
-scenario with the embedded model, recorded by ``python -m benchmark.story_suite run --record
+scenario with the embedded model, recorded by ``python -m storyteller.benchmark.story_suite run --record
 traces/story_suite``; ``traces/story_suite/scores.json`` holds the score that live run got.
 Replaying the trace serves every LLM call and applied frame from it (no model loaded), so the
 story log, hence every verdict and its reason (which quotes the sampled positions), must come
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.story_suite.__main__ import main
-from benchmark.story_suite.scenario import SCENARIO_DIR, load_scenario
+from storyteller.benchmark.story_suite.__main__ import main
+from storyteller.benchmark.story_suite.scenario import SCENARIO_DIR, load_scenario
 
 TRACES = Path(__file__).resolve().parents[3] / "traces" / "story_suite"
 RECORDED = json.loads((TRACES / "scores.json").read_text(encoding="utf-8"))["scenarios"]

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.story_suite.runner import RunOptions, record_scores, run_scenario
-from benchmark.story_suite.scenario import Does, NotIdle, Scenario
-from benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.benchmark.story_suite.runner import RunOptions, record_scores, run_scenario
+from storyteller.benchmark.story_suite.scenario import Does, NotIdle, Scenario
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
 
 NODES = ("describer", "narrator", "event_parser", "planner")
 NARRATION = json.dumps({"reasoning": "r", "event": {"characters": ["Ava"], "activity": "make coffee with coffee_maker_1"}})

@@ -16,9 +16,9 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from agents.llm_port import LLMRequest
-from benchmark.sweep.execute import PortFactory
-from benchmark.sweep.grid import (
+from storyteller.agents.llm_port import LLMRequest
+from storyteller.benchmark.sweep.execute import PortFactory
+from storyteller.benchmark.sweep.grid import (
     CaseSetSpec,
     ModelSpec,
     RunKey,
@@ -26,10 +26,10 @@ from benchmark.sweep.grid import (
     SweepSpecError,
     model_specs,
 )
-from benchmark.sweep.progress import LineProgress
-from benchmark.sweep.results import read_results
-from benchmark.sweep.runner import report_sweep, run_sweep, score_sweep
-from orchestrator.reference_data import locate_reference
+from storyteller.benchmark.sweep.progress import LineProgress
+from storyteller.benchmark.sweep.results import read_results
+from storyteller.benchmark.sweep.runner import report_sweep, run_sweep, score_sweep
+from storyteller.orchestrator.reference_data import locate_reference
 from tests.support.reference import REFERENCE, requires_reference
 from tests.support.scripted_sweep import scripted as scripted_port
 
@@ -141,7 +141,7 @@ def test_score_replays_the_traces_into_the_same_bytes(
     replayed: list[str] = []
 
     def counting_replay(model: ModelSpec, trace: Path) -> Any:
-        from orchestrator.llm.replay import ReplayClient
+        from storyteller.orchestrator.llm.replay import ReplayClient
 
         replayed.append(trace.name)
         return ReplayClient(trace)
@@ -160,7 +160,7 @@ def test_score_fails_with_a_diff_when_a_trace_does_not_match(
 ) -> None:
     import shutil
 
-    from agents.llm_port import ReplayMissError
+    from storyteller.agents.llm_port import ReplayMissError
 
     out = tmp_path / "copy"
     shutil.copytree(finished[0], out)
@@ -268,7 +268,7 @@ def test_line_progress_reports_rate_and_eta(finished: tuple[Path, list[str], dic
 
 
 def _app() -> typer.Typer:
-    from orchestrator.cli.app import register_plugins
+    from storyteller.orchestrator.cli.app import register_plugins
 
     app = typer.Typer(no_args_is_help=True)
 
@@ -277,7 +277,7 @@ def _app() -> typer.Typer:
         """Nothing."""
 
     names = register_plugins(app, [
-        EntryPoint(name="bench", value="benchmark.sweep.cli:register", group="storyteller.commands"),
+        EntryPoint(name="bench", value="storyteller.benchmark.sweep.cli:register", group="storyteller.commands"),
         EntryPoint(name="gone", value="benchmark.no_such_module:register", group="storyteller.commands"),
     ])
     assert names == ["bench"]
@@ -311,7 +311,7 @@ def test_the_plugin_module_imports_only_typer() -> None:
     import subprocess
     import sys
 
-    code = ("import sys, benchmark.sweep.cli; "
+    code = ("import sys, storyteller.benchmark.sweep.cli; "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('litellm', 'langgraph', 'matplotlib', 'orchestrator')))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "[]"
@@ -320,7 +320,7 @@ def test_the_plugin_module_imports_only_typer() -> None:
 @pytest.mark.slow
 def test_ray_executor_gives_the_same_files(finished: tuple[Path, list[str], dict[str, bytes]], tmp_path: Path) -> None:
     ray = pytest.importorskip("ray", reason="the optional [ray] extra is not installed")
-    from benchmark.sweep.ray_executor import ray_executor
+    from storyteller.benchmark.sweep.ray_executor import ray_executor
 
     out = tmp_path / "ray"
     here = Path(__file__).resolve().parents[2]  # workers unpickle the scripted port (tests.support) and answer (this module)
@@ -337,8 +337,8 @@ def test_ray_executor_gives_the_same_files(finished: tuple[Path, list[str], dict
 
 
 def test_case_sets_by_name_or_folder(tmp_path: Path) -> None:
-    from benchmark.reference_cases import load_cases
-    from benchmark.sweep.grid import case_set_for
+    from storyteller.benchmark.reference_cases import load_cases
+    from storyteller.benchmark.sweep.grid import case_set_for
 
     ours = Path(__file__).resolve().parents[3] / "benchmark" / "cases" / "ours"
     reference = locate_reference()
@@ -356,8 +356,8 @@ def test_case_sets_by_name_or_folder(tmp_path: Path) -> None:
 def test_runs_of_one_scene_and_tags_run_together_and_results_stay_in_grid_order(tmp_path: Path) -> None:
     """Cases 0 and 4 are House OA, 1 is Office OA: 4 runs right after 0 (its prompts open as 0's
     did, so the embedded model's cache is warm), yet ``results.jsonl`` lists them in grid order."""
-    from benchmark.sweep.execute import SweepWorkspace
-    from benchmark.sweep.runner import local_executor, shared_prompt_order
+    from storyteller.benchmark.sweep.execute import SweepWorkspace
+    from storyteller.benchmark.sweep.runner import local_executor, shared_prompt_order
 
     s = spec(case_ids=(0, 1, 4), methods=("ours", "object-list"))
     ws = SweepWorkspace(s, tmp_path / "ws")

@@ -15,11 +15,11 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from agents.llm_port import LLMRequest
-from benchmark.sweep.execute import PortFactory
-from benchmark.sweep.grid import CaseSetSpec, ModelSpec, SweepSpec, model_specs
-from benchmark.sweep.results import read_results
-from benchmark.sweep.runner import run_sweep, score_sweep
+from storyteller.agents.llm_port import LLMRequest
+from storyteller.benchmark.sweep.execute import PortFactory
+from storyteller.benchmark.sweep.grid import CaseSetSpec, ModelSpec, SweepSpec, model_specs
+from storyteller.benchmark.sweep.results import read_results
+from storyteller.benchmark.sweep.runner import run_sweep, score_sweep
 from tests.support.scripted_sweep import TracedScript, scripted
 
 OURS = Path(__file__).resolve().parents[3] / "benchmark" / "cases" / "ours"
@@ -83,8 +83,8 @@ def test_a_sweep_of_our_cases_needs_no_reference_data(
     """``bench run --cases ours`` with ``STORYTELLER_REFERENCE`` on a missing or empty folder
     runs, and ``bench score`` / ``bench report`` reproduce it, also after the sweep moved; the
     case sets that need the reference data still refuse with the lookup's reason."""
-    import benchmark.sweep.runner as runner
-    from orchestrator.cli.app import app
+    import storyteller.benchmark.sweep.runner as runner
+    from storyteller.orchestrator.cli.app import app
 
     folder = tmp_path / where
     if where == "empty":

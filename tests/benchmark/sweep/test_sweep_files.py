@@ -4,7 +4,7 @@ Found by ``benchmark/hostile_inputs.py``: a ``results.jsonl`` link, a run trace 
 to ``/dev/zero`` or nested 100,000 deep, a ``sweep.json`` with a 5,000-digit case id and a
 results line that is not a result each gave a traceback (exit 1); ``plots/`` linked to a folder
 outside had the plots written there, and ``write_atomic`` wrote through a planted ``.tmp``.
-Now every read goes through ``benchmark.sweep.sweep_files`` (bounded, no links, validated: one
+Now every read goes through ``storyteller.benchmark.sweep.sweep_files`` (bounded, no links, validated: one
 line, exit 2) and every write replaces the name, never what a link there points at.
 """
 
@@ -17,11 +17,11 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.sweep.grid import CaseSetSpec, ModelSpec, SweepSpec, model_specs
-from benchmark.sweep.plots import write_plots
-from benchmark.sweep.results import read_results, write_atomic
-from benchmark.sweep.sweep_files import SweepFileError, append_line, read_json_model
-from orchestrator.cli.app import app
+from storyteller.benchmark.sweep.grid import CaseSetSpec, ModelSpec, SweepSpec, model_specs
+from storyteller.benchmark.sweep.plots import write_plots
+from storyteller.benchmark.sweep.results import read_results, write_atomic
+from storyteller.benchmark.sweep.sweep_files import SweepFileError, append_line, read_json_model
+from storyteller.orchestrator.cli.app import app
 from tests.support.finished_run import one_error_line
 
 OURS = Path(__file__).resolve().parents[3] / "benchmark" / "cases" / "ours"
@@ -99,7 +99,7 @@ def test_writes_replace_planted_links_and_refuse_a_linked_folder(sweep: Path, tm
 def test_a_sweep_of_more_runs_than_allowed_is_one_line(sweep: Path) -> None:
     """Found by the second hostile corpus: a sweep.json of 10**9 repeats made ``bench score``
     expand a billion runs (killed after 11 s at 1.9 GB). The grid is counted before it is built."""
-    from benchmark.sweep.grid import MAX_RUNS, SweepSpecError, expand
+    from storyteller.benchmark.sweep.grid import MAX_RUNS, SweepSpecError, expand
 
     path = sweep / "sweep.json"
     path.write_text(path.read_text(encoding="utf-8").replace('"repeats": 1', f'"repeats": {10**9}'), encoding="utf-8")

@@ -16,8 +16,8 @@ import torch
 import viser
 from typer.testing import CliRunner
 
-from benchmark.support.random_tracks import random_track
-from orchestrator.bodies.smplx_meshes import (
+from storyteller.benchmark.support.random_tracks import random_track
+from storyteller.orchestrator.bodies.smplx_meshes import (
     SmplxBody,
     SmplxModelError,
     SmplxModels,
@@ -27,13 +27,13 @@ from orchestrator.bodies.smplx_meshes import (
     run_bodies,
     smplx_bodies,
 )
-from orchestrator.cli.app import app
-from orchestrator.viewer.run_folder import load_run
-from orchestrator.viewer.scene_view import SceneView
-from sim.body.skeleton import BODY_TO_WORLD, NUM_JOINTS, REST_OFFSETS, heading_to_root
-from sim.export.bundle import export_run
-from sim.export.smplx_npz import smplx_parameters
-from sim.world.character_track import CharacterTrack
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.viewer.run_folder import load_run
+from storyteller.orchestrator.viewer.scene_view import SceneView
+from storyteller.sim.body.skeleton import BODY_TO_WORLD, NUM_JOINTS, REST_OFFSETS, heading_to_root
+from storyteller.sim.export.bundle import export_run
+from storyteller.sim.export.smplx_npz import smplx_parameters
+from storyteller.sim.world.character_track import CharacterTrack
 from tests.support.gltf_eval import read_accessor, world_matrices
 from tests.support.smplx_standin import NUM_FACES, NUM_VERTICES, write_standin_model
 
@@ -199,7 +199,7 @@ def _body_vertex_count(glb: Path, name: str) -> int:
 def test_resume_and_replay_export_smplx_bodies_with_smplx_model(
     model_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from benchmark.support.fake_openai_server import FakeOpenAI
+    from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
 
     monkeypatch.setenv("FAKE_PROVIDER_KEY", "sk-test-123")
     monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))

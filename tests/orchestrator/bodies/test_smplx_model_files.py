@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator.bodies.smplx_meshes import SmplxModelError, SmplxModels
+from storyteller.orchestrator.bodies.smplx_meshes import SmplxModelError, SmplxModels
 from tests.support.smplx_standin import standin_model_arrays
 
 

@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import Action, FakeOpenAI
-from orchestrator.cli.app import app
-from orchestrator.llm.traces import read_trace
-from orchestrator.session.roster import initial_roster
-from sim.scene.bundled import resolve_scene
-from tools.position_sampling import FloorMap
+from storyteller.benchmark.support.fake_openai_server import Action, FakeOpenAI
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.llm.traces import read_trace
+from storyteller.orchestrator.session.roster import initial_roster
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.tools.position_sampling import FloorMap
 
 SCENE = resolve_scene("home")
 NODES = ("describer", "narrator", "event_parser", "planner")
@@ -308,7 +308,7 @@ def test_run_raw_feet_replays_the_same_story_with_the_animated_legs(fake: FakeOp
                                    "--out", str(tmp_path / "raw")], catch_exceptions=False)
     assert raw.exit_code == 0, raw.stderr
     assert (tmp_path / "raw" / "story.json").read_bytes() == (tmp_path / "live" / "story.json").read_bytes()
-    from sim.body.foot_ik import LEG_JOINTS
+    from storyteller.sim.body.foot_ik import LEG_JOINTS
 
     with np.load(tmp_path / "live" / "Ava.track.npz") as ik, np.load(tmp_path / "raw" / "Ava.track.npz") as plain:
         assert np.array_equal(ik["root_positions"], plain["root_positions"])  # same paths, same pelvis

@@ -1,4 +1,4 @@
-"""The collector policy of a command process (``orchestrator.cli.collector``): garbage made before
+"""The collector policy of a command process (``storyteller.orchestrator.cli.collector``): garbage made before
 the imports is collected, not frozen; the collector is off inside the block and back as it was
 after it; what is alive after the block is frozen."""
 
@@ -10,7 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from orchestrator.cli.collector import imports_paused, skip_final_collection
+from storyteller.orchestrator.cli.collector import imports_paused, skip_final_collection
 
 
 class _Node:

@@ -15,8 +15,8 @@ import pytest
 from matplotlib.image import imread
 from typer.testing import CliRunner
 
-from orchestrator.cli.app import app
-from sim.scene.bundled import load_bundled_scene
+from storyteller.orchestrator.cli.app import app
+from storyteller.sim.scene.bundled import load_bundled_scene
 from tests.support.reference import SCENES, requires_reference
 
 runner = CliRunner()
@@ -184,7 +184,7 @@ def test_real_process_prints_no_traceback(tmp_path: Path) -> None:
         [
             sys.executable,
             "-c",
-            "from orchestrator.cli.app import app; app()",
+            "from storyteller.orchestrator.cli.app import app; app()",
             "scene",
             "inspect",
             str(bad),

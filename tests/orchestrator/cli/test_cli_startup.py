@@ -24,7 +24,7 @@ HEAVY = ("litellm", "langgraph", "sklearn", "matplotlib", "torch", "numba")
 
 PROBE = """
 import json, sys
-from orchestrator.cli.app import app
+from storyteller.orchestrator.cli.app import app
 try:
     app(sys.argv[1:])
 except SystemExit:

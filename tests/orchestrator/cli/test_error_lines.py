@@ -16,10 +16,10 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.app import app
-from orchestrator.cli.options import fail
-from orchestrator.safe_text import one_line
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.cli.options import fail
+from storyteller.orchestrator.safe_text import one_line
 from tests.support.finished_run import one_error_line, resume
 from tests.support.hostile_files import unsafe_characters
 from tests.support.story_planner import RUN, Planner, write_config

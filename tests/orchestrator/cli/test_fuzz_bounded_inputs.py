@@ -20,9 +20,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner, Result
 
-from orchestrator.cli.app import app
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.files import save_scene_json
+from storyteller.orchestrator.cli.app import app
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.files import save_scene_json
 
 ROOT = Path(__file__).resolve().parents[3]
 FUZZ = settings(max_examples=15, deadline=None, derandomize=True,
@@ -126,7 +126,7 @@ def test_fuzzed_configs_through_model_info(data: bytes) -> None:
 @FUZZ
 @given(data=hostile(SCRIPT))
 def test_fuzzed_instruction_scripts_through_run(data: bytes) -> None:
-    from orchestrator.session.instruction_script import (
+    from storyteller.orchestrator.session.instruction_script import (
         InstructionScriptError,
         read_instruction_script,
     )
@@ -148,7 +148,7 @@ def test_fuzzed_instruction_scripts_through_run(data: bytes) -> None:
 @FUZZ
 @given(data=hostile(CASE), name=st.sampled_from(["testcase_7.json", "testcase_seven.json", "testcase_0000000007.json"]))
 def test_fuzzed_case_files_through_bench_run(data: bytes, name: str) -> None:
-    from benchmark.reference_cases import BenchmarkCaseError, case_files, load_case
+    from storyteller.benchmark.reference_cases import BenchmarkCaseError, case_files, load_case
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp) / "cases" / "0_OA"

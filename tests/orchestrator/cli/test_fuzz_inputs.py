@@ -21,13 +21,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from benchmark.reference_cases import BenchmarkCaseError, load_case
-from orchestrator.cli.app import app
-from orchestrator.llm.config import ConfigError, StorytellerConfig, load_config
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.errors import SceneFileError
-from sim.scene.files import load_scene, save_scene_json
-from sim.scene.model import Scene
+from storyteller.benchmark.reference_cases import BenchmarkCaseError, load_case
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.llm.config import ConfigError, StorytellerConfig, load_config
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.errors import SceneFileError
+from storyteller.sim.scene.files import load_scene, save_scene_json
+from storyteller.sim.scene.model import Scene
 
 ROOT = Path(__file__).resolve().parents[3]
 FUZZ = settings(max_examples=60, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])

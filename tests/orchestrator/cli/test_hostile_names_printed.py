@@ -6,7 +6,7 @@ CliRunner runs with ``color=True``: otherwise click strips ``ESC[...m`` from wha
 a stream that is not a terminal, and the test would pass on text a terminal receives raw.
 ``scene inspect --png`` runs as a process through the console entry point (``main()``), which
 says Python warnings: matplotlib warns, quoting it, of every glyph of a name its font lacks.
-Before ``orchestrator.terminal.say`` these failed: bench report's folder line, the usage error
+Before ``storyteller.orchestrator.terminal.say`` these failed: bench report's folder line, the usage error
 of an option named with the characters, and the glyph warnings.
 """
 
@@ -23,9 +23,9 @@ import pytest
 import typer
 from typer.testing import CliRunner, Result
 
-from benchmark.sweep.grid import CaseSetSpec, ModelSpec, SweepSpec, model_specs
-from orchestrator.cli.app import _EscapedUsageErrors, app
-from sim.scene.bundled import load_bundled_scene
+from storyteller.benchmark.sweep.grid import CaseSetSpec, ModelSpec, SweepSpec, model_specs
+from storyteller.orchestrator.cli.app import _EscapedUsageErrors, app
+from storyteller.sim.scene.bundled import load_bundled_scene
 from tests.support.hostile_files import unsafe_characters
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -81,7 +81,7 @@ def test_scene_inspect_png_says_the_glyph_warnings_escaped(scene_file: Path, fol
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
     png = folder / f"top{HOSTILE}.png"
     proc = subprocess.run(
-        [sys.executable, "-c", "from orchestrator.cli.app import main; main()", "scene", "inspect", str(scene_file),
+        [sys.executable, "-c", "from storyteller.orchestrator.cli.app import main; main()", "scene", "inspect", str(scene_file),
          "--png", str(png)],
         capture_output=True, text=True, errors="surrogateescape", cwd=folder.parent, env=env, timeout=300,
     )

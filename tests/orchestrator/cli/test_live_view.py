@@ -19,19 +19,19 @@ from rich.console import Console
 from rich.text import Text
 from typer.testing import CliRunner
 
-from agents.llm_port import LLMError, LLMRequest, LLMResponse, NodeName, TokenUsage
-from benchmark.support.fake_openai_server import PROMPT_TOKENS, FakeOpenAI
-from orchestrator.cli.app import app
-from orchestrator.cli.live_view import live_view
-from orchestrator.cli.run import live_and_interactive
-from orchestrator.llm.watched_port import WatchedPort
-from orchestrator.session.run_status import CharacterRow, RoleCalls, RunSnapshot, RunStatus
-from orchestrator.session.runtime import Session
-from orchestrator.session.session_types import SessionSettings
-from sim.motion.matching import MotionMatcher
-from sim.scene.model import Scene
-from sim.world.event_book import EventStatus
-from sim.world.step import World
+from storyteller.agents.llm_port import LLMError, LLMRequest, LLMResponse, NodeName, TokenUsage
+from storyteller.benchmark.support.fake_openai_server import PROMPT_TOKENS, FakeOpenAI
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.cli.live_view import live_view
+from storyteller.orchestrator.cli.run import live_and_interactive
+from storyteller.orchestrator.llm.watched_port import WatchedPort
+from storyteller.orchestrator.session.run_status import CharacterRow, RoleCalls, RunSnapshot, RunStatus
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.session_types import SessionSettings
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.event_book import EventStatus
+from storyteller.sim.world.step import World
 from tests.support.cli_run import RUN, Planner, write_config
 from tests.support.session_world import FPS, ScriptedPlanner, make_world
 

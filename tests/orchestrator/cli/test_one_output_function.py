@@ -1,4 +1,4 @@
-"""Every line the ``storyteller`` command prints goes through ``orchestrator.terminal.say``
+"""Every line the ``storyteller`` command prints goes through ``storyteller.orchestrator.terminal.say``
 (issue 22: text from files and models reached the terminal raw where a module printed by itself).
 
 An AST scan of every module of ``orchestrator`` and of every module of ``benchmark`` that a
@@ -8,7 +8,7 @@ imported bare), a rich ``.print`` / ``.print_json`` / ``.print_exception`` (a co
 ``log`` / ``out`` / ``rule`` too), ``sys.stdout.write`` / ``sys.stderr.write`` or
 ``os.write`` to fd 1 or 2 fails the test, naming the file, line and function. Exempt:
 ``orchestrator/terminal.py`` (the function itself), :data:`ALLOWED` (each with its reason) and
-the ``main()`` of a module run as a script (``python -m benchmark.own_cases.check``), which the
+the ``main()`` of a module run as a script (``python -m storyteller.benchmark.own_cases.check``), which the
 command never calls (checked: nothing scanned imports such a ``main``).
 """
 
@@ -128,7 +128,7 @@ def _scanned() -> tuple[set[Path], list[tuple[Path, str]]]:
     """The files of every ``orchestrator`` module and of the modules the command and its plugins
     import (within :data:`PACKAGES`); and each ``from X import main`` among them."""
     files = set((ROOT / "orchestrator").rglob("*.py"))
-    todo = ["orchestrator.cli.app", *_plugin_modules()]
+    todo = ["storyteller.orchestrator.cli.app", *_plugin_modules()]
     seen: set[Path] = set()
     imported_mains: list[tuple[Path, str]] = []
     while todo:
@@ -188,6 +188,6 @@ def test_the_command_prints_only_through_say() -> None:
                 used_allowances.add((rel, scope))
             else:
                 offenders.append(f"{rel}:{line} in {scope}: {what}")
-    assert offenders == [], "print through orchestrator.terminal.say instead:\n" + "\n".join(offenders)
+    assert offenders == [], "print through storyteller.orchestrator.terminal.say instead:\n" + "\n".join(offenders)
     assert used_allowances == set(ALLOWED), f"allowances no longer needed: {set(ALLOWED) - used_allowances}"
     assert imported_mains == [], f"a script's main() is called by the command: {imported_mains}"

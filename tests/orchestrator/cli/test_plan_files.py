@@ -2,7 +2,7 @@
 ``benchmark/hostile_inputs.py``: a ``--runs-db`` that is a FIFO was a ``sqlite3`` traceback, and
 a ``--prompts`` folder was read file by file as planning needed them (after the ``thread`` line:
 two lines, exit 1; a prompt file of bytes that are not UTF-8 a traceback; its size unbounded).
-Now the folder's files are all read first, bounded (``agents.prompt_templates.MAX_PROMPT_BYTES``),
+Now the folder's files are all read first, bounded (``storyteller.agents.prompt_templates.MAX_PROMPT_BYTES``),
 and either is one ``error:`` line, exit 2, before anything runs."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from pathlib import Path
 
 from typer.testing import CliRunner, Result
 
-from agents.prompt_templates import MAX_PROMPT_BYTES
-from orchestrator.cli.app import app
+from storyteller.agents.prompt_templates import MAX_PROMPT_BYTES
+from storyteller.orchestrator.cli.app import app
 from tests.support.finished_run import one_error_line
 
 
@@ -25,7 +25,7 @@ def _plan(*args: str) -> Result:
 
 def _prompts(tmp_path: Path) -> Path:
     folder = tmp_path / "prompts"
-    shutil.copytree(str(resources.files("prompts")), folder, ignore=shutil.ignore_patterns("__pycache__", "*.py"))
+    shutil.copytree(str(resources.files("storyteller.prompts")), folder, ignore=shutil.ignore_patterns("__pycache__", "*.py"))
     return folder
 
 

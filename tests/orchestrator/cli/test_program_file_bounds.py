@@ -10,13 +10,13 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from orchestrator.cli.app import app
-from orchestrator.cli.event_program import MAX_PROGRAM_FILE_BYTES
-from orchestrator.sandbox_worker import WorkerRunner
-from sim.scene.bundled import load_bundled_scene
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.cli.event_program import MAX_PROGRAM_FILE_BYTES
+from storyteller.orchestrator.sandbox_worker import WorkerRunner
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.tools.character_states import WorldView
+from storyteller.tools.sandbox import Budget, BudgetExceededError
 from tests.support.finished_run import one_error_line
-from tools.character_states import WorldView
-from tools.sandbox import Budget, BudgetExceededError
 
 
 def test_a_400_mib_program_file_is_one_line(tmp_path: Path) -> None:

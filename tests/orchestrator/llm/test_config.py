@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from orchestrator.llm.config import DEFAULT_MODEL, NODE_NAMES, ConfigError, load_config
+from storyteller.orchestrator.llm.config import DEFAULT_MODEL, NODE_NAMES, ConfigError, load_config
 
 GOOD = """
 [llm]
@@ -144,7 +144,7 @@ def test_unreadable_files(tmp_path: Path) -> None:
 def test_cli_model_info_and_bad_config_exit_2(tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from orchestrator.cli.app import app
+    from storyteller.orchestrator.cli.app import app
 
     runner = CliRunner()
     ok = runner.invoke(app, ["model", "info", "--config", str(write(tmp_path, GOOD))])
@@ -162,7 +162,7 @@ def test_logging_setup_json_when_not_a_tty() -> None:
 
     import structlog
 
-    from orchestrator.logging_setup import configure_logging, force_logging_reset
+    from storyteller.orchestrator.logging_setup import configure_logging, force_logging_reset
 
     out = io.StringIO()
     force_logging_reset()  # a CLI test may have configured logging already
@@ -182,8 +182,8 @@ def test_logging_setup_json_when_not_a_tty() -> None:
 def test_cli_model_info_shows_the_quality_option(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from typer.testing import CliRunner
 
-    from orchestrator.cli.app import app
-    from orchestrator.llm.model_weights import QWEN_15B, WeightsMissingError, locate_chunks
+    from storyteller.orchestrator.cli.app import app
+    from storyteller.orchestrator.llm.model_weights import QWEN_15B, WeightsMissingError, locate_chunks
 
     monkeypatch.setenv("STORYTELLER_CACHE_DIR", str(tmp_path / "cache"))
     out = CliRunner().invoke(app, ["model", "info"]).output

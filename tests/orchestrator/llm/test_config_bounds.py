@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from orchestrator.cli.app import app
-from orchestrator.llm.config import MAX_CONFIG_BYTES, ConfigError, load_config
-from sim.motion.config import MotionConfigError, load_motion_config
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.llm.config import MAX_CONFIG_BYTES, ConfigError, load_config
+from storyteller.sim.motion.config import MotionConfigError, load_motion_config
 from tests.support.finished_run import one_error_line
 
 NESTED = "x = " + "[" * 5_000 + "]" * 5_000 + "\n"

@@ -14,13 +14,13 @@ from typing import Any
 
 import pytest
 
-from agents.llm_port import ChatMessage, LLMError, LLMRequest, LLMUnavailableError
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.llm.client import LiteLLMClient
-from orchestrator.llm.config import NodeConfig, RetryConfig, StorytellerConfig, default_config
-from orchestrator.llm.retry_policy import RetryPolicy
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import AttemptRecord, read_trace
+from storyteller.agents.llm_port import ChatMessage, LLMError, LLMRequest, LLMUnavailableError
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.llm.client import LiteLLMClient
+from storyteller.orchestrator.llm.config import NodeConfig, RetryConfig, StorytellerConfig, default_config
+from storyteller.orchestrator.llm.retry_policy import RetryPolicy
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import AttemptRecord, read_trace
 
 SCHEMA = {"type": "object", "properties": {"ok": {"type": "boolean"}}, "required": ["ok"]}
 

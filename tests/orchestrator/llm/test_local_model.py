@@ -14,18 +14,18 @@ import litellm
 import pytest
 from litellm import exceptions as litellm_errors
 
-from agents.llm_port import ChatMessage, LLMError, LLMRequest
-from orchestrator.llm.client import LiteLLMClient
-from orchestrator.llm.config import RetryConfig, default_config
-from orchestrator.llm.llama_decoding import _Abort
-from orchestrator.llm.local_model import (
+from storyteller.agents.llm_port import ChatMessage, LLMError, LLMRequest
+from storyteller.orchestrator.llm.client import LiteLLMClient
+from storyteller.orchestrator.llm.config import RetryConfig, default_config
+from storyteller.orchestrator.llm.llama_decoding import _Abort
+from storyteller.orchestrator.llm.local_model import (
     DEFAULT_ARRAY_MAX_ITEMS,
     MAX_TOKENS_CAP,
     LocalLlamaProvider,
     bound_arrays,
     register_local_provider,
 )
-from orchestrator.llm.model_weights import (
+from storyteller.orchestrator.llm.model_weights import (
     QWEN_15B,
     WeightsIntegrityError,
     WeightsMissingError,
@@ -34,8 +34,8 @@ from orchestrator.llm.model_weights import (
     forget_hashes,
     locate_chunks,
 )
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import read_trace
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import read_trace
 from tests.support.embedded_weights import embedded_weights_or_skip
 
 SCHEMA = {
@@ -242,7 +242,7 @@ def test_get_llama_hashes_the_file_before_loading_and_refuses_a_tampered_one(
     import sys
     import types
 
-    from orchestrator.llm import local_model
+    from storyteller.orchestrator.llm import local_model
 
     blob = b"GGUF" + bytes(range(256)) * 64
     spec = WeightsSpec(model="fake-tamper", filename="fake-tamper.gguf", packages=("x",), version="1",
@@ -282,7 +282,7 @@ def test_each_system_prompt_keeps_its_own_instance_up_to_the_slot_count(
     import sys
     import types
 
-    from orchestrator.llm import local_model
+    from storyteller.orchestrator.llm import local_model
 
     blob = b"GGUF" + bytes(range(256)) * 8
     spec = WeightsSpec(model="fake-slots", filename="fake-slots.gguf", packages=("x",), version="1",
@@ -330,7 +330,7 @@ async def test_missing_quality_weights_message_names_the_install_command(
     base = default_config()
     node = base.nodes["narrator"].model_copy(update={"model": "local/qwen2.5-coder-1.5b"})
     client = LiteLLMClient(base.model_copy(update={"nodes": {**base.nodes, "narrator": node}}))
-    from agents.llm_port import LLMUnavailableError
+    from storyteller.agents.llm_port import LLMUnavailableError
 
     with pytest.raises(LLMUnavailableError) as info:
         await client.complete(request())
@@ -367,15 +367,15 @@ async def test_default_local_hard_cap_grows_with_the_prompt_and_an_explicit_one_
 ) -> None:
     """Unset, a local call's hard cap is what the progress floors allow (prompt allowance plus
     max_tokens at the decode floor plus one window), never under the configured default."""
-    from orchestrator.llm.config import load_config
-    from orchestrator.llm.decode_progress import (
+    from storyteller.orchestrator.llm.config import load_config
+    from storyteller.orchestrator.llm.decode_progress import (
         CHARS_PER_TOKEN,
         DECODE_WINDOW_S,
         MIN_DECODE_TOK_S,
         MIN_PROMPT_TOK_S,
         PROMPT_BASE_S,
     )
-    from orchestrator.llm.local_model import local_timeout_s
+    from storyteller.orchestrator.llm.local_model import local_timeout_s
 
     long_prompt = LLMRequest(node="event_parser", messages=(ChatMessage(role="user", content="x" * 9000),), max_tokens=400)
     client = LiteLLMClient(default_config(), check_local=lambda m: None)
@@ -397,7 +397,7 @@ def test_models_load_without_repacked_weight_buffers() -> None:
     """AMX repacking segfaults on the first decode (llama.cpp issue 20824): every load turns
     llama.cpp's extra weight buffers off, and only for the duration of the load."""
     bindings = pytest.importorskip("llama_cpp.llama_cpp")
-    from orchestrator.llm.local_model import plain_cpu_buffers
+    from storyteller.orchestrator.llm.local_model import plain_cpu_buffers
 
     assert bindings.llama_model_default_params().use_extra_bufts is True
     with plain_cpu_buffers():
@@ -409,7 +409,7 @@ def test_prefix_slots_variable_is_checked_by_name() -> None:
     """Found by the hostile corpus: STORYTELLER_LOCAL_PREFIX_SLOTS=abc ended `run` with int()'s
     own 'invalid literal' line (at the import of this module, after the run's setup), which does
     not say which setting was wrong; load_config now checks it by name, before the setup."""
-    from orchestrator.llm.config import ConfigError, load_config, prefix_slots
+    from storyteller.orchestrator.llm.config import ConfigError, load_config, prefix_slots
 
     assert prefix_slots({}) == 3 and prefix_slots({"STORYTELLER_LOCAL_PREFIX_SLOTS": "0"}) == 1
     for hostile in ("abc", "\u00b2", "9" * 5000, "-1"):

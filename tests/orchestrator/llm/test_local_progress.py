@@ -16,18 +16,18 @@ from typing import Any
 
 import pytest
 
-from agents.llm_port import ChatMessage, LLMError, LLMRequest
-from orchestrator.llm import local_model
-from orchestrator.llm.client import LiteLLMClient
-from orchestrator.llm.config import RetryConfig, default_config
-from orchestrator.llm.cpu_threads import ThreadChoice, ThreadChooser
-from orchestrator.llm.decode_progress import ProgressFloor, ProgressWatch
-from orchestrator.llm.llama_decoding import _Abort, stream_chat
-from orchestrator.llm.local_errors import LocalModelStalledError
-from orchestrator.llm.local_model import LocalLlamaProvider, register_local_provider
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import read_trace
-from orchestrator.session.run_report import local_threads_metrics
+from storyteller.agents.llm_port import ChatMessage, LLMError, LLMRequest
+from storyteller.orchestrator.llm import local_model
+from storyteller.orchestrator.llm.client import LiteLLMClient
+from storyteller.orchestrator.llm.config import RetryConfig, default_config
+from storyteller.orchestrator.llm.cpu_threads import ThreadChoice, ThreadChooser
+from storyteller.orchestrator.llm.decode_progress import ProgressFloor, ProgressWatch
+from storyteller.orchestrator.llm.llama_decoding import _Abort, stream_chat
+from storyteller.orchestrator.llm.local_errors import LocalModelStalledError
+from storyteller.orchestrator.llm.local_model import LocalLlamaProvider, register_local_provider
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import read_trace
+from storyteller.orchestrator.session.run_report import local_threads_metrics
 
 
 class Clock:

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from orchestrator.llm.cpu_threads import (
+from storyteller.orchestrator.llm.cpu_threads import (
     MAX_THREADS,
     THREADS_ENV,
     ThreadChooser,
@@ -201,7 +201,7 @@ def test_busy_cores_need_every_core_line_and_elapsed_ticks() -> None:
 def test_model_info_reports_the_threads_and_the_progress_floor(monkeypatch: pytest.MonkeyPatch) -> None:
     from typer.testing import CliRunner
 
-    from orchestrator.cli.app import app
+    from storyteller.orchestrator.cli.app import app
 
     monkeypatch.setenv(THREADS_ENV, "3")
     out = CliRunner().invoke(app, ["model", "info"])

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.llm import model_weights
-from orchestrator.llm.model_weights import (
+from storyteller.orchestrator.llm import model_weights
+from storyteller.orchestrator.llm.model_weights import (
     QWEN_05B,
     QWEN_15B,
     WeightsIntegrityError,

@@ -11,12 +11,12 @@ import litellm
 import pytest
 from litellm.exceptions import RateLimitError
 
-from agents.llm_port import ChatMessage, LLMRequest, NodeName, ReplayMissError
-from orchestrator.llm.client import LiteLLMClient
-from orchestrator.llm.config import ConfigError, default_config
-from orchestrator.llm.replay import ReplayClient, build_llm_port
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import AttemptRecord, TraceCorruptError, read_trace
+from storyteller.agents.llm_port import ChatMessage, LLMRequest, NodeName, ReplayMissError
+from storyteller.orchestrator.llm.client import LiteLLMClient
+from storyteller.orchestrator.llm.config import ConfigError, default_config
+from storyteller.orchestrator.llm.replay import ReplayClient, build_llm_port
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import AttemptRecord, TraceCorruptError, read_trace
 
 PROMPT = "You are the narrator.\nCharacters: Ann, Bob.\nRules: one event at a time."
 
@@ -126,7 +126,7 @@ async def test_a_call_that_failed_replays_as_the_same_error(tmp_path: Path, no_l
     then serves the next recorded call of the same request."""
     from litellm.exceptions import ContextWindowExceededError
 
-    from agents.llm_port import LLMError
+    from storyteller.agents.llm_port import LLMError
 
     path = tmp_path / "t.jsonl"
     too_long = ContextWindowExceededError(message="Requested tokens (4895) exceed context window", model="m",

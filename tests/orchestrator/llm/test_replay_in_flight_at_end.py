@@ -3,7 +3,7 @@
 When a realtime run's ``--duration`` is reached while a planning step waits for the model, the
 trace holds that step's request (its ``requested`` record and a call cut short by the end's
 cancellation) and no answer. Its replay makes the same request at the same frame; the replay
-port (``unanswered="wait"`` in a story session, ``orchestrator.llm.replay``) lets it wait, as
+port (``unanswered="wait"`` in a story session, ``storyteller.orchestrator.llm.replay``) lets it wait, as
 the recorded call did, until the session ends, so the replay writes the recorded story and
 exits 0. A request that is not the recorded one (an edited prompt, another frame, the default
 ``"miss"`` port of ``plan``) is still a replay miss: one error line, exit 2.
@@ -27,13 +27,13 @@ from typing import Any
 import anyio
 import pytest
 
-from agents.llm_port import ChatMessage, LLMRequest, ReplayMissError
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.llm.client import LiteLLMClient
-from orchestrator.llm.config import default_config
-from orchestrator.llm.replay import ReplayClient
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import read_trace
+from storyteller.agents.llm_port import ChatMessage, LLMRequest, ReplayMissError
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.llm.client import LiteLLMClient
+from storyteller.orchestrator.llm.config import default_config
+from storyteller.orchestrator.llm.replay import ReplayClient
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import read_trace
 from tests.support.story_planner import RUN, first_free, write_config
 
 
@@ -135,7 +135,7 @@ class LateSecond:
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from orchestrator.cli.app import app; app()", *args]
+    return [sys.executable, "-c", "from storyteller.orchestrator.cli.app import app; app()", *args]
 
 
 def _env(tmp_path: Path) -> dict[str, str]:

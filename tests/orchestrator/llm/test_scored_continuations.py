@@ -1,4 +1,4 @@
-"""The embedded model's choice among continuations (``orchestrator.llm.llama_decoding.score_continuations``)
+"""The embedded model's choice among continuations (``storyteller.orchestrator.llm.llama_decoding.score_continuations``)
 on a stand-in llama.cpp model whose next-token logits are a fixed function of the last token, so
 every candidate's log-likelihood can be computed by hand."""
 
@@ -14,8 +14,8 @@ from typing import Any, ClassVar
 import numpy as np
 import pytest
 
-from orchestrator.llm.decode_progress import ProgressWatch
-from orchestrator.llm.llama_decoding import score_continuations
+from storyteller.orchestrator.llm.decode_progress import ProgressWatch
+from storyteller.orchestrator.llm.llama_decoding import score_continuations
 
 VOCAB = 128
 EOS = 1
@@ -119,7 +119,7 @@ def test_the_prompt_is_evaluated_once_and_kept_in_the_cache_for_the_next_call() 
 
 
 def test_a_cancelled_call_stops() -> None:
-    from orchestrator.llm import llama_decoding
+    from storyteller.orchestrator.llm import llama_decoding
 
     cancel = threading.Event()
     cancel.set()

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.llm.secrets import REDACTED, redact, secret_values
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.llm.secrets import REDACTED, redact, secret_values
 
 ROOT = Path(__file__).resolve().parents[3]
 CANARY = "sk-canary-5f3a9c1e7d2b4a60b8e1"
@@ -55,7 +55,7 @@ def storyteller(tmp_path: Path, *args: str) -> subprocess.CompletedProcess[str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("STORYTELLER_")}
     env.update(OPENAI_API_KEY=CANARY, MY_SERVICE_TOKEN=OTHER, PYTHONPATH=str(ROOT),
                STORYTELLER_CACHE_DIR=str(tmp_path / "cache"))
-    return subprocess.run([sys.executable, "-c", "from orchestrator.cli.app import app; app()", *args], cwd=tmp_path, env=env,
+    return subprocess.run([sys.executable, "-c", "from storyteller.orchestrator.cli.app import app; app()", *args], cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=300, check=False)
 
 
@@ -120,9 +120,9 @@ def test_secret_values_and_redact() -> None:
 
 def test_the_program_worker_inherits_no_secret(monkeypatch: pytest.MonkeyPatch) -> None:
     """The worker runs untrusted programs: its process environment holds no key, whatever the parent's."""
-    from orchestrator.sandbox_worker import WorkerRunner
-    from sim.scene.bundled import load_bundled_scene
-    from tools.character_states import WorldView
+    from storyteller.orchestrator.sandbox_worker import WorkerRunner
+    from storyteller.sim.scene.bundled import load_bundled_scene
+    from storyteller.tools.character_states import WorldView
 
     monkeypatch.setenv("OPENAI_API_KEY", CANARY)
     monkeypatch.setenv("MY_SERVICE_TOKEN", OTHER)

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.llm.config import FsyncPolicy
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import read_trace
+from storyteller.orchestrator.llm.config import FsyncPolicy
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import read_trace
 from tests.support.trace_records import attempt
 
 Fsyncs = list[tuple[int, int, int]]
@@ -127,9 +127,9 @@ def test_a_failed_fsync_is_raised_by_the_next_call(tmp_path: Path, monkeypatch: 
 def test_the_client_returns_once_its_attempt_is_on_disk(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import litellm
 
-    from agents.llm_port import ChatMessage, LLMRequest
-    from orchestrator.llm.client import LiteLLMClient
-    from orchestrator.llm.config import default_config
+    from storyteller.agents.llm_port import ChatMessage, LLMRequest
+    from storyteller.orchestrator.llm.client import LiteLLMClient
+    from storyteller.orchestrator.llm.config import default_config
 
     async def answer(**_: object) -> litellm.ModelResponse:
         return litellm.ModelResponse(
@@ -152,11 +152,11 @@ def test_a_steps_outcome_is_logged_off_the_loop_after_its_records_are_on_disk(
 ) -> None:
     from langgraph.checkpoint.memory import InMemorySaver
 
-    from agents.llm_port import LLMRequest, LLMResponse
-    from agents.messages import CharacterStatus
-    from orchestrator.planning.checkpoints import Outcome, StoryLog
-    from orchestrator.planning.graph import compile_planning_graph, recursion_limit
-    from orchestrator.planning.state import PlanningState
+    from storyteller.agents.llm_port import LLMRequest, LLMResponse
+    from storyteller.agents.messages import CharacterStatus
+    from storyteller.orchestrator.planning.checkpoints import Outcome, StoryLog
+    from storyteller.orchestrator.planning.graph import compile_planning_graph, recursion_limit
+    from storyteller.orchestrator.planning.state import PlanningState
     from tests.support.planning_script import DESCRIPTION, PROGRAM, make_deps, narration
     from tests.support.scripted_llm import ScriptedLLM
 

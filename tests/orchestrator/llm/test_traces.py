@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import (
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import (
     AppliedRecord,
     AttemptRecord,
     ParsedRecord,
@@ -20,7 +20,7 @@ from orchestrator.llm.traces import (
     TraceCorruptError,
     read_trace,
 )
-from sim.bounded_files import MAX_OBJECT_KEYS
+from storyteller.sim.bounded_files import MAX_OBJECT_KEYS
 from tests.support.trace_records import attempt
 
 REPO = Path(__file__).resolve().parents[3]
@@ -116,9 +116,9 @@ def test_closed_writer_refuses(tmp_path: Path) -> None:
 _WRITER = r"""
 import sys, time
 sys.path.insert(0, sys.argv[2])
-from agents.llm_port import ChatMessage, LLMRequest
-from orchestrator.llm.traces import AttemptRecord
-from orchestrator.llm.trace_writer import TraceWriter
+from storyteller.agents.llm_port import ChatMessage, LLMRequest
+from storyteller.orchestrator.llm.traces import AttemptRecord
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
 w = TraceWriter(sys.argv[1], run_id="victim", fsync=sys.argv[3])
 big = "x" * 200_000
 i = 0
@@ -182,7 +182,7 @@ def test_a_trace_of_more_records_than_the_cap_is_refused_before_parsing(tmp_path
                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     """500,000 tiny records (75 MB, under the byte cap) took 1.6 GB to validate
     (benchmark/hostile_inputs.py): the record count is checked first."""
-    import orchestrator.llm.traces as traces
+    import storyteller.orchestrator.llm.traces as traces
 
     path = tmp_path / "t.jsonl"
     with TraceWriter(path) as w:

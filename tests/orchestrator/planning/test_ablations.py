@@ -1,6 +1,6 @@
 """The paper's ablations as variants of the planning graph, with scripted LLM replies and the
 real sandboxed event-program runner on a bundled scene: one planning step each, driven by
-the plan job (``orchestrator.session.plan_job.run_plan``) as ``storyteller plan`` drives it."""
+the plan job (``storyteller.orchestrator.session.plan_job.run_plan``) as ``storyteller plan`` drives it."""
 
 from __future__ import annotations
 
@@ -9,21 +9,21 @@ import json
 import numpy as np
 import pytest
 
-from agents.ablations.descriptions import object_list_description, scene_graph_description
-from agents.ablations.direct import (
+from storyteller.agents.ablations.descriptions import object_list_description, scene_graph_description
+from storyteller.agents.ablations.direct import (
     DirectPlans,
     blocked_positions,
     check_direct_reply,
     direct_program,
 )
-from agents.messages import CharacterStatus, Event, ParsedEvent, PlanningFailure, SceneDescription
-from orchestrator.planning.ablation_graph import Ablation
-from orchestrator.planning.kinds import PlannerKind
-from orchestrator.session.plan_job import StepOutcome, run_plan
-from orchestrator.session.roster import RosterWorld, initial_roster
-from sim.scene.bundled import resolve_scene
+from storyteller.agents.messages import CharacterStatus, Event, ParsedEvent, PlanningFailure, SceneDescription
+from storyteller.orchestrator.planning.ablation_graph import Ablation
+from storyteller.orchestrator.planning.kinds import PlannerKind
+from storyteller.orchestrator.session.plan_job import StepOutcome, run_plan
+from storyteller.orchestrator.session.roster import RosterWorld, initial_roster
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.tools.errors import BlockedPositionError, ToolArgumentError
 from tests.support.scripted_llm import ScriptedLLM
-from tools.errors import BlockedPositionError, ToolArgumentError
 
 SCENE = resolve_scene("home")
 DESCRIPTION = SceneDescription(scene="home", text="- kitchen: coffee_maker_1, fridge_1")
@@ -106,7 +106,7 @@ async def test_unified_planner_rejects_busy_characters_and_can_wait() -> None:
 async def test_direct_inference_outputs_coordinates() -> None:
     x, y = 1.0, 1.0
     # find a free floor point near the coffee maker from the scene itself
-    from tools.position_sampling import FloorMap
+    from storyteller.tools.position_sampling import FloorMap
 
     floor = FloorMap(SCENE)
     cm = SCENE.get("coffee_maker_1")

@@ -18,21 +18,21 @@ from pathlib import Path
 import pytest
 from langgraph.checkpoint.memory import InMemorySaver
 
-from agents.event_parser import scene_action_labels
-from agents.messages import ParsedEvent
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import ParsedRecord, read_trace
-from orchestrator.planning.ablation_graph import Ablation, compile_graph
-from orchestrator.planning.checkpoints import StoryLog
-from orchestrator.planning.state import PlanningDeps
-from orchestrator.sandbox_worker import WorkerRunner
-from orchestrator.session.roster import RosterWorld, start_positions
-from orchestrator.session.runtime import Session
-from orchestrator.session.session_types import SessionSettings
-from orchestrator.session.step_planner import GraphStepPlanner
-from sim.motion.matching import MotionMatcher
-from sim.scene.bundled import resolve_scene
-from sim.world.step import World
+from storyteller.agents.event_parser import scene_action_labels
+from storyteller.agents.messages import ParsedEvent
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import ParsedRecord, read_trace
+from storyteller.orchestrator.planning.ablation_graph import Ablation, compile_graph
+from storyteller.orchestrator.planning.checkpoints import StoryLog
+from storyteller.orchestrator.planning.state import PlanningDeps
+from storyteller.orchestrator.sandbox_worker import WorkerRunner
+from storyteller.orchestrator.session.roster import RosterWorld, start_positions
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.session_types import SessionSettings
+from storyteller.orchestrator.session.step_planner import GraphStepPlanner
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.sim.world.step import World
 from tests.support.scripted_llm import ScriptedLLM
 
 NARRATION = json.dumps({"reasoning": "r", "event": {"characters": ["Ava"], "activity": "Ava makes coffee with coffee_maker_1"}})

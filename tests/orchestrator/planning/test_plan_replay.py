@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner, Result
 
-from orchestrator.cli.app import app
+from storyteller.orchestrator.cli.app import app
 
 REPO = Path(__file__).resolve().parents[3]
 TRACES = REPO / "traces"
@@ -35,7 +35,7 @@ def run_cli(args: list[str], tmp_path: Path) -> Result:
 def test_replay_reproduces_the_recorded_output_byte_for_byte(
     name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from orchestrator.llm import local_model
+    from storyteller.orchestrator.llm import local_model
 
     loads: list[str] = []
 
@@ -68,7 +68,7 @@ def test_replay_json_lists_every_event_with_plans(name: str, tmp_path: Path) -> 
 def test_golden_trace_holds_the_parsed_output_of_every_attempt(name: str) -> None:
     """Every attempt has a parsed record: accepted output (parser: plans per character) or the
     typed error. ``plan`` runs no simulation: sim_frame is null and nothing is "applied"."""
-    from orchestrator.llm.traces import read_trace
+    from storyteller.orchestrator.llm.traces import read_trace
 
     contents = read_trace(TRACES / f"{name}.jsonl")
     attempts = list(contents.attempts())
@@ -87,7 +87,7 @@ def test_golden_trace_holds_the_parsed_output_of_every_attempt(name: str) -> Non
 
 def test_one_edited_character_in_a_prompt_fails_the_replay_naming_the_node(tmp_path: Path) -> None:
     prompts = tmp_path / "prompts"
-    shutil.copytree(Path(str(resources.files("prompts"))), prompts)
+    shutil.copytree(Path(str(resources.files("storyteller.prompts"))), prompts)
     path = prompts / "narrator" / "system.md"
     text = path.read_text(encoding="utf-8")
     path.write_text(text.replace("free characters", "free characterz", 1), encoding="utf-8")
@@ -135,17 +135,17 @@ async def test_embedded_model_narrator_and_parser_end_to_end(tmp_path: Path) -> 
     program (not a timeout, not a crash)."""
     from langgraph.checkpoint.memory import InMemorySaver
 
-    from agents.event_parser import PARSER_RETRY_INSTRUCTION, scene_action_labels
-    from agents.messages import ParsedEvent, PlanningFailure, SceneDescription
-    from agents.prompt_templates import PromptLibrary
-    from orchestrator.llm.config import load_config
-    from orchestrator.llm.replay import build_llm_port
-    from orchestrator.llm.traces import read_trace
-    from orchestrator.planning.checkpoints import StoryLog
-    from orchestrator.planning.graph import compile_planning_graph, recursion_limit
-    from orchestrator.planning.state import PlanningDeps, PlanningState
-    from orchestrator.session.roster import RosterWorld, initial_roster
-    from sim.scene.bundled import resolve_scene
+    from storyteller.agents.event_parser import PARSER_RETRY_INSTRUCTION, scene_action_labels
+    from storyteller.agents.messages import ParsedEvent, PlanningFailure, SceneDescription
+    from storyteller.agents.prompt_templates import PromptLibrary
+    from storyteller.orchestrator.llm.config import load_config
+    from storyteller.orchestrator.llm.replay import build_llm_port
+    from storyteller.orchestrator.llm.traces import read_trace
+    from storyteller.orchestrator.planning.checkpoints import StoryLog
+    from storyteller.orchestrator.planning.graph import compile_planning_graph, recursion_limit
+    from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
+    from storyteller.orchestrator.session.roster import RosterWorld, initial_roster
+    from storyteller.sim.scene.bundled import resolve_scene
 
     config_path = tmp_path / "generous.toml"
     config_path.write_text(GENEROUS_CONFIG, encoding="utf-8")

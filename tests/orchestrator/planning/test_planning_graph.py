@@ -19,11 +19,11 @@ import pytest
 from langchain_core.runnables import RunnableConfig
 from langgraph.checkpoint.memory import InMemorySaver
 
-from agents.llm_port import LLMRequest, LLMResponse
-from agents.messages import CharacterStatus, ParsedEvent, PlanningFailure
-from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
-from orchestrator.planning.graph import compile_planning_graph, recursion_limit, route_step
-from orchestrator.planning.state import PlanningState
+from storyteller.agents.llm_port import LLMRequest, LLMResponse
+from storyteller.agents.messages import CharacterStatus, ParsedEvent, PlanningFailure
+from storyteller.orchestrator.planning.checkpoints import StoryLog, open_checkpointer
+from storyteller.orchestrator.planning.graph import compile_planning_graph, recursion_limit, route_step
+from storyteller.orchestrator.planning.state import PlanningState
 from tests.support.planning_script import DESCRIPTION, PROGRAM, initial_state, make_deps, narration
 from tests.support.scripted_llm import ScriptedLLM, choosing
 
@@ -89,7 +89,7 @@ async def test_retries_exhausted_is_a_failure_and_story_goes_on() -> None:
 
 
 async def test_model_outage_fails_the_step_and_the_story_goes_on() -> None:
-    from agents.llm_port import LLMError, ReplayMissError
+    from storyteller.agents.llm_port import LLMError, ReplayMissError
 
     outage = [LLMError("node event_parser: all 3 attempts failed (Timeout)")]
 
@@ -158,8 +158,8 @@ CHILD = textwrap.dedent(
     sys.path.insert(0, {repo!r})
     from tests.support.scripted_llm import ScriptedLLM
     from tests.support.planning_script import DESCRIPTION, narration, make_deps, initial_state
-    from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
-    from orchestrator.planning.graph import compile_planning_graph
+    from storyteller.orchestrator.planning.checkpoints import StoryLog, open_checkpointer
+    from storyteller.orchestrator.planning.graph import compile_planning_graph
 
     def die(req):
         os._exit(17)  # hard kill, no cleanup, the moment the parser is asked
@@ -207,8 +207,8 @@ CHILD_DESCRIBER = textwrap.dedent(
     sys.path.insert(0, {repo!r})
     from tests.support.scripted_llm import ScriptedLLM
     from tests.support.planning_script import make_deps, initial_state
-    from orchestrator.planning.checkpoints import StoryLog, open_checkpointer
-    from orchestrator.planning.graph import compile_planning_graph
+    from storyteller.orchestrator.planning.checkpoints import StoryLog, open_checkpointer
+    from storyteller.orchestrator.planning.graph import compile_planning_graph
 
     replies = ['{{"areas": [{{"name": "dining", "purpose": "eat", "objects": ["table_1"]}}]}}']
 
@@ -269,8 +269,8 @@ async def test_describer_retries_exhausted_repairs_from_clusters() -> None:
 
 
 async def test_requests_carry_the_step_frame_and_parsed_outputs_are_traced(tmp_path: Path) -> None:
-    from orchestrator.llm.trace_writer import TraceWriter
-    from orchestrator.llm.traces import read_trace
+    from storyteller.orchestrator.llm.trace_writer import TraceWriter
+    from storyteller.orchestrator.llm.traces import read_trace
 
     class TracedPort(ScriptedLLM):
         """Numbers its answers like a trace-writing client (seqs of its own sink)."""
@@ -340,7 +340,7 @@ async def test_program_grammar_reaches_the_parser_request_only_when_asked() -> N
 async def test_the_w_o_event_planner_decodes_under_the_open_grammar_when_asked() -> None:
     """The "w/o Event" ablation gets the same well-formed-program grammar as the event parser,
     with the free characters to pick from instead of an event's (busy Bob is not offered)."""
-    from orchestrator.planning.ablation_graph import Ablation, compile_graph
+    from storyteller.orchestrator.planning.ablation_graph import Ablation, compile_graph
 
     for asked in (False, True):
         port = ScriptedLLM({"describer": [DESCRIPTION], "planner": [PROGRAM.format(who="Ann")]})
@@ -364,8 +364,8 @@ async def test_the_w_o_event_planner_decodes_under_the_open_grammar_when_asked()
 async def test_sqlite_checkpoints_rebuild_our_types_without_warnings(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     import logging
 
-    from orchestrator.planning.checkpoints import checkpoint_serializer
-    from orchestrator.planning.state import RetryTurn
+    from storyteller.orchestrator.planning.checkpoints import checkpoint_serializer
+    from storyteller.orchestrator.planning.state import RetryTurn
 
     port = ScriptedLLM({"describer": [DESCRIPTION], "narrator": [narration(["Ann"], "eat at table_1")],
                          "event_parser": [PROGRAM.format(who="Ann")]})

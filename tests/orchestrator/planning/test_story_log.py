@@ -10,12 +10,12 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from orchestrator.planning.checkpoints import StoryLog
-from orchestrator.planning.state import PlanningDeps
-from orchestrator.session.roster import RosterWorld
-from orchestrator.session.session_types import PlanningRequest
-from orchestrator.session.step_planner import GraphStepPlanner
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
+from storyteller.orchestrator.planning.checkpoints import StoryLog
+from storyteller.orchestrator.planning.state import PlanningDeps
+from storyteller.orchestrator.session.roster import RosterWorld
+from storyteller.orchestrator.session.session_types import PlanningRequest
+from storyteller.orchestrator.session.step_planner import GraphStepPlanner
 
 
 def event(index: int) -> ParsedEvent:

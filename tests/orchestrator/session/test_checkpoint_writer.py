@@ -13,20 +13,20 @@ from pathlib import Path
 import anyio
 import pytest
 
-from orchestrator.planning.state import StepProgress
-from orchestrator.session.checkpoint_writer import CheckpointWriter
-from orchestrator.session.runtime import Session
-from orchestrator.session.session_types import (
+from storyteller.orchestrator.planning.state import StepProgress
+from storyteller.orchestrator.session.checkpoint_writer import CheckpointWriter
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.session_types import (
     Outcome,
     PlanningRequest,
     SessionCheckpoint,
     SessionSettings,
 )
-from orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
-from sim.motion.matching import MotionMatcher
-from sim.scene.model import Scene
-from sim.world.step import World, step
-from sim.world.track_chunks import ChunkStore
+from storyteller.orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import World, step
+from storyteller.sim.world.track_chunks import ChunkStore
 
 NAMES = ["Ava", "Ben"]
 

@@ -43,7 +43,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner, Result
 
-from orchestrator.cli.app import app
+from storyteller.orchestrator.cli.app import app
 from tests.support.hostile_files import (
     bit_flipped,
     clean_outcome,
@@ -83,7 +83,7 @@ def export(run: Path) -> Result:
 
 # ----- run.json, trace.jsonl: resume and replay ---------------------------------------------------
 def _manifest_loads(run: Path) -> bool:
-    from orchestrator.session.run_manifest import ManifestError, read_manifest
+    from storyteller.orchestrator.session.run_manifest import ManifestError, read_manifest
 
     try:
         read_manifest(run)
@@ -388,8 +388,8 @@ def test_special_files_in_a_run_folder(finished_run: Path, kind: tuple[str, Call
 
 # ----- the files a user hands over: special files, and text that must not reach the terminal raw ----
 def _scene_bytes() -> bytes:
-    from sim.scene.bundled import load_bundled_scene
-    from sim.scene.files import save_scene_json
+    from storyteller.sim.scene.bundled import load_bundled_scene
+    from storyteller.sim.scene.files import save_scene_json
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "scene.json"
@@ -426,7 +426,7 @@ def _user_file_command(kind: str, folder: Path) -> tuple[Path, list[str]]:
 def _starts_a_story(kind: str, path: Path) -> bool:
     """Whether the file reads (a script or a case that reads would start a story with a model)."""
     if kind == "script":
-        from orchestrator.session.instruction_script import (
+        from storyteller.orchestrator.session.instruction_script import (
             InstructionScriptError,
             read_instruction_script,
         )
@@ -437,7 +437,7 @@ def _starts_a_story(kind: str, path: Path) -> bool:
             return False
         return True
     if kind == "case":
-        from benchmark.reference_cases import BenchmarkCaseError, case_files, load_case
+        from storyteller.benchmark.reference_cases import BenchmarkCaseError, case_files, load_case
 
         try:
             [load_case(p) for p in case_files(path.parent.parent)]
@@ -469,7 +469,7 @@ _UNDER_LIMIT = (
     "import resource, sys\n"
     f"resource.setrlimit(resource.RLIMIT_AS, ({LIMIT_BYTES}, {LIMIT_BYTES}))\n"
     "sys.argv = ['storyteller', *sys.argv[1:]]\n"
-    "from orchestrator.cli.app import main\n"
+    "from storyteller.orchestrator.cli.app import main\n"
     "main()\n"
 )
 
@@ -506,7 +506,7 @@ def test_a_track_array_claiming_2_gb_is_refused_within_1_gib(finished_run: Path,
 
 
 def test_a_track_file_whose_zip_declares_more_than_the_limit_is_refused_before_inflating(tmp_path: Path) -> None:
-    from sim.world.character_track import MAX_TRACK_ARRAY_BYTES, CharacterTrack, CharacterTrackError
+    from storyteller.sim.world.character_track import MAX_TRACK_ARRAY_BYTES, CharacterTrack, CharacterTrackError
 
     path = tmp_path / "Zoe.track.npz"
     with zipfile.ZipFile(path, "w") as zf:  # an entry that says it unpacks past the limit
@@ -560,7 +560,7 @@ def test_track_files_the_fuzzing_found(finished_run: Path, tmp_path: Path, key: 
     result = export(run)
     clean_outcome(result)
     if needle is None:
-        from orchestrator.viewer.run_folder import load_run
+        from storyteller.orchestrator.viewer.run_folder import load_run
 
         assert result.exit_code == 0
         assert "\\ud800\\u202e\\x1b[31m" in [t.name for t in load_run(run).tracks]
@@ -602,7 +602,7 @@ class _AnyShared(dict[str, object]):
 def _rewritten_snapshot(path: Path, change: Callable[[Any], None]) -> None:
     """``path``'s checkpoint decoded (shared objects as stand-ins), changed, written back with its
     checksum made to match (so the checksum is not what stops it)."""
-    from orchestrator.session import snapshot_file
+    from storyteller.orchestrator.session import snapshot_file
 
     shared = _AnyShared()
     checkpoint = snapshot_file._Unpickler(io.BytesIO(_payload_without_frames(path.read_bytes())), shared,
@@ -626,7 +626,7 @@ def _nan_position(cp: Any) -> None:
 
 
 def _unknown_seat(cp: Any) -> None:
-    from sim.world.events import Assignment
+    from storyteller.sim.world.events import Assignment
 
     name = next(iter(cp.world.characters))
     cp.world.characters[name].assignment = Assignment(character=name, action="sit_idle", target_xy=(1.0, 1.0),
@@ -650,7 +650,7 @@ def test_a_snapshot_no_run_could_have_made_is_one_line_at_resume(finished_run: P
 
 # ----- motion/*.chunks past the size caps: one line, exit 2 in view --export ------------------------
 def test_a_chunk_file_past_its_cap_is_refused_from_its_size(finished_run: Path, tmp_path: Path) -> None:
-    from sim.world.track_chunks import MAX_CHUNK_FILE_BYTES
+    from storyteller.sim.world.track_chunks import MAX_CHUNK_FILE_BYTES
 
     run = Path(shutil.copytree(finished_run, tmp_path / "run", symlinks=True))
     _without_tracks(run)
@@ -669,7 +669,7 @@ def test_a_chunk_file_of_valid_records_past_a_lowered_cap_is_refused(finished_ru
     run = Path(shutil.copytree(finished_run, tmp_path / "run", symlinks=True))
     _without_tracks(run)
     size = (run / "motion" / "Zoe.chunks").stat().st_size
-    monkeypatch.setattr("sim.world.track_chunks.MAX_CHUNK_FILE_BYTES", size - 1)
+    monkeypatch.setattr("storyteller.sim.world.track_chunks.MAX_CHUNK_FILE_BYTES", size - 1)
     result = export(run)
     clean_outcome(result)
     assert result.exit_code == 2 and "Zoe.chunks" in result.stderr and "a chunk file may hold" in result.stderr
@@ -680,10 +680,10 @@ def test_a_run_folders_chunk_files_past_their_total_cap_are_refused(finished_run
     run = Path(shutil.copytree(finished_run, tmp_path / "run", symlinks=True))
     _without_tracks(run)
     total = sum(p.stat().st_size for p in (run / "motion").glob("*.chunks"))
-    monkeypatch.setattr("sim.world.track_chunks.MAX_RUN_CHUNK_BYTES", total - 1)
+    monkeypatch.setattr("storyteller.sim.world.track_chunks.MAX_RUN_CHUNK_BYTES", total - 1)
     result = export(run)
     clean_outcome(result)
     assert result.exit_code == 2
     assert f"{run / 'motion'}: the chunk files hold more than the {total - 1} bytes" in result.stderr, result.stderr
-    monkeypatch.setattr("sim.world.track_chunks.MAX_RUN_CHUNK_BYTES", total)
+    monkeypatch.setattr("storyteller.sim.world.track_chunks.MAX_RUN_CHUNK_BYTES", total)
     assert export(run).exit_code == 0  # at the cap: read

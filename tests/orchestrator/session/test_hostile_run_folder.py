@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from sim.bounded_files import MAX_OBJECT_KEYS, BoundedFileError, load_bounded_json
+from storyteller.sim.bounded_files import MAX_OBJECT_KEYS, BoundedFileError, load_bounded_json
 from tests.support.finished_run import one_error_line, replay, resume
 
 
@@ -82,8 +82,8 @@ def test_a_run_never_writes_more_motion_than_resume_reads_back(tmp_path: Path) -
     2.5 h (or 10 character-hours) writes chunk files larger than ``resume`` and ``view`` take."""
     from typer.testing import CliRunner
 
-    from orchestrator.cli.app import app
-    from orchestrator.session.run_manifest import (
+    from storyteller.orchestrator.cli.app import app
+    from storyteller.orchestrator.session.run_manifest import (
         ManifestError,
         RunArguments,
         RunManifest,
@@ -113,7 +113,7 @@ def test_run_json_numbers_no_run_could_hold_are_refused(change: dict[str, object
     """Found by the second hostile corpus: a run.json seed of -1 stopped a replay with
     ``ValueError: expected non-negative integer`` (exit 1), and a realtime speed of 5e-324 made a
     3 s replay run forever. The run's arguments now hold what ``run`` itself accepts."""
-    from orchestrator.session.run_manifest import (
+    from storyteller.orchestrator.session.run_manifest import (
         ManifestError,
         RunArguments,
         RunManifest,

@@ -14,8 +14,8 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from orchestrator.cli.app import app
-from orchestrator.session.instruction_script import (
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.session.instruction_script import (
     MAX_INSTRUCTION_CHARS,
     MAX_SCRIPT_BYTES,
     MAX_SCRIPT_INSTRUCTIONS,
@@ -24,7 +24,7 @@ from orchestrator.session.instruction_script import (
     parse_instruction_script,
     read_instruction_script,
 )
-from orchestrator.session.stdin_instructions import (
+from storyteller.orchestrator.session.stdin_instructions import (
     bounded_lines,
     start_stdin_reader,
     typed_instruction,
@@ -130,7 +130,7 @@ def test_a_session_takes_a_bounded_number_of_live_instructions() -> None:
     """Found by the second hostile corpus: a viewer's inbox of a million valid lines made a resume
     take each one (100,000 lines: 12 s and 100,000 trace records; a million: killed). A session
     takes at most ``MAX_LIVE_INSTRUCTIONS``; then ``instruct_nowait`` says no, and the reader stops."""
-    from orchestrator.session.instruction_queue import MAX_LIVE_INSTRUCTIONS, InstructionQueue
+    from storyteller.orchestrator.session.instruction_queue import MAX_LIVE_INSTRUCTIONS, InstructionQueue
 
     queue = InstructionQueue([], live=True)
     assert all(queue.instruct_nowait(f"go {i}", "viewer") for i in range(MAX_LIVE_INSTRUCTIONS))

@@ -16,23 +16,23 @@ import anyio
 import pytest
 from typer.testing import CliRunner
 
-from agents.instruction_parts import instruction_progress, part_states, split_instruction
-from agents.messages import HistoryEntry
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.app import app
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import AttemptRecord, InstructionRecord, RunRecord, read_trace
-from orchestrator.session.instruction_script import (
+from storyteller.agents.instruction_parts import instruction_progress, part_states, split_instruction
+from storyteller.agents.messages import HistoryEntry
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import AttemptRecord, InstructionRecord, RunRecord, read_trace
+from storyteller.orchestrator.session.instruction_script import (
     InstructionScriptError,
     ScriptLine,
     parse_instruction_script,
     read_instruction_script,
 )
-from orchestrator.session.runtime import Session
-from orchestrator.session.session_types import SessionResult, SessionSettings, TimedInstruction
-from orchestrator.session.stdin_instructions import start_stdin_reader
-from sim.motion.matching import MotionMatcher
-from sim.scene.model import Scene
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.session_types import SessionResult, SessionSettings, TimedInstruction
+from storyteller.orchestrator.session.stdin_instructions import start_stdin_reader
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.model import Scene
 from tests.support.cli_run import RUN, Planner, write_config
 from tests.support.session_world import FPS, ScriptedPlanner, make_world
 
@@ -116,8 +116,8 @@ def test_stdin_lines_become_instructions(home: Scene, motion: MotionMatcher, tmp
 def test_a_resumed_session_keeps_the_instructions_already_applied(
     home: Scene, motion: MotionMatcher, tmp_path: Path
 ) -> None:
-    from orchestrator.session.session_types import SessionCheckpoint
-    from orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
+    from storyteller.orchestrator.session.session_types import SessionCheckpoint
+    from storyteller.orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
 
     first, second = TimedInstruction(frame=6 * FPS, text=OLD), TimedInstruction(frame=20 * FPS, text=NEW)
     settings = SessionSettings(frames=30 * FPS, pace="lockstep", checkpoint_every_s=4.0, instruction="Ava reads.",
@@ -147,8 +147,8 @@ def test_a_resumed_session_keeps_the_instructions_already_applied(
 
 
 def test_resume_schedules_the_recorded_instructions_and_the_script_lines_not_yet_applied(tmp_path: Path) -> None:
-    from orchestrator.session.run_manifest import RunArguments
-    from orchestrator.session.run_setup import instructions_from_trace, scheduled_instructions
+    from storyteller.orchestrator.session.run_manifest import RunArguments
+    from storyteller.orchestrator.session.run_setup import instructions_from_trace, scheduled_instructions
 
     args = RunArguments(scene="home", names=("Ava", "Ben"), duration=60.0, instructions=(
         ScriptLine(time_s=5.0, text="Ava sits"), ScriptLine(time_s=40.0, text="Ben waves")))

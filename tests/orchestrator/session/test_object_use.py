@@ -15,14 +15,14 @@ import anyio
 import numpy as np
 import pytest
 
-from agents.llm_port import LLMRequest
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.model import Scene
+from storyteller.agents.llm_port import LLMRequest
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.tools.character_states import CharacterState, WorldView
+from storyteller.tools.errors import ObjectInUseError
+from storyteller.tools.event_program import run_event_program
+from storyteller.tools.object_use import places, shared_use_frames, use_conflicts, used_labels
 from tests.support.scripted_llm import ScriptedLLM
-from tools.character_states import CharacterState, WorldView
-from tools.errors import ObjectInUseError
-from tools.event_program import run_event_program
-from tools.object_use import places, shared_use_frames, use_conflicts, used_labels
 
 
 def _program(who: str, action: str, area: str, target: str) -> str:
@@ -127,18 +127,18 @@ def _coffee_run(home: Scene, tmp_path: Path, story: CoffeeStory) -> tuple[dict[s
     character's per-frame action labels and positions, and the parser's requests for Ben."""
     from langgraph.checkpoint.memory import InMemorySaver
 
-    from agents.event_parser import scene_action_labels
-    from orchestrator.cache_paths import motion_cache_dir
-    from orchestrator.planning.checkpoints import StoryLog
-    from orchestrator.planning.graph import compile_planning_graph
-    from orchestrator.planning.state import PlanningDeps
-    from orchestrator.session.roster import RosterWorld
-    from orchestrator.session.runtime import Session
-    from orchestrator.session.session_types import SessionSettings
-    from orchestrator.session.step_planner import GraphStepPlanner
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
-    from sim.world.step import World
+    from storyteller.agents.event_parser import scene_action_labels
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.orchestrator.planning.checkpoints import StoryLog
+    from storyteller.orchestrator.planning.graph import compile_planning_graph
+    from storyteller.orchestrator.planning.state import PlanningDeps
+    from storyteller.orchestrator.session.roster import RosterWorld
+    from storyteller.orchestrator.session.runtime import Session
+    from storyteller.orchestrator.session.session_types import SessionSettings
+    from storyteller.orchestrator.session.step_planner import GraphStepPlanner
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
+    from storyteller.sim.world.step import World
 
     port = ScriptedLLM({"describer": story.describer, "narrator": story.narrator, "event_parser": story.parser})
     log = StoryLog(tmp_path / "runs.sqlite", "coffee")

@@ -2,12 +2,12 @@
 
 Issue 27: a kill leaves ``trace.jsonl`` ahead of the last checkpoint on disk (requests,
 instructions and applied steps written after it). The run job's own set-up reads what a resume
-and a replay read (:func:`~orchestrator.session.run_setup.read_recorded`,
-:func:`~orchestrator.session.run_setup.session_settings`); the session and the trace writer are
+and a replay read (:func:`~storyteller.orchestrator.session.run_setup.read_recorded`,
+:func:`~storyteller.orchestrator.session.run_setup.session_settings`); the session and the trace writer are
 the real ones, in ``fast`` pace with three planners and random wall-clock sleeps in the planner,
 so steps land at frames that differ from run to run as in ``realtime``. The planner answers by
 request content (as the fake provider does) and from a story log for the steps it finished
-before the kill (as :class:`~orchestrator.session.step_planner.GraphStepPlanner` does).
+before the kill (as :class:`~storyteller.orchestrator.session.step_planner.GraphStepPlanner` does).
 
 For a kill after each line of the trace (the checkpoint on disk then: the last one taken
 before that line was written; the story log: the steps finished before it), with an instruction
@@ -27,25 +27,25 @@ import anyio
 import numpy as np
 import pytest
 
-from agents.messages import Event, ParsedEvent, PlannedCharacter
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import AppliedRecord, InstructionRecord, RequestedRecord, read_trace
-from orchestrator.planning.state import StepProgress
-from orchestrator.session.instruction_script import ScriptLine
-from orchestrator.session.run_manifest import RunArguments
-from orchestrator.session.run_setup import read_recorded, session_settings
-from orchestrator.session.runtime import Session
-from orchestrator.session.session_types import (
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import AppliedRecord, InstructionRecord, RequestedRecord, read_trace
+from storyteller.orchestrator.planning.state import StepProgress
+from storyteller.orchestrator.session.instruction_script import ScriptLine
+from storyteller.orchestrator.session.run_manifest import RunArguments
+from storyteller.orchestrator.session.run_setup import read_recorded, session_settings
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.session_types import (
     Outcome,
     PlanningRequest,
     SessionCheckpoint,
     SessionResult,
     SessionSettings,
 )
-from orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
-from sim.motion.matching import MotionMatcher
-from sim.scene.model import Scene
-from sim.world.step import World
+from storyteller.orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import World
 from tests.support.session_world import FPS, free_points, make_world
 
 NAMES = ("Ava", "Ben", "Cleo", "Dan")

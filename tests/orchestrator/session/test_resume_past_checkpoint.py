@@ -31,11 +31,11 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.app import app
-from orchestrator.llm.traces import AppliedRecord, RequestedRecord, read_trace
-from orchestrator.session.session_types import SessionCheckpoint, StoryEvent, TimedInstruction
-from orchestrator.session.viewer_instructions import send_instruction
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.llm.traces import AppliedRecord, RequestedRecord, read_trace
+from storyteller.orchestrator.session.session_types import SessionCheckpoint, StoryEvent, TimedInstruction
+from storyteller.orchestrator.session.viewer_instructions import send_instruction
 from tests.support.directed_planner import TOAST, directed
 from tests.support.story_planner import write_config
 
@@ -55,10 +55,10 @@ def env(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
 
 def _killed_run(out: Path, cfg: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[int, int]:
     """The run up to its "kill"; (frame of the last checkpoint on disk, frame it stopped at)."""
-    import orchestrator.session.snapshot_file as snapshot_file
-    from orchestrator.session.run_job import run_story
-    from orchestrator.session.run_manifest import RunArguments
-    from sim.scene.bundled import resolve_scene
+    import storyteller.orchestrator.session.snapshot_file as snapshot_file
+    from storyteller.orchestrator.session.run_job import run_story
+    from storyteller.orchestrator.session.run_manifest import RunArguments
+    from storyteller.sim.scene.bundled import resolve_scene
 
     args = RunArguments(scene="home", names=("Zoe", "Max"), duration=float(SECONDS), pace="lockstep", planners=2,
                         planner="unified", description="object-list", foot_ik=False, config=str(cfg))

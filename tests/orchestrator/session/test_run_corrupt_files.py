@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner, Result
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.app import app
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.app import app
 from tests.support.finished_run import one_error_line
 from tests.support.story_planner import RUN, Planner, write_config
 

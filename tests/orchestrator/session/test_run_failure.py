@@ -11,11 +11,11 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from agents.llm_port import LLMRequest, LLMResponse
-from orchestrator.cli.app import app
-from orchestrator.llm.trace_writer import TraceWriter
-from orchestrator.llm.traces import read_trace
-from orchestrator.planning.checkpoints import StoryLog
+from storyteller.agents.llm_port import LLMRequest, LLMResponse
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.llm.trace_writer import TraceWriter
+from storyteller.orchestrator.llm.traces import read_trace
+from storyteller.orchestrator.planning.checkpoints import StoryLog
 from tests.support.session_world import ScriptedCompletion
 
 
@@ -23,8 +23,8 @@ class ExplodingPort:
     """The real client over a scripted provider; call ``explode_at`` (1-based) raises a bug."""
 
     def __init__(self, trace_path: Path, explode_at: int) -> None:
-        from orchestrator.llm.client import LiteLLMClient
-        from orchestrator.llm.config import default_config
+        from storyteller.orchestrator.llm.client import LiteLLMClient
+        from storyteller.orchestrator.llm.config import default_config
 
         self.writer = TraceWriter(trace_path, fsync="never")
         self.inner = LiteLLMClient(default_config(), self.writer, acompletion=ScriptedCompletion(),
@@ -66,7 +66,7 @@ def exploding(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
         seen["story_closed"] += 1
         original(self)
 
-    monkeypatch.setattr("orchestrator.session.port_setup.open_port", open_port)
+    monkeypatch.setattr("storyteller.orchestrator.session.port_setup.open_port", open_port)
     monkeypatch.setattr(StoryLog, "close", close)
     return seen
 
@@ -90,9 +90,9 @@ def test_a_port_bug_cancels_the_run_closes_its_files_and_prints_one_line(explodi
 
 
 def test_run_story_leaves_no_task_pending_after_the_error(exploding: dict[str, Any], tmp_path: Path) -> None:
-    from orchestrator.session.run_job import run_story
-    from orchestrator.session.run_manifest import RunArguments
-    from sim.scene.bundled import resolve_scene
+    from storyteller.orchestrator.session.run_job import run_story
+    from storyteller.orchestrator.session.run_manifest import RunArguments
+    from storyteller.sim.scene.bundled import resolve_scene
 
     args = RunArguments(scene="home", names=("Ava", "Ben"), duration=20.0, pace="lockstep", planners=2,
                         instruction="Everyone reads.")
@@ -112,10 +112,10 @@ def test_run_story_stops_the_program_worker_it_was_given_when_the_run_fails(
 ) -> None:
     """The command starts the event-program worker (with the scene) before it imports the job and
     hands it to ``run_story``, which stops it however the run ends."""
-    from orchestrator.sandbox_worker import WorkerRunner
-    from orchestrator.session.run_job import run_story
-    from orchestrator.session.run_manifest import RunArguments
-    from sim.scene.bundled import resolve_scene
+    from storyteller.orchestrator.sandbox_worker import WorkerRunner
+    from storyteller.orchestrator.session.run_job import run_story
+    from storyteller.orchestrator.session.run_manifest import RunArguments
+    from storyteller.sim.scene.bundled import resolve_scene
 
     args = RunArguments(scene="home", names=("Ava", "Ben"), duration=20.0, pace="lockstep", planners=2,
                         instruction="Everyone reads.")

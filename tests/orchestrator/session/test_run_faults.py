@@ -37,9 +37,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.app import app
-from orchestrator.llm.traces import AppliedRecord, read_trace
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.llm.traces import AppliedRecord, read_trace
 from tests.support.story_planner import RUN, Planner, write_config
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -55,7 +55,7 @@ def env(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, str]]:
 
 
 def cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from orchestrator.cli.app import main; main()", *args]
+    return [sys.executable, "-c", "from storyteller.orchestrator.cli.app import main; main()", *args]
 
 
 def applied_steps(trace: Path) -> list[int | None]:
@@ -212,7 +212,7 @@ def test_a_full_disk_under_the_trace_is_one_error_line_and_the_trace_stays_whole
             return real_write(fd, bytes(data[: len(data) // 2]))  # the disk fills up mid-line
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr("orchestrator.llm.trace_writer.os.write", full_disk_write)  # only the trace file's writes fail
+    monkeypatch.setattr("storyteller.orchestrator.llm.trace_writer.os.write", full_disk_write)  # only the trace file's writes fail
     out = tmp_path / "out"
     with FakeOpenAI(responder=Planner()) as fake:
         cfg = write_config(tmp_path, fake.base)
@@ -240,8 +240,8 @@ def test_a_full_story_folder_is_one_error_line_and_what_was_written_stays_readab
     env: dict[str, str], tmp_path: Path
 ) -> None:
     """No file of the child may grow past 40 kB: run.json fits, the checkpoints and outputs do not."""
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.motion.database import load_databases
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.motion.database import load_databases
 
     load_databases(cache_dir=motion_cache_dir())  # a fresh machine builds its motion cache here, unlimited
     out = tmp_path / "out"

@@ -18,11 +18,11 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.app import app
-from orchestrator.llm.traces import AppliedRecord, read_trace
-from orchestrator.session.run_report import md_text, story_markdown
-from sim.world.track_chunks import scan
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.llm.traces import AppliedRecord, read_trace
+from storyteller.orchestrator.session.run_report import md_text, story_markdown
+from storyteller.sim.world.track_chunks import scan
 from tests.support.cli_run import ROOT, RUN, Planner, cli, write_config
 
 

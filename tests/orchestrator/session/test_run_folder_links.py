@@ -23,16 +23,16 @@ from typing import TYPE_CHECKING, cast
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.app import app
-from orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
-from sim.run_folder_names import run_folder_entries
-from sim.world.character_track import CharacterTrack
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.session.run_folder_links import PlantedLinkError, refuse_planted_links
+from storyteller.sim.run_folder_names import run_folder_entries
+from storyteller.sim.world.character_track import CharacterTrack
 from tests.support.finished_run import one_error_line
 from tests.support.story_planner import RUN, Planner, write_config
 
 if TYPE_CHECKING:
-    from sim.world.step import World
+    from storyteller.sim.world.step import World
 
 NAMES = ("Zoe", "Max")  # the characters of ``RUN``
 
@@ -168,10 +168,10 @@ def test_the_check_passes_a_folder_that_does_not_exist_yet_and_a_clean_one(finis
 def test_without_the_check_the_outputs_replace_planted_links(run_dir: Path, tmp_path: Path) -> None:
     """``write_outputs`` (what a run ends with; the API, no folder check): every file it writes
     replaces a link planted at its name, and the link's target is untouched."""
-    from orchestrator.session.run_outputs import write_outputs
-    from orchestrator.session.session_types import SessionResult
-    from sim.scene.bundled import resolve_scene
-    from sim.world.track_chunks import chunked_track
+    from storyteller.orchestrator.session.run_outputs import write_outputs
+    from storyteller.orchestrator.session.session_types import SessionResult
+    from storyteller.sim.scene.bundled import resolve_scene
+    from storyteller.sim.world.track_chunks import chunked_track
 
     names = list(NAMES)
     tracks = {}

@@ -1,4 +1,4 @@
-"""The realtime simulation thread's short scheduler slice (``orchestrator.session.scheduler_slice``).
+"""The realtime simulation thread's short scheduler slice (``storyteller.orchestrator.session.scheduler_slice``).
 
 On Linux 6.12 or later (x86_64 or aarch64) the slice is asked for and given back, per thread,
 and a realtime session runs its frames with it while a lockstep one does not. Elsewhere the
@@ -16,13 +16,13 @@ import threading
 import anyio
 import pytest
 
-from orchestrator.session.pace import Pace
-from orchestrator.session.runtime import Session
-from orchestrator.session.scheduler_slice import SLICE_NS, SYSCALLS, short_slice, thread_slice_ns
-from orchestrator.session.session_types import SessionSettings
-from sim.motion.matching import MotionMatcher
-from sim.scene.model import Scene
-from sim.world.step import World
+from storyteller.orchestrator.session.pace import Pace
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.scheduler_slice import SLICE_NS, SYSCALLS, short_slice, thread_slice_ns
+from storyteller.orchestrator.session.session_types import SessionSettings
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import World
 from tests.support.session_world import ScriptedPlanner, make_world
 
 

@@ -16,11 +16,11 @@ from pathlib import Path
 import anyio
 import pytest
 
-from agents.llm_port import LLMError
-from agents.messages import Event, ParsedEvent, PlannedCharacter
-from orchestrator.planning.state import StepProgress
-from orchestrator.session.runtime import Session
-from orchestrator.session.session_types import (
+from storyteller.agents.llm_port import LLMError
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter
+from storyteller.orchestrator.planning.state import StepProgress
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.session_types import (
     Outcome,
     PlanningRequest,
     RecordedRequest,
@@ -28,9 +28,9 @@ from orchestrator.session.session_types import (
     SessionResult,
     SessionSettings,
 )
-from sim.motion.matching import MotionMatcher
-from sim.scene.model import Scene
-from sim.world.step import World
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import World
 from tests.support.session_world import FPS, free_points, make_world
 
 NAMES = ["Ava", "Ben", "Cleo", "Dan"]
@@ -250,16 +250,16 @@ def test_settings_for_planners_and_offline_latency_are_checked(home: Scene, moti
 def test_the_planning_graph_runs_two_steps_at_once_on_two_lanes(home: Scene, motion: MotionMatcher, tmp_path: Path) -> None:
     from langgraph.checkpoint.memory import InMemorySaver
 
-    from agents.event_parser import scene_action_labels
-    from orchestrator.llm.client import LiteLLMClient
-    from orchestrator.llm.config import default_config
-    from orchestrator.llm.trace_writer import TraceWriter
-    from orchestrator.llm.traces import AttemptRecord, read_trace
-    from orchestrator.planning.checkpoints import StoryLog
-    from orchestrator.planning.graph import compile_planning_graph
-    from orchestrator.planning.state import PlanningDeps
-    from orchestrator.session.roster import RosterWorld
-    from orchestrator.session.step_planner import GraphStepPlanner
+    from storyteller.agents.event_parser import scene_action_labels
+    from storyteller.orchestrator.llm.client import LiteLLMClient
+    from storyteller.orchestrator.llm.config import default_config
+    from storyteller.orchestrator.llm.trace_writer import TraceWriter
+    from storyteller.orchestrator.llm.traces import AttemptRecord, read_trace
+    from storyteller.orchestrator.planning.checkpoints import StoryLog
+    from storyteller.orchestrator.planning.graph import compile_planning_graph
+    from storyteller.orchestrator.planning.state import PlanningDeps
+    from storyteller.orchestrator.session.roster import RosterWorld
+    from storyteller.orchestrator.session.step_planner import GraphStepPlanner
     from tests.support.session_world import ScriptedCompletion
 
     path = tmp_path / "trace.jsonl"

@@ -16,13 +16,13 @@ import anyio
 import numpy as np
 import pytest
 
-from agents.llm_port import LLMError, LLMPort
-from agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
-from orchestrator.planning.state import StepProgress
-from orchestrator.session.frame_profile import PARTS
-from orchestrator.session.pace import Pace
-from orchestrator.session.runtime import Session
-from orchestrator.session.session_types import (
+from storyteller.agents.llm_port import LLMError, LLMPort
+from storyteller.agents.messages import Event, ParsedEvent, PlannedCharacter, PlanningFailure
+from storyteller.orchestrator.planning.state import StepProgress
+from storyteller.orchestrator.session.frame_profile import PARTS
+from storyteller.orchestrator.session.pace import Pace
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.session_types import (
     Outcome,
     PlanningRequest,
     SessionError,
@@ -30,9 +30,9 @@ from orchestrator.session.session_types import (
     SessionSettings,
     StepPlanner,
 )
-from sim.motion.matching import MotionMatcher
-from sim.scene.model import Scene
-from sim.world.step import World
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import World
 from tests.support.session_world import (
     FPS,
     ScriptedCompletion,
@@ -43,8 +43,8 @@ from tests.support.session_world import (
 
 if TYPE_CHECKING:
 
-    from orchestrator.llm.trace_writer import TraceSink
-    from orchestrator.llm.traces import AppliedRecord
+    from storyteller.orchestrator.llm.trace_writer import TraceSink
+    from storyteller.orchestrator.llm.traces import AppliedRecord
 
 def _run(world: World, planner: StepPlanner, settings: SessionSettings) -> SessionResult:
     async def main() -> SessionResult:
@@ -96,8 +96,8 @@ def test_live_run_replays_to_identical_events_and_motion(home: Scene, motion: Mo
 def test_a_session_resumed_from_a_saved_checkpoint_ends_as_the_uninterrupted_one(
     home: Scene, motion: MotionMatcher, tmp_path: Path
 ) -> None:
-    from orchestrator.session.session_types import SessionCheckpoint
-    from orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
+    from storyteller.orchestrator.session.session_types import SessionCheckpoint
+    from storyteller.orchestrator.session.snapshot_file import load_checkpoint, save_checkpoint
 
     names = ["Ava", "Ben", "Cleo"]
     settings = SessionSettings(frames=30 * FPS, pace="lockstep", max_steps=8, checkpoint_every_s=4.0)
@@ -168,12 +168,12 @@ async def _graph_session(
 ) -> SessionResult:
     from langgraph.checkpoint.memory import InMemorySaver
 
-    from agents.event_parser import scene_action_labels
-    from orchestrator.planning.checkpoints import StoryLog
-    from orchestrator.planning.graph import compile_planning_graph
-    from orchestrator.planning.state import PlanningDeps
-    from orchestrator.session.roster import RosterWorld
-    from orchestrator.session.step_planner import GraphStepPlanner
+    from storyteller.agents.event_parser import scene_action_labels
+    from storyteller.orchestrator.planning.checkpoints import StoryLog
+    from storyteller.orchestrator.planning.graph import compile_planning_graph
+    from storyteller.orchestrator.planning.state import PlanningDeps
+    from storyteller.orchestrator.session.roster import RosterWorld
+    from storyteller.orchestrator.session.step_planner import GraphStepPlanner
 
     story = StoryLog(tmp_path / "runs.sqlite", thread)
     deps = PlanningDeps(port=port, scene=scene, world=RosterWorld(), story=story,
@@ -189,7 +189,7 @@ async def _graph_session(
 def _check_frames_and_parsed(path: Path) -> list[AppliedRecord]:
     """Every narrator / parser attempt carries its step's request frame, is named by exactly
     one applied record and has one parsed record; no seq is skipped. Returns the applied records."""
-    from orchestrator.llm.traces import AppliedRecord, AttemptRecord, read_trace
+    from storyteller.orchestrator.llm.traces import AppliedRecord, AttemptRecord, read_trace
 
     contents = read_trace(path)
     assert [r.seq for r in contents.records] == list(range(len(contents.records)))  # no wasted seq
@@ -217,11 +217,11 @@ def _check_frames_and_parsed(path: Path) -> list[AppliedRecord]:
 
 
 def test_graph_session_traces_request_and_applied_frames_and_replays(home: Scene, motion: MotionMatcher, tmp_path: Path) -> None:
-    from orchestrator.llm.client import LiteLLMClient
-    from orchestrator.llm.config import default_config
-    from orchestrator.llm.replay import ReplayClient
-    from orchestrator.llm.trace_writer import TraceWriter
-    from orchestrator.llm.traces import read_trace
+    from storyteller.orchestrator.llm.client import LiteLLMClient
+    from storyteller.orchestrator.llm.config import default_config
+    from storyteller.orchestrator.llm.replay import ReplayClient
+    from storyteller.orchestrator.llm.trace_writer import TraceWriter
+    from storyteller.orchestrator.llm.traces import read_trace
 
     live_path = tmp_path / "live.jsonl"
     client = LiteLLMClient(default_config(), TraceWriter(live_path, fsync="never"),
@@ -372,9 +372,9 @@ def _run_async(main: Callable[[], Awaitable[SessionResult]]) -> SessionResult:
 
 
 def test_the_history_shows_unplaced_events_as_failed_with_their_part() -> None:
-    from agents.messages import HistoryEntry
-    from orchestrator.session.session_types import StoryEvent
-    from orchestrator.session.story_history import story_history
+    from storyteller.agents.messages import HistoryEntry
+    from storyteller.orchestrator.session.session_types import StoryEvent
+    from storyteller.orchestrator.session.story_history import story_history
 
     done = StoryEvent(index=0, event_id="event-0000", characters=("Ava",), activity="make coffee",
                       requested_frame=1, applied_frame=1, state="completed", part="Ava makes coffee.")

@@ -23,20 +23,20 @@ import numpy as np
 import pytest
 from pydantic import BaseModel
 
-from orchestrator.planning.state import StepProgress
-from orchestrator.session import snapshot_file
-from orchestrator.session.runtime import Session
-from orchestrator.session.session_types import PlanningRequest, SessionCheckpoint, SessionSettings
-from orchestrator.session.snapshot_errors import SnapshotError
-from orchestrator.session.snapshot_file import (
+from storyteller.orchestrator.planning.state import StepProgress
+from storyteller.orchestrator.session import snapshot_file
+from storyteller.orchestrator.session.runtime import Session
+from storyteller.orchestrator.session.session_types import PlanningRequest, SessionCheckpoint, SessionSettings
+from storyteller.orchestrator.session.snapshot_errors import SnapshotError
+from storyteller.orchestrator.session.snapshot_file import (
     SNAPSHOT_CLASSES,
     load_checkpoint,
     save_checkpoint,
     shared_names,
 )
-from sim.motion.matching import MotionMatcher
-from sim.scene.model import Scene
-from sim.world.step import World, step
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.step import World, step
 
 
 def _world(home: Scene, motion: MotionMatcher) -> World:
@@ -154,10 +154,10 @@ def test_a_crafted_call_is_refused_and_never_runs(checkpoint: tuple[World, Sessi
 
 def test_a_class_that_is_not_listed_is_refused(checkpoint: tuple[World, SessionCheckpoint], home: Scene,
                                                motion: MotionMatcher, tmp_path: Path) -> None:
-    from sim.world.events import ReleaseCharacters
+    from storyteller.sim.world.events import ReleaseCharacters
 
     world, cp = checkpoint
-    assert ("sim.world.events", "ReleaseCharacters") not in SNAPSHOT_CLASSES
+    assert ("storyteller.sim.world.events", "ReleaseCharacters") not in SNAPSHOT_CLASSES
     payload = real_payload(world, dataclasses.replace(cp, instruction=cast(str, ReleaseCharacters(characters=("Ava",)))))  # not a str on purpose
     path = write_snapshot(tmp_path / "session.snapshot", payload)
     with pytest.raises(SnapshotError, match=r"sim\.world\.events\.ReleaseCharacters, which a checkpoint may not hold"):
@@ -208,7 +208,7 @@ def test_hostile_opcodes_inside_a_checkpoint(checkpoint: tuple[World, SessionChe
 
 def test_a_model_with_a_wrong_field_type_is_refused(checkpoint: tuple[World, SessionCheckpoint], home: Scene,
                                                     motion: MotionMatcher, tmp_path: Path) -> None:
-    from orchestrator.session.session_types import TimedInstruction
+    from storyteller.orchestrator.session.session_types import TimedInstruction
 
     world, cp = checkpoint
     bad = TimedInstruction.model_construct(frame=cast(int, "soon"), text="x", source="script")  # not an int on purpose
@@ -225,7 +225,7 @@ def test_a_model_with_a_forged_pydantic_slot_is_refused(checkpoint: tuple[World,
                                                        forged: object) -> None:
     """A falsy non-None value in a model's private or extra slot (found by the run-folder fuzzer:
     False there passed the check and stopped the resumed run deep in ``copy.deepcopy``)."""
-    from orchestrator.session.session_types import TimedInstruction
+    from storyteller.orchestrator.session.session_types import TimedInstruction
 
     world, cp = checkpoint
     bad = TimedInstruction(frame=3, text="x", source="script")
@@ -342,7 +342,7 @@ def _impossible(world: World, cp: SessionCheckpoint, case: str) -> SessionCheckp
     """A deep copy of ``cp`` (sharing ``world``'s read-only parts) with one impossible value of the right type."""
     import copy
 
-    from sim.world.events import Assignment
+    from storyteller.sim.world.events import Assignment
 
     bad = copy.deepcopy(cp, {id(obj): obj for obj in world.shared_objects().values()})
     ava = bad.world.characters["Ava"]

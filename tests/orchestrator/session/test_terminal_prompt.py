@@ -20,12 +20,12 @@ import pytest
 from rich.console import Console
 from rich.text import Text
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from orchestrator.cli.live_view import live_view
-from orchestrator.llm.traces import read_trace
-from orchestrator.session.run_status import RunSnapshot
-from orchestrator.session.session_types import InstructionSource
-from orchestrator.session.terminal_prompt import MAX_LINE, LineEditor, TerminalPrompt
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.orchestrator.cli.live_view import live_view
+from storyteller.orchestrator.llm.traces import read_trace
+from storyteller.orchestrator.session.run_status import RunSnapshot
+from storyteller.orchestrator.session.session_types import InstructionSource
+from storyteller.orchestrator.session.terminal_prompt import MAX_LINE, LineEditor, TerminalPrompt
 from tests.support.cli_run import ROOT, RUN, Planner, cli, write_config
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from orchestrator.viewer.server import ViewerApp
+from storyteller.orchestrator.viewer.server import ViewerApp
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-""":func:`~orchestrator.viewer.bone_updates.pose_bones` against viser's per-bone setters: the same
+""":func:`~storyteller.orchestrator.viewer.bone_updates.pose_bones` against viser's per-bone setters: the same
 bone state and the same messages, in the same order, for poses that change some bones, all of
 them, none, or by less than ``np.allclose``'s tolerance."""
 
@@ -11,9 +11,9 @@ import pytest
 import viser
 from viser import _messages
 
-from orchestrator.viewer.bone_updates import pose_bones
-from orchestrator.viewer.figures import standin_rig
-from sim.body.skeleton import NUM_JOINTS
+from storyteller.orchestrator.viewer.bone_updates import pose_bones
+from storyteller.orchestrator.viewer.figures import standin_rig
+from storyteller.sim.body.skeleton import NUM_JOINTS
 
 
 @pytest.fixture

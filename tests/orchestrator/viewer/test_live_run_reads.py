@@ -1,9 +1,9 @@
-"""The viewer's incremental read of a live run (:class:`~orchestrator.viewer.live_run.RunReader`).
+"""The viewer's incremental read of a live run (:class:`~storyteller.orchestrator.viewer.live_run.RunReader`).
 
 A run folder is written here as a running ``storyteller run`` writes it (``scene.json``,
 ``story.jsonl`` through ``StoryStream``, chunk records appended to ``motion/<slug>.chunks``),
 record by record and with torn writes, and after each change the incremental read is compared
-with a full :func:`~orchestrator.viewer.run_folder.load_run` of the same folder: the same tracks
+with a full :func:`~storyteller.orchestrator.viewer.run_folder.load_run` of the same folder: the same tracks
 bit for bit, the same events, and the same one-line refusal for a file a full read refuses.
 """
 
@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator.session.story_stream import STREAM_FILE, StoryStream, StreamStart
-from orchestrator.viewer.live_run import RunReader
-from orchestrator.viewer.run_folder import RunData, RunFolderError, load_run
-from sim.body.skeleton import NUM_JOINTS, heading_to_root
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.files import save_scene_json
-from sim.world.track_chunks import MAX_RECORD_BYTES, MOTION_FOLDER, chunk_path, encode_record
+from storyteller.orchestrator.session.story_stream import STREAM_FILE, StoryStream, StreamStart
+from storyteller.orchestrator.viewer.live_run import RunReader
+from storyteller.orchestrator.viewer.run_folder import RunData, RunFolderError, load_run
+from storyteller.sim.body.skeleton import NUM_JOINTS, heading_to_root
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.files import save_scene_json
+from storyteller.sim.world.track_chunks import MAX_RECORD_BYTES, MOTION_FOLDER, chunk_path, encode_record
 from tests.support.story_event_stub import Event
 
 NAMES = ("Ava", "Ben")

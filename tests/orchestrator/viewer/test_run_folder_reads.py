@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from orchestrator.cli.app import app
-from orchestrator.session.instruction_script import InstructionScriptError, parse_instruction_script
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.session.instruction_script import InstructionScriptError, parse_instruction_script
 from tests.support.finished_run import one_error_line, replay, resume
 
 
@@ -87,7 +87,7 @@ HOSTILE = {
 
 @pytest.mark.parametrize("case", list(HOSTILE))
 def test_a_hostile_story_json_is_one_line_in_the_viewer(run_dir: Path, case: str) -> None:
-    from orchestrator.viewer.run_folder import RunFolderError, load_run
+    from storyteller.orchestrator.viewer.run_folder import RunFolderError, load_run
 
     damage, needle = HOSTILE[case]
     damage(run_dir / "story.json")
@@ -98,7 +98,7 @@ def test_a_hostile_story_json_is_one_line_in_the_viewer(run_dir: Path, case: str
 
 
 def test_a_story_json_with_a_field_of_the_wrong_type_is_refused(run_dir: Path) -> None:
-    from orchestrator.viewer.run_folder import RunFolderError, load_run
+    from storyteller.orchestrator.viewer.run_folder import RunFolderError, load_run
 
     path = run_dir / "story.json"
     data = json.loads(path.read_text(encoding="utf-8"))
@@ -229,7 +229,7 @@ def test_a_run_with_an_infinite_duration_is_refused_before_it_writes_anything(tm
 
 
 def test_a_run_whose_arguments_run_json_could_not_hold_is_refused_before_run_json(tmp_path: Path) -> None:
-    from benchmark.support.fake_openai_server import FakeOpenAI
+    from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
     from tests.support.story_planner import RUN, Planner, write_config
 
     out = tmp_path / "run"
@@ -259,8 +259,8 @@ def test_a_story_no_run_could_write_is_refused(tmp_path: Path, change: dict[str,
     steps at frame 10**60 and 30,000 characters, or of an event finished before it was applied, was exported (exit 0) as a page of a timeline no
     run has. Frames, frame rates and casts are now held to what a run can write, in story.json
     and in story.jsonl alike."""
-    from orchestrator.session.story_stream import StoryStreamError, read_story_stream
-    from orchestrator.viewer.run_folder import RunFolderError, read_story_file
+    from storyteller.orchestrator.session.story_stream import StoryStreamError, read_story_stream
+    from storyteller.orchestrator.viewer.run_folder import RunFolderError, read_story_file
 
     path = tmp_path / "story.json"
     path.write_text(json.dumps({"scene": "home", "characters": ["Zoe"], "fps": 30, "frames": 90, **change}),

@@ -12,20 +12,20 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from orchestrator.cli.app import app
-from orchestrator.viewer.figures import bone_poses, figure_points, standin_rig
-from orchestrator.viewer.run_folder import (
+from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.viewer.figures import bone_poses, figure_points, standin_rig
+from storyteller.orchestrator.viewer.run_folder import (
     RunFolderError,
     StoryEventRecord,
     folder_stamp,
     is_ready,
     load_run,
 )
-from orchestrator.viewer.timeline import action_at, active_events, event_line, event_span
-from sim.body.skeleton import NUM_JOINTS, forward_kinematics, heading_to_root
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.files import save_scene_json
-from sim.world.character_track import CharacterTrack
+from storyteller.orchestrator.viewer.timeline import action_at, active_events, event_line, event_span
+from storyteller.sim.body.skeleton import NUM_JOINTS, forward_kinematics, heading_to_root
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.files import save_scene_json
+from storyteller.sim.world.character_track import CharacterTrack
 
 
 def _event(i: int, start: int, end: int | None, state: str = "completed") -> dict[str, object]:
@@ -153,8 +153,8 @@ def test_a_story_of_too_many_events_is_refused_and_a_caption_lists_a_runs_worth(
     from types import SimpleNamespace
     from typing import cast
 
-    from orchestrator.viewer.run_folder import MAX_STORY_ITEMS
-    from orchestrator.viewer.scene_view import MAX_CAPTION_EVENTS, SceneView
+    from storyteller.orchestrator.viewer.run_folder import MAX_STORY_ITEMS
+    from storyteller.orchestrator.viewer.scene_view import MAX_CAPTION_EVENTS, SceneView
 
     folder = _run_folder(tmp_path)
     story = json.loads((folder / "story.json").read_text(encoding="utf-8"))

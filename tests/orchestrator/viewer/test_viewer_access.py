@@ -1,9 +1,9 @@
 """The viewer answers only its own pages: forged ``Origin`` and ``Host`` are refused, and with
 ``--host`` beyond loopback only requests that bring the printed URL's token get an answer.
 
-The rule itself (:class:`~orchestrator.viewer.access.ViewerAccess`) is checked on a table of
+The rule itself (:class:`~storyteller.orchestrator.viewer.access.ViewerAccess`) is checked on a table of
 requests; then the real viewer (viser's server with the guard of
-:mod:`orchestrator.viewer.guarded_server`) is started on a free port and spoken to with the
+:mod:`storyteller.orchestrator.viewer.guarded_server`) is started on a free port and spoken to with the
 ``websockets`` client and ``http.client``, as another site's page or a DNS-rebinding page
 would: a websocket from ``https://evil.example`` is refused at the handshake and receives no
 byte of the run, the viewer's own origin gets the scene; a plain GET with a forged ``Host`` is
@@ -34,12 +34,12 @@ from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 from websockets.typing import Subprotocol
 
-from benchmark.support.headless_chromium import Chromium, chromium_binary
-from orchestrator.viewer.access import ViewerAccess, is_loopback
+from storyteller.benchmark.support.headless_chromium import Chromium, chromium_binary
+from storyteller.orchestrator.viewer.access import ViewerAccess, is_loopback
 from tests.support.tiny_run import write_tiny_run
 
 if TYPE_CHECKING:  # imported by the fixture, when a test needs the viewer
-    from orchestrator.viewer.server import ViewerApp
+    from storyteller.orchestrator.viewer.server import ViewerApp
 
 SECRET = "secretinstruction"  # the run's instruction: in the panel markdown sent to a client
 PROTOCOL = Subprotocol(f"viser-v{viser.__version__}")
@@ -132,7 +132,7 @@ def http_get(port: int, path: str = "/", host: str | None = None, headers: dict[
 
 @pytest.fixture(scope="module")
 def viewer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[ViewerApp, int]]:
-    from orchestrator.viewer.server import ViewerApp
+    from storyteller.orchestrator.viewer.server import ViewerApp
 
     folder = write_tiny_run(tmp_path_factory.mktemp("access") / "run", instruction=SECRET)
     app = ViewerApp(folder, port=0)
@@ -171,7 +171,7 @@ def test_the_viewer_never_opens_a_share_tunnel(viewer: tuple[ViewerApp, int]) ->
 
 
 def test_a_viser_that_builds_its_server_otherwise_is_not_served(monkeypatch: pytest.MonkeyPatch) -> None:
-    from orchestrator.viewer import guarded_server as hook
+    from storyteller.orchestrator.viewer import guarded_server as hook
 
     monkeypatch.setattr(hook, "viser_infra", SimpleNamespace(__name__="viser.somewhere_else"))
     with pytest.raises(hook.ViserHookError, match="does not serve"):
@@ -187,7 +187,7 @@ def exposed(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str
     log = tmp / "view.log"
     with log.open("w") as sink:
         proc = subprocess.Popen(
-            [sys.executable, "-c", "from orchestrator.cli.app import app; app()", "view", str(folder),
+            [sys.executable, "-c", "from storyteller.orchestrator.cli.app import app; app()", "view", str(folder),
              "--port", "0", "--host", "0.0.0.0"],
             stdout=sink, stderr=subprocess.STDOUT,
         )  # fmt: skip

@@ -28,8 +28,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.support.headless_chromium import Chromium, chromium_binary
-from orchestrator.cli.app import app
+from storyteller.benchmark.support.headless_chromium import Chromium, chromium_binary
+from storyteller.orchestrator.cli.app import app
 from tests.support.story_planner import interact_program, recorded_home_run
 
 pytestmark = pytest.mark.skipif(chromium_binary() is None, reason="chromium not installed (apt-get install chromium)")
@@ -86,7 +86,7 @@ def test_view_shows_the_story_plays_it_and_lists_its_events(recorded_run: Path, 
     log = tmp_path / "view.log"
     with log.open("w") as sink:
         proc = subprocess.Popen(
-            [sys.executable, "-c", "from orchestrator.cli.app import app; app()", "view", str(recorded_run), "--port", "0"],
+            [sys.executable, "-c", "from storyteller.orchestrator.cli.app import app; app()", "view", str(recorded_run), "--port", "0"],
             stdout=sink, stderr=subprocess.STDOUT,
         )  # fmt: skip
     try:

@@ -1,4 +1,4 @@
-"""The viewer process of ``run --view`` (``orchestrator.viewer.child``) yields the CPU to the run.
+"""The viewer process of ``run --view`` (``storyteller.orchestrator.viewer.child``) yields the CPU to the run.
 
 On a shared machine the run's frames come first: the child runs ``NICE`` steps below its parent
 (``benchmark/results/2026-12-03-viewer-frame-interval.md``: with the viewer and a browser on the
@@ -11,7 +11,7 @@ import os
 import time
 from pathlib import Path
 
-from orchestrator.viewer.child import NICE, spawn_viewer
+from storyteller.orchestrator.viewer.child import NICE, spawn_viewer
 
 
 def test_the_viewer_process_runs_at_a_lower_cpu_priority_than_the_run(tmp_path: Path) -> None:

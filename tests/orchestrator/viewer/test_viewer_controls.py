@@ -1,7 +1,7 @@
 """A director's controls: pause, resume and speed of a realtime run, the planner, characters, story.
 
-The channel is ``viewer_controls.jsonl`` (``orchestrator.session.viewer_controls``) and the run's
-state for the viewer is ``live.json`` (``orchestrator.session.live_state``). Unit tests: the
+The channel is ``viewer_controls.jsonl`` (``storyteller.orchestrator.session.viewer_controls``) and the run's
+state for the viewer is ``live.json`` (``storyteller.orchestrator.session.live_state``). Unit tests: the
 file's lines (ids once, other runs' lines, malformed lines), the fold into pause and speed, the
 hold at a frame boundary, the panels' text escaped. Command-line tests run ``storyteller run``
 against the fake OpenAI server (``tests/support/directed_planner.py``, each reply a second late,
@@ -28,12 +28,12 @@ from typing import Any
 import anyio
 import pytest
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from benchmark.support.headless_chromium import Chromium, chromium_binary
-from orchestrator.llm.traces import read_trace
-from orchestrator.safe_text import markdown
-from orchestrator.session.live_state import LiveState, RoleNow, read_live_state
-from orchestrator.session.viewer_controls import (
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.benchmark.support.headless_chromium import Chromium, chromium_binary
+from storyteller.orchestrator.llm.traces import read_trace
+from storyteller.orchestrator.safe_text import markdown
+from storyteller.orchestrator.session.live_state import LiveState, RoleNow, read_live_state
+from storyteller.orchestrator.session.viewer_controls import (
     CONTROLS_FILE,
     ControlInbox,
     DirectorControls,
@@ -41,8 +41,8 @@ from orchestrator.session.viewer_controls import (
     controls_refusal,
     send_control,
 )
-from orchestrator.session.viewer_instructions import send_instruction
-from orchestrator.viewer.panels import planner_text, run_line
+from storyteller.orchestrator.session.viewer_instructions import send_instruction
+from storyteller.orchestrator.viewer.panels import planner_text, run_line
 from tests.support.directed_planner import TOAST, directed
 from tests.support.story_planner import RUN, write_config
 
@@ -113,7 +113,7 @@ def test_the_panels_show_text_from_the_run_as_data() -> None:
 
 # ----- runs --------------------------------------------------------------------------------
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from orchestrator.cli.app import app; app()", *args]
+    return [sys.executable, "-c", "from storyteller.orchestrator.cli.app import app; app()", *args]
 
 
 def _env(tmp_path: Path) -> dict[str, str]:

@@ -1,7 +1,7 @@
 """Directing a live story from the browser: the viewer's instruction box and its channel to the run.
 
 The channel is ``viewer_instructions.jsonl`` in the run folder
-(``orchestrator.session.viewer_instructions``): the unit tests write and read it directly (order,
+(``storyteller.orchestrator.session.viewer_instructions``): the unit tests write and read it directly (order,
 ids applied once, other runs' lines, torn, malformed, oversized and linked files) and drive
 :meth:`ViewerApp.send_instruction` for its refusals. The command-line tests run ``storyteller
 run`` against the fake OpenAI server with a planner that follows the instruction
@@ -26,19 +26,19 @@ from typing import Any
 
 import pytest
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from benchmark.support.headless_chromium import Chromium, chromium_binary
-from orchestrator.llm.traces import read_trace
-from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
-from orchestrator.session.run_manifest import RunArguments, RunManifest, write_manifest
-from orchestrator.session.viewer_instructions import (
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.benchmark.support.headless_chromium import Chromium, chromium_binary
+from storyteller.orchestrator.llm.traces import read_trace
+from storyteller.orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
+from storyteller.orchestrator.session.run_manifest import RunArguments, RunManifest, write_manifest
+from storyteller.orchestrator.session.viewer_instructions import (
     INBOX_FILE,
     MAX_LINE_BYTES,
     InstructionInbox,
     ViewerInstruction,
     send_instruction,
 )
-from orchestrator.viewer.server import InstructionRefused, ViewerApp
+from storyteller.orchestrator.viewer.server import InstructionRefused, ViewerApp
 from tests.support.directed_planner import TOAST, TOASTER, directed
 from tests.support.story_planner import RUN, write_config
 
@@ -73,7 +73,7 @@ def test_lines_are_read_once_in_order_and_only_for_this_run(tmp_path: Path) -> N
 
 
 def test_a_line_too_long_is_skipped_in_pieces_and_the_next_one_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import orchestrator.session.viewer_instructions as channel
+    import storyteller.orchestrator.session.viewer_instructions as channel
 
     monkeypatch.setattr(channel, "READ_BYTES", 4096)  # the long line arrives over several polls
     monkeypatch.setattr(channel, "MAX_LINE_BYTES", 1024)
@@ -139,7 +139,7 @@ class _Session:
 def test_a_resumed_run_holds_new_lines_until_it_is_past_its_last_recorded_instruction(tmp_path: Path) -> None:
     import threading
 
-    from orchestrator.session.viewer_instructions import start_inbox_reader
+    from storyteller.orchestrator.session.viewer_instructions import start_inbox_reader
 
     send_instruction(tmp_path, THREAD, "Zoe waves", sent_unix=1.0)  # applied at frame 120 before a kill
     send_instruction(tmp_path, THREAD, "Max makes toast", sent_unix=2.0)  # sent while the run was down
@@ -183,7 +183,7 @@ def test_the_viewer_sends_to_a_live_run_and_says_why_it_does_not(tmp_path: Path,
 
 
 def test_the_note_under_the_box_shows_typed_text_as_data(tmp_path: Path, viewer: ViewerApp) -> None:
-    from orchestrator.safe_text import markdown
+    from storyteller.orchestrator.safe_text import markdown
 
     _manifest(tmp_path / "run")
     box = viewer.server.gui.add_text("Instruction", "Ben waves <img src=x onerror=alert(1)> *now*")
@@ -199,7 +199,7 @@ def test_the_note_under_the_box_shows_typed_text_as_data(tmp_path: Path, viewer:
 
 # ----- the run's side -----------------------------------------------------------------------
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from orchestrator.cli.app import app; app()", *args]
+    return [sys.executable, "-c", "from storyteller.orchestrator.cli.app import app; app()", *args]
 
 
 def _env(tmp_path: Path) -> dict[str, str]:
@@ -440,7 +440,7 @@ def test_run_view_on_an_address_it_cannot_listen_on_is_one_error_line(tmp_path: 
 
 @pytest.mark.slow
 def test_the_viewer_process_ends_when_the_run_that_started_it_is_killed(tmp_path: Path) -> None:
-    script = ("import sys, time; from pathlib import Path; from orchestrator.viewer.child import spawn_viewer; "
+    script = ("import sys, time; from pathlib import Path; from storyteller.orchestrator.viewer.child import spawn_viewer; "
               "v = spawn_viewer(Path(sys.argv[1]), port=0, host='127.0.0.1'); print(v.proc.pid, flush=True); "
               "time.sleep(600)")  # fmt: skip
     parent = subprocess.Popen([sys.executable, "-c", script, str(tmp_path / "run")], env=_env(tmp_path),

@@ -14,7 +14,7 @@ shown as its literal characters with every control as a visible escape, text ove
 refused with its reason under the box, the instruction file stays one well-formed JSON line per
 instruction sent and nothing else, and the viewer keeps serving. The browser is headless
 Chromium (``benchmark/support/headless_chromium.py``); the unit tests drive
-:class:`~orchestrator.viewer.server.ViewerApp` directly.
+:class:`~storyteller.orchestrator.viewer.server.ViewerApp` directly.
 """
 
 from __future__ import annotations
@@ -29,12 +29,12 @@ from typing import Any, cast
 
 import pytest
 
-from benchmark.support.headless_chromium import Chromium, chromium_binary
-from orchestrator.safe_text import markdown
-from orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
-from orchestrator.session.run_manifest import RunArguments, RunManifest, write_manifest
-from orchestrator.session.viewer_instructions import INBOX_FILE, InstructionInbox, ViewerInstruction
-from orchestrator.viewer.server import InstructionRefused, ViewerApp
+from storyteller.benchmark.support.headless_chromium import Chromium, chromium_binary
+from storyteller.orchestrator.safe_text import markdown
+from storyteller.orchestrator.session.instruction_script import MAX_INSTRUCTION_CHARS
+from storyteller.orchestrator.session.run_manifest import RunArguments, RunManifest, write_manifest
+from storyteller.orchestrator.session.viewer_instructions import INBOX_FILE, InstructionInbox, ViewerInstruction
+from storyteller.orchestrator.viewer.server import InstructionRefused, ViewerApp
 from tests.support.story_planner import interact_program, recorded_home_run
 
 THREAD = "run-0123456789ab@unified+object-list"

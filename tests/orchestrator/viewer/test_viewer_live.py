@@ -1,8 +1,8 @@
 """Watching a run in progress: ``story.jsonl``, the live run folder and the viewer following it.
 
 The unit tests write a run folder the way a running ``storyteller run`` does (``scene.json``,
-``story.jsonl`` through :class:`~orchestrator.session.story_stream.StoryStream`, chunk records
-through :class:`~sim.world.track_chunks.ChunkStore`) and drive :class:`ViewerApp` by hand
+``story.jsonl`` through :class:`~storyteller.orchestrator.session.story_stream.StoryStream`, chunk records
+through :class:`~storyteller.sim.world.track_chunks.ChunkStore`) and drive :class:`ViewerApp` by hand
 (``reload_if_changed``), so every step is deterministic. The end-to-end test starts a real
 ``storyteller run`` against the scripted OpenAI-compatible server at ``--pace realtime`` (so it
 runs for a while), starts ``storyteller view`` on its folder at once, and watches the page in
@@ -23,22 +23,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmark.support.fake_openai_server import FakeOpenAI
-from benchmark.support.headless_chromium import Chromium, chromium_binary
-from orchestrator.session.story_stream import (
+from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
+from storyteller.benchmark.support.headless_chromium import Chromium, chromium_binary
+from storyteller.orchestrator.session.story_stream import (
     STREAM_FILE,
     StoryStream,
     StoryStreamError,
     StreamStart,
     read_story_stream,
 )
-from orchestrator.viewer.figures import bone_poses
-from orchestrator.viewer.run_folder import RunFolderError, is_ready, load_run
-from orchestrator.viewer.server import ViewerApp
-from sim.body.skeleton import NUM_JOINTS, heading_to_root
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.files import save_scene_json
-from sim.world.track_chunks import MOTION_FOLDER, ChunkStore
+from storyteller.orchestrator.viewer.figures import bone_poses
+from storyteller.orchestrator.viewer.run_folder import RunFolderError, is_ready, load_run
+from storyteller.orchestrator.viewer.server import ViewerApp
+from storyteller.sim.body.skeleton import NUM_JOINTS, heading_to_root
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.files import save_scene_json
+from storyteller.sim.world.track_chunks import MOTION_FOLDER, ChunkStore
 from tests.support.story_event_stub import Event
 from tests.support.story_planner import interact_program
 
@@ -189,7 +189,7 @@ TOTAL = re.compile(r"\d+\.\d s / (\d+\.\d) s")
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-c", "from orchestrator.cli.app import app; app()", *args]
+    return [sys.executable, "-c", "from storyteller.orchestrator.cli.app import app; app()", *args]
 
 
 @pytest.mark.skipif(chromium_binary() is None, reason="chromium not installed (apt-get install chromium)")

@@ -18,7 +18,7 @@ Each attack must close only its own connection, with the close code that names t
 gets the whole scene (viser's replay up to its ``ReplayDoneMessage``, every kind of message the
 first client got); the viewer's log has no traceback; and its peak RSS stays within
 :data:`MEMORY_GROWTH` of what it was before the first attack. The unit tests at the end check
-:func:`~orchestrator.viewer.inbound.update_problem` on a table.
+:func:`~storyteller.orchestrator.viewer.inbound.update_problem` on a table.
 """
 
 from __future__ import annotations
@@ -44,13 +44,13 @@ from websockets.sync.client import ClientConnection, connect
 from websockets.sync.connection import Connection
 from websockets.typing import Subprotocol
 
-from orchestrator.viewer.inbound import MAX_MESSAGE_BYTES, fits, update_problem
+from storyteller.orchestrator.viewer.inbound import MAX_MESSAGE_BYTES, fits, update_problem
 from tests.support.story_planner import interact_program, recorded_home_run
 
 PROTOCOL = Subprotocol(f"viser-v{viser.__version__}")
 MEMORY_GROWTH = 128 << 20  # bytes of peak RSS the attacks may add (the 16 MiB frame must not be read)
 WAIT_S = 30.0  # a hang detector only: every answer here comes far sooner
-CLI = [sys.executable, "-c", "from orchestrator.cli.app import main; main()"]
+CLI = [sys.executable, "-c", "from storyteller.orchestrator.cli.app import main; main()"]
 
 
 @dataclass

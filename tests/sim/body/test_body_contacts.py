@@ -1,4 +1,4 @@
-"""Arm IK (sim.body.arm_ik) and the contacts the world puts on poses (sim.world.contacts): hands
+"""Arm IK (storyteller.sim.body.arm_ik) and the contacts the world puts on poses (storyteller.sim.world.contacts): hands
 on the object, a handshake's hands meeting, the pelvis on the seat's height."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim.body.arm_ik import (
+from storyteller.sim.body.arm_ik import (
     ARM_LENGTH,
     ELBOW_JOINTS,
     SHOULDER_JOINTS,
@@ -17,15 +17,15 @@ from sim.body.arm_ik import (
     ArmIKError,
     solve_arms,
 )
-from sim.body.leg_ik import leg_chain
-from sim.body.skeleton import NUM_JOINTS, forward_kinematics, heading_to_root
-from sim.motion.matching import MotionQuery, Pose
-from sim.motion.sources.procedural_actions import SEAT_PELVIS_ABOVE_SEAT
-from sim.motion.sources.procedural_rig import ANKLE_HEIGHT
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.files import load_scene
-from sim.scene.model import SceneObject
-from sim.world.contacts import (
+from storyteller.sim.body.leg_ik import leg_chain
+from storyteller.sim.body.skeleton import NUM_JOINTS, forward_kinematics, heading_to_root
+from storyteller.sim.motion.matching import MotionQuery, Pose
+from storyteller.sim.motion.sources.procedural_actions import SEAT_PELVIS_ABOVE_SEAT
+from storyteller.sim.motion.sources.procedural_rig import ANKLE_HEIGHT
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import SceneObject
+from storyteller.sim.world.contacts import (
     FEET_CLEAR_M,
     HOLD_BELOW_MOUTH_M,
     box_contact_point,
@@ -35,9 +35,9 @@ from sim.world.contacts import (
     reach_weight,
     seat_pelvis,
 )
-from sim.world.events import AssignEvent, Assignment
-from sim.world.phases import CharacterState
-from sim.world.step import World, WorldConfig, step
+from storyteller.sim.world.events import AssignEvent, Assignment
+from storyteller.sim.world.phases import CharacterState
+from storyteller.sim.world.step import World, WorldConfig, step
 from tests.support.reference import OFFICE, reference_or_skip
 
 

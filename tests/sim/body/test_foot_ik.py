@@ -1,4 +1,4 @@
-"""Foot IK (sim.body.foot_ik): exact two-bone IK, feet pushed out of footprints, pinned contacts."""
+"""Foot IK (storyteller.sim.body.foot_ik): exact two-bone IK, feet pushed out of footprints, pinned contacts."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sim.body.foot_clearance import BoxGrid, _may_be_inside, _push_out_kernel
-from sim.body.foot_clearance import _depth as _box_depth
-from sim.body.foot_ik import (
+from storyteller.sim.body.foot_clearance import BoxGrid, _may_be_inside, _push_out_kernel
+from storyteller.sim.body.foot_clearance import _depth as _box_depth
+from storyteller.sim.body.foot_ik import (
     HIP_JOINTS,
     KNEE_JOINTS,
     LEG_JOINTS,
@@ -21,11 +21,11 @@ from sim.body.foot_ik import (
     push_out,
     solve_legs,
 )
-from sim.body.foot_kernel import LAND_M, TOE_FLOOR_M
-from sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, _ik_kernel
-from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, forward_kinematics, heading_to_root
-from sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
-from sim.scene.model import Scene, SceneObject
+from storyteller.sim.body.foot_kernel import LAND_M, TOE_FLOOR_M
+from storyteller.sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, LegChain, _ik_kernel
+from storyteller.sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, forward_kinematics, heading_to_root
+from storyteller.sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
+from storyteller.sim.scene.model import Scene, SceneObject
 from tests.support.foot_reference import apply_numpy
 from tests.support.leg_ik_reference import ik_kernel_arrays
 

@@ -12,10 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from benchmark.support.random_tracks import random_track
-from sim.body.skeleton import BODY_TO_WORLD, JOINT_NAMES, PARENTS, REST_OFFSETS
-from sim.export.bvh import END_SITES, Units, bvh_text, depth_first_order, export_bvh
-from sim.world.character_track import CharacterTrack
+from storyteller.benchmark.support.random_tracks import random_track
+from storyteller.sim.body.skeleton import BODY_TO_WORLD, JOINT_NAMES, PARENTS, REST_OFFSETS
+from storyteller.sim.export.bvh import END_SITES, Units, bvh_text, depth_first_order, export_bvh
+from storyteller.sim.world.character_track import CharacterTrack
 
 _AXES = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
 

@@ -11,20 +11,20 @@ import pytest
 import trimesh
 from pygltflib.validator import validate
 
-from benchmark.support.random_tracks import random_track
-from sim.body.skeleton import (
+from storyteller.benchmark.support.random_tracks import random_track
+from storyteller.sim.body.skeleton import (
     BODY_TO_WORLD,
     JOINT_NAMES,
     PARENTS,
     forward_kinematics,
     rest_positions,
 )
-from sim.export.box_figure import box_mesh, character_mesh
-from sim.export.bundle import export_run
-from sim.export.glb import export_glb, glb_bytes
-from sim.run_folder_names import file_slug
-from sim.scene.model import Scene, SceneObject
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.export.box_figure import box_mesh, character_mesh
+from storyteller.sim.export.bundle import export_run
+from storyteller.sim.export.glb import export_glb, glb_bytes
+from storyteller.sim.run_folder_names import file_slug
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.character_track import CharacterTrack
 from tests.support.gltf_eval import COMPONENTS as _WIDTH
 from tests.support.gltf_eval import NUMPY_DTYPES as _NUMPY
 from tests.support.gltf_eval import read_accessor as _read

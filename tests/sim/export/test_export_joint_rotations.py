@@ -15,21 +15,21 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from benchmark.support.random_tracks import random_track
-from sim.export.bundle import export_run
-from sim.export.bvh import (
+from storyteller.benchmark.support.random_tracks import random_track
+from storyteller.sim.export.bundle import export_run
+from storyteller.sim.export.bvh import (
     EULER_ORDER,
     WORLD_TO_BVH,
     bvh_motion_values,
     depth_first_order,
     export_bvh,
 )
-from sim.export.glb import WORLD_TO_GLTF, export_glb
-from sim.export.joint_rotations import JointRotations
-from sim.export.smplx_npz import export_smplx_npz, smplx_parameters
-from sim.run_folder_names import file_slug
-from sim.scene.bundled import load_bundled_scene
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.export.glb import WORLD_TO_GLTF, export_glb
+from storyteller.sim.export.joint_rotations import JointRotations
+from storyteller.sim.export.smplx_npz import export_smplx_npz, smplx_parameters
+from storyteller.sim.run_folder_names import file_slug
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.world.character_track import CharacterTrack
 
 
 def _noisy(name: str, frames: int, seed: int) -> CharacterTrack:

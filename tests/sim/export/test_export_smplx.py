@@ -12,10 +12,10 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from benchmark.support.random_tracks import random_track
-from sim.body.skeleton import REST_OFFSETS, axis_angle_to_matrix, forward_kinematics, rest_positions
-from sim.export.smplx_npz import export_smplx_npz, smplx_parameters
-from sim.world.character_track import CharacterTrack, CharacterTrackError, write_npz
+from storyteller.benchmark.support.random_tracks import random_track
+from storyteller.sim.body.skeleton import REST_OFFSETS, axis_angle_to_matrix, forward_kinematics, rest_positions
+from storyteller.sim.export.smplx_npz import export_smplx_npz, smplx_parameters
+from storyteller.sim.world.character_track import CharacterTrack, CharacterTrackError, write_npz
 from tests.support.smplx_standin import (
     MODEL_PARENTS,
     NUM_FACES,

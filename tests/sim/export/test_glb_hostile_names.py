@@ -10,11 +10,11 @@ import unicodedata
 
 import numpy as np
 
-from sim.body.skeleton import NUM_JOINTS
-from sim.export.glb import build_glb
-from sim.scene.model import Scene, SceneObject
-from sim.visible_text import UNSAFE_CATEGORIES
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.body.skeleton import NUM_JOINTS
+from storyteller.sim.export.glb import build_glb
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.visible_text import UNSAFE_CATEGORIES
+from storyteller.sim.world.character_track import CharacterTrack
 
 HOSTILE = "x\x1b[31my\x07z\u202ew\u2028v"
 SHOWN = "x\\x1b[31my\\x07z\\u202ew\\u2028v"

@@ -4,7 +4,7 @@ each shown as its escape, in the top-down PNG, a run's final-state PNG and every
 animation (whose moving labels are set anew each frame).
 
 What is checked is what matplotlib's Agg renderer is asked to draw (``RendererAgg.draw_text``,
-recorded), so a text drawn by any path of ``sim.export`` counts. Before the escaping lived in
+recorded), so a text drawn by any path of ``storyteller.sim.export`` counts. Before the escaping lived in
 ``sim`` these failed: every name reached the renderer raw.
 """
 
@@ -19,12 +19,12 @@ import numpy as np
 import pytest
 from matplotlib.backends.backend_agg import RendererAgg
 
-from sim.body.skeleton import NUM_JOINTS
-from sim.export.topdown import CharacterMarker, save_topdown_png
-from sim.export.video import RunRecording, animation_frames, save_run_png
-from sim.scene.model import Scene, SceneObject
-from sim.visible_text import UNSAFE_CATEGORIES
-from sim.world.character_track import CharacterTrack
+from storyteller.sim.body.skeleton import NUM_JOINTS
+from storyteller.sim.export.topdown import CharacterMarker, save_topdown_png
+from storyteller.sim.export.video import RunRecording, animation_frames, save_run_png
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.visible_text import UNSAFE_CATEGORIES
+from storyteller.sim.world.character_track import CharacterTrack
 
 HOSTILE = "x\x1b[31my\x07z\u202ew\u2028v"
 SHOWN = "x\\x1b[31my\\x07z\\u202ew\\u2028v"

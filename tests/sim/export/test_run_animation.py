@@ -1,6 +1,6 @@
 """The animation (static scene drawn once, moving layers per picture) shows the same pictures
 as the renderer that drew every picture from scratch (frozen in
-``benchmark.support.picture_reference``), and writes MP4 when imageio-ffmpeg is installed."""
+``storyteller.benchmark.support.picture_reference``), and writes MP4 when imageio-ffmpeg is installed."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmark.support.picture_reference import reference_frame_rgb
-from benchmark.support.random_tracks import wandering_story
-from sim.export.topdown import CharacterMarker, TopdownAnimation, render_topdown_rgb
-from sim.export.video import (
+from storyteller.benchmark.support.picture_reference import reference_frame_rgb
+from storyteller.benchmark.support.random_tracks import wandering_story
+from storyteller.sim.export.topdown import CharacterMarker, TopdownAnimation, render_topdown_rgb
+from storyteller.sim.export.video import (
     RunRecording,
     animation_frames,
     animation_suffix,
@@ -21,8 +21,8 @@ from sim.export.video import (
     run_frame_rgb,
     save_run_animation,
 )
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.bundled import load_bundled_scene
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.scene.bundled import load_bundled_scene
 
 # Per channel, out of 255: anti-aliased edges may differ a little, nothing a person would see.
 PIXEL_TOLERANCE = 24

@@ -1,4 +1,4 @@
-"""Pictures of a run (sim.export.video): final-state PNG and animated GIF."""
+"""Pictures of a run (storyteller.sim.export.video): final-state PNG and animated GIF."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
-from sim.export.video import (
+from storyteller.sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
+from storyteller.sim.export.video import (
     RunRecording,
     RunVideoError,
     animation_frames,
@@ -19,11 +19,11 @@ from sim.export.video import (
     save_run_animation,
     save_run_png,
 )
-from sim.motion.matching import MotionQuery, Pose
-from sim.scene.model import Scene, SceneObject
-from sim.world.character_track import CharacterTrack
-from sim.world.events import AssignEvent, Assignment
-from sim.world.step import World, run
+from storyteller.sim.motion.matching import MotionQuery, Pose
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.character_track import CharacterTrack
+from storyteller.sim.world.events import AssignEvent, Assignment
+from storyteller.sim.world.step import World, run
 
 
 class StandInMotion:

@@ -10,9 +10,9 @@ import pytest
 from matplotlib.image import imread
 from matplotlib.quiver import Quiver
 
-from sim.export.topdown import CharacterMarker, draw_topdown, render_topdown_rgb, save_topdown_png
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.model import Scene, SceneObject
+from storyteller.sim.export.topdown import CharacterMarker, draw_topdown, render_topdown_rgb, save_topdown_png
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.model import Scene, SceneObject
 
 
 @pytest.fixture(scope="module")

@@ -13,11 +13,11 @@ the exporters would write):
   obstacles), strict; the feet (ankle and toe joints) are points that must not lie inside the
   footprint (oriented bounding box) of any object standing on the floor (bottom within
   0.10 m of it), strict too. A stride reaches ~0.4 m past the pelvis while the root stays
-  exactly on the planner's path; the world's leg IK (``sim.body.foot_ik``, on by default) moves a
+  exactly on the planner's path; the world's leg IK (``storyteller.sim.body.foot_ik``, on by default) moves a
   foot that would enter a footprint out of it (the deepest graze without it was 8 cm here,
   12 cm with off-grid targets);
 - foot sliding: mean horizontal toe speed (m/s) over frames where the motion layer
-  marks that foot in contact in two consecutive frames (``sim.motion.clips.foot_sliding``'s
+  marks that foot in contact in two consecutive frames (``storyteller.sim.motion.clips.foot_sliding``'s
   rule, pooled over characters): about 0.30 m/s with the leg IK pinning planted feet, 0.60
   without; targets reached (reported).
 
@@ -32,15 +32,15 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from orchestrator.cache_paths import motion_cache_dir
-from sim.body.skeleton import forward_kinematics
-from sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
-from sim.paths.nav_grid import body_clearance
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
-from sim.world.events import AssignEvent, Assignment
-from sim.world.motion_layer import MotionLayer
-from sim.world.step import World, WorldConfig, step
+from storyteller.orchestrator.cache_paths import motion_cache_dir
+from storyteller.sim.body.skeleton import forward_kinematics
+from storyteller.sim.motion.clips import ANKLE_JOINTS, FOOT_JOINTS
+from storyteller.sim.paths.nav_grid import body_clearance
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.events import AssignEvent, Assignment
+from storyteller.sim.world.motion_layer import MotionLayer
+from storyteller.sim.world.step import World, WorldConfig, step
 from tests.support.reference import OFFICE, reference_or_skip
 
 BODY_RADIUS = 0.25
@@ -87,7 +87,7 @@ def simulate_crowd(scene: Scene, n: int, frames: int, seed: int, motion: MotionL
 
     ``off_grid`` (metres): targets are random cell centres moved by up to this much along x
     and y (kept where a body fits), so walkers end on exact points off the grid."""
-    from sim.paths.nav_grid import build_nav_grid
+    from storyteller.sim.paths.nav_grid import build_nav_grid
 
     grid = build_nav_grid(scene)
     cells = np.argwhere(grid.component == grid.main_component)
@@ -197,8 +197,8 @@ def measure(world: World, scene: Scene, given: int, reached: int, failures: int)
 @pytest.fixture(scope="module")
 def crowd() -> tuple[World, CrowdReport]:
     reference_or_skip()
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
 
     scene = load_scene(OFFICE)
     return simulate_crowd(scene, n=50, frames=1800, seed=7, motion=MotionMatcher(load_databases(cache_dir=motion_cache_dir())), off_grid=0.0)
@@ -225,8 +225,8 @@ def test_off_grid_targets_keep_feet_out_of_furniture() -> None:
     # Targets up to 0.12 m off the cell centres bring bodies closer to furniture edges (without
     # the leg IK two foot joints went over 10 cm deep here).
     reference_or_skip()
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
 
     _, report = simulate_crowd(load_scene(OFFICE), n=20, frames=600, seed=3, motion=MotionMatcher(load_databases(cache_dir=motion_cache_dir())),
                                off_grid=0.12)
@@ -256,8 +256,8 @@ def test_feet_slide_less_than_a_skating_body(crowd: tuple[World, CrowdReport]) -
 if __name__ == "__main__":
     import time
 
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
 
     t0 = time.perf_counter()
     for off in (0.0, 0.12):

@@ -1,7 +1,7 @@
 """The procedural walk against the real CMU walks, as a function of speed (issue 25).
 
 The real figures are the least-squares lines against speed over the fitting walks
-(``benchmark.gait_fit``: the CMU walks less ``HELD_OUT``), measured as the benchmark measures;
+(``storyteller.benchmark.gait_fit``: the CMU walks less ``HELD_OUT``), measured as the benchmark measures;
 the held-out walk checks that the fit carries over. Skipped without the shared mocap folder.
 """
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmark.gait_fit import Walks
+from storyteller.benchmark.gait_fit import Walks
 from tests.support.reference import requires_mocap
 
 pytestmark = requires_mocap
@@ -20,7 +20,7 @@ pytestmark = requires_mocap
 
 @pytest.fixture(scope="module")
 def walks() -> tuple[Walks, Walks]:
-    from benchmark.gait_fit import HELD_OUT, measure_walks, real_walks
+    from storyteller.benchmark.gait_fit import HELD_OUT, measure_walks, real_walks
 
     motions, names = real_walks()
     held = {Path(f).stem for f in HELD_OUT}
@@ -30,8 +30,8 @@ def walks() -> tuple[Walks, Walks]:
 
 
 def _generated(speed: float) -> dict[str, float]:
-    from benchmark.gait_fit import measure_walks
-    from sim.motion.sources.procedural_locomotion import _const, locomotion_clip
+    from storyteller.benchmark.gait_fit import measure_walks
+    from storyteller.sim.motion.sources.procedural_locomotion import _const, locomotion_clip
 
     clip = locomotion_clip("test", _const(speed), _const(0.0), 6.0)
     return measure_walks([np.asarray(clip.joint_positions())]).windows[0]
@@ -40,7 +40,7 @@ def _generated(speed: float) -> dict[str, float]:
 @pytest.mark.parametrize("measure", ["arm_swing", "bob_oscillation", "trunk_twist"])
 @pytest.mark.parametrize("speed", [0.9, 1.2])
 def test_walk_swings_bobs_and_twists_like_the_real_walks_at_its_speed(walks: tuple[Walks, Walks], measure: str, speed: float) -> None:
-    from benchmark.gait_fit import speed_lines
+    from storyteller.benchmark.gait_fit import speed_lines
 
     fit, _ = walks
     real = speed_lines(fit)[measure].value(speed)
@@ -52,8 +52,8 @@ def test_walk_carries_over_to_the_held_out_walk(walks: tuple[Walks, Walks]) -> N
     """The held-out CMU walk (another conversion, curving): step, cadence, bob and twist within 20%
     of a walk generated at its speed (its arm swing, 0.16 m, is the lowest of the CMU walkers'
     and is not checked)."""
-    from benchmark.gait_fit import held_out_rows
-    from sim.motion.sources.gait_params import FITTED_GAIT
+    from storyteller.benchmark.gait_fit import held_out_rows
+    from storyteller.sim.motion.sources.gait_params import FITTED_GAIT
 
     _, held = walks
     assert held.windows

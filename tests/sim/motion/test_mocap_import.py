@@ -12,17 +12,17 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from sim.body.skeleton import JOINT_INDEX, REST_OFFSETS, matrix_to_axis_angle
-from sim.motion.clips import MotionClip, foot_sliding
-from sim.motion.config import MotionConfigError, build_databases_from_config, load_motion_config
-from sim.motion.sources.amass_import import import_amass
-from sim.motion.sources.bvh_import import (
+from storyteller.sim.body.skeleton import JOINT_INDEX, REST_OFFSETS, matrix_to_axis_angle
+from storyteller.sim.motion.clips import MotionClip, foot_sliding
+from storyteller.sim.motion.config import MotionConfigError, build_databases_from_config, load_motion_config
+from storyteller.sim.motion.sources.amass_import import import_amass
+from storyteller.sim.motion.sources.bvh_import import (
     MocapImportError,
     auto_joint_mapping,
     import_bvh,
     parse_bvh,
 )
-from sim.motion.sources.procedural_actions import action_clip
+from storyteller.sim.motion.sources.procedural_actions import action_clip
 from tests.support.reference import MOCAP, requires_mocap
 
 HEAD = JOINT_INDEX["head"]

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.body.skeleton import JOINT_INDEX, forward_kinematics, heading_to_root, rest_positions
-from sim.motion.action_labels import (
+from storyteller.sim.body.skeleton import JOINT_INDEX, forward_kinematics, heading_to_root, rest_positions
+from storyteller.sim.motion.action_labels import (
     ACTION_LABELS,
     UnknownActionLabelError,
     action_spec,
@@ -20,12 +20,12 @@ from sim.motion.action_labels import (
     family_of,
     playable_seated,
 )
-from sim.motion.cache import cached_arrays, content_key
-from sim.motion.clips import FOOT_JOINTS, MotionClip
-from sim.motion.sources.procedural_actions import action_clip, sit_idle_clip, sitting_clip
-from sim.motion.sources.procedural_library import procedural_clips
-from sim.motion.sources.procedural_locomotion import locomotion_clips
-from sim.motion.sources.procedural_rig import TOE_HEIGHT, two_bone_ik
+from storyteller.sim.motion.cache import cached_arrays, content_key
+from storyteller.sim.motion.clips import FOOT_JOINTS, MotionClip
+from storyteller.sim.motion.sources.procedural_actions import action_clip, sit_idle_clip, sitting_clip
+from storyteller.sim.motion.sources.procedural_library import procedural_clips
+from storyteller.sim.motion.sources.procedural_locomotion import locomotion_clips
+from storyteller.sim.motion.sources.procedural_rig import TOE_HEIGHT, two_bone_ik
 from tests.support.reference import TEST_CASES, requires_reference
 
 

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.motion.database import (
+from storyteller.sim.motion.database import (
     SCAN_THRESHOLD,
     MotionDatabase,
     NearestFrameIndex,
@@ -17,8 +17,8 @@ from sim.motion.database import (
     load_databases,
     squared_distances,
 )
-from sim.motion.features import FEATURE_LAYOUTS, layout_for_key, layout_size
-from sim.motion.sources.procedural_library import procedural_clips
+from storyteller.sim.motion.features import FEATURE_LAYOUTS, layout_for_key, layout_size
+from storyteller.sim.motion.sources.procedural_library import procedural_clips
 
 
 @pytest.fixture(scope="module")

@@ -5,17 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.motion.clips import foot_sliding
-from sim.motion.database import build_database
-from sim.motion.features import future_from_path
-from sim.motion.inertialization import decay_spring, rotation_exp, transition_offsets
-from sim.motion.matching import (
+from storyteller.sim.motion.clips import foot_sliding
+from storyteller.sim.motion.database import build_database
+from storyteller.sim.motion.features import future_from_path
+from storyteller.sim.motion.inertialization import decay_spring, rotation_exp, transition_offsets
+from storyteller.sim.motion.matching import (
     MatchState,
     MotionMatcher,
     MotionMatchingError,
     MotionQuery,
 )
-from sim.motion.sources.procedural_library import procedural_clips
+from storyteller.sim.motion.sources.procedural_library import procedural_clips
 
 DT = 1.0 / 30.0
 

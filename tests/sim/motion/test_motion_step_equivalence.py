@@ -1,4 +1,4 @@
-"""The compiled motion step equals the numpy one it replaced (benchmark.support.motion_reference).
+"""The compiled motion step equals the numpy one it replaced (storyteller.benchmark.support.motion_reference).
 
 A scripted multi-character scenario (walkers in one group and alone, idle with a target, a
 completing action entered from its clip start, sitting down on root motion with a seat height,
@@ -18,20 +18,20 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from benchmark.support.motion_reference import ReferenceMotionMatcher
-from orchestrator.cache_paths import motion_cache_dir
-from sim.body.skeleton import forward_kinematics
-from sim.motion.database import MotionDatabase, NearestFrameIndex, load_databases, squared_distances
-from sim.motion.features import future_from_path
-from sim.motion.inertialization import rotation_exp, rotation_log
-from sim.motion.kernels import (
+from storyteller.benchmark.support.motion_reference import ReferenceMotionMatcher
+from storyteller.orchestrator.cache_paths import motion_cache_dir
+from storyteller.sim.body.skeleton import forward_kinematics
+from storyteller.sim.motion.database import MotionDatabase, NearestFrameIndex, load_databases, squared_distances
+from storyteller.sim.motion.features import future_from_path
+from storyteller.sim.motion.inertialization import rotation_exp, rotation_log
+from storyteller.sim.motion.kernels import (
     fk_positions,
     matmul3,
     matrix_to_rotvec,
     nearest_rows,
     rotvec_to_matrix,
 )
-from sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
+from storyteller.sim.motion.matching import MatchState, MotionMatcher, MotionQuery, Pose
 
 DT = 1.0 / 30.0
 KEYS = ["walk", "idle", "chat", "turn_on_tv", "sit_down", "sit_idle", "drink@seated"]
@@ -164,7 +164,7 @@ def test_a_changed_step_is_caught(dbs: dict[str, MotionDatabase]) -> None:
 
 
 def test_crowd_run_matches_the_reference_step() -> None:
-    from benchmark.bench_motion_step import record, replay  # the bench_world-like crowd
+    from storyteller.benchmark.bench_motion_step import record, replay  # the bench_world-like crowd
 
     all_dbs = load_databases(cache_dir=motion_cache_dir())
     rec = record(all_dbs, 6, 75, seed=3)

@@ -1,6 +1,6 @@
 """The compiled WHCA* backend takes exactly the pure-Python planner's decisions.
 
-Both backends of ``PathPlanner`` run the same algorithm (``sim.paths.astar_kernel`` is the numba
+Both backends of ``PathPlanner`` run the same algorithm (``storyteller.sim.paths.astar_kernel`` is the numba
 version of ``PathPlanner._search`` and the reservation folding); here they must return equal
 ``PlanResult``s on crowded problems in the reference Office scene, with stationary bodies,
 off-grid segments, hints, tight budgets (failures, repair and fallback passes), and drive a
@@ -16,13 +16,13 @@ from typing import cast
 import numpy as np
 import pytest
 
-from benchmark.bench_paths import _spaced
-from sim.paths.cooperative_astar import PathPlanner, PlanningError, PlanResult
-from sim.paths.following import CrowdNavigator
-from sim.paths.nav_grid import NavGrid, build_nav_grid
-from sim.paths.plan_types import Agent, Backend, Cell
-from sim.paths.reservations import Reservations
-from sim.scene.files import load_scene
+from storyteller.benchmark.bench_paths import _spaced
+from storyteller.sim.paths.cooperative_astar import PathPlanner, PlanningError, PlanResult
+from storyteller.sim.paths.following import CrowdNavigator
+from storyteller.sim.paths.nav_grid import NavGrid, build_nav_grid
+from storyteller.sim.paths.plan_types import Agent, Backend, Cell
+from storyteller.sim.paths.reservations import Reservations
+from storyteller.sim.scene.files import load_scene
 from tests.support.dense_reservations import DenseReservations
 from tests.support.goal_distance_reference import scipy_goal_distances
 from tests.support.reference import OFFICE, reference_or_skip

@@ -13,10 +13,10 @@ import math
 import numpy as np
 import pytest
 
-from sim.paths import footprint_distance
-from sim.paths.nav_grid import body_clearance, build_nav_grid
-from sim.scene.files import load_scene
-from sim.scene.model import SceneObject
+from storyteller.sim.paths import footprint_distance
+from storyteller.sim.paths.nav_grid import body_clearance, build_nav_grid
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import SceneObject
 from tests.support.clearance_reference import body_clearance_reference
 from tests.support.reference import OFFICE, reference_or_skip
 

@@ -10,12 +10,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.paths.cooperative_astar import PathPlanner, PlanningError, plan_conflicts, position_at
-from sim.paths.following import CrowdNavigator
-from sim.paths.move_tables import Neighbour
-from sim.paths.nav_grid import MOVES, NavGrid, body_clearance, build_nav_grid
-from sim.paths.plan_types import Agent, Cell
-from sim.scene.model import Scene, SceneObject
+from storyteller.sim.paths.cooperative_astar import PathPlanner, PlanningError, plan_conflicts, position_at
+from storyteller.sim.paths.following import CrowdNavigator
+from storyteller.sim.paths.move_tables import Neighbour
+from storyteller.sim.paths.nav_grid import MOVES, NavGrid, body_clearance, build_nav_grid
+from storyteller.sim.paths.plan_types import Agent, Cell
+from storyteller.sim.scene.model import Scene, SceneObject
 
 
 def _box(name: str, x: float, y: float, w: float, d: float) -> SceneObject:
@@ -200,7 +200,7 @@ def test_a_target_inside_furniture_is_reported_not_walked_into() -> None:
 
 def _overrides_reference(planner: PathPlanner, segs: list[tuple[np.ndarray, np.ndarray]]) -> dict[int, list[Neighbour]]:
     """Direct per-cell computation of the moves kept next to static discs / segments."""
-    from sim.paths.cooperative_astar import segment_distance
+    from storyteller.sim.paths.cooperative_astar import segment_distance
 
     g, cs = planner.grid, planner.grid.cell_size
     ps = np.array([p for p, _ in segs])

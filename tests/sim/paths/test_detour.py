@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.paths.cooperative_astar import PathPlanner
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.bundled import resolve_scene
-from sim.scene.model import Scene, SceneObject
-from sim.world.events import AssignEvent, Assignment, StepOutput
-from sim.world.partners import spaced
-from sim.world.step import World, WorldConfig, step
+from storyteller.sim.paths.cooperative_astar import PathPlanner
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.events import AssignEvent, Assignment, StepOutput
+from storyteller.sim.world.partners import spaced
+from storyteller.sim.world.step import World, WorldConfig, step
 from tests.support.stand_in_motion import RestPoseMotion
 
 RING = Scene(

@@ -7,15 +7,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.paths.nav_grid import (
+from storyteller.sim.paths.nav_grid import (
     MOVES,
     NavGridError,
     body_clearance,
     build_nav_grid,
     with_reference_grid_origin,
 )
-from sim.scene.files import load_scene
-from sim.scene.model import NavHints, Scene, SceneObject
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import NavHints, Scene, SceneObject
 from tests.support.reference import SCENES, reference_or_skip, requires_reference
 
 
@@ -167,8 +167,8 @@ def test_a_seat_whose_front_is_closed_off_is_sat_on_from_a_near_side_not_from_fa
     """The bundled home's armchair faces a pocket between the couch and the TV stand that a body
     does not fit into: its approach point used to be 2 m away in front (a sit-down sliding past
     the couch); a point within ``MAX_SIT_SLIDE_M`` beside it comes first."""
-    from sim.paths.nav_grid import MAX_SIT_SLIDE_M
-    from sim.scene.bundled import load_bundled_scene
+    from storyteller.sim.paths.nav_grid import MAX_SIT_SLIDE_M
+    from storyteller.sim.scene.bundled import load_bundled_scene
 
     scene = load_bundled_scene("home")
     grid = build_nav_grid(scene)

@@ -15,11 +15,11 @@ from collections.abc import Hashable
 
 import pytest
 
-from sim.paths.cooperative_astar import PathPlanner
-from sim.paths.fallback import PriorityKeeper
-from sim.paths.following import CrowdNavigator
-from sim.paths.nav_grid import NavGrid, build_nav_grid
-from sim.scene.model import Scene, SceneObject
+from storyteller.sim.paths.cooperative_astar import PathPlanner
+from storyteller.sim.paths.fallback import PriorityKeeper
+from storyteller.sim.paths.following import CrowdNavigator
+from storyteller.sim.paths.nav_grid import NavGrid, build_nav_grid
+from storyteller.sim.scene.model import Scene, SceneObject
 
 
 def _wall(name: str, x: float, y: float, w: float, d: float) -> SceneObject:

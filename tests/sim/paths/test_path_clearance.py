@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.paths.following import CrowdNavigator
-from sim.paths.nav_grid import body_clearance, build_nav_grid, with_reference_grid_origin
-from sim.paths.plan_types import Cell
-from sim.scene.files import load_scene
+from storyteller.sim.paths.following import CrowdNavigator
+from storyteller.sim.paths.nav_grid import body_clearance, build_nav_grid, with_reference_grid_origin
+from storyteller.sim.paths.plan_types import Cell
+from storyteller.sim.scene.files import load_scene
 from tests.support.reference import OFFICE, requires_reference
 
 

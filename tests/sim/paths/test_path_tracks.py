@@ -1,6 +1,6 @@
 """Batched path following gives the very floats of the one-walker-at-a-time code.
 
-``sim.paths.tracks.path_tracks`` (compiled) against ``tests.support.path_reference.track_reference``
+``storyteller.sim.paths.tracks.path_tracks`` (compiled) against ``tests.support.path_reference.track_reference``
 (numpy, one path), and ``CrowdNavigator``'s batched reads (``futures``, the positions ``tick`` returns) against its
 per-agent ``future`` / ``_xy_at``, in a crowd that walks, takes exact off-grid legs and parks.
 """
@@ -11,13 +11,13 @@ import math
 
 import numpy as np
 
-from sim.paths.cooperative_astar import PathPlanner
-from sim.paths.following import CrowdNavigator, close_xy
-from sim.paths.nav_grid import build_nav_grid
-from sim.paths.plan_types import Cell
-from sim.paths.tracks import is_movement, path_tracks, walker_headings
-from sim.scene.model import Scene, SceneObject
-from sim.world.phases import wrap_angle
+from storyteller.sim.paths.cooperative_astar import PathPlanner
+from storyteller.sim.paths.following import CrowdNavigator, close_xy
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.paths.plan_types import Cell
+from storyteller.sim.paths.tracks import is_movement, path_tracks, walker_headings
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.phases import wrap_angle
 from tests.support.path_reference import track_reference
 
 

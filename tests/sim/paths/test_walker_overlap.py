@@ -4,13 +4,13 @@ A walking body is not its standing disc: its swinging foot reaches about 0.4 m a
 pelvis. With the clearance of two standing discs (0.5 m between centres), two characters
 crossing at right angles passed 0.6 m apart and touched thigh against thigh and foot against
 foot (the scripted home story's frames 2364-2373). The planner now keeps two agents that both
-move in a step with their legs apart (``sim.paths.move_tables.striding_safe``: a segment along
+move in a step with their legs apart (``storyteller.sim.paths.move_tables.striding_safe``: a segment along
 each one's direction of travel, ``LEG_REACH_M`` ahead and ``LEG_TRAIL_M`` behind, of radius
 ``LEG_RADIUS_M``).
 
 The scenario: an empty 5 m x 5 m room, two characters whose straight paths cross at the room's
 centre at the same time. Checked on the planner's positions (the rule) and through the full world
-step with motion matching (the bodies: the sphere model of ``benchmark.motion_metrics.bodies``).
+step with motion matching (the bodies: the sphere model of ``storyteller.benchmark.motion_metrics.bodies``).
 """
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ import math
 import numpy as np
 import pytest
 
-from sim.paths.cooperative_astar import PathPlanner, segment_distance
-from sim.paths.following import CrowdNavigator
-from sim.paths.move_tables import LEG_RADIUS_M, LEG_REACH_M, LEG_TRAIL_M
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.model import Scene
+from storyteller.sim.paths.cooperative_astar import PathPlanner, segment_distance
+from storyteller.sim.paths.following import CrowdNavigator
+from storyteller.sim.paths.move_tables import LEG_RADIUS_M, LEG_REACH_M, LEG_TRAIL_M
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.scene.model import Scene
 
 ROOM = Scene(name="room", bounds_min=(0.0, 0.0), bounds_max=(5.1, 5.1), objects=())
 # (start, goal) per walker: one walks +x, the other +y; both pass the centre at the same time
@@ -62,13 +62,13 @@ def test_crossing_walkers_keep_their_legs_apart_on_the_planned_paths() -> None:
 
 @pytest.mark.slow
 def test_crossing_bodies_do_not_overlap_through_the_world_step() -> None:
-    from benchmark.motion_metrics.bodies import body_overlap, sphere_body
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.body.skeleton import forward_kinematics
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
-    from sim.world.events import AssignEvent, Assignment
-    from sim.world.step import World, WorldConfig, step
+    from storyteller.benchmark.motion_metrics.bodies import body_overlap, sphere_body
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.body.skeleton import forward_kinematics
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
+    from storyteller.sim.world.events import AssignEvent, Assignment
+    from storyteller.sim.world.step import World, WorldConfig, step
 
     grid = build_nav_grid(ROOM)
     starts = {a: (tuple(grid.center_of(*grid.cell_of(np.asarray(s)))), math.atan2(g[1] - s[1], g[0] - s[0]))

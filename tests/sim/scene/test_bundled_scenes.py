@@ -8,12 +8,12 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.authoring import LAYOUTS, build_scene, scene_json
-from sim.scene.bundled import bundled_scene_names, load_bundled_scene
-from sim.scene.model import Scene, SceneObject
-from tools.clusters import cluster_objects
-from tools.scene_graph import build_scene_graph, point_footprint_distance
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.scene.authoring import LAYOUTS, build_scene, scene_json
+from storyteller.sim.scene.bundled import bundled_scene_names, load_bundled_scene
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.tools.clusters import cluster_objects
+from storyteller.tools.scene_graph import build_scene_graph, point_footprint_distance
 
 NAMES = ["home", "office", "restaurant"]
 SEAT_LABELS = {"chair", "armchair", "office_chair", "couch", "bench"}
@@ -30,8 +30,8 @@ def test_names() -> None:
 
 @pytest.mark.parametrize("name", NAMES)
 def test_shipped_json_is_what_the_layout_builds(name: str) -> None:
-    shipped = (resources.files("sim.scene") / "scenes" / f"{name}.json").read_text(encoding="utf-8")
-    assert shipped == scene_json(build_scene(LAYOUTS[name])), "run: python -m sim.scene.authoring"
+    shipped = (resources.files("storyteller.sim.scene") / "scenes" / f"{name}.json").read_text(encoding="utf-8")
+    assert shipped == scene_json(build_scene(LAYOUTS[name])), "run: python -m storyteller.sim.scene.authoring"
 
 
 def test_size_and_bounds(scene: Scene) -> None:

@@ -1,5 +1,5 @@
-"""What a mesh file may make the loader do (``sim.scene.mesh_limits``), found by the hostile
-corpus (``python -m benchmark.hostile_inputs``, issue 22): a ``.gltf`` whose buffer is a FIFO
+"""What a mesh file may make the loader do (``storyteller.sim.scene.mesh_limits``), found by the hostile
+corpus (``python -m storyteller.benchmark.hostile_inputs``, issue 22): a ``.gltf`` whose buffer is a FIFO
 hung ``scene inspect``, a sparse 3 GB buffer or material library filled 2 GB, an OBJ's
 ``mtllib`` FIFO hung it, 100,000 nested nodes and 2,000 instances of a 1M-vertex geometry ran
 past a minute, a 1e308 scale printed numpy's warnings before the error line."""
@@ -15,15 +15,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from benchmark.hostile.harness import gltf_doc
-from sim.scene import mesh_limits
-from sim.scene.files import SceneFileError, load_scene
+from storyteller.benchmark.hostile.harness import gltf_doc
+from storyteller.sim.scene import mesh_limits
+from storyteller.sim.scene.files import SceneFileError, load_scene
 
 TRIANGLE = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4")
 
 
 def _doc(nodes: list[dict[str, Any]], count: int = 3, uri: str | None = None) -> dict[str, Any]:
-    """The hostile harness's glTF document (``benchmark.hostile.harness.gltf_doc``) with only the
+    """The hostile harness's glTF document (``storyteller.benchmark.hostile.harness.gltf_doc``) with only the
     first node at the scene's root (a chain or a cycle hangs from it)."""
     return {**gltf_doc(nodes, count, uri), "scenes": [{"nodes": [0]}]}
 

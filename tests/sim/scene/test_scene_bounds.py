@@ -12,13 +12,13 @@ from typing import Any
 import pytest
 from typer.testing import CliRunner
 
-from orchestrator.cli.app import app
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.errors import SceneFileError
-from sim.scene.files import load_scene, save_scene_json
-from sim.scene.meshes import MAX_NODE_NAME_CHARS, parse_instance_name
-from sim.scene.model import MAX_LABEL_CHARS, MAX_NAV_CELLS, MAX_SCENE_OBJECTS
-from sim.scene.strict_json import MAX_SCENE_FILE_BYTES
+from storyteller.orchestrator.cli.app import app
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.errors import SceneFileError
+from storyteller.sim.scene.files import load_scene, save_scene_json
+from storyteller.sim.scene.meshes import MAX_NODE_NAME_CHARS, parse_instance_name
+from storyteller.sim.scene.model import MAX_LABEL_CHARS, MAX_NAV_CELLS, MAX_SCENE_OBJECTS
+from storyteller.sim.scene.strict_json import MAX_SCENE_FILE_BYTES
 from tests.support.finished_run import one_error_line
 
 runner = CliRunner()

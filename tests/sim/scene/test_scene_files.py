@@ -10,9 +10,9 @@ from typing import Any, cast
 
 import pytest
 
-from sim.scene.bundled import bundled_scene_names, load_bundled_scene, resolve_scene
-from sim.scene.files import SceneFileError, load_reference_folder, load_scene, save_scene_json
-from sim.scene.model import Scene
+from storyteller.sim.scene.bundled import bundled_scene_names, load_bundled_scene, resolve_scene
+from storyteller.sim.scene.files import SceneFileError, load_reference_folder, load_scene, save_scene_json
+from storyteller.sim.scene.model import Scene
 from tests.support.reference import SCENES, requires_reference
 
 
@@ -331,7 +331,7 @@ def test_cli_names_object_and_field_of_a_non_finite_number(
 ) -> None:
     from typer.testing import CliRunner
 
-    from orchestrator.cli.app import app
+    from storyteller.orchestrator.cli.app import app
 
     result = CliRunner().invoke(app, ["scene", "inspect", str(build(tmp_path))])
     assert result.exit_code == 2, result.output

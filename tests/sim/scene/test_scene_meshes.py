@@ -12,8 +12,8 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.scene.files import SceneFileError, load_scene
-from sim.scene.meshes import load_mesh_scene, parse_instance_name, yaw_box
+from storyteller.sim.scene.files import SceneFileError, load_scene
+from storyteller.sim.scene.meshes import load_mesh_scene, parse_instance_name, yaw_box
 
 
 @pytest.mark.parametrize(

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
-from sim.scene.model import NAME_PATTERN, Scene, SceneObject
+from storyteller.sim.scene.model import NAME_PATTERN, Scene, SceneObject
 
 
 def _obj(**changes: object) -> SceneObject:

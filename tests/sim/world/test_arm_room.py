@@ -11,10 +11,10 @@ import math
 
 import numpy as np
 
-from sim.body.arm_ik import ELBOW_JOINTS, SHOULDER_JOINTS, WRIST_JOINTS
-from sim.body.skeleton import NUM_JOINTS, forward_kinematics, heading_to_root
-from sim.scene.model import Scene, SceneObject
-from sim.world.arm_room import ARM_CLEAR_M, ARM_FLESH_M, ArmBoxes, arms_clear
+from storyteller.sim.body.arm_ik import ELBOW_JOINTS, SHOULDER_JOINTS, WRIST_JOINTS
+from storyteller.sim.body.skeleton import NUM_JOINTS, forward_kinematics, heading_to_root
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.arm_room import ARM_CLEAR_M, ARM_FLESH_M, ArmBoxes, arms_clear
 
 PELVIS = np.array([[0.0, 0.0, 0.93]])
 
@@ -100,12 +100,12 @@ def test_a_body_standing_beside_a_cabinet_keeps_its_hanging_hand_out_of_it() -> 
     """The world runs the rule on every frame: waving beside a tall cabinet (its face 0.22 m to
     the left of the pelvis), the left hand hangs beside it, not in it. The walk is planned on the
     grid of the room without the cabinet, so the body stands exactly there."""
-    from orchestrator.cache_paths import motion_cache_dir
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
-    from sim.paths.nav_grid import build_nav_grid
-    from sim.world.events import AssignEvent, Assignment
-    from sim.world.step import World, WorldConfig, step
+    from storyteller.orchestrator.cache_paths import motion_cache_dir
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
+    from storyteller.sim.paths.nav_grid import build_nav_grid
+    from storyteller.sim.world.events import AssignEvent, Assignment
+    from storyteller.sim.world.step import World, WorldConfig, step
 
     spot = (2.0, 1.5)
     cabinet = SceneObject(name="cabinet_1", label="cabinet", idx=1, center=(2.0, spot[1] + 0.22 + 0.2, 0.9),

@@ -1,4 +1,4 @@
-"""Phase timing and the motion label of every phase (sim.world.phases)."""
+"""Phase timing and the motion label of every phase (storyteller.sim.world.phases)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sim.motion.action_labels import database_key
-from sim.world.events import Assignment
-from sim.world.phases import (
+from storyteller.sim.motion.action_labels import database_key
+from storyteller.sim.world.events import Assignment
+from storyteller.sim.world.phases import (
     INFINITE,
     CharacterState,
     Phase,

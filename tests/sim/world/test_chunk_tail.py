@@ -1,5 +1,5 @@
-"""A chunk file read as it grows (:class:`~sim.world.chunk_tail.ChunkTail`), and a track joined
-from its pieces (:meth:`~sim.world.character_track.CharacterTrack.then`)."""
+"""A chunk file read as it grows (:class:`~storyteller.sim.world.chunk_tail.ChunkTail`), and a track joined
+from its pieces (:meth:`~storyteller.sim.world.character_track.CharacterTrack.then`)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.body.skeleton import NUM_JOINTS, heading_to_root
-from sim.world.character_track import CharacterTrack, CharacterTrackError
-from sim.world.chunk_tail import ChunkTail
-from sim.world.track_chunks import encode_record, read_frames
+from storyteller.sim.body.skeleton import NUM_JOINTS, heading_to_root
+from storyteller.sim.world.character_track import CharacterTrack, CharacterTrackError
+from storyteller.sim.world.chunk_tail import ChunkTail
+from storyteller.sim.world.track_chunks import encode_record, read_frames
 
 
 def _columns(start: int, n: int) -> tuple[np.ndarray, np.ndarray, list[str]]:

@@ -1,5 +1,5 @@
 """Characters face what they use and whom they talk to, within reach, before they act
-(sim.world.facing, the transition in and the stall rules of sim.world.step).
+(storyteller.sim.world.facing, the transition in and the stall rules of storyteller.sim.world.step).
 
 Deterministic worlds with the rest-pose stand-in motion: the root's yaw is the world's heading
 (``compose_poses``), so a track's root rotation is what is measured."""
@@ -10,15 +10,15 @@ import math
 
 import numpy as np
 
-from sim.scene.authoring import Item, Layout, N, build_scene
-from sim.scene.model import Scene
-from sim.world.events import AssignEvent, Assignment, StepOutput
-from sim.world.facing import REACH_M, focus_object, heading_to_object, surface_distance
-from sim.world.motion_layer import root_yaw
-from sim.world.phases import TURN_SPEED
-from sim.world.step import World, WorldConfig, step
+from storyteller.sim.scene.authoring import Item, Layout, N, build_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.events import AssignEvent, Assignment, StepOutput
+from storyteller.sim.world.facing import REACH_M, focus_object, heading_to_object, surface_distance
+from storyteller.sim.world.motion_layer import root_yaw
+from storyteller.sim.world.phases import TURN_SPEED
+from storyteller.sim.world.step import World, WorldConfig, step
+from storyteller.tools.character_states import CharacterPlan
 from tests.support.stand_in_motion import RestPoseMotion
-from tools.character_states import CharacterPlan
 
 AVA_SPOT = (1.407, 0.913)  # the README story's spot in front of the home coffee maker
 

@@ -12,13 +12,13 @@ import math
 import numpy as np
 import pytest
 
-from orchestrator.cache_paths import motion_cache_dir
-from sim.body.skeleton import JOINT_INDEX
-from sim.motion.database import load_databases
-from sim.motion.matching import MotionMatcher
-from sim.scene.model import Scene, SceneObject
-from sim.world.events import AssignEvent, Assignment
-from sim.world.legroom import (
+from storyteller.orchestrator.cache_paths import motion_cache_dir
+from storyteller.sim.body.skeleton import JOINT_INDEX
+from storyteller.sim.motion.database import load_databases
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.events import AssignEvent, Assignment
+from storyteller.sim.world.legroom import (
     along_way,
     feet_clear_of,
     is_backless,
@@ -26,7 +26,7 @@ from sim.world.legroom import (
     sit_via,
     sitting_yaw,
 )
-from sim.world.step import World, WorldConfig, step
+from storyteller.sim.world.step import World, WorldConfig, step
 
 LEG_JOINTS = ("left_knee", "right_knee", "left_ankle", "right_ankle", "left_foot", "right_foot")
 

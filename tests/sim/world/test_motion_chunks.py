@@ -16,16 +16,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator.cache_paths import motion_cache_dir
-from orchestrator.session.roster import start_positions
-from sim.export.bundle import export_run
-from sim.motion.database import load_databases
-from sim.motion.matching import MotionMatcher
-from sim.scene.bundled import load_bundled_scene
-from sim.scene.model import Scene
-from sim.world.events import AssignEvent, Assignment
-from sim.world.step import World, WorldConfig, WorldError, step
-from sim.world.track_chunks import (
+from storyteller.orchestrator.cache_paths import motion_cache_dir
+from storyteller.orchestrator.session.roster import start_positions
+from storyteller.sim.export.bundle import export_run
+from storyteller.sim.motion.database import load_databases
+from storyteller.sim.motion.matching import MotionMatcher
+from storyteller.sim.scene.bundled import load_bundled_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.events import AssignEvent, Assignment
+from storyteller.sim.world.step import World, WorldConfig, WorldError, step
+from storyteller.sim.world.track_chunks import (
     HEADER_BYTES,
     ChunkError,
     ChunkStore,
@@ -171,9 +171,9 @@ def test_a_torn_last_record_is_dropped_and_a_bad_middle_one_refused(
 def test_the_gif_is_written_picture_by_picture_and_shows_the_same_pictures(tmp_path: Path) -> None:
     import imageio.v3 as iio
 
-    from benchmark.support.random_tracks import wandering_story
-    from sim.export.video import _write_gif, iter_animation_frames
-    from sim.paths.nav_grid import build_nav_grid
+    from storyteller.benchmark.support.random_tracks import wandering_story
+    from storyteller.sim.export.video import _write_gif, iter_animation_frames
+    from storyteller.sim.paths.nav_grid import build_nav_grid
 
     scene = load_bundled_scene("office")
     rec = wandering_story(scene, build_nav_grid(scene), characters=3, seconds=4.0, seed=3)
@@ -198,7 +198,7 @@ def test_the_viewer_shows_a_run_stopped_before_its_exports_from_its_chunks(
 ) -> None:
     import json
 
-    from orchestrator.viewer.run_folder import folder_stamp, load_run
+    from storyteller.orchestrator.viewer.run_folder import folder_stamp, load_run
 
     world = _world(home)
     store = ChunkStore.open(tmp_path / "motion", NAMES)

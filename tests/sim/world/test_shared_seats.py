@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.scene.bundled import resolve_scene
-from sim.world.events import AssignEvent, Assignment
-from sim.world.navigation import seat_place
-from sim.world.step import World, WorldConfig, step
+from storyteller.sim.scene.bundled import resolve_scene
+from storyteller.sim.world.events import AssignEvent, Assignment
+from storyteller.sim.world.navigation import seat_place
+from storyteller.sim.world.step import World, WorldConfig, step
 from tests.support.stand_in_motion import RestPoseMotion
 
 
@@ -60,9 +60,9 @@ def test_seat_place_is_the_seat_point_of_a_chair_and_the_nearest_place_on_a_couc
 
 
 def test_a_group_larger_than_the_couch_sends_the_last_one_to_the_nearest_other_seat() -> None:
-    from sim.scene.bundled import load_bundled_scene
-    from tools.character_states import WorldView
-    from tools.event_program import run_event_program
+    from storyteller.sim.scene.bundled import load_bundled_scene
+    from storyteller.tools.character_states import WorldView
+    from storyteller.tools.event_program import run_event_program
 
     home = load_bundled_scene("home")  # couch_1 has three places; armchair_1 stands beside it
     program = "def parse_event():\n" + "".join(

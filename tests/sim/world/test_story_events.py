@@ -1,4 +1,4 @@
-"""Commands and reports between the planner and the world (sim.world.events)."""
+"""Commands and reports between the planner and the world (storyteller.sim.world.events)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import pytest
 from pydantic import TypeAdapter, ValidationError
 
-from sim.scene.model import Scene, SceneObject
-from sim.world.events import (
+from storyteller.sim.scene.model import Scene, SceneObject
+from storyteller.sim.world.events import (
     AssignEvent,
     Assignment,
     Command,
@@ -16,7 +16,7 @@ from sim.world.events import (
     ReleaseCharacters,
     StepOutput,
 )
-from tools.character_states import CharacterPlan
+from storyteller.tools.character_states import CharacterPlan
 
 
 def _scene() -> Scene:

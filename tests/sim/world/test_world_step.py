@@ -1,4 +1,4 @@
-"""The world step (sim.world.step): phases, group events, failures, determinism, snapshots.
+"""The world step (storyteller.sim.world.step): phases, group events, failures, determinism, snapshots.
 
 These tests use a stand-in motion layer (rest pose on the world's root) so that they check the
 world's own logic quickly; the full motion matcher runs in tests/sim/motion/test_crowd_motion.py and in
@@ -14,15 +14,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestrator.cache_paths import motion_cache_dir
-from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
-from sim.motion.matching import MotionQuery, Pose
-from sim.paths.cooperative_astar import PathPlanner
-from sim.paths.nav_grid import NavGrid, build_nav_grid
-from sim.scene.files import load_scene
-from sim.scene.model import Scene
-from sim.world.events import AssignEvent, Assignment, ReleaseCharacters, StepOutput
-from sim.world.step import World, WorldConfig, WorldError, run, step
+from storyteller.orchestrator.cache_paths import motion_cache_dir
+from storyteller.sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
+from storyteller.sim.motion.matching import MotionQuery, Pose
+from storyteller.sim.paths.cooperative_astar import PathPlanner
+from storyteller.sim.paths.nav_grid import NavGrid, build_nav_grid
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.scene.model import Scene
+from storyteller.sim.world.events import AssignEvent, Assignment, ReleaseCharacters, StepOutput
+from storyteller.sim.world.step import World, WorldConfig, WorldError, run, step
 from tests.support.reference import OFFICE, reference_or_skip
 
 
@@ -303,9 +303,9 @@ def test_setup_errors_are_typed(office: Office) -> None:
 
 
 def test_real_motion_matcher_drives_the_bodies_and_tracks_export(office: Office, tmp_path: Path) -> None:
-    from sim.export.bundle import export_run
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
+    from storyteller.sim.export.bundle import export_run
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
 
     scene, grid, planner = office
     cells = _free_cells(office)
@@ -452,11 +452,11 @@ def test_a_walker_kept_a_little_short_of_its_target_acts_where_it_stands(office:
 
 
 def test_leg_ik_pins_feet_changes_only_legs_and_survives_snapshots(office: Office) -> None:
-    from sim.body.foot_ik import LEG_JOINTS
-    from sim.body.skeleton import forward_kinematics
-    from sim.motion.clips import foot_sliding
-    from sim.motion.database import load_databases
-    from sim.motion.matching import MotionMatcher
+    from storyteller.sim.body.foot_ik import LEG_JOINTS
+    from storyteller.sim.body.skeleton import forward_kinematics
+    from storyteller.sim.motion.clips import foot_sliding
+    from storyteller.sim.motion.database import load_databases
+    from storyteller.sim.motion.matching import MotionMatcher
 
     scene, grid, planner = office
     cells = _free_cells(office)

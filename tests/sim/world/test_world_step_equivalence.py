@@ -13,16 +13,16 @@ positions are compared as well.
 The fingerprint was first recorded from the code before the speed-ups (commit cb21243) and
 re-recorded once on purpose, when walkers began keeping still-valid plans by default
 (``CrowdNavigator(reuse_plans=True)``; the speed-ups were checked against the first), and again
-when the world began putting a seated pelvis on its seat's height (``sim.world.contacts``:
+when the world began putting a seated pelvis on its seat's height (``storyteller.sim.world.contacts``:
 poses of seated characters only; every root, query and output else the same), and when a pair
-doing a partner action began standing at the action's distance (``sim.world.partners``: the
+doing a partner action began standing at the action's distance (``storyteller.sim.world.partners``: the
 chatting pair's points, so the final points of c0, c1 and c6 moved), and when a foot whose
-animated toe is within ``sim.body.foot_kernel.LAND_M`` of the floor began to be pinned with or
+animated toe is within ``storyteller.sim.body.foot_kernel.LAND_M`` of the floor began to be pinned with or
 without the clip's contact flag (leg rotations only; roots the same), and when a drinking or
-eating character's hand began going to its mouth (``sim.world.contacts``: c2's arm while it
+eating character's hand began going to its mouth (``storyteller.sim.world.contacts``: c2's arm while it
 drinks seated), and when two walkers that both move in a step began keeping their legs apart
-(``sim.paths.move_tables.striding_safe``: c0, c1 and c6 end elsewhere at frame 420), and when an
-arm that would pass into a box began swinging out of it at the shoulder (``sim.world.arm_room``:
+(``storyteller.sim.paths.move_tables.striding_safe``: c0, c1 and c6 end elsewhere at frame 420), and when an
+arm that would pass into a box began swinging out of it at the shoulder (``storyteller.sim.world.arm_room``:
 shoulder rotations only; every root, query, output and final point the same). If the
 world's behaviour is changed on purpose, re-record it with
 ``python -m tests.sim.world.test_world_step_equivalence`` and say so in the commit message.
@@ -37,13 +37,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
-from sim.motion.matching import MotionQuery, Pose
-from sim.paths.cooperative_astar import PathPlanner
-from sim.paths.nav_grid import build_nav_grid
-from sim.scene.files import load_scene
-from sim.world.events import AssignEvent, Assignment, ReleaseCharacters, StepOutput
-from sim.world.step import World, WorldConfig, step
+from storyteller.sim.body.skeleton import NUM_JOINTS, REST_OFFSETS, heading_to_root
+from storyteller.sim.motion.matching import MotionQuery, Pose
+from storyteller.sim.paths.cooperative_astar import PathPlanner
+from storyteller.sim.paths.nav_grid import build_nav_grid
+from storyteller.sim.scene.files import load_scene
+from storyteller.sim.world.events import AssignEvent, Assignment, ReleaseCharacters, StepOutput
+from storyteller.sim.world.step import World, WorldConfig, step
 from tests.support.reference import OFFICE, reference_or_skip
 
 FRAMES = 420
@@ -230,7 +230,7 @@ def test_world_output_matches_the_recorded_fingerprint(result: Simulated) -> Non
 
 
 def test_the_worlds_query_constructor_builds_the_same_queries() -> None:
-    from sim.world.frame_assembly import _new_query
+    from storyteller.sim.world.frame_assembly import _new_query
 
     kw: dict[str, Any] = dict(label="walk", seated=False, root_xy=np.array([1.0, 2.0]), heading=0.5,
                               future_xy=np.zeros((3, 2)), future_heading=np.ones(3), target_xy=None, target_facing=None,
@@ -246,7 +246,7 @@ def test_the_worlds_query_constructor_builds_the_same_queries() -> None:
 def test_poses_without_contact_flags_give_no_contacts() -> None:
     from types import SimpleNamespace
 
-    from sim.world.frame_assembly import _contacts_of
+    from storyteller.sim.world.frame_assembly import _contacts_of
 
     poses = [SimpleNamespace(contacts=np.array([True, False])), SimpleNamespace(contacts=None), SimpleNamespace()]
     assert _contacts_of(poses).tolist() == [[True, False], [False, False], [False, False]]

@@ -7,8 +7,8 @@ from typing import ClassVar
 
 import pytest
 
-from tools.errors import EventProgramError, ToolArgumentError, UnknownObjectError, did_you_mean
-from tools.sandbox import (
+from storyteller.tools.errors import EventProgramError, ToolArgumentError, UnknownObjectError, did_you_mean
+from storyteller.tools.sandbox import (
     Budget,
     BudgetExceededError,
     ForbiddenConstructError,

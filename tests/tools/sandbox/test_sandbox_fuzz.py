@@ -9,8 +9,8 @@ from typing import ClassVar
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tools.errors import EventProgramError, UnknownObjectError
-from tools.sandbox import Budget, execute
+from storyteller.tools.errors import EventProgramError, UnknownObjectError
+from storyteller.tools.sandbox import Budget, execute
 
 SEEDS = [
     """

@@ -7,9 +7,8 @@ from collections.abc import Callable
 
 import pytest
 
-from tests.support.hostile_programs import HOSTILE, World, body
-from tools.errors import EventProgramError, ToolArgumentError
-from tools.sandbox import (
+from storyteller.tools.errors import EventProgramError, ToolArgumentError
+from storyteller.tools.sandbox import (
     Budget,
     BudgetExceededError,
     ForbiddenConstructError,
@@ -18,6 +17,7 @@ from tools.sandbox import (
     execute,
     run_program,
 )
+from tests.support.hostile_programs import HOSTILE, World, body
 
 
 @pytest.mark.parametrize(
@@ -152,9 +152,9 @@ def test_huge_values_are_never_rendered_in_full(use: str, expected: type[EventPr
 
 def test_tool_argument_errors_show_a_bounded_value() -> None:
     """``got {value!r}`` in the spatial API goes through the bounded renderer."""
-    from sim.scene.bundled import load_bundled_scene
-    from tools.character_states import WorldView
-    from tools.spatial_api import SpatialAPI
+    from storyteller.sim.scene.bundled import load_bundled_scene
+    from storyteller.tools.character_states import WorldView
+    from storyteller.tools.spatial_api import SpatialAPI
 
     big = ["x" * 20000] * 20000
     api = SpatialAPI(load_bundled_scene("home"), None, WorldView(), None)
@@ -199,7 +199,7 @@ def test_enumerate_start_is_bounded() -> None:
 
 def test_a_long_program_with_thousands_of_names_is_refused_by_the_checker() -> None:
     """20,000 characters and thousands of unknown names: no quadratic suggestion search."""
-    from tools.sandbox import check_program
+    from storyteller.tools.sandbox import check_program
 
     names = [f"v{i}x" for i in range(3000)]
     source = body("\n".join(f"{n} = w{n}" for n in names))[:20000]
@@ -211,7 +211,7 @@ def test_a_long_program_with_thousands_of_names_is_refused_by_the_checker() -> N
 
 
 def test_the_checker_has_its_own_clock_and_node_limit() -> None:
-    from tools.sandbox import check_program
+    from storyteller.tools.sandbox import check_program
 
     ticks = iter(range(10**6))
     source = body("x = [" + ", ".join(["1"] * 3000) + "]\nreturn x")
@@ -222,7 +222,7 @@ def test_the_checker_has_its_own_clock_and_node_limit() -> None:
 
 
 def test_failed_checks_are_cached() -> None:
-    from tools.sandbox import checker
+    from storyteller.tools.sandbox import checker
 
     source = body("return undefined_name_9")
     for _ in range(2):
@@ -234,7 +234,7 @@ def test_failed_checks_are_cached() -> None:
 
 
 def test_the_check_cache_is_bounded_in_bytes() -> None:
-    from tools.sandbox.checker import NODE_BYTES, _CheckCache
+    from storyteller.tools.sandbox.checker import NODE_BYTES, _CheckCache
 
     cache = _CheckCache(max_bytes=10 * NODE_BYTES)
     for i in range(20):
@@ -278,7 +278,7 @@ def test_markup_and_escapes_in_names_are_printed_as_text(
 
     from typer.testing import CliRunner
 
-    from orchestrator.cli.app import app
+    from storyteller.orchestrator.cli.app import app
 
     assert isinstance(tmp_path, Path)
     lines = [
@@ -305,7 +305,7 @@ def test_markup_and_escapes_in_names_are_printed_as_text(
 
 
 def test_safe_text_strips_every_control_character() -> None:
-    from orchestrator.safe_text import markup, plain
+    from storyteller.orchestrator.safe_text import markup, plain
 
     hostile = "".join(chr(c) for c in range(0x00, 0xA0)) + "\u202e\u2066"
     cleaned = plain(hostile)

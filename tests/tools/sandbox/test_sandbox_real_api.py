@@ -28,12 +28,12 @@ from typing import TYPE_CHECKING, cast
 
 import pytest
 
-from tools.sandbox import Budget
+from storyteller.tools.sandbox import Budget
 
 if TYPE_CHECKING:  # the worker subprocess imports these when it runs, not at collection
-    from sim.scene.model import Scene
-    from tools.character_states import WorldView
-    from tools.scene_graph import SceneGraph
+    from storyteller.sim.scene.model import Scene
+    from storyteller.tools.character_states import WorldView
+    from storyteller.tools.scene_graph import SceneGraph
 
 HERE = Path(__file__).resolve().parents[2]
 HANG_TIMEOUT_S = 10.0
@@ -68,8 +68,8 @@ def _snapshot(scene: Scene, graph: SceneGraph, world: WorldView) -> str:
 
 def _world(scene: Scene, graph: SceneGraph) -> WorldView:
     """Mia standing near the fridge, Ava sitting on chair_2 (placed by a real program run)."""
-    from tools.character_states import CharacterState, WorldView
-    from tools.event_program import run_event_program
+    from storyteller.tools.character_states import CharacterState, WorldView
+    from storyteller.tools.event_program import run_event_program
 
     setup = (
         "def parse_event():\n"
@@ -95,12 +95,12 @@ def _world(scene: Scene, graph: SceneGraph) -> WorldView:
 
 def worker(start: int) -> None:
     """Run cases ``start...`` and print one JSON line per case."""
-    from sim.scene.bundled import load_bundled_scene
-    from tools.errors import EventProgramError
-    from tools.event_program import run_event_program
-    from tools.sandbox import execute
-    from tools.scene_graph import build_scene_graph
-    from tools.spatial_api import SpatialAPI
+    from storyteller.sim.scene.bundled import load_bundled_scene
+    from storyteller.tools.errors import EventProgramError
+    from storyteller.tools.event_program import run_event_program
+    from storyteller.tools.sandbox import execute
+    from storyteller.tools.scene_graph import build_scene_graph
+    from storyteller.tools.spatial_api import SpatialAPI
 
     scene = load_bundled_scene(SCENE)
     graph = build_scene_graph(scene)
