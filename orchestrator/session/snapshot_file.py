@@ -125,6 +125,18 @@ SNAPSHOT_CLASSES: frozenset[tuple[str, str]] = frozenset({
     ("storyteller.sim.motion.matching", "MatchState"),
     ("storyteller.sim.body.foot_ik", "FootState"),
 })  # fmt: skip
+_FOLDERS_BEFORE_THE_NAMESPACE = frozenset({"sim", "tools", "agents", "orchestrator", "benchmark", "prompts"})
+
+
+def current_module_name(module: str) -> str:
+    """``module`` as this version names it: checkpoints written before the package had one
+    installed name (issue 26) name a class's module by its folder alone (the ``sim`` package's
+    ``world.step``), which now takes the ``storyteller.`` prefix; any other name is returned as
+    it is (and still has to be listed in :data:`SNAPSHOT_CLASSES`)."""
+    top, dot, _ = module.partition(".")
+    return f"storyteller.{module}" if dot and top in _FOLDERS_BEFORE_THE_NAMESPACE else module
+
+
 _DECODERS = ("_array", "_scalar")  # the only functions a checkpoint calls: this module's array decoders
 
 
@@ -242,6 +254,7 @@ class _Unpickler(pickle._Unpickler):  # the Python unpickler: its opcodes can be
         return self._shared[pid]
 
     def find_class(self, module: str, name: str) -> Callable[..., object]:
+        module = current_module_name(module)
         if module == __name__ and name in _DECODERS:
             decoders: dict[str, Callable[..., object]] = {"_array": _array, "_scalar": _scalar}
             return decoders[name]
