@@ -206,6 +206,20 @@ def _network_guard(request: pytest.FixtureRequest) -> Iterator[None]:
         _install_guard()
 
 
+@pytest.fixture(autouse=True)
+def _one_name_per_module() -> Iterator[None]:
+    """Fails a test after which a module of the project's folders is loaded under its folder's
+    own name (``sim.x`` beside ``storyteller.sim.x``: two copies of its classes); the copies are
+    dropped so that the next test starts clean (tests/support/namespace_guard.py)."""
+    yield
+    from tests.support.namespace_guard import second_names
+
+    second = second_names()
+    for name in second:
+        del sys.modules[name]
+    assert not second, f"loaded outside the storyteller namespace: {', '.join(second[:10])}"
+
+
 # ----- shared fixtures --------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def motion() -> MotionMatcher:

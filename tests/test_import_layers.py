@@ -21,10 +21,11 @@ PRODUCT = [*FLOORS, "prompts"]
 
 
 def _module_name(path: Path) -> str:
+    """The name a file is imported by: ``storyteller.sim.x`` for sim/x.py, ``tests.support.x``."""
     parts = list(path.relative_to(ROOT).with_suffix("").parts)
     if parts[-1] == "__init__":
         parts.pop()
-    return ".".join(parts)
+    return ".".join(["storyteller", *parts] if parts[0] in PRODUCT else parts)
 
 
 def _modules() -> dict[str, Path]:
@@ -53,13 +54,14 @@ def _imports(path: Path) -> list[tuple[int, str]]:
 
 
 def _floor(module: str) -> int | None:
-    top = module.split(".")[0]
+    parts = module.split(".")
+    top = parts[1] if parts[0] == "storyteller" and len(parts) > 1 else None
     return FLOORS.index(top) if top in FLOORS else None
 
 
 def test_the_scan_sees_every_package() -> None:
     for top in FLOORS:
-        assert any(m.startswith(top + ".") for m in MODULES), top
+        assert any(m.startswith(f"storyteller.{top}.") for m in MODULES), top
     assert len(MODULES) > 100
 
 

@@ -143,7 +143,7 @@ def collect() -> tuple[list[Site], set[tuple[str, str]]]:
                 if isinstance(first, ast.Constant) and isinstance(first.value, str | bytes):
                     sites.append(Site(where, first.value, _flags(flag_node)))
                 elif id(call) in module_level:
-                    module = importlib.import_module(rel.removesuffix(".py").replace("/", "."))
+                    module = importlib.import_module("storyteller." + rel.removesuffix(".py").replace("/", "."))
                     compiled = getattr(module, module_level[id(call)])
                     sites.append(Site(where, compiled.pattern, compiled.flags & ~re.UNICODE))
                 else:

@@ -112,7 +112,9 @@ def _imports(tree: ast.Module) -> Iterator[tuple[str, tuple[str, ...]]]:
 
 
 def _file_of(module: str) -> Path | None:
-    for candidate in (ROOT / f"{module.replace('.', '/')}.py", ROOT / module.replace(".", "/") / "__init__.py"):
+    """The file of ``storyteller.orchestrator.x``: orchestrator/x.py (as ``files`` lists it)."""
+    folder = module.removeprefix("storyteller.").replace(".", "/")
+    for candidate in (ROOT / f"{folder}.py", ROOT / folder / "__init__.py"):
         if candidate.is_file():
             return candidate
     return None
@@ -137,7 +139,7 @@ def _scanned() -> tuple[set[Path], list[tuple[Path, str]]]:
             continue
         seen.add(path)
         for module, names in _imports(ast.parse(path.read_text(encoding="utf-8"))):
-            if module.split(".")[0] in PACKAGES:
+            if module.removeprefix("storyteller.").split(".")[0] in PACKAGES:
                 todo.append(module)
                 todo.extend(f"{module}.{name}" for name in names)
                 if "main" in names:
