@@ -1,7 +1,7 @@
 """Effect of the foot IK filter (``storyteller.sim.body.foot_ik``) on the crowd measure of issue 4.
 
 Runs the crowd scenario of ``tests/sim/motion/test_crowd_motion.py`` (its ``simulate_crowd`` and
-``measure``, imported from the file) with a smaller crowd and the world's own leg IK turned
+``measure``, from ``storyteller.benchmark.support.crowd_walkers``) with a smaller crowd and the world's own leg IK turned
 off (``WorldConfig(foot_ik=False)``), then applies ``FootSolver`` frame by frame to the
 recorded buffers (pelvis, local rotations, contact flags: what the world step hands the
 filter) and measures the filtered tracks the same way. Prints, before / after:
@@ -19,32 +19,27 @@ from __future__ import annotations
 
 import argparse
 import copy
-import importlib.util
-import sys
 import time
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from storyteller.benchmark.support.crowd_walkers import measure, simulate_crowd
+from storyteller.orchestrator.reference_data import locate_reference
 from storyteller.sim.body.foot_ik import LEG_JOINTS, FootSolver
 from storyteller.sim.body.leg_ik import SHIN_LENGTH, THIGH_LENGTH, leg_chain
 from storyteller.sim.scene.files import load_scene
 
-CROWD_TEST = Path(__file__).resolve().parents[1] / "tests" / "test_crowd_motion.py"
 
-
-def _crowd_module() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("crowd_motion_checks", CROWD_TEST)
-    if spec is None or spec.loader is None:
-        raise SystemExit(f"cannot load {CROWD_TEST}")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up while the file runs
-    spec.loader.exec_module(mod)
-    return mod
+def _office() -> Path:
+    """The reference Office scene (``STORYTELLER_REFERENCE``; see orchestrator/reference_data.py)."""
+    reference = locate_reference()
+    if not reference.found:
+        raise SystemExit(reference.reason)
+    return reference.path / "configs" / "scenes" / "Office"
 
 
 def _stretched(pelvis: np.ndarray, rotations: np.ndarray, length: int) -> int:
@@ -75,17 +70,17 @@ def main() -> None:
     ap.add_argument("--release-frames", type=int, default=6)
     args = ap.parse_args()
 
-    crowd = _crowd_module()
+    office = _office()
     from storyteller.orchestrator.cache_paths import motion_cache_dir
     from storyteller.sim.motion.database import load_databases
     from storyteller.sim.motion.matching import MotionMatcher
 
-    if not crowd.OFFICE.exists():
-        raise SystemExit(f"reference scene not found at {crowd.OFFICE}")
-    scene = load_scene(crowd.OFFICE)
+    if not office.exists():
+        raise SystemExit(f"reference scene not found at {office}")
+    scene = load_scene(office)
     frames = round(args.seconds * 30)
     t0 = time.perf_counter()
-    world, before = crowd.simulate_crowd(scene, args.walkers, frames, args.seed,
+    world, before = simulate_crowd(scene, args.walkers, frames, args.seed,
                                          MotionMatcher(load_databases(cache_dir=motion_cache_dir())), off_grid=args.off_grid, foot_ik=False)
     t_world = time.perf_counter() - t0
 
@@ -105,7 +100,7 @@ def main() -> None:
     after_buffers = b.trimmed()
     after_buffers.rotations = filtered
     after_world.buffers = after_buffers
-    after = crowd.measure(after_world, scene, before.targets_given, before.targets_reached, before.failures)
+    after = measure(after_world, scene, before.targets_given, before.targets_reached, before.failures)
 
     speed_before, speed_after = _joint_speed(b.rotations, b.length), _joint_speed(filtered, b.length)
     others = [j for j in range(filtered.shape[2]) if j not in LEG_JOINTS]

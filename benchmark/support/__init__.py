@@ -1,5 +1,6 @@
 """Fakes and frozen baselines that the speed scripts time against, shared with the tests.
 
+- ``crowd_walkers``: walkers between random targets, and the crowd measure read off their tracks;
 - ``fake_openai_server``: a scripted OpenAI-compatible server on 127.0.0.1 (no network);
 - ``headless_chromium``: a headless Chromium driven over the DevTools protocol;
 - ``motion_reference``: the motion step as it was before its speed-ups (frozen oracle);
