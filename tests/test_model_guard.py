@@ -57,7 +57,11 @@ def _ini(markers: list[str]) -> str:
 
 
 @pytest.mark.slow
-def test_an_unmarked_test_is_refused_the_embedded_model_and_a_marked_one_is_not(pytester: pytest.Pytester) -> None:
+def test_an_unmarked_test_is_refused_the_embedded_model_and_a_marked_one_is_not(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the copied conftest imports tests.support (the one-name guard): the child finds it at the root
+    monkeypatch.setenv("PYTHONPATH", str(ROOT))
     config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
     pytester.makepyprojecttoml(_ini(config["tool"]["pytest"]["ini_options"]["markers"]))
     pytester.makeconftest((TESTS / "conftest.py").read_text(encoding="utf-8"))

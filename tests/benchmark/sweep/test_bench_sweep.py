@@ -278,7 +278,7 @@ def _app() -> typer.Typer:
 
     names = register_plugins(app, [
         EntryPoint(name="bench", value="storyteller.benchmark.sweep.cli:register", group="storyteller.commands"),
-        EntryPoint(name="gone", value="benchmark.no_such_module:register", group="storyteller.commands"),
+        EntryPoint(name="gone", value="storyteller.benchmark.no_such_module:register", group="storyteller.commands"),
     ])
     assert names == ["bench"]
     return app

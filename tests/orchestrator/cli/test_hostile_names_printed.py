@@ -76,7 +76,7 @@ def test_scene_inspect_tables_and_json(scene_file: Path) -> None:
 
 
 @pytest.mark.slow
-def test_scene_inspect_png_says_the_glyph_warnings_escaped(scene_file: Path, folder: Path) -> None:
+def test_scene_inspect_png_draws_the_names_escaped_and_says_everything_escaped(scene_file: Path, folder: Path) -> None:
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONWARNINGS", "STORYTELLER_CONFIG")}
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
     png = folder / f"top{HOSTILE}.png"
@@ -88,7 +88,9 @@ def test_scene_inspect_png_says_the_glyph_warnings_escaped(scene_file: Path, fol
     assert proc.returncode == 0, proc.stderr
     assert png.is_file()
     _printed(proc.stdout, proc.stderr, shows=4)  # the tables and the 'wrote' line
-    assert "UserWarning: Glyph 27 (\\x1b) missing" in proc.stderr  # the warning is said, escaped
+    # the picture draws names through plain (82602dd), so no control character reaches the font:
+    # matplotlib has no missing glyph to warn about (it warned "Glyph 27 (\x1b) missing" before)
+    assert "Glyph 27" not in proc.stderr
 
 
 def test_a_missing_scene_in_the_folder_is_one_escaped_line(folder: Path) -> None:
