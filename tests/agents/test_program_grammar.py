@@ -276,17 +276,22 @@ def test_words_about_a_seat_sit_on_it_though_no_word_says_sit() -> None:
     assert not about_a_seat(SCENE, "Ava takes the chair to the coffee maker", "use_coffee_maker")
 
 
+def _all_sit_on(seat: str, action: str, facing: str, names: tuple[str, ...] = ("Ava", "Cy")) -> str:
+    """A reply whose program sends every one of ``names`` to sit on ``seat``."""
+    return ('```python\ndef parse_event():\n'
+            + "".join(f'    c{i} = get_character("{n}")\n    c{i}.set_target_action("{action}")\n'
+                      f'    c{i}.set_position(get_area_to_sit_on("{seat}"))\n    c{i}.set_orientation("{facing}")\n'
+                      for i, n in enumerate(names, start=1))
+            + '```')
+
+
 def test_two_characters_sent_to_one_chair_sit_together_and_never_on_a_held_seat() -> None:
     """"Ava and Cy sit on chair_1": Cy takes the nearest free chair instead of failing; but a
     chair held by someone outside the event is still refused."""
     from storyteller.tools.errors import UnsatisfiableAreaError
 
     event = Event(characters=("Ava", "Cy"), activity="chat at the table")
-    program = ('```python\ndef parse_event():\n'
-               + "".join(f'    c{i} = get_character("{n}")\n    c{i}.set_target_action("chat")\n'
-                         f'    c{i}.set_position(get_area_to_sit_on("chair_1"))\n    c{i}.set_orientation("table_1")\n'
-                         for i, n in enumerate(("Ava", "Cy"), start=1))
-               + '```')
+    program = _all_sit_on("chair_1", "chat", "table_1")
     world = WorldView(characters=(CharacterState(name="Ava", position=(1.0, 1.0)), CharacterState(name="Cy", position=(1.5, 1.0))))
     result = run_reply(program, scene=SCENE, event=event, world=world, seed=0, action_labels=LABELS)
     seats = [p.seat for p in result.plans]
@@ -300,15 +305,9 @@ def test_two_characters_sent_to_one_chair_sit_together_and_never_on_a_held_seat(
 def test_the_companion_of_a_two_seat_table_sits_at_that_table_not_the_nearer_next_one() -> None:
     """The restaurant's small table_4 has chair_11 and chair_12; chair_10, at table_3, is a few
     centimetres nearer chair_11: "Ava and Cy sit on chair_11" seats Cy on chair_12."""
-    from storyteller.sim.scene.bundled import resolve_scene as scene_named
-
-    restaurant = scene_named("restaurant")
+    restaurant = resolve_scene("restaurant")
     event = Event(characters=("Ava", "Cy"), activity="eat at the small table")
-    program = ('```python\ndef parse_event():\n'
-               + "".join(f'    c{i} = get_character("{n}")\n    c{i}.set_target_action("eat")\n'
-                         f'    c{i}.set_position(get_area_to_sit_on("chair_11"))\n    c{i}.set_orientation("table_4")\n'
-                         for i, n in enumerate(("Ava", "Cy"), start=1))
-               + '```')
+    program = _all_sit_on("chair_11", "eat", "table_4")
     world = WorldView(characters=(CharacterState(name="Ava", position=(3.0, 3.0)), CharacterState(name="Cy", position=(3.5, 3.0))))
     result = run_reply(program, scene=restaurant, event=event, world=world, seed=0,
                        action_labels=scene_action_labels(restaurant))
