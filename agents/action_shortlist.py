@@ -75,7 +75,8 @@ CUES: dict[str, tuple[tuple[str, int], ...]] = {
     "handshake": (("shake hand", 4), ("handshake", 4), ("shakes hand", 4), ("introduce", 1), ("deal", 1)),
     "hug": (("hug", 4), ("embrace", 4), ("cuddle", 3)),
     "dance": (("danc", 4), ("waltz", 3), ("groove", 2), ("boogie", 3), ("tango", 3)),
-    "drink": (("drink", 3), ("sip", 3), ("gulp", 3), ("slurp", 3), ("swig", 3), ("quaff", 3), ("thirst", 1), ("coffee", 1), ("tea", 1), ("juice", 1), ("beer", 1), ("wine", 1),
+    "drink": (("drink", 3), ("sip", 3), ("gulp", 3), ("slurp", 3), ("swig", 3), ("quaff", 3), ("thirst", 1),
+              ("coffee", 1), ("tea", 1), ("juice", 1), ("beer", 1), ("wine", 1),
               ("mug", 1), ("glass of", 1), ("cup of", 1), ("cocktail", 1), ("soda", 1)),
     "eat": (("eat", 3), ("nibble", 3), ("munch", 3), ("chew", 2), ("devour", 3), ("gobble", 3), ("feast", 2),
             ("tuck in", 3), ("meal", 2), ("breakfast", 2), ("lunch", 2), ("dinner", 2), ("snack", 2), ("dine", 2),
@@ -340,8 +341,8 @@ _OTHERS = frozenset({"them", "their", "theirs", "guest", "guests", "customer", "
 def _handed_to_others(text: str) -> bool:
     """Whether ``text`` has its subject hand something on to other people ("carries their dinner
     over", "brings them drinks", "brings it to Ben"): a verb of bringing and a word for the
-    others or a name after "to" / "for". "Her" and "his"
-    do not count: they may be the subject's own ("brings her coffee to the couch")."""
+    others or a name after "to" / "for". "Her" and "his" do not count: they may be the
+    subject's own ("brings her coffee to the couch")."""
     found = _WORD.findall(text)
     words = [w.lower() for w in found]
     # "to Ben", "for Ava": a capitalised word after "to" / "for" past the first word is a person
