@@ -44,6 +44,8 @@ from storyteller.orchestrator.viewer.timeline import action_at, active_events, c
 LIVE_POLL_S = 0.25
 """Wall seconds between two looks at ``live.json``."""
 RUN_SPEEDS = ("0.25", "0.5", "1", "2", "4")
+PICK_WAIT_S = 10.0
+"""Seconds a picked speed stays in the dropdown before the run's own speed is shown again."""
 STALE_S = 5.0
 """Wall seconds without a new ``live.json`` after which a running run is said to be silent."""
 REPLY_LINES = 12
@@ -162,6 +164,8 @@ class DirectorPanels:
             self.run_status = gui.add_markdown("**Run**: waiting for the run to start")
             self.pause = gui.add_button("Pause the run")
             self.speed = gui.add_dropdown("Run speed", RUN_SPEEDS, initial_value="1")
+            self._shown_speed = "1"  # the speed this viewer last put in the dropdown (from live.json)
+            self._picked_at: float | None = None  # monotonic time a person's pick was sent
             self.note = gui.add_markdown("")
         with gui.add_folder("Planner", order=order + 0.1):
             self.planner = gui.add_markdown("No planner call yet.")
@@ -245,8 +249,11 @@ class DirectorPanels:
         speed = f"{live.speed:g}"
         if speed not in self.speed.options:
             self.speed.options = tuple(sorted({*self.speed.options, speed}, key=float))
-        if self.speed.value != speed:
+        if self.speed.value == speed:
+            self._shown_speed, self._picked_at = speed, None
+        elif not self._pick_pending():
             cast(Any, self.speed).value = speed  # viser declares the setter on a subclass mypy does not see
+            self._shown_speed, self._picked_at = speed, None
         if live.controls is not None:
             self.note.content = f"**Pause and speed refused:** {markdown(live.controls)}"
         elif not live.running:
@@ -270,14 +277,23 @@ class DirectorPanels:
         kind: ControlKind = "resume" if live is not None and (live.pausing or live.paused) else "pause"
         self._send(kind)
 
+    def _pick_pending(self) -> bool:
+        """A person picked a speed the run has not applied yet: the live poll leaves the dropdown
+        alone (it once put the old speed back between viser storing the pick and :meth:`_on_speed`
+        reading it, and the pick was never sent) until :data:`PICK_WAIT_S` after it was sent."""
+        if self.speed.value == self._shown_speed:
+            return False
+        return self._picked_at is None or time.monotonic() - self._picked_at < PICK_WAIT_S
+
     def _on_speed(self, event: viser.GuiEvent[viser.GuiDropdownHandle[str]]) -> None:
         if event.client is None:  # our own update from live.json
             return
         with self.lock:
-            live = self.live
-        if live is not None and f"{live.speed:g}" == self.speed.value:
-            return
-        self._send("speed", float(self.speed.value))
+            live, picked = self.live, self.speed.value
+            if live is not None and f"{live.speed:g}" == picked:
+                return
+            self._picked_at = time.monotonic()
+        self._send("speed", float(picked))
 
     def _send(self, kind: ControlKind, speed: float | None = None) -> None:
         try:

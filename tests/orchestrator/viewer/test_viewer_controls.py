@@ -23,7 +23,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import anyio
 import pytest
@@ -32,7 +32,7 @@ from storyteller.benchmark.support.fake_openai_server import FakeOpenAI
 from storyteller.benchmark.support.headless_chromium import Chromium, chromium_binary
 from storyteller.orchestrator.llm.traces import read_trace
 from storyteller.orchestrator.safe_text import markdown
-from storyteller.orchestrator.session.live_state import LiveState, RoleNow, read_live_state
+from storyteller.orchestrator.session.live_state import LIVE_FILE, LiveState, RoleNow, read_live_state
 from storyteller.orchestrator.session.viewer_controls import (
     CONTROLS_FILE,
     ControlInbox,
@@ -109,6 +109,45 @@ def test_the_panels_show_text_from_the_run_as_data() -> None:
     assert "thinking for 1.5 s" in text and markdown(hostile) in text
     assert "<" not in text.replace("\\<", "")  # every tag character escaped (text, not markup)
     assert "**paused** at frame 120" in run_line(live, now_unix=time.time(), ended=False)
+
+
+def test_a_picked_speed_is_sent_though_the_run_writes_its_old_speed_meanwhile(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """viser stores a person's pick, then calls the callback from a thread pool; the live poll
+    in between once put the run's old speed back, the callback read that and sent nothing (a
+    clean-clone CI run: the browser test's speed 4 never reached the run)."""
+    import viser
+
+    from storyteller.orchestrator.viewer.panels import DirectorPanels
+
+    def live(speed: float, thinking: float) -> None:
+        state = LiveState(thread=THREAD, frame=120, frames=600, fps=30, pace="realtime", speed=speed, paused=True,
+                          updated_unix=time.time(), roles=(RoleNow(role="narrator", thinking_s=thinking, in_flight=1),))
+        (tmp_path / LIVE_FILE).write_text(state.model_dump_json())
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        panels = DirectorPanels(server, tmp_path, threading.RLock(), order=0.0, later=1.0)
+        sent: list[tuple[str, float | None]] = []
+        monkeypatch.setattr(panels, "send_control", lambda kind, speed=None: sent.append((kind, speed)))
+        live(2.0, 1.0)
+        panels.poll_live()
+        assert panels.speed.value == "2"
+        panels.speed._impl.value = "4"  # what viser does with the page's pick before the callback
+        live(2.0, 1.5)  # the run still thinks, at its old speed
+        panels.poll_live()
+        assert panels.speed.value == "4"  # the pick stays
+        panels._on_speed(viser.GuiEvent(client=cast(Any, object()), client_id=1, target=panels.speed))
+        assert sent == [("speed", 4.0)]
+        live(4.0, 2.0)  # applied
+        panels.poll_live()
+        assert panels.speed.value == "4" and not panels._pick_pending()
+        live(1.0, 2.5)  # the run's speed changed from elsewhere: shown
+        panels.poll_live()
+        assert panels.speed.value == "1"
+    finally:
+        server.stop()
 
 
 # ----- runs --------------------------------------------------------------------------------
