@@ -55,12 +55,15 @@ def world_roster(world: World, events: dict[str, StoryEvent]) -> tuple[Character
 
 
 def world_commitments(world: World) -> tuple[dict[str, tuple[float, float]], dict[str, str]]:
-    """Targets of characters with an assignment, and seats taken or about to be taken."""
+    """Targets of characters with an assignment, and seats taken or about to be taken. A
+    character given a new event while it still sits or acts stands up first and keeps the new
+    assignment aside (``pending``): that one is where it is heading, and its seat is about to be
+    taken (the old seat shows as taken in the roster until the character has left it)."""
     targets: dict[str, tuple[float, float]] = {}
     seats: dict[str, str] = {}
     for name in world.names:
         c = world.characters[name]
-        a = c.assignment
+        a = c.pending[1] if c.pending is not None else c.assignment
         if a is None or c.event_id is None:
             continue
         targets[name] = (round(a.target_xy[0], 3), round(a.target_xy[1], 3))
