@@ -11,37 +11,34 @@ LLM) still chooses and writes the event.
 
 - ``split_instruction``: sentences, lines and ``;`` make parts, and so does "then" inside a
   sentence (", then", "and then"); a part without a subject of its own ("then sits on the
-  couch") takes the characters that open the part before it.
-- ``part_states``: an event that says which part it was planned for (``HistoryEntry.part``,
-  set by the planner) marks that part; one that failed (it could not be placed, or failed in
-  the simulation) leaves the part open, and after ``PART_ATTEMPTS`` such failures the part is
-  ``failed`` and the story moves on to the next. Any other history event (older traces, the
-  benchmark's cases) is matched by its words: to the not yet matched part that shares the
-  most content words with its activity (word stems, object names split at ``_``; the same kind
-  of activity, :func:`activity_kind`, counts as :data:`SAME_KIND_SCORE` words when the event has
-  every character the part names) and whose
-  actors (the first run of names in it) include one of its characters, earliest first on
-  ties; an event sharing no word, or repeating an earlier event's activity, matches nothing.
-  A matched part is ``ongoing`` while its event is, ``done`` once the event
-  completed or loops (its characters are free again). Only events from index ``since`` on
-  count: the instruction can change mid-story, and an event planned under an earlier one
-  ("Ben walks to the kitchen") must not mark a part of the new one ("Ben leaves the
-  kitchen") done because their words share stems.
-- ``next part``: the first unmatched part whose actors are all free and have no earlier
-  part still open (a part naming nobody needs any free character); a part that failed once
-  goes after the untried ones. The prompt names it on a line of its own. When parts are left
-  but none is next (what is left waits for busy characters), the instruction has nothing for
-  the free characters now: the narrator's rule says to wait, and the planner records the wait
-  without asking the model, unless some free characters are *bystanders* (no part still open
-  names them: the instruction never did, or their parts are over; and they are not still at
-  their last activity, a looping one that is not just idling): they are asked for an event of their own (the reply may name only them),
-  so nobody the user did not mention stands idle while the others carry the instruction out. Once every part has happened,
-  the free characters the instruction never names (and who are not still at a looping activity) are
-  bystanders too: they go on with lives of their own (``storyteller.agents.bystanders`` offers them everyday
-  activities); those still at a looping activity of their own carry on (the reply may not name
-  them; with nobody else free the step is a wait without a call); otherwise the model is asked
-  as before (its rules say what to do with free characters the instruction no longer needs).
-  When the next part has actors, the narrator's reply may name only them (the schema's enum):
+  couch") or opening with a pronoun ("She then sits.") takes the actors of the part before it;
+  "brings it to Ben, who waits on the bench" gives Ben a part (``agents.instruction_subjects``).
+- ``part_states``: an event that says which part it was planned for (``HistoryEntry.part``, set by the
+  planner) marks that part; one that failed (it could not be placed, or failed in the simulation) leaves the
+  part open, and after ``PART_ATTEMPTS`` such failures the part is ``failed`` and the story moves on to the
+  next. Any other history event (older traces, the benchmark's cases) is matched by its words: to the not
+  yet matched part that shares the most content words with its activity (word stems, object names split at
+  ``_``; the same kind of activity, :func:`activity_kind`, counts as :data:`SAME_KIND_SCORE` words when the
+  event has every character the part names) and whose actors (the first run of names in it) include one of
+  its characters, earliest first on ties; an event sharing no word, or repeating an earlier event's
+  activity, matches nothing. A matched part is ``ongoing`` while its event is, ``done`` once the event
+  completed or loops (its characters are free again). Only events from index ``since`` on count: the
+  instruction can change mid-story, and an event planned under an earlier one ("Ben walks to the kitchen")
+  must not mark a part of the new one ("Ben leaves the kitchen") done because their words share stems.
+- ``next part``: the first unmatched part whose actors are all free and have no earlier part still open (a
+  part naming nobody needs any free character); a part that failed once goes after the untried ones. The
+  prompt names it on a line of its own. When parts are left but none is next (what is left waits for busy
+  characters), the instruction has nothing for the free characters now: the narrator's rule says to wait,
+  and the planner records the wait without asking the model, unless some free characters are *bystanders*
+  (no part still open names them: the instruction never did, or their parts are over; and they are not still
+  at their last activity, a looping one that is not just idling): they are asked for an event of their own
+  (the reply may name only them), so nobody the user did not mention stands idle while the others carry the
+  instruction out. Once every part has happened, the free characters the instruction never names (and who
+  are not still at a looping activity) are bystanders too: they go on with lives of their own
+  (``storyteller.agents.bystanders`` offers them everyday activities); those still at a looping activity of
+  their own carry on (the reply may not name them; with nobody else free the step is a wait without a call);
+  otherwise the model is asked as before (its rules say what to do with free characters the instruction no
+  longer needs). When the next part has actors, the narrator's reply may name only them (the schema's enum):
   a small model otherwise adds whoever else is free.
 
 The patterns here run on the user's text, so none can backtrack super-linearly
@@ -60,6 +57,7 @@ from typing import Literal
 
 from storyteller.agents.action_shortlist import posture
 from storyteller.agents.english_words import may_be_verb
+from storyteller.agents.instruction_subjects import relative_clause_parts, with_named_subject
 from storyteller.agents.messages import HistoryEntry
 from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
 from storyteller.agents.relation_words import before_relations
@@ -196,13 +194,19 @@ def split_instruction(
     """The parts of ``instruction``; ``names``: the story's characters. A part after "then"
     reads ``prompts/story/instruction_then.md`` ("Then ...")."""
     lib = prompts or package_prompts()
+    then = lib.render_text("story/instruction_then.md", part="\0")
     parts: list[InstructionPart] = []
     for sentence in _PARTS.split(instruction.strip()):
         sentence = sentence.strip()
         if not sentence:
             continue
         for clause in _at_the_same_time(sentence, names):
-            parts.extend(_then_parts(clause, names, lib))
+            if not _actors(clause, names):  # "She then sits down.": the actors of the part before
+                last = next((p for p in reversed(parts) if p.actors), None)
+                clause = clause if last is None else with_named_subject(clause, last.actors, last.names, then)
+            own, clause = relative_clause_parts(clause, names, _actors(clause, names))
+            for text in [*own, clause]:  # "brings it to Ben, who waits on the bench": Ben's part first
+                parts.extend(_then_parts(text, names, lib))
     return _with_reasons_joined(parts, names, lib)
 
 
@@ -256,8 +260,6 @@ def _at_the_same_time(sentence: str, names: Sequence[str]) -> list[str]:
     clauses.append(sentence[start:].strip())
     clauses = [c for c in clauses if c]
     return [c if c[-1:] in ".!?" or i == len(clauses) - 1 else c + "." for i, c in enumerate(clauses)]
-
-
 
 
 def _and_steps(piece: str, names: Sequence[str]) -> list[str]:

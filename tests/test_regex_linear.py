@@ -87,10 +87,18 @@ def _fidelity_patterns() -> list[tuple[str, int]]:
     return [(rf"(?<![A-Za-z0-9_]){e}(?![A-Za-z0-9_])", 0) for e in escaped]
 
 
+def _subject_patterns() -> list[tuple[str, int]]:
+    from storyteller.agents import instruction_subjects
+
+    built = [instruction_subjects.clause_pattern(names) for names in (("Ava", "Ben"), ("Ava", "A.v+a", "Cy"))]
+    return [(p.pattern, p.flags) for p in built if p is not None]
+
+
 BUILT_AT_RUN_TIME: dict[tuple[str, str], Callable[[], list[tuple[str, int]]]] = {
     ("agents/instruction_parts.py", "_actors"): _instruction_patterns,
     ("agents/instruction_parts.py", "_leading_subject"): _instruction_patterns,
     ("agents/instruction_parts.py", "_at_the_same_time"): _instruction_patterns,
+    ("agents/instruction_subjects.py", "clause_pattern"): _subject_patterns,
     ("agents/shortlist.py", "_mentions"): _shortlist_patterns,
     ("agents/narrator_words.py", "with_names"): _story_text_patterns,
     ("agents/narrator_words.py", "_mentions_object"): _story_text_patterns,
