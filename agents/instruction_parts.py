@@ -466,34 +466,3 @@ def instruction_text(
 ) -> str:
     """The instruction as the narrator's prompt shows it (``InstructionProgress.text``)."""
     return instruction_progress(instruction, names, history, free).text
-
-
-WORDS_SO_FAR_CHARS = 400
-"""At most this many characters of the instruction up to the part are quoted in the prompt."""
-
-
-def part_span(instruction: str, part: str) -> tuple[int, int] | None:
-    """Where ``part`` (its words, without a leading "Then" the part split may have added) is in
-    ``instruction``: (start, end); None when it is not found as written."""
-    core = re.sub(r"^then,?\s+", "", part.strip(), flags=re.IGNORECASE).rstrip(".!?; ")
-    at = instruction.lower().find(core.lower()) if core else -1
-    return None if at < 0 else (at, at + len(core))
-
-
-def words_so_far(instruction: str, part: str) -> str:
-    """The instruction up to the end of ``part`` (its last :data:`WORDS_SO_FAR_CHARS` characters),
-    so words that point back ("Jalen sits at a table; Aino comes over and sits down there too")
-    keep what they point to; ``part`` alone when it is not found in the instruction as written."""
-    span = part_span(instruction, part)
-    if span is None:
-        return part
-    so_far = instruction[: span[1]].strip()
-    if len(so_far) > WORDS_SO_FAR_CHARS:
-        so_far = so_far[-WORDS_SO_FAR_CHARS:].split(" ", 1)[-1]
-    return so_far + instruction[span[1] : span[1] + 1].strip(" ")
-
-
-def words_before(instruction: str, part: str) -> str:
-    """The instruction's words before ``part`` ("" when it is not found as written)."""
-    span = part_span(instruction, part)
-    return "" if span is None else instruction[: span[0]][-WORDS_SO_FAR_CHARS:]

@@ -24,8 +24,8 @@ from langgraph.runtime import Runtime
 
 from storyteller.agents.area_words import described_areas
 from storyteller.agents.event_parser import event_text
-from storyteller.agents.instruction_parts import words_before, words_so_far
 from storyteller.agents.out_of_use import out_of_use, seats_taken_by
+from storyteller.agents.part_span import words_before, words_so_far
 from storyteller.agents.place_choice import (
     SeatCandidates,
     checked_choice,

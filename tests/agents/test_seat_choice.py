@@ -12,8 +12,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from storyteller.agents.instruction_parts import words_before, words_so_far
+from storyteller.agents.instruction_parts import split_instruction
 from storyteller.agents.llm_port import ChatMessage, LLMRequest, LLMResponse
+from storyteller.agents.part_span import words_before, words_so_far
 from storyteller.agents.place_choice import checked_choice, needs_model, seat_candidates, seat_choice_request
 from storyteller.agents.prompt_templates import package_prompts
 from storyteller.agents.relation_words import (
@@ -312,3 +313,11 @@ def test_the_client_sends_local_models_the_choices_and_others_the_schema() -> No
 def test_footprint_gaps_are_the_scene_graphs() -> None:
     chair, fridge = ROOM.by_name["chair_4"], ROOM.by_name["fridge_1"]
     assert group_gap(chair, (Reference("f", obj=fridge),)) == pytest.approx(footprint_distance(chair, fridge))
+
+
+def test_a_part_with_a_name_for_a_pronoun_is_found_in_the_words_as_written() -> None:
+    instruction = "Kim sits at the table by the window. Afterwards she reads a book there."
+    part = split_instruction(instruction, ("Kim",))[1].text
+    assert part == "Then Kim reads a book there."
+    assert words_so_far(instruction, part) == instruction
+    assert words_before(instruction, part) == "Kim sits at the table by the window. Afterwards she "
