@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from storyteller.agents.action_shortlist import posture, rank_action_labels
+from storyteller.agents.action_shortlist import posture, rank_action_labels, suggested_action, switch_directions
 from storyteller.agents.llm_port import ChatMessage, LLMRequest
 from storyteller.agents.prompt_templates import PromptLibrary, package_prompts
 from storyteller.agents.relation_words import names_a_relation
@@ -41,6 +41,26 @@ def action_candidates(
         return ()  # only where someone is ("hangs about beside the till"): they stand there, idle
     offered = tuple(dict.fromkeys(a for a in labels if a not in MOTION_LABELS))
     return offered if len(offered) > 1 else ()
+
+
+def earlier_thing_action(
+    text: str, labels: Sequence[str], object_labels: Sequence[str], earlier: Sequence[str],
+) -> str | None:
+    """The label for words that say a direction and no thing of their own ("Then Ava closes
+    it.", "turns the set off again"): the direction applied to the thing the nearest of the
+    ``earlier`` parts of the same characters (latest first) worked ("Ava opens the cupboard":
+    ``close_cabinet``; "Ben watches TV": ``turn_off_tv``), when the scene offers that label;
+    None otherwise (the model chooses)."""
+    directions = switch_directions(text)
+    if not directions or rank_action_labels(text, labels, object_labels):
+        return None
+    for words in earlier:
+        words_of = suggested_action(words, labels, object_labels).split("_")
+        for k in range(1, len(words_of)):  # the thing: the label's last words (watch_tv: tv)
+            found = [d + "_".join(words_of[k:]) for d in directions if d + "_".join(words_of[k:]) in labels]
+            if len(found) == 1:
+                return found[0]
+    return None
 
 
 def action_choice_request(

@@ -419,6 +419,13 @@ def rank_action_labels(
     return [RankedLabel(labels[i], scores[i]) for i in order if scores[i] > 0]
 
 
+def switch_directions(text: str) -> tuple[str, ...]:
+    """The switch prefixes (``open_``, ``close_``, ``turn_on_``, ``turn_off_``) whose direction
+    words ``text`` says ("pushes the door shut": ``close_`` and ``turn_off_``)."""
+    tokens = _tokens(text)
+    return tuple(p for p in OPPOSITES if any(_word_matches(w, t) for w in SWITCHES[p] for t in tokens))
+
+
 def label_objects(labels: Sequence[str]) -> list[str]:
     """The objects labels name (``use_toaster`` -> ``toaster``), so the text's mention of one
     counts even when the scene's object labels were not given."""

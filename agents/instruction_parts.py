@@ -461,6 +461,17 @@ def named_in(parts: Sequence[InstructionPart], everyone: Iterable[str]) -> set[s
     return named | set(everyone) if any(not p.names for p in parts) else named
 
 
+def earlier_parts(instruction: str, part: str, names: Sequence[str], most: int = 3) -> list[str]:
+    """The texts of the parts before ``part`` with an actor of its own, nearest first (at most
+    ``most``): what words such as "closes it" point back to. [] when ``part`` is no part."""
+    parts = split_instruction(instruction, names)
+    at = next((k for k, p in enumerate(parts) if p.text == part), None)
+    if at is None:
+        return []
+    actors = set(parts[at].actors)
+    return [p.text for p in reversed(parts[:at]) if actors & set(p.actors)][:most]
+
+
 def instruction_text(
     instruction: str, names: Sequence[str] = (), history: Sequence[HistoryEntry] = (), free: Iterable[str] = ()
 ) -> str:

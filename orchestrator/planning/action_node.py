@@ -5,8 +5,10 @@ instruction part, else the narrator's activity, with the activity as context) gi
 ranker no evidence (:func:`storyteller.agents.action_choice.action_candidates`), the model ranks the offered
 labels in one call (scored continuations through the port, :mod:`storyteller.agents.scored_choice`) and its
 best is the step's ``action``: the event parser's suggested label and the first its grammar
-offers (so a seated activity gives the event its posture, and then its seat choice). Every other
-event passes through without a call.
+offers (so a seated activity gives the event its posture, and then its seat choice). Words that
+say only a direction ("Then Ava closes it.") take the thing an earlier part of the same
+characters worked instead, without a call (:func:`storyteller.agents.action_choice.earlier_thing_action`).
+Every other event passes through without a call.
 
 A model that gives no answer (``LLMError``) or an answer that is no candidate leaves the step
 without an action (the parser's suggestion is the ranker's, as before); a replay miss
@@ -20,8 +22,9 @@ from typing import Any
 
 from langgraph.runtime import Runtime
 
-from storyteller.agents.action_choice import action_candidates, action_choice_request
+from storyteller.agents.action_choice import action_candidates, action_choice_request, earlier_thing_action
 from storyteller.agents.event_parser import event_text
+from storyteller.agents.instruction_parts import earlier_parts
 from storyteller.orchestrator.planning.choice_call import ask_choice, choice_update
 from storyteller.orchestrator.planning.state import PlanningDeps, PlanningState
 
@@ -41,6 +44,11 @@ async def choose_action(state: PlanningState, runtime: Runtime[PlanningDeps]) ->
     )
     if not candidates:
         return {}
+    names = [c.name for c in state.roster]
+    carried = earlier_thing_action(event_text(event.activity, state.part), candidates, deps.scene.labels,
+                                   earlier_parts(state.instruction, state.part, names) if state.part else [])
+    if carried is not None:  # "closes it" after "opens the cupboard": no call
+        return {"action": carried}
     request = action_choice_request(
         candidates, event.characters, event.activity, state.part, deps.prompts, seed=deps.seed,
         sim_frame=state.sim_frame,

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 from langgraph.checkpoint.memory import InMemorySaver
 
-from storyteller.agents.action_choice import MOTION_LABELS, action_candidates, action_choice_request
+from storyteller.agents.action_choice import MOTION_LABELS, action_candidates, action_choice_request, earlier_thing_action
 from storyteller.agents.event_parser import scene_action_labels
+from storyteller.agents.instruction_parts import earlier_parts, split_instruction
 from storyteller.agents.program_grammar import event_options
 from storyteller.orchestrator.planning.checkpoints import StoryLog
 from storyteller.orchestrator.planning.graph import compile_planning_graph, recursion_limit
@@ -32,6 +33,21 @@ def test_words_that_only_say_where_someone_stands_get_no_choice() -> None:
         assert action_candidates(text, LABELS, HOME.labels) == (), text
     # sitting somewhere with no action named is still the model's choice
     assert "eat" in action_candidates("Mo takes a seat beside the fridge", LABELS, HOME.labels)
+
+
+def test_words_that_say_only_a_direction_act_on_the_thing_an_earlier_part_worked() -> None:
+    story = ("Mo opens the cupboard beside the sink. Then he takes out a bowl. Nia switches the telly on. "
+             "Then Mo shoves the door shut again. Afterwards Nia turns the set off.")
+    parts = [p.text for p in split_instruction(story, ("Mo", "Nia"))]
+    assert earlier_parts(story, parts[3], ("Mo", "Nia")) == [parts[1], parts[0]]  # Mo's own, nearest first
+    assert earlier_parts(story, "not a part", ("Mo", "Nia")) == []
+    offered = action_candidates(parts[3], LABELS, HOME.labels)
+    assert offered  # the words rank nothing: without the earlier part the model would choose
+    assert earlier_thing_action(parts[3], offered, HOME.labels, earlier_parts(story, parts[3], ("Mo", "Nia"))) == "close_cabinet"
+    assert earlier_thing_action(parts[4], LABELS, HOME.labels, earlier_parts(story, parts[4], ("Mo", "Nia"))) == "turn_off_tv"
+    assert earlier_thing_action("Then Mo closes it.", LABELS, HOME.labels, ["Mo watches TV."]) is None  # no close_tv
+    assert earlier_thing_action("Then Mo sits down.", LABELS, HOME.labels, ["Mo opens the fridge."]) is None
+    assert earlier_thing_action("Then Mo closes the fridge.", LABELS, HOME.labels, ["Mo opens the cabinet."]) is None
 
 
 def test_the_request_is_a_choice_among_the_labels_in_plain_words() -> None:
