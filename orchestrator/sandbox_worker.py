@@ -4,7 +4,11 @@
 program in one long-lived child process (``python -m storyteller.orchestrator.sandbox_worker``) instead
 of in-process. The child keeps the interpreter's own ``Budget`` and adds what only the OS can
 enforce: an address-space limit (``RLIMIT_AS``), a CPU-time limit per program
-(``RLIMIT_CPU``, re-armed before each program) and, from the parent, a hard wall-clock kill.
+(``RLIMIT_CPU``, re-armed before each program) and, from the parent, a kill when the worker
+used more than ``run_seconds`` of CPU time on one program, or did not answer within
+``wall_seconds`` of wall-clock time, a backstop several times larger
+(``storyteller.orchestrator.worker_deadline``: CPU time, so a busy machine does not stop a
+program that waited for a core).
 A cost the interpreter fails to count therefore ends in ``BudgetExceededError`` for that
 program, never in a stalled story or a machine out of memory.
 
@@ -48,6 +52,12 @@ from dataclasses import asdict
 from typing import IO, TYPE_CHECKING, Any, Self
 
 from storyteller.orchestrator.stderr_tail import StderrTail
+from storyteller.orchestrator.worker_deadline import (
+    RUN_SECONDS,
+    WALL_SECONDS,
+    await_answer,
+    process_cpu_seconds,
+)
 from storyteller.sim.scene.model import Scene
 from storyteller.tools import errors as tool_errors
 from storyteller.tools.character_states import CharacterPlan, WorldView
@@ -62,11 +72,9 @@ ADDRESS_SPACE_BYTES = 2**30
 """``RLIMIT_AS`` of the worker (the runtime with numpy and a scene uses about 200 MiB of it)."""
 CPU_SECONDS = 4
 """``RLIMIT_CPU`` seconds per program (re-armed from the worker's CPU time so far)."""
-WALL_SECONDS = 5.0
-"""Seconds the parent waits for one program's answer before killing the worker."""
 START_SECONDS = 60.0
 """Seconds a new worker may take to import its modules, and a scene to load (not counted
-against any program's wall clock)."""
+against any program's limits)."""
 SCENES_KEPT = 4
 """Scenes (with their scene graphs) the worker keeps loaded."""
 MAX_FRAME = 64 * 2**20
@@ -142,7 +150,9 @@ class WorkerRunner:
     """A ``ProgramRunner`` that runs programs in a reused, OS-limited child process.
 
     ``budget`` is the interpreter budget inside the child (None: the default ``Budget``);
-    the OS limits are keyword arguments. Thread-safe: calls from several threads (planning
+    the OS limits are keyword arguments: ``run_seconds`` is the worker's CPU time and
+    ``wall_seconds`` the wall-clock backstop the parent allows one program
+    (``storyteller.orchestrator.worker_deadline``). Thread-safe: calls from several threads (planning
     steps checked concurrently, each in a worker thread) run one program at a time.
     """
 
@@ -152,11 +162,13 @@ class WorkerRunner:
         budget: Budget | None = None,
         address_space_bytes: int = ADDRESS_SPACE_BYTES,
         cpu_seconds: int = CPU_SECONDS,
+        run_seconds: float = RUN_SECONDS,
         wall_seconds: float = WALL_SECONDS,
     ) -> None:
         self.budget = budget
         self.address_space_bytes = address_space_bytes
         self.cpu_seconds = cpu_seconds
+        self.run_seconds = run_seconds
         self.wall_seconds = wall_seconds
         self.process: subprocess.Popen[bytes] | None = None
         self.starts = 0
@@ -285,7 +297,7 @@ class WorkerRunner:
     def _ask(self, request: dict[str, Any], extra_seconds: float = 0.0) -> dict[str, Any]:
         """Send one request and wait for its answer; kill the worker on a timeout or death.
 
-        ``extra_seconds`` is added to the wall clock (loading a scene is not the program's).
+        ``extra_seconds`` is added to both limits (loading a scene is not the program's).
         """
         process = self._worker()
         assert process.stdin is not None and process.stdout is not None
@@ -296,12 +308,17 @@ class WorkerRunner:
             raise BudgetExceededError(
                 "the program's worker process died; it is restarted for the next program"
             ) from None
-        ready, _, _ = select.select([process.stdout], [], [], self.wall_seconds + extra_seconds)
-        if not ready:
-            self.close()
-            raise BudgetExceededError(
-                f"the program ran longer than {self.wall_seconds:g} s and was stopped"
+        stdout = process.stdout
+        try:
+            await_answer(
+                lambda timeout: bool(select.select([stdout], [], [], timeout)[0]),
+                lambda: process_cpu_seconds(process.pid),
+                run_seconds=self.run_seconds + extra_seconds,
+                wall_seconds=self.wall_seconds + extra_seconds,
             )
+        except BudgetExceededError:
+            self.close()
+            raise
         answer = _read_frame(process.stdout)
         if answer is None:
             self.close()

@@ -1,14 +1,16 @@
 """The worker process: same plans as in-process, typed errors, OS limits, restarts.
 
-No test asserts a time: the wall-clock kill is triggered by a program that never ends on
-its own, and the CPU and memory limits by programs whose interpreter budget is set so high
-that only the OS can stop them.
+No test asserts a time: the parent's CPU-time kill is triggered by a program that never ends
+on its own, its wall-clock backstop by a worker that is stopped (SIGSTOP), and the CPU and
+memory limits by programs whose interpreter budget is set so high that only the OS can stop
+them.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -55,9 +57,11 @@ def test_typed_errors_cross_the_boundary(scene: Scene) -> None:
 
 
 @pytest.mark.slow
-def test_wall_clock_kill_then_the_next_program_runs(scene: Scene) -> None:
-    with WorkerRunner(budget=UNLIMITED, wall_seconds=1.0, cpu_seconds=1000) as run:
-        with pytest.raises(BudgetExceededError, match="was stopped"):
+def test_cpu_time_kill_then_the_next_program_runs(scene: Scene) -> None:
+    """The parent stops an endless loop at its CPU time (``run_seconds``), long before the
+    wall-clock backstop and the worker's own limits."""
+    with WorkerRunner(budget=UNLIMITED, run_seconds=1.0, wall_seconds=120.0, cpu_seconds=1000) as run:
+        with pytest.raises(BudgetExceededError, match=r"\(CPU time\) and was stopped"):
             run(scene, FOREVER, WorldView(), seed=0)
         assert run.process is None  # killed
         assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
@@ -65,8 +69,25 @@ def test_wall_clock_kill_then_the_next_program_runs(scene: Scene) -> None:
 
 
 @pytest.mark.slow
+def test_a_worker_that_is_never_scheduled_is_killed_at_the_wall_clock_backstop(scene: Scene) -> None:
+    """A stopped worker (SIGSTOP: it uses no CPU, as one that blocks) never reaches its CPU limit;
+    the wall-clock backstop ends it, and the next program runs on a new worker."""
+    with WorkerRunner(budget=UNLIMITED, run_seconds=600.0, wall_seconds=120.0, cpu_seconds=1000) as run:
+        run(scene, PLACE, WorldView(), seed=0)
+        assert run.process is not None
+        os.kill(run.process.pid, signal.SIGSTOP)
+        run.wall_seconds = 1.0  # only while it is stopped: a busy machine does not fail the others
+        with pytest.raises(BudgetExceededError, match="did not answer within 1 s and was stopped"):
+            run(scene, PLACE, WorldView(), seed=1)
+        assert run.process is None  # killed
+        run.wall_seconds = 120.0
+        assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"
+        assert run.starts == 2
+
+
+@pytest.mark.slow
 def test_cpu_limit_stops_what_the_budget_lets_through(scene: Scene) -> None:
-    with WorkerRunner(budget=UNLIMITED, wall_seconds=120.0, cpu_seconds=1) as run:
+    with WorkerRunner(budget=UNLIMITED, run_seconds=120.0, wall_seconds=120.0, cpu_seconds=1) as run:
         with pytest.raises(BudgetExceededError, match="operating-system limit"):
             run(scene, FOREVER, WorldView(), seed=0)
         assert run(scene, PLACE, WorldView(), seed=0)[0].character == "Mia"

@@ -10,9 +10,11 @@ much less on how busy the machine is than with a wall clock (a replay under load
 recording's verdict). A program cannot wait (no I/O, no sleep), so its CPU time is about its wall
 time on an idle machine. Limits: CPU time still grows a little when cores are shared (caches);
 it counts this thread only (no tool runs work in other threads today); and a wall-clock bound,
-where one is needed, belongs to the caller (the worker's parent kills a program after
-``storyteller.orchestrator.sandbox_worker.WALL_SECONDS``, 5 s, so only a slow-down beyond 5x turns a
-program that passed into a time-out).
+where one is needed, belongs to the caller (the worker's parent kills a worker that used
+``storyteller.orchestrator.worker_deadline.RUN_SECONDS`` of CPU time on one program, or that did
+not answer within its ``WALL_SECONDS``, a backstop six times longer, so load alone turns a
+program that passed into a time-out only when its CPU time, stretched by the wait for a core,
+passes that backstop).
 """
 
 from __future__ import annotations
