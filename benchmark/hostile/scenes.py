@@ -57,8 +57,21 @@ def _scene_dense(box: Box) -> Spec:
 
 @attack("scene", "names and labels with markup, ANSI, bidi, line separators")
 def _scene_text(box: Box) -> Spec:
-    objects = [box_object(0, label="[/]" + BIDI + "chair"), box_object(2, label="table[bold red]x")]
-    return inspect(box.file("text.json", scene_json(objects, name="[/]hostile" + BIDI)), "either")
+    """A scene valid but for its names, so they reach the tables ``scene inspect`` prints; the
+    check requires them shown, markup as text and the rest escaped (a refusal tests nothing)."""
+    objects = [{"name": f"{label}_{i}", "label": label, "idx": i, "center": [2.0 * i, 0.0, 0.25],
+                "size": [0.5, 0.5, 0.5]} for i, label in enumerate(("[/]" + BIDI + "chair", "table[bold red]x"))]
+    scene = scene_json(objects, name="[/]hostile[bold red]" + BIDI, bounds_min=[-1.0, -1.0], bounds_max=[3.0, 1.0])
+    spec = inspect(box.file("text.json", scene), "either")
+    spec.check_output = _names_shown
+    return spec
+
+
+def _names_shown(printed: str) -> str | None:
+    """The scene name and a label with markup printed as text, the control characters escaped."""
+    shown = ("[/]hostile[bold red]\\u202e\\u2066\\x1b[31m\\x07", "table[bold red]x_1")
+    missing = [text for text in shown if text not in printed]
+    return "names not shown as escaped text: " + ", ".join(missing) if missing else None
 
 
 def _no_control_glyph(printed: str) -> str | None:
