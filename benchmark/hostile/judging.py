@@ -124,10 +124,16 @@ def run_queue_delay(pid: int) -> float | None:
 def run_command(argv: list[str], timeout: float, env: dict[str, str], cwd: Path,
                 stdin: bytes | None = None) -> Run:
     """Run the CLI with ``argv``, killed once its judged time (wall-clock less the wait for a CPU)
-    passes ``timeout`` (or its wall-clock time passes ``BACKSTOP`` times that)."""
-    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+    passes ``timeout`` (or its wall-clock time passes ``BACKSTOP`` times that). ``stdin`` (an
+    attack's :attr:`Spec.stdin`) is what the command reads on stdin, from a file (so a command
+    that does not read it never blocks the harness); None: nothing (``/dev/null``)."""
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err, tempfile.TemporaryFile() as given:
+        if stdin is not None:
+            given.write(stdin)
+            given.seek(0)
         start = time.monotonic()
-        proc = subprocess.Popen([*CLI, *argv], stdout=out, stderr=err, stdin=subprocess.DEVNULL, env=env, cwd=cwd,
+        proc = subprocess.Popen([*CLI, *argv], stdout=out, stderr=err,
+                                stdin=subprocess.DEVNULL if stdin is None else given, env=env, cwd=cwd,
                                 preexec_fn=limit_child, start_new_session=True)
         code: int | None = None
         queued = 0.0  # as last read; the wait after the last read (< one poll) is counted as work
