@@ -89,11 +89,24 @@ cli_view.register(app)
 PLUGIN_GROUP = "storyteller.commands"
 
 
+OLD_TOP_LEVEL = frozenset({"sim", "tools", "agents", "orchestrator", "benchmark", "prompts"})
+"""The project's import names before they moved under ``storyteller``: a plugin naming one comes
+from stale install metadata (an old ``storyteller.egg-info`` beside the sources)."""
+
+
 def register_plugins(target: typer.Typer, plugins: Iterable[EntryPoint] | None = None) -> list[str]:
     """Call ``register(target)`` of every command plugin (default: the installed entry points of
-    :data:`PLUGIN_GROUP`); returns the names registered."""
-    names = []
+    :data:`PLUGIN_GROUP`); returns the names registered. A name registers once (the first); a
+    plugin under the project's old import names is skipped with a warning saying how to mend
+    the install (it would import the old modules beside the new ones)."""
+    names: list[str] = []
     for ep in entry_points(group=PLUGIN_GROUP) if plugins is None else plugins:
+        if ep.value.split(".", 1)[0].split(":", 1)[0] in OLD_TOP_LEVEL:
+            say(f"warning: storyteller command plugin {ep.name!r} ({plain(ep.value)}) comes from stale install "
+                "metadata (an old storyteller.egg-info?): skipped; run `pip install -e .` again", err=True)
+            continue
+        if ep.name in names:
+            continue
         try:
             register = ep.load()
         except (ImportError, AttributeError) as exc:

@@ -279,9 +279,25 @@ def _app() -> typer.Typer:
     names = register_plugins(app, [
         EntryPoint(name="bench", value="storyteller.benchmark.sweep.cli:register", group="storyteller.commands"),
         EntryPoint(name="gone", value="storyteller.benchmark.no_such_module:register", group="storyteller.commands"),
+        EntryPoint(name="bench", value="storyteller.benchmark.sweep.cli:register", group="storyteller.commands"),
+        EntryPoint(name="old", value="benchmark.sweep.cli:register", group="storyteller.commands"),  # stale egg-info
     ])
     assert names == ["bench"]
     return app
+
+
+def test_a_plugin_from_stale_install_metadata_is_skipped_with_a_warning(capsys: pytest.CaptureFixture[str]) -> None:
+    from storyteller.orchestrator.cli.app import register_plugins
+
+    app = typer.Typer()
+    names = register_plugins(app, [
+        EntryPoint(name="bench", value="benchmark.sweep.cli:register", group="storyteller.commands"),
+        EntryPoint(name="bench", value="storyteller.benchmark.sweep.cli:register", group="storyteller.commands"),
+        EntryPoint(name="bench", value="storyteller.benchmark.sweep.cli:register", group="storyteller.commands"),
+    ])
+    assert names == ["bench"]
+    err = capsys.readouterr().err
+    assert "stale install metadata" in err and "pip install -e ." in err
 
 
 @pytest.mark.slow
