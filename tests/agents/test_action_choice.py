@@ -5,7 +5,12 @@ from __future__ import annotations
 
 from langgraph.checkpoint.memory import InMemorySaver
 
-from storyteller.agents.action_choice import MOTION_LABELS, action_candidates, action_choice_request, earlier_thing_action
+from storyteller.agents.action_choice import (
+    MOTION_LABELS,
+    action_candidates,
+    action_choice_request,
+    earlier_thing_action,
+)
 from storyteller.agents.event_parser import scene_action_labels
 from storyteller.agents.instruction_parts import earlier_parts, split_instruction
 from storyteller.agents.program_grammar import event_options
