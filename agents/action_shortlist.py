@@ -131,8 +131,8 @@ CUES: dict[str, tuple[tuple[str, int], ...]] = {
                     ("crumb", 2), ("clear the table", 4)),
     "deliver_menu": (("menu", 4), ("bring the menu", 5), ("hand out", 2)),
     "serve_food": (("serve", 2), ("bring", 1), ("dish", 2), ("plate", 1), ("food", 1), ("meal", 1), ("course", 2),
-                   ("carry", 1), ("deliver", 1)),
-    "serve_drink": (("serve", 2), ("bring", 1), ("drink", 1), ("carry", 1), ("deliver", 1), ("tray", 1)),
+                   ("carry", 1), ("deliver", 1), ("hand over", 2)),
+    "serve_drink": (("serve", 2), ("bring", 1), ("drink", 1), ("carry", 1), ("deliver", 1), ("tray", 1), ("hand over", 2)),
     "take_order": (("take the order", 5), ("take order", 5), ("takes the order", 5), ("taking the order", 5),
                    ("note down", 3), ("write down", 3), ("jot down", 3), ("what they want", 3),
                    ("what they would like", 3), ("ask what", 2), ("order", 1)),
@@ -207,8 +207,10 @@ def _word_matches(cue: str, word: str) -> bool:
     return word.startswith(cue) and len(word) - len(cue) <= 3
 
 
-_FILLERS = frozenset({"a", "an", "some", "himself", "herself", "themselves", "myself", "yourself", "ourselves"})
-"""Words a cue phrase may skip between its own words: "makes himself a coffee" says "make coffee"."""
+_FILLERS = frozenset({"a", "an", "some", "himself", "herself", "themselves", "myself", "yourself", "ourselves",
+                      "him", "them", "me", "us", "it", "the"})
+"""Words a cue phrase may skip between its own words: "makes himself a coffee" says "make coffee",
+"asks her for a gin" says "ask for" (an object pronoun; *her* reads as "the")."""
 
 
 def _phrase_at(tokens: Sequence[str], phrase: Sequence[str]) -> list[int]:

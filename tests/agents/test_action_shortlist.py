@@ -45,6 +45,9 @@ RESTAURANT = ("idle", "chat", "eat", "drink", "deliver_menu", "serve_food", "ser
     ("Pia fancies hearing some old vinyl", HOME, "turn_on_record_player"),
     ("Pia puts an LP on", HOME, "turn_on_record_player"),
     ("Pia lifts the needle off the record", HOME, "turn_off_record_player"),
+    # an object pronoun between a verb and its particle: "asks her for" is "ask for"
+    ("Tariq sits at the bar and asks her for a lemonade", RESTAURANT, "order_drink"),
+    ("Then Lena hands it over to the man at the window", ("idle", "chat", "serve_drink", "drink"), "serve_drink"),
 ])
 def test_the_best_label_follows_everyday_wording(text: str, labels: tuple[str, ...], best: str) -> None:
     assert suggested_action(text, labels) == best
