@@ -180,10 +180,16 @@ _DETERMINERS = frozenset({"their", "his", "her", "its", "our", "my", "your"})
 """Possessives read as "the", so a cue phrase names its thing whoever owns it ("takes their order")."""
 
 
+_PARTICLES = frozenset({"for", "over", "out", "off", "on", "up", "down", "back", "to", "away", "in"})
+"""Words after which *her* is a person, not a possessive ("asks her for", "hands her over")."""
+
+
 def _tokens(text: str) -> list[str]:
     out: list[str] = []
-    for w in _TOKEN.findall(text.lower().replace("_", " ").replace("-", " ")):
-        out.extend(("the",) if w in _DETERMINERS else _SYNONYMS.get(w, w).split())
+    words = _TOKEN.findall(text.lower().replace("_", " ").replace("-", " "))
+    for k, w in enumerate(words):
+        person = w == "her" and k + 1 < len(words) and words[k + 1] in _PARTICLES
+        out.extend(("her",) if person else ("the",) if w in _DETERMINERS else _SYNONYMS.get(w, w).split())
     return out
 
 
@@ -208,9 +214,9 @@ def _word_matches(cue: str, word: str) -> bool:
 
 
 _FILLERS = frozenset({"a", "an", "some", "himself", "herself", "themselves", "myself", "yourself", "ourselves",
-                      "him", "them", "me", "us", "it", "the"})
+                      "him", "her", "them", "me", "us", "it"})
 """Words a cue phrase may skip between its own words: "makes himself a coffee" says "make coffee",
-"asks her for a gin" says "ask for" (an object pronoun; *her* reads as "the")."""
+"asks her for a gin" says "ask for", "hands it over" says "hand over" (object pronouns)."""
 
 
 def _phrase_at(tokens: Sequence[str], phrase: Sequence[str]) -> list[int]:
