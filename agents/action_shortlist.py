@@ -464,14 +464,24 @@ _STAND_WORDS = ("stand", "upright")
 _RELATIVE = frozenset({"which", "whichever", "that", "where", "whose"})
 
 
+_CLAIM_VERBS = ("grab", "get", "take", "find", "snag", "claim", "book")
+"""Verbs of "grab a table" / "find a table" / "book a table": to sit at it (an idiom of eating out)."""
+
+
+def _claims_a_table(said: Sequence[str]) -> bool:
+    """Whether a claiming verb has "table" as its object: itself and at most two words between."""
+    return any(t == "table" and any(_word_matches(v, w) for v in _CLAIM_VERBS for w in said[max(0, i - 3) : i])
+               for i, t in enumerate(said))
+
+
 def posture(text: str) -> str | None:
     """``"sit"`` when the event's words say the characters sit ("takes a seat", "seated",
-    "on the couch"), ``"stand"`` when they say they stand, None when they say neither or both.
+    "on the couch", "grab the little table"), ``"stand"`` when they say they stand, None when they say neither or both.
     Words naming a landmark ("chats next to the couch") do not count."""
     tokens = _without_proximity(_tokens(text))
     landmark = _landmark_mask(tokens)
     said = [t for t, skip in zip(tokens, landmark, strict=True) if not skip]
-    sit = any(_word_matches(w, t) for w in _SIT_WORDS for t in said)
+    sit = any(_word_matches(w, t) for w in _SIT_WORDS for t in said) or _claims_a_table(said)
     stand = any(
         _word_matches(w, t) and not _RELATIVE & set(said[max(0, i - 4) : i])  # "the table which stands by"
         for i, t in enumerate(said) for w in _STAND_WORDS

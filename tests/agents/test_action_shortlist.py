@@ -137,3 +137,12 @@ def test_who_someone_is_and_when_something_happens_are_not_what_is_done(text: st
 
 def test_a_time_clause_alone_gives_no_evidence() -> None:
     assert rank_action_labels("Noor turns it off once the film is over", HOME) == []
+
+
+def test_grabbing_a_table_is_sitting_at_it() -> None:
+    from storyteller.agents.action_shortlist import posture
+
+    for text in ("Mo and Lu grab the little table by the window", "Mo finds a table for two", "Lu takes a table"):
+        assert posture(text) == "sit", text
+    for text in ("Mo takes the order at the corner table", "Mo cleans the table", "Lu gets a coffee near the table"):
+        assert posture(text) is None, text
