@@ -97,6 +97,9 @@ class SceneObject(BaseModel):
             raise ValueError("facing must be a non-zero xy vector")
         if abs(norm - 1.0) <= 1e-12:  # already unit: keep the exact floats (JSON round-trips)
             return (float(value[0]), float(value[1]))
+        if math.isinf(norm):  # finite numbers whose length overflows ([1.7e308, 1.7e308]): halved, same direction
+            value = (value[0] / 2.0, value[1] / 2.0)
+            norm = math.hypot(*value)
         return (value[0] / norm, value[1] / norm)
 
     @model_validator(mode="after")

@@ -56,6 +56,13 @@ def test_facing_is_normalised_and_unit_facing_kept_exactly() -> None:
     assert again == _obj(facing=(0.3, 0.7)).facing  # idempotent
 
 
+def test_a_facing_whose_length_overflows_is_still_a_unit_direction() -> None:
+    """[1.7e308, -1.7e308] is a direction whose length is inf: it was divided by inf, stored as
+    [0, -0], a zero facing past the rule that refuses one (hostile scene attack, issue 22)."""
+    assert _obj(facing=(1.7e308, -1.7e308)).facing == pytest.approx((math.sqrt(0.5), -math.sqrt(0.5)))
+    assert _obj(facing=(1.7976931348623157e308, 1.0)).facing == pytest.approx((1.0, 0.0))
+
+
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
