@@ -22,6 +22,10 @@ if TYPE_CHECKING:  # commands import what they need, so that ``scene list`` star
 scene_app = typer.Typer(help="Inspect scenes.", no_args_is_help=True)
 
 EXIT_USAGE = 2
+MAX_TABLE_RELATIONS = 1_000
+"""Rows of the relations table (the bundled and reference scenes have 81-251 relations; ``--json``
+lists them all). Relations grow with the square of packed objects: 400 overlapping boxes have
+16,000, whose table took rich 15 s to draw (a hostile-inputs attack, issue 22)."""
 
 
 class SceneInspectError(Exception):
@@ -142,12 +146,15 @@ def _print_tables(data: dict[str, Any]) -> None:
         )
     say(objects, console=console)
 
+    rows = data["relations"][:MAX_TABLE_RELATIONS]
     relations = Table(title=f"Relations ({len(data['relations'])})", title_justify="left")
     for col in ("subject", "relation", "anchor"):
         relations.add_column(col)
-    for s, r, a in data["relations"]:
+    for s, r, a in rows:
         relations.add_row(text(s), text(r), text(a))
     say(relations, console=console)
+    if len(rows) < len(data["relations"]):
+        say(f"(the first {len(rows)} of {len(data['relations'])} relations shown; --json lists all)", console=console)
 
     clusters = Table(title=f"Clusters ({len(data['clusters'])})", title_justify="left")
     clusters.add_column("#", justify="right")

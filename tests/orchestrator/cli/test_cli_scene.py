@@ -16,6 +16,7 @@ from matplotlib.image import imread
 from typer.testing import CliRunner
 
 from storyteller.orchestrator.cli.app import app
+from storyteller.orchestrator.cli.scene import MAX_TABLE_RELATIONS
 from storyteller.sim.scene.bundled import load_bundled_scene
 from tests.support.reference import SCENES, requires_reference
 
@@ -74,6 +75,23 @@ def test_inspect_json_home_relations() -> None:
     data = json.loads(runner.invoke(app, ["scene", "inspect", "home", "--json"]).stdout)
     assert ["coffee_maker_1", "on", "cabinet_1"] in data["relations"]
     assert ["microwave_1", "on", "cabinet_2"] in data["relations"]
+
+
+def test_inspect_table_shows_the_first_relations_of_many(tmp_path: Path) -> None:
+    """60 packed boxes have thousands of relations: the table shows the first MAX_TABLE_RELATIONS
+    and says so, ``--json`` lists them all (the table of 16,000 took 15 s to draw)."""
+    objects = [{"name": f"box_{i}", "label": "box", "idx": i, "center": [i % 8 * 0.3, i // 8 * 0.3, 0.1],
+                "size": [0.2, 0.2, 0.2]} for i in range(60)]
+    path = tmp_path / "packed.json"
+    path.write_text(json.dumps({"name": "packed", "bounds_min": [-1, -1], "bounds_max": [4, 4], "objects": objects}))
+    relations = json.loads(runner.invoke(app, ["scene", "inspect", str(path), "--json"]).stdout)["relations"]
+    assert len(relations) > MAX_TABLE_RELATIONS
+    result = runner.invoke(app, ["scene", "inspect", str(path)])
+    assert result.exit_code == 0, result.output
+    table = result.stdout.split(f"Relations ({len(relations)})")[1].split("Clusters (")[0]
+    assert f"(the first {MAX_TABLE_RELATIONS} of {len(relations)} relations shown; --json lists all)" in table
+    rows = [line.split("│")[1:4] for line in table.splitlines() if line.startswith("│")]
+    assert [[cell.strip() for cell in row] for row in rows] == relations[:MAX_TABLE_RELATIONS]
 
 
 @requires_reference
