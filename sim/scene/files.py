@@ -250,7 +250,7 @@ def load_reference_folder(folder: Path) -> Scene:
     folder.
     """
     objects_path = folder / "objects.json"
-    if not objects_path.is_file():
+    if not objects_path.exists():  # a FIFO or a device there: read_json says it is no regular file
         raise SceneFileError(
             folder, "folder has no objects.json (expected a reference annotation folder)"
         )

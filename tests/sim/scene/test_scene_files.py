@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -242,7 +243,23 @@ BAD_CASES: list[BadCase] = [
     ("ref-bad-bbox", lambda t: _ref_file(t, "scene.json", {"bbox": [[0, 0, 0], [0, 3, 2]]}), "scene.json", None, "bbox", "must exceed"),
     ("ref-bad-grid", lambda t: _ref_file(t, "grid_map.json", {"grid_step": 0.3, "user_modifications": {"occupied": [[1, "a"]]}}), "grid_map.json", None, "user_modifications.occupied", "integer cells"),
     ("ref-grid-step-zero", lambda t: _ref_file(t, "grid_map.json", {"grid_step": 0}), "grid_map.json", None, "grid_step", "> 0"),
+    ("ref-objects-fifo", lambda t: _fifo(_reference_folder(t) / "objects.json"), "objects.json", None, None, "not a regular file"),
+    ("ref-objects-folder", lambda t: _as_folder(_reference_folder(t) / "objects.json"), "objects.json", None, None, "found a folder"),
 ]  # fmt: skip
+
+
+def _fifo(path: Path) -> Path:
+    """``path`` replaced by a FIFO that no one writes (opening it to read would block)."""
+    path.unlink()
+    os.mkfifo(path)
+    return path.parent
+
+
+def _as_folder(path: Path) -> Path:
+    """``path`` replaced by a folder."""
+    path.unlink()
+    path.mkdir()
+    return path.parent
 
 
 @pytest.mark.parametrize(
