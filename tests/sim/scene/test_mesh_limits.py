@@ -125,3 +125,20 @@ def test_declared_triangles_are_counted_before_loading(tmp_path: Path, monkeypat
     assert len(load_scene(tmp_path / "four.obj").objects) == 1
     doc = _doc([{"mesh": 0, "name": "chair_1"}], count=15)  # 5 triangles of positions
     _refused(_glb(tmp_path / "five.glb", doc, np.zeros((15, 3), dtype="<f4").tobytes()), "5 triangles")
+
+
+def test_obj_objects_are_counted_before_loading(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Found by the hostile corpus once its OBJ of 200,000 named objects was no longer refused for
+    a 5,000-digit face index first: trimesh took 160 s and 1.3 GB to build them before the count of
+    its nodes refused the file."""
+    import trimesh
+
+    from storyteller.sim.scene import meshes
+
+    monkeypatch.setattr(meshes, "MAX_SCENE_OBJECTS", 3)
+    corners = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+    (tmp_path / "three.obj").write_text(corners + "".join(f"o chair_{i}\nf 1 2 3\n" for i in range(1, 4)))
+    assert len(load_scene(tmp_path / "three.obj").objects) == 3
+    (tmp_path / "four.obj").write_text(corners + "".join(f"o chair_{i}\nf 1 2 3\n" for i in range(1, 5)))
+    monkeypatch.setattr(trimesh, "load_scene", lambda *args, **kwargs: pytest.fail("trimesh read the file"))
+    _refused(tmp_path / "four.obj", "more than 3 OBJ objects")
