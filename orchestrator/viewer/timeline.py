@@ -43,11 +43,21 @@ def clock(frame: int, fps: float) -> str:
     return f"{frame / fps:.1f} s"
 
 
+MAX_EVENT_TEXT_CHARS = 1_000
+"""Characters of an event's text shown (a caption line, a line of the event lists), the rest cut
+to an ellipsis: a run's plan sentences are far shorter (167 at most in 200 story runs), while a
+story file may hold 40 MB in one, which the export captioned at every frame it drew (2.5 GB,
+40 s: a hostile-inputs attack, issue 22)."""
+
+
 def event_text(event: StoryEventRecord) -> str:
     """What the event is, as a person reads it: its plan sentence (``StoryEventRecord.text``;
     never the narrator's unchecked words), else only who takes part (control characters shown
-    as escapes)."""
-    return plain(event.text or ", ".join(event.characters))
+    as escapes), cut to :data:`MAX_EVENT_TEXT_CHARS`."""
+    text = event.text or ", ".join(event.characters)
+    if len(text) > MAX_EVENT_TEXT_CHARS:
+        text = text[: MAX_EVENT_TEXT_CHARS - 1] + "\u2026"
+    return plain(text)
 
 
 def event_line(event: StoryEventRecord, fps: float) -> str:

@@ -21,7 +21,14 @@ from storyteller.orchestrator.viewer.run_folder import (
     is_ready,
     load_run,
 )
-from storyteller.orchestrator.viewer.timeline import action_at, active_events, event_line, event_span
+from storyteller.orchestrator.viewer.timeline import (
+    MAX_EVENT_TEXT_CHARS,
+    action_at,
+    active_events,
+    event_line,
+    event_span,
+    event_text,
+)
 from storyteller.sim.body.skeleton import NUM_JOINTS, forward_kinematics, heading_to_root
 from storyteller.sim.scene.bundled import load_bundled_scene
 from storyteller.sim.scene.files import save_scene_json
@@ -105,6 +112,15 @@ def test_events_are_on_from_their_applied_frame_to_their_finish_or_the_end() -> 
     assert event_span(done, 39) == (1, 20) and event_span(ongoing, 39) == (15, 39)
     assert [active_events([done, ongoing], f, 39) for f in (0, 1, 16, 21, 39)] == [[], [0], [0, 1], [1], [1]]
     assert event_line(done, 30.0) == "  0.0 s  Ava: act 0 (done)"
+
+
+def test_an_event_text_is_shown_cut_to_its_limit() -> None:
+    """A story file's 40 MB event text was captioned whole at every frame the export drew (2.5 GB)."""
+    long = StoryEventRecord.model_validate({**_event(0, 1, 20), "text": "b" * 40_000_000 + "\x1b"})
+    assert event_text(long) == "b" * (MAX_EVENT_TEXT_CHARS - 1) + "\u2026"
+    assert event_line(long, 30.0) == f"  0.0 s  {'b' * (MAX_EVENT_TEXT_CHARS - 1)}\u2026 (done)"
+    edge = StoryEventRecord.model_validate({**_event(0, 1, 20), "text": "\x1b" * MAX_EVENT_TEXT_CHARS})
+    assert event_text(edge) == "\\x1b" * MAX_EVENT_TEXT_CHARS  # at the limit: whole, escaped
 
 
 def test_action_at_holds_the_last_label_past_the_end() -> None:
