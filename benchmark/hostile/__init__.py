@@ -5,7 +5,8 @@
 :mod:`~storyteller.benchmark.hostile.judging` runs a command and judges it, :mod:`~storyteller.benchmark.hostile.bases`
 builds what the attacks start from; the attacks are grouped by target in
 :mod:`~storyteller.benchmark.hostile.run_folders`, :mod:`~storyteller.benchmark.hostile.outputs`,
-:mod:`~storyteller.benchmark.hostile.scenes`, :mod:`~storyteller.benchmark.hostile.inputs`,
+:mod:`~storyteller.benchmark.hostile.scenes`, :mod:`~storyteller.benchmark.hostile.meshes`,
+:mod:`~storyteller.benchmark.hostile.inputs`,
 :mod:`~storyteller.benchmark.hostile.sweeps`, :mod:`~storyteller.benchmark.hostile.models` and
 :mod:`~storyteller.benchmark.hostile.viewer`; a second corpus, written from outside the first, in
 :mod:`~storyteller.benchmark.hostile.folder_files` (how run folder files are opened and written: sparse,

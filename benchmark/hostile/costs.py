@@ -20,6 +20,7 @@ from storyteller.benchmark.hostile.harness import (
     Spec,
     export,
     inspect,
+    refused_for,
     registrar,
     replay,
     score,
@@ -77,13 +78,20 @@ def _ply_header(box: Box) -> Spec:
         head += [f"element e{i} 0"] + [f"property float p{j}" for j in range(10)]
     head += ["element vertex 3", "property float x", "property float y", "property float z", "end_header",
              "0 0 0", "1 0 0", "0 1 0"]
-    return inspect(box.file("header.ply", "\n".join(head) + "\n"), "either")  # empty elements are valid PLY
+    # empty elements are valid PLY: a refusal must be for them
+    return inspect(box.file("header.ply", "\n".join(head) + "\n"), "either", refused_for("header.ply", "element"))
 
 
-@attack("mesh", ".obj vertices at 1e308, -1e308 and nan")
+@attack("mesh", ".obj vertices at 1e308 and -1e308")
 def _obj_values(box: Box) -> Spec:
-    text = "o chair_1\nv 1e308 0 0\nv -1e308 1 0\nv nan 0 1\nv 0 0 0\nf 1 2 3\nf 2 3 4\n"
-    return inspect(box.file("values.obj", text))
+    text = "o chair_1\nv 1e308 0 0\nv -1e308 1 0\nv 0 0 1\nv 0 0 0\nf 1 2 3\nf 2 3 4\n"
+    return inspect(box.file("values.obj", text), "bad", refused_for("object 'chair_1', field 'size"))
+
+
+@attack("mesh", ".obj vertex at nan")
+def _obj_nan(box: Box) -> Spec:
+    text = "o chair_1\nv 0 0 0\nv 1 1 0\nv nan 0 1\nv 0 0 1\nf 1 2 3\nf 2 3 4\n"
+    return inspect(box.file("nan.obj", text), "either", refused_for("nan.obj", "non-finite"))
 
 
 @attack("track", "a .track.npz whose zip holds 100,000 empty members (export)")
@@ -113,14 +121,24 @@ def _story_backwards(box: Box) -> Spec:
     return export(box)
 
 
-@attack("scene", "a seat facing [0, 0] and one facing [1e-320, 0]")
-def _scene_facing(box: Box) -> Spec:
+def _facing(box: Box, facing: list[float]) -> Spec:
+    """A valid scene of two seats but for the second one's ``facing``: one a bad facing cannot be."""
     objects = [{"name": f"chair_{i + 1}", "label": "chair", "idx": i + 1, "center": [1.0 + 2 * i, 1.0, 0.25],
-                "size": [0.5, 0.5, 0.5], "facing": facing, "has_facing": True, "sit_offset_horizontal": 0.0,
-                "sit_offset_vertical": 0.0, "interactive": True} for i, facing in enumerate(([0.0, 0.0], [1e-320, 0.0]))]
+                "size": [0.5, 0.5, 0.5], "facing": [0.0, 1.0] if i == 0 else facing, "has_facing": True,
+                "sit_offset_horizontal": 0.0, "sit_offset_vertical": 0.4, "interactive": True} for i in range(2)]
     text = json.dumps({"format": "storyteller-scene/1", "name": "facing", "floor_z": 0.0, "bounds_min": [0, 0],
                        "bounds_max": [6, 4], "objects": objects})
-    return inspect(box.file("facing.json", text))
+    return inspect(box.file("facing.json", text), "bad", refused_for("object 'chair_2', field 'facing'"))
+
+
+@attack("scene", "a seat facing [0, 0]")
+def _scene_facing(box: Box) -> Spec:
+    return _facing(box, [0.0, 0.0])
+
+
+@attack("scene", "a seat facing [1e-320, 0] (a subnormal length)")
+def _scene_facing_tiny(box: Box) -> Spec:
+    return _facing(box, [1e-320, 0.0])
 
 
 @attack("trace", "usage of 10**60 tokens and a latency of 1e308 s in every attempt (replay)")

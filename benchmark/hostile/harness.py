@@ -127,8 +127,8 @@ def export(box: Box, expect: Expect = "bad", check: Callable[[], str | None] | N
     return Spec(["view", str(box.run), "--export", str(html)], "view --export", expect, writable=(html,), check=check)
 
 
-def inspect(path: Path, expect: Expect = "bad") -> Spec:
-    return Spec(["scene", "inspect", str(path)], "scene inspect", expect)
+def inspect(path: Path, expect: Expect = "bad", check_output: Callable[[str], str | None] | None = None) -> Spec:
+    return Spec(["scene", "inspect", str(path)], "scene inspect", expect, check_output=check_output)
 
 
 def score(box: Box, sweep: Path, expect: Expect = "bad") -> Spec:
@@ -211,12 +211,40 @@ def victim_intact(box: Box) -> Callable[[], str | None]:
 
 
 def scene_json(objects: list[dict[str, Any]], **extra: Any) -> str:
-    return json.dumps({"name": extra.pop("name", "hostile"), "objects": objects, **extra})
+    """A scene of the project's JSON format holding ``objects``, valid but for what an attack puts in
+    it: the floor is the rectangle 1 m around the objects' centres (``bounds_min`` and ``bounds_max``
+    in ``extra`` replace it), so the scene reaches the code its hostile part targets."""
+    xs = [float(o["center"][0]) for o in objects] or [0.0]
+    ys = [float(o["center"][1]) for o in objects] or [0.0]
+    floor = {"bounds_min": [min(xs) - 1.0, min(ys) - 1.0], "bounds_max": [max(xs) + 1.0, max(ys) + 1.0]}
+    return json.dumps({"name": "hostile", **floor, "objects": objects, **extra})
 
 
 def box_object(i: int, label: str = "chair", size: float = 0.5, x: float | None = None, y: float = 0.0) -> dict[str, Any]:
+    """A valid object ``<label>_<i>`` of the project's scene JSON: a cube of ``size`` metres on the
+    floor at (``x``, default ``i``; ``y``)."""
     cx = float(i) if x is None else x
-    return {"label": label, "center": [cx, y, size / 2], "size": [size, size, size], "heading": 0.0}
+    return {"name": f"{label}_{i}", "label": label, "idx": i, "center": [cx, y, size / 2], "size": [size, size, size]}
+
+
+def refused_for(*words: str) -> Callable[[str], str | None]:
+    """A :attr:`Spec.check_output` for an attack the product may refuse: a refusal must be for its
+    hostile part, its ``error:`` line holding every one of ``words`` (the file, field or limit the
+    attack targets); a refusal for anything else means the input never reached its target."""
+
+    def check(printed: str) -> str | None:
+        errors = [line for line in printed.splitlines() if line.startswith("error")]
+        if errors and not all(word in errors[0] for word in words):
+            return f"refused for another reason than {' '.join(words)!r}: {errors[0][:100]!r}"
+        return None
+
+    return check
+
+
+def shown(text: str) -> Callable[[str], str | None]:
+    """A :attr:`Spec.check_output` for an attack on an input the product must accept: the command
+    prints ``text`` (a refusal, for whatever reason, means the input never reached its target)."""
+    return lambda printed: None if text in printed else f"{text!r} not shown"
 
 
 class Reduce:

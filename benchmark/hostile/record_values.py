@@ -12,6 +12,7 @@ import base64
 import json
 import os
 import struct
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -21,14 +22,17 @@ from storyteller.benchmark.hostile.harness import (
     BIDI,
     Attack,
     Box,
+    Expect,
     Spec,
     export,
     glb_file,
     gltf_doc,
     inspect,
+    refused_for,
     registrar,
     replay,
     score,
+    shown,
 )
 from storyteller.benchmark.hostile.inputs import model_info, program_run, script_run
 
@@ -149,43 +153,99 @@ def _story_frames(box: Box) -> Spec:
     return _story(box, change)
 
 
-@attack("mesh", ".obj with relative index -9,999,999 and index 0")
-def _obj_indices(box: Box) -> Spec:
-    text = "o chair_1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf -9999999 2 3\nf 0 1 2\no table_1\nv 0 0 1\nf 1 2 4\n"
-    return inspect(box.file("idx.obj", text))
+# Each mesh and scene below is one the loader would read but for its hostile part, one to an
+# attack (a second would be refused first and test nothing); each check fails on a refusal for
+# another reason (``refused_for``) or when what must be accepted is not shown (``shown``).
+
+def _obj_face(box: Box, face: str, expect: Expect, check: Callable[[str], str | None]) -> Spec:
+    text = f"o chair_1\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf {face}\nf 2 3 4\n"
+    return inspect(box.file("idx.obj", text), expect, check)
 
 
-@attack("mesh", "binary .ply faces naming vertex 2**31-1 and -7")
-def _ply_indices(box: Box) -> Spec:
-    head = (b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-            b"property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n")
-    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4").tobytes()
-    faces = struct.pack("<Biii", 3, 0, 1, 2**31 - 1) + struct.pack("<Biii", 3, -7, 1, 2)
-    return inspect(box.file("idx.ply", head + corners + faces))
+@attack("mesh", ".obj with relative index -9,999,999")
+def _obj_negative(box: Box) -> Spec:
+    return _obj_face(box, "-9999999 2 3", "bad", refused_for("idx.obj", "-9999999"))
 
 
-@attack("mesh", ".glb: an index accessor past the vertices, a view past its buffer, stride 1")
-def _glb_ranges(box: Box) -> Spec:
-    doc = gltf_doc([{"mesh": 0, "name": "chair_1"}, {"mesh": 1, "name": "table_1"}])
-    doc["bufferViews"].append({"buffer": 0, "byteOffset": 0, "byteLength": 12})
+@attack("mesh", ".obj with index 0")
+def _obj_zero(box: Box) -> Spec:
+    return _obj_face(box, "0 1 2", "either", refused_for("idx.obj", "index"))
+
+
+PLY_TRIANGLE = (b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                b"property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+                + np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4").tobytes())
+
+
+@attack("mesh", "binary .ply face naming vertex 2**31-1")
+def _ply_big_index(box: Box) -> Spec:
+    faces = struct.pack("<Biii", 3, 0, 1, 2**31 - 1) + struct.pack("<Biii", 3, 0, 1, 2)
+    return inspect(box.file("idx.ply", PLY_TRIANGLE + faces), check_output=refused_for("idx.ply", "2147483647"))
+
+
+@attack("mesh", "binary .ply face naming vertex -7")
+def _ply_negative_index(box: Box) -> Spec:
+    faces = struct.pack("<Biii", 3, -7, 1, 2) + struct.pack("<Biii", 3, 0, 1, 2)
+    return inspect(box.file("idx.ply", PLY_TRIANGLE + faces), check_output=refused_for("idx.ply", "-7"))
+
+
+TRIANGLE = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4").tobytes()
+
+
+@attack("mesh", ".glb: an index accessor past the vertices")
+def _glb_index_past(box: Box) -> Spec:
+    doc = gltf_doc([{"mesh": 0, "name": "chair_1"}])
+    doc["buffers"][0]["byteLength"] = 48
+    doc["bufferViews"].append({"buffer": 0, "byteOffset": 36, "byteLength": 12})
     doc["accessors"].append({"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"})
     doc["meshes"][0]["primitives"][0]["indices"] = 1
-    doc["bufferViews"].append({"buffer": 0, "byteOffset": 1 << 40, "byteLength": 36, "byteStride": 1})
-    doc["accessors"].append({"bufferView": 2, "componentType": 5126, "count": 3, "type": "VEC3",
-                             "byteOffset": 1 << 40})
-    doc["meshes"].append({"primitives": [{"attributes": {"POSITION": 2}}]})
     indices = struct.pack("<III", 0, 1, 4_000_000_000)
-    points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4").tobytes()
-    return inspect(box.file("ranges.glb", glb_file(doc, points[:24] + indices)))
+    return inspect(box.file("ranges.glb", glb_file(doc, TRIANGLE + indices)), "either",
+                   check_output=refused_for("ranges.glb", "index"))
 
 
-@attack("mesh", ".gltf buffers: http://127.0.0.1:9, file:///etc/passwd, /etc/passwd, a bad data URI")
-def _gltf_uris(box: Box) -> Spec:
-    doc = gltf_doc([{"mesh": 0, "name": "chair_1"}], uri="http://127.0.0.1:9/buf.bin")
-    for uri in ("file:///etc/passwd", "/etc/passwd", "data:application/octet-stream;base64,!!!" + "A" * 100):
-        doc["buffers"].append({"byteLength": 36, "uri": uri})
-        doc["bufferViews"].append({"buffer": len(doc["buffers"]) - 1, "byteOffset": 0, "byteLength": 36})
-    return inspect(box.file("uris.gltf", json.dumps(doc)))
+@attack("mesh", ".glb: a buffer view 1 TB past its buffer")
+def _glb_view_past(box: Box) -> Spec:
+    doc = gltf_doc([{"mesh": 0, "name": "chair_1"}])
+    doc["bufferViews"][0]["byteOffset"] = 1 << 40
+    return inspect(box.file("ranges.glb", glb_file(doc, TRIANGLE)),
+                   check_output=refused_for("ranges.glb", "cannot read mesh file"))
+
+
+@attack("mesh", ".glb: a buffer view of stride 1")
+def _glb_stride(box: Box) -> Spec:
+    doc = gltf_doc([{"mesh": 0, "name": "chair_1"}])
+    doc["bufferViews"][0]["byteStride"] = 1
+    return inspect(box.file("ranges.glb", glb_file(doc, TRIANGLE)), "either",
+                   check_output=refused_for("ranges.glb", "stride"))
+
+
+def _gltf_uri(box: Box, uri: str, expect: Expect, check: Callable[[str], str | None]) -> Spec:
+    doc = gltf_doc([{"mesh": 0, "name": "chair_1"}], uri=uri)
+    doc["buffers"][0]["byteLength"] = 36
+    return inspect(box.file("uris.gltf", json.dumps(doc)), expect, check)
+
+
+@attack("mesh", ".gltf buffer http://127.0.0.1:9/buf.bin")
+def _gltf_http(box: Box) -> Spec:
+    uri = "http://127.0.0.1:9/buf.bin"
+    return _gltf_uri(box, uri, "bad", refused_for(uri, "not found"))
+
+
+@attack("mesh", ".gltf buffer file:///etc/passwd")
+def _gltf_file_uri(box: Box) -> Spec:
+    return _gltf_uri(box, "file:///etc/passwd", "bad", refused_for("file:///etc/passwd", "not found"))
+
+
+@attack("mesh", ".gltf buffer /etc/passwd")
+def _gltf_absolute(box: Box) -> Spec:
+    return _gltf_uri(box, "/etc/passwd", "bad", refused_for("/etc/passwd", "outside its folder"))
+
+
+@attack("mesh", ".gltf buffer: a data URI that is not base64")
+def _gltf_bad_data(box: Box) -> Spec:
+    uri = "data:application/octet-stream;base64,!!!" + "A" * 100
+    return _gltf_uri(box, uri, "either", refused_for("uris.gltf"))
 
 
 @attack("mesh", ".gltf buffer: a 40 MB data URI claiming 36 bytes")
@@ -194,7 +254,7 @@ def _gltf_data_uri(box: Box) -> Spec:
     doc = gltf_doc([{"mesh": 0, "name": "chair_1"}], uri="data:application/octet-stream;base64," + data)
     # glTF 2.0 (3.6.1.1): a buffer's resource may be longer than its byteLength; the file is valid,
     # the attack is its cost (the mesh file's cap bounds it)
-    return inspect(box.file("data.gltf", json.dumps(doc)), "either")
+    return inspect(box.file("data.gltf", json.dumps(doc)), "either", check_output=shown("data: 1 objects"))
 
 
 def _objects(count: int, name: str | None = None, label: str = "chair") -> list[dict[str, Any]]:
@@ -210,27 +270,43 @@ def _scene(objects: list[dict[str, Any]], **extra: Any) -> str:
 
 @attack("scene", "two objects both named chair_1 (one would be lost)")
 def _scene_same_name(box: Box) -> Spec:
-    return inspect(box.file("same.json", _scene(_objects(2, name="chair_1"))))
+    return inspect(box.file("same.json", _scene(_objects(2, name="chair_1"))), "bad",
+                   refused_for("chair_1", "duplicate"))
 
 
-@attack("scene", "bounds_min past bounds_max and a box of size 5e-324")
+@attack("scene", "bounds_min past bounds_max")
 def _scene_bounds(box: Box) -> Spec:
+    text = _scene(_objects(2), bounds_min=[10, 10], bounds_max=[0, 0])
+    return inspect(box.file("bounds.json", text), "bad",
+                   refused_for("bounds_max must be greater than bounds_min"))
+
+
+@attack("scene", "a box of size 5e-324")
+def _scene_tiny_box(box: Box) -> Spec:
     objects = _objects(2)
     objects[1]["size"] = [5e-324, 5e-324, 5e-324]
-    return inspect(box.file("bounds.json", _scene(objects, bounds_min=[10, 10], bounds_max=[0, 0])))
+    return inspect(box.file("tiny.json", _scene(objects)), "either", shown("s: 2 objects"))
 
 
-@attack("scene", "an object name of 1 MB and a label of 10,000 combining marks")
-def _scene_long_names(box: Box) -> Spec:
+@attack("scene", "an object name of 1 MB")
+def _scene_long_name(box: Box) -> Spec:
     objects = _objects(2)
     objects[0]["name"] = "chair_" + "9" * 1_000_000
+    return inspect(box.file("long.json", _scene(objects)), "bad", refused_for("field 'name'"))
+
+
+@attack("scene", "a label of 10,000 combining marks")
+def _scene_long_label(box: Box) -> Spec:
+    objects = _objects(2)
     objects[1]["label"] = "a" + "\u0301" * 10_000
-    return inspect(box.file("long.json", _scene(objects)))
+    objects[1]["name"] = objects[1]["label"] + "_2"
+    return inspect(box.file("long.json", _scene(objects)), "bad", refused_for("field 'label'"))
 
 
 @attack("scene", "overlong UTF-8 (C0 AF) in a name")
 def _scene_overlong(box: Box) -> Spec:
-    return inspect(box.file("overlong.json", _scene(_objects(1)).encode().replace(b"chair_1", b"chair\xc0\xaf1")))
+    text = _scene(_objects(1)).encode().replace(b"chair_1", b"chair\xc0\xaf1")
+    return inspect(box.file("overlong.json", text), "bad", refused_for("overlong.json", "UTF-8"))
 
 
 @attack("config", "inline tables nested 50,000 deep")

@@ -42,6 +42,7 @@ from storyteller.benchmark.hostile import (
     costs,
     folder_files,
     inputs,
+    meshes,
     models,
     outputs,
     record_values,
@@ -55,7 +56,7 @@ from storyteller.benchmark.hostile.judging import Outcome, digest, judge, run_co
 from storyteller.benchmark.hostile.viewer import VIEWER_KIND, run_viewer
 from storyteller.benchmark.motion_metrics.scripted_story import build_story
 
-ATTACKS: list[Attack] = [*run_folders.ATTACKS, *outputs.ATTACKS, *scenes.ATTACKS, *inputs.ATTACKS,
+ATTACKS: list[Attack] = [*run_folders.ATTACKS, *outputs.ATTACKS, *scenes.ATTACKS, *meshes.ATTACKS, *inputs.ATTACKS,
                          *sweeps.ATTACKS, *models.ATTACKS, *folder_files.ATTACKS, *record_values.ATTACKS,
                          *costs.ATTACKS]
 """Every attack but the viewer's (:func:`run_viewer`), by target."""
