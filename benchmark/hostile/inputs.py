@@ -16,6 +16,7 @@ from storyteller.benchmark.hostile.harness import (
     Expect,
     Spec,
     deep_json,
+    refused_for,
     registrar,
 )
 
@@ -136,11 +137,14 @@ def _program_big(box: Box) -> Spec:
 
 @attack("program", "--states with 10,000 characters named with bidi and 100 KB names")
 def _program_states_names(box: Box) -> Spec:
-    states = {"current_states": {f"Zoe{i}" + BIDI + "n" * 10: {"position": [1.0, 1.0], "action": "idle"}
-                                 for i in range(10_000)}}
-    states["current_states"]["x" * 100_000] = {"position": [1.0, 1.0]}
+    """A world view (``characters``) valid but for its names: the program's unknown character is
+    answered with the names, which must be shown escaped. (A reference ``current_states`` was a
+    mapping, not its list, and one of 10,001 keys: refused before any name was read.)"""
+    names = [f"Zoe{i}" + BIDI + "n" * 10 for i in range(9_999)] + ["x" * 100_000]
+    states = {"characters": [{"name": name, "position": [1.0, 1.0], "action": "idle"} for name in names]}
     spec = program_run(box.file("prog.py", CLEAN_PROGRAM), "program")
     spec.argv += ["--states", str(box.file("states.json", json.dumps(states)))]
+    spec.check_output = refused_for("unknown character 'Zoe'", "Zoe0\\u202e\\u2066\\x1b[31m")
     return spec
 
 

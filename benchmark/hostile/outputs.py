@@ -26,9 +26,11 @@ from storyteller.benchmark.hostile.harness import (
     deep_json,
     export,
     html_clean,
+    refused_for,
     registrar,
     replay,
     resume,
+    shown,
     zip_bomb_npz,
 )
 
@@ -113,10 +115,13 @@ def _trace_nan(box: Box) -> Spec:
 def _trace_instruction(box: Box) -> Spec:
     path, records = _trace_records(box)
     records.insert(1, {"run_id": records[0]["run_id"], "seq": 100, "time_unix": 0.0, "kind": "instruction",
-                       "text": "sit down" + BIDI + "\ud800" + "x" * 1_000_000, "source": "script" + BIDI,
+                       "text": "sit down" + BIDI + "x" * 1_000_000, "source": "script" + BIDI,
                        "sim_frame": 1})
     path.write_text("".join(json.dumps(r) + "\n" for r in records), encoding="utf-8")
-    return replay(box, "either")
+    # (with a lone surrogate in the text the record was refused as JSON, before anything printed it)
+    spec = replay(box, "either")
+    spec.check_output = shown("instruction (replay): sit down\\u202e\\u2066\\x1b[31m\\x07\\u200b\\u2028xxx")
+    return spec
 
 
 @attack("trace", "500,000 records (75 MB) of run lines")
@@ -163,11 +168,18 @@ def _story_link(box: Box) -> Spec:
 
 @attack("story.jsonl", "a 40 MB line (export)")
 def _stream_long(box: Box) -> Spec:
+    """An event line valid but for its 40 MB text (a line of no event was refused at its missing
+    ``event``, after it was read and before anything the text costs)."""
     run = box.copy_run()
     (run / "story.json").unlink()  # a live run: the viewer reads the stream
-    with open(run / "story.jsonl", "ab") as f:
-        f.write(b'{"kind": "event", "x": "' + b"b" * 40_000_000 + b'"}\n')
-    return export(box, "either")
+    lines = (run / "story.jsonl").read_text(encoding="utf-8").splitlines()
+    event = json.loads(next(line for line in lines if '"kind": "event"' in line))
+    event["event"]["text"] = "b" * 40_000_000
+    with open(run / "story.jsonl", "a", encoding="utf-8") as f:
+        f.write(json.dumps(event) + "\n")
+    spec = export(box, "either")
+    spec.check_output = refused_for("story.jsonl", "field 'event.text'")  # a refusal must be for the text
+    return spec
 
 
 @attack("story.jsonl", "1,000,000 event lines (export)")

@@ -390,8 +390,11 @@ def _bench_traces(box: Box) -> Spec:
 
 @attack("program", "--states with positions 1e308 and 5e-324, facing [0, 0]")
 def _states_edges(box: Box) -> Spec:
-    states = {"current_states": {"Zoe": {"position": [1e308, 5e-324], "facing": [0.0, 0.0], "action": "idle"}}}
+    """A world view (``characters``) valid but for Zoe's numbers (a reference ``current_states``
+    holds area texts in a list: the mapping of numbers it was given was refused unread)."""
+    states = {"characters": [{"name": "Zoe", "position": [1e308, 5e-324], "facing": [0.0, 0.0], "action": "idle"}]}
     spec = program_run(box.file("prog.py", 'def parse_event():\n    get_character("Zoe").set_target_action("sit")\n'),
                        "program")
     spec.argv += ["--states", str(box.file("states.json", json.dumps(states)))]
+    spec.check_output = refused_for("states.json", "characters.0")
     return spec

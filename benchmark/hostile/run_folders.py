@@ -18,6 +18,7 @@ from storyteller.benchmark.hostile.harness import (
     Reduce,
     Spec,
     deep_json,
+    refused_for,
     registrar,
     replay,
     resume,
@@ -119,9 +120,14 @@ def _runjson_huge(box: Box) -> Spec:
 
 @attack("run.json", "scene -> /dev/zero")
 def _runjson_scene_zero(box: Box) -> Spec:
+    """The scene a link named like a scene file (``/dev/zero`` itself was refused for its name,
+    before it was opened)."""
     run = box.copy_run()
-    box.edit_json(run / "run.json", lambda v: {**v, "scene_name": "/dev/zero", "arguments": {**v["arguments"], "scene": "/dev/zero"}})
-    return replay(box)
+    zero = str(box.link(box.root / "zero.json", "/dev/zero"))
+    box.edit_json(run / "run.json", lambda v: {**v, "scene_name": zero, "arguments": {**v["arguments"], "scene": zero}})
+    spec = replay(box)
+    spec.check_output = refused_for("zero.json", "not a regular file")
+    return spec
 
 
 @attack("run.json", "thread id and instruction with escapes, bidi, lone surrogate")
