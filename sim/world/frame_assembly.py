@@ -4,7 +4,8 @@
 from its phase, root and heading, the planned future of a walker, the target of its action),
 steps the motion layer (batched when it has ``step_batch`` (poses as arrays) or ``step_many``,
 with the same result as one by one), puts each pose on its character's root (``compose_poses``: the pelvis stays where the
-world put the root), runs the leg IK when the world has a foot solver, places the working hands and swings the other
+world put the root), runs the leg IK when the world has a foot solver (feet out of furniture and pinned, then the legs of
+different characters kept apart: ``storyteller.sim.body.leg_separation``), places the working hands and swings the other
 arms out of the furniture (``storyteller.sim.world.arm_room``), and appends one row per
 character to the track buffers. A character's root is never moved by the motion layer:
 walkers take the navigator's position, everyone else the point its phase puts it on
@@ -24,6 +25,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from storyteller.sim.body.foot_ik import FootSolver, FootState
+from storyteller.sim.body.leg_separation import TOUCHING_ACTIONS, separate_legs
 from storyteller.sim.body.skeleton import NUM_JOINTS
 from storyteller.sim.motion.action_labels import action_spec, database_key
 from storyteller.sim.paths.tracks import walker_headings
@@ -138,8 +140,10 @@ def write_frame(w: MotionWorld, horizon: Sequence[int]) -> None:
              and c.assignment.seat is not None else None for c, h in zip(chars, seat_h, strict=True)]
     pelvis, rots = seat_pelvis(chars, labels, seated_l, seat_h, pelvis, rots, w.scene.floor_z, seats, w.scene.objects)
     if w.foot_solver is not None and w.feet is not None:
-        rots, w.feet = w.foot_solver.apply(pelvis, rots, contacts, w.feet, active=~np.array(still_feet),
+        active = ~np.array(still_feet)
+        rots, w.feet = w.foot_solver.apply(pelvis, rots, contacts, w.feet, active=active,
                                            pinned=np.array(seat_transit))
+        rots, _ = separate_legs(pelvis, rots, active, np.array([q.label in TOUCHING_ACTIONS for q in queries]))
     rots = hand_targets(w.scene.by_name, chars, pelvis, rots, 1.0 / dt)
     rules = [arm_rules(c) for c in chars]
     rots = arms_clear(w.arm_boxes, pelvis, rots, [r[0] for r in rules], [r[1] for r in rules])

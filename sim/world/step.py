@@ -112,7 +112,8 @@ class WorldConfig:
     assignment (``out_of_reach``); initial_capacity: frames pre-allocated per track; foot_ik: run the
     leg IK (``sim.body.foot_ik.FootSolver``) on every frame's poses: feet kept out of floor-standing
     furniture and pinned while in contact (characters sitting, sitting down or standing up are
-    left as animated)."""
+    left as animated), then the legs of different characters kept apart
+    (``sim.body.leg_separation``)."""
 
     fps: int = 30
     seed: int = 0
