@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from storyteller.sim.body.foot_kernel import TOE_FLOOR_M
+from storyteller.sim.body.foot_kernel import TOE_FLOOR_M, _affine_into, _matmul3_into
 from storyteller.sim.body.leg_ik import (
     _ANKLE_OFF,
     _HIP_OFF,
@@ -216,29 +216,13 @@ def _leg_kinematics(pelvis: NDArray[np.float64], rots: NDArray[np.float64], near
                 continue
             done[c] = True
             for leg in range(2):
-                _matmul3(rots[c, 0], rots[c, _HIP_J[leg]], frames[c, leg, 0])
-                _matmul3(frames[c, leg, 0], rots[c, _KNEE_J[leg]], frames[c, leg, 1])
-                _matmul3(frames[c, leg, 1], rots[c, _ANKLE_J[leg]], frames[c, leg, 2])
-                _place(pelvis[c], rots[c, 0], _HIP_OFF[leg], legs[c, leg, 0])
-                _place(legs[c, leg, 0], frames[c, leg, 0], _KNEE_OFF[leg], legs[c, leg, 1])
-                _place(legs[c, leg, 1], frames[c, leg, 1], _ANKLE_OFF[leg], legs[c, leg, 2])
-                _place(legs[c, leg, 2], frames[c, leg, 2], _TOE_OFF[leg], legs[c, leg, 3])
-
-
-@njit(cache=True)
-def _place(p: NDArray[np.float64], r: NDArray[np.float64], v: NDArray[np.float64],
-           out: NDArray[np.float64]) -> None:  # pragma: no cover - compiled
-    """``out = p + r @ v``."""
-    for i in range(3):
-        out[i] = p[i] + r[i, 0] * v[0] + r[i, 1] * v[1] + r[i, 2] * v[2]
-
-
-@njit(cache=True)
-def _matmul3(a: NDArray[np.float64], b: NDArray[np.float64], out: NDArray[np.float64]) -> None:  # pragma: no cover
-    """``out = a @ b`` (3 x 3)."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+                _matmul3_into(rots[c, 0], rots[c, _HIP_J[leg]], frames[c, leg, 0])
+                _matmul3_into(frames[c, leg, 0], rots[c, _KNEE_J[leg]], frames[c, leg, 1])
+                _matmul3_into(frames[c, leg, 1], rots[c, _ANKLE_J[leg]], frames[c, leg, 2])
+                _affine_into(pelvis[c], rots[c, 0], _HIP_OFF[leg], legs[c, leg, 0])
+                _affine_into(legs[c, leg, 0], frames[c, leg, 0], _KNEE_OFF[leg], legs[c, leg, 1])
+                _affine_into(legs[c, leg, 1], frames[c, leg, 1], _ANKLE_OFF[leg], legs[c, leg, 2])
+                _affine_into(legs[c, leg, 2], frames[c, leg, 2], _TOE_OFF[leg], legs[c, leg, 3])
 
 
 @njit(cache=True)
